@@ -1,0 +1,348 @@
+//! Compiles every `glsl/**/*.comp` to SPIR-V (Vulkan 1.2, optimised) with shaderc and
+//! generates `$OUT_DIR/shaders.rs`: one `ShaderBlob` constant per kernel variant, with
+//! the bindings, specialization constants and workgroup size reflected from the SPIR-V.
+//!
+//! Variants: a line `//! variant NAME DEF[=VALUE] ...` in a kernel adds a variant compiled
+//! with those macro definitions. A kernel without such lines compiles once. Kernel names
+//! mirror the path: `glsl/prims/scan.comp` is `prims.scan`, its variant `inc` is
+//! `prims.scan.inc`, and the Rust constant is `PRIMS_SCAN_INC`.
+//!
+//! Every shader error is collected and reported (file and line, from the compiler)
+//! before the build fails.
+
+use std::fmt::Write as _;
+use std::path::{Path, PathBuf};
+
+fn main() {
+    let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
+    let glsl = root.join("glsl");
+    println!("cargo:rerun-if-changed=glsl");
+    let mut files = Vec::new();
+    collect_files(&glsl, &mut files);
+    files.sort();
+    for f in &files {
+        println!("cargo:rerun-if-changed={}", f.display());
+    }
+
+    let compiler = shaderc::Compiler::new().expect("shaderc: cannot create a compiler");
+    let mut errors = Vec::new();
+    let mut blobs = Vec::new();
+    for file in files.iter().filter(|f| f.extension().is_some_and(|e| e == "comp")) {
+        let rel = file.strip_prefix(&root).unwrap().to_string_lossy().replace('\\', "/");
+        let source = match std::fs::read_to_string(file) {
+            Ok(s) => s,
+            Err(e) => {
+                errors.push(format!("{rel}: cannot read: {e}"));
+                continue;
+            }
+        };
+        let base = kernel_base_name(file.strip_prefix(&glsl).unwrap());
+        for variant in parse_variants(&source, &rel, &mut errors) {
+            let name = match &variant.name {
+                Some(v) => format!("{base}.{v}"),
+                None => base.clone(),
+            };
+            match compile(&compiler, &glsl, &source, &rel, &variant.defines) {
+                Ok(words) => match reflect(&words) {
+                    Ok(info) => blobs.push(Blob {
+                        name,
+                        source: rel.clone(),
+                        defines: variant.defines.clone(),
+                        words,
+                        info,
+                    }),
+                    Err(e) => errors.push(format!("{rel} ({name}): {e}")),
+                },
+                Err(e) => errors.push(format!("{rel} ({name}):\n{e}")),
+            }
+        }
+    }
+    if !errors.is_empty() {
+        for e in &errors {
+            eprintln!("{e}\n");
+        }
+        panic!(
+            "{} shader error(s); messages above (file:line: error: ...)",
+            errors.len()
+        );
+    }
+    let out = PathBuf::from(std::env::var("OUT_DIR").unwrap()).join("shaders.rs");
+    std::fs::write(out, generate(&blobs)).expect("cannot write shaders.rs");
+}
+
+fn collect_files(dir: &Path, out: &mut Vec<PathBuf>) {
+    let Ok(entries) = std::fs::read_dir(dir) else {
+        return;
+    };
+    for entry in entries.flatten() {
+        let path = entry.path();
+        if path.is_dir() {
+            collect_files(&path, out);
+        } else {
+            out.push(path);
+        }
+    }
+}
+
+fn kernel_base_name(rel: &Path) -> String {
+    let no_ext = rel.with_extension("");
+    no_ext
+        .components()
+        .map(|c| c.as_os_str().to_string_lossy().into_owned())
+        .collect::<Vec<_>>()
+        .join(".")
+}
+
+struct Variant {
+    name: Option<String>,
+    defines: Vec<(String, String)>,
+}
+
+fn parse_variants(source: &str, rel: &str, errors: &mut Vec<String>) -> Vec<Variant> {
+    let mut variants = Vec::new();
+    for (line_no, line) in source.lines().enumerate() {
+        let Some(rest) = line.trim().strip_prefix("//! variant") else {
+            continue;
+        };
+        let mut words = rest.split_whitespace();
+        let Some(name) = words.next() else {
+            errors.push(format!("{rel}:{}: `//! variant` needs a name", line_no + 1));
+            continue;
+        };
+        if !name.chars().all(|c| c.is_ascii_alphanumeric() || c == '_') {
+            errors.push(format!("{rel}:{}: bad variant name `{name}`", line_no + 1));
+            continue;
+        }
+        let defines = words
+            .map(|w| match w.split_once('=') {
+                Some((k, v)) => (k.to_string(), v.to_string()),
+                None => (w.to_string(), "1".to_string()),
+            })
+            .collect();
+        variants.push(Variant {
+            name: Some(name.to_string()),
+            defines,
+        });
+    }
+    if variants.is_empty() {
+        variants.push(Variant {
+            name: None,
+            defines: Vec::new(),
+        });
+    }
+    variants
+}
+
+fn compile(
+    compiler: &shaderc::Compiler,
+    glsl: &Path,
+    source: &str,
+    rel: &str,
+    defines: &[(String, String)],
+) -> Result<Vec<u32>, String> {
+    let mut options = shaderc::CompileOptions::new().map_err(|e| e.to_string())?;
+    options.set_target_env(
+        shaderc::TargetEnv::Vulkan,
+        shaderc::EnvVersion::Vulkan1_2 as u32,
+    );
+    options.set_target_spirv(shaderc::SpirvVersion::V1_5);
+    options.set_optimization_level(shaderc::OptimizationLevel::Performance);
+    options.set_warnings_as_errors();
+    for (k, v) in defines {
+        options.add_macro_definition(k, Some(v));
+    }
+    let glsl = glsl.to_path_buf();
+    options.set_include_callback(move |name, kind, requester, _depth| {
+        // `#include "x"` resolves next to the requesting file first, then from glsl/.
+        let mut candidates = Vec::new();
+        if kind == shaderc::IncludeType::Relative {
+            if let Some(dir) = Path::new(requester).parent() {
+                candidates.push(dir.join(name));
+            }
+        }
+        candidates.push(glsl.join(name));
+        for path in candidates {
+            if let Ok(content) = std::fs::read_to_string(&path) {
+                let root = glsl.parent().unwrap();
+                let shown = path.strip_prefix(root).unwrap_or(&path);
+                return Ok(shaderc::ResolvedInclude {
+                    resolved_name: shown.to_string_lossy().into_owned(),
+                    content,
+                });
+            }
+        }
+        Err(format!("cannot find include `{name}` (looked beside {requester} and in glsl/)"))
+    });
+    let artifact = compiler
+        .compile_into_spirv(
+            source,
+            shaderc::ShaderKind::Compute,
+            rel,
+            "main",
+            Some(&options),
+        )
+        .map_err(|e| e.to_string())?;
+    Ok(artifact.as_binary().to_vec())
+}
+
+#[derive(Default)]
+struct Reflection {
+    bindings: Vec<u32>,
+    spec_constants: Vec<(u32, u32)>,
+    local_size: [u32; 3],
+    local_size_spec_ids: [Option<u32>; 3],
+    push_constants: bool,
+}
+
+/// A minimal SPIR-V reader: just enough to check and describe a kernel's interface.
+fn reflect(words: &[u32]) -> Result<Reflection, String> {
+    const OP_EXECUTION_MODE: u32 = 16;
+    const OP_SPEC_CONSTANT_TRUE: u32 = 48;
+    const OP_SPEC_CONSTANT_FALSE: u32 = 49;
+    const OP_SPEC_CONSTANT: u32 = 50;
+    const OP_SPEC_CONSTANT_COMPOSITE: u32 = 51;
+    const OP_VARIABLE: u32 = 59;
+    const OP_DECORATE: u32 = 71;
+    const DEC_SPEC_ID: u32 = 1;
+    const DEC_BUILTIN: u32 = 11;
+    const DEC_BINDING: u32 = 33;
+    const DEC_SET: u32 = 34;
+    const BUILTIN_WORKGROUP_SIZE: u32 = 25;
+    const MODE_LOCAL_SIZE: u32 = 17;
+    const SC_UNIFORM_CONSTANT: u32 = 0;
+    const SC_UNIFORM: u32 = 2;
+    const SC_PUSH_CONSTANT: u32 = 9;
+    const SC_STORAGE_BUFFER: u32 = 12;
+
+    if words.len() < 5 || words[0] != 0x0723_0203 {
+        return Err("not SPIR-V".into());
+    }
+    let mut r = Reflection::default();
+    let mut binding = std::collections::HashMap::new();
+    let mut set = std::collections::HashMap::new();
+    let mut spec_id = std::collections::HashMap::new();
+    let mut spec_default = std::collections::HashMap::new();
+    let mut workgroup_size_id = None;
+    let mut composites = std::collections::HashMap::new();
+    let mut variables = Vec::new();
+    let mut i = 5;
+    while i < words.len() {
+        let count = (words[i] >> 16) as usize;
+        let op = words[i] & 0xffff;
+        if count == 0 || i + count > words.len() {
+            return Err("truncated SPIR-V".into());
+        }
+        let w = &words[i..i + count];
+        match op {
+            OP_DECORATE if count >= 4 => match w[2] {
+                DEC_BINDING => {
+                    binding.insert(w[1], w[3]);
+                }
+                DEC_SET => {
+                    set.insert(w[1], w[3]);
+                }
+                DEC_SPEC_ID => {
+                    spec_id.insert(w[1], w[3]);
+                }
+                DEC_BUILTIN if w[3] == BUILTIN_WORKGROUP_SIZE => workgroup_size_id = Some(w[1]),
+                _ => {}
+            },
+            OP_EXECUTION_MODE if count >= 6 && w[2] == MODE_LOCAL_SIZE => {
+                r.local_size = [w[3], w[4], w[5]];
+            }
+            OP_SPEC_CONSTANT if count >= 4 => {
+                spec_default.insert(w[2], w[3]);
+            }
+            OP_SPEC_CONSTANT_TRUE | OP_SPEC_CONSTANT_FALSE if count >= 3 => {
+                spec_default.insert(w[2], u32::from(op == OP_SPEC_CONSTANT_TRUE));
+            }
+            OP_SPEC_CONSTANT_COMPOSITE if count >= 6 => {
+                composites.insert(w[2], [w[3], w[4], w[5]]);
+            }
+            OP_VARIABLE if count >= 4 => variables.push((w[2], w[3])),
+            _ => {}
+        }
+        i += count;
+    }
+    for (id, class) in variables {
+        match class {
+            SC_STORAGE_BUFFER => {
+                if set.get(&id).copied().unwrap_or(0) != 0 {
+                    return Err("only descriptor set 0 is supported".into());
+                }
+                let b = *binding.get(&id).ok_or("storage buffer without a binding")?;
+                r.bindings.push(b);
+            }
+            SC_PUSH_CONSTANT => r.push_constants = true,
+            SC_UNIFORM | SC_UNIFORM_CONSTANT if binding.contains_key(&id) => {
+                return Err("kernels may bind only storage buffers (std430 `buffer` blocks)".into());
+            }
+            _ => {}
+        }
+    }
+    r.bindings.sort_unstable();
+    for (id, sid) in &spec_id {
+        let default = spec_default.get(id).copied().unwrap_or(0);
+        r.spec_constants.push((*sid, default));
+    }
+    r.spec_constants.sort_unstable();
+    if let Some(wg) = workgroup_size_id {
+        if let Some(parts) = composites.get(&wg) {
+            for (axis, part) in parts.iter().enumerate() {
+                if let Some(sid) = spec_id.get(part) {
+                    r.local_size_spec_ids[axis] = Some(*sid);
+                    r.local_size[axis] = spec_default.get(part).copied().unwrap_or(1);
+                }
+            }
+        }
+    }
+    Ok(r)
+}
+
+struct Blob {
+    name: String,
+    source: String,
+    defines: Vec<(String, String)>,
+    words: Vec<u32>,
+    info: Reflection,
+}
+
+fn generate(blobs: &[Blob]) -> String {
+    let mut s = String::from("// Generated by build.rs from glsl/. Do not edit.\n\n");
+    for b in blobs {
+        let ident = rust_ident(&b.name);
+        let _ = writeln!(s, "/// `{}` compiled from `{}`.", b.name, b.source);
+        let _ = writeln!(s, "pub static {ident}: ShaderBlob = ShaderBlob {{");
+        let _ = writeln!(s, "    name: {:?},", b.name);
+        let _ = writeln!(s, "    source: {:?},", b.source);
+        let _ = writeln!(s, "    defines: &{:?},", b.defines.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect::<Vec<_>>());
+        let _ = writeln!(s, "    bindings: &{:?},", b.info.bindings);
+        let _ = writeln!(s, "    spec_constants: &{:?},", b.info.spec_constants);
+        let _ = writeln!(s, "    local_size: {:?},", b.info.local_size);
+        let _ = writeln!(s, "    local_size_spec_ids: {:?},", b.info.local_size_spec_ids);
+        let _ = writeln!(s, "    push_constants: {},", b.info.push_constants);
+        s.push_str("    spirv: &[");
+        for (i, w) in b.words.iter().enumerate() {
+            if i % 8 == 0 {
+                s.push_str("\n        ");
+            }
+            let _ = write!(s, "{w:#010x}, ");
+        }
+        s.push_str("\n    ],\n};\n\n");
+    }
+    s.push_str("/// Every kernel variant, sorted by name.\npub static ALL: &[&ShaderBlob] = &[\n");
+    let mut names: Vec<_> = blobs.iter().map(|b| &b.name).collect();
+    names.sort();
+    for n in names {
+        let ident = rust_ident(n);
+        let _ = writeln!(s, "    &{ident},");
+    }
+    s.push_str("];\n");
+    s
+}
+
+fn rust_ident(name: &str) -> String {
+    name.chars()
+        .map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_uppercase() } else { '_' })
+        .collect()
+}

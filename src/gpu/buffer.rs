@@ -1,0 +1,268 @@
+//! Typed storage buffers on gpu-allocator.
+//!
+//! `Buffer<T>` is device-local storage usable by kernels, copies, fills and indirect
+//! dispatch. Uploads and downloads go through a host-visible staging buffer and a one-off
+//! submission; that is correct on every device (on lavapipe all memory is host memory,
+//! but we do not depend on it).
+
+use std::marker::PhantomData;
+
+use ash::vk;
+use bytemuck::Pod;
+use gpu_allocator::vulkan::{Allocation, AllocationCreateDesc, AllocationScheme};
+use gpu_allocator::MemoryLocation;
+
+use super::context::Context;
+use super::error::{vk_err, GpuError, Result};
+use super::recorder::Recorder;
+
+/// Anything a kernel can bind or a command can read or write: a whole [`Buffer`] or a
+/// caller-owned range ([`RawBuffer`]).
+pub trait BufferArg {
+    fn raw(&self) -> vk::Buffer;
+    fn offset(&self) -> u64;
+    /// Size in bytes of the bound range (at least 4, as Vulkan wants non-empty ranges).
+    fn range(&self) -> u64;
+}
+
+/// A range of a buffer that the embedding renderer owns; vkrt never frees it.
+#[derive(Clone, Copy, Debug)]
+pub struct RawBuffer {
+    pub raw: vk::Buffer,
+    pub offset: u64,
+    pub size: u64,
+}
+
+impl BufferArg for RawBuffer {
+    fn raw(&self) -> vk::Buffer {
+        self.raw
+    }
+    fn offset(&self) -> u64 {
+        self.offset
+    }
+    fn range(&self) -> u64 {
+        self.size
+    }
+}
+
+/// Where a buffer lives.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Memory {
+    /// Device-local: what kernels read and write.
+    Device,
+    /// Host-visible, for uploads (staging).
+    Upload,
+    /// Host-visible and cached, for downloads (read-back).
+    Readback,
+}
+
+/// A typed buffer of `len` elements of `T`.
+pub struct Buffer<T: Pod> {
+    ctx: Context,
+    pub(crate) raw: vk::Buffer,
+    allocation: Option<Allocation>,
+    len: usize,
+    bytes: u64,
+    name: String,
+    memory: Memory,
+    _marker: PhantomData<T>,
+}
+
+impl<T: Pod> BufferArg for Buffer<T> {
+    fn raw(&self) -> vk::Buffer {
+        self.raw
+    }
+    fn offset(&self) -> u64 {
+        0
+    }
+    fn range(&self) -> u64 {
+        self.bytes
+    }
+}
+
+impl<T: Pod> std::fmt::Debug for Buffer<T> {
+    fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
+        write!(f, "Buffer<{}>(`{}`, {} elements, {:?})", std::any::type_name::<T>(), self.name, self.len, self.memory)
+    }
+}
+
+impl<T: Pod> Buffer<T> {
+    /// A device-local buffer of `len` elements with undefined contents.
+    pub fn new(ctx: &Context, name: &str, len: usize) -> Result<Self> {
+        Self::with_memory(ctx, name, len, Memory::Device)
+    }
+
+    /// A buffer of `len` elements in the given memory.
+    pub fn with_memory(ctx: &Context, name: &str, len: usize, memory: Memory) -> Result<Self> {
+        let elem = std::mem::size_of::<T>() as u64;
+        let wanted = (len as u64).checked_mul(elem).ok_or_else(|| GpuError::BufferTooLarge {
+            name: name.into(),
+            bytes: u64::MAX,
+            limit: ctx.info().max_storage_buffer_range,
+        })?;
+        let limit = ctx.info().max_storage_buffer_range;
+        if memory == Memory::Device && wanted > limit {
+            return Err(GpuError::BufferTooLarge { name: name.into(), bytes: wanted, limit });
+        }
+        // Vulkan forbids empty buffers; an empty one gets 4 bytes and len 0.
+        let bytes = wanted.max(4).next_multiple_of(4);
+        let usage = vk::BufferUsageFlags::STORAGE_BUFFER
+            | vk::BufferUsageFlags::TRANSFER_SRC
+            | vk::BufferUsageFlags::TRANSFER_DST
+            | vk::BufferUsageFlags::INDIRECT_BUFFER;
+        let device = &ctx.inner.device;
+        let create = vk::BufferCreateInfo::default()
+            .size(bytes)
+            .usage(usage)
+            .sharing_mode(vk::SharingMode::EXCLUSIVE);
+        // SAFETY: valid device and create-info; the buffer is destroyed on every error path.
+        let raw = unsafe { device.create_buffer(&create, None) }.map_err(vk_err("vkCreateBuffer"))?;
+        // SAFETY: `raw` was just created on this device.
+        let requirements = unsafe { device.get_buffer_memory_requirements(raw) };
+        let location = match memory {
+            Memory::Device => MemoryLocation::GpuOnly,
+            Memory::Upload => MemoryLocation::CpuToGpu,
+            Memory::Readback => MemoryLocation::GpuToCpu,
+        };
+        let allocation = ctx.inner.allocator.lock().unwrap().allocate(&AllocationCreateDesc {
+            name,
+            requirements,
+            location,
+            linear: true,
+            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+        });
+        let allocation = match allocation {
+            Ok(a) => a,
+            Err(e) => {
+                // SAFETY: `raw` is unused.
+                unsafe { device.destroy_buffer(raw, None) };
+                return Err(GpuError::Allocation { name: name.into(), bytes, reason: e.to_string() });
+            }
+        };
+        // SAFETY: the allocation satisfies `requirements` and is not bound to anything else.
+        if let Err(e) = unsafe { device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) } {
+            // SAFETY: `raw` is unused; the allocation goes back to the allocator.
+            unsafe { device.destroy_buffer(raw, None) };
+            let _ = ctx.inner.allocator.lock().unwrap().free(allocation);
+            return Err(vk_err("vkBindBufferMemory")(e));
+        }
+        ctx.set_object_name(raw, name);
+        Ok(Self {
+            ctx: ctx.clone(),
+            raw,
+            allocation: Some(allocation),
+            len,
+            bytes,
+            name: name.into(),
+            memory,
+            _marker: PhantomData,
+        })
+    }
+
+    /// A device-local buffer holding `data`.
+    pub fn from_slice(ctx: &Context, name: &str, data: &[T]) -> Result<Self> {
+        let buffer = Self::new(ctx, name, data.len())?;
+        buffer.upload(data)?;
+        Ok(buffer)
+    }
+
+    /// A device-local buffer of `len` zeroed elements.
+    pub fn zeroed(ctx: &Context, name: &str, len: usize) -> Result<Self> {
+        let buffer = Self::new(ctx, name, len)?;
+        let mut rec = Recorder::new(ctx)?;
+        rec.fill(&buffer, 0);
+        rec.transfer_to_host();
+        rec.submit_and_wait()?;
+        Ok(buffer)
+    }
+
+    pub fn len(&self) -> usize {
+        self.len
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len == 0
+    }
+
+    pub fn name(&self) -> &str {
+        &self.name
+    }
+
+    /// Size of the contents in bytes.
+    pub fn byte_len(&self) -> u64 {
+        (self.len * std::mem::size_of::<T>()) as u64
+    }
+
+    /// Writes `data` at the start of the buffer (through staging for device memory).
+    pub fn upload(&self, data: &[T]) -> Result<()> {
+        if data.len() > self.len {
+            super::error::usage_error(&format!(
+                "upload of {} elements into `{}` of {}",
+                data.len(),
+                self.name,
+                self.len
+            ));
+        }
+        if data.is_empty() {
+            return Ok(());
+        }
+        if self.memory != Memory::Device {
+            self.write_mapped(bytemuck::cast_slice(data));
+            return Ok(());
+        }
+        let staging = Buffer::<T>::with_memory(&self.ctx, "staging.upload", data.len(), Memory::Upload)?;
+        staging.upload(data)?;
+        let mut rec = Recorder::new(&self.ctx)?;
+        rec.copy(&staging, self, data.len());
+        rec.transfer_to_host();
+        rec.submit_and_wait()
+    }
+
+    /// Reads the whole buffer back.
+    pub fn download(&self) -> Result<Vec<T>> {
+        if self.len == 0 {
+            return Ok(Vec::new());
+        }
+        if self.memory != Memory::Device {
+            let bytes = &self.mapped_bytes()[..self.byte_len() as usize];
+            return Ok(bytemuck::pod_collect_to_vec(bytes));
+        }
+        let staging = Buffer::<T>::with_memory(&self.ctx, "staging.readback", self.len, Memory::Readback)?;
+        let mut rec = Recorder::new(&self.ctx)?;
+        rec.compute_to_transfer();
+        rec.copy(self, &staging, self.len);
+        rec.transfer_to_host();
+        rec.submit_and_wait()?;
+        staging.download()
+    }
+
+    fn mapped_bytes(&self) -> &[u8] {
+        let allocation = self.allocation.as_ref().expect("buffer is alive");
+        allocation.mapped_slice().unwrap_or_else(|| super::error::usage_error("host access to device memory"))
+    }
+
+    fn write_mapped(&self, bytes: &[u8]) {
+        let allocation = self.allocation.as_ref().expect("buffer is alive");
+        let ptr = allocation
+            .mapped_ptr()
+            .unwrap_or_else(|| super::error::usage_error("host access to device memory"))
+            .cast::<u8>();
+        assert!(bytes.len() as u64 <= allocation.size());
+        // SAFETY: the mapping covers `allocation.size()` bytes (checked above) for the
+        // buffer's lifetime, and `bytes` is host memory that cannot overlap it. vkrt waits for
+        // its submissions, so no GPU access to this staging buffer is pending.
+        unsafe { std::ptr::copy_nonoverlapping(bytes.as_ptr(), ptr.as_ptr(), bytes.len()) };
+    }
+}
+
+impl<T: Pod> Drop for Buffer<T> {
+    fn drop(&mut self) {
+        // SAFETY: vkrt waits for every submission it makes before returning, so the buffer is
+        // not in use by a pending command buffer of ours; buffers bound into a caller-owned
+        // command buffer must outlive it (documented on `Recorder::from_raw`).
+        unsafe { self.ctx.inner.device.destroy_buffer(self.raw, None) };
+        if let Some(a) = self.allocation.take() {
+            let _ = self.ctx.inner.allocator.lock().unwrap().free(a);
+        }
+    }
+}

@@ -1,0 +1,413 @@
+//! `Context`: the instance, device and queue vkrt works on — created headless here, or
+//! adopted from an embedding renderer that owns them (`Context::from_raw`).
+//!
+//! A `Context` is a cheap clone of an `Arc`; buffers and recorders hold one, so the device
+//! outlives every object made from it. An adopted device is never destroyed by vkrt.
+
+use std::collections::HashMap;
+use std::ffi::{c_char, CStr};
+use std::mem::ManuallyDrop;
+use std::sync::{Arc, Mutex};
+
+use ash::vk;
+use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
+
+use super::error::{vk_err, GpuError, Result};
+use super::info::{self, DeviceFeatures, DeviceInfo};
+use super::kernel::{Kernel, KernelKey};
+use super::pipeline_cache;
+use super::validation::{self, MessageSink, Validation, ValidationMessage};
+
+/// How to create a headless context.
+#[derive(Clone, Debug, Default)]
+pub struct ContextOptions {
+    pub validation: Validation,
+    /// Substring of the device name; `None` reads `VKRT_DEVICE`, else the best device type
+    /// wins (discrete > integrated > virtual > cpu).
+    pub device_name: Option<String>,
+}
+
+impl ContextOptions {
+    /// The options tests use: validation with synchronization validation whenever the layer
+    /// is installed and `VKRT_VALIDATION` is not `0`.
+    pub fn for_tests() -> Self {
+        Self {
+            validation: Validation::FromEnv,
+            device_name: None,
+        }
+    }
+}
+
+/// Handles an embedding renderer already owns, for [`Context::from_raw`].
+pub struct RawParts {
+    pub entry: ash::Entry,
+    pub instance: ash::Instance,
+    pub physical_device: vk::PhysicalDevice,
+    pub device: ash::Device,
+    /// A queue family with compute support, and a queue of it.
+    pub queue_family: u32,
+    pub queue: vk::Queue,
+    /// Features the caller enabled at device creation (vkrt cannot query them).
+    pub enabled_features: DeviceFeatures,
+    /// Whether the instance has `VK_EXT_debug_utils` enabled (for pass labels).
+    pub debug_utils: bool,
+    /// The renderer's own allocator, to share memory blocks; `None` creates one for vkrt.
+    pub allocator: Option<Arc<Mutex<Allocator>>>,
+}
+
+/// A shared handle on a Vulkan device and queue, with an allocator and a kernel cache.
+#[derive(Clone)]
+pub struct Context {
+    pub(crate) inner: Arc<Inner>,
+}
+
+pub(crate) struct Inner {
+    pub(crate) entry: ash::Entry,
+    pub(crate) instance: ash::Instance,
+    pub(crate) physical_device: vk::PhysicalDevice,
+    pub(crate) device: ash::Device,
+    pub(crate) queue: Mutex<vk::Queue>,
+    pub(crate) queue_family: u32,
+    pub(crate) allocator: ManuallyDrop<Arc<Mutex<Allocator>>>,
+    pub(crate) info: DeviceInfo,
+    pub(crate) debug_utils: Option<ash::ext::debug_utils::Device>,
+    pub(crate) pipeline_cache: vk::PipelineCache,
+    pub(crate) kernels: Mutex<HashMap<KernelKey, Arc<Kernel>>>,
+    messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    sink: Box<MessageSink>,
+    owns_device: bool,
+}
+
+impl Context {
+    /// Creates a headless instance and device on the best Vulkan 1.2+ device.
+    pub fn new(options: &ContextOptions) -> Result<Self> {
+        // SAFETY: loading the system Vulkan loader runs its initialisation code; we trust the
+        // installed loader as every Vulkan application must.
+        let entry = unsafe { ash::Entry::load() }.map_err(|e| GpuError::Loader(e.to_string()))?;
+        let sink = Box::<MessageSink>::default();
+        let (instance, validation_on, debug_utils_on) = create_instance(&entry, options, &sink)?;
+        let messenger = if validation_on {
+            let loader = ash::ext::debug_utils::Instance::new(&entry, &instance);
+            let info = validation::messenger_info(&sink);
+            // SAFETY: `instance` is valid and has VK_EXT_debug_utils enabled; `sink` is boxed
+            // and dropped only after the messenger is destroyed (Inner::drop).
+            let raw = unsafe { loader.create_debug_utils_messenger(&info, None) }
+                .map_err(vk_err("vkCreateDebugUtilsMessengerEXT"))?;
+            Some((loader, raw))
+        } else {
+            None
+        };
+        let wanted = options
+            .device_name
+            .clone()
+            .or_else(|| std::env::var("VKRT_DEVICE").ok().filter(|s| !s.is_empty()));
+        let picked = pick_device(&instance, wanted.as_deref());
+        let built = picked.and_then(|(pd, family)| {
+            let features = info::supported_features(&instance, pd);
+            create_device(&instance, pd, family, &features).map(|d| (pd, family, features, d))
+        });
+        let (physical_device, queue_family, features, device) = match built {
+            Ok(v) => v,
+            Err(e) => {
+                // SAFETY: nothing else was created from this instance yet.
+                unsafe {
+                    if let Some((loader, raw)) = &messenger {
+                        loader.destroy_debug_utils_messenger(*raw, None);
+                    }
+                    instance.destroy_instance(None);
+                }
+                return Err(e);
+            }
+        };
+        // SAFETY: the device was created with one queue of `queue_family`.
+        let queue = unsafe { device.get_device_queue(queue_family, 0) };
+        let parts = RawParts {
+            entry,
+            instance,
+            physical_device,
+            device,
+            queue_family,
+            queue,
+            enabled_features: features,
+            debug_utils: debug_utils_on,
+            allocator: None,
+        };
+        Self::assemble(parts, messenger, sink, true)
+    }
+
+    /// Adopts a device that an embedding renderer owns. vkrt never destroys the adopted
+    /// instance, device or allocator; it destroys only what it created itself.
+    ///
+    /// # Safety
+    /// - every handle in `parts` is valid and belongs to the same instance and device;
+    /// - `queue` is a queue of `queue_family`, which supports compute;
+    /// - `enabled_features` and `debug_utils` say truly what the device and instance enable;
+    /// - the instance, device (and allocator) outlive this context and every clone of it;
+    /// - the caller does not use `queue` from another thread while vkrt submits to it
+    ///   (vkrt submits only from `Recorder::submit_and_wait` and buffer up/downloads).
+    pub unsafe fn from_raw(parts: RawParts) -> Result<Self> {
+        let physical = info::query(&parts.instance, parts.physical_device, parts.enabled_features);
+        info::check_requirements(&physical)?;
+        Self::assemble(parts, None, Box::default(), false)
+    }
+
+    fn assemble(
+        parts: RawParts,
+        messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+        sink: Box<MessageSink>,
+        owns_device: bool,
+    ) -> Result<Self> {
+        let mut info = info::query(&parts.instance, parts.physical_device, parts.enabled_features);
+        info.timestamps &= info::timestamp_bits(&parts.instance, parts.physical_device, parts.queue_family) > 0;
+        let allocator = match parts.allocator {
+            Some(a) => a,
+            None => {
+                let desc = AllocatorCreateDesc {
+                    instance: parts.instance.clone(),
+                    device: parts.device.clone(),
+                    physical_device: parts.physical_device,
+                    debug_settings: Default::default(),
+                    buffer_device_address: false,
+                    allocation_sizes: Default::default(),
+                };
+                let a = Allocator::new(&desc).map_err(|e| GpuError::Allocation {
+                    name: "allocator".into(),
+                    bytes: 0,
+                    reason: e.to_string(),
+                })?;
+                Arc::new(Mutex::new(a))
+            }
+        };
+        let debug_utils = parts
+            .debug_utils
+            .then(|| ash::ext::debug_utils::Device::new(&parts.instance, &parts.device));
+        let pipeline_cache = pipeline_cache::create(&parts.device, &info)?;
+        Ok(Self {
+            inner: Arc::new(Inner {
+                entry: parts.entry,
+                instance: parts.instance,
+                physical_device: parts.physical_device,
+                device: parts.device,
+                queue: Mutex::new(parts.queue),
+                queue_family: parts.queue_family,
+                allocator: ManuallyDrop::new(allocator),
+                info,
+                debug_utils,
+                pipeline_cache,
+                kernels: Mutex::new(HashMap::new()),
+                messenger,
+                sink,
+                owns_device,
+            }),
+        })
+    }
+
+    /// What the device is and what it can do.
+    pub fn info(&self) -> &DeviceInfo {
+        &self.inner.info
+    }
+
+    /// Whether validation messages are being collected by this context.
+    pub fn validation_enabled(&self) -> bool {
+        self.inner.messenger.is_some()
+    }
+
+    /// Takes the validation messages collected so far.
+    pub fn take_validation_messages(&self) -> Vec<ValidationMessage> {
+        std::mem::take(&mut *self.inner.sink.messages.lock().unwrap())
+    }
+
+    /// The raw ash device, for embedding renderers that mix their own commands in.
+    pub fn device(&self) -> &ash::Device {
+        &self.inner.device
+    }
+
+    /// The queue family vkrt records for.
+    pub fn queue_family(&self) -> u32 {
+        self.inner.queue_family
+    }
+
+    /// Names a Vulkan object for debuggers and validation messages (debug-utils).
+    pub(crate) fn set_object_name<H: vk::Handle>(&self, handle: H, name: &str) {
+        let Some(du) = &self.inner.debug_utils else {
+            return;
+        };
+        let Ok(name) = std::ffi::CString::new(name) else {
+            return;
+        };
+        let info = vk::DebugUtilsObjectNameInfoEXT::default().object_handle(handle).object_name(&name);
+        // SAFETY: `handle` is a live object of this device; naming is best effort.
+        let _ = unsafe { du.set_debug_utils_object_name(&info) };
+    }
+
+    /// Waits until the device is idle.
+    pub fn wait_idle(&self) -> Result<()> {
+        let _queue = self.inner.queue.lock().unwrap();
+        // SAFETY: the device is valid; holding the queue lock keeps our submissions out.
+        unsafe { self.inner.device.device_wait_idle() }.map_err(vk_err("vkDeviceWaitIdle"))
+    }
+}
+
+impl Drop for Inner {
+    fn drop(&mut self) {
+        // SAFETY: the last clone of the context is going away, so no buffer, recorder or
+        // kernel made from it is alive (they all hold a clone); we wait for the device to be
+        // idle before destroying what we created, and touch adopted handles only to wait.
+        unsafe {
+            let _ = self.device.device_wait_idle();
+            for kernel in self.kernels.get_mut().unwrap().values() {
+                kernel.destroy(&self.device);
+            }
+            pipeline_cache::save_and_destroy(&self.device, self.pipeline_cache, &self.info);
+            // The allocator must go before the device; an adopted one may live on elsewhere.
+            ManuallyDrop::drop(&mut self.allocator);
+            if self.owns_device {
+                self.device.destroy_device(None);
+                if let Some((loader, raw)) = self.messenger.take() {
+                    loader.destroy_debug_utils_messenger(raw, None);
+                }
+                self.instance.destroy_instance(None);
+            }
+        }
+        let _ = &self.entry;
+    }
+}
+
+fn create_instance(
+    entry: &ash::Entry,
+    options: &ContextOptions,
+    sink: &MessageSink,
+) -> Result<(ash::Instance, bool, bool)> {
+    // SAFETY: plain enumeration calls on a loaded entry.
+    let (layers, extensions) = unsafe {
+        (
+            entry.enumerate_instance_layer_properties().map_err(vk_err("vkEnumerateInstanceLayerProperties"))?,
+            entry
+                .enumerate_instance_extension_properties(None)
+                .map_err(vk_err("vkEnumerateInstanceExtensionProperties"))?,
+        )
+    };
+    let has_layer = layers
+        .iter()
+        .any(|l| l.layer_name_as_c_str().is_ok_and(|n| n == validation::LAYER_NAME));
+    let validation_on = options
+        .validation
+        .resolve(has_layer)
+        .map_err(|what| GpuError::MissingCapability { device: "instance".into(), what })?;
+    let has_ext = |name: &CStr| {
+        extensions
+            .iter()
+            .any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == name))
+    };
+    let debug_utils_on = has_ext(ash::ext::debug_utils::NAME);
+    let mut ext_names: Vec<*const c_char> = Vec::new();
+    if debug_utils_on {
+        ext_names.push(ash::ext::debug_utils::NAME.as_ptr());
+    }
+    let mut flags = vk::InstanceCreateFlags::empty();
+    if has_ext(ash::khr::portability_enumeration::NAME) {
+        ext_names.push(ash::khr::portability_enumeration::NAME.as_ptr());
+        flags |= vk::InstanceCreateFlags::ENUMERATE_PORTABILITY_KHR;
+    }
+    if validation_on && !debug_utils_on {
+        return Err(GpuError::MissingCapability {
+            device: "instance".into(),
+            what: "VK_EXT_debug_utils (needed to collect validation messages)".into(),
+        });
+    }
+    let layer_names = if validation_on { vec![validation::LAYER_NAME.as_ptr()] } else { vec![] };
+    let app = vk::ApplicationInfo::default()
+        .application_name(c"vkrt")
+        .engine_name(c"vkrt")
+        .api_version(vk::API_VERSION_1_2);
+    let mut validation_features =
+        vk::ValidationFeaturesEXT::default().enabled_validation_features(&validation::ENABLED_FEATURES);
+    let mut messenger_info = validation::messenger_info(sink);
+    let mut create = vk::InstanceCreateInfo::default()
+        .application_info(&app)
+        .enabled_layer_names(&layer_names)
+        .enabled_extension_names(&ext_names)
+        .flags(flags);
+    if validation_on {
+        create = create.push_next(&mut validation_features).push_next(&mut messenger_info);
+    }
+    // SAFETY: every pointer in `create` refers to locals that live across the call.
+    let instance = unsafe { entry.create_instance(&create, None) }.map_err(vk_err("vkCreateInstance"))?;
+    Ok((instance, validation_on, debug_utils_on))
+}
+
+/// Picks a physical device and its compute queue family.
+fn pick_device(instance: &ash::Instance, wanted: Option<&str>) -> Result<(vk::PhysicalDevice, u32)> {
+    // SAFETY: enumeration on a valid instance.
+    let devices = unsafe { instance.enumerate_physical_devices() }.map_err(vk_err("vkEnumeratePhysicalDevices"))?;
+    let mut candidates = Vec::new();
+    let mut rejected = Vec::new();
+    for pd in devices {
+        let physical = info::query(instance, pd, info::supported_features(instance, pd));
+        if let Some(w) = wanted {
+            if !physical.device.to_lowercase().contains(&w.to_lowercase()) {
+                rejected.push(format!("{} (name does not contain `{w}`)", physical.device));
+                continue;
+            }
+        }
+        if let Err(e) = info::check_requirements(&physical) {
+            rejected.push(e.to_string());
+            continue;
+        }
+        match info::compute_queue_family(instance, pd) {
+            Some(family) => candidates.push((physical.type_rank, pd, family)),
+            None => rejected.push(format!("{}: no compute queue", physical.device)),
+        }
+    }
+    candidates.sort_by_key(|c| c.0);
+    match candidates.first() {
+        Some(&(_, pd, family)) => Ok((pd, family)),
+        None if rejected.len() == 1 && wanted.is_none() => Err(GpuError::NoDevice(rejected.remove(0))),
+        None => Err(GpuError::NoDevice(if rejected.is_empty() {
+            "the Vulkan loader lists no device (install mesa-vulkan-drivers for lavapipe)".into()
+        } else {
+            rejected.join("; ")
+        })),
+    }
+}
+
+fn create_device(
+    instance: &ash::Instance,
+    pd: vk::PhysicalDevice,
+    family: u32,
+    features: &DeviceFeatures,
+) -> Result<ash::Device> {
+    let priorities = [1.0];
+    let queues = [vk::DeviceQueueCreateInfo::default()
+        .queue_family_index(family)
+        .queue_priorities(&priorities)];
+    let base = vk::PhysicalDeviceFeatures::default()
+        .shader_int64(features.shader_int64)
+        .shader_int16(features.shader_int16);
+    let mut f11 = vk::PhysicalDeviceVulkan11Features::default()
+        .storage_buffer16_bit_access(features.storage_buffer_16bit);
+    let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
+        .storage_buffer8_bit_access(features.storage_buffer_8bit)
+        .shader_int8(features.shader_int8)
+        .shader_float16(features.shader_float16)
+        .host_query_reset(features.host_query_reset);
+    let mut size_control = vk::PhysicalDeviceSubgroupSizeControlFeatures::default()
+        .subgroup_size_control(features.subgroup_size_control)
+        .compute_full_subgroups(features.compute_full_subgroups);
+    let mut ext_names = Vec::new();
+    let mut create = vk::DeviceCreateInfo::default()
+        .queue_create_infos(&queues)
+        .enabled_features(&base)
+        .push_next(&mut f11)
+        .push_next(&mut f12);
+    if features.subgroup_size_control {
+        if !features.api_1_3 {
+            ext_names.push(ash::ext::subgroup_size_control::NAME.as_ptr());
+        }
+        create = create.push_next(&mut size_control);
+    }
+    create = create.enabled_extension_names(&ext_names);
+    // SAFETY: `create` points at locals that outlive the call; only supported features and
+    // extensions are requested.
+    unsafe { instance.create_device(pd, &create, None) }.map_err(vk_err("vkCreateDevice"))
+}

@@ -1,0 +1,217 @@
+//! What a physical device is and can do: the facts `vkrt info` prints and kernels plan by.
+
+use ash::vk;
+use serde::Serialize;
+
+use super::error::{GpuError, Result};
+
+/// Optional device features vkrt enables where present.
+#[derive(Clone, Copy, Debug, Default, Serialize, PartialEq, Eq)]
+pub struct DeviceFeatures {
+    pub storage_buffer_8bit: bool,
+    pub storage_buffer_16bit: bool,
+    pub shader_int8: bool,
+    pub shader_int16: bool,
+    pub shader_int64: bool,
+    pub shader_float16: bool,
+    pub host_query_reset: bool,
+    pub subgroup_size_control: bool,
+    pub compute_full_subgroups: bool,
+    /// The device speaks Vulkan 1.3 (subgroup size control is core there).
+    pub api_1_3: bool,
+}
+
+/// Device facts. The JSON of `vkrt info --json` is this struct.
+#[derive(Clone, Debug, Serialize)]
+pub struct DeviceInfo {
+    pub device: String,
+    pub driver: String,
+    pub api_version: String,
+    pub device_type: String,
+    pub subgroup_size: u32,
+    pub min_subgroup_size: u32,
+    pub max_subgroup_size: u32,
+    pub subgroup_ops: Vec<&'static str>,
+    pub subgroup_in_compute: bool,
+    pub max_storage_buffer_range: u64,
+    pub max_shared_memory: u32,
+    pub max_workgroup_invocations: u32,
+    pub max_workgroup_size: [u32; 3],
+    pub max_workgroup_count: [u32; 3],
+    pub max_push_constants_size: u32,
+    pub timestamp_period_ns: f32,
+    pub timestamps: bool,
+    pub features: DeviceFeatures,
+    #[serde(skip)]
+    pub(crate) api_version_raw: u32,
+    #[serde(skip)]
+    pub(crate) type_rank: u32,
+    #[serde(skip)]
+    pub(crate) subgroup_ops_raw: vk::SubgroupFeatureFlags,
+    #[serde(skip)]
+    pub(crate) pipeline_cache_uuid: [u8; 16],
+}
+
+const SUBGROUP_OPS: [(vk::SubgroupFeatureFlags, &str); 8] = [
+    (vk::SubgroupFeatureFlags::BASIC, "basic"),
+    (vk::SubgroupFeatureFlags::VOTE, "vote"),
+    (vk::SubgroupFeatureFlags::ARITHMETIC, "arithmetic"),
+    (vk::SubgroupFeatureFlags::BALLOT, "ballot"),
+    (vk::SubgroupFeatureFlags::SHUFFLE, "shuffle"),
+    (vk::SubgroupFeatureFlags::SHUFFLE_RELATIVE, "shuffle_relative"),
+    (vk::SubgroupFeatureFlags::CLUSTERED, "clustered"),
+    (vk::SubgroupFeatureFlags::QUAD, "quad"),
+];
+
+/// The subgroup operations every vkrt kernel may use.
+const REQUIRED_OPS: [(vk::SubgroupFeatureFlags, &str); 5] = [
+    (vk::SubgroupFeatureFlags::BASIC, "basic"),
+    (vk::SubgroupFeatureFlags::ARITHMETIC, "arithmetic"),
+    (vk::SubgroupFeatureFlags::BALLOT, "ballot"),
+    (vk::SubgroupFeatureFlags::SHUFFLE, "shuffle"),
+    (vk::SubgroupFeatureFlags::SHUFFLE_RELATIVE, "shuffle_relative"),
+];
+
+pub(crate) fn query(instance: &ash::Instance, pd: vk::PhysicalDevice, features: DeviceFeatures) -> DeviceInfo {
+    let mut subgroup = vk::PhysicalDeviceSubgroupProperties::default();
+    let mut driver = vk::PhysicalDeviceDriverProperties::default();
+    let mut size_control = vk::PhysicalDeviceSubgroupSizeControlProperties::default();
+    // SAFETY: a plain query of a valid physical device; the base properties are read first
+    // so the 1.3 struct is chained only where the device knows it.
+    let base = unsafe { instance.get_physical_device_properties(pd) };
+    let has_13 = base.api_version >= vk::API_VERSION_1_3;
+    let mut props2 = vk::PhysicalDeviceProperties2::default()
+        .push_next(&mut subgroup)
+        .push_next(&mut driver);
+    if has_13 {
+        props2 = props2.push_next(&mut size_control);
+    }
+    // SAFETY: as above; every chained struct lives across the call.
+    unsafe { instance.get_physical_device_properties2(pd, &mut props2) };
+    let p = props2.properties;
+    let limits = p.limits;
+    let v = p.api_version;
+    let name = p.device_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let driver_name = driver.driver_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let driver_info = driver.driver_info_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let (device_type, type_rank) = match p.device_type {
+        vk::PhysicalDeviceType::DISCRETE_GPU => ("discrete", 0),
+        vk::PhysicalDeviceType::INTEGRATED_GPU => ("integrated", 1),
+        vk::PhysicalDeviceType::VIRTUAL_GPU => ("virtual", 2),
+        vk::PhysicalDeviceType::CPU => ("cpu", 3),
+        _ => ("other", 4),
+    };
+    let (min_sg, max_sg) = if has_13 {
+        (size_control.min_subgroup_size, size_control.max_subgroup_size)
+    } else {
+        (subgroup.subgroup_size, subgroup.subgroup_size)
+    };
+    DeviceInfo {
+        device: name,
+        driver: format!("{driver_name} {driver_info}").trim().to_string(),
+        api_version: format!(
+            "{}.{}.{}",
+            vk::api_version_major(v),
+            vk::api_version_minor(v),
+            vk::api_version_patch(v)
+        ),
+        device_type: device_type.into(),
+        subgroup_size: subgroup.subgroup_size,
+        min_subgroup_size: min_sg,
+        max_subgroup_size: max_sg,
+        subgroup_ops: SUBGROUP_OPS
+            .iter()
+            .filter(|(f, _)| subgroup.supported_operations.contains(*f))
+            .map(|(_, n)| *n)
+            .collect(),
+        subgroup_in_compute: subgroup.supported_stages.contains(vk::ShaderStageFlags::COMPUTE),
+        max_storage_buffer_range: u64::from(limits.max_storage_buffer_range),
+        max_shared_memory: limits.max_compute_shared_memory_size,
+        max_workgroup_invocations: limits.max_compute_work_group_invocations,
+        max_workgroup_size: limits.max_compute_work_group_size,
+        max_workgroup_count: limits.max_compute_work_group_count,
+        max_push_constants_size: limits.max_push_constants_size,
+        timestamp_period_ns: limits.timestamp_period,
+        timestamps: limits.timestamp_compute_and_graphics == vk::TRUE,
+        features,
+        api_version_raw: v,
+        type_rank,
+        subgroup_ops_raw: subgroup.supported_operations,
+        pipeline_cache_uuid: p.pipeline_cache_uuid,
+    }
+}
+
+/// What this device supports of the features vkrt wants.
+pub(crate) fn supported_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> DeviceFeatures {
+    // SAFETY: plain queries of a valid physical device.
+    let api = unsafe { instance.get_physical_device_properties(pd) }.api_version;
+    let mut f11 = vk::PhysicalDeviceVulkan11Features::default();
+    let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
+    let mut size_control = vk::PhysicalDeviceSubgroupSizeControlFeatures::default();
+    // SAFETY: as above.
+    let has_size_control_ext = unsafe { instance.enumerate_device_extension_properties(pd) }
+        .unwrap_or_default()
+        .iter()
+        .any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == ash::ext::subgroup_size_control::NAME));
+    let api_1_3 = api >= vk::API_VERSION_1_3;
+    let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f11).push_next(&mut f12);
+    if api_1_3 || has_size_control_ext {
+        f2 = f2.push_next(&mut size_control);
+    }
+    // SAFETY: every chained struct lives across the call.
+    unsafe { instance.get_physical_device_features2(pd, &mut f2) };
+    let base = f2.features;
+    DeviceFeatures {
+        storage_buffer_8bit: f12.storage_buffer8_bit_access == vk::TRUE,
+        storage_buffer_16bit: f11.storage_buffer16_bit_access == vk::TRUE,
+        shader_int8: f12.shader_int8 == vk::TRUE,
+        shader_int16: base.shader_int16 == vk::TRUE,
+        shader_int64: base.shader_int64 == vk::TRUE,
+        shader_float16: f12.shader_float16 == vk::TRUE,
+        host_query_reset: f12.host_query_reset == vk::TRUE,
+        subgroup_size_control: size_control.subgroup_size_control == vk::TRUE,
+        compute_full_subgroups: size_control.compute_full_subgroups == vk::TRUE,
+        api_1_3,
+    }
+}
+
+/// Fails with an error naming the first missing capability.
+pub(crate) fn check_requirements(info: &DeviceInfo) -> Result<()> {
+    let missing = |what: String| GpuError::MissingCapability { device: info.device.clone(), what };
+    if info.api_version_raw < vk::API_VERSION_1_2 {
+        return Err(missing(format!("Vulkan 1.2 (device speaks {})", info.api_version)));
+    }
+    if !info.subgroup_in_compute {
+        return Err(missing("subgroup operations in compute shaders".into()));
+    }
+    for (flag, name) in REQUIRED_OPS {
+        if !info.subgroup_ops_raw.contains(flag) {
+            return Err(missing(format!("subgroup operation `{name}` in compute")));
+        }
+    }
+    if !info.subgroup_size.is_power_of_two() || info.subgroup_size < 4 {
+        return Err(missing(format!(
+            "a power-of-two subgroup size of at least 4 (device reports {})",
+            info.subgroup_size
+        )));
+    }
+    Ok(())
+}
+
+pub(crate) fn compute_queue_family(instance: &ash::Instance, pd: vk::PhysicalDevice) -> Option<u32> {
+    // SAFETY: a plain query of a valid physical device.
+    let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
+    // Prefer a compute family without graphics (async compute), else any with compute.
+    let with = |f: &vk::QueueFamilyProperties| f.queue_flags.contains(vk::QueueFlags::COMPUTE);
+    families
+        .iter()
+        .position(|f| with(f) && !f.queue_flags.contains(vk::QueueFlags::GRAPHICS))
+        .or_else(|| families.iter().position(with))
+        .map(|i| i as u32)
+}
+
+pub(crate) fn timestamp_bits(instance: &ash::Instance, pd: vk::PhysicalDevice, family: u32) -> u32 {
+    // SAFETY: a plain query of a valid physical device.
+    let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
+    families.get(family as usize).map_or(0, |f| f.timestamp_valid_bits)
+}

@@ -1,0 +1,221 @@
+//! Compute kernels: a pipeline made from an embedded [`ShaderBlob`], its descriptor-set
+//! layout (storage buffers only) and a pipeline layout with one push-constant range.
+//!
+//! Kernels are cached per context by (blob, specialization), so asking for the same kernel
+//! twice compiles it once; lavapipe JIT-compiles every pipeline with LLVM.
+
+use std::sync::Arc;
+
+use ash::vk;
+
+use super::context::Context;
+use super::error::{vk_err, GpuError, Result};
+use super::shader::ShaderBlob;
+
+/// Push-constant bytes every kernel layout reserves: the minimum every device supports.
+pub const PUSH_CONSTANT_BYTES: u32 = 128;
+
+/// Specialization constants for one kernel instance.
+#[derive(Clone, Debug, Default, PartialEq, Eq, Hash)]
+pub struct Spec {
+    values: Vec<(u32, u32)>,
+    workgroup: Option<[u32; 3]>,
+}
+
+impl Spec {
+    pub fn new() -> Self {
+        Self::default()
+    }
+
+    /// Sets the workgroup size (the kernel must declare `local_size_x_id` etc.).
+    pub fn workgroup(mut self, x: u32) -> Self {
+        self.workgroup = Some([x, 1, 1]);
+        self
+    }
+
+    /// Sets `layout(constant_id = id) const uint/int/bool`.
+    pub fn u32(mut self, id: u32, value: u32) -> Self {
+        self.values.retain(|(i, _)| *i != id);
+        self.values.push((id, value));
+        self.values.sort_unstable();
+        self
+    }
+
+    /// Sets `layout(constant_id = id) const float`.
+    pub fn f32(self, id: u32, value: f32) -> Self {
+        self.u32(id, value.to_bits())
+    }
+}
+
+#[derive(Clone, Debug, PartialEq, Eq, Hash)]
+pub(crate) struct KernelKey {
+    name: &'static str,
+    spec: Spec,
+}
+
+/// A compute pipeline ready to dispatch.
+#[derive(Debug)]
+pub struct Kernel {
+    pub(crate) blob: &'static ShaderBlob,
+    pub(crate) pipeline: vk::Pipeline,
+    pub(crate) layout: vk::PipelineLayout,
+    pub(crate) set_layout: vk::DescriptorSetLayout,
+    /// The workgroup size after specialization.
+    pub workgroup_size: [u32; 3],
+}
+
+impl Kernel {
+    pub fn name(&self) -> &'static str {
+        self.blob.name
+    }
+
+    /// Invocations per workgroup.
+    pub fn invocations(&self) -> u32 {
+        self.workgroup_size.iter().product()
+    }
+
+    /// # Safety
+    /// No command buffer using this kernel is pending, and `device` created it.
+    pub(crate) unsafe fn destroy(&self, device: &ash::Device) {
+        // SAFETY: guaranteed by the caller.
+        unsafe {
+            device.destroy_pipeline(self.pipeline, None);
+            device.destroy_pipeline_layout(self.layout, None);
+            device.destroy_descriptor_set_layout(self.set_layout, None);
+        }
+    }
+}
+
+impl Context {
+    /// The kernel for `blob` specialised by `spec`, compiled on first use.
+    pub fn kernel(&self, blob: &'static ShaderBlob, spec: &Spec) -> Result<Arc<Kernel>> {
+        let key = KernelKey { name: blob.name, spec: spec.clone() };
+        if let Some(k) = self.inner.kernels.lock().unwrap().get(&key) {
+            return Ok(k.clone());
+        }
+        let kernel = Arc::new(self.create_kernel(blob, spec)?);
+        let mut cache = self.inner.kernels.lock().unwrap();
+        match cache.get(&key) {
+            // Another thread won the race: keep its kernel and destroy ours.
+            Some(k) => {
+                // SAFETY: ours was never used in a command buffer.
+                unsafe { kernel.destroy(&self.inner.device) };
+                Ok(k.clone())
+            }
+            None => {
+                cache.insert(key, kernel.clone());
+                Ok(kernel)
+            }
+        }
+    }
+
+    fn create_kernel(&self, blob: &'static ShaderBlob, spec: &Spec) -> Result<Kernel> {
+        let err = |reason: String| GpuError::Kernel { kernel: blob.name, reason };
+        let mut entries: Vec<(u32, u32)> = spec.values.clone();
+        let mut workgroup_size = blob.local_size;
+        if let Some(wg) = spec.workgroup {
+            for axis in 0..3 {
+                match blob.local_size_spec_ids[axis] {
+                    Some(id) => {
+                        entries.retain(|(i, _)| *i != id);
+                        entries.push((id, wg[axis]));
+                        workgroup_size[axis] = wg[axis];
+                    }
+                    None if wg[axis] != blob.local_size[axis] => {
+                        return Err(err(format!(
+                            "workgroup size axis {axis} is fixed at {} in the source (use local_size_x_id)",
+                            blob.local_size[axis]
+                        )))
+                    }
+                    None => {}
+                }
+            }
+        }
+        for (id, _) in &entries {
+            if !blob.spec_constants.iter().any(|(i, _)| i == id) {
+                return Err(err(format!("has no specialization constant with id {id}")));
+            }
+        }
+        let limits = &self.inner.info;
+        let invocations: u32 = workgroup_size.iter().product();
+        if invocations == 0
+            || invocations > limits.max_workgroup_invocations
+            || (0..3).any(|a| workgroup_size[a] > limits.max_workgroup_size[a])
+        {
+            return Err(err(format!(
+                "workgroup size {workgroup_size:?} exceeds the device limits ({} invocations, {:?})",
+                limits.max_workgroup_invocations, limits.max_workgroup_size
+            )));
+        }
+        let map: Vec<vk::SpecializationMapEntry> = entries
+            .iter()
+            .enumerate()
+            .map(|(i, (id, _))| vk::SpecializationMapEntry { constant_id: *id, offset: 4 * i as u32, size: 4 })
+            .collect();
+        let data: Vec<u8> = entries.iter().flat_map(|(_, v)| v.to_ne_bytes()).collect();
+        let specialization = vk::SpecializationInfo::default().map_entries(&map).data(&data);
+
+        let device = &self.inner.device;
+        let bindings: Vec<vk::DescriptorSetLayoutBinding> = blob
+            .bindings
+            .iter()
+            .map(|&b| {
+                vk::DescriptorSetLayoutBinding::default()
+                    .binding(b)
+                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .descriptor_count(1)
+                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            })
+            .collect();
+        let push = [vk::PushConstantRange::default()
+            .stage_flags(vk::ShaderStageFlags::COMPUTE)
+            .size(PUSH_CONSTANT_BYTES)];
+        let push_ranges: &[vk::PushConstantRange] = if blob.push_constants { &push } else { &[] };
+        let module_info = vk::ShaderModuleCreateInfo::default().code(blob.spirv);
+        // SAFETY: valid device; `blob.spirv` is SPIR-V produced and checked by build.rs;
+        // every create-info points at locals that outlive the calls; on failure every object
+        // created so far is destroyed before returning.
+        unsafe {
+            let set_layout = device
+                .create_descriptor_set_layout(&vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings), None)
+                .map_err(vk_err("vkCreateDescriptorSetLayout"))?;
+            let set_layouts = [set_layout];
+            let layout = match device.create_pipeline_layout(
+                &vk::PipelineLayoutCreateInfo::default()
+                    .set_layouts(&set_layouts)
+                    .push_constant_ranges(push_ranges),
+                None,
+            ) {
+                Ok(l) => l,
+                Err(e) => {
+                    device.destroy_descriptor_set_layout(set_layout, None);
+                    return Err(vk_err("vkCreatePipelineLayout")(e));
+                }
+            };
+            let module = match device.create_shader_module(&module_info, None) {
+                Ok(m) => m,
+                Err(e) => {
+                    device.destroy_pipeline_layout(layout, None);
+                    device.destroy_descriptor_set_layout(set_layout, None);
+                    return Err(vk_err("vkCreateShaderModule")(e));
+                }
+            };
+            let stage = vk::PipelineShaderStageCreateInfo::default()
+                .stage(vk::ShaderStageFlags::COMPUTE)
+                .module(module)
+                .name(c"main")
+                .specialization_info(&specialization);
+            let create = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
+            let result = device.create_compute_pipelines(self.inner.pipeline_cache, &create, None);
+            device.destroy_shader_module(module, None);
+            match result {
+                Ok(p) => Ok(Kernel { blob, pipeline: p[0], layout, set_layout, workgroup_size }),
+                Err((_, e)) => {
+                    device.destroy_pipeline_layout(layout, None);
+                    device.destroy_descriptor_set_layout(set_layout, None);
+                    Err(vk_err("vkCreateComputePipelines")(e))
+                }
+            }
+        }
+    }
+}

@@ -1,0 +1,36 @@
+//! Everything that touches Vulkan, and the only place with `unsafe` code.
+//!
+//! - [`Context`]: instance, device and queue — headless, or adopted from an embedding
+//!   renderer with [`Context::from_raw`];
+//! - [`Buffer`]: typed storage buffers on gpu-allocator;
+//! - [`Kernel`]: compute pipelines from the SPIR-V that `build.rs` embeds ([`kernels`]);
+//! - [`Recorder`]: dispatches, copies, fills, barrier helpers named by what they order, and
+//!   profiler scopes — into its own command buffer or the caller's;
+//! - [`Profile`]: per-pass GPU milliseconds and a Chrome-trace/Perfetto export;
+//! - [`Validation`]: the Khronos layer with synchronization validation, for tests.
+//!
+//! Rules: every `unsafe` block states the contract it relies on; Vulkan errors are mapped
+//! where the call is made into [`GpuError`] naming the call; misuse of this API by our own
+//! code panics through one cold helper.
+
+mod buffer;
+mod context;
+mod error;
+mod info;
+mod kernel;
+mod pipeline_cache;
+mod profiler;
+mod recorder;
+mod shader;
+mod validation;
+
+pub use ash::vk;
+pub use buffer::{Buffer, BufferArg, Memory, RawBuffer};
+pub use context::{Context, ContextOptions, RawParts};
+pub use error::{GpuError, Result};
+pub use info::{DeviceFeatures, DeviceInfo};
+pub use kernel::{Kernel, Spec, PUSH_CONSTANT_BYTES};
+pub use profiler::{write_atomically, PassTime, Profile, DEFAULT_QUERY_CAPACITY};
+pub use recorder::{RecordedWork, Recorder};
+pub use shader::{find as find_kernel, kernels, ShaderBlob};
+pub use validation::{Validation, ValidationMessage};

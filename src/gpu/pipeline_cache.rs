@@ -1,0 +1,63 @@
+//! An on-disk Vulkan pipeline cache, so kernels JIT-compiled by the driver (lavapipe runs
+//! LLVM for every pipeline) are reused across runs.
+//!
+//! Location: `$VKRT_PIPELINE_CACHE` (a directory; `0` or `off` disables), else
+//! `$XDG_CACHE_HOME/vkrt`, else `$HOME/.cache/vkrt`. One file per driver cache UUID, written
+//! atomically (temporary file + rename) so concurrent processes never see a torn file. The
+//! driver validates the header, so a stale or foreign file is ignored, not trusted.
+
+use std::path::PathBuf;
+
+use ash::vk;
+
+use super::error::{vk_err, Result};
+use super::info::DeviceInfo;
+
+fn cache_path(info: &DeviceInfo) -> Option<PathBuf> {
+    let dir = match std::env::var("VKRT_PIPELINE_CACHE") {
+        Ok(v) if v == "0" || v.eq_ignore_ascii_case("off") => return None,
+        Ok(v) if !v.is_empty() => PathBuf::from(v),
+        _ => match std::env::var_os("XDG_CACHE_HOME") {
+            Some(x) if !x.is_empty() => PathBuf::from(x).join("vkrt"),
+            _ => PathBuf::from(std::env::var_os("HOME")?).join(".cache").join("vkrt"),
+        },
+    };
+    let uuid: String = info.pipeline_cache_uuid.iter().map(|b| format!("{b:02x}")).collect();
+    Some(dir.join(format!("pipelines-{uuid}.bin")))
+}
+
+pub(crate) fn create(device: &ash::Device, info: &DeviceInfo) -> Result<vk::PipelineCache> {
+    let data = cache_path(info).and_then(|p| std::fs::read(p).ok()).unwrap_or_default();
+    let create = vk::PipelineCacheCreateInfo::default().initial_data(&data);
+    // SAFETY: valid device; the driver checks the header of `data` and ignores a mismatch.
+    match unsafe { device.create_pipeline_cache(&create, None) } {
+        Ok(cache) => Ok(cache),
+        Err(_) if !data.is_empty() => {
+            let empty = vk::PipelineCacheCreateInfo::default();
+            // SAFETY: as above, with no initial data.
+            unsafe { device.create_pipeline_cache(&empty, None) }.map_err(vk_err("vkCreatePipelineCache"))
+        }
+        Err(e) => Err(vk_err("vkCreatePipelineCache")(e)),
+    }
+}
+
+/// Writes the cache to disk (best effort: a cache is never worth failing for) and destroys it.
+///
+/// # Safety
+/// `cache` was created on `device` and no pipeline creation using it is in flight.
+pub(crate) unsafe fn save_and_destroy(device: &ash::Device, cache: vk::PipelineCache, info: &DeviceInfo) {
+    // SAFETY: guaranteed by the caller.
+    let data = unsafe { device.get_pipeline_cache_data(cache) }.unwrap_or_default();
+    if let (Some(path), false) = (cache_path(info), data.is_empty()) {
+        if let Some(dir) = path.parent() {
+            let _ = std::fs::create_dir_all(dir);
+        }
+        let tmp = path.with_extension(format!("tmp{}", std::process::id()));
+        if std::fs::write(&tmp, &data).is_ok() {
+            let _ = std::fs::rename(&tmp, &path);
+        }
+        let _ = std::fs::remove_file(&tmp);
+    }
+    // SAFETY: guaranteed by the caller.
+    unsafe { device.destroy_pipeline_cache(cache, None) };
+}

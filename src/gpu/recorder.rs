@@ -1,0 +1,468 @@
+//! The command recorder: dispatches, copies, fills, explicit barriers and profiler scopes,
+//! into a command buffer of its own or one the embedding renderer owns.
+//!
+//! Nothing here inserts a barrier on its own. Each barrier helper is named by the two kinds
+//! of work it orders, so a sequence of passes reads like the dependency graph it is; the
+//! tests run under synchronization validation, which reports any that are missing.
+
+use ash::vk;
+use bytemuck::Pod;
+
+use super::buffer::{Buffer, BufferArg};
+use super::context::Context;
+use super::error::{usage_error, vk_err, GpuError, Result};
+use super::kernel::{Kernel, PUSH_CONSTANT_BYTES};
+use super::profiler::{create_query_pool, Profile, ScopeRecorder, DEFAULT_QUERY_CAPACITY};
+
+/// How long `submit_and_wait` waits before calling the device hung.
+const SUBMIT_TIMEOUT_NS: u64 = 30 * 60 * 1_000_000_000;
+const SETS_PER_POOL: u32 = 256;
+const BUFFERS_PER_POOL: u32 = SETS_PER_POOL * 8;
+
+/// Records GPU work. Create with [`Recorder::new`] (own command buffer, submitted by
+/// [`Recorder::submit_and_wait`]) or [`Recorder::from_raw`] (the caller's command buffer).
+pub struct Recorder {
+    ctx: Context,
+    cmd: vk::CommandBuffer,
+    command_pool: Option<vk::CommandPool>,
+    descriptor_pools: Vec<vk::DescriptorPool>,
+    scopes: ScopeRecorder,
+}
+
+/// Work recorded into a caller-owned command buffer, holding what that command buffer
+/// uses (descriptor sets, timestamp queries) until the caller says it has completed.
+pub struct RecordedWork {
+    recorder: Recorder,
+}
+
+impl Recorder {
+    /// A recorder with its own primary command buffer, in the recording state.
+    pub fn new(ctx: &Context) -> Result<Self> {
+        let device = &ctx.inner.device;
+        let pool_info = vk::CommandPoolCreateInfo::default()
+            .queue_family_index(ctx.inner.queue_family)
+            .flags(vk::CommandPoolCreateFlags::TRANSIENT);
+        // SAFETY: valid device; the pool is destroyed in Drop (or here on error).
+        let pool = unsafe { device.create_command_pool(&pool_info, None) }.map_err(vk_err("vkCreateCommandPool"))?;
+        let alloc = vk::CommandBufferAllocateInfo::default()
+            .command_pool(pool)
+            .level(vk::CommandBufferLevel::PRIMARY)
+            .command_buffer_count(1);
+        let begin = vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+        // SAFETY: the pool is ours and unused; the buffer is begun once.
+        let cmd = unsafe {
+            device
+                .allocate_command_buffers(&alloc)
+                .and_then(|c| device.begin_command_buffer(c[0], &begin).map(|()| c[0]))
+        };
+        let cmd = match cmd {
+            Ok(c) => c,
+            Err(e) => {
+                // SAFETY: nothing recorded uses the pool.
+                unsafe { device.destroy_command_pool(pool, None) };
+                return Err(vk_err("vkAllocateCommandBuffers")(e));
+            }
+        };
+        let mut rec = match Self::wrap(ctx, cmd, Some(pool), DEFAULT_QUERY_CAPACITY) {
+            Ok(r) => r,
+            Err(e) => {
+                // SAFETY: the command buffer was never submitted.
+                unsafe { device.destroy_command_pool(pool, None) };
+                return Err(e);
+            }
+        };
+        rec.reset_queries();
+        Ok(rec)
+    }
+
+    /// Records into a command buffer the embedding renderer owns and submits itself.
+    ///
+    /// # Safety
+    /// - `cmd` is a primary command buffer of the context's queue family, in the recording
+    ///   state, outside a render pass, and not recorded to concurrently;
+    /// - every buffer bound while recording outlives the execution of `cmd`;
+    /// - [`RecordedWork::complete`] is called only after `cmd` has finished executing (or
+    ///   was never submitted), and before `cmd` is reset or freed.
+    pub unsafe fn from_raw(ctx: &Context, cmd: vk::CommandBuffer, query_capacity: u32) -> Result<Self> {
+        let mut rec = Self::wrap(ctx, cmd, None, query_capacity)?;
+        rec.reset_queries();
+        Ok(rec)
+    }
+
+    fn wrap(ctx: &Context, cmd: vk::CommandBuffer, command_pool: Option<vk::CommandPool>, queries: u32) -> Result<Self> {
+        let query_pool = create_query_pool(&ctx.inner.device, queries, ctx.info().timestamps)?;
+        Ok(Self {
+            ctx: ctx.clone(),
+            cmd,
+            command_pool,
+            descriptor_pools: Vec::new(),
+            scopes: ScopeRecorder::new(query_pool, queries),
+        })
+    }
+
+    fn reset_queries(&mut self) {
+        if let Some(pool) = self.scopes.pool {
+            // SAFETY: `cmd` is recording outside a render pass; the pool is ours.
+            unsafe { self.ctx.inner.device.cmd_reset_query_pool(self.cmd, pool, 0, self.scopes.capacity()) };
+        }
+    }
+
+    /// The context this recorder records for.
+    pub fn context(&self) -> &Context {
+        &self.ctx
+    }
+
+    /// The raw command buffer, for mixing in the caller's own commands.
+    pub fn command_buffer(&self) -> vk::CommandBuffer {
+        self.cmd
+    }
+
+    /// Workgroup counts covering `items` with `per_group` items per workgroup, folded into
+    /// a 2-D grid when they exceed `maxComputeWorkGroupCount[0]` (kernels use
+    /// `linear_group_id()` from `glsl/common/grid.glsl` and bounds-check).
+    pub fn groups_1d(&self, items: u64, per_group: u32) -> [u32; 3] {
+        let groups = items.div_ceil(u64::from(per_group.max(1)));
+        let max = self.ctx.info().max_workgroup_count;
+        let x = groups.min(u64::from(max[0]));
+        let y = if x == 0 { 0 } else { groups.div_ceil(x) };
+        if y > u64::from(max[1]) {
+            usage_error(&format!("{items} items need {groups} workgroups, beyond this device's grid"));
+        }
+        [x as u32, if x == 0 { 1 } else { y as u32 }, 1]
+    }
+
+    /// Binds `buffers` (in the order of the kernel's bindings) and `push` and dispatches
+    /// `groups` workgroups.
+    pub fn dispatch<P: Pod>(&mut self, kernel: &Kernel, groups: [u32; 3], buffers: &[&dyn BufferArg], push: &P) {
+        let max = self.ctx.info().max_workgroup_count;
+        if (0..3).any(|a| groups[a] > max[a]) {
+            usage_error(&format!("`{}`: {groups:?} workgroups exceed maxComputeWorkGroupCount {max:?}", kernel.name()));
+        }
+        self.bind(kernel, buffers, bytemuck::bytes_of(push));
+        // SAFETY: recording; pipeline, set and push constants were bound for this kernel.
+        unsafe { self.ctx.inner.device.cmd_dispatch(self.cmd, groups[0], groups[1], groups[2]) };
+    }
+
+    /// Like [`Recorder::dispatch`], with the workgroup counts read from `indirect` at byte
+    /// `offset` (three u32) when the dispatch executes. Order the write of those counts
+    /// with [`Recorder::compute_to_indirect`].
+    pub fn dispatch_indirect<P: Pod>(
+        &mut self,
+        kernel: &Kernel,
+        indirect: &dyn BufferArg,
+        offset: u64,
+        buffers: &[&dyn BufferArg],
+        push: &P,
+    ) {
+        if offset % 4 != 0 || offset + 12 > indirect.range() {
+            usage_error(&format!("`{}`: indirect offset {offset} out of range", kernel.name()));
+        }
+        self.bind(kernel, buffers, bytemuck::bytes_of(push));
+        // SAFETY: recording; the indirect range was checked above.
+        unsafe {
+            self.ctx
+                .inner
+                .device
+                .cmd_dispatch_indirect(self.cmd, indirect.raw(), indirect.offset() + offset)
+        };
+    }
+
+    fn bind(&mut self, kernel: &Kernel, buffers: &[&dyn BufferArg], push: &[u8]) {
+        let blob = kernel.blob;
+        if buffers.len() != blob.bindings.len() {
+            usage_error(&format!(
+                "`{}` has bindings {:?} but {} buffers were given",
+                blob.name,
+                blob.bindings,
+                buffers.len()
+            ));
+        }
+        if push.len() > PUSH_CONSTANT_BYTES as usize || (!push.is_empty() && !blob.push_constants) {
+            usage_error(&format!("`{}`: {} push-constant bytes do not fit its layout", blob.name, push.len()));
+        }
+        let set = self.allocate_set(kernel.set_layout);
+        let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
+            .iter()
+            .map(|b| [vk::DescriptorBufferInfo { buffer: b.raw(), offset: b.offset(), range: b.range() }])
+            .collect();
+        let writes: Vec<vk::WriteDescriptorSet> = blob
+            .bindings
+            .iter()
+            .zip(&infos)
+            .map(|(&binding, info)| {
+                vk::WriteDescriptorSet::default()
+                    .dst_set(set)
+                    .dst_binding(binding)
+                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .buffer_info(info)
+            })
+            .collect();
+        let device = &self.ctx.inner.device;
+        // SAFETY: the set was allocated for this layout and is not in use by pending work
+        // (fresh from the pool); the command buffer is recording; `push` fits the range.
+        unsafe {
+            device.update_descriptor_sets(&writes, &[]);
+            device.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, kernel.pipeline);
+            device.cmd_bind_descriptor_sets(self.cmd, vk::PipelineBindPoint::COMPUTE, kernel.layout, 0, &[set], &[]);
+            if !push.is_empty() {
+                device.cmd_push_constants(self.cmd, kernel.layout, vk::ShaderStageFlags::COMPUTE, 0, push);
+            }
+        }
+    }
+
+    fn allocate_set(&mut self, layout: vk::DescriptorSetLayout) -> vk::DescriptorSet {
+        let device = &self.ctx.inner.device;
+        let layouts = [layout];
+        if let Some(&pool) = self.descriptor_pools.last() {
+            let info = vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&layouts);
+            // SAFETY: the pool is ours and not used by another thread.
+            if let Ok(sets) = unsafe { device.allocate_descriptor_sets(&info) } {
+                return sets[0];
+            }
+        }
+        let sizes = [vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_BUFFER, descriptor_count: BUFFERS_PER_POOL }];
+        let pool_info = vk::DescriptorPoolCreateInfo::default().max_sets(SETS_PER_POOL).pool_sizes(&sizes);
+        // SAFETY: valid device; pools are destroyed when the recorder's work has completed.
+        let pool = unsafe { device.create_descriptor_pool(&pool_info, None) }
+            .unwrap_or_else(|e| usage_error(&format!("vkCreateDescriptorPool failed: {e}")));
+        self.descriptor_pools.push(pool);
+        let info = vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&layouts);
+        // SAFETY: a fresh pool sized for far more than one set of at most 8 buffers... unless
+        // a kernel has more bindings than BUFFERS_PER_POOL, which build.rs never produces.
+        unsafe { device.allocate_descriptor_sets(&info) }
+            .unwrap_or_else(|e| usage_error(&format!("vkAllocateDescriptorSets failed: {e}")))[0]
+    }
+
+    /// Fills the whole buffer with the 32-bit pattern `value`.
+    pub fn fill<T: Pod>(&mut self, buffer: &Buffer<T>, value: u32) {
+        // SAFETY: recording; the buffer has TRANSFER_DST usage and a size that is a multiple
+        // of 4 (Buffer rounds up).
+        unsafe { self.ctx.inner.device.cmd_fill_buffer(self.cmd, buffer.raw(), 0, vk::WHOLE_SIZE, value) };
+    }
+
+    /// Copies the first `len` elements of `src` into `dst`.
+    pub fn copy<T: Pod>(&mut self, src: &Buffer<T>, dst: &Buffer<T>, len: usize) {
+        if len > src.len() || len > dst.len() {
+            usage_error(&format!("copy of {len} elements from `{}` to `{}`", src.name(), dst.name()));
+        }
+        if len == 0 {
+            return;
+        }
+        let region = vk::BufferCopy { src_offset: 0, dst_offset: 0, size: (len * std::mem::size_of::<T>()) as u64 };
+        // SAFETY: recording; both buffers have transfer usage and the region is in range.
+        unsafe { self.ctx.inner.device.cmd_copy_buffer(self.cmd, src.raw(), dst.raw(), &[region]) };
+    }
+
+    fn memory_barrier(&mut self, src: (vk::PipelineStageFlags, vk::AccessFlags), dst: (vk::PipelineStageFlags, vk::AccessFlags)) {
+        let barrier = vk::MemoryBarrier::default().src_access_mask(src.1).dst_access_mask(dst.1);
+        // SAFETY: recording, outside a render pass.
+        unsafe {
+            self.ctx.inner.device.cmd_pipeline_barrier(
+                self.cmd,
+                src.0,
+                dst.0,
+                vk::DependencyFlags::empty(),
+                &[barrier],
+                &[],
+                &[],
+            )
+        };
+    }
+
+    /// Kernel writes (and reads) before → kernel reads and writes after.
+    pub fn compute_to_compute(&mut self) {
+        self.memory_barrier(COMPUTE_RW, COMPUTE_RW);
+    }
+
+    /// Copies and fills before → kernels after.
+    pub fn transfer_to_compute(&mut self) {
+        self.memory_barrier(TRANSFER_W, COMPUTE_RW);
+    }
+
+    /// Kernels before → copies and fills after.
+    pub fn compute_to_transfer(&mut self) {
+        self.memory_barrier(COMPUTE_RW, TRANSFER_RW);
+    }
+
+    /// Copies and fills before → copies and fills after.
+    pub fn transfer_to_transfer(&mut self) {
+        self.memory_barrier(TRANSFER_W, TRANSFER_RW);
+    }
+
+    /// Kernel writes before → indirect dispatch arguments (and kernels) after.
+    pub fn compute_to_indirect(&mut self) {
+        self.memory_barrier(
+            COMPUTE_RW,
+            (
+                vk::PipelineStageFlags::DRAW_INDIRECT | vk::PipelineStageFlags::COMPUTE_SHADER,
+                vk::AccessFlags::INDIRECT_COMMAND_READ | vk::AccessFlags::SHADER_READ | vk::AccessFlags::SHADER_WRITE,
+            ),
+        );
+    }
+
+    /// Kernel writes before → host reads after the submission completes.
+    pub fn compute_to_host(&mut self) {
+        self.memory_barrier(COMPUTE_RW, HOST_R);
+    }
+
+    /// Copies before → host reads after the submission completes.
+    pub fn transfer_to_host(&mut self) {
+        self.memory_barrier(TRANSFER_W, HOST_R);
+    }
+
+    /// Opens a named pass: a timestamp scope and a debug label. Scopes nest.
+    pub fn begin_scope(&mut self, name: &str) {
+        let query = self.scopes.begin(name);
+        let device = &self.ctx.inner.device;
+        if let Some(du) = &self.ctx.inner.debug_utils {
+            let label_name = std::ffi::CString::new(name.replace('\0', " ")).unwrap_or_default();
+            let label = vk::DebugUtilsLabelEXT::default().label_name(&label_name);
+            // SAFETY: recording; the instance has VK_EXT_debug_utils.
+            unsafe { du.cmd_begin_debug_utils_label(self.cmd, &label) };
+        }
+        if let (Some(pool), Some(q)) = (self.scopes.pool, query) {
+            // SAFETY: recording; `q` is below the pool's capacity and was reset.
+            unsafe { device.cmd_write_timestamp(self.cmd, vk::PipelineStageFlags::BOTTOM_OF_PIPE, pool, q) };
+        }
+    }
+
+    /// Closes the innermost open pass.
+    pub fn end_scope(&mut self) {
+        let query = self.scopes.end();
+        let device = &self.ctx.inner.device;
+        if let (Some(pool), Some(q)) = (self.scopes.pool, query) {
+            // SAFETY: as in begin_scope.
+            unsafe { device.cmd_write_timestamp(self.cmd, vk::PipelineStageFlags::BOTTOM_OF_PIPE, pool, q) };
+        }
+        if let Some(du) = &self.ctx.inner.debug_utils {
+            // SAFETY: recording; a label was begun in begin_scope.
+            unsafe { du.cmd_end_debug_utils_label(self.cmd) };
+        }
+    }
+
+    /// Runs `f` inside a named pass.
+    pub fn scope<R>(&mut self, name: &str, f: impl FnOnce(&mut Self) -> R) -> R {
+        self.begin_scope(name);
+        let r = f(self);
+        self.end_scope();
+        r
+    }
+
+    fn check_closed(&self) {
+        if self.scopes.open_scopes() != 0 {
+            usage_error(&format!("{} profiler scope(s) left open", self.scopes.open_scopes()));
+        }
+    }
+
+    /// Ends, submits and waits for the recorded work; returns the pass timings.
+    pub fn submit_and_wait(mut self) -> Result<Profile> {
+        if self.command_pool.is_none() {
+            usage_error("submit_and_wait on a caller-owned command buffer; use finish()");
+        }
+        self.check_closed();
+        let device = &self.ctx.inner.device;
+        // SAFETY: recording state, opened by `new`.
+        unsafe { device.end_command_buffer(self.cmd) }.map_err(vk_err("vkEndCommandBuffer"))?;
+        // SAFETY: valid device.
+        let fence = unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }.map_err(vk_err("vkCreateFence"))?;
+        let cmds = [self.cmd];
+        let submit = [vk::SubmitInfo::default().command_buffers(&cmds)];
+        let result = {
+            let queue = self.ctx.inner.queue.lock().unwrap();
+            // SAFETY: the queue is externally synchronised by the lock; the command buffer is
+            // executable; the fence is unsignalled.
+            unsafe { device.queue_submit(*queue, &submit, fence) }.map_err(vk_err("vkQueueSubmit"))
+        }
+        // SAFETY: the fence belongs to this device.
+        .and_then(|()| unsafe { device.wait_for_fences(&[fence], true, SUBMIT_TIMEOUT_NS) }.map_err(vk_err("vkWaitForFences")));
+        // SAFETY: the wait succeeded (or the submit never happened), so the fence is idle.
+        // On a timeout the device is hung: we wait for idle before destroying.
+        unsafe {
+            if result.is_err() {
+                let _ = device.device_wait_idle();
+            }
+            device.destroy_fence(fence, None);
+        }
+        match result {
+            Err(GpuError::DeviceLost { .. }) => Err(GpuError::DeviceLost { last_pass: self.scopes.last_name() }),
+            Err(GpuError::Vulkan { code: vk::Result::TIMEOUT, .. }) => Err(GpuError::DeviceLost {
+                last_pass: format!("{} (timed out)", self.scopes.last_name()),
+            }),
+            Err(e) => Err(e),
+            Ok(()) => self.read_profile(),
+        }
+    }
+
+    /// Stops recording into a caller-owned command buffer (which the caller ends and
+    /// submits). Call [`RecordedWork::complete`] once it has executed.
+    pub fn finish(self) -> RecordedWork {
+        if self.command_pool.is_some() {
+            usage_error("finish() is for caller-owned command buffers; use submit_and_wait()");
+        }
+        self.check_closed();
+        RecordedWork { recorder: self }
+    }
+
+    fn read_profile(&self) -> Result<Profile> {
+        let used = self.scopes.queries_used();
+        let Some(pool) = self.scopes.pool.filter(|_| used > 0) else {
+            return Ok(self.scopes.untimed());
+        };
+        let mut ticks = vec![0u64; used as usize];
+        // SAFETY: the work writing these queries has completed; `ticks` holds `used` u64s.
+        unsafe {
+            self.ctx.inner.device.get_query_pool_results(
+                pool,
+                0,
+                &mut ticks,
+                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+            )
+        }
+        .map_err(vk_err("vkGetQueryPoolResults"))?;
+        let bits = super::info::timestamp_bits(&self.ctx.inner.instance, self.ctx.inner.physical_device, self.ctx.inner.queue_family);
+        Ok(self.scopes.resolve(&ticks, self.ctx.info().timestamp_period_ns, bits))
+    }
+}
+
+impl RecordedWork {
+    /// Reads the pass timings and releases what the command buffer used.
+    ///
+    /// # Safety
+    /// The command buffer has finished executing (or was never submitted).
+    pub unsafe fn complete(self) -> Result<Profile> {
+        self.recorder.read_profile()
+    }
+}
+
+impl Drop for Recorder {
+    fn drop(&mut self) {
+        let device = &self.ctx.inner.device;
+        // SAFETY: an owned command buffer was either waited for in `submit_and_wait` or never
+        // submitted; a caller-owned one reaches here through `RecordedWork::complete` (whose
+        // contract says it has executed) or was never handed over. Either way nothing pending
+        // uses these pools.
+        unsafe {
+            for pool in self.descriptor_pools.drain(..) {
+                device.destroy_descriptor_pool(pool, None);
+            }
+            if let Some(pool) = self.scopes.pool.take() {
+                device.destroy_query_pool(pool, None);
+            }
+            if let Some(pool) = self.command_pool.take() {
+                device.destroy_command_pool(pool, None);
+            }
+        }
+    }
+}
+
+const COMPUTE_RW: (vk::PipelineStageFlags, vk::AccessFlags) = (
+    vk::PipelineStageFlags::COMPUTE_SHADER,
+    vk::AccessFlags::from_raw(vk::AccessFlags::SHADER_READ.as_raw() | vk::AccessFlags::SHADER_WRITE.as_raw()),
+);
+const TRANSFER_W: (vk::PipelineStageFlags, vk::AccessFlags) =
+    (vk::PipelineStageFlags::TRANSFER, vk::AccessFlags::TRANSFER_WRITE);
+const TRANSFER_RW: (vk::PipelineStageFlags, vk::AccessFlags) = (
+    vk::PipelineStageFlags::TRANSFER,
+    vk::AccessFlags::from_raw(vk::AccessFlags::TRANSFER_READ.as_raw() | vk::AccessFlags::TRANSFER_WRITE.as_raw()),
+);
+const HOST_R: (vk::PipelineStageFlags, vk::AccessFlags) = (vk::PipelineStageFlags::HOST, vk::AccessFlags::HOST_READ);

@@ -1,0 +1,125 @@
+//! The `vkrt` command line: a thin layer over the library.
+
+use std::path::PathBuf;
+use std::process::ExitCode;
+
+use clap::{Parser, Subcommand};
+use vkrt::gpu::{Context, ContextOptions, Profile, Validation};
+
+#[derive(Parser)]
+#[command(name = "vkrt", version, about = "Vulkan-native ray tracing: GPU-built acceleration structures you can read, embed and profile")]
+struct Cli {
+    /// Enable the Khronos validation layer with synchronization validation (also VKRT_VALIDATION=1).
+    #[arg(long, global = true)]
+    validate: bool,
+    #[command(subcommand)]
+    command: Command,
+}
+
+#[derive(Subcommand)]
+enum Command {
+    /// Print the Vulkan device vkrt uses and what it can do.
+    Info {
+        /// Print JSON instead of text.
+        #[arg(long)]
+        json: bool,
+    },
+    /// Measure GPU baselines and primitives.
+    Bench {
+        #[command(subcommand)]
+        what: BenchCommand,
+    },
+}
+
+#[derive(Subcommand)]
+enum BenchCommand {
+    /// vkCmdCopyBuffer vs the plain copy kernels, on the same bytes.
+    Copy {
+        /// MiB to copy.
+        #[arg(long, default_value_t = 64)]
+        mib: u64,
+        /// Timed repetitions (the best is reported).
+        #[arg(long, default_value_t = 5)]
+        reps: u32,
+        #[arg(long)]
+        json: bool,
+        /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
+        #[arg(long)]
+        profile: Option<PathBuf>,
+    },
+}
+
+fn main() -> ExitCode {
+    let cli = Cli::parse();
+    match run(cli) {
+        Ok(()) => ExitCode::SUCCESS,
+        Err(e) => {
+            eprintln!("vkrt: error: {e}");
+            ExitCode::FAILURE
+        }
+    }
+}
+
+fn context(validate: bool) -> Result<Context, Box<dyn std::error::Error>> {
+    let env_on = std::env::var("VKRT_VALIDATION").is_ok_and(|v| v.trim() == "1");
+    let validation = if validate || env_on { Validation::On } else { Validation::Off };
+    Ok(Context::new(&ContextOptions { validation, device_name: None })?)
+}
+
+fn write_profile(path: &Option<PathBuf>, profile: &Profile) -> Result<(), Box<dyn std::error::Error>> {
+    if let Some(path) = path {
+        profile.write_chrome_trace(path)?;
+        eprintln!("vkrt: wrote GPU trace {} (open in ui.perfetto.dev)", path.display());
+    }
+    Ok(())
+}
+
+fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
+    match cli.command {
+        Command::Info { json } => {
+            let ctx = context(cli.validate)?;
+            let info = ctx.info();
+            if json {
+                println!("{}", serde_json::to_string_pretty(info)?);
+            } else {
+                println!("device              {} ({})", info.device, info.device_type);
+                println!("driver              {}", info.driver);
+                println!("vulkan              {}", info.api_version);
+                println!(
+                    "subgroup size       {} (min {}, max {})",
+                    info.subgroup_size, info.min_subgroup_size, info.max_subgroup_size
+                );
+                println!("subgroup ops        {}", info.subgroup_ops.join(" "));
+                println!("max storage buffer  {} bytes", info.max_storage_buffer_range);
+                println!("max shared memory   {} bytes", info.max_shared_memory);
+                println!(
+                    "workgroups          {} invocations, size {:?}, count {:?}",
+                    info.max_workgroup_invocations, info.max_workgroup_size, info.max_workgroup_count
+                );
+                println!(
+                    "timestamps          {} (period {} ns)",
+                    if info.timestamps { "yes" } else { "no" },
+                    info.timestamp_period_ns
+                );
+            }
+        }
+        Command::Bench { what: BenchCommand::Copy { mib, reps, json, profile } } => {
+            let ctx = context(cli.validate)?;
+            let (baselines, trace) = vkrt::bench::copy_baselines(&ctx, mib << 20, reps.max(1))?;
+            write_profile(&profile, &trace)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&baselines)?);
+            } else {
+                println!(
+                    "{} (subgroup {}), {} MiB, best of {}",
+                    baselines.device, baselines.subgroup_size, mib, baselines.repetitions
+                );
+                println!("{:<26} {:>10} {:>10} {:>14}", "method", "ms", "GiB/s r+w", "copy_ms / ms");
+                for r in &baselines.results {
+                    println!("{:<26} {:>10.3} {:>10.2} {:>14.3}", r.method, r.gpu_ms, r.gib_per_s, r.ratio_to_copy);
+                }
+            }
+        }
+    }
+    Ok(())
+}

@@ -1,0 +1,51 @@
+//! Shared test setup: a context with validation and synchronization validation on (when
+//! the Khronos layer is installed and VKRT_VALIDATION is not 0), and a check that the layer
+//! stayed silent.
+#![allow(dead_code, reason = "each test binary uses a different part")]
+
+use vkrt::gpu::{Context, ContextOptions};
+
+/// A context on the test device. No device is a loud failure unless VKRT_ALLOW_NO_GPU=1.
+pub fn context() -> Option<Context> {
+    match Context::new(&ContextOptions::for_tests()) {
+        Ok(ctx) => {
+            if !ctx.validation_enabled() {
+                eprintln!("note: validation layer not enabled (not installed or VKRT_VALIDATION=0)");
+            }
+            Some(ctx)
+        }
+        Err(e) if std::env::var("VKRT_ALLOW_NO_GPU").is_ok_and(|v| v == "1") => {
+            eprintln!("skipped: no Vulkan device ({e}) and VKRT_ALLOW_NO_GPU=1");
+            None
+        }
+        Err(e) => panic!("no Vulkan device for the tests: {e} (run ./x setup, or VKRT_ALLOW_NO_GPU=1 to skip)"),
+    }
+}
+
+/// Fails the test if the validation layer said anything.
+pub fn assert_silent(ctx: &Context) {
+    let messages = ctx.take_validation_messages();
+    assert!(
+        messages.is_empty(),
+        "validation reported {} message(s):\n{}",
+        messages.len(),
+        messages.iter().map(|m| m.to_string()).collect::<Vec<_>>().join("\n")
+    );
+}
+
+/// Deterministic pseudo-random numbers (splitmix64), so failures reproduce.
+pub struct Rng(pub u64);
+
+impl Rng {
+    pub fn next_u64(&mut self) -> u64 {
+        self.0 = self.0.wrapping_add(0x9E37_79B9_7F4A_7C15);
+        let mut z = self.0;
+        z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+        z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+        z ^ (z >> 31)
+    }
+
+    pub fn next_f32(&mut self) -> f32 {
+        (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0
+    }
+}

@@ -1,0 +1,169 @@
+//! The embedding path: a renderer that owns its instance, device, queue, allocator and
+//! command buffer hands them to vkrt, records vkrt's work into its own command buffer,
+//! submits it itself — and everything it owns is still alive afterwards.
+
+use std::sync::{Arc, Mutex};
+
+use ash::vk;
+use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
+use vkrt::gpu::{kernels, Buffer, Context, DeviceFeatures, RawParts, Recorder, Spec};
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct SaxpyPush {
+    a: f32,
+    n: u32,
+}
+
+/// What "the renderer" owns.
+struct Renderer {
+    entry: ash::Entry,
+    instance: ash::Instance,
+    physical_device: vk::PhysicalDevice,
+    device: ash::Device,
+    family: u32,
+    queue: vk::Queue,
+}
+
+fn renderer() -> Option<Renderer> {
+    // SAFETY: test code standing in for an embedding application: plain Vulkan setup with
+    // every create-info pointing at locals that outlive the calls.
+    unsafe {
+        let entry = ash::Entry::load().ok()?;
+        let app = vk::ApplicationInfo::default().api_version(vk::API_VERSION_1_2);
+        let instance = entry
+            .create_instance(&vk::InstanceCreateInfo::default().application_info(&app), None)
+            .ok()?;
+        let (physical_device, family) = instance.enumerate_physical_devices().ok()?.into_iter().find_map(|pd| {
+            let families = instance.get_physical_device_queue_family_properties(pd);
+            let family = families.iter().position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))?;
+            Some((pd, family as u32))
+        })?;
+        let priorities = [1.0];
+        let queues = [vk::DeviceQueueCreateInfo::default().queue_family_index(family).queue_priorities(&priorities)];
+        let device = instance
+            .create_device(physical_device, &vk::DeviceCreateInfo::default().queue_create_infos(&queues), None)
+            .ok()?;
+        let queue = device.get_device_queue(family, 0);
+        Some(Renderer { entry, instance, physical_device, device, family, queue })
+    }
+}
+
+#[test]
+fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
+    let Some(r) = renderer() else {
+        assert!(std::env::var("VKRT_ALLOW_NO_GPU").is_ok_and(|v| v == "1"), "no Vulkan device");
+        return;
+    };
+    let allocator = Arc::new(Mutex::new(
+        Allocator::new(&AllocatorCreateDesc {
+            instance: r.instance.clone(),
+            device: r.device.clone(),
+            physical_device: r.physical_device,
+            debug_settings: Default::default(),
+            buffer_device_address: false,
+            allocation_sizes: Default::default(),
+        })
+        .unwrap(),
+    ));
+    let parts = RawParts {
+        entry: r.entry.clone(),
+        instance: r.instance.clone(),
+        physical_device: r.physical_device,
+        device: r.device.clone(),
+        queue_family: r.family,
+        queue: r.queue,
+        enabled_features: DeviceFeatures::default(),
+        debug_utils: false,
+        allocator: Some(allocator.clone()),
+    };
+    // SAFETY: the handles are valid and outlive the context (destroyed at the end of the
+    // test, after the context is dropped); this thread is the only queue user.
+    let ctx = unsafe { Context::from_raw(parts) }.expect("adopt the renderer's device");
+
+    let n = 1000u32;
+    let x = Buffer::from_slice(&ctx, "embed.x", &vec![2.0f32; n as usize]).unwrap();
+    let y = Buffer::from_slice(&ctx, "embed.y", &vec![1.0f32; n as usize]).unwrap();
+    let kernel = ctx.kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64)).unwrap();
+
+    // The renderer's own command pool and command buffer.
+    // SAFETY: plain Vulkan on the renderer's valid device.
+    let (pool, cmd) = unsafe {
+        let pool = r
+            .device
+            .create_command_pool(&vk::CommandPoolCreateInfo::default().queue_family_index(r.family), None)
+            .unwrap();
+        let cmd = r
+            .device
+            .allocate_command_buffers(
+                &vk::CommandBufferAllocateInfo::default().command_pool(pool).command_buffer_count(1),
+            )
+            .unwrap()[0];
+        r.device.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default()).unwrap();
+        (pool, cmd)
+    };
+    // SAFETY: `cmd` is recording, of the context's family; the buffers outlive its execution;
+    // `complete` is called after the fence wait below.
+    let mut rec = unsafe { Recorder::from_raw(&ctx, cmd, 16) }.unwrap();
+    rec.scope("embedded.saxpy", |rec| {
+        let groups = rec.groups_1d(u64::from(n), 64);
+        rec.dispatch(&kernel, groups, &[&x, &y], &SaxpyPush { a: 3.0, n });
+    });
+    rec.compute_to_transfer();
+    let work = rec.finish();
+    // SAFETY: the renderer ends, submits and waits for its own command buffer.
+    unsafe {
+        r.device.end_command_buffer(cmd).unwrap();
+        let fence = r.device.create_fence(&vk::FenceCreateInfo::default(), None).unwrap();
+        let cmds = [cmd];
+        r.device.queue_submit(r.queue, &[vk::SubmitInfo::default().command_buffers(&cmds)], fence).unwrap();
+        r.device.wait_for_fences(&[fence], true, u64::MAX).unwrap();
+        r.device.destroy_fence(fence, None);
+    }
+    // SAFETY: the command buffer has finished executing (fence waited above).
+    let profile = unsafe { work.complete() }.unwrap();
+    assert_eq!(profile.passes.len(), 1);
+    assert_eq!(profile.passes[0].name, "embedded.saxpy");
+    if ctx.info().timestamps {
+        assert!(profile.passes[0].ms.unwrap() > 0.0);
+    }
+    assert!(y.download().unwrap().iter().all(|&v| v == 7.0));
+
+    // A convenience submission on the adopted queue works too.
+    let z = Buffer::from_slice(&ctx, "embed.z", &[5u32; 17]).unwrap();
+    assert_eq!(z.download().unwrap(), vec![5u32; 17]);
+
+    drop((x, y, z, kernel));
+    drop(ctx);
+
+    // The renderer's device, queue and allocator are still alive and usable.
+    // SAFETY: plain Vulkan on the renderer's device, which vkrt must not have destroyed.
+    unsafe {
+        r.device.device_wait_idle().expect("device still alive");
+        let buffer = r
+            .device
+            .create_buffer(
+                &vk::BufferCreateInfo::default().size(256).usage(vk::BufferUsageFlags::STORAGE_BUFFER),
+                None,
+            )
+            .expect("device still creates objects");
+        let requirements = r.device.get_buffer_memory_requirements(buffer);
+        let allocation = allocator
+            .lock()
+            .unwrap()
+            .allocate(&gpu_allocator::vulkan::AllocationCreateDesc {
+                name: "after-vkrt",
+                requirements,
+                location: gpu_allocator::MemoryLocation::GpuOnly,
+                linear: true,
+                allocation_scheme: gpu_allocator::vulkan::AllocationScheme::GpuAllocatorManaged,
+            })
+            .expect("the renderer's allocator still works");
+        allocator.lock().unwrap().free(allocation).unwrap();
+        r.device.destroy_buffer(buffer, None);
+        r.device.destroy_command_pool(pool, None);
+        drop(allocator);
+        r.device.destroy_device(None);
+        r.instance.destroy_instance(None);
+    }
+}
