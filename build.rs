@@ -27,8 +27,15 @@ fn main() {
     let compiler = shaderc::Compiler::new().expect("shaderc: cannot create a compiler");
     let mut errors = Vec::new();
     let mut blobs = Vec::new();
-    for file in files.iter().filter(|f| f.extension().is_some_and(|e| e == "comp")) {
-        let rel = file.strip_prefix(&root).unwrap().to_string_lossy().replace('\\', "/");
+    for file in files
+        .iter()
+        .filter(|f| f.extension().is_some_and(|e| e == "comp"))
+    {
+        let rel = file
+            .strip_prefix(&root)
+            .unwrap()
+            .to_string_lossy()
+            .replace('\\', "/");
         let source = match std::fs::read_to_string(file) {
             Ok(s) => s,
             Err(e) => {
@@ -171,7 +178,9 @@ fn compile(
                 });
             }
         }
-        Err(format!("cannot find include `{name}` (looked beside {requester} and in glsl/)"))
+        Err(format!(
+            "cannot find include `{name}` (looked beside {requester} and in glsl/)"
+        ))
     });
     let artifact = compiler
         .compile_into_spirv(
@@ -275,7 +284,9 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
             }
             SC_PUSH_CONSTANT => r.push_constants = true,
             SC_UNIFORM | SC_UNIFORM_CONSTANT if binding.contains_key(&id) => {
-                return Err("kernels may bind only storage buffers (std430 `buffer` blocks)".into());
+                return Err(
+                    "kernels may bind only storage buffers (std430 `buffer` blocks)".into(),
+                );
             }
             _ => {}
         }
@@ -315,11 +326,22 @@ fn generate(blobs: &[Blob]) -> String {
         let _ = writeln!(s, "pub static {ident}: ShaderBlob = ShaderBlob {{");
         let _ = writeln!(s, "    name: {:?},", b.name);
         let _ = writeln!(s, "    source: {:?},", b.source);
-        let _ = writeln!(s, "    defines: &{:?},", b.defines.iter().map(|(k, v)| (k.as_str(), v.as_str())).collect::<Vec<_>>());
+        let _ = writeln!(
+            s,
+            "    defines: &{:?},",
+            b.defines
+                .iter()
+                .map(|(k, v)| (k.as_str(), v.as_str()))
+                .collect::<Vec<_>>()
+        );
         let _ = writeln!(s, "    bindings: &{:?},", b.info.bindings);
         let _ = writeln!(s, "    spec_constants: &{:?},", b.info.spec_constants);
         let _ = writeln!(s, "    local_size: {:?},", b.info.local_size);
-        let _ = writeln!(s, "    local_size_spec_ids: {:?},", b.info.local_size_spec_ids);
+        let _ = writeln!(
+            s,
+            "    local_size_spec_ids: {:?},",
+            b.info.local_size_spec_ids
+        );
         let _ = writeln!(s, "    push_constants: {},", b.info.push_constants);
         s.push_str("    spirv: &[");
         for (i, w) in b.words.iter().enumerate() {
@@ -343,6 +365,12 @@ fn generate(blobs: &[Blob]) -> String {
 
 fn rust_ident(name: &str) -> String {
     name.chars()
-        .map(|c| if c.is_ascii_alphanumeric() { c.to_ascii_uppercase() } else { '_' })
+        .map(|c| {
+            if c.is_ascii_alphanumeric() {
+                c.to_ascii_uppercase()
+            } else {
+                '_'
+            }
+        })
         .collect()
 }

@@ -42,6 +42,8 @@ impl CopyBaselines {
     }
 }
 
+type KernelVariant = (std::sync::Arc<crate::gpu::Kernel>, u32);
+
 const WORKGROUP_SIZES: [u32; 3] = [64, 256, 1024];
 
 /// Measures `vkCmdCopyBuffer` and the copy kernels over `bytes`, `reps` times each, and
@@ -51,12 +53,22 @@ pub fn copy_baselines(ctx: &Context, bytes: u64, reps: u32) -> Result<(CopyBasel
     let bytes = words as u64 * 4;
     let src = Buffer::<u32>::new(ctx, "bench.src", words)?;
     let dst = Buffer::<u32>::new(ctx, "bench.dst", words)?;
-    let mut variants: Vec<(String, Option<(std::sync::Arc<crate::gpu::Kernel>, u32)>)> =
+    // (name, None = vkCmdCopyBuffer | Some((kernel, u32 words per invocation)))
+    let mut variants: Vec<(String, Option<KernelVariant>)> =
         vec![("vkCmdCopyBuffer".to_string(), None)];
-    for wg in WORKGROUP_SIZES.into_iter().filter(|&w| w <= ctx.info().max_workgroup_invocations) {
+    for wg in WORKGROUP_SIZES
+        .into_iter()
+        .filter(|&w| w <= ctx.info().max_workgroup_invocations)
+    {
         let spec = Spec::new().workgroup(wg);
-        variants.push((format!("copy_kernel.u32.wg{wg}"), Some((ctx.kernel(&kernels::GPU_COPY_U32, &spec)?, 1))));
-        variants.push((format!("copy_kernel.uvec4.wg{wg}"), Some((ctx.kernel(&kernels::GPU_COPY_UVEC4, &spec)?, 4))));
+        variants.push((
+            format!("copy_kernel.u32.wg{wg}"),
+            Some((ctx.kernel(&kernels::GPU_COPY_U32, &spec)?, 1)),
+        ));
+        variants.push((
+            format!("copy_kernel.uvec4.wg{wg}"),
+            Some((ctx.kernel(&kernels::GPU_COPY_UVEC4, &spec)?, 4)),
+        ));
     }
     let mut rec = Recorder::new(ctx)?;
     // Warm-up: touch every page of both buffers once, untimed.
@@ -65,7 +77,11 @@ pub fn copy_baselines(ctx: &Context, bytes: u64, reps: u32) -> Result<(CopyBasel
     rec.transfer_to_transfer();
     for rep in 0..=reps {
         for (name, kernel) in &variants {
-            let label = if rep == 0 { format!("warmup.{name}") } else { name.clone() };
+            let label = if rep == 0 {
+                format!("warmup.{name}")
+            } else {
+                name.clone()
+            };
             rec.begin_scope(&label);
             match kernel {
                 None => rec.copy(&src, &dst, words),

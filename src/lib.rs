@@ -7,7 +7,10 @@
 #![deny(unsafe_code)]
 #![warn(unsafe_op_in_unsafe_fn, clippy::undocumented_unsafe_blocks)]
 
-#[allow(unsafe_code, reason = "the gpu layer is the one place that talks to Vulkan")]
+#[allow(
+    unsafe_code,
+    reason = "the gpu layer is the one place that talks to Vulkan"
+)]
 pub mod gpu;
 
 pub mod bench;

@@ -7,7 +7,11 @@ use clap::{Parser, Subcommand};
 use vkrt::gpu::{Context, ContextOptions, Profile, Validation};
 
 #[derive(Parser)]
-#[command(name = "vkrt", version, about = "Vulkan-native ray tracing: GPU-built acceleration structures you can read, embed and profile")]
+#[command(
+    name = "vkrt",
+    version,
+    about = "Vulkan-native ray tracing: GPU-built acceleration structures you can read, embed and profile"
+)]
 struct Cli {
     /// Enable the Khronos validation layer with synchronization validation (also VKRT_VALIDATION=1).
     #[arg(long, global = true)]
@@ -62,14 +66,27 @@ fn main() -> ExitCode {
 
 fn context(validate: bool) -> Result<Context, Box<dyn std::error::Error>> {
     let env_on = std::env::var("VKRT_VALIDATION").is_ok_and(|v| v.trim() == "1");
-    let validation = if validate || env_on { Validation::On } else { Validation::Off };
-    Ok(Context::new(&ContextOptions { validation, device_name: None })?)
+    let validation = if validate || env_on {
+        Validation::On
+    } else {
+        Validation::Off
+    };
+    Ok(Context::new(&ContextOptions {
+        validation,
+        device_name: None,
+    })?)
 }
 
-fn write_profile(path: &Option<PathBuf>, profile: &Profile) -> Result<(), Box<dyn std::error::Error>> {
+fn write_profile(
+    path: &Option<PathBuf>,
+    profile: &Profile,
+) -> Result<(), Box<dyn std::error::Error>> {
     if let Some(path) = path {
         profile.write_chrome_trace(path)?;
-        eprintln!("vkrt: wrote GPU trace {} (open in ui.perfetto.dev)", path.display());
+        eprintln!(
+            "vkrt: wrote GPU trace {} (open in ui.perfetto.dev)",
+            path.display()
+        );
     }
     Ok(())
 }
@@ -90,11 +107,16 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     info.subgroup_size, info.min_subgroup_size, info.max_subgroup_size
                 );
                 println!("subgroup ops        {}", info.subgroup_ops.join(" "));
-                println!("max storage buffer  {} bytes", info.max_storage_buffer_range);
+                println!(
+                    "max storage buffer  {} bytes",
+                    info.max_storage_buffer_range
+                );
                 println!("max shared memory   {} bytes", info.max_shared_memory);
                 println!(
                     "workgroups          {} invocations, size {:?}, count {:?}",
-                    info.max_workgroup_invocations, info.max_workgroup_size, info.max_workgroup_count
+                    info.max_workgroup_invocations,
+                    info.max_workgroup_size,
+                    info.max_workgroup_count
                 );
                 println!(
                     "timestamps          {} (period {} ns)",
@@ -103,7 +125,15 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 );
             }
         }
-        Command::Bench { what: BenchCommand::Copy { mib, reps, json, profile } } => {
+        Command::Bench {
+            what:
+                BenchCommand::Copy {
+                    mib,
+                    reps,
+                    json,
+                    profile,
+                },
+        } => {
             let ctx = context(cli.validate)?;
             let (baselines, trace) = vkrt::bench::copy_baselines(&ctx, mib << 20, reps.max(1))?;
             write_profile(&profile, &trace)?;
@@ -114,9 +144,15 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     "{} (subgroup {}), {} MiB, best of {}",
                     baselines.device, baselines.subgroup_size, mib, baselines.repetitions
                 );
-                println!("{:<26} {:>10} {:>10} {:>14}", "method", "ms", "GiB/s r+w", "copy_ms / ms");
+                println!(
+                    "{:<26} {:>10} {:>10} {:>14}",
+                    "method", "ms", "GiB/s r+w", "copy_ms / ms"
+                );
                 for r in &baselines.results {
-                    println!("{:<26} {:>10.3} {:>10.2} {:>14.3}", r.method, r.gpu_ms, r.gib_per_s, r.ratio_to_copy);
+                    println!(
+                        "{:<26} {:>10.3} {:>10.2} {:>14.3}",
+                        r.method, r.gpu_ms, r.gib_per_s, r.ratio_to_copy
+                    );
                 }
             }
         }

@@ -3,7 +3,10 @@
 use std::process::Command;
 
 fn vkrt(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_vkrt")).args(args).output().expect("run vkrt")
+    Command::new(env!("CARGO_BIN_EXE_vkrt"))
+        .args(args)
+        .output()
+        .expect("run vkrt")
 }
 
 fn no_gpu_allowed() -> bool {
@@ -16,7 +19,11 @@ fn info_json_has_the_documented_keys() {
     if !out.status.success() && no_gpu_allowed() {
         return;
     }
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     for key in [
         "device",
@@ -32,8 +39,19 @@ fn info_json_has_the_documented_keys() {
     }
     let sg = v["subgroup_size"].as_u64().unwrap();
     assert!(sg.is_power_of_two() && sg >= 4, "{v}");
-    let ops: Vec<&str> = v["subgroup_ops"].as_array().unwrap().iter().map(|o| o.as_str().unwrap()).collect();
-    for op in ["basic", "arithmetic", "ballot", "shuffle", "shuffle_relative"] {
+    let ops: Vec<&str> = v["subgroup_ops"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|o| o.as_str().unwrap())
+        .collect();
+    for op in [
+        "basic",
+        "arithmetic",
+        "ballot",
+        "shuffle",
+        "shuffle_relative",
+    ] {
         assert!(ops.contains(&op), "{ops:?}");
     }
 }
@@ -43,18 +61,37 @@ fn bench_copy_writes_a_perfetto_trace() {
     let dir = std::env::temp_dir().join(format!("vkrt-cli-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let trace = dir.join("trace.json");
-    let out = vkrt(&["bench", "copy", "--mib", "2", "--reps", "1", "--json", "--profile", trace.to_str().unwrap()]);
+    let out = vkrt(&[
+        "bench",
+        "copy",
+        "--mib",
+        "2",
+        "--reps",
+        "1",
+        "--json",
+        "--profile",
+        trace.to_str().unwrap(),
+    ]);
     if !out.status.success() && no_gpu_allowed() {
         return;
     }
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let results = v["results"].as_array().unwrap();
     assert!(results.iter().any(|r| r["method"] == "vkCmdCopyBuffer"));
-    assert!(results.iter().any(|r| r["method"].as_str().unwrap().starts_with("copy_kernel.uvec4")));
+    assert!(results.iter().any(|r| r["method"]
+        .as_str()
+        .unwrap()
+        .starts_with("copy_kernel.uvec4")));
     let t: serde_json::Value = serde_json::from_slice(&std::fs::read(&trace).unwrap()).unwrap();
     let events = t["traceEvents"].as_array().unwrap();
-    assert!(events.iter().any(|e| e["ph"] == "X" && e["name"] == "vkCmdCopyBuffer"));
+    assert!(events
+        .iter()
+        .any(|e| e["ph"] == "X" && e["name"] == "vkCmdCopyBuffer"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
@@ -62,8 +99,20 @@ fn bench_copy_writes_a_perfetto_trace() {
 fn an_unwritable_profile_path_is_an_error_and_leaves_no_file() {
     let dir = std::env::temp_dir().join(format!("vkrt-cli-missing-{}", std::process::id()));
     let trace = dir.join("sub").join("trace.json");
-    let out = vkrt(&["bench", "copy", "--mib", "1", "--reps", "1", "--profile", trace.to_str().unwrap()]);
-    if no_gpu_allowed() && !out.status.success() && !String::from_utf8_lossy(&out.stderr).contains("trace.json") {
+    let out = vkrt(&[
+        "bench",
+        "copy",
+        "--mib",
+        "1",
+        "--reps",
+        "1",
+        "--profile",
+        trace.to_str().unwrap(),
+    ]);
+    if no_gpu_allowed()
+        && !out.status.success()
+        && !String::from_utf8_lossy(&out.stderr).contains("trace.json")
+    {
         return;
     }
     assert!(!out.status.success());

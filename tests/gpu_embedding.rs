@@ -32,27 +32,52 @@ fn renderer() -> Option<Renderer> {
         let entry = ash::Entry::load().ok()?;
         let app = vk::ApplicationInfo::default().api_version(vk::API_VERSION_1_2);
         let instance = entry
-            .create_instance(&vk::InstanceCreateInfo::default().application_info(&app), None)
+            .create_instance(
+                &vk::InstanceCreateInfo::default().application_info(&app),
+                None,
+            )
             .ok()?;
-        let (physical_device, family) = instance.enumerate_physical_devices().ok()?.into_iter().find_map(|pd| {
-            let families = instance.get_physical_device_queue_family_properties(pd);
-            let family = families.iter().position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))?;
-            Some((pd, family as u32))
-        })?;
+        let (physical_device, family) = instance
+            .enumerate_physical_devices()
+            .ok()?
+            .into_iter()
+            .find_map(|pd| {
+                let families = instance.get_physical_device_queue_family_properties(pd);
+                let family = families
+                    .iter()
+                    .position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))?;
+                Some((pd, family as u32))
+            })?;
         let priorities = [1.0];
-        let queues = [vk::DeviceQueueCreateInfo::default().queue_family_index(family).queue_priorities(&priorities)];
+        let queues = [vk::DeviceQueueCreateInfo::default()
+            .queue_family_index(family)
+            .queue_priorities(&priorities)];
         let device = instance
-            .create_device(physical_device, &vk::DeviceCreateInfo::default().queue_create_infos(&queues), None)
+            .create_device(
+                physical_device,
+                &vk::DeviceCreateInfo::default().queue_create_infos(&queues),
+                None,
+            )
             .ok()?;
         let queue = device.get_device_queue(family, 0);
-        Some(Renderer { entry, instance, physical_device, device, family, queue })
+        Some(Renderer {
+            entry,
+            instance,
+            physical_device,
+            device,
+            family,
+            queue,
+        })
     }
 }
 
 #[test]
 fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
     let Some(r) = renderer() else {
-        assert!(std::env::var("VKRT_ALLOW_NO_GPU").is_ok_and(|v| v == "1"), "no Vulkan device");
+        assert!(
+            std::env::var("VKRT_ALLOW_NO_GPU").is_ok_and(|v| v == "1"),
+            "no Vulkan device"
+        );
         return;
     };
     let allocator = Arc::new(Mutex::new(
@@ -84,22 +109,31 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
     let n = 1000u32;
     let x = Buffer::from_slice(&ctx, "embed.x", &vec![2.0f32; n as usize]).unwrap();
     let y = Buffer::from_slice(&ctx, "embed.y", &vec![1.0f32; n as usize]).unwrap();
-    let kernel = ctx.kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64)).unwrap();
+    let kernel = ctx
+        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
+        .unwrap();
 
     // The renderer's own command pool and command buffer.
     // SAFETY: plain Vulkan on the renderer's valid device.
     let (pool, cmd) = unsafe {
         let pool = r
             .device
-            .create_command_pool(&vk::CommandPoolCreateInfo::default().queue_family_index(r.family), None)
+            .create_command_pool(
+                &vk::CommandPoolCreateInfo::default().queue_family_index(r.family),
+                None,
+            )
             .unwrap();
         let cmd = r
             .device
             .allocate_command_buffers(
-                &vk::CommandBufferAllocateInfo::default().command_pool(pool).command_buffer_count(1),
+                &vk::CommandBufferAllocateInfo::default()
+                    .command_pool(pool)
+                    .command_buffer_count(1),
             )
             .unwrap()[0];
-        r.device.begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default()).unwrap();
+        r.device
+            .begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
+            .unwrap();
         (pool, cmd)
     };
     // SAFETY: `cmd` is recording, of the context's family; the buffers outlive its execution;
@@ -114,9 +148,18 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
     // SAFETY: the renderer ends, submits and waits for its own command buffer.
     unsafe {
         r.device.end_command_buffer(cmd).unwrap();
-        let fence = r.device.create_fence(&vk::FenceCreateInfo::default(), None).unwrap();
+        let fence = r
+            .device
+            .create_fence(&vk::FenceCreateInfo::default(), None)
+            .unwrap();
         let cmds = [cmd];
-        r.device.queue_submit(r.queue, &[vk::SubmitInfo::default().command_buffers(&cmds)], fence).unwrap();
+        r.device
+            .queue_submit(
+                r.queue,
+                &[vk::SubmitInfo::default().command_buffers(&cmds)],
+                fence,
+            )
+            .unwrap();
         r.device.wait_for_fences(&[fence], true, u64::MAX).unwrap();
         r.device.destroy_fence(fence, None);
     }
@@ -143,7 +186,9 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
         let buffer = r
             .device
             .create_buffer(
-                &vk::BufferCreateInfo::default().size(256).usage(vk::BufferUsageFlags::STORAGE_BUFFER),
+                &vk::BufferCreateInfo::default()
+                    .size(256)
+                    .usage(vk::BufferUsageFlags::STORAGE_BUFFER),
                 None,
             )
             .expect("device still creates objects");

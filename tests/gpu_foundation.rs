@@ -19,12 +19,14 @@ struct SaxpyPush {
 /// The CPU twin of `glsl/gpu/saxpy.comp`.
 fn saxpy_cpu(a: f32, x: &[f32], y: &mut [f32]) {
     for (yi, xi) in y.iter_mut().zip(x) {
-        *yi = a * xi + *yi;
+        *yi += a * xi;
     }
 }
 
 fn saxpy_gpu(ctx: &Context, wg: u32, a: f32, x: &[f32], y: &[f32]) -> Vec<f32> {
-    let kernel = ctx.kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(wg)).unwrap();
+    let kernel = ctx
+        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(wg))
+        .unwrap();
     let xb = Buffer::from_slice(ctx, "saxpy.x", x).unwrap();
     let yb = Buffer::from_slice(ctx, "saxpy.y", y).unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
@@ -41,7 +43,20 @@ fn saxpy_equals_cpu_twin_bit_for_bit_at_every_edge_size() {
     let Some(ctx) = common::context() else { return };
     let sg = ctx.info().subgroup_size as usize;
     let wg = SAXPY_WG as usize;
-    let mut sizes = vec![0, 1, 7, 8, 9, sg - 1, sg, sg + 1, wg - 1, wg, wg + 1, 1_000_003];
+    let mut sizes = vec![
+        0,
+        1,
+        7,
+        8,
+        9,
+        sg - 1,
+        sg,
+        sg + 1,
+        wg - 1,
+        wg,
+        wg + 1,
+        1_000_003,
+    ];
     sizes.dedup();
     let mut rng = common::Rng(7);
     for n in sizes {
@@ -52,8 +67,14 @@ fn saxpy_equals_cpu_twin_bit_for_bit_at_every_edge_size() {
         let mut cpu = y.clone();
         saxpy_cpu(a, &x, &mut cpu);
         assert_eq!(gpu.len(), n);
-        let first_diff = gpu.iter().zip(&cpu).position(|(g, c)| g.to_bits() != c.to_bits());
-        assert_eq!(first_diff, None, "n = {n}: GPU and CPU differ at {first_diff:?}");
+        let first_diff = gpu
+            .iter()
+            .zip(&cpu)
+            .position(|(g, c)| g.to_bits() != c.to_bits());
+        assert_eq!(
+            first_diff, None,
+            "n = {n}: GPU and CPU differ at {first_diff:?}"
+        );
     }
     common::assert_silent(&ctx);
 }
@@ -64,7 +85,7 @@ fn large_dispatches_fold_into_a_2d_grid() {
     // 64-wide groups over more than 65,535 groups: the grid must fold into y.
     let wg = 64u32;
     let n = 65_536 * wg as usize + 5;
-    let mut rec = Recorder::new(&ctx).unwrap();
+    let rec = Recorder::new(&ctx).unwrap();
     let groups = rec.groups_1d(n as u64, wg);
     assert!(groups[1] > 1, "expected a folded grid, got {groups:?}");
     let x: Vec<f32> = (0..n).map(|i| (i % 1000) as f32).collect();
@@ -82,19 +103,31 @@ fn kernels_see_the_subgroup_size_the_device_reports() {
     let Some(ctx) = common::context() else { return };
     let sg = ctx.info().subgroup_size;
     if let Ok(expected) = std::env::var("VKRT_EXPECT_SUBGROUP_SIZE") {
-        assert_eq!(sg.to_string(), expected, "LP_NATIVE_VECTOR_WIDTH matrix: wrong subgroup size");
+        assert_eq!(
+            sg.to_string(),
+            expected,
+            "LP_NATIVE_VECTOR_WIDTH matrix: wrong subgroup size"
+        );
     }
     for wg in [64u32, 128] {
-        let kernel = ctx.kernel(&kernels::GPU_SUBGROUP_PROBE, &Spec::new().workgroup(wg)).unwrap();
+        let kernel = ctx
+            .kernel(&kernels::GPU_SUBGROUP_PROBE, &Spec::new().workgroup(wg))
+            .unwrap();
         let out = Buffer::<u32>::zeroed(&ctx, "probe.out", 2 + wg as usize).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
         rec.dispatch(&kernel, [1, 1, 1], &[&out], &());
         rec.compute_to_transfer();
         rec.submit_and_wait().unwrap();
         let got = out.download().unwrap();
-        assert_eq!(got[0], sg, "gl_SubgroupSize differs from the device property");
+        assert_eq!(
+            got[0], sg,
+            "gl_SubgroupSize differs from the device property"
+        );
         assert_eq!(got[1], wg / sg, "gl_NumSubgroups");
-        assert!(got[2..].iter().all(|&l| l == sg), "subgroupAdd(1) must count {sg} lanes: {got:?}");
+        assert!(
+            got[2..].iter().all(|&l| l == sg),
+            "subgroupAdd(1) must count {sg} lanes: {got:?}"
+        );
     }
     common::assert_silent(&ctx);
 }
@@ -102,8 +135,12 @@ fn kernels_see_the_subgroup_size_the_device_reports() {
 /// Two dependent dispatches: saxpy writes `y`, then the copy kernel reads `y`.
 fn dependent_dispatches(ctx: &Context, with_barrier: bool) {
     let n = 4096u32;
-    let saxpy = ctx.kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64)).unwrap();
-    let copy = ctx.kernel(&kernels::GPU_COPY_U32, &Spec::new().workgroup(64)).unwrap();
+    let saxpy = ctx
+        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
+        .unwrap();
+    let copy = ctx
+        .kernel(&kernels::GPU_COPY_U32, &Spec::new().workgroup(64))
+        .unwrap();
     let x = Buffer::from_slice(ctx, "hazard.x", &vec![1.0f32; n as usize]).unwrap();
     let y = Buffer::from_slice(ctx, "hazard.y", &vec![2.0f32; n as usize]).unwrap();
     let z = Buffer::<f32>::new(ctx, "hazard.z", n as usize).unwrap();
@@ -133,7 +170,9 @@ fn sync_validation_catches_a_missing_barrier_and_is_silent_with_it() {
     dependent_dispatches(&ctx, false);
     let messages = ctx.take_validation_messages();
     assert!(
-        messages.iter().any(|m| m.id.contains("SYNC-HAZARD-READ") || m.text.contains("SYNC-HAZARD-READ")),
+        messages
+            .iter()
+            .any(|m| m.id.contains("SYNC-HAZARD-READ") || m.text.contains("SYNC-HAZARD-READ")),
         "the missing compute->compute barrier was not reported; got: {messages:?}"
     );
 }
@@ -146,28 +185,77 @@ fn profiler_scopes_are_nested_ordered_and_non_empty() {
         return;
     }
     let n = 1 << 20;
-    let kernel = ctx.kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(256)).unwrap();
+    let kernel = ctx
+        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(256))
+        .unwrap();
     let x = Buffer::from_slice(&ctx, "prof.x", &vec![1.0f32; n]).unwrap();
     let y = Buffer::from_slice(&ctx, "prof.y", &vec![1.0f32; n]).unwrap();
     let mut rec = Recorder::new(&ctx).unwrap();
     let groups = rec.groups_1d(n as u64, 256);
     rec.scope("outer", |rec| {
-        rec.scope("first", |rec| rec.dispatch(&kernel, groups, &[&x, &y], &SaxpyPush { a: 1.0, n: n as u32 }));
+        rec.scope("first", |rec| {
+            rec.dispatch(
+                &kernel,
+                groups,
+                &[&x, &y],
+                &SaxpyPush {
+                    a: 1.0,
+                    n: n as u32,
+                },
+            )
+        });
         rec.compute_to_compute();
-        rec.scope("second", |rec| rec.dispatch(&kernel, groups, &[&x, &y], &SaxpyPush { a: 1.0, n: n as u32 }));
+        rec.scope("second", |rec| {
+            rec.dispatch(
+                &kernel,
+                groups,
+                &[&x, &y],
+                &SaxpyPush {
+                    a: 1.0,
+                    n: n as u32,
+                },
+            )
+        });
     });
     rec.compute_to_transfer();
     let profile = rec.submit_and_wait().unwrap();
-    let names: Vec<_> = profile.passes.iter().map(|p| (p.name.as_str(), p.depth, p.parent)).collect();
-    assert_eq!(names, [("outer", 0, None), ("first", 1, Some(0)), ("second", 1, Some(0))]);
-    let t = |i: usize| (profile.passes[i].start_ms.unwrap(), profile.passes[i].ms.unwrap());
+    let names: Vec<_> = profile
+        .passes
+        .iter()
+        .map(|p| (p.name.as_str(), p.depth, p.parent))
+        .collect();
+    assert_eq!(
+        names,
+        [
+            ("outer", 0, None),
+            ("first", 1, Some(0)),
+            ("second", 1, Some(0))
+        ]
+    );
+    let t = |i: usize| {
+        (
+            profile.passes[i].start_ms.unwrap(),
+            profile.passes[i].ms.unwrap(),
+        )
+    };
     let (outer, first, second) = (t(0), t(1), t(2));
     assert!(first.1 > 0.0 && second.1 > 0.0, "empty scopes: {profile:?}");
-    assert!(first.0 >= outer.0 && first.0 + first.1 <= second.0 + 1e-9, "order: {profile:?}");
-    assert!(second.0 + second.1 <= outer.0 + outer.1 + 1e-9, "nesting: {profile:?}");
+    assert!(
+        first.0 >= outer.0 && first.0 + first.1 <= second.0 + 1e-9,
+        "order: {profile:?}"
+    );
+    assert!(
+        second.0 + second.1 <= outer.0 + outer.1 + 1e-9,
+        "nesting: {profile:?}"
+    );
 
     let trace = profile.chrome_trace();
-    let events: Vec<_> = trace["traceEvents"].as_array().unwrap().iter().filter(|e| e["ph"] == "X").collect();
+    let events: Vec<_> = trace["traceEvents"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["ph"] == "X")
+        .collect();
     assert_eq!(events.len(), 3);
     assert!(events.iter().all(|e| e["dur"].as_f64().unwrap() > 0.0));
     assert_eq!(y.download().unwrap()[0], 3.0);
@@ -186,7 +274,12 @@ fn generated_kernel_table_matches_what_the_code_binds() {
     for (blob, bindings, push) in expect {
         assert_eq!(blob.bindings, bindings, "{}", blob.name);
         assert_eq!(blob.push_constants, push, "{}", blob.name);
-        assert_eq!(blob.local_size_spec_ids[0], Some(0), "{}: workgroup size by constant_id 0", blob.name);
+        assert_eq!(
+            blob.local_size_spec_ids[0],
+            Some(0),
+            "{}: workgroup size by constant_id 0",
+            blob.name
+        );
         assert_eq!(blob.spirv[0], 0x0723_0203, "{}: SPIR-V magic", blob.name);
     }
     assert_eq!(kernels::GPU_COPY_UVEC4.defines, &[("ELEM", "uvec4")]);
@@ -204,7 +297,10 @@ fn oversized_buffers_are_a_clear_error() {
     let err = Buffer::<u32>::new(&ctx, "too.big", (limit / 4 + 1) as usize).unwrap_err();
     let text = err.to_string();
     assert!(matches!(err, GpuError::BufferTooLarge { .. }), "{err:?}");
-    assert!(text.contains("too.big") && text.contains(&limit.to_string()), "{text}");
+    assert!(
+        text.contains("too.big") && text.contains(&limit.to_string()),
+        "{text}"
+    );
     let err = Buffer::<[u32; 4]>::new(&ctx, "overflow", usize::MAX).unwrap_err();
     assert!(matches!(err, GpuError::BufferTooLarge { .. }), "{err:?}");
     common::assert_silent(&ctx);
@@ -212,8 +308,13 @@ fn oversized_buffers_are_a_clear_error() {
 
 #[test]
 fn a_device_that_does_not_exist_is_named_in_the_error() {
-    let options = vkrt::gpu::ContextOptions { device_name: Some("no-such-gpu".into()), ..Default::default() };
-    let err = Context::new(&options).err().expect("no device is called no-such-gpu");
+    let options = vkrt::gpu::ContextOptions {
+        device_name: Some("no-such-gpu".into()),
+        ..Default::default()
+    };
+    let err = Context::new(&options)
+        .err()
+        .expect("no device is called no-such-gpu");
     let text = err.to_string();
     assert!(text.contains("no-such-gpu"), "{text}");
 }

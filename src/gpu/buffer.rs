@@ -82,7 +82,14 @@ impl<T: Pod> BufferArg for Buffer<T> {
 
 impl<T: Pod> std::fmt::Debug for Buffer<T> {
     fn fmt(&self, f: &mut std::fmt::Formatter<'_>) -> std::fmt::Result {
-        write!(f, "Buffer<{}>(`{}`, {} elements, {:?})", std::any::type_name::<T>(), self.name, self.len, self.memory)
+        write!(
+            f,
+            "Buffer<{}>(`{}`, {} elements, {:?})",
+            std::any::type_name::<T>(),
+            self.name,
+            self.len,
+            self.memory
+        )
     }
 }
 
@@ -95,14 +102,20 @@ impl<T: Pod> Buffer<T> {
     /// A buffer of `len` elements in the given memory.
     pub fn with_memory(ctx: &Context, name: &str, len: usize, memory: Memory) -> Result<Self> {
         let elem = std::mem::size_of::<T>() as u64;
-        let wanted = (len as u64).checked_mul(elem).ok_or_else(|| GpuError::BufferTooLarge {
-            name: name.into(),
-            bytes: u64::MAX,
-            limit: ctx.info().max_storage_buffer_range,
-        })?;
+        let wanted = (len as u64)
+            .checked_mul(elem)
+            .ok_or_else(|| GpuError::BufferTooLarge {
+                name: name.into(),
+                bytes: u64::MAX,
+                limit: ctx.info().max_storage_buffer_range,
+            })?;
         let limit = ctx.info().max_storage_buffer_range;
         if memory == Memory::Device && wanted > limit {
-            return Err(GpuError::BufferTooLarge { name: name.into(), bytes: wanted, limit });
+            return Err(GpuError::BufferTooLarge {
+                name: name.into(),
+                bytes: wanted,
+                limit,
+            });
         }
         // Vulkan forbids empty buffers; an empty one gets 4 bytes and len 0.
         let bytes = wanted.max(4).next_multiple_of(4);
@@ -116,7 +129,8 @@ impl<T: Pod> Buffer<T> {
             .usage(usage)
             .sharing_mode(vk::SharingMode::EXCLUSIVE);
         // SAFETY: valid device and create-info; the buffer is destroyed on every error path.
-        let raw = unsafe { device.create_buffer(&create, None) }.map_err(vk_err("vkCreateBuffer"))?;
+        let raw =
+            unsafe { device.create_buffer(&create, None) }.map_err(vk_err("vkCreateBuffer"))?;
         // SAFETY: `raw` was just created on this device.
         let requirements = unsafe { device.get_buffer_memory_requirements(raw) };
         let location = match memory {
@@ -124,23 +138,34 @@ impl<T: Pod> Buffer<T> {
             Memory::Upload => MemoryLocation::CpuToGpu,
             Memory::Readback => MemoryLocation::GpuToCpu,
         };
-        let allocation = ctx.inner.allocator.lock().unwrap().allocate(&AllocationCreateDesc {
-            name,
-            requirements,
-            location,
-            linear: true,
-            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
-        });
+        let allocation = ctx
+            .inner
+            .allocator
+            .lock()
+            .unwrap()
+            .allocate(&AllocationCreateDesc {
+                name,
+                requirements,
+                location,
+                linear: true,
+                allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+            });
         let allocation = match allocation {
             Ok(a) => a,
             Err(e) => {
                 // SAFETY: `raw` is unused.
                 unsafe { device.destroy_buffer(raw, None) };
-                return Err(GpuError::Allocation { name: name.into(), bytes, reason: e.to_string() });
+                return Err(GpuError::Allocation {
+                    name: name.into(),
+                    bytes,
+                    reason: e.to_string(),
+                });
             }
         };
         // SAFETY: the allocation satisfies `requirements` and is not bound to anything else.
-        if let Err(e) = unsafe { device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) } {
+        let bound =
+            unsafe { device.bind_buffer_memory(raw, allocation.memory(), allocation.offset()) };
+        if let Err(e) = bound {
             // SAFETY: `raw` is unused; the allocation goes back to the allocator.
             unsafe { device.destroy_buffer(raw, None) };
             let _ = ctx.inner.allocator.lock().unwrap().free(allocation);
@@ -210,12 +235,13 @@ impl<T: Pod> Buffer<T> {
             self.write_mapped(bytemuck::cast_slice(data));
             return Ok(());
         }
-        let staging = Buffer::<T>::with_memory(&self.ctx, "staging.upload", data.len(), Memory::Upload)?;
+        let staging =
+            Buffer::<T>::with_memory(&self.ctx, "staging.upload", data.len(), Memory::Upload)?;
         staging.upload(data)?;
         let mut rec = Recorder::new(&self.ctx)?;
         rec.copy(&staging, self, data.len());
         rec.transfer_to_host();
-        rec.submit_and_wait()
+        rec.submit_and_wait().map(drop)
     }
 
     /// Reads the whole buffer back.
@@ -227,7 +253,8 @@ impl<T: Pod> Buffer<T> {
             let bytes = &self.mapped_bytes()[..self.byte_len() as usize];
             return Ok(bytemuck::pod_collect_to_vec(bytes));
         }
-        let staging = Buffer::<T>::with_memory(&self.ctx, "staging.readback", self.len, Memory::Readback)?;
+        let staging =
+            Buffer::<T>::with_memory(&self.ctx, "staging.readback", self.len, Memory::Readback)?;
         let mut rec = Recorder::new(&self.ctx)?;
         rec.compute_to_transfer();
         rec.copy(self, &staging, self.len);
@@ -238,7 +265,9 @@ impl<T: Pod> Buffer<T> {
 
     fn mapped_bytes(&self) -> &[u8] {
         let allocation = self.allocation.as_ref().expect("buffer is alive");
-        allocation.mapped_slice().unwrap_or_else(|| super::error::usage_error("host access to device memory"))
+        allocation
+            .mapped_slice()
+            .unwrap_or_else(|| super::error::usage_error("host access to device memory"))
     }
 
     fn write_mapped(&self, bytes: &[u8]) {

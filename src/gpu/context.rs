@@ -146,7 +146,11 @@ impl Context {
     /// - the caller does not use `queue` from another thread while vkrt submits to it
     ///   (vkrt submits only from `Recorder::submit_and_wait` and buffer up/downloads).
     pub unsafe fn from_raw(parts: RawParts) -> Result<Self> {
-        let physical = info::query(&parts.instance, parts.physical_device, parts.enabled_features);
+        let physical = info::query(
+            &parts.instance,
+            parts.physical_device,
+            parts.enabled_features,
+        );
         info::check_requirements(&physical)?;
         Self::assemble(parts, None, Box::default(), false)
     }
@@ -157,8 +161,13 @@ impl Context {
         sink: Box<MessageSink>,
         owns_device: bool,
     ) -> Result<Self> {
-        let mut info = info::query(&parts.instance, parts.physical_device, parts.enabled_features);
-        info.timestamps &= info::timestamp_bits(&parts.instance, parts.physical_device, parts.queue_family) > 0;
+        let mut info = info::query(
+            &parts.instance,
+            parts.physical_device,
+            parts.enabled_features,
+        );
+        info.timestamps &=
+            info::timestamp_bits(&parts.instance, parts.physical_device, parts.queue_family) > 0;
         let allocator = match parts.allocator {
             Some(a) => a,
             None => {
@@ -235,7 +244,9 @@ impl Context {
         let Ok(name) = std::ffi::CString::new(name) else {
             return;
         };
-        let info = vk::DebugUtilsObjectNameInfoEXT::default().object_handle(handle).object_name(&name);
+        let info = vk::DebugUtilsObjectNameInfoEXT::default()
+            .object_handle(handle)
+            .object_name(&name);
         // SAFETY: `handle` is a live object of this device; naming is best effort.
         let _ = unsafe { du.set_debug_utils_object_name(&info) };
     }
@@ -281,19 +292,26 @@ fn create_instance(
     // SAFETY: plain enumeration calls on a loaded entry.
     let (layers, extensions) = unsafe {
         (
-            entry.enumerate_instance_layer_properties().map_err(vk_err("vkEnumerateInstanceLayerProperties"))?,
+            entry
+                .enumerate_instance_layer_properties()
+                .map_err(vk_err("vkEnumerateInstanceLayerProperties"))?,
             entry
                 .enumerate_instance_extension_properties(None)
                 .map_err(vk_err("vkEnumerateInstanceExtensionProperties"))?,
         )
     };
-    let has_layer = layers
-        .iter()
-        .any(|l| l.layer_name_as_c_str().is_ok_and(|n| n == validation::LAYER_NAME));
-    let validation_on = options
-        .validation
-        .resolve(has_layer)
-        .map_err(|what| GpuError::MissingCapability { device: "instance".into(), what })?;
+    let has_layer = layers.iter().any(|l| {
+        l.layer_name_as_c_str()
+            .is_ok_and(|n| n == validation::LAYER_NAME)
+    });
+    let validation_on =
+        options
+            .validation
+            .resolve(has_layer)
+            .map_err(|what| GpuError::MissingCapability {
+                device: "instance".into(),
+                what,
+            })?;
     let has_ext = |name: &CStr| {
         extensions
             .iter()
@@ -315,13 +333,17 @@ fn create_instance(
             what: "VK_EXT_debug_utils (needed to collect validation messages)".into(),
         });
     }
-    let layer_names = if validation_on { vec![validation::LAYER_NAME.as_ptr()] } else { vec![] };
+    let layer_names = if validation_on {
+        vec![validation::LAYER_NAME.as_ptr()]
+    } else {
+        vec![]
+    };
     let app = vk::ApplicationInfo::default()
         .application_name(c"vkrt")
         .engine_name(c"vkrt")
         .api_version(vk::API_VERSION_1_2);
-    let mut validation_features =
-        vk::ValidationFeaturesEXT::default().enabled_validation_features(&validation::ENABLED_FEATURES);
+    let mut validation_features = vk::ValidationFeaturesEXT::default()
+        .enabled_validation_features(&validation::ENABLED_FEATURES);
     let mut messenger_info = validation::messenger_info(sink);
     let mut create = vk::InstanceCreateInfo::default()
         .application_info(&app)
@@ -329,17 +351,24 @@ fn create_instance(
         .enabled_extension_names(&ext_names)
         .flags(flags);
     if validation_on {
-        create = create.push_next(&mut validation_features).push_next(&mut messenger_info);
+        create = create
+            .push_next(&mut validation_features)
+            .push_next(&mut messenger_info);
     }
     // SAFETY: every pointer in `create` refers to locals that live across the call.
-    let instance = unsafe { entry.create_instance(&create, None) }.map_err(vk_err("vkCreateInstance"))?;
+    let instance =
+        unsafe { entry.create_instance(&create, None) }.map_err(vk_err("vkCreateInstance"))?;
     Ok((instance, validation_on, debug_utils_on))
 }
 
 /// Picks a physical device and its compute queue family.
-fn pick_device(instance: &ash::Instance, wanted: Option<&str>) -> Result<(vk::PhysicalDevice, u32)> {
+fn pick_device(
+    instance: &ash::Instance,
+    wanted: Option<&str>,
+) -> Result<(vk::PhysicalDevice, u32)> {
     // SAFETY: enumeration on a valid instance.
-    let devices = unsafe { instance.enumerate_physical_devices() }.map_err(vk_err("vkEnumeratePhysicalDevices"))?;
+    let devices = unsafe { instance.enumerate_physical_devices() }
+        .map_err(vk_err("vkEnumeratePhysicalDevices"))?;
     let mut candidates = Vec::new();
     let mut rejected = Vec::new();
     for pd in devices {
@@ -362,7 +391,9 @@ fn pick_device(instance: &ash::Instance, wanted: Option<&str>) -> Result<(vk::Ph
     candidates.sort_by_key(|c| c.0);
     match candidates.first() {
         Some(&(_, pd, family)) => Ok((pd, family)),
-        None if rejected.len() == 1 && wanted.is_none() => Err(GpuError::NoDevice(rejected.remove(0))),
+        None if rejected.len() == 1 && wanted.is_none() => {
+            Err(GpuError::NoDevice(rejected.remove(0)))
+        }
         None => Err(GpuError::NoDevice(if rejected.is_empty() {
             "the Vulkan loader lists no device (install mesa-vulkan-drivers for lavapipe)".into()
         } else {

@@ -13,17 +13,31 @@ pub enum GpuError {
     #[error("device `{device}` lacks a required capability: {what}")]
     MissingCapability { device: String, what: String },
     #[error("{call} failed: {code}")]
-    Vulkan { call: &'static str, code: vk::Result },
+    Vulkan {
+        call: &'static str,
+        code: vk::Result,
+    },
     #[error("out of GPU memory during {call}")]
     OutOfMemory { call: &'static str },
     #[error("device lost (last pass recorded before the loss: {last_pass})")]
     DeviceLost { last_pass: String },
     #[error("allocation of buffer `{name}` ({bytes} bytes) failed: {reason}")]
-    Allocation { name: String, bytes: u64, reason: String },
+    Allocation {
+        name: String,
+        bytes: u64,
+        reason: String,
+    },
     #[error("buffer `{name}` needs {bytes} bytes, above this device's maxStorageBufferRange of {limit} bytes; split the data or use a device with a larger limit")]
-    BufferTooLarge { name: String, bytes: u64, limit: u64 },
+    BufferTooLarge {
+        name: String,
+        bytes: u64,
+        limit: u64,
+    },
     #[error("kernel `{kernel}`: {reason}")]
-    Kernel { kernel: &'static str, reason: String },
+    Kernel {
+        kernel: &'static str,
+        reason: String,
+    },
     #[error("cannot write {path}: {reason}")]
     Io { path: String, reason: String },
 }

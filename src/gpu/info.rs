@@ -58,7 +58,10 @@ const SUBGROUP_OPS: [(vk::SubgroupFeatureFlags, &str); 8] = [
     (vk::SubgroupFeatureFlags::ARITHMETIC, "arithmetic"),
     (vk::SubgroupFeatureFlags::BALLOT, "ballot"),
     (vk::SubgroupFeatureFlags::SHUFFLE, "shuffle"),
-    (vk::SubgroupFeatureFlags::SHUFFLE_RELATIVE, "shuffle_relative"),
+    (
+        vk::SubgroupFeatureFlags::SHUFFLE_RELATIVE,
+        "shuffle_relative",
+    ),
     (vk::SubgroupFeatureFlags::CLUSTERED, "clustered"),
     (vk::SubgroupFeatureFlags::QUAD, "quad"),
 ];
@@ -69,10 +72,17 @@ const REQUIRED_OPS: [(vk::SubgroupFeatureFlags, &str); 5] = [
     (vk::SubgroupFeatureFlags::ARITHMETIC, "arithmetic"),
     (vk::SubgroupFeatureFlags::BALLOT, "ballot"),
     (vk::SubgroupFeatureFlags::SHUFFLE, "shuffle"),
-    (vk::SubgroupFeatureFlags::SHUFFLE_RELATIVE, "shuffle_relative"),
+    (
+        vk::SubgroupFeatureFlags::SHUFFLE_RELATIVE,
+        "shuffle_relative",
+    ),
 ];
 
-pub(crate) fn query(instance: &ash::Instance, pd: vk::PhysicalDevice, features: DeviceFeatures) -> DeviceInfo {
+pub(crate) fn query(
+    instance: &ash::Instance,
+    pd: vk::PhysicalDevice,
+    features: DeviceFeatures,
+) -> DeviceInfo {
     let mut subgroup = vk::PhysicalDeviceSubgroupProperties::default();
     let mut driver = vk::PhysicalDeviceDriverProperties::default();
     let mut size_control = vk::PhysicalDeviceSubgroupSizeControlProperties::default();
@@ -91,9 +101,18 @@ pub(crate) fn query(instance: &ash::Instance, pd: vk::PhysicalDevice, features: 
     let p = props2.properties;
     let limits = p.limits;
     let v = p.api_version;
-    let name = p.device_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    let driver_name = driver.driver_name_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
-    let driver_info = driver.driver_info_as_c_str().map(|s| s.to_string_lossy().into_owned()).unwrap_or_default();
+    let name = p
+        .device_name_as_c_str()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let driver_name = driver
+        .driver_name_as_c_str()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
+    let driver_info = driver
+        .driver_info_as_c_str()
+        .map(|s| s.to_string_lossy().into_owned())
+        .unwrap_or_default();
     let (device_type, type_rank) = match p.device_type {
         vk::PhysicalDeviceType::DISCRETE_GPU => ("discrete", 0),
         vk::PhysicalDeviceType::INTEGRATED_GPU => ("integrated", 1),
@@ -102,7 +121,10 @@ pub(crate) fn query(instance: &ash::Instance, pd: vk::PhysicalDevice, features: 
         _ => ("other", 4),
     };
     let (min_sg, max_sg) = if has_13 {
-        (size_control.min_subgroup_size, size_control.max_subgroup_size)
+        (
+            size_control.min_subgroup_size,
+            size_control.max_subgroup_size,
+        )
     } else {
         (subgroup.subgroup_size, subgroup.subgroup_size)
     };
@@ -124,7 +146,9 @@ pub(crate) fn query(instance: &ash::Instance, pd: vk::PhysicalDevice, features: 
             .filter(|(f, _)| subgroup.supported_operations.contains(*f))
             .map(|(_, n)| *n)
             .collect(),
-        subgroup_in_compute: subgroup.supported_stages.contains(vk::ShaderStageFlags::COMPUTE),
+        subgroup_in_compute: subgroup
+            .supported_stages
+            .contains(vk::ShaderStageFlags::COMPUTE),
         max_storage_buffer_range: u64::from(limits.max_storage_buffer_range),
         max_shared_memory: limits.max_compute_shared_memory_size,
         max_workgroup_invocations: limits.max_compute_work_group_invocations,
@@ -142,7 +166,10 @@ pub(crate) fn query(instance: &ash::Instance, pd: vk::PhysicalDevice, features: 
 }
 
 /// What this device supports of the features vkrt wants.
-pub(crate) fn supported_features(instance: &ash::Instance, pd: vk::PhysicalDevice) -> DeviceFeatures {
+pub(crate) fn supported_features(
+    instance: &ash::Instance,
+    pd: vk::PhysicalDevice,
+) -> DeviceFeatures {
     // SAFETY: plain queries of a valid physical device.
     let api = unsafe { instance.get_physical_device_properties(pd) }.api_version;
     let mut f11 = vk::PhysicalDeviceVulkan11Features::default();
@@ -152,9 +179,14 @@ pub(crate) fn supported_features(instance: &ash::Instance, pd: vk::PhysicalDevic
     let has_size_control_ext = unsafe { instance.enumerate_device_extension_properties(pd) }
         .unwrap_or_default()
         .iter()
-        .any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == ash::ext::subgroup_size_control::NAME));
+        .any(|e| {
+            e.extension_name_as_c_str()
+                .is_ok_and(|n| n == ash::ext::subgroup_size_control::NAME)
+        });
     let api_1_3 = api >= vk::API_VERSION_1_3;
-    let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut f11).push_next(&mut f12);
+    let mut f2 = vk::PhysicalDeviceFeatures2::default()
+        .push_next(&mut f11)
+        .push_next(&mut f12);
     if api_1_3 || has_size_control_ext {
         f2 = f2.push_next(&mut size_control);
     }
@@ -177,9 +209,15 @@ pub(crate) fn supported_features(instance: &ash::Instance, pd: vk::PhysicalDevic
 
 /// Fails with an error naming the first missing capability.
 pub(crate) fn check_requirements(info: &DeviceInfo) -> Result<()> {
-    let missing = |what: String| GpuError::MissingCapability { device: info.device.clone(), what };
+    let missing = |what: String| GpuError::MissingCapability {
+        device: info.device.clone(),
+        what,
+    };
     if info.api_version_raw < vk::API_VERSION_1_2 {
-        return Err(missing(format!("Vulkan 1.2 (device speaks {})", info.api_version)));
+        return Err(missing(format!(
+            "Vulkan 1.2 (device speaks {})",
+            info.api_version
+        )));
     }
     if !info.subgroup_in_compute {
         return Err(missing("subgroup operations in compute shaders".into()));
@@ -198,7 +236,10 @@ pub(crate) fn check_requirements(info: &DeviceInfo) -> Result<()> {
     Ok(())
 }
 
-pub(crate) fn compute_queue_family(instance: &ash::Instance, pd: vk::PhysicalDevice) -> Option<u32> {
+pub(crate) fn compute_queue_family(
+    instance: &ash::Instance,
+    pd: vk::PhysicalDevice,
+) -> Option<u32> {
     // SAFETY: a plain query of a valid physical device.
     let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
     // Prefer a compute family without graphics (async compute), else any with compute.
@@ -213,5 +254,7 @@ pub(crate) fn compute_queue_family(instance: &ash::Instance, pd: vk::PhysicalDev
 pub(crate) fn timestamp_bits(instance: &ash::Instance, pd: vk::PhysicalDevice, family: u32) -> u32 {
     // SAFETY: a plain query of a valid physical device.
     let families = unsafe { instance.get_physical_device_queue_family_properties(pd) };
-    families.get(family as usize).map_or(0, |f| f.timestamp_valid_bits)
+    families
+        .get(family as usize)
+        .map_or(0, |f| f.timestamp_valid_bits)
 }

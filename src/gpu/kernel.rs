@@ -89,7 +89,10 @@ impl Kernel {
 impl Context {
     /// The kernel for `blob` specialised by `spec`, compiled on first use.
     pub fn kernel(&self, blob: &'static ShaderBlob, spec: &Spec) -> Result<Arc<Kernel>> {
-        let key = KernelKey { name: blob.name, spec: spec.clone() };
+        let key = KernelKey {
+            name: blob.name,
+            spec: spec.clone(),
+        };
         if let Some(k) = self.inner.kernels.lock().unwrap().get(&key) {
             return Ok(k.clone());
         }
@@ -110,7 +113,10 @@ impl Context {
     }
 
     fn create_kernel(&self, blob: &'static ShaderBlob, spec: &Spec) -> Result<Kernel> {
-        let err = |reason: String| GpuError::Kernel { kernel: blob.name, reason };
+        let err = |reason: String| GpuError::Kernel {
+            kernel: blob.name,
+            reason,
+        };
         let mut entries: Vec<(u32, u32)> = spec.values.clone();
         let mut workgroup_size = blob.local_size;
         if let Some(wg) = spec.workgroup {
@@ -150,10 +156,16 @@ impl Context {
         let map: Vec<vk::SpecializationMapEntry> = entries
             .iter()
             .enumerate()
-            .map(|(i, (id, _))| vk::SpecializationMapEntry { constant_id: *id, offset: 4 * i as u32, size: 4 })
+            .map(|(i, (id, _))| vk::SpecializationMapEntry {
+                constant_id: *id,
+                offset: 4 * i as u32,
+                size: 4,
+            })
             .collect();
         let data: Vec<u8> = entries.iter().flat_map(|(_, v)| v.to_ne_bytes()).collect();
-        let specialization = vk::SpecializationInfo::default().map_entries(&map).data(&data);
+        let specialization = vk::SpecializationInfo::default()
+            .map_entries(&map)
+            .data(&data);
 
         let device = &self.inner.device;
         let bindings: Vec<vk::DescriptorSetLayoutBinding> = blob
@@ -177,7 +189,10 @@ impl Context {
         // created so far is destroyed before returning.
         unsafe {
             let set_layout = device
-                .create_descriptor_set_layout(&vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings), None)
+                .create_descriptor_set_layout(
+                    &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
+                    None,
+                )
                 .map_err(vk_err("vkCreateDescriptorSetLayout"))?;
             let set_layouts = [set_layout];
             let layout = match device.create_pipeline_layout(
@@ -205,11 +220,19 @@ impl Context {
                 .module(module)
                 .name(c"main")
                 .specialization_info(&specialization);
-            let create = [vk::ComputePipelineCreateInfo::default().stage(stage).layout(layout)];
+            let create = [vk::ComputePipelineCreateInfo::default()
+                .stage(stage)
+                .layout(layout)];
             let result = device.create_compute_pipelines(self.inner.pipeline_cache, &create, None);
             device.destroy_shader_module(module, None);
             match result {
-                Ok(p) => Ok(Kernel { blob, pipeline: p[0], layout, set_layout, workgroup_size }),
+                Ok(p) => Ok(Kernel {
+                    blob,
+                    pipeline: p[0],
+                    layout,
+                    set_layout,
+                    workgroup_size,
+                }),
                 Err((_, e)) => {
                     device.destroy_pipeline_layout(layout, None);
                     device.destroy_descriptor_set_layout(set_layout, None);

@@ -19,15 +19,23 @@ fn cache_path(info: &DeviceInfo) -> Option<PathBuf> {
         Ok(v) if !v.is_empty() => PathBuf::from(v),
         _ => match std::env::var_os("XDG_CACHE_HOME") {
             Some(x) if !x.is_empty() => PathBuf::from(x).join("vkrt"),
-            _ => PathBuf::from(std::env::var_os("HOME")?).join(".cache").join("vkrt"),
+            _ => PathBuf::from(std::env::var_os("HOME")?)
+                .join(".cache")
+                .join("vkrt"),
         },
     };
-    let uuid: String = info.pipeline_cache_uuid.iter().map(|b| format!("{b:02x}")).collect();
+    let uuid: String = info
+        .pipeline_cache_uuid
+        .iter()
+        .map(|b| format!("{b:02x}"))
+        .collect();
     Some(dir.join(format!("pipelines-{uuid}.bin")))
 }
 
 pub(crate) fn create(device: &ash::Device, info: &DeviceInfo) -> Result<vk::PipelineCache> {
-    let data = cache_path(info).and_then(|p| std::fs::read(p).ok()).unwrap_or_default();
+    let data = cache_path(info)
+        .and_then(|p| std::fs::read(p).ok())
+        .unwrap_or_default();
     let create = vk::PipelineCacheCreateInfo::default().initial_data(&data);
     // SAFETY: valid device; the driver checks the header of `data` and ignores a mismatch.
     match unsafe { device.create_pipeline_cache(&create, None) } {
@@ -35,7 +43,8 @@ pub(crate) fn create(device: &ash::Device, info: &DeviceInfo) -> Result<vk::Pipe
         Err(_) if !data.is_empty() => {
             let empty = vk::PipelineCacheCreateInfo::default();
             // SAFETY: as above, with no initial data.
-            unsafe { device.create_pipeline_cache(&empty, None) }.map_err(vk_err("vkCreatePipelineCache"))
+            unsafe { device.create_pipeline_cache(&empty, None) }
+                .map_err(vk_err("vkCreatePipelineCache"))
         }
         Err(e) => Err(vk_err("vkCreatePipelineCache")(e)),
     }
@@ -45,7 +54,11 @@ pub(crate) fn create(device: &ash::Device, info: &DeviceInfo) -> Result<vk::Pipe
 ///
 /// # Safety
 /// `cache` was created on `device` and no pipeline creation using it is in flight.
-pub(crate) unsafe fn save_and_destroy(device: &ash::Device, cache: vk::PipelineCache, info: &DeviceInfo) {
+pub(crate) unsafe fn save_and_destroy(
+    device: &ash::Device,
+    cache: vk::PipelineCache,
+    info: &DeviceInfo,
+) {
     // SAFETY: guaranteed by the caller.
     let data = unsafe { device.get_pipeline_cache_data(cache) }.unwrap_or_default();
     if let (Some(path), false) = (cache_path(info), data.is_empty()) {

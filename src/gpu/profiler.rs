@@ -35,7 +35,13 @@ pub(crate) struct ScopeRecorder {
 
 impl ScopeRecorder {
     pub(crate) fn new(pool: Option<vk::QueryPool>, capacity: u32) -> Self {
-        Self { pool, capacity, next_query: 0, scopes: Vec::new(), open: Vec::new() }
+        Self {
+            pool,
+            capacity,
+            next_query: 0,
+            scopes: Vec::new(),
+            open: Vec::new(),
+        }
     }
 
     fn take_query(&mut self) -> Option<u32> {
@@ -64,7 +70,11 @@ impl ScopeRecorder {
         let Some(index) = self.open.pop() else {
             super::error::usage_error("end_scope without a matching begin_scope")
         };
-        let end = if self.scopes[index].begin.is_some() { self.take_query() } else { None };
+        let end = if self.scopes[index].begin.is_some() {
+            self.take_query()
+        } else {
+            None
+        };
         self.scopes[index].end = end;
         end
     }
@@ -78,7 +88,9 @@ impl ScopeRecorder {
     }
 
     pub(crate) fn last_name(&self) -> String {
-        self.scopes.last().map_or_else(|| "none".to_string(), |s| s.name.clone())
+        self.scopes
+            .last()
+            .map_or_else(|| "none".to_string(), |s| s.name.clone())
     }
 
     pub(crate) fn queries_used(&self) -> u32 {
@@ -87,7 +99,11 @@ impl ScopeRecorder {
 
     /// Turns raw timestamps (indexed by query) into a profile.
     pub(crate) fn resolve(&self, ticks: &[u64], period_ns: f32, valid_bits: u32) -> Profile {
-        let mask = if valid_bits >= 64 { u64::MAX } else { (1u64 << valid_bits) - 1 };
+        let mask = if valid_bits >= 64 {
+            u64::MAX
+        } else {
+            (1u64 << valid_bits) - 1
+        };
         let origin = self
             .scopes
             .iter()
@@ -102,7 +118,10 @@ impl ScopeRecorder {
                 let timed = match (s.begin, s.end) {
                     (Some(b), Some(e)) => {
                         let (b, e) = (ticks[b as usize] & mask, ticks[e as usize] & mask);
-                        Some((to_ms(b), (e.wrapping_sub(b) & mask) as f64 * f64::from(period_ns) / 1e6))
+                        Some((
+                            to_ms(b),
+                            (e.wrapping_sub(b) & mask) as f64 * f64::from(period_ns) / 1e6,
+                        ))
                     }
                     _ => None,
                 };
@@ -146,7 +165,12 @@ pub struct Profile {
 impl Profile {
     /// Total milliseconds of every scope called `name`.
     pub fn ms(&self, name: &str) -> Option<f64> {
-        let times: Vec<f64> = self.passes.iter().filter(|p| p.name == name).filter_map(|p| p.ms).collect();
+        let times: Vec<f64> = self
+            .passes
+            .iter()
+            .filter(|p| p.name == name)
+            .filter_map(|p| p.ms)
+            .collect();
         (!times.is_empty()).then(|| times.iter().sum())
     }
 
@@ -192,12 +216,19 @@ impl Profile {
 /// Writes a file through a temporary sibling and a rename, so readers never see a partial
 /// file and a failure leaves nothing behind.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
-    let io = |e: std::io::Error| GpuError::Io { path: path.display().to_string(), reason: e.to_string() };
+    let io = |e: std::io::Error| GpuError::Io {
+        path: path.display().to_string(),
+        reason: e.to_string(),
+    };
     let file_name = path.file_name().ok_or_else(|| GpuError::Io {
         path: path.display().to_string(),
         reason: "not a file path".into(),
     })?;
-    let tmp = path.with_file_name(format!(".{}.tmp{}", file_name.to_string_lossy(), std::process::id()));
+    let tmp = path.with_file_name(format!(
+        ".{}.tmp{}",
+        file_name.to_string_lossy(),
+        std::process::id()
+    ));
     let result = std::fs::write(&tmp, bytes).and_then(|()| std::fs::rename(&tmp, path));
     if result.is_err() {
         let _ = std::fs::remove_file(&tmp);
@@ -206,7 +237,11 @@ pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
 }
 
 /// Creates a timestamp query pool when the device supports timestamps.
-pub(crate) fn create_query_pool(device: &ash::Device, capacity: u32, timestamps: bool) -> Result<Option<vk::QueryPool>> {
+pub(crate) fn create_query_pool(
+    device: &ash::Device,
+    capacity: u32,
+    timestamps: bool,
+) -> Result<Option<vk::QueryPool>> {
     if !timestamps || capacity == 0 {
         return Ok(None);
     }
@@ -214,6 +249,7 @@ pub(crate) fn create_query_pool(device: &ash::Device, capacity: u32, timestamps:
         .query_type(vk::QueryType::TIMESTAMP)
         .query_count(capacity);
     // SAFETY: valid device and create-info.
-    let pool = unsafe { device.create_query_pool(&info, None) }.map_err(vk_err("vkCreateQueryPool"))?;
+    let pool =
+        unsafe { device.create_query_pool(&info, None) }.map_err(vk_err("vkCreateQueryPool"))?;
     Ok(Some(pool))
 }

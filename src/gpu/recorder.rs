@@ -43,12 +43,14 @@ impl Recorder {
             .queue_family_index(ctx.inner.queue_family)
             .flags(vk::CommandPoolCreateFlags::TRANSIENT);
         // SAFETY: valid device; the pool is destroyed in Drop (or here on error).
-        let pool = unsafe { device.create_command_pool(&pool_info, None) }.map_err(vk_err("vkCreateCommandPool"))?;
+        let pool = unsafe { device.create_command_pool(&pool_info, None) }
+            .map_err(vk_err("vkCreateCommandPool"))?;
         let alloc = vk::CommandBufferAllocateInfo::default()
             .command_pool(pool)
             .level(vk::CommandBufferLevel::PRIMARY)
             .command_buffer_count(1);
-        let begin = vk::CommandBufferBeginInfo::default().flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
+        let begin = vk::CommandBufferBeginInfo::default()
+            .flags(vk::CommandBufferUsageFlags::ONE_TIME_SUBMIT);
         // SAFETY: the pool is ours and unused; the buffer is begun once.
         let cmd = unsafe {
             device
@@ -83,13 +85,22 @@ impl Recorder {
     /// - every buffer bound while recording outlives the execution of `cmd`;
     /// - [`RecordedWork::complete`] is called only after `cmd` has finished executing (or
     ///   was never submitted), and before `cmd` is reset or freed.
-    pub unsafe fn from_raw(ctx: &Context, cmd: vk::CommandBuffer, query_capacity: u32) -> Result<Self> {
+    pub unsafe fn from_raw(
+        ctx: &Context,
+        cmd: vk::CommandBuffer,
+        query_capacity: u32,
+    ) -> Result<Self> {
         let mut rec = Self::wrap(ctx, cmd, None, query_capacity)?;
         rec.reset_queries();
         Ok(rec)
     }
 
-    fn wrap(ctx: &Context, cmd: vk::CommandBuffer, command_pool: Option<vk::CommandPool>, queries: u32) -> Result<Self> {
+    fn wrap(
+        ctx: &Context,
+        cmd: vk::CommandBuffer,
+        command_pool: Option<vk::CommandPool>,
+        queries: u32,
+    ) -> Result<Self> {
         let query_pool = create_query_pool(&ctx.inner.device, queries, ctx.info().timestamps)?;
         Ok(Self {
             ctx: ctx.clone(),
@@ -103,7 +114,14 @@ impl Recorder {
     fn reset_queries(&mut self) {
         if let Some(pool) = self.scopes.pool {
             // SAFETY: `cmd` is recording outside a render pass; the pool is ours.
-            unsafe { self.ctx.inner.device.cmd_reset_query_pool(self.cmd, pool, 0, self.scopes.capacity()) };
+            unsafe {
+                self.ctx.inner.device.cmd_reset_query_pool(
+                    self.cmd,
+                    pool,
+                    0,
+                    self.scopes.capacity(),
+                )
+            };
         }
     }
 
@@ -126,21 +144,37 @@ impl Recorder {
         let x = groups.min(u64::from(max[0]));
         let y = if x == 0 { 0 } else { groups.div_ceil(x) };
         if y > u64::from(max[1]) {
-            usage_error(&format!("{items} items need {groups} workgroups, beyond this device's grid"));
+            usage_error(&format!(
+                "{items} items need {groups} workgroups, beyond this device's grid"
+            ));
         }
         [x as u32, if x == 0 { 1 } else { y as u32 }, 1]
     }
 
     /// Binds `buffers` (in the order of the kernel's bindings) and `push` and dispatches
     /// `groups` workgroups.
-    pub fn dispatch<P: Pod>(&mut self, kernel: &Kernel, groups: [u32; 3], buffers: &[&dyn BufferArg], push: &P) {
+    pub fn dispatch<P: Pod>(
+        &mut self,
+        kernel: &Kernel,
+        groups: [u32; 3],
+        buffers: &[&dyn BufferArg],
+        push: &P,
+    ) {
         let max = self.ctx.info().max_workgroup_count;
         if (0..3).any(|a| groups[a] > max[a]) {
-            usage_error(&format!("`{}`: {groups:?} workgroups exceed maxComputeWorkGroupCount {max:?}", kernel.name()));
+            usage_error(&format!(
+                "`{}`: {groups:?} workgroups exceed maxComputeWorkGroupCount {max:?}",
+                kernel.name()
+            ));
         }
         self.bind(kernel, buffers, bytemuck::bytes_of(push));
         // SAFETY: recording; pipeline, set and push constants were bound for this kernel.
-        unsafe { self.ctx.inner.device.cmd_dispatch(self.cmd, groups[0], groups[1], groups[2]) };
+        unsafe {
+            self.ctx
+                .inner
+                .device
+                .cmd_dispatch(self.cmd, groups[0], groups[1], groups[2])
+        };
     }
 
     /// Like [`Recorder::dispatch`], with the workgroup counts read from `indirect` at byte
@@ -155,15 +189,19 @@ impl Recorder {
         push: &P,
     ) {
         if offset % 4 != 0 || offset + 12 > indirect.range() {
-            usage_error(&format!("`{}`: indirect offset {offset} out of range", kernel.name()));
+            usage_error(&format!(
+                "`{}`: indirect offset {offset} out of range",
+                kernel.name()
+            ));
         }
         self.bind(kernel, buffers, bytemuck::bytes_of(push));
         // SAFETY: recording; the indirect range was checked above.
         unsafe {
-            self.ctx
-                .inner
-                .device
-                .cmd_dispatch_indirect(self.cmd, indirect.raw(), indirect.offset() + offset)
+            self.ctx.inner.device.cmd_dispatch_indirect(
+                self.cmd,
+                indirect.raw(),
+                indirect.offset() + offset,
+            )
         };
     }
 
@@ -178,12 +216,22 @@ impl Recorder {
             ));
         }
         if push.len() > PUSH_CONSTANT_BYTES as usize || (!push.is_empty() && !blob.push_constants) {
-            usage_error(&format!("`{}`: {} push-constant bytes do not fit its layout", blob.name, push.len()));
+            usage_error(&format!(
+                "`{}`: {} push-constant bytes do not fit its layout",
+                blob.name,
+                push.len()
+            ));
         }
         let set = self.allocate_set(kernel.set_layout);
         let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
             .iter()
-            .map(|b| [vk::DescriptorBufferInfo { buffer: b.raw(), offset: b.offset(), range: b.range() }])
+            .map(|b| {
+                [vk::DescriptorBufferInfo {
+                    buffer: b.raw(),
+                    offset: b.offset(),
+                    range: b.range(),
+                }]
+            })
             .collect();
         let writes: Vec<vk::WriteDescriptorSet> = blob
             .bindings
@@ -203,9 +251,22 @@ impl Recorder {
         unsafe {
             device.update_descriptor_sets(&writes, &[]);
             device.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, kernel.pipeline);
-            device.cmd_bind_descriptor_sets(self.cmd, vk::PipelineBindPoint::COMPUTE, kernel.layout, 0, &[set], &[]);
+            device.cmd_bind_descriptor_sets(
+                self.cmd,
+                vk::PipelineBindPoint::COMPUTE,
+                kernel.layout,
+                0,
+                &[set],
+                &[],
+            );
             if !push.is_empty() {
-                device.cmd_push_constants(self.cmd, kernel.layout, vk::ShaderStageFlags::COMPUTE, 0, push);
+                device.cmd_push_constants(
+                    self.cmd,
+                    kernel.layout,
+                    vk::ShaderStageFlags::COMPUTE,
+                    0,
+                    push,
+                );
             }
         }
     }
@@ -214,19 +275,28 @@ impl Recorder {
         let device = &self.ctx.inner.device;
         let layouts = [layout];
         if let Some(&pool) = self.descriptor_pools.last() {
-            let info = vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&layouts);
+            let info = vk::DescriptorSetAllocateInfo::default()
+                .descriptor_pool(pool)
+                .set_layouts(&layouts);
             // SAFETY: the pool is ours and not used by another thread.
             if let Ok(sets) = unsafe { device.allocate_descriptor_sets(&info) } {
                 return sets[0];
             }
         }
-        let sizes = [vk::DescriptorPoolSize { ty: vk::DescriptorType::STORAGE_BUFFER, descriptor_count: BUFFERS_PER_POOL }];
-        let pool_info = vk::DescriptorPoolCreateInfo::default().max_sets(SETS_PER_POOL).pool_sizes(&sizes);
+        let sizes = [vk::DescriptorPoolSize {
+            ty: vk::DescriptorType::STORAGE_BUFFER,
+            descriptor_count: BUFFERS_PER_POOL,
+        }];
+        let pool_info = vk::DescriptorPoolCreateInfo::default()
+            .max_sets(SETS_PER_POOL)
+            .pool_sizes(&sizes);
         // SAFETY: valid device; pools are destroyed when the recorder's work has completed.
         let pool = unsafe { device.create_descriptor_pool(&pool_info, None) }
             .unwrap_or_else(|e| usage_error(&format!("vkCreateDescriptorPool failed: {e}")));
         self.descriptor_pools.push(pool);
-        let info = vk::DescriptorSetAllocateInfo::default().descriptor_pool(pool).set_layouts(&layouts);
+        let info = vk::DescriptorSetAllocateInfo::default()
+            .descriptor_pool(pool)
+            .set_layouts(&layouts);
         // SAFETY: a fresh pool sized for far more than one set of at most 8 buffers... unless
         // a kernel has more bindings than BUFFERS_PER_POOL, which build.rs never produces.
         unsafe { device.allocate_descriptor_sets(&info) }
@@ -237,24 +307,48 @@ impl Recorder {
     pub fn fill<T: Pod>(&mut self, buffer: &Buffer<T>, value: u32) {
         // SAFETY: recording; the buffer has TRANSFER_DST usage and a size that is a multiple
         // of 4 (Buffer rounds up).
-        unsafe { self.ctx.inner.device.cmd_fill_buffer(self.cmd, buffer.raw(), 0, vk::WHOLE_SIZE, value) };
+        unsafe {
+            self.ctx
+                .inner
+                .device
+                .cmd_fill_buffer(self.cmd, buffer.raw(), 0, vk::WHOLE_SIZE, value)
+        };
     }
 
     /// Copies the first `len` elements of `src` into `dst`.
     pub fn copy<T: Pod>(&mut self, src: &Buffer<T>, dst: &Buffer<T>, len: usize) {
         if len > src.len() || len > dst.len() {
-            usage_error(&format!("copy of {len} elements from `{}` to `{}`", src.name(), dst.name()));
+            usage_error(&format!(
+                "copy of {len} elements from `{}` to `{}`",
+                src.name(),
+                dst.name()
+            ));
         }
         if len == 0 {
             return;
         }
-        let region = vk::BufferCopy { src_offset: 0, dst_offset: 0, size: (len * std::mem::size_of::<T>()) as u64 };
+        let region = vk::BufferCopy {
+            src_offset: 0,
+            dst_offset: 0,
+            size: (len * std::mem::size_of::<T>()) as u64,
+        };
         // SAFETY: recording; both buffers have transfer usage and the region is in range.
-        unsafe { self.ctx.inner.device.cmd_copy_buffer(self.cmd, src.raw(), dst.raw(), &[region]) };
+        unsafe {
+            self.ctx
+                .inner
+                .device
+                .cmd_copy_buffer(self.cmd, src.raw(), dst.raw(), &[region])
+        };
     }
 
-    fn memory_barrier(&mut self, src: (vk::PipelineStageFlags, vk::AccessFlags), dst: (vk::PipelineStageFlags, vk::AccessFlags)) {
-        let barrier = vk::MemoryBarrier::default().src_access_mask(src.1).dst_access_mask(dst.1);
+    fn memory_barrier(
+        &mut self,
+        src: (vk::PipelineStageFlags, vk::AccessFlags),
+        dst: (vk::PipelineStageFlags, vk::AccessFlags),
+    ) {
+        let barrier = vk::MemoryBarrier::default()
+            .src_access_mask(src.1)
+            .dst_access_mask(dst.1);
         // SAFETY: recording, outside a render pass.
         unsafe {
             self.ctx.inner.device.cmd_pipeline_barrier(
@@ -295,7 +389,9 @@ impl Recorder {
             COMPUTE_RW,
             (
                 vk::PipelineStageFlags::DRAW_INDIRECT | vk::PipelineStageFlags::COMPUTE_SHADER,
-                vk::AccessFlags::INDIRECT_COMMAND_READ | vk::AccessFlags::SHADER_READ | vk::AccessFlags::SHADER_WRITE,
+                vk::AccessFlags::INDIRECT_COMMAND_READ
+                    | vk::AccessFlags::SHADER_READ
+                    | vk::AccessFlags::SHADER_WRITE,
             ),
         );
     }
@@ -322,7 +418,14 @@ impl Recorder {
         }
         if let (Some(pool), Some(q)) = (self.scopes.pool, query) {
             // SAFETY: recording; `q` is below the pool's capacity and was reset.
-            unsafe { device.cmd_write_timestamp(self.cmd, vk::PipelineStageFlags::BOTTOM_OF_PIPE, pool, q) };
+            unsafe {
+                device.cmd_write_timestamp(
+                    self.cmd,
+                    vk::PipelineStageFlags::BOTTOM_OF_PIPE,
+                    pool,
+                    q,
+                )
+            };
         }
     }
 
@@ -332,7 +435,14 @@ impl Recorder {
         let device = &self.ctx.inner.device;
         if let (Some(pool), Some(q)) = (self.scopes.pool, query) {
             // SAFETY: as in begin_scope.
-            unsafe { device.cmd_write_timestamp(self.cmd, vk::PipelineStageFlags::BOTTOM_OF_PIPE, pool, q) };
+            unsafe {
+                device.cmd_write_timestamp(
+                    self.cmd,
+                    vk::PipelineStageFlags::BOTTOM_OF_PIPE,
+                    pool,
+                    q,
+                )
+            };
         }
         if let Some(du) = &self.ctx.inner.debug_utils {
             // SAFETY: recording; a label was begun in begin_scope.
@@ -350,12 +460,15 @@ impl Recorder {
 
     fn check_closed(&self) {
         if self.scopes.open_scopes() != 0 {
-            usage_error(&format!("{} profiler scope(s) left open", self.scopes.open_scopes()));
+            usage_error(&format!(
+                "{} profiler scope(s) left open",
+                self.scopes.open_scopes()
+            ));
         }
     }
 
     /// Ends, submits and waits for the recorded work; returns the pass timings.
-    pub fn submit_and_wait(mut self) -> Result<Profile> {
+    pub fn submit_and_wait(self) -> Result<Profile> {
         if self.command_pool.is_none() {
             usage_error("submit_and_wait on a caller-owned command buffer; use finish()");
         }
@@ -364,7 +477,8 @@ impl Recorder {
         // SAFETY: recording state, opened by `new`.
         unsafe { device.end_command_buffer(self.cmd) }.map_err(vk_err("vkEndCommandBuffer"))?;
         // SAFETY: valid device.
-        let fence = unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }.map_err(vk_err("vkCreateFence"))?;
+        let fence = unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }
+            .map_err(vk_err("vkCreateFence"))?;
         let cmds = [self.cmd];
         let submit = [vk::SubmitInfo::default().command_buffers(&cmds)];
         let result = {
@@ -373,8 +487,11 @@ impl Recorder {
             // executable; the fence is unsignalled.
             unsafe { device.queue_submit(*queue, &submit, fence) }.map_err(vk_err("vkQueueSubmit"))
         }
-        // SAFETY: the fence belongs to this device.
-        .and_then(|()| unsafe { device.wait_for_fences(&[fence], true, SUBMIT_TIMEOUT_NS) }.map_err(vk_err("vkWaitForFences")));
+        .and_then(|()| {
+            // SAFETY: the fence belongs to this device.
+            unsafe { device.wait_for_fences(&[fence], true, SUBMIT_TIMEOUT_NS) }
+                .map_err(vk_err("vkWaitForFences"))
+        });
         // SAFETY: the wait succeeded (or the submit never happened), so the fence is idle.
         // On a timeout the device is hung: we wait for idle before destroying.
         unsafe {
@@ -384,8 +501,13 @@ impl Recorder {
             device.destroy_fence(fence, None);
         }
         match result {
-            Err(GpuError::DeviceLost { .. }) => Err(GpuError::DeviceLost { last_pass: self.scopes.last_name() }),
-            Err(GpuError::Vulkan { code: vk::Result::TIMEOUT, .. }) => Err(GpuError::DeviceLost {
+            Err(GpuError::DeviceLost { .. }) => Err(GpuError::DeviceLost {
+                last_pass: self.scopes.last_name(),
+            }),
+            Err(GpuError::Vulkan {
+                code: vk::Result::TIMEOUT,
+                ..
+            }) => Err(GpuError::DeviceLost {
                 last_pass: format!("{} (timed out)", self.scopes.last_name()),
             }),
             Err(e) => Err(e),
@@ -419,8 +541,14 @@ impl Recorder {
             )
         }
         .map_err(vk_err("vkGetQueryPoolResults"))?;
-        let bits = super::info::timestamp_bits(&self.ctx.inner.instance, self.ctx.inner.physical_device, self.ctx.inner.queue_family);
-        Ok(self.scopes.resolve(&ticks, self.ctx.info().timestamp_period_ns, bits))
+        let bits = super::info::timestamp_bits(
+            &self.ctx.inner.instance,
+            self.ctx.inner.physical_device,
+            self.ctx.inner.queue_family,
+        );
+        Ok(self
+            .scopes
+            .resolve(&ticks, self.ctx.info().timestamp_period_ns, bits))
     }
 }
 
@@ -457,12 +585,19 @@ impl Drop for Recorder {
 
 const COMPUTE_RW: (vk::PipelineStageFlags, vk::AccessFlags) = (
     vk::PipelineStageFlags::COMPUTE_SHADER,
-    vk::AccessFlags::from_raw(vk::AccessFlags::SHADER_READ.as_raw() | vk::AccessFlags::SHADER_WRITE.as_raw()),
+    vk::AccessFlags::from_raw(
+        vk::AccessFlags::SHADER_READ.as_raw() | vk::AccessFlags::SHADER_WRITE.as_raw(),
+    ),
 );
-const TRANSFER_W: (vk::PipelineStageFlags, vk::AccessFlags) =
-    (vk::PipelineStageFlags::TRANSFER, vk::AccessFlags::TRANSFER_WRITE);
+const TRANSFER_W: (vk::PipelineStageFlags, vk::AccessFlags) = (
+    vk::PipelineStageFlags::TRANSFER,
+    vk::AccessFlags::TRANSFER_WRITE,
+);
 const TRANSFER_RW: (vk::PipelineStageFlags, vk::AccessFlags) = (
     vk::PipelineStageFlags::TRANSFER,
-    vk::AccessFlags::from_raw(vk::AccessFlags::TRANSFER_READ.as_raw() | vk::AccessFlags::TRANSFER_WRITE.as_raw()),
+    vk::AccessFlags::from_raw(
+        vk::AccessFlags::TRANSFER_READ.as_raw() | vk::AccessFlags::TRANSFER_WRITE.as_raw(),
+    ),
 );
-const HOST_R: (vk::PipelineStageFlags, vk::AccessFlags) = (vk::PipelineStageFlags::HOST, vk::AccessFlags::HOST_READ);
+const HOST_R: (vk::PipelineStageFlags, vk::AccessFlags) =
+    (vk::PipelineStageFlags::HOST, vk::AccessFlags::HOST_READ);

@@ -10,7 +10,9 @@ pub fn context() -> Option<Context> {
     match Context::new(&ContextOptions::for_tests()) {
         Ok(ctx) => {
             if !ctx.validation_enabled() {
-                eprintln!("note: validation layer not enabled (not installed or VKRT_VALIDATION=0)");
+                eprintln!(
+                    "note: validation layer not enabled (not installed or VKRT_VALIDATION=0)"
+                );
             }
             Some(ctx)
         }
@@ -18,7 +20,9 @@ pub fn context() -> Option<Context> {
             eprintln!("skipped: no Vulkan device ({e}) and VKRT_ALLOW_NO_GPU=1");
             None
         }
-        Err(e) => panic!("no Vulkan device for the tests: {e} (run ./x setup, or VKRT_ALLOW_NO_GPU=1 to skip)"),
+        Err(e) => panic!(
+            "no Vulkan device for the tests: {e} (run ./x setup, or VKRT_ALLOW_NO_GPU=1 to skip)"
+        ),
     }
 }
 
@@ -29,7 +33,11 @@ pub fn assert_silent(ctx: &Context) {
         messages.is_empty(),
         "validation reported {} message(s):\n{}",
         messages.len(),
-        messages.iter().map(|m| m.to_string()).collect::<Vec<_>>().join("\n")
+        messages
+            .iter()
+            .map(|m| m.to_string())
+            .collect::<Vec<_>>()
+            .join("\n")
     );
 }
 
