@@ -14,4 +14,5 @@
 pub mod gpu;
 
 pub mod bench;
+pub mod prims;
 pub mod scene;

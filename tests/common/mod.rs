@@ -57,3 +57,28 @@ impl Rng {
         (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0
     }
 }
+
+/// The sizes every primitive is tested at: empty, one, around the subgroup and the workgroup
+/// size, and `large` ones past every scan level (2^20+13, 2^24+3 unless VKRT_TEST_QUICK=1).
+pub fn edge_sizes(subgroup: usize, workgroup: usize, tile: usize) -> Vec<usize> {
+    let mut sizes = vec![
+        0,
+        1,
+        subgroup - 1,
+        subgroup,
+        subgroup + 1,
+        workgroup - 1,
+        workgroup,
+        workgroup + 1,
+        tile - 1,
+        tile,
+        tile + 1,
+        (1 << 20) + 13,
+    ];
+    if !std::env::var("VKRT_TEST_QUICK").is_ok_and(|v| v == "1") {
+        sizes.push((1 << 24) + 3);
+    }
+    sizes.sort_unstable();
+    sizes.dedup();
+    sizes
+}

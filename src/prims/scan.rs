@@ -1,0 +1,259 @@
+//! Prefix sums of u32 elements and of 0/1 byte flags: reduce-then-scan, multi-level.
+//!
+//! Level by level: `prims.scan_reduce` writes the sum of every tile, the tile sums are
+//! scanned (recursively, with the same kernels) in place, and `prims.scan_downsweep`
+//! rescans every tile from its carry-in. No workgroup waits for another, so this cannot
+//! hang on drivers without forward-progress guarantees (lavapipe runs workgroups one after
+//! another), at the price of reading the input twice (a single-pass chained scan reads it
+//! once but needs decoupled look-back).
+//!
+//! Inside a workgroup: a subgroup scan (`subgroupInclusiveAdd`, or `subgroupShuffleUp`
+//! steps with [`Scan::with_shuffle`]), subgroup totals through shared memory, and
+//! `items_per_invocation` elements per invocation loaded 16 bytes at a time (seed 001's
+//! "algorithm cascading"). Flags are bytes read sixteen per load (seed 001's uchar4 trick),
+//! so a flag scan reads a quarter of the bytes of a u32 scan of the same length.
+//!
+//! Sums wrap modulo 2^32, on the GPU and in the CPU twins alike.
+
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+
+use super::PrimConfig;
+use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, Spec};
+
+/// Inclusive (element i included) or exclusive (elements before i).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ScanOp {
+    Inclusive,
+    Exclusive,
+}
+
+/// What the first level reads.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ScanInput {
+    /// u32 elements.
+    U32,
+    /// One byte per element, each 0 or 1.
+    Flags,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct ReducePush {
+    n: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct DownsweepPush {
+    n: u32,
+    has_carry: u32,
+    inclusive: u32,
+}
+
+/// A scan of one input kind, with its kernels compiled.
+pub struct Scan {
+    cfg: PrimConfig,
+    input: ScanInput,
+    rounds: u32,
+    first_reduce: Arc<Kernel>,
+    first_downsweep: Arc<Kernel>,
+    reduce: Arc<Kernel>,
+    downsweep: Arc<Kernel>,
+}
+
+/// Scratch for one scan: the tile sums of every level and the grand total.
+pub struct ScanScratch {
+    max_n: usize,
+    levels: Vec<Buffer<u32>>,
+    level_totals: Vec<Buffer<u32>>,
+    /// The grand total (one u32), written by every `record`.
+    pub total: Buffer<u32>,
+}
+
+impl Scan {
+    pub fn new(ctx: &Context, cfg: PrimConfig, input: ScanInput) -> Result<Self> {
+        Self::build(ctx, cfg, input, false)
+    }
+
+    /// A u32 scan whose subgroup scan is `subgroupShuffleUp` steps instead of
+    /// `subgroupInclusiveAdd` (for measuring one against the other).
+    pub fn with_shuffle(ctx: &Context, cfg: PrimConfig) -> Result<Self> {
+        Self::build(ctx, cfg, ScanInput::U32, true)
+    }
+
+    fn build(ctx: &Context, cfg: PrimConfig, input: ScanInput, shuffle: bool) -> Result<Self> {
+        let sg = ctx.info().subgroup_size;
+        let wg = cfg.workgroup_size;
+        if !wg.is_power_of_two() || wg % ctx.info().max_subgroup_size.max(sg) != 0 {
+            return Err(GpuError::Kernel {
+                kernel: "prims.scan",
+                reason: format!("workgroup size {wg} must be a power of two and a multiple of the subgroup size {sg}"),
+            });
+        }
+        let rounds = (cfg.items_per_invocation / 4).max(1);
+        let spec = Spec::new().workgroup(wg).u32(1, rounds);
+        let reduce = ctx.kernel(&kernels::PRIMS_SCAN_REDUCE_U32, &spec)?;
+        let downsweep = ctx.kernel(
+            if shuffle { &kernels::PRIMS_SCAN_DOWNSWEEP_U32_SHUFFLE } else { &kernels::PRIMS_SCAN_DOWNSWEEP_U32 },
+            &spec,
+        )?;
+        let (first_reduce, first_downsweep) = match input {
+            ScanInput::U32 => (reduce.clone(), downsweep.clone()),
+            ScanInput::Flags => (
+                ctx.kernel(&kernels::PRIMS_SCAN_REDUCE_FLAGS, &spec)?,
+                ctx.kernel(&kernels::PRIMS_SCAN_DOWNSWEEP_FLAGS, &spec)?,
+            ),
+        };
+        Ok(Self { cfg, input, rounds, first_reduce, first_downsweep, reduce, downsweep })
+    }
+
+    pub fn config(&self) -> PrimConfig {
+        self.cfg
+    }
+
+    /// Elements per workgroup tile at a level (flags pack 16 per 16-byte load, u32 four).
+    fn tile(&self, level: usize) -> usize {
+        let per_granule = if level == 0 && self.input == ScanInput::Flags { 16 } else { 4 };
+        (self.cfg.workgroup_size * self.rounds) as usize * per_granule
+    }
+
+    /// Lengths of the tile-sum arrays for a scan of `n` elements.
+    fn level_lengths(&self, n: usize) -> Vec<usize> {
+        let mut lengths = Vec::new();
+        let mut len = n;
+        let mut level = 0;
+        while len > self.tile(level) {
+            len = len.div_ceil(self.tile(level));
+            lengths.push(len);
+            level += 1;
+        }
+        lengths
+    }
+
+    /// Scratch for scans of up to `max_n` elements.
+    pub fn scratch(&self, ctx: &Context, max_n: usize) -> Result<ScanScratch> {
+        let lengths = self.level_lengths(max_n);
+        let levels = lengths
+            .iter()
+            .enumerate()
+            .map(|(i, &len)| Buffer::new(ctx, &format!("prims.scan.partials{i}"), len))
+            .collect::<Result<Vec<_>>>()?;
+        let level_totals = (0..lengths.len())
+            .map(|i| Buffer::new(ctx, &format!("prims.scan.total{i}"), 1))
+            .collect::<Result<Vec<_>>>()?;
+        Ok(ScanScratch { max_n, levels, level_totals, total: Buffer::new(ctx, "prims.scan.total", 1)? })
+    }
+
+    /// Records the scan of `n` elements of `input` into `output` (u32, may alias `input`
+    /// for u32 scans) and the grand total into `scratch.total`. Orders its own passes;
+    /// the caller orders what comes before (writes of `input`) and after.
+    pub fn record(
+        &self,
+        rec: &mut Recorder,
+        input: &dyn BufferArg,
+        output: &dyn BufferArg,
+        n: usize,
+        op: ScanOp,
+        scratch: &ScanScratch,
+    ) {
+        if n > scratch.max_n {
+            panic!("scan of {n} elements with scratch sized for {}", scratch.max_n);
+        }
+        let name = match self.input {
+            ScanInput::U32 => "prims.scan",
+            ScanInput::Flags => "prims.flag_scan",
+        };
+        rec.scope(name, |rec| self.record_level(rec, 0, input, output, n, op, scratch, &scratch.total));
+    }
+
+    #[allow(clippy::too_many_arguments, reason = "one level of the recursion, named like the bindings")]
+    fn record_level(
+        &self,
+        rec: &mut Recorder,
+        level: usize,
+        input: &dyn BufferArg,
+        output: &dyn BufferArg,
+        n: usize,
+        op: ScanOp,
+        scratch: &ScanScratch,
+        total: &Buffer<u32>,
+    ) {
+        let (reduce, downsweep) =
+            if level == 0 { (&self.first_reduce, &self.first_downsweep) } else { (&self.reduce, &self.downsweep) };
+        let tile = self.tile(level);
+        let groups = rec.groups_1d(n.max(1) as u64, tile as u32);
+        let inclusive = u32::from(op == ScanOp::Inclusive);
+        if n <= tile {
+            let push = DownsweepPush { n: n as u32, has_carry: 0, inclusive };
+            rec.dispatch(downsweep, groups, &[input, input, output, output, input, total], &push);
+            return;
+        }
+        let partials = &scratch.levels[level];
+        let tiles = n.div_ceil(tile);
+        rec.dispatch(reduce, groups, &[input, input, partials], &ReducePush { n: n as u32 });
+        rec.compute_to_compute();
+        self.record_level(rec, level + 1, partials, partials, tiles, ScanOp::Exclusive, scratch, &scratch.level_totals[level]);
+        rec.compute_to_compute();
+        let push = DownsweepPush { n: n as u32, has_carry: 1, inclusive };
+        rec.dispatch(downsweep, groups, &[input, input, output, output, partials, total], &push);
+    }
+
+    /// Convenience: scans `input` (u32 elements) on the GPU; returns the scan and the total.
+    pub fn run_u32(&self, ctx: &Context, input: &[u32], op: ScanOp) -> Result<(Vec<u32>, u32)> {
+        assert_eq!(self.input, ScanInput::U32, "run_u32 on a flag scan");
+        let data = Buffer::from_slice(ctx, "prims.scan.input", input)?;
+        self.run(ctx, &data, input.len(), op)
+    }
+
+    /// Convenience: exclusive offsets of 0/1 byte flags and their total.
+    pub fn run_flags(&self, ctx: &Context, flags: &[u8]) -> Result<(Vec<u32>, u32)> {
+        assert_eq!(self.input, ScanInput::Flags, "run_flags on a u32 scan");
+        let data = Buffer::from_slice(ctx, "prims.flag_scan.flags", flags)?;
+        self.run(ctx, &data, flags.len(), ScanOp::Exclusive)
+    }
+
+    fn run(&self, ctx: &Context, input: &dyn BufferArg, n: usize, op: ScanOp) -> Result<(Vec<u32>, u32)> {
+        let output = Buffer::<u32>::new(ctx, "prims.scan.output", n)?;
+        let scratch = self.scratch(ctx, n)?;
+        let mut rec = Recorder::new(ctx)?;
+        self.record(&mut rec, input, &output, n, op, &scratch);
+        rec.compute_to_transfer();
+        rec.submit_and_wait()?;
+        Ok((output.download()?, scratch.total.download()?[0]))
+    }
+}
+
+/// CPU twin of the u32 scan: prefix sums modulo 2^32 and the total.
+pub fn scan_cpu(input: &[u32], op: ScanOp) -> (Vec<u32>, u32) {
+    let mut sum = 0u32;
+    let out = input
+        .iter()
+        .map(|&x| {
+            let before = sum;
+            sum = sum.wrapping_add(x);
+            if op == ScanOp::Inclusive {
+                sum
+            } else {
+                before
+            }
+        })
+        .collect();
+    (out, sum)
+}
+
+/// CPU twin of the flag scan: exclusive offsets of 0/1 flags and the number of ones.
+pub fn flag_scan_cpu(flags: &[u8]) -> (Vec<u32>, u32) {
+    assert!(flags.iter().all(|&f| f <= 1), "flags must be 0 or 1");
+    let mut sum = 0u32;
+    let out = flags
+        .iter()
+        .map(|&f| {
+            let before = sum;
+            sum += u32::from(f);
+            before
+        })
+        .collect();
+    (out, sum)
+}

@@ -1,0 +1,138 @@
+//! Scans, flag scans and compaction against their CPU twins, bit for bit, at every edge
+//! size, with a one-subgroup workgroup (subgroup-local paths) and a several-subgroup one
+//! (cross-subgroup paths), under validation and synchronization validation.
+
+mod common;
+
+use vkrt::gpu::Context;
+use vkrt::prims::compact::{compact_cpu, Compact};
+use vkrt::prims::scan::{flag_scan_cpu, scan_cpu, Scan, ScanInput, ScanOp};
+use vkrt::prims::PrimConfig;
+
+fn configs(ctx: &Context) -> [PrimConfig; 2] {
+    [PrimConfig::single_subgroup(ctx), PrimConfig::default_for(ctx)]
+}
+
+/// Inputs of one size: random over the full range (sums wrap), all equal, sorted, reversed.
+fn u32_inputs(n: usize, rng: &mut common::Rng) -> Vec<(&'static str, Vec<u32>)> {
+    vec![
+        ("random", (0..n).map(|_| rng.next_u64() as u32).collect()),
+        ("small", (0..n).map(|_| (rng.next_u64() % 4) as u32).collect()),
+        ("all-equal", vec![7; n]),
+        ("sorted", (0..n as u32).collect()),
+        ("reverse", (0..n as u32).rev().collect()),
+    ]
+}
+
+fn flag_inputs(n: usize, rng: &mut common::Rng) -> Vec<(&'static str, Vec<u8>)> {
+    vec![
+        ("half", (0..n).map(|_| (rng.next_u64() & 1) as u8).collect()),
+        ("sparse", (0..n).map(|_| u8::from(rng.next_u64() % 97 == 0)).collect()),
+        ("none", vec![0; n]),
+        ("all", vec![1; n]),
+    ]
+}
+
+#[test]
+fn u32_scan_equals_cpu_twin() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(1);
+    for cfg in configs(&ctx) {
+        let scan = Scan::new(&ctx, cfg, ScanInput::U32).unwrap();
+        let tile = (cfg.tile()) as usize;
+        for n in common::edge_sizes(ctx.info().subgroup_size as usize, cfg.workgroup_size as usize, tile) {
+            let big = n > 1 << 20;
+            for (what, input) in u32_inputs(n, &mut rng).into_iter().take(if big { 1 } else { 5 }) {
+                for op in [ScanOp::Inclusive, ScanOp::Exclusive] {
+                    let (gpu, gpu_total) = scan.run_u32(&ctx, &input, op).unwrap();
+                    let (cpu, cpu_total) = scan_cpu(&input, op);
+                    let diff = gpu.iter().zip(&cpu).position(|(g, c)| g != c);
+                    assert_eq!(diff, None, "{cfg:?} n={n} {what} {op:?}: first difference");
+                    assert_eq!(gpu.len(), n);
+                    assert_eq!(gpu_total, cpu_total, "{cfg:?} n={n} {what} {op:?}: total");
+                }
+            }
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn shuffle_scan_equals_cpu_twin() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(2);
+    for cfg in configs(&ctx) {
+        let scan = Scan::with_shuffle(&ctx, cfg).unwrap();
+        for n in common::edge_sizes(ctx.info().subgroup_size as usize, cfg.workgroup_size as usize, cfg.tile() as usize) {
+            let input: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
+            let (gpu, total) = scan.run_u32(&ctx, &input, ScanOp::Inclusive).unwrap();
+            assert!((gpu, total) == scan_cpu(&input, ScanOp::Inclusive), "{cfg:?} n={n}");
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn flag_scan_equals_cpu_twin() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(3);
+    for cfg in configs(&ctx) {
+        let scan = Scan::new(&ctx, cfg, ScanInput::Flags).unwrap();
+        // A flag tile holds four times the elements of a u32 tile.
+        let tile = 4 * cfg.tile() as usize;
+        let mut sizes = common::edge_sizes(ctx.info().subgroup_size as usize, cfg.workgroup_size as usize, tile);
+        sizes.extend([2, 3, 4, 5, 15, 16, 17]);
+        for n in sizes {
+            for (what, flags) in flag_inputs(n, &mut rng).into_iter().take(if n > 1 << 20 { 1 } else { 4 }) {
+                let (gpu, total) = scan.run_flags(&ctx, &flags).unwrap();
+                let (cpu, cpu_total) = flag_scan_cpu(&flags);
+                let diff = gpu.iter().zip(&cpu).position(|(g, c)| g != c);
+                assert_eq!(diff, None, "{cfg:?} n={n} {what}: first difference");
+                assert_eq!(total, cpu_total, "{cfg:?} n={n} {what}: total");
+            }
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn compaction_of_one_to_four_soa_arrays_equals_cpu_twin() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(4);
+    for cfg in configs(&ctx) {
+        let compact = Compact::new(&ctx, cfg).unwrap();
+        let tile = 4 * cfg.tile() as usize;
+        for n in common::edge_sizes(ctx.info().subgroup_size as usize, cfg.workgroup_size as usize, tile) {
+            let arrays_n = if n > 1 << 20 { 2 } else { 4 };
+            for (what, flags) in flag_inputs(n, &mut rng).into_iter().take(if n > 1 << 20 { 1 } else { 4 }) {
+                let data: Vec<Vec<u32>> =
+                    (0..arrays_n).map(|_| (0..n).map(|_| rng.next_u64() as u32).collect()).collect();
+                for k in 1..=arrays_n {
+                    let arrays: Vec<&[u32]> = data[..k].iter().map(|v| v.as_slice()).collect();
+                    let gpu = compact.run(&ctx, &flags, &arrays).unwrap();
+                    assert!(gpu == compact_cpu(&flags, &arrays), "{cfg:?} n={n} {what} arrays={k}");
+                }
+            }
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn scan_works_in_place_and_past_every_level() {
+    let Some(ctx) = common::context() else { return };
+    // A tiny tile makes three levels of tile sums out of a modest n.
+    let cfg = PrimConfig { workgroup_size: ctx.info().subgroup_size, items_per_invocation: 4 };
+    let scan = Scan::new(&ctx, cfg, ScanInput::U32).unwrap();
+    let tile = cfg.tile() as usize;
+    let n = tile * tile * tile + 3;
+    let input: Vec<u32> = (0..n as u32).map(|i| i % 13).collect();
+    let buffer = vkrt::gpu::Buffer::from_slice(&ctx, "inplace", &input).unwrap();
+    let scratch = scan.scratch(&ctx, n).unwrap();
+    let mut rec = vkrt::gpu::Recorder::new(&ctx).unwrap();
+    scan.record(&mut rec, &buffer, &buffer, n, ScanOp::Exclusive, &scratch);
+    rec.compute_to_transfer();
+    rec.submit_and_wait().unwrap();
+    assert!(buffer.download().unwrap() == scan_cpu(&input, ScanOp::Exclusive).0);
+    common::assert_silent(&ctx);
+}
