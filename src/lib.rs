@@ -13,6 +13,7 @@
 )]
 pub mod gpu;
 
+pub mod accel;
 pub mod bench;
 pub mod prims;
 pub mod scene;

@@ -12,6 +12,7 @@
 #![forbid(unsafe_code)]
 
 pub mod compact;
+pub mod radix_sort;
 pub mod reduce;
 pub mod scan;
 pub mod segmented;
