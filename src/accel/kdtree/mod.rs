@@ -11,6 +11,7 @@
 //! - leaf: `kind` = [`LEAF`], primitives `prim_refs[a .. a + b]` (b may be 0: empty leaf).
 
 pub mod full_clip;
+pub mod seed001;
 pub mod stats;
 pub mod validate;
 
