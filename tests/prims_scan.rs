@@ -6,7 +6,7 @@ mod common;
 
 use vkrt::gpu::Context;
 use vkrt::prims::compact::{compact_cpu, Compact};
-use vkrt::prims::scan::{flag_scan_cpu, scan_cpu, Scan, ScanInput, ScanOp};
+use vkrt::prims::scan::{flag_scan_cpu, scan_cpu, Scan, ScanInput, ScanOp, ScanVariant};
 use vkrt::prims::PrimConfig;
 
 fn configs(ctx: &Context) -> [PrimConfig; 2] {
@@ -134,5 +134,24 @@ fn scan_works_in_place_and_past_every_level() {
     rec.compute_to_transfer();
     rec.submit_and_wait().unwrap();
     assert!(buffer.download().unwrap() == scan_cpu(&input, ScanOp::Exclusive).0);
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn contiguous_variant_equals_cpu_twin() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(5);
+    for cfg in configs(&ctx) {
+        let u32_scan = Scan::with_variant(&ctx, cfg, ScanInput::U32, ScanVariant::Contiguous).unwrap();
+        let flag_scan = Scan::with_variant(&ctx, cfg, ScanInput::Flags, ScanVariant::Contiguous).unwrap();
+        let sg = ctx.info().subgroup_size as usize;
+        for n in common::edge_sizes(sg, cfg.workgroup_size as usize, 4 * cfg.tile() as usize) {
+            let input: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
+            let (gpu, total) = u32_scan.run_u32(&ctx, &input, ScanOp::Exclusive).unwrap();
+            assert!((gpu, total) == scan_cpu(&input, ScanOp::Exclusive), "{cfg:?} n={n} u32");
+            let flags: Vec<u8> = (0..n).map(|_| (rng.next_u64() & 1) as u8).collect();
+            assert!(flag_scan.run_flags(&ctx, &flags).unwrap() == flag_scan_cpu(&flags), "{cfg:?} n={n} flags");
+        }
+    }
     common::assert_silent(&ctx);
 }

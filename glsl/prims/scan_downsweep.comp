@@ -2,9 +2,19 @@
 // Scan pass 3 of 3 (or the only pass when n fits one tile): rescan each tile starting from
 // its carry-in (the exclusive scan of the tile sums) and write the prefix sums.
 // Output is always u32 elements; the last tile also writes the grand total to total[0].
+//
+// All ROUNDS granules of an invocation are loaded first and scanned together: one subgroup
+// scan per round without barriers, then a single shared-memory pass over the
+// ROUNDS x subgroups totals — two barriers per tile instead of three per round (barriers
+// are coroutine switches on lavapipe, and stalls everywhere).
+//
+// CONTIGUOUS=1: each invocation owns ROUNDS consecutive granules instead (one subgroup scan
+// per tile instead of one per round; strided loads) — `vkrt bench prims` compares them.
 //! variant u32 FLAGS=0
 //! variant u32_shuffle FLAGS=0 SCAN_SHUFFLE=1
+//! variant u32_contiguous FLAGS=0 CONTIGUOUS=1
 //! variant flags FLAGS=1
+//! variant flags_contiguous FLAGS=1 CONTIGUOUS=1
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "common/subgroup_scan.glsl"
@@ -23,6 +33,10 @@ layout(push_constant) uniform Push {
 
 #include "prims/scan_tile.glsl"
 
+// Subgroup totals per round, round-major: [round * gl_NumSubgroups + subgroup].
+shared uint round_sums[ROUNDS * (gl_WorkGroupSize.x / 4)];
+shared uint tile_total;
+
 void main() {
     uint group = linear_group_id();
     uint tile = tile_elements();
@@ -33,18 +47,75 @@ void main() {
         }
         return;
     }
-    uint carry = pc.has_carry != 0 ? carries[group] : 0;
+    uint lanes = subgroup_lanes();
+    uint rank = gl_SubgroupID * lanes + gl_SubgroupInvocationID; // order of the scan
     uint first_granule = tile_start / EPG;
+
+#ifndef CONTIGUOUS
+#define CONTIGUOUS 0
+#endif
+#if CONTIGUOUS
+#define GRANULE(r) (first_granule + rank * ROUNDS + (r))
+    uvec4 words[ROUNDS];
+    uint inclusive_sums[ROUNDS];
+    uint thread_sum = 0;
     for (uint r = 0; r < ROUNDS; r++) {
-        if (tile_start + r * gl_WorkGroupSize.x * EPG >= pc.n) {
-            break; // uniform: depends on the workgroup and the round only
+        words[r] = load_granule_words(GRANULE(r), pc.n);
+        inclusive_sums[r] = thread_sum;
+        thread_sum += granule_sum(words[r]);
+    }
+    uint thread_excl = subgroup_inclusive_add(thread_sum) - thread_sum;
+    if (gl_SubgroupInvocationID == lanes - 1) {
+        round_sums[gl_SubgroupID] = thread_excl + thread_sum;
+    }
+    for (uint r = 0; r < ROUNDS; r++) {
+        inclusive_sums[r] += thread_excl;
+    }
+    const uint SLOTS_PER_ROUND = 0; // one slot per subgroup, not per round
+#else
+#define GRANULE(r) (first_granule + (r) * gl_WorkGroupSize.x + rank)
+    uvec4 words[ROUNDS];
+    uint inclusive_sums[ROUNDS];
+    for (uint r = 0; r < ROUNDS; r++) {
+        uint g = GRANULE(r);
+        words[r] = load_granule_words(g, pc.n);
+        uint s = granule_sum(words[r]);
+        inclusive_sums[r] = subgroup_inclusive_add(s);
+        if (gl_SubgroupInvocationID == lanes - 1) {
+            round_sums[r * gl_NumSubgroups + gl_SubgroupID] = inclusive_sums[r];
         }
-        uint g = first_granule + r * gl_WorkGroupSize.x + gl_LocalInvocationID.x;
-        uvec4 w = load_granule_words(g, pc.n);
-        uint local_sum = granule_sum(w);
-        uint round_total;
-        uint base = carry + workgroup_exclusive_add(local_sum, round_total);
-        uint first = g * EPG;
+        inclusive_sums[r] -= s; // now exclusive within the subgroup
+    }
+    const uint SLOTS_PER_ROUND = 1;
+#endif
+    barrier();
+    if (gl_SubgroupID == 0) {
+        uint carry = 0;
+        uint count = (SLOTS_PER_ROUND == 0 ? 1 : ROUNDS) * gl_NumSubgroups;
+        for (uint base = 0; base < count; base += lanes) {
+            uint i = base + gl_SubgroupInvocationID;
+            uint s = i < count ? round_sums[i] : 0;
+            uint scanned = subgroup_inclusive_add(s);
+            if (i < count) {
+                round_sums[i] = carry + scanned - s;
+            }
+            carry += subgroupShuffle(scanned, lanes - 1);
+        }
+        if (gl_SubgroupInvocationID == 0) {
+            tile_total = carry;
+        }
+    }
+    barrier();
+
+    uint carry_in = pc.has_carry != 0 ? carries[group] : 0;
+    for (uint r = 0; r < ROUNDS; r++) {
+        uint first = GRANULE(r) * EPG;
+        if (first >= pc.n) {
+            break;
+        }
+        uint base = carry_in + round_sums[SLOTS_PER_ROUND * r * gl_NumSubgroups + gl_SubgroupID]
+            + inclusive_sums[r];
+        uvec4 w = words[r];
         if (first + EPG <= pc.n) {
             for (uint q = 0; q < EPG / 4; q++) {
                 uvec4 o;
@@ -62,9 +133,8 @@ void main() {
                 base += x;
             }
         }
-        carry += round_total;
     }
-    if (gl_LocalInvocationID.x == 0 && (pc.n - 1) / tile == group) {
-        total[0] = carry;
+    if (rank == 0 && (pc.n - 1) / tile == group) {
+        total[0] = carry_in + tile_total;
     }
 }

@@ -22,7 +22,7 @@ void main() {
     uint first_granule = tile_start / EPG;
     uint sum = 0;
     for (uint r = 0; r < ROUNDS; r++) {
-        uint g = first_granule + r * gl_WorkGroupSize.x + gl_LocalInvocationID.x;
+        uint g = first_granule + r * gl_WorkGroupSize.x + gl_SubgroupID * subgroup_lanes() + gl_SubgroupInvocationID;
         sum += granule_sum(load_granule_words(g, pc.n));
     }
     uint total = workgroup_add(sum);

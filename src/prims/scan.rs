@@ -52,6 +52,17 @@ struct DownsweepPush {
     inclusive: u32,
 }
 
+/// How a tile is scanned inside the workgroup (`vkrt bench prims` measures each).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum ScanVariant {
+    /// Granules strided by the workgroup (coalesced loads), `subgroupInclusiveAdd`.
+    Strided,
+    /// As `Strided`, with `subgroupShuffleUp` steps instead of the intrinsic.
+    StridedShuffle,
+    /// Each invocation owns consecutive granules: one subgroup scan per tile.
+    Contiguous,
+}
+
 /// A scan of one input kind, with its kernels compiled.
 pub struct Scan {
     cfg: PrimConfig,
@@ -74,16 +85,18 @@ pub struct ScanScratch {
 
 impl Scan {
     pub fn new(ctx: &Context, cfg: PrimConfig, input: ScanInput) -> Result<Self> {
-        Self::build(ctx, cfg, input, false)
+        Self::with_variant(ctx, cfg, input, ScanVariant::Strided)
     }
 
     /// A u32 scan whose subgroup scan is `subgroupShuffleUp` steps instead of
     /// `subgroupInclusiveAdd` (for measuring one against the other).
     pub fn with_shuffle(ctx: &Context, cfg: PrimConfig) -> Result<Self> {
-        Self::build(ctx, cfg, ScanInput::U32, true)
+        Self::with_variant(ctx, cfg, ScanInput::U32, ScanVariant::StridedShuffle)
     }
 
-    fn build(ctx: &Context, cfg: PrimConfig, input: ScanInput, shuffle: bool) -> Result<Self> {
+    /// A scan with the given in-tile variant (the shuffle variant exists for u32 input only;
+    /// flags fall back to the intrinsic).
+    pub fn with_variant(ctx: &Context, cfg: PrimConfig, input: ScanInput, variant: ScanVariant) -> Result<Self> {
         let sg = ctx.info().subgroup_size;
         let wg = cfg.workgroup_size;
         if !wg.is_power_of_two() || wg % ctx.info().max_subgroup_size.max(sg) != 0 {
@@ -96,14 +109,25 @@ impl Scan {
         let spec = Spec::new().workgroup(wg).u32(1, rounds);
         let reduce = ctx.kernel(&kernels::PRIMS_SCAN_REDUCE_U32, &spec)?;
         let downsweep = ctx.kernel(
-            if shuffle { &kernels::PRIMS_SCAN_DOWNSWEEP_U32_SHUFFLE } else { &kernels::PRIMS_SCAN_DOWNSWEEP_U32 },
+            match variant {
+                ScanVariant::Strided => &kernels::PRIMS_SCAN_DOWNSWEEP_U32,
+                ScanVariant::StridedShuffle => &kernels::PRIMS_SCAN_DOWNSWEEP_U32_SHUFFLE,
+                ScanVariant::Contiguous => &kernels::PRIMS_SCAN_DOWNSWEEP_U32_CONTIGUOUS,
+            },
             &spec,
         )?;
         let (first_reduce, first_downsweep) = match input {
             ScanInput::U32 => (reduce.clone(), downsweep.clone()),
             ScanInput::Flags => (
                 ctx.kernel(&kernels::PRIMS_SCAN_REDUCE_FLAGS, &spec)?,
-                ctx.kernel(&kernels::PRIMS_SCAN_DOWNSWEEP_FLAGS, &spec)?,
+                ctx.kernel(
+                    if variant == ScanVariant::Contiguous {
+                        &kernels::PRIMS_SCAN_DOWNSWEEP_FLAGS_CONTIGUOUS
+                    } else {
+                        &kernels::PRIMS_SCAN_DOWNSWEEP_FLAGS
+                    },
+                    &spec,
+                )?,
             ),
         };
         Ok(Self { cfg, input, rounds, first_reduce, first_downsweep, reduce, downsweep })
@@ -187,17 +211,23 @@ impl Scan {
         let inclusive = u32::from(op == ScanOp::Inclusive);
         if n <= tile {
             let push = DownsweepPush { n: n as u32, has_carry: 0, inclusive };
-            rec.dispatch(downsweep, groups, &[input, input, output, output, input, total], &push);
+            rec.scope("prims.scan_downsweep", |rec| {
+                rec.dispatch(downsweep, groups, &[input, input, output, output, input, total], &push)
+            });
             return;
         }
         let partials = &scratch.levels[level];
         let tiles = n.div_ceil(tile);
-        rec.dispatch(reduce, groups, &[input, input, partials], &ReducePush { n: n as u32 });
+        rec.scope("prims.scan_reduce", |rec| {
+            rec.dispatch(reduce, groups, &[input, input, partials], &ReducePush { n: n as u32 })
+        });
         rec.compute_to_compute();
         self.record_level(rec, level + 1, partials, partials, tiles, ScanOp::Exclusive, scratch, &scratch.level_totals[level]);
         rec.compute_to_compute();
         let push = DownsweepPush { n: n as u32, has_carry: 1, inclusive };
-        rec.dispatch(downsweep, groups, &[input, input, output, output, partials, total], &push);
+        rec.scope("prims.scan_downsweep", |rec| {
+            rec.dispatch(downsweep, groups, &[input, input, output, output, partials, total], &push)
+        });
     }
 
     /// Convenience: scans `input` (u32 elements) on the GPU; returns the scan and the total.
@@ -273,7 +303,10 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
         let suffix = if cfg == base { String::new() } else { format!(".wg{wg}.ipi{ipi}") };
         variants.push((format!("scan_u32{suffix}"), Scan::new(ctx, cfg, ScanInput::U32)?, false));
         variants.push((format!("scan_u32_shuffle{suffix}"), Scan::with_shuffle(ctx, cfg)?, false));
+        let contiguous = ScanVariant::Contiguous;
+        variants.push((format!("scan_u32_contiguous{suffix}"), Scan::with_variant(ctx, cfg, ScanInput::U32, contiguous)?, false));
         variants.push((format!("flag_scan{suffix}"), Scan::new(ctx, cfg, ScanInput::Flags)?, true));
+        variants.push((format!("flag_scan_contiguous{suffix}"), Scan::with_variant(ctx, cfg, ScanInput::Flags, contiguous)?, true));
     }
     let scratches = variants.iter().map(|(_, s, _)| s.scratch(ctx, n)).collect::<Result<Vec<_>>>()?;
     let mut rec = Recorder::new(ctx)?;
