@@ -28,6 +28,13 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Summarise a scene file (.toml, .obj, seed-002 text): counts, bounds, the effects it calls for.
+    Scene {
+        /// The scene; omit for the embedded default scene (a Cornell box).
+        file: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+    },
     /// Measure GPU baselines and primitives.
     Bench {
         #[command(subcommand)]
@@ -70,6 +77,9 @@ enum BenchCommand {
         only: Option<String>,
         #[arg(long)]
         json: bool,
+        /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
+        #[arg(long)]
+        profile: Option<PathBuf>,
     },
 }
 
@@ -176,7 +186,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 }
             }
         }
-        Command::Bench { what: BenchCommand::Prims { max_n, min_n, step, reps, only, json } } => {
+        Command::Bench { what: BenchCommand::Prims { max_n, min_n, step, reps, only, json, profile } } => {
             let ctx = context(cli.validate)?;
             let mut sizes = Vec::new();
             let mut n = min_n.max(1);
@@ -184,7 +194,11 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 sizes.push(n);
                 n <<= step.max(1);
             }
-            let report = vkrt::bench::prims_report(&ctx, &sizes, reps.max(1), only.as_deref())?;
+            let (report, trace) = vkrt::gpu::capture_profiles(|| {
+                vkrt::bench::prims_report(&ctx, &sizes, reps.max(1), only.as_deref())
+            });
+            let report = report?;
+            write_profile(&profile, &trace)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             } else {
@@ -204,6 +218,24 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                         r.ratio_to_copy_kernel
                     );
                 }
+            }
+        }
+        Command::Scene { file, json } => {
+            let (scene, warnings) = match &file {
+                Some(path) => {
+                    let loaded = vkrt::scene::Scene::load(path)?;
+                    (loaded.scene, loaded.warnings)
+                }
+                None => (vkrt::scene::Scene::default_scene(), Vec::new()),
+            };
+            for w in &warnings {
+                eprintln!("vkrt: warning: {w}");
+            }
+            let summary = scene.summary();
+            if json {
+                println!("{}", serde_json::to_string_pretty(&summary)?);
+            } else {
+                println!("{}", summary.to_string().trim_end());
             }
         }
     }

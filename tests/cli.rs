@@ -127,3 +127,34 @@ fn unknown_commands_fail_with_usage() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("Usage"));
 }
+
+#[test]
+fn scene_summary_json_and_errors() {
+    let out = vkrt(&["scene", "--json"]);
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for key in ["triangles", "spheres", "lights", "materials", "bounds", "effects"] {
+        assert!(v.get(key).is_some(), "missing {key} in {v}");
+    }
+    let effects: Vec<&str> = v["effects"].as_array().unwrap().iter().map(|e| e.as_str().unwrap()).collect();
+    assert!(effects.contains(&"refraction") && effects.contains(&"reflection"), "{effects:?}");
+
+    let out = vkrt(&["scene", "/no/such/scene.toml"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("/no/such/scene.toml"));
+}
+
+#[test]
+fn every_example_scene_loads() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    let mut count = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path.extension().is_some_and(|e| e == "toml" || e == "obj" || e == "scn") {
+            let out = vkrt(&["scene", path.to_str().unwrap(), "--json"]);
+            assert!(out.status.success(), "{}: {}", path.display(), String::from_utf8_lossy(&out.stderr));
+            count += 1;
+        }
+    }
+    assert!(count >= 10, "expected the example scenes, found {count}");
+}

@@ -213,6 +213,31 @@ impl Profile {
     }
 }
 
+thread_local! {
+    static CAPTURE: std::cell::RefCell<Option<Profile>> = const { std::cell::RefCell::new(None) };
+}
+
+/// Runs `f` and returns, with its result, the profiles of every submission this thread
+/// completed meanwhile, one after another — how the CLI's `--profile` covers whole commands.
+pub fn capture<R>(f: impl FnOnce() -> R) -> (R, Profile) {
+    let outer = CAPTURE.with(|c| c.borrow_mut().replace(Profile::default()));
+    let result = f();
+    let captured = CAPTURE.with(|c| std::mem::replace(&mut *c.borrow_mut(), outer)).unwrap_or_default();
+    if let Some(p) = CAPTURE.with(|c| c.borrow().is_some().then(|| captured.clone())) {
+        record_captured(&p);
+    }
+    (result, captured)
+}
+
+/// Adds a completed submission's profile to the active capture, if any.
+pub(crate) fn record_captured(profile: &Profile) {
+    CAPTURE.with(|c| {
+        if let Some(active) = c.borrow_mut().as_mut() {
+            active.append(profile.clone());
+        }
+    });
+}
+
 /// Writes a file through a temporary sibling and a rename, so readers never see a partial
 /// file and a failure leaves nothing behind.
 pub fn write_atomically(path: &Path, bytes: &[u8]) -> Result<()> {
