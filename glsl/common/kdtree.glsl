@@ -14,4 +14,18 @@ struct KdNode {
     uint b;
 };
 
+bool sign_bit(float x) {
+    return (floatBitsToUint(x) >> 31) != 0u;
+}
+
+// min / max with -0.0 below +0.0 (GLSL's min/max leave that case open), as the CPU twin
+// (`seed001::fmin`, `seed001::fmax`) and the reductions.
+float fmin_total(float a, float b) {
+    return (a < b || (a == b && sign_bit(a))) ? a : b;
+}
+
+float fmax_total(float a, float b) {
+    return (a > b || (a == b && sign_bit(b))) ? a : b;
+}
+
 #endif

@@ -11,6 +11,7 @@
 //! - leaf: `kind` = [`LEAF`], primitives `prim_refs[a .. a + b]` (b may be 0: empty leaf).
 
 pub mod full_clip;
+pub mod gpu;
 pub mod seed001;
 pub mod stats;
 pub mod validate;
@@ -40,11 +41,21 @@ pub struct KdNode {
 
 impl KdNode {
     pub fn inner(axis: u32, split: f32, first_child: u32) -> Self {
-        Self { split, kind: axis, a: first_child, b: 0 }
+        Self {
+            split,
+            kind: axis,
+            a: first_child,
+            b: 0,
+        }
     }
 
     pub fn leaf(first_ref: u32, count: u32) -> Self {
-        Self { split: 0.0, kind: LEAF, a: first_ref, b: count }
+        Self {
+            split: 0.0,
+            kind: LEAF,
+            a: first_ref,
+            b: count,
+        }
     }
 
     pub fn is_leaf(&self) -> bool {
@@ -98,7 +109,11 @@ impl SahParams {
     /// The depth limit for `n` primitives: `max_depth`, else `round(8 + 1.3·floor(log2 n))`.
     pub fn depth_limit(&self, n: usize) -> u32 {
         self.max_depth.unwrap_or_else(|| {
-            let log = if n <= 1 { 0 } else { usize::BITS - 1 - n.leading_zeros() };
+            let log = if n <= 1 {
+                0
+            } else {
+                usize::BITS - 1 - n.leading_zeros()
+            };
             (8.0 + 1.3 * log as f32).round() as u32
         })
     }

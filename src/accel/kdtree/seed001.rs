@@ -33,7 +33,7 @@
 
 use glam::Vec3;
 
-use super::{triangle_bounds, Aabb, KdNode, KdTree, SahParams};
+use super::{Aabb, KdNode, KdTree, SahParams};
 
 /// Event type, also its sort rank at equal planes (END first).
 pub const END: u8 = 0;
@@ -92,7 +92,15 @@ pub struct BuildTrace {
 /// are half surface areas: the SAH scaled by the node's area, free of division. `+∞`
 /// when the plane is not strictly inside the node box. The GLSL twin is
 /// `sah_scaled` in `glsl/accel/kdtree_common.glsl`: keep the operation order identical.
-pub fn sah_scaled(min: Vec3, max: Vec3, axis: usize, plane: f32, below: u32, above: u32, p: &SahParams) -> f32 {
+pub fn sah_scaled(
+    min: Vec3,
+    max: Vec3,
+    axis: usize,
+    plane: f32,
+    below: u32,
+    above: u32,
+    p: &SahParams,
+) -> f32 {
     if !(plane > min[axis] && plane < max[axis]) {
         return f32::INFINITY;
     }
@@ -104,12 +112,53 @@ pub fn sah_scaled(min: Vec3, max: Vec3, axis: usize, plane: f32, below: u32, abo
     dr[axis] = max[axis] - plane;
     let area_l = dl.x * dl.y + dl.y * dl.z + dl.z * dl.x;
     let area_r = dr.x * dr.y + dr.y * dr.z + dr.z * dr.x;
-    let cost = p.traversal_cost * area + p.intersection_cost * (area_l * below as f32 + area_r * above as f32);
+    let cost = p.traversal_cost * area
+        + p.intersection_cost * (area_l * below as f32 + area_r * above as f32);
     if below == 0 || above == 0 {
         cost * p.empty_bonus
     } else {
         cost
     }
+}
+
+/// min with -0.0 below +0.0 (`f32::min` leaves that case open); the GLSL twin is
+/// `fmin_total` in `glsl/common/kdtree.glsl`.
+pub fn fmin(a: f32, b: f32) -> f32 {
+    if a < b || (a == b && a.is_sign_negative()) {
+        a
+    } else {
+        b
+    }
+}
+
+/// max with -0.0 below +0.0; the GLSL twin is `fmax_total`.
+pub fn fmax(a: f32, b: f32) -> f32 {
+    if a > b || (a == b && b.is_sign_negative()) {
+        a
+    } else {
+        b
+    }
+}
+
+/// A triangle's box, exactly as `accel.kdtree_boxes` computes it.
+pub fn prim_box(t: &[Vec3; 3]) -> Aabb {
+    let f = |g: fn(f32, f32) -> f32, a: usize| g(g(t[0][a], t[1][a]), t[2][a]);
+    Aabb {
+        min: Vec3::new(f(fmin, 0), f(fmin, 1), f(fmin, 2)),
+        max: Vec3::new(f(fmax, 0), f(fmax, 1), f(fmax, 2)),
+    }
+}
+
+/// The union of boxes, as the GPU min/max reductions compute it.
+pub fn bounds_of(boxes: &[Aabb]) -> Aabb {
+    let mut b = Aabb::EMPTY;
+    for x in boxes {
+        for a in 0..3 {
+            b.min[a] = fmin(b.min[a], x.min[a]);
+            b.max[a] = fmax(b.max[a], x.max[a]);
+        }
+    }
+    b
 }
 
 /// Phase I: the three sorted axis lists for `boxes`.
@@ -146,18 +195,20 @@ pub fn initial_events(boxes: &[Aabb]) -> [Events; 3] {
 
 /// Builds the tree of `triangles` with the seed-001 algorithm.
 pub fn build(triangles: &[[Vec3; 3]], params: &SahParams) -> (KdTree, BuildTrace) {
-    let boxes: Vec<Aabb> = triangles.iter().map(triangle_bounds).collect();
+    let boxes: Vec<Aabb> = triangles.iter().map(prim_box).collect();
     build_boxes(&boxes, params)
 }
 
 /// Builds the tree over primitive boxes.
 pub fn build_boxes(boxes: &[Aabb], params: &SahParams) -> (KdTree, BuildTrace) {
     let n = boxes.len();
-    let mut bounds = Aabb::EMPTY;
-    for b in boxes {
-        bounds.union(b);
-    }
-    let mut tree = KdTree { nodes: Vec::new(), prim_refs: Vec::new(), bounds, primitives: n as u32 };
+    let bounds = bounds_of(boxes);
+    let mut tree = KdTree {
+        nodes: Vec::new(),
+        prim_refs: Vec::new(),
+        bounds,
+        primitives: n as u32,
+    };
     let mut trace = BuildTrace::default();
     if n == 0 {
         tree.nodes.push(KdNode::leaf(0, 0));
@@ -165,7 +216,12 @@ pub fn build_boxes(boxes: &[Aabb], params: &SahParams) -> (KdTree, BuildTrace) {
     }
     let depth_limit = params.depth_limit(n);
     let mut events = initial_events(boxes);
-    let mut level = Level { box_min: vec![bounds.min], box_max: vec![bounds.max], first: vec![0], count: vec![n as u32] };
+    let mut level = Level {
+        box_min: vec![bounds.min],
+        box_max: vec![bounds.max],
+        first: vec![0],
+        count: vec![n as u32],
+    };
     let mut depth = 0;
     while !level.count.is_empty() {
         let m = level.count.len();
@@ -176,7 +232,8 @@ pub fn build_boxes(boxes: &[Aabb], params: &SahParams) -> (KdTree, BuildTrace) {
         let next_base = level_base + m as u32;
 
         // 1. split_costs
-        let starts_before: [Vec<u32>; 3] = std::array::from_fn(|a| exclusive_scan_u8(&events[a].kind));
+        let starts_before: [Vec<u32>; 3] =
+            std::array::from_fn(|a| exclusive_scan_u8(&events[a].kind));
         let (cost, axis_of) = split_costs(&events, &starts_before, &level, params);
         // 2. best_split (segmented argmin)
         let best: Vec<(f32, u32)> = (0..m)
@@ -195,37 +252,66 @@ pub fn build_boxes(boxes: &[Aabb], params: &SahParams) -> (KdTree, BuildTrace) {
                 c <= params.max_leaf_prims
                     || depth >= depth_limit
                     || best[i].0 == f32::INFINITY
-                    || (params.sah_leaf_test && best[i].0 >= params.intersection_cost * c as f32 * area)
+                    || (params.sah_leaf_test
+                        && best[i].0 >= params.intersection_cost * c as f32 * area)
             })
             .collect();
         // (Leaves may be empty: their argmin index points past their events.)
-        let split_axis: Vec<usize> =
-            (0..m).map(|i| if is_leaf[i] { 0 } else { axis_of[best[i].1 as usize] as usize }).collect();
-        let split_plane: Vec<f32> =
-            (0..m).map(|i| if is_leaf[i] { 0.0 } else { events[split_axis[i]].plane[best[i].1 as usize] }).collect();
+        let split_axis: Vec<usize> = (0..m)
+            .map(|i| {
+                if is_leaf[i] {
+                    0
+                } else {
+                    axis_of[best[i].1 as usize] as usize
+                }
+            })
+            .collect();
+        let split_plane: Vec<f32> = (0..m)
+            .map(|i| {
+                if is_leaf[i] {
+                    0.0
+                } else {
+                    events[split_axis[i]].plane[best[i].1 as usize]
+                }
+            })
+            .collect();
         // Node records: inner children at 2·(inner nodes before); leaves' refs after all
         // earlier leaves.
-        let inner_before = exclusive_scan_u32(&is_leaf.iter().map(|&l| u32::from(!l)).collect::<Vec<_>>());
-        let leaf_refs_before =
-            exclusive_scan_u32(&(0..m).map(|i| if is_leaf[i] { level.count[i] } else { 0 }).collect::<Vec<_>>());
+        let inner_before =
+            exclusive_scan_u32(&is_leaf.iter().map(|&l| u32::from(!l)).collect::<Vec<_>>());
+        let leaf_refs_before = exclusive_scan_u32(
+            &(0..m)
+                .map(|i| if is_leaf[i] { level.count[i] } else { 0 })
+                .collect::<Vec<_>>(),
+        );
         let leaf_ref_base = tree.prim_refs.len() as u32;
         let total_leaf_refs = leaf_refs_before.last().copied().unwrap_or(0)
-            + if is_leaf[m - 1] { level.count[m - 1] } else { 0 };
+            + if is_leaf[m - 1] {
+                level.count[m - 1]
+            } else {
+                0
+            };
         for i in 0..m {
             tree.nodes.push(if is_leaf[i] {
                 KdNode::leaf(leaf_ref_base + leaf_refs_before[i], level.count[i])
             } else {
-                KdNode::inner(split_axis[i] as u32, split_plane[i], next_base + 2 * inner_before[i])
+                KdNode::inner(
+                    split_axis[i] as u32,
+                    split_plane[i],
+                    next_base + 2 * inner_before[i],
+                )
             });
         }
         // 4. leaves: axis-0 STARTs of leaf nodes, in list order.
-        tree.prim_refs.resize((leaf_ref_base + total_leaf_refs) as usize, u32::MAX);
+        tree.prim_refs
+            .resize((leaf_ref_base + total_leaf_refs) as usize, u32::MAX);
         let ev0 = &events[0];
         for id in 0..ev0.len() {
             let node = ev0.node[id] as usize;
             if is_leaf[node] && ev0.kind[id] == START {
                 let rank = starts_before[0][id] - level.first[node];
-                tree.prim_refs[(leaf_ref_base + leaf_refs_before[node] + rank) as usize] = ev0.prim[id];
+                tree.prim_refs[(leaf_ref_base + leaf_refs_before[node] + rank) as usize] =
+                    ev0.prim[id];
             }
         }
         // 5–6. classify and scatter, per axis list.
@@ -236,8 +322,18 @@ pub fn build_boxes(boxes: &[Aabb], params: &SahParams) -> (KdTree, BuildTrace) {
             let mask = classify(ev, &is_leaf, &split_axis, &split_plane);
             let slots = virtual_slots(ev, &mask, &level);
             let offsets = exclusive_scan_u8(&slots);
-            let total = offsets.last().copied().unwrap_or(0) + u32::from(slots.last().copied().unwrap_or(0));
-            next_events[a] = scatter(ev, &mask, &offsets, total as usize, &level, &inner_before, &split_axis, &split_plane);
+            let total = offsets.last().copied().unwrap_or(0)
+                + u32::from(slots.last().copied().unwrap_or(0));
+            next_events[a] = scatter(
+                ev,
+                &mask,
+                &offsets,
+                total as usize,
+                &level,
+                &inner_before,
+                &split_axis,
+                &split_plane,
+            );
             if a == 0 {
                 side_offsets = offsets;
                 side_offsets.push(total);
@@ -251,7 +347,11 @@ pub fn build_boxes(boxes: &[Aabb], params: &SahParams) -> (KdTree, BuildTrace) {
             }
             let base = 4 * level.first[i] as usize;
             let c2 = 2 * level.count[i] as usize;
-            let (lo, mid, hi) = (side_offsets[base], side_offsets[base + c2], side_offsets[base + 2 * c2]);
+            let (lo, mid, hi) = (
+                side_offsets[base],
+                side_offsets[base + c2],
+                side_offsets[base + 2 * c2],
+            );
             let (a, p) = (split_axis[i], split_plane[i]);
             let mut left_max = level.box_max[i];
             left_max[a] = p;
@@ -270,8 +370,16 @@ pub fn build_boxes(boxes: &[Aabb], params: &SahParams) -> (KdTree, BuildTrace) {
 }
 
 /// Per event: the cheapest of its three axes' split costs, and that axis.
-#[allow(clippy::needless_range_loop, reason = "mirrors the GLSL kernel, one event per invocation")]
-fn split_costs(events: &[Events; 3], starts_before: &[Vec<u32>; 3], level: &Level, p: &SahParams) -> (Vec<f32>, Vec<u8>) {
+#[allow(
+    clippy::needless_range_loop,
+    reason = "mirrors the GLSL kernel, one event per invocation"
+)]
+fn split_costs(
+    events: &[Events; 3],
+    starts_before: &[Vec<u32>; 3],
+    level: &Level,
+    p: &SahParams,
+) -> (Vec<f32>, Vec<u8>) {
     let len = events[0].len();
     let mut cost = vec![f32::INFINITY; len];
     let mut axis_of = vec![0u8; len];
@@ -283,7 +391,15 @@ fn split_costs(events: &[Events; 3], starts_before: &[Vec<u32>; 3], level: &Leve
             let below = starts_before[a][id] - first;
             let ends_before = id as u32 - first - starts_before[a][id];
             let above = count - ends_before - u32::from(ev.kind[id] == END);
-            let c = sah_scaled(level.box_min[node], level.box_max[node], a, ev.plane[id], below, above, p);
+            let c = sah_scaled(
+                level.box_min[node],
+                level.box_max[node],
+                a,
+                ev.plane[id],
+                below,
+                above,
+                p,
+            );
             if c < cost[id] {
                 cost[id] = c;
                 axis_of[id] = a as u8;
@@ -343,7 +459,10 @@ fn virtual_slots(ev: &Events, mask: &[u8], level: &Level) -> Vec<u8> {
     slots
 }
 
-#[allow(clippy::too_many_arguments, reason = "named like the kernel's bindings")]
+#[allow(
+    clippy::too_many_arguments,
+    reason = "named like the kernel's bindings"
+)]
 fn scatter(
     ev: &Events,
     mask: &[u8],
@@ -381,9 +500,9 @@ fn scatter(
             }
             let s = split_axis[node];
             if side == 0 {
-                out.box_max[s][o] = out.box_max[s][o].min(split_plane[node]);
+                out.box_max[s][o] = fmin(out.box_max[s][o], split_plane[node]);
             } else {
-                out.box_min[s][o] = out.box_min[s][o].max(split_plane[node]);
+                out.box_min[s][o] = fmax(out.box_min[s][o], split_plane[node]);
             }
         }
     }
