@@ -155,3 +155,43 @@ fn contiguous_variant_equals_cpu_twin() {
     }
     common::assert_silent(&ctx);
 }
+
+#[test]
+fn counted_scans_read_their_length_from_the_gpu() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(6);
+    for cfg in configs(&ctx) {
+        let scan = Scan::new(&ctx, cfg, ScanInput::U32).unwrap();
+        let flag_scan = Scan::new(&ctx, cfg, ScanInput::Flags).unwrap();
+        let capacity = 3 * cfg.tile() as usize * cfg.tile() as usize / 2 + 5;
+        let input: Vec<u32> = (0..capacity).map(|_| (rng.next_u64() % 5) as u32).collect();
+        let flags: Vec<u8> = (0..capacity).map(|_| (rng.next_u64() & 1) as u8).collect();
+        let data = vkrt::gpu::Buffer::from_slice(&ctx, "counted.in", &input).unwrap();
+        let flag_data = vkrt::gpu::Buffer::from_slice(&ctx, "counted.flags", &flags).unwrap();
+        let out = vkrt::gpu::Buffer::<u32>::zeroed(&ctx, "counted.out", capacity).unwrap();
+        let scratch = scan.scratch(&ctx, capacity).unwrap();
+        let flag_scratch = flag_scan.scratch(&ctx, capacity).unwrap();
+        // The real count is stored / 2 * 2 (mul 2): 0, 1, tile-ish and the capacity itself.
+        for stored in [0u32, 1, 7, cfg.tile() / 2 + 1, (capacity / 2) as u32] {
+            let n = (2 * stored as usize).min(capacity);
+            let counts = vkrt::gpu::Buffer::from_slice(&ctx, "counted.counts", &[99, stored]).unwrap();
+            let count = vkrt::prims::scan::GpuCount { counts: &counts, index: 1, mul: 2, div: 1 };
+            let mut rec = vkrt::gpu::Recorder::new(&ctx).unwrap();
+            scan.record_counted(&mut rec, &data, &out, capacity, count, ScanOp::Exclusive, &scratch);
+            rec.compute_to_compute();
+            rec.compute_to_transfer();
+            rec.submit_and_wait().unwrap();
+            let (cpu, total) = scan_cpu(&input[..n], ScanOp::Exclusive);
+            assert!(out.download().unwrap()[..n] == cpu[..], "{cfg:?} counted n={n}");
+            assert_eq!(scratch.total.download().unwrap()[0], total, "{cfg:?} counted n={n} total");
+            let mut rec = vkrt::gpu::Recorder::new(&ctx).unwrap();
+            flag_scan.record_counted(&mut rec, &flag_data, &out, capacity, count, ScanOp::Exclusive, &flag_scratch);
+            rec.compute_to_transfer();
+            rec.submit_and_wait().unwrap();
+            let (cpu, total) = flag_scan_cpu(&flags[..n]);
+            assert!(out.download().unwrap()[..n] == cpu[..], "{cfg:?} counted flags n={n}");
+            assert_eq!(flag_scratch.total.download().unwrap()[0], total, "{cfg:?} counted flags n={n} total");
+        }
+    }
+    common::assert_silent(&ctx);
+}

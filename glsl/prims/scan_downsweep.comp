@@ -25,11 +25,16 @@ layout(std430, binding = 2) writeonly buffer Out4 { uvec4 out4[]; };
 layout(std430, binding = 3) writeonly buffer Out1 { uint out1[]; };
 layout(std430, binding = 4) readonly buffer Carries { uint carries[]; };
 layout(std430, binding = 5) writeonly buffer Total { uint total[]; };
+layout(std430, binding = 6) readonly buffer Counts { uint counts[]; };
 layout(push_constant) uniform Push {
-    uint n;
+    uint capacity;
     uint has_carry; // 0: single tile, carry-in 0
     uint inclusive; // 1: inclusive scan, 0: exclusive
+    uint count_index;
+    uint count_mul;
+    uint count_div; // 0: n = capacity
 } pc;
+#include "common/gpu_count.glsl"
 
 #include "prims/scan_tile.glsl"
 
@@ -38,11 +43,12 @@ shared uint round_sums[ROUNDS * (gl_WorkGroupSize.x / 4)];
 shared uint tile_total;
 
 void main() {
+    uint n = gpu_count(pc.capacity, pc.count_div == 0u ? 0u : counts[pc.count_index], pc.count_mul, pc.count_div);
     uint group = linear_group_id();
     uint tile = tile_elements();
     uint tile_start = group * tile;
-    if (tile_start >= pc.n) {
-        if (pc.n == 0 && group == 0 && gl_LocalInvocationID.x == 0) {
+    if (tile_start >= n) {
+        if (n == 0 && group == 0 && gl_LocalInvocationID.x == 0) {
             total[0] = 0; // an empty scan still reports its total
         }
         return;
@@ -60,7 +66,7 @@ void main() {
     uint inclusive_sums[ROUNDS];
     uint thread_sum = 0;
     for (uint r = 0; r < ROUNDS; r++) {
-        words[r] = load_granule_words(GRANULE(r), pc.n);
+        words[r] = load_granule_words(GRANULE(r), n);
         inclusive_sums[r] = thread_sum;
         thread_sum += granule_sum(words[r]);
     }
@@ -78,7 +84,7 @@ void main() {
     uint inclusive_sums[ROUNDS];
     for (uint r = 0; r < ROUNDS; r++) {
         uint g = GRANULE(r);
-        words[r] = load_granule_words(g, pc.n);
+        words[r] = load_granule_words(g, n);
         uint s = granule_sum(words[r]);
         inclusive_sums[r] = subgroup_inclusive_add(s);
         if (gl_SubgroupInvocationID == lanes - 1) {
@@ -110,13 +116,13 @@ void main() {
     uint carry_in = pc.has_carry != 0 ? carries[group] : 0;
     for (uint r = 0; r < ROUNDS; r++) {
         uint first = GRANULE(r) * EPG;
-        if (first >= pc.n) {
+        if (first >= n) {
             break;
         }
         uint base = carry_in + round_sums[SLOTS_PER_ROUND * r * gl_NumSubgroups + gl_SubgroupID]
             + inclusive_sums[r];
         uvec4 w = words[r];
-        if (first + EPG <= pc.n) {
+        if (first + EPG <= n) {
             for (uint q = 0; q < EPG / 4; q++) {
                 uvec4 o;
                 for (uint k = 0; k < 4; k++) {
@@ -127,14 +133,14 @@ void main() {
                 out4[first / 4 + q] = o;
             }
         } else {
-            for (uint i = 0; i < EPG && first + i < pc.n; i++) {
+            for (uint i = 0; i < EPG && first + i < n; i++) {
                 uint x = granule_element(w, i);
                 out1[first + i] = pc.inclusive != 0 ? base + x : base;
                 base += x;
             }
         }
     }
-    if (rank == 0 && (pc.n - 1) / tile == group) {
+    if (rank == 0 && (n - 1) / tile == group) {
         total[0] = carry_in + tile_total;
     }
 }

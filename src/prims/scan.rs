@@ -38,18 +38,34 @@ pub enum ScanInput {
     Flags,
 }
 
+/// Where a count that lives on the GPU is: `n = ceil(counts[index] · mul / div)`, at most
+/// the capacity the scan was recorded for (see `glsl/common/gpu_count.glsl`).
+#[derive(Clone, Copy)]
+pub struct GpuCount<'a> {
+    pub counts: &'a Buffer<u32>,
+    pub index: u32,
+    pub mul: u32,
+    pub div: u32,
+}
+
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct ReducePush {
-    n: u32,
+    capacity: u32,
+    count_index: u32,
+    count_mul: u32,
+    count_div: u32,
 }
 
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct DownsweepPush {
-    n: u32,
+    capacity: u32,
     has_carry: u32,
     inclusive: u32,
+    count_index: u32,
+    count_mul: u32,
+    count_div: u32,
 }
 
 /// How a tile is scanned inside the workgroup (`vkrt bench prims` measures each).
@@ -189,7 +205,29 @@ impl Scan {
             ScanInput::U32 => "prims.scan",
             ScanInput::Flags => "prims.flag_scan",
         };
-        rec.scope(name, |rec| self.record_level(rec, 0, input, output, n, op, scratch, &scratch.total));
+        rec.scope(name, |rec| self.record_level(rec, 0, input, output, n, None, op, scratch, &scratch.total));
+    }
+
+    /// Like [`Scan::record`] for a count that lives on the GPU (at most `capacity`): the
+    /// passes are recorded for the capacity and every workgroup past the real count exits
+    /// at once, so nothing is read back.
+    #[allow(clippy::too_many_arguments, reason = "record's arguments plus the count")]
+    pub fn record_counted(
+        &self,
+        rec: &mut Recorder,
+        input: &dyn BufferArg,
+        output: &dyn BufferArg,
+        capacity: usize,
+        count: GpuCount,
+        op: ScanOp,
+        scratch: &ScanScratch,
+    ) {
+        assert!(capacity <= scratch.max_n, "scan capacity {capacity} above its scratch's {}", scratch.max_n);
+        let name = match self.input {
+            ScanInput::U32 => "prims.scan",
+            ScanInput::Flags => "prims.flag_scan",
+        };
+        rec.scope(name, |rec| self.record_level(rec, 0, input, output, capacity, Some(count), op, scratch, &scratch.total));
     }
 
     #[allow(clippy::too_many_arguments, reason = "one level of the recursion, named like the bindings")]
@@ -200,33 +238,48 @@ impl Scan {
         input: &dyn BufferArg,
         output: &dyn BufferArg,
         n: usize,
+        count: Option<GpuCount>,
         op: ScanOp,
         scratch: &ScanScratch,
         total: &Buffer<u32>,
     ) {
+        let (counts, count_index, count_mul, count_div): (&Buffer<u32>, u32, u32, u32) = match count {
+            Some(c) => (c.counts, c.index, c.mul, c.div),
+            None => (total, 0, 0, 0),
+        };
         let (reduce, downsweep) =
             if level == 0 { (&self.first_reduce, &self.first_downsweep) } else { (&self.reduce, &self.downsweep) };
         let tile = self.tile(level);
         let groups = rec.groups_1d(n.max(1) as u64, tile as u32);
         let inclusive = u32::from(op == ScanOp::Inclusive);
+        let push = |has_carry| DownsweepPush {
+            capacity: n as u32,
+            has_carry,
+            inclusive,
+            count_index,
+            count_mul,
+            count_div,
+        };
         if n <= tile {
-            let push = DownsweepPush { n: n as u32, has_carry: 0, inclusive };
             rec.scope("prims.scan_downsweep", |rec| {
-                rec.dispatch(downsweep, groups, &[input, input, output, output, input, total], &push)
+                rec.dispatch(downsweep, groups, &[input, input, output, output, input, total, counts], &push(0))
             });
             return;
         }
         let partials = &scratch.levels[level];
         let tiles = n.div_ceil(tile);
+        let reduce_push = ReducePush { capacity: n as u32, count_index, count_mul, count_div };
         rec.scope("prims.scan_reduce", |rec| {
-            rec.dispatch(reduce, groups, &[input, input, partials], &ReducePush { n: n as u32 })
+            rec.dispatch(reduce, groups, &[input, input, partials, counts], &reduce_push)
         });
         rec.compute_to_compute();
-        self.record_level(rec, level + 1, partials, partials, tiles, ScanOp::Exclusive, scratch, &scratch.level_totals[level]);
+        // The tile sums of a GPU count c number ceil(c · mul / (div · tile)).
+        let upper = count.map(|c| GpuCount { div: c.div * tile as u32, ..c });
+        let level_total = &scratch.level_totals[level];
+        self.record_level(rec, level + 1, partials, partials, tiles, upper, ScanOp::Exclusive, scratch, level_total);
         rec.compute_to_compute();
-        let push = DownsweepPush { n: n as u32, has_carry: 1, inclusive };
         rec.scope("prims.scan_downsweep", |rec| {
-            rec.dispatch(downsweep, groups, &[input, input, output, output, partials, total], &push)
+            rec.dispatch(downsweep, groups, &[input, input, output, output, partials, total, counts], &push(1))
         });
     }
 
