@@ -19,17 +19,16 @@ fn bits(v: &[f32]) -> Vec<u32> {
 }
 
 fn assert_phase_one_equal(ctx: &vkrt::gpu::Context, builder: &KdTreeBuilder, name: &str, tris: &[[Vec3; 3]]) {
-    let (gpu, _) = builder.phase_one(ctx, tris).unwrap();
+    let (got, events) = builder.phase_one(ctx, tris).unwrap();
     let boxes: Vec<_> = tris.iter().map(seed001::prim_box).collect();
     let bounds = seed001::bounds_of(&boxes);
-    let got = gpu.bounds().unwrap();
     if !tris.is_empty() {
         assert_eq!(bits(&got.min.to_array()), bits(&bounds.min.to_array()), "{name}: bounds.min");
         assert_eq!(bits(&got.max.to_array()), bits(&bounds.max.to_array()), "{name}: bounds.max");
     }
     let cpu = seed001::initial_events(&boxes);
     for a in 0..3 {
-        let g = gpu.events[a].download().unwrap();
+        let g = &events[a];
         let c = &cpu[a];
         assert_eq!(bits(&g.plane), bits(&c.plane), "{name}: axis {a} planes");
         assert_eq!(g.kind, c.kind, "{name}: axis {a} kinds");
@@ -54,5 +53,39 @@ fn phase_one_equals_cpu_twin() {
     assert_phase_one_equal(&ctx, &builder, "icosphere", &mesh_triangles(&gen::icosphere(5).unwrap()));
     assert_phase_one_equal(&ctx, &builder, "soup", &mesh_triangles(&gen::random_soup(50_000, 9).unwrap()));
     assert_phase_one_equal(&ctx, &builder, "grid", &mesh_triangles(&gen::integer_grid(64, 64).unwrap()));
+    common::assert_silent(&ctx);
+}
+
+fn assert_build_equal(ctx: &vkrt::gpu::Context, builder: &KdTreeBuilder, name: &str, tris: &[[Vec3; 3]], params: &vkrt::accel::kdtree::SahParams) {
+    let (cpu, _) = seed001::build(tris, params);
+    let (gpu, _) = builder.build(ctx, tris, params).unwrap();
+    assert_eq!(gpu.nodes.len(), cpu.nodes.len(), "{name}: node count");
+    let first = gpu.nodes.iter().zip(&cpu.nodes).position(|(g, c)| g.split.to_bits() != c.split.to_bits() || g.kind != c.kind || g.a != c.a || g.b != c.b);
+    assert_eq!(first, None, "{name}: first differing node {:?} vs {:?}", first.map(|i| gpu.nodes[i]), first.map(|i| cpu.nodes[i]));
+    assert_eq!(gpu.prim_refs, cpu.prim_refs, "{name}: leaf references");
+    eprintln!("{name}: {} triangles, {} nodes, {} refs: GPU == CPU twin", tris.len(), gpu.nodes.len(), gpu.prim_refs.len());
+}
+
+#[test]
+fn gpu_build_equals_cpu_twin() {
+    let Some(ctx) = common::context() else { return };
+    let builder = KdTreeBuilder::new(&ctx).unwrap();
+    let p = vkrt::accel::kdtree::SahParams::default();
+    let t = [Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 1.0, 0.0)];
+    assert_build_equal(&ctx, &builder, "single", &[t], &p);
+    assert_build_equal(&ctx, &builder, "two", &[t, [t[0] + 2.0, t[1] + 2.0, t[2] + 2.0]], &p);
+    assert_build_equal(&ctx, &builder, "icosphere", &mesh_triangles(&gen::icosphere(3).unwrap()), &p);
+    assert_build_equal(&ctx, &builder, "identical", &vec![t; 300], &p);
+    assert_build_equal(&ctx, &builder, "soup", &mesh_triangles(&gen::random_soup(20_000, 3).unwrap()), &p);
+    assert_build_equal(&ctx, &builder, "grid", &mesh_triangles(&gen::integer_grid(50, 50).unwrap()), &p);
+    let seed = vkrt::accel::kdtree::SahParams { sah_leaf_test: false, max_leaf_prims: 63, ..p };
+    assert_build_equal(&ctx, &builder, "icosphere.seed", &mesh_triangles(&gen::icosphere(5).unwrap()), &seed);
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
+    if path.exists() {
+        let scene = vkrt::scene::Scene::load(&path).unwrap().scene;
+        assert_build_equal(&ctx, &builder, "bunny", &scene.triangles_world(0.0), &p);
+    } else {
+        eprintln!("skipped the bunny: {} not present", path.display());
+    }
     common::assert_silent(&ctx);
 }

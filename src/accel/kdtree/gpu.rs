@@ -1,19 +1,51 @@
-//! The GPU build of seed 001 (see [`super::seed001`] for the algorithm and its CPU twin).
+//! The GPU build of seed 001, recorded into one command buffer with no read-back between
+//! levels (see [`super::seed001`] for the algorithm; it is this build's CPU twin and the
+//! tests require both to give the same tree, bit for bit).
 //!
-//! Status: Phase I runs on the GPU and equals the twin bit for bit — triangle boxes
-//! (`accel.kdtree_boxes`), the scene box (min/max reductions), the per-axis event keys
-//! (`accel.kdtree_event_keys`), one stable f32 radix sort per axis and the SoA event
-//! records (`accel.kdtree_event_gather`). Phase II (the per-level passes) is still to come;
-//! until then trees are built by the CPU twin.
+//! Phase I: triangle boxes (`accel.kdtree_boxes`), the scene box (min/max reductions), per
+//! axis the event keys (`accel.kdtree_event_keys`), a stable f32 radix sort and the SoA
+//! event records (`accel.kdtree_event_gather`), then the root (`accel.kdtree_init`).
+//!
+//! Phase II, recorded `depth_limit + 1` times (a level with no nodes dispatches nothing):
+//! START flag scans per axis → `split_costs` → hybrid segmented argmin → `decide` → scans
+//! of inner flags and leaf sizes → `write_nodes` + `leaves` → per axis `classify` → slot
+//! scan → `scatter` (and `children` after axis 0) → `advance`. Every size lives in a state
+//! buffer on the GPU: event- and node-parallel kernels are dispatched indirectly with
+//! arguments `advance` computed; scans are recorded for their capacity and read their
+//! length from the state (`Scan::record_counted`).
+//!
+//! Capacity: clipping duplicates references, so per-level buffers are sized from
+//! [`BuildCapacity`]. When a level would exceed a capacity, `advance` raises a flag, records
+//! how many references it needed and gives every later level zero work: the build stops
+//! cleanly, never writes out of bounds, never hangs. [`KdTreeBuilder::build`] then retries
+//! with larger buffers.
+
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
 
 use super::seed001::Events;
-use super::Aabb;
-use crate::gpu::{kernels, Buffer, Context, Kernel, Recorder, Result, Spec};
+use super::{Aabb, KdNode, KdTree, SahParams};
+use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Profile, Recorder, Result, Spec};
 use crate::prims::radix_sort::{RadixScratch, RadixSort};
-use crate::prims::reduce::Reduce;
+use crate::prims::reduce::{CostIndex, Reduce};
+use crate::prims::scan::{GpuCount, Scan, ScanInput, ScanOp, ScanScratch};
+use crate::prims::segmented::{SegmentedArgmin, SegmentedMode};
 use crate::prims::PrimConfig;
-use glam::Vec3;
-use std::sync::Arc;
+
+const WORKGROUP: u32 = 256;
+// Words of the state buffer (keep in sync with glsl/accel/kdtree_level.glsl).
+const ST_REFS: u32 = 0;
+const ST_NODES: u32 = 1;
+const ST_NODE_BASE: usize = 2;
+const ST_REF_BASE: usize = 3;
+const ST_OVERFLOW: usize = 5;
+const ST_NEED_REFS: usize = 6;
+const ST_LEVELS: usize = 8;
+const ST_EVENT_ARGS: u64 = 12;
+const ST_NODE_ARGS: u64 = 16;
+const ST_WORDS: usize = 32;
 
 /// One axis list of events on the GPU (SoA, as [`Events`]).
 pub struct GpuEvents {
@@ -22,260 +54,609 @@ pub struct GpuEvents {
     pub kind: Buffer<u8>,
     pub prim: Buffer<u32>,
     pub node: Buffer<u32>,
-    pub box_min: [Buffer<f32>; 3],
-    pub box_max: [Buffer<f32>; 3],
+    /// The (clipped) primitive box of every event: six arrays of `capacity` floats
+    /// (min x, y, z, max x, y, z).
+    pub boxes: Buffer<f32>,
+    pub capacity: usize,
 }
 
 impl GpuEvents {
-    fn new(ctx: &Context, axis: usize, len: usize) -> Result<Self> {
-        let name = |f: &str| format!("kdtree.events{axis}.{f}");
-        let f = |f: &str| Buffer::<f32>::new(ctx, &name(f), len);
+    fn new(ctx: &Context, name: &str, len: usize) -> Result<Self> {
+        let name = |f: &str| format!("kdtree.{name}.{f}");
         Ok(Self {
-            plane: f("plane")?,
+            plane: Buffer::new(ctx, &name("plane"), len)?,
             kind: Buffer::new(ctx, &name("kind"), len)?,
             prim: Buffer::new(ctx, &name("prim"), len)?,
             node: Buffer::new(ctx, &name("node"), len)?,
-            box_min: [f("min_x")?, f("min_y")?, f("min_z")?],
-            box_max: [f("max_x")?, f("max_y")?, f("max_z")?],
+            boxes: Buffer::new(ctx, &name("boxes"), 6 * len)?,
+            capacity: len,
         })
     }
 
-    /// Reads the list back (for tests and the twin comparison).
-    pub fn download(&self) -> Result<Events> {
+    /// Reads the first `len` events back (for tests and the twin comparison).
+    pub fn download(&self, len: usize) -> Result<Events> {
+        let boxes = self.boxes.download()?;
+        let arr = |k: usize| boxes[k * self.capacity..k * self.capacity + len].to_vec();
+        let head = |mut v: Vec<u32>| {
+            v.truncate(len);
+            v
+        };
+        let mut plane = self.plane.download()?;
+        plane.truncate(len);
+        let mut kind = self.kind.download()?;
+        kind.truncate(len);
         Ok(Events {
-            plane: self.plane.download()?,
-            kind: self.kind.download()?,
-            prim: self.prim.download()?,
-            node: self.node.download()?,
-            box_min: [
-                self.box_min[0].download()?,
-                self.box_min[1].download()?,
-                self.box_min[2].download()?,
-            ],
-            box_max: [
-                self.box_max[0].download()?,
-                self.box_max[1].download()?,
-                self.box_max[2].download()?,
-            ],
+            plane,
+            kind,
+            prim: head(self.prim.download()?),
+            node: head(self.node.download()?),
+            box_min: [arr(0), arr(1), arr(2)],
+            box_max: [arr(3), arr(4), arr(5)],
         })
     }
 }
 
-/// Phase I output: the scene box and the three sorted event lists.
-pub struct PhaseOne {
-    /// min x, y, z, max x, y, z (one f32 each).
-    pub bounds: [Buffer<f32>; 6],
-    pub events: [GpuEvents; 3],
+/// How large the build's buffers are. References per level grow by clipping; the
+/// default allows 4 per primitive, and [`KdTreeBuilder::build`] doubles on overflow.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct BuildCapacity {
+    /// Primitive references (events per axis / 2) one level may hold.
+    pub refs_per_level: usize,
+    /// Nodes one level may hold (at most twice the references plus one).
+    pub nodes_per_level: usize,
+    /// Nodes of the output tree.
+    pub nodes: usize,
+    /// Leaf references of the output tree.
+    pub refs: usize,
 }
 
-impl PhaseOne {
-    pub fn bounds(&self) -> Result<Aabb> {
-        let v = |i: usize| self.bounds[i].download().map(|b| b[0]);
-        Ok(Aabb {
-            min: Vec3::new(v(0)?, v(1)?, v(2)?),
-            max: Vec3::new(v(3)?, v(4)?, v(5)?),
-        })
+impl BuildCapacity {
+    /// The default for `n` primitives.
+    pub fn for_primitives(n: usize) -> Self {
+        Self::with_refs(n, 4 * n.max(1) + 64)
+    }
+
+    fn with_refs(n: usize, refs_per_level: usize) -> Self {
+        Self {
+            refs_per_level,
+            nodes_per_level: 2 * refs_per_level + 1,
+            nodes: 4 * refs_per_level + 1024,
+            refs: (2 * refs_per_level).max(n) + 1024,
+        }
     }
 }
 
-/// The kernels of the GPU build.
-pub struct KdTreeBuilder {
+/// Bytes a build needs, for an embedding renderer that allocates itself.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct BuildSizes {
+    pub scratch_bytes: u64,
+    pub tree_bytes: u64,
+}
+
+/// The state read back after a build.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct BuildOutcome {
+    pub nodes: u32,
+    pub refs: u32,
+    pub levels: u32,
+    /// A capacity was too small; the tree is incomplete.
+    pub overflow: bool,
+    /// References the overflowing level needed.
+    pub needed_refs: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct SahPush {
+    trav: f32,
+    isect: f32,
+    bonus: f32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct DecidePush {
+    isect: f32,
+    max_leaf_prims: u32,
+    depth_limit: u32,
+    sah_leaf_test: u32,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct AdvancePush {
+    ref_capacity: u32,
+    level_node_capacity: u32,
+    node_capacity: u32,
+    out_ref_capacity: u32,
+}
+
+struct Kernels {
     boxes: Arc<Kernel>,
     event_keys: Arc<Kernel>,
     event_gather: Arc<Kernel>,
-    sort: RadixSort,
-    reduce: Reduce,
+    init: Arc<Kernel>,
+    split_costs: Arc<Kernel>,
+    decide: Arc<Kernel>,
+    write_nodes: Arc<Kernel>,
+    leaves: Arc<Kernel>,
+    classify: Arc<Kernel>,
+    scatter: Arc<Kernel>,
+    children: Arc<Kernel>,
+    advance: Arc<Kernel>,
 }
 
-/// Scratch of Phase I for up to `max_prims` triangles.
-pub struct PhaseOneScratch {
+/// The GPU kd-tree builder: kernels and primitives, compiled once.
+pub struct KdTreeBuilder {
+    k: Kernels,
+    sort: RadixSort,
+    reduce: Reduce,
+    flag_scan: Scan,
+    scan: Scan,
+    segmented: SegmentedArgmin,
+    /// How the best split of every node is found (hybrid by default; the others are for
+    /// the ablation benchmark).
+    pub segmented_mode: SegmentedMode,
+}
+
+/// The level's node arrays (ping-ponged between levels).
+struct LevelBuffers {
+    node_box: Buffer<f32>,
+    node_range: Buffer<u32>,
+    offsets: Buffer<u32>,
+}
+
+/// Everything a build needs besides its input and output.
+pub struct BuildScratch {
+    capacity: BuildCapacity,
     max_prims: usize,
     prim_min: [Buffer<f32>; 3],
     prim_max: [Buffer<f32>; 3],
+    bounds: [Buffer<f32>; 6],
     keys: Buffer<f32>,
     values: Buffer<u32>,
     sort: RadixScratch,
     reduce: Buffer<u32>,
+    events: [[GpuEvents; 3]; 2],
+    levels: [LevelBuffers; 2],
+    state: Buffer<u32>,
+    seg_count: Buffer<u32>,
+    node_split: Buffer<u32>,
+    inner_flag: Buffer<u32>,
+    leaf_count: Buffer<u32>,
+    inner_before: Buffer<u32>,
+    leaf_before: Buffer<u32>,
+    best: Buffer<CostIndex>,
+    cost: Buffer<f32>,
+    axis: Buffer<u32>,
+    starts: [Buffer<u32>; 3],
+    slots: Buffer<u32>,
+    slot_offsets: Buffer<u32>,
+    flag_scratch: ScanScratch,
+    inner_scratch: ScanScratch,
+    leaf_scratch: ScanScratch,
+    slot_scratch: ScanScratch,
+    seg_scratch: Buffer<u32>,
 }
 
-const WORKGROUP: u32 = 256;
+/// The build's output: nodes and leaf references (valid up to the outcome's counts).
+pub struct BuildOutput {
+    pub nodes: Buffer<KdNode>,
+    pub prim_refs: Buffer<u32>,
+}
 
 impl KdTreeBuilder {
     pub fn new(ctx: &Context) -> Result<Self> {
         let spec = Spec::new().workgroup(WORKGROUP);
+        let k = |blob| ctx.kernel(blob, &spec);
+        let one = |blob| ctx.kernel(blob, &Spec::new());
         let cfg = PrimConfig::default_for(ctx);
         Ok(Self {
-            boxes: ctx.kernel(&kernels::ACCEL_KDTREE_BOXES, &spec)?,
-            event_keys: ctx.kernel(&kernels::ACCEL_KDTREE_EVENT_KEYS, &spec)?,
-            event_gather: ctx.kernel(&kernels::ACCEL_KDTREE_EVENT_GATHER, &spec)?,
+            k: Kernels {
+                boxes: k(&kernels::ACCEL_KDTREE_BOXES)?,
+                event_keys: k(&kernels::ACCEL_KDTREE_EVENT_KEYS)?,
+                event_gather: k(&kernels::ACCEL_KDTREE_EVENT_GATHER)?,
+                init: one(&kernels::ACCEL_KDTREE_INIT)?,
+                split_costs: k(&kernels::ACCEL_KDTREE_SPLIT_COSTS)?,
+                decide: k(&kernels::ACCEL_KDTREE_DECIDE)?,
+                write_nodes: k(&kernels::ACCEL_KDTREE_WRITE_NODES)?,
+                leaves: k(&kernels::ACCEL_KDTREE_LEAVES)?,
+                classify: k(&kernels::ACCEL_KDTREE_CLASSIFY)?,
+                scatter: k(&kernels::ACCEL_KDTREE_SCATTER)?,
+                children: k(&kernels::ACCEL_KDTREE_CHILDREN)?,
+                advance: one(&kernels::ACCEL_KDTREE_ADVANCE)?,
+            },
             sort: RadixSort::new(ctx, cfg, 8)?,
             reduce: Reduce::new(ctx, cfg)?,
+            flag_scan: Scan::new(ctx, cfg, ScanInput::Flags)?,
+            scan: Scan::new(ctx, cfg, ScanInput::U32)?,
+            segmented: SegmentedArgmin::new(ctx, cfg)?,
+            segmented_mode: SegmentedMode::Hybrid { threshold: crate::prims::segmented::DEFAULT_HYBRID_THRESHOLD },
         })
     }
 
-    pub fn phase_one_scratch(&self, ctx: &Context, max_prims: usize) -> Result<PhaseOneScratch> {
-        let f = |name: &str| Buffer::<f32>::new(ctx, name, max_prims);
-        Ok(PhaseOneScratch {
+    /// Bytes of scratch and output for `n` primitives at `capacity`.
+    pub fn build_sizes(&self, n: usize, capacity: &BuildCapacity) -> BuildSizes {
+        let e = 2 * capacity.refs_per_level as u64;
+        let m = capacity.nodes_per_level as u64;
+        let events = 2 * 3 * e * (4 + 1 + 4 + 4 + 24);
+        let per_event = e * (4 + 4 + 3 * 4) + 2 * 2 * e * 4;
+        let per_node = 2 * m * (24 + 8 + 4) + m * (8 + 4 * 4 + 8);
+        let phase_one = n as u64 * (24 + 2 * 8);
+        let scans = 3 * (2 * e * 4 / 1000 + 64); // tile sums: a small fraction
+        BuildSizes {
+            scratch_bytes: events + per_event + per_node + phase_one + scans,
+            tree_bytes: capacity.nodes as u64 * 16 + capacity.refs as u64 * 4,
+        }
+    }
+
+    /// Allocates scratch for up to `max_prims` primitives at `capacity`.
+    pub fn scratch(&self, ctx: &Context, max_prims: usize, capacity: BuildCapacity) -> Result<BuildScratch> {
+        let e = 2 * capacity.refs_per_level.max(max_prims);
+        let m = capacity.nodes_per_level;
+        let f = |name: &str, len: usize| Buffer::<f32>::new(ctx, name, len);
+        let u = |name: &str, len: usize| Buffer::<u32>::new(ctx, name, len);
+        let level = |i: usize| -> Result<LevelBuffers> {
+            Ok(LevelBuffers {
+                node_box: f(&format!("kdtree.level{i}.box"), 6 * m)?,
+                node_range: u(&format!("kdtree.level{i}.range"), 2 * m)?,
+                offsets: u(&format!("kdtree.level{i}.offsets"), m + 1)?,
+            })
+        };
+        let events = |p: usize| -> Result<[GpuEvents; 3]> {
+            Ok([
+                GpuEvents::new(ctx, &format!("events{p}.x"), e)?,
+                GpuEvents::new(ctx, &format!("events{p}.y"), e)?,
+                GpuEvents::new(ctx, &format!("events{p}.z"), e)?,
+            ])
+        };
+        Ok(BuildScratch {
+            capacity: BuildCapacity { refs_per_level: e / 2, ..capacity },
             max_prims,
-            prim_min: [
-                f("kdtree.prim_min_x")?,
-                f("kdtree.prim_min_y")?,
-                f("kdtree.prim_min_z")?,
-            ],
-            prim_max: [
-                f("kdtree.prim_max_x")?,
-                f("kdtree.prim_max_y")?,
-                f("kdtree.prim_max_z")?,
-            ],
-            keys: Buffer::new(ctx, "kdtree.sort_keys", 2 * max_prims)?,
-            values: Buffer::new(ctx, "kdtree.sort_values", 2 * max_prims)?,
+            prim_min: [f("kdtree.prim_min_x", max_prims)?, f("kdtree.prim_min_y", max_prims)?, f("kdtree.prim_min_z", max_prims)?],
+            prim_max: [f("kdtree.prim_max_x", max_prims)?, f("kdtree.prim_max_y", max_prims)?, f("kdtree.prim_max_z", max_prims)?],
+            bounds: std::array::from_fn(|i| f(&format!("kdtree.bounds{i}"), 1).expect("4-byte buffer")),
+            keys: f("kdtree.sort_keys", 2 * max_prims)?,
+            values: u("kdtree.sort_values", 2 * max_prims)?,
             sort: self.sort.scratch(ctx, 2 * max_prims)?,
-            reduce: Buffer::new(
-                ctx,
-                "kdtree.reduce_scratch",
-                self.reduce.scratch_len(max_prims).max(1),
-            )?,
+            reduce: u("kdtree.reduce_scratch", self.reduce.scratch_len(max_prims).max(1))?,
+            events: [events(0)?, events(1)?],
+            levels: [level(0)?, level(1)?],
+            state: u("kdtree.state", ST_WORDS)?,
+            seg_count: u("kdtree.seg_count", 1)?,
+            node_split: u("kdtree.node_split", 2 * m)?,
+            inner_flag: u("kdtree.inner_flag", m)?,
+            leaf_count: u("kdtree.leaf_count", m)?,
+            inner_before: u("kdtree.inner_before", m)?,
+            leaf_before: u("kdtree.leaf_before", m)?,
+            best: Buffer::new(ctx, "kdtree.best", m)?,
+            cost: f("kdtree.cost", e)?,
+            axis: u("kdtree.axis", e)?,
+            starts: [u("kdtree.starts0", e)?, u("kdtree.starts1", e)?, u("kdtree.starts2", e)?],
+            slots: u("kdtree.slots", 2 * e)?,
+            slot_offsets: u("kdtree.slot_offsets", 2 * e)?,
+            flag_scratch: self.flag_scan.scratch(ctx, e)?,
+            inner_scratch: self.scan.scratch(ctx, m)?,
+            leaf_scratch: self.scan.scratch(ctx, m)?,
+            slot_scratch: self.scan.scratch(ctx, 2 * e)?,
+            seg_scratch: u("kdtree.seg_scratch", self.segmented.scratch_len(e, m))?,
         })
     }
 
-    /// Allocates the Phase I output for `n` triangles.
-    pub fn phase_one_output(&self, ctx: &Context, n: usize) -> Result<PhaseOne> {
-        let f = |name: &str| Buffer::<f32>::new(ctx, name, 1);
-        Ok(PhaseOne {
-            bounds: [
-                f("kdtree.bounds.min_x")?,
-                f("kdtree.bounds.min_y")?,
-                f("kdtree.bounds.min_z")?,
-                f("kdtree.bounds.max_x")?,
-                f("kdtree.bounds.max_y")?,
-                f("kdtree.bounds.max_z")?,
-            ],
-            events: [
-                GpuEvents::new(ctx, 0, 2 * n)?,
-                GpuEvents::new(ctx, 1, 2 * n)?,
-                GpuEvents::new(ctx, 2, 2 * n)?,
-            ],
+    pub fn output(&self, ctx: &Context, capacity: &BuildCapacity) -> Result<BuildOutput> {
+        Ok(BuildOutput {
+            nodes: Buffer::new(ctx, "kdtree.nodes", capacity.nodes)?,
+            prim_refs: Buffer::new(ctx, "kdtree.prim_refs", capacity.refs)?,
         })
     }
 
-    /// Records Phase I for the `n` triangles in `triangles` (9 floats each). The caller
-    /// orders the upload of `triangles` before and the use of `out` after.
-    pub fn record_phase_one(
+    /// Records the whole build of the `n` triangles in `triangles` (9 floats each) into
+    /// `rec`: no read-back, a finite number of passes. The caller orders the upload of
+    /// `triangles` before and a `compute_to_*` barrier before reading `out`;
+    /// [`KdTreeBuilder::read_outcome`] then tells how many nodes and references are valid.
+    pub fn record_build(
         &self,
         rec: &mut Recorder,
         triangles: &Buffer<f32>,
         n: usize,
-        scratch: &PhaseOneScratch,
-        out: &PhaseOne,
+        params: &SahParams,
+        s: &BuildScratch,
+        out: &BuildOutput,
     ) {
-        assert!(
-            n <= scratch.max_prims && 9 * n <= triangles.len(),
-            "phase one of {n} triangles"
-        );
-        let s = scratch;
+        assert!(n >= 1 && n <= s.max_prims && 9 * n <= triangles.len(), "build of {n} triangles");
+        self.record_phase_one(rec, triangles, n, s);
+        let depth_limit = params.depth_limit(n);
+        rec.scope("kdtree.phase2", |rec| {
+            for depth in 0..=depth_limit {
+                let (cur, next) = ((depth % 2) as usize, ((depth + 1) % 2) as usize);
+                rec.scope("kdtree.level", |rec| self.record_level(rec, params, depth_limit, s, cur, next, out));
+            }
+        });
+    }
+
+    fn record_phase_one(&self, rec: &mut Recorder, triangles: &Buffer<f32>, n: usize, s: &BuildScratch) {
+        let k = &self.k;
         rec.scope("kdtree.phase1", |rec| {
             rec.scope("kdtree.boxes", |rec| {
                 let groups = rec.groups_1d(n as u64, WORKGROUP);
-                rec.dispatch(
-                    &self.boxes,
-                    groups,
-                    &[
-                        triangles,
+                let b: [&dyn BufferArg; 7] =
+                    [triangles, &s.prim_min[0], &s.prim_min[1], &s.prim_min[2], &s.prim_max[0], &s.prim_max[1], &s.prim_max[2]];
+                rec.dispatch(&k.boxes, groups, &b, &(n as u32));
+            });
+            rec.compute_to_compute();
+            rec.scope("kdtree.bounds", |rec| {
+                for a in 0..3 {
+                    self.reduce.record_min_f32(rec, &s.prim_min[a], n as u32, &s.reduce, &s.bounds[a]);
+                    rec.compute_to_compute();
+                    self.reduce.record_max_f32(rec, &s.prim_max[a], n as u32, &s.reduce, &s.bounds[3 + a]);
+                    rec.compute_to_compute();
+                }
+            });
+            for (a, ev) in s.events[0].iter().enumerate() {
+                rec.scope("kdtree.events", |rec| {
+                    let groups = rec.groups_1d(2 * n as u64, WORKGROUP);
+                    rec.dispatch(&k.event_keys, groups, &[&s.prim_min[a], &s.prim_max[a], &s.keys, &s.values], &(n as u32));
+                    rec.compute_to_compute();
+                    self.sort.record_f32(rec, &s.keys, &s.values, 2 * n, &s.sort);
+                    rec.compute_to_compute();
+                    let groups = rec.groups_1d((2 * n).div_ceil(4) as u64, WORKGROUP);
+                    let b: [&dyn BufferArg; 13] = [
+                        &s.keys,
+                        &s.values,
                         &s.prim_min[0],
                         &s.prim_min[1],
                         &s.prim_min[2],
                         &s.prim_max[0],
                         &s.prim_max[1],
                         &s.prim_max[2],
-                    ],
-                    &(n as u32),
-                );
-            });
-            rec.compute_to_compute();
-            rec.scope("kdtree.bounds", |rec| {
-                for a in 0..3 {
-                    self.reduce.record_min_f32(
-                        rec,
-                        &s.prim_min[a],
-                        n as u32,
-                        &s.reduce,
-                        &out.bounds[a],
-                    );
-                    rec.compute_to_compute();
-                    self.reduce.record_max_f32(
-                        rec,
-                        &s.prim_max[a],
-                        n as u32,
-                        &s.reduce,
-                        &out.bounds[3 + a],
-                    );
-                    rec.compute_to_compute();
-                }
-            });
-            for (a, ev) in out.events.iter().enumerate() {
-                rec.scope("kdtree.events", |rec| {
-                    let groups = rec.groups_1d(2 * n as u64, WORKGROUP);
-                    rec.dispatch(
-                        &self.event_keys,
-                        groups,
-                        &[&s.prim_min[a], &s.prim_max[a], &s.keys, &s.values],
-                        &(n as u32),
-                    );
-                    rec.compute_to_compute();
-                    self.sort
-                        .record_f32(rec, &s.keys, &s.values, 2 * n, &s.sort);
-                    rec.compute_to_compute();
-                    let groups = rec.groups_1d((2 * n).div_ceil(4) as u64, WORKGROUP);
-                    rec.dispatch(
-                        &self.event_gather,
-                        groups,
-                        &[
-                            &s.keys,
-                            &s.values,
-                            &s.prim_min[0],
-                            &s.prim_min[1],
-                            &s.prim_min[2],
-                            &s.prim_max[0],
-                            &s.prim_max[1],
-                            &s.prim_max[2],
-                            &ev.plane,
-                            &ev.kind,
-                            &ev.prim,
-                            &ev.node,
-                            &ev.box_min[0],
-                            &ev.box_min[1],
-                            &ev.box_min[2],
-                            &ev.box_max[0],
-                            &ev.box_max[1],
-                            &ev.box_max[2],
-                        ],
-                        &(n as u32),
-                    );
+                        &ev.plane,
+                        &ev.kind,
+                        &ev.prim,
+                        &ev.node,
+                        &ev.boxes,
+                    ];
+                    rec.dispatch(&k.event_gather, groups, &b, &[n as u32, ev.capacity as u32]);
                     // The next axis reuses keys and values.
                     rec.compute_to_compute();
                 });
             }
+            let l = &s.levels[0];
+            let b: [&dyn BufferArg; 11] = [
+                &s.state,
+                &s.bounds[0],
+                &s.bounds[1],
+                &s.bounds[2],
+                &s.bounds[3],
+                &s.bounds[4],
+                &s.bounds[5],
+                &l.node_box,
+                &l.node_range,
+                &l.offsets,
+                &s.seg_count,
+            ];
+            rec.dispatch(&k.init, [1, 1, 1], &b, &(n as u32));
+            rec.compute_to_indirect();
         });
     }
 
-    /// Convenience: uploads `triangles`, runs Phase I and waits.
-    pub fn phase_one(
+    #[allow(clippy::too_many_arguments, reason = "one level of the recorded loop")]
+    fn record_level(
         &self,
-        ctx: &Context,
-        triangles: &[[Vec3; 3]],
-    ) -> Result<(PhaseOne, crate::gpu::Profile)> {
+        rec: &mut Recorder,
+        params: &SahParams,
+        depth_limit: u32,
+        s: &BuildScratch,
+        cur: usize,
+        next: usize,
+        out: &BuildOutput,
+    ) {
+        let k = &self.k;
+        let (ev, nev) = (&s.events[cur], &s.events[next]);
+        let (lv, nlv) = (&s.levels[cur], &s.levels[next]);
+        let e = ev[0].capacity;
+        let m = s.capacity.nodes_per_level;
+        let refs = GpuCount { counts: &s.state, index: ST_REFS, mul: 2, div: 1 };
+        let nodes = GpuCount { counts: &s.state, index: ST_NODES, mul: 1, div: 1 };
+        let ev_args = 4 * ST_EVENT_ARGS;
+        let node_args = 4 * ST_NODE_ARGS;
+
+        rec.scope("kdtree.split_costs", |rec| {
+            for a in 0..3 {
+                self.flag_scan.record_counted(rec, &ev[a].kind, &s.starts[a], e, refs, ScanOp::Exclusive, &s.flag_scratch);
+                rec.compute_to_compute();
+            }
+            let push = SahPush { trav: params.traversal_cost, isect: params.intersection_cost, bonus: params.empty_bonus };
+            let b: [&dyn BufferArg; 15] = [
+                &s.state,
+                &lv.node_box,
+                &lv.node_range,
+                &ev[0].plane,
+                &ev[1].plane,
+                &ev[2].plane,
+                &ev[0].kind,
+                &ev[1].kind,
+                &ev[2].kind,
+                &ev[0].node,
+                &s.starts[0],
+                &s.starts[1],
+                &s.starts[2],
+                &s.cost,
+                &s.axis,
+            ];
+            rec.dispatch_indirect(&k.split_costs, &s.state, ev_args, &b, &push);
+            rec.compute_to_compute();
+        });
+        rec.scope("kdtree.best_split", |rec| {
+            self.segmented.record(rec, self.segmented_mode, &s.cost, &lv.offsets, &s.seg_count, m as u32, &s.seg_scratch, &s.best);
+            rec.compute_to_compute();
+        });
+        rec.scope("kdtree.nodes", |rec| {
+            let push = DecidePush {
+                isect: params.intersection_cost,
+                max_leaf_prims: params.max_leaf_prims,
+                depth_limit,
+                sah_leaf_test: u32::from(params.sah_leaf_test),
+            };
+            let b: [&dyn BufferArg; 11] = [
+                &s.state,
+                &lv.node_box,
+                &lv.node_range,
+                &s.best,
+                &s.axis,
+                &ev[0].plane,
+                &ev[1].plane,
+                &ev[2].plane,
+                &s.node_split,
+                &s.inner_flag,
+                &s.leaf_count,
+            ];
+            rec.dispatch_indirect(&k.decide, &s.state, node_args, &b, &push);
+            rec.compute_to_compute();
+            self.scan.record_counted(rec, &s.inner_flag, &s.inner_before, m, nodes, ScanOp::Exclusive, &s.inner_scratch);
+            self.scan.record_counted(rec, &s.leaf_count, &s.leaf_before, m, nodes, ScanOp::Exclusive, &s.leaf_scratch);
+            rec.compute_to_compute();
+            let b: [&dyn BufferArg; 6] =
+                [&s.state, &lv.node_range, &s.node_split, &s.inner_before, &s.leaf_before, &out.nodes];
+            rec.dispatch_indirect(&k.write_nodes, &s.state, node_args, &b, &(out.nodes.len() as u32));
+            let b: [&dyn BufferArg; 9] = [
+                &s.state,
+                &lv.node_range,
+                &s.node_split,
+                &s.leaf_before,
+                &ev[0].kind,
+                &ev[0].node,
+                &ev[0].prim,
+                &s.starts[0],
+                &out.prim_refs,
+            ];
+            rec.dispatch_indirect(&k.leaves, &s.state, ev_args, &b, &(out.prim_refs.len() as u32));
+        });
+        rec.scope("kdtree.clip_partition", |rec| {
+            let slots = GpuCount { counts: &s.state, index: ST_REFS, mul: 4, div: 1 };
+            for a in 0..3 {
+                let b: [&dyn BufferArg; 6] = [&s.state, &lv.node_range, &s.node_split, &ev[a].node, &ev[a].boxes, &s.slots];
+                rec.dispatch_indirect(&k.classify, &s.state, ev_args, &b, &(e as u32));
+                rec.compute_to_compute();
+                self.scan.record_counted(rec, &s.slots, &s.slot_offsets, 2 * e, slots, ScanOp::Exclusive, &s.slot_scratch);
+                rec.compute_to_compute();
+                let b: [&dyn BufferArg; 15] = [
+                    &s.state,
+                    &lv.node_range,
+                    &s.node_split,
+                    &s.inner_before,
+                    &s.slot_offsets,
+                    &ev[a].plane,
+                    &ev[a].kind,
+                    &ev[a].prim,
+                    &ev[a].node,
+                    &ev[a].boxes,
+                    &nev[a].plane,
+                    &nev[a].kind,
+                    &nev[a].prim,
+                    &nev[a].node,
+                    &nev[a].boxes,
+                ];
+                rec.dispatch_indirect(&k.scatter, &s.state, ev_args, &b, &(e as u32));
+                if a == 0 {
+                    let b: [&dyn BufferArg; 10] = [
+                        &s.state,
+                        &lv.node_box,
+                        &lv.node_range,
+                        &s.node_split,
+                        &s.inner_before,
+                        &s.slot_offsets,
+                        &s.slot_scratch.total,
+                        &nlv.node_box,
+                        &nlv.node_range,
+                        &nlv.offsets,
+                    ];
+                    rec.dispatch_indirect(&k.children, &s.state, node_args, &b, &(m as u32));
+                }
+                // The next axis rewrites the slots and their offsets.
+                rec.compute_to_compute();
+            }
+        });
+        let push = AdvancePush {
+            ref_capacity: s.capacity.refs_per_level as u32,
+            level_node_capacity: m as u32,
+            node_capacity: out.nodes.len() as u32,
+            out_ref_capacity: out.prim_refs.len() as u32,
+        };
+        let b: [&dyn BufferArg; 6] = [
+            &s.state,
+            &s.slot_scratch.total,
+            &s.inner_scratch.total,
+            &s.leaf_scratch.total,
+            &s.seg_count,
+            &nlv.offsets,
+        ];
+        rec.dispatch(&k.advance, [1, 1, 1], &b, &push);
+        rec.compute_to_indirect();
+    }
+
+    /// The state after a recorded build has executed.
+    pub fn read_outcome(&self, s: &BuildScratch) -> Result<BuildOutcome> {
+        let st = s.state.download()?;
+        Ok(BuildOutcome {
+            nodes: st[ST_NODE_BASE],
+            refs: st[ST_REF_BASE],
+            levels: st[ST_LEVELS],
+            overflow: st[ST_OVERFLOW] != 0,
+            needed_refs: st[ST_NEED_REFS],
+        })
+    }
+
+    /// Convenience: uploads `triangles`, builds (retrying with larger buffers on overflow),
+    /// waits and reads the tree back, with the GPU profile of the successful attempt.
+    pub fn build(&self, ctx: &Context, triangles: &[[Vec3; 3]], params: &SahParams) -> Result<(KdTree, Profile)> {
         let n = triangles.len();
-        let flat: Vec<f32> = triangles
-            .iter()
-            .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
-            .collect();
+        let bounds = super::seed001::bounds_of(&triangles.iter().map(super::seed001::prim_box).collect::<Vec<_>>());
+        if n == 0 {
+            let tree = KdTree { nodes: vec![KdNode::leaf(0, 0)], prim_refs: Vec::new(), bounds: Aabb::EMPTY, primitives: 0 };
+            return Ok((tree, Profile::default()));
+        }
+        let flat: Vec<f32> = triangles.iter().flat_map(|t| t.iter().flat_map(|p| p.to_array())).collect();
         let tris = Buffer::from_slice(ctx, "kdtree.triangles", &flat)?;
-        let scratch = self.phase_one_scratch(ctx, n)?;
-        let out = self.phase_one_output(ctx, n)?;
+        let mut capacity = BuildCapacity::for_primitives(n);
+        for _attempt in 0..8 {
+            let scratch = self.scratch(ctx, n, capacity)?;
+            let out = self.output(ctx, &capacity)?;
+            let mut rec = Recorder::new(ctx)?;
+            self.record_build(&mut rec, &tris, n, params, &scratch, &out);
+            rec.compute_to_transfer();
+            let profile = rec.submit_and_wait()?;
+            let outcome = self.read_outcome(&scratch)?;
+            if outcome.overflow {
+                let refs = (outcome.needed_refs as usize).max(2 * capacity.refs_per_level);
+                capacity = BuildCapacity::with_refs(n, refs);
+                continue;
+            }
+            let mut nodes = out.nodes.download()?;
+            nodes.truncate(outcome.nodes as usize);
+            let mut prim_refs = out.prim_refs.download()?;
+            prim_refs.truncate(outcome.refs as usize);
+            let tree = KdTree { nodes, prim_refs, bounds, primitives: n as u32 };
+            return Ok((tree, profile));
+        }
+        Err(GpuError::Kernel {
+            kernel: "accel.kdtree",
+            reason: format!("still out of capacity after 8 attempts ({capacity:?})"),
+        })
+    }
+
+    /// Phase I alone, for the twin comparison: the scene box and the sorted event lists.
+    pub fn phase_one(&self, ctx: &Context, triangles: &[[Vec3; 3]]) -> Result<(Aabb, [Events; 3])> {
+        let n = triangles.len();
+        let flat: Vec<f32> = triangles.iter().flat_map(|t| t.iter().flat_map(|p| p.to_array())).collect();
+        let tris = Buffer::from_slice(ctx, "kdtree.triangles", &flat)?;
+        let scratch = self.scratch(ctx, n, BuildCapacity::for_primitives(n))?;
         let mut rec = Recorder::new(ctx)?;
-        self.record_phase_one(&mut rec, &tris, n, &scratch, &out);
+        self.record_phase_one(&mut rec, &tris, n, &scratch);
         rec.compute_to_transfer();
-        let profile = rec.submit_and_wait()?;
-        Ok((out, profile))
+        rec.submit_and_wait()?;
+        let v = |i: usize| scratch.bounds[i].download().map(|b| b[0]);
+        let bounds = Aabb { min: Vec3::new(v(0)?, v(1)?, v(2)?), max: Vec3::new(v(3)?, v(4)?, v(5)?) };
+        let ev = &scratch.events[0];
+        Ok((bounds, [ev[0].download(2 * n)?, ev[1].download(2 * n)?, ev[2].download(2 * n)?]))
     }
 }
