@@ -440,6 +440,7 @@ impl KdTreeBuilder {
     }
 
     #[allow(clippy::too_many_arguments, reason = "one level of the recorded loop")]
+    #[allow(clippy::needless_range_loop, reason = "the axis indexes several parallel lists")]
     fn record_level(
         &self,
         rec: &mut Recorder,
