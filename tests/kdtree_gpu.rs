@@ -89,3 +89,19 @@ fn gpu_build_equals_cpu_twin() {
     }
     common::assert_silent(&ctx);
 }
+
+#[test]
+fn overflow_stops_cleanly_and_the_retry_builds_the_same_tree() {
+    let Some(ctx) = common::context() else { return };
+    let builder = KdTreeBuilder::new(&ctx).unwrap();
+    let p = vkrt::accel::kdtree::SahParams::default();
+    let tris = mesh_triangles(&gen::random_soup(3000, 11).unwrap());
+    let (cpu, _) = seed001::build(&tris, &p);
+    // Room for barely the root's references: the first clipping level overflows.
+    let tiny = vkrt::accel::kdtree::gpu::BuildCapacity::with_refs(tris.len(), tris.len());
+    let r = builder.build_from(&ctx, &tris, &p, tiny).unwrap();
+    assert!(r.attempts > 1, "the tiny capacity should have overflowed");
+    assert!(r.capacity.refs_per_level > tris.len());
+    assert!(r.tree.nodes == cpu.nodes && r.tree.prim_refs == cpu.prim_refs, "retry differs from the twin");
+    common::assert_silent(&ctx);
+}

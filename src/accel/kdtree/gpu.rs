@@ -116,7 +116,8 @@ impl BuildCapacity {
         Self::with_refs(n, 4 * n.max(1) + 64)
     }
 
-    fn with_refs(n: usize, refs_per_level: usize) -> Self {
+    /// Capacity for `refs_per_level` references per level, the rest derived.
+    pub fn with_refs(n: usize, refs_per_level: usize) -> Self {
         Self {
             refs_per_level,
             nodes_per_level: 2 * refs_per_level + 1,
@@ -131,6 +132,16 @@ impl BuildCapacity {
 pub struct BuildSizes {
     pub scratch_bytes: u64,
     pub tree_bytes: u64,
+}
+
+/// What [`KdTreeBuilder::build_from`] returns.
+pub struct BuildResult {
+    pub tree: KdTree,
+    /// GPU passes of the successful attempt.
+    pub profile: Profile,
+    /// 1 unless a capacity overflowed and the build was retried larger.
+    pub attempts: u32,
+    pub capacity: BuildCapacity,
 }
 
 /// The state read back after a build.
@@ -610,16 +621,28 @@ impl KdTreeBuilder {
     /// Convenience: uploads `triangles`, builds (retrying with larger buffers on overflow),
     /// waits and reads the tree back, with the GPU profile of the successful attempt.
     pub fn build(&self, ctx: &Context, triangles: &[[Vec3; 3]], params: &SahParams) -> Result<(KdTree, Profile)> {
+        let r = self.build_from(ctx, triangles, params, BuildCapacity::for_primitives(triangles.len()))?;
+        Ok((r.tree, r.profile))
+    }
+
+    /// [`KdTreeBuilder::build`] starting from `capacity` (tests force a tiny one to exercise
+    /// the overflow path).
+    pub fn build_from(
+        &self,
+        ctx: &Context,
+        triangles: &[[Vec3; 3]],
+        params: &SahParams,
+        mut capacity: BuildCapacity,
+    ) -> Result<BuildResult> {
         let n = triangles.len();
         let bounds = super::seed001::bounds_of(&triangles.iter().map(super::seed001::prim_box).collect::<Vec<_>>());
         if n == 0 {
             let tree = KdTree { nodes: vec![KdNode::leaf(0, 0)], prim_refs: Vec::new(), bounds: Aabb::EMPTY, primitives: 0 };
-            return Ok((tree, Profile::default()));
+            return Ok(BuildResult { tree, profile: Profile::default(), attempts: 0, capacity });
         }
         let flat: Vec<f32> = triangles.iter().flat_map(|t| t.iter().flat_map(|p| p.to_array())).collect();
         let tris = Buffer::from_slice(ctx, "kdtree.triangles", &flat)?;
-        let mut capacity = BuildCapacity::for_primitives(n);
-        for _attempt in 0..8 {
+        for attempt in 1..=8 {
             let scratch = self.scratch(ctx, n, capacity)?;
             let out = self.output(ctx, &capacity)?;
             let mut rec = Recorder::new(ctx)?;
@@ -637,7 +660,7 @@ impl KdTreeBuilder {
             let mut prim_refs = out.prim_refs.download()?;
             prim_refs.truncate(outcome.refs as usize);
             let tree = KdTree { nodes, prim_refs, bounds, primitives: n as u32 };
-            return Ok((tree, profile));
+            return Ok(BuildResult { tree, profile, attempts: attempt, capacity });
         }
         Err(GpuError::Kernel {
             kernel: "accel.kdtree",
