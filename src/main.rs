@@ -35,6 +35,25 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Build an acceleration structure on the GPU and report its time and quality.
+    Build {
+        /// Scene (.toml, .obj, seed-002 text); omit for the embedded default scene.
+        scene: Option<PathBuf>,
+        /// The structure to build (kdtree: the SAH kd-tree of seed 001).
+        #[arg(long, default_value = "kdtree")]
+        accel: String,
+        /// Also build the CPU twin (must be equal) and the full-clipping CPU reference.
+        #[arg(long)]
+        reference: bool,
+        /// Seed 001's termination: no SAH leaf test, leaves below 64 primitives.
+        #[arg(long)]
+        seed_termination: bool,
+        #[arg(long)]
+        json: bool,
+        /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
+        #[arg(long)]
+        profile: Option<PathBuf>,
+    },
     /// Measure GPU baselines and primitives.
     Bench {
         #[command(subcommand)]
@@ -105,6 +124,19 @@ fn context(validate: bool) -> Result<Context, Box<dyn std::error::Error>> {
         validation,
         device_name: None,
     })?)
+}
+
+fn load_scene(path: &Option<PathBuf>) -> Result<vkrt::scene::Scene, Box<dyn std::error::Error>> {
+    Ok(match path {
+        Some(path) => {
+            let loaded = vkrt::scene::Scene::load(path)?;
+            for w in &loaded.warnings {
+                eprintln!("vkrt: warning: {w}");
+            }
+            loaded.scene
+        }
+        None => vkrt::scene::Scene::default_scene(),
+    })
 }
 
 fn write_profile(
@@ -236,6 +268,51 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 println!("{}", serde_json::to_string_pretty(&summary)?);
             } else {
                 println!("{}", summary.to_string().trim_end());
+            }
+        }
+        Command::Build { scene, accel, reference, seed_termination, json, profile } => {
+            if accel != "kdtree" {
+                return Err(format!("unknown --accel `{accel}` (available: kdtree)").into());
+            }
+            let scene = load_scene(&scene)?;
+            let triangles = scene.triangles_world(0.0);
+            if triangles.is_empty() {
+                return Err("the scene has no triangles to build a kd-tree over (spheres are not in the kd-tree yet)".into());
+            }
+            let mut params = vkrt::accel::kdtree::SahParams::default();
+            if seed_termination {
+                params.sah_leaf_test = false;
+                params.max_leaf_prims = 63;
+            }
+            let ctx = context(cli.validate)?;
+            let (report, trace) = vkrt::accel::kdtree::report::build_report(&ctx, &triangles, &params, reference)?;
+            write_profile(&profile, &trace)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            } else {
+                println!("{} triangles: GPU build {:.2} ms in {} levels", report.primitives, report.build_ms, report.levels);
+                for (phase, ms) in &report.phases {
+                    println!("  {phase:<16} {ms:>9.2} ms");
+                }
+                println!(
+                    "{} nodes, {} leaves, depth {}, {} references ({:.2} per primitive), SAH cost {:.3}, {} bytes",
+                    report.nodes,
+                    report.leaves,
+                    report.max_depth,
+                    report.references,
+                    report.references as f64 / f64::from(report.primitives.max(1)),
+                    report.sah_cost,
+                    report.bytes
+                );
+                if let (Some(eq), Some(twin), Some(cost), Some(full)) =
+                    (report.equal_to_cpu_twin, report.cpu_twin_ms, report.full_clip_sah_cost, report.full_clip_ms)
+                {
+                    println!("CPU twin {twin:.1} ms, equal to the GPU tree: {eq}");
+                    println!("full-clipping CPU build {full:.1} ms, SAH cost {cost:.3}");
+                    if !eq {
+                        return Err("the GPU tree differs from its CPU twin".into());
+                    }
+                }
             }
         }
     }

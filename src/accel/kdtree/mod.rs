@@ -12,6 +12,7 @@
 
 pub mod full_clip;
 pub mod gpu;
+pub mod report;
 pub mod seed001;
 pub mod stats;
 pub mod validate;

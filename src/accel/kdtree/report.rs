@@ -1,0 +1,90 @@
+//! `vkrt build --accel kdtree`: one GPU build with its per-phase GPU times and tree
+//! statistics, optionally against both CPU references (the twin of the same algorithm, which
+//! must be equal, and the full-clipping SAH build, the quality reference).
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use glam::Vec3;
+use serde::Serialize;
+
+use super::gpu::KdTreeBuilder;
+use super::{full_clip, seed001, stats, SahParams};
+use crate::gpu::{Context, Profile, Result};
+
+/// The phases of seed 001 as profiler scopes (summed over all levels).
+pub const PHASES: [&str; 5] =
+    ["kdtree.phase1", "kdtree.split_costs", "kdtree.best_split", "kdtree.nodes", "kdtree.clip_partition"];
+
+/// The JSON of `vkrt build --json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct BuildReport {
+    pub primitives: u32,
+    /// GPU milliseconds of the whole build (timestamps).
+    pub build_ms: f64,
+    /// GPU milliseconds per phase, summed over the levels.
+    pub phases: BTreeMap<String, f64>,
+    pub levels: u32,
+    pub nodes: u32,
+    pub leaves: u32,
+    pub max_depth: u32,
+    pub sah_cost: f64,
+    pub references: u64,
+    pub bytes: u64,
+    /// Build attempts (more than 1 when a capacity overflowed and the build was retried).
+    pub attempts: u32,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub equal_to_cpu_twin: Option<bool>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub cpu_twin_ms: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub full_clip_sah_cost: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub full_clip_ms: Option<f64>,
+}
+
+/// Builds `triangles` on the GPU (and with `reference` on the CPU twice) and reports.
+pub fn build_report(
+    ctx: &Context,
+    triangles: &[[Vec3; 3]],
+    params: &SahParams,
+    reference: bool,
+) -> Result<(BuildReport, Profile)> {
+    let builder = KdTreeBuilder::new(ctx)?;
+    let capacity = super::gpu::BuildCapacity::for_primitives(triangles.len());
+    let result = builder.build_from(ctx, triangles, params, capacity)?;
+    let s = stats::stats(&result.tree, params);
+    let ms = |name: &str| result.profile.ms(name).unwrap_or(0.0);
+    let mut report = BuildReport {
+        primitives: triangles.len() as u32,
+        build_ms: ms("kdtree.phase1") + ms("kdtree.phase2"),
+        phases: PHASES.iter().map(|p| (p.trim_start_matches("kdtree.").to_string(), ms(p))).collect(),
+        levels: result.profile.passes.iter().filter(|p| p.name == "kdtree.level").count() as u32,
+        nodes: s.nodes,
+        leaves: s.leaves,
+        max_depth: s.max_depth,
+        sah_cost: s.sah_cost,
+        references: s.references,
+        bytes: s.bytes,
+        attempts: result.attempts,
+        equal_to_cpu_twin: None,
+        cpu_twin_ms: None,
+        full_clip_sah_cost: None,
+        full_clip_ms: None,
+    };
+    if reference {
+        let t = Instant::now();
+        let (twin, _) = seed001::build(triangles, params);
+        report.cpu_twin_ms = Some(t.elapsed().as_secs_f64() * 1e3);
+        let same_nodes = twin.nodes.len() == result.tree.nodes.len()
+            && twin.nodes.iter().zip(&result.tree.nodes).all(|(a, b)| {
+                a.split.to_bits() == b.split.to_bits() && a.kind == b.kind && a.a == b.a && a.b == b.b
+            });
+        report.equal_to_cpu_twin = Some(same_nodes && twin.prim_refs == result.tree.prim_refs);
+        let t = Instant::now();
+        let full = full_clip::build(triangles, params);
+        report.full_clip_ms = Some(t.elapsed().as_secs_f64() * 1e3);
+        report.full_clip_sah_cost = Some(stats::stats(&full, params).sah_cost);
+    }
+    Ok((report, result.profile))
+}
