@@ -1,4 +1,5 @@
 #version 460
+#extension GL_EXT_shader_8bit_storage : require
 // kd-tree Phase II: the clip-mask of every event of one axis list, written as 0/1 flags into
 // the virtual [below | above] slots of its node (node i owns [4·first, 4·first + 4·count)),
 // so one scan gives every copy its place (twin: seed001 classify + virtual_slots).
@@ -11,7 +12,7 @@ layout(std430, binding = 1) readonly buffer NodeRange { uint node_range[]; };
 layout(std430, binding = 2) readonly buffer NodeSplit { uint node_split[]; };
 layout(std430, binding = 3) readonly buffer Node { uint node_of[]; };
 layout(std430, binding = 4) readonly buffer Box { float box[]; }; // 6 arrays of `stride`
-layout(std430, binding = 5) writeonly buffer Slots { uint slots[]; };
+layout(std430, binding = 5) writeonly buffer Slots { uint8_t slots[]; }; // 0/1 flags
 layout(push_constant) uniform Push { uint stride; } pc;
 
 void main() {
@@ -39,6 +40,6 @@ void main() {
         }
     }
     uint v = id + 2u * first; // = 4·first + (id − 2·first)
-    slots[v] = below;
-    slots[v + 2u * count] = above;
+    slots[v] = uint8_t(below);
+    slots[v + 2u * count] = uint8_t(above);
 }

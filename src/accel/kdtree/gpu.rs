@@ -241,7 +241,7 @@ pub struct BuildScratch {
     cost: Buffer<f32>,
     axis: Buffer<u32>,
     starts: [Buffer<u32>; 3],
-    slots: Buffer<u32>,
+    slots: Buffer<u8>,
     slot_offsets: Buffer<u32>,
     flag_scratch: ScanScratch,
     inner_scratch: ScanScratch,
@@ -281,7 +281,8 @@ impl KdTreeBuilder {
             reduce: Reduce::new(ctx, cfg)?,
             flag_scan: Scan::new(ctx, cfg, ScanInput::Flags)?,
             scan: Scan::new(ctx, cfg, ScanInput::U32)?,
-            segmented: SegmentedArgmin::new(ctx, cfg)?,
+            // Nodes of the deep levels hold a few events each: small workgroups per segment.
+            segmented: SegmentedArgmin::with_segment_workgroup(ctx, cfg, ctx.info().subgroup_size.max(32))?,
             segmented_mode: SegmentedMode::Hybrid { threshold: crate::prims::segmented::DEFAULT_HYBRID_THRESHOLD },
         })
     }
@@ -344,12 +345,12 @@ impl KdTreeBuilder {
             cost: f("kdtree.cost", e)?,
             axis: u("kdtree.axis", e)?,
             starts: [u("kdtree.starts0", e)?, u("kdtree.starts1", e)?, u("kdtree.starts2", e)?],
-            slots: u("kdtree.slots", 2 * e)?,
+            slots: Buffer::new(ctx, "kdtree.slots", 2 * e)?,
             slot_offsets: u("kdtree.slot_offsets", 2 * e)?,
             flag_scratch: self.flag_scan.scratch(ctx, e)?,
             inner_scratch: self.scan.scratch(ctx, m)?,
             leaf_scratch: self.scan.scratch(ctx, m)?,
-            slot_scratch: self.scan.scratch(ctx, 2 * e)?,
+            slot_scratch: self.flag_scan.scratch(ctx, 2 * e)?,
             seg_scratch: u("kdtree.seg_scratch", self.segmented.scratch_len(e, m))?,
         })
     }
@@ -549,7 +550,7 @@ impl KdTreeBuilder {
                 let b: [&dyn BufferArg; 6] = [&s.state, &lv.node_range, &s.node_split, &ev[a].node, &ev[a].boxes, &s.slots];
                 rec.dispatch_indirect(&k.classify, &s.state, ev_args, &b, &(e as u32));
                 rec.compute_to_compute();
-                self.scan.record_counted(rec, &s.slots, &s.slot_offsets, 2 * e, slots, ScanOp::Exclusive, &s.slot_scratch);
+                self.flag_scan.record_counted(rec, &s.slots, &s.slot_offsets, 2 * e, slots, ScanOp::Exclusive, &s.slot_scratch);
                 rec.compute_to_compute();
                 let b: [&dyn BufferArg; 15] = [
                     &s.state,
