@@ -63,6 +63,7 @@ fn assert_build_equal(ctx: &vkrt::gpu::Context, builder: &KdTreeBuilder, name: &
     let first = gpu.nodes.iter().zip(&cpu.nodes).position(|(g, c)| g.split.to_bits() != c.split.to_bits() || g.kind != c.kind || g.a != c.a || g.b != c.b);
     assert_eq!(first, None, "{name}: first differing node {:?} vs {:?}", first.map(|i| gpu.nodes[i]), first.map(|i| cpu.nodes[i]));
     assert_eq!(gpu.prim_refs, cpu.prim_refs, "{name}: leaf references");
+    vkrt::accel::kdtree::validate::validate(&gpu, tris).unwrap_or_else(|e| panic!("{name}: invalid tree: {e}"));
     eprintln!("{name}: {} triangles, {} nodes, {} refs: GPU == CPU twin", tris.len(), gpu.nodes.len(), gpu.prim_refs.len());
 }
 
@@ -103,5 +104,45 @@ fn overflow_stops_cleanly_and_the_retry_builds_the_same_tree() {
     assert!(r.attempts > 1, "the tiny capacity should have overflowed");
     assert!(r.capacity.refs_per_level > tris.len());
     assert!(r.tree.nodes == cpu.nodes && r.tree.prim_refs == cpu.prim_refs, "retry differs from the twin");
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn gpu_build_equals_cpu_twin_on_hard_cases() {
+    let Some(ctx) = common::context() else { return };
+    let builder = KdTreeBuilder::new(&ctx).unwrap();
+    let p = vkrt::accel::kdtree::SahParams::default();
+    let mut rng = common::Rng(3);
+    // All in one plane.
+    let planar: Vec<[Vec3; 3]> = (0..2000)
+        .map(|_| {
+            let o = Vec3::new(rng.next_f32() * 10.0, rng.next_f32() * 10.0, 0.0);
+            [o, o + Vec3::new(0.3, 0.0, 0.0), o + Vec3::new(0.0, 0.3, 0.0)]
+        })
+        .collect();
+    assert_build_equal(&ctx, &builder, "planar", &planar, &p);
+    // Axis-aligned flat quads lying on candidate planes.
+    let mut flats = Vec::new();
+    for i in 0..40 {
+        let x = i as f32;
+        flats.push([Vec3::new(x, 0.0, 0.0), Vec3::new(x, 1.0, 0.0), Vec3::new(x, 0.0, 1.0)]);
+        flats.push([Vec3::new(0.0, x, 0.0), Vec3::new(1.0, x, 0.0), Vec3::new(0.0, x, 1.0)]);
+        flats.push([Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 1.0, 0.0), Vec3::new(x, 1.0, 0.0)]);
+    }
+    assert_build_equal(&ctx, &builder, "flat-quads", &flats, &p);
+    // One huge triangle over many tiny ones.
+    let mut mixed: Vec<[Vec3; 3]> = (0..5000)
+        .map(|_| {
+            let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+            [o, o + Vec3::splat(1e-3), o + Vec3::new(1e-3, 0.0, 0.0)]
+        })
+        .collect();
+    mixed.push([Vec3::splat(-100.0), Vec3::new(100.0, -100.0, 0.0), Vec3::new(0.0, 100.0, 100.0)]);
+    assert_build_equal(&ctx, &builder, "huge+tiny", &mixed, &p);
+    // Zero-area triangles and signed zeros.
+    let t = [Vec3::ZERO, Vec3::X, Vec3::Y];
+    let degenerate =
+        vec![[Vec3::ONE; 3], [Vec3::ZERO, Vec3::X, Vec3::X * 2.0], t, [Vec3::new(-0.0, 0.0, -0.0), Vec3::X, Vec3::Z]];
+    assert_build_equal(&ctx, &builder, "degenerate", &degenerate, &p);
     common::assert_silent(&ctx);
 }
