@@ -1,0 +1,593 @@
+//! Stable key-value radix sort of u32 keys (or f32 keys) with u32 values, on the GPU.
+//!
+//! LSD radix sort, `bits_per_pass` key bits per pass, each pass reduce-then-scan:
+//!
+//! 1. `prims.radix_histogram` counts the digits of every tile of `tile()` elements and
+//!    writes the counts digit-major, `counts[digit][tile]`;
+//! 2. the multi-level [`Scan`] scans that table exclusively into `offsets`: the first
+//!    output position of every (digit, tile), in key order and then tile order;
+//! 3. `prims.radix_scatter` re-reads its tile and writes every element to
+//!    `offsets[digit][tile]` + its rank among the tile's elements of that digit.
+//!
+//! Keys and values ping-pong between the caller's buffers and the scratch; after an odd
+//! number of passes `prims.radix_copy` moves them back. No workgroup ever waits for another
+//! (lavapipe runs a thread's workgroups one after another, so a single-pass "Onesweep" with
+//! decoupled look-back could hang); the price is that every pass reads the keys twice.
+//!
+//! **Stable ranking** (`glsl/prims/radix_scatter.comp`): each subgroup walks a contiguous
+//! chunk of the tile in rounds of one element per lane. In a round, the lanes holding the
+//! same digit find each other with one ballot per digit bit (the warp-level "match" of
+//! Onesweep and of multisplit); a lane's rank is the number of its peers on lower lanes plus
+//! the subgroup's running count of that digit in shared memory, which the round's last peer
+//! then advances. With several subgroups per workgroup, a first walk counts each chunk's
+//! digits and the counts are scanned per digit in subgroup order, so each chunk's elements
+//! land after those of the chunks before it. Nothing depends on timing or on the subgroup
+//! size: the output is a function of the input alone, and equal to the CPU twin's.
+//!
+//! **Tiles.** The scatter keeps `(workgroup / 4) × 2^bits` running counts in shared memory,
+//! so its workgroup is `cfg.workgroup_size` capped to fit half the device's shared memory
+//! (64 invocations for 8-bit digits on lavapipe's 32 KiB). A tile is that workgroup times
+//! `max(cfg.items_per_invocation, 16 × 2^bits / workgroup)` elements: at least
+//! 16 × 2^bits, so the count table (2^bits rows of n / tile) stays under n / 16 entries and
+//! its scan stays cheap. The histogram runs with `cfg.workgroup_size` over the same tiles.
+//! A tile whose keys all have the same digit in a pass (sorted runs, the zero top bits of
+//! small keys) skips the ranking and moves as one contiguous run.
+//!
+//! **Keys.** `key_bits` says how many low key bits to sort by; higher bits are carried
+//! along and ignored (Morton codes: 30). f32 keys are sorted through the order-preserving
+//! bit flip — negative floats flip all bits, positive floats flip the sign bit — which the
+//! first pass applies as it reads and the last pass undoes as it writes. Under that order
+//! -0.0 sorts before +0.0, and ±inf and denormals fall where they belong. NaN is not
+//! accepted: [`RadixSort::sort_f32`] returns an error, and NaN keys given to
+//! [`RadixSort::record_f32`] land wherever their bits put them (beyond ±inf).
+//!
+//! **Bits per pass**, measured on lavapipe (Mesa 22.3.6, LLVM 15, 2 cores, AVX2, 8-lane
+//! subgroups), `PrimConfig::default_for`, random full-range u32 keys with u32 values,
+//! GPU ms of the whole sort (best of 3, `vkrt::prims::radix_sort::bench`):
+//!
+//! | bits per pass | passes | 2^22 ms | 2^24 ms |
+//! |---|---|---|---|
+//! | (measurement pending) | | | |
+
+use std::sync::Arc;
+
+use bytemuck::{Pod, Zeroable};
+
+use super::scan::{Scan, ScanInput, ScanOp, ScanScratch};
+use super::{PrimConfig, PrimTiming};
+use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, ShaderBlob, Spec};
+
+/// The measured default digit width (see the table in the module docs).
+pub const DEFAULT_BITS_PER_PASS: u32 = 8;
+
+/// Digit widths the kernels accept.
+pub const BITS_RANGE: std::ops::RangeInclusive<u32> = 1..=8;
+
+/// A tile holds at least this many elements per digit value, so the count table of a pass
+/// (2^bits × n / tile entries) stays under n / 32 and the per-tile work on counters (scans,
+/// zeroing) stays small per element.
+const MIN_TILE_PER_DIGIT: u32 = 32;
+
+/// Elements a tile holds at least. Measured on lavapipe: 8-bit sorts of 2^22 keys took
+/// ≈ 1.4× longer with 1024-element tiles than with 8192; 8192 to 32768 were alike.
+const MIN_TILE: u32 = 8192;
+
+/// Push constants of the histogram and scatter kernels (keep in sync with `Push` in
+/// glsl/prims/radix_common.glsl).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct PassPush {
+    n: u32,
+    blocks: u32,
+    shift: u32,
+    digits: u32,
+    flags: u32,
+}
+
+/// `PassPush::flags`: the first pass of an f32 sort flips keys as it reads them.
+const FLIP_IN: u32 = 1;
+/// `PassPush::flags`: the last pass of an f32 sort flips keys back as it writes them.
+const UNFLIP_OUT: u32 = 2;
+
+/// How keys are ordered.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+enum KeyKind {
+    U32,
+    F32,
+}
+
+/// How the scatter ranks a tile's elements (see `glsl/prims/radix_scatter.comp`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Ranking {
+    /// Per-invocation digit counters in shared memory over contiguous runs, one workgroup
+    /// scan per tile; no subgroup operations. 2^bits × workgroup words of shared memory.
+    Counters,
+    /// Subgroup ballot "match" per round, running counts per subgroup. (workgroup / 4) ×
+    /// 2^bits words of shared memory.
+    Match,
+}
+
+impl Ranking {
+    /// The ranking `RadixSort::new` tries first on this device: `Counters` on CPU devices
+    /// (lavapipe, where it measured about 3× faster than `Match`: every ballot and every
+    /// lane-varying memory access is a loop over the lanes there), `Match` on GPUs (where
+    /// ballots are single instructions, and `Counters` with wide digits would shrink the
+    /// scatter to one subgroup per workgroup; a reasoned choice, not measured here).
+    pub fn preferred(ctx: &Context) -> Self {
+        if ctx.info().device_type == "cpu" {
+            Ranking::Counters
+        } else {
+            Ranking::Match
+        }
+    }
+
+    fn other(self) -> Self {
+        match self {
+            Ranking::Counters => Ranking::Match,
+            Ranking::Match => Ranking::Counters,
+        }
+    }
+
+    /// Shared memory of the scatter kernel in bytes, for a workgroup of `wg` invocations.
+    fn shared_bytes(self, wg: u32, radix: u32) -> u32 {
+        // tile_digit, and the workgroup scan's subgroup sums and total (subgroup_scan.glsl).
+        let common = 4 + 4 * (wg / 4 + 1);
+        common
+            + match self {
+                Ranking::Counters => 4 * radix * wg + 4 * radix,
+                Ranking::Match => 4 * (wg / 4) * radix,
+            }
+    }
+}
+
+/// A radix sort of one digit width, with its kernels compiled.
+pub struct RadixSort {
+    cfg: PrimConfig,
+    bits: u32,
+    ranking: Ranking,
+    tile: u32,
+    scatter_workgroup: u32,
+    histogram: Arc<Kernel>,
+    scatter: Arc<Kernel>,
+    scatter_blob: &'static ShaderBlob,
+    copy: Arc<Kernel>,
+    scan: Scan,
+}
+
+/// Scratch for sorts of up to `max_n` elements: the ping-pong keys and values, the count
+/// table and its scan.
+pub struct RadixScratch {
+    max_n: usize,
+    keys: Buffer<u32>,
+    values: Buffer<u32>,
+    counts: Buffer<u32>,
+    offsets: Buffer<u32>,
+    scan: ScanScratch,
+}
+
+impl RadixSort {
+    /// A sort of `bits_per_pass`-bit digits (1 to 8; [`DEFAULT_BITS_PER_PASS`] is measured
+    /// best) with the workgroup shape `cfg`, ranking with [`Ranking::preferred`] where its
+    /// shared memory fits and with the other ranking otherwise.
+    pub fn new(ctx: &Context, cfg: PrimConfig, bits_per_pass: u32) -> Result<Self> {
+        let preferred = Ranking::preferred(ctx);
+        Self::with_ranking(ctx, cfg, bits_per_pass, preferred)
+            .or_else(|_| Self::with_ranking(ctx, cfg, bits_per_pass, preferred.other()))
+    }
+
+    /// A sort with the given ranking; an error if its shared memory cannot fit with at
+    /// least one subgroup per workgroup.
+    pub fn with_ranking(ctx: &Context, cfg: PrimConfig, bits_per_pass: u32, ranking: Ranking) -> Result<Self> {
+        let err = |reason: String| GpuError::Kernel { kernel: "prims.radix_sort", reason };
+        if !BITS_RANGE.contains(&bits_per_pass) {
+            return Err(err(format!("{bits_per_pass} bits per pass; the kernels take {BITS_RANGE:?}")));
+        }
+        let info = ctx.info();
+        let lanes = info.max_subgroup_size.max(info.subgroup_size);
+        let wg = cfg.workgroup_size;
+        if !wg.is_power_of_two() || wg % lanes != 0 {
+            return Err(err(format!(
+                "workgroup size {wg} must be a power of two and a multiple of the subgroup size {lanes}"
+            )));
+        }
+        let radix = 1u32 << bits_per_pass;
+        let mut scatter_workgroup = wg;
+        while ranking.shared_bytes(scatter_workgroup, radix) > info.max_shared_memory && scatter_workgroup > lanes {
+            scatter_workgroup /= 2;
+        }
+        if ranking.shared_bytes(scatter_workgroup, radix) > info.max_shared_memory {
+            return Err(err(format!(
+                "{ranking:?} ranking of {bits_per_pass}-bit digits with {lanes}-lane subgroups needs {} bytes of shared memory, over this device's {}",
+                ranking.shared_bytes(scatter_workgroup, radix),
+                info.max_shared_memory
+            )));
+        }
+        let min_tile = MIN_TILE.max(MIN_TILE_PER_DIGIT * radix);
+        let mut per_invocation =
+            cfg.items_per_invocation.max(min_tile.div_ceil(scatter_workgroup)).max(1);
+        if ranking == Ranking::Counters {
+            per_invocation = per_invocation.next_multiple_of(4); // runs load 16 bytes at a time
+        }
+        let tile = scatter_workgroup * per_invocation;
+        let common = |w: u32| Spec::new().workgroup(w).u32(1, bits_per_pass).u32(2, tile);
+        let scatter: &'static ShaderBlob = match ranking {
+            Ranking::Counters => &kernels::PRIMS_RADIX_SCATTER_COUNTERS,
+            Ranking::Match => &kernels::PRIMS_RADIX_SCATTER_MATCH,
+        };
+        Ok(Self {
+            cfg,
+            bits: bits_per_pass,
+            ranking,
+            tile,
+            scatter_workgroup,
+            histogram: ctx.kernel(&kernels::PRIMS_RADIX_HISTOGRAM, &common(wg))?,
+            scatter: ctx.kernel(scatter, &common(scatter_workgroup))?,
+            scatter_blob: scatter,
+            copy: ctx.kernel(&kernels::PRIMS_RADIX_COPY, &Spec::new().workgroup(wg))?,
+            scan: Scan::new(ctx, cfg, ScanInput::U32)?,
+        })
+    }
+
+    pub fn ranking(&self) -> Ranking {
+        self.ranking
+    }
+
+    pub fn config(&self) -> PrimConfig {
+        self.cfg
+    }
+
+    pub fn bits_per_pass(&self) -> u32 {
+        self.bits
+    }
+
+    /// Elements per tile: the block of the count table.
+    pub fn tile(&self) -> usize {
+        self.tile as usize
+    }
+
+    /// Invocations per workgroup of the scatter kernel (after the shared-memory cap).
+    pub fn scatter_workgroup_size(&self) -> u32 {
+        self.scatter_workgroup
+    }
+
+    /// Passes for a sort by `key_bits` key bits.
+    pub fn passes(&self, key_bits: u32) -> u32 {
+        key_bits.div_ceil(self.bits)
+    }
+
+    /// Scratch for sorts of up to `max_n` elements.
+    pub fn scratch(&self, ctx: &Context, max_n: usize) -> Result<RadixScratch> {
+        let table = (max_n.div_ceil(self.tile as usize) << self.bits).max(1);
+        Ok(RadixScratch {
+            max_n,
+            keys: Buffer::new(ctx, "prims.radix_sort.keys", max_n)?,
+            values: Buffer::new(ctx, "prims.radix_sort.values", max_n)?,
+            counts: Buffer::new(ctx, "prims.radix_sort.counts", table)?,
+            offsets: Buffer::new(ctx, "prims.radix_sort.offsets", table)?,
+            scan: self.scan.scratch(ctx, table)?,
+        })
+    }
+
+    /// Records a stable sort of the first `n` `keys` and `values` by the low `key_bits`
+    /// bits of the keys (0 to 32), in place. Orders its own passes; the caller orders what
+    /// comes before (writes of keys and values) and after (the result is written by
+    /// kernels, so a `compute_to_*` barrier).
+    pub fn record(
+        &self,
+        rec: &mut Recorder,
+        keys: &Buffer<u32>,
+        values: &Buffer<u32>,
+        n: usize,
+        key_bits: u32,
+        scratch: &RadixScratch,
+    ) {
+        self.check(keys.len(), values.len(), n, scratch);
+        self.record_passes(rec, keys, values, n, key_bits, KeyKind::U32, scratch);
+    }
+
+    /// Records a stable sort of the first `n` f32 `keys` (NaN-free) and their `values` in
+    /// place, in float order with -0.0 before +0.0. Ordering as in [`RadixSort::record`].
+    pub fn record_f32(
+        &self,
+        rec: &mut Recorder,
+        keys: &Buffer<f32>,
+        values: &Buffer<u32>,
+        n: usize,
+        scratch: &RadixScratch,
+    ) {
+        self.check(keys.len(), values.len(), n, scratch);
+        self.record_passes(rec, keys, values, n, 32, KeyKind::F32, scratch);
+    }
+
+    fn check(&self, keys: usize, values: usize, n: usize, scratch: &RadixScratch) {
+        assert!(
+            n <= keys && n <= values,
+            "radix sort of {n} elements with {keys} keys and {values} values"
+        );
+        assert!(n <= scratch.max_n, "radix sort of {n} elements with scratch sized for {}", scratch.max_n);
+    }
+
+    #[allow(clippy::too_many_arguments, reason = "record's arguments plus the key kind")]
+    fn record_passes(
+        &self,
+        rec: &mut Recorder,
+        keys: &dyn BufferArg,
+        values: &dyn BufferArg,
+        n: usize,
+        key_bits: u32,
+        kind: KeyKind,
+        scratch: &RadixScratch,
+    ) {
+        assert!(key_bits <= 32, "radix sort by {key_bits} key bits");
+        let passes = self.passes(key_bits);
+        if n <= 1 || passes == 0 {
+            return;
+        }
+        let blocks = n.div_ceil(self.tile as usize);
+        let groups = rec.groups_1d(blocks as u64, 1);
+        rec.scope("prims.radix_sort", |rec| {
+            for pass in 0..passes {
+                let shift = pass * self.bits;
+                let digits = 1u32 << self.bits.min(key_bits - shift);
+                let (src, dst): ([&dyn BufferArg; 2], [&dyn BufferArg; 2]) = if pass % 2 == 0 {
+                    ([keys, values], [&scratch.keys, &scratch.values])
+                } else {
+                    ([&scratch.keys, &scratch.values], [keys, values])
+                };
+                let mut flags = 0;
+                if kind == KeyKind::F32 && pass == 0 {
+                    flags |= FLIP_IN;
+                }
+                if kind == KeyKind::F32 && pass == passes - 1 {
+                    flags |= UNFLIP_OUT;
+                }
+                let push = PassPush { n: n as u32, blocks: blocks as u32, shift, digits, flags };
+                if pass > 0 {
+                    rec.compute_to_compute();
+                }
+                rec.scope("prims.radix_histogram", |rec| {
+                    rec.dispatch(&self.histogram, groups, &[src[0], src[0], &scratch.counts], &push);
+                });
+                rec.compute_to_compute();
+                let table = digits as usize * blocks;
+                self.scan.record(rec, &scratch.counts, &scratch.offsets, table, ScanOp::Exclusive, &scratch.scan);
+                rec.compute_to_compute();
+                rec.scope("prims.radix_scatter", |rec| {
+                    // Binding numbers of glsl/prims/radix_scatter.comp; a variant binds a subset.
+                    let bindings: Vec<&dyn BufferArg> = self
+                        .scatter_blob
+                        .bindings
+                        .iter()
+                        .map(|&b| match b {
+                            0 | 1 => src[0],
+                            2 | 3 => src[1],
+                            4 => &scratch.counts,
+                            5 => &scratch.offsets,
+                            6 => dst[0],
+                            7 => dst[1],
+                            _ => unreachable!("radix_scatter has no binding {b}"),
+                        })
+                        .collect();
+                    rec.dispatch(&self.scatter, groups, &bindings, &push);
+                });
+            }
+            if passes % 2 == 1 {
+                rec.compute_to_compute();
+                let (k, v): (&dyn BufferArg, &dyn BufferArg) = (&scratch.keys, &scratch.values);
+                let copy_groups = rec.groups_1d(n.div_ceil(4) as u64, self.copy.invocations());
+                rec.scope("prims.radix_copy", |rec| {
+                    rec.dispatch(&self.copy, copy_groups, &[k, k, v, v, keys, keys, values, values], &(n as u32));
+                });
+            }
+        });
+    }
+
+    /// Convenience: sorts `keys` (all 32 bits) and their `values` on the GPU, stably.
+    pub fn sort_u32(&self, ctx: &Context, keys: &[u32], values: &[u32]) -> Result<(Vec<u32>, Vec<u32>)> {
+        assert_eq!(keys.len(), values.len(), "one value per key");
+        let n = keys.len();
+        let key_buf = Buffer::from_slice(ctx, "prims.radix_sort.in_keys", keys)?;
+        let value_buf = Buffer::from_slice(ctx, "prims.radix_sort.in_values", values)?;
+        let scratch = self.scratch(ctx, n)?;
+        let mut rec = Recorder::new(ctx)?;
+        self.record(&mut rec, &key_buf, &value_buf, n, 32, &scratch);
+        rec.compute_to_transfer();
+        rec.submit_and_wait()?;
+        Ok((key_buf.download()?, value_buf.download()?))
+    }
+
+    /// Convenience: sorts f32 `keys` and their `values` on the GPU, stably, in float order
+    /// with -0.0 before +0.0. A NaN key is an error.
+    pub fn sort_f32(&self, ctx: &Context, keys: &[f32], values: &[u32]) -> Result<(Vec<f32>, Vec<u32>)> {
+        assert_eq!(keys.len(), values.len(), "one value per key");
+        check_no_nan(keys)?;
+        let n = keys.len();
+        let key_buf = Buffer::from_slice(ctx, "prims.radix_sort.in_keys", keys)?;
+        let value_buf = Buffer::from_slice(ctx, "prims.radix_sort.in_values", values)?;
+        let scratch = self.scratch(ctx, n)?;
+        let mut rec = Recorder::new(ctx)?;
+        self.record_f32(&mut rec, &key_buf, &value_buf, n, &scratch);
+        rec.compute_to_transfer();
+        rec.submit_and_wait()?;
+        Ok((key_buf.download()?, value_buf.download()?))
+    }
+}
+
+fn check_no_nan(keys: &[f32]) -> Result<()> {
+    match keys.iter().position(|k| k.is_nan()) {
+        Some(i) => Err(GpuError::Kernel {
+            kernel: "prims.radix_sort",
+            reason: format!("key {i} is NaN; f32 keys must be NaN-free"),
+        }),
+        None => Ok(()),
+    }
+}
+
+/// f32 bits → a u32 whose unsigned order is the float order: negative floats flip every
+/// bit, positive floats the sign bit (so -0.0 < +0.0; NaN-free input). Mirrors
+/// `f32_to_ordered` in glsl/prims/radix_common.glsl.
+pub fn f32_to_ordered(x: f32) -> u32 {
+    let bits = x.to_bits();
+    bits ^ (((bits as i32) >> 31) as u32 | 0x8000_0000)
+}
+
+/// The inverse of [`f32_to_ordered`].
+pub fn ordered_to_f32(key: u32) -> f32 {
+    f32::from_bits(key ^ (((!key as i32) >> 31) as u32 | 0x8000_0000))
+}
+
+/// CPU twin: a stable LSD radix sort of `keys` (all 32 bits) and `values`, with
+/// [`DEFAULT_BITS_PER_PASS`]-bit digits.
+pub fn radix_sort_cpu(keys: &[u32], values: &[u32]) -> (Vec<u32>, Vec<u32>) {
+    radix_sort_passes_cpu(keys, values, 32, DEFAULT_BITS_PER_PASS)
+}
+
+/// CPU twin of the f32 sort: flip, sort, flip back.
+pub fn radix_sort_f32_cpu(keys: &[f32], values: &[u32]) -> (Vec<f32>, Vec<u32>) {
+    let ordered: Vec<u32> = keys.iter().map(|&k| f32_to_ordered(k)).collect();
+    let (sorted, values) = radix_sort_passes_cpu(&ordered, values, 32, DEFAULT_BITS_PER_PASS);
+    (sorted.into_iter().map(ordered_to_f32).collect(), values)
+}
+
+/// CPU twin of [`RadixSort::record`]: the same passes (digits of `bits_per_pass` bits from
+/// the lowest, the last pass cut at `key_bits`), each a histogram, an exclusive scan of it
+/// and a stable scatter. Tiles are not simulated: they do not change the output.
+#[allow(clippy::needless_range_loop, reason = "reads like the kernels")]
+pub fn radix_sort_passes_cpu(keys: &[u32], values: &[u32], key_bits: u32, bits_per_pass: u32) -> (Vec<u32>, Vec<u32>) {
+    assert_eq!(keys.len(), values.len(), "one value per key");
+    assert!(key_bits <= 32 && BITS_RANGE.contains(&bits_per_pass));
+    let n = keys.len();
+    let (mut keys_in, mut values_in) = (keys.to_vec(), values.to_vec());
+    let (mut keys_out, mut values_out) = (vec![0; n], vec![0; n]);
+    for pass in 0..key_bits.div_ceil(bits_per_pass) {
+        let shift = pass * bits_per_pass;
+        let digits = 1usize << bits_per_pass.min(key_bits - shift);
+        let digit_of = |key: u32| (key >> shift) as usize & (digits - 1);
+        // radix_histogram
+        let mut offsets = vec![0u32; digits];
+        for i in 0..n {
+            offsets[digit_of(keys_in[i])] += 1;
+        }
+        // scan
+        let mut sum = 0;
+        for d in 0..digits {
+            let count = offsets[d];
+            offsets[d] = sum;
+            sum += count;
+        }
+        // radix_scatter
+        for i in 0..n {
+            let d = digit_of(keys_in[i]);
+            let dst = offsets[d] as usize;
+            offsets[d] += 1;
+            keys_out[dst] = keys_in[i];
+            values_out[dst] = values_in[i];
+        }
+        std::mem::swap(&mut keys_in, &mut keys_out);
+        std::mem::swap(&mut values_in, &mut values_out);
+    }
+    (keys_in, values_in)
+}
+
+/// The digit widths `bench` measures.
+pub const BENCH_BITS: [u32; 4] = [4, 5, 6, 8];
+
+/// Splitmix64: benchmark data without a dependency.
+fn splitmix(state: &mut u64) -> u64 {
+    *state = state.wrapping_add(0x9E37_79B9_7F4A_7C15);
+    let mut z = *state;
+    z = (z ^ (z >> 30)).wrapping_mul(0xBF58_476D_1CE4_E5B9);
+    z = (z ^ (z >> 27)).wrapping_mul(0x94D0_49BB_1331_11EB);
+    z ^ (z >> 31)
+}
+
+/// Times the sort of `n` random full-range keys with values: `radix_sort_kv_u32` and
+/// `radix_sort_kv_f32` with the default digit width, `radix_sort_kv_u32.bits{b}` for every
+/// measured width (default ranking) and `….bits{b}.match` / `.counters` with the other, and `cpu_sort_unstable_by_key` — `slice::sort_unstable_by_key` of the
+/// same (key, value) pairs on one CPU core, whose `gpu_ms` is CPU milliseconds.
+///
+/// `min_bytes` is what the passes must at least move: keys and values read and written
+/// once per pass (16 n bytes per pass); for the CPU entry, one read and write of the pairs.
+/// One warm-up run first (fresh memory costs page faults on lavapipe), then best of `reps`.
+pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
+    let cfg = PrimConfig::default_for(ctx);
+    let mut state = 0x5EED;
+    let keys: Vec<u32> = (0..n).map(|_| splitmix(&mut state) as u32).collect();
+    let floats: Vec<f32> = (0..n)
+        .map(|_| {
+            let x = (splitmix(&mut state) >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0;
+            x * 1e3
+        })
+        .collect();
+    let values: Vec<u32> = (0..n as u32).collect();
+
+    let mut variants: Vec<(String, RadixSort, KeyKind)> = Vec::new();
+    for bits in BENCH_BITS {
+        let sort = RadixSort::new(ctx, cfg, bits)?;
+        let other = sort.ranking().other();
+        variants.push((format!("radix_sort_kv_u32.bits{bits}"), sort, KeyKind::U32));
+        if let Ok(sort) = RadixSort::with_ranking(ctx, cfg, bits, other) {
+            let name = format!("radix_sort_kv_u32.bits{bits}.{}", format!("{other:?}").to_lowercase());
+            variants.push((name, sort, KeyKind::U32));
+        }
+    }
+    variants.push(("radix_sort_kv_f32".into(), RadixSort::new(ctx, cfg, DEFAULT_BITS_PER_PASS)?, KeyKind::F32));
+
+    let key_src = Buffer::from_slice(ctx, "bench.radix.keys_src", &keys)?;
+    let float_src = Buffer::from_slice(ctx, "bench.radix.floats_src", &floats)?;
+    let value_src = Buffer::from_slice(ctx, "bench.radix.values_src", &values)?;
+    let key_buf = Buffer::<u32>::new(ctx, "bench.radix.keys", n)?;
+    let float_buf = Buffer::<f32>::new(ctx, "bench.radix.floats", n)?;
+    let value_buf = Buffer::<u32>::new(ctx, "bench.radix.values", n)?;
+    let scratches = variants.iter().map(|(_, s, _)| s.scratch(ctx, n)).collect::<Result<Vec<_>>>()?;
+    let mut timings = Vec::new();
+    for ((name, sort, kind), scratch) in variants.iter().zip(&scratches) {
+        // One submission per variant: lavapipe's timestamps are per command buffer anyway,
+        // and a variant's scratch is warm after its own warm-up.
+        let mut rec = Recorder::new(ctx)?;
+        for rep in 0..=reps {
+            if *kind == KeyKind::F32 {
+                rec.copy(&float_src, &float_buf, n);
+            } else {
+                rec.copy(&key_src, &key_buf, n);
+            }
+            rec.copy(&value_src, &value_buf, n);
+            rec.transfer_to_compute();
+            let label = if rep == 0 { format!("warmup.{name}") } else { name.clone() };
+            rec.scope(&label, |rec| match kind {
+                KeyKind::U32 => sort.record(rec, &key_buf, &value_buf, n, 32, scratch),
+                KeyKind::F32 => sort.record_f32(rec, &float_buf, &value_buf, n, scratch),
+            });
+            rec.compute_to_transfer();
+        }
+        let profile = rec.submit_and_wait()?;
+        timings.push(PrimTiming {
+            prim: name.clone(),
+            n: n as u64,
+            gpu_ms: best_ms(&profile, name),
+            min_bytes: 16 * n as u64 * u64::from(sort.passes(32)),
+        });
+    }
+
+    // The default width is one of the measured ones: report it under the plain name too.
+    let default = timings.iter().find(|t| t.prim == format!("radix_sort_kv_u32.bits{DEFAULT_BITS_PER_PASS}"));
+    if let Some(t) = default.cloned() {
+        timings.push(PrimTiming { prim: "radix_sort_kv_u32".into(), ..t });
+    }
+
+    let pairs: Vec<(u32, u32)> = keys.iter().copied().zip(values.iter().copied()).collect();
+    let mut best = f64::INFINITY;
+    for _ in 0..=reps {
+        let mut work = pairs.clone();
+        let t = std::time::Instant::now();
+        work.sort_unstable_by_key(|p| p.0);
+        best = best.min(t.elapsed().as_secs_f64() * 1e3);
+        std::hint::black_box(&work);
+    }
+    timings.push(PrimTiming { prim: "cpu_sort_unstable_by_key".into(), n: n as u64, gpu_ms: best, min_bytes: 16 * n as u64 });
+    Ok(timings)
+}
+
+fn best_ms(profile: &crate::gpu::Profile, name: &str) -> f64 {
+    profile.passes.iter().filter(|p| p.name == name).filter_map(|p| p.ms).fold(f64::INFINITY, f64::min)
+}

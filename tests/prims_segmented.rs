@@ -1,0 +1,307 @@
+//! Segmented argmin against its CPU twin, bit for bit, in every mode (workgroup per
+//! segment, device-wide tiles, hybrid at several thresholds) on many segment shapes, with a
+//! workgroup of one subgroup and with several, under synchronization validation.
+
+mod common;
+
+use common::Rng;
+use vkrt::gpu::{Buffer, Context, Recorder};
+use vkrt::prims::reduce::CostIndex;
+use vkrt::prims::segmented::{self, SegmentedArgmin, SegmentedMode};
+use vkrt::prims::PrimConfig;
+
+fn configs(ctx: &Context) -> [(&'static str, PrimConfig); 2] {
+    [
+        ("single_subgroup", PrimConfig::single_subgroup(ctx)),
+        ("default", PrimConfig::default_for(ctx)),
+    ]
+}
+
+/// Every mode, plus hybrids whose threshold sits below, at and above the tile, so both the
+/// "first and last segment only" and the "every segment of the tile" tile loops run.
+fn modes(cfg: PrimConfig) -> Vec<SegmentedMode> {
+    let tile = cfg.tile();
+    vec![
+        SegmentedMode::WorkgroupPerSegment,
+        SegmentedMode::DeviceWide,
+        SegmentedMode::default(),
+        SegmentedMode::Hybrid {
+            threshold: tile / 2 + 1,
+        },
+        SegmentedMode::Hybrid { threshold: tile },
+        SegmentedMode::Hybrid {
+            threshold: 3 * tile + 1,
+        },
+    ]
+}
+
+/// Costs with many ties (few distinct values, both zeros): the tie-break by global index
+/// decides most segments.
+fn tie_costs(n: usize, rng: &mut Rng) -> Vec<f32> {
+    (0..n)
+        .map(|_| match rng.next_u64() % 8 {
+            0 => -0.0,
+            1 => 0.0,
+            k => k as f32 * 0.25,
+        })
+        .collect()
+}
+
+fn random_costs(n: usize, rng: &mut Rng) -> Vec<f32> {
+    (0..n).map(|_| rng.next_f32() * 1e6).collect()
+}
+
+fn offsets_from_lengths(start: u32, lengths: &[u32]) -> Vec<u32> {
+    let mut offsets = vec![start];
+    for &l in lengths {
+        offsets.push(offsets.last().unwrap() + l);
+    }
+    offsets
+}
+
+/// Runs every mode of `seg` in one submission (the count lives on the GPU; `count` may be
+/// below the capacity `offsets.len() - 1`, or above it to test the clamp) and compares each
+/// with the twin.
+fn check(ctx: &Context, seg: &SegmentedArgmin, costs: &[f32], offsets: &[u32], count: u32, what: &str) {
+    let max_segments = offsets.len() as u32 - 1;
+    let costs_buf = Buffer::from_slice(ctx, "test.costs", costs).unwrap();
+    let offsets_buf = Buffer::from_slice(ctx, "test.offsets", offsets).unwrap();
+    let count_buf = Buffer::from_slice(ctx, "test.count", &[count]).unwrap();
+    let scratch = Buffer::<u32>::new(
+        ctx,
+        "test.scratch",
+        seg.scratch_len(costs.len(), max_segments as usize),
+    )
+    .unwrap();
+    let modes = modes(seg.config());
+    let outs: Vec<Buffer<CostIndex>> = modes
+        .iter()
+        .map(|_| Buffer::new(ctx, "test.out", max_segments as usize).unwrap())
+        .collect();
+    let mut rec = Recorder::new(ctx).unwrap();
+    for (mode, out) in modes.iter().zip(&outs) {
+        seg.record(
+            &mut rec, *mode, &costs_buf, &offsets_buf, &count_buf, max_segments, &scratch, out,
+        );
+        // The next mode reuses `scratch` (and its indirect arguments).
+        rec.compute_to_indirect();
+    }
+    rec.compute_to_transfer();
+    rec.submit_and_wait().unwrap();
+    let effective = count.min(max_segments);
+    let want = segmented::segmented_argmin_cpu(costs, offsets, effective);
+    for (mode, out) in modes.iter().zip(&outs) {
+        let got = out.download().unwrap();
+        for s in 0..effective as usize {
+            assert_eq!(
+                got[s].bits(),
+                want[s].bits(),
+                "{what}, {mode:?}, {:?}: segment {s} = [{}, {}) of {}: GPU {:?}, CPU {:?}",
+                seg.config(),
+                offsets[s],
+                offsets[s + 1],
+                effective,
+                got[s],
+                want[s]
+            );
+        }
+    }
+}
+
+/// The shapes every configuration is tested on: (name, offsets).
+fn shapes(cfg: PrimConfig, n_big: u32, rng: &mut Rng) -> Vec<(String, Vec<u32>)> {
+    let tile = cfg.tile();
+    let threshold = segmented::DEFAULT_HYBRID_THRESHOLD;
+    let mut shapes = vec![
+        ("one empty".to_string(), vec![0, 0]),
+        ("all empty".to_string(), vec![0; 1001]),
+        ("one element".to_string(), vec![0, 1]),
+        ("one huge".to_string(), vec![0, n_big]),
+        (
+            "one huge after unsegmented elements".to_string(),
+            vec![7, n_big],
+        ),
+    ];
+    // 1 .. 10^5 tiny segments (0 to 3 elements).
+    for count in [1usize, 2, 3, 100, 100_000] {
+        let lengths: Vec<u32> = (0..count).map(|_| (rng.next_u64() % 4) as u32).collect();
+        shapes.push((format!("{count} tiny"), offsets_from_lengths(0, &lengths)));
+    }
+    // Lengths straddling the tile and the default threshold, in one array.
+    let mut lengths = Vec::new();
+    for l in [tile - 1, tile, tile + 1, 2 * tile - 1, threshold - 1, threshold, threshold + 1] {
+        lengths.extend([l, 0, 1, l]);
+    }
+    shapes.push(("straddling".to_string(), offsets_from_lengths(3, &lengths)));
+    // Mixed, heavy-tailed: mostly small, some a few tiles, a few above the threshold.
+    let lengths: Vec<u32> = (0..3000)
+        .map(|_| match rng.next_u64() % 100 {
+            0 => threshold + (rng.next_u64() % u64::from(threshold)) as u32,
+            1..=10 => (rng.next_u64() % u64::from(4 * tile)) as u32,
+            _ => (rng.next_u64() % 40) as u32,
+        })
+        .collect();
+    shapes.push(("mixed".to_string(), offsets_from_lengths(0, &lengths)));
+    // kd-tree levels: 2^k equal segments.
+    for level in [1u32, 5, 10] {
+        shapes.push((
+            format!("level {level}"),
+            segmented::level_offsets(n_big, level),
+        ));
+    }
+    shapes
+}
+
+#[test]
+fn every_mode_equals_the_twin_on_every_shape() {
+    let Some(ctx) = common::context() else { return };
+    let quick = std::env::var("VKRT_TEST_QUICK").is_ok_and(|v| v == "1");
+    let n_big = if quick { (1 << 18) + 13 } else { (1 << 20) + 13 };
+    for (name, cfg) in configs(&ctx) {
+        let seg = SegmentedArgmin::new(&ctx, cfg).unwrap();
+        let mut rng = Rng(5);
+        for (shape, offsets) in shapes(cfg, n_big, &mut rng) {
+            let n = *offsets.last().unwrap() as usize + (rng.next_u64() % 5) as usize;
+            let costs = if shape.contains("tiny") || shape.contains("straddling") {
+                tie_costs(n, &mut rng)
+            } else {
+                random_costs(n, &mut rng)
+            };
+            let count = offsets.len() as u32 - 1;
+            check(&ctx, &seg, &costs, &offsets, count, &format!("{name}, {shape}"));
+            let ties = tie_costs(n, &mut rng);
+            check(&ctx, &seg, &ties, &offsets, count, &format!("{name}, {shape}, ties"));
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn the_count_is_read_on_the_gpu_and_clamped_to_the_capacity() {
+    let Some(ctx) = common::context() else { return };
+    for (name, cfg) in configs(&ctx) {
+        let seg = SegmentedArgmin::new(&ctx, cfg).unwrap();
+        let mut rng = Rng(9);
+        let lengths: Vec<u32> = (0..64)
+            .map(|i| if i % 9 == 0 { 3 * cfg.tile() } else { (rng.next_u64() % 300) as u32 })
+            .collect();
+        let offsets = offsets_from_lengths(0, &lengths);
+        let n = *offsets.last().unwrap() as usize;
+        let costs = tie_costs(n, &mut rng);
+        for count in [0, 1, 17, 63, 64, 65, 1000] {
+            check(&ctx, &seg, &costs, &offsets, count, &format!("{name}, count {count}"));
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn the_convenience_call_and_empty_segments() {
+    let Some(ctx) = common::context() else { return };
+    let seg = SegmentedArgmin::new(&ctx, PrimConfig::default_for(&ctx)).unwrap();
+    let costs = [3.0, 1.0, -0.0, 0.0, 2.0, 0.0];
+    let offsets = [0, 2, 2, 6];
+    for mode in modes(seg.config()) {
+        let got = seg.argmin(&ctx, mode, &costs, &offsets).unwrap();
+        let bits: Vec<_> = got.iter().map(CostIndex::bits).collect();
+        assert_eq!(
+            bits,
+            vec![
+                (1.0f32.to_bits(), 1),
+                CostIndex::NONE.bits(),
+                ((-0.0f32).to_bits(), 2)
+            ],
+            "{mode:?}"
+        );
+    }
+    assert!(seg
+        .argmin(&ctx, SegmentedMode::default(), &[], &[])
+        .unwrap()
+        .is_empty());
+    common::assert_silent(&ctx);
+}
+
+#[test]
+#[ignore = "benchmark: cargo test --release --test prims_segmented -- --ignored --nocapture bench"]
+fn bench_segmented() {
+    let Some(ctx) = common::context() else { return };
+    let n = 1 << 24;
+    for t in segmented::bench(&ctx, n, 3).unwrap() {
+        println!(
+            "{:<46} n = {}  {:8.3} ms  {:7.1} M elements/s",
+            t.prim,
+            t.n,
+            t.gpu_ms,
+            t.n as f64 / t.gpu_ms / 1e3
+        );
+    }
+}
+
+/// The measurement behind `DEFAULT_HYBRID_THRESHOLD`: both pure paths on kd-tree levels,
+/// and hybrids at several thresholds.
+#[test]
+#[ignore = "measurement: cargo test --release --test prims_segmented -- --ignored --nocapture threshold"]
+fn threshold_measurement() {
+    let Some(ctx) = common::context() else { return };
+    let n = std::env::var("BENCH_N")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1 << 22);
+    let levels: Vec<u32> = (0..=16).step_by(2).collect();
+    let mut modes = vec![
+        SegmentedMode::WorkgroupPerSegment,
+        SegmentedMode::DeviceWide,
+    ];
+    for t in [1u32 << 12, 1 << 14, 1 << 16, 1 << 18] {
+        modes.push(SegmentedMode::Hybrid { threshold: t });
+    }
+    let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<u32>().ok());
+    let mut cfg = PrimConfig::default_for(&ctx);
+    cfg.workgroup_size = env("BENCH_WG").unwrap_or(cfg.workgroup_size);
+    cfg.items_per_invocation = env("BENCH_ITEMS").unwrap_or(cfg.items_per_invocation);
+    let seg_wg = env("BENCH_SEG_WG").unwrap_or(cfg.workgroup_size);
+    let seg = SegmentedArgmin::with_segment_workgroup(&ctx, cfg, seg_wg).unwrap();
+    println!("n = {n}, tiles {cfg:?}, segment workgroup {seg_wg}");
+    let timings = segmented::bench_levels(&ctx, &seg, n, 3, &levels, &modes).unwrap();
+    print!("{:>6} {:>8}", "level", "seg len");
+    for m in &modes {
+        let name = m.name();
+        print!(" {:>12}", &name[..12.min(name.len())]);
+    }
+    println!();
+    for (i, level) in levels.iter().enumerate() {
+        print!("{level:>6} {:>8}", n >> level);
+        for j in 0..modes.len() {
+            print!(" {:>12.3}", timings[i * modes.len() + j].gpu_ms);
+        }
+        println!();
+    }
+}
+
+#[test]
+#[ignore = "diagnostic"]
+fn zz_pass_breakdown() {
+    let Some(ctx) = common::context() else { return };
+    let n = 1u32 << 22;
+    let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<u32>().ok());
+    let cfg = PrimConfig { workgroup_size: env("BENCH_WG").unwrap_or(256), items_per_invocation: env("BENCH_ITEMS").unwrap_or(256) };
+    let seg = SegmentedArgmin::with_segment_workgroup(&ctx, cfg, 8).unwrap();
+    let costs: Vec<f32> = (0..n).map(|i| (i % 1000) as f32).collect();
+    let costs = Buffer::from_slice(&ctx, "d.costs", &costs).unwrap();
+    let offsets = Buffer::from_slice(&ctx, "d.off", &segmented::level_offsets(n, 0)).unwrap();
+    let count = Buffer::from_slice(&ctx, "d.count", &[1u32]).unwrap();
+    let scratch = Buffer::<u32>::new(&ctx, "d.s", seg.scratch_len(n as usize, 1)).unwrap();
+    let out = Buffer::<CostIndex>::new(&ctx, "d.o", 1).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    for _ in 0..8 {
+        for mode in [SegmentedMode::DeviceWide, SegmentedMode::WorkgroupPerSegment] {
+            seg.record(&mut rec, mode, &costs, &offsets, &count, 1, &scratch, &out);
+            rec.compute_to_indirect();
+        }
+    }
+    let profile = rec.submit_and_wait().unwrap();
+    for name in ["prims.segmented_plan", "prims.segmented_tiles", "prims.segmented_segments", "prims.segmented_argmin"] {
+        let v: Vec<String> = profile.passes.iter().filter(|p| p.name == name).filter_map(|p| p.ms).map(|m| format!("{m:.2}")).collect();
+        println!("{name}: {}", v.join(" "));
+    }
+}
