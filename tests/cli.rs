@@ -158,3 +158,25 @@ fn every_example_scene_loads() {
     }
     assert!(count >= 10, "expected the example scenes, found {count}");
 }
+
+#[test]
+fn build_kdtree_reports_and_equals_its_twin() {
+    let house = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/house.obj");
+    let out = vkrt(&["build", house.to_str().unwrap(), "--accel", "kdtree", "--reference", "--json"]);
+    if !out.status.success() && no_gpu_allowed() {
+        return;
+    }
+    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for key in [
+        "primitives", "build_ms", "phases", "levels", "nodes", "leaves", "max_depth", "sah_cost", "references", "bytes",
+        "equal_to_cpu_twin", "cpu_twin_ms", "full_clip_sah_cost", "full_clip_ms",
+    ] {
+        assert!(v.get(key).is_some(), "missing {key} in {v}");
+    }
+    assert_eq!(v["equal_to_cpu_twin"], true);
+    assert!(v["build_ms"].as_f64().unwrap() > 0.0);
+    let out = vkrt(&["build", "--accel", "bvh"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("bvh"));
+}

@@ -8,12 +8,16 @@ mod common;
 
 use vkrt::gpu::{Buffer, Context, Recorder};
 use vkrt::prims::radix_sort::{
-    radix_sort_cpu, radix_sort_f32_cpu, radix_sort_passes_cpu, RadixSort, Ranking, DEFAULT_BITS_PER_PASS,
+    radix_sort_cpu, radix_sort_f32_cpu, radix_sort_passes_cpu, RadixSort, Ranking,
+    DEFAULT_BITS_PER_PASS,
 };
 use vkrt::prims::PrimConfig;
 
 fn configs(ctx: &Context) -> [PrimConfig; 2] {
-    [PrimConfig::single_subgroup(ctx), PrimConfig::default_for(ctx)]
+    [
+        PrimConfig::single_subgroup(ctx),
+        PrimConfig::default_for(ctx),
+    ]
 }
 
 /// The sizes a sort is tested at: the common edge sizes for its tile, and around its
@@ -32,17 +36,29 @@ fn sizes(ctx: &Context, sort: &RadixSort) -> Vec<usize> {
 fn key_inputs(n: usize, rng: &mut common::Rng) -> Vec<(&'static str, Vec<u32>)> {
     vec![
         ("random", (0..n).map(|_| rng.next_u64() as u32).collect()),
-        ("few-distinct", (0..n).map(|_| [7, 0x8000_0000, 0xffff_ffff, 1 << 16][(rng.next_u64() % 4) as usize]).collect()),
+        (
+            "few-distinct",
+            (0..n)
+                .map(|_| [7, 0x8000_0000, 0xffff_ffff, 1 << 16][(rng.next_u64() % 4) as usize])
+                .collect(),
+        ),
         ("all-equal", vec![0x1234_5678; n]),
         ("sorted", (0..n as u32).collect()),
         ("reverse", (0..n as u32).rev().collect()),
-        ("small", (0..n).map(|_| (rng.next_u64() % 1000) as u32).collect()),
+        (
+            "small",
+            (0..n).map(|_| (rng.next_u64() % 1000) as u32).collect(),
+        ),
     ]
 }
 
 /// The stable oracle: `sort_by_key` of (key, value) pairs.
 fn oracle(keys: &[u32], values: &[u32], key_bits: u32) -> (Vec<u32>, Vec<u32>) {
-    let mask = if key_bits == 32 { u32::MAX } else { (1u32 << key_bits) - 1 };
+    let mask = if key_bits == 32 {
+        u32::MAX
+    } else {
+        (1u32 << key_bits) - 1
+    };
     let mut pairs: Vec<(u32, u32)> = keys.iter().copied().zip(values.iter().copied()).collect();
     pairs.sort_by_key(|p| p.0 & mask);
     pairs.into_iter().unzip()
@@ -73,7 +89,14 @@ fn sort_with(ctx: &Context, cfg: PrimConfig, bits: u32, ranking: Ranking) -> Opt
 
 /// Sorts with `record` (by `key_bits`) and checks the result against the CPU twin of the
 /// same digit width and against `sort_by_key` on the masked keys.
-fn check_record(ctx: &Context, sort: &RadixSort, keys: &[u32], values: &[u32], key_bits: u32, case: &str) {
+fn check_record(
+    ctx: &Context,
+    sort: &RadixSort,
+    keys: &[u32],
+    values: &[u32],
+    key_bits: u32,
+    case: &str,
+) {
     let n = keys.len();
     let k = Buffer::from_slice(ctx, "keys", keys).unwrap();
     let v = Buffer::from_slice(ctx, "values", values).unwrap();
@@ -84,9 +107,20 @@ fn check_record(ctx: &Context, sort: &RadixSort, keys: &[u32], values: &[u32], k
     rec.submit_and_wait().unwrap();
     let (gk, gv) = (k.download().unwrap(), v.download().unwrap());
     let cpu = radix_sort_passes_cpu(keys, values, key_bits, sort.bits_per_pass());
-    assert_eq!(first_difference(&gk, &cpu.0), None, "{case}: keys vs CPU twin");
-    assert_eq!(first_difference(&gv, &cpu.1), None, "{case}: values vs CPU twin");
-    assert!(cpu == oracle(keys, values, key_bits), "{case}: CPU twin vs sort_by_key");
+    assert_eq!(
+        first_difference(&gk, &cpu.0),
+        None,
+        "{case}: keys vs CPU twin"
+    );
+    assert_eq!(
+        first_difference(&gv, &cpu.1),
+        None,
+        "{case}: values vs CPU twin"
+    );
+    assert!(
+        cpu == oracle(keys, values, key_bits),
+        "{case}: CPU twin vs sort_by_key"
+    );
 }
 
 #[test]
@@ -96,7 +130,9 @@ fn u32_sort_equals_cpu_twin_and_stable_sort_at_every_edge_size() {
     for cfg in configs(&ctx) {
         let default = RadixSort::new(&ctx, cfg, DEFAULT_BITS_PER_PASS).unwrap();
         for ranking in rankings() {
-            let Some(sort) = sort_with(&ctx, cfg, DEFAULT_BITS_PER_PASS, ranking) else { continue };
+            let Some(sort) = sort_with(&ctx, cfg, DEFAULT_BITS_PER_PASS, ranking) else {
+                continue;
+            };
             for n in sizes(&ctx, &sort) {
                 let big = n > 1 << 20;
                 if big && ranking != default.ranking() {
@@ -104,15 +140,31 @@ fn u32_sort_equals_cpu_twin_and_stable_sort_at_every_edge_size() {
                 }
                 // Values are the input positions: a stable sort keeps them increasing among equal keys.
                 let values: Vec<u32> = (0..n as u32).collect();
-                for (what, keys) in key_inputs(n, &mut rng).into_iter().take(if big { 2 } else { 6 }) {
+                for (what, keys) in
+                    key_inputs(n, &mut rng)
+                        .into_iter()
+                        .take(if big { 2 } else { 6 })
+                {
                     let case = format!("{cfg:?} {ranking:?} n={n} {what}");
                     let (gk, gv) = sort.sort_u32(&ctx, &keys, &values).unwrap();
                     let (ck, cv) = radix_sort_cpu(&keys, &values);
                     assert_eq!(first_difference(&gk, &ck), None, "{case}: keys vs CPU twin");
-                    assert_eq!(first_difference(&gv, &cv), None, "{case}: values vs CPU twin");
+                    assert_eq!(
+                        first_difference(&gv, &cv),
+                        None,
+                        "{case}: values vs CPU twin"
+                    );
                     let (ok, ov) = oracle(&keys, &values, 32);
-                    assert_eq!(first_difference(&ck, &ok), None, "{case}: CPU twin keys vs sort_by_key");
-                    assert_eq!(first_difference(&cv, &ov), None, "{case}: CPU twin values vs sort_by_key");
+                    assert_eq!(
+                        first_difference(&ck, &ok),
+                        None,
+                        "{case}: CPU twin keys vs sort_by_key"
+                    );
+                    assert_eq!(
+                        first_difference(&cv, &ov),
+                        None,
+                        "{case}: CPU twin values vs sort_by_key"
+                    );
                 }
             }
         }
@@ -127,7 +179,9 @@ fn every_digit_width_ranking_and_key_width_equals_cpu_twin() {
     for cfg in configs(&ctx) {
         for ranking in rankings() {
             for bits in 1..=8 {
-                let Some(sort) = sort_with(&ctx, cfg, bits, ranking) else { continue };
+                let Some(sort) = sort_with(&ctx, cfg, bits, ranking) else {
+                    continue;
+                };
                 let tile = sort.tile();
                 for n in [0, 1, 33, tile + 1, 2 * tile + 7] {
                     let values: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
@@ -135,7 +189,8 @@ fn every_digit_width_ranking_and_key_width_equals_cpu_twin() {
                     // Odd and even pass counts (the odd ones end with the copy back), and key
                     // bits above `key_bits` that must be ignored.
                     for key_bits in [32, 17] {
-                        let case = format!("{cfg:?} {ranking:?} bits={bits} key_bits={key_bits} n={n}");
+                        let case =
+                            format!("{cfg:?} {ranking:?} bits={bits} key_bits={key_bits} n={n}");
                         check_record(&ctx, &sort, &keys, &values, key_bits, &case);
                     }
                 }
@@ -151,12 +206,21 @@ fn sorting_by_no_bits_or_one_bit_is_stable() {
     let mut rng = common::Rng(64);
     let cfg = PrimConfig::default_for(&ctx);
     for ranking in rankings() {
-        let Some(sort) = sort_with(&ctx, cfg, DEFAULT_BITS_PER_PASS, ranking) else { continue };
+        let Some(sort) = sort_with(&ctx, cfg, DEFAULT_BITS_PER_PASS, ranking) else {
+            continue;
+        };
         let n = sort.tile() * 3 + 11;
         let keys: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
         let values: Vec<u32> = (0..n as u32).collect();
         for key_bits in [0, 1, 2, 9] {
-            check_record(&ctx, &sort, &keys, &values, key_bits, &format!("{ranking:?} key_bits={key_bits}"));
+            check_record(
+                &ctx,
+                &sort,
+                &keys,
+                &values,
+                key_bits,
+                &format!("{ranking:?} key_bits={key_bits}"),
+            );
         }
     }
     common::assert_silent(&ctx);
@@ -164,7 +228,20 @@ fn sorting_by_no_bits_or_one_bit_is_stable() {
 
 /// f32 keys: random magnitudes from denormal to huge, both zeros, both infinities.
 fn float_keys(n: usize, rng: &mut common::Rng) -> Vec<f32> {
-    let special = [0.0, -0.0, f32::INFINITY, f32::NEG_INFINITY, f32::MIN_POSITIVE, -f32::MIN_POSITIVE, 1e-45, -1e-45, f32::MAX, f32::MIN, 1.0, -1.0];
+    let special = [
+        0.0,
+        -0.0,
+        f32::INFINITY,
+        f32::NEG_INFINITY,
+        f32::MIN_POSITIVE,
+        -f32::MIN_POSITIVE,
+        1e-45,
+        -1e-45,
+        f32::MAX,
+        f32::MIN,
+        1.0,
+        -1.0,
+    ];
     (0..n)
         .map(|_| match rng.next_u64() % 4 {
             0 => special[(rng.next_u64() % special.len() as u64) as usize],
@@ -188,8 +265,13 @@ fn float_keys(n: usize, rng: &mut common::Rng) -> Vec<f32> {
 fn f32_sort_orders_signed_zeros_denormals_and_infinities() {
     let Some(ctx) = common::context() else { return };
     let mut rng = common::Rng(63);
-    for (cfg, ranking) in configs(&ctx).into_iter().flat_map(|c| rankings().map(|r| (c, r))) {
-        let Some(sort) = sort_with(&ctx, cfg, DEFAULT_BITS_PER_PASS, ranking) else { continue };
+    for (cfg, ranking) in configs(&ctx)
+        .into_iter()
+        .flat_map(|c| rankings().map(|r| (c, r)))
+    {
+        let Some(sort) = sort_with(&ctx, cfg, DEFAULT_BITS_PER_PASS, ranking) else {
+            continue;
+        };
         let tile = sort.tile();
         for n in [0, 1, 2, 12, tile - 1, tile + 1, 100_003] {
             let keys = float_keys(n, &mut rng);
@@ -197,23 +279,54 @@ fn f32_sort_orders_signed_zeros_denormals_and_infinities() {
             let (gk, gv) = sort.sort_f32(&ctx, &keys, &values).unwrap();
             let (ck, cv) = radix_sort_f32_cpu(&keys, &values);
             let bits = |v: &[f32]| v.iter().map(|x| x.to_bits()).collect::<Vec<_>>();
-            assert_eq!(first_difference(&bits(&gk), &bits(&ck)), None, "{cfg:?} {ranking:?} n={n}: keys vs CPU twin");
-            assert_eq!(first_difference(&gv, &cv), None, "{cfg:?} {ranking:?} n={n}: values vs CPU twin");
+            assert_eq!(
+                first_difference(&bits(&gk), &bits(&ck)),
+                None,
+                "{cfg:?} {ranking:?} n={n}: keys vs CPU twin"
+            );
+            assert_eq!(
+                first_difference(&gv, &cv),
+                None,
+                "{cfg:?} {ranking:?} n={n}: values vs CPU twin"
+            );
             // The oracle: a stable sort by total_cmp, which orders -0.0 before +0.0 too.
-            let mut pairs: Vec<(f32, u32)> = keys.iter().copied().zip(values.iter().copied()).collect();
+            let mut pairs: Vec<(f32, u32)> =
+                keys.iter().copied().zip(values.iter().copied()).collect();
             pairs.sort_by(|a, b| a.0.total_cmp(&b.0));
             let (ok, ov): (Vec<f32>, Vec<u32>) = pairs.into_iter().unzip();
-            assert_eq!(first_difference(&bits(&ck), &bits(&ok)), None, "{cfg:?} n={n}: CPU twin vs total_cmp");
-            assert_eq!(first_difference(&cv, &ov), None, "{cfg:?} n={n}: CPU twin values vs total_cmp");
-            assert!(gk.windows(2).all(|w| w[0] <= w[1]), "{cfg:?} n={n}: not in float order");
+            assert_eq!(
+                first_difference(&bits(&ck), &bits(&ok)),
+                None,
+                "{cfg:?} n={n}: CPU twin vs total_cmp"
+            );
+            assert_eq!(
+                first_difference(&cv, &ov),
+                None,
+                "{cfg:?} n={n}: CPU twin values vs total_cmp"
+            );
+            assert!(
+                gk.windows(2).all(|w| w[0] <= w[1]),
+                "{cfg:?} n={n}: not in float order"
+            );
         }
     }
     // Signed zeros: every -0.0 before every +0.0, each side in input order.
     let sort = RadixSort::new(&ctx, PrimConfig::default_for(&ctx), DEFAULT_BITS_PER_PASS).unwrap();
-    let keys = [0.0, -0.0, 0.0, -0.0, f32::INFINITY, -1e-45, f32::NEG_INFINITY];
+    let keys = [
+        0.0,
+        -0.0,
+        0.0,
+        -0.0,
+        f32::INFINITY,
+        -1e-45,
+        f32::NEG_INFINITY,
+    ];
     let (gk, gv) = sort.sort_f32(&ctx, &keys, &[0, 1, 2, 3, 4, 5, 6]).unwrap();
     assert_eq!(gv, [6, 5, 1, 3, 0, 2, 4]);
-    assert_eq!(gk.iter().map(|x| x.to_bits()).collect::<Vec<_>>()[2..6], [0x8000_0000, 0x8000_0000, 0, 0]);
+    assert_eq!(
+        gk.iter().map(|x| x.to_bits()).collect::<Vec<_>>()[2..6],
+        [0x8000_0000, 0x8000_0000, 0, 0]
+    );
     common::assert_silent(&ctx);
 }
 
@@ -221,7 +334,9 @@ fn f32_sort_orders_signed_zeros_denormals_and_infinities() {
 fn nan_keys_are_an_error() {
     let Some(ctx) = common::context() else { return };
     let sort = RadixSort::new(&ctx, PrimConfig::default_for(&ctx), DEFAULT_BITS_PER_PASS).unwrap();
-    let err = sort.sort_f32(&ctx, &[1.0, f32::NAN, 0.0], &[0, 1, 2]).unwrap_err();
+    let err = sort
+        .sort_f32(&ctx, &[1.0, f32::NAN, 0.0], &[0, 1, 2])
+        .unwrap_err();
     assert!(err.to_string().contains("key 1 is NaN"), "{err}");
     common::assert_silent(&ctx);
 }
@@ -230,7 +345,10 @@ fn nan_keys_are_an_error() {
 fn unsupported_digit_widths_are_an_error() {
     let Some(ctx) = common::context() else { return };
     for bits in [0, 9, 32] {
-        assert!(RadixSort::new(&ctx, PrimConfig::default_for(&ctx), bits).is_err(), "{bits} bits");
+        assert!(
+            RadixSort::new(&ctx, PrimConfig::default_for(&ctx), bits).is_err(),
+            "{bits} bits"
+        );
     }
     common::assert_silent(&ctx);
 }
@@ -247,7 +365,11 @@ fn bench_digit_widths() {
         // Keys and values read and written once: what one pass at least moves.
         let (baselines, _) = vkrt::bench::copy_baselines(&ctx, 8 * n as u64, reps).unwrap();
         let copy_kernel = baselines.best_kernel().map_or(f64::NAN, |r| r.gpu_ms);
-        let copy = baselines.results.iter().find(|r| r.method == "vkCmdCopyBuffer").map_or(f64::NAN, |r| r.gpu_ms);
+        let copy = baselines
+            .results
+            .iter()
+            .find(|r| r.method == "vkCmdCopyBuffer")
+            .map_or(f64::NAN, |r| r.gpu_ms);
         println!("n = {n}: vkCmdCopyBuffer {copy:.1} ms, best copy kernel {copy_kernel:.1} ms per 8n bytes (one pass of keys+values)");
         for t in timings {
             let passes = t.min_bytes as f64 / (16.0 * n as f64);

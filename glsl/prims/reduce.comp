@@ -180,8 +180,8 @@ void main() {
     // ones; the partial one (if any) is the tile's last, added after them, and padding after
     // it would add identities: the order is the twin's.
     const uint run = min(REDUCE_RUN, gl_WorkGroupSize.x);
-    uint chunk = group * tile4 + (lane / run) * (run * items4);
-    uint begin = chunk + lane % run;
+    uint chunk = group * tile4 + gl_SubgroupID * (run * items4);
+    uint begin = chunk + gl_SubgroupInvocationID;
     uint whole = pc.n / 4u;
     uint end = min(chunk + run * items4, whole);
     bool partial = (pc.n & 3u) != 0u && whole >= begin && whole < chunk + run * items4

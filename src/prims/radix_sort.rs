@@ -14,24 +14,37 @@
 //! (lavapipe runs a thread's workgroups one after another, so a single-pass "Onesweep" with
 //! decoupled look-back could hang); the price is that every pass reads the keys twice.
 //!
-//! **Stable ranking** (`glsl/prims/radix_scatter.comp`): each subgroup walks a contiguous
-//! chunk of the tile in rounds of one element per lane. In a round, the lanes holding the
-//! same digit find each other with one ballot per digit bit (the warp-level "match" of
-//! Onesweep and of multisplit); a lane's rank is the number of its peers on lower lanes plus
-//! the subgroup's running count of that digit in shared memory, which the round's last peer
-//! then advances. With several subgroups per workgroup, a first walk counts each chunk's
-//! digits and the counts are scanned per digit in subgroup order, so each chunk's elements
-//! land after those of the chunks before it. Nothing depends on timing or on the subgroup
-//! size: the output is a function of the input alone, and equal to the CPU twin's.
+//! **Stable ranking** (`glsl/prims/radix_scatter.comp`), two variants ([`Ranking`]); in both
+//! the output is a function of the input alone — not of timing, schedule or subgroup size —
+//! and equal to the CPU twin's:
 //!
-//! **Tiles.** The scatter keeps `(workgroup / 4) × 2^bits` running counts in shared memory,
-//! so its workgroup is `cfg.workgroup_size` capped to fit half the device's shared memory
-//! (64 invocations for 8-bit digits on lavapipe's 32 KiB). A tile is that workgroup times
-//! `max(cfg.items_per_invocation, 16 × 2^bits / workgroup)` elements: at least
-//! 16 × 2^bits, so the count table (2^bits rows of n / tile) stays under n / 16 entries and
-//! its scan stays cheap. The histogram runs with `cfg.workgroup_size` over the same tiles.
-//! A tile whose keys all have the same digit in a pass (sorted runs, the zero top bits of
-//! small keys) skips the ranking and moves as one contiguous run.
+//! - `Counters`: each invocation owns a contiguous run of the tile and counts its digits in
+//!   its own column of shared counters `ctr[digit][invocation]`; one exclusive scan of the
+//!   counters in digit-major order gives each (digit, invocation) the tile position of its
+//!   first element, and a second walk over the run hands positions out in order (the
+//!   counting approach of CUB's block radix rank). Per element: a few fixed shared-memory
+//!   accesses and 16-byte loads, no subgroup operations; but 2^bits × workgroup counters,
+//!   so 8-bit digits get 16-invocation workgroups (32 KiB of shared memory).
+//! - `Match`: each subgroup walks a contiguous chunk in rounds of one element per lane; the
+//!   lanes holding the same digit find each other with one ballot per digit bit (the
+//!   warp-level "match" of Onesweep and multisplit); a lane's rank is its peers on lower
+//!   lanes plus the subgroup's running count of that digit, which the round's last peer
+//!   advances. Several subgroups first count their chunks, and the counts are scanned per
+//!   digit in subgroup order. (workgroup / 4) × 2^bits words of shared memory.
+//!
+//! On lavapipe every ballot and every lane-varying memory access is a loop over the lanes,
+//! which is what `Counters` saves: it measured 1.2–1.7× faster there (table below). On GPUs
+//! ballots are single instructions; [`Ranking::preferred`] picks by device type and
+//! [`RadixSort::with_ranking`] overrides.
+//!
+//! **Tiles.** The scatter's workgroup is `cfg.workgroup_size`, halved until the ranking's
+//! shared memory fits the device. A tile is that workgroup times
+//! `max(cfg.items_per_invocation, min_tile / workgroup)` elements with
+//! `min_tile = max(8192, 32 × 2^bits)`: the count table (2^bits rows of n / tile) stays
+//! under n / 32 entries, and per-tile work (zeroing and scanning counters) stays small per
+//! element. The histogram runs with `cfg.workgroup_size` over the same tiles. A tile whose
+//! keys all have the same digit in a pass (sorted runs, the zero top bits of small keys)
+//! skips the ranking and moves as one contiguous run.
 //!
 //! **Keys.** `key_bits` says how many low key bits to sort by; higher bits are carried
 //! along and ignored (Morton codes: 30). f32 keys are sorted through the order-preserving
@@ -55,7 +68,9 @@ use bytemuck::{Pod, Zeroable};
 
 use super::scan::{Scan, ScanInput, ScanOp, ScanScratch};
 use super::{PrimConfig, PrimTiming};
-use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, ShaderBlob, Spec};
+use crate::gpu::{
+    kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, ShaderBlob, Spec,
+};
 
 /// The measured default digit width (see the table in the module docs).
 pub const DEFAULT_BITS_PER_PASS: u32 = 8;
@@ -177,10 +192,20 @@ impl RadixSort {
 
     /// A sort with the given ranking; an error if its shared memory cannot fit with at
     /// least one subgroup per workgroup.
-    pub fn with_ranking(ctx: &Context, cfg: PrimConfig, bits_per_pass: u32, ranking: Ranking) -> Result<Self> {
-        let err = |reason: String| GpuError::Kernel { kernel: "prims.radix_sort", reason };
+    pub fn with_ranking(
+        ctx: &Context,
+        cfg: PrimConfig,
+        bits_per_pass: u32,
+        ranking: Ranking,
+    ) -> Result<Self> {
+        let err = |reason: String| GpuError::Kernel {
+            kernel: "prims.radix_sort",
+            reason,
+        };
         if !BITS_RANGE.contains(&bits_per_pass) {
-            return Err(err(format!("{bits_per_pass} bits per pass; the kernels take {BITS_RANGE:?}")));
+            return Err(err(format!(
+                "{bits_per_pass} bits per pass; the kernels take {BITS_RANGE:?}"
+            )));
         }
         let info = ctx.info();
         let lanes = info.max_subgroup_size.max(info.subgroup_size);
@@ -192,7 +217,9 @@ impl RadixSort {
         }
         let radix = 1u32 << bits_per_pass;
         let mut scatter_workgroup = wg;
-        while ranking.shared_bytes(scatter_workgroup, radix) > info.max_shared_memory && scatter_workgroup > lanes {
+        while ranking.shared_bytes(scatter_workgroup, radix) > info.max_shared_memory
+            && scatter_workgroup > lanes
+        {
             scatter_workgroup /= 2;
         }
         if ranking.shared_bytes(scatter_workgroup, radix) > info.max_shared_memory {
@@ -203,8 +230,10 @@ impl RadixSort {
             )));
         }
         let min_tile = MIN_TILE.max(MIN_TILE_PER_DIGIT * radix);
-        let mut per_invocation =
-            cfg.items_per_invocation.max(min_tile.div_ceil(scatter_workgroup)).max(1);
+        let mut per_invocation = cfg
+            .items_per_invocation
+            .max(min_tile.div_ceil(scatter_workgroup))
+            .max(1);
         if ranking == Ranking::Counters {
             per_invocation = per_invocation.next_multiple_of(4); // runs load 16 bytes at a time
         }
@@ -304,10 +333,17 @@ impl RadixSort {
             n <= keys && n <= values,
             "radix sort of {n} elements with {keys} keys and {values} values"
         );
-        assert!(n <= scratch.max_n, "radix sort of {n} elements with scratch sized for {}", scratch.max_n);
+        assert!(
+            n <= scratch.max_n,
+            "radix sort of {n} elements with scratch sized for {}",
+            scratch.max_n
+        );
     }
 
-    #[allow(clippy::too_many_arguments, reason = "record's arguments plus the key kind")]
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "record's arguments plus the key kind"
+    )]
     fn record_passes(
         &self,
         rec: &mut Recorder,
@@ -341,16 +377,34 @@ impl RadixSort {
                 if kind == KeyKind::F32 && pass == passes - 1 {
                     flags |= UNFLIP_OUT;
                 }
-                let push = PassPush { n: n as u32, blocks: blocks as u32, shift, digits, flags };
+                let push = PassPush {
+                    n: n as u32,
+                    blocks: blocks as u32,
+                    shift,
+                    digits,
+                    flags,
+                };
                 if pass > 0 {
                     rec.compute_to_compute();
                 }
                 rec.scope("prims.radix_histogram", |rec| {
-                    rec.dispatch(&self.histogram, groups, &[src[0], src[0], &scratch.counts], &push);
+                    rec.dispatch(
+                        &self.histogram,
+                        groups,
+                        &[src[0], src[0], &scratch.counts],
+                        &push,
+                    );
                 });
                 rec.compute_to_compute();
                 let table = digits as usize * blocks;
-                self.scan.record(rec, &scratch.counts, &scratch.offsets, table, ScanOp::Exclusive, &scratch.scan);
+                self.scan.record(
+                    rec,
+                    &scratch.counts,
+                    &scratch.offsets,
+                    table,
+                    ScanOp::Exclusive,
+                    &scratch.scan,
+                );
                 rec.compute_to_compute();
                 rec.scope("prims.radix_scatter", |rec| {
                     // Binding numbers of glsl/prims/radix_scatter.comp; a variant binds a subset.
@@ -376,14 +430,24 @@ impl RadixSort {
                 let (k, v): (&dyn BufferArg, &dyn BufferArg) = (&scratch.keys, &scratch.values);
                 let copy_groups = rec.groups_1d(n.div_ceil(4) as u64, self.copy.invocations());
                 rec.scope("prims.radix_copy", |rec| {
-                    rec.dispatch(&self.copy, copy_groups, &[k, k, v, v, keys, keys, values, values], &(n as u32));
+                    rec.dispatch(
+                        &self.copy,
+                        copy_groups,
+                        &[k, k, v, v, keys, keys, values, values],
+                        &(n as u32),
+                    );
                 });
             }
         });
     }
 
     /// Convenience: sorts `keys` (all 32 bits) and their `values` on the GPU, stably.
-    pub fn sort_u32(&self, ctx: &Context, keys: &[u32], values: &[u32]) -> Result<(Vec<u32>, Vec<u32>)> {
+    pub fn sort_u32(
+        &self,
+        ctx: &Context,
+        keys: &[u32],
+        values: &[u32],
+    ) -> Result<(Vec<u32>, Vec<u32>)> {
         assert_eq!(keys.len(), values.len(), "one value per key");
         let n = keys.len();
         let key_buf = Buffer::from_slice(ctx, "prims.radix_sort.in_keys", keys)?;
@@ -398,7 +462,12 @@ impl RadixSort {
 
     /// Convenience: sorts f32 `keys` and their `values` on the GPU, stably, in float order
     /// with -0.0 before +0.0. A NaN key is an error.
-    pub fn sort_f32(&self, ctx: &Context, keys: &[f32], values: &[u32]) -> Result<(Vec<f32>, Vec<u32>)> {
+    pub fn sort_f32(
+        &self,
+        ctx: &Context,
+        keys: &[f32],
+        values: &[u32],
+    ) -> Result<(Vec<f32>, Vec<u32>)> {
         assert_eq!(keys.len(), values.len(), "one value per key");
         check_no_nan(keys)?;
         let n = keys.len();
@@ -453,7 +522,12 @@ pub fn radix_sort_f32_cpu(keys: &[f32], values: &[u32]) -> (Vec<f32>, Vec<u32>) 
 /// the lowest, the last pass cut at `key_bits`), each a histogram, an exclusive scan of it
 /// and a stable scatter. Tiles are not simulated: they do not change the output.
 #[allow(clippy::needless_range_loop, reason = "reads like the kernels")]
-pub fn radix_sort_passes_cpu(keys: &[u32], values: &[u32], key_bits: u32, bits_per_pass: u32) -> (Vec<u32>, Vec<u32>) {
+pub fn radix_sort_passes_cpu(
+    keys: &[u32],
+    values: &[u32],
+    key_bits: u32,
+    bits_per_pass: u32,
+) -> (Vec<u32>, Vec<u32>) {
     assert_eq!(keys.len(), values.len(), "one value per key");
     assert!(key_bits <= 32 && BITS_RANGE.contains(&bits_per_pass));
     let n = keys.len();
@@ -527,11 +601,18 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
         let other = sort.ranking().other();
         variants.push((format!("radix_sort_kv_u32.bits{bits}"), sort, KeyKind::U32));
         if let Ok(sort) = RadixSort::with_ranking(ctx, cfg, bits, other) {
-            let name = format!("radix_sort_kv_u32.bits{bits}.{}", format!("{other:?}").to_lowercase());
+            let name = format!(
+                "radix_sort_kv_u32.bits{bits}.{}",
+                format!("{other:?}").to_lowercase()
+            );
             variants.push((name, sort, KeyKind::U32));
         }
     }
-    variants.push(("radix_sort_kv_f32".into(), RadixSort::new(ctx, cfg, DEFAULT_BITS_PER_PASS)?, KeyKind::F32));
+    variants.push((
+        "radix_sort_kv_f32".into(),
+        RadixSort::new(ctx, cfg, DEFAULT_BITS_PER_PASS)?,
+        KeyKind::F32,
+    ));
 
     let key_src = Buffer::from_slice(ctx, "bench.radix.keys_src", &keys)?;
     let float_src = Buffer::from_slice(ctx, "bench.radix.floats_src", &floats)?;
@@ -539,7 +620,10 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
     let key_buf = Buffer::<u32>::new(ctx, "bench.radix.keys", n)?;
     let float_buf = Buffer::<f32>::new(ctx, "bench.radix.floats", n)?;
     let value_buf = Buffer::<u32>::new(ctx, "bench.radix.values", n)?;
-    let scratches = variants.iter().map(|(_, s, _)| s.scratch(ctx, n)).collect::<Result<Vec<_>>>()?;
+    let scratches = variants
+        .iter()
+        .map(|(_, s, _)| s.scratch(ctx, n))
+        .collect::<Result<Vec<_>>>()?;
     let mut timings = Vec::new();
     for ((name, sort, kind), scratch) in variants.iter().zip(&scratches) {
         // One submission per variant: lavapipe's timestamps are per command buffer anyway,
@@ -553,7 +637,11 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
             }
             rec.copy(&value_src, &value_buf, n);
             rec.transfer_to_compute();
-            let label = if rep == 0 { format!("warmup.{name}") } else { name.clone() };
+            let label = if rep == 0 {
+                format!("warmup.{name}")
+            } else {
+                name.clone()
+            };
             rec.scope(&label, |rec| match kind {
                 KeyKind::U32 => sort.record(rec, &key_buf, &value_buf, n, 32, scratch),
                 KeyKind::F32 => sort.record_f32(rec, &float_buf, &value_buf, n, scratch),
@@ -570,9 +658,14 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
     }
 
     // The default width is one of the measured ones: report it under the plain name too.
-    let default = timings.iter().find(|t| t.prim == format!("radix_sort_kv_u32.bits{DEFAULT_BITS_PER_PASS}"));
+    let default = timings
+        .iter()
+        .find(|t| t.prim == format!("radix_sort_kv_u32.bits{DEFAULT_BITS_PER_PASS}"));
     if let Some(t) = default.cloned() {
-        timings.push(PrimTiming { prim: "radix_sort_kv_u32".into(), ..t });
+        timings.push(PrimTiming {
+            prim: "radix_sort_kv_u32".into(),
+            ..t
+        });
     }
 
     let pairs: Vec<(u32, u32)> = keys.iter().copied().zip(values.iter().copied()).collect();
@@ -584,10 +677,20 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
         best = best.min(t.elapsed().as_secs_f64() * 1e3);
         std::hint::black_box(&work);
     }
-    timings.push(PrimTiming { prim: "cpu_sort_unstable_by_key".into(), n: n as u64, gpu_ms: best, min_bytes: 16 * n as u64 });
+    timings.push(PrimTiming {
+        prim: "cpu_sort_unstable_by_key".into(),
+        n: n as u64,
+        gpu_ms: best,
+        min_bytes: 16 * n as u64,
+    });
     Ok(timings)
 }
 
 fn best_ms(profile: &crate::gpu::Profile, name: &str) -> f64 {
-    profile.passes.iter().filter(|p| p.name == name).filter_map(|p| p.ms).fold(f64::INFINITY, f64::min)
+    profile
+        .passes
+        .iter()
+        .filter(|p| p.name == name)
+        .filter_map(|p| p.ms)
+        .fold(f64::INFINITY, f64::min)
 }

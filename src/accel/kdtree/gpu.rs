@@ -142,6 +142,8 @@ pub struct BuildResult {
     /// 1 unless a capacity overflowed and the build was retried larger.
     pub attempts: u32,
     pub capacity: BuildCapacity,
+    /// Levels that had nodes.
+    pub levels: u32,
 }
 
 /// The state read back after a build.
@@ -639,7 +641,7 @@ impl KdTreeBuilder {
         let bounds = super::seed001::bounds_of(&triangles.iter().map(super::seed001::prim_box).collect::<Vec<_>>());
         if n == 0 {
             let tree = KdTree { nodes: vec![KdNode::leaf(0, 0)], prim_refs: Vec::new(), bounds: Aabb::EMPTY, primitives: 0 };
-            return Ok(BuildResult { tree, profile: Profile::default(), attempts: 0, capacity });
+            return Ok(BuildResult { tree, profile: Profile::default(), attempts: 0, capacity, levels: 1 });
         }
         let flat: Vec<f32> = triangles.iter().flat_map(|t| t.iter().flat_map(|p| p.to_array())).collect();
         let tris = Buffer::from_slice(ctx, "kdtree.triangles", &flat)?;
@@ -661,7 +663,7 @@ impl KdTreeBuilder {
             let mut prim_refs = out.prim_refs.download()?;
             prim_refs.truncate(outcome.refs as usize);
             let tree = KdTree { nodes, prim_refs, bounds, primitives: n as u32 };
-            return Ok(BuildResult { tree, profile, attempts: attempt, capacity });
+            return Ok(BuildResult { tree, profile, attempts: attempt, capacity, levels: outcome.levels });
         }
         Err(GpuError::Kernel {
             kernel: "accel.kdtree",
