@@ -215,3 +215,77 @@ pub fn prims_report(ctx: &Context, sizes: &[usize], reps: u32, only: Option<&str
     }
     Ok(PrimsReport { device: ctx.info().device.clone(), subgroup_size: ctx.info().subgroup_size, results })
 }
+
+/// One row of `vkrt bench kdtree`.
+#[derive(Clone, Debug, Serialize)]
+pub struct KdBenchRow {
+    pub scene: String,
+    pub primitives: u32,
+    /// How the best split of every node was found.
+    pub best_split: String,
+    pub build_ms: f64,
+    pub phases: std::collections::BTreeMap<String, f64>,
+    pub nodes: u32,
+    pub sah_cost: f64,
+}
+
+/// `vkrt bench kdtree --json`.
+#[derive(Clone, Debug, Serialize)]
+pub struct KdBenchReport {
+    pub device: String,
+    pub rows: Vec<KdBenchRow>,
+    /// Least-squares slope of log(build_ms) over log(N) for the hybrid builds of the
+    /// icospheres: O(N log N) shows as slightly above 1.
+    pub fitted_exponent: Option<f64>,
+}
+
+/// Builds each scene with the hybrid segmented argmin and (with `ablation`) with one
+/// workgroup per segment only — seed 001's Table 6.2 "hybrid reduction" row.
+pub fn kdtree_report(
+    ctx: &Context,
+    scenes: &[(String, Vec<[glam::Vec3; 3]>)],
+    ablation: bool,
+) -> Result<KdBenchReport> {
+    use crate::accel::kdtree::{gpu::KdTreeBuilder, report::PHASES, stats, SahParams};
+    use crate::prims::segmented::SegmentedMode;
+    let params = SahParams::default();
+    let mut builder = KdTreeBuilder::new(ctx)?;
+    let hybrid = builder.segmented_mode;
+    let mut rows = Vec::new();
+    for (name, tris) in scenes {
+        let modes: &[(SegmentedMode, &str)] = if ablation {
+            &[(hybrid, "hybrid"), (SegmentedMode::WorkgroupPerSegment, "workgroup_per_segment")]
+        } else {
+            &[(hybrid, "hybrid")]
+        };
+        for &(mode, label) in modes {
+            builder.segmented_mode = mode;
+            let (tree, profile) = builder.build(ctx, tris, &params)?;
+            let ms = |p: &str| profile.ms(p).unwrap_or(0.0);
+            let s = stats::stats(&tree, &params);
+            rows.push(KdBenchRow {
+                scene: name.clone(),
+                primitives: tris.len() as u32,
+                best_split: label.to_string(),
+                build_ms: ms("kdtree.phase1") + ms("kdtree.phase2"),
+                phases: PHASES.iter().map(|p| (p.trim_start_matches("kdtree.").to_string(), ms(p))).collect(),
+                nodes: s.nodes,
+                sah_cost: s.sah_cost,
+            });
+        }
+    }
+    let points: Vec<(f64, f64)> = rows
+        .iter()
+        .filter(|r| r.best_split == "hybrid" && r.scene.starts_with("icosphere"))
+        .map(|r| ((r.primitives as f64).ln(), r.build_ms.ln()))
+        .collect();
+    let fitted_exponent = (points.len() >= 2).then(|| {
+        let n = points.len() as f64;
+        let (sx, sy) = points.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0, a.1 + p.1));
+        let (mx, my) = (sx / n, sy / n);
+        let num: f64 = points.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+        let den: f64 = points.iter().map(|p| (p.0 - mx).powi(2)).sum();
+        num / den
+    });
+    Ok(KdBenchReport { device: ctx.info().device.clone(), rows, fitted_exponent })
+}

@@ -77,6 +77,24 @@ enum BenchCommand {
         #[arg(long)]
         profile: Option<PathBuf>,
     },
+    /// GPU kd-tree build time against N (the bunny when ../shared is present, icospheres),
+    /// per phase, with the hybrid-reduction ablation and the fitted growth exponent.
+    Kdtree {
+        /// Largest icosphere (triangles).
+        #[arg(long, default_value_t = 400_000)]
+        max_n: u64,
+        /// Also build with one workgroup per segment (no hybrid reduction).
+        #[arg(long)]
+        ablation: bool,
+        /// Mesh to include (default: ../shared/scenes/stanford-bunny.obj when present).
+        #[arg(long)]
+        mesh: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
+        /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
+        #[arg(long)]
+        profile: Option<PathBuf>,
+    },
     /// Every GPU primitive against the copy baselines of the same bytes, n = 2^16 .. max-n.
     Prims {
         /// Largest n (rounded down to a power of two).
@@ -312,6 +330,62 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     if !eq {
                         return Err("the GPU tree differs from its CPU twin".into());
                     }
+                }
+            }
+        }
+        Command::Bench { what: BenchCommand::Kdtree { max_n, ablation, mesh, json, profile } } => {
+            let mut scenes = Vec::new();
+            let bunny = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
+            if let Some(path) = mesh.or_else(|| bunny.exists().then_some(bunny)) {
+                let scene = vkrt::scene::Scene::load(&path)?.scene;
+                let name = path.file_stem().map_or("mesh".into(), |s| s.to_string_lossy().into_owned());
+                scenes.push((name, scene.triangles_world(0.0)));
+            }
+            for sub in 1..=10u32 {
+                let tris = 20u64 * 4u64.pow(sub);
+                if tris > max_n {
+                    break;
+                }
+                if tris >= 5_000 {
+                    let mesh = vkrt::scene::gen::icosphere(sub)?;
+                    let t = mesh
+                        .indices
+                        .iter()
+                        .map(|i| [mesh.positions[i[0] as usize], mesh.positions[i[1] as usize], mesh.positions[i[2] as usize]])
+                        .collect();
+                    scenes.push((format!("icosphere{sub}"), t));
+                }
+            }
+            let ctx = context(cli.validate)?;
+            let (report, trace) = vkrt::gpu::capture_profiles(|| vkrt::bench::kdtree_report(&ctx, &scenes, ablation));
+            let report = report?;
+            write_profile(&profile, &trace)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&report)?);
+            } else {
+                println!("{}", report.device);
+                println!(
+                    "{:<12} {:>9} {:<22} {:>10} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8}",
+                    "scene", "tris", "best split", "build ms", "phase1", "costs", "argmin", "nodes", "clip", "SAH"
+                );
+                for r in &report.rows {
+                    let p = |k: &str| r.phases.get(k).copied().unwrap_or(0.0);
+                    println!(
+                        "{:<12} {:>9} {:<22} {:>10.1} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>8.2}",
+                        r.scene,
+                        r.primitives,
+                        r.best_split,
+                        r.build_ms,
+                        p("phase1"),
+                        p("split_costs"),
+                        p("best_split"),
+                        p("nodes"),
+                        p("clip_partition"),
+                        r.sah_cost
+                    );
+                }
+                if let Some(e) = report.fitted_exponent {
+                    println!("fitted exponent of build time over N (icospheres): {e:.3}");
                 }
             }
         }
