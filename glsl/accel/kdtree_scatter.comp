@@ -37,34 +37,39 @@ void main() {
     uint first = node_range[2u * node];
     uint count = node_range[2u * node + 1u];
     float p = uintBitsToFloat(node_split[2u * node + 1u]);
-    float b[6];
-    for (uint k = 0u; k < 6u; k++) {
-        b[k] = box[k * pc.stride + id];
-    }
-    bool below = b[3u + s] <= p;
-    bool above = !below && b[s] >= p;
+    uint st = pc.stride;
+    // Six scalars, no private array: dynamic indexing of one spills to memory on lavapipe.
+    float mnx = box[id], mny = box[st + id], mnz = box[2u * st + id];
+    float mxx = box[3u * st + id], mxy = box[4u * st + id], mxz = box[5u * st + id];
+    float lo = s == 0u ? mnx : (s == 1u ? mny : mnz);
+    float hi = s == 0u ? mxx : (s == 1u ? mxy : mxz);
+    bool below = hi <= p;
+    bool above = !below && lo >= p;
     bool both = !below && !above;
     uint v = id + 2u * first;
+    float pl = plane[id];
+    uint k = kind_of(kind_words[id / 4u], id);
+    uint pr = prim[id];
+    uint child = 2u * inner_before[node];
     for (uint side = 0u; side < 2u; side++) {
         if (!(side == 0u ? (below || both) : (above || both))) {
             continue;
         }
         uint o = offsets[v + side * 2u * count];
-        if (o >= pc.stride) {
+        if (o >= st) {
             continue; // past capacity: kdtree_advance raises the overflow flag
         }
-        out_plane[o] = plane[id];
-        out_kind[o] = uint8_t(kind_of(kind_words[id / 4u], id));
-        out_prim[o] = prim[id];
-        out_node[o] = 2u * inner_before[node] + side;
-        for (uint k = 0u; k < 6u; k++) {
-            float x = b[k];
-            if (side == 0u && k == 3u + s) {
-                x = fmin_total(x, p);
-            } else if (side == 1u && k == s) {
-                x = fmax_total(x, p);
-            }
-            out_box[k * pc.stride + o] = x;
-        }
+        out_plane[o] = pl;
+        out_kind[o] = uint8_t(k);
+        out_prim[o] = pr;
+        out_node[o] = child + side;
+        // Clip on the split axis only: the below copy's max, the above copy's min.
+        bool up = side == 1u;
+        out_box[o] = (up && s == 0u) ? fmax_total(mnx, p) : mnx;
+        out_box[st + o] = (up && s == 1u) ? fmax_total(mny, p) : mny;
+        out_box[2u * st + o] = (up && s == 2u) ? fmax_total(mnz, p) : mnz;
+        out_box[3u * st + o] = (!up && s == 0u) ? fmin_total(mxx, p) : mxx;
+        out_box[4u * st + o] = (!up && s == 1u) ? fmin_total(mxy, p) : mxy;
+        out_box[5u * st + o] = (!up && s == 2u) ? fmin_total(mxz, p) : mxz;
     }
 }
