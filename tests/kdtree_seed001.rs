@@ -7,24 +7,27 @@ use glam::Vec3;
 use vkrt::accel::kdtree::{seed001, KdNode, KdTree, SahParams};
 use vkrt::scene::gen;
 
-fn mesh_triangles(mesh: &vkrt::scene::Mesh) -> Vec<[Vec3; 3]> {
-    mesh.indices
-        .iter()
-        .map(|t| [mesh.positions[t[0] as usize], mesh.positions[t[1] as usize], mesh.positions[t[2] as usize]])
-        .collect()
-}
-
 /// Depth of every node, checking the BFS layout on the way.
 fn depths(tree: &KdTree) -> Vec<u32> {
     let mut depth = vec![u32::MAX; tree.nodes.len()];
     depth[0] = 0;
     for (i, node) in tree.nodes.iter().enumerate() {
-        assert_ne!(depth[i], u32::MAX, "node {i} is not reachable from the root");
+        assert_ne!(
+            depth[i],
+            u32::MAX,
+            "node {i} is not reachable from the root"
+        );
         if node.is_leaf() {
-            assert!((node.a + node.b) as usize <= tree.prim_refs.len(), "leaf {i} range out of prim_refs");
+            assert!(
+                (node.a + node.b) as usize <= tree.prim_refs.len(),
+                "leaf {i} range out of prim_refs"
+            );
         } else {
             let c = node.a as usize;
-            assert!(c > i && c + 1 < tree.nodes.len(), "children of {i} must follow it: {node:?}");
+            assert!(
+                c > i && c + 1 < tree.nodes.len(),
+                "children of {i} must follow it: {node:?}"
+            );
             assert!(node.kind < 3);
             for child in [c, c + 1] {
                 assert_eq!(depth[child], u32::MAX, "node {child} has two parents");
@@ -32,7 +35,10 @@ fn depths(tree: &KdTree) -> Vec<u32> {
             }
         }
     }
-    assert!(depth.windows(2).all(|w| w[0] <= w[1]), "not in breadth-first order");
+    assert!(
+        depth.windows(2).all(|w| w[0] <= w[1]),
+        "not in breadth-first order"
+    );
     depth
 }
 
@@ -78,7 +84,10 @@ fn assert_covers(tree: &KdTree, tris: &[[Vec3; 3]]) {
                 let n = tree.nodes[l];
                 tree.prim_refs[n.a as usize..(n.a + n.b) as usize].contains(&(id as u32))
             });
-            assert!(referenced || leaves.is_empty(), "triangle {id} at {p} is in none of the leaves {leaves:?}");
+            assert!(
+                referenced || leaves.is_empty(),
+                "triangle {id} at {p} is in none of the leaves {leaves:?}"
+            );
         }
     }
 }
@@ -89,8 +98,14 @@ fn check(name: &str, tris: &[[Vec3; 3]], params: &SahParams) -> KdTree {
     let ms = start.elapsed().as_secs_f64() * 1e3;
     let d = depths(&tree);
     let max_depth = d.iter().copied().max().unwrap_or(0);
-    assert!(max_depth <= params.depth_limit(tris.len()), "{name}: depth {max_depth} over the limit");
-    assert!(tree.prim_refs.iter().all(|&r| (r as usize) < tris.len()), "{name}: reference out of range");
+    assert!(
+        max_depth <= params.depth_limit(tris.len()),
+        "{name}: depth {max_depth} over the limit"
+    );
+    assert!(
+        tree.prim_refs.iter().all(|&r| (r as usize) < tris.len()),
+        "{name}: reference out of range"
+    );
     let mut seen = vec![false; tris.len()];
     for &r in &tree.prim_refs {
         seen[r as usize] = true;
@@ -112,51 +127,40 @@ fn check(name: &str, tris: &[[Vec3; 3]], params: &SahParams) -> KdTree {
 #[test]
 fn meshes_build_valid_deterministic_trees() {
     let p = SahParams::default();
-    check("icosphere", &mesh_triangles(&gen::icosphere(4).unwrap()), &p);
-    check("soup", &mesh_triangles(&gen::random_soup(20_000, 5).unwrap()), &p);
-    check("grid", &mesh_triangles(&gen::integer_grid(40, 40).unwrap()), &p);
+    check(
+        "icosphere",
+        &common::mesh_triangles(&gen::icosphere(4).unwrap()),
+        &p,
+    );
+    check(
+        "soup",
+        &common::mesh_triangles(&gen::random_soup(20_000, 5).unwrap()),
+        &p,
+    );
+    check(
+        "grid",
+        &common::mesh_triangles(&gen::integer_grid(40, 40).unwrap()),
+        &p,
+    );
     // Seed 001's termination: no SAH leaf test, leaves below 64 primitives... reproduced
     // with max_leaf_prims and the switch.
-    let seed = SahParams { sah_leaf_test: false, max_leaf_prims: 63, ..p };
-    check("icosphere.seed-termination", &mesh_triangles(&gen::icosphere(4).unwrap()), &seed);
+    let seed = SahParams {
+        sah_leaf_test: false,
+        max_leaf_prims: 63,
+        ..p
+    };
+    check(
+        "icosphere.seed-termination",
+        &common::mesh_triangles(&gen::icosphere(4).unwrap()),
+        &seed,
+    );
 }
 
 #[test]
 fn hard_cases_terminate_and_stay_valid() {
-    let p = SahParams::default();
-    let t = [Vec3::new(0.0, 0.0, 0.0), Vec3::new(1.0, 0.0, 0.0), Vec3::new(0.0, 1.0, 0.0)];
-    check("identical", &vec![t; 500], &p);
-    check("single", &[t], &p);
-    check("two", &[t, [t[0] + 3.0, t[1] + 3.0, t[2] + 3.0]], &p);
-    // All in one plane (z = 0), and axis-aligned flat quads lying on candidate planes.
-    let mut rng = common::Rng(3);
-    let planar: Vec<[Vec3; 3]> = (0..2000)
-        .map(|_| {
-            let o = Vec3::new(rng.next_f32() * 10.0, rng.next_f32() * 10.0, 0.0);
-            [o, o + Vec3::new(0.3, 0.0, 0.0), o + Vec3::new(0.0, 0.3, 0.0)]
-        })
-        .collect();
-    check("planar", &planar, &p);
-    let mut flats = Vec::new();
-    for i in 0..20 {
-        let x = i as f32;
-        flats.push([Vec3::new(x, 0.0, 0.0), Vec3::new(x, 1.0, 0.0), Vec3::new(x, 0.0, 1.0)]);
-        flats.push([Vec3::new(0.0, x, 0.0), Vec3::new(1.0, x, 0.0), Vec3::new(0.0, x, 1.0)]);
-        flats.push([Vec3::new(x, 0.0, 0.0), Vec3::new(x + 1.0, 1.0, 0.0), Vec3::new(x, 1.0, 0.0)]);
+    for (name, tris) in common::kdtree_hard_cases() {
+        check(name, &tris, &SahParams::default());
     }
-    check("flat-quads", &flats, &p);
-    // One huge triangle over many tiny ones.
-    let mut mixed: Vec<[Vec3; 3]> = (0..5000)
-        .map(|_| {
-            let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
-            [o, o + Vec3::splat(1e-3), o + Vec3::new(1e-3, 0.0, 0.0)]
-        })
-        .collect();
-    mixed.push([Vec3::splat(-100.0), Vec3::new(100.0, -100.0, 0.0), Vec3::new(0.0, 100.0, 100.0)]);
-    check("huge+tiny", &mixed, &p);
-    // Degenerate: zero-area triangles (a point, a line).
-    let degenerate = vec![[Vec3::ONE; 3], [Vec3::ZERO, Vec3::X, Vec3::X * 2.0], t];
-    check("degenerate", &degenerate, &p);
 }
 
 #[test]
@@ -168,13 +172,7 @@ fn empty_input_is_one_empty_leaf() {
 
 #[test]
 fn the_bunny_builds() {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
-    if !path.exists() {
-        eprintln!("skipped: {} not present", path.display());
-        return;
-    }
-    let scene = vkrt::scene::Scene::load(&path).unwrap().scene;
-    let tris: Vec<[Vec3; 3]> = scene.meshes.iter().flat_map(mesh_triangles).collect();
+    let Some(tris) = common::bunny() else { return };
     assert_eq!(tris.len(), 69_451);
     check("bunny", &tris, &SahParams::default());
 }

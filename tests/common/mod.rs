@@ -82,3 +82,97 @@ pub fn edge_sizes(subgroup: usize, workgroup: usize, tile: usize) -> Vec<usize> 
     sizes.dedup();
     sizes
 }
+
+/// World-space triangles of a mesh.
+pub fn mesh_triangles(mesh: &vkrt::scene::Mesh) -> Vec<[glam::Vec3; 3]> {
+    mesh.indices
+        .iter()
+        .map(|t| {
+            [
+                mesh.positions[t[0] as usize],
+                mesh.positions[t[1] as usize],
+                mesh.positions[t[2] as usize],
+            ]
+        })
+        .collect()
+}
+
+/// The bunny's triangles, or `None` (with a printed skip) when ../shared is absent.
+pub fn bunny() -> Option<Vec<[glam::Vec3; 3]>> {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/scenes/stanford-bunny.obj");
+    if !path.exists() {
+        eprintln!("skipped the bunny: {} not present", path.display());
+        return None;
+    }
+    Some(
+        vkrt::scene::Scene::load(&path)
+            .unwrap()
+            .scene
+            .triangles_world(0.0),
+    )
+}
+
+/// The hard cases every kd-tree builder must terminate on and stay valid: identical,
+/// single, two, all in one plane, flat axis-aligned quads on candidate planes, one huge over
+/// many tiny, zero-area and signed-zero triangles.
+pub fn kdtree_hard_cases() -> Vec<(&'static str, Vec<[glam::Vec3; 3]>)> {
+    use glam::Vec3;
+    let t = [Vec3::ZERO, Vec3::X, Vec3::Y];
+    let mut rng = Rng(3);
+    let planar = (0..2000)
+        .map(|_| {
+            let o = Vec3::new(rng.next_f32() * 10.0, rng.next_f32() * 10.0, 0.0);
+            [
+                o,
+                o + Vec3::new(0.3, 0.0, 0.0),
+                o + Vec3::new(0.0, 0.3, 0.0),
+            ]
+        })
+        .collect();
+    let mut flats = Vec::new();
+    for i in 0..40 {
+        let x = i as f32;
+        flats.push([
+            Vec3::new(x, 0.0, 0.0),
+            Vec3::new(x, 1.0, 0.0),
+            Vec3::new(x, 0.0, 1.0),
+        ]);
+        flats.push([
+            Vec3::new(0.0, x, 0.0),
+            Vec3::new(1.0, x, 0.0),
+            Vec3::new(0.0, x, 1.0),
+        ]);
+        flats.push([
+            Vec3::new(x, 0.0, 0.0),
+            Vec3::new(x + 1.0, 1.0, 0.0),
+            Vec3::new(x, 1.0, 0.0),
+        ]);
+    }
+    let mut mixed: Vec<[Vec3; 3]> = (0..5000)
+        .map(|_| {
+            let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+            [o, o + Vec3::splat(1e-3), o + Vec3::new(1e-3, 0.0, 0.0)]
+        })
+        .collect();
+    mixed.push([
+        Vec3::splat(-100.0),
+        Vec3::new(100.0, -100.0, 0.0),
+        Vec3::new(0.0, 100.0, 100.0),
+    ]);
+    let degenerate = vec![
+        [Vec3::ONE; 3],
+        [Vec3::ZERO, Vec3::X, Vec3::X * 2.0],
+        t,
+        [Vec3::new(-0.0, 0.0, -0.0), Vec3::X, Vec3::Z],
+    ];
+    vec![
+        ("identical", vec![t; 500]),
+        ("single", vec![t]),
+        ("two", vec![t, [t[0] + 3.0, t[1] + 3.0, t[2] + 3.0]]),
+        ("planar", planar),
+        ("flat-quads", flats),
+        ("huge+tiny", mixed),
+        ("degenerate", degenerate),
+    ]
+}
