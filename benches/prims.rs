@@ -11,7 +11,10 @@ use vkrt::gpu::{Context, ContextOptions};
 
 fn prims(c: &mut Criterion) {
     let ctx = Context::new(&ContextOptions::default()).expect("a Vulkan device");
-    let n: usize = std::env::var("VKRT_BENCH_N").ok().and_then(|v| v.parse().ok()).unwrap_or(1 << 20);
+    let n: usize = std::env::var("VKRT_BENCH_N")
+        .ok()
+        .and_then(|v| v.parse().ok())
+        .unwrap_or(1 << 20);
     let mut group = c.benchmark_group(format!("prims.n{n}"));
     group.sample_size(10);
     for (name, bench) in vkrt::bench::prim_benches() {
@@ -24,7 +27,10 @@ fn prims(c: &mut Criterion) {
                     let mut total = Duration::ZERO;
                     for _ in 0..iters {
                         let runs = bench(&ctx, n, 1).expect("bench run");
-                        let ms = runs.iter().find(|r| r.prim == prim).map_or(0.0, |r| r.gpu_ms);
+                        let ms = runs
+                            .iter()
+                            .find(|r| r.prim == prim)
+                            .map_or(0.0, |r| r.gpu_ms);
                         total += Duration::from_secs_f64(ms / 1e3);
                     }
                     total

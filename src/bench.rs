@@ -164,13 +164,21 @@ pub type PrimBench = fn(&Context, usize, u32) -> Result<Vec<crate::prims::PrimTi
 
 /// Every primitive's benchmark, in the order of the report.
 pub fn prim_benches() -> Vec<(&'static str, PrimBench)> {
-    vec![("scan", crate::prims::scan::bench as PrimBench), ("compact", crate::prims::compact::bench)]
+    vec![
+        ("scan", crate::prims::scan::bench as PrimBench),
+        ("compact", crate::prims::compact::bench),
+    ]
 }
 
 /// Times every primitive at each of `sizes` and sets each against the copy baselines of
 /// the same bytes, measured in the same run. `only` keeps the benches whose group name
 /// contains it.
-pub fn prims_report(ctx: &Context, sizes: &[usize], reps: u32, only: Option<&str>) -> Result<PrimsReport> {
+pub fn prims_report(
+    ctx: &Context,
+    sizes: &[usize],
+    reps: u32,
+    only: Option<&str>,
+) -> Result<PrimsReport> {
     let mut results = Vec::new();
     let mut baselines: std::collections::HashMap<u64, (f64, f64)> = Default::default();
     for &n in sizes {
@@ -213,7 +221,11 @@ pub fn prims_report(ctx: &Context, sizes: &[usize], reps: u32, only: Option<&str
             }
         }
     }
-    Ok(PrimsReport { device: ctx.info().device.clone(), subgroup_size: ctx.info().subgroup_size, results })
+    Ok(PrimsReport {
+        device: ctx.info().device.clone(),
+        subgroup_size: ctx.info().subgroup_size,
+        results,
+    })
 }
 
 /// One row of `vkrt bench kdtree`.
@@ -254,7 +266,10 @@ pub fn kdtree_report(
     let mut rows = Vec::new();
     for (name, tris) in scenes {
         let modes: &[(SegmentedMode, &str)] = if ablation {
-            &[(hybrid, "hybrid"), (SegmentedMode::WorkgroupPerSegment, "workgroup_per_segment")]
+            &[
+                (hybrid, "hybrid"),
+                (SegmentedMode::WorkgroupPerSegment, "workgroup_per_segment"),
+            ]
         } else {
             &[(hybrid, "hybrid")]
         };
@@ -268,7 +283,10 @@ pub fn kdtree_report(
                 primitives: tris.len() as u32,
                 best_split: label.to_string(),
                 build_ms: ms("kdtree.phase1") + ms("kdtree.phase2"),
-                phases: PHASES.iter().map(|p| (p.trim_start_matches("kdtree.").to_string(), ms(p))).collect(),
+                phases: PHASES
+                    .iter()
+                    .map(|p| (p.trim_start_matches("kdtree.").to_string(), ms(p)))
+                    .collect(),
                 nodes: s.nodes,
                 sah_cost: s.sah_cost,
             });
@@ -281,11 +299,17 @@ pub fn kdtree_report(
         .collect();
     let fitted_exponent = (points.len() >= 2).then(|| {
         let n = points.len() as f64;
-        let (sx, sy) = points.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0, a.1 + p.1));
+        let (sx, sy) = points
+            .iter()
+            .fold((0.0, 0.0), |a, p| (a.0 + p.0, a.1 + p.1));
         let (mx, my) = (sx / n, sy / n);
         let num: f64 = points.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
         let den: f64 = points.iter().map(|p| (p.0 - mx).powi(2)).sum();
         num / den
     });
-    Ok(KdBenchReport { device: ctx.info().device.clone(), rows, fitted_exponent })
+    Ok(KdBenchReport {
+        device: ctx.info().device.clone(),
+        rows,
+        fitted_exponent,
+    })
 }

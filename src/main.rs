@@ -236,7 +236,18 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 }
             }
         }
-        Command::Bench { what: BenchCommand::Prims { max_n, min_n, step, reps, only, json, profile } } => {
+        Command::Bench {
+            what:
+                BenchCommand::Prims {
+                    max_n,
+                    min_n,
+                    step,
+                    reps,
+                    only,
+                    json,
+                    profile,
+                },
+        } => {
             let ctx = context(cli.validate)?;
             let mut sizes = Vec::new();
             let mut n = min_n.max(1);
@@ -288,7 +299,14 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 println!("{}", summary.to_string().trim_end());
             }
         }
-        Command::Build { scene, accel, reference, seed_termination, json, profile } => {
+        Command::Build {
+            scene,
+            accel,
+            reference,
+            seed_termination,
+            json,
+            profile,
+        } => {
             if accel != "kdtree" {
                 return Err(format!("unknown --accel `{accel}` (available: kdtree)").into());
             }
@@ -303,12 +321,16 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 params.max_leaf_prims = 63;
             }
             let ctx = context(cli.validate)?;
-            let (report, trace) = vkrt::accel::kdtree::report::build_report(&ctx, &triangles, &params, reference)?;
+            let (report, trace) =
+                vkrt::accel::kdtree::report::build_report(&ctx, &triangles, &params, reference)?;
             write_profile(&profile, &trace)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             } else {
-                println!("{} triangles: GPU build {:.2} ms in {} levels", report.primitives, report.build_ms, report.levels);
+                println!(
+                    "{} triangles: GPU build {:.2} ms in {} levels",
+                    report.primitives, report.build_ms, report.levels
+                );
                 for (phase, ms) in &report.phases {
                     println!("  {phase:<16} {ms:>9.2} ms");
                 }
@@ -322,9 +344,12 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     report.sah_cost,
                     report.bytes
                 );
-                if let (Some(eq), Some(twin), Some(cost), Some(full)) =
-                    (report.equal_to_cpu_twin, report.cpu_twin_ms, report.full_clip_sah_cost, report.full_clip_ms)
-                {
+                if let (Some(eq), Some(twin), Some(cost), Some(full)) = (
+                    report.equal_to_cpu_twin,
+                    report.cpu_twin_ms,
+                    report.full_clip_sah_cost,
+                    report.full_clip_ms,
+                ) {
                     println!("CPU twin {twin:.1} ms, equal to the GPU tree: {eq}");
                     println!("full-clipping CPU build {full:.1} ms, SAH cost {cost:.3}");
                     if !eq {
@@ -333,12 +358,24 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 }
             }
         }
-        Command::Bench { what: BenchCommand::Kdtree { max_n, ablation, mesh, json, profile } } => {
+        Command::Bench {
+            what:
+                BenchCommand::Kdtree {
+                    max_n,
+                    ablation,
+                    mesh,
+                    json,
+                    profile,
+                },
+        } => {
             let mut scenes = Vec::new();
-            let bunny = PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
+            let bunny = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
+                .join("../shared/scenes/stanford-bunny.obj");
             if let Some(path) = mesh.or_else(|| bunny.exists().then_some(bunny)) {
                 let scene = vkrt::scene::Scene::load(&path)?.scene;
-                let name = path.file_stem().map_or("mesh".into(), |s| s.to_string_lossy().into_owned());
+                let name = path
+                    .file_stem()
+                    .map_or("mesh".into(), |s| s.to_string_lossy().into_owned());
                 scenes.push((name, scene.triangles_world(0.0)));
             }
             for sub in 1..=10u32 {
@@ -351,13 +388,20 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     let t = mesh
                         .indices
                         .iter()
-                        .map(|i| [mesh.positions[i[0] as usize], mesh.positions[i[1] as usize], mesh.positions[i[2] as usize]])
+                        .map(|i| {
+                            [
+                                mesh.positions[i[0] as usize],
+                                mesh.positions[i[1] as usize],
+                                mesh.positions[i[2] as usize],
+                            ]
+                        })
                         .collect();
                     scenes.push((format!("icosphere{sub}"), t));
                 }
             }
             let ctx = context(cli.validate)?;
-            let (report, trace) = vkrt::gpu::capture_profiles(|| vkrt::bench::kdtree_report(&ctx, &scenes, ablation));
+            let (report, trace) =
+                vkrt::gpu::capture_profiles(|| vkrt::bench::kdtree_report(&ctx, &scenes, ablation));
             let report = report?;
             write_profile(&profile, &trace)?;
             if json {
@@ -366,7 +410,16 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 println!("{}", report.device);
                 println!(
                     "{:<12} {:>9} {:<22} {:>10} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8}",
-                    "scene", "tris", "best split", "build ms", "phase1", "costs", "argmin", "nodes", "clip", "SAH"
+                    "scene",
+                    "tris",
+                    "best split",
+                    "build ms",
+                    "phase1",
+                    "costs",
+                    "argmin",
+                    "nodes",
+                    "clip",
+                    "SAH"
                 );
                 for r in &report.rows {
                     let p = |k: &str| r.phases.get(k).copied().unwrap_or(0.0);

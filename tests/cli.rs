@@ -131,13 +131,32 @@ fn unknown_commands_fail_with_usage() {
 #[test]
 fn scene_summary_json_and_errors() {
     let out = vkrt(&["scene", "--json"]);
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    for key in ["triangles", "spheres", "lights", "materials", "bounds", "effects"] {
+    for key in [
+        "triangles",
+        "spheres",
+        "lights",
+        "materials",
+        "bounds",
+        "effects",
+    ] {
         assert!(v.get(key).is_some(), "missing {key} in {v}");
     }
-    let effects: Vec<&str> = v["effects"].as_array().unwrap().iter().map(|e| e.as_str().unwrap()).collect();
-    assert!(effects.contains(&"refraction") && effects.contains(&"reflection"), "{effects:?}");
+    let effects: Vec<&str> = v["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e.as_str().unwrap())
+        .collect();
+    assert!(
+        effects.contains(&"refraction") && effects.contains(&"reflection"),
+        "{effects:?}"
+    );
 
     let out = vkrt(&["scene", "/no/such/scene.toml"]);
     assert!(!out.status.success());
@@ -150,9 +169,17 @@ fn every_example_scene_loads() {
     let mut count = 0;
     for entry in std::fs::read_dir(&dir).unwrap() {
         let path = entry.unwrap().path();
-        if path.extension().is_some_and(|e| e == "toml" || e == "obj" || e == "scn") {
+        if path
+            .extension()
+            .is_some_and(|e| e == "toml" || e == "obj" || e == "scn")
+        {
             let out = vkrt(&["scene", path.to_str().unwrap(), "--json"]);
-            assert!(out.status.success(), "{}: {}", path.display(), String::from_utf8_lossy(&out.stderr));
+            assert!(
+                out.status.success(),
+                "{}: {}",
+                path.display(),
+                String::from_utf8_lossy(&out.stderr)
+            );
             count += 1;
         }
     }
@@ -162,15 +189,38 @@ fn every_example_scene_loads() {
 #[test]
 fn build_kdtree_reports_and_equals_its_twin() {
     let house = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/house.obj");
-    let out = vkrt(&["build", house.to_str().unwrap(), "--accel", "kdtree", "--reference", "--json"]);
+    let out = vkrt(&[
+        "build",
+        house.to_str().unwrap(),
+        "--accel",
+        "kdtree",
+        "--reference",
+        "--json",
+    ]);
     if !out.status.success() && no_gpu_allowed() {
         return;
     }
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     for key in [
-        "primitives", "build_ms", "phases", "levels", "nodes", "leaves", "max_depth", "sah_cost", "references", "bytes",
-        "equal_to_cpu_twin", "cpu_twin_ms", "full_clip_sah_cost", "full_clip_ms",
+        "primitives",
+        "build_ms",
+        "phases",
+        "levels",
+        "nodes",
+        "leaves",
+        "max_depth",
+        "sah_cost",
+        "references",
+        "bytes",
+        "equal_to_cpu_twin",
+        "cpu_twin_ms",
+        "full_clip_sah_cost",
+        "full_clip_ms",
     ] {
         assert!(v.get(key).is_some(), "missing {key} in {v}");
     }

@@ -103,27 +103,46 @@ fn kernels_see_the_subgroup_size_the_device_reports() {
     let Some(ctx) = common::context() else { return };
     let sg = ctx.info().subgroup_size;
     if let Ok(expected) = std::env::var("VKRT_EXPECT_SUBGROUP_SIZE") {
-        assert_eq!(sg.to_string(), expected, "LP_NATIVE_VECTOR_WIDTH matrix: wrong subgroup size");
+        assert_eq!(
+            sg.to_string(),
+            expected,
+            "LP_NATIVE_VECTOR_WIDTH matrix: wrong subgroup size"
+        );
     }
     for wg in [32u32, 64, 128] {
-        let kernel = ctx.kernel(&kernels::GPU_SUBGROUP_PROBE, &Spec::new().workgroup(wg)).unwrap();
+        let kernel = ctx
+            .kernel(&kernels::GPU_SUBGROUP_PROBE, &Spec::new().workgroup(wg))
+            .unwrap();
         let out = Buffer::<u32>::zeroed(&ctx, "probe.out", 2 + wg as usize).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
         rec.dispatch(&kernel, [1, 1, 1], &[&out], &());
         rec.compute_to_transfer();
         rec.submit_and_wait().unwrap();
         let got = out.download().unwrap();
-        assert_eq!(got[0], sg, "gl_SubgroupSize differs from the device property");
+        assert_eq!(
+            got[0], sg,
+            "gl_SubgroupSize differs from the device property"
+        );
         // The lanes a subgroup really has: what subgroupAdd(1) counts, the same everywhere,
         // and consistent with gl_NumSubgroups.
         let lanes = got[2];
-        assert!(got[2..].iter().all(|&l| l == lanes), "subgroups of different sizes: {got:?}");
-        assert_eq!(got[1] * lanes, wg, "gl_NumSubgroups x lanes must cover the workgroup: {got:?}");
+        assert!(
+            got[2..].iter().all(|&l| l == lanes),
+            "subgroups of different sizes: {got:?}"
+        );
+        assert_eq!(
+            got[1] * lanes,
+            wg,
+            "gl_NumSubgroups x lanes must cover the workgroup: {got:?}"
+        );
         if lanes != sg {
             // Known lavapipe quirk (Mesa 22.3, AVX2, LP_NATIVE_VECTOR_WIDTH=1024): reports 32,
             // runs 16. Kernels derive lanes from gl_NumSubgroups (glsl/common/subgroup_scan.glsl).
             let quirk = ctx.info().device.contains("llvmpipe") && sg == 32 && lanes == 16;
-            assert!(quirk, "device reports subgroup size {sg} but subgroups have {lanes} lanes");
+            assert!(
+                quirk,
+                "device reports subgroup size {sg} but subgroups have {lanes} lanes"
+            );
             eprintln!("note: llvmpipe reports subgroup size {sg} but runs {lanes}-lane subgroups");
         }
     }

@@ -15,7 +15,12 @@ fn glsl_and_rust_kd_nodes_agree() {
     assert_eq!(std::mem::offset_of!(KdNode, b), 12);
     let Some(ctx) = common::context() else { return };
     let n = 100u32;
-    let kernel = ctx.kernel(&kernels::ACCEL_KDTREE_LAYOUT_PROBE, &Spec::new().workgroup(64)).unwrap();
+    let kernel = ctx
+        .kernel(
+            &kernels::ACCEL_KDTREE_LAYOUT_PROBE,
+            &Spec::new().workgroup(64),
+        )
+        .unwrap();
     let nodes = Buffer::<KdNode>::zeroed(&ctx, "layout.nodes", n as usize).unwrap();
     let mut rec = Recorder::new(&ctx).unwrap();
     rec.dispatch(&kernel, [2, 1, 1], &[&nodes], &n);
@@ -24,7 +29,15 @@ fn glsl_and_rust_kd_nodes_agree() {
     let got = nodes.download().unwrap();
     for (i, node) in got.iter().enumerate() {
         let i = i as u32;
-        assert_eq!(*node, KdNode { split: i as f32 * 0.5, kind: i % 4, a: 3 * i, b: 7 * i + 1 });
+        assert_eq!(
+            *node,
+            KdNode {
+                split: i as f32 * 0.5,
+                kind: i % 4,
+                a: 3 * i,
+                b: 7 * i + 1
+            }
+        );
     }
     common::assert_silent(&ctx);
 }

@@ -10,14 +10,20 @@ use vkrt::prims::scan::{flag_scan_cpu, scan_cpu, Scan, ScanInput, ScanOp, ScanVa
 use vkrt::prims::PrimConfig;
 
 fn configs(ctx: &Context) -> [PrimConfig; 2] {
-    [PrimConfig::single_subgroup(ctx), PrimConfig::default_for(ctx)]
+    [
+        PrimConfig::single_subgroup(ctx),
+        PrimConfig::default_for(ctx),
+    ]
 }
 
 /// Inputs of one size: random over the full range (sums wrap), all equal, sorted, reversed.
 fn u32_inputs(n: usize, rng: &mut common::Rng) -> Vec<(&'static str, Vec<u32>)> {
     vec![
         ("random", (0..n).map(|_| rng.next_u64() as u32).collect()),
-        ("small", (0..n).map(|_| (rng.next_u64() % 4) as u32).collect()),
+        (
+            "small",
+            (0..n).map(|_| (rng.next_u64() % 4) as u32).collect(),
+        ),
         ("all-equal", vec![7; n]),
         ("sorted", (0..n as u32).collect()),
         ("reverse", (0..n as u32).rev().collect()),
@@ -27,7 +33,10 @@ fn u32_inputs(n: usize, rng: &mut common::Rng) -> Vec<(&'static str, Vec<u32>)> 
 fn flag_inputs(n: usize, rng: &mut common::Rng) -> Vec<(&'static str, Vec<u8>)> {
     vec![
         ("half", (0..n).map(|_| (rng.next_u64() & 1) as u8).collect()),
-        ("sparse", (0..n).map(|_| u8::from(rng.next_u64() % 97 == 0)).collect()),
+        (
+            "sparse",
+            (0..n).map(|_| u8::from(rng.next_u64() % 97 == 0)).collect(),
+        ),
         ("none", vec![0; n]),
         ("all", vec![1; n]),
     ]
@@ -40,9 +49,16 @@ fn u32_scan_equals_cpu_twin() {
     for cfg in configs(&ctx) {
         let scan = Scan::new(&ctx, cfg, ScanInput::U32).unwrap();
         let tile = (cfg.tile()) as usize;
-        for n in common::edge_sizes(ctx.info().subgroup_size as usize, cfg.workgroup_size as usize, tile) {
+        for n in common::edge_sizes(
+            ctx.info().subgroup_size as usize,
+            cfg.workgroup_size as usize,
+            tile,
+        ) {
             let big = n > 1 << 20;
-            for (what, input) in u32_inputs(n, &mut rng).into_iter().take(if big { 1 } else { 5 }) {
+            for (what, input) in u32_inputs(n, &mut rng)
+                .into_iter()
+                .take(if big { 1 } else { 5 })
+            {
                 for op in [ScanOp::Inclusive, ScanOp::Exclusive] {
                     let (gpu, gpu_total) = scan.run_u32(&ctx, &input, op).unwrap();
                     let (cpu, cpu_total) = scan_cpu(&input, op);
@@ -63,10 +79,17 @@ fn shuffle_scan_equals_cpu_twin() {
     let mut rng = common::Rng(2);
     for cfg in configs(&ctx) {
         let scan = Scan::with_shuffle(&ctx, cfg).unwrap();
-        for n in common::edge_sizes(ctx.info().subgroup_size as usize, cfg.workgroup_size as usize, cfg.tile() as usize) {
+        for n in common::edge_sizes(
+            ctx.info().subgroup_size as usize,
+            cfg.workgroup_size as usize,
+            cfg.tile() as usize,
+        ) {
             let input: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
             let (gpu, total) = scan.run_u32(&ctx, &input, ScanOp::Inclusive).unwrap();
-            assert!((gpu, total) == scan_cpu(&input, ScanOp::Inclusive), "{cfg:?} n={n}");
+            assert!(
+                (gpu, total) == scan_cpu(&input, ScanOp::Inclusive),
+                "{cfg:?} n={n}"
+            );
         }
     }
     common::assert_silent(&ctx);
@@ -80,10 +103,18 @@ fn flag_scan_equals_cpu_twin() {
         let scan = Scan::new(&ctx, cfg, ScanInput::Flags).unwrap();
         // A flag tile holds four times the elements of a u32 tile.
         let tile = 4 * cfg.tile() as usize;
-        let mut sizes = common::edge_sizes(ctx.info().subgroup_size as usize, cfg.workgroup_size as usize, tile);
+        let mut sizes = common::edge_sizes(
+            ctx.info().subgroup_size as usize,
+            cfg.workgroup_size as usize,
+            tile,
+        );
         sizes.extend([2, 3, 4, 5, 15, 16, 17]);
         for n in sizes {
-            for (what, flags) in flag_inputs(n, &mut rng).into_iter().take(if n > 1 << 20 { 1 } else { 4 }) {
+            for (what, flags) in
+                flag_inputs(n, &mut rng)
+                    .into_iter()
+                    .take(if n > 1 << 20 { 1 } else { 4 })
+            {
                 let (gpu, total) = scan.run_flags(&ctx, &flags).unwrap();
                 let (cpu, cpu_total) = flag_scan_cpu(&flags);
                 let diff = gpu.iter().zip(&cpu).position(|(g, c)| g != c);
@@ -102,15 +133,27 @@ fn compaction_of_one_to_four_soa_arrays_equals_cpu_twin() {
     for cfg in configs(&ctx) {
         let compact = Compact::new(&ctx, cfg).unwrap();
         let tile = 4 * cfg.tile() as usize;
-        for n in common::edge_sizes(ctx.info().subgroup_size as usize, cfg.workgroup_size as usize, tile) {
+        for n in common::edge_sizes(
+            ctx.info().subgroup_size as usize,
+            cfg.workgroup_size as usize,
+            tile,
+        ) {
             let arrays_n = if n > 1 << 20 { 2 } else { 4 };
-            for (what, flags) in flag_inputs(n, &mut rng).into_iter().take(if n > 1 << 20 { 1 } else { 4 }) {
-                let data: Vec<Vec<u32>> =
-                    (0..arrays_n).map(|_| (0..n).map(|_| rng.next_u64() as u32).collect()).collect();
+            for (what, flags) in
+                flag_inputs(n, &mut rng)
+                    .into_iter()
+                    .take(if n > 1 << 20 { 1 } else { 4 })
+            {
+                let data: Vec<Vec<u32>> = (0..arrays_n)
+                    .map(|_| (0..n).map(|_| rng.next_u64() as u32).collect())
+                    .collect();
                 for k in 1..=arrays_n {
                     let arrays: Vec<&[u32]> = data[..k].iter().map(|v| v.as_slice()).collect();
                     let gpu = compact.run(&ctx, &flags, &arrays).unwrap();
-                    assert!(gpu == compact_cpu(&flags, &arrays), "{cfg:?} n={n} {what} arrays={k}");
+                    assert!(
+                        gpu == compact_cpu(&flags, &arrays),
+                        "{cfg:?} n={n} {what} arrays={k}"
+                    );
                 }
             }
         }
@@ -122,7 +165,10 @@ fn compaction_of_one_to_four_soa_arrays_equals_cpu_twin() {
 fn scan_works_in_place_and_past_every_level() {
     let Some(ctx) = common::context() else { return };
     // A tiny tile makes three levels of tile sums out of a modest n.
-    let cfg = PrimConfig { workgroup_size: ctx.info().subgroup_size, items_per_invocation: 4 };
+    let cfg = PrimConfig {
+        workgroup_size: ctx.info().subgroup_size,
+        items_per_invocation: 4,
+    };
     let scan = Scan::new(&ctx, cfg, ScanInput::U32).unwrap();
     let tile = cfg.tile() as usize;
     let n = tile * tile * tile + 3;
@@ -142,15 +188,23 @@ fn contiguous_variant_equals_cpu_twin() {
     let Some(ctx) = common::context() else { return };
     let mut rng = common::Rng(5);
     for cfg in configs(&ctx) {
-        let u32_scan = Scan::with_variant(&ctx, cfg, ScanInput::U32, ScanVariant::Contiguous).unwrap();
-        let flag_scan = Scan::with_variant(&ctx, cfg, ScanInput::Flags, ScanVariant::Contiguous).unwrap();
+        let u32_scan =
+            Scan::with_variant(&ctx, cfg, ScanInput::U32, ScanVariant::Contiguous).unwrap();
+        let flag_scan =
+            Scan::with_variant(&ctx, cfg, ScanInput::Flags, ScanVariant::Contiguous).unwrap();
         let sg = ctx.info().subgroup_size as usize;
         for n in common::edge_sizes(sg, cfg.workgroup_size as usize, 4 * cfg.tile() as usize) {
             let input: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
             let (gpu, total) = u32_scan.run_u32(&ctx, &input, ScanOp::Exclusive).unwrap();
-            assert!((gpu, total) == scan_cpu(&input, ScanOp::Exclusive), "{cfg:?} n={n} u32");
+            assert!(
+                (gpu, total) == scan_cpu(&input, ScanOp::Exclusive),
+                "{cfg:?} n={n} u32"
+            );
             let flags: Vec<u8> = (0..n).map(|_| (rng.next_u64() & 1) as u8).collect();
-            assert!(flag_scan.run_flags(&ctx, &flags).unwrap() == flag_scan_cpu(&flags), "{cfg:?} n={n} flags");
+            assert!(
+                flag_scan.run_flags(&ctx, &flags).unwrap() == flag_scan_cpu(&flags),
+                "{cfg:?} n={n} flags"
+            );
         }
     }
     common::assert_silent(&ctx);
@@ -174,23 +228,59 @@ fn counted_scans_read_their_length_from_the_gpu() {
         // The real count is stored / 2 * 2 (mul 2): 0, 1, tile-ish and the capacity itself.
         for stored in [0u32, 1, 7, cfg.tile() / 2 + 1, (capacity / 2) as u32] {
             let n = (2 * stored as usize).min(capacity);
-            let counts = vkrt::gpu::Buffer::from_slice(&ctx, "counted.counts", &[99, stored]).unwrap();
-            let count = vkrt::prims::scan::GpuCount { counts: &counts, index: 1, mul: 2, div: 1 };
+            let counts =
+                vkrt::gpu::Buffer::from_slice(&ctx, "counted.counts", &[99, stored]).unwrap();
+            let count = vkrt::prims::scan::GpuCount {
+                counts: &counts,
+                index: 1,
+                mul: 2,
+                div: 1,
+            };
             let mut rec = vkrt::gpu::Recorder::new(&ctx).unwrap();
-            scan.record_counted(&mut rec, &data, &out, capacity, count, ScanOp::Exclusive, &scratch);
+            scan.record_counted(
+                &mut rec,
+                &data,
+                &out,
+                capacity,
+                count,
+                ScanOp::Exclusive,
+                &scratch,
+            );
             rec.compute_to_compute();
             rec.compute_to_transfer();
             rec.submit_and_wait().unwrap();
             let (cpu, total) = scan_cpu(&input[..n], ScanOp::Exclusive);
-            assert!(out.download().unwrap()[..n] == cpu[..], "{cfg:?} counted n={n}");
-            assert_eq!(scratch.total.download().unwrap()[0], total, "{cfg:?} counted n={n} total");
+            assert!(
+                out.download().unwrap()[..n] == cpu[..],
+                "{cfg:?} counted n={n}"
+            );
+            assert_eq!(
+                scratch.total.download().unwrap()[0],
+                total,
+                "{cfg:?} counted n={n} total"
+            );
             let mut rec = vkrt::gpu::Recorder::new(&ctx).unwrap();
-            flag_scan.record_counted(&mut rec, &flag_data, &out, capacity, count, ScanOp::Exclusive, &flag_scratch);
+            flag_scan.record_counted(
+                &mut rec,
+                &flag_data,
+                &out,
+                capacity,
+                count,
+                ScanOp::Exclusive,
+                &flag_scratch,
+            );
             rec.compute_to_transfer();
             rec.submit_and_wait().unwrap();
             let (cpu, total) = flag_scan_cpu(&flags[..n]);
-            assert!(out.download().unwrap()[..n] == cpu[..], "{cfg:?} counted flags n={n}");
-            assert_eq!(flag_scratch.total.download().unwrap()[0], total, "{cfg:?} counted flags n={n} total");
+            assert!(
+                out.download().unwrap()[..n] == cpu[..],
+                "{cfg:?} counted flags n={n}"
+            );
+            assert_eq!(
+                flag_scratch.total.download().unwrap()[0],
+                total,
+                "{cfg:?} counted flags n={n} total"
+            );
         }
     }
     common::assert_silent(&ctx);

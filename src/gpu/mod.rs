@@ -30,7 +30,9 @@ pub use context::{Context, ContextOptions, RawParts};
 pub use error::{GpuError, Result};
 pub use info::{DeviceFeatures, DeviceInfo};
 pub use kernel::{Kernel, Spec, PUSH_CONSTANT_BYTES};
-pub use profiler::{capture as capture_profiles, write_atomically, PassTime, Profile, DEFAULT_QUERY_CAPACITY};
+pub use profiler::{
+    capture as capture_profiles, write_atomically, PassTime, Profile, DEFAULT_QUERY_CAPACITY,
+};
 pub use recorder::{RecordedWork, Recorder};
 pub use shader::{find as find_kernel, kernels, ShaderBlob};
 pub use validation::{Validation, ValidationMessage};

@@ -222,7 +222,9 @@ thread_local! {
 pub fn capture<R>(f: impl FnOnce() -> R) -> (R, Profile) {
     let outer = CAPTURE.with(|c| c.borrow_mut().replace(Profile::default()));
     let result = f();
-    let captured = CAPTURE.with(|c| std::mem::replace(&mut *c.borrow_mut(), outer)).unwrap_or_default();
+    let captured = CAPTURE
+        .with(|c| std::mem::replace(&mut *c.borrow_mut(), outer))
+        .unwrap_or_default();
     if let Some(p) = CAPTURE.with(|c| c.borrow().is_some().then(|| captured.clone())) {
         record_captured(&p);
     }

@@ -511,7 +511,9 @@ impl Recorder {
                 last_pass: format!("{} (timed out)", self.scopes.last_name()),
             }),
             Err(e) => Err(e),
-            Ok(()) => self.read_profile().inspect(super::profiler::record_captured),
+            Ok(()) => self
+                .read_profile()
+                .inspect(super::profiler::record_captured),
         }
     }
 
@@ -558,7 +560,9 @@ impl RecordedWork {
     /// # Safety
     /// The command buffer has finished executing (or was never submitted).
     pub unsafe fn complete(self) -> Result<Profile> {
-        self.recorder.read_profile().inspect(super::profiler::record_captured)
+        self.recorder
+            .read_profile()
+            .inspect(super::profiler::record_captured)
     }
 }
 

@@ -70,7 +70,14 @@ impl Compact {
             "compaction moves 1 to {MAX_ARRAYS} arrays, with one output per input"
         );
         rec.scope("prims.compact", |rec| {
-            self.scan.record(rec, flags, &scratch.offsets, n, ScanOp::Exclusive, &scratch.scan);
+            self.scan.record(
+                rec,
+                flags,
+                &scratch.offsets,
+                n,
+                ScanOp::Exclusive,
+                &scratch.scan,
+            );
             rec.compute_to_compute();
             let mut bindings: Vec<&dyn BufferArg> = vec![flags, &scratch.offsets];
             bindings.extend_from_slice(inputs);
@@ -87,9 +94,14 @@ impl Compact {
     pub fn run(&self, ctx: &Context, flags: &[u8], arrays: &[&[u32]]) -> Result<Vec<Vec<u32>>> {
         let n = flags.len();
         let flag_buf = Buffer::from_slice(ctx, "prims.compact.flags", flags)?;
-        let inputs =
-            arrays.iter().map(|a| Buffer::from_slice(ctx, "prims.compact.in", a)).collect::<Result<Vec<_>>>()?;
-        let outputs = arrays.iter().map(|_| Buffer::<u32>::new(ctx, "prims.compact.out", n)).collect::<Result<Vec<_>>>()?;
+        let inputs = arrays
+            .iter()
+            .map(|a| Buffer::from_slice(ctx, "prims.compact.in", a))
+            .collect::<Result<Vec<_>>>()?;
+        let outputs = arrays
+            .iter()
+            .map(|_| Buffer::<u32>::new(ctx, "prims.compact.out", n))
+            .collect::<Result<Vec<_>>>()?;
         let scratch = self.scratch(ctx, n)?;
         let mut rec = Recorder::new(ctx)?;
         let ins: Vec<&dyn BufferArg> = inputs.iter().map(|b| b as &dyn BufferArg).collect();
@@ -98,10 +110,15 @@ impl Compact {
         rec.compute_to_transfer();
         rec.submit_and_wait()?;
         let count = scratch.count().download()?[0] as usize;
-        outputs.iter().map(|o| o.download().map(|mut v| {
-            v.truncate(count);
-            v
-        })).collect()
+        outputs
+            .iter()
+            .map(|o| {
+                o.download().map(|mut v| {
+                    v.truncate(count);
+                    v
+                })
+            })
+            .collect()
     }
 }
 
@@ -109,7 +126,13 @@ impl Compact {
 pub fn compact_cpu(flags: &[u8], arrays: &[&[u32]]) -> Vec<Vec<u32>> {
     arrays
         .iter()
-        .map(|a| a.iter().zip(flags).filter(|(_, &f)| f != 0).map(|(&x, _)| x).collect())
+        .map(|a| {
+            a.iter()
+                .zip(flags)
+                .filter(|(_, &f)| f != 0)
+                .map(|(&x, _)| x)
+                .collect()
+        })
         .collect()
 }
 
@@ -118,21 +141,34 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<super::PrimTiming
     let compact = Compact::new(ctx, PrimConfig::default_for(ctx))?;
     let scratch = compact.scratch(ctx, n)?;
     let flags = Buffer::<u8>::new(ctx, "bench.compact.flags", n)?;
-    let ins = (0..MAX_ARRAYS).map(|_| Buffer::<u32>::new(ctx, "bench.compact.in", n)).collect::<Result<Vec<_>>>()?;
-    let outs = (0..MAX_ARRAYS).map(|_| Buffer::<u32>::new(ctx, "bench.compact.out", n)).collect::<Result<Vec<_>>>()?;
+    let ins = (0..MAX_ARRAYS)
+        .map(|_| Buffer::<u32>::new(ctx, "bench.compact.in", n))
+        .collect::<Result<Vec<_>>>()?;
+    let outs = (0..MAX_ARRAYS)
+        .map(|_| Buffer::<u32>::new(ctx, "bench.compact.out", n))
+        .collect::<Result<Vec<_>>>()?;
     let mut rec = Recorder::new(ctx)?;
     rec.fill(&flags, 0x0001_0001);
     for b in ins.iter().chain(&outs) {
         rec.fill(b, 7);
     }
     rec.transfer_to_compute();
-    let variants = [("compact_1_array", 1usize), ("compact_4_arrays", MAX_ARRAYS)];
+    let variants = [
+        ("compact_1_array", 1usize),
+        ("compact_4_arrays", MAX_ARRAYS),
+    ];
     for rep in 0..=reps {
         for (name, k) in variants {
             let i: Vec<&dyn BufferArg> = ins[..k].iter().map(|b| b as &dyn BufferArg).collect();
             let o: Vec<&dyn BufferArg> = outs[..k].iter().map(|b| b as &dyn BufferArg).collect();
-            let label = if rep == 0 { format!("warmup.{name}") } else { name.to_string() };
-            rec.scope(&label, |rec| compact.record(rec, &flags, n, &i, &o, &scratch));
+            let label = if rep == 0 {
+                format!("warmup.{name}")
+            } else {
+                name.to_string()
+            };
+            rec.scope(&label, |rec| {
+                compact.record(rec, &flags, n, &i, &o, &scratch)
+            });
             rec.compute_to_compute();
         }
     }

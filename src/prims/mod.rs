@@ -32,13 +32,19 @@ pub struct PrimConfig {
 impl PrimConfig {
     /// The measured default (see `vkrt bench prims`).
     pub fn default_for(ctx: &Context) -> Self {
-        Self { workgroup_size: 256.min(ctx.info().max_workgroup_invocations), items_per_invocation: 16 }
-            .with_subgroup(ctx)
+        Self {
+            workgroup_size: 256.min(ctx.info().max_workgroup_invocations),
+            items_per_invocation: 16,
+        }
+        .with_subgroup(ctx)
     }
 
     /// One subgroup per workgroup: exercises only the subgroup-local paths.
     pub fn single_subgroup(ctx: &Context) -> Self {
-        Self { workgroup_size: ctx.info().subgroup_size, items_per_invocation: 4 }
+        Self {
+            workgroup_size: ctx.info().subgroup_size,
+            items_per_invocation: 4,
+        }
     }
 
     fn with_subgroup(mut self, ctx: &Context) -> Self {

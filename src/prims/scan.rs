@@ -112,7 +112,12 @@ impl Scan {
 
     /// A scan with the given in-tile variant (the shuffle variant exists for u32 input only;
     /// flags fall back to the intrinsic).
-    pub fn with_variant(ctx: &Context, cfg: PrimConfig, input: ScanInput, variant: ScanVariant) -> Result<Self> {
+    pub fn with_variant(
+        ctx: &Context,
+        cfg: PrimConfig,
+        input: ScanInput,
+        variant: ScanVariant,
+    ) -> Result<Self> {
         let sg = ctx.info().subgroup_size;
         let wg = cfg.workgroup_size;
         if !wg.is_power_of_two() || wg % ctx.info().max_subgroup_size.max(sg) != 0 {
@@ -146,7 +151,15 @@ impl Scan {
                 )?,
             ),
         };
-        Ok(Self { cfg, input, rounds, first_reduce, first_downsweep, reduce, downsweep })
+        Ok(Self {
+            cfg,
+            input,
+            rounds,
+            first_reduce,
+            first_downsweep,
+            reduce,
+            downsweep,
+        })
     }
 
     pub fn config(&self) -> PrimConfig {
@@ -155,7 +168,11 @@ impl Scan {
 
     /// Elements per workgroup tile at a level (flags pack 16 per 16-byte load, u32 four).
     fn tile(&self, level: usize) -> usize {
-        let per_granule = if level == 0 && self.input == ScanInput::Flags { 16 } else { 4 };
+        let per_granule = if level == 0 && self.input == ScanInput::Flags {
+            16
+        } else {
+            4
+        };
         (self.cfg.workgroup_size * self.rounds) as usize * per_granule
     }
 
@@ -183,7 +200,12 @@ impl Scan {
         let level_totals = (0..lengths.len())
             .map(|i| Buffer::new(ctx, &format!("prims.scan.total{i}"), 1))
             .collect::<Result<Vec<_>>>()?;
-        Ok(ScanScratch { max_n, levels, level_totals, total: Buffer::new(ctx, "prims.scan.total", 1)? })
+        Ok(ScanScratch {
+            max_n,
+            levels,
+            level_totals,
+            total: Buffer::new(ctx, "prims.scan.total", 1)?,
+        })
     }
 
     /// Records the scan of `n` elements of `input` into `output` (u32, may alias `input`
@@ -199,19 +221,27 @@ impl Scan {
         scratch: &ScanScratch,
     ) {
         if n > scratch.max_n {
-            panic!("scan of {n} elements with scratch sized for {}", scratch.max_n);
+            panic!(
+                "scan of {n} elements with scratch sized for {}",
+                scratch.max_n
+            );
         }
         let name = match self.input {
             ScanInput::U32 => "prims.scan",
             ScanInput::Flags => "prims.flag_scan",
         };
-        rec.scope(name, |rec| self.record_level(rec, 0, input, output, n, None, op, scratch, &scratch.total));
+        rec.scope(name, |rec| {
+            self.record_level(rec, 0, input, output, n, None, op, scratch, &scratch.total)
+        });
     }
 
     /// Like [`Scan::record`] for a count that lives on the GPU (at most `capacity`): the
     /// passes are recorded for the capacity and every workgroup past the real count exits
     /// at once, so nothing is read back.
-    #[allow(clippy::too_many_arguments, reason = "record's arguments plus the count")]
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "record's arguments plus the count"
+    )]
     pub fn record_counted(
         &self,
         rec: &mut Recorder,
@@ -222,15 +252,34 @@ impl Scan {
         op: ScanOp,
         scratch: &ScanScratch,
     ) {
-        assert!(capacity <= scratch.max_n, "scan capacity {capacity} above its scratch's {}", scratch.max_n);
+        assert!(
+            capacity <= scratch.max_n,
+            "scan capacity {capacity} above its scratch's {}",
+            scratch.max_n
+        );
         let name = match self.input {
             ScanInput::U32 => "prims.scan",
             ScanInput::Flags => "prims.flag_scan",
         };
-        rec.scope(name, |rec| self.record_level(rec, 0, input, output, capacity, Some(count), op, scratch, &scratch.total));
+        rec.scope(name, |rec| {
+            self.record_level(
+                rec,
+                0,
+                input,
+                output,
+                capacity,
+                Some(count),
+                op,
+                scratch,
+                &scratch.total,
+            )
+        });
     }
 
-    #[allow(clippy::too_many_arguments, reason = "one level of the recursion, named like the bindings")]
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "one level of the recursion, named like the bindings"
+    )]
     fn record_level(
         &self,
         rec: &mut Recorder,
@@ -243,12 +292,16 @@ impl Scan {
         scratch: &ScanScratch,
         total: &Buffer<u32>,
     ) {
-        let (counts, count_index, count_mul, count_div): (&Buffer<u32>, u32, u32, u32) = match count {
+        let (counts, count_index, count_mul, count_div): (&Buffer<u32>, u32, u32, u32) = match count
+        {
             Some(c) => (c.counts, c.index, c.mul, c.div),
             None => (total, 0, 0, 0),
         };
-        let (reduce, downsweep) =
-            if level == 0 { (&self.first_reduce, &self.first_downsweep) } else { (&self.reduce, &self.downsweep) };
+        let (reduce, downsweep) = if level == 0 {
+            (&self.first_reduce, &self.first_downsweep)
+        } else {
+            (&self.reduce, &self.downsweep)
+        };
         let tile = self.tile(level);
         let groups = rec.groups_1d(n.max(1) as u64, tile as u32);
         let inclusive = u32::from(op == ScanOp::Inclusive);
@@ -262,24 +315,57 @@ impl Scan {
         };
         if n <= tile {
             rec.scope("prims.scan_downsweep", |rec| {
-                rec.dispatch(downsweep, groups, &[input, input, output, output, input, total, counts], &push(0))
+                rec.dispatch(
+                    downsweep,
+                    groups,
+                    &[input, input, output, output, input, total, counts],
+                    &push(0),
+                )
             });
             return;
         }
         let partials = &scratch.levels[level];
         let tiles = n.div_ceil(tile);
-        let reduce_push = ReducePush { capacity: n as u32, count_index, count_mul, count_div };
+        let reduce_push = ReducePush {
+            capacity: n as u32,
+            count_index,
+            count_mul,
+            count_div,
+        };
         rec.scope("prims.scan_reduce", |rec| {
-            rec.dispatch(reduce, groups, &[input, input, partials, counts], &reduce_push)
+            rec.dispatch(
+                reduce,
+                groups,
+                &[input, input, partials, counts],
+                &reduce_push,
+            )
         });
         rec.compute_to_compute();
         // The tile sums of a GPU count c number ceil(c · mul / (div · tile)).
-        let upper = count.map(|c| GpuCount { div: c.div * tile as u32, ..c });
+        let upper = count.map(|c| GpuCount {
+            div: c.div * tile as u32,
+            ..c
+        });
         let level_total = &scratch.level_totals[level];
-        self.record_level(rec, level + 1, partials, partials, tiles, upper, ScanOp::Exclusive, scratch, level_total);
+        self.record_level(
+            rec,
+            level + 1,
+            partials,
+            partials,
+            tiles,
+            upper,
+            ScanOp::Exclusive,
+            scratch,
+            level_total,
+        );
         rec.compute_to_compute();
         rec.scope("prims.scan_downsweep", |rec| {
-            rec.dispatch(downsweep, groups, &[input, input, output, output, partials, total, counts], &push(1))
+            rec.dispatch(
+                downsweep,
+                groups,
+                &[input, input, output, output, partials, total, counts],
+                &push(1),
+            )
         });
     }
 
@@ -297,7 +383,13 @@ impl Scan {
         self.run(ctx, &data, flags.len(), ScanOp::Exclusive)
     }
 
-    fn run(&self, ctx: &Context, input: &dyn BufferArg, n: usize, op: ScanOp) -> Result<(Vec<u32>, u32)> {
+    fn run(
+        &self,
+        ctx: &Context,
+        input: &dyn BufferArg,
+        n: usize,
+        op: ScanOp,
+    ) -> Result<(Vec<u32>, u32)> {
         let output = Buffer::<u32>::new(ctx, "prims.scan.output", n)?;
         let scratch = self.scratch(ctx, n)?;
         let mut rec = Recorder::new(ctx)?;
@@ -352,16 +444,46 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
     let sg = ctx.info().subgroup_size;
     let shapes = [(sg, 4), (sg, 16), (sg, 64), (64, 16), (256, 4), (256, 16)];
     for (wg, ipi) in shapes {
-        let cfg = PrimConfig { workgroup_size: wg.max(sg), items_per_invocation: ipi };
-        let suffix = if cfg == base { String::new() } else { format!(".wg{wg}.ipi{ipi}") };
-        variants.push((format!("scan_u32{suffix}"), Scan::new(ctx, cfg, ScanInput::U32)?, false));
-        variants.push((format!("scan_u32_shuffle{suffix}"), Scan::with_shuffle(ctx, cfg)?, false));
+        let cfg = PrimConfig {
+            workgroup_size: wg.max(sg),
+            items_per_invocation: ipi,
+        };
+        let suffix = if cfg == base {
+            String::new()
+        } else {
+            format!(".wg{wg}.ipi{ipi}")
+        };
+        variants.push((
+            format!("scan_u32{suffix}"),
+            Scan::new(ctx, cfg, ScanInput::U32)?,
+            false,
+        ));
+        variants.push((
+            format!("scan_u32_shuffle{suffix}"),
+            Scan::with_shuffle(ctx, cfg)?,
+            false,
+        ));
         let contiguous = ScanVariant::Contiguous;
-        variants.push((format!("scan_u32_contiguous{suffix}"), Scan::with_variant(ctx, cfg, ScanInput::U32, contiguous)?, false));
-        variants.push((format!("flag_scan{suffix}"), Scan::new(ctx, cfg, ScanInput::Flags)?, true));
-        variants.push((format!("flag_scan_contiguous{suffix}"), Scan::with_variant(ctx, cfg, ScanInput::Flags, contiguous)?, true));
+        variants.push((
+            format!("scan_u32_contiguous{suffix}"),
+            Scan::with_variant(ctx, cfg, ScanInput::U32, contiguous)?,
+            false,
+        ));
+        variants.push((
+            format!("flag_scan{suffix}"),
+            Scan::new(ctx, cfg, ScanInput::Flags)?,
+            true,
+        ));
+        variants.push((
+            format!("flag_scan_contiguous{suffix}"),
+            Scan::with_variant(ctx, cfg, ScanInput::Flags, contiguous)?,
+            true,
+        ));
     }
-    let scratches = variants.iter().map(|(_, s, _)| s.scratch(ctx, n)).collect::<Result<Vec<_>>>()?;
+    let scratches = variants
+        .iter()
+        .map(|(_, s, _)| s.scratch(ctx, n))
+        .collect::<Result<Vec<_>>>()?;
     let mut rec = Recorder::new(ctx)?;
     rec.fill(&words, 1);
     rec.fill(&flags, 0x0001_0001);
@@ -370,8 +492,14 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
     for rep in 0..=reps {
         for ((name, scan, is_flags), scratch) in variants.iter().zip(&scratches) {
             let input: &dyn BufferArg = if *is_flags { &flags } else { &words };
-            let label = if rep == 0 { format!("warmup.{name}") } else { name.clone() };
-            rec.scope(&label, |rec| scan.record(rec, input, &out, n, ScanOp::Exclusive, scratch));
+            let label = if rep == 0 {
+                format!("warmup.{name}")
+            } else {
+                name.clone()
+            };
+            rec.scope(&label, |rec| {
+                scan.record(rec, input, &out, n, ScanOp::Exclusive, scratch)
+            });
             rec.compute_to_compute();
         }
     }
@@ -382,12 +510,21 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
             prim: name.clone(),
             n: n as u64,
             gpu_ms: best_ms(&profile, name),
-            min_bytes: if *is_flags { 5 * n as u64 } else { 8 * n as u64 },
+            min_bytes: if *is_flags {
+                5 * n as u64
+            } else {
+                8 * n as u64
+            },
         })
         .collect())
 }
 
 /// The fastest run of the scopes called `name`.
 pub(crate) fn best_ms(profile: &crate::gpu::Profile, name: &str) -> f64 {
-    profile.passes.iter().filter(|p| p.name == name).filter_map(|p| p.ms).fold(f64::INFINITY, f64::min)
+    profile
+        .passes
+        .iter()
+        .filter(|p| p.name == name)
+        .filter_map(|p| p.ms)
+        .fold(f64::INFINITY, f64::min)
 }

@@ -27,7 +27,9 @@ use glam::Vec3;
 
 use super::seed001::Events;
 use super::{Aabb, KdNode, KdTree, SahParams};
-use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Profile, Recorder, Result, Spec};
+use crate::gpu::{
+    kernels, Buffer, BufferArg, Context, GpuError, Kernel, Profile, Recorder, Result, Spec,
+};
 use crate::prims::radix_sort::{RadixScratch, RadixSort};
 use crate::prims::reduce::{CostIndex, Reduce};
 use crate::prims::scan::{GpuCount, Scan, ScanInput, ScanOp, ScanScratch};
@@ -284,8 +286,14 @@ impl KdTreeBuilder {
             flag_scan: Scan::new(ctx, cfg, ScanInput::Flags)?,
             scan: Scan::new(ctx, cfg, ScanInput::U32)?,
             // Nodes of the deep levels hold a few events each: small workgroups per segment.
-            segmented: SegmentedArgmin::with_segment_workgroup(ctx, cfg, ctx.info().subgroup_size.max(32))?,
-            segmented_mode: SegmentedMode::Hybrid { threshold: crate::prims::segmented::DEFAULT_HYBRID_THRESHOLD },
+            segmented: SegmentedArgmin::with_segment_workgroup(
+                ctx,
+                cfg,
+                ctx.info().subgroup_size.max(32),
+            )?,
+            segmented_mode: SegmentedMode::Hybrid {
+                threshold: crate::prims::segmented::DEFAULT_HYBRID_THRESHOLD,
+            },
         })
     }
 
@@ -305,7 +313,12 @@ impl KdTreeBuilder {
     }
 
     /// Allocates scratch for up to `max_prims` primitives at `capacity`.
-    pub fn scratch(&self, ctx: &Context, max_prims: usize, capacity: BuildCapacity) -> Result<BuildScratch> {
+    pub fn scratch(
+        &self,
+        ctx: &Context,
+        max_prims: usize,
+        capacity: BuildCapacity,
+    ) -> Result<BuildScratch> {
         let e = 2 * capacity.refs_per_level.max(max_prims);
         let m = capacity.nodes_per_level;
         let f = |name: &str, len: usize| Buffer::<f32>::new(ctx, name, len);
@@ -325,15 +338,31 @@ impl KdTreeBuilder {
             ])
         };
         Ok(BuildScratch {
-            capacity: BuildCapacity { refs_per_level: e / 2, ..capacity },
+            capacity: BuildCapacity {
+                refs_per_level: e / 2,
+                ..capacity
+            },
             max_prims,
-            prim_min: [f("kdtree.prim_min_x", max_prims)?, f("kdtree.prim_min_y", max_prims)?, f("kdtree.prim_min_z", max_prims)?],
-            prim_max: [f("kdtree.prim_max_x", max_prims)?, f("kdtree.prim_max_y", max_prims)?, f("kdtree.prim_max_z", max_prims)?],
-            bounds: std::array::from_fn(|i| f(&format!("kdtree.bounds{i}"), 1).expect("4-byte buffer")),
+            prim_min: [
+                f("kdtree.prim_min_x", max_prims)?,
+                f("kdtree.prim_min_y", max_prims)?,
+                f("kdtree.prim_min_z", max_prims)?,
+            ],
+            prim_max: [
+                f("kdtree.prim_max_x", max_prims)?,
+                f("kdtree.prim_max_y", max_prims)?,
+                f("kdtree.prim_max_z", max_prims)?,
+            ],
+            bounds: std::array::from_fn(|i| {
+                f(&format!("kdtree.bounds{i}"), 1).expect("4-byte buffer")
+            }),
             keys: f("kdtree.sort_keys", 2 * max_prims)?,
             values: u("kdtree.sort_values", 2 * max_prims)?,
             sort: self.sort.scratch(ctx, 2 * max_prims)?,
-            reduce: u("kdtree.reduce_scratch", self.reduce.scratch_len(max_prims).max(1))?,
+            reduce: u(
+                "kdtree.reduce_scratch",
+                self.reduce.scratch_len(max_prims).max(1),
+            )?,
             events: [events(0)?, events(1)?],
             levels: [level(0)?, level(1)?],
             state: u("kdtree.state", ST_WORDS)?,
@@ -346,7 +375,11 @@ impl KdTreeBuilder {
             best: Buffer::new(ctx, "kdtree.best", m)?,
             cost: f("kdtree.cost", e)?,
             axis: u("kdtree.axis", e)?,
-            starts: [u("kdtree.starts0", e)?, u("kdtree.starts1", e)?, u("kdtree.starts2", e)?],
+            starts: [
+                u("kdtree.starts0", e)?,
+                u("kdtree.starts1", e)?,
+                u("kdtree.starts2", e)?,
+            ],
             slots: Buffer::new(ctx, "kdtree.slots", 2 * e)?,
             slot_offsets: u("kdtree.slot_offsets", 2 * e)?,
             flag_scratch: self.flag_scan.scratch(ctx, e)?,
@@ -377,41 +410,77 @@ impl KdTreeBuilder {
         s: &BuildScratch,
         out: &BuildOutput,
     ) {
-        assert!(n >= 1 && n <= s.max_prims && 9 * n <= triangles.len(), "build of {n} triangles");
+        assert!(
+            n >= 1 && n <= s.max_prims && 9 * n <= triangles.len(),
+            "build of {n} triangles"
+        );
         self.record_phase_one(rec, triangles, n, s);
         let depth_limit = params.depth_limit(n);
         rec.scope("kdtree.phase2", |rec| {
             for depth in 0..=depth_limit {
                 let (cur, next) = ((depth % 2) as usize, ((depth + 1) % 2) as usize);
-                rec.scope("kdtree.level", |rec| self.record_level(rec, params, depth_limit, s, cur, next, out));
+                rec.scope("kdtree.level", |rec| {
+                    self.record_level(rec, params, depth_limit, s, cur, next, out)
+                });
             }
         });
     }
 
-    fn record_phase_one(&self, rec: &mut Recorder, triangles: &Buffer<f32>, n: usize, s: &BuildScratch) {
+    fn record_phase_one(
+        &self,
+        rec: &mut Recorder,
+        triangles: &Buffer<f32>,
+        n: usize,
+        s: &BuildScratch,
+    ) {
         let k = &self.k;
         rec.scope("kdtree.phase1", |rec| {
             rec.scope("kdtree.boxes", |rec| {
                 let groups = rec.groups_1d(n as u64, WORKGROUP);
-                let b: [&dyn BufferArg; 7] =
-                    [triangles, &s.prim_min[0], &s.prim_min[1], &s.prim_min[2], &s.prim_max[0], &s.prim_max[1], &s.prim_max[2]];
+                let b: [&dyn BufferArg; 7] = [
+                    triangles,
+                    &s.prim_min[0],
+                    &s.prim_min[1],
+                    &s.prim_min[2],
+                    &s.prim_max[0],
+                    &s.prim_max[1],
+                    &s.prim_max[2],
+                ];
                 rec.dispatch(&k.boxes, groups, &b, &(n as u32));
             });
             rec.compute_to_compute();
             rec.scope("kdtree.bounds", |rec| {
                 for a in 0..3 {
-                    self.reduce.record_min_f32(rec, &s.prim_min[a], n as u32, &s.reduce, &s.bounds[a]);
+                    self.reduce.record_min_f32(
+                        rec,
+                        &s.prim_min[a],
+                        n as u32,
+                        &s.reduce,
+                        &s.bounds[a],
+                    );
                     rec.compute_to_compute();
-                    self.reduce.record_max_f32(rec, &s.prim_max[a], n as u32, &s.reduce, &s.bounds[3 + a]);
+                    self.reduce.record_max_f32(
+                        rec,
+                        &s.prim_max[a],
+                        n as u32,
+                        &s.reduce,
+                        &s.bounds[3 + a],
+                    );
                     rec.compute_to_compute();
                 }
             });
             for (a, ev) in s.events[0].iter().enumerate() {
                 rec.scope("kdtree.events", |rec| {
                     let groups = rec.groups_1d(2 * n as u64, WORKGROUP);
-                    rec.dispatch(&k.event_keys, groups, &[&s.prim_min[a], &s.prim_max[a], &s.keys, &s.values], &(n as u32));
+                    rec.dispatch(
+                        &k.event_keys,
+                        groups,
+                        &[&s.prim_min[a], &s.prim_max[a], &s.keys, &s.values],
+                        &(n as u32),
+                    );
                     rec.compute_to_compute();
-                    self.sort.record_f32(rec, &s.keys, &s.values, 2 * n, &s.sort);
+                    self.sort
+                        .record_f32(rec, &s.keys, &s.values, 2 * n, &s.sort);
                     rec.compute_to_compute();
                     let groups = rec.groups_1d((2 * n).div_ceil(4) as u64, WORKGROUP);
                     let b: [&dyn BufferArg; 13] = [
@@ -454,7 +523,10 @@ impl KdTreeBuilder {
     }
 
     #[allow(clippy::too_many_arguments, reason = "one level of the recorded loop")]
-    #[allow(clippy::needless_range_loop, reason = "the axis indexes several parallel lists")]
+    #[allow(
+        clippy::needless_range_loop,
+        reason = "the axis indexes several parallel lists"
+    )]
     fn record_level(
         &self,
         rec: &mut Recorder,
@@ -470,17 +542,39 @@ impl KdTreeBuilder {
         let (lv, nlv) = (&s.levels[cur], &s.levels[next]);
         let e = ev[0].capacity;
         let m = s.capacity.nodes_per_level;
-        let refs = GpuCount { counts: &s.state, index: ST_REFS, mul: 2, div: 1 };
-        let nodes = GpuCount { counts: &s.state, index: ST_NODES, mul: 1, div: 1 };
+        let refs = GpuCount {
+            counts: &s.state,
+            index: ST_REFS,
+            mul: 2,
+            div: 1,
+        };
+        let nodes = GpuCount {
+            counts: &s.state,
+            index: ST_NODES,
+            mul: 1,
+            div: 1,
+        };
         let ev_args = 4 * ST_EVENT_ARGS;
         let node_args = 4 * ST_NODE_ARGS;
 
         rec.scope("kdtree.split_costs", |rec| {
             for a in 0..3 {
-                self.flag_scan.record_counted(rec, &ev[a].kind, &s.starts[a], e, refs, ScanOp::Exclusive, &s.flag_scratch);
+                self.flag_scan.record_counted(
+                    rec,
+                    &ev[a].kind,
+                    &s.starts[a],
+                    e,
+                    refs,
+                    ScanOp::Exclusive,
+                    &s.flag_scratch,
+                );
                 rec.compute_to_compute();
             }
-            let push = SahPush { trav: params.traversal_cost, isect: params.intersection_cost, bonus: params.empty_bonus };
+            let push = SahPush {
+                trav: params.traversal_cost,
+                isect: params.intersection_cost,
+                bonus: params.empty_bonus,
+            };
             let b: [&dyn BufferArg; 15] = [
                 &s.state,
                 &lv.node_box,
@@ -502,7 +596,16 @@ impl KdTreeBuilder {
             rec.compute_to_compute();
         });
         rec.scope("kdtree.best_split", |rec| {
-            self.segmented.record(rec, self.segmented_mode, &s.cost, &lv.offsets, &s.seg_count, m as u32, &s.seg_scratch, &s.best);
+            self.segmented.record(
+                rec,
+                self.segmented_mode,
+                &s.cost,
+                &lv.offsets,
+                &s.seg_count,
+                m as u32,
+                &s.seg_scratch,
+                &s.best,
+            );
             rec.compute_to_compute();
         });
         rec.scope("kdtree.nodes", |rec| {
@@ -527,12 +630,40 @@ impl KdTreeBuilder {
             ];
             rec.dispatch_indirect(&k.decide, &s.state, node_args, &b, &push);
             rec.compute_to_compute();
-            self.scan.record_counted(rec, &s.inner_flag, &s.inner_before, m, nodes, ScanOp::Exclusive, &s.inner_scratch);
-            self.scan.record_counted(rec, &s.leaf_count, &s.leaf_before, m, nodes, ScanOp::Exclusive, &s.leaf_scratch);
+            self.scan.record_counted(
+                rec,
+                &s.inner_flag,
+                &s.inner_before,
+                m,
+                nodes,
+                ScanOp::Exclusive,
+                &s.inner_scratch,
+            );
+            self.scan.record_counted(
+                rec,
+                &s.leaf_count,
+                &s.leaf_before,
+                m,
+                nodes,
+                ScanOp::Exclusive,
+                &s.leaf_scratch,
+            );
             rec.compute_to_compute();
-            let b: [&dyn BufferArg; 6] =
-                [&s.state, &lv.node_range, &s.node_split, &s.inner_before, &s.leaf_before, &out.nodes];
-            rec.dispatch_indirect(&k.write_nodes, &s.state, node_args, &b, &(out.nodes.len() as u32));
+            let b: [&dyn BufferArg; 6] = [
+                &s.state,
+                &lv.node_range,
+                &s.node_split,
+                &s.inner_before,
+                &s.leaf_before,
+                &out.nodes,
+            ];
+            rec.dispatch_indirect(
+                &k.write_nodes,
+                &s.state,
+                node_args,
+                &b,
+                &(out.nodes.len() as u32),
+            );
             let b: [&dyn BufferArg; 9] = [
                 &s.state,
                 &lv.node_range,
@@ -544,15 +675,41 @@ impl KdTreeBuilder {
                 &s.starts[0],
                 &out.prim_refs,
             ];
-            rec.dispatch_indirect(&k.leaves, &s.state, ev_args, &b, &(out.prim_refs.len() as u32));
+            rec.dispatch_indirect(
+                &k.leaves,
+                &s.state,
+                ev_args,
+                &b,
+                &(out.prim_refs.len() as u32),
+            );
         });
         rec.scope("kdtree.clip_partition", |rec| {
-            let slots = GpuCount { counts: &s.state, index: ST_REFS, mul: 4, div: 1 };
+            let slots = GpuCount {
+                counts: &s.state,
+                index: ST_REFS,
+                mul: 4,
+                div: 1,
+            };
             for a in 0..3 {
-                let b: [&dyn BufferArg; 6] = [&s.state, &lv.node_range, &s.node_split, &ev[a].node, &ev[a].boxes, &s.slots];
+                let b: [&dyn BufferArg; 6] = [
+                    &s.state,
+                    &lv.node_range,
+                    &s.node_split,
+                    &ev[a].node,
+                    &ev[a].boxes,
+                    &s.slots,
+                ];
                 rec.dispatch_indirect(&k.classify, &s.state, ev_args, &b, &(e as u32));
                 rec.compute_to_compute();
-                self.flag_scan.record_counted(rec, &s.slots, &s.slot_offsets, 2 * e, slots, ScanOp::Exclusive, &s.slot_scratch);
+                self.flag_scan.record_counted(
+                    rec,
+                    &s.slots,
+                    &s.slot_offsets,
+                    2 * e,
+                    slots,
+                    ScanOp::Exclusive,
+                    &s.slot_scratch,
+                );
                 rec.compute_to_compute();
                 let b: [&dyn BufferArg; 15] = [
                     &s.state,
@@ -623,8 +780,18 @@ impl KdTreeBuilder {
 
     /// Convenience: uploads `triangles`, builds (retrying with larger buffers on overflow),
     /// waits and reads the tree back, with the GPU profile of the successful attempt.
-    pub fn build(&self, ctx: &Context, triangles: &[[Vec3; 3]], params: &SahParams) -> Result<(KdTree, Profile)> {
-        let r = self.build_from(ctx, triangles, params, BuildCapacity::for_primitives(triangles.len()))?;
+    pub fn build(
+        &self,
+        ctx: &Context,
+        triangles: &[[Vec3; 3]],
+        params: &SahParams,
+    ) -> Result<(KdTree, Profile)> {
+        let r = self.build_from(
+            ctx,
+            triangles,
+            params,
+            BuildCapacity::for_primitives(triangles.len()),
+        )?;
         Ok((r.tree, r.profile))
     }
 
@@ -638,12 +805,31 @@ impl KdTreeBuilder {
         mut capacity: BuildCapacity,
     ) -> Result<BuildResult> {
         let n = triangles.len();
-        let bounds = super::seed001::bounds_of(&triangles.iter().map(super::seed001::prim_box).collect::<Vec<_>>());
+        let bounds = super::seed001::bounds_of(
+            &triangles
+                .iter()
+                .map(super::seed001::prim_box)
+                .collect::<Vec<_>>(),
+        );
         if n == 0 {
-            let tree = KdTree { nodes: vec![KdNode::leaf(0, 0)], prim_refs: Vec::new(), bounds: Aabb::EMPTY, primitives: 0 };
-            return Ok(BuildResult { tree, profile: Profile::default(), attempts: 0, capacity, levels: 1 });
+            let tree = KdTree {
+                nodes: vec![KdNode::leaf(0, 0)],
+                prim_refs: Vec::new(),
+                bounds: Aabb::EMPTY,
+                primitives: 0,
+            };
+            return Ok(BuildResult {
+                tree,
+                profile: Profile::default(),
+                attempts: 0,
+                capacity,
+                levels: 1,
+            });
         }
-        let flat: Vec<f32> = triangles.iter().flat_map(|t| t.iter().flat_map(|p| p.to_array())).collect();
+        let flat: Vec<f32> = triangles
+            .iter()
+            .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
+            .collect();
         let tris = Buffer::from_slice(ctx, "kdtree.triangles", &flat)?;
         for attempt in 1..=8 {
             let scratch = self.scratch(ctx, n, capacity)?;
@@ -662,8 +848,19 @@ impl KdTreeBuilder {
             nodes.truncate(outcome.nodes as usize);
             let mut prim_refs = out.prim_refs.download()?;
             prim_refs.truncate(outcome.refs as usize);
-            let tree = KdTree { nodes, prim_refs, bounds, primitives: n as u32 };
-            return Ok(BuildResult { tree, profile, attempts: attempt, capacity, levels: outcome.levels });
+            let tree = KdTree {
+                nodes,
+                prim_refs,
+                bounds,
+                primitives: n as u32,
+            };
+            return Ok(BuildResult {
+                tree,
+                profile,
+                attempts: attempt,
+                capacity,
+                levels: outcome.levels,
+            });
         }
         Err(GpuError::Kernel {
             kernel: "accel.kdtree",
@@ -674,7 +871,10 @@ impl KdTreeBuilder {
     /// Phase I alone, for the twin comparison: the scene box and the sorted event lists.
     pub fn phase_one(&self, ctx: &Context, triangles: &[[Vec3; 3]]) -> Result<(Aabb, [Events; 3])> {
         let n = triangles.len();
-        let flat: Vec<f32> = triangles.iter().flat_map(|t| t.iter().flat_map(|p| p.to_array())).collect();
+        let flat: Vec<f32> = triangles
+            .iter()
+            .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
+            .collect();
         let tris = Buffer::from_slice(ctx, "kdtree.triangles", &flat)?;
         let scratch = self.scratch(ctx, n, BuildCapacity::for_primitives(n))?;
         let mut rec = Recorder::new(ctx)?;
@@ -682,8 +882,18 @@ impl KdTreeBuilder {
         rec.compute_to_transfer();
         rec.submit_and_wait()?;
         let v = |i: usize| scratch.bounds[i].download().map(|b| b[0]);
-        let bounds = Aabb { min: Vec3::new(v(0)?, v(1)?, v(2)?), max: Vec3::new(v(3)?, v(4)?, v(5)?) };
+        let bounds = Aabb {
+            min: Vec3::new(v(0)?, v(1)?, v(2)?),
+            max: Vec3::new(v(3)?, v(4)?, v(5)?),
+        };
         let ev = &scratch.events[0];
-        Ok((bounds, [ev[0].download(2 * n)?, ev[1].download(2 * n)?, ev[2].download(2 * n)?]))
+        Ok((
+            bounds,
+            [
+                ev[0].download(2 * n)?,
+                ev[1].download(2 * n)?,
+                ev[2].download(2 * n)?,
+            ],
+        ))
     }
 }

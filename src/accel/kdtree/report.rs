@@ -13,8 +13,13 @@ use super::{full_clip, seed001, stats, SahParams};
 use crate::gpu::{Context, Profile, Result};
 
 /// The phases of seed 001 as profiler scopes (summed over all levels).
-pub const PHASES: [&str; 5] =
-    ["kdtree.phase1", "kdtree.split_costs", "kdtree.best_split", "kdtree.nodes", "kdtree.clip_partition"];
+pub const PHASES: [&str; 5] = [
+    "kdtree.phase1",
+    "kdtree.split_costs",
+    "kdtree.best_split",
+    "kdtree.nodes",
+    "kdtree.clip_partition",
+];
 
 /// The JSON of `vkrt build --json`.
 #[derive(Clone, Debug, Serialize)]
@@ -59,7 +64,10 @@ pub fn build_report(
     let mut report = BuildReport {
         primitives: triangles.len() as u32,
         build_ms: ms("kdtree.phase1") + ms("kdtree.phase2"),
-        phases: PHASES.iter().map(|p| (p.trim_start_matches("kdtree.").to_string(), ms(p))).collect(),
+        phases: PHASES
+            .iter()
+            .map(|p| (p.trim_start_matches("kdtree.").to_string(), ms(p)))
+            .collect(),
         levels: result.levels,
         nodes: s.nodes,
         leaves: s.leaves,
@@ -79,7 +87,10 @@ pub fn build_report(
         report.cpu_twin_ms = Some(t.elapsed().as_secs_f64() * 1e3);
         let same_nodes = twin.nodes.len() == result.tree.nodes.len()
             && twin.nodes.iter().zip(&result.tree.nodes).all(|(a, b)| {
-                a.split.to_bits() == b.split.to_bits() && a.kind == b.kind && a.a == b.a && a.b == b.b
+                a.split.to_bits() == b.split.to_bits()
+                    && a.kind == b.kind
+                    && a.a == b.a
+                    && a.b == b.b
             });
         report.equal_to_cpu_twin = Some(same_nodes && twin.prim_refs == result.tree.prim_refs);
         let t = Instant::now();

@@ -200,7 +200,10 @@ pub fn build(triangles: &[[Vec3; 3]], params: &SahParams) -> (KdTree, BuildTrace
 }
 
 /// Builds the tree over primitive boxes.
-#[allow(clippy::needless_range_loop, reason = "one event per iteration, as one per invocation in the kernel")]
+#[allow(
+    clippy::needless_range_loop,
+    reason = "one event per iteration, as one per invocation in the kernel"
+)]
 pub fn build_boxes(boxes: &[Aabb], params: &SahParams) -> (KdTree, BuildTrace) {
     let n = boxes.len();
     let bounds = bounds_of(boxes);
@@ -448,7 +451,10 @@ fn classify(ev: &Events, is_leaf: &[bool], split_axis: &[usize], split_plane: &[
 /// The 0/1 flags of the virtual slots: node i owns `[4·first, 4·first + 2·count)` for its
 /// below copies and the next `2·count` for its above copies, each at the event's local
 /// index, so one exclusive scan gives every copy its place and keeps each list sorted.
-#[allow(clippy::needless_range_loop, reason = "one event per iteration, as one per invocation in the kernel")]
+#[allow(
+    clippy::needless_range_loop,
+    reason = "one event per iteration, as one per invocation in the kernel"
+)]
 fn virtual_slots(ev: &Events, mask: &[u8], level: &Level) -> Vec<u8> {
     let mut slots = vec![0u8; 2 * ev.len()];
     for id in 0..ev.len() {
@@ -461,8 +467,14 @@ fn virtual_slots(ev: &Events, mask: &[u8], level: &Level) -> Vec<u8> {
     slots
 }
 
-#[allow(clippy::too_many_arguments, reason = "named like the kernel's bindings")]
-#[allow(clippy::needless_range_loop, reason = "one event per iteration, as one per invocation in the kernel")]
+#[allow(
+    clippy::too_many_arguments,
+    reason = "named like the kernel's bindings"
+)]
+#[allow(
+    clippy::needless_range_loop,
+    reason = "one event per iteration, as one per invocation in the kernel"
+)]
 fn scatter(
     ev: &Events,
     mask: &[u8],
