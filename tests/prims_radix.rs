@@ -359,7 +359,10 @@ fn unsupported_digit_widths_are_an_error() {
 #[ignore = "benchmark, minutes on lavapipe: run with --ignored --nocapture"]
 fn bench_digit_widths() {
     let Some(ctx) = common::context() else { return };
-    let reps = 3;
+    let reps = std::env::var("VKRT_BENCH_REPS")
+        .ok()
+        .and_then(|r| r.parse().ok())
+        .unwrap_or(3);
     for n in [1usize << 22, 1 << 24] {
         let timings = vkrt::prims::radix_sort::bench(&ctx, n, reps).unwrap();
         // Keys and values read and written once: what one pass at least moves.

@@ -24,7 +24,8 @@
 //!   first element, and a second walk over the run hands positions out in order (the
 //!   counting approach of CUB's block radix rank). Per element: a few fixed shared-memory
 //!   accesses and 16-byte loads, no subgroup operations; but 2^bits × workgroup counters,
-//!   so 8-bit digits get 16-invocation workgroups (32 KiB of shared memory).
+//!   so 8-bit digits get 16-invocation workgroups in 32 KiB of shared memory (17 KiB used;
+//!   32 invocations would need 33 KiB).
 //! - `Match`: each subgroup walks a contiguous chunk in rounds of one element per lane; the
 //!   lanes holding the same digit find each other with one ballot per digit bit (the
 //!   warp-level "match" of Onesweep and multisplit); a lane's rank is its peers on lower
@@ -33,7 +34,7 @@
 //!   digit in subgroup order. (workgroup / 4) × 2^bits words of shared memory.
 //!
 //! On lavapipe every ballot and every lane-varying memory access is a loop over the lanes,
-//! which is what `Counters` saves: it measured 1.2–1.7× faster there (table below). On GPUs
+//! which is what `Counters` saves: it measured 1.25–1.8× faster there (table below). On GPUs
 //! ballots are single instructions; [`Ranking::preferred`] picks by device type and
 //! [`RadixSort::with_ranking`] overrides.
 //!
@@ -55,12 +56,24 @@
 //! [`RadixSort::record_f32`] land wherever their bits put them (beyond ±inf).
 //!
 //! **Bits per pass**, measured on lavapipe (Mesa 22.3.6, LLVM 15, 2 cores, AVX2, 8-lane
-//! subgroups), `PrimConfig::default_for`, random full-range u32 keys with u32 values,
-//! GPU ms of the whole sort (best of 3, `vkrt::prims::radix_sort::bench`):
+//! subgroups) with `PrimConfig::default_for` (256 × 16), random full-range u32 keys with u32
+//! values: GPU ms of the whole sort, best of 3 to 5 rounds, best of three runs of
+//! [`bench`] (`cargo test --release --test prims_radix bench -- --ignored --nocapture`).
+//! Other builds shared the two cores: single runs varied by up to ±30%, so only differences
+//! beyond that mean something. 8-bit digits with `Counters` ranking won or tied every run.
 //!
-//! | bits per pass | passes | 2^22 ms | 2^24 ms |
-//! |---|---|---|---|
-//! | (measurement pending) | | | |
+//! | bits per pass | passes | 2^22 Counters | 2^22 Match | 2^24 Counters | 2^24 Match |
+//! |---|---|---|---|---|---|
+//! | 4 | 8 | 752 | 1055 | 2733 | 3691 |
+//! | 5 | 7 | 755 | 1011 | 1883 | 3465 |
+//! | 6 | 6 | 619 | 892 | 2158 | 2690 |
+//! | **8** | 4 | **498** | 687 | **1371** | 1887 |
+//!
+//! For scale, at 2^24: the f32 sort (same passes) 1182 ms; `slice::sort_unstable_by_key` of
+//! the (key, value) pairs on one core 339 ms; one pass's worth of the best copy kernel (keys
+//! and values read and written once) 36 ms, so the sort costs about 9 copy passes per digit
+//! pass — per element the scatter makes a handful of lane-by-lane memory accesses (each a
+//! loop over the lanes on lavapipe) where the copy makes one 16-byte one.
 
 use std::sync::Arc;
 
@@ -83,8 +96,9 @@ pub const BITS_RANGE: std::ops::RangeInclusive<u32> = 1..=8;
 /// zeroing) stays small per element.
 const MIN_TILE_PER_DIGIT: u32 = 32;
 
-/// Elements a tile holds at least. Measured on lavapipe: 8-bit sorts of 2^22 keys took
-/// ≈ 1.4× longer with 1024-element tiles than with 8192; 8192 to 32768 were alike.
+/// Elements a tile holds at least. Measured on lavapipe (`Counters`, 2^22 keys): 6-bit
+/// sorts took ≈ 1.7× longer with 1024-element tiles than with 8192, and 8192 to 32768 were
+/// alike within the noise.
 const MIN_TILE: u32 = 8192;
 
 /// Push constants of the histogram and scatter kernels (keep in sync with `Push` in
@@ -124,7 +138,7 @@ pub enum Ranking {
 
 impl Ranking {
     /// The ranking `RadixSort::new` tries first on this device: `Counters` on CPU devices
-    /// (lavapipe, where it measured about 3× faster than `Match`: every ballot and every
+    /// (lavapipe, where it measured 1.25–1.8× faster than `Match`: every ballot and every
     /// lane-varying memory access is a loop over the lanes there), `Match` on GPUs (where
     /// ballots are single instructions, and `Counters` with wide digits would shrink the
     /// scatter to one subgroup per workgroup; a reasoned choice, not measured here).
@@ -624,12 +638,13 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
         .iter()
         .map(|(_, s, _)| s.scratch(ctx, n))
         .collect::<Result<Vec<_>>>()?;
-    let mut timings = Vec::new();
-    for ((name, sort, kind), scratch) in variants.iter().zip(&scratches) {
-        // One submission per variant: lavapipe's timestamps are per command buffer anyway,
-        // and a variant's scratch is warm after its own warm-up.
+    // Round-robin: every round (one submission) runs every variant once, so a burst of
+    // load on the machine slows one round of all variants rather than all rounds of one.
+    // Round 0 is the warm-up (first touch of the scratch memory).
+    let mut best = vec![f64::INFINITY; variants.len()];
+    for round in 0..=reps {
         let mut rec = Recorder::new(ctx)?;
-        for rep in 0..=reps {
+        for ((name, sort, kind), scratch) in variants.iter().zip(&scratches) {
             if *kind == KeyKind::F32 {
                 rec.copy(&float_src, &float_buf, n);
             } else {
@@ -637,25 +652,29 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
             }
             rec.copy(&value_src, &value_buf, n);
             rec.transfer_to_compute();
-            let label = if rep == 0 {
-                format!("warmup.{name}")
-            } else {
-                name.clone()
-            };
-            rec.scope(&label, |rec| match kind {
+            rec.scope(name, |rec| match kind {
                 KeyKind::U32 => sort.record(rec, &key_buf, &value_buf, n, 32, scratch),
                 KeyKind::F32 => sort.record_f32(rec, &float_buf, &value_buf, n, scratch),
             });
             rec.compute_to_transfer();
         }
         let profile = rec.submit_and_wait()?;
-        timings.push(PrimTiming {
+        if round > 0 {
+            for ((name, _, _), best) in variants.iter().zip(&mut best) {
+                *best = best.min(best_ms(&profile, name));
+            }
+        }
+    }
+    let mut timings: Vec<PrimTiming> = variants
+        .iter()
+        .zip(best)
+        .map(|((name, sort, _), ms)| PrimTiming {
             prim: name.clone(),
             n: n as u64,
-            gpu_ms: best_ms(&profile, name),
+            gpu_ms: ms,
             min_bytes: 16 * n as u64 * u64::from(sort.passes(32)),
-        });
-    }
+        })
+        .collect();
 
     // The default width is one of the measured ones: report it under the plain name too.
     let default = timings
