@@ -13,7 +13,7 @@ use serde::Serialize;
 use super::error::{vk_err, GpuError, Result};
 
 /// Timestamp queries one recorder reserves by default (two per scope).
-pub const DEFAULT_QUERY_CAPACITY: u32 = 4096;
+pub const DEFAULT_QUERY_CAPACITY: u32 = 32768;
 
 #[derive(Debug)]
 struct Scope {
@@ -172,6 +172,33 @@ impl Profile {
             .filter_map(|p| p.ms)
             .collect();
         (!times.is_empty()).then(|| times.iter().sum())
+    }
+
+    /// The scopes nested inside the last scope called `name` (that scope included), e.g.
+    /// the timed run after a warm-up run of the same passes.
+    pub fn subtree(&self, name: &str) -> Profile {
+        let Some(root) = self.passes.iter().rposition(|p| p.name == name) else {
+            return Profile::default();
+        };
+        let inside = |mut i: usize| loop {
+            if i == root {
+                return true;
+            }
+            match self.passes[i].parent {
+                Some(parent) => i = parent,
+                None => return false,
+            }
+        };
+        let kept: Vec<usize> = (0..self.passes.len()).filter(|&i| inside(i)).collect();
+        let passes = kept
+            .iter()
+            .map(|&i| {
+                let mut p = self.passes[i].clone();
+                p.parent = p.parent.and_then(|q| kept.iter().position(|&k| k == q));
+                p
+            })
+            .collect();
+        Profile { passes }
     }
 
     /// Appends `other`'s scopes (e.g. several submissions of one command) after a gap.
