@@ -699,7 +699,9 @@ impl KdTreeBuilder {
                     &ev[a].boxes,
                     &s.slots,
                 ];
-                rec.dispatch_indirect(&k.classify, &s.state, ev_args, &b, &(e as u32));
+                rec.scope("kdtree.classify", |rec| {
+                    rec.dispatch_indirect(&k.classify, &s.state, ev_args, &b, &(e as u32))
+                });
                 rec.compute_to_compute();
                 self.flag_scan.record_counted(
                     rec,
@@ -728,7 +730,9 @@ impl KdTreeBuilder {
                     &nev[a].node,
                     &nev[a].boxes,
                 ];
-                rec.dispatch_indirect(&k.scatter, &s.state, ev_args, &b, &(e as u32));
+                rec.scope("kdtree.scatter", |rec| {
+                    rec.dispatch_indirect(&k.scatter, &s.state, ev_args, &b, &(e as u32))
+                });
                 if a == 0 {
                     let b: [&dyn BufferArg; 10] = [
                         &s.state,
@@ -742,7 +746,9 @@ impl KdTreeBuilder {
                         &nlv.node_range,
                         &nlv.offsets,
                     ];
-                    rec.dispatch_indirect(&k.children, &s.state, node_args, &b, &(m as u32));
+                    rec.scope("kdtree.children", |rec| {
+                        rec.dispatch_indirect(&k.children, &s.state, node_args, &b, &(m as u32))
+                    });
                 }
                 // The next axis rewrites the slots and their offsets.
                 rec.compute_to_compute();
@@ -881,14 +887,21 @@ impl KdTreeBuilder {
         capacity: BuildCapacity,
     ) -> Result<Profile> {
         let n = triangles.len();
-        let flat: Vec<f32> = triangles.iter().flat_map(|t| t.iter().flat_map(|p| p.to_array())).collect();
+        let flat: Vec<f32> = triangles
+            .iter()
+            .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
+            .collect();
         let tris = Buffer::from_slice(ctx, "kdtree.triangles", &flat)?;
         let scratch = self.scratch(ctx, n, capacity)?;
         let out = self.output(ctx, &capacity)?;
         let mut rec = Recorder::new(ctx)?;
-        rec.scope("kdtree.warmup", |rec| self.record_build(rec, &tris, n, params, &scratch, &out));
+        rec.scope("kdtree.warmup", |rec| {
+            self.record_build(rec, &tris, n, params, &scratch, &out)
+        });
         rec.compute_to_compute();
-        rec.scope("kdtree.timed", |rec| self.record_build(rec, &tris, n, params, &scratch, &out));
+        rec.scope("kdtree.timed", |rec| {
+            self.record_build(rec, &tris, n, params, &scratch, &out)
+        });
         rec.compute_to_transfer();
         Ok(rec.submit_and_wait()?.subtree("kdtree.timed"))
     }
