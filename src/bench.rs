@@ -275,7 +275,12 @@ pub fn kdtree_report(
         };
         for &(mode, label) in modes {
             builder.segmented_mode = mode;
-            let built = builder.build_from(ctx, tris, &params, crate::accel::kdtree::gpu::BuildCapacity::for_primitives(tris.len()))?;
+            let built = builder.build_from(
+                ctx,
+                tris,
+                &params,
+                crate::accel::kdtree::gpu::BuildCapacity::for_primitives(tris.len()),
+            )?;
             let tree = built.tree;
             let profile = builder.timed_build(ctx, tris, &params, built.capacity)?;
             let ms = |p: &str| profile.ms(p).unwrap_or(0.0);
