@@ -76,9 +76,7 @@ fn make_f32(pattern: Pattern, n: usize, rng: &mut Rng) -> Vec<f32> {
                 }
             })
             .collect(),
-        Pattern::Ties => (0..n)
-            .map(|_| (rng.next_u64() % 5) as f32 - 2.0)
-            .collect(),
+        Pattern::Ties => (0..n).map(|_| (rng.next_u64() % 5) as f32 - 2.0).collect(),
         Pattern::AllInfinite => vec![f32::INFINITY; n],
     }
 }
@@ -139,10 +137,25 @@ fn check_all(ctx: &Context, reduce: &Reduce, costs: &[f32], values: &[u32], what
     let one = |b: &Buffer<u32>| b.download().unwrap()[0];
     let one_f = |b: &Buffer<f32>| b.download().unwrap()[0].to_bits();
     let ctx_msg = format!("{what}, n = {n}, {cfg:?}");
-    assert_eq!(one(&out.sum_u32), reduce::sum_u32_cpu(values), "sum_u32: {ctx_msg}");
-    assert_eq!(one(&out.min_u32), reduce::min_u32_cpu(values), "min_u32: {ctx_msg}");
-    assert_eq!(one(&out.max_u32), reduce::max_u32_cpu(values), "max_u32: {ctx_msg}");
-    let (got, want) = (one_f(&out.sum_f32), reduce::sum_f32_cpu(costs, cfg).to_bits());
+    assert_eq!(
+        one(&out.sum_u32),
+        reduce::sum_u32_cpu(values),
+        "sum_u32: {ctx_msg}"
+    );
+    assert_eq!(
+        one(&out.min_u32),
+        reduce::min_u32_cpu(values),
+        "min_u32: {ctx_msg}"
+    );
+    assert_eq!(
+        one(&out.max_u32),
+        reduce::max_u32_cpu(values),
+        "max_u32: {ctx_msg}"
+    );
+    let (got, want) = (
+        one_f(&out.sum_f32),
+        reduce::sum_f32_cpu(costs, cfg).to_bits(),
+    );
     assert_eq!(
         got,
         want,
@@ -177,18 +190,26 @@ fn every_reduction_equals_its_twin_at_every_edge_size() {
         let reduce = Reduce::new(&ctx, cfg).unwrap();
         let sizes = common::edge_sizes(sg, cfg.workgroup_size as usize, cfg.tile() as usize);
         let mut rng = Rng(11);
-        for n in sizes {
-            // Every pattern at the small sizes; the large ones get the two that stress
-            // the f32 sum's order and the argmin's tie-break.
-            let patterns: &[Pattern] = if n > 1 << 16 {
-                &[Pattern::Random, Pattern::Ties]
+        for (size_index, n) in sizes.into_iter().enumerate() {
+            // Three patterns per size, rotating so each meets every size class; the large
+            // sizes get the two that stress the f32 sum's order and the argmin's tie-break.
+            let patterns: Vec<Pattern> = if n > 1 << 16 {
+                vec![Pattern::Random, Pattern::Ties]
             } else {
-                &ALL_PATTERNS
+                (0..3)
+                    .map(|k| ALL_PATTERNS[(3 * size_index + k) % ALL_PATTERNS.len()])
+                    .collect()
             };
-            for &pattern in patterns {
+            for pattern in patterns {
                 let costs = make_f32(pattern, n, &mut rng);
                 let values = make_u32(&costs, pattern);
-                check_all(&ctx, &reduce, &costs, &values, &format!("{name}, {pattern:?}"));
+                check_all(
+                    &ctx,
+                    &reduce,
+                    &costs,
+                    &values,
+                    &format!("{name}, {pattern:?}"),
+                );
             }
         }
     }
@@ -206,7 +227,13 @@ fn every_reduction_equals_its_twin_on_random_sizes_and_patterns() {
             let pattern = ALL_PATTERNS[round % ALL_PATTERNS.len()];
             let costs = make_f32(pattern, n, &mut rng);
             let values = make_u32(&costs, pattern);
-            check_all(&ctx, &reduce, &costs, &values, &format!("{name}, {pattern:?}, round {round}"));
+            check_all(
+                &ctx,
+                &reduce,
+                &costs,
+                &values,
+                &format!("{name}, {pattern:?}, round {round}"),
+            );
         }
     }
     common::assert_silent(&ctx);
@@ -219,7 +246,10 @@ fn empty_inputs_give_the_documented_identities() {
     assert_eq!(reduce.sum_u32(&ctx, &[]).unwrap(), 0);
     assert_eq!(reduce.min_u32(&ctx, &[]).unwrap(), u32::MAX);
     assert_eq!(reduce.max_u32(&ctx, &[]).unwrap(), 0);
-    assert_eq!(reduce.sum_f32(&ctx, &[]).unwrap().to_bits(), 0.0f32.to_bits());
+    assert_eq!(
+        reduce.sum_f32(&ctx, &[]).unwrap().to_bits(),
+        0.0f32.to_bits()
+    );
     assert_eq!(reduce.min_f32(&ctx, &[]).unwrap(), f32::INFINITY);
     assert_eq!(reduce.max_f32(&ctx, &[]).unwrap(), f32::NEG_INFINITY);
     let (cost, index) = reduce.argmin(&ctx, &[]).unwrap();
@@ -248,8 +278,17 @@ fn argmin_breaks_ties_by_the_lowest_index_and_treats_signed_zeros_as_equal() {
         assert_eq!(reduce.argmin(&ctx, &costs).unwrap(), (0.0, 0));
         // min/max f32 order -0.0 below +0.0.
         let zeros = [0.0f32, -0.0, 0.0];
-        assert_eq!(reduce.min_f32(&ctx, &zeros).unwrap().to_bits(), (-0.0f32).to_bits());
-        assert_eq!(reduce.max_f32(&ctx, &[-0.0f32, 0.0, -0.0]).unwrap().to_bits(), 0);
+        assert_eq!(
+            reduce.min_f32(&ctx, &zeros).unwrap().to_bits(),
+            (-0.0f32).to_bits()
+        );
+        assert_eq!(
+            reduce
+                .max_f32(&ctx, &[-0.0f32, 0.0, -0.0])
+                .unwrap()
+                .to_bits(),
+            0
+        );
     }
     common::assert_silent(&ctx);
 }
@@ -266,6 +305,11 @@ fn bad_configurations_are_errors() {
         PrimConfig {
             workgroup_size: 3 * ctx.info().subgroup_size,
             ..good
+        },
+        // Past llvmpipe's loop limit (see reduce::MAX_ITEMS_PER_INVOCATION).
+        PrimConfig {
+            items_per_invocation: 2 * reduce::MAX_ITEMS_PER_INVOCATION,
+            workgroup_size: ctx.info().subgroup_size,
         },
     ] {
         assert!(Reduce::new(&ctx, cfg).is_err(), "{cfg:?} accepted");
@@ -324,7 +368,10 @@ fn tune_configs() {
             items_per_invocation: i,
         })
         .collect();
-    let reduces: Vec<Reduce> = cfgs.iter().map(|&c| Reduce::new(&ctx, c).unwrap()).collect();
+    let reduces: Vec<Reduce> = cfgs
+        .iter()
+        .map(|&c| Reduce::new(&ctx, c).unwrap())
+        .collect();
     let data: Vec<f32> = (0..n).map(|i| (i % 1000) as f32).collect();
     let src = Buffer::from_slice(&ctx, "tune.src", &data).unwrap();
     let scratch_len = reduces.iter().map(|r| r.scratch_len(n)).max().unwrap();
@@ -345,7 +392,18 @@ fn tune_configs() {
             rec.compute_to_compute();
         }
     }
+    rec.compute_to_transfer();
     let profile = rec.submit_and_wait().unwrap();
+    // The last configuration's results must be right.
+    let last = *cfgs.last().unwrap();
+    assert_eq!(
+        out.download().unwrap()[0].to_bits(),
+        reduce::sum_f32_cpu(&data, last).to_bits(),
+        "sum_f32 with {last:?}"
+    );
+    let got = out_arg.download().unwrap()[0];
+    let (c, i) = reduce::argmin_cpu(&data);
+    assert_eq!(got.bits(), (c.to_bits(), i), "argmin with {last:?}");
     let best = |name: &str| {
         profile
             .passes

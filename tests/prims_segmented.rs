@@ -17,21 +17,15 @@ fn configs(ctx: &Context) -> [(&'static str, PrimConfig); 2] {
     ]
 }
 
-/// Every mode, plus hybrids whose threshold sits below, at and above the tile, so both the
-/// "first and last segment only" and the "every segment of the tile" tile loops run.
-fn modes(cfg: PrimConfig) -> Vec<SegmentedMode> {
-    let tile = cfg.tile();
+/// Every mode, plus hybrids at other thresholds (1: only over-capacity segments are long).
+fn modes(ctx: &Context) -> Vec<SegmentedMode> {
     vec![
         SegmentedMode::WorkgroupPerSegment,
         SegmentedMode::DeviceWide,
-        SegmentedMode::default(),
-        SegmentedMode::Hybrid {
-            threshold: tile / 2 + 1,
-        },
-        SegmentedMode::Hybrid { threshold: tile },
-        SegmentedMode::Hybrid {
-            threshold: 3 * tile + 1,
-        },
+        SegmentedMode::hybrid_for(ctx),
+        SegmentedMode::Hybrid { threshold: 1 },
+        SegmentedMode::Hybrid { threshold: 3 },
+        SegmentedMode::Hybrid { threshold: 1000 },
     ]
 }
 
@@ -62,7 +56,14 @@ fn offsets_from_lengths(start: u32, lengths: &[u32]) -> Vec<u32> {
 /// Runs every mode of `seg` in one submission (the count lives on the GPU; `count` may be
 /// below the capacity `offsets.len() - 1`, or above it to test the clamp) and compares each
 /// with the twin.
-fn check(ctx: &Context, seg: &SegmentedArgmin, costs: &[f32], offsets: &[u32], count: u32, what: &str) {
+fn check(
+    ctx: &Context,
+    seg: &SegmentedArgmin,
+    costs: &[f32],
+    offsets: &[u32],
+    count: u32,
+    what: &str,
+) {
     let max_segments = offsets.len() as u32 - 1;
     let costs_buf = Buffer::from_slice(ctx, "test.costs", costs).unwrap();
     let offsets_buf = Buffer::from_slice(ctx, "test.offsets", offsets).unwrap();
@@ -73,7 +74,7 @@ fn check(ctx: &Context, seg: &SegmentedArgmin, costs: &[f32], offsets: &[u32], c
         seg.scratch_len(costs.len(), max_segments as usize),
     )
     .unwrap();
-    let modes = modes(seg.config());
+    let modes = modes(ctx);
     let outs: Vec<Buffer<CostIndex>> = modes
         .iter()
         .map(|_| Buffer::new(ctx, "test.out", max_segments as usize).unwrap())
@@ -81,7 +82,14 @@ fn check(ctx: &Context, seg: &SegmentedArgmin, costs: &[f32], offsets: &[u32], c
     let mut rec = Recorder::new(ctx).unwrap();
     for (mode, out) in modes.iter().zip(&outs) {
         seg.record(
-            &mut rec, *mode, &costs_buf, &offsets_buf, &count_buf, max_segments, &scratch, out,
+            &mut rec,
+            *mode,
+            &costs_buf,
+            &offsets_buf,
+            &count_buf,
+            max_segments,
+            &scratch,
+            out,
         );
         // The next mode reuses `scratch` (and its indirect arguments).
         rec.compute_to_indirect();
@@ -111,7 +119,7 @@ fn check(ctx: &Context, seg: &SegmentedArgmin, costs: &[f32], offsets: &[u32], c
 /// The shapes every configuration is tested on: (name, offsets).
 fn shapes(cfg: PrimConfig, n_big: u32, rng: &mut Rng) -> Vec<(String, Vec<u32>)> {
     let tile = cfg.tile();
-    let threshold = segmented::DEFAULT_HYBRID_THRESHOLD;
+    let threshold = 4 * tile;
     let mut shapes = vec![
         ("one empty".to_string(), vec![0, 0]),
         ("all empty".to_string(), vec![0; 1001]),
@@ -127,13 +135,21 @@ fn shapes(cfg: PrimConfig, n_big: u32, rng: &mut Rng) -> Vec<(String, Vec<u32>)>
         let lengths: Vec<u32> = (0..count).map(|_| (rng.next_u64() % 4) as u32).collect();
         shapes.push((format!("{count} tiny"), offsets_from_lengths(0, &lengths)));
     }
-    // Lengths straddling the tile and the default threshold, in one array.
+    // Lengths straddling one and several tiles, in one array.
     let mut lengths = Vec::new();
-    for l in [tile - 1, tile, tile + 1, 2 * tile - 1, threshold - 1, threshold, threshold + 1] {
+    for l in [
+        tile - 1,
+        tile,
+        tile + 1,
+        2 * tile - 1,
+        threshold - 1,
+        threshold,
+        threshold + 1,
+    ] {
         lengths.extend([l, 0, 1, l]);
     }
     shapes.push(("straddling".to_string(), offsets_from_lengths(3, &lengths)));
-    // Mixed, heavy-tailed: mostly small, some a few tiles, a few above the threshold.
+    // Mixed, heavy-tailed: mostly small, some a few tiles, a few of several tiles.
     let lengths: Vec<u32> = (0..3000)
         .map(|_| match rng.next_u64() % 100 {
             0 => threshold + (rng.next_u64() % u64::from(threshold)) as u32,
@@ -156,7 +172,11 @@ fn shapes(cfg: PrimConfig, n_big: u32, rng: &mut Rng) -> Vec<(String, Vec<u32>)>
 fn every_mode_equals_the_twin_on_every_shape() {
     let Some(ctx) = common::context() else { return };
     let quick = std::env::var("VKRT_TEST_QUICK").is_ok_and(|v| v == "1");
-    let n_big = if quick { (1 << 18) + 13 } else { (1 << 20) + 13 };
+    let n_big = if quick {
+        (1 << 18) + 13
+    } else {
+        (1 << 20) + 13
+    };
     for (name, cfg) in configs(&ctx) {
         let seg = SegmentedArgmin::new(&ctx, cfg).unwrap();
         let mut rng = Rng(5);
@@ -168,11 +188,49 @@ fn every_mode_equals_the_twin_on_every_shape() {
                 random_costs(n, &mut rng)
             };
             let count = offsets.len() as u32 - 1;
-            check(&ctx, &seg, &costs, &offsets, count, &format!("{name}, {shape}"));
+            check(
+                &ctx,
+                &seg,
+                &costs,
+                &offsets,
+                count,
+                &format!("{name}, {shape}"),
+            );
             let ties = tie_costs(n, &mut rng);
-            check(&ctx, &seg, &ties, &offsets, count, &format!("{name}, {shape}, ties"));
+            check(
+                &ctx,
+                &seg,
+                &ties,
+                &offsets,
+                count,
+                &format!("{name}, {shape}, ties"),
+            );
         }
     }
+    common::assert_silent(&ctx);
+}
+
+/// llvmpipe silently ends a loop after 65,535 iterations (Mesa 22.3): one segment long
+/// enough that a single-subgroup workgroup's lanes loop far more often than that, with the
+/// minimum at the very end, must still be found (the kernels split long loops).
+#[test]
+fn a_segment_longer_than_llvmpipes_loop_limit() {
+    let Some(ctx) = common::context() else { return };
+    let cfg = PrimConfig::single_subgroup(&ctx);
+    let seg = SegmentedArgmin::new(&ctx, cfg).unwrap();
+    // 65,535 iterations of 4 elements for each of up to 32 lanes is 8.4M elements.
+    let n = 9_000_000u32;
+    let mut rng = Rng(77);
+    let mut costs: Vec<f32> = (0..n).map(|_| 1.0 + rng.next_f32().abs()).collect();
+    costs[n as usize - 3] = 0.5;
+    check(
+        &ctx,
+        &seg,
+        &costs,
+        &[0, n],
+        1,
+        "one segment past the loop limit",
+    );
     common::assert_silent(&ctx);
 }
 
@@ -183,13 +241,26 @@ fn the_count_is_read_on_the_gpu_and_clamped_to_the_capacity() {
         let seg = SegmentedArgmin::new(&ctx, cfg).unwrap();
         let mut rng = Rng(9);
         let lengths: Vec<u32> = (0..64)
-            .map(|i| if i % 9 == 0 { 3 * cfg.tile() } else { (rng.next_u64() % 300) as u32 })
+            .map(|i| {
+                if i % 9 == 0 {
+                    3 * cfg.tile()
+                } else {
+                    (rng.next_u64() % 300) as u32
+                }
+            })
             .collect();
         let offsets = offsets_from_lengths(0, &lengths);
         let n = *offsets.last().unwrap() as usize;
         let costs = tie_costs(n, &mut rng);
         for count in [0, 1, 17, 63, 64, 65, 1000] {
-            check(&ctx, &seg, &costs, &offsets, count, &format!("{name}, count {count}"));
+            check(
+                &ctx,
+                &seg,
+                &costs,
+                &offsets,
+                count,
+                &format!("{name}, count {count}"),
+            );
         }
     }
     common::assert_silent(&ctx);
@@ -201,7 +272,7 @@ fn the_convenience_call_and_empty_segments() {
     let seg = SegmentedArgmin::new(&ctx, PrimConfig::default_for(&ctx)).unwrap();
     let costs = [3.0, 1.0, -0.0, 0.0, 2.0, 0.0];
     let offsets = [0, 2, 2, 6];
-    for mode in modes(seg.config()) {
+    for mode in modes(&ctx) {
         let got = seg.argmin(&ctx, mode, &costs, &offsets).unwrap();
         let bits: Vec<_> = got.iter().map(CostIndex::bits).collect();
         assert_eq!(
@@ -215,7 +286,7 @@ fn the_convenience_call_and_empty_segments() {
         );
     }
     assert!(seg
-        .argmin(&ctx, SegmentedMode::default(), &[], &[])
+        .argmin(&ctx, SegmentedMode::hybrid_for(&ctx), &[], &[])
         .unwrap()
         .is_empty());
     common::assert_silent(&ctx);
@@ -247,22 +318,23 @@ fn threshold_measurement() {
         .ok()
         .and_then(|v| v.parse().ok())
         .unwrap_or(1 << 22);
-    let levels: Vec<u32> = (0..=16).step_by(2).collect();
+    let levels: Vec<u32> = (0..=16).collect();
     let mut modes = vec![
         SegmentedMode::WorkgroupPerSegment,
         SegmentedMode::DeviceWide,
     ];
-    for t in [1u32 << 12, 1 << 14, 1 << 16, 1 << 18] {
+    for t in [2u32, 4, 16, 64, 256] {
         modes.push(SegmentedMode::Hybrid { threshold: t });
     }
+    let labelled: Vec<(String, SegmentedMode)> = modes.iter().map(|m| (m.name(), *m)).collect();
     let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<u32>().ok());
     let mut cfg = PrimConfig::default_for(&ctx);
-    cfg.workgroup_size = env("BENCH_WG").unwrap_or(cfg.workgroup_size);
-    cfg.items_per_invocation = env("BENCH_ITEMS").unwrap_or(cfg.items_per_invocation);
-    let seg_wg = env("BENCH_SEG_WG").unwrap_or(cfg.workgroup_size);
+    cfg.workgroup_size = env("BENCH_WG").unwrap_or(256);
+    cfg.items_per_invocation = env("BENCH_ITEMS").unwrap_or(256);
+    let seg_wg = env("BENCH_SEG_WG").unwrap_or(ctx.info().subgroup_size);
     let seg = SegmentedArgmin::with_segment_workgroup(&ctx, cfg, seg_wg).unwrap();
     println!("n = {n}, tiles {cfg:?}, segment workgroup {seg_wg}");
-    let timings = segmented::bench_levels(&ctx, &seg, n, 3, &levels, &modes).unwrap();
+    let timings = segmented::bench_levels(&ctx, &seg, n, 3, &levels, &labelled).unwrap();
     print!("{:>6} {:>8}", "level", "seg len");
     for m in &modes {
         let name = m.name();
@@ -278,13 +350,17 @@ fn threshold_measurement() {
     }
 }
 
+/// Per-pass times of one huge segment in the two pure modes (diagnostic).
 #[test]
-#[ignore = "diagnostic"]
-fn zz_pass_breakdown() {
+#[ignore = "diagnostic: cargo test --release --test prims_segmented -- --ignored --nocapture breakdown"]
+fn pass_breakdown() {
     let Some(ctx) = common::context() else { return };
     let n = 1u32 << 22;
     let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<u32>().ok());
-    let cfg = PrimConfig { workgroup_size: env("BENCH_WG").unwrap_or(256), items_per_invocation: env("BENCH_ITEMS").unwrap_or(256) };
+    let cfg = PrimConfig {
+        workgroup_size: env("BENCH_WG").unwrap_or(256),
+        items_per_invocation: env("BENCH_ITEMS").unwrap_or(256),
+    };
     let seg = SegmentedArgmin::with_segment_workgroup(&ctx, cfg, 8).unwrap();
     let costs: Vec<f32> = (0..n).map(|i| (i % 1000) as f32).collect();
     let costs = Buffer::from_slice(&ctx, "d.costs", &costs).unwrap();
@@ -294,14 +370,28 @@ fn zz_pass_breakdown() {
     let out = Buffer::<CostIndex>::new(&ctx, "d.o", 1).unwrap();
     let mut rec = Recorder::new(&ctx).unwrap();
     for _ in 0..8 {
-        for mode in [SegmentedMode::DeviceWide, SegmentedMode::WorkgroupPerSegment] {
+        for mode in [
+            SegmentedMode::DeviceWide,
+            SegmentedMode::WorkgroupPerSegment,
+        ] {
             seg.record(&mut rec, mode, &costs, &offsets, &count, 1, &scratch, &out);
             rec.compute_to_indirect();
         }
     }
     let profile = rec.submit_and_wait().unwrap();
-    for name in ["prims.segmented_plan", "prims.segmented_tiles", "prims.segmented_segments", "prims.segmented_argmin"] {
-        let v: Vec<String> = profile.passes.iter().filter(|p| p.name == name).filter_map(|p| p.ms).map(|m| format!("{m:.2}")).collect();
+    for name in [
+        "prims.segmented_plan",
+        "prims.segmented_tiles",
+        "prims.segmented_segments",
+        "prims.segmented_argmin",
+    ] {
+        let v: Vec<String> = profile
+            .passes
+            .iter()
+            .filter(|p| p.name == name)
+            .filter_map(|p| p.ms)
+            .map(|m| format!("{m:.2}"))
+            .collect();
         println!("{name}: {}", v.join(" "));
     }
 }

@@ -36,6 +36,14 @@ void argmin_consider(float c, uint i, inout float best_c, inout uint best_i) {
     }
 }
 
+// Elements e .. e + 3 with costs v, in index order.
+void argmin_consider4(vec4 v, uint e, inout float best_c, inout uint best_i) {
+    argmin_consider(v.x, e, best_c, best_i);
+    argmin_consider(v.y, e + 1u, best_c, best_i);
+    argmin_consider(v.z, e + 2u, best_c, best_i);
+    argmin_consider(v.w, e + 3u, best_c, best_i);
+}
+
 // Every lane ends with the subgroup's winner.
 void subgroup_argmin(inout float c, inout uint i) {
     for (uint k = 1; k < reduce_subgroup_lanes(); k <<= 1) {
@@ -104,13 +112,21 @@ void argmin_range(uint begin, uint end, inout float c, inout uint i) {
     chunk = (chunk + lanes - 1u) / lanes * lanes;
     uint chunk_begin = body_begin + gl_SubgroupID * chunk;
     uint chunk_end = min(chunk_begin + chunk, body_end);
-    for (uint j = chunk_begin + gl_SubgroupInvocationID; j < chunk_end; j += lanes) {
-        vec4 v = ARGMIN_COSTS4[j];
-        uint e = 4u * j;
-        argmin_consider(v.x, e, c, i);
-        argmin_consider(v.y, e + 1u, c, i);
-        argmin_consider(v.z, e + 2u, c, i);
-        argmin_consider(v.w, e + 3u, c, i);
+    // REDUCE_UNROLL blocks per iteration (llvmpipe's loop budget, common/reduce_lanes.glsl),
+    // then the rest one at a time (fewer than REDUCE_UNROLL iterations).
+    uint j = chunk_begin + gl_SubgroupInvocationID;
+    for (; j + 3u * lanes < chunk_end; j += 4u * lanes) {
+        vec4 v0 = ARGMIN_COSTS4[j];
+        vec4 v1 = ARGMIN_COSTS4[j + lanes];
+        vec4 v2 = ARGMIN_COSTS4[j + 2u * lanes];
+        vec4 v3 = ARGMIN_COSTS4[j + 3u * lanes];
+        argmin_consider4(v0, 4u * j, c, i);
+        argmin_consider4(v1, 4u * (j + lanes), c, i);
+        argmin_consider4(v2, 4u * (j + 2u * lanes), c, i);
+        argmin_consider4(v3, 4u * (j + 3u * lanes), c, i);
+    }
+    for (; j < chunk_end; j += lanes) {
+        argmin_consider4(ARGMIN_COSTS4[j], 4u * j, c, i);
     }
     uint tail = 4u * body_end + lane;
     if (tail < end) {

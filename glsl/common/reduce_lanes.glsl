@@ -21,6 +21,16 @@
 // 16-byte blocks, each run owning one contiguous chunk of the tile.
 #define REDUCE_RUN 8u
 
+// Workaround (Mesa 22.3 lavapipe / llvmpipe, LLVM 15; found 2026-11): llvmpipe stops loops
+// once an invocation has run 65,535 loop iterations in total, across all its loops
+// (LP_MAX_TGSI_LOOP_ITERATIONS, "shared between every loop" in gallivm), silently: a lane
+// walking a long range skips its end, and nesting loops does not help. Every kernel here
+// bounds its total iterations by construction: loops over data handle REDUCE_UNROLL
+// 16-byte blocks per iteration, and src/prims/{reduce,segmented}.rs size the work per
+// invocation to stay under REDUCE_LOOP_BUDGET (keep both in sync with the Rust constants).
+#define REDUCE_UNROLL 4u
+#define REDUCE_LOOP_BUDGET 60000u
+
 uint reduce_subgroup_lanes() {
     return gl_WorkGroupSize.x / gl_NumSubgroups;
 }

@@ -3,19 +3,20 @@
 // `src` (TILE = workgroup size × ITEMS elements) and writes one partial, dst[dst_offset + g].
 // The host repeats passes over the partials until one value is left.
 //
-// Layout, quad-striped: the invocations of a workgroup form quads of 4 consecutive
-// reduce_lane()s; quad q owns the contiguous chunk of ITEMS 16-byte blocks starting at block
-// g·TILE/4 + q·ITEMS, and lane r of the quad reads blocks chunk + 4k + r, k < ITEMS/4. A
-// quad reads 64 contiguous bytes per step (full memory sectors on GPUs), each llvmpipe SIMD
-// batch streams through its own chunks, and, quads being the smallest subgroup, the
-// assignment does not depend on the subgroup size. Elements past `n` read as the identity.
+// Layout, run-striped: runs of RUN = min(REDUCE_RUN, WG) consecutive reduce_lane()s own
+// contiguous chunks of RUN·ITEMS/4 16-byte blocks, starting at block g·TILE/4 +
+// (lane / RUN)·RUN·ITEMS/4, and lane r of a run reads blocks chunk + RUN·k + r, k < ITEMS/4.
+// A run reads 128 contiguous bytes per step (coalesced on GPUs), each llvmpipe SIMD batch
+// streams through its own chunk, and the assignment depends on the workgroup size only,
+// never on the subgroup size. Elements past `n` read as the identity.
 //
 // sum_f32 fixes its order, so its CPU twin (`sum_f32_pass_cpu`) gives the same bits: each
 // invocation keeps four running sums (one per vec4 component, in k order), folds them as
 // (x + y) + (z + w), then the workgroup adds the invocation partials as a perfect binary tree
-// in reduce_lane() order: xor butterflies in the subgroup, then the same butterflies over the
-// subgroup totals in shared memory. Workgroup and subgroup sizes are powers of two, so that
-// tree is the same whatever the subgroup size. Padding is -0.0, the exact identity of IEEE
+// in reduce_lane() order: xor butterflies in each subgroup, then the subgroup totals in
+// shared memory, where lane l of subgroup 0 folds an aligned block of them as a perfect tree
+// and butterflies combine the blocks. All counts are powers of two, so the whole is the same
+// perfect tree whatever the subgroup size. Padding is -0.0, the exact identity of IEEE
 // addition; `precise` keeps the compiler from reassociating or contracting. Sums of n = 0 are
 // +0.0 (the kernel special-cases it).
 //
@@ -32,7 +33,8 @@
 #extension GL_KHR_shader_subgroup_arithmetic : require
 #extension GL_KHR_shader_subgroup_shuffle : require
 layout(local_size_x_id = 0) in;
-// Elements per invocation per tile: a multiple of 4.
+// Elements per invocation per tile: a multiple of 4, at most MAX_ITEMS_PER_INVOCATION
+// (src/prims/reduce.rs; llvmpipe's loop budget, common/reduce_lanes.glsl).
 layout(constant_id = 1) const uint ITEMS = 4;
 #include "common/grid.glsl"
 #include "common/reduce_lanes.glsl"
@@ -176,12 +178,13 @@ void main() {
         return;
     }
     uint lane = reduce_lane();
-    // This invocation's blocks: j = begin + 4k, k < ITEMS / 4. The loop runs over the whole
-    // ones; the partial one (if any) is the tile's last, added after them, and padding after
-    // it would add identities: the order is the twin's.
+    // This invocation's blocks: j = begin + RUN·k, k < ITEMS / 4. The loop runs over the
+    // whole ones (llvmpipe runs both sides of a branch that is not uniform, so no per-load
+    // tail test); the partial one (if any) is the tile's last, added after them, and padding
+    // after it would add identities: the order is the twin's.
     const uint run = min(REDUCE_RUN, gl_WorkGroupSize.x);
-    uint chunk = group * tile4 + gl_SubgroupID * (run * items4);
-    uint begin = chunk + gl_SubgroupInvocationID;
+    uint chunk = group * tile4 + (lane / run) * (run * items4);
+    uint begin = chunk + lane % run;
     uint whole = pc.n / 4u;
     uint end = min(chunk + run * items4, whole);
     bool partial = (pc.n & 3u) != 0u && whole >= begin && whole < chunk + run * items4

@@ -12,7 +12,8 @@
 #extension GL_KHR_shader_subgroup_basic : require
 #extension GL_KHR_shader_subgroup_shuffle : require
 layout(local_size_x_id = 0) in;
-// Entries per invocation per tile: a multiple of 4.
+// Entries per invocation per tile: a multiple of 4, at most MAX_ITEMS_PER_INVOCATION
+// (src/prims/reduce.rs; llvmpipe's loop budget, common/reduce_lanes.glsl).
 layout(constant_id = 1) const uint ITEMS = 4;
 #include "common/grid.glsl"
 #include "common/argmin.glsl"
@@ -43,10 +44,10 @@ void main() {
     uint lane = reduce_lane();
     float c = ARGMIN_NONE_COST;
     uint i = ARGMIN_NONE_INDEX;
-    // Quad-striped as in reduce.comp: quad lane/4 owns a chunk of 4·items4 16-byte blocks,
-    // lane r of the quad reads blocks chunk + 4k + r. The whole blocks in a loop (llvmpipe
-    // runs both sides of a branch that is not uniform, so no per-load tail test), then the
-    // partial block if this invocation has it.
+    // Run-striped as in reduce.comp: a run of RUN lanes owns a chunk of RUN·items4 16-byte
+    // blocks, lane r of the run reads blocks chunk + RUN·k + r. The whole blocks in a loop
+    // (llvmpipe runs both sides of a branch that is not uniform, so no per-load tail test),
+    // then the partial block if this invocation has it.
     const uint run = min(REDUCE_RUN, gl_WorkGroupSize.x);
     uint chunk = group * tile4 + (lane / run) * (run * items4);
     uint begin = chunk + lane % run;

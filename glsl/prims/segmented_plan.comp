@@ -1,11 +1,12 @@
 #version 460
-// The segmented argmin's plan (src/prims/segmented.rs): reads the segment count the GPU
-// left in `count` and the extent of the segments, and writes the plan record and the
-// indirect workgroup counts of both paths (common/reduce_segments.glsl). The tiled path
-// gets its tiles only if some segment can reach the threshold length (the span of all
-// segments does); it then handles exactly the segments of at least `threshold` elements,
-// and segmented_segments the others. One invocation: this is O(1) work.
-layout(local_size_x = 1) in;
+// The segmented argmin's plan (src/prims/segmented.rs), one workgroup: reads the segment
+// count the GPU left in `count`, decides which segments are long, lists them in segment
+// order with the prefix sum of the tiles each touches, and writes the plan record:
+// the indirect workgroup counts of segmented_tiles (one workgroup per (long segment, tile)
+// pair; none when no segment is long) and of segmented_segments (one per segment).
+// Invocation L scans the contiguous range of segments [L·chunk, (L + 1)·chunk) twice
+// (count, then write); one invocation turns the per-invocation counts into offsets.
+layout(local_size_x = 128) in;
 
 layout(std430, binding = 0) readonly buffer Offsets { uint offsets[]; };
 layout(std430, binding = 1) readonly buffer Count { uint count_in[]; };
@@ -15,11 +16,16 @@ layout(push_constant) uniform Push {
     uint max_segments; // capacity: counts above it are clamped
     uint n_costs;      // elements in the cost buffer
     uint tile;         // elements per tile of the tiled path
-    uint threshold;    // segments of at least this many elements take the tiled path (>= 1)
+    uint share;        // long: more than 1/share of all elements (0: never, by that rule)
+    uint capacity;     // long: more than a segment workgroup may loop over (>= tile)
     uint max_groups_x; // maxComputeWorkGroupCount[0]: larger counts fold into y
 } pc;
 
 #include "common/reduce_segments.glsl"
+
+shared uint long_before[gl_WorkGroupSize.x];
+shared uint pairs_before[gl_WorkGroupSize.x];
+shared uint totals[2];
 
 void write_groups(uint at, uint groups) {
     uint x = min(groups, pc.max_groups_x);
@@ -29,23 +35,66 @@ void write_groups(uint at, uint groups) {
 }
 
 void main() {
+    uint lane = gl_LocalInvocationIndex;
+    uint lanes = gl_WorkGroupSize.x;
     uint count = min(count_in[0], pc.max_segments);
-    uint first = 0u;
+    // Long: at least a tile, and more than 1/share of the span of all segments (the seed's
+    // node-count switch, per segment), or more than a workgroup may loop over.
     uint total = 0u;
     if (count > 0u) {
-        first = segment_bounds(0u, pc.n_costs).x;
-        total = clamp(offsets[count], first, pc.n_costs);
+        uint first = segment_bounds(0u, pc.n_costs).x;
+        total = clamp(offsets[count], first, pc.n_costs) - first;
     }
-    uint first_tile = first / pc.tile;
-    uint tiles = 0u;
-    if (count > 0u && total - first >= pc.threshold) {
-        tiles = (total + pc.tile - 1u) / pc.tile - first_tile;
+    uint cut = pc.share == 0u ? pc.capacity : clamp(total / pc.share + 1u, pc.tile, pc.capacity);
+    uint chunk = (count + lanes - 1u) / lanes;
+    uint begin = min(lane * chunk, count);
+    uint end = min(begin + chunk, count);
+    uint n_long = 0u;
+    uint n_pairs = 0u;
+    for (uint s = begin; s < end; s++) {
+        uvec2 seg = segment_bounds(s, pc.n_costs);
+        if (seg.y - seg.x >= cut) {
+            n_long++;
+            n_pairs += segment_tiles(seg, pc.tile);
+        }
     }
-    write_groups(PLAN_SEGMENT_GROUPS, count);
-    write_groups(PLAN_TILE_GROUPS, tiles);
-    plan[PLAN_COUNT] = count;
-    plan[PLAN_FIRST] = first;
-    plan[PLAN_TOTAL] = total;
-    plan[PLAN_FIRST_TILE] = first_tile;
-    plan[PLAN_TILES] = tiles;
+    long_before[lane] = n_long;
+    pairs_before[lane] = n_pairs;
+    barrier();
+    if (lane == 0u) {
+        uint l = 0u;
+        uint p = 0u;
+        for (uint k = 0u; k < lanes; k++) {
+            uint nl = long_before[k];
+            uint np = pairs_before[k];
+            long_before[k] = l;
+            pairs_before[k] = p;
+            l += nl;
+            p += np;
+        }
+        totals[0] = l;
+        totals[1] = p;
+    }
+    barrier();
+    if (totals[0] > 0u && n_long > 0u) {
+        uint l = long_before[lane];
+        uint p = pairs_before[lane];
+        for (uint s = begin; s < end; s++) {
+            uvec2 seg = segment_bounds(s, pc.n_costs);
+            if (seg.y - seg.x >= cut) {
+                plan[PLAN_WORDS + 2u * l] = s;
+                plan[PLAN_WORDS + 2u * l + 1u] = p;
+                l++;
+                p += segment_tiles(seg, pc.tile);
+            }
+        }
+    }
+    if (lane == 0u) {
+        write_groups(PLAN_SEGMENT_GROUPS, count);
+        write_groups(PLAN_TILE_GROUPS, totals[1]);
+        plan[PLAN_COUNT] = count;
+        plan[PLAN_LONG] = totals[0];
+        plan[PLAN_PAIRS] = totals[1];
+        plan[PLAN_CUT] = cut;
+    }
 }

@@ -1,6 +1,6 @@
 #version 460
 // The segmented argmin's workgroup-per-segment path (src/prims/segmented.rs): workgroup s
-// writes out[s] for segment s < PLAN_COUNT. A segment of at least `threshold` elements was
+// writes out[s] for segment s < PLAN_COUNT. A long segment (at least PLAN_CUT elements) was
 // cut into tiles by segmented_tiles, so the workgroup combines its (tile, segment) winners;
 // any other segment the workgroup reduces itself, looping over its elements. Empty segments
 // give (+inf, u32::MAX).
@@ -16,13 +16,18 @@ layout(std430, binding = 3) writeonly buffer Out { uvec2 out_winners[]; };
 // Keep in sync with `PathPush` in src/prims/segmented.rs.
 layout(push_constant) uniform Push {
     uint n_costs;
-    uint threshold;
-    uint tile; // elements per tile of segmented_tiles (its workgroup size may differ)
+    uint tile;      // elements per tile of segmented_tiles (its workgroup size may differ)
+    uint slot_base; // scratch word of the first (tile, segment) slot
 } pc;
 
 #define ARGMIN_COSTS4 costs4
 #include "common/argmin.glsl"
 #include "common/reduce_segments.glsl"
+
+void consider_slot(uint p, inout float c, inout uint i) {
+    uint w = pc.slot_base + 2u * p;
+    argmin_consider(uintBitsToFloat(scratch[w]), scratch[w + 1u], c, i);
+}
 
 void main() {
     uint s = linear_group_id();
@@ -33,11 +38,20 @@ void main() {
     float c = ARGMIN_NONE_COST;
     uint i = ARGMIN_NONE_INDEX;
     uint lane = reduce_lane();
-    if (seg.y - seg.x >= pc.threshold) {
-        uint last = (seg.y - 1u) / pc.tile;
-        for (uint t = seg.x / pc.tile + lane; t <= last; t += gl_WorkGroupSize.x) {
-            uint w = PLAN_WORDS + 2u * (t + s);
-            argmin_consider(uintBitsToFloat(scratch[w]), scratch[w + 1u], c, i);
+    if (seg.y - seg.x >= scratch[PLAN_CUT]) {
+        // The slots of tiles [first, end) are the consecutive pairs first + s .. end + s;
+        // REDUCE_UNROLL per iteration (llvmpipe's loop budget, common/reduce_lanes.glsl).
+        uint lanes = gl_WorkGroupSize.x;
+        uint p = seg.x / pc.tile + s + lane;
+        uint p_end = (seg.y - 1u) / pc.tile + 1u + s;
+        for (; p + 3u * lanes < p_end; p += 4u * lanes) {
+            consider_slot(p, c, i);
+            consider_slot(p + lanes, c, i);
+            consider_slot(p + 2u * lanes, c, i);
+            consider_slot(p + 3u * lanes, c, i);
+        }
+        for (; p < p_end; p += lanes) {
+            consider_slot(p, c, i);
         }
     } else {
         argmin_range(seg.x, seg.y, c, i);

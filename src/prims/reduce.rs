@@ -27,9 +27,11 @@
 //! loops. The f32 sum is not associative, so its order is fixed instead of left to
 //! `subgroupAdd`: per invocation four running sums (one per vec4 lane) folded as
 //! `(x + y) + (z + w)`, then a perfect binary tree over the invocations of the workgroup
-//! (xor-shuffle butterflies inside a subgroup, the same butterflies over subgroup totals in
-//! shared memory), padded with -0.0, the exact additive identity. Workgroup and subgroup
-//! sizes are powers of two, so that tree is the same for every subgroup size: the result
+//! (xor-shuffle butterflies inside each subgroup; after the workgroup's one barrier, lane l
+//! of subgroup 0 folds an aligned block of the subgroup totals as a perfect tree and
+//! butterflies combine the blocks), padded with -0.0, the exact additive identity. Workgroup
+//! and subgroup sizes are powers of two, so that tree is the same for every subgroup size:
+//! the result
 //! depends on the workgroup size and the items per invocation only, and [`sum_f32_cpu`]
 //! mirrors it bit for bit (the tests check it under subgroup sizes 4 to 32).
 //!
@@ -40,9 +42,37 @@
 //! input (and earlier uses of `scratch` and `out`) before it, and puts a `compute_to_*`
 //! barrier between it and the readers of `out`.
 //!
-//! Measured on lavapipe (2 cores, LLVM 15, AVX2, subgroup 8), n = 2^24, default config
-//! (256 × 16), best of 5, `cargo test --release --test prims_reduce -- --ignored bench`:
-//! see [`bench`]; the numbers are in the report of issue 3 and `vkrt bench prims`.
+//! Layout: within a tile, runs of 8 consecutive invocations read consecutive 16-byte blocks
+//! and each run owns one contiguous chunk (`reduce.comp`): 128 contiguous bytes per 8 lanes
+//! on a GPU, a streaming chunk per SIMD batch on llvmpipe, and an element-to-invocation map
+//! that does not depend on the subgroup size.
+//!
+//! Measured on lavapipe (Mesa 22.3, LLVM 15, 2 cores shared with other jobs: load average
+//! about 3; subgroup 8), `cargo test --release --test prims_reduce -- --ignored --nocapture
+//! tune` (configurations interleaved in one submission, best of 9, n = 2^22):
+//!
+//! | workgroup × items | sum_f32 ms | argmin ms |
+//! |---|---|---|
+//! | 256 × 16 (`PrimConfig::default_for`) | 14.3 | 12.9 |
+//! | 256 × 64 | 8.1 | 7.8 |
+//! | 256 × 256 | 6.5 | 6.4 |
+//! | 256 × 1024 ([`recommended_config`]) | 6.1 | 6.0 |
+//! | 64 × 1024 | 6.1 | 6.0 |
+//! | 8 × 1024 | 6.3 | 6.6 |
+//!
+//! Every invocation llvmpipe launches costs about as much as reading a few hundred elements,
+//! so the items per invocation decide; the workgroup size hardly matters. With one
+//! lavapipe thread (`LP_NUM_THREADS=1`) 256 × 1024 took 3.9 ms and with two 2.05 ms (a
+//! quieter moment): the kernel scales and then approaches this machine's memory bandwidth
+//! (about 9.6 GB/s for one thread reading). At n = 2^24 (64 MiB), [`bench`]: about 16 ms
+//! (1.0 G elements/s) for every reduction with [`recommended_config`], 19–29 ms with the
+//! default 256 × 16.
+//!
+//! Workaround (Mesa 22.3 lavapipe, found 2026-11): llvmpipe silently stops loops once an
+//! invocation has run 65,535 iterations in total across all its loops
+//! (`LP_MAX_TGSI_LOOP_ITERATIONS`, "shared between every loop" in gallivm). A pass's loop
+//! runs `items / 4` (argmin's pair passes `items / 2`) times, so `items_per_invocation` is
+//! capped at [`MAX_ITEMS_PER_INVOCATION`]; the segmented kernels bound theirs likewise.
 
 use std::sync::Arc;
 
@@ -103,6 +133,13 @@ pub struct Reduce {
     argmin_pairs: Arc<Kernel>,
 }
 
+/// The largest `items_per_invocation` the reductions take. Workaround (Mesa 22.3 lavapipe,
+/// found 2026-11): llvmpipe silently stops loops once an invocation has run 65,535
+/// iterations across all its loops (`glsl/common/reduce_lanes.glsl`), and a pass's
+/// invocation loops `items / 2` times at most (argmin's pair passes), plus a few dozen
+/// iterations in the workgroup reduction.
+pub const MAX_ITEMS_PER_INVOCATION: u32 = 16384;
+
 /// Checks what every reduction kernel assumes of its configuration.
 pub(crate) fn check_config(ctx: &Context, cfg: PrimConfig, kernel: &'static str) -> Result<()> {
     let info = ctx.info();
@@ -114,13 +151,19 @@ pub(crate) fn check_config(ctx: &Context, cfg: PrimConfig, kernel: &'static str)
             "workgroup size {wg} is not a multiple of the subgroup size {}",
             info.subgroup_size
         ))
-    } else if cfg.items_per_invocation == 0 || cfg.items_per_invocation % 4 != 0 {
+    } else if cfg.items_per_invocation == 0
+        || cfg.items_per_invocation % 4 != 0
+        || cfg.items_per_invocation > MAX_ITEMS_PER_INVOCATION
+    {
         Some(format!(
-            "items per invocation {} is not a positive multiple of 4 (16-byte loads)",
+            "items per invocation {} is not a multiple of 4 (16-byte loads) in 4..={MAX_ITEMS_PER_INVOCATION} (llvmpipe's loop budget)",
             cfg.items_per_invocation
         ))
     } else if u64::from(wg) * u64::from(cfg.items_per_invocation) > 1 << 24 {
-        Some(format!("tile of {wg} x {} is too large", cfg.items_per_invocation))
+        Some(format!(
+            "tile of {wg} x {} is too large",
+            cfg.items_per_invocation
+        ))
     } else {
         None
     };
@@ -134,6 +177,16 @@ pub(crate) fn check_config(ctx: &Context, cfg: PrimConfig, kernel: &'static str)
 /// read them with 16-byte loads.
 fn level_words(partials: u32, words_per_partial: u32) -> u32 {
     (partials * words_per_partial).next_multiple_of(4)
+}
+
+/// The measured best configuration on lavapipe (module docs): 256 invocations × 1024
+/// elements. Every invocation launched costs about as much as reading a few hundred
+/// elements there, so tiles are large; on a GPU, 256 × 16..64 is the usual choice.
+pub fn recommended_config(ctx: &Context) -> PrimConfig {
+    PrimConfig {
+        workgroup_size: 256u32.max(ctx.info().subgroup_size),
+        items_per_invocation: 1024,
+    }
 }
 
 impl Reduce {
@@ -342,7 +395,8 @@ impl Reduce {
     ) -> Result<R> {
         let n = u32::try_from(data.len()).expect("reductions take at most u32::MAX elements");
         let src = Buffer::from_slice(ctx, "prims.reduce.src", data)?;
-        let scratch = Buffer::<u32>::new(ctx, "prims.reduce.scratch", self.scratch_len(data.len()))?;
+        let scratch =
+            Buffer::<u32>::new(ctx, "prims.reduce.scratch", self.scratch_len(data.len()))?;
         let out = Buffer::<R>::new(ctx, "prims.reduce.out", 1)?;
         let mut rec = Recorder::new(ctx)?;
         record(self, &mut rec, &src, n, &scratch, &out);
@@ -539,10 +593,10 @@ pub fn argmin_cpu(costs: &[f32]) -> (f32, u32) {
 // ---------------------------------------------------------------------------------------
 // Benchmark
 
-/// Times the reductions over `n` elements with the default configuration: the best of
-/// `reps` runs after one untimed warm-up. `min_bytes` is the input read plus the result.
+/// Times the reductions over `n` elements with [`recommended_config`]: the best of `reps`
+/// runs after one untimed warm-up. `min_bytes` is the input read plus the result.
 pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
-    bench_with(ctx, PrimConfig::default_for(ctx), n, reps)
+    bench_with(ctx, recommended_config(ctx), n, reps)
 }
 
 /// [`bench`] with a given configuration (for tuning).

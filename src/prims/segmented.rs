@@ -12,38 +12,69 @@
 //! - **workgroup per segment** (`segmented_segments.comp`): workgroup s loops over segment
 //!   s. Ideal with many segments; with a few huge ones (the first kd-tree levels) a few
 //!   workgroups do all the work while the rest of the device idles.
-//! - **device-wide, tiled** (`segmented_tiles.comp`): fixed tiles over the flat array, each
-//!   reducing the parts of the segments it covers into a (tile, segment) slot, then a combine
-//!   per segment (done by the per-segment kernel, which reads those slots instead of the
-//!   elements). Every workgroup gets the same work whatever the segment sizes.
+//! - **device-wide, tiled** (`segmented_tiles.comp`): fixed tiles of `cfg.tile()` elements
+//!   over the flat array; one workgroup per (long segment, tile) pair reduces the part of
+//!   the segment inside the tile into a (tile, segment) slot, and the per-segment kernel
+//!   then combines a long segment's slots instead of reading its elements. Every workgroup
+//!   gets at most a tile of work whatever the segment sizes.
 //!
-//! **Hybrid, decided on the GPU.** A one-invocation plan kernel (`segmented_plan.comp`)
-//! reads the count and the segments' span and writes the indirect workgroup counts of both
-//! paths; the host records plan → `compute_to_indirect` → tiles (indirect) →
-//! `compute_to_indirect` → segments (indirect) without knowing the count. The split is by
-//! segment **length**, not by level: a segment of at least `threshold` elements goes through
-//! the tiles, the others get their own workgroup. That subsumes the seed's switch on the
-//! node count (level k of a balanced tree has 2^k segments of n / 2^k elements, so the tiles
-//! serve exactly the first levels) and also handles the skewed levels of real scenes, where
-//! one huge node would otherwise keep a single workgroup busy. The plan stays O(1): it gives
-//! the tiles 0 workgroups when the span of all segments is below the threshold (then no
-//! segment can reach it); otherwise every tile runs, finds its first and last segment by
-//! binary search and, with `threshold >= tile`, reduces at most those two (a segment
-//! strictly inside a tile is shorter than the tile).
+//! **Hybrid, decided on the GPU, per segment.** A one-workgroup plan kernel
+//! (`segmented_plan.comp`) reads the count, decides which segments are *long*, lists them
+//! with the prefix sum of the tiles each touches, and writes the indirect workgroup counts
+//! of both paths (the tiles get none when no segment is long). The host records plan →
+//! `compute_to_indirect` → tiles → `compute_to_indirect` → segments without knowing the
+//! count. `Hybrid { threshold }` is the seed's node-count switch made per segment: a
+//! segment is long when it holds more than 1/`threshold` of all the segments' elements (and
+//! at least a tile). On a balanced level k (2^k equal segments) that is exactly "tiles while
+//! 2^k < threshold"; on the skewed levels of real scenes it also splits the one node that
+//! would otherwise keep a single workgroup busy while the rest of the level is done.
+//! `threshold` is, in effect, how many workgroups the device runs at once.
 //!
-//! The three [`SegmentedMode`]s are the same kernels with different thresholds:
-//! workgroup-per-segment is `u32::MAX` (no tiles), device-wide is 1 (every non-empty
-//! segment through the tiles; a tile covering many tiny segments then does one workgroup
-//! reduction per segment, which is why it loses when there are many).
+//! The three [`SegmentedMode`]s are the same kernels: workgroup-per-segment has no share
+//! rule, device-wide makes every segment of at least a tile long (shorter ones cannot be
+//! split anyway). In every mode a segment longer than a segment workgroup may loop over
+//! ([`SegmentedArgmin::loop_capacity`], llvmpipe's loop budget) is long.
 //!
-//! **Threshold, measured** (lavapipe, 2 cores, subgroup 8, default config 256 × 16 = 4096
-//! elements per tile; n = 2^22 costs, level k = 2^k equal segments; GPU ms, best of 3;
-//! `cargo test --release --test prims_segmented -- --ignored --nocapture threshold`):
+//! **Threshold, measured** on lavapipe (Mesa 22.3, 2 cores shared with other jobs: load
+//! average about 3.5; subgroup 8) with [`SegmentedArgmin::recommended`] (tiles 256 × 256,
+//! one-subgroup segment workgroups); level k = 2^k equal segments; GPU ms, best of 3,
+//! modes interleaved; `cargo test --release --test prims_segmented -- --ignored
+//! --nocapture threshold` (`hybrid_tT` is `Hybrid { threshold: T }`):
 //!
-//! THRESHOLD_TABLE
+//! | n = 2^22, level | segment | per segment | device-wide | t2 | t4 | t16 | t64 | t256 |
+//! |---|---|---|---|---|---|---|---|---|
+//! | 0 | 4M | 4.31 | 5.05 | 5.18 | 5.09 | 5.25 | 5.25 | 5.20 |
+//! | 1 | 2M | 4.35 | 5.27 | 4.40 | 5.31 | 5.13 | 5.36 | 5.15 |
+//! | 2 | 1M | 4.53 | 5.15 | 4.46 | 4.40 | 5.25 | 5.20 | 5.37 |
+//! | 4 | 256K | 4.44 | 5.25 | 4.46 | 4.38 | 4.42 | 5.26 | 5.22 |
+//! | 6 | 64K | 4.46 | 5.40 | 4.38 | 4.54 | 4.39 | 4.38 | 5.36 |
+//! | 8 | 16K | 4.57 | 4.69 | 4.64 | 4.59 | 4.46 | 4.54 | 4.54 |
+//! | 10 | 4K | 5.73 | 4.99 | 5.24 | 4.99 | 4.99 | 4.95 | 5.05 |
+//! | 12 | 1K | 6.42 | 6.56 | 6.45 | 6.37 | 6.27 | 6.38 | 6.78 |
+//! | 14 | 256 | 12.2 | 12.2 | 12.5 | 12.1 | 12.4 | 12.2 | 12.4 |
+//! | 16 | 64 | 63.2 | 62.3 | 62.6 | 63.0 | 62.2 | 63.3 | 62.3 |
 //!
-//! Scratch: [`SegmentedArgmin::scratch_len`] words — the 16-word plan, then two words per
-//! (tile, segment) slot.
+//! At n = 2^24 levels 0–1 (16M, 8M) take the tiles in every mode (longer than a
+//! one-subgroup workgroup's loop capacity): about 19.9 ms each. Level 2 (4M): per segment
+//! 16.8, device-wide 20.2, t2 16.8, t16 20.2; level 4: 16.8 / 20.5 / 16.8 / t16 17.0 / t64
+//! 20.3; from level 8 on all about 17.3 but device-wide 20.9.
+//!
+//! Reading: where the tiles are used they cost about a fifth more than one workgroup per
+//! segment, as soon as there are at least as many segments as lavapipe has threads (2): a
+//! tile workgroup of 256 invocations costs more per element than a one-subgroup one, and
+//! with the segments alone keeping both threads busy, splitting them buys nothing. With
+//! fewer segments than threads the tiles win when the machine is quiet (level 0, n = 2^22,
+//! `pass_breakdown`: tiles 7.8 ms on one lavapipe thread, about 4 ms on two; one workgroup
+//! 6.0 ms), and lose under load, as in the table. So the best threshold is the number of
+//! workgroups the device runs at once: lavapipe's thread count, which
+//! [`SegmentedMode::hybrid_for`] picks; a GPU's is in the hundreds
+//! ([`DEFAULT_HYBRID_THRESHOLD`]). The segment workgroup matters far more at the deep
+//! levels: with 256 invocations instead of one subgroup, the per-segment column reads 17.7
+//! ms at level 10, 55 ms at 12 and 1,606 ms at 16 (each invocation llvmpipe launches
+//! costs about as much as reading a few hundred elements).
+//!
+//! Scratch: [`SegmentedArgmin::scratch_len`] words — the 16-word plan record, the list of
+//! long segments, then two words per (tile, segment) slot.
 //!
 //! Barriers: `record` orders its own passes. The caller orders the writes of `costs`,
 //! `offsets` and `count` (and earlier uses of `scratch` and `out`) before it, and puts a
@@ -55,11 +86,25 @@ use bytemuck::{Pod, Zeroable};
 
 use super::reduce::{check_config, misuse, CostIndex};
 use super::{PrimConfig, PrimTiming};
-use crate::gpu::{kernels, Buffer, Context, Kernel, Recorder, Result, Spec};
+use crate::gpu::{kernels, Buffer, Context, GpuError, Kernel, Recorder, Result, Spec};
 
-/// The measured default of [`SegmentedMode::Hybrid`]'s threshold, in elements (see the
-/// module docs).
-pub const DEFAULT_HYBRID_THRESHOLD: u32 = 1 << 16;
+/// [`SegmentedMode::Hybrid`]'s default threshold, in segments: about the workgroups a GPU
+/// runs at once (a few per compute unit × 40–128 units). Not measured (no GPU here); on
+/// lavapipe the measured best is its thread count (module docs), which
+/// [`SegmentedMode::hybrid_for`] picks. Too small is the costly direction on a GPU (a few
+/// huge segments on single workgroups), too large costs lavapipe about a fifth at the
+/// levels in between.
+pub const DEFAULT_HYBRID_THRESHOLD: u32 = 256;
+
+/// Loop iterations an invocation may run in total, and 16-byte blocks per iteration of the
+/// loops over data. Workaround (Mesa 22.3 lavapipe, found 2026-11): llvmpipe silently stops
+/// loops once an invocation has run 65,535 iterations across all its loops; keep in sync with
+/// `glsl/common/reduce_lanes.glsl`.
+const LOOP_BUDGET: u64 = 60_000;
+const UNROLL: u64 = 4;
+
+/// Segments the plan kernel may scan: 128 invocations, two passes over their share each.
+const MAX_PLAN_SEGMENTS: u64 = 128 * (LOOP_BUDGET - 1000) / 2;
 
 /// Plan record layout (keep in sync with `glsl/common/reduce_segments.glsl`).
 const PLAN_SEGMENT_GROUPS: u64 = 0;
@@ -69,12 +114,15 @@ const PLAN_WORDS: usize = 16;
 /// Which path reduces which segments.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SegmentedMode {
-    /// One workgroup per segment, looping over its elements.
+    /// One workgroup per segment, looping over its elements (segments longer than
+    /// [`SegmentedArgmin::loop_capacity`] still take the tiles).
     WorkgroupPerSegment,
-    /// Fixed tiles over the flat array for every segment, then a combine per segment.
+    /// Every segment of at least a tile through the tiles, the shorter ones one workgroup
+    /// each.
     DeviceWide,
-    /// Segments of at least `threshold` elements (at least 1) through the tiles, the others
-    /// one workgroup each; decided per segment on the GPU.
+    /// A segment holding more than 1/`threshold` of all the segments' elements (and at least
+    /// a tile) through the tiles, the others one workgroup each; decided on the GPU. With
+    /// equal segments: tiles while there are fewer than `threshold` segments.
     Hybrid { threshold: u32 },
 }
 
@@ -87,22 +135,30 @@ impl Default for SegmentedMode {
 }
 
 impl SegmentedMode {
-    /// The length from which a segment goes through the tiles (`u32::MAX`: never).
-    pub fn threshold(self) -> u32 {
-        match self {
-            Self::WorkgroupPerSegment => u32::MAX,
-            Self::DeviceWide => 1,
-            Self::Hybrid { threshold } => threshold.max(1),
-        }
+    /// The hybrid with this device's threshold: on a CPU device (lavapipe) the threads that
+    /// run its workgroups (`LP_NUM_THREADS`, else the CPUs available), the measured best
+    /// (module docs); on a GPU [`DEFAULT_HYBRID_THRESHOLD`].
+    pub fn hybrid_for(ctx: &Context) -> Self {
+        let threshold = if ctx.info().device_type == "cpu" {
+            std::env::var("LP_NUM_THREADS")
+                .ok()
+                .and_then(|v| v.parse::<u32>().ok())
+                .filter(|&t| t > 0)
+                .unwrap_or_else(|| {
+                    std::thread::available_parallelism().map_or(1, |p| p.get() as u32)
+                })
+                .max(2)
+        } else {
+            DEFAULT_HYBRID_THRESHOLD
+        };
+        Self::Hybrid { threshold }
     }
 
-    /// The name `bench` reports: `hybrid` at the default threshold, `hybrid_t{threshold}`
-    /// at another.
+    /// A short name for reports: `workgroup_per_segment`, `device_wide`, `hybrid_t{threshold}`.
     pub fn name(self) -> String {
         match self {
             Self::WorkgroupPerSegment => "workgroup_per_segment".into(),
             Self::DeviceWide => "device_wide".into(),
-            Self::Hybrid { threshold } if threshold == DEFAULT_HYBRID_THRESHOLD => "hybrid".into(),
             Self::Hybrid { threshold } => format!("hybrid_t{threshold}"),
         }
     }
@@ -115,7 +171,8 @@ struct PlanPush {
     max_segments: u32,
     n_costs: u32,
     tile: u32,
-    threshold: u32,
+    share: u32,
+    capacity: u32,
     max_groups_x: u32,
 }
 
@@ -124,8 +181,8 @@ struct PlanPush {
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct PathPush {
     n_costs: u32,
-    threshold: u32,
     tile: u32,
+    slot_base: u32,
 }
 
 /// The segmented argmin, with its kernels compiled for one [`PrimConfig`].
@@ -138,6 +195,18 @@ pub struct SegmentedArgmin {
 }
 
 impl SegmentedArgmin {
+    /// The measured configuration (module docs): tiles of 256 × 256 elements, segments
+    /// reduced by one-subgroup workgroups (on llvmpipe every invocation launched costs about
+    /// as much as reading a few hundred elements, and most segments are short).
+    pub fn recommended(ctx: &Context) -> Result<Self> {
+        let sg = ctx.info().subgroup_size;
+        let cfg = PrimConfig {
+            workgroup_size: 256u32.max(sg),
+            items_per_invocation: 256,
+        };
+        Self::with_segment_workgroup(ctx, cfg, sg.max(4))
+    }
+
     /// Tiles of `cfg.tile()` elements; segments reduced by workgroups of
     /// `cfg.workgroup_size` invocations.
     pub fn new(ctx: &Context, cfg: PrimConfig) -> Result<Self> {
@@ -161,6 +230,16 @@ impl SegmentedArgmin {
             },
             "prims.segmented_segments",
         )?;
+        if u64::from(cfg.tile()) > loop_capacity(segment_workgroup_size) {
+            return Err(GpuError::Kernel {
+                kernel: "prims.segmented_segments",
+                reason: format!(
+                    "a tile of {} elements is longer than a workgroup of {segment_workgroup_size} may loop over ({})",
+                    cfg.tile(),
+                    loop_capacity(segment_workgroup_size)
+                ),
+            });
+        }
         let tiles = Spec::new().workgroup(cfg.workgroup_size);
         let segments = Spec::new().workgroup(segment_workgroup_size);
         Ok(Self {
@@ -182,10 +261,33 @@ impl SegmentedArgmin {
         self.segment_workgroup_size
     }
 
-    /// Words (u32) of scratch for `n_costs` costs and up to `max_segments` segments.
+    /// The longest segment one segment workgroup reduces by itself: what its invocations
+    /// may loop over within llvmpipe's loop budget. Longer segments take the tiles in every
+    /// mode (the results are the same; only the speed differs).
+    pub fn loop_capacity(&self) -> u32 {
+        loop_capacity(self.segment_workgroup_size).min(u64::from(u32::MAX)) as u32
+    }
+
+    /// The most costs [`Self::record`] takes: the per-segment combine must read a
+    /// segment's tile winners within llvmpipe's loop budget.
+    pub fn max_costs(&self) -> usize {
+        let slots = LOOP_BUDGET * UNROLL * u64::from(self.segment_workgroup_size) - 2;
+        (slots * u64::from(self.cfg.tile())).min(u64::from(u32::MAX)) as usize
+    }
+
+    /// Words (u32) of scratch for `n_costs` costs and up to `max_segments` segments: the
+    /// plan record, the list of long segments, and the (tile, segment) slots.
     pub fn scratch_len(&self, n_costs: usize, max_segments: usize) -> usize {
+        let slot_base = self.slot_base(n_costs, max_segments) as usize;
         let tiles = n_costs.div_ceil(self.cfg.tile() as usize) + 1;
-        PLAN_WORDS + 2 * (tiles + max_segments)
+        slot_base + 2 * (tiles + max_segments)
+    }
+
+    /// Scratch word of the first (tile, segment) slot: after the plan record and the list
+    /// of long segments (at least a tile long each, so at most `n_costs / tile`).
+    fn slot_base(&self, n_costs: usize, max_segments: usize) -> u32 {
+        let max_long = (n_costs / self.cfg.tile() as usize + 1).min(max_segments);
+        u32::try_from(PLAN_WORDS + 2 * max_long).expect("scratch fits u32 words")
     }
 
     /// Records `out[s] = ` the argmin of segment s for every s < min(`count[0]`,
@@ -205,6 +307,18 @@ impl SegmentedArgmin {
         out: &Buffer<CostIndex>,
     ) {
         let n_costs = u32::try_from(costs.len()).expect("costs fit u32");
+        if costs.len() > self.max_costs() {
+            misuse(&format!(
+                "prims.segmented_argmin: {} costs, above the {} this configuration takes (SegmentedArgmin::max_costs)",
+                costs.len(),
+                self.max_costs()
+            ));
+        }
+        if u64::from(max_segments) > MAX_PLAN_SEGMENTS {
+            misuse(&format!(
+                "prims.segmented_argmin: {max_segments} segments, above the {MAX_PLAN_SEGMENTS} the plan may scan"
+            ));
+        }
         let needed = self.scratch_len(costs.len(), max_segments as usize);
         if offsets.len() < max_segments as usize + 1
             || out.len() < max_segments as usize
@@ -221,26 +335,44 @@ impl SegmentedArgmin {
                 scratch.len()
             ));
         }
-        let threshold = mode.threshold();
+        let share = match mode {
+            SegmentedMode::WorkgroupPerSegment => 0,
+            SegmentedMode::DeviceWide => u32::MAX,
+            SegmentedMode::Hybrid { threshold } => threshold.max(1),
+        };
+        let capacity = self.loop_capacity();
+        // The shortest a long segment can be (`cut` in segmented_plan.comp).
+        let min_cut = if share == 0 {
+            capacity
+        } else {
+            self.cfg.tile()
+        };
         let max_groups_x = rec.context().info().max_workgroup_count[0];
         let plan_push = PlanPush {
             max_segments,
             n_costs,
             tile: self.cfg.tile(),
-            threshold,
+            share,
+            capacity,
             max_groups_x,
         };
         let push = PathPush {
             n_costs,
-            threshold,
             tile: self.cfg.tile(),
+            slot_base: self.slot_base(costs.len(), max_segments as usize),
         };
         rec.scope("prims.segmented_argmin", |rec| {
             rec.scope("prims.segmented_plan", |rec| {
-                rec.dispatch(&self.plan, [1, 1, 1], &[offsets, count, scratch], &plan_push);
+                rec.dispatch(
+                    &self.plan,
+                    [1, 1, 1],
+                    &[offsets, count, scratch],
+                    &plan_push,
+                );
             });
             rec.compute_to_indirect();
-            if mode != SegmentedMode::WorkgroupPerSegment {
+            // No segment can be long if all the costs together cannot.
+            if costs.len() >= min_cut as usize {
                 rec.scope("prims.segmented_tiles", |rec| {
                     rec.dispatch_indirect(
                         &self.tiles,
@@ -307,6 +439,12 @@ impl SegmentedArgmin {
     }
 }
 
+/// Elements a segment workgroup of `workgroup_size` invocations may loop over: the loop
+/// budget, `UNROLL` 16-byte blocks per iteration, less a margin for its other loops.
+fn loop_capacity(workgroup_size: u32) -> u64 {
+    (LOOP_BUDGET - 1000) * UNROLL * 4 * u64::from(workgroup_size)
+}
+
 /// The CPU twin of [`SegmentedArgmin::record`] (every mode): the argmin of each of the
 /// first `count` segments, with the kernels' clamping of malformed offsets. The winner of a
 /// segment is unique, so a plain loop gives the kernels' answer whatever their order.
@@ -340,17 +478,17 @@ pub fn level_offsets(n: u32, level: u32) -> Vec<u32> {
         .collect()
 }
 
-/// Times the three modes at `n` costs on kd-tree-like levels (level k: 2^k equal segments)
-/// for k in `levels`, best of `reps` after one untimed warm-up. Names are
-/// `segmented_argmin.{mode}.level{k}`; `min_bytes` = costs and offsets read, winners
-/// written.
+/// Times `modes` (label, mode) at `n` costs on kd-tree-like levels (level k: 2^k equal
+/// segments) for k in `levels`, best of `reps` after one untimed warm-up, interleaved so
+/// machine load affects them alike. Names are `segmented_argmin.{label}.level{k}`;
+/// `min_bytes` = costs and offsets read, winners written.
 pub fn bench_levels(
     ctx: &Context,
     seg: &SegmentedArgmin,
     n: usize,
     reps: u32,
     levels: &[u32],
-    modes: &[SegmentedMode],
+    modes: &[(String, SegmentedMode)],
 ) -> Result<Vec<PrimTiming>> {
     let n32 = u32::try_from(n).expect("bench size fits u32");
     let max_level = levels.iter().copied().max().unwrap_or(0);
@@ -376,38 +514,38 @@ pub fn bench_levels(
             Buffer::from_slice(ctx, "bench.segmented.count", &[count])?,
         ));
     }
+    let name = |label: &str, level: u32| format!("segmented_argmin.{label}.level{level}");
     let mut rec = Recorder::new(ctx)?;
-    let name = |mode: SegmentedMode, level: u32| {
-        format!("segmented_argmin.{}.level{level}", mode.name())
-    };
     for rep in 0..=reps {
         for (level, count, offsets, count_buf) in &inputs {
-            for &mode in modes {
-                let label = if rep == 0 {
-                    format!("warmup.{}", name(mode, *level))
+            for (label, mode) in modes {
+                let scope = if rep == 0 {
+                    format!("warmup.{}", name(label, *level))
                 } else {
-                    name(mode, *level)
+                    name(label, *level)
                 };
-                rec.scope(&label, |rec| {
-                    seg.record(rec, mode, &costs, offsets, count_buf, *count, &scratch, &out)
+                rec.scope(&scope, |rec| {
+                    seg.record(
+                        rec, *mode, &costs, offsets, count_buf, *count, &scratch, &out,
+                    )
                 });
-                rec.compute_to_compute();
+                rec.compute_to_indirect();
             }
         }
     }
     let profile = rec.submit_and_wait()?;
     let mut timings = Vec::new();
     for (level, count, _, _) in &inputs {
-        for &mode in modes {
-            let label = name(mode, *level);
+        for (label, _) in modes {
+            let scope = name(label, *level);
             timings.push(PrimTiming {
                 gpu_ms: profile
                     .passes
                     .iter()
-                    .filter(|p| p.name == label)
+                    .filter(|p| p.name == scope)
                     .filter_map(|p| p.ms)
                     .fold(f64::INFINITY, f64::min),
-                prim: label,
+                prim: scope,
                 n: n as u64,
                 min_bytes: 4 * n as u64 + 4 * (u64::from(*count) + 1) + 8 * u64::from(*count),
             });
@@ -416,20 +554,19 @@ pub fn bench_levels(
     Ok(timings)
 }
 
-/// Times the three modes (hybrid at its default threshold) at `n` costs on kd-tree levels
-/// 0, 4, 8 and 12 (see [`bench_levels`]).
+/// Times the three modes at `n` costs on kd-tree levels 0, 4, 8 and 12 (see
+/// [`bench_levels`]) with [`SegmentedArgmin::recommended`]: `segmented_argmin.hybrid`
+/// (this device's threshold, [`SegmentedMode::hybrid_for`]),
+/// `segmented_argmin.workgroup_per_segment` and `segmented_argmin.device_wide`.
 pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
-    let seg = SegmentedArgmin::new(ctx, PrimConfig::default_for(ctx))?;
-    bench_levels(
-        ctx,
-        &seg,
-        n,
-        reps,
-        &[0, 4, 8, 12],
-        &[
-            SegmentedMode::default(),
+    let seg = SegmentedArgmin::recommended(ctx)?;
+    let modes = [
+        ("hybrid".to_string(), SegmentedMode::hybrid_for(ctx)),
+        (
+            "workgroup_per_segment".to_string(),
             SegmentedMode::WorkgroupPerSegment,
-            SegmentedMode::DeviceWide,
-        ],
-    )
+        ),
+        ("device_wide".to_string(), SegmentedMode::DeviceWide),
+    ];
+    bench_levels(ctx, &seg, n, reps, &[0, 4, 8, 12], &modes)
 }

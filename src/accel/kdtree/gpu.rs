@@ -291,9 +291,8 @@ impl KdTreeBuilder {
                 cfg,
                 ctx.info().subgroup_size.max(32),
             )?,
-            segmented_mode: SegmentedMode::Hybrid {
-                threshold: crate::prims::segmented::DEFAULT_HYBRID_THRESHOLD,
-            },
+            // Tiles for the few long segments of the first levels, decided on the GPU.
+            segmented_mode: SegmentedMode::hybrid_for(ctx),
         })
     }
 
