@@ -59,7 +59,8 @@ impl Rng {
 }
 
 /// The sizes every primitive is tested at: empty, one, around the subgroup and the workgroup
-/// size, and `large` ones past every scan level (2^20+13, 2^24+3 unless VKRT_TEST_QUICK=1).
+/// size and the tile, several tiles, and large ones past every scan level (2^20+13 and
+/// 2^24+3, unless VKRT_TEST_QUICK=1).
 pub fn edge_sizes(subgroup: usize, workgroup: usize, tile: usize) -> Vec<usize> {
     let mut sizes = vec![
         0,
@@ -73,10 +74,12 @@ pub fn edge_sizes(subgroup: usize, workgroup: usize, tile: usize) -> Vec<usize> 
         tile - 1,
         tile,
         tile + 1,
-        (1 << 20) + 13,
+        4 * tile + 3,
     ];
+    // The subgroup-size matrix (VKRT_TEST_QUICK=1) is about lanes, not levels: the large
+    // sizes run once, at the default width.
     if !std::env::var("VKRT_TEST_QUICK").is_ok_and(|v| v == "1") {
-        sizes.push((1 << 24) + 3);
+        sizes.extend([(1 << 20) + 13, (1 << 24) + 3]);
     }
     sizes.sort_unstable();
     sizes.dedup();
