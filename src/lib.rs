@@ -17,3 +17,4 @@ pub mod accel;
 pub mod bench;
 pub mod prims;
 pub mod scene;
+pub mod trace;

@@ -414,6 +414,7 @@ fn create_device(
         .queue_priorities(&priorities)];
     let base = vk::PhysicalDeviceFeatures::default()
         .shader_int64(features.shader_int64)
+        .shader_float64(features.shader_float64)
         .shader_int16(features.shader_int16);
     let mut f11 = vk::PhysicalDeviceVulkan11Features::default()
         .storage_buffer16_bit_access(features.storage_buffer_16bit);

@@ -375,7 +375,7 @@ impl Scene {
 }
 
 /// Bounds of `points` moved by `motion` over `[t0, t1]`.
-fn swept_points(points: &[Vec3], motion: &Motion, t0: f32, t1: f32) -> Aabb {
+pub fn swept_points(points: &[Vec3], motion: &Motion, t0: f32, t1: f32) -> Aabb {
     let mut b = Aabb::EMPTY;
     let mut add = |t: f32, pad: f32| {
         let m = motion.at(t);

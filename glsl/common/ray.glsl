@@ -1,0 +1,228 @@
+// Rays, hits and the primitive intersection tests, byte for byte and operation for operation
+// the Rust twins in src/trace/intersect.rs (keep in sync). Every float expression that
+// decides a hit is `precise`: no fused multiply-add, so the CPU twin sees the same rounding.
+#ifndef VKRT_COMMON_RAY_GLSL
+#define VKRT_COMMON_RAY_GLSL
+
+// 32 bytes (std430): `Ray` in src/trace/mod.rs.
+struct Ray {
+    vec3 o;
+    float tmin;
+    vec3 d;
+    float tmax;
+};
+
+// 16 bytes: `Hit` in src/trace/mod.rs. A miss has t = +inf and prim = NO_HIT.
+struct Hit {
+    float t;
+    uint prim;
+    float u; // barycentric weight of the triangle's second vertex (sphere: 0)
+    float v; // barycentric weight of the third vertex (sphere: 0)
+};
+
+#define NO_HIT 0xffffffffu
+#ifndef FP64_FALLBACK
+#define FP64_FALLBACK 0
+#endif
+#define INTERSECT_WATERTIGHT 0u
+#define INTERSECT_MOLLER_TRUMBORE 1u
+
+float positive_inf() {
+    return uintBitsToFloat(0x7f800000u);
+}
+
+Hit miss_hit() {
+    return Hit(positive_inf(), NO_HIT, 0.0, 0.0);
+}
+
+// Bit tests: the driver's compiler may assume no NaN in isnan/isinf.
+bool is_finite(float x) {
+    return (floatBitsToUint(x) & 0x7f800000u) != 0x7f800000u;
+}
+
+bool is_finite3(vec3 v) {
+    return is_finite(v.x) && is_finite(v.y) && is_finite(v.z);
+}
+
+// A ray the traversal accepts: finite everywhere, a non-zero direction, tmin <= tmax.
+// Everything else is answered as a miss (src/trace/mod.rs documents the contract).
+bool ray_is_valid(Ray r) {
+    return is_finite3(r.o) && is_finite3(r.d) && is_finite(r.tmin) && is_finite(r.tmax)
+        && (r.d.x != 0.0 || r.d.y != 0.0 || r.d.z != 0.0) && r.tmin <= r.tmax;
+}
+
+// Per-ray constants of the watertight test (Woop, Benthin, Wald 2013): the dominant axis kz,
+// the other two (swapped to keep the winding), and the shear.
+struct Shear {
+    uint kx;
+    uint ky;
+    uint kz;
+    float sx;
+    float sy;
+    float sz;
+};
+
+uint max_dim(vec3 v) {
+    vec3 a = abs(v);
+    return a.x >= a.y ? (a.x >= a.z ? 0u : 2u) : (a.y >= a.z ? 1u : 2u);
+}
+
+Shear make_shear(vec3 d) {
+    Shear s;
+    s.kz = max_dim(d);
+    s.kx = s.kz == 2u ? 0u : s.kz + 1u;
+    s.ky = s.kx == 2u ? 0u : s.kx + 1u;
+    if (d[s.kz] < 0.0) {
+        uint t = s.kx;
+        s.kx = s.ky;
+        s.ky = t;
+    }
+    precise float sx = d[s.kx] / d[s.kz];
+    precise float sy = d[s.ky] / d[s.kz];
+    precise float sz = 1.0 / d[s.kz];
+    s.sx = sx;
+    s.sy = sy;
+    s.sz = sz;
+    return s;
+}
+
+// Watertight: a ray through a shared edge or vertex hits at least one of the triangles that
+// share it (edge functions of zero count as inside on both sides, and a*b - c*d is the exact
+// negation of c*d - a*b in IEEE arithmetic). Degenerate triangles (det = 0) never hit.
+bool hit_triangle_watertight(vec3 o, Shear s, vec3 p0, vec3 p1, vec3 p2, float tmin,
+                             float tmax, out float t, out float u, out float v) {
+    precise vec3 a = p0 - o;
+    precise vec3 b = p1 - o;
+    precise vec3 c = p2 - o;
+    precise float ax = a[s.kx] - s.sx * a[s.kz];
+    precise float ay = a[s.ky] - s.sy * a[s.kz];
+    precise float bx = b[s.kx] - s.sx * b[s.kz];
+    precise float by = b[s.ky] - s.sy * b[s.kz];
+    precise float cx = c[s.kx] - s.sx * c[s.kz];
+    precise float cy = c[s.ky] - s.sy * c[s.kz];
+    precise float e0 = cx * by - cy * bx;
+    precise float e1 = ax * cy - ay * cx;
+    precise float e2 = bx * ay - by * ax;
+#if FP64_FALLBACK
+    // An edge function that rounds to zero gets its exact sign from doubles (products of
+    // floats are exact there): otherwise a grazing ray near an edge "hits" a triangle its
+    // line passes beside, at a meaningless t (the paper's fallback).
+    if (e0 == 0.0 || e1 == 0.0 || e2 == 0.0) {
+        e0 = float(double(cx) * double(by) - double(cy) * double(bx));
+        e1 = float(double(ax) * double(cy) - double(ay) * double(cx));
+        e2 = float(double(bx) * double(ay) - double(by) * double(ax));
+    }
+#endif
+    t = 0.0;
+    u = 0.0;
+    v = 0.0;
+    if ((e0 < 0.0 || e1 < 0.0 || e2 < 0.0) && (e0 > 0.0 || e1 > 0.0 || e2 > 0.0)) {
+        return false;
+    }
+    precise float det = e0 + e1 + e2;
+    if (det == 0.0) {
+        return false;
+    }
+    precise float az = s.sz * a[s.kz];
+    precise float bz = s.sz * b[s.kz];
+    precise float cz = s.sz * c[s.kz];
+    precise float tt = e0 * az + e1 * bz + e2 * cz;
+    precise float hit_t = tt / det;
+    if (!(hit_t >= tmin && hit_t <= tmax)) {
+        return false;
+    }
+    precise float inv = 1.0 / det;
+    t = hit_t;
+    u = e1 * inv;
+    v = e2 * inv;
+    return true;
+}
+
+// Möller–Trumbore (1997): fewer operations, not watertight (rays through shared edges can
+// slip between triangles); kept for the robustness comparison.
+bool hit_triangle_moller(vec3 o, vec3 d, vec3 p0, vec3 p1, vec3 p2, float tmin, float tmax,
+                         out float t, out float u, out float v) {
+    precise vec3 e1 = p1 - p0;
+    precise vec3 e2 = p2 - p0;
+    precise vec3 pv = cross(d, e2);
+    precise float det = dot(e1, pv);
+    t = 0.0;
+    u = 0.0;
+    v = 0.0;
+    if (det == 0.0) {
+        return false;
+    }
+    precise float inv = 1.0 / det;
+    precise vec3 tv = o - p0;
+    precise float uu = dot(tv, pv) * inv;
+    if (uu < 0.0 || uu > 1.0) {
+        return false;
+    }
+    precise vec3 qv = cross(tv, e1);
+    precise float vv = dot(d, qv) * inv;
+    if (vv < 0.0 || uu + vv > 1.0) {
+        return false;
+    }
+    precise float hit_t = dot(e2, qv) * inv;
+    if (!(hit_t >= tmin && hit_t <= tmax)) {
+        return false;
+    }
+    t = hit_t;
+    u = uu;
+    v = vv;
+    return true;
+}
+
+// Ray/sphere after Haines et al., "Precision Improvements for Ray/Sphere Intersection"
+// (Ray Tracing Gems ch. 7): the discriminant from the distance of the centre to the ray
+// line (no catastrophic cancellation far from the sphere) and the stable quadratic roots.
+bool hit_sphere(vec3 o, vec3 d, vec4 sphere, float tmin, float tmax, out float t) {
+    precise vec3 f = o - sphere.xyz;
+    precise float a = dot(d, d);
+    precise float bp = -dot(f, d);
+    precise vec3 l = f + (bp / a) * d;
+    precise float r2 = sphere.w * sphere.w;
+    precise float disc = r2 - dot(l, l);
+    t = 0.0;
+    if (disc < 0.0) {
+        return false;
+    }
+    precise float c = dot(f, f) - r2;
+    precise float q = bp + (bp >= 0.0 ? 1.0 : -1.0) * sqrt(a * disc);
+    if (q == 0.0) {
+        return false;
+    }
+    precise float t0 = c / q;
+    precise float t1 = q / a;
+    float lo = min(t0, t1);
+    float hi = max(t0, t1);
+    if (lo >= tmin && lo <= tmax) {
+        t = lo;
+        return true;
+    }
+    if (hi >= tmin && hi <= tmax) {
+        t = hi;
+        return true;
+    }
+    return false;
+}
+
+// A ray origin moved off a surface along its geometric normal `n` (pointing to the side the
+// new ray leaves on) by a few ulps of the position, not a fixed epsilon: Wächter & Binder,
+// "A Fast and Robust Method for Avoiding Self-Intersection" (Ray Tracing Gems ch. 6).
+vec3 offset_ray_origin(vec3 p, vec3 n) {
+    const float origin = 1.0 / 32.0;
+    const float float_scale = 1.0 / 65536.0;
+    const float int_scale = 256.0;
+    ivec3 of = ivec3(int_scale * n);
+    vec3 pi = vec3(
+        intBitsToFloat(floatBitsToInt(p.x) + (p.x < 0.0 ? -of.x : of.x)),
+        intBitsToFloat(floatBitsToInt(p.y) + (p.y < 0.0 ? -of.y : of.y)),
+        intBitsToFloat(floatBitsToInt(p.z) + (p.z < 0.0 ? -of.z : of.z)));
+    precise vec3 pf = p + float_scale * n;
+    return vec3(abs(p.x) < origin ? pf.x : pi.x,
+                abs(p.y) < origin ? pf.y : pi.y,
+                abs(p.z) < origin ? pf.z : pi.z);
+}
+
+#endif

@@ -1,0 +1,274 @@
+// Geometry buffers and kd-tree traversal: closest hit and any hit with a short stack and
+// restart (Horn et al. 2007). The Rust twin is src/trace/cpu.rs (same decisions, same order).
+//
+// The including kernel defines GEOM_BINDING (first of seven bindings, in this order: nodes,
+// prim_refs, triangle vertices, spheres, per-primitive motion slot, motions, scene info) and
+// the specialization constants INTERSECTOR, ANY_HIT and STACK_SIZE, then includes this file.
+//
+// Primitive ids: 0 .. n_tris are triangles, n_tris .. n_tris + n_spheres spheres.
+#ifndef VKRT_COMMON_TRAVERSE_GLSL
+#define VKRT_COMMON_TRAVERSE_GLSL
+
+#include "common/kdtree.glsl"
+#include "common/ray.glsl"
+
+#define NO_MOTION 0xffffffffu
+// Node visits + primitive tests per ray before giving up (lavapipe silently ends loops at
+// 65,535 iterations; a ray that gives up is reported through `trace_steps_exhausted`).
+#define MAX_TRAVERSAL_STEPS 60000u
+// Relative slack on split-plane crossings: a cell whose interval only touches the ray's
+// within rounding is visited rather than skipped (visiting costs time, skipping loses hits).
+#define PLANE_SLACK 4e-7
+
+// 48 bytes: `MotionRecord` in src/trace/geometry.rs.
+struct MotionRecord {
+    vec4 velocity;   // xyz: units/s; w: angular speed, radians/s
+    vec4 center;     // xyz: a point on the rotation axis
+    vec4 axis;       // xyz: unit rotation axis
+};
+
+layout(std430, binding = GEOM_BINDING + 0) readonly buffer KdNodes { KdNode kd_nodes[]; };
+layout(std430, binding = GEOM_BINDING + 1) readonly buffer KdRefs { uint kd_refs[]; };
+layout(std430, binding = GEOM_BINDING + 2) readonly buffer TriVerts { float tri_verts[]; };
+layout(std430, binding = GEOM_BINDING + 3) readonly buffer Spheres { vec4 spheres[]; };
+layout(std430, binding = GEOM_BINDING + 4) readonly buffer PrimMotion { uint prim_motion[]; };
+layout(std430, binding = GEOM_BINDING + 5) readonly buffer Motions { MotionRecord motions[]; };
+// `SceneInfo` in src/trace/geometry.rs.
+layout(std430, binding = GEOM_BINDING + 6) readonly buffer SceneInfoBuf {
+    vec4 bounds_min;
+    vec4 bounds_max;
+    uint n_tris;
+    uint n_spheres;
+    uint has_motion;
+    uint pad;
+} scene_info;
+
+bool trace_steps_exhausted = false;
+
+// The rigid motion at `time`: rotate about the orbit axis, then translate (Motion::at).
+vec3 move_point(vec3 p, uint slot, float time) {
+    MotionRecord m = motions[slot];
+    precise float angle = m.velocity.w * time;
+    precise vec3 q = p;
+    if (angle != 0.0) {
+        vec3 k = m.axis.xyz;
+        precise vec3 r = p - m.center.xyz;
+        float c = cos(angle);
+        float s = sin(angle);
+        precise vec3 rot = r * c + cross(k, r) * s + k * (dot(k, r) * (1.0 - c));
+        q = rot + m.center.xyz;
+    }
+    precise vec3 moved = q + m.velocity.xyz * time;
+    return moved;
+}
+
+vec3 tri_vertex(uint tri, uint corner) {
+    uint i = 9u * tri + 3u * corner;
+    return vec3(tri_verts[i], tri_verts[i + 1u], tri_verts[i + 2u]);
+}
+
+// The three vertices of triangle `tri` at `time`.
+void triangle_at(uint tri, float time, out vec3 p0, out vec3 p1, out vec3 p2) {
+    p0 = tri_vertex(tri, 0u);
+    p1 = tri_vertex(tri, 1u);
+    p2 = tri_vertex(tri, 2u);
+    if (scene_info.has_motion != 0u) {
+        uint slot = prim_motion[tri];
+        if (slot != NO_MOTION) {
+            p0 = move_point(p0, slot, time);
+            p1 = move_point(p1, slot, time);
+            p2 = move_point(p2, slot, time);
+        }
+    }
+}
+
+vec4 sphere_at(uint sphere, float time) {
+    vec4 s = spheres[sphere];
+    if (scene_info.has_motion != 0u) {
+        uint slot = prim_motion[scene_info.n_tris + sphere];
+        if (slot != NO_MOTION) {
+            s.xyz = move_point(s.xyz, slot, time);
+        }
+    }
+    return s;
+}
+
+bool hit_primitive(uint prim, Ray r, Shear sh, float time, float tmin, float tmax,
+                   out float t, out float u, out float v) {
+    if (prim < scene_info.n_tris) {
+        vec3 p0, p1, p2;
+        triangle_at(prim, time, p0, p1, p2);
+        if (INTERSECTOR == INTERSECT_MOLLER_TRUMBORE) {
+            return hit_triangle_moller(r.o, r.d, p0, p1, p2, tmin, tmax, t, u, v);
+        }
+        return hit_triangle_watertight(r.o, sh, p0, p1, p2, tmin, tmax, t, u, v);
+    }
+    u = 0.0;
+    v = 0.0;
+    return hit_sphere(r.o, r.d, sphere_at(prim - scene_info.n_tris, time), tmin, tmax, t);
+}
+
+// Clips [t0, t1] to the scene box; false if the ray misses it. Axes the ray is parallel to
+// only test the origin (no 0 * inf); the slab bounds are widened by a few ulps (Ize 2013).
+bool clip_to_scene(Ray r, inout float t0, inout float t1) {
+    for (uint a = 0u; a < 3u; a++) {
+        float lo_b = scene_info.bounds_min[a];
+        float hi_b = scene_info.bounds_max[a];
+        if (r.d[a] == 0.0) {
+            if (r.o[a] < lo_b || r.o[a] > hi_b) {
+                return false;
+            }
+            continue;
+        }
+        precise float inv = 1.0 / r.d[a];
+        precise float ta = (lo_b - r.o[a]) * inv;
+        precise float tb = (hi_b - r.o[a]) * inv;
+        precise float lo = min(ta, tb);
+        precise float hi = max(ta, tb);
+        precise float lo_w = lo - abs(lo) * PLANE_SLACK;
+        precise float hi_w = hi + abs(hi) * PLANE_SLACK;
+        t0 = max(t0, lo_w);
+        t1 = min(t1, hi_w);
+    }
+    return t0 <= t1;
+}
+
+// Closest hit (or, with ANY_HIT, the first hit found) with t in [max(tmin, 0), tmax] at
+// `time`. Invalid rays (see ray_is_valid) miss.
+Hit trace_ray(Ray r, float time) {
+    Hit best = miss_hit();
+    if (!ray_is_valid(r) || scene_info.n_tris + scene_info.n_spheres == 0u) {
+        return best;
+    }
+    float tmin = max(r.tmin, 0.0);
+    float t0 = tmin;
+    float t1 = r.tmax;
+    if (!clip_to_scene(r, t0, t1)) {
+        return best;
+    }
+    float scene_t1 = t1;
+    Shear sh = make_shear(r.d);
+    vec3 inv_d = vec3(1.0) / r.d;
+    float best_t = r.tmax;
+
+    // Ring buffer: when full, a push overwrites the oldest (farthest) entry and the traversal
+    // restarts from the root past the last leaf when it runs out.
+    uint st_node[STACK_SIZE];
+    float st_t0[STACK_SIZE];
+    float st_t1[STACK_SIZE];
+    uint st_top = 0u;   // index one past the newest entry (mod STACK_SIZE)
+    uint st_count = 0u;
+    bool dropped = false;
+
+    uint node = 0u;
+    float n0 = t0;
+    float n1 = t1;
+    for (uint step = 0u; step < MAX_TRAVERSAL_STEPS; step++) {
+        KdNode nd = kd_nodes[node];
+        if (nd.kind != KD_LEAF) {
+            uint axis = nd.kind;
+            float o = r.o[axis];
+            float d = r.d[axis];
+            bool below_first = o < nd.split || (o == nd.split && d <= 0.0);
+            uint first = below_first ? nd.a : nd.a + 1u;
+            uint second = below_first ? nd.a + 1u : nd.a;
+            bool both = false;
+            float split_t = 0.0;
+            if (d == 0.0) {
+                // Parallel to the plane: the origin's side, or both when lying in it.
+                both = o == nd.split;
+                split_t = n1;
+            } else {
+                precise float tp = (nd.split - o) * inv_d[axis];
+                precise float tp_lo = tp - abs(tp) * PLANE_SLACK;
+                precise float tp_hi = tp + abs(tp) * PLANE_SLACK;
+                if (tp <= 0.0 || tp_lo > n1) {
+                    node = first;
+                    continue;
+                }
+                if (tp_hi < n0) {
+                    node = second;
+                    continue;
+                }
+                both = true;
+                split_t = tp;
+                // the far child starts at the (widened) crossing, the near one ends there
+                float far0 = max(tp_lo, n0);
+                float near1 = min(tp_hi, n1);
+                if (st_count == STACK_SIZE) {
+                    dropped = true;
+                } else {
+                    st_count++;
+                }
+                st_node[st_top] = second;
+                st_t0[st_top] = far0;
+                st_t1[st_top] = n1;
+                st_top = st_top + 1u == STACK_SIZE ? 0u : st_top + 1u;
+                node = first;
+                n1 = near1;
+                continue;
+            }
+            if (both) {
+                if (st_count == STACK_SIZE) {
+                    dropped = true;
+                } else {
+                    st_count++;
+                }
+                st_node[st_top] = second;
+                st_t0[st_top] = n0;
+                st_t1[st_top] = n1;
+                st_top = st_top + 1u == STACK_SIZE ? 0u : st_top + 1u;
+            }
+            node = first;
+            continue;
+        }
+
+        // Leaf: test its primitives over the whole remaining ray interval.
+        uint end = nd.a + nd.b;
+        for (uint i = nd.a; i < end; i++) {
+            uint prim = kd_refs[i];
+            float t, u, v;
+            if (hit_primitive(prim, r, sh, time, tmin, best_t, t, u, v)) {
+                // Deterministic winner among equal t: the lowest primitive id.
+                if (best.prim == NO_HIT || t < best_t || (t == best_t && prim < best.prim)) {
+                    best = Hit(t, prim, u, v);
+                    best_t = t;
+                }
+                if (ANY_HIT) {
+                    return best;
+                }
+            }
+        }
+        step += nd.b;
+        if (best.prim != NO_HIT && best_t <= n1) {
+            return best;
+        }
+        // Next cell: pop, skipping cells that start beyond the best hit.
+        bool found = false;
+        while (st_count > 0u) {
+            st_top = st_top == 0u ? STACK_SIZE - 1u : st_top - 1u;
+            st_count--;
+            if (best.prim == NO_HIT || st_t0[st_top] <= best_t) {
+                node = st_node[st_top];
+                n0 = st_t0[st_top];
+                n1 = st_t1[st_top];
+                found = true;
+                break;
+            }
+        }
+        if (!found) {
+            if (!dropped || n1 >= scene_t1 || (best.prim != NO_HIT && best_t <= n1)) {
+                return best;
+            }
+            // Restart from the root past the last cell (entries were dropped).
+            dropped = false;
+            node = 0u;
+            n0 = n1;
+            n1 = scene_t1;
+        }
+    }
+    trace_steps_exhausted = true;
+    return best;
+}
+
+#endif

@@ -1,0 +1,32 @@
+#version 460
+// Batch ray queries (`vkrt trace`, Tracer::trace): one invocation per ray, closest or any hit.
+// `exact`: the watertight test's double-precision fallback (devices with shaderFloat64).
+//! variant exact FP64_FALLBACK=1
+//! variant float FP64_FALLBACK=0
+layout(local_size_x_id = 0) in;
+layout(constant_id = 1) const uint INTERSECTOR = 0u;
+layout(constant_id = 2) const bool ANY_HIT = false;
+layout(constant_id = 3) const uint STACK_SIZE = 32u;
+#include "common/grid.glsl"
+
+#define GEOM_BINDING 2
+#include "common/traverse.glsl"
+
+layout(std430, binding = 0) readonly buffer Rays { Ray rays[]; };
+layout(std430, binding = 1) writeonly buffer Hits { Hit hits[]; };
+// [0]: rays that ran out of traversal steps (reported as misses)
+layout(std430, binding = 9) buffer Errors { uint errors[]; };
+layout(push_constant) uniform Push { uint n; float time; } pc;
+
+void main() {
+    uint i = linear_invocation_id();
+    if (i >= pc.n) {
+        return;
+    }
+    Hit h = trace_ray(rays[i], pc.time);
+    if (trace_steps_exhausted) {
+        atomicAdd(errors[0], 1u);
+        h = miss_hit();
+    }
+    hits[i] = h;
+}

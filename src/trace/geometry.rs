@@ -1,0 +1,235 @@
+//! The scene flattened for traversal, laid out as `glsl/common/traverse.glsl` reads it:
+//! triangle vertices (9 floats each), spheres (centre, radius), a motion slot per primitive
+//! and the motions, plus every primitive's box for the kd-tree builder.
+//!
+//! Static geometry is placed at one time and stored in world space. When motion blur is
+//! wanted, moving primitives keep their position at time 0 and a motion slot; the traversal
+//! moves them to the ray's time, and their boxes are swept over the shutter interval.
+
+use bytemuck::{Pod, Zeroable};
+use glam::{Vec3, Vec4};
+
+use crate::accel::kdtree::seed001::prim_box;
+use crate::scene::{swept_points, Aabb, Motion, Scene};
+
+/// Motion slot of a primitive that does not move.
+pub const NO_MOTION: u32 = u32::MAX;
+
+/// One rigid motion: 48 bytes, `MotionRecord` in `traverse.glsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct MotionRecord {
+    /// xyz: velocity; w: angular speed in radians per second.
+    pub velocity: [f32; 4],
+    /// xyz: a point on the rotation axis.
+    pub center: [f32; 4],
+    /// xyz: unit rotation axis.
+    pub axis: [f32; 4],
+}
+
+impl MotionRecord {
+    pub fn new(m: &Motion) -> Self {
+        let (center, axis, rate) = match m.orbit {
+            Some(o) if o.axis.normalize_or_zero() != Vec3::ZERO => (
+                o.center,
+                o.axis.normalize(),
+                o.degrees_per_second.to_radians(),
+            ),
+            _ => (Vec3::ZERO, Vec3::Z, 0.0),
+        };
+        Self {
+            velocity: m.velocity.extend(rate).to_array(),
+            center: center.extend(0.0).to_array(),
+            axis: axis.extend(0.0).to_array(),
+        }
+    }
+
+    /// `move_point` in `traverse.glsl`: rotate about the axis, then translate.
+    pub fn move_point(&self, p: Vec3, time: f32) -> Vec3 {
+        let angle = self.velocity[3] * time;
+        let mut q = p;
+        if angle != 0.0 {
+            let k = Vec3::from_slice(&self.axis[..3]);
+            let c0 = Vec3::from_slice(&self.center[..3]);
+            let r = p - c0;
+            let (s, c) = angle.sin_cos();
+            let kr = Vec3::new(
+                k.y * r.z - r.y * k.z,
+                k.z * r.x - r.z * k.x,
+                k.x * r.y - r.x * k.y,
+            );
+            let kd = k.x * r.x + k.y * r.y + k.z * r.z;
+            q = r * c + kr * s + k * (kd * (1.0 - c)) + c0;
+        }
+        q + Vec3::from_slice(&self.velocity[..3]) * time
+    }
+}
+
+/// Scene constants: 48 bytes, `SceneInfoBuf` in `traverse.glsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct SceneInfo {
+    pub bounds_min: [f32; 4],
+    pub bounds_max: [f32; 4],
+    pub n_tris: u32,
+    pub n_spheres: u32,
+    pub has_motion: u32,
+    pub pad: u32,
+}
+
+/// Geometry ready to upload and trace. Primitive ids: triangles first, then spheres.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct TraceGeometry {
+    /// 9 floats per triangle.
+    pub tri_verts: Vec<f32>,
+    /// Centre and radius per sphere.
+    pub spheres: Vec<[f32; 4]>,
+    /// Motion slot per primitive ([`NO_MOTION`] if static); empty when nothing moves.
+    pub prim_motion: Vec<u32>,
+    pub motions: Vec<MotionRecord>,
+    /// Box of every primitive (swept over the time interval when moving).
+    pub boxes: Vec<Aabb>,
+}
+
+impl TraceGeometry {
+    /// Static triangles.
+    pub fn from_triangles(tris: &[[Vec3; 3]]) -> Self {
+        Self {
+            tri_verts: tris
+                .iter()
+                .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
+                .collect(),
+            boxes: tris.iter().map(prim_box).collect(),
+            ..Self::default()
+        }
+    }
+
+    /// Static triangles and spheres (centre, radius).
+    pub fn from_triangles_and_spheres(tris: &[[Vec3; 3]], spheres: &[Vec4]) -> Self {
+        let mut g = Self::from_triangles(tris);
+        for s in spheres {
+            g.spheres.push(s.to_array());
+            g.boxes.push(sphere_box(s.truncate(), s.w));
+        }
+        g
+    }
+
+    /// The scene at one instant `time`, everything static.
+    pub fn at_time(scene: &Scene, time: f32) -> Self {
+        let spheres: Vec<Vec4> = scene
+            .spheres_at(time)
+            .iter()
+            .map(|s| s.center.extend(s.radius))
+            .collect();
+        Self::from_triangles_and_spheres(&scene.triangles_world(time), &spheres)
+    }
+
+    /// The scene over the shutter interval `[t0, t1]`: static primitives placed at `t0`,
+    /// moving ones at time 0 with a motion slot (the traversal moves them to the ray time).
+    pub fn over_interval(scene: &Scene, t0: f32, t1: f32) -> Self {
+        let mut g = Self::at_time(scene, t0);
+        let mut any = false;
+        let n_tris = scene.triangle_count();
+        let mut prim_motion = vec![NO_MOTION; n_tris + scene.spheres.len()];
+        let mut first = 0usize;
+        for mesh in &scene.meshes {
+            let count = mesh.indices.len();
+            if !mesh.motion.is_static() && count > 0 {
+                any = true;
+                let slot = g.motions.len() as u32;
+                g.motions.push(MotionRecord::new(&mesh.motion));
+                let m = mesh.transform.matrix();
+                for (k, tri) in mesh.indices.iter().enumerate() {
+                    let i = first + k;
+                    let pts = tri.map(|v| m.transform_point3(mesh.positions[v as usize]));
+                    for (c, p) in pts.iter().enumerate() {
+                        g.tri_verts[9 * i + 3 * c..9 * i + 3 * c + 3]
+                            .copy_from_slice(&p.to_array());
+                    }
+                    g.boxes[i] = swept_points(&pts, &mesh.motion, t0, t1);
+                    prim_motion[i] = slot;
+                }
+            }
+            first += count;
+        }
+        for (k, s) in scene.spheres.iter().enumerate() {
+            if !s.motion.is_static() {
+                any = true;
+                prim_motion[n_tris + k] = g.motions.len() as u32;
+                g.motions.push(MotionRecord::new(&s.motion));
+                g.spheres[k] = s.center.extend(s.radius).to_array();
+                let c = swept_points(&[s.center], &s.motion, t0, t1);
+                g.boxes[n_tris + k] = Aabb {
+                    min: c.min - Vec3::splat(s.radius),
+                    max: c.max + Vec3::splat(s.radius),
+                };
+            }
+        }
+        if any {
+            g.prim_motion = prim_motion;
+        }
+        g
+    }
+
+    pub fn triangle_count(&self) -> usize {
+        self.tri_verts.len() / 9
+    }
+
+    pub fn primitive_count(&self) -> usize {
+        self.triangle_count() + self.spheres.len()
+    }
+
+    pub fn has_motion(&self) -> bool {
+        !self.prim_motion.is_empty()
+    }
+
+    /// The scene constants for a tree with root box `bounds`.
+    pub fn info(&self, bounds: &Aabb) -> SceneInfo {
+        let (min, max) = if bounds.is_empty() {
+            (Vec3::ZERO, Vec3::ZERO)
+        } else {
+            (bounds.min, bounds.max)
+        };
+        SceneInfo {
+            bounds_min: min.extend(0.0).to_array(),
+            bounds_max: max.extend(0.0).to_array(),
+            n_tris: self.triangle_count() as u32,
+            n_spheres: self.spheres.len() as u32,
+            has_motion: self.has_motion() as u32,
+            pad: 0,
+        }
+    }
+
+    /// Triangle `i`'s vertices at `time`.
+    pub fn triangle_at(&self, i: usize, time: f32) -> [Vec3; 3] {
+        let v = |c: usize| Vec3::from_slice(&self.tri_verts[9 * i + 3 * c..9 * i + 3 * c + 3]);
+        let mut p = [v(0), v(1), v(2)];
+        if let Some(&slot) = self.prim_motion.get(i) {
+            if slot != NO_MOTION {
+                let m = &self.motions[slot as usize];
+                p = p.map(|q| m.move_point(q, time));
+            }
+        }
+        p
+    }
+
+    /// Sphere `i` (centre, radius) at `time`.
+    pub fn sphere_at(&self, i: usize, time: f32) -> Vec4 {
+        let mut s = Vec4::from_array(self.spheres[i]);
+        if let Some(&slot) = self.prim_motion.get(self.triangle_count() + i) {
+            if slot != NO_MOTION {
+                let c = self.motions[slot as usize].move_point(s.truncate(), time);
+                s = c.extend(s.w);
+            }
+        }
+        s
+    }
+}
+
+/// The box of a sphere, rounded outwards (`c ± r` rounds to nearest).
+pub fn sphere_box(c: Vec3, r: f32) -> Aabb {
+    Aabb {
+        min: (c - Vec3::splat(r)).to_array().map(f32::next_down).into(),
+        max: (c + Vec3::splat(r)).to_array().map(f32::next_up).into(),
+    }
+}

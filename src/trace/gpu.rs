@@ -1,0 +1,160 @@
+//! The GPU tracer: geometry and kd-tree uploaded once, ray batches traced by
+//! `glsl/render/trace.comp` (closest or any hit, watertight or Möller–Trumbore, chosen by
+//! specialization constants so each variant compiles only what it runs).
+
+use std::sync::Arc;
+
+use crate::accel::kdtree::{KdNode, KdTree};
+use crate::gpu::kernels;
+use crate::gpu::{Buffer, BufferArg, Context, Kernel, Profile, Recorder, Result, Spec};
+
+use super::geometry::{MotionRecord, SceneInfo, TraceGeometry};
+use super::{Hit, Query, Ray, TraceOptions};
+
+const WORKGROUP: u32 = 64;
+
+/// Geometry and tree in device memory: the seven buffers `traverse.glsl` binds, in order.
+pub struct GpuGeometry {
+    pub nodes: Buffer<KdNode>,
+    pub prim_refs: Buffer<u32>,
+    pub tri_verts: Buffer<f32>,
+    pub spheres: Buffer<[f32; 4]>,
+    pub prim_motion: Buffer<u32>,
+    pub motions: Buffer<MotionRecord>,
+    pub info: Buffer<SceneInfo>,
+    pub primitives: usize,
+}
+
+impl GpuGeometry {
+    pub fn upload(ctx: &Context, g: &TraceGeometry, tree: &KdTree) -> Result<Self> {
+        Ok(Self {
+            nodes: Buffer::from_slice(ctx, "trace.nodes", &tree.nodes)?,
+            prim_refs: Buffer::from_slice(ctx, "trace.prim_refs", &tree.prim_refs)?,
+            tri_verts: Buffer::from_slice(ctx, "trace.tri_verts", &g.tri_verts)?,
+            spheres: Buffer::from_slice(ctx, "trace.spheres", &g.spheres)?,
+            prim_motion: Buffer::from_slice(ctx, "trace.prim_motion", &g.prim_motion)?,
+            motions: Buffer::from_slice(ctx, "trace.motions", &g.motions)?,
+            info: Buffer::from_slice(ctx, "trace.info", &[g.info(&tree.bounds)])?,
+            primitives: g.primitive_count(),
+        })
+    }
+
+    /// The seven bindings in `traverse.glsl`'s order.
+    pub fn bindings(&self) -> [&dyn BufferArg; 7] {
+        [
+            &self.nodes,
+            &self.prim_refs,
+            &self.tri_verts,
+            &self.spheres,
+            &self.prim_motion,
+            &self.motions,
+            &self.info,
+        ]
+    }
+}
+
+/// Spec constant ids shared by every kernel that includes `traverse.glsl`.
+pub fn traversal_spec(opt: &TraceOptions) -> Spec {
+    Spec::new()
+        .u32(1, opt.intersector.spec())
+        .u32(2, (opt.query == Query::Any) as u32)
+        .u32(3, opt.stack_size.max(1))
+}
+
+/// Result of a batch.
+pub struct TraceBatch {
+    pub hits: Vec<Hit>,
+    /// Rays that ran out of traversal steps (reported as misses).
+    pub exhausted: u32,
+    pub profile: Profile,
+}
+
+pub struct Tracer {
+    kernel: Arc<Kernel>,
+    options: TraceOptions,
+}
+
+/// `opt` as the device can run it: no double-precision fallback without shaderFloat64.
+pub fn effective_options(ctx: &Context, opt: &TraceOptions) -> TraceOptions {
+    TraceOptions {
+        exact: opt.exact && ctx.info().features.shader_float64,
+        ..*opt
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct TracePush {
+    n: u32,
+    time: f32,
+}
+
+impl Tracer {
+    /// The tracer for `opt`; `opt.exact` is honoured only where the device has doubles
+    /// (see [`Tracer::options`]).
+    pub fn new(ctx: &Context, opt: &TraceOptions) -> Result<Self> {
+        let opt = effective_options(ctx, opt);
+        let spec = traversal_spec(&opt).workgroup(WORKGROUP);
+        let blob = if opt.exact {
+            &kernels::RENDER_TRACE_EXACT
+        } else {
+            &kernels::RENDER_TRACE_FLOAT
+        };
+        Ok(Self {
+            kernel: ctx.kernel(blob, &spec)?,
+            options: opt,
+        })
+    }
+
+    /// The options this tracer really runs with (its CPU twin must use the same).
+    pub fn options(&self) -> TraceOptions {
+        self.options
+    }
+
+    /// Records the trace of `n` rays into `hits` (both device buffers); `errors[0]` counts
+    /// rays that ran out of steps. The caller orders the writes of the inputs before.
+    pub fn record(
+        &self,
+        rec: &mut Recorder,
+        geom: &GpuGeometry,
+        rays: &Buffer<Ray>,
+        hits: &Buffer<Hit>,
+        errors: &Buffer<u32>,
+        n: usize,
+        time: f32,
+    ) {
+        if n == 0 {
+            return;
+        }
+        let g = geom.bindings();
+        let b: [&dyn BufferArg; 10] =
+            [rays, hits, g[0], g[1], g[2], g[3], g[4], g[5], g[6], errors];
+        let groups = rec.groups_1d(n as u64, WORKGROUP);
+        rec.dispatch(&self.kernel, groups, &b, &TracePush { n: n as u32, time });
+    }
+
+    /// Uploads `rays`, traces them at `time`, waits and reads the hits back. The profile has
+    /// one scope, `trace`, around the kernel alone.
+    pub fn trace(
+        &self,
+        ctx: &Context,
+        geom: &GpuGeometry,
+        rays: &[Ray],
+        time: f32,
+    ) -> Result<TraceBatch> {
+        let ray_buf = Buffer::from_slice(ctx, "trace.rays", rays)?;
+        let hits = Buffer::<Hit>::new(ctx, "trace.hits", rays.len())?;
+        let errors = Buffer::<u32>::zeroed(ctx, "trace.errors", 1)?;
+        let mut rec = Recorder::new(ctx)?;
+        rec.scope("trace", |rec| {
+            self.record(rec, geom, &ray_buf, &hits, &errors, rays.len(), time)
+        });
+        rec.compute_to_transfer();
+        let profile = rec.submit_and_wait()?;
+        Ok(TraceBatch {
+            hits: hits.download()?,
+            exhausted: errors.download()?[0],
+            profile,
+        })
+    }
+}

@@ -1,0 +1,187 @@
+//! CPU twins of the intersection tests in `glsl/common/ray.glsl`: the same operations in the
+//! same order (no fused multiply-add on either side).
+
+use glam::{Vec3, Vec4};
+
+/// The per-ray shear of the watertight test.
+#[derive(Clone, Copy, Debug)]
+pub struct Shear {
+    pub kx: usize,
+    pub ky: usize,
+    pub kz: usize,
+    pub sx: f32,
+    pub sy: f32,
+    pub sz: f32,
+}
+
+fn max_dim(v: Vec3) -> usize {
+    let a = v.abs();
+    if a.x >= a.y {
+        if a.x >= a.z {
+            0
+        } else {
+            2
+        }
+    } else if a.y >= a.z {
+        1
+    } else {
+        2
+    }
+}
+
+impl Shear {
+    pub fn new(d: Vec3) -> Self {
+        let kz = max_dim(d);
+        let mut kx = if kz == 2 { 0 } else { kz + 1 };
+        let mut ky = if kx == 2 { 0 } else { kx + 1 };
+        if d[kz] < 0.0 {
+            std::mem::swap(&mut kx, &mut ky);
+        }
+        Self {
+            kx,
+            ky,
+            kz,
+            sx: d[kx] / d[kz],
+            sy: d[ky] / d[kz],
+            sz: 1.0 / d[kz],
+        }
+    }
+}
+
+/// A hit's `t` and the barycentric weights of the second and third vertex.
+pub type TriHit = (f32, f32, f32);
+
+/// Watertight ray/triangle test (Woop, Benthin & Wald 2013); see `ray.glsl`. `exact`: the
+/// double-precision fallback for edge functions that round to zero (`FP64_FALLBACK`).
+#[allow(clippy::too_many_arguments)]
+pub fn triangle_watertight(
+    exact: bool,
+    o: Vec3,
+    s: &Shear,
+    p0: Vec3,
+    p1: Vec3,
+    p2: Vec3,
+    tmin: f32,
+    tmax: f32,
+) -> Option<TriHit> {
+    let (a, b, c) = (p0 - o, p1 - o, p2 - o);
+    let ax = a[s.kx] - s.sx * a[s.kz];
+    let ay = a[s.ky] - s.sy * a[s.kz];
+    let bx = b[s.kx] - s.sx * b[s.kz];
+    let by = b[s.ky] - s.sy * b[s.kz];
+    let cx = c[s.kx] - s.sx * c[s.kz];
+    let cy = c[s.ky] - s.sy * c[s.kz];
+    let (mut e0, mut e1, mut e2) = (cx * by - cy * bx, ax * cy - ay * cx, bx * ay - by * ax);
+    if exact && (e0 == 0.0 || e1 == 0.0 || e2 == 0.0) {
+        let d = |a: f32, b: f32, c: f32, e: f32| (a as f64 * b as f64 - c as f64 * e as f64) as f32;
+        (e0, e1, e2) = (d(cx, by, cy, bx), d(ax, cy, ay, cx), d(bx, ay, by, ax));
+    }
+    if (e0 < 0.0 || e1 < 0.0 || e2 < 0.0) && (e0 > 0.0 || e1 > 0.0 || e2 > 0.0) {
+        return None;
+    }
+    let det = e0 + e1 + e2;
+    if det == 0.0 {
+        return None;
+    }
+    let (az, bz, cz) = (s.sz * a[s.kz], s.sz * b[s.kz], s.sz * c[s.kz]);
+    let tt = e0 * az + e1 * bz + e2 * cz;
+    let t = tt / det;
+    if !(t >= tmin && t <= tmax) {
+        return None;
+    }
+    let inv = 1.0 / det;
+    Some((t, e1 * inv, e2 * inv))
+}
+
+fn dot(a: Vec3, b: Vec3) -> f32 {
+    a.x * b.x + a.y * b.y + a.z * b.z
+}
+
+fn cross(a: Vec3, b: Vec3) -> Vec3 {
+    Vec3::new(
+        a.y * b.z - b.y * a.z,
+        a.z * b.x - b.z * a.x,
+        a.x * b.y - b.x * a.y,
+    )
+}
+
+/// Möller–Trumbore (not watertight); see `ray.glsl`.
+#[allow(clippy::too_many_arguments)]
+pub fn triangle_moller(
+    o: Vec3,
+    d: Vec3,
+    p0: Vec3,
+    p1: Vec3,
+    p2: Vec3,
+    tmin: f32,
+    tmax: f32,
+) -> Option<TriHit> {
+    let e1 = p1 - p0;
+    let e2 = p2 - p0;
+    let pv = cross(d, e2);
+    let det = dot(e1, pv);
+    if det == 0.0 {
+        return None;
+    }
+    let inv = 1.0 / det;
+    let tv = o - p0;
+    let u = dot(tv, pv) * inv;
+    if !(0.0..=1.0).contains(&u) {
+        return None;
+    }
+    let qv = cross(tv, e1);
+    let v = dot(d, qv) * inv;
+    if v < 0.0 || u + v > 1.0 {
+        return None;
+    }
+    let t = dot(e2, qv) * inv;
+    if !(t >= tmin && t <= tmax) {
+        return None;
+    }
+    Some((t, u, v))
+}
+
+/// Ray/sphere (Haines et al., Ray Tracing Gems ch. 7); `sphere` = centre, radius.
+pub fn sphere(o: Vec3, d: Vec3, sphere: Vec4, tmin: f32, tmax: f32) -> Option<f32> {
+    let f = o - sphere.truncate();
+    let a = dot(d, d);
+    let bp = -dot(f, d);
+    let l = f + (bp / a) * d;
+    let r2 = sphere.w * sphere.w;
+    let disc = r2 - dot(l, l);
+    if disc < 0.0 {
+        return None;
+    }
+    let c = dot(f, f) - r2;
+    let q = bp + if bp >= 0.0 { 1.0 } else { -1.0 } * (a * disc).sqrt();
+    if q == 0.0 {
+        return None;
+    }
+    let (t0, t1) = (c / q, q / a);
+    let (lo, hi) = (t0.min(t1), t0.max(t1));
+    if lo >= tmin && lo <= tmax {
+        Some(lo)
+    } else if hi >= tmin && hi <= tmax {
+        Some(hi)
+    } else {
+        None
+    }
+}
+
+/// A spawned ray's origin, moved off the surface at `p` along the geometric normal `n`
+/// (pointing to the side the ray leaves on) by a few ulps of `p` (Wächter & Binder, Ray
+/// Tracing Gems ch. 6); `offset_ray_origin` in `ray.glsl`.
+pub fn offset_ray_origin(p: Vec3, n: Vec3) -> Vec3 {
+    const ORIGIN: f32 = 1.0 / 32.0;
+    const FLOAT_SCALE: f32 = 1.0 / 65536.0;
+    const INT_SCALE: f32 = 256.0;
+    let mut out = Vec3::ZERO;
+    for a in 0..3 {
+        let of = (INT_SCALE * n[a]) as i32;
+        let bits = p[a].to_bits() as i32;
+        let pi = f32::from_bits(bits.wrapping_add(if p[a] < 0.0 { -of } else { of }) as u32);
+        let pf = p[a] + FLOAT_SCALE * n[a];
+        out[a] = if p[a].abs() < ORIGIN { pf } else { pi };
+    }
+    out
+}

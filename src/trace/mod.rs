@@ -1,0 +1,155 @@
+//! Ray queries against a kd-tree: rays and hits shared byte for byte with GLSL
+//! (`glsl/common/ray.glsl`, `glsl/common/traverse.glsl`), the flattened scene geometry the
+//! traversal reads, the GPU tracer and its CPU twin, and brute force as the oracle.
+//!
+//! Contract of a query (GPU and CPU alike):
+//! - a ray is valid when origin, direction, `tmin` and `tmax` are finite, the direction is
+//!   not zero and `tmin <= tmax`; any other ray is a miss (never a hang, never an error);
+//! - hits are searched in `[max(tmin, 0), tmax]` at the scene's time (moving geometry is
+//!   placed at the ray's time; `vkrt trace` uses the shutter-open time);
+//! - the closest hit wins; among hits at exactly equal `t`, the lowest primitive id;
+//! - any-hit queries return some hit in the interval (the first found).
+
+pub mod cpu;
+pub mod files;
+pub mod geometry;
+pub mod gpu;
+pub mod intersect;
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+
+pub use geometry::TraceGeometry;
+
+/// A ray: 32 bytes, `Ray` in `glsl/common/ray.glsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct Ray {
+    pub origin: [f32; 3],
+    pub tmin: f32,
+    pub dir: [f32; 3],
+    pub tmax: f32,
+}
+
+impl Ray {
+    pub fn new(origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Self {
+        Self {
+            origin: origin.to_array(),
+            tmin,
+            dir: dir.to_array(),
+            tmax,
+        }
+    }
+
+    pub fn o(&self) -> Vec3 {
+        Vec3::from_array(self.origin)
+    }
+
+    pub fn d(&self) -> Vec3 {
+        Vec3::from_array(self.dir)
+    }
+
+    /// See the module docs.
+    pub fn is_valid(&self) -> bool {
+        let fin = |v: [f32; 3]| v.iter().all(|x| x.is_finite());
+        fin(self.origin)
+            && fin(self.dir)
+            && self.tmin.is_finite()
+            && self.tmax.is_finite()
+            && self.d() != Vec3::ZERO
+            && self.tmin <= self.tmax
+    }
+}
+
+/// Primitive id of a miss.
+pub const NO_HIT: u32 = u32::MAX;
+
+/// A hit: 16 bytes, `Hit` in `glsl/common/ray.glsl`. A miss has `t = +inf` and
+/// `prim = NO_HIT`. `u`, `v` are the barycentric weights of a triangle's second and third
+/// vertex (0 for spheres).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct Hit {
+    pub t: f32,
+    pub prim: u32,
+    pub u: f32,
+    pub v: f32,
+}
+
+impl Hit {
+    pub const MISS: Hit = Hit {
+        t: f32::INFINITY,
+        prim: NO_HIT,
+        u: 0.0,
+        v: 0.0,
+    };
+
+    pub fn is_hit(&self) -> bool {
+        self.prim != NO_HIT
+    }
+}
+
+/// Which ray/triangle test the traversal uses.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Intersector {
+    /// Woop, Benthin & Wald 2013: no ray slips between triangles sharing an edge.
+    #[default]
+    Watertight,
+    /// Möller & Trumbore 1997: faster, not watertight.
+    MollerTrumbore,
+}
+
+impl Intersector {
+    pub const ALL: [Intersector; 2] = [Intersector::Watertight, Intersector::MollerTrumbore];
+
+    /// The `INTERSECTOR` specialization constant.
+    pub fn spec(self) -> u32 {
+        match self {
+            Intersector::Watertight => 0,
+            Intersector::MollerTrumbore => 1,
+        }
+    }
+
+    pub fn name(self) -> &'static str {
+        match self {
+            Intersector::Watertight => "watertight",
+            Intersector::MollerTrumbore => "moller_trumbore",
+        }
+    }
+}
+
+/// Closest hit or any hit.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
+pub enum Query {
+    #[default]
+    Closest,
+    Any,
+}
+
+/// How a query runs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+pub struct TraceOptions {
+    pub intersector: Intersector,
+    pub query: Query,
+    /// Entries of the traversal's short stack; deeper trees restart from the root.
+    pub stack_size: u32,
+    /// The watertight test's double-precision fallback for edge functions that round to
+    /// zero. On by default; the GPU tracer turns it off on devices without shaderFloat64.
+    pub exact: bool,
+}
+
+impl Default for TraceOptions {
+    fn default() -> Self {
+        Self {
+            intersector: Intersector::Watertight,
+            query: Query::Closest,
+            stack_size: DEFAULT_STACK_SIZE,
+            exact: true,
+        }
+    }
+}
+
+/// Short-stack entries by default: deeper than the kd-tree depth bound for up to ~2^18
+/// primitives, so restarts are rare yet exercised on large scenes.
+pub const DEFAULT_STACK_SIZE: u32 = 32;

@@ -1,0 +1,349 @@
+//! kd-tree traversal (GPU kernel and CPU twin) against brute force over every primitive, on
+//! random rays of several kinds, for closest and any hit, both intersectors, a tiny short
+//! stack (restarts), spheres and moving geometry, and rays that must be misses.
+
+mod common;
+
+use common::{assert_silent, context, Rng};
+use glam::{Vec3, Vec4};
+use vkrt::accel::kdtree::{seed001, KdTree, SahParams};
+use vkrt::gpu::Context;
+use vkrt::trace::cpu::{self, TraceScene};
+use vkrt::trace::gpu::{GpuGeometry, Tracer};
+use vkrt::trace::{Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
+
+fn tree_of(g: &TraceGeometry) -> KdTree {
+    seed001::build_boxes(&g.boxes, &SahParams::default()).0
+}
+
+fn rand_vec(rng: &mut Rng) -> Vec3 {
+    Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32())
+}
+
+/// A point on primitive `p` of `g` (triangles by random barycentrics, spheres on the
+/// surface).
+fn point_on(g: &TraceGeometry, p: usize, rng: &mut Rng) -> Vec3 {
+    if p < g.triangle_count() {
+        let [a, b, c] = g.triangle_at(p, 0.0);
+        let (mut u, mut v) = (rng.next_f32() * 0.5 + 0.5, rng.next_f32() * 0.5 + 0.5);
+        if u + v > 1.0 {
+            (u, v) = (1.0 - u, 1.0 - v);
+        }
+        a + (b - a) * u + (c - a) * v
+    } else {
+        let s = g.sphere_at(p - g.triangle_count(), 0.0);
+        s.truncate() + rand_vec(rng).normalize_or(Vec3::X) * s.w
+    }
+}
+
+/// Random rays: through the box from anywhere, aimed at points on primitives, parallel to
+/// the axes with ±0 components, and starting on primitives.
+fn random_rays(g: &TraceGeometry, tree: &KdTree, n: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = Rng(seed);
+    let (lo, hi) = (tree.bounds.min, tree.bounds.max);
+    let c = (lo + hi) * 0.5;
+    let ext = (hi - lo).max(Vec3::splat(1e-3));
+    let prims = g.primitive_count();
+    (0..n)
+        .map(|i| {
+            let o = c + rand_vec(&mut rng) * ext * 0.75;
+            match i % 4 {
+                0 => Ray::new(o, rand_vec(&mut rng), 0.0, f32::MAX),
+                1 => {
+                    let target = point_on(g, (rng.next_u64() % prims as u64) as usize, &mut rng);
+                    let from = c + rand_vec(&mut rng).normalize_or(Vec3::Y) * ext.length();
+                    Ray::new(from, target - from, 0.0, f32::MAX)
+                }
+                2 => {
+                    let axis = (rng.next_u64() % 3) as usize;
+                    let mut d = Vec3::ZERO;
+                    d[axis] = if rng.next_u64() % 2 == 0 { 1.0 } else { -1.0 };
+                    let mut d = d.to_array();
+                    for (k, x) in d.iter_mut().enumerate() {
+                        if k != axis && rng.next_u64() % 2 == 0 {
+                            *x = -0.0;
+                        }
+                    }
+                    Ray::new(o, Vec3::from_array(d), 0.0, f32::MAX)
+                }
+                _ => {
+                    let p = point_on(g, (rng.next_u64() % prims as u64) as usize, &mut rng);
+                    Ray::new(p, rand_vec(&mut rng), 1e-4, f32::MAX)
+                }
+            }
+        })
+        .collect()
+}
+
+/// Same hit or miss; the same primitive unless the two `t` tie within 1e-5 relative.
+fn same_answer(a: &Hit, b: &Hit) -> bool {
+    if a.is_hit() != b.is_hit() {
+        return false;
+    }
+    if !a.is_hit() {
+        return true;
+    }
+    let close = (a.t - b.t).abs() <= 1e-5 * a.t.abs().max(b.t.abs()).max(1e-30);
+    close && (a.prim == b.prim || close)
+}
+
+/// Checks the GPU kernel and the CPU twin against brute force on `rays` (brute force on the
+/// first `brute` of them, the twin on all).
+fn check(
+    ctx: &Context,
+    name: &str,
+    g: &TraceGeometry,
+    tree: &KdTree,
+    rays: &[Ray],
+    brute: usize,
+    opt: TraceOptions,
+) {
+    let dev = GpuGeometry::upload(ctx, g, tree).unwrap();
+    let tracer = Tracer::new(ctx, &opt).unwrap();
+    let batch = tracer.trace(ctx, &dev, rays, 0.0).unwrap();
+    assert_eq!(batch.exhausted, 0, "{name}: rays ran out of steps");
+    let scene = TraceScene { geometry: g, tree };
+    let mut hits = 0;
+    for (i, r) in rays.iter().enumerate() {
+        let (twin, exhausted) = cpu::trace(&scene, r, 0.0, &opt);
+        assert!(!exhausted, "{name}: twin ran out of steps on ray {i}");
+        let gpu = batch.hits[i];
+        hits += gpu.is_hit() as usize;
+        assert!(
+            same_answer(&gpu, &twin),
+            "{name} {opt:?}: ray {i} {r:?}: GPU {gpu:?} vs CPU twin {twin:?}"
+        );
+        if i < brute {
+            let bf = cpu::brute_force(g, r, 0.0, &opt);
+            match opt.query {
+                Query::Closest => assert!(
+                    same_answer(&gpu, &bf),
+                    "{name} {opt:?}: ray {i} {r:?}: GPU {gpu:?} vs brute force {bf:?}"
+                ),
+                Query::Any => assert_eq!(
+                    gpu.is_hit(),
+                    bf.is_hit(),
+                    "{name} {opt:?}: ray {i} {r:?}: any-hit {gpu:?} vs brute force {bf:?}"
+                ),
+            }
+        }
+    }
+    assert!(
+        hits > rays.len() / 10,
+        "{name}: only {hits} of {} rays hit",
+        rays.len()
+    );
+    assert_silent(ctx);
+}
+
+fn mesh_tris(m: &vkrt::scene::Mesh) -> Vec<[Vec3; 3]> {
+    common::mesh_triangles(m)
+}
+
+fn scenes() -> Vec<(&'static str, TraceGeometry)> {
+    use vkrt::scene::gen;
+    let mut out = vec![
+        (
+            "icosphere",
+            TraceGeometry::from_triangles(&mesh_tris(&gen::icosphere(4).unwrap())),
+        ),
+        (
+            "soup",
+            TraceGeometry::from_triangles(&mesh_tris(&gen::random_soup(3000, 7).unwrap())),
+        ),
+        (
+            "integer-grid",
+            TraceGeometry::from_triangles(&mesh_tris(&gen::integer_grid(40, 40).unwrap())),
+        ),
+    ];
+    let mut rng = Rng(11);
+    let tris: Vec<[Vec3; 3]> = (0..500)
+        .map(|_| {
+            let o = rand_vec(&mut rng) * 5.0;
+            [o, o + rand_vec(&mut rng), o + rand_vec(&mut rng)]
+        })
+        .collect();
+    let spheres: Vec<Vec4> = (0..300)
+        .map(|_| (rand_vec(&mut rng) * 5.0).extend(0.05 + 0.3 * rng.next_f32().abs()))
+        .collect();
+    out.push((
+        "triangles+spheres",
+        TraceGeometry::from_triangles_and_spheres(&tris, &spheres),
+    ));
+    for (name, tris) in common::kdtree_hard_cases() {
+        if name != "single" && name != "two" {
+            out.push((name, TraceGeometry::from_triangles(&tris)));
+        }
+    }
+    out
+}
+
+#[test]
+fn closest_hit_equals_brute_force() {
+    let Some(ctx) = context() else { return };
+    for (name, g) in scenes() {
+        let tree = tree_of(&g);
+        let rays = random_rays(&g, &tree, 100_000, 5);
+        check(
+            &ctx,
+            name,
+            &g,
+            &tree,
+            &rays,
+            rays.len(),
+            TraceOptions::default(),
+        );
+    }
+}
+
+#[test]
+fn bunny_closest_hit_equals_brute_force() {
+    let Some(ctx) = context() else { return };
+    let Some(tris) = common::bunny() else { return };
+    let g = TraceGeometry::from_triangles(&tris);
+    let tree = tree_of(&g);
+    let rays = random_rays(&g, &tree, 100_000, 9);
+    // Brute force over 69K triangles for every ray is minutes on 2 cores: the first 4,000
+    // rays (every kind) against brute force, all 100,000 against the twin.
+    check(
+        &ctx,
+        "bunny",
+        &g,
+        &tree,
+        &rays,
+        4_000,
+        TraceOptions::default(),
+    );
+}
+
+#[test]
+fn any_hit_and_moller_trumbore_and_short_stack() {
+    let Some(ctx) = context() else { return };
+    for (name, g) in scenes().into_iter().take(4) {
+        let tree = tree_of(&g);
+        let rays = random_rays(&g, &tree, 20_000, 13);
+        for opt in [
+            TraceOptions {
+                query: Query::Any,
+                ..TraceOptions::default()
+            },
+            TraceOptions {
+                intersector: Intersector::MollerTrumbore,
+                ..TraceOptions::default()
+            },
+            // A two-entry stack drops entries on every deep path: restarts must not lose hits.
+            TraceOptions {
+                stack_size: 2,
+                ..TraceOptions::default()
+            },
+        ] {
+            check(&ctx, name, &g, &tree, &rays, rays.len(), opt);
+        }
+    }
+}
+
+#[test]
+fn invalid_rays_miss() {
+    let Some(ctx) = context() else { return };
+    let g = TraceGeometry::from_triangles(&[[Vec3::ZERO, Vec3::X, Vec3::Y]]);
+    let tree = tree_of(&g);
+    let (nan, inf) = (f32::NAN, f32::INFINITY);
+    let o = Vec3::new(0.2, 0.2, 1.0);
+    let d = -Vec3::Z;
+    let good = Ray::new(o, d, 0.0, 10.0);
+    let bad = [
+        Ray::new(Vec3::new(nan, 0.2, 1.0), d, 0.0, 10.0),
+        Ray::new(Vec3::new(0.2, inf, 1.0), d, 0.0, 10.0),
+        Ray::new(o, Vec3::new(0.0, nan, -1.0), 0.0, 10.0),
+        Ray::new(o, Vec3::new(-inf, 0.0, -1.0), 0.0, 10.0),
+        Ray::new(o, Vec3::ZERO, 0.0, 10.0),
+        Ray::new(o, Vec3::new(-0.0, 0.0, -0.0), 0.0, 10.0),
+        Ray::new(o, d, nan, 10.0),
+        Ray::new(o, d, 0.0, nan),
+        Ray::new(o, d, 0.0, inf),
+        Ray::new(o, d, -inf, 10.0),
+        Ray::new(o, d, 5.0, 1.0),
+    ];
+    let mut rays = vec![good];
+    rays.extend_from_slice(&bad);
+    for opt in [
+        TraceOptions::default(),
+        TraceOptions {
+            query: Query::Any,
+            ..TraceOptions::default()
+        },
+    ] {
+        let dev = GpuGeometry::upload(&ctx, &g, &tree).unwrap();
+        let batch = Tracer::new(&ctx, &opt)
+            .unwrap()
+            .trace(&ctx, &dev, &rays, 0.0)
+            .unwrap();
+        assert!(batch.hits[0].is_hit() && (batch.hits[0].t - 1.0).abs() < 1e-6);
+        for (i, h) in batch.hits.iter().enumerate().skip(1) {
+            assert_eq!(*h, Hit::MISS, "bad ray {:?} must miss", rays[i]);
+            let scene = TraceScene {
+                geometry: &g,
+                tree: &tree,
+            };
+            assert_eq!(cpu::trace(&scene, &rays[i], 0.0, &opt).0, Hit::MISS);
+        }
+    }
+    assert_silent(&ctx);
+}
+
+#[test]
+fn empty_scene_misses() {
+    let Some(ctx) = context() else { return };
+    let g = TraceGeometry::default();
+    let tree = tree_of(&g);
+    let dev = GpuGeometry::upload(&ctx, &g, &tree).unwrap();
+    let rays = [Ray::new(Vec3::ZERO, Vec3::X, 0.0, 1e30)];
+    let batch = Tracer::new(&ctx, &TraceOptions::default())
+        .unwrap()
+        .trace(&ctx, &dev, &rays, 0.0)
+        .unwrap();
+    assert_eq!(batch.hits, vec![Hit::MISS]);
+    assert_silent(&ctx);
+}
+
+#[test]
+fn moving_geometry_is_traced_at_the_ray_time() {
+    use vkrt::scene::{Mesh, Motion, Scene};
+    let Some(ctx) = context() else { return };
+    // One triangle moving +x at 1 unit/s; rays straight down at x = 0.25 and x = 2.25.
+    let mut scene = Scene::default_scene();
+    scene.spheres.clear();
+    scene.meshes = vec![Mesh::new(
+        "tri",
+        vec![Vec3::ZERO, Vec3::X, Vec3::new(0.0, 0.0, 1.0)],
+        vec![[0, 1, 2]],
+        0,
+    )];
+    scene.meshes[0].motion = Motion {
+        velocity: Vec3::X,
+        orbit: None,
+    };
+    let g = TraceGeometry::over_interval(&scene, 0.0, 3.0);
+    assert!(g.has_motion());
+    let tree = tree_of(&g);
+    let dev = GpuGeometry::upload(&ctx, &g, &tree).unwrap();
+    let tracer = Tracer::new(&ctx, &TraceOptions::default()).unwrap();
+    let rays = [
+        Ray::new(Vec3::new(0.25, 1.0, 0.25), -Vec3::Y, 0.0, 10.0),
+        Ray::new(Vec3::new(2.25, 1.0, 0.25), -Vec3::Y, 0.0, 10.0),
+    ];
+    let at0 = tracer.trace(&ctx, &dev, &rays, 0.0).unwrap().hits;
+    let at2 = tracer.trace(&ctx, &dev, &rays, 2.0).unwrap().hits;
+    assert!(at0[0].is_hit() && !at0[1].is_hit(), "{at0:?}");
+    assert!(!at2[0].is_hit() && at2[1].is_hit(), "{at2:?}");
+    let scene_ref = TraceScene {
+        geometry: &g,
+        tree: &tree,
+    };
+    let opt = TraceOptions::default();
+    assert_eq!(
+        cpu::trace(&scene_ref, &rays[1], 2.0, &opt).0.prim,
+        at2[1].prim
+    );
+    assert_silent(&ctx);
+}
