@@ -2,7 +2,10 @@
 //! levels (see [`super::seed001`] for the algorithm; it is this build's CPU twin and the
 //! tests require both to give the same tree, bit for bit).
 //!
-//! Phase I: triangle boxes (`accel.kdtree_boxes`), the scene box (min/max reductions), per
+//! Phase I: primitive boxes — from triangles (`accel.kdtree_boxes`) or from boxes the
+//! caller computed, 6 floats each (`accel.kdtree_input_boxes`, for spheres, moving
+//! primitives or a mix; `accel.kdtree_sphere_boxes` computes sphere boxes on the GPU) —,
+//! then the scene box (min/max reductions), per
 //! axis the event keys (`accel.kdtree_event_keys`), a stable f32 radix sort and the SoA
 //! event records (`accel.kdtree_event_gather`), then the root (`accel.kdtree_init`).
 //!
@@ -188,6 +191,8 @@ struct AdvancePush {
 
 struct Kernels {
     boxes: Arc<Kernel>,
+    input_boxes: Arc<Kernel>,
+    sphere_boxes: Arc<Kernel>,
     event_keys: Arc<Kernel>,
     event_gather: Arc<Kernel>,
     init: Arc<Kernel>,
@@ -269,6 +274,8 @@ impl KdTreeBuilder {
         Ok(Self {
             k: Kernels {
                 boxes: k(&kernels::ACCEL_KDTREE_BOXES)?,
+                input_boxes: k(&kernels::ACCEL_KDTREE_INPUT_BOXES)?,
+                sphere_boxes: k(&kernels::ACCEL_KDTREE_SPHERE_BOXES)?,
                 event_keys: k(&kernels::ACCEL_KDTREE_EVENT_KEYS)?,
                 event_gather: k(&kernels::ACCEL_KDTREE_EVENT_GATHER)?,
                 init: one(&kernels::ACCEL_KDTREE_INIT)?,
@@ -409,11 +416,73 @@ impl KdTreeBuilder {
         s: &BuildScratch,
         out: &BuildOutput,
     ) {
+        self.record_source(rec, Source::Triangles(triangles), n, params, s, out);
+    }
+
+    /// [`KdTreeBuilder::record_build`] over `n` primitive boxes, 6 floats each (min x, y,
+    /// z, max x, y, z; e.g. [`crate::scene::Aabb`]s, or boxes a kernel such as
+    /// [`KdTreeBuilder::record_sphere_boxes`] wrote): spheres, moving primitives, any mix.
+    /// Every box must be finite with min ≤ max (the host entry points check it).
+    pub fn record_build_boxes(
+        &self,
+        rec: &mut Recorder,
+        boxes: &Buffer<f32>,
+        n: usize,
+        params: &SahParams,
+        s: &BuildScratch,
+        out: &BuildOutput,
+    ) {
+        self.record_source(rec, Source::Boxes(boxes), n, params, s, out);
+    }
+
+    /// Records the boxes of `n` spheres (4 floats each: center x, y, z, radius) into
+    /// `boxes` as primitives `first .. first + n` of the box input of
+    /// [`KdTreeBuilder::record_build_boxes`]: `center ± radius`, exactly as
+    /// [`super::seed001::sphere_box`]. The caller orders the writes of `spheres` before and
+    /// a `compute_to_compute` barrier before the build reads `boxes`.
+    pub fn record_sphere_boxes(
+        &self,
+        rec: &mut Recorder,
+        spheres: &Buffer<f32>,
+        n: usize,
+        boxes: &Buffer<f32>,
+        first: usize,
+    ) {
         assert!(
-            n >= 1 && n <= s.max_prims && 9 * n <= triangles.len(),
-            "build of {n} triangles"
+            4 * n <= spheres.len() && 6 * (first + n) <= boxes.len(),
+            "sphere boxes {first}..{} into {} floats",
+            first + n,
+            boxes.len()
         );
-        self.record_phase_one(rec, triangles, n, s);
+        if n == 0 {
+            return;
+        }
+        rec.scope("kdtree.sphere_boxes", |rec| {
+            let groups = rec.groups_1d(n as u64, WORKGROUP);
+            rec.dispatch(
+                &self.k.sphere_boxes,
+                groups,
+                &[spheres, boxes],
+                &[n as u32, first as u32],
+            );
+        });
+    }
+
+    fn record_source(
+        &self,
+        rec: &mut Recorder,
+        input: Source,
+        n: usize,
+        params: &SahParams,
+        s: &BuildScratch,
+        out: &BuildOutput,
+    ) {
+        assert!(
+            n >= 1 && n <= s.max_prims && input.floats_per_prim() * n <= input.buffer().len(),
+            "build of {n} {}",
+            input.what()
+        );
+        self.record_phase_one(rec, input, n, s);
         let depth_limit = params.depth_limit(n);
         rec.scope("kdtree.phase2", |rec| {
             for depth in 0..=depth_limit {
@@ -425,19 +494,17 @@ impl KdTreeBuilder {
         });
     }
 
-    fn record_phase_one(
-        &self,
-        rec: &mut Recorder,
-        triangles: &Buffer<f32>,
-        n: usize,
-        s: &BuildScratch,
-    ) {
+    fn record_phase_one(&self, rec: &mut Recorder, input: Source, n: usize, s: &BuildScratch) {
         let k = &self.k;
         rec.scope("kdtree.phase1", |rec| {
             rec.scope("kdtree.boxes", |rec| {
                 let groups = rec.groups_1d(n as u64, WORKGROUP);
+                let kernel = match input {
+                    Source::Triangles(_) => &k.boxes,
+                    Source::Boxes(_) => &k.input_boxes,
+                };
                 let b: [&dyn BufferArg; 7] = [
-                    triangles,
+                    input.buffer(),
                     &s.prim_min[0],
                     &s.prim_min[1],
                     &s.prim_min[2],
@@ -445,7 +512,7 @@ impl KdTreeBuilder {
                     &s.prim_max[1],
                     &s.prim_max[2],
                 ];
-                rec.dispatch(&k.boxes, groups, &b, &(n as u32));
+                rec.dispatch(kernel, groups, &b, &(n as u32));
             });
             rec.compute_to_compute();
             rec.scope("kdtree.bounds", |rec| {
@@ -791,12 +858,32 @@ impl KdTreeBuilder {
         triangles: &[[Vec3; 3]],
         params: &SahParams,
     ) -> Result<(KdTree, Profile)> {
-        let r = self.build_from(
-            ctx,
-            triangles,
-            params,
-            BuildCapacity::for_primitives(triangles.len()),
-        )?;
+        self.build_input(ctx, BuildInput::Triangles(triangles), params)
+    }
+
+    /// [`KdTreeBuilder::build`] over primitive boxes (spheres, moving primitives, a mix:
+    /// e.g. [`super::seed001::prim_box`] of every triangle followed by
+    /// [`super::seed001::sphere_box`] of every sphere). Primitive `i` of the tree is
+    /// `boxes[i]`; the tree equals [`super::seed001::build_boxes`] bit for bit. A box that is
+    /// not finite or has min > max on an axis is an error.
+    pub fn build_boxes(
+        &self,
+        ctx: &Context,
+        boxes: &[Aabb],
+        params: &SahParams,
+    ) -> Result<(KdTree, Profile)> {
+        self.build_input(ctx, BuildInput::Boxes(boxes), params)
+    }
+
+    /// [`KdTreeBuilder::build`] or [`KdTreeBuilder::build_boxes`], by input.
+    pub fn build_input(
+        &self,
+        ctx: &Context,
+        input: BuildInput,
+        params: &SahParams,
+    ) -> Result<(KdTree, Profile)> {
+        let capacity = BuildCapacity::for_primitives(input.len());
+        let r = self.build_input_from(ctx, input, params, capacity)?;
         Ok((r.tree, r.profile))
     }
 
@@ -807,15 +894,22 @@ impl KdTreeBuilder {
         ctx: &Context,
         triangles: &[[Vec3; 3]],
         params: &SahParams,
+        capacity: BuildCapacity,
+    ) -> Result<BuildResult> {
+        self.build_input_from(ctx, BuildInput::Triangles(triangles), params, capacity)
+    }
+
+    /// [`KdTreeBuilder::build_input`] starting from `capacity`.
+    pub fn build_input_from(
+        &self,
+        ctx: &Context,
+        input: BuildInput,
+        params: &SahParams,
         mut capacity: BuildCapacity,
     ) -> Result<BuildResult> {
-        let n = triangles.len();
-        let bounds = super::seed001::bounds_of(
-            &triangles
-                .iter()
-                .map(super::seed001::prim_box)
-                .collect::<Vec<_>>(),
-        );
+        input.check()?;
+        let n = input.len();
+        let bounds = super::seed001::bounds_of(&input.boxes());
         if n == 0 {
             let tree = KdTree {
                 nodes: vec![KdNode::leaf(0, 0)],
@@ -831,16 +925,12 @@ impl KdTreeBuilder {
                 levels: 1,
             });
         }
-        let flat: Vec<f32> = triangles
-            .iter()
-            .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
-            .collect();
-        let tris = Buffer::from_slice(ctx, "kdtree.triangles", &flat)?;
+        let uploaded = Uploaded::new(ctx, input)?;
         for attempt in 1..=8 {
             let scratch = self.scratch(ctx, n, capacity)?;
             let out = self.output(ctx, &capacity)?;
             let mut rec = Recorder::new(ctx)?;
-            self.record_build(&mut rec, &tris, n, params, &scratch, &out);
+            self.record_source(&mut rec, uploaded.source(), n, params, &scratch, &out);
             rec.compute_to_transfer();
             let profile = rec.submit_and_wait()?;
             let outcome = self.read_outcome(&scratch)?;
@@ -885,21 +975,32 @@ impl KdTreeBuilder {
         params: &SahParams,
         capacity: BuildCapacity,
     ) -> Result<Profile> {
-        let n = triangles.len();
-        let flat: Vec<f32> = triangles
-            .iter()
-            .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
-            .collect();
-        let tris = Buffer::from_slice(ctx, "kdtree.triangles", &flat)?;
+        self.timed_build_input(ctx, BuildInput::Triangles(triangles), params, capacity)
+    }
+
+    /// [`KdTreeBuilder::timed_build`] for any input (at least one primitive).
+    pub fn timed_build_input(
+        &self,
+        ctx: &Context,
+        input: BuildInput,
+        params: &SahParams,
+        capacity: BuildCapacity,
+    ) -> Result<Profile> {
+        input.check()?;
+        let n = input.len();
+        if n == 0 {
+            return Ok(Profile::default());
+        }
+        let uploaded = Uploaded::new(ctx, input)?;
         let scratch = self.scratch(ctx, n, capacity)?;
         let out = self.output(ctx, &capacity)?;
         let mut rec = Recorder::new(ctx)?;
         rec.scope("kdtree.warmup", |rec| {
-            self.record_build(rec, &tris, n, params, &scratch, &out)
+            self.record_source(rec, uploaded.source(), n, params, &scratch, &out)
         });
         rec.compute_to_compute();
         rec.scope("kdtree.timed", |rec| {
-            self.record_build(rec, &tris, n, params, &scratch, &out)
+            self.record_source(rec, uploaded.source(), n, params, &scratch, &out)
         });
         rec.compute_to_transfer();
         Ok(rec.submit_and_wait()?.subtree("kdtree.timed"))
@@ -907,15 +1008,23 @@ impl KdTreeBuilder {
 
     /// Phase I alone, for the twin comparison: the scene box and the sorted event lists.
     pub fn phase_one(&self, ctx: &Context, triangles: &[[Vec3; 3]]) -> Result<(Aabb, [Events; 3])> {
-        let n = triangles.len();
-        let flat: Vec<f32> = triangles
-            .iter()
-            .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
-            .collect();
-        let tris = Buffer::from_slice(ctx, "kdtree.triangles", &flat)?;
+        self.phase_one_input(ctx, BuildInput::Triangles(triangles))
+    }
+
+    /// [`KdTreeBuilder::phase_one`] for any input (at least one primitive).
+    pub fn phase_one_input(&self, ctx: &Context, input: BuildInput) -> Result<(Aabb, [Events; 3])> {
+        input.check()?;
+        let n = input.len();
+        if n == 0 {
+            return Err(GpuError::Kernel {
+                kernel: "accel.kdtree",
+                reason: "phase one of zero primitives".into(),
+            });
+        }
+        let uploaded = Uploaded::new(ctx, input)?;
         let scratch = self.scratch(ctx, n, BuildCapacity::for_primitives(n))?;
         let mut rec = Recorder::new(ctx)?;
-        self.record_phase_one(&mut rec, &tris, n, &scratch);
+        self.record_phase_one(&mut rec, uploaded.source(), n, &scratch);
         rec.compute_to_transfer();
         rec.submit_and_wait()?;
         let v = |i: usize| scratch.bounds[i].download().map(|b| b[0]);
@@ -932,5 +1041,118 @@ impl KdTreeBuilder {
                 ev[2].download(2 * n)?,
             ],
         ))
+    }
+}
+
+/// What a host-side build reads: triangles (world space) or primitive boxes.
+#[derive(Clone, Copy, Debug)]
+pub enum BuildInput<'a> {
+    Triangles(&'a [[Vec3; 3]]),
+    /// One box per primitive (spheres, moving primitives, any mix).
+    Boxes(&'a [Aabb]),
+}
+
+impl BuildInput<'_> {
+    /// Number of primitives.
+    pub fn len(&self) -> usize {
+        match self {
+            Self::Triangles(t) => t.len(),
+            Self::Boxes(b) => b.len(),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The primitive boxes, as Phase I computes them.
+    pub fn boxes(&self) -> Vec<Aabb> {
+        match self {
+            Self::Triangles(t) => t.iter().map(super::seed001::prim_box).collect(),
+            Self::Boxes(b) => b.to_vec(),
+        }
+    }
+
+    /// Boxes must be finite with min ≤ max (triangles are checked by scene validation).
+    fn check(&self) -> Result<()> {
+        if let Self::Boxes(boxes) = self {
+            if let Some((i, b)) = boxes.iter().enumerate().find(|(_, b)| {
+                !(b.min.is_finite() && b.max.is_finite() && b.min.cmple(b.max).all())
+            }) {
+                return Err(GpuError::Kernel {
+                    kernel: "accel.kdtree",
+                    reason: format!(
+                        "primitive box {i} is not a finite box with min <= max: min {:?}, max {:?}",
+                        b.min, b.max
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// An input on the GPU, in the layout its Phase I kernel reads.
+enum Uploaded {
+    Triangles(Buffer<f32>),
+    Boxes(Buffer<f32>),
+}
+
+impl Uploaded {
+    fn new(ctx: &Context, input: BuildInput) -> Result<Self> {
+        Ok(match input {
+            BuildInput::Triangles(t) => {
+                let flat: Vec<f32> = t
+                    .iter()
+                    .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
+                    .collect();
+                Self::Triangles(Buffer::from_slice(ctx, "kdtree.triangles", &flat)?)
+            }
+            BuildInput::Boxes(b) => {
+                let flat: Vec<f32> = b
+                    .iter()
+                    .flat_map(|b| b.min.to_array().into_iter().chain(b.max.to_array()))
+                    .collect();
+                Self::Boxes(Buffer::from_slice(ctx, "kdtree.boxes", &flat)?)
+            }
+        })
+    }
+
+    fn source(&self) -> Source<'_> {
+        match self {
+            Self::Triangles(b) => Source::Triangles(b),
+            Self::Boxes(b) => Source::Boxes(b),
+        }
+    }
+}
+
+/// A recorded build's input buffer.
+#[derive(Clone, Copy)]
+enum Source<'a> {
+    /// 9 floats per triangle.
+    Triangles(&'a Buffer<f32>),
+    /// 6 floats per box.
+    Boxes(&'a Buffer<f32>),
+}
+
+impl<'a> Source<'a> {
+    fn buffer(self) -> &'a Buffer<f32> {
+        match self {
+            Self::Triangles(b) | Self::Boxes(b) => b,
+        }
+    }
+
+    fn floats_per_prim(self) -> usize {
+        match self {
+            Self::Triangles(_) => 9,
+            Self::Boxes(_) => 6,
+        }
+    }
+
+    fn what(self) -> &'static str {
+        match self {
+            Self::Triangles(_) => "triangles",
+            Self::Boxes(_) => "boxes",
+        }
     }
 }
