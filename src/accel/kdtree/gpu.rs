@@ -130,6 +130,21 @@ impl BuildCapacity {
             refs: (2 * refs_per_level).max(n) + 1024,
         }
     }
+
+    /// This capacity with every buffer clamped to `max_range` bytes (the device's
+    /// `maxStorageBufferRange`: 128 MiB on lavapipe). The largest buffers per unit are the
+    /// event boxes (48 bytes per reference of a level), the level's node boxes (24 bytes per
+    /// node) and the output nodes (16 bytes each). A build that needs more overflows and
+    /// [`KdTreeBuilder::build_from`] reports it as an error naming the limit.
+    pub fn fit(self, max_range: u64) -> Self {
+        let most = |bytes_per_item: u64| (max_range / bytes_per_item) as usize;
+        Self {
+            refs_per_level: self.refs_per_level.min(most(48)),
+            nodes_per_level: self.nodes_per_level.min(most(24)),
+            nodes: self.nodes.min(most(16)),
+            refs: self.refs.min(most(4)),
+        }
+    }
 }
 
 /// Bytes a build needs, for an embedding renderer that allocates itself.
@@ -925,6 +940,8 @@ impl KdTreeBuilder {
                 levels: 1,
             });
         }
+        let limit = ctx.info().max_storage_buffer_range;
+        capacity = capacity.fit(limit);
         let uploaded = Uploaded::new(ctx, input)?;
         for attempt in 1..=8 {
             let scratch = self.scratch(ctx, n, capacity)?;
@@ -936,7 +953,20 @@ impl KdTreeBuilder {
             let outcome = self.read_outcome(&scratch)?;
             if outcome.overflow {
                 let refs = (outcome.needed_refs as usize).max(2 * capacity.refs_per_level);
-                capacity = BuildCapacity::with_refs(n, refs);
+                let larger = BuildCapacity::with_refs(n, refs).fit(limit);
+                if larger == capacity {
+                    return Err(GpuError::Kernel {
+                        kernel: "accel.kdtree",
+                        reason: format!(
+                            "the kd-tree of {n} primitives does not fit this device's \
+                             maxStorageBufferRange of {limit} bytes per buffer (a level needed \
+                             {} references; capacity {capacity:?}); build fewer primitives \
+                             per tree or allow larger leaves (SahParams::max_leaf_prims)",
+                            outcome.needed_refs
+                        ),
+                    });
+                }
+                capacity = larger;
                 continue;
             }
             let mut nodes = out.nodes.download()?;
