@@ -307,6 +307,11 @@ impl SegmentedArgmin {
         loop_capacity(self.segment_workgroup_size).min(u64::from(u32::MAX)) as u32
     }
 
+    /// The most segments [`Self::record`] takes (`max_segments`).
+    pub fn max_segments(&self) -> usize {
+        MAX_PLAN_SEGMENTS as usize
+    }
+
     /// The most costs [`Self::record`] takes: the per-segment combine must read a
     /// segment's tile winners within llvmpipe's loop budget.
     pub fn max_costs(&self) -> usize {

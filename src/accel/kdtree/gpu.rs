@@ -36,7 +36,7 @@ use crate::gpu::{
 use crate::prims::radix_sort::{RadixScratch, RadixSort};
 use crate::prims::reduce::{CostIndex, Reduce};
 use crate::prims::scan::{GpuCount, Scan, ScanInput, ScanOp, ScanScratch};
-use crate::prims::segmented::{SegmentedArgmin, SegmentedMode};
+use crate::prims::segmented::{SegmentedArgmin, SegmentedMode, WorkgroupReduction};
 use crate::prims::PrimConfig;
 
 const WORKGROUP: u32 = 256;
@@ -208,6 +208,7 @@ struct Kernels {
     boxes: Arc<Kernel>,
     input_boxes: Arc<Kernel>,
     sphere_boxes: Arc<Kernel>,
+    widen_flags: Arc<Kernel>,
     event_keys: Arc<Kernel>,
     event_gather: Arc<Kernel>,
     init: Arc<Kernel>,
@@ -232,6 +233,19 @@ pub struct KdTreeBuilder {
     /// How the best split of every node is found (hybrid by default; the others are for
     /// the ablation benchmark).
     pub segmented_mode: SegmentedMode,
+    ablation: Ablation,
+}
+
+/// The baselines of seed 001's Table 6.2 ablation that the build can switch back to. Every
+/// combination gives the same tree, bit for bit (tests/kdtree_gpu.rs); only speed differs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Ablation {
+    /// The best split's workgroup reduction through shared memory (one barrier per halving
+    /// step) instead of subgroup shuffles (seed 001 Listing 6.7 vs its Fig. 6.12 baseline).
+    pub shared_memory_argmin: bool,
+    /// START counts by the plain u32 scan over event types widened to u32 (an extra pass)
+    /// instead of the byte-flag scan that reads 4 types per u32 (seed 001 Listing 6.6).
+    pub u32_event_scan: bool,
 }
 
 /// The level's node arrays (ping-ponged between levels).
@@ -272,6 +286,8 @@ pub struct BuildScratch {
     leaf_scratch: ScanScratch,
     slot_scratch: ScanScratch,
     seg_scratch: Buffer<u32>,
+    /// Ablation `u32_event_scan` only: widened event types and the u32 scan's scratch.
+    wide_flags: Option<(Buffer<u32>, ScanScratch)>,
 }
 
 /// The build's output: nodes and leaf references (valid up to the outcome's counts).
@@ -282,6 +298,12 @@ pub struct BuildOutput {
 
 impl KdTreeBuilder {
     pub fn new(ctx: &Context) -> Result<Self> {
+        Self::with_ablation(ctx, Ablation::default())
+    }
+
+    /// A builder with some of seed 001's optimisations switched back to their baselines
+    /// (for the ablation benchmark; [`KdTreeBuilder::new`] is the default, all on).
+    pub fn with_ablation(ctx: &Context, ablation: Ablation) -> Result<Self> {
         let spec = Spec::new().workgroup(WORKGROUP);
         let k = |blob| ctx.kernel(blob, &spec);
         let one = |blob| ctx.kernel(blob, &Spec::new());
@@ -291,6 +313,7 @@ impl KdTreeBuilder {
                 boxes: k(&kernels::ACCEL_KDTREE_BOXES)?,
                 input_boxes: k(&kernels::ACCEL_KDTREE_INPUT_BOXES)?,
                 sphere_boxes: k(&kernels::ACCEL_KDTREE_SPHERE_BOXES)?,
+                widen_flags: k(&kernels::ACCEL_KDTREE_WIDEN_FLAGS)?,
                 event_keys: k(&kernels::ACCEL_KDTREE_EVENT_KEYS)?,
                 event_gather: k(&kernels::ACCEL_KDTREE_EVENT_GATHER)?,
                 init: one(&kernels::ACCEL_KDTREE_INIT)?,
@@ -308,14 +331,37 @@ impl KdTreeBuilder {
             flag_scan: Scan::new(ctx, cfg, ScanInput::Flags)?,
             scan: Scan::new(ctx, cfg, ScanInput::U32)?,
             // Nodes of the deep levels hold a few events each: small workgroups per segment.
-            segmented: SegmentedArgmin::with_segment_workgroup(
+            segmented: SegmentedArgmin::with_reduction(
                 ctx,
                 cfg,
                 ctx.info().subgroup_size.max(32),
+                if ablation.shared_memory_argmin {
+                    WorkgroupReduction::SharedMemory
+                } else {
+                    WorkgroupReduction::Shuffle
+                },
             )?,
             // Tiles for the few long segments of the first levels, decided on the GPU.
             segmented_mode: SegmentedMode::hybrid_for(ctx),
+            ablation,
         })
+    }
+
+    /// The optimisations switched off (none by default).
+    pub fn ablation(&self) -> Ablation {
+        self.ablation
+    }
+
+    /// `capacity` clamped to what this device and the builder's primitives take: every
+    /// buffer within `maxStorageBufferRange` ([`BuildCapacity::fit`]), a level's nodes
+    /// within the segmented argmin's segment limit, its events within its cost limit.
+    pub fn fit_capacity(&self, ctx: &Context, capacity: BuildCapacity) -> BuildCapacity {
+        let c = capacity.fit(ctx.info().max_storage_buffer_range);
+        BuildCapacity {
+            refs_per_level: c.refs_per_level.min(self.segmented.max_costs() / 2),
+            nodes_per_level: c.nodes_per_level.min(self.segmented.max_segments()),
+            ..c
+        }
     }
 
     /// Bytes of scratch and output for `n` primitives at `capacity`.
@@ -408,6 +454,11 @@ impl KdTreeBuilder {
             leaf_scratch: self.scan.scratch(ctx, m)?,
             slot_scratch: self.flag_scan.scratch(ctx, 2 * e)?,
             seg_scratch: u("kdtree.seg_scratch", self.segmented.scratch_len(e, m))?,
+            wide_flags: if self.ablation.u32_event_scan {
+                Some((u("kdtree.wide_flags", e)?, self.scan.scratch(ctx, e)?))
+            } else {
+                None
+            },
         })
     }
 
@@ -640,15 +691,30 @@ impl KdTreeBuilder {
 
         rec.scope("kdtree.split_costs", |rec| {
             for a in 0..3 {
-                self.flag_scan.record_counted(
-                    rec,
-                    &ev[a].kind,
-                    &s.starts[a],
-                    e,
-                    refs,
-                    ScanOp::Exclusive,
-                    &s.flag_scratch,
-                );
+                if let Some((wide, scratch)) = &s.wide_flags {
+                    let b: [&dyn BufferArg; 3] = [&s.state, &ev[a].kind, wide];
+                    rec.dispatch_indirect(&k.widen_flags, &s.state, ev_args, &b, &());
+                    rec.compute_to_compute();
+                    self.scan.record_counted(
+                        rec,
+                        wide,
+                        &s.starts[a],
+                        e,
+                        refs,
+                        ScanOp::Exclusive,
+                        scratch,
+                    );
+                } else {
+                    self.flag_scan.record_counted(
+                        rec,
+                        &ev[a].kind,
+                        &s.starts[a],
+                        e,
+                        refs,
+                        ScanOp::Exclusive,
+                        &s.flag_scratch,
+                    );
+                }
                 rec.compute_to_compute();
             }
             let push = SahPush {
@@ -941,7 +1007,7 @@ impl KdTreeBuilder {
             });
         }
         let limit = ctx.info().max_storage_buffer_range;
-        capacity = capacity.fit(limit);
+        capacity = self.fit_capacity(ctx, capacity);
         let uploaded = Uploaded::new(ctx, input)?;
         for attempt in 1..=8 {
             let scratch = self.scratch(ctx, n, capacity)?;
@@ -953,13 +1019,14 @@ impl KdTreeBuilder {
             let outcome = self.read_outcome(&scratch)?;
             if outcome.overflow {
                 let refs = (outcome.needed_refs as usize).max(2 * capacity.refs_per_level);
-                let larger = BuildCapacity::with_refs(n, refs).fit(limit);
+                let larger = self.fit_capacity(ctx, BuildCapacity::with_refs(n, refs));
                 if larger == capacity {
                     return Err(GpuError::Kernel {
                         kernel: "accel.kdtree",
                         reason: format!(
                             "the kd-tree of {n} primitives does not fit this device's \
-                             maxStorageBufferRange of {limit} bytes per buffer (a level needed \
+                             maxStorageBufferRange of {limit} bytes per buffer or the segmented \
+                             argmin's limits (a level needed \
                              {} references; capacity {capacity:?}); build fewer primitives \
                              per tree or allow larger leaves (SahParams::max_leaf_prims)",
                             outcome.needed_refs
@@ -1021,6 +1088,7 @@ impl KdTreeBuilder {
         if n == 0 {
             return Ok(Profile::default());
         }
+        let capacity = self.fit_capacity(ctx, capacity);
         let uploaded = Uploaded::new(ctx, input)?;
         let scratch = self.scratch(ctx, n, capacity)?;
         let out = self.output(ctx, &capacity)?;
@@ -1052,7 +1120,8 @@ impl KdTreeBuilder {
             });
         }
         let uploaded = Uploaded::new(ctx, input)?;
-        let scratch = self.scratch(ctx, n, BuildCapacity::for_primitives(n))?;
+        let capacity = self.fit_capacity(ctx, BuildCapacity::for_primitives(n));
+        let scratch = self.scratch(ctx, n, capacity)?;
         let mut rec = Recorder::new(ctx)?;
         self.record_phase_one(&mut rec, uploaded.source(), n, &scratch);
         rec.compute_to_transfer();
