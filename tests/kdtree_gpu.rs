@@ -209,6 +209,9 @@ fn gpu_build_equals_cpu_twin_on_hard_cases() {
     for (name, tris) in common::kdtree_hard_cases() {
         assert_build_equal(&ctx, &builder, name, &tris, &p);
     }
+    // Zero triangles: one empty leaf, as the twin (no GPU work).
+    let (gpu, _) = builder.build(&ctx, &[], &p).unwrap();
+    assert_trees_equal("zero triangles", &gpu, &seed001::build(&[], &p).0);
     common::assert_silent(&ctx);
 }
 
@@ -459,4 +462,73 @@ fn sphere_boxes_on_the_gpu_equal_the_cpu_twin_and_build_the_same_tree() {
     };
     assert_trees_equal("recorded triangles+spheres", &gpu, &cpu);
     common::assert_silent(&ctx);
+}
+
+#[test]
+fn ablation_variants_build_the_same_tree() {
+    use vkrt::accel::kdtree::gpu::Ablation;
+    use vkrt::prims::segmented::SegmentedMode;
+    let Some(ctx) = common::context() else { return };
+    let p = vkrt::accel::kdtree::SahParams::default();
+    let scenes = [
+        (
+            "icosphere",
+            common::mesh_triangles(&gen::icosphere(3).unwrap()),
+        ),
+        (
+            "soup",
+            common::mesh_triangles(&gen::random_soup(3000, 12).unwrap()),
+        ),
+    ];
+    let variants = [
+        (
+            "shared-memory argmin",
+            Ablation {
+                shared_memory_argmin: true,
+                ..Ablation::default()
+            },
+            None,
+        ),
+        (
+            "u32 event scan",
+            Ablation {
+                u32_event_scan: true,
+                ..Ablation::default()
+            },
+            None,
+        ),
+        (
+            "both, workgroup per segment",
+            Ablation {
+                shared_memory_argmin: true,
+                u32_event_scan: true,
+            },
+            Some(SegmentedMode::WorkgroupPerSegment),
+        ),
+    ];
+    for (label, ablation, mode) in variants {
+        let mut builder = KdTreeBuilder::with_ablation(&ctx, ablation).unwrap();
+        if let Some(mode) = mode {
+            builder.segmented_mode = mode;
+        }
+        for (name, tris) in &scenes {
+            let (cpu, _) = seed001::build(tris, &p);
+            let (gpu, _) = builder.build(&ctx, tris, &p).unwrap();
+            assert_trees_equal(&format!("{name}, {label}"), &gpu, &cpu);
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn capacities_fit_the_device_buffer_limit() {
+    use vkrt::accel::kdtree::gpu::BuildCapacity;
+    let limit = 128u64 << 20; // lavapipe's maxStorageBufferRange
+    let small = BuildCapacity::for_primitives(1000);
+    assert_eq!(small.fit(limit), small);
+    let big = BuildCapacity::for_primitives(2_000_000).fit(limit);
+    assert!(48 * big.refs_per_level as u64 <= limit, "{big:?}");
+    assert!(24 * big.nodes_per_level as u64 <= limit, "{big:?}");
+    assert!(16 * big.nodes as u64 <= limit, "{big:?}");
+    assert!(4 * big.refs as u64 <= limit, "{big:?}");
 }
