@@ -233,78 +233,70 @@ pub fn prims_report(
 pub struct KdBenchRow {
     pub scene: String,
     pub primitives: u32,
-    /// How the best split of every node was found.
-    pub best_split: String,
+    /// The build variant: `default`, or the one optimisation switched back to its baseline
+    /// (seed 001's Table 6.2 ablation).
+    pub variant: String,
     pub build_ms: f64,
+    /// `build_ms` of this variant over `build_ms` of the default on the same scene, in the
+    /// same run (> 1: the optimisation pays).
+    pub ratio_to_default: f64,
     pub phases: std::collections::BTreeMap<String, f64>,
     pub nodes: u32,
     pub sah_cost: f64,
+    /// Why the scene has no timing (e.g. its tree does not fit the device's buffer limit).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub error: Option<String>,
 }
 
 /// `vkrt bench kdtree --json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct KdBenchReport {
     pub device: String,
+    pub params: crate::accel::kdtree::SahParams,
     pub rows: Vec<KdBenchRow>,
-    /// Least-squares slope of log(build_ms) over log(N) for the hybrid builds of the
-    /// icospheres: O(N log N) shows as slightly above 1.
+    /// Least-squares slope of log(build_ms) over log(N), default builds of the icospheres:
+    /// O(N log N) shows as slightly above 1.
     pub fitted_exponent: Option<f64>,
+    /// The same over every default row (the bunny's 69 K and the icospheres).
+    pub fitted_exponent_all: Option<f64>,
 }
 
-/// Builds each scene with the hybrid segmented argmin and (with `ablation`) with one
-/// workgroup per segment only — seed 001's Table 6.2 "hybrid reduction" row.
-pub fn kdtree_report(
-    ctx: &Context,
-    scenes: &[(String, Vec<[glam::Vec3; 3]>)],
-    ablation: bool,
-) -> Result<KdBenchReport> {
-    use crate::accel::kdtree::{gpu::KdTreeBuilder, report::PHASES, stats, SahParams};
+/// The ablation variants: (label, builder switches, best-split mode or the default hybrid).
+fn kd_variants() -> Vec<(
+    &'static str,
+    crate::accel::kdtree::gpu::Ablation,
+    Option<crate::prims::segmented::SegmentedMode>,
+)> {
+    use crate::accel::kdtree::gpu::Ablation;
     use crate::prims::segmented::SegmentedMode;
-    let params = SahParams::default();
-    let mut builder = KdTreeBuilder::new(ctx)?;
-    let hybrid = builder.segmented_mode;
-    let mut rows = Vec::new();
-    for (name, tris) in scenes {
-        let modes: &[(SegmentedMode, &str)] = if ablation {
-            &[
-                (hybrid, "hybrid"),
-                (SegmentedMode::WorkgroupPerSegment, "workgroup_per_segment"),
-            ]
-        } else {
-            &[(hybrid, "hybrid")]
-        };
-        for &(mode, label) in modes {
-            builder.segmented_mode = mode;
-            let built = builder.build_from(
-                ctx,
-                tris,
-                &params,
-                crate::accel::kdtree::gpu::BuildCapacity::for_primitives(tris.len()),
-            )?;
-            let tree = built.tree;
-            let profile = builder.timed_build(ctx, tris, &params, built.capacity)?;
-            let ms = |p: &str| profile.ms(p).unwrap_or(0.0);
-            let s = stats::stats(&tree, &params);
-            rows.push(KdBenchRow {
-                scene: name.clone(),
-                primitives: tris.len() as u32,
-                best_split: label.to_string(),
-                build_ms: ms("kdtree.phase1") + ms("kdtree.phase2"),
-                phases: PHASES
-                    .iter()
-                    .map(|p| (p.trim_start_matches("kdtree.").to_string(), ms(p)))
-                    .collect(),
-                nodes: s.nodes,
-                sah_cost: s.sah_cost,
-            });
-        }
-    }
-    let points: Vec<(f64, f64)> = rows
-        .iter()
-        .filter(|r| r.best_split == "hybrid" && r.scene.starts_with("icosphere"))
-        .map(|r| ((r.primitives as f64).ln(), r.build_ms.ln()))
-        .collect();
-    let fitted_exponent = (points.len() >= 2).then(|| {
+    vec![
+        ("default", Ablation::default(), None),
+        (
+            "workgroup_per_segment",
+            Ablation::default(),
+            Some(SegmentedMode::WorkgroupPerSegment),
+        ),
+        (
+            "shared_memory_argmin",
+            Ablation {
+                shared_memory_argmin: true,
+                ..Ablation::default()
+            },
+            None,
+        ),
+        (
+            "u32_event_scan",
+            Ablation {
+                u32_event_scan: true,
+                ..Ablation::default()
+            },
+            None,
+        ),
+    ]
+}
+
+fn fit_exponent(points: &[(f64, f64)]) -> Option<f64> {
+    (points.len() >= 2).then(|| {
         let n = points.len() as f64;
         let (sx, sy) = points
             .iter()
@@ -313,10 +305,109 @@ pub fn kdtree_report(
         let num: f64 = points.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
         let den: f64 = points.iter().map(|p| (p.0 - mx).powi(2)).sum();
         num / den
-    });
+    })
+}
+
+/// Builds each scene with the default builder and, for scenes of at most `ablation_max_n`
+/// primitives, with each of seed 001's optimisations switched back to its baseline (Table
+/// 6.2): one workgroup per segment instead of the hybrid reduction, a shared-memory instead
+/// of a shuffle argmin, a u32 instead of a byte-flag scan. Every variant must build the
+/// default's tree (an error otherwise). A scene whose build fails (e.g. above the device's
+/// buffer limit) gets a row with the error.
+pub fn kdtree_report(
+    ctx: &Context,
+    scenes: &[(String, Vec<[glam::Vec3; 3]>)],
+    params: &crate::accel::kdtree::SahParams,
+    ablation_max_n: usize,
+) -> Result<KdBenchReport> {
+    use crate::accel::kdtree::gpu::{BuildCapacity, KdTreeBuilder};
+    use crate::accel::kdtree::{report::PHASES, stats};
+    let variants = kd_variants();
+    let mut builders = Vec::new();
+    for (_, ablation, mode) in &variants {
+        let mut b = KdTreeBuilder::with_ablation(ctx, *ablation)?;
+        if let Some(mode) = mode {
+            b.segmented_mode = *mode;
+        }
+        builders.push(b);
+    }
+    let mut rows = Vec::new();
+    for (name, tris) in scenes {
+        let mut reference: Option<(crate::accel::kdtree::KdTree, f64)> = None;
+        for ((label, _, _), builder) in variants.iter().zip(&builders) {
+            if *label != "default" && tris.len() > ablation_max_n {
+                continue;
+            }
+            let built = match builder.build_from(
+                ctx,
+                tris,
+                params,
+                BuildCapacity::for_primitives(tris.len()),
+            ) {
+                Ok(b) => b,
+                Err(e) => {
+                    rows.push(KdBenchRow {
+                        scene: name.clone(),
+                        primitives: tris.len() as u32,
+                        variant: label.to_string(),
+                        build_ms: f64::NAN,
+                        ratio_to_default: f64::NAN,
+                        phases: Default::default(),
+                        nodes: 0,
+                        sah_cost: f64::NAN,
+                        error: Some(e.to_string()),
+                    });
+                    break;
+                }
+            };
+            let profile = builder.timed_build(ctx, tris, params, built.capacity)?;
+            let ms = |p: &str| profile.ms(p).unwrap_or(0.0);
+            let build_ms = ms("kdtree.phase1") + ms("kdtree.phase2");
+            let tree = built.tree;
+            let ratio_to_default = match &reference {
+                None => 1.0,
+                Some((t, default_ms)) => {
+                    if t.nodes != tree.nodes || t.prim_refs != tree.prim_refs {
+                        return Err(crate::gpu::GpuError::Kernel {
+                            kernel: "accel.kdtree",
+                            reason: format!("{name}: variant {label} built a different tree"),
+                        });
+                    }
+                    build_ms / default_ms
+                }
+            };
+            let s = stats::stats(&tree, params);
+            rows.push(KdBenchRow {
+                scene: name.clone(),
+                primitives: tris.len() as u32,
+                variant: label.to_string(),
+                build_ms,
+                ratio_to_default,
+                phases: PHASES
+                    .iter()
+                    .map(|p| (p.trim_start_matches("kdtree.").to_string(), ms(p)))
+                    .collect(),
+                nodes: s.nodes,
+                sah_cost: s.sah_cost,
+                error: None,
+            });
+            if reference.is_none() {
+                reference = Some((tree, build_ms));
+            }
+        }
+    }
+    let points = |all: bool| -> Vec<(f64, f64)> {
+        rows.iter()
+            .filter(|r| r.variant == "default" && r.error.is_none())
+            .filter(|r| all || r.scene.starts_with("icosphere"))
+            .map(|r| ((r.primitives as f64).ln(), r.build_ms.ln()))
+            .collect()
+    };
     Ok(KdBenchReport {
         device: ctx.info().device.clone(),
+        params: *params,
+        fitted_exponent: fit_exponent(&points(false)),
+        fitted_exponent_all: fit_exponent(&points(true)),
         rows,
-        fitted_exponent,
     })
 }

@@ -77,15 +77,23 @@ enum BenchCommand {
         #[arg(long)]
         profile: Option<PathBuf>,
     },
-    /// GPU kd-tree build time against N (the bunny when ../shared is present, icospheres),
-    /// per phase, with the hybrid-reduction ablation and the fitted growth exponent.
+    /// GPU kd-tree build time against N (the bunny when ../shared is present, icospheres of
+    /// 100 K, 200 K, 500 K, 1 M, 2 M triangles up to --max-n), per phase, the fitted growth
+    /// exponent, and with --ablation seed 001's Table 6.2: each optimisation switched back to
+    /// its baseline, same tree asserted, time ratio to the default in the same run.
     Kdtree {
         /// Largest icosphere (triangles).
-        #[arg(long, default_value_t = 400_000)]
+        #[arg(long, default_value_t = 500_000)]
         max_n: u64,
-        /// Also build with one workgroup per segment (no hybrid reduction).
+        /// Also build each scene of at most --ablation-max-n triangles with each variant.
         #[arg(long)]
         ablation: bool,
+        #[arg(long, default_value_t = 100_000)]
+        ablation_max_n: u64,
+        /// Seed 001's termination: leaves below 64 primitives, no SAH leaf test (the default
+        /// trees of 1 M+ triangles do not fit lavapipe's 128 MiB buffer limit; these do).
+        #[arg(long)]
+        seed_termination: bool,
         /// Mesh to include (default: ../shared/scenes/stanford-bunny.obj when present).
         #[arg(long)]
         mesh: Option<PathBuf>,
@@ -363,6 +371,8 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 BenchCommand::Kdtree {
                     max_n,
                     ablation,
+                    ablation_max_n,
+                    seed_termination,
                     mesh,
                     json,
                     profile,
@@ -378,42 +388,48 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     .map_or("mesh".into(), |s| s.to_string_lossy().into_owned());
                 scenes.push((name, scene.triangles_world(0.0)));
             }
-            for sub in 1..=10u32 {
-                let tris = 20u64 * 4u64.pow(sub);
-                if tris > max_n {
+            for n in [100_000u64, 200_000, 500_000, 1_000_000, 2_000_000] {
+                if n > max_n {
                     break;
                 }
-                if tris >= 5_000 {
-                    let mesh = vkrt::scene::gen::icosphere(sub)?;
-                    let t = mesh
-                        .indices
-                        .iter()
-                        .map(|i| {
-                            [
-                                mesh.positions[i[0] as usize],
-                                mesh.positions[i[1] as usize],
-                                mesh.positions[i[2] as usize],
-                            ]
-                        })
-                        .collect();
-                    scenes.push((format!("icosphere{sub}"), t));
-                }
+                let mesh = vkrt::scene::gen::icosphere_with_at_least(n)?;
+                let t = mesh
+                    .indices
+                    .iter()
+                    .map(|i| {
+                        [
+                            mesh.positions[i[0] as usize],
+                            mesh.positions[i[1] as usize],
+                            mesh.positions[i[2] as usize],
+                        ]
+                    })
+                    .collect();
+                scenes.push((format!("icosphere{}k", n / 1000), t));
             }
             let ctx = context(cli.validate)?;
-            let (report, trace) =
-                vkrt::gpu::capture_profiles(|| vkrt::bench::kdtree_report(&ctx, &scenes, ablation));
+            let mut params = vkrt::accel::kdtree::SahParams::default();
+            if seed_termination {
+                params.max_leaf_prims = 63;
+                params.sah_leaf_test = false;
+            }
+            let ablation_max_n = if ablation { ablation_max_n as usize } else { 0 };
+            let (report, trace) = vkrt::gpu::capture_profiles(|| {
+                vkrt::bench::kdtree_report(&ctx, &scenes, &params, ablation_max_n)
+            });
             let report = report?;
             write_profile(&profile, &trace)?;
             if json {
                 println!("{}", serde_json::to_string_pretty(&report)?);
             } else {
                 println!("{}", report.device);
+                println!("{:?}", report.params);
                 println!(
-                    "{:<12} {:>9} {:<22} {:>10} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8}",
+                    "{:<16} {:>9} {:<22} {:>10} {:>7} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8}",
                     "scene",
                     "tris",
-                    "best split",
+                    "variant",
                     "build ms",
+                    "ratio",
                     "phase1",
                     "costs",
                     "argmin",
@@ -423,12 +439,17 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 );
                 for r in &report.rows {
                     let p = |k: &str| r.phases.get(k).copied().unwrap_or(0.0);
+                    if let Some(e) = &r.error {
+                        println!("{:<16} {:>9} {:<22} {e}", r.scene, r.primitives, r.variant);
+                        continue;
+                    }
                     println!(
-                        "{:<12} {:>9} {:<22} {:>10.1} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>8.2}",
+                        "{:<16} {:>9} {:<22} {:>10.1} {:>7.2} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>9.1} {:>8.2}",
                         r.scene,
                         r.primitives,
-                        r.best_split,
+                        r.variant,
                         r.build_ms,
+                        r.ratio_to_default,
                         p("phase1"),
                         p("split_costs"),
                         p("best_split"),
@@ -439,6 +460,9 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 }
                 if let Some(e) = report.fitted_exponent {
                     println!("fitted exponent of build time over N (icospheres): {e:.3}");
+                }
+                if let Some(e) = report.fitted_exponent_all {
+                    println!("fitted exponent of build time over N (all default rows): {e:.3}");
                 }
             }
         }

@@ -1,6 +1,7 @@
 //! Segmented argmin against its CPU twin, bit for bit, in every mode (workgroup per
 //! segment, device-wide tiles, hybrid at several thresholds) on many segment shapes, with a
-//! workgroup of one subgroup and with several, under synchronization validation.
+//! workgroup of one subgroup and with several, with the shuffle and the shared-memory
+//! workgroup reduction, under synchronization validation.
 
 mod common;
 
@@ -204,6 +205,47 @@ fn every_mode_equals_the_twin_on_every_shape() {
                 &offsets,
                 count,
                 &format!("{name}, {shape}, ties"),
+            );
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+/// The shared-memory workgroup reduction (the ablation benchmark's baseline) against the
+/// same twin, on every shape at a smaller size.
+#[test]
+fn the_shared_memory_reduction_equals_the_twin() {
+    use vkrt::prims::segmented::WorkgroupReduction;
+    let Some(ctx) = common::context() else { return };
+    // Workgroups of one subgroup and of several (the shared tree spans subgroups).
+    for (name, cfg) in configs(&ctx) {
+        let seg = SegmentedArgmin::with_reduction(
+            &ctx,
+            cfg,
+            cfg.workgroup_size,
+            WorkgroupReduction::SharedMemory,
+        )
+        .unwrap();
+        let mut rng = Rng(6);
+        // ("mixed" is tens of millions of elements and 10^5 segments of 256-wide workgroups
+        // take 20 s here: the shuffle test covers those sizes; 10^5 segments run with the
+        // single-subgroup workgroups.)
+        for (shape, offsets) in shapes(cfg, 3 * cfg.tile() + 13, &mut rng)
+            .into_iter()
+            .filter(|(shape, _)| {
+                shape != "mixed" && (name == "single_subgroup" || shape != "100000 tiny")
+            })
+        {
+            let n = *offsets.last().unwrap() as usize;
+            let costs = tie_costs(n, &mut rng);
+            let count = offsets.len() as u32 - 1;
+            check(
+                &ctx,
+                &seg,
+                &costs,
+                &offsets,
+                count,
+                &format!("shared memory, {name}, {shape}"),
             );
         }
     }

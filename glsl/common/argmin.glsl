@@ -53,6 +53,36 @@ void subgroup_argmin(inout float c, inout uint i) {
     }
 }
 
+#ifdef ARGMIN_SHARED
+// The shared-memory workgroup reduction that seed 001's shuffle reduction replaced (Fig. 6.12;
+// the ablation benchmark's baseline): every invocation stores its pair, then a tree over
+// shared memory halves the live invocations with one barrier per step. No shuffles. The
+// winner ends in invocation 0 (reduce_lane() == 0 in subgroup 0); the closing barrier makes
+// a second call safe.
+shared float argmin_tree_cost[gl_WorkGroupSize.x];
+shared uint argmin_tree_index[gl_WorkGroupSize.x];
+
+void workgroup_argmin(inout float c, inout uint i) {
+    uint t = reduce_lane();
+    argmin_tree_cost[t] = c;
+    argmin_tree_index[t] = i;
+    barrier();
+    uint live = gl_WorkGroupSize.x;
+    while (live > 1u) {
+        uint half_live = (live + 1u) >> 1;
+        if (t < live - half_live) {
+            argmin_consider(argmin_tree_cost[t + half_live], argmin_tree_index[t + half_live], c, i);
+            argmin_tree_cost[t] = c;
+            argmin_tree_index[t] = i;
+        }
+        barrier();
+        live = half_live;
+    }
+    c = argmin_tree_cost[0];
+    i = argmin_tree_index[0];
+    barrier();
+}
+#else
 // One slot per subgroup (subgroups have at least 4 lanes).
 shared float argmin_slot_cost[gl_WorkGroupSize.x / 4];
 shared uint argmin_slot_index[gl_WorkGroupSize.x / 4];
@@ -82,6 +112,8 @@ void workgroup_argmin(inout float c, inout uint i) {
         subgroup_argmin(c, i);
     }
 }
+
+#endif
 
 #ifdef ARGMIN_COSTS4
 // Folds the costs of elements [begin, end) of ARGMIN_COSTS4 into this invocation's (c, i).

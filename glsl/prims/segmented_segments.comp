@@ -1,4 +1,6 @@
 #version 460
+//! variant shuffle
+//! variant shared ARGMIN_SHARED=1
 // The segmented argmin's workgroup-per-segment path (src/prims/segmented.rs): workgroup s
 // writes out[s] for segment s < PLAN_COUNT. A long segment (at least PLAN_CUT elements) was
 // cut into tiles by segmented_tiles, so the workgroup combines its (tile, segment) winners;

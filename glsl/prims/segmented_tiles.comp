@@ -1,4 +1,6 @@
 #version 460
+//! variant shuffle
+//! variant shared ARGMIN_SHARED=1
 // The segmented argmin's tiled path (src/prims/segmented.rs): fixed tiles of `tile`
 // (= workgroup size × items per invocation) elements over the flat cost array. The plan
 // listed the long segments with the prefix sum of the tiles each touches; workgroup g finds

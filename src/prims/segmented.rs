@@ -194,6 +194,17 @@ pub struct SegmentedArgmin {
     segments: Arc<Kernel>,
 }
 
+/// How a workgroup combines its invocations' winners.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub enum WorkgroupReduction {
+    /// Subgroup shuffles (xor butterfly), then one barrier and one subgroup over the
+    /// subgroup winners: seed 001's Listing 6.7.
+    #[default]
+    Shuffle,
+    /// A tree over shared memory, one barrier per halving step, no subgroup operations.
+    SharedMemory,
+}
+
 impl SegmentedArgmin {
     /// The measured configuration (module docs): tiles of 256 × 256 elements, segments
     /// reduced by one-subgroup workgroups (on llvmpipe every invocation launched costs about
@@ -221,6 +232,22 @@ impl SegmentedArgmin {
         cfg: PrimConfig,
         segment_workgroup_size: u32,
     ) -> Result<Self> {
+        Self::with_reduction(
+            ctx,
+            cfg,
+            segment_workgroup_size,
+            WorkgroupReduction::Shuffle,
+        )
+    }
+
+    /// [`SegmentedArgmin::with_segment_workgroup`] with the workgroup step done by
+    /// `reduction` (the shared-memory one is the ablation benchmark's baseline).
+    pub fn with_reduction(
+        ctx: &Context,
+        cfg: PrimConfig,
+        segment_workgroup_size: u32,
+        reduction: WorkgroupReduction,
+    ) -> Result<Self> {
         check_config(ctx, cfg, "prims.segmented_tiles")?;
         check_config(
             ctx,
@@ -246,8 +273,20 @@ impl SegmentedArgmin {
             cfg,
             segment_workgroup_size,
             plan: ctx.kernel(&kernels::PRIMS_SEGMENTED_PLAN, &Spec::new())?,
-            tiles: ctx.kernel(&kernels::PRIMS_SEGMENTED_TILES, &tiles)?,
-            segments: ctx.kernel(&kernels::PRIMS_SEGMENTED_SEGMENTS, &segments)?,
+            tiles: ctx.kernel(
+                match reduction {
+                    WorkgroupReduction::Shuffle => &kernels::PRIMS_SEGMENTED_TILES_SHUFFLE,
+                    WorkgroupReduction::SharedMemory => &kernels::PRIMS_SEGMENTED_TILES_SHARED,
+                },
+                &tiles,
+            )?,
+            segments: ctx.kernel(
+                match reduction {
+                    WorkgroupReduction::Shuffle => &kernels::PRIMS_SEGMENTED_SEGMENTS_SHUFFLE,
+                    WorkgroupReduction::SharedMemory => &kernels::PRIMS_SEGMENTED_SEGMENTS_SHARED,
+                },
+                &segments,
+            )?,
         })
     }
 
@@ -266,6 +305,11 @@ impl SegmentedArgmin {
     /// mode (the results are the same; only the speed differs).
     pub fn loop_capacity(&self) -> u32 {
         loop_capacity(self.segment_workgroup_size).min(u64::from(u32::MAX)) as u32
+    }
+
+    /// The most segments [`Self::record`] takes (`max_segments`).
+    pub fn max_segments(&self) -> usize {
+        MAX_PLAN_SEGMENTS as usize
     }
 
     /// The most costs [`Self::record`] takes: the per-segment combine must read a

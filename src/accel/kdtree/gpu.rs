@@ -2,7 +2,10 @@
 //! levels (see [`super::seed001`] for the algorithm; it is this build's CPU twin and the
 //! tests require both to give the same tree, bit for bit).
 //!
-//! Phase I: triangle boxes (`accel.kdtree_boxes`), the scene box (min/max reductions), per
+//! Phase I: primitive boxes — from triangles (`accel.kdtree_boxes`) or from boxes the
+//! caller computed, 6 floats each (`accel.kdtree_input_boxes`, for spheres, moving
+//! primitives or a mix; `accel.kdtree_sphere_boxes` computes sphere boxes on the GPU) —,
+//! then the scene box (min/max reductions), per
 //! axis the event keys (`accel.kdtree_event_keys`), a stable f32 radix sort and the SoA
 //! event records (`accel.kdtree_event_gather`), then the root (`accel.kdtree_init`).
 //!
@@ -33,7 +36,7 @@ use crate::gpu::{
 use crate::prims::radix_sort::{RadixScratch, RadixSort};
 use crate::prims::reduce::{CostIndex, Reduce};
 use crate::prims::scan::{GpuCount, Scan, ScanInput, ScanOp, ScanScratch};
-use crate::prims::segmented::{SegmentedArgmin, SegmentedMode};
+use crate::prims::segmented::{SegmentedArgmin, SegmentedMode, WorkgroupReduction};
 use crate::prims::PrimConfig;
 
 const WORKGROUP: u32 = 256;
@@ -127,6 +130,21 @@ impl BuildCapacity {
             refs: (2 * refs_per_level).max(n) + 1024,
         }
     }
+
+    /// This capacity with every buffer clamped to `max_range` bytes (the device's
+    /// `maxStorageBufferRange`: 128 MiB on lavapipe). The largest buffers per unit are the
+    /// event boxes (48 bytes per reference of a level), the level's node boxes (24 bytes per
+    /// node) and the output nodes (16 bytes each). A build that needs more overflows and
+    /// [`KdTreeBuilder::build_from`] reports it as an error naming the limit.
+    pub fn fit(self, max_range: u64) -> Self {
+        let most = |bytes_per_item: u64| (max_range / bytes_per_item) as usize;
+        Self {
+            refs_per_level: self.refs_per_level.min(most(48)),
+            nodes_per_level: self.nodes_per_level.min(most(24)),
+            nodes: self.nodes.min(most(16)),
+            refs: self.refs.min(most(4)),
+        }
+    }
 }
 
 /// Bytes a build needs, for an embedding renderer that allocates itself.
@@ -188,6 +206,9 @@ struct AdvancePush {
 
 struct Kernels {
     boxes: Arc<Kernel>,
+    input_boxes: Arc<Kernel>,
+    sphere_boxes: Arc<Kernel>,
+    widen_flags: Arc<Kernel>,
     event_keys: Arc<Kernel>,
     event_gather: Arc<Kernel>,
     init: Arc<Kernel>,
@@ -212,6 +233,19 @@ pub struct KdTreeBuilder {
     /// How the best split of every node is found (hybrid by default; the others are for
     /// the ablation benchmark).
     pub segmented_mode: SegmentedMode,
+    ablation: Ablation,
+}
+
+/// The baselines of seed 001's Table 6.2 ablation that the build can switch back to. Every
+/// combination gives the same tree, bit for bit (tests/kdtree_gpu.rs); only speed differs.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Ablation {
+    /// The best split's workgroup reduction through shared memory (one barrier per halving
+    /// step) instead of subgroup shuffles (seed 001 Listing 6.7 vs its Fig. 6.12 baseline).
+    pub shared_memory_argmin: bool,
+    /// START counts by the plain u32 scan over event types widened to u32 (an extra pass)
+    /// instead of the byte-flag scan that reads 4 types per u32 (seed 001 Listing 6.6).
+    pub u32_event_scan: bool,
 }
 
 /// The level's node arrays (ping-ponged between levels).
@@ -252,6 +286,8 @@ pub struct BuildScratch {
     leaf_scratch: ScanScratch,
     slot_scratch: ScanScratch,
     seg_scratch: Buffer<u32>,
+    /// Ablation `u32_event_scan` only: widened event types and the u32 scan's scratch.
+    wide_flags: Option<(Buffer<u32>, ScanScratch)>,
 }
 
 /// The build's output: nodes and leaf references (valid up to the outcome's counts).
@@ -262,6 +298,12 @@ pub struct BuildOutput {
 
 impl KdTreeBuilder {
     pub fn new(ctx: &Context) -> Result<Self> {
+        Self::with_ablation(ctx, Ablation::default())
+    }
+
+    /// A builder with some of seed 001's optimisations switched back to their baselines
+    /// (for the ablation benchmark; [`KdTreeBuilder::new`] is the default, all on).
+    pub fn with_ablation(ctx: &Context, ablation: Ablation) -> Result<Self> {
         let spec = Spec::new().workgroup(WORKGROUP);
         let k = |blob| ctx.kernel(blob, &spec);
         let one = |blob| ctx.kernel(blob, &Spec::new());
@@ -269,6 +311,9 @@ impl KdTreeBuilder {
         Ok(Self {
             k: Kernels {
                 boxes: k(&kernels::ACCEL_KDTREE_BOXES)?,
+                input_boxes: k(&kernels::ACCEL_KDTREE_INPUT_BOXES)?,
+                sphere_boxes: k(&kernels::ACCEL_KDTREE_SPHERE_BOXES)?,
+                widen_flags: k(&kernels::ACCEL_KDTREE_WIDEN_FLAGS)?,
                 event_keys: k(&kernels::ACCEL_KDTREE_EVENT_KEYS)?,
                 event_gather: k(&kernels::ACCEL_KDTREE_EVENT_GATHER)?,
                 init: one(&kernels::ACCEL_KDTREE_INIT)?,
@@ -286,14 +331,37 @@ impl KdTreeBuilder {
             flag_scan: Scan::new(ctx, cfg, ScanInput::Flags)?,
             scan: Scan::new(ctx, cfg, ScanInput::U32)?,
             // Nodes of the deep levels hold a few events each: small workgroups per segment.
-            segmented: SegmentedArgmin::with_segment_workgroup(
+            segmented: SegmentedArgmin::with_reduction(
                 ctx,
                 cfg,
                 ctx.info().subgroup_size.max(32),
+                if ablation.shared_memory_argmin {
+                    WorkgroupReduction::SharedMemory
+                } else {
+                    WorkgroupReduction::Shuffle
+                },
             )?,
             // Tiles for the few long segments of the first levels, decided on the GPU.
             segmented_mode: SegmentedMode::hybrid_for(ctx),
+            ablation,
         })
+    }
+
+    /// The optimisations switched off (none by default).
+    pub fn ablation(&self) -> Ablation {
+        self.ablation
+    }
+
+    /// `capacity` clamped to what this device and the builder's primitives take: every
+    /// buffer within `maxStorageBufferRange` ([`BuildCapacity::fit`]), a level's nodes
+    /// within the segmented argmin's segment limit, its events within its cost limit.
+    pub fn fit_capacity(&self, ctx: &Context, capacity: BuildCapacity) -> BuildCapacity {
+        let c = capacity.fit(ctx.info().max_storage_buffer_range);
+        BuildCapacity {
+            refs_per_level: c.refs_per_level.min(self.segmented.max_costs() / 2),
+            nodes_per_level: c.nodes_per_level.min(self.segmented.max_segments()),
+            ..c
+        }
     }
 
     /// Bytes of scratch and output for `n` primitives at `capacity`.
@@ -386,6 +454,11 @@ impl KdTreeBuilder {
             leaf_scratch: self.scan.scratch(ctx, m)?,
             slot_scratch: self.flag_scan.scratch(ctx, 2 * e)?,
             seg_scratch: u("kdtree.seg_scratch", self.segmented.scratch_len(e, m))?,
+            wide_flags: if self.ablation.u32_event_scan {
+                Some((u("kdtree.wide_flags", e)?, self.scan.scratch(ctx, e)?))
+            } else {
+                None
+            },
         })
     }
 
@@ -409,11 +482,73 @@ impl KdTreeBuilder {
         s: &BuildScratch,
         out: &BuildOutput,
     ) {
+        self.record_source(rec, Source::Triangles(triangles), n, params, s, out);
+    }
+
+    /// [`KdTreeBuilder::record_build`] over `n` primitive boxes, 6 floats each (min x, y,
+    /// z, max x, y, z; e.g. [`crate::scene::Aabb`]s, or boxes a kernel such as
+    /// [`KdTreeBuilder::record_sphere_boxes`] wrote): spheres, moving primitives, any mix.
+    /// Every box must be finite with min ≤ max (the host entry points check it).
+    pub fn record_build_boxes(
+        &self,
+        rec: &mut Recorder,
+        boxes: &Buffer<f32>,
+        n: usize,
+        params: &SahParams,
+        s: &BuildScratch,
+        out: &BuildOutput,
+    ) {
+        self.record_source(rec, Source::Boxes(boxes), n, params, s, out);
+    }
+
+    /// Records the boxes of `n` spheres (4 floats each: center x, y, z, radius) into
+    /// `boxes` as primitives `first .. first + n` of the box input of
+    /// [`KdTreeBuilder::record_build_boxes`]: `center ± radius`, exactly as
+    /// [`super::seed001::sphere_box`]. The caller orders the writes of `spheres` before and
+    /// a `compute_to_compute` barrier before the build reads `boxes`.
+    pub fn record_sphere_boxes(
+        &self,
+        rec: &mut Recorder,
+        spheres: &Buffer<f32>,
+        n: usize,
+        boxes: &Buffer<f32>,
+        first: usize,
+    ) {
         assert!(
-            n >= 1 && n <= s.max_prims && 9 * n <= triangles.len(),
-            "build of {n} triangles"
+            4 * n <= spheres.len() && 6 * (first + n) <= boxes.len(),
+            "sphere boxes {first}..{} into {} floats",
+            first + n,
+            boxes.len()
         );
-        self.record_phase_one(rec, triangles, n, s);
+        if n == 0 {
+            return;
+        }
+        rec.scope("kdtree.sphere_boxes", |rec| {
+            let groups = rec.groups_1d(n as u64, WORKGROUP);
+            rec.dispatch(
+                &self.k.sphere_boxes,
+                groups,
+                &[spheres, boxes],
+                &[n as u32, first as u32],
+            );
+        });
+    }
+
+    fn record_source(
+        &self,
+        rec: &mut Recorder,
+        input: Source,
+        n: usize,
+        params: &SahParams,
+        s: &BuildScratch,
+        out: &BuildOutput,
+    ) {
+        assert!(
+            n >= 1 && n <= s.max_prims && input.floats_per_prim() * n <= input.buffer().len(),
+            "build of {n} {}",
+            input.what()
+        );
+        self.record_phase_one(rec, input, n, s);
         let depth_limit = params.depth_limit(n);
         rec.scope("kdtree.phase2", |rec| {
             for depth in 0..=depth_limit {
@@ -425,19 +560,17 @@ impl KdTreeBuilder {
         });
     }
 
-    fn record_phase_one(
-        &self,
-        rec: &mut Recorder,
-        triangles: &Buffer<f32>,
-        n: usize,
-        s: &BuildScratch,
-    ) {
+    fn record_phase_one(&self, rec: &mut Recorder, input: Source, n: usize, s: &BuildScratch) {
         let k = &self.k;
         rec.scope("kdtree.phase1", |rec| {
             rec.scope("kdtree.boxes", |rec| {
                 let groups = rec.groups_1d(n as u64, WORKGROUP);
+                let kernel = match input {
+                    Source::Triangles(_) => &k.boxes,
+                    Source::Boxes(_) => &k.input_boxes,
+                };
                 let b: [&dyn BufferArg; 7] = [
-                    triangles,
+                    input.buffer(),
                     &s.prim_min[0],
                     &s.prim_min[1],
                     &s.prim_min[2],
@@ -445,7 +578,7 @@ impl KdTreeBuilder {
                     &s.prim_max[1],
                     &s.prim_max[2],
                 ];
-                rec.dispatch(&k.boxes, groups, &b, &(n as u32));
+                rec.dispatch(kernel, groups, &b, &(n as u32));
             });
             rec.compute_to_compute();
             rec.scope("kdtree.bounds", |rec| {
@@ -558,15 +691,30 @@ impl KdTreeBuilder {
 
         rec.scope("kdtree.split_costs", |rec| {
             for a in 0..3 {
-                self.flag_scan.record_counted(
-                    rec,
-                    &ev[a].kind,
-                    &s.starts[a],
-                    e,
-                    refs,
-                    ScanOp::Exclusive,
-                    &s.flag_scratch,
-                );
+                if let Some((wide, scratch)) = &s.wide_flags {
+                    let b: [&dyn BufferArg; 3] = [&s.state, &ev[a].kind, wide];
+                    rec.dispatch_indirect(&k.widen_flags, &s.state, ev_args, &b, &());
+                    rec.compute_to_compute();
+                    self.scan.record_counted(
+                        rec,
+                        wide,
+                        &s.starts[a],
+                        e,
+                        refs,
+                        ScanOp::Exclusive,
+                        scratch,
+                    );
+                } else {
+                    self.flag_scan.record_counted(
+                        rec,
+                        &ev[a].kind,
+                        &s.starts[a],
+                        e,
+                        refs,
+                        ScanOp::Exclusive,
+                        &s.flag_scratch,
+                    );
+                }
                 rec.compute_to_compute();
             }
             let push = SahPush {
@@ -791,12 +939,32 @@ impl KdTreeBuilder {
         triangles: &[[Vec3; 3]],
         params: &SahParams,
     ) -> Result<(KdTree, Profile)> {
-        let r = self.build_from(
-            ctx,
-            triangles,
-            params,
-            BuildCapacity::for_primitives(triangles.len()),
-        )?;
+        self.build_input(ctx, BuildInput::Triangles(triangles), params)
+    }
+
+    /// [`KdTreeBuilder::build`] over primitive boxes (spheres, moving primitives, a mix:
+    /// e.g. [`super::seed001::prim_box`] of every triangle followed by
+    /// [`super::seed001::sphere_box`] of every sphere). Primitive `i` of the tree is
+    /// `boxes[i]`; the tree equals [`super::seed001::build_boxes`] bit for bit. A box that is
+    /// not finite or has min > max on an axis is an error.
+    pub fn build_boxes(
+        &self,
+        ctx: &Context,
+        boxes: &[Aabb],
+        params: &SahParams,
+    ) -> Result<(KdTree, Profile)> {
+        self.build_input(ctx, BuildInput::Boxes(boxes), params)
+    }
+
+    /// [`KdTreeBuilder::build`] or [`KdTreeBuilder::build_boxes`], by input.
+    pub fn build_input(
+        &self,
+        ctx: &Context,
+        input: BuildInput,
+        params: &SahParams,
+    ) -> Result<(KdTree, Profile)> {
+        let capacity = BuildCapacity::for_primitives(input.len());
+        let r = self.build_input_from(ctx, input, params, capacity)?;
         Ok((r.tree, r.profile))
     }
 
@@ -807,15 +975,22 @@ impl KdTreeBuilder {
         ctx: &Context,
         triangles: &[[Vec3; 3]],
         params: &SahParams,
+        capacity: BuildCapacity,
+    ) -> Result<BuildResult> {
+        self.build_input_from(ctx, BuildInput::Triangles(triangles), params, capacity)
+    }
+
+    /// [`KdTreeBuilder::build_input`] starting from `capacity`.
+    pub fn build_input_from(
+        &self,
+        ctx: &Context,
+        input: BuildInput,
+        params: &SahParams,
         mut capacity: BuildCapacity,
     ) -> Result<BuildResult> {
-        let n = triangles.len();
-        let bounds = super::seed001::bounds_of(
-            &triangles
-                .iter()
-                .map(super::seed001::prim_box)
-                .collect::<Vec<_>>(),
-        );
+        input.check()?;
+        let n = input.len();
+        let bounds = super::seed001::bounds_of(&input.boxes());
         if n == 0 {
             let tree = KdTree {
                 nodes: vec![KdNode::leaf(0, 0)],
@@ -831,22 +1006,34 @@ impl KdTreeBuilder {
                 levels: 1,
             });
         }
-        let flat: Vec<f32> = triangles
-            .iter()
-            .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
-            .collect();
-        let tris = Buffer::from_slice(ctx, "kdtree.triangles", &flat)?;
+        let limit = ctx.info().max_storage_buffer_range;
+        capacity = self.fit_capacity(ctx, capacity);
+        let uploaded = Uploaded::new(ctx, input)?;
         for attempt in 1..=8 {
             let scratch = self.scratch(ctx, n, capacity)?;
             let out = self.output(ctx, &capacity)?;
             let mut rec = Recorder::new(ctx)?;
-            self.record_build(&mut rec, &tris, n, params, &scratch, &out);
+            self.record_source(&mut rec, uploaded.source(), n, params, &scratch, &out);
             rec.compute_to_transfer();
             let profile = rec.submit_and_wait()?;
             let outcome = self.read_outcome(&scratch)?;
             if outcome.overflow {
                 let refs = (outcome.needed_refs as usize).max(2 * capacity.refs_per_level);
-                capacity = BuildCapacity::with_refs(n, refs);
+                let larger = self.fit_capacity(ctx, BuildCapacity::with_refs(n, refs));
+                if larger == capacity {
+                    return Err(GpuError::Kernel {
+                        kernel: "accel.kdtree",
+                        reason: format!(
+                            "the kd-tree of {n} primitives does not fit this device's \
+                             maxStorageBufferRange of {limit} bytes per buffer or the segmented \
+                             argmin's limits (a level needed \
+                             {} references; capacity {capacity:?}); build fewer primitives \
+                             per tree or allow larger leaves (SahParams::max_leaf_prims)",
+                            outcome.needed_refs
+                        ),
+                    });
+                }
+                capacity = larger;
                 continue;
             }
             let mut nodes = out.nodes.download()?;
@@ -885,21 +1072,33 @@ impl KdTreeBuilder {
         params: &SahParams,
         capacity: BuildCapacity,
     ) -> Result<Profile> {
-        let n = triangles.len();
-        let flat: Vec<f32> = triangles
-            .iter()
-            .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
-            .collect();
-        let tris = Buffer::from_slice(ctx, "kdtree.triangles", &flat)?;
+        self.timed_build_input(ctx, BuildInput::Triangles(triangles), params, capacity)
+    }
+
+    /// [`KdTreeBuilder::timed_build`] for any input (at least one primitive).
+    pub fn timed_build_input(
+        &self,
+        ctx: &Context,
+        input: BuildInput,
+        params: &SahParams,
+        capacity: BuildCapacity,
+    ) -> Result<Profile> {
+        input.check()?;
+        let n = input.len();
+        if n == 0 {
+            return Ok(Profile::default());
+        }
+        let capacity = self.fit_capacity(ctx, capacity);
+        let uploaded = Uploaded::new(ctx, input)?;
         let scratch = self.scratch(ctx, n, capacity)?;
         let out = self.output(ctx, &capacity)?;
         let mut rec = Recorder::new(ctx)?;
         rec.scope("kdtree.warmup", |rec| {
-            self.record_build(rec, &tris, n, params, &scratch, &out)
+            self.record_source(rec, uploaded.source(), n, params, &scratch, &out)
         });
         rec.compute_to_compute();
         rec.scope("kdtree.timed", |rec| {
-            self.record_build(rec, &tris, n, params, &scratch, &out)
+            self.record_source(rec, uploaded.source(), n, params, &scratch, &out)
         });
         rec.compute_to_transfer();
         Ok(rec.submit_and_wait()?.subtree("kdtree.timed"))
@@ -907,15 +1106,24 @@ impl KdTreeBuilder {
 
     /// Phase I alone, for the twin comparison: the scene box and the sorted event lists.
     pub fn phase_one(&self, ctx: &Context, triangles: &[[Vec3; 3]]) -> Result<(Aabb, [Events; 3])> {
-        let n = triangles.len();
-        let flat: Vec<f32> = triangles
-            .iter()
-            .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
-            .collect();
-        let tris = Buffer::from_slice(ctx, "kdtree.triangles", &flat)?;
-        let scratch = self.scratch(ctx, n, BuildCapacity::for_primitives(n))?;
+        self.phase_one_input(ctx, BuildInput::Triangles(triangles))
+    }
+
+    /// [`KdTreeBuilder::phase_one`] for any input (at least one primitive).
+    pub fn phase_one_input(&self, ctx: &Context, input: BuildInput) -> Result<(Aabb, [Events; 3])> {
+        input.check()?;
+        let n = input.len();
+        if n == 0 {
+            return Err(GpuError::Kernel {
+                kernel: "accel.kdtree",
+                reason: "phase one of zero primitives".into(),
+            });
+        }
+        let uploaded = Uploaded::new(ctx, input)?;
+        let capacity = self.fit_capacity(ctx, BuildCapacity::for_primitives(n));
+        let scratch = self.scratch(ctx, n, capacity)?;
         let mut rec = Recorder::new(ctx)?;
-        self.record_phase_one(&mut rec, &tris, n, &scratch);
+        self.record_phase_one(&mut rec, uploaded.source(), n, &scratch);
         rec.compute_to_transfer();
         rec.submit_and_wait()?;
         let v = |i: usize| scratch.bounds[i].download().map(|b| b[0]);
@@ -932,5 +1140,118 @@ impl KdTreeBuilder {
                 ev[2].download(2 * n)?,
             ],
         ))
+    }
+}
+
+/// What a host-side build reads: triangles (world space) or primitive boxes.
+#[derive(Clone, Copy, Debug)]
+pub enum BuildInput<'a> {
+    Triangles(&'a [[Vec3; 3]]),
+    /// One box per primitive (spheres, moving primitives, any mix).
+    Boxes(&'a [Aabb]),
+}
+
+impl BuildInput<'_> {
+    /// Number of primitives.
+    pub fn len(&self) -> usize {
+        match self {
+            Self::Triangles(t) => t.len(),
+            Self::Boxes(b) => b.len(),
+        }
+    }
+
+    pub fn is_empty(&self) -> bool {
+        self.len() == 0
+    }
+
+    /// The primitive boxes, as Phase I computes them.
+    pub fn boxes(&self) -> Vec<Aabb> {
+        match self {
+            Self::Triangles(t) => t.iter().map(super::seed001::prim_box).collect(),
+            Self::Boxes(b) => b.to_vec(),
+        }
+    }
+
+    /// Boxes must be finite with min ≤ max (triangles are checked by scene validation).
+    fn check(&self) -> Result<()> {
+        if let Self::Boxes(boxes) = self {
+            if let Some((i, b)) = boxes.iter().enumerate().find(|(_, b)| {
+                !(b.min.is_finite() && b.max.is_finite() && b.min.cmple(b.max).all())
+            }) {
+                return Err(GpuError::Kernel {
+                    kernel: "accel.kdtree",
+                    reason: format!(
+                        "primitive box {i} is not a finite box with min <= max: min {:?}, max {:?}",
+                        b.min, b.max
+                    ),
+                });
+            }
+        }
+        Ok(())
+    }
+}
+
+/// An input on the GPU, in the layout its Phase I kernel reads.
+enum Uploaded {
+    Triangles(Buffer<f32>),
+    Boxes(Buffer<f32>),
+}
+
+impl Uploaded {
+    fn new(ctx: &Context, input: BuildInput) -> Result<Self> {
+        Ok(match input {
+            BuildInput::Triangles(t) => {
+                let flat: Vec<f32> = t
+                    .iter()
+                    .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
+                    .collect();
+                Self::Triangles(Buffer::from_slice(ctx, "kdtree.triangles", &flat)?)
+            }
+            BuildInput::Boxes(b) => {
+                let flat: Vec<f32> = b
+                    .iter()
+                    .flat_map(|b| b.min.to_array().into_iter().chain(b.max.to_array()))
+                    .collect();
+                Self::Boxes(Buffer::from_slice(ctx, "kdtree.boxes", &flat)?)
+            }
+        })
+    }
+
+    fn source(&self) -> Source<'_> {
+        match self {
+            Self::Triangles(b) => Source::Triangles(b),
+            Self::Boxes(b) => Source::Boxes(b),
+        }
+    }
+}
+
+/// A recorded build's input buffer.
+#[derive(Clone, Copy)]
+enum Source<'a> {
+    /// 9 floats per triangle.
+    Triangles(&'a Buffer<f32>),
+    /// 6 floats per box.
+    Boxes(&'a Buffer<f32>),
+}
+
+impl<'a> Source<'a> {
+    fn buffer(self) -> &'a Buffer<f32> {
+        match self {
+            Self::Triangles(b) | Self::Boxes(b) => b,
+        }
+    }
+
+    fn floats_per_prim(self) -> usize {
+        match self {
+            Self::Triangles(_) => 9,
+            Self::Boxes(_) => 6,
+        }
+    }
+
+    fn what(self) -> &'static str {
+        match self {
+            Self::Triangles(_) => "triangles",
+            Self::Boxes(_) => "boxes",
+        }
     }
 }

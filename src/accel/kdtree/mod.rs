@@ -1,8 +1,10 @@
 //! SAH kd-trees: one flat node layout in BFS order shared by every builder and by the GLSL
 //! traversal, the SAH parameters, statistics and a structural validator.
 //!
-//! Builders take triangles (world space) and return a [`KdTree`]; they do not know what a
-//! material or a mesh is.
+//! Builders take triangles (world space) or primitive boxes (spheres, moving primitives, a
+//! mix: [`gpu::KdTreeBuilder::build_boxes`], [`seed001::build_boxes`]) and return a
+//! [`KdTree`] whose primitive `i` is input `i`; they do not know what a material or a mesh
+//! is.
 //!
 //! Node layout (16 bytes, std430; keep in sync with `glsl/common/kdtree.glsl`):
 //! - inner node: `kind` = split axis (0, 1, 2), `split` = plane position, children are

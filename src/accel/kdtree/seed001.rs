@@ -149,6 +149,15 @@ pub fn prim_box(t: &[Vec3; 3]) -> Aabb {
     }
 }
 
+/// A sphere's box, `center ± radius`, exactly as `accel.kdtree_sphere_boxes` computes it
+/// (one correctly rounded add or subtract per bound).
+pub fn sphere_box(center: Vec3, radius: f32) -> Aabb {
+    Aabb {
+        min: Vec3::new(center.x - radius, center.y - radius, center.z - radius),
+        max: Vec3::new(center.x + radius, center.y + radius, center.z + radius),
+    }
+}
+
 /// The union of boxes, as the GPU min/max reductions compute it.
 pub fn bounds_of(boxes: &[Aabb]) -> Aabb {
     let mut b = Aabb::EMPTY;
