@@ -158,3 +158,12 @@ impl Tracer {
         })
     }
 }
+
+/// Builds the kd-tree of `g` on the GPU (seed 001's builder over the primitives' boxes).
+pub fn build_kdtree(
+    ctx: &Context,
+    g: &TraceGeometry,
+    params: &crate::accel::kdtree::SahParams,
+) -> Result<(KdTree, Profile)> {
+    crate::accel::kdtree::gpu::KdTreeBuilder::new(ctx)?.build_boxes(ctx, &g.boxes, params)
+}
