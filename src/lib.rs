@@ -16,5 +16,6 @@ pub mod gpu;
 pub mod accel;
 pub mod bench;
 pub mod prims;
+pub mod render;
 pub mod scene;
 pub mod trace;

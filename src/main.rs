@@ -54,6 +54,35 @@ enum Command {
         #[arg(long)]
         profile: Option<PathBuf>,
     },
+    /// Render a scene to a PNG (or .pfm: linear float) with the wavefront renderer.
+    Render {
+        /// Scene (.toml, .obj, seed-002 text); omit for the embedded default scene.
+        scene: Option<PathBuf>,
+        /// Output image: PNG, or PFM (linear radiance) for a .pfm extension.
+        #[arg(short, long, default_value = "render.png")]
+        output: PathBuf,
+        /// Samples per pixel (default: the scene's; 1 if no effect of the scene needs more).
+        #[arg(long)]
+        spp: Option<u32>,
+        #[arg(long)]
+        width: Option<u32>,
+        #[arg(long)]
+        height: Option<u32>,
+        /// Print the render plan (passes, shader variants) and stop.
+        #[arg(long)]
+        plan: bool,
+        /// Force every pass and shader branch on (the image must not change).
+        #[arg(long)]
+        all_effects: bool,
+        /// Ray/triangle test: watertight (default) or moller-trumbore.
+        #[arg(long, default_value = "watertight")]
+        intersector: String,
+        #[arg(long)]
+        json: bool,
+        /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
+        #[arg(long)]
+        profile: Option<PathBuf>,
+    },
     /// Measure GPU baselines and primitives.
     Bench {
         #[command(subcommand)]
@@ -179,8 +208,163 @@ fn write_profile(
     Ok(())
 }
 
+fn parse_intersector(name: &str) -> Result<vkrt::trace::Intersector, Box<dyn std::error::Error>> {
+    match name {
+        "watertight" => Ok(vkrt::trace::Intersector::Watertight),
+        "moller-trumbore" | "moller_trumbore" | "moller" => {
+            Ok(vkrt::trace::Intersector::MollerTrumbore)
+        }
+        _ => Err(format!(
+            "unknown --intersector `{name}` (available: watertight, moller-trumbore)"
+        )
+        .into()),
+    }
+}
+
+#[allow(clippy::too_many_arguments, reason = "one parameter per CLI flag")]
+fn render_command(
+    validate: bool,
+    scene: &Option<PathBuf>,
+    output: &std::path::Path,
+    opt: vkrt::render::RenderOptions,
+    plan_only: bool,
+    intersector: &str,
+    json: bool,
+    profile: &Option<PathBuf>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    use vkrt::scene::MAX_RESOLUTION;
+    let intersector = parse_intersector(intersector)?;
+    for (name, v) in [("--width", opt.width), ("--height", opt.height)] {
+        if v.is_some_and(|v| v == 0 || v > MAX_RESOLUTION) {
+            return Err(format!("{name} must be 1..={MAX_RESOLUTION}").into());
+        }
+    }
+    if opt.spp.is_some_and(|s| s == 0 || s > vkrt::scene::MAX_SPP) {
+        return Err(format!("--spp must be 1..={}", vkrt::scene::MAX_SPP).into());
+    }
+    let scene = load_scene(scene)?;
+    if plan_only {
+        let plan = vkrt::render::Plan::new(&scene, &opt)?;
+        if json {
+            println!("{}", serde_json::to_string_pretty(&plan)?);
+        } else {
+            print!("{plan}");
+        }
+        return Ok(());
+    }
+    // Fail before rendering if the image cannot be written there.
+    let dir = output
+        .parent()
+        .filter(|p| !p.as_os_str().is_empty())
+        .unwrap_or(std::path::Path::new("."));
+    if !dir.is_dir() {
+        return Err(format!("{}: no such directory for the output image", dir.display()).into());
+    }
+    let ctx = context(validate)?;
+    let trace = vkrt::trace::TraceOptions {
+        intersector,
+        ..Default::default()
+    };
+    let bar = indicatif::ProgressBar::new(0);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} samples {pos}/{len} [{bar:30}] {elapsed_precise} (eta {eta})",
+        )
+        .map_err(|e| e.to_string())?,
+    );
+    let (rendered, trace_profile) = vkrt::gpu::capture_profiles(|| {
+        vkrt::render::render_scene(&ctx, &scene, &opt, &trace, |done, spp| {
+            if spp > 1 {
+                bar.set_length(spp as u64);
+                bar.set_position(done as u64);
+            }
+        })
+    });
+    bar.finish_and_clear();
+    let r = rendered.map_err(|e| e.to_string())?;
+    let p = &r.plan;
+    vkrt::render::output::write_image(output, p.width, p.height, &r.image.rgba, &r.image.radiance)?;
+    write_profile(profile, &trace_profile)?;
+    if r.image.counts.exhausted > 0 {
+        eprintln!(
+            "vkrt: warning: {} rays ran out of traversal steps (counted as misses)",
+            r.image.counts.exhausted
+        );
+    }
+    if json {
+        let v = serde_json::json!({
+            "width": p.width,
+            "height": p.height,
+            "spp": p.spp,
+            "build_ms": r.build_ms,
+            "render_ms": r.render_ms,
+            "passes": r.passes,
+            "effects": p.effects,
+            "mrays_per_s": r.mrays_per_s(),
+            "rays": r.image.counts,
+            "output": output.display().to_string(),
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!(
+            "{}: {}x{}, {} spp, effects: {}",
+            output.display(),
+            p.width,
+            p.height,
+            p.spp,
+            if p.effects.is_empty() {
+                "none".into()
+            } else {
+                p.effects.join(", ")
+            }
+        );
+        println!(
+            "kd-tree build {:.1} ms, render {:.1} ms, {:.2} Mrays/s",
+            r.build_ms,
+            r.render_ms,
+            r.mrays_per_s()
+        );
+        for pass in &r.passes {
+            println!(
+                "  {:<11} {:>12} rays {:>10.1} ms",
+                pass.name, pass.rays, pass.ms
+            );
+        }
+    }
+    Ok(())
+}
+
 fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
     match cli.command {
+        Command::Render {
+            scene,
+            output,
+            spp,
+            width,
+            height,
+            plan,
+            all_effects,
+            intersector,
+            json,
+            profile,
+        } => {
+            let opt = vkrt::render::RenderOptions {
+                width,
+                height,
+                spp,
+                all_effects,
+            };
+            render_command(
+                cli.validate,
+                &scene,
+                &output,
+                opt,
+                plan,
+                &intersector,
+                json,
+                &profile,
+            )?;
+        }
         Command::Info { json } => {
             let ctx = context(cli.validate)?;
             let info = ctx.info();

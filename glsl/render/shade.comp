@@ -1,0 +1,230 @@
+#version 460
+// Shading of every live ray's hit: emission and ambient (or its occlusion queries), one
+// occlusion query per light (point and directional: hard; sphere and quad: one area sample
+// per path vertex, soft over the samples of a pixel), Lambert + Phong, and the children —
+// mirror or glossy reflection and refraction with Fresnel — into two slots per ray with 0/1
+// flags for the compaction. Every effect is a specialization constant the plan sets, so a
+// scene compiles only what it uses.
+#extension GL_EXT_shader_8bit_storage : require
+#extension GL_EXT_shader_explicit_arithmetic_types_int8 : require
+layout(local_size_x_id = 0) in;
+layout(constant_id = 1) const uint INTERSECTOR = 0u;
+layout(constant_id = 2) const bool ANY_HIT = false;
+layout(constant_id = 3) const uint STACK_SIZE = 1u;
+layout(constant_id = 4) const bool LIGHTS = false;
+layout(constant_id = 5) const bool AREA_LIGHTS = false;
+layout(constant_id = 6) const bool REFLECTION = false;
+layout(constant_id = 7) const bool REFRACTION = false;
+layout(constant_id = 8) const bool GLOSSY = false;
+layout(constant_id = 9) const bool AO = false;
+layout(constant_id = 10) const bool EMISSION = false;
+layout(constant_id = 11) const bool BOUNCES = false;
+#include "common/grid.glsl"
+#include "render/common.glsl"
+#include "render/shading.glsl"
+#define GEOM_BINDING 3
+#include "common/traverse.glsl"
+
+layout(std430, binding = 0) readonly buffer Queue { PathRay queue[]; };
+layout(std430, binding = 1) readonly buffer Hits { Hit hits[]; };
+layout(std430, binding = 2) buffer Counters { uint counters[]; };
+layout(std430, binding = 10) readonly buffer Params { RenderParams prm; };
+layout(std430, binding = 11) readonly buffer Materials { Material materials[]; };
+layout(std430, binding = 12) readonly buffer Lights { Light lights[]; };
+layout(std430, binding = 13) readonly buffer PrimMaterial { uint prim_material[]; };
+layout(std430, binding = 14) readonly buffer TriNormals { float tri_normals[]; };
+layout(std430, binding = 15) writeonly buffer Radiance { vec4 radiance[]; };
+layout(std430, binding = 16) writeonly buffer Shadows { ShadowRay shadows[]; };
+layout(std430, binding = 17) writeonly buffer Children { PathRay children[]; };
+layout(std430, binding = 18) writeonly buffer Flags { uint8_t flags[]; };
+
+const float FAR = 3.4028234e38;
+
+vec3 normal_at(uint tri, uint corner) {
+    uint k = 9u * tri + 3u * corner;
+    return vec3(tri_normals[k], tri_normals[k + 1u], tri_normals[k + 2u]);
+}
+
+// Rotation part of a motion, for normals.
+vec3 move_vector(vec3 n, uint prim, float time) {
+    if (scene_info.has_motion == 0u || prim_motion[prim] == NO_MOTION) {
+        return n;
+    }
+    MotionRecord m = motions[prim_motion[prim]];
+    float angle = m.velocity.w * time;
+    if (angle == 0.0) {
+        return n;
+    }
+    vec3 k = m.axis.xyz;
+    float c = cos(angle);
+    float s = sin(angle);
+    return n * c + cross(k, n) * s + k * (dot(k, n) * (1.0 - c));
+}
+
+void main() {
+    uint i = linear_invocation_id();
+    if (i >= counters[CNT_QUEUE]) {
+        return;
+    }
+    PathRay p = queue[i];
+    Hit h = hits[i];
+    uint slots = prm.shadow_slots;
+    for (uint k = 0u; k < slots; k++) {
+        shadows[i * slots + k].kind = SHADOW_NONE;
+    }
+    if (h.prim == NO_HIT) {
+        radiance[i] = vec4(p.weight * prm.background.xyz, 0.0);
+        return;
+    }
+
+    // The surface: position from the primitive (more accurate than o + t·d), normals.
+    vec3 x;
+    vec3 ng;
+    vec3 ns;
+    if (h.prim < scene_info.n_tris) {
+        vec3 p0, p1, p2;
+        triangle_at(h.prim, p.time, p0, p1, p2);
+        float w = 1.0 - h.u - h.v;
+        x = w * p0 + h.u * p1 + h.v * p2;
+        ng = normalize(cross(p1 - p0, p2 - p0));
+        vec3 n = w * normal_at(h.prim, 0u) + h.u * normal_at(h.prim, 1u)
+            + h.v * normal_at(h.prim, 2u);
+        ns = dot(n, n) > 0.0 ? normalize(move_vector(n, h.prim, p.time)) : ng;
+    } else {
+        vec4 s = sphere_at(h.prim - scene_info.n_tris, p.time);
+        ng = normalize(p.o + h.t * p.d - s.xyz);
+        x = s.xyz + ng * s.w;
+        ns = ng;
+    }
+    bool front = dot(p.d, ng) < 0.0;
+    if (!front) {
+        ng = -ng;
+        ns = -ns;
+    }
+    if (dot(ns, p.d) >= 0.0) {
+        ns = ng; // an interpolated normal facing away from the viewer: use the true one
+    }
+    Material m = materials[prim_material[h.prim]];
+    vec3 diffuse = m.diffuse.xyz;
+    vec3 l = vec3(0.0);
+    if (EMISSION) {
+        l += m.emission.xyz;
+    }
+    bool ao = AO && prm.ao_samples > 0u;
+    if (!ao) {
+        l += prm.ambient.xyz * diffuse;
+    }
+    radiance[i] = vec4(p.weight * l, 0.0);
+
+    uint rng = pcg(p.seed ^ 0xA511E9B3u);
+    vec3 o_front = offset_ray_origin(x, ng);
+    if (LIGHTS) {
+        for (uint li = 0u; li < prm.n_lights; li++) {
+            Light lt = lights[li];
+            vec3 wi;
+            float dist;
+            vec3 e;
+            uint kind = lt.kind.x;
+            if (kind == LIGHT_DIRECTIONAL) {
+                wi = -normalize(lt.p.xyz);
+                dist = FAR;
+                e = lt.power.xyz;
+            } else if (kind == LIGHT_POINT || !AREA_LIGHTS) {
+                vec3 to = lt.p.xyz - x;
+                dist = length(to);
+                wi = to / dist;
+                e = lt.power.xyz / (dist * dist);
+            } else {
+                vec3 q;
+                vec3 nl;
+                float area;
+                if (kind == LIGHT_QUAD) {
+                    float r1 = rnd(rng);
+                    float r2 = rnd(rng);
+                    q = lt.p.xyz + r1 * lt.u.xyz + r2 * lt.v.xyz;
+                    vec3 c = cross(lt.u.xyz, lt.v.xyz);
+                    area = length(c);
+                    nl = c / area;
+                } else {
+                    // the hemisphere facing the point (pdf 1 / (2πr²))
+                    nl = sample_sphere(rng);
+                    if (dot(nl, x - lt.p.xyz) < 0.0) {
+                        nl = -nl;
+                    }
+                    q = lt.p.xyz + nl * lt.u.w;
+                    area = 2.0 * PI * lt.u.w * lt.u.w;
+                }
+                vec3 to = q - x;
+                dist = length(to);
+                wi = to / dist;
+                float cos_l = -dot(nl, wi);
+                e = cos_l > 0.0 ? lt.power.xyz * (cos_l * area / (dist * dist)) : vec3(0.0);
+            }
+            float cos_s = dot(ns, wi);
+            uint slot = i * slots + li;
+            if (cos_s <= 0.0 || dot(ng, wi) <= 0.0 || max(e.x, max(e.y, e.z)) <= 0.0) {
+                continue;
+            }
+            vec3 f = diffuse * cos_s;
+            if (m.specular.x + m.specular.y + m.specular.z > 0.0) {
+                float rv = max(dot(reflect_dir(-wi, ns), -p.d), 0.0);
+                f += m.specular.xyz * pow(rv, m.diffuse.w);
+            }
+            shadows[slot] = ShadowRay(o_front, 0.0, wi, dist, p.weight * f * e, SHADOW_LIGHT);
+        }
+    }
+    if (ao) {
+        vec3 c = p.weight * prm.ambient.xyz * diffuse / float(prm.ao_samples);
+        for (uint k = 0u; k < prm.ao_samples; k++) {
+            vec3 dir = sample_cosine(ng, rng);
+            shadows[i * slots + prm.n_lights + k] =
+                ShadowRay(o_front, 0.0, dir, prm.ao_radius, c, SHADOW_AO);
+        }
+    }
+
+    if (!BOUNCES || p.depth >= prm.max_depth) {
+        return;
+    }
+    vec3 refl_w = m.mirror.xyz;
+    float trans = m.mirror.w;
+    vec3 tdir = vec3(0.0);
+    bool refracts = false;
+    if (REFRACTION && trans > 0.0) {
+        float eta = front ? 1.0 / m.emission.w : m.emission.w;
+        float cos_i = -dot(p.d, ns);
+        refracts = refract_dir(p.d, ns, eta, tdir) && dot(tdir, ng) < 0.0;
+        float fr = refracts ? (m.flags.x != 0u ? fresnel(cos_i, eta) : 0.0) : 1.0;
+        refl_w += vec3(trans * fr);
+        trans = trans * (1.0 - fr);
+    }
+    vec3 rw = p.weight * refl_w;
+    if ((REFLECTION || GLOSSY) && max(rw.x, max(rw.y, rw.z)) > prm.min_weight) {
+        vec3 r = reflect_dir(p.d, ns);
+        if (dot(r, ng) <= 0.0) {
+            r = reflect_dir(p.d, ng);
+        }
+        uint kind = RAY_REFLECTION;
+        if (GLOSSY && m.specular.w > 0.0) {
+            vec3 g = sample_cone(r, m.specular.w, rng);
+            r = dot(g, ng) > 0.0 ? g : r;
+            kind = RAY_GLOSSY;
+        }
+        children[2u * i] = PathRay(o_front, 0.0, r, FAR, rw, p.pixel, p.time, p.depth + 1u,
+                                   pcg(p.seed ^ 0x1B873593u), kind);
+        flags[2u * i] = uint8_t(1u);
+        atomicAdd(counters[kind == RAY_GLOSSY ? CNT_GLOSSY : CNT_REFLECTION], 1u);
+    }
+    vec3 tw = p.weight * trans;
+    if (REFRACTION && refracts && max(tw.x, max(tw.y, tw.z)) > prm.min_weight) {
+        vec3 t = tdir;
+        if (GLOSSY && m.specular.w > 0.0) {
+            vec3 g = sample_cone(t, m.specular.w, rng);
+            t = dot(g, ng) < 0.0 ? g : t;
+        }
+        children[2u * i + 1u] = PathRay(offset_ray_origin(x, -ng), 0.0, t, FAR, tw, p.pixel,
+                                        p.time, p.depth + 1u, pcg(p.seed ^ 0xCC9E2D51u),
+                                        RAY_REFRACTION);
+        flags[2u * i + 1u] = uint8_t(1u);
+        atomicAdd(counters[CNT_REFRACTION], 1u);
+    }
+}

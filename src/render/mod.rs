@@ -1,0 +1,305 @@
+//! The renderer: a plan from the scene ([`plan`]), the scene flattened for the GPU
+//! ([`RenderScene`]), the wavefront renderer ([`gpu`]) and its CPU twin ([`cpu`]), and
+//! image output ([`output`]).
+//!
+//! Shading model (Whitted with distributed effects; `scene::material` documents the terms):
+//! `L = emission + ambient·diffuse (× unoccluded fraction with ambient occlusion)
+//!  + Σ_lights (diffuse·cosθ + specular·max(R·V, 0)^shininess)·E_light·visible
+//!  + mirror·L(reflected) + transmission·L(refracted)` (Fresnel-weighted for glass), where
+//! `E_light` is `I/d²` for point lights, `I` for directional ones and one area sample
+//! `L_e·cosθ_l·A/d²` per path vertex for sphere and quad lights (soft over the samples of a
+//! pixel). Diffuse albedo is used without 1/π, as in seed 002.
+
+pub mod cpu;
+pub mod gpu;
+pub mod output;
+pub mod plan;
+pub mod types;
+
+use glam::Vec3;
+use serde::Serialize;
+
+use crate::accel::kdtree::KdTree;
+use crate::scene::{Light, Scene};
+use crate::trace::TraceGeometry;
+
+pub use plan::{Plan, RenderOptions};
+use types::{GpuLight, GpuMaterial, RenderParams};
+
+/// Rays traced per kind.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct RayCounts {
+    pub primary: u64,
+    pub reflection: u64,
+    pub refraction: u64,
+    pub glossy: u64,
+    pub shadow: u64,
+    pub ambient_occlusion: u64,
+    /// Rays that ran out of traversal steps (counted as misses).
+    pub exhausted: u64,
+}
+
+impl RayCounts {
+    pub fn from_counters(c: &[u32]) -> Self {
+        use types::counter as k;
+        Self {
+            primary: c[k::PRIMARY] as u64,
+            reflection: c[k::REFLECTION] as u64,
+            refraction: c[k::REFRACTION] as u64,
+            glossy: c[k::GLOSSY] as u64,
+            shadow: c[k::SHADOW] as u64,
+            ambient_occlusion: c[k::AO] as u64,
+            exhausted: c[k::EXHAUSTED] as u64,
+        }
+    }
+
+    /// Secondary rays (reflection, refraction, glossy).
+    pub fn secondary(&self) -> u64 {
+        self.reflection + self.refraction + self.glossy
+    }
+
+    pub fn total(&self) -> u64 {
+        self.primary + self.secondary() + self.shadow + self.ambient_occlusion
+    }
+}
+
+/// The scene as the renderer reads it: geometry and kd-tree, materials, lights, constants.
+pub struct RenderScene {
+    pub geometry: TraceGeometry,
+    pub tree: KdTree,
+    /// Material of every primitive (triangles, then spheres).
+    pub prim_material: Vec<u32>,
+    /// Shading normals, 9 floats per triangle (zero when the mesh has none).
+    pub tri_normals: Vec<f32>,
+    pub materials: Vec<GpuMaterial>,
+    pub lights: Vec<GpuLight>,
+    pub params: RenderParams,
+}
+
+/// Weight below which a secondary ray is not spawned.
+pub const MIN_WEIGHT: f32 = 1e-4;
+
+impl RenderScene {
+    /// Flattens `scene` for `plan`; `build` makes the kd-tree of the geometry (the GPU
+    /// builder in the renderer, any builder in tests).
+    pub fn new<E>(
+        scene: &Scene,
+        plan: &Plan,
+        build: impl FnOnce(&TraceGeometry) -> Result<KdTree, E>,
+    ) -> Result<Self, E> {
+        let cam = &scene.camera;
+        let geometry = if plan.motion && cam.shutter_close > cam.shutter_open {
+            TraceGeometry::over_interval(scene, cam.shutter_open, cam.shutter_close)
+        } else {
+            TraceGeometry::at_time(scene, cam.shutter_open)
+        };
+        let normal_time = if geometry.has_motion() {
+            0.0
+        } else {
+            cam.shutter_open
+        };
+        let tree = build(&geometry)?;
+        let mut prim_material = scene.triangle_materials();
+        prim_material.extend(scene.spheres.iter().map(|s| s.material));
+        let tri_normals = scene
+            .triangle_normals_world(normal_time)
+            .iter()
+            .zip(
+                &scene
+                    .meshes
+                    .iter()
+                    .flat_map(|m| std::iter::repeat_n(m.normals.is_empty(), m.indices.len()))
+                    .collect::<Vec<_>>(),
+            )
+            .flat_map(|(n, &flat)| {
+                // Meshes without normals: zeros, so the kernel uses the geometric normal of
+                // the triangle at the ray's time.
+                let n = if flat { [Vec3::ZERO; 3] } else { *n };
+                n.into_iter().flat_map(|v| v.to_array())
+            })
+            .collect();
+        let materials = scene
+            .materials
+            .iter()
+            .map(|m| GpuMaterial {
+                diffuse: m.diffuse.extend(m.shininess).to_array(),
+                specular: m.specular.extend(m.roughness).to_array(),
+                mirror: m.mirror.extend(m.transmission).to_array(),
+                emission: m.emission.extend(m.ior).to_array(),
+                flags: [m.fresnel as u32, 0, 0, 0],
+            })
+            .collect();
+        let lights: Vec<GpuLight> = if plan.lights {
+            scene
+                .lights
+                .iter()
+                .filter(|l| l.power().max_element() > 0.0)
+                .map(gpu_light)
+                .collect()
+        } else {
+            Vec::new()
+        };
+        let (forward, right, up) = cam.basis();
+        let tan = (cam.fov.to_radians() * 0.5).tan();
+        let aspect = plan.width as f32 / plan.height as f32;
+        let s = &scene.settings;
+        let params = RenderParams {
+            cam_pos: cam.position.extend(0.0).to_array(),
+            cam_forward: forward.extend(0.0).to_array(),
+            cam_right: (right * tan * aspect).extend(0.0).to_array(),
+            cam_up: (up * tan).extend(0.0).to_array(),
+            background: s.background.extend(0.0).to_array(),
+            ambient: scene.ambient.extend(0.0).to_array(),
+            width: plan.width,
+            height: plan.height,
+            spp: plan.spp,
+            max_depth: plan.max_depth,
+            n_lights: lights.len() as u32,
+            ao_samples: plan.ao_samples,
+            shadow_slots: lights.len() as u32 + plan.ao_samples,
+            jitter: (scene.effects().antialiasing && plan.spp > 1) as u32,
+            aperture: cam.aperture_radius,
+            focus_distance: cam.focus_distance,
+            shutter_open: cam.shutter_open,
+            shutter_close: if plan.motion {
+                cam.shutter_close
+            } else {
+                cam.shutter_open
+            },
+            ao_radius: s.ao.radius,
+            min_weight: MIN_WEIGHT,
+            pad: [0; 2],
+        };
+        Ok(Self {
+            geometry,
+            tree,
+            prim_material,
+            tri_normals,
+            materials,
+            lights,
+            params,
+        })
+    }
+}
+
+fn gpu_light(l: &Light) -> GpuLight {
+    use types::*;
+    let p = l.power().extend(0.0).to_array();
+    let v4 = |v: Vec3, w: f32| v.extend(w).to_array();
+    match *l {
+        Light::Point { position, .. } => GpuLight {
+            kind: [LIGHT_POINT, 0, 0, 0],
+            p: v4(position, 0.0),
+            power: p,
+            ..Default::default()
+        },
+        Light::Directional { direction, .. } => GpuLight {
+            kind: [LIGHT_DIRECTIONAL, 0, 0, 0],
+            p: v4(direction, 0.0),
+            power: p,
+            ..Default::default()
+        },
+        Light::Sphere { center, radius, .. } => GpuLight {
+            kind: [LIGHT_SPHERE, 0, 0, 0],
+            p: v4(center, 0.0),
+            u: [0.0, 0.0, 0.0, radius],
+            power: p,
+            ..Default::default()
+        },
+        Light::Quad {
+            corner,
+            edge_u,
+            edge_v,
+            ..
+        } => GpuLight {
+            kind: [LIGHT_QUAD, 0, 0, 0],
+            p: v4(corner, 0.0),
+            u: v4(edge_u, 0.0),
+            v: v4(edge_v, 0.0),
+            power: p,
+        },
+    }
+}
+
+/// One pass of a render: rays it handled and GPU time.
+#[derive(Clone, Debug, Serialize)]
+pub struct PassReport {
+    pub name: &'static str,
+    pub rays: u64,
+    pub ms: f64,
+}
+
+/// A finished render with everything `vkrt render --json` reports.
+pub struct Rendered {
+    pub plan: Plan,
+    pub image: gpu::GpuRender,
+    /// GPU kd-tree build, timestamps.
+    pub build_ms: f64,
+    /// GPU time of all samples (timestamps), tone mapping included.
+    pub render_ms: f64,
+    pub passes: Vec<PassReport>,
+}
+
+impl Rendered {
+    /// Rays per second over the render time, in millions.
+    pub fn mrays_per_s(&self) -> f64 {
+        let rays = self.image.counts.total() as f64;
+        if self.render_ms > 0.0 {
+            rays / (self.render_ms * 1e3)
+        } else {
+            0.0
+        }
+    }
+}
+
+/// Plans, builds the kd-tree on the GPU and renders `scene`; `progress(done, spp)` after
+/// every sample.
+pub fn render_scene(
+    ctx: &crate::gpu::Context,
+    scene: &Scene,
+    opt: &RenderOptions,
+    trace: &crate::trace::TraceOptions,
+    mut progress: impl FnMut(u32, u32),
+) -> Result<Rendered, Box<dyn std::error::Error + Send + Sync>> {
+    let plan = Plan::new(scene, opt)?;
+    let mut build_profile = crate::gpu::Profile::default();
+    let rs = RenderScene::new(scene, &plan, |g| {
+        crate::trace::gpu::build_kdtree(ctx, g, &crate::accel::kdtree::SahParams::default()).map(
+            |(tree, p)| {
+                build_profile = p;
+                tree
+            },
+        )
+    })?;
+    let build_ms = build_profile.ms("kdtree.phase1").unwrap_or(0.0)
+        + build_profile.ms("kdtree.phase2").unwrap_or(0.0);
+    let renderer = gpu::Renderer::new(ctx, &plan, trace)?;
+    let spp = plan.spp;
+    let image = renderer.render(ctx, &rs, &plan, |done| progress(done, spp))?;
+    let ms = |n: &str| image.profile.ms(n).unwrap_or(0.0);
+    let c = image.counts;
+    let traced = c.primary + c.secondary();
+    let passes = plan
+        .passes
+        .iter()
+        .map(|&name| PassReport {
+            name,
+            rays: match name {
+                "camera" => c.primary,
+                "extend" | "shade" | "accumulate" => traced,
+                "shadow" => c.shadow + c.ambient_occlusion,
+                "compact" | "gather" => c.secondary(),
+                _ => 0,
+            },
+            ms: ms(&format!("render.{name}")),
+        })
+        .collect();
+    let render_ms = ms("render.sample") + ms("render.tonemap");
+    Ok(Rendered {
+        plan,
+        image,
+        build_ms,
+        render_ms,
+        passes,
+    })
+}

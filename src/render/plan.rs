@@ -1,0 +1,225 @@
+//! The render plan: which passes run and which shader variants exist, decided from what
+//! the scene calls for ([`Effects`]) — no shadow pass without lights, no refraction code
+//! without glass, no glossy sampling without rough mirrors or glass, a pinhole without an
+//! aperture, one sample and no jitter when nothing needs more, no time sampling without
+//! motion. `vkrt render --plan` prints it; `--all-effects` compiles and runs everything
+//! (the data still decides, so a scene that uses none of the extras renders the same image).
+
+use std::fmt;
+
+use serde::Serialize;
+
+use crate::scene::{Effects, Scene};
+
+/// What the caller asks for on top of the scene.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RenderOptions {
+    pub width: Option<u32>,
+    pub height: Option<u32>,
+    pub spp: Option<u32>,
+    /// Force every pass and shader branch on (for the plan's equality test and for
+    /// measuring what the plan saves).
+    pub all_effects: bool,
+}
+
+/// Pixels × samples × bounce tree bounded by this many rays per wave (queue capacity).
+pub const WAVE_RAYS: usize = 1 << 19;
+/// Largest occlusion-query buffer per wave, bytes (under lavapipe's 128 MiB per buffer).
+pub const WAVE_SHADOW_BYTES: usize = 96 << 20;
+
+#[derive(Clone, Debug, PartialEq, Serialize)]
+pub struct Plan {
+    /// The effects the scene calls for (`Scene::effects`).
+    pub effects: Vec<&'static str>,
+    pub all_effects: bool,
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    /// Bounces after the camera hit (0 when no effect needs secondary rays).
+    pub max_depth: u32,
+    /// Shader switches (specialization constants).
+    pub lights: bool,
+    pub area_lights: bool,
+    pub reflection: bool,
+    pub refraction: bool,
+    pub glossy: bool,
+    pub ambient_occlusion: bool,
+    pub emission: bool,
+    pub bounces: bool,
+    pub thin_lens: bool,
+    pub jitter: bool,
+    pub motion: bool,
+    /// Shining lights and ambient-occlusion rays: occlusion queries per path vertex.
+    pub n_lights: u32,
+    pub ao_samples: u32,
+    pub shadow_slots: u32,
+    /// Children one ray can spawn (2 with refraction: reflected + refracted).
+    pub branching: u32,
+    /// Pixels traced together (one sample each) so that a wave's bounce tree fits.
+    pub wave_pixels: u32,
+    /// The passes that run, in order.
+    pub passes: Vec<&'static str>,
+    /// Notes for the user (e.g. a requested spp that the scene does not need).
+    pub notes: Vec<String>,
+}
+
+/// Why a scene cannot be rendered.
+#[derive(Debug, thiserror::Error)]
+pub enum PlanError {
+    #[error("{0}")]
+    TooDeep(String),
+}
+
+impl Plan {
+    pub fn new(scene: &Scene, opt: &RenderOptions) -> Result<Self, PlanError> {
+        let fx: Effects = scene.effects();
+        let all = opt.all_effects;
+        let s = &scene.settings;
+        let mut notes = Vec::new();
+        let requested_spp = opt.spp.unwrap_or(s.spp).max(1);
+        let spp = if fx.needs_multiple_samples() {
+            requested_spp
+        } else {
+            if requested_spp > 1 {
+                notes.push(format!(
+                    "{requested_spp} samples per pixel requested, but no effect of this scene \
+                     needs more than one: rendering 1"
+                ));
+            }
+            1
+        };
+        let secondary = fx.reflection || fx.refraction || fx.glossy;
+        let max_depth = if secondary || all { s.max_depth } else { 0 };
+        let shining = scene
+            .lights
+            .iter()
+            .filter(|l| l.power().max_element() > 0.0)
+            .count() as u32;
+        let lights = fx.hard_shadows || fx.soft_shadows || (all && shining > 0);
+        let n_lights = if lights { shining } else { 0 };
+        let ao = fx.ambient_occlusion;
+        let ao_samples = if ao { s.ao.samples } else { 0 };
+        let shadow_slots = n_lights + ao_samples;
+        let refraction = fx.refraction || all;
+        let branching = if refraction { 2u32 } else { 1 };
+        let bounces = max_depth > 0 && (secondary || all);
+        let tree = (branching as f64).powi(if bounces { max_depth as i32 } else { 0 });
+        let by_shadows = (WAVE_SHADOW_BYTES / (48 * shadow_slots.max(1) as usize)).min(WAVE_RAYS);
+        let wave = (by_shadows as f64 / tree).floor();
+        let (width, height) = (opt.width.unwrap_or(s.width), opt.height.unwrap_or(s.height));
+        if wave < 1.0 {
+            return Err(PlanError::TooDeep(format!(
+                "max_depth {max_depth} with refraction lets one pixel spawn up to 2^{max_depth} \
+                 rays, more than a wave holds ({by_shadows} rays): lower settings.max_depth"
+            )));
+        }
+        let wave_pixels = (wave as u64).min(width as u64 * height as u64).max(1) as u32;
+        let mut passes = vec!["camera", "extend", "shade"];
+        if shadow_slots > 0 {
+            passes.push("shadow");
+        }
+        passes.push("accumulate");
+        if bounces {
+            passes.extend(["compact", "gather"]);
+        }
+        passes.push("tonemap");
+        Ok(Self {
+            effects: fx.names(),
+            all_effects: all,
+            width,
+            height,
+            spp,
+            max_depth: if bounces { max_depth } else { 0 },
+            lights,
+            area_lights: fx.soft_shadows || (all && lights),
+            reflection: fx.reflection || all,
+            refraction,
+            glossy: fx.glossy || all,
+            ambient_occlusion: ao || all,
+            emission: fx.emission || all,
+            bounces,
+            thin_lens: fx.depth_of_field || all,
+            jitter: (fx.antialiasing && spp > 1) || all,
+            motion: fx.motion_blur || all,
+            n_lights,
+            ao_samples,
+            shadow_slots,
+            branching,
+            wave_pixels,
+            passes,
+            notes,
+        })
+    }
+
+    /// Rays a wave's queue can hold at its deepest bounce.
+    pub fn queue_capacity(&self) -> usize {
+        self.wave_pixels as usize * (self.branching as usize).pow(self.max_depth)
+    }
+
+    /// Waves per sample.
+    pub fn waves(&self) -> u32 {
+        ((self.width as u64 * self.height as u64).div_ceil(self.wave_pixels as u64)) as u32
+    }
+}
+
+impl fmt::Display for Plan {
+    fn fmt(&self, f: &mut fmt::Formatter<'_>) -> fmt::Result {
+        let on = |b: bool| if b { "on" } else { "off" };
+        writeln!(
+            f,
+            "effects the scene calls for: {}",
+            if self.effects.is_empty() {
+                "none".to_string()
+            } else {
+                self.effects.join(", ")
+            }
+        )?;
+        if self.all_effects {
+            writeln!(f, "--all-effects: every pass and shader branch forced on")?;
+        }
+        writeln!(
+            f,
+            "image {}x{}, {} sample(s)/pixel, {} bounce(s), waves of {} pixels ({} per sample)",
+            self.width,
+            self.height,
+            self.spp,
+            self.max_depth,
+            self.wave_pixels,
+            self.waves()
+        )?;
+        writeln!(f, "passes: {}", self.passes.join(" → "))?;
+        writeln!(
+            f,
+            "camera: {}, jitter {}, time sampling {}",
+            if self.thin_lens {
+                "thin lens"
+            } else {
+                "pinhole"
+            },
+            on(self.jitter),
+            on(self.motion)
+        )?;
+        writeln!(
+            f,
+            "shading: lights {} ({} shining, area sampling {}), ambient occlusion {} ({} rays), \
+             emission {}",
+            on(self.lights),
+            self.n_lights,
+            on(self.area_lights),
+            on(self.ambient_occlusion),
+            self.ao_samples,
+            on(self.emission)
+        )?;
+        writeln!(
+            f,
+            "secondary rays: reflection {}, refraction {}, glossy {}",
+            on(self.reflection),
+            on(self.refraction),
+            on(self.glossy)
+        )?;
+        for n in &self.notes {
+            writeln!(f, "note: {n}")?;
+        }
+        Ok(())
+    }
+}
