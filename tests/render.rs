@@ -1,0 +1,156 @@
+//! The renderer: GPU image vs its CPU twin for every effect's example scene, the plan
+//! (passes that must not run, ray counts that must be zero, `--all-effects` bit-identical),
+//! and the default scene.
+
+mod common;
+
+use std::path::Path;
+
+use common::{assert_silent, context};
+use vkrt::accel::kdtree::{seed001, SahParams};
+use vkrt::gpu::Context;
+use vkrt::render::gpu::{GpuRender, Renderer};
+use vkrt::render::output::srgb8;
+use vkrt::render::{cpu, Plan, RenderOptions, RenderScene};
+use vkrt::scene::Scene;
+use vkrt::trace::TraceOptions;
+
+fn scene_file(name: &str) -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes").join(name);
+    Scene::load(&path).unwrap().scene
+}
+
+fn small(spp: u32) -> RenderOptions {
+    RenderOptions {
+        width: Some(64),
+        height: Some(48),
+        spp: Some(spp),
+        all_effects: false,
+    }
+}
+
+fn prepare(scene: &Scene, opt: &RenderOptions) -> (Plan, RenderScene) {
+    let plan = Plan::new(scene, opt).unwrap();
+    let rs = RenderScene::new(scene, &plan, |g| {
+        Ok::<_, ()>(seed001::build_boxes(&g.boxes, &SahParams::default()).0)
+    })
+    .unwrap();
+    (plan, rs)
+}
+
+fn gpu_render(ctx: &Context, plan: &Plan, rs: &RenderScene) -> GpuRender {
+    let r = Renderer::new(ctx, plan, &TraceOptions::default())
+        .unwrap()
+        .render(ctx, rs, plan, |_| {})
+        .unwrap();
+    assert_eq!(r.counts.exhausted, 0);
+    assert_silent(ctx);
+    r
+}
+
+/// GPU vs CPU twin per pixel, in 8-bit sRGB: the images may differ only where a
+/// transcendental's last bit or a traversal tie flips a sample.
+#[test]
+fn every_effect_matches_the_cpu_twin() {
+    let Some(ctx) = context() else { return };
+    for (file, spp) in [
+        ("hard_shadows.toml", 1),
+        ("soft_shadows.toml", 4),
+        ("reflection.toml", 1),
+        ("refraction.toml", 1),
+        ("glossy.toml", 4),
+        ("antialiasing.toml", 4),
+        ("depth_of_field.toml", 4),
+        ("motion_blur.toml", 4),
+        ("ambient_occlusion.toml", 2),
+        ("emission.toml", 2),
+        ("mesh_file.toml", 1),
+    ] {
+        let scene = scene_file(file);
+        let (plan, rs) = prepare(&scene, &small(spp));
+        let gpu = gpu_render(&ctx, &plan, &rs);
+        let twin = cpu::render(&rs, &plan, &TraceOptions::default());
+        assert_eq!(gpu.counts, twin.counts, "{file}: ray counts");
+        let mut off = 0;
+        let mut worst = 0i32;
+        let mut lit = 0;
+        for (i, (g, c)) in gpu.radiance.iter().zip(&twin.radiance).enumerate() {
+            for ch in 0..3 {
+                let (a, b) = (srgb8(g[ch]) as i32, srgb8(c[ch]) as i32);
+                assert_eq!(gpu.rgba[4 * i + ch] as i32, a, "{file}: tone map pixel {i}");
+                worst = worst.max((a - b).abs());
+                if (a - b).abs() > 2 {
+                    off += 1;
+                }
+                lit += (a > 8) as usize;
+            }
+        }
+        let n = gpu.radiance.len() * 3;
+        eprintln!("{file}: {off} of {n} channels differ by more than 2/255 (worst {worst})");
+        assert!(
+            off * 200 <= n,
+            "{file}: {off} of {n} channels differ by more than 2/255 from the CPU twin"
+        );
+        assert!(lit * 10 > n, "{file}: image nearly black ({lit} of {n} lit channels)");
+    }
+}
+
+#[test]
+fn the_plan_runs_only_what_the_scene_needs() {
+    let Some(ctx) = context() else { return };
+    // Diffuse + Phong and a point light: no secondary rays, one shadow ray per hit.
+    let scene = scene_file("hard_shadows.toml");
+    let (plan, rs) = prepare(&scene, &small(8));
+    assert_eq!(plan.spp, 1, "nothing in this scene needs more than one sample");
+    assert!(!plan.bounces && !plan.reflection && !plan.refraction && !plan.glossy);
+    assert!(!plan.thin_lens && !plan.jitter && !plan.motion);
+    assert!(!plan.passes.contains(&"compact"));
+    let r = gpu_render(&ctx, &plan, &rs);
+    assert_eq!(r.counts.secondary(), 0);
+    assert!(r.counts.shadow > 0);
+    assert_eq!(r.counts.primary, 64 * 48);
+
+    // No lights: no shadow pass at all.
+    let mut dark = scene.clone();
+    dark.lights.clear();
+    let (plan, rs) = prepare(&dark, &small(1));
+    assert!(!plan.passes.contains(&"shadow") && plan.shadow_slots == 0);
+    let r = gpu_render(&ctx, &plan, &rs);
+    assert_eq!(r.counts.shadow + r.counts.ambient_occlusion, 0);
+    assert!(r.profile.ms("render.shadow").is_none());
+}
+
+#[test]
+fn all_effects_forced_on_gives_the_same_image() {
+    let Some(ctx) = context() else { return };
+    let scene = scene_file("hard_shadows.toml");
+    let (plan, rs) = prepare(&scene, &small(1));
+    let forced_opt = RenderOptions {
+        all_effects: true,
+        ..small(1)
+    };
+    let (forced, rs_forced) = prepare(&scene, &forced_opt);
+    assert!(forced.bounces && forced.refraction && forced.glossy && forced.thin_lens);
+    assert!(forced.passes.len() > plan.passes.len());
+    let a = gpu_render(&ctx, &plan, &rs);
+    let b = gpu_render(&ctx, &forced, &rs_forced);
+    assert_eq!(a.rgba, b.rgba, "--all-effects changed the image");
+    let bits = |r: &GpuRender| -> Vec<u32> {
+        r.radiance.iter().flatten().map(|x| x.to_bits()).collect()
+    };
+    assert_eq!(bits(&a), bits(&b), "--all-effects changed the radiance");
+    assert!(b.profile.ms("render.compact").is_some(), "forced passes must run");
+}
+
+#[test]
+fn default_scene_renders() {
+    let Some(ctx) = context() else { return };
+    let scene = Scene::default_scene();
+    let r = vkrt::render::render_scene(&ctx, &scene, &small(2), &TraceOptions::default(), |_, _| {})
+        .unwrap();
+    assert_silent(&ctx);
+    let lit = r.image.rgba.chunks(4).filter(|p| p[0] > 20 || p[1] > 20).count();
+    assert!(lit * 2 > 64 * 48, "default scene mostly black: {lit} lit pixels");
+    assert!(r.image.counts.reflection > 0 && r.image.counts.refraction > 0);
+    assert!(r.passes.iter().any(|p| p.name == "shadow" && p.rays > 0));
+}
