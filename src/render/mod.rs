@@ -3,10 +3,14 @@
 //! image output ([`output`]).
 //!
 //! Shading model (Whitted with distributed effects; `scene::material` documents the terms):
-//! `L = emission + ambient·diffuse (× unoccluded fraction with ambient occlusion)
-//!  + Σ_lights (diffuse·cosθ + specular·max(R·V, 0)^shininess)·E_light·visible
-//!  + mirror·L(reflected) + transmission·L(refracted)` (Fresnel-weighted for glass), where
-//! `E_light` is `I/d²` for point lights, `I` for directional ones and one area sample
+//!
+//! ```text
+//! L = emission + ambient·diffuse            (× unoccluded fraction with ambient occlusion)
+//!   + Σ_lights (diffuse·cosθ + specular·max(R·V, 0)^shininess) · E_light · visible
+//!   + mirror·L(reflected) + transmission·L(refracted)   (Fresnel-weighted for glass)
+//! ```
+//!
+//! where `E_light` is `I/d²` for point lights, `I` for directional ones and one area sample
 //! `L_e·cosθ_l·A/d²` per path vertex for sphere and quad lights (soft over the samples of a
 //! pixel). Diffuse albedo is used without 1/π, as in seed 002.
 

@@ -19,6 +19,10 @@ pub struct TraceScene<'a> {
     pub tree: &'a KdTree,
 }
 
+#[allow(
+    clippy::too_many_arguments,
+    reason = "the kernel's arguments, one by one"
+)]
 fn hit_primitive(
     g: &TraceGeometry,
     prim: u32,

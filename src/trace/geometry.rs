@@ -92,12 +92,18 @@ pub struct TraceGeometry {
 }
 
 impl TraceGeometry {
-    /// Static triangles.
+    /// Static triangles. Zero-area ones (a cross product of exactly zero: collinear or
+    /// repeated vertices) keep their id and box but get NaN vertices, which no intersector
+    /// ever hits (the watertight test's rounding could otherwise "hit" a collinear triangle).
     pub fn from_triangles(tris: &[[Vec3; 3]]) -> Self {
         Self {
             tri_verts: tris
                 .iter()
-                .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
+                .flat_map(|t| {
+                    unhittable_if_degenerate(*t)
+                        .into_iter()
+                        .flat_map(|p| p.to_array())
+                })
                 .collect(),
             boxes: tris.iter().map(prim_box).collect(),
             ..Self::default()
@@ -142,7 +148,7 @@ impl TraceGeometry {
                 for (k, tri) in mesh.indices.iter().enumerate() {
                     let i = first + k;
                     let pts = tri.map(|v| m.transform_point3(mesh.positions[v as usize]));
-                    for (c, p) in pts.iter().enumerate() {
+                    for (c, p) in unhittable_if_degenerate(pts).iter().enumerate() {
                         g.tri_verts[9 * i + 3 * c..9 * i + 3 * c + 3]
                             .copy_from_slice(&p.to_array());
                     }
@@ -226,10 +232,35 @@ impl TraceGeometry {
     }
 }
 
+/// NaN vertices for a triangle of zero area (see [`TraceGeometry::from_triangles`]).
+pub fn unhittable_if_degenerate(t: [Vec3; 3]) -> [Vec3; 3] {
+    if (t[1] - t[0]).cross(t[2] - t[0]) == Vec3::ZERO {
+        [Vec3::NAN; 3]
+    } else {
+        t
+    }
+}
+
 /// The box of a sphere, rounded outwards (`c ± r` rounds to nearest).
 pub fn sphere_box(c: Vec3, r: f32) -> Aabb {
     Aabb {
-        min: (c - Vec3::splat(r)).to_array().map(f32::next_down).into(),
-        max: (c + Vec3::splat(r)).to_array().map(f32::next_up).into(),
+        min: (c - Vec3::splat(r))
+            .to_array()
+            .map(|x| step(x, -1.0))
+            .into(),
+        max: (c + Vec3::splat(r)).to_array().map(|x| step(x, 1.0)).into(),
+    }
+}
+
+/// The next float after finite `x` towards `sign`·∞ (`f32::next_up`/`next_down`, MSRV 1.86).
+fn step(x: f32, sign: f32) -> f32 {
+    if x == 0.0 {
+        return sign * f32::from_bits(1);
+    }
+    let bits = x.to_bits();
+    if (x > 0.0) == (sign > 0.0) {
+        f32::from_bits(bits + 1)
+    } else {
+        f32::from_bits(bits - 1)
     }
 }

@@ -113,6 +113,10 @@ impl Tracer {
 
     /// Records the trace of `n` rays into `hits` (both device buffers); `errors[0]` counts
     /// rays that ran out of steps. The caller orders the writes of the inputs before.
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "buffers of the dispatch, one by one"
+    )]
     pub fn record(
         &self,
         rec: &mut Recorder,

@@ -179,3 +179,9 @@ pub fn kdtree_hard_cases() -> Vec<(&'static str, Vec<[glam::Vec3; 3]>)> {
         ("degenerate", degenerate),
     ]
 }
+
+/// The subgroup-size matrix legs (VKRT_TEST_QUICK=1): tests trim what does not depend on
+/// the lane count.
+pub fn quick() -> bool {
+    std::env::var("VKRT_TEST_QUICK").is_ok_and(|v| v == "1")
+}
