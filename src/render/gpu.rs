@@ -82,6 +82,16 @@ pub struct GpuRender {
     pub profile: Profile,
 }
 
+/// A kernel's bindings: `head`, then the geometry buffers `traverse.glsl` declares, then
+/// `tail`.
+fn around_geometry<'a>(
+    head: &[&'a dyn BufferArg],
+    geometry: &[&'a dyn BufferArg],
+    tail: &[&'a dyn BufferArg],
+) -> Vec<&'a dyn BufferArg> {
+    [head, geometry, tail].concat()
+}
+
 impl Renderer {
     pub fn new(ctx: &Context, plan: &Plan, trace: &TraceOptions) -> Result<Self> {
         let opt = effective_options(ctx, trace);
@@ -238,18 +248,7 @@ impl Renderer {
         for depth in 0..=plan.max_depth {
             let spawn = plan.bounces && depth < plan.max_depth;
             rec.scope("render.extend", |rec| {
-                let b: [&dyn BufferArg; 10] = [
-                    &f.queue,
-                    &f.hits,
-                    &f.counters,
-                    g[0],
-                    g[1],
-                    g[2],
-                    g[3],
-                    g[4],
-                    g[5],
-                    g[6],
-                ];
+                let b = around_geometry(&[&f.queue, &f.hits, &f.counters], &g, &[]);
                 rec.dispatch_indirect(&k.extend, &f.counters, args_queue, &b, &());
             });
             if spawn {
@@ -261,43 +260,27 @@ impl Renderer {
             }
             rec.scope("render.shade", |rec| {
                 // shade reads the primitives, not the tree (bindings 3 and 4 are unused)
-                let b: [&dyn BufferArg; 17] = [
-                    &f.queue,
-                    &f.hits,
-                    &f.counters,
-                    g[2],
-                    g[3],
-                    g[4],
-                    g[5],
-                    g[6],
-                    &f.params,
-                    &f.materials,
-                    &f.lights,
-                    &f.prim_material,
-                    &f.tri_normals,
-                    &f.radiance,
-                    &f.shadows,
-                    &f.children,
-                    &f.flags,
-                ];
+                let b = around_geometry(
+                    &[&f.queue, &f.hits, &f.counters],
+                    &g[2..],
+                    &[
+                        &f.params,
+                        &f.materials,
+                        &f.lights,
+                        &f.prim_material,
+                        &f.tri_normals,
+                        &f.radiance,
+                        &f.shadows,
+                        &f.children,
+                        &f.flags,
+                    ],
+                );
                 rec.dispatch_indirect(&k.shade, &f.counters, args_queue, &b, &());
             });
             rec.compute_to_compute();
             if plan.shadow_slots > 0 {
                 rec.scope("render.shadow", |rec| {
-                    let b: [&dyn BufferArg; 11] = [
-                        &f.shadows,
-                        &f.params,
-                        &f.counters,
-                        g[0],
-                        g[1],
-                        g[2],
-                        g[3],
-                        g[4],
-                        g[5],
-                        g[6],
-                        &f.queue,
-                    ];
+                    let b = around_geometry(&[&f.shadows, &f.params, &f.counters], &g, &[&f.queue]);
                     rec.dispatch_indirect(&k.shadow, &f.counters, args_shadow, &b, &());
                 });
                 rec.compute_to_compute();
