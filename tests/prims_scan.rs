@@ -161,6 +161,55 @@ fn compaction_of_one_to_four_soa_arrays_equals_cpu_twin() {
     common::assert_silent(&ctx);
 }
 
+/// Compaction over a count that lives on the GPU (`record_counted`): only the first
+/// `ceil(count · mul / div)` flags count, whatever the flags beyond say.
+#[test]
+fn counted_compaction_uses_the_gpu_count() {
+    use vkrt::gpu::{Buffer, BufferArg, Recorder};
+    use vkrt::prims::scan::GpuCount;
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(41);
+    for cfg in configs(&ctx) {
+        let compact = Compact::new(&ctx, cfg).unwrap();
+        let tile = 4 * cfg.tile() as usize;
+        let capacity = 3 * tile + 5;
+        let flags: Vec<u8> = (0..capacity)
+            .map(|_| (rng.next_u64() % 3 == 0) as u8)
+            .collect();
+        let data: Vec<u32> = (0..capacity as u32).collect();
+        let flag_buf = Buffer::from_slice(&ctx, "flags", &flags).unwrap();
+        let input = Buffer::from_slice(&ctx, "in", &data).unwrap();
+        for live in [0usize, 1, 7, tile / 2 + 1, tile + 3, capacity / 2] {
+            // counts[1] = live; n = 2 · live (as the renderer's two child slots per ray)
+            let counts = Buffer::from_slice(&ctx, "counts", &[99u32, live as u32]).unwrap();
+            let out = Buffer::<u32>::zeroed(&ctx, "out", capacity).unwrap();
+            let scratch = compact.scratch(&ctx, capacity).unwrap();
+            let mut rec = Recorder::new(&ctx).unwrap();
+            let count = GpuCount {
+                counts: &counts,
+                index: 1,
+                mul: 2,
+                div: 1,
+            };
+            let ins: [&dyn BufferArg; 1] = [&input];
+            let outs: [&dyn BufferArg; 1] = [&out];
+            compact.record_counted(&mut rec, &flag_buf, capacity, count, &ins, &outs, &scratch);
+            rec.compute_to_transfer();
+            rec.submit_and_wait().unwrap();
+            let n = (2 * live).min(capacity);
+            let want = compact_cpu(&flags[..n], &[&data[..n]]).remove(0);
+            let kept = scratch.count().download().unwrap()[0] as usize;
+            assert_eq!(kept, want.len(), "{cfg:?} live={live}");
+            assert_eq!(
+                &out.download().unwrap()[..kept],
+                &want[..],
+                "{cfg:?} live={live}"
+            );
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
 #[test]
 fn scan_works_in_place_and_past_every_level() {
     let Some(ctx) = common::context() else { return };

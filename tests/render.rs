@@ -173,3 +173,24 @@ fn default_scene_renders() {
     assert!(r.image.counts.reflection > 0 && r.image.counts.refraction > 0);
     assert!(r.passes.iter().any(|p| p.name == "shadow" && p.rays > 0));
 }
+
+/// A wave whose children outgrow the queue stops, and the sample is redone with smaller
+/// waves: the image is the same as with room to spare (waves never change the image).
+#[test]
+fn queue_overflow_redoes_the_sample_with_the_same_result() {
+    let Some(ctx) = context() else { return };
+    // Glass and a mirror make the queue grow; two bounces bound a pixel's tree by 4 rays.
+    let mut scene = Scene::default_scene();
+    scene.settings.max_depth = 2;
+    let (plan, rs) = prepare(&scene, &small(2));
+    let roomy = gpu_render(&ctx, &plan, &rs);
+    let mut tight = plan.clone();
+    // 16 pixels per wave fill a 16-ray queue; the waves over the glass sphere overflow.
+    tight.queue_capacity = 16;
+    tight.wave_pixels = 16;
+    let retried = gpu_render(&ctx, &tight, &rs);
+    assert_eq!(roomy.rgba, retried.rgba);
+    assert_eq!(roomy.counts, retried.counts);
+    assert_eq!(roomy.redone_samples, 0);
+    assert!(retried.redone_samples > 0, "the overflow path did not run");
+}

@@ -31,17 +31,27 @@ layout(std430, binding = 8) writeonly buffer Dst2 { uint dst2[]; };
 #if ARRAYS >= 4
 layout(std430, binding = 9) writeonly buffer Dst3 { uint dst3[]; };
 #endif
-layout(push_constant) uniform Push { uint n; } pc;
+// The element count: the capacity, or read from the GPU (common/gpu_count.glsl).
+layout(std430, binding = 10) readonly buffer Counts { uint counts[]; };
+layout(push_constant) uniform Push {
+    uint capacity;
+    uint count_index;
+    uint count_mul;
+    uint count_div;
+} pc;
+#include "common/gpu_count.glsl"
 
 void main() {
     uint word = linear_invocation_id();
-    if (4 * word >= pc.n) {
+    uint n = gpu_count(pc.capacity, pc.count_div == 0u ? 0u : counts[pc.count_index],
+                       pc.count_mul, pc.count_div);
+    if (4 * word >= n) {
         return;
     }
     uint bits = flags[word];
     for (uint k = 0; k < 4; k++) {
         uint e = 4 * word + k;
-        if (e < pc.n && ((bits >> (8 * k)) & 0xffu) != 0) {
+        if (e < n && ((bits >> (8 * k)) & 0xffu) != 0) {
             uint o = offsets[e];
             dst0[o] = src0[e];
 #if ARRAYS >= 2

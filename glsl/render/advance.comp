@@ -7,10 +7,15 @@ layout(local_size_x = 1) in;
 layout(std430, binding = 0) readonly buffer Live { uint live_count[]; };
 layout(std430, binding = 1) readonly buffer Params { RenderParams prm; };
 layout(std430, binding = 2) buffer Counters { uint counters[]; };
-layout(push_constant) uniform Push { uint wg; } pc;
+layout(push_constant) uniform Push { uint wg; uint capacity; } pc;
 
 void main() {
     uint n = live_count[0];
+    if (n > pc.capacity) {
+        // Stop the wave cleanly; the host sees the flag and redoes the sample smaller.
+        counters[CNT_OVERFLOW] = 1u;
+        n = 0u;
+    }
     counters[CNT_QUEUE] = n;
     uvec3 g = fold_groups(n, pc.wg);
     counters[CNT_ARGS_QUEUE] = g.x;

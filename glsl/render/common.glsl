@@ -96,6 +96,7 @@ struct RenderParams {
 #define CNT_EXHAUSTED 7u
 #define CNT_ARGS_QUEUE 8u     // 3 words: workgroups over the queue
 #define CNT_ARGS_SHADOW 11u   // 3 words: workgroups over the queue's shadow slots
+#define CNT_OVERFLOW 14u     // a wave's children outgrew the queue: redo the sample
 #define CNT_WORDS 16u
 
 // PCG hash (Jarzynski & Olano 2020).

@@ -7,7 +7,7 @@
 
 use std::sync::Arc;
 
-use super::scan::{Scan, ScanInput, ScanOp, ScanScratch};
+use super::scan::{GpuCount, Scan, ScanInput, ScanOp, ScanScratch};
 use super::PrimConfig;
 use crate::gpu::{kernels, Buffer, BufferArg, Context, Kernel, Recorder, Result, Spec};
 
@@ -65,27 +65,84 @@ impl Compact {
         outputs: &[&dyn BufferArg],
         scratch: &CompactScratch,
     ) {
+        self.record_impl(rec, flags, n, None, inputs, outputs, scratch);
+    }
+
+    /// Like [`Compact::record`] over the first `count` elements, a count that lives on the
+    /// GPU (at most `capacity`): dispatches are recorded for the capacity, the work follows
+    /// the count, so a caller chains compactions without read-backs and without paying for
+    /// empty slots.
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "record's arguments plus the count"
+    )]
+    pub fn record_counted(
+        &self,
+        rec: &mut Recorder,
+        flags: &dyn BufferArg,
+        capacity: usize,
+        count: GpuCount,
+        inputs: &[&dyn BufferArg],
+        outputs: &[&dyn BufferArg],
+        scratch: &CompactScratch,
+    ) {
+        self.record_impl(rec, flags, capacity, Some(count), inputs, outputs, scratch);
+    }
+
+    #[allow(clippy::too_many_arguments, reason = "the union of both entry points")]
+    fn record_impl(
+        &self,
+        rec: &mut Recorder,
+        flags: &dyn BufferArg,
+        n: usize,
+        count: Option<GpuCount>,
+        inputs: &[&dyn BufferArg],
+        outputs: &[&dyn BufferArg],
+        scratch: &CompactScratch,
+    ) {
         assert!(
             !inputs.is_empty() && inputs.len() <= MAX_ARRAYS && inputs.len() == outputs.len(),
             "compaction moves 1 to {MAX_ARRAYS} arrays, with one output per input"
         );
         rec.scope("prims.compact", |rec| {
-            self.scan.record(
-                rec,
-                flags,
-                &scratch.offsets,
-                n,
-                ScanOp::Exclusive,
-                &scratch.scan,
-            );
+            match count {
+                Some(c) => self.scan.record_counted(
+                    rec,
+                    flags,
+                    &scratch.offsets,
+                    n,
+                    c,
+                    ScanOp::Exclusive,
+                    &scratch.scan,
+                ),
+                None => self.scan.record(
+                    rec,
+                    flags,
+                    &scratch.offsets,
+                    n,
+                    ScanOp::Exclusive,
+                    &scratch.scan,
+                ),
+            }
             rec.compute_to_compute();
+            // Bindings 0..=1, the inputs from 2, the outputs from 6, the counts at 10.
             let mut bindings: Vec<&dyn BufferArg> = vec![flags, &scratch.offsets];
             bindings.extend_from_slice(inputs);
             bindings.extend_from_slice(outputs);
+            let push = match count {
+                Some(c) => {
+                    bindings.push(c.counts);
+                    [n as u32, c.index, c.mul, c.div]
+                }
+                None => {
+                    bindings.push(&scratch.offsets);
+                    [n as u32, 0, 0, 0]
+                }
+            };
             let kernel = &self.scatter[inputs.len() - 1];
             let groups = rec.groups_1d(n.div_ceil(4) as u64, kernel.invocations());
             rec.scope("prims.compact_scatter", |rec| {
-                rec.dispatch(kernel, groups, &bindings, &(n as u32));
+                rec.dispatch(kernel, groups, &bindings, &push);
             });
         });
     }

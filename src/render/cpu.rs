@@ -114,6 +114,8 @@ pub fn render(rs: &RenderScene, plan: &Plan, trace_opt: &TraceOptions) -> CpuRen
     };
     let total = n_pixels as u32;
     for sample in 0..plan.spp {
+        // Waves only bound memory: a pixel's rays never cross waves, so the image does not
+        // depend on their size (the GPU shrinks them on overflow).
         for wave in 0..plan.waves() {
             let first = wave * plan.wave_pixels;
             let pixels = (total - first).min(plan.wave_pixels);

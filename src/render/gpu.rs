@@ -7,6 +7,7 @@ use std::sync::Arc;
 
 use crate::gpu::{kernels, Buffer, BufferArg, Context, Kernel, Profile, Recorder, Result, Spec};
 use crate::prims::compact::{Compact, CompactScratch};
+use crate::prims::scan::GpuCount;
 use crate::prims::PrimConfig;
 use crate::trace::gpu::{effective_options, traversal_spec, GpuGeometry};
 use crate::trace::{Hit, Query, TraceOptions};
@@ -69,6 +70,9 @@ struct Frame {
     compact: CompactScratch,
     counters: Buffer<u32>,
     accum: Buffer<[f32; 4]>,
+    /// `accum` and `counters` before the current sample, restored when it overflows.
+    accum_before: Buffer<[f32; 4]>,
+    counters_before: Buffer<u32>,
     pixels: Buffer<u32>,
 }
 
@@ -80,6 +84,8 @@ pub struct GpuRender {
     pub rgba: Vec<u8>,
     pub counts: RayCounts,
     pub profile: Profile,
+    /// Samples redone with smaller waves after a queue overflow.
+    pub redone_samples: u32,
 }
 
 /// A kernel's bindings: `head`, then the geometry buffers `traverse.glsl` declares, then
@@ -143,7 +149,7 @@ impl Renderer {
     }
 
     fn frame(&self, ctx: &Context, rs: &RenderScene, plan: &Plan) -> Result<Frame> {
-        let cap = plan.queue_capacity();
+        let cap = plan.queue_capacity;
         let slots = plan.shadow_slots as usize;
         let pixels = plan.width as usize * plan.height as usize;
         let iota: Vec<u32> = (0..2 * cap as u32).collect();
@@ -165,6 +171,8 @@ impl Renderer {
             compact: self.compact.scratch(ctx, 2 * cap)?,
             counters: Buffer::zeroed(ctx, "render.counters", counter::WORDS)?,
             accum: Buffer::zeroed(ctx, "render.accum", pixels)?,
+            accum_before: Buffer::new(ctx, "render.accum_before", pixels)?,
+            counters_before: Buffer::new(ctx, "render.counters_before", counter::WORDS)?,
             pixels: Buffer::new(ctx, "render.pixels", pixels)?,
         })
     }
@@ -179,29 +187,62 @@ impl Renderer {
     ) -> Result<GpuRender> {
         let f = self.frame(ctx, rs, plan)?;
         let mut profile = Profile::default();
-        for sample in 0..plan.spp {
+        let pixels = plan.width * plan.height;
+        let mut wave_pixels = plan.wave_pixels;
+        let mut redone_samples = 0;
+        let mut sample = 0;
+        while sample < plan.spp {
             let mut rec = Recorder::new(ctx)?;
+            rec.compute_to_transfer();
+            rec.copy(&f.accum, &f.accum_before, pixels as usize);
+            rec.copy(&f.counters, &f.counters_before, counter::WORDS);
+            rec.transfer_to_compute();
             rec.scope("render.sample", |rec| {
-                for wave in 0..plan.waves() {
-                    self.record_wave(rec, &f, plan, sample, wave);
+                for wave in 0..plan.waves_of(wave_pixels) {
+                    self.record_wave(rec, &f, plan, wave_pixels, sample, wave);
                 }
             });
-            if sample + 1 == plan.spp {
-                rec.compute_to_compute();
-                let n = plan.width * plan.height;
-                rec.scope("render.tonemap", |rec| {
-                    let groups = rec.groups_1d(n as u64, WG);
-                    let push = TonemapPush {
-                        n,
-                        inv_spp: 1.0 / plan.spp as f32,
-                    };
-                    rec.dispatch(&self.k.tonemap, groups, &[&f.accum, &f.pixels], &push);
-                });
-            }
             rec.compute_to_transfer();
-            profile.append(rec.submit_and_wait()?);
-            progress(sample + 1);
+            rec.compute_to_host();
+            let p = rec.submit_and_wait()?;
+            if f.counters.download()?[counter::OVERFLOW] != 0 {
+                // A wave's queue overflowed: undo the sample, redo it with smaller waves.
+                if wave_pixels == 1 {
+                    return Err(crate::gpu::GpuError::Kernel {
+                        kernel: "render",
+                        reason: format!(
+                            "one pixel's bounce tree needs more than {} rays at one depth: \
+                             lower settings.max_depth",
+                            plan.queue_capacity
+                        ),
+                    });
+                }
+                wave_pixels = (wave_pixels / 4).max(1);
+                redone_samples += 1;
+                let mut rec = Recorder::new(ctx)?;
+                rec.compute_to_transfer();
+                rec.copy(&f.accum_before, &f.accum, pixels as usize);
+                rec.copy(&f.counters_before, &f.counters, counter::WORDS);
+                rec.transfer_to_host();
+                rec.submit_and_wait()?;
+                continue;
+            }
+            profile.append(p);
+            sample += 1;
+            progress(sample);
         }
+        let mut rec = Recorder::new(ctx)?;
+        rec.compute_to_compute();
+        rec.scope("render.tonemap", |rec| {
+            let groups = rec.groups_1d(pixels as u64, WG);
+            let push = TonemapPush {
+                n: pixels,
+                inv_spp: 1.0 / plan.spp as f32,
+            };
+            rec.dispatch(&self.k.tonemap, groups, &[&f.accum, &f.pixels], &push);
+        });
+        rec.compute_to_transfer();
+        profile.append(rec.submit_and_wait()?);
         let inv = 1.0 / plan.spp as f32;
         let radiance = f
             .accum
@@ -216,14 +257,23 @@ impl Renderer {
             rgba,
             counts: RayCounts::from_counters(&c),
             profile,
+            redone_samples,
         })
     }
 
-    fn record_wave(&self, rec: &mut Recorder, f: &Frame, plan: &Plan, sample: u32, wave: u32) {
+    fn record_wave(
+        &self,
+        rec: &mut Recorder,
+        f: &Frame,
+        plan: &Plan,
+        wave_pixels: u32,
+        sample: u32,
+        wave: u32,
+    ) {
         let k = &self.k;
         let total = plan.width as u64 * plan.height as u64;
-        let first = wave as u64 * plan.wave_pixels as u64;
-        let pixels = (total - first).min(plan.wave_pixels as u64) as u32;
+        let first = wave as u64 * wave_pixels as u64;
+        let pixels = (total - first).min(wave_pixels as u64) as u32;
         let g = f.geom.bindings();
         rec.compute_to_compute();
         rec.scope("render.camera", |rec| {
@@ -300,13 +350,28 @@ impl Renderer {
                 continue;
             }
             rec.compute_to_compute();
-            let slots = 2 * capacity;
+            let slots = 2 * capacity.min(plan.queue_capacity);
             rec.scope("render.compact", |rec| {
-                self.compact
-                    .record(rec, &f.flags, slots, &[&f.iota], &[&f.live], &f.compact);
+                // two child slots per live ray: the work follows the live count
+                let live = GpuCount {
+                    counts: &f.counters,
+                    index: counter::QUEUE as u32,
+                    mul: 2,
+                    div: 1,
+                };
+                self.compact.record_counted(
+                    rec,
+                    &f.flags,
+                    slots,
+                    live,
+                    &[&f.iota],
+                    &[&f.live],
+                    &f.compact,
+                );
                 rec.compute_to_compute();
                 let b: [&dyn BufferArg; 3] = [f.compact.count(), &f.params, &f.counters];
-                rec.dispatch(&k.advance, [1, 1, 1], &b, &WG);
+                let push = [WG, plan.queue_capacity as u32];
+                rec.dispatch(&k.advance, [1, 1, 1], &b, &push);
             });
             rec.compute_to_indirect();
             rec.scope("render.gather", |rec| {
@@ -314,7 +379,7 @@ impl Renderer {
                 rec.dispatch_indirect(&k.gather, &f.counters, args_queue, &b, &());
             });
             rec.compute_to_indirect();
-            capacity *= plan.branching as usize;
+            capacity = capacity.saturating_mul(plan.branching as usize);
         }
     }
 }

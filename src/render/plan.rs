@@ -55,8 +55,10 @@ pub struct Plan {
     pub shadow_slots: u32,
     /// Children one ray can spawn (2 with refraction: reflected + refracted).
     pub branching: u32,
-    /// Pixels traced together (one sample each) so that a wave's bounce tree fits.
+    /// Pixels traced together (one sample each) at first; smaller after an overflow.
     pub wave_pixels: u32,
+    /// Rays a wave's queue holds at any bounce.
+    pub queue_capacity: usize,
     /// The passes that run, in order.
     pub passes: Vec<&'static str>,
     /// Notes for the user (e.g. a requested spp that the scene does not need).
@@ -66,8 +68,8 @@ pub struct Plan {
 /// Why a scene cannot be rendered.
 #[derive(Debug, thiserror::Error)]
 pub enum PlanError {
-    #[error("{0}")]
-    TooDeep(String),
+    #[error("image size {0}x{1}: width and height must be at least 1")]
+    EmptyImage(u32, u32),
 }
 
 impl Plan {
@@ -103,17 +105,19 @@ impl Plan {
         let refraction = fx.refraction || all;
         let branching = if refraction { 2u32 } else { 1 };
         let bounces = max_depth > 0 && (secondary || all);
-        let tree = (branching as f64).powi(if bounces { max_depth as i32 } else { 0 });
-        let by_shadows = (WAVE_SHADOW_BYTES / (48 * shadow_slots.max(1) as usize)).min(WAVE_RAYS);
-        let wave = (by_shadows as f64 / tree).floor();
+        let queue_capacity =
+            (WAVE_SHADOW_BYTES / (48 * shadow_slots.max(1) as usize)).clamp(1, WAVE_RAYS);
         let (width, height) = (opt.width.unwrap_or(s.width), opt.height.unwrap_or(s.height));
-        if wave < 1.0 {
-            return Err(PlanError::TooDeep(format!(
-                "max_depth {max_depth} with refraction lets one pixel spawn up to 2^{max_depth} \
-                 rays, more than a wave holds ({by_shadows} rays): lower settings.max_depth"
-            )));
+        // Waves start with room for the queue to grow 4× (two branching bounces); a wave that
+        // outgrows its queue stops, and the renderer redoes the sample with smaller waves.
+        if width == 0 || height == 0 {
+            return Err(PlanError::EmptyImage(width, height));
         }
-        let wave_pixels = (wave as u64).min(width as u64 * height as u64).max(1) as u32;
+        let depth = if bounces { max_depth } else { 0 };
+        let growth = (branching as usize).pow(depth.min(2));
+        let wave_pixels = (queue_capacity / growth)
+            .min(width as usize * height as usize)
+            .max(1) as u32;
         let mut passes = vec!["camera", "extend", "shade"];
         if shadow_slots > 0 {
             passes.push("shadow");
@@ -146,19 +150,20 @@ impl Plan {
             shadow_slots,
             branching,
             wave_pixels,
+            queue_capacity,
             passes,
             notes,
         })
     }
 
-    /// Rays a wave's queue can hold at its deepest bounce.
-    pub fn queue_capacity(&self) -> usize {
-        self.wave_pixels as usize * (self.branching as usize).pow(self.max_depth)
+    /// Waves per sample with waves of `wave_pixels`.
+    pub fn waves_of(&self, wave_pixels: u32) -> u32 {
+        ((self.width as u64 * self.height as u64).div_ceil(wave_pixels.max(1) as u64)) as u32
     }
 
-    /// Waves per sample.
+    /// Waves per sample at the plan's wave size.
     pub fn waves(&self) -> u32 {
-        ((self.width as u64 * self.height as u64).div_ceil(self.wave_pixels as u64)) as u32
+        self.waves_of(self.wave_pixels)
     }
 }
 
@@ -179,13 +184,15 @@ impl fmt::Display for Plan {
         }
         writeln!(
             f,
-            "image {}x{}, {} sample(s)/pixel, {} bounce(s), waves of {} pixels ({} per sample)",
+            "image {}x{}, {} sample(s)/pixel, {} bounce(s), waves of {} pixels ({} per sample, \
+             queues of {} rays)",
             self.width,
             self.height,
             self.spp,
             self.max_depth,
             self.wave_pixels,
-            self.waves()
+            self.waves(),
+            self.queue_capacity
         )?;
         writeln!(f, "passes: {}", self.passes.join(" → "))?;
         writeln!(

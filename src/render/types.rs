@@ -112,6 +112,7 @@ pub mod counter {
     pub const EXHAUSTED: usize = 7;
     pub const ARGS_QUEUE: usize = 8;
     pub const ARGS_SHADOW: usize = 11;
+    pub const OVERFLOW: usize = 14;
     pub const WORDS: usize = 16;
 }
 
