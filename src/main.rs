@@ -132,6 +132,19 @@ enum BenchCommand {
         #[arg(long)]
         profile: Option<PathBuf>,
     },
+    /// What each effect costs and what the plan saves: every example scene (scenes/EFFECT.toml)
+    /// as planned, without its effect, and with --all-effects, measured in one run.
+    Render {
+        /// Folder of the example scenes.
+        #[arg(long, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes"))]
+        scenes: PathBuf,
+        #[arg(long, default_value_t = 256)]
+        width: u32,
+        #[arg(long, default_value_t = 192)]
+        height: u32,
+        #[arg(long)]
+        json: bool,
+    },
     /// Every GPU primitive against the copy baselines of the same bytes, n = 2^16 .. max-n.
     Prims {
         /// Largest n (rounded down to a power of two).
@@ -395,6 +408,57 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     if info.timestamps { "yes" } else { "no" },
                     info.timestamp_period_ns
                 );
+            }
+        }
+        Command::Bench {
+            what:
+                BenchCommand::Render {
+                    scenes,
+                    width,
+                    height,
+                    json,
+                },
+        } => {
+            let mut list = Vec::new();
+            for effect in vkrt::scene::Effects::ALL_NAMES {
+                let path = scenes.join(format!("{effect}.toml"));
+                if path.exists() {
+                    let scene = vkrt::scene::Scene::load(&path)?.scene;
+                    list.push((format!("{effect}.toml"), scene, effect.to_string()));
+                }
+            }
+            if list.is_empty() {
+                return Err(
+                    format!("no effect scenes (EFFECT.toml) in {}", scenes.display()).into(),
+                );
+            }
+            let ctx = context(cli.validate)?;
+            let rows = vkrt::render::bench::effect_costs(&ctx, &list, width, height)
+                .map_err(|e| e.to_string())?;
+            if json {
+                println!(
+                    "{}",
+                    serde_json::to_string_pretty(&serde_json::json!({ "results": rows }))?
+                );
+            } else {
+                println!(
+                    "{:<24} {:>4} {:>10} {:>10} {:>10} {:>8} {:>9} {:>8}",
+                    "scene", "spp", "plan ms", "w/o ms", "all ms", "Mrays/s", "cost", "saves"
+                );
+                for r in &rows {
+                    println!(
+                        "{:<24} {:>4} {:>10.1} {:>10.1} {:>10.1} {:>8.2} {:>8.2}x {:>7.2}x",
+                        r.scene,
+                        r.spp,
+                        r.plan_ms,
+                        r.without_ms,
+                        r.all_effects_ms,
+                        r.mrays_per_s,
+                        r.effect_cost,
+                        r.planning_saves
+                    );
+                }
+                println!("cost = plan / without the effect (same spp); saves = all-effects / plan");
             }
         }
         Command::Bench {

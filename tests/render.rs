@@ -194,3 +194,27 @@ fn queue_overflow_redoes_the_sample_with_the_same_result() {
     assert_eq!(roomy.redone_samples, 0);
     assert!(retried.redone_samples > 0, "the overflow path did not run");
 }
+
+/// `vkrt bench render` compares each example scene with its effect taken out: the stripped
+/// scene must really lack that effect (and keep the others).
+#[test]
+fn bench_strips_exactly_the_effect() {
+    for effect in vkrt::scene::Effects::ALL_NAMES {
+        let scene = scene_file(&format!("{effect}.toml"));
+        let fx = scene.effects();
+        assert!(fx.has(effect), "{effect}.toml does not call for {effect}");
+        let stripped = vkrt::render::bench::without_effect(&scene, effect).effects();
+        assert!(!stripped.has(effect), "{effect} still on after stripping");
+        for other in fx.names() {
+            // glass's Fresnel reflection goes with its refraction
+            let coupled = (effect.ends_with("shadows") && other.ends_with("shadows"))
+                || (effect == "refraction" && other == "reflection");
+            if other != effect && !coupled {
+                assert!(
+                    stripped.has(other),
+                    "stripping {effect} also removed {other}"
+                );
+            }
+        }
+    }
+}
