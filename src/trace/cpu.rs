@@ -19,6 +19,7 @@ pub struct TraceScene<'a> {
     pub tree: &'a KdTree,
 }
 
+#[allow(clippy::too_many_arguments)]
 fn hit_primitive(
     g: &TraceGeometry,
     prim: u32,

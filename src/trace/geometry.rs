@@ -229,7 +229,24 @@ impl TraceGeometry {
 /// The box of a sphere, rounded outwards (`c ± r` rounds to nearest).
 pub fn sphere_box(c: Vec3, r: f32) -> Aabb {
     Aabb {
-        min: (c - Vec3::splat(r)).to_array().map(f32::next_down).into(),
-        max: (c + Vec3::splat(r)).to_array().map(f32::next_up).into(),
+        min: (c - Vec3::splat(r)).to_array().map(next_down).into(),
+        max: (c + Vec3::splat(r)).to_array().map(next_up).into(),
     }
+}
+
+/// The next float towards +inf (`f32::next_up`, stable only since Rust 1.86; MSRV 1.85).
+pub fn next_up(x: f32) -> f32 {
+    if x.is_nan() || x == f32::INFINITY {
+        return x;
+    }
+    if x == 0.0 {
+        return f32::from_bits(1);
+    }
+    let b = x.to_bits();
+    f32::from_bits(if x > 0.0 { b + 1 } else { b - 1 })
+}
+
+/// The next float towards -inf (`f32::next_down`).
+pub fn next_down(x: f32) -> f32 {
+    -next_up(-x)
 }
