@@ -88,7 +88,8 @@ Shear make_shear(vec3 d) {
 
 // Watertight: a ray through a shared edge or vertex hits at least one of the triangles that
 // share it (edge functions of zero count as inside on both sides, and a*b - c*d is the exact
-// negation of c*d - a*b in IEEE arithmetic). Degenerate triangles (det = 0) never hit.
+// negation of c*d - a*b in IEEE arithmetic). Degenerate triangles (det = 0, or a zero
+// cross product of the edges) never hit.
 bool hit_triangle_watertight(vec3 o, Shear s, vec3 p0, vec3 p1, vec3 p2, float tmin,
                              float tmax, out float t, out float u, out float v) {
     precise vec3 a = p0 - o;
@@ -129,6 +130,13 @@ bool hit_triangle_watertight(vec3 o, Shear s, vec3 p0, vec3 p1, vec3 p2, float t
     precise float tt = e0 * az + e1 * bz + e2 * cz;
     precise float hit_t = tt / det;
     if (!(hit_t >= tmin && hit_t <= tmax)) {
+        return false;
+    }
+    // A triangle of zero area (collinear or repeated vertices: the edges' cross product is
+    // exactly zero) passes the 2-D test by rounding when the ray crosses its line, at a
+    // meaningless t: it never hits. Tested only for candidates that passed everything else.
+    precise vec3 n = cross(p1 - p0, p2 - p0);
+    if (n.x == 0.0 && n.y == 0.0 && n.z == 0.0) {
         return false;
     }
     precise float inv = 1.0 / det;

@@ -89,6 +89,10 @@ pub fn triangle_watertight(
     if !(t >= tmin && t <= tmax) {
         return None;
     }
+    // Zero area (collinear or repeated vertices): never a hit, whatever the rounding says.
+    if cross(p1 - p0, p2 - p0) == Vec3::ZERO {
+        return None;
+    }
     let inv = 1.0 / det;
     Some((t, e1 * inv, e2 * inv))
 }
