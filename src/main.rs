@@ -132,6 +132,16 @@ enum BenchCommand {
         #[arg(long)]
         profile: Option<PathBuf>,
     },
+    /// The robustness suite (watertightness, self-intersection, parallel/in-plane rays,
+    /// degenerate geometry, builder stress, bad rays) for both ray/triangle tests: rays,
+    /// failures and GPU trace time per case.
+    Robustness {
+        /// The integration test's smaller sizes (a 100K soup instead of 2M, fewer rays).
+        #[arg(long)]
+        quick: bool,
+        #[arg(long)]
+        json: bool,
+    },
     /// Every GPU primitive against the copy baselines of the same bytes, n = 2^16 .. max-n.
     Prims {
         /// Largest n (rounded down to a power of two).
@@ -409,6 +419,66 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     if !eq {
                         return Err("the GPU tree differs from its CPU twin".into());
                     }
+                }
+            }
+        }
+        Command::Bench {
+            what: BenchCommand::Robustness { quick, json },
+        } => {
+            use vkrt::trace::robust::{run_all, SuiteSize};
+            let ctx = context(cli.validate)?;
+            let size = if quick {
+                SuiteSize::test()
+            } else {
+                SuiteSize::default()
+            };
+            let cases = run_all(&ctx, &size, &vkrt::trace::Intersector::ALL)?;
+            // Cost of NaN/Inf rays relative to valid rays into the same scene.
+            let ratio = |name: &str| {
+                let ms = |case: &str| {
+                    cases
+                        .iter()
+                        .find(|c| c.case == case && c.intersector == name)
+                        .map(|c| c.trace_ms)
+                };
+                Some(ms("bad-rays/nan-inf-zero-inverted")? / ms("bad-rays/baseline-valid")?)
+            };
+            let ratios: serde_json::Map<String, serde_json::Value> = vkrt::trace::Intersector::ALL
+                .iter()
+                .filter_map(|i| Some((i.name().to_string(), ratio(i.name())?.into())))
+                .collect();
+            if json {
+                let v = serde_json::json!({ "cases": cases, "bad_ray_cost_ratio": ratios });
+                println!("{}", serde_json::to_string_pretty(&v)?);
+            } else {
+                println!("{}", ctx.info().device);
+                println!(
+                    "{:<52} {:<16} {:>9} {:>9} {:<13} {:>7} {:>10}",
+                    "case", "intersector", "rays", "failures", "(kind)", "errors", "trace ms"
+                );
+                for c in &cases {
+                    println!(
+                        "{:<52} {:<16} {:>9} {:>9} {:<13} {:>7} {:>10.2}{}{}",
+                        c.case,
+                        c.intersector,
+                        c.rays,
+                        c.failures,
+                        c.failure_kind,
+                        c.errors,
+                        c.trace_ms,
+                        if c.known_limit { "  (known limit)" } else { "" },
+                        if c.note.is_empty() {
+                            String::new()
+                        } else {
+                            format!("  [{}]", c.note)
+                        }
+                    );
+                }
+                for (name, r) in &ratios {
+                    println!(
+                        "bad rays cost {:.3}x valid rays ({name})",
+                        r.as_f64().unwrap_or(0.0)
+                    );
                 }
             }
         }

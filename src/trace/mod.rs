@@ -17,6 +17,7 @@ pub mod files;
 pub mod geometry;
 pub mod gpu;
 pub mod intersect;
+pub mod robust;
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
