@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand};
+use clap::{Parser, Subcommand, ValueEnum};
 use vkrt::gpu::{Context, ContextOptions, Profile, Validation};
 
 #[derive(Parser)]
@@ -83,6 +83,35 @@ enum Command {
         #[arg(long)]
         profile: Option<PathBuf>,
     },
+    /// Trace a batch of rays against a scene on the GPU (kd-tree built on the GPU) and write
+    /// the hits.
+    ///
+    /// Rays: `.rays` (little-endian, 8 f32 per ray: ox oy oz tmin dx dy dz tmax) or `.csv`
+    /// (`ox,oy,oz,dx,dy,dz[,tmin,tmax]`). Hits: binary, 16 bytes per ray (t f32, prim u32,
+    /// u f32, v f32; t = inf and prim = 4294967295 for a miss), or `.csv` by extension.
+    /// Rays with NaN/Inf components are misses. Moving geometry is placed at the camera's
+    /// shutter-open time.
+    Trace {
+        /// Scene (.toml, .obj, seed-002 text).
+        scene: PathBuf,
+        /// The ray file (.rays or .csv).
+        #[arg(long)]
+        rays: PathBuf,
+        /// Where to write the hits (.csv for text, anything else binary); written atomically.
+        #[arg(long)]
+        out: Option<PathBuf>,
+        /// Any-hit (shadow / visibility) queries instead of closest hit.
+        #[arg(long)]
+        any_hit: bool,
+        /// The ray/triangle test.
+        #[arg(long, value_enum, default_value_t = IntersectorArg::Watertight)]
+        intersector: IntersectorArg,
+        /// Rays per GPU batch (default and maximum: what fits the device's buffer limit).
+        #[arg(long, hide = true)]
+        batch_rays: Option<usize>,
+        #[arg(long)]
+        json: bool,
+    },
     /// Measure GPU baselines and primitives.
     Bench {
         #[command(subcommand)]
@@ -145,6 +174,16 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// The robustness suite (watertightness, self-intersection, parallel/in-plane rays,
+    /// degenerate geometry, builder stress, bad rays) for both ray/triangle tests: rays,
+    /// failures and GPU trace time per case.
+    Robustness {
+        /// The integration test's smaller sizes (a 100K soup instead of 2M, fewer rays).
+        #[arg(long)]
+        quick: bool,
+        #[arg(long)]
+        json: bool,
+    },
     /// Every GPU primitive against the copy baselines of the same bytes, n = 2^16 .. max-n.
     Prims {
         /// Largest n (rounded down to a power of two).
@@ -168,6 +207,23 @@ enum BenchCommand {
         #[arg(long)]
         profile: Option<PathBuf>,
     },
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum IntersectorArg {
+    /// Woop, Benthin & Wald 2013 (no ray slips between triangles sharing an edge).
+    Watertight,
+    /// Möller–Trumbore 1997 (faster, not watertight).
+    MollerTrumbore,
+}
+
+impl From<IntersectorArg> for vkrt::trace::Intersector {
+    fn from(a: IntersectorArg) -> Self {
+        match a {
+            IntersectorArg::Watertight => Self::Watertight,
+            IntersectorArg::MollerTrumbore => Self::MollerTrumbore,
+        }
+    }
 }
 
 fn main() -> ExitCode {
@@ -615,6 +671,94 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             }
         }
         Command::Bench {
+            what: BenchCommand::Robustness { quick, json },
+        } => {
+            use vkrt::trace::robust::{run_all, SuiteSize};
+            let ctx = context(cli.validate)?;
+            let size = if quick {
+                SuiteSize::test()
+            } else {
+                SuiteSize::default()
+            };
+            let cases = run_all(&ctx, &size, &vkrt::trace::Intersector::ALL)?;
+            // Cost of NaN/Inf rays relative to valid rays into the same scene.
+            let ratio = |name: &str| {
+                let ms = |case: &str| {
+                    cases
+                        .iter()
+                        .find(|c| c.case == case && c.intersector == name)
+                        .map(|c| c.trace_ms)
+                };
+                Some(ms("bad-rays/nan-inf-zero-inverted")? / ms("bad-rays/baseline-valid")?)
+            };
+            let ratios: serde_json::Map<String, serde_json::Value> = vkrt::trace::Intersector::ALL
+                .iter()
+                .filter_map(|i| Some((i.name().to_string(), ratio(i.name())?.into())))
+                .collect();
+            if json {
+                let v = serde_json::json!({ "cases": cases, "bad_ray_cost_ratio": ratios });
+                println!("{}", serde_json::to_string_pretty(&v)?);
+            } else {
+                println!("{}", ctx.info().device);
+                println!(
+                    "{:<52} {:<16} {:>9} {:>9} {:<13} {:>7} {:>10}",
+                    "case", "intersector", "rays", "failures", "(kind)", "errors", "trace ms"
+                );
+                for c in &cases {
+                    println!(
+                        "{:<52} {:<16} {:>9} {:>9} {:<13} {:>7} {:>10.2}{}{}",
+                        c.case,
+                        c.intersector,
+                        c.rays,
+                        c.failures,
+                        c.failure_kind,
+                        c.errors,
+                        c.trace_ms,
+                        if c.known_limit { "  (known limit)" } else { "" },
+                        if c.note.is_empty() {
+                            String::new()
+                        } else {
+                            format!("  [{}]", c.note)
+                        }
+                    );
+                }
+                for (name, r) in &ratios {
+                    println!(
+                        "bad rays cost {:.3}x valid rays ({name})",
+                        r.as_f64().unwrap_or(0.0)
+                    );
+                }
+            }
+        }
+        Command::Trace {
+            scene,
+            rays,
+            out,
+            any_hit,
+            intersector,
+            batch_rays,
+            json,
+        } => {
+            let opt = vkrt::trace::TraceOptions {
+                intersector: intersector.into(),
+                query: if any_hit {
+                    vkrt::trace::Query::Any
+                } else {
+                    vkrt::trace::Query::Closest
+                },
+                ..Default::default()
+            };
+            trace_command(
+                cli.validate,
+                &scene,
+                &rays,
+                out.as_deref(),
+                &opt,
+                batch_rays,
+                json,
+            )?;
+        }
+        Command::Bench {
             what:
                 BenchCommand::Kdtree {
                     max_n,
@@ -713,6 +857,67 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     println!("fitted exponent of build time over N (all default rows): {e:.3}");
                 }
             }
+        }
+    }
+    Ok(())
+}
+
+/// `vkrt trace`: everything is read and checked before the GPU work, the hits are written
+/// atomically (no partial file on any error).
+fn trace_command(
+    validate: bool,
+    scene_path: &std::path::Path,
+    rays_path: &std::path::Path,
+    out: Option<&std::path::Path>,
+    opt: &vkrt::trace::TraceOptions,
+    batch_rays: Option<usize>,
+    json: bool,
+) -> Result<(), Box<dyn std::error::Error>> {
+    use vkrt::trace::{files, gpu, TraceGeometry};
+    let rays = files::read_rays(rays_path)?;
+    let scene = load_scene(&Some(scene_path.to_path_buf()))?;
+    let geometry = TraceGeometry::at_time(&scene, scene.camera.shutter_open);
+    let ctx = context(validate)?;
+    let (tree, _) = gpu::build_kdtree(&ctx, &geometry, &Default::default())?;
+    let device = gpu::GpuGeometry::upload(&ctx, &geometry, &tree)?;
+    let tracer = gpu::Tracer::new(&ctx, opt)?;
+    let batch = tracer.trace_batched(&ctx, &device, &rays, 0.0, batch_rays)?;
+    if batch.exhausted > 0 {
+        eprintln!(
+            "vkrt: warning: {} rays ran out of traversal steps and are reported as misses",
+            batch.exhausted
+        );
+    }
+    if let Some(out) = out {
+        vkrt::gpu::write_atomically(out, &files::encode_hits(out, &batch.hits))?;
+    }
+    let hits = batch.hits.iter().filter(|h| h.is_hit()).count();
+    let trace_ms = batch.profile.ms("trace").unwrap_or(0.0);
+    let mrays_per_s = if trace_ms > 0.0 {
+        rays.len() as f64 / (trace_ms * 1e3)
+    } else {
+        0.0
+    };
+    if json {
+        let v = serde_json::json!({
+            "rays": rays.len(),
+            "hits": hits,
+            "trace_ms": trace_ms,
+            "mrays_per_s": mrays_per_s,
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!(
+            "{} rays, {} hits, {} misses: trace {:.3} ms on the GPU ({:.2} Mrays/s), {} primitives",
+            rays.len(),
+            hits,
+            rays.len() - hits,
+            trace_ms,
+            mrays_per_s,
+            geometry.primitive_count()
+        );
+        if let Some(out) = out {
+            println!("wrote {}", out.display());
         }
     }
     Ok(())

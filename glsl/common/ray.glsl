@@ -24,6 +24,12 @@ struct Hit {
 #ifndef FP64_FALLBACK
 #define FP64_FALLBACK 0
 #endif
+// gamma(n) = n u / (1 - n u), u = 2^-24 (pbrt's bound on n roundings), as exact bits.
+#define GAMMA2 uintBitsToFloat(0x34000001u)
+#define GAMMA3 uintBitsToFloat(0x34400002u)
+#define GAMMA5 uintBitsToFloat(0x34a00003u)
+#define GAMMA7 uintBitsToFloat(0x34e00006u)
+#define GAMMA8 uintBitsToFloat(0x35000004u)
 #define INTERSECT_WATERTIGHT 0u
 #define INTERSECT_MOLLER_TRUMBORE 1u
 
@@ -88,7 +94,8 @@ Shear make_shear(vec3 d) {
 
 // Watertight: a ray through a shared edge or vertex hits at least one of the triangles that
 // share it (edge functions of zero count as inside on both sides, and a*b - c*d is the exact
-// negation of c*d - a*b in IEEE arithmetic). Degenerate triangles (det = 0) never hit.
+// negation of c*d - a*b in IEEE arithmetic). Degenerate triangles (det = 0, or a zero
+// cross product of the edges) never hit.
 bool hit_triangle_watertight(vec3 o, Shear s, vec3 p0, vec3 p1, vec3 p2, float tmin,
                              float tmax, out float t, out float u, out float v) {
     precise vec3 a = p0 - o;
@@ -131,7 +138,32 @@ bool hit_triangle_watertight(vec3 o, Shear s, vec3 p0, vec3 p1, vec3 p2, float t
     if (!(hit_t >= tmin && hit_t <= tmax)) {
         return false;
     }
+    // A triangle of zero area (collinear or repeated vertices: the edges' cross product is
+    // exactly zero) passes the 2-D test by rounding when the ray crosses its line, at a
+    // meaningless t: it never hits. Tested only for candidates that passed everything else.
+    precise vec3 n = cross(p1 - p0, p2 - p0);
+    if (n.x == 0.0 && n.y == 0.0 && n.z == 0.0) {
+        return false;
+    }
     precise float inv = 1.0 / det;
+    // Conservative t (pbrt-v3 3.9.6): a hit closer than the rounding bound of the computed
+    // t may lie behind the origin (a spawned ray re-hitting its own surface): rejected.
+    // The bounds of the sheared x and y use the unscaled z (pbrt uses the z scaled by
+    // 1/d[kz], which is only commensurate for directions of length about 1).
+    precise float max_zt = max(max(abs(az), abs(bz)), abs(cz));
+    precise float max_zu = max(max(abs(a[s.kz]), abs(b[s.kz])), abs(c[s.kz]));
+    precise float max_xt = max(max(abs(ax), abs(bx)), abs(cx));
+    precise float max_yt = max(max(abs(ay), abs(by)), abs(cy));
+    precise float delta_z = GAMMA3 * max_zt;
+    precise float delta_x = GAMMA5 * (max_xt + max_zu);
+    precise float delta_y = GAMMA5 * (max_yt + max_zu);
+    precise float delta_e = 2.0 * (GAMMA2 * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
+    precise float max_e = max(max(abs(e0), abs(e1)), abs(e2));
+    precise float delta_t =
+        3.0 * (GAMMA3 * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * abs(inv);
+    if (hit_t <= delta_t) {
+        return false;
+    }
     t = hit_t;
     u = e1 * inv;
     v = e2 * inv;
@@ -223,6 +255,56 @@ vec3 offset_ray_origin(vec3 p, vec3 n) {
     return vec3(abs(p.x) < origin ? pf.x : pi.x,
                 abs(p.y) < origin ? pf.y : pi.y,
                 abs(p.z) < origin ? pf.z : pi.z);
+}
+
+// The next float towards +inf / -inf (finite x).
+float next_float_up(float x) {
+    if (x == 0.0) {
+        return uintBitsToFloat(1u);
+    }
+    uint b = floatBitsToUint(x);
+    return uintBitsToFloat(x > 0.0 ? b + 1u : b - 1u);
+}
+
+float next_float_down(float x) {
+    return -next_float_up(-x);
+}
+
+// A spawned ray's origin from a point `p` with a bound `err` on its rounding error (per
+// axis): moved along the unit normal `n` (pointing to the side the ray leaves on) past the
+// error box, then one float further away (pbrt-v4 OffsetRayOrigin). Sound when the error
+// of p is not proportional to |p| (a hit point interpolated from vertices far larger than
+// itself), where offset_ray_origin's few ulps of p are not enough.
+vec3 offset_ray_origin_bounded(vec3 p, vec3 n, vec3 err) {
+    precise float d = dot(abs(n), err);
+    precise vec3 off = d * n;
+    precise vec3 po = p + off;
+    for (uint i = 0u; i < 3u; i++) {
+        if (off[i] > 0.0) {
+            po[i] = next_float_up(po[i]);
+        } else if (off[i] < 0.0) {
+            po[i] = next_float_down(po[i]);
+        }
+    }
+    return po;
+}
+
+// A triangle hit point from its barycentrics and its error bound (pbrt-v4 3.9.4).
+vec3 triangle_hit_point(vec3 p0, vec3 p1, vec3 p2, float u, float v, out vec3 err) {
+    precise float b0 = 1.0 - u - v;
+    precise vec3 p = b0 * p0 + u * p1 + v * p2;
+    precise vec3 e = GAMMA7 * (abs(b0 * p0) + abs(u * p1) + abs(v * p2));
+    err = e;
+    return p;
+}
+
+// A sphere hit point `p` re-projected onto the sphere (centre c, radius r) and an error
+// bound that also covers the ray/sphere test's own rounding (about 3 u r).
+vec3 sphere_hit_point(vec3 c, float r, vec3 p, out vec3 err) {
+    precise vec3 q = c + (p - c) * (r / length(p - c));
+    precise vec3 e = GAMMA8 * (vec3(r) + abs(q));
+    err = e;
+    return q;
 }
 
 #endif

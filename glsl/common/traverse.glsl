@@ -178,6 +178,22 @@ Hit trace_ray(Ray r, float time) {
                 // Parallel to the plane: the origin's side, or both when lying in it.
                 both = o == nd.split;
                 split_t = n1;
+            } else if (o == nd.split && n0 <= 0.0) {
+                // Starting on the plane: the ray enters `first` at once and touches `second`
+                // at t = 0 only (primitives lying in the plane): `second` over [n0, n0]
+                // first, then `first` over the whole interval.
+                if (st_count == STACK_SIZE) {
+                    dropped = true;
+                } else {
+                    st_count++;
+                }
+                st_node[st_top] = first;
+                st_t0[st_top] = n0;
+                st_t1[st_top] = n1;
+                st_top = st_top + 1u == STACK_SIZE ? 0u : st_top + 1u;
+                node = second;
+                n1 = n0;
+                continue;
             } else {
                 precise float tp = (nd.split - o) * inv_d[axis];
                 precise float tp_lo = tp - abs(tp) * PLANE_SLACK;
@@ -240,10 +256,9 @@ Hit trace_ray(Ray r, float time) {
             }
         }
         step += nd.b;
-        if (best.prim != NO_HIT && best_t <= n1) {
-            return best;
-        }
-        // Next cell: pop, skipping cells that start beyond the best hit.
+        // No early exit on best_t <= n1: entries pushed for rays lying in or starting on a
+        // split plane cover the same interval as this cell, and ties at equal t go to the
+        // lowest id. Next cell: pop, skipping cells that start beyond the best hit.
         bool found = false;
         while (st_count > 0u) {
             st_top = st_top == 0u ? STACK_SIZE - 1u : st_top - 1u;

@@ -134,6 +134,23 @@ pub fn trace(s: &TraceScene, r: &Ray, time: f32, opt: &TraceOptions) -> (Hit, bo
                 node = first;
                 continue;
             }
+            if oa == nd.split && n0 <= 0.0 {
+                // Starting on the plane: the ray enters `first` at once and touches `second`
+                // at t = 0 only (primitives lying in the plane): `second` over [n0, n0]
+                // first, then `first` over the whole interval.
+                push(
+                    &mut stack,
+                    Entry {
+                        node: first,
+                        t0: n0,
+                        t1: n1,
+                    },
+                    &mut dropped,
+                );
+                node = second;
+                n1 = n0;
+                continue;
+            }
             let tp = (nd.split - oa) * inv_d[axis];
             let tp_lo = tp - tp.abs() * PLANE_SLACK;
             let tp_hi = tp + tp.abs() * PLANE_SLACK;
@@ -181,9 +198,9 @@ pub fn trace(s: &TraceScene, r: &Ray, time: f32, opt: &TraceOptions) -> (Hit, bo
             }
         }
         step += nd.b;
-        if best.is_hit() && best_t <= n1 {
-            return (best, false);
-        }
+        // No early exit on `best_t <= n1`: entries pushed for rays lying in or starting on a
+        // split plane cover the same interval as this cell, and ties at equal t go to the
+        // lowest id; the pop below skips every cell that starts beyond the best hit.
         let mut found = false;
         while let Some(e) = stack.pop_back() {
             if !best.is_hit() || e.t0 <= best_t {

@@ -244,23 +244,24 @@ pub fn unhittable_if_degenerate(t: [Vec3; 3]) -> [Vec3; 3] {
 /// The box of a sphere, rounded outwards (`c ± r` rounds to nearest).
 pub fn sphere_box(c: Vec3, r: f32) -> Aabb {
     Aabb {
-        min: (c - Vec3::splat(r))
-            .to_array()
-            .map(|x| step(x, -1.0))
-            .into(),
-        max: (c + Vec3::splat(r)).to_array().map(|x| step(x, 1.0)).into(),
+        min: (c - Vec3::splat(r)).to_array().map(next_down).into(),
+        max: (c + Vec3::splat(r)).to_array().map(next_up).into(),
     }
 }
 
-/// The next float after finite `x` towards `sign`·∞ (`f32::next_up`/`next_down`, MSRV 1.86).
-fn step(x: f32, sign: f32) -> f32 {
+/// The next float towards +inf (`f32::next_up`, stable only since Rust 1.86; MSRV 1.85).
+pub fn next_up(x: f32) -> f32 {
+    if x.is_nan() || x == f32::INFINITY {
+        return x;
+    }
     if x == 0.0 {
-        return sign * f32::from_bits(1);
+        return f32::from_bits(1);
     }
-    let bits = x.to_bits();
-    if (x > 0.0) == (sign > 0.0) {
-        f32::from_bits(bits + 1)
-    } else {
-        f32::from_bits(bits - 1)
-    }
+    let b = x.to_bits();
+    f32::from_bits(if x > 0.0 { b + 1 } else { b - 1 })
+}
+
+/// The next float towards -inf (`f32::next_down`).
+pub fn next_down(x: f32) -> f32 {
+    -next_up(-x)
 }

@@ -163,6 +163,43 @@ impl Tracer {
     }
 }
 
+impl Tracer {
+    /// The most rays one [`Tracer::trace`] call takes on this device: the ray buffer
+    /// (32 bytes per ray) must fit `maxStorageBufferRange` (128 MiB = 4,194,304 rays on
+    /// lavapipe).
+    pub fn max_batch(ctx: &Context) -> usize {
+        let limit = ctx.info().max_storage_buffer_range / std::mem::size_of::<Ray>() as u64;
+        limit.min(u64::from(u32::MAX)) as usize
+    }
+
+    /// [`Tracer::trace`] over any number of rays, in batches of at most `batch` rays
+    /// (`None`: [`Tracer::max_batch`]). The profile has one `trace` scope per batch; their
+    /// sum (`profile.ms("trace")`) is the kernel time.
+    pub fn trace_batched(
+        &self,
+        ctx: &Context,
+        geom: &GpuGeometry,
+        rays: &[Ray],
+        time: f32,
+        batch: Option<usize>,
+    ) -> Result<TraceBatch> {
+        let max = Self::max_batch(ctx).max(1);
+        let batch = batch.unwrap_or(max).clamp(1, max);
+        let mut out = TraceBatch {
+            hits: Vec::with_capacity(rays.len()),
+            exhausted: 0,
+            profile: Profile::default(),
+        };
+        for chunk in rays.chunks(batch) {
+            let b = self.trace(ctx, geom, chunk, time)?;
+            out.hits.extend_from_slice(&b.hits);
+            out.exhausted += b.exhausted;
+            out.profile.append(b.profile);
+        }
+        Ok(out)
+    }
+}
+
 /// Builds the kd-tree of `g` on the GPU (seed 001's builder over the primitives' boxes).
 pub fn build_kdtree(
     ctx: &Context,

@@ -3,6 +3,14 @@
 
 use glam::{Vec3, Vec4};
 
+/// `gamma(n) = n u / (1 - n u)`, `u = 2^-24`: pbrt's bound on the relative error of `n`
+/// roundings (`GAMMAn` in `ray.glsl`, the same bits).
+pub const GAMMA2: f32 = f32::from_bits(0x3400_0001);
+pub const GAMMA3: f32 = f32::from_bits(0x3440_0002);
+pub const GAMMA5: f32 = f32::from_bits(0x34a0_0003);
+pub const GAMMA7: f32 = f32::from_bits(0x34e0_0006);
+pub const GAMMA8: f32 = f32::from_bits(0x3500_0004);
+
 /// The per-ray shear of the watertight test.
 #[derive(Clone, Copy, Debug)]
 pub struct Shear {
@@ -89,7 +97,25 @@ pub fn triangle_watertight(
     if !(t >= tmin && t <= tmax) {
         return None;
     }
+    // Zero area (collinear or repeated vertices): never a hit, whatever the rounding says.
+    if cross(p1 - p0, p2 - p0) == Vec3::ZERO {
+        return None;
+    }
     let inv = 1.0 / det;
+    // Conservative t (pbrt-v3 3.9.6): see `ray.glsl`.
+    let max_zt = az.abs().max(bz.abs()).max(cz.abs());
+    let max_zu = a[s.kz].abs().max(b[s.kz].abs()).max(c[s.kz].abs());
+    let max_xt = ax.abs().max(bx.abs()).max(cx.abs());
+    let max_yt = ay.abs().max(by.abs()).max(cy.abs());
+    let delta_z = GAMMA3 * max_zt;
+    let delta_x = GAMMA5 * (max_xt + max_zu);
+    let delta_y = GAMMA5 * (max_yt + max_zu);
+    let delta_e = 2.0 * (GAMMA2 * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
+    let max_e = e0.abs().max(e1.abs()).max(e2.abs());
+    let delta_t = 3.0 * (GAMMA3 * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * inv.abs();
+    if t <= delta_t {
+        return None;
+    }
     Some((t, e1 * inv, e2 * inv))
 }
 
@@ -184,4 +210,43 @@ pub fn offset_ray_origin(p: Vec3, n: Vec3) -> Vec3 {
         out[a] = if p[a].abs() < ORIGIN { pf } else { pi };
     }
     out
+}
+
+/// A spawned ray's origin from a point `p` with a bound `err` on its rounding error (per
+/// axis): moved along the unit normal `n` (pointing to the side the ray leaves on) past the
+/// error box, then one float further (pbrt-v4 `OffsetRayOrigin`); `offset_ray_origin_bounded`
+/// in `ray.glsl`. Use it where the error of `p` is not proportional to `|p|` — a hit point
+/// interpolated from vertices much farther from the world origin than itself — where
+/// [`offset_ray_origin`]'s few ulps of `p` are not enough (see `trace::robust`).
+pub fn offset_ray_origin_bounded(p: Vec3, n: Vec3, err: Vec3) -> Vec3 {
+    let d = dot(n.abs(), err);
+    let off = n * d;
+    let mut po = p + off;
+    for i in 0..3 {
+        if off[i] > 0.0 {
+            po[i] = super::geometry::next_up(po[i]);
+        } else if off[i] < 0.0 {
+            po[i] = super::geometry::next_down(po[i]);
+        }
+    }
+    po
+}
+
+/// A triangle hit point from the barycentric weights `u`, `v` of its second and third
+/// vertex, and the bound on its rounding error (pbrt-v4 3.9.4); `triangle_hit_point` in
+/// `ray.glsl`.
+pub fn triangle_hit_point(p0: Vec3, p1: Vec3, p2: Vec3, u: f32, v: f32) -> (Vec3, Vec3) {
+    let b0 = 1.0 - u - v;
+    let p = b0 * p0 + u * p1 + v * p2;
+    let err = GAMMA7 * ((b0 * p0).abs() + (u * p1).abs() + (v * p2).abs());
+    (p, err)
+}
+
+/// A point `p` near the sphere (centre `c`, radius `r`) re-projected onto it, and an error
+/// bound that also covers the ray/sphere test's own rounding (about 3 u r);
+/// `sphere_hit_point` in `ray.glsl`.
+pub fn sphere_hit_point(c: Vec3, r: f32, p: Vec3) -> (Vec3, Vec3) {
+    let q = c + (p - c) * (r / (p - c).length());
+    let err = GAMMA8 * (Vec3::splat(r) + q.abs());
+    (q, err)
 }

@@ -9,12 +9,15 @@
 //!   placed at the ray's time; `vkrt trace` uses the shutter-open time);
 //! - the closest hit wins; among hits at exactly equal `t`, the lowest primitive id;
 //! - any-hit queries return some hit in the interval (the first found).
+//! - with the watertight test, triangles of zero area (the cross product of their edges is
+//!   exactly zero: collinear or repeated vertices) are never hit.
 
 pub mod cpu;
 pub mod files;
 pub mod geometry;
 pub mod gpu;
 pub mod intersect;
+pub mod robust;
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;

@@ -1,0 +1,290 @@
+//! `vkrt trace` as a user runs it: a round trip through ray and hit files against brute
+//! force, and every class of bad input (clear error, nonzero exit, no output file).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use common::Rng;
+use glam::Vec3;
+use vkrt::scene::Scene;
+use vkrt::trace::{cpu, files, Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
+
+fn vkrt(args: &[&str]) -> std::process::Output {
+    Command::new(env!("CARGO_BIN_EXE_vkrt"))
+        .args(args)
+        .output()
+        .expect("run vkrt")
+}
+
+fn no_gpu_allowed() -> bool {
+    std::env::var("VKRT_ALLOW_NO_GPU").is_ok_and(|v| v == "1")
+}
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("vkrt-cli-trace-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn example(name: &str) -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("scenes")
+        .join(name)
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// Rays over the scene's box: from outside towards random points inside, from inside in
+/// random directions, axis-parallel with ±0 components, and a few invalid ones (NaN, Inf,
+/// zero direction, tmin > tmax).
+fn rays_for(g: &TraceGeometry, n: usize, seed: u64) -> Vec<Ray> {
+    let mut lo = Vec3::splat(f32::MAX);
+    let mut hi = Vec3::splat(f32::MIN);
+    for b in &g.boxes {
+        lo = lo.min(b.min);
+        hi = hi.max(b.max);
+    }
+    let (c, ext) = ((lo + hi) * 0.5, (hi - lo).max(Vec3::splat(1e-3)));
+    let mut rng = Rng(seed);
+    let v = |rng: &mut Rng| Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+    let mut rays: Vec<Ray> = (0..n)
+        .map(|i| {
+            let inside = c + v(&mut rng) * ext * 0.5;
+            match i % 3 {
+                0 => {
+                    let from = c + v(&mut rng).normalize_or(Vec3::X) * ext.length();
+                    Ray::new(from, inside - from, 0.0, f32::MAX)
+                }
+                1 => Ray::new(inside, v(&mut rng), 0.0, f32::MAX),
+                _ => {
+                    let mut d = [-0.0f32, 0.0, -0.0];
+                    d[(rng.next_u64() % 3) as usize] = if i % 2 == 0 { 1.0 } else { -1.0 };
+                    Ray::new(inside, Vec3::from_array(d), 0.0, 1e30)
+                }
+            }
+        })
+        .collect();
+    let nan = f32::NAN;
+    rays.push(Ray::new(Vec3::new(nan, 0.0, 0.0), Vec3::X, 0.0, f32::MAX));
+    rays.push(Ray::new(
+        c,
+        Vec3::new(0.0, f32::INFINITY, 0.0),
+        0.0,
+        f32::MAX,
+    ));
+    rays.push(Ray::new(c, Vec3::ZERO, 0.0, f32::MAX));
+    rays.push(Ray::new(c, Vec3::X, 1.0, 0.5));
+    rays.push(Ray::new(c, Vec3::X, 0.0, nan));
+    rays
+}
+
+fn same_answer(a: &Hit, b: &Hit) -> bool {
+    if a.is_hit() != b.is_hit() {
+        return false;
+    }
+    !a.is_hit() || (a.t - b.t).abs() <= 1e-5 * a.t.abs().max(b.t.abs()).max(1e-30)
+}
+
+fn read_hits(path: &Path) -> Vec<Hit> {
+    let bytes = std::fs::read(path).unwrap();
+    if path.extension().is_some_and(|e| e == "csv") {
+        let text = String::from_utf8(bytes).unwrap();
+        let mut lines = text.lines();
+        assert_eq!(lines.next(), Some("t,prim,u,v"));
+        lines
+            .map(|l| {
+                let f: Vec<&str> = l.split(',').collect();
+                assert_eq!(f.len(), 4, "{l}");
+                if f[1] == "-1" {
+                    assert_eq!(f[0], "inf");
+                    Hit::MISS
+                } else {
+                    Hit {
+                        t: f[0].parse().unwrap(),
+                        prim: f[1].parse().unwrap(),
+                        u: f[2].parse().unwrap(),
+                        v: f[3].parse().unwrap(),
+                    }
+                }
+            })
+            .collect()
+    } else {
+        assert_eq!(bytes.len() % 16, 0);
+        bytemuck::pod_collect_to_vec(&bytes)
+    }
+}
+
+/// Writes rays, traces them with the CLI (in small batches, so batching is exercised),
+/// reads the hits back and compares every ray with brute force on the same geometry.
+fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
+    let dir = scratch(&format!("rt-{}", out_name.replace('.', "-")));
+    let scene_path = example(scene);
+    let loaded = Scene::load(&scene_path).unwrap().scene;
+    let g = TraceGeometry::at_time(&loaded, loaded.camera.shutter_open);
+    let rays = rays_for(&g, 3000, 7);
+    let ray_path = dir.join("in.rays");
+    std::fs::write(&ray_path, files::encode_rays(&rays)).unwrap();
+    let out = dir.join(out_name);
+    let mut args = vec![
+        "trace",
+        s(&scene_path),
+        "--rays",
+        s(&ray_path),
+        "--out",
+        s(&out),
+        "--json",
+        "--batch-rays",
+        "1000",
+    ];
+    args.extend_from_slice(extra);
+    let run = vkrt(&args);
+    if !run.status.success() && no_gpu_allowed() {
+        return;
+    }
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let keys: Vec<&String> = v.as_object().unwrap().keys().collect();
+    assert_eq!(keys, ["hits", "mrays_per_s", "rays", "trace_ms"], "{v}");
+    assert_eq!(v["rays"], rays.len());
+    assert!(v["trace_ms"].as_f64().unwrap() > 0.0, "{v}");
+    assert!(v["mrays_per_s"].as_f64().unwrap() > 0.0, "{v}");
+    let hits = read_hits(&out);
+    assert_eq!(hits.len(), rays.len());
+    let mut n_hits = 0;
+    for (i, (r, h)) in rays.iter().zip(&hits).enumerate() {
+        let bf = cpu::brute_force(&g, r, 0.0, &opt);
+        n_hits += h.is_hit() as usize;
+        if opt.query == Query::Any {
+            assert_eq!(h.is_hit(), bf.is_hit(), "ray {i} {r:?}: {h:?} vs {bf:?}");
+        } else {
+            assert!(same_answer(h, &bf), "ray {i} {r:?}: {h:?} vs {bf:?}");
+        }
+        if !r.is_valid() {
+            assert_eq!(*h, Hit::MISS, "invalid ray {i} {r:?}");
+        }
+    }
+    assert_eq!(v["hits"], n_hits);
+    assert!(n_hits > rays.len() / 4, "only {n_hits} hits");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn round_trip_binary_closest_hit_matches_brute_force() {
+    // Moving meshes and a sphere: geometry at the shutter-open time.
+    round_trip("motion_blur.toml", "hits.bin", &[], TraceOptions::default());
+}
+
+#[test]
+fn round_trip_csv_any_hit_moller_trumbore_matches_brute_force() {
+    round_trip(
+        "ambient_occlusion.toml",
+        "hits.csv",
+        &["--any-hit", "--intersector", "moller-trumbore"],
+        TraceOptions {
+            intersector: Intersector::MollerTrumbore,
+            query: Query::Any,
+            ..TraceOptions::default()
+        },
+    );
+}
+
+#[test]
+fn csv_rays_and_human_output() {
+    let dir = scratch("csv");
+    let rays = dir.join("r.csv");
+    std::fs::write(
+        &rays,
+        "ox,oy,oz,dx,dy,dz\n# a comment\n0,1,10,0,0,-1\n0,1,10,0,0,-1,0,0.5\n0,1,10,0,0,1\n",
+    )
+    .unwrap();
+    let out = dir.join("h.csv");
+    let run = vkrt(&[
+        "trace",
+        s(&example("house.obj")),
+        "--rays",
+        s(&rays),
+        "--out",
+        s(&out),
+    ]);
+    if !run.status.success() && no_gpu_allowed() {
+        return;
+    }
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let text = String::from_utf8_lossy(&run.stdout);
+    assert!(text.contains("3 rays"), "{text}");
+    assert!(text.contains("Mrays/s"), "{text}");
+    let hits = read_hits(&out);
+    assert_eq!(hits.len(), 3);
+    assert!(!hits[1].is_hit() && !hits[2].is_hit(), "{hits:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// Runs a failing trace and checks the error names `needle`, the exit is nonzero without a
+/// panic, and no output file (nor a temporary) is left behind.
+fn fails(dir: &Path, scene: &Path, rays: &Path, out: &Path, needle: &str) {
+    let run = vkrt(&["trace", s(scene), "--rays", s(rays), "--out", s(out)]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    if no_gpu_allowed() && !run.status.success() && err.contains("Vulkan") {
+        return;
+    }
+    assert_eq!(run.status.code(), Some(1), "{err}");
+    assert!(err.contains("vkrt: error:"), "{err}");
+    assert!(err.contains(needle), "want `{needle}` in: {err}");
+    assert!(!err.contains("panicked"), "{err}");
+    assert!(!out.exists(), "{} was left behind", out.display());
+    let left: Vec<_> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .filter(|n| n.contains("hits"))
+        .collect();
+    assert!(left.is_empty(), "{left:?}");
+}
+
+#[test]
+fn bad_input_is_a_clear_error_and_leaves_no_file() {
+    let dir = scratch("bad");
+    let house = example("house.obj");
+    let good = dir.join("good.rays");
+    std::fs::write(
+        &good,
+        files::encode_rays(&[Ray::new(Vec3::new(0.0, 1.0, 10.0), -Vec3::Z, 0.0, 1e30)]),
+    )
+    .unwrap();
+    let out = dir.join("hits.bin");
+
+    // missing scene, missing ray file
+    fails(&dir, &dir.join("nope.obj"), &good, &out, "nope.obj");
+    fails(&dir, &house, &dir.join("nope.rays"), &out, "nope.rays");
+    // truncated binary rays
+    let truncated = dir.join("cut.rays");
+    std::fs::write(&truncated, vec![0u8; 32 * 3 + 5]).unwrap();
+    fails(&dir, &house, &truncated, &out, "cut.rays: 101 bytes");
+    // bad CSV: a word, then a wrong field count, each with file:line
+    let csv = dir.join("bad.csv");
+    std::fs::write(&csv, "ox,oy,oz,dx,dy,dz\n0,0,0,1,0,0\n0,0,zero,1,0,0\n").unwrap();
+    fails(&dir, &house, &csv, &out, "bad.csv:3");
+    std::fs::write(&csv, "0,0,0,1,0,0\n\n0,0,0,1,0\n").unwrap();
+    fails(&dir, &house, &csv, &out, "bad.csv:3: 5 values");
+    // geometry with NaN is rejected at load
+    let nan_obj = dir.join("nan.obj");
+    std::fs::write(&nan_obj, "v 0 0 0\nv 1 0 0\nv nan 1 0\nf 1 2 3\n").unwrap();
+    fails(&dir, &nan_obj, &good, &out, "nan.obj");
+    // unwritable output (its directory does not exist)
+    let missing_dir_out = dir.join("no-such-dir").join("hits.bin");
+    fails(&dir, &house, &good, &missing_dir_out, "hits.bin");
+    assert!(!dir.join("no-such-dir").exists());
+    std::fs::remove_dir_all(&dir).unwrap();
+}
