@@ -652,7 +652,8 @@ impl Suite<'_> {
             if inward {
                 d = d.normalize_or(side) * 0.9 + side;
             }
-            if !(d.dot(side) > 0.0) {
+            // NaN or not away from the surface: straight along the normal
+            if d.dot(side).partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
                 d = side;
             }
             rays.push(Ray::new(origin, d, 0.0, f32::MAX));
@@ -1066,7 +1067,14 @@ impl Suite<'_> {
                             built = Some((p, params));
                             break;
                         }
-                        Err(e) => notes.push(format!("{count} triangles with {label}: {e}")),
+                        Err(e) => {
+                            // The first refusal in full, later ones by name.
+                            if notes.is_empty() {
+                                notes.push(format!("{count} triangles with {label}: {e}"));
+                            } else {
+                                notes.push(format!("{count} triangles with {label}: does not fit"));
+                            }
+                        }
                     }
                 }
                 if let Some((p, params)) = built {
