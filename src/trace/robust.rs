@@ -652,7 +652,7 @@ impl Suite<'_> {
             if inward {
                 d = d.normalize_or(side) * 0.9 + side;
             }
-            // NaN-safe: anything not strictly into the side's hemisphere becomes `side`
+            // NaN or not away from the surface: straight along the normal
             if d.dot(side).partial_cmp(&0.0) != Some(std::cmp::Ordering::Greater) {
                 d = side;
             }
@@ -1067,7 +1067,14 @@ impl Suite<'_> {
                             built = Some((p, params));
                             break;
                         }
-                        Err(e) => notes.push(format!("{count} triangles with {label}: {e}")),
+                        Err(e) => {
+                            // The first refusal in full, later ones by name.
+                            if notes.is_empty() {
+                                notes.push(format!("{count} triangles with {label}: {e}"));
+                            } else {
+                                notes.push(format!("{count} triangles with {label}: does not fit"));
+                            }
+                        }
                     }
                 }
                 if let Some((p, params)) = built {
