@@ -498,10 +498,19 @@ fn ablation_variants_build_the_same_tree() {
             None,
         ),
         (
-            "both, workgroup per segment",
+            "full-record scatter",
+            Ablation {
+                full_record_scatter: true,
+                ..Ablation::default()
+            },
+            None,
+        ),
+        (
+            "all, workgroup per segment",
             Ablation {
                 shared_memory_argmin: true,
                 u32_event_scan: true,
+                full_record_scatter: true,
             },
             Some(SegmentedMode::WorkgroupPerSegment),
         ),

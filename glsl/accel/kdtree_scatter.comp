@@ -2,11 +2,70 @@
 // kd-tree Phase II: one compaction moves each event record of one axis list once per side,
 // to its scanned slot, with its box clipped on the split axis only; lists stay sorted
 // (stable subsequences), so they are never re-sorted (twin: seed001::scatter).
+//
+// Variant `records` (the ablation `full_record_scatter`, seed 001's pre-clip-mask baseline):
+// the records were already clipped and written to their virtual slots of a temporary list by
+// `kdtree_classify.records`; this pass moves each valid slot's complete record a second time,
+// to its scanned place (one invocation per event, for its two slots).
 #extension GL_EXT_shader_8bit_storage : require
+//! variant once MOVE_ONCE=1
+//! variant records FULL_RECORDS=1
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "accel/kdtree_level.glsl"
 
+#ifdef FULL_RECORDS
+layout(std430, binding = 0) readonly buffer State { uint state[]; };
+layout(std430, binding = 1) readonly buffer NodeRange { uint node_range[]; };
+layout(std430, binding = 2) readonly buffer NodeSplit { uint node_split[]; };
+layout(std430, binding = 3) readonly buffer Node { uint node_of[]; };
+layout(std430, binding = 4) readonly buffer Offsets { uint offsets[]; };
+layout(std430, binding = 5) readonly buffer Slots { uint slot_words[]; }; // 4 flags a word
+// The temporary slot list `kdtree_classify.records` wrote (box arrays of 2·stride floats).
+layout(std430, binding = 6) readonly buffer TmpPlane { float tmp_plane[]; };
+layout(std430, binding = 7) readonly buffer TmpKind { uint tmp_kind_words[]; };
+layout(std430, binding = 8) readonly buffer TmpPrim { uint tmp_prim[]; };
+layout(std430, binding = 9) readonly buffer TmpNode { uint tmp_node[]; };
+layout(std430, binding = 10) readonly buffer TmpBox { float tmp_box[]; };
+layout(std430, binding = 11) writeonly buffer OutPlane { float out_plane[]; };
+layout(std430, binding = 12) writeonly buffer OutKind { uint8_t out_kind[]; };
+layout(std430, binding = 13) writeonly buffer OutPrim { uint out_prim[]; };
+layout(std430, binding = 14) writeonly buffer OutNode { uint out_node[]; };
+layout(std430, binding = 15) writeonly buffer OutBox { float out_box[]; };
+layout(push_constant) uniform Push { uint stride; } pc; // elements per output box array
+
+void main() {
+    uint id = linear_invocation_id();
+    if (id >= 2u * state[ST_REFS]) {
+        return;
+    }
+    uint node = node_of[id];
+    if (node_split[2u * node] == KD_LEAF) {
+        return;
+    }
+    uint first = node_range[2u * node];
+    uint count = node_range[2u * node + 1u];
+    uint st = pc.stride;
+    uint ts = 2u * st;
+    for (uint side = 0u; side < 2u; side++) {
+        uint v = id + 2u * first + side * 2u * count;
+        if (kind_of(slot_words[v / 4u], v) == 0u) {
+            continue;
+        }
+        uint o = offsets[v];
+        if (o >= st) {
+            continue; // past capacity: kdtree_advance raises the overflow flag
+        }
+        out_plane[o] = tmp_plane[v];
+        out_kind[o] = uint8_t(kind_of(tmp_kind_words[v / 4u], v));
+        out_prim[o] = tmp_prim[v];
+        out_node[o] = tmp_node[v];
+        for (uint k = 0u; k < 6u; k++) {
+            out_box[k * st + o] = tmp_box[k * ts + v];
+        }
+    }
+}
+#else
 layout(std430, binding = 0) readonly buffer State { uint state[]; };
 layout(std430, binding = 1) readonly buffer NodeRange { uint node_range[]; };
 layout(std430, binding = 2) readonly buffer NodeSplit { uint node_split[]; };
@@ -73,3 +132,4 @@ void main() {
         out_box[5u * st + o] = (!up && s == 2u) ? fmin_total(mxz, p) : mxz;
     }
 }
+#endif

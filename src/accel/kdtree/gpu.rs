@@ -246,6 +246,18 @@ pub struct Ablation {
     /// START counts by the plain u32 scan over event types widened to u32 (an extra pass)
     /// instead of the byte-flag scan that reads 4 types per u32 (seed 001 Listing 6.6).
     pub u32_event_scan: bool,
+    /// Clipping and partitioning by scattering full event records instead of the 1-byte
+    /// clip-mask (seed 001 Alg. 10 / Table 6.1 vs its baseline, "Clip-Mask" in Table 6.2).
+    /// Default: `classify` writes one flag byte per event and side, one flag scan, and
+    /// `scatter` reads each record once and writes it, clipped, to its place (≈ 37 bytes
+    /// written per kept copy). Baseline: `classify.records` also writes each event's complete
+    /// clipped record (plane, type, primitive, child node, 6 box floats) into its valid
+    /// [below | above] slots of a temporary list twice the event list's length, the same
+    /// flag scan, and `scatter.records` moves every valid slot's complete record a second
+    /// time to its scanned place: every record is written twice and read twice (≈ 74 bytes
+    /// written per kept copy), with the temporary list as extra memory (74 bytes per
+    /// event, so the baseline's per-level capacity is clamped twice as hard).
+    pub full_record_scatter: bool,
 }
 
 /// The level's node arrays (ping-ponged between levels).
@@ -288,6 +300,9 @@ pub struct BuildScratch {
     seg_scratch: Buffer<u32>,
     /// Ablation `u32_event_scan` only: widened event types and the u32 scan's scratch.
     wide_flags: Option<(Buffer<u32>, ScanScratch)>,
+    /// Ablation `full_record_scatter` only: the temporary list of full records, one per
+    /// virtual slot (twice the event list).
+    slot_records: Option<GpuEvents>,
 }
 
 /// The build's output: nodes and leaf references (valid up to the outcome's counts).
@@ -321,8 +336,16 @@ impl KdTreeBuilder {
                 decide: k(&kernels::ACCEL_KDTREE_DECIDE)?,
                 write_nodes: k(&kernels::ACCEL_KDTREE_WRITE_NODES)?,
                 leaves: k(&kernels::ACCEL_KDTREE_LEAVES)?,
-                classify: k(&kernels::ACCEL_KDTREE_CLASSIFY)?,
-                scatter: k(&kernels::ACCEL_KDTREE_SCATTER)?,
+                classify: k(if ablation.full_record_scatter {
+                    &kernels::ACCEL_KDTREE_CLASSIFY_RECORDS
+                } else {
+                    &kernels::ACCEL_KDTREE_CLASSIFY_MASK
+                })?,
+                scatter: k(if ablation.full_record_scatter {
+                    &kernels::ACCEL_KDTREE_SCATTER_RECORDS
+                } else {
+                    &kernels::ACCEL_KDTREE_SCATTER_ONCE
+                })?,
                 children: k(&kernels::ACCEL_KDTREE_CHILDREN)?,
                 advance: one(&kernels::ACCEL_KDTREE_ADVANCE)?,
             },
@@ -356,9 +379,19 @@ impl KdTreeBuilder {
     /// buffer within `maxStorageBufferRange` ([`BuildCapacity::fit`]), a level's nodes
     /// within the segmented argmin's segment limit, its events within its cost limit.
     pub fn fit_capacity(&self, ctx: &Context, capacity: BuildCapacity) -> BuildCapacity {
-        let c = capacity.fit(ctx.info().max_storage_buffer_range);
+        let range = ctx.info().max_storage_buffer_range;
+        let c = capacity.fit(range);
+        // The baseline's temporary box list: 6 floats per slot, 4 slots per reference.
+        let records = if self.ablation.full_record_scatter {
+            (range / 96) as usize
+        } else {
+            usize::MAX
+        };
         BuildCapacity {
-            refs_per_level: c.refs_per_level.min(self.segmented.max_costs() / 2),
+            refs_per_level: c
+                .refs_per_level
+                .min(self.segmented.max_costs() / 2)
+                .min(records),
             nodes_per_level: c.nodes_per_level.min(self.segmented.max_segments()),
             ..c
         }
@@ -373,8 +406,17 @@ impl KdTreeBuilder {
         let per_node = 2 * m * (24 + 8 + 4) + m * (8 + 4 * 4 + 8);
         let phase_one = n as u64 * (24 + 2 * 8);
         let scans = 3 * (2 * e * 4 / 1000 + 64); // tile sums: a small fraction
+        let ablation = if self.ablation.full_record_scatter {
+            2 * e * (4 + 1 + 4 + 4 + 24)
+        } else {
+            0
+        } + if self.ablation.u32_event_scan {
+            e * 4
+        } else {
+            0
+        };
         BuildSizes {
-            scratch_bytes: events + per_event + per_node + phase_one + scans,
+            scratch_bytes: events + per_event + per_node + phase_one + scans + ablation,
             tree_bytes: capacity.nodes as u64 * 16 + capacity.refs as u64 * 4,
         }
     }
@@ -456,6 +498,11 @@ impl KdTreeBuilder {
             seg_scratch: u("kdtree.seg_scratch", self.segmented.scratch_len(e, m))?,
             wide_flags: if self.ablation.u32_event_scan {
                 Some((u("kdtree.wide_flags", e)?, self.scan.scratch(ctx, e)?))
+            } else {
+                None
+            },
+            slot_records: if self.ablation.full_record_scatter {
+                Some(GpuEvents::new(ctx, "slot_records", 2 * e)?)
             } else {
                 None
             },
@@ -838,7 +885,7 @@ impl KdTreeBuilder {
                 div: 1,
             };
             for a in 0..3 {
-                let b: [&dyn BufferArg; 6] = [
+                let classify_args: [&dyn BufferArg; 6] = [
                     &s.state,
                     &lv.node_range,
                     &s.node_split,
@@ -846,8 +893,29 @@ impl KdTreeBuilder {
                     &ev[a].boxes,
                     &s.slots,
                 ];
-                rec.scope("kdtree.classify", |rec| {
-                    rec.dispatch_indirect(&k.classify, &s.state, ev_args, &b, &(e as u32))
+                rec.scope("kdtree.classify", |rec| match &s.slot_records {
+                    None => rec.dispatch_indirect(
+                        &k.classify,
+                        &s.state,
+                        ev_args,
+                        &classify_args,
+                        &(e as u32),
+                    ),
+                    Some(t) => {
+                        let mut b: Vec<&dyn BufferArg> = classify_args.to_vec();
+                        b.extend([
+                            &s.inner_before as &dyn BufferArg,
+                            &ev[a].plane,
+                            &ev[a].kind,
+                            &ev[a].prim,
+                            &t.plane,
+                            &t.kind,
+                            &t.prim,
+                            &t.node,
+                            &t.boxes,
+                        ]);
+                        rec.dispatch_indirect(&k.classify, &s.state, ev_args, &b, &(e as u32))
+                    }
                 });
                 rec.compute_to_compute();
                 self.flag_scan.record_counted(
@@ -860,23 +928,41 @@ impl KdTreeBuilder {
                     &s.slot_scratch,
                 );
                 rec.compute_to_compute();
-                let b: [&dyn BufferArg; 15] = [
-                    &s.state,
-                    &lv.node_range,
-                    &s.node_split,
-                    &s.inner_before,
-                    &s.slot_offsets,
-                    &ev[a].plane,
-                    &ev[a].kind,
-                    &ev[a].prim,
-                    &ev[a].node,
-                    &ev[a].boxes,
+                let out: [&dyn BufferArg; 5] = [
                     &nev[a].plane,
                     &nev[a].kind,
                     &nev[a].prim,
                     &nev[a].node,
                     &nev[a].boxes,
                 ];
+                let b: Vec<&dyn BufferArg> = match &s.slot_records {
+                    None => vec![
+                        &s.state,
+                        &lv.node_range,
+                        &s.node_split,
+                        &s.inner_before,
+                        &s.slot_offsets,
+                        &ev[a].plane,
+                        &ev[a].kind,
+                        &ev[a].prim,
+                        &ev[a].node,
+                        &ev[a].boxes,
+                    ],
+                    Some(t) => vec![
+                        &s.state,
+                        &lv.node_range,
+                        &s.node_split,
+                        &ev[a].node,
+                        &s.slot_offsets,
+                        &s.slots,
+                        &t.plane,
+                        &t.kind,
+                        &t.prim,
+                        &t.node,
+                        &t.boxes,
+                    ],
+                };
+                let b: Vec<&dyn BufferArg> = b.into_iter().chain(out).collect();
                 rec.scope("kdtree.scatter", |rec| {
                     rec.dispatch_indirect(&k.scatter, &s.state, ev_args, &b, &(e as u32))
                 });
