@@ -378,12 +378,7 @@ pub fn kdtree_report(
             if *label != "default" && tris.len() > ablation_max_n {
                 continue;
             }
-            match builder.build_from(
-                ctx,
-                tris,
-                params,
-                BuildCapacity::for_primitives(tris.len()),
-            ) {
+            match builder.build_from(ctx, tris, params, BuildCapacity::for_primitives(tris.len())) {
                 Ok(b) => {
                     if let Some((_, _, first)) = built.first() {
                         let first: &crate::accel::kdtree::gpu::BuildResult = first;

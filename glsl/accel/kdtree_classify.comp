@@ -21,22 +21,31 @@ layout(std430, binding = 0) readonly buffer State { uint state[]; };
 layout(std430, binding = 1) readonly buffer NodeRange { uint node_range[]; };
 layout(std430, binding = 2) readonly buffer NodeSplit { uint node_split[]; };
 layout(std430, binding = 3) readonly buffer Node { uint node_of[]; };
-layout(std430, binding = 4) readonly buffer Box { float box[]; }; // 6 arrays of `stride`
-layout(std430, binding = 5) writeonly buffer Slots { uint8_t slots[]; }; // 0/1 flags
+// The event boxes, one array per component.
+layout(std430, binding = 4) readonly buffer BoxMinX { float box_min_x[]; };
+layout(std430, binding = 5) readonly buffer BoxMinY { float box_min_y[]; };
+layout(std430, binding = 6) readonly buffer BoxMinZ { float box_min_z[]; };
+layout(std430, binding = 7) readonly buffer BoxMaxX { float box_max_x[]; };
+layout(std430, binding = 8) readonly buffer BoxMaxY { float box_max_y[]; };
+layout(std430, binding = 9) readonly buffer BoxMaxZ { float box_max_z[]; };
+layout(std430, binding = 10) writeonly buffer Slots { uint8_t slots[]; }; // 0/1 flags
 #ifdef FULL_RECORDS
-layout(std430, binding = 6) readonly buffer InnerBefore { uint inner_before[]; };
-layout(std430, binding = 7) readonly buffer Plane { float plane[]; };
-layout(std430, binding = 8) readonly buffer Kind { uint kind_words[]; };
-layout(std430, binding = 9) readonly buffer Prim { uint prim[]; };
-// The temporary slot list: 2·stride records (plane, type, prim, node, box arrays of
-// 2·stride floats each).
-layout(std430, binding = 10) writeonly buffer TmpPlane { float tmp_plane[]; };
-layout(std430, binding = 11) writeonly buffer TmpKind { uint8_t tmp_kind[]; };
-layout(std430, binding = 12) writeonly buffer TmpPrim { uint tmp_prim[]; };
-layout(std430, binding = 13) writeonly buffer TmpNode { uint tmp_node[]; };
-layout(std430, binding = 14) writeonly buffer TmpBox { float tmp_box[]; };
+layout(std430, binding = 11) readonly buffer InnerBefore { uint inner_before[]; };
+layout(std430, binding = 12) readonly buffer Plane { float plane[]; };
+layout(std430, binding = 13) readonly buffer Kind { uint kind_words[]; };
+layout(std430, binding = 14) readonly buffer Prim { uint prim[]; };
+// The temporary slot list: one record per virtual slot (twice the event list).
+layout(std430, binding = 15) writeonly buffer TmpPlane { float tmp_plane[]; };
+layout(std430, binding = 16) writeonly buffer TmpKind { uint8_t tmp_kind[]; };
+layout(std430, binding = 17) writeonly buffer TmpPrim { uint tmp_prim[]; };
+layout(std430, binding = 18) writeonly buffer TmpNode { uint tmp_node[]; };
+layout(std430, binding = 19) writeonly buffer TmpMinX { float tmp_min_x[]; };
+layout(std430, binding = 20) writeonly buffer TmpMinY { float tmp_min_y[]; };
+layout(std430, binding = 21) writeonly buffer TmpMinZ { float tmp_min_z[]; };
+layout(std430, binding = 22) writeonly buffer TmpMaxX { float tmp_max_x[]; };
+layout(std430, binding = 23) writeonly buffer TmpMaxY { float tmp_max_y[]; };
+layout(std430, binding = 24) writeonly buffer TmpMaxZ { float tmp_max_z[]; };
 #endif
-layout(push_constant) uniform Push { uint stride; } pc;
 
 void main() {
     uint id = linear_invocation_id();
@@ -52,8 +61,8 @@ void main() {
     float p = 0.0;
     if (s != KD_LEAF) {
         p = uintBitsToFloat(node_split[2u * node + 1u]);
-        float lo = box[s * pc.stride + id];
-        float hi = box[(3u + s) * pc.stride + id];
+        float lo = s == 0u ? box_min_x[id] : (s == 1u ? box_min_y[id] : box_min_z[id]);
+        float hi = s == 0u ? box_max_x[id] : (s == 1u ? box_max_y[id] : box_max_z[id]);
         if (hi <= p) {
             below = 1u;
         } else if (lo >= p) {
@@ -70,10 +79,8 @@ void main() {
     if (s == KD_LEAF) {
         return;
     }
-    uint st = pc.stride;
-    uint ts = 2u * st; // elements per temporary box array
-    float mnx = box[id], mny = box[st + id], mnz = box[2u * st + id];
-    float mxx = box[3u * st + id], mxy = box[4u * st + id], mxz = box[5u * st + id];
+    float mnx = box_min_x[id], mny = box_min_y[id], mnz = box_min_z[id];
+    float mxx = box_max_x[id], mxy = box_max_y[id], mxz = box_max_z[id];
     float pl = plane[id];
     uint k = kind_of(kind_words[id / 4u], id);
     uint pr = prim[id];
@@ -88,12 +95,12 @@ void main() {
         tmp_prim[o] = pr;
         tmp_node[o] = child + side;
         bool up = side == 1u;
-        tmp_box[o] = (up && s == 0u) ? fmax_total(mnx, p) : mnx;
-        tmp_box[ts + o] = (up && s == 1u) ? fmax_total(mny, p) : mny;
-        tmp_box[2u * ts + o] = (up && s == 2u) ? fmax_total(mnz, p) : mnz;
-        tmp_box[3u * ts + o] = (!up && s == 0u) ? fmin_total(mxx, p) : mxx;
-        tmp_box[4u * ts + o] = (!up && s == 1u) ? fmin_total(mxy, p) : mxy;
-        tmp_box[5u * ts + o] = (!up && s == 2u) ? fmin_total(mxz, p) : mxz;
+        tmp_min_x[o] = (up && s == 0u) ? fmax_total(mnx, p) : mnx;
+        tmp_min_y[o] = (up && s == 1u) ? fmax_total(mny, p) : mny;
+        tmp_min_z[o] = (up && s == 2u) ? fmax_total(mnz, p) : mnz;
+        tmp_max_x[o] = (!up && s == 0u) ? fmin_total(mxx, p) : mxx;
+        tmp_max_y[o] = (!up && s == 1u) ? fmin_total(mxy, p) : mxy;
+        tmp_max_z[o] = (!up && s == 2u) ? fmin_total(mxz, p) : mxz;
     }
 #endif
 }

@@ -60,8 +60,9 @@ pub struct GpuEvents {
     pub prim: Buffer<u32>,
     pub node: Buffer<u32>,
     /// The (clipped) primitive box of every event: six arrays of `capacity` floats
-    /// (min x, y, z, max x, y, z).
-    pub boxes: Buffer<f32>,
+    /// (min x, y, z, max x, y, z), one buffer each so that each stays within
+    /// `maxStorageBufferRange` (8 bytes per reference of a level instead of 48).
+    pub boxes: [Buffer<f32>; 6],
     pub capacity: usize,
 }
 
@@ -73,15 +74,38 @@ impl GpuEvents {
             kind: Buffer::new(ctx, &name("kind"), len)?,
             prim: Buffer::new(ctx, &name("prim"), len)?,
             node: Buffer::new(ctx, &name("node"), len)?,
-            boxes: Buffer::new(ctx, &name("boxes"), 6 * len)?,
+            boxes: [
+                Buffer::new(ctx, &name("min_x"), len)?,
+                Buffer::new(ctx, &name("min_y"), len)?,
+                Buffer::new(ctx, &name("min_z"), len)?,
+                Buffer::new(ctx, &name("max_x"), len)?,
+                Buffer::new(ctx, &name("max_y"), len)?,
+                Buffer::new(ctx, &name("max_z"), len)?,
+            ],
             capacity: len,
         })
     }
 
+    /// The six box arrays, as kernel arguments.
+    fn box_args(&self) -> [&dyn BufferArg; 6] {
+        let b = &self.boxes;
+        [&b[0], &b[1], &b[2], &b[3], &b[4], &b[5]]
+    }
+
+    /// plane, kind, prim, node and the six box arrays, as kernel arguments.
+    fn record_args(&self) -> Vec<&dyn BufferArg> {
+        let mut v: Vec<&dyn BufferArg> = vec![&self.plane, &self.kind, &self.prim, &self.node];
+        v.extend(self.box_args());
+        v
+    }
+
     /// Reads the first `len` events back (for tests and the twin comparison).
     pub fn download(&self, len: usize) -> Result<Events> {
-        let boxes = self.boxes.download()?;
-        let arr = |k: usize| boxes[k * self.capacity..k * self.capacity + len].to_vec();
+        let arr = |k: usize| -> Result<Vec<f32>> {
+            let mut v = self.boxes[k].download()?;
+            v.truncate(len);
+            Ok(v)
+        };
         let head = |mut v: Vec<u32>| {
             v.truncate(len);
             v
@@ -95,8 +119,8 @@ impl GpuEvents {
             kind,
             prim: head(self.prim.download()?),
             node: head(self.node.download()?),
-            box_min: [arr(0), arr(1), arr(2)],
-            box_max: [arr(3), arr(4), arr(5)],
+            box_min: [arr(0)?, arr(1)?, arr(2)?],
+            box_max: [arr(3)?, arr(4)?, arr(5)?],
         })
     }
 }
@@ -133,15 +157,18 @@ impl BuildCapacity {
 
     /// This capacity with every buffer clamped to `max_range` bytes (the device's
     /// `maxStorageBufferRange`: 128 MiB on lavapipe). The largest buffers per unit are the
-    /// event boxes (48 bytes per reference of a level), the level's node boxes (24 bytes per
-    /// node) and the output nodes (16 bytes each). A build that needs more overflows and
-    /// [`KdTreeBuilder::build_from`] reports it as an error naming the limit.
+    /// scanned slot offsets (16 bytes per reference of a level: 4 virtual slots of a u32;
+    /// the event boxes are six arrays of 8 bytes per reference), the level's node boxes (24
+    /// bytes per node) and the output nodes (16 bytes each, in two buffers). On lavapipe that
+    /// is 8.4 M references per level, 5.6 M nodes per level and 16.8 M nodes. A build that
+    /// needs more overflows and [`KdTreeBuilder::build_from`] reports it as an error naming
+    /// the limit.
     pub fn fit(self, max_range: u64) -> Self {
         let most = |bytes_per_item: u64| (max_range / bytes_per_item) as usize;
         Self {
-            refs_per_level: self.refs_per_level.min(most(48)),
+            refs_per_level: self.refs_per_level.min(most(16)),
             nodes_per_level: self.nodes_per_level.min(most(24)),
-            nodes: self.nodes.min(most(16)),
+            nodes: self.nodes.min(2 * most(16)),
             refs: self.refs.min(most(4)),
         }
     }
@@ -233,6 +260,9 @@ pub struct KdTreeBuilder {
     /// How the best split of every node is found (hybrid by default; the others are for
     /// the ablation benchmark).
     pub segmented_mode: SegmentedMode,
+    /// Nodes of the first output buffer ([`BuildOutput::nodes`]); `None`: as many as fit
+    /// `maxStorageBufferRange`. Tests set it small to exercise the second buffer.
+    pub max_nodes_per_buffer: Option<usize>,
     ablation: Ablation,
 }
 
@@ -307,8 +337,30 @@ pub struct BuildScratch {
 
 /// The build's output: nodes and leaf references (valid up to the outcome's counts).
 pub struct BuildOutput {
-    pub nodes: Buffer<KdNode>,
+    /// The nodes in BFS order, in two buffers so that a tree may hold twice as many nodes
+    /// as one buffer within `maxStorageBufferRange` (16.8 M on lavapipe): node `g` is
+    /// `nodes[0][g]` below `nodes[0].len()` and `nodes[1][g - nodes[0].len()]` from there on
+    /// (`nodes[1]` is a one-node buffer when the first holds the whole capacity).
+    /// [`BuildOutput::download_nodes`] reads them back as one list.
+    pub nodes: [Buffer<KdNode>; 2],
     pub prim_refs: Buffer<u32>,
+}
+
+impl BuildOutput {
+    /// Nodes the output holds.
+    pub fn node_capacity(&self) -> usize {
+        self.nodes[0].len() + self.nodes[1].len()
+    }
+
+    /// The first `len` nodes as one list.
+    pub fn download_nodes(&self, len: usize) -> Result<Vec<KdNode>> {
+        let mut nodes = self.nodes[0].download()?;
+        if len > nodes.len() {
+            nodes.extend(self.nodes[1].download()?);
+        }
+        nodes.truncate(len);
+        Ok(nodes)
+    }
 }
 
 impl KdTreeBuilder {
@@ -366,6 +418,7 @@ impl KdTreeBuilder {
             )?,
             // Tiles for the few long segments of the first levels, decided on the GPU.
             segmented_mode: SegmentedMode::hybrid_for(ctx),
+            max_nodes_per_buffer: None,
             ablation,
         })
     }
@@ -379,19 +432,10 @@ impl KdTreeBuilder {
     /// buffer within `maxStorageBufferRange` ([`BuildCapacity::fit`]), a level's nodes
     /// within the segmented argmin's segment limit, its events within its cost limit.
     pub fn fit_capacity(&self, ctx: &Context, capacity: BuildCapacity) -> BuildCapacity {
-        let range = ctx.info().max_storage_buffer_range;
-        let c = capacity.fit(range);
-        // The baseline's temporary box list: 6 floats per slot, 4 slots per reference.
-        let records = if self.ablation.full_record_scatter {
-            (range / 96) as usize
-        } else {
-            usize::MAX
-        };
+        // (The ablation's temporary slot list has 16 bytes per reference per array too.)
+        let c = capacity.fit(ctx.info().max_storage_buffer_range);
         BuildCapacity {
-            refs_per_level: c
-                .refs_per_level
-                .min(self.segmented.max_costs() / 2)
-                .min(records),
+            refs_per_level: c.refs_per_level.min(self.segmented.max_costs() / 2),
             nodes_per_level: c.nodes_per_level.min(self.segmented.max_segments()),
             ..c
         }
@@ -510,8 +554,17 @@ impl KdTreeBuilder {
     }
 
     pub fn output(&self, ctx: &Context, capacity: &BuildCapacity) -> Result<BuildOutput> {
+        let per_buffer = self
+            .max_nodes_per_buffer
+            .unwrap_or((ctx.info().max_storage_buffer_range / 16) as usize)
+            .max(1);
+        let first = capacity.nodes.min(per_buffer);
+        let second = (capacity.nodes - first).max(1);
         Ok(BuildOutput {
-            nodes: Buffer::new(ctx, "kdtree.nodes", capacity.nodes)?,
+            nodes: [
+                Buffer::new(ctx, "kdtree.nodes0", first)?,
+                Buffer::new(ctx, "kdtree.nodes1", second)?,
+            ],
             prim_refs: Buffer::new(ctx, "kdtree.prim_refs", capacity.refs)?,
         })
     }
@@ -662,7 +715,7 @@ impl KdTreeBuilder {
                         .record_f32(rec, &s.keys, &s.values, 2 * n, &s.sort);
                     rec.compute_to_compute();
                     let groups = rec.groups_1d((2 * n).div_ceil(4) as u64, WORKGROUP);
-                    let b: [&dyn BufferArg; 13] = [
+                    let mut b: Vec<&dyn BufferArg> = vec![
                         &s.keys,
                         &s.values,
                         &s.prim_min[0],
@@ -671,13 +724,9 @@ impl KdTreeBuilder {
                         &s.prim_max[0],
                         &s.prim_max[1],
                         &s.prim_max[2],
-                        &ev.plane,
-                        &ev.kind,
-                        &ev.prim,
-                        &ev.node,
-                        &ev.boxes,
                     ];
-                    rec.dispatch(&k.event_gather, groups, &b, &[n as u32, ev.capacity as u32]);
+                    b.extend(ev.record_args());
+                    rec.dispatch(&k.event_gather, groups, &b, &(n as u32));
                     // The next axis reuses keys and values.
                     rec.compute_to_compute();
                 });
@@ -843,21 +892,17 @@ impl KdTreeBuilder {
                 &s.leaf_scratch,
             );
             rec.compute_to_compute();
-            let b: [&dyn BufferArg; 6] = [
+            let b: [&dyn BufferArg; 7] = [
                 &s.state,
                 &lv.node_range,
                 &s.node_split,
                 &s.inner_before,
                 &s.leaf_before,
-                &out.nodes,
+                &out.nodes[0],
+                &out.nodes[1],
             ];
-            rec.dispatch_indirect(
-                &k.write_nodes,
-                &s.state,
-                node_args,
-                &b,
-                &(out.nodes.len() as u32),
-            );
+            let push = [out.node_capacity() as u32, out.nodes[0].len() as u32];
+            rec.dispatch_indirect(&k.write_nodes, &s.state, node_args, &b, &push);
             let b: [&dyn BufferArg; 9] = [
                 &s.state,
                 &lv.node_range,
@@ -885,37 +930,21 @@ impl KdTreeBuilder {
                 div: 1,
             };
             for a in 0..3 {
-                let classify_args: [&dyn BufferArg; 6] = [
-                    &s.state,
-                    &lv.node_range,
-                    &s.node_split,
-                    &ev[a].node,
-                    &ev[a].boxes,
-                    &s.slots,
-                ];
-                rec.scope("kdtree.classify", |rec| match &s.slot_records {
-                    None => rec.dispatch_indirect(
-                        &k.classify,
-                        &s.state,
-                        ev_args,
-                        &classify_args,
-                        &(e as u32),
-                    ),
-                    Some(t) => {
-                        let mut b: Vec<&dyn BufferArg> = classify_args.to_vec();
-                        b.extend([
-                            &s.inner_before as &dyn BufferArg,
-                            &ev[a].plane,
-                            &ev[a].kind,
-                            &ev[a].prim,
-                            &t.plane,
-                            &t.kind,
-                            &t.prim,
-                            &t.node,
-                            &t.boxes,
-                        ]);
-                        rec.dispatch_indirect(&k.classify, &s.state, ev_args, &b, &(e as u32))
-                    }
+                let mut b: Vec<&dyn BufferArg> =
+                    vec![&s.state, &lv.node_range, &s.node_split, &ev[a].node];
+                b.extend(ev[a].box_args());
+                b.push(&s.slots);
+                if let Some(t) = &s.slot_records {
+                    b.extend([
+                        &s.inner_before as &dyn BufferArg,
+                        &ev[a].plane,
+                        &ev[a].kind,
+                        &ev[a].prim,
+                    ]);
+                    b.extend(t.record_args());
+                }
+                rec.scope("kdtree.classify", |rec| {
+                    rec.dispatch_indirect(&k.classify, &s.state, ev_args, &b, &())
                 });
                 rec.compute_to_compute();
                 self.flag_scan.record_counted(
@@ -928,41 +957,32 @@ impl KdTreeBuilder {
                     &s.slot_scratch,
                 );
                 rec.compute_to_compute();
-                let out: [&dyn BufferArg; 5] = [
-                    &nev[a].plane,
-                    &nev[a].kind,
-                    &nev[a].prim,
-                    &nev[a].node,
-                    &nev[a].boxes,
-                ];
-                let b: Vec<&dyn BufferArg> = match &s.slot_records {
-                    None => vec![
-                        &s.state,
-                        &lv.node_range,
-                        &s.node_split,
-                        &s.inner_before,
-                        &s.slot_offsets,
-                        &ev[a].plane,
-                        &ev[a].kind,
-                        &ev[a].prim,
-                        &ev[a].node,
-                        &ev[a].boxes,
-                    ],
-                    Some(t) => vec![
-                        &s.state,
-                        &lv.node_range,
-                        &s.node_split,
-                        &ev[a].node,
-                        &s.slot_offsets,
-                        &s.slots,
-                        &t.plane,
-                        &t.kind,
-                        &t.prim,
-                        &t.node,
-                        &t.boxes,
-                    ],
+                let mut b: Vec<&dyn BufferArg> = match &s.slot_records {
+                    None => {
+                        let mut b: Vec<&dyn BufferArg> = vec![
+                            &s.state,
+                            &lv.node_range,
+                            &s.node_split,
+                            &s.inner_before,
+                            &s.slot_offsets,
+                        ];
+                        b.extend(ev[a].record_args());
+                        b
+                    }
+                    Some(t) => {
+                        let mut b: Vec<&dyn BufferArg> = vec![
+                            &s.state,
+                            &lv.node_range,
+                            &s.node_split,
+                            &ev[a].node,
+                            &s.slot_offsets,
+                            &s.slots,
+                        ];
+                        b.extend(t.record_args());
+                        b
+                    }
                 };
-                let b: Vec<&dyn BufferArg> = b.into_iter().chain(out).collect();
+                b.extend(nev[a].record_args());
                 rec.scope("kdtree.scatter", |rec| {
                     rec.dispatch_indirect(&k.scatter, &s.state, ev_args, &b, &(e as u32))
                 });
@@ -990,7 +1010,7 @@ impl KdTreeBuilder {
         let push = AdvancePush {
             ref_capacity: s.capacity.refs_per_level as u32,
             level_node_capacity: m as u32,
-            node_capacity: out.nodes.len() as u32,
+            node_capacity: out.node_capacity() as u32,
             out_ref_capacity: out.prim_refs.len() as u32,
         };
         let b: [&dyn BufferArg; 6] = [
@@ -1122,8 +1142,7 @@ impl KdTreeBuilder {
                 capacity = larger;
                 continue;
             }
-            let mut nodes = out.nodes.download()?;
-            nodes.truncate(outcome.nodes as usize);
+            let nodes = out.download_nodes(outcome.nodes as usize)?;
             let mut prim_refs = out.prim_refs.download()?;
             prim_refs.truncate(outcome.refs as usize);
             let tree = KdTree {
