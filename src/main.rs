@@ -123,8 +123,8 @@ enum BenchCommand {
         /// of each is reported (the machine may be shared).
         #[arg(long, default_value_t = 1)]
         reps: u32,
-        /// Seed 001's termination: leaves below 64 primitives, no SAH leaf test (the default
-        /// trees of 1 M+ triangles do not fit lavapipe's 128 MiB buffer limit; these do).
+        /// Seed 001's termination: leaves below 64 primitives, no SAH leaf test (much smaller
+        /// trees than the default leaves of at most 2 primitives).
         #[arg(long)]
         seed_termination: bool,
         /// Mesh to include (default: ../shared/scenes/stanford-bunny.obj when present).
