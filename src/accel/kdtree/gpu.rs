@@ -286,7 +286,8 @@ pub struct Ablation {
     /// flag scan, and `scatter.records` moves every valid slot's complete record a second
     /// time to its scanned place: every record is written twice and read twice (≈ 74 bytes
     /// written per kept copy), with the temporary list as extra memory (74 bytes per
-    /// event, so the baseline's per-level capacity is clamped twice as hard).
+    /// event; its largest arrays hold 16 bytes per reference, like the slot offsets, so
+    /// the per-level capacity limit is the same).
     pub full_record_scatter: bool,
 }
 
