@@ -148,8 +148,12 @@ enum BenchCommand {
         ablation: bool,
         #[arg(long, default_value_t = 100_000)]
         ablation_max_n: u64,
-        /// Seed 001's termination: leaves below 64 primitives, no SAH leaf test (the default
-        /// trees of 1 M+ triangles do not fit lavapipe's 128 MiB buffer limit; these do).
+        /// Timed builds per variant, interleaved round-robin over the variants; the fastest
+        /// of each is reported (the machine may be shared).
+        #[arg(long, default_value_t = 1)]
+        reps: u32,
+        /// Seed 001's termination: leaves below 64 primitives, no SAH leaf test (much smaller
+        /// trees than the default leaves of at most 2 primitives).
         #[arg(long)]
         seed_termination: bool,
         /// Mesh to include (default: ../shared/scenes/stanford-bunny.obj when present).
@@ -764,6 +768,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     max_n,
                     ablation,
                     ablation_max_n,
+                    reps,
                     seed_termination,
                     mesh,
                     json,
@@ -806,7 +811,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             }
             let ablation_max_n = if ablation { ablation_max_n as usize } else { 0 };
             let (report, trace) = vkrt::gpu::capture_profiles(|| {
-                vkrt::bench::kdtree_report(&ctx, &scenes, &params, ablation_max_n)
+                vkrt::bench::kdtree_report(&ctx, &scenes, &params, ablation_max_n, reps)
             });
             let report = report?;
             write_profile(&profile, &trace)?;
@@ -849,6 +854,12 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                         p("clip_partition"),
                         r.sah_cost
                     );
+                }
+                if report.rows.iter().any(|r| r.variant != "default") {
+                    println!("ratio: variant build ms / default build ms, same scene, same run, same tree");
+                    for (label, note) in vkrt::bench::KD_VARIANT_NOTES {
+                        println!("  {label}: {note}");
+                    }
                 }
                 if let Some(e) = report.fitted_exponent {
                     println!("fitted exponent of build time over N (icospheres): {e:.3}");

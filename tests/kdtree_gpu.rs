@@ -449,8 +449,7 @@ fn sphere_boxes_on_the_gpu_equal_the_cpu_twin_and_build_the_same_tree() {
     // The tree.
     let outcome = builder.read_outcome(&scratch).unwrap();
     assert!(!outcome.overflow);
-    let mut nodes = out.nodes.download().unwrap();
-    nodes.truncate(outcome.nodes as usize);
+    let nodes = out.download_nodes(outcome.nodes as usize).unwrap();
     let mut refs = out.prim_refs.download().unwrap();
     refs.truncate(outcome.refs as usize);
     let (cpu, _) = seed001::build_boxes(&boxes, &p);
@@ -498,10 +497,19 @@ fn ablation_variants_build_the_same_tree() {
             None,
         ),
         (
-            "both, workgroup per segment",
+            "full-record scatter",
+            Ablation {
+                full_record_scatter: true,
+                ..Ablation::default()
+            },
+            None,
+        ),
+        (
+            "all, workgroup per segment",
             Ablation {
                 shared_memory_argmin: true,
                 u32_event_scan: true,
+                full_record_scatter: true,
             },
             Some(SegmentedMode::WorkgroupPerSegment),
         ),
@@ -527,8 +535,31 @@ fn capacities_fit_the_device_buffer_limit() {
     let small = BuildCapacity::for_primitives(1000);
     assert_eq!(small.fit(limit), small);
     let big = BuildCapacity::for_primitives(2_000_000).fit(limit);
-    assert!(48 * big.refs_per_level as u64 <= limit, "{big:?}");
+    // Slot offsets: 4 u32 per reference; event boxes: 6 buffers of 2 floats per reference.
+    assert!(16 * big.refs_per_level as u64 <= limit, "{big:?}");
     assert!(24 * big.nodes_per_level as u64 <= limit, "{big:?}");
-    assert!(16 * big.nodes as u64 <= limit, "{big:?}");
+    // The output nodes live in two buffers.
+    assert!(16 * big.nodes as u64 <= 2 * limit, "{big:?}");
     assert!(4 * big.refs as u64 <= limit, "{big:?}");
+    // The default 2 M capacity (8 M references per level) fits as it is; the tree of a 2 M
+    // icosphere needs ≈ 3 references per triangle in its widest level and ≈ 6 nodes per
+    // triangle (the CPU twin's counts).
+    assert_eq!(big.refs_per_level, 8_000_064);
+    assert!(big.nodes >= 13_000_000, "{big:?}");
+}
+
+#[test]
+fn output_nodes_split_across_two_buffers() {
+    // The output nodes' second buffer (trees above maxStorageBufferRange / 16 nodes), with a
+    // first buffer of 1000 nodes so a small tree crosses the boundary.
+    let Some(ctx) = common::context() else { return };
+    let p = vkrt::accel::kdtree::SahParams::default();
+    let tris = common::mesh_triangles(&gen::random_soup(2000, 7).unwrap());
+    let mut builder = KdTreeBuilder::new(&ctx).unwrap();
+    builder.max_nodes_per_buffer = Some(1000);
+    let (cpu, _) = seed001::build(&tris, &p);
+    assert!(cpu.nodes.len() > 1000, "{} nodes", cpu.nodes.len());
+    let (gpu, _) = builder.build(&ctx, &tris, &p).unwrap();
+    assert_trees_equal("two node buffers", &gpu, &cpu);
+    common::assert_silent(&ctx);
 }

@@ -16,8 +16,14 @@ layout(std430, binding = 8) writeonly buffer Plane { float plane[]; };
 layout(std430, binding = 9) writeonly buffer Kind { uint kind_bytes[]; }; // 4 x u8 per word
 layout(std430, binding = 10) writeonly buffer Prim { uint prim_out[]; };
 layout(std430, binding = 11) writeonly buffer Node { uint node_out[]; };
-layout(std430, binding = 12) writeonly buffer Box { float box[]; }; // 6 arrays of `stride`
-layout(push_constant) uniform Push { uint n; uint stride; } pc; // primitives, box stride
+// The event boxes: one array per component (each within maxStorageBufferRange).
+layout(std430, binding = 12) writeonly buffer BoxMinX { float box_min_x[]; };
+layout(std430, binding = 13) writeonly buffer BoxMinY { float box_min_y[]; };
+layout(std430, binding = 14) writeonly buffer BoxMinZ { float box_min_z[]; };
+layout(std430, binding = 15) writeonly buffer BoxMaxX { float box_max_x[]; };
+layout(std430, binding = 16) writeonly buffer BoxMaxY { float box_max_y[]; };
+layout(std430, binding = 17) writeonly buffer BoxMaxZ { float box_max_z[]; };
+layout(push_constant) uniform Push { uint n; } pc; // primitives
 
 void main() {
     uint word = linear_invocation_id();
@@ -38,12 +44,12 @@ void main() {
         plane[j] = sorted_keys[j];
         prim_out[j] = prim;
         node_out[j] = 0;
-        box[j] = min_x[prim];
-        box[pc.stride + j] = min_y[prim];
-        box[2u * pc.stride + j] = min_z[prim];
-        box[3u * pc.stride + j] = max_x[prim];
-        box[4u * pc.stride + j] = max_y[prim];
-        box[5u * pc.stride + j] = max_z[prim];
+        box_min_x[j] = min_x[prim];
+        box_min_y[j] = min_y[prim];
+        box_min_z[j] = min_z[prim];
+        box_max_x[j] = max_x[prim];
+        box_max_y[j] = max_y[prim];
+        box_max_z[j] = max_z[prim];
     }
     kind_bytes[word] = packed;
 }

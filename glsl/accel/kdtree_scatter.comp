@@ -2,11 +2,37 @@
 // kd-tree Phase II: one compaction moves each event record of one axis list once per side,
 // to its scanned slot, with its box clipped on the split axis only; lists stay sorted
 // (stable subsequences), so they are never re-sorted (twin: seed001::scatter).
+//
+// Variant `records` (the ablation `full_record_scatter`, seed 001's pre-clip-mask baseline):
+// the records were already clipped and written to their virtual slots of a temporary list by
+// `kdtree_classify.records`; this pass moves each valid slot's complete record a second time,
+// to its scanned place (one invocation per event, for its two slots).
 #extension GL_EXT_shader_8bit_storage : require
+//! variant once MOVE_ONCE=1
+//! variant records FULL_RECORDS=1
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "accel/kdtree_level.glsl"
 
+#ifdef FULL_RECORDS
+layout(std430, binding = 0) readonly buffer State { uint state[]; };
+layout(std430, binding = 1) readonly buffer NodeRange { uint node_range[]; };
+layout(std430, binding = 2) readonly buffer NodeSplit { uint node_split[]; };
+layout(std430, binding = 3) readonly buffer Node { uint node_of[]; };
+layout(std430, binding = 4) readonly buffer Offsets { uint offsets[]; };
+layout(std430, binding = 5) readonly buffer Slots { uint slot_words[]; }; // 4 flags a word
+// The temporary slot list `kdtree_classify.records` wrote.
+layout(std430, binding = 6) readonly buffer TmpPlane { float tmp_plane[]; };
+layout(std430, binding = 7) readonly buffer TmpKind { uint tmp_kind_words[]; };
+layout(std430, binding = 8) readonly buffer TmpPrim { uint tmp_prim[]; };
+layout(std430, binding = 9) readonly buffer TmpNode { uint tmp_node[]; };
+layout(std430, binding = 10) readonly buffer TmpMinX { float tmp_min_x[]; };
+layout(std430, binding = 11) readonly buffer TmpMinY { float tmp_min_y[]; };
+layout(std430, binding = 12) readonly buffer TmpMinZ { float tmp_min_z[]; };
+layout(std430, binding = 13) readonly buffer TmpMaxX { float tmp_max_x[]; };
+layout(std430, binding = 14) readonly buffer TmpMaxY { float tmp_max_y[]; };
+layout(std430, binding = 15) readonly buffer TmpMaxZ { float tmp_max_z[]; };
+#else
 layout(std430, binding = 0) readonly buffer State { uint state[]; };
 layout(std430, binding = 1) readonly buffer NodeRange { uint node_range[]; };
 layout(std430, binding = 2) readonly buffer NodeSplit { uint node_split[]; };
@@ -16,14 +42,60 @@ layout(std430, binding = 5) readonly buffer Plane { float plane[]; };
 layout(std430, binding = 6) readonly buffer Kind { uint kind_words[]; };
 layout(std430, binding = 7) readonly buffer Prim { uint prim[]; };
 layout(std430, binding = 8) readonly buffer Node { uint node_of[]; };
-layout(std430, binding = 9) readonly buffer Box { float box[]; }; // 6 arrays of `stride`
-layout(std430, binding = 10) writeonly buffer OutPlane { float out_plane[]; };
-layout(std430, binding = 11) writeonly buffer OutKind { uint8_t out_kind[]; };
-layout(std430, binding = 12) writeonly buffer OutPrim { uint out_prim[]; };
-layout(std430, binding = 13) writeonly buffer OutNode { uint out_node[]; };
-layout(std430, binding = 14) writeonly buffer OutBox { float out_box[]; };
-layout(push_constant) uniform Push { uint stride; } pc; // elements per box array
+layout(std430, binding = 10) readonly buffer BoxMinX { float box_min_x[]; };
+layout(std430, binding = 11) readonly buffer BoxMinY { float box_min_y[]; };
+layout(std430, binding = 12) readonly buffer BoxMinZ { float box_min_z[]; };
+layout(std430, binding = 13) readonly buffer BoxMaxX { float box_max_x[]; };
+layout(std430, binding = 14) readonly buffer BoxMaxY { float box_max_y[]; };
+layout(std430, binding = 15) readonly buffer BoxMaxZ { float box_max_z[]; };
+#endif
+// The next level's list of this axis (box arrays one per component).
+layout(std430, binding = 16) writeonly buffer OutPlane { float out_plane[]; };
+layout(std430, binding = 17) writeonly buffer OutKind { uint8_t out_kind[]; };
+layout(std430, binding = 18) writeonly buffer OutPrim { uint out_prim[]; };
+layout(std430, binding = 19) writeonly buffer OutNode { uint out_node[]; };
+layout(std430, binding = 20) writeonly buffer OutMinX { float out_min_x[]; };
+layout(std430, binding = 21) writeonly buffer OutMinY { float out_min_y[]; };
+layout(std430, binding = 22) writeonly buffer OutMinZ { float out_min_z[]; };
+layout(std430, binding = 23) writeonly buffer OutMaxX { float out_max_x[]; };
+layout(std430, binding = 24) writeonly buffer OutMaxY { float out_max_y[]; };
+layout(std430, binding = 25) writeonly buffer OutMaxZ { float out_max_z[]; };
+layout(push_constant) uniform Push { uint capacity; } pc; // events of the output list
 
+#ifdef FULL_RECORDS
+void main() {
+    uint id = linear_invocation_id();
+    if (id >= 2u * state[ST_REFS]) {
+        return;
+    }
+    uint node = node_of[id];
+    if (node_split[2u * node] == KD_LEAF) {
+        return;
+    }
+    uint first = node_range[2u * node];
+    uint count = node_range[2u * node + 1u];
+    for (uint side = 0u; side < 2u; side++) {
+        uint v = id + 2u * first + side * 2u * count;
+        if (kind_of(slot_words[v / 4u], v) == 0u) {
+            continue;
+        }
+        uint o = offsets[v];
+        if (o >= pc.capacity) {
+            continue; // past capacity: kdtree_advance raises the overflow flag
+        }
+        out_plane[o] = tmp_plane[v];
+        out_kind[o] = uint8_t(kind_of(tmp_kind_words[v / 4u], v));
+        out_prim[o] = tmp_prim[v];
+        out_node[o] = tmp_node[v];
+        out_min_x[o] = tmp_min_x[v];
+        out_min_y[o] = tmp_min_y[v];
+        out_min_z[o] = tmp_min_z[v];
+        out_max_x[o] = tmp_max_x[v];
+        out_max_y[o] = tmp_max_y[v];
+        out_max_z[o] = tmp_max_z[v];
+    }
+}
+#else
 void main() {
     uint id = linear_invocation_id();
     if (id >= 2u * state[ST_REFS]) {
@@ -37,10 +109,8 @@ void main() {
     uint first = node_range[2u * node];
     uint count = node_range[2u * node + 1u];
     float p = uintBitsToFloat(node_split[2u * node + 1u]);
-    uint st = pc.stride;
-    // Six scalars, no private array: dynamic indexing of one spills to memory on lavapipe.
-    float mnx = box[id], mny = box[st + id], mnz = box[2u * st + id];
-    float mxx = box[3u * st + id], mxy = box[4u * st + id], mxz = box[5u * st + id];
+    float mnx = box_min_x[id], mny = box_min_y[id], mnz = box_min_z[id];
+    float mxx = box_max_x[id], mxy = box_max_y[id], mxz = box_max_z[id];
     float lo = s == 0u ? mnx : (s == 1u ? mny : mnz);
     float hi = s == 0u ? mxx : (s == 1u ? mxy : mxz);
     bool below = hi <= p;
@@ -56,7 +126,7 @@ void main() {
             continue;
         }
         uint o = offsets[v + side * 2u * count];
-        if (o >= st) {
+        if (o >= pc.capacity) {
             continue; // past capacity: kdtree_advance raises the overflow flag
         }
         out_plane[o] = pl;
@@ -65,11 +135,12 @@ void main() {
         out_node[o] = child + side;
         // Clip on the split axis only: the below copy's max, the above copy's min.
         bool up = side == 1u;
-        out_box[o] = (up && s == 0u) ? fmax_total(mnx, p) : mnx;
-        out_box[st + o] = (up && s == 1u) ? fmax_total(mny, p) : mny;
-        out_box[2u * st + o] = (up && s == 2u) ? fmax_total(mnz, p) : mnz;
-        out_box[3u * st + o] = (!up && s == 0u) ? fmin_total(mxx, p) : mxx;
-        out_box[4u * st + o] = (!up && s == 1u) ? fmin_total(mxy, p) : mxy;
-        out_box[5u * st + o] = (!up && s == 2u) ? fmin_total(mxz, p) : mxz;
+        out_min_x[o] = (up && s == 0u) ? fmax_total(mnx, p) : mnx;
+        out_min_y[o] = (up && s == 1u) ? fmax_total(mny, p) : mny;
+        out_min_z[o] = (up && s == 2u) ? fmax_total(mnz, p) : mnz;
+        out_max_x[o] = (!up && s == 0u) ? fmin_total(mxx, p) : mxx;
+        out_max_y[o] = (!up && s == 1u) ? fmin_total(mxy, p) : mxy;
+        out_max_z[o] = (!up && s == 2u) ? fmin_total(mxz, p) : mxz;
     }
 }
+#endif

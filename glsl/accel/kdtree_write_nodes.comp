@@ -9,8 +9,19 @@ layout(std430, binding = 1) readonly buffer NodeRange { uint node_range[]; };
 layout(std430, binding = 2) readonly buffer NodeSplit { uint node_split[]; };
 layout(std430, binding = 3) readonly buffer InnerBefore { uint inner_before[]; };
 layout(std430, binding = 4) readonly buffer LeafBefore { uint leaf_before[]; };
-layout(std430, binding = 5) writeonly buffer Nodes { KdNode nodes[]; };
-layout(push_constant) uniform Push { uint node_capacity; } pc;
+// The output nodes in two buffers (each within maxStorageBufferRange): node g is
+// nodes0[g] below `split`, nodes1[g − split] from there on.
+layout(std430, binding = 5) writeonly buffer Nodes0 { KdNode nodes0[]; };
+layout(std430, binding = 6) writeonly buffer Nodes1 { KdNode nodes1[]; };
+layout(push_constant) uniform Push { uint node_capacity; uint split; } pc;
+
+void put(uint g, KdNode n) {
+    if (g < pc.split) {
+        nodes0[g] = n;
+    } else {
+        nodes1[g - pc.split] = n;
+    }
+}
 
 void main() {
     uint i = linear_invocation_id();
@@ -21,9 +32,9 @@ void main() {
     }
     uint kind = node_split[2u * i];
     if (kind == KD_LEAF) {
-        nodes[g] = KdNode(0.0, KD_LEAF, state[ST_REF_BASE] + leaf_before[i], node_range[2u * i + 1u]);
+        put(g, KdNode(0.0, KD_LEAF, state[ST_REF_BASE] + leaf_before[i], node_range[2u * i + 1u]));
     } else {
         uint first_child = state[ST_NODE_BASE] + m + 2u * inner_before[i];
-        nodes[g] = KdNode(uintBitsToFloat(node_split[2u * i + 1u]), kind, first_child, 0u);
+        put(g, KdNode(uintBitsToFloat(node_split[2u * i + 1u]), kind, first_child, 0u));
     }
 }

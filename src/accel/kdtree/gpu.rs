@@ -60,8 +60,9 @@ pub struct GpuEvents {
     pub prim: Buffer<u32>,
     pub node: Buffer<u32>,
     /// The (clipped) primitive box of every event: six arrays of `capacity` floats
-    /// (min x, y, z, max x, y, z).
-    pub boxes: Buffer<f32>,
+    /// (min x, y, z, max x, y, z), one buffer each so that each stays within
+    /// `maxStorageBufferRange` (8 bytes per reference of a level instead of 48).
+    pub boxes: [Buffer<f32>; 6],
     pub capacity: usize,
 }
 
@@ -73,15 +74,38 @@ impl GpuEvents {
             kind: Buffer::new(ctx, &name("kind"), len)?,
             prim: Buffer::new(ctx, &name("prim"), len)?,
             node: Buffer::new(ctx, &name("node"), len)?,
-            boxes: Buffer::new(ctx, &name("boxes"), 6 * len)?,
+            boxes: [
+                Buffer::new(ctx, &name("min_x"), len)?,
+                Buffer::new(ctx, &name("min_y"), len)?,
+                Buffer::new(ctx, &name("min_z"), len)?,
+                Buffer::new(ctx, &name("max_x"), len)?,
+                Buffer::new(ctx, &name("max_y"), len)?,
+                Buffer::new(ctx, &name("max_z"), len)?,
+            ],
             capacity: len,
         })
     }
 
+    /// The six box arrays, as kernel arguments.
+    fn box_args(&self) -> [&dyn BufferArg; 6] {
+        let b = &self.boxes;
+        [&b[0], &b[1], &b[2], &b[3], &b[4], &b[5]]
+    }
+
+    /// plane, kind, prim, node and the six box arrays, as kernel arguments.
+    fn record_args(&self) -> Vec<&dyn BufferArg> {
+        let mut v: Vec<&dyn BufferArg> = vec![&self.plane, &self.kind, &self.prim, &self.node];
+        v.extend(self.box_args());
+        v
+    }
+
     /// Reads the first `len` events back (for tests and the twin comparison).
     pub fn download(&self, len: usize) -> Result<Events> {
-        let boxes = self.boxes.download()?;
-        let arr = |k: usize| boxes[k * self.capacity..k * self.capacity + len].to_vec();
+        let arr = |k: usize| -> Result<Vec<f32>> {
+            let mut v = self.boxes[k].download()?;
+            v.truncate(len);
+            Ok(v)
+        };
         let head = |mut v: Vec<u32>| {
             v.truncate(len);
             v
@@ -95,8 +119,8 @@ impl GpuEvents {
             kind,
             prim: head(self.prim.download()?),
             node: head(self.node.download()?),
-            box_min: [arr(0), arr(1), arr(2)],
-            box_max: [arr(3), arr(4), arr(5)],
+            box_min: [arr(0)?, arr(1)?, arr(2)?],
+            box_max: [arr(3)?, arr(4)?, arr(5)?],
         })
     }
 }
@@ -133,15 +157,18 @@ impl BuildCapacity {
 
     /// This capacity with every buffer clamped to `max_range` bytes (the device's
     /// `maxStorageBufferRange`: 128 MiB on lavapipe). The largest buffers per unit are the
-    /// event boxes (48 bytes per reference of a level), the level's node boxes (24 bytes per
-    /// node) and the output nodes (16 bytes each). A build that needs more overflows and
-    /// [`KdTreeBuilder::build_from`] reports it as an error naming the limit.
+    /// scanned slot offsets (16 bytes per reference of a level: 4 virtual slots of a u32;
+    /// the event boxes are six arrays of 8 bytes per reference), the level's node boxes (24
+    /// bytes per node) and the output nodes (16 bytes each, in two buffers). On lavapipe that
+    /// is 8.4 M references per level, 5.6 M nodes per level and 16.8 M nodes. A build that
+    /// needs more overflows and [`KdTreeBuilder::build_from`] reports it as an error naming
+    /// the limit.
     pub fn fit(self, max_range: u64) -> Self {
         let most = |bytes_per_item: u64| (max_range / bytes_per_item) as usize;
         Self {
-            refs_per_level: self.refs_per_level.min(most(48)),
+            refs_per_level: self.refs_per_level.min(most(16)),
             nodes_per_level: self.nodes_per_level.min(most(24)),
-            nodes: self.nodes.min(most(16)),
+            nodes: self.nodes.min(2 * most(16)),
             refs: self.refs.min(most(4)),
         }
     }
@@ -233,6 +260,9 @@ pub struct KdTreeBuilder {
     /// How the best split of every node is found (hybrid by default; the others are for
     /// the ablation benchmark).
     pub segmented_mode: SegmentedMode,
+    /// Nodes of the first output buffer ([`BuildOutput::nodes`]); `None`: as many as fit
+    /// `maxStorageBufferRange`. Tests set it small to exercise the second buffer.
+    pub max_nodes_per_buffer: Option<usize>,
     ablation: Ablation,
 }
 
@@ -246,6 +276,19 @@ pub struct Ablation {
     /// START counts by the plain u32 scan over event types widened to u32 (an extra pass)
     /// instead of the byte-flag scan that reads 4 types per u32 (seed 001 Listing 6.6).
     pub u32_event_scan: bool,
+    /// Clipping and partitioning by scattering full event records instead of the 1-byte
+    /// clip-mask (seed 001 Alg. 10 / Table 6.1 vs its baseline, "Clip-Mask" in Table 6.2).
+    /// Default: `classify` writes one flag byte per event and side, one flag scan, and
+    /// `scatter` reads each record once and writes it, clipped, to its place (≈ 37 bytes
+    /// written per kept copy). Baseline: `classify.records` also writes each event's complete
+    /// clipped record (plane, type, primitive, child node, 6 box floats) into its valid
+    /// [below | above] slots of a temporary list twice the event list's length, the same
+    /// flag scan, and `scatter.records` moves every valid slot's complete record a second
+    /// time to its scanned place: every record is written twice and read twice (≈ 74 bytes
+    /// written per kept copy), with the temporary list as extra memory (74 bytes per
+    /// event; its largest arrays hold 16 bytes per reference, like the slot offsets, so
+    /// the per-level capacity limit is the same).
+    pub full_record_scatter: bool,
 }
 
 /// The level's node arrays (ping-ponged between levels).
@@ -288,12 +331,37 @@ pub struct BuildScratch {
     seg_scratch: Buffer<u32>,
     /// Ablation `u32_event_scan` only: widened event types and the u32 scan's scratch.
     wide_flags: Option<(Buffer<u32>, ScanScratch)>,
+    /// Ablation `full_record_scatter` only: the temporary list of full records, one per
+    /// virtual slot (twice the event list).
+    slot_records: Option<GpuEvents>,
 }
 
 /// The build's output: nodes and leaf references (valid up to the outcome's counts).
 pub struct BuildOutput {
-    pub nodes: Buffer<KdNode>,
+    /// The nodes in BFS order, in two buffers so that a tree may hold twice as many nodes
+    /// as one buffer within `maxStorageBufferRange` (16.8 M on lavapipe): node `g` is
+    /// `nodes[0][g]` below `nodes[0].len()` and `nodes[1][g - nodes[0].len()]` from there on
+    /// (`nodes[1]` is a one-node buffer when the first holds the whole capacity).
+    /// [`BuildOutput::download_nodes`] reads them back as one list.
+    pub nodes: [Buffer<KdNode>; 2],
     pub prim_refs: Buffer<u32>,
+}
+
+impl BuildOutput {
+    /// Nodes the output holds.
+    pub fn node_capacity(&self) -> usize {
+        self.nodes[0].len() + self.nodes[1].len()
+    }
+
+    /// The first `len` nodes as one list.
+    pub fn download_nodes(&self, len: usize) -> Result<Vec<KdNode>> {
+        let mut nodes = self.nodes[0].download()?;
+        if len > nodes.len() {
+            nodes.extend(self.nodes[1].download()?);
+        }
+        nodes.truncate(len);
+        Ok(nodes)
+    }
 }
 
 impl KdTreeBuilder {
@@ -321,8 +389,16 @@ impl KdTreeBuilder {
                 decide: k(&kernels::ACCEL_KDTREE_DECIDE)?,
                 write_nodes: k(&kernels::ACCEL_KDTREE_WRITE_NODES)?,
                 leaves: k(&kernels::ACCEL_KDTREE_LEAVES)?,
-                classify: k(&kernels::ACCEL_KDTREE_CLASSIFY)?,
-                scatter: k(&kernels::ACCEL_KDTREE_SCATTER)?,
+                classify: k(if ablation.full_record_scatter {
+                    &kernels::ACCEL_KDTREE_CLASSIFY_RECORDS
+                } else {
+                    &kernels::ACCEL_KDTREE_CLASSIFY_MASK
+                })?,
+                scatter: k(if ablation.full_record_scatter {
+                    &kernels::ACCEL_KDTREE_SCATTER_RECORDS
+                } else {
+                    &kernels::ACCEL_KDTREE_SCATTER_ONCE
+                })?,
                 children: k(&kernels::ACCEL_KDTREE_CHILDREN)?,
                 advance: one(&kernels::ACCEL_KDTREE_ADVANCE)?,
             },
@@ -343,6 +419,7 @@ impl KdTreeBuilder {
             )?,
             // Tiles for the few long segments of the first levels, decided on the GPU.
             segmented_mode: SegmentedMode::hybrid_for(ctx),
+            max_nodes_per_buffer: None,
             ablation,
         })
     }
@@ -356,6 +433,7 @@ impl KdTreeBuilder {
     /// buffer within `maxStorageBufferRange` ([`BuildCapacity::fit`]), a level's nodes
     /// within the segmented argmin's segment limit, its events within its cost limit.
     pub fn fit_capacity(&self, ctx: &Context, capacity: BuildCapacity) -> BuildCapacity {
+        // (The ablation's temporary slot list has 16 bytes per reference per array too.)
         let c = capacity.fit(ctx.info().max_storage_buffer_range);
         BuildCapacity {
             refs_per_level: c.refs_per_level.min(self.segmented.max_costs() / 2),
@@ -373,8 +451,17 @@ impl KdTreeBuilder {
         let per_node = 2 * m * (24 + 8 + 4) + m * (8 + 4 * 4 + 8);
         let phase_one = n as u64 * (24 + 2 * 8);
         let scans = 3 * (2 * e * 4 / 1000 + 64); // tile sums: a small fraction
+        let ablation = if self.ablation.full_record_scatter {
+            2 * e * (4 + 1 + 4 + 4 + 24)
+        } else {
+            0
+        } + if self.ablation.u32_event_scan {
+            e * 4
+        } else {
+            0
+        };
         BuildSizes {
-            scratch_bytes: events + per_event + per_node + phase_one + scans,
+            scratch_bytes: events + per_event + per_node + phase_one + scans + ablation,
             tree_bytes: capacity.nodes as u64 * 16 + capacity.refs as u64 * 4,
         }
     }
@@ -459,12 +546,26 @@ impl KdTreeBuilder {
             } else {
                 None
             },
+            slot_records: if self.ablation.full_record_scatter {
+                Some(GpuEvents::new(ctx, "slot_records", 2 * e)?)
+            } else {
+                None
+            },
         })
     }
 
     pub fn output(&self, ctx: &Context, capacity: &BuildCapacity) -> Result<BuildOutput> {
+        let per_buffer = self
+            .max_nodes_per_buffer
+            .unwrap_or((ctx.info().max_storage_buffer_range / 16) as usize)
+            .max(1);
+        let first = capacity.nodes.min(per_buffer);
+        let second = (capacity.nodes - first).max(1);
         Ok(BuildOutput {
-            nodes: Buffer::new(ctx, "kdtree.nodes", capacity.nodes)?,
+            nodes: [
+                Buffer::new(ctx, "kdtree.nodes0", first)?,
+                Buffer::new(ctx, "kdtree.nodes1", second)?,
+            ],
             prim_refs: Buffer::new(ctx, "kdtree.prim_refs", capacity.refs)?,
         })
     }
@@ -615,7 +716,7 @@ impl KdTreeBuilder {
                         .record_f32(rec, &s.keys, &s.values, 2 * n, &s.sort);
                     rec.compute_to_compute();
                     let groups = rec.groups_1d((2 * n).div_ceil(4) as u64, WORKGROUP);
-                    let b: [&dyn BufferArg; 13] = [
+                    let mut b: Vec<&dyn BufferArg> = vec![
                         &s.keys,
                         &s.values,
                         &s.prim_min[0],
@@ -624,13 +725,9 @@ impl KdTreeBuilder {
                         &s.prim_max[0],
                         &s.prim_max[1],
                         &s.prim_max[2],
-                        &ev.plane,
-                        &ev.kind,
-                        &ev.prim,
-                        &ev.node,
-                        &ev.boxes,
                     ];
-                    rec.dispatch(&k.event_gather, groups, &b, &[n as u32, ev.capacity as u32]);
+                    b.extend(ev.record_args());
+                    rec.dispatch(&k.event_gather, groups, &b, &(n as u32));
                     // The next axis reuses keys and values.
                     rec.compute_to_compute();
                 });
@@ -796,21 +893,17 @@ impl KdTreeBuilder {
                 &s.leaf_scratch,
             );
             rec.compute_to_compute();
-            let b: [&dyn BufferArg; 6] = [
+            let b: [&dyn BufferArg; 7] = [
                 &s.state,
                 &lv.node_range,
                 &s.node_split,
                 &s.inner_before,
                 &s.leaf_before,
-                &out.nodes,
+                &out.nodes[0],
+                &out.nodes[1],
             ];
-            rec.dispatch_indirect(
-                &k.write_nodes,
-                &s.state,
-                node_args,
-                &b,
-                &(out.nodes.len() as u32),
-            );
+            let push = [out.node_capacity() as u32, out.nodes[0].len() as u32];
+            rec.dispatch_indirect(&k.write_nodes, &s.state, node_args, &b, &push);
             let b: [&dyn BufferArg; 9] = [
                 &s.state,
                 &lv.node_range,
@@ -838,16 +931,21 @@ impl KdTreeBuilder {
                 div: 1,
             };
             for a in 0..3 {
-                let b: [&dyn BufferArg; 6] = [
-                    &s.state,
-                    &lv.node_range,
-                    &s.node_split,
-                    &ev[a].node,
-                    &ev[a].boxes,
-                    &s.slots,
-                ];
+                let mut b: Vec<&dyn BufferArg> =
+                    vec![&s.state, &lv.node_range, &s.node_split, &ev[a].node];
+                b.extend(ev[a].box_args());
+                b.push(&s.slots);
+                if let Some(t) = &s.slot_records {
+                    b.extend([
+                        &s.inner_before as &dyn BufferArg,
+                        &ev[a].plane,
+                        &ev[a].kind,
+                        &ev[a].prim,
+                    ]);
+                    b.extend(t.record_args());
+                }
                 rec.scope("kdtree.classify", |rec| {
-                    rec.dispatch_indirect(&k.classify, &s.state, ev_args, &b, &(e as u32))
+                    rec.dispatch_indirect(&k.classify, &s.state, ev_args, &b, &())
                 });
                 rec.compute_to_compute();
                 self.flag_scan.record_counted(
@@ -860,23 +958,32 @@ impl KdTreeBuilder {
                     &s.slot_scratch,
                 );
                 rec.compute_to_compute();
-                let b: [&dyn BufferArg; 15] = [
-                    &s.state,
-                    &lv.node_range,
-                    &s.node_split,
-                    &s.inner_before,
-                    &s.slot_offsets,
-                    &ev[a].plane,
-                    &ev[a].kind,
-                    &ev[a].prim,
-                    &ev[a].node,
-                    &ev[a].boxes,
-                    &nev[a].plane,
-                    &nev[a].kind,
-                    &nev[a].prim,
-                    &nev[a].node,
-                    &nev[a].boxes,
-                ];
+                let mut b: Vec<&dyn BufferArg> = match &s.slot_records {
+                    None => {
+                        let mut b: Vec<&dyn BufferArg> = vec![
+                            &s.state,
+                            &lv.node_range,
+                            &s.node_split,
+                            &s.inner_before,
+                            &s.slot_offsets,
+                        ];
+                        b.extend(ev[a].record_args());
+                        b
+                    }
+                    Some(t) => {
+                        let mut b: Vec<&dyn BufferArg> = vec![
+                            &s.state,
+                            &lv.node_range,
+                            &s.node_split,
+                            &ev[a].node,
+                            &s.slot_offsets,
+                            &s.slots,
+                        ];
+                        b.extend(t.record_args());
+                        b
+                    }
+                };
+                b.extend(nev[a].record_args());
                 rec.scope("kdtree.scatter", |rec| {
                     rec.dispatch_indirect(&k.scatter, &s.state, ev_args, &b, &(e as u32))
                 });
@@ -904,7 +1011,7 @@ impl KdTreeBuilder {
         let push = AdvancePush {
             ref_capacity: s.capacity.refs_per_level as u32,
             level_node_capacity: m as u32,
-            node_capacity: out.nodes.len() as u32,
+            node_capacity: out.node_capacity() as u32,
             out_ref_capacity: out.prim_refs.len() as u32,
         };
         let b: [&dyn BufferArg; 6] = [
@@ -1036,8 +1143,7 @@ impl KdTreeBuilder {
                 capacity = larger;
                 continue;
             }
-            let mut nodes = out.nodes.download()?;
-            nodes.truncate(outcome.nodes as usize);
+            let nodes = out.download_nodes(outcome.nodes as usize)?;
             let mut prim_refs = out.prim_refs.download()?;
             prim_refs.truncate(outcome.refs as usize);
             let tree = KdTree {
