@@ -110,11 +110,16 @@ fn flag_scan_equals_cpu_twin() {
         );
         sizes.extend([2, 3, 4, 5, 15, 16, 17]);
         for n in sizes {
-            for (what, flags) in
-                flag_inputs(n, &mut rng)
-                    .into_iter()
-                    .take(if n > 1 << 20 { 1 } else { 4 })
-            {
+            // The subgroup matrix legs (quick) keep two flag patterns and one and four arrays:
+            // the lane logic is the same for every pattern and array count.
+            let patterns = if n > 1 << 20 {
+                1
+            } else if common::quick() {
+                2
+            } else {
+                4
+            };
+            for (what, flags) in flag_inputs(n, &mut rng).into_iter().take(patterns) {
                 let (gpu, total) = scan.run_flags(&ctx, &flags).unwrap();
                 let (cpu, cpu_total) = flag_scan_cpu(&flags);
                 let diff = gpu.iter().zip(&cpu).position(|(g, c)| g != c);
@@ -139,15 +144,25 @@ fn compaction_of_one_to_four_soa_arrays_equals_cpu_twin() {
             tile,
         ) {
             let arrays_n = if n > 1 << 20 { 2 } else { 4 };
-            for (what, flags) in
-                flag_inputs(n, &mut rng)
-                    .into_iter()
-                    .take(if n > 1 << 20 { 1 } else { 4 })
-            {
+            // The subgroup matrix legs (quick) keep two flag patterns and one and four arrays:
+            // the lane logic is the same for every pattern and array count.
+            let patterns = if n > 1 << 20 {
+                1
+            } else if common::quick() {
+                2
+            } else {
+                4
+            };
+            for (what, flags) in flag_inputs(n, &mut rng).into_iter().take(patterns) {
                 let data: Vec<Vec<u32>> = (0..arrays_n)
                     .map(|_| (0..n).map(|_| rng.next_u64() as u32).collect())
                     .collect();
-                for k in 1..=arrays_n {
+                let counts: Vec<usize> = if common::quick() {
+                    vec![1, arrays_n]
+                } else {
+                    (1..=arrays_n).collect()
+                };
+                for k in counts {
                     let arrays: Vec<&[u32]> = data[..k].iter().map(|v| v.as_slice()).collect();
                     let gpu = compact.run(&ctx, &flags, &arrays).unwrap();
                     assert!(
