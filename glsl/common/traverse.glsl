@@ -172,70 +172,50 @@ Hit trace_ray(Ray r, float time) {
             bool below_first = o < nd.split || (o == nd.split && d <= 0.0);
             uint first = below_first ? nd.a : nd.a + 1u;
             uint second = below_first ? nd.a + 1u : nd.a;
-            bool both = false;
-            float split_t = 0.0;
+            // Where to go now, and the cell to visit later (if any) over [far0, far1].
+            node = first;
+            bool push = false;
+            uint far_node = second;
+            float far0 = n0;
+            float far1 = n1;
             if (d == 0.0) {
                 // Parallel to the plane: the origin's side, or both when lying in it.
-                both = o == nd.split;
-                split_t = n1;
+                push = o == nd.split;
             } else if (o == nd.split && n0 <= 0.0) {
                 // Starting on the plane: the ray enters `first` at once and touches `second`
                 // at t = 0 only (primitives lying in the plane): `second` over [n0, n0]
                 // first, then `first` over the whole interval.
-                if (st_count == STACK_SIZE) {
-                    dropped = true;
-                } else {
-                    st_count++;
-                }
-                st_node[st_top] = first;
-                st_t0[st_top] = n0;
-                st_t1[st_top] = n1;
-                st_top = st_top + 1u == STACK_SIZE ? 0u : st_top + 1u;
+                push = true;
+                far_node = first;
                 node = second;
                 n1 = n0;
-                continue;
             } else {
                 precise float tp = (nd.split - o) * inv_d[axis];
                 precise float tp_lo = tp - abs(tp) * PLANE_SLACK;
                 precise float tp_hi = tp + abs(tp) * PLANE_SLACK;
-                if (tp <= 0.0 || tp_lo > n1) {
-                    node = first;
-                    continue;
+                if (tp > 0.0 && tp_lo <= n1) {
+                    if (tp_hi < n0) {
+                        node = second;
+                    } else {
+                        // the far child starts at the (widened) crossing, the near one ends
+                        // there
+                        push = true;
+                        far0 = max(tp_lo, n0);
+                        n1 = min(tp_hi, n1);
+                    }
                 }
-                if (tp_hi < n0) {
-                    node = second;
-                    continue;
-                }
-                both = true;
-                split_t = tp;
-                // the far child starts at the (widened) crossing, the near one ends there
-                float far0 = max(tp_lo, n0);
-                float near1 = min(tp_hi, n1);
+            }
+            if (push) {
                 if (st_count == STACK_SIZE) {
                     dropped = true;
                 } else {
                     st_count++;
                 }
-                st_node[st_top] = second;
+                st_node[st_top] = far_node;
                 st_t0[st_top] = far0;
-                st_t1[st_top] = n1;
-                st_top = st_top + 1u == STACK_SIZE ? 0u : st_top + 1u;
-                node = first;
-                n1 = near1;
-                continue;
-            }
-            if (both) {
-                if (st_count == STACK_SIZE) {
-                    dropped = true;
-                } else {
-                    st_count++;
-                }
-                st_node[st_top] = second;
-                st_t0[st_top] = n0;
-                st_t1[st_top] = n1;
+                st_t1[st_top] = far1;
                 st_top = st_top + 1u == STACK_SIZE ? 0u : st_top + 1u;
             }
-            node = first;
             continue;
         }
 
