@@ -69,6 +69,16 @@ pub fn copy_baselines(ctx: &Context, bytes: u64, reps: u32) -> Result<(CopyBasel
             format!("copy_kernel.uvec4.wg{wg}"),
             Some((ctx.kernel(&kernels::GPU_COPY_UVEC4, &spec)?, 4)),
         ));
+        variants.push((
+            format!("copy_kernel.uvec4x4.wg{wg}"),
+            Some((ctx.kernel(&kernels::GPU_COPY_UVEC4X4, &spec)?, 16)),
+        ));
+        if let Ok(k) = ctx.kernel(&kernels::GPU_COPY_U64VEC4, &spec) {
+            variants.push((format!("copy_kernel.u64vec4.wg{wg}"), Some((k, 8))));
+        }
+        if let Ok(k) = ctx.kernel(&kernels::GPU_COPY_U64VEC4X4, &spec) {
+            variants.push((format!("copy_kernel.u64vec4x4.wg{wg}"), Some((k, 32))));
+        }
     }
     let mut rec = Recorder::new(ctx)?;
     // Warm-up: touch every page of both buffers once, untimed.
@@ -86,8 +96,10 @@ pub fn copy_baselines(ctx: &Context, bytes: u64, reps: u32) -> Result<(CopyBasel
             match kernel {
                 None => rec.copy(&src, &dst, words),
                 Some((k, per)) => {
-                    let n = (words / *per as usize) as u32;
-                    let groups = rec.groups_1d(u64::from(n), k.invocations());
+                    // `per` u32 words per invocation; the x4 kernels copy four granules each.
+                    let per_elem = if name.contains("x4.") { per / 4 } else { *per };
+                    let n = (words / per_elem as usize) as u32;
+                    let groups = rec.groups_1d((words / *per as usize) as u64, k.invocations());
                     rec.dispatch(k, groups, &[&src, &dst], &n);
                 }
             }

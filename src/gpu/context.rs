@@ -421,6 +421,7 @@ fn create_device(
     let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
         .storage_buffer8_bit_access(features.storage_buffer_8bit)
         .shader_int8(features.shader_int8)
+        .shader_buffer_int64_atomics(features.shader_buffer_int64_atomics)
         .shader_float16(features.shader_float16)
         .host_query_reset(features.host_query_reset);
     let mut size_control = vk::PhysicalDeviceSubgroupSizeControlFeatures::default()

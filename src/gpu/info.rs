@@ -13,6 +13,8 @@ pub struct DeviceFeatures {
     pub shader_int8: bool,
     pub shader_int16: bool,
     pub shader_int64: bool,
+    /// 64-bit atomics on storage buffers: the chained scan publishes (flag, sum) as one word.
+    pub shader_buffer_int64_atomics: bool,
     /// Doubles in shaders: the watertight triangle test's exact fallback uses them.
     pub shader_float64: bool,
     pub shader_float16: bool,
@@ -201,6 +203,7 @@ pub(crate) fn supported_features(
         shader_int8: f12.shader_int8 == vk::TRUE,
         shader_int16: base.shader_int16 == vk::TRUE,
         shader_int64: base.shader_int64 == vk::TRUE,
+        shader_buffer_int64_atomics: f12.shader_buffer_int64_atomics == vk::TRUE,
         shader_float64: base.shader_float64 == vk::TRUE,
         shader_float16: f12.shader_float16 == vk::TRUE,
         host_query_reset: f12.host_query_reset == vk::TRUE,

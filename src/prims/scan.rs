@@ -77,6 +77,26 @@ pub enum ScanVariant {
     StridedShuffle,
     /// Each invocation owns consecutive granules: one subgroup scan per tile.
     Contiguous,
+    /// One pass, decoupled look-back with fallback (`glsl/prims/scan_chained.comp`): the
+    /// input is read once. Scans whose output aliases their input use `Contiguous`.
+    Chained,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct ChainedPush {
+    capacity: u32,
+    inclusive: u32,
+    count_index: u32,
+    count_mul: u32,
+    count_div: u32,
+}
+
+/// The single-pass kernel and its tile.
+struct Chained {
+    kernel: Arc<Kernel>,
+    /// Elements per tile (per workgroup).
+    tile: usize,
 }
 
 /// A scan of one input kind, with its kernels compiled.
@@ -88,6 +108,7 @@ pub struct Scan {
     first_downsweep: Arc<Kernel>,
     reduce: Arc<Kernel>,
     downsweep: Arc<Kernel>,
+    chained: Option<Chained>,
 }
 
 /// Scratch for one scan: the tile sums of every level and the grand total.
@@ -97,11 +118,14 @@ pub struct ScanScratch {
     level_totals: Vec<Buffer<u32>>,
     /// The grand total (one u32), written by every `record`.
     pub total: Buffer<u32>,
+    /// The chained scan's per-tile (flag, sum) words.
+    chain_state: Buffer<u64>,
 }
 
 impl Scan {
+    /// The measured default: the single-pass chained scan (see `vkrt bench prims`).
     pub fn new(ctx: &Context, cfg: PrimConfig, input: ScanInput) -> Result<Self> {
-        Self::with_variant(ctx, cfg, input, ScanVariant::Strided)
+        Self::with_variant(ctx, cfg, input, ScanVariant::Chained)
     }
 
     /// A u32 scan whose subgroup scan is `subgroupShuffleUp` steps instead of
@@ -133,16 +157,23 @@ impl Scan {
             match variant {
                 ScanVariant::Strided => &kernels::PRIMS_SCAN_DOWNSWEEP_U32,
                 ScanVariant::StridedShuffle => &kernels::PRIMS_SCAN_DOWNSWEEP_U32_SHUFFLE,
-                ScanVariant::Contiguous => &kernels::PRIMS_SCAN_DOWNSWEEP_U32_CONTIGUOUS,
+                ScanVariant::Contiguous | ScanVariant::Chained => {
+                    &kernels::PRIMS_SCAN_DOWNSWEEP_U32_CONTIGUOUS
+                }
             },
             &spec,
         )?;
+        let chained = if variant == ScanVariant::Chained {
+            Self::chained(ctx, cfg, input)?
+        } else {
+            None
+        };
         let (first_reduce, first_downsweep) = match input {
             ScanInput::U32 => (reduce.clone(), downsweep.clone()),
             ScanInput::Flags => (
                 ctx.kernel(&kernels::PRIMS_SCAN_REDUCE_FLAGS, &spec)?,
                 ctx.kernel(
-                    if variant == ScanVariant::Contiguous {
+                    if matches!(variant, ScanVariant::Contiguous | ScanVariant::Chained) {
                         &kernels::PRIMS_SCAN_DOWNSWEEP_FLAGS_CONTIGUOUS
                     } else {
                         &kernels::PRIMS_SCAN_DOWNSWEEP_FLAGS
@@ -159,7 +190,28 @@ impl Scan {
             first_downsweep,
             reduce,
             downsweep,
+            chained,
         })
+    }
+
+    /// The single-pass kernel (32-byte granules, 64-bit state words), where the device has
+    /// 64-bit integers and 64-bit buffer atomics; `None` elsewhere.
+    fn chained(ctx: &Context, cfg: PrimConfig, input: ScanInput) -> Result<Option<Chained>> {
+        let f = ctx.info().features;
+        if !(f.shader_int64 && f.shader_buffer_int64_atomics) {
+            return Ok(None);
+        }
+        const WORDS: u32 = 8;
+        let rounds = (cfg.items_per_invocation / WORDS).max(1);
+        let (blob, per_word) = match input {
+            ScanInput::U32 => (&kernels::PRIMS_SCAN_CHAINED_U32, 1),
+            ScanInput::Flags => (&kernels::PRIMS_SCAN_CHAINED_FLAGS, 4),
+        };
+        let spec = Spec::new().workgroup(cfg.workgroup_size).u32(1, rounds);
+        Ok(Some(Chained {
+            kernel: ctx.kernel(blob, &spec)?,
+            tile: (cfg.workgroup_size * rounds * WORDS * per_word) as usize,
+        }))
     }
 
     pub fn config(&self) -> PrimConfig {
@@ -200,11 +252,13 @@ impl Scan {
         let level_totals = (0..lengths.len())
             .map(|i| Buffer::new(ctx, &format!("prims.scan.total{i}"), 1))
             .collect::<Result<Vec<_>>>()?;
+        let tiles = self.chained.as_ref().map_or(0, |c| max_n.div_ceil(c.tile));
         Ok(ScanScratch {
             max_n,
             levels,
             level_totals,
             total: Buffer::new(ctx, "prims.scan.total", 1)?,
+            chain_state: Buffer::new(ctx, "prims.scan.chain_state", tiles.max(1))?,
         })
     }
 
@@ -231,7 +285,9 @@ impl Scan {
             ScanInput::Flags => "prims.flag_scan",
         };
         rec.scope(name, |rec| {
-            self.record_level(rec, 0, input, output, n, None, op, scratch, &scratch.total)
+            if !self.record_chained(rec, input, output, n, None, op, scratch) {
+                self.record_level(rec, 0, input, output, n, None, op, scratch, &scratch.total)
+            }
         });
     }
 
@@ -262,6 +318,9 @@ impl Scan {
             ScanInput::Flags => "prims.flag_scan",
         };
         rec.scope(name, |rec| {
+            if self.record_chained(rec, input, output, capacity, Some(count), op, scratch) {
+                return;
+            }
             self.record_level(
                 rec,
                 0,
@@ -274,6 +333,58 @@ impl Scan {
                 &scratch.total,
             )
         });
+    }
+
+    /// Records the single-pass scan if this scan has one and `output` does not alias
+    /// `input` (a fallback re-reads predecessors' input); returns whether it did.
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "record_counted's arguments, the count optional"
+    )]
+    fn record_chained(
+        &self,
+        rec: &mut Recorder,
+        input: &dyn BufferArg,
+        output: &dyn BufferArg,
+        n: usize,
+        count: Option<GpuCount>,
+        op: ScanOp,
+        scratch: &ScanScratch,
+    ) -> bool {
+        let Some(chained) = &self.chained else {
+            return false;
+        };
+        if input.raw() == output.raw() {
+            return false;
+        }
+        let total = &scratch.total;
+        let (counts, count_index, count_mul, count_div): (&Buffer<u32>, u32, u32, u32) = match count
+        {
+            Some(c) => (c.counts, c.index, c.mul, c.div),
+            None => (total, 0, 0, 0),
+        };
+        let push = ChainedPush {
+            capacity: n as u32,
+            inclusive: u32::from(op == ScanOp::Inclusive),
+            count_index,
+            count_mul,
+            count_div,
+        };
+        let state = &scratch.chain_state;
+        // The previous scan with this scratch may still read or write the state.
+        rec.compute_to_transfer();
+        rec.fill(state, 0);
+        rec.transfer_to_compute();
+        let groups = rec.groups_1d(n.max(1) as u64, chained.tile as u32);
+        rec.scope("prims.scan_chained", |rec| {
+            rec.dispatch(
+                &chained.kernel,
+                groups,
+                &[input, input, output, output, state, total, counts],
+                &push,
+            )
+        });
+        true
     }
 
     #[allow(
