@@ -48,7 +48,7 @@ fn u32_scan_equals_cpu_twin() {
     let mut rng = common::Rng(1);
     for cfg in configs(&ctx) {
         let scan = Scan::new(&ctx, cfg, ScanInput::U32).unwrap();
-        let tile = (cfg.tile()) as usize;
+        let tile = scan.tile_elements();
         for n in common::edge_sizes(
             ctx.info().subgroup_size as usize,
             cfg.workgroup_size as usize,
@@ -101,8 +101,7 @@ fn flag_scan_equals_cpu_twin() {
     let mut rng = common::Rng(3);
     for cfg in configs(&ctx) {
         let scan = Scan::new(&ctx, cfg, ScanInput::Flags).unwrap();
-        // A flag tile holds four times the elements of a u32 tile.
-        let tile = 4 * cfg.tile() as usize;
+        let tile = scan.tile_elements();
         let mut sizes = common::edge_sizes(
             ctx.info().subgroup_size as usize,
             cfg.workgroup_size as usize,
@@ -137,7 +136,7 @@ fn compaction_of_one_to_four_soa_arrays_equals_cpu_twin() {
     let mut rng = common::Rng(4);
     for cfg in configs(&ctx) {
         let compact = Compact::new(&ctx, cfg).unwrap();
-        let tile = 4 * cfg.tile() as usize;
+        let tile = compact.tile_elements();
         for n in common::edge_sizes(
             ctx.info().subgroup_size as usize,
             cfg.workgroup_size as usize,
@@ -186,7 +185,7 @@ fn counted_compaction_uses_the_gpu_count() {
     let mut rng = common::Rng(41);
     for cfg in configs(&ctx) {
         let compact = Compact::new(&ctx, cfg).unwrap();
-        let tile = 4 * cfg.tile() as usize;
+        let tile = compact.tile_elements();
         let capacity = 3 * tile + 5;
         let flags: Vec<u8> = (0..capacity)
             .map(|_| (rng.next_u64() % 3 == 0) as u8)
@@ -346,6 +345,47 @@ fn counted_scans_read_their_length_from_the_gpu() {
                 total,
                 "{cfg:?} counted flags n={n} total"
             );
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+/// The chained scan's look-back, made to reduce every predecessor tile from the input
+/// (timing alone reaches that path only sometimes), still equals the CPU twin; and the
+/// device here does run the chained path (lavapipe has 64-bit buffer atomics).
+#[test]
+fn chained_scan_fallback_equals_cpu_twin() {
+    let Some(ctx) = common::context() else { return };
+    assert!(
+        Scan::new(&ctx, PrimConfig::default_for(&ctx), ScanInput::U32)
+            .unwrap()
+            .is_chained(),
+        "lavapipe should take the single-pass path"
+    );
+    let mut rng = common::Rng(6);
+    for cfg in configs(&ctx) {
+        let u32_scan = Scan::with_forced_fallback(&ctx, cfg, ScanInput::U32)
+            .unwrap()
+            .expect("chained scan");
+        let flag_scan = Scan::with_forced_fallback(&ctx, cfg, ScanInput::Flags)
+            .unwrap()
+            .expect("chained scan");
+        for scan in [&u32_scan, &flag_scan] {
+            let tile = scan.tile_elements();
+            // O(tiles²) reads: a few tiles are enough to cross every boundary.
+            for n in [tile - 1, tile, tile + 1, 3 * tile + 7, 9 * tile + 1] {
+                if std::ptr::eq(scan, &u32_scan) {
+                    let input: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
+                    for op in [ScanOp::Inclusive, ScanOp::Exclusive] {
+                        let got = scan.run_u32(&ctx, &input, op).unwrap();
+                        assert!(got == scan_cpu(&input, op), "{cfg:?} n={n} u32 {op:?}");
+                    }
+                } else {
+                    let flags: Vec<u8> = (0..n).map(|_| (rng.next_u64() & 1) as u8).collect();
+                    let got = scan.run_flags(&ctx, &flags).unwrap();
+                    assert!(got == flag_scan_cpu(&flags), "{cfg:?} n={n} flags");
+                }
+            }
         }
     }
     common::assert_silent(&ctx);

@@ -45,6 +45,8 @@
 #define EPG (WORDS * EPW) // elements per input granule
 layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint ROUNDS = 4;
+// Tests only: ignore published sums, reduce every predecessor from the input.
+layout(constant_id = 2) const uint FORCE_FALLBACK = 0;
 #include "common/grid.glsl"
 #include "common/subgroup_scan.glsl"
 
@@ -69,6 +71,7 @@ const uint FLAG_INCLUSIVE = 2;
 
 shared uint subgroup_prefix[gl_WorkGroupSize.x / 4];
 shared uint tile_prefix;
+shared uint tile_id;
 
 uint word_of(GRANULE g, uint k) {
     uvec2 pair = unpack32(g[k / 2]);
@@ -97,7 +100,7 @@ uint granule_sum(GRANULE g) {
 }
 
 void publish(uint tile, uint flag, uint value) {
-    atomicExchange(state[tile], pack64(uvec2(value, flag)));
+    atomicExchange(state[1 + tile], pack64(uvec2(value, flag)));
 }
 
 // Run by subgroup 0 alone: the sum of every tile before `tile`. Lanes agree on every
@@ -109,9 +112,9 @@ uint look_back(uint tile, uint lanes) {
     uint flag = 0;
     while (flag != FLAG_INCLUSIVE && j > 0) {
         j--;
-        uvec2 published = unpack32(atomicAdd(state[j], uint64_t(0)));
+        uvec2 published = unpack32(atomicAdd(state[1 + j], uint64_t(0)));
         published = uvec2(subgroupBroadcast(published.x, 0), subgroupBroadcast(published.y, 0));
-        flag = published.y;
+        flag = FORCE_FALLBACK != 0 ? 0 : published.y;
         // Not published yet: reduce its input here (it lies wholly below n). A loop of no
         // trips elsewhere: lavapipe runs both sides of every branch.
         uint fallback_granules = flag == 0 ? granules_per_tile : 0;
@@ -127,7 +130,14 @@ uint look_back(uint tile, uint lanes) {
 
 void main() {
     uint n = gpu_count(pc.capacity, pc.count_div == 0u ? 0u : counts[pc.count_index], pc.count_mul, pc.count_div);
-    uint tile = linear_group_id();
+    // Tiles in the order workgroups start (state[0] counts them), not by workgroup id: a
+    // driver may hand each thread a contiguous range of workgroup ids (lavapipe does), and
+    // the first tile of a later range would then reduce every tile before it itself.
+    if (gl_LocalInvocationID.x == 0) {
+        tile_id = uint(atomicAdd(state[0], uint64_t(1)));
+    }
+    barrier();
+    uint tile = tile_id;
     uint tile_elements = gl_WorkGroupSize.x * ROUNDS * EPG;
     if (tile * tile_elements >= n) {
         if (n == 0 && tile == 0 && gl_LocalInvocationID.x == 0) {

@@ -47,6 +47,11 @@ impl Compact {
         })
     }
 
+    /// Elements per tile of the flag scan: where tile-boundary edge cases lie.
+    pub fn tile_elements(&self) -> usize {
+        self.scan.tile_elements()
+    }
+
     pub fn scratch(&self, ctx: &Context, max_n: usize) -> Result<CompactScratch> {
         Ok(CompactScratch {
             scan: self.scan.scratch(ctx, max_n)?,
