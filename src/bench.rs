@@ -179,6 +179,11 @@ pub fn prim_benches() -> Vec<(&'static str, PrimBench)> {
     vec![
         ("scan", crate::prims::scan::bench as PrimBench),
         ("compact", crate::prims::compact::bench),
+        ("reduce", crate::prims::reduce::bench),
+        ("segmented", crate::prims::segmented::bench),
+        // Its rows include `cpu_sort_unstable_by_key`: the CPU sort of the same pairs on one
+        // core (its "gpu_ms" is CPU wall time).
+        ("radix", crate::prims::radix_sort::bench),
     ]
 }
 
