@@ -2,7 +2,8 @@
 //!
 //! Every kernel in vkrt is reported as a ratio to these, measured in the same run:
 //! `vkCmdCopyBuffer` (the driver's copy; memcpy on lavapipe) and the best plain copy
-//! kernel (u32 or uvec4 per invocation, several workgroup sizes). Buffers are touched
+//! kernel (u32, uvec4 or u64vec4 granules, one or four per invocation, several workgroup
+//! sizes; the 64-bit ones only where the device has shaderInt64). Buffers are touched
 //! once before timing: the first touch of fresh memory on lavapipe costs page faults.
 
 use serde::Serialize;
@@ -42,18 +43,30 @@ impl CopyBaselines {
     }
 }
 
-type KernelVariant = (std::sync::Arc<crate::gpu::Kernel>, u32);
+/// A copy kernel, its u32 words per element (its `ELEM`) and elements per invocation.
+type KernelVariant = (std::sync::Arc<crate::gpu::Kernel>, u32, u32);
 
 const WORKGROUP_SIZES: [u32; 3] = [64, 256, 1024];
+
+/// The copy kernels: (name, blob, u32 words per element, elements per invocation, needs
+/// shaderInt64).
+const COPY_KERNELS: [(&str, &crate::gpu::ShaderBlob, u32, u32, bool); 5] = [
+    ("u32", &kernels::GPU_COPY_U32, 1, 1, false),
+    ("uvec4", &kernels::GPU_COPY_UVEC4, 4, 1, false),
+    ("uvec4x4", &kernels::GPU_COPY_UVEC4X4, 4, 4, false),
+    ("u64vec4", &kernels::GPU_COPY_U64VEC4, 8, 1, true),
+    ("u64vec4x4", &kernels::GPU_COPY_U64VEC4X4, 8, 4, true),
+];
 
 /// Measures `vkCmdCopyBuffer` and the copy kernels over `bytes`, `reps` times each, and
 /// returns the baselines plus the profile of every timed pass.
 pub fn copy_baselines(ctx: &Context, bytes: u64, reps: u32) -> Result<(CopyBaselines, Profile)> {
-    let words = (bytes / 16 * 4) as usize;
+    // A whole number of the widest kernel's invocations (32 words).
+    let words = (bytes / 128 * 32).max(32) as usize;
     let bytes = words as u64 * 4;
     let src = Buffer::<u32>::new(ctx, "bench.src", words)?;
     let dst = Buffer::<u32>::new(ctx, "bench.dst", words)?;
-    // (name, None = vkCmdCopyBuffer | Some((kernel, u32 words per invocation)))
+    // (name, None = vkCmdCopyBuffer | Some(kernel variant))
     let mut variants: Vec<(String, Option<KernelVariant>)> =
         vec![("vkCmdCopyBuffer".to_string(), None)];
     for wg in WORKGROUP_SIZES
@@ -61,23 +74,14 @@ pub fn copy_baselines(ctx: &Context, bytes: u64, reps: u32) -> Result<(CopyBasel
         .filter(|&w| w <= ctx.info().max_workgroup_invocations)
     {
         let spec = Spec::new().workgroup(wg);
-        variants.push((
-            format!("copy_kernel.u32.wg{wg}"),
-            Some((ctx.kernel(&kernels::GPU_COPY_U32, &spec)?, 1)),
-        ));
-        variants.push((
-            format!("copy_kernel.uvec4.wg{wg}"),
-            Some((ctx.kernel(&kernels::GPU_COPY_UVEC4, &spec)?, 4)),
-        ));
-        variants.push((
-            format!("copy_kernel.uvec4x4.wg{wg}"),
-            Some((ctx.kernel(&kernels::GPU_COPY_UVEC4X4, &spec)?, 16)),
-        ));
-        if let Ok(k) = ctx.kernel(&kernels::GPU_COPY_U64VEC4, &spec) {
-            variants.push((format!("copy_kernel.u64vec4.wg{wg}"), Some((k, 8))));
-        }
-        if let Ok(k) = ctx.kernel(&kernels::GPU_COPY_U64VEC4X4, &spec) {
-            variants.push((format!("copy_kernel.u64vec4x4.wg{wg}"), Some((k, 32))));
+        for (name, blob, words_per_elem, per_invocation, int64) in COPY_KERNELS {
+            if int64 && !ctx.info().features.shader_int64 {
+                continue;
+            }
+            variants.push((
+                format!("copy_kernel.{name}.wg{wg}"),
+                Some((ctx.kernel(blob, &spec)?, words_per_elem, per_invocation)),
+            ));
         }
     }
     let mut rec = Recorder::new(ctx)?;
@@ -95,11 +99,10 @@ pub fn copy_baselines(ctx: &Context, bytes: u64, reps: u32) -> Result<(CopyBasel
             rec.begin_scope(&label);
             match kernel {
                 None => rec.copy(&src, &dst, words),
-                Some((k, per)) => {
-                    // `per` u32 words per invocation; the x4 kernels copy four granules each.
-                    let per_elem = if name.contains("x4.") { per / 4 } else { *per };
-                    let n = (words / per_elem as usize) as u32;
-                    let groups = rec.groups_1d((words / *per as usize) as u64, k.invocations());
+                Some((k, words_per_elem, per_invocation)) => {
+                    let n = (words / *words_per_elem as usize) as u32;
+                    let invocations = n.div_ceil(*per_invocation);
+                    let groups = rec.groups_1d(u64::from(invocations), k.invocations());
                     rec.dispatch(k, groups, &[&src, &dst], &n);
                 }
             }

@@ -7,7 +7,8 @@
 //! - the subgroup size is read at run time (`gl_SubgroupSize`); nothing assumes 32 lanes,
 //!   and every kernel is tested under subgroup sizes 4, 8, 16 and 32;
 //! - no workgroup ever waits for another (lavapipe runs a thread's workgroups one after
-//!   another): multi-pass reduce-then-scan, never decoupled look-back;
+//!   another): multi-pass reduce-then-scan, or a look-back that reduces a predecessor's
+//!   input itself instead of waiting for it (the chained scan's decoupled fallback);
 //! - results are deterministic: integer sums, and argmin ties broken by the lowest index.
 #![forbid(unsafe_code)]
 

@@ -1,17 +1,32 @@
-//! Prefix sums of u32 elements and of 0/1 byte flags: reduce-then-scan, multi-level.
+//! Prefix sums of u32 elements and of 0/1 byte flags.
 //!
-//! Level by level: `prims.scan_reduce` writes the sum of every tile, the tile sums are
-//! scanned (recursively, with the same kernels) in place, and `prims.scan_downsweep`
-//! rescans every tile from its carry-in. No workgroup waits for another, so this cannot
-//! hang on drivers without forward-progress guarantees (lavapipe runs workgroups one after
-//! another), at the price of reading the input twice (a single-pass chained scan reads it
-//! once but needs decoupled look-back).
+//! **Chained (the default, [`ScanVariant::Chained`])**: one pass, `prims.scan_chained`.
+//! Every tile publishes its sum, then looks back over its predecessors' published sums
+//! (decoupled look-back, Merrill & Garland 2016). A predecessor that has published nothing
+//! yet is never waited for: the looking-back subgroup reduces that tile's input itself and
+//! goes on (the fallback of Levien & Smith 2022). So no workgroup waits for another and the
+//! scan terminates on drivers without forward-progress guarantees (lavapipe runs a thread's
+//! workgroups one after another), while reading the input once. A tile's flag and value
+//! share one 64-bit word (written and read with relaxed atomics); tiles are numbered in the
+//! order workgroups start. It needs `shaderInt64` and `shaderBufferInt64Atomics`, and an
+//! output that does not alias the input (a fallback re-reads predecessors' input); other
+//! scans take the reduce-then-scan path below. Invocations load 32-byte granules (u64vec4):
+//! on lavapipe every buffer access is a loop over lanes and components, so 64-bit
+//! components halve the trips of a uvec4 (the copy kernels measure the same, 2×).
+//!
+//! **Reduce-then-scan**, multi-level: `prims.scan_reduce` writes the sum of every tile, the
+//! tile sums are scanned (recursively, with the same kernels) in place, and
+//! `prims.scan_downsweep` rescans every tile from its carry-in. It reads the input twice.
+//!
+//! Measured at n = 2^24 on lavapipe (`vkrt bench prims --min-n 16777216 --only scan`, one
+//! run): u32 scan 38 ms chained vs 129 ms reduce-then-scan (contiguous) — 0.39 of the best
+//! copy kernel on the same bytes (15.0 ms); flag scan 27 ms vs 45 ms — 0.33.
 //!
 //! Inside a workgroup: a subgroup scan (`subgroupInclusiveAdd`, or `subgroupShuffleUp`
-//! steps with [`Scan::with_shuffle`]), subgroup totals through shared memory, and
-//! `items_per_invocation` elements per invocation loaded 16 bytes at a time (seed 001's
-//! "algorithm cascading"). Flags are bytes read sixteen per load (seed 001's uchar4 trick),
-//! so a flag scan reads a quarter of the bytes of a u32 scan of the same length.
+//! steps with [`Scan::with_shuffle`]), subgroup totals through shared memory, and several
+//! elements per invocation (seed 001's "algorithm cascading"). Flags are bytes read four
+//! per u32 word (seed 001's uchar4 trick, here 32 per granule), so a flag scan reads a
+//! quarter of the bytes of a u32 scan of the same length.
 //!
 //! Sums wrap modulo 2^32, on the GPU and in the CPU twins alike.
 
