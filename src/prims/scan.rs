@@ -107,11 +107,14 @@ struct ChainedPush {
     count_div: u32,
 }
 
-/// The single-pass kernel and its tile.
+/// The single-pass kernel and its tiles.
 struct Chained {
     kernel: Arc<Kernel>,
-    /// Elements per tile (per workgroup).
+    /// Elements per workgroup (the grid is sized by it).
     tile: usize,
+    /// Elements per subgroup tile with the smallest subgroups (4 lanes): the state holds
+    /// one word per subgroup tile.
+    min_subgroup_tile: usize,
 }
 
 /// A scan of one input kind, with its kernels compiled.
@@ -236,6 +239,7 @@ impl Scan {
         Ok(Some(Chained {
             kernel: ctx.kernel(blob, &spec)?,
             tile: (cfg.workgroup_size * rounds * WORDS * per_word) as usize,
+            min_subgroup_tile: (4 * rounds * WORDS * per_word) as usize,
         }))
     }
 
@@ -302,13 +306,16 @@ impl Scan {
         let level_totals = (0..lengths.len())
             .map(|i| Buffer::new(ctx, &format!("prims.scan.total{i}"), 1))
             .collect::<Result<Vec<_>>>()?;
-        let tiles = self.chained.as_ref().map_or(0, |c| max_n.div_ceil(c.tile));
+        let tiles = self
+            .chained
+            .as_ref()
+            .map_or(0, |c| max_n.div_ceil(c.min_subgroup_tile));
         Ok(ScanScratch {
             max_n,
             levels,
             level_totals,
             total: Buffer::new(ctx, "prims.scan.total", 1)?,
-            chain_state: Buffer::new(ctx, "prims.scan.chain_state", 1 + tiles)?,
+            chain_state: Buffer::new(ctx, "prims.scan.chain_state", tiles.max(1))?,
         })
     }
 
