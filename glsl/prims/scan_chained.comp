@@ -112,7 +112,7 @@ GRANULE load_granule(uint g, uint full_granules, uint straddle, GRANULE tail) {
 }
 
 void publish(uint tile, uint flag, uint value) {
-    atomicExchange(state[tile], pack64(uvec2(value, flag)));
+    atomicStore(state[tile], pack64(uvec2(value, flag)), gl_ScopeDevice, gl_StorageSemanticsNone, gl_SemanticsRelaxed);
 }
 
 // The sum of every tile before `tile`, in every lane of the subgroup. Lanes agree on

@@ -1,26 +1,36 @@
 //! Prefix sums of u32 elements and of 0/1 byte flags.
 //!
 //! **Chained (the default, [`ScanVariant::Chained`])**: one pass, `prims.scan_chained`.
-//! Every tile publishes its sum, then looks back over its predecessors' published sums
-//! (decoupled look-back, Merrill & Garland 2016). A predecessor that has published nothing
-//! yet is never waited for: the looking-back subgroup reduces that tile's input itself and
-//! goes on (the fallback of Levien & Smith 2022). So no workgroup waits for another and the
-//! scan terminates on drivers without forward-progress guarantees (lavapipe runs a thread's
+//! A tile is one subgroup's share (lanes × 8 granules of 32 bytes); every tile publishes
+//! its sum, then looks back over its predecessors' published sums (decoupled look-back,
+//! Merrill & Garland 2016). A predecessor that has published nothing yet is never waited
+//! for: the looking-back subgroup reduces that tile's input itself and goes on (the
+//! fallback of Levien & Smith 2022). So no workgroup waits for another and the scan
+//! terminates on drivers without forward-progress guarantees (lavapipe runs a thread's
 //! workgroups one after another), while reading the input once. A tile's flag and value
-//! share one 64-bit word (written and read with relaxed atomics); tiles are numbered in the
-//! order workgroups start. It needs `shaderInt64` and `shaderBufferInt64Atomics`, and an
-//! output that does not alias the input (a fallback re-reads predecessors' input); other
-//! scans take the reduce-then-scan path below. Invocations load 32-byte granules (u64vec4):
-//! on lavapipe every buffer access is a loop over lanes and components, so 64-bit
-//! components halve the trips of a uvec4 (the copy kernels measure the same, 2×).
+//! share one 64-bit word, written and read with relaxed atomics. It needs `shaderInt64` and
+//! `shaderBufferInt64Atomics`, and an output that does not alias the input (a fallback
+//! re-reads predecessors' input); other scans take the reduce-then-scan path below.
+//!
+//! What made it fast on lavapipe, each measured (`vkrt bench prims --only scan`): 64-bit
+//! granules (every buffer access is a loop over lanes and components there: u64vec4 halves
+//! the trips of a uvec4; the copy kernels show the same 2×); tiles per subgroup, so the
+//! kernel has no barrier (a barrier is a coroutine switch that saves and restores the
+//! subgroup's live tile: 1.4–2× with the workgroup-tile version); no array indexed by a
+//! loop variable (such arrays live in memory, every access a loop over lanes: the flag
+//! scan's tail handling alone cost 1.8×); the look-back reading one lane's relaxed load
+//! instead of a locked read-modify-write per lane, and tiles numbered by id instead of an
+//! atomic counter (together 1.5×).
 //!
 //! **Reduce-then-scan**, multi-level: `prims.scan_reduce` writes the sum of every tile, the
 //! tile sums are scanned (recursively, with the same kernels) in place, and
 //! `prims.scan_downsweep` rescans every tile from its carry-in. It reads the input twice.
 //!
-//! Measured at n = 2^24 on lavapipe (`vkrt bench prims --min-n 16777216 --only scan`, one
-//! run): u32 scan 38 ms chained vs 129 ms reduce-then-scan (contiguous) — 0.39 of the best
-//! copy kernel on the same bytes (15.0 ms); flag scan 27 ms vs 45 ms — 0.33.
+//! Measured at n = 2^24 on lavapipe (`vkrt bench prims --min-n 16777216 --only scan
+//! --reps 6`, four runs): the u32 scan 18–27 ms chained vs 82–124 ms reduce-then-scan,
+//! 0.47–0.71 (median 0.51) of the best copy kernel measured in the same run on the same
+//! bytes (that kernel itself takes 9–15 ms from run to run); the flag scan 11–17 ms vs
+//! 29–43 ms, 0.31–0.82 (median 0.70) of the copy kernel.
 //!
 //! Inside a workgroup: a subgroup scan (`subgroupInclusiveAdd`, or `subgroupShuffleUp`
 //! steps with [`Scan::with_shuffle`]), subgroup totals through shared memory, and several
