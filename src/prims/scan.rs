@@ -47,6 +47,18 @@ use bytemuck::{Pod, Zeroable};
 use super::{PrimConfig, PrimTiming};
 use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, Spec};
 
+/// The count buffer to bind and `(index, mul, div)` for the kernels' push constants:
+/// `div == 0` means "n = capacity", and `unused` is bound in the count's place.
+fn count_binding<'a>(
+    count: Option<GpuCount<'a>>,
+    unused: &'a Buffer<u32>,
+) -> (&'a Buffer<u32>, u32, u32, u32) {
+    match count {
+        Some(c) => (c.counts, c.index, c.mul, c.div),
+        None => (unused, 0, 0, 0),
+    }
+}
+
 /// Inclusive (element i included) or exclusive (elements before i).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ScanOp {
@@ -425,11 +437,7 @@ impl Scan {
             return false;
         }
         let total = &scratch.total;
-        let (counts, count_index, count_mul, count_div): (&Buffer<u32>, u32, u32, u32) = match count
-        {
-            Some(c) => (c.counts, c.index, c.mul, c.div),
-            None => (total, 0, 0, 0),
-        };
+        let (counts, count_index, count_mul, count_div) = count_binding(count, total);
         let push = ChainedPush {
             capacity: n as u32,
             inclusive: u32::from(op == ScanOp::Inclusive),
@@ -470,11 +478,7 @@ impl Scan {
         scratch: &ScanScratch,
         total: &Buffer<u32>,
     ) {
-        let (counts, count_index, count_mul, count_div): (&Buffer<u32>, u32, u32, u32) = match count
-        {
-            Some(c) => (c.counts, c.index, c.mul, c.div),
-            None => (total, 0, 0, 0),
-        };
+        let (counts, count_index, count_mul, count_div) = count_binding(count, total);
         let (reduce, downsweep) = if level == 0 {
             (&self.first_reduce, &self.first_downsweep)
         } else {
