@@ -26,7 +26,7 @@
 // State per tile t (zeroed by the host before the dispatch): one 64-bit word, the flag in
 // the high half (0 nothing, 1 the tile's sum published, 2 the inclusive prefix through t
 // published) and the value in the low half, written and read with relaxed 64-bit atomics
-// (a locked read-modify-write per lane to read it measured 1.3x slower overall).
+// by one lane of the subgroup (reading it in every lane measured 1.3x slower overall).
 // Flag and value in one word need no acquire/release ordering between two words — which
 // matters on lavapipe (Mesa 22.3), where an acquire or a memory barrier is a coroutine
 // switch: inside the look-back's loop it desynchronised the workgroup's barriers and lost
@@ -41,7 +41,6 @@
 #extension GL_EXT_shader_atomic_int64 : require
 #extension GL_KHR_shader_subgroup_ballot : require
 #extension GL_EXT_control_flow_attributes : require
-#extension GL_KHR_memory_scope_semantics : require
 #define GRANULE u64vec4
 #define WORDS 8u
 #if FLAGS
@@ -112,7 +111,7 @@ GRANULE load_granule(uint g, uint full_granules, uint straddle, GRANULE tail) {
 }
 
 void publish(uint tile, uint flag, uint value) {
-    atomicStore(state[tile], pack64(uvec2(value, flag)), gl_ScopeDevice, gl_StorageSemanticsNone, gl_SemanticsRelaxed);
+    atomicExchange(state[1 + tile], pack64(uvec2(value, flag)));
 }
 
 // The sum of every tile before `tile`, in every lane of the subgroup. Lanes agree on
@@ -124,10 +123,11 @@ uint look_back(uint tile, uint lanes) {
     uint flag = 0;
     while (flag != FLAG_INCLUSIVE && j > 0) {
         j--;
-        // One lane reads (a relaxed load: no locked instruction, no barrier), all agree.
+        // One lane reads (an atomic read-modify-write: one 64-bit access whatever the
+        // driver does with plain 64-bit loads; a relaxed atomic, so no barrier), all agree.
         uint64_t word = 0;
         if (subgroupElect()) {
-            word = atomicLoad(state[j], gl_ScopeDevice, gl_StorageSemanticsNone, gl_SemanticsRelaxed);
+            word = atomicAdd(state[1 + j], uint64_t(0));
         }
         uvec2 published = unpack32(word);
         published = uvec2(subgroupBroadcastFirst(published.x), subgroupBroadcastFirst(published.y));
@@ -148,10 +148,16 @@ uint look_back(uint tile, uint lanes) {
 void main() {
     uint n = gpu_count(pc.capacity, pc.count_div == 0u ? 0u : counts[pc.count_index], pc.count_mul, pc.count_div);
     uint lanes = subgroup_lanes();
-    // Tiles by workgroup and subgroup id. Numbering them in start order instead (an atomic
-    // counter) measured 1.5x slower on lavapipe: a locked, contended read-modify-write per
-    // tile; and the fallback already covers any order.
-    uint tile = linear_group_id() * gl_NumSubgroups + gl_SubgroupID;
+    // Tiles in the order subgroups start (state[0] counts them), not by workgroup id, so a
+    // look-back only ever walks over tiles that are running. Lavapipe hands each thread a
+    // contiguous range of workgroup ids, and it silently ends a loop after 65,535 trips:
+    // numbered by id, the first tile of a later range walked back over tens of thousands of
+    // tiles and lost its prefix (found by the 2^24 + 3 twin test).
+    uint tile = 0;
+    if (subgroupElect()) {
+        tile = uint(atomicAdd(state[0], uint64_t(1)));
+    }
+    tile = subgroupBroadcastFirst(tile);
     uint tile_elements = lanes * ROUNDS * EPG;
     if (tile * tile_elements >= n) {
         if (n == 0 && tile == 0 && subgroupElect()) {

@@ -1,7 +1,7 @@
 //! Prefix sums of u32 elements and of 0/1 byte flags.
 //!
 //! **Chained (the default, [`ScanVariant::Chained`])**: one pass, `prims.scan_chained`.
-//! A tile is one subgroup's share (lanes × 8 granules of 32 bytes); every tile publishes
+//! A tile is one subgroup's share (lanes × 16 granules of 32 bytes at the default); every tile publishes
 //! its sum, then looks back over its predecessors' published sums (decoupled look-back,
 //! Merrill & Garland 2016). A predecessor that has published nothing yet is never waited
 //! for: the looking-back subgroup reduces that tile's input itself and goes on (the
@@ -18,19 +18,21 @@
 //! kernel has no barrier (a barrier is a coroutine switch that saves and restores the
 //! subgroup's live tile: 1.4–2× with the workgroup-tile version); no array indexed by a
 //! loop variable (such arrays live in memory, every access a loop over lanes: the flag
-//! scan's tail handling alone cost 1.8×); the look-back reading one lane's relaxed load
-//! instead of a locked read-modify-write per lane, and tiles numbered by id instead of an
-//! atomic counter (together 1.5×).
+//! scan's tail handling alone cost 1.8×); the look-back reading a tile's word in one lane
+//! and broadcasting it, instead of a locked read-modify-write in every lane. Tiles are
+//! numbered in start order by an atomic counter: lavapipe gives each thread a contiguous
+//! range of workgroup ids and silently ends loops after 65,535 trips, so with tiles numbered
+//! by id a look-back walked over tens of thousands of tiles and lost its prefix.
 //!
 //! **Reduce-then-scan**, multi-level: `prims.scan_reduce` writes the sum of every tile, the
 //! tile sums are scanned (recursively, with the same kernels) in place, and
 //! `prims.scan_downsweep` rescans every tile from its carry-in. It reads the input twice.
 //!
 //! Measured at n = 2^24 on lavapipe (`vkrt bench prims --min-n 16777216 --only scan
-//! --reps 6`, four runs): the u32 scan 18–27 ms chained vs 82–124 ms reduce-then-scan,
-//! 0.47–0.71 (median 0.51) of the best copy kernel measured in the same run on the same
-//! bytes (that kernel itself takes 9–15 ms from run to run); the flag scan 11–17 ms vs
-//! 29–43 ms, 0.31–0.82 (median 0.70) of the copy kernel.
+//! --reps 6`, three runs, 16 granules per lane): the u32 scan 26–32 ms chained vs 78–124 ms
+//! reduce-then-scan, 0.32–0.47 of the best copy kernel measured in the same run on the
+//! same bytes (that kernel itself takes 8–15 ms from run to run); the flag scan 10–15 ms vs
+//! 28–43 ms, 0.53–0.84 of the copy kernel.
 //!
 //! Inside a workgroup: a subgroup scan (`subgroupInclusiveAdd`, or `subgroupShuffleUp`
 //! steps with [`Scan::with_shuffle`]), subgroup totals through shared memory, and several
@@ -158,7 +160,7 @@ pub struct ScanScratch {
     level_totals: Vec<Buffer<u32>>,
     /// The grand total (one u32), written by every `record`.
     pub total: Buffer<u32>,
-    /// The chained scan's per-tile (flag, sum) words.
+    /// The chained scan's tile counter and per-tile (flag, sum) words.
     chain_state: Buffer<u64>,
 }
 
@@ -247,9 +249,11 @@ impl Scan {
             return Ok(None);
         }
         const WORDS: u32 = 8;
-        // Four times the configured items per invocation: `vkrt bench prims` measured
-        // 64 u32 per invocation (8 granules) 1.4x faster than 16 at n = 2^24.
-        let rounds = (4 * cfg.items_per_invocation / WORDS).max(1);
+        // Eight times the configured items per invocation (16 granules at the default):
+        // per-tile work (the start-order counter, the look-back) is amortised over more
+        // elements. `vkrt bench prims`, three runs at n = 2^24: 16 granules per lane beat 8
+        // by 1.1-1.4x (u32) and 1.3-1.4x (flags); 2 granules were 2-3x slower.
+        let rounds = (8 * cfg.items_per_invocation / WORDS).max(1);
         let (blob, per_word) = match input {
             ScanInput::U32 => (&kernels::PRIMS_SCAN_CHAINED_U32, 1),
             ScanInput::Flags => (&kernels::PRIMS_SCAN_CHAINED_FLAGS, 4),
@@ -337,7 +341,7 @@ impl Scan {
             levels,
             level_totals,
             total: Buffer::new(ctx, "prims.scan.total", 1)?,
-            chain_state: Buffer::new(ctx, "prims.scan.chain_state", tiles.max(1))?,
+            chain_state: Buffer::new(ctx, "prims.scan.chain_state", 1 + tiles)?,
         })
     }
 
