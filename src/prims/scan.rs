@@ -1,9 +1,9 @@
 //! Prefix sums of u32 elements and of 0/1 byte flags.
 //!
 //! **Chained (the default, [`ScanVariant::Chained`])**: one pass, `prims.scan_chained`.
-//! A tile is one subgroup's share (lanes × 16 granules of 32 bytes at the default); every tile publishes
-//! its sum, then looks back over its predecessors' published sums (decoupled look-back,
-//! Merrill & Garland 2016). A predecessor that has published nothing yet is never waited
+//! A tile is one subgroup's share (lanes × 16 granules of 32 bytes at the default); every
+//! tile publishes its sum, then looks back over its predecessors' published sums (decoupled
+//! look-back, Merrill & Garland 2016). A predecessor that has published nothing yet is never waited
 //! for: the looking-back subgroup reduces that tile's input itself and goes on (the
 //! fallback of Levien & Smith 2022). So no workgroup waits for another and the scan
 //! terminates on drivers without forward-progress guarantees (lavapipe runs a thread's
