@@ -363,15 +363,7 @@ impl Scan {
                 scratch.max_n
             );
         }
-        let name = match self.input {
-            ScanInput::U32 => "prims.scan",
-            ScanInput::Flags => "prims.flag_scan",
-        };
-        rec.scope(name, |rec| {
-            if !self.record_chained(rec, input, output, n, None, op, scratch) {
-                self.record_level(rec, 0, input, output, n, None, op, scratch, &scratch.total)
-            }
-        });
+        self.record_scan(rec, input, output, n, None, op, scratch);
     }
 
     /// Like [`Scan::record`] for a count that lives on the GPU (at most `capacity`): the
@@ -396,25 +388,34 @@ impl Scan {
             "scan capacity {capacity} above its scratch's {}",
             scratch.max_n
         );
+        self.record_scan(rec, input, output, capacity, Some(count), op, scratch);
+    }
+
+    /// The whole scan under its profiler scope: one chained pass where it applies, the
+    /// reduce-then-scan levels otherwise.
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "record_counted's arguments, the count optional"
+    )]
+    fn record_scan(
+        &self,
+        rec: &mut Recorder,
+        input: &dyn BufferArg,
+        output: &dyn BufferArg,
+        n: usize,
+        count: Option<GpuCount>,
+        op: ScanOp,
+        scratch: &ScanScratch,
+    ) {
         let name = match self.input {
             ScanInput::U32 => "prims.scan",
             ScanInput::Flags => "prims.flag_scan",
         };
         rec.scope(name, |rec| {
-            if self.record_chained(rec, input, output, capacity, Some(count), op, scratch) {
-                return;
+            if !self.record_chained(rec, input, output, n, count, op, scratch) {
+                let total = &scratch.total;
+                self.record_level(rec, 0, input, output, n, count, op, scratch, total);
             }
-            self.record_level(
-                rec,
-                0,
-                input,
-                output,
-                capacity,
-                Some(count),
-                op,
-                scratch,
-                &scratch.total,
-            )
         });
     }
 
