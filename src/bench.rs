@@ -50,12 +50,13 @@ const WORKGROUP_SIZES: [u32; 3] = [64, 256, 1024];
 
 /// The copy kernels: (name, blob, u32 words per element, elements per invocation, needs
 /// shaderInt64).
-const COPY_KERNELS: [(&str, &crate::gpu::ShaderBlob, u32, u32, bool); 5] = [
+const COPY_KERNELS: [(&str, &crate::gpu::ShaderBlob, u32, u32, bool); 6] = [
     ("u32", &kernels::GPU_COPY_U32, 1, 1, false),
     ("uvec4", &kernels::GPU_COPY_UVEC4, 4, 1, false),
     ("uvec4x4", &kernels::GPU_COPY_UVEC4X4, 4, 4, false),
     ("u64vec4", &kernels::GPU_COPY_U64VEC4, 8, 1, true),
     ("u64vec4x4", &kernels::GPU_COPY_U64VEC4X4, 8, 4, true),
+    ("u64vec4run16", &kernels::GPU_COPY_U64VEC4RUN16, 8, 16, true),
 ];
 
 /// Measures `vkCmdCopyBuffer` and the copy kernels over `bytes`, `reps` times each, and

@@ -8,7 +8,7 @@ mod common;
 
 use vkrt::gpu::{Buffer, Context, Recorder};
 use vkrt::prims::radix_sort::{
-    radix_sort_cpu, radix_sort_f32_cpu, radix_sort_passes_cpu, RadixSort, Ranking,
+    radix_sort_cpu, radix_sort_f32_cpu, radix_sort_passes_cpu, RadixSort, Ranking, BITS_RANGE,
     DEFAULT_BITS_PER_PASS,
 };
 use vkrt::prims::PrimConfig;
@@ -71,13 +71,17 @@ fn first_difference<T: PartialEq>(a: &[T], b: &[T]) -> Option<usize> {
     a.iter().zip(b).position(|(x, y)| x != y)
 }
 
-fn rankings() -> [Ranking; 2] {
-    [Ranking::Counters, Ranking::Match]
+fn rankings() -> [Ranking; 3] {
+    Ranking::ALL
 }
 
 /// The sort with `ranking`, or None when its shared memory does not fit this device's
-/// subgroup size (`RadixSort::new` then picks the other ranking).
+/// subgroup size (`RadixSort::new` then picks another ranking) or its digits are wider
+/// than the ranking takes.
 fn sort_with(ctx: &Context, cfg: PrimConfig, bits: u32, ranking: Ranking) -> Option<RadixSort> {
+    if bits > 8 && ranking != Ranking::Runs {
+        return None; // the shared-memory rankings take up to 8 bits
+    }
     match RadixSort::with_ranking(ctx, cfg, bits, ranking) {
         Ok(sort) => Some(sort),
         Err(e) => {
@@ -181,9 +185,9 @@ fn every_digit_width_ranking_and_key_width_equals_cpu_twin() {
             // The matrix legs keep one odd and one even pass count: digit width does not
             // change how lanes cooperate.
             let widths: Vec<u32> = if common::quick() {
-                vec![3, 8]
+                vec![3, 8, 11]
             } else {
-                (1..=8).collect()
+                BITS_RANGE.collect()
             };
             for bits in widths {
                 let Some(sort) = sort_with(&ctx, cfg, bits, ranking) else {
@@ -351,12 +355,20 @@ fn nan_keys_are_an_error() {
 #[test]
 fn unsupported_digit_widths_are_an_error() {
     let Some(ctx) = common::context() else { return };
-    for bits in [0, 9, 32] {
+    let cfg = PrimConfig::default_for(&ctx);
+    for bits in [0, 13, 32] {
+        assert!(RadixSort::new(&ctx, cfg, bits).is_err(), "{bits} bits");
+    }
+    // Wider than 8 bits only with the device-memory counters of `Runs`.
+    for ranking in [Ranking::Counters, Ranking::Match] {
+        let err = RadixSort::with_ranking(&ctx, cfg, 9, ranking).err();
+        let err = err.map(|e| e.to_string()).unwrap_or_default();
         assert!(
-            RadixSort::new(&ctx, PrimConfig::default_for(&ctx), bits).is_err(),
-            "{bits} bits"
+            err.contains("takes 1 to 8"),
+            "{ranking:?} with 9 bits: {err}"
         );
     }
+    assert!(RadixSort::with_ranking(&ctx, cfg, 12, Ranking::Runs).is_ok());
     common::assert_silent(&ctx);
 }
 

@@ -7,6 +7,7 @@
 //! variant uvec4x4 ELEM=uvec4 PER=4
 //! variant u64vec4 ELEM=u64vec4 INT64=1
 //! variant u64vec4x4 ELEM=u64vec4 INT64=1 PER=4
+//! variant u64vec4run16 ELEM=u64vec4 INT64=1 PER=16 RUNS=1
 #ifdef INT64
 #extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
 #endif
@@ -25,6 +26,14 @@ void main() {
     uint i = linear_invocation_id();
     if (i < pc.n) {
         dst[i] = src[i];
+    }
+#elif defined(RUNS)
+    uint base = linear_invocation_id() * PER;
+    for (uint k = 0; k < PER; k++) {
+        uint i = base + k;
+        if (i < pc.n) {
+            dst[i] = src[i];
+        }
     }
 #else
     uint base = linear_group_id() * gl_WorkGroupSize.x * PER + gl_LocalInvocationID.x;

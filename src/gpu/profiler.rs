@@ -79,10 +79,6 @@ impl ScopeRecorder {
         end
     }
 
-    pub(crate) fn capacity(&self) -> u32 {
-        self.capacity
-    }
-
     pub(crate) fn open_scopes(&self) -> usize {
         self.open.len()
     }

