@@ -1,7 +1,9 @@
 #version 460
 // The plain copy kernel: the ceiling for any kernel that must read and write n elements,
 // the baseline that `vkrt bench` reports kernels against. ELEM is the per-invocation width;
-// PER granules per invocation (block-strided: neighbouring invocations, neighbouring bytes).
+// PER granules per invocation (block-strided: neighbouring invocations, neighbouring bytes),
+// or with RUNS each invocation's PER granules back to back: the layout of the chained scan's
+// lanes and of the radix sort's runs, to measure what that layout costs a plain copy.
 //! variant u32 ELEM=uint
 //! variant uvec4 ELEM=uvec4
 //! variant uvec4x4 ELEM=uvec4 PER=4

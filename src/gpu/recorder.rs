@@ -310,6 +310,33 @@ impl Recorder {
         };
     }
 
+    /// Fills the first `len` elements of `buffer` with the 32-bit `value` repeated (all of
+    /// it when `len` is its length). `T` must be a whole number of 32-bit words.
+    pub fn fill_first<T: Pod>(&mut self, buffer: &Buffer<T>, len: usize, value: u32) {
+        let elem = std::mem::size_of::<T>();
+        if len > buffer.len() || elem % 4 != 0 {
+            usage_error(&format!(
+                "fill of {len} elements of {elem} bytes in `{}` ({} elements)",
+                buffer.name(),
+                buffer.len()
+            ));
+        }
+        if len == 0 {
+            return;
+        }
+        // SAFETY: recording; the buffer has TRANSFER_DST usage; offset 0 and a size of
+        // whole 32-bit words inside the buffer (checked above).
+        unsafe {
+            self.ctx.inner.device.cmd_fill_buffer(
+                self.cmd,
+                buffer.raw(),
+                0,
+                (len * elem) as vk::DeviceSize,
+                value,
+            )
+        };
+    }
+
     /// Copies the first `len` elements of `src` into `dst`.
     pub fn copy<T: Pod>(&mut self, src: &Buffer<T>, dst: &Buffer<T>, len: usize) {
         if len > src.len() || len > dst.len() {

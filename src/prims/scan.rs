@@ -136,8 +136,11 @@ struct Chained {
     kernel: Arc<Kernel>,
     /// Elements per workgroup (the grid is sized by it).
     tile: usize,
-    /// Elements per subgroup tile with the smallest subgroups (4 lanes): the state holds
-    /// one word per subgroup tile.
+    /// Elements per subgroup tile with the smallest subgroups the kernels take (4 lanes):
+    /// the state holds one word per subgroup tile. Not the device's reported minimum: under
+    /// LP_NATIVE_VECTOR_WIDTH=512 lavapipe reports 16 (min 16), and a state sized for 16
+    /// lanes gave wrong prefixes from element 12,118,016 of a 2^24 + 3 scan, every run —
+    /// the kernel used more tiles than 16-lane subgroups make.
     min_subgroup_tile: usize,
 }
 
@@ -451,9 +454,11 @@ impl Scan {
             count_div,
         };
         let state = &scratch.chain_state;
-        // The previous scan with this scratch may still read or write the state.
+        // The previous scan with this scratch may still read or write the state. Only the
+        // counter and the tiles of `n` (capacity) elements are cleared, not the scratch's
+        // whole state.
         rec.compute_to_transfer();
-        rec.fill(state, 0);
+        rec.fill_first(state, 1 + n.div_ceil(chained.min_subgroup_tile), 0);
         rec.transfer_to_compute();
         let groups = rec.groups_1d(n.max(1) as u64, chained.tile as u32);
         rec.scope("prims.scan_chained", |rec| {

@@ -76,8 +76,7 @@ pub fn edge_sizes(subgroup: usize, workgroup: usize, tile: usize) -> Vec<usize> 
         tile + 1,
         4 * tile + 3,
     ];
-    // The subgroup-size matrix (VKRT_TEST_QUICK=1) is about lanes, not levels: the large
-    // sizes run once, at the default width.
+    // VKRT_TEST_QUICK=1 (while developing) leaves the large sizes out.
     if !std::env::var("VKRT_TEST_QUICK").is_ok_and(|v| v == "1") {
         sizes.extend([(1 << 20) + 13, (1 << 24) + 3]);
     }
@@ -180,8 +179,7 @@ pub fn kdtree_hard_cases() -> Vec<(&'static str, Vec<[glam::Vec3; 3]>)> {
     ]
 }
 
-/// The subgroup-size matrix legs (VKRT_TEST_QUICK=1): tests trim what does not depend on
-/// the lane count.
+/// VKRT_TEST_QUICK=1, while developing: tests trim what does not depend on the lane count.
 pub fn quick() -> bool {
     std::env::var("VKRT_TEST_QUICK").is_ok_and(|v| v == "1")
 }
