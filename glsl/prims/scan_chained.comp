@@ -110,16 +110,8 @@ GRANULE load_granule(uint g, uint full_granules, uint straddle, GRANULE tail) {
     return v;
 }
 
-// Tiles past the state (a device running fewer lanes than the host sized it for) publish
-// nothing and read as unpublished: their successors fall back to the input, still right.
-bool has_state(uint tile) {
-    return 1 + tile < state.length();
-}
-
 void publish(uint tile, uint flag, uint value) {
-    if (has_state(tile)) {
-        atomicExchange(state[1 + tile], pack64(uvec2(value, flag)));
-    }
+    atomicExchange(state[1 + tile], pack64(uvec2(value, flag)));
 }
 
 // The sum of every tile before `tile`, in every lane of the subgroup. Lanes agree on
@@ -134,7 +126,7 @@ uint look_back(uint tile, uint lanes) {
         // One lane reads (an atomic read-modify-write: one 64-bit access whatever the
         // driver does with plain 64-bit loads; a relaxed atomic, so no barrier), all agree.
         uint64_t word = 0;
-        if (subgroupElect() && has_state(j)) {
+        if (subgroupElect()) {
             word = atomicAdd(state[1 + j], uint64_t(0));
         }
         uvec2 published = unpack32(word);

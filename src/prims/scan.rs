@@ -140,7 +140,9 @@ struct Chained {
     /// the state holds one word per subgroup tile. Not the device's reported minimum: under
     /// LP_NATIVE_VECTOR_WIDTH=512 lavapipe reports 16 (min 16), and a state sized for 16
     /// lanes gave wrong prefixes from element 12,118,016 of a 2^24 + 3 scan, every run —
-    /// the kernel used more tiles than 16-lane subgroups make.
+    /// the kernel used more tiles than 16-lane subgroups make. (A bounds check on the
+    /// state in the kernel made it right with any sizing, but doubled the default shape's
+    /// time on lavapipe, 25-29 -> 53-55 ms at 2^24: the host sizes for 4 lanes instead.)
     min_subgroup_tile: usize,
 }
 
