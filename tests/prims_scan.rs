@@ -353,6 +353,40 @@ fn counted_scans_read_their_length_from_the_gpu() {
 /// The chained scan's look-back, made to reduce every predecessor tile from the input
 /// (timing alone reaches that path only sometimes), still equals the CPU twin; and the
 /// device here does run the chained path (lavapipe has 64-bit buffer atomics).
+/// Scans from `Scan::large_tiles` on take tiles four times as long: their boundaries, and the
+/// switch itself, against the CPU twin.
+#[test]
+fn chained_scan_large_tiles_equal_cpu_twin() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(7);
+    let cfg = PrimConfig::default_for(&ctx);
+    for input_kind in [ScanInput::U32, ScanInput::Flags] {
+        let scan = Scan::new(&ctx, cfg, input_kind).unwrap();
+        let (large_tile, large_from) = scan.large_tiles().expect("chained scan");
+        assert!(large_tile > scan.tile_elements(), "large tiles are larger");
+        for n in [
+            large_from - 1,
+            large_from,
+            large_from + 1,
+            large_from + large_tile - 1,
+            large_from + large_tile + 1,
+        ] {
+            if input_kind == ScanInput::U32 {
+                let input: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
+                for op in [ScanOp::Inclusive, ScanOp::Exclusive] {
+                    let got = scan.run_u32(&ctx, &input, op).unwrap();
+                    assert!(got == scan_cpu(&input, op), "n={n} u32 {op:?}");
+                }
+            } else {
+                let flags: Vec<u8> = (0..n).map(|_| (rng.next_u64() & 1) as u8).collect();
+                let got = scan.run_flags(&ctx, &flags).unwrap();
+                assert!(got == flag_scan_cpu(&flags), "n={n} flags");
+            }
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
 #[test]
 fn chained_scan_fallback_equals_cpu_twin() {
     let Some(ctx) = common::context() else { return };
@@ -372,8 +406,18 @@ fn chained_scan_fallback_equals_cpu_twin() {
             .expect("chained scan");
         for scan in [&u32_scan, &flag_scan] {
             let tile = scan.tile_elements();
-            // O(tiles²) reads: a few tiles are enough to cross every boundary.
-            for n in [tile - 1, tile, tile + 1, 3 * tile + 7, 9 * tile + 1] {
+            let (large_tile, large_from) = scan.large_tiles().expect("chained scan");
+            // O(tiles²) reads: a few tiles are enough to cross every boundary; the large
+            // tiles from their first scan length on.
+            let sizes = [
+                tile - 1,
+                tile,
+                tile + 1,
+                3 * tile + 7,
+                9 * tile + 1,
+                large_from + large_tile + 1,
+            ];
+            for n in sizes {
                 if std::ptr::eq(scan, &u32_scan) {
                     let input: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
                     for op in [ScanOp::Inclusive, ScanOp::Exclusive] {

@@ -1,7 +1,8 @@
 //! Prefix sums of u32 elements and of 0/1 byte flags.
 //!
 //! **Chained (the default, [`ScanVariant::Chained`])**: one pass, `prims.scan_chained`.
-//! A tile is one subgroup's share (lanes × 16 granules of 32 bytes at the default); every
+//! A tile is one subgroup's share (lanes × 16 granules of 32 bytes at the default, 64 for
+//! scans of 256 such large tiles or more); every
 //! tile publishes its sum, then looks back over its predecessors' published sums (decoupled
 //! look-back, Merrill & Garland 2016). A predecessor that has published nothing yet is never waited
 //! for: the looking-back subgroup reduces that tile's input itself and goes on (the
@@ -29,10 +30,12 @@
 //! `prims.scan_downsweep` rescans every tile from its carry-in. It reads the input twice.
 //!
 //! Measured at n = 2^24 on lavapipe (`vkrt bench prims --min-n 16777216 --only scan
-//! --reps 6`, three runs, 16 granules per lane): the u32 scan 26–32 ms chained vs 78–124 ms
-//! reduce-then-scan, 0.32–0.47 of the best copy kernel measured in the same run on the
-//! same bytes (that kernel itself takes 8–15 ms from run to run); the flag scan 10–15 ms vs
-//! 28–43 ms, 0.53–0.84 of the copy kernel.
+//! --reps 6`, five runs, 64 granules per lane): the u32 scan 15.4–17.0 ms chained (with 16
+//! granules per lane: 25–29 ms) vs 78–124 ms reduce-then-scan, 0.53–0.55 of the best copy
+//! kernel measured in the same run on the same bytes (that kernel itself takes 8–15 ms
+//! from run to run); the flag scan 8.4–8.7 ms, 0.61–0.66 of the copy kernel (16 granules:
+//! 10–11 ms). What is left is per-granule: a variant with only the loads, stores and tile
+//! bookkeeping took about 0.75 of the full kernel's time.
 //!
 //! Inside a workgroup: a subgroup scan (`subgroupInclusiveAdd`, or `subgroupShuffleUp`
 //! steps with [`Scan::with_shuffle`]), subgroup totals through shared memory, and several
@@ -131,8 +134,8 @@ struct ChainedPush {
     count_div: u32,
 }
 
-/// The single-pass kernel and its tiles.
-struct Chained {
+/// The single-pass kernel at one tile size.
+struct ChainedTiles {
     kernel: Arc<Kernel>,
     /// Elements per workgroup (the grid is sized by it).
     tile: usize,
@@ -145,6 +148,40 @@ struct Chained {
     /// time on lavapipe, 25-29 -> 53-55 ms at 2^24: the host sizes for 4 lanes instead.)
     min_subgroup_tile: usize,
 }
+
+/// The single-pass kernel at two tile sizes: per-tile work (the start-order counter, the
+/// subgroup scan, publishing, the look-back) is amortised over more granules by large
+/// tiles, while small scans need enough tiles to spread over the device.
+struct Chained {
+    small: ChainedTiles,
+    large: ChainedTiles,
+    /// Scans of at least this many elements (capacity) take the large tiles.
+    large_from: usize,
+}
+
+impl Chained {
+    fn tiles_for(&self, n: usize) -> &ChainedTiles {
+        if n >= self.large_from {
+            &self.large
+        } else {
+            &self.small
+        }
+    }
+}
+
+/// Granules per lane of the chained scan's small tiles: the configured items per invocation
+/// times this over 8 (16 at the default 16 items).
+const CHAINED_SMALL_ROUNDS_PER_ITEM: u32 = 8;
+/// The same for large tiles (64 at the default). Measured (`vkrt bench prims --only scan`,
+/// three runs each at 2^24, default shape): u32 scan 25–29 ms with 16 granules per lane,
+/// 19–20 with 32, 15.4–15.7 with 64, 14.7–17.5 with 128; flag scan 10–11, 9.7–10, 8.5–8.7,
+/// 9–13 ms.
+const CHAINED_LARGE_ROUNDS_PER_ITEM: u32 = 32;
+/// Scans take the large tiles from this many large tiles on. Measured: at 2^18 elements
+/// (64 large u32 tiles) both sizes took 0.6 ms; at 2^20 large tiles were faster for u32
+/// (1.5 vs 1.8 ms) but slower for flags (64 large tiles: 1.04 vs 0.84 ms); at 2^16 small
+/// tiles won (0.21 vs 0.27 ms).
+const CHAINED_LARGE_FROM_TILES: usize = 256;
 
 /// A scan of one input kind, with its kernels compiled.
 pub struct Scan {
@@ -254,23 +291,30 @@ impl Scan {
             return Ok(None);
         }
         const WORDS: u32 = 8;
-        // Eight times the configured items per invocation (16 granules at the default):
-        // per-tile work (the start-order counter, the look-back) is amortised over more
-        // elements. `vkrt bench prims`, three runs at n = 2^24: 16 granules per lane beat 8
-        // by 1.1-1.4x (u32) and 1.3-1.4x (flags); 2 granules were 2-3x slower.
-        let rounds = (8 * cfg.items_per_invocation / WORDS).max(1);
         let (blob, per_word) = match input {
             ScanInput::U32 => (&kernels::PRIMS_SCAN_CHAINED_U32, 1),
             ScanInput::Flags => (&kernels::PRIMS_SCAN_CHAINED_FLAGS, 4),
         };
-        let spec = Spec::new()
-            .workgroup(cfg.workgroup_size)
-            .u32(1, rounds)
-            .u32(2, u32::from(force_fallback));
+        let tiles = |per_item: u32| -> Result<ChainedTiles> {
+            let rounds = (per_item * cfg.items_per_invocation / WORDS).max(1);
+            let spec = Spec::new()
+                .workgroup(cfg.workgroup_size)
+                .u32(1, rounds)
+                .u32(2, u32::from(force_fallback));
+            Ok(ChainedTiles {
+                kernel: ctx.kernel(blob, &spec)?,
+                tile: (cfg.workgroup_size * rounds * WORDS * per_word) as usize,
+                min_subgroup_tile: (4 * rounds * WORDS * per_word) as usize,
+            })
+        };
+        let small = tiles(CHAINED_SMALL_ROUNDS_PER_ITEM)?;
+        let large = tiles(CHAINED_LARGE_ROUNDS_PER_ITEM)?;
+        let lanes = ctx.info().subgroup_size.max(4) as usize;
+        let large_from = CHAINED_LARGE_FROM_TILES * large.min_subgroup_tile / 4 * lanes;
         Ok(Some(Chained {
-            kernel: ctx.kernel(blob, &spec)?,
-            tile: (cfg.workgroup_size * rounds * WORDS * per_word) as usize,
-            min_subgroup_tile: (4 * rounds * WORDS * per_word) as usize,
+            small,
+            large,
+            large_from,
         }))
     }
 
@@ -297,10 +341,16 @@ impl Scan {
         self.chained.is_some()
     }
 
-    /// Elements per workgroup tile of the first (or only) pass: where tile-boundary edge
-    /// cases lie.
+    /// Elements per workgroup tile of the first (or only) pass of scans below
+    /// [`Scan::large_tiles`]: where tile-boundary edge cases lie.
     pub fn tile_elements(&self) -> usize {
-        self.chained.as_ref().map_or(self.tile(0), |c| c.tile)
+        self.chained.as_ref().map_or(self.tile(0), |c| c.small.tile)
+    }
+
+    /// The chained scan's large tiles: (elements per workgroup tile, the scan length from
+    /// which they are used). `None` without the chained scan.
+    pub fn large_tiles(&self) -> Option<(usize, usize)> {
+        self.chained.as_ref().map(|c| (c.large.tile, c.large_from))
     }
 
     /// Elements per workgroup tile at a level (flags pack 16 per 16-byte load, u32 four).
@@ -340,7 +390,7 @@ impl Scan {
         let tiles = self
             .chained
             .as_ref()
-            .map_or(0, |c| max_n.div_ceil(c.min_subgroup_tile));
+            .map_or(0, |c| max_n.div_ceil(c.small.min_subgroup_tile));
         Ok(ScanScratch {
             max_n,
             levels,
@@ -443,6 +493,7 @@ impl Scan {
         let Some(chained) = &self.chained else {
             return false;
         };
+        let chained = chained.tiles_for(n);
         if input.raw() == output.raw() {
             return false;
         }
