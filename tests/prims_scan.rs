@@ -397,37 +397,35 @@ fn chained_scan_fallback_equals_cpu_twin() {
         "lavapipe should take the single-pass path"
     );
     let mut rng = common::Rng(6);
-    for cfg in configs(&ctx) {
-        let u32_scan = Scan::with_forced_fallback(&ctx, cfg, ScanInput::U32)
-            .unwrap()
-            .expect("chained scan");
-        let flag_scan = Scan::with_forced_fallback(&ctx, cfg, ScanInput::Flags)
-            .unwrap()
-            .expect("chained scan");
+    for (cfg, large_tiles) in configs(&ctx)
+        .into_iter()
+        .flat_map(|c| [(c, false), (c, true)])
+    {
+        let forced = |input| {
+            Scan::with_forced_fallback(&ctx, cfg, input, large_tiles)
+                .unwrap()
+                .expect("chained scan")
+        };
+        let (u32_scan, flag_scan) = (forced(ScanInput::U32), forced(ScanInput::Flags));
         for scan in [&u32_scan, &flag_scan] {
-            let tile = scan.tile_elements();
-            let (large_tile, large_from) = scan.large_tiles().expect("chained scan");
-            // O(tiles²) reads: a few tiles are enough to cross every boundary; the large
-            // tiles from their first scan length on.
-            let sizes = [
-                tile - 1,
-                tile,
-                tile + 1,
-                3 * tile + 7,
-                9 * tile + 1,
-                large_from + large_tile + 1,
-            ];
-            for n in sizes {
+            let tile = if large_tiles {
+                scan.large_tiles().expect("chained scan").0
+            } else {
+                scan.tile_elements()
+            };
+            // O(tiles²) reads: a few tiles are enough to cross every boundary.
+            for n in [tile - 1, tile, tile + 1, 3 * tile + 7, 9 * tile + 1] {
+                let case = format!("{cfg:?} large tiles {large_tiles} n={n}");
                 if std::ptr::eq(scan, &u32_scan) {
                     let input: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
                     for op in [ScanOp::Inclusive, ScanOp::Exclusive] {
                         let got = scan.run_u32(&ctx, &input, op).unwrap();
-                        assert!(got == scan_cpu(&input, op), "{cfg:?} n={n} u32 {op:?}");
+                        assert!(got == scan_cpu(&input, op), "{case} u32 {op:?}");
                     }
                 } else {
                     let flags: Vec<u8> = (0..n).map(|_| (rng.next_u64() & 1) as u8).collect();
                     let got = scan.run_flags(&ctx, &flags).unwrap();
-                    assert!(got == flag_scan_cpu(&flags), "{cfg:?} n={n} flags");
+                    assert!(got == flag_scan_cpu(&flags), "{case} flags");
                 }
             }
         }

@@ -320,15 +320,22 @@ impl Scan {
 
     /// A chained scan whose look-back ignores every published sum and reduces all
     /// predecessor tiles from the input (O(tiles²) work: for testing the fallback path,
-    /// which timing alone reaches only sometimes). `None` where the device has no chained
-    /// scan.
+    /// which timing alone reaches only sometimes), with only small tiles or, with
+    /// `large_tiles`, only large ones. Keep such scans to a few dozen tiles: lavapipe cuts
+    /// long loops short without a word, and a forced look-back over ~500 large or ~1800
+    /// small tiles lost one round of its fallback sum. `None` where the device has no
+    /// chained scan.
     pub fn with_forced_fallback(
         ctx: &Context,
         cfg: PrimConfig,
         input: ScanInput,
+        large_tiles: bool,
     ) -> Result<Option<Self>> {
         let mut scan = Self::with_variant(ctx, cfg, input, ScanVariant::Contiguous)?;
-        scan.chained = Self::chained(ctx, cfg, input, true)?;
+        scan.chained = Self::chained(ctx, cfg, input, true)?.map(|mut c| {
+            c.large_from = if large_tiles { 0 } else { usize::MAX };
+            c
+        });
         Ok(scan.chained.is_some().then_some(scan))
     }
 
