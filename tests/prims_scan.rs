@@ -353,6 +353,29 @@ fn counted_scans_read_their_length_from_the_gpu() {
 /// The chained scan's look-back, made to reduce every predecessor tile from the input
 /// (timing alone reaches that path only sometimes), still equals the CPU twin; and the
 /// device here does run the chained path (lavapipe has 64-bit buffer atomics).
+/// `scan` of `n` random u32 words (inclusive and exclusive) or random 0/1 flags against its
+/// CPU twin.
+fn check_random(
+    ctx: &Context,
+    scan: &Scan,
+    kind: ScanInput,
+    n: usize,
+    rng: &mut common::Rng,
+    case: &str,
+) {
+    if kind == ScanInput::U32 {
+        let input: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
+        for op in [ScanOp::Inclusive, ScanOp::Exclusive] {
+            let got = scan.run_u32(ctx, &input, op).unwrap();
+            assert!(got == scan_cpu(&input, op), "{case} u32 {op:?}");
+        }
+    } else {
+        let flags: Vec<u8> = (0..n).map(|_| (rng.next_u64() & 1) as u8).collect();
+        let got = scan.run_flags(ctx, &flags).unwrap();
+        assert!(got == flag_scan_cpu(&flags), "{case} flags");
+    }
+}
+
 /// Scans from `Scan::large_tiles` on take tiles four times as long: their boundaries, and the
 /// switch itself, against the CPU twin.
 #[test]
@@ -371,17 +394,7 @@ fn chained_scan_large_tiles_equal_cpu_twin() {
             large_from + large_tile - 1,
             large_from + large_tile + 1,
         ] {
-            if input_kind == ScanInput::U32 {
-                let input: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
-                for op in [ScanOp::Inclusive, ScanOp::Exclusive] {
-                    let got = scan.run_u32(&ctx, &input, op).unwrap();
-                    assert!(got == scan_cpu(&input, op), "n={n} u32 {op:?}");
-                }
-            } else {
-                let flags: Vec<u8> = (0..n).map(|_| (rng.next_u64() & 1) as u8).collect();
-                let got = scan.run_flags(&ctx, &flags).unwrap();
-                assert!(got == flag_scan_cpu(&flags), "n={n} flags");
-            }
+            check_random(&ctx, &scan, input_kind, n, &mut rng, &format!("n={n}"));
         }
     }
     common::assert_silent(&ctx);
@@ -406,8 +419,8 @@ fn chained_scan_fallback_equals_cpu_twin() {
                 .unwrap()
                 .expect("chained scan")
         };
-        let (u32_scan, flag_scan) = (forced(ScanInput::U32), forced(ScanInput::Flags));
-        for scan in [&u32_scan, &flag_scan] {
+        for kind in [ScanInput::U32, ScanInput::Flags] {
+            let scan = forced(kind);
             let tile = if large_tiles {
                 scan.large_tiles().expect("chained scan").0
             } else {
@@ -416,17 +429,7 @@ fn chained_scan_fallback_equals_cpu_twin() {
             // O(tiles²) reads: a few tiles are enough to cross every boundary.
             for n in [tile - 1, tile, tile + 1, 3 * tile + 7, 9 * tile + 1] {
                 let case = format!("{cfg:?} large tiles {large_tiles} n={n}");
-                if std::ptr::eq(scan, &u32_scan) {
-                    let input: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
-                    for op in [ScanOp::Inclusive, ScanOp::Exclusive] {
-                        let got = scan.run_u32(&ctx, &input, op).unwrap();
-                        assert!(got == scan_cpu(&input, op), "{case} u32 {op:?}");
-                    }
-                } else {
-                    let flags: Vec<u8> = (0..n).map(|_| (rng.next_u64() & 1) as u8).collect();
-                    let got = scan.run_flags(&ctx, &flags).unwrap();
-                    assert!(got == flag_scan_cpu(&flags), "{case} flags");
-                }
+                check_random(&ctx, &scan, kind, n, &mut rng, &case);
             }
         }
     }
