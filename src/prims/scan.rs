@@ -1,8 +1,8 @@
 //! Prefix sums of u32 elements and of 0/1 byte flags.
 //!
 //! **Chained (the default, [`ScanVariant::Chained`])**: one pass, `prims.scan_chained`.
-//! A tile is one subgroup's share (lanes × 16 granules of 32 bytes at the default, 64 for
-//! scans of 256 such large tiles or more); every
+//! A tile is one subgroup's share (lanes × 16 granules of 32 bytes at the default; 128 for
+//! u32 and 64 for flag scans of 256 such large tiles or more); every
 //! tile publishes its sum, then looks back over its predecessors' published sums (decoupled
 //! look-back, Merrill & Garland 2016). A predecessor that has published nothing yet is never waited
 //! for: the looking-back subgroup reduces that tile's input itself and goes on (the
@@ -30,11 +30,11 @@
 //! `prims.scan_downsweep` rescans every tile from its carry-in. It reads the input twice.
 //!
 //! Measured at n = 2^24 on lavapipe (`vkrt bench prims --min-n 16777216 --only scan
-//! --reps 6`, five runs, 64 granules per lane): the u32 scan 15.4–17.0 ms chained (with 16
-//! granules per lane: 25–29 ms) vs 78–124 ms reduce-then-scan, 0.53–0.55 of the best copy
-//! kernel measured in the same run on the same bytes (that kernel itself takes 8–15 ms
-//! from run to run); the flag scan 8.4–8.7 ms, 0.61–0.66 of the copy kernel (16 granules:
-//! 10–11 ms). What is left is per-granule: a variant with only the loads, stores and tile
+//! --reps 6`, four runs, 128 granules per lane): the u32 scan 14.1–14.6 ms chained (with
+//! 16 granules per lane: 25–29 ms) vs 78–124 ms reduce-then-scan, 0.60–0.99 of the best
+//! copy kernel measured in the same run on the same bytes (that kernel itself takes 8–15 ms
+//! from run to run, hence the spread); the flag scan 8.4–10.0 ms with 64 granules,
+//! 0.60–1.08 of the copy kernel (16 granules: 10–11 ms). What is left is per-granule: a variant with only the loads, stores and tile
 //! bookkeeping took about 0.75 of the full kernel's time.
 //!
 //! Inside a workgroup: a subgroup scan (`subgroupInclusiveAdd`, or `subgroupShuffleUp`
@@ -172,11 +172,13 @@ impl Chained {
 /// Granules per lane of the chained scan's small tiles: the configured items per invocation
 /// times this over 8 (16 at the default 16 items).
 const CHAINED_SMALL_ROUNDS_PER_ITEM: u32 = 8;
-/// The same for large tiles (64 at the default). Measured (`vkrt bench prims --only scan`,
-/// three runs each at 2^24, default shape): u32 scan 25–29 ms with 16 granules per lane,
-/// 19–20 with 32, 15.4–15.7 with 64, 14.7–17.5 with 128; flag scan 10–11, 9.7–10, 8.5–8.7,
+/// The same for large tiles: 128 granules per lane for u32 scans, 64 for flag scans at the
+/// default. Measured (`vkrt bench prims --only scan`, three or four runs each at 2^24,
+/// default shape): u32 scan 25–29 ms with 16 granules per lane, 19–20 with 32, 15.4–17.0
+/// with 64, 14.1–14.6 with 128 (four runs in a row); flag scan 10–11, 9.7–10, 8.4–8.7,
 /// 9–13 ms.
-const CHAINED_LARGE_ROUNDS_PER_ITEM: u32 = 32;
+const CHAINED_LARGE_ROUNDS_PER_ITEM_U32: u32 = 64;
+const CHAINED_LARGE_ROUNDS_PER_ITEM_FLAGS: u32 = 32;
 /// Scans take the large tiles from this many large tiles on. Measured: at 2^18 elements
 /// (64 large u32 tiles) both sizes took 0.6 ms; at 2^20 large tiles were faster for u32
 /// (1.5 vs 1.8 ms) but slower for flags (64 large tiles: 1.04 vs 0.84 ms); at 2^16 small
@@ -308,7 +310,10 @@ impl Scan {
             })
         };
         let small = tiles(CHAINED_SMALL_ROUNDS_PER_ITEM)?;
-        let large = tiles(CHAINED_LARGE_ROUNDS_PER_ITEM)?;
+        let large = tiles(match input {
+            ScanInput::U32 => CHAINED_LARGE_ROUNDS_PER_ITEM_U32,
+            ScanInput::Flags => CHAINED_LARGE_ROUNDS_PER_ITEM_FLAGS,
+        })?;
         let lanes = ctx.info().subgroup_size.max(4) as usize;
         let large_from = CHAINED_LARGE_FROM_TILES * large.min_subgroup_tile / 4 * lanes;
         Ok(Some(Chained {
