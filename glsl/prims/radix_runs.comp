@@ -25,15 +25,20 @@ layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "prims/radix_common.glsl"
 
+// Binding numbers of radix_histogram.comp and radix_scatter.comp, so the host binds every
+// ranking alike.
 layout(std430, binding = 0) readonly buffer KeysG { u64vec4 keys_g[]; };
 layout(std430, binding = 1) readonly buffer Keys1 { uint keys1[]; };
-// histogram: the counts; scatter: the scanned offsets, advanced as positions are handed out.
-layout(std430, binding = 2) buffer Table { uint table[]; };
 #if SCATTER
-layout(std430, binding = 3) readonly buffer ValuesG { u64vec4 values_g[]; };
-layout(std430, binding = 4) readonly buffer Values1 { uint values1[]; };
-layout(std430, binding = 5) writeonly buffer KeysOut { uint keys_out[]; };
-layout(std430, binding = 6) writeonly buffer ValuesOut { uint values_out[]; };
+layout(std430, binding = 2) readonly buffer ValuesG { u64vec4 values_g[]; };
+layout(std430, binding = 3) readonly buffer Values1 { uint values1[]; };
+// The scanned offsets, advanced as positions are handed out.
+layout(std430, binding = 5) buffer Table { uint table[]; };
+layout(std430, binding = 6) writeonly buffer KeysOut { uint keys_out[]; };
+layout(std430, binding = 7) writeonly buffer ValuesOut { uint values_out[]; };
+#else
+// The counts.
+layout(std430, binding = 2) buffer Table { uint table[]; };
 #endif
 
 uint word_of(u64vec4 g, uint k) {

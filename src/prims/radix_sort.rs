@@ -497,34 +497,22 @@ impl RadixSort {
                 );
                 rec.compute_to_compute();
                 rec.scope("prims.radix_scatter", |rec| {
-                    let bindings: Vec<&dyn BufferArg> = if self.ranking == Ranking::Runs {
-                        // glsl/prims/radix_runs.comp: the scan's offsets are advanced in place.
-                        vec![
-                            src[0],
-                            src[0],
-                            &scratch.offsets,
-                            src[1],
-                            src[1],
-                            dst[0],
-                            dst[1],
-                        ]
-                    } else {
-                        // Binding numbers of glsl/prims/radix_scatter.comp; a variant binds a
-                        // subset.
-                        self.scatter_blob
-                            .bindings
-                            .iter()
-                            .map(|&b| match b {
-                                0 | 1 => src[0],
-                                2 | 3 => src[1],
-                                4 => &scratch.counts,
-                                5 => &scratch.offsets,
-                                6 => dst[0],
-                                7 => dst[1],
-                                _ => unreachable!("radix_scatter has no binding {b}"),
-                            })
-                            .collect()
-                    };
+                    // Binding numbers of glsl/prims/radix_scatter.comp (radix_runs.comp's
+                    // scatter takes the same); a variant binds a subset.
+                    let bindings: Vec<&dyn BufferArg> = self
+                        .scatter_blob
+                        .bindings
+                        .iter()
+                        .map(|&b| match b {
+                            0 | 1 => src[0],
+                            2 | 3 => src[1],
+                            4 => &scratch.counts,
+                            5 => &scratch.offsets,
+                            6 => dst[0],
+                            7 => dst[1],
+                            _ => unreachable!("radix scatter has no binding {b}"),
+                        })
+                        .collect();
                     rec.dispatch(&self.scatter, groups, &bindings, &push);
                 });
             }

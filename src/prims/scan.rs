@@ -2,11 +2,11 @@
 //!
 //! **Chained (the default, [`ScanVariant::Chained`])**: one pass, `prims.scan_chained`.
 //! A tile is one subgroup's share (lanes × 16 granules of 32 bytes at the default; 128 for
-//! u32 and 64 for flag scans of 256 such large tiles or more); every
-//! tile publishes its sum, then looks back over its predecessors' published sums (decoupled
-//! look-back, Merrill & Garland 2016). A predecessor that has published nothing yet is never waited
-//! for: the looking-back subgroup reduces that tile's input itself and goes on (the
-//! fallback of Levien & Smith 2022). So no workgroup waits for another and the scan
+//! u32 and 64 for flag scans of 256 such large tiles or more); every tile publishes its
+//! sum, then looks back over its predecessors' published sums (decoupled look-back, Merrill
+//! & Garland 2016). A predecessor that has published nothing yet is never waited for: the
+//! looking-back subgroup reduces that tile's input itself and goes on (the fallback of
+//! Levien & Smith 2022). So no workgroup waits for another and the scan
 //! terminates on drivers without forward-progress guarantees (lavapipe runs a thread's
 //! workgroups one after another), while reading the input once. A tile's flag and value
 //! share one 64-bit word, written and read with relaxed atomics. It needs `shaderInt64` and
@@ -34,8 +34,9 @@
 //! 16 granules per lane: 25–29 ms) vs 78–124 ms reduce-then-scan, 0.60–0.99 of the best
 //! copy kernel measured in the same run on the same bytes (that kernel itself takes 8–15 ms
 //! from run to run, hence the spread); the flag scan 8.4–10.0 ms with 64 granules,
-//! 0.60–1.08 of the copy kernel (16 granules: 10–11 ms). What is left is per-granule: a variant with only the loads, stores and tile
-//! bookkeeping took about 0.75 of the full kernel's time.
+//! 0.60–1.08 of the copy kernel (16 granules: 10–11 ms). What is left is per granule: a
+//! variant with only the loads, stores and tile bookkeeping took about 0.75 of the full
+//! kernel's time.
 //!
 //! Inside a workgroup: a subgroup scan (`subgroupInclusiveAdd`, or `subgroupShuffleUp`
 //! steps with [`Scan::with_shuffle`]), subgroup totals through shared memory, and several
