@@ -329,6 +329,7 @@ fn a_device_that_does_not_exist_is_named_in_the_error() {
         device_name: Some("no-such-gpu".into()),
         ..Default::default()
     };
+    let _turn = common::vulkan_turn();
     let err = Context::new(&options)
         .err()
         .expect("no device is called no-such-gpu");

@@ -3,10 +3,11 @@
 //!
 //! Location: `$VKRT_PIPELINE_CACHE` (a directory; `0` or `off` disables), else
 //! `$XDG_CACHE_HOME/vkrt`, else `$HOME/.cache/vkrt`. One file per driver cache UUID, written
-//! atomically (temporary file + rename) so concurrent processes never see a torn file. The
-//! driver validates the header, so a stale or foreign file is ignored, not trusted.
+//! atomically (temporary file + rename) so concurrent processes and contexts never see a torn
+//! file. The driver validates the header, so a stale or foreign file is ignored, not trusted.
 
 use std::path::PathBuf;
+use std::sync::atomic::{AtomicU64, Ordering};
 
 use ash::vk;
 
@@ -65,7 +66,10 @@ pub(crate) unsafe fn save_and_destroy(
         if let Some(dir) = path.parent() {
             let _ = std::fs::create_dir_all(dir);
         }
-        let tmp = path.with_extension(format!("tmp{}", std::process::id()));
+        // Unique per process and per save: two contexts of one process may save at once.
+        static SAVES: AtomicU64 = AtomicU64::new(0);
+        let save = SAVES.fetch_add(1, Ordering::Relaxed);
+        let tmp = path.with_extension(format!("tmp{}-{save}", std::process::id()));
         if std::fs::write(&tmp, &data).is_ok() {
             let _ = std::fs::rename(&tmp, &path);
         }

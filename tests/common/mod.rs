@@ -3,10 +3,43 @@
 //! stayed silent.
 #![allow(dead_code, reason = "each test binary uses a different part")]
 
+use std::sync::{Mutex, MutexGuard};
+
 use vkrt::gpu::{Context, ContextOptions};
 
-/// A context on the test device. No device is a loud failure unless VKRT_ALLOW_NO_GPU=1.
-pub fn context() -> Option<Context> {
+/// One Vulkan test at a time per test binary. The validation layer (1.3.239) looks every
+/// call's dispatch key up in a global map that creating an instance or device writes to,
+/// without a lock (Vulkan-ValidationLayers issue #4391): a test creating its context while
+/// another test records crashed the suite with SIGSEGV in vkAllocateDescriptorSets, about
+/// once in ten runs of kdtree_gpu. Serialising the tests that hold a context rules it out.
+static VULKAN_TURN: Mutex<()> = Mutex::new(());
+
+/// Waits for this test's turn to use Vulkan; hold the guard while any Vulkan object of the
+/// test is alive. A test that panicked in its turn poisons nothing the next one needs.
+pub fn vulkan_turn() -> MutexGuard<'static, ()> {
+    VULKAN_TURN
+        .lock()
+        .unwrap_or_else(|poisoned| poisoned.into_inner())
+}
+
+/// A test's context, holding its Vulkan turn until the context is gone (fields drop in
+/// order: the context first, then the turn).
+pub struct TestContext {
+    ctx: Context,
+    _turn: MutexGuard<'static, ()>,
+}
+
+impl std::ops::Deref for TestContext {
+    type Target = Context;
+    fn deref(&self) -> &Context {
+        &self.ctx
+    }
+}
+
+/// A context on the test device, in this test's Vulkan turn. No device is a loud failure
+/// unless VKRT_ALLOW_NO_GPU=1.
+pub fn context() -> Option<TestContext> {
+    let turn = vulkan_turn();
     match Context::new(&ContextOptions::for_tests()) {
         Ok(ctx) => {
             if !ctx.validation_enabled() {
@@ -14,7 +47,7 @@ pub fn context() -> Option<Context> {
                     "note: validation layer not enabled (not installed or VKRT_VALIDATION=0)"
                 );
             }
-            Some(ctx)
+            Some(TestContext { ctx, _turn: turn })
         }
         Err(e) if std::env::var("VKRT_ALLOW_NO_GPU").is_ok_and(|v| v == "1") => {
             eprintln!("skipped: no Vulkan device ({e}) and VKRT_ALLOW_NO_GPU=1");
