@@ -1,29 +1,14 @@
 //! The `vkrt` binary as a user runs it.
 
-use std::process::Command;
+mod common;
 
-fn vkrt(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_vkrt"))
-        .args(args)
-        .output()
-        .expect("run vkrt")
-}
-
-fn no_gpu_allowed() -> bool {
-    std::env::var("VKRT_ALLOW_NO_GPU").is_ok_and(|v| v == "1")
-}
+use common::{no_gpu_allowed, vkrt, vkrt_ok};
 
 #[test]
 fn info_json_has_the_documented_keys() {
-    let out = vkrt(&["info", "--json"]);
-    if !out.status.success() && no_gpu_allowed() {
+    let Some(out) = vkrt_ok(&["info", "--json"]) else {
         return;
-    }
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    };
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     for key in [
         "device",
@@ -61,7 +46,7 @@ fn bench_copy_writes_a_perfetto_trace() {
     let dir = std::env::temp_dir().join(format!("vkrt-cli-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let trace = dir.join("trace.json");
-    let out = vkrt(&[
+    let Some(out) = vkrt_ok(&[
         "bench",
         "copy",
         "--mib",
@@ -71,15 +56,9 @@ fn bench_copy_writes_a_perfetto_trace() {
         "--json",
         "--profile",
         trace.to_str().unwrap(),
-    ]);
-    if !out.status.success() && no_gpu_allowed() {
+    ]) else {
         return;
-    }
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    };
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let results = v["results"].as_array().unwrap();
     assert!(results.iter().any(|r| r["method"] == "vkCmdCopyBuffer"));
@@ -189,22 +168,16 @@ fn every_example_scene_loads() {
 #[test]
 fn build_kdtree_reports_and_equals_its_twin() {
     let house = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/house.obj");
-    let out = vkrt(&[
+    let Some(out) = vkrt_ok(&[
         "build",
         house.to_str().unwrap(),
         "--accel",
         "kdtree",
         "--reference",
         "--json",
-    ]);
-    if !out.status.success() && no_gpu_allowed() {
+    ]) else {
         return;
-    }
-    assert!(
-        out.status.success(),
-        "{}",
-        String::from_utf8_lossy(&out.stderr)
-    );
+    };
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     for key in [
         "primitives",

@@ -4,23 +4,11 @@
 mod common;
 
 use std::path::{Path, PathBuf};
-use std::process::Command;
 
-use common::Rng;
+use common::{no_gpu_allowed, vkrt, vkrt_ok, Rng};
 use glam::Vec3;
 use vkrt::scene::Scene;
 use vkrt::trace::{cpu, files, Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
-
-fn vkrt(args: &[&str]) -> std::process::Output {
-    Command::new(env!("CARGO_BIN_EXE_vkrt"))
-        .args(args)
-        .output()
-        .expect("run vkrt")
-}
-
-fn no_gpu_allowed() -> bool {
-    std::env::var("VKRT_ALLOW_NO_GPU").is_ok_and(|v| v == "1")
-}
 
 fn scratch(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("vkrt-cli-trace-{name}-{}", std::process::id()));
@@ -142,15 +130,9 @@ fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
         "1000",
     ];
     args.extend_from_slice(extra);
-    let run = vkrt(&args);
-    if !run.status.success() && no_gpu_allowed() {
+    let Some(run) = vkrt_ok(&args) else {
         return;
-    }
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    };
     let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
     let keys: Vec<&String> = v.as_object().unwrap().keys().collect();
     assert_eq!(keys, ["hits", "mrays_per_s", "rays", "trace_ms"], "{v}");
@@ -207,22 +189,16 @@ fn csv_rays_and_human_output() {
     )
     .unwrap();
     let out = dir.join("h.csv");
-    let run = vkrt(&[
+    let Some(run) = vkrt_ok(&[
         "trace",
         s(&example("house.obj")),
         "--rays",
         s(&rays),
         "--out",
         s(&out),
-    ]);
-    if !run.status.success() && no_gpu_allowed() {
+    ]) else {
         return;
-    }
-    assert!(
-        run.status.success(),
-        "{}",
-        String::from_utf8_lossy(&run.stderr)
-    );
+    };
     let text = String::from_utf8_lossy(&run.stdout);
     assert!(text.contains("3 rays"), "{text}");
     assert!(text.contains("Mrays/s"), "{text}");
