@@ -376,8 +376,8 @@ fn check_random(
     }
 }
 
-/// Scans from `Scan::large_tiles` on take tiles four times as long: their boundaries, and the
-/// switch itself, against the CPU twin.
+/// Scans from `Scan::large_tiles` on take longer tiles (8x for u32, 4x for flags at the
+/// default shape): their boundaries, and the switch itself, against the CPU twin.
 #[test]
 fn chained_scan_large_tiles_equal_cpu_twin() {
     let Some(ctx) = common::context() else { return };

@@ -195,6 +195,15 @@ impl Ranking {
         }
     }
 
+    /// Widest digit this ranking takes: `Runs` keeps its counters in device memory, the
+    /// others in shared memory.
+    fn max_bits(self) -> u32 {
+        match self {
+            Ranking::Runs => *BITS_RANGE.end(),
+            Ranking::Counters | Ranking::Match => SHARED_MAX_BITS,
+        }
+    }
+
     /// Every ranking, for tests and benchmarks.
     pub const ALL: [Ranking; 3] = [Ranking::Counters, Ranking::Match, Ranking::Runs];
 
@@ -259,16 +268,10 @@ impl RadixSort {
             kernel: "prims.radix_sort",
             reason,
         };
-        if !BITS_RANGE.contains(&bits_per_pass)
-            || (ranking != Ranking::Runs && bits_per_pass > SHARED_MAX_BITS)
-        {
+        let max_bits = ranking.max_bits();
+        if !(*BITS_RANGE.start()..=max_bits).contains(&bits_per_pass) {
             return Err(err(format!(
-                "{bits_per_pass} bits per pass; the {ranking:?} ranking takes 1 to {}",
-                if ranking == Ranking::Runs {
-                    *BITS_RANGE.end()
-                } else {
-                    SHARED_MAX_BITS
-                }
+                "{bits_per_pass} bits per pass; the {ranking:?} ranking takes 1 to {max_bits}"
             )));
         }
         let info = ctx.info();
