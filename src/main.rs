@@ -893,6 +893,24 @@ fn trace_command(
     let device = gpu::GpuGeometry::upload(&ctx, &geometry, &tree)?;
     let tracer = gpu::Tracer::new(&ctx, opt)?;
     let batch = tracer.trace_batched(&ctx, &device, &rays, 0.0, batch_rays)?;
+    // Invalid rays are answered as misses; say how many and why, never silently.
+    let invalid = vkrt::trace::count_invalid(&rays);
+    let n_invalid: usize = invalid.iter().sum();
+    if n_invalid > 0 {
+        let why: Vec<String> = vkrt::trace::InvalidRay::ALL
+            .iter()
+            .zip(invalid)
+            .filter(|(_, n)| *n > 0)
+            .map(|(r, n)| format!("{n} {}", r.name()))
+            .collect();
+        eprintln!(
+            "vkrt: warning: {n_invalid} of {} rays are invalid and reported as misses ({}); \
+             a valid ray has a finite origin, direction and tmin, a non-zero direction and \
+             tmin <= tmax (tmax = inf is unbounded)",
+            rays.len(),
+            why.join(", ")
+        );
+    }
     if batch.exhausted > 0 {
         eprintln!(
             "vkrt: warning: {} rays ran out of traversal steps and are reported as misses",
@@ -913,6 +931,13 @@ fn trace_command(
         let v = serde_json::json!({
             "rays": rays.len(),
             "hits": hits,
+            "invalid": n_invalid,
+            "invalid_by_reason": vkrt::trace::InvalidRay::ALL
+                .iter()
+                .zip(invalid)
+                .map(|(r, n)| (r.name().to_string(), n.into()))
+                .collect::<serde_json::Map<_, _>>(),
+            "exhausted": batch.exhausted,
             "trace_ms": trace_ms,
             "mrays_per_s": mrays_per_s,
         });

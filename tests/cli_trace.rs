@@ -28,8 +28,8 @@ fn s(p: &Path) -> &str {
 }
 
 /// Rays over the scene's box: from outside towards random points inside, from inside in
-/// random directions, axis-parallel with ±0 components, and a few invalid ones (NaN, Inf,
-/// zero direction, tmin > tmax).
+/// random directions (unbounded: `tmax = inf`), axis-parallel with ±0 components, and five
+/// invalid ones (two NaN, an infinite direction, a zero direction, tmin > tmax).
 fn rays_for(g: &TraceGeometry, n: usize, seed: u64) -> Vec<Ray> {
     let mut lo = Vec3::splat(f32::MAX);
     let mut hi = Vec3::splat(f32::MIN);
@@ -48,7 +48,7 @@ fn rays_for(g: &TraceGeometry, n: usize, seed: u64) -> Vec<Ray> {
                     let from = c + v(&mut rng).normalize_or(Vec3::X) * ext.length();
                     Ray::new(from, inside - from, 0.0, f32::MAX)
                 }
-                1 => Ray::new(inside, v(&mut rng), 0.0, f32::MAX),
+                1 => Ray::new(inside, v(&mut rng), 0.0, f32::INFINITY), // unbounded
                 _ => {
                     let mut d = [-0.0f32, 0.0, -0.0];
                     d[(rng.next_u64() % 3) as usize] = if i % 2 == 0 { 1.0 } else { -1.0 };
@@ -135,8 +135,35 @@ fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
     };
     let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
     let keys: Vec<&String> = v.as_object().unwrap().keys().collect();
-    assert_eq!(keys, ["hits", "mrays_per_s", "rays", "trace_ms"], "{v}");
+    assert_eq!(
+        keys,
+        [
+            "exhausted",
+            "hits",
+            "invalid",
+            "invalid_by_reason",
+            "mrays_per_s",
+            "rays",
+            "trace_ms"
+        ],
+        "{v}"
+    );
     assert_eq!(v["rays"], rays.len());
+    // rays_for's five invalid rays, by class; and a warning that says so.
+    assert_eq!(v["invalid"], 5, "{v}");
+    let by_reason = &v["invalid_by_reason"];
+    assert_eq!(
+        (
+            &by_reason["nan"],
+            &by_reason["infinite"],
+            &by_reason["zero_direction"],
+            &by_reason["empty_interval"]
+        ),
+        (&2.into(), &1.into(), &1.into(), &1.into()),
+        "{v}"
+    );
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("warning: 5 of 3005 rays are invalid"), "{err}");
     assert!(v["trace_ms"].as_f64().unwrap() > 0.0, "{v}");
     assert!(v["mrays_per_s"].as_f64().unwrap() > 0.0, "{v}");
     let hits = read_hits(&out);
@@ -205,6 +232,102 @@ fn csv_rays_and_human_output() {
     let hits = read_hits(&out);
     assert_eq!(hits.len(), 3);
     assert!(!hits[1].is_hit() && !hits[2].is_hit(), "{hits:?}");
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// `tmax = +inf` is unbounded (Embree's `tfar = inf`): such rays hit exactly what the same
+/// rays with `tmax = f32::MAX` hit, and every class of invalid ray is counted, not traced.
+#[test]
+fn unbounded_rays_and_invalid_rays_counted_by_class() {
+    let dir = scratch("unbounded");
+    let (mesh, rays_n) = match common::bunny_path() {
+        Some(p) => (p, 20_000),
+        None => (example("house.obj"), 3_000),
+    };
+    let loaded = Scene::load(&mesh).unwrap().scene;
+    let g = TraceGeometry::at_time(&loaded, loaded.camera.shutter_open);
+    let bounded: Vec<Ray> = rays_for(&g, rays_n, 11)
+        .into_iter()
+        .filter(Ray::is_valid)
+        .map(|r| Ray {
+            tmax: f32::MAX,
+            ..r
+        })
+        .collect();
+    let unbounded: Vec<Ray> = bounded
+        .iter()
+        .map(|r| Ray {
+            tmax: f32::INFINITY,
+            ..*r
+        })
+        .collect();
+    let (inf, nan) = (f32::INFINITY, f32::NAN);
+    let c = Vec3::ZERO;
+    let invalid = [
+        (Ray::new(Vec3::new(nan, 0.0, 0.0), Vec3::X, 0.0, inf), "nan"),
+        (Ray::new(c, Vec3::new(0.0, nan, 0.0), 0.0, inf), "nan"),
+        (Ray::new(c, Vec3::X, nan, inf), "nan"),
+        (Ray::new(c, Vec3::X, 0.0, nan), "nan"),
+        (
+            Ray::new(Vec3::new(0.0, 0.0, -inf), Vec3::X, 0.0, inf),
+            "infinite",
+        ),
+        (Ray::new(c, Vec3::new(inf, 0.0, 0.0), 0.0, inf), "infinite"),
+        (Ray::new(c, Vec3::X, -inf, inf), "infinite"),
+        (Ray::new(c, Vec3::X, inf, inf), "infinite"),
+        (Ray::new(c, Vec3::ZERO, 0.0, inf), "zero_direction"),
+        (Ray::new(c, Vec3::splat(-0.0), 0.0, 1.0), "zero_direction"),
+        (Ray::new(c, Vec3::X, 2.0, 1.0), "empty_interval"),
+        (Ray::new(c, Vec3::X, 0.0, -inf), "empty_interval"),
+    ];
+    let hits_of = |name: &str, rays: &[Ray]| -> Option<(serde_json::Value, Vec<Hit>)> {
+        let (path, out) = (
+            dir.join(format!("{name}.rays")),
+            dir.join(format!("{name}.hits")),
+        );
+        std::fs::write(&path, files::encode_rays(rays)).unwrap();
+        let run = vkrt_ok(&[
+            "trace",
+            s(&mesh),
+            "--rays",
+            s(&path),
+            "--out",
+            s(&out),
+            "--json",
+        ])?;
+        Some((
+            serde_json::from_slice(&run.stdout).unwrap(),
+            read_hits(&out),
+        ))
+    };
+    let Some((vb, hb)) = hits_of("bounded", &bounded) else {
+        return;
+    };
+    let (vu, hu) = hits_of("unbounded", &unbounded).unwrap();
+    assert!(hb.iter().filter(|h| h.is_hit()).count() > bounded.len() / 4);
+    assert_eq!(vu["hits"], vb["hits"]);
+    assert_eq!(vu["invalid"], 0);
+    assert!(
+        hb == hu,
+        "tmax = inf and tmax = f32::MAX rays hit differently"
+    );
+
+    let mixed: Vec<Ray> = invalid.iter().map(|(r, _)| *r).chain(unbounded).collect();
+    let (v, h) = hits_of("mixed", &mixed).unwrap();
+    assert_eq!(v["invalid"], invalid.len(), "{v}");
+    for class in ["nan", "infinite", "zero_direction", "empty_interval"] {
+        let want = invalid.iter().filter(|(_, c)| *c == class).count();
+        assert_eq!(v["invalid_by_reason"][class], want, "{class}: {v}");
+    }
+    for (k, (r, class)) in invalid.iter().enumerate() {
+        assert_eq!(r.invalid_reason().unwrap().name(), *class, "{r:?}");
+        assert_eq!(h[k], Hit::MISS, "{r:?}");
+    }
+    assert!(
+        h[invalid.len()..] == hu[..],
+        "valid rays beside invalid ones changed"
+    );
+    assert_eq!(v["hits"], vu["hits"]);
     std::fs::remove_dir_all(&dir).unwrap();
 }
 

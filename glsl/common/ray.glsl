@@ -50,10 +50,15 @@ bool is_finite3(vec3 v) {
     return is_finite(v.x) && is_finite(v.y) && is_finite(v.z);
 }
 
-// A ray the traversal accepts: finite everywhere, a non-zero direction, tmin <= tmax.
-// Everything else is answered as a miss (src/trace/mod.rs documents the contract).
+bool is_nan(float x) {
+    return (floatBitsToUint(x) & 0x7fffffffu) > 0x7f800000u;
+}
+
+// A ray the traversal accepts: finite origin, direction and tmin, a tmax that is not NaN
+// (+inf is unbounded), a non-zero direction, tmin <= tmax. Everything else is answered as
+// a miss (src/trace/mod.rs documents the contract).
 bool ray_is_valid(Ray r) {
-    return is_finite3(r.o) && is_finite3(r.d) && is_finite(r.tmin) && is_finite(r.tmax)
+    return is_finite3(r.o) && is_finite3(r.d) && is_finite(r.tmin) && !is_nan(r.tmax)
         && (r.d.x != 0.0 || r.d.y != 0.0 || r.d.z != 0.0) && r.tmin <= r.tmax;
 }
 

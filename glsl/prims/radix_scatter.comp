@@ -132,12 +132,20 @@ uvec4 match_digit(uint d, bool valid) {
     return peers;
 }
 
+// Every subgroup runs the same number of rounds, `live_rounds` (those of the first chunk,
+// the longest), its lanes past the tile's end idle. The spec asks only subgroup-uniform
+// control flow of subgroupBarrier(), but Mesa 25.0 lavapipe takes it for a workgroup barrier:
+// with per-subgroup trip counts the workgroup's barrier count went out of step there and
+// subgroups were released early or never (every Match case wrong; probe:
+// glsl/gpu/subgroup_barrier_probe.comp). Equal counts are right under both readings, and
+// cost idle rounds in a tile's last chunks only.
 void scatter_tile(uint block, uint start, uint end) {
     uint lanes = subgroup_lanes();
     uint lane = gl_SubgroupInvocationID;
     uint row = gl_SubgroupID * RADIX;
     uint rounds = TILE / gl_WorkGroupSize.x;
     uint first = start + gl_SubgroupID * rounds * lanes;
+    uint live_rounds = min(rounds, (end - start + lanes - 1) / lanes);
 
     // Phase 1 (several subgroups): the digit counts of this subgroup's chunk.
     if (gl_NumSubgroups > 1) {
@@ -145,7 +153,7 @@ void scatter_tile(uint block, uint start, uint end) {
             run[row + d] = 0;
         }
         subgroupBarrier(); // also orders shared memory within the subgroup
-        for (uint r = 0; r < rounds && first + r * lanes < end; r++) {
+        for (uint r = 0; r < live_rounds; r++) {
             uint e = first + r * lanes + lane;
             bool valid = e < end;
             uint d = valid ? digit_of(read_key(keys_in[e])) : 0;
@@ -176,7 +184,7 @@ void scatter_tile(uint block, uint start, uint end) {
     barrier();
 
     // Phase 3: rank and move, round by round.
-    for (uint r = 0; r < rounds && first + r * lanes < end; r++) {
+    for (uint r = 0; r < live_rounds; r++) {
         uint e = first + r * lanes + lane;
         bool valid = e < end;
         uint key = valid ? read_key(keys_in[e]) : 0;

@@ -62,6 +62,7 @@ void main() {
     if (MOTION && prm.shutter_close > prm.shutter_open) {
         time = prm.shutter_open + rnd(seed) * (prm.shutter_close - prm.shutter_open);
     }
-    queue[i] = PathRay(o, 0.0, d, uintBitsToFloat(0x7f7fffffu), vec3(1.0), pixel, time, 0u,
+    // tmax = +inf: unbounded
+    queue[i] = PathRay(o, 0.0, d, uintBitsToFloat(0x7f800000u), vec3(1.0), pixel, time, 0u,
                        seed, RAY_PRIMARY);
 }

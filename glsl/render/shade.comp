@@ -38,7 +38,8 @@ layout(std430, binding = 16) writeonly buffer Shadows { ShadowRay shadows[]; };
 layout(std430, binding = 17) writeonly buffer Children { PathRay children[]; };
 layout(std430, binding = 18) writeonly buffer Flags { uint8_t flags[]; };
 
-const float FAR = 3.4028234e38;
+// tmax of unbounded rays (reflection, refraction, directional-light shadows): +inf.
+#define FAR positive_inf()
 
 vec3 normal_at(uint tri, uint corner) {
     uint k = 9u * tri + 3u * corner;

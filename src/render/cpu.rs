@@ -12,7 +12,8 @@ use crate::trace::geometry::NO_MOTION;
 use crate::trace::intersect::offset_ray_origin;
 use crate::trace::{Hit, Query, Ray, TraceOptions};
 
-const FAR: f32 = f32::MAX;
+/// tmax of unbounded rays (camera, reflection, refraction, directional-light shadows).
+const FAR: f32 = f32::INFINITY;
 const PI: f32 = std::f32::consts::PI;
 
 fn v3(a: [f32; 4]) -> Vec3 {

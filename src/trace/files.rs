@@ -3,13 +3,15 @@
 //! - `.rays`: little-endian binary, 8 f32 per ray: ox, oy, oz, tmin, dx, dy, dz, tmax
 //!   (exactly [`Ray`]'s layout).
 //! - `.csv` rays: one ray per line, `ox,oy,oz,dx,dy,dz[,tmin,tmax]` (tmin defaults to 0 and
-//!   tmax to the largest finite f32); blank lines and lines starting with `#` are skipped,
+//!   tmax to `inf`, unbounded); blank lines and lines starting with `#` are skipped,
 //!   and a first line that is not numbers is taken as a header.
 //! - hits, binary (any extension but `.csv`): 16 bytes per ray, t f32, prim u32, u f32,
 //!   v f32 (t = +inf and prim = 4294967295 for a miss); `.csv`: a `t,prim,u,v` header, then
 //!   one line per ray (`inf,-1,0,0` for a miss).
 //!
-//! Values that parse but are NaN or infinite are kept: such rays are answered as misses.
+//! `tmax = inf` (binary or CSV) is an unbounded ray. Other values that parse but are NaN or
+//! infinite are kept: such rays are answered as misses and counted
+//! ([`super::count_invalid`]).
 
 use std::path::Path;
 
@@ -118,7 +120,7 @@ pub fn parse_csv(text: &str) -> Result<Vec<Ray>, (usize, String)> {
         let (tmin, tmax) = if values.len() == 8 {
             (values[6], values[7])
         } else {
-            (0.0, f32::MAX)
+            (0.0, f32::INFINITY)
         };
         rays.push(Ray {
             origin: [values[0], values[1], values[2]],

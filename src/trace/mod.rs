@@ -3,8 +3,10 @@
 //! traversal reads, the GPU tracer and its CPU twin, and brute force as the oracle.
 //!
 //! Contract of a query (GPU and CPU alike):
-//! - a ray is valid when origin, direction, `tmin` and `tmax` are finite, the direction is
-//!   not zero and `tmin <= tmax`; any other ray is a miss (never a hang, never an error);
+//! - `tmax = +inf` means unbounded, as in Embree, DXR and pbrt;
+//! - a ray is valid when origin, direction and `tmin` are finite, `tmax` is not NaN, the
+//!   direction is not zero and `tmin <= tmax`; any other ray is a miss (never a hang, never
+//!   an error), and [`Ray::invalid_reason`] says why, so callers can report it;
 //! - hits are searched in `[max(tmin, 0), tmax]` at the scene's time (moving geometry is
 //!   placed at the ray's time; `vkrt trace` uses the shutter-open time);
 //! - the closest hit wins; among hits at exactly equal `t`, the lowest primitive id;
@@ -54,14 +56,70 @@ impl Ray {
 
     /// See the module docs.
     pub fn is_valid(&self) -> bool {
-        let fin = |v: [f32; 3]| v.iter().all(|x| x.is_finite());
-        fin(self.origin)
-            && fin(self.dir)
-            && self.tmin.is_finite()
-            && self.tmax.is_finite()
-            && self.d() != Vec3::ZERO
-            && self.tmin <= self.tmax
+        self.invalid_reason().is_none()
     }
+
+    /// Why a query answers this ray with a miss without tracing it (`None`: a valid ray).
+    pub fn invalid_reason(&self) -> Option<InvalidRay> {
+        let values = self
+            .origin
+            .iter()
+            .chain(&self.dir)
+            .chain([&self.tmin, &self.tmax]);
+        if values.clone().any(|x| x.is_nan()) {
+            Some(InvalidRay::Nan)
+        } else if !values.take(7).all(|x| x.is_finite()) {
+            Some(InvalidRay::Infinite)
+        } else if self.d() == Vec3::ZERO {
+            Some(InvalidRay::ZeroDirection)
+        } else if self.tmin > self.tmax {
+            Some(InvalidRay::EmptyInterval)
+        } else {
+            None
+        }
+    }
+}
+
+/// The classes of rays a query answers with a miss without tracing them, checked in this
+/// order.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum InvalidRay {
+    /// A NaN in any of the eight values.
+    Nan,
+    /// An infinite origin, direction or `tmin` (`tmax = +inf` is unbounded, not invalid).
+    Infinite,
+    /// A direction of (0, 0, 0) (signed zeros included).
+    ZeroDirection,
+    /// `tmin > tmax` (`tmax = -inf` included).
+    EmptyInterval,
+}
+
+impl InvalidRay {
+    pub const ALL: [InvalidRay; 4] = [
+        InvalidRay::Nan,
+        InvalidRay::Infinite,
+        InvalidRay::ZeroDirection,
+        InvalidRay::EmptyInterval,
+    ];
+
+    pub fn name(self) -> &'static str {
+        match self {
+            InvalidRay::Nan => "nan",
+            InvalidRay::Infinite => "infinite",
+            InvalidRay::ZeroDirection => "zero_direction",
+            InvalidRay::EmptyInterval => "empty_interval",
+        }
+    }
+}
+
+/// How many rays of a batch fall in each [`InvalidRay`] class (in `InvalidRay::ALL` order).
+pub fn count_invalid(rays: &[Ray]) -> [usize; 4] {
+    let mut counts = [0; 4];
+    for reason in rays.iter().filter_map(Ray::invalid_reason) {
+        counts[InvalidRay::ALL.iter().position(|&r| r == reason).unwrap()] += 1;
+    }
+    counts
 }
 
 /// Primitive id of a miss.

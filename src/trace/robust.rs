@@ -1149,7 +1149,7 @@ impl Suite<'_> {
                     3 => r.dir[c] = if k % 20 < 10 { inf } else { -inf },
                     4 => r.tmin = nan,
                     5 => r.tmax = nan,
-                    6 => r.tmax = inf,
+                    6 => r.tmax = -inf,
                     7 => r.tmin = -inf,
                     8 => r.dir = [if k % 20 < 10 { 0.0 } else { -0.0 }; 3],
                     _ => (r.tmin, r.tmax) = (2.0, 1.0),
@@ -1167,6 +1167,20 @@ impl Suite<'_> {
         self.simple("bad-rays/baseline-valid", &p, &good, "misses", |_, h, _| {
             !h.is_hit()
         })?;
+        // tmax = +inf is unbounded (Embree's and DXR's convention): the same answers as
+        // tmax = f32::MAX, bit for bit.
+        let mut bounded = std::collections::HashMap::new();
+        for i in self.intersectors.clone() {
+            bounded.insert(i, p.trace(self.ctx, &good, &opt(i))?.hits);
+        }
+        let unbounded: Vec<Ray> = good.iter().map(|r| Ray { tmax: inf, ..*r }).collect();
+        self.simple(
+            "bad-rays/unbounded-tmax-inf",
+            &p,
+            &unbounded,
+            "differs from tmax = f32::MAX",
+            |k, h, o| *h != bounded[&o.intersector][k],
+        )?;
         Ok(())
     }
 }

@@ -132,14 +132,20 @@ pub fn mesh_triangles(mesh: &vkrt::scene::Mesh) -> Vec<[glam::Vec3; 3]> {
         .collect()
 }
 
-/// The bunny's triangles, or `None` (with a printed skip) when ../shared is absent.
-pub fn bunny() -> Option<Vec<[glam::Vec3; 3]>> {
+/// The bunny's OBJ in ../shared, or `None` (with a printed skip) when ../shared is absent.
+pub fn bunny_path() -> Option<std::path::PathBuf> {
     let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
         .join("../shared/scenes/stanford-bunny.obj");
     if !path.exists() {
         eprintln!("skipped the bunny: {} not present", path.display());
         return None;
     }
+    Some(path)
+}
+
+/// The bunny's triangles, or `None` (with a printed skip) when ../shared is absent.
+pub fn bunny() -> Option<Vec<[glam::Vec3; 3]>> {
+    let path = bunny_path()?;
     Some(
         vkrt::scene::Scene::load(&path)
             .unwrap()
