@@ -266,11 +266,14 @@ fn invalid_rays_miss() {
         Ray::new(o, Vec3::new(-0.0, 0.0, -0.0), 0.0, 10.0),
         Ray::new(o, d, nan, 10.0),
         Ray::new(o, d, 0.0, nan),
-        Ray::new(o, d, 0.0, inf),
+        Ray::new(o, d, 0.0, -inf),
         Ray::new(o, d, -inf, 10.0),
+        Ray::new(o, d, inf, inf),
         Ray::new(o, d, 5.0, 1.0),
     ];
-    let mut rays = vec![good];
+    // tmax = +inf is unbounded, not invalid: the same hit as the bounded ray.
+    let unbounded = Ray::new(o, d, 0.0, inf);
+    let mut rays = vec![good, unbounded];
     rays.extend_from_slice(&bad);
     for opt in [
         TraceOptions::default(),
@@ -285,7 +288,8 @@ fn invalid_rays_miss() {
             .trace(&ctx, &dev, &rays, 0.0)
             .unwrap();
         assert!(batch.hits[0].is_hit() && (batch.hits[0].t - 1.0).abs() < 1e-6);
-        for (i, h) in batch.hits.iter().enumerate().skip(1) {
+        assert_eq!(batch.hits[1], batch.hits[0], "tmax = inf vs tmax = 10");
+        for (i, h) in batch.hits.iter().enumerate().skip(2) {
             assert_eq!(*h, Hit::MISS, "bad ray {:?} must miss", rays[i]);
             let scene = TraceScene {
                 geometry: &g,
