@@ -23,7 +23,7 @@ pub struct TraceScene<'a> {
     clippy::too_many_arguments,
     reason = "the kernel's arguments, one by one"
 )]
-fn hit_primitive(
+pub(crate) fn hit_primitive(
     g: &TraceGeometry,
     prim: u32,
     r: &Ray,

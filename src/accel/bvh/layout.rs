@@ -1,0 +1,131 @@
+//! The BVH as the traversal reads it: binary nodes that hold both children's boxes (Aila &
+//! Laine 2009: one node fetch decides both children), parent links for the stackless
+//! bitstack traversal of seed 000, and the primitive references the leaves point into.
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+
+use crate::scene::Aabb;
+
+/// Index of no node: the root's parent, and the missing second child of a root that is a
+/// single leaf.
+pub const NO_NODE: u32 = u32::MAX;
+
+/// One node, 64 bytes: child `a` and child `b`, each a box and either an interior node
+/// (`count == 0`, `index` is its node) or a leaf (`count > 0` references from `index` on in
+/// [`Bvh::refs`]). A missing child (`count == 0`, `index == NO_NODE`) has an empty box
+/// (min = +inf, max = -inf), which no ray enters.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct BvhNode {
+    pub a_min: [f32; 3],
+    pub a_index: u32,
+    pub a_max: [f32; 3],
+    pub a_count: u32,
+    pub b_min: [f32; 3],
+    pub b_index: u32,
+    pub b_max: [f32; 3],
+    pub b_count: u32,
+}
+
+/// One child of a node, as the builder and the validators see it.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Child {
+    Node(u32),
+    Leaf { first: u32, count: u32 },
+    None,
+}
+
+impl BvhNode {
+    /// Child 0 (`a`) or 1 (`b`) with its box.
+    pub fn child(&self, which: usize) -> (Aabb, Child) {
+        let (min, max, index, count) = if which == 0 {
+            (self.a_min, self.a_max, self.a_index, self.a_count)
+        } else {
+            (self.b_min, self.b_max, self.b_index, self.b_count)
+        };
+        let child = match (count, index) {
+            (0, NO_NODE) => Child::None,
+            (0, node) => Child::Node(node),
+            (count, first) => Child::Leaf { first, count },
+        };
+        let bounds = Aabb {
+            min: Vec3::from_array(min),
+            max: Vec3::from_array(max),
+        };
+        (bounds, child)
+    }
+
+    pub(super) fn set_child(&mut self, which: usize, bounds: Aabb, child: Child) {
+        let (index, count) = match child {
+            Child::Node(n) => (n, 0),
+            Child::Leaf { first, count } => (first, count),
+            Child::None => (NO_NODE, 0),
+        };
+        let (min, max) = (bounds.min.to_array(), bounds.max.to_array());
+        if which == 0 {
+            (self.a_min, self.a_max, self.a_index, self.a_count) = (min, max, index, count);
+        } else {
+            (self.b_min, self.b_max, self.b_index, self.b_count) = (min, max, index, count);
+        }
+    }
+}
+
+/// A built BVH on the host: what uploads to the device, and what the CPU twins traverse.
+#[derive(Clone, Debug, PartialEq)]
+pub struct Bvh {
+    /// Node 0 is the root; empty for an empty input.
+    pub nodes: Vec<BvhNode>,
+    /// `parents[i]`: the node whose child node `i` is ([`NO_NODE`] for the root).
+    pub parents: Vec<u32>,
+    /// Primitive ids; each leaf's references are contiguous.
+    pub refs: Vec<u32>,
+    /// Box of every primitive.
+    pub bounds: Aabb,
+}
+
+impl Bvh {
+    /// Device bytes of the layout: nodes, parent links and references.
+    pub fn bytes(&self) -> usize {
+        std::mem::size_of_val(self.nodes.as_slice())
+            + std::mem::size_of_val(self.parents.as_slice())
+            + std::mem::size_of_val(self.refs.as_slice())
+    }
+
+    /// Leaves (a child with references).
+    pub fn leaf_count(&self) -> usize {
+        self.nodes
+            .iter()
+            .flat_map(|n| [n.child(0).1, n.child(1).1])
+            .filter(|c| matches!(c, Child::Leaf { .. }))
+            .count()
+    }
+
+    /// Depth of the deepest leaf (a leaf child of the root has depth 1).
+    pub fn depth(&self) -> u32 {
+        let mut deepest = 0;
+        let mut stack = vec![(0u32, 1u32)];
+        while let Some((node, depth)) = stack.pop() {
+            let Some(n) = self.nodes.get(node as usize) else {
+                break;
+            };
+            for which in 0..2 {
+                match n.child(which).1 {
+                    Child::Node(c) => stack.push((c, depth + 1)),
+                    Child::Leaf { .. } => deepest = deepest.max(depth),
+                    Child::None => {}
+                }
+            }
+        }
+        deepest
+    }
+}
+
+/// Half the surface area of a box (0 for an empty one): the SAH's measure.
+pub fn half_area(b: &Aabb) -> f32 {
+    if b.is_empty() {
+        return 0.0;
+    }
+    let d = b.max - b.min;
+    d.x * d.y + d.y * d.z + d.z * d.x
+}

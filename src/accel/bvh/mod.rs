@@ -1,0 +1,10 @@
+//! Bounding volume hierarchies: the binary two-boxes-per-node layout the traversal reads
+//! ([`layout`]), seed 003's multithreaded CPU SAH builder ([`sah`]), and a structural
+//! validator with the SAH cost of a built tree ([`validate`]).
+
+pub mod layout;
+pub mod sah;
+pub mod validate;
+
+pub use layout::{Bvh, BvhNode, Child, NO_NODE};
+pub use sah::{build, BvhError, BvhParams, Threading};

@@ -1,0 +1,253 @@
+//! BVH queries on the CPU: closest or any hit with a short stack, or with seed 000's
+//! stackless bitstack traversal (its Algorithm 3: parent links and one bit per level of the
+//! path from the root, "the other child is still to visit"). Same contract as the kd-tree
+//! query (`super` module docs); the twin of the GLSL BVH traversal.
+
+use glam::Vec3;
+
+use super::cpu::{hit_primitive, MAX_TRAVERSAL_STEPS, PLANE_SLACK};
+use super::geometry::TraceGeometry;
+use super::intersect::Shear;
+use super::{Hit, Query, Ray, TraceOptions};
+use crate::accel::bvh::{Bvh, Child};
+use crate::scene::Aabb;
+
+/// How a BVH query walks the tree.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum Traversal {
+    /// Far children on a stack.
+    #[default]
+    Stack,
+    /// No stack: parent links and a 64-bit trail (seed 000).
+    Bitstack,
+}
+
+/// Where the ray enters `b` within `[t0, t1]`, widened by the kd-tree's relative slack so
+/// rounding never skips a box the ray grazes; `None` when it misses.
+fn enter(b: &Aabb, o: Vec3, d: Vec3, inv_d: Vec3, t0: f32, t1: f32) -> Option<f32> {
+    let (mut lo_t, mut hi_t) = (t0, t1);
+    for a in 0..3 {
+        if d[a] == 0.0 {
+            if o[a] < b.min[a] || o[a] > b.max[a] {
+                return None;
+            }
+            continue;
+        }
+        let ta = (b.min[a] - o[a]) * inv_d[a];
+        let tb = (b.max[a] - o[a]) * inv_d[a];
+        let (lo, hi) = (ta.min(tb), ta.max(tb));
+        lo_t = lo_t.max(lo - lo.abs() * PLANE_SLACK);
+        hi_t = hi_t.min(hi + hi.abs() * PLANE_SLACK);
+    }
+    (lo_t <= hi_t).then_some(lo_t)
+}
+
+struct Query1<'a> {
+    g: &'a TraceGeometry,
+    bvh: &'a Bvh,
+    r: &'a Ray,
+    sh: Shear,
+    o: Vec3,
+    d: Vec3,
+    inv_d: Vec3,
+    time: f32,
+    opt: &'a TraceOptions,
+    tmin: f32,
+    best: Hit,
+    steps: u32,
+}
+
+impl Query1<'_> {
+    fn best_t(&self) -> f32 {
+        if self.best.is_hit() {
+            self.best.t
+        } else {
+            self.r.tmax
+        }
+    }
+
+    /// Tests a leaf's primitives; true when an any-hit query is answered.
+    fn leaf(&mut self, first: u32, count: u32) -> bool {
+        self.steps += count;
+        for &prim in &self.bvh.refs[first as usize..(first + count) as usize] {
+            let o = self.opt;
+            let hit = hit_primitive(
+                self.g,
+                prim,
+                self.r,
+                &self.sh,
+                self.time,
+                o.intersector,
+                o.exact,
+                self.tmin,
+                self.best_t(),
+            );
+            if let Some((t, u, v)) = hit {
+                let b = &self.best;
+                // Deterministic winner among equal t: the lowest primitive id.
+                if !b.is_hit() || t < b.t || (t == b.t && prim < b.prim) {
+                    self.best = Hit { t, prim, u, v };
+                }
+                if o.query == Query::Any {
+                    return true;
+                }
+            }
+        }
+        false
+    }
+
+    /// Visits node `n`'s children: leaves now, and returns the interior children the ray
+    /// enters, nearer first (ties: child a first).
+    fn children(&mut self, n: u32) -> Option<[Option<u32>; 2]> {
+        self.steps += 1;
+        let node = self.bvh.nodes[n as usize];
+        let mut inner: [Option<(f32, u32)>; 2] = [None, None];
+        for (which, slot) in inner.iter_mut().enumerate() {
+            let (b, child) = node.child(which);
+            let Some(t) = enter(&b, self.o, self.d, self.inv_d, self.tmin, self.best_t()) else {
+                continue;
+            };
+            match child {
+                Child::Leaf { first, count } => {
+                    if self.leaf(first, count) {
+                        return None;
+                    }
+                }
+                Child::Node(c) => *slot = Some((t, c)),
+                Child::None => {}
+            }
+        }
+        Some(match inner {
+            [Some(a), Some(b)] if b.0 < a.0 => [Some(b.1), Some(a.1)],
+            [a, b] => {
+                let a = a.map(|x| x.1);
+                let b = b.map(|x| x.1);
+                if a.is_some() {
+                    [a, b]
+                } else {
+                    [b, None]
+                }
+            }
+        })
+    }
+
+    /// Whether the ray still enters node `n`'s box, which is a child box of its parent.
+    fn still_enters(&self, n: u32) -> bool {
+        let p = self.bvh.parents[n as usize];
+        let node = self.bvh.nodes[p as usize];
+        let which = if node.child(0).1 == Child::Node(n) {
+            0
+        } else {
+            1
+        };
+        let b = node.child(which).0;
+        enter(&b, self.o, self.d, self.inv_d, self.tmin, self.best_t()).is_some()
+    }
+}
+
+/// The query's answer and whether it ran out of steps (then it is reported as a miss).
+pub fn trace(
+    g: &TraceGeometry,
+    bvh: &Bvh,
+    r: &Ray,
+    time: f32,
+    opt: &TraceOptions,
+    traversal: Traversal,
+) -> (Hit, bool) {
+    if !r.is_valid() || bvh.nodes.is_empty() {
+        return (Hit::MISS, false);
+    }
+    let d = r.d();
+    let mut q = Query1 {
+        g,
+        bvh,
+        r,
+        sh: Shear::new(d),
+        o: r.o(),
+        d,
+        inv_d: Vec3::ONE / d,
+        time,
+        opt,
+        tmin: r.tmin.max(0.0),
+        best: Hit::MISS,
+        steps: 0,
+    };
+    let done = match traversal {
+        Traversal::Stack => stack(&mut q),
+        Traversal::Bitstack => bitstack(&mut q),
+    };
+    if done {
+        (q.best, false)
+    } else {
+        (Hit::MISS, true)
+    }
+}
+
+/// True when finished within the step cap.
+fn stack(q: &mut Query1<'_>) -> bool {
+    let mut stack = vec![0u32];
+    while let Some(n) = stack.pop() {
+        if q.steps > MAX_TRAVERSAL_STEPS {
+            return false;
+        }
+        let Some([near, far]) = q.children(n) else {
+            return true;
+        };
+        if let Some(far) = far {
+            stack.push(far);
+        }
+        if let Some(near) = near {
+            stack.push(near);
+        }
+    }
+    true
+}
+
+/// Seed 000's Algorithm 3: descend to the nearer child pushing a 1 bit when the farther one
+/// waits, 0 otherwise; on a dead end climb the parent links to the deepest 1 bit and take
+/// that level's other child (its box tested again against the best hit so far).
+fn bitstack(q: &mut Query1<'_>) -> bool {
+    let (mut node, mut trail) = (0u32, 0u64);
+    loop {
+        if q.steps > MAX_TRAVERSAL_STEPS {
+            return false;
+        }
+        let Some([near, far]) = q.children(node) else {
+            return true;
+        };
+        if let Some(near) = near {
+            trail = (trail << 1) | u64::from(far.is_some());
+            node = near;
+            continue;
+        }
+        // Dead end: back to the deepest level whose other child waits.
+        loop {
+            if trail == 0 {
+                return true;
+            }
+            while trail & 1 == 0 {
+                node = q.bvh.parents[node as usize];
+                trail >>= 1;
+            }
+            trail ^= 1;
+            let parent = q.bvh.nodes[q.bvh.parents[node as usize] as usize];
+            let sibling = match (parent.child(0).1, parent.child(1).1) {
+                (Child::Node(a), Child::Node(b)) => {
+                    if a == node {
+                        b
+                    } else {
+                        a
+                    }
+                }
+                _ => unreachable!("a 1 bit marks a node with two interior children"),
+            };
+            q.steps += 1;
+            if q.still_enters(sibling) {
+                node = sibling;
+                break;
+            }
+            node = sibling; // climb on from this level
+        }
+    }
+}
