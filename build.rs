@@ -292,6 +292,8 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
         }
     }
     r.bindings.sort_unstable();
+    // Blocks that alias one binding (traverse.glsl's kd-tree and BVH nodes) bind one buffer.
+    r.bindings.dedup();
     for (id, sid) in &spec_id {
         let default = spec_default.get(id).copied().unwrap_or(0);
         r.spec_constants.push((*sid, default));

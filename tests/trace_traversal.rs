@@ -4,7 +4,7 @@
 
 mod common;
 
-use common::{assert_silent, context, Rng};
+use common::{assert_silent, context, same_answer, Rng};
 use glam::{Vec3, Vec4};
 use vkrt::accel::kdtree::{seed001, KdTree, SahParams};
 use vkrt::gpu::Context;
@@ -73,24 +73,6 @@ fn random_rays(g: &TraceGeometry, tree: &KdTree, n: usize, seed: u64) -> Vec<Ray
             }
         })
         .collect()
-}
-
-/// Same hit or miss; the same primitive with `t` within 1e-5 relative, or another one at a
-/// tie (`t` equal within 1e-6 relative).
-fn same_answer(a: &Hit, b: &Hit) -> bool {
-    if a.is_hit() != b.is_hit() {
-        return false;
-    }
-    if !a.is_hit() {
-        return true;
-    }
-    let scale = a.t.abs().max(b.t.abs()).max(1e-30);
-    if a.prim == b.prim {
-        (a.t - b.t).abs() <= 1e-5 * scale
-    } else {
-        // a different primitive only in a tie (equal t up to rounding)
-        (a.t - b.t).abs() <= 1e-6 * scale
-    }
 }
 
 /// Checks the GPU kernel and the CPU twin against brute force on `rays` (brute force on the

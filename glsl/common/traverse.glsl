@@ -1,9 +1,13 @@
-// Geometry buffers and kd-tree traversal: closest hit and any hit with a short stack and
-// restart (Horn et al. 2007). The Rust twin is src/trace/cpu.rs (same decisions, same order).
+// Geometry buffers and the traversal of the structure they hold: the kd-tree (closest hit
+// and any hit with a short stack and restart, Horn et al. 2007; Rust twin src/trace/cpu.rs)
+// or the BVH (glsl/common/bvh.glsl; twin src/trace/bvh_cpu.rs), chosen by ACCEL_KIND when the
+// pipeline is created, so every kernel that includes this file serves every structure.
 //
 // The including kernel defines GEOM_BINDING (first of seven bindings, in this order: nodes,
 // prim_refs, triangle vertices, spheres, per-primitive motion slot, motions, scene info) and
 // the specialization constants INTERSECTOR, ANY_HIT and STACK_SIZE, then includes this file.
+// A BVH's parent links follow its primitive references in the prim_refs buffer, from
+// `scene_info.parents_at` on.
 //
 // Primitive ids: 0 .. n_tris are triangles, n_tris .. n_tris + n_spheres spheres.
 #ifndef VKRT_COMMON_TRAVERSE_GLSL
@@ -40,8 +44,14 @@ layout(std430, binding = GEOM_BINDING + 6) readonly buffer SceneInfoBuf {
     uint n_tris;
     uint n_spheres;
     uint has_motion;
-    uint pad;
+    uint parents_at; // BVH: index of node 0's parent link in kd_refs
 } scene_info;
+
+// 0: kd-tree; 1: BVH with a stack; 2: BVH with seed 000's bitstack (AccelTraversal::spec).
+layout(constant_id = 20) const uint ACCEL_KIND = 0u;
+#define ACCEL_KDTREE 0u
+#define ACCEL_BVH_STACK 1u
+#define ACCEL_BVH_BITSTACK 2u
 
 bool trace_steps_exhausted = false;
 
@@ -133,9 +143,11 @@ bool clip_to_scene(Ray r, inout float t0, inout float t1) {
     return t0 <= t1;
 }
 
+#include "common/bvh.glsl"
+
 // Closest hit (or, with ANY_HIT, the first hit found) with t in [max(tmin, 0), tmax] at
 // `time`. Invalid rays (see ray_is_valid) miss.
-Hit trace_ray(Ray r, float time) {
+Hit trace_kdtree(Ray r, float time) {
     Hit best = miss_hit();
     if (!ray_is_valid(r) || scene_info.n_tris + scene_info.n_spheres == 0u) {
         return best;
@@ -264,6 +276,13 @@ Hit trace_ray(Ray r, float time) {
     }
     trace_steps_exhausted = true;
     return best;
+}
+
+Hit trace_ray(Ray r, float time) {
+    if (ACCEL_KIND == ACCEL_KDTREE) {
+        return trace_kdtree(r, time);
+    }
+    return trace_bvh(r, time, ACCEL_KIND == ACCEL_BVH_BITSTACK);
 }
 
 #endif

@@ -227,6 +227,7 @@ fn bitstack(q: &mut Query1<'_>) -> bool {
                 return true;
             }
             while trail & 1 == 0 {
+                q.steps += 1;
                 node = q.bvh.parents[node as usize];
                 trail >>= 1;
             }

@@ -74,7 +74,8 @@ pub struct SceneInfo {
     pub n_tris: u32,
     pub n_spheres: u32,
     pub has_motion: u32,
-    pub pad: u32,
+    /// BVH: where the parent links start in the references buffer (0 for a kd-tree).
+    pub parents_at: u32,
 }
 
 /// Geometry ready to upload and trace. Primitive ids: triangles first, then spheres.
@@ -202,7 +203,7 @@ impl TraceGeometry {
             n_tris: self.triangle_count() as u32,
             n_spheres: self.spheres.len() as u32,
             has_motion: self.has_motion() as u32,
-            pad: 0,
+            parents_at: 0,
         }
     }
 

@@ -4,18 +4,48 @@
 
 use std::sync::Arc;
 
-use crate::accel::kdtree::{KdNode, KdTree};
+use crate::accel::bvh::Bvh;
+use crate::accel::kdtree::KdTree;
 use crate::gpu::kernels;
 use crate::gpu::{Buffer, BufferArg, Context, Kernel, Profile, Recorder, Result, Spec};
 
+use super::bvh_cpu::Traversal;
 use super::geometry::{MotionRecord, SceneInfo, TraceGeometry};
 use super::{Hit, Query, Ray, TraceOptions};
 
 const WORKGROUP: u32 = 64;
 
+/// Which structure a [`GpuGeometry`] holds, and how a kernel walks it (the `ACCEL_KIND`
+/// specialization constant of `traverse.glsl`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum AccelTraversal {
+    #[default]
+    KdTree,
+    Bvh(Traversal),
+}
+
+impl AccelTraversal {
+    fn spec(self) -> u32 {
+        match self {
+            AccelTraversal::KdTree => 0,
+            AccelTraversal::Bvh(Traversal::Stack) => 1,
+            AccelTraversal::Bvh(Traversal::Bitstack) => 2,
+        }
+    }
+
+    fn is_bvh(self) -> bool {
+        matches!(self, AccelTraversal::Bvh(_))
+    }
+}
+
 /// Geometry and tree in device memory: the seven buffers `traverse.glsl` binds, in order.
+/// `nodes` holds `KdNode`s or `BvhNode`s as words; a BVH's `prim_refs` are its references
+/// followed by its parent links.
 pub struct GpuGeometry {
-    pub nodes: Buffer<KdNode>,
+    pub nodes: Buffer<u32>,
+    /// Whether `nodes` is a BVH (else a kd-tree).
+    pub is_bvh: bool,
     pub prim_refs: Buffer<u32>,
     pub tri_verts: Buffer<f32>,
     pub spheres: Buffer<[f32; 4]>,
@@ -28,13 +58,35 @@ pub struct GpuGeometry {
 impl GpuGeometry {
     pub fn upload(ctx: &Context, g: &TraceGeometry, tree: &KdTree) -> Result<Self> {
         Ok(Self {
-            nodes: Buffer::from_slice(ctx, "trace.nodes", &tree.nodes)?,
+            nodes: Buffer::from_slice(ctx, "trace.nodes", words(&tree.nodes))?,
+            is_bvh: false,
             prim_refs: Buffer::from_slice(ctx, "trace.prim_refs", &tree.prim_refs)?,
             tri_verts: Buffer::from_slice(ctx, "trace.tri_verts", &g.tri_verts)?,
             spheres: Buffer::from_slice(ctx, "trace.spheres", &g.spheres)?,
             prim_motion: Buffer::from_slice(ctx, "trace.prim_motion", &g.prim_motion)?,
             motions: Buffer::from_slice(ctx, "trace.motions", &g.motions)?,
             info: Buffer::from_slice(ctx, "trace.info", &[g.info(&tree.bounds)])?,
+            primitives: g.primitive_count(),
+        })
+    }
+
+    /// Geometry and a BVH built over `g`'s boxes.
+    pub fn upload_bvh(ctx: &Context, g: &TraceGeometry, bvh: &Bvh) -> Result<Self> {
+        let mut refs = bvh.refs.clone();
+        refs.extend_from_slice(&bvh.parents);
+        let info = SceneInfo {
+            parents_at: bvh.refs.len() as u32,
+            ..g.info(&bvh.bounds)
+        };
+        Ok(Self {
+            nodes: Buffer::from_slice(ctx, "trace.bvh_nodes", words(&bvh.nodes))?,
+            is_bvh: true,
+            prim_refs: Buffer::from_slice(ctx, "trace.bvh_refs", &refs)?,
+            tri_verts: Buffer::from_slice(ctx, "trace.tri_verts", &g.tri_verts)?,
+            spheres: Buffer::from_slice(ctx, "trace.spheres", &g.spheres)?,
+            prim_motion: Buffer::from_slice(ctx, "trace.prim_motion", &g.prim_motion)?,
+            motions: Buffer::from_slice(ctx, "trace.motions", &g.motions)?,
+            info: Buffer::from_slice(ctx, "trace.info", &[info])?,
             primitives: g.primitive_count(),
         })
     }
@@ -51,6 +103,11 @@ impl GpuGeometry {
             &self.info,
         ]
     }
+}
+
+/// Nodes as the 32-bit words a storage buffer of either layout binds.
+fn words<T: bytemuck::Pod>(nodes: &[T]) -> &[u32] {
+    bytemuck::cast_slice(nodes)
 }
 
 /// Spec constant ids shared by every kernel that includes `traverse.glsl`.
@@ -72,6 +129,7 @@ pub struct TraceBatch {
 pub struct Tracer {
     kernel: Arc<Kernel>,
     options: TraceOptions,
+    accel: AccelTraversal,
 }
 
 /// `opt` as the device can run it: no double-precision fallback without shaderFloat64.
@@ -93,8 +151,15 @@ impl Tracer {
     /// The tracer for `opt`; `opt.exact` is honoured only where the device has doubles
     /// (see [`Tracer::options`]).
     pub fn new(ctx: &Context, opt: &TraceOptions) -> Result<Self> {
+        Self::for_accel(ctx, opt, AccelTraversal::KdTree)
+    }
+
+    /// The tracer for geometry holding `accel`'s structure, walked its way.
+    pub fn for_accel(ctx: &Context, opt: &TraceOptions, accel: AccelTraversal) -> Result<Self> {
         let opt = effective_options(ctx, opt);
-        let spec = traversal_spec(&opt).workgroup(WORKGROUP);
+        let spec = traversal_spec(&opt)
+            .u32(20, accel.spec())
+            .workgroup(WORKGROUP);
         let blob = if opt.exact {
             &kernels::RENDER_TRACE_EXACT
         } else {
@@ -103,6 +168,7 @@ impl Tracer {
         Ok(Self {
             kernel: ctx.kernel(blob, &spec)?,
             options: opt,
+            accel,
         })
     }
 
@@ -130,6 +196,12 @@ impl Tracer {
         if n == 0 {
             return;
         }
+        assert_eq!(
+            geom.is_bvh,
+            self.accel.is_bvh(),
+            "a {:?} tracer cannot walk this geometry's structure",
+            self.accel
+        );
         let g = geom.bindings();
         let b: [&dyn BufferArg; 10] =
             [rays, hits, g[0], g[1], g[2], g[3], g[4], g[5], g[6], errors];

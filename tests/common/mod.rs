@@ -251,3 +251,21 @@ pub fn vkrt_ok(args: &[&str]) -> Option<std::process::Output> {
     );
     Some(out)
 }
+
+/// Same hit or miss; the same primitive with `t` within 1e-5 relative, or another one at a
+/// tie (`t` equal within 1e-6 relative).
+pub fn same_answer(a: &vkrt::trace::Hit, b: &vkrt::trace::Hit) -> bool {
+    if a.is_hit() != b.is_hit() {
+        return false;
+    }
+    if !a.is_hit() {
+        return true;
+    }
+    let scale = a.t.abs().max(b.t.abs()).max(1e-30);
+    if a.prim == b.prim {
+        (a.t - b.t).abs() <= 1e-5 * scale
+    } else {
+        // a different primitive only in a tie (equal t up to rounding)
+        (a.t - b.t).abs() <= 1e-6 * scale
+    }
+}

@@ -1,16 +1,18 @@
 //! The CPU SAH BVH of seed 003: valid trees at every edge size and on degenerate input,
 //! the same tree from every threading scheme and thread count, the full sweep and binned
-//! SAH, the depth cap, clear errors on bad parameters and boxes — and both traversals
-//! (stack and seed 000's bitstack) equal to brute force, closest hit bit for bit.
+//! SAH, the depth cap, clear errors on bad parameters and boxes — both CPU traversals
+//! (stack and seed 000's bitstack) equal to brute force, closest hit bit for bit, and the
+//! GPU traversals (`glsl/common/bvh.glsl`) equal to their CPU twin, under validation.
 
 mod common;
 
-use common::Rng;
+use common::{assert_silent, context, same_answer, Rng};
 use glam::{Vec3, Vec4};
 use vkrt::accel::bvh::{self, validate, Bvh, BvhError, BvhParams, Threading};
 use vkrt::scene::{gen, Aabb};
 use vkrt::trace::bvh_cpu::{self, Traversal};
-use vkrt::trace::{cpu, Query, Ray, TraceGeometry, TraceOptions};
+use vkrt::trace::gpu::{AccelTraversal, GpuGeometry, Tracer};
+use vkrt::trace::{cpu, Intersector, Query, Ray, TraceGeometry, TraceOptions};
 
 fn rand_vec(rng: &mut Rng) -> Vec3 {
     Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32())
@@ -320,4 +322,76 @@ fn empty_and_invalid_rays_miss() {
             );
         }
     }
+}
+
+/// The GPU walks (stack and bitstack, closest and any hit, both intersectors) against the
+/// CPU twin on every ray, and the twin against brute force on a share of them.
+#[test]
+fn gpu_stack_and_bitstack_equal_the_cpu_twin() {
+    let Some(ctx) = context() else { return };
+    let mut rng = Rng(21);
+    let spheres: Vec<Vec4> = (0..200)
+        .map(|_| (rand_vec(&mut rng) * 5.0).extend(0.05 + rng.next_f32().abs() * 0.5))
+        .collect();
+    let mut scenes = vec![
+        (
+            "icosphere(4)".to_string(),
+            TraceGeometry::from_triangles(&tris(&gen::icosphere(4).unwrap())),
+        ),
+        (
+            "soup+spheres".to_string(),
+            TraceGeometry::from_triangles_and_spheres(&soup(3000, 3), &spheres),
+        ),
+        (
+            "one triangle".to_string(),
+            TraceGeometry::from_triangles(&soup(1, 1)),
+        ),
+    ];
+    if let Some(b) = common::bunny() {
+        scenes.push(("bunny".to_string(), TraceGeometry::from_triangles(&b)));
+    }
+    for (name, g) in &scenes {
+        let tree = bvh::build(&g.boxes, &BvhParams::default(), Threading::Rayon).unwrap();
+        let dev = GpuGeometry::upload_bvh(&ctx, g, &tree).unwrap();
+        let mut rays = rays(g, &tree.bounds, 4000, 5);
+        // Invalid rays miss on the GPU too.
+        rays.push(Ray::new(Vec3::ZERO, Vec3::ZERO, 0.0, 1.0));
+        rays.push(Ray::new(Vec3::ZERO, Vec3::X, f32::NAN, 1.0));
+        rays.push(Ray::new(Vec3::ZERO, Vec3::X, 0.0, f32::NEG_INFINITY));
+        for traversal in [Traversal::Stack, Traversal::Bitstack] {
+            for (query, intersector) in [
+                (Query::Closest, Intersector::Watertight),
+                (Query::Any, Intersector::Watertight),
+                (Query::Closest, Intersector::MollerTrumbore),
+            ] {
+                let opt = TraceOptions {
+                    query,
+                    intersector,
+                    ..TraceOptions::default()
+                };
+                let tracer = Tracer::for_accel(&ctx, &opt, AccelTraversal::Bvh(traversal)).unwrap();
+                let opt = tracer.options();
+                let batch = tracer.trace(&ctx, &dev, &rays, 0.0).unwrap();
+                assert_eq!(batch.exhausted, 0, "{name}: rays ran out of steps");
+                for (i, r) in rays.iter().enumerate() {
+                    let (twin, exhausted) = bvh_cpu::trace(g, &tree, r, 0.0, &opt, traversal);
+                    assert!(!exhausted);
+                    let gpu = batch.hits[i];
+                    let ok = if query == Query::Any {
+                        gpu.is_hit() == twin.is_hit()
+                    } else {
+                        same_answer(&gpu, &twin)
+                    };
+                    assert!(
+                        ok,
+                        "{name} {traversal:?} {opt:?}: ray {i} {r:?}: GPU {gpu:?} vs twin {twin:?}"
+                    );
+                    if i % 16 == 0 && query == Query::Closest {
+                        assert_eq!(twin, cpu::brute_force(g, r, 0.0, &opt), "{name}: ray {i}");
+                    }
+                }
+            }
+        }
+    }
+    assert_silent(&ctx);
 }

@@ -1,0 +1,169 @@
+// BVH traversal, included by common/traverse.glsl (which declares the geometry buffers and
+// hit_primitive). Nodes hold both children's boxes (Aila & Laine 2009); a child is an
+// interior node (count 0), a leaf (count > 0 references from index on) or missing (count 0,
+// index NO_NODE). Two walks, the same decisions in the same order as src/trace/bvh_cpu.rs:
+// a stack of far children, or seed 000's stackless bitstack (parent links and one bit per
+// level, "the other child still waits"). Trees are at most 64 levels deep (the builder's
+// MAX_DEPTH), which sizes the stack and the trail.
+#ifndef VKRT_COMMON_BVH_GLSL
+#define VKRT_COMMON_BVH_GLSL
+
+#define NO_NODE 0xffffffffu
+#define BVH_MAX_DEPTH 64u
+
+// 64 bytes: `BvhNode` in src/accel/bvh/layout.rs.
+struct BvhNode {
+    vec3 a_min;
+    uint a_index;
+    vec3 a_max;
+    uint a_count;
+    vec3 b_min;
+    uint b_index;
+    vec3 b_max;
+    uint b_count;
+};
+
+// The same binding as the kd-tree's nodes: one structure is bound at a time.
+layout(std430, binding = GEOM_BINDING + 0) readonly buffer BvhNodes { BvhNode bvh_nodes[]; };
+
+// Where the ray enters the box within [t0, t1], the slabs widened like the kd-tree's planes.
+bool bvh_enter(vec3 bmin, vec3 bmax, Ray r, vec3 inv_d, float t0, float t1, out float t_in) {
+    float lo_t = t0;
+    float hi_t = t1;
+    t_in = t0;
+    for (uint a = 0u; a < 3u; a++) {
+        if (r.d[a] == 0.0) {
+            if (r.o[a] < bmin[a] || r.o[a] > bmax[a]) {
+                return false;
+            }
+            continue;
+        }
+        precise float ta = (bmin[a] - r.o[a]) * inv_d[a];
+        precise float tb = (bmax[a] - r.o[a]) * inv_d[a];
+        precise float lo = min(ta, tb);
+        precise float hi = max(ta, tb);
+        precise float lo_w = lo - abs(lo) * PLANE_SLACK;
+        precise float hi_w = hi + abs(hi) * PLANE_SLACK;
+        lo_t = max(lo_t, lo_w);
+        hi_t = min(hi_t, hi_w);
+    }
+    t_in = lo_t;
+    return lo_t <= hi_t;
+}
+
+uint bvh_parent(uint node) {
+    return kd_refs[scene_info.parents_at + node];
+}
+
+Hit trace_bvh(Ray r, float time, bool bitstack) {
+    Hit best = miss_hit();
+    if (!ray_is_valid(r) || scene_info.n_tris + scene_info.n_spheres == 0u) {
+        return best;
+    }
+    float tmin = max(r.tmin, 0.0);
+    Shear sh = make_shear(r.d);
+    vec3 inv_d = vec3(1.0) / r.d;
+    float best_t = r.tmax;
+    uint stack[BVH_MAX_DEPTH];
+    uint top = 0u;
+    uint trail_lo = 0u; // the 64-bit trail, low and high words
+    uint trail_hi = 0u;
+    uint node = 0u;
+    uint steps = 0u;
+    while (true) {
+        if (steps > MAX_TRAVERSAL_STEPS) {
+            trace_steps_exhausted = true;
+            return best;
+        }
+        steps++;
+        BvhNode nd = bvh_nodes[node];
+        uint inner[2] = uint[2](NO_NODE, NO_NODE);
+        float t_in[2] = float[2](0.0, 0.0);
+        for (uint which = 0u; which < 2u; which++) {
+            vec3 bmin = which == 0u ? nd.a_min : nd.b_min;
+            vec3 bmax = which == 0u ? nd.a_max : nd.b_max;
+            uint index = which == 0u ? nd.a_index : nd.b_index;
+            uint count = which == 0u ? nd.a_count : nd.b_count;
+            float te;
+            if (!bvh_enter(bmin, bmax, r, inv_d, tmin, best_t, te)) {
+                continue;
+            }
+            if (count > 0u) {
+                steps += count;
+                for (uint i = index; i < index + count; i++) {
+                    uint prim = kd_refs[i];
+                    float t, u, v;
+                    if (hit_primitive(prim, r, sh, time, tmin, best_t, t, u, v)) {
+                        // Deterministic winner among equal t: the lowest primitive id.
+                        if (best.prim == NO_HIT || t < best_t || (t == best_t && prim < best.prim)) {
+                            best = Hit(t, prim, u, v);
+                            best_t = t;
+                        }
+                        if (ANY_HIT) {
+                            return best;
+                        }
+                    }
+                }
+            } else if (index != NO_NODE) {
+                inner[which] = index;
+                t_in[which] = te;
+            }
+        }
+        uint near = inner[0];
+        uint far = inner[1];
+        if (near == NO_NODE) {
+            near = far;
+            far = NO_NODE;
+        } else if (far != NO_NODE && t_in[1] < t_in[0]) {
+            near = inner[1];
+            far = inner[0];
+        }
+        if (near != NO_NODE) {
+            if (bitstack) {
+                trail_hi = (trail_hi << 1u) | (trail_lo >> 31u);
+                trail_lo = (trail_lo << 1u) | (far != NO_NODE ? 1u : 0u);
+            } else if (far != NO_NODE) {
+                stack[top] = far;
+                top++;
+            }
+            node = near;
+            continue;
+        }
+        // Dead end.
+        if (!bitstack) {
+            if (top == 0u) {
+                return best;
+            }
+            top--;
+            node = stack[top];
+            continue;
+        }
+        // Bitstack: climb to the deepest level whose other child waits, and take it if the
+        // ray still enters its box.
+        bool found = false;
+        while (!found) {
+            if (trail_lo == 0u && trail_hi == 0u) {
+                return best;
+            }
+            while ((trail_lo & 1u) == 0u) {
+                steps++;
+                node = bvh_parent(node);
+                trail_lo = (trail_lo >> 1u) | (trail_hi << 31u);
+                trail_hi >>= 1u;
+            }
+            trail_lo ^= 1u;
+            BvhNode pn = bvh_nodes[bvh_parent(node)];
+            bool node_is_a = pn.a_count == 0u && pn.a_index == node;
+            uint sibling = node_is_a ? pn.b_index : pn.a_index;
+            vec3 smin = node_is_a ? pn.b_min : pn.a_min;
+            vec3 smax = node_is_a ? pn.b_max : pn.a_max;
+            steps++;
+            float te;
+            found = bvh_enter(smin, smax, r, inv_d, tmin, best_t, te);
+            node = sibling;
+        }
+    }
+    return best;
+}
+
+#endif
