@@ -109,6 +109,13 @@ enum Command {
         /// Rays per GPU batch (default and maximum: what fits the device's buffer limit).
         #[arg(long, hide = true)]
         batch_rays: Option<usize>,
+        /// The acceleration structure: seed 001's kd-tree built on the GPU, or seed 003's
+        /// SAH BVH built on the CPU's threads.
+        #[arg(long, value_enum, default_value_t = AccelArg::Kdtree)]
+        accel: AccelArg,
+        /// How a BVH is walked: a stack, or seed 000's stackless bitstack.
+        #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
+        traversal: TraversalArg,
         #[arg(long)]
         json: bool,
     },
@@ -134,6 +141,23 @@ enum BenchCommand {
         /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
         #[arg(long)]
         profile: Option<PathBuf>,
+    },
+    /// Seed 003's Tables 3/4 on this machine: CPU SAH BVH build time of every threading
+    /// scheme (single, uneven, even, node queue, rayon) at 1 and all threads, full sweep and
+    /// binned (16 bins), over the bunny and icospheres up to --max-n; the speed-up over one
+    /// thread, the SAH cost, and the same tree from every scheme asserted.
+    Bvh {
+        /// Largest icosphere (triangles).
+        #[arg(long, default_value_t = 1_000_000)]
+        max_n: u64,
+        /// Timed repetitions (the best is reported).
+        #[arg(long, default_value_t = 3)]
+        reps: u32,
+        /// Mesh to include (default: ../shared/scenes/stanford-bunny.obj when present).
+        #[arg(long)]
+        mesh: Option<PathBuf>,
+        #[arg(long)]
+        json: bool,
     },
     /// GPU kd-tree build time against N (the bunny when ../shared is present, icospheres of
     /// 100 K, 200 K, 500 K, 1 M, 2 M triangles up to --max-n), per phase, the fitted growth
@@ -211,6 +235,18 @@ enum BenchCommand {
         #[arg(long)]
         profile: Option<PathBuf>,
     },
+}
+
+#[derive(Clone, Copy, PartialEq, ValueEnum)]
+enum AccelArg {
+    Kdtree,
+    SahBvh,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum TraversalArg {
+    Stack,
+    Bitstack,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -741,8 +777,19 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             any_hit,
             intersector,
             batch_rays,
+            accel,
+            traversal,
             json,
         } => {
+            let accel = match (accel, traversal) {
+                (AccelArg::Kdtree, _) => vkrt::trace::gpu::AccelTraversal::KdTree,
+                (AccelArg::SahBvh, TraversalArg::Stack) => {
+                    vkrt::trace::gpu::AccelTraversal::Bvh(vkrt::trace::bvh_cpu::Traversal::Stack)
+                }
+                (AccelArg::SahBvh, TraversalArg::Bitstack) => {
+                    vkrt::trace::gpu::AccelTraversal::Bvh(vkrt::trace::bvh_cpu::Traversal::Bitstack)
+                }
+            };
             let opt = vkrt::trace::TraceOptions {
                 intersector: intersector.into(),
                 query: if any_hit {
@@ -758,9 +805,50 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 &rays,
                 out.as_deref(),
                 &opt,
+                accel,
                 batch_rays,
                 json,
             )?;
+        }
+        Command::Bench {
+            what:
+                BenchCommand::Bvh {
+                    max_n,
+                    reps,
+                    mesh,
+                    json,
+                },
+        } => {
+            let scenes = bench_scenes(mesh, max_n)?;
+            let rows = vkrt::accel::bvh::bench::bench(&scenes, reps)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&rows)?);
+            } else {
+                println!(
+                    "{:<16} {:>9} {:<8} {:<7} {:>7} {:>11} {:>8} {:>9}",
+                    "scene",
+                    "triangles",
+                    "sah",
+                    "scheme",
+                    "threads",
+                    "build ms",
+                    "speed-up",
+                    "SAH cost"
+                );
+                for r in &rows {
+                    println!(
+                        "{:<16} {:>9} {:<8} {:<7} {:>7} {:>11.1} {:>8.2} {:>9.2}",
+                        r.scene,
+                        r.triangles,
+                        r.sah,
+                        r.scheme,
+                        r.threads,
+                        r.build_ms,
+                        r.speedup,
+                        r.sah_cost
+                    );
+                }
+            }
         }
         Command::Bench {
             what:
@@ -775,34 +863,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     profile,
                 },
         } => {
-            let mut scenes = Vec::new();
-            let bunny = PathBuf::from(env!("CARGO_MANIFEST_DIR"))
-                .join("../shared/scenes/stanford-bunny.obj");
-            if let Some(path) = mesh.or_else(|| bunny.exists().then_some(bunny)) {
-                let scene = vkrt::scene::Scene::load(&path)?.scene;
-                let name = path
-                    .file_stem()
-                    .map_or("mesh".into(), |s| s.to_string_lossy().into_owned());
-                scenes.push((name, scene.triangles_world(0.0)));
-            }
-            for n in [100_000u64, 200_000, 500_000, 1_000_000, 2_000_000] {
-                if n > max_n {
-                    break;
-                }
-                let mesh = vkrt::scene::gen::icosphere_with_at_least(n)?;
-                let t = mesh
-                    .indices
-                    .iter()
-                    .map(|i| {
-                        [
-                            mesh.positions[i[0] as usize],
-                            mesh.positions[i[1] as usize],
-                            mesh.positions[i[2] as usize],
-                        ]
-                    })
-                    .collect();
-                scenes.push((format!("icosphere{}k", n / 1000), t));
-            }
+            let scenes = bench_scenes(mesh, max_n)?;
             let ctx = context(cli.validate)?;
             let mut params = vkrt::accel::kdtree::SahParams::default();
             if seed_termination {
@@ -881,6 +942,7 @@ fn trace_command(
     rays_path: &std::path::Path,
     out: Option<&std::path::Path>,
     opt: &vkrt::trace::TraceOptions,
+    accel: vkrt::trace::gpu::AccelTraversal,
     batch_rays: Option<usize>,
     json: bool,
 ) -> Result<(), Box<dyn std::error::Error>> {
@@ -889,9 +951,31 @@ fn trace_command(
     let scene = load_scene(&Some(scene_path.to_path_buf()))?;
     let geometry = TraceGeometry::at_time(&scene, scene.camera.shutter_open);
     let ctx = context(validate)?;
-    let (tree, _) = gpu::build_kdtree(&ctx, &geometry, &Default::default())?;
-    let device = gpu::GpuGeometry::upload(&ctx, &geometry, &tree)?;
-    let tracer = gpu::Tracer::new(&ctx, opt)?;
+    // kd-tree: GPU build time from timestamps; BVH: CPU wall time.
+    let (device, build_ms) = match accel {
+        gpu::AccelTraversal::KdTree => {
+            let (tree, profile) = gpu::build_kdtree(&ctx, &geometry, &Default::default())?;
+            let ms: f64 = profile
+                .passes
+                .iter()
+                .filter(|p| p.depth == 0)
+                .filter_map(|p| p.ms)
+                .sum();
+            (gpu::GpuGeometry::upload(&ctx, &geometry, &tree)?, ms)
+        }
+        gpu::AccelTraversal::Bvh(_) => {
+            let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+            let start = std::time::Instant::now();
+            let bvh = vkrt::accel::bvh::build(
+                &geometry.boxes,
+                &Default::default(),
+                vkrt::accel::bvh::Threading::Queue { threads },
+            )?;
+            let ms = start.elapsed().as_secs_f64() * 1e3;
+            (gpu::GpuGeometry::upload_bvh(&ctx, &geometry, &bvh)?, ms)
+        }
+    };
+    let tracer = gpu::Tracer::for_accel(&ctx, opt, accel)?;
     let batch = tracer.trace_batched(&ctx, &device, &rays, 0.0, batch_rays)?;
     // Invalid rays are answered as misses; say how many and why, never silently.
     let invalid = vkrt::trace::count_invalid(&rays);
@@ -938,6 +1022,8 @@ fn trace_command(
                 .map(|(r, n)| (r.name().to_string(), n.into()))
                 .collect::<serde_json::Map<_, _>>(),
             "exhausted": batch.exhausted,
+            "accel": accel,
+            "build_ms": build_ms,
             "trace_ms": trace_ms,
             "mrays_per_s": mrays_per_s,
         });
@@ -957,4 +1043,41 @@ fn trace_command(
         }
     }
     Ok(())
+}
+
+/// The meshes a build benchmark runs over: `mesh` (default: the bunny in ../shared when
+/// present), then icospheres of 100 K, 200 K, 500 K, 1 M and 2 M triangles up to `max_n`.
+fn bench_scenes(
+    mesh: Option<PathBuf>,
+    max_n: u64,
+) -> Result<Vec<(String, Vec<[glam::Vec3; 3]>)>, Box<dyn std::error::Error>> {
+    let mut scenes = Vec::new();
+    let bunny =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
+    if let Some(path) = mesh.or_else(|| bunny.exists().then_some(bunny)) {
+        let scene = vkrt::scene::Scene::load(&path)?.scene;
+        let name = path
+            .file_stem()
+            .map_or("mesh".into(), |s| s.to_string_lossy().into_owned());
+        scenes.push((name, scene.triangles_world(0.0)));
+    }
+    for n in [100_000u64, 200_000, 500_000, 1_000_000, 2_000_000] {
+        if n > max_n {
+            break;
+        }
+        let mesh = vkrt::scene::gen::icosphere_with_at_least(n)?;
+        let t = mesh
+            .indices
+            .iter()
+            .map(|i| {
+                [
+                    mesh.positions[i[0] as usize],
+                    mesh.positions[i[1] as usize],
+                    mesh.positions[i[2] as usize],
+                ]
+            })
+            .collect();
+        scenes.push((format!("icosphere{}k", n / 1000), t));
+    }
+    Ok(scenes)
 }

@@ -138,6 +138,8 @@ fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
     assert_eq!(
         keys,
         [
+            "accel",
+            "build_ms",
             "exhausted",
             "hits",
             "invalid",
@@ -190,6 +192,18 @@ fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
 fn round_trip_binary_closest_hit_matches_brute_force() {
     // Moving meshes and a sphere: geometry at the shutter-open time.
     round_trip("motion_blur.toml", "hits.bin", &[], TraceOptions::default());
+}
+
+#[test]
+fn round_trip_sah_bvh_stack_and_bitstack_match_brute_force() {
+    for traversal in ["stack", "bitstack"] {
+        round_trip(
+            "motion_blur.toml",
+            &format!("hits-bvh-{traversal}.bin"),
+            &["--accel", "sah-bvh", "--traversal", traversal],
+            TraceOptions::default(),
+        );
+    }
 }
 
 #[test]

@@ -2,6 +2,7 @@
 //! ([`layout`]), seed 003's multithreaded CPU SAH builder ([`sah`]), and a structural
 //! validator with the SAH cost of a built tree ([`validate`]).
 
+pub mod bench;
 pub mod layout;
 pub mod sah;
 pub mod validate;
