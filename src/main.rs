@@ -804,8 +804,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 &scene,
                 &rays,
                 out.as_deref(),
-                &opt,
-                accel,
+                (&opt, accel),
                 batch_rays,
                 json,
             )?;
@@ -941,8 +940,7 @@ fn trace_command(
     scene_path: &std::path::Path,
     rays_path: &std::path::Path,
     out: Option<&std::path::Path>,
-    opt: &vkrt::trace::TraceOptions,
-    accel: vkrt::trace::gpu::AccelTraversal,
+    (opt, accel): (&vkrt::trace::TraceOptions, vkrt::trace::gpu::AccelTraversal),
     batch_rays: Option<usize>,
     json: bool,
 ) -> Result<(), Box<dyn std::error::Error>> {
@@ -1045,12 +1043,12 @@ fn trace_command(
     Ok(())
 }
 
+/// Named triangle lists.
+type Meshes = Vec<(String, Vec<[glam::Vec3; 3]>)>;
+
 /// The meshes a build benchmark runs over: `mesh` (default: the bunny in ../shared when
 /// present), then icospheres of 100 K, 200 K, 500 K, 1 M and 2 M triangles up to `max_n`.
-fn bench_scenes(
-    mesh: Option<PathBuf>,
-    max_n: u64,
-) -> Result<Vec<(String, Vec<[glam::Vec3; 3]>)>, Box<dyn std::error::Error>> {
+fn bench_scenes(mesh: Option<PathBuf>, max_n: u64) -> Result<Meshes, Box<dyn std::error::Error>> {
     let mut scenes = Vec::new();
     let bunny =
         PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
