@@ -1,5 +1,5 @@
-// BVH traversal, included by common/traverse.glsl (which declares the geometry buffers and
-// hit_primitive). Nodes hold both children's boxes (Aila & Laine 2009); a child is an
+// BVH traversal, included by common/traverse.glsl (which declares the geometry buffers,
+// hit_primitive and test_leaf). Nodes hold both children's boxes (Aila & Laine 2009); a child is an
 // interior node (count 0), a leaf (count > 0 references from index on) or missing (count 0,
 // index NO_NODE). Two walks, the same decisions in the same order as src/trace/bvh_cpu.rs:
 // a stack of far children, or seed 000's stackless bitstack (parent links and one bit per
@@ -90,19 +90,8 @@ Hit trace_bvh(Ray r, float time, bool bitstack) {
             }
             if (count > 0u) {
                 steps += count;
-                for (uint i = index; i < index + count; i++) {
-                    uint prim = kd_refs[i];
-                    float t, u, v;
-                    if (hit_primitive(prim, r, sh, time, tmin, best_t, t, u, v)) {
-                        // Deterministic winner among equal t: the lowest primitive id.
-                        if (best.prim == NO_HIT || t < best_t || (t == best_t && prim < best.prim)) {
-                            best = Hit(t, prim, u, v);
-                            best_t = t;
-                        }
-                        if (ANY_HIT) {
-                            return best;
-                        }
-                    }
+                if (test_leaf(index, count, r, sh, time, tmin, best, best_t)) {
+                    return best;
                 }
             } else if (index != NO_NODE) {
                 inner[which] = index;

@@ -143,6 +143,27 @@ bool clip_to_scene(Ray r, inout float t0, inout float t1) {
     return t0 <= t1;
 }
 
+// Tests a leaf's `count` references from `first` on against the ray up to `best_t`, keeping
+// the closest hit (the lowest primitive id among equal t); true when an any-hit query is
+// answered.
+bool test_leaf(uint first, uint count, Ray r, Shear sh, float time, float tmin, inout Hit best,
+               inout float best_t) {
+    for (uint i = first; i < first + count; i++) {
+        uint prim = kd_refs[i];
+        float t, u, v;
+        if (hit_primitive(prim, r, sh, time, tmin, best_t, t, u, v)) {
+            if (best.prim == NO_HIT || t < best_t || (t == best_t && prim < best.prim)) {
+                best = Hit(t, prim, u, v);
+                best_t = t;
+            }
+            if (ANY_HIT) {
+                return true;
+            }
+        }
+    }
+    return false;
+}
+
 #include "common/bvh.glsl"
 
 // Closest hit (or, with ANY_HIT, the first hit found) with t in [max(tmin, 0), tmax] at
@@ -232,20 +253,8 @@ Hit trace_kdtree(Ray r, float time) {
         }
 
         // Leaf: test its primitives over the whole remaining ray interval.
-        uint end = nd.a + nd.b;
-        for (uint i = nd.a; i < end; i++) {
-            uint prim = kd_refs[i];
-            float t, u, v;
-            if (hit_primitive(prim, r, sh, time, tmin, best_t, t, u, v)) {
-                // Deterministic winner among equal t: the lowest primitive id.
-                if (best.prim == NO_HIT || t < best_t || (t == best_t && prim < best.prim)) {
-                    best = Hit(t, prim, u, v);
-                    best_t = t;
-                }
-                if (ANY_HIT) {
-                    return best;
-                }
-            }
+        if (test_leaf(nd.a, nd.b, r, sh, time, tmin, best, best_t)) {
+            return best;
         }
         step += nd.b;
         // No early exit on best_t <= n1: entries pushed for rays lying in or starting on a
