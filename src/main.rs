@@ -77,6 +77,13 @@ enum Command {
         /// Ray/triangle test: watertight (default) or moller-trumbore.
         #[arg(long, default_value = "watertight")]
         intersector: String,
+        /// The acceleration structure: seed 001's kd-tree built on the GPU, or seed 003's
+        /// SAH BVH built on the CPU's threads (the image is the same).
+        #[arg(long, value_enum, default_value_t = AccelArg::Kdtree)]
+        accel: AccelArg,
+        /// How a BVH is walked: a stack, or seed 000's stackless bitstack.
+        #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
+        traversal: TraversalArg,
         #[arg(long)]
         json: bool,
         /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
@@ -247,6 +254,16 @@ enum AccelArg {
 enum TraversalArg {
     Stack,
     Bitstack,
+}
+
+fn accel_traversal(accel: AccelArg, walk: TraversalArg) -> vkrt::trace::gpu::AccelTraversal {
+    use vkrt::trace::bvh_cpu::Traversal;
+    use vkrt::trace::gpu::AccelTraversal;
+    match (accel, walk) {
+        (AccelArg::Kdtree, _) => AccelTraversal::KdTree,
+        (AccelArg::SahBvh, TraversalArg::Stack) => AccelTraversal::Bvh(Traversal::Stack),
+        (AccelArg::SahBvh, TraversalArg::Bitstack) => AccelTraversal::Bvh(Traversal::Bitstack),
+    }
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -454,6 +471,8 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             plan,
             all_effects,
             intersector,
+            accel,
+            traversal,
             json,
             profile,
         } => {
@@ -462,6 +481,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 height,
                 spp,
                 all_effects,
+                accel: accel_traversal(accel, traversal),
             };
             render_command(
                 cli.validate,
@@ -781,15 +801,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             traversal,
             json,
         } => {
-            let accel = match (accel, traversal) {
-                (AccelArg::Kdtree, _) => vkrt::trace::gpu::AccelTraversal::KdTree,
-                (AccelArg::SahBvh, TraversalArg::Stack) => {
-                    vkrt::trace::gpu::AccelTraversal::Bvh(vkrt::trace::bvh_cpu::Traversal::Stack)
-                }
-                (AccelArg::SahBvh, TraversalArg::Bitstack) => {
-                    vkrt::trace::gpu::AccelTraversal::Bvh(vkrt::trace::bvh_cpu::Traversal::Bitstack)
-                }
-            };
+            let accel = accel_traversal(accel, traversal);
             let opt = vkrt::trace::TraceOptions {
                 intersector: intersector.into(),
                 query: if any_hit {

@@ -67,6 +67,7 @@ pub fn effect_costs(
         height: Some(height),
         spp: None,
         all_effects: false,
+        accel: Default::default(),
     };
     let mut rows = Vec::new();
     for (name, scene, effect) in scenes {

@@ -6,9 +6,11 @@ use glam::{Vec3, Vec4};
 
 use super::plan::Plan;
 use super::types::*;
-use super::{RayCounts, RenderScene};
-use crate::trace::cpu::{trace, TraceScene};
+use super::{RayCounts, RenderAccel, RenderScene};
+use crate::trace::bvh_cpu;
+use crate::trace::cpu::{self, TraceScene};
 use crate::trace::geometry::NO_MOTION;
+use crate::trace::gpu::AccelTraversal;
 use crate::trace::intersect::offset_ray_origin;
 use crate::trace::{Hit, Query, Ray, TraceOptions};
 
@@ -101,9 +103,21 @@ pub fn render(rs: &RenderScene, plan: &Plan, trace_opt: &TraceOptions) -> CpuRen
     let n_pixels = (prm.width * prm.height) as usize;
     let mut accum = vec![Vec3::ZERO; n_pixels];
     let mut counts = RayCounts::default();
-    let scene = TraceScene {
-        geometry: &rs.geometry,
-        tree: &rs.tree,
+    // The structure's CPU twin walk, as the plan's kernels walk it.
+    let trace = |r: &Ray, time: f32, opt: &TraceOptions| match (&rs.accel, plan.accel) {
+        (RenderAccel::KdTree(tree), _) => {
+            let scene = TraceScene {
+                geometry: &rs.geometry,
+                tree,
+            };
+            cpu::trace(&scene, r, time, opt)
+        }
+        (RenderAccel::Bvh(bvh), AccelTraversal::Bvh(walk)) => {
+            bvh_cpu::trace(&rs.geometry, bvh, r, time, opt, walk)
+        }
+        (RenderAccel::Bvh(bvh), AccelTraversal::KdTree) => {
+            bvh_cpu::trace(&rs.geometry, bvh, r, time, opt, Default::default())
+        }
     };
     let closest = TraceOptions {
         query: Query::Closest,
@@ -129,8 +143,7 @@ pub fn render(rs: &RenderScene, plan: &Plan, trace_opt: &TraceOptions) -> CpuRen
                 let shaded: Vec<Shaded> = queue
                     .iter()
                     .map(|p| {
-                        let (h, _) =
-                            trace(&scene, &as_ray(p.o, p.tmin, p.d, p.tmax), p.time, &closest);
+                        let (h, _) = trace(&as_ray(p.o, p.tmin, p.d, p.tmax), p.time, &closest);
                         let mut s = shade(rs, plan, p, &h);
                         for sh in s.shadows.iter_mut() {
                             if sh.kind == SHADOW_NONE {
@@ -141,8 +154,7 @@ pub fn render(rs: &RenderScene, plan: &Plan, trace_opt: &TraceOptions) -> CpuRen
                             } else {
                                 counts.shadow += 1;
                             }
-                            let (o, _) =
-                                trace(&scene, &as_ray(sh.o, sh.tmin, sh.d, sh.tmax), p.time, &any);
+                            let (o, _) = trace(&as_ray(sh.o, sh.tmin, sh.d, sh.tmax), p.time, &any);
                             if o.is_hit() {
                                 sh.contrib = [0.0; 3];
                             }

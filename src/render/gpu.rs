@@ -14,7 +14,7 @@ use crate::trace::{Hit, Query, TraceOptions};
 
 use super::plan::Plan;
 use super::types::{counter, PathRay, ShadowRay};
-use super::{RayCounts, RenderScene};
+use super::{RayCounts, RenderAccel, RenderScene};
 
 const WG: u32 = 64;
 
@@ -105,11 +105,13 @@ impl Renderer {
             query: Query::Closest,
             ..opt
         })
+        .u32(20, plan.accel.spec())
         .workgroup(WG);
         let any = traversal_spec(&TraceOptions {
             query: Query::Any,
             ..opt
         })
+        .u32(20, plan.accel.spec())
         .workgroup(WG);
         let b = |v: bool| v as u32;
         let shade = Spec::new()
@@ -155,7 +157,10 @@ impl Renderer {
         let iota: Vec<u32> = (0..2 * cap as u32).collect();
         Ok(Frame {
             params: Buffer::from_slice(ctx, "render.params", &[rs.params])?,
-            geom: GpuGeometry::upload(ctx, &rs.geometry, &rs.tree)?,
+            geom: match &rs.accel {
+                RenderAccel::KdTree(tree) => GpuGeometry::upload(ctx, &rs.geometry, tree)?,
+                RenderAccel::Bvh(bvh) => GpuGeometry::upload_bvh(ctx, &rs.geometry, bvh)?,
+            },
             materials: Buffer::from_slice(ctx, "render.materials", &rs.materials)?,
             lights: Buffer::from_slice(ctx, "render.lights", &rs.lights)?,
             prim_material: Buffer::from_slice(ctx, "render.prim_material", &rs.prim_material)?,

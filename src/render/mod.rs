@@ -24,8 +24,10 @@ pub mod types;
 use glam::Vec3;
 use serde::Serialize;
 
+use crate::accel::bvh::Bvh;
 use crate::accel::kdtree::KdTree;
 use crate::scene::{Light, Scene};
+use crate::trace::gpu::AccelTraversal;
 use crate::trace::TraceGeometry;
 
 pub use plan::{Plan, RenderOptions};
@@ -68,10 +70,17 @@ impl RayCounts {
     }
 }
 
-/// The scene as the renderer reads it: geometry and kd-tree, materials, lights, constants.
+/// The structure a render traces: seed 001's kd-tree or seed 003's BVH.
+pub enum RenderAccel {
+    KdTree(KdTree),
+    Bvh(Bvh),
+}
+
+/// The scene as the renderer reads it: geometry and its structure, materials, lights,
+/// constants.
 pub struct RenderScene {
     pub geometry: TraceGeometry,
-    pub tree: KdTree,
+    pub accel: RenderAccel,
     /// Material of every primitive (triangles, then spheres).
     pub prim_material: Vec<u32>,
     /// Shading normals, 9 floats per triangle (zero when the mesh has none).
@@ -85,12 +94,12 @@ pub struct RenderScene {
 pub const MIN_WEIGHT: f32 = 1e-4;
 
 impl RenderScene {
-    /// Flattens `scene` for `plan`; `build` makes the kd-tree of the geometry (the GPU
-    /// builder in the renderer, any builder in tests).
+    /// Flattens `scene` for `plan`; `build` makes the structure of the geometry (the GPU
+    /// kd-tree builder or the CPU BVH builder in the renderer, any builder in tests).
     pub fn new<E>(
         scene: &Scene,
         plan: &Plan,
-        build: impl FnOnce(&TraceGeometry) -> Result<KdTree, E>,
+        build: impl FnOnce(&TraceGeometry) -> Result<RenderAccel, E>,
     ) -> Result<Self, E> {
         let cam = &scene.camera;
         let geometry = if plan.motion && cam.shutter_close > cam.shutter_open {
@@ -103,7 +112,7 @@ impl RenderScene {
         } else {
             cam.shutter_open
         };
-        let tree = build(&geometry)?;
+        let accel = build(&geometry)?;
         let mut prim_material = scene.triangle_materials();
         prim_material.extend(scene.spheres.iter().map(|s| s.material));
         let tri_normals = scene
@@ -177,7 +186,7 @@ impl RenderScene {
         };
         Ok(Self {
             geometry,
-            tree,
+            accel,
             prim_material,
             tri_normals,
             materials,
@@ -267,17 +276,33 @@ pub fn render_scene(
     mut progress: impl FnMut(u32, u32),
 ) -> Result<Rendered, Box<dyn std::error::Error + Send + Sync>> {
     let plan = Plan::new(scene, opt)?;
-    let mut build_profile = crate::gpu::Profile::default();
-    let rs = RenderScene::new(scene, &plan, |g| {
-        crate::trace::gpu::build_kdtree(ctx, g, &crate::accel::kdtree::SahParams::default()).map(
-            |(tree, p)| {
-                build_profile = p;
-                tree
-            },
-        )
-    })?;
-    let build_ms = build_profile.ms("kdtree.phase1").unwrap_or(0.0)
-        + build_profile.ms("kdtree.phase2").unwrap_or(0.0);
+    let mut build_ms = 0.0;
+    let rs = RenderScene::new(
+        scene,
+        &plan,
+        |g| -> Result<RenderAccel, Box<dyn std::error::Error + Send + Sync>> {
+            match plan.accel {
+                AccelTraversal::KdTree => {
+                    let params = crate::accel::kdtree::SahParams::default();
+                    let (tree, p) = crate::trace::gpu::build_kdtree(ctx, g, &params)?;
+                    build_ms =
+                        p.ms("kdtree.phase1").unwrap_or(0.0) + p.ms("kdtree.phase2").unwrap_or(0.0);
+                    Ok(RenderAccel::KdTree(tree))
+                }
+                AccelTraversal::Bvh(_) => {
+                    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+                    let start = std::time::Instant::now();
+                    let bvh = crate::accel::bvh::build(
+                        &g.boxes,
+                        &Default::default(),
+                        crate::accel::bvh::Threading::Queue { threads },
+                    )?;
+                    build_ms = start.elapsed().as_secs_f64() * 1e3;
+                    Ok(RenderAccel::Bvh(bvh))
+                }
+            }
+        },
+    )?;
     let renderer = gpu::Renderer::new(ctx, &plan, trace)?;
     let spp = plan.spp;
     let image = renderer.render(ctx, &rs, &plan, |done| progress(done, spp))?;

@@ -9,6 +9,8 @@ use std::fmt;
 
 use serde::Serialize;
 
+use crate::trace::gpu::AccelTraversal;
+
 use crate::scene::{Effects, Scene};
 
 /// What the caller asks for on top of the scene.
@@ -20,6 +22,8 @@ pub struct RenderOptions {
     /// Force every pass and shader branch on (for the plan's equality test and for
     /// measuring what the plan saves).
     pub all_effects: bool,
+    /// The structure the renderer traces and how it is walked.
+    pub accel: AccelTraversal,
 }
 
 /// Pixels × samples × bounce tree bounded by this many rays per wave (queue capacity).
@@ -32,6 +36,8 @@ pub struct Plan {
     /// The effects the scene calls for (`Scene::effects`).
     pub effects: Vec<&'static str>,
     pub all_effects: bool,
+    /// The structure traced and its walk (the `ACCEL_KIND` of the tracing kernels).
+    pub accel: AccelTraversal,
     pub width: u32,
     pub height: u32,
     pub spp: u32,
@@ -130,6 +136,7 @@ impl Plan {
         Ok(Self {
             effects: fx.names(),
             all_effects: all,
+            accel: opt.accel,
             width,
             height,
             spp,

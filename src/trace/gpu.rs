@@ -26,7 +26,8 @@ pub enum AccelTraversal {
 }
 
 impl AccelTraversal {
-    fn spec(self) -> u32 {
+    /// The `ACCEL_KIND` specialization constant (id 20) of kernels that trace.
+    pub fn spec(self) -> u32 {
         match self {
             AccelTraversal::KdTree => 0,
             AccelTraversal::Bvh(Traversal::Stack) => 1,
