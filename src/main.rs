@@ -35,14 +35,16 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
-    /// Build an acceleration structure on the GPU and report its time and quality.
+    /// Build an acceleration structure and report its time and quality.
     Build {
         /// Scene (.toml, .obj, seed-002 text); omit for the embedded default scene.
         scene: Option<PathBuf>,
-        /// The structure to build (kdtree: the SAH kd-tree of seed 001).
+        /// The structure to build: kdtree (seed 001's SAH kd-tree, on the GPU) or sah-bvh
+        /// (seed 003's SAH BVH, on the CPU's threads).
         #[arg(long, default_value = "kdtree")]
         accel: String,
-        /// Also build the CPU twin (must be equal) and the full-clipping CPU reference.
+        /// kd-tree: also build the CPU twin (must be equal) and the full-clipping CPU
+        /// reference; BVH: also build on one thread (must be equal).
         #[arg(long)]
         reference: bool,
         /// Seed 001's termination: no SAH leaf test, leaves below 64 primitives.
@@ -679,8 +681,13 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             json,
             profile,
         } => {
+            if accel == "sah-bvh" {
+                return bvh_build_command(&load_scene(&scene)?, reference, json);
+            }
             if accel != "kdtree" {
-                return Err(format!("unknown --accel `{accel}` (available: kdtree)").into());
+                return Err(
+                    format!("unknown --accel `{accel}` (available: kdtree, sah-bvh)").into(),
+                );
             }
             let scene = load_scene(&scene)?;
             let triangles = scene.triangles_world(0.0);
@@ -1051,6 +1058,71 @@ fn trace_command(
         if let Some(out) = out {
             println!("wrote {}", out.display());
         }
+    }
+    Ok(())
+}
+
+/// `vkrt build --accel sah-bvh`: seed 003's node-queue build on every core over the scene's
+/// primitives at the shutter-open time; with `reference`, also on one thread (must be equal).
+fn bvh_build_command(
+    scene: &vkrt::scene::Scene,
+    reference: bool,
+    json: bool,
+) -> Result<(), Box<dyn std::error::Error>> {
+    use vkrt::accel::bvh::{self, validate, BvhParams, Threading};
+    let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
+    let params = BvhParams::default();
+    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
+    let timed = |threading| -> Result<(bvh::Bvh, f64), bvh::BvhError> {
+        let start = std::time::Instant::now();
+        let t = bvh::build(&g.boxes, &params, threading)?;
+        Ok((t, start.elapsed().as_secs_f64() * 1e3))
+    };
+    let (tree, build_ms) = timed(Threading::Queue { threads })?;
+    validate::validate(&tree, &g.boxes).map_err(|e| format!("invalid BVH: {e}"))?;
+    let single = if reference {
+        Some(timed(Threading::Single)?)
+    } else {
+        None
+    };
+    let equal = single.as_ref().map(|(t, _)| *t == tree);
+    let report = serde_json::json!({
+        "kind": "sah_bvh",
+        "primitives": g.primitive_count(),
+        "build_ms": build_ms,
+        "threads": threads,
+        "scheme": "queue",
+        "params": params,
+        "nodes": tree.nodes.len(),
+        "leaves": tree.leaf_count(),
+        "max_depth": tree.depth(),
+        "sah_cost": validate::sah_cost(&tree, &params),
+        "references": tree.refs.len(),
+        "bytes": tree.bytes(),
+        "equal_to_single_thread": equal,
+        "single_thread_ms": single.as_ref().map(|(_, ms)| *ms),
+    });
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!(
+            "{} primitives: CPU build {build_ms:.2} ms on {threads} threads (node queue)",
+            g.primitive_count()
+        );
+        println!(
+            "{} nodes, {} leaves, depth {}, SAH cost {:.3}, {} bytes",
+            tree.nodes.len(),
+            tree.leaf_count(),
+            tree.depth(),
+            validate::sah_cost(&tree, &params),
+            tree.bytes()
+        );
+        if let (Some((_, ms)), Some(eq)) = (&single, equal) {
+            println!("one thread {ms:.1} ms, the same tree: {eq}");
+        }
+    }
+    if equal == Some(false) {
+        return Err("the multithreaded BVH differs from the single-threaded one".into());
     }
     Ok(())
 }

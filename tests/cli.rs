@@ -203,3 +203,36 @@ fn build_kdtree_reports_and_equals_its_twin() {
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("bvh"));
 }
+
+#[test]
+fn build_sah_bvh_reports_and_equals_its_single_thread_build() {
+    let house = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/house.obj");
+    let Some(out) = vkrt_ok(&[
+        "build",
+        house.to_str().unwrap(),
+        "--accel",
+        "sah-bvh",
+        "--reference",
+        "--json",
+    ]) else {
+        return;
+    };
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for key in [
+        "kind",
+        "primitives",
+        "build_ms",
+        "threads",
+        "nodes",
+        "leaves",
+        "max_depth",
+        "sah_cost",
+        "bytes",
+    ] {
+        assert!(v.get(key).is_some(), "missing {key} in {v}");
+    }
+    assert_eq!(v["kind"], "sah_bvh");
+    assert_eq!(v["equal_to_single_thread"], true);
+    let (nodes, leaves) = (v["nodes"].as_u64().unwrap(), v["leaves"].as_u64().unwrap());
+    assert!(leaves == nodes + 1 || (nodes, leaves) == (1, 1), "{v}");
+}
