@@ -981,14 +981,9 @@ fn trace_command(
             (gpu::GpuGeometry::upload(&ctx, &geometry, &tree)?, ms)
         }
         gpu::AccelTraversal::Bvh(_) => {
-            let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-            let start = std::time::Instant::now();
-            let bvh = vkrt::accel::bvh::build(
-                &geometry.boxes,
-                &Default::default(),
-                vkrt::accel::bvh::Threading::Queue { threads },
-            )?;
-            let ms = start.elapsed().as_secs_f64() * 1e3;
+            use vkrt::accel::bvh::{build_timed, Threading};
+            let (bvh, ms) =
+                build_timed(&geometry.boxes, &Default::default(), Threading::all_cores())?;
             (gpu::GpuGeometry::upload_bvh(&ctx, &geometry, &bvh)?, ms)
         }
     };
@@ -1072,13 +1067,12 @@ fn bvh_build_command(
     use vkrt::accel::bvh::{self, validate, BvhParams, Threading};
     let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
     let params = BvhParams::default();
-    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-    let timed = |threading| -> Result<(bvh::Bvh, f64), bvh::BvhError> {
-        let start = std::time::Instant::now();
-        let t = bvh::build(&g.boxes, &params, threading)?;
-        Ok((t, start.elapsed().as_secs_f64() * 1e3))
+    let all_cores = Threading::all_cores();
+    let Threading::Queue { threads } = all_cores else {
+        unreachable!("all_cores is the node queue")
     };
-    let (tree, build_ms) = timed(Threading::Queue { threads })?;
+    let timed = |threading| bvh::build_timed(&g.boxes, &params, threading);
+    let (tree, build_ms) = timed(all_cores)?;
     validate::validate(&tree, &g.boxes).map_err(|e| format!("invalid BVH: {e}"))?;
     let single = if reference {
         Some(timed(Threading::Single)?)

@@ -165,21 +165,28 @@ fn every_example_scene_loads() {
     assert!(count >= 10, "expected the example scenes, found {count}");
 }
 
-#[test]
-fn build_kdtree_reports_and_equals_its_twin() {
+/// `vkrt build HOUSE --accel ACCEL --reference --json`, its report checked for `keys`
+/// (`None` without a GPU).
+fn build_report(accel: &str, keys: &[&str]) -> Option<serde_json::Value> {
     let house = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/house.obj");
-    let Some(out) = vkrt_ok(&[
+    let out = vkrt_ok(&[
         "build",
         house.to_str().unwrap(),
         "--accel",
-        "kdtree",
+        accel,
         "--reference",
         "--json",
-    ]) else {
-        return;
-    };
+    ])?;
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    for key in [
+    for key in keys {
+        assert!(v.get(key).is_some(), "missing {key} in {v}");
+    }
+    Some(v)
+}
+
+#[test]
+fn build_kdtree_reports_and_equals_its_twin() {
+    let keys = [
         "primitives",
         "build_ms",
         "phases",
@@ -194,9 +201,10 @@ fn build_kdtree_reports_and_equals_its_twin() {
         "cpu_twin_ms",
         "full_clip_sah_cost",
         "full_clip_ms",
-    ] {
-        assert!(v.get(key).is_some(), "missing {key} in {v}");
-    }
+    ];
+    let Some(v) = build_report("kdtree", &keys) else {
+        return;
+    };
     assert_eq!(v["equal_to_cpu_twin"], true);
     assert!(v["build_ms"].as_f64().unwrap() > 0.0);
     let out = vkrt(&["build", "--accel", "bvh"]);
@@ -206,19 +214,7 @@ fn build_kdtree_reports_and_equals_its_twin() {
 
 #[test]
 fn build_sah_bvh_reports_and_equals_its_single_thread_build() {
-    let house = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/house.obj");
-    let Some(out) = vkrt_ok(&[
-        "build",
-        house.to_str().unwrap(),
-        "--accel",
-        "sah-bvh",
-        "--reference",
-        "--json",
-    ]) else {
-        return;
-    };
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    for key in [
+    let keys = [
         "kind",
         "primitives",
         "build_ms",
@@ -228,9 +224,10 @@ fn build_sah_bvh_reports_and_equals_its_single_thread_build() {
         "max_depth",
         "sah_cost",
         "bytes",
-    ] {
-        assert!(v.get(key).is_some(), "missing {key} in {v}");
-    }
+    ];
+    let Some(v) = build_report("sah-bvh", &keys) else {
+        return;
+    };
     assert_eq!(v["kind"], "sah_bvh");
     assert_eq!(v["equal_to_single_thread"], true);
     let (nodes, leaves) = (v["nodes"].as_u64().unwrap(), v["leaves"].as_u64().unwrap());

@@ -26,29 +26,11 @@ struct BvhNode {
 // The same binding as the kd-tree's nodes: one structure is bound at a time.
 layout(std430, binding = GEOM_BINDING + 0) readonly buffer BvhNodes { BvhNode bvh_nodes[]; };
 
-// Where the ray enters the box within [t0, t1], the slabs widened like the kd-tree's planes.
+// Where the ray enters the box within [t0, t1] (traverse.glsl's clip_to_box).
 bool bvh_enter(vec3 bmin, vec3 bmax, Ray r, vec3 inv_d, float t0, float t1, out float t_in) {
-    float lo_t = t0;
-    float hi_t = t1;
+    float hi = t1;
     t_in = t0;
-    for (uint a = 0u; a < 3u; a++) {
-        if (r.d[a] == 0.0) {
-            if (r.o[a] < bmin[a] || r.o[a] > bmax[a]) {
-                return false;
-            }
-            continue;
-        }
-        precise float ta = (bmin[a] - r.o[a]) * inv_d[a];
-        precise float tb = (bmax[a] - r.o[a]) * inv_d[a];
-        precise float lo = min(ta, tb);
-        precise float hi = max(ta, tb);
-        precise float lo_w = lo - abs(lo) * PLANE_SLACK;
-        precise float hi_w = hi + abs(hi) * PLANE_SLACK;
-        lo_t = max(lo_t, lo_w);
-        hi_t = min(hi_t, hi_w);
-    }
-    t_in = lo_t;
-    return lo_t <= hi_t;
+    return clip_to_box(bmin, bmax, r, inv_d, t_in, hi);
 }
 
 uint bvh_parent(uint node) {

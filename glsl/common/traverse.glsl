@@ -118,21 +118,22 @@ bool hit_primitive(uint prim, Ray r, Shear sh, float time, float tmin, float tma
     return hit_sphere(r.o, r.d, sphere_at(prim - scene_info.n_tris, time), tmin, tmax, t);
 }
 
-// Clips [t0, t1] to the scene box; false if the ray misses it. Axes the ray is parallel to
-// only test the origin (no 0 * inf); the slab bounds are widened by a few ulps (Ize 2013).
-bool clip_to_scene(Ray r, inout float t0, inout float t1) {
+// Clips [t0, t1] to the box [bmin, bmax]; false if the ray misses it. Axes the ray is
+// parallel to only test the origin (no 0 * inf); the slab bounds are widened by a few ulps
+// (Ize 2013). `inv_d` is 1 / r.d. The scene box of the kd-tree walk and every child box of
+// the BVH walk.
+bool clip_to_box(vec3 bmin, vec3 bmax, Ray r, vec3 inv_d, inout float t0, inout float t1) {
     for (uint a = 0u; a < 3u; a++) {
-        float lo_b = scene_info.bounds_min[a];
-        float hi_b = scene_info.bounds_max[a];
+        float lo_b = bmin[a];
+        float hi_b = bmax[a];
         if (r.d[a] == 0.0) {
             if (r.o[a] < lo_b || r.o[a] > hi_b) {
                 return false;
             }
             continue;
         }
-        precise float inv = 1.0 / r.d[a];
-        precise float ta = (lo_b - r.o[a]) * inv;
-        precise float tb = (hi_b - r.o[a]) * inv;
+        precise float ta = (lo_b - r.o[a]) * inv_d[a];
+        precise float tb = (hi_b - r.o[a]) * inv_d[a];
         precise float lo = min(ta, tb);
         precise float hi = max(ta, tb);
         precise float lo_w = lo - abs(lo) * PLANE_SLACK;
@@ -141,6 +142,11 @@ bool clip_to_scene(Ray r, inout float t0, inout float t1) {
         t1 = min(t1, hi_w);
     }
     return t0 <= t1;
+}
+
+bool clip_to_scene(Ray r, inout float t0, inout float t1) {
+    precise vec3 inv_d = vec3(1.0) / r.d;
+    return clip_to_box(scene_info.bounds_min.xyz, scene_info.bounds_max.xyz, r, inv_d, t0, t1);
 }
 
 // Tests a leaf's `count` references from `first` on against the ray up to `best_t`, keeping

@@ -290,14 +290,10 @@ pub fn render_scene(
                     Ok(RenderAccel::KdTree(tree))
                 }
                 AccelTraversal::Bvh(_) => {
-                    let threads = std::thread::available_parallelism().map_or(1, |n| n.get());
-                    let start = std::time::Instant::now();
-                    let bvh = crate::accel::bvh::build(
-                        &g.boxes,
-                        &Default::default(),
-                        crate::accel::bvh::Threading::Queue { threads },
-                    )?;
-                    build_ms = start.elapsed().as_secs_f64() * 1e3;
+                    use crate::accel::bvh::{build_timed, Threading};
+                    let (bvh, ms) =
+                        build_timed(&g.boxes, &Default::default(), Threading::all_cores())?;
+                    build_ms = ms;
                     Ok(RenderAccel::Bvh(bvh))
                 }
             }

@@ -5,7 +5,7 @@
 
 use glam::Vec3;
 
-use super::cpu::{hit_primitive, MAX_TRAVERSAL_STEPS, PLANE_SLACK};
+use super::cpu::{clip_to_box, hit_primitive, MAX_TRAVERSAL_STEPS};
 use super::geometry::TraceGeometry;
 use super::intersect::Shear;
 use super::{Hit, Query, Ray, TraceOptions};
@@ -23,24 +23,11 @@ pub enum Traversal {
     Bitstack,
 }
 
-/// Where the ray enters `b` within `[t0, t1]`, widened by the kd-tree's relative slack so
-/// rounding never skips a box the ray grazes; `None` when it misses.
+/// Where the ray enters `b` within `[t0, t1]` (the kd-tree walk's slab test); `None` when
+/// it misses.
 fn enter(b: &Aabb, o: Vec3, d: Vec3, inv_d: Vec3, t0: f32, t1: f32) -> Option<f32> {
     let (mut lo_t, mut hi_t) = (t0, t1);
-    for a in 0..3 {
-        if d[a] == 0.0 {
-            if o[a] < b.min[a] || o[a] > b.max[a] {
-                return None;
-            }
-            continue;
-        }
-        let ta = (b.min[a] - o[a]) * inv_d[a];
-        let tb = (b.max[a] - o[a]) * inv_d[a];
-        let (lo, hi) = (ta.min(tb), ta.max(tb));
-        lo_t = lo_t.max(lo - lo.abs() * PLANE_SLACK);
-        hi_t = hi_t.min(hi + hi.abs() * PLANE_SLACK);
-    }
-    (lo_t <= hi_t).then_some(lo_t)
+    clip_to_box(b, o, d, inv_d, &mut lo_t, &mut hi_t).then_some(lo_t)
 }
 
 struct Query1<'a> {

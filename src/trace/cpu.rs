@@ -7,6 +7,7 @@ use super::geometry::TraceGeometry;
 use super::intersect::{self, Shear, TriHit};
 use super::{Hit, Intersector, Query, Ray, TraceOptions};
 use crate::accel::kdtree::{KdTree, LEAF};
+use crate::scene::Aabb;
 
 /// `MAX_TRAVERSAL_STEPS` in `traverse.glsl`.
 pub const MAX_TRAVERSAL_STEPS: u32 = 60_000;
@@ -50,19 +51,27 @@ pub(crate) fn hit_primitive(
     }
 }
 
-fn clip_to_scene(r: &Ray, tree: &KdTree, t0: &mut f32, t1: &mut f32) -> bool {
-    let (o, d) = (r.o(), r.d());
+/// `clip_to_box` in `traverse.glsl`: clips `[t0, t1]` to box `b`, false if the ray misses
+/// it; parallel axes test only the origin, slabs are widened by [`PLANE_SLACK`]. `inv_d` is
+/// `1 / d`. The kd-tree walk's scene box and every child box of the BVH walk.
+pub(crate) fn clip_to_box(
+    b: &Aabb,
+    o: Vec3,
+    d: Vec3,
+    inv_d: Vec3,
+    t0: &mut f32,
+    t1: &mut f32,
+) -> bool {
     for a in 0..3 {
-        let (lo_b, hi_b) = (tree.bounds.min[a], tree.bounds.max[a]);
+        let (lo_b, hi_b) = (b.min[a], b.max[a]);
         if d[a] == 0.0 {
             if o[a] < lo_b || o[a] > hi_b {
                 return false;
             }
             continue;
         }
-        let inv = 1.0 / d[a];
-        let ta = (lo_b - o[a]) * inv;
-        let tb = (hi_b - o[a]) * inv;
+        let ta = (lo_b - o[a]) * inv_d[a];
+        let tb = (hi_b - o[a]) * inv_d[a];
         let (lo, hi) = (ta.min(tb), ta.max(tb));
         let lo_w = lo - lo.abs() * PLANE_SLACK;
         let hi_w = hi + hi.abs() * PLANE_SLACK;
@@ -70,6 +79,11 @@ fn clip_to_scene(r: &Ray, tree: &KdTree, t0: &mut f32, t1: &mut f32) -> bool {
         *t1 = t1.min(hi_w);
     }
     *t0 <= *t1
+}
+
+fn clip_to_scene(r: &Ray, tree: &KdTree, t0: &mut f32, t1: &mut f32) -> bool {
+    let d = r.d();
+    clip_to_box(&tree.bounds, r.o(), d, Vec3::ONE / d, t0, t1)
 }
 
 struct Entry {

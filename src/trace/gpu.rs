@@ -58,17 +58,8 @@ pub struct GpuGeometry {
 
 impl GpuGeometry {
     pub fn upload(ctx: &Context, g: &TraceGeometry, tree: &KdTree) -> Result<Self> {
-        Ok(Self {
-            nodes: Buffer::from_slice(ctx, "trace.nodes", words(&tree.nodes))?,
-            is_bvh: false,
-            prim_refs: Buffer::from_slice(ctx, "trace.prim_refs", &tree.prim_refs)?,
-            tri_verts: Buffer::from_slice(ctx, "trace.tri_verts", &g.tri_verts)?,
-            spheres: Buffer::from_slice(ctx, "trace.spheres", &g.spheres)?,
-            prim_motion: Buffer::from_slice(ctx, "trace.prim_motion", &g.prim_motion)?,
-            motions: Buffer::from_slice(ctx, "trace.motions", &g.motions)?,
-            info: Buffer::from_slice(ctx, "trace.info", &[g.info(&tree.bounds)])?,
-            primitives: g.primitive_count(),
-        })
+        let info = g.info(&tree.bounds);
+        Self::with_structure(ctx, g, words(&tree.nodes), &tree.prim_refs, info, false)
     }
 
     /// Geometry and a BVH built over `g`'s boxes.
@@ -79,10 +70,21 @@ impl GpuGeometry {
             parents_at: bvh.refs.len() as u32,
             ..g.info(&bvh.bounds)
         };
+        Self::with_structure(ctx, g, words(&bvh.nodes), &refs, info, true)
+    }
+
+    fn with_structure(
+        ctx: &Context,
+        g: &TraceGeometry,
+        nodes: &[u32],
+        refs: &[u32],
+        info: SceneInfo,
+        is_bvh: bool,
+    ) -> Result<Self> {
         Ok(Self {
-            nodes: Buffer::from_slice(ctx, "trace.bvh_nodes", words(&bvh.nodes))?,
-            is_bvh: true,
-            prim_refs: Buffer::from_slice(ctx, "trace.bvh_refs", &refs)?,
+            nodes: Buffer::from_slice(ctx, "trace.nodes", nodes)?,
+            is_bvh,
+            prim_refs: Buffer::from_slice(ctx, "trace.prim_refs", refs)?,
             tri_verts: Buffer::from_slice(ctx, "trace.tri_verts", &g.tri_verts)?,
             spheres: Buffer::from_slice(ctx, "trace.spheres", &g.spheres)?,
             prim_motion: Buffer::from_slice(ctx, "trace.prim_motion", &g.prim_motion)?,

@@ -1,10 +1,8 @@
 //! `vkrt bench bvh`: seed 003's build-time tables on this machine.
 
-use std::time::Instant;
-
 use glam::Vec3;
 
-use super::sah::{build, BvhError, BvhParams, Threading};
+use super::sah::{build_timed, BvhError, BvhParams, Threading};
 use super::validate::sah_cost;
 use crate::scene::Aabb;
 
@@ -33,6 +31,7 @@ pub fn bench(scenes: &[(String, Vec<[Vec3; 3]>)], reps: u32) -> Result<Vec<BvhBe
     thread_counts.dedup();
     let mut rows = Vec::new();
     for (name, tris) in scenes {
+        // Triangle boxes (accel sits below trace, whose TraceGeometry does the same).
         let boxes: Vec<Aabb> = tris
             .iter()
             .map(|t| Aabb {
@@ -58,9 +57,8 @@ pub fn bench(scenes: &[(String, Vec<[Vec3; 3]>)], reps: u32) -> Result<Vec<BvhBe
                 let mut best = f64::INFINITY;
                 let mut tree = None;
                 for _ in 0..reps.max(1) {
-                    let start = Instant::now();
-                    let t = build(&boxes, &params, threading)?;
-                    best = best.min(start.elapsed().as_secs_f64() * 1e3);
+                    let (t, ms) = build_timed(&boxes, &params, threading)?;
+                    best = best.min(ms);
                     tree = Some(t);
                 }
                 let tree = tree.expect("at least one repetition");

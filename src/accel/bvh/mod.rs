@@ -8,4 +8,4 @@ pub mod sah;
 pub mod validate;
 
 pub use layout::{Bvh, BvhNode, Child, NO_NODE};
-pub use sah::{build, BvhError, BvhParams, Threading};
+pub use sah::{build, build_timed, BvhError, BvhParams, Threading};

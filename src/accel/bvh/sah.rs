@@ -80,6 +80,14 @@ pub enum Threading {
 }
 
 impl Threading {
+    /// Seed 003's winner, the node queue, on every core of this machine: what the CLI and
+    /// the renderer build with.
+    pub fn all_cores() -> Self {
+        Threading::Queue {
+            threads: std::thread::available_parallelism().map_or(1, |n| n.get()),
+        }
+    }
+
     /// Every scheme at `threads` threads, for tests and benchmarks.
     pub fn all(threads: usize) -> [Threading; 5] {
         [
@@ -151,6 +159,17 @@ pub fn build(boxes: &[Aabb], params: &BvhParams, threading: Threading) -> Result
         Threading::Rayon => ctx.rayon(root),
     };
     Ok(flatten(&tree, bounds, std::mem::take(&mut order[0])))
+}
+
+/// [`build`] and its wall time in milliseconds.
+pub fn build_timed(
+    boxes: &[Aabb],
+    params: &BvhParams,
+    threading: Threading,
+) -> Result<(Bvh, f64), BvhError> {
+    let start = std::time::Instant::now();
+    let bvh = build(boxes, params, threading)?;
+    Ok((bvh, start.elapsed().as_secs_f64() * 1e3))
 }
 
 fn check(boxes: &[Aabb], p: &BvhParams) -> Result<(), BvhError> {
