@@ -424,8 +424,13 @@ fn render_command(
             "width": p.width,
             "height": p.height,
             "spp": p.spp,
+            "accel": p.accel,
             "build_ms": r.build_ms,
             "render_ms": r.render_ms,
+            "build_attempts": r.image.build_attempts,
+            "submits": r.image.traffic.submits,
+            "readback_bytes": r.image.readback_before_trace,
+            "readback_bytes_total": r.image.traffic.readback_bytes,
             "passes": r.passes,
             "effects": p.effects,
             "mrays_per_s": r.mrays_per_s(),
@@ -447,7 +452,11 @@ fn render_command(
             }
         );
         println!(
-            "kd-tree build {:.1} ms, render {:.1} ms, {:.2} Mrays/s",
+            "{} build {:.1} ms, render {:.1} ms, {:.2} Mrays/s",
+            match p.accel {
+                vkrt::trace::gpu::AccelTraversal::KdTree => "kd-tree",
+                vkrt::trace::gpu::AccelTraversal::Bvh(_) => "SAH BVH",
+            },
             r.build_ms,
             r.render_ms,
             r.mrays_per_s()
@@ -747,13 +756,16 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             } else {
                 SuiteSize::default()
             };
-            let cases = run_all(&ctx, &size, &vkrt::trace::Intersector::ALL)?;
+            let mut cases = Vec::new();
+            for accel in vkrt::trace::gpu::AccelTraversal::ALL {
+                cases.extend(run_all(&ctx, &size, &vkrt::trace::Intersector::ALL, accel)?);
+            }
             // Cost of NaN/Inf rays relative to valid rays into the same scene.
             let ratio = |name: &str| {
                 let ms = |case: &str| {
                     cases
                         .iter()
-                        .find(|c| c.case == case && c.intersector == name)
+                        .find(|c| c.case == case && c.intersector == name && c.accel == "kdtree")
                         .map(|c| c.trace_ms)
                 };
                 Some(ms("bad-rays/nan-inf-zero-inverted")? / ms("bad-rays/baseline-valid")?)
@@ -768,13 +780,21 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             } else {
                 println!("{}", ctx.info().device);
                 println!(
-                    "{:<52} {:<16} {:>9} {:>9} {:<13} {:>7} {:>10}",
-                    "case", "intersector", "rays", "failures", "(kind)", "errors", "trace ms"
+                    "{:<52} {:<17} {:<16} {:>9} {:>9} {:<13} {:>7} {:>10}",
+                    "case",
+                    "accel",
+                    "intersector",
+                    "rays",
+                    "failures",
+                    "(kind)",
+                    "errors",
+                    "trace ms"
                 );
                 for c in &cases {
                     println!(
-                        "{:<52} {:<16} {:>9} {:>9} {:<13} {:>7} {:>10.2}{}{}",
+                        "{:<52} {:<17} {:<16} {:>9} {:>9} {:<13} {:>7} {:>10.2}{}{}",
                         c.case,
+                        c.accel,
                         c.intersector,
                         c.rays,
                         c.failures,
@@ -968,27 +988,16 @@ fn trace_command(
     let scene = load_scene(&Some(scene_path.to_path_buf()))?;
     let geometry = TraceGeometry::at_time(&scene, scene.camera.shutter_open);
     let ctx = context(validate)?;
-    // kd-tree: GPU build time from timestamps; BVH: CPU wall time.
-    let (device, build_ms) = match accel {
-        gpu::AccelTraversal::KdTree => {
-            let (tree, profile) = gpu::build_kdtree(&ctx, &geometry, &Default::default())?;
-            let ms: f64 = profile
-                .passes
-                .iter()
-                .filter(|p| p.depth == 0)
-                .filter_map(|p| p.ms)
-                .sum();
-            (gpu::GpuGeometry::upload(&ctx, &geometry, &tree)?, ms)
-        }
-        gpu::AccelTraversal::Bvh(_) => {
-            use vkrt::accel::bvh::{build_timed, Threading};
-            let (bvh, ms) =
-                build_timed(&geometry.boxes, &Default::default(), Threading::all_cores())?;
-            (gpu::GpuGeometry::upload_bvh(&ctx, &geometry, &bvh)?, ms)
-        }
+    let kind = match accel {
+        gpu::AccelTraversal::KdTree => vkrt::accel::device::AccelKind::KdTree,
+        gpu::AccelTraversal::Bvh(_) => vkrt::accel::device::AccelKind::SahBvh,
     };
+    let builder = vkrt::accel::device::AccelBuilder::new(&ctx, kind)?;
     let tracer = gpu::Tracer::for_accel(&ctx, opt, accel)?;
-    let batch = tracer.trace_batched(&ctx, &device, &rays, 0.0, batch_rays)?;
+    // Upload, build and the first batch's trace in one submission; nothing read back
+    // between build and trace.
+    let done = gpu::build_and_trace(&ctx, &builder, &tracer, &geometry, &rays, 0.0, batch_rays)?;
+    let (batch, build_ms) = (done.batch, done.build_ms);
     // Invalid rays are answered as misses; say how many and why, never silently.
     let invalid = vkrt::trace::count_invalid(&rays);
     let n_invalid: usize = invalid.iter().sum();
@@ -1036,6 +1045,10 @@ fn trace_command(
             "exhausted": batch.exhausted,
             "accel": accel,
             "build_ms": build_ms,
+            "build_attempts": done.attempts,
+            "submits": done.traffic.submits,
+            "readback_bytes": done.readback_before_trace,
+            "readback_bytes_total": done.traffic.readback_bytes,
             "trace_ms": trace_ms,
             "mrays_per_s": mrays_per_s,
         });

@@ -139,6 +139,7 @@ fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
         keys,
         [
             "accel",
+            "build_attempts",
             "build_ms",
             "exhausted",
             "hits",
@@ -146,11 +147,28 @@ fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
             "invalid_by_reason",
             "mrays_per_s",
             "rays",
+            "readback_bytes",
+            "readback_bytes_total",
+            "submits",
             "trace_ms"
         ],
         "{v}"
     );
     assert_eq!(v["rays"], rays.len());
+    // Upload, build and the first batch's trace are one submission with nothing read back
+    // between build and trace; every further batch of 1000 rays is one more submission.
+    assert_eq!(v["build_attempts"], 1, "{v}");
+    assert_eq!(v["submits"], rays.len().div_ceil(1000), "{v}");
+    assert_eq!(v["readback_bytes"], 0, "{v}");
+    // What comes back: the hits and the error counters of each batch (and a kd-tree's
+    // 16-byte build report).
+    let batches = rays.len().div_ceil(1000) as u64;
+    let report = if v["accel"] == "kd_tree" { 16 } else { 0 };
+    assert_eq!(
+        v["readback_bytes_total"],
+        16 * rays.len() as u64 + 4 * batches + report,
+        "{v}"
+    );
     // rays_for's five invalid rays, by class; and a warning that says so.
     assert_eq!(v["invalid"], 5, "{v}");
     let by_reason = &v["invalid_by_reason"];

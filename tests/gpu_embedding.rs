@@ -5,8 +5,12 @@
 use std::sync::{Arc, Mutex};
 
 use ash::vk;
+use glam::Vec3;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
+use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::gpu::{kernels, Buffer, Context, DeviceFeatures, RawParts, Recorder, Spec};
+use vkrt::trace::gpu::{GpuGeometry, Tracer};
+use vkrt::trace::{cpu, Hit, Ray, TraceGeometry, TraceOptions};
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
@@ -176,6 +180,10 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
     let z = Buffer::from_slice(&ctx, "embed.z", &[5u32; 17]).unwrap();
     assert_eq!(z.download().unwrap(), vec![5u32; 17]);
 
+    for kind in AccelKind::ALL {
+        embedded_build_and_trace(&r, &ctx, kind);
+    }
+
     drop((x, y, z, kernel));
     drop(ctx);
 
@@ -211,4 +219,120 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
         r.device.destroy_device(None);
         r.instance.destroy_instance(None);
     }
+}
+
+/// The renderer records vkrt's upload, structure build and trace between its own commands
+/// into its own command buffer and submits it once: vkrt submits nothing, and the hits
+/// equal brute force.
+fn embedded_build_and_trace(r: &Renderer, ctx: &Context, kind: AccelKind) {
+    let sphere = vkrt::scene::gen::icosphere(3).unwrap();
+    let tris: Vec<[Vec3; 3]> = sphere
+        .indices
+        .iter()
+        .map(|t| t.map(|i| sphere.positions[i as usize]))
+        .collect();
+    let g = TraceGeometry::from_triangles(&tris);
+    let rays: Vec<Ray> = (0..500)
+        .map(|i| {
+            let a = i as f32 * 0.37;
+            let o = Vec3::new(a.cos(), a.sin(), (i as f32 * 0.11).sin()) * 3.0;
+            Ray::new(
+                o,
+                -o + Vec3::splat(0.01 * (i % 7) as f32),
+                0.0,
+                f32::INFINITY,
+            )
+        })
+        .collect();
+    let opt = TraceOptions::default();
+    let builder = AccelBuilder::new(ctx, kind).unwrap();
+    let tracer = Tracer::for_accel(ctx, &opt, kind.walked(Default::default())).unwrap();
+    let sizes = builder.sizes(ctx, g.primitive_count(), 0);
+    assert!(sizes.structure_bytes > 0);
+    let ray_buf = Buffer::<Ray>::new(ctx, "embed.rays", rays.len()).unwrap();
+    let hits = Buffer::<Hit>::new(ctx, "embed.hits", rays.len()).unwrap();
+    let errors = Buffer::<u32>::new(ctx, "embed.errors", 1).unwrap();
+    let before = ctx.traffic();
+    // SAFETY: plain Vulkan on the renderer's valid device.
+    let (pool, cmd) = unsafe {
+        let pool = r
+            .device
+            .create_command_pool(
+                &vk::CommandPoolCreateInfo::default().queue_family_index(r.family),
+                None,
+            )
+            .unwrap();
+        let cmd = r
+            .device
+            .allocate_command_buffers(
+                &vk::CommandBufferAllocateInfo::default()
+                    .command_pool(pool)
+                    .command_buffer_count(1),
+            )
+            .unwrap()[0];
+        r.device
+            .begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
+            .unwrap();
+        (pool, cmd)
+    };
+    // SAFETY: `cmd` is recording, of the context's family; everything bound outlives its
+    // execution (the geometry below is dropped after the fence wait); `complete` follows it.
+    let mut rec = unsafe { Recorder::from_raw(ctx, cmd, 4096) }.unwrap();
+    rec.upload(&ray_buf, &rays).unwrap();
+    rec.fill(&errors, 0);
+    let (geom, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
+    rec.scope("embedded.trace", |rec| {
+        tracer.record(rec, &geom, &ray_buf, &hits, &errors, rays.len(), 0.0)
+    });
+    rec.compute_to_transfer();
+    let work = rec.finish();
+    assert_eq!(
+        (ctx.traffic() - before).submits,
+        0,
+        "vkrt submitted on its own"
+    );
+    // SAFETY: the renderer ends, submits and waits for its own command buffer.
+    unsafe {
+        r.device.end_command_buffer(cmd).unwrap();
+        let fence = r
+            .device
+            .create_fence(&vk::FenceCreateInfo::default(), None)
+            .unwrap();
+        let cmds = [cmd];
+        r.device
+            .queue_submit(
+                r.queue,
+                &[vk::SubmitInfo::default().command_buffers(&cmds)],
+                fence,
+            )
+            .unwrap();
+        r.device.wait_for_fences(&[fence], true, u64::MAX).unwrap();
+        r.device.destroy_fence(fence, None);
+    }
+    // SAFETY: the command buffer has finished executing.
+    let profile = unsafe { work.complete() }.unwrap();
+    assert!(profile.passes.iter().any(|p| p.name == "embedded.trace"));
+    if kind == AccelKind::KdTree {
+        assert!(profile.passes.iter().any(|p| p.name == "kdtree.phase2"));
+    }
+    let got = hits.download().unwrap();
+    assert_eq!(errors.download().unwrap(), [0]);
+    let mut n_hits = 0;
+    for (ray, h) in rays.iter().zip(&got) {
+        let b = cpu::brute_force(&g, ray, 0.0, &opt);
+        assert_eq!(h.is_hit(), b.is_hit(), "{kind:?} {ray:?}");
+        if h.is_hit() {
+            n_hits += 1;
+            assert!(
+                (h.t - b.t).abs() <= 1e-5 * b.t,
+                "{kind:?}: t {} vs {}",
+                h.t,
+                b.t
+            );
+        }
+    }
+    assert!(n_hits > 400, "{kind:?}: {n_hits} hits");
+    drop(geom);
+    // SAFETY: the pool's command buffer has executed.
+    unsafe { r.device.destroy_command_pool(pool, None) };
 }

@@ -262,3 +262,45 @@ fn the_bvh_renders_the_kdtree_image() {
         }
     }
 }
+
+/// The renderer builds the structure on the device in its first submission (what `vkrt
+/// render` does): the image equals the one rendered from the host-built twin, byte for byte,
+/// for every structure and walk; nothing is read back before the first rays are traced; and
+/// the CPU twin, building the same structure on the host, counts the same rays.
+#[test]
+fn structures_built_on_the_device_render_the_host_twins_image() {
+    use vkrt::accel::device::AccelKind;
+    use vkrt::trace::gpu::AccelTraversal;
+    let Some(ctx) = context() else { return };
+    for (file, spp) in [("motion_blur.toml", 2), ("mesh_file.toml", 1)] {
+        let scene = scene_file(file);
+        let (plan, rs) = prepare(&scene, &small(spp));
+        let host = gpu_render(&ctx, &plan, &rs);
+        for accel in AccelTraversal::ALL {
+            let kind = match accel {
+                AccelTraversal::KdTree => AccelKind::KdTree,
+                AccelTraversal::Bvh(_) => AccelKind::SahBvh,
+            };
+            let opt = RenderOptions {
+                accel,
+                ..small(spp)
+            };
+            let plan = Plan::new(&scene, &opt).unwrap();
+            let rs = RenderScene::new(&scene, &plan, |_| Ok::<_, ()>(RenderAccel::OnDevice(kind)))
+                .unwrap();
+            let d = gpu_render(&ctx, &plan, &rs);
+            let what = format!("{file} on {}", accel.label());
+            assert!(d.rgba == host.rgba, "{what}: the image differs");
+            assert_eq!(d.counts, host.counts, "{what}");
+            assert_eq!(d.readback_before_trace, 0, "{what}");
+            assert!(d.build_ms.is_some_and(|ms| ms > 0.0), "{what}");
+            // One submission per sample (the first also uploads and builds; it is redone
+            // when a kd-tree build ran out of references), the tone map, and the three
+            // read-backs of the result.
+            let redone = u64::from(d.build_attempts - 1);
+            assert_eq!(d.traffic.submits, u64::from(spp) + 4 + redone, "{what}");
+            let twin = cpu::render(&rs, &plan, &TraceOptions::default());
+            assert_eq!(twin.counts, d.counts, "{what}: CPU twin ray counts");
+        }
+    }
+}

@@ -1,24 +1,33 @@
-//! The robustness suite (issue 7) through the public API: GPU-built kd-tree, GPU tracer,
-//! default (watertight) intersector, validation on. Every case must report 0 failures; the
+//! The robustness suite (issue 7) through the public API, on every structure and walk
+//! (the kd-tree, the SAH BVH with a stack and with the bitstack), each built on the device
+//! as `vkrt trace` builds it: GPU tracer, default (watertight) intersector, validation on.
+//! Every case must report 0 failures on every structure; the
 //! cases and what a failure is are documented in `vkrt::trace::robust`. `vkrt bench
 //! robustness` runs the same cases for both intersectors.
 
 mod common;
 
 use common::{assert_silent, context};
+use vkrt::trace::gpu::AccelTraversal;
 use vkrt::trace::robust::{run_group, CaseResult, Group, SuiteSize};
 use vkrt::trace::Intersector;
 
 fn check(group: Group, size: SuiteSize) {
     let Some(ctx) = context() else { return };
     let start = std::time::Instant::now();
-    let results: Vec<CaseResult> = run_group(&ctx, group, &size, &[Intersector::Watertight])
-        .unwrap_or_else(|e| panic!("{group:?}: {e}"));
+    let mut results: Vec<CaseResult> = Vec::new();
+    for accel in AccelTraversal::ALL {
+        results.extend(
+            run_group(&ctx, group, &size, &[Intersector::Watertight], accel)
+                .unwrap_or_else(|e| panic!("{group:?} on {}: {e}", accel.label())),
+        );
+    }
     assert!(!results.is_empty());
     for r in &results {
         eprintln!(
-            "{:<52} {:>8} rays {:>6} {} ({} errors) {:>9.2} ms {}{}",
+            "{:<52} {:<17} {:>8} rays {:>6} {} ({} errors) {:>9.2} ms {}{}",
             r.case,
+            r.accel,
             r.rays,
             r.failures,
             r.failure_kind,
@@ -33,12 +42,12 @@ fn check(group: Group, size: SuiteSize) {
     }
     eprintln!("{group:?}: {:.1} s", start.elapsed().as_secs_f64());
     for r in &results {
-        assert!(r.rays > 0, "{}: no rays", r.case);
+        assert!(r.rays > 0, "{} on {}: no rays", r.case, r.accel);
         // Known limitations are reported (vkrt bench robustness), and must not be errors.
         if r.known_limit {
-            assert_eq!(r.errors, 0, "{}: {r:?}", r.case);
+            assert_eq!(r.errors, 0, "{} on {}: {r:?}", r.case, r.accel);
         } else {
-            assert_eq!(r.failures, 0, "{}: {r:?}", r.case);
+            assert_eq!(r.failures, 0, "{} on {}: {r:?}", r.case, r.accel);
         }
     }
     assert_silent(&ctx);

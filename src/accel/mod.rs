@@ -5,4 +5,5 @@
 #![forbid(unsafe_code)]
 
 pub mod bvh;
+pub mod device;
 pub mod kdtree;

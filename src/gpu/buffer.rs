@@ -251,6 +251,12 @@ impl<T: Pod> Buffer<T> {
         }
         if self.memory != Memory::Device {
             let bytes = &self.mapped_bytes()[..self.byte_len() as usize];
+            if self.memory == Memory::Readback {
+                self.ctx
+                    .inner
+                    .readback_bytes
+                    .fetch_add(self.byte_len(), std::sync::atomic::Ordering::Relaxed);
+            }
             return Ok(bytemuck::pod_collect_to_vec(bytes));
         }
         let staging =
@@ -270,7 +276,7 @@ impl<T: Pod> Buffer<T> {
             .unwrap_or_else(|| super::error::usage_error("host access to device memory"))
     }
 
-    fn write_mapped(&self, bytes: &[u8]) {
+    pub(crate) fn write_mapped(&self, bytes: &[u8]) {
         let allocation = self.allocation.as_ref().expect("buffer is alive");
         let ptr = allocation
             .mapped_ptr()

@@ -7,6 +7,7 @@
 use std::collections::HashMap;
 use std::ffi::{c_char, CStr};
 use std::mem::ManuallyDrop;
+use std::sync::atomic::{AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use ash::vk;
@@ -61,6 +62,25 @@ pub struct Context {
     pub(crate) inner: Arc<Inner>,
 }
 
+/// What host–device traffic vkrt caused: see [`Context::traffic`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct Traffic {
+    /// `vkQueueSubmit` calls (each of vkrt's submissions has one command buffer).
+    pub submits: u64,
+    /// Bytes copied from device buffers into host memory and read there.
+    pub readback_bytes: u64,
+}
+
+impl std::ops::Sub for Traffic {
+    type Output = Traffic;
+    fn sub(self, earlier: Traffic) -> Traffic {
+        Traffic {
+            submits: self.submits - earlier.submits,
+            readback_bytes: self.readback_bytes - earlier.readback_bytes,
+        }
+    }
+}
+
 pub(crate) struct Inner {
     pub(crate) entry: ash::Entry,
     pub(crate) instance: ash::Instance,
@@ -73,6 +93,9 @@ pub(crate) struct Inner {
     pub(crate) debug_utils: Option<ash::ext::debug_utils::Device>,
     pub(crate) pipeline_cache: vk::PipelineCache,
     pub(crate) kernels: Mutex<HashMap<KernelKey, Arc<Kernel>>>,
+    /// Queue submissions and bytes read back to the host so far ([`Context::traffic`]).
+    pub(crate) submits: AtomicU64,
+    pub(crate) readback_bytes: AtomicU64,
     messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     sink: Box<MessageSink>,
     owns_device: bool,
@@ -204,11 +227,22 @@ impl Context {
                 debug_utils,
                 pipeline_cache,
                 kernels: Mutex::new(HashMap::new()),
+                submits: AtomicU64::new(0),
+                readback_bytes: AtomicU64::new(0),
                 messenger,
                 sink,
                 owns_device,
             }),
         })
+    }
+
+    /// Queue submissions vkrt made and bytes it read back to the host through this context
+    /// so far; the difference of two readings is what the work between them cost.
+    pub fn traffic(&self) -> Traffic {
+        Traffic {
+            submits: self.inner.submits.load(Ordering::Relaxed),
+            readback_bytes: self.inner.readback_bytes.load(Ordering::Relaxed),
+        }
     }
 
     /// What the device is and what it can do.

@@ -26,13 +26,13 @@ mod validation;
 
 pub use ash::vk;
 pub use buffer::{Buffer, BufferArg, Memory, RawBuffer};
-pub use context::{Context, ContextOptions, RawParts};
+pub use context::{Context, ContextOptions, RawParts, Traffic};
 pub use error::{GpuError, Result};
 pub use info::{DeviceFeatures, DeviceInfo};
 pub use kernel::{Kernel, Spec, PUSH_CONSTANT_BYTES};
 pub use profiler::{
     capture as capture_profiles, write_atomically, PassTime, Profile, DEFAULT_QUERY_CAPACITY,
 };
-pub use recorder::{RecordedWork, Recorder};
+pub use recorder::{Readback, RecordedWork, Recorder};
 pub use shader::{find as find_kernel, kernels, ShaderBlob};
 pub use validation::{Validation, ValidationMessage};

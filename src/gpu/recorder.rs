@@ -8,7 +8,7 @@
 use ash::vk;
 use bytemuck::Pod;
 
-use super::buffer::{Buffer, BufferArg};
+use super::buffer::{Buffer, BufferArg, Memory};
 use super::context::Context;
 use super::error::{usage_error, vk_err, GpuError, Result};
 use super::kernel::{Kernel, PUSH_CONSTANT_BYTES};
@@ -27,6 +27,22 @@ pub struct Recorder {
     command_pool: Option<vk::CommandPool>,
     descriptor_pools: Vec<vk::DescriptorPool>,
     scopes: ScopeRecorder,
+    /// Staging buffers of recorded uploads, alive until the work has executed.
+    staging: Vec<Box<dyn std::any::Any>>,
+}
+
+/// A copy of a device buffer into host memory, recorded by [`Recorder::read_back`]; read it
+/// once the recorder's work has executed.
+pub struct Readback<T: Pod> {
+    staging: Buffer<T>,
+}
+
+impl<T: Pod> Readback<T> {
+    /// The copied elements. Call only after the recording submission has completed
+    /// ([`Recorder::submit_and_wait`] returned, or the caller waited for its command buffer).
+    pub fn read(self) -> Result<Vec<T>> {
+        self.staging.download()
+    }
 }
 
 /// Work recorded into a caller-owned command buffer, holding what that command buffer
@@ -104,6 +120,7 @@ impl Recorder {
             command_pool,
             descriptor_pools: Vec::new(),
             scopes: ScopeRecorder::new(query_pool, queries),
+            staging: Vec::new(),
         })
     }
 
@@ -363,6 +380,46 @@ impl Recorder {
         };
     }
 
+    /// Records the upload of `data` into the start of `dst` (a transfer write, through a
+    /// staging buffer this recorder keeps until its work has executed). Order it before
+    /// kernels read `dst` with [`Recorder::transfer_to_compute`].
+    pub fn upload<T: Pod>(&mut self, dst: &Buffer<T>, data: &[T]) -> Result<()> {
+        if data.len() > dst.len() {
+            usage_error(&format!(
+                "upload of {} elements into `{}` of {}",
+                data.len(),
+                dst.name(),
+                dst.len()
+            ));
+        }
+        if data.is_empty() {
+            return Ok(());
+        }
+        let staging =
+            Buffer::<T>::with_memory(&self.ctx, "staging.upload", data.len(), Memory::Upload)?;
+        staging.write_mapped(bytemuck::cast_slice(data));
+        self.copy(&staging, dst, data.len());
+        self.staging.push(Box::new(staging));
+        Ok(())
+    }
+
+    /// Keeps `value` (e.g. a build's scratch buffers) alive until this recorder's work has
+    /// executed and the recorder is dropped.
+    pub fn keep_alive<T: 'static>(&mut self, value: T) {
+        self.staging.push(Box::new(value));
+    }
+
+    /// Records a copy of the whole of `src` into host-visible memory, read with
+    /// [`Readback::read`] after the work executed. Order the writes of `src` before with
+    /// [`Recorder::compute_to_transfer`], and the copy before the host read with
+    /// [`Recorder::transfer_to_host`].
+    pub fn read_back<T: Pod>(&mut self, src: &Buffer<T>) -> Result<Readback<T>> {
+        let staging =
+            Buffer::<T>::with_memory(&self.ctx, "staging.readback", src.len(), Memory::Readback)?;
+        self.copy(src, &staging, src.len());
+        Ok(Readback { staging })
+    }
+
     fn memory_barrier(
         &mut self,
         src: (vk::PipelineStageFlags, vk::AccessFlags),
@@ -485,6 +542,10 @@ impl Recorder {
             .map_err(vk_err("vkCreateFence"))?;
         let cmds = [self.cmd];
         let submit = [vk::SubmitInfo::default().command_buffers(&cmds)];
+        self.ctx
+            .inner
+            .submits
+            .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let result = {
             let queue = self.ctx.inner.queue.lock().unwrap();
             // SAFETY: the queue is externally synchronised by the lock; the command buffer is

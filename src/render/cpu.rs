@@ -7,9 +7,11 @@ use glam::{Vec3, Vec4};
 use super::plan::Plan;
 use super::types::*;
 use super::{RayCounts, RenderAccel, RenderScene};
+use crate::accel::bvh::Threading;
+use crate::accel::device::AccelKind;
 use crate::trace::bvh_cpu;
 use crate::trace::cpu::{self, TraceScene};
-use crate::trace::geometry::NO_MOTION;
+use crate::trace::geometry::{TraceGeometry, NO_MOTION};
 use crate::trace::gpu::AccelTraversal;
 use crate::trace::intersect::offset_ray_origin;
 use crate::trace::{Hit, Query, Ray, TraceOptions};
@@ -98,13 +100,34 @@ struct Shaded {
     children: [Option<PathRay>; 2],
 }
 
+/// The host build of the structure the GPU renderer builds on the device for `kind`.
+fn host_twin(kind: AccelKind, g: &TraceGeometry) -> RenderAccel {
+    match kind {
+        AccelKind::KdTree => {
+            let params = crate::accel::kdtree::SahParams::default();
+            RenderAccel::KdTree(crate::accel::kdtree::seed001::build_boxes(&g.boxes, &params).0)
+        }
+        AccelKind::SahBvh => RenderAccel::Bvh(
+            crate::accel::bvh::build(&g.boxes, &Default::default(), Threading::all_cores())
+                .expect("the scene's boxes are finite"),
+        ),
+    }
+}
+
 pub fn render(rs: &RenderScene, plan: &Plan, trace_opt: &TraceOptions) -> CpuRender {
     let prm = &rs.params;
     let n_pixels = (prm.width * prm.height) as usize;
     let mut accum = vec![Vec3::ZERO; n_pixels];
     let mut counts = RayCounts::default();
+    // A structure the GPU builds on the device: its CPU twin builds the same one here
+    // (seed 001's CPU build is bit-exact with the GPU's; the SAH BVH is deterministic).
+    let host = match &rs.accel {
+        RenderAccel::OnDevice(kind) => Some(host_twin(*kind, &rs.geometry)),
+        _ => None,
+    };
+    let accel = host.as_ref().unwrap_or(&rs.accel);
     // The structure's CPU twin walk, as the plan's kernels walk it.
-    let trace = |r: &Ray, time: f32, opt: &TraceOptions| match (&rs.accel, plan.accel) {
+    let trace = |r: &Ray, time: f32, opt: &TraceOptions| match (accel, plan.accel) {
         (RenderAccel::KdTree(tree), _) => {
             let scene = TraceScene {
                 geometry: &rs.geometry,
@@ -118,6 +141,7 @@ pub fn render(rs: &RenderScene, plan: &Plan, trace_opt: &TraceOptions) -> CpuRen
         (RenderAccel::Bvh(bvh), AccelTraversal::KdTree) => {
             bvh_cpu::trace(&rs.geometry, bvh, r, time, opt, Default::default())
         }
+        (RenderAccel::OnDevice(_), _) => unreachable!("resolved to its host twin above"),
     };
     let closest = TraceOptions {
         query: Query::Closest,

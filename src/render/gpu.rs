@@ -5,7 +5,10 @@
 
 use std::sync::Arc;
 
-use crate::gpu::{kernels, Buffer, BufferArg, Context, Kernel, Profile, Recorder, Result, Spec};
+use crate::accel::device::{AccelBuilder, AccelStructure, RecordedBuild};
+use crate::gpu::{
+    kernels, Buffer, BufferArg, Context, Kernel, Profile, Recorder, Result, Spec, Traffic,
+};
 use crate::prims::compact::{Compact, CompactScratch};
 use crate::prims::scan::GpuCount;
 use crate::prims::PrimConfig;
@@ -86,6 +89,25 @@ pub struct GpuRender {
     pub profile: Profile,
     /// Samples redone with smaller waves after a queue overflow.
     pub redone_samples: u32,
+    /// Milliseconds of a structure built on the device ([`RenderAccel::OnDevice`]): the GPU
+    /// passes, or a host builder's time.
+    pub build_ms: Option<f64>,
+    /// Submissions and read-backs of the whole render, build included.
+    pub traffic: Traffic,
+    /// Builds on the device: 1, plus one per kd-tree build that ran out of its reference
+    /// budget (its sample is redone after a build with twice the budget).
+    pub build_attempts: u32,
+    /// Bytes read back before the first rays were traced (0: the build, the uploads and the
+    /// first sample are one submission).
+    pub readback_before_trace: u64,
+}
+
+/// Records the undo of a sample: `accum` and `counters` as they were before it.
+fn restore(rec: &mut Recorder, f: &Frame, pixels: u32) {
+    rec.compute_to_transfer();
+    rec.copy(&f.accum_before, &f.accum, pixels as usize);
+    rec.copy(&f.counters_before, &f.counters, counter::WORDS);
+    rec.transfer_to_transfer();
 }
 
 /// A kernel's bindings: `head`, then the geometry buffers `traverse.glsl` declares, then
@@ -150,35 +172,76 @@ impl Renderer {
         })
     }
 
-    fn frame(&self, ctx: &Context, rs: &RenderScene, plan: &Plan) -> Result<Frame> {
+    /// The render's buffers, their contents uploaded by commands recorded into `rec`.
+    fn frame(
+        &self,
+        rec: &mut Recorder,
+        rs: &RenderScene,
+        plan: &Plan,
+        geom: GpuGeometry,
+    ) -> Result<Frame> {
+        let ctx = &rec.context().clone();
         let cap = plan.queue_capacity;
         let slots = plan.shadow_slots as usize;
         let pixels = plan.width as usize * plan.height as usize;
         let iota: Vec<u32> = (0..2 * cap as u32).collect();
-        Ok(Frame {
-            params: Buffer::from_slice(ctx, "render.params", &[rs.params])?,
-            geom: match &rs.accel {
-                RenderAccel::KdTree(tree) => GpuGeometry::upload(ctx, &rs.geometry, tree)?,
-                RenderAccel::Bvh(bvh) => GpuGeometry::upload_bvh(ctx, &rs.geometry, bvh)?,
-            },
-            materials: Buffer::from_slice(ctx, "render.materials", &rs.materials)?,
-            lights: Buffer::from_slice(ctx, "render.lights", &rs.lights)?,
-            prim_material: Buffer::from_slice(ctx, "render.prim_material", &rs.prim_material)?,
-            tri_normals: Buffer::from_slice(ctx, "render.tri_normals", &rs.tri_normals)?,
+        let f = Frame {
+            params: Buffer::new(ctx, "render.params", 1)?,
+            geom,
+            materials: Buffer::new(ctx, "render.materials", rs.materials.len())?,
+            lights: Buffer::new(ctx, "render.lights", rs.lights.len())?,
+            prim_material: Buffer::new(ctx, "render.prim_material", rs.prim_material.len())?,
+            tri_normals: Buffer::new(ctx, "render.tri_normals", rs.tri_normals.len())?,
             queue: Buffer::new(ctx, "render.queue", cap)?,
             hits: Buffer::new(ctx, "render.hits", cap)?,
             radiance: Buffer::new(ctx, "render.radiance", cap)?,
             shadows: Buffer::new(ctx, "render.shadows", (cap * slots).max(1))?,
             children: Buffer::new(ctx, "render.children", 2 * cap)?,
-            flags: Buffer::zeroed(ctx, "render.flags", 2 * cap)?,
-            iota: Buffer::from_slice(ctx, "render.iota", &iota)?,
+            flags: Buffer::new(ctx, "render.flags", 2 * cap)?,
+            iota: Buffer::new(ctx, "render.iota", iota.len())?,
             live: Buffer::new(ctx, "render.live", 2 * cap)?,
             compact: self.compact.scratch(ctx, 2 * cap)?,
-            counters: Buffer::zeroed(ctx, "render.counters", counter::WORDS)?,
-            accum: Buffer::zeroed(ctx, "render.accum", pixels)?,
+            counters: Buffer::new(ctx, "render.counters", counter::WORDS)?,
+            accum: Buffer::new(ctx, "render.accum", pixels)?,
             accum_before: Buffer::new(ctx, "render.accum_before", pixels)?,
             counters_before: Buffer::new(ctx, "render.counters_before", counter::WORDS)?,
             pixels: Buffer::new(ctx, "render.pixels", pixels)?,
+        };
+        rec.upload(&f.params, &[rs.params])?;
+        rec.upload(&f.materials, &rs.materials)?;
+        rec.upload(&f.lights, &rs.lights)?;
+        rec.upload(&f.prim_material, &rs.prim_material)?;
+        rec.upload(&f.tri_normals, &rs.tri_normals)?;
+        rec.upload(&f.iota, &iota)?;
+        rec.fill(&f.flags, 0);
+        rec.fill(&f.counters, 0);
+        rec.fill(&f.accum, 0);
+        // The first sample copies `accum` and `counters` (a transfer) before its kernels.
+        rec.transfer_to_transfer();
+        rec.transfer_to_compute();
+        Ok(f)
+    }
+
+    /// The geometry and its structure on the device, and the recorder of the first
+    /// submission: a structure built on the device ([`RenderAccel::OnDevice`]) is recorded
+    /// into it, so it is built and traced in one submission with nothing read back between;
+    /// a host structure is uploaded.
+    fn geometry(
+        &self,
+        ctx: &Context,
+        rs: &RenderScene,
+        grow: u32,
+    ) -> Result<(GpuGeometry, Recorder, Option<RecordedBuild>)> {
+        let mut rec = Recorder::new(ctx)?;
+        Ok(match &rs.accel {
+            RenderAccel::KdTree(tree) => (GpuGeometry::upload(ctx, &rs.geometry, tree)?, rec, None),
+            RenderAccel::Bvh(bvh) => (GpuGeometry::upload_bvh(ctx, &rs.geometry, bvh)?, rec, None),
+            RenderAccel::OnDevice(kind) => {
+                let builder = AccelBuilder::new(ctx, *kind)?;
+                let (geom, recorded) =
+                    GpuGeometry::record_build(&mut rec, &builder, &rs.geometry, grow)?;
+                (geom, rec, Some(recorded))
+            }
         })
     }
 
@@ -190,14 +253,28 @@ impl Renderer {
         plan: &Plan,
         mut progress: impl FnMut(u32),
     ) -> Result<GpuRender> {
-        let f = self.frame(ctx, rs, plan)?;
+        let start = ctx.traffic();
+        let mut grow = 0;
+        let (geom, first, mut recorded) = self.geometry(ctx, rs, grow)?;
+        let mut pending = Some(first);
+        let mut f = self.frame(
+            pending.as_mut().expect("the first recorder"),
+            rs,
+            plan,
+            geom,
+        )?;
+        let readback_before_trace = ctx.traffic().readback_bytes - start.readback_bytes;
+        let mut build_ms = None;
         let mut profile = Profile::default();
         let pixels = plan.width * plan.height;
         let mut wave_pixels = plan.wave_pixels;
         let mut redone_samples = 0;
         let mut sample = 0;
         while sample < plan.spp {
-            let mut rec = Recorder::new(ctx)?;
+            let mut rec = match pending.take() {
+                Some(rec) => rec,
+                None => Recorder::new(ctx)?,
+            };
             rec.compute_to_transfer();
             rec.copy(&f.accum, &f.accum_before, pixels as usize);
             rec.copy(&f.counters, &f.counters_before, counter::WORDS);
@@ -208,9 +285,38 @@ impl Renderer {
                 }
             });
             rec.compute_to_transfer();
-            rec.compute_to_host();
+            let built = match build_ms {
+                None => f.geom.accel.record_read_built(&mut rec)?,
+                Some(_) => None,
+            };
+            let counters = rec.read_back(&f.counters)?;
+            rec.transfer_to_host();
             let p = rec.submit_and_wait()?;
-            if f.counters.download()?[counter::OVERFLOW] != 0 {
+            if let Some(b) = built {
+                if AccelStructure::kd_built(&b.read()?).overflow {
+                    // The kd-tree ran out of references: every ray of the sample missed.
+                    // Undo the sample and build again with twice the budget.
+                    grow += 1;
+                    if grow > 8 {
+                        return Err(crate::gpu::GpuError::Kernel {
+                            kernel: "accel.kdtree",
+                            reason: "the kd-tree still ran out of references after 8 \
+                                     doublings of its budget"
+                                .into(),
+                        });
+                    }
+                    let (geom, mut rec, r) = self.geometry(ctx, rs, grow)?;
+                    recorded = r;
+                    f.geom = geom;
+                    restore(&mut rec, &f, pixels);
+                    pending = Some(rec);
+                    continue;
+                }
+            }
+            if build_ms.is_none() {
+                build_ms = Some(recorded.map(|r| r.ms(&p)));
+            }
+            if counters.read()?[counter::OVERFLOW] != 0 {
                 // A wave's queue overflowed: undo the sample, redo it with smaller waves.
                 if wave_pixels == 1 {
                     return Err(crate::gpu::GpuError::Kernel {
@@ -225,11 +331,8 @@ impl Renderer {
                 wave_pixels = (wave_pixels / 4).max(1);
                 redone_samples += 1;
                 let mut rec = Recorder::new(ctx)?;
-                rec.compute_to_transfer();
-                rec.copy(&f.accum_before, &f.accum, pixels as usize);
-                rec.copy(&f.counters_before, &f.counters, counter::WORDS);
-                rec.transfer_to_host();
-                rec.submit_and_wait()?;
+                restore(&mut rec, &f, pixels);
+                pending = Some(rec);
                 continue;
             }
             profile.append(p);
@@ -263,6 +366,10 @@ impl Renderer {
             counts: RayCounts::from_counters(&c),
             profile,
             redone_samples,
+            build_ms: build_ms.flatten(),
+            traffic: ctx.traffic() - start,
+            build_attempts: grow + 1,
+            readback_before_trace,
         })
     }
 

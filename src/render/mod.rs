@@ -25,6 +25,7 @@ use glam::Vec3;
 use serde::Serialize;
 
 use crate::accel::bvh::Bvh;
+use crate::accel::device::AccelKind;
 use crate::accel::kdtree::KdTree;
 use crate::scene::{Light, Scene};
 use crate::trace::gpu::AccelTraversal;
@@ -72,8 +73,12 @@ impl RayCounts {
 
 /// The structure a render traces: seed 001's kd-tree or seed 003's BVH.
 pub enum RenderAccel {
+    /// Built on the host (the CPU twins, tests).
     KdTree(KdTree),
     Bvh(Bvh),
+    /// Built by the GPU renderer in its first submission and traced where it lies (the
+    /// CLI's path; the CPU twin cannot render it).
+    OnDevice(AccelKind),
 }
 
 /// The scene as the renderer reads it: geometry and its structure, materials, lights,
@@ -247,7 +252,7 @@ pub struct PassReport {
 pub struct Rendered {
     pub plan: Plan,
     pub image: gpu::GpuRender,
-    /// GPU kd-tree build, timestamps.
+    /// The structure's build: GPU passes (timestamps) or the host builder's time.
     pub build_ms: f64,
     /// GPU time of all samples (timestamps), tone mapping included.
     pub render_ms: f64,
@@ -266,7 +271,7 @@ impl Rendered {
     }
 }
 
-/// Plans, builds the kd-tree on the GPU and renders `scene`; `progress(done, spp)` after
+/// Plans, builds the structure on the device and renders `scene`; `progress(done, spp)` after
 /// every sample.
 pub fn render_scene(
     ctx: &crate::gpu::Context,
@@ -276,29 +281,14 @@ pub fn render_scene(
     mut progress: impl FnMut(u32, u32),
 ) -> Result<Rendered, Box<dyn std::error::Error + Send + Sync>> {
     let plan = Plan::new(scene, opt)?;
-    let mut build_ms = 0.0;
-    let rs = RenderScene::new(
-        scene,
-        &plan,
-        |g| -> Result<RenderAccel, Box<dyn std::error::Error + Send + Sync>> {
-            match plan.accel {
-                AccelTraversal::KdTree => {
-                    let params = crate::accel::kdtree::SahParams::default();
-                    let (tree, p) = crate::trace::gpu::build_kdtree(ctx, g, &params)?;
-                    build_ms =
-                        p.ms("kdtree.phase1").unwrap_or(0.0) + p.ms("kdtree.phase2").unwrap_or(0.0);
-                    Ok(RenderAccel::KdTree(tree))
-                }
-                AccelTraversal::Bvh(_) => {
-                    use crate::accel::bvh::{build_timed, Threading};
-                    let (bvh, ms) =
-                        build_timed(&g.boxes, &Default::default(), Threading::all_cores())?;
-                    build_ms = ms;
-                    Ok(RenderAccel::Bvh(bvh))
-                }
-            }
-        },
-    )?;
+    // The structure is built on the device in the render's first submission.
+    let kind = match plan.accel {
+        AccelTraversal::KdTree => AccelKind::KdTree,
+        AccelTraversal::Bvh(_) => AccelKind::SahBvh,
+    };
+    let rs = RenderScene::new(scene, &plan, |_| {
+        Ok::<_, std::convert::Infallible>(RenderAccel::OnDevice(kind))
+    })?;
     let renderer = gpu::Renderer::new(ctx, &plan, trace)?;
     let spp = plan.spp;
     let image = renderer.render(ctx, &rs, &plan, |done| progress(done, spp))?;
@@ -323,8 +313,8 @@ pub fn render_scene(
     let render_ms = ms("render.sample") + ms("render.tonemap");
     Ok(Rendered {
         plan,
+        build_ms: image.build_ms.unwrap_or(0.0),
         image,
-        build_ms,
         render_ms,
         passes,
     })

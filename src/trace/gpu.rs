@@ -5,12 +5,18 @@
 use std::sync::Arc;
 
 use crate::accel::bvh::Bvh;
+use crate::accel::device::{
+    upload_structure, AccelBuilder, AccelKind, AccelStructure, DevicePrimitives, HostStructure,
+    RecordedBuild,
+};
 use crate::accel::kdtree::KdTree;
 use crate::gpu::kernels;
-use crate::gpu::{Buffer, BufferArg, Context, Kernel, Profile, Recorder, Result, Spec};
+use crate::gpu::{
+    Buffer, BufferArg, Context, GpuError, Kernel, Profile, Recorder, Result, Spec, Traffic,
+};
 
 use super::bvh_cpu::Traversal;
-use super::geometry::{MotionRecord, SceneInfo, TraceGeometry};
+use super::geometry::TraceGeometry;
 use super::{Hit, Query, Ray, TraceOptions};
 
 const WORKGROUP: u32 = 64;
@@ -35,82 +41,89 @@ impl AccelTraversal {
         }
     }
 
+    /// Every structure and walk, for suites and benchmarks.
+    pub const ALL: [AccelTraversal; 3] = [
+        AccelTraversal::KdTree,
+        AccelTraversal::Bvh(Traversal::Stack),
+        AccelTraversal::Bvh(Traversal::Bitstack),
+    ];
+
+    /// `kdtree`, `sah-bvh/stack` or `sah-bvh/bitstack`.
+    pub fn label(self) -> &'static str {
+        match self {
+            AccelTraversal::KdTree => "kdtree",
+            AccelTraversal::Bvh(Traversal::Stack) => "sah-bvh/stack",
+            AccelTraversal::Bvh(Traversal::Bitstack) => "sah-bvh/bitstack",
+        }
+    }
+
     fn is_bvh(self) -> bool {
         matches!(self, AccelTraversal::Bvh(_))
     }
 }
 
-/// Geometry and tree in device memory: the seven buffers `traverse.glsl` binds, in order.
-/// `nodes` holds `KdNode`s or `BvhNode`s as words; a BVH's `prim_refs` are its references
-/// followed by its parent links.
+/// Primitives and a structure over them in device memory: the seven buffers
+/// `traverse.glsl` binds.
 pub struct GpuGeometry {
-    pub nodes: Buffer<u32>,
-    /// Whether `nodes` is a BVH (else a kd-tree).
-    pub is_bvh: bool,
-    pub prim_refs: Buffer<u32>,
-    pub tri_verts: Buffer<f32>,
-    pub spheres: Buffer<[f32; 4]>,
-    pub prim_motion: Buffer<u32>,
-    pub motions: Buffer<MotionRecord>,
-    pub info: Buffer<SceneInfo>,
-    pub primitives: usize,
+    pub prims: DevicePrimitives,
+    pub accel: AccelStructure,
 }
 
 impl GpuGeometry {
+    /// Geometry and a kd-tree built on the host (or downloaded).
     pub fn upload(ctx: &Context, g: &TraceGeometry, tree: &KdTree) -> Result<Self> {
-        let info = g.info(&tree.bounds);
-        Self::with_structure(ctx, g, words(&tree.nodes), &tree.prim_refs, info, false)
+        Self::with_host(ctx, g, &HostStructure::KdTree(tree.clone()))
     }
 
-    /// Geometry and a BVH built over `g`'s boxes.
+    /// Geometry and a BVH built over `g`'s boxes on the host.
     pub fn upload_bvh(ctx: &Context, g: &TraceGeometry, bvh: &Bvh) -> Result<Self> {
-        let mut refs = bvh.refs.clone();
-        refs.extend_from_slice(&bvh.parents);
-        let info = SceneInfo {
-            parents_at: bvh.refs.len() as u32,
-            ..g.info(&bvh.bounds)
-        };
-        Self::with_structure(ctx, g, words(&bvh.nodes), &refs, info, true)
+        Self::with_host(ctx, g, &HostStructure::Bvh(bvh.clone()))
     }
 
-    fn with_structure(
-        ctx: &Context,
+    /// Records the upload of `g` and the build of `builder`'s structure over it into `rec`
+    /// (in a profiler scope named `build`), ending with the barrier that lets the next
+    /// kernels trace it. `grow`: see [`AccelBuilder::sizes`].
+    pub fn record_build(
+        rec: &mut Recorder,
+        builder: &AccelBuilder,
         g: &TraceGeometry,
-        nodes: &[u32],
-        refs: &[u32],
-        info: SceneInfo,
-        is_bvh: bool,
-    ) -> Result<Self> {
-        Ok(Self {
-            nodes: Buffer::from_slice(ctx, "trace.nodes", nodes)?,
-            is_bvh,
-            prim_refs: Buffer::from_slice(ctx, "trace.prim_refs", refs)?,
-            tri_verts: Buffer::from_slice(ctx, "trace.tri_verts", &g.tri_verts)?,
-            spheres: Buffer::from_slice(ctx, "trace.spheres", &g.spheres)?,
-            prim_motion: Buffer::from_slice(ctx, "trace.prim_motion", &g.prim_motion)?,
-            motions: Buffer::from_slice(ctx, "trace.motions", &g.motions)?,
-            info: Buffer::from_slice(ctx, "trace.info", &[info])?,
-            primitives: g.primitive_count(),
-        })
+        grow: u32,
+    ) -> Result<(Self, RecordedBuild)> {
+        let prims = DevicePrimitives::record_upload(rec, g)?;
+        let (mut accel, scratch) = builder.create(rec.context(), prims.count(), grow)?;
+        let recorded = rec.scope("build", |rec| {
+            builder.record_build(rec, &prims, g, &scratch, &mut accel)
+        })?;
+        // The scratch is freed when this returns, before the work runs: keep it alive.
+        rec.keep_alive(scratch);
+        Ok((Self { prims, accel }, recorded))
+    }
+
+    fn with_host(ctx: &Context, g: &TraceGeometry, host: &HostStructure) -> Result<Self> {
+        let prims = DevicePrimitives::upload(ctx, g)?;
+        let accel = upload_structure(ctx, &prims, host)?;
+        Ok(Self { prims, accel })
+    }
+
+    /// Whether the structure is a BVH (else a kd-tree).
+    pub fn is_bvh(&self) -> bool {
+        self.accel.kind() != AccelKind::KdTree
     }
 
     /// The seven bindings in `traverse.glsl`'s order.
     pub fn bindings(&self) -> [&dyn BufferArg; 7] {
+        let [nodes, refs] = self.accel.node_bindings();
+        let p = &self.prims;
         [
-            &self.nodes,
-            &self.prim_refs,
-            &self.tri_verts,
-            &self.spheres,
-            &self.prim_motion,
-            &self.motions,
-            &self.info,
+            nodes,
+            refs,
+            &p.tri_verts,
+            &p.spheres,
+            &p.prim_motion,
+            &p.motions,
+            &self.accel.info,
         ]
     }
-}
-
-/// Nodes as the 32-bit words a storage buffer of either layout binds.
-fn words<T: bytemuck::Pod>(nodes: &[T]) -> &[u32] {
-    bytemuck::cast_slice(nodes)
 }
 
 /// Spec constant ids shared by every kernel that includes `traverse.glsl`.
@@ -200,7 +213,7 @@ impl Tracer {
             return;
         }
         assert_eq!(
-            geom.is_bvh,
+            geom.is_bvh(),
             self.accel.is_bvh(),
             "a {:?} tracer cannot walk this geometry's structure",
             self.accel
@@ -212,8 +225,8 @@ impl Tracer {
         rec.dispatch(&self.kernel, groups, &b, &TracePush { n: n as u32, time });
     }
 
-    /// Uploads `rays`, traces them at `time`, waits and reads the hits back. The profile has
-    /// one scope, `trace`, around the kernel alone.
+    /// Uploads `rays`, traces them at `time` and reads the hits back, in one submission. The
+    /// profile has one scope, `trace`, around the kernel alone.
     pub fn trace(
         &self,
         ctx: &Context,
@@ -221,18 +234,24 @@ impl Tracer {
         rays: &[Ray],
         time: f32,
     ) -> Result<TraceBatch> {
-        let ray_buf = Buffer::from_slice(ctx, "trace.rays", rays)?;
+        let ray_buf = Buffer::new(ctx, "trace.rays", rays.len())?;
         let hits = Buffer::<Hit>::new(ctx, "trace.hits", rays.len())?;
-        let errors = Buffer::<u32>::zeroed(ctx, "trace.errors", 1)?;
+        let errors = Buffer::<u32>::new(ctx, "trace.errors", 1)?;
         let mut rec = Recorder::new(ctx)?;
+        rec.upload(&ray_buf, rays)?;
+        rec.fill(&errors, 0);
+        rec.transfer_to_compute();
         rec.scope("trace", |rec| {
             self.record(rec, geom, &ray_buf, &hits, &errors, rays.len(), time)
         });
         rec.compute_to_transfer();
+        let hits_back = rec.read_back(&hits)?;
+        let errors_back = rec.read_back(&errors)?;
+        rec.transfer_to_host();
         let profile = rec.submit_and_wait()?;
         Ok(TraceBatch {
-            hits: hits.download()?,
-            exhausted: errors.download()?[0],
+            hits: hits_back.read()?,
+            exhausted: errors_back.read()?[0],
             profile,
         })
     }
@@ -282,4 +301,95 @@ pub fn build_kdtree(
     params: &crate::accel::kdtree::SahParams,
 ) -> Result<(KdTree, Profile)> {
     crate::accel::kdtree::gpu::KdTreeBuilder::new(ctx)?.build_boxes(ctx, &g.boxes, params)
+}
+
+/// What [`build_and_trace`] did.
+pub struct DeviceTrace {
+    pub batch: TraceBatch,
+    /// The geometry and structure, still on the device.
+    pub geometry: GpuGeometry,
+    /// Build time: the GPU passes of a device builder (from timestamps), or the host
+    /// builder's wall time.
+    pub build_ms: f64,
+    /// Queue submissions and bytes read back from the start of the build until the hits
+    /// were on the host (the hits and the build report included).
+    pub traffic: Traffic,
+    /// Bytes read back between the build and the trace: 0, by construction.
+    pub readback_before_trace: u64,
+    /// 1, or more when a kd-tree build ran out of its reference budget and was redone with
+    /// twice the budget.
+    pub attempts: u32,
+}
+
+/// Uploads `g`, builds `builder`'s structure over it and traces the first batch of `rays`
+/// at `time` in one submission, with nothing read back in between; further batches (at
+/// most `batch` rays each) are one submission each against the structure where it lies.
+pub fn build_and_trace(
+    ctx: &Context,
+    builder: &AccelBuilder,
+    tracer: &Tracer,
+    g: &TraceGeometry,
+    rays: &[Ray],
+    time: f32,
+    batch: Option<usize>,
+) -> Result<DeviceTrace> {
+    let start = ctx.traffic();
+    let max = Tracer::max_batch(ctx).max(1);
+    let batch = batch.unwrap_or(max).clamp(1, max);
+    let first = &rays[..batch.min(rays.len())];
+    for grow in 0..8 {
+        let mut rec = Recorder::new(ctx)?;
+        let ray_buf = Buffer::new(ctx, "trace.rays", first.len())?;
+        let hits = Buffer::<Hit>::new(ctx, "trace.hits", first.len())?;
+        let errors = Buffer::<u32>::new(ctx, "trace.errors", 1)?;
+        rec.upload(&ray_buf, first)?;
+        rec.fill(&errors, 0);
+        // (the upload's transfer → compute barrier covers the two writes above)
+        let (geometry, recorded) = GpuGeometry::record_build(&mut rec, builder, g, grow)?;
+        let readback_before_trace = ctx.traffic().readback_bytes - start.readback_bytes;
+        rec.scope("trace", |rec| {
+            tracer.record(rec, &geometry, &ray_buf, &hits, &errors, first.len(), time)
+        });
+        rec.compute_to_transfer();
+        let built = geometry.accel.record_read_built(&mut rec)?;
+        let hits_back = rec.read_back(&hits)?;
+        let errors_back = rec.read_back(&errors)?;
+        rec.transfer_to_host();
+        let profile = rec.submit_and_wait()?;
+        if let Some(b) = built {
+            let b = AccelStructure::kd_built(&b.read()?);
+            if b.overflow {
+                continue;
+            }
+        }
+        let build_ms = recorded.ms(&profile);
+        let mut out = TraceBatch {
+            hits: hits_back.read()?,
+            exhausted: errors_back.read()?[0],
+            profile,
+        };
+        if rays.len() > first.len() {
+            let rest =
+                tracer.trace_batched(ctx, &geometry, &rays[first.len()..], time, Some(batch))?;
+            out.hits.extend_from_slice(&rest.hits);
+            out.exhausted += rest.exhausted;
+            out.profile.append(rest.profile);
+        }
+        return Ok(DeviceTrace {
+            batch: out,
+            geometry,
+            build_ms,
+            traffic: ctx.traffic() - start,
+            readback_before_trace,
+            attempts: grow + 1,
+        });
+    }
+    Err(GpuError::Kernel {
+        kernel: "accel.kdtree",
+        reason: format!(
+            "the kd-tree of {} primitives still ran out of references after 8 doublings of \
+             its budget",
+            g.primitive_count()
+        ),
+    })
 }

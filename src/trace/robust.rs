@@ -36,19 +36,26 @@
 use glam::{Vec3, Vec4};
 use serde::Serialize;
 
-use super::gpu::{build_kdtree, GpuGeometry, TraceBatch, Tracer};
+use super::bvh_cpu;
+use super::gpu::{AccelTraversal, GpuGeometry, TraceBatch, Tracer};
 use super::intersect::{
     offset_ray_origin, offset_ray_origin_bounded, sphere_hit_point, triangle_hit_point,
 };
 use super::{cpu, Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
-use crate::accel::kdtree::{stats, validate, KdTree, SahParams};
+use crate::accel::bvh;
+use crate::accel::device::{AccelBuilder, AccelKind, AccelStructure, HostStructure};
+use crate::accel::kdtree::{stats, validate, SahParams};
+use crate::gpu::Recorder;
 use crate::gpu::{Context, GpuError, Result};
 use crate::scene::gen::{self, Rng};
+use crate::scene::Aabb;
 
 /// One case's numbers for one intersector.
 #[derive(Clone, Debug, Serialize)]
 pub struct CaseResult {
     pub case: String,
+    /// The structure and walk (`AccelTraversal::label`).
+    pub accel: &'static str,
     pub intersector: &'static str,
     pub rays: u64,
     /// Failures of any kind (`failure_kind`), errors included.
@@ -149,17 +156,19 @@ impl Default for SuiteSize {
 }
 
 /// Runs the cases of `group` for each intersector in `intersectors` (each scene and tree is
-/// built once).
+/// built once), on the structure and walk `accel`, built on the device.
 pub fn run_group(
     ctx: &Context,
     group: Group,
     size: &SuiteSize,
     intersectors: &[Intersector],
+    accel: AccelTraversal,
 ) -> Result<Vec<CaseResult>> {
     let mut s = Suite {
         ctx,
         size: *size,
         intersectors: intersectors.to_vec(),
+        accel,
         out: Vec::new(),
     };
     match group {
@@ -178,33 +187,134 @@ pub fn run_all(
     ctx: &Context,
     size: &SuiteSize,
     intersectors: &[Intersector],
+    accel: AccelTraversal,
 ) -> Result<Vec<CaseResult>> {
     let mut out = Vec::new();
     for g in Group::ALL {
-        out.extend(run_group(ctx, g, size, intersectors)?);
+        out.extend(run_group(ctx, g, size, intersectors, accel)?);
     }
     Ok(out)
 }
 
+/// A case's scene on the device, its structure built there, and the structure read back
+/// for the checks that look at it.
 struct Prepared {
     geometry: TraceGeometry,
-    tree: KdTree,
+    host: HostStructure,
     device: GpuGeometry,
+    accel: AccelTraversal,
 }
 
 impl Prepared {
-    fn new(ctx: &Context, geometry: TraceGeometry, params: &SahParams) -> Result<Self> {
-        let (tree, _) = build_kdtree(ctx, &geometry, params)?;
-        let device = GpuGeometry::upload(ctx, &geometry, &tree)?;
-        Ok(Self {
-            geometry,
-            tree,
-            device,
+    /// Builds on the device (a kd-tree with `params`), doubling the kd-tree's reference
+    /// budget when a build runs out of it.
+    fn new(
+        ctx: &Context,
+        geometry: TraceGeometry,
+        params: &SahParams,
+        accel: AccelTraversal,
+    ) -> Result<Self> {
+        let kind = match accel {
+            AccelTraversal::KdTree => AccelKind::KdTree,
+            AccelTraversal::Bvh(_) => AccelKind::SahBvh,
+        };
+        let mut builder = AccelBuilder::new(ctx, kind)?;
+        builder.kd_params = *params;
+        for grow in 0..8 {
+            let mut rec = Recorder::new(ctx)?;
+            let (device, _) = GpuGeometry::record_build(&mut rec, &builder, &geometry, grow)?;
+            rec.compute_to_transfer();
+            let built = device.accel.record_read_built(&mut rec)?;
+            rec.transfer_to_host();
+            rec.submit_and_wait()?;
+            if let Some(b) = built {
+                if AccelStructure::kd_built(&b.read()?).overflow {
+                    continue;
+                }
+            }
+            let host = device.accel.download()?;
+            return Ok(Self {
+                geometry,
+                host,
+                device,
+                accel,
+            });
+        }
+        Err(GpuError::Kernel {
+            kernel: "accel.kdtree",
+            reason: format!(
+                "the kd-tree of {} primitives does not fit after 8 doublings of its budget",
+                geometry.primitive_count()
+            ),
         })
     }
 
     fn trace(&self, ctx: &Context, rays: &[Ray], opt: &TraceOptions) -> Result<TraceBatch> {
-        Tracer::new(ctx, opt)?.trace_batched(ctx, &self.device, rays, 0.0, None)
+        Tracer::for_accel(ctx, opt, self.accel)?.trace_batched(ctx, &self.device, rays, 0.0, None)
+    }
+
+    /// The CPU twin of the structure's walk.
+    fn trace_cpu(&self, r: &Ray, o: &TraceOptions) -> Hit {
+        match (&self.host, self.accel) {
+            (HostStructure::KdTree(tree), _) => {
+                let scene = cpu::TraceScene {
+                    geometry: &self.geometry,
+                    tree,
+                };
+                cpu::trace(&scene, r, 0.0, o).0
+            }
+            (HostStructure::Bvh(b), AccelTraversal::Bvh(walk)) => {
+                bvh_cpu::trace(&self.geometry, b, r, 0.0, o, walk).0
+            }
+            (HostStructure::Bvh(b), AccelTraversal::KdTree) => {
+                bvh_cpu::trace(&self.geometry, b, r, 0.0, o, Default::default()).0
+            }
+        }
+    }
+
+    /// Planes (axis, position) the structure splits space at, and boxes of its nodes: the
+    /// kd-tree's split planes and cells, the BVH's child-box faces and child boxes.
+    fn planes_and_boxes(&self) -> (Vec<(usize, f32)>, Vec<Aabb>) {
+        match &self.host {
+            HostStructure::KdTree(tree) => (
+                tree.nodes
+                    .iter()
+                    .filter(|nd| !nd.is_leaf())
+                    .map(|nd| (nd.kind as usize, nd.split))
+                    .collect(),
+                validate::node_boxes(tree),
+            ),
+            HostStructure::Bvh(b) => {
+                let boxes: Vec<Aabb> = b
+                    .nodes
+                    .iter()
+                    .flat_map(|n| [n.child(0), n.child(1)])
+                    .filter(|(_, c)| *c != bvh::Child::None)
+                    .map(|(bx, _)| bx)
+                    .collect();
+                let planes = boxes
+                    .iter()
+                    .flat_map(|bx| (0..3).flat_map(move |a| [(a, bx.min[a]), (a, bx.max[a])]))
+                    .collect();
+                (planes, boxes)
+            }
+        }
+    }
+
+    /// 1 if the structure does not validate, plus (kd-tree) 1 if it is deeper than its
+    /// depth bound.
+    fn errors(&self, tris: &[[Vec3; 3]], params: &SahParams) -> u64 {
+        match &self.host {
+            HostStructure::KdTree(tree) => {
+                let invalid = validate::validate(tree, tris).is_err() as u64;
+                let st = stats::stats(tree, params);
+                let deep = (st.max_depth > params.depth_limit(tris.len())) as u64;
+                invalid + deep
+            }
+            HostStructure::Bvh(b) => {
+                bvh::validate::validate(b, &self.geometry.boxes).is_err() as u64
+            }
+        }
     }
 
     fn primitives(&self) -> u64 {
@@ -279,6 +389,7 @@ struct Suite<'a> {
     ctx: &'a Context,
     size: SuiteSize,
     intersectors: Vec<Intersector>,
+    accel: AccelTraversal,
     out: Vec<CaseResult>,
 }
 
@@ -297,6 +408,7 @@ impl Suite<'_> {
     ) {
         self.out.push(CaseResult {
             case: case.to_string(),
+            accel: self.accel.label(),
             intersector: i.name(),
             rays: rays as u64,
             failures: failures + errors,
@@ -362,6 +474,7 @@ impl Suite<'_> {
                 self.ctx,
                 TraceGeometry::from_triangles(&tris),
                 &SahParams::default(),
+                self.accel,
             )?;
             let mut rng = Rng::new(1);
             let n = self.size.watertight_rays;
@@ -390,6 +503,7 @@ impl Suite<'_> {
                 self.ctx,
                 TraceGeometry::from_triangles(&tris),
                 &SahParams::default(),
+                self.accel,
             )?;
             let mut rng = Rng::new(2);
             let rays: Vec<Ray> = (0..self.size.watertight_rays)
@@ -451,6 +565,7 @@ impl Suite<'_> {
             self.ctx,
             TraceGeometry::from_triangles(&tris),
             &SahParams::default(),
+            self.accel,
         )?;
         for i in self.intersectors.clone() {
             let o = opt(i);
@@ -537,6 +652,7 @@ impl Suite<'_> {
             self.ctx,
             TraceGeometry::from_triangles_and_spheres(&[], &spheres),
             &SahParams::default(),
+            self.accel,
         )?;
         for i in self.intersectors.clone() {
             let o = opt(i);
@@ -674,16 +790,10 @@ impl Suite<'_> {
             self.ctx,
             TraceGeometry::from_triangles_and_spheres(&tris, &spheres),
             &SahParams::default(),
+            self.accel,
         )?;
         let n = self.size.checked_rays;
-        let inner: Vec<(usize, f32)> = p
-            .tree
-            .nodes
-            .iter()
-            .filter(|nd| !nd.is_leaf())
-            .map(|nd| (nd.kind as usize, nd.split))
-            .collect();
-        let boxes = validate::node_boxes(&p.tree);
+        let (inner, boxes) = p.planes_and_boxes();
         let zero = |rng: &mut Rng| if rng.below(2) == 0 { 0.0 } else { -0.0 };
         let quantized = |rng: &mut Rng| (rng.vec3_signed() * 8.0).round() / 8.0;
 
@@ -788,6 +898,7 @@ impl Suite<'_> {
             self.ctx,
             TraceGeometry::from_triangles(&degenerate),
             &SahParams::default(),
+            self.accel,
         )?;
         let rays: Vec<Ray> = (0..n)
             .map(|k| {
@@ -853,6 +964,7 @@ impl Suite<'_> {
             self.ctx,
             TraceGeometry::from_triangles(&tris),
             &SahParams::default(),
+            self.accel,
         )?;
         let rays: Vec<Ray> = (0..n)
             .map(|k| {
@@ -895,6 +1007,7 @@ impl Suite<'_> {
             self.ctx,
             TraceGeometry::from_triangles(&flats),
             &SahParams::default(),
+            self.accel,
         )?;
         let rays: Vec<Ray> = (0..n)
             .map(|k| {
@@ -951,6 +1064,7 @@ impl Suite<'_> {
             self.ctx,
             TraceGeometry::from_triangles(&tris),
             &SahParams::default(),
+            self.accel,
         )?;
         let rays: Vec<Ray> = (0..n)
             .map(|k| {
@@ -1010,8 +1124,13 @@ impl Suite<'_> {
         ];
         for (name, tris) in cases {
             let params = SahParams::default();
-            let p = Prepared::new(self.ctx, TraceGeometry::from_triangles(&tris), &params)?;
-            let tree_errors = tree_errors(&p.tree, &tris, &params);
+            let p = Prepared::new(
+                self.ctx,
+                TraceGeometry::from_triangles(&tris),
+                &params,
+                self.accel,
+            )?;
+            let tree_errors = p.errors(&tris, &params);
             let rays: Vec<Ray> = (0..n)
                 .map(|_| {
                     let t = tris[rng.below(tris.len() as u32) as usize];
@@ -1061,7 +1180,7 @@ impl Suite<'_> {
                     ("SahParams defaults", SahParams::default()),
                     ("seed-001 termination", seed),
                 ] {
-                    match Prepared::new(self.ctx, g.clone(), &params) {
+                    match Prepared::new(self.ctx, g.clone(), &params, self.accel) {
                         Ok(p) => {
                             notes.push(format!("{count} triangles: built with {label}"));
                             built = Some((p, params));
@@ -1089,21 +1208,17 @@ impl Suite<'_> {
                 count /= 2;
             };
             let note = notes.join("; ");
-            let tree_errors = tree_errors(&p.tree, &tris, &params);
+            let tree_errors = p.errors(&tris, &params);
             let rays: Vec<Ray> = (0..n)
                 .map(|_| Ray::new(rng.vec3_signed() * 1.2, unit(&mut rng), 0.0, f32::MAX))
                 .collect();
-            let scene = cpu::TraceScene {
-                geometry: &p.geometry,
-                tree: &p.tree,
-            };
             for i in self.intersectors.clone() {
                 let o = opt(i);
                 let b = p.trace(self.ctx, &rays, &o)?;
                 let failures = rays
                     .iter()
                     .zip(&b.hits)
-                    .filter(|(r, h)| !same_answer(h, &cpu::trace(&scene, r, 0.0, &o).0))
+                    .filter(|(r, h)| !same_answer(h, &p.trace_cpu(r, &o)))
                     .count() as u64;
                 self.push(
                     &name,
@@ -1129,6 +1244,7 @@ impl Suite<'_> {
             self.ctx,
             TraceGeometry::from_triangles(&sphere),
             &SahParams::default(),
+            self.accel,
         )?;
         let n = self.size.watertight_rays / 2;
         let mut rng = Rng::new(12);
@@ -1233,14 +1349,6 @@ fn flat_axis_aligned(rng: &mut Rng, n: usize) -> Vec<[Vec3; 3]> {
             }
         })
         .collect()
-}
-
-/// 1 if the tree does not validate, plus 1 if it is deeper than its depth bound.
-fn tree_errors(tree: &KdTree, tris: &[[Vec3; 3]], params: &SahParams) -> u64 {
-    let invalid = validate::validate(tree, tris).is_err() as u64;
-    let st = stats::stats(tree, params);
-    let deep = (st.max_depth > params.depth_limit(tris.len())) as u64;
-    invalid + deep
 }
 
 fn scene(e: crate::scene::SceneError) -> GpuError {

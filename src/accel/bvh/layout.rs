@@ -56,7 +56,7 @@ impl BvhNode {
         (bounds, child)
     }
 
-    pub(super) fn set_child(&mut self, which: usize, bounds: Aabb, child: Child) {
+    pub(crate) fn set_child(&mut self, which: usize, bounds: Aabb, child: Child) {
         let (index, count) = match child {
             Child::Node(n) => (n, 0),
             Child::Leaf { first, count } => (first, count),

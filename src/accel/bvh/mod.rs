@@ -1,11 +1,14 @@
 //! Bounding volume hierarchies: the binary two-boxes-per-node layout the traversal reads
-//! ([`layout`]), seed 003's multithreaded CPU SAH builder ([`sah`]), and a structural
-//! validator with the SAH cost of a built tree ([`validate`]).
+//! ([`layout`]), seed 003's multithreaded CPU SAH builder ([`sah`]), the refit that follows
+//! moved primitives ([`refit`], CPU twin of the GPU kernel), and a structural validator
+//! with the SAH cost of a built tree ([`validate`]).
 
 pub mod bench;
 pub mod layout;
+pub mod refit;
 pub mod sah;
 pub mod validate;
 
 pub use layout::{Bvh, BvhNode, Child, NO_NODE};
+pub use refit::refit;
 pub use sah::{build, build_timed, BvhError, BvhParams, Threading};

@@ -247,6 +247,7 @@ struct Kernels {
     scatter: Arc<Kernel>,
     children: Arc<Kernel>,
     advance: Arc<Kernel>,
+    finish: Arc<Kernel>,
 }
 
 /// The GPU kd-tree builder: kernels and primitives, compiled once.
@@ -401,6 +402,7 @@ impl KdTreeBuilder {
                 })?,
                 children: k(&kernels::ACCEL_KDTREE_CHILDREN)?,
                 advance: one(&kernels::ACCEL_KDTREE_ADVANCE)?,
+                finish: one(&kernels::ACCEL_KDTREE_FINISH)?,
             },
             sort: RadixSort::new(ctx, cfg, 8)?,
             reduce: Reduce::new(ctx, cfg)?,
@@ -1024,6 +1026,37 @@ impl KdTreeBuilder {
         ];
         rec.dispatch(&k.advance, [1, 1, 1], &b, &push);
         rec.compute_to_indirect();
+    }
+
+    /// Records `accel.kdtree_finish` after a recorded build of `counts[0]` primitives (or
+    /// none): the scene constants (`SceneInfo`: root box and `counts` = primitives,
+    /// triangles, spheres, has-motion) into `info`, the build's report (nodes, references,
+    /// overflow, references needed) into `built`, and an empty root leaf into `nodes` when
+    /// the build overflowed or had no primitives. The caller orders the build before.
+    pub fn record_finish(
+        &self,
+        rec: &mut Recorder,
+        s: &BuildScratch,
+        nodes: &Buffer<KdNode>,
+        info: &dyn BufferArg,
+        built: &Buffer<u32>,
+        counts: [u32; 4],
+    ) {
+        let b: [&dyn BufferArg; 10] = [
+            &s.state,
+            &s.bounds[0],
+            &s.bounds[1],
+            &s.bounds[2],
+            &s.bounds[3],
+            &s.bounds[4],
+            &s.bounds[5],
+            nodes,
+            info,
+            built,
+        ];
+        rec.scope("kdtree.finish", |rec| {
+            rec.dispatch(&self.k.finish, [1, 1, 1], &b, &counts)
+        });
     }
 
     /// The state after a recorded build has executed.

@@ -1,0 +1,103 @@
+#version 460
+// BVH refit (CPU twin: src/accel/bvh/refit.rs): every child box recomputed bottom-up from
+// the primitives' boxes after they moved, the topology kept. One invocation per node; those
+// whose children are all leaves start, refit their node and climb: at each parent an atomic
+// visit counter lets the last child to arrive refit it (Karras 2012's scheme), so no
+// invocation waits for another (no forward-progress assumption). The buffer writes of the
+// child are made visible before its arrival is counted (memoryBarrierBuffer on coherent
+// buffers), and the arriving invocation reads them after. Unions use the total order on ±0
+// (fmin_total), so the result is bit for bit the CPU twin's, whatever the order.
+layout(local_size_x_id = 0) in;
+#include "common/grid.glsl"
+#include "common/kdtree.glsl"
+
+#define NO_NODE 0xffffffffu
+
+struct BvhNode {
+    vec3 a_min;
+    uint a_index;
+    vec3 a_max;
+    uint a_count;
+    vec3 b_min;
+    uint b_index;
+    vec3 b_max;
+    uint b_count;
+};
+
+layout(std430, binding = 0) coherent buffer Nodes { BvhNode nodes[]; };
+// References, then one parent link per node from `parents_at` on.
+layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
+// Six floats per primitive: min x, y, z, max x, y, z.
+layout(std430, binding = 2) readonly buffer Boxes { float boxes[]; };
+// One counter per node, zero before the dispatch.
+layout(std430, binding = 3) coherent buffer Visits { uint visits[]; };
+// `SceneInfo` (src/trace/geometry.rs): the root box is rewritten.
+layout(std430, binding = 4) buffer SceneInfoBuf {
+    vec4 bounds_min;
+    vec4 bounds_max;
+    uint n_tris;
+    uint n_spheres;
+    uint has_motion;
+    uint parents_at;
+} info;
+layout(push_constant) uniform Push { uint n_nodes; } pc;
+
+vec3 vmin(vec3 a, vec3 b) {
+    return vec3(fmin_total(a.x, b.x), fmin_total(a.y, b.y), fmin_total(a.z, b.z));
+}
+
+vec3 vmax(vec3 a, vec3 b) {
+    return vec3(fmax_total(a.x, b.x), fmax_total(a.y, b.y), fmax_total(a.z, b.z));
+}
+
+// The box of a child (index, count); `lo`/`hi` hold its old box (kept for a missing child).
+void child_box(uint index, uint count, inout vec3 lo, inout vec3 hi) {
+    if (count > 0u) {
+        lo = vec3(1.0 / 0.0);
+        hi = vec3(-1.0 / 0.0);
+        for (uint k = 0u; k < count; k++) {
+            uint p = refs[index + k];
+            lo = vmin(lo, vec3(boxes[6u * p], boxes[6u * p + 1u], boxes[6u * p + 2u]));
+            hi = vmax(hi, vec3(boxes[6u * p + 3u], boxes[6u * p + 4u], boxes[6u * p + 5u]));
+        }
+    } else if (index != NO_NODE) {
+        BvhNode c = nodes[index];
+        lo = vmin(c.a_min, c.b_min);
+        hi = vmax(c.a_max, c.b_max);
+    }
+}
+
+uint node_children(BvhNode n) {
+    return uint(n.a_count == 0u && n.a_index != NO_NODE) + uint(n.b_count == 0u && n.b_index != NO_NODE);
+}
+
+void main() {
+    uint i = linear_invocation_id();
+    if (i >= pc.n_nodes || node_children(nodes[i]) != 0u) {
+        return;
+    }
+    uint cur = i;
+    // At most one step per node: a bound, not a spin.
+    for (uint step = 0u; step < pc.n_nodes; step++) {
+        BvhNode n = nodes[cur];
+        child_box(n.a_index, n.a_count, n.a_min, n.a_max);
+        child_box(n.b_index, n.b_count, n.b_min, n.b_max);
+        nodes[cur].a_min = n.a_min;
+        nodes[cur].a_max = n.a_max;
+        nodes[cur].b_min = n.b_min;
+        nodes[cur].b_max = n.b_max;
+        uint parent = refs[info.parents_at + cur];
+        if (parent == NO_NODE) {
+            info.bounds_min = vec4(vmin(n.a_min, n.b_min), 0.0);
+            info.bounds_max = vec4(vmax(n.a_max, n.b_max), 0.0);
+            return;
+        }
+        memoryBarrierBuffer();
+        uint arrived = atomicAdd(visits[parent], 1u) + 1u;
+        if (arrived < node_children(nodes[parent])) {
+            return; // the sibling, arriving last, refits the parent
+        }
+        memoryBarrierBuffer();
+        cur = parent;
+    }
+}

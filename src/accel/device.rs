@@ -1,0 +1,642 @@
+//! Acceleration structures that live on the device, behind one interface shaped like
+//! `VK_KHR_acceleration_structure`:
+//!
+//! 1. [`AccelBuilder::sizes`]: the bytes of the structure, of the build's scratch and of an
+//!    update's scratch for a primitive count — asked first, so a caller can allocate;
+//! 2. [`AccelBuilder::create`]: the structure's buffers and the scratch at those sizes;
+//! 3. [`AccelBuilder::record_build`]: the build recorded into the caller's [`Recorder`], with
+//!    no submission and no read-back of its own; the structure's buffers are then bound
+//!    where they lie by every kernel that traces (`glsl/common/traverse.glsl`, whose walk is
+//!    chosen by the `ACCEL_KIND` specialization constant of [`AccelTraversal`]).
+//!
+//! The GPU kd-tree (seed 001) is built by kernels and finished on the device
+//! (`accel.kdtree_finish` writes the scene constants, and an empty root if the build ran
+//! out of capacity). The SAH BVH (seed 003) is a host builder, as Embree's are: it reads the
+//! host's copy of the primitive boxes and records the upload of its nodes. Downloading a
+//! structure ([`AccelStructure::download`]) is for tests and tools only.
+
+use crate::accel::bvh::{self, Bvh, BvhNode, BvhParams, Threading};
+use crate::accel::kdtree::gpu::{BuildCapacity, BuildOutput, BuildScratch, KdTreeBuilder};
+use crate::accel::kdtree::{KdNode, KdTree, SahParams};
+use std::sync::Arc;
+
+use crate::gpu::{
+    kernels, Buffer, BufferArg, Context, GpuError, Kernel, Readback, Recorder, Result, Spec,
+};
+use crate::scene::Aabb;
+use crate::trace::bvh_cpu::Traversal;
+use crate::trace::geometry::{MotionRecord, SceneInfo, TraceGeometry};
+use crate::trace::gpu::AccelTraversal;
+
+const REFIT_WORKGROUP: u32 = 64;
+
+/// The structures vkrt builds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum AccelKind {
+    /// Seed 001's SAH kd-tree, built on the GPU.
+    #[default]
+    KdTree,
+    /// Seed 003's SAH BVH, built on the host's cores and uploaded.
+    SahBvh,
+}
+
+impl AccelKind {
+    pub const ALL: [AccelKind; 2] = [AccelKind::KdTree, AccelKind::SahBvh];
+
+    /// The CLI name (`--accel`).
+    pub fn name(self) -> &'static str {
+        match self {
+            AccelKind::KdTree => "kdtree",
+            AccelKind::SahBvh => "sah-bvh",
+        }
+    }
+
+    /// How kernels walk this kind (`traversal` applies to BVHs).
+    pub fn walked(self, traversal: Traversal) -> AccelTraversal {
+        match self {
+            AccelKind::KdTree => AccelTraversal::KdTree,
+            AccelKind::SahBvh => AccelTraversal::Bvh(traversal),
+        }
+    }
+}
+
+/// What a structure over a primitive count needs, in bytes
+/// (`VkAccelerationStructureBuildSizesInfoKHR`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+pub struct AccelSizes {
+    /// The structure: nodes, references, parent links, scene constants.
+    pub structure_bytes: u64,
+    /// Device scratch of a build (0: the builder works in host memory).
+    pub build_scratch_bytes: u64,
+    /// Device scratch of an update; `None`: the kind cannot be refit.
+    pub update_scratch_bytes: Option<u64>,
+}
+
+/// The scene's primitives on the device, as the builders and the traversal read them.
+pub struct DevicePrimitives {
+    pub tri_verts: Buffer<f32>,
+    pub spheres: Buffer<[f32; 4]>,
+    pub prim_motion: Buffer<u32>,
+    pub motions: Buffer<MotionRecord>,
+    /// Box of every primitive: min x, y, z, max x, y, z.
+    pub boxes: Buffer<f32>,
+    pub n_tris: usize,
+    pub n_spheres: usize,
+    pub has_motion: bool,
+}
+
+impl DevicePrimitives {
+    /// Buffers for `g`'s primitives, filled by the uploads recorded into `rec` (followed by
+    /// a transfer → compute barrier).
+    pub fn record_upload(rec: &mut Recorder, g: &TraceGeometry) -> Result<Self> {
+        let ctx = rec.context().clone();
+        let boxes = flat_boxes(&g.boxes);
+        let p = Self {
+            tri_verts: Buffer::new(&ctx, "trace.tri_verts", g.tri_verts.len())?,
+            spheres: Buffer::new(&ctx, "trace.spheres", g.spheres.len())?,
+            prim_motion: Buffer::new(&ctx, "trace.prim_motion", g.prim_motion.len())?,
+            motions: Buffer::new(&ctx, "trace.motions", g.motions.len())?,
+            boxes: Buffer::new(&ctx, "trace.boxes", boxes.len())?,
+            n_tris: g.triangle_count(),
+            n_spheres: g.spheres.len(),
+            has_motion: g.has_motion(),
+        };
+        rec.upload(&p.tri_verts, &g.tri_verts)?;
+        rec.upload(&p.spheres, &g.spheres)?;
+        rec.upload(&p.prim_motion, &g.prim_motion)?;
+        rec.upload(&p.motions, &g.motions)?;
+        rec.upload(&p.boxes, &boxes)?;
+        rec.transfer_to_compute();
+        Ok(p)
+    }
+
+    /// Records the upload of `g`'s moved primitives (vertices, spheres, motions, boxes) into
+    /// these buffers, followed by a transfer → compute barrier: the same primitive counts,
+    /// new positions (then refit or rebuild the structure).
+    pub fn record_update(&self, rec: &mut Recorder, g: &TraceGeometry) -> Result<()> {
+        if g.triangle_count() != self.n_tris
+            || g.spheres.len() != self.n_spheres
+            || g.has_motion() != self.has_motion
+            || g.motions.len() != self.motions.len()
+        {
+            return Err(GpuError::Kernel {
+                kernel: "accel.update",
+                reason: format!(
+                    "an update keeps the primitives: {} triangles and {} spheres on the \
+                     device, {} and {} given",
+                    self.n_tris,
+                    self.n_spheres,
+                    g.triangle_count(),
+                    g.spheres.len()
+                ),
+            });
+        }
+        rec.compute_to_transfer();
+        rec.upload(&self.tri_verts, &g.tri_verts)?;
+        rec.upload(&self.spheres, &g.spheres)?;
+        rec.upload(&self.prim_motion, &g.prim_motion)?;
+        rec.upload(&self.motions, &g.motions)?;
+        rec.upload(&self.boxes, &flat_boxes(&g.boxes))?;
+        rec.transfer_to_compute();
+        Ok(())
+    }
+
+    /// [`DevicePrimitives::record_upload`] in a submission of its own.
+    pub fn upload(ctx: &Context, g: &TraceGeometry) -> Result<Self> {
+        let mut rec = Recorder::new(ctx)?;
+        let p = Self::record_upload(&mut rec, g)?;
+        rec.submit_and_wait()?;
+        Ok(p)
+    }
+
+    pub fn count(&self) -> usize {
+        self.n_tris + self.n_spheres
+    }
+
+    /// The scene constants of a structure with root box `bounds` (`TraceGeometry::info`).
+    fn info(&self, bounds: &Aabb, parents_at: u32) -> SceneInfo {
+        let (min, max) = if bounds.is_empty() {
+            (glam::Vec3::ZERO, glam::Vec3::ZERO)
+        } else {
+            (bounds.min, bounds.max)
+        };
+        SceneInfo {
+            bounds_min: min.extend(0.0).to_array(),
+            bounds_max: max.extend(0.0).to_array(),
+            n_tris: self.n_tris as u32,
+            n_spheres: self.n_spheres as u32,
+            has_motion: self.has_motion as u32,
+            parents_at,
+        }
+    }
+}
+
+/// Boxes as 6 floats each (min x, y, z, max x, y, z), as the kernels read them.
+fn flat_boxes(boxes: &[Aabb]) -> Vec<f32> {
+    boxes
+        .iter()
+        .flat_map(|b| b.min.to_array().into_iter().chain(b.max.to_array()))
+        .collect()
+}
+
+/// A structure in device memory: what the traversal binds as `nodes`, `prim_refs` and
+/// the scene constants.
+pub struct AccelStructure {
+    kind: AccelKind,
+    storage: Storage,
+    pub info: Buffer<SceneInfo>,
+}
+
+enum Storage {
+    KdTree {
+        out: Box<BuildOutput>,
+        /// Written by `accel.kdtree_finish`: nodes, references, overflow flag, references
+        /// the overflowing level needed.
+        built: Buffer<u32>,
+    },
+    Bvh {
+        nodes: Buffer<BvhNode>,
+        /// References, then one parent link per node.
+        refs: Buffer<u32>,
+        /// Nodes and references of the built tree.
+        counts: (usize, usize),
+    },
+}
+
+/// A structure downloaded to the host (tests and tools).
+#[derive(Clone, Debug, PartialEq)]
+pub enum HostStructure {
+    KdTree(KdTree),
+    Bvh(Bvh),
+}
+
+/// What a kd-tree build recorded on the device reports once it has executed.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct KdBuilt {
+    pub nodes: u32,
+    pub refs: u32,
+    /// The build ran out of capacity: the structure is an empty leaf (every ray misses).
+    pub overflow: bool,
+    pub needed_refs: u32,
+}
+
+impl AccelStructure {
+    pub fn kind(&self) -> AccelKind {
+        self.kind
+    }
+
+    /// The `nodes` and `prim_refs` bindings of `traverse.glsl`.
+    pub fn node_bindings(&self) -> [&dyn BufferArg; 2] {
+        match &self.storage {
+            Storage::KdTree { out, .. } => [&out.nodes[0], &out.prim_refs],
+            Storage::Bvh { nodes, refs, .. } => [nodes, refs],
+        }
+    }
+
+    /// Records the copy of a kd-tree build's report to the host (16 bytes), read with
+    /// [`AccelStructure::kd_built`] after the work has executed; `None` for other kinds.
+    pub fn record_read_built(&self, rec: &mut Recorder) -> Result<Option<Readback<u32>>> {
+        match &self.storage {
+            Storage::KdTree { built, .. } => rec.read_back(built).map(Some),
+            Storage::Bvh { .. } => Ok(None),
+        }
+    }
+
+    /// Decodes a kd-tree build's report.
+    pub fn kd_built(words: &[u32]) -> KdBuilt {
+        KdBuilt {
+            nodes: words[0],
+            refs: words[1],
+            overflow: words[2] != 0,
+            needed_refs: words[3],
+        }
+    }
+
+    /// The structure as the host sees it (for tests and tools: it reads the whole
+    /// structure back).
+    pub fn download(&self) -> Result<HostStructure> {
+        let info = self.info.download()?[0];
+        let bounds = |empty: bool| {
+            if empty {
+                Aabb::EMPTY
+            } else {
+                Aabb {
+                    min: glam::Vec3::from_slice(&info.bounds_min[..3]),
+                    max: glam::Vec3::from_slice(&info.bounds_max[..3]),
+                }
+            }
+        };
+        match &self.storage {
+            Storage::KdTree { out, built } => {
+                let b = Self::kd_built(&built.download()?);
+                if b.overflow {
+                    return Err(GpuError::Kernel {
+                        kernel: "accel.kdtree",
+                        reason: format!(
+                            "the build ran out of capacity (a level needed {} references)",
+                            b.needed_refs
+                        ),
+                    });
+                }
+                let primitives = info.n_tris + info.n_spheres;
+                let nodes: Vec<KdNode> = out.download_nodes(b.nodes.max(1) as usize)?;
+                let mut prim_refs = out.prim_refs.download()?;
+                prim_refs.truncate(b.refs as usize);
+                Ok(HostStructure::KdTree(KdTree {
+                    nodes,
+                    prim_refs,
+                    bounds: bounds(primitives == 0),
+                    primitives,
+                }))
+            }
+            Storage::Bvh {
+                nodes,
+                refs,
+                counts: (n_nodes, n_refs),
+            } => {
+                let mut nodes = nodes.download()?;
+                nodes.truncate(*n_nodes);
+                let all = refs.download()?;
+                Ok(HostStructure::Bvh(Bvh {
+                    nodes,
+                    parents: all[*n_refs..*n_refs + *n_nodes].to_vec(),
+                    refs: all[..*n_refs].to_vec(),
+                    bounds: bounds(*n_refs == 0),
+                }))
+            }
+        }
+    }
+}
+
+/// Scratch of a build.
+pub enum AccelScratch {
+    KdTree(Box<BuildScratch>),
+    /// The builder works in host memory.
+    None,
+}
+
+/// Builds one kind of structure; compiled once, used for any number of builds.
+pub struct AccelBuilder {
+    kind: AccelKind,
+    kd: Option<KdTreeBuilder>,
+    /// `accel.bvh_refit` (BVH kinds).
+    refit: Option<Arc<Kernel>>,
+    pub kd_params: SahParams,
+    pub bvh_params: BvhParams,
+    pub threading: Threading,
+    /// The kd-tree's first reference budget per level; `None`: 4 per primitive
+    /// ([`BuildCapacity::for_primitives`]). Tests set it tiny to exercise running out.
+    pub kd_refs_per_level: Option<usize>,
+}
+
+/// What [`AccelBuilder::record_build`] knows when it returns.
+#[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
+pub struct RecordedBuild {
+    /// Host milliseconds spent building (a host builder; `None` for a device builder,
+    /// whose GPU passes are in the recorder's profile).
+    pub host_ms: Option<f64>,
+}
+
+impl RecordedBuild {
+    /// The build's milliseconds: the host builder's, or the GPU passes in `profile` (the
+    /// executed recorder's, whose scope `build` holds the build).
+    pub fn ms(&self, profile: &crate::gpu::Profile) -> f64 {
+        self.host_ms
+            .unwrap_or_else(|| profile.ms("build").unwrap_or(0.0))
+    }
+}
+
+impl AccelBuilder {
+    pub fn new(ctx: &Context, kind: AccelKind) -> Result<Self> {
+        Ok(Self {
+            kind,
+            kd: match kind {
+                AccelKind::KdTree => Some(KdTreeBuilder::new(ctx)?),
+                AccelKind::SahBvh => None,
+            },
+            refit: match kind {
+                AccelKind::KdTree => None,
+                AccelKind::SahBvh => Some(ctx.kernel(
+                    &kernels::ACCEL_BVH_REFIT,
+                    &Spec::new().workgroup(REFIT_WORKGROUP),
+                )?),
+            },
+            kd_params: SahParams::default(),
+            bvh_params: BvhParams::default(),
+            threading: Threading::all_cores(),
+            kd_refs_per_level: None,
+        })
+    }
+
+    pub fn kind(&self) -> AccelKind {
+        self.kind
+    }
+
+    /// The kd-tree build's capacity for `n` primitives: the default, doubled `grow` times,
+    /// fitted to the device with all nodes in the one buffer the traversal binds.
+    fn kd_capacity(&self, ctx: &Context, n: usize, grow: u32) -> BuildCapacity {
+        let kd = self.kd.as_ref().expect("a kd-tree builder");
+        let first = self
+            .kd_refs_per_level
+            .unwrap_or(BuildCapacity::for_primitives(n).refs_per_level);
+        let c = BuildCapacity::with_refs(n, first << grow.min(8));
+        let c = kd.fit_capacity(ctx, c);
+        BuildCapacity {
+            nodes: c
+                .nodes
+                .min((ctx.info().max_storage_buffer_range / 16) as usize),
+            ..c
+        }
+    }
+
+    /// Bytes of the structure and scratch for `n` primitives (`grow`: how many times the
+    /// kd-tree's reference budget is doubled after a build ran out of it; 0 at first).
+    pub fn sizes(&self, ctx: &Context, n: usize, grow: u32) -> AccelSizes {
+        let info = std::mem::size_of::<SceneInfo>() as u64;
+        match self.kind {
+            AccelKind::KdTree => {
+                let kd = self.kd.as_ref().expect("a kd-tree builder");
+                let c = self.kd_capacity(ctx, n, grow);
+                let s = kd.build_sizes(n, &c);
+                AccelSizes {
+                    structure_bytes: s.tree_bytes + info + 16,
+                    build_scratch_bytes: s.scratch_bytes,
+                    update_scratch_bytes: None,
+                }
+            }
+            AccelKind::SahBvh => {
+                let nodes = n.saturating_sub(1).max(1) as u64;
+                AccelSizes {
+                    structure_bytes: nodes * 64 + (n as u64 + nodes) * 4 + info,
+                    build_scratch_bytes: 0,
+                    update_scratch_bytes: Some(nodes * 4),
+                }
+            }
+        }
+    }
+
+    /// The structure's buffers and the build scratch for `n` primitives, at
+    /// [`AccelBuilder::sizes`].
+    pub fn create(
+        &self,
+        ctx: &Context,
+        n: usize,
+        grow: u32,
+    ) -> Result<(AccelStructure, AccelScratch)> {
+        let info = Buffer::new(ctx, "accel.info", 1)?;
+        match self.kind {
+            AccelKind::KdTree => {
+                let kd = self.kd.as_ref().expect("a kd-tree builder");
+                let c = self.kd_capacity(ctx, n, grow);
+                let out = kd.output(ctx, &c)?;
+                let scratch = kd.scratch(ctx, n.max(1), c)?;
+                Ok((
+                    AccelStructure {
+                        kind: self.kind,
+                        storage: Storage::KdTree {
+                            out: Box::new(out),
+                            built: Buffer::new(ctx, "accel.kdtree_built", 4)?,
+                        },
+                        info,
+                    },
+                    AccelScratch::KdTree(Box::new(scratch)),
+                ))
+            }
+            AccelKind::SahBvh => {
+                let nodes = n.saturating_sub(1).max(1);
+                Ok((
+                    AccelStructure {
+                        kind: self.kind,
+                        storage: Storage::Bvh {
+                            nodes: Buffer::new(ctx, "accel.bvh_nodes", nodes)?,
+                            refs: Buffer::new(ctx, "accel.bvh_refs", n + nodes)?,
+                            counts: (0, 0),
+                        },
+                        info,
+                    },
+                    AccelScratch::None,
+                ))
+            }
+        }
+    }
+
+    /// Records the build of `out` over `prims` into `rec`, ending with a compute → compute
+    /// barrier so kernels recorded next may trace it. `host` is the host's copy of the same
+    /// geometry, read by host builders only (the SAH BVH); the kd-tree reads `prims.boxes`.
+    pub fn record_build(
+        &self,
+        rec: &mut Recorder,
+        prims: &DevicePrimitives,
+        host: &TraceGeometry,
+        scratch: &AccelScratch,
+        out: &mut AccelStructure,
+    ) -> Result<RecordedBuild> {
+        let n = prims.count();
+        assert_eq!(out.kind, self.kind, "a {:?} structure", out.kind);
+        match (&mut out.storage, scratch) {
+            (Storage::KdTree { out: o, built }, AccelScratch::KdTree(s)) => {
+                let kd = self.kd.as_ref().expect("a kd-tree builder");
+                if n > 0 {
+                    kd.record_build_boxes(rec, &prims.boxes, n, &self.kd_params, s, o);
+                    rec.compute_to_compute();
+                }
+                kd.record_finish(
+                    rec,
+                    s,
+                    &o.nodes[0],
+                    &out.info,
+                    built,
+                    [
+                        n as u32,
+                        prims.n_tris as u32,
+                        prims.n_spheres as u32,
+                        prims.has_motion as u32,
+                    ],
+                );
+                rec.compute_to_compute();
+                Ok(RecordedBuild::default())
+            }
+            (
+                Storage::Bvh {
+                    nodes,
+                    refs,
+                    counts,
+                },
+                AccelScratch::None,
+            ) => {
+                assert_eq!(host.primitive_count(), n, "host and device geometry differ");
+                let t = std::time::Instant::now();
+                let bvh =
+                    bvh::build(&host.boxes, &self.bvh_params, self.threading).map_err(|e| {
+                        GpuError::Kernel {
+                            kernel: "accel.sah_bvh",
+                            reason: e.to_string(),
+                        }
+                    })?;
+                let host_ms = t.elapsed().as_secs_f64() * 1e3;
+                let mut words = bvh.refs.clone();
+                words.extend_from_slice(&bvh.parents);
+                rec.upload(nodes, &bvh.nodes)?;
+                rec.upload(refs, &words)?;
+                rec.upload(&out.info, &[prims.info(&bvh.bounds, bvh.refs.len() as u32)])?;
+                rec.transfer_to_compute();
+                *counts = (bvh.nodes.len(), bvh.refs.len());
+                Ok(RecordedBuild {
+                    host_ms: Some(host_ms),
+                })
+            }
+            _ => unreachable!("scratch of another kind"),
+        }
+    }
+}
+
+impl AccelBuilder {
+    /// Scratch of [`AccelBuilder::record_refit`] for `n` primitives (`update_scratch_bytes`
+    /// of [`AccelBuilder::sizes`]); `None` for kinds that cannot be refit.
+    pub fn update_scratch(&self, ctx: &Context, n: usize) -> Result<Option<Buffer<u32>>> {
+        match self.kind {
+            AccelKind::KdTree => Ok(None),
+            AccelKind::SahBvh => {
+                Buffer::new(ctx, "accel.refit_visits", n.saturating_sub(1).max(1)).map(Some)
+            }
+        }
+    }
+
+    /// Records a refit of `out` (a BVH this builder built over the same primitives) to
+    /// `prims.boxes` as they are now: every box recomputed bottom-up, the topology kept, the
+    /// root box rewritten. The caller orders the writes of the moved geometry before; the
+    /// recording ends with a compute → compute barrier. A kd-tree cannot be refit (its
+    /// split planes are fixed): that is an error.
+    pub fn record_refit(
+        &self,
+        rec: &mut Recorder,
+        prims: &DevicePrimitives,
+        out: &AccelStructure,
+        scratch: &Buffer<u32>,
+    ) -> Result<()> {
+        let (
+            Storage::Bvh {
+                nodes,
+                refs,
+                counts,
+            },
+            Some(kernel),
+        ) = (&out.storage, &self.refit)
+        else {
+            return Err(GpuError::Kernel {
+                kernel: "accel.refit",
+                reason: format!("a {} cannot be refit; rebuild it", out.kind.name()),
+            });
+        };
+        let n_nodes = counts.0;
+        assert!(
+            scratch.len() >= n_nodes,
+            "refit scratch of {} counters",
+            scratch.len()
+        );
+        if n_nodes == 0 {
+            return Ok(());
+        }
+        rec.scope("refit", |rec| {
+            rec.fill_first(scratch, n_nodes, 0);
+            rec.transfer_to_compute();
+            let groups = rec.groups_1d(n_nodes as u64, REFIT_WORKGROUP);
+            let b: [&dyn BufferArg; 5] = [nodes, refs, &prims.boxes, scratch, &out.info];
+            rec.dispatch(kernel, groups, &b, &(n_nodes as u32));
+        });
+        rec.compute_to_compute();
+        Ok(())
+    }
+}
+
+/// A structure built from a host structure (for tools and tests that built one on the
+/// host: the CPU twins' trees, or a downloaded one).
+pub fn upload_structure(
+    ctx: &Context,
+    prims: &DevicePrimitives,
+    host: &HostStructure,
+) -> Result<AccelStructure> {
+    match host {
+        HostStructure::KdTree(tree) => {
+            let nodes: &[KdNode] = if tree.nodes.is_empty() {
+                &[KdNode::leaf(0, 0)]
+            } else {
+                &tree.nodes
+            };
+            let out = BuildOutput {
+                nodes: [
+                    Buffer::from_slice(ctx, "accel.kdtree_nodes", nodes)?,
+                    Buffer::new(ctx, "accel.kdtree_nodes1", 1)?,
+                ],
+                prim_refs: Buffer::from_slice(ctx, "accel.kdtree_refs", &tree.prim_refs)?,
+            };
+            let built = [nodes.len() as u32, tree.prim_refs.len() as u32, 0, 0];
+            Ok(AccelStructure {
+                kind: AccelKind::KdTree,
+                storage: Storage::KdTree {
+                    out: Box::new(out),
+                    built: Buffer::from_slice(ctx, "accel.kdtree_built", &built)?,
+                },
+                info: Buffer::from_slice(ctx, "accel.info", &[prims.info(&tree.bounds, 0)])?,
+            })
+        }
+        HostStructure::Bvh(bvh) => {
+            let mut words = bvh.refs.clone();
+            words.extend_from_slice(&bvh.parents);
+            Ok(AccelStructure {
+                kind: AccelKind::SahBvh,
+                storage: Storage::Bvh {
+                    nodes: Buffer::from_slice(ctx, "accel.bvh_nodes", &bvh.nodes)?,
+                    refs: Buffer::from_slice(ctx, "accel.bvh_refs", &words)?,
+                    counts: (bvh.nodes.len(), bvh.refs.len()),
+                },
+                info: Buffer::from_slice(
+                    ctx,
+                    "accel.info",
+                    &[prims.info(&bvh.bounds, bvh.refs.len() as u32)],
+                )?,
+            })
+        }
+    }
+}
