@@ -71,33 +71,56 @@ uint node_children(BvhNode n) {
     return uint(n.a_count == 0u && n.a_index != NO_NODE) + uint(n.b_count == 0u && n.b_index != NO_NODE);
 }
 
+shared uint climbing_here;
+
 void main() {
     uint i = linear_invocation_id();
-    if (i >= pc.n_nodes || node_children(nodes[i]) != 0u) {
-        return;
-    }
+    bool climbing = i < pc.n_nodes && node_children(nodes[i]) == 0u;
     uint cur = i;
-    // At most one step per node: a bound, not a spin.
-    for (uint step = 0u; step < pc.n_nodes; step++) {
-        BvhNode n = nodes[cur];
-        child_box(n.a_index, n.a_count, n.a_min, n.a_max);
-        child_box(n.b_index, n.b_count, n.b_min, n.b_max);
-        nodes[cur].a_min = n.a_min;
-        nodes[cur].a_max = n.a_max;
-        nodes[cur].b_min = n.b_min;
-        nodes[cur].b_max = n.b_max;
-        uint parent = refs[info.parents_at + cur];
-        if (parent == NO_NODE) {
-            info.bounds_min = vec4(vmin(n.a_min, n.b_min), 0.0);
-            info.bounds_max = vec4(vmax(n.a_max, n.b_max), 0.0);
-            return;
+    // Rounds in workgroup-uniform control flow, every barrier reached by every invocation:
+    // Mesa 22.3's lavapipe breaks a loop that runs memoryBarrierBuffer (or an atomic with
+    // acquire/release semantics) in divergent control flow — the invocations still climbing
+    // stop there. One round: refit (stores), memory barrier, arrive at the parent (atomic),
+    // memory barrier; the workgroup stops when none of its invocations climbs. A bound of
+    // one round per node: never a spin.
+    for (uint round = 0u; round <= pc.n_nodes; round++) {
+        if (gl_LocalInvocationIndex == 0u) {
+            climbing_here = 0u;
         }
-        memoryBarrierBuffer();
-        uint arrived = atomicAdd(visits[parent], 1u) + 1u;
-        if (arrived < node_children(nodes[parent])) {
-            return; // the sibling, arriving last, refits the parent
+        barrier();
+        if (climbing) {
+            atomicOr(climbing_here, 1u);
         }
-        memoryBarrierBuffer();
-        cur = parent;
+        barrier();
+        bool any = climbing_here != 0u;
+        barrier(); // everyone has read it before the next round resets it
+        if (!any) {
+            break;
+        }
+        BvhNode n;
+        if (climbing) {
+            n = nodes[cur];
+            child_box(n.a_index, n.a_count, n.a_min, n.a_max);
+            child_box(n.b_index, n.b_count, n.b_min, n.b_max);
+            nodes[cur].a_min = n.a_min;
+            nodes[cur].a_max = n.a_max;
+            nodes[cur].b_min = n.b_min;
+            nodes[cur].b_max = n.b_max;
+        }
+        memoryBarrierBuffer(); // the boxes are visible before the arrival is counted
+        if (climbing) {
+            uint parent = refs[info.parents_at + cur];
+            if (parent == NO_NODE) {
+                info.bounds_min = vec4(vmin(n.a_min, n.b_min), 0.0);
+                info.bounds_max = vec4(vmax(n.a_max, n.b_max), 0.0);
+                climbing = false;
+            } else {
+                // The sibling, arriving last, refits the parent.
+                uint arrived = atomicAdd(visits[parent], 1u) + 1u;
+                climbing = arrived >= node_children(nodes[parent]);
+                cur = parent;
+            }
+        }
+        memoryBarrierBuffer(); // ... and read after it
     }
 }
