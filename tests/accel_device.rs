@@ -250,22 +250,15 @@ fn refit_follows_moved_primitives_bit_for_bit_with_its_twin() {
             unreachable!()
         };
         let bits = |nd: &bvh::BvhNode| -> Vec<u32> { bytemuck::cast_slice(&[*nd]).to_vec() };
-        let differs = (0..twin.nodes.len()).find(|&i| bits(&gpu.nodes[i]) != bits(&twin.nodes[i]));
-        if let Some(i) = differs {
-            let all: Vec<usize> = (0..twin.nodes.len())
-                .filter(|&i| bits(&gpu.nodes[i]) != bits(&twin.nodes[i]))
-                .collect();
-            let orig: Vec<usize> = (0..twin.nodes.len())
-                .filter(|&i| bits(&gpu.nodes[i]) == bits(&original.nodes[i]))
-                .collect();
-            panic!(
-                "{n}: GPU refit differs from its twin at node {i} of {}:\n GPU  {:?}\n twin {:?}\n parents {:?}",
-                twin.nodes.len(),
-                gpu.nodes[i],
-                twin.nodes[i],
-                twin.parents
-            );
-        }
+        let differ: Vec<usize> = (0..twin.nodes.len())
+            .filter(|&i| bits(&gpu.nodes[i]) != bits(&twin.nodes[i]))
+            .collect();
+        assert!(
+            differ.is_empty(),
+            "{n}: GPU refit differs from its twin at nodes {differ:?} of {} (parents {:?})",
+            twin.nodes.len(),
+            twin.parents
+        );
         assert_eq!(gpu.bounds, twin.bounds, "{n}");
 
         let rs = rays(1000, n as u64);
