@@ -1,14 +1,25 @@
-//! Ray throughput of the GPU tracer against a CPU peer in the same run (issue 6).
+//! Ray throughput of every structure and walk against CPU peers in the same run (issues 6
+//! and 14).
 //!
 //! On the Stanford bunny (../shared/scenes, skipped with a message when absent) and
 //! icospheres of 100K and 500K triangles: a 512×512 pinhole camera framing the object gives
-//! the primary rays (closest hit); from their hits, shadow rays towards a point light
-//! (any hit) and mirror reflections (closest hit). The same rays go through our GPU kd-tree
-//! tracer (watertight test; time = GPU timestamps around the trace kernel, best of 3) and
-//! through obvhs's PLOC BVH (`BvhBuildParams::medium_build`, Möller–Trumbore, one CPU
-//! thread; wall time). Prints Mrays/s for both, their ratio and the hit counts.
+//! the primary rays (closest hit); from their hits, shadow rays towards a point light (any
+//! hit) and mirror reflections (closest hit). The same rays go through
+//! - vkrt's GPU tracer on each structure built on the device — seed 001's kd-tree and seed
+//!   003's SAH BVH walked with a stack or seed 000's bitstack (watertight test; time = GPU
+//!   timestamps around the trace kernel, best of 3);
+//! - obvhs's PLOC BVH (`BvhBuildParams::medium_build`, Möller–Trumbore, one CPU thread;
+//!   wall time);
+//! - Embree 3.13 (`rtcIntersect1`/`rtcOccluded1`, medium-quality BVH, 2 threads, best of
+//!   3), through `benches/embree/embree_trace.c` when `libembree-dev` is installed.
+//!
+//! Prints Mrays/s per structure and peer, the ratio of the best vkrt BVH walk to Embree, the
+//! build times, and whether every structure found the same hits.
 //!
 //! `cargo bench --bench trace [-- --json] [-- --size 512]`
+
+#[path = "embree/peer.rs"]
+mod embree;
 
 use std::path::PathBuf;
 use std::time::{Duration, Instant};
@@ -16,25 +27,42 @@ use std::time::{Duration, Instant};
 use glam::Vec3;
 use obvhs::bvh2::builder::build_bvh2_from_tris;
 use obvhs::BvhBuildParams;
-use vkrt::gpu::{Context, ContextOptions, Validation};
-use vkrt::trace::gpu::{build_kdtree, GpuGeometry, Tracer};
+use vkrt::accel::device::{AccelBuilder, AccelKind};
+use vkrt::gpu::{Context, ContextOptions, Recorder, Validation};
+use vkrt::trace::gpu::{AccelTraversal, GpuGeometry, Tracer};
 use vkrt::trace::intersect::offset_ray_origin;
 use vkrt::trace::{Hit, Query, Ray, TraceGeometry, TraceOptions};
 
+/// One ray set on one scene.
 #[derive(serde::Serialize)]
 struct Row {
     scene: String,
     triangles: usize,
     rays_kind: &'static str,
     rays: usize,
-    gpu_hits: usize,
-    gpu_ms: f64,
-    gpu_mrays_per_s: f64,
+    /// Per structure and walk (`AccelTraversal::label`): hits, GPU ms, Mrays/s.
+    vkrt: Vec<(&'static str, usize, f64, f64)>,
     obvhs_hits: usize,
-    obvhs_ms: f64,
     obvhs_mrays_per_s: f64,
-    /// GPU Mrays/s ÷ obvhs Mrays/s.
-    ratio: f64,
+    embree2_hits: Option<usize>,
+    embree2_mrays_per_s: Option<f64>,
+    /// Best vkrt BVH walk ÷ Embree on 2 threads.
+    best_bvh_over_embree2: Option<f64>,
+    /// kd-tree ÷ Embree on 2 threads.
+    kdtree_over_embree2: Option<f64>,
+    /// Every structure and peer found the same number of hits.
+    hits_agree: bool,
+}
+
+/// Build times of one scene.
+#[derive(serde::Serialize)]
+struct Builds {
+    scene: String,
+    triangles: usize,
+    /// Per structure: ms (the kd-tree's GPU passes; the BVH's host build on every core).
+    vkrt: Vec<(&'static str, f64)>,
+    obvhs_ms: f64,
+    embree2_ms: Option<f64>,
 }
 
 fn v34(v: Vec3) -> glam034::Vec3A {
@@ -110,6 +138,10 @@ fn main() {
         device_name: None,
     })
     .expect("a Vulkan device");
+    let embree = embree::Embree::new();
+    if let Err(why) = &embree {
+        eprintln!("Embree's columns are empty: {why}");
+    }
 
     let mut scenes: Vec<(String, Vec<[Vec3; 3]>)> = Vec::new();
     let bunny =
@@ -133,19 +165,41 @@ fn main() {
     }
 
     let mut rows = Vec::new();
+    let mut builds = Vec::new();
     for (name, tris) in &scenes {
         let g = TraceGeometry::from_triangles(tris);
-        let (tree, _) = build_kdtree(&ctx, &g, &Default::default()).expect("kd-tree build");
-        let dev = GpuGeometry::upload(&ctx, &g, &tree).expect("upload");
-        let closest = Tracer::new(&ctx, &TraceOptions::default()).expect("tracer");
-        let any = Tracer::new(
-            &ctx,
-            &TraceOptions {
-                query: Query::Any,
-                ..TraceOptions::default()
-            },
-        )
-        .expect("tracer");
+        // Every structure, built on the device as `vkrt trace` builds it.
+        let mut built = Vec::new();
+        let mut build_ms = Vec::new();
+        for kind in AccelKind::ALL {
+            let builder = AccelBuilder::new(&ctx, kind).expect("builder");
+            let mut rec = Recorder::new(&ctx).expect("recorder");
+            let (dev, recorded) =
+                GpuGeometry::record_build(&mut rec, &builder, &g, 0).expect("build");
+            let profile = rec.submit_and_wait().expect("build");
+            build_ms.push((kind.name(), recorded.ms(&profile)));
+            built.push((kind, dev));
+        }
+        let device = |accel: AccelTraversal| {
+            let kind = match accel {
+                AccelTraversal::KdTree => AccelKind::KdTree,
+                AccelTraversal::Bvh(_) => AccelKind::SahBvh,
+            };
+            &built.iter().find(|(k, _)| *k == kind).expect("built").1
+        };
+        let tracers = |query: Query| -> Vec<(AccelTraversal, Tracer)> {
+            AccelTraversal::ALL
+                .iter()
+                .map(|&a| {
+                    let opt = TraceOptions {
+                        query,
+                        ..TraceOptions::default()
+                    };
+                    (a, Tracer::for_accel(&ctx, &opt, a).expect("tracer"))
+                })
+                .collect()
+        };
+        let (closest, any) = (tracers(Query::Closest), tracers(Query::Any));
 
         let ob_tris: Vec<obvhs::triangle::Triangle> = tris
             .iter()
@@ -155,18 +209,20 @@ fn main() {
                 v2: v34(t[2]),
             })
             .collect();
+        let ob_start = Instant::now();
         let bvh = build_bvh2_from_tris(
             &ob_tris,
             BvhBuildParams::medium_build(),
             &mut Duration::default(),
         );
+        let obvhs_ms = ob_start.elapsed().as_secs_f64() * 1e3;
 
-        let gpu = |tracer: &Tracer, rays: &[Ray]| {
+        let gpu = |accel: AccelTraversal, tracer: &Tracer, rays: &[Ray]| {
             let mut best = f64::MAX;
             let mut hits = Vec::new();
             for _ in 0..3 {
                 let b = tracer
-                    .trace_batched(&ctx, &dev, rays, 0.0, None)
+                    .trace_batched(&ctx, device(accel), rays, 0.0, None)
                     .expect("trace");
                 best = best.min(b.profile.ms("trace").unwrap_or(f64::MAX));
                 hits = b.hits;
@@ -193,71 +249,136 @@ fn main() {
         };
 
         let primary = camera_rays(tris, size);
-        let (p_hits, p_ms) = gpu(&closest, &primary);
-        let (lo, hi) = (tree.bounds.min, tree.bounds.max);
+        let (p_hits, _) = gpu(AccelTraversal::KdTree, &closest[0].1, &primary);
+        let bounds = tris.iter().flatten().fold(
+            (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
+            |(lo, hi), p| (lo.min(*p), hi.max(*p)),
+        );
+        let (lo, hi) = bounds;
         let light = (lo + hi) * 0.5 + Vec3::new(1.0, 2.0, 1.5) * (hi - lo).length();
         let (shadow, mirror) = secondary(&g, &primary, &p_hits, light);
-        let (s_hits, s_ms) = gpu(&any, &shadow);
-        let (m_hits, m_ms) = gpu(&closest, &mirror);
-        for (kind, rays, hits, ms, any_hit) in [
-            ("primary", &primary, &p_hits, p_ms, false),
-            ("shadow", &shadow, &s_hits, s_ms, true),
-            ("secondary", &mirror, &m_hits, m_ms, false),
-        ] {
-            let (ob_hits, ob_ms) = cpu(rays, any_hit);
+        let sets: [(&'static str, &[Ray], bool); 3] = [
+            ("primary", &primary, false),
+            ("shadow", &shadow, true),
+            ("secondary", &mirror, false),
+        ];
+        let peer = embree.as_ref().ok().map(|e| {
+            let s: Vec<(&[Ray], bool)> = sets.iter().map(|(_, r, a)| (*r, *a)).collect();
+            e.run(tris, 2, &s)
+        });
+        builds.push(Builds {
+            scene: name.clone(),
+            triangles: tris.len(),
+            vkrt: build_ms,
+            obvhs_ms,
+            embree2_ms: peer.as_ref().map(|p| p.build_ms),
+        });
+        for (k, (kind, rays, any_hit)) in sets.into_iter().enumerate() {
             let mr = |ms: f64| rays.len() as f64 / (ms * 1e3);
+            let tracers = if any_hit { &any } else { &closest };
+            let vkrt: Vec<(&'static str, usize, f64, f64)> = tracers
+                .iter()
+                .map(|(a, t)| {
+                    let (hits, ms) = gpu(*a, t, rays);
+                    (
+                        a.label(),
+                        hits.iter().filter(|h| h.is_hit()).count(),
+                        ms,
+                        mr(ms),
+                    )
+                })
+                .collect();
+            let (ob_hits, ob_ms) = cpu(rays, any_hit);
+            let em = peer.as_ref().map(|p| p.traces[k]);
+            let em_mr = em.map(|(_, ms)| mr(ms));
+            let best_bvh = vkrt
+                .iter()
+                .filter(|v| v.0 != "kdtree")
+                .map(|v| v.3)
+                .fold(0.0, f64::max);
+            let hits_agree =
+                vkrt.iter().all(|v| v.1 == vkrt[0].1) && em.is_none_or(|(h, _)| h == vkrt[0].1);
             rows.push(Row {
                 scene: name.clone(),
                 triangles: tris.len(),
                 rays_kind: kind,
                 rays: rays.len(),
-                gpu_hits: hits.iter().filter(|h| h.is_hit()).count(),
-                gpu_ms: ms,
-                gpu_mrays_per_s: mr(ms),
                 obvhs_hits: ob_hits,
-                obvhs_ms: ob_ms,
                 obvhs_mrays_per_s: mr(ob_ms),
-                ratio: mr(ms) / mr(ob_ms),
+                embree2_hits: em.map(|(h, _)| h),
+                embree2_mrays_per_s: em_mr,
+                best_bvh_over_embree2: em_mr.map(|e| best_bvh / e),
+                kdtree_over_embree2: em_mr.map(|e| vkrt[0].3 / e),
+                hits_agree,
+                vkrt,
             });
         }
     }
     if json {
-        let v = serde_json::json!({ "device": ctx.info().device, "size": size, "rows": rows });
+        let v = serde_json::json!({
+            "device": ctx.info().device,
+            "size": size,
+            "rows": rows,
+            "builds": builds,
+        });
         println!("{}", serde_json::to_string_pretty(&v).unwrap());
         return;
     }
     println!(
-        "{} — {size}×{size} camera; obvhs: PLOC medium_build, 1 CPU thread",
+        "{} — {size}×{size} camera; Mrays/s (vkrt: GPU timestamps; obvhs: PLOC medium, 1 \
+         thread; Embree 3: medium BVH, 2 threads)",
         ctx.info().device
     );
     println!(
-        "{:<14} {:>8} {:<10} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>7}",
+        "{:<13} {:<9} {:>7} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8}",
         "scene",
-        "tris",
         "rays",
         "n",
-        "gpu hits",
-        "gpu ms",
-        "gpu Mr/s",
-        "cpu hits",
-        "cpu ms",
-        "cpu Mr/s",
-        "ratio"
+        "kdtree",
+        "bvh-stk",
+        "bvh-bit",
+        "obvhs-1t",
+        "embree-2t",
+        "bvh/emb",
+        "kd/emb",
+        "hits ok"
     );
+    let opt = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.2}"));
     for r in &rows {
         println!(
-            "{:<14} {:>8} {:<10} {:>8} {:>9} {:>9.1} {:>9.2} {:>9} {:>9.1} {:>9.2} {:>7.2}",
+            "{:<13} {:<9} {:>7} {:>8.2} {:>9.2} {:>9.2} {:>9.2} {:>9} {:>9} {:>9} {:>8}",
             r.scene,
-            r.triangles,
             r.rays_kind,
             r.rays,
-            r.gpu_hits,
-            r.gpu_ms,
-            r.gpu_mrays_per_s,
-            r.obvhs_hits,
-            r.obvhs_ms,
+            r.vkrt[0].3,
+            r.vkrt[1].3,
+            r.vkrt[2].3,
             r.obvhs_mrays_per_s,
-            r.ratio
+            opt(r.embree2_mrays_per_s),
+            opt(r.best_bvh_over_embree2),
+            opt(r.kdtree_over_embree2),
+            if r.hits_agree { "yes" } else { "NO" }
+        );
+    }
+    println!("build ms: vkrt kd-tree (GPU passes), SAH BVH (host, every core), obvhs PLOC (1 thread), Embree (2 threads)");
+    for b in &builds {
+        println!(
+            "{:<13} {:>8} tris  kdtree {:>9.1}  sah-bvh {:>8.1}  obvhs {:>8.1}  embree-2t {:>8}",
+            b.scene,
+            b.triangles,
+            b.vkrt[0].1,
+            b.vkrt[1].1,
+            b.obvhs_ms,
+            opt(b.embree2_ms)
+        );
+    }
+    for r in rows.iter().filter(|r| !r.hits_agree) {
+        eprintln!(
+            "note: {} {} rays: hits differ: {:?}, Embree {:?}",
+            r.scene,
+            r.rays_kind,
+            r.vkrt.iter().map(|v| (v.0, v.1)).collect::<Vec<_>>(),
+            r.embree2_hits
         );
     }
 }

@@ -123,24 +123,22 @@ bool hit_primitive(uint prim, Ray r, Shear sh, float time, float tmin, float tma
 // (Ize 2013). `inv_d` is 1 / r.d. The scene box of the kd-tree walk and every child box of
 // the BVH walk.
 bool clip_to_box(vec3 bmin, vec3 bmax, Ray r, vec3 inv_d, inout float t0, inout float t1) {
-    for (uint a = 0u; a < 3u; a++) {
-        float lo_b = bmin[a];
-        float hi_b = bmax[a];
-        if (r.d[a] == 0.0) {
-            if (r.o[a] < lo_b || r.o[a] > hi_b) {
-                return false;
-            }
-            continue;
-        }
-        precise float ta = (lo_b - r.o[a]) * inv_d[a];
-        precise float tb = (hi_b - r.o[a]) * inv_d[a];
-        precise float lo = min(ta, tb);
-        precise float hi = max(ta, tb);
-        precise float lo_w = lo - abs(lo) * PLANE_SLACK;
-        precise float hi_w = hi + abs(hi) * PLANE_SLACK;
-        t0 = max(t0, lo_w);
-        t1 = min(t1, hi_w);
+    // Branch-free on the three axes (lavapipe runs both sides of every branch under a mask):
+    // an axis the ray runs parallel to only decides inside or outside, as in the CPU twin;
+    // the others narrow [t0, t1] in the order x, y, z. On a miss t0 and t1 are unspecified.
+    bvec3 parallel = equal(r.d, vec3(0.0));
+    bvec3 off_slab = bvec3(uvec3(lessThan(r.o, bmin)) | uvec3(greaterThan(r.o, bmax)));
+    if (any(bvec3(uvec3(parallel) & uvec3(off_slab)))) {
+        return false;
     }
+    precise vec3 ta = (bmin - r.o) * inv_d;
+    precise vec3 tb = (bmax - r.o) * inv_d;
+    precise vec3 lo = min(ta, tb);
+    precise vec3 hi = max(ta, tb);
+    precise vec3 lo_w = mix(lo - abs(lo) * PLANE_SLACK, vec3(-1.0 / 0.0), parallel);
+    precise vec3 hi_w = mix(hi + abs(hi) * PLANE_SLACK, vec3(1.0 / 0.0), parallel);
+    t0 = max(max(max(t0, lo_w.x), lo_w.y), lo_w.z);
+    t1 = min(min(min(t1, hi_w.x), hi_w.y), hi_w.z);
     return t0 <= t1;
 }
 

@@ -82,7 +82,8 @@ impl GpuGeometry {
 
     /// Records the upload of `g` and the build of `builder`'s structure over it into `rec`
     /// (in a profiler scope named `build`), ending with the barrier that lets the next
-    /// kernels trace it. `grow`: see [`AccelBuilder::sizes`].
+    /// kernels trace it. `grow`: see [`AccelBuilder::sizes`]. Keep the returned geometry
+    /// until the work has executed: its buffers are the ones the recorded commands write.
     pub fn record_build(
         rec: &mut Recorder,
         builder: &AccelBuilder,

@@ -1,0 +1,122 @@
+//! Seed 003's Tables 3/4 on this machine (issue 14): build time of the CPU SAH BVH with each
+//! threading scheme (uneven, even, node queue; rayon as today's baseline) at 1 and all
+//! threads, full sweep and 16-bin SAH, speed-up over one thread — beside Embree 3's build of
+//! the same triangles at 1 and 2 threads (medium quality, best of 3) and seed 001's GPU
+//! kd-tree build, in one run. Every scheme must give the one-thread tree (checked).
+//!
+//! Scenes: the Stanford bunny (../shared/scenes), the default scene, icospheres of 100K,
+//! 500K, 1M and 2M triangles.
+//!
+//! `cargo bench --bench bvh_build [-- --json] [-- --quick]` (`--quick`: up to 500K)
+
+#[path = "embree/peer.rs"]
+mod embree;
+
+use std::path::PathBuf;
+
+use glam::Vec3;
+use vkrt::accel::bvh::bench::bench;
+use vkrt::accel::device::{AccelBuilder, AccelKind};
+use vkrt::gpu::{Context, ContextOptions, Recorder, Validation};
+use vkrt::trace::gpu::GpuGeometry;
+use vkrt::trace::TraceGeometry;
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let json = args.iter().any(|a| a == "--json");
+    let quick = args.iter().any(|a| a == "--quick");
+    let ctx = Context::new(&ContextOptions {
+        validation: Validation::Off,
+        device_name: None,
+    })
+    .expect("a Vulkan device");
+    let embree = embree::Embree::new();
+    if let Err(why) = &embree {
+        eprintln!("Embree's columns are empty: {why}");
+    }
+    let mut scenes: Vec<(String, Vec<[Vec3; 3]>)> = Vec::new();
+    let bunny =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
+    if bunny.exists() {
+        let s = vkrt::scene::Scene::load(&bunny).expect("bunny").scene;
+        scenes.push(("bunny".into(), s.triangles_world(0.0)));
+    }
+    let default = vkrt::scene::Scene::default_scene();
+    scenes.push(("default-scene".into(), default.triangles_world(0.0)));
+    let sizes: &[u64] = if quick {
+        &[100_000, 500_000]
+    } else {
+        &[100_000, 500_000, 1_000_000, 2_000_000]
+    };
+    for &n in sizes {
+        let m = vkrt::scene::gen::icosphere_with_at_least(n).expect("icosphere");
+        let tris = m
+            .indices
+            .iter()
+            .map(|t| t.map(|i| m.positions[i as usize]))
+            .collect();
+        scenes.push((format!("icosphere{}k", n / 1000), tris));
+    }
+    let rows = bench(&scenes, 3).expect("bench");
+    let kd = AccelBuilder::new(&ctx, AccelKind::KdTree).expect("kd-tree builder");
+    let mut peers = Vec::new();
+    for (name, tris) in &scenes {
+        let e1 = embree.as_ref().ok().map(|e| e.run(tris, 1, &[]).build_ms);
+        let e2 = embree.as_ref().ok().map(|e| e.run(tris, 2, &[]).build_ms);
+        // The GPU kd-tree, built twice on the device (the second timed: first-touch page
+        // faults of fresh memory are lavapipe's, not the builder's).
+        let g = TraceGeometry::from_triangles(tris);
+        let mut kd_ms = f64::NAN;
+        for _ in 0..2 {
+            let mut rec = Recorder::new(&ctx).expect("recorder");
+            // The structure must outlive the submission that builds it.
+            let (structure, r) = GpuGeometry::record_build(&mut rec, &kd, &g, 0).expect("build");
+            kd_ms = r.ms(&rec.submit_and_wait().expect("submit"));
+            drop(structure);
+        }
+        peers.push(serde_json::json!({
+            "scene": name,
+            "triangles": tris.len(),
+            "embree_1t_ms": e1,
+            "embree_2t_ms": e2,
+            "kdtree_gpu_ms": kd_ms,
+        }));
+    }
+    if json {
+        let v = serde_json::json!({ "device": ctx.info().device, "rows": rows, "peers": peers });
+        println!("{}", serde_json::to_string_pretty(&v).unwrap());
+        return;
+    }
+    println!(
+        "{} — SAH BVH build, best of 3 (wall); speed-up over 1 thread",
+        ctx.info().device
+    );
+    println!(
+        "{:<15} {:>8} {:<9} {:<7} {:>3} {:>10} {:>8} {:>9}",
+        "scene", "tris", "sah", "scheme", "thr", "ms", "speedup", "SAH cost"
+    );
+    for r in &rows {
+        println!(
+            "{:<15} {:>8} {:<9} {:<7} {:>3} {:>10.1} {:>8.2} {:>9.2}",
+            r.scene, r.triangles, r.sah, r.scheme, r.threads, r.build_ms, r.speedup, r.sah_cost
+        );
+    }
+    println!("peers: Embree 3 (medium BVH, best of 3) and vkrt's GPU kd-tree (timestamps)");
+    let f = |v: &serde_json::Value| v.as_f64().map_or("-".into(), |x| format!("{x:.1}"));
+    for p in &peers {
+        let sweep_queue = rows
+            .iter()
+            .filter(|r| r.scene == p["scene"] && r.sah == "sweep" && r.scheme == "queue")
+            .map(|r| r.build_ms)
+            .fold(f64::INFINITY, f64::min);
+        println!(
+            "{:<15} embree-1t {:>8} ms  embree-2t {:>8} ms  kd-tree GPU {:>9} ms  \
+             SAH BVH queue (sweep, all threads) {:>8.1} ms",
+            p["scene"].as_str().unwrap_or(""),
+            f(&p["embree_1t_ms"]),
+            f(&p["embree_2t_ms"]),
+            f(&p["kdtree_gpu_ms"]),
+            sweep_queue
+        );
+    }
+}

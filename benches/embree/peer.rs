@@ -1,0 +1,99 @@
+//! Embree 3 as a CPU peer in the benches: `embree_trace.c` compiled on first use (it needs
+//! a C compiler and Debian's `libembree-dev`; without them the benches print a note and
+//! leave Embree's columns empty). Triangles and rays go to it as files.
+
+use std::path::{Path, PathBuf};
+use std::process::Command;
+
+use glam::Vec3;
+use vkrt::trace::Ray;
+
+pub struct Embree {
+    exe: PathBuf,
+    dir: PathBuf,
+}
+
+/// What one run of the helper measured.
+pub struct EmbreeRun {
+    /// `rtcCommitScene`, medium quality, best of 3.
+    pub build_ms: f64,
+    /// Per ray set: hits and the best of 3 wall times.
+    pub traces: Vec<(usize, f64)>,
+}
+
+impl Embree {
+    /// The compiled helper, or why not.
+    pub fn new() -> Result<Self, String> {
+        let src = Path::new(env!("CARGO_MANIFEST_DIR")).join("benches/embree/embree_trace.c");
+        let dir = std::env::temp_dir().join(format!("vkrt-embree-{}", std::process::id()));
+        std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
+        let exe = dir.join("embree_trace");
+        let out = Command::new("cc")
+            .args(["-O2", "-o"])
+            .arg(&exe)
+            .arg(&src)
+            .args(["-lembree3", "-lpthread", "-lm"])
+            .output()
+            .map_err(|e| format!("no C compiler ({e})"))?;
+        if !out.status.success() {
+            return Err(format!(
+                "could not build {} (apt install libembree-dev): {}",
+                src.display(),
+                String::from_utf8_lossy(&out.stderr)
+                    .lines()
+                    .next()
+                    .unwrap_or("")
+            ));
+        }
+        Ok(Self { exe, dir })
+    }
+
+    /// Builds over `tris` and traces each ray set (`true`: any hit) on `threads` threads.
+    pub fn run(&self, tris: &[[Vec3; 3]], threads: usize, sets: &[(&[Ray], bool)]) -> EmbreeRun {
+        let tri_path = self.dir.join("scene.tris");
+        let floats: Vec<f32> = tris
+            .iter()
+            .flat_map(|t| t.iter().flat_map(|p| p.to_array()))
+            .collect();
+        std::fs::write(&tri_path, bytemuck::cast_slice(&floats)).expect("write triangles");
+        let mut cmd = Command::new(&self.exe);
+        cmd.arg(&tri_path).arg(threads.to_string());
+        for (k, (rays, any)) in sets.iter().enumerate() {
+            let p = self.dir.join(format!("set{k}.rays"));
+            std::fs::write(&p, vkrt::trace::files::encode_rays(rays)).expect("write rays");
+            cmd.arg(format!(
+                "{}:{}",
+                p.display(),
+                if *any { "any" } else { "closest" }
+            ));
+        }
+        let out = cmd.output().expect("run embree_trace");
+        assert!(
+            out.status.success(),
+            "{}",
+            String::from_utf8_lossy(&out.stderr)
+        );
+        let text = String::from_utf8_lossy(&out.stdout);
+        let mut run = EmbreeRun {
+            build_ms: f64::NAN,
+            traces: Vec::new(),
+        };
+        for line in text.lines() {
+            let f: Vec<&str> = line.split_whitespace().collect();
+            match f.as_slice() {
+                ["build_ms", ms] => run.build_ms = ms.parse().unwrap(),
+                ["trace", _, _, hits, ms] => run
+                    .traces
+                    .push((hits.parse().unwrap(), ms.parse().unwrap())),
+                _ => {}
+            }
+        }
+        run
+    }
+}
+
+impl Drop for Embree {
+    fn drop(&mut self) {
+        let _ = std::fs::remove_dir_all(&self.dir);
+    }
+}
