@@ -208,6 +208,12 @@ enum BenchCommand {
         width: u32,
         #[arg(long, default_value_t = 192)]
         height: u32,
+        /// The structure the renders trace (built on the device, as `vkrt render` does).
+        #[arg(long, value_enum, default_value_t = AccelArg::Kdtree)]
+        accel: AccelArg,
+        /// How a BVH is walked.
+        #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
+        traversal: TraversalArg,
         #[arg(long)]
         json: bool,
     },
@@ -543,6 +549,8 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     scenes,
                     width,
                     height,
+                    accel,
+                    traversal,
                     json,
                 },
         } => {
@@ -560,7 +568,8 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 );
             }
             let ctx = context(cli.validate)?;
-            let rows = vkrt::render::bench::effect_costs(&ctx, &list, width, height)
+            let accel = accel_traversal(accel, traversal);
+            let rows = vkrt::render::bench::effect_costs(&ctx, &list, (width, height), accel)
                 .map_err(|e| e.to_string())?;
             if json {
                 println!(

@@ -54,12 +54,12 @@ pub fn without_effect(scene: &Scene, effect: &str) -> Scene {
     s
 }
 
-/// Renders each `(name, scene, effect)` three ways at `width`×`height`.
+/// Renders each `(name, scene, effect)` three ways at `width`×`height`, on `accel`.
 pub fn effect_costs(
     ctx: &Context,
     scenes: &[(String, Scene, String)],
-    width: u32,
-    height: u32,
+    (width, height): (u32, u32),
+    accel: crate::trace::gpu::AccelTraversal,
 ) -> Result<Vec<EffectRow>, Box<dyn std::error::Error + Send + Sync>> {
     let trace = TraceOptions::default();
     let opt = RenderOptions {
@@ -67,7 +67,7 @@ pub fn effect_costs(
         height: Some(height),
         spp: None,
         all_effects: false,
-        accel: Default::default(),
+        accel,
     };
     let mut rows = Vec::new();
     for (name, scene, effect) in scenes {
