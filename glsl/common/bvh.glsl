@@ -25,6 +25,38 @@ struct BvhNode {
 
 // The same binding as the kd-tree's nodes: one structure is bound at a time.
 layout(std430, binding = GEOM_BINDING + 0) readonly buffer BvhNodes { BvhNode bvh_nodes[]; };
+#if FP64_FALLBACK
+// The same nodes as two 64-bit vectors each: on lavapipe every load is a loop over lanes and
+// components, so eight 64-bit components cost half the trips of sixteen 32-bit ones.
+layout(std430, binding = GEOM_BINDING + 0) readonly buffer BvhNodes64 { u64vec4 bvh_nodes64[]; };
+
+vec2 two_floats(uint64_t w) {
+    return uintBitsToFloat(unpack32(w));
+}
+
+uvec2 two_uints(uint64_t w) {
+    return unpack32(w);
+}
+
+BvhNode load_bvh_node(uint i) {
+    u64vec4 p = bvh_nodes64[2u * i];
+    u64vec4 q = bvh_nodes64[2u * i + 1u];
+    vec2 a0 = two_floats(p.x);
+    uvec2 a1 = two_uints(p.y);
+    vec2 a2 = two_floats(p.z);
+    uvec2 a3 = two_uints(p.w);
+    vec2 b0 = two_floats(q.x);
+    uvec2 b1 = two_uints(q.y);
+    vec2 b2 = two_floats(q.z);
+    uvec2 b3 = two_uints(q.w);
+    return BvhNode(vec3(a0, uintBitsToFloat(a1.x)), a1.y, vec3(a2, uintBitsToFloat(a3.x)), a3.y,
+                   vec3(b0, uintBitsToFloat(b1.x)), b1.y, vec3(b2, uintBitsToFloat(b3.x)), b3.y);
+}
+#else
+BvhNode load_bvh_node(uint i) {
+    return bvh_nodes[i];
+}
+#endif
 
 // Where the ray enters the box within [t0, t1] (traverse.glsl's clip_to_box).
 bool bvh_enter(vec3 bmin, vec3 bmax, Ray r, vec3 inv_d, float t0, float t1, out float t_in) {
@@ -58,7 +90,7 @@ Hit trace_bvh(Ray r, float time, bool bitstack) {
             return best;
         }
         steps++;
-        BvhNode nd = bvh_nodes[node];
+        BvhNode nd = load_bvh_node(node);
         uint inner[2] = uint[2](NO_NODE, NO_NODE);
         float t_in[2] = float[2](0.0, 0.0);
         for (uint which = 0u; which < 2u; which++) {
@@ -123,7 +155,7 @@ Hit trace_bvh(Ray r, float time, bool bitstack) {
                 trail_hi >>= 1u;
             }
             trail_lo ^= 1u;
-            BvhNode pn = bvh_nodes[bvh_parent(node)];
+            BvhNode pn = load_bvh_node(bvh_parent(node));
             bool node_is_a = pn.a_count == 0u && pn.a_index == node;
             uint sibling = node_is_a ? pn.b_index : pn.a_index;
             vec3 smin = node_is_a ? pn.b_min : pn.a_min;

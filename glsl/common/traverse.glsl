@@ -15,6 +15,9 @@
 
 #include "common/kdtree.glsl"
 #include "common/ray.glsl"
+#if FP64_FALLBACK
+#extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
+#endif
 
 #define NO_MOTION 0xffffffffu
 // Node visits + primitive tests per ray before giving up (lavapipe silently ends loops at

@@ -149,10 +149,13 @@ pub struct Tracer {
     accel: AccelTraversal,
 }
 
-/// `opt` as the device can run it: no double-precision fallback without shaderFloat64.
+/// `opt` as the device can run it: no double-precision fallback without shaderFloat64 (the
+/// `exact` kernel variants also load BVH nodes as 64-bit words, so they need shaderInt64
+/// too; every device we know with one has the other).
 pub fn effective_options(ctx: &Context, opt: &TraceOptions) -> TraceOptions {
+    let f = &ctx.info().features;
     TraceOptions {
-        exact: opt.exact && ctx.info().features.shader_float64,
+        exact: opt.exact && f.shader_float64 && f.shader_int64,
         ..*opt
     }
 }
