@@ -80,11 +80,41 @@ vec3 tri_vertex(uint tri, uint corner) {
     return vec3(tri_verts[i], tri_verts[i + 1u], tri_verts[i + 2u]);
 }
 
-// The three vertices of triangle `tri` at `time`.
-void triangle_at(uint tri, float time, out vec3 p0, out vec3 p1, out vec3 p2) {
+#if FP64_FALLBACK
+// The same vertices as 64-bit words: a triangle's nine floats lie in five of them (the
+// buffer holds two padding floats, DevicePrimitives), five loads instead of nine — on
+// lavapipe every load is a loop over lanes.
+layout(std430, binding = GEOM_BINDING + 2) readonly buffer TriVerts64 { uint64_t tri_verts64[]; };
+
+void load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
+    uint first = 9u * tri;
+    uint base = first >> 1u;
+    uint w[10];
+    for (uint k = 0u; k < 5u; k++) {
+        uvec2 pair = unpack32(tri_verts64[base + k]);
+        w[2u * k] = pair.x;
+        w[2u * k + 1u] = pair.y;
+    }
+    bool odd = (first & 1u) != 0u;
+    float f[9];
+    for (uint k = 0u; k < 9u; k++) {
+        f[k] = uintBitsToFloat(odd ? w[k + 1u] : w[k]);
+    }
+    p0 = vec3(f[0], f[1], f[2]);
+    p1 = vec3(f[3], f[4], f[5]);
+    p2 = vec3(f[6], f[7], f[8]);
+}
+#else
+void load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
     p0 = tri_vertex(tri, 0u);
     p1 = tri_vertex(tri, 1u);
     p2 = tri_vertex(tri, 2u);
+}
+#endif
+
+// The three vertices of triangle `tri` at `time`.
+void triangle_at(uint tri, float time, out vec3 p0, out vec3 p1, out vec3 p2) {
+    load_triangle(tri, p0, p1, p2);
     if (scene_info.has_motion != 0u) {
         uint slot = prim_motion[tri];
         if (slot != NO_MOTION) {

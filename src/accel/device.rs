@@ -93,7 +93,8 @@ impl DevicePrimitives {
         let ctx = rec.context().clone();
         let boxes = flat_boxes(&g.boxes);
         let p = Self {
-            tri_verts: Buffer::new(&ctx, "trace.tri_verts", g.tri_verts.len())?,
+            // Two floats of padding: the exact kernels read a triangle as five 64-bit words.
+            tri_verts: Buffer::new(&ctx, "trace.tri_verts", g.tri_verts.len() + 2)?,
             spheres: Buffer::new(&ctx, "trace.spheres", g.spheres.len())?,
             prim_motion: Buffer::new(&ctx, "trace.prim_motion", g.prim_motion.len())?,
             motions: Buffer::new(&ctx, "trace.motions", g.motions.len())?,
