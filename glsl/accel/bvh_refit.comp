@@ -78,9 +78,9 @@ void main() {
     bool climbing = i < pc.n_nodes && node_children(nodes[i]) == 0u;
     uint cur = i;
     // Rounds in workgroup-uniform control flow, every barrier reached by every invocation:
-    // Mesa 22.3's lavapipe breaks a loop that runs memoryBarrierBuffer (or an atomic with
-    // acquire/release semantics) in divergent control flow — the invocations still climbing
-    // stop there. One round: refit (stores), memory barrier, arrive at the parent (atomic),
+    // Mesa 22.3's lavapipe makes memoryBarrierBuffer (or an atomic with acquire/release
+    // semantics) a coroutine switch, and a subgroup that runs more of them than the others
+    // is never resumed (glsl/gpu/memory_barrier_probe.comp). One round: refit (stores), memory barrier, arrive at the parent (atomic),
     // memory barrier; the workgroup stops when none of its invocations climbs. A bound of
     // one round per node: never a spin.
     for (uint round = 0u; round <= pc.n_nodes; round++) {
