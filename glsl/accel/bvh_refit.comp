@@ -80,9 +80,9 @@ void main() {
     // Rounds in workgroup-uniform control flow, every barrier reached by every invocation:
     // Mesa 22.3's lavapipe makes memoryBarrierBuffer (or an atomic with acquire/release
     // semantics) a coroutine switch, and a subgroup that runs more of them than the others
-    // is never resumed (glsl/gpu/memory_barrier_probe.comp). One round: refit (stores), memory barrier, arrive at the parent (atomic),
-    // memory barrier; the workgroup stops when none of its invocations climbs. A bound of
-    // one round per node: never a spin.
+    // is never resumed (glsl/gpu/memory_barrier_probe.comp). One round: refit (stores),
+    // memory barrier, arrive at the parent (atomic), memory barrier; the workgroup stops
+    // when none of its invocations climbs. A bound of one round per node: never a spin.
     for (uint round = 0u; round <= pc.n_nodes; round++) {
         if (gl_LocalInvocationIndex == 0u) {
             climbing_here = 0u;
