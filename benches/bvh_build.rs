@@ -12,12 +12,9 @@
 #[path = "embree/peer.rs"]
 mod embree;
 
-use std::path::PathBuf;
-
-use glam::Vec3;
 use vkrt::accel::bvh::bench::bench;
 use vkrt::accel::device::{AccelBuilder, AccelKind};
-use vkrt::gpu::{Context, ContextOptions, Recorder, Validation};
+use vkrt::gpu::Recorder;
 use vkrt::trace::gpu::GpuGeometry;
 use vkrt::trace::TraceGeometry;
 
@@ -25,44 +22,24 @@ fn main() {
     let args: Vec<String> = std::env::args().collect();
     let json = args.iter().any(|a| a == "--json");
     let quick = args.iter().any(|a| a == "--quick");
-    let ctx = Context::new(&ContextOptions {
-        validation: Validation::Off,
-        device_name: None,
-    })
-    .expect("a Vulkan device");
-    let embree = embree::Embree::new();
-    if let Err(why) = &embree {
-        eprintln!("Embree's columns are empty: {why}");
-    }
-    let mut scenes: Vec<(String, Vec<[Vec3; 3]>)> = Vec::new();
-    let bunny =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
-    if bunny.exists() {
-        let s = vkrt::scene::Scene::load(&bunny).expect("bunny").scene;
-        scenes.push(("bunny".into(), s.triangles_world(0.0)));
-    }
-    let default = vkrt::scene::Scene::default_scene();
-    scenes.push(("default-scene".into(), default.triangles_world(0.0)));
+    let (ctx, embree) = embree::context_and_peer();
     let sizes: &[u64] = if quick {
         &[100_000, 500_000]
     } else {
         &[100_000, 500_000, 1_000_000, 2_000_000]
     };
-    for &n in sizes {
-        let m = vkrt::scene::gen::icosphere_with_at_least(n).expect("icosphere");
-        let tris = m
-            .indices
-            .iter()
-            .map(|t| t.map(|i| m.positions[i as usize]))
-            .collect();
-        scenes.push((format!("icosphere{}k", n / 1000), tris));
-    }
+    let mut scenes = embree::bench_scenes(sizes);
+    let default = vkrt::scene::Scene::default_scene();
+    scenes.insert(
+        1.min(scenes.len()),
+        ("default-scene".into(), default.triangles_world(0.0)),
+    );
     let rows = bench(&scenes, 3).expect("bench");
     let kd = AccelBuilder::new(&ctx, AccelKind::KdTree).expect("kd-tree builder");
     let mut peers = Vec::new();
     for (name, tris) in &scenes {
-        let e1 = embree.as_ref().ok().map(|e| e.run(tris, 1, &[]).build_ms);
-        let e2 = embree.as_ref().ok().map(|e| e.run(tris, 2, &[]).build_ms);
+        let e1 = embree.as_ref().map(|e| e.run(tris, 1, &[]).build_ms);
+        let e2 = embree.as_ref().map(|e| e.run(tris, 2, &[]).build_ms);
         // The GPU kd-tree, built twice on the device (the second timed: first-touch page
         // faults of fresh memory are lavapipe's, not the builder's).
         let g = TraceGeometry::from_triangles(tris);

@@ -21,14 +21,13 @@
 #[path = "embree/peer.rs"]
 mod embree;
 
-use std::path::PathBuf;
 use std::time::{Duration, Instant};
 
 use glam::Vec3;
 use obvhs::bvh2::builder::build_bvh2_from_tris;
 use obvhs::BvhBuildParams;
 use vkrt::accel::device::{AccelBuilder, AccelKind};
-use vkrt::gpu::{Context, ContextOptions, Recorder, Validation};
+use vkrt::gpu::Recorder;
 use vkrt::trace::gpu::{AccelTraversal, GpuGeometry, Tracer};
 use vkrt::trace::intersect::offset_ray_origin;
 use vkrt::trace::{Hit, Query, Ray, TraceGeometry, TraceOptions};
@@ -133,36 +132,8 @@ fn main() {
         .position(|a| a == "--size")
         .and_then(|i| args.get(i + 1)?.parse().ok())
         .unwrap_or(512);
-    let ctx = Context::new(&ContextOptions {
-        validation: Validation::Off,
-        device_name: None,
-    })
-    .expect("a Vulkan device");
-    let embree = embree::Embree::new();
-    if let Err(why) = &embree {
-        eprintln!("Embree's columns are empty: {why}");
-    }
-
-    let mut scenes: Vec<(String, Vec<[Vec3; 3]>)> = Vec::new();
-    let bunny =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
-    if bunny.exists() {
-        let scene = vkrt::scene::Scene::load(&bunny)
-            .expect("load the bunny")
-            .scene;
-        scenes.push(("bunny".into(), scene.triangles_world(0.0)));
-    } else {
-        eprintln!("skipped the bunny: {} is absent", bunny.display());
-    }
-    for n in [100_000u64, 500_000] {
-        let m = vkrt::scene::gen::icosphere_with_at_least(n).expect("icosphere");
-        let tris = m
-            .indices
-            .iter()
-            .map(|t| t.map(|i| m.positions[i as usize]))
-            .collect();
-        scenes.push((format!("icosphere{}k", n / 1000), tris));
-    }
+    let (ctx, embree) = embree::context_and_peer();
+    let scenes = embree::bench_scenes(&[100_000, 500_000]);
 
     let mut rows = Vec::new();
     let mut builds = Vec::new();
@@ -262,7 +233,7 @@ fn main() {
             ("shadow", &shadow, true),
             ("secondary", &mirror, false),
         ];
-        let peer = embree.as_ref().ok().map(|e| {
+        let peer = embree.as_ref().map(|e| {
             let s: Vec<(&[Ray], bool)> = sets.iter().map(|(_, r, a)| (*r, *a)).collect();
             e.run(tris, 2, &s)
         });

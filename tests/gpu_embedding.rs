@@ -29,6 +29,58 @@ struct Renderer {
     queue: vk::Queue,
 }
 
+impl Renderer {
+    /// The renderer's own command pool and a command buffer in the recording state.
+    fn begin_commands(&self) -> (vk::CommandPool, vk::CommandBuffer) {
+        // SAFETY: plain Vulkan on the renderer's valid device.
+        unsafe {
+            let pool = self
+                .device
+                .create_command_pool(
+                    &vk::CommandPoolCreateInfo::default().queue_family_index(self.family),
+                    None,
+                )
+                .unwrap();
+            let cmd = self
+                .device
+                .allocate_command_buffers(
+                    &vk::CommandBufferAllocateInfo::default()
+                        .command_pool(pool)
+                        .command_buffer_count(1),
+                )
+                .unwrap()[0];
+            self.device
+                .begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
+                .unwrap();
+            (pool, cmd)
+        }
+    }
+
+    /// Ends `cmd`, submits it to the renderer's queue and waits for it.
+    fn submit_and_wait(&self, cmd: vk::CommandBuffer) {
+        // SAFETY: the renderer ends, submits and waits for its own command buffer.
+        unsafe {
+            self.device.end_command_buffer(cmd).unwrap();
+            let fence = self
+                .device
+                .create_fence(&vk::FenceCreateInfo::default(), None)
+                .unwrap();
+            let cmds = [cmd];
+            self.device
+                .queue_submit(
+                    self.queue,
+                    &[vk::SubmitInfo::default().command_buffers(&cmds)],
+                    fence,
+                )
+                .unwrap();
+            self.device
+                .wait_for_fences(&[fence], true, u64::MAX)
+                .unwrap();
+            self.device.destroy_fence(fence, None);
+        }
+    }
+}
+
 fn renderer() -> Option<Renderer> {
     // SAFETY: test code standing in for an embedding application: plain Vulkan setup with
     // every create-info pointing at locals that outlive the calls.
@@ -118,28 +170,7 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
         .unwrap();
 
     // The renderer's own command pool and command buffer.
-    // SAFETY: plain Vulkan on the renderer's valid device.
-    let (pool, cmd) = unsafe {
-        let pool = r
-            .device
-            .create_command_pool(
-                &vk::CommandPoolCreateInfo::default().queue_family_index(r.family),
-                None,
-            )
-            .unwrap();
-        let cmd = r
-            .device
-            .allocate_command_buffers(
-                &vk::CommandBufferAllocateInfo::default()
-                    .command_pool(pool)
-                    .command_buffer_count(1),
-            )
-            .unwrap()[0];
-        r.device
-            .begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
-            .unwrap();
-        (pool, cmd)
-    };
+    let (pool, cmd) = r.begin_commands();
     // SAFETY: `cmd` is recording, of the context's family; the buffers outlive its execution;
     // `complete` is called after the fence wait below.
     let mut rec = unsafe { Recorder::from_raw(&ctx, cmd, 16) }.unwrap();
@@ -149,24 +180,7 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
     });
     rec.compute_to_transfer();
     let work = rec.finish();
-    // SAFETY: the renderer ends, submits and waits for its own command buffer.
-    unsafe {
-        r.device.end_command_buffer(cmd).unwrap();
-        let fence = r
-            .device
-            .create_fence(&vk::FenceCreateInfo::default(), None)
-            .unwrap();
-        let cmds = [cmd];
-        r.device
-            .queue_submit(
-                r.queue,
-                &[vk::SubmitInfo::default().command_buffers(&cmds)],
-                fence,
-            )
-            .unwrap();
-        r.device.wait_for_fences(&[fence], true, u64::MAX).unwrap();
-        r.device.destroy_fence(fence, None);
-    }
+    r.submit_and_wait(cmd);
     // SAFETY: the command buffer has finished executing (fence waited above).
     let profile = unsafe { work.complete() }.unwrap();
     assert_eq!(profile.passes.len(), 1);
@@ -253,28 +267,7 @@ fn embedded_build_and_trace(r: &Renderer, ctx: &Context, kind: AccelKind) {
     let hits = Buffer::<Hit>::new(ctx, "embed.hits", rays.len()).unwrap();
     let errors = Buffer::<u32>::new(ctx, "embed.errors", 1).unwrap();
     let before = ctx.traffic();
-    // SAFETY: plain Vulkan on the renderer's valid device.
-    let (pool, cmd) = unsafe {
-        let pool = r
-            .device
-            .create_command_pool(
-                &vk::CommandPoolCreateInfo::default().queue_family_index(r.family),
-                None,
-            )
-            .unwrap();
-        let cmd = r
-            .device
-            .allocate_command_buffers(
-                &vk::CommandBufferAllocateInfo::default()
-                    .command_pool(pool)
-                    .command_buffer_count(1),
-            )
-            .unwrap()[0];
-        r.device
-            .begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
-            .unwrap();
-        (pool, cmd)
-    };
+    let (pool, cmd) = r.begin_commands();
     // SAFETY: `cmd` is recording, of the context's family; everything bound outlives its
     // execution (the geometry below is dropped after the fence wait); `complete` follows it.
     let mut rec = unsafe { Recorder::from_raw(ctx, cmd, 4096) }.unwrap();
@@ -291,24 +284,7 @@ fn embedded_build_and_trace(r: &Renderer, ctx: &Context, kind: AccelKind) {
         0,
         "vkrt submitted on its own"
     );
-    // SAFETY: the renderer ends, submits and waits for its own command buffer.
-    unsafe {
-        r.device.end_command_buffer(cmd).unwrap();
-        let fence = r
-            .device
-            .create_fence(&vk::FenceCreateInfo::default(), None)
-            .unwrap();
-        let cmds = [cmd];
-        r.device
-            .queue_submit(
-                r.queue,
-                &[vk::SubmitInfo::default().command_buffers(&cmds)],
-                fence,
-            )
-            .unwrap();
-        r.device.wait_for_fences(&[fence], true, u64::MAX).unwrap();
-        r.device.destroy_fence(fence, None);
-    }
+    r.submit_and_wait(cmd);
     // SAFETY: the command buffer has finished executing.
     let profile = unsafe { work.complete() }.unwrap();
     assert!(profile.passes.iter().any(|p| p.name == "embedded.trace"));

@@ -1,4 +1,4 @@
-//! Embree 3 as a CPU peer in the benches: `embree_trace.c` compiled on first use (it needs
+//! What the trace and BVH-build benches share: their scenes, and Embree 3 as a CPU peer: `embree_trace.c` compiled on first use (it needs
 //! a C compiler and Debian's `libembree-dev`; without them the benches print a note and
 //! leave Embree's columns empty). Triangles and rays go to it as files.
 
@@ -7,6 +7,45 @@ use std::process::Command;
 
 use glam::Vec3;
 use vkrt::trace::Ray;
+
+/// The bench's context (validation off) and, when it can be had, the Embree peer (else a
+/// note on stderr).
+pub fn context_and_peer() -> (vkrt::gpu::Context, Option<Embree>) {
+    let ctx = vkrt::gpu::Context::new(&vkrt::gpu::ContextOptions {
+        validation: vkrt::gpu::Validation::Off,
+        device_name: None,
+    })
+    .expect("a Vulkan device");
+    let embree = Embree::new()
+        .inspect_err(|why| eprintln!("Embree's columns are empty: {why}"))
+        .ok();
+    (ctx, embree)
+}
+
+/// The Stanford bunny (when ../shared/scenes has it; else a note), then icospheres of at
+/// least each of `sizes` triangles.
+pub fn bench_scenes(sizes: &[u64]) -> Vec<(String, Vec<[Vec3; 3]>)> {
+    let mut scenes = Vec::new();
+    let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
+    if bunny.exists() {
+        let s = vkrt::scene::Scene::load(&bunny)
+            .expect("load the bunny")
+            .scene;
+        scenes.push(("bunny".to_string(), s.triangles_world(0.0)));
+    } else {
+        eprintln!("skipped the bunny: {} is absent", bunny.display());
+    }
+    for &n in sizes {
+        let m = vkrt::scene::gen::icosphere_with_at_least(n).expect("icosphere");
+        let tris = m
+            .indices
+            .iter()
+            .map(|t| t.map(|i| m.positions[i as usize]))
+            .collect();
+        scenes.push((format!("icosphere{}k", n / 1000), tris));
+    }
+    scenes
+}
 
 pub struct Embree {
     exe: PathBuf,
