@@ -2,9 +2,11 @@
 // hit_primitive and test_leaf). Nodes hold both children's boxes (Aila & Laine 2009); a child is an
 // interior node (count 0), a leaf (count > 0 references from index on) or missing (count 0,
 // index NO_NODE). Two walks, the same decisions in the same order as src/trace/bvh_cpu.rs:
-// a stack of far children, or seed 000's stackless bitstack (parent links and one bit per
-// level, "the other child still waits"). Trees are at most 64 levels deep (the builder's
-// MAX_DEPTH), which sizes the stack and the trail.
+// a while-while stack walk (trace_bvh_stack: interior nodes until a leaf is in hand, then the
+// leaf; far children and leaves on the stack with their entry distance), or seed 000's
+// stackless bitstack (trace_bvh: parent links and one bit per level, "the other child still
+// waits"). Trees are at most 64 levels deep (the builder's MAX_DEPTH), which sizes the stack
+// (one entry per level at most) and the trail.
 #ifndef VKRT_COMMON_BVH_GLSL
 #define VKRT_COMMON_BVH_GLSL
 
@@ -69,6 +71,79 @@ uint bvh_parent(uint node) {
     return kd_refs[scene_info.parents_at + node];
 }
 
+// The stack walk, "while-while" (Aila & Laine 2009): descend through interior nodes until a
+// leaf is in hand, then test it, so that the lanes of a SIMD group test their leaves
+// together instead of every node step carrying the leaf test under a mask. Entries keep the
+// distance at which the ray enters them, and one that lies beyond the closest hit so far is
+// dropped when popped.
+Hit trace_bvh_stack(Ray r, float time) {
+    Hit best = miss_hit();
+    if (!ray_is_valid(r) || scene_info.n_tris + scene_info.n_spheres == 0u) {
+        return best;
+    }
+    float tmin = max(r.tmin, 0.0);
+    Shear sh = make_shear(r.d);
+    vec3 inv_d = vec3(1.0) / r.d;
+    float best_t = r.tmax;
+    // (index, count): count 0 is an interior node, count > 0 a leaf's references.
+    uvec2 stack[BVH_MAX_DEPTH];
+    float stack_t[BVH_MAX_DEPTH];
+    uint top = 0u;
+    uvec2 cur = uvec2(0u, 0u);
+    bool have = true;
+    uint steps = 0u;
+    while (have) {
+        while (have && cur.y == 0u) {
+            if (steps > MAX_TRAVERSAL_STEPS) {
+                trace_steps_exhausted = true;
+                return best;
+            }
+            steps++;
+            BvhNode nd = load_bvh_node(cur.x);
+            float ta;
+            float tb;
+            bool hit_a = (nd.a_count > 0u || nd.a_index != NO_NODE)
+                && bvh_enter(nd.a_min, nd.a_max, r, inv_d, tmin, best_t, ta);
+            bool hit_b = (nd.b_count > 0u || nd.b_index != NO_NODE)
+                && bvh_enter(nd.b_min, nd.b_max, r, inv_d, tmin, best_t, tb);
+            uvec2 ca = uvec2(nd.a_index, nd.a_count);
+            uvec2 cb = uvec2(nd.b_index, nd.b_count);
+            if (hit_a && hit_b) {
+                bool b_first = tb < ta;
+                stack[top] = b_first ? ca : cb;
+                stack_t[top] = b_first ? ta : tb;
+                top++;
+                cur = b_first ? cb : ca;
+            } else if (hit_a || hit_b) {
+                cur = hit_a ? ca : cb;
+            } else {
+                // Pop the nearest entry the ray still reaches before its closest hit.
+                have = false;
+                while (top > 0u && !have) {
+                    top--;
+                    cur = stack[top];
+                    have = stack_t[top] <= best_t;
+                }
+            }
+        }
+        if (!have) {
+            break;
+        }
+        steps += cur.y;
+        if (test_leaf(cur.x, cur.y, r, sh, time, tmin, best, best_t)) {
+            return best;
+        }
+        have = false;
+        while (top > 0u && !have) {
+            top--;
+            cur = stack[top];
+            have = stack_t[top] <= best_t;
+        }
+    }
+    return best;
+}
+
+// Seed 000's bitstack walk (`bitstack` false: the previous stack walk, kept for comparison).
 Hit trace_bvh(Ray r, float time, bool bitstack) {
     Hit best = miss_hit();
     if (!ray_is_valid(r) || scene_info.n_tris + scene_info.n_spheres == 0u) {

@@ -328,7 +328,10 @@ Hit trace_ray(Ray r, float time) {
     if (ACCEL_KIND == ACCEL_KDTREE) {
         return trace_kdtree(r, time);
     }
-    return trace_bvh(r, time, ACCEL_KIND == ACCEL_BVH_BITSTACK);
+    if (ACCEL_KIND == ACCEL_BVH_STACK) {
+        return trace_bvh_stack(r, time);
+    }
+    return trace_bvh(r, time, true);
 }
 
 #endif

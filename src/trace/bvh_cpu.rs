@@ -171,24 +171,60 @@ pub fn trace(
     }
 }
 
-/// True when finished within the step cap.
+/// The stack walk, "while-while" (Aila & Laine 2009), as the GPU runs it: descend through
+/// interior nodes, the nearer child first (ties: child a) and the other one on the stack,
+/// until a leaf is in hand; test it; pop. Entries keep the distance at which the ray enters
+/// them, and one beyond the closest hit so far is dropped when popped. True when finished
+/// within the step cap.
 fn stack(q: &mut Query1<'_>) -> bool {
-    let mut stack = vec![0u32];
-    while let Some(n) = stack.pop() {
-        if q.steps > MAX_TRAVERSAL_STEPS {
-            return false;
-        }
-        let Some([near, far]) = q.children(n) else {
-            return true;
-        };
-        if let Some(far) = far {
-            stack.push(far);
-        }
-        if let Some(near) = near {
-            stack.push(near);
+    let mut stack: Vec<(Child, f32)> = Vec::new();
+    let mut cur = Some(Child::Node(0));
+    while let Some(c) = cur {
+        match c {
+            Child::Node(n) => {
+                if q.steps > MAX_TRAVERSAL_STEPS {
+                    return false;
+                }
+                q.steps += 1;
+                let node = q.bvh.nodes[n as usize];
+                let best_t = q.best_t();
+                let hit = |which: usize| {
+                    let (b, child) = node.child(which);
+                    if child == Child::None {
+                        return None;
+                    }
+                    enter(&b, q.o, q.d, q.inv_d, q.tmin, best_t).map(|t| (child, t))
+                };
+                cur = match (hit(0), hit(1)) {
+                    (Some(a), Some(b)) => {
+                        let (near, far) = if b.1 < a.1 { (b, a) } else { (a, b) };
+                        stack.push(far);
+                        Some(near.0)
+                    }
+                    (Some(one), None) | (None, Some(one)) => Some(one.0),
+                    (None, None) => pop(&mut stack, q.best_t()),
+                };
+            }
+            Child::Leaf { first, count } => {
+                if q.leaf(first, count) {
+                    return true;
+                }
+                cur = pop(&mut stack, q.best_t());
+            }
+            Child::None => unreachable!("missing children are never visited"),
         }
     }
     true
+}
+
+/// The nearest stack entry the ray enters before `best_t`.
+fn pop(stack: &mut Vec<(Child, f32)>, best_t: f32) -> Option<Child> {
+    while let Some((c, t)) = stack.pop() {
+        if t <= best_t {
+            return Some(c);
+        }
+    }
+    None
 }
 
 /// Seed 000's Algorithm 3: descend to the nearer child pushing a 1 bit when the farther one
