@@ -210,6 +210,11 @@ fn build_kdtree_reports_and_equals_its_twin() {
     let out = vkrt(&["build", "--accel", "bvh"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("bvh"));
+    // The default structure is the BVH: a kd-tree option without --accel kdtree is an error,
+    // not silently ignored.
+    let out = vkrt(&["build", "--seed-termination"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--accel kdtree"));
 }
 
 #[test]
