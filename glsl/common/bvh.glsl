@@ -4,8 +4,8 @@
 // index NO_NODE). Two walks, the same decisions in the same order as src/trace/bvh_cpu.rs:
 // a while-while stack walk (trace_bvh_stack: interior nodes until a leaf is in hand, then the
 // leaf; far children and leaves on the stack with their entry distance), or seed 000's
-// stackless bitstack (trace_bvh: parent links and one bit per level, "the other child still
-// waits"). Trees are at most 64 levels deep (the builder's MAX_DEPTH), which sizes the stack
+// stackless bitstack (trace_bvh_bitstack: parent links and one bit per level, "the other
+// child still waits"). Trees are at most 64 levels deep (the builder's MAX_DEPTH), which sizes the stack
 // (one entry per level at most) and the trail.
 #ifndef VKRT_COMMON_BVH_GLSL
 #define VKRT_COMMON_BVH_GLSL
@@ -143,8 +143,8 @@ Hit trace_bvh_stack(Ray r, float time) {
     return best;
 }
 
-// Seed 000's bitstack walk (`bitstack` false: the previous stack walk, kept for comparison).
-Hit trace_bvh(Ray r, float time, bool bitstack) {
+// Seed 000's bitstack walk (its Algorithm 3).
+Hit trace_bvh_bitstack(Ray r, float time) {
     Hit best = miss_hit();
     if (!ray_is_valid(r) || scene_info.n_tris + scene_info.n_spheres == 0u) {
         return best;
@@ -153,8 +153,6 @@ Hit trace_bvh(Ray r, float time, bool bitstack) {
     Shear sh = make_shear(r.d);
     vec3 inv_d = vec3(1.0) / r.d;
     float best_t = r.tmax;
-    uint stack[BVH_MAX_DEPTH];
-    uint top = 0u;
     uint trail_lo = 0u; // the 64-bit trail, low and high words
     uint trail_hi = 0u;
     uint node = 0u;
@@ -197,26 +195,12 @@ Hit trace_bvh(Ray r, float time, bool bitstack) {
             far = inner[0];
         }
         if (near != NO_NODE) {
-            if (bitstack) {
-                trail_hi = (trail_hi << 1u) | (trail_lo >> 31u);
-                trail_lo = (trail_lo << 1u) | (far != NO_NODE ? 1u : 0u);
-            } else if (far != NO_NODE) {
-                stack[top] = far;
-                top++;
-            }
+            trail_hi = (trail_hi << 1u) | (trail_lo >> 31u);
+            trail_lo = (trail_lo << 1u) | (far != NO_NODE ? 1u : 0u);
             node = near;
             continue;
         }
-        // Dead end.
-        if (!bitstack) {
-            if (top == 0u) {
-                return best;
-            }
-            top--;
-            node = stack[top];
-            continue;
-        }
-        // Bitstack: climb to the deepest level whose other child waits, and take it if the
+        // Dead end: climb to the deepest level whose other child waits, and take it if the
         // ray still enters its box.
         bool found = false;
         while (!found) {

@@ -331,7 +331,7 @@ Hit trace_ray(Ray r, float time) {
     if (ACCEL_KIND == ACCEL_BVH_STACK) {
         return trace_bvh_stack(r, time);
     }
-    return trace_bvh(r, time, true);
+    return trace_bvh_bitstack(r, time);
 }
 
 #endif

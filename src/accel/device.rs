@@ -155,21 +155,15 @@ impl DevicePrimitives {
         self.n_tris + self.n_spheres
     }
 
-    /// The scene constants of a structure with root box `bounds` (`TraceGeometry::info`).
+    /// The scene constants of a structure with root box `bounds`.
     fn info(&self, bounds: &Aabb, parents_at: u32) -> SceneInfo {
-        let (min, max) = if bounds.is_empty() {
-            (glam::Vec3::ZERO, glam::Vec3::ZERO)
-        } else {
-            (bounds.min, bounds.max)
-        };
-        SceneInfo {
-            bounds_min: min.extend(0.0).to_array(),
-            bounds_max: max.extend(0.0).to_array(),
-            n_tris: self.n_tris as u32,
-            n_spheres: self.n_spheres as u32,
-            has_motion: self.has_motion as u32,
+        SceneInfo::new(
+            bounds,
+            self.n_tris,
+            self.n_spheres,
+            self.has_motion,
             parents_at,
-        }
+        )
     }
 }
 
@@ -210,6 +204,13 @@ enum Storage {
 pub enum HostStructure {
     KdTree(KdTree),
     Bvh(Bvh),
+}
+
+/// A host structure to upload, borrowed ([`upload_structure`]).
+#[derive(Clone, Copy, Debug)]
+pub enum HostRef<'a> {
+    KdTree(&'a KdTree),
+    Bvh(&'a Bvh),
 }
 
 /// What a kd-tree build recorded on the device reports once it has executed.
@@ -596,10 +597,10 @@ impl AccelBuilder {
 pub fn upload_structure(
     ctx: &Context,
     prims: &DevicePrimitives,
-    host: &HostStructure,
+    host: HostRef<'_>,
 ) -> Result<AccelStructure> {
     match host {
-        HostStructure::KdTree(tree) => {
+        HostRef::KdTree(tree) => {
             let nodes: &[KdNode] = if tree.nodes.is_empty() {
                 &[KdNode::leaf(0, 0)]
             } else {
@@ -622,7 +623,7 @@ pub fn upload_structure(
                 info: Buffer::from_slice(ctx, "accel.info", &[prims.info(&tree.bounds, 0)])?,
             })
         }
-        HostStructure::Bvh(bvh) => {
+        HostRef::Bvh(bvh) => {
             let mut words = bvh.refs.clone();
             words.extend_from_slice(&bvh.parents);
             Ok(AccelStructure {

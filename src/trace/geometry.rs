@@ -78,6 +78,32 @@ pub struct SceneInfo {
     pub parents_at: u32,
 }
 
+impl SceneInfo {
+    /// The constants of a structure with root box `bounds` (an empty box is stored as zeros)
+    /// over `n_tris` triangles and `n_spheres` spheres; `parents_at`: see the field.
+    pub fn new(
+        bounds: &Aabb,
+        n_tris: usize,
+        n_spheres: usize,
+        has_motion: bool,
+        parents_at: u32,
+    ) -> Self {
+        let (min, max) = if bounds.is_empty() {
+            (Vec3::ZERO, Vec3::ZERO)
+        } else {
+            (bounds.min, bounds.max)
+        };
+        Self {
+            bounds_min: min.extend(0.0).to_array(),
+            bounds_max: max.extend(0.0).to_array(),
+            n_tris: n_tris as u32,
+            n_spheres: n_spheres as u32,
+            has_motion: has_motion as u32,
+            parents_at,
+        }
+    }
+}
+
 /// Geometry ready to upload and trace. Primitive ids: triangles first, then spheres.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TraceGeometry {
@@ -192,19 +218,13 @@ impl TraceGeometry {
 
     /// The scene constants for a tree with root box `bounds`.
     pub fn info(&self, bounds: &Aabb) -> SceneInfo {
-        let (min, max) = if bounds.is_empty() {
-            (Vec3::ZERO, Vec3::ZERO)
-        } else {
-            (bounds.min, bounds.max)
-        };
-        SceneInfo {
-            bounds_min: min.extend(0.0).to_array(),
-            bounds_max: max.extend(0.0).to_array(),
-            n_tris: self.triangle_count() as u32,
-            n_spheres: self.spheres.len() as u32,
-            has_motion: self.has_motion() as u32,
-            parents_at: 0,
-        }
+        SceneInfo::new(
+            bounds,
+            self.triangle_count(),
+            self.spheres.len(),
+            self.has_motion(),
+            0,
+        )
     }
 
     /// Triangle `i`'s vertices at `time`.

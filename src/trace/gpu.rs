@@ -6,7 +6,7 @@ use std::sync::Arc;
 
 use crate::accel::bvh::Bvh;
 use crate::accel::device::{
-    upload_structure, AccelBuilder, AccelKind, AccelStructure, DevicePrimitives, HostStructure,
+    upload_structure, AccelBuilder, AccelKind, AccelStructure, DevicePrimitives, HostRef,
     RecordedBuild,
 };
 use crate::accel::kdtree::KdTree;
@@ -72,12 +72,12 @@ pub struct GpuGeometry {
 impl GpuGeometry {
     /// Geometry and a kd-tree built on the host (or downloaded).
     pub fn upload(ctx: &Context, g: &TraceGeometry, tree: &KdTree) -> Result<Self> {
-        Self::with_host(ctx, g, &HostStructure::KdTree(tree.clone()))
+        Self::with_host(ctx, g, HostRef::KdTree(tree))
     }
 
     /// Geometry and a BVH built over `g`'s boxes on the host.
     pub fn upload_bvh(ctx: &Context, g: &TraceGeometry, bvh: &Bvh) -> Result<Self> {
-        Self::with_host(ctx, g, &HostStructure::Bvh(bvh.clone()))
+        Self::with_host(ctx, g, HostRef::Bvh(bvh))
     }
 
     /// Records the upload of `g` and the build of `builder`'s structure over it into `rec`
@@ -100,7 +100,7 @@ impl GpuGeometry {
         Ok((Self { prims, accel }, recorded))
     }
 
-    fn with_host(ctx: &Context, g: &TraceGeometry, host: &HostStructure) -> Result<Self> {
+    fn with_host(ctx: &Context, g: &TraceGeometry, host: HostRef<'_>) -> Result<Self> {
         let prims = DevicePrimitives::upload(ctx, g)?;
         let accel = upload_structure(ctx, &prims, host)?;
         Ok(Self { prims, accel })
