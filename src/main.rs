@@ -41,7 +41,7 @@ enum Command {
         scene: Option<PathBuf>,
         /// The structure to build: sah-bvh (seed 003's SAH BVH, on the CPU's threads; the
         /// default, by measurement: README, Measured) or kdtree (seed 001's SAH kd-tree, on
-        /// the GPU).
+        /// the GPU) or lbvh (seed 000's LBVH, on the GPU).
         #[arg(long, default_value = "sah-bvh")]
         accel: String,
         /// kd-tree: also build the CPU twin (must be equal) and the full-clipping CPU
@@ -259,6 +259,7 @@ enum BenchCommand {
 enum AccelArg {
     Kdtree,
     SahBvh,
+    Lbvh,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -267,14 +268,19 @@ enum TraversalArg {
     Bitstack,
 }
 
-fn accel_traversal(accel: AccelArg, walk: TraversalArg) -> vkrt::trace::gpu::AccelTraversal {
+fn accel_traversal(accel: AccelArg, walk: TraversalArg) -> vkrt::accel::device::AccelChoice {
+    use vkrt::accel::device::{AccelChoice, AccelKind};
     use vkrt::trace::bvh_cpu::Traversal;
-    use vkrt::trace::gpu::AccelTraversal;
-    match (accel, walk) {
-        (AccelArg::Kdtree, _) => AccelTraversal::KdTree,
-        (AccelArg::SahBvh, TraversalArg::Stack) => AccelTraversal::Bvh(Traversal::Stack),
-        (AccelArg::SahBvh, TraversalArg::Bitstack) => AccelTraversal::Bvh(Traversal::Bitstack),
-    }
+    let kind = match accel {
+        AccelArg::Kdtree => AccelKind::KdTree,
+        AccelArg::SahBvh => AccelKind::SahBvh,
+        AccelArg::Lbvh => AccelKind::Lbvh,
+    };
+    let walk = match walk {
+        TraversalArg::Stack => Traversal::Stack,
+        TraversalArg::Bitstack => Traversal::Bitstack,
+    };
+    AccelChoice::new(kind, walk)
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -433,7 +439,7 @@ fn render_command(
             "width": p.width,
             "height": p.height,
             "spp": p.spp,
-            "accel": p.accel,
+            "accel": p.accel.label(),
             "build_ms": r.build_ms,
             "render_ms": r.render_ms,
             "build_attempts": r.image.build_attempts,
@@ -462,10 +468,7 @@ fn render_command(
         );
         println!(
             "{} build {:.1} ms, render {:.1} ms, {:.2} Mrays/s",
-            match p.accel {
-                vkrt::trace::gpu::AccelTraversal::KdTree => "kd-tree",
-                vkrt::trace::gpu::AccelTraversal::Bvh(_) => "SAH BVH",
-            },
+            p.accel.label(),
             r.build_ms,
             r.render_ms,
             r.mrays_per_s()
@@ -710,10 +713,20 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 }
                 return bvh_build_command(&load_scene(&scene)?, reference, json);
             }
+            if accel == "lbvh" {
+                if seed_termination {
+                    return Err("--seed-termination is seed 001's kd-tree termination: add \
+                                --accel kdtree"
+                        .into());
+                }
+                let ctx = context(cli.validate)?;
+                return lbvh_build_command(&ctx, &load_scene(&scene)?, reference, json, &profile);
+            }
             if accel != "kdtree" {
-                return Err(
-                    format!("unknown --accel `{accel}` (available: kdtree, sah-bvh)").into(),
-                );
+                return Err(format!(
+                    "unknown --accel `{accel}` (available: kdtree, sah-bvh, lbvh)"
+                )
+                .into());
             }
             let scene = load_scene(&scene)?;
             let triangles = scene.triangles_world(0.0);
@@ -774,7 +787,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 SuiteSize::default()
             };
             let mut cases = Vec::new();
-            for accel in vkrt::trace::gpu::AccelTraversal::ALL {
+            for accel in vkrt::accel::device::AccelChoice::all() {
                 cases.extend(run_all(&ctx, &size, &vkrt::trace::Intersector::ALL, accel)?);
             }
             // Cost of NaN/Inf rays relative to valid rays into the same scene.
@@ -996,7 +1009,7 @@ fn trace_command(
     scene_path: &std::path::Path,
     rays_path: &std::path::Path,
     out: Option<&std::path::Path>,
-    (opt, accel): (&vkrt::trace::TraceOptions, vkrt::trace::gpu::AccelTraversal),
+    (opt, accel): (&vkrt::trace::TraceOptions, vkrt::accel::device::AccelChoice),
     batch_rays: Option<usize>,
     json: bool,
 ) -> Result<(), Box<dyn std::error::Error>> {
@@ -1005,12 +1018,8 @@ fn trace_command(
     let scene = load_scene(&Some(scene_path.to_path_buf()))?;
     let geometry = TraceGeometry::at_time(&scene, scene.camera.shutter_open);
     let ctx = context(validate)?;
-    let kind = match accel {
-        gpu::AccelTraversal::KdTree => vkrt::accel::device::AccelKind::KdTree,
-        gpu::AccelTraversal::Bvh(_) => vkrt::accel::device::AccelKind::SahBvh,
-    };
-    let builder = vkrt::accel::device::AccelBuilder::new(&ctx, kind)?;
-    let tracer = gpu::Tracer::for_accel(&ctx, opt, accel)?;
+    let builder = vkrt::accel::device::AccelBuilder::new(&ctx, accel.kind)?;
+    let tracer = gpu::Tracer::for_accel(&ctx, opt, accel.traversal())?;
     // Upload, build and the first batch's trace in one submission; nothing read back
     // between build and trace.
     let done = gpu::build_and_trace(&ctx, &builder, &tracer, &geometry, &rays, 0.0, batch_rays)?;
@@ -1060,7 +1069,7 @@ fn trace_command(
                 .map(|(r, n)| (r.name().to_string(), n.into()))
                 .collect::<serde_json::Map<_, _>>(),
             "exhausted": batch.exhausted,
-            "accel": accel,
+            "accel": accel.label(),
             "build_ms": build_ms,
             "build_attempts": done.attempts,
             "submits": done.traffic.submits,
@@ -1147,6 +1156,96 @@ fn bvh_build_command(
     }
     if equal == Some(false) {
         return Err("the multithreaded BVH differs from the single-threaded one".into());
+    }
+    Ok(())
+}
+
+/// `vkrt build --accel lbvh`: seed 000's LBVH built on the device over the scene's
+/// primitives at the shutter-open time, read back (this command is a tool), validated; with
+/// `reference`, also the CPU twin (must be equal bit for bit).
+fn lbvh_build_command(
+    ctx: &vkrt::gpu::Context,
+    scene: &vkrt::scene::Scene,
+    reference: bool,
+    json: bool,
+    profile: &Option<PathBuf>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    use vkrt::accel::bvh::{lbvh, validate, BvhParams};
+    use vkrt::accel::device::{AccelBuilder, AccelKind, HostStructure};
+    let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
+    let builder = AccelBuilder::new(ctx, AccelKind::Lbvh)?;
+    // Once to compile and warm the pipelines, then the timed build.
+    let mut timed = None;
+    for _ in 0..2 {
+        let mut rec = vkrt::gpu::Recorder::new(ctx)?;
+        let (dev, _) = vkrt::trace::gpu::GpuGeometry::record_build(&mut rec, &builder, &g, 0)?;
+        let prof = rec.submit_and_wait()?;
+        timed = Some((dev, prof));
+    }
+    let (dev, prof) = timed.expect("built");
+    write_profile(profile, &prof)?;
+    let HostStructure::Bvh(tree) = dev.accel.download()? else {
+        unreachable!("an LBVH is a BVH")
+    };
+    validate::validate(&tree, &g.boxes).map_err(|e| format!("invalid LBVH: {e}"))?;
+    let passes: serde_json::Map<String, serde_json::Value> = [
+        "lbvh.bounds",
+        "lbvh.morton",
+        "lbvh.sort",
+        "lbvh.karras",
+        "refit",
+    ]
+    .iter()
+    .map(|p| (p.to_string(), prof.ms(p).into()))
+    .collect();
+    let build_ms = prof.ms("build").unwrap_or(0.0);
+    let twin = reference.then(|| {
+        let t = std::time::Instant::now();
+        let twin = lbvh::build(&g.boxes, builder.lbvh_bits());
+        (twin, t.elapsed().as_secs_f64() * 1e3)
+    });
+    let equal = twin.as_ref().map(|(t, _)| *t == tree);
+    let params = BvhParams::default();
+    let report = serde_json::json!({
+        "kind": "lbvh",
+        "morton_bits": builder.lbvh_bits().spec(),
+        "primitives": g.primitive_count(),
+        "build_ms": build_ms,
+        "passes_ms": passes,
+        "nodes": tree.nodes.len(),
+        "leaves": tree.leaf_count(),
+        "max_depth": tree.depth(),
+        "sah_cost": validate::sah_cost(&tree, &params),
+        "references": tree.refs.len(),
+        "bytes": tree.bytes(),
+        "equal_to_cpu_twin": equal,
+        "cpu_twin_ms": twin.as_ref().map(|(_, ms)| *ms),
+    });
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!(
+            "{} primitives: GPU build {build_ms:.2} ms ({}-bit Morton codes)",
+            g.primitive_count(),
+            builder.lbvh_bits().spec()
+        );
+        for (name, ms) in &passes {
+            println!("  {name:<12} {ms} ms");
+        }
+        println!(
+            "{} nodes, {} leaves, depth {}, SAH cost {:.3}, {} bytes",
+            tree.nodes.len(),
+            tree.leaf_count(),
+            tree.depth(),
+            validate::sah_cost(&tree, &params),
+            tree.bytes()
+        );
+        if let (Some((_, ms)), Some(eq)) = (&twin, equal) {
+            println!("CPU twin {ms:.1} ms, the same tree: {eq}");
+        }
+    }
+    if equal == Some(false) {
+        return Err("the GPU LBVH differs from its CPU twin".into());
     }
     Ok(())
 }

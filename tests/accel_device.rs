@@ -9,6 +9,7 @@ mod common;
 
 use common::{assert_silent, context, edge_sizes, same_answer, Rng};
 use glam::{Vec3, Vec4};
+use vkrt::accel::bvh::lbvh::{self, MortonBits};
 use vkrt::accel::bvh::{self, BvhParams, Threading};
 use vkrt::accel::device::{AccelBuilder, AccelKind, AccelStructure, HostStructure};
 use vkrt::accel::kdtree::{seed001, SahParams};
@@ -91,9 +92,13 @@ fn device_builds_equal_their_host_twins_and_fit_their_sizes() {
                         tree.nodes.len() * 16 + tree.prim_refs.len() * 4
                     }
                     HostStructure::Bvh(b) => {
-                        let twin =
-                            bvh::build(&g.boxes, &BvhParams::default(), Threading::Single).unwrap();
-                        assert_eq!(b, &twin, "BVH of {n} primitives (spheres: {spheres})");
+                        let twin = if kind == AccelKind::Lbvh {
+                            lbvh::build(&g.boxes, MortonBits::default())
+                        } else {
+                            bvh::build(&g.boxes, &BvhParams::default(), Threading::Single).unwrap()
+                        };
+                        assert_eq!(b, &twin, "{kind:?} of {n} primitives (spheres: {spheres})");
+                        bvh::validate::validate(b, &g.boxes).unwrap();
                         b.bytes()
                     }
                 };

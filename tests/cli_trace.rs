@@ -163,7 +163,7 @@ fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
     // What comes back: the hits and the error counters of each batch (and a kd-tree's
     // 16-byte build report).
     let batches = rays.len().div_ceil(1000) as u64;
-    let report = if v["accel"] == "kd_tree" { 16 } else { 0 };
+    let report = if v["accel"] == "kdtree" { 16 } else { 0 };
     assert_eq!(
         v["readback_bytes_total"],
         16 * rays.len() as u64 + 4 * batches + report,

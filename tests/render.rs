@@ -229,7 +229,6 @@ fn bench_strips_exactly_the_effect() {
 fn the_bvh_renders_the_kdtree_image() {
     use vkrt::accel::bvh::{self, BvhParams, Threading};
     use vkrt::trace::bvh_cpu::Traversal;
-    use vkrt::trace::gpu::AccelTraversal;
     let Some(ctx) = context() else { return };
     for (file, spp) in [
         ("hard_shadows.toml", 1),
@@ -243,7 +242,10 @@ fn the_bvh_renders_the_kdtree_image() {
         let kd = gpu_render(&ctx, &plan, &rs);
         for walk in [Traversal::Stack, Traversal::Bitstack] {
             let opt = RenderOptions {
-                accel: AccelTraversal::Bvh(walk),
+                accel: vkrt::accel::device::AccelChoice::new(
+                    vkrt::accel::device::AccelKind::SahBvh,
+                    walk,
+                ),
                 ..small(spp)
             };
             let plan = Plan::new(&scene, &opt).unwrap();
@@ -269,18 +271,14 @@ fn the_bvh_renders_the_kdtree_image() {
 /// the CPU twin, building the same structure on the host, counts the same rays.
 #[test]
 fn structures_built_on_the_device_render_the_host_twins_image() {
-    use vkrt::accel::device::AccelKind;
-    use vkrt::trace::gpu::AccelTraversal;
+    use vkrt::accel::device::AccelChoice;
     let Some(ctx) = context() else { return };
     for (file, spp) in [("motion_blur.toml", 2), ("mesh_file.toml", 1)] {
         let scene = scene_file(file);
         let (plan, rs) = prepare(&scene, &small(spp));
         let host = gpu_render(&ctx, &plan, &rs);
-        for accel in AccelTraversal::ALL {
-            let kind = match accel {
-                AccelTraversal::KdTree => AccelKind::KdTree,
-                AccelTraversal::Bvh(_) => AccelKind::SahBvh,
-            };
+        for accel in AccelChoice::all() {
+            let kind = accel.kind;
             let opt = RenderOptions {
                 accel,
                 ..small(spp)

@@ -1,5 +1,5 @@
 //! The robustness suite (issue 7) through the public API, on every structure and walk
-//! (the kd-tree, the SAH BVH with a stack and with the bitstack), each built on the device
+//! (the kd-tree; the SAH BVH and the LBVH, each with a stack and with the bitstack), each built on the device
 //! as `vkrt trace` builds it: GPU tracer, default (watertight) intersector, validation on.
 //! Every case must report 0 failures on every structure; the
 //! cases and what a failure is are documented in `vkrt::trace::robust`. `vkrt bench
@@ -8,7 +8,7 @@
 mod common;
 
 use common::{assert_silent, context};
-use vkrt::trace::gpu::AccelTraversal;
+use vkrt::accel::device::AccelChoice;
 use vkrt::trace::robust::{run_group, CaseResult, Group, SuiteSize};
 use vkrt::trace::Intersector;
 
@@ -16,7 +16,7 @@ fn check(group: Group, size: SuiteSize) {
     let Some(ctx) = context() else { return };
     let start = std::time::Instant::now();
     let mut results: Vec<CaseResult> = Vec::new();
-    for accel in AccelTraversal::ALL {
+    for accel in AccelChoice::all() {
         results.extend(
             run_group(&ctx, group, &size, &[Intersector::Watertight], accel)
                 .unwrap_or_else(|e| panic!("{group:?} on {}: {e}", accel.label())),

@@ -15,6 +15,8 @@
 //! host's copy of the primitive boxes and records the upload of its nodes. Downloading a
 //! structure ([`AccelStructure::download`]) is for tests and tools only.
 
+use crate::accel::bvh::lbvh::MortonBits;
+use crate::accel::bvh::lbvh_gpu::LbvhBuilder;
 use crate::accel::bvh::{self, Bvh, BvhNode, BvhParams, Threading};
 use crate::accel::kdtree::gpu::{BuildCapacity, BuildOutput, BuildScratch, KdTreeBuilder};
 use crate::accel::kdtree::{KdNode, KdTree, SahParams};
@@ -39,16 +41,19 @@ pub enum AccelKind {
     KdTree,
     /// Seed 003's SAH BVH, built on the host's cores and uploaded.
     SahBvh,
+    /// Seed 000's LBVH (Karras 2012), built on the GPU.
+    Lbvh,
 }
 
 impl AccelKind {
-    pub const ALL: [AccelKind; 2] = [AccelKind::KdTree, AccelKind::SahBvh];
+    pub const ALL: [AccelKind; 3] = [AccelKind::KdTree, AccelKind::SahBvh, AccelKind::Lbvh];
 
     /// The CLI name (`--accel`).
     pub fn name(self) -> &'static str {
         match self {
             AccelKind::KdTree => "kdtree",
             AccelKind::SahBvh => "sah-bvh",
+            AccelKind::Lbvh => "lbvh",
         }
     }
 
@@ -56,7 +61,54 @@ impl AccelKind {
     pub fn walked(self, traversal: Traversal) -> AccelTraversal {
         match self {
             AccelKind::KdTree => AccelTraversal::KdTree,
-            AccelKind::SahBvh => AccelTraversal::Bvh(traversal),
+            AccelKind::SahBvh | AccelKind::Lbvh => AccelTraversal::Bvh(traversal),
+        }
+    }
+}
+
+/// What `--accel` and `--traversal` choose: a structure and how kernels walk it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
+pub struct AccelChoice {
+    pub kind: AccelKind,
+    /// How a BVH is walked (ignored for a kd-tree).
+    pub walk: Traversal,
+}
+
+impl AccelChoice {
+    pub fn new(kind: AccelKind, walk: Traversal) -> Self {
+        let walk = if kind == AccelKind::KdTree {
+            Traversal::default()
+        } else {
+            walk
+        };
+        Self { kind, walk }
+    }
+
+    /// The walk the kernels compile in (`ACCEL_KIND`).
+    pub fn traversal(self) -> AccelTraversal {
+        self.kind.walked(self.walk)
+    }
+
+    /// Every structure with every walk, for suites and benchmarks.
+    pub fn all() -> Vec<Self> {
+        AccelKind::ALL
+            .into_iter()
+            .flat_map(|kind| {
+                let walks: &[Traversal] = if kind == AccelKind::KdTree {
+                    &[Traversal::Stack]
+                } else {
+                    &[Traversal::Stack, Traversal::Bitstack]
+                };
+                walks.iter().map(move |&w| Self::new(kind, w))
+            })
+            .collect()
+    }
+
+    /// `kdtree`, `sah-bvh/stack`, `lbvh/bitstack`, ...
+    pub fn label(self) -> String {
+        match self.kind {
+            AccelKind::KdTree => self.kind.name().to_string(),
+            _ => format!("{}/{}", self.kind.name(), self.walk.name()),
         }
     }
 }
@@ -314,6 +366,7 @@ impl AccelStructure {
 /// Scratch of a build.
 pub enum AccelScratch {
     KdTree(Box<BuildScratch>),
+    Lbvh(Box<LbvhScratch>),
     /// The builder works in host memory.
     None,
 }
@@ -322,6 +375,7 @@ pub enum AccelScratch {
 pub struct AccelBuilder {
     kind: AccelKind,
     kd: Option<KdTreeBuilder>,
+    lbvh: Option<LbvhBuilder>,
     /// `accel.bvh_refit` (BVH kinds).
     refit: Option<Arc<Kernel>>,
     pub kd_params: SahParams,
@@ -355,11 +409,15 @@ impl AccelBuilder {
             kind,
             kd: match kind {
                 AccelKind::KdTree => Some(KdTreeBuilder::new(ctx)?),
-                AccelKind::SahBvh => None,
+                _ => None,
+            },
+            lbvh: match kind {
+                AccelKind::Lbvh => Some(LbvhBuilder::new(ctx, MortonBits::default())?),
+                _ => None,
             },
             refit: match kind {
                 AccelKind::KdTree => None,
-                AccelKind::SahBvh => Some(ctx.kernel(
+                AccelKind::SahBvh | AccelKind::Lbvh => Some(ctx.kernel(
                     &kernels::ACCEL_BVH_REFIT,
                     &Spec::new().workgroup(REFIT_WORKGROUP),
                 )?),
@@ -373,6 +431,13 @@ impl AccelBuilder {
 
     pub fn kind(&self) -> AccelKind {
         self.kind
+    }
+
+    /// The Morton code width of an LBVH builder (the default for other kinds).
+    pub fn lbvh_bits(&self) -> MortonBits {
+        self.lbvh
+            .as_ref()
+            .map_or(MortonBits::default(), |l| l.bits())
     }
 
     /// The kd-tree build's capacity for `n` primitives: the default, doubled `grow` times,
@@ -407,11 +472,15 @@ impl AccelBuilder {
                     update_scratch_bytes: None,
                 }
             }
-            AccelKind::SahBvh => {
-                let nodes = n.saturating_sub(1).max(1) as u64;
+            AccelKind::SahBvh | AccelKind::Lbvh => {
+                let nodes = bvh_nodes(n) as u64;
+                let build_scratch_bytes = match &self.lbvh {
+                    Some(l) => l.scratch_bytes(n) + nodes * 4,
+                    None => 0,
+                };
                 AccelSizes {
                     structure_bytes: nodes * 64 + (n as u64 + nodes) * 4 + info,
-                    build_scratch_bytes: 0,
+                    build_scratch_bytes,
                     update_scratch_bytes: Some(nodes * 4),
                 }
             }
@@ -445,8 +514,15 @@ impl AccelBuilder {
                     AccelScratch::KdTree(Box::new(scratch)),
                 ))
             }
-            AccelKind::SahBvh => {
-                let nodes = n.saturating_sub(1).max(1);
+            AccelKind::SahBvh | AccelKind::Lbvh => {
+                let nodes = bvh_nodes(n);
+                let scratch = match &self.lbvh {
+                    Some(l) => AccelScratch::Lbvh(Box::new(LbvhScratch {
+                        topology: l.scratch(ctx, n)?,
+                        visits: Buffer::new(ctx, "accel.lbvh.visits", nodes)?,
+                    })),
+                    None => AccelScratch::None,
+                };
                 Ok((
                     AccelStructure {
                         kind: self.kind,
@@ -457,7 +533,7 @@ impl AccelBuilder {
                         },
                         info,
                     },
-                    AccelScratch::None,
+                    scratch,
                 ))
             }
         }
@@ -528,6 +604,26 @@ impl AccelBuilder {
                     host_ms: Some(host_ms),
                 })
             }
+            (
+                Storage::Bvh {
+                    nodes,
+                    refs,
+                    counts,
+                },
+                AccelScratch::Lbvh(s),
+            ) => {
+                let lbvh = self.lbvh.as_ref().expect("an LBVH builder");
+                let n_nodes = if n == 0 { 0 } else { bvh_nodes(n) };
+                rec.upload(&out.info, &[prims.info(&Aabb::EMPTY, n as u32)])?;
+                rec.transfer_to_compute();
+                lbvh.record_topology(rec, &prims.boxes, n, &s.topology, nodes, refs);
+                *counts = (n_nodes, n);
+                let refit = self.refit.as_ref().expect("the refit kernel");
+                record_refit_nodes(
+                    rec, refit, prims, nodes, refs, &s.visits, &out.info, n_nodes,
+                );
+                Ok(RecordedBuild::default())
+            }
             _ => unreachable!("scratch of another kind"),
         }
     }
@@ -539,8 +635,8 @@ impl AccelBuilder {
     pub fn update_scratch(&self, ctx: &Context, n: usize) -> Result<Option<Buffer<u32>>> {
         match self.kind {
             AccelKind::KdTree => Ok(None),
-            AccelKind::SahBvh => {
-                Buffer::new(ctx, "accel.refit_visits", n.saturating_sub(1).max(1)).map(Some)
+            AccelKind::SahBvh | AccelKind::Lbvh => {
+                Buffer::new(ctx, "accel.refit_visits", bvh_nodes(n)).map(Some)
             }
         }
     }
@@ -577,19 +673,46 @@ impl AccelBuilder {
             "refit scratch of {} counters",
             scratch.len()
         );
-        if n_nodes == 0 {
-            return Ok(());
-        }
-        rec.scope("refit", |rec| {
-            rec.fill_first(scratch, n_nodes, 0);
-            rec.transfer_to_compute();
-            let groups = rec.groups_1d(n_nodes as u64, REFIT_WORKGROUP);
-            let b: [&dyn BufferArg; 5] = [nodes, refs, &prims.boxes, scratch, &out.info];
-            rec.dispatch(kernel, groups, &b, &(n_nodes as u32));
-        });
-        rec.compute_to_compute();
+        record_refit_nodes(rec, kernel, prims, nodes, refs, scratch, &out.info, n_nodes);
         Ok(())
     }
+}
+
+/// Nodes of a BVH over `n` primitives (one for 0 or 1: a root).
+fn bvh_nodes(n: usize) -> usize {
+    n.saturating_sub(1).max(1)
+}
+
+/// LBVH build scratch: the topology's, and the visit counters of the boxes' refit.
+pub struct LbvhScratch {
+    topology: crate::accel::bvh::lbvh_gpu::LbvhScratch,
+    visits: Buffer<u32>,
+}
+
+/// Records `accel.bvh_refit` over the first `n_nodes` nodes (nothing for 0), in a scope
+/// `refit`, ending with a compute → compute barrier.
+#[allow(clippy::too_many_arguments, reason = "the refit kernel's bindings")]
+fn record_refit_nodes(
+    rec: &mut Recorder,
+    kernel: &Kernel,
+    prims: &DevicePrimitives,
+    nodes: &Buffer<BvhNode>,
+    refs: &Buffer<u32>,
+    visits: &Buffer<u32>,
+    info: &Buffer<SceneInfo>,
+    n_nodes: usize,
+) {
+    if n_nodes == 0 {
+        return;
+    }
+    rec.scope("refit", |rec| {
+        rec.fill_first(visits, n_nodes, 0);
+        rec.transfer_to_compute();
+        let groups = rec.groups_1d(n_nodes as u64, REFIT_WORKGROUP);
+        let b: [&dyn BufferArg; 5] = [nodes, refs, &prims.boxes, visits, info];
+        rec.dispatch(kernel, groups, &b, &(n_nodes as u32));
+    });
+    rec.compute_to_compute();
 }
 
 /// A structure built from a host structure (for tools and tests that built one on the

@@ -381,6 +381,12 @@ impl RadixSort {
         key_bits.div_ceil(self.bits)
     }
 
+    /// Bytes of [`RadixSort::scratch`] for `max_n` elements (without allocating them).
+    pub fn scratch_bytes(&self, max_n: usize) -> u64 {
+        let table = (max_n.div_ceil(self.tile as usize) << self.bits).max(1);
+        4 * (2 * max_n.max(1) + 2 * table) as u64 + self.scan.scratch_bytes(table)
+    }
+
     /// Scratch for sorts of up to `max_n` elements.
     pub fn scratch(&self, ctx: &Context, max_n: usize) -> Result<RadixScratch> {
         let table = (max_n.div_ceil(self.tile as usize) << self.bits).max(1);

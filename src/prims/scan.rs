@@ -389,6 +389,17 @@ impl Scan {
         lengths
     }
 
+    /// Bytes of [`Scan::scratch`] for `max_n` elements (without allocating them).
+    pub fn scratch_bytes(&self, max_n: usize) -> u64 {
+        let lengths = self.level_lengths(max_n);
+        let tiles = self
+            .chained
+            .as_ref()
+            .map_or(0, |c| max_n.div_ceil(c.small.min_subgroup_tile));
+        let words: usize = lengths.iter().map(|&l| l.max(1)).sum::<usize>() + lengths.len() + 1;
+        4 * words as u64 + 8 * (1 + tiles) as u64
+    }
+
     /// Scratch for scans of up to `max_n` elements.
     pub fn scratch(&self, ctx: &Context, max_n: usize) -> Result<ScanScratch> {
         let lengths = self.level_lengths(max_n);

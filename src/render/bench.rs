@@ -59,7 +59,7 @@ pub fn effect_costs(
     ctx: &Context,
     scenes: &[(String, Scene, String)],
     (width, height): (u32, u32),
-    accel: crate::trace::gpu::AccelTraversal,
+    accel: crate::accel::device::AccelChoice,
 ) -> Result<Vec<EffectRow>, Box<dyn std::error::Error + Send + Sync>> {
     let trace = TraceOptions::default();
     let opt = RenderOptions {

@@ -111,6 +111,9 @@ fn host_twin(kind: AccelKind, g: &TraceGeometry) -> RenderAccel {
             crate::accel::bvh::build(&g.boxes, &Default::default(), Threading::all_cores())
                 .expect("the scene's boxes are finite"),
         ),
+        AccelKind::Lbvh => {
+            RenderAccel::Bvh(crate::accel::bvh::lbvh::build(&g.boxes, Default::default()))
+        }
     }
 }
 
@@ -127,7 +130,7 @@ pub fn render(rs: &RenderScene, plan: &Plan, trace_opt: &TraceOptions) -> CpuRen
     };
     let accel = host.as_ref().unwrap_or(&rs.accel);
     // The structure's CPU twin walk, as the plan's kernels walk it.
-    let trace = |r: &Ray, time: f32, opt: &TraceOptions| match (accel, plan.accel) {
+    let trace = |r: &Ray, time: f32, opt: &TraceOptions| match (accel, plan.accel.traversal()) {
         (RenderAccel::KdTree(tree), _) => {
             let scene = TraceScene {
                 geometry: &rs.geometry,

@@ -127,13 +127,13 @@ impl Renderer {
             query: Query::Closest,
             ..opt
         })
-        .u32(20, plan.accel.spec())
+        .u32(20, plan.accel.traversal().spec())
         .workgroup(WG);
         let any = traversal_spec(&TraceOptions {
             query: Query::Any,
             ..opt
         })
-        .u32(20, plan.accel.spec())
+        .u32(20, plan.accel.traversal().spec())
         .workgroup(WG);
         let b = |v: bool| v as u32;
         let shade = Spec::new()

@@ -28,7 +28,6 @@ use crate::accel::bvh::Bvh;
 use crate::accel::device::AccelKind;
 use crate::accel::kdtree::KdTree;
 use crate::scene::{Light, Scene};
-use crate::trace::gpu::AccelTraversal;
 use crate::trace::TraceGeometry;
 
 pub use plan::{Plan, RenderOptions};
@@ -282,10 +281,7 @@ pub fn render_scene(
 ) -> Result<Rendered, Box<dyn std::error::Error + Send + Sync>> {
     let plan = Plan::new(scene, opt)?;
     // The structure is built on the device in the render's first submission.
-    let kind = match plan.accel {
-        AccelTraversal::KdTree => AccelKind::KdTree,
-        AccelTraversal::Bvh(_) => AccelKind::SahBvh,
-    };
+    let kind = plan.accel.kind;
     let rs = RenderScene::new(scene, &plan, |_| {
         Ok::<_, std::convert::Infallible>(RenderAccel::OnDevice(kind))
     })?;

@@ -9,7 +9,7 @@ use std::fmt;
 
 use serde::Serialize;
 
-use crate::trace::gpu::AccelTraversal;
+use crate::accel::device::AccelChoice;
 
 use crate::scene::{Effects, Scene};
 
@@ -23,7 +23,7 @@ pub struct RenderOptions {
     /// measuring what the plan saves).
     pub all_effects: bool,
     /// The structure the renderer traces and how it is walked.
-    pub accel: AccelTraversal,
+    pub accel: AccelChoice,
 }
 
 /// Pixels × samples × bounce tree bounded by this many rays per wave (queue capacity).
@@ -37,7 +37,7 @@ pub struct Plan {
     pub effects: Vec<&'static str>,
     pub all_effects: bool,
     /// The structure traced and its walk (the `ACCEL_KIND` of the tracing kernels).
-    pub accel: AccelTraversal,
+    pub accel: AccelChoice,
     pub width: u32,
     pub height: u32,
     pub spp: u32,

@@ -23,6 +23,16 @@ pub enum Traversal {
     Bitstack,
 }
 
+impl Traversal {
+    /// `stack` or `bitstack` (the CLI's `--traversal`).
+    pub fn name(self) -> &'static str {
+        match self {
+            Traversal::Stack => "stack",
+            Traversal::Bitstack => "bitstack",
+        }
+    }
+}
+
 /// Where the ray enters `b` within `[t0, t1]` (the kd-tree walk's slab test); `None` when
 /// it misses.
 fn enter(b: &Aabb, o: Vec3, d: Vec3, inv_d: Vec3, t0: f32, t1: f32) -> Option<f32> {

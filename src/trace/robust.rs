@@ -37,13 +37,13 @@ use glam::{Vec3, Vec4};
 use serde::Serialize;
 
 use super::bvh_cpu;
-use super::gpu::{AccelTraversal, GpuGeometry, TraceBatch, Tracer};
+use super::gpu::{GpuGeometry, TraceBatch, Tracer};
 use super::intersect::{
     offset_ray_origin, offset_ray_origin_bounded, sphere_hit_point, triangle_hit_point,
 };
 use super::{cpu, Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
 use crate::accel::bvh;
-use crate::accel::device::{AccelBuilder, AccelKind, AccelStructure, HostStructure};
+use crate::accel::device::{AccelBuilder, AccelChoice, AccelStructure, HostStructure};
 use crate::accel::kdtree::{stats, validate, SahParams};
 use crate::gpu::Recorder;
 use crate::gpu::{Context, GpuError, Result};
@@ -55,7 +55,7 @@ use crate::scene::Aabb;
 pub struct CaseResult {
     pub case: String,
     /// The structure and walk (`AccelTraversal::label`).
-    pub accel: &'static str,
+    pub accel: String,
     pub intersector: &'static str,
     pub rays: u64,
     /// Failures of any kind (`failure_kind`), errors included.
@@ -162,7 +162,7 @@ pub fn run_group(
     group: Group,
     size: &SuiteSize,
     intersectors: &[Intersector],
-    accel: AccelTraversal,
+    accel: AccelChoice,
 ) -> Result<Vec<CaseResult>> {
     let mut s = Suite {
         ctx,
@@ -187,7 +187,7 @@ pub fn run_all(
     ctx: &Context,
     size: &SuiteSize,
     intersectors: &[Intersector],
-    accel: AccelTraversal,
+    accel: AccelChoice,
 ) -> Result<Vec<CaseResult>> {
     let mut out = Vec::new();
     for g in Group::ALL {
@@ -202,7 +202,7 @@ struct Prepared {
     geometry: TraceGeometry,
     host: HostStructure,
     device: GpuGeometry,
-    accel: AccelTraversal,
+    accel: AccelChoice,
 }
 
 impl Prepared {
@@ -212,13 +212,9 @@ impl Prepared {
         ctx: &Context,
         geometry: TraceGeometry,
         params: &SahParams,
-        accel: AccelTraversal,
+        accel: AccelChoice,
     ) -> Result<Self> {
-        let kind = match accel {
-            AccelTraversal::KdTree => AccelKind::KdTree,
-            AccelTraversal::Bvh(_) => AccelKind::SahBvh,
-        };
-        let mut builder = AccelBuilder::new(ctx, kind)?;
+        let mut builder = AccelBuilder::new(ctx, accel.kind)?;
         builder.kd_params = *params;
         for grow in 0..8 {
             let mut rec = Recorder::new(ctx)?;
@@ -250,7 +246,13 @@ impl Prepared {
     }
 
     fn trace(&self, ctx: &Context, rays: &[Ray], opt: &TraceOptions) -> Result<TraceBatch> {
-        Tracer::for_accel(ctx, opt, self.accel)?.trace_batched(ctx, &self.device, rays, 0.0, None)
+        Tracer::for_accel(ctx, opt, self.accel.traversal())?.trace_batched(
+            ctx,
+            &self.device,
+            rays,
+            0.0,
+            None,
+        )
     }
 
     /// The CPU twin of the structure's walk.
@@ -263,11 +265,8 @@ impl Prepared {
                 };
                 cpu::trace(&scene, r, 0.0, o).0
             }
-            (HostStructure::Bvh(b), AccelTraversal::Bvh(walk)) => {
-                bvh_cpu::trace(&self.geometry, b, r, 0.0, o, walk).0
-            }
-            (HostStructure::Bvh(b), AccelTraversal::KdTree) => {
-                bvh_cpu::trace(&self.geometry, b, r, 0.0, o, Default::default()).0
+            (HostStructure::Bvh(b), accel) => {
+                bvh_cpu::trace(&self.geometry, b, r, 0.0, o, accel.walk).0
             }
         }
     }
@@ -389,7 +388,7 @@ struct Suite<'a> {
     ctx: &'a Context,
     size: SuiteSize,
     intersectors: Vec<Intersector>,
-    accel: AccelTraversal,
+    accel: AccelChoice,
     out: Vec<CaseResult>,
 }
 

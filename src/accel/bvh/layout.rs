@@ -37,6 +37,21 @@ pub enum Child {
 }
 
 impl BvhNode {
+    /// A node with two missing children (empty boxes).
+    pub fn empty() -> Self {
+        let (lo, hi) = (Aabb::EMPTY.min.to_array(), Aabb::EMPTY.max.to_array());
+        Self {
+            a_min: lo,
+            a_index: NO_NODE,
+            a_max: hi,
+            a_count: 0,
+            b_min: lo,
+            b_index: NO_NODE,
+            b_max: hi,
+            b_count: 0,
+        }
+    }
+
     /// Child 0 (`a`) or 1 (`b`) with its box.
     pub fn child(&self, which: usize) -> (Aabb, Child) {
         let (min, max, index, count) = if which == 0 {

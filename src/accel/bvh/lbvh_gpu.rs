@@ -1,0 +1,132 @@
+//! The LBVH built on the GPU (seed 000's builder, Karras 2012), recorded into the caller's
+//! recorder with no read-back: centroid bounds (`accel.lbvh_bounds`), Morton codes
+//! (`accel.lbvh_morton`), a stable key-value radix sort of the codes (`prims`; 63-bit codes
+//! sort the low word, then the high word), the topology (`accel.lbvh_karras`) written in the
+//! traversal's layout, and the boxes bottom-up with per-node visit counters
+//! (`accel.bvh_refit`, the refit of every BVH). CPU twin: [`super::lbvh`].
+
+use std::sync::Arc;
+
+use super::lbvh::MortonBits;
+use super::BvhNode;
+use crate::gpu::{kernels, Buffer, BufferArg, Context, Kernel, Recorder, Result, Spec};
+use crate::prims::radix_sort::{RadixScratch, RadixSort};
+use crate::prims::PrimConfig;
+
+const WORKGROUP: u32 = 64;
+
+/// The LBVH's kernels, compiled once.
+pub struct LbvhBuilder {
+    bounds: Arc<Kernel>,
+    morton: Arc<Kernel>,
+    gather: Arc<Kernel>,
+    karras: Arc<Kernel>,
+    sort: RadixSort,
+    bits: MortonBits,
+}
+
+/// Device scratch of one build.
+pub struct LbvhScratch {
+    max_n: usize,
+    /// Keys of the centroid box's minima, then inverted keys of its maxima.
+    bounds: Buffer<u32>,
+    code_hi: Buffer<u32>,
+    code_lo: Buffer<u32>,
+    sort_keys: Buffer<u32>,
+    sort: RadixScratch,
+}
+
+impl LbvhBuilder {
+    pub fn new(ctx: &Context, bits: MortonBits) -> Result<Self> {
+        let spec = Spec::new().workgroup(WORKGROUP);
+        Ok(Self {
+            bounds: ctx.kernel(&kernels::ACCEL_LBVH_BOUNDS, &spec)?,
+            morton: ctx.kernel(
+                &kernels::ACCEL_LBVH_MORTON,
+                &spec.clone().u32(1, bits.per_axis()),
+            )?,
+            gather: ctx.kernel(&kernels::ACCEL_LBVH_GATHER, &spec)?,
+            karras: ctx.kernel(&kernels::ACCEL_LBVH_KARRAS, &spec)?,
+            sort: RadixSort::new(ctx, PrimConfig::default_for(ctx), 8)?,
+            bits,
+        })
+    }
+
+    pub fn bits(&self) -> MortonBits {
+        self.bits
+    }
+
+    /// Bytes of [`LbvhBuilder::scratch`] for `n` primitives.
+    pub fn scratch_bytes(&self, n: usize) -> u64 {
+        4 * (6 + 3 * n.max(1)) as u64 + self.sort.scratch_bytes(n.max(1))
+    }
+
+    pub fn scratch(&self, ctx: &Context, n: usize) -> Result<LbvhScratch> {
+        Ok(LbvhScratch {
+            max_n: n,
+            bounds: Buffer::new(ctx, "accel.lbvh.bounds", 6)?,
+            code_hi: Buffer::new(ctx, "accel.lbvh.code_hi", n)?,
+            code_lo: Buffer::new(ctx, "accel.lbvh.code_lo", n)?,
+            sort_keys: Buffer::new(ctx, "accel.lbvh.sort_keys", n)?,
+            sort: self.sort.scratch(ctx, n.max(1))?,
+        })
+    }
+
+    /// Records the topology of the LBVH over the `n` primitive boxes `boxes` (six floats
+    /// each): the sorted ids into `refs[..n]`, parent links into `refs[n..]`, the nodes with
+    /// empty boxes. The caller records the refit that computes the boxes next. Ends with a
+    /// compute → compute barrier.
+    pub fn record_topology(
+        &self,
+        rec: &mut Recorder,
+        boxes: &Buffer<f32>,
+        n: usize,
+        scratch: &LbvhScratch,
+        nodes: &Buffer<BvhNode>,
+        refs: &Buffer<u32>,
+    ) {
+        assert!(
+            n <= scratch.max_n,
+            "LBVH of {n} primitives, scratch for {}",
+            scratch.max_n
+        );
+        if n == 0 {
+            return;
+        }
+        let s = scratch;
+        let groups = rec.groups_1d(n as u64, WORKGROUP);
+        let n32 = n as u32;
+        rec.scope("lbvh.bounds", |rec| {
+            rec.fill(&s.bounds, u32::MAX);
+            rec.transfer_to_compute();
+            rec.dispatch(&self.bounds, groups, &[boxes, &s.bounds], &n32);
+        });
+        rec.compute_to_compute();
+        rec.scope("lbvh.morton", |rec| {
+            let b: [&dyn BufferArg; 6] =
+                [boxes, &s.bounds, &s.code_hi, &s.code_lo, &s.sort_keys, refs];
+            rec.dispatch(&self.morton, groups, &b, &n32);
+        });
+        rec.compute_to_compute();
+        rec.scope("lbvh.sort", |rec| match self.bits {
+            MortonBits::Bits30 => {
+                self.sort.record(rec, &s.sort_keys, refs, n, 30, &s.sort);
+            }
+            MortonBits::Bits63 => {
+                self.sort.record(rec, &s.sort_keys, refs, n, 32, &s.sort);
+                rec.compute_to_compute();
+                let b: [&dyn BufferArg; 3] = [&s.code_hi, refs, &s.sort_keys];
+                rec.dispatch(&self.gather, groups, &b, &n32);
+                rec.compute_to_compute();
+                self.sort.record(rec, &s.sort_keys, refs, n, 31, &s.sort);
+            }
+        });
+        rec.compute_to_compute();
+        rec.scope("lbvh.karras", |rec| {
+            let internal = rec.groups_1d(n.saturating_sub(1).max(1) as u64, WORKGROUP);
+            let b: [&dyn BufferArg; 4] = [nodes, refs, &s.code_hi, &s.code_lo];
+            rec.dispatch(&self.karras, internal, &b, &n32);
+        });
+        rec.compute_to_compute();
+    }
+}
