@@ -8,6 +8,7 @@
 // buffers), and the arriving invocation reads them after. Unions use the total order on ±0
 // (fmin_total), so the result is bit for bit the CPU twin's, whatever the order.
 layout(local_size_x_id = 0) in;
+#extension GL_KHR_shader_subgroup_vote : require
 #include "common/grid.glsl"
 #include "common/kdtree.glsl"
 
@@ -71,30 +72,20 @@ uint node_children(BvhNode n) {
     return uint(n.a_count == 0u && n.a_index != NO_NODE) + uint(n.b_count == 0u && n.b_index != NO_NODE);
 }
 
-shared uint climbing_here;
-
 void main() {
     uint i = linear_invocation_id();
     bool climbing = i < pc.n_nodes && node_children(nodes[i]) == 0u;
     uint cur = i;
-    // Rounds in workgroup-uniform control flow, every barrier reached by every invocation:
+    // Rounds in subgroup-uniform control flow, every memory barrier reached by every lane:
     // Mesa 22.3's lavapipe makes memoryBarrierBuffer (or an atomic with acquire/release
     // semantics) a coroutine switch, and a subgroup that runs more of them than the others
-    // is never resumed (glsl/gpu/memory_barrier_probe.comp). One round: refit (stores),
-    // memory barrier, arrive at the parent (atomic), memory barrier; the workgroup stops
-    // when none of its invocations climbs. A bound of one round per node: never a spin.
+    // of its workgroup is never resumed (glsl/gpu/memory_barrier_probe.comp); a workgroup
+    // is one subgroup here (AccelBuilder dispatches the subgroup size), so there are no
+    // others. One round: refit (stores), memory barrier, arrive at the parent (atomic),
+    // memory barrier; the subgroup stops when none of its lanes climbs. A bound of one
+    // round per node: never a spin.
     for (uint round = 0u; round <= pc.n_nodes; round++) {
-        if (gl_LocalInvocationIndex == 0u) {
-            climbing_here = 0u;
-        }
-        barrier();
-        if (climbing) {
-            atomicOr(climbing_here, 1u);
-        }
-        barrier();
-        bool any = climbing_here != 0u;
-        barrier(); // everyone has read it before the next round resets it
-        if (!any) {
+        if (!subgroupAny(climbing)) {
             break;
         }
         BvhNode n;

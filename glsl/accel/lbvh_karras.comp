@@ -25,8 +25,9 @@ struct BvhNode {
 layout(std430, binding = 0) writeonly buffer Nodes { BvhNode nodes[]; };
 // The sorted primitive ids (the leaves' references), then a parent link per node from n on.
 layout(std430, binding = 1) buffer Refs { uint refs[]; };
-layout(std430, binding = 2) readonly buffer CodeHi { uint code_hi[]; };
-layout(std430, binding = 3) readonly buffer CodeLo { uint code_lo[]; };
+// The codes' words in sorted order.
+layout(std430, binding = 2) readonly buffer SortedHi { uint sorted_hi[]; };
+layout(std430, binding = 3) readonly buffer SortedLo { uint sorted_lo[]; };
 layout(push_constant) uniform Push { uint n; } pc;
 
 uint clz(uint x) {
@@ -34,8 +35,7 @@ uint clz(uint x) {
 }
 
 uvec2 code_at(int i) {
-    uint p = refs[i];
-    return uvec2(code_hi[p], code_lo[p]);
+    return uvec2(sorted_hi[i], sorted_lo[i]);
 }
 
 int delta(int i, uvec2 ci, int j) {

@@ -30,7 +30,10 @@ use crate::trace::bvh_cpu::Traversal;
 use crate::trace::geometry::{MotionRecord, SceneInfo, TraceGeometry};
 use crate::trace::gpu::AccelTraversal;
 
-const REFIT_WORKGROUP: u32 = 64;
+/// The refit's workgroups are one subgroup each (`accel.bvh_refit` explains why).
+fn refit_workgroup(ctx: &Context) -> u32 {
+    ctx.info().subgroup_size.max(1)
+}
 
 /// The structures vkrt builds.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
@@ -419,7 +422,7 @@ impl AccelBuilder {
                 AccelKind::KdTree => None,
                 AccelKind::SahBvh | AccelKind::Lbvh => Some(ctx.kernel(
                     &kernels::ACCEL_BVH_REFIT,
-                    &Spec::new().workgroup(REFIT_WORKGROUP),
+                    &Spec::new().workgroup(refit_workgroup(ctx)),
                 )?),
             },
             kd_params: SahParams::default(),
@@ -431,6 +434,14 @@ impl AccelBuilder {
 
     pub fn kind(&self) -> AccelKind {
         self.kind
+    }
+
+    /// An LBVH builder with `bits`-bit Morton codes ([`AccelBuilder::new`] takes the
+    /// default, 63).
+    pub fn lbvh(ctx: &Context, bits: MortonBits) -> Result<Self> {
+        let mut b = Self::new(ctx, AccelKind::Lbvh)?;
+        b.lbvh = Some(LbvhBuilder::new(ctx, bits)?);
+        Ok(b)
     }
 
     /// The Morton code width of an LBVH builder (the default for other kinds).
@@ -708,7 +719,7 @@ fn record_refit_nodes(
     rec.scope("refit", |rec| {
         rec.fill_first(visits, n_nodes, 0);
         rec.transfer_to_compute();
-        let groups = rec.groups_1d(n_nodes as u64, REFIT_WORKGROUP);
+        let groups = rec.groups_1d(n_nodes as u64, refit_workgroup(rec.context()));
         let b: [&dyn BufferArg; 5] = [nodes, refs, &prims.boxes, visits, info];
         rec.dispatch(kernel, groups, &b, &(n_nodes as u32));
     });

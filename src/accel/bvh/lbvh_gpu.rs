@@ -19,7 +19,8 @@ const WORKGROUP: u32 = 64;
 pub struct LbvhBuilder {
     bounds: Arc<Kernel>,
     morton: Arc<Kernel>,
-    gather: Arc<Kernel>,
+    gather1: Arc<Kernel>,
+    gather2: Arc<Kernel>,
     karras: Arc<Kernel>,
     sort: RadixSort,
     bits: MortonBits,
@@ -33,6 +34,9 @@ pub struct LbvhScratch {
     code_hi: Buffer<u32>,
     code_lo: Buffer<u32>,
     sort_keys: Buffer<u32>,
+    /// The codes' words in sorted order.
+    sorted_hi: Buffer<u32>,
+    sorted_lo: Buffer<u32>,
     sort: RadixScratch,
 }
 
@@ -45,7 +49,8 @@ impl LbvhBuilder {
                 &kernels::ACCEL_LBVH_MORTON,
                 &spec.clone().u32(1, bits.per_axis()),
             )?,
-            gather: ctx.kernel(&kernels::ACCEL_LBVH_GATHER, &spec)?,
+            gather1: ctx.kernel(&kernels::ACCEL_LBVH_GATHER, &spec.clone().u32(1, 1))?,
+            gather2: ctx.kernel(&kernels::ACCEL_LBVH_GATHER, &spec.clone().u32(1, 2))?,
             karras: ctx.kernel(&kernels::ACCEL_LBVH_KARRAS, &spec)?,
             sort: RadixSort::new(ctx, PrimConfig::default_for(ctx), 8)?,
             bits,
@@ -58,7 +63,7 @@ impl LbvhBuilder {
 
     /// Bytes of [`LbvhBuilder::scratch`] for `n` primitives.
     pub fn scratch_bytes(&self, n: usize) -> u64 {
-        4 * (6 + 3 * n.max(1)) as u64 + self.sort.scratch_bytes(n.max(1))
+        4 * (6 + 5 * n.max(1)) as u64 + self.sort.scratch_bytes(n.max(1))
     }
 
     pub fn scratch(&self, ctx: &Context, n: usize) -> Result<LbvhScratch> {
@@ -68,6 +73,8 @@ impl LbvhBuilder {
             code_hi: Buffer::new(ctx, "accel.lbvh.code_hi", n)?,
             code_lo: Buffer::new(ctx, "accel.lbvh.code_lo", n)?,
             sort_keys: Buffer::new(ctx, "accel.lbvh.sort_keys", n)?,
+            sorted_hi: Buffer::new(ctx, "accel.lbvh.sorted_hi", n)?,
+            sorted_lo: Buffer::new(ctx, "accel.lbvh.sorted_lo", n)?,
             sort: self.sort.scratch(ctx, n.max(1))?,
         })
     }
@@ -115,16 +122,20 @@ impl LbvhBuilder {
             MortonBits::Bits63 => {
                 self.sort.record(rec, &s.sort_keys, refs, n, 32, &s.sort);
                 rec.compute_to_compute();
-                let b: [&dyn BufferArg; 3] = [&s.code_hi, refs, &s.sort_keys];
-                rec.dispatch(&self.gather, groups, &b, &n32);
+                let b: [&dyn BufferArg; 5] =
+                    [refs, &s.code_hi, &s.sort_keys, &s.code_hi, &s.sort_keys];
+                rec.dispatch(&self.gather1, groups, &b, &n32);
                 rec.compute_to_compute();
                 self.sort.record(rec, &s.sort_keys, refs, n, 31, &s.sort);
             }
         });
         rec.compute_to_compute();
         rec.scope("lbvh.karras", |rec| {
+            let b: [&dyn BufferArg; 5] = [refs, &s.code_hi, &s.sorted_hi, &s.code_lo, &s.sorted_lo];
+            rec.dispatch(&self.gather2, groups, &b, &n32);
+            rec.compute_to_compute();
             let internal = rec.groups_1d(n.saturating_sub(1).max(1) as u64, WORKGROUP);
-            let b: [&dyn BufferArg; 4] = [nodes, refs, &s.code_hi, &s.code_lo];
+            let b: [&dyn BufferArg; 4] = [nodes, refs, &s.sorted_hi, &s.sorted_lo];
             rec.dispatch(&self.karras, internal, &b, &n32);
         });
         rec.compute_to_compute();
