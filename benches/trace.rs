@@ -5,9 +5,9 @@
 //! icospheres of 100K and 500K triangles: a 512×512 pinhole camera framing the object gives
 //! the primary rays (closest hit); from their hits, shadow rays towards a point light (any
 //! hit) and mirror reflections (closest hit). The same rays go through
-//! - vkrt's GPU tracer on each structure built on the device — seed 001's kd-tree and seed
-//!   003's SAH BVH walked with a stack or seed 000's bitstack (watertight test; time = GPU
-//!   timestamps around the trace kernel, best of 3);
+//! - vkrt's GPU tracer on each structure built on the device — seed 001's kd-tree, seed
+//!   003's SAH BVH and seed 000's LBVH, the BVHs walked with a stack or seed 000's bitstack
+//!   (watertight test; time = GPU timestamps around the trace kernel, best of 3);
 //! - obvhs's PLOC BVH (`BvhBuildParams::medium_build`, Möller–Trumbore, one CPU thread;
 //!   wall time);
 //! - Embree 3.13 (`rtcIntersect1`/`rtcOccluded1`, medium-quality BVH, 2 threads, best of
@@ -26,9 +26,9 @@ use std::time::{Duration, Instant};
 use glam::Vec3;
 use obvhs::bvh2::builder::build_bvh2_from_tris;
 use obvhs::BvhBuildParams;
-use vkrt::accel::device::{AccelBuilder, AccelKind};
+use vkrt::accel::device::{AccelBuilder, AccelChoice, AccelKind};
 use vkrt::gpu::Recorder;
-use vkrt::trace::gpu::{AccelTraversal, GpuGeometry, Tracer};
+use vkrt::trace::gpu::{GpuGeometry, Tracer};
 use vkrt::trace::intersect::offset_ray_origin;
 use vkrt::trace::{Hit, Query, Ray, TraceGeometry, TraceOptions};
 
@@ -39,8 +39,8 @@ struct Row {
     triangles: usize,
     rays_kind: &'static str,
     rays: usize,
-    /// Per structure and walk (`AccelTraversal::label`): hits, GPU ms, Mrays/s.
-    vkrt: Vec<(&'static str, usize, f64, f64)>,
+    /// Per structure and walk (`AccelChoice::label`): hits, GPU ms, Mrays/s.
+    vkrt: Vec<(String, usize, f64, f64)>,
     obvhs_hits: usize,
     obvhs_mrays_per_s: f64,
     embree2_hits: Option<usize>,
@@ -151,22 +151,23 @@ fn main() {
             build_ms.push((kind.name(), recorded.ms(&profile)));
             built.push((kind, dev));
         }
-        let device = |accel: AccelTraversal| {
-            let kind = match accel {
-                AccelTraversal::KdTree => AccelKind::KdTree,
-                AccelTraversal::Bvh(_) => AccelKind::SahBvh,
-            };
-            &built.iter().find(|(k, _)| *k == kind).expect("built").1
-        };
-        let tracers = |query: Query| -> Vec<(AccelTraversal, Tracer)> {
-            AccelTraversal::ALL
+        let device = |accel: AccelChoice| {
+            &built
                 .iter()
-                .map(|&a| {
+                .find(|(k, _)| *k == accel.kind)
+                .expect("built")
+                .1
+        };
+        let tracers = |query: Query| -> Vec<(AccelChoice, Tracer)> {
+            AccelChoice::all()
+                .into_iter()
+                .map(|a| {
                     let opt = TraceOptions {
                         query,
                         ..TraceOptions::default()
                     };
-                    (a, Tracer::for_accel(&ctx, &opt, a).expect("tracer"))
+                    let t = Tracer::for_accel(&ctx, &opt, a.traversal()).expect("tracer");
+                    (a, t)
                 })
                 .collect()
         };
@@ -188,7 +189,7 @@ fn main() {
         );
         let obvhs_ms = ob_start.elapsed().as_secs_f64() * 1e3;
 
-        let gpu = |accel: AccelTraversal, tracer: &Tracer, rays: &[Ray]| {
+        let gpu = |accel: AccelChoice, tracer: &Tracer, rays: &[Ray]| {
             let mut best = f64::MAX;
             let mut hits = Vec::new();
             for _ in 0..3 {
@@ -220,7 +221,7 @@ fn main() {
         };
 
         let primary = camera_rays(tris, size);
-        let (p_hits, _) = gpu(AccelTraversal::KdTree, &closest[0].1, &primary);
+        let (p_hits, _) = gpu(closest[0].0, &closest[0].1, &primary);
         let bounds = tris.iter().flatten().fold(
             (Vec3::splat(f32::MAX), Vec3::splat(f32::MIN)),
             |(lo, hi), p| (lo.min(*p), hi.max(*p)),
@@ -247,7 +248,7 @@ fn main() {
         for (k, (kind, rays, any_hit)) in sets.into_iter().enumerate() {
             let mr = |ms: f64| rays.len() as f64 / (ms * 1e3);
             let tracers = if any_hit { &any } else { &closest };
-            let vkrt: Vec<(&'static str, usize, f64, f64)> = tracers
+            let vkrt: Vec<(String, usize, f64, f64)> = tracers
                 .iter()
                 .map(|(a, t)| {
                     let (hits, ms) = gpu(*a, t, rays);
@@ -301,13 +302,15 @@ fn main() {
         ctx.info().device
     );
     println!(
-        "{:<13} {:<9} {:>7} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8}",
+        "{:<13} {:<9} {:>7} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8}",
         "scene",
         "rays",
         "n",
         "kdtree",
         "bvh-stk",
         "bvh-bit",
+        "lbvh-stk",
+        "lbvh-bit",
         "obvhs-1t",
         "embree-2t",
         "bvh/emb",
@@ -317,13 +320,15 @@ fn main() {
     let opt = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.2}"));
     for r in &rows {
         println!(
-            "{:<13} {:<9} {:>7} {:>8.2} {:>9.2} {:>9.2} {:>9.2} {:>9} {:>9} {:>9} {:>8}",
+            "{:<13} {:<9} {:>7} {:>8.2} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>9} {:>9} {:>9} {:>8}",
             r.scene,
             r.rays_kind,
             r.rays,
             r.vkrt[0].3,
             r.vkrt[1].3,
             r.vkrt[2].3,
+            r.vkrt[3].3,
+            r.vkrt[4].3,
             r.obvhs_mrays_per_s,
             opt(r.embree2_mrays_per_s),
             opt(r.best_bvh_over_embree2),
@@ -331,14 +336,19 @@ fn main() {
             if r.hits_agree { "yes" } else { "NO" }
         );
     }
-    println!("build ms: vkrt kd-tree (GPU passes), SAH BVH (host, every core), obvhs PLOC (1 thread), Embree (2 threads)");
+    println!(
+        "build ms: vkrt kd-tree and LBVH (GPU passes), SAH BVH (host, every core), obvhs PLOC \
+         (1 thread), Embree (2 threads)"
+    );
     for b in &builds {
         println!(
-            "{:<13} {:>8} tris  kdtree {:>9.1}  sah-bvh {:>8.1}  obvhs {:>8.1}  embree-2t {:>8}",
+            "{:<13} {:>8} tris  kdtree {:>9.1}  sah-bvh {:>8.1}  lbvh {:>8.1}  obvhs {:>8.1}  \
+             embree-2t {:>8}",
             b.scene,
             b.triangles,
             b.vkrt[0].1,
             b.vkrt[1].1,
+            b.vkrt[2].1,
             b.obvhs_ms,
             opt(b.embree2_ms)
         );
@@ -348,7 +358,7 @@ fn main() {
             "note: {} {} rays: hits differ: {:?}, Embree {:?}",
             r.scene,
             r.rays_kind,
-            r.vkrt.iter().map(|v| (v.0, v.1)).collect::<Vec<_>>(),
+            r.vkrt.iter().map(|v| (&v.0, v.1)).collect::<Vec<_>>(),
             r.embree2_hits
         );
     }

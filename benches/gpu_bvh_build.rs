@@ -1,0 +1,205 @@
+//! The GPU BVH builders over N (issue 15), one run: seed 000's LBVH (63- and 30-bit Morton
+//! codes) built on the device, per pass (GPU timestamps, best of 3 after a warm-up build),
+//! its refit, and the fitted growth exponent over the icospheres; beside them the GPU
+//! kd-tree (seed 001), the CPU SAH BVH on 2 threads (seed 003, node queue, full sweep) and
+//! Embree 3's build on 2 threads (when `libembree-dev` is installed), with the SAH cost of
+//! each BVH under one cost model (`validate::sah_cost`, `BvhParams::default`).
+//!
+//! Scenes: the Stanford bunny (../shared/scenes), icospheres of 100K, 200K, 500K, 1M, 2M.
+//!
+//! `cargo bench --bench gpu_bvh_build [-- --json] [-- --quick]` (`--quick`: up to 500K, no
+//! kd-tree)
+
+#[path = "embree/peer.rs"]
+mod embree;
+
+use vkrt::accel::bvh::lbvh::MortonBits;
+use vkrt::accel::bvh::{self, validate, BvhParams, Threading};
+use vkrt::accel::device::{AccelBuilder, AccelKind, HostStructure};
+use vkrt::gpu::{Context, Profile, Recorder};
+use vkrt::trace::gpu::GpuGeometry;
+use vkrt::trace::TraceGeometry;
+
+const PASSES: [&str; 5] = [
+    "lbvh.bounds",
+    "lbvh.morton",
+    "lbvh.sort",
+    "lbvh.karras",
+    "refit",
+];
+
+#[derive(serde::Serialize)]
+struct Row {
+    scene: String,
+    triangles: usize,
+    morton_bits: u32,
+    build_ms: f64,
+    passes_ms: Vec<(&'static str, f64)>,
+    refit_ms: f64,
+    sah_cost: f64,
+    sah_bvh_2t_ms: f64,
+    sah_bvh_sah_cost: f64,
+    embree_2t_ms: Option<f64>,
+    kdtree_gpu_ms: Option<f64>,
+}
+
+/// Best-of-3 build (after a warm-up) of `builder` over `g`: the profile of the best, the
+/// structure, and the best refit time of that structure.
+fn gpu_build(
+    ctx: &Context,
+    builder: &AccelBuilder,
+    g: &TraceGeometry,
+) -> (Profile, GpuGeometry, f64) {
+    let mut best: Option<(f64, Profile, GpuGeometry)> = None;
+    for _ in 0..4 {
+        let mut rec = Recorder::new(ctx).expect("recorder");
+        let (dev, _) = GpuGeometry::record_build(&mut rec, builder, g, 0).expect("build");
+        let prof = rec.submit_and_wait().expect("submit");
+        let ms = prof.ms("build").unwrap_or(f64::NAN);
+        if best.as_ref().is_none_or(|b| ms < b.0) {
+            best = Some((ms, prof, dev));
+        }
+    }
+    let (_, prof, dev) = best.expect("built");
+    let mut refit_ms = f64::INFINITY;
+    if let Ok(Some(visits)) = builder.update_scratch(ctx, g.primitive_count()) {
+        for _ in 0..3 {
+            let mut rec = Recorder::new(ctx).expect("recorder");
+            builder
+                .record_refit(&mut rec, &dev.prims, &dev.accel, &visits)
+                .expect("refit");
+            let p = rec.submit_and_wait().expect("submit");
+            refit_ms = refit_ms.min(p.ms("refit").unwrap_or(f64::NAN));
+        }
+    }
+    (prof, dev, refit_ms)
+}
+
+/// Least-squares slope of log(ms) over log(n).
+fn exponent(points: &[(f64, f64)]) -> f64 {
+    let xs: Vec<f64> = points.iter().map(|p| p.0.ln()).collect();
+    let ys: Vec<f64> = points.iter().map(|p| p.1.ln()).collect();
+    let (mx, my) = (
+        xs.iter().sum::<f64>() / xs.len() as f64,
+        ys.iter().sum::<f64>() / ys.len() as f64,
+    );
+    let num: f64 = xs.iter().zip(&ys).map(|(x, y)| (x - mx) * (y - my)).sum();
+    let den: f64 = xs.iter().map(|x| (x - mx) * (x - mx)).sum();
+    num / den
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let json = args.iter().any(|a| a == "--json");
+    let quick = args.iter().any(|a| a == "--quick");
+    let (ctx, embree) = embree::context_and_peer();
+    let sizes: &[u64] = if quick {
+        &[100_000, 200_000, 500_000]
+    } else {
+        &[100_000, 200_000, 500_000, 1_000_000, 2_000_000]
+    };
+    let scenes = embree::bench_scenes(sizes);
+    let lbvh: Vec<(MortonBits, AccelBuilder)> = [MortonBits::Bits63, MortonBits::Bits30]
+        .into_iter()
+        .map(|b| (b, AccelBuilder::lbvh(&ctx, b).expect("LBVH builder")))
+        .collect();
+    let kd = (!quick).then(|| AccelBuilder::new(&ctx, AccelKind::KdTree).expect("kd builder"));
+    let params = BvhParams::default();
+    let mut rows = Vec::new();
+    for (name, tris) in &scenes {
+        let g = TraceGeometry::from_triangles(tris);
+        let t = std::time::Instant::now();
+        let sah = bvh::build(&g.boxes, &params, Threading::Queue { threads: 2 }).expect("SAH BVH");
+        let sah_ms = t.elapsed().as_secs_f64() * 1e3;
+        let e2 = embree.as_ref().map(|e| e.run(tris, 2, &[]).build_ms);
+        let kd_ms = kd.as_ref().map(|kd| {
+            let mut ms = f64::NAN;
+            for _ in 0..2 {
+                let mut rec = Recorder::new(&ctx).expect("recorder");
+                let (structure, r) = GpuGeometry::record_build(&mut rec, kd, &g, 0).expect("build");
+                ms = r.ms(&rec.submit_and_wait().expect("submit"));
+                drop(structure);
+            }
+            ms
+        });
+        for (bits, builder) in &lbvh {
+            let (prof, dev, refit_ms) = gpu_build(&ctx, builder, &g);
+            let HostStructure::Bvh(tree) = dev.accel.download().expect("download") else {
+                unreachable!("an LBVH is a BVH")
+            };
+            validate::validate(&tree, &g.boxes).expect("a valid LBVH");
+            rows.push(Row {
+                scene: name.clone(),
+                triangles: tris.len(),
+                morton_bits: bits.spec(),
+                build_ms: prof.ms("build").unwrap_or(f64::NAN),
+                passes_ms: PASSES
+                    .iter()
+                    .map(|p| (*p, prof.ms(p).unwrap_or(0.0)))
+                    .collect(),
+                refit_ms,
+                sah_cost: validate::sah_cost(&tree, &params),
+                sah_bvh_2t_ms: sah_ms,
+                sah_bvh_sah_cost: validate::sah_cost(&sah, &params),
+                embree_2t_ms: e2,
+                kdtree_gpu_ms: kd_ms,
+            });
+        }
+    }
+    let growth = |bits: u32| {
+        let pts: Vec<(f64, f64)> = rows
+            .iter()
+            .filter(|r| r.morton_bits == bits && r.scene.starts_with("icosphere"))
+            .map(|r| (r.triangles as f64, r.build_ms))
+            .collect();
+        (pts.len() >= 2).then(|| exponent(&pts))
+    };
+    let (g63, g30) = (growth(63), growth(30));
+    if json {
+        let v = serde_json::json!({
+            "device": ctx.info().device,
+            "rows": rows,
+            "growth_exponent_63": g63,
+            "growth_exponent_30": g30,
+        });
+        println!("{}", serde_json::to_string_pretty(&v).unwrap());
+        return;
+    }
+    println!(
+        "{} — GPU LBVH build (timestamps, best of 3), refit, peers",
+        ctx.info().device
+    );
+    let f = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.1}"));
+    println!(
+        "{:<14} {:>8} {:>4} {:>8} {:>6} {:>6} {:>6} {:>7} {:>6} {:>7} {:>6} {:>6} {:>9} {:>7} {:>9} {:>9}",
+        "scene", "tris", "bits", "lbvh ms", "bounds", "morton", "sort", "karras", "boxes",
+        "refit", "SAH", "/emb2", "sah-bvh2t", "its SAH", "embree2t", "kd GPU"
+    );
+    for r in &rows {
+        let p = |k: usize| r.passes_ms[k].1;
+        println!(
+            "{:<14} {:>8} {:>4} {:>8.1} {:>6.1} {:>6.1} {:>6.1} {:>7.1} {:>6.1} {:>7.1} {:>6.1} {:>6} {:>9.1} {:>7.1} {:>9} {:>9}",
+            r.scene,
+            r.triangles,
+            r.morton_bits,
+            r.build_ms,
+            p(0),
+            p(1),
+            p(2),
+            p(3),
+            p(4),
+            r.refit_ms,
+            r.sah_cost,
+            f(r.embree_2t_ms.map(|e| r.build_ms / e)),
+            r.sah_bvh_2t_ms,
+            r.sah_bvh_sah_cost,
+            f(r.embree_2t_ms),
+            f(r.kdtree_gpu_ms),
+        );
+    }
+    println!(
+        "growth exponent over the icospheres (build ms ~ N^k): 63-bit {}, 30-bit {}",
+        g63.map_or("-".into(), |x| format!("{x:.3}")),
+        g30.map_or("-".into(), |x| format!("{x:.3}"))
+    );
+}
