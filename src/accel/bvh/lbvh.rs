@@ -81,12 +81,13 @@ pub fn centroid_bounds(boxes: &[Aabb]) -> Aabb {
 }
 
 /// Extents below this quantize to 0 on that axis (no denormals reach the scaling).
-const MIN_EXTENT: f32 = 7.888_609e-31; // 2^-100
+const MIN_EXTENT: f32 = f32::from_bits(27 << 23); // 2^-100
 
 /// `2^(per_axis - e)` where `2^(e-1) <= extent < 2^e`, the scale onto the integer grid;
 /// 0 for an axis too flat to quantize. Built from the exponent bits, as the kernel does.
 fn grid_scale(extent: f32, per_axis: u32) -> f32 {
-    if !(extent >= MIN_EXTENT) {
+    // NaN too.
+    if extent.partial_cmp(&MIN_EXTENT).is_none_or(|o| o.is_lt()) {
         return 0.0;
     }
     let e = ((extent.to_bits() >> 23) & 0xff) as i32 - 126;
