@@ -260,6 +260,7 @@ enum AccelArg {
     Kdtree,
     SahBvh,
     Lbvh,
+    Ploc,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -275,6 +276,7 @@ fn accel_traversal(accel: AccelArg, walk: TraversalArg) -> vkrt::accel::device::
         AccelArg::Kdtree => AccelKind::KdTree,
         AccelArg::SahBvh => AccelKind::SahBvh,
         AccelArg::Lbvh => AccelKind::Lbvh,
+        AccelArg::Ploc => AccelKind::Ploc,
     };
     let walk = match walk {
         TraversalArg::Stack => Traversal::Stack,

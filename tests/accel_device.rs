@@ -92,10 +92,13 @@ fn device_builds_equal_their_host_twins_and_fit_their_sizes() {
                         tree.nodes.len() * 16 + tree.prim_refs.len() * 4
                     }
                     HostStructure::Bvh(b) => {
-                        let twin = if kind == AccelKind::Lbvh {
-                            lbvh::build(&g.boxes, MortonBits::default())
-                        } else {
-                            bvh::build(&g.boxes, &BvhParams::default(), Threading::Single).unwrap()
+                        let twin = match kind {
+                            AccelKind::Lbvh => lbvh::build(&g.boxes, MortonBits::default()),
+                            AccelKind::Ploc => {
+                                bvh::ploc::build(&g.boxes, MortonBits::default(), 8).0
+                            }
+                            _ => bvh::build(&g.boxes, &BvhParams::default(), Threading::Single)
+                                .unwrap(),
                         };
                         assert_eq!(b, &twin, "{kind:?} of {n} primitives (spheres: {spheres})");
                         bvh::validate::validate(b, &g.boxes).unwrap();

@@ -17,6 +17,8 @@
 
 use crate::accel::bvh::lbvh::MortonBits;
 use crate::accel::bvh::lbvh_gpu::LbvhBuilder;
+use crate::accel::bvh::ploc;
+use crate::accel::bvh::ploc_gpu::{PlocBuilder, PlocScratch};
 use crate::accel::bvh::{self, Bvh, BvhNode, BvhParams, Threading};
 use crate::accel::kdtree::gpu::{BuildCapacity, BuildOutput, BuildScratch, KdTreeBuilder};
 use crate::accel::kdtree::{KdNode, KdTree, SahParams};
@@ -46,10 +48,17 @@ pub enum AccelKind {
     SahBvh,
     /// Seed 000's LBVH (Karras 2012), built on the GPU.
     Lbvh,
+    /// PLOC (Meister & Bittner 2018), built on the GPU.
+    Ploc,
 }
 
 impl AccelKind {
-    pub const ALL: [AccelKind; 3] = [AccelKind::KdTree, AccelKind::SahBvh, AccelKind::Lbvh];
+    pub const ALL: [AccelKind; 4] = [
+        AccelKind::KdTree,
+        AccelKind::SahBvh,
+        AccelKind::Lbvh,
+        AccelKind::Ploc,
+    ];
 
     /// The CLI name (`--accel`).
     pub fn name(self) -> &'static str {
@@ -57,6 +66,7 @@ impl AccelKind {
             AccelKind::KdTree => "kdtree",
             AccelKind::SahBvh => "sah-bvh",
             AccelKind::Lbvh => "lbvh",
+            AccelKind::Ploc => "ploc",
         }
     }
 
@@ -64,7 +74,7 @@ impl AccelKind {
     pub fn walked(self, traversal: Traversal) -> AccelTraversal {
         match self {
             AccelKind::KdTree => AccelTraversal::KdTree,
-            AccelKind::SahBvh | AccelKind::Lbvh => AccelTraversal::Bvh(traversal),
+            AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => AccelTraversal::Bvh(traversal),
         }
     }
 }
@@ -370,6 +380,7 @@ impl AccelStructure {
 pub enum AccelScratch {
     KdTree(Box<BuildScratch>),
     Lbvh(Box<LbvhScratch>),
+    Ploc(Box<PlocDeviceScratch>),
     /// The builder works in host memory.
     None,
 }
@@ -379,6 +390,7 @@ pub struct AccelBuilder {
     kind: AccelKind,
     kd: Option<KdTreeBuilder>,
     lbvh: Option<LbvhBuilder>,
+    ploc: Option<PlocBuilder>,
     /// `accel.bvh_refit` (BVH kinds).
     refit: Option<Arc<Kernel>>,
     pub kd_params: SahParams,
@@ -418,9 +430,17 @@ impl AccelBuilder {
                 AccelKind::Lbvh => Some(LbvhBuilder::new(ctx, MortonBits::default())?),
                 _ => None,
             },
+            ploc: match kind {
+                AccelKind::Ploc => Some(PlocBuilder::new(
+                    ctx,
+                    MortonBits::default(),
+                    ploc::DEFAULT_RADIUS,
+                )?),
+                _ => None,
+            },
             refit: match kind {
                 AccelKind::KdTree => None,
-                AccelKind::SahBvh | AccelKind::Lbvh => Some(ctx.kernel(
+                AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => Some(ctx.kernel(
                     &kernels::ACCEL_BVH_REFIT,
                     &Spec::new().workgroup(refit_workgroup(ctx)),
                 )?),
@@ -444,11 +464,26 @@ impl AccelBuilder {
         Ok(b)
     }
 
-    /// The Morton code width of an LBVH builder (the default for other kinds).
+    /// A PLOC builder searching `radius` clusters on each side ([`AccelBuilder::new`]
+    /// takes [`ploc::DEFAULT_RADIUS`]), with `bits`-bit Morton codes.
+    pub fn ploc(ctx: &Context, bits: MortonBits, radius: u32) -> Result<Self> {
+        let mut b = Self::new(ctx, AccelKind::Ploc)?;
+        b.ploc = Some(PlocBuilder::new(ctx, bits, radius)?);
+        Ok(b)
+    }
+
+    /// The Morton code width of an LBVH or PLOC builder (the default for other kinds).
     pub fn lbvh_bits(&self) -> MortonBits {
-        self.lbvh
-            .as_ref()
-            .map_or(MortonBits::default(), |l| l.bits())
+        match (&self.lbvh, &self.ploc) {
+            (Some(l), _) => l.bits(),
+            (_, Some(p)) => p.bits(),
+            _ => MortonBits::default(),
+        }
+    }
+
+    /// The search radius of a PLOC builder.
+    pub fn ploc_radius(&self) -> Option<u32> {
+        self.ploc.as_ref().map(|p| p.radius())
     }
 
     /// The kd-tree build's capacity for `n` primitives: the default, doubled `grow` times,
@@ -483,11 +518,12 @@ impl AccelBuilder {
                     update_scratch_bytes: None,
                 }
             }
-            AccelKind::SahBvh | AccelKind::Lbvh => {
+            AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => {
                 let nodes = bvh_nodes(n) as u64;
-                let build_scratch_bytes = match &self.lbvh {
-                    Some(l) => l.scratch_bytes(n) + nodes * 4,
-                    None => 0,
+                let build_scratch_bytes = match (&self.lbvh, &self.ploc) {
+                    (Some(l), _) => l.scratch_bytes(n) + nodes * 4,
+                    (_, Some(p)) => p.scratch_bytes(n) + nodes * 4,
+                    _ => 0,
                 };
                 AccelSizes {
                     structure_bytes: nodes * 64 + (n as u64 + nodes) * 4 + info,
@@ -525,14 +561,18 @@ impl AccelBuilder {
                     AccelScratch::KdTree(Box::new(scratch)),
                 ))
             }
-            AccelKind::SahBvh | AccelKind::Lbvh => {
+            AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => {
                 let nodes = bvh_nodes(n);
-                let scratch = match &self.lbvh {
-                    Some(l) => AccelScratch::Lbvh(Box::new(LbvhScratch {
+                let scratch = match (&self.lbvh, &self.ploc) {
+                    (Some(l), _) => AccelScratch::Lbvh(Box::new(LbvhScratch {
                         topology: l.scratch(ctx, n)?,
                         visits: Buffer::new(ctx, "accel.lbvh.visits", nodes)?,
                     })),
-                    None => AccelScratch::None,
+                    (_, Some(p)) => AccelScratch::Ploc(Box::new(PlocDeviceScratch {
+                        build: p.scratch(ctx, n)?,
+                        visits: Buffer::new(ctx, "accel.ploc.visits", nodes)?,
+                    })),
+                    _ => AccelScratch::None,
                 };
                 Ok((
                     AccelStructure {
@@ -635,6 +675,31 @@ impl AccelBuilder {
                 );
                 Ok(RecordedBuild::default())
             }
+            (
+                Storage::Bvh {
+                    nodes,
+                    refs,
+                    counts,
+                },
+                AccelScratch::Ploc(s),
+            ) => {
+                let ploc = self.ploc.as_ref().expect("a PLOC builder");
+                let n_nodes = if n == 0 { 0 } else { bvh_nodes(n) };
+                rec.upload(&out.info, &[prims.info(&Aabb::EMPTY, n as u32)])?;
+                rec.transfer_to_compute();
+                *counts = (n_nodes, n);
+                if n >= 2 {
+                    ploc.record_build(rec, &prims.boxes, n, &s.build, nodes, refs, &out.info);
+                } else {
+                    ploc.record_small(rec, &prims.boxes, n, &s.build, nodes, refs);
+                    let refit = self.refit.as_ref().expect("the refit kernel");
+                    record_refit_nodes(
+                        rec, refit, prims, nodes, refs, &s.visits, &out.info, n_nodes,
+                    );
+                }
+                rec.compute_to_compute();
+                Ok(RecordedBuild::default())
+            }
             _ => unreachable!("scratch of another kind"),
         }
     }
@@ -646,7 +711,7 @@ impl AccelBuilder {
     pub fn update_scratch(&self, ctx: &Context, n: usize) -> Result<Option<Buffer<u32>>> {
         match self.kind {
             AccelKind::KdTree => Ok(None),
-            AccelKind::SahBvh | AccelKind::Lbvh => {
+            AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => {
                 Buffer::new(ctx, "accel.refit_visits", bvh_nodes(n)).map(Some)
             }
         }
@@ -692,6 +757,12 @@ impl AccelBuilder {
 /// Nodes of a BVH over `n` primitives (one for 0 or 1: a root).
 fn bvh_nodes(n: usize) -> usize {
     n.saturating_sub(1).max(1)
+}
+
+/// PLOC build scratch, and the refit's visit counters for the one-primitive tree.
+pub struct PlocDeviceScratch {
+    build: PlocScratch,
+    visits: Buffer<u32>,
 }
 
 /// LBVH build scratch: the topology's, and the visit counters of the boxes' refit.

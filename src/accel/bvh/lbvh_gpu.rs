@@ -92,6 +92,35 @@ impl LbvhBuilder {
         nodes: &Buffer<BvhNode>,
         refs: &Buffer<u32>,
     ) {
+        if n == 0 {
+            return;
+        }
+        self.record_sort(rec, boxes, n, scratch, refs);
+        let s = scratch;
+        let groups = rec.groups_1d(n as u64, WORKGROUP);
+        let n32 = n as u32;
+        rec.scope("lbvh.karras", |rec| {
+            let b: [&dyn BufferArg; 5] = [refs, &s.code_hi, &s.sorted_hi, &s.code_lo, &s.sorted_lo];
+            rec.dispatch(&self.gather2, groups, &b, &n32);
+            rec.compute_to_compute();
+            let internal = rec.groups_1d(n.saturating_sub(1).max(1) as u64, WORKGROUP);
+            let b: [&dyn BufferArg; 4] = [nodes, refs, &s.sorted_hi, &s.sorted_lo];
+            rec.dispatch(&self.karras, internal, &b, &n32);
+        });
+        rec.compute_to_compute();
+    }
+
+    /// Records the primitive ids sorted by the Morton codes of their centroids into
+    /// `refs[..n]` (stable: equal codes keep the primitive order). Ends with a compute →
+    /// compute barrier.
+    pub fn record_sort(
+        &self,
+        rec: &mut Recorder,
+        boxes: &Buffer<f32>,
+        n: usize,
+        scratch: &LbvhScratch,
+        refs: &Buffer<u32>,
+    ) {
         assert!(
             n <= scratch.max_n,
             "LBVH of {n} primitives, scratch for {}",
@@ -128,15 +157,6 @@ impl LbvhBuilder {
                 rec.compute_to_compute();
                 self.sort.record(rec, &s.sort_keys, refs, n, 31, &s.sort);
             }
-        });
-        rec.compute_to_compute();
-        rec.scope("lbvh.karras", |rec| {
-            let b: [&dyn BufferArg; 5] = [refs, &s.code_hi, &s.sorted_hi, &s.code_lo, &s.sorted_lo];
-            rec.dispatch(&self.gather2, groups, &b, &n32);
-            rec.compute_to_compute();
-            let internal = rec.groups_1d(n.saturating_sub(1).max(1) as u64, WORKGROUP);
-            let b: [&dyn BufferArg; 4] = [nodes, refs, &s.sorted_hi, &s.sorted_lo];
-            rec.dispatch(&self.karras, internal, &b, &n32);
         });
         rec.compute_to_compute();
     }

@@ -7,6 +7,8 @@ pub mod bench;
 pub mod layout;
 pub mod lbvh;
 pub mod lbvh_gpu;
+pub mod ploc;
+pub mod ploc_gpu;
 pub mod refit;
 pub mod sah;
 pub mod validate;

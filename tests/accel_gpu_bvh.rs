@@ -1,10 +1,11 @@
-//! The GPU LBVH (seed 000, Karras 2012) against its CPU twin, bit for bit, with 30- and
-//! 63-bit Morton codes, on every size edge (0, 1, 2, subgroup ± 1, workgroup ± 1, the radix
+//! The GPU BVH builders against their CPU twins, bit for bit: the LBVH (seed 000, Karras
+//! 2012) with 30- and 63-bit Morton codes and PLOC (Meister & Bittner 2018) with search
+//! radii 4, 8 and 16, on every size edge (0, 1, 2, subgroup ± 1, workgroup ± 1, the radix
 //! sort's tile ± 1, large, random) and the inputs that break naive builders: every code
 //! equal, every primitive in one point, flat and degenerate boxes, huge and tiny
 //! coordinates. Every tree passes the validator (each primitive exactly once, parents
 //! consistent, every box the exact union of what lies below), and the same input gives the
-//! same tree on every run. Traversal of LBVHs against brute force and the robustness suite
+//! same tree on every run. Traversal of these trees against brute force and the robustness suite
 //! are in `accel_device.rs` and `trace_robustness.rs` (every kind).
 
 mod common;
@@ -12,6 +13,7 @@ mod common;
 use common::{assert_silent, context, edge_sizes, Rng};
 use glam::Vec3;
 use vkrt::accel::bvh::lbvh::{self, MortonBits};
+use vkrt::accel::bvh::ploc;
 use vkrt::accel::bvh::validate::validate;
 use vkrt::accel::bvh::Bvh;
 use vkrt::accel::device::{AccelBuilder, HostStructure};
@@ -19,7 +21,7 @@ use vkrt::gpu::{Context, Recorder};
 use vkrt::trace::gpu::GpuGeometry;
 use vkrt::trace::TraceGeometry;
 
-fn device_lbvh(ctx: &Context, builder: &AccelBuilder, g: &TraceGeometry) -> Bvh {
+fn device_bvh(ctx: &Context, builder: &AccelBuilder, g: &TraceGeometry) -> Bvh {
     let mut rec = Recorder::new(ctx).unwrap();
     let (dev, _) = GpuGeometry::record_build(&mut rec, builder, g, 0).unwrap();
     rec.submit_and_wait().unwrap();
@@ -79,24 +81,43 @@ fn inputs(subgroup: usize) -> Vec<(String, Vec<[Vec3; 3]>)> {
     out
 }
 
+/// Every GPU builder configuration with its CPU twin.
+fn builders(ctx: &Context) -> Vec<(String, AccelBuilder, Box<dyn Fn(&TraceGeometry) -> Bvh>)> {
+    let mut out: Vec<(String, AccelBuilder, Box<dyn Fn(&TraceGeometry) -> Bvh>)> = Vec::new();
+    for bits in [MortonBits::Bits63, MortonBits::Bits30] {
+        out.push((
+            format!("LBVH {bits:?}"),
+            AccelBuilder::lbvh(ctx, bits).unwrap(),
+            Box::new(move |g| lbvh::build(&g.boxes, bits)),
+        ));
+    }
+    for radius in [4, 8, 16] {
+        out.push((
+            format!("PLOC r = {radius}"),
+            AccelBuilder::ploc(ctx, MortonBits::Bits63, radius).unwrap(),
+            Box::new(move |g| ploc::build(&g.boxes, MortonBits::Bits63, radius).0),
+        ));
+    }
+    out
+}
+
 #[test]
-fn gpu_lbvh_equals_its_cpu_twin_bit_for_bit() {
+fn gpu_builders_equal_their_cpu_twins_bit_for_bit() {
     let Some(ctx) = context() else { return };
     let sg = ctx.info().subgroup_size as usize;
-    for bits in [MortonBits::Bits63, MortonBits::Bits30] {
-        let builder = AccelBuilder::lbvh(&ctx, bits).unwrap();
-        for (name, tris) in inputs(sg) {
-            let g = TraceGeometry::from_triangles(&tris);
-            let gpu = device_lbvh(&ctx, &builder, &g);
-            let twin = lbvh::build(&g.boxes, bits);
-            validate(&gpu, &g.boxes).unwrap_or_else(|e| panic!("{name}, {bits:?}: {e}"));
+    let inputs = inputs(sg);
+    for (what, builder, twin) in builders(&ctx) {
+        for (name, tris) in &inputs {
+            let g = TraceGeometry::from_triangles(tris);
+            let gpu = device_bvh(&ctx, &builder, &g);
+            validate(&gpu, &g.boxes).unwrap_or_else(|e| panic!("{what}, {name}: {e}"));
             assert!(
-                gpu == twin,
-                "{name}, {bits:?}: the GPU tree differs from its twin"
+                gpu == twin(&g),
+                "{what}, {name}: the GPU tree differs from its twin"
             );
             assert!(
-                device_lbvh(&ctx, &builder, &g) == gpu,
-                "{name}, {bits:?}: a second build differs"
+                device_bvh(&ctx, &builder, &g) == gpu,
+                "{what}, {name}: a second build differs"
             );
         }
     }
@@ -111,7 +132,7 @@ fn equal_codes_fall_back_to_the_index_and_stay_shallow() {
     let p = Vec3::splat(-3.0);
     let g = TraceGeometry::from_triangles(&vec![[p, p, p]; 4096]);
     let builder = AccelBuilder::lbvh(&ctx, MortonBits::Bits63).unwrap();
-    let gpu = device_lbvh(&ctx, &builder, &g);
+    let gpu = device_bvh(&ctx, &builder, &g);
     validate(&gpu, &g.boxes).unwrap();
     assert_eq!(gpu.depth(), 12);
     assert_silent(&ctx);
