@@ -41,7 +41,7 @@ enum Command {
         scene: Option<PathBuf>,
         /// The structure to build: sah-bvh (seed 003's SAH BVH, on the CPU's threads; the
         /// default, by measurement: README, Measured) or kdtree (seed 001's SAH kd-tree, on
-        /// the GPU) or lbvh (seed 000's LBVH, on the GPU).
+        /// the GPU) or lbvh (seed 000's LBVH, on the GPU) or ploc (PLOC, on the GPU).
         #[arg(long, default_value = "sah-bvh")]
         accel: String,
         /// kd-tree: also build the CPU twin (must be equal) and the full-clipping CPU
@@ -715,18 +715,24 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 }
                 return bvh_build_command(&load_scene(&scene)?, reference, json);
             }
-            if accel == "lbvh" {
+            let gpu_bvh = match accel.as_str() {
+                "lbvh" => Some(vkrt::accel::device::AccelKind::Lbvh),
+                "ploc" => Some(vkrt::accel::device::AccelKind::Ploc),
+                _ => None,
+            };
+            if let Some(kind) = gpu_bvh {
                 if seed_termination {
                     return Err("--seed-termination is seed 001's kd-tree termination: add \
                                 --accel kdtree"
                         .into());
                 }
                 let ctx = context(cli.validate)?;
-                return lbvh_build_command(&ctx, &load_scene(&scene)?, reference, json, &profile);
+                let scene = load_scene(&scene)?;
+                return gpu_bvh_build_command(&ctx, kind, &scene, reference, json, &profile);
             }
             if accel != "kdtree" {
                 return Err(format!(
-                    "unknown --accel `{accel}` (available: kdtree, sah-bvh, lbvh)"
+                    "unknown --accel `{accel}` (available: kdtree, sah-bvh, lbvh, ploc)"
                 )
                 .into());
             }
@@ -1162,20 +1168,21 @@ fn bvh_build_command(
     Ok(())
 }
 
-/// `vkrt build --accel lbvh`: seed 000's LBVH built on the device over the scene's
-/// primitives at the shutter-open time, read back (this command is a tool), validated; with
-/// `reference`, also the CPU twin (must be equal bit for bit).
-fn lbvh_build_command(
+/// `vkrt build --accel lbvh|ploc`: seed 000's LBVH or PLOC built on the device over the
+/// scene's primitives at the shutter-open time, read back (this command is a tool),
+/// validated; with `reference`, also the CPU twin (must be equal bit for bit).
+fn gpu_bvh_build_command(
     ctx: &vkrt::gpu::Context,
+    kind: vkrt::accel::device::AccelKind,
     scene: &vkrt::scene::Scene,
     reference: bool,
     json: bool,
     profile: &Option<PathBuf>,
 ) -> Result<(), Box<dyn std::error::Error>> {
-    use vkrt::accel::bvh::{lbvh, validate, BvhParams};
+    use vkrt::accel::bvh::{lbvh, ploc, validate, BvhParams};
     use vkrt::accel::device::{AccelBuilder, AccelKind, HostStructure};
     let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
-    let builder = AccelBuilder::new(ctx, AccelKind::Lbvh)?;
+    let builder = AccelBuilder::new(ctx, kind)?;
     // Once to compile and warm the pipelines, then the timed build.
     let mut timed = None;
     for _ in 0..2 {
@@ -1187,30 +1194,38 @@ fn lbvh_build_command(
     let (dev, prof) = timed.expect("built");
     write_profile(profile, &prof)?;
     let HostStructure::Bvh(tree) = dev.accel.download()? else {
-        unreachable!("an LBVH is a BVH")
+        unreachable!("a GPU BVH")
     };
-    validate::validate(&tree, &g.boxes).map_err(|e| format!("invalid LBVH: {e}"))?;
+    validate::validate(&tree, &g.boxes).map_err(|e| format!("invalid {}: {e}", kind.name()))?;
     let passes: serde_json::Map<String, serde_json::Value> = [
         "lbvh.bounds",
         "lbvh.morton",
         "lbvh.sort",
         "lbvh.karras",
         "refit",
+        "ploc.init",
+        "ploc.rounds",
     ]
     .iter()
-    .map(|p| (p.to_string(), prof.ms(p).into()))
+    .filter_map(|p| Some((p.to_string(), prof.ms(p)?.into())))
     .collect();
     let build_ms = prof.ms("build").unwrap_or(0.0);
+    let bits = builder.lbvh_bits();
+    let ploc_params = builder.ploc_params();
     let twin = reference.then(|| {
         let t = std::time::Instant::now();
-        let twin = lbvh::build(&g.boxes, builder.lbvh_bits());
+        let twin = match kind {
+            AccelKind::Ploc => ploc::build(&g.boxes, &ploc_params.unwrap_or_default()).0,
+            _ => lbvh::build(&g.boxes, bits),
+        };
         (twin, t.elapsed().as_secs_f64() * 1e3)
     });
     let equal = twin.as_ref().map(|(t, _)| *t == tree);
     let params = BvhParams::default();
     let report = serde_json::json!({
-        "kind": "lbvh",
-        "morton_bits": builder.lbvh_bits().spec(),
+        "kind": kind.name(),
+        "morton_bits": bits.spec(),
+        "ploc_radius": ploc_params.map(|p| p.radius),
         "primitives": g.primitive_count(),
         "build_ms": build_ms,
         "passes_ms": passes,
@@ -1227,9 +1242,10 @@ fn lbvh_build_command(
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         println!(
-            "{} primitives: GPU build {build_ms:.2} ms ({}-bit Morton codes)",
+            "{} primitives: {} GPU build {build_ms:.2} ms ({}-bit Morton codes)",
             g.primitive_count(),
-            builder.lbvh_bits().spec()
+            kind.name(),
+            bits.spec()
         );
         for (name, ms) in &passes {
             println!("  {name:<12} {ms} ms");
@@ -1247,7 +1263,7 @@ fn lbvh_build_command(
         }
     }
     if equal == Some(false) {
-        return Err("the GPU LBVH differs from its CPU twin".into());
+        return Err(format!("the GPU {} differs from its CPU twin", kind.name()).into());
     }
     Ok(())
 }

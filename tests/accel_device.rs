@@ -94,9 +94,7 @@ fn device_builds_equal_their_host_twins_and_fit_their_sizes() {
                     HostStructure::Bvh(b) => {
                         let twin = match kind {
                             AccelKind::Lbvh => lbvh::build(&g.boxes, MortonBits::default()),
-                            AccelKind::Ploc => {
-                                bvh::ploc::build(&g.boxes, MortonBits::default(), 8).0
-                            }
+                            AccelKind::Ploc => bvh::ploc::build(&g.boxes, &Default::default()).0,
                             _ => bvh::build(&g.boxes, &BvhParams::default(), Threading::Single)
                                 .unwrap(),
                         };

@@ -1,6 +1,6 @@
 //! The GPU BVH builders against their CPU twins, bit for bit: the LBVH (seed 000, Karras
 //! 2012) with 30- and 63-bit Morton codes and PLOC (Meister & Bittner 2018) with search
-//! radii 4, 8 and 16, on every size edge (0, 1, 2, subgroup ± 1, workgroup ± 1, the radix
+//! radii 4, 8 and 16 (and with the pairing fallback after two rounds), on every size edge (0, 1, 2, subgroup ± 1, workgroup ± 1, the radix
 //! sort's tile ± 1, large, random) and the inputs that break naive builders: every code
 //! equal, every primitive in one point, flat and degenerate boxes, huge and tiny
 //! coordinates. Every tree passes the validator (each primitive exactly once, parents
@@ -13,7 +13,7 @@ mod common;
 use common::{assert_silent, context, edge_sizes, Rng};
 use glam::Vec3;
 use vkrt::accel::bvh::lbvh::{self, MortonBits};
-use vkrt::accel::bvh::ploc;
+use vkrt::accel::bvh::ploc::{self, PlocParams};
 use vkrt::accel::bvh::validate::validate;
 use vkrt::accel::bvh::Bvh;
 use vkrt::accel::device::{AccelBuilder, HostStructure};
@@ -91,11 +91,17 @@ fn builders(ctx: &Context) -> Vec<(String, AccelBuilder, Box<dyn Fn(&TraceGeomet
             Box::new(move |g| lbvh::build(&g.boxes, bits)),
         ));
     }
-    for radius in [4, 8, 16] {
+    // The last: two rounds only, then the pairing fallback finishes the tree.
+    for (radius, max_rounds) in [(4, None), (8, None), (16, None), (8, Some(2))] {
+        let params = PlocParams {
+            radius,
+            max_rounds,
+            ..PlocParams::default()
+        };
         out.push((
-            format!("PLOC r = {radius}"),
-            AccelBuilder::ploc(ctx, MortonBits::Bits63, radius).unwrap(),
-            Box::new(move |g| ploc::build(&g.boxes, MortonBits::Bits63, radius).0),
+            format!("PLOC r = {radius}, rounds {max_rounds:?}"),
+            AccelBuilder::ploc(ctx, params).unwrap(),
+            Box::new(move |g| ploc::build(&g.boxes, &params).0),
         ));
     }
     out

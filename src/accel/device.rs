@@ -17,7 +17,7 @@
 
 use crate::accel::bvh::lbvh::MortonBits;
 use crate::accel::bvh::lbvh_gpu::LbvhBuilder;
-use crate::accel::bvh::ploc;
+use crate::accel::bvh::ploc::PlocParams;
 use crate::accel::bvh::ploc_gpu::{PlocBuilder, PlocScratch};
 use crate::accel::bvh::{self, Bvh, BvhNode, BvhParams, Threading};
 use crate::accel::kdtree::gpu::{BuildCapacity, BuildOutput, BuildScratch, KdTreeBuilder};
@@ -431,11 +431,7 @@ impl AccelBuilder {
                 _ => None,
             },
             ploc: match kind {
-                AccelKind::Ploc => Some(PlocBuilder::new(
-                    ctx,
-                    MortonBits::default(),
-                    ploc::DEFAULT_RADIUS,
-                )?),
+                AccelKind::Ploc => Some(PlocBuilder::new(ctx, PlocParams::default())?),
                 _ => None,
             },
             refit: match kind {
@@ -464,11 +460,10 @@ impl AccelBuilder {
         Ok(b)
     }
 
-    /// A PLOC builder searching `radius` clusters on each side ([`AccelBuilder::new`]
-    /// takes [`ploc::DEFAULT_RADIUS`]), with `bits`-bit Morton codes.
-    pub fn ploc(ctx: &Context, bits: MortonBits, radius: u32) -> Result<Self> {
+    /// A PLOC builder with `params` ([`AccelBuilder::new`] takes the defaults).
+    pub fn ploc(ctx: &Context, params: PlocParams) -> Result<Self> {
         let mut b = Self::new(ctx, AccelKind::Ploc)?;
-        b.ploc = Some(PlocBuilder::new(ctx, bits, radius)?);
+        b.ploc = Some(PlocBuilder::new(ctx, params)?);
         Ok(b)
     }
 
@@ -476,14 +471,14 @@ impl AccelBuilder {
     pub fn lbvh_bits(&self) -> MortonBits {
         match (&self.lbvh, &self.ploc) {
             (Some(l), _) => l.bits(),
-            (_, Some(p)) => p.bits(),
+            (_, Some(p)) => p.params().bits,
             _ => MortonBits::default(),
         }
     }
 
-    /// The search radius of a PLOC builder.
-    pub fn ploc_radius(&self) -> Option<u32> {
-        self.ploc.as_ref().map(|p| p.radius())
+    /// The knobs of a PLOC builder.
+    pub fn ploc_params(&self) -> Option<PlocParams> {
+        self.ploc.as_ref().map(|p| p.params())
     }
 
     /// The kd-tree build's capacity for `n` primitives: the default, doubled `grow` times,

@@ -114,14 +114,9 @@ fn host_twin(kind: AccelKind, g: &TraceGeometry) -> RenderAccel {
         AccelKind::Lbvh => {
             RenderAccel::Bvh(crate::accel::bvh::lbvh::build(&g.boxes, Default::default()))
         }
-        AccelKind::Ploc => RenderAccel::Bvh(
-            crate::accel::bvh::ploc::build(
-                &g.boxes,
-                Default::default(),
-                crate::accel::bvh::ploc::DEFAULT_RADIUS,
-            )
-            .0,
-        ),
+        AccelKind::Ploc => {
+            RenderAccel::Bvh(crate::accel::bvh::ploc::build(&g.boxes, &Default::default()).0)
+        }
     }
 }
 

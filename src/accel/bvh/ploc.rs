@@ -20,6 +20,34 @@ use crate::scene::Aabb;
 /// The default search radius (the paper's 8–16 range).
 pub const DEFAULT_RADIUS: u32 = 8;
 
+/// PLOC's knobs.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
+pub struct PlocParams {
+    pub bits: MortonBits,
+    /// Clusters searched on each side.
+    pub radius: u32,
+    /// Nearest-neighbour rounds before the pairing fallback; `None`: [`max_rounds`] (tests
+    /// set it low to exercise the fallback).
+    pub max_rounds: Option<u32>,
+}
+
+impl Default for PlocParams {
+    fn default() -> Self {
+        Self {
+            bits: MortonBits::default(),
+            radius: DEFAULT_RADIUS,
+            max_rounds: None,
+        }
+    }
+}
+
+impl PlocParams {
+    /// The rounds recorded for `n` primitives before the fallback.
+    pub fn rounds(&self, n: usize) -> u32 {
+        self.max_rounds.unwrap_or_else(|| max_rounds(n))
+    }
+}
+
 /// Rounds of nearest-neighbour merging recorded for `n` primitives before the pairing
 /// fallback (the GPU build records this many; unused rounds are empty dispatches).
 pub fn max_rounds(n: usize) -> u32 {
@@ -132,11 +160,11 @@ pub struct PlocStats {
     pub pairing_rounds: u32,
 }
 
-/// PLOC over `boxes` in the order of their `bits`-bit Morton codes, searching `radius`
-/// clusters on each side.
-pub fn build(boxes: &[Aabb], bits: MortonBits, radius: u32) -> (Bvh, PlocStats) {
+/// PLOC over `boxes` in the order of their Morton codes.
+pub fn build(boxes: &[Aabb], params: &PlocParams) -> (Bvh, PlocStats) {
     let n = boxes.len();
-    let codes = morton_codes(boxes, bits);
+    let radius = params.radius;
+    let codes = morton_codes(boxes, params.bits);
     let mut order: Vec<u32> = (0..n as u32).collect();
     order.sort_by_key(|&p| codes[p as usize]);
     let mut stats = PlocStats::default();
@@ -165,7 +193,7 @@ pub fn build(boxes: &[Aabb], bits: MortonBits, radius: u32) -> (Bvh, PlocStats) 
         })
         .collect();
     let mut nodes_left = n - 1;
-    for _ in 0..max_rounds(n) {
+    for _ in 0..params.rounds(n) {
         if clusters.len() <= 1 {
             break;
         }
@@ -224,7 +252,11 @@ mod tests {
         for n in [0usize, 1, 2, 3, 5, 8, 9, 17, 100, 1000] {
             for r in [1, 4, 8, 16] {
                 let b = boxes(n);
-                let (bvh, stats) = build(&b, MortonBits::Bits63, r);
+                let params = PlocParams {
+                    radius: r,
+                    ..PlocParams::default()
+                };
+                let (bvh, stats) = build(&b, &params);
                 validate(&bvh, &b).unwrap_or_else(|e| panic!("{n}, r {r}: {e}"));
                 assert_eq!(stats.pairing_rounds, 0, "{n}, r {r}");
             }
@@ -238,10 +270,23 @@ mod tests {
             max: Vec3::ONE,
         };
         let b = vec![p; 5000];
-        let (bvh, stats) = build(&b, MortonBits::Bits63, 8);
+        let (bvh, stats) = build(&b, &PlocParams::default());
         validate(&bvh, &b).unwrap();
         assert_eq!(stats.pairing_rounds, 0);
         assert!(stats.rounds < 40, "{} rounds", stats.rounds);
+    }
+
+    #[test]
+    fn the_pairing_fallback_ends_every_build() {
+        let b = boxes(1000);
+        let params = PlocParams {
+            max_rounds: Some(2),
+            ..PlocParams::default()
+        };
+        let (bvh, stats) = build(&b, &params);
+        validate(&bvh, &b).unwrap();
+        assert_eq!(stats.rounds, 2);
+        assert!(stats.pairing_rounds > 0);
     }
 
     #[test]

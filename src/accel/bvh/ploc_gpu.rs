@@ -10,9 +10,8 @@
 
 use std::sync::Arc;
 
-use super::lbvh::MortonBits;
 use super::lbvh_gpu::{LbvhBuilder, LbvhScratch};
-use super::ploc::{max_rounds, PAIRING_ROUNDS};
+use super::ploc::{PlocParams, PAIRING_ROUNDS};
 use super::BvhNode;
 use crate::gpu::{kernels, Buffer, BufferArg, Context, Kernel, Recorder, Result, Spec};
 use crate::trace::geometry::SceneInfo;
@@ -32,7 +31,7 @@ pub struct PlocBuilder {
     sums: Arc<Kernel>,
     sums_pairing: Arc<Kernel>,
     merge: Arc<Kernel>,
-    radius: u32,
+    params: PlocParams,
     workgroup: u32,
 }
 
@@ -48,15 +47,15 @@ pub struct PlocScratch {
 }
 
 impl PlocBuilder {
-    /// A builder searching `radius` clusters on each side, with `bits`-bit Morton codes.
-    pub fn new(ctx: &Context, bits: MortonBits, radius: u32) -> Result<Self> {
+    pub fn new(ctx: &Context, params: PlocParams) -> Result<Self> {
+        let radius = params.radius;
         // Workgroups of whole subgroups (ploc_merge's ranks are subgroup-major).
         let sg = ctx.info().subgroup_size.max(1);
         let workgroup = (64 / sg).max(1) * sg;
         let spec = Spec::new().workgroup(workgroup);
         let k = |blob, s: &Spec| ctx.kernel(blob, s);
         Ok(Self {
-            sort: LbvhBuilder::new(ctx, bits)?,
+            sort: LbvhBuilder::new(ctx, params.bits)?,
             init: k(&kernels::ACCEL_PLOC_INIT, &spec)?,
             nearest: k(
                 &kernels::ACCEL_PLOC_NEAREST,
@@ -70,17 +69,13 @@ impl PlocBuilder {
             sums: k(&kernels::ACCEL_PLOC_SUMS, &Spec::new().u32(1, 0))?,
             sums_pairing: k(&kernels::ACCEL_PLOC_SUMS, &Spec::new().u32(1, 1))?,
             merge: k(&kernels::ACCEL_PLOC_MERGE, &spec)?,
-            radius,
+            params,
             workgroup,
         })
     }
 
-    pub fn radius(&self) -> u32 {
-        self.radius
-    }
-
-    pub fn bits(&self) -> MortonBits {
-        self.sort.bits()
+    pub fn params(&self) -> PlocParams {
+        self.params
     }
 
     /// Bytes of [`PlocBuilder::scratch`] for `n` primitives.
@@ -149,11 +144,12 @@ impl PlocBuilder {
             rec.dispatch(&self.init, groups, &b, &[n as u32, wg]);
         });
         rec.compute_to_indirect();
-        let rounds = max_rounds(n) + PAIRING_ROUNDS;
+        let searching = self.params.rounds(n);
+        let rounds = searching + PAIRING_ROUNDS;
         rec.scope("ploc.rounds", |rec| {
             for round in 0..rounds {
                 let parity = round % 2;
-                let pairing = round >= max_rounds(n);
+                let pairing = round >= searching;
                 let (src, dst) = (
                     &s.clusters[parity as usize],
                     &s.clusters[1 - parity as usize],
