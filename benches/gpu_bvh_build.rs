@@ -1,6 +1,7 @@
 //! The GPU BVH builders over N (issue 15), one run: seed 000's LBVH (63- and 30-bit Morton
-//! codes) built on the device, per pass (GPU timestamps, best of 3 after a warm-up build),
-//! its refit, and the fitted growth exponent over the icospheres; beside them the GPU
+//! codes) and PLOC (r = 4, 8, 16) built on the device, per pass (GPU timestamps, best of 3
+//! after a warm-up build), the refit of each tree, and the fitted growth exponent over the
+//! icospheres; beside them the GPU
 //! kd-tree (seed 001), the CPU SAH BVH on 2 threads (seed 003, node queue, full sweep) and
 //! Embree 3's build on 2 threads (when `libembree-dev` is installed), with the SAH cost of
 //! each BVH under one cost model (`validate::sah_cost`, `BvhParams::default`).
@@ -14,25 +15,29 @@
 mod embree;
 
 use vkrt::accel::bvh::lbvh::MortonBits;
+use vkrt::accel::bvh::ploc::PlocParams;
 use vkrt::accel::bvh::{self, validate, BvhParams, Threading};
 use vkrt::accel::device::{AccelBuilder, AccelKind, HostStructure};
 use vkrt::gpu::{Context, Profile, Recorder};
 use vkrt::trace::gpu::GpuGeometry;
 use vkrt::trace::TraceGeometry;
 
-const PASSES: [&str; 5] = [
+const PASSES: [&str; 7] = [
     "lbvh.bounds",
     "lbvh.morton",
     "lbvh.sort",
     "lbvh.karras",
     "refit",
+    "ploc.init",
+    "ploc.rounds",
 ];
 
 #[derive(serde::Serialize)]
 struct Row {
     scene: String,
     triangles: usize,
-    morton_bits: u32,
+    /// `lbvh-63`, `lbvh-30`, `ploc-r8`, ...
+    builder: String,
     build_ms: f64,
     passes_ms: Vec<(&'static str, f64)>,
     refit_ms: f64,
@@ -99,10 +104,21 @@ fn main() {
         &[100_000, 200_000, 500_000, 1_000_000, 2_000_000]
     };
     let scenes = embree::bench_scenes(sizes);
-    let lbvh: Vec<(MortonBits, AccelBuilder)> = [MortonBits::Bits63, MortonBits::Bits30]
+    let mut gpu_builders: Vec<(String, AccelBuilder)> = [MortonBits::Bits63, MortonBits::Bits30]
         .into_iter()
-        .map(|b| (b, AccelBuilder::lbvh(&ctx, b).expect("LBVH builder")))
+        .map(|b| {
+            let name = format!("lbvh-{}", b.spec());
+            (name, AccelBuilder::lbvh(&ctx, b).expect("LBVH builder"))
+        })
         .collect();
+    for radius in [4, 8, 16] {
+        let params = PlocParams {
+            radius,
+            ..PlocParams::default()
+        };
+        let b = AccelBuilder::ploc(&ctx, params).expect("PLOC builder");
+        gpu_builders.push((format!("ploc-r{radius}"), b));
+    }
     let kd = (!quick).then(|| AccelBuilder::new(&ctx, AccelKind::KdTree).expect("kd builder"));
     let params = BvhParams::default();
     let mut rows = Vec::new();
@@ -122,16 +138,16 @@ fn main() {
             }
             ms
         });
-        for (bits, builder) in &lbvh {
+        for (label, builder) in &gpu_builders {
             let (prof, dev, refit_ms) = gpu_build(&ctx, builder, &g);
             let HostStructure::Bvh(tree) = dev.accel.download().expect("download") else {
-                unreachable!("an LBVH is a BVH")
+                unreachable!("a GPU BVH")
             };
-            validate::validate(&tree, &g.boxes).expect("a valid LBVH");
+            validate::validate(&tree, &g.boxes).expect("a valid tree");
             rows.push(Row {
                 scene: name.clone(),
                 triangles: tris.len(),
-                morton_bits: bits.spec(),
+                builder: label.clone(),
                 build_ms: prof.ms("build").unwrap_or(f64::NAN),
                 passes_ms: PASSES
                     .iter()
@@ -146,21 +162,22 @@ fn main() {
             });
         }
     }
-    let growth = |bits: u32| {
-        let pts: Vec<(f64, f64)> = rows
-            .iter()
-            .filter(|r| r.morton_bits == bits && r.scene.starts_with("icosphere"))
-            .map(|r| (r.triangles as f64, r.build_ms))
-            .collect();
-        (pts.len() >= 2).then(|| exponent(&pts))
-    };
-    let (g63, g30) = (growth(63), growth(30));
+    let growth: Vec<(String, Option<f64>)> = gpu_builders
+        .iter()
+        .map(|(label, _)| {
+            let pts: Vec<(f64, f64)> = rows
+                .iter()
+                .filter(|r| &r.builder == label && r.scene.starts_with("icosphere"))
+                .map(|r| (r.triangles as f64, r.build_ms))
+                .collect();
+            (label.clone(), (pts.len() >= 2).then(|| exponent(&pts)))
+        })
+        .collect();
     if json {
         let v = serde_json::json!({
             "device": ctx.info().device,
             "rows": rows,
-            "growth_exponent_63": g63,
-            "growth_exponent_30": g30,
+            "growth_exponent": growth,
         });
         println!("{}", serde_json::to_string_pretty(&v).unwrap());
         return;
@@ -171,23 +188,34 @@ fn main() {
     );
     let f = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.1}"));
     println!(
-        "{:<14} {:>8} {:>4} {:>8} {:>6} {:>6} {:>6} {:>7} {:>6} {:>7} {:>6} {:>6} {:>9} {:>7} {:>9} {:>9}",
-        "scene", "tris", "bits", "lbvh ms", "bounds", "morton", "sort", "karras", "boxes",
-        "refit", "SAH", "/emb2", "sah-bvh2t", "its SAH", "embree2t", "kd GPU"
+        "{:<14} {:>8} {:<8} {:>8} {:>30} {:>7} {:>6} {:>6} {:>9} {:>7} {:>9} {:>9}",
+        "scene",
+        "tris",
+        "builder",
+        "ms",
+        "passes",
+        "refit",
+        "SAH",
+        "/emb2",
+        "sah-bvh2t",
+        "its SAH",
+        "embree2t",
+        "kd GPU"
     );
     for r in &rows {
-        let p = |k: usize| r.passes_ms[k].1;
+        let passes: Vec<String> = r
+            .passes_ms
+            .iter()
+            .filter(|p| p.1 > 0.0)
+            .map(|p| format!("{:.1}", p.1))
+            .collect();
         println!(
-            "{:<14} {:>8} {:>4} {:>8.1} {:>6.1} {:>6.1} {:>6.1} {:>7.1} {:>6.1} {:>7.1} {:>6.1} {:>6} {:>9.1} {:>7.1} {:>9} {:>9}",
+            "{:<14} {:>8} {:<8} {:>8.1} {:>30} {:>7.1} {:>6.1} {:>6} {:>9.1} {:>7.1} {:>9} {:>9}",
             r.scene,
             r.triangles,
-            r.morton_bits,
+            r.builder,
             r.build_ms,
-            p(0),
-            p(1),
-            p(2),
-            p(3),
-            p(4),
+            passes.join(" "),
             r.refit_ms,
             r.sah_cost,
             f(r.embree_2t_ms.map(|e| r.build_ms / e)),
@@ -197,9 +225,12 @@ fn main() {
             f(r.kdtree_gpu_ms),
         );
     }
+    let growth: Vec<String> = growth
+        .iter()
+        .map(|(l, k)| format!("{l} {}", k.map_or("-".into(), |x| format!("{x:.3}"))))
+        .collect();
     println!(
-        "growth exponent over the icospheres (build ms ~ N^k): 63-bit {}, 30-bit {}",
-        g63.map_or("-".into(), |x| format!("{x:.3}")),
-        g30.map_or("-".into(), |x| format!("{x:.3}"))
+        "growth exponent over the icospheres (build ms ~ N^k): {}",
+        growth.join(", ")
     );
 }

@@ -6,7 +6,8 @@
 //! the primary rays (closest hit); from their hits, shadow rays towards a point light (any
 //! hit) and mirror reflections (closest hit). The same rays go through
 //! - vkrt's GPU tracer on each structure built on the device — seed 001's kd-tree, seed
-//!   003's SAH BVH and seed 000's LBVH, the BVHs walked with a stack or seed 000's bitstack
+//!   003's SAH BVH, seed 000's LBVH and PLOC, the BVHs walked with a stack or seed 000's
+//!   bitstack
 //!   (watertight test; time = GPU timestamps around the trace kernel, best of 3);
 //! - obvhs's PLOC BVH (`BvhBuildParams::medium_build`, Möller–Trumbore, one CPU thread;
 //!   wall time);
@@ -302,7 +303,7 @@ fn main() {
         ctx.info().device
     );
     println!(
-        "{:<13} {:<9} {:>7} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8}",
+        "{:<13} {:<9} {:>7} {:>8} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>9} {:>8}",
         "scene",
         "rays",
         "n",
@@ -311,6 +312,8 @@ fn main() {
         "bvh-bit",
         "lbvh-stk",
         "lbvh-bit",
+        "ploc-stk",
+        "ploc-bit",
         "obvhs-1t",
         "embree-2t",
         "bvh/emb",
@@ -320,7 +323,7 @@ fn main() {
     let opt = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.2}"));
     for r in &rows {
         println!(
-            "{:<13} {:<9} {:>7} {:>8.2} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>9} {:>9} {:>9} {:>8}",
+            "{:<13} {:<9} {:>7} {:>8.2} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>9.2} {:>9} {:>9} {:>9} {:>8}",
             r.scene,
             r.rays_kind,
             r.rays,
@@ -329,6 +332,8 @@ fn main() {
             r.vkrt[2].3,
             r.vkrt[3].3,
             r.vkrt[4].3,
+            r.vkrt[5].3,
+            r.vkrt[6].3,
             r.obvhs_mrays_per_s,
             opt(r.embree2_mrays_per_s),
             opt(r.best_bvh_over_embree2),
@@ -337,18 +342,19 @@ fn main() {
         );
     }
     println!(
-        "build ms: vkrt kd-tree and LBVH (GPU passes), SAH BVH (host, every core), obvhs PLOC \
-         (1 thread), Embree (2 threads)"
+        "build ms: vkrt kd-tree, LBVH and PLOC (GPU passes), SAH BVH (host, every core), obvhs \
+         PLOC (1 thread), Embree (2 threads)"
     );
     for b in &builds {
         println!(
-            "{:<13} {:>8} tris  kdtree {:>9.1}  sah-bvh {:>8.1}  lbvh {:>8.1}  obvhs {:>8.1}  \
-             embree-2t {:>8}",
+            "{:<13} {:>8} tris  kdtree {:>9.1}  sah-bvh {:>8.1}  lbvh {:>8.1}  ploc {:>8.1}  \
+             obvhs {:>8.1}  embree-2t {:>8}",
             b.scene,
             b.triangles,
             b.vkrt[0].1,
             b.vkrt[1].1,
             b.vkrt[2].1,
+            b.vkrt[3].1,
             b.obvhs_ms,
             opt(b.embree2_ms)
         );
