@@ -4,7 +4,8 @@
 //! icospheres; beside them the GPU
 //! kd-tree (seed 001), the CPU SAH BVH on 2 threads (seed 003, node queue, full sweep) and
 //! Embree 3's build on 2 threads (when `libembree-dev` is installed), with the SAH cost of
-//! each BVH under one cost model (`validate::sah_cost`, `BvhParams::default`).
+//! each BVH under one cost model (`validate::sah_cost`, `BvhParams::default`) — the SAH
+//! BVH's also with leaves of one primitive, as the GPU builders make them.
 //!
 //! Scenes: the Stanford bunny (../shared/scenes), icospheres of 100K, 200K, 500K, 1M, 2M.
 //!
@@ -44,6 +45,8 @@ struct Row {
     sah_cost: f64,
     sah_bvh_2t_ms: f64,
     sah_bvh_sah_cost: f64,
+    /// The same sweep with leaves of one primitive, as the GPU builders make them.
+    sah_bvh_leaf1_sah_cost: f64,
     embree_2t_ms: Option<f64>,
     kdtree_gpu_ms: Option<f64>,
 }
@@ -127,6 +130,12 @@ fn main() {
         let t = std::time::Instant::now();
         let sah = bvh::build(&g.boxes, &params, Threading::Queue { threads: 2 }).expect("SAH BVH");
         let sah_ms = t.elapsed().as_secs_f64() * 1e3;
+        let leaf1 = BvhParams {
+            max_leaf_prims: 1,
+            ..params
+        };
+        let sah1 = bvh::build(&g.boxes, &leaf1, Threading::Queue { threads: 2 }).expect("SAH BVH");
+        let sah1_cost = validate::sah_cost(&sah1, &params);
         let e2 = embree.as_ref().map(|e| e.run(tris, 2, &[]).build_ms);
         let kd_ms = kd.as_ref().map(|kd| {
             let mut ms = f64::NAN;
@@ -157,6 +166,7 @@ fn main() {
                 sah_cost: validate::sah_cost(&tree, &params),
                 sah_bvh_2t_ms: sah_ms,
                 sah_bvh_sah_cost: validate::sah_cost(&sah, &params),
+                sah_bvh_leaf1_sah_cost: sah1_cost,
                 embree_2t_ms: e2,
                 kdtree_gpu_ms: kd_ms,
             });
@@ -210,7 +220,7 @@ fn main() {
             .map(|p| format!("{:.1}", p.1))
             .collect();
         println!(
-            "{:<14} {:>8} {:<8} {:>8.1} {:>30} {:>7.1} {:>6.1} {:>6} {:>9.1} {:>7.1} {:>9} {:>9}",
+            "{:<14} {:>8} {:<8} {:>8.1} {:>30} {:>7.1} {:>6.1} {:>6} {:>9.1} {:>7.1} {:>7.1} {:>9} {:>9}",
             r.scene,
             r.triangles,
             r.builder,
@@ -221,6 +231,7 @@ fn main() {
             f(r.embree_2t_ms.map(|e| r.build_ms / e)),
             r.sah_bvh_2t_ms,
             r.sah_bvh_sah_cost,
+            r.sah_bvh_leaf1_sah_cost,
             f(r.embree_2t_ms),
             f(r.kdtree_gpu_ms),
         );
