@@ -1,6 +1,7 @@
-//! The robustness suite (issue 7) through the public API, on every structure and walk
-//! (the kd-tree; the SAH BVH, the LBVH and PLOC, each with a stack and with the bitstack), each built on the device
-//! as `vkrt trace` builds it: GPU tracer, default (watertight) intersector, validation on.
+//! The robustness suite (issue 7) through the public API, on every structure and walk (the
+//! kd-tree; the SAH BVH, the LBVH and PLOC, each with a stack and with the bitstack), each
+//! built on the device as `vkrt trace` builds it: GPU tracer, default (watertight)
+//! intersector, validation on.
 //! Every case must report 0 failures on every structure; the
 //! cases and what a failure is are documented in `vkrt::trace::robust`. `vkrt bench
 //! robustness` runs the same cases for both intersectors.
