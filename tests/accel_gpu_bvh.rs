@@ -143,3 +143,102 @@ fn equal_codes_fall_back_to_the_index_and_stay_shallow() {
     assert_eq!(gpu.depth(), 12);
     assert_silent(&ctx);
 }
+
+/// A chain of 63 levels (sorted Morton codes 2^62, 2^61, ..., 1: one grid axis bit each,
+/// 2^k grid units along one axis) over a balanced subtree of 2^15 triangles in grid cell 0
+/// (code 0): over 64
+/// levels, deeper than a 64-bit trail. The triangle at x = 2^19 has a partner at x = 2^19 + 1
+/// (their node waits as a sibling near the top while the walk goes 70 levels down), and it
+/// and the one at x = 2^20 stand across the +x ray of the test; the rest are tiny and away.
+fn deep_chain() -> Vec<[Vec3; 3]> {
+    let tiny = |p: Vec3| {
+        [
+            p,
+            p + Vec3::new(1e-3, 0.0, 0.0),
+            p + Vec3::new(0.0, 1e-3, 0.0),
+        ]
+    };
+    let across = |p: Vec3| [p, p + Vec3::Y, p + Vec3::Z];
+    let mut tris: Vec<[Vec3; 3]> = (0..63u32)
+        .map(|b| {
+            let (axis, k) = ((2 - b % 3) as usize, b / 3);
+            let mut p = [0.0f32; 3];
+            p[axis] = (1u32 << k) as f32;
+            let p = Vec3::from_array(p);
+            if axis == 0 && k >= 19 {
+                across(p)
+            } else {
+                tiny(p)
+            }
+        })
+        .collect();
+    tris.push(across(Vec3::new((1 << 19) as f32 + 1.0, 0.0, 0.0)));
+    // The bottom: flat in z, 1/2^15 apart (all in grid cell 0), as wide as the ray's y.
+    tris.extend((0..1 << 15).map(|i| {
+        let p = Vec3::new(0.0, 0.0, i as f32 / (1 << 15) as f32);
+        [p, p + Vec3::new(1e-3, 0.0, 0.0), p + Vec3::Y]
+    }));
+    tris
+}
+
+#[test]
+fn trees_deeper_than_64_levels_trace_like_brute_force() {
+    use vkrt::trace::bvh_cpu::{self, Traversal};
+    use vkrt::trace::gpu::{AccelTraversal, Tracer};
+    use vkrt::trace::{cpu, Ray, TraceOptions};
+    let Some(ctx) = context() else { return };
+    let g = TraceGeometry::from_triangles(&deep_chain());
+    let builder = AccelBuilder::lbvh(&ctx, MortonBits::Bits63).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
+    rec.submit_and_wait().unwrap();
+    let HostStructure::Bvh(tree) = dev.accel.download().unwrap() else {
+        unreachable!()
+    };
+    assert!(
+        tree.depth() > 70,
+        "depth {}: the case is not deep",
+        tree.depth()
+    );
+    // Along +x between the bottom's planes, through its boxes to the bottom of the tree,
+    // missing its triangles, then onto the triangle at x = 2^19; and rays onto every
+    // triangle from above.
+    let mut rays = vec![Ray::new(
+        Vec3::new(-0.5, 0.4, 0.4 + 0.5 / (1 << 15) as f32),
+        Vec3::X,
+        0.0,
+        f32::INFINITY,
+    )];
+    let mut rng = Rng(5);
+    rays.extend((0..2000).map(|i| {
+        let t = &g.triangle_at((i * 7) % g.triangle_count(), 0.0);
+        let target = (t[0] + t[1] + t[2]) / 3.0;
+        let from = target + Vec3::new(rng.next_f32() - 0.5, rng.next_f32() - 0.5, 8.0);
+        Ray::new(from, target - from, 0.0, f32::INFINITY)
+    }));
+    let opt = TraceOptions::default();
+    let first = cpu::brute_force(&g, &rays[0], 0.0, &opt);
+    assert!(
+        first.is_hit() && (first.t - (1 << 19) as f32 - 0.5).abs() < 1.0,
+        "{first:?}"
+    );
+
+    for walk in [Traversal::Stack, Traversal::Bitstack] {
+        let tracer = Tracer::for_accel(&ctx, &opt, AccelTraversal::Bvh(walk)).unwrap();
+        let batch = tracer.trace(&ctx, &dev, &rays, 0.0).unwrap();
+        assert_eq!(batch.exhausted, 0);
+        for (r, h) in rays.iter().zip(&batch.hits) {
+            let b = cpu::brute_force(&g, r, 0.0, &opt);
+            let twin = bvh_cpu::trace(&g, &tree, r, 0.0, &opt, walk).0;
+            assert!(
+                common::same_answer(&twin, &b),
+                "twin {walk:?}: {r:?}: {twin:?} vs {b:?}"
+            );
+            assert!(
+                common::same_answer(h, &b),
+                "{walk:?}: {r:?}: {h:?} vs {b:?}"
+            );
+        }
+    }
+    assert_silent(&ctx);
+}

@@ -5,13 +5,15 @@
 // a while-while stack walk (trace_bvh_stack: interior nodes until a leaf is in hand, then the
 // leaf; far children and leaves on the stack with their entry distance), or seed 000's
 // stackless bitstack (trace_bvh_bitstack: parent links and one bit per level, "the other
-// child still waits"). Trees are at most 64 levels deep (the builder's MAX_DEPTH), which sizes the stack
-// (one entry per level at most) and the trail.
+// child still waits"). Trees are at most 128 levels deep (MAX_TRAVERSAL_DEPTH in
+// src/accel/bvh/layout.rs: the SAH builder stops at 64, the LBVH's codes and indices give at
+// most 95, PLOC one level per round), which sizes the stack (one entry per level at most)
+// and the trail.
 #ifndef VKRT_COMMON_BVH_GLSL
 #define VKRT_COMMON_BVH_GLSL
 
 #define NO_NODE 0xffffffffu
-#define BVH_MAX_DEPTH 64u
+#define BVH_MAX_DEPTH 128u
 
 // 64 bytes: `BvhNode` in src/accel/bvh/layout.rs.
 struct BvhNode {
@@ -153,8 +155,7 @@ Hit trace_bvh_bitstack(Ray r, float time) {
     Shear sh = make_shear(r.d);
     vec3 inv_d = vec3(1.0) / r.d;
     float best_t = r.tmax;
-    uint trail_lo = 0u; // the 64-bit trail, low and high words
-    uint trail_hi = 0u;
+    uvec4 trail = uvec4(0u); // one bit per level, 128 in all; .x the lowest word
     uint node = 0u;
     uint steps = 0u;
     while (true) {
@@ -195,8 +196,8 @@ Hit trace_bvh_bitstack(Ray r, float time) {
             far = inner[0];
         }
         if (near != NO_NODE) {
-            trail_hi = (trail_hi << 1u) | (trail_lo >> 31u);
-            trail_lo = (trail_lo << 1u) | (far != NO_NODE ? 1u : 0u);
+            trail = (trail << 1u) | (uvec4(0u, trail.xyz) >> 31u);
+            trail.x |= far != NO_NODE ? 1u : 0u;
             node = near;
             continue;
         }
@@ -204,16 +205,15 @@ Hit trace_bvh_bitstack(Ray r, float time) {
         // ray still enters its box.
         bool found = false;
         while (!found) {
-            if (trail_lo == 0u && trail_hi == 0u) {
+            if (all(equal(trail, uvec4(0u)))) {
                 return best;
             }
-            while ((trail_lo & 1u) == 0u) {
+            while ((trail.x & 1u) == 0u) {
                 steps++;
                 node = bvh_parent(node);
-                trail_lo = (trail_lo >> 1u) | (trail_hi << 31u);
-                trail_hi >>= 1u;
+                trail = (trail >> 1u) | (uvec4(trail.yzw, 0u) << 31u);
             }
-            trail_lo ^= 1u;
+            trail.x ^= 1u;
             BvhNode pn = load_bvh_node(bvh_parent(node));
             bool node_is_a = pn.a_count == 0u && pn.a_index == node;
             uint sibling = node_is_a ? pn.b_index : pn.a_index;

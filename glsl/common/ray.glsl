@@ -154,14 +154,17 @@ bool hit_triangle_watertight(vec3 o, Shear s, vec3 p0, vec3 p1, vec3 p2, float t
     // Conservative t (pbrt-v3 3.9.6): a hit closer than the rounding bound of the computed
     // t may lie behind the origin (a spawned ray re-hitting its own surface): rejected.
     // The bounds of the sheared x and y use the unscaled z (pbrt uses the z scaled by
-    // 1/d[kz], which is only commensurate for directions of length about 1).
+    // 1/d[kz], which is only commensurate for directions of length about 1), and only as
+    // much of it as the shear takes in: every error z brings into x' = x - sx z comes
+    // multiplied by |sx| (pbrt bounds |sx| by 1, which rejects a unit triangle 2^19 units
+    // down an axis-parallel ray).
     precise float max_zt = max(max(abs(az), abs(bz)), abs(cz));
     precise float max_zu = max(max(abs(a[s.kz]), abs(b[s.kz])), abs(c[s.kz]));
     precise float max_xt = max(max(abs(ax), abs(bx)), abs(cx));
     precise float max_yt = max(max(abs(ay), abs(by)), abs(cy));
     precise float delta_z = GAMMA3 * max_zt;
-    precise float delta_x = GAMMA5 * (max_xt + max_zu);
-    precise float delta_y = GAMMA5 * (max_yt + max_zu);
+    precise float delta_x = GAMMA5 * (max_xt + abs(s.sx) * max_zu);
+    precise float delta_y = GAMMA5 * (max_yt + abs(s.sy) * max_zu);
     precise float delta_e = 2.0 * (GAMMA2 * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
     precise float max_e = max(max(abs(e0), abs(e1)), abs(e2));
     precise float delta_t =

@@ -19,7 +19,7 @@ pub enum Traversal {
     /// Far children on a stack.
     #[default]
     Stack,
-    /// No stack: parent links and a 64-bit trail (seed 000).
+    /// No stack: parent links and a trail of one bit per level (seed 000).
     Bitstack,
 }
 
@@ -241,7 +241,8 @@ fn pop(stack: &mut Vec<(Child, f32)>, best_t: f32) -> Option<Child> {
 /// waits, 0 otherwise; on a dead end climb the parent links to the deepest 1 bit and take
 /// that level's other child (its box tested again against the best hit so far).
 fn bitstack(q: &mut Query1<'_>) -> bool {
-    let (mut node, mut trail) = (0u32, 0u64);
+    // One bit per level: trees are at most MAX_TRAVERSAL_DEPTH (128) levels deep.
+    let (mut node, mut trail) = (0u32, 0u128);
     loop {
         if q.steps > MAX_TRAVERSAL_STEPS {
             return false;
@@ -250,7 +251,7 @@ fn bitstack(q: &mut Query1<'_>) -> bool {
             return true;
         };
         if let Some(near) = near {
-            trail = (trail << 1) | u64::from(far.is_some());
+            trail = (trail << 1) | u128::from(far.is_some());
             node = near;
             continue;
         }

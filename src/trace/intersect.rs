@@ -108,8 +108,9 @@ pub fn triangle_watertight(
     let max_xt = ax.abs().max(bx.abs()).max(cx.abs());
     let max_yt = ay.abs().max(by.abs()).max(cy.abs());
     let delta_z = GAMMA3 * max_zt;
-    let delta_x = GAMMA5 * (max_xt + max_zu);
-    let delta_y = GAMMA5 * (max_yt + max_zu);
+    // Errors from z enter x' = x - sx z times |sx| (see `ray.glsl`).
+    let delta_x = GAMMA5 * (max_xt + s.sx.abs() * max_zu);
+    let delta_y = GAMMA5 * (max_yt + s.sy.abs() * max_zu);
     let delta_e = 2.0 * (GAMMA2 * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
     let max_e = e0.abs().max(e1.abs()).max(e2.abs());
     let delta_t = 3.0 * (GAMMA3 * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * inv.abs();

@@ -11,6 +11,11 @@ use crate::scene::Aabb;
 /// single leaf.
 pub const NO_NODE: u32 = u32::MAX;
 
+/// The deepest tree the traversal walks (`BVH_MAX_DEPTH` in `glsl/common/bvh.glsl`: its
+/// stack and its bit trail): the SAH builder stops at 64 levels, the LBVH's 63-bit codes and
+/// index tie-breaks give at most 95, and PLOC adds at most one level per round.
+pub const MAX_TRAVERSAL_DEPTH: u32 = 128;
+
 /// One node, 64 bytes: child `a` and child `b`, each a box and either an interior node
 /// (`count == 0`, `index` is its node) or a leaf (`count > 0` references from `index` on in
 /// [`Bvh::refs`]). A missing child (`count == 0`, `index == NO_NODE`) has an empty box

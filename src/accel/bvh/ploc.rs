@@ -12,7 +12,7 @@
 //! `max_rounds` rounds (which real inputs never reach) the remaining clusters are paired
 //! with their neighbours `2k, 2k + 1` until one is left: the build always ends.
 
-use super::layout::{Bvh, BvhNode, Child, NO_NODE};
+use super::layout::{Bvh, BvhNode, Child, MAX_TRAVERSAL_DEPTH, NO_NODE};
 use super::lbvh::{morton_codes, MortonBits};
 use super::refit::union;
 use crate::scene::Aabb;
@@ -44,18 +44,22 @@ impl Default for PlocParams {
 impl PlocParams {
     /// The rounds recorded for `n` primitives before the fallback.
     pub fn rounds(&self, n: usize) -> u32 {
-        self.max_rounds.unwrap_or_else(|| max_rounds(n))
+        self.max_rounds
+            .unwrap_or_else(|| max_rounds(n))
+            .min(max_rounds(usize::MAX))
     }
 }
 
 /// Rounds of nearest-neighbour merging recorded for `n` primitives before the pairing
-/// fallback (the GPU build records this many; unused rounds are empty dispatches).
+/// fallback (the GPU build records this many; unused rounds are empty dispatches). A round
+/// adds at most one level, so with the fallback's rounds the tree stays within
+/// [`MAX_TRAVERSAL_DEPTH`] levels.
 pub fn max_rounds(n: usize) -> u32 {
     let bits = usize::BITS - n.max(1).leading_zeros();
-    4 * bits + 16
+    (4 * bits + 16).min(MAX_TRAVERSAL_DEPTH - 1 - PAIRING_ROUNDS)
 }
 
-/// Rounds of the pairing fallback: each halves the clusters.
+/// Rounds of the pairing fallback: each halves the clusters (2^32 > any primitive count).
 pub const PAIRING_ROUNDS: u32 = 32;
 
 /// A cluster: what it is as a child, and its box.

@@ -1,6 +1,6 @@
 //! Structural checks of a built BVH and its SAH cost.
 
-use super::layout::{half_area, Bvh, Child, NO_NODE};
+use super::layout::{half_area, Bvh, Child, MAX_TRAVERSAL_DEPTH, NO_NODE};
 use super::sah::BvhParams;
 use crate::scene::Aabb;
 
@@ -52,6 +52,12 @@ pub fn validate(bvh: &Bvh, boxes: &[Aabb]) -> Result<(), String> {
     }
     if root != bvh.bounds {
         return Err(format!("root box {root:?} vs bounds {:?}", bvh.bounds));
+    }
+    if bvh.depth() > MAX_TRAVERSAL_DEPTH {
+        return Err(format!(
+            "{} levels: the traversal walks at most {MAX_TRAVERSAL_DEPTH}",
+            bvh.depth()
+        ));
     }
     Ok(())
 }
