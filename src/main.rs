@@ -57,11 +57,12 @@ enum Command {
         #[arg(long)]
         profile: Option<PathBuf>,
     },
-    /// Render a scene to a PNG (or .pfm: linear float) with the wavefront renderer.
+    /// Render a scene to an image (.png, .jpg, .exr or .pfm) with the wavefront renderer.
     Render {
         /// Scene (.toml, .obj, seed-002 text); omit for the embedded default scene.
         scene: Option<PathBuf>,
-        /// Output image: PNG, or PFM (linear radiance) for a .pfm extension.
+        /// Output image, by extension: .png or .jpg/.jpeg (8-bit sRGB), .exr or .pfm (linear
+        /// float radiance).
         #[arg(short, long, default_value = "render.png")]
         output: PathBuf,
         /// Samples per pixel (default: the scene's; 1 if no effect of the scene needs more).
@@ -376,6 +377,8 @@ fn render_command(
     profile: &Option<PathBuf>,
 ) -> Result<(), Box<dyn std::error::Error>> {
     use vkrt::scene::MAX_RESOLUTION;
+    // An unsupported image extension fails here, before the scene or the device is touched.
+    vkrt::render::output::ImageFormat::from_path(output)?;
     let intersector = parse_intersector(intersector)?;
     for (name, v) in [("--width", opt.width), ("--height", opt.height)] {
         if v.is_some_and(|v| v == 0 || v > MAX_RESOLUTION) {
