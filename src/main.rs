@@ -16,6 +16,12 @@ struct Cli {
     /// Enable the Khronos validation layer with synchronization validation (also VKRT_VALIDATION=1).
     #[arg(long, global = true)]
     validate: bool,
+    /// More log output on stderr: -v info, -vv debug, -vvv trace (default: warnings).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+    /// Errors only on stderr (no warnings).
+    #[arg(short, long, global = true, conflicts_with = "verbose")]
+    quiet: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -303,6 +309,7 @@ impl From<IntersectorArg> for vkrt::trace::Intersector {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    init_logging(cli.verbose, cli.quiet);
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -312,6 +319,36 @@ fn main() -> ExitCode {
     }
 }
 
+/// Logs go to stderr (stdout stays for results and --json) as `vkrt: LEVEL: message`, the
+/// style of the error line at exit; debug and trace also name the module.
+fn init_logging(verbose: u8, quiet: bool) {
+    use log::{Level, LevelFilter};
+    use std::io::Write;
+    let level = match (quiet, verbose) {
+        (true, _) => LevelFilter::Error,
+        (false, 0) => LevelFilter::Warn,
+        (false, 1) => LevelFilter::Info,
+        (false, 2) => LevelFilter::Debug,
+        _ => LevelFilter::Trace,
+    };
+    env_logger::Builder::new()
+        .filter_level(level)
+        .target(env_logger::Target::Stderr)
+        .format(|buf, record| match record.level() {
+            Level::Error => writeln!(buf, "vkrt: error: {}", record.args()),
+            Level::Warn => writeln!(buf, "vkrt: warning: {}", record.args()),
+            Level::Info => writeln!(buf, "vkrt: info: {}", record.args()),
+            l => writeln!(
+                buf,
+                "vkrt: {}: [{}] {}",
+                l.as_str().to_ascii_lowercase(),
+                record.target(),
+                record.args()
+            ),
+        })
+        .init();
+}
+
 fn context(validate: bool) -> Result<Context, Box<dyn std::error::Error>> {
     let env_on = std::env::var("VKRT_VALIDATION").is_ok_and(|v| v.trim() == "1");
     let validation = if validate || env_on {
@@ -319,10 +356,13 @@ fn context(validate: bool) -> Result<Context, Box<dyn std::error::Error>> {
     } else {
         Validation::Off
     };
-    Ok(Context::new(&ContextOptions {
+    let ctx = Context::new(&ContextOptions {
         validation,
         device_name: None,
-    })?)
+    })?;
+    let info = ctx.info();
+    log::info!("device {}, driver {}", info.device, info.driver);
+    Ok(ctx)
 }
 
 fn load_scene(path: &Option<PathBuf>) -> Result<vkrt::scene::Scene, Box<dyn std::error::Error>> {
@@ -330,7 +370,7 @@ fn load_scene(path: &Option<PathBuf>) -> Result<vkrt::scene::Scene, Box<dyn std:
         Some(path) => {
             let loaded = vkrt::scene::Scene::load(path)?;
             for w in &loaded.warnings {
-                eprintln!("vkrt: warning: {w}");
+                log::warn!("{w}");
             }
             loaded.scene
         }
@@ -432,8 +472,8 @@ fn render_command(
     vkrt::render::output::write_image(output, p.width, p.height, &r.image.rgba, &r.image.radiance)?;
     write_profile(profile, &trace_profile)?;
     if r.image.counts.exhausted > 0 {
-        eprintln!(
-            "vkrt: warning: {} rays ran out of traversal steps (counted as misses)",
+        log::warn!(
+            "{} rays ran out of traversal steps (counted as misses)",
             r.image.counts.exhausted
         );
     }
@@ -691,7 +731,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 None => (vkrt::scene::Scene::default_scene(), Vec::new()),
             };
             for w in &warnings {
-                eprintln!("vkrt: warning: {w}");
+                log::warn!("{w}");
             }
             let summary = scene.summary();
             if json {
@@ -1037,8 +1077,8 @@ fn trace_command(
             .filter(|(_, n)| *n > 0)
             .map(|(r, n)| format!("{n} {}", r.name()))
             .collect();
-        eprintln!(
-            "vkrt: warning: {n_invalid} of {} rays are invalid and reported as misses ({}); \
+        log::warn!(
+            "{n_invalid} of {} rays are invalid and reported as misses ({}); \
              a valid ray has a finite origin, direction and tmin, a non-zero direction and \
              tmin <= tmax (tmax = inf is unbounded)",
             rays.len(),
@@ -1046,8 +1086,8 @@ fn trace_command(
         );
     }
     if batch.exhausted > 0 {
-        eprintln!(
-            "vkrt: warning: {} rays ran out of traversal steps and are reported as misses",
+        log::warn!(
+            "{} rays ran out of traversal steps and are reported as misses",
             batch.exhausted
         );
     }

@@ -1,5 +1,5 @@
 //! `vkrt render -o FILE`: the image format by extension, errors before any rendering for
-//! an unsupported one, no file left by a failed write.
+//! an unsupported one, no file left by a failed write; and the log flags `-q` / `-v`.
 
 mod common;
 
@@ -164,5 +164,57 @@ fn an_unwritable_output_is_an_error_and_leaves_nothing() {
     );
     assert!(blocked.is_dir() && entries(&blocked).is_empty());
     assert_eq!(entries(&dir), ["blocked.exr"]);
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn quiet_silences_warnings_and_verbose_keeps_json_on_stdout_clean() {
+    let dir = temp_dir("log");
+    // No camera and no lights: two warnings by default (and no GPU needed).
+    let scene = dir.join("bare.toml");
+    std::fs::write(&scene, "[[spheres]]\ncenter = [0, 0, 0]\nradius = 1\n").unwrap();
+    let run = vkrt(&["scene", s(&scene)]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(run.status.success(), "{err}");
+    assert!(
+        err.contains("vkrt: warning:") && err.contains("no [camera]"),
+        "{err}"
+    );
+    for args in [["-q", "scene", s(&scene)], ["scene", s(&scene), "--quiet"]] {
+        let run = vkrt(&args);
+        assert!(run.status.success());
+        assert!(
+            run.stderr.is_empty(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        assert!(!run.stdout.is_empty());
+    }
+    let run = vkrt(&["-vvv", "scene", s(&scene), "--json"]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("no [camera]"), "{err}");
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert!(v.get("spheres").is_some(), "{v}");
+    let run = vkrt(&["-q", "-v", "scene", s(&scene)]);
+    assert!(!run.status.success());
+    // With a device: -v logs it on stderr, the render's JSON stays alone on stdout.
+    let out = dir.join("v.png");
+    let Some(run) = vkrt_ok(&[
+        "-v",
+        "render",
+        "-o",
+        s(&out),
+        "--width",
+        "8",
+        "--height",
+        "8",
+        "--json",
+    ]) else {
+        return;
+    };
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(err.contains("vkrt: info: device"), "{err}");
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(v["width"], 8, "{v}");
     std::fs::remove_dir_all(&dir).unwrap();
 }
