@@ -16,6 +16,12 @@ struct Cli {
     /// Enable the Khronos validation layer with synchronization validation (also VKRT_VALIDATION=1).
     #[arg(long, global = true)]
     validate: bool,
+    /// More log output on stderr: -v info, -vv debug, -vvv trace (default: warnings).
+    #[arg(short, long, global = true, action = clap::ArgAction::Count)]
+    verbose: u8,
+    /// Errors only on stderr (no warnings).
+    #[arg(short, long, global = true, conflicts_with = "verbose")]
+    quiet: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -57,11 +63,12 @@ enum Command {
         #[arg(long)]
         profile: Option<PathBuf>,
     },
-    /// Render a scene to a PNG (or .pfm: linear float) with the wavefront renderer.
+    /// Render a scene to an image (.png, .jpg, .exr or .pfm) with the wavefront renderer.
     Render {
         /// Scene (.toml, .obj, seed-002 text); omit for the embedded default scene.
         scene: Option<PathBuf>,
-        /// Output image: PNG, or PFM (linear radiance) for a .pfm extension.
+        /// Output image, by extension: .png or .jpg/.jpeg (8-bit sRGB), .exr or .pfm (linear
+        /// float radiance).
         #[arg(short, long, default_value = "render.png")]
         output: PathBuf,
         /// Samples per pixel (default: the scene's; 1 if no effect of the scene needs more).
@@ -304,6 +311,7 @@ impl From<IntersectorArg> for vkrt::trace::Intersector {
 
 fn main() -> ExitCode {
     let cli = Cli::parse();
+    init_logging(cli.verbose, cli.quiet);
     match run(cli) {
         Ok(()) => ExitCode::SUCCESS,
         Err(e) => {
@@ -313,6 +321,36 @@ fn main() -> ExitCode {
     }
 }
 
+/// Logs go to stderr (stdout stays for results and --json) as `vkrt: LEVEL: message`, the
+/// style of the error line at exit; debug and trace also name the module.
+fn init_logging(verbose: u8, quiet: bool) {
+    use log::{Level, LevelFilter};
+    use std::io::Write;
+    let level = match (quiet, verbose) {
+        (true, _) => LevelFilter::Error,
+        (false, 0) => LevelFilter::Warn,
+        (false, 1) => LevelFilter::Info,
+        (false, 2) => LevelFilter::Debug,
+        _ => LevelFilter::Trace,
+    };
+    env_logger::Builder::new()
+        .filter_level(level)
+        .target(env_logger::Target::Stderr)
+        .format(|buf, record| match record.level() {
+            Level::Error => writeln!(buf, "vkrt: error: {}", record.args()),
+            Level::Warn => writeln!(buf, "vkrt: warning: {}", record.args()),
+            Level::Info => writeln!(buf, "vkrt: info: {}", record.args()),
+            l => writeln!(
+                buf,
+                "vkrt: {}: [{}] {}",
+                l.as_str().to_ascii_lowercase(),
+                record.target(),
+                record.args()
+            ),
+        })
+        .init();
+}
+
 fn context(validate: bool) -> Result<Context, Box<dyn std::error::Error>> {
     let env_on = std::env::var("VKRT_VALIDATION").is_ok_and(|v| v.trim() == "1");
     let validation = if validate || env_on {
@@ -320,10 +358,13 @@ fn context(validate: bool) -> Result<Context, Box<dyn std::error::Error>> {
     } else {
         Validation::Off
     };
-    Ok(Context::new(&ContextOptions {
+    let ctx = Context::new(&ContextOptions {
         validation,
         device_name: None,
-    })?)
+    })?;
+    let info = ctx.info();
+    log::info!("device {}, driver {}", info.device, info.driver);
+    Ok(ctx)
 }
 
 fn load_scene(path: &Option<PathBuf>) -> Result<vkrt::scene::Scene, Box<dyn std::error::Error>> {
@@ -331,7 +372,7 @@ fn load_scene(path: &Option<PathBuf>) -> Result<vkrt::scene::Scene, Box<dyn std:
         Some(path) => {
             let loaded = vkrt::scene::Scene::load(path)?;
             for w in &loaded.warnings {
-                eprintln!("vkrt: warning: {w}");
+                log::warn!("{w}");
             }
             loaded.scene
         }
@@ -378,6 +419,8 @@ fn render_command(
     profile: &Option<PathBuf>,
 ) -> Result<(), Box<dyn std::error::Error>> {
     use vkrt::scene::MAX_RESOLUTION;
+    // An unsupported image extension fails here, before the scene or the device is touched.
+    vkrt::render::output::ImageFormat::from_path(output)?;
     let intersector = parse_intersector(intersector)?;
     for (name, v) in [("--width", opt.width), ("--height", opt.height)] {
         if v.is_some_and(|v| v == 0 || v > MAX_RESOLUTION) {
@@ -431,8 +474,8 @@ fn render_command(
     vkrt::render::output::write_image(output, p.width, p.height, &r.image.rgba, &r.image.radiance)?;
     write_profile(profile, &trace_profile)?;
     if r.image.counts.exhausted > 0 {
-        eprintln!(
-            "vkrt: warning: {} rays ran out of traversal steps (counted as misses)",
+        log::warn!(
+            "{} rays ran out of traversal steps (counted as misses)",
             r.image.counts.exhausted
         );
     }
@@ -690,7 +733,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 None => (vkrt::scene::Scene::default_scene(), Vec::new()),
             };
             for w in &warnings {
-                eprintln!("vkrt: warning: {w}");
+                log::warn!("{w}");
             }
             let summary = scene.summary();
             if json {
@@ -1042,8 +1085,8 @@ fn trace_command(
             .filter(|(_, n)| *n > 0)
             .map(|(r, n)| format!("{n} {}", r.name()))
             .collect();
-        eprintln!(
-            "vkrt: warning: {n_invalid} of {} rays are invalid and reported as misses ({}); \
+        log::warn!(
+            "{n_invalid} of {} rays are invalid and reported as misses ({}); \
              a valid ray has a finite origin, direction and tmin, a non-zero direction and \
              tmin <= tmax (tmax = inf is unbounded)",
             rays.len(),
@@ -1051,8 +1094,8 @@ fn trace_command(
         );
     }
     if batch.exhausted > 0 {
-        eprintln!(
-            "vkrt: warning: {} rays ran out of traversal steps and are reported as misses",
+        log::warn!(
+            "{} rays ran out of traversal steps and are reported as misses",
             batch.exhausted
         );
     }

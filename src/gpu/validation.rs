@@ -98,16 +98,20 @@ unsafe extern "system" fn callback(
             CStr::from_ptr(p).to_string_lossy().into_owned()
         }
     };
+    let error = severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR);
     let message = ValidationMessage {
-        severity: if severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR) {
-            "error"
-        } else {
-            "warning"
-        },
+        severity: if error { "error" } else { "warning" },
         id: cstr(data.p_message_id_name),
         text: cstr(data.p_message),
     };
-    eprintln!("vkrt validation: {message}");
+    // Through `log`, so the embedding application (or the CLI's -q/-v) decides what shows;
+    // the sink keeps every message regardless.
+    let level = if error {
+        log::Level::Error
+    } else {
+        log::Level::Warn
+    };
+    log::log!(level, "validation: {}: {}", message.id, message.text);
     if let Ok(mut messages) = sink.messages.lock() {
         messages.push(message);
     }
