@@ -81,9 +81,12 @@ fn inputs(subgroup: usize) -> Vec<(String, Vec<[Vec3; 3]>)> {
     out
 }
 
+/// A GPU builder configuration, its name and its CPU twin.
+type Builder = (String, AccelBuilder, Box<dyn Fn(&TraceGeometry) -> Bvh>);
+
 /// Every GPU builder configuration with its CPU twin.
-fn builders(ctx: &Context) -> Vec<(String, AccelBuilder, Box<dyn Fn(&TraceGeometry) -> Bvh>)> {
-    let mut out: Vec<(String, AccelBuilder, Box<dyn Fn(&TraceGeometry) -> Bvh>)> = Vec::new();
+fn builders(ctx: &Context) -> Vec<Builder> {
+    let mut out: Vec<Builder> = Vec::new();
     for bits in [MortonBits::Bits63, MortonBits::Bits30] {
         out.push((
             format!("LBVH {bits:?}"),
