@@ -225,55 +225,77 @@ fn refit_follows_moved_primitives_bit_for_bit_with_its_twin() {
     let Some(ctx) = context() else { return };
     let sg = ctx.info().subgroup_size as usize;
     let opt = TraceOptions::default();
-    let builder = AccelBuilder::new(&ctx, AccelKind::SahBvh).unwrap();
     let tracer = Tracer::for_accel(&ctx, &opt, AccelKind::SahBvh.walked(Traversal::Stack)).unwrap();
-    for n in [1, 2, 3, sg - 1, sg + 1, 65, 257, 1025, 3000] {
-        let g = scene(n, 40 + n as u64, true);
-        let (dev, host) = device_build(&ctx, &builder, &g);
-        let HostStructure::Bvh(original) = host else {
-            unreachable!()
-        };
-        let mut same = original.clone();
-        bvh::refit(&mut same, &g.boxes);
-        assert_eq!(same, original, "{n}: refit of an unmoved scene");
+    // Climbing refit (built without update) and the per-depth refit of structures built to
+    // be updated, on every BVH kind.
+    let configs = [
+        (AccelKind::SahBvh, false),
+        (AccelKind::SahBvh, true),
+        (AccelKind::Lbvh, true),
+        (AccelKind::Ploc, true),
+    ];
+    for (kind, allow_update) in configs {
+        let mut builder = AccelBuilder::new(&ctx, kind).unwrap();
+        builder.allow_update = allow_update;
+        for n in [1, 2, 3, sg - 1, sg + 1, 65, 257, 1025, 3000] {
+            let g = scene(n, 40 + n as u64, true);
+            let (dev, host) = device_build(&ctx, &builder, &g);
+            let HostStructure::Bvh(original) = host else {
+                unreachable!()
+            };
+            let mut same = original.clone();
+            bvh::refit(&mut same, &g.boxes);
+            assert_eq!(same, original, "{n}: refit of an unmoved scene");
 
-        let g2 = moved(&g, 0.7, n as u64);
-        let mut twin = original.clone();
-        bvh::refit(&mut twin, &g2.boxes);
-        bvh::validate::validate(&twin, &g2.boxes).unwrap_or_else(|e| panic!("{n}: {e}"));
+            let g2 = moved(&g, 0.7, n as u64);
+            let mut twin = original.clone();
+            bvh::refit(&mut twin, &g2.boxes);
+            bvh::validate::validate(&twin, &g2.boxes).unwrap_or_else(|e| panic!("{n}: {e}"));
 
-        let scratch = builder
-            .update_scratch(&ctx, g2.primitive_count())
-            .unwrap()
-            .unwrap();
-        let mut rec = Recorder::new(&ctx).unwrap();
-        dev.prims.record_update(&mut rec, &g2).unwrap();
-        builder
-            .record_refit(&mut rec, &dev.prims, &dev.accel, &scratch)
-            .unwrap();
-        rec.submit_and_wait().unwrap();
-        let HostStructure::Bvh(gpu) = dev.accel.download().unwrap() else {
-            unreachable!()
-        };
-        let bits = |nd: &bvh::BvhNode| -> Vec<u32> { bytemuck::cast_slice(&[*nd]).to_vec() };
-        let differ: Vec<usize> = (0..twin.nodes.len())
-            .filter(|&i| bits(&gpu.nodes[i]) != bits(&twin.nodes[i]))
-            .collect();
-        assert!(
+            let scratch = builder
+                .update_scratch(&ctx, g2.primitive_count())
+                .unwrap()
+                .unwrap();
+            // On the device, too, a refit of the unmoved scene gives the tree back.
+            let mut rec = Recorder::new(&ctx).unwrap();
+            builder
+                .record_refit(&mut rec, &dev.prims, &dev.accel, &scratch)
+                .unwrap();
+            rec.submit_and_wait().unwrap();
+            let unmoved = dev.accel.download().unwrap();
+            assert!(
+                unmoved == HostStructure::Bvh(original.clone()),
+                "{kind:?} {allow_update}, {n}: GPU refit of an unmoved scene"
+            );
+            let mut rec = Recorder::new(&ctx).unwrap();
+            dev.prims.record_update(&mut rec, &g2).unwrap();
+            builder
+                .record_refit(&mut rec, &dev.prims, &dev.accel, &scratch)
+                .unwrap();
+            rec.submit_and_wait().unwrap();
+            let HostStructure::Bvh(gpu) = dev.accel.download().unwrap() else {
+                unreachable!()
+            };
+            let bits = |nd: &bvh::BvhNode| -> Vec<u32> { bytemuck::cast_slice(&[*nd]).to_vec() };
+            let differ: Vec<usize> = (0..twin.nodes.len())
+                .filter(|&i| bits(&gpu.nodes[i]) != bits(&twin.nodes[i]))
+                .collect();
+            assert!(
             differ.is_empty(),
-            "{n}: GPU refit differs from its twin at nodes {differ:?} of {} (parents {:?})",
+            "{kind:?} {allow_update}, {n}: GPU refit differs from its twin at nodes {differ:?} of {} (parents {:?})",
             twin.nodes.len(),
             twin.parents
         );
-        assert_eq!(gpu.bounds, twin.bounds, "{n}");
+            assert_eq!(gpu.bounds, twin.bounds, "{n}");
 
-        let rs = rays(1000, n as u64);
-        let b = tracer.trace(&ctx, &dev, &rs, 0.0).unwrap();
-        for (r, h) in rs.iter().zip(&b.hits) {
-            assert!(
-                same_answer(h, &cpu::brute_force(&g2, r, 0.0, &opt)),
-                "{n}: {r:?}"
-            );
+            let rs = rays(1000, n as u64);
+            let b = tracer.trace(&ctx, &dev, &rs, 0.0).unwrap();
+            for (r, h) in rs.iter().zip(&b.hits) {
+                assert!(
+                    same_answer(h, &cpu::brute_force(&g2, r, 0.0, &opt)),
+                    "{n}: {r:?}"
+                );
+            }
         }
     }
     let kd = AccelBuilder::new(&ctx, AccelKind::KdTree).unwrap();

@@ -19,6 +19,7 @@ use crate::accel::bvh::lbvh::MortonBits;
 use crate::accel::bvh::lbvh_gpu::LbvhBuilder;
 use crate::accel::bvh::ploc::PlocParams;
 use crate::accel::bvh::ploc_gpu::{PlocBuilder, PlocScratch};
+use crate::accel::bvh::refit_gpu::{LevelRefit, RefitSchedule};
 use crate::accel::bvh::{self, Bvh, BvhNode, BvhParams, Threading};
 use crate::accel::kdtree::gpu::{BuildCapacity, BuildOutput, BuildScratch, KdTreeBuilder};
 use crate::accel::kdtree::{KdNode, KdTree, SahParams};
@@ -261,6 +262,8 @@ enum Storage {
         refs: Buffer<u32>,
         /// Nodes and references of the built tree.
         counts: (usize, usize),
+        /// The refit's schedule, for a structure built to be updated.
+        schedule: Option<RefitSchedule>,
     },
 }
 
@@ -361,6 +364,7 @@ impl AccelStructure {
                 nodes,
                 refs,
                 counts: (n_nodes, n_refs),
+                ..
             } => {
                 let mut nodes = nodes.download()?;
                 nodes.truncate(*n_nodes);
@@ -396,6 +400,12 @@ pub struct AccelBuilder {
     pub kd_params: SahParams,
     pub bvh_params: BvhParams,
     pub threading: Threading,
+    /// Build BVHs to be updated (`VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_KHR`):
+    /// the build also records the refit's schedule, kept with the structure, and refits run
+    /// one dispatch per depth (`bvh::refit_gpu`) instead of climbing. Off by default.
+    pub allow_update: bool,
+    /// `accel.bvh_refit_level` and the schedule's kernels (BVH kinds).
+    level_refit: Option<LevelRefit>,
     /// The kd-tree's first reference budget per level; `None`: 4 per primitive
     /// ([`BuildCapacity::for_primitives`]). Tests set it tiny to exercise running out.
     pub kd_refs_per_level: Option<usize>,
@@ -441,6 +451,11 @@ impl AccelBuilder {
                     &Spec::new().workgroup(refit_workgroup(ctx)),
                 )?),
             },
+            level_refit: match kind {
+                AccelKind::KdTree => None,
+                _ => Some(LevelRefit::new(ctx)?),
+            },
+            allow_update: false,
             kd_params: SahParams::default(),
             bvh_params: BvhParams::default(),
             threading: Threading::all_cores(),
@@ -520,9 +535,16 @@ impl AccelBuilder {
                     (_, Some(p)) => p.scratch_bytes(n) + nodes * 4,
                     _ => 0,
                 };
+                let (schedule, schedule_scratch) = match (&self.level_refit, self.allow_update) {
+                    (Some(l), true) => (
+                        RefitSchedule::bytes(nodes as usize),
+                        l.scratch_bytes(nodes as usize),
+                    ),
+                    _ => (0, 0),
+                };
                 AccelSizes {
-                    structure_bytes: nodes * 64 + (n as u64 + nodes) * 4 + info,
-                    build_scratch_bytes,
+                    structure_bytes: nodes * 64 + (n as u64 + nodes) * 4 + info + schedule,
+                    build_scratch_bytes: build_scratch_bytes + schedule_scratch,
                     update_scratch_bytes: Some(nodes * 4),
                 }
             }
@@ -576,6 +598,11 @@ impl AccelBuilder {
                             nodes: Buffer::new(ctx, "accel.bvh_nodes", nodes)?,
                             refs: Buffer::new(ctx, "accel.bvh_refs", n + nodes)?,
                             counts: (0, 0),
+                            schedule: if self.allow_update {
+                                Some(RefitSchedule::new(ctx, nodes)?)
+                            } else {
+                                None
+                            },
                         },
                         info,
                     },
@@ -598,7 +625,7 @@ impl AccelBuilder {
     ) -> Result<RecordedBuild> {
         let n = prims.count();
         assert_eq!(out.kind, self.kind, "a {:?} structure", out.kind);
-        match (&mut out.storage, scratch) {
+        let recorded = match (&mut out.storage, scratch) {
             (Storage::KdTree { out: o, built }, AccelScratch::KdTree(s)) => {
                 let kd = self.kd.as_ref().expect("a kd-tree builder");
                 if n > 0 {
@@ -626,6 +653,7 @@ impl AccelBuilder {
                     nodes,
                     refs,
                     counts,
+                    ..
                 },
                 AccelScratch::None,
             ) => {
@@ -655,6 +683,7 @@ impl AccelBuilder {
                     nodes,
                     refs,
                     counts,
+                    ..
                 },
                 AccelScratch::Lbvh(s),
             ) => {
@@ -675,6 +704,7 @@ impl AccelBuilder {
                     nodes,
                     refs,
                     counts,
+                    ..
                 },
                 AccelScratch::Ploc(s),
             ) => {
@@ -696,7 +726,18 @@ impl AccelBuilder {
                 Ok(RecordedBuild::default())
             }
             _ => unreachable!("scratch of another kind"),
+        }?;
+        if let Storage::Bvh {
+            refs,
+            counts,
+            schedule: Some(schedule),
+            ..
+        } = &out.storage
+        {
+            let level = self.level_refit.as_ref().expect("the level refit");
+            level.record_schedule(rec, refs, counts.0, counts.1 as u32, schedule)?;
         }
+        Ok(recorded)
     }
 }
 
@@ -729,6 +770,7 @@ impl AccelBuilder {
                 nodes,
                 refs,
                 counts,
+                schedule,
             },
             Some(kernel),
         ) = (&out.storage, &self.refit)
@@ -744,7 +786,12 @@ impl AccelBuilder {
             "refit scratch of {} counters",
             scratch.len()
         );
-        record_refit_nodes(rec, kernel, prims, nodes, refs, scratch, &out.info, n_nodes);
+        match (schedule, &self.level_refit) {
+            (Some(schedule), Some(level)) if n_nodes > 0 => {
+                level.record_refit(rec, nodes, refs, &prims.boxes, &out.info, schedule);
+            }
+            _ => record_refit_nodes(rec, kernel, prims, nodes, refs, scratch, &out.info, n_nodes),
+        }
         Ok(())
     }
 }
@@ -832,6 +879,7 @@ pub fn upload_structure(
                     nodes: Buffer::from_slice(ctx, "accel.bvh_nodes", &bvh.nodes)?,
                     refs: Buffer::from_slice(ctx, "accel.bvh_refs", &words)?,
                     counts: (bvh.nodes.len(), bvh.refs.len()),
+                    schedule: None,
                 },
                 info: Buffer::from_slice(
                     ctx,

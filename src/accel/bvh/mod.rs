@@ -10,6 +10,7 @@ pub mod lbvh_gpu;
 pub mod ploc;
 pub mod ploc_gpu;
 pub mod refit;
+pub mod refit_gpu;
 pub mod sah;
 pub mod validate;
 

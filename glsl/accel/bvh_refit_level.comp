@@ -1,0 +1,79 @@
+#version 460
+// BVH refit of one depth (CPU twin: src/accel/bvh/refit.rs): every node at that depth gets
+// its children's boxes from the primitives (leaves) or from the children's nodes, which the
+// dispatch of the depth below refit before. Unions in the total order on ±0, as every refit.
+layout(local_size_x_id = 0) in;
+#include "common/grid.glsl"
+#include "common/kdtree.glsl"
+
+#define NO_NODE 0xffffffffu
+#define MAX_DEPTH 128u
+
+struct BvhNode {
+    vec3 a_min;
+    uint a_index;
+    vec3 a_max;
+    uint a_count;
+    vec3 b_min;
+    uint b_index;
+    vec3 b_max;
+    uint b_count;
+};
+
+layout(std430, binding = 0) buffer Nodes { BvhNode nodes[]; };
+layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
+layout(std430, binding = 2) readonly buffer Boxes { float boxes[]; };
+layout(std430, binding = 3) readonly buffer Order { uint order[]; };
+layout(std430, binding = 4) readonly buffer Levels { uint levels[]; };
+layout(std430, binding = 5) buffer SceneInfoBuf {
+    vec4 bounds_min;
+    vec4 bounds_max;
+    uint n_tris;
+    uint n_spheres;
+    uint has_motion;
+    uint parents_at;
+} info;
+layout(push_constant) uniform Push { uint depth; } pc;
+
+vec3 vmin(vec3 a, vec3 b) {
+    return vec3(fmin_total(a.x, b.x), fmin_total(a.y, b.y), fmin_total(a.z, b.z));
+}
+
+vec3 vmax(vec3 a, vec3 b) {
+    return vec3(fmax_total(a.x, b.x), fmax_total(a.y, b.y), fmax_total(a.z, b.z));
+}
+
+void child_box(uint index, uint count, inout vec3 lo, inout vec3 hi) {
+    if (count > 0u) {
+        lo = vec3(1.0 / 0.0);
+        hi = vec3(-1.0 / 0.0);
+        for (uint k = 0u; k < count; k++) {
+            uint p = refs[index + k];
+            lo = vmin(lo, vec3(boxes[6u * p], boxes[6u * p + 1u], boxes[6u * p + 2u]));
+            hi = vmax(hi, vec3(boxes[6u * p + 3u], boxes[6u * p + 4u], boxes[6u * p + 5u]));
+        }
+    } else if (index != NO_NODE) {
+        BvhNode c = nodes[index];
+        lo = vmin(c.a_min, c.b_min);
+        hi = vmax(c.a_max, c.b_max);
+    }
+}
+
+void main() {
+    uint i = linear_invocation_id();
+    if (i >= levels[pc.depth]) {
+        return;
+    }
+    uint node = order[levels[MAX_DEPTH + pc.depth] + i];
+    BvhNode n = nodes[node];
+    child_box(n.a_index, n.a_count, n.a_min, n.a_max);
+    child_box(n.b_index, n.b_count, n.b_min, n.b_max);
+    nodes[node].a_min = n.a_min;
+    nodes[node].a_max = n.a_max;
+    nodes[node].b_min = n.b_min;
+    nodes[node].b_max = n.b_max;
+    if (pc.depth == 0u) {
+        info.bounds_min = vec4(vmin(n.a_min, n.b_min), 0.0);
+        info.bounds_max = vec4(vmax(n.a_max, n.b_max), 0.0);
+    }
+}
