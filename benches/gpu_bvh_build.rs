@@ -1,7 +1,8 @@
 //! The GPU BVH builders over N (issue 15), one run: seed 000's LBVH (63- and 30-bit Morton
 //! codes) and PLOC (r = 4, 8, 16) built on the device, per pass (GPU timestamps, best of 3
-//! after a warm-up build), the refit of each tree, and the fitted growth exponent over the
-//! icospheres; beside them the GPU
+//! after a warm-up build), the same built to be updated (`allow_update`: the refit's
+//! schedule recorded too), the per-depth refit of that tree and the climbing refit of the
+//! other, and the fitted growth exponent over the icospheres; beside them the GPU
 //! kd-tree (seed 001), the CPU SAH BVH on 2 threads (seed 003, node queue, full sweep) and
 //! Embree 3's build on 2 threads (when `libembree-dev` is installed), with the SAH cost of
 //! each BVH under one cost model (`validate::sah_cost`, `BvhParams::default`) — the SAH
@@ -41,7 +42,12 @@ struct Row {
     builder: String,
     build_ms: f64,
     passes_ms: Vec<(&'static str, f64)>,
+    /// Per-depth refit of the same tree built to be updated.
     refit_ms: f64,
+    /// The climbing refit of the tree built without update.
+    refit_climb_ms: f64,
+    /// The build with `allow_update` (its refit schedule recorded too).
+    build_update_ms: f64,
     sah_cost: f64,
     sah_bvh_2t_ms: f64,
     sah_bvh_sah_cost: f64,
@@ -51,13 +57,33 @@ struct Row {
     kdtree_gpu_ms: Option<f64>,
 }
 
-/// Best-of-3 build (after a warm-up) of `builder` over `g`: the profile of the best, the
-/// structure, and the best refit time of that structure.
-fn gpu_build(
-    ctx: &Context,
-    builder: &AccelBuilder,
-    g: &TraceGeometry,
-) -> (Profile, GpuGeometry, f64) {
+/// Best of 3 after a warm-up: `record` timed by the GPU scope `scope`.
+fn best_of(ctx: &Context, scope: &str, mut record: impl FnMut(&mut Recorder)) -> f64 {
+    let mut best = f64::INFINITY;
+    for _ in 0..4 {
+        let mut rec = Recorder::new(ctx).expect("recorder");
+        record(&mut rec);
+        let p = rec.submit_and_wait().expect("submit");
+        best = best.min(p.ms(scope).unwrap_or(f64::NAN));
+    }
+    best
+}
+
+/// What one GPU builder did on one scene.
+struct Measured {
+    profile: Profile,
+    structure: GpuGeometry,
+    /// The climbing refit of the structure built as above.
+    refit_climb_ms: f64,
+    /// Built to be updated (the refit's schedule recorded too), and its per-depth refit.
+    build_update_ms: f64,
+    refit_ms: f64,
+}
+
+/// Best-of-3 builds (after a warm-up) of `builder` over `g`, without and with
+/// `allow_update`, and the best refit of each.
+fn gpu_build(ctx: &Context, builder: &mut AccelBuilder, g: &TraceGeometry) -> Measured {
+    builder.allow_update = false;
     let mut best: Option<(f64, Profile, GpuGeometry)> = None;
     for _ in 0..4 {
         let mut rec = Recorder::new(ctx).expect("recorder");
@@ -68,19 +94,34 @@ fn gpu_build(
             best = Some((ms, prof, dev));
         }
     }
-    let (_, prof, dev) = best.expect("built");
-    let mut refit_ms = f64::INFINITY;
-    if let Ok(Some(visits)) = builder.update_scratch(ctx, g.primitive_count()) {
-        for _ in 0..3 {
-            let mut rec = Recorder::new(ctx).expect("recorder");
-            builder
-                .record_refit(&mut rec, &dev.prims, &dev.accel, &visits)
-                .expect("refit");
-            let p = rec.submit_and_wait().expect("submit");
-            refit_ms = refit_ms.min(p.ms("refit").unwrap_or(f64::NAN));
-        }
+    let (_, profile, structure) = best.expect("built");
+    let visits = builder
+        .update_scratch(ctx, g.primitive_count())
+        .expect("scratch")
+        .expect("a BVH");
+    let refit = |b: &AccelBuilder, dev: &GpuGeometry| {
+        best_of(ctx, "refit", |rec| {
+            b.record_refit(rec, &dev.prims, &dev.accel, &visits)
+                .expect("refit")
+        })
+    };
+    let refit_climb_ms = refit(builder, &structure);
+    builder.allow_update = true;
+    let mut updatable = None;
+    let build_update_ms = best_of(ctx, "build", |rec| {
+        let (dev, _) = GpuGeometry::record_build(rec, builder, g, 0).expect("build");
+        updatable = Some(dev);
+    });
+    let updatable = updatable.expect("built");
+    let refit_ms = refit(builder, &updatable);
+    builder.allow_update = false;
+    Measured {
+        profile,
+        structure,
+        refit_climb_ms,
+        build_update_ms,
+        refit_ms,
     }
-    (prof, dev, refit_ms)
 }
 
 /// Least-squares slope of log(ms) over log(n).
@@ -147,8 +188,9 @@ fn main() {
             }
             ms
         });
-        for (label, builder) in &gpu_builders {
-            let (prof, dev, refit_ms) = gpu_build(&ctx, builder, &g);
+        for (label, builder) in &mut gpu_builders {
+            let m = gpu_build(&ctx, builder, &g);
+            let (prof, dev) = (m.profile, m.structure);
             let HostStructure::Bvh(tree) = dev.accel.download().expect("download") else {
                 unreachable!("a GPU BVH")
             };
@@ -162,7 +204,9 @@ fn main() {
                     .iter()
                     .map(|p| (*p, prof.ms(p).unwrap_or(0.0)))
                     .collect(),
-                refit_ms,
+                refit_ms: m.refit_ms,
+                refit_climb_ms: m.refit_climb_ms,
+                build_update_ms: m.build_update_ms,
                 sah_cost: validate::sah_cost(&tree, &params),
                 sah_bvh_2t_ms: sah_ms,
                 sah_bvh_sah_cost: validate::sah_cost(&sah, &params),
@@ -220,13 +264,15 @@ fn main() {
             .map(|p| format!("{:.1}", p.1))
             .collect();
         println!(
-            "{:<14} {:>8} {:<8} {:>8.1} {:>30} {:>7.1} {:>6.1} {:>6} {:>9.1} {:>7.1} {:>7.1} {:>9} {:>9}",
+            "{:<14} {:>8} {:<8} {:>8.1} {:>30} {:>7.1} {:>7.1} {:>8.1} {:>6.1} {:>6} {:>9.1} {:>7.1} {:>7.1} {:>9} {:>9}",
             r.scene,
             r.triangles,
             r.builder,
             r.build_ms,
             passes.join(" "),
+            r.build_update_ms,
             r.refit_ms,
+            r.refit_climb_ms,
             r.sah_cost,
             f(r.embree_2t_ms.map(|e| r.build_ms / e)),
             r.sah_bvh_2t_ms,
