@@ -242,17 +242,20 @@ fn main() {
     );
     let f = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.1}"));
     println!(
-        "{:<14} {:>8} {:<8} {:>8} {:>30} {:>7} {:>6} {:>6} {:>9} {:>7} {:>9} {:>9}",
+        "{:<14} {:>8} {:<8} {:>8} {:>30} {:>7} {:>7} {:>8} {:>6} {:>6} {:>9} {:>7} {:>7} {:>9} {:>9}",
         "scene",
         "tris",
         "builder",
         "ms",
         "passes",
+        "upd ms",
         "refit",
+        "climbing",
         "SAH",
         "/emb2",
         "sah-bvh2t",
         "its SAH",
+        "leaf1",
         "embree2t",
         "kd GPU"
     );
