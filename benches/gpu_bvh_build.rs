@@ -24,15 +24,7 @@ use vkrt::gpu::{Context, Profile, Recorder};
 use vkrt::trace::gpu::GpuGeometry;
 use vkrt::trace::TraceGeometry;
 
-const PASSES: [&str; 7] = [
-    "lbvh.bounds",
-    "lbvh.morton",
-    "lbvh.sort",
-    "lbvh.karras",
-    "refit",
-    "ploc.init",
-    "ploc.rounds",
-];
+const PASSES: [&str; 7] = bvh::GPU_BUILD_PASSES;
 
 #[derive(serde::Serialize)]
 struct Row {

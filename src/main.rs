@@ -1170,22 +1170,18 @@ fn bvh_build_command(
         None
     };
     let equal = single.as_ref().map(|(t, _)| *t == tree);
-    let report = serde_json::json!({
+    let (shape, shape_line) = bvh_shape(&tree, &params);
+    let mut report = serde_json::json!({
         "kind": "sah_bvh",
         "primitives": g.primitive_count(),
         "build_ms": build_ms,
         "threads": threads,
         "scheme": "queue",
         "params": params,
-        "nodes": tree.nodes.len(),
-        "leaves": tree.leaf_count(),
-        "max_depth": tree.depth(),
-        "sah_cost": validate::sah_cost(&tree, &params),
-        "references": tree.refs.len(),
-        "bytes": tree.bytes(),
         "equal_to_single_thread": equal,
         "single_thread_ms": single.as_ref().map(|(_, ms)| *ms),
     });
+    report.as_object_mut().expect("an object").extend(shape);
     if json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
@@ -1193,14 +1189,7 @@ fn bvh_build_command(
             "{} primitives: CPU build {build_ms:.2} ms on {threads} threads (node queue)",
             g.primitive_count()
         );
-        println!(
-            "{} nodes, {} leaves, depth {}, SAH cost {:.3}, {} bytes",
-            tree.nodes.len(),
-            tree.leaf_count(),
-            tree.depth(),
-            validate::sah_cost(&tree, &params),
-            tree.bytes()
-        );
+        println!("{shape_line}");
         if let (Some((_, ms)), Some(eq)) = (&single, equal) {
             println!("one thread {ms:.1} ms, the same tree: {eq}");
         }
@@ -1240,18 +1229,10 @@ fn gpu_bvh_build_command(
         unreachable!("a GPU BVH")
     };
     validate::validate(&tree, &g.boxes).map_err(|e| format!("invalid {}: {e}", kind.name()))?;
-    let passes: serde_json::Map<String, serde_json::Value> = [
-        "lbvh.bounds",
-        "lbvh.morton",
-        "lbvh.sort",
-        "lbvh.karras",
-        "refit",
-        "ploc.init",
-        "ploc.rounds",
-    ]
-    .iter()
-    .filter_map(|p| Some((p.to_string(), prof.ms(p)?.into())))
-    .collect();
+    let passes: serde_json::Map<String, serde_json::Value> = vkrt::accel::bvh::GPU_BUILD_PASSES
+        .iter()
+        .filter_map(|p| Some((p.to_string(), prof.ms(p)?.into())))
+        .collect();
     let build_ms = prof.ms("build").unwrap_or(0.0);
     let bits = builder.lbvh_bits();
     let ploc_params = builder.ploc_params();
@@ -1265,22 +1246,18 @@ fn gpu_bvh_build_command(
     });
     let equal = twin.as_ref().map(|(t, _)| *t == tree);
     let params = BvhParams::default();
-    let report = serde_json::json!({
+    let (shape, shape_line) = bvh_shape(&tree, &params);
+    let mut report = serde_json::json!({
         "kind": kind.name(),
         "morton_bits": bits.spec(),
         "ploc_radius": ploc_params.map(|p| p.radius),
         "primitives": g.primitive_count(),
         "build_ms": build_ms,
         "passes_ms": passes,
-        "nodes": tree.nodes.len(),
-        "leaves": tree.leaf_count(),
-        "max_depth": tree.depth(),
-        "sah_cost": validate::sah_cost(&tree, &params),
-        "references": tree.refs.len(),
-        "bytes": tree.bytes(),
         "equal_to_cpu_twin": equal,
         "cpu_twin_ms": twin.as_ref().map(|(_, ms)| *ms),
     });
+    report.as_object_mut().expect("an object").extend(shape);
     if json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
@@ -1293,14 +1270,7 @@ fn gpu_bvh_build_command(
         for (name, ms) in &passes {
             println!("  {name:<12} {ms} ms");
         }
-        println!(
-            "{} nodes, {} leaves, depth {}, SAH cost {:.3}, {} bytes",
-            tree.nodes.len(),
-            tree.leaf_count(),
-            tree.depth(),
-            validate::sah_cost(&tree, &params),
-            tree.bytes()
-        );
+        println!("{shape_line}");
         if let (Some((_, ms)), Some(eq)) = (&twin, equal) {
             println!("CPU twin {ms:.1} ms, the same tree: {eq}");
         }
@@ -1309,6 +1279,33 @@ fn gpu_bvh_build_command(
         return Err(format!("the GPU {} differs from its CPU twin", kind.name()).into());
     }
     Ok(())
+}
+
+/// What `vkrt build --json` reports of a BVH's shape, and the same as a line of text.
+fn bvh_shape(
+    tree: &vkrt::accel::bvh::Bvh,
+    params: &vkrt::accel::bvh::BvhParams,
+) -> (serde_json::Map<String, serde_json::Value>, String) {
+    let sah = vkrt::accel::bvh::validate::sah_cost(tree, params);
+    let v = serde_json::json!({
+        "nodes": tree.nodes.len(),
+        "leaves": tree.leaf_count(),
+        "max_depth": tree.depth(),
+        "sah_cost": sah,
+        "references": tree.refs.len(),
+        "bytes": tree.bytes(),
+    });
+    let line = format!(
+        "{} nodes, {} leaves, depth {}, SAH cost {sah:.3}, {} bytes",
+        tree.nodes.len(),
+        tree.leaf_count(),
+        tree.depth(),
+        tree.bytes()
+    );
+    let serde_json::Value::Object(map) = v else {
+        unreachable!("an object")
+    };
+    (map, line)
 }
 
 /// Named triangle lists.

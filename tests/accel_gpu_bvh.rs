@@ -25,9 +25,14 @@ fn device_bvh(ctx: &Context, builder: &AccelBuilder, g: &TraceGeometry) -> Bvh {
     let mut rec = Recorder::new(ctx).unwrap();
     let (dev, _) = GpuGeometry::record_build(&mut rec, builder, g, 0).unwrap();
     rec.submit_and_wait().unwrap();
+    device_bvh_of(&dev)
+}
+
+/// A structure built on the device, read back.
+fn device_bvh_of(dev: &GpuGeometry) -> Bvh {
     match dev.accel.download().unwrap() {
         HostStructure::Bvh(b) => b,
-        HostStructure::KdTree(_) => unreachable!("an LBVH is a BVH"),
+        HostStructure::KdTree(_) => unreachable!("a GPU BVH"),
     }
 }
 
@@ -184,6 +189,20 @@ fn deep_chain() -> Vec<[Vec3; 3]> {
     tris
 }
 
+/// The deep chain's geometry, its LBVH built on the device, and the tree read back.
+fn deep_lbvh(ctx: &Context) -> (TraceGeometry, GpuGeometry, Bvh) {
+    let g = TraceGeometry::from_triangles(&deep_chain());
+    let builder = AccelBuilder::lbvh(ctx, MortonBits::Bits63).unwrap();
+    let dev = {
+        let mut rec = Recorder::new(ctx).unwrap();
+        let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
+        rec.submit_and_wait().unwrap();
+        dev
+    };
+    let tree = device_bvh_of(&dev);
+    (g, dev, tree)
+}
+
 #[test]
 fn trees_deeper_than_64_levels_trace_like_brute_force() {
     use vkrt::trace::bvh_cpu::{self, Traversal};
@@ -257,11 +276,7 @@ fn slanted_ray_in_a_deep_tree() {
     use vkrt::trace::gpu::{AccelTraversal, Tracer};
     use vkrt::trace::{cpu, Ray, TraceOptions};
     let Some(ctx) = context() else { return };
-    let g = TraceGeometry::from_triangles(&deep_chain());
-    let builder = AccelBuilder::lbvh(&ctx, MortonBits::Bits63).unwrap();
-    let mut rec = Recorder::new(&ctx).unwrap();
-    let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
-    rec.submit_and_wait().unwrap();
+    let (g, dev, _) = deep_lbvh(&ctx);
     let r = Ray::new(
         Vec3::new(0.009_917_641, -0.526_685_6, 8.012_146),
         Vec3::new(-0.009_584_308, 0.860_018_97, -8.0),

@@ -15,5 +15,17 @@ pub mod sah;
 pub mod validate;
 
 pub use layout::{Bvh, BvhNode, Child, NO_NODE};
+
+/// The GPU profiler scopes of the GPU BVH builds (LBVH: bounds, Morton codes, sort,
+/// topology, boxes; PLOC: the same sort, then its clusters and rounds).
+pub const GPU_BUILD_PASSES: [&str; 7] = [
+    "lbvh.bounds",
+    "lbvh.morton",
+    "lbvh.sort",
+    "lbvh.karras",
+    "refit",
+    "ploc.init",
+    "ploc.rounds",
+];
 pub use refit::refit;
 pub use sah::{build, build_timed, BvhError, BvhParams, Threading};
