@@ -10,20 +10,7 @@
 layout(local_size_x_id = 0) in;
 #extension GL_KHR_shader_subgroup_vote : require
 #include "common/grid.glsl"
-#include "common/kdtree.glsl"
-
-#define NO_NODE 0xffffffffu
-
-struct BvhNode {
-    vec3 a_min;
-    uint a_index;
-    vec3 a_max;
-    uint a_count;
-    vec3 b_min;
-    uint b_index;
-    vec3 b_max;
-    uint b_count;
-};
+#include "accel/bvh_node.glsl"
 
 layout(std430, binding = 0) coherent buffer Nodes { BvhNode nodes[]; };
 // References, then one parent link per node from `parents_at` on.
@@ -42,14 +29,6 @@ layout(std430, binding = 4) buffer SceneInfoBuf {
     uint parents_at;
 } info;
 layout(push_constant) uniform Push { uint n_nodes; } pc;
-
-vec3 vmin(vec3 a, vec3 b) {
-    return vec3(fmin_total(a.x, b.x), fmin_total(a.y, b.y), fmin_total(a.z, b.z));
-}
-
-vec3 vmax(vec3 a, vec3 b) {
-    return vec3(fmax_total(a.x, b.x), fmax_total(a.y, b.y), fmax_total(a.z, b.z));
-}
 
 // The box of a child (index, count); `lo`/`hi` hold its old box (kept for a missing child).
 void child_box(uint index, uint count, inout vec3 lo, inout vec3 hi) {

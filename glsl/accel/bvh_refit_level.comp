@@ -4,21 +4,9 @@
 // dispatch of the depth below refit before. Unions in the total order on ±0, as every refit.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "common/kdtree.glsl"
+#include "accel/bvh_node.glsl"
 
-#define NO_NODE 0xffffffffu
 #define MAX_DEPTH 128u
-
-struct BvhNode {
-    vec3 a_min;
-    uint a_index;
-    vec3 a_max;
-    uint a_count;
-    vec3 b_min;
-    uint b_index;
-    vec3 b_max;
-    uint b_count;
-};
 
 layout(std430, binding = 0) buffer Nodes { BvhNode nodes[]; };
 layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
@@ -34,14 +22,6 @@ layout(std430, binding = 5) buffer SceneInfoBuf {
     uint parents_at;
 } info;
 layout(push_constant) uniform Push { uint depth; } pc;
-
-vec3 vmin(vec3 a, vec3 b) {
-    return vec3(fmin_total(a.x, b.x), fmin_total(a.y, b.y), fmin_total(a.z, b.z));
-}
-
-vec3 vmax(vec3 a, vec3 b) {
-    return vec3(fmax_total(a.x, b.x), fmax_total(a.y, b.y), fmax_total(a.z, b.z));
-}
 
 void child_box(uint index, uint count, inout vec3 lo, inout vec3 hi) {
     if (count > 0u) {

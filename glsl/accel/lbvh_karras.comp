@@ -8,19 +8,7 @@
 // the common prefix of the indices). Boxes are left empty: `accel.bvh_refit` computes them.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-
-#define NO_NODE 0xffffffffu
-
-struct BvhNode {
-    vec3 a_min;
-    uint a_index;
-    vec3 a_max;
-    uint a_count;
-    vec3 b_min;
-    uint b_index;
-    vec3 b_max;
-    uint b_count;
-};
+#include "accel/bvh_node.glsl"
 
 layout(std430, binding = 0) writeonly buffer Nodes { BvhNode nodes[]; };
 // The sorted primitive ids (the leaves' references), then a parent link per node from n on.

@@ -2,7 +2,8 @@
 #ifndef VKRT_ACCEL_PLOC_COMMON_GLSL
 #define VKRT_ACCEL_PLOC_COMMON_GLSL
 
-#define NO_NODE 0xffffffffu
+#include "accel/bvh_node.glsl"
+
 // A cluster's child word: a leaf (one reference, at that sorted position) has the top bit.
 #define LEAF_BIT 0x80000000u
 
@@ -41,12 +42,5 @@ uvec3 dispatch_for(uint count, uint wg) {
     return uvec3(x, (groups + x - 1u) / x, 1u);
 }
 
-vec3 vmin3(vec3 a, vec3 b) {
-    return vec3(fmin_total(a.x, b.x), fmin_total(a.y, b.y), fmin_total(a.z, b.z));
-}
-
-vec3 vmax3(vec3 a, vec3 b) {
-    return vec3(fmax_total(a.x, b.x), fmax_total(a.y, b.y), fmax_total(a.z, b.z));
-}
 
 #endif

@@ -8,19 +8,8 @@
 #extension GL_KHR_shader_subgroup_basic : require
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "common/kdtree.glsl"
+#include "accel/bvh_node.glsl"
 #include "accel/ploc_common.glsl"
-
-struct BvhNode {
-    vec3 a_min;
-    uint a_index;
-    vec3 a_max;
-    uint a_count;
-    vec3 b_min;
-    uint b_index;
-    vec3 b_max;
-    uint b_count;
-};
 
 layout(std430, binding = 0) readonly buffer Src { Cluster src[]; };
 layout(std430, binding = 1) writeonly buffer Dst { Cluster dst[]; };
@@ -83,7 +72,7 @@ void main() {
         if (child_count(o.child) == 0u) {
             refs[pc.n + o.child] = idx;
         }
-        Cluster m = Cluster(vmin3(c.lo, o.lo), idx, vmax3(c.hi, o.hi), 0u);
+        Cluster m = Cluster(vmin(c.lo, o.lo), idx, vmax(c.hi, o.hi), 0u);
         dst[rank.y] = m;
         if (idx == 0u) {
             refs[pc.n] = NO_NODE;

@@ -24,7 +24,7 @@ uint pair_hash(uint lo, uint hi) {
 }
 
 float merged_area(Cluster a, Cluster b) {
-    precise vec3 d = vmax3(a.hi, b.hi) - vmin3(a.lo, b.lo);
+    precise vec3 d = vmax(a.hi, b.hi) - vmin(a.lo, b.lo);
     precise float s = d.x * d.y + d.y * d.z + d.z * d.x;
     return s;
 }

@@ -1,0 +1,30 @@
+// The BVH node the builders and refits write (`BvhNode` in src/accel/bvh/layout.rs, 64
+// bytes; the traversal's copy is in common/bvh.glsl), and box unions in the total order on
+// ±0 (fmin_total, common/kdtree.glsl), so every union is the CPU twins' bit for bit.
+#ifndef VKRT_ACCEL_BVH_NODE_GLSL
+#define VKRT_ACCEL_BVH_NODE_GLSL
+
+#include "common/kdtree.glsl"
+
+#define NO_NODE 0xffffffffu
+
+struct BvhNode {
+    vec3 a_min;
+    uint a_index;
+    vec3 a_max;
+    uint a_count;
+    vec3 b_min;
+    uint b_index;
+    vec3 b_max;
+    uint b_count;
+};
+
+vec3 vmin(vec3 a, vec3 b) {
+    return vec3(fmin_total(a.x, b.x), fmin_total(a.y, b.y), fmin_total(a.z, b.z));
+}
+
+vec3 vmax(vec3 a, vec3 b) {
+    return vec3(fmax_total(a.x, b.x), fmax_total(a.y, b.y), fmax_total(a.z, b.z));
+}
+
+#endif
