@@ -1,10 +1,10 @@
 #version 460
 // LBVH, pass 2: the Morton code of every primitive's centroid (CPU twin:
 // lbvh::morton_codes) as (high, low) words, x the most significant axis of each bit triple,
-// on a grid of 2^PER_AXIS cells per axis over the centroid box. The grid's size per axis is
-// the power of two 2^e covering the extent: scaling by a power of two is exact on every
-// device (a division is not: Vulkan allows 2.5 ulp), so the codes are the twin's on every
-// driver. Also writes the first sort's keys and the primitive ids the sorts carry.
+// on a cubic grid of 2^PER_AXIS cells per axis from the centroid box's minimum. The grid's
+// size is the power of two 2^e covering the largest extent: scaling by a power of two is
+// exact on every device (a division is not: Vulkan allows 2.5 ulp), so the codes are the
+// twin's on every driver. Also writes the first sort's keys and the primitive ids the sorts carry.
 layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint PER_AXIS = 21u;
 #include "common/grid.glsl"
@@ -18,8 +18,8 @@ layout(std430, binding = 4) writeonly buffer SortKeys { uint sort_keys[]; };
 layout(std430, binding = 5) writeonly buffer Ids { uint ids[]; };
 layout(push_constant) uniform Push { uint n; } pc;
 
-// 2^(PER_AXIS - e) with 2^(e-1) <= extent < 2^e, from the exponent bits; 0 for an axis
-// flatter than 2^-100 (no denormal reaches the scaling).
+// 2^(PER_AXIS - e) with 2^(e-1) <= extent < 2^e, from the exponent bits; 0 for a box
+// smaller than 2^-100 (no denormal reaches the scaling).
 float grid_scale(float extent) {
     if (!(extent >= uintBitsToFloat(27u << 23))) {
         return 0.0;
@@ -41,9 +41,10 @@ void main() {
     precise vec3 ext = hi - lo;
     vec3 c = centroid(boxes, i);
     float top = float((1u << PER_AXIS) - 1u);
+    float scale = grid_scale(max(max(ext.x, ext.y), ext.z));
     uvec3 q;
     for (uint a = 0u; a < 3u; a++) {
-        precise float u = (c[a] - lo[a]) * grid_scale(ext[a]);
+        precise float u = (c[a] - lo[a]) * scale;
         q[a] = uint(clamp(u, 0.0, top));
     }
     uvec2 code = uvec2(0u); // (high, low)

@@ -4,9 +4,12 @@
 //! (`glsl/accel/lbvh_*.comp` + `accel.bvh_refit`, [`super::lbvh_gpu`]): the same codes, the
 //! same stable order, the same topology and the same boxes, bit for bit.
 //!
-//! The Morton grid is a power of two per axis (`2^e >= extent`): scaling by a power of two is
-//! exact on every device, where a division is not (Vulkan allows 2.5 ulp for `a / b`), so the
-//! codes do not depend on the driver. It costs at most one bit of resolution per axis.
+//! The Morton grid is cubic, `2^e` cells of the same size on every axis with `2^e` at least
+//! the largest extent of the centroid box: cubic cells keep the curve's neighbourhoods the
+//! same in every direction (on the bunny, SAH cost 41.46 → 40.79 for the LBVH and 37.86 →
+//! 37.29 for PLOC against a grid stretched to each axis), and scaling by a power of two is
+//! exact on every device, where a division is not (Vulkan allows 2.5 ulp for `a / b`), so
+//! the codes do not depend on the driver. The power of two costs at most one bit.
 
 use glam::Vec3;
 
@@ -84,7 +87,7 @@ pub fn centroid_bounds(boxes: &[Aabb]) -> Aabb {
 const MIN_EXTENT: f32 = f32::from_bits(27 << 23); // 2^-100
 
 /// `2^(per_axis - e)` where `2^(e-1) <= extent < 2^e`, the scale onto the integer grid;
-/// 0 for an axis too flat to quantize. Built from the exponent bits, as the kernel does.
+/// 0 for a box too small to quantize (every centroid in one cell). Built from the exponent bits, as the kernel does.
 fn grid_scale(extent: f32, per_axis: u32) -> f32 {
     // NaN too.
     if extent.partial_cmp(&MIN_EXTENT).is_none_or(|o| o.is_lt()) {
@@ -108,12 +111,12 @@ pub fn morton_codes(boxes: &[Aabb], bits: MortonBits) -> Vec<(u32, u32)> {
     let cb = centroid_bounds(boxes);
     let per_axis = bits.per_axis();
     let ext = cb.max - cb.min;
-    let scale = [0, 1, 2].map(|k| grid_scale(ext[k], per_axis));
+    let scale = grid_scale(ext.max_element(), per_axis);
     boxes
         .iter()
         .map(|b| {
             let c = centroid(b);
-            let q = [0, 1, 2].map(|k| quantize(c[k], cb.min[k], scale[k], per_axis));
+            let q = [0, 1, 2].map(|k| quantize(c[k], cb.min[k], scale, per_axis));
             interleave(q, per_axis)
         })
         .collect()
