@@ -26,9 +26,12 @@ struct Cluster {
 #define ST_ARGS 8u        // + 3 * parity
 
 // The cluster index this invocation handles: subgroup-major, so that a subgroup's exclusive
-// add is the order of the clusters whatever the driver's mapping of local invocations.
+// add is the order of the clusters whatever the driver's mapping of local invocations. The
+// lanes per subgroup come from gl_NumSubgroups: lavapipe can report a gl_SubgroupSize larger
+// than the subgroups it runs (common/reduce_lanes.glsl).
 uint ordered_index(uint group) {
-    return group * gl_WorkGroupSize.x + gl_SubgroupID * gl_SubgroupSize + gl_SubgroupInvocationID;
+    uint lanes = gl_WorkGroupSize.x / gl_NumSubgroups;
+    return group * gl_WorkGroupSize.x + gl_SubgroupID * lanes + gl_SubgroupInvocationID;
 }
 
 // Indirect dispatch for `count` items in groups of `wg`, folded into y like
