@@ -263,7 +263,7 @@ enum Storage {
         /// Nodes and references of the built tree.
         counts: (usize, usize),
         /// The refit's schedule, for a structure built to be updated.
-        schedule: Option<RefitSchedule>,
+        schedule: Option<Box<RefitSchedule>>,
     },
 }
 
@@ -599,7 +599,7 @@ impl AccelBuilder {
                             refs: Buffer::new(ctx, "accel.bvh_refs", n + nodes)?,
                             counts: (0, 0),
                             schedule: if self.allow_update {
-                                Some(RefitSchedule::new(ctx, nodes)?)
+                                Some(Box::new(RefitSchedule::new(ctx, nodes)?))
                             } else {
                                 None
                             },
