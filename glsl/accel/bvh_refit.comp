@@ -10,7 +10,7 @@
 layout(local_size_x_id = 0) in;
 #extension GL_KHR_shader_subgroup_vote : require
 #include "common/grid.glsl"
-#include "accel/bvh_node.glsl"
+#include "common/bvh_node.glsl"
 
 layout(std430, binding = 0) coherent buffer Nodes { BvhNode nodes[]; };
 // References, then one parent link per node from `parents_at` on.
@@ -30,22 +30,7 @@ layout(std430, binding = 4) buffer SceneInfoBuf {
 } info;
 layout(push_constant) uniform Push { uint n_nodes; } pc;
 
-// The box of a child (index, count); `lo`/`hi` hold its old box (kept for a missing child).
-void child_box(uint index, uint count, inout vec3 lo, inout vec3 hi) {
-    if (count > 0u) {
-        lo = vec3(1.0 / 0.0);
-        hi = vec3(-1.0 / 0.0);
-        for (uint k = 0u; k < count; k++) {
-            uint p = refs[index + k];
-            lo = vmin(lo, vec3(boxes[6u * p], boxes[6u * p + 1u], boxes[6u * p + 2u]));
-            hi = vmax(hi, vec3(boxes[6u * p + 3u], boxes[6u * p + 4u], boxes[6u * p + 5u]));
-        }
-    } else if (index != NO_NODE) {
-        BvhNode c = nodes[index];
-        lo = vmin(c.a_min, c.b_min);
-        hi = vmax(c.a_max, c.b_max);
-    }
-}
+#include "accel/bvh_refit.glsl"
 
 uint node_children(BvhNode n) {
     return uint(n.a_count == 0u && n.a_index != NO_NODE) + uint(n.b_count == 0u && n.b_index != NO_NODE);

@@ -4,7 +4,7 @@
 // dispatch of the depth below refit before. Unions in the total order on ±0, as every refit.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "accel/bvh_node.glsl"
+#include "common/bvh_node.glsl"
 
 #define MAX_DEPTH 128u
 
@@ -23,21 +23,7 @@ layout(std430, binding = 5) buffer SceneInfoBuf {
 } info;
 layout(push_constant) uniform Push { uint depth; } pc;
 
-void child_box(uint index, uint count, inout vec3 lo, inout vec3 hi) {
-    if (count > 0u) {
-        lo = vec3(1.0 / 0.0);
-        hi = vec3(-1.0 / 0.0);
-        for (uint k = 0u; k < count; k++) {
-            uint p = refs[index + k];
-            lo = vmin(lo, vec3(boxes[6u * p], boxes[6u * p + 1u], boxes[6u * p + 2u]));
-            hi = vmax(hi, vec3(boxes[6u * p + 3u], boxes[6u * p + 4u], boxes[6u * p + 5u]));
-        }
-    } else if (index != NO_NODE) {
-        BvhNode c = nodes[index];
-        lo = vmin(c.a_min, c.b_min);
-        hi = vmax(c.a_max, c.b_max);
-    }
-}
+#include "accel/bvh_refit.glsl"
 
 void main() {
     uint i = linear_invocation_id();

@@ -12,20 +12,10 @@
 #ifndef VKRT_COMMON_BVH_GLSL
 #define VKRT_COMMON_BVH_GLSL
 
-#define NO_NODE 0xffffffffu
+#include "common/bvh_node.glsl"
+
 #define BVH_MAX_DEPTH 128u
 
-// 64 bytes: `BvhNode` in src/accel/bvh/layout.rs.
-struct BvhNode {
-    vec3 a_min;
-    uint a_index;
-    vec3 a_max;
-    uint a_count;
-    vec3 b_min;
-    uint b_index;
-    vec3 b_max;
-    uint b_count;
-};
 
 // The same binding as the kd-tree's nodes: one structure is bound at a time.
 layout(std430, binding = GEOM_BINDING + 0) readonly buffer BvhNodes { BvhNode bvh_nodes[]; };

@@ -1,8 +1,8 @@
 // The BVH node the builders and refits write (`BvhNode` in src/accel/bvh/layout.rs, 64
-// bytes; the traversal's copy is in common/bvh.glsl), and box unions in the total order on
+// bytes; read by the traversal, common/bvh.glsl), and box unions in the total order on
 // ±0 (fmin_total, common/kdtree.glsl), so every union is the CPU twins' bit for bit.
-#ifndef VKRT_ACCEL_BVH_NODE_GLSL
-#define VKRT_ACCEL_BVH_NODE_GLSL
+#ifndef VKRT_COMMON_BVH_NODE_GLSL
+#define VKRT_COMMON_BVH_NODE_GLSL
 
 #include "common/kdtree.glsl"
 
