@@ -7,18 +7,15 @@
 #[path = "../examples/embed.rs"]
 mod embed;
 
-use glam::Vec3;
+mod common;
+
 use vkrt::gpu::Validation;
 use vkrt::trace::{cpu, TraceGeometry};
 
 #[test]
 fn the_embedding_example_traces_like_brute_force_and_validation_stays_silent() {
     let sphere = vkrt::scene::gen::icosphere(3).unwrap();
-    let tris: Vec<[Vec3; 3]> = sphere
-        .indices
-        .iter()
-        .map(|t| t.map(|i| sphere.positions[i as usize]))
-        .collect();
+    let tris = common::mesh_triangles(&sphere);
     let rays = embed::rays_toward(&tris, 1000, 7);
     // On when the layer is installed and VKRT_VALIDATION is not 0, as in every GPU test.
     let summary = match embed::run(&tris, &rays, Validation::FromEnv) {

@@ -2,6 +2,8 @@
 //! command buffer hands them to vkrt, records vkrt's work into its own command buffer,
 //! submits it itself — and everything it owns is still alive afterwards.
 
+mod common;
+
 use std::sync::{Arc, Mutex};
 
 use ash::vk;
@@ -240,11 +242,7 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
 /// equal brute force.
 fn embedded_build_and_trace(r: &Renderer, ctx: &Context, kind: AccelKind) {
     let sphere = vkrt::scene::gen::icosphere(3).unwrap();
-    let tris: Vec<[Vec3; 3]> = sphere
-        .indices
-        .iter()
-        .map(|t| t.map(|i| sphere.positions[i as usize]))
-        .collect();
+    let tris = common::mesh_triangles(&sphere);
     let g = TraceGeometry::from_triangles(&tris);
     let rays: Vec<Ray> = (0..500)
         .map(|i| {
