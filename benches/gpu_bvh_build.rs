@@ -6,7 +6,8 @@
 //! kd-tree (seed 001), the CPU SAH BVH on 2 threads (seed 003, node queue, full sweep) and
 //! Embree 3's build on 2 threads (when `libembree-dev` is installed), with the SAH cost of
 //! each BVH under one cost model (`validate::sah_cost`, `BvhParams::default`) — the SAH
-//! BVH's also with leaves of one primitive, as the GPU builders make them.
+//! BVH's also with leaves of one primitive. The GPU builders run with their SAH leaf
+//! collapse (leaves up to 4, the default) and without it (`/l1`: the fast build).
 //!
 //! Scenes: the Stanford bunny (../shared/scenes), icospheres of 100K, 200K, 500K, 1M, 2M.
 //!
@@ -24,7 +25,7 @@ use vkrt::gpu::{Context, Profile, Recorder};
 use vkrt::trace::gpu::GpuGeometry;
 use vkrt::trace::TraceGeometry;
 
-const PASSES: [&str; 7] = bvh::GPU_BUILD_PASSES;
+const PASSES: [&str; 8] = bvh::GPU_BUILD_PASSES;
 
 #[derive(serde::Serialize)]
 struct Row {
@@ -140,20 +141,28 @@ fn main() {
         &[100_000, 200_000, 500_000, 1_000_000, 2_000_000]
     };
     let scenes = embree::bench_scenes(sizes);
-    let mut gpu_builders: Vec<(String, AccelBuilder)> = [MortonBits::Bits63, MortonBits::Bits30]
-        .into_iter()
-        .map(|b| {
-            let name = format!("lbvh-{}", b.spec());
-            (name, AccelBuilder::lbvh(&ctx, b).expect("LBVH builder"))
-        })
-        .collect();
-    for radius in [4, 8, 16] {
+    // The defaults collapse leaves by the SAH (up to 4 primitives); `/l1` keeps one
+    // primitive per leaf (no collapse: the fast build).
+    let mut gpu_builders: Vec<(String, AccelBuilder)> = Vec::new();
+    for (bits, leaf) in [
+        (MortonBits::Bits63, 4),
+        (MortonBits::Bits63, 1),
+        (MortonBits::Bits30, 4),
+    ] {
+        let mut b = AccelBuilder::lbvh(&ctx, bits).expect("LBVH builder");
+        b.bvh_params.max_leaf_prims = leaf;
+        let suffix = if leaf == 1 { "/l1" } else { "" };
+        gpu_builders.push((format!("lbvh-{}{suffix}", bits.spec()), b));
+    }
+    for (radius, leaf) in [(4, 4), (8, 4), (8, 1), (16, 4)] {
         let params = PlocParams {
             radius,
             ..PlocParams::default()
         };
-        let b = AccelBuilder::ploc(&ctx, params).expect("PLOC builder");
-        gpu_builders.push((format!("ploc-r{radius}"), b));
+        let mut b = AccelBuilder::ploc(&ctx, params).expect("PLOC builder");
+        b.bvh_params.max_leaf_prims = leaf;
+        let suffix = if leaf == 1 { "/l1" } else { "" };
+        gpu_builders.push((format!("ploc-r{radius}{suffix}"), b));
     }
     let kd = (!quick).then(|| AccelBuilder::new(&ctx, AccelKind::KdTree).expect("kd builder"));
     let params = BvhParams::default();
@@ -234,7 +243,7 @@ fn main() {
     );
     let f = |v: Option<f64>| v.map_or("-".to_string(), |x| format!("{x:.1}"));
     println!(
-        "{:<14} {:>8} {:<8} {:>8} {:>30} {:>7} {:>7} {:>8} {:>6} {:>6} {:>9} {:>7} {:>7} {:>9} {:>9}",
+        "{:<14} {:>8} {:<10} {:>8} {:>36} {:>7} {:>7} {:>8} {:>6} {:>6} {:>7} {:>9} {:>7} {:>7} {:>9} {:>9}",
         "scene",
         "tris",
         "builder",
@@ -245,6 +254,7 @@ fn main() {
         "climbing",
         "SAH",
         "/emb2",
+        "/sweep",
         "sah-bvh2t",
         "its SAH",
         "leaf1",
@@ -259,7 +269,7 @@ fn main() {
             .map(|p| format!("{:.1}", p.1))
             .collect();
         println!(
-            "{:<14} {:>8} {:<8} {:>8.1} {:>30} {:>7.1} {:>7.1} {:>8.1} {:>6.1} {:>6} {:>9.1} {:>7.1} {:>7.1} {:>9} {:>9}",
+            "{:<14} {:>8} {:<10} {:>8.1} {:>36} {:>7.1} {:>7.1} {:>8.1} {:>6.1} {:>6} {:>7.3} {:>9.1} {:>7.1} {:>7.1} {:>9} {:>9}",
             r.scene,
             r.triangles,
             r.builder,
@@ -270,6 +280,7 @@ fn main() {
             r.refit_climb_ms,
             r.sah_cost,
             f(r.embree_2t_ms.map(|e| r.build_ms / e)),
+            r.sah_cost / r.sah_bvh_sah_cost,
             r.sah_bvh_2t_ms,
             r.sah_bvh_sah_cost,
             r.sah_bvh_leaf1_sah_cost,

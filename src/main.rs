@@ -1242,6 +1242,7 @@ fn gpu_bvh_build_command(
             AccelKind::Ploc => ploc::build(&g.boxes, &ploc_params.unwrap_or_default()).0,
             _ => lbvh::build(&g.boxes, bits),
         };
+        let twin = vkrt::accel::bvh::collapse::collapse(&twin, &builder.bvh_params);
         (twin, t.elapsed().as_secs_f64() * 1e3)
     });
     let equal = twin.as_ref().map(|(t, _)| *t == tree);

@@ -9,6 +9,7 @@ mod common;
 
 use common::{assert_silent, context, edge_sizes, same_answer, Rng};
 use glam::{Vec3, Vec4};
+use vkrt::accel::bvh::collapse::collapse;
 use vkrt::accel::bvh::lbvh::{self, MortonBits};
 use vkrt::accel::bvh::{self, BvhParams, Threading};
 use vkrt::accel::device::{AccelBuilder, AccelKind, AccelStructure, HostStructure};
@@ -93,8 +94,14 @@ fn device_builds_equal_their_host_twins_and_fit_their_sizes() {
                     }
                     HostStructure::Bvh(b) => {
                         let twin = match kind {
-                            AccelKind::Lbvh => lbvh::build(&g.boxes, MortonBits::default()),
-                            AccelKind::Ploc => bvh::ploc::build(&g.boxes, &Default::default()).0,
+                            AccelKind::Lbvh => collapse(
+                                &lbvh::build(&g.boxes, MortonBits::default()),
+                                &BvhParams::default(),
+                            ),
+                            AccelKind::Ploc => collapse(
+                                &bvh::ploc::build(&g.boxes, &Default::default()).0,
+                                &BvhParams::default(),
+                            ),
                             _ => bvh::build(&g.boxes, &BvhParams::default(), Threading::Single)
                                 .unwrap(),
                         };

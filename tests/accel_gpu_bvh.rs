@@ -12,6 +12,8 @@ mod common;
 
 use common::{assert_silent, context, edge_sizes, Rng};
 use glam::Vec3;
+use vkrt::accel::bvh::collapse::collapse;
+use vkrt::accel::bvh::collapse_gpu::MAX_COLLAPSE_LEAF;
 use vkrt::accel::bvh::lbvh::{self, MortonBits};
 use vkrt::accel::bvh::ploc::{self, PlocParams};
 use vkrt::accel::bvh::validate::validate;
@@ -89,27 +91,46 @@ fn inputs(subgroup: usize) -> Vec<(String, Vec<[Vec3; 3]>)> {
 /// A GPU builder configuration, its name and its CPU twin.
 type Builder = (String, AccelBuilder, Box<dyn Fn(&TraceGeometry) -> Bvh>);
 
-/// Every GPU builder configuration with its CPU twin.
+/// Every GPU builder configuration with its CPU twin (the tree, then the SAH leaf collapse).
 fn builders(ctx: &Context) -> Vec<Builder> {
     let mut out: Vec<Builder> = Vec::new();
-    for bits in [MortonBits::Bits63, MortonBits::Bits30] {
+    // Leaves of up to 4 (the default), 1 (no collapse) and 32 (the largest the GPU makes).
+    for (bits, leaf) in [
+        (MortonBits::Bits63, 4),
+        (MortonBits::Bits30, 4),
+        (MortonBits::Bits63, 1),
+        (MortonBits::Bits63, MAX_COLLAPSE_LEAF),
+    ] {
+        let mut builder = AccelBuilder::lbvh(ctx, bits).unwrap();
+        builder.bvh_params.max_leaf_prims = leaf;
+        let params = builder.bvh_params;
         out.push((
-            format!("LBVH {bits:?}"),
-            AccelBuilder::lbvh(ctx, bits).unwrap(),
-            Box::new(move |g| lbvh::build(&g.boxes, bits)),
+            format!("LBVH {bits:?}, leaves <= {leaf}"),
+            builder,
+            Box::new(move |g| collapse(&lbvh::build(&g.boxes, bits), &params)),
         ));
     }
     // The last: two rounds only, then the pairing fallback finishes the tree.
-    for (radius, max_rounds) in [(4, None), (8, None), (16, None), (8, Some(2))] {
+    for (radius, max_rounds, leaf) in [
+        (4, None, 4),
+        (8, None, 4),
+        (16, None, 4),
+        (8, Some(2), 4),
+        (8, None, 1),
+        (8, None, MAX_COLLAPSE_LEAF),
+    ] {
         let params = PlocParams {
             radius,
             max_rounds,
             ..PlocParams::default()
         };
+        let mut builder = AccelBuilder::ploc(ctx, params).unwrap();
+        builder.bvh_params.max_leaf_prims = leaf;
+        let leaves = builder.bvh_params;
         out.push((
-            format!("PLOC r = {radius}, rounds {max_rounds:?}"),
-            AccelBuilder::ploc(ctx, params).unwrap(),
-            Box::new(move |g| ploc::build(&g.boxes, &params).0),
+            format!("PLOC r = {radius}, rounds {max_rounds:?}, leaves <= {leaf}"),
+            builder,
+            Box::new(move |g| collapse(&ploc::build(&g.boxes, &params).0, &leaves)),
         ));
     }
     out
@@ -141,14 +162,25 @@ fn gpu_builders_equal_their_cpu_twins_bit_for_bit() {
 #[test]
 fn equal_codes_fall_back_to_the_index_and_stay_shallow() {
     // 4096 primitives in one point: one code, so Karras's index rule alone shapes the tree,
-    // which must be balanced (depth log2 n + 1), not a list.
+    // which must be balanced (depth log2 n + 1 with a primitive per leaf), not a list.
     let Some(ctx) = context() else { return };
     let p = Vec3::splat(-3.0);
     let g = TraceGeometry::from_triangles(&vec![[p, p, p]; 4096]);
-    let builder = AccelBuilder::lbvh(&ctx, MortonBits::Bits63).unwrap();
+    let mut builder = AccelBuilder::lbvh(&ctx, MortonBits::Bits63).unwrap();
+    builder.bvh_params.max_leaf_prims = 1;
     let gpu = device_bvh(&ctx, &builder, &g);
     validate(&gpu, &g.boxes).unwrap();
     assert_eq!(gpu.depth(), 12);
+    // The SAH collapse (leaves of up to 4 by default; every box has area 0, so every leaf
+    // of 4 is no dearer) takes two levels off.
+    let collapsed = device_bvh(
+        &ctx,
+        &AccelBuilder::lbvh(&ctx, MortonBits::Bits63).unwrap(),
+        &g,
+    );
+    validate(&collapsed, &g.boxes).unwrap();
+    assert_eq!(collapsed.depth(), 10);
+    assert_eq!(collapsed.leaf_count(), 1024);
     assert_silent(&ctx);
 }
 

@@ -38,7 +38,8 @@ uint node_children(BvhNode n) {
 
 void main() {
     uint i = linear_invocation_id();
-    bool climbing = i < pc.n_nodes && node_children(nodes[i]) == 0u;
+    // Slots a leaf collapse freed (parent DEAD) hold no node.
+    bool climbing = i < pc.n_nodes && refs[info.parents_at + i] != DEAD && node_children(nodes[i]) == 0u;
     uint cur = i;
     // Rounds in subgroup-uniform control flow, every memory barrier reached by every lane:
     // Mesa 22.3's lavapipe makes memoryBarrierBuffer (or an atomic with acquire/release

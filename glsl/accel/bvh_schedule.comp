@@ -6,7 +6,8 @@
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 
-#define NO_NODE 0xffffffffu
+#include "common/bvh_node.glsl"
+
 #define MAX_DEPTH 128u
 
 layout(std430, binding = 0) readonly buffer Refs { uint refs[]; };
@@ -23,6 +24,12 @@ void main() {
     }
     uint depth = 0u;
     uint p = refs[pc.parents_at + i];
+    if (p == DEAD) {
+        // A slot the leaf collapse freed: sorted after every depth, refit at none.
+        keys[i] = MAX_DEPTH;
+        order[i] = i;
+        return;
+    }
     while (p != NO_NODE && depth < MAX_DEPTH - 1u) {
         depth++;
         p = refs[pc.parents_at + p];

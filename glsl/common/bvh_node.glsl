@@ -7,6 +7,8 @@
 #include "common/kdtree.glsl"
 
 #define NO_NODE 0xffffffffu
+// The parent link of a node slot a leaf collapse freed (collapse::DEAD).
+#define DEAD 0xfffffffeu
 
 struct BvhNode {
     vec3 a_min;

@@ -15,6 +15,8 @@
 //! host's copy of the primitive boxes and records the upload of its nodes. Downloading a
 //! structure ([`AccelStructure::download`]) is for tests and tools only.
 
+use crate::accel::bvh::collapse::{self, DEAD};
+use crate::accel::bvh::collapse_gpu::{CollapseKernels, CollapseScratch};
 use crate::accel::bvh::lbvh::MortonBits;
 use crate::accel::bvh::lbvh_gpu::LbvhBuilder;
 use crate::accel::bvh::ploc::PlocParams;
@@ -367,11 +369,14 @@ impl AccelStructure {
                 ..
             } => {
                 let mut nodes = nodes.download()?;
-                nodes.truncate(*n_nodes);
                 let all = refs.download()?;
+                let parents = &all[*n_refs..*n_refs + *n_nodes];
+                // The slots a leaf collapse freed are at the tail.
+                let live = parents.iter().take_while(|&&p| p != DEAD).count();
+                nodes.truncate(live);
                 Ok(HostStructure::Bvh(Bvh {
                     nodes,
-                    parents: all[*n_refs..*n_refs + *n_nodes].to_vec(),
+                    parents: parents[..live].to_vec(),
                     refs: all[..*n_refs].to_vec(),
                     bounds: bounds(*n_refs == 0),
                 }))
@@ -397,6 +402,9 @@ pub struct AccelBuilder {
     ploc: Option<PlocBuilder>,
     /// `accel.bvh_refit` (BVH kinds).
     refit: Option<Arc<Kernel>>,
+    /// The SAH leaf collapse of the GPU builders' trees (LBVH, PLOC), with `bvh_params`'
+    /// costs and leaf size (`max_leaf_prims = 1` keeps one primitive per leaf).
+    collapse: Option<CollapseKernels>,
     pub kd_params: SahParams,
     pub bvh_params: BvhParams,
     pub threading: Threading,
@@ -454,6 +462,12 @@ impl AccelBuilder {
             level_refit: match kind {
                 AccelKind::KdTree => None,
                 _ => Some(LevelRefit::new(ctx)?),
+            },
+            collapse: match kind {
+                AccelKind::Lbvh | AccelKind::Ploc => {
+                    Some(CollapseKernels::new(ctx, refit_workgroup(ctx))?)
+                }
+                _ => None,
             },
             allow_update: false,
             kd_params: SahParams::default(),
@@ -530,9 +544,10 @@ impl AccelBuilder {
             }
             AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => {
                 let nodes = bvh_nodes(n) as u64;
+                let collapse = self.collapse.as_ref().map_or(0, |c| c.scratch_bytes(n));
                 let build_scratch_bytes = match (&self.lbvh, &self.ploc) {
-                    (Some(l), _) => l.scratch_bytes(n) + nodes * 4,
-                    (_, Some(p)) => p.scratch_bytes(n) + nodes * 4,
+                    (Some(l), _) => l.scratch_bytes(n) + nodes * 4 + collapse,
+                    (_, Some(p)) => p.scratch_bytes(n) + nodes * 4 + collapse,
                     _ => 0,
                 };
                 let (schedule, schedule_scratch) = match (&self.level_refit, self.allow_update) {
@@ -580,14 +595,20 @@ impl AccelBuilder {
             }
             AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => {
                 let nodes = bvh_nodes(n);
+                let collapse = |c: &Option<CollapseKernels>| -> Result<CollapseScratch> {
+                    CollapseKernels::check(&self.bvh_params)?;
+                    c.as_ref().expect("the collapse kernels").scratch(ctx, n)
+                };
                 let scratch = match (&self.lbvh, &self.ploc) {
                     (Some(l), _) => AccelScratch::Lbvh(Box::new(LbvhScratch {
                         topology: l.scratch(ctx, n)?,
                         visits: Buffer::new(ctx, "accel.lbvh.visits", nodes)?,
+                        collapse: collapse(&self.collapse)?,
                     })),
                     (_, Some(p)) => AccelScratch::Ploc(Box::new(PlocDeviceScratch {
                         build: p.scratch(ctx, n)?,
                         visits: Buffer::new(ctx, "accel.ploc.visits", nodes)?,
+                        collapse: collapse(&self.collapse)?,
                     })),
                     _ => AccelScratch::None,
                 };
@@ -691,12 +712,23 @@ impl AccelBuilder {
                 let n_nodes = if n == 0 { 0 } else { bvh_nodes(n) };
                 rec.upload(&out.info, &[prims.info(&Aabb::EMPTY, n as u32)])?;
                 rec.transfer_to_compute();
-                lbvh.record_topology(rec, &prims.boxes, n, &s.topology, nodes, refs);
+                // The tree goes to the collapse's scratch where it collapses.
+                let collapsing = collapse::applies(n, &self.bvh_params);
+                let (tree_nodes, tree_refs) = match collapsing {
+                    true => s.collapse.tree(),
+                    false => (&*nodes, &*refs),
+                };
+                lbvh.record_topology(rec, &prims.boxes, n, &s.topology, tree_nodes, tree_refs);
                 *counts = (n_nodes, n);
                 let refit = self.refit.as_ref().expect("the refit kernel");
                 record_refit_nodes(
-                    rec, refit, prims, nodes, refs, &s.visits, &out.info, n_nodes,
+                    rec, refit, prims, tree_nodes, tree_refs, &s.visits, &out.info, n_nodes,
                 );
+                if collapsing {
+                    let collapse = self.collapse.as_ref().expect("the collapse kernels");
+                    let p = &self.bvh_params;
+                    collapse.record(rec, n, &s.visits, &s.collapse, p, nodes, refs);
+                }
                 Ok(RecordedBuild::default())
             }
             (
@@ -713,7 +745,16 @@ impl AccelBuilder {
                 rec.upload(&out.info, &[prims.info(&Aabb::EMPTY, n as u32)])?;
                 rec.transfer_to_compute();
                 *counts = (n_nodes, n);
-                if n >= 2 {
+                if collapse::applies(n, &self.bvh_params) {
+                    // The tree goes to the collapse's scratch, and collapses into `nodes`.
+                    let (tree_nodes, tree_refs) = s.collapse.tree();
+                    let info = &out.info;
+                    ploc.record_build(rec, &prims.boxes, n, &s.build, tree_nodes, tree_refs, info);
+                    rec.compute_to_compute();
+                    let collapse = self.collapse.as_ref().expect("the collapse kernels");
+                    let p = &self.bvh_params;
+                    collapse.record(rec, n, &s.visits, &s.collapse, p, nodes, refs);
+                } else if n >= 2 {
                     ploc.record_build(rec, &prims.boxes, n, &s.build, nodes, refs, &out.info);
                 } else {
                     ploc.record_small(rec, &prims.boxes, n, &s.build, nodes, refs);
@@ -801,16 +842,20 @@ fn bvh_nodes(n: usize) -> usize {
     n.saturating_sub(1).max(1)
 }
 
-/// PLOC build scratch, and the refit's visit counters for the one-primitive tree.
+/// PLOC build scratch, the visit counters (the one-primitive tree's refit, the collapse)
+/// and the collapse's.
 pub struct PlocDeviceScratch {
     build: PlocScratch,
     visits: Buffer<u32>,
+    collapse: CollapseScratch,
 }
 
-/// LBVH build scratch: the topology's, and the visit counters of the boxes' refit.
+/// LBVH build scratch: the topology's, the visit counters of the boxes' refit and the
+/// collapse, and the collapse's.
 pub struct LbvhScratch {
     topology: crate::accel::bvh::lbvh_gpu::LbvhScratch,
     visits: Buffer<u32>,
+    collapse: CollapseScratch,
 }
 
 /// Records `accel.bvh_refit` over the first `n_nodes` nodes (nothing for 0), in a scope

@@ -7,6 +7,7 @@ use glam::{Vec3, Vec4};
 use super::plan::Plan;
 use super::types::*;
 use super::{RayCounts, RenderAccel, RenderScene};
+use crate::accel::bvh::collapse::collapse;
 use crate::accel::bvh::Threading;
 use crate::accel::device::AccelKind;
 use crate::trace::bvh_cpu;
@@ -111,12 +112,15 @@ fn host_twin(kind: AccelKind, g: &TraceGeometry) -> RenderAccel {
             crate::accel::bvh::build(&g.boxes, &Default::default(), Threading::all_cores())
                 .expect("the scene's boxes are finite"),
         ),
-        AccelKind::Lbvh => {
-            RenderAccel::Bvh(crate::accel::bvh::lbvh::build(&g.boxes, Default::default()))
-        }
-        AccelKind::Ploc => {
-            RenderAccel::Bvh(crate::accel::bvh::ploc::build(&g.boxes, &Default::default()).0)
-        }
+        // The GPU builders' trees with their SAH leaf collapse, as AccelBuilder records them.
+        AccelKind::Lbvh => RenderAccel::Bvh(collapse(
+            &crate::accel::bvh::lbvh::build(&g.boxes, Default::default()),
+            &Default::default(),
+        )),
+        AccelKind::Ploc => RenderAccel::Bvh(collapse(
+            &crate::accel::bvh::ploc::build(&g.boxes, &Default::default()).0,
+            &Default::default(),
+        )),
     }
 }
 

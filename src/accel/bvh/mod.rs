@@ -1,9 +1,12 @@
 //! Bounding volume hierarchies: the binary two-boxes-per-node layout the traversal reads
 //! ([`layout`]), seed 003's multithreaded CPU SAH builder ([`sah`]), the refit that follows
 //! moved primitives ([`refit`], CPU twin of the GPU kernel), and a structural validator
-//! with the SAH cost of a built tree ([`validate`]).
+//! with the SAH cost of a built tree ([`validate`]); the GPU builders' LBVH ([`lbvh`]) and
+//! PLOC ([`ploc`]) with the SAH leaf collapse of their trees ([`collapse`]).
 
 pub mod bench;
+pub mod collapse;
+pub mod collapse_gpu;
 pub mod layout;
 pub mod lbvh;
 pub mod lbvh_gpu;
@@ -17,8 +20,9 @@ pub mod validate;
 pub use layout::{Bvh, BvhNode, Child, NO_NODE};
 
 /// The GPU profiler scopes of the GPU BVH builds (LBVH: bounds, Morton codes, sort,
-/// topology, boxes; PLOC: the same sort, then its clusters and rounds).
-pub const GPU_BUILD_PASSES: [&str; 7] = [
+/// topology, boxes; PLOC: the same sort, then its clusters and rounds; both: the SAH leaf
+/// collapse).
+pub const GPU_BUILD_PASSES: [&str; 8] = [
     "lbvh.bounds",
     "lbvh.morton",
     "lbvh.sort",
@@ -26,6 +30,7 @@ pub const GPU_BUILD_PASSES: [&str; 7] = [
     "refit",
     "ploc.init",
     "ploc.rounds",
+    "collapse",
 ];
 pub use refit::refit;
 pub use sah::{build, build_timed, BvhError, BvhParams, Threading};

@@ -97,13 +97,14 @@ impl LevelRefit {
             let b: [&dyn BufferArg; 4] = [refs, &scratch.keys, &schedule.order, &schedule.levels];
             rec.dispatch(&self.schedule, groups, &b, &[n_nodes as u32, parents_at]);
             rec.compute_to_compute();
-            // Depths fit 7 bits (MAX_TRAVERSAL_DEPTH = 128).
+            // Depths fit 7 bits (MAX_TRAVERSAL_DEPTH = 128), and the key of a slot the
+            // leaf collapse freed, 128, the eighth.
             self.sort.record(
                 rec,
                 &scratch.keys,
                 &schedule.order,
                 n_nodes,
-                7,
+                8,
                 &scratch.sort,
             );
             rec.compute_to_compute();

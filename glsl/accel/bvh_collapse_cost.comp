@@ -1,0 +1,83 @@
+#version 460
+// The SAH leaf collapse's bottom-up pass (CPU twin: collapse::costs): every node's primitive
+// count and SAH cost, and whether it becomes a leaf of its parent — at most `max_leaf`
+// primitives and `C_isect·A·n <= C_trav·A + cost(a) + cost(b)`; the root never does. It climbs
+// like the refit (accel/bvh_refit.comp): invocations whose node has only leaf children start,
+// and the last child to arrive at a parent (an atomic visit counter) decides it, so nothing
+// waits on another invocation. A child's words are visible before its arrival is counted.
+layout(local_size_x_id = 0) in;
+#extension GL_KHR_shader_subgroup_vote : require
+#include "common/grid.glsl"
+#include "accel/bvh_collapse.glsl"
+
+layout(std430, binding = 0) readonly buffer Nodes { BvhNode nodes[]; };
+// References, then one parent link per node from `parents_at` on.
+layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
+// One counter per node, zero before the dispatch.
+layout(std430, binding = 2) coherent buffer Visits { uint visits[]; };
+layout(std430, binding = 3) coherent buffer Costs { uint costs[]; };
+layout(push_constant) uniform Push {
+    uint n_nodes;
+    uint parents_at;
+    uint max_leaf;
+    float c_trav;
+    float c_isect;
+} pc;
+
+uint node_children(BvhNode n) {
+    return uint(n.a_count == 0u && n.a_index != NO_NODE) + uint(n.b_count == 0u && n.b_index != NO_NODE);
+}
+
+// One child's primitives and SAH cost (collapse::node_cost).
+void child_cost(uint index, uint count, vec3 lo, vec3 hi, inout uint n, out float cost) {
+    cost = 0.0;
+    if (count > 0u) {
+        n += count;
+        precise float c = pc.c_isect * half_area(lo, hi) * float(count);
+        cost = c;
+    } else if (index != NO_NODE) {
+        n += costs[COST_COUNT(index)];
+        cost = uintBitsToFloat(costs[COST_SAH(index)]);
+    }
+}
+
+void decide(uint i) {
+    BvhNode node = nodes[i];
+    uint n = 0u;
+    float ca, cb;
+    child_cost(node.a_index, node.a_count, node.a_min, node.a_max, n, ca);
+    child_cost(node.b_index, node.b_count, node.b_min, node.b_max, n, cb);
+    float area = half_area(vmin(node.a_min, node.b_min), vmax(node.a_max, node.b_max));
+    precise float split = pc.c_trav * area + ca + cb;
+    precise float leaf = pc.c_isect * area * float(n);
+    bool collapse = i != 0u && n <= pc.max_leaf && leaf <= split;
+    costs[COST_COUNT(i)] = n;
+    costs[COST_SAH(i)] = floatBitsToUint(collapse ? leaf : split);
+    costs[COST_COLLAPSE(i)] = uint(collapse);
+}
+
+void main() {
+    uint i = linear_invocation_id();
+    bool climbing = i < pc.n_nodes && node_children(nodes[i]) == 0u;
+    uint cur = i;
+    for (uint round = 0u; round <= pc.n_nodes; round++) {
+        if (!subgroupAny(climbing)) {
+            break;
+        }
+        if (climbing) {
+            decide(cur);
+        }
+        memoryBarrierBuffer(); // the words are visible before the arrival is counted
+        if (climbing) {
+            uint parent = refs[pc.parents_at + cur];
+            if (parent == NO_NODE) {
+                climbing = false;
+            } else {
+                uint arrived = atomicAdd(visits[parent], 1u) + 1u;
+                climbing = arrived >= node_children(nodes[parent]);
+                cur = parent;
+            }
+        }
+        memoryBarrierBuffer(); // ... and read after it
+    }
+}

@@ -1,0 +1,267 @@
+//! SAH leaf collapse of the GPU builders' trees (LBVH, PLOC): they end in one primitive per
+//! leaf, which makes the walk visit a node where a leaf of a few primitives is cheaper.
+//! Bottom-up, every node weighs the SAH cost of its subtree, `C_trav·A + cost(a) + cost(b)`,
+//! against a leaf of its primitives, `C_isect·A·n`, and becomes a leaf when it holds at most
+//! `max_leaf_prims` and the leaf is no dearer — the optimal collapse under the SAH, as PLOC's
+//! paper (Meister & Bittner 2018, §4.3) and RADV's builder do it. The root stays a node.
+//!
+//! The nodes left are compacted in index order (the root stays node 0); the references of
+//! every node's leaves are laid out contiguously in node order, child `a` before `b` and a
+//! collapsed subtree's in depth-first order. On the device the removed nodes' slots stay at
+//! the tail, zeroed, with the parent link [`DEAD`]; the host tree ends before them. CPU twin
+//! of `glsl/accel/bvh_collapse_*.comp`, bit for bit.
+
+use super::layout::{half_area, Bvh, BvhNode, Child, NO_NODE};
+use super::refit::union;
+use super::sah::BvhParams;
+
+/// Parent link of a node slot the collapse freed (after every live node).
+pub const DEAD: u32 = 0xffff_fffe;
+
+/// What the bottom-up pass knows of one node.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct NodeCost {
+    /// Primitives below the node.
+    pub count: u32,
+    /// The SAH cost of the node as it will be (a leaf or a node), in half areas.
+    pub cost: f32,
+    /// The node becomes a leaf of its parent (never the root).
+    pub collapse: bool,
+}
+
+/// Whether [`collapse`] changes anything: trees of fewer than three primitives have no node
+/// to collapse (the root stays), and a leaf size of 1 keeps every node.
+pub fn applies(n_prims: usize, p: &BvhParams) -> bool {
+    n_prims >= 3 && p.max_leaf_prims > 1
+}
+
+/// The SAH costs and collapse decisions of every node (the cost kernel's result).
+pub fn costs(bvh: &Bvh, p: &BvhParams) -> Vec<NodeCost> {
+    let mut out = vec![NodeCost::default(); bvh.nodes.len()];
+    if bvh.nodes.is_empty() {
+        return out;
+    }
+    // Nodes in an order where every node comes before its children; decide in reverse.
+    let mut order = Vec::with_capacity(bvh.nodes.len());
+    let mut stack = vec![0u32];
+    while let Some(i) = stack.pop() {
+        order.push(i);
+        for which in 0..2 {
+            if let Child::Node(c) = bvh.nodes[i as usize].child(which).1 {
+                stack.push(c);
+            }
+        }
+    }
+    for &i in order.iter().rev() {
+        out[i as usize] = node_cost(&bvh.nodes[i as usize], &out, i == 0, p);
+    }
+    out
+}
+
+/// One node's decision from its children's (the kernel's `decide`, operation for operation).
+fn node_cost(node: &BvhNode, done: &[NodeCost], root: bool, p: &BvhParams) -> NodeCost {
+    let mut count = 0u32;
+    let mut below = [0.0f32; 2];
+    for (which, cost) in below.iter_mut().enumerate() {
+        let (bounds, child) = node.child(which);
+        match child {
+            Child::Leaf { count: k, .. } => {
+                count += k;
+                *cost = p.intersection_cost * half_area(&bounds) * k as f32;
+            }
+            Child::Node(c) => {
+                count += done[c as usize].count;
+                *cost = done[c as usize].cost;
+            }
+            Child::None => {}
+        }
+    }
+    let area = half_area(&union(&node.child(0).0, &node.child(1).0));
+    let split = p.traversal_cost * area + below[0] + below[1];
+    let leaf = p.intersection_cost * area * count as f32;
+    let collapse = !root && count <= p.max_leaf_prims && leaf <= split;
+    NodeCost {
+        count,
+        cost: if collapse { leaf } else { split },
+        collapse,
+    }
+}
+
+/// `bvh` with its subtrees collapsed into leaves where the SAH says so (see the module);
+/// `bvh` itself when [`applies`] says nothing would change.
+pub fn collapse(bvh: &Bvh, p: &BvhParams) -> Bvh {
+    if !applies(bvh.refs.len(), p) {
+        return bvh.clone();
+    }
+    let costs = costs(bvh, p);
+    let n_nodes = bvh.nodes.len();
+    // A node lives when neither it nor an ancestor collapsed.
+    let live: Vec<bool> = (0..n_nodes)
+        .map(|i| {
+            let mut x = i as u32;
+            while x != NO_NODE && costs[x as usize].count <= p.max_leaf_prims {
+                if costs[x as usize].collapse {
+                    return false;
+                }
+                x = bvh.parents[x as usize];
+            }
+            true
+        })
+        .collect();
+    let leaf_prims = |i: usize| -> u32 {
+        (0..2)
+            .map(|which| match bvh.nodes[i].child(which).1 {
+                Child::Leaf { count, .. } => count,
+                Child::Node(c) if costs[c as usize].collapse => costs[c as usize].count,
+                _ => 0,
+            })
+            .sum()
+    };
+    let mut index = vec![NO_NODE; n_nodes];
+    let mut offset = vec![0u32; n_nodes];
+    let (mut next_node, mut next_ref) = (0u32, 0u32);
+    for i in 0..n_nodes {
+        if live[i] {
+            index[i] = next_node;
+            offset[i] = next_ref;
+            next_node += 1;
+            next_ref += leaf_prims(i);
+        }
+    }
+    let mut out = Bvh {
+        nodes: vec![BvhNode::empty(); next_node as usize],
+        parents: vec![NO_NODE; next_node as usize],
+        refs: vec![0; bvh.refs.len()],
+        bounds: bvh.bounds,
+    };
+    for i in (0..n_nodes).filter(|&i| live[i]) {
+        let j = index[i] as usize;
+        let mut at = offset[i];
+        let mut node = bvh.nodes[i];
+        for which in 0..2 {
+            let (bounds, child) = bvh.nodes[i].child(which);
+            let child = match child {
+                Child::Node(c) if !costs[c as usize].collapse => Child::Node(index[c as usize]),
+                Child::Node(c) => {
+                    let first = at;
+                    gather(bvh, c, &mut out.refs, &mut at);
+                    Child::Leaf {
+                        first,
+                        count: at - first,
+                    }
+                }
+                Child::Leaf { first, count } => {
+                    let refs = &bvh.refs[first as usize..(first + count) as usize];
+                    out.refs[at as usize..(at + count) as usize].copy_from_slice(refs);
+                    at += count;
+                    Child::Leaf {
+                        first: at - count,
+                        count,
+                    }
+                }
+                Child::None => Child::None,
+            };
+            node.set_child(which, bounds, child);
+        }
+        out.nodes[j] = node;
+        let parent = bvh.parents[i];
+        out.parents[j] = if parent == NO_NODE {
+            NO_NODE
+        } else {
+            index[parent as usize]
+        };
+    }
+    out
+}
+
+/// Appends the references below `node` to `refs` from `*at` on, depth first, `a` before `b`.
+fn gather(bvh: &Bvh, node: u32, refs: &mut [u32], at: &mut u32) {
+    for which in 0..2 {
+        match bvh.nodes[node as usize].child(which).1 {
+            Child::Node(c) => gather(bvh, c, refs, at),
+            Child::Leaf { first, count } => {
+                for k in first..first + count {
+                    refs[*at as usize] = bvh.refs[k as usize];
+                    *at += 1;
+                }
+            }
+            Child::None => {}
+        }
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+    use crate::accel::bvh::validate::{sah_cost, validate};
+    use crate::accel::bvh::{lbvh, ploc};
+    use crate::scene::Aabb;
+    use glam::Vec3;
+
+    /// The boxes of the first `n` triangles of a fine icosphere (neighbours overlap, as in
+    /// a real mesh, so the SAH collapses).
+    fn boxes(n: usize) -> Vec<Aabb> {
+        let sphere = crate::scene::gen::icosphere(4).unwrap();
+        let tris: Vec<[Vec3; 3]> = sphere.indices[..n]
+            .iter()
+            .map(|t| t.map(|i| sphere.positions[i as usize]))
+            .collect();
+        crate::trace::TraceGeometry::from_triangles(&tris).boxes
+    }
+
+    #[test]
+    fn collapsed_trees_are_valid_cheaper_and_hold_small_leaves() {
+        let p = BvhParams::default();
+        for n in [0, 1, 2, 3, 4, 5, 17, 64, 65, 1000] {
+            let b = boxes(n);
+            for tree in [
+                lbvh::build(&b, Default::default()),
+                ploc::build(&b, &Default::default()).0,
+            ] {
+                let c = collapse(&tree, &p);
+                validate(&c, &b).unwrap_or_else(|e| panic!("n = {n}: {e}"));
+                assert!(sah_cost(&c, &p) <= sah_cost(&tree, &p), "n = {n}");
+                for node in &c.nodes {
+                    for which in 0..2 {
+                        if let Child::Leaf { count, .. } = node.child(which).1 {
+                            assert!(count <= p.max_leaf_prims);
+                        }
+                    }
+                }
+                if n >= 64 {
+                    assert!(
+                        c.nodes.len() < tree.nodes.len(),
+                        "n = {n}: nothing collapsed"
+                    );
+                }
+            }
+        }
+    }
+
+    #[test]
+    fn leaf_size_one_keeps_the_tree() {
+        let b = boxes(300);
+        let tree = lbvh::build(&b, Default::default());
+        let p = BvhParams {
+            max_leaf_prims: 1,
+            ..Default::default()
+        };
+        assert_eq!(collapse(&tree, &p), tree);
+    }
+
+    #[test]
+    fn the_root_stays_a_node() {
+        // Three primitives in one point: a leaf of all three is cheapest, but the root
+        // stays a node so the traversal's layout holds.
+        let b = vec![
+            Aabb {
+                min: Vec3::ONE,
+                max: Vec3::ONE
+            };
+            3
+        ];
+        let c = collapse(&lbvh::build(&b, Default::default()), &BvhParams::default());
+        validate(&c, &b).unwrap();
+        assert!(!c.nodes.is_empty());
+    }
+}

@@ -1,0 +1,188 @@
+//! The SAH leaf collapse on the GPU (CPU twin: [`super::collapse`]), recorded after the
+//! LBVH's or PLOC's tree is complete: the SAH costs bottom-up with visit counters
+//! (`accel.bvh_collapse_cost`), which nodes live and how many references their leaves hold
+//! (`accel.bvh_collapse_flags`), two exclusive scans (new node indices, first references),
+//! and the compacted tree written into the structure (`accel.bvh_collapse_write`). The
+//! builder writes its tree into this scratch ([`CollapseScratch::tree`]) instead of the
+//! structure, so nothing is copied. The freed node slots end up at the tail, zeroed, with
+//! the parent link [`DEAD`](super::collapse::DEAD): the refits and the schedule skip them.
+
+use std::sync::Arc;
+
+use super::sah::BvhParams;
+use super::BvhNode;
+use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, Spec};
+use crate::prims::scan::{Scan, ScanInput, ScanOp, ScanScratch};
+use crate::prims::PrimConfig;
+
+/// The largest leaf the collapse makes (the write kernel's gather stack holds 64 children).
+pub const MAX_COLLAPSE_LEAF: u32 = 32;
+
+const WORKGROUP: u32 = 64;
+
+/// The kernels, compiled once.
+pub struct CollapseKernels {
+    cost: Arc<Kernel>,
+    flags: Arc<Kernel>,
+    write: Arc<Kernel>,
+    scan: Scan,
+}
+
+/// Scratch of one collapse of a tree of up to `max_nodes` nodes.
+pub struct CollapseScratch {
+    max_nodes: usize,
+    /// Count, SAH cost and decision of every node.
+    costs: Buffer<u32>,
+    live: Buffer<u32>,
+    index: Buffer<u32>,
+    /// Each live node's leaf references, scanned in place into its first reference.
+    first_ref: Buffer<u32>,
+    /// The builder's tree: nodes, and references then parent links.
+    nodes: Buffer<BvhNode>,
+    words: Buffer<u32>,
+    scan: ScanScratch,
+}
+
+impl CollapseScratch {
+    /// Where the builder writes the tree the collapse reads: nodes, and the references
+    /// then the parent links (the structure's layout).
+    pub fn tree(&self) -> (&Buffer<BvhNode>, &Buffer<u32>) {
+        (&self.nodes, &self.words)
+    }
+}
+
+impl CollapseKernels {
+    /// `climb_workgroup`: the cost pass climbs like the refit, in workgroups of one subgroup.
+    pub fn new(ctx: &Context, climb_workgroup: u32) -> Result<Self> {
+        let spec = Spec::new().workgroup(WORKGROUP);
+        Ok(Self {
+            cost: ctx.kernel(
+                &kernels::ACCEL_BVH_COLLAPSE_COST,
+                &Spec::new().workgroup(climb_workgroup),
+            )?,
+            flags: ctx.kernel(&kernels::ACCEL_BVH_COLLAPSE_FLAGS, &spec)?,
+            write: ctx.kernel(&kernels::ACCEL_BVH_COLLAPSE_WRITE, &spec)?,
+            scan: Scan::new(ctx, PrimConfig::default_for(ctx), ScanInput::U32)?,
+        })
+    }
+
+    /// Bytes of [`CollapseKernels::scratch`] for a tree of `n_prims` primitives.
+    pub fn scratch_bytes(&self, n_prims: usize) -> u64 {
+        let nodes = n_prims.saturating_sub(1).max(1);
+        (4 * (6 * nodes + n_prims.max(1) + nodes) + 64 * nodes) as u64
+            + self.scan.scratch_bytes(nodes)
+    }
+
+    pub fn scratch(&self, ctx: &Context, n_prims: usize) -> Result<CollapseScratch> {
+        let nodes = n_prims.saturating_sub(1).max(1);
+        Ok(CollapseScratch {
+            max_nodes: nodes,
+            costs: Buffer::new(ctx, "accel.collapse.costs", 3 * nodes)?,
+            live: Buffer::new(ctx, "accel.collapse.live", nodes)?,
+            index: Buffer::new(ctx, "accel.collapse.index", nodes)?,
+            first_ref: Buffer::new(ctx, "accel.collapse.first_ref", nodes)?,
+            nodes: Buffer::new(ctx, "accel.collapse.nodes", nodes)?,
+            words: Buffer::new(ctx, "accel.collapse.words", n_prims.max(1) + nodes)?,
+            scan: self.scan.scratch(ctx, nodes)?,
+        })
+    }
+
+    /// Checks that the device can collapse with `params` (the leaf size the gather holds).
+    pub fn check(params: &BvhParams) -> Result<()> {
+        if params.max_leaf_prims > MAX_COLLAPSE_LEAF {
+            return Err(GpuError::Kernel {
+                kernel: "accel.bvh_collapse",
+                reason: format!(
+                    "max_leaf_prims = {}: the GPU builders' leaves hold at most {MAX_COLLAPSE_LEAF}",
+                    params.max_leaf_prims
+                ),
+            });
+        }
+        Ok(())
+    }
+
+    /// Records the collapse of the complete tree in `scratch.tree()` (`n_prims` references,
+    /// then `n_prims - 1` parent links) with `params`' costs and leaf size into the
+    /// structure's `nodes` and `refs`. `visits` holds a zeroed-here counter per node. Only
+    /// where [`super::collapse::applies`]: elsewhere the builder writes the structure
+    /// itself. Ends with a compute → compute barrier.
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "the tree's buffers and the knobs"
+    )]
+    pub fn record(
+        &self,
+        rec: &mut Recorder,
+        n_prims: usize,
+        visits: &Buffer<u32>,
+        scratch: &CollapseScratch,
+        params: &BvhParams,
+        nodes: &Buffer<BvhNode>,
+        refs: &Buffer<u32>,
+    ) {
+        assert!(
+            super::collapse::applies(n_prims, params),
+            "a collapse that changes nothing"
+        );
+        let n_nodes = n_prims - 1;
+        assert!(
+            n_nodes <= scratch.max_nodes,
+            "collapse of {n_nodes} nodes, scratch for {}",
+            scratch.max_nodes
+        );
+        let s = scratch;
+        let parents_at = n_prims as u32;
+        let max_leaf = params.max_leaf_prims.min(MAX_COLLAPSE_LEAF);
+        rec.scope("collapse", |rec| {
+            // The builder's last kernels read the counters.
+            rec.compute_to_transfer();
+            rec.fill_first(visits, n_nodes, 0);
+            rec.transfer_to_compute();
+            let tree: [&dyn BufferArg; 2] = [&s.nodes, &s.words];
+            let push = [
+                n_nodes as u32,
+                parents_at,
+                max_leaf,
+                params.traversal_cost.to_bits(),
+                params.intersection_cost.to_bits(),
+            ];
+            let wg = self.cost.invocations();
+            let groups = rec.groups_1d(n_nodes as u64, wg);
+            let b: [&dyn BufferArg; 4] = [tree[0], tree[1], visits, &s.costs];
+            rec.scope("collapse.cost", |rec| {
+                rec.dispatch(&self.cost, groups, &b, &push)
+            });
+            rec.compute_to_compute();
+            let groups = rec.groups_1d(n_nodes as u64, WORKGROUP);
+            let b: [&dyn BufferArg; 5] = [tree[0], tree[1], &s.costs, &s.live, &s.first_ref];
+            rec.dispatch(
+                &self.flags,
+                groups,
+                &b,
+                &[n_nodes as u32, parents_at, max_leaf],
+            );
+            rec.compute_to_compute();
+            let op = ScanOp::Exclusive;
+            self.scan
+                .record(rec, &s.live, &s.index, n_nodes, op, &s.scan);
+            rec.compute_to_compute();
+            self.scan
+                .record(rec, &s.first_ref, &s.first_ref, n_nodes, op, &s.scan);
+            rec.compute_to_compute();
+            let b: [&dyn BufferArg; 8] = [
+                tree[0],
+                tree[1],
+                &s.costs,
+                &s.live,
+                &s.index,
+                &s.first_ref,
+                nodes,
+                refs,
+            ];
+            rec.scope("collapse.write", |rec| {
+                rec.dispatch(&self.write, groups, &b, &[n_nodes as u32, parents_at])
+            });
+        });
+        rec.compute_to_compute();
+    }
+}
