@@ -1,27 +1,27 @@
 #version 460
-// The SAH leaf collapse's last pass (CPU twin: collapse::collapse): every live node written
-// at its new index (the exclusive scan of the live flags) with its children renamed, its leaf
-// references copied from its first reference (the scan of the leaf reference counts) on —
-// child `a`'s before `b`'s, a collapsed subtree's depth first — and its parent renamed; every
-// removed node marks one slot at the tail DEAD. The builder's tree is read from
-// scratch and the structure written, so nothing is copied.
+// The SAH leaf collapse's last pass (CPU twin: collapse::collapse), in place: every live node
+// lays its leaves' references out from its first reference (the exclusive scan of the leaf
+// reference counts) on — child `a`'s before `b`'s, a collapsed subtree's depth first — and
+// points its leaf children there; a collapsed child becomes a leaf. Nodes keep their slots:
+// a removed node's parent link becomes DEAD (the refits and the schedule skip it, the host's
+// copy drops it). Only the references move: read from the builder's copy in scratch.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "accel/bvh_collapse.glsl"
 
 // Deep enough for any collapsed subtree: at most MAX_COLLAPSE_LEAF (32) primitives, so at
 // most 33 children wait at once.
-#define GATHER_STACK 64u
+#define GATHER_STACK 34u
 
-layout(std430, binding = 0) readonly buffer Nodes { BvhNode nodes[]; };
+// Written by this invocation only where the node lives; a removed node is only read.
+layout(std430, binding = 0) buffer Nodes { BvhNode nodes[]; };
+// The builder's references, then its parent links from `parents_at` on.
 layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
 layout(std430, binding = 2) readonly buffer Costs { uint costs[]; };
 layout(std430, binding = 3) readonly buffer Live { uint live[]; };
-layout(std430, binding = 4) readonly buffer Index { uint new_index[]; };
-layout(std430, binding = 5) readonly buffer First { uint first_ref[]; };
-layout(std430, binding = 6) writeonly buffer OutNodes { BvhNode out_nodes[]; };
-// References, then the parent links from `parents_at` on.
-layout(std430, binding = 7) writeonly buffer OutRefs { uint out_refs[]; };
+layout(std430, binding = 4) readonly buffer First { uint first_ref[]; };
+// The structure's references and parent links.
+layout(std430, binding = 5) writeonly buffer OutRefs { uint out_refs[]; };
 layout(push_constant) uniform Push {
     uint n_nodes;
     uint parents_at;
@@ -47,23 +47,22 @@ void gather(uint node, inout uint at) {
     }
 }
 
-void rename(inout uint index, inout uint count, inout uint at) {
+// Lays out a leaf child's references (or a collapsed child's) from `at` on; true where the
+// child changed.
+bool relay(inout uint index, inout uint count, inout uint at) {
+    uint first = at;
     if (count > 0u) {
-        uint first = at;
         for (uint k = 0u; k < count; k++) {
             out_refs[at++] = refs[index + k];
         }
-        index = first;
-    } else if (index != NO_NODE) {
-        if (costs[COST_COLLAPSE(index)] != 0u) {
-            uint first = at;
-            gather(index, at);
-            count = at - first;
-            index = first;
-        } else {
-            index = new_index[index];
-        }
+    } else if (index != NO_NODE && costs[COST_COLLAPSE(index)] != 0u) {
+        gather(index, at);
+        count = at - first;
+    } else {
+        return false;
     }
+    index = first;
+    return true;
 }
 
 void main() {
@@ -72,18 +71,18 @@ void main() {
         return;
     }
     if (live[i] == 0u) {
-        // A freed slot at the tail, one per removed node (i - new_index[i] removed before
-        // it), marked DEAD: the refits skip it, and its node is never read.
-        uint slot = pc.n_nodes - 1u - (i - new_index[i]);
-        out_refs[pc.parents_at + slot] = DEAD;
+        out_refs[pc.parents_at + i] = DEAD;
         return;
     }
+    out_refs[pc.parents_at + i] = refs[pc.parents_at + i];
     BvhNode n = nodes[i];
     uint at = first_ref[i];
-    rename(n.a_index, n.a_count, at);
-    rename(n.b_index, n.b_count, at);
-    uint j = new_index[i];
-    out_nodes[j] = n;
-    uint parent = refs[pc.parents_at + i];
-    out_refs[pc.parents_at + j] = parent == NO_NODE ? NO_NODE : new_index[parent];
+    if (relay(n.a_index, n.a_count, at)) {
+        nodes[i].a_index = n.a_index;
+        nodes[i].a_count = n.a_count;
+    }
+    if (relay(n.b_index, n.b_count, at)) {
+        nodes[i].b_index = n.b_index;
+        nodes[i].b_count = n.b_count;
+    }
 }

@@ -15,7 +15,7 @@
 //! host's copy of the primitive boxes and records the upload of its nodes. Downloading a
 //! structure ([`AccelStructure::download`]) is for tests and tools only.
 
-use crate::accel::bvh::collapse::{self, DEAD};
+use crate::accel::bvh::collapse;
 use crate::accel::bvh::collapse_gpu::{CollapseKernels, CollapseScratch};
 use crate::accel::bvh::lbvh::MortonBits;
 use crate::accel::bvh::lbvh_gpu::LbvhBuilder;
@@ -369,14 +369,14 @@ impl AccelStructure {
                 ..
             } => {
                 let mut nodes = nodes.download()?;
+                nodes.truncate(*n_nodes);
                 let all = refs.download()?;
-                let parents = &all[*n_refs..*n_refs + *n_nodes];
-                // The slots a leaf collapse freed are at the tail.
-                let live = parents.iter().take_while(|&&p| p != DEAD).count();
-                nodes.truncate(live);
+                // Without the slots a leaf collapse removed.
+                let (nodes, parents) =
+                    collapse::drop_removed(nodes, &all[*n_refs..*n_refs + *n_nodes]);
                 Ok(HostStructure::Bvh(Bvh {
                     nodes,
-                    parents: parents[..live].to_vec(),
+                    parents,
                     refs: all[..*n_refs].to_vec(),
                     bounds: bounds(*n_refs == 0),
                 }))
@@ -712,17 +712,17 @@ impl AccelBuilder {
                 let n_nodes = if n == 0 { 0 } else { bvh_nodes(n) };
                 rec.upload(&out.info, &[prims.info(&Aabb::EMPTY, n as u32)])?;
                 rec.transfer_to_compute();
-                // The tree goes to the collapse's scratch where it collapses.
+                // The references go to the collapse's scratch where it collapses.
                 let collapsing = collapse::applies(n, &self.bvh_params);
-                let (tree_nodes, tree_refs) = match collapsing {
-                    true => s.collapse.tree(),
-                    false => (&*nodes, &*refs),
+                let tree_refs = match collapsing {
+                    true => s.collapse.tree_refs(),
+                    false => &*refs,
                 };
-                lbvh.record_topology(rec, &prims.boxes, n, &s.topology, tree_nodes, tree_refs);
+                lbvh.record_topology(rec, &prims.boxes, n, &s.topology, nodes, tree_refs);
                 *counts = (n_nodes, n);
                 let refit = self.refit.as_ref().expect("the refit kernel");
                 record_refit_nodes(
-                    rec, refit, prims, tree_nodes, tree_refs, &s.visits, &out.info, n_nodes,
+                    rec, refit, prims, nodes, tree_refs, &s.visits, &out.info, n_nodes,
                 );
                 if collapsing {
                     let collapse = self.collapse.as_ref().expect("the collapse kernels");
@@ -746,10 +746,10 @@ impl AccelBuilder {
                 rec.transfer_to_compute();
                 *counts = (n_nodes, n);
                 if collapse::applies(n, &self.bvh_params) {
-                    // The tree goes to the collapse's scratch, and collapses into `nodes`.
-                    let (tree_nodes, tree_refs) = s.collapse.tree();
+                    // The references go to the collapse's scratch, and are laid out in `refs`.
+                    let tree_refs = s.collapse.tree_refs();
                     let info = &out.info;
-                    ploc.record_build(rec, &prims.boxes, n, &s.build, tree_nodes, tree_refs, info);
+                    ploc.record_build(rec, &prims.boxes, n, &s.build, nodes, tree_refs, info);
                     rec.compute_to_compute();
                     let collapse = self.collapse.as_ref().expect("the collapse kernels");
                     let p = &self.bvh_params;

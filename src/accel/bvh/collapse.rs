@@ -5,11 +5,11 @@
 //! `max_leaf_prims` and the leaf is no dearer — the optimal collapse under the SAH, as PLOC's
 //! paper (Meister & Bittner 2018, §4.3) and RADV's builder do it. The root stays a node.
 //!
-//! The nodes left are compacted in index order (the root stays node 0); the references of
-//! every node's leaves are laid out contiguously in node order, child `a` before `b` and a
-//! collapsed subtree's in depth-first order. On the device the removed nodes' slots stay at
-//! the tail, zeroed, with the parent link [`DEAD`]; the host tree ends before them. CPU twin
-//! of `glsl/accel/bvh_collapse_*.comp`, bit for bit.
+//! The references of every node's leaves are laid out contiguously in node order, child `a`
+//! before `b` and a collapsed subtree's in depth-first order. On the device the nodes keep
+//! their slots and a removed node's parent link becomes [`DEAD`]; the host tree is
+//! compacted in index order (the root stays node 0; [`drop_removed`] renumbers a
+//! downloaded one the same way). CPU twin of `glsl/accel/bvh_collapse_*.comp`, bit for bit.
 
 use super::layout::{half_area, Bvh, BvhNode, Child, NO_NODE};
 use super::refit::union;
@@ -172,6 +172,36 @@ pub fn collapse(bvh: &Bvh, p: &BvhParams) -> Bvh {
         };
     }
     out
+}
+
+/// The nodes and parent links of a device tree without the slots a collapse removed (parent
+/// [`DEAD`]), the rest renumbered in index order: the host form [`collapse`] returns.
+pub fn drop_removed(nodes: Vec<BvhNode>, parents: &[u32]) -> (Vec<BvhNode>, Vec<u32>) {
+    if !parents.contains(&DEAD) {
+        return (nodes, parents.to_vec());
+    }
+    let mut index = vec![NO_NODE; nodes.len()];
+    let mut next = 0;
+    for (i, &p) in parents.iter().enumerate() {
+        if p != DEAD {
+            index[i] = next;
+            next += 1;
+        }
+    }
+    let rename = |i: u32| if i == NO_NODE { NO_NODE } else { index[i as usize] };
+    let kept = nodes.into_iter().zip(parents).filter(|(_, &p)| p != DEAD);
+    let (mut out, mut out_parents) = (Vec::new(), Vec::new());
+    for (mut node, &parent) in kept {
+        for which in 0..2 {
+            let (bounds, child) = node.child(which);
+            if let Child::Node(c) = child {
+                node.set_child(which, bounds, Child::Node(rename(c)));
+            }
+        }
+        out.push(node);
+        out_parents.push(rename(parent));
+    }
+    (out, out_parents)
 }
 
 /// Appends the references below `node` to `refs` from `*at` on, depth first, `a` before `b`.

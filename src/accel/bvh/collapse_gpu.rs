@@ -1,11 +1,13 @@
 //! The SAH leaf collapse on the GPU (CPU twin: [`super::collapse`]), recorded after the
 //! LBVH's or PLOC's tree is complete: the SAH costs bottom-up with visit counters
 //! (`accel.bvh_collapse_cost`), which nodes live and how many references their leaves hold
-//! (`accel.bvh_collapse_flags`), two exclusive scans (new node indices, first references),
-//! and the compacted tree written into the structure (`accel.bvh_collapse_write`). The
-//! builder writes its tree into this scratch ([`CollapseScratch::tree`]) instead of the
-//! structure, so nothing is copied. The freed node slots end up at the tail, zeroed, with
-//! the parent link [`DEAD`](super::collapse::DEAD): the refits and the schedule skip them.
+//! (`accel.bvh_collapse_flags`), an exclusive scan of the latter (each live node's first
+//! reference), and the references laid out anew with the leaf children pointed at them
+//! (`accel.bvh_collapse_write`). Nodes stay in their slots: a removed node keeps its slot
+//! with the parent link [`DEAD`](super::collapse::DEAD), which the refits and the schedule
+//! skip and the host's copy drops (`AccelStructure::download` renumbers, giving the twin's
+//! compacted tree). The builder writes its references into this scratch
+//! ([`CollapseScratch::tree_refs`]), so nothing is copied.
 
 use std::sync::Arc;
 
@@ -34,20 +36,18 @@ pub struct CollapseScratch {
     /// Count, SAH cost and decision of every node.
     costs: Buffer<u32>,
     live: Buffer<u32>,
-    index: Buffer<u32>,
     /// Each live node's leaf references, scanned in place into its first reference.
     first_ref: Buffer<u32>,
-    /// The builder's tree: nodes, and references then parent links.
-    nodes: Buffer<BvhNode>,
+    /// The builder's references, then its parent links.
     words: Buffer<u32>,
     scan: ScanScratch,
 }
 
 impl CollapseScratch {
-    /// Where the builder writes the tree the collapse reads: nodes, and the references
-    /// then the parent links (the structure's layout).
-    pub fn tree(&self) -> (&Buffer<BvhNode>, &Buffer<u32>) {
-        (&self.nodes, &self.words)
+    /// Where the builder writes its references and parent links (the structure's layout)
+    /// for the collapse to lay them out in the structure.
+    pub fn tree_refs(&self) -> &Buffer<u32> {
+        &self.words
     }
 }
 
@@ -69,7 +69,7 @@ impl CollapseKernels {
     /// Bytes of [`CollapseKernels::scratch`] for a tree of `n_prims` primitives.
     pub fn scratch_bytes(&self, n_prims: usize) -> u64 {
         let nodes = n_prims.saturating_sub(1).max(1);
-        (4 * (6 * nodes + n_prims.max(1) + nodes) + 64 * nodes) as u64
+        (4 * (5 * nodes + n_prims.max(1) + nodes)) as u64
             + self.scan.scratch_bytes(nodes)
     }
 
@@ -79,9 +79,7 @@ impl CollapseKernels {
             max_nodes: nodes,
             costs: Buffer::new(ctx, "accel.collapse.costs", 3 * nodes)?,
             live: Buffer::new(ctx, "accel.collapse.live", nodes)?,
-            index: Buffer::new(ctx, "accel.collapse.index", nodes)?,
             first_ref: Buffer::new(ctx, "accel.collapse.first_ref", nodes)?,
-            nodes: Buffer::new(ctx, "accel.collapse.nodes", nodes)?,
             words: Buffer::new(ctx, "accel.collapse.words", n_prims.max(1) + nodes)?,
             scan: self.scan.scratch(ctx, nodes)?,
         })
@@ -101,9 +99,9 @@ impl CollapseKernels {
         Ok(())
     }
 
-    /// Records the collapse of the complete tree in `scratch.tree()` (`n_prims` references,
-    /// then `n_prims - 1` parent links) with `params`' costs and leaf size into the
-    /// structure's `nodes` and `refs`. `visits` holds a zeroed-here counter per node. Only
+    /// Records the collapse of the complete tree in `nodes` and `scratch.tree_refs()`
+    /// (`n_prims` references, then `n_prims - 1` parent links) with `params`' costs and leaf
+    /// size: `nodes` in place, the structure's `refs` written. `visits` holds a zeroed-here counter per node. Only
     /// where [`super::collapse::applies`]: elsewhere the builder writes the structure
     /// itself. Ends with a compute → compute barrier.
     #[allow(
@@ -138,7 +136,7 @@ impl CollapseKernels {
             rec.compute_to_transfer();
             rec.fill_first(visits, n_nodes, 0);
             rec.transfer_to_compute();
-            let tree: [&dyn BufferArg; 2] = [&s.nodes, &s.words];
+            let tree: [&dyn BufferArg; 2] = [nodes, &s.words];
             let push = [
                 n_nodes as u32,
                 parents_at,
@@ -164,21 +162,10 @@ impl CollapseKernels {
             rec.compute_to_compute();
             let op = ScanOp::Exclusive;
             self.scan
-                .record(rec, &s.live, &s.index, n_nodes, op, &s.scan);
-            rec.compute_to_compute();
-            self.scan
                 .record(rec, &s.first_ref, &s.first_ref, n_nodes, op, &s.scan);
             rec.compute_to_compute();
-            let b: [&dyn BufferArg; 8] = [
-                tree[0],
-                tree[1],
-                &s.costs,
-                &s.live,
-                &s.index,
-                &s.first_ref,
-                nodes,
-                refs,
-            ];
+            let b: [&dyn BufferArg; 6] =
+                [nodes, &s.words, &s.costs, &s.live, &s.first_ref, refs];
             rec.scope("collapse.write", |rec| {
                 rec.dispatch(&self.write, groups, &b, &[n_nodes as u32, parents_at])
             });
