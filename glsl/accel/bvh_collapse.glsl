@@ -1,5 +1,6 @@
 // Shared by the leaf-collapse kernels (CPU twin: src/accel/bvh/collapse.rs): a node's
-// primitive count, SAH cost and decision, three words per node in `costs`.
+// primitive count, SAH cost and decision, three words per node in `costs`. `decide` needs
+// a `costs` buffer (uint words) declared before the include.
 #ifndef VKRT_ACCEL_BVH_COLLAPSE_GLSL
 #define VKRT_ACCEL_BVH_COLLAPSE_GLSL
 
@@ -19,4 +20,45 @@ float half_area(vec3 lo, vec3 hi) {
     return s;
 }
 
+#ifndef COLLAPSE_NO_DECIDE
+
+// The SAH costs (C_trav, C_isect) and the largest leaf.
+struct CollapseParams {
+    float c_trav;
+    float c_isect;
+    uint max_leaf;
+};
+
+// One child's primitives and SAH cost (collapse::node_cost).
+void child_cost(CollapseParams p, uint index, uint count, vec3 lo, vec3 hi, inout uint n,
+                out float cost) {
+    cost = 0.0;
+    if (count > 0u) {
+        n += count;
+        precise float c = p.c_isect * half_area(lo, hi) * float(count);
+        cost = c;
+    } else if (index != NO_NODE) {
+        n += costs[COST_COUNT(index)];
+        cost = uintBitsToFloat(costs[COST_SAH(index)]);
+    }
+}
+
+// Decides node `i` (its boxes final, its node children decided): a leaf of its parent where
+// it holds at most `max_leaf` primitives and `C_isect·A·n <= C_trav·A + cost(a) + cost(b)`;
+// the root never.
+void decide(CollapseParams p, uint i, BvhNode node) {
+    uint n = 0u;
+    float ca, cb;
+    child_cost(p, node.a_index, node.a_count, node.a_min, node.a_max, n, ca);
+    child_cost(p, node.b_index, node.b_count, node.b_min, node.b_max, n, cb);
+    float area = half_area(vmin(node.a_min, node.b_min), vmax(node.a_max, node.b_max));
+    precise float split = p.c_trav * area + ca + cb;
+    precise float leaf = p.c_isect * area * float(n);
+    bool collapse = i != 0u && n <= p.max_leaf && leaf <= split;
+    costs[COST_COUNT(i)] = n;
+    costs[COST_SAH(i)] = floatBitsToUint(collapse ? leaf : split);
+    costs[COST_COLLAPSE(i)] = uint(collapse);
+}
+
+#endif
 #endif

@@ -8,7 +8,7 @@
 layout(local_size_x_id = 0) in;
 #extension GL_KHR_shader_subgroup_vote : require
 #include "common/grid.glsl"
-#include "accel/bvh_collapse.glsl"
+#include "common/bvh_node.glsl"
 
 layout(std430, binding = 0) readonly buffer Nodes { BvhNode nodes[]; };
 // References, then one parent link per node from `parents_at` on.
@@ -24,36 +24,10 @@ layout(push_constant) uniform Push {
     float c_isect;
 } pc;
 
+#include "accel/bvh_collapse.glsl"
+
 uint node_children(BvhNode n) {
     return uint(n.a_count == 0u && n.a_index != NO_NODE) + uint(n.b_count == 0u && n.b_index != NO_NODE);
-}
-
-// One child's primitives and SAH cost (collapse::node_cost).
-void child_cost(uint index, uint count, vec3 lo, vec3 hi, inout uint n, out float cost) {
-    cost = 0.0;
-    if (count > 0u) {
-        n += count;
-        precise float c = pc.c_isect * half_area(lo, hi) * float(count);
-        cost = c;
-    } else if (index != NO_NODE) {
-        n += costs[COST_COUNT(index)];
-        cost = uintBitsToFloat(costs[COST_SAH(index)]);
-    }
-}
-
-void decide(uint i) {
-    BvhNode node = nodes[i];
-    uint n = 0u;
-    float ca, cb;
-    child_cost(node.a_index, node.a_count, node.a_min, node.a_max, n, ca);
-    child_cost(node.b_index, node.b_count, node.b_min, node.b_max, n, cb);
-    float area = half_area(vmin(node.a_min, node.b_min), vmax(node.a_max, node.b_max));
-    precise float split = pc.c_trav * area + ca + cb;
-    precise float leaf = pc.c_isect * area * float(n);
-    bool collapse = i != 0u && n <= pc.max_leaf && leaf <= split;
-    costs[COST_COUNT(i)] = n;
-    costs[COST_SAH(i)] = floatBitsToUint(collapse ? leaf : split);
-    costs[COST_COLLAPSE(i)] = uint(collapse);
 }
 
 void main() {
@@ -65,7 +39,7 @@ void main() {
             break;
         }
         if (climbing) {
-            decide(cur);
+            decide(CollapseParams(pc.c_trav, pc.c_isect, pc.max_leaf), cur, nodes[cur]);
         }
         memoryBarrierBuffer(); // the words are visible before the arrival is counted
         if (climbing) {

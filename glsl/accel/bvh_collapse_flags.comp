@@ -6,6 +6,7 @@
 // and its first reference.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
+#define COLLAPSE_NO_DECIDE
 #include "accel/bvh_collapse.glsl"
 
 layout(std430, binding = 0) readonly buffer Nodes { BvhNode nodes[]; };

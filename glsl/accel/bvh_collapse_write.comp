@@ -7,6 +7,7 @@
 // copy drops it). Only the references move: read from the builder's copy in scratch.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
+#define COLLAPSE_NO_DECIDE
 #include "accel/bvh_collapse.glsl"
 
 // Deep enough for any collapsed subtree: at most MAX_COLLAPSE_LEAF (32) primitives, so at

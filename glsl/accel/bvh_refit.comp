@@ -7,6 +7,12 @@
 // child are made visible before its arrival is counted (memoryBarrierBuffer on coherent
 // buffers), and the arriving invocation reads them after. Unions use the total order on ±0
 // (fmin_total), so the result is bit for bit the CPU twin's, whatever the order.
+//
+// Variant `boxes` refits; variant `costs`: the LBVH build's refit also decides the SAH leaf collapse of every node on
+// the same climb (accel/bvh_collapse_cost.comp's work, which the GPU builders' other trees
+// run as a pass of its own).
+//! variant boxes
+//! variant costs COLLAPSE_COSTS=1
 layout(local_size_x_id = 0) in;
 #extension GL_KHR_shader_subgroup_vote : require
 #include "common/grid.glsl"
@@ -28,7 +34,19 @@ layout(std430, binding = 4) buffer SceneInfoBuf {
     uint has_motion;
     uint parents_at;
 } info;
+#ifdef COLLAPSE_COSTS
+// Count, SAH cost and decision of every node (accel/bvh_collapse.glsl).
+layout(std430, binding = 5) coherent buffer Costs { uint costs[]; };
+layout(push_constant) uniform Push {
+    uint n_nodes;
+    uint max_leaf;
+    float c_trav;
+    float c_isect;
+} pc;
+#include "accel/bvh_collapse.glsl"
+#else
 layout(push_constant) uniform Push { uint n_nodes; } pc;
+#endif
 
 #include "accel/bvh_refit.glsl"
 
@@ -62,6 +80,9 @@ void main() {
             nodes[cur].a_max = n.a_max;
             nodes[cur].b_min = n.b_min;
             nodes[cur].b_max = n.b_max;
+#ifdef COLLAPSE_COSTS
+            decide(CollapseParams(pc.c_trav, pc.c_isect, pc.max_leaf), cur, n);
+#endif
         }
         memoryBarrierBuffer(); // the boxes are visible before the arrival is counted
         if (climbing) {

@@ -455,7 +455,7 @@ impl AccelBuilder {
             refit: match kind {
                 AccelKind::KdTree => None,
                 AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => Some(ctx.kernel(
-                    &kernels::ACCEL_BVH_REFIT,
+                    &kernels::ACCEL_BVH_REFIT_BOXES,
                     &Spec::new().workgroup(refit_workgroup(ctx)),
                 )?),
             },
@@ -720,14 +720,26 @@ impl AccelBuilder {
                 };
                 lbvh.record_topology(rec, &prims.boxes, n, &s.topology, nodes, tree_refs);
                 *counts = (n_nodes, n);
-                let refit = self.refit.as_ref().expect("the refit kernel");
-                record_refit_nodes(
-                    rec, refit, prims, nodes, tree_refs, &s.visits, &out.info, n_nodes,
-                );
                 if collapsing {
+                    // The boxes' refit decides the collapse on the same climb.
                     let collapse = self.collapse.as_ref().expect("the collapse kernels");
-                    let p = &self.bvh_params;
-                    collapse.record(rec, n, &s.visits, &s.collapse, p, nodes, refs);
+                    let (p, visits, cs) = (&self.bvh_params, &s.visits, &s.collapse);
+                    collapse.record_refit_deciding(
+                        rec,
+                        nodes,
+                        &prims.boxes,
+                        visits,
+                        &out.info,
+                        n,
+                        cs,
+                        p,
+                    );
+                    collapse.record(rec, n, visits, cs, p, nodes, refs, true);
+                } else {
+                    let refit = self.refit.as_ref().expect("the refit kernel");
+                    record_refit_nodes(
+                        rec, refit, prims, nodes, tree_refs, &s.visits, &out.info, n_nodes,
+                    );
                 }
                 Ok(RecordedBuild::default())
             }
@@ -753,7 +765,7 @@ impl AccelBuilder {
                     rec.compute_to_compute();
                     let collapse = self.collapse.as_ref().expect("the collapse kernels");
                     let p = &self.bvh_params;
-                    collapse.record(rec, n, &s.visits, &s.collapse, p, nodes, refs);
+                    collapse.record(rec, n, &s.visits, &s.collapse, p, nodes, refs, false);
                 } else if n >= 2 {
                     ploc.record_build(rec, &prims.boxes, n, &s.build, nodes, refs, &out.info);
                 } else {

@@ -188,7 +188,13 @@ pub fn drop_removed(nodes: Vec<BvhNode>, parents: &[u32]) -> (Vec<BvhNode>, Vec<
             next += 1;
         }
     }
-    let rename = |i: u32| if i == NO_NODE { NO_NODE } else { index[i as usize] };
+    let rename = |i: u32| {
+        if i == NO_NODE {
+            NO_NODE
+        } else {
+            index[i as usize]
+        }
+    };
     let kept = nodes.into_iter().zip(parents).filter(|(_, &p)| p != DEAD);
     let (mut out, mut out_parents) = (Vec::new(), Vec::new());
     for (mut node, &parent) in kept {

@@ -25,6 +25,8 @@ const WORKGROUP: u32 = 64;
 /// The kernels, compiled once.
 pub struct CollapseKernels {
     cost: Arc<Kernel>,
+    /// The refit that also decides (`accel.bvh_refit.costs`), for the LBVH's build.
+    refit_deciding: Arc<Kernel>,
     flags: Arc<Kernel>,
     write: Arc<Kernel>,
     scan: Scan,
@@ -60,6 +62,10 @@ impl CollapseKernels {
                 &kernels::ACCEL_BVH_COLLAPSE_COST,
                 &Spec::new().workgroup(climb_workgroup),
             )?,
+            refit_deciding: ctx.kernel(
+                &kernels::ACCEL_BVH_REFIT_COSTS,
+                &Spec::new().workgroup(climb_workgroup),
+            )?,
             flags: ctx.kernel(&kernels::ACCEL_BVH_COLLAPSE_FLAGS, &spec)?,
             write: ctx.kernel(&kernels::ACCEL_BVH_COLLAPSE_WRITE, &spec)?,
             scan: Scan::new(ctx, PrimConfig::default_for(ctx), ScanInput::U32)?,
@@ -69,8 +75,7 @@ impl CollapseKernels {
     /// Bytes of [`CollapseKernels::scratch`] for a tree of `n_prims` primitives.
     pub fn scratch_bytes(&self, n_prims: usize) -> u64 {
         let nodes = n_prims.saturating_sub(1).max(1);
-        (4 * (5 * nodes + n_prims.max(1) + nodes)) as u64
-            + self.scan.scratch_bytes(nodes)
+        (4 * (5 * nodes + n_prims.max(1) + nodes)) as u64 + self.scan.scratch_bytes(nodes)
     }
 
     pub fn scratch(&self, ctx: &Context, n_prims: usize) -> Result<CollapseScratch> {
@@ -99,6 +104,43 @@ impl CollapseKernels {
         Ok(())
     }
 
+    /// Records the LBVH build's refit — every box bottom-up from `boxes`, the root box into
+    /// `info` — deciding the collapse on the same climb (in the profiler scope `refit`);
+    /// [`CollapseKernels::record`] with `decided` then skips its cost pass. `visits` holds
+    /// a zeroed-here counter per node. Ends with a compute → compute barrier.
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "the refit's bindings and the knobs"
+    )]
+    pub fn record_refit_deciding(
+        &self,
+        rec: &mut Recorder,
+        nodes: &Buffer<BvhNode>,
+        boxes: &Buffer<f32>,
+        visits: &Buffer<u32>,
+        info: &dyn BufferArg,
+        n_prims: usize,
+        scratch: &CollapseScratch,
+        params: &BvhParams,
+    ) {
+        let n_nodes = n_prims - 1;
+        rec.scope("refit", |rec| {
+            rec.fill_first(visits, n_nodes, 0);
+            rec.transfer_to_compute();
+            let push = [
+                n_nodes as u32,
+                params.max_leaf_prims.min(MAX_COLLAPSE_LEAF),
+                params.traversal_cost.to_bits(),
+                params.intersection_cost.to_bits(),
+            ];
+            let groups = rec.groups_1d(n_nodes as u64, self.refit_deciding.invocations());
+            let b: [&dyn BufferArg; 6] =
+                [nodes, &scratch.words, boxes, visits, info, &scratch.costs];
+            rec.dispatch(&self.refit_deciding, groups, &b, &push);
+        });
+        rec.compute_to_compute();
+    }
+
     /// Records the collapse of the complete tree in `nodes` and `scratch.tree_refs()`
     /// (`n_prims` references, then `n_prims - 1` parent links) with `params`' costs and leaf
     /// size: `nodes` in place, the structure's `refs` written. `visits` holds a zeroed-here counter per node. Only
@@ -117,6 +159,7 @@ impl CollapseKernels {
         params: &BvhParams,
         nodes: &Buffer<BvhNode>,
         refs: &Buffer<u32>,
+        decided: bool,
     ) {
         assert!(
             super::collapse::applies(n_prims, params),
@@ -132,10 +175,6 @@ impl CollapseKernels {
         let parents_at = n_prims as u32;
         let max_leaf = params.max_leaf_prims.min(MAX_COLLAPSE_LEAF);
         rec.scope("collapse", |rec| {
-            // The builder's last kernels read the counters.
-            rec.compute_to_transfer();
-            rec.fill_first(visits, n_nodes, 0);
-            rec.transfer_to_compute();
             let tree: [&dyn BufferArg; 2] = [nodes, &s.words];
             let push = [
                 n_nodes as u32,
@@ -144,13 +183,19 @@ impl CollapseKernels {
                 params.traversal_cost.to_bits(),
                 params.intersection_cost.to_bits(),
             ];
-            let wg = self.cost.invocations();
-            let groups = rec.groups_1d(n_nodes as u64, wg);
-            let b: [&dyn BufferArg; 4] = [tree[0], tree[1], visits, &s.costs];
-            rec.scope("collapse.cost", |rec| {
-                rec.dispatch(&self.cost, groups, &b, &push)
-            });
-            rec.compute_to_compute();
+            if !decided {
+                // The builder's last kernels read the counters.
+                rec.compute_to_transfer();
+                rec.fill_first(visits, n_nodes, 0);
+                rec.transfer_to_compute();
+                let wg = self.cost.invocations();
+                let groups = rec.groups_1d(n_nodes as u64, wg);
+                let b: [&dyn BufferArg; 4] = [tree[0], tree[1], visits, &s.costs];
+                rec.scope("collapse.cost", |rec| {
+                    rec.dispatch(&self.cost, groups, &b, &push)
+                });
+                rec.compute_to_compute();
+            }
             let groups = rec.groups_1d(n_nodes as u64, WORKGROUP);
             let b: [&dyn BufferArg; 5] = [tree[0], tree[1], &s.costs, &s.live, &s.first_ref];
             rec.dispatch(
@@ -164,8 +209,7 @@ impl CollapseKernels {
             self.scan
                 .record(rec, &s.first_ref, &s.first_ref, n_nodes, op, &s.scan);
             rec.compute_to_compute();
-            let b: [&dyn BufferArg; 6] =
-                [nodes, &s.words, &s.costs, &s.live, &s.first_ref, refs];
+            let b: [&dyn BufferArg; 6] = [nodes, &s.words, &s.costs, &s.live, &s.first_ref, refs];
             rec.scope("collapse.write", |rec| {
                 rec.dispatch(&self.write, groups, &b, &[n_nodes as u32, parents_at])
             });
