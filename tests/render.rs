@@ -7,12 +7,13 @@ mod common;
 use std::path::Path;
 
 use common::{assert_silent, context};
+use glam::Vec3;
 use vkrt::accel::kdtree::{seed001, SahParams};
 use vkrt::gpu::Context;
 use vkrt::render::gpu::{GpuRender, Renderer};
 use vkrt::render::output::srgb8;
 use vkrt::render::{cpu, Plan, RenderAccel, RenderOptions, RenderScene};
-use vkrt::scene::Scene;
+use vkrt::scene::{Light, Scene};
 use vkrt::trace::TraceOptions;
 
 fn scene_file(name: &str) -> Scene {
@@ -299,6 +300,73 @@ fn structures_built_on_the_device_render_the_host_twins_image() {
             assert_eq!(d.traffic.submits, u64::from(spp) + 4 + redone, "{what}");
             let twin = cpu::render(&rs, &plan, &TraceOptions::default());
             assert_eq!(twin.counts, d.counts, "{what}: CPU twin ray counts");
+        }
+    }
+}
+
+/// Area lights are emitting shapes the camera sees, as in pbrt: camera rays at the default
+/// scene's quad light return its radiance exactly; from behind (edges swapped) the quad is
+/// invisible; a sphere light in its place is seen too; GPU and CPU twin see the same pixels.
+#[test]
+fn camera_rays_see_area_lights_as_their_radiance() {
+    let Some(ctx) = context() else { return };
+    let base = Scene::default_scene();
+    let Light::Quad {
+        corner,
+        edge_u,
+        edge_v,
+        color,
+        intensity,
+    } = base.lights[0]
+    else {
+        panic!("the default scene's light is a quad")
+    };
+    let power = (color * intensity).to_array();
+    let mut back = base.clone();
+    back.lights[0] = Light::Quad {
+        corner,
+        edge_u: edge_v,
+        edge_v: edge_u,
+        color,
+        intensity,
+    };
+    let mut sphere = base.clone();
+    sphere.lights[0] = Light::Sphere {
+        center: corner + 0.5 * (edge_u + edge_v) - Vec3::new(0.0, 0.2, 0.0),
+        radius: 0.15,
+        color,
+        intensity,
+    };
+    for (what, scene, visible) in [
+        ("front", base, true),
+        ("back", back, false),
+        ("sphere", sphere, true),
+    ] {
+        let (plan, rs) = prepare(&scene, &small(1));
+        assert!(plan.area_lights, "{what}: the plan samples area lights");
+        let gpu = gpu_render(&ctx, &plan, &rs);
+        let twin = cpu::render(&rs, &plan, &TraceOptions::default());
+        let seen =
+            |r: &[[f32; 3]]| -> Vec<usize> { (0..r.len()).filter(|&i| r[i] == power).collect() };
+        let (g, c) = (seen(&gpu.radiance), seen(&twin.radiance));
+        eprintln!(
+            "{what}: {} pixels see the light (twin {})",
+            g.len(),
+            c.len()
+        );
+        if visible {
+            assert!(g.len() >= 4, "{what}: the light is not seen");
+            let differ = g.iter().filter(|i| !c.contains(i)).count()
+                + c.iter().filter(|i| !g.contains(i)).count();
+            assert!(
+                differ <= 2,
+                "{what}: GPU and twin see the light in {differ} different pixels"
+            );
+        } else {
+            assert!(
+                g.is_empty() && c.is_empty(),
+                "{what}: a quad's back is seen"
+            );
         }
     }
 }

@@ -1,5 +1,6 @@
 #version 460
-// Shading of every live ray's hit: emission and ambient (or its occlusion queries), one
+// Shading of every live ray's hit: an area light in front of it (seen as its radiance), or
+// the surface's emission and ambient (or its occlusion queries), one
 // occlusion query per light (point and directional: hard; sphere and quad: one area sample
 // per path vertex, soft over the samples of a pixel), Lambert + Phong, and the children —
 // mirror or glossy reflection and refraction with Fresnel — into two slots per ray with 0/1
@@ -62,6 +63,53 @@ vec3 move_vector(vec3 n, uint prim, float time) {
     return n * c + cross(k, n) * s + k * (dot(k, n) * (1.0 - c));
 }
 
+// The nearest area light the ray meets before `tmax` (and after `tmin`), with its emitted
+// radiance: area lights are emitting shapes the camera and mirrors see, as in pbrt. A quad
+// shows its front (edge_u × edge_v) side, a sphere every side. They are not in the traced
+// structure, so shadow rays pass them. CPU twin: cpu::light_seen.
+bool light_seen(vec3 o, vec3 d, float tmin, float tmax, out vec3 le) {
+    le = vec3(0.0);
+    float nearest = tmax;
+    bool seen = false;
+    for (uint li = 0u; li < prm.n_lights; li++) {
+        Light lt = lights[li];
+        float t = -1.0;
+        if (lt.kind.x == LIGHT_QUAD) {
+            vec3 n = cross(lt.u.xyz, lt.v.xyz);
+            float dn = dot(d, n);
+            if (dn < 0.0) {
+                t = dot(lt.p.xyz - o, n) / dn;
+                vec3 q = o + t * d - lt.p.xyz;
+                float nn = dot(n, n);
+                float a = dot(cross(q, lt.v.xyz), n) / nn;
+                float b = dot(cross(lt.u.xyz, q), n) / nn;
+                if (!(a >= 0.0 && a <= 1.0 && b >= 0.0 && b <= 1.0)) {
+                    t = -1.0;
+                }
+            }
+        } else if (lt.kind.x == LIGHT_SPHERE) {
+            vec3 oc = o - lt.p.xyz;
+            float r = lt.u.w;
+            float qa = dot(d, d);
+            float qb = dot(oc, d);
+            float disc = qb * qb - qa * (dot(oc, oc) - r * r);
+            if (disc >= 0.0) {
+                float s = sqrt(disc);
+                t = (-qb - s) / qa;
+                if (!(t > tmin)) {
+                    t = (-qb + s) / qa;
+                }
+            }
+        }
+        if (t > tmin && t < nearest) {
+            nearest = t;
+            le = lt.power.xyz;
+            seen = true;
+        }
+    }
+    return seen;
+}
+
 void main() {
     uint i = linear_invocation_id();
     if (i >= counters[CNT_QUEUE]) {
@@ -72,6 +120,13 @@ void main() {
     uint slots = prm.shadow_slots;
     for (uint k = 0u; k < slots; k++) {
         shadows[i * slots + k].kind = SHADOW_NONE;
+    }
+    // Glossy rays leave the lights to the Phong term of light sampling (no double count).
+    vec3 le;
+    if (AREA_LIGHTS && p.kind != RAY_GLOSSY
+        && light_seen(p.o, p.d, p.tmin, h.prim == NO_HIT ? p.tmax : h.t, le)) {
+        radiance[i] = vec4(p.weight * le, 0.0);
+        return;
     }
     if (h.prim == NO_HIT) {
         radiance[i] = vec4(p.weight * prm.background.xyz, 0.0);

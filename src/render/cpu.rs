@@ -310,6 +310,55 @@ fn move_vector(rs: &RenderScene, n: Vec3, prim: usize, time: f32) -> Vec3 {
     n * c + k.cross(n) * s + k * (k.dot(n) * (1.0 - c))
 }
 
+/// `shade.comp`'s `light_seen`: the emitted radiance of the nearest area light the ray meets
+/// in (`tmin`, `tmax`) — a quad from its front side, a sphere from any — or `None`.
+fn light_seen(
+    lights: &[GpuLight],
+    n_lights: u32,
+    o: Vec3,
+    d: Vec3,
+    tmin: f32,
+    tmax: f32,
+) -> Option<Vec3> {
+    let mut nearest = tmax;
+    let mut seen = None;
+    for lt in &lights[..n_lights as usize] {
+        let mut t = -1.0f32;
+        if lt.kind[0] == LIGHT_QUAD {
+            let (u, v) = (v3(lt.u), v3(lt.v));
+            let n = u.cross(v);
+            let dn = d.dot(n);
+            if dn < 0.0 {
+                t = (v3(lt.p) - o).dot(n) / dn;
+                let q = o + t * d - v3(lt.p);
+                let nn = n.dot(n);
+                let a = q.cross(v).dot(n) / nn;
+                let b = u.cross(q).dot(n) / nn;
+                if !((0.0..=1.0).contains(&a) && (0.0..=1.0).contains(&b)) {
+                    t = -1.0;
+                }
+            }
+        } else if lt.kind[0] == LIGHT_SPHERE {
+            let oc = o - v3(lt.p);
+            let r = lt.u[3];
+            let (qa, qb) = (d.dot(d), oc.dot(d));
+            let disc = qb * qb - qa * (oc.dot(oc) - r * r);
+            if disc >= 0.0 {
+                let s = disc.sqrt();
+                t = (-qb - s) / qa;
+                if t <= tmin || t.is_nan() {
+                    t = (-qb + s) / qa;
+                }
+            }
+        }
+        if t > tmin && t < nearest {
+            nearest = t;
+            seen = Some(v3(lt.power));
+        }
+    }
+    seen
+}
+
 /// `shade.comp` for one ray.
 fn shade(rs: &RenderScene, plan: &Plan, p: &PathRay, h: &Hit) -> Shaded {
     let prm = &rs.params;
@@ -321,6 +370,14 @@ fn shade(rs: &RenderScene, plan: &Plan, p: &PathRay, h: &Hit) -> Shaded {
     };
     let weight = Vec3::from_array(p.weight);
     let (o, d) = (Vec3::from_array(p.o), Vec3::from_array(p.d));
+    // Glossy rays leave the lights to the Phong term of light sampling (no double count).
+    if plan.area_lights && p.kind != RAY_GLOSSY {
+        let tmax = if h.is_hit() { h.t } else { p.tmax };
+        if let Some(le) = light_seen(&rs.lights, prm.n_lights, o, d, p.tmin, tmax) {
+            out.radiance = weight * le;
+            return out;
+        }
+    }
     if !h.is_hit() {
         out.radiance = weight * v3(prm.background);
         return out;
