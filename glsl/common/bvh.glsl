@@ -84,12 +84,12 @@ Hit trace_bvh_stack(Ray r, float time) {
     uvec2 cur = uvec2(0u, 0u);
     bool have = true;
     uint steps = 0u;
-    while (have) {
-        while (have && cur.y == 0u) {
-            if (steps > MAX_TRAVERSAL_STEPS) {
-                trace_steps_exhausted = true;
-                return best;
-            }
+    // Every natural end returns inside the loop; the code after it runs when the step cap
+    // ends the walk, or when a driver ends a loop on its own (Mesa 22.3's lavapipe stops
+    // every loop of an invocation after 65,535 iterations in all): both report exhaustion,
+    // never a silent miss.
+    while (true) {
+        while (have && cur.y == 0u && steps <= MAX_TRAVERSAL_STEPS) {
             steps++;
             BvhNode nd = load_bvh_node(cur.x);
             float ta;
@@ -119,7 +119,10 @@ Hit trace_bvh_stack(Ray r, float time) {
             }
         }
         if (!have) {
-            break;
+            return best; // the stack is empty: the walk is complete
+        }
+        if (cur.y == 0u) {
+            break; // an interior node still to visit: the step cap (or the driver) ended it
         }
         steps += cur.y;
         if (test_leaf(cur.x, cur.y, r, sh, time, tmin, best, best_t)) {
@@ -132,6 +135,7 @@ Hit trace_bvh_stack(Ray r, float time) {
             have = stack_t[top] <= best_t;
         }
     }
+    trace_steps_exhausted = true;
     return best;
 }
 
@@ -148,11 +152,9 @@ Hit trace_bvh_bitstack(Ray r, float time) {
     uvec4 trail = uvec4(0u); // one bit per level, 128 in all; .x the lowest word
     uint node = 0u;
     uint steps = 0u;
-    while (true) {
-        if (steps > MAX_TRAVERSAL_STEPS) {
-            trace_steps_exhausted = true;
-            return best;
-        }
+    // Every natural end returns inside the loop: after it, the step cap or the driver
+    // (Mesa 22.3's loop budget, as in the stack walk) ended the walk.
+    while (steps <= MAX_TRAVERSAL_STEPS) {
         steps++;
         BvhNode nd = load_bvh_node(node);
         uint inner[2] = uint[2](NO_NODE, NO_NODE);
@@ -215,6 +217,7 @@ Hit trace_bvh_bitstack(Ray r, float time) {
             node = sibling;
         }
     }
+    trace_steps_exhausted = true;
     return best;
 }
 
