@@ -1,14 +1,21 @@
 //! What a TOML scene file says, as serde types. Every table has
 //! `deny_unknown_fields`, so a misspelt key is an error with its span.
+//! The writer serializes the same types (absent options are left out).
 
 use std::fmt;
 
 use serde::de::{self, Deserializer, SeqAccess, Visitor};
-use serde::Deserialize;
+use serde::{Deserialize, Serialize, Serializer};
 
 /// A number (all three components equal) or an array of three numbers.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub(super) struct Vec3OrScalar(pub(super) [f32; 3]);
+
+impl Serialize for Vec3OrScalar {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        self.0.serialize(s)
+    }
+}
 
 impl<'de> Deserialize<'de> for Vec3OrScalar {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
@@ -55,6 +62,18 @@ impl<T> Default for Ordered<T> {
     }
 }
 
+impl<T> Ordered<T> {
+    pub(super) fn is_empty(&self) -> bool {
+        self.0.is_empty()
+    }
+}
+
+impl<T: Serialize> Serialize for Ordered<T> {
+    fn serialize<S: Serializer>(&self, s: S) -> Result<S::Ok, S::Error> {
+        s.collect_map(self.0.iter().map(|(k, v)| (k, v)))
+    }
+}
+
 impl<'de, T: Deserialize<'de>> Deserialize<'de> for Ordered<T> {
     fn deserialize<D: Deserializer<'de>>(d: D) -> Result<Self, D::Error> {
         struct V<T>(std::marker::PhantomData<T>);
@@ -75,23 +94,23 @@ impl<'de, T: Deserialize<'de>> Deserialize<'de> for Ordered<T> {
     }
 }
 
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct SceneDef {
     pub(super) ambient: Option<[f32; 3]>,
     pub(super) settings: Option<SettingsDef>,
     pub(super) camera: Option<CameraDef>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Ordered::is_empty")]
     pub(super) materials: Ordered<MaterialDef>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub(super) lights: Vec<LightDef>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub(super) spheres: Vec<SphereDef>,
-    #[serde(default)]
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
     pub(super) meshes: Vec<MeshDef>,
 }
 
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct SettingsDef {
     pub(super) width: Option<u32>,
@@ -103,7 +122,7 @@ pub(super) struct SettingsDef {
     pub(super) ao: Option<AoDef>,
 }
 
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct AoDef {
     pub(super) enabled: Option<bool>,
@@ -111,7 +130,7 @@ pub(super) struct AoDef {
     pub(super) samples: Option<u32>,
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct CameraDef {
     pub(super) position: [f32; 3],
@@ -123,7 +142,7 @@ pub(super) struct CameraDef {
     pub(super) shutter: Option<[f32; 2]>,
 }
 
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct MaterialDef {
     pub(super) diffuse: Option<[f32; 3]>,
@@ -137,7 +156,7 @@ pub(super) struct MaterialDef {
     pub(super) emission: Option<[f32; 3]>,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub(super) enum LightKind {
     Point,
@@ -146,7 +165,7 @@ pub(super) enum LightKind {
     Directional,
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct LightDef {
     #[serde(rename = "type")]
@@ -162,7 +181,7 @@ pub(super) struct LightDef {
     pub(super) intensity: Option<f32>,
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct OrbitDef {
     pub(super) center: Option<[f32; 3]>,
@@ -170,7 +189,7 @@ pub(super) struct OrbitDef {
     pub(super) degrees_per_second: f32,
 }
 
-#[derive(Debug, Deserialize)]
+#[derive(Debug, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct SphereDef {
     pub(super) center: [f32; 3],
@@ -180,7 +199,7 @@ pub(super) struct SphereDef {
     pub(super) orbit: Option<OrbitDef>,
 }
 
-#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq, Deserialize, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub(super) enum GenKind {
     Icosphere,
@@ -190,7 +209,7 @@ pub(super) enum GenKind {
     SphereFlake,
 }
 
-#[derive(Debug, Default, Deserialize)]
+#[derive(Debug, Default, Deserialize, Serialize)]
 #[serde(deny_unknown_fields)]
 pub(super) struct MeshDef {
     pub(super) name: Option<String>,

@@ -4,7 +4,7 @@
 //!
 //! 1. `toml` + serde into the `*Def` structs below. Every struct has
 //!    `deny_unknown_fields`, so a misspelt key is an error; `toml` gives the
-//!    span, the private `toml_locate` scanner names the key at that span.
+//!    span; `toml_locate` (spans from `toml_edit`) names the key there.
 //! 2. Definitions to model: material names resolved, mesh files loaded
 //!    (OBJ, relative to the scene file), generators run (their size checked
 //!    first). Errors carry TOML key paths.

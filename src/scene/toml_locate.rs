@@ -2,143 +2,22 @@
 //!
 //! `toml` reports a span for syntax and type errors but not the key, and
 //! validation (which runs on the deserialized model) knows the key but not
-//! the span. This is a small, tolerant TOML *scanner* — strings, comments,
-//! brackets, `=`, `,`, headers, dotted keys, inline tables, arrays, arrays
-//! of tables — that records, for every key and array element, its path
-//! (`spheres[2].center[1]`) and the byte ranges of its key and value. It
-//! does not validate anything; on text `toml` rejected it simply records
-//! what it can. It runs only when an error is being reported.
+//! the span. `toml_edit` parses the text again keeping every key's and
+//! value's span; this walks that tree once and records, for every key and
+//! array element, its path (`spheres[2].center[1]`) and byte ranges. It
+//! runs only when an error is being reported; text that does not parse
+//! gives an empty index (the error then has a line but no key).
 
-use std::collections::HashMap;
 use std::ops::Range;
 
-#[derive(Clone, Debug, PartialEq)]
-enum Tok {
-    LBracket,
-    RBracket,
-    LBrace,
-    RBrace,
-    Eq,
-    Comma,
-    Newline,
-    Str(String),
-    Bare(String),
-}
+use toml_edit::{ImDocument, Item, Key, Table, Value};
 
-fn tokenize(text: &str) -> Vec<(Tok, Range<usize>)> {
-    let b = text.as_bytes();
-    let mut out = Vec::new();
-    let mut i = 0;
-    while i < b.len() {
-        let start = i;
-        match b[i] {
-            b' ' | b'\t' | b'\r' => i += 1,
-            b'\n' => {
-                i += 1;
-                out.push((Tok::Newline, start..i));
-            }
-            b'#' => {
-                while i < b.len() && b[i] != b'\n' {
-                    i += 1;
-                }
-            }
-            b'[' | b']' | b'{' | b'}' | b'=' | b',' => {
-                let t = match b[i] {
-                    b'[' => Tok::LBracket,
-                    b']' => Tok::RBracket,
-                    b'{' => Tok::LBrace,
-                    b'}' => Tok::RBrace,
-                    b'=' => Tok::Eq,
-                    _ => Tok::Comma,
-                };
-                i += 1;
-                out.push((t, start..i));
-            }
-            q @ (b'"' | b'\'') => {
-                let triple = b.get(i..i + 3) == Some(&[q, q, q][..]);
-                let escapes = q == b'"';
-                let mut s = Vec::new();
-                if triple {
-                    i += 3;
-                    while i < b.len() && b.get(i..i + 3) != Some(&[q, q, q][..]) {
-                        if escapes && b[i] == b'\\' && i + 1 < b.len() {
-                            s.push(b[i + 1]);
-                            i += 2;
-                        } else {
-                            s.push(b[i]);
-                            i += 1;
-                        }
-                    }
-                    i = (i + 3).min(b.len());
-                    // Up to two extra quotes may close a multi-line string.
-                    while i < b.len() && b[i] == q {
-                        i += 1;
-                    }
-                } else {
-                    i += 1;
-                    while i < b.len() && b[i] != q && b[i] != b'\n' {
-                        if escapes && b[i] == b'\\' && i + 1 < b.len() {
-                            s.push(b[i + 1]);
-                            i += 2;
-                        } else {
-                            s.push(b[i]);
-                            i += 1;
-                        }
-                    }
-                    if i < b.len() && b[i] == q {
-                        i += 1;
-                    }
-                }
-                out.push((Tok::Str(String::from_utf8_lossy(&s).into_owned()), start..i));
-            }
-            _ => {
-                while i < b.len()
-                    && !matches!(
-                        b[i],
-                        b' ' | b'\t'
-                            | b'\r'
-                            | b'\n'
-                            | b'#'
-                            | b'['
-                            | b']'
-                            | b'{'
-                            | b'}'
-                            | b'='
-                            | b','
-                            | b'"'
-                            | b'\''
-                    )
-                {
-                    i += 1;
-                }
-                out.push((Tok::Bare(text[start..i].to_owned()), start..i));
-            }
-        }
-    }
-    out
-}
-
-/// Append a key segment to a path string, quoting keys that are not bare.
+/// Append a key segment to a path, quoted as TOML would be if not bare.
 pub(crate) fn push_key(path: &mut String, key: &str) {
     if !path.is_empty() {
         path.push('.');
     }
-    let bare = !key.is_empty()
-        && key
-            .bytes()
-            .all(|c| c.is_ascii_alphanumeric() || c == b'_' || c == b'-');
-    if bare {
-        path.push_str(key);
-    } else {
-        path.push('"');
-        for c in key.chars() {
-            if c == '"' || c == '\\' {
-                path.push('\\');
-            }
-            path.push(c);
-        }
-        path.push('"');
-    }
+    path.push_str(&Key::new(key).display_repr());
 }
 
 #[derive(Clone, Debug)]
@@ -154,208 +33,77 @@ pub(crate) struct Locator {
     entries: Vec<Entry>,
 }
 
-const MAX_NESTING: usize = 64;
-
-struct Parser<'a> {
-    toks: &'a [(Tok, Range<usize>)],
-    pos: usize,
-    entries: Vec<Entry>,
-}
-
-impl Parser<'_> {
-    fn peek(&self) -> Option<&Tok> {
-        self.toks.get(self.pos).map(|t| &t.0)
-    }
-
-    fn span(&self) -> Range<usize> {
-        self.toks
-            .get(self.pos)
-            .map_or(usize::MAX..usize::MAX, |t| t.1.clone())
-    }
-
-    fn end_of_prev(&self) -> usize {
-        self.pos
-            .checked_sub(1)
-            .and_then(|p| self.toks.get(p))
-            .map_or(0, |t| t.1.end)
-    }
-
-    fn skip_newlines(&mut self) {
-        while self.peek() == Some(&Tok::Newline) {
-            self.pos += 1;
+impl Locator {
+    /// Index `text` (empty if it is not valid TOML).
+    pub(crate) fn new(text: &str) -> Self {
+        let mut loc = Locator::default();
+        if let Ok(doc) = ImDocument::parse(text) {
+            loc.table(doc.as_table(), "");
         }
+        loc
     }
 
-    /// Key parts up to (not including) `=` or `]`.
-    fn key_parts(&mut self) -> Vec<String> {
-        let mut parts = Vec::new();
-        while let Some(t) = self.peek() {
-            match t {
-                Tok::Bare(s) => {
-                    parts.extend(s.split('.').filter(|p| !p.is_empty()).map(str::to_owned));
-                }
-                Tok::Str(s) => parts.push(s.clone()),
-                _ => break,
-            }
-            self.pos += 1;
-        }
-        parts
-    }
-
-    fn value(&mut self, path: &str, key: Range<usize>, depth: usize) {
-        let start = self.span().start;
-        match self.peek() {
-            Some(Tok::LBrace) if depth < MAX_NESTING => {
-                self.pos += 1;
-                loop {
-                    self.skip_newlines();
-                    match self.peek() {
-                        None => break,
-                        Some(Tok::RBrace) => {
-                            self.pos += 1;
-                            break;
-                        }
-                        Some(Tok::Comma) => self.pos += 1,
-                        _ => {
-                            let k0 = self.span().start;
-                            let parts = self.key_parts();
-                            let k1 = self.end_of_prev();
-                            if self.peek() != Some(&Tok::Eq) {
-                                self.pos += 1; // tolerate garbage
-                                continue;
-                            }
-                            self.pos += 1;
-                            let mut p = path.to_owned();
-                            for part in &parts {
-                                push_key(&mut p, part);
-                            }
-                            self.value(&p, k0..k1, depth + 1);
-                        }
-                    }
-                }
-            }
-            Some(Tok::LBracket) if depth < MAX_NESTING => {
-                self.pos += 1;
-                let mut index = 0usize;
-                loop {
-                    self.skip_newlines();
-                    match self.peek() {
-                        None => break,
-                        Some(Tok::RBracket) => {
-                            self.pos += 1;
-                            break;
-                        }
-                        Some(Tok::Comma) => self.pos += 1,
-                        Some(Tok::Eq | Tok::RBrace) => self.pos += 1,
-                        _ => {
-                            let p = format!("{path}[{index}]");
-                            let s = self.span();
-                            self.value(&p, s.start..s.start, depth + 1);
-                            index += 1;
-                        }
-                    }
-                }
-            }
-            _ => {
-                // A scalar: one or more adjacent bare/string tokens (a
-                // date-time may contain a space).
-                let mut any = false;
-                while let Some(Tok::Bare(_) | Tok::Str(_)) = self.peek() {
-                    self.pos += 1;
-                    any = true;
-                }
-                if !any && self.peek().is_some() && self.peek() != Some(&Tok::Newline) {
-                    self.pos += 1;
-                }
-            }
-        }
-        let end = self.end_of_prev();
+    fn push(&mut self, path: &str, key: Option<Range<usize>>, value: Option<Range<usize>>) {
+        let (key, value) = match (key, value) {
+            (Some(k), Some(v)) => (k, v),
+            (Some(k), None) => (k.clone(), k),
+            (None, Some(v)) => (v.start..v.start, v),
+            (None, None) => return, // an implicit table: not written anywhere
+        };
         self.entries.push(Entry {
             path: path.to_owned(),
             key,
-            value: start.min(end)..end,
+            value,
         });
     }
 
-    fn document(&mut self) {
-        let mut table = String::new();
-        let mut aot: HashMap<String, usize> = HashMap::new();
-        let mut open_header: Option<usize> = None;
-        loop {
-            self.skip_newlines();
-            let Some(tok) = self.peek() else { break };
-            if *tok == Tok::LBracket {
-                let h0 = self.span().start;
-                self.pos += 1;
-                let is_aot = self.peek() == Some(&Tok::LBracket) && self.span().start == h0 + 1;
-                if is_aot {
-                    self.pos += 1;
+    fn table(&mut self, t: &Table, path: &str) {
+        for (name, item) in t.iter() {
+            let mut p = path.to_owned();
+            push_key(&mut p, name);
+            let key = t.key(name).and_then(Key::span);
+            match item {
+                Item::None => {}
+                Item::Value(v) => {
+                    self.push(&p, key, v.span());
+                    self.value(v, &p);
                 }
-                let parts = self.key_parts();
-                while let Some(Tok::RBracket) = self.peek() {
-                    self.pos += 1;
+                // A `[header]` table's span runs from the header to its last
+                // value; dotted and implicit tables have none.
+                Item::Table(sub) => {
+                    self.push(&p, sub.span().map(|s| s.start..s.start), sub.span());
+                    self.table(sub, &p);
                 }
-                let h1 = self.end_of_prev();
-                let mut path = String::new();
-                let n = parts.len();
-                for (k, part) in parts.iter().enumerate() {
-                    push_key(&mut path, part);
-                    if k + 1 == n && is_aot {
-                        let c = aot.entry(path.clone()).or_insert(0);
-                        *c += 1;
-                        path = format!("{path}[{}]", *c - 1);
-                    } else if let Some(c) = aot.get(&path) {
-                        path = format!("{path}[{}]", c.saturating_sub(1));
+                Item::ArrayOfTables(a) => {
+                    for (i, sub) in a.iter().enumerate() {
+                        let p = format!("{p}[{i}]");
+                        self.push(&p, None, sub.span());
+                        self.table(sub, &p);
                     }
                 }
-                if let Some(e) = open_header.and_then(|h| self.entries.get_mut(h)) {
-                    e.value.end = h0;
-                }
-                open_header = Some(self.entries.len());
-                self.entries.push(Entry {
-                    path: path.clone(),
-                    key: h0..h1,
-                    value: h0..usize::MAX,
-                });
-                table = path;
-            } else {
-                let k0 = self.span().start;
-                let parts = self.key_parts();
-                let k1 = self.end_of_prev();
-                if self.peek() == Some(&Tok::Eq) && !parts.is_empty() {
-                    self.pos += 1;
-                    let mut p = table.clone();
-                    for part in &parts {
-                        push_key(&mut p, part);
-                    }
-                    self.value(&p, k0..k1, 0);
-                }
-            }
-            // Resynchronise at the end of the line.
-            while let Some(t) = self.peek() {
-                if *t == Tok::Newline {
-                    break;
-                }
-                self.pos += 1;
             }
         }
     }
-}
 
-impl Locator {
-    /// Index `text`.
-    pub(crate) fn new(text: &str) -> Self {
-        let toks = tokenize(text);
-        let mut p = Parser {
-            toks: &toks,
-            pos: 0,
-            entries: Vec::new(),
-        };
-        p.document();
-        for e in &mut p.entries {
-            e.value.end = e.value.end.min(text.len());
+    fn value(&mut self, v: &Value, path: &str) {
+        match v {
+            Value::Array(a) => {
+                for (i, e) in a.iter().enumerate() {
+                    let p = format!("{path}[{i}]");
+                    self.push(&p, None, e.span());
+                    self.value(e, &p);
+                }
+            }
+            Value::InlineTable(t) => {
+                for (name, e) in t.iter() {
+                    let mut p = path.to_owned();
+                    push_key(&mut p, name);
+                    self.push(&p, t.key(name).and_then(Key::span), e.span());
+                    self.value(e, &p);
+                }
+            }
+            _ => {}
         }
-        Locator { entries: p.entries }
     }
 
     /// Byte offset of the key `path`, or of its nearest recorded ancestor
@@ -445,21 +193,17 @@ mod tests {
     }
 
     #[test]
-    fn survives_garbage() {
+    fn invalid_toml_gives_an_empty_index() {
         for text in [
             "[[[",
             "a = [[[[",
             "= = =",
-            "a.b.c",
             "\"unterminated",
-            "'''",
             "x = {a = [1, {b",
         ] {
             let loc = Locator::new(text);
-            let _ = loc.path_at(1);
-            let _ = loc.find("a.b");
+            assert_eq!(loc.path_at(1), None);
+            assert_eq!(loc.find("a.b"), None);
         }
-        let deep = "a = ".to_owned() + &"[".repeat(100_000);
-        let _ = Locator::new(&deep).path_at(5);
     }
 }

@@ -1,64 +1,88 @@
-//! Writing a [`Scene`] in the TOML format: every field explicit, meshes
-//! inline, floats in their shortest form that parses back exactly, so
-//! reading the output gives back an equal scene.
+//! Writing a [`Scene`] in the TOML format: the scene becomes the same
+//! `*Def` types the reader uses, every field explicit and meshes inline,
+//! and `toml_edit` serializes them. Floats are written in their shortest
+//! form that parses back exactly, so reading the output gives back an
+//! equal scene.
 
-use std::collections::HashMap;
-use std::fmt::Write as _;
+use std::collections::HashSet;
 
 use glam::Vec3;
+use toml_edit::visit_mut::{self, VisitMut};
+use toml_edit::{Array, Formatted, Item, Table, Value};
 
-use super::model::{Light, MaterialId, MeshMaterials, Motion};
-use super::toml_locate::push_key;
+use super::model::{Light, MaterialId, Mesh, MeshMaterials, Motion, Sphere};
+use super::toml_defs::{
+    AoDef, CameraDef, LightDef, LightKind, MaterialDef, MeshDef, OrbitDef, Ordered, SceneDef,
+    SettingsDef, SphereDef, Vec3OrScalar,
+};
 use super::Scene;
-
-/// Shortest text that parses back to exactly `v` (TOML spelling for
-/// non-finite values).
-fn num(v: f32) -> String {
-    if v.is_nan() {
-        "nan".to_owned()
-    } else if v.is_infinite() {
-        if v > 0.0 { "inf" } else { "-inf" }.to_owned()
-    } else {
-        format!("{v:?}")
-    }
-}
-
-fn vec(v: Vec3) -> String {
-    format!("[{}, {}, {}]", num(v.x), num(v.y), num(v.z))
-}
-
-fn string(s: &str) -> String {
-    toml::Value::String(s.to_owned()).to_string()
-}
-
-fn table_key(k: &str) -> String {
-    let mut s = String::new();
-    push_key(&mut s, k);
-    if s.starts_with('"') {
-        string(k)
-    } else {
-        s
-    }
-}
-
-fn write_motion(out: &mut String, m: &Motion, table: &str) {
-    if m.velocity != Vec3::ZERO {
-        let _ = writeln!(out, "velocity = {}", vec(m.velocity));
-    }
-    if let Some(o) = m.orbit {
-        let _ = writeln!(out, "[{table}.orbit]");
-        let _ = writeln!(out, "center = {}", vec(o.center));
-        let _ = writeln!(out, "axis = {}", vec(o.axis));
-        let _ = writeln!(out, "degrees_per_second = {}", num(o.degrees_per_second));
-    }
-}
 
 /// Serialize a scene to the TOML format. Material names are made unique
 /// (empty names become `material<i>`, repeats get `#<n>`).
 pub fn scene_to_toml(scene: &Scene) -> String {
-    let mut out = String::new();
-    let mut names: Vec<String> = Vec::with_capacity(scene.materials.len());
-    let mut seen: HashMap<String, usize> = HashMap::new();
+    let names = unique_names(scene);
+    let (s, c) = (&scene.settings, &scene.camera);
+    let def = SceneDef {
+        ambient: Some(scene.ambient.to_array()),
+        settings: Some(SettingsDef {
+            width: Some(s.width),
+            height: Some(s.height),
+            spp: Some(s.spp),
+            max_depth: Some(s.max_depth),
+            background: Some(s.background.to_array()),
+            antialias: Some(s.antialias),
+            ao: Some(AoDef {
+                enabled: Some(s.ao.enabled),
+                radius: Some(s.ao.radius),
+                samples: Some(s.ao.samples),
+            }),
+        }),
+        camera: Some(CameraDef {
+            position: c.position.to_array(),
+            look_at: c.look_at.to_array(),
+            up: Some(c.up.to_array()),
+            fov: Some(c.fov),
+            aperture: Some(c.aperture_radius),
+            focus_distance: Some(c.focus_distance),
+            shutter: Some([c.shutter_open, c.shutter_close]),
+        }),
+        materials: Ordered(
+            scene
+                .materials
+                .iter()
+                .zip(&names)
+                .map(|(m, name)| {
+                    let def = MaterialDef {
+                        diffuse: Some(m.diffuse.to_array()),
+                        specular: Some(Vec3OrScalar(m.specular.to_array())),
+                        shininess: Some(m.shininess),
+                        mirror: Some(Vec3OrScalar(m.mirror.to_array())),
+                        roughness: Some(m.roughness),
+                        transmission: Some(m.transmission),
+                        ior: Some(m.ior),
+                        fresnel: Some(m.fresnel),
+                        emission: Some(m.emission.to_array()),
+                    };
+                    (name.clone(), def)
+                })
+                .collect(),
+        ),
+        lights: scene.lights.iter().map(light_def).collect(),
+        spheres: scene
+            .spheres
+            .iter()
+            .map(|sp| sphere_def(sp, &names))
+            .collect(),
+        meshes: scene.meshes.iter().map(|m| mesh_def(m, &names)).collect(),
+    };
+    let mut doc = toml_edit::ser::to_document(&def).expect("a scene always serializes");
+    Tidy::default().visit_document_mut(&mut doc);
+    format!("# vkrt scene (written by Scene::to_toml_string)\n{doc}")
+}
+
+fn unique_names(scene: &Scene) -> Vec<String> {
+    let mut seen = HashSet::new();
+    let mut names = Vec::with_capacity(scene.materials.len());
     for (i, m) in scene.materials.iter().enumerate() {
         let base = if m.name.is_empty() {
             format!("material{i}")
@@ -67,188 +91,174 @@ pub fn scene_to_toml(scene: &Scene) -> String {
         };
         let mut name = base.clone();
         let mut n = 1;
-        while seen.contains_key(&name) {
+        while seen.contains(&name) {
             n += 1;
             name = format!("{base}#{n}");
         }
-        seen.insert(name.clone(), i);
+        seen.insert(name.clone());
         names.push(name);
     }
-    let mat = |id: MaterialId| string(names.get(id as usize).map_or("<invalid>", |s| s.as_str()));
+    names
+}
 
-    let _ = writeln!(out, "# vkrt scene (written by Scene::to_toml_string)");
-    let _ = writeln!(out, "ambient = {}", vec(scene.ambient));
-    let s = &scene.settings;
-    let _ = writeln!(out, "\n[settings]");
-    let _ = writeln!(
-        out,
-        "width = {}\nheight = {}\nspp = {}\nmax_depth = {}",
-        s.width, s.height, s.spp, s.max_depth
-    );
-    let _ = writeln!(
-        out,
-        "background = {}\nantialias = {}",
-        vec(s.background),
-        s.antialias
-    );
-    let _ = writeln!(out, "\n[settings.ao]");
-    let _ = writeln!(
-        out,
-        "enabled = {}\nradius = {}\nsamples = {}",
-        s.ao.enabled,
-        num(s.ao.radius),
-        s.ao.samples
-    );
-    let c = &scene.camera;
-    let _ = writeln!(out, "\n[camera]");
-    let _ = writeln!(
-        out,
-        "position = {}\nlook_at = {}\nup = {}",
-        vec(c.position),
-        vec(c.look_at),
-        vec(c.up)
-    );
-    let _ = writeln!(
-        out,
-        "fov = {}\naperture = {}\nfocus_distance = {}",
-        num(c.fov),
-        num(c.aperture_radius),
-        num(c.focus_distance)
-    );
-    let _ = writeln!(
-        out,
-        "shutter = [{}, {}]",
-        num(c.shutter_open),
-        num(c.shutter_close)
-    );
+fn material_name(names: &[String], id: MaterialId) -> String {
+    names
+        .get(id as usize)
+        .map_or_else(|| "<invalid>".to_owned(), String::clone)
+}
 
-    for (m, name) in scene.materials.iter().zip(&names) {
-        let _ = writeln!(out, "\n[materials.{}]", table_key(name));
-        let _ = writeln!(
-            out,
-            "diffuse = {}\nspecular = {}\nshininess = {}",
-            vec(m.diffuse),
-            vec(m.specular),
-            num(m.shininess)
-        );
-        let _ = writeln!(
-            out,
-            "mirror = {}\nroughness = {}",
-            vec(m.mirror),
-            num(m.roughness)
-        );
-        let _ = writeln!(
-            out,
-            "transmission = {}\nior = {}\nfresnel = {}",
-            num(m.transmission),
-            num(m.ior),
-            m.fresnel
-        );
-        let _ = writeln!(out, "emission = {}", vec(m.emission));
+fn light_def(l: &Light) -> LightDef {
+    let (color, intensity) = match *l {
+        Light::Point {
+            color, intensity, ..
+        }
+        | Light::Sphere {
+            color, intensity, ..
+        }
+        | Light::Quad {
+            color, intensity, ..
+        }
+        | Light::Directional {
+            color, intensity, ..
+        } => (color, intensity),
+    };
+    let mut def = LightDef {
+        kind: LightKind::Point,
+        position: None,
+        center: None,
+        radius: None,
+        corner: None,
+        edge_u: None,
+        edge_v: None,
+        direction: None,
+        color: Some(color.to_array()),
+        intensity: Some(intensity),
+    };
+    match *l {
+        Light::Point { position, .. } => def.position = Some(position.to_array()),
+        Light::Sphere { center, radius, .. } => {
+            def.kind = LightKind::Sphere;
+            def.center = Some(center.to_array());
+            def.radius = Some(radius);
+        }
+        Light::Quad {
+            corner,
+            edge_u,
+            edge_v,
+            ..
+        } => {
+            def.kind = LightKind::Quad;
+            def.corner = Some(corner.to_array());
+            def.edge_u = Some(edge_u.to_array());
+            def.edge_v = Some(edge_v.to_array());
+        }
+        Light::Directional { direction, .. } => {
+            def.kind = LightKind::Directional;
+            def.direction = Some(direction.to_array());
+        }
+    }
+    def
+}
+
+/// `velocity` and `orbit`, each only when the object moves that way.
+fn motion_defs(m: &Motion) -> (Option<[f32; 3]>, Option<OrbitDef>) {
+    let velocity = (m.velocity != Vec3::ZERO).then(|| m.velocity.to_array());
+    let orbit = m.orbit.map(|o| OrbitDef {
+        center: Some(o.center.to_array()),
+        axis: Some(o.axis.to_array()),
+        degrees_per_second: o.degrees_per_second,
+    });
+    (velocity, orbit)
+}
+
+fn sphere_def(sp: &Sphere, names: &[String]) -> SphereDef {
+    let (velocity, orbit) = motion_defs(&sp.motion);
+    SphereDef {
+        center: sp.center.to_array(),
+        radius: sp.radius,
+        material: Some(material_name(names, sp.material)),
+        velocity,
+        orbit,
+    }
+}
+
+fn mesh_def(mesh: &Mesh, names: &[String]) -> MeshDef {
+    let (velocity, orbit) = motion_defs(&mesh.motion);
+    let t = &mesh.transform;
+    let (material, triangle_materials) = match &mesh.materials {
+        MeshMaterials::Single(id) => (Some(material_name(names, *id)), None),
+        MeshMaterials::PerTriangle(ids) => (
+            None,
+            Some(ids.iter().map(|&id| material_name(names, id)).collect()),
+        ),
+    };
+    let arrays = |v: &[Vec3]| v.iter().map(|p| p.to_array()).collect();
+    MeshDef {
+        name: Some(mesh.name.clone()),
+        positions: Some(arrays(&mesh.positions)),
+        normals: (!mesh.normals.is_empty()).then(|| arrays(&mesh.normals)),
+        indices: Some(mesh.indices.clone()),
+        material,
+        triangle_materials,
+        translate: Some(t.translate.to_array()),
+        rotate: Some(t.rotate.to_array()),
+        scale: Some(Vec3OrScalar(t.scale.to_array())),
+        velocity,
+        orbit,
+        ..MeshDef::default()
+    }
+}
+
+/// `[table]` and `[[array]]` sections instead of inline tables (as `toml`'s
+/// own writer does), shortest floats, and one line per item of long arrays.
+#[derive(Default)]
+struct Tidy {
+    in_value: bool,
+}
+
+impl VisitMut for Tidy {
+    fn visit_item_mut(&mut self, node: &mut Item) {
+        let parent_in_value = self.in_value;
+        if !parent_in_value {
+            let item = std::mem::take(node);
+            let item = item.into_table().map(Item::Table).unwrap_or_else(|i| i);
+            *node = item
+                .into_array_of_tables()
+                .map(Item::ArrayOfTables)
+                .unwrap_or_else(|i| i);
+            self.in_value = node.is_value();
+        }
+        visit_mut::visit_item_mut(self, node);
+        self.in_value = parent_in_value;
     }
 
-    for l in &scene.lights {
-        let _ = writeln!(out, "\n[[lights]]\ntype = \"{}\"", l.kind());
-        match *l {
-            Light::Point { position, .. } => {
-                let _ = writeln!(out, "position = {}", vec(position));
-            }
-            Light::Sphere { center, radius, .. } => {
-                let _ = writeln!(out, "center = {}\nradius = {}", vec(center), num(radius));
-            }
-            Light::Quad {
-                corner,
-                edge_u,
-                edge_v,
-                ..
-            } => {
-                let _ = writeln!(
-                    out,
-                    "corner = {}\nedge_u = {}\nedge_v = {}",
-                    vec(corner),
-                    vec(edge_u),
-                    vec(edge_v)
-                );
-            }
-            Light::Directional { direction, .. } => {
-                let _ = writeln!(out, "direction = {}", vec(direction));
-            }
-        }
-        let (color, intensity) = match *l {
-            Light::Point {
-                color, intensity, ..
-            }
-            | Light::Sphere {
-                color, intensity, ..
-            }
-            | Light::Quad {
-                color, intensity, ..
-            }
-            | Light::Directional {
-                color, intensity, ..
-            } => (color, intensity),
-        };
-        let _ = writeln!(
-            out,
-            "color = {}\nintensity = {}",
-            vec(color),
-            num(intensity)
-        );
+    fn visit_table_mut(&mut self, node: &mut Table) {
+        // No header for tables that hold only tables (`[materials]`).
+        node.set_implicit(true);
+        visit_mut::visit_table_mut(self, node);
     }
 
-    for sp in &scene.spheres {
-        let _ = writeln!(out, "\n[[spheres]]");
-        let _ = writeln!(
-            out,
-            "center = {}\nradius = {}\nmaterial = {}",
-            vec(sp.center),
-            num(sp.radius),
-            mat(sp.material)
-        );
-        write_motion(&mut out, &sp.motion, "spheres");
+    fn visit_float_mut(&mut self, node: &mut Formatted<f64>) {
+        // Every float here was an `f32`; serde widened it to `f64` (0.1 →
+        // 0.10000000149011612). The shortest `f32` text parses back to the
+        // same `f32`.
+        let v = *node.value() as f32;
+        if v.is_finite() {
+            *node = Formatted::new(format!("{v:?}").parse().unwrap_or(f64::from(v)));
+        }
     }
 
-    for mesh in &scene.meshes {
-        let _ = writeln!(out, "\n[[meshes]]");
-        let _ = writeln!(out, "name = {}", string(&mesh.name));
-        let t = &mesh.transform;
-        let _ = writeln!(
-            out,
-            "translate = {}\nrotate = {}\nscale = {}",
-            vec(t.translate),
-            vec(t.rotate),
-            vec(t.scale)
-        );
-        match &mesh.materials {
-            MeshMaterials::Single(id) => {
-                let _ = writeln!(out, "material = {}", mat(*id));
+    fn visit_array_mut(&mut self, node: &mut Array) {
+        visit_mut::visit_array_mut(self, node);
+        // Vectors stay inline; vertex, index and material lists get a line
+        // per item.
+        if node.len() > 3 || node.iter().any(Value::is_array) {
+            for v in node.iter_mut() {
+                v.decor_mut().set_prefix("\n  ");
+                v.decor_mut().set_suffix("");
             }
-            MeshMaterials::PerTriangle(ids) => {
-                out.push_str("triangle_materials = [\n");
-                for id in ids {
-                    let _ = writeln!(out, "  {},", mat(*id));
-                }
-                out.push_str("]\n");
-            }
+            node.set_trailing_comma(true);
+            node.set_trailing("\n");
         }
-        out.push_str("positions = [\n");
-        for p in &mesh.positions {
-            let _ = writeln!(out, "  {},", vec(*p));
-        }
-        out.push_str("]\n");
-        if !mesh.normals.is_empty() {
-            out.push_str("normals = [\n");
-            for n in &mesh.normals {
-                let _ = writeln!(out, "  {},", vec(*n));
-            }
-            out.push_str("]\n");
-        }
-        out.push_str("indices = [\n");
-        for [a, b, c] in &mesh.indices {
-            let _ = writeln!(out, "  [{a}, {b}, {c}],");
-        }
-        out.push_str("]\n");
-        write_motion(&mut out, &mesh.motion, "meshes");
     }
-    out
 }
