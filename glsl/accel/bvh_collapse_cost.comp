@@ -26,10 +26,6 @@ layout(push_constant) uniform Push {
 
 #include "accel/bvh_collapse.glsl"
 
-uint node_children(BvhNode n) {
-    return uint(n.a_count == 0u && n.a_index != NO_NODE) + uint(n.b_count == 0u && n.b_index != NO_NODE);
-}
-
 void main() {
     uint i = linear_invocation_id();
     bool climbing = i < pc.n_nodes && node_children(nodes[i]) == 0u;

@@ -50,10 +50,6 @@ layout(push_constant) uniform Push { uint n_nodes; } pc;
 
 #include "accel/bvh_refit.glsl"
 
-uint node_children(BvhNode n) {
-    return uint(n.a_count == 0u && n.a_index != NO_NODE) + uint(n.b_count == 0u && n.b_index != NO_NODE);
-}
-
 void main() {
     uint i = linear_invocation_id();
     // Slots a leaf collapse freed (parent DEAD) hold no node.

@@ -21,6 +21,11 @@ struct BvhNode {
     uint b_count;
 };
 
+// Children of `n` that are nodes (not leaves, not missing): what a climbing pass waits for.
+uint node_children(BvhNode n) {
+    return uint(n.a_count == 0u && n.a_index != NO_NODE) + uint(n.b_count == 0u && n.b_index != NO_NODE);
+}
+
 vec3 vmin(vec3 a, vec3 b) {
     return vec3(fmin_total(a.x, b.x), fmin_total(a.y, b.y), fmin_total(a.z, b.z));
 }

@@ -298,6 +298,12 @@ impl Light {
 
     /// `color · intensity`.
     pub fn power(&self) -> Vec3 {
+        let (color, intensity) = self.color_intensity();
+        color * intensity
+    }
+
+    /// `(color, intensity)`, which every kind has.
+    pub fn color_intensity(&self) -> (Vec3, f32) {
         match *self {
             Light::Point {
                 color, intensity, ..
@@ -310,7 +316,7 @@ impl Light {
             }
             | Light::Directional {
                 color, intensity, ..
-            } => color * intensity,
+            } => (color, intensity),
         }
     }
 

@@ -108,20 +108,7 @@ fn material_name(names: &[String], id: MaterialId) -> String {
 }
 
 fn light_def(l: &Light) -> LightDef {
-    let (color, intensity) = match *l {
-        Light::Point {
-            color, intensity, ..
-        }
-        | Light::Sphere {
-            color, intensity, ..
-        }
-        | Light::Quad {
-            color, intensity, ..
-        }
-        | Light::Directional {
-            color, intensity, ..
-        } => (color, intensity),
-    };
+    let (color, intensity) = l.color_intensity();
     let mut def = LightDef {
         kind: LightKind::Point,
         position: None,

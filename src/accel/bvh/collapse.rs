@@ -38,21 +38,7 @@ pub fn applies(n_prims: usize, p: &BvhParams) -> bool {
 /// The SAH costs and collapse decisions of every node (the cost kernel's result).
 pub fn costs(bvh: &Bvh, p: &BvhParams) -> Vec<NodeCost> {
     let mut out = vec![NodeCost::default(); bvh.nodes.len()];
-    if bvh.nodes.is_empty() {
-        return out;
-    }
-    // Nodes in an order where every node comes before its children; decide in reverse.
-    let mut order = Vec::with_capacity(bvh.nodes.len());
-    let mut stack = vec![0u32];
-    while let Some(i) = stack.pop() {
-        order.push(i);
-        for which in 0..2 {
-            if let Child::Node(c) = bvh.nodes[i as usize].child(which).1 {
-                stack.push(c);
-            }
-        }
-    }
-    for &i in order.iter().rev() {
+    for &i in bvh.top_down().iter().rev() {
         out[i as usize] = node_cost(&bvh.nodes[i as usize], &out, i == 0, p);
     }
     out

@@ -121,6 +121,26 @@ impl Bvh {
             .count()
     }
 
+    /// The nodes reachable from the root, each before its children (depth first); reversed,
+    /// every node comes after its children (the order of bottom-up passes).
+    pub fn top_down(&self) -> Vec<u32> {
+        let mut order = Vec::with_capacity(self.nodes.len());
+        let mut stack = if self.nodes.is_empty() {
+            vec![]
+        } else {
+            vec![0u32]
+        };
+        while let Some(i) = stack.pop() {
+            order.push(i);
+            for which in 0..2 {
+                if let Child::Node(c) = self.nodes[i as usize].child(which).1 {
+                    stack.push(c);
+                }
+            }
+        }
+        order
+    }
+
     /// Depth of the deepest leaf (a leaf child of the root has depth 1).
     pub fn depth(&self) -> u32 {
         let mut deepest = 0;

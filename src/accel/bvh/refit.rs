@@ -26,18 +26,7 @@ pub fn refit(bvh: &mut Bvh, boxes: &[Aabb]) {
         bvh.bounds = Aabb::EMPTY;
         return;
     }
-    // Nodes in an order where every node comes before its children; refit in reverse.
-    let mut order = Vec::with_capacity(bvh.nodes.len());
-    let mut stack = vec![0u32];
-    while let Some(i) = stack.pop() {
-        order.push(i);
-        for which in 0..2 {
-            if let Child::Node(c) = bvh.nodes[i as usize].child(which).1 {
-                stack.push(c);
-            }
-        }
-    }
-    for &i in order.iter().rev() {
+    for &i in bvh.top_down().iter().rev() {
         let node = bvh.nodes[i as usize];
         for which in 0..2 {
             let (old, child) = node.child(which);
