@@ -425,3 +425,23 @@ fn empty_buffers_and_dispatches_are_fine() {
     assert!(gpu.is_empty());
     common::assert_silent(&ctx);
 }
+
+/// The driver's own ray tracing (issue 16's backend) is found where it exists and enabled:
+/// Mesa 25's lavapipe has `VK_KHR_acceleration_structure` and `VK_KHR_ray_query`, 22.3's
+/// has neither. Creating the context with them (and buffer device addresses in the
+/// allocator) keeps the validation layer silent.
+#[test]
+fn the_drivers_ray_query_is_found_and_enabled_where_it_exists() {
+    let Some(ctx) = common::context() else { return };
+    let info = ctx.info();
+    eprintln!("{}: ray query {}", info.driver, info.features.ray_query);
+    if info.driver.contains("Mesa 25.") {
+        assert!(info.features.ray_query, "{}", info.driver);
+    }
+    if info.driver.contains("Mesa 22.") {
+        assert!(!info.features.ray_query, "{}", info.driver);
+    }
+    let b = Buffer::<u32>::from_slice(&ctx, "probe", &[1, 2, 3]).unwrap();
+    assert_eq!(b.download().unwrap(), [1, 2, 3]);
+    common::assert_silent(&ctx);
+}

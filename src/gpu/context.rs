@@ -199,7 +199,8 @@ impl Context {
                     device: parts.device.clone(),
                     physical_device: parts.physical_device,
                     debug_settings: Default::default(),
-                    buffer_device_address: false,
+                    // Acceleration structures and their inputs live at device addresses.
+                    buffer_device_address: parts.enabled_features.ray_query,
                     allocation_sizes: Default::default(),
                 };
                 let a = Allocator::new(&desc).map_err(|e| GpuError::Allocation {
@@ -457,7 +458,11 @@ fn create_device(
         .shader_int8(features.shader_int8)
         .shader_buffer_int64_atomics(features.shader_buffer_int64_atomics)
         .shader_float16(features.shader_float16)
-        .host_query_reset(features.host_query_reset);
+        .host_query_reset(features.host_query_reset)
+        .buffer_device_address(features.ray_query);
+    let mut accel = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default()
+        .acceleration_structure(true);
+    let mut query = vk::PhysicalDeviceRayQueryFeaturesKHR::default().ray_query(true);
     let mut size_control = vk::PhysicalDeviceSubgroupSizeControlFeatures::default()
         .subgroup_size_control(features.subgroup_size_control)
         .compute_full_subgroups(features.compute_full_subgroups);
@@ -472,6 +477,10 @@ fn create_device(
             ext_names.push(ash::ext::subgroup_size_control::NAME.as_ptr());
         }
         create = create.push_next(&mut size_control);
+    }
+    if features.ray_query {
+        ext_names.extend(info::RAY_QUERY_EXTENSIONS.iter().map(|n| n.as_ptr()));
+        create = create.push_next(&mut accel).push_next(&mut query);
     }
     create = create.enabled_extension_names(&ext_names);
     // SAFETY: `create` points at locals that outlive the call; only supported features and

@@ -23,7 +23,18 @@ pub struct DeviceFeatures {
     pub compute_full_subgroups: bool,
     /// The device speaks Vulkan 1.3 (subgroup size control is core there).
     pub api_1_3: bool,
+    /// The driver's own ray tracing from compute shaders: `VK_KHR_acceleration_structure`
+    /// (with `VK_KHR_deferred_host_operations`, which it requires) and `VK_KHR_ray_query`,
+    /// their features, and `bufferDeviceAddress` (Mesa 25's lavapipe has them; 22.3's not).
+    pub ray_query: bool,
 }
+
+/// The device extensions [`DeviceFeatures::ray_query`] enables.
+pub(crate) const RAY_QUERY_EXTENSIONS: [&std::ffi::CStr; 3] = [
+    ash::khr::acceleration_structure::NAME,
+    ash::khr::deferred_host_operations::NAME,
+    ash::khr::ray_query::NAME,
+];
 
 /// Device facts. The JSON of `vkrt info --json` is this struct.
 #[derive(Clone, Debug, Serialize)]
@@ -179,20 +190,27 @@ pub(crate) fn supported_features(
     let mut f11 = vk::PhysicalDeviceVulkan11Features::default();
     let mut f12 = vk::PhysicalDeviceVulkan12Features::default();
     let mut size_control = vk::PhysicalDeviceSubgroupSizeControlFeatures::default();
+    let mut accel = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default();
+    let mut query = vk::PhysicalDeviceRayQueryFeaturesKHR::default();
     // SAFETY: as above.
-    let has_size_control_ext = unsafe { instance.enumerate_device_extension_properties(pd) }
-        .unwrap_or_default()
-        .iter()
-        .any(|e| {
-            e.extension_name_as_c_str()
-                .is_ok_and(|n| n == ash::ext::subgroup_size_control::NAME)
-        });
+    let extensions = unsafe { instance.enumerate_device_extension_properties(pd) }
+        .unwrap_or_default();
+    let has_ext = |name: &std::ffi::CStr| {
+        extensions
+            .iter()
+            .any(|e| e.extension_name_as_c_str().is_ok_and(|n| n == name))
+    };
+    let has_size_control_ext = has_ext(ash::ext::subgroup_size_control::NAME);
+    let has_ray_query_exts = RAY_QUERY_EXTENSIONS.iter().all(|&n| has_ext(n));
     let api_1_3 = api >= vk::API_VERSION_1_3;
     let mut f2 = vk::PhysicalDeviceFeatures2::default()
         .push_next(&mut f11)
         .push_next(&mut f12);
     if api_1_3 || has_size_control_ext {
         f2 = f2.push_next(&mut size_control);
+    }
+    if has_ray_query_exts {
+        f2 = f2.push_next(&mut accel).push_next(&mut query);
     }
     // SAFETY: every chained struct lives across the call.
     unsafe { instance.get_physical_device_features2(pd, &mut f2) };
@@ -210,6 +228,10 @@ pub(crate) fn supported_features(
         subgroup_size_control: size_control.subgroup_size_control == vk::TRUE,
         compute_full_subgroups: size_control.compute_full_subgroups == vk::TRUE,
         api_1_3,
+        ray_query: has_ray_query_exts
+            && accel.acceleration_structure == vk::TRUE
+            && query.ray_query == vk::TRUE
+            && f12.buffer_device_address == vk::TRUE,
     }
 }
 
