@@ -460,8 +460,8 @@ fn create_device(
         .shader_float16(features.shader_float16)
         .host_query_reset(features.host_query_reset)
         .buffer_device_address(features.ray_query);
-    let mut accel = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default()
-        .acceleration_structure(true);
+    let mut accel =
+        vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default().acceleration_structure(true);
     let mut query = vk::PhysicalDeviceRayQueryFeaturesKHR::default().ray_query(true);
     let mut size_control = vk::PhysicalDeviceSubgroupSizeControlFeatures::default()
         .subgroup_size_control(features.subgroup_size_control)
