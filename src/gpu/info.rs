@@ -193,8 +193,8 @@ pub(crate) fn supported_features(
     let mut accel = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default();
     let mut query = vk::PhysicalDeviceRayQueryFeaturesKHR::default();
     // SAFETY: as above.
-    let extensions = unsafe { instance.enumerate_device_extension_properties(pd) }
-        .unwrap_or_default();
+    let extensions =
+        unsafe { instance.enumerate_device_extension_properties(pd) }.unwrap_or_default();
     let has_ext = |name: &std::ffi::CStr| {
         extensions
             .iter()
