@@ -232,3 +232,31 @@ fn without_ray_query_the_build_names_the_missing_extensions() {
     assert!(err.to_string().contains("VK_KHR_ray_query"), "{err}");
     assert_silent(&ctx);
 }
+
+/// Upload, build and trace in one command buffer, nothing read back in between: the
+/// barriers (transfer → build, BLAS → TLAS, build → kernel) are what synchronization
+/// validation checks here.
+#[test]
+fn driver_build_and_trace_in_one_submission() {
+    let Some(ctx) = ray_query_context() else {
+        return;
+    };
+    let tris = random_triangles(500, 20);
+    let g = TraceGeometry::from_triangles(&tris);
+    let rays = random_rays(&tris, 1024, 91);
+    let tracer = RayQueryTracer::new(&ctx, Query::Closest).unwrap();
+    let ray_buf = vkrt::gpu::Buffer::new(&ctx, "rays", rays.len()).unwrap();
+    let hits = vkrt::gpu::Buffer::<Hit>::new(&ctx, "hits", rays.len()).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    rec.upload(&ray_buf, &rays).unwrap();
+    let prims = DevicePrimitives::record_upload(&mut rec, &g).unwrap();
+    let accel = DriverAccel::record_build(&mut rec, &prims, Prefer::FastBuild).unwrap();
+    tracer.record(&mut rec, &accel, &ray_buf, &hits, rays.len());
+    rec.compute_to_transfer();
+    let back = rec.read_back(&hits).unwrap();
+    rec.transfer_to_host();
+    let profile = rec.submit_and_wait().unwrap();
+    eprintln!("driver build: {:?} ms", profile.ms("driver_build"));
+    assert_eq!(closest_differences(&tris, &rays, &back.read().unwrap()), 0);
+    assert_silent(&ctx);
+}
