@@ -6,4 +6,5 @@
 
 pub mod bvh;
 pub mod device;
+pub mod driver;
 pub mod kdtree;

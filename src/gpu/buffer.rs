@@ -122,7 +122,17 @@ impl<T: Pod> Buffer<T> {
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER
             | vk::BufferUsageFlags::TRANSFER_SRC
             | vk::BufferUsageFlags::TRANSFER_DST
-            | vk::BufferUsageFlags::INDIRECT_BUFFER;
+            | vk::BufferUsageFlags::INDIRECT_BUFFER
+            | if ctx.info().features.ray_query {
+                // The driver's acceleration structures live in buffers and read their inputs
+                // (vertices, instances, scratch) at device addresses; the allocator then
+                // allocates every block with VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT.
+                vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS
+                    | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR
+                    | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
+            } else {
+                vk::BufferUsageFlags::empty()
+            };
         let device = &ctx.inner.device;
         let create = vk::BufferCreateInfo::default()
             .size(bytes)
@@ -216,6 +226,20 @@ impl<T: Pod> Buffer<T> {
     /// Size of the contents in bytes.
     pub fn byte_len(&self) -> u64 {
         (self.len * std::mem::size_of::<T>()) as u64
+    }
+
+    /// The buffer's device address (for acceleration-structure builds and ray queries).
+    /// Only on devices with [`super::DeviceFeatures::ray_query`], which enables
+    /// `bufferDeviceAddress`.
+    pub fn device_address(&self) -> u64 {
+        if !self.ctx.info().features.ray_query {
+            super::error::usage_error("device_address() without bufferDeviceAddress");
+        }
+        let info = vk::BufferDeviceAddressInfo::default().buffer(self.raw);
+        // SAFETY: bufferDeviceAddress is enabled (ray_query, checked above) and the buffer
+        // was created with SHADER_DEVICE_ADDRESS usage and bound to memory allocated with the
+        // device-address flag (the allocator is created with buffer_device_address then).
+        unsafe { self.ctx.inner.device.get_buffer_device_address(&info) }
     }
 
     /// Writes `data` at the start of the buffer (through staging for device memory).

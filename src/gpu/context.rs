@@ -91,6 +91,8 @@ pub(crate) struct Inner {
     pub(crate) allocator: ManuallyDrop<Arc<Mutex<Allocator>>>,
     pub(crate) info: DeviceInfo,
     pub(crate) debug_utils: Option<ash::ext::debug_utils::Device>,
+    /// VK_KHR_acceleration_structure's functions, where `ray_query` is enabled.
+    pub(crate) accel_ext: Option<ash::khr::acceleration_structure::Device>,
     pub(crate) pipeline_cache: vk::PipelineCache,
     pub(crate) kernels: Mutex<HashMap<KernelKey, Arc<Kernel>>>,
     /// Queue submissions and bytes read back to the host so far ([`Context::traffic`]).
@@ -214,6 +216,10 @@ impl Context {
         let debug_utils = parts
             .debug_utils
             .then(|| ash::ext::debug_utils::Device::new(&parts.instance, &parts.device));
+        let accel_ext = parts
+            .enabled_features
+            .ray_query
+            .then(|| ash::khr::acceleration_structure::Device::new(&parts.instance, &parts.device));
         let pipeline_cache = pipeline_cache::create(&parts.device, &info)?;
         Ok(Self {
             inner: Arc::new(Inner {
@@ -226,6 +232,7 @@ impl Context {
                 allocator: ManuallyDrop::new(allocator),
                 info,
                 debug_utils,
+                accel_ext,
                 pipeline_cache,
                 kernels: Mutex::new(HashMap::new()),
                 submits: AtomicU64::new(0),

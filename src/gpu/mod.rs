@@ -7,12 +7,15 @@
 //! - [`Recorder`]: dispatches, copies, fills, barrier helpers named by what they order, and
 //!   profiler scopes — into its own command buffer or the caller's;
 //! - [`Profile`]: per-pass GPU milliseconds and a Chrome-trace/Perfetto export;
+//! - [`AccelerationStructure`]: the driver's own structures (`VK_KHR_acceleration_structure`),
+//!   where the device has ray query;
 //! - [`Validation`]: the Khronos layer with synchronization validation, for tests.
 //!
 //! Rules: every `unsafe` block states the contract it relies on; Vulkan errors are mapped
 //! where the call is made into [`GpuError`] naming the call; misuse of this API by our own
 //! code panics through one cold helper.
 
+mod accel_ext;
 mod buffer;
 mod context;
 mod error;
@@ -24,6 +27,10 @@ mod recorder;
 mod shader;
 mod validation;
 
+pub use accel_ext::{
+    accel_build_sizes, accel_scratch, require_ray_query, AccelGeometry, AccelInstance, AccelSizes,
+    AccelerationStructure,
+};
 pub use ash::vk;
 pub use buffer::{Buffer, BufferArg, Memory, RawBuffer};
 pub use context::{Context, ContextOptions, RawParts, Traffic};

@@ -475,6 +475,35 @@ impl Recorder {
         );
     }
 
+    /// Copies, fills and kernel writes before → acceleration-structure builds after (which
+    /// read vertices and instances as shader reads, and scratch as structure accesses).
+    pub fn to_accel_build(&mut self) {
+        self.memory_barrier(
+            (
+                vk::PipelineStageFlags::TRANSFER | vk::PipelineStageFlags::COMPUTE_SHADER,
+                vk::AccessFlags::TRANSFER_WRITE | vk::AccessFlags::SHADER_WRITE,
+            ),
+            ACCEL_BUILD_RW,
+        );
+    }
+
+    /// Acceleration-structure builds before → builds after: a BLAS before the TLAS over it,
+    /// and scratch memory reused.
+    pub fn accel_build_to_accel_build(&mut self) {
+        self.memory_barrier(ACCEL_BUILD_W, ACCEL_BUILD_RW);
+    }
+
+    /// Acceleration-structure builds before → kernels that query them after.
+    pub fn accel_build_to_compute(&mut self) {
+        self.memory_barrier(
+            ACCEL_BUILD_W,
+            (
+                vk::PipelineStageFlags::COMPUTE_SHADER,
+                vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR | vk::AccessFlags::SHADER_READ,
+            ),
+        );
+    }
+
     /// Kernel writes before → host reads after the submission completes.
     pub fn compute_to_host(&mut self) {
         self.memory_barrier(COMPUTE_RW, HOST_R);
@@ -675,3 +704,15 @@ const TRANSFER_RW: (vk::PipelineStageFlags, vk::AccessFlags) = (
 );
 const HOST_R: (vk::PipelineStageFlags, vk::AccessFlags) =
     (vk::PipelineStageFlags::HOST, vk::AccessFlags::HOST_READ);
+const ACCEL_BUILD_W: (vk::PipelineStageFlags, vk::AccessFlags) = (
+    vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR,
+    vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR,
+);
+const ACCEL_BUILD_RW: (vk::PipelineStageFlags, vk::AccessFlags) = (
+    vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR,
+    vk::AccessFlags::from_raw(
+        vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR.as_raw()
+            | vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR.as_raw()
+            | vk::AccessFlags::SHADER_READ.as_raw(),
+    ),
+);

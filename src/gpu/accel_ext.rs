@@ -1,0 +1,301 @@
+//! The driver's own acceleration structures (`VK_KHR_acceleration_structure`): build sizes,
+//! structures living in a [`Buffer`], and builds recorded into a [`Recorder`]. Only on
+//! devices with [`super::DeviceFeatures::ray_query`]; elsewhere every entry point returns
+//! [`GpuError::MissingCapability`] naming the extensions.
+//!
+//! Inputs (vertices, instances) and scratch are read at device addresses, so the buffers
+//! holding them come from [`Buffer`] (which adds the usages these need when ray query is on).
+
+use ash::vk;
+
+use super::buffer::Buffer;
+use super::context::Context;
+use super::error::{usage_error, vk_err, GpuError, Result};
+use super::recorder::Recorder;
+
+/// One instance of a bottom-level structure in a top-level one: `VkAccelerationStructureInstanceKHR`
+/// byte for byte (64 bytes), but `Pod`, so it can be uploaded.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct AccelInstance {
+    /// Row-major 3×4 object-to-world transform.
+    pub transform: [f32; 12],
+    /// Custom index (low 24 bits) and visibility mask (high 8 bits).
+    pub custom_index_and_mask: u32,
+    /// Shader binding table offset (low 24 bits) and `VkGeometryInstanceFlagsKHR` (high 8).
+    pub sbt_offset_and_flags: u32,
+    /// Device address of the bottom-level structure.
+    pub blas: u64,
+}
+
+impl AccelInstance {
+    /// `blas` untransformed, visible to every mask, custom index 0.
+    pub fn identity(blas: u64) -> Self {
+        Self {
+            transform: [1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 0.0, 1.0, 0.0],
+            custom_index_and_mask: 0xff << 24,
+            sbt_offset_and_flags: 0,
+            blas,
+        }
+    }
+}
+
+/// What a structure is built over.
+#[derive(Clone, Copy, Debug)]
+pub enum AccelGeometry {
+    /// A bottom level over `count` opaque non-indexed triangles: three R32G32B32_SFLOAT
+    /// vertices each (stride 12), from device address `vertices`.
+    Triangles { vertices: u64, count: u32 },
+    /// A top level over `count` [`AccelInstance`]s at device address `instances`.
+    Instances { instances: u64, count: u32 },
+}
+
+impl AccelGeometry {
+    fn level(self) -> vk::AccelerationStructureTypeKHR {
+        match self {
+            AccelGeometry::Triangles { .. } => vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
+            AccelGeometry::Instances { .. } => vk::AccelerationStructureTypeKHR::TOP_LEVEL,
+        }
+    }
+
+    fn count(self) -> u32 {
+        match self {
+            AccelGeometry::Triangles { count, .. } | AccelGeometry::Instances { count, .. } => {
+                count
+            }
+        }
+    }
+
+    fn vk(self) -> vk::AccelerationStructureGeometryKHR<'static> {
+        match self {
+            AccelGeometry::Triangles { vertices, count } => {
+                let triangles = vk::AccelerationStructureGeometryTrianglesDataKHR::default()
+                    .vertex_format(vk::Format::R32G32B32_SFLOAT)
+                    .vertex_data(vk::DeviceOrHostAddressConstKHR {
+                        device_address: vertices,
+                    })
+                    .vertex_stride(12)
+                    .max_vertex((3 * count).saturating_sub(1))
+                    .index_type(vk::IndexType::NONE_KHR);
+                vk::AccelerationStructureGeometryKHR::default()
+                    .geometry_type(vk::GeometryTypeKHR::TRIANGLES)
+                    .geometry(vk::AccelerationStructureGeometryDataKHR { triangles })
+                    .flags(vk::GeometryFlagsKHR::OPAQUE)
+            }
+            AccelGeometry::Instances { instances, .. } => {
+                let instances = vk::AccelerationStructureGeometryInstancesDataKHR::default()
+                    .array_of_pointers(false)
+                    .data(vk::DeviceOrHostAddressConstKHR {
+                        device_address: instances,
+                    });
+                vk::AccelerationStructureGeometryKHR::default()
+                    .geometry_type(vk::GeometryTypeKHR::INSTANCES)
+                    .geometry(vk::AccelerationStructureGeometryDataKHR { instances })
+                    .flags(vk::GeometryFlagsKHR::OPAQUE)
+            }
+        }
+    }
+}
+
+/// Bytes a build needs: the structure's storage and the scratch (to be allocated with
+/// [`accel_scratch`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct AccelSizes {
+    pub structure: u64,
+    pub scratch: u64,
+}
+
+/// The extension's functions, or the error naming what the device lacks.
+fn ext(ctx: &Context) -> Result<&ash::khr::acceleration_structure::Device> {
+    ctx.inner
+        .accel_ext
+        .as_ref()
+        .ok_or_else(|| GpuError::MissingCapability {
+            device: ctx.info().device.clone(),
+            what: "the driver's ray tracing: VK_KHR_acceleration_structure, \
+                   VK_KHR_deferred_host_operations and VK_KHR_ray_query with the \
+                   accelerationStructure, rayQuery and bufferDeviceAddress features \
+                   (Mesa's lavapipe has them from 25.x)"
+                .into(),
+        })
+}
+
+/// `Ok` where the device has the driver's ray tracing enabled, else the error naming the
+/// missing extensions and features.
+pub fn require_ray_query(ctx: &Context) -> Result<()> {
+    ext(ctx).map(drop)
+}
+
+/// Sizes of a device build over `geometry` with `flags`.
+pub fn accel_build_sizes(
+    ctx: &Context,
+    geometry: AccelGeometry,
+    flags: vk::BuildAccelerationStructureFlagsKHR,
+) -> Result<AccelSizes> {
+    let ext = ext(ctx)?;
+    let geometries = [geometry.vk()];
+    let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+        .ty(geometry.level())
+        .flags(flags)
+        .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
+        .geometries(&geometries);
+    let mut sizes = vk::AccelerationStructureBuildSizesInfoKHR::default();
+    // SAFETY: the extension is enabled (ext() returned it); `info` points at `geometries`,
+    // which lives across the call; one geometry, one primitive count.
+    unsafe {
+        ext.get_acceleration_structure_build_sizes(
+            vk::AccelerationStructureBuildTypeKHR::DEVICE,
+            &info,
+            &[geometry.count()],
+            &mut sizes,
+        )
+    };
+    Ok(AccelSizes {
+        structure: sizes.acceleration_structure_size,
+        scratch: sizes.build_scratch_size,
+    })
+}
+
+/// `minAccelerationStructureScratchOffsetAlignment` of the device.
+fn scratch_alignment(ctx: &Context) -> u64 {
+    let mut props = vk::PhysicalDeviceAccelerationStructurePropertiesKHR::default();
+    let mut props2 = vk::PhysicalDeviceProperties2::default().push_next(&mut props);
+    // SAFETY: valid physical device; the chained struct lives across the call.
+    unsafe {
+        ctx.inner
+            .instance
+            .get_physical_device_properties2(ctx.inner.physical_device, &mut props2)
+    };
+    u64::from(
+        props
+            .min_acceleration_structure_scratch_offset_alignment
+            .max(1),
+    )
+}
+
+/// A scratch buffer for builds needing up to `bytes` of scratch, with room to align its
+/// address to the device's scratch alignment (see [`AccelerationStructure::record_build`]).
+pub fn accel_scratch(ctx: &Context, bytes: u64) -> Result<Buffer<u8>> {
+    ext(ctx)?;
+    Buffer::new(
+        ctx,
+        "accel.scratch",
+        (bytes + scratch_alignment(ctx)) as usize,
+    )
+}
+
+/// A driver acceleration structure on a buffer of its own.
+pub struct AccelerationStructure {
+    ctx: Context,
+    raw: vk::AccelerationStructureKHR,
+    geometry_level: vk::AccelerationStructureTypeKHR,
+    bytes: u64,
+    address: u64,
+    // Dropped after the structure (Drop destroys `raw` first).
+    _storage: Buffer<u8>,
+}
+
+impl AccelerationStructure {
+    /// An unbuilt structure of `bytes` (from [`accel_build_sizes`]) for `geometry`'s level.
+    pub fn new(ctx: &Context, name: &str, geometry: AccelGeometry, bytes: u64) -> Result<Self> {
+        let ext = ext(ctx)?;
+        let storage = Buffer::<u8>::new(ctx, name, bytes as usize)?;
+        let level = geometry.level();
+        let create = vk::AccelerationStructureCreateInfoKHR::default()
+            .buffer(storage.raw)
+            .offset(0)
+            .size(bytes)
+            .ty(level);
+        // SAFETY: the extension is enabled; `storage` has ACCELERATION_STRUCTURE_STORAGE
+        // usage (Buffer adds it with ray query), at least `bytes` long, offset 0 (aligned to
+        // 256); it outlives the structure (field order and Drop).
+        let raw = unsafe { ext.create_acceleration_structure(&create, None) }
+            .map_err(vk_err("vkCreateAccelerationStructureKHR"))?;
+        let info =
+            vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(raw);
+        // SAFETY: `raw` is a live structure of this device.
+        let address = unsafe { ext.get_acceleration_structure_device_address(&info) };
+        ctx.set_object_name(raw, name);
+        Ok(Self {
+            ctx: ctx.clone(),
+            raw,
+            geometry_level: level,
+            bytes,
+            address,
+            _storage: storage,
+        })
+    }
+
+    /// Its device address: what instances point at and what kernels query.
+    pub fn device_address(&self) -> u64 {
+        self.address
+    }
+
+    /// Records the build of this structure over `geometry` into `rec`, with scratch from
+    /// `scratch` ([`accel_scratch`] of at least the size's scratch). Order the writes of
+    /// the inputs before with [`Recorder::to_accel_build`], and the build before its users
+    /// with [`Recorder::accel_build_to_accel_build`] or
+    /// [`Recorder::accel_build_to_compute`]. `self`, the inputs and `scratch` must outlive
+    /// the execution.
+    pub fn record_build(
+        &self,
+        rec: &mut Recorder,
+        geometry: AccelGeometry,
+        flags: vk::BuildAccelerationStructureFlagsKHR,
+        scratch: &Buffer<u8>,
+    ) -> Result<()> {
+        let ctx = rec.context().clone();
+        let ext = ext(&ctx)?;
+        if geometry.level() != self.geometry_level {
+            usage_error("an acceleration structure built at another level than created");
+        }
+        let sizes = accel_build_sizes(&ctx, geometry, flags)?;
+        if sizes.structure > self.bytes {
+            usage_error(&format!(
+                "the build needs {} bytes of structure, {} were created",
+                sizes.structure, self.bytes
+            ));
+        }
+        let align = scratch_alignment(&ctx);
+        let base = scratch.device_address();
+        let scratch_address = base.next_multiple_of(align);
+        if scratch_address - base + sizes.scratch > scratch.byte_len() {
+            usage_error(&format!(
+                "`{}` holds {} bytes; the build needs {} of scratch aligned to {align}",
+                scratch.name(),
+                scratch.byte_len(),
+                sizes.scratch
+            ));
+        }
+        let geometries = [geometry.vk()];
+        let info = [vk::AccelerationStructureBuildGeometryInfoKHR::default()
+            .ty(self.geometry_level)
+            .flags(flags)
+            .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
+            .dst_acceleration_structure(self.raw)
+            .geometries(&geometries)
+            .scratch_data(vk::DeviceOrHostAddressKHR {
+                device_address: scratch_address,
+            })];
+        let ranges =
+            [vk::AccelerationStructureBuildRangeInfoKHR::default()
+                .primitive_count(geometry.count())];
+        let range_refs: [&[vk::AccelerationStructureBuildRangeInfoKHR]; 1] = [&ranges];
+        // SAFETY: recording outside a render pass; the extension is enabled; `info` and
+        // `ranges` point at locals living across the call; the destination was created for
+        // this level with the storage the sizes ask for (checked above); the scratch range is inside `scratch` and aligned (checked
+        // above); the caller keeps inputs, scratch and `self` alive until the work executes.
+        unsafe { ext.cmd_build_acceleration_structures(rec.command_buffer(), &info, &range_refs) };
+        Ok(())
+    }
+}
+
+impl Drop for AccelerationStructure {
+    fn drop(&mut self) {
+        if let Some(ext) = self.ctx.inner.accel_ext.as_ref() {
+            // SAFETY: as for buffers: vkrt waits for its submissions, and work recorded into
+            // a caller's command buffer must have executed before the structure is dropped.
+            unsafe { ext.destroy_acceleration_structure(self.raw, None) };
+        }
+    }
+}
