@@ -14,17 +14,13 @@ use vkrt::trace::bvh_cpu::{self, Traversal};
 use vkrt::trace::gpu::{AccelTraversal, GpuGeometry, Tracer};
 use vkrt::trace::{cpu, Intersector, Query, Ray, TraceGeometry, TraceOptions};
 
-fn rand_vec(rng: &mut Rng) -> Vec3 {
-    Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32())
-}
-
 fn soup(n: usize, seed: u64) -> Vec<[Vec3; 3]> {
     let mut rng = Rng(seed);
     (0..n)
         .map(|_| {
-            let c = rand_vec(&mut rng) * 10.0;
+            let c = rng.next_vec3() * 10.0;
             let s = 0.05 + rng.next_f32().abs();
-            [c, c + rand_vec(&mut rng) * s, c + rand_vec(&mut rng) * s]
+            [c, c + rng.next_vec3() * s, c + rng.next_vec3() * s]
         })
         .collect()
 }
@@ -205,7 +201,7 @@ fn rays(g: &TraceGeometry, b: &Aabb, n: usize, seed: u64) -> Vec<Ray> {
     let ext = (b.max - b.min).max(Vec3::splat(1e-3));
     (0..n)
         .map(|i| {
-            let o = c + rand_vec(&mut rng) * ext * 0.75;
+            let o = c + rng.next_vec3() * ext * 0.75;
             let p = (rng.next_u64() % g.primitive_count() as u64) as usize;
             let target = if p < g.triangle_count() {
                 let [a, b2, c2] = g.triangle_at(p, 0.0);
@@ -214,9 +210,9 @@ fn rays(g: &TraceGeometry, b: &Aabb, n: usize, seed: u64) -> Vec<Ray> {
                 g.sphere_at(p - g.triangle_count(), 0.0).truncate()
             };
             match i % 4 {
-                0 => Ray::new(o, rand_vec(&mut rng), 0.0, f32::INFINITY),
+                0 => Ray::new(o, rng.next_vec3(), 0.0, f32::INFINITY),
                 1 => {
-                    let from = c + rand_vec(&mut rng).normalize_or(Vec3::Y) * ext.length();
+                    let from = c + rng.next_vec3().normalize_or(Vec3::Y) * ext.length();
                     Ray::new(from, target - from, 0.0, f32::MAX)
                 }
                 2 => {
@@ -224,7 +220,7 @@ fn rays(g: &TraceGeometry, b: &Aabb, n: usize, seed: u64) -> Vec<Ray> {
                     d[(rng.next_u64() % 3) as usize] = if i % 8 < 4 { 1.0 } else { -1.0 };
                     Ray::new(o, Vec3::from_array(d), 0.0, ext.length())
                 }
-                _ => Ray::new(target, rand_vec(&mut rng), 1e-4, f32::INFINITY),
+                _ => Ray::new(target, rng.next_vec3(), 1e-4, f32::INFINITY),
             }
         })
         .collect()
@@ -264,7 +260,7 @@ fn stack_and_bitstack_equal_brute_force() {
     let ico = TraceGeometry::from_triangles(&tris(&gen::icosphere(3).unwrap()));
     let mut rng = Rng(9);
     let spheres: Vec<Vec4> = (0..300)
-        .map(|_| (rand_vec(&mut rng) * 5.0).extend(0.05 + rng.next_f32().abs() * 0.5))
+        .map(|_| (rng.next_vec3() * 5.0).extend(0.05 + rng.next_f32().abs() * 0.5))
         .collect();
     let mixed = TraceGeometry::from_triangles_and_spheres(&soup(2000, 3), &spheres);
     let flat: Vec<[Vec3; 3]> = soup(1500, 5)
@@ -331,7 +327,7 @@ fn gpu_stack_and_bitstack_equal_the_cpu_twin() {
     let Some(ctx) = context() else { return };
     let mut rng = Rng(21);
     let spheres: Vec<Vec4> = (0..200)
-        .map(|_| (rand_vec(&mut rng) * 5.0).extend(0.05 + rng.next_f32().abs() * 0.5))
+        .map(|_| (rng.next_vec3() * 5.0).extend(0.05 + rng.next_f32().abs() * 0.5))
         .collect();
     let mut scenes = vec![
         (

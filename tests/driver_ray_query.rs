@@ -17,20 +17,16 @@ use vkrt::trace::{Hit, Query, Ray, TraceGeometry, TraceOptions};
 /// Relative tolerance on `t` between the driver's intersector and ours.
 const T_TOL: f32 = 1e-4;
 
-fn rand_vec(rng: &mut Rng) -> Vec3 {
-    Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32())
-}
-
 /// `n` random triangles in [-1, 1]³, each within a box of about 0.3 around its centre.
 fn random_triangles(n: usize, seed: u64) -> Vec<[Vec3; 3]> {
     let mut rng = Rng(seed);
     (0..n)
         .map(|_| {
-            let c = rand_vec(&mut rng);
+            let c = rng.next_vec3();
             [
-                c + rand_vec(&mut rng) * 0.15,
-                c + rand_vec(&mut rng) * 0.15,
-                c + rand_vec(&mut rng) * 0.15,
+                c + rng.next_vec3() * 0.15,
+                c + rng.next_vec3() * 0.15,
+                c + rng.next_vec3() * 0.15,
             ]
         })
         .collect()
@@ -42,9 +38,9 @@ fn random_rays(tris: &[[Vec3; 3]], n: usize, seed: u64) -> Vec<Ray> {
     let mut rng = Rng(seed);
     (0..n)
         .map(|i| {
-            let o = rand_vec(&mut rng) * 2.0;
+            let o = rng.next_vec3() * 2.0;
             if i % 2 == 0 || tris.is_empty() {
-                Ray::new(o, rand_vec(&mut rng), 0.0, f32::MAX)
+                Ray::new(o, rng.next_vec3(), 0.0, f32::MAX)
             } else {
                 let [a, b, c] = tris[(rng.next_u64() % tris.len() as u64) as usize];
                 let (mut u, mut v) = (rng.next_f32() * 0.5 + 0.5, rng.next_f32() * 0.5 + 0.5);

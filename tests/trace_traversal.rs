@@ -16,10 +16,6 @@ fn tree_of(g: &TraceGeometry) -> KdTree {
     seed001::build_boxes(&g.boxes, &SahParams::default()).0
 }
 
-fn rand_vec(rng: &mut Rng) -> Vec3 {
-    Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32())
-}
-
 /// A point on primitive `p` of `g` (triangles by random barycentrics, spheres on the
 /// surface).
 fn point_on(g: &TraceGeometry, p: usize, rng: &mut Rng) -> Vec3 {
@@ -32,7 +28,7 @@ fn point_on(g: &TraceGeometry, p: usize, rng: &mut Rng) -> Vec3 {
         a + (b - a) * u + (c - a) * v
     } else {
         let s = g.sphere_at(p - g.triangle_count(), 0.0);
-        s.truncate() + rand_vec(rng).normalize_or(Vec3::X) * s.w
+        s.truncate() + rng.next_vec3().normalize_or(Vec3::X) * s.w
     }
 }
 
@@ -46,12 +42,12 @@ fn random_rays(g: &TraceGeometry, tree: &KdTree, n: usize, seed: u64) -> Vec<Ray
     let prims = g.primitive_count();
     (0..n)
         .map(|i| {
-            let o = c + rand_vec(&mut rng) * ext * 0.75;
+            let o = c + rng.next_vec3() * ext * 0.75;
             match i % 4 {
-                0 => Ray::new(o, rand_vec(&mut rng), 0.0, f32::MAX),
+                0 => Ray::new(o, rng.next_vec3(), 0.0, f32::MAX),
                 1 => {
                     let target = point_on(g, (rng.next_u64() % prims as u64) as usize, &mut rng);
-                    let from = c + rand_vec(&mut rng).normalize_or(Vec3::Y) * ext.length();
+                    let from = c + rng.next_vec3().normalize_or(Vec3::Y) * ext.length();
                     Ray::new(from, target - from, 0.0, f32::MAX)
                 }
                 2 => {
@@ -68,7 +64,7 @@ fn random_rays(g: &TraceGeometry, tree: &KdTree, n: usize, seed: u64) -> Vec<Ray
                 }
                 _ => {
                     let p = point_on(g, (rng.next_u64() % prims as u64) as usize, &mut rng);
-                    Ray::new(p, rand_vec(&mut rng), 1e-4, f32::MAX)
+                    Ray::new(p, rng.next_vec3(), 1e-4, f32::MAX)
                 }
             }
         })
@@ -147,12 +143,12 @@ fn scenes() -> Vec<(&'static str, TraceGeometry)> {
     let mut rng = Rng(11);
     let tris: Vec<[Vec3; 3]> = (0..500)
         .map(|_| {
-            let o = rand_vec(&mut rng) * 5.0;
-            [o, o + rand_vec(&mut rng), o + rand_vec(&mut rng)]
+            let o = rng.next_vec3() * 5.0;
+            [o, o + rng.next_vec3(), o + rng.next_vec3()]
         })
         .collect();
     let spheres: Vec<Vec4> = (0..300)
-        .map(|_| (rand_vec(&mut rng) * 5.0).extend(0.05 + 0.3 * rng.next_f32().abs()))
+        .map(|_| (rng.next_vec3() * 5.0).extend(0.05 + 0.3 * rng.next_f32().abs()))
         .collect();
     out.push((
         "triangles+spheres",

@@ -89,6 +89,11 @@ impl Rng {
     pub fn next_f32(&mut self) -> f32 {
         (self.next_u64() >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0
     }
+
+    /// A point in [-1, 1)³ (x, then y, then z drawn).
+    pub fn next_vec3(&mut self) -> glam::Vec3 {
+        glam::Vec3::new(self.next_f32(), self.next_f32(), self.next_f32())
+    }
 }
 
 /// The sizes every primitive is tested at: empty, one, around the subgroup and the workgroup
