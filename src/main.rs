@@ -268,6 +268,11 @@ enum AccelArg {
     SahBvh,
     Lbvh,
     Ploc,
+    /// The driver's own structure (VK_KHR_acceleration_structure, built preferring fast
+    /// trace) through its ray query (VK_KHR_ray_query), where the device has them.
+    Driver,
+    /// The driver's structure built preferring a fast build.
+    DriverFastBuild,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -278,12 +283,15 @@ enum TraversalArg {
 
 fn accel_traversal(accel: AccelArg, walk: TraversalArg) -> vkrt::accel::device::AccelChoice {
     use vkrt::accel::device::{AccelChoice, AccelKind};
+    use vkrt::accel::driver::Prefer;
     use vkrt::trace::bvh_cpu::Traversal;
     let kind = match accel {
         AccelArg::Kdtree => AccelKind::KdTree,
         AccelArg::SahBvh => AccelKind::SahBvh,
         AccelArg::Lbvh => AccelKind::Lbvh,
         AccelArg::Ploc => AccelKind::Ploc,
+        AccelArg::Driver => return AccelChoice::driver(Prefer::FastTrace),
+        AccelArg::DriverFastBuild => return AccelChoice::driver(Prefer::FastBuild),
     };
     let walk = match walk {
         TraversalArg::Stack => Traversal::Stack,
@@ -758,6 +766,21 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 }
                 return bvh_build_command(&load_scene(&scene)?, reference, json);
             }
+            let driver = match accel.as_str() {
+                "driver" => Some(vkrt::accel::driver::Prefer::FastTrace),
+                "driver-fast-build" => Some(vkrt::accel::driver::Prefer::FastBuild),
+                _ => None,
+            };
+            if let Some(prefer) = driver {
+                if seed_termination || reference {
+                    return Err("--seed-termination and --reference do not apply to the \
+                                driver's structure (it is opaque)"
+                        .into());
+                }
+                let ctx = context(cli.validate)?;
+                let scene = load_scene(&scene)?;
+                return driver_build_command(&ctx, prefer, &scene, json, &profile);
+            }
             let gpu_bvh = match accel.as_str() {
                 "lbvh" => Some(vkrt::accel::device::AccelKind::Lbvh),
                 "ploc" => Some(vkrt::accel::device::AccelKind::Ploc),
@@ -775,7 +798,8 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             }
             if accel != "kdtree" {
                 return Err(format!(
-                    "unknown --accel `{accel}` (available: kdtree, sah-bvh, lbvh, ploc)"
+                    "unknown --accel `{accel}` (available: kdtree, sah-bvh, lbvh, ploc, \
+                     driver, driver-fast-build)"
                 )
                 .into());
             }
@@ -1069,7 +1093,7 @@ fn trace_command(
     let scene = load_scene(&Some(scene_path.to_path_buf()))?;
     let geometry = TraceGeometry::at_time(&scene, scene.camera.shutter_open);
     let ctx = context(validate)?;
-    let builder = vkrt::accel::device::AccelBuilder::new(&ctx, accel.kind)?;
+    let builder = vkrt::accel::device::AccelBuilder::for_choice(&ctx, accel)?;
     let tracer = gpu::Tracer::for_accel(&ctx, opt, accel.traversal())?;
     // Upload, build and the first batch's trace in one submission; nothing read back
     // between build and trace.
@@ -1278,6 +1302,60 @@ fn gpu_bvh_build_command(
     }
     if equal == Some(false) {
         return Err(format!("the GPU {} differs from its CPU twin", kind.name()).into());
+    }
+    Ok(())
+}
+
+/// `vkrt build --accel driver`: the driver's structure built over the scene's primitives at
+/// the shutter-open time, twice (the first warms up), with the build's GPU time from
+/// timestamps and the submission's wall time; its bytes as the driver reports them.
+fn driver_build_command(
+    ctx: &vkrt::gpu::Context,
+    prefer: vkrt::accel::driver::Prefer,
+    scene: &vkrt::scene::Scene,
+    json: bool,
+    profile: &Option<PathBuf>,
+) -> Result<(), Box<dyn std::error::Error>> {
+    use vkrt::accel::device::{AccelBuilder, AccelChoice, DevicePrimitives};
+    use vkrt::accel::driver::DriverAccel;
+    let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
+    let builder = AccelBuilder::for_choice(ctx, AccelChoice::driver(prefer))?;
+    let prims = DevicePrimitives::upload(ctx, &g)?;
+    let sizes = DriverAccel::sizes(ctx, &prims, prefer, false)?;
+    let mut timed = None;
+    for _ in 0..2 {
+        let (mut accel, scratch) = builder.create(ctx, prims.count(), 0)?;
+        let mut rec = vkrt::gpu::Recorder::new(ctx)?;
+        rec.scope("build", |rec| {
+            builder.record_build(rec, &prims, &g, &scratch, &mut accel)
+        })?;
+        let t = std::time::Instant::now();
+        let prof = rec.submit_and_wait()?;
+        timed = Some((prof, t.elapsed().as_secs_f64() * 1e3));
+    }
+    let (prof, wall_ms) = timed.expect("built");
+    write_profile(profile, &prof)?;
+    let build_ms = prof.ms("build").unwrap_or(0.0);
+    if json {
+        let v = serde_json::json!({
+            "kind": "driver",
+            "prefer": prefer,
+            "primitives": g.primitive_count(),
+            "build_ms": build_ms,
+            "submit_wall_ms": wall_ms,
+            "bytes": sizes.structure_bytes,
+            "build_scratch_bytes": sizes.build_scratch_bytes,
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!(
+            "{} primitives: driver build ({}) {build_ms:.2} ms on the GPU, submission \
+             {wall_ms:.2} ms wall; {} bytes, {} bytes of scratch",
+            g.primitive_count(),
+            prefer.name(),
+            sizes.structure_bytes,
+            sizes.build_scratch_bytes
+        );
     }
     Ok(())
 }

@@ -279,13 +279,12 @@ fn structures_built_on_the_device_render_the_host_twins_image() {
         let (plan, rs) = prepare(&scene, &small(spp));
         let host = gpu_render(&ctx, &plan, &rs);
         for accel in AccelChoice::all() {
-            let kind = accel.kind;
             let opt = RenderOptions {
                 accel,
                 ..small(spp)
             };
             let plan = Plan::new(&scene, &opt).unwrap();
-            let rs = RenderScene::new(&scene, &plan, |_| Ok::<_, ()>(RenderAccel::OnDevice(kind)))
+            let rs = RenderScene::new(&scene, &plan, |_| Ok::<_, ()>(RenderAccel::OnDevice(accel)))
                 .unwrap();
             let d = gpu_render(&ctx, &plan, &rs);
             let what = format!("{file} on {}", accel.label());

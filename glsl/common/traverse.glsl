@@ -15,8 +15,11 @@
 
 #include "common/kdtree.glsl"
 #include "common/ray.glsl"
-#if FP64_FALLBACK
+#if FP64_FALLBACK || defined(RAY_QUERY)
 #extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
+#endif
+#ifdef RAY_QUERY
+#extension GL_EXT_ray_query : require
 #endif
 
 #define NO_MOTION 0xffffffffu
@@ -50,7 +53,16 @@ layout(std430, binding = GEOM_BINDING + 6) readonly buffer SceneInfoBuf {
     uint parents_at; // BVH: index of node 0's parent link in kd_refs
 } scene_info;
 
-// 0: kd-tree; 1: BVH with a stack; 2: BVH with seed 000's bitstack (AccelTraversal::spec).
+#ifdef RAY_QUERY
+// The driver's structure (src/accel/driver.rs): the nodes binding holds the device address
+// of its top level, which the query converts (OpConvertUToAccelerationStructureKHR), so no
+// acceleration-structure descriptor is needed; the prim_refs binding (kd_refs) holds the
+// first primitive id of each instance.
+layout(std430, binding = GEOM_BINDING + 0) readonly buffer DriverTlas { uint64_t tlas_address; };
+#endif
+
+// 0: kd-tree; 1: BVH with a stack; 2: BVH with seed 000's bitstack; 3: the driver's ray query
+// (AccelTraversal::spec; kernels compiled with RAY_QUERY walk only that).
 layout(constant_id = 20) const uint ACCEL_KIND = 0u;
 #define ACCEL_KDTREE 0u
 #define ACCEL_BVH_STACK 1u
@@ -324,7 +336,65 @@ Hit trace_kdtree(Ray r, float time) {
     return best;
 }
 
+#ifdef RAY_QUERY
+// The driver traverses its own structure. Static triangles are its triangle geometry (its
+// intersector, committed by the driver); spheres, and every primitive of a scene with motion,
+// are boxes (swept over the shutter for moving ones) that this loop intersects with
+// hit_primitive at `time` and commits. One instance per kind of geometry
+// (DriverAccel::geometries); kd_refs[instance] + the primitive's index is its id.
+Hit trace_ray_query(Ray r, float time) {
+    // An invalid ray is a miss (src/trace/mod.rs); Vulkan leaves queries with NaN, a negative
+    // tmin or tmin > tmax undefined, so none is made.
+    float tmin = max(r.tmin, 0.0);
+    if (!ray_is_valid(r) || tmin > r.tmax || scene_info.n_tris + scene_info.n_spheres == 0u) {
+        return miss_hit();
+    }
+    Shear sh = make_shear(r.d);
+    // Opaque: triangle hits commit without the loop; any hit ends at the first commit.
+    uint flags = gl_RayFlagsOpaqueEXT | (ANY_HIT ? gl_RayFlagsTerminateOnFirstHitEXT : 0u);
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, accelerationStructureEXT(tlas_address), flags, 0xffu, r.o, tmin,
+                          r.d, r.tmax);
+    float best_t = r.tmax;
+    vec2 best_uv = vec2(0.0);
+    // Candidates (boxes the driver found) per ray before giving up, as for vkrt's walks.
+    uint candidates = 0u;
+    while (rayQueryProceedEXT(q)) {
+        if (++candidates > MAX_TRAVERSAL_STEPS) {
+            rayQueryTerminateEXT(q);
+            trace_steps_exhausted = true;
+            return miss_hit();
+        }
+        if (rayQueryGetIntersectionTypeEXT(q, false) == gl_RayQueryCandidateIntersectionAABBEXT) {
+            uint prim = kd_refs[rayQueryGetIntersectionInstanceIdEXT(q, false)]
+                + uint(rayQueryGetIntersectionPrimitiveIndexEXT(q, false));
+            float t, u, v;
+            if (hit_primitive(prim, r, sh, time, tmin, best_t, t, u, v)) {
+                rayQueryGenerateIntersectionEXT(q, t);
+                best_t = t;
+                best_uv = vec2(u, v);
+            }
+        }
+    }
+    uint committed = rayQueryGetIntersectionTypeEXT(q, true);
+    if (committed == gl_RayQueryCommittedIntersectionNoneEXT) {
+        return miss_hit();
+    }
+    uint prim = kd_refs[rayQueryGetIntersectionInstanceIdEXT(q, true)]
+        + uint(rayQueryGetIntersectionPrimitiveIndexEXT(q, true));
+    float t = rayQueryGetIntersectionTEXT(q, true);
+    if (committed == gl_RayQueryCommittedIntersectionTriangleEXT) {
+        vec2 uv = rayQueryGetIntersectionBarycentricsEXT(q, true);
+        return Hit(t, prim, uv.x, uv.y);
+    }
+    return Hit(t, prim, best_uv.x, best_uv.y);
+}
+#endif
+
 Hit trace_ray(Ray r, float time) {
+#ifdef RAY_QUERY
+    return trace_ray_query(r, time);
+#else
     if (ACCEL_KIND == ACCEL_KDTREE) {
         return trace_kdtree(r, time);
     }
@@ -332,6 +402,7 @@ Hit trace_ray(Ray r, float time) {
         return trace_bvh_stack(r, time);
     }
     return trace_bvh_bitstack(r, time);
+#endif
 }
 
 #endif

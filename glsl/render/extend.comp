@@ -2,6 +2,7 @@
 // Closest hit of every live ray in the queue (count and workgroups on the GPU).
 //! variant exact FP64_FALLBACK=1
 //! variant float FP64_FALLBACK=0
+//! variant query FP64_FALLBACK=0 RAY_QUERY=1
 layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint INTERSECTOR = 0u;
 layout(constant_id = 2) const bool ANY_HIT = false;

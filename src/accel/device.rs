@@ -23,12 +23,14 @@ use crate::accel::bvh::ploc::PlocParams;
 use crate::accel::bvh::ploc_gpu::{PlocBuilder, PlocScratch};
 use crate::accel::bvh::refit_gpu::{LevelRefit, RefitSchedule};
 use crate::accel::bvh::{self, Bvh, BvhNode, BvhParams, Threading};
+use crate::accel::driver::{DriverAccel, Prefer};
 use crate::accel::kdtree::gpu::{BuildCapacity, BuildOutput, BuildScratch, KdTreeBuilder};
 use crate::accel::kdtree::{KdNode, KdTree, SahParams};
 use std::sync::Arc;
 
 use crate::gpu::{
-    kernels, Buffer, BufferArg, Context, GpuError, Kernel, Readback, Recorder, Result, Spec,
+    kernels, require_ray_query, AccelGeometry, Buffer, BufferArg, Context, GpuError, Kernel,
+    Readback, Recorder, Result, Spec,
 };
 use crate::scene::Aabb;
 use crate::trace::bvh_cpu::Traversal;
@@ -53,9 +55,13 @@ pub enum AccelKind {
     Lbvh,
     /// PLOC (Meister & Bittner 2018), built on the GPU.
     Ploc,
+    /// The driver's own (`VK_KHR_acceleration_structure`), queried with `VK_KHR_ray_query`:
+    /// the peer vkrt's structures are measured against, where the device has it.
+    Driver,
 }
 
 impl AccelKind {
+    /// The structures vkrt itself builds (every device runs them).
     pub const ALL: [AccelKind; 4] = [
         AccelKind::KdTree,
         AccelKind::SahBvh,
@@ -70,15 +76,31 @@ impl AccelKind {
             AccelKind::SahBvh => "sah-bvh",
             AccelKind::Lbvh => "lbvh",
             AccelKind::Ploc => "ploc",
+            AccelKind::Driver => "driver",
         }
     }
 
-    /// How kernels walk this kind (`traversal` applies to BVHs).
+    /// How kernels walk this kind (`traversal` applies to vkrt's BVHs).
     pub fn walked(self, traversal: Traversal) -> AccelTraversal {
         match self {
             AccelKind::KdTree => AccelTraversal::KdTree,
             AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => AccelTraversal::Bvh(traversal),
+            AccelKind::Driver => AccelTraversal::RayQuery,
         }
+    }
+
+    /// [`AccelKind::ALL`], and the driver's where `ctx`'s device has ray query.
+    pub fn available(ctx: &Context) -> Vec<AccelKind> {
+        let mut kinds = Self::ALL.to_vec();
+        if ctx.info().features.ray_query {
+            kinds.push(AccelKind::Driver);
+        }
+        kinds
+    }
+
+    /// Whether one walk serves it (no `--traversal` choice).
+    fn single_walk(self) -> bool {
+        matches!(self, AccelKind::KdTree | AccelKind::Driver)
     }
 }
 
@@ -86,18 +108,32 @@ impl AccelKind {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
 pub struct AccelChoice {
     pub kind: AccelKind,
-    /// How a BVH is walked (ignored for a kd-tree).
+    /// How a BVH is walked (ignored for a kd-tree and the driver's structure).
     pub walk: Traversal,
+    /// What the driver's builder optimises for (the driver's structure only).
+    pub prefer: Prefer,
 }
 
 impl AccelChoice {
     pub fn new(kind: AccelKind, walk: Traversal) -> Self {
-        let walk = if kind == AccelKind::KdTree {
+        let walk = if kind.single_walk() {
             Traversal::default()
         } else {
             walk
         };
-        Self { kind, walk }
+        Self {
+            kind,
+            walk,
+            prefer: Prefer::default(),
+        }
+    }
+
+    /// The driver's structure built with `prefer`.
+    pub fn driver(prefer: Prefer) -> Self {
+        Self {
+            prefer,
+            ..Self::new(AccelKind::Driver, Traversal::default())
+        }
     }
 
     /// The walk the kernels compile in (`ACCEL_KIND`).
@@ -105,12 +141,21 @@ impl AccelChoice {
         self.kind.walked(self.walk)
     }
 
-    /// Every structure with every walk, for suites and benchmarks.
+    /// Every structure vkrt builds with every walk, for suites and benchmarks.
     pub fn all() -> Vec<Self> {
-        AccelKind::ALL
+        Self::every(AccelKind::ALL.to_vec())
+    }
+
+    /// [`AccelChoice::all`], and the driver's structure where `ctx`'s device has it.
+    pub fn all_on(ctx: &Context) -> Vec<Self> {
+        Self::every(AccelKind::available(ctx))
+    }
+
+    fn every(kinds: Vec<AccelKind>) -> Vec<Self> {
+        kinds
             .into_iter()
             .flat_map(|kind| {
-                let walks: &[Traversal] = if kind == AccelKind::KdTree {
+                let walks: &[Traversal] = if kind.single_walk() {
                     &[Traversal::Stack]
                 } else {
                     &[Traversal::Stack, Traversal::Bitstack]
@@ -122,8 +167,9 @@ impl AccelChoice {
 
     /// `kdtree`, `sah-bvh/stack`, `lbvh/bitstack`, ...
     pub fn label(self) -> String {
-        match self.kind {
-            AccelKind::KdTree => self.kind.name().to_string(),
+        match (self.kind, self.prefer) {
+            (AccelKind::Driver, Prefer::FastBuild) => format!("driver/{}", self.prefer.name()),
+            (AccelKind::KdTree | AccelKind::Driver, _) => self.kind.name().to_string(),
             _ => format!("{}/{}", self.kind.name(), self.walk.name()),
         }
     }
@@ -267,6 +313,14 @@ enum Storage {
         /// The refit's schedule, for a structure built to be updated.
         schedule: Option<Box<RefitSchedule>>,
     },
+    Driver {
+        /// Recorded by the build.
+        accel: Option<Box<DriverAccel>>,
+        /// The TLAS's device address: the `nodes` binding of the `query` kernels.
+        address: Buffer<u64>,
+        /// The `prim_refs` binding: the first primitive id of each instance.
+        bases: Buffer<u32>,
+    },
 }
 
 /// A structure downloaded to the host (tests and tools).
@@ -303,6 +357,7 @@ impl AccelStructure {
         match &self.storage {
             Storage::KdTree { out, .. } => [&out.nodes[0], &out.prim_refs],
             Storage::Bvh { nodes, refs, .. } => [nodes, refs],
+            Storage::Driver { address, bases, .. } => [address, bases],
         }
     }
 
@@ -311,7 +366,7 @@ impl AccelStructure {
     pub fn record_read_built(&self, rec: &mut Recorder) -> Result<Option<Readback<u32>>> {
         match &self.storage {
             Storage::KdTree { built, .. } => rec.read_back(built).map(Some),
-            Storage::Bvh { .. } => Ok(None),
+            Storage::Bvh { .. } | Storage::Driver { .. } => Ok(None),
         }
     }
 
@@ -381,6 +436,10 @@ impl AccelStructure {
                     bounds: bounds(*n_refs == 0),
                 }))
             }
+            Storage::Driver { .. } => Err(GpuError::Kernel {
+                kernel: "accel.driver",
+                reason: "the driver's structure is opaque: it cannot be downloaded".into(),
+            }),
         }
     }
 }
@@ -408,6 +467,8 @@ pub struct AccelBuilder {
     pub kd_params: SahParams,
     pub bvh_params: BvhParams,
     pub threading: Threading,
+    /// What the driver's builder optimises for (the driver's structure).
+    pub driver_prefer: Prefer,
     /// Build BVHs to be updated (`VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_KHR`):
     /// the build also records the refit's schedule, kept with the structure, and refits run
     /// one dispatch per depth (`bvh::refit_gpu`) instead of climbing. Off by default.
@@ -437,7 +498,12 @@ impl RecordedBuild {
 }
 
 impl AccelBuilder {
+    /// The builder of `kind`; the driver's needs its ray tracing (else the error naming the
+    /// extensions).
     pub fn new(ctx: &Context, kind: AccelKind) -> Result<Self> {
+        if kind == AccelKind::Driver {
+            require_ray_query(ctx)?;
+        }
         Ok(Self {
             kind,
             kd: match kind {
@@ -453,14 +519,14 @@ impl AccelBuilder {
                 _ => None,
             },
             refit: match kind {
-                AccelKind::KdTree => None,
+                AccelKind::KdTree | AccelKind::Driver => None,
                 AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => Some(ctx.kernel(
                     &kernels::ACCEL_BVH_REFIT_BOXES,
                     &Spec::new().workgroup(refit_workgroup(ctx)),
                 )?),
             },
             level_refit: match kind {
-                AccelKind::KdTree => None,
+                AccelKind::KdTree | AccelKind::Driver => None,
                 _ => Some(LevelRefit::new(ctx)?),
             },
             collapse: match kind {
@@ -473,12 +539,20 @@ impl AccelBuilder {
             kd_params: SahParams::default(),
             bvh_params: BvhParams::default(),
             threading: Threading::all_cores(),
+            driver_prefer: Prefer::default(),
             kd_refs_per_level: None,
         })
     }
 
     pub fn kind(&self) -> AccelKind {
         self.kind
+    }
+
+    /// The builder of `choice`'s structure (its driver preference included).
+    pub fn for_choice(ctx: &Context, choice: AccelChoice) -> Result<Self> {
+        let mut b = Self::new(ctx, choice.kind)?;
+        b.driver_prefer = choice.prefer;
+        Ok(b)
     }
 
     /// An LBVH builder with `bits`-bit Morton codes ([`AccelBuilder::new`] takes the
@@ -563,6 +637,22 @@ impl AccelBuilder {
                     update_scratch_bytes: Some(nodes * 4),
                 }
             }
+            AccelKind::Driver => {
+                // The driver's sizes depend on the geometry (DriverAccel::sizes has them
+                // exactly); for a count alone, `n` triangles.
+                let tris = [AccelGeometry::Triangles {
+                    vertices: 0,
+                    count: n as u32,
+                }];
+                let flags = self.driver_prefer.flags(false);
+                let s = crate::gpu::accel_build_sizes(ctx, &tris, flags)
+                    .expect("a driver builder exists only with ray query");
+                AccelSizes {
+                    structure_bytes: s.structure + info + 8,
+                    build_scratch_bytes: s.scratch,
+                    update_scratch_bytes: None,
+                }
+            }
         }
     }
 
@@ -630,6 +720,19 @@ impl AccelBuilder {
                     scratch,
                 ))
             }
+            AccelKind::Driver => Ok((
+                AccelStructure {
+                    kind: self.kind,
+                    storage: Storage::Driver {
+                        accel: None,
+                        address: Buffer::new(ctx, "accel.driver.address", 1)?,
+                        // Triangles and spheres at most (DriverAccel::geometries).
+                        bases: Buffer::new(ctx, "accel.driver.bases", 2)?,
+                    },
+                    info,
+                },
+                AccelScratch::None,
+            )),
         }
     }
 
@@ -647,6 +750,25 @@ impl AccelBuilder {
         let n = prims.count();
         assert_eq!(out.kind, self.kind, "a {:?} structure", out.kind);
         let recorded = match (&mut out.storage, scratch) {
+            (
+                Storage::Driver {
+                    accel,
+                    address,
+                    bases,
+                },
+                _,
+            ) => {
+                let mut bounds = Aabb::EMPTY;
+                host.boxes.iter().for_each(|b| bounds.union(b));
+                rec.upload(&out.info, &[prims.info(&bounds, 0)])?;
+                rec.upload(bases, &DriverAccel::instance_bases(prims)?)?;
+                let built =
+                    DriverAccel::record_build(rec, prims, self.driver_prefer, self.allow_update)?;
+                rec.upload(address, &[built.tlas_address()])?;
+                rec.transfer_to_compute();
+                *accel = Some(Box::new(built));
+                Ok(RecordedBuild::default())
+            }
             (Storage::KdTree { out: o, built }, AccelScratch::KdTree(s)) => {
                 let kd = self.kd.as_ref().expect("a kd-tree builder");
                 if n > 0 {
@@ -800,6 +922,8 @@ impl AccelBuilder {
     pub fn update_scratch(&self, ctx: &Context, n: usize) -> Result<Option<Buffer<u32>>> {
         match self.kind {
             AccelKind::KdTree => Ok(None),
+            // The driver's update scratch lives with its structure.
+            AccelKind::Driver => Buffer::new(ctx, "accel.refit_visits", 1).map(Some),
             AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => {
                 Buffer::new(ctx, "accel.refit_visits", bvh_nodes(n)).map(Some)
             }
@@ -818,6 +942,12 @@ impl AccelBuilder {
         out: &AccelStructure,
         scratch: &Buffer<u32>,
     ) -> Result<()> {
+        if let Storage::Driver { accel, .. } = &out.storage {
+            let accel = accel
+                .as_ref()
+                .expect("a driver structure is refit after its build");
+            return accel.record_update(rec);
+        }
         let (
             Storage::Bvh {
                 nodes,

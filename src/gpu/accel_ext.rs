@@ -46,6 +46,10 @@ pub enum AccelGeometry {
     /// A bottom level over `count` opaque non-indexed triangles: three R32G32B32_SFLOAT
     /// vertices each (stride 12), from device address `vertices`.
     Triangles { vertices: u64, count: u32 },
+    /// A bottom level over `count` procedural primitives: boxes of six floats (min x, y, z,
+    /// max x, y, z: `VkAabbPositionsKHR`) every `stride` bytes from device address `boxes`
+    /// (both multiples of 8). Rays meet them as candidates the querying kernel intersects.
+    Aabbs { boxes: u64, stride: u64, count: u32 },
     /// A top level over `count` [`AccelInstance`]s at device address `instances`.
     Instances { instances: u64, count: u32 },
 }
@@ -53,16 +57,18 @@ pub enum AccelGeometry {
 impl AccelGeometry {
     fn level(self) -> vk::AccelerationStructureTypeKHR {
         match self {
-            AccelGeometry::Triangles { .. } => vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL,
+            AccelGeometry::Triangles { .. } | AccelGeometry::Aabbs { .. } => {
+                vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL
+            }
             AccelGeometry::Instances { .. } => vk::AccelerationStructureTypeKHR::TOP_LEVEL,
         }
     }
 
     fn count(self) -> u32 {
         match self {
-            AccelGeometry::Triangles { count, .. } | AccelGeometry::Instances { count, .. } => {
-                count
-            }
+            AccelGeometry::Triangles { count, .. }
+            | AccelGeometry::Aabbs { count, .. }
+            | AccelGeometry::Instances { count, .. } => count,
         }
     }
 
@@ -82,6 +88,17 @@ impl AccelGeometry {
                     .geometry(vk::AccelerationStructureGeometryDataKHR { triangles })
                     .flags(vk::GeometryFlagsKHR::OPAQUE)
             }
+            AccelGeometry::Aabbs { boxes, stride, .. } => {
+                let aabbs = vk::AccelerationStructureGeometryAabbsDataKHR::default()
+                    .data(vk::DeviceOrHostAddressConstKHR {
+                        device_address: boxes,
+                    })
+                    .stride(stride);
+                vk::AccelerationStructureGeometryKHR::default()
+                    .geometry_type(vk::GeometryTypeKHR::AABBS)
+                    .geometry(vk::AccelerationStructureGeometryDataKHR { aabbs })
+                    .flags(vk::GeometryFlagsKHR::OPAQUE)
+            }
             AccelGeometry::Instances { instances, .. } => {
                 let instances = vk::AccelerationStructureGeometryInstancesDataKHR::default()
                     .array_of_pointers(false)
@@ -97,12 +114,24 @@ impl AccelGeometry {
     }
 }
 
-/// Bytes a build needs: the structure's storage and the scratch (to be allocated with
-/// [`accel_scratch`]).
+/// The level of a structure built over `geometries`: bottom (triangles and boxes; also an
+/// empty list) or top (instances); a mix is a usage error.
+fn level_of(geometries: &[AccelGeometry]) -> vk::AccelerationStructureTypeKHR {
+    let bottom = vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL;
+    let level = geometries.first().map_or(bottom, |g| g.level());
+    if geometries.iter().any(|g| g.level() != level) {
+        usage_error("instances and primitives in one acceleration structure");
+    }
+    level
+}
+
+/// Bytes a build needs: the structure's storage and the scratch of a build and of an
+/// update (to be allocated with [`accel_scratch`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct AccelSizes {
     pub structure: u64,
     pub scratch: u64,
+    pub update_scratch: u64,
 }
 
 /// The extension's functions, or the error naming what the device lacks.
@@ -126,33 +155,36 @@ pub fn require_ray_query(ctx: &Context) -> Result<()> {
     ext(ctx).map(drop)
 }
 
-/// Sizes of a device build over `geometry` with `flags`.
+/// Sizes of a device build over `geometries` (one level) with `flags`.
 pub fn accel_build_sizes(
     ctx: &Context,
-    geometry: AccelGeometry,
+    geometries: &[AccelGeometry],
     flags: vk::BuildAccelerationStructureFlagsKHR,
 ) -> Result<AccelSizes> {
     let ext = ext(ctx)?;
-    let geometries = [geometry.vk()];
+    let level = level_of(geometries);
+    let counts: Vec<u32> = geometries.iter().map(|g| g.count()).collect();
+    let geometries: Vec<_> = geometries.iter().map(|g| g.vk()).collect();
     let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
-        .ty(geometry.level())
+        .ty(level)
         .flags(flags)
         .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
         .geometries(&geometries);
     let mut sizes = vk::AccelerationStructureBuildSizesInfoKHR::default();
     // SAFETY: the extension is enabled (ext() returned it); `info` points at `geometries`,
-    // which lives across the call; one geometry, one primitive count.
+    // which lives across the call; one primitive count per geometry.
     unsafe {
         ext.get_acceleration_structure_build_sizes(
             vk::AccelerationStructureBuildTypeKHR::DEVICE,
             &info,
-            &[geometry.count()],
+            &counts,
             &mut sizes,
         )
     };
     Ok(AccelSizes {
         structure: sizes.acceleration_structure_size,
         scratch: sizes.build_scratch_size,
+        update_scratch: sizes.update_scratch_size,
     })
 }
 
@@ -196,11 +228,16 @@ pub struct AccelerationStructure {
 }
 
 impl AccelerationStructure {
-    /// An unbuilt structure of `bytes` (from [`accel_build_sizes`]) for `geometry`'s level.
-    pub fn new(ctx: &Context, name: &str, geometry: AccelGeometry, bytes: u64) -> Result<Self> {
+    /// An unbuilt structure of `bytes` (from [`accel_build_sizes`]) for `geometries`' level.
+    pub fn new(
+        ctx: &Context,
+        name: &str,
+        geometries: &[AccelGeometry],
+        bytes: u64,
+    ) -> Result<Self> {
         let ext = ext(ctx)?;
         let storage = Buffer::<u8>::new(ctx, name, bytes as usize)?;
-        let level = geometry.level();
+        let level = level_of(geometries);
         let create = vk::AccelerationStructureCreateInfoKHR::default()
             .buffer(storage.raw)
             .offset(0)
@@ -226,12 +263,17 @@ impl AccelerationStructure {
         })
     }
 
+    /// Bytes of its storage.
+    pub fn byte_len(&self) -> u64 {
+        self.bytes
+    }
+
     /// Its device address: what instances point at and what kernels query.
     pub fn device_address(&self) -> u64 {
         self.address
     }
 
-    /// Records the build of this structure over `geometry` into `rec`, with scratch from
+    /// Records the build of this structure over `geometries` into `rec`, with scratch from
     /// `scratch` ([`accel_scratch`] of at least the size's scratch). Order the writes of
     /// the inputs before with [`Recorder::to_accel_build`], and the build before its users
     /// with [`Recorder::accel_build_to_accel_build`] or
@@ -240,51 +282,98 @@ impl AccelerationStructure {
     pub fn record_build(
         &self,
         rec: &mut Recorder,
-        geometry: AccelGeometry,
+        geometries: &[AccelGeometry],
         flags: vk::BuildAccelerationStructureFlagsKHR,
         scratch: &Buffer<u8>,
     ) -> Result<()> {
+        self.record(rec, geometries, flags, scratch, false)
+    }
+
+    /// Records an update (refit) of this structure, built before with `flags` holding
+    /// `ALLOW_UPDATE`, over the same `geometries` with moved positions: the driver keeps
+    /// the topology and recomputes the bounds in place. Ordering as for
+    /// [`AccelerationStructure::record_build`]; `scratch` holds the update's scratch.
+    pub fn record_update(
+        &self,
+        rec: &mut Recorder,
+        geometries: &[AccelGeometry],
+        flags: vk::BuildAccelerationStructureFlagsKHR,
+        scratch: &Buffer<u8>,
+    ) -> Result<()> {
+        if !flags.contains(vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE) {
+            usage_error("an update of a structure not built with ALLOW_UPDATE");
+        }
+        self.record(rec, geometries, flags, scratch, true)
+    }
+
+    fn record(
+        &self,
+        rec: &mut Recorder,
+        geometries: &[AccelGeometry],
+        flags: vk::BuildAccelerationStructureFlagsKHR,
+        scratch: &Buffer<u8>,
+        update: bool,
+    ) -> Result<()> {
         let ctx = rec.context().clone();
         let ext = ext(&ctx)?;
-        if geometry.level() != self.geometry_level {
+        if level_of(geometries) != self.geometry_level {
             usage_error("an acceleration structure built at another level than created");
         }
-        let sizes = accel_build_sizes(&ctx, geometry, flags)?;
+        let sizes = accel_build_sizes(&ctx, geometries, flags)?;
         if sizes.structure > self.bytes {
             usage_error(&format!(
                 "the build needs {} bytes of structure, {} were created",
                 sizes.structure, self.bytes
             ));
         }
+        let needed = if update {
+            sizes.update_scratch
+        } else {
+            sizes.scratch
+        };
         let align = scratch_alignment(&ctx);
         let base = scratch.device_address();
         let scratch_address = base.next_multiple_of(align);
-        if scratch_address - base + sizes.scratch > scratch.byte_len() {
+        if scratch_address - base + needed > scratch.byte_len() {
             usage_error(&format!(
-                "`{}` holds {} bytes; the build needs {} of scratch aligned to {align}",
+                "`{}` holds {} bytes; the build needs {needed} of scratch aligned to {align}",
                 scratch.name(),
                 scratch.byte_len(),
-                sizes.scratch
             ));
         }
-        let geometries = [geometry.vk()];
+        let (mode, src) = if update {
+            (vk::BuildAccelerationStructureModeKHR::UPDATE, self.raw)
+        } else {
+            (
+                vk::BuildAccelerationStructureModeKHR::BUILD,
+                vk::AccelerationStructureKHR::null(),
+            )
+        };
+        let ranges: Vec<_> = geometries
+            .iter()
+            .map(|g| {
+                vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(g.count())
+            })
+            .collect();
+        let geometries: Vec<_> = geometries.iter().map(|g| g.vk()).collect();
         let info = [vk::AccelerationStructureBuildGeometryInfoKHR::default()
             .ty(self.geometry_level)
             .flags(flags)
-            .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
+            .mode(mode)
+            .src_acceleration_structure(src)
             .dst_acceleration_structure(self.raw)
             .geometries(&geometries)
             .scratch_data(vk::DeviceOrHostAddressKHR {
                 device_address: scratch_address,
             })];
-        let ranges =
-            [vk::AccelerationStructureBuildRangeInfoKHR::default()
-                .primitive_count(geometry.count())];
         let range_refs: [&[vk::AccelerationStructureBuildRangeInfoKHR]; 1] = [&ranges];
         // SAFETY: recording outside a render pass; the extension is enabled; `info` and
-        // `ranges` point at locals living across the call; the destination was created for
-        // this level with the storage the sizes ask for (checked above); the scratch range is inside `scratch` and aligned (checked
-        // above); the caller keeps inputs, scratch and `self` alive until the work executes.
+        // `ranges` point at locals living across the call, one range per geometry; the
+        // destination was created for this level with the storage the sizes ask for and the
+        // scratch range is inside `scratch` and aligned (both checked above); an update's
+        // source is this structure, built before with ALLOW_UPDATE (the caller's contract,
+        // flags checked); the caller keeps inputs, scratch and `self` alive until the work
+        // executes.
         unsafe { ext.cmd_build_acceleration_structures(rec.command_buffer(), &info, &range_refs) };
         Ok(())
     }

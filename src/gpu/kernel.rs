@@ -41,6 +41,15 @@ impl Spec {
         self
     }
 
+    /// Without the constants `blob` does not declare: for a variant compiled without some
+    /// of its family's (the `query` variants of the tracing kernels walk no vkrt structure,
+    /// so they have no stack size and no walk). Elsewhere an unknown id stays an error.
+    pub fn declared_in(mut self, blob: &ShaderBlob) -> Self {
+        self.values
+            .retain(|(id, _)| blob.spec_constants.iter().any(|(i, _)| i == id));
+        self
+    }
+
     /// Sets `layout(constant_id = id) const float`.
     pub fn f32(self, id: u32, value: f32) -> Self {
         self.u32(id, value.to_bits())

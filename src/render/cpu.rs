@@ -108,7 +108,7 @@ fn host_twin(kind: AccelKind, g: &TraceGeometry) -> RenderAccel {
             let params = crate::accel::kdtree::SahParams::default();
             RenderAccel::KdTree(crate::accel::kdtree::seed001::build_boxes(&g.boxes, &params).0)
         }
-        AccelKind::SahBvh => RenderAccel::Bvh(
+        AccelKind::SahBvh | AccelKind::Driver => RenderAccel::Bvh(
             crate::accel::bvh::build(&g.boxes, &Default::default(), Threading::all_cores())
                 .expect("the scene's boxes are finite"),
         ),
@@ -132,7 +132,7 @@ pub fn render(rs: &RenderScene, plan: &Plan, trace_opt: &TraceOptions) -> CpuRen
     // A structure the GPU builds on the device: its CPU twin builds the same one here
     // (seed 001's CPU build is bit-exact with the GPU's; the SAH BVH is deterministic).
     let host = match &rs.accel {
-        RenderAccel::OnDevice(kind) => Some(host_twin(*kind, &rs.geometry)),
+        RenderAccel::OnDevice(choice) => Some(host_twin(choice.kind, &rs.geometry)),
         _ => None,
     };
     let accel = host.as_ref().unwrap_or(&rs.accel);
@@ -148,7 +148,8 @@ pub fn render(rs: &RenderScene, plan: &Plan, trace_opt: &TraceOptions) -> CpuRen
         (RenderAccel::Bvh(bvh), AccelTraversal::Bvh(walk)) => {
             bvh_cpu::trace(&rs.geometry, bvh, r, time, opt, walk)
         }
-        (RenderAccel::Bvh(bvh), AccelTraversal::KdTree) => {
+        // A BVH stands in for the driver's structure, whose walk has no twin.
+        (RenderAccel::Bvh(bvh), AccelTraversal::KdTree | AccelTraversal::RayQuery) => {
             bvh_cpu::trace(&rs.geometry, bvh, r, time, opt, Default::default())
         }
         (RenderAccel::OnDevice(_), _) => unreachable!("resolved to its host twin above"),

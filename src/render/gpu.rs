@@ -122,18 +122,20 @@ fn around_geometry<'a>(
 
 impl Renderer {
     pub fn new(ctx: &Context, plan: &Plan, trace: &TraceOptions) -> Result<Self> {
-        let opt = effective_options(ctx, trace);
+        let walk = plan.accel.traversal();
+        walk.require(ctx)?;
+        let opt = effective_options(ctx, trace, walk);
         let closest = traversal_spec(&TraceOptions {
             query: Query::Closest,
             ..opt
         })
-        .u32(20, plan.accel.traversal().spec())
+        .u32(20, walk.spec())
         .workgroup(WG);
         let any = traversal_spec(&TraceOptions {
             query: Query::Any,
             ..opt
         })
-        .u32(20, plan.accel.traversal().spec())
+        .u32(20, walk.spec())
         .workgroup(WG);
         let b = |v: bool| v as u32;
         let shade = Spec::new()
@@ -152,17 +154,28 @@ impl Renderer {
             .u32(2, b(plan.jitter))
             .u32(3, b(plan.motion));
         let plain = Spec::new().workgroup(WG);
-        let (extend, shadow) = if opt.exact {
-            (&kernels::RENDER_EXTEND_EXACT, &kernels::RENDER_SHADOW_EXACT)
-        } else {
-            (&kernels::RENDER_EXTEND_FLOAT, &kernels::RENDER_SHADOW_FLOAT)
-        };
+        let extend = walk.variant(
+            opt.exact,
+            [
+                &kernels::RENDER_EXTEND_EXACT,
+                &kernels::RENDER_EXTEND_FLOAT,
+                &kernels::RENDER_EXTEND_QUERY,
+            ],
+        );
+        let shadow = walk.variant(
+            opt.exact,
+            [
+                &kernels::RENDER_SHADOW_EXACT,
+                &kernels::RENDER_SHADOW_FLOAT,
+                &kernels::RENDER_SHADOW_QUERY,
+            ],
+        );
         Ok(Self {
             k: Kernels {
                 camera: ctx.kernel(&kernels::RENDER_CAMERA, &camera)?,
-                extend: ctx.kernel(extend, &closest)?,
+                extend: ctx.kernel(extend, &walk.spec_for(closest, extend))?,
                 shade: ctx.kernel(&kernels::RENDER_SHADE, &shade)?,
-                shadow: ctx.kernel(shadow, &any)?,
+                shadow: ctx.kernel(shadow, &walk.spec_for(any, shadow))?,
                 accumulate: ctx.kernel(&kernels::RENDER_ACCUMULATE, &plain)?,
                 advance: ctx.kernel(&kernels::RENDER_ADVANCE, &Spec::new())?,
                 gather: ctx.kernel(&kernels::RENDER_GATHER, &plain)?,
@@ -236,8 +249,8 @@ impl Renderer {
         Ok(match &rs.accel {
             RenderAccel::KdTree(tree) => (GpuGeometry::upload(ctx, &rs.geometry, tree)?, rec, None),
             RenderAccel::Bvh(bvh) => (GpuGeometry::upload_bvh(ctx, &rs.geometry, bvh)?, rec, None),
-            RenderAccel::OnDevice(kind) => {
-                let builder = AccelBuilder::new(ctx, *kind)?;
+            RenderAccel::OnDevice(choice) => {
+                let builder = AccelBuilder::for_choice(ctx, *choice)?;
                 let (geom, recorded) =
                     GpuGeometry::record_build(&mut rec, &builder, &rs.geometry, grow)?;
                 (geom, rec, Some(recorded))

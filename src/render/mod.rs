@@ -25,7 +25,7 @@ use glam::Vec3;
 use serde::Serialize;
 
 use crate::accel::bvh::Bvh;
-use crate::accel::device::AccelKind;
+use crate::accel::device::AccelChoice;
 use crate::accel::kdtree::KdTree;
 use crate::scene::{Light, Scene};
 use crate::trace::TraceGeometry;
@@ -77,7 +77,7 @@ pub enum RenderAccel {
     Bvh(Bvh),
     /// Built by the GPU renderer in its first submission and traced where it lies (the
     /// CLI's path; the CPU twin cannot render it).
-    OnDevice(AccelKind),
+    OnDevice(AccelChoice),
 }
 
 /// The scene as the renderer reads it: geometry and its structure, materials, lights,
@@ -281,9 +281,9 @@ pub fn render_scene(
 ) -> Result<Rendered, Box<dyn std::error::Error + Send + Sync>> {
     let plan = Plan::new(scene, opt)?;
     // The structure is built on the device in the render's first submission.
-    let kind = plan.accel.kind;
+    let choice = plan.accel;
     let rs = RenderScene::new(scene, &plan, |_| {
-        Ok::<_, std::convert::Infallible>(RenderAccel::OnDevice(kind))
+        Ok::<_, std::convert::Infallible>(RenderAccel::OnDevice(choice))
     })?;
     let renderer = gpu::Renderer::new(ctx, &plan, trace)?;
     let spp = plan.spp;

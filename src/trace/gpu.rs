@@ -10,7 +10,7 @@ use crate::accel::device::{
     RecordedBuild,
 };
 use crate::accel::kdtree::KdTree;
-use crate::gpu::kernels;
+use crate::gpu::{kernels, ShaderBlob};
 use crate::gpu::{
     Buffer, BufferArg, Context, GpuError, Kernel, Profile, Recorder, Result, Spec, Traffic,
 };
@@ -29,6 +29,8 @@ pub enum AccelTraversal {
     #[default]
     KdTree,
     Bvh(Traversal),
+    /// The driver's structure, through its ray query (the `query` kernel variants).
+    RayQuery,
 }
 
 impl AccelTraversal {
@@ -38,6 +40,7 @@ impl AccelTraversal {
             AccelTraversal::KdTree => 0,
             AccelTraversal::Bvh(Traversal::Stack) => 1,
             AccelTraversal::Bvh(Traversal::Bitstack) => 2,
+            AccelTraversal::RayQuery => 3,
         }
     }
 
@@ -54,11 +57,52 @@ impl AccelTraversal {
             AccelTraversal::KdTree => "kdtree",
             AccelTraversal::Bvh(Traversal::Stack) => "sah-bvh/stack",
             AccelTraversal::Bvh(Traversal::Bitstack) => "sah-bvh/bitstack",
+            AccelTraversal::RayQuery => "driver",
         }
     }
 
-    fn is_bvh(self) -> bool {
-        matches!(self, AccelTraversal::Bvh(_))
+    /// `Ok` where the device can run this walk: the driver's needs its ray query (else the
+    /// error naming the extensions; its kernels cannot even be created without it).
+    pub fn require(self, ctx: &Context) -> Result<()> {
+        match self {
+            AccelTraversal::RayQuery => crate::gpu::require_ray_query(ctx),
+            _ => Ok(()),
+        }
+    }
+
+    /// Whether this walk serves a structure of `kind`.
+    fn walks(self, kind: AccelKind) -> bool {
+        kind.walked(Traversal::default()).family() == self.family()
+    }
+
+    fn family(self) -> u32 {
+        match self {
+            AccelTraversal::KdTree => 0,
+            AccelTraversal::Bvh(_) => 1,
+            AccelTraversal::RayQuery => 2,
+        }
+    }
+
+    /// The kernel variant of `base` (`render.trace`, `render.extend`, `render.shadow`) this
+    /// walk runs: `query` for the driver's, else `exact` or `float`.
+    pub fn variant(
+        self,
+        exact: bool,
+        [exact_blob, float, query]: [&'static ShaderBlob; 3],
+    ) -> &'static ShaderBlob {
+        match (self, exact) {
+            (AccelTraversal::RayQuery, _) => query,
+            (_, true) => exact_blob,
+            (_, false) => float,
+        }
+    }
+
+    /// `spec` for `blob`, this walk's variant: the `query` variants take fewer constants.
+    pub fn spec_for(self, spec: Spec, blob: &ShaderBlob) -> Spec {
+        match self {
+            AccelTraversal::RayQuery => spec.declared_in(blob),
+            _ => spec,
+        }
     }
 }
 
@@ -106,11 +150,6 @@ impl GpuGeometry {
         Ok(Self { prims, accel })
     }
 
-    /// Whether the structure is a BVH (else a kd-tree).
-    pub fn is_bvh(&self) -> bool {
-        self.accel.kind() != AccelKind::KdTree
-    }
-
     /// The seven bindings in `traverse.glsl`'s order.
     pub fn bindings(&self) -> [&dyn BufferArg; 7] {
         let [nodes, refs] = self.accel.node_bindings();
@@ -149,13 +188,14 @@ pub struct Tracer {
     accel: AccelTraversal,
 }
 
-/// `opt` as the device can run it: no double-precision fallback without shaderFloat64 (the
-/// `exact` kernel variants also load BVH nodes as 64-bit words, so they need shaderInt64
-/// too; every device we know with one has the other).
-pub fn effective_options(ctx: &Context, opt: &TraceOptions) -> TraceOptions {
+/// `opt` as the device can run it with `accel`: no double-precision fallback without
+/// shaderFloat64 (the `exact` kernel variants also load BVH nodes as 64-bit words, so they
+/// need shaderInt64 too; every device we know with one has the other), nor through the
+/// driver's ray query (its intersector is its own).
+pub fn effective_options(ctx: &Context, opt: &TraceOptions, accel: AccelTraversal) -> TraceOptions {
     let f = &ctx.info().features;
     TraceOptions {
-        exact: opt.exact && f.shader_float64 && f.shader_int64,
+        exact: opt.exact && f.shader_float64 && f.shader_int64 && accel != AccelTraversal::RayQuery,
         ..*opt
     }
 }
@@ -176,17 +216,21 @@ impl Tracer {
 
     /// The tracer for geometry holding `accel`'s structure, walked its way.
     pub fn for_accel(ctx: &Context, opt: &TraceOptions, accel: AccelTraversal) -> Result<Self> {
-        let opt = effective_options(ctx, opt);
+        accel.require(ctx)?;
+        let opt = effective_options(ctx, opt, accel);
         let spec = traversal_spec(&opt)
             .u32(20, accel.spec())
             .workgroup(WORKGROUP);
-        let blob = if opt.exact {
-            &kernels::RENDER_TRACE_EXACT
-        } else {
-            &kernels::RENDER_TRACE_FLOAT
-        };
+        let blob = accel.variant(
+            opt.exact,
+            [
+                &kernels::RENDER_TRACE_EXACT,
+                &kernels::RENDER_TRACE_FLOAT,
+                &kernels::RENDER_TRACE_QUERY,
+            ],
+        );
         Ok(Self {
-            kernel: ctx.kernel(blob, &spec)?,
+            kernel: ctx.kernel(blob, &accel.spec_for(spec, blob))?,
             options: opt,
             accel,
         })
@@ -216,11 +260,11 @@ impl Tracer {
         if n == 0 {
             return;
         }
-        assert_eq!(
-            geom.is_bvh(),
-            self.accel.is_bvh(),
-            "a {:?} tracer cannot walk this geometry's structure",
-            self.accel
+        assert!(
+            self.accel.walks(geom.accel.kind()),
+            "a {:?} tracer cannot walk a {:?}",
+            self.accel,
+            geom.accel.kind()
         );
         let g = geom.bindings();
         let b: [&dyn BufferArg; 10] =
