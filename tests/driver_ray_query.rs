@@ -416,8 +416,7 @@ fn driver_refit_follows_moved_primitives() {
     let (dev, _) = GpuGeometry::record_build(&mut rec, &plain, &g, 0).unwrap();
     let err = plain
         .record_refit(&mut rec, &dev.prims, &dev.accel, &scratch)
-        .err()
-        .expect("a refit without allow_update");
+        .expect_err("a refit without allow_update");
     assert!(err.to_string().contains("rebuild"), "{err}");
     rec.submit_and_wait().unwrap();
     assert!(
