@@ -228,8 +228,9 @@ enum BenchCommand {
         json: bool,
     },
     /// The robustness suite (watertightness, self-intersection, parallel/in-plane rays,
-    /// degenerate geometry, builder stress, bad rays) for both ray/triangle tests: rays,
-    /// failures and GPU trace time per case.
+    /// degenerate geometry, builder stress, bad rays) for both ray/triangle tests on every
+    /// structure, and on the driver's own where the device has it: rays, failures and GPU
+    /// trace time per case.
     Robustness {
         /// The integration test's smaller sizes (a 100K soup instead of 2M, fewer rays).
         #[arg(long)]
@@ -862,7 +863,8 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 SuiteSize::default()
             };
             let mut cases = Vec::new();
-            for accel in vkrt::accel::device::AccelChoice::all() {
+            // vkrt's structures, and the driver's where the device has it.
+            for accel in vkrt::accel::device::AccelChoice::all_on(&ctx) {
                 cases.extend(run_all(&ctx, &size, &vkrt::trace::Intersector::ALL, accel)?);
             }
             // Cost of NaN/Inf rays relative to valid rays into the same scene.
