@@ -19,6 +19,9 @@ use super::plan::Plan;
 use super::types::{counter, PathRay, ShadowRay};
 use super::{RayCounts, RenderAccel, RenderScene};
 
+mod frames;
+pub use frames::{FrameImage, FrameLoop, Update};
+
 const WG: u32 = 64;
 
 struct Kernels {
@@ -235,6 +238,19 @@ impl Renderer {
         Ok(f)
     }
 
+    /// Records what a frame of an animation changes in `f` before its samples: the frame's
+    /// constants and shading normals, and zeroed accumulators, counters and flags.
+    fn record_reset(&self, rec: &mut Recorder, f: &Frame, rs: &RenderScene) -> Result<()> {
+        rec.compute_to_transfer();
+        rec.upload(&f.params, &[rs.params])?;
+        rec.upload(&f.tri_normals, &rs.tri_normals)?;
+        rec.fill(&f.flags, 0);
+        rec.fill(&f.counters, 0);
+        rec.fill(&f.accum, 0);
+        rec.transfer_to_compute();
+        Ok(())
+    }
+
     /// The geometry and its structure on the device, and the recorder of the first
     /// submission: a structure built on the device ([`RenderAccel::OnDevice`]) is recorded
     /// into it, so it is built and traced in one submission with nothing read back between;
@@ -288,15 +304,7 @@ impl Renderer {
                 Some(rec) => rec,
                 None => Recorder::new(ctx)?,
             };
-            rec.compute_to_transfer();
-            rec.copy(&f.accum, &f.accum_before, pixels as usize);
-            rec.copy(&f.counters, &f.counters_before, counter::WORDS);
-            rec.transfer_to_compute();
-            rec.scope("render.sample", |rec| {
-                for wave in 0..plan.waves_of(wave_pixels) {
-                    self.record_wave(rec, &f, plan, wave_pixels, sample, wave);
-                }
-            });
+            self.record_sample(&mut rec, &f, plan, wave_pixels, sample, true);
             rec.compute_to_transfer();
             let built = match build_ms {
                 None => f.geom.accel.record_read_built(&mut rec)?,
@@ -353,16 +361,7 @@ impl Renderer {
             progress(sample);
         }
         let mut rec = Recorder::new(ctx)?;
-        rec.compute_to_compute();
-        rec.scope("render.tonemap", |rec| {
-            let groups = rec.groups_1d(pixels as u64, WG);
-            let push = TonemapPush {
-                n: pixels,
-                inv_spp: 1.0 / plan.spp as f32,
-            };
-            rec.dispatch(&self.k.tonemap, groups, &[&f.accum, &f.pixels], &push);
-        });
-        rec.compute_to_transfer();
+        self.record_tonemap(&mut rec, &f, plan);
         profile.append(rec.submit_and_wait()?);
         let inv = 1.0 / plan.spp as f32;
         let radiance = f
@@ -384,6 +383,47 @@ impl Renderer {
             build_attempts: grow + 1,
             readback_before_trace,
         })
+    }
+
+    /// Records one sample of every pixel, wave by wave; with `save`, after saving `accum`
+    /// and `counters` (restored by [`restore`] when a wave's queue overflows).
+    fn record_sample(
+        &self,
+        rec: &mut Recorder,
+        f: &Frame,
+        plan: &Plan,
+        wave_pixels: u32,
+        sample: u32,
+        save: bool,
+    ) {
+        if save {
+            let pixels = plan.width as usize * plan.height as usize;
+            rec.compute_to_transfer();
+            rec.copy(&f.accum, &f.accum_before, pixels);
+            rec.copy(&f.counters, &f.counters_before, counter::WORDS);
+            rec.transfer_to_compute();
+        }
+        rec.scope("render.sample", |rec| {
+            for wave in 0..plan.waves_of(wave_pixels) {
+                self.record_wave(rec, f, plan, wave_pixels, sample, wave);
+            }
+        });
+    }
+
+    /// Records the tone map of the mean of `plan.spp` samples into `pixels`, ending with a
+    /// compute → transfer barrier.
+    fn record_tonemap(&self, rec: &mut Recorder, f: &Frame, plan: &Plan) {
+        let pixels = plan.width * plan.height;
+        rec.compute_to_compute();
+        rec.scope("render.tonemap", |rec| {
+            let groups = rec.groups_1d(pixels as u64, WG);
+            let push = TonemapPush {
+                n: pixels,
+                inv_spp: 1.0 / plan.spp as f32,
+            };
+            rec.dispatch(&self.k.tonemap, groups, &[&f.accum, &f.pixels], &push);
+        });
+        rec.compute_to_transfer();
     }
 
     fn record_wave(

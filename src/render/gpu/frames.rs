@@ -1,0 +1,216 @@
+//! Frames of an animation on the device (issue 17). The renderer's buffers, the primitives
+//! and the structure are made once, with the first frame; every later frame writes its moved
+//! primitives where they lie, rebuilds or refits the structure, and renders every sample and
+//! the tone map after it: one submission per frame, with nothing read back but the image (and
+//! the ray counters, which say whether a wave overflowed).
+
+use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelScratch, DevicePrimitives};
+use crate::gpu::{Buffer, Context, GpuError, Profile, Recorder, Result, Traffic};
+use crate::render::types::counter;
+use crate::render::{Plan, RayCounts, RenderScene};
+use crate::trace::gpu::GpuGeometry;
+
+use super::{Frame, Renderer};
+
+/// How the structure follows the primitives from one frame to the next.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Update {
+    /// Built anew every frame (any kind).
+    #[default]
+    Rebuild,
+    /// Built once, then its boxes recomputed over the same topology (BVHs and the driver's:
+    /// `VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_KHR`).
+    Refit,
+}
+
+impl Update {
+    pub fn name(self) -> &'static str {
+        match self {
+            Update::Rebuild => "rebuild",
+            Update::Refit => "refit",
+        }
+    }
+}
+
+/// One rendered frame.
+pub struct FrameImage {
+    /// 8-bit sRGB RGBA, row-major from the top-left.
+    pub rgba: Vec<u8>,
+    pub counts: RayCounts,
+    pub profile: Profile,
+    /// GPU ms of the structure's build or refit (a host builder's wall ms for the SAH BVH's
+    /// builds).
+    pub update_ms: f64,
+    /// Whether this frame built the structure (the first frame always does).
+    pub built: bool,
+    /// GPU ms of the samples and the tone map.
+    pub render_ms: f64,
+    /// Submissions and read-backs of this frame (1 and the image, unless it was redone).
+    pub traffic: Traffic,
+    /// Times the frame was recorded again: a wave's queue overflowed (smaller waves from
+    /// then on) or a kd-tree ran out of references (twice the budget from then on).
+    pub redone: u32,
+}
+
+/// What stays on the device from frame to frame.
+struct State {
+    f: Frame,
+    scratch: AccelScratch,
+    refit_scratch: Option<Buffer<u32>>,
+}
+
+/// Renders the frames of one animation with one plan.
+pub struct FrameLoop<'r> {
+    renderer: &'r Renderer,
+    builder: AccelBuilder,
+    update: Update,
+    state: Option<State>,
+    wave_pixels: u32,
+    grow: u32,
+}
+
+impl<'r> FrameLoop<'r> {
+    /// `renderer` must have been made for `plan`, whose structure is `choice`. A kd-tree
+    /// cannot be refit (its split planes are fixed): that is an error.
+    pub fn new(
+        ctx: &Context,
+        renderer: &'r Renderer,
+        plan: &Plan,
+        choice: AccelChoice,
+        update: Update,
+    ) -> Result<Self> {
+        if update == Update::Refit && choice.kind == AccelKind::KdTree {
+            return Err(GpuError::Kernel {
+                kernel: "accel.refit",
+                reason: "a kd-tree cannot be refit (its split planes are fixed): \
+                         use --update rebuild"
+                    .into(),
+            });
+        }
+        let mut builder = AccelBuilder::for_choice(ctx, choice)?;
+        builder.allow_update = update == Update::Refit;
+        Ok(Self {
+            renderer,
+            builder,
+            update,
+            state: None,
+            wave_pixels: plan.wave_pixels,
+            grow: 0,
+        })
+    }
+
+    /// Renders `rs` (the scene at this frame's time, flattened for `plan`): the same
+    /// primitives as every other frame of the loop, moved.
+    pub fn render(&mut self, ctx: &Context, rs: &RenderScene, plan: &Plan) -> Result<FrameImage> {
+        let start = ctx.traffic();
+        let mut redone = 0;
+        loop {
+            let mut rec = Recorder::new(ctx)?;
+            let (built, host_ms) = self.record_update(&mut rec, rs, plan)?;
+            let st = self.state.as_ref().expect("recorded");
+            for sample in 0..plan.spp {
+                self.renderer
+                    .record_sample(&mut rec, &st.f, plan, self.wave_pixels, sample, false);
+            }
+            self.renderer.record_tonemap(&mut rec, &st.f, plan);
+            let kd_report = st.f.geom.accel.record_read_built(&mut rec)?;
+            let counters = rec.read_back(&st.f.counters)?;
+            let pixels = rec.read_back(&st.f.pixels)?;
+            rec.transfer_to_host();
+            let profile = rec.submit_and_wait()?;
+            if let Some(b) = kd_report {
+                if crate::accel::device::AccelStructure::kd_built(&b.read()?).overflow {
+                    // Every ray of the frame missed: build again with twice the budget.
+                    self.grow += 1;
+                    if self.grow > 8 {
+                        return Err(GpuError::Kernel {
+                            kernel: "accel.kdtree",
+                            reason: "the kd-tree still ran out of references after 8 \
+                                     doublings of its budget"
+                                .into(),
+                        });
+                    }
+                    self.state = None;
+                    redone += 1;
+                    continue;
+                }
+            }
+            let counters = counters.read()?;
+            if counters[counter::OVERFLOW] != 0 {
+                if self.wave_pixels == 1 {
+                    return Err(GpuError::Kernel {
+                        kernel: "render",
+                        reason: format!(
+                            "one pixel's bounce tree needs more than {} rays at one depth: \
+                             lower settings.max_depth",
+                            plan.queue_capacity
+                        ),
+                    });
+                }
+                self.wave_pixels = (self.wave_pixels / 4).max(1);
+                redone += 1;
+                continue;
+            }
+            let scope = |name: &str| profile.ms(name).unwrap_or(0.0);
+            let update_ms = host_ms.unwrap_or_else(|| scope("build") + scope("update"));
+            return Ok(FrameImage {
+                rgba: bytemuck::cast_slice(&pixels.read()?).to_vec(),
+                counts: RayCounts::from_counters(&counters),
+                update_ms,
+                built,
+                render_ms: scope("render.sample") + scope("render.tonemap"),
+                profile,
+                traffic: ctx.traffic() - start,
+                redone,
+            });
+        }
+    }
+
+    /// Records what brings the device to this frame: the first time (or after a kd-tree
+    /// outgrew its budget) the upload of everything and the build; later the moved
+    /// primitives, the frame's constants and a rebuild or refit. Returns whether it built,
+    /// and a host builder's milliseconds.
+    fn record_update(
+        &mut self,
+        rec: &mut Recorder,
+        rs: &RenderScene,
+        plan: &Plan,
+    ) -> Result<(bool, Option<f64>)> {
+        let b = &self.builder;
+        let Some(st) = self.state.as_mut() else {
+            let prims = DevicePrimitives::record_upload(rec, &rs.geometry)?;
+            let (mut accel, scratch) = b.create(rec.context(), prims.count(), self.grow)?;
+            let recorded = rec.scope("build", |rec| {
+                b.record_build(rec, &prims, &rs.geometry, &scratch, &mut accel)
+            })?;
+            let refit_scratch = b.update_scratch(rec.context(), prims.count())?;
+            let geom = GpuGeometry { prims, accel };
+            let f = self.renderer.frame(rec, rs, plan, geom)?;
+            self.state = Some(State {
+                f,
+                scratch,
+                refit_scratch,
+            });
+            return Ok((true, recorded.host_ms));
+        };
+        self.renderer.record_reset(rec, &st.f, rs)?;
+        let (prims, g) = (&st.f.geom.prims, &rs.geometry);
+        prims.record_update(rec, g)?;
+        match self.update {
+            Update::Rebuild => {
+                let accel = &mut st.f.geom.accel;
+                let recorded = rec.scope("build", |rec| {
+                    b.record_build(rec, prims, g, &st.scratch, accel)
+                })?;
+                Ok((true, recorded.host_ms))
+            }
+            Update::Refit => {
+                let scratch = st.refit_scratch.as_ref().expect("refit scratch");
+                let accel = &st.f.geom.accel;
+                rec.scope("update", |rec| b.record_refit(rec, prims, accel, scratch))?;
+                Ok((false, None))
+            }
+        }
+    }
+}

@@ -1,0 +1,141 @@
+//! Frames of an animation on the device (`vkrt::render::gpu::FrameLoop`): every frame,
+//! rendered in one submission after its primitives moved where they lie and its structure
+//! was rebuilt or refit, equals the single render of the scene at that frame's time, bit for
+//! bit, on every structure and update mode; a kd-tree cannot be refit.
+
+mod common;
+
+use std::path::Path;
+
+use common::{assert_silent, context};
+use vkrt::accel::device::{AccelChoice, AccelKind};
+use vkrt::accel::driver::Prefer;
+use vkrt::gpu::Context;
+use vkrt::render::gpu::{FrameLoop, Renderer, Update};
+use vkrt::render::{Plan, RenderAccel, RenderOptions, RenderScene};
+use vkrt::scene::Scene;
+use vkrt::trace::bvh_cpu::Traversal;
+use vkrt::trace::TraceOptions;
+
+/// The motion-blur example with its shutter closed: its meshes and sphere move from frame to
+/// frame, each frame sharp.
+fn moving_scene() -> Scene {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/motion_blur.toml");
+    let mut s = Scene::load(&path).unwrap().scene;
+    s.camera.shutter_close = s.camera.shutter_open;
+    s
+}
+
+/// `scene` at `time`: what a frame renders.
+fn at(scene: &Scene, time: f32) -> Scene {
+    let mut s = scene.clone();
+    s.camera.shutter_open += time;
+    s.camera.shutter_close += time;
+    s
+}
+
+fn options(accel: AccelChoice, spp: u32) -> RenderOptions {
+    RenderOptions {
+        width: Some(48),
+        height: Some(36),
+        spp: Some(spp),
+        all_effects: false,
+        accel,
+    }
+}
+
+fn flatten(scene: &Scene, plan: &Plan, accel: AccelChoice) -> RenderScene {
+    RenderScene::new(scene, plan, |_| Ok::<_, ()>(RenderAccel::OnDevice(accel))).unwrap()
+}
+
+fn choices(ctx: &Context) -> Vec<(AccelChoice, Update)> {
+    let mut v = vec![
+        (
+            AccelChoice::new(AccelKind::KdTree, Traversal::Stack),
+            Update::Rebuild,
+        ),
+        (
+            AccelChoice::new(AccelKind::SahBvh, Traversal::Stack),
+            Update::Rebuild,
+        ),
+        (
+            AccelChoice::new(AccelKind::SahBvh, Traversal::Bitstack),
+            Update::Refit,
+        ),
+        (
+            AccelChoice::new(AccelKind::Lbvh, Traversal::Stack),
+            Update::Rebuild,
+        ),
+        (
+            AccelChoice::new(AccelKind::Lbvh, Traversal::Bitstack),
+            Update::Refit,
+        ),
+        (
+            AccelChoice::new(AccelKind::Ploc, Traversal::Stack),
+            Update::Refit,
+        ),
+    ];
+    if ctx.info().features.ray_query {
+        v.push((AccelChoice::driver(Prefer::FastBuild), Update::Rebuild));
+        v.push((AccelChoice::driver(Prefer::FastTrace), Update::Refit));
+    }
+    v
+}
+
+#[test]
+fn every_frame_equals_the_single_render_at_its_time() {
+    let Some(ctx) = context() else { return };
+    let scene = moving_scene();
+    let spp = 2;
+    for (accel, update) in choices(&ctx) {
+        let what = format!("{} {}", accel.label(), update.name());
+        let plan = Plan::new(&scene, &options(accel, spp)).unwrap();
+        let renderer = Renderer::new(&ctx, &plan, &TraceOptions::default()).unwrap();
+        let mut frames = FrameLoop::new(&ctx, &renderer, &plan, accel, update).unwrap();
+        let mut previous: Option<Vec<u8>> = None;
+        for k in 0..4 {
+            let s = at(&scene, 0.3 * k as f32);
+            let rs = flatten(&s, &plan, accel);
+            let frame = frames.render(&ctx, &rs, &plan).unwrap();
+            let single = renderer.render(&ctx, &rs, &plan, |_| {}).unwrap();
+            assert!(frame.rgba == single.rgba, "{what}: frame {k} differs");
+            assert_eq!(frame.counts, single.counts, "{what}: frame {k}");
+            // One submission; back come the image, the counters (and a kd-tree's report).
+            assert_eq!(frame.redone, 0, "{what}");
+            assert_eq!(frame.traffic.submits, 1, "{what}: frame {k}");
+            let report = if accel.kind == AccelKind::KdTree {
+                16
+            } else {
+                0
+            };
+            let counters = 4 * vkrt::render::types::counter::WORDS as u64;
+            assert_eq!(
+                frame.traffic.readback_bytes,
+                frame.rgba.len() as u64 + counters + report,
+                "{what}: frame {k}"
+            );
+            assert_eq!(frame.built, k == 0 || update == Update::Rebuild, "{what}");
+            assert!(frame.update_ms > 0.0, "{what}: frame {k}");
+            assert!(frame.render_ms > 0.0, "{what}: frame {k}");
+            if let Some(p) = &previous {
+                assert!(p != &frame.rgba, "{what}: frame {k} did not move");
+            }
+            previous = Some(frame.rgba);
+        }
+    }
+    assert_silent(&ctx);
+}
+
+#[test]
+fn a_kd_tree_cannot_be_refit() {
+    let Some(ctx) = context() else { return };
+    let scene = moving_scene();
+    let accel = AccelChoice::new(AccelKind::KdTree, Traversal::Stack);
+    let plan = Plan::new(&scene, &options(accel, 1)).unwrap();
+    let renderer = Renderer::new(&ctx, &plan, &TraceOptions::default()).unwrap();
+    let Err(err) = FrameLoop::new(&ctx, &renderer, &plan, accel, Update::Refit) else {
+        panic!("a kd-tree refit");
+    };
+    assert!(err.to_string().contains("cannot be refit"), "{err}");
+    assert_silent(&ctx);
+}
