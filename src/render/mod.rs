@@ -14,6 +14,7 @@
 //! `L_e·cosθ_l·A/d²` per path vertex for sphere and quad lights (soft over the samples of a
 //! pixel). Diffuse albedo is used without 1/π, as in seed 002.
 
+pub mod animate;
 pub mod bench;
 pub mod cpu;
 pub mod gpu;
