@@ -8,8 +8,13 @@ use std::path::{Path, PathBuf};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
 use std::thread::JoinHandle;
 
+use super::gpu::{FrameLoop, Renderer, Update};
 use super::output::{jpeg_bytes, png_bytes, ImageFormat};
-use crate::gpu::{write_atomically, GpuError};
+use super::{Plan, RenderAccel, RenderOptions, RenderScene};
+use crate::accel::device::{AccelKind, HostStructure};
+use crate::gpu::{write_atomically, Context, GpuError};
+use crate::scene::Scene;
+use crate::trace::TraceOptions;
 
 /// A frame file name pattern: one `%d` or `%0Nd` in the file name, a `.png` or `.jpg`
 /// extension.
@@ -287,6 +292,172 @@ impl Drop for Apng {
         // Unfinished (an error stopped the frames): no partial file.
         let _ = std::fs::remove_file(&self.tmp);
     }
+}
+
+/// One frame's numbers.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct FrameRow {
+    pub frame: u32,
+    /// Seconds from the animation's start.
+    pub time: f32,
+    /// Whether the frame built its structure (else it refit it).
+    pub built: bool,
+    /// GPU ms of the build or refit (a host builder's wall ms).
+    pub update_ms: f64,
+    /// GPU ms of the samples and the tone map.
+    pub render_ms: f64,
+    /// Rays traced (primary, secondary, shadow, ambient occlusion).
+    pub rays: u64,
+    /// Wall ms of the frame on the host: flattening, recording, the submission, handing the
+    /// image to the writer.
+    pub wall_ms: f64,
+    /// Records made again (a wave overflowed, a kd-tree outgrew its budget).
+    pub redone: u32,
+    /// The SAH cost of the frame's structure, and of a structure of the same kind built anew
+    /// over the frame (BVHs, with `quality`: a read-back outside the timed frame).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub sah_cost: Option<f64>,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub rebuilt_sah_cost: Option<f64>,
+}
+
+/// What the frames of one animation cost.
+#[derive(Clone, Debug, serde::Serialize)]
+pub struct AnimationReport {
+    pub accel: String,
+    pub update: Update,
+    pub width: u32,
+    pub height: u32,
+    pub spp: u32,
+    pub frames: Vec<FrameRow>,
+}
+
+impl AnimationReport {
+    fn mean(&self, f: impl Fn(&FrameRow) -> f64) -> f64 {
+        self.frames.iter().map(f).sum::<f64>() / self.frames.len().max(1) as f64
+    }
+
+    /// Mean build or refit ms over the frames after the first (which always builds).
+    pub fn mean_update_ms(&self) -> f64 {
+        let later: Vec<&FrameRow> = self.frames.iter().skip(1).collect();
+        match later.len() {
+            0 => self.frames.first().map_or(0.0, |f| f.update_ms),
+            n => later.iter().map(|f| f.update_ms).sum::<f64>() / n as f64,
+        }
+    }
+
+    pub fn mean_render_ms(&self) -> f64 {
+        self.mean(|f| f.render_ms)
+    }
+
+    /// Frames per second of wall time.
+    pub fn fps(&self) -> f64 {
+        1e3 / self.mean(|f| f.wall_ms).max(1e-9)
+    }
+
+    pub fn mrays_per_s(&self) -> f64 {
+        let rays: u64 = self.frames.iter().map(|f| f.rays).sum();
+        let ms: f64 = self.frames.iter().map(|f| f.render_ms).sum();
+        rays as f64 / (ms.max(1e-9) * 1e3)
+    }
+}
+
+/// How to render an animation.
+#[derive(Clone, Debug)]
+pub struct AnimateOptions {
+    pub render: RenderOptions,
+    pub update: Update,
+    /// Frames `0 .. frames`.
+    pub frames: u32,
+    /// Also the SAH cost of every frame's structure and of one built anew (BVHs only; a
+    /// read-back after each frame, outside its timing).
+    pub quality: bool,
+}
+
+/// Renders frames `0 .. opt.frames` of the scenes `frame_scene(k)` gives (the same
+/// primitives, moved), one submission each, handing each image to `sink(k, rgba)` (a
+/// [`FrameWriter`], or nothing) while the next renders. `progress(done)` after each frame.
+pub fn run(
+    ctx: &Context,
+    frame_scene: impl Fn(u32) -> (f32, Scene),
+    opt: &AnimateOptions,
+    trace: &TraceOptions,
+    mut sink: impl FnMut(u32, Vec<u8>) -> Result<(), GpuError>,
+    mut progress: impl FnMut(u32),
+) -> Result<AnimationReport, Box<dyn std::error::Error + Send + Sync>> {
+    let (_, first) = frame_scene(0);
+    let plan = Plan::new(&first, &opt.render)?;
+    let accel = opt.render.accel;
+    let renderer = Renderer::new(ctx, &plan, trace)?;
+    let mut frames = FrameLoop::new(ctx, &renderer, &plan, accel, opt.update)?;
+    let mut rows = Vec::with_capacity(opt.frames as usize);
+    for k in 0..opt.frames {
+        let start = std::time::Instant::now();
+        let (time, scene) = if k == 0 { (0.0, first.clone()) } else { frame_scene(k) };
+        let rs = RenderScene::new(&scene, &plan, |_| {
+            Ok::<_, std::convert::Infallible>(RenderAccel::OnDevice(accel))
+        })?;
+        let image = frames.render(ctx, &rs, &plan)?;
+        sink(k, image.rgba)?;
+        let wall_ms = start.elapsed().as_secs_f64() * 1e3;
+        let (sah_cost, rebuilt_sah_cost) = match opt.quality {
+            true => frame_quality(&frames, &rs, accel.kind)?,
+            false => (None, None),
+        };
+        rows.push(FrameRow {
+            frame: k,
+            time,
+            built: image.built,
+            update_ms: image.update_ms,
+            render_ms: image.render_ms,
+            rays: image.counts.total(),
+            wall_ms,
+            redone: image.redone,
+            sah_cost,
+            rebuilt_sah_cost,
+        });
+        progress(k + 1);
+    }
+    Ok(AnimationReport {
+        accel: accel.label(),
+        update: opt.update,
+        width: plan.width,
+        height: plan.height,
+        spp: plan.spp,
+        frames: rows,
+    })
+}
+
+/// The SAH cost of the loop's BVH as it is now, and of the same kind built anew over the
+/// frame's boxes on the host (the GPU builders' twins build the same trees).
+fn frame_quality(
+    frames: &FrameLoop,
+    rs: &RenderScene,
+    kind: AccelKind,
+) -> Result<(Option<f64>, Option<f64>), GpuError> {
+    use crate::accel::bvh::{self, collapse::collapse, lbvh, ploc, validate::sah_cost};
+    if matches!(kind, AccelKind::KdTree | AccelKind::Driver) {
+        return Ok((None, None));
+    }
+    let Some(HostStructure::Bvh(now)) = frames.download()? else {
+        return Ok((None, None));
+    };
+    let params = bvh::BvhParams::default();
+    let boxes = &rs.geometry.boxes;
+    let fresh = match kind {
+        AccelKind::Lbvh => collapse(&lbvh::build(boxes, Default::default()), &params),
+        AccelKind::Ploc => collapse(&ploc::build(boxes, &Default::default()).0, &params),
+        _ => bvh::build(boxes, &params, bvh::Threading::all_cores()).map_err(|e| {
+            GpuError::Kernel {
+                kernel: "accel.sah_bvh",
+                reason: e.to_string(),
+            }
+        })?,
+    };
+    Ok((
+        Some(sah_cost(&now, &params)),
+        Some(sah_cost(&fresh, &params)),
+    ))
 }
 
 #[cfg(test)]

@@ -100,6 +100,15 @@ impl<'r> FrameLoop<'r> {
         })
     }
 
+    /// The structure as it is now, read back (tools and reports; `None` before the first
+    /// frame). The driver's is opaque: an error.
+    pub fn download(&self) -> Result<Option<crate::accel::device::HostStructure>> {
+        self.state
+            .as_ref()
+            .map(|st| st.f.geom.accel.download())
+            .transpose()
+    }
+
     /// Renders `rs` (the scene at this frame's time, flattened for `plan`): the same
     /// primitives as every other frame of the loop, moved.
     pub fn render(&mut self, ctx: &Context, rs: &RenderScene, plan: &Plan) -> Result<FrameImage> {
