@@ -4,6 +4,9 @@
 //! animated PNG of every frame for a quick look. Each file is written atomically; on any
 //! error the files this run wrote are removed, so a failed animation leaves no partial set.
 
+mod plot;
+pub use plot::frames_svg;
+
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
 use std::thread::JoinHandle;
