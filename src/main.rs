@@ -3,7 +3,7 @@
 use std::path::PathBuf;
 use std::process::ExitCode;
 
-use clap::{Parser, Subcommand, ValueEnum};
+use clap::{Args, Parser, Subcommand, ValueEnum};
 use vkrt::gpu::{Context, ContextOptions, Profile, Validation};
 
 #[derive(Parser)]
@@ -239,6 +239,12 @@ enum BenchCommand {
         #[arg(long)]
         json: bool,
     },
+    /// Ray throughput of every structure and walk (each --accel and --traversal), the
+    /// driver's ray query where the device has it and obvhs on one CPU thread, on the same
+    /// rays in one run: the bunny (or --mesh), the example scenes and an icosphere of --max-n
+    /// triangles; primary, shadow and mirror rays; build ms, trace ms, Mrays/s, hits (any
+    /// difference reported) and the ratio to the driver's ray query.
+    Trace(BenchTraceArgs),
     /// Every GPU primitive against the copy baselines of the same bytes, n = 2^16 .. max-n.
     Prims {
         /// Largest n (rounded down to a power of two).
@@ -262,6 +268,32 @@ enum BenchCommand {
         #[arg(long)]
         profile: Option<PathBuf>,
     },
+}
+
+#[derive(Args)]
+struct BenchTraceArgs {
+    /// Camera image width in pixels, one primary ray per pixel (default 512; 64 with --quick).
+    #[arg(long)]
+    size: Option<u32>,
+    /// Repetitions of each build and trace, the best reported (default 3; 1 with --quick).
+    #[arg(long)]
+    reps: Option<u32>,
+    /// Triangles of the icosphere (default 500000; 10000 with --quick).
+    #[arg(long)]
+    max_n: Option<u64>,
+    /// Mesh to include (default: ../shared/scenes/stanford-bunny.obj when present, except
+    /// with --quick).
+    #[arg(long)]
+    mesh: Option<PathBuf>,
+    /// Folder of the example scenes (every .toml in it).
+    #[arg(long, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes"))]
+    scenes: PathBuf,
+    /// The integration test's run: 64-pixel-wide images, the example scenes and a 10 K
+    /// icosphere, one repetition.
+    #[arg(long)]
+    quick: bool,
+    #[arg(long)]
+    json: bool,
 }
 
 #[derive(Clone, Copy, PartialEq, ValueEnum)]
@@ -854,6 +886,9 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             }
         }
         Command::Bench {
+            what: BenchCommand::Trace(args),
+        } => bench_trace_command(cli.validate, &args)?,
+        Command::Bench {
             what: BenchCommand::Robustness { quick, json },
         } => {
             use vkrt::trace::robust::{run_all, SuiteSize};
@@ -1388,6 +1423,37 @@ fn bvh_shape(
         unreachable!("an object")
     };
     (map, line)
+}
+
+/// `vkrt bench trace`: the scenes are loaded before the device is touched.
+fn bench_trace_command(
+    validate: bool,
+    args: &BenchTraceArgs,
+) -> Result<(), Box<dyn std::error::Error>> {
+    use vkrt::trace::bench::{self, scenes, BenchOptions};
+    let quick = args.quick;
+    let mut list = Vec::new();
+    let bunny =
+        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
+    let default_mesh = (!quick && bunny.exists()).then_some(bunny);
+    if let Some(path) = args.mesh.clone().or(default_mesh) {
+        list.push(scenes::mesh(&path)?);
+    }
+    list.extend(scenes::example_scenes(&args.scenes)?);
+    let max_n = args.max_n.unwrap_or(if quick { 10_000 } else { 500_000 });
+    list.push(scenes::icosphere(max_n)?);
+    let opt = BenchOptions {
+        size: args.size.unwrap_or(if quick { 64 } else { 512 }).max(1),
+        reps: args.reps.unwrap_or(if quick { 1 } else { 3 }).max(1),
+    };
+    let ctx = context(validate)?;
+    let report = bench::run(&ctx, &list, &opt)?;
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        print!("{report}");
+    }
+    Ok(())
 }
 
 /// Named triangle lists.

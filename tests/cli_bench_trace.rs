@@ -1,0 +1,154 @@
+//! `vkrt bench trace --quick` as a user runs it (issue 16): every structure and walk in the
+//! report, the driver's rows exactly where the device has ray query (else the note that
+//! says why not), every number finite, vkrt's structures finding the same hits and the
+//! driver within 0.1 % of them, and the validation layer silent.
+
+mod common;
+
+use common::vkrt_ok;
+use serde_json::Value;
+
+/// `vkrt bench trace --quick` with `extra`, with the validation layer on unless
+/// VKRT_VALIDATION=0 (as for every GPU test); `None` where no device is allowed.
+fn bench_trace(extra: &[&str]) -> Option<std::process::Output> {
+    let mut args = vec!["bench", "trace", "--quick"];
+    args.extend_from_slice(extra);
+    if !std::env::var("VKRT_VALIDATION").is_ok_and(|v| v.trim() == "0") {
+        args.push("--validate");
+    }
+    let out = vkrt_ok(&args)?;
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(!err.contains("validation:"), "validation messages:\n{err}");
+    Some(out)
+}
+
+/// The rows every ray set has, in order, on a device with (or without) ray query.
+fn expected_structures(ray_query: bool) -> Vec<&'static str> {
+    let mut s = vec![
+        "kdtree",
+        "sah-bvh/stack",
+        "sah-bvh/bitstack",
+        "lbvh/stack",
+        "lbvh/bitstack",
+        "ploc/stack",
+        "ploc/bitstack",
+    ];
+    if ray_query {
+        s.extend(["driver", "driver/fast-build"]);
+    }
+    s.push("obvhs");
+    s
+}
+
+fn finite(v: &Value, what: &str) -> f64 {
+    let x = v
+        .as_f64()
+        .unwrap_or_else(|| panic!("{what} is not a number: {v}"));
+    assert!(x.is_finite() && x >= 0.0, "{what} = {x}");
+    x
+}
+
+#[test]
+fn quick_json_has_every_structure_and_agreeing_hits() {
+    let Some(out) = bench_trace(&["--json"]) else {
+        return;
+    };
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    let ray_query = v["ray_query"].as_bool().unwrap();
+    let device = v["device"].as_str().unwrap();
+    match v["driver_note"].as_str() {
+        None => assert!(ray_query, "{v}"),
+        Some(note) => {
+            assert!(!ray_query);
+            assert!(
+                note.contains(device) && note.contains("VK_KHR_ray_query"),
+                "{note}"
+            );
+        }
+    }
+    let expected = expected_structures(ray_query);
+    let scenes = v["scenes"].as_array().unwrap();
+    // The example scenes and the small icosphere.
+    assert!(scenes.len() >= 12, "{} scenes", scenes.len());
+    for scene in scenes {
+        let name = scene["name"].as_str().unwrap();
+        let spheres = scene["spheres"].as_u64().unwrap() > 0;
+        let builds: Vec<&str> = scene["builds"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|b| {
+                finite(&b["ms"], &format!("{name} build ms"));
+                b["structure"].as_str().unwrap()
+            })
+            .collect();
+        let mut want_builds = vec!["kdtree", "sah-bvh", "lbvh", "ploc"];
+        if ray_query {
+            want_builds.extend(["driver", "driver/fast-build"]);
+        }
+        want_builds.push("obvhs");
+        assert_eq!(builds, want_builds, "{name}");
+        let sets = scene["ray_sets"].as_array().unwrap();
+        let kinds: Vec<&str> = sets.iter().map(|s| s["kind"].as_str().unwrap()).collect();
+        assert_eq!(kinds, ["primary", "shadow", "mirror"], "{name}");
+        for set in sets {
+            let what = format!("{name} {}", set["kind"]);
+            let rays = set["rays"].as_u64().unwrap() as i64;
+            let rows = set["rows"].as_array().unwrap();
+            let labels: Vec<&str> = rows
+                .iter()
+                .map(|r| r["structure"].as_str().unwrap())
+                .collect();
+            assert_eq!(labels, expected, "{what}");
+            for r in rows {
+                let label = format!("{what} {}", r["structure"]);
+                for key in ["build_ms", "trace_ms", "mrays_per_s"] {
+                    finite(&r[key], &format!("{label} {key}"));
+                }
+                assert_eq!(r["over_driver"].is_null(), !ray_query, "{label}");
+                if ray_query {
+                    finite(&r["over_driver"], &format!("{label} ×driver"));
+                }
+                let diff = r["hits_vs_first"].as_i64();
+                match r["backend"].as_str().unwrap() {
+                    // One watertight test, conservative walks: the same hits, exactly.
+                    "vkrt" => assert_eq!(diff, Some(0), "{label}: {r}"),
+                    // The driver's own intersector: at most 0.1 % of the rays apart.
+                    "driver" => {
+                        let d = diff.unwrap().abs();
+                        assert!(d * 1000 <= rays, "{label}: {d} of {rays} rays differ");
+                    }
+                    // obvhs sees no spheres: its hits are not compared there.
+                    "cpu-peer" => {
+                        assert_eq!(diff.is_none(), spheres, "{label}: {r}");
+                        if spheres {
+                            assert_eq!(r["note"], "triangles only", "{label}");
+                        }
+                    }
+                    other => panic!("{label}: backend {other}"),
+                }
+            }
+            assert_eq!(set["vkrt_hits_agree"], true, "{what}");
+            if set["kind"] == "primary" {
+                assert!(rows[0]["hits"].as_u64().unwrap() > 0, "{what}: no hits");
+            }
+        }
+    }
+}
+
+#[test]
+fn quick_table_has_a_block_per_scene_and_ray_set_and_the_driver_note() {
+    let Some(out) = bench_trace(&["--size", "16"]) else {
+        return;
+    };
+    let text = String::from_utf8_lossy(&out.stdout);
+    let header = text.lines().filter(|l| l.starts_with("structure ")).count();
+    assert_eq!(header % 3, 0, "{text}");
+    assert!(header >= 36, "{header} blocks:\n{text}");
+    let note = text.lines().find(|l| l.starts_with("driver: skipped — "));
+    let driver_rows = text.lines().any(|l| l.starts_with("driver "));
+    assert_ne!(note.is_some(), driver_rows, "{text}");
+    if let Some(note) = note {
+        assert!(note.contains("has no VK_KHR_ray_query"), "{note}");
+    }
+}
