@@ -428,3 +428,44 @@ fn the_driver_renders_the_kdtree_image_within_tolerance() {
         }
     }
 }
+
+/// Frames of an animated scene render as stills of their time: seed 001's demo with its
+/// shutter opened for half a frame (so the orbiting ring also blurs within the frame), at
+/// frames 0 and 24. Each GPU image matches its CPU twin as every effect's does (the frame's
+/// shutter is shifted to 1 s, the keyframed bunny held at its pose then), and frame 24 is not
+/// frame 0: the ring has turned 45° and the bunny half a turn.
+#[test]
+fn animation_frames_match_the_cpu_twin() {
+    let Some(ctx) = context() else { return };
+    let mut scene = scene_file("seed001_demo.toml");
+    scene.camera.shutter_close = 0.5 / 24.0;
+    let mut frames = Vec::new();
+    for k in [0, 24] {
+        let frame = scene.at_frame(k);
+        let (plan, rs) = prepare(&frame, &small(2));
+        assert!(plan.motion, "frame {k}: the ring blurs");
+        let gpu = gpu_render(&ctx, &plan, &rs);
+        let twin = cpu::render(&rs, &plan, &TraceOptions::default());
+        assert_eq!(gpu.counts, twin.counts, "frame {k}: ray counts");
+        let n = gpu.radiance.len() * 3;
+        let off = gpu
+            .radiance
+            .iter()
+            .zip(&twin.radiance)
+            .flat_map(|(g, c)| (0..3).map(move |ch| (srgb8(g[ch]), srgb8(c[ch]))))
+            .filter(|(a, b)| a.abs_diff(*b) > 1)
+            .count();
+        eprintln!("frame {k}: {off} of {n} channels differ by more than 1/255");
+        assert!(off * 200 <= n, "frame {k}: {off} of {n} channels off");
+        frames.push(gpu.rgba);
+    }
+    let moved = frames[0]
+        .iter()
+        .zip(&frames[1])
+        .filter(|(a, b)| a.abs_diff(**b) > 8)
+        .count();
+    assert!(
+        moved * 20 > frames[0].len(),
+        "frame 24 looks like frame 0 ({moved} channels changed)"
+    );
+}

@@ -106,6 +106,17 @@ impl RenderScene {
         plan: &Plan,
         build: impl FnOnce(&TraceGeometry) -> Result<RenderAccel, E>,
     ) -> Result<Self, E> {
+        // The traced motion model is rigid velocity + orbit: keyframed meshes
+        // hold their pose at shutter open for the exposure (scene::animation).
+        let held;
+        let scene = if scene.has_keyframe_motion() {
+            let mut s = scene.clone();
+            s.hold_keyframes(scene.camera.shutter_open);
+            held = s;
+            &held
+        } else {
+            scene
+        };
         let cam = &scene.camera;
         let geometry = if plan.motion && cam.shutter_close > cam.shutter_open {
             TraceGeometry::over_interval(scene, cam.shutter_open, cam.shutter_close)

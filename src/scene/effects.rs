@@ -186,6 +186,11 @@ impl Scene {
             height: s.height,
             spp: s.spp,
             max_depth: s.max_depth,
+            animation: self.animation.map(|a| AnimationSummary {
+                fps: a.fps,
+                frames: a.frames,
+                duration: a.duration(),
+            }),
         }
     }
 }
@@ -197,6 +202,17 @@ pub struct BoundsSummary {
     pub min: [f32; 3],
     /// Upper corner.
     pub max: [f32; 3],
+}
+
+/// Frames of an animated scene (for JSON).
+#[derive(Clone, Copy, Debug, PartialEq, Serialize)]
+pub struct AnimationSummary {
+    /// Frames per second.
+    pub fps: f32,
+    /// Number of frames.
+    pub frames: u32,
+    /// `frames / fps`, seconds.
+    pub duration: f32,
 }
 
 /// What `vkrt scene FILE` prints. Serializes to JSON with these field
@@ -225,6 +241,9 @@ pub struct SceneSummary {
     pub spp: u32,
     /// Maximum ray depth.
     pub max_depth: u32,
+    /// Frames, when the scene is animated (absent from the JSON otherwise).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub animation: Option<AnimationSummary>,
 }
 
 impl SceneSummary {
@@ -249,6 +268,13 @@ impl fmt::Display for SceneSummary {
             "image:     {}x{}, {} spp, max depth {}",
             self.width, self.height, self.spp, self.max_depth
         )?;
+        if let Some(a) = &self.animation {
+            writeln!(
+                f,
+                "animation: {} frames at {} fps ({} s)",
+                a.frames, a.fps, a.duration
+            )?;
+        }
         let effects = if self.effects.is_empty() {
             "none".to_owned()
         } else {

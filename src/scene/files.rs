@@ -18,6 +18,12 @@ use super::error::{Origin, SceneError};
 pub trait FileSource {
     /// The whole file at `path` as UTF-8 text. Errors name the path.
     fn read_text(&self, path: &Path, max_bytes: u64) -> Result<String, SceneError>;
+
+    /// Whether anything is at `path`. Only a path that is certainly absent
+    /// is `false` (a scene's optional mesh then falls back to its
+    /// stand-in); anything else, unreadable included, is left for
+    /// [`FileSource::read_text`] to report.
+    fn exists(&self, path: &Path) -> bool;
 }
 
 /// Reads from the file system.
@@ -27,6 +33,10 @@ pub struct DiskFiles;
 impl FileSource for DiskFiles {
     fn read_text(&self, path: &Path, max_bytes: u64) -> Result<String, SceneError> {
         read_file_text(path, max_bytes)
+    }
+
+    fn exists(&self, path: &Path) -> bool {
+        !matches!(std::fs::metadata(path), Err(e) if e.kind() == std::io::ErrorKind::NotFound)
     }
 }
 
@@ -66,6 +76,10 @@ impl FileSource for MemoryFiles {
                 source: std::io::Error::new(std::io::ErrorKind::NotFound, "no such file"),
             }),
         }
+    }
+
+    fn exists(&self, path: &Path) -> bool {
+        self.files.contains_key(path)
     }
 }
 

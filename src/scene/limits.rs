@@ -27,6 +27,11 @@ pub const MAX_IOR: f32 = 10.0;
 pub const MAX_COORDINATE: f32 = 1.0e9;
 /// Largest absolute shutter time, in seconds.
 pub const MAX_TIME: f32 = 1.0e6;
+/// Highest animation frame rate, frames per second (high-speed cameras
+/// reach about 1000; anything above is a unit mistake).
+pub const MAX_FPS: f32 = 1_000.0;
+/// Most frames in an animation (about 69 minutes at 24 fps).
+pub const MAX_FRAMES: u32 = 100_000;
 
 /// Most triangles in a scene, after flattening all meshes.
 pub const MAX_TRIANGLES: u64 = 1 << 24;

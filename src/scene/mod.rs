@@ -1,9 +1,10 @@
 //! Host-side scene model, loaders, generators and validation.
 //!
-//! A [`Scene`] is plain data — meshes in object space with a transform and a
-//! motion, analytic spheres, materials, lights, a camera and render
-//! settings — so that every front end produces the same thing and every
-//! consumer reads the same thing:
+//! A [`Scene`] is plain data — meshes in object space with a transform, a
+//! motion and optional keyframes, analytic spheres, materials, lights, a
+//! camera, render settings and optionally frames ([`animation`]) — so that
+//! every front end produces the same thing and every consumer reads the
+//! same thing:
 //!
 //! - front ends: the TOML scene format ([`toml_format`], documented in
 //!   `docs/scene-format.md`), Wavefront OBJ + MTL ([`obj`], parsed by `tobj`
@@ -19,6 +20,7 @@
 //! Nothing here prints: warnings (dropped zero-area triangles, ignored OBJ
 //! statements) are returned in [`LoadedScene::warnings`].
 
+pub mod animation;
 pub mod effects;
 pub mod error;
 pub mod files;
@@ -28,6 +30,7 @@ pub mod material;
 pub mod model;
 pub mod obj;
 pub mod seed002;
+mod toml_anim;
 mod toml_defs;
 pub mod toml_format;
 mod toml_locate;
@@ -38,7 +41,8 @@ use std::path::{Path, PathBuf};
 
 use glam::Vec3;
 
-pub use effects::{BoundsSummary, Effects, SceneSummary};
+pub use animation::{Animation, Keyframe, Pose};
+pub use effects::{AnimationSummary, BoundsSummary, Effects, SceneSummary};
 pub use error::{Origin, SceneError};
 pub use files::{DiskFiles, FileSource, MemoryFiles};
 pub use limits::*;
@@ -67,6 +71,8 @@ pub struct Scene {
     pub settings: RenderSettings,
     /// Ambient light colour (added as `ambient · diffuse` at every hit).
     pub ambient: Vec3,
+    /// Frames, for an animated scene ([`animation`]); `None` for a still.
+    pub animation: Option<Animation>,
 }
 
 /// A scene as loaded, with the warnings loading produced (for the caller to
@@ -183,6 +189,7 @@ impl Scene {
             camera: Camera::look_at(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 40.0),
             settings: RenderSettings::default(),
             ambient: Vec3::splat(0.05),
+            animation: None,
         };
         scene.frame_camera();
         let (forward, right, up) = scene.camera.basis();
@@ -338,29 +345,34 @@ impl Scene {
     }
 
     /// Conservative bounds of all geometry over the whole shutter interval
-    /// `[shutter_open, shutter_close]`: exact for linear motion; orbits are
-    /// sampled every 5° at most and padded by the chord's sagitta.
+    /// `[shutter_open, shutter_close]` ([`Scene::swept_bounds_over`]).
     pub fn swept_bounds(&self) -> Aabb {
-        let (t0, t1) = (self.camera.shutter_open, self.camera.shutter_close);
+        self.swept_bounds_over(self.camera.shutter_open, self.camera.shutter_close)
+    }
+
+    /// Conservative bounds of all geometry over `[t0, t1]`: exact for
+    /// linear motion; orbits are sampled every 5° at most and padded by the
+    /// chord's sagitta. Meshes with keyframes are bounded over all their
+    /// keys ([`animation::keyed_bounds`]), whatever the interval.
+    pub fn swept_bounds_over(&self, t0: f32, t1: f32) -> Aabb {
         let mut out = Aabb::EMPTY;
         for mesh in &self.meshes {
             let ob = mesh.object_bounds();
             if ob.is_empty() {
                 continue;
             }
-            let corners: Vec<Vec3> = (0..8)
-                .map(|i| {
-                    Vec3::new(
-                        if i & 1 == 0 { ob.min.x } else { ob.max.x },
-                        if i & 2 == 0 { ob.min.y } else { ob.max.y },
-                        if i & 4 == 0 { ob.min.z } else { ob.max.z },
-                    )
-                })
-                .collect();
-            let placed: Vec<Vec3> = corners
-                .iter()
-                .map(|&c| mesh.transform.matrix().transform_point3(c))
-                .collect();
+            let placed: Vec<Vec3> = if mesh.keyframes.len() > 1 {
+                let m = mesh.transform.matrix();
+                let reach = box_corners(&ob)
+                    .iter()
+                    .map(|&c| m.transform_point3(c).length())
+                    .fold(0.0f32, f32::max);
+                box_corners(&animation::keyed_bounds(&mesh.keyframes, reach)).to_vec()
+            } else {
+                // No keys or one: the placement does not change over time.
+                let m = mesh.placement(t0);
+                box_corners(&ob).map(|c| m.transform_point3(c)).to_vec()
+            };
             out.union(&swept_points(&placed, &mesh.motion, t0, t1));
         }
         for s in &self.spheres {
@@ -372,6 +384,17 @@ impl Scene {
         }
         out
     }
+}
+
+/// The 8 corners of a non-empty box.
+fn box_corners(b: &Aabb) -> [Vec3; 8] {
+    std::array::from_fn(|i| {
+        Vec3::new(
+            if i & 1 == 0 { b.min.x } else { b.max.x },
+            if i & 2 == 0 { b.min.y } else { b.max.y },
+            if i & 4 == 0 { b.min.z } else { b.max.z },
+        )
+    })
 }
 
 /// Bounds of `points` moved by `motion` over `[t0, t1]`.

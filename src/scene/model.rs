@@ -3,10 +3,13 @@
 //! Loaders and generators build it, [`validate`](super::validate) checks it,
 //! and the renderer and acceleration-structure builders read it. Geometry is
 //! kept in object space with a per-mesh [`Transform`] and a per-object
-//! [`Motion`]; [`Scene::triangles_world`](super::Scene::triangles_world)
-//! flattens it for a given time, which is all an accel builder needs.
+//! [`Motion`] (and, for meshes, optional [`Keyframe`]s);
+//! [`Scene::triangles_world`](super::Scene::triangles_world) flattens it for
+//! a given time, which is all an accel builder needs.
 
 use glam::{Affine3A, EulerRot, Quat, Vec3};
+
+use super::animation::{pose_at, Keyframe};
 
 /// Index into [`Scene::materials`](super::Scene::materials).
 pub type MaterialId = u32;
@@ -145,6 +148,9 @@ pub struct Mesh {
     pub materials: MeshMaterials,
     /// Placement.
     pub transform: Transform,
+    /// Keyed placements over time, applied after `transform` (empty: none;
+    /// see [`super::animation`]).
+    pub keyframes: Vec<Keyframe>,
     /// Motion over time.
     pub motion: Motion,
 }
@@ -164,6 +170,7 @@ impl Mesh {
             indices,
             materials: MeshMaterials::Single(material),
             transform: Transform::IDENTITY,
+            keyframes: Vec::new(),
             motion: Motion::STATIC,
         }
     }
@@ -181,9 +188,18 @@ impl Mesh {
         }
     }
 
-    /// Object-to-world matrix at time `t`.
+    /// Placement at time `t` before motion: the keyed pose at `t` (if the
+    /// mesh has keyframes) after `transform`.
+    pub fn placement(&self, t: f32) -> Affine3A {
+        match pose_at(&self.keyframes, t) {
+            Some(pose) => pose.matrix() * self.transform.matrix(),
+            None => self.transform.matrix(),
+        }
+    }
+
+    /// Object-to-world matrix at time `t`: placement, then motion.
     pub fn world_matrix(&self, t: f32) -> Affine3A {
-        self.motion.at(t) * self.transform.matrix()
+        self.motion.at(t) * self.placement(t)
     }
 
     /// Object-space bounds of the vertices that triangles use.

@@ -518,6 +518,7 @@ fn build(
         camera: Camera::look_at(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 40.0),
         settings,
         ambient: Vec3::ZERO,
+        animation: None,
     };
     match camera_obj {
         Some(o) => scene.camera = camera_from(o, path, &scene.settings, &mut warnings)?,

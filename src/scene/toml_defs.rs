@@ -100,6 +100,7 @@ pub(super) struct SceneDef {
     pub(super) ambient: Option<[f32; 3]>,
     pub(super) settings: Option<SettingsDef>,
     pub(super) camera: Option<CameraDef>,
+    pub(super) animation: Option<AnimationDef>,
     #[serde(default, skip_serializing_if = "Ordered::is_empty")]
     pub(super) materials: Ordered<MaterialDef>,
     #[serde(default, skip_serializing_if = "Vec::is_empty")]
@@ -140,6 +141,15 @@ pub(super) struct CameraDef {
     pub(super) aperture: Option<f32>,
     pub(super) focus_distance: Option<f32>,
     pub(super) shutter: Option<[f32; 2]>,
+}
+
+/// `[animation]`: `fps` and exactly one of `frames` or `end_time`.
+#[derive(Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct AnimationDef {
+    pub(super) fps: f32,
+    pub(super) frames: Option<u32>,
+    pub(super) end_time: Option<f32>,
 }
 
 #[derive(Debug, Default, Deserialize, Serialize)]
@@ -233,4 +243,18 @@ pub(super) struct MeshDef {
     pub(super) scale: Option<Vec3OrScalar>,
     pub(super) velocity: Option<[f32; 3]>,
     pub(super) orbit: Option<OrbitDef>,
+    #[serde(default, skip_serializing_if = "Vec::is_empty")]
+    pub(super) keyframes: Vec<KeyframeDef>,
+    /// The entry to use instead when `path` does not exist.
+    pub(super) fallback: Option<Box<MeshDef>>,
+}
+
+/// One `[[meshes.keyframes]]` entry; omitted fields are the identity.
+#[derive(Debug, Deserialize, Serialize)]
+#[serde(deny_unknown_fields)]
+pub(super) struct KeyframeDef {
+    pub(super) time: f32,
+    pub(super) translate: Option<[f32; 3]>,
+    pub(super) rotate: Option<[f32; 3]>,
+    pub(super) scale: Option<Vec3OrScalar>,
 }

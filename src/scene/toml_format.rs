@@ -6,8 +6,10 @@
 //!    `deny_unknown_fields`, so a misspelt key is an error; `toml` gives the
 //!    span; `toml_locate` (spans from `toml_edit`) names the key there.
 //! 2. Definitions to model: material names resolved, mesh files loaded
-//!    (OBJ, relative to the scene file), generators run (their size checked
-//!    first). Errors carry TOML key paths.
+//!    (OBJ, relative to the scene file; a missing one replaced by its
+//!    `fallback` entry), generators run (their size checked first),
+//!    `[animation]` and keyframes read (`toml_anim`). Errors carry TOML key
+//!    paths.
 //! 3. [`validate`](super::validate::validate) on the model. Its key paths
 //!    are the TOML ones except for materials (`materials[3]` →
 //!    `materials.glass`), which are mapped back here.
@@ -37,6 +39,7 @@ use super::model::{
     RenderSettings, Sphere, Transform,
 };
 use super::obj;
+use super::toml_anim::{animation_from_def, keyframes_from_defs};
 use super::toml_defs::{
     GenKind, LightDef, LightKind, MaterialDef, MeshDef, OrbitDef, SceneDef, SettingsDef,
 };
@@ -78,11 +81,17 @@ pub fn parse_toml_scene(
         limits,
         scene_path: path,
     };
-    let (mut scene, mut warnings) = build
+    let (mut scene, mut warnings, fallbacks) = build
         .scene(def)
         .map_err(|e| locate(e, text, path, &material_names))?;
-    let more = validate::validate(&mut scene, limits)
-        .map_err(|e| locate(e, text, path, &material_names))?;
+    let more = validate::validate(&mut scene, limits).map_err(|mut e| {
+        // Validation names meshes by index; a mesh built from its fallback
+        // is written under `meshes[i].fallback`.
+        if let Some(o) = e.origin_mut() {
+            o.key = o.key.take().map(|k| fallback_key(k, &fallbacks));
+        }
+        locate(e, text, path, &material_names)
+    })?;
     warnings.extend(more.into_iter().map(|w| format!("{}: {w}", path.display())));
     Ok(LoadedScene { scene, warnings })
 }
@@ -120,6 +129,21 @@ fn locate(mut err: SceneError, text: &str, path: &Path, material_names: &[String
     err
 }
 
+/// `meshes[i].x` → `meshes[i].fallback.x` when mesh `i` was built from its
+/// fallback (`fallbacks` holds `(i, "meshes[i].fallback")`, nested as
+/// deep as the fallbacks used).
+fn fallback_key(key: String, fallbacks: &[(usize, String)]) -> String {
+    for (i, entry) in fallbacks {
+        let top = format!("meshes[{i}]");
+        if let Some(rest) = key.strip_prefix(&top) {
+            if rest.is_empty() || rest.starts_with(['.', '[']) {
+                return format!("{entry}{rest}");
+            }
+        }
+    }
+    key
+}
+
 /// `materials[i].x` → `materials.<name>.x` for materials defined in the file.
 fn material_key(key: &str, names: &[String]) -> String {
     let Some(rest) = key.strip_prefix("materials[") else {
@@ -154,8 +178,12 @@ fn key(k: String) -> Origin {
     Origin::key(k)
 }
 
+/// A scene as built, its warnings, and which meshes came from a fallback
+/// (index, key of the entry used).
+type Built = (Scene, Vec<String>, Vec<(usize, String)>);
+
 impl Builder<'_> {
-    fn scene(&self, def: SceneDef) -> Result<(Scene, Vec<String>), SceneError> {
+    fn scene(&self, def: SceneDef) -> Result<Built, SceneError> {
         let mut warnings = Vec::new();
         let mut materials: Vec<Material> = def
             .materials
@@ -238,8 +266,13 @@ impl Builder<'_> {
         let mut meshes = Vec::with_capacity(def.meshes.len());
         let mut obj_cache: HashMap<PathBuf, (Mesh, MaterialId)> = HashMap::new();
         let mut total_triangles: u64 = 0;
+        let mut fallbacks = Vec::new();
         for (i, m) in def.meshes.iter().enumerate() {
-            let k = format!("meshes[{i}]");
+            let top = format!("meshes[{i}]");
+            let (m, k) = self.present_entry(m, top.clone(), &mut warnings)?;
+            if k != top {
+                fallbacks.push((i, k.clone()));
+            }
             let sources = [
                 m.path.is_some(),
                 m.positions.is_some() || m.indices.is_some(),
@@ -297,6 +330,7 @@ impl Builder<'_> {
                 rotate: m.rotate.map_or(Vec3::ZERO, v3),
                 scale: m.scale.map_or(Vec3::ONE, |s| v3(s.0)),
             };
+            mesh.keyframes = keyframes_from_defs(&m.keyframes);
             mesh.motion = motion_of(m.velocity, m.orbit.as_ref());
             meshes.push(mesh);
         }
@@ -309,6 +343,7 @@ impl Builder<'_> {
             camera: Camera::look_at(Vec3::new(0.0, 0.0, 5.0), Vec3::ZERO, Vec3::Y, 40.0),
             settings,
             ambient: def.ambient.map_or(Vec3::ZERO, v3),
+            animation: def.animation.as_ref().map(animation_from_def).transpose()?,
         };
         match def.camera {
             Some(c) => {
@@ -334,7 +369,41 @@ impl Builder<'_> {
                 ));
             }
         }
-        Ok((scene, warnings))
+        Ok((scene, warnings, fallbacks))
+    }
+
+    /// The entry that builds mesh `k`: `m` itself or, when its `path` names
+    /// a file that does not exist and it has a `fallback`, that fallback
+    /// (recursively), with a warning. The fallback replaces the whole
+    /// entry: it is read as if it stood in `m`'s place.
+    fn present_entry<'d>(
+        &self,
+        mut m: &'d MeshDef,
+        mut k: String,
+        warnings: &mut Vec<String>,
+    ) -> Result<(&'d MeshDef, String), SceneError> {
+        loop {
+            let Some(fallback) = &m.fallback else {
+                return Ok((m, k));
+            };
+            let Some(rel) = &m.path else {
+                return Err(SceneError::invalid(
+                    key(format!("{k}.fallback")),
+                    "`fallback` belongs to a mesh loaded from `path`: it stands in when the file does not exist",
+                ));
+            };
+            let full = self.base_dir.join(rel);
+            if self.files.exists(&full) {
+                return Ok((m, k));
+            }
+            warnings.push(format!(
+                "{}: `{k}`: {} does not exist: using `{k}.fallback` instead",
+                self.scene_path.display(),
+                full.display()
+            ));
+            m = fallback;
+            k.push_str(".fallback");
+        }
     }
 
     #[allow(

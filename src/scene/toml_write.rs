@@ -11,6 +11,7 @@ use toml_edit::visit_mut::{self, VisitMut};
 use toml_edit::{Array, Formatted, Item, Table, Value};
 
 use super::model::{Light, MaterialId, Mesh, MeshMaterials, Motion, Sphere};
+use super::toml_anim::{animation_def, keyframe_defs};
 use super::toml_defs::{
     AoDef, CameraDef, LightDef, LightKind, MaterialDef, MeshDef, OrbitDef, Ordered, SceneDef,
     SettingsDef, SphereDef, Vec3OrScalar,
@@ -46,6 +47,7 @@ pub fn scene_to_toml(scene: &Scene) -> String {
             focus_distance: Some(c.focus_distance),
             shutter: Some([c.shutter_open, c.shutter_close]),
         }),
+        animation: scene.animation.as_ref().map(animation_def),
         materials: Ordered(
             scene
                 .materials
@@ -192,6 +194,7 @@ fn mesh_def(mesh: &Mesh, names: &[String]) -> MeshDef {
         scale: Some(Vec3OrScalar(t.scale.to_array())),
         velocity,
         orbit,
+        keyframes: keyframe_defs(&mesh.keyframes),
         ..MeshDef::default()
     }
 }

@@ -8,6 +8,12 @@
 //! and counted in a warning — they can never be hit and only cost
 //! acceleration-structure memory); at least one triangle or sphere.
 //!
+//! Animated scenes also have a frame rate and count within their limits
+//! ([`MAX_FPS`], [`MAX_FRAMES`]) and every frame's time within
+//! [`MAX_TIME`]; keyframes have finite fields, strictly increasing times
+//! and no scale component that is zero or changes sign between two keys
+//! (the interpolated scale would pass through zero).
+//!
 //! Errors name the offending item by key path in the TOML format's terms
 //! (`spheres[2].radius`, `camera.fov`, `meshes[0].indices[17]`), with
 //! materials as `materials[i]`; the TOML loader turns paths into line
@@ -15,10 +21,11 @@
 
 use glam::{DVec3, Vec3};
 
+use super::animation::Keyframe;
 use super::error::{Origin, SceneError};
 use super::limits::*;
 use super::material::Material;
-use super::model::{Light, MeshMaterials, Motion};
+use super::model::{Light, MeshMaterials, Motion, Transform};
 use super::Scene;
 
 fn key(k: impl Into<String>) -> Origin {
@@ -147,6 +154,102 @@ fn motion(m: &Motion, k: &str) -> Result<(), SceneError> {
     Ok(())
 }
 
+/// `translate`, `rotate`, `scale` of a mesh or keyframe at `k`.
+fn transform(t: &Transform, k: &str) -> Result<(), SceneError> {
+    finite3(t.translate, &format!("{k}.translate"))?;
+    finite3(t.rotate, &format!("{k}.rotate"))?;
+    finite3(t.scale, &format!("{k}.scale"))?;
+    if t.scale.abs().min_element() == 0.0 {
+        return Err(SceneError::out_of_range(
+            key(format!("{k}.scale")),
+            t.scale,
+            "no scale component may be zero",
+        ));
+    }
+    Ok(())
+}
+
+/// A mesh's keyframes: each a valid transform at a finite time, times
+/// strictly increasing, scales keeping their signs from key to key.
+fn keyframes(keys: &[Keyframe], mesh: &str) -> Result<(), SceneError> {
+    for (j, kf) in keys.iter().enumerate() {
+        let k = format!("{mesh}.keyframes[{j}]");
+        finite(kf.time, &format!("{k}.time"))?;
+        if kf.time.abs() > MAX_TIME {
+            return Err(SceneError::out_of_range(
+                key(format!("{k}.time")),
+                kf.time,
+                format!("times must be within ±{MAX_TIME:e} s"),
+            ));
+        }
+        coord3(kf.transform.translate, &format!("{k}.translate"))?;
+        transform(&kf.transform, &k)?;
+        let Some(prev) = j.checked_sub(1).map(|p| &keys[p]) else {
+            continue;
+        };
+        if kf.time <= prev.time {
+            return Err(SceneError::invalid(
+                key(format!("{k}.time")),
+                format!(
+                    "keyframe times must increase strictly: {} s follows {} s",
+                    kf.time, prev.time
+                ),
+            ));
+        }
+        let (a, b) = (prev.transform.scale, kf.transform.scale);
+        // Signs, not the product, which can underflow to zero.
+        if (a.signum() * b.signum()).min_element() < 0.0 {
+            return Err(SceneError::invalid(
+                key(format!("{k}.scale")),
+                format!(
+                    "scale {b} flips the sign of a component of the previous key's {a}: the mesh would pass through zero scale in between"
+                ),
+            ));
+        }
+    }
+    Ok(())
+}
+
+fn validate_animation(scene: &Scene) -> Result<(), SceneError> {
+    let Some(a) = &scene.animation else {
+        return Ok(());
+    };
+    fps(a.fps, "animation.fps")?;
+    if a.frames == 0 || a.frames > MAX_FRAMES {
+        return Err(SceneError::out_of_range(
+            key("animation.frames"),
+            a.frames,
+            format!("the frame count must be 1 ..= {MAX_FRAMES}"),
+        ));
+    }
+    // Shutter times are checked already; the last frame shifts them.
+    let last = a.frame_time(a.frames - 1);
+    let close = scene.camera.shutter_close + last;
+    if !close.is_finite() || close > MAX_TIME {
+        return Err(SceneError::out_of_range(
+            key("animation.frames"),
+            format!("{} frames at {} fps", a.frames, a.fps),
+            format!(
+                "the last frame's shutter closes at {close} s: every time must be within ±{MAX_TIME:e} s"
+            ),
+        ));
+    }
+    Ok(())
+}
+
+/// A frame rate: finite, in (0, [`MAX_FPS`]].
+pub(crate) fn fps(v: f32, k: &str) -> Result<(), SceneError> {
+    finite(v, k)?;
+    if !(v > 0.0 && v <= MAX_FPS) {
+        return Err(SceneError::out_of_range(
+            key(k),
+            v,
+            format!("frames per second must be in (0, {MAX_FPS}]"),
+        ));
+    }
+    Ok(())
+}
+
 /// Validate `scene` in place (dropping zero-area triangles) against
 /// `limits` and the documented constants. Returns warnings.
 pub fn validate(scene: &mut Scene, limits: &Limits) -> Result<Vec<String>, SceneError> {
@@ -154,6 +257,7 @@ pub fn validate(scene: &mut Scene, limits: &Limits) -> Result<Vec<String>, Scene
     validate_settings(scene)?;
     color3(scene.ambient, "ambient")?;
     validate_camera(scene)?;
+    validate_animation(scene)?;
 
     count_limit(
         "material",
@@ -210,17 +314,8 @@ pub fn validate(scene: &mut Scene, limits: &Limits) -> Result<Vec<String>, Scene
     let mut dropped_total = 0usize;
     for (i, mesh) in scene.meshes.iter_mut().enumerate() {
         let k = format!("meshes[{i}]");
-        let t = &mesh.transform;
-        finite3(t.translate, &format!("{k}.translate"))?;
-        finite3(t.rotate, &format!("{k}.rotate"))?;
-        finite3(t.scale, &format!("{k}.scale"))?;
-        if t.scale.abs().min_element() == 0.0 {
-            return Err(SceneError::out_of_range(
-                key(format!("{k}.scale")),
-                t.scale,
-                "no scale component may be zero",
-            ));
-        }
+        transform(&mesh.transform, &k)?;
+        keyframes(&mesh.keyframes, &k)?;
         motion(&mesh.motion, &k)?;
         let nv = mesh.positions.len();
         for (j, p) in mesh.positions.iter().enumerate() {
@@ -306,8 +401,11 @@ pub fn validate(scene: &mut Scene, limits: &Limits) -> Result<Vec<String>, Scene
         });
     }
 
-    // Transforms and motion must keep everything inside the coordinate limit.
-    let b = scene.swept_bounds();
+    // Transforms, keyframes and motion must keep everything inside the
+    // coordinate limit, during the shutter of every frame.
+    let c = &scene.camera;
+    let last = scene.frame_time(scene.frame_count() - 1);
+    let b = scene.swept_bounds_over(c.shutter_open, c.shutter_close + last);
     if !b.is_empty()
         && (!b.min.is_finite()
             || !b.max.is_finite()
@@ -317,7 +415,7 @@ pub fn validate(scene: &mut Scene, limits: &Limits) -> Result<Vec<String>, Scene
             Origin::default(),
             format!("world bounds [{} .. {}]", b.min, b.max),
             format!(
-                "transformed and moving geometry must stay within ±{MAX_COORDINATE:e} during the shutter interval"
+                "transformed and moving geometry must stay within ±{MAX_COORDINATE:e} during the shutter interval of every frame"
             ),
         ));
     }

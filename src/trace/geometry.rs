@@ -159,6 +159,7 @@ impl TraceGeometry {
 
     /// The scene over the shutter interval `[t0, t1]`: static primitives placed at `t0`,
     /// moving ones at time 0 with a motion slot (the traversal moves them to the ray time).
+    /// Keyframed meshes are placed by their keys at `t0` for the whole interval.
     pub fn over_interval(scene: &Scene, t0: f32, t1: f32) -> Self {
         let mut g = Self::at_time(scene, t0);
         let mut any = false;
@@ -171,7 +172,8 @@ impl TraceGeometry {
                 any = true;
                 let slot = g.motions.len() as u32;
                 g.motions.push(MotionRecord::new(&mesh.motion));
-                let m = mesh.transform.matrix();
+                // Keyframes hold their pose at `t0` (see `scene::animation`).
+                let m = mesh.placement(t0);
                 for (k, tri) in mesh.indices.iter().enumerate() {
                     let i = first + k;
                     let pts = tri.map(|v| m.transform_point3(mesh.positions[v as usize]));

@@ -140,6 +140,7 @@ pub fn cornell_box() -> Scene {
             ..RenderSettings::default()
         },
         ambient: Vec3::ZERO,
+        animation: None,
     }
 }
 
@@ -150,7 +151,8 @@ pub fn cornell_box() -> Scene {
 /// `k` at time `k / fps` (`triangles_world(t)`, `spheres_at(t)`); the
 /// shutter is `[0, 0]`, so there is no motion blur unless the caller opens
 /// it. A glass-model variant (the thesis' Fig. 7.3) is one material away:
-/// material 1 is "glass".
+/// material 1 is "glass". `scenes/seed001_demo.toml` is this scene as a
+/// file, with an `[animation]` and icosphere meshes for the ring.
 pub fn dynamic_ring(model: Mesh, n_spheres: u32) -> Result<Scene, SceneError> {
     if u64::from(n_spheres) > MAX_SPHERES {
         return Err(too_large(
@@ -254,5 +256,6 @@ pub fn dynamic_ring(model: Mesh, n_spheres: u32) -> Result<Scene, SceneError> {
             ..RenderSettings::default()
         },
         ambient: Vec3::splat(0.05),
+        animation: None,
     })
 }
