@@ -4,6 +4,8 @@ use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Args, Parser, Subcommand, ValueEnum};
+
+mod cli;
 use vkrt::gpu::{Context, ContextOptions, Profile, Validation};
 
 #[derive(Parser)]
@@ -79,6 +81,9 @@ enum Command {
         width: Option<u32>,
         #[arg(long)]
         height: Option<u32>,
+        /// Render frame K of an animated scene (its time K / fps), as `vkrt animate` does.
+        #[arg(long)]
+        frame: Option<u32>,
         /// Print the render plan (passes, shader variants) and stop.
         #[arg(long)]
         plan: bool,
@@ -138,6 +143,41 @@ enum Command {
         traversal: TraversalArg,
         #[arg(long)]
         json: bool,
+    },
+    /// Render the frames of an animated scene (its `[animation]`): per frame the moved
+    /// primitives are written on the device, the structure rebuilt or refit, and the frame
+    /// rendered, all in one submission; frames are written while the next renders.
+    Animate {
+        /// The animated scene (.toml with `[animation]`).
+        scene: PathBuf,
+        /// Frame files: a pattern with one %d or %0Nd, .png or .jpg.
+        #[arg(short, long, default_value = "frames/frame_%04d.png")]
+        output: PathBuf,
+        /// Frames 0..N (default: the scene's).
+        #[arg(long)]
+        frames: Option<u32>,
+        #[arg(long)]
+        spp: Option<u32>,
+        #[arg(long)]
+        width: Option<u32>,
+        #[arg(long)]
+        height: Option<u32>,
+        #[arg(long, value_enum, default_value_t = AccelArg::SahBvh)]
+        accel: AccelArg,
+        #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
+        traversal: TraversalArg,
+        /// Per frame: build the structure anew, or refit it (BVHs and the driver's).
+        #[arg(long, value_enum, default_value_t = UpdateArg::Rebuild)]
+        update: UpdateArg,
+        /// Also an animated PNG of every frame, for a quick look.
+        #[arg(long)]
+        preview: Option<PathBuf>,
+        /// One JSON object: the frames' numbers and the means.
+        #[arg(long)]
+        json: bool,
+        /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
+        #[arg(long)]
+        profile: Option<PathBuf>,
     },
     /// Measure GPU baselines and primitives.
     Bench {
@@ -245,6 +285,28 @@ enum BenchCommand {
     /// triangles; primary, shadow and mirror rays; build ms, trace ms, Mrays/s, hits (any
     /// difference reported) and the ratio to the driver's ray query.
     Trace(BenchTraceArgs),
+    /// An animated scene's frames on every structure and update mode in one run (kd-tree,
+    /// SAH BVH, LBVH and PLOC rebuilt; the BVHs refit; the driver's both ways where the device
+    /// has it): build or refit ms, render ms, frames/s per frame; the refit trees' SAH cost
+    /// against a rebuild's; after how many refit frames a rebuild pays off. Writes
+    /// OUT/frames.svg (the per-frame plot) and OUT/report.json.
+    Animate {
+        /// The animated scene (default: scenes/seed001_demo.toml).
+        #[arg(default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/seed001_demo.toml"))]
+        scene: PathBuf,
+        #[arg(long, default_value_t = 8)]
+        frames: u32,
+        #[arg(long, default_value_t = 1024)]
+        width: u32,
+        #[arg(long, default_value_t = 768)]
+        height: u32,
+        #[arg(long)]
+        spp: Option<u32>,
+        #[arg(short, long, default_value = "animate-report")]
+        out: PathBuf,
+        #[arg(long)]
+        json: bool,
+    },
     /// Every GPU primitive against the copy baselines of the same bytes, n = 2^16 .. max-n.
     Prims {
         /// Largest n (rounded down to a power of two).
@@ -307,6 +369,12 @@ enum AccelArg {
     Driver,
     /// The driver's structure built preferring a fast build.
     DriverFastBuild,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+enum UpdateArg {
+    Rebuild,
+    Refit,
 }
 
 #[derive(Clone, Copy, ValueEnum)]
@@ -422,6 +490,20 @@ fn load_scene(path: &Option<PathBuf>) -> Result<vkrt::scene::Scene, Box<dyn std:
     })
 }
 
+/// `--width`, `--height` and `--spp` within the scene limits.
+fn check_resolution(opt: &vkrt::render::RenderOptions) -> Result<(), Box<dyn std::error::Error>> {
+    use vkrt::scene::MAX_RESOLUTION;
+    for (name, v) in [("--width", opt.width), ("--height", opt.height)] {
+        if v.is_some_and(|v| v == 0 || v > MAX_RESOLUTION) {
+            return Err(format!("{name} must be 1..={MAX_RESOLUTION}").into());
+        }
+    }
+    if opt.spp.is_some_and(|s| s == 0 || s > vkrt::scene::MAX_SPP) {
+        return Err(format!("--spp must be 1..={}", vkrt::scene::MAX_SPP).into());
+    }
+    Ok(())
+}
+
 fn write_profile(
     path: &Option<PathBuf>,
     profile: &Profile,
@@ -455,24 +537,27 @@ fn render_command(
     scene: &Option<PathBuf>,
     output: &std::path::Path,
     opt: vkrt::render::RenderOptions,
-    plan_only: bool,
+    (frame, plan_only): (Option<u32>, bool),
     intersector: &str,
     json: bool,
     profile: &Option<PathBuf>,
 ) -> Result<(), Box<dyn std::error::Error>> {
-    use vkrt::scene::MAX_RESOLUTION;
     // An unsupported image extension fails here, before the scene or the device is touched.
     vkrt::render::output::ImageFormat::from_path(output)?;
     let intersector = parse_intersector(intersector)?;
-    for (name, v) in [("--width", opt.width), ("--height", opt.height)] {
-        if v.is_some_and(|v| v == 0 || v > MAX_RESOLUTION) {
-            return Err(format!("{name} must be 1..={MAX_RESOLUTION}").into());
+    check_resolution(&opt)?;
+    let mut scene = load_scene(scene)?;
+    if let Some(k) = frame {
+        let frames = scene.animation.map_or(0, |a| a.frames);
+        if k >= frames {
+            return Err(match frames {
+                0 => "--frame: the scene has no [animation]".to_string(),
+                n => format!("--frame {k}: the scene has frames 0..{n}"),
+            }
+            .into());
         }
+        scene = scene.at_frame(k);
     }
-    if opt.spp.is_some_and(|s| s == 0 || s > vkrt::scene::MAX_SPP) {
-        return Err(format!("--spp must be 1..={}", vkrt::scene::MAX_SPP).into());
-    }
-    let scene = load_scene(scene)?;
     if plan_only {
         let plan = vkrt::render::Plan::new(&scene, &opt)?;
         if json {
@@ -578,6 +663,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             spp,
             width,
             height,
+            frame,
             plan,
             all_effects,
             intersector,
@@ -598,7 +684,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 &scene,
                 &output,
                 opt,
-                plan,
+                (frame, plan),
                 &intersector,
                 json,
                 &profile,
@@ -888,6 +974,75 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
         Command::Bench {
             what: BenchCommand::Trace(args),
         } => bench_trace_command(cli.validate, &args)?,
+        Command::Animate {
+            scene,
+            output,
+            frames,
+            spp,
+            width,
+            height,
+            accel,
+            traversal,
+            update,
+            preview,
+            json,
+            profile,
+        } => {
+            let render = vkrt::render::RenderOptions {
+                width,
+                height,
+                spp,
+                all_effects: false,
+                accel: accel_traversal(accel, traversal),
+            };
+            check_resolution(&render)?;
+            let loaded = load_scene(&Some(scene))?;
+            let args = cli::animate::AnimateArgs {
+                output,
+                frames,
+                render,
+                update: match update {
+                    UpdateArg::Rebuild => vkrt::render::gpu::Update::Rebuild,
+                    UpdateArg::Refit => vkrt::render::gpu::Update::Refit,
+                },
+                preview,
+            };
+            let validate = cli.validate;
+            let (report, trace_profile) = vkrt::gpu::capture_profiles(|| {
+                cli::animate::animate_command(
+                    || context(validate),
+                    loaded,
+                    args,
+                    &Default::default(),
+                )
+                .map_err(|e| e.to_string())
+            });
+            write_profile(&profile, &trace_profile)?;
+            cli::animate::print_report(&report?, json)?;
+        }
+        Command::Bench {
+            what:
+                BenchCommand::Animate {
+                    scene,
+                    frames,
+                    width,
+                    height,
+                    spp,
+                    out,
+                    json,
+                },
+        } => {
+            let render = vkrt::render::RenderOptions {
+                width: Some(width),
+                height: Some(height),
+                spp,
+                ..Default::default()
+            };
+            check_resolution(&render)?;
+            let scene = cli::animate::animated(load_scene(&Some(scene))?, Some(frames))?;
+            let ctx = context(cli.validate)?;
+            cli::animate::bench_animate(&ctx, &scene, &render, &out, json)?;
+        }
         Command::Bench {
             what: BenchCommand::Robustness { quick, json },
         } => {

@@ -54,7 +54,9 @@ impl FramePattern {
         };
         let (prefix, rest) = name.split_at(at);
         let rest = &rest[1..];
-        let width_len = rest.find('d').ok_or_else(|| err("`%` must be followed by d or 0Nd"))?;
+        let width_len = rest
+            .find('d')
+            .ok_or_else(|| err("`%` must be followed by d or 0Nd"))?;
         let width = &rest[..width_len];
         let digits = match width {
             "" => 0,
@@ -165,7 +167,9 @@ impl FrameWriter {
     /// Waits for every frame to be written.
     pub fn finish(mut self) -> Result<Vec<PathBuf>, GpuError> {
         self.join()?;
-        Ok(std::mem::take(&mut *self.written.lock().expect("not poisoned")))
+        Ok(std::mem::take(
+            &mut *self.written.lock().expect("not poisoned"),
+        ))
     }
 
     fn join(&mut self) -> Result<(), GpuError> {
@@ -396,7 +400,11 @@ pub fn run(
     let mut rows = Vec::with_capacity(opt.frames as usize);
     for k in 0..opt.frames {
         let start = std::time::Instant::now();
-        let (time, scene) = if k == 0 { (0.0, first.clone()) } else { frame_scene(k) };
+        let (time, scene) = if k == 0 {
+            (0.0, first.clone())
+        } else {
+            frame_scene(k)
+        };
         let rs = RenderScene::new(&scene, &plan, |_| {
             Ok::<_, std::convert::Infallible>(RenderAccel::OnDevice(accel))
         })?;

@@ -27,7 +27,12 @@ fn draw(reports: &[AnimationReport], svg: &mut String) -> Result<(), Box<dyn std
         ("build or refit ms per frame (GPU)", |f| f.update_ms),
         ("render ms per frame (GPU)", |f| f.render_ms),
     ];
-    let frames = reports.iter().map(|r| r.frames.len()).max().unwrap_or(1).max(2);
+    let frames = reports
+        .iter()
+        .map(|r| r.frames.len())
+        .max()
+        .unwrap_or(1)
+        .max(2);
     for (area, (title, value)) in root.split_evenly((2, 1)).iter().zip(panels) {
         let top = reports
             .iter()

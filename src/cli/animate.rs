@@ -1,0 +1,301 @@
+//! `vkrt animate` and `vkrt bench animate` (issue 17): the frames of an animated scene, each
+//! rendered in one submission after its structure was rebuilt or refit on the device.
+
+use std::path::{Path, PathBuf};
+
+use vkrt::accel::device::{AccelChoice, AccelKind};
+use vkrt::accel::driver::Prefer;
+use vkrt::gpu::Context;
+use vkrt::render::animate::{
+    self, AnimateOptions, AnimationReport, FramePattern, FrameWriter, Preview,
+};
+use vkrt::render::gpu::Update;
+use vkrt::render::RenderOptions;
+use vkrt::scene::Scene;
+use vkrt::trace::bvh_cpu::Traversal;
+use vkrt::trace::TraceOptions;
+
+type CliResult<T> = Result<T, Box<dyn std::error::Error>>;
+
+/// `scene` with `frames` frames (its own count by default): at most
+/// [`vkrt::scene::MAX_FRAMES`], and the scene must be animated.
+pub fn animated(mut scene: Scene, frames: Option<u32>) -> CliResult<Scene> {
+    let Some(anim) = scene.animation.as_mut() else {
+        return Err(
+            "the scene has no [animation] (fps, and frames or end_time): \
+                    see docs/scene-format.md"
+                .into(),
+        );
+    };
+    if let Some(n) = frames {
+        if n == 0 || n > vkrt::scene::MAX_FRAMES {
+            return Err(format!("--frames must be 1..={}", vkrt::scene::MAX_FRAMES).into());
+        }
+        anim.frames = n;
+    }
+    Ok(scene)
+}
+
+/// What `vkrt animate` was asked.
+pub struct AnimateArgs {
+    pub output: PathBuf,
+    pub frames: Option<u32>,
+    pub render: RenderOptions,
+    pub update: Update,
+    pub preview: Option<PathBuf>,
+}
+
+/// `vkrt animate`: every input is checked and the output directory probed before the
+/// device is touched; frames are written while the next one renders; on any error the
+/// files this run wrote are removed.
+pub fn animate_command(
+    ctx: impl FnOnce() -> CliResult<Context>,
+    scene: Scene,
+    args: AnimateArgs,
+    trace: &TraceOptions,
+) -> CliResult<AnimationReport> {
+    let scene = animated(scene, args.frames)?;
+    let pattern = FramePattern::parse(&args.output)?;
+    if let Some(p) = &args.preview {
+        if !p
+            .extension()
+            .is_some_and(|e| e.eq_ignore_ascii_case("png") || e.eq_ignore_ascii_case("apng"))
+        {
+            return Err(format!("{}: the preview is an animated PNG (.png)", p.display()).into());
+        }
+    }
+    let plan = vkrt::render::Plan::new(&scene.at_frame(0), &args.render)?;
+    pattern.prepare()?;
+    let ctx = ctx()?;
+    let frames = scene.frame_count();
+    let preview = args.preview.clone().map(|path| Preview {
+        path,
+        fps: scene.animation.map_or(24.0, |a| a.fps),
+        frames,
+    });
+    let mut writer = FrameWriter::new(pattern, plan.width, plan.height, preview)?;
+    let bar = indicatif::ProgressBar::new(frames as u64);
+    bar.set_style(
+        indicatif::ProgressStyle::with_template(
+            "{spinner} frames {pos}/{len} [{bar:30}] {elapsed_precise} (eta {eta})",
+        )
+        .map_err(|e| e.to_string())?,
+    );
+    let opt = AnimateOptions {
+        render: args.render,
+        update: args.update,
+        frames,
+        quality: false,
+    };
+    let report = animate::run(
+        &ctx,
+        |k| (scene.frame_time(k), scene.at_frame(k)),
+        &opt,
+        trace,
+        |k, rgba| writer.write(k, rgba),
+        |done| bar.set_position(done as u64),
+    );
+    bar.finish_and_clear();
+    match report {
+        Ok(r) => {
+            writer.finish()?;
+            Ok(r)
+        }
+        Err(e) => {
+            writer.abandon();
+            Err(e.to_string().into())
+        }
+    }
+}
+
+/// Prints a report: one JSON object per frame and a summary, or a table.
+pub fn print_report(r: &AnimationReport, json: bool) -> CliResult<()> {
+    if json {
+        let v = serde_json::json!({
+            "accel": r.accel,
+            "update": r.update,
+            "width": r.width,
+            "height": r.height,
+            "spp": r.spp,
+            "frames": r.frames,
+            "mean_update_ms": r.mean_update_ms(),
+            "mean_render_ms": r.mean_render_ms(),
+            "fps": r.fps(),
+            "mrays_per_s": r.mrays_per_s(),
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(());
+    }
+    println!(
+        "{} frames {}×{}, {} spp, {} ({})",
+        r.frames.len(),
+        r.width,
+        r.height,
+        r.spp,
+        r.accel,
+        r.update.name()
+    );
+    println!(
+        "{:>6} {:>8} {:>9} {:>11} {:>10} {:>12} {:>9}",
+        "frame", "time s", "update", "update ms", "render ms", "rays", "wall ms"
+    );
+    for f in &r.frames {
+        println!(
+            "{:>6} {:>8.3} {:>9} {:>11.2} {:>10.2} {:>12} {:>9.1}",
+            f.frame,
+            f.time,
+            if f.built { "build" } else { "refit" },
+            f.update_ms,
+            f.render_ms,
+            f.rays,
+            f.wall_ms
+        );
+    }
+    println!(
+        "mean: update {:.2} ms (after frame 0), render {:.2} ms, {:.2} frames/s, {:.2} Mrays/s",
+        r.mean_update_ms(),
+        r.mean_render_ms(),
+        r.fps(),
+        r.mrays_per_s()
+    );
+    Ok(())
+}
+
+/// The structures and update modes `vkrt bench animate` compares: every kind rebuilt, every
+/// kind that can be refit refit, the driver's where the device has it.
+fn bench_runs(ctx: &Context) -> Vec<(AccelChoice, Update)> {
+    let walk = Traversal::Stack;
+    let mut runs = vec![(AccelChoice::new(AccelKind::KdTree, walk), Update::Rebuild)];
+    for kind in [AccelKind::SahBvh, AccelKind::Lbvh, AccelKind::Ploc] {
+        runs.push((AccelChoice::new(kind, walk), Update::Rebuild));
+        runs.push((AccelChoice::new(kind, walk), Update::Refit));
+    }
+    if ctx.info().features.ray_query {
+        runs.push((AccelChoice::driver(Prefer::FastBuild), Update::Rebuild));
+        runs.push((AccelChoice::driver(Prefer::FastTrace), Update::Refit));
+    }
+    runs
+}
+
+/// When refitting stops paying: the frames after a build over which refit's extra render
+/// time (against the rebuilt structure's, frame by frame, same run) adds up to more than
+/// one rebuild costs over one refit; `None` if it never does within the frames.
+pub fn refit_pays_until(refit: &AnimationReport, rebuild: &AnimationReport) -> Option<u32> {
+    let later = |r: &AnimationReport| r.frames.iter().skip(1).cloned().collect::<Vec<_>>();
+    let (a, b) = (later(refit), later(rebuild));
+    let extra_build = rebuild.mean_update_ms() - refit.mean_update_ms();
+    let mut lost = 0.0;
+    for (i, (fa, fb)) in a.iter().zip(&b).enumerate() {
+        lost += fa.render_ms - fb.render_ms;
+        if lost > extra_build {
+            return Some(i as u32 + 1);
+        }
+    }
+    None
+}
+
+/// `vkrt bench animate`: every structure and update mode over the same frames, in one run;
+/// the SAH cost of the refit BVHs against a rebuild per frame; a plot and a JSON report in
+/// `out`.
+pub fn bench_animate(
+    ctx: &Context,
+    scene: &Scene,
+    render: &RenderOptions,
+    out: &Path,
+    json: bool,
+) -> CliResult<()> {
+    std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
+    let mut reports: Vec<AnimationReport> = Vec::new();
+    for (accel, update) in bench_runs(ctx) {
+        let opt = AnimateOptions {
+            render: RenderOptions { accel, ..*render },
+            update,
+            frames: scene.frame_count(),
+            quality: true,
+        };
+        let r = animate::run(
+            ctx,
+            |k| (scene.frame_time(k), scene.at_frame(k)),
+            &opt,
+            &TraceOptions::default(),
+            |_, _| Ok(()),
+            |_| {},
+        )
+        .map_err(|e| e.to_string())?;
+        log::info!("{} {}: done", r.accel, r.update.name());
+        reports.push(r);
+    }
+    animate::frames_svg(&reports, &out.join("frames.svg"))?;
+    let payoff: Vec<(String, Option<u32>)> = reports
+        .iter()
+        .filter(|r| r.update == Update::Refit)
+        .filter_map(|refit| {
+            let rebuild = reports
+                .iter()
+                .find(|r| r.update == Update::Rebuild && same_kind(&r.accel, &refit.accel))?;
+            Some((refit.accel.clone(), refit_pays_until(refit, rebuild)))
+        })
+        .collect();
+    let report = serde_json::json!({
+        "device": ctx.info().device,
+        "runs": reports,
+        "refit_pays_until_frame": payoff,
+    });
+    vkrt::gpu::write_atomically(
+        &out.join("report.json"),
+        serde_json::to_string_pretty(&report)?.as_bytes(),
+    )?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+        return Ok(());
+    }
+    let first = &reports[0];
+    println!(
+        "{}: {} frames {}×{}, {} spp",
+        ctx.info().device,
+        first.frames.len(),
+        first.width,
+        first.height,
+        first.spp
+    );
+    println!(
+        "{:<20} {:<8} {:>11} {:>11} {:>8} {:>9} {:>15}",
+        "structure", "update", "update ms", "render ms", "frames/s", "Mrays/s", "SAH last/fresh"
+    );
+    for r in &reports {
+        let sah = r
+            .frames
+            .last()
+            .and_then(|f| Some(format!("{:.2}/{:.2}", f.sah_cost?, f.rebuilt_sah_cost?)))
+            .unwrap_or_else(|| "-".into());
+        println!(
+            "{:<20} {:<8} {:>11.2} {:>11.2} {:>8.3} {:>9.2} {:>15}",
+            r.accel,
+            r.update.name(),
+            r.mean_update_ms(),
+            r.mean_render_ms(),
+            r.fps(),
+            r.mrays_per_s(),
+            sah
+        );
+    }
+    for (accel, until) in &payoff {
+        match until {
+            Some(n) => println!("{accel}: after {n} refit frames a rebuild pays off"),
+            None => println!(
+                "{accel}: refit pays off over all {} frames",
+                first.frames.len()
+            ),
+        }
+    }
+    println!(
+        "update ms: after frame 0 (which builds); wrote {}/frames.svg and report.json",
+        out.display()
+    );
+    Ok(())
+}
+
+/// Whether two labels name the same kind (`driver/fast-build` and `driver` do).
+fn same_kind(a: &str, b: &str) -> bool {
+    a.split('/').next() == b.split('/').next()
+}

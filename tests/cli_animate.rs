@@ -1,0 +1,264 @@
+//! `vkrt animate` as a user runs it: frame files named by the pattern, each equal bit for bit
+//! to `vkrt render --frame k` of the same scene, an animated PNG preview, per-frame JSON; and
+//! every class of bad input a clear error that leaves no frame file.
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use common::{vkrt, vkrt_ok};
+
+fn scratch(name: &str) -> PathBuf {
+    let dir = std::env::temp_dir().join(format!("vkrt-cli-animate-{name}-{}", std::process::id()));
+    let _ = std::fs::remove_dir_all(&dir);
+    std::fs::create_dir_all(&dir).unwrap();
+    dir
+}
+
+fn s(p: &Path) -> &str {
+    p.to_str().unwrap()
+}
+
+/// A small animated scene: a keyframed quad turning and rising, a sphere orbiting it, a
+/// mirror behind; 4 frames at 8 fps.
+const SCENE: &str = r#"
+[settings]
+width = 40
+height = 30
+spp = 1
+max_depth = 2
+
+[camera]
+position = [0, 1, 4]
+look_at = [0, 0.5, 0]
+fov = 50
+
+[animation]
+fps = 8
+frames = 4
+
+[materials.white]
+diffuse = [0.8, 0.8, 0.8]
+
+[materials.mirror]
+diffuse = [0.1, 0.1, 0.1]
+mirror = 0.8
+
+[[lights]]
+type = "point"
+position = [1, 3, 2]
+intensity = 20
+
+[[meshes]]
+name = "quad"
+positions = [[-0.5, 0, 0], [0.5, 0, 0], [0.5, 1, 0], [-0.5, 1, 0]]
+indices = [[0, 1, 2], [0, 2, 3]]
+material = "white"
+
+[[meshes.keyframes]]
+time = 0.0
+
+[[meshes.keyframes]]
+time = 0.5
+translate = [0, 0.3, 0]
+rotate = [0, 60, 0]
+
+[[meshes]]
+name = "mirror"
+positions = [[-2, -1, -1], [2, -1, -1], [2, 2, -1], [-2, 2, -1]]
+indices = [[0, 1, 2], [0, 2, 3]]
+material = "mirror"
+
+[[spheres]]
+center = [1, 0.5, 0]
+radius = 0.25
+material = "white"
+orbit = { center = [0, 0.5, 0], axis = [0, 1, 0], degrees_per_second = 90 }
+"#;
+
+fn scene_file(dir: &Path) -> PathBuf {
+    let p = dir.join("anim.toml");
+    std::fs::write(&p, SCENE).unwrap();
+    p
+}
+
+fn decode(p: &Path) -> Vec<u8> {
+    image::open(p).unwrap().into_rgba8().into_raw()
+}
+
+fn files_in(dir: &Path) -> Vec<String> {
+    let mut v: Vec<String> = std::fs::read_dir(dir)
+        .unwrap()
+        .map(|e| e.unwrap().file_name().to_string_lossy().into_owned())
+        .collect();
+    v.sort();
+    v
+}
+
+#[test]
+fn frames_equal_single_renders_and_the_preview_animates() {
+    let dir = scratch("frames");
+    let scene = scene_file(&dir);
+    let out = dir.join("out");
+    let pattern = out.join("f_%03d.png");
+    let preview = dir.join("preview.png");
+    for update in ["rebuild", "refit"] {
+        let Some(run) = vkrt_ok(&[
+            "animate",
+            s(&scene),
+            "-o",
+            s(&pattern),
+            "--update",
+            update,
+            "--preview",
+            s(&preview),
+            "--json",
+        ]) else {
+            return;
+        };
+        let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+        let frames = v["frames"].as_array().unwrap();
+        assert_eq!(frames.len(), 4, "{v}");
+        for (k, f) in frames.iter().enumerate() {
+            assert_eq!(f["frame"], k, "{v}");
+            assert!(
+                (f["time"].as_f64().unwrap() - k as f64 / 8.0).abs() < 1e-6,
+                "{v}"
+            );
+            assert_eq!(f["built"], k == 0 || update == "rebuild", "{v}");
+            assert!(f["render_ms"].as_f64().unwrap() > 0.0, "{v}");
+            assert!(f["rays"].as_u64().unwrap() > 0, "{v}");
+        }
+        assert_eq!(
+            files_in(&out),
+            ["f_000.png", "f_001.png", "f_002.png", "f_003.png"]
+        );
+        let mut previous: Option<Vec<u8>> = None;
+        for k in 0..4u32 {
+            let single = dir.join(format!("single_{k}.png"));
+            vkrt_ok(&[
+                "render",
+                s(&scene),
+                "--frame",
+                &k.to_string(),
+                "-o",
+                s(&single),
+            ])
+            .unwrap();
+            let frame = decode(&out.join(format!("f_{k:03}.png")));
+            assert!(
+                frame == decode(&single),
+                "{update}: frame {k} differs from render --frame"
+            );
+            if let Some(p) = &previous {
+                assert!(p != &frame, "{update}: frame {k} did not move");
+            }
+            previous = Some(frame);
+        }
+        // An animated PNG: its acTL chunk says 4 frames, played forever.
+        let bytes = std::fs::read(&preview).unwrap();
+        let at = bytes
+            .windows(4)
+            .position(|w| w == b"acTL")
+            .expect("an acTL chunk");
+        assert_eq!(
+            u32::from_be_bytes(bytes[at + 4..at + 8].try_into().unwrap()),
+            4
+        );
+        assert_eq!(
+            u32::from_be_bytes(bytes[at + 8..at + 12].try_into().unwrap()),
+            0
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn bad_animation_input_is_a_clear_error_and_leaves_no_frame() {
+    let dir = scratch("bad");
+    let scene = scene_file(&dir);
+    let still = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/hard_shadows.toml");
+    let out = dir.join("out");
+    let pattern = out.join("f_%03d.png");
+    let p = s(&pattern);
+    let blocked = dir.join("file");
+    std::fs::write(&blocked, b"not a directory").unwrap();
+    let under_file = blocked.join("f_%d.png");
+    let no_number = out.join("frame.png");
+    let exr = out.join("f_%d.exr");
+    let gif = dir.join("p.gif");
+    let single = dir.join("x.png");
+    let cases: Vec<(Vec<&str>, &str)> = vec![
+        (
+            vec!["animate", s(&scene), "-o", p, "--frames", "0"],
+            "--frames must be 1..=",
+        ),
+        (
+            vec!["animate", s(&scene), "-o", p, "--frames", "100000000"],
+            "--frames must be 1..=",
+        ),
+        (vec!["animate", s(&still), "-o", p], "no [animation]"),
+        (
+            vec!["animate", s(&scene), "-o", s(&no_number)],
+            "frame number",
+        ),
+        (vec!["animate", s(&scene), "-o", s(&exr)], "8-bit"),
+        (
+            vec!["animate", s(&scene), "-o", s(&under_file)],
+            "cannot write frames",
+        ),
+        (
+            vec![
+                "animate",
+                s(&scene),
+                "-o",
+                p,
+                "--accel",
+                "kdtree",
+                "--update",
+                "refit",
+            ],
+            "cannot be refit",
+        ),
+        (
+            vec!["animate", s(&scene), "-o", p, "--preview", s(&gif)],
+            "animated PNG",
+        ),
+        (
+            vec!["render", s(&scene), "--frame", "4", "-o", s(&single)],
+            "frames 0..4",
+        ),
+        (
+            vec!["render", s(&still), "--frame", "0", "-o", s(&single)],
+            "no [animation]",
+        ),
+    ];
+    for (args, why) in cases {
+        let run = vkrt(&args);
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(!run.status.success(), "{args:?} succeeded");
+        assert!(err.contains(why), "{args:?}: {err}");
+        let left = if out.exists() {
+            files_in(&out)
+        } else {
+            Vec::new()
+        };
+        assert!(left.is_empty(), "{args:?} left {left:?}");
+        assert!(!dir.join("x.png").exists(), "{args:?} left an image");
+    }
+    // Bad animation in the scene file: its own clear errors (see tests/scene_animation.rs).
+    for (bad, why) in [("fps = 8", "fps = -8"), ("frames = 4", "frames = 0")] {
+        let text = SCENE.replace(bad, why);
+        let f = dir.join("bad.toml");
+        std::fs::write(&f, text).unwrap();
+        let run = vkrt(&["animate", s(&f), "-o", p]);
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(!run.status.success(), "{why} succeeded");
+        assert!(
+            err.contains("bad.toml:") && err.contains("animation"),
+            "{why}: {err}"
+        );
+        assert!(!out.exists() || files_in(&out).is_empty());
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
