@@ -113,9 +113,12 @@ fn frames_equal_single_renders_and_the_preview_animates() {
             "--preview",
             s(&preview),
             "--json",
+            "--validate",
         ]) else {
             return;
         };
+        let err = String::from_utf8_lossy(&run.stderr);
+        assert!(!err.contains("validation"), "{err}");
         let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
         let frames = v["frames"].as_array().unwrap();
         assert_eq!(frames.len(), 4, "{v}");
