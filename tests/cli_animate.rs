@@ -265,3 +265,81 @@ fn bad_animation_input_is_a_clear_error_and_leaves_no_frame() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `vkrt bench animate`: every structure and update mode in one run, a report and a plot.
+#[test]
+fn bench_animate_reports_every_structure_and_update_mode() {
+    let dir = scratch("bench");
+    let scene = scene_file(&dir);
+    let out = dir.join("report");
+    let args = [
+        "bench",
+        "animate",
+        s(&scene),
+        "--frames",
+        "2",
+        "--step",
+        "2",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "-o",
+        s(&out),
+        "--json",
+    ];
+    let Some(run) = vkrt_ok(&args) else { return };
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let runs = v["runs"].as_array().unwrap();
+    let has = |accel: &str, update: &str| {
+        runs.iter()
+            .any(|r| r["accel"].as_str().unwrap().starts_with(accel) && r["update"] == update)
+    };
+    for kind in ["kdtree", "sah-bvh", "lbvh", "ploc"] {
+        assert!(has(kind, "rebuild"), "{kind}: {v}");
+    }
+    for kind in ["sah-bvh", "lbvh", "ploc"] {
+        assert!(has(kind, "refit"), "{kind}: {v}");
+    }
+    for r in runs {
+        let frames = r["frames"].as_array().unwrap();
+        assert_eq!(frames.len(), 2, "{r}");
+        // Frame 1 is frame 2 of the animation (--step 2).
+        assert!(
+            (frames[1]["time"].as_f64().unwrap() - 2.0 / 8.0).abs() < 1e-6,
+            "{r}"
+        );
+        for f in frames {
+            assert!(f["render_ms"].as_f64().unwrap() > 0.0, "{r}");
+        }
+        if r["update"] == "refit" && !r["accel"].as_str().unwrap().starts_with("driver") {
+            let f = &frames[1];
+            let (now, fresh) = (
+                f["sah_cost"].as_f64().unwrap(),
+                f["rebuilt_sah_cost"].as_f64().unwrap(),
+            );
+            assert!(now.is_finite() && fresh.is_finite() && fresh > 0.0, "{r}");
+        }
+    }
+    let svg = std::fs::read_to_string(out.join("frames.svg")).unwrap();
+    assert!(
+        svg.starts_with("<svg") && svg.contains("render ms per frame"),
+        "{svg:.200}"
+    );
+    let report: serde_json::Value =
+        serde_json::from_slice(&std::fs::read(out.join("report.json")).unwrap()).unwrap();
+    assert_eq!(report["runs"].as_array().unwrap().len(), runs.len());
+    let bad = vkrt(&[
+        "bench",
+        "animate",
+        s(&scene),
+        "--frames",
+        "3",
+        "--step",
+        "2",
+        "-o",
+        s(&out),
+    ]);
+    assert!(String::from_utf8_lossy(&bad.stderr).contains("frames 0..4"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
