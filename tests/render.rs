@@ -23,6 +23,21 @@ fn scene_file(name: &str) -> Scene {
     Scene::load(&path).unwrap().scene
 }
 
+/// Every effect's example scene and the samples per pixel its tests render.
+const EFFECT_SCENES: [(&str, u32); 11] = [
+    ("hard_shadows.toml", 1),
+    ("soft_shadows.toml", 4),
+    ("reflection.toml", 1),
+    ("refraction.toml", 1),
+    ("glossy.toml", 4),
+    ("antialiasing.toml", 4),
+    ("depth_of_field.toml", 4),
+    ("motion_blur.toml", 4),
+    ("ambient_occlusion.toml", 2),
+    ("emission.toml", 2),
+    ("mesh_file.toml", 1),
+];
+
 fn small(spp: u32) -> RenderOptions {
     RenderOptions {
         width: Some(64),
@@ -59,19 +74,7 @@ fn gpu_render(ctx: &Context, plan: &Plan, rs: &RenderScene) -> GpuRender {
 #[test]
 fn every_effect_matches_the_cpu_twin() {
     let Some(ctx) = context() else { return };
-    for (file, spp) in [
-        ("hard_shadows.toml", 1),
-        ("soft_shadows.toml", 4),
-        ("reflection.toml", 1),
-        ("refraction.toml", 1),
-        ("glossy.toml", 4),
-        ("antialiasing.toml", 4),
-        ("depth_of_field.toml", 4),
-        ("motion_blur.toml", 4),
-        ("ambient_occlusion.toml", 2),
-        ("emission.toml", 2),
-        ("mesh_file.toml", 1),
-    ] {
+    for (file, spp) in EFFECT_SCENES {
         let scene = scene_file(file);
         let (plan, rs) = prepare(&scene, &small(spp));
         let gpu = gpu_render(&ctx, &plan, &rs);
@@ -383,19 +386,7 @@ fn the_driver_renders_the_kdtree_image_within_tolerance() {
         eprintln!("skipped: {} has no ray query", ctx.info().driver);
         return;
     }
-    for (file, spp) in [
-        ("hard_shadows.toml", 1),
-        ("soft_shadows.toml", 4),
-        ("reflection.toml", 1),
-        ("refraction.toml", 1),
-        ("glossy.toml", 4),
-        ("antialiasing.toml", 4),
-        ("depth_of_field.toml", 4),
-        ("motion_blur.toml", 4),
-        ("ambient_occlusion.toml", 2),
-        ("emission.toml", 2),
-        ("mesh_file.toml", 1),
-    ] {
+    for (file, spp) in EFFECT_SCENES {
         let scene = scene_file(file);
         let (plan, rs) = prepare(&scene, &small(spp));
         let kd = gpu_render(&ctx, &plan, &rs);
