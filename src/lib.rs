@@ -14,6 +14,7 @@
 pub mod gpu;
 
 pub mod accel;
+pub mod accuracy;
 pub mod bench;
 pub mod prims;
 pub mod render;

@@ -1,0 +1,193 @@
+//! `vkrt bench accuracy` (issue 18): what accuracy costs in time, every knob measured in one
+//! run on one device against a reference, grouped, with each group's Pareto front and a
+//! recommendation per use derived from the numbers.
+//!
+//! - [`knobs`]: the groups of settings (structures and their builders' parameters, kd-tree
+//!   termination, BVH leaf size, traversal, intersector, samples per pixel, ray depth, refit
+//!   vs rebuild after motion);
+//! - [`measure`]: the costs and accuracies of each setting (build and trace ms on the
+//!   bunny's primary, shadow and mirror rays, SAH cost, bytes, failures on the robustness
+//!   suite's hard cases, image error against a converged reference);
+//! - [`pareto`]: the fronts and the recommendations;
+//! - [`report`]: `index.html` (inline SVG plots), `report.json` and the compared images.
+//!
+//! Every group has one time axis and one error axis (`KnobGroup::time_axis`,
+//! `KnobGroup::error_axis`); a point is on the front when no other point of its group is at
+//! most as slow and at most as wrong, and strictly better in one.
+
+pub mod knobs;
+pub mod measure;
+pub mod pareto;
+pub mod report;
+
+use serde::Serialize;
+
+/// Everything one run measured.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct AccuracyReport {
+    /// The device and its driver (name, version) as Vulkan reports them.
+    pub device: String,
+    pub driver: String,
+    /// The command line that produced the report.
+    pub command: String,
+    pub quick: bool,
+    /// Wall seconds of the whole run.
+    pub wall_s: f64,
+    /// The mesh whose rays time the structures, and how many rays of each kind.
+    pub mesh: String,
+    pub rays: RayCountsInfo,
+    /// The robustness suite's sizes used for the hard cases (human-readable).
+    pub hard_cases: String,
+    /// The scenes images were compared on, with their references.
+    pub image_scenes: Vec<ImageScene>,
+    pub groups: Vec<KnobGroup>,
+    pub recommendations: Vec<Recommendation>,
+}
+
+/// How many rays of each kind time a structure.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct RayCountsInfo {
+    pub primary: usize,
+    pub shadow: usize,
+    pub secondary: usize,
+}
+
+/// A scene images are compared on.
+#[derive(Clone, Debug, Serialize)]
+pub struct ImageScene {
+    pub name: String,
+    pub width: u32,
+    pub height: u32,
+    /// The reference: this many samples per pixel, ray depth, on the watertight kd-tree.
+    pub reference_spp: u32,
+    pub reference_depth: u32,
+    /// The reference image's file in the report folder.
+    pub reference_file: String,
+}
+
+/// One group of knobs: its settings measured, on one time axis and one error axis.
+#[derive(Clone, Debug, Serialize)]
+pub struct KnobGroup {
+    /// Short id (`structure`, `kd-termination`, `bvh-leaf`, `traversal`, `intersector`,
+    /// `spp`, `depth`, `refit`).
+    pub id: String,
+    pub title: String,
+    /// What `Point::time_ms` is, and what `Point::error` is.
+    pub time_axis: String,
+    pub error_axis: String,
+    /// The error a preview tolerates on this group's axis (see [`pareto`]).
+    pub preview_error_max: f64,
+    /// Which uses the group's knobs matter for (names of [`pareto::USES`]).
+    pub uses: Vec<String>,
+    pub points: Vec<Point>,
+    /// Indices into `points` on the Pareto front, fastest first.
+    pub front: Vec<usize>,
+}
+
+/// One setting of a group, measured.
+#[derive(Clone, Debug, Serialize)]
+pub struct Point {
+    pub setting: String,
+    /// The group's time axis, milliseconds.
+    pub time_ms: f64,
+    /// The group's error axis.
+    pub error: f64,
+    pub costs: Costs,
+    pub accuracy: Accuracy,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub note: Option<String>,
+}
+
+/// What a setting costs.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Costs {
+    /// Build of the structure: GPU passes, or the host builder's wall time.
+    pub build_ms: Option<f64>,
+    /// Refit or rebuild per animation frame (the refit group).
+    pub update_ms: Option<f64>,
+    /// GPU trace kernel time of the bunny's rays, per kind.
+    pub trace_ms: Option<TraceMs>,
+    /// GPU time of the images' renders, summed over the image scenes.
+    pub render_ms: Option<f64>,
+    /// The structure's SAH cost (C_trav 1, C_isect 1.5, relative to the root box's area).
+    pub sah_cost: Option<f64>,
+    /// Device bytes of the structure.
+    pub bytes: Option<u64>,
+}
+
+/// GPU trace ms of one ray set each.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct TraceMs {
+    pub primary: f64,
+    pub shadow: f64,
+    pub secondary: f64,
+}
+
+impl TraceMs {
+    pub fn total(&self) -> f64 {
+        self.primary + self.shadow + self.secondary
+    }
+}
+
+/// How wrong a setting is.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Accuracy {
+    /// The robustness suite's hard cases.
+    pub hard_cases: Option<HardCases>,
+    /// Rays of the bunny whose answer differs from the reference setting's (hit or miss,
+    /// primitive, `t` beyond 1e-5 relative).
+    pub hit_differences: Option<u64>,
+    /// Image error per compared scene.
+    pub images: Vec<ImageError>,
+    /// SAH cost over a fresh rebuild's (the refit group).
+    pub sah_ratio: Option<f64>,
+}
+
+/// Failures on the hard cases, by kind.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct HardCases {
+    pub rays: u64,
+    /// Rays that should hit and missed (watertightness).
+    pub misses: u64,
+    /// Re-hits of the spawning primitive (self-intersection).
+    pub self_hits: u64,
+    /// Answers that differ from brute force, wrong winners, hits of rays that must miss.
+    pub wrong_hits: u64,
+    /// Rays out of traversal steps, invalid structures, failed builds.
+    pub errors: u64,
+}
+
+impl HardCases {
+    pub fn failures(&self) -> u64 {
+        self.misses + self.self_hits + self.wrong_hits + self.errors
+    }
+}
+
+/// One image against its reference, on display values (tone-mapped sRGB in [0, 1]).
+#[derive(Clone, Debug, Serialize)]
+pub struct ImageError {
+    pub scene: String,
+    pub rmse: f64,
+    /// The largest channel difference of any pixel.
+    pub worst: f64,
+    /// The image's file in the report folder.
+    pub file: String,
+}
+
+/// The setting a use should pick in a group, and the numbers that say why.
+#[derive(Clone, Debug, Serialize)]
+pub struct Recommendation {
+    /// One of [`pareto::USES`].
+    pub use_case: String,
+    pub group: String,
+    pub setting: String,
+    pub why: String,
+}
+
+/// An image the report writes: `file` in the report folder, 8-bit sRGB RGBA.
+pub struct ImageFile {
+    pub file: String,
+    pub width: u32,
+    pub height: u32,
+    pub rgba: Vec<u8>,
+}
