@@ -285,6 +285,29 @@ enum BenchCommand {
     /// triangles; primary, shadow and mirror rays; build ms, trace ms, Mrays/s, hits (any
     /// difference reported) and the ratio to the driver's ray query.
     Trace(BenchTraceArgs),
+    /// What accuracy costs in time: every knob (structure and builder parameters, kd-tree
+    /// termination, BVH leaf size, traversal, ray/triangle test, samples per pixel, ray depth,
+    /// refit vs rebuild) measured in one run against a reference — build and trace ms, SAH
+    /// cost, bytes, failures on the robustness suite's hard cases, image RMSE — with each
+    /// group's Pareto front and a recommendation per use. Writes OUT/index.html (inline SVG
+    /// plots), OUT/report.json and the compared images.
+    Accuracy {
+        /// Smaller everything (~3 minutes on 2 cores of lavapipe; the CI's check).
+        #[arg(long)]
+        quick: bool,
+        /// Print the report as JSON too.
+        #[arg(long)]
+        json: bool,
+        #[arg(short, long, default_value = "accuracy-report")]
+        out: PathBuf,
+        /// Mesh whose rays time the structures (default: ../shared/scenes/stanford-bunny.obj
+        /// when present, else an icosphere of as many triangles).
+        #[arg(long)]
+        mesh: Option<PathBuf>,
+        /// Folder of the effect scenes.
+        #[arg(long, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes"))]
+        scenes: PathBuf,
+    },
     /// An animated scene's frames on every structure and update mode in one run (kd-tree,
     /// SAH BVH, LBVH and PLOC rebuilt; the BVHs refit; the driver's both ways where the device
     /// has it): build or refit ms, render ms, frames/s per frame; the refit trees' SAH cost
@@ -979,6 +1002,36 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
         Command::Bench {
             what: BenchCommand::Trace(args),
         } => bench_trace_command(cli.validate, &args)?,
+        Command::Bench {
+            what:
+                BenchCommand::Accuracy {
+                    quick,
+                    json,
+                    out,
+                    mesh,
+                    scenes,
+                },
+        } => {
+            use vkrt::accuracy::{measure, report};
+            report::check_target(&out)?;
+            let opt = measure::AccuracyOptions {
+                quick,
+                mesh,
+                motion_scene: scenes.join("seed001_demo.toml"),
+                scenes_dir: scenes,
+                command: std::env::args().collect::<Vec<_>>().join(" "),
+            };
+            let ctx = context(cli.validate)?;
+            let (r, images) =
+                measure::run(&ctx, &opt, |line| eprintln!("{line}")).map_err(|e| e.to_string())?;
+            report::write(&out, &r, &images)?;
+            if json {
+                println!("{}", serde_json::to_string_pretty(&r)?);
+            } else {
+                print!("{r}");
+                println!("report: {}", out.join("index.html").display());
+            }
+        }
         Command::Animate {
             scene,
             output,

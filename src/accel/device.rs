@@ -352,6 +352,15 @@ impl AccelStructure {
         self.kind
     }
 
+    /// Bytes of the driver's structure (all its levels), once its build is recorded; `None`
+    /// for vkrt's structures (their size is that of the downloaded tree).
+    pub fn driver_bytes(&self) -> Option<u64> {
+        match &self.storage {
+            Storage::Driver { accel, .. } => accel.as_ref().map(|a| a.structure_bytes()),
+            _ => None,
+        }
+    }
+
     /// The `nodes` and `prim_refs` bindings of `traverse.glsl`.
     pub fn node_bindings(&self) -> [&dyn BufferArg; 2] {
         match &self.storage {

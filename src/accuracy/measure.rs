@@ -1,1 +1,732 @@
-//! See the module docs of `crate::accuracy`.
+//! Measuring every setting of [`super::knobs`], in one run on one device.
+//!
+//! - **Structure settings** (structures, builders' parameters, kd-tree termination, BVH leaf
+//!   size, traversal, intersector): the structure is built over the bunny (best of
+//!   `reps`), then the bunny's primary rays (closest hit), shadow rays from their hits (any
+//!   hit) and mirror rays (closest hit) are traced through it — the rays of `vkrt bench
+//!   trace`, the same for every setting. Costs: build ms, trace ms per ray kind, SAH cost,
+//!   bytes. Accuracy: the robustness suite's hard cases run with the setting's builder and
+//!   trace options (misses, self-hits, wrong hits, errors), and the bunny's rays whose
+//!   answer differs from the reference setting's. Time axis: build + the three traces;
+//!   error axis: hard-case failures + differing rays (both are wrong answers).
+//! - **Image settings** (samples per pixel, ray depth): the default scene and every effect
+//!   scene rendered with the setting on the watertight kd-tree. Time axis: the renders' GPU
+//!   ms, summed; error axis: the mean RMSE against the reference.
+//! - **Motion settings** (refit vs rebuild): seed 001's demo animated (`vkrt bench animate`'s
+//!   loop). Time axis: mean update + render ms per frame after the first; error axis: the
+//!   last frame's SAH cost over a fresh build's, minus 1.
+//!
+//! The reference of every image is the same scene at `reference_spp` samples and depth
+//! `reference_depth` on the watertight kd-tree with its fp64 fallback; images are compared
+//! on display values (the 8-bit sRGB the renderer writes, as [0, 1]), so the error is what a
+//! viewer sees and emission scenes do not dominate the mean. The reference's own noise is
+//! part of every error (a setting at a quarter of its samples reads ~12 % high).
+
+use std::path::{Path, PathBuf};
+use std::sync::Arc;
+use std::time::Instant;
+
+use super::knobs::{self, Build, GroupSpec, ImageSetting, MotionSetting, Settings, Sizes};
+use super::knobs::StructureSetting;
+use super::{
+    pareto, Accuracy, AccuracyReport, Costs, HardCases, ImageError, ImageFile, ImageScene,
+    KnobGroup, Point, RayCountsInfo, TraceMs,
+};
+use crate::accel::bvh::{self, BvhParams};
+use crate::accel::device::{AccelChoice, AccelKind, HostStructure};
+use crate::accel::kdtree::{full_clip, stats};
+use crate::gpu::{Context, GpuError};
+use crate::render::animate::{self, AnimateOptions};
+use crate::render::{render_scene, RenderOptions};
+use crate::scene::Scene;
+use crate::trace::bench::{self as trace_bench, BenchScene, RayKind, RaySet};
+use crate::trace::gpu::{GpuGeometry, Tracer};
+use crate::trace::robust::{self, SuiteConfig, SuiteSize};
+use crate::trace::{Hit, Query, TraceOptions};
+
+type BoxError = Box<dyn std::error::Error + Send + Sync>;
+
+/// What to run.
+#[derive(Clone, Debug)]
+pub struct AccuracyOptions {
+    pub quick: bool,
+    /// The mesh whose rays time the structures (default: the bunny in `../shared`, else an
+    /// icosphere of as many triangles).
+    pub mesh: Option<PathBuf>,
+    /// The folder of the effect scenes (`scenes/`).
+    pub scenes_dir: PathBuf,
+    /// The animated scene of the motion group (`scenes/seed001_demo.toml`).
+    pub motion_scene: PathBuf,
+    /// The command line, for the report.
+    pub command: String,
+}
+
+/// Triangles of the stand-in mesh when the bunny is absent (the bunny's count).
+const STAND_IN_TRIANGLES: u64 = 69_451;
+
+/// Runs every group; returns the report (fronts and recommendations filled) and the images
+/// it compared. `progress(line)` after each setting.
+pub fn run(
+    ctx: &Context,
+    opt: &AccuracyOptions,
+    mut progress: impl FnMut(&str),
+) -> Result<(AccuracyReport, Vec<ImageFile>), BoxError> {
+    let start = Instant::now();
+    let sizes = Sizes::new(opt.quick);
+    let mut images = Vec::new();
+
+    let rays = RayBench::new(ctx, opt, &sizes)?;
+    progress(&format!(
+        "rays: {} on {} ({} primary, {} shadow, {} mirror)",
+        rays.name,
+        rays.scene.geometry.triangle_count(),
+        rays.sets[0].rays.len(),
+        rays.sets[1].rays.len(),
+        rays.sets[2].rays.len()
+    ));
+    let scenes = image_scenes(ctx, opt, &sizes, &mut images, &mut progress)?;
+    let suite = if opt.quick {
+        SuiteSize::tiny()
+    } else {
+        SuiteSize {
+            big_soup: 0,
+            ..SuiteSize::test()
+        }
+    };
+
+    let mut groups = Vec::new();
+    for spec in knobs::groups(ctx, opt.quick) {
+        let GroupSpec {
+            id,
+            title,
+            settings,
+        } = spec;
+        let (points, axes) = match &settings {
+            Settings::Structures(list) => {
+                let mut points = Vec::new();
+                for s in list {
+                    let p = measure_structure(ctx, &rays, &scenes, &sizes, &suite, s, id, &mut images)?;
+                    progress(&format!("{id}: {} — {:.1} ms, error {}", s.label, p.time_ms, p.error));
+                    points.push(p);
+                }
+                let axes = Axes::structure(&points);
+                (points, axes)
+            }
+            Settings::Images(list) => {
+                let mut points = Vec::new();
+                for s in list {
+                    let p = measure_image(ctx, &scenes, &sizes, s, id, &mut images)?;
+                    progress(&format!("{id}: {} — {:.1} ms, RMSE {:.4}", s.label, p.time_ms, p.error));
+                    points.push(p);
+                }
+                (points, Axes::image())
+            }
+            Settings::Motion(list) => {
+                let scene = Scene::load(&opt.motion_scene)?.scene;
+                let mut points = Vec::new();
+                for s in list {
+                    let p = measure_motion(ctx, &scene, &sizes, s)?;
+                    progress(&format!("{id}: {} — {:.1} ms/frame, SAH +{:.3}", s.label, p.time_ms, p.error));
+                    points.push(p);
+                }
+                (points, Axes::motion(&sizes))
+            }
+        };
+        groups.push(KnobGroup {
+            id: id.to_string(),
+            title: title.to_string(),
+            time_axis: axes.time.into(),
+            error_axis: axes.error.into(),
+            preview_error_max: axes.preview_error_max,
+            uses: axes.uses.iter().map(|u| u.to_string()).collect(),
+            points,
+            front: Vec::new(),
+        });
+    }
+    pareto::fill_fronts(&mut groups);
+    let recommendations = pareto::recommend(&groups);
+    let info = ctx.info();
+    let report = AccuracyReport {
+        device: info.device.clone(),
+        driver: info.driver.clone(),
+        command: opt.command.clone(),
+        quick: opt.quick,
+        wall_s: start.elapsed().as_secs_f64(),
+        mesh: format!("{} ({} triangles)", rays.name, rays.scene.geometry.triangle_count()),
+        rays: RayCountsInfo {
+            primary: rays.sets[0].rays.len(),
+            shadow: rays.sets[1].rays.len(),
+            secondary: rays.sets[2].rays.len(),
+        },
+        hard_cases: format!(
+            "icospheres of {} subdivisions, {}² grids, {} rays per watertightness case, {} \
+             self-intersection primitives × {} spawned rays, {} brute-force-checked rays per \
+             case, {} builder-stress triangles",
+            suite.sphere_subdivisions,
+            suite.grid,
+            suite.watertight_rays,
+            suite.self_prims,
+            suite.spawn_per_hit,
+            suite.checked_rays,
+            suite.builder_prims
+        ),
+        image_scenes: scenes.iter().map(|s| s.info.clone()).collect(),
+        groups,
+        recommendations,
+    };
+    Ok((report, images))
+}
+
+/// A group's axes and the uses its knobs matter for.
+struct Axes {
+    time: &'static str,
+    error: &'static str,
+    preview_error_max: f64,
+    uses: &'static [&'static str],
+}
+
+impl Axes {
+    /// A preview tolerates one wrong answer in a thousand hard-case rays.
+    fn structure(points: &[Point]) -> Self {
+        let rays = points
+            .iter()
+            .filter_map(|p| p.accuracy.hard_cases.map(|h| h.rays))
+            .max()
+            .unwrap_or(0);
+        Self {
+            time: "build + trace of the bunny's primary, shadow and mirror rays (ms)",
+            error: "wrong answers: hard-case failures + bunny rays differing from the reference",
+            preview_error_max: rays as f64 * 1e-3,
+            uses: &pareto::USES,
+        }
+    }
+
+    /// A preview tolerates an RMSE of 0.05 (13 of 255 levels).
+    fn image() -> Self {
+        Self {
+            time: "render GPU ms, all image scenes",
+            error: "mean RMSE against the reference (display values, 0..1)",
+            preview_error_max: 0.05,
+            uses: &pareto::USES[..2],
+        }
+    }
+
+    /// A preview tolerates a tree 25 % worse than a fresh build.
+    fn motion(_sizes: &Sizes) -> Self {
+        Self {
+            time: "update + render GPU ms per frame (seed 001's demo)",
+            error: "SAH cost over a fresh build's, minus 1 (last frame)",
+            preview_error_max: 0.25,
+            uses: &pareto::USES[..2],
+        }
+    }
+}
+
+/// The bunny's rays and the reference setting's answers.
+struct RayBench {
+    name: String,
+    scene: BenchScene,
+    triangles: Vec<[glam::Vec3; 3]>,
+    /// Primary, shadow, mirror.
+    sets: Vec<RaySet>,
+    reference: Vec<Vec<Hit>>,
+}
+
+impl RayBench {
+    fn new(ctx: &Context, opt: &AccuracyOptions, sizes: &Sizes) -> Result<Self, BoxError> {
+        let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
+        let path = opt.mesh.clone().or_else(|| bunny.exists().then_some(bunny));
+        let (name, triangles) = match path {
+            Some(path) => {
+                let scene = Scene::load(&path)?.scene;
+                let name = path
+                    .file_stem()
+                    .map_or("mesh".into(), |s| s.to_string_lossy().into_owned());
+                (name, scene.triangles_world(scene.camera.shutter_open))
+            }
+            None => {
+                let m = crate::scene::gen::icosphere_with_at_least(STAND_IN_TRIANGLES)?;
+                let tris = m
+                    .indices
+                    .iter()
+                    .map(|t| t.map(|i| m.positions[i as usize]))
+                    .collect();
+                ("icosphere (the bunny is absent)".to_string(), tris)
+            }
+        };
+        let scene = BenchScene::from_triangles(name.clone(), &triangles);
+        let primary = RaySet {
+            kind: RayKind::Primary,
+            rays: scene.primary_rays(sizes.ray_image),
+        };
+        // The reference: the kd-tree with the watertight test and its fp64 fallback.
+        let reference = Build::default_for(AccelChoice::default());
+        let builder = reference.builder(ctx)?.expect("a device builder");
+        let (geom, _) = trace_bench::build(ctx, &builder, &scene.geometry)?;
+        let trace = |set: &RaySet| -> Result<Vec<Hit>, GpuError> {
+            let o = TraceOptions {
+                query: set.kind.query(),
+                ..TraceOptions::default()
+            };
+            Ok(Tracer::for_accel(ctx, &o, AccelChoice::default().traversal())?
+                .trace_batched(ctx, &geom, &set.rays, 0.0, None)?
+                .hits)
+        };
+        let primary_hits = trace(&primary)?;
+        let (shadow, mirror) = scene.secondary_rays(&primary.rays, &primary_hits);
+        let reference = vec![primary_hits, trace(&shadow)?, trace(&mirror)?];
+        Ok(Self {
+            name,
+            scene,
+            triangles,
+            sets: vec![primary, shadow, mirror],
+            reference,
+        })
+    }
+}
+
+/// A scene images are compared on, its reference rendered.
+struct Compared {
+    info: ImageScene,
+    scene: Scene,
+    /// Display values of the reference, RGB in [0, 1].
+    reference: Vec<[f32; 3]>,
+}
+
+/// The default scene and the effect scenes (every static `*.toml` in `scenes_dir`), with
+/// their references rendered.
+fn image_scenes(
+    ctx: &Context,
+    opt: &AccuracyOptions,
+    sizes: &Sizes,
+    images: &mut Vec<ImageFile>,
+    progress: &mut impl FnMut(&str),
+) -> Result<Vec<Compared>, BoxError> {
+    let mut list = vec![("default".to_string(), Scene::default_scene())];
+    let mut paths: Vec<PathBuf> = std::fs::read_dir(&opt.scenes_dir)
+        .map_err(|e| format!("{}: {e}", opt.scenes_dir.display()))?
+        .filter_map(|e| Some(e.ok()?.path()))
+        .filter(|p| p.extension().is_some_and(|x| x == "toml"))
+        .collect();
+    paths.sort();
+    for p in paths {
+        let scene = Scene::load(&p)?.scene;
+        if scene.frame_count() > 1 {
+            continue; // animated: the motion group's
+        }
+        let name = p
+            .file_stem()
+            .map_or("scene".into(), |s| s.to_string_lossy().into_owned());
+        list.push((name, scene));
+    }
+    let mut out = Vec::new();
+    for (name, mut scene) in list {
+        scene.settings.max_depth = sizes.reference_depth;
+        let r = render(ctx, &scene, sizes, sizes.reference_spp, AccelChoice::default(), &TraceOptions::default())?;
+        let file = format!("images/{name}/reference.png");
+        progress(&format!("reference {name}: {} spp, {:.0} ms", r.spp, r.ms));
+        images.push(ImageFile {
+            file: file.clone(),
+            width: sizes.width,
+            height: sizes.height,
+            rgba: r.rgba.clone(),
+        });
+        out.push(Compared {
+            info: ImageScene {
+                name,
+                width: sizes.width,
+                height: sizes.height,
+                reference_spp: r.spp,
+                reference_depth: sizes.reference_depth,
+                reference_file: file,
+            },
+            scene,
+            reference: display(&r.rgba),
+        });
+    }
+    Ok(out)
+}
+
+/// One render's image and GPU time.
+struct Render {
+    rgba: Vec<u8>,
+    ms: f64,
+    /// The samples the plan used (a scene without sampled effects needs one).
+    spp: u32,
+}
+
+fn render(
+    ctx: &Context,
+    scene: &Scene,
+    sizes: &Sizes,
+    spp: u32,
+    accel: AccelChoice,
+    trace: &TraceOptions,
+) -> Result<Render, BoxError> {
+    let opt = RenderOptions {
+        width: Some(sizes.width),
+        height: Some(sizes.height),
+        spp: Some(spp),
+        all_effects: false,
+        accel,
+    };
+    let r = render_scene(ctx, scene, &opt, trace, |_, _| {})?;
+    Ok(Render {
+        spp: r.plan.spp,
+        ms: r.render_ms,
+        rgba: r.image.rgba,
+    })
+}
+
+/// RGB display values in [0, 1] of 8-bit RGBA.
+fn display(rgba: &[u8]) -> Vec<[f32; 3]> {
+    rgba.chunks_exact(4)
+        .map(|p| [0, 1, 2].map(|c| f32::from(p[c]) / 255.0))
+        .collect()
+}
+
+/// RMSE over every channel and the largest channel difference.
+fn image_error(a: &[[f32; 3]], b: &[[f32; 3]]) -> (f64, f64) {
+    let (mut sum, mut worst) = (0.0f64, 0.0f64);
+    for (p, q) in a.iter().zip(b) {
+        for c in 0..3 {
+            let d = f64::from(p[c] - q[c]).abs();
+            sum += d * d;
+            worst = worst.max(d);
+        }
+    }
+    let n = (a.len() * 3).max(1) as f64;
+    ((sum / n).sqrt(), worst)
+}
+
+/// A file-name-safe form of a label.
+fn slug(s: &str) -> String {
+    let mut out = String::new();
+    for c in s.chars() {
+        match c {
+            'a'..='z' | 'A'..='Z' | '0'..='9' => out.push(c.to_ascii_lowercase()),
+            _ if !out.ends_with('-') && !out.is_empty() => out.push('-'),
+            _ => {}
+        }
+    }
+    out.trim_end_matches('-').to_string()
+}
+
+/// Renders every image scene with `accel` and `trace` at `spp` and `depth`; the errors and
+/// the summed GPU ms.
+#[allow(clippy::too_many_arguments)]
+fn render_all(
+    ctx: &Context,
+    scenes: &[Compared],
+    sizes: &Sizes,
+    (spp, depth): (u32, u32),
+    accel: AccelChoice,
+    trace: &TraceOptions,
+    file_stem: &str,
+    images: &mut Vec<ImageFile>,
+) -> Result<(Vec<ImageError>, f64), BoxError> {
+    let (mut errors, mut ms) = (Vec::new(), 0.0);
+    for s in scenes {
+        let mut scene = s.scene.clone();
+        scene.settings.max_depth = depth;
+        let r = render(ctx, &scene, sizes, spp, accel, trace)?;
+        let (rmse, worst) = image_error(&display(&r.rgba), &s.reference);
+        let file = format!("images/{}/{file_stem}.png", s.info.name);
+        images.push(ImageFile {
+            file: file.clone(),
+            width: sizes.width,
+            height: sizes.height,
+            rgba: r.rgba,
+        });
+        ms += r.ms;
+        errors.push(ImageError {
+            scene: s.info.name.clone(),
+            rmse,
+            worst,
+            file,
+        });
+    }
+    Ok((errors, ms))
+}
+
+/// Whether two answers to the same ray differ: hit or miss, and for closest-hit queries the
+/// primitive or `t` beyond 1e-5 relative.
+fn differs(a: &Hit, b: &Hit, query: Query) -> bool {
+    if a.is_hit() != b.is_hit() {
+        return true;
+    }
+    query == Query::Closest
+        && a.is_hit()
+        && (a.prim != b.prim || (a.t - b.t).abs() > 1e-5 * a.t.abs().max(b.t.abs()))
+}
+
+/// The failures of the hard cases, by kind.
+fn hard_cases(cases: &[robust::CaseResult]) -> HardCases {
+    let mut h = HardCases::default();
+    for c in cases {
+        h.rays += c.rays;
+        h.errors += c.errors;
+        let wrong = c.failures - c.errors.min(c.failures);
+        match c.failure_kind {
+            "misses" => h.misses += wrong,
+            "re-hits" => h.self_hits += wrong,
+            "errors" => h.errors += wrong,
+            _ => h.wrong_hits += wrong,
+        }
+    }
+    h
+}
+
+#[allow(clippy::too_many_arguments)]
+fn measure_structure(
+    ctx: &Context,
+    rays: &RayBench,
+    scenes: &[Compared],
+    sizes: &Sizes,
+    suite: &SuiteSize,
+    s: &StructureSetting,
+    group: &str,
+    images: &mut Vec<ImageFile>,
+) -> Result<Point, BoxError> {
+    let g = &rays.scene.geometry;
+    let choice = s.build.choice();
+    let mut notes = Vec::new();
+    // Build, best of `reps`; the last one is traced.
+    let mut build_ms = f64::MAX;
+    let mut built = None;
+    let mut host = None;
+    for _ in 0..sizes.reps.max(1) {
+        drop(built.take());
+        let (geom, ms) = match s.build {
+            Build::KdFullClip(params) => {
+                let t = Instant::now();
+                let tree = full_clip::build(&rays.triangles, &params);
+                let ms = t.elapsed().as_secs_f64() * 1e3;
+                let geom = GpuGeometry::upload(ctx, g, &tree)?;
+                host = Some(HostStructure::KdTree(tree));
+                (geom, ms)
+            }
+            Build::Builder { .. } => {
+                let builder = s.build.builder(ctx)?.expect("a device builder");
+                trace_bench::build(ctx, &builder, g)?
+            }
+        };
+        build_ms = build_ms.min(ms);
+        built = Some(geom);
+    }
+    let geom = built.expect("at least one build");
+    // Trace each set, best of `reps`.
+    let mut trace_ms = [0.0f64; 3];
+    let mut differing = 0u64;
+    let mut exhausted = 0u64;
+    for (k, set) in rays.sets.iter().enumerate() {
+        let o = TraceOptions {
+            query: set.kind.query(),
+            ..s.trace
+        };
+        let tracer = Tracer::for_accel(ctx, &o, choice.traversal())?;
+        let mut best = f64::MAX;
+        let mut hits = Vec::new();
+        for _ in 0..sizes.reps.max(1) {
+            let b = tracer.trace_batched(ctx, &geom, &set.rays, 0.0, None)?;
+            best = best.min(b.profile.ms("trace").unwrap_or(0.0));
+            exhausted = u64::from(b.exhausted);
+            hits = b.hits;
+        }
+        trace_ms[k] = best;
+        differing += hits
+            .iter()
+            .zip(&rays.reference[k])
+            .filter(|(a, b)| differs(a, b, o.query))
+            .count() as u64;
+    }
+    if exhausted > 0 {
+        notes.push(format!("{exhausted} bunny rays ran out of traversal steps"));
+    }
+    // Quality and size of the structure.
+    let (sah_cost, bytes) = if choice.kind == AccelKind::Driver {
+        notes.push("the driver's structure is opaque: no SAH cost".into());
+        (None, geom.accel.driver_bytes())
+    } else {
+        let host = match host {
+            Some(h) => h,
+            None => geom.accel.download()?,
+        };
+        match host {
+            HostStructure::KdTree(t) => (
+                Some(stats::stats(&t, &s.build.kd_params()).sah_cost),
+                Some((t.nodes.len() * std::mem::size_of_val(&t.nodes[0]) + t.prim_refs.len() * 4) as u64),
+            ),
+            HostStructure::Bvh(b) => (
+                Some(bvh::validate::sah_cost(&b, &BvhParams::default())),
+                Some(
+                    (b.nodes.len() * std::mem::size_of::<bvh::BvhNode>()
+                        + (b.refs.len() + b.parents.len()) * 4) as u64,
+                ),
+            ),
+        }
+    };
+    drop(geom);
+    // The hard cases, with the setting's builder and trace options.
+    let hard = match s.build {
+        Build::KdFullClip(_) => {
+            notes.push("hard cases: not run (a host reference builder; the device suite builds on the device)".into());
+            None
+        }
+        Build::Builder { .. } => {
+            let build = s.build;
+            let config = SuiteConfig {
+                builder: Some(Arc::new(move |ctx: &Context| {
+                    Ok(build.builder(ctx)?.expect("a device builder"))
+                })),
+                kd_params: s.build.kd_params(),
+                trace: s.trace,
+            };
+            let cases = robust::run_all_with(ctx, suite, &[s.trace.intersector], choice, &config)?;
+            Some(hard_cases(&cases))
+        }
+    };
+    // Images, where a render can express the setting.
+    let (image_errors, render_ms) = if s.render {
+        let (e, ms) = render_all(
+            ctx,
+            scenes,
+            sizes,
+            (sizes.test_spp, sizes.reference_depth),
+            choice,
+            &s.trace,
+            &format!("{group}-{}", slug(&s.label)),
+            images,
+        )?;
+        (e, Some(ms))
+    } else {
+        (Vec::new(), None)
+    };
+    let trace = TraceMs {
+        primary: trace_ms[0],
+        shadow: trace_ms[1],
+        secondary: trace_ms[2],
+    };
+    let error = hard.map_or(0, |h| h.failures()) + differing;
+    Ok(Point {
+        setting: s.label.clone(),
+        time_ms: build_ms + trace.total(),
+        error: error as f64,
+        costs: Costs {
+            build_ms: Some(build_ms),
+            update_ms: None,
+            trace_ms: Some(trace),
+            render_ms,
+            sah_cost,
+            bytes,
+        },
+        accuracy: Accuracy {
+            hard_cases: hard,
+            hit_differences: Some(differing),
+            images: image_errors,
+            sah_ratio: None,
+        },
+        note: (!notes.is_empty()).then(|| notes.join("; ")),
+    })
+}
+
+fn measure_image(
+    ctx: &Context,
+    scenes: &[Compared],
+    sizes: &Sizes,
+    s: &ImageSetting,
+    group: &str,
+    images: &mut Vec<ImageFile>,
+) -> Result<Point, BoxError> {
+    let (errors, ms) = render_all(
+        ctx,
+        scenes,
+        sizes,
+        (s.spp, s.depth),
+        AccelChoice::default(),
+        &TraceOptions::default(),
+        &format!("{group}-{}", slug(&s.label)),
+        images,
+    )?;
+    let mean = errors.iter().map(|e| e.rmse).sum::<f64>() / errors.len().max(1) as f64;
+    Ok(Point {
+        setting: s.label.clone(),
+        time_ms: ms,
+        error: mean,
+        costs: Costs {
+            render_ms: Some(ms),
+            ..Costs::default()
+        },
+        accuracy: Accuracy {
+            images: errors,
+            ..Accuracy::default()
+        },
+        note: None,
+    })
+}
+
+fn measure_motion(
+    ctx: &Context,
+    scene: &Scene,
+    sizes: &Sizes,
+    s: &MotionSetting,
+) -> Result<Point, BoxError> {
+    let step = sizes.frame_step;
+    let frames = sizes
+        .frames
+        .min((scene.frame_count().saturating_sub(1)) / step.max(1) + 1)
+        .max(1);
+    let opt = AnimateOptions {
+        render: RenderOptions {
+            width: Some(sizes.motion_width),
+            height: Some(sizes.motion_height),
+            spp: Some(1),
+            all_effects: false,
+            accel: AccelChoice::new(s.kind, Default::default()),
+        },
+        update: s.update,
+        frames,
+        quality: true,
+    };
+    let report = animate::run(
+        ctx,
+        |k| (scene.frame_time(k * step), scene.at_frame(k * step)),
+        &opt,
+        &TraceOptions::default(),
+        |_, _| Ok(()),
+        |_| {},
+    )?;
+    // Frame 0 builds in both modes: the frames after it are what an update costs.
+    let later: Vec<_> = report.frames.iter().skip(1).collect();
+    let rows = if later.is_empty() {
+        report.frames.iter().collect()
+    } else {
+        later
+    };
+    let n = rows.len().max(1) as f64;
+    let update = rows.iter().map(|r| r.update_ms).sum::<f64>() / n;
+    let render_ms = rows.iter().map(|r| r.render_ms).sum::<f64>() / n;
+    let last = report.frames.last();
+    let ratio = last.and_then(|r| Some(r.sah_cost? / r.rebuilt_sah_cost?));
+    Ok(Point {
+        setting: s.label.clone(),
+        time_ms: update + render_ms,
+        error: ratio.map_or(f64::NAN, |r| r - 1.0),
+        costs: Costs {
+            update_ms: Some(update),
+            render_ms: Some(render_ms),
+            sah_cost: last.and_then(|r| r.sah_cost),
+            ..Costs::default()
+        },
+        accuracy: Accuracy {
+            sah_ratio: ratio,
+            ..Accuracy::default()
+        },
+        note: Some(format!(
+            "{} frames, every {step}th of the animation, {}×{}, 1 spp",
+            report.frames.len(),
+            report.width,
+            report.height
+        )),
+    })
+}

@@ -19,6 +19,7 @@ pub mod knobs;
 pub mod measure;
 pub mod pareto;
 pub mod report;
+mod table;
 
 use serde::Serialize;
 

@@ -133,6 +133,21 @@ pub struct SuiteSize {
 }
 
 impl SuiteSize {
+    /// The smallest sizes that still run every case (no 2 M soup): `vkrt bench accuracy
+    /// --quick` runs the suite once per setting.
+    pub fn tiny() -> Self {
+        Self {
+            sphere_subdivisions: 4,
+            grid: 40,
+            watertight_rays: 4_000,
+            self_prims: 200,
+            spawn_per_hit: 8,
+            checked_rays: 1_000,
+            builder_prims: 2_000,
+            big_soup: 0,
+        }
+    }
+
     /// The integration test's sizes: the same cases, fewer rays, smaller builder stress
     /// (the GPU build of a 500K random soup alone takes ~47 s on lavapipe).
     pub fn test() -> Self {
@@ -163,6 +178,23 @@ impl Default for SuiteSize {
     }
 }
 
+/// Makes the builder of a configured suite's structures.
+pub type BuilderFactory = std::sync::Arc<dyn Fn(&Context) -> Result<AccelBuilder> + Send + Sync>;
+
+/// What the suite builds and traces with, beyond the structure kind and the intersector:
+/// the knobs `vkrt bench accuracy` turns. The default is the suite as the tests run it.
+#[derive(Clone, Default)]
+pub struct SuiteConfig {
+    /// The builder (its kind must be the `accel` the suite runs on); `None`:
+    /// [`AccelBuilder::for_choice`] with its defaults.
+    pub builder: Option<BuilderFactory>,
+    /// The kd-tree's build parameters (other kinds ignore them).
+    pub kd_params: SahParams,
+    /// The trace options every case starts from (the case sets the intersector and the
+    /// query): the fp64 fallback and the short stack's size.
+    pub trace: TraceOptions,
+}
+
 /// Runs the cases of `group` for each intersector in `intersectors` (each scene and tree is
 /// built once), on the structure and walk `accel`, built on the device.
 pub fn run_group(
@@ -171,6 +203,18 @@ pub fn run_group(
     size: &SuiteSize,
     intersectors: &[Intersector],
     accel: AccelChoice,
+) -> Result<Vec<CaseResult>> {
+    run_group_with(ctx, group, size, intersectors, accel, &SuiteConfig::default())
+}
+
+/// [`run_group`] with the builder, kd-tree parameters and trace options of `config`.
+pub fn run_group_with(
+    ctx: &Context,
+    group: Group,
+    size: &SuiteSize,
+    intersectors: &[Intersector],
+    accel: AccelChoice,
+    config: &SuiteConfig,
 ) -> Result<Vec<CaseResult>> {
     // The driver's triangle test is its own: one run, whatever the intersector.
     let intersectors = match accel.kind {
@@ -182,6 +226,7 @@ pub fn run_group(
         size: *size,
         intersectors: intersectors.to_vec(),
         accel,
+        config: config.clone(),
         out: Vec::new(),
     };
     match group {
@@ -202,9 +247,20 @@ pub fn run_all(
     intersectors: &[Intersector],
     accel: AccelChoice,
 ) -> Result<Vec<CaseResult>> {
+    run_all_with(ctx, size, intersectors, accel, &SuiteConfig::default())
+}
+
+/// [`run_all`] with the builder, kd-tree parameters and trace options of `config`.
+pub fn run_all_with(
+    ctx: &Context,
+    size: &SuiteSize,
+    intersectors: &[Intersector],
+    accel: AccelChoice,
+    config: &SuiteConfig,
+) -> Result<Vec<CaseResult>> {
     let mut out = Vec::new();
     for g in Group::ALL {
-        out.extend(run_group(ctx, g, size, intersectors, accel)?);
+        out.extend(run_group_with(ctx, g, size, intersectors, accel, config)?);
     }
     Ok(out)
 }
@@ -227,8 +283,12 @@ impl Prepared {
         geometry: TraceGeometry,
         params: &SahParams,
         accel: AccelChoice,
+        config: &SuiteConfig,
     ) -> Result<Self> {
-        let mut builder = AccelBuilder::for_choice(ctx, accel)?;
+        let mut builder = match &config.builder {
+            Some(make) => make(ctx)?,
+            None => AccelBuilder::for_choice(ctx, accel)?,
+        };
         builder.kd_params = *params;
         for grow in 0..8 {
             let mut rec = Recorder::new(ctx)?;
@@ -351,13 +411,6 @@ impl Prepared {
     }
 }
 
-fn opt(intersector: Intersector) -> TraceOptions {
-    TraceOptions {
-        intersector,
-        query: Query::Closest,
-        ..TraceOptions::default()
-    }
-}
 
 fn ms(b: &TraceBatch) -> f64 {
     b.profile.ms("trace").unwrap_or(0.0)
@@ -419,10 +472,25 @@ struct Suite<'a> {
     size: SuiteSize,
     intersectors: Vec<Intersector>,
     accel: AccelChoice,
+    config: SuiteConfig,
     out: Vec<CaseResult>,
 }
 
 impl Suite<'_> {
+    /// The trace options of a case: the configured ones, closest hit, with `intersector`.
+    fn opt(&self, intersector: Intersector) -> TraceOptions {
+        TraceOptions {
+            intersector,
+            query: Query::Closest,
+            ..self.config.trace
+        }
+    }
+
+    /// A case's scene and structure, built by the configured builder with `params`.
+    fn prepare(&self, geometry: TraceGeometry, params: &SahParams) -> Result<Prepared> {
+        Prepared::new(self.ctx, geometry, params, self.accel, &self.config)
+    }
+
     #[allow(clippy::too_many_arguments)]
     fn push(
         &mut self,
@@ -465,7 +533,7 @@ impl Suite<'_> {
         failed: impl Fn(usize, &Hit, &TraceOptions) -> bool,
     ) -> Result<()> {
         for i in self.intersectors.clone() {
-            let o = opt(i);
+            let o = self.opt(i);
             let b = p.trace(self.ctx, rays, &o)?;
             let bad: Vec<usize> = (0..rays.len())
                 .filter(|&k| failed(k, &b.hits[k], &o))
@@ -502,12 +570,7 @@ impl Suite<'_> {
                 .iter()
                 .map(|t| t.map(|p| p * scale + offset))
                 .collect();
-            let p = Prepared::new(
-                self.ctx,
-                TraceGeometry::from_triangles(&tris),
-                &SahParams::default(),
-                self.accel,
-            )?;
+            let p = self.prepare(TraceGeometry::from_triangles(&tris), &self.config.kd_params)?;
             let mut rng = Rng::new(1);
             let n = self.size.watertight_rays;
             // The inscribed polyhedron contains the ball of radius 0.99 (for s >= 4).
@@ -531,12 +594,7 @@ impl Suite<'_> {
             ("watertight/grid-far-1e5", Vec3::new(1e5, 1e5, 1e5)),
         ] {
             let tris: Vec<[Vec3; 3]> = grid.iter().map(|t| t.map(|p| p + offset)).collect();
-            let p = Prepared::new(
-                self.ctx,
-                TraceGeometry::from_triangles(&tris),
-                &SahParams::default(),
-                self.accel,
-            )?;
+            let p = self.prepare(TraceGeometry::from_triangles(&tris), &self.config.kd_params)?;
             let mut rng = Rng::new(2);
             let rays: Vec<Ray> = (0..self.size.watertight_rays)
                 .map(|k| {
@@ -593,14 +651,9 @@ impl Suite<'_> {
     fn self_intersection(&mut self) -> Result<()> {
         let n = self.size.self_prims;
         let tris = log_uniform_triangles(n, 3);
-        let p = Prepared::new(
-            self.ctx,
-            TraceGeometry::from_triangles(&tris),
-            &SahParams::default(),
-            self.accel,
-        )?;
+        let p = self.prepare(TraceGeometry::from_triangles(&tris), &self.config.kd_params)?;
         for i in self.intersectors.clone() {
-            let o = opt(i);
+            let o = self.opt(i);
             let mut rng = Rng::new(4);
             let primary: Vec<Ray> = tris
                 .iter()
@@ -680,14 +733,9 @@ impl Suite<'_> {
         }
 
         let spheres = log_uniform_spheres(n, 6);
-        let p = Prepared::new(
-            self.ctx,
-            TraceGeometry::from_triangles_and_spheres(&[], &spheres),
-            &SahParams::default(),
-            self.accel,
-        )?;
+        let p = self.prepare(TraceGeometry::from_triangles_and_spheres(&[], &spheres), &self.config.kd_params)?;
         for i in self.intersectors.clone() {
-            let o = opt(i);
+            let o = self.opt(i);
             let mut rng = Rng::new(7);
             let primary: Vec<Ray> = spheres
                 .iter()
@@ -818,12 +866,7 @@ impl Suite<'_> {
         let spheres: Vec<Vec4> = (0..100)
             .map(|_| rng.vec3_signed().extend(rng.range(0.05, 0.2)))
             .collect();
-        let p = Prepared::new(
-            self.ctx,
-            TraceGeometry::from_triangles_and_spheres(&tris, &spheres),
-            &SahParams::default(),
-            self.accel,
-        )?;
+        let p = self.prepare(TraceGeometry::from_triangles_and_spheres(&tris, &spheres), &self.config.kd_params)?;
         let n = self.size.checked_rays;
         let (inner, boxes) = p.planes_and_boxes();
         let zero = |rng: &mut Rng| if rng.below(2) == 0 { 0.0 } else { -0.0 };
@@ -926,12 +969,7 @@ impl Suite<'_> {
                 }
             })
             .collect();
-        let p = Prepared::new(
-            self.ctx,
-            TraceGeometry::from_triangles(&degenerate),
-            &SahParams::default(),
-            self.accel,
-        )?;
+        let p = self.prepare(TraceGeometry::from_triangles(&degenerate), &self.config.kd_params)?;
         let rays: Vec<Ray> = (0..n)
             .map(|k| {
                 let t = degenerate[rng.below(degenerate.len() as u32) as usize];
@@ -992,12 +1030,7 @@ impl Suite<'_> {
         for t in &base {
             tris.push([t[1], t[2], t[0]]);
         }
-        let p = Prepared::new(
-            self.ctx,
-            TraceGeometry::from_triangles(&tris),
-            &SahParams::default(),
-            self.accel,
-        )?;
+        let p = self.prepare(TraceGeometry::from_triangles(&tris), &self.config.kd_params)?;
         let rays: Vec<Ray> = (0..n)
             .map(|k| {
                 let t = base[rng.below(300) as usize];
@@ -1011,7 +1044,7 @@ impl Suite<'_> {
             })
             .collect();
         for i in self.intersectors.clone() {
-            let o = opt(i);
+            let o = self.opt(i);
             let a = p.trace(self.ctx, &rays, &o)?;
             let b = p.trace(self.ctx, &rays, &o)?;
             let mut wrong = 0u64;
@@ -1035,12 +1068,7 @@ impl Suite<'_> {
         // Flat axis-aligned triangles on the planes k/4 (candidate split planes), rays in
         // those planes, through their vertices, and at random.
         let flats = flat_axis_aligned(&mut rng, 2000);
-        let p = Prepared::new(
-            self.ctx,
-            TraceGeometry::from_triangles(&flats),
-            &SahParams::default(),
-            self.accel,
-        )?;
+        let p = self.prepare(TraceGeometry::from_triangles(&flats), &self.config.kd_params)?;
         let rays: Vec<Ray> = (0..n)
             .map(|k| {
                 let t = flats[rng.below(flats.len() as u32) as usize];
@@ -1092,12 +1120,7 @@ impl Suite<'_> {
             let (u, v) = (unit(&mut rng), unit(&mut rng));
             tris.push([c + u * 1e7, c + v * 1e7, c - (u + v) * 1e7]);
         }
-        let p = Prepared::new(
-            self.ctx,
-            TraceGeometry::from_triangles(&tris),
-            &SahParams::default(),
-            self.accel,
-        )?;
+        let p = self.prepare(TraceGeometry::from_triangles(&tris), &self.config.kd_params)?;
         let rays: Vec<Ray> = (0..n)
             .map(|k| {
                 let t = tris[rng.below(1000) as usize];
@@ -1155,13 +1178,8 @@ impl Suite<'_> {
             ("builder/one-huge-many-small", huge),
         ];
         for (name, tris) in cases {
-            let params = SahParams::default();
-            let p = Prepared::new(
-                self.ctx,
-                TraceGeometry::from_triangles(&tris),
-                &params,
-                self.accel,
-            )?;
+            let params = self.config.kd_params;
+            let p = self.prepare(TraceGeometry::from_triangles(&tris), &params)?;
             let tree_errors = p.errors(&tris, &params);
             let rays: Vec<Ray> = (0..n)
                 .map(|_| {
@@ -1173,7 +1191,7 @@ impl Suite<'_> {
                 .collect();
             let identical = name.contains("identical");
             for i in self.intersectors.clone() {
-                let o = opt(i);
+                let o = self.opt(i);
                 let b = p.trace(self.ctx, &rays, &o)?;
                 let failures = if identical {
                     // every triangle at the same t: the lowest id wins
@@ -1209,10 +1227,10 @@ impl Suite<'_> {
                 let g = TraceGeometry::from_triangles(&tris);
                 let mut built = None;
                 for (label, params) in [
-                    ("SahParams defaults", SahParams::default()),
+                    ("the suite's SahParams", self.config.kd_params),
                     ("seed-001 termination", seed),
                 ] {
-                    match Prepared::new(self.ctx, g.clone(), &params, self.accel) {
+                    match self.prepare(g.clone(), &params) {
                         Ok(p) => {
                             notes.push(format!("{count} triangles: built with {label}"));
                             built = Some((p, params));
@@ -1245,7 +1263,7 @@ impl Suite<'_> {
                 .map(|_| Ray::new(rng.vec3_signed() * 1.2, unit(&mut rng), 0.0, f32::MAX))
                 .collect();
             for i in self.intersectors.clone() {
-                let o = opt(i);
+                let o = self.opt(i);
                 let b = p.trace(self.ctx, &rays, &o)?;
                 let failures = rays
                     .iter()
@@ -1272,12 +1290,7 @@ impl Suite<'_> {
 
     fn bad_rays(&mut self) -> Result<()> {
         let sphere = triangles(&gen::icosphere(5).map_err(scene)?);
-        let p = Prepared::new(
-            self.ctx,
-            TraceGeometry::from_triangles(&sphere),
-            &SahParams::default(),
-            self.accel,
-        )?;
+        let p = self.prepare(TraceGeometry::from_triangles(&sphere), &self.config.kd_params)?;
         let n = self.size.watertight_rays / 2;
         let mut rng = Rng::new(12);
         let (nan, inf) = (f32::NAN, f32::INFINITY);
@@ -1319,7 +1332,7 @@ impl Suite<'_> {
         // tmax = f32::MAX, bit for bit.
         let mut bounded = std::collections::HashMap::new();
         for i in self.intersectors.clone() {
-            bounded.insert(i, p.trace(self.ctx, &good, &opt(i))?.hits);
+            bounded.insert(i, p.trace(self.ctx, &good, &self.opt(i))?.hits);
         }
         let unbounded: Vec<Ray> = good.iter().map(|r| Ray { tmax: inf, ..*r }).collect();
         self.simple(
