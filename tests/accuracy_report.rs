@@ -212,11 +212,15 @@ fn html_has_one_plot_per_group_and_escapes_text() {
     assert!(!page.contains("<b>&"), "raw setting in the page");
     assert!(page.contains("&lt;setting&gt;") && page.contains("&#39;a &amp; b&#39;"));
     assert!(page.contains("★ BVH binned SAH"), "front rows are marked");
+    assert!(page.contains("not plotted (time or error not a number): Möller–Trumbore"));
     assert!(page.contains("Recommendations") && page.contains("interactive preview"));
     assert!(page.contains("src=\"images/cornell-reference.png\""));
     assert!(page.contains("src=\"images/cornell-BVH_LBVH.png\""));
     for external in ["<link", "<script", "src=\"http", "href=\"http", "url("] {
-        assert!(!page.contains(external), "{external} in a self-contained page");
+        assert!(
+            !page.contains(external),
+            "{external} in a self-contained page"
+        );
     }
     // KiB/MiB bytes, thousands separators, and "—" for what a group did not measure.
     assert!(page.contains("MiB") && page.contains("123,456") && page.contains("—"));
@@ -231,7 +235,10 @@ fn plot_survives_degenerate_groups() {
         g(vec![point("one", 3.0, 0.1)]),
         g(vec![point("a", 2.0, 0.1), point("b", 2.0, 0.3)]),
         g(vec![point("zero", 0.0, 0.1), point("big", 500.0, 0.0)]),
-        g(vec![point("nan", f64::NAN, f64::NAN), point("inf", f64::INFINITY, 1.0)]),
+        g(vec![
+            point("nan", f64::NAN, f64::NAN),
+            point("inf", f64::INFINITY, 1.0),
+        ]),
         g(vec![point("neg", -1.0, -0.5), point("a", 0.0, 0.0)]),
         report.groups[3].clone(),
     ];
@@ -305,7 +312,10 @@ fn write_fails_clearly_and_leaves_nothing() {
     let (report, mut images) = sample();
     let missing = root.join("no-such-parent").join("report");
     let e = write(&missing, &report, &images).unwrap_err().to_string();
-    assert!(e.contains("no-such-parent") && e.contains("does not exist"), "{e}");
+    assert!(
+        e.contains("no-such-parent") && e.contains("does not exist"),
+        "{e}"
+    );
     // A file name that would leave the folder fails after some files were written.
     images.push(ImageFile {
         file: "../escape.png".into(),

@@ -50,7 +50,10 @@ pub fn fill_fronts(groups: &mut [KnobGroup]) {
 pub fn recommend(groups: &[KnobGroup]) -> Vec<Recommendation> {
     let mut out = Vec::new();
     for use_case in USES {
-        for g in groups.iter().filter(|g| g.uses.iter().any(|u| u == use_case)) {
+        for g in groups
+            .iter()
+            .filter(|g| g.uses.iter().any(|u| u == use_case))
+        {
             if !g.points.iter().any(finite) {
                 continue;
             }
@@ -146,8 +149,11 @@ fn final_frame(g: &KnobGroup) -> (usize, String) {
     let pts = &g.points;
     let e = pts[most_accurate(g)].error;
     let limit = e + (FINAL_SLACK * e).max(FINAL_SLACK_MIN);
-    let i = fastest(pts, (0..pts.len()).filter(|&i| finite(&pts[i]) && pts[i].error <= limit))
-        .expect("the most accurate point is a candidate");
+    let i = fastest(
+        pts,
+        (0..pts.len()).filter(|&i| finite(&pts[i]) && pts[i].error <= limit),
+    )
+    .expect("the most accurate point is a candidate");
     let quick = fastest(pts, (0..pts.len()).filter(|&i| finite(&pts[i]))).expect("finite points");
     let head = format!(
         "{}, within {}% of the lowest error",
@@ -177,8 +183,13 @@ fn physics(g: &KnobGroup) -> (usize, String) {
         let (i, why) = final_frame(g);
         return (i, format!("no setting ran the hard cases; {why}"));
     };
-    let i = fastest(pts, (0..pts.len()).filter(timed).filter(|&i| fails(i) == Some(least)))
-        .expect("a point has the least failures");
+    let i = fastest(
+        pts,
+        (0..pts.len())
+            .filter(timed)
+            .filter(|&i| fails(i) == Some(least)),
+    )
+    .expect("a point has the least failures");
     let rays = pts[i].accuracy.hard_cases.map_or(0, |h| h.rays);
     let head = format!(
         "{} failures on {} hard-case rays, {} ms",
@@ -372,7 +383,12 @@ mod tests {
         );
         let r = recommend(&[g]);
         assert_eq!(r[0].setting, "near");
-        assert!(r[0].why.contains("the fastest (far) takes 10 ms with error 0.103"), "{}", r[0].why);
+        assert!(
+            r[0].why
+                .contains("the fastest (far) takes 10 ms with error 0.103"),
+            "{}",
+            r[0].why
+        );
         // An error of 0 admits only exact ties (within 1e-12).
         let g = group(
             vec![p("a", 9.0, 0.0), p("b", 5.0, 1e-13), p("c", 1.0, 1e-9)],
@@ -400,7 +416,10 @@ mod tests {
              1 ms (not run on the hard cases)"
         );
         let g = group(
-            vec![hard(p("robust", 12.3, 0.1), 0), hard(p("leaky", 8.1, 0.0), 37)],
+            vec![
+                hard(p("robust", 12.3, 0.1), 0),
+                hard(p("leaky", 8.1, 0.0), 37),
+            ],
             &["physics/visibility queries"],
         );
         assert!(recommend(&[g])[0]
@@ -429,7 +448,10 @@ mod tests {
             group(vec![p("y", 1.0, 0.0)], &["final frame"]),
         ];
         let r = recommend(&groups);
-        let uses: Vec<_> = r.iter().map(|r| (r.use_case.as_str(), r.setting.as_str())).collect();
+        let uses: Vec<_> = r
+            .iter()
+            .map(|r| (r.use_case.as_str(), r.setting.as_str()))
+            .collect();
         assert_eq!(
             uses,
             [

@@ -6,13 +6,13 @@
 use std::fmt::Write as _;
 use std::path::{Component, Path, PathBuf};
 
-use plotters::coord::ranged1d::{AsRangedCoord, ValueFormatter};
-use plotters::prelude::*;
-
 use super::pareto::{fmt_count, fmt_num};
 use super::{AccuracyReport, ImageFile, KnobGroup, Point};
 use crate::gpu::GpuError;
 use crate::render::output::png_bytes;
+
+mod plot;
+pub use plot::plot_svg;
 
 /// The file whose presence marks a folder as a previous report, safe to replace.
 const MARKER: &str = "report.json";
@@ -74,7 +74,10 @@ fn check_replaceable(dir: &Path) -> Result<bool, GpuError> {
         return Ok(false);
     };
     if !meta.is_dir() {
-        return Err(io_error(dir, "exists and is not a folder; refusing to replace it"));
+        return Err(io_error(
+            dir,
+            "exists and is not a folder; refusing to replace it",
+        ));
     }
     let mut entries = std::fs::read_dir(dir).map_err(|e| io_error(dir, e))?;
     if entries.next().is_some() && !dir.join(MARKER).is_file() {
@@ -110,7 +113,10 @@ fn inside(dir: &Path, file: &str) -> Result<PathBuf, GpuError> {
     let rel = Path::new(file);
     let plain = rel.components().all(|c| matches!(c, Component::Normal(_)));
     if !plain || file.is_empty() {
-        return Err(io_error(rel, "not a plain relative file name in the report folder"));
+        return Err(io_error(
+            rel,
+            "not a plain relative file name in the report folder",
+        ));
     }
     Ok(dir.join(rel))
 }
@@ -139,7 +145,7 @@ code{font:12px ui-monospace,monospace;background:#f3f3f3;padding:1px 4px;border-
 .scroll{overflow-x:auto;margin:8px 0}
 table{border-collapse:collapse;font-size:12.5px}th,td{padding:3px 8px;border-bottom:1px solid #e4e4e4;text-align:left;vertical-align:top}
 th{background:#f6f6f6;position:sticky;top:0}td.n{text-align:right;font-variant-numeric:tabular-nums;white-space:nowrap}
-tr.front td{font-weight:600;background:#eef5ff}td.imgs{white-space:nowrap;font-size:11.5px}
+tr.front td{font-weight:600;background:#eef5ff}td.imgs{white-space:nowrap;font-size:11.5px}td:first-child{min-width:9em}
 .axes{color:#555;margin:2px 0 8px}.plot svg{max-width:100%;height:auto}
 .figs{display:flex;flex-wrap:wrap;gap:10px}figure{margin:0;width:160px;font-size:11.5px}figure.ref{width:320px}
 figure img{width:100%;image-rendering:pixelated;border:1px solid #ccc;display:block}figcaption{word-break:break-word}
@@ -212,6 +218,17 @@ fn group_section(h: &mut String, g: &KnobGroup) {
         escape(&g.uses.join(", ")),
         plot_svg(g)
     );
+    let unplotted: Vec<String> = (g.points.iter())
+        .filter(|p| !(p.time_ms.is_finite() && p.error.is_finite()))
+        .map(|p| escape(&p.setting))
+        .collect();
+    if !unplotted.is_empty() {
+        let _ = writeln!(
+            h,
+            "<p class=\"axes\">not plotted (time or error not a number): {}</p>",
+            unplotted.join(", ")
+        );
+    }
     // Columns no point of the group has are left out: each group measures a few.
     let cols: Vec<&Column> = COLUMNS
         .iter()
@@ -252,20 +269,45 @@ struct Column {
 }
 
 const COLUMNS: &[Column] = &[
-    Column { name: "build ms", numeric: true, cell: |p| p.costs.build_ms.map(fmt_num) },
-    Column { name: "update ms", numeric: true, cell: |p| p.costs.update_ms.map(fmt_num) },
+    Column {
+        name: "build ms",
+        numeric: true,
+        cell: |p| p.costs.build_ms.map(fmt_num),
+    },
+    Column {
+        name: "update ms",
+        numeric: true,
+        cell: |p| p.costs.update_ms.map(fmt_num),
+    },
     Column {
         name: "trace ms<br>primary / shadow / secondary",
         numeric: true,
         cell: |p| {
             p.costs.trace_ms.map(|t| {
-                format!("{} / {} / {}", fmt_num(t.primary), fmt_num(t.shadow), fmt_num(t.secondary))
+                format!(
+                    "{} / {} / {}",
+                    fmt_num(t.primary),
+                    fmt_num(t.shadow),
+                    fmt_num(t.secondary)
+                )
             })
         },
     },
-    Column { name: "render ms", numeric: true, cell: |p| p.costs.render_ms.map(fmt_num) },
-    Column { name: "SAH cost", numeric: true, cell: |p| p.costs.sah_cost.map(fmt_num) },
-    Column { name: "bytes", numeric: true, cell: |p| p.costs.bytes.map(fmt_bytes) },
+    Column {
+        name: "render ms",
+        numeric: true,
+        cell: |p| p.costs.render_ms.map(fmt_num),
+    },
+    Column {
+        name: "SAH cost",
+        numeric: true,
+        cell: |p| p.costs.sah_cost.map(fmt_num),
+    },
+    Column {
+        name: "bytes",
+        numeric: true,
+        cell: |p| p.costs.bytes.map(fmt_bytes),
+    },
     Column {
         name: "hard cases<br>rays: misses / self-hits / wrong / errors",
         numeric: true,
@@ -282,14 +324,29 @@ const COLUMNS: &[Column] = &[
             })
         },
     },
-    Column { name: "hit differences", numeric: true, cell: |p| p.accuracy.hit_differences.map(fmt_count) },
-    Column { name: "SAH ratio", numeric: true, cell: |p| p.accuracy.sah_ratio.map(fmt_num) },
+    Column {
+        name: "hit differences",
+        numeric: true,
+        cell: |p| p.accuracy.hit_differences.map(fmt_count),
+    },
+    Column {
+        name: "SAH ratio",
+        numeric: true,
+        cell: |p| p.accuracy.sah_ratio.map(fmt_num),
+    },
     Column {
         name: "images<br>scene: RMSE / worst",
         numeric: false,
         cell: |p| {
             let lines: Vec<String> = (p.accuracy.images.iter())
-                .map(|e| format!("{}: {} / {}", escape(&e.scene), fmt_num(e.rmse), fmt_num(e.worst)))
+                .map(|e| {
+                    format!(
+                        "{}: {} / {}",
+                        escape(&e.scene),
+                        fmt_num(e.rmse),
+                        fmt_num(e.worst)
+                    )
+                })
                 .collect();
             (!lines.is_empty()).then(|| lines.join("<br>"))
         },
@@ -346,151 +403,5 @@ fn images_section(h: &mut String, r: &AccuracyReport) {
                 );
             }
         }
-    }
-}
-
-const PLOT_SIZE: (u32, u32) = (900, 420);
-/// Times spread wider than this ratio get a log10 axis.
-const LOG_RATIO: f64 = 20.0;
-
-/// The group's points on time × error as an SVG: the front as a step line with filled
-/// markers, the other points hollow, each labelled with its setting. Non-finite points are
-/// left out; an empty group gives empty axes.
-pub fn plot_svg(group: &KnobGroup) -> String {
-    let pts: Vec<(usize, f64, f64)> = (group.points.iter().enumerate())
-        .filter(|(_, p)| p.time_ms.is_finite() && p.error.is_finite())
-        .map(|(i, p)| (i, p.time_ms, p.error))
-        .collect();
-    let (t_lo, t_hi) = min_max(pts.iter().map(|p| p.1));
-    let (e_lo, e_hi) = min_max(pts.iter().map(|p| p.2));
-    let y = pad(e_lo.min(0.0), e_hi, 0.1);
-    let mut svg = String::new();
-    let drawn = if t_lo > 0.0 && t_hi / t_lo > LOG_RATIO {
-        let x = (t_lo / 1.5)..(t_hi * 1.5);
-        draw(&mut svg, group, &pts, x.log_scale(), y, " (log scale)")
-    } else {
-        draw(&mut svg, group, &pts, pad(t_lo, t_hi, 0.08), y, "")
-    };
-    if let Err(e) = drawn {
-        svg = format!("<p>plot failed: {}</p>", escape(&e.to_string()));
-    }
-    svg
-}
-
-/// The smallest and largest values; (0, 0) when there are none.
-fn min_max(v: impl Iterator<Item = f64>) -> (f64, f64) {
-    v.fold(None, |acc: Option<(f64, f64)>, x| match acc {
-        None => Some((x, x)),
-        Some((lo, hi)) => Some((lo.min(x), hi.max(x))),
-    })
-    .unwrap_or((0.0, 0.0))
-}
-
-/// `lo..hi` widened by `frac` of its span each side, not below 0 when `lo` is not; an empty
-/// span becomes one around its value (0..1 around 0).
-fn pad(lo: f64, hi: f64, frac: f64) -> std::ops::Range<f64> {
-    let w = if hi > lo {
-        (hi - lo) * frac
-    } else if hi == 0.0 {
-        return 0.0..1.0;
-    } else {
-        hi.abs() * 0.5
-    };
-    let floor = if lo >= 0.0 { 0.0 } else { f64::NEG_INFINITY };
-    (lo - w).max(floor)..(hi + w)
-}
-
-type PlotResult = Result<(), Box<dyn std::error::Error>>;
-
-fn draw<X>(
-    svg: &mut String,
-    g: &KnobGroup,
-    pts: &[(usize, f64, f64)],
-    x: X,
-    y: std::ops::Range<f64>,
-    x_note: &str,
-) -> PlotResult
-where
-    X: AsRangedCoord<Value = f64>,
-    X::CoordDescType: ValueFormatter<f64>,
-{
-    let root = SVGBackend::with_string(svg, PLOT_SIZE).into_drawing_area();
-    root.fill(&WHITE)?;
-    let mut chart = ChartBuilder::on(&root)
-        .margin(12)
-        .margin_right(24)
-        .x_label_area_size(44)
-        .y_label_area_size(64)
-        .build_cartesian_2d(x, y)?;
-    chart
-        .configure_mesh()
-        .x_desc(format!("{}{x_note}", g.time_axis))
-        .y_desc(g.error_axis.as_str())
-        .light_line_style(WHITE.mix(0.0))
-        .bold_line_style(BLACK.mix(0.08))
-        .axis_desc_style(("sans-serif", 14))
-        .label_style(("sans-serif", 12))
-        .draw()?;
-    let front = super::pareto::front(&g.points);
-    let blue = RGBColor(31, 101, 196);
-    let grey = RGBColor(120, 120, 120);
-    // The front as a staircase: what is attainable at each time budget.
-    let mut steps = Vec::new();
-    for (k, &i) in front.iter().enumerate() {
-        let p = &g.points[i];
-        if k > 0 {
-            steps.push((p.time_ms, g.points[front[k - 1]].error));
-        }
-        steps.push((p.time_ms, p.error));
-    }
-    chart.draw_series(LineSeries::new(steps, blue.stroke_width(2)))?;
-    chart.draw_series(pts.iter().map(|&(i, t, e)| {
-        let style = if front.contains(&i) { blue.filled() } else { grey.stroke_width(2) };
-        Circle::new((t, e), 5, style)
-    }))?;
-    // Labels in pixels, each at the first spot beside its point that overlaps no earlier label
-    // or marker.
-    let font = ("sans-serif", 12).into_font();
-    let area = chart.plotting_area().get_pixel_range();
-    let mut taken: Vec<Rect> = (pts.iter())
-        .map(|&(_, t, e)| {
-            let (px, py) = chart.backend_coord(&(t, e));
-            Rect { x0: px - 6, y0: py - 6, x1: px + 6, y1: py + 6 }
-        })
-        .collect();
-    let mut order: Vec<&(usize, f64, f64)> = pts.iter().collect();
-    order.sort_by_key(|&&(i, _, _)| !front.contains(&i));
-    for &&(i, t, e) in &order {
-        let text = &g.points[i].setting;
-        let (px, py) = chart.backend_coord(&(t, e));
-        let w = 7 * text.chars().count() as i32;
-        let spots = [(8, -16), (8, 2), (-8 - w, -16), (-8 - w, 2), (8, -30), (8, 16), (-w / 2, -30), (-w / 2, 10)];
-        let rect = |(dx, dy): (i32, i32)| Rect { x0: px + dx, y0: py + dy, x1: px + dx + w, y1: py + dy + 14 };
-        let inside = |r: &Rect| {
-            r.x0 >= area.0.start && r.x1 <= area.0.end && r.y0 >= area.1.start && r.y1 <= area.1.end
-        };
-        let best = (spots.iter().map(|&s| rect(s)))
-            .find(|r| inside(r) && !taken.iter().any(|o| o.overlaps(r)))
-            .or_else(|| spots.iter().map(|&s| rect(s)).find(inside))
-            .unwrap_or_else(|| rect(spots[0]));
-        let color = if front.contains(&i) { blue } else { grey };
-        root.draw(&Text::new(text.clone(), (best.x0, best.y0), font.clone().color(&color)))?;
-        taken.push(best);
-    }
-    root.present()?;
-    Ok(())
-}
-
-/// A label's or marker's box in pixels.
-struct Rect {
-    x0: i32,
-    y0: i32,
-    x1: i32,
-    y1: i32,
-}
-
-impl Rect {
-    fn overlaps(&self, o: &Rect) -> bool {
-        self.x0 < o.x1 && o.x0 < self.x1 && self.y0 < o.y1 && o.y0 < self.y1
     }
 }
