@@ -19,6 +19,7 @@ fn point(setting: &str, time_ms: f64, error: f64) -> Point {
         error,
         costs: Costs::default(),
         accuracy: Accuracy::default(),
+        use_times: None,
         note: None,
     }
 }

@@ -90,7 +90,11 @@ fn quick_report_is_complete_and_finite() {
     let groups = json["groups"].as_array().unwrap();
     let ids: Vec<&str> = groups.iter().map(|g| g["id"].as_str().unwrap()).collect();
     assert_eq!(ids, GROUPS);
-    assert_eq!(html.matches("<svg").count(), groups.len(), "one plot per group");
+    assert_eq!(
+        html.matches("<svg").count(),
+        groups.len(),
+        "one plot per group"
+    );
     for g in groups {
         let id = g["id"].as_str().unwrap();
         let points = g["points"].as_array().unwrap();
@@ -126,7 +130,10 @@ fn quick_report_is_complete_and_finite() {
     let structure = &groups[0]["points"].as_array().unwrap();
     let kd = &structure[0];
     assert!(num(&kd["accuracy"]["hard_cases"]["rays"], "hard-case rays") > 0.0);
-    assert_eq!(kd["accuracy"]["hit_differences"], 0, "the reference differs from itself");
+    assert_eq!(
+        kd["accuracy"]["hit_differences"], 0,
+        "the reference differs from itself"
+    );
     num(&kd["costs"]["trace_ms"]["primary"], "primary trace ms");
     num(&kd["costs"]["sah_cost"], "SAH cost");
     num(&kd["costs"]["bytes"], "bytes");
@@ -185,7 +192,13 @@ fn bad_output_folders_are_refused_before_the_run() {
     let other = dir.path().join("photos");
     std::fs::create_dir(&other).unwrap();
     std::fs::write(other.join("cat.jpg"), b"meow").unwrap();
-    let out = vkrt(&["bench", "accuracy", "--quick", "-o", other.to_str().unwrap()]);
+    let out = vkrt(&[
+        "bench",
+        "accuracy",
+        "--quick",
+        "-o",
+        other.to_str().unwrap(),
+    ]);
     assert!(!out.status.success());
     assert_eq!(std::fs::read(other.join("cat.jpg")).unwrap(), b"meow");
     assert_eq!(std::fs::read_dir(&other).unwrap().count(), 1);

@@ -233,7 +233,11 @@ pub fn groups(ctx: &Context, quick: bool) -> Vec<GroupSpec> {
 
     // Structures: every builder and its main parameter.
     let mut structures = vec![
-        structure("kd-tree (seed 001: split-axis clipping)", kd(SahParams::default()), true),
+        structure(
+            "kd-tree (seed 001: split-axis clipping)",
+            kd(SahParams::default()),
+            true,
+        ),
         structure(
             "kd-tree, full clipping (host)",
             Build::KdFullClip(SahParams::default()),

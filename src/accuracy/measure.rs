@@ -26,11 +26,11 @@ use std::path::{Path, PathBuf};
 use std::sync::Arc;
 use std::time::Instant;
 
-use super::knobs::{self, Build, GroupSpec, ImageSetting, MotionSetting, Settings, Sizes};
 use super::knobs::StructureSetting;
+use super::knobs::{self, Build, GroupSpec, ImageSetting, MotionSetting, Settings, Sizes};
 use super::{
     pareto, Accuracy, AccuracyReport, Costs, HardCases, ImageError, ImageFile, ImageScene,
-    KnobGroup, Point, RayCountsInfo, TraceMs,
+    KnobGroup, Point, RayCountsInfo, TraceMs, UseTimes,
 };
 use crate::accel::bvh::{self, BvhParams};
 use crate::accel::device::{AccelChoice, AccelKind, HostStructure};
@@ -105,8 +105,12 @@ pub fn run(
             Settings::Structures(list) => {
                 let mut points = Vec::new();
                 for s in list {
-                    let p = measure_structure(ctx, &rays, &scenes, &sizes, &suite, s, id, &mut images)?;
-                    progress(&format!("{id}: {} — {:.1} ms, error {}", s.label, p.time_ms, p.error));
+                    let p =
+                        measure_structure(ctx, &rays, &scenes, &sizes, &suite, s, id, &mut images)?;
+                    progress(&format!(
+                        "{id}: {} — {:.1} ms, error {}",
+                        s.label, p.time_ms, p.error
+                    ));
                     points.push(p);
                 }
                 let axes = Axes::structure(&points);
@@ -116,7 +120,10 @@ pub fn run(
                 let mut points = Vec::new();
                 for s in list {
                     let p = measure_image(ctx, &scenes, &sizes, s, id, &mut images)?;
-                    progress(&format!("{id}: {} — {:.1} ms, RMSE {:.4}", s.label, p.time_ms, p.error));
+                    progress(&format!(
+                        "{id}: {} — {:.1} ms, RMSE {:.4}",
+                        s.label, p.time_ms, p.error
+                    ));
                     points.push(p);
                 }
                 (points, Axes::image())
@@ -126,7 +133,10 @@ pub fn run(
                 let mut points = Vec::new();
                 for s in list {
                     let p = measure_motion(ctx, &scene, &sizes, s)?;
-                    progress(&format!("{id}: {} — {:.1} ms/frame, SAH +{:.3}", s.label, p.time_ms, p.error));
+                    progress(&format!(
+                        "{id}: {} — {:.1} ms/frame, SAH +{:.3}",
+                        s.label, p.time_ms, p.error
+                    ));
                     points.push(p);
                 }
                 (points, Axes::motion(&sizes))
@@ -152,7 +162,11 @@ pub fn run(
         command: opt.command.clone(),
         quick: opt.quick,
         wall_s: start.elapsed().as_secs_f64(),
-        mesh: format!("{} ({} triangles)", rays.name, rays.scene.geometry.triangle_count()),
+        mesh: format!(
+            "{} ({} triangles)",
+            rays.name,
+            rays.scene.geometry.triangle_count()
+        ),
         rays: RayCountsInfo {
             primary: rays.sets[0].rays.len(),
             shadow: rays.sets[1].rays.len(),
@@ -229,12 +243,15 @@ struct RayBench {
     triangles: Vec<[glam::Vec3; 3]>,
     /// Primary, shadow, mirror.
     sets: Vec<RaySet>,
+    /// A small mesh to warm pipelines up on.
+    warm: crate::trace::TraceGeometry,
     reference: Vec<Vec<Hit>>,
 }
 
 impl RayBench {
     fn new(ctx: &Context, opt: &AccuracyOptions, sizes: &Sizes) -> Result<Self, BoxError> {
-        let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
+        let bunny =
+            Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
         let path = opt.mesh.clone().or_else(|| bunny.exists().then_some(bunny));
         let (name, triangles) = match path {
             Some(path) => {
@@ -268,18 +285,27 @@ impl RayBench {
                 query: set.kind.query(),
                 ..TraceOptions::default()
             };
-            Ok(Tracer::for_accel(ctx, &o, AccelChoice::default().traversal())?
-                .trace_batched(ctx, &geom, &set.rays, 0.0, None)?
-                .hits)
+            Ok(
+                Tracer::for_accel(ctx, &o, AccelChoice::default().traversal())?
+                    .trace_batched(ctx, &geom, &set.rays, 0.0, None)?
+                    .hits,
+            )
         };
         let primary_hits = trace(&primary)?;
         let (shadow, mirror) = scene.secondary_rays(&primary.rays, &primary_hits);
         let reference = vec![primary_hits, trace(&shadow)?, trace(&mirror)?];
+        let small = crate::scene::gen::icosphere(2)?;
+        let small: Vec<_> = small
+            .indices
+            .iter()
+            .map(|t| t.map(|i| small.positions[i as usize]))
+            .collect();
         Ok(Self {
             name,
             scene,
             triangles,
             sets: vec![primary, shadow, mirror],
+            warm: crate::trace::TraceGeometry::from_triangles(&small),
             reference,
         })
     }
@@ -322,7 +348,14 @@ fn image_scenes(
     let mut out = Vec::new();
     for (name, mut scene) in list {
         scene.settings.max_depth = sizes.reference_depth;
-        let r = render(ctx, &scene, sizes, sizes.reference_spp, AccelChoice::default(), &TraceOptions::default())?;
+        let r = render(
+            ctx,
+            &scene,
+            sizes,
+            sizes.reference_spp,
+            AccelChoice::default(),
+            &TraceOptions::default(),
+        )?;
         let file = format!("images/{name}/reference.png");
         progress(&format!("reference {name}: {} spp, {:.0} ms", r.spp, r.ms));
         images.push(ImageFile {
@@ -370,6 +403,14 @@ fn render(
         all_effects: false,
         accel,
     };
+    // lavapipe compiles a pipeline at its first dispatch: a tiny render first, untimed.
+    let warm = RenderOptions {
+        width: Some(8),
+        height: Some(6),
+        spp: Some(1),
+        ..opt
+    };
+    render_scene(ctx, scene, &warm, trace, |_, _| {})?;
     let r = render_scene(ctx, scene, &opt, trace, |_, _| {})?;
     Ok(Render {
         spp: r.plan.spp,
@@ -449,6 +490,26 @@ fn render_all(
     Ok((errors, ms))
 }
 
+/// lavapipe compiles a pipeline at its first dispatch, which must not be timed: builds
+/// `s`'s structure over a small mesh and traces a few rays of each kind through it.
+fn warm_up(ctx: &Context, rays: &RayBench, s: &StructureSetting) -> Result<(), BoxError> {
+    let Some(builder) = s.build.builder(ctx)? else {
+        // A host build: only the kd-tree walk, which the reference already ran.
+        return Ok(());
+    };
+    let (geom, _) = trace_bench::build(ctx, &builder, &rays.warm)?;
+    for set in &rays.sets {
+        let o = TraceOptions {
+            query: set.kind.query(),
+            ..s.trace
+        };
+        let few = &set.rays[..set.rays.len().min(64)];
+        Tracer::for_accel(ctx, &o, s.build.choice().traversal())?
+            .trace_batched(ctx, &geom, few, 0.0, None)?;
+    }
+    Ok(())
+}
+
 /// Whether two answers to the same ray differ: hit or miss, and for closest-hit queries the
 /// primitive or `t` beyond 1e-5 relative.
 fn differs(a: &Hit, b: &Hit, query: Query) -> bool {
@@ -491,6 +552,7 @@ fn measure_structure(
     let g = &rays.scene.geometry;
     let choice = s.build.choice();
     let mut notes = Vec::new();
+    warm_up(ctx, rays, s)?;
     // Build, best of `reps`; the last one is traced.
     let mut build_ms = f64::MAX;
     let mut built = None;
@@ -555,7 +617,10 @@ fn measure_structure(
         match host {
             HostStructure::KdTree(t) => (
                 Some(stats::stats(&t, &s.build.kd_params()).sah_cost),
-                Some((t.nodes.len() * std::mem::size_of_val(&t.nodes[0]) + t.prim_refs.len() * 4) as u64),
+                Some(
+                    (t.nodes.len() * std::mem::size_of_val(&t.nodes[0]) + t.prim_refs.len() * 4)
+                        as u64,
+                ),
             ),
             HostStructure::Bvh(b) => (
                 Some(bvh::validate::sah_cost(&b, &BvhParams::default())),
@@ -626,6 +691,7 @@ fn measure_structure(
             images: image_errors,
             sah_ratio: None,
         },
+        use_times: Some(UseTimes::new(build_ms, trace.total())),
         note: (!notes.is_empty()).then(|| notes.join("; ")),
     })
 }
@@ -661,6 +727,7 @@ fn measure_image(
             images: errors,
             ..Accuracy::default()
         },
+        use_times: None,
         note: None,
     })
 }
@@ -688,6 +755,25 @@ fn measure_motion(
         frames,
         quality: true,
     };
+    // Untimed first: two tiny frames compile the loop's pipelines.
+    let warm = AnimateOptions {
+        render: RenderOptions {
+            width: Some(8),
+            height: Some(6),
+            ..opt.render
+        },
+        frames: 2.min(frames),
+        quality: false,
+        ..opt
+    };
+    animate::run(
+        ctx,
+        |k| (scene.frame_time(k * step), scene.at_frame(k * step)),
+        &warm,
+        &TraceOptions::default(),
+        |_, _| Ok(()),
+        |_| {},
+    )?;
     let report = animate::run(
         ctx,
         |k| (scene.frame_time(k * step), scene.at_frame(k * step)),
@@ -722,6 +808,7 @@ fn measure_motion(
             sah_ratio: ratio,
             ..Accuracy::default()
         },
+        use_times: None,
         note: Some(format!(
             "{} frames, every {step}th of the animation, {}×{}, 1 spp",
             report.frames.len(),

@@ -95,8 +95,46 @@ pub struct Point {
     pub error: f64,
     pub costs: Costs,
     pub accuracy: Accuracy,
+    /// What each use pays, where that is not `time_ms` (see [`UseTimes`]).
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub use_times: Option<UseTimes>,
     #[serde(skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
+}
+
+/// The time each use pays for a structure setting, from the measured build and trace ms: a
+/// preview rebuilds for every frame and traces one frame's rays (`build + trace`), a final
+/// frame builds once and traces [`FINAL_FRAME_TRACES`] times as many rays
+/// (`build + 256·trace`), and physics or visibility queries run against a structure built
+/// once, so their cost is the trace alone. The recommendations rank by these.
+#[derive(Clone, Copy, Debug, Default, Serialize)]
+pub struct UseTimes {
+    pub preview_ms: f64,
+    pub final_frame_ms: f64,
+    pub queries_ms: f64,
+}
+
+/// How many times the bench's rays a final frame traces (e.g. 256 samples per pixel of
+/// primary, shadow and bounce rays at the bench's resolution).
+pub const FINAL_FRAME_TRACES: f64 = 256.0;
+
+impl UseTimes {
+    pub fn new(build_ms: f64, trace_ms: f64) -> Self {
+        Self {
+            preview_ms: build_ms + trace_ms,
+            final_frame_ms: build_ms + FINAL_FRAME_TRACES * trace_ms,
+            queries_ms: trace_ms,
+        }
+    }
+
+    /// The time of `use_case` (one of [`pareto::USES`]).
+    pub fn of(&self, use_case: &str) -> f64 {
+        match use_case {
+            "interactive preview" => self.preview_ms,
+            "final frame" => self.final_frame_ms,
+            _ => self.queries_ms,
+        }
+    }
 }
 
 /// What a setting costs.

@@ -57,6 +57,7 @@ pub fn recommend(groups: &[KnobGroup]) -> Vec<Recommendation> {
             if !g.points.iter().any(finite) {
                 continue;
             }
+            let g = &for_use(g, use_case);
             let (i, why) = match use_case {
                 "interactive preview" => preview(g),
                 "final frame" => final_frame(g),
@@ -71,6 +72,18 @@ pub fn recommend(groups: &[KnobGroup]) -> Vec<Recommendation> {
         }
     }
     out
+}
+
+/// `g` with every point's time the one `use_case` pays ([`super::UseTimes`]), where the
+/// points carry one.
+fn for_use(g: &KnobGroup, use_case: &str) -> KnobGroup {
+    let mut g = g.clone();
+    for p in &mut g.points {
+        if let Some(u) = p.use_times {
+            p.time_ms = u.of(use_case);
+        }
+    }
+    g
 }
 
 /// The fastest point of `candidates` (ties: lower error, then the first).
@@ -173,11 +186,16 @@ fn final_frame(g: &KnobGroup) -> (usize, String) {
     (i, why)
 }
 
-/// The fewest hard-case failures, then the fastest; without hard cases, the final frame's.
+/// The fewest wrong answers (hard-case failures, and rays answered differently from the
+/// reference setting), then the fastest; without hard cases, the final frame's.
 fn physics(g: &KnobGroup) -> (usize, String) {
     let pts = &g.points;
     let timed = |i: &usize| pts[*i].time_ms.is_finite();
-    let fails = |i: usize| pts[i].accuracy.hard_cases.map(|h| h.failures());
+    let fails = |i: usize| {
+        let a = &pts[i].accuracy;
+        a.hard_cases
+            .map(|h| h.failures() + a.hit_differences.unwrap_or(0))
+    };
     let least = (0..pts.len()).filter(timed).filter_map(fails).min();
     let Some(least) = least else {
         let (i, why) = final_frame(g);
@@ -192,7 +210,7 @@ fn physics(g: &KnobGroup) -> (usize, String) {
     .expect("a point has the least failures");
     let rays = pts[i].accuracy.hard_cases.map_or(0, |h| h.rays);
     let head = format!(
-        "{} failures on {} hard-case rays, {} ms",
+        "{} wrong answers ({} hard-case rays, and the reference's rays), {} ms",
         fmt_count(least),
         fmt_count(rays),
         fmt_num(pts[i].time_ms)
@@ -203,7 +221,7 @@ fn physics(g: &KnobGroup) -> (usize, String) {
     } else {
         let q = &pts[quick];
         let failures = match fails(quick) {
-            Some(f) => format!("with {} failures", fmt_count(f)),
+            Some(f) => format!("with {} wrong answers", fmt_count(f)),
             None => "(not run on the hard cases)".to_string(),
         };
         format!(
@@ -266,6 +284,7 @@ mod tests {
             error,
             costs: Costs::default(),
             accuracy: Accuracy::default(),
+            use_times: None,
             note: None,
         }
     }
@@ -412,7 +431,7 @@ mod tests {
         assert_eq!(r[0].setting, "robust");
         assert_eq!(
             r[0].why,
-            "0 failures on 123,456 hard-case rays, 12.3 ms; fastest overall (untested) \
+            "0 wrong answers (123,456 hard-case rays, and the reference's rays), 12.3 ms; fastest overall (untested) \
              1 ms (not run on the hard cases)"
         );
         let g = group(
@@ -424,7 +443,29 @@ mod tests {
         );
         assert!(recommend(&[g])[0]
             .why
-            .ends_with("fastest overall (leaky) 8.1 ms with 37 failures"));
+            .ends_with("fastest overall (leaky) 8.1 ms with 37 wrong answers"));
+    }
+
+    #[test]
+    fn each_use_ranks_by_the_time_it_pays() {
+        // A quick build that traces slowly, and a slow build that traces fast.
+        let timed = |name: &str, build: f64, trace: f64| Point {
+            use_times: Some(crate::accuracy::UseTimes::new(build, trace)),
+            ..hard(p(name, build + trace, 0.0), 0)
+        };
+        let g = group(
+            vec![
+                timed("fast build", 5.0, 10.0),
+                timed("fast trace", 100.0, 2.0),
+            ],
+            &USES,
+        );
+        let r = recommend(&[g]);
+        assert_eq!(pick(&r, "interactive preview").setting, "fast build");
+        // 5 + 256·10 > 100 + 256·2; queries pay the trace alone.
+        assert_eq!(pick(&r, "final frame").setting, "fast trace");
+        assert_eq!(pick(&r, "physics/visibility queries").setting, "fast trace");
+        assert!(pick(&r, "final frame").why.starts_with("612 ms"), "{:?}", r);
     }
 
     #[test]

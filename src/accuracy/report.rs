@@ -28,21 +28,7 @@ fn io_error(path: &Path, reason: impl std::fmt::Display) -> GpuError {
 /// its `file` name. `dir` may be missing, empty, or a previous report (it is replaced);
 /// anything else there is refused and left untouched.
 pub fn write(dir: &Path, report: &AccuracyReport, images: &[ImageFile]) -> Result<(), GpuError> {
-    let name = dir
-        .file_name()
-        .ok_or_else(|| io_error(dir, "not a folder name"))?
-        .to_string_lossy()
-        .into_owned();
-    let parent = match dir.parent() {
-        Some(p) if !p.as_os_str().is_empty() => p,
-        _ => Path::new("."),
-    };
-    if !parent.is_dir() {
-        return Err(io_error(
-            dir,
-            format!("the parent folder {} does not exist", parent.display()),
-        ));
-    }
+    let (name, parent) = target(dir)?;
     let previous = check_replaceable(dir)?;
     let sibling = |what: &str| parent.join(format!("{name}.{what}-{}", std::process::id()));
     let tmp = sibling("tmp");
@@ -66,6 +52,33 @@ pub fn write(dir: &Path, report: &AccuracyReport, images: &[ImageFile]) -> Resul
         let _ = std::fs::remove_dir_all(&tmp);
     }
     written
+}
+
+/// Refuses, before a long run, a folder [`write`] would refuse: a missing parent, a file, a
+/// folder holding something other than a previous report.
+pub fn check_target(dir: &Path) -> Result<(), GpuError> {
+    target(dir)?;
+    check_replaceable(dir).map(|_| ())
+}
+
+/// `dir`'s name and its existing parent folder.
+fn target(dir: &Path) -> Result<(String, &Path), GpuError> {
+    let name = dir
+        .file_name()
+        .ok_or_else(|| io_error(dir, "not a folder name"))?
+        .to_string_lossy()
+        .into_owned();
+    let parent = match dir.parent() {
+        Some(p) if !p.as_os_str().is_empty() => p,
+        _ => Path::new("."),
+    };
+    if !parent.is_dir() {
+        return Err(io_error(
+            dir,
+            format!("the parent folder {} does not exist", parent.display()),
+        ));
+    }
+    Ok((name, parent))
 }
 
 /// Whether `dir` exists and must be replaced; an error if it is not ours to replace.

@@ -19,7 +19,11 @@ impl fmt::Display for AccuracyReport {
             if self.quick { ", --quick" } else { "" }
         )?;
         for g in &self.groups {
-            writeln!(f, "\n{} — time: {}; error: {}", g.title, g.time_axis, g.error_axis)?;
+            writeln!(
+                f,
+                "\n{} — time: {}; error: {}",
+                g.title, g.time_axis, g.error_axis
+            )?;
             for (i, p) in g.points.iter().enumerate() {
                 let mark = if g.front.contains(&i) { '*' } else { ' ' };
                 writeln!(
@@ -28,13 +32,19 @@ impl fmt::Display for AccuracyReport {
                     p.setting,
                     p.time_ms,
                     p.error,
-                    p.note.as_ref().map_or(String::new(), |n| format!("  [{n}]"))
+                    p.note
+                        .as_ref()
+                        .map_or(String::new(), |n| format!("  [{n}]"))
                 )?;
             }
         }
         writeln!(f, "\n* on the Pareto front\n\nRecommendations:")?;
         for r in &self.recommendations {
-            writeln!(f, "  {:<28} {:<32} {}: {}", r.use_case, r.group, r.setting, r.why)?;
+            writeln!(
+                f,
+                "  {:<28} {:<32} {}: {}",
+                r.use_case, r.group, r.setting, r.why
+            )?;
         }
         Ok(())
     }

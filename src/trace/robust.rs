@@ -139,10 +139,10 @@ impl SuiteSize {
         Self {
             sphere_subdivisions: 4,
             grid: 40,
-            watertight_rays: 4_000,
+            watertight_rays: 20_000,
             self_prims: 200,
-            spawn_per_hit: 8,
-            checked_rays: 1_000,
+            spawn_per_hit: 16,
+            checked_rays: 2_000,
             builder_prims: 2_000,
             big_soup: 0,
         }
@@ -204,7 +204,14 @@ pub fn run_group(
     intersectors: &[Intersector],
     accel: AccelChoice,
 ) -> Result<Vec<CaseResult>> {
-    run_group_with(ctx, group, size, intersectors, accel, &SuiteConfig::default())
+    run_group_with(
+        ctx,
+        group,
+        size,
+        intersectors,
+        accel,
+        &SuiteConfig::default(),
+    )
 }
 
 /// [`run_group`] with the builder, kd-tree parameters and trace options of `config`.
@@ -410,7 +417,6 @@ impl Prepared {
         self.geometry.primitive_count() as u64
     }
 }
-
 
 fn ms(b: &TraceBatch) -> f64 {
     b.profile.ms("trace").unwrap_or(0.0)
@@ -733,7 +739,10 @@ impl Suite<'_> {
         }
 
         let spheres = log_uniform_spheres(n, 6);
-        let p = self.prepare(TraceGeometry::from_triangles_and_spheres(&[], &spheres), &self.config.kd_params)?;
+        let p = self.prepare(
+            TraceGeometry::from_triangles_and_spheres(&[], &spheres),
+            &self.config.kd_params,
+        )?;
         for i in self.intersectors.clone() {
             let o = self.opt(i);
             let mut rng = Rng::new(7);
@@ -866,7 +875,10 @@ impl Suite<'_> {
         let spheres: Vec<Vec4> = (0..100)
             .map(|_| rng.vec3_signed().extend(rng.range(0.05, 0.2)))
             .collect();
-        let p = self.prepare(TraceGeometry::from_triangles_and_spheres(&tris, &spheres), &self.config.kd_params)?;
+        let p = self.prepare(
+            TraceGeometry::from_triangles_and_spheres(&tris, &spheres),
+            &self.config.kd_params,
+        )?;
         let n = self.size.checked_rays;
         let (inner, boxes) = p.planes_and_boxes();
         let zero = |rng: &mut Rng| if rng.below(2) == 0 { 0.0 } else { -0.0 };
@@ -969,7 +981,10 @@ impl Suite<'_> {
                 }
             })
             .collect();
-        let p = self.prepare(TraceGeometry::from_triangles(&degenerate), &self.config.kd_params)?;
+        let p = self.prepare(
+            TraceGeometry::from_triangles(&degenerate),
+            &self.config.kd_params,
+        )?;
         let rays: Vec<Ray> = (0..n)
             .map(|k| {
                 let t = degenerate[rng.below(degenerate.len() as u32) as usize];
@@ -1068,7 +1083,10 @@ impl Suite<'_> {
         // Flat axis-aligned triangles on the planes k/4 (candidate split planes), rays in
         // those planes, through their vertices, and at random.
         let flats = flat_axis_aligned(&mut rng, 2000);
-        let p = self.prepare(TraceGeometry::from_triangles(&flats), &self.config.kd_params)?;
+        let p = self.prepare(
+            TraceGeometry::from_triangles(&flats),
+            &self.config.kd_params,
+        )?;
         let rays: Vec<Ray> = (0..n)
             .map(|k| {
                 let t = flats[rng.below(flats.len() as u32) as usize];
@@ -1290,7 +1308,10 @@ impl Suite<'_> {
 
     fn bad_rays(&mut self) -> Result<()> {
         let sphere = triangles(&gen::icosphere(5).map_err(scene)?);
-        let p = self.prepare(TraceGeometry::from_triangles(&sphere), &self.config.kd_params)?;
+        let p = self.prepare(
+            TraceGeometry::from_triangles(&sphere),
+            &self.config.kd_params,
+        )?;
         let n = self.size.watertight_rays / 2;
         let mut rng = Rng::new(12);
         let (nan, inf) = (f32::NAN, f32::INFINITY);

@@ -383,7 +383,11 @@ fn best_build(
 
 /// One build of `builder`'s structure over `g`, redone with twice the kd-tree's reference
 /// budget while it runs out (as `vkrt trace` does); the successful build's milliseconds.
-pub(crate) fn build(ctx: &Context, builder: &AccelBuilder, g: &TraceGeometry) -> Result<(GpuGeometry, f64)> {
+pub(crate) fn build(
+    ctx: &Context,
+    builder: &AccelBuilder,
+    g: &TraceGeometry,
+) -> Result<(GpuGeometry, f64)> {
     for grow in 0..8 {
         let mut rec = Recorder::new(ctx)?;
         let (geom, recorded) = GpuGeometry::record_build(&mut rec, builder, g, grow)?;
