@@ -766,22 +766,18 @@ fn measure_motion(
         quality: false,
         ..opt
     };
-    animate::run(
-        ctx,
-        |k| (scene.frame_time(k * step), scene.at_frame(k * step)),
-        &warm,
-        &TraceOptions::default(),
-        |_, _| Ok(()),
-        |_| {},
-    )?;
-    let report = animate::run(
-        ctx,
-        |k| (scene.frame_time(k * step), scene.at_frame(k * step)),
-        &opt,
-        &TraceOptions::default(),
-        |_, _| Ok(()),
-        |_| {},
-    )?;
+    let frames_of = |o: &AnimateOptions| {
+        animate::run(
+            ctx,
+            |k| (scene.frame_time(k * step), scene.at_frame(k * step)),
+            o,
+            &TraceOptions::default(),
+            |_, _| Ok(()),
+            |_| {},
+        )
+    };
+    frames_of(&warm)?;
+    let report = frames_of(&opt)?;
     // Frame 0 builds in both modes: the frames after it are what an update costs.
     let later: Vec<_> = report.frames.iter().skip(1).collect();
     let rows = if later.is_empty() {
