@@ -335,3 +335,90 @@ fn moving_geometry_is_traced_at_the_ray_time() {
     );
     assert_silent(&ctx);
 }
+
+/// Rays lying exactly in the split planes of a grid of axis-aligned squares, through a
+/// two-entry stack that overflows on every path: GPU and CPU twin agree, and every ray the
+/// walk answers equals brute force (a ray that ran out of steps would be reported and
+/// answered as a miss). The restart past the last cell can still lose a flat triangle
+/// lying in the plane itself (README, Ray queries).
+#[test]
+fn in_plane_rays_through_an_overflowing_stack_equal_brute_force() {
+    let Some(ctx) = context() else { return };
+    // Unit squares in the planes z = 0..4, over x, y in 0..8: every integer is a split.
+    let mut tris = Vec::new();
+    for z in 0..4 {
+        for x in 0..8 {
+            for y in 0..8 {
+                let p = |dx: i32, dy: i32| Vec3::new((x + dx) as f32, (y + dy) as f32, z as f32);
+                tris.push([p(0, 0), p(1, 0), p(1, 1)]);
+                tris.push([p(0, 0), p(1, 1), p(0, 1)]);
+            }
+        }
+    }
+    let g = TraceGeometry::from_triangles(&tris);
+    let tree = tree_of(&g);
+    let mut rng = Rng(5);
+    let mut rays = Vec::new();
+    for k in 0..4000 {
+        // In a plane x = i or y = j (direction component exactly 0), through the stack of
+        // squares from above or sideways.
+        let i = (rng.next_u64() % 9) as f32;
+        let (u, w) = ((rng.next_f32() + 1.0) * 4.0, (rng.next_f32() + 1.0) * 1.5);
+        let (o, d) = match k % 3 {
+            0 => (
+                Vec3::new(i, u, 6.0),
+                Vec3::new(0.0, rng.next_f32() * 0.5, -1.0),
+            ),
+            1 => (
+                Vec3::new(u, i, 6.0),
+                Vec3::new(rng.next_f32() * 0.5, 0.0, -1.0),
+            ),
+            _ => (Vec3::new(i, -1.0, w + 0.5), Vec3::new(0.0, 1.0, -0.1)),
+        };
+        rays.push(Ray::new(o, d, 0.0, f32::INFINITY));
+    }
+    let opt = TraceOptions {
+        stack_size: 2,
+        ..TraceOptions::default()
+    };
+    let dev = GpuGeometry::upload(&ctx, &g, &tree).unwrap();
+    let batch = Tracer::new(&ctx, &opt)
+        .unwrap()
+        .trace(&ctx, &dev, &rays, 0.0)
+        .unwrap();
+    let scene = TraceScene {
+        geometry: &g,
+        tree: &tree,
+    };
+    let mut exhausted = 0;
+    for (i, r) in rays.iter().enumerate() {
+        let (twin, out_of_steps) = cpu::trace(&scene, r, 0.0, &opt);
+        let gpu = batch.hits[i];
+        if out_of_steps {
+            // Reported, and answered as a miss.
+            assert!(!gpu.is_hit(), "ray {i} {r:?}: exhausted but {gpu:?}");
+            exhausted += 1;
+        } else {
+            assert!(
+                same_answer(&gpu, &twin),
+                "ray {i} {r:?}: GPU {gpu:?} vs twin {twin:?}"
+            );
+            let bf = cpu::brute_force(&g, r, 0.0, &opt);
+            assert!(
+                same_answer(&twin, &bf),
+                "ray {i} {r:?}: {twin:?} vs brute force {bf:?}"
+            );
+        }
+    }
+    assert_eq!(batch.exhausted, exhausted, "GPU and twin exhausted counts");
+    println!(
+        "{exhausted} of {} in-plane rays reported exhausted",
+        rays.len()
+    );
+    assert!(
+        exhausted < rays.len() as u32 / 2,
+        "{exhausted} of {} exhausted",
+        rays.len()
+    );
+    assert_silent(&ctx);
+}
