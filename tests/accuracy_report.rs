@@ -183,6 +183,7 @@ fn sample() -> (AccuracyReport, Vec<ImageFile>) {
         image_scenes,
         groups,
         recommendations,
+        notes: vec!["driver: skipped <no ray query>".into()],
     };
     (report, images)
 }
@@ -215,6 +216,10 @@ fn html_has_one_plot_per_group_and_escapes_text() {
     assert!(page.contains("★ BVH binned SAH"), "front rows are marked");
     assert!(page.contains("not plotted (time or error not a number): Möller–Trumbore"));
     assert!(page.contains("Recommendations") && page.contains("interactive preview"));
+    assert!(
+        page.contains("driver: skipped &lt;no ray query&gt;"),
+        "the run's notes"
+    );
     assert!(page.contains("src=\"images/cornell-reference.png\""));
     assert!(page.contains("src=\"images/cornell-BVH_LBVH.png\""));
     for external in ["<link", "<script", "src=\"http", "href=\"http", "url("] {

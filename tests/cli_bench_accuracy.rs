@@ -128,6 +128,19 @@ fn quick_report_is_complete_and_finite() {
 
     // Structure settings: hard cases and traces measured; spp settings: errors fall.
     let structure = &groups[0]["points"].as_array().unwrap();
+    // The driver's structures where the device has ray query, else a note that says why not.
+    let driver_rows = structure
+        .iter()
+        .any(|p| p["setting"].as_str().unwrap().starts_with("driver"));
+    let skipped = json["notes"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .any(|n| n.as_str().unwrap().starts_with("driver: skipped"));
+    assert!(
+        driver_rows != skipped,
+        "driver rows {driver_rows}, skip note {skipped}"
+    );
     let kd = &structure[0];
     assert!(num(&kd["accuracy"]["hard_cases"]["rays"], "hard-case rays") > 0.0);
     assert_eq!(

@@ -187,6 +187,7 @@ pub fn run(
         image_scenes: scenes.iter().map(|s| s.info.clone()).collect(),
         groups,
         recommendations,
+        notes: trace_bench::driver_note(ctx).into_iter().collect(),
     };
     Ok((report, images))
 }

@@ -43,6 +43,8 @@ pub struct AccuracyReport {
     pub image_scenes: Vec<ImageScene>,
     pub groups: Vec<KnobGroup>,
     pub recommendations: Vec<Recommendation>,
+    /// What the run left out and why (e.g. the driver's structures without ray query).
+    pub notes: Vec<String>,
 }
 
 /// How many rays of each kind time a structure.

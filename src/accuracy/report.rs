@@ -198,6 +198,9 @@ pub fn html(report: &AccuracyReport) -> String {
     for (k, v) in rows {
         let _ = write!(h, "<dt>{k}</dt><dd>{v}</dd>");
     }
+    for note in &r.notes {
+        let _ = write!(h, "<dt>note</dt><dd>{}</dd>", escape(note));
+    }
     h.push_str("</dl>\n<h2>Recommendations</h2>\n<div class=\"scroll\"><table><tr><th>use</th><th>group</th><th>setting</th><th>why</th></tr>\n");
     for rec in &r.recommendations {
         let _ = writeln!(

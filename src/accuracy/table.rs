@@ -18,6 +18,9 @@ impl fmt::Display for AccuracyReport {
             self.wall_s,
             if self.quick { ", --quick" } else { "" }
         )?;
+        for note in &self.notes {
+            writeln!(f, "note: {note}")?;
+        }
         for g in &self.groups {
             writeln!(
                 f,
