@@ -1647,9 +1647,7 @@ fn bench_trace_command(
     use vkrt::trace::bench::{self, scenes, BenchOptions};
     let quick = args.quick;
     let mut list = Vec::new();
-    let bunny =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
-    let default_mesh = (!quick && bunny.exists()).then_some(bunny);
+    let default_mesh = scenes::shared_bunny().filter(|_| !quick);
     if let Some(path) = args.mesh.clone().or(default_mesh) {
         list.push(scenes::mesh(&path)?);
     }
@@ -1676,33 +1674,16 @@ type Meshes = Vec<(String, Vec<[glam::Vec3; 3]>)>;
 /// The meshes a build benchmark runs over: `mesh` (default: the bunny in ../shared when
 /// present), then icospheres of 100 K, 200 K, 500 K, 1 M and 2 M triangles up to `max_n`.
 fn bench_scenes(mesh: Option<PathBuf>, max_n: u64) -> Result<Meshes, Box<dyn std::error::Error>> {
-    let mut scenes = Vec::new();
-    let bunny =
-        PathBuf::from(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
-    if let Some(path) = mesh.or_else(|| bunny.exists().then_some(bunny)) {
-        let scene = vkrt::scene::Scene::load(&path)?.scene;
-        let name = path
-            .file_stem()
-            .map_or("mesh".into(), |s| s.to_string_lossy().into_owned());
-        scenes.push((name, scene.triangles_world(0.0)));
+    use vkrt::trace::bench::scenes;
+    let mut list = Vec::new();
+    if let Some(path) = mesh.or_else(scenes::shared_bunny) {
+        list.push(scenes::mesh_triangles(&path)?);
     }
     for n in [100_000u64, 200_000, 500_000, 1_000_000, 2_000_000] {
         if n > max_n {
             break;
         }
-        let mesh = vkrt::scene::gen::icosphere_with_at_least(n)?;
-        let t = mesh
-            .indices
-            .iter()
-            .map(|i| {
-                [
-                    mesh.positions[i[0] as usize],
-                    mesh.positions[i[1] as usize],
-                    mesh.positions[i[2] as usize],
-                ]
-            })
-            .collect();
-        scenes.push((format!("icosphere{}k", n / 1000), t));
+        list.push(scenes::icosphere_triangles(n)?);
     }
-    Ok(scenes)
+    Ok(list)
 }

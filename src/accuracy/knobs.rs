@@ -128,7 +128,6 @@ pub struct GroupSpec {
 /// How much the run measures.
 #[derive(Clone, Copy, Debug)]
 pub struct Sizes {
-    pub quick: bool,
     /// Width of the bunny's primary-ray image (square).
     pub ray_image: u32,
     /// The image scenes' resolution.
@@ -152,7 +151,6 @@ impl Sizes {
     pub fn new(quick: bool) -> Self {
         if quick {
             Self {
-                quick,
                 ray_image: 128,
                 width: 96,
                 height: 72,
@@ -167,7 +165,6 @@ impl Sizes {
             }
         } else {
             Self {
-                quick,
                 ray_image: 512,
                 width: 256,
                 height: 192,
@@ -184,15 +181,11 @@ impl Sizes {
     }
 }
 
-fn trace_default() -> TraceOptions {
-    TraceOptions::default()
-}
-
 fn structure(label: impl Into<String>, build: Build, render: bool) -> StructureSetting {
     StructureSetting {
         label: label.into(),
         build,
-        trace: trace_default(),
+        trace: TraceOptions::default(),
         render,
     }
 }
@@ -360,7 +353,7 @@ pub fn groups(ctx: &Context, quick: bool) -> Vec<GroupSpec> {
             build: kd(SahParams::default()),
             trace: TraceOptions {
                 stack_size: entries,
-                ..trace_default()
+                ..TraceOptions::default()
             },
             render: false,
         });
@@ -379,7 +372,7 @@ pub fn groups(ctx: &Context, quick: bool) -> Vec<GroupSpec> {
         trace: TraceOptions {
             intersector,
             exact,
-            ..trace_default()
+            ..TraceOptions::default()
         },
         render: true,
     })

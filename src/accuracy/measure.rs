@@ -22,27 +22,31 @@
 //! viewer sees and emission scenes do not dominate the mean. The reference's own noise is
 //! part of every error (a setting at a quarter of its samples reads ~12 % high).
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 use std::sync::Arc;
 use std::time::Instant;
 
 use super::knobs::StructureSetting;
-use super::knobs::{self, Build, GroupSpec, ImageSetting, MotionSetting, Settings, Sizes};
+use super::knobs::{self, Build, GroupSpec, MotionSetting, Settings, Sizes};
 use super::{
-    pareto, Accuracy, AccuracyReport, Costs, HardCases, ImageError, ImageFile, ImageScene,
-    KnobGroup, Point, RayCountsInfo, TraceMs, UseTimes,
+    pareto, Accuracy, AccuracyReport, Costs, HardCases, ImageFile, KnobGroup, Point, RayCountsInfo,
+    TraceMs, UseTimes,
 };
 use crate::accel::bvh::{self, BvhParams};
-use crate::accel::device::{AccelChoice, AccelKind, HostStructure};
-use crate::accel::kdtree::{full_clip, stats};
+use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, HostStructure};
+use crate::accel::kdtree::{full_clip, stats, KdNode};
 use crate::gpu::{Context, GpuError};
 use crate::render::animate::{self, AnimateOptions};
-use crate::render::{render_scene, RenderOptions};
+use crate::render::RenderOptions;
 use crate::scene::Scene;
-use crate::trace::bench::{self as trace_bench, BenchScene, RayKind, RaySet};
+use crate::trace::bench::{self as trace_bench, scenes, BenchScene, RayKind, RaySet};
 use crate::trace::gpu::{GpuGeometry, Tracer};
 use crate::trace::robust::{self, SuiteConfig, SuiteSize};
 use crate::trace::{Hit, Query, TraceOptions};
+
+mod images;
+
+use images::{image_scenes, measure_image, render_all, slug, Compared};
 
 type BoxError = Box<dyn std::error::Error + Send + Sync>;
 
@@ -63,6 +67,8 @@ pub struct AccuracyOptions {
 
 /// Triangles of the stand-in mesh when the bunny is absent (the bunny's count).
 const STAND_IN_TRIANGLES: u64 = 69_451;
+/// Triangles of the mesh pipelines are warmed up on.
+const WARM_UP_TRIANGLES: u64 = 320;
 
 /// Runs every group; returns the report (fronts and recommendations filled) and the images
 /// it compared. `progress(line)` after each setting.
@@ -139,7 +145,7 @@ pub fn run(
                     ));
                     points.push(p);
                 }
-                (points, Axes::motion(&sizes))
+                (points, Axes::motion())
             }
         };
         groups.push(KnobGroup {
@@ -227,7 +233,7 @@ impl Axes {
     }
 
     /// A preview tolerates a tree 25 % worse than a fresh build.
-    fn motion(_sizes: &Sizes) -> Self {
+    fn motion() -> Self {
         Self {
             time: "update + render GPU ms per frame (seed 001's demo)",
             error: "SAH cost over a fresh build's, minus 1 (last frame)",
@@ -251,262 +257,101 @@ struct RayBench {
 
 impl RayBench {
     fn new(ctx: &Context, opt: &AccuracyOptions, sizes: &Sizes) -> Result<Self, BoxError> {
-        let bunny =
-            Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
-        let path = opt.mesh.clone().or_else(|| bunny.exists().then_some(bunny));
-        let (name, triangles) = match path {
-            Some(path) => {
-                let scene = Scene::load(&path)?.scene;
-                let name = path
-                    .file_stem()
-                    .map_or("mesh".into(), |s| s.to_string_lossy().into_owned());
-                (name, scene.triangles_world(scene.camera.shutter_open))
-            }
+        let (name, triangles) = match opt.mesh.clone().or_else(scenes::shared_bunny) {
+            Some(path) => scenes::mesh_triangles(&path)?,
             None => {
-                let m = crate::scene::gen::icosphere_with_at_least(STAND_IN_TRIANGLES)?;
-                let tris = m
-                    .indices
-                    .iter()
-                    .map(|t| t.map(|i| m.positions[i as usize]))
-                    .collect();
-                ("icosphere (the bunny is absent)".to_string(), tris)
+                let (name, tris) = scenes::icosphere_triangles(STAND_IN_TRIANGLES)?;
+                (format!("{name} (the bunny is absent)"), tris)
             }
         };
-        let scene = BenchScene::from_triangles(name.clone(), &triangles);
+        let scene = BenchScene::from_triangles(name, &triangles);
+        let g = &scene.geometry;
         let primary = RaySet {
             kind: RayKind::Primary,
             rays: scene.primary_rays(sizes.ray_image),
         };
         // The reference: the kd-tree with the watertight test and its fp64 fallback.
-        let reference = Build::default_for(AccelChoice::default());
-        let builder = reference.builder(ctx)?.expect("a device builder");
-        let (geom, _) = trace_bench::build(ctx, &builder, &scene.geometry)?;
-        let trace = |set: &RaySet| -> Result<Vec<Hit>, GpuError> {
-            let o = TraceOptions {
-                query: set.kind.query(),
-                ..TraceOptions::default()
-            };
-            Ok(
-                Tracer::for_accel(ctx, &o, AccelChoice::default().traversal())?
-                    .trace_batched(ctx, &geom, &set.rays, 0.0, None)?
-                    .hits,
+        let builder = Build::default_for(AccelChoice::default())
+            .builder(ctx)?
+            .expect("a device builder");
+        let (geom, _) = trace_bench::build(ctx, &builder, g)?;
+        let trace = |set: &RaySet| {
+            best_trace(
+                ctx,
+                &geom,
+                set,
+                AccelChoice::default(),
+                &TraceOptions::default(),
+                1,
             )
+            .map(|t| t.hits)
         };
         let primary_hits = trace(&primary)?;
         let (shadow, mirror) = scene.secondary_rays(&primary.rays, &primary_hits);
         let reference = vec![primary_hits, trace(&shadow)?, trace(&mirror)?];
-        let small = crate::scene::gen::icosphere(2)?;
-        let small: Vec<_> = small
-            .indices
-            .iter()
-            .map(|t| t.map(|i| small.positions[i as usize]))
-            .collect();
         Ok(Self {
-            name,
+            warm: scenes::icosphere(WARM_UP_TRIANGLES)?.geometry,
+            name: scene.name.clone(),
             scene,
             triangles,
             sets: vec![primary, shadow, mirror],
-            warm: crate::trace::TraceGeometry::from_triangles(&small),
             reference,
         })
     }
 }
 
-/// A scene images are compared on, its reference rendered.
-struct Compared {
-    info: ImageScene,
-    scene: Scene,
-    /// Display values of the reference, RGB in [0, 1].
-    reference: Vec<[f32; 3]>,
-}
-
-/// The default scene and the effect scenes (every static `*.toml` in `scenes_dir`), with
-/// their references rendered.
-fn image_scenes(
-    ctx: &Context,
-    opt: &AccuracyOptions,
-    sizes: &Sizes,
-    images: &mut Vec<ImageFile>,
-    progress: &mut impl FnMut(&str),
-) -> Result<Vec<Compared>, BoxError> {
-    let mut list = vec![("default".to_string(), Scene::default_scene())];
-    let mut paths: Vec<PathBuf> = std::fs::read_dir(&opt.scenes_dir)
-        .map_err(|e| format!("{}: {e}", opt.scenes_dir.display()))?
-        .filter_map(|e| Some(e.ok()?.path()))
-        .filter(|p| p.extension().is_some_and(|x| x == "toml"))
-        .collect();
-    paths.sort();
-    for p in paths {
-        let scene = Scene::load(&p)?.scene;
-        if scene.frame_count() > 1 {
-            continue; // animated: the motion group's
-        }
-        let name = p
-            .file_stem()
-            .map_or("scene".into(), |s| s.to_string_lossy().into_owned());
-        list.push((name, scene));
-    }
-    let mut out = Vec::new();
-    for (name, mut scene) in list {
-        scene.settings.max_depth = sizes.reference_depth;
-        let r = render(
-            ctx,
-            &scene,
-            sizes,
-            sizes.reference_spp,
-            AccelChoice::default(),
-            &TraceOptions::default(),
-        )?;
-        let file = format!("images/{name}/reference.png");
-        progress(&format!("reference {name}: {} spp, {:.0} ms", r.spp, r.ms));
-        images.push(ImageFile {
-            file: file.clone(),
-            width: sizes.width,
-            height: sizes.height,
-            rgba: r.rgba.clone(),
-        });
-        out.push(Compared {
-            info: ImageScene {
-                name,
-                width: sizes.width,
-                height: sizes.height,
-                reference_spp: r.spp,
-                reference_depth: sizes.reference_depth,
-                reference_file: file,
-            },
-            scene,
-            reference: display(&r.rgba),
-        });
-    }
-    Ok(out)
-}
-
-/// One render's image and GPU time.
-struct Render {
-    rgba: Vec<u8>,
+/// One ray set traced `reps` times: the last hits, the best kernel ms, the rays that ran out
+/// of steps.
+struct Traced {
+    hits: Vec<Hit>,
     ms: f64,
-    /// The samples the plan used (a scene without sampled effects needs one).
-    spp: u32,
+    exhausted: u32,
 }
 
-fn render(
+fn best_trace(
     ctx: &Context,
-    scene: &Scene,
-    sizes: &Sizes,
-    spp: u32,
-    accel: AccelChoice,
+    geom: &GpuGeometry,
+    set: &RaySet,
+    choice: AccelChoice,
     trace: &TraceOptions,
-) -> Result<Render, BoxError> {
-    let opt = RenderOptions {
-        width: Some(sizes.width),
-        height: Some(sizes.height),
-        spp: Some(spp),
-        all_effects: false,
-        accel,
+    reps: u32,
+) -> Result<Traced, GpuError> {
+    let o = TraceOptions {
+        query: set.kind.query(),
+        ..*trace
     };
-    // lavapipe compiles a pipeline at its first dispatch: a tiny render first, untimed.
-    let warm = RenderOptions {
-        width: Some(8),
-        height: Some(6),
-        spp: Some(1),
-        ..opt
+    let tracer = Tracer::for_accel(ctx, &o, choice.traversal())?;
+    let mut best = Traced {
+        hits: Vec::new(),
+        ms: f64::MAX,
+        exhausted: 0,
     };
-    render_scene(ctx, scene, &warm, trace, |_, _| {})?;
-    let r = render_scene(ctx, scene, &opt, trace, |_, _| {})?;
-    Ok(Render {
-        spp: r.plan.spp,
-        ms: r.render_ms,
-        rgba: r.image.rgba,
-    })
-}
-
-/// RGB display values in [0, 1] of 8-bit RGBA.
-fn display(rgba: &[u8]) -> Vec<[f32; 3]> {
-    rgba.chunks_exact(4)
-        .map(|p| [0, 1, 2].map(|c| f32::from(p[c]) / 255.0))
-        .collect()
-}
-
-/// RMSE over every channel and the largest channel difference.
-fn image_error(a: &[[f32; 3]], b: &[[f32; 3]]) -> (f64, f64) {
-    let (mut sum, mut worst) = (0.0f64, 0.0f64);
-    for (p, q) in a.iter().zip(b) {
-        for c in 0..3 {
-            let d = f64::from(p[c] - q[c]).abs();
-            sum += d * d;
-            worst = worst.max(d);
-        }
-    }
-    let n = (a.len() * 3).max(1) as f64;
-    ((sum / n).sqrt(), worst)
-}
-
-/// A file-name-safe form of a label.
-fn slug(s: &str) -> String {
-    let mut out = String::new();
-    for c in s.chars() {
-        match c {
-            'a'..='z' | 'A'..='Z' | '0'..='9' => out.push(c.to_ascii_lowercase()),
-            _ if !out.ends_with('-') && !out.is_empty() => out.push('-'),
-            _ => {}
-        }
-    }
-    out.trim_end_matches('-').to_string()
-}
-
-/// Renders every image scene with `accel` and `trace` at `spp` and `depth`; the errors and
-/// the summed GPU ms.
-#[allow(clippy::too_many_arguments)]
-fn render_all(
-    ctx: &Context,
-    scenes: &[Compared],
-    sizes: &Sizes,
-    (spp, depth): (u32, u32),
-    accel: AccelChoice,
-    trace: &TraceOptions,
-    file_stem: &str,
-    images: &mut Vec<ImageFile>,
-) -> Result<(Vec<ImageError>, f64), BoxError> {
-    let (mut errors, mut ms) = (Vec::new(), 0.0);
-    for s in scenes {
-        let mut scene = s.scene.clone();
-        scene.settings.max_depth = depth;
-        let r = render(ctx, &scene, sizes, spp, accel, trace)?;
-        let (rmse, worst) = image_error(&display(&r.rgba), &s.reference);
-        let file = format!("images/{}/{file_stem}.png", s.info.name);
-        images.push(ImageFile {
-            file: file.clone(),
-            width: sizes.width,
-            height: sizes.height,
-            rgba: r.rgba,
-        });
-        ms += r.ms;
-        errors.push(ImageError {
-            scene: s.info.name.clone(),
-            rmse,
-            worst,
-            file,
-        });
-    }
-    Ok((errors, ms))
-}
-
-/// lavapipe compiles a pipeline at its first dispatch, which must not be timed: builds
-/// `s`'s structure over a small mesh and traces a few rays of each kind through it.
-fn warm_up(ctx: &Context, rays: &RayBench, s: &StructureSetting) -> Result<(), BoxError> {
-    let Some(builder) = s.build.builder(ctx)? else {
-        // A host build: only the kd-tree walk, which the reference already ran.
-        return Ok(());
-    };
-    let (geom, _) = trace_bench::build(ctx, &builder, &rays.warm)?;
-    for set in &rays.sets {
-        let o = TraceOptions {
-            query: set.kind.query(),
-            ..s.trace
+    for _ in 0..reps.max(1) {
+        let b = tracer.trace_batched(ctx, geom, &set.rays, 0.0, None)?;
+        best = Traced {
+            ms: best.ms.min(b.profile.ms("trace").unwrap_or(0.0)),
+            hits: b.hits,
+            exhausted: b.exhausted,
         };
-        let few = &set.rays[..set.rays.len().min(64)];
-        Tracer::for_accel(ctx, &o, s.build.choice().traversal())?
-            .trace_batched(ctx, &geom, few, 0.0, None)?;
+    }
+    Ok(best)
+}
+
+/// lavapipe compiles a pipeline at its first dispatch, which must not be timed: builds with
+/// `builder` over a small mesh and traces a few rays of each kind through it.
+fn warm_up(
+    ctx: &Context,
+    rays: &RayBench,
+    builder: &AccelBuilder,
+    s: &StructureSetting,
+) -> Result<(), BoxError> {
+    let (geom, _) = trace_bench::build(ctx, builder, &rays.warm)?;
+    for set in &rays.sets {
+        let few = RaySet {
+            kind: set.kind,
+            rays: set.rays[..set.rays.len().min(64)].to_vec(),
+        };
+        best_trace(ctx, &geom, &few, s.build.choice(), &s.trace, 1)?;
     }
     Ok(())
 }
@@ -553,25 +398,26 @@ fn measure_structure(
     let g = &rays.scene.geometry;
     let choice = s.build.choice();
     let mut notes = Vec::new();
-    warm_up(ctx, rays, s)?;
+    // `None`: the host kd-tree with full clipping (the kd-tree walk the reference warmed up).
+    let builder = s.build.builder(ctx)?;
+    if let Some(b) = &builder {
+        warm_up(ctx, rays, b, s)?;
+    }
     // Build, best of `reps`; the last one is traced.
     let mut build_ms = f64::MAX;
     let mut built = None;
     let mut host = None;
     for _ in 0..sizes.reps.max(1) {
         drop(built.take());
-        let (geom, ms) = match s.build {
-            Build::KdFullClip(params) => {
+        let (geom, ms) = match &builder {
+            Some(b) => trace_bench::build(ctx, b, g)?,
+            None => {
                 let t = Instant::now();
-                let tree = full_clip::build(&rays.triangles, &params);
+                let tree = full_clip::build(&rays.triangles, &s.build.kd_params());
                 let ms = t.elapsed().as_secs_f64() * 1e3;
                 let geom = GpuGeometry::upload(ctx, g, &tree)?;
                 host = Some(HostStructure::KdTree(tree));
                 (geom, ms)
-            }
-            Build::Builder { .. } => {
-                let builder = s.build.builder(ctx)?.expect("a device builder");
-                trace_bench::build(ctx, &builder, g)?
             }
         };
         build_ms = build_ms.min(ms);
@@ -581,26 +427,16 @@ fn measure_structure(
     // Trace each set, best of `reps`.
     let mut trace_ms = [0.0f64; 3];
     let mut differing = 0u64;
-    let mut exhausted = 0u64;
+    let mut exhausted = 0u32;
     for (k, set) in rays.sets.iter().enumerate() {
-        let o = TraceOptions {
-            query: set.kind.query(),
-            ..s.trace
-        };
-        let tracer = Tracer::for_accel(ctx, &o, choice.traversal())?;
-        let mut best = f64::MAX;
-        let mut hits = Vec::new();
-        for _ in 0..sizes.reps.max(1) {
-            let b = tracer.trace_batched(ctx, &geom, &set.rays, 0.0, None)?;
-            best = best.min(b.profile.ms("trace").unwrap_or(0.0));
-            exhausted = u64::from(b.exhausted);
-            hits = b.hits;
-        }
-        trace_ms[k] = best;
-        differing += hits
+        let t = best_trace(ctx, &geom, set, choice, &s.trace, sizes.reps)?;
+        trace_ms[k] = t.ms;
+        exhausted += t.exhausted;
+        differing += t
+            .hits
             .iter()
             .zip(&rays.reference[k])
-            .filter(|(a, b)| differs(a, b, o.query))
+            .filter(|(a, b)| differs(a, b, set.kind.query()))
             .count() as u64;
     }
     if exhausted > 0 {
@@ -619,8 +455,7 @@ fn measure_structure(
             HostStructure::KdTree(t) => (
                 Some(stats::stats(&t, &s.build.kd_params()).sah_cost),
                 Some(
-                    (t.nodes.len() * std::mem::size_of_val(&t.nodes[0]) + t.prim_refs.len() * 4)
-                        as u64,
+                    (t.nodes.len() * std::mem::size_of::<KdNode>() + t.prim_refs.len() * 4) as u64,
                 ),
             ),
             HostStructure::Bvh(b) => (
@@ -694,42 +529,6 @@ fn measure_structure(
         },
         use_times: Some(UseTimes::new(build_ms, trace.total())),
         note: (!notes.is_empty()).then(|| notes.join("; ")),
-    })
-}
-
-fn measure_image(
-    ctx: &Context,
-    scenes: &[Compared],
-    sizes: &Sizes,
-    s: &ImageSetting,
-    group: &str,
-    images: &mut Vec<ImageFile>,
-) -> Result<Point, BoxError> {
-    let (errors, ms) = render_all(
-        ctx,
-        scenes,
-        sizes,
-        (s.spp, s.depth),
-        AccelChoice::default(),
-        &TraceOptions::default(),
-        &format!("{group}-{}", slug(&s.label)),
-        images,
-    )?;
-    let mean = errors.iter().map(|e| e.rmse).sum::<f64>() / errors.len().max(1) as f64;
-    Ok(Point {
-        setting: s.label.clone(),
-        time_ms: ms,
-        error: mean,
-        costs: Costs {
-            render_ms: Some(ms),
-            ..Costs::default()
-        },
-        accuracy: Accuracy {
-            images: errors,
-            ..Accuracy::default()
-        },
-        use_times: None,
-        note: None,
     })
 }
 

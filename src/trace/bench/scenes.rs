@@ -1,13 +1,22 @@
 //! Where the benchmark's scenes come from: the example scenes as their files set them up,
 //! and bare meshes (a mesh file, icospheres) framed by [`BenchScene::from_triangles`].
 
-use std::path::Path;
+use std::path::{Path, PathBuf};
+
+use glam::Vec3;
 
 use super::BenchScene;
 use crate::scene::{Scene, SceneError};
 
-/// Every `*.toml` scene in `dir`, in file-name order, named by file name.
-pub fn example_scenes(dir: &Path) -> Result<Vec<BenchScene>, SceneError> {
+/// The Stanford bunny in `../shared/scenes` beside the checkout, where it is present: the
+/// benchmarks' default mesh.
+pub fn shared_bunny() -> Option<PathBuf> {
+    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
+    path.exists().then_some(path)
+}
+
+/// Every `*.toml` file in `dir`, in file-name order.
+pub fn scene_files(dir: &Path) -> Result<Vec<PathBuf>, SceneError> {
     let entries = std::fs::read_dir(dir).map_err(|source| SceneError::Io {
         path: dir.to_path_buf(),
         source,
@@ -17,7 +26,12 @@ pub fn example_scenes(dir: &Path) -> Result<Vec<BenchScene>, SceneError> {
         .filter(|p| p.extension().is_some_and(|x| x == "toml"))
         .collect();
     paths.sort();
-    paths
+    Ok(paths)
+}
+
+/// Every `*.toml` scene in `dir`, in file-name order, named by file name.
+pub fn example_scenes(dir: &Path) -> Result<Vec<BenchScene>, SceneError> {
+    scene_files(dir)?
         .iter()
         .map(|p| {
             let name = p.file_name().unwrap_or_default().to_string_lossy();
@@ -26,22 +40,22 @@ pub fn example_scenes(dir: &Path) -> Result<Vec<BenchScene>, SceneError> {
         .collect()
 }
 
+/// Named triangles: a bare mesh before it is framed as a [`BenchScene`].
+pub type NamedTriangles = (String, Vec<[Vec3; 3]>);
+
 /// A mesh file's triangles (any format [`Scene::load`] reads), named by its stem.
-pub fn mesh(path: &Path) -> Result<BenchScene, SceneError> {
+pub fn mesh_triangles(path: &Path) -> Result<NamedTriangles, SceneError> {
     let scene = Scene::load(path)?.scene;
     let name = path
         .file_stem()
         .map_or("mesh".into(), |s| s.to_string_lossy().into_owned());
-    Ok(BenchScene::from_triangles(
-        name,
-        &scene.triangles_world(scene.camera.shutter_open),
-    ))
+    Ok((name, scene.triangles_world(scene.camera.shutter_open)))
 }
 
 /// An icosphere of at least `n` triangles, named `icosphere{n/1000}k`.
-pub fn icosphere(n: u64) -> Result<BenchScene, SceneError> {
+pub fn icosphere_triangles(n: u64) -> Result<NamedTriangles, SceneError> {
     let m = crate::scene::gen::icosphere_with_at_least(n)?;
-    let tris: Vec<_> = m
+    let tris = m
         .indices
         .iter()
         .map(|t| t.map(|i| m.positions[i as usize]))
@@ -51,5 +65,17 @@ pub fn icosphere(n: u64) -> Result<BenchScene, SceneError> {
     } else {
         format!("icosphere{n}")
     };
+    Ok((name, tris))
+}
+
+/// [`mesh_triangles`] framed by [`BenchScene::from_triangles`].
+pub fn mesh(path: &Path) -> Result<BenchScene, SceneError> {
+    let (name, tris) = mesh_triangles(path)?;
+    Ok(BenchScene::from_triangles(name, &tris))
+}
+
+/// [`icosphere_triangles`] framed by [`BenchScene::from_triangles`].
+pub fn icosphere(n: u64) -> Result<BenchScene, SceneError> {
+    let (name, tris) = icosphere_triangles(n)?;
     Ok(BenchScene::from_triangles(name, &tris))
 }
