@@ -110,7 +110,7 @@ fn device_builds_equal_their_host_twins_and_fit_their_sizes() {
                         b.bytes()
                     }
                 };
-                let announced = builder.sizes(&ctx, g.primitive_count(), 0);
+                let announced = builder.sizes(&ctx, g.primitive_count(), 0).unwrap();
                 assert!(
                     used as u64 + 48 <= announced.structure_bytes,
                     "{kind:?}, {n}: {used} bytes used, {announced:?}"

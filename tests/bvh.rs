@@ -2,7 +2,7 @@
 //! the same tree from every threading scheme and thread count, the full sweep and binned
 //! SAH, the depth cap, clear errors on bad parameters and boxes — both CPU traversals
 //! (stack and seed 000's bitstack) equal to brute force, closest hit bit for bit, and the
-//! GPU traversals (`glsl/common/bvh.glsl`) equal to their CPU twin, under validation.
+//! GPU traversals (`glsl/include/vkrt/bvh.glsl`) equal to their CPU twin, under validation.
 
 mod common;
 

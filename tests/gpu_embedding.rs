@@ -159,6 +159,7 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
         enabled_features: DeviceFeatures::default(),
         debug_utils: false,
         allocator: Some(allocator.clone()),
+        pipeline_cache_dir: None,
     };
     // SAFETY: the handles are valid and outlive the context (destroyed at the end of the
     // test, after the context is dropped); this thread is the only queue user.
@@ -259,7 +260,7 @@ fn embedded_build_and_trace(r: &Renderer, ctx: &Context, kind: AccelKind) {
     let opt = TraceOptions::default();
     let builder = AccelBuilder::new(ctx, kind).unwrap();
     let tracer = Tracer::for_accel(ctx, &opt, kind.walked(Default::default())).unwrap();
-    let sizes = builder.sizes(ctx, g.primitive_count(), 0);
+    let sizes = builder.sizes(ctx, g.primitive_count(), 0).unwrap();
     assert!(sizes.structure_bytes > 0);
     let ray_buf = Buffer::<Ray>::new(ctx, "embed.rays", rays.len()).unwrap();
     let hits = Buffer::<Hit>::new(ctx, "embed.hits", rays.len()).unwrap();
@@ -274,7 +275,8 @@ fn embedded_build_and_trace(r: &Renderer, ctx: &Context, kind: AccelKind) {
     let (geom, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
     rec.scope("embedded.trace", |rec| {
         tracer.record(rec, &geom, &ray_buf, &hits, &errors, rays.len(), 0.0)
-    });
+    })
+    .unwrap();
     rec.compute_to_transfer();
     let work = rec.finish();
     assert_eq!(

@@ -4,7 +4,7 @@
 #ifndef VKRT_ACCEL_BVH_COLLAPSE_GLSL
 #define VKRT_ACCEL_BVH_COLLAPSE_GLSL
 
-#include "common/bvh_node.glsl"
+#include "include/vkrt/bvh_node.glsl"
 
 #define COST_COUNT(i) (3u * (i))
 #define COST_SAH(i) (3u * (i) + 1u)

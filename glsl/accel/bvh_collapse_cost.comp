@@ -8,7 +8,7 @@
 layout(local_size_x_id = 0) in;
 #extension GL_KHR_shader_subgroup_vote : require
 #include "common/grid.glsl"
-#include "common/bvh_node.glsl"
+#include "include/vkrt/bvh_node.glsl"
 
 layout(std430, binding = 0) readonly buffer Nodes { BvhNode nodes[]; };
 // References, then one parent link per node from `parents_at` on.

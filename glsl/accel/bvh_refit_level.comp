@@ -4,7 +4,7 @@
 // dispatch of the depth below refit before. Unions in the total order on ±0, as every refit.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "common/bvh_node.glsl"
+#include "include/vkrt/bvh_node.glsl"
 
 #define MAX_DEPTH 128u
 

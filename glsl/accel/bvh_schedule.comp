@@ -6,7 +6,7 @@
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 
-#include "common/bvh_node.glsl"
+#include "include/vkrt/bvh_node.glsl"
 
 #define MAX_DEPTH 128u
 

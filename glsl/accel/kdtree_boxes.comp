@@ -13,7 +13,7 @@ layout(std430, binding = 5) writeonly buffer MaxY { float max_y[]; };
 layout(std430, binding = 6) writeonly buffer MaxZ { float max_z[]; };
 layout(push_constant) uniform Push { uint n; } pc;
 
-#include "common/kdtree.glsl"
+#include "include/vkrt/kdtree.glsl"
 
 void main() {
     uint i = linear_invocation_id();

@@ -6,7 +6,7 @@
 // everything instead of walking a truncated tree, and the host, reading the build state
 // afterwards, reports or retries it.
 layout(local_size_x = 1) in;
-#include "common/kdtree.glsl"
+#include "include/vkrt/kdtree.glsl"
 #include "accel/kdtree_level.glsl"
 
 layout(std430, binding = 0) readonly buffer State { uint state[]; };

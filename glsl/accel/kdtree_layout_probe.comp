@@ -1,7 +1,7 @@
 #version 460
 // Writes KdNodes from GLSL so a test can read them in Rust: proves both layouts agree.
 layout(local_size_x_id = 0) in;
-#include "common/kdtree.glsl"
+#include "include/vkrt/kdtree.glsl"
 
 layout(std430, binding = 0) writeonly buffer Nodes { KdNode nodes[]; };
 layout(push_constant) uniform Push { uint n; } pc;

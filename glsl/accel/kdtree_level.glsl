@@ -3,7 +3,7 @@
 #ifndef VKRT_ACCEL_KDTREE_LEVEL_GLSL
 #define VKRT_ACCEL_KDTREE_LEVEL_GLSL
 
-#include "common/kdtree.glsl"
+#include "include/vkrt/kdtree.glsl"
 
 // Words of the build state buffer.
 #define ST_REFS 0u        // primitive references of the current level (events per axis / 2)

@@ -8,7 +8,7 @@
 // the common prefix of the indices). Boxes are left empty: `accel.bvh_refit` computes them.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "common/bvh_node.glsl"
+#include "include/vkrt/bvh_node.glsl"
 
 layout(std430, binding = 0) writeonly buffer Nodes { BvhNode nodes[]; };
 // The sorted primitive ids (the leaves' references), then a parent link per node from n on.

@@ -2,7 +2,7 @@
 #ifndef VKRT_ACCEL_PLOC_COMMON_GLSL
 #define VKRT_ACCEL_PLOC_COMMON_GLSL
 
-#include "common/bvh_node.glsl"
+#include "include/vkrt/bvh_node.glsl"
 
 // A cluster's child word: a leaf (one reference, at that sorted position) has the top bit.
 #define LEAF_BIT 0x80000000u

@@ -5,7 +5,7 @@
 #extension GL_KHR_shader_subgroup_basic : require
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "common/kdtree.glsl"
+#include "include/vkrt/kdtree.glsl"
 #include "accel/ploc_common.glsl"
 
 layout(std430, binding = 0) readonly buffer Nearest { uint nn[]; };

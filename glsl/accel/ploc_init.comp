@@ -4,7 +4,7 @@
 // position i, its primitive's box), and the rounds' state.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "common/kdtree.glsl"
+#include "include/vkrt/kdtree.glsl"
 #include "accel/ploc_common.glsl"
 
 layout(std430, binding = 0) readonly buffer Boxes { float boxes[]; };

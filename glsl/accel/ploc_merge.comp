@@ -8,7 +8,7 @@
 #extension GL_KHR_shader_subgroup_basic : require
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "common/bvh_node.glsl"
+#include "include/vkrt/bvh_node.glsl"
 #include "accel/ploc_common.glsl"
 
 layout(std430, binding = 0) readonly buffer Src { Cluster src[]; };

@@ -8,7 +8,7 @@ layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint RADIUS = 8u;
 layout(constant_id = 2) const bool PAIRING = false;
 #include "common/grid.glsl"
-#include "common/kdtree.glsl"
+#include "include/vkrt/kdtree.glsl"
 #include "accel/ploc_common.glsl"
 
 layout(std430, binding = 0) readonly buffer Clusters { Cluster clusters[]; };

@@ -5,7 +5,7 @@
 // 0, the root), the next round's cluster count and its indirect dispatch.
 layout(local_size_x = 1) in;
 layout(constant_id = 1) const bool PAIRING = false;
-#include "common/kdtree.glsl"
+#include "include/vkrt/kdtree.glsl"
 #include "accel/ploc_common.glsl"
 
 layout(std430, binding = 0) buffer GroupSums { uvec2 group_sums[]; };

@@ -10,7 +10,7 @@ layout(constant_id = 3) const uint STACK_SIZE = 32u;
 #include "common/grid.glsl"
 #include "render/common.glsl"
 #define GEOM_BINDING 3
-#include "common/traverse.glsl"
+#include "include/vkrt/traverse.glsl"
 
 layout(std430, binding = 0) readonly buffer Queue { PathRay queue[]; };
 layout(std430, binding = 1) writeonly buffer Hits { Hit hits[]; };

@@ -24,7 +24,7 @@ layout(constant_id = 11) const bool BOUNCES = false;
 #include "render/common.glsl"
 #include "render/shading.glsl"
 #define GEOM_BINDING 3
-#include "common/traverse.glsl"
+#include "include/vkrt/traverse.glsl"
 
 layout(std430, binding = 0) readonly buffer Queue { PathRay queue[]; };
 layout(std430, binding = 1) readonly buffer Hits { Hit hits[]; };

@@ -12,7 +12,7 @@ layout(constant_id = 3) const uint STACK_SIZE = 32u;
 #include "common/grid.glsl"
 
 #define GEOM_BINDING 2
-#include "common/traverse.glsl"
+#include "include/vkrt/traverse.glsl"
 
 layout(std430, binding = 0) readonly buffer Rays { Ray rays[]; };
 layout(std430, binding = 1) writeonly buffer Hits { Hit hits[]; };

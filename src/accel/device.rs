@@ -6,7 +6,7 @@
 //! 2. [`AccelBuilder::create`]: the structure's buffers and the scratch at those sizes;
 //! 3. [`AccelBuilder::record_build`]: the build recorded into the caller's [`Recorder`], with
 //!    no submission and no read-back of its own; the structure's buffers are then bound
-//!    where they lie by every kernel that traces (`glsl/common/traverse.glsl`, whose walk is
+//!    where they lie by every kernel that traces (`glsl/include/vkrt/traverse.glsl`, whose walk is
 //!    chosen by the `ACCEL_KIND` specialization constant of [`AccelTraversal`]).
 //!
 //! The GPU kd-tree (seed 001) is built by kernels and finished on the device
@@ -21,9 +21,10 @@ use crate::accel::bvh::lbvh::MortonBits;
 use crate::accel::bvh::lbvh_gpu::LbvhBuilder;
 use crate::accel::bvh::ploc::PlocParams;
 use crate::accel::bvh::ploc_gpu::{PlocBuilder, PlocScratch};
-use crate::accel::bvh::refit_gpu::{LevelRefit, RefitSchedule};
+use crate::accel::bvh::refit_gpu::{LevelRefit, RefitSchedule, ScheduleScratch};
 use crate::accel::bvh::{self, Bvh, BvhNode, BvhParams, Threading};
 use crate::accel::driver::{DriverAccel, Prefer};
+use crate::accel::geometry::GeometryLayout;
 use crate::accel::kdtree::gpu::{BuildCapacity, BuildOutput, BuildScratch, KdTreeBuilder};
 use crate::accel::kdtree::{KdNode, KdTree, SahParams};
 use std::sync::Arc;
@@ -257,6 +258,24 @@ impl DevicePrimitives {
         Ok(())
     }
 
+    /// Buffers for the primitives of `layout` (static: no motion), filled on the device by
+    /// `accel.geometry_gather` from the caller's buffers.
+    pub fn for_layout(ctx: &Context, layout: &GeometryLayout) -> Result<Self> {
+        let (n_tris, n_spheres) = (layout.n_tris as usize, layout.n_spheres as usize);
+        let n = n_tris + n_spheres;
+        Ok(Self {
+            // Two floats of padding, as in record_upload.
+            tri_verts: Buffer::new(ctx, "trace.tri_verts", 9 * n_tris + 2)?,
+            spheres: Buffer::new(ctx, "trace.spheres", n_spheres)?,
+            prim_motion: Buffer::new(ctx, "trace.prim_motion", 0)?,
+            motions: Buffer::new(ctx, "trace.motions", 0)?,
+            boxes: Buffer::new(ctx, "trace.boxes", 6 * n)?,
+            n_tris,
+            n_spheres,
+            has_motion: false,
+        })
+    }
+
     /// [`DevicePrimitives::record_upload`] in a submission of its own.
     pub fn upload(ctx: &Context, g: &TraceGeometry) -> Result<Self> {
         let mut rec = Recorder::new(ctx)?;
@@ -295,6 +314,8 @@ pub struct AccelStructure {
     kind: AccelKind,
     storage: Storage,
     pub info: Buffer<SceneInfo>,
+    /// Built to be updated (`ALLOW_UPDATE`).
+    allow_update: bool,
 }
 
 enum Storage {
@@ -595,29 +616,29 @@ impl AccelBuilder {
 
     /// The kd-tree build's capacity for `n` primitives: the default, doubled `grow` times,
     /// fitted to the device with all nodes in the one buffer the traversal binds.
-    fn kd_capacity(&self, ctx: &Context, n: usize, grow: u32) -> BuildCapacity {
-        let kd = self.kd.as_ref().expect("a kd-tree builder");
+    fn kd_capacity(&self, ctx: &Context, n: usize, grow: u32) -> Result<BuildCapacity> {
+        let kd = self.kd_builder()?;
         let first = self
             .kd_refs_per_level
             .unwrap_or(BuildCapacity::for_primitives(n).refs_per_level);
         let c = BuildCapacity::with_refs(n, first << grow.min(8));
         let c = kd.fit_capacity(ctx, c);
-        BuildCapacity {
+        Ok(BuildCapacity {
             nodes: c
                 .nodes
                 .min((ctx.info().max_storage_buffer_range / 16) as usize),
             ..c
-        }
+        })
     }
 
     /// Bytes of the structure and scratch for `n` primitives (`grow`: how many times the
     /// kd-tree's reference budget is doubled after a build ran out of it; 0 at first).
-    pub fn sizes(&self, ctx: &Context, n: usize, grow: u32) -> AccelSizes {
+    pub fn sizes(&self, ctx: &Context, n: usize, grow: u32) -> Result<AccelSizes> {
         let info = std::mem::size_of::<SceneInfo>() as u64;
-        match self.kind {
+        Ok(match self.kind {
             AccelKind::KdTree => {
-                let kd = self.kd.as_ref().expect("a kd-tree builder");
-                let c = self.kd_capacity(ctx, n, grow);
+                let kd = self.kd_builder()?;
+                let c = self.kd_capacity(ctx, n, grow)?;
                 let s = kd.build_sizes(n, &c);
                 AccelSizes {
                     structure_bytes: s.tree_bytes + info + 16,
@@ -654,15 +675,14 @@ impl AccelBuilder {
                     count: n as u32,
                 }];
                 let flags = self.driver_prefer.flags(false);
-                let s = crate::gpu::accel_build_sizes(ctx, &tris, flags)
-                    .expect("a driver builder exists only with ray query");
+                let s = crate::gpu::accel_build_sizes(ctx, &tris, flags)?;
                 AccelSizes {
                     structure_bytes: s.structure + info + 8,
                     build_scratch_bytes: s.scratch,
                     update_scratch_bytes: None,
                 }
             }
-        }
+        })
     }
 
     /// The structure's buffers and the build scratch for `n` primitives, at
@@ -673,76 +693,105 @@ impl AccelBuilder {
         n: usize,
         grow: u32,
     ) -> Result<(AccelStructure, AccelScratch)> {
-        let info = Buffer::new(ctx, "accel.info", 1)?;
+        let structure = self.create_structure(ctx, n, grow, self.allow_update, 1)?;
+        let scratch = self.create_scratch(ctx, n, grow, self.allow_update)?;
+        Ok((structure, scratch))
+    }
+
+    /// The structure's buffers for `n` primitives (`info_len` elements of scene constants:
+    /// 1, and more where a geometry table follows them).
+    pub(crate) fn create_structure(
+        &self,
+        ctx: &Context,
+        n: usize,
+        grow: u32,
+        allow_update: bool,
+        info_len: usize,
+    ) -> Result<AccelStructure> {
+        let info = Buffer::new(ctx, "accel.info", info_len)?;
+        let storage = match self.kind {
+            AccelKind::KdTree => {
+                let kd = self.kd_builder()?;
+                let c = self.kd_capacity(ctx, n, grow)?;
+                Storage::KdTree {
+                    out: Box::new(kd.output(ctx, &c)?),
+                    built: Buffer::new(ctx, "accel.kdtree_built", 4)?,
+                }
+            }
+            AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => {
+                let nodes = bvh_nodes(n);
+                Storage::Bvh {
+                    nodes: Buffer::new(ctx, "accel.bvh_nodes", nodes)?,
+                    refs: Buffer::new(ctx, "accel.bvh_refs", n + nodes)?,
+                    counts: (0, 0),
+                    schedule: if allow_update {
+                        Some(Box::new(RefitSchedule::new(ctx, nodes)?))
+                    } else {
+                        None
+                    },
+                }
+            }
+            AccelKind::Driver => Storage::Driver {
+                accel: None,
+                address: Buffer::new(ctx, "accel.driver.address", 1)?,
+                // Triangles and spheres at most (DriverAccel::geometries).
+                bases: Buffer::new(ctx, "accel.driver.bases", 2)?,
+            },
+        };
+        Ok(AccelStructure {
+            kind: self.kind,
+            storage,
+            info,
+            allow_update,
+        })
+    }
+
+    /// The build scratch for `n` primitives.
+    pub(crate) fn create_scratch(
+        &self,
+        ctx: &Context,
+        n: usize,
+        grow: u32,
+        allow_update: bool,
+    ) -> Result<AccelScratch> {
         match self.kind {
             AccelKind::KdTree => {
-                let kd = self.kd.as_ref().expect("a kd-tree builder");
-                let c = self.kd_capacity(ctx, n, grow);
-                let out = kd.output(ctx, &c)?;
-                let scratch = kd.scratch(ctx, n.max(1), c)?;
-                Ok((
-                    AccelStructure {
-                        kind: self.kind,
-                        storage: Storage::KdTree {
-                            out: Box::new(out),
-                            built: Buffer::new(ctx, "accel.kdtree_built", 4)?,
-                        },
-                        info,
-                    },
-                    AccelScratch::KdTree(Box::new(scratch)),
-                ))
+                let kd = self.kd_builder()?;
+                let c = self.kd_capacity(ctx, n, grow)?;
+                Ok(AccelScratch::KdTree(Box::new(kd.scratch(ctx, n.max(1), c)?)))
             }
             AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => {
                 let nodes = bvh_nodes(n);
                 let collapse = |c: &Option<CollapseKernels>| -> Result<CollapseScratch> {
                     CollapseKernels::check(&self.bvh_params)?;
-                    c.as_ref().expect("the collapse kernels").scratch(ctx, n)
+                    c.as_ref().ok_or_else(missing("the collapse kernels"))?.scratch(ctx, n)
                 };
-                let scratch = match (&self.lbvh, &self.ploc) {
+                let schedule = match (&self.level_refit, allow_update) {
+                    (Some(l), true) => Some(l.schedule_scratch(ctx, nodes)?),
+                    _ => None,
+                };
+                Ok(match (&self.lbvh, &self.ploc) {
                     (Some(l), _) => AccelScratch::Lbvh(Box::new(LbvhScratch {
                         topology: l.scratch(ctx, n)?,
                         visits: Buffer::new(ctx, "accel.lbvh.visits", nodes)?,
                         collapse: collapse(&self.collapse)?,
+                        schedule,
                     })),
                     (_, Some(p)) => AccelScratch::Ploc(Box::new(PlocDeviceScratch {
                         build: p.scratch(ctx, n)?,
                         visits: Buffer::new(ctx, "accel.ploc.visits", nodes)?,
                         collapse: collapse(&self.collapse)?,
+                        schedule,
                     })),
                     _ => AccelScratch::None,
-                };
-                Ok((
-                    AccelStructure {
-                        kind: self.kind,
-                        storage: Storage::Bvh {
-                            nodes: Buffer::new(ctx, "accel.bvh_nodes", nodes)?,
-                            refs: Buffer::new(ctx, "accel.bvh_refs", n + nodes)?,
-                            counts: (0, 0),
-                            schedule: if self.allow_update {
-                                Some(Box::new(RefitSchedule::new(ctx, nodes)?))
-                            } else {
-                                None
-                            },
-                        },
-                        info,
-                    },
-                    scratch,
-                ))
+                })
             }
-            AccelKind::Driver => Ok((
-                AccelStructure {
-                    kind: self.kind,
-                    storage: Storage::Driver {
-                        accel: None,
-                        address: Buffer::new(ctx, "accel.driver.address", 1)?,
-                        // Triangles and spheres at most (DriverAccel::geometries).
-                        bases: Buffer::new(ctx, "accel.driver.bases", 2)?,
-                    },
-                    info,
-                },
-                AccelScratch::None,
-            )),
+            AccelKind::Driver => Ok(AccelScratch::None),
         }
+    }
+
+    fn kd_builder(&self) -> Result<&KdTreeBuilder> {
+        self.kd.as_ref().ok_or_else(missing("a kd-tree builder"))
     }
 
     /// Records the build of `out` over `prims` into `rec`, ending with a compute → compute
@@ -756,8 +805,31 @@ impl AccelBuilder {
         scratch: &AccelScratch,
         out: &mut AccelStructure,
     ) -> Result<RecordedBuild> {
+        self.record_build_inner(rec, prims, Some(host), scratch, out)
+    }
+
+    /// [`AccelBuilder::record_build`]; `host: None` when the geometry came from the caller's
+    /// device buffers (`accel.geometry_gather` has then written the scene constants and the
+    /// geometry table, and a host builder has nothing to read).
+    pub(crate) fn record_build_inner(
+        &self,
+        rec: &mut Recorder,
+        prims: &DevicePrimitives,
+        host: Option<&TraceGeometry>,
+        scratch: &AccelScratch,
+        out: &mut AccelStructure,
+    ) -> Result<RecordedBuild> {
         let n = prims.count();
-        assert_eq!(out.kind, self.kind, "a {:?} structure", out.kind);
+        if out.kind != self.kind {
+            return Err(GpuError::Usage {
+                call: "AccelBuilder::record_build",
+                reason: format!(
+                    "a {} builder cannot build into a {} structure",
+                    self.kind.name(),
+                    out.kind.name()
+                ),
+            });
+        }
         let recorded = match (&mut out.storage, scratch) {
             (
                 Storage::Driver {
@@ -767,19 +839,30 @@ impl AccelBuilder {
                 },
                 _,
             ) => {
-                let mut bounds = Aabb::EMPTY;
-                host.boxes.iter().for_each(|b| bounds.union(b));
-                rec.upload(&out.info, &[prims.info(&bounds, 0)])?;
+                if let Some(host) = host {
+                    let mut bounds = Aabb::EMPTY;
+                    host.boxes.iter().for_each(|b| bounds.union(b));
+                    rec.upload(
+                        &out.info,
+                        &[prims.info(&bounds, 0).walked(SceneInfo::WALK_RAY_QUERY)],
+                    )?;
+                }
                 rec.upload(bases, &DriverAccel::instance_bases(prims)?)?;
                 let built =
-                    DriverAccel::record_build(rec, prims, self.driver_prefer, self.allow_update)?;
+                    DriverAccel::record_build(rec, prims, self.driver_prefer, out.allow_update)?;
                 rec.upload(address, &[built.tlas_address()])?;
                 rec.transfer_to_compute();
                 *accel = Some(Box::new(built));
                 Ok(RecordedBuild::default())
             }
             (Storage::KdTree { out: o, built }, AccelScratch::KdTree(s)) => {
-                let kd = self.kd.as_ref().expect("a kd-tree builder");
+                let kd = self.kd.as_ref().ok_or_else(missing("a kd-tree builder"))?;
+                if host.is_some() {
+                    // The finish writes the constants the walk needs; the rest (the shader
+                    // library's walk, no geometry table) are zeros.
+                    rec.fill(&out.info, 0);
+                    rec.transfer_to_compute();
+                }
                 if n > 0 {
                     kd.record_build_boxes(rec, &prims.boxes, n, &self.kd_params, s, o);
                     rec.compute_to_compute();
@@ -809,7 +892,21 @@ impl AccelBuilder {
                 },
                 AccelScratch::None,
             ) => {
-                assert_eq!(host.primitive_count(), n, "host and device geometry differ");
+                let host = host.ok_or_else(|| GpuError::Usage {
+                    call: "AccelBuilder::record_build",
+                    reason: "the SAH BVH is a host builder: it builds from host slices \
+                             (record_build with a TraceGeometry), not from device buffers"
+                        .into(),
+                })?;
+                if host.primitive_count() != n {
+                    return Err(GpuError::Usage {
+                        call: "AccelBuilder::record_build",
+                        reason: format!(
+                            "the host geometry has {} primitives, the device's {n}",
+                            host.primitive_count()
+                        ),
+                    });
+                }
                 let t = std::time::Instant::now();
                 let bvh =
                     bvh::build(&host.boxes, &self.bvh_params, self.threading).map_err(|e| {
@@ -823,7 +920,12 @@ impl AccelBuilder {
                 words.extend_from_slice(&bvh.parents);
                 rec.upload(nodes, &bvh.nodes)?;
                 rec.upload(refs, &words)?;
-                rec.upload(&out.info, &[prims.info(&bvh.bounds, bvh.refs.len() as u32)])?;
+                rec.upload(
+                    &out.info,
+                    &[prims
+                        .info(&bvh.bounds, bvh.refs.len() as u32)
+                        .walked(SceneInfo::WALK_BVH)],
+                )?;
                 rec.transfer_to_compute();
                 *counts = (bvh.nodes.len(), bvh.refs.len());
                 Ok(RecordedBuild {
@@ -839,10 +941,17 @@ impl AccelBuilder {
                 },
                 AccelScratch::Lbvh(s),
             ) => {
-                let lbvh = self.lbvh.as_ref().expect("an LBVH builder");
+                let lbvh = self.lbvh.as_ref().ok_or_else(missing("an LBVH builder"))?;
                 let n_nodes = if n == 0 { 0 } else { bvh_nodes(n) };
-                rec.upload(&out.info, &[prims.info(&Aabb::EMPTY, n as u32)])?;
-                rec.transfer_to_compute();
+                if host.is_some() {
+                    rec.upload(
+                        &out.info,
+                        &[prims
+                            .info(&Aabb::EMPTY, n as u32)
+                            .walked(SceneInfo::WALK_BVH)],
+                    )?;
+                    rec.transfer_to_compute();
+                }
                 // The references go to the collapse's scratch where it collapses.
                 let collapsing = collapse::applies(n, &self.bvh_params);
                 let tree_refs = match collapsing {
@@ -853,7 +962,7 @@ impl AccelBuilder {
                 *counts = (n_nodes, n);
                 if collapsing {
                     // The boxes' refit decides the collapse on the same climb.
-                    let collapse = self.collapse.as_ref().expect("the collapse kernels");
+                    let collapse = self.collapse.as_ref().ok_or_else(missing("the collapse kernels"))?;
                     let (p, visits, cs) = (&self.bvh_params, &s.visits, &s.collapse);
                     collapse.record_refit_deciding(
                         rec,
@@ -867,7 +976,7 @@ impl AccelBuilder {
                     );
                     collapse.record(rec, n, visits, cs, p, nodes, refs, true);
                 } else {
-                    let refit = self.refit.as_ref().expect("the refit kernel");
+                    let refit = self.refit.as_ref().ok_or_else(missing("the refit kernel"))?;
                     record_refit_nodes(
                         rec, refit, prims, nodes, tree_refs, &s.visits, &out.info, n_nodes,
                     );
@@ -883,10 +992,17 @@ impl AccelBuilder {
                 },
                 AccelScratch::Ploc(s),
             ) => {
-                let ploc = self.ploc.as_ref().expect("a PLOC builder");
+                let ploc = self.ploc.as_ref().ok_or_else(missing("a PLOC builder"))?;
                 let n_nodes = if n == 0 { 0 } else { bvh_nodes(n) };
-                rec.upload(&out.info, &[prims.info(&Aabb::EMPTY, n as u32)])?;
-                rec.transfer_to_compute();
+                if host.is_some() {
+                    rec.upload(
+                        &out.info,
+                        &[prims
+                            .info(&Aabb::EMPTY, n as u32)
+                            .walked(SceneInfo::WALK_BVH)],
+                    )?;
+                    rec.transfer_to_compute();
+                }
                 *counts = (n_nodes, n);
                 if collapse::applies(n, &self.bvh_params) {
                     // The references go to the collapse's scratch, and are laid out in `refs`.
@@ -894,14 +1010,14 @@ impl AccelBuilder {
                     let info = &out.info;
                     ploc.record_build(rec, &prims.boxes, n, &s.build, nodes, tree_refs, info);
                     rec.compute_to_compute();
-                    let collapse = self.collapse.as_ref().expect("the collapse kernels");
+                    let collapse = self.collapse.as_ref().ok_or_else(missing("the collapse kernels"))?;
                     let p = &self.bvh_params;
                     collapse.record(rec, n, &s.visits, &s.collapse, p, nodes, refs, false);
                 } else if n >= 2 {
                     ploc.record_build(rec, &prims.boxes, n, &s.build, nodes, refs, &out.info);
                 } else {
                     ploc.record_small(rec, &prims.boxes, n, &s.build, nodes, refs);
-                    let refit = self.refit.as_ref().expect("the refit kernel");
+                    let refit = self.refit.as_ref().ok_or_else(missing("the refit kernel"))?;
                     record_refit_nodes(
                         rec, refit, prims, nodes, refs, &s.visits, &out.info, n_nodes,
                     );
@@ -909,7 +1025,10 @@ impl AccelBuilder {
                 rec.compute_to_compute();
                 Ok(RecordedBuild::default())
             }
-            _ => unreachable!("scratch of another kind"),
+            _ => Err(GpuError::Usage {
+                call: "AccelBuilder::record_build",
+                reason: format!("the scratch was made for another kind than {}", self.kind.name()),
+            }),
         }?;
         if let Storage::Bvh {
             refs,
@@ -918,8 +1037,13 @@ impl AccelBuilder {
             ..
         } = &out.storage
         {
-            let level = self.level_refit.as_ref().expect("the level refit");
-            level.record_schedule(rec, refs, counts.0, counts.1 as u32, schedule)?;
+            let level = self.level_refit.as_ref().ok_or_else(missing("the level refit"))?;
+            let placed = match scratch {
+                AccelScratch::Lbvh(s) => s.schedule.as_ref(),
+                AccelScratch::Ploc(s) => s.schedule.as_ref(),
+                _ => None,
+            };
+            level.record_schedule(rec, refs, counts.0, counts.1 as u32, schedule, placed)?;
         }
         Ok(recorded)
     }
@@ -952,9 +1076,10 @@ impl AccelBuilder {
         scratch: &Buffer<u32>,
     ) -> Result<()> {
         if let Storage::Driver { accel, .. } = &out.storage {
-            let accel = accel
-                .as_ref()
-                .expect("a driver structure is refit after its build");
+            let accel = accel.as_ref().ok_or_else(|| GpuError::Usage {
+                call: "AccelBuilder::record_refit",
+                reason: "the driver's structure has not been built yet".into(),
+            })?;
             return accel.record_update(rec);
         }
         let (
@@ -973,11 +1098,25 @@ impl AccelBuilder {
             });
         };
         let n_nodes = counts.0;
-        assert!(
-            scratch.len() >= n_nodes,
-            "refit scratch of {} counters",
-            scratch.len()
-        );
+        if scratch.len() < n_nodes {
+            return Err(GpuError::Usage {
+                call: "AccelBuilder::record_refit",
+                reason: format!(
+                    "the update scratch holds {} counters; this structure needs {n_nodes}",
+                    scratch.len()
+                ),
+            });
+        }
+        if counts.1 != prims.count() {
+            return Err(GpuError::Usage {
+                call: "AccelBuilder::record_refit",
+                reason: format!(
+                    "the structure was built over {} primitives; {} given",
+                    counts.1,
+                    prims.count()
+                ),
+            });
+        }
         match (schedule, &self.level_refit) {
             (Some(schedule), Some(level)) if n_nodes > 0 => {
                 level.record_refit(rec, nodes, refs, &prims.boxes, &out.info, schedule);
@@ -985,6 +1124,14 @@ impl AccelBuilder {
             _ => record_refit_nodes(rec, kernel, prims, nodes, refs, scratch, &out.info, n_nodes),
         }
         Ok(())
+    }
+}
+
+/// The error for a builder part that `AccelBuilder::new` made for another kind.
+fn missing(what: &'static str) -> impl Fn() -> GpuError {
+    move || GpuError::Usage {
+        call: "AccelBuilder",
+        reason: format!("{what} is missing: the builder was made for another kind"),
     }
 }
 
@@ -999,6 +1146,8 @@ pub struct PlocDeviceScratch {
     build: PlocScratch,
     visits: Buffer<u32>,
     collapse: CollapseScratch,
+    /// The refit schedule's, for a structure built to be updated.
+    schedule: Option<ScheduleScratch>,
 }
 
 /// LBVH build scratch: the topology's, the visit counters of the boxes' refit and the
@@ -1007,6 +1156,8 @@ pub struct LbvhScratch {
     topology: crate::accel::bvh::lbvh_gpu::LbvhScratch,
     visits: Buffer<u32>,
     collapse: CollapseScratch,
+    /// The refit schedule's, for a structure built to be updated.
+    schedule: Option<ScheduleScratch>,
 }
 
 /// Records `accel.bvh_refit` over the first `n_nodes` nodes (nothing for 0), in a scope
@@ -1064,6 +1215,7 @@ pub fn upload_structure(
                     built: Buffer::from_slice(ctx, "accel.kdtree_built", &built)?,
                 },
                 info: Buffer::from_slice(ctx, "accel.info", &[prims.info(&tree.bounds, 0)])?,
+                allow_update: false,
             })
         }
         HostRef::Bvh(bvh) => {
@@ -1080,8 +1232,11 @@ pub fn upload_structure(
                 info: Buffer::from_slice(
                     ctx,
                     "accel.info",
-                    &[prims.info(&bvh.bounds, bvh.refs.len() as u32)],
+                    &[prims
+                        .info(&bvh.bounds, bvh.refs.len() as u32)
+                        .walked(SceneInfo::WALK_BVH)],
                 )?,
+                allow_update: false,
             })
         }
     }

@@ -2,7 +2,7 @@
 //! bottom-level structure over the device primitives and one identity instance of it in a
 //! top-level structure, both built by the driver (`VK_KHR_acceleration_structure`) into the
 //! caller's [`Recorder`], and queried with `VK_KHR_ray_query` by the `query` variants of the
-//! kernels that trace (`trace_ray_query` in `glsl/common/traverse.glsl`).
+//! kernels that trace (`trace_ray_query` in `glsl/include/vkrt/traverse.glsl`).
 //!
 //! Geometry ([`DriverAccel::geometries`]): static triangles are the driver's triangle
 //! geometry, tested by its own intersector; spheres are boxes the kernel intersects. A

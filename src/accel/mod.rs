@@ -7,4 +7,7 @@
 pub mod bvh;
 pub mod device;
 pub mod driver;
+pub mod embedded;
+pub mod geometry;
+pub mod shader_library;
 pub mod kdtree;

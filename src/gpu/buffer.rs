@@ -63,6 +63,10 @@ pub struct Buffer<T: Pod> {
     allocation: Option<Allocation>,
     len: usize,
     bytes: u64,
+    /// Where the range starts in `raw` (non-zero for a buffer placed in a caller's memory).
+    offset: u64,
+    /// Whether `raw` is ours to destroy (false for a range of a caller's buffer).
+    owned: bool,
     name: String,
     memory: Memory,
     _marker: PhantomData<T>,
@@ -73,7 +77,7 @@ impl<T: Pod> BufferArg for Buffer<T> {
         self.raw
     }
     fn offset(&self) -> u64 {
-        0
+        self.offset
     }
     fn range(&self) -> u64 {
         self.bytes
@@ -119,6 +123,25 @@ impl<T: Pod> Buffer<T> {
         }
         // Vulkan forbids empty buffers; an empty one gets 4 bytes and len 0.
         let bytes = wanted.max(4).next_multiple_of(4);
+        if memory == Memory::Device {
+            if let Some(range) = placement::take(ctx, bytes) {
+                return Ok(Self {
+                    ctx: ctx.clone(),
+                    raw: range.raw,
+                    allocation: None,
+                    len,
+                    bytes,
+                    offset: range.offset,
+                    owned: false,
+                    name: name.into(),
+                    memory,
+                    _marker: PhantomData,
+                });
+            }
+            ctx.inner
+                .device_allocations
+                .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        }
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER
             | vk::BufferUsageFlags::TRANSFER_SRC
             | vk::BufferUsageFlags::TRANSFER_DST
@@ -188,6 +211,8 @@ impl<T: Pod> Buffer<T> {
             allocation: Some(allocation),
             len,
             bytes,
+            offset: 0,
+            owned: true,
             name: name.into(),
             memory,
             _marker: PhantomData,
@@ -239,7 +264,16 @@ impl<T: Pod> Buffer<T> {
         // SAFETY: bufferDeviceAddress is enabled (ray_query, checked above) and the buffer
         // was created with SHADER_DEVICE_ADDRESS usage and bound to memory allocated with the
         // device-address flag (the allocator is created with buffer_device_address then).
-        unsafe { self.ctx.inner.device.get_buffer_device_address(&info) }
+        unsafe { self.ctx.inner.device.get_buffer_device_address(&info) + self.offset }
+    }
+
+    /// The range this buffer covers, as a [`RawBuffer`].
+    pub fn as_raw(&self) -> RawBuffer {
+        RawBuffer {
+            raw: self.raw,
+            offset: self.offset,
+            size: self.bytes,
+        }
     }
 
     /// Writes `data` at the start of the buffer (through staging for device memory).
@@ -262,6 +296,10 @@ impl<T: Pod> Buffer<T> {
         let staging =
             Buffer::<T>::with_memory(&self.ctx, "staging.upload", data.len(), Memory::Upload)?;
         staging.upload(data)?;
+        self.ctx.inner.upload_bytes.fetch_add(
+            std::mem::size_of_val(data) as u64,
+            std::sync::atomic::Ordering::Relaxed,
+        );
         let mut rec = Recorder::new(&self.ctx)?;
         rec.copy(&staging, self, data.len());
         rec.transfer_to_host();
@@ -316,6 +354,10 @@ impl<T: Pod> Buffer<T> {
 
 impl<T: Pod> Drop for Buffer<T> {
     fn drop(&mut self) {
+        if !self.owned {
+            // A range of a caller's buffer (or a measured placeholder): the caller frees it.
+            return;
+        }
         // SAFETY: vkrt waits for every submission it makes before returning, so the buffer is
         // not in use by a pending command buffer of ours; buffers bound into a caller-owned
         // command buffer must outlive it (documented on `Recorder::from_raw`).
@@ -323,5 +365,111 @@ impl<T: Pod> Drop for Buffer<T> {
         if let Some(a) = self.allocation.take() {
             let _ = self.ctx.inner.allocator.lock().unwrap().free(a);
         }
+    }
+}
+
+/// Placing device buffers in memory the caller owns, the way `VK_KHR_acceleration_structure`
+/// lets an application place a structure and its scratch.
+///
+/// While [`place`] runs its closure on this thread, every device-local [`Buffer`] the closure
+/// creates is a range of the caller's buffer (carved in creation order, each aligned to
+/// `minStorageBufferOffsetAlignment`), or, with [`Placement::Measure`], a placeholder that
+/// only counts bytes. Because sizing and placing run the same code, a size query is exact
+/// for the input it was asked about.
+pub mod placement {
+    use std::cell::RefCell;
+
+    use super::{Context, RawBuffer};
+    use crate::gpu::error::{GpuError, Result};
+    use ash::vk;
+
+    /// Where [`place`] puts the device buffers its closure creates.
+    #[derive(Clone, Copy, Debug)]
+    pub enum Placement {
+        /// Nowhere: count the bytes (the buffers are placeholders that must not be used).
+        Measure,
+        /// In this range of a caller's buffer, which needs `STORAGE_BUFFER`,
+        /// `TRANSFER_SRC`, `TRANSFER_DST` and `INDIRECT_BUFFER` usage (and
+        /// `SHADER_DEVICE_ADDRESS` for the driver's structure).
+        Into(RawBuffer),
+    }
+
+    struct Arena {
+        target: Option<RawBuffer>,
+        used: u64,
+        align: u64,
+    }
+
+    thread_local! {
+        static ARENAS: RefCell<Vec<Arena>> = const { RefCell::new(Vec::new()) };
+    }
+
+    /// Runs `f` with device buffers placed per `placement`; returns its result and the bytes
+    /// it placed. With [`Placement::Into`], a range too small for what `f` creates is an
+    /// error naming both sizes (and `f`'s result is dropped: nothing it recorded may run).
+    pub fn place<R>(
+        ctx: &Context,
+        what: &str,
+        placement: Placement,
+        f: impl FnOnce() -> Result<R>,
+    ) -> Result<(R, u64)> {
+        let align = ctx.info().min_storage_buffer_offset_alignment.clamp(4, 256);
+        let target = match placement {
+            Placement::Measure => None,
+            Placement::Into(r) => {
+                if r.raw == vk::Buffer::null() {
+                    return Err(GpuError::Placement(format!("{what}: a null buffer")));
+                }
+                if r.offset % align != 0 {
+                    return Err(GpuError::Placement(format!(
+                        "{what}: offset {} is not a multiple of this device's \
+                         minStorageBufferOffsetAlignment ({align})",
+                        r.offset
+                    )));
+                }
+                Some(r)
+            }
+        };
+        ARENAS.with(|a| {
+            a.borrow_mut().push(Arena {
+                target,
+                used: 0,
+                align,
+            })
+        });
+        let result = f();
+        let arena = ARENAS.with(|a| a.borrow_mut().pop()).expect("the arena pushed above");
+        let value = result?;
+        if let Some(t) = arena.target {
+            if arena.used > t.size {
+                return Err(GpuError::Placement(format!(
+                    "{what} needs {} bytes; the buffer range given holds {}",
+                    arena.used, t.size
+                )));
+            }
+        }
+        Ok((value, arena.used))
+    }
+
+    /// The range for a new device buffer of `bytes`, when a [`place`] is active.
+    pub(super) fn take(_ctx: &Context, bytes: u64) -> Option<RawBuffer> {
+        ARENAS.with(|a| {
+            let mut arenas = a.borrow_mut();
+            let arena = arenas.last_mut()?;
+            let start = arena.used.next_multiple_of(arena.align);
+            arena.used = start + bytes;
+            Some(match arena.target {
+                Some(t) => RawBuffer {
+                    raw: t.raw,
+                    offset: t.offset + start,
+                    size: bytes,
+                },
+                None => RawBuffer {
+                    raw: vk::Buffer::null(),
+                    offset: start,
+                    size: bytes,
+                },
+            })
+        })
     }
 }

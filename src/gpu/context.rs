@@ -54,6 +54,10 @@ pub struct RawParts {
     pub debug_utils: bool,
     /// The renderer's own allocator, to share memory blocks; `None` creates one for vkrt.
     pub allocator: Option<Arc<Mutex<Allocator>>>,
+    /// A directory for vkrt's on-disk pipeline cache. `None` (the default for an adopted
+    /// device): vkrt writes nothing to disk; a context vkrt creates itself uses
+    /// `$VKRT_PIPELINE_CACHE`, `$XDG_CACHE_HOME/vkrt` or `$HOME/.cache/vkrt`.
+    pub pipeline_cache_dir: Option<std::path::PathBuf>,
 }
 
 /// A shared handle on a Vulkan device and queue, with an allocator and a kernel cache.
@@ -69,6 +73,11 @@ pub struct Traffic {
     pub submits: u64,
     /// Bytes copied from device buffers into host memory and read there.
     pub readback_bytes: u64,
+    /// Bytes written from host memory into device buffers (staging uploads).
+    pub upload_bytes: u64,
+    /// Device-local buffers vkrt allocated from its own allocator (buffers placed in a
+    /// caller's memory are not counted).
+    pub device_allocations: u64,
 }
 
 impl std::ops::Sub for Traffic {
@@ -77,6 +86,8 @@ impl std::ops::Sub for Traffic {
         Traffic {
             submits: self.submits - earlier.submits,
             readback_bytes: self.readback_bytes - earlier.readback_bytes,
+            upload_bytes: self.upload_bytes - earlier.upload_bytes,
+            device_allocations: self.device_allocations - earlier.device_allocations,
         }
     }
 }
@@ -94,10 +105,14 @@ pub(crate) struct Inner {
     /// VK_KHR_acceleration_structure's functions, where `ray_query` is enabled.
     pub(crate) accel_ext: Option<ash::khr::acceleration_structure::Device>,
     pub(crate) pipeline_cache: vk::PipelineCache,
+    /// Where the pipeline cache is saved (`None`: nowhere).
+    cache_path: Option<std::path::PathBuf>,
     pub(crate) kernels: Mutex<HashMap<KernelKey, Arc<Kernel>>>,
     /// Queue submissions and bytes read back to the host so far ([`Context::traffic`]).
     pub(crate) submits: AtomicU64,
     pub(crate) readback_bytes: AtomicU64,
+    pub(crate) upload_bytes: AtomicU64,
+    pub(crate) device_allocations: AtomicU64,
     messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     sink: Box<MessageSink>,
     owns_device: bool,
@@ -156,6 +171,7 @@ impl Context {
             enabled_features: features,
             debug_utils: debug_utils_on,
             allocator: None,
+            pipeline_cache_dir: None,
         };
         Self::assemble(parts, messenger, sink, true)
     }
@@ -220,7 +236,12 @@ impl Context {
             .enabled_features
             .ray_query
             .then(|| ash::khr::acceleration_structure::Device::new(&parts.instance, &parts.device));
-        let pipeline_cache = pipeline_cache::create(&parts.device, &info)?;
+        let cache_path = match (&parts.pipeline_cache_dir, owns_device) {
+            (Some(dir), _) => Some(pipeline_cache::path_in(dir, &info)),
+            (None, true) => pipeline_cache::default_path(&info),
+            (None, false) => None,
+        };
+        let pipeline_cache = pipeline_cache::create(&parts.device, cache_path.as_deref())?;
         Ok(Self {
             inner: Arc::new(Inner {
                 entry: parts.entry,
@@ -234,9 +255,12 @@ impl Context {
                 debug_utils,
                 accel_ext,
                 pipeline_cache,
+                cache_path,
                 kernels: Mutex::new(HashMap::new()),
                 submits: AtomicU64::new(0),
                 readback_bytes: AtomicU64::new(0),
+                upload_bytes: AtomicU64::new(0),
+                device_allocations: AtomicU64::new(0),
                 messenger,
                 sink,
                 owns_device,
@@ -250,6 +274,8 @@ impl Context {
         Traffic {
             submits: self.inner.submits.load(Ordering::Relaxed),
             readback_bytes: self.inner.readback_bytes.load(Ordering::Relaxed),
+            upload_bytes: self.inner.upload_bytes.load(Ordering::Relaxed),
+            device_allocations: self.inner.device_allocations.load(Ordering::Relaxed),
         }
     }
 
@@ -311,7 +337,11 @@ impl Drop for Inner {
             for kernel in self.kernels.get_mut().unwrap().values() {
                 kernel.destroy(&self.device);
             }
-            pipeline_cache::save_and_destroy(&self.device, self.pipeline_cache, &self.info);
+            pipeline_cache::save_and_destroy(
+                &self.device,
+                self.pipeline_cache,
+                self.cache_path.as_deref(),
+            );
             // The allocator must go before the device; an adopted one may live on elsewhere.
             ManuallyDrop::drop(&mut self.allocator);
             if self.owns_device {

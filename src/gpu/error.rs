@@ -5,6 +5,7 @@ use ash::vk;
 
 /// What can go wrong in the GPU layer.
 #[derive(Debug, thiserror::Error)]
+#[non_exhaustive]
 pub enum GpuError {
     #[error("cannot load the Vulkan loader (libvulkan.so.1): {0}; install libvulkan1 and a driver (e.g. mesa-vulkan-drivers for lavapipe)")]
     Loader(String),
@@ -38,6 +39,12 @@ pub enum GpuError {
         kernel: &'static str,
         reason: String,
     },
+    /// A structure or scratch placed in a caller's buffer that does not fit or is misaligned.
+    #[error("placement: {0}")]
+    Placement(String),
+    /// A call the API refuses: wrong sizes, wrong kind, a buffer too small for the work.
+    #[error("{call}: {reason}")]
+    Usage { call: &'static str, reason: String },
     #[error("cannot write {path}: {reason}")]
     Io { path: String, reason: String },
 }

@@ -49,6 +49,8 @@ pub struct DeviceInfo {
     pub subgroup_ops: Vec<&'static str>,
     pub subgroup_in_compute: bool,
     pub max_storage_buffer_range: u64,
+    /// `minStorageBufferOffsetAlignment`: where a bound range of a buffer may start.
+    pub min_storage_buffer_offset_alignment: u64,
     pub max_shared_memory: u32,
     pub max_workgroup_invocations: u32,
     pub max_workgroup_size: [u32; 3],
@@ -165,6 +167,7 @@ pub(crate) fn query(
             .supported_stages
             .contains(vk::ShaderStageFlags::COMPUTE),
         max_storage_buffer_range: u64::from(limits.max_storage_buffer_range),
+        min_storage_buffer_offset_alignment: limits.min_storage_buffer_offset_alignment,
         max_shared_memory: limits.max_compute_shared_memory_size,
         max_workgroup_invocations: limits.max_compute_work_group_invocations,
         max_workgroup_size: limits.max_compute_work_group_size,
@@ -285,4 +288,48 @@ pub(crate) fn timestamp_bits(instance: &ash::Instance, pd: vk::PhysicalDevice, f
     families
         .get(family as usize)
         .map_or(0, |f| f.timestamp_valid_bits)
+}
+
+/// What a host enables on the device it hands to [`super::Context::from_raw`], and why.
+///
+/// Required: a Vulkan 1.2 device whose compute queue runs subgroup operations
+/// ([`DeviceRequirements::subgroup_operations`]) with a power-of-two subgroup size of at
+/// least 4 — these are properties to check, not features to enable. Everything else is
+/// optional and says what it buys; tell vkrt what was enabled in
+/// [`super::RawParts::enabled_features`].
+#[derive(Clone, Debug)]
+pub struct DeviceRequirements {
+    pub api_version: u32,
+    /// The subgroup operations kernels use in compute shaders.
+    pub subgroup_operations: vk::SubgroupFeatureFlags,
+    /// Optional features, each with what it buys.
+    pub optional_features: Vec<(&'static str, &'static str)>,
+    /// The extensions of the driver's structure (`AccelKind::Driver` and the ray-query
+    /// branch of `vkrt/ray_query.glsl`): enable them, with `accelerationStructure`,
+    /// `rayQuery` and `bufferDeviceAddress`, to set `DeviceFeatures::ray_query`.
+    pub ray_query_extensions: Vec<&'static std::ffi::CStr>,
+}
+
+/// The device requirements of vkrt ([`DeviceRequirements`]).
+pub fn device_requirements() -> DeviceRequirements {
+    DeviceRequirements {
+        api_version: vk::API_VERSION_1_2,
+        subgroup_operations: REQUIRED_OPS
+            .iter()
+            .fold(vk::SubgroupFeatureFlags::empty(), |a, (f, _)| a | *f),
+        optional_features: vec![
+            ("shaderInt64", "64-bit node loads of the exact walk, 64-bit Morton codes"),
+            ("shaderFloat64", "the watertight test's exact fallback"),
+            (
+                "shaderBufferInt64Atomics",
+                "the single-pass chained scan (a two-pass scan otherwise)",
+            ),
+            ("hostQueryReset", "profiler timestamps without a reset command"),
+            (
+                "subgroupSizeControl, computeFullSubgroups",
+                "kernels that need full subgroups of a fixed size",
+            ),
+        ],
+        ray_query_extensions: RAY_QUERY_EXTENSIONS.to_vec(),
+    }
 }

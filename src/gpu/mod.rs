@@ -32,10 +32,10 @@ pub use accel_ext::{
     AccelerationStructure,
 };
 pub use ash::vk;
-pub use buffer::{Buffer, BufferArg, Memory, RawBuffer};
+pub use buffer::{placement, Buffer, BufferArg, Memory, RawBuffer};
 pub use context::{Context, ContextOptions, RawParts, Traffic};
 pub use error::{GpuError, Result};
-pub use info::{DeviceFeatures, DeviceInfo};
+pub use info::{device_requirements, DeviceFeatures, DeviceInfo, DeviceRequirements};
 pub use kernel::{Kernel, Spec, PUSH_CONSTANT_BYTES};
 pub use profiler::{
     capture as capture_profiles, write_atomically, PassTime, Profile, DEFAULT_QUERY_CAPACITY,

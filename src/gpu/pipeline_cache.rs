@@ -14,7 +14,8 @@ use ash::vk;
 use super::error::{vk_err, Result};
 use super::info::DeviceInfo;
 
-fn cache_path(info: &DeviceInfo) -> Option<PathBuf> {
+/// The default cache file: see the module docs.
+pub(crate) fn default_path(info: &DeviceInfo) -> Option<PathBuf> {
     let dir = match std::env::var("VKRT_PIPELINE_CACHE") {
         Ok(v) if v == "0" || v.eq_ignore_ascii_case("off") => return None,
         Ok(v) if !v.is_empty() => PathBuf::from(v),
@@ -25,16 +26,22 @@ fn cache_path(info: &DeviceInfo) -> Option<PathBuf> {
                 .join("vkrt"),
         },
     };
+    Some(path_in(&dir, info))
+}
+
+/// The cache file in directory `dir` for this driver.
+pub(crate) fn path_in(dir: &std::path::Path, info: &DeviceInfo) -> PathBuf {
     let uuid: String = info
         .pipeline_cache_uuid
         .iter()
         .map(|b| format!("{b:02x}"))
         .collect();
-    Some(dir.join(format!("pipelines-{uuid}.bin")))
+    dir.join(format!("pipelines-{uuid}.bin"))
 }
 
-pub(crate) fn create(device: &ash::Device, info: &DeviceInfo) -> Result<vk::PipelineCache> {
-    let data = cache_path(info)
+/// A pipeline cache primed from `path` (none: an empty cache that is never saved).
+pub(crate) fn create(device: &ash::Device, path: Option<&std::path::Path>) -> Result<vk::PipelineCache> {
+    let data = path
         .and_then(|p| std::fs::read(p).ok())
         .unwrap_or_default();
     let create = vk::PipelineCacheCreateInfo::default().initial_data(&data);
@@ -58,11 +65,11 @@ pub(crate) fn create(device: &ash::Device, info: &DeviceInfo) -> Result<vk::Pipe
 pub(crate) unsafe fn save_and_destroy(
     device: &ash::Device,
     cache: vk::PipelineCache,
-    info: &DeviceInfo,
+    path: Option<&std::path::Path>,
 ) {
     // SAFETY: guaranteed by the caller.
     let data = unsafe { device.get_pipeline_cache_data(cache) }.unwrap_or_default();
-    if let (Some(path), false) = (cache_path(info), data.is_empty()) {
+    if let (Some(path), false) = (path, data.is_empty()) {
         if let Some(dir) = path.parent() {
             let _ = std::fs::create_dir_all(dir);
         }

@@ -38,6 +38,11 @@ pub struct Readback<T: Pod> {
 }
 
 impl<T: Pod> Readback<T> {
+    /// A read-back whose copy into `staging` (host-visible) the caller recorded.
+    pub fn from_staging(staging: Buffer<T>) -> Self {
+        Self { staging }
+    }
+
     /// The copied elements. Call only after the recording submission has completed
     /// ([`Recorder::submit_and_wait`] returned, or the caller waited for its command buffer).
     pub fn read(self) -> Result<Vec<T>> {
@@ -47,8 +52,13 @@ impl<T: Pod> Readback<T> {
 
 /// Work recorded into a caller-owned command buffer, holding what that command buffer
 /// uses (descriptor sets, timestamp queries) until the caller says it has completed.
+///
+/// Dropped without [`RecordedWork::complete`], it waits for the device to go idle before
+/// releasing them (the caller's command buffer may still be executing): safe, but a stall.
+#[must_use = "call complete() once the command buffer has executed; dropping it waits for the device"]
 pub struct RecordedWork {
     recorder: Recorder,
+    completed: bool,
 }
 
 impl Recorder {
@@ -323,7 +333,7 @@ impl Recorder {
             self.ctx
                 .inner
                 .device
-                .cmd_fill_buffer(self.cmd, buffer.raw(), 0, vk::WHOLE_SIZE, value)
+                .cmd_fill_buffer(self.cmd, buffer.raw(), buffer.offset(), buffer.range(), value)
         };
     }
 
@@ -347,7 +357,7 @@ impl Recorder {
             self.ctx.inner.device.cmd_fill_buffer(
                 self.cmd,
                 buffer.raw(),
-                0,
+                buffer.offset(),
                 (len * elem) as vk::DeviceSize,
                 value,
             )
@@ -367,8 +377,8 @@ impl Recorder {
             return;
         }
         let region = vk::BufferCopy {
-            src_offset: 0,
-            dst_offset: 0,
+            src_offset: src.offset(),
+            dst_offset: dst.offset(),
             size: (len * std::mem::size_of::<T>()) as u64,
         };
         // SAFETY: recording; both buffers have transfer usage and the region is in range.
@@ -398,6 +408,10 @@ impl Recorder {
         let staging =
             Buffer::<T>::with_memory(&self.ctx, "staging.upload", data.len(), Memory::Upload)?;
         staging.write_mapped(bytemuck::cast_slice(data));
+        self.ctx.inner.upload_bytes.fetch_add(
+            std::mem::size_of_val(data) as u64,
+            std::sync::atomic::Ordering::Relaxed,
+        );
         self.copy(&staging, dst, data.len());
         self.staging.push(Box::new(staging));
         Ok(())
@@ -618,7 +632,10 @@ impl Recorder {
             usage_error("finish() is for caller-owned command buffers; use submit_and_wait()");
         }
         self.check_closed();
-        RecordedWork { recorder: self }
+        RecordedWork {
+            recorder: self,
+            completed: false,
+        }
     }
 
     fn read_profile(&self) -> Result<Profile> {
@@ -653,10 +670,21 @@ impl RecordedWork {
     ///
     /// # Safety
     /// The command buffer has finished executing (or was never submitted).
-    pub unsafe fn complete(self) -> Result<Profile> {
+    pub unsafe fn complete(mut self) -> Result<Profile> {
+        self.completed = true;
         self.recorder
             .read_profile()
             .inspect(super::profiler::record_captured)
+    }
+}
+
+impl Drop for RecordedWork {
+    fn drop(&mut self) {
+        if !self.completed {
+            // The caller's command buffer may still be executing: wait before the recorder
+            // releases the pools it uses. A lost device has nothing left to wait for.
+            let _ = self.recorder.ctx.wait_idle();
+        }
     }
 }
 

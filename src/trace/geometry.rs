@@ -1,4 +1,4 @@
-//! The scene flattened for traversal, laid out as `glsl/common/traverse.glsl` reads it:
+//! The scene flattened for traversal, laid out as `glsl/include/vkrt/traverse.glsl` reads it:
 //! triangle vertices (9 floats each), spheres (centre, radius), a motion slot per primitive
 //! and the motions, plus every primitive's box for the kd-tree builder.
 //!
@@ -65,7 +65,8 @@ impl MotionRecord {
     }
 }
 
-/// Scene constants: 48 bytes, `SceneInfoBuf` in `traverse.glsl`.
+/// Scene constants: 64 bytes, `SceneInfoBuf` in `traverse.glsl` (where a table of
+/// `(first primitive id, geometry index)` pairs may follow, [`SceneInfo::n_geometries`]).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct SceneInfo {
@@ -76,9 +77,30 @@ pub struct SceneInfo {
     pub has_motion: u32,
     /// BVH: where the parent links start in the references buffer (0 for a kd-tree).
     pub parents_at: u32,
+    /// How the shader library walks it (`ACCEL_*` in `traverse.glsl`): 0 kd-tree, 1 BVH,
+    /// 3 the driver's ray query.
+    pub walk: u32,
+    /// Entries of the geometry table that follows (0: one geometry, ids are its indices).
+    pub n_geometries: u32,
+    pub reserved: [u32; 2],
 }
 
 impl SceneInfo {
+    /// `ACCEL_*` of `traverse.glsl`: how the shader library walks a structure.
+    pub const WALK_KDTREE: u32 = 0;
+    pub const WALK_BVH: u32 = 1;
+    pub const WALK_RAY_QUERY: u32 = 3;
+
+    /// Primitives `accel.geometry_gather` could not read from the caller's data.
+    pub fn reserved_invalid(&self) -> u32 {
+        self.reserved[0]
+    }
+
+    /// These constants, walked as `walk`.
+    pub fn walked(self, walk: u32) -> Self {
+        Self { walk, ..self }
+    }
+
     /// The constants of a structure with root box `bounds` (an empty box is stored as zeros)
     /// over `n_tris` triangles and `n_spheres` spheres; `parents_at`: see the field.
     pub fn new(
@@ -100,6 +122,9 @@ impl SceneInfo {
             n_spheres: n_spheres as u32,
             has_motion: has_motion as u32,
             parents_at,
+            walk: 0,
+            n_geometries: 0,
+            reserved: [0; 2],
         }
     }
 }

@@ -111,6 +111,10 @@ impl AccelTraversal {
 pub struct GpuGeometry {
     pub prims: DevicePrimitives,
     pub accel: AccelStructure,
+    /// For a structure over the caller's device geometry
+    /// ([`AccelBuilder::create_in`](crate::accel::device::AccelBuilder::create_in)): its
+    /// layout and build flags, which every build and update into it must match.
+    pub(crate) device_input: Option<crate::accel::embedded::DeviceInput>,
 }
 
 impl GpuGeometry {
@@ -141,13 +145,24 @@ impl GpuGeometry {
         })?;
         // The scratch is freed when this returns, before the work runs: keep it alive.
         rec.keep_alive(scratch);
-        Ok((Self { prims, accel }, recorded))
+        Ok((
+            Self {
+                prims,
+                accel,
+                device_input: None,
+            },
+            recorded,
+        ))
     }
 
     fn with_host(ctx: &Context, g: &TraceGeometry, host: HostRef<'_>) -> Result<Self> {
         let prims = DevicePrimitives::upload(ctx, g)?;
         let accel = upload_structure(ctx, &prims, host)?;
-        Ok(Self { prims, accel })
+        Ok(Self {
+            prims,
+            accel,
+            device_input: None,
+        })
     }
 
     /// The seven bindings in `traverse.glsl`'s order.
@@ -242,7 +257,9 @@ impl Tracer {
     }
 
     /// Records the trace of `n` rays into `hits` (both device buffers); `errors[0]` counts
-    /// rays that ran out of steps. The caller orders the writes of the inputs before.
+    /// rays that ran out of steps. The caller orders the writes of the inputs before. `n`
+    /// above the rays or hits the buffers hold, or a structure this tracer's walk does not
+    /// serve, is an error (nothing is recorded).
     #[allow(
         clippy::too_many_arguments,
         reason = "buffers of the dispatch, one by one"
@@ -256,21 +273,45 @@ impl Tracer {
         errors: &Buffer<u32>,
         n: usize,
         time: f32,
-    ) {
-        if n == 0 {
-            return;
+    ) -> Result<()> {
+        let refuse = |reason: String| {
+            Err(GpuError::Usage {
+                call: "Tracer::record",
+                reason,
+            })
+        };
+        if !self.accel.walks(geom.accel.kind()) {
+            return refuse(format!(
+                "a {} tracer cannot walk a {} structure",
+                self.accel.label(),
+                geom.accel.kind().name()
+            ));
         }
-        assert!(
-            self.accel.walks(geom.accel.kind()),
-            "a {:?} tracer cannot walk a {:?}",
-            self.accel,
-            geom.accel.kind()
-        );
+        if geom.device_input.as_ref().is_some_and(|d| !d.built) {
+            return refuse("the structure has not been built: record its build first".into());
+        }
+        if n > rays.len() || n > hits.len() {
+            return refuse(format!(
+                "{n} rays, but the ray buffer holds {} and the hit buffer {}",
+                rays.len(),
+                hits.len()
+            ));
+        }
+        if errors.is_empty() {
+            return refuse("the error counter buffer is empty".into());
+        }
+        if n > u32::MAX as usize {
+            return refuse(format!("{n} rays in one dispatch (at most {})", u32::MAX));
+        }
+        if n == 0 {
+            return Ok(());
+        }
         let g = geom.bindings();
         let b: [&dyn BufferArg; 10] =
             [rays, hits, g[0], g[1], g[2], g[3], g[4], g[5], g[6], errors];
         let groups = rec.groups_1d(n as u64, WORKGROUP);
         rec.dispatch(&self.kernel, groups, &b, &TracePush { n: n as u32, time });
+        Ok(())
     }
 
     /// Uploads `rays`, traces them at `time` and reads the hits back, in one submission. The
@@ -291,7 +332,7 @@ impl Tracer {
         rec.transfer_to_compute();
         rec.scope("trace", |rec| {
             self.record(rec, geom, &ray_buf, &hits, &errors, rays.len(), time)
-        });
+        })?;
         rec.compute_to_transfer();
         let hits_back = rec.read_back(&hits)?;
         let errors_back = rec.read_back(&errors)?;
@@ -397,7 +438,7 @@ pub fn build_and_trace(
         let readback_before_trace = ctx.traffic().readback_bytes - start.readback_bytes;
         rec.scope("trace", |rec| {
             tracer.record(rec, &geometry, &ray_buf, &hits, &errors, first.len(), time)
-        });
+        })?;
         rec.compute_to_transfer();
         let built = geometry.accel.record_read_built(&mut rec)?;
         let hits_back = rec.read_back(&hits)?;

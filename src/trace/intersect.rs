@@ -1,4 +1,4 @@
-//! CPU twins of the intersection tests in `glsl/common/ray.glsl`: the same operations in the
+//! CPU twins of the intersection tests in `glsl/include/vkrt/ray.glsl`: the same operations in the
 //! same order (no fused multiply-add on either side).
 
 use glam::{Vec3, Vec4};

@@ -1,5 +1,5 @@
 //! Ray queries against a kd-tree: rays and hits shared byte for byte with GLSL
-//! (`glsl/common/ray.glsl`, `glsl/common/traverse.glsl`), the flattened scene geometry the
+//! (`glsl/include/vkrt/ray.glsl`, `glsl/include/vkrt/traverse.glsl`), the flattened scene geometry the
 //! traversal reads, the GPU tracer and its CPU twin, and brute force as the oracle.
 //!
 //! Contract of a query (GPU and CPU alike):
@@ -28,7 +28,7 @@ use glam::Vec3;
 
 pub use geometry::TraceGeometry;
 
-/// A ray: 32 bytes, `Ray` in `glsl/common/ray.glsl`.
+/// A ray: 32 bytes, `Ray` in `glsl/include/vkrt/ray.glsl`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct Ray {
@@ -127,7 +127,7 @@ pub fn count_invalid(rays: &[Ray]) -> [usize; 4] {
 /// Primitive id of a miss.
 pub const NO_HIT: u32 = u32::MAX;
 
-/// A hit: 16 bytes, `Hit` in `glsl/common/ray.glsl`. A miss has `t = +inf` and
+/// A hit: 16 bytes, `Hit` in `glsl/include/vkrt/ray.glsl`. A miss has `t = +inf` and
 /// `prim = NO_HIT`. `u`, `v` are the barycentric weights of a triangle's second and third
 /// vertex (0 for spheres).
 #[repr(C)]

@@ -50,7 +50,8 @@ impl RefitSchedule {
 }
 
 /// Transient scratch of the schedule's build: the depth keys and the sort's.
-struct ScheduleScratch {
+/// Scratch of [`LevelRefit::record_schedule`].
+pub struct ScheduleScratch {
     keys: Buffer<u32>,
     sort: RadixScratch,
 }
@@ -81,14 +82,18 @@ impl LevelRefit {
         n_nodes: usize,
         parents_at: u32,
         schedule: &RefitSchedule,
+        scratch: Option<&ScheduleScratch>,
     ) -> Result<()> {
         if n_nodes == 0 {
             return Ok(());
         }
         let ctx = rec.context().clone();
-        let scratch = ScheduleScratch {
-            keys: Buffer::new(&ctx, "accel.refit.depths", n_nodes)?,
-            sort: self.sort.scratch(&ctx, n_nodes)?,
+        let own = match scratch {
+            Some(_) => None,
+            None => Some(self.schedule_scratch(&ctx, n_nodes)?),
+        };
+        let Some(scratch) = scratch.or(own.as_ref()) else {
+            unreachable!("one of the two is set")
         };
         rec.scope("refit.schedule", |rec| {
             rec.fill(&schedule.levels, 0);
@@ -111,9 +116,19 @@ impl LevelRefit {
             rec.dispatch(&self.scan, [1, 1, 1], &[&schedule.levels], &WORKGROUP);
         });
         rec.compute_to_indirect();
-        // The buffers are freed when this returns, before the work runs.
-        rec.keep_alive(scratch);
+        if let Some(own) = own {
+            // Freed when this returns, before the work runs: kept with the recorder.
+            rec.keep_alive(own);
+        }
         Ok(())
+    }
+
+    /// The scratch of a schedule over `n_nodes` nodes (its bytes: [`Self::scratch_bytes`]).
+    pub fn schedule_scratch(&self, ctx: &Context, n_nodes: usize) -> Result<ScheduleScratch> {
+        Ok(ScheduleScratch {
+            keys: Buffer::new(ctx, "accel.refit.depths", n_nodes.max(1))?,
+            sort: self.sort.scratch(ctx, n_nodes.max(1))?,
+        })
     }
 
     /// Records a refit of every node in `schedule`, deepest first, from `boxes` (six floats

@@ -6,7 +6,7 @@
 //! [`KdTree`] whose primitive `i` is input `i`; they do not know what a material or a mesh
 //! is.
 //!
-//! Node layout (16 bytes, std430; keep in sync with `glsl/common/kdtree.glsl`):
+//! Node layout (16 bytes, std430; keep in sync with `glsl/include/vkrt/kdtree.glsl`):
 //! - inner node: `kind` = split axis (0, 1, 2), `split` = plane position, children are
 //!   `a` (below the plane) and `a + 1` (above), both stored after their parent (BFS order:
 //!   all nodes of depth d come before those of depth d + 1);

@@ -122,7 +122,7 @@ pub fn sah_scaled(
 }
 
 /// min with -0.0 below +0.0 (`f32::min` leaves that case open); the GLSL twin is
-/// `fmin_total` in `glsl/common/kdtree.glsl`.
+/// `fmin_total` in `glsl/include/vkrt/kdtree.glsl`.
 pub fn fmin(a: f32, b: f32) -> f32 {
     if a < b || (a == b && a.is_sign_negative()) {
         a

@@ -194,7 +194,11 @@ impl<'r> FrameLoop<'r> {
                 b.record_build(rec, &prims, &rs.geometry, &scratch, &mut accel)
             })?;
             let refit_scratch = b.update_scratch(rec.context(), prims.count())?;
-            let geom = GpuGeometry { prims, accel };
+            let geom = GpuGeometry {
+                prims,
+                accel,
+                device_input: None,
+            };
             let f = self.renderer.frame(rec, rs, plan, geom)?;
             self.state = Some(State {
                 f,

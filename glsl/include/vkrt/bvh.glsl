@@ -1,4 +1,4 @@
-// BVH traversal, included by common/traverse.glsl (which declares the geometry buffers,
+// BVH traversal, included by traverse.glsl (which declares the geometry buffers,
 // hit_primitive and test_leaf). Nodes hold both children's boxes (Aila & Laine 2009); a child is an
 // interior node (count 0), a leaf (count > 0 references from index on) or missing (count 0,
 // index NO_NODE). Two walks, the same decisions in the same order as src/trace/bvh_cpu.rs:
@@ -12,17 +12,17 @@
 #ifndef VKRT_COMMON_BVH_GLSL
 #define VKRT_COMMON_BVH_GLSL
 
-#include "common/bvh_node.glsl"
+#include "bvh_node.glsl"
 
 #define BVH_MAX_DEPTH 128u
 
 
 // The same binding as the kd-tree's nodes: one structure is bound at a time.
-layout(std430, binding = GEOM_BINDING + 0) readonly buffer BvhNodes { BvhNode bvh_nodes[]; };
+layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer BvhNodes { BvhNode bvh_nodes[]; };
 #if FP64_FALLBACK
 // The same nodes as two 64-bit vectors each: on lavapipe every load is a loop over lanes and
 // components, so eight 64-bit components cost half the trips of sixteen 32-bit ones.
-layout(std430, binding = GEOM_BINDING + 0) readonly buffer BvhNodes64 { u64vec4 bvh_nodes64[]; };
+layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer BvhNodes64 { u64vec4 bvh_nodes64[]; };
 
 vec2 two_floats(uint64_t w) {
     return uintBitsToFloat(unpack32(w));
@@ -68,7 +68,7 @@ uint bvh_parent(uint node) {
 // together instead of every node step carrying the leaf test under a mask. Entries keep the
 // distance at which the ray enters them, and one that lies beyond the closest hit so far is
 // dropped when popped.
-Hit trace_bvh_stack(Ray r, float time) {
+Hit trace_bvh_stack(Ray r, float time, bool any_hit) {
     Hit best = miss_hit();
     if (!ray_is_valid(r) || scene_info.n_tris + scene_info.n_spheres == 0u) {
         return best;
@@ -125,7 +125,7 @@ Hit trace_bvh_stack(Ray r, float time) {
             break; // an interior node still to visit: the step cap (or the driver) ended it
         }
         steps += cur.y;
-        if (test_leaf(cur.x, cur.y, r, sh, time, tmin, best, best_t)) {
+        if (test_leaf(cur.x, cur.y, r, sh, time, tmin, any_hit, best, best_t)) {
             return best;
         }
         have = false;
@@ -140,7 +140,7 @@ Hit trace_bvh_stack(Ray r, float time) {
 }
 
 // Seed 000's bitstack walk (its Algorithm 3).
-Hit trace_bvh_bitstack(Ray r, float time) {
+Hit trace_bvh_bitstack(Ray r, float time, bool any_hit) {
     Hit best = miss_hit();
     if (!ray_is_valid(r) || scene_info.n_tris + scene_info.n_spheres == 0u) {
         return best;
@@ -170,7 +170,7 @@ Hit trace_bvh_bitstack(Ray r, float time) {
             }
             if (count > 0u) {
                 steps += count;
-                if (test_leaf(index, count, r, sh, time, tmin, best, best_t)) {
+                if (test_leaf(index, count, r, sh, time, tmin, any_hit, best, best_t)) {
                     return best;
                 }
             } else if (index != NO_NODE) {

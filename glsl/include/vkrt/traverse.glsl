@@ -1,11 +1,14 @@
 // Geometry buffers and the traversal of the structure they hold: the kd-tree (closest hit
 // and any hit with a short stack and restart, Horn et al. 2007; Rust twin src/trace/cpu.rs)
-// or the BVH (glsl/common/bvh.glsl; twin src/trace/bvh_cpu.rs), chosen by ACCEL_KIND when the
+// or the BVH (glsl/include/vkrt/bvh.glsl; twin src/trace/bvh_cpu.rs), chosen by ACCEL_KIND when the
 // pipeline is created, so every kernel that includes this file serves every structure.
 //
-// The including kernel defines GEOM_BINDING (first of seven bindings, in this order: nodes,
-// prim_refs, triangle vertices, spheres, per-primitive motion slot, motions, scene info) and
-// the specialization constants INTERSECTOR, ANY_HIT and STACK_SIZE, then includes this file.
+// The including kernel defines GEOM_BINDING (first of seven bindings of set VKRT_SET, default
+// 0, in this order: nodes, prim_refs, triangle vertices, spheres, per-primitive motion slot,
+// motions, scene info) and the specialization constants INTERSECTOR, ANY_HIT and STACK_SIZE,
+// then includes this file. With VKRT_LIBRARY defined (vkrt/ray_query.glsl, the public entry
+// point) the walk is chosen at run time from the scene constants, so one shader traces every
+// kind of structure, and ANY_HIT is not used (each query says which it wants).
 // A BVH's parent links follow its primitive references in the prim_refs buffer, from
 // `scene_info.parents_at` on.
 //
@@ -13,13 +16,17 @@
 #ifndef VKRT_COMMON_TRAVERSE_GLSL
 #define VKRT_COMMON_TRAVERSE_GLSL
 
-#include "common/kdtree.glsl"
-#include "common/ray.glsl"
+#include "kdtree.glsl"
+#include "ray.glsl"
 #if FP64_FALLBACK || defined(RAY_QUERY)
 #extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
 #endif
 #ifdef RAY_QUERY
 #extension GL_EXT_ray_query : require
+#endif
+
+#ifndef VKRT_SET
+#define VKRT_SET 0
 #endif
 
 #define NO_MOTION 0xffffffffu
@@ -37,20 +44,26 @@ struct MotionRecord {
     vec4 axis;       // xyz: unit rotation axis
 };
 
-layout(std430, binding = GEOM_BINDING + 0) readonly buffer KdNodes { KdNode kd_nodes[]; };
-layout(std430, binding = GEOM_BINDING + 1) readonly buffer KdRefs { uint kd_refs[]; };
-layout(std430, binding = GEOM_BINDING + 2) readonly buffer TriVerts { float tri_verts[]; };
-layout(std430, binding = GEOM_BINDING + 3) readonly buffer Spheres { vec4 spheres[]; };
-layout(std430, binding = GEOM_BINDING + 4) readonly buffer PrimMotion { uint prim_motion[]; };
-layout(std430, binding = GEOM_BINDING + 5) readonly buffer Motions { MotionRecord motions[]; };
+layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer KdNodes { KdNode kd_nodes[]; };
+layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 1) readonly buffer KdRefs { uint kd_refs[]; };
+layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 2) readonly buffer TriVerts { float tri_verts[]; };
+layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 3) readonly buffer Spheres { vec4 spheres[]; };
+layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 4) readonly buffer PrimMotion { uint prim_motion[]; };
+layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 5) readonly buffer Motions { MotionRecord motions[]; };
 // `SceneInfo` in src/trace/geometry.rs.
-layout(std430, binding = GEOM_BINDING + 6) readonly buffer SceneInfoBuf {
+layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 6) readonly buffer SceneInfoBuf {
     vec4 bounds_min;
     vec4 bounds_max;
     uint n_tris;
     uint n_spheres;
     uint has_motion;
     uint parents_at; // BVH: index of node 0's parent link in kd_refs
+    uint walk;       // ACCEL_KDTREE, ACCEL_BVH_STACK or ACCEL_RAY_QUERY: how to walk it
+    uint n_geometries;
+    uint reserved0;
+    uint reserved1;
+    // Per geometry, ordered by first id: (first primitive id, the caller's geometry index).
+    uvec2 geometry_first[];
 } scene_info;
 
 #ifdef RAY_QUERY
@@ -58,15 +71,18 @@ layout(std430, binding = GEOM_BINDING + 6) readonly buffer SceneInfoBuf {
 // of its top level, which the query converts (OpConvertUToAccelerationStructureKHR), so no
 // acceleration-structure descriptor is needed; the prim_refs binding (kd_refs) holds the
 // first primitive id of each instance.
-layout(std430, binding = GEOM_BINDING + 0) readonly buffer DriverTlas { uint64_t tlas_address; };
+layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer DriverTlas { uint64_t tlas_address; };
 #endif
 
-// 0: kd-tree; 1: BVH with a stack; 2: BVH with seed 000's bitstack; 3: the driver's ray query
+// 0: kd-tree; 1: BVH with a stack; 2: BVH with the bitstack walk; 3: the driver's ray query
 // (AccelTraversal::spec; kernels compiled with RAY_QUERY walk only that).
-layout(constant_id = 20) const uint ACCEL_KIND = 0u;
 #define ACCEL_KDTREE 0u
 #define ACCEL_BVH_STACK 1u
 #define ACCEL_BVH_BITSTACK 2u
+#define ACCEL_RAY_QUERY 3u
+#ifndef VKRT_LIBRARY
+layout(constant_id = 20) const uint ACCEL_KIND = 0u;
+#endif
 
 bool trace_steps_exhausted = false;
 
@@ -96,7 +112,7 @@ vec3 tri_vertex(uint tri, uint corner) {
 // The same vertices as 64-bit words: a triangle's nine floats lie in five of them (the
 // buffer holds two padding floats, DevicePrimitives), five loads instead of nine — on
 // lavapipe every load is a loop over lanes.
-layout(std430, binding = GEOM_BINDING + 2) readonly buffer TriVerts64 { uint64_t tri_verts64[]; };
+layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 2) readonly buffer TriVerts64 { uint64_t tri_verts64[]; };
 
 void load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
     uint first = 9u * tri;
@@ -195,8 +211,8 @@ bool clip_to_scene(Ray r, inout float t0, inout float t1) {
 // Tests a leaf's `count` references from `first` on against the ray up to `best_t`, keeping
 // the closest hit (the lowest primitive id among equal t); true when an any-hit query is
 // answered.
-bool test_leaf(uint first, uint count, Ray r, Shear sh, float time, float tmin, inout Hit best,
-               inout float best_t) {
+bool test_leaf(uint first, uint count, Ray r, Shear sh, float time, float tmin, bool any_hit,
+               inout Hit best, inout float best_t) {
     for (uint i = first; i < first + count; i++) {
         uint prim = kd_refs[i];
         float t, u, v;
@@ -205,7 +221,7 @@ bool test_leaf(uint first, uint count, Ray r, Shear sh, float time, float tmin, 
                 best = Hit(t, prim, u, v);
                 best_t = t;
             }
-            if (ANY_HIT) {
+            if (any_hit) {
                 return true;
             }
         }
@@ -213,11 +229,11 @@ bool test_leaf(uint first, uint count, Ray r, Shear sh, float time, float tmin, 
     return false;
 }
 
-#include "common/bvh.glsl"
+#include "bvh.glsl"
 
 // Closest hit (or, with ANY_HIT, the first hit found) with t in [max(tmin, 0), tmax] at
 // `time`. Invalid rays (see ray_is_valid) miss.
-Hit trace_kdtree(Ray r, float time) {
+Hit trace_kdtree(Ray r, float time, bool any_hit) {
     Hit best = miss_hit();
     if (!ray_is_valid(r) || scene_info.n_tris + scene_info.n_spheres == 0u) {
         return best;
@@ -302,7 +318,7 @@ Hit trace_kdtree(Ray r, float time) {
         }
 
         // Leaf: test its primitives over the whole remaining ray interval.
-        if (test_leaf(nd.a, nd.b, r, sh, time, tmin, best, best_t)) {
+        if (test_leaf(nd.a, nd.b, r, sh, time, tmin, any_hit, best, best_t)) {
             return best;
         }
         step += nd.b;
@@ -342,7 +358,7 @@ Hit trace_kdtree(Ray r, float time) {
 // are boxes (swept over the shutter for moving ones) that this loop intersects with
 // hit_primitive at `time` and commits. One instance per kind of geometry
 // (DriverAccel::geometries); kd_refs[instance] + the primitive's index is its id.
-Hit trace_ray_query(Ray r, float time) {
+Hit trace_ray_query(Ray r, float time, bool any_hit) {
     // An invalid ray is a miss (src/trace/mod.rs); Vulkan leaves queries with NaN, a negative
     // tmin or tmin > tmax undefined, so none is made.
     float tmin = max(r.tmin, 0.0);
@@ -351,7 +367,7 @@ Hit trace_ray_query(Ray r, float time) {
     }
     Shear sh = make_shear(r.d);
     // Opaque: triangle hits commit without the loop; any hit ends at the first commit.
-    uint flags = gl_RayFlagsOpaqueEXT | (ANY_HIT ? gl_RayFlagsTerminateOnFirstHitEXT : 0u);
+    uint flags = gl_RayFlagsOpaqueEXT | (any_hit ? gl_RayFlagsTerminateOnFirstHitEXT : 0u);
     rayQueryEXT q;
     rayQueryInitializeEXT(q, accelerationStructureEXT(tlas_address), flags, 0xffu, r.o, tmin,
                           r.d, r.tmax);
@@ -391,18 +407,57 @@ Hit trace_ray_query(Ray r, float time) {
 }
 #endif
 
+// The walk `walk` (ACCEL_*) over the bound structure.
+Hit trace_walk(uint walk, Ray r, float time, bool any_hit) {
+#ifdef RAY_QUERY
+    if (walk == ACCEL_RAY_QUERY) {
+        return trace_ray_query(r, time, any_hit);
+    }
+#endif
+    if (walk == ACCEL_KDTREE) {
+        return trace_kdtree(r, time, any_hit);
+    }
+    if (walk == ACCEL_BVH_STACK) {
+        return trace_bvh_stack(r, time, any_hit);
+    }
+    if (walk == ACCEL_BVH_BITSTACK) {
+        return trace_bvh_bitstack(r, time, any_hit);
+    }
+    // A walk this shader was not compiled for (the driver's structure without RAY_QUERY):
+    // reported like a walk that gave up, never as a silent miss.
+    trace_steps_exhausted = true;
+    return miss_hit();
+}
+
+// The caller's (geometry index, primitive index within it) of primitive id `prim`.
+uvec2 geometry_of(uint prim) {
+    uint n = scene_info.n_geometries;
+    if (n == 0u) {
+        return uvec2(0u, prim);
+    }
+    // The last geometry whose first id is <= prim (binary search over the ordered table).
+    uint lo = 0u;
+    uint hi = n - 1u;
+    while (lo < hi) {
+        uint mid = (lo + hi + 1u) >> 1u;
+        if (scene_info.geometry_first[mid].x <= prim) {
+            lo = mid;
+        } else {
+            hi = mid - 1u;
+        }
+    }
+    uvec2 g = scene_info.geometry_first[lo];
+    return uvec2(g.y, prim - g.x);
+}
+
+#ifndef VKRT_LIBRARY
 Hit trace_ray(Ray r, float time) {
 #ifdef RAY_QUERY
-    return trace_ray_query(r, time);
+    return trace_ray_query(r, time, ANY_HIT);
 #else
-    if (ACCEL_KIND == ACCEL_KDTREE) {
-        return trace_kdtree(r, time);
-    }
-    if (ACCEL_KIND == ACCEL_BVH_STACK) {
-        return trace_bvh_stack(r, time);
-    }
-    return trace_bvh_bitstack(r, time);
+    return trace_walk(ACCEL_KIND, r, time, ANY_HIT);
 #endif
 }
+#endif
 
 #endif

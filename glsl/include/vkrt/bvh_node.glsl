@@ -4,7 +4,7 @@
 #ifndef VKRT_COMMON_BVH_NODE_GLSL
 #define VKRT_COMMON_BVH_NODE_GLSL
 
-#include "common/kdtree.glsl"
+#include "kdtree.glsl"
 
 #define NO_NODE 0xffffffffu
 // The parent link of a node slot a leaf collapse freed (collapse::DEAD).

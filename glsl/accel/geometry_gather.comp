@@ -1,0 +1,206 @@
+#version 460
+// Reads one geometry of the caller's (its vertex and index buffers where they lie, as
+// VkAccelerationStructureGeometryKHR describes them) into the layout vkrt's builders and walk
+// read: triangles as nine floats in primitive order, spheres as (center, radius), and a box
+// per primitive; the geometry's entry of the table that maps primitive ids back to (geometry,
+// primitive). One dispatch per geometry (src/accel/geometry.rs), plus one that writes the
+// scene constants (MODE_HEADER).
+//
+// A primitive the caller's data cannot give (an index past the vertex count, a non-finite
+// coordinate or radius, a negative radius) becomes a point that no ray hits, and is counted
+// in `invalid` for the host to report: never a box that breaks a build.
+layout(local_size_x_id = 0) in;
+#include "common/grid.glsl"
+
+#define MODE_TRIANGLES 0u
+#define MODE_SPHERES 1u
+#define MODE_HEADER 2u
+#define INDEX_NONE 0u
+#define INDEX_U16 1u
+#define INDEX_U32 2u
+
+layout(std430, binding = 0) readonly buffer Source { uint src[]; };
+layout(std430, binding = 1) readonly buffer Indices { uint idx[]; };
+layout(std430, binding = 2) writeonly buffer TriVerts { float tri_verts[]; };
+layout(std430, binding = 3) writeonly buffer Spheres { vec4 spheres[]; };
+layout(std430, binding = 4) writeonly buffer Boxes { float boxes[]; };
+// `SceneInfo` (src/trace/geometry.rs) and the geometry table after it.
+layout(std430, binding = 5) buffer SceneInfoBuf {
+    vec4 bounds_min;
+    vec4 bounds_max;
+    uint n_tris;
+    uint n_spheres;
+    uint has_motion;
+    uint parents_at;
+    uint walk;
+    uint n_geometries;
+    uint invalid;
+    uint reserved1;
+    uvec2 geometry_first[];
+} info;
+
+layout(push_constant) uniform Push {
+    uint mode;
+    uint count;        // primitives (MODE_HEADER: n_tris)
+    uint first;        // first primitive id (MODE_HEADER: n_spheres)
+    uint out_first;    // first triangle / sphere slot (MODE_HEADER: parents_at)
+    uint src_word;     // first vertex (sphere) word in `src` (MODE_HEADER: walk)
+    uint stride_words; // words between vertices (spheres)
+    uint index_type;
+    uint index_first;  // first index, in indices, within the bound range (MODE_HEADER: n_geometries)
+    uint vertex_count;
+    uint table_slot;
+    uint geometry;
+    uint has_transform;
+    vec4 rows[3];      // the 3x4 object-to-structure transform, row-major
+} pc;
+
+uint index_at(uint k) {
+    if (pc.index_type == INDEX_NONE) {
+        return k;
+    }
+    uint e = pc.index_first + k;
+    if (pc.index_type == INDEX_U16) {
+        return (idx[e >> 1u] >> (16u * (e & 1u))) & 0xffffu;
+    }
+    return idx[e];
+}
+
+vec3 vertex_at(uint v) {
+    uint w = pc.src_word + v * pc.stride_words;
+    vec3 p = vec3(uintBitsToFloat(src[w]), uintBitsToFloat(src[w + 1u]),
+                  uintBitsToFloat(src[w + 2u]));
+    if (pc.has_transform != 0u) {
+        // Left to right, no fused multiply-add: the CPU twin (Triangles::transformed) rounds
+        // the same way.
+        precise vec3 q;
+        for (uint k = 0u; k < 3u; k++) {
+            vec4 m = pc.rows[k];
+            precise float x = m.x * p.x;
+            x = x + m.y * p.y;
+            x = x + m.z * p.z;
+            x = x + m.w;
+            q[k] = x;
+        }
+        p = q;
+    }
+    return p;
+}
+
+bool finite3(vec3 v) {
+    uvec3 e = floatBitsToUint(v) & 0x7f800000u;
+    return all(notEqual(e, uvec3(0x7f800000u)));
+}
+
+// The next float towards +inf / -inf (next_up / next_down in src/trace/geometry.rs).
+float next_up(float x) {
+    uint b = floatBitsToUint(x);
+    if ((b & 0x7fffffffu) > 0x7f800000u || b == 0x7f800000u) {
+        return x;
+    }
+    if ((b & 0x7fffffffu) == 0u) {
+        return uintBitsToFloat(1u);
+    }
+    return uintBitsToFloat((b & 0x80000000u) == 0u ? b + 1u : b - 1u);
+}
+
+float next_down(float x) {
+    return -next_up(-x);
+}
+
+void write_box(uint prim, vec3 lo, vec3 hi) {
+    uint b = 6u * prim;
+    boxes[b] = lo.x;
+    boxes[b + 1u] = lo.y;
+    boxes[b + 2u] = lo.z;
+    boxes[b + 3u] = hi.x;
+    boxes[b + 4u] = hi.y;
+    boxes[b + 5u] = hi.z;
+}
+
+void main() {
+    uint i = linear_invocation_id();
+    if (pc.mode == MODE_HEADER) {
+        if (i == 0u) {
+            info.bounds_min = vec4(0.0);
+            info.bounds_max = vec4(0.0);
+            info.n_tris = pc.count;
+            info.n_spheres = pc.first;
+            info.has_motion = 0u;
+            info.parents_at = pc.out_first;
+            info.walk = pc.src_word;
+            info.n_geometries = pc.index_first;
+            info.invalid = 0u;
+            info.reserved1 = 0u;
+        }
+        return;
+    }
+    if (i == 0u) {
+        info.geometry_first[pc.table_slot] = uvec2(pc.first, pc.geometry);
+    }
+    if (i >= pc.count) {
+        return;
+    }
+    uint prim = pc.first + i;
+    if (pc.mode == MODE_TRIANGLES) {
+        uint a = index_at(3u * i);
+        uint b = index_at(3u * i + 1u);
+        uint c = index_at(3u * i + 2u);
+        bool ok = a < pc.vertex_count && b < pc.vertex_count && c < pc.vertex_count;
+        vec3 p0 = vec3(0.0);
+        vec3 p1 = vec3(0.0);
+        vec3 p2 = vec3(0.0);
+        if (ok) {
+            p0 = vertex_at(a);
+            p1 = vertex_at(b);
+            p2 = vertex_at(c);
+            ok = finite3(p0) && finite3(p1) && finite3(p2);
+        }
+        if (!ok) {
+            atomicAdd(info.invalid, 1u);
+            p0 = vec3(0.0);
+            p1 = p0;
+            p2 = p0;
+        }
+        vec3 lo = min(min(p0, p1), p2);
+        vec3 hi = max(max(p0, p1), p2);
+        // A zero-area triangle keeps its box but gets NaN vertices, which no test ever hits
+        // (TraceGeometry::from_triangles does the same).
+        precise vec3 e1 = p1 - p0;
+        precise vec3 e2 = p2 - p0;
+        precise vec3 n = cross(e1, e2);
+        if (all(equal(n, vec3(0.0)))) {
+            p0 = vec3(uintBitsToFloat(0x7fc00000u));
+            p1 = p0;
+            p2 = p0;
+        }
+        uint t = 9u * (pc.out_first + i);
+        tri_verts[t] = p0.x;
+        tri_verts[t + 1u] = p0.y;
+        tri_verts[t + 2u] = p0.z;
+        tri_verts[t + 3u] = p1.x;
+        tri_verts[t + 4u] = p1.y;
+        tri_verts[t + 5u] = p1.z;
+        tri_verts[t + 6u] = p2.x;
+        tri_verts[t + 7u] = p2.y;
+        tri_verts[t + 8u] = p2.z;
+        write_box(prim, lo, hi);
+    } else {
+        uint w = pc.src_word + i * pc.stride_words;
+        vec3 c = vec3(uintBitsToFloat(src[w]), uintBitsToFloat(src[w + 1u]),
+                      uintBitsToFloat(src[w + 2u]));
+        float r = uintBitsToFloat(src[w + 3u]);
+        bool ok = finite3(c) && finite3(vec3(r)) && r >= 0.0;
+        if (!ok) {
+            atomicAdd(info.invalid, 1u);
+            c = vec3(0.0);
+            r = 0.0;
+        }
+        spheres[pc.out_first + i] = vec4(c, r);
+        precise vec3 lo = c - vec3(r);
+        precise vec3 hi = c + vec3(r);
+        // Rounded outwards, as sphere_box in src/trace/geometry.rs.
+        write_box(prim, vec3(next_down(lo.x), next_down(lo.y), next_down(lo.z)),
+                  vec3(next_up(hi.x), next_up(hi.y), next_up(hi.z)));
+    }
+}

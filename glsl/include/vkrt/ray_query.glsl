@@ -1,0 +1,137 @@
+// vkrt's ray queries for the renderer's own shaders: the walk vkrt's kernels run, over any
+// structure vkrt builds (kd-tree, LBVH, PLOC, SAH BVH; the driver's where the shader is
+// compiled with VKRT_RAY_QUERY), on any Vulkan 1.2 device.
+//
+// Use:
+//     #define VKRT_SET 1        // the descriptor set holding the structure (default 0)
+//     #define VKRT_BINDING 0    // its first binding (default 0)
+//     #include "vkrt/ray_query.glsl"
+//     ...
+//     VkrtHit h = vkrtTraceClosest(origin, tMin, direction, tMax);
+//     if (h.hit) { ... h.t, h.barycentrics, h.geometryIndex, h.primitiveIndex ... }
+//     bool blocked = vkrtTraceAny(origin, tMin, direction, tMax);
+//
+// The structure is seven read-only storage buffers at bindings VKRT_BINDING + 0 .. + 6 of set
+// VKRT_SET, in the order vkrt's `StructureBindings` lists them (the host fills them from
+// `GpuGeometry::bindings()`). One layout serves every kind: the kind and its walk are read
+// from the structure itself, so one pipeline traces any of them.
+//
+// Options (define before the include):
+//   VKRT_STACK_SIZE   the kd-tree walk's short-stack entries (default 32)
+//   VKRT_MOLLER_TRUMBORE  use the Moller-Trumbore test instead of the watertight one
+//   VKRT_RAY_QUERY    also walk the driver's structure with GL_EXT_ray_query (needs the
+//                     device's VK_KHR_ray_query; without it such a structure reports
+//                     `exhausted`)
+//
+// Rays follow VK_KHR_ray_query: t in [tMin, tMax], tMax may be +inf; a ray with a NaN or
+// infinite origin or direction, a zero direction or tMin > tMax is a miss. A walk that ran
+// out of its step budget reports `exhausted` (its answer is then a miss): never a silent
+// wrong answer.
+//
+// Names: the public ones start with `vkrt`/`Vkrt`; the internal functions this file
+// brings in are snake_case (trace_*, hit_*, clip_*, load_*, ...) and its internal types are
+// renamed here so that they cannot clash with the includer's `Ray` or `Hit`.
+#ifndef VKRT_RAY_QUERY_GLSL
+#define VKRT_RAY_QUERY_GLSL
+
+#define VKRT_LIBRARY 1
+#ifndef VKRT_BINDING
+#define VKRT_BINDING 0
+#endif
+#define GEOM_BINDING VKRT_BINDING
+#ifdef VKRT_RAY_QUERY
+#define RAY_QUERY 1
+#endif
+
+#define Ray vkrt_internal_Ray
+#define Hit vkrt_internal_Hit
+#define Shear vkrt_internal_Shear
+#define KdNode vkrt_internal_KdNode
+#define BvhNode vkrt_internal_BvhNode
+#define MotionRecord vkrt_internal_MotionRecord
+
+#include "ray.glsl"
+#include "kdtree.glsl"
+
+#ifdef VKRT_MOLLER_TRUMBORE
+const uint INTERSECTOR = INTERSECT_MOLLER_TRUMBORE;
+#else
+const uint INTERSECTOR = INTERSECT_WATERTIGHT;
+#endif
+#ifdef VKRT_STACK_SIZE
+const uint STACK_SIZE = VKRT_STACK_SIZE;
+#else
+const uint STACK_SIZE = 32u;
+#endif
+
+#include "traverse.glsl"
+
+// What a query found. A miss has hit == false and t == +inf.
+struct VkrtHit {
+    bool hit;
+    float t;
+    // The weights of the triangle's second and third vertices (as VK_KHR_ray_query's
+    // barycentrics); 0 for spheres.
+    vec2 barycentrics;
+    // The geometry (its index in the build's list) and the primitive within it: a triangle
+    // index (index buffer order), a sphere index.
+    uint geometryIndex;
+    uint primitiveIndex;
+    // The walk gave up (its step budget ran out): the answer is a miss, not to be trusted.
+    bool exhausted;
+};
+
+VkrtHit vkrt_to_public(Hit h) {
+    VkrtHit o;
+    o.hit = h.prim != NO_HIT;
+    o.t = h.t;
+    o.barycentrics = vec2(h.u, h.v);
+    uvec2 g = o.hit ? geometry_of(h.prim) : uvec2(0xffffffffu);
+    o.geometryIndex = g.x;
+    o.primitiveIndex = g.y;
+    o.exhausted = trace_steps_exhausted;
+    return o;
+}
+
+Hit vkrt_trace(vec3 origin, float tMin, vec3 direction, float tMax, float time, bool any_hit) {
+    trace_steps_exhausted = false;
+    Hit h = trace_walk(scene_info.walk, Ray(origin, tMin, direction, tMax), time, any_hit);
+    if (trace_steps_exhausted) {
+        h = miss_hit();
+    }
+    return h;
+}
+
+// The closest hit with t in [tMin, tMax] (ties: the lowest primitive id).
+VkrtHit vkrtTraceClosest(vec3 origin, float tMin, vec3 direction, float tMax) {
+    return vkrt_to_public(vkrt_trace(origin, tMin, direction, tMax, 0.0, false));
+}
+
+// vkrtTraceClosest at `time` (scenes with moving primitives; 0 otherwise).
+VkrtHit vkrtTraceClosestAt(vec3 origin, float tMin, vec3 direction, float tMax, float time) {
+    return vkrt_to_public(vkrt_trace(origin, tMin, direction, tMax, time, false));
+}
+
+// Any hit with t in [tMin, tMax] (the first found; for shadows and occlusion): the whole
+// answer of an any-hit query, with the hit's data.
+VkrtHit vkrtTraceAnyHit(vec3 origin, float tMin, vec3 direction, float tMax) {
+    return vkrt_to_public(vkrt_trace(origin, tMin, direction, tMax, 0.0, true));
+}
+
+// Whether anything lies on the ray in [tMin, tMax].
+bool vkrtTraceAny(vec3 origin, float tMin, vec3 direction, float tMax) {
+    return vkrt_trace(origin, tMin, direction, tMax, 0.0, true).prim != NO_HIT;
+}
+
+// Whether the last query on this invocation gave up (its answer was then a miss).
+bool vkrtExhausted() {
+    return trace_steps_exhausted;
+}
+
+#undef Ray
+#undef Hit
+#undef Shear
+#undef KdNode
+#undef BvhNode
+#undef MotionRecord
+#endif

@@ -1,0 +1,375 @@
+//! Structures on the renderer's terms, as `VK_KHR_acceleration_structure` has them: built from
+//! geometry in the caller's device buffers ([`Geometry`]), in memory the caller allocates.
+//!
+//! 1. [`AccelBuilder::sizes_for`]: the structure's bytes and the build's and an update's
+//!    scratch, for exactly these geometries and flags;
+//! 2. [`AccelBuilder::create_in`]: the structure placed in a range of the caller's buffer;
+//! 3. [`AccelBuilder::record_build_from`] / [`AccelBuilder::record_update_from`]: recorded
+//!    into the caller's command buffer, with the scratch in another range of the caller's;
+//!    they allocate nothing, upload nothing and submit nothing.
+//!
+//! The sizes are exact because they come from the same code that places the buffers, run
+//! in a measuring mode ([`crate::gpu::placement`]). The caller's buffers need
+//! [`REQUIRED_BUFFER_USAGE`] (and [`DRIVER_BUFFER_USAGE`] too for the driver's structure).
+//!
+//! Where vkrt differs from the Vulkan extension: the SAH BVH is a host builder and takes host
+//! slices ([`AccelBuilder::record_build`]); the kd-tree's references per level are a
+//! capacity, so its build may report that it ran out ([`BuildStatus`]), and the caller asks
+//! for sizes with one more doubling and builds again — an answer the caller acts on, never
+//! a hidden host round trip. The driver's own structure keeps its opaque levels in memory
+//! vkrt allocates when the build is recorded.
+
+use crate::accel::device::{AccelBuilder, AccelKind, AccelSizes, DevicePrimitives};
+use crate::accel::driver::Prefer;
+use crate::accel::geometry::{Geometry, GeometryGather, GeometryLayout};
+use crate::gpu::placement::{place, Placement};
+use crate::gpu::{vk, Buffer, Context, GpuError, RawBuffer, Readback, Recorder, Result};
+use crate::trace::geometry::SceneInfo;
+use crate::trace::gpu::GpuGeometry;
+
+/// Usage the caller's structure and scratch buffers need: vkrt binds ranges of them as
+/// storage buffers, fills and copies within them and dispatches indirectly from them.
+pub const REQUIRED_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::from_raw(
+    vk::BufferUsageFlags::STORAGE_BUFFER.as_raw()
+        | vk::BufferUsageFlags::TRANSFER_SRC.as_raw()
+        | vk::BufferUsageFlags::TRANSFER_DST.as_raw()
+        | vk::BufferUsageFlags::INDIRECT_BUFFER.as_raw(),
+);
+
+/// What the driver's structure needs in addition: its inputs are read at device addresses.
+pub const DRIVER_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::from_raw(
+    vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS.as_raw()
+        | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR.as_raw(),
+);
+
+/// How a structure is built (`VkBuildAccelerationStructureFlagsKHR`, and the kd-tree's
+/// capacity).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct BuildFlags {
+    /// What the driver's builder optimises for (vkrt's own builders have one way each).
+    pub prefer: Prefer,
+    /// The structure will be updated ([`AccelBuilder::record_update_from`]).
+    pub allow_update: bool,
+    /// The kd-tree's reference budget per level doubled this many times (0 at first; one
+    /// more after [`BuildStatus::kd_overflow`]).
+    pub kd_capacity_doublings: u32,
+}
+
+/// What a structure over the caller's geometry was created for.
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub(crate) struct DeviceInput {
+    layout: GeometryLayout,
+    /// Per geometry: a triangle geometry (else spheres), and its primitive count.
+    shape: Vec<(bool, u32)>,
+    flags: BuildFlags,
+    /// A build has been recorded (tracing or updating before one is an error).
+    pub(crate) built: bool,
+}
+
+impl DeviceInput {
+    fn new(ctx: &Context, geometries: &[Geometry], flags: BuildFlags) -> Result<Self> {
+        Ok(Self {
+            layout: GeometryLayout::of(ctx, geometries)?,
+            shape: shape(geometries),
+            flags,
+            built: false,
+        })
+    }
+}
+
+fn shape(geometries: &[Geometry]) -> Vec<(bool, u32)> {
+    geometries
+        .iter()
+        .map(|g| (matches!(g, Geometry::Triangles(_)), g.primitive_count()))
+        .collect()
+}
+
+fn usage(call: &'static str, reason: impl Into<String>) -> GpuError {
+    GpuError::Usage {
+        call,
+        reason: reason.into(),
+    }
+}
+
+/// What a build reports once it has executed ([`GpuGeometry::record_read_status`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct BuildStatus {
+    /// Primitives the caller's data could not give (an index past the vertex count, a
+    /// non-finite coordinate, a negative radius): each became a point no ray hits.
+    pub invalid_primitives: u32,
+    /// The kd-tree ran out of its reference budget: the structure is empty (every ray
+    /// misses). Build again with [`BuildFlags::kd_capacity_doublings`] one higher, at the
+    /// sizes asked for then.
+    pub kd_overflow: bool,
+}
+
+/// The copy of a build's report, read after the work has executed.
+#[must_use = "read() it once the work has executed"]
+pub struct StatusReadback {
+    info: Readback<SceneInfo>,
+    kd: Option<Readback<u32>>,
+}
+
+impl StatusReadback {
+    /// The report. Call only after the recording's work has completed.
+    pub fn read(self) -> Result<BuildStatus> {
+        let info = self.info.read()?;
+        let kd_overflow = match self.kd {
+            Some(k) => k.read()?.get(2).is_some_and(|&w| w != 0),
+            None => false,
+        };
+        Ok(BuildStatus {
+            invalid_primitives: info.first().map_or(0, |i| i.reserved_invalid()),
+            kd_overflow,
+        })
+    }
+}
+
+impl GpuGeometry {
+    /// Records the copy of the build's report (80 bytes at most) into host memory: read it
+    /// with [`StatusReadback::read`] after the work has executed. Order the build before
+    /// with [`Recorder::compute_to_transfer`].
+    pub fn record_read_status(&self, rec: &mut Recorder) -> Result<StatusReadback> {
+        let ctx = rec.context().clone();
+        let head = Buffer::<SceneInfo>::with_memory(
+            &ctx,
+            "accel.status",
+            1,
+            crate::gpu::Memory::Readback,
+        )?;
+        rec.copy(&self.accel.info, &head, 1);
+        Ok(StatusReadback {
+            info: Readback::from_staging(head),
+            kd: self.accel.record_read_built(rec)?,
+        })
+    }
+}
+
+impl AccelBuilder {
+    fn check_device_input(&self, call: &'static str) -> Result<()> {
+        match self.kind() {
+            AccelKind::SahBvh => Err(usage(
+                call,
+                "the SAH BVH is a host builder: it builds from host slices (record_build \
+                 with a TraceGeometry), not from device buffers",
+            )),
+            _ => Ok(()),
+        }
+    }
+
+    /// Bytes of the structure over `geometries` built with `flags`, of its build's scratch
+    /// and of an update's scratch (`None`: this kind cannot be updated, or `flags` does not
+    /// allow it), exactly as [`AccelBuilder::create_in`] and the recordings place them.
+    pub fn sizes_for(
+        &self,
+        ctx: &Context,
+        geometries: &[Geometry],
+        flags: &BuildFlags,
+    ) -> Result<AccelSizes> {
+        self.check_device_input("AccelBuilder::sizes_for")?;
+        let input = DeviceInput::new(ctx, geometries, *flags)?;
+        let (_, structure_bytes) = place(ctx, "the structure", Placement::Measure, || {
+            self.place_structure(ctx, &input)
+        })?;
+        let n = input.layout.primitive_count();
+        let grow = flags.kd_capacity_doublings;
+        let (_, build_scratch_bytes) = place(ctx, "the build scratch", Placement::Measure, || {
+            self.create_scratch(ctx, n, grow, flags.allow_update)
+        })?;
+        let update_scratch_bytes = match (self.kind(), flags.allow_update) {
+            (AccelKind::KdTree, _) | (_, false) => None,
+            _ => Some(
+                place(ctx, "the update scratch", Placement::Measure, || {
+                    self.update_scratch(ctx, n)
+                })?
+                .1,
+            ),
+        };
+        Ok(AccelSizes {
+            structure_bytes,
+            build_scratch_bytes,
+            update_scratch_bytes,
+        })
+    }
+
+    fn place_structure(&self, ctx: &Context, input: &DeviceInput) -> Result<GpuGeometry> {
+        let l = &input.layout;
+        let n = l.primitive_count();
+        let prims = DevicePrimitives::for_layout(ctx, l)?;
+        let accel = self.create_structure(
+            ctx,
+            n,
+            input.flags.kd_capacity_doublings,
+            input.flags.allow_update,
+            l.info_len(),
+        )?;
+        Ok(GpuGeometry {
+            prims,
+            accel,
+            device_input: Some(input.clone()),
+        })
+    }
+
+    /// The structure over `geometries` (built with `flags`), placed at the start of
+    /// `memory`, a range of the caller's buffer of at least
+    /// [`AccelSizes::structure_bytes`] with [`REQUIRED_BUFFER_USAGE`]. It holds no data
+    /// until [`AccelBuilder::record_build_from`] has executed. The caller keeps `memory`
+    /// alive as long as the structure is used.
+    pub fn create_in(
+        &self,
+        ctx: &Context,
+        geometries: &[Geometry],
+        flags: &BuildFlags,
+        memory: RawBuffer,
+    ) -> Result<GpuGeometry> {
+        self.check_device_input("AccelBuilder::create_in")?;
+        let input = DeviceInput::new(ctx, geometries, *flags)?;
+        let (g, _) = place(ctx, "the structure", Placement::Into(memory), || {
+            self.place_structure(ctx, &input)
+        })?;
+        Ok(g)
+    }
+
+    fn input_of<'a>(
+        &self,
+        call: &'static str,
+        geometries: &[Geometry],
+        out: &'a GpuGeometry,
+    ) -> Result<&'a DeviceInput> {
+        self.check_device_input(call)?;
+        let input = out.device_input.as_ref().ok_or_else(|| {
+            usage(
+                call,
+                "this structure was not created over device geometry (AccelBuilder::create_in)",
+            )
+        })?;
+        if out.accel.kind() != self.kind() {
+            return Err(usage(
+                call,
+                format!(
+                    "a {} builder cannot build into a {} structure",
+                    self.kind().name(),
+                    out.accel.kind().name()
+                ),
+            ));
+        }
+        if shape(geometries) != input.shape {
+            return Err(usage(
+                call,
+                "the geometries differ from those the structure was created for (their \
+                 kinds or primitive counts): create a structure for them",
+            ));
+        }
+        Ok(input)
+    }
+
+    /// Records the build of `out` over `geometries` (the ones it was created for, their
+    /// buffers now holding the data: the caller orders its writes before, as compute or
+    /// transfer writes) into `rec`, with its scratch in `scratch`, a range of the caller's
+    /// buffer of at least [`AccelSizes::build_scratch_bytes`]. Ends with a compute → compute
+    /// barrier, after which kernels recorded next (the caller's, through
+    /// `vkrt/ray_query.glsl`) may trace it. Allocates, uploads and submits nothing.
+    pub fn record_build_from(
+        &self,
+        rec: &mut Recorder,
+        geometries: &[Geometry],
+        out: &mut GpuGeometry,
+        scratch: RawBuffer,
+    ) -> Result<()> {
+        let call = "AccelBuilder::record_build_from";
+        let input = self.input_of(call, geometries, out)?.clone();
+        let ctx = rec.context().clone();
+        let n = input.layout.primitive_count();
+        let (scratch, _) = place(&ctx, "the build scratch", Placement::Into(scratch), || {
+            let f = &input.flags;
+            self.create_scratch(&ctx, n, f.kd_capacity_doublings, f.allow_update)
+        })?;
+        let gather = GeometryGather::new(&ctx)?;
+        rec.scope("build", |rec| {
+            let walk = match self.kind() {
+                AccelKind::KdTree => SceneInfo::WALK_KDTREE,
+                AccelKind::Driver => SceneInfo::WALK_RAY_QUERY,
+                _ => SceneInfo::WALK_BVH,
+            };
+            let parents_at = match self.kind() {
+                AccelKind::Lbvh | AccelKind::Ploc => n as u32,
+                _ => 0,
+            };
+            rec.scope("gather", |rec| {
+                gather.record(
+                    rec,
+                    geometries,
+                    &input.layout,
+                    &out.prims,
+                    &out.accel.info,
+                    walk,
+                    parents_at,
+                )
+            });
+            self.record_build_inner(rec, &out.prims, None, &scratch, &mut out.accel)
+                .map(drop)
+        })?;
+        if let Some(d) = out.device_input.as_mut() {
+            d.built = true;
+        }
+        Ok(())
+    }
+
+    /// Records an update (refit) of `out`, built with `allow_update`, to the positions its
+    /// geometries' buffers hold now (the same geometries, moved), with its scratch in
+    /// `scratch` (at least [`AccelSizes::update_scratch_bytes`]). A kd-tree cannot be
+    /// updated (its split planes are fixed): rebuild it.
+    pub fn record_update_from(
+        &self,
+        rec: &mut Recorder,
+        geometries: &[Geometry],
+        out: &GpuGeometry,
+        scratch: RawBuffer,
+    ) -> Result<()> {
+        let call = "AccelBuilder::record_update_from";
+        let input = self.input_of(call, geometries, out)?.clone();
+        if self.kind() == AccelKind::KdTree {
+            return Err(usage(
+                call,
+                "a kd-tree cannot be updated (its split planes are fixed): rebuild it",
+            ));
+        }
+        if !input.built {
+            return Err(usage(call, "the structure has not been built: record its build first"));
+        }
+        if !input.flags.allow_update {
+            return Err(usage(
+                call,
+                "the structure was not built with allow_update: rebuild it, or create it \
+                 with BuildFlags::allow_update",
+            ));
+        }
+        let ctx = rec.context().clone();
+        let n = input.layout.primitive_count();
+        let (visits, _) = place(&ctx, "the update scratch", Placement::Into(scratch), || {
+            self.update_scratch(&ctx, n)
+        })?;
+        let visits = visits.ok_or_else(|| usage(call, "this kind cannot be updated"))?;
+        let gather = GeometryGather::new(&ctx)?;
+        rec.scope("update", |rec| {
+            let walk = match self.kind() {
+                AccelKind::Driver => SceneInfo::WALK_RAY_QUERY,
+                _ => SceneInfo::WALK_BVH,
+            };
+            let parents_at = match self.kind() {
+                AccelKind::Lbvh | AccelKind::Ploc => n as u32,
+                _ => 0,
+            };
+            gather.record(
+                rec,
+                geometries,
+                &input.layout,
+                &out.prims,
+                &out.accel.info,
+                walk,
+                parents_at,
+            );
+            self.record_refit(rec, &out.prims, &out.accel, &visits)
+        })
+    }
+}

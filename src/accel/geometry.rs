@@ -1,0 +1,581 @@
+//! Geometry that lives in the caller's device buffers, described the way
+//! `VkAccelerationStructureGeometryKHR` describes it: triangles (a vertex buffer with format
+//! and stride, an optional `u16`/`u32` index buffer, an optional 3×4 transform) and spheres
+//! (centre and radius), several geometries per structure.
+//!
+//! The GPU builders read these buffers where they lie: `accel.geometry_gather` copies each
+//! geometry, on the device, into the structure's own primitive arrays (as a driver copies its
+//! input into its own format), so nothing passes through the host and nothing is uploaded.
+//! A hit reports the geometry's index in the list and the primitive's index within it.
+
+use crate::gpu::{kernels, BufferArg, Context, GpuError, Kernel, RawBuffer, Recorder, Result, Spec};
+use crate::trace::geometry::SceneInfo;
+use crate::trace::TraceGeometry;
+use glam::{Vec3, Vec4};
+
+use super::device::DevicePrimitives;
+
+const WORKGROUP: u32 = 64;
+
+/// How vertex positions are stored (`VkFormat`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum VertexFormat {
+    /// `VK_FORMAT_R32G32B32_SFLOAT`: three 32-bit floats (any trailing data up to the stride
+    /// is ignored, so `R32G32B32A32` vertices work with a 16-byte stride).
+    #[default]
+    Rgb32Float,
+}
+
+/// The type of an index buffer's entries (`VkIndexType`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum IndexType {
+    U16,
+    U32,
+}
+
+impl IndexType {
+    fn bytes(self) -> u64 {
+        match self {
+            IndexType::U16 => 2,
+            IndexType::U32 => 4,
+        }
+    }
+}
+
+/// An index buffer: three entries per triangle, starting at the range's offset.
+#[derive(Clone, Copy, Debug)]
+pub struct Indices {
+    pub data: RawBuffer,
+    pub index_type: IndexType,
+}
+
+/// Triangles (`VkAccelerationStructureGeometryTrianglesDataKHR`).
+#[derive(Clone, Copy, Debug)]
+pub struct Triangles {
+    /// The vertex buffer; the first vertex is at the range's offset.
+    pub vertices: RawBuffer,
+    pub format: VertexFormat,
+    /// Bytes from one vertex to the next (a multiple of 4, at least 12).
+    pub stride: u64,
+    /// Vertices the indices may name (`maxVertex + 1`).
+    pub vertex_count: u32,
+    /// `None`: vertices `3k, 3k + 1, 3k + 2` form triangle `k`.
+    pub indices: Option<Indices>,
+    pub triangle_count: u32,
+    /// Row-major object-to-structure transform (`VkTransformMatrixKHR`), applied as the
+    /// geometry is read.
+    pub transform: Option<[[f32; 4]; 3]>,
+    /// Accepted for the shape of the Vulkan API; every vkrt hit is opaque (there are no
+    /// any-hit shaders to call), so `false` is an error rather than a silently ignored flag.
+    pub opaque: bool,
+}
+
+impl Triangles {
+    /// Non-indexed triangles: `vertex_count / 3` of them, tightly packed `vec3`s.
+    pub fn soup(vertices: RawBuffer, vertex_count: u32) -> Self {
+        Self {
+            vertices,
+            format: VertexFormat::Rgb32Float,
+            stride: 12,
+            vertex_count,
+            indices: None,
+            triangle_count: vertex_count / 3,
+            transform: None,
+            opaque: true,
+        }
+    }
+
+    /// Indexed triangles over tightly packed `vec3` vertices.
+    pub fn indexed(
+        vertices: RawBuffer,
+        vertex_count: u32,
+        indices: RawBuffer,
+        index_type: IndexType,
+        triangle_count: u32,
+    ) -> Self {
+        Self {
+            indices: Some(Indices {
+                data: indices,
+                index_type,
+            }),
+            triangle_count,
+            ..Self::soup(vertices, vertex_count)
+        }
+    }
+}
+
+/// Spheres: a centre and a radius, four floats, `stride` bytes apart.
+#[derive(Clone, Copy, Debug)]
+pub struct Spheres {
+    pub data: RawBuffer,
+    /// At least 16, a multiple of 4.
+    pub stride: u64,
+    pub count: u32,
+    /// As for [`Triangles::opaque`].
+    pub opaque: bool,
+}
+
+/// One geometry of a structure.
+#[derive(Clone, Copy, Debug)]
+#[non_exhaustive]
+pub enum Geometry {
+    Triangles(Triangles),
+    Spheres(Spheres),
+}
+
+impl Geometry {
+    /// Its primitives.
+    pub fn primitive_count(&self) -> u32 {
+        match self {
+            Geometry::Triangles(t) => t.triangle_count,
+            Geometry::Spheres(s) => s.count,
+        }
+    }
+}
+
+/// Triangles and spheres over `geometries`, and where each geometry's primitives start in
+/// vkrt's ids (triangles of every geometry first, then spheres: `traverse.glsl`'s order).
+#[derive(Clone, Debug, PartialEq, Eq)]
+pub struct GeometryLayout {
+    pub n_tris: u32,
+    pub n_spheres: u32,
+    /// Per geometry: its first primitive id.
+    pub first: Vec<u32>,
+    /// The table the walk searches: (first id, geometry index), ordered by first id, for
+    /// the geometries that have primitives.
+    pub table: Vec<[u32; 2]>,
+}
+
+fn usage(reason: String) -> GpuError {
+    GpuError::Usage {
+        call: "accel geometry",
+        reason,
+    }
+}
+
+impl GeometryLayout {
+    /// Checks every description against the limits of `ctx`'s device and lays them out.
+    pub fn of(ctx: &Context, geometries: &[Geometry]) -> Result<Self> {
+        let mut n_tris = 0u64;
+        let mut n_spheres = 0u64;
+        for (k, g) in geometries.iter().enumerate() {
+            check(ctx, k, g)?;
+            match g {
+                Geometry::Triangles(t) => n_tris += u64::from(t.triangle_count),
+                Geometry::Spheres(s) => n_spheres += u64::from(s.count),
+            }
+        }
+        if n_tris + n_spheres > u64::from(u32::MAX / 9) {
+            return Err(usage(format!(
+                "{} primitives in all: above the {} one structure holds",
+                n_tris + n_spheres,
+                u32::MAX / 9
+            )));
+        }
+        let (mut tri, mut sph) = (0u32, n_tris as u32);
+        let mut first = Vec::with_capacity(geometries.len());
+        let mut tris = Vec::new();
+        let mut sphs = Vec::new();
+        for (k, g) in geometries.iter().enumerate() {
+            let (at, list) = match g {
+                Geometry::Triangles(_) => (&mut tri, &mut tris),
+                Geometry::Spheres(_) => (&mut sph, &mut sphs),
+            };
+            first.push(*at);
+            if g.primitive_count() > 0 {
+                list.push([*at, k as u32]);
+            }
+            *at += g.primitive_count();
+        }
+        tris.extend(sphs);
+        Ok(Self {
+            n_tris: n_tris as u32,
+            n_spheres: n_spheres as u32,
+            first,
+            table: tris,
+        })
+    }
+
+    pub fn primitive_count(&self) -> usize {
+        (self.n_tris + self.n_spheres) as usize
+    }
+
+    /// `SceneInfo` elements (64 bytes each) holding the constants and the table.
+    pub fn info_len(&self) -> usize {
+        1 + self.table.len().div_ceil(8)
+    }
+
+    /// (geometry index, primitive index) of vkrt's primitive id `prim`.
+    pub fn locate(&self, prim: u32) -> Option<(u32, u32)> {
+        let k = self.table.partition_point(|e| e[0] <= prim).checked_sub(1)?;
+        let [first, geometry] = self.table[k];
+        (prim < self.n_tris + self.n_spheres).then_some((geometry, prim - first))
+    }
+}
+
+fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
+    let err = |what: String| Err(usage(format!("geometry {k}: {what}")));
+    let null = |b: &RawBuffer| b.raw == crate::gpu::vk::Buffer::null();
+    match g {
+        Geometry::Triangles(t) => {
+            if !t.opaque {
+                return err(
+                    "non-opaque geometry needs any-hit shaders, which vkrt has not: \
+                     mark it opaque"
+                        .into(),
+                );
+            }
+            if t.stride < 12 || t.stride % 4 != 0 {
+                return err(format!(
+                    "vertex stride {} (a multiple of 4, at least 12)",
+                    t.stride
+                ));
+            }
+            if t.vertices.offset % 4 != 0 {
+                return err(format!(
+                    "vertex offset {} is not a multiple of 4",
+                    t.vertices.offset
+                ));
+            }
+            if let Some(m) = t.transform {
+                if m.iter().flatten().any(|x| !x.is_finite()) {
+                    return err("the transform has a non-finite entry".into());
+                }
+            }
+            if t.triangle_count == 0 {
+                return Ok(());
+            }
+            if null(&t.vertices) {
+                return err("a null vertex buffer".into());
+            }
+            let needed = match t.vertex_count {
+                0 => return err("triangles over 0 vertices".into()),
+                n => u64::from(n - 1) * t.stride + 12,
+            };
+            if needed > t.vertices.size {
+                return err(format!(
+                    "{} vertices at stride {} need {needed} bytes; the range holds {}",
+                    t.vertex_count, t.stride, t.vertices.size
+                ));
+            }
+            match t.indices {
+                None if u64::from(t.triangle_count) * 3 > u64::from(t.vertex_count) => err(
+                    format!(
+                        "{} triangles without indices need {} vertices; {} given",
+                        t.triangle_count,
+                        3 * u64::from(t.triangle_count),
+                        t.vertex_count
+                    ),
+                ),
+                None => Ok(()),
+                Some(ix) => {
+                    let size = ix.index_type.bytes();
+                    let needed = 3 * u64::from(t.triangle_count) * size;
+                    if null(&ix.data) {
+                        err("a null index buffer".into())
+                    } else if ix.data.offset % size != 0 {
+                        err(format!(
+                            "index offset {} is not a multiple of the index size {size}",
+                            ix.data.offset
+                        ))
+                    } else if needed > ix.data.size {
+                        err(format!(
+                            "{} triangles need {needed} bytes of indices; the range holds {}",
+                            t.triangle_count, ix.data.size
+                        ))
+                    } else {
+                        range_fits(ctx, k, &ix.data)
+                    }
+                }
+            }?;
+            range_fits(ctx, k, &t.vertices)
+        }
+        Geometry::Spheres(s) => {
+            if !s.opaque {
+                return err("non-opaque geometry needs any-hit shaders, which vkrt has not: \
+                     mark it opaque"
+                    .into());
+            }
+            if s.stride < 16 || s.stride % 4 != 0 || s.data.offset % 4 != 0 {
+                return err(format!(
+                    "sphere stride {} and offset {} (multiples of 4, stride at least 16)",
+                    s.stride, s.data.offset
+                ));
+            }
+            if s.count == 0 {
+                return Ok(());
+            }
+            if null(&s.data) {
+                return err("a null sphere buffer".into());
+            }
+            let needed = u64::from(s.count - 1) * s.stride + 16;
+            if needed > s.data.size {
+                return err(format!(
+                    "{} spheres at stride {} need {needed} bytes; the range holds {}",
+                    s.count, s.stride, s.data.size
+                ));
+            }
+            range_fits(ctx, k, &s.data)
+        }
+    }
+}
+
+/// The range as bound: from the aligned offset at or below its start, within one binding.
+fn bound(ctx: &Context, r: &RawBuffer) -> (RawBuffer, u64) {
+    let align = ctx.info().min_storage_buffer_offset_alignment.max(4);
+    let start = r.offset - r.offset % align;
+    let skip = r.offset - start;
+    (
+        RawBuffer {
+            raw: r.raw,
+            offset: start,
+            size: (r.size + skip).next_multiple_of(4),
+        },
+        skip,
+    )
+}
+
+fn range_fits(ctx: &Context, k: usize, r: &RawBuffer) -> Result<()> {
+    let (b, _) = bound(ctx, r);
+    let limit = ctx.info().max_storage_buffer_range;
+    if b.size > limit || b.size / 4 > u64::from(u32::MAX) {
+        return Err(usage(format!(
+            "geometry {k}: a range of {} bytes, above this device's maxStorageBufferRange \
+             ({limit}); split the geometry",
+            b.size
+        )));
+    }
+    Ok(())
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Default, bytemuck::Pod, bytemuck::Zeroable)]
+struct GatherPush {
+    mode: u32,
+    count: u32,
+    first: u32,
+    out_first: u32,
+    src_word: u32,
+    stride_words: u32,
+    index_type: u32,
+    index_first: u32,
+    vertex_count: u32,
+    table_slot: u32,
+    geometry: u32,
+    has_transform: u32,
+    rows: [[f32; 4]; 3],
+}
+
+/// `accel.geometry_gather`: the caller's geometry into a structure's primitive arrays.
+pub struct GeometryGather {
+    kernel: std::sync::Arc<Kernel>,
+}
+
+impl GeometryGather {
+    pub fn new(ctx: &Context) -> Result<Self> {
+        Ok(Self {
+            kernel: ctx.kernel(
+                &kernels::ACCEL_GEOMETRY_GATHER,
+                &Spec::new().workgroup(WORKGROUP),
+            )?,
+        })
+    }
+
+    /// Records the reads of `geometries` (laid out as `layout`) into `prims` and `info`
+    /// (whose constants say: walked as `walk`, parent links at `parents_at`). The caller
+    /// orders its writes of the geometry before; the recording ends with a compute →
+    /// compute barrier.
+    #[allow(clippy::too_many_arguments, reason = "the gather's inputs and outputs")]
+    pub fn record(
+        &self,
+        rec: &mut Recorder,
+        geometries: &[Geometry],
+        layout: &GeometryLayout,
+        prims: &DevicePrimitives,
+        info: &crate::gpu::Buffer<SceneInfo>,
+        walk: u32,
+        parents_at: u32,
+    ) {
+        let ctx = rec.context().clone();
+        let header = GatherPush {
+            mode: 2,
+            count: layout.n_tris,
+            first: layout.n_spheres,
+            out_first: parents_at,
+            src_word: walk,
+            index_first: layout.table.len() as u32,
+            ..GatherPush::default()
+        };
+        let outputs: [&dyn BufferArg; 4] =
+            [&prims.tri_verts, &prims.spheres, &prims.boxes, info];
+        let [o0, o1, o2, o3] = outputs;
+        rec.dispatch(
+            &self.kernel,
+            [1, 1, 1],
+            &[info, info, o0, o1, o2, o3],
+            &header,
+        );
+        // Every dispatch may write every output (as synchronization validation reads a
+        // binding): each is ordered after the one before.
+        rec.compute_to_compute();
+        let mut slot = 0u32;
+        for (k, g) in geometries.iter().enumerate() {
+            let count = g.primitive_count();
+            if count == 0 {
+                continue;
+            }
+            let first = layout.first[k];
+            let (src, indices, push) = match g {
+                Geometry::Triangles(t) => {
+                    let (src, skip) = bound(&ctx, &t.vertices);
+                    let (ix, index_type, index_first) = match &t.indices {
+                        Some(i) => {
+                            let (b, skip) = bound(&ctx, &i.data);
+                            let size = i.index_type.bytes();
+                            let kind = match i.index_type {
+                                IndexType::U16 => 1,
+                                IndexType::U32 => 2,
+                            };
+                            (b, kind, (skip / size) as u32)
+                        }
+                        None => (src, 0, 0),
+                    };
+                    let rows = t.transform.unwrap_or_default();
+                    (
+                        src,
+                        ix,
+                        GatherPush {
+                            mode: 0,
+                            count,
+                            first,
+                            out_first: first,
+                            src_word: (skip / 4) as u32,
+                            stride_words: (t.stride / 4) as u32,
+                            index_type,
+                            index_first,
+                            vertex_count: t.vertex_count,
+                            table_slot: slot,
+                            geometry: k as u32,
+                            has_transform: t.transform.is_some() as u32,
+                            rows,
+                        },
+                    )
+                }
+                Geometry::Spheres(s) => {
+                    let (src, skip) = bound(&ctx, &s.data);
+                    (
+                        src,
+                        src,
+                        GatherPush {
+                            mode: 1,
+                            count,
+                            first,
+                            out_first: first - layout.n_tris,
+                            src_word: (skip / 4) as u32,
+                            stride_words: (s.stride / 4) as u32,
+                            table_slot: slot,
+                            geometry: k as u32,
+                            ..GatherPush::default()
+                        },
+                    )
+                }
+            };
+            slot += 1;
+            let groups = rec.groups_1d(u64::from(count), WORKGROUP);
+            rec.dispatch(
+                &self.kernel,
+                groups,
+                &[&src, &indices, o0, o1, o2, o3],
+                &push,
+            );
+            rec.compute_to_compute();
+        }
+    }
+}
+
+/// The CPU twin of the gather: `geometries` as a [`TraceGeometry`], read from host copies
+/// of their buffers (`read(range)` returns the bytes of a range). Tests compare the device's
+/// arrays with it.
+pub fn gather_on_host(
+    geometries: &[Geometry],
+    read: impl Fn(&RawBuffer) -> Vec<u8>,
+) -> (TraceGeometry, u32) {
+    let mut tris: Vec<[Vec3; 3]> = Vec::new();
+    let mut spheres: Vec<Vec4> = Vec::new();
+    let mut invalid = 0u32;
+    let f32_at = |b: &[u8], at: usize| f32::from_le_bytes(b[at..at + 4].try_into().unwrap());
+    for g in geometries {
+        match g {
+            Geometry::Triangles(t) => {
+                let v = read(&t.vertices);
+                let ix = t.indices.map(|i| (read(&i.data), i.index_type));
+                let index = |k: usize| -> u32 {
+                    match &ix {
+                        None => k as u32,
+                        Some((b, IndexType::U16)) => {
+                            u32::from(u16::from_le_bytes([b[2 * k], b[2 * k + 1]]))
+                        }
+                        Some((b, IndexType::U32)) => {
+                            u32::from_le_bytes(b[4 * k..4 * k + 4].try_into().unwrap())
+                        }
+                    }
+                };
+                for k in 0..t.triangle_count as usize {
+                    let corners = [0, 1, 2].map(|c| index(3 * k + c));
+                    let mut ok = corners.iter().all(|&c| c < t.vertex_count);
+                    let mut pts = [Vec3::ZERO; 3];
+                    if ok {
+                        pts = corners.map(|c| {
+                            let at = c as usize * t.stride as usize;
+                            let p = Vec3::new(f32_at(&v, at), f32_at(&v, at + 4), f32_at(&v, at + 8));
+                            match t.transform {
+                                Some(m) => transform_point(&m, p),
+                                None => p,
+                            }
+                        });
+                        ok = pts.iter().all(|p| p.is_finite());
+                    }
+                    if !ok {
+                        invalid += 1;
+                        pts = [Vec3::ZERO; 3];
+                    }
+                    tris.push(pts);
+                }
+            }
+            Geometry::Spheres(s) => {
+                let b = read(&s.data);
+                for k in 0..s.count as usize {
+                    let at = k * s.stride as usize;
+                    let mut c = Vec4::new(
+                        f32_at(&b, at),
+                        f32_at(&b, at + 4),
+                        f32_at(&b, at + 8),
+                        f32_at(&b, at + 12),
+                    );
+                    if !c.is_finite() || c.w < 0.0 {
+                        invalid += 1;
+                        c = Vec4::ZERO;
+                    }
+                    spheres.push(c);
+                }
+            }
+        }
+    }
+    (
+        TraceGeometry::from_triangles_and_spheres(&tris, &spheres),
+        invalid,
+    )
+}
+
+/// `m · (p, 1)`, each row summed left to right without fused multiply-add (as the gather).
+pub fn transform_point(m: &[[f32; 4]; 3], p: Vec3) -> Vec3 {
+    let row = |r: &[f32; 4]| {
+        let mut x = r[0] * p.x;
+        x += r[1] * p.y;
+        x += r[2] * p.z;
+        x + r[3]
+    };
+    Vec3::new(row(&m[0]), row(&m[1]), row(&m[2]))
+}

@@ -1,0 +1,93 @@
+//! The GLSL library a renderer's own shaders include to trace vkrt's structures
+//! (`vkrt/ray_query.glsl`): the same walk vkrt's kernels run.
+//!
+//! Give your compiler the include directory ([`include_dir`]) or serve the files from
+//! [`FILES`] through its includer (shaderc's `set_include_callback`, glslang's includer),
+//! bind a structure's seven buffers ([`GpuGeometry::descriptor_buffer_infos`]) at the
+//! bindings of [`descriptor_set_layout_bindings`], and call `vkrtTraceClosest` /
+//! `vkrtTraceAny`. One descriptor set layout serves every kind of structure vkrt builds:
+//! the walk is chosen from the structure itself.
+
+use crate::gpu::vk;
+use crate::trace::gpu::GpuGeometry;
+
+/// The library's files, by the name an `#include` gives them (relative to
+/// [`include_dir`]).
+pub const FILES: &[(&str, &str)] = &[
+    (
+        "vkrt/ray_query.glsl",
+        include_str!("../../glsl/include/vkrt/ray_query.glsl"),
+    ),
+    (
+        "vkrt/traverse.glsl",
+        include_str!("../../glsl/include/vkrt/traverse.glsl"),
+    ),
+    ("vkrt/bvh.glsl", include_str!("../../glsl/include/vkrt/bvh.glsl")),
+    (
+        "vkrt/bvh_node.glsl",
+        include_str!("../../glsl/include/vkrt/bvh_node.glsl"),
+    ),
+    (
+        "vkrt/kdtree.glsl",
+        include_str!("../../glsl/include/vkrt/kdtree.glsl"),
+    ),
+    ("vkrt/ray.glsl", include_str!("../../glsl/include/vkrt/ray.glsl")),
+];
+
+/// The entry point to `#include`.
+pub const ENTRY: &str = "vkrt/ray_query.glsl";
+
+/// Storage buffers a structure binds, from the first binding on.
+pub const BINDINGS: u32 = 7;
+
+/// The directory holding `vkrt/` in this crate's sources (for `-I` of `glslc` or
+/// `glslangValidator`). Where the crate's sources are not at hand, write [`FILES`] out with
+/// [`write_to`].
+pub fn include_dir() -> &'static std::path::Path {
+    std::path::Path::new(concat!(env!("CARGO_MANIFEST_DIR"), "/glsl/include"))
+}
+
+/// The contents of library file `name` (`"vkrt/ray_query.glsl"`, ...).
+pub fn file(name: &str) -> Option<&'static str> {
+    FILES.iter().find(|(n, _)| *n == name).map(|(_, c)| *c)
+}
+
+/// Writes [`FILES`] under `dir` (as `dir/vkrt/...`), for compilers that take a directory.
+pub fn write_to(dir: &std::path::Path) -> std::io::Result<()> {
+    for (name, contents) in FILES {
+        let path = dir.join(name);
+        if let Some(parent) = path.parent() {
+            std::fs::create_dir_all(parent)?;
+        }
+        std::fs::write(path, contents)?;
+    }
+    Ok(())
+}
+
+/// The layout bindings of a structure at `first`..`first + 7` for `stages` (the
+/// `VKRT_BINDING` the shader defines), read-only storage buffers.
+pub fn descriptor_set_layout_bindings(
+    first: u32,
+    stages: vk::ShaderStageFlags,
+) -> [vk::DescriptorSetLayoutBinding<'static>; BINDINGS as usize] {
+    std::array::from_fn(|k| {
+        vk::DescriptorSetLayoutBinding::default()
+            .binding(first + k as u32)
+            .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+            .descriptor_count(1)
+            .stage_flags(stages)
+    })
+}
+
+impl GpuGeometry {
+    /// The seven buffer ranges to write into the descriptor set of a shader that includes
+    /// `vkrt/ray_query.glsl`, in binding order.
+    pub fn descriptor_buffer_infos(&self) -> [vk::DescriptorBufferInfo; BINDINGS as usize] {
+        let b = self.bindings();
+        std::array::from_fn(|k| vk::DescriptorBufferInfo {
+            buffer: b[k].raw(),
+            offset: b[k].offset(),
+            range: b[k].range(),
+        })
+    }
+}

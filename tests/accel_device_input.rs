@@ -1,0 +1,546 @@
+//! Structures on the renderer's terms: geometry read from the caller's device buffers
+//! (`accel.geometry_gather` against its CPU twin on every edge), built into memory the caller
+//! allocates at the sizes vkrt reports (exact), the same trees as the host-soup path, updates
+//! from moved vertices, and every misuse class answered with an `Err`.
+
+mod common;
+
+use glam::{Vec3, Vec4};
+use vkrt::accel::device::{AccelBuilder, AccelKind, DevicePrimitives};
+use vkrt::accel::embedded::BuildFlags;
+use vkrt::accel::geometry::{
+    gather_on_host, Geometry, GeometryGather, GeometryLayout, IndexType, Indices, Spheres,
+    Triangles,
+};
+use vkrt::gpu::{Buffer, Context, GpuError, RawBuffer, Recorder};
+use vkrt::trace::gpu::{GpuGeometry, Tracer};
+use vkrt::trace::{cpu, Hit, Ray, TraceGeometry, TraceOptions};
+
+/// The caller's memory, as bytes in vkrt buffers (any buffer with storage usage would do).
+struct CallerBuffers {
+    bufs: Vec<Buffer<u32>>,
+    host: Vec<Vec<u8>>,
+}
+
+impl CallerBuffers {
+    fn new() -> Self {
+        Self {
+            bufs: Vec::new(),
+            host: Vec::new(),
+        }
+    }
+
+    /// A buffer holding `pad` zero bytes then `bytes`, and the range of `bytes` in it.
+    fn put(&mut self, ctx: &Context, bytes: &[u8], pad: usize) -> RawBuffer {
+        let mut data = vec![0u8; pad];
+        data.extend_from_slice(bytes);
+        data.resize(data.len().next_multiple_of(4).max(4), 0);
+        let b = Buffer::from_slice(ctx, "caller", bytemuck::cast_slice::<u8, u32>(&data)).unwrap();
+        let raw = RawBuffer {
+            raw: b.as_raw().raw,
+            offset: pad as u64,
+            size: bytes.len() as u64,
+        };
+        self.bufs.push(b);
+        self.host.push(bytes.to_vec());
+        raw
+    }
+
+    /// The host copy of a range handed out by `put`.
+    fn read(&self, r: &RawBuffer) -> Vec<u8> {
+        let k = self
+            .bufs
+            .iter()
+            .position(|b| b.as_raw().raw == r.raw)
+            .expect("a caller buffer");
+        self.host[k].clone()
+    }
+}
+
+fn opt() -> TraceOptions {
+    TraceOptions {
+        exact: false,
+        ..TraceOptions::default()
+    }
+}
+
+/// A random indexed mesh: `n` triangles over `n + 2` vertices in [-1, 1]^3.
+fn mesh(rng: &mut common::Rng, n: usize) -> (Vec<Vec3>, Vec<[u32; 3]>) {
+    let verts: Vec<Vec3> = (0..n + 2).map(|_| rng.next_vec3() * 2.0 - 1.0).collect();
+    let v = verts.len() as u64;
+    let tris = (0..n)
+        .map(|_| [0, 1, 2].map(|_| (rng.next_u64() % v) as u32))
+        .collect();
+    (verts, tris)
+}
+
+/// Vertices at `stride` bytes (padding filled with a marker that must never be read).
+fn strided(verts: &[Vec3], stride: usize) -> Vec<u8> {
+    let mut out = vec![0xAB; verts.len() * stride];
+    for (k, v) in verts.iter().enumerate() {
+        out[k * stride..k * stride + 12].copy_from_slice(bytemuck::bytes_of(&v.to_array()));
+    }
+    out
+}
+
+/// Runs the gather on the device and reads back what it wrote.
+fn gather_on_device(ctx: &Context, geometries: &[Geometry]) -> (TraceGeometry, u32) {
+    let layout = GeometryLayout::of(ctx, geometries).unwrap();
+    let prims = DevicePrimitives::for_layout(ctx, &layout).unwrap();
+    let info = Buffer::new(ctx, "info", layout.info_len()).unwrap();
+    let gather = GeometryGather::new(ctx).unwrap();
+    let mut rec = Recorder::new(ctx).unwrap();
+    gather.record(&mut rec, geometries, &layout, &prims, &info, 1, 0);
+    rec.submit_and_wait().unwrap();
+    let n_tris = layout.n_tris as usize;
+    let mut tri_verts = prims.tri_verts.download().unwrap();
+    tri_verts.truncate(9 * n_tris);
+    let boxes = prims.boxes.download().unwrap();
+    let info = info.download().unwrap();
+    let g = TraceGeometry {
+        tri_verts,
+        spheres: prims.spheres.download().unwrap(),
+        boxes: boxes
+            .chunks(6)
+            .map(|b| vkrt::scene::Aabb {
+                min: Vec3::new(b[0], b[1], b[2]),
+                max: Vec3::new(b[3], b[4], b[5]),
+            })
+            .collect(),
+        ..TraceGeometry::default()
+    };
+    assert_eq!(info[0].n_tris, layout.n_tris);
+    assert_eq!(info[0].n_spheres, layout.n_spheres);
+    assert_eq!(info[0].n_geometries as usize, layout.table.len());
+    (g, info[0].reserved_invalid())
+}
+
+fn bits(g: &TraceGeometry) -> (Vec<u32>, Vec<[u32; 4]>, Vec<[u32; 6]>) {
+    (
+        g.tri_verts.iter().map(|x| x.to_bits()).collect(),
+        g.spheres.iter().map(|s| s.map(f32::to_bits)).collect(),
+        g.boxes
+            .iter()
+            .map(|b| {
+                let a = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
+                a.map(f32::to_bits)
+            })
+            .collect(),
+    )
+}
+
+#[test]
+fn the_gather_equals_its_cpu_twin_on_every_edge() {
+    let Some(ctx) = common::context() else { return };
+    let sg = ctx.info().subgroup_size as usize;
+    let mut rng = common::Rng(11);
+    let sizes = common::edge_sizes(sg, 64, 64).into_iter().filter(|&n| n < 1 << 16);
+    for n in sizes.chain([1000, 100_003]) {
+        for (stride, pad, index) in [
+            (12, 0, Some(IndexType::U32)),
+            (16, 4, Some(IndexType::U16)),
+            (20, 8, None),
+        ] {
+            let (verts, tris) = mesh(&mut rng, n);
+            let mut caller = CallerBuffers::new();
+            let (vertex_count, indices, vbytes) = match index {
+                None => {
+                    // A soup: the triangles' corners in order.
+                    let soup: Vec<Vec3> =
+                        tris.iter().flatten().map(|&i| verts[i as usize]).collect();
+                    (soup.len() as u32, None, strided(&soup, stride))
+                }
+                Some(t) => {
+                    let flat: Vec<u32> = tris.iter().flatten().copied().collect();
+                    let bytes: Vec<u8> = match t {
+                        IndexType::U16 => bytemuck::cast_slice(
+                            &flat.iter().map(|&i| i as u16).collect::<Vec<u16>>(),
+                        )
+                        .to_vec(),
+                        _ => bytemuck::cast_slice(&flat).to_vec(),
+                    };
+                    let data = caller.put(&ctx, &bytes, if t == IndexType::U16 { 2 } else { 4 });
+                    (
+                        verts.len() as u32,
+                        Some(Indices {
+                            data,
+                            index_type: t,
+                        }),
+                        strided(&verts, stride),
+                    )
+                }
+            };
+            let vertices = caller.put(&ctx, &vbytes, pad);
+            let transform = (stride == 16).then_some([
+                [0.5, 0.1, 0.0, 1.0],
+                [0.0, 1.5, 0.2, -2.0],
+                [0.3, 0.0, 1.0, 0.25],
+            ]);
+            let spheres: Vec<Vec4> = (0..n % 5 + 1)
+                .map(|_| (rng.next_vec3() * 2.0 - 1.0).extend(rng.next_f32()))
+                .collect();
+            let sphere_range = caller.put(&ctx, bytemuck::cast_slice(&spheres), 0);
+            let geometries = [
+                Geometry::Spheres(Spheres {
+                    data: sphere_range,
+                    stride: 16,
+                    count: spheres.len() as u32,
+                    opaque: true,
+                }),
+                Geometry::Triangles(Triangles {
+                    vertices,
+                    stride: stride as u64,
+                    vertex_count,
+                    indices,
+                    triangle_count: n as u32,
+                    transform,
+                    ..Triangles::soup(vertices, vertex_count)
+                }),
+            ];
+            let (device, invalid) = gather_on_device(&ctx, &geometries);
+            let (host, host_invalid) = gather_on_host(&geometries, |r| caller.read(r));
+            assert_eq!(invalid, host_invalid, "n {n} stride {stride}");
+            assert_eq!(bits(&device), bits(&host), "n {n} stride {stride} {index:?}");
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn bad_indices_and_coordinates_become_unhittable_points_and_are_counted() {
+    let Some(ctx) = common::context() else { return };
+    let mut caller = CallerBuffers::new();
+    let verts = [
+        Vec3::ZERO,
+        Vec3::X,
+        Vec3::Y,
+        Vec3::new(f32::NAN, 0.0, 0.0),
+    ];
+    let vertices = caller.put(&ctx, bytemuck::cast_slice(&verts), 0);
+    let idx: [u32; 9] = [0, 1, 2, 0, 1, 99, 0, 1, 3];
+    let data = caller.put(&ctx, bytemuck::cast_slice(&idx), 0);
+    let spheres = [Vec4::new(0.0, 0.0, 0.0, -1.0), Vec4::new(1.0, 1.0, 1.0, 0.5)];
+    let sph = caller.put(&ctx, bytemuck::cast_slice(&spheres), 0);
+    let geometries = [
+        Geometry::Triangles(Triangles::indexed(vertices, 4, data, IndexType::U32, 3)),
+        Geometry::Spheres(Spheres {
+            data: sph,
+            stride: 16,
+            count: 2,
+            opaque: true,
+        }),
+    ];
+    let (device, invalid) = gather_on_device(&ctx, &geometries);
+    let (host, host_invalid) = gather_on_host(&geometries, |r| caller.read(r));
+    assert_eq!((invalid, host_invalid), (3, 3));
+    assert_eq!(bits(&device), bits(&host));
+    common::assert_silent(&ctx);
+}
+
+/// Triangles of `tris` (a soup) in a caller buffer, as one geometry.
+fn soup_geometry(ctx: &Context, caller: &mut CallerBuffers, tris: &[[Vec3; 3]]) -> Geometry {
+    let flat: Vec<Vec3> = tris.iter().flatten().copied().collect();
+    let vertices = caller.put(ctx, bytemuck::cast_slice(&flat), 0);
+    Geometry::Triangles(Triangles::soup(vertices, flat.len() as u32))
+}
+
+/// Builds `kind` over `geometries` in caller memory of exactly the reported sizes.
+fn build_in_caller_memory(
+    ctx: &Context,
+    builder: &AccelBuilder,
+    geometries: &[Geometry],
+    flags: &BuildFlags,
+) -> (GpuGeometry, Vec<Buffer<u8>>) {
+    let sizes = builder.sizes_for(ctx, geometries, flags).unwrap();
+    let structure = Buffer::<u8>::new(ctx, "caller.structure", sizes.structure_bytes as usize)
+        .unwrap();
+    let scratch =
+        Buffer::<u8>::new(ctx, "caller.scratch", sizes.build_scratch_bytes as usize).unwrap();
+    let mut g = builder
+        .create_in(ctx, geometries, flags, structure.as_raw())
+        .unwrap();
+    let before = ctx.traffic();
+    let mut rec = Recorder::new(ctx).unwrap();
+    builder
+        .record_build_from(&mut rec, geometries, &mut g, scratch.as_raw())
+        .unwrap();
+    let recorded = ctx.traffic() - before;
+    // The driver's own levels live in memory vkrt allocates, with their instance data.
+    if builder.kind() != AccelKind::Driver {
+        assert_eq!(recorded.upload_bytes, 0, "{:?}: bytes uploaded", builder.kind());
+        assert_eq!(recorded.device_allocations, 0, "{:?}: buffers", builder.kind());
+    }
+    assert_eq!(recorded.submits, 0);
+    rec.submit_and_wait().unwrap();
+    (g, vec![structure, scratch])
+}
+
+fn trace(ctx: &Context, kind: AccelKind, g: &GpuGeometry, rays: &[Ray]) -> Vec<Hit> {
+    let tracer = Tracer::for_accel(ctx, &opt(), kind.walked(Default::default())).unwrap();
+    let b = tracer.trace(ctx, g, rays, 0.0).unwrap();
+    assert_eq!(b.exhausted, 0);
+    b.hits
+}
+
+fn rays_into(tris: &[[Vec3; 3]], n: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = common::Rng(seed);
+    let (lo, hi) = tris.iter().flatten().fold(
+        (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+        |(lo, hi), &p| (lo.min(p), hi.max(p)),
+    );
+    let c = (lo + hi) * 0.5;
+    let r = (hi - lo).length().max(1e-3);
+    (0..n)
+        .map(|_| {
+            let o = c + (rng.next_vec3() * 2.0 - 1.0).normalize_or(Vec3::X) * r;
+            let t = c + (rng.next_vec3() - 0.5) * r * 0.5;
+            Ray::new(o, t - o, 0.0, f32::INFINITY)
+        })
+        .collect()
+}
+
+#[test]
+fn builds_from_device_buffers_equal_the_host_soup_path_and_brute_force() {
+    let Some(ctx) = common::context() else { return };
+    let sphere = vkrt::scene::gen::icosphere(3).unwrap();
+    let tris = common::mesh_triangles(&sphere);
+    let rays = rays_into(&tris, 500, 3);
+    let soup = TraceGeometry::from_triangles(&tris);
+    let brute: Vec<Hit> = rays
+        .iter()
+        .map(|r| cpu::brute_force(&soup, r, 0.0, &opt()))
+        .collect();
+    let mut kinds = vec![AccelKind::KdTree, AccelKind::Lbvh, AccelKind::Ploc];
+    if ctx.info().features.ray_query {
+        kinds.push(AccelKind::Driver);
+    }
+    for kind in kinds {
+        for n in [0usize, 1, 2, tris.len()] {
+            let mut caller = CallerBuffers::new();
+            let geometries = [soup_geometry(&ctx, &mut caller, &tris[..n])];
+            let builder = AccelBuilder::new(&ctx, kind).unwrap();
+            let (g, _mem) =
+                build_in_caller_memory(&ctx, &builder, &geometries, &BuildFlags::default());
+            let hits = trace(&ctx, kind, &g, &rays);
+            let part = TraceGeometry::from_triangles(&tris[..n]);
+            for (k, (r, h)) in rays.iter().zip(&hits).enumerate() {
+                let b = if n == tris.len() {
+                    brute[k]
+                } else {
+                    cpu::brute_force(&part, r, 0.0, &opt())
+                };
+                assert!(common::same_answer(h, &b), "{kind:?} n {n}: {h:?} vs {b:?}");
+            }
+            // vkrt's own builders: the same tree as from the host's soup, bit for bit.
+            if kind != AccelKind::Driver && n > 0 {
+                let mut rec = Recorder::new(&ctx).unwrap();
+                let (host, _) = GpuGeometry::record_build(&mut rec, &builder, &part, 0).unwrap();
+                rec.submit_and_wait().unwrap();
+                assert_eq!(
+                    g.accel.download().unwrap(),
+                    host.accel.download().unwrap(),
+                    "{kind:?} n {n}"
+                );
+            }
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn sizes_are_exact_and_too_little_memory_is_an_error() {
+    let Some(ctx) = common::context() else { return };
+    let sphere = vkrt::scene::gen::icosphere(2).unwrap();
+    let tris = common::mesh_triangles(&sphere);
+    let mut caller = CallerBuffers::new();
+    let geometries = [soup_geometry(&ctx, &mut caller, &tris)];
+    for kind in [AccelKind::KdTree, AccelKind::Lbvh, AccelKind::Ploc] {
+        let builder = AccelBuilder::new(&ctx, kind).unwrap();
+        let flags = BuildFlags {
+            allow_update: kind != AccelKind::KdTree,
+            ..BuildFlags::default()
+        };
+        let s = builder.sizes_for(&ctx, &geometries, &flags).unwrap();
+        assert!(s.structure_bytes > 0 && s.build_scratch_bytes > 0, "{kind:?} {s:?}");
+        assert_eq!(s.update_scratch_bytes.is_some(), kind != AccelKind::KdTree);
+        let small = Buffer::<u8>::new(&ctx, "small", s.structure_bytes as usize - 4).unwrap();
+        let err = builder
+            .create_in(&ctx, &geometries, &flags, small.as_raw())
+            .err()
+            .expect("a structure in too little memory");
+        assert!(matches!(err, GpuError::Placement(_)), "{err}");
+        let exact = Buffer::<u8>::new(&ctx, "exact", s.structure_bytes as usize).unwrap();
+        let mut g = builder
+            .create_in(&ctx, &geometries, &flags, exact.as_raw())
+            .unwrap();
+        let scratch =
+            Buffer::<u8>::new(&ctx, "scratch", s.build_scratch_bytes as usize - 4).unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        let err = builder
+            .record_build_from(&mut rec, &geometries, &mut g, scratch.as_raw())
+            .expect_err("a build with too little scratch");
+        assert!(matches!(err, GpuError::Placement(_)), "{err}");
+        drop(rec);
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn an_update_reads_moved_vertices_from_the_callers_buffer() {
+    let Some(ctx) = common::context() else { return };
+    let sphere = vkrt::scene::gen::icosphere(3).unwrap();
+    let tris = common::mesh_triangles(&sphere);
+    let moved: Vec<[Vec3; 3]> = tris
+        .iter()
+        .map(|t| t.map(|p| p * 1.3 + Vec3::new(0.2, -0.1, 0.05)))
+        .collect();
+    let rays = rays_into(&moved, 400, 5);
+    let mut kinds = vec![AccelKind::Lbvh, AccelKind::Ploc];
+    if ctx.info().features.ray_query {
+        kinds.push(AccelKind::Driver);
+    }
+    for kind in kinds {
+        let mut caller = CallerBuffers::new();
+        let geometries = [soup_geometry(&ctx, &mut caller, &tris)];
+        let builder = AccelBuilder::new(&ctx, kind).unwrap();
+        let flags = BuildFlags {
+            allow_update: true,
+            ..BuildFlags::default()
+        };
+        let (g, _mem) = build_in_caller_memory(&ctx, &builder, &geometries, &flags);
+        // The caller moves its vertices, where they lie.
+        let flat: Vec<Vec3> = moved.iter().flatten().copied().collect();
+        caller.bufs[0].upload(bytemuck::cast_slice(&flat)).unwrap();
+        let s = builder.sizes_for(&ctx, &geometries, &flags).unwrap();
+        let scratch =
+            Buffer::<u8>::new(&ctx, "update", s.update_scratch_bytes.unwrap() as usize).unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        builder
+            .record_update_from(&mut rec, &geometries, &g, scratch.as_raw())
+            .unwrap();
+        rec.submit_and_wait().unwrap();
+        let hits = trace(&ctx, kind, &g, &rays);
+        let soup = TraceGeometry::from_triangles(&moved);
+        for (r, h) in rays.iter().zip(&hits) {
+            let b = cpu::brute_force(&soup, r, 0.0, &opt());
+            assert!(common::same_answer(h, &b), "{kind:?}: {h:?} vs {b:?}");
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn misuse_is_an_error_not_a_panic() {
+    let Some(ctx) = common::context() else { return };
+    let tris = common::mesh_triangles(&vkrt::scene::gen::icosphere(1).unwrap());
+    let mut caller = CallerBuffers::new();
+    let geometries = [soup_geometry(&ctx, &mut caller, &tris)];
+    let vertices = match geometries[0] {
+        Geometry::Triangles(t) => t.vertices,
+        _ => unreachable!(),
+    };
+    let flags = BuildFlags::default();
+    let lbvh = AccelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
+    let kd = AccelBuilder::new(&ctx, AccelKind::KdTree).unwrap();
+    let is_usage = |r: Result<(), GpuError>, what: &str| match r {
+        Err(GpuError::Usage { .. }) | Err(GpuError::Placement(_)) => {}
+        other => panic!("{what}: {other:?}"),
+    };
+
+    // Bad descriptions: stride, counts past the buffer, huge counts, misaligned indices,
+    // non-opaque, a non-finite transform.
+    let bad = |t: Triangles| lbvh.sizes_for(&ctx, &[Geometry::Triangles(t)], &flags).map(drop);
+    let n = tris.len() as u32 * 3;
+    let ok = Triangles::soup(vertices, n);
+    is_usage(bad(Triangles { stride: 10, ..ok }), "stride 10");
+    is_usage(bad(Triangles { vertex_count: n + 1, ..ok }), "vertices past the buffer");
+    is_usage(
+        bad(Triangles {
+            triangle_count: u32::MAX / 2,
+            ..ok
+        }),
+        "a huge count",
+    );
+    is_usage(bad(Triangles { opaque: false, ..ok }), "non-opaque");
+    is_usage(
+        bad(Triangles {
+            transform: Some([[f32::NAN; 4]; 3]),
+            ..ok
+        }),
+        "a NaN transform",
+    );
+    is_usage(
+        bad(Triangles {
+            indices: Some(Indices {
+                data: RawBuffer {
+                    offset: 1,
+                    ..vertices
+                },
+                index_type: IndexType::U16,
+            }),
+            triangle_count: 1,
+            ..ok
+        }),
+        "misaligned indices",
+    );
+
+    // The SAH BVH is a host builder.
+    let sah = AccelBuilder::new(&ctx, AccelKind::SahBvh).unwrap();
+    is_usage(sah.sizes_for(&ctx, &geometries, &flags).map(drop), "SAH BVH from device");
+
+    // Wrong kind, other geometry, unbuilt, refit of a kd-tree, update without allow_update.
+    let (mut kd_g, _m1) = build_in_caller_memory(&ctx, &kd, &geometries, &flags);
+    let scratch = Buffer::<u8>::new(&ctx, "scratch", 1 << 20).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    is_usage(
+        lbvh.record_build_from(&mut rec, &geometries, &mut kd_g, scratch.as_raw()),
+        "an LBVH builder into a kd-tree",
+    );
+    is_usage(
+        kd.record_update_from(&mut rec, &geometries, &kd_g, scratch.as_raw()),
+        "an update of a kd-tree",
+    );
+    let half = [soup_geometry(&ctx, &mut caller, &tris[..tris.len() / 2])];
+    is_usage(
+        kd.record_build_from(&mut rec, &half, &mut kd_g, scratch.as_raw()),
+        "other geometry",
+    );
+    let s = lbvh.sizes_for(&ctx, &geometries, &flags).unwrap();
+    let mem = Buffer::<u8>::new(&ctx, "mem", s.structure_bytes as usize).unwrap();
+    let unbuilt = lbvh
+        .create_in(&ctx, &geometries, &flags, mem.as_raw())
+        .unwrap();
+    is_usage(
+        lbvh.record_update_from(&mut rec, &geometries, &unbuilt, scratch.as_raw()),
+        "an update of an unbuilt structure",
+    );
+    let tracer = Tracer::for_accel(&ctx, &opt(), AccelKind::Lbvh.walked(Default::default()))
+        .unwrap();
+    let rays = Buffer::<Ray>::new(&ctx, "rays", 4).unwrap();
+    let hits = Buffer::<Hit>::new(&ctx, "hits", 4).unwrap();
+    let errors = Buffer::<u32>::new(&ctx, "errors", 1).unwrap();
+    is_usage(
+        tracer.record(&mut rec, &unbuilt, &rays, &hits, &errors, 4, 0.0),
+        "a trace of an unbuilt structure",
+    );
+    let (built, _m2) = build_in_caller_memory(&ctx, &lbvh, &geometries, &flags);
+    is_usage(
+        lbvh.record_update_from(&mut rec, &geometries, &built, scratch.as_raw()),
+        "an update without allow_update",
+    );
+    // Ray counts past the buffers, and a tracer of another walk.
+    is_usage(
+        tracer.record(&mut rec, &built, &rays, &hits, &errors, 5, 0.0),
+        "5 rays in buffers of 4",
+    );
+    is_usage(
+        tracer.record(&mut rec, &kd_g, &rays, &hits, &errors, 4, 0.0),
+        "a BVH tracer on a kd-tree",
+    );
+    // Zero rays are nothing to do.
+    tracer
+        .record(&mut rec, &built, &rays, &hits, &errors, 0, 0.0)
+        .unwrap();
+    drop(rec);
+    common::assert_silent(&ctx);
+}
