@@ -110,10 +110,14 @@ fn renderer() -> Option<Renderer> {
         let queues = [vk::DeviceQueueCreateInfo::default()
             .queue_family_index(family)
             .queue_priorities(&priorities)];
+        // The kd-tree builder's 1-byte flags need 8-bit storage (lavapipe has it).
+        let mut f12 = vk::PhysicalDeviceVulkan12Features::default().storage_buffer8_bit_access(true);
         let device = instance
             .create_device(
                 physical_device,
-                &vk::DeviceCreateInfo::default().queue_create_infos(&queues),
+                &vk::DeviceCreateInfo::default()
+                    .queue_create_infos(&queues)
+                    .push_next(&mut f12),
                 None,
             )
             .ok()?;
@@ -156,7 +160,10 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
         device: r.device.clone(),
         queue_family: r.family,
         queue: r.queue,
-        enabled_features: DeviceFeatures::default(),
+        enabled_features: DeviceFeatures {
+            storage_buffer_8bit: true,
+            ..DeviceFeatures::default()
+        },
         debug_utils: false,
         allocator: Some(allocator.clone()),
         pipeline_cache_dir: None,

@@ -226,9 +226,17 @@ impl Host {
         let base = vk::PhysicalDeviceFeatures::default()
             .shader_int64(supported.shader_int64 == vk::TRUE)
             .shader_float64(supported.shader_float64 == vk::TRUE);
+        // 8-bit storage, which vkrt's kd-tree builder needs (a Vulkan 1.2 feature).
+        let mut supported12 = vk::PhysicalDeviceVulkan12Features::default();
+        let mut query = vk::PhysicalDeviceFeatures2::default().push_next(&mut supported12);
+        // SAFETY: a plain query of a valid physical device of a Vulkan 1.2 instance.
+        unsafe { instance.get_physical_device_features2(physical_device, &mut query) };
+        let mut enable12 = vk::PhysicalDeviceVulkan12Features::default()
+            .storage_buffer8_bit_access(supported12.storage_buffer8_bit_access == vk::TRUE);
         let features = DeviceFeatures {
             shader_int64: base.shader_int64 == vk::TRUE,
             shader_float64: base.shader_float64 == vk::TRUE,
+            storage_buffer_8bit: enable12.storage_buffer8_bit_access == vk::TRUE,
             ..DeviceFeatures::default()
         };
         let priorities = [1.0];
@@ -237,7 +245,8 @@ impl Host {
             .queue_priorities(&priorities)];
         let create = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queues)
-            .enabled_features(&base);
+            .enabled_features(&base)
+            .push_next(&mut enable12);
         // SAFETY: `create` points at locals that outlive the call; only supported features
         // are enabled.
         let device = unsafe { instance.create_device(physical_device, &create, None) }?;

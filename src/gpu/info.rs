@@ -318,6 +318,10 @@ pub fn device_requirements() -> DeviceRequirements {
             .iter()
             .fold(vk::SubgroupFeatureFlags::empty(), |a, (f, _)| a | *f),
         optional_features: vec![
+            (
+                "storageBuffer8BitAccess",
+                "the GPU kd-tree builder (its 1-byte event flags); without it, an error",
+            ),
             ("shaderInt64", "64-bit node loads of the exact walk, 64-bit Morton codes"),
             ("shaderFloat64", "the watertight test's exact fallback"),
             (

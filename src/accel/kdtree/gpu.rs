@@ -370,9 +370,24 @@ impl KdTreeBuilder {
         Self::with_ablation(ctx, Ablation::default())
     }
 
+    /// `Ok` where the device can run the builder: its classification writes one byte per
+    /// event (`storageBuffer8BitAccess`, a Vulkan 1.2 feature).
+    pub fn require(ctx: &Context) -> Result<()> {
+        if ctx.info().features.storage_buffer_8bit {
+            return Ok(());
+        }
+        Err(crate::gpu::GpuError::MissingCapability {
+            device: ctx.info().device.clone(),
+            what: "storageBuffer8BitAccess (the kd-tree builder's 1-byte flags): enable it \
+                   when creating the device"
+                .into(),
+        })
+    }
+
     /// A builder with some of seed 001's optimisations switched back to their baselines
     /// (for the ablation benchmark; [`KdTreeBuilder::new`] is the default, all on).
     pub fn with_ablation(ctx: &Context, ablation: Ablation) -> Result<Self> {
+        Self::require(ctx)?;
         let spec = Spec::new().workgroup(WORKGROUP);
         let k = |blob| ctx.kernel(blob, &spec);
         let one = |blob| ctx.kernel(blob, &Spec::new());
