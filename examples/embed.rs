@@ -28,8 +28,7 @@ use glam::Vec3;
 use gpu_allocator::MemoryLocation;
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::gpu::{
-    Buffer, BufferArg, Context, Profile, Recorder, Validation,
-    DEFAULT_QUERY_CAPACITY,
+    Buffer, BufferArg, Context, Profile, Recorder, Validation, DEFAULT_QUERY_CAPACITY,
 };
 use vkrt::trace::gpu::{GpuGeometry, Tracer};
 use vkrt::trace::{Hit, Ray, TraceGeometry, TraceOptions};

@@ -10,7 +10,7 @@
 //! include. Every hit is checked against a brute-force CPU reference.
 //!
 //! ```text
-//! cargo run --release --example own_shader [-- --json] [MESH.obj] [RAYS]
+//! cargo run --release --example own_shader [-- [--json] [--no-check] [MESH.obj] [RAYS]]
 //! ```
 //!
 //! With `--json` it prints one line: `{"kinds": {"lbvh": {"rays": N, "mismatches": 0, ...},
@@ -87,10 +87,11 @@ pub struct Mesh {
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct KindReport {
     pub rays: usize,
-    /// Closest hits that differ from the CPU reference (t, geometry or primitive).
-    pub mismatches: usize,
+    /// Closest hits that differ from the CPU reference (t, geometry or primitive); `None`
+    /// when run without the check (`--no-check`, for timing many rays).
+    pub mismatches: Option<usize>,
     /// Occlusion answers that differ from the CPU reference.
-    pub any_mismatches: usize,
+    pub any_mismatches: Option<usize>,
     pub exhausted: usize,
     pub structure_bytes: u64,
     pub build_scratch_bytes: u64,
@@ -177,10 +178,21 @@ pub fn run(
     kinds: &[AccelKind],
     validation: Validation,
 ) -> BoxResult<Summary> {
+    run_with(mesh, rays, kinds, validation, true)
+}
+
+/// [`run`], with the CPU check (`check`) or without it (for timing many rays).
+pub fn run_with(
+    mesh: &Mesh,
+    rays: &[Ray],
+    kinds: &[AccelKind],
+    validation: Validation,
+    check: bool,
+) -> BoxResult<Summary> {
     let spirv = compile_ao_shader()?;
     let host = Host::new(validation)?;
     let sink = host.sink.clone();
-    let result = build_and_trace(&host, mesh, rays, kinds, &spirv);
+    let result = build_and_trace(&host, mesh, rays, kinds, &spirv, check);
     drop(host);
     let mut summary = result?;
     summary.messages = std::mem::take(&mut *sink.lock().unwrap());
@@ -206,11 +218,9 @@ pub fn compile_ao_shader() -> BoxResult<Vec<u32>> {
         .output();
     let spirv = match result {
         Err(e) => Err(format!("cannot run glslc ({e}): install it (Debian: glslc)").into()),
-        Ok(o) if !o.status.success() => Err(format!(
-            "glslc failed:\n{}",
-            String::from_utf8_lossy(&o.stderr)
-        )
-        .into()),
+        Ok(o) if !o.status.success() => {
+            Err(format!("glslc failed:\n{}", String::from_utf8_lossy(&o.stderr)).into())
+        }
         Ok(_) => std::fs::read(&out)
             .map(|b| bytemuck::pod_collect_to_vec::<u8, u32>(&b))
             .map_err(Into::into),
@@ -396,6 +406,7 @@ fn build_and_trace(
     rays: &[Ray],
     kinds: &[AccelKind],
     spirv: &[u32],
+    check: bool,
 ) -> BoxResult<Summary> {
     let n = rays.len();
     let storage = vk::BufferUsageFlags::STORAGE_BUFFER;
@@ -418,9 +429,19 @@ fn build_and_trace(
         usage,
     )?;
     vertices.write(bytemuck::cast_slice(&mesh.positions));
-    let mut indices32 = host.buffer("host.indices32", bytes(idx32.len() * 4), MemoryLocation::CpuToGpu, usage)?;
+    let mut indices32 = host.buffer(
+        "host.indices32",
+        bytes(idx32.len() * 4),
+        MemoryLocation::CpuToGpu,
+        usage,
+    )?;
     indices32.write(bytemuck::cast_slice(&idx32));
-    let mut indices16 = host.buffer("host.indices16", bytes(idx16.len() * 2), MemoryLocation::CpuToGpu, usage)?;
+    let mut indices16 = host.buffer(
+        "host.indices16",
+        bytes(idx16.len() * 2),
+        MemoryLocation::CpuToGpu,
+        usage,
+    )?;
     indices16.write(bytemuck::cast_slice(&idx16));
     let ray_bytes = bytes(size_of_val(rays));
     let mut host_rays = host.buffer("host.rays", ray_bytes, MemoryLocation::CpuToGpu, usage)?;
@@ -458,7 +479,11 @@ fn build_and_trace(
     // host outlives the context (dropped before `host` at the end of `run`) and this thread
     // is the only one using the queue.
     let ctx = unsafe { Context::from_raw(host.raw_parts()) }?;
-    let reference = reference(mesh, rays);
+    let reference = if check {
+        reference(mesh, rays)
+    } else {
+        Vec::new()
+    };
     let ao_radius = ao_radius(mesh);
     let mut report = Summary {
         device: ctx.info().device.clone(),
@@ -534,14 +559,25 @@ fn build_and_trace(
         });
         let after = ctx.traffic() - before;
         rec.scope("vkrt_trace", |rec| {
-            tracer.record(rec, &structure, &vkrt_rays, &vkrt_hits, &vkrt_errors, n, 0.0)
+            tracer.record(
+                rec,
+                &structure,
+                &vkrt_rays,
+                &vkrt_hits,
+                &vkrt_errors,
+                n,
+                0.0,
+            )
         })?;
         // SAFETY: `cmd` is recording.
         unsafe {
             barrier(
                 &host.device,
                 cmd,
-                (vk::PipelineStageFlags::COMPUTE_SHADER, vk::AccessFlags::SHADER_WRITE),
+                (
+                    vk::PipelineStageFlags::COMPUTE_SHADER,
+                    vk::AccessFlags::SHADER_WRITE,
+                ),
                 (vk::PipelineStageFlags::HOST, vk::AccessFlags::HOST_READ),
             );
         }
@@ -556,8 +592,8 @@ fn build_and_trace(
         let checked = checked_pass(host, &pipeline, &sets, push(0), n, &results)?;
         let mut k = KindReport {
             rays: n,
-            mismatches: 0,
-            any_mismatches: 0,
+            mismatches: check.then_some(0),
+            any_mismatches: check.then_some(0),
             exhausted: 0,
             structure_bytes: sizes.structure_bytes,
             build_scratch_bytes: sizes.build_scratch_bytes,
@@ -565,16 +601,17 @@ fn build_and_trace(
             own_shader_ms: profile.ms("own_shader"),
             vkrt_trace_ms: profile.ms("vkrt_trace"),
         };
-        for i in 0..n {
-            let (want, want_any) = &reference[i];
-            let got = checked[i];
+        for (i, got) in checked.iter().enumerate() {
+            k.exhausted += (got[3] & 2 != 0) as usize;
+            let Some((want, want_any)) = reference.get(i) else {
+                continue;
+            };
             let want_row = match want {
                 Some((t, g, p)) => [t.to_bits(), *p, *g],
                 None => [f32::INFINITY.to_bits(), u32::MAX, u32::MAX],
             };
-            k.mismatches += (got[..3] != want_row) as usize;
-            k.any_mismatches += ((got[3] & 1 == 1) != *want_any) as usize;
-            k.exhausted += (got[3] & 2 != 0) as usize;
+            *k.mismatches.get_or_insert(0) += (got[..3] != want_row) as usize;
+            *k.any_mismatches.get_or_insert(0) += ((got[3] & 1 == 1) != *want_any) as usize;
         }
         report.kinds.insert(kind.name().to_string(), k);
     }
@@ -597,7 +634,10 @@ fn checked_pass(
         barrier(
             &host.device,
             commands.cmd,
-            (vk::PipelineStageFlags::COMPUTE_SHADER, vk::AccessFlags::SHADER_WRITE),
+            (
+                vk::PipelineStageFlags::COMPUTE_SHADER,
+                vk::AccessFlags::SHADER_WRITE,
+            ),
             (vk::PipelineStageFlags::HOST, vk::AccessFlags::HOST_READ),
         );
     }
@@ -703,10 +743,12 @@ pub fn load_mesh(path: Option<PathBuf>) -> BoxResult<Mesh> {
 
 fn main() -> BoxResult<()> {
     let mut json = false;
+    let mut check = true;
     let mut rest = Vec::new();
     for a in std::env::args().skip(1) {
         match a.as_str() {
             "--json" => json = true,
+            "--no-check" => check = false,
             _ => rest.push(a),
         }
     }
@@ -717,7 +759,7 @@ fn main() -> BoxResult<()> {
     };
     let rays = ao_rays(&mesh, n, 7);
     let kinds = [AccelKind::KdTree, AccelKind::Lbvh, AccelKind::Ploc];
-    let s = run(&mesh, &rays, &kinds, Validation::FromEnv)?;
+    let s = run_with(&mesh, &rays, &kinds, Validation::FromEnv, check)?;
     if json {
         let v = serde_json::json!({
             "device": s.device,
@@ -728,14 +770,19 @@ fn main() -> BoxResult<()> {
         });
         println!("{v}");
     } else {
-        println!("{}: {} triangles, {} AO rays", s.device, mesh.triangles.len(), n);
+        println!(
+            "{}: {} triangles, {} AO rays",
+            s.device,
+            mesh.triangles.len(),
+            n
+        );
         for (name, k) in &s.kinds {
             let ratio = match (k.own_shader_ms, k.vkrt_trace_ms) {
                 (Some(a), Some(b)) if a > 0.0 => format!("{:.2}", b / a),
                 _ => "-".into(),
             };
             println!(
-                "  {name:7} mismatches {} (occlusion {}), exhausted {}, structure {} B, \
+                "  {name:7} mismatches {:?} (occlusion {:?}), exhausted {}, structure {} B, \
                  scratch {} B, own shader {:?} ms vs vkrt's kernel {:?} ms (speed ratio {ratio})",
                 k.mismatches,
                 k.any_mismatches,

@@ -134,7 +134,9 @@ fn the_gather_equals_its_cpu_twin_on_every_edge() {
     let Some(ctx) = common::context() else { return };
     let sg = ctx.info().subgroup_size as usize;
     let mut rng = common::Rng(11);
-    let sizes = common::edge_sizes(sg, 64, 64).into_iter().filter(|&n| n < 1 << 16);
+    let sizes = common::edge_sizes(sg, 64, 64)
+        .into_iter()
+        .filter(|&n| n < 1 << 16);
     for n in sizes.chain([1000, 100_003]) {
         for (stride, pad, index) in [
             (12, 0, Some(IndexType::U32)),
@@ -200,7 +202,11 @@ fn the_gather_equals_its_cpu_twin_on_every_edge() {
             let (device, invalid) = gather_on_device(&ctx, &geometries);
             let (host, host_invalid) = gather_on_host(&geometries, |r| caller.read(r));
             assert_eq!(invalid, host_invalid, "n {n} stride {stride}");
-            assert_eq!(bits(&device), bits(&host), "n {n} stride {stride} {index:?}");
+            assert_eq!(
+                bits(&device),
+                bits(&host),
+                "n {n} stride {stride} {index:?}"
+            );
         }
     }
     common::assert_silent(&ctx);
@@ -210,16 +216,14 @@ fn the_gather_equals_its_cpu_twin_on_every_edge() {
 fn bad_indices_and_coordinates_become_unhittable_points_and_are_counted() {
     let Some(ctx) = common::context() else { return };
     let mut caller = CallerBuffers::new();
-    let verts = [
-        Vec3::ZERO,
-        Vec3::X,
-        Vec3::Y,
-        Vec3::new(f32::NAN, 0.0, 0.0),
-    ];
+    let verts = [Vec3::ZERO, Vec3::X, Vec3::Y, Vec3::new(f32::NAN, 0.0, 0.0)];
     let vertices = caller.put(&ctx, bytemuck::cast_slice(&verts), 0);
     let idx: [u32; 9] = [0, 1, 2, 0, 1, 99, 0, 1, 3];
     let data = caller.put(&ctx, bytemuck::cast_slice(&idx), 0);
-    let spheres = [Vec4::new(0.0, 0.0, 0.0, -1.0), Vec4::new(1.0, 1.0, 1.0, 0.5)];
+    let spheres = [
+        Vec4::new(0.0, 0.0, 0.0, -1.0),
+        Vec4::new(1.0, 1.0, 1.0, 0.5),
+    ];
     let sph = caller.put(&ctx, bytemuck::cast_slice(&spheres), 0);
     let geometries = [
         Geometry::Triangles(Triangles::indexed(vertices, 4, data, IndexType::U32, 3)),
@@ -252,8 +256,8 @@ fn build_in_caller_memory(
     flags: &BuildFlags,
 ) -> (GpuGeometry, Vec<Buffer<u8>>) {
     let sizes = builder.sizes_for(ctx, geometries, flags).unwrap();
-    let structure = Buffer::<u8>::new(ctx, "caller.structure", sizes.structure_bytes as usize)
-        .unwrap();
+    let structure =
+        Buffer::<u8>::new(ctx, "caller.structure", sizes.structure_bytes as usize).unwrap();
     let scratch =
         Buffer::<u8>::new(ctx, "caller.scratch", sizes.build_scratch_bytes as usize).unwrap();
     let mut g = builder
@@ -267,8 +271,18 @@ fn build_in_caller_memory(
     let recorded = ctx.traffic() - before;
     // The driver's own levels live in memory vkrt allocates, with their instance data.
     if builder.kind() != AccelKind::Driver {
-        assert_eq!(recorded.upload_bytes, 0, "{:?}: bytes uploaded", builder.kind());
-        assert_eq!(recorded.device_allocations, 0, "{:?}: buffers", builder.kind());
+        assert_eq!(
+            recorded.upload_bytes,
+            0,
+            "{:?}: bytes uploaded",
+            builder.kind()
+        );
+        assert_eq!(
+            recorded.device_allocations,
+            0,
+            "{:?}: buffers",
+            builder.kind()
+        );
     }
     assert_eq!(recorded.submits, 0);
     rec.submit_and_wait().unwrap();
@@ -361,7 +375,10 @@ fn sizes_are_exact_and_too_little_memory_is_an_error() {
             ..BuildFlags::default()
         };
         let s = builder.sizes_for(&ctx, &geometries, &flags).unwrap();
-        assert!(s.structure_bytes > 0 && s.build_scratch_bytes > 0, "{kind:?} {s:?}");
+        assert!(
+            s.structure_bytes > 0 && s.build_scratch_bytes > 0,
+            "{kind:?} {s:?}"
+        );
         assert_eq!(s.update_scratch_bytes.is_some(), kind != AccelKind::KdTree);
         let small = Buffer::<u8>::new(&ctx, "small", s.structure_bytes as usize - 4).unwrap();
         let err = builder
@@ -449,11 +466,20 @@ fn misuse_is_an_error_not_a_panic() {
 
     // Bad descriptions: stride, counts past the buffer, huge counts, misaligned indices,
     // non-opaque, a non-finite transform.
-    let bad = |t: Triangles| lbvh.sizes_for(&ctx, &[Geometry::Triangles(t)], &flags).map(drop);
+    let bad = |t: Triangles| {
+        lbvh.sizes_for(&ctx, &[Geometry::Triangles(t)], &flags)
+            .map(drop)
+    };
     let n = tris.len() as u32 * 3;
     let ok = Triangles::soup(vertices, n);
     is_usage(bad(Triangles { stride: 10, ..ok }), "stride 10");
-    is_usage(bad(Triangles { vertex_count: n + 1, ..ok }), "vertices past the buffer");
+    is_usage(
+        bad(Triangles {
+            vertex_count: n + 1,
+            ..ok
+        }),
+        "vertices past the buffer",
+    );
     is_usage(
         bad(Triangles {
             triangle_count: u32::MAX / 2,
@@ -461,7 +487,13 @@ fn misuse_is_an_error_not_a_panic() {
         }),
         "a huge count",
     );
-    is_usage(bad(Triangles { opaque: false, ..ok }), "non-opaque");
+    is_usage(
+        bad(Triangles {
+            opaque: false,
+            ..ok
+        }),
+        "non-opaque",
+    );
     is_usage(
         bad(Triangles {
             transform: Some([[f32::NAN; 4]; 3]),
@@ -486,7 +518,10 @@ fn misuse_is_an_error_not_a_panic() {
 
     // The SAH BVH is a host builder.
     let sah = AccelBuilder::new(&ctx, AccelKind::SahBvh).unwrap();
-    is_usage(sah.sizes_for(&ctx, &geometries, &flags).map(drop), "SAH BVH from device");
+    is_usage(
+        sah.sizes_for(&ctx, &geometries, &flags).map(drop),
+        "SAH BVH from device",
+    );
 
     // Wrong kind, other geometry, unbuilt, refit of a kd-tree, update without allow_update.
     let (mut kd_g, _m1) = build_in_caller_memory(&ctx, &kd, &geometries, &flags);
@@ -514,8 +549,8 @@ fn misuse_is_an_error_not_a_panic() {
         lbvh.record_update_from(&mut rec, &geometries, &unbuilt, scratch.as_raw()),
         "an update of an unbuilt structure",
     );
-    let tracer = Tracer::for_accel(&ctx, &opt(), AccelKind::Lbvh.walked(Default::default()))
-        .unwrap();
+    let tracer =
+        Tracer::for_accel(&ctx, &opt(), AccelKind::Lbvh.walked(Default::default())).unwrap();
     let rays = Buffer::<Ray>::new(&ctx, "rays", 4).unwrap();
     let hits = Buffer::<Hit>::new(&ctx, "hits", 4).unwrap();
     let errors = Buffer::<u32>::new(&ctx, "errors", 1).unwrap();
@@ -542,5 +577,46 @@ fn misuse_is_an_error_not_a_panic() {
         .record(&mut rec, &built, &rays, &hits, &errors, 0, 0.0)
         .unwrap();
     drop(rec);
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn a_kd_tree_that_runs_out_of_capacity_says_so_and_the_caller_grows_it() {
+    let Some(ctx) = common::context() else { return };
+    let tris = common::mesh_triangles(&vkrt::scene::gen::icosphere(1).unwrap());
+    let rays = rays_into(&tris, 200, 9);
+    let mut caller = CallerBuffers::new();
+    let geometries = [soup_geometry(&ctx, &mut caller, &tris)];
+    let mut builder = AccelBuilder::new(&ctx, AccelKind::KdTree).unwrap();
+    // A budget far too small for the first build.
+    builder.kd_refs_per_level = Some(2);
+    let mut flags = BuildFlags::default();
+    let mut overflowed = 0;
+    let (g, _mem) = loop {
+        let (g, mem) = build_in_caller_memory(&ctx, &builder, &geometries, &flags);
+        let mut rec = Recorder::new(&ctx).unwrap();
+        rec.compute_to_transfer();
+        let status = g.record_read_status(&mut rec).unwrap();
+        rec.transfer_to_host();
+        rec.submit_and_wait().unwrap();
+        let status = status.read().unwrap();
+        assert_eq!(status.invalid_primitives, 0);
+        if !status.kd_overflow {
+            break (g, mem);
+        }
+        // An empty structure until then: every ray misses, never a truncated tree.
+        assert!(trace(&ctx, AccelKind::KdTree, &g, &rays)
+            .iter()
+            .all(|h| !h.is_hit()));
+        overflowed += 1;
+        assert!(overflowed < 8, "still out of capacity");
+        flags.kd_capacity_doublings += 1;
+    };
+    assert!(overflowed > 0, "the tiny budget never ran out");
+    let soup = TraceGeometry::from_triangles(&tris);
+    for (r, h) in rays.iter().zip(trace(&ctx, AccelKind::KdTree, &g, &rays)) {
+        let b = cpu::brute_force(&soup, r, 0.0, &opt());
+        assert!(common::same_answer(&h, &b), "{h:?} vs {b:?}");
+    }
     common::assert_silent(&ctx);
 }

@@ -111,7 +111,8 @@ fn renderer() -> Option<Renderer> {
             .queue_family_index(family)
             .queue_priorities(&priorities)];
         // The kd-tree builder's 1-byte flags need 8-bit storage (lavapipe has it).
-        let mut f12 = vk::PhysicalDeviceVulkan12Features::default().storage_buffer8_bit_access(true);
+        let mut f12 =
+            vk::PhysicalDeviceVulkan12Features::default().storage_buffer8_bit_access(true);
         let device = instance
             .create_device(
                 physical_device,

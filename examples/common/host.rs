@@ -493,4 +493,3 @@ unsafe extern "system" fn on_message(
     }
     vk::FALSE
 }
-

@@ -758,13 +758,19 @@ impl AccelBuilder {
             AccelKind::KdTree => {
                 let kd = self.kd_builder()?;
                 let c = self.kd_capacity(ctx, n, grow)?;
-                Ok(AccelScratch::KdTree(Box::new(kd.scratch(ctx, n.max(1), c)?)))
+                Ok(AccelScratch::KdTree(Box::new(kd.scratch(
+                    ctx,
+                    n.max(1),
+                    c,
+                )?)))
             }
             AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => {
                 let nodes = bvh_nodes(n);
                 let collapse = |c: &Option<CollapseKernels>| -> Result<CollapseScratch> {
                     CollapseKernels::check(&self.bvh_params)?;
-                    c.as_ref().ok_or_else(missing("the collapse kernels"))?.scratch(ctx, n)
+                    c.as_ref()
+                        .ok_or_else(missing("the collapse kernels"))?
+                        .scratch(ctx, n)
                 };
                 let schedule = match (&self.level_refit, allow_update) {
                     (Some(l), true) => Some(l.schedule_scratch(ctx, nodes)?),
@@ -962,7 +968,10 @@ impl AccelBuilder {
                 *counts = (n_nodes, n);
                 if collapsing {
                     // The boxes' refit decides the collapse on the same climb.
-                    let collapse = self.collapse.as_ref().ok_or_else(missing("the collapse kernels"))?;
+                    let collapse = self
+                        .collapse
+                        .as_ref()
+                        .ok_or_else(missing("the collapse kernels"))?;
                     let (p, visits, cs) = (&self.bvh_params, &s.visits, &s.collapse);
                     collapse.record_refit_deciding(
                         rec,
@@ -976,7 +985,10 @@ impl AccelBuilder {
                     );
                     collapse.record(rec, n, visits, cs, p, nodes, refs, true);
                 } else {
-                    let refit = self.refit.as_ref().ok_or_else(missing("the refit kernel"))?;
+                    let refit = self
+                        .refit
+                        .as_ref()
+                        .ok_or_else(missing("the refit kernel"))?;
                     record_refit_nodes(
                         rec, refit, prims, nodes, tree_refs, &s.visits, &out.info, n_nodes,
                     );
@@ -1010,14 +1022,20 @@ impl AccelBuilder {
                     let info = &out.info;
                     ploc.record_build(rec, &prims.boxes, n, &s.build, nodes, tree_refs, info);
                     rec.compute_to_compute();
-                    let collapse = self.collapse.as_ref().ok_or_else(missing("the collapse kernels"))?;
+                    let collapse = self
+                        .collapse
+                        .as_ref()
+                        .ok_or_else(missing("the collapse kernels"))?;
                     let p = &self.bvh_params;
                     collapse.record(rec, n, &s.visits, &s.collapse, p, nodes, refs, false);
                 } else if n >= 2 {
                     ploc.record_build(rec, &prims.boxes, n, &s.build, nodes, refs, &out.info);
                 } else {
                     ploc.record_small(rec, &prims.boxes, n, &s.build, nodes, refs);
-                    let refit = self.refit.as_ref().ok_or_else(missing("the refit kernel"))?;
+                    let refit = self
+                        .refit
+                        .as_ref()
+                        .ok_or_else(missing("the refit kernel"))?;
                     record_refit_nodes(
                         rec, refit, prims, nodes, refs, &s.visits, &out.info, n_nodes,
                     );
@@ -1027,7 +1045,10 @@ impl AccelBuilder {
             }
             _ => Err(GpuError::Usage {
                 call: "AccelBuilder::record_build",
-                reason: format!("the scratch was made for another kind than {}", self.kind.name()),
+                reason: format!(
+                    "the scratch was made for another kind than {}",
+                    self.kind.name()
+                ),
             }),
         }?;
         if let Storage::Bvh {
@@ -1037,7 +1058,10 @@ impl AccelBuilder {
             ..
         } = &out.storage
         {
-            let level = self.level_refit.as_ref().ok_or_else(missing("the level refit"))?;
+            let level = self
+                .level_refit
+                .as_ref()
+                .ok_or_else(missing("the level refit"))?;
             let placed = match scratch {
                 AccelScratch::Lbvh(s) => s.schedule.as_ref(),
                 AccelScratch::Ploc(s) => s.schedule.as_ref(),

@@ -335,7 +335,10 @@ impl AccelBuilder {
             ));
         }
         if !input.built {
-            return Err(usage(call, "the structure has not been built: record its build first"));
+            return Err(usage(
+                call,
+                "the structure has not been built: record its build first",
+            ));
         }
         if !input.flags.allow_update {
             return Err(usage(

@@ -8,7 +8,9 @@
 //! input into its own format), so nothing passes through the host and nothing is uploaded.
 //! A hit reports the geometry's index in the list and the primitive's index within it.
 
-use crate::gpu::{kernels, BufferArg, Context, GpuError, Kernel, RawBuffer, Recorder, Result, Spec};
+use crate::gpu::{
+    kernels, BufferArg, Context, GpuError, Kernel, RawBuffer, Recorder, Result, Spec,
+};
 use crate::trace::geometry::SceneInfo;
 use crate::trace::TraceGeometry;
 use glam::{Vec3, Vec4};
@@ -209,7 +211,10 @@ impl GeometryLayout {
 
     /// (geometry index, primitive index) of vkrt's primitive id `prim`.
     pub fn locate(&self, prim: u32) -> Option<(u32, u32)> {
-        let k = self.table.partition_point(|e| e[0] <= prim).checked_sub(1)?;
+        let k = self
+            .table
+            .partition_point(|e| e[0] <= prim)
+            .checked_sub(1)?;
         let [first, geometry] = self.table[k];
         (prim < self.n_tris + self.n_spheres).then_some((geometry, prim - first))
     }
@@ -261,14 +266,14 @@ fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
                 ));
             }
             match t.indices {
-                None if u64::from(t.triangle_count) * 3 > u64::from(t.vertex_count) => err(
-                    format!(
+                None if u64::from(t.triangle_count) * 3 > u64::from(t.vertex_count) => {
+                    err(format!(
                         "{} triangles without indices need {} vertices; {} given",
                         t.triangle_count,
                         3 * u64::from(t.triangle_count),
                         t.vertex_count
-                    ),
-                ),
+                    ))
+                }
                 None => Ok(()),
                 Some(ix) => {
                     let size = ix.index_type.bytes();
@@ -294,9 +299,11 @@ fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
         }
         Geometry::Spheres(s) => {
             if !s.opaque {
-                return err("non-opaque geometry needs any-hit shaders, which vkrt has not: \
+                return err(
+                    "non-opaque geometry needs any-hit shaders, which vkrt has not: \
                      mark it opaque"
-                    .into());
+                        .into(),
+                );
             }
             if s.stride < 16 || s.stride % 4 != 0 || s.data.offset % 4 != 0 {
                 return err(format!(
@@ -408,8 +415,7 @@ impl GeometryGather {
             index_first: layout.table.len() as u32,
             ..GatherPush::default()
         };
-        let outputs: [&dyn BufferArg; 4] =
-            [&prims.tri_verts, &prims.spheres, &prims.boxes, info];
+        let outputs: [&dyn BufferArg; 4] = [&prims.tri_verts, &prims.spheres, &prims.boxes, info];
         let [o0, o1, o2, o3] = outputs;
         rec.dispatch(
             &self.kernel,
@@ -529,7 +535,8 @@ pub fn gather_on_host(
                     if ok {
                         pts = corners.map(|c| {
                             let at = c as usize * t.stride as usize;
-                            let p = Vec3::new(f32_at(&v, at), f32_at(&v, at + 4), f32_at(&v, at + 8));
+                            let p =
+                                Vec3::new(f32_at(&v, at), f32_at(&v, at + 4), f32_at(&v, at + 8));
                             match t.transform {
                                 Some(m) => transform_point(&m, p),
                                 None => p,

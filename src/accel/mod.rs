@@ -9,5 +9,5 @@ pub mod device;
 pub mod driver;
 pub mod embedded;
 pub mod geometry;
-pub mod shader_library;
 pub mod kdtree;
+pub mod shader_library;

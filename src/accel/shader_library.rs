@@ -22,7 +22,10 @@ pub const FILES: &[(&str, &str)] = &[
         "vkrt/traverse.glsl",
         include_str!("../../glsl/include/vkrt/traverse.glsl"),
     ),
-    ("vkrt/bvh.glsl", include_str!("../../glsl/include/vkrt/bvh.glsl")),
+    (
+        "vkrt/bvh.glsl",
+        include_str!("../../glsl/include/vkrt/bvh.glsl"),
+    ),
     (
         "vkrt/bvh_node.glsl",
         include_str!("../../glsl/include/vkrt/bvh_node.glsl"),
@@ -31,7 +34,10 @@ pub const FILES: &[(&str, &str)] = &[
         "vkrt/kdtree.glsl",
         include_str!("../../glsl/include/vkrt/kdtree.glsl"),
     ),
-    ("vkrt/ray.glsl", include_str!("../../glsl/include/vkrt/ray.glsl")),
+    (
+        "vkrt/ray.glsl",
+        include_str!("../../glsl/include/vkrt/ray.glsl"),
+    ),
 ];
 
 /// The entry point to `#include`.

@@ -438,7 +438,9 @@ pub mod placement {
             })
         });
         let result = f();
-        let arena = ARENAS.with(|a| a.borrow_mut().pop()).expect("the arena pushed above");
+        let arena = ARENAS
+            .with(|a| a.borrow_mut().pop())
+            .expect("the arena pushed above");
         let value = result?;
         if let Some(t) = arena.target {
             if arena.used > t.size {

@@ -322,13 +322,19 @@ pub fn device_requirements() -> DeviceRequirements {
                 "storageBuffer8BitAccess",
                 "the GPU kd-tree builder (its 1-byte event flags); without it, an error",
             ),
-            ("shaderInt64", "64-bit node loads of the exact walk, 64-bit Morton codes"),
+            (
+                "shaderInt64",
+                "64-bit node loads of the exact walk, 64-bit Morton codes",
+            ),
             ("shaderFloat64", "the watertight test's exact fallback"),
             (
                 "shaderBufferInt64Atomics",
                 "the single-pass chained scan (a two-pass scan otherwise)",
             ),
-            ("hostQueryReset", "profiler timestamps without a reset command"),
+            (
+                "hostQueryReset",
+                "profiler timestamps without a reset command",
+            ),
             (
                 "subgroupSizeControl, computeFullSubgroups",
                 "kernels that need full subgroups of a fixed size",

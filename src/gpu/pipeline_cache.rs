@@ -40,10 +40,11 @@ pub(crate) fn path_in(dir: &std::path::Path, info: &DeviceInfo) -> PathBuf {
 }
 
 /// A pipeline cache primed from `path` (none: an empty cache that is never saved).
-pub(crate) fn create(device: &ash::Device, path: Option<&std::path::Path>) -> Result<vk::PipelineCache> {
-    let data = path
-        .and_then(|p| std::fs::read(p).ok())
-        .unwrap_or_default();
+pub(crate) fn create(
+    device: &ash::Device,
+    path: Option<&std::path::Path>,
+) -> Result<vk::PipelineCache> {
+    let data = path.and_then(|p| std::fs::read(p).ok()).unwrap_or_default();
     let create = vk::PipelineCacheCreateInfo::default().initial_data(&data);
     // SAFETY: valid device; the driver checks the header of `data` and ignores a mismatch.
     match unsafe { device.create_pipeline_cache(&create, None) } {

@@ -330,10 +330,13 @@ impl Recorder {
         // SAFETY: recording; the buffer has TRANSFER_DST usage and a size that is a multiple
         // of 4 (Buffer rounds up).
         unsafe {
-            self.ctx
-                .inner
-                .device
-                .cmd_fill_buffer(self.cmd, buffer.raw(), buffer.offset(), buffer.range(), value)
+            self.ctx.inner.device.cmd_fill_buffer(
+                self.cmd,
+                buffer.raw(),
+                buffer.offset(),
+                buffer.range(),
+                value,
+            )
         };
     }
 

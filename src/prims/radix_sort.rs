@@ -557,7 +557,7 @@ impl RadixSort {
         keys: &[u32],
         values: &[u32],
     ) -> Result<(Vec<u32>, Vec<u32>)> {
-        assert_eq!(keys.len(), values.len(), "one value per key");
+        check_pairs(keys.len(), values.len())?;
         let n = keys.len();
         let key_buf = Buffer::from_slice(ctx, "prims.radix_sort.in_keys", keys)?;
         let value_buf = Buffer::from_slice(ctx, "prims.radix_sort.in_values", values)?;
@@ -577,7 +577,7 @@ impl RadixSort {
         keys: &[f32],
         values: &[u32],
     ) -> Result<(Vec<f32>, Vec<u32>)> {
-        assert_eq!(keys.len(), values.len(), "one value per key");
+        check_pairs(keys.len(), values.len())?;
         check_no_nan(keys)?;
         let n = keys.len();
         let key_buf = Buffer::from_slice(ctx, "prims.radix_sort.in_keys", keys)?;
@@ -589,6 +589,16 @@ impl RadixSort {
         rec.submit_and_wait()?;
         Ok((key_buf.download()?, value_buf.download()?))
     }
+}
+
+fn check_pairs(keys: usize, values: usize) -> Result<()> {
+    if keys != values {
+        return Err(GpuError::Usage {
+            call: "RadixSort",
+            reason: format!("{keys} keys and {values} values: one value per key"),
+        });
+    }
+    Ok(())
 }
 
 fn check_no_nan(keys: &[f32]) -> Result<()> {

@@ -1,0 +1,180 @@
+//! Building from the renderer's device buffers against the host-soup path, one run.
+//!
+//! For the Stanford bunny (../shared/scenes) and a 2 M-triangle icosphere, for the GPU
+//! kd-tree, LBVH and PLOC: the same triangles built
+//!
+//! - **host soup**: `GpuGeometry::record_build` uploads a host `TraceGeometry` (vertices,
+//!   boxes) and builds over it, in one submission — what a renderer had to do before;
+//! - **device input**: the indexed mesh already lies in a device buffer (the renderer's);
+//!   `AccelBuilder::record_build_from` reads it where it lies (`accel.geometry_gather`) and
+//!   builds in memory the caller allocated.
+//!
+//! Per path: the GPU milliseconds of the recorded work (timestamps: upload + build, or
+//! gather + build), the wall milliseconds of the submission, and the bytes uploaded
+//! (`Context::traffic`). Best of 3 after a warm-up; the ratio device / host is taken in the
+//! same run.
+//!
+//! `cargo bench --bench device_input [-- --json] [-- --quick]` (`--quick`: the bunny only)
+
+use std::time::Instant;
+
+use glam::Vec3;
+use vkrt::accel::device::{AccelBuilder, AccelKind};
+use vkrt::accel::embedded::BuildFlags;
+use vkrt::accel::geometry::{Geometry, IndexType, Triangles};
+use vkrt::gpu::{Buffer, Context, ContextOptions, Recorder};
+use vkrt::trace::gpu::GpuGeometry;
+use vkrt::trace::TraceGeometry;
+
+#[derive(serde::Serialize)]
+struct Row {
+    scene: String,
+    triangles: usize,
+    kind: &'static str,
+    host_gpu_ms: f64,
+    host_wall_ms: f64,
+    host_upload_bytes: u64,
+    device_gpu_ms: f64,
+    device_wall_ms: f64,
+    device_upload_bytes: u64,
+    /// device_gpu_ms / host_gpu_ms (below 1: the device path is faster).
+    gpu_ratio: f64,
+    wall_ratio: f64,
+}
+
+struct Mesh {
+    name: String,
+    positions: Vec<Vec3>,
+    indices: Vec<[u32; 3]>,
+}
+
+fn meshes(quick: bool) -> Vec<Mesh> {
+    let mut out = Vec::new();
+    let bunny = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .join("../shared/scenes/stanford-bunny.obj");
+    if bunny.exists() {
+        let scene = vkrt::scene::Scene::load(&bunny).expect("the bunny").scene;
+        let m = &scene.meshes[0];
+        out.push(Mesh {
+            name: "bunny".into(),
+            positions: m.positions.clone(),
+            indices: m.indices.clone(),
+        });
+    } else {
+        eprintln!("skipped the bunny: {} not present", bunny.display());
+    }
+    if !quick {
+        let m = vkrt::scene::gen::icosphere_with_at_least(2_000_000).expect("icosphere");
+        out.push(Mesh {
+            name: "icosphere 2M".into(),
+            positions: m.positions,
+            indices: m.indices,
+        });
+    }
+    out
+}
+
+/// Best of 3 after a warm-up: (GPU ms of the whole recording, wall ms, bytes uploaded).
+fn best_of(ctx: &Context, mut record: impl FnMut(&mut Recorder)) -> (f64, f64, u64) {
+    let mut best = (f64::INFINITY, f64::INFINITY, 0);
+    for i in 0..4 {
+        let before = ctx.traffic();
+        let t = Instant::now();
+        let mut rec = Recorder::new(ctx).expect("recorder");
+        rec.begin_scope("all");
+        record(&mut rec);
+        rec.end_scope();
+        let p = rec.submit_and_wait().expect("submit");
+        let wall = t.elapsed().as_secs_f64() * 1e3;
+        let up = (ctx.traffic() - before).upload_bytes;
+        if i > 0 {
+            best = (
+                best.0.min(p.ms("all").unwrap_or(f64::NAN)),
+                best.1.min(wall),
+                up,
+            );
+        }
+    }
+    best
+}
+
+fn main() {
+    let args: Vec<String> = std::env::args().collect();
+    let json = args.iter().any(|a| a == "--json");
+    let quick = args.iter().any(|a| a == "--quick");
+    let ctx = Context::new(&ContextOptions::default()).expect("a Vulkan device");
+    let mut rows = Vec::new();
+    for mesh in meshes(quick) {
+        let tris: Vec<[Vec3; 3]> = mesh
+            .indices
+            .iter()
+            .map(|t| t.map(|v| mesh.positions[v as usize]))
+            .collect();
+        let soup = TraceGeometry::from_triangles(&tris);
+        // The renderer's buffers, on the device before anything is timed.
+        let vertices = Buffer::from_slice(&ctx, "renderer.vertices", &mesh.positions).unwrap();
+        let flat: Vec<u32> = mesh.indices.iter().flatten().copied().collect();
+        let indices = Buffer::from_slice(&ctx, "renderer.indices", &flat).unwrap();
+        let geometries = [Geometry::Triangles(Triangles::indexed(
+            vertices.as_raw(),
+            mesh.positions.len() as u32,
+            indices.as_raw(),
+            IndexType::U32,
+            mesh.indices.len() as u32,
+        ))];
+        for kind in [AccelKind::KdTree, AccelKind::Lbvh, AccelKind::Ploc] {
+            let builder = AccelBuilder::new(&ctx, kind).unwrap();
+            let (host_gpu, host_wall, host_up) = best_of(&ctx, |rec| {
+                let (g, _) = GpuGeometry::record_build(rec, &builder, &soup, 0).unwrap();
+                rec.keep_alive(g);
+            });
+            let flags = BuildFlags::default();
+            let s = builder.sizes_for(&ctx, &geometries, &flags).unwrap();
+            let mem =
+                Buffer::<u8>::new(&ctx, "caller.structure", s.structure_bytes as usize).unwrap();
+            let scratch =
+                Buffer::<u8>::new(&ctx, "caller.scratch", s.build_scratch_bytes as usize).unwrap();
+            let mut g = builder
+                .create_in(&ctx, &geometries, &flags, mem.as_raw())
+                .unwrap();
+            let (dev_gpu, dev_wall, dev_up) = best_of(&ctx, |rec| {
+                builder
+                    .record_build_from(rec, &geometries, &mut g, scratch.as_raw())
+                    .unwrap();
+            });
+            let row = Row {
+                scene: mesh.name.clone(),
+                triangles: tris.len(),
+                kind: kind.name(),
+                host_gpu_ms: host_gpu,
+                host_wall_ms: host_wall,
+                host_upload_bytes: host_up,
+                device_gpu_ms: dev_gpu,
+                device_wall_ms: dev_wall,
+                device_upload_bytes: dev_up,
+                gpu_ratio: dev_gpu / host_gpu,
+                wall_ratio: dev_wall / host_wall,
+            };
+            if !json {
+                println!(
+                    "{:14} {:7} host soup: {:8.1} ms GPU {:8.1} ms wall {:>11} B up | device input: \
+                     {:8.1} ms GPU {:8.1} ms wall {:>3} B up | ×{:.2} GPU ×{:.2} wall",
+                    row.scene,
+                    row.kind,
+                    row.host_gpu_ms,
+                    row.host_wall_ms,
+                    row.host_upload_bytes,
+                    row.device_gpu_ms,
+                    row.device_wall_ms,
+                    row.device_upload_bytes,
+                    row.gpu_ratio,
+                    row.wall_ratio
+                );
+            }
+            rows.push(row);
+        }
+    }
+    if json {
+        println!("{}", serde_json::to_string(&rows).unwrap());
+    }
+}
