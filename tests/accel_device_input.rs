@@ -257,9 +257,9 @@ fn build_in_caller_memory(
 ) -> (GpuGeometry, Vec<Buffer<u8>>) {
     let sizes = builder.sizes_for(ctx, geometries, flags).unwrap();
     let structure =
-        Buffer::<u8>::new(ctx, "caller.structure", sizes.structure_bytes as usize).unwrap();
+        Buffer::<u8>::arena(ctx, "caller.structure", sizes.structure_bytes as usize).unwrap();
     let scratch =
-        Buffer::<u8>::new(ctx, "caller.scratch", sizes.build_scratch_bytes as usize).unwrap();
+        Buffer::<u8>::arena(ctx, "caller.scratch", sizes.build_scratch_bytes as usize).unwrap();
     let mut g = builder
         .create_in(ctx, geometries, flags, structure.as_raw())
         .unwrap();
@@ -380,18 +380,18 @@ fn sizes_are_exact_and_too_little_memory_is_an_error() {
             "{kind:?} {s:?}"
         );
         assert_eq!(s.update_scratch_bytes.is_some(), kind != AccelKind::KdTree);
-        let small = Buffer::<u8>::new(&ctx, "small", s.structure_bytes as usize - 4).unwrap();
+        let small = Buffer::<u8>::arena(&ctx, "small", s.structure_bytes as usize - 4).unwrap();
         let err = builder
             .create_in(&ctx, &geometries, &flags, small.as_raw())
             .err()
             .expect("a structure in too little memory");
         assert!(matches!(err, GpuError::Placement(_)), "{err}");
-        let exact = Buffer::<u8>::new(&ctx, "exact", s.structure_bytes as usize).unwrap();
+        let exact = Buffer::<u8>::arena(&ctx, "exact", s.structure_bytes as usize).unwrap();
         let mut g = builder
             .create_in(&ctx, &geometries, &flags, exact.as_raw())
             .unwrap();
         let scratch =
-            Buffer::<u8>::new(&ctx, "scratch", s.build_scratch_bytes as usize - 4).unwrap();
+            Buffer::<u8>::arena(&ctx, "scratch", s.build_scratch_bytes as usize - 4).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
         let err = builder
             .record_build_from(&mut rec, &geometries, &mut g, scratch.as_raw())
@@ -430,7 +430,7 @@ fn an_update_reads_moved_vertices_from_the_callers_buffer() {
         caller.bufs[0].upload(bytemuck::cast_slice(&flat)).unwrap();
         let s = builder.sizes_for(&ctx, &geometries, &flags).unwrap();
         let scratch =
-            Buffer::<u8>::new(&ctx, "update", s.update_scratch_bytes.unwrap() as usize).unwrap();
+            Buffer::<u8>::arena(&ctx, "update", s.update_scratch_bytes.unwrap() as usize).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
         builder
             .record_update_from(&mut rec, &geometries, &g, scratch.as_raw())
@@ -525,7 +525,7 @@ fn misuse_is_an_error_not_a_panic() {
 
     // Wrong kind, other geometry, unbuilt, refit of a kd-tree, update without allow_update.
     let (mut kd_g, _m1) = build_in_caller_memory(&ctx, &kd, &geometries, &flags);
-    let scratch = Buffer::<u8>::new(&ctx, "scratch", 1 << 20).unwrap();
+    let scratch = Buffer::<u8>::arena(&ctx, "scratch", 1 << 20).unwrap();
     let mut rec = Recorder::new(&ctx).unwrap();
     is_usage(
         lbvh.record_build_from(&mut rec, &geometries, &mut kd_g, scratch.as_raw()),
@@ -541,7 +541,7 @@ fn misuse_is_an_error_not_a_panic() {
         "other geometry",
     );
     let s = lbvh.sizes_for(&ctx, &geometries, &flags).unwrap();
-    let mem = Buffer::<u8>::new(&ctx, "mem", s.structure_bytes as usize).unwrap();
+    let mem = Buffer::<u8>::arena(&ctx, "mem", s.structure_bytes as usize).unwrap();
     let unbuilt = lbvh
         .create_in(&ctx, &geometries, &flags, mem.as_raw())
         .unwrap();

@@ -103,8 +103,25 @@ impl<T: Pod> Buffer<T> {
         Self::with_memory(ctx, name, len, Memory::Device)
     }
 
+    /// A device-local buffer of `len` elements to place structures and scratch in
+    /// ([`placement::Placement::Into`]): as a renderer's own buffer, its size is not bound
+    /// by `maxStorageBufferRange` (only each range placed in it is); it is never bound whole.
+    pub fn arena(ctx: &Context, name: &str, len: usize) -> Result<Self> {
+        Self::create(ctx, name, len, Memory::Device, false)
+    }
+
     /// A buffer of `len` elements in the given memory.
     pub fn with_memory(ctx: &Context, name: &str, len: usize, memory: Memory) -> Result<Self> {
+        Self::create(ctx, name, len, memory, true)
+    }
+
+    fn create(
+        ctx: &Context,
+        name: &str,
+        len: usize,
+        memory: Memory,
+        bound_whole: bool,
+    ) -> Result<Self> {
         let elem = std::mem::size_of::<T>() as u64;
         let wanted = (len as u64)
             .checked_mul(elem)
@@ -114,7 +131,7 @@ impl<T: Pod> Buffer<T> {
                 limit: ctx.info().max_storage_buffer_range,
             })?;
         let limit = ctx.info().max_storage_buffer_range;
-        if memory == Memory::Device && wanted > limit {
+        if memory == Memory::Device && bound_whole && wanted > limit {
             return Err(GpuError::BufferTooLarge {
                 name: name.into(),
                 bytes: wanted,
@@ -123,7 +140,7 @@ impl<T: Pod> Buffer<T> {
         }
         // Vulkan forbids empty buffers; an empty one gets 4 bytes and len 0.
         let bytes = wanted.max(4).next_multiple_of(4);
-        if memory == Memory::Device {
+        if memory == Memory::Device && bound_whole {
             if let Some(range) = placement::take(ctx, bytes) {
                 return Ok(Self {
                     ctx: ctx.clone(),

@@ -19,6 +19,9 @@
 // Options (define before the include):
 //   VKRT_STACK_SIZE   the kd-tree walk's short-stack entries (default 32)
 //   VKRT_MOLLER_TRUMBORE  use the Moller-Trumbore test instead of the watertight one
+//   VKRT_WALK         compile one walk only: VKRT_WALK_KDTREE, VKRT_WALK_BVH (stack) or
+//                     VKRT_WALK_BVH_BITSTACK (default: every walk, chosen per structure at
+//                     run time). A structure of another kind then reports `exhausted`.
 //   VKRT_RAY_QUERY    also walk the driver's structure with GL_EXT_ray_query (needs the
 //                     device's VK_KHR_ray_query; without it such a structure reports
 //                     `exhausted`)
@@ -93,9 +96,24 @@ VkrtHit vkrt_to_public(Hit h) {
     return o;
 }
 
+#define VKRT_WALK_KDTREE 0u
+#define VKRT_WALK_BVH 1u
+#define VKRT_WALK_BVH_BITSTACK 2u
+
 Hit vkrt_trace(vec3 origin, float tMin, vec3 direction, float tMax, float time, bool any_hit) {
     trace_steps_exhausted = false;
-    Hit h = trace_walk(scene_info.walk, Ray(origin, tMin, direction, tMax), time, any_hit);
+    Ray r = Ray(origin, tMin, direction, tMax);
+#ifdef VKRT_WALK
+    // One walk compiled in: a structure it does not serve is reported, never misread.
+    uint kind = scene_info.walk;
+    if (VKRT_WALK == VKRT_WALK_KDTREE ? kind != ACCEL_KDTREE : kind != ACCEL_BVH_STACK) {
+        trace_steps_exhausted = true;
+        return miss_hit();
+    }
+    Hit h = trace_walk(VKRT_WALK, r, time, any_hit);
+#else
+    Hit h = trace_walk(scene_info.walk, r, time, any_hit);
+#endif
     if (trace_steps_exhausted) {
         h = miss_hit();
     }
