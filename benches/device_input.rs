@@ -146,7 +146,8 @@ fn main() {
             let mem =
                 Buffer::<u8>::arena(&ctx, "caller.structure", s.structure_bytes as usize).unwrap();
             let scratch =
-                Buffer::<u8>::arena(&ctx, "caller.scratch", s.build_scratch_bytes as usize).unwrap();
+                Buffer::<u8>::arena(&ctx, "caller.scratch", s.build_scratch_bytes as usize)
+                    .unwrap();
             let mut g = builder
                 .create_in(&ctx, &geometries, &flags, mem.as_raw())
                 .unwrap();

@@ -705,9 +705,12 @@ fn ao_radius(mesh: &Mesh) -> f32 {
     (hi - lo).length() * 0.1
 }
 
+/// A ray's closest hit as (t, geometry, primitive within it), and its occlusion.
+type Expected = (Option<(f32, u32, u32)>, bool);
+
 /// Per ray, by brute force on the CPU: the closest hit as (t, geometry, primitive within
 /// it), and whether anything lies within the AO radius.
-fn reference(mesh: &Mesh, rays: &[Ray]) -> Vec<(Option<(f32, u32, u32)>, bool)> {
+fn reference(mesh: &Mesh, rays: &[Ray]) -> Vec<Expected> {
     let g = TraceGeometry::from_triangles(&world_triangles(mesh));
     let half = (mesh.triangles.len() / 2) as u32;
     let closest = TraceOptions {

@@ -84,6 +84,21 @@ fn shape(geometries: &[Geometry]) -> Vec<(bool, u32)> {
         .collect()
 }
 
+/// The scene constants the gather writes for a structure of `kind` over `n` primitives:
+/// how the shader library walks it, and where a BVH's parent links start.
+fn header_of(kind: AccelKind, n: usize) -> (u32, u32) {
+    let walk = match kind {
+        AccelKind::KdTree => SceneInfo::WALK_KDTREE,
+        AccelKind::Driver => SceneInfo::WALK_RAY_QUERY,
+        _ => SceneInfo::WALK_BVH,
+    };
+    let parents_at = match kind {
+        AccelKind::Lbvh | AccelKind::Ploc => n as u32,
+        _ => 0,
+    };
+    (walk, parents_at)
+}
+
 fn usage(call: &'static str, reason: impl Into<String>) -> GpuError {
     GpuError::Usage {
         call,
@@ -286,15 +301,7 @@ impl AccelBuilder {
         })?;
         let gather = GeometryGather::new(&ctx)?;
         rec.scope("build", |rec| {
-            let walk = match self.kind() {
-                AccelKind::KdTree => SceneInfo::WALK_KDTREE,
-                AccelKind::Driver => SceneInfo::WALK_RAY_QUERY,
-                _ => SceneInfo::WALK_BVH,
-            };
-            let parents_at = match self.kind() {
-                AccelKind::Lbvh | AccelKind::Ploc => n as u32,
-                _ => 0,
-            };
+            let (walk, parents_at) = header_of(self.kind(), n);
             rec.scope("gather", |rec| {
                 gather.record(
                     rec,
@@ -355,14 +362,7 @@ impl AccelBuilder {
         let visits = visits.ok_or_else(|| usage(call, "this kind cannot be updated"))?;
         let gather = GeometryGather::new(&ctx)?;
         rec.scope("update", |rec| {
-            let walk = match self.kind() {
-                AccelKind::Driver => SceneInfo::WALK_RAY_QUERY,
-                _ => SceneInfo::WALK_BVH,
-            };
-            let parents_at = match self.kind() {
-                AccelKind::Lbvh | AccelKind::Ploc => n as u32,
-                _ => 0,
-            };
+            let (walk, parents_at) = header_of(self.kind(), n);
             gather.record(
                 rec,
                 geometries,

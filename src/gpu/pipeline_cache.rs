@@ -79,7 +79,7 @@ pub(crate) unsafe fn save_and_destroy(
         let save = SAVES.fetch_add(1, Ordering::Relaxed);
         let tmp = path.with_extension(format!("tmp{}-{save}", std::process::id()));
         if std::fs::write(&tmp, &data).is_ok() {
-            let _ = std::fs::rename(&tmp, &path);
+            let _ = std::fs::rename(&tmp, path);
         }
         let _ = std::fs::remove_file(&tmp);
     }
