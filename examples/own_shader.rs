@@ -486,7 +486,7 @@ fn build_and_trace(
         )),
         Geometry::Triangles(Triangles {
             indices: Some(Indices {
-                data: raw(&indices16, bytes(idx16.len() * 2)),
+                data: raw(&indices16, bytes(idx16.len() * 2)).into(),
                 index_type: IndexType::U16,
             }),
             triangle_count: (mesh.triangles.len() - half) as u32,

@@ -9,8 +9,8 @@ use glam::{Vec3, Vec4};
 use vkrt::accel::device::{AccelBuilder, AccelKind, DevicePrimitives};
 use vkrt::accel::embedded::BuildFlags;
 use vkrt::accel::geometry::{
-    gather_on_host, Geometry, GeometryGather, GeometryLayout, IndexType, Indices, Spheres,
-    Triangles,
+    gather_on_host, Geometry, GeometryData, GeometryGather, GeometryLayout, IndexType, Indices,
+    Spheres, Triangles,
 };
 use vkrt::gpu::{Buffer, Context, GpuError, RawBuffer, Recorder};
 use vkrt::trace::gpu::{GpuGeometry, Tracer};
@@ -20,6 +20,8 @@ use vkrt::trace::{cpu, Hit, Ray, TraceGeometry, TraceOptions};
 struct CallerBuffers {
     bufs: Vec<Buffer<u32>>,
     host: Vec<Vec<u8>>,
+    /// The address handed out for each buffer by `at` (0: none).
+    addresses: Vec<u64>,
 }
 
 impl CallerBuffers {
@@ -27,6 +29,7 @@ impl CallerBuffers {
         Self {
             bufs: Vec::new(),
             host: Vec::new(),
+            addresses: Vec::new(),
         }
     }
 
@@ -43,17 +46,32 @@ impl CallerBuffers {
         };
         self.bufs.push(b);
         self.host.push(bytes.to_vec());
+        self.addresses.push(0);
         raw
     }
 
-    /// The host copy of a range handed out by `put`.
-    fn read(&self, r: &RawBuffer) -> Vec<u8> {
-        let k = self
-            .bufs
-            .iter()
-            .position(|b| b.as_raw().raw == r.raw)
-            .expect("a caller buffer");
+    /// The host copy of data handed out by `put` (or `at`).
+    fn read(&self, d: &GeometryData) -> Vec<u8> {
+        let k = match d {
+            GeometryData::Buffer(r) => self.bufs.iter().position(|b| b.as_raw().raw == r.raw),
+            GeometryData::Address { address, .. } => {
+                self.addresses.iter().position(|a| a == address)
+            }
+            _ => None,
+        }
+        .expect("a caller buffer");
         self.host[k].clone()
+    }
+
+    /// [`CallerBuffers::put`], as data at a device address.
+    fn at(&mut self, ctx: &Context, bytes: &[u8], pad: usize) -> GeometryData {
+        let r = self.put(ctx, bytes, pad);
+        let address = self.bufs.last().unwrap().device_address() + r.offset;
+        *self.addresses.last_mut().unwrap() = address;
+        GeometryData::Address {
+            address,
+            size: r.size,
+        }
     }
 }
 
@@ -90,7 +108,9 @@ fn gather_on_device(ctx: &Context, geometries: &[Geometry]) -> (TraceGeometry, u
     let info = Buffer::new(ctx, "info", layout.info_len()).unwrap();
     let gather = GeometryGather::new(ctx).unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
-    gather.record(&mut rec, geometries, &layout, &prims, &info, 1, 0);
+    gather
+        .record(&mut rec, geometries, &layout, &prims, &info, 1, 0)
+        .unwrap();
     rec.submit_and_wait().unwrap();
     let n_tris = layout.n_tris as usize;
     let mut tri_verts = prims.tri_verts.download().unwrap();
@@ -138,11 +158,22 @@ fn the_gather_equals_its_cpu_twin_on_every_edge() {
         .into_iter()
         .filter(|&n| n < 1 << 16);
     for n in sizes.chain([1000, 100_003]) {
-        for (stride, pad, index) in [
-            (12, 0, Some(IndexType::U32)),
-            (16, 4, Some(IndexType::U16)),
-            (20, 8, None),
+        let bda = ctx.info().features.buffer_device_address;
+        for (stride, pad, index, address) in [
+            (12, 0, Some(IndexType::U32), false),
+            (16, 4, Some(IndexType::U16), false),
+            (20, 8, None, false),
+            (12, 4, Some(IndexType::U16), bda),
+            (16, 0, Some(IndexType::U32), bda),
         ] {
+            // Data at a device address (where the device has bufferDeviceAddress), else in
+            // a bound range.
+            let place = |caller: &mut CallerBuffers, bytes: &[u8], pad: usize| -> GeometryData {
+                match address {
+                    true => caller.at(&ctx, bytes, pad),
+                    false => caller.put(&ctx, bytes, pad).into(),
+                }
+            };
             let (verts, tris) = mesh(&mut rng, n);
             let mut caller = CallerBuffers::new();
             let (vertex_count, indices, vbytes) = match index {
@@ -161,7 +192,7 @@ fn the_gather_equals_its_cpu_twin_on_every_edge() {
                         .to_vec(),
                         _ => bytemuck::cast_slice(&flat).to_vec(),
                     };
-                    let data = caller.put(&ctx, &bytes, if t == IndexType::U16 { 2 } else { 4 });
+                    let data = place(&mut caller, &bytes, if t == IndexType::U16 { 2 } else { 4 });
                     (
                         verts.len() as u32,
                         Some(Indices {
@@ -172,7 +203,7 @@ fn the_gather_equals_its_cpu_twin_on_every_edge() {
                     )
                 }
             };
-            let vertices = caller.put(&ctx, &vbytes, pad);
+            let vertices = place(&mut caller, &vbytes, pad);
             let transform = (stride == 16).then_some([
                 [0.5, 0.1, 0.0, 1.0],
                 [0.0, 1.5, 0.2, -2.0],
@@ -181,7 +212,7 @@ fn the_gather_equals_its_cpu_twin_on_every_edge() {
             let spheres: Vec<Vec4> = (0..n % 5 + 1)
                 .map(|_| (rng.next_vec3() * 2.0 - 1.0).extend(rng.next_f32()))
                 .collect();
-            let sphere_range = caller.put(&ctx, bytemuck::cast_slice(&spheres), 0);
+            let sphere_range = place(&mut caller, bytemuck::cast_slice(&spheres), 0);
             let geometries = [
                 Geometry::Spheres(Spheres {
                     data: sphere_range,
@@ -228,7 +259,7 @@ fn bad_indices_and_coordinates_become_unhittable_points_and_are_counted() {
     let geometries = [
         Geometry::Triangles(Triangles::indexed(vertices, 4, data, IndexType::U32, 3)),
         Geometry::Spheres(Spheres {
-            data: sph,
+            data: sph.into(),
             stride: 16,
             count: 2,
             opaque: true,
@@ -453,7 +484,10 @@ fn misuse_is_an_error_not_a_panic() {
     let mut caller = CallerBuffers::new();
     let geometries = [soup_geometry(&ctx, &mut caller, &tris)];
     let vertices = match geometries[0] {
-        Geometry::Triangles(t) => t.vertices,
+        Geometry::Triangles(Triangles {
+            vertices: GeometryData::Buffer(v),
+            ..
+        }) => v,
         _ => unreachable!(),
     };
     let flags = BuildFlags::default();
@@ -507,7 +541,8 @@ fn misuse_is_an_error_not_a_panic() {
                 data: RawBuffer {
                     offset: 1,
                     ..vertices
-                },
+                }
+                .into(),
                 index_type: IndexType::U16,
             }),
             triangle_count: 1,

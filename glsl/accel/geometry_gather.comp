@@ -9,6 +9,14 @@
 // A primitive the caller's data cannot give (an index past the vertex count, a non-finite
 // coordinate or radius, a negative radius) becomes a point that no ray hits, and is counted
 // in `invalid` for the host to report: never a box that breaks a build.
+//! variant buffers ADDRESS=0
+//! variant address ADDRESS=1
+// `address`: the caller's vertices and indices are read at device addresses
+// (GL_EXT_buffer_reference) instead of through bindings 0 and 1.
+#if ADDRESS
+#extension GL_EXT_buffer_reference : require
+#extension GL_EXT_buffer_reference_uvec2 : require
+#endif
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 
@@ -19,8 +27,16 @@ layout(local_size_x_id = 0) in;
 #define INDEX_U16 1u
 #define INDEX_U32 2u
 
+#if ADDRESS
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer Words { uint w[]; };
+#define SRC(i) Words(pc.src_address).w[i]
+#define IDX(i) Words(pc.idx_address).w[i]
+#else
 layout(std430, binding = 0) readonly buffer Source { uint src[]; };
 layout(std430, binding = 1) readonly buffer Indices { uint idx[]; };
+#define SRC(i) src[i]
+#define IDX(i) idx[i]
+#endif
 layout(std430, binding = 2) writeonly buffer TriVerts { float tri_verts[]; };
 layout(std430, binding = 3) writeonly buffer Spheres { vec4 spheres[]; };
 layout(std430, binding = 4) writeonly buffer Boxes { float boxes[]; };
@@ -53,6 +69,8 @@ layout(push_constant) uniform Push {
     uint geometry;
     uint has_transform;
     vec4 rows[3];      // the 3x4 object-to-structure transform, row-major
+    uvec2 src_address; // `address`: where word 0 of the vertices (spheres) lies
+    uvec2 idx_address; // `address`: where word 0 of the indices lies
 } pc;
 
 uint index_at(uint k) {
@@ -61,15 +79,15 @@ uint index_at(uint k) {
     }
     uint e = pc.index_first + k;
     if (pc.index_type == INDEX_U16) {
-        return (idx[e >> 1u] >> (16u * (e & 1u))) & 0xffffu;
+        return (IDX(e >> 1u) >> (16u * (e & 1u))) & 0xffffu;
     }
-    return idx[e];
+    return IDX(e);
 }
 
 vec3 vertex_at(uint v) {
     uint w = pc.src_word + v * pc.stride_words;
-    vec3 p = vec3(uintBitsToFloat(src[w]), uintBitsToFloat(src[w + 1u]),
-                  uintBitsToFloat(src[w + 2u]));
+    vec3 p = vec3(uintBitsToFloat(SRC(w)), uintBitsToFloat(SRC(w + 1u)),
+                  uintBitsToFloat(SRC(w + 2u)));
     if (pc.has_transform != 0u) {
         // Left to right, no fused multiply-add: the CPU twin (Triangles::transformed) rounds
         // the same way.
@@ -187,9 +205,9 @@ void main() {
         write_box(prim, lo, hi);
     } else {
         uint w = pc.src_word + i * pc.stride_words;
-        vec3 c = vec3(uintBitsToFloat(src[w]), uintBitsToFloat(src[w + 1u]),
-                      uintBitsToFloat(src[w + 2u]));
-        float r = uintBitsToFloat(src[w + 3u]);
+        vec3 c = vec3(uintBitsToFloat(SRC(w)), uintBitsToFloat(SRC(w + 1u)),
+                      uintBitsToFloat(SRC(w + 2u)));
+        float r = uintBitsToFloat(SRC(w + 3u));
         bool ok = finite3(c) && finite3(vec3(r)) && r >= 0.0;
         if (!ok) {
             atomicAdd(info.invalid, 1u);

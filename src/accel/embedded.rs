@@ -312,7 +312,7 @@ impl AccelBuilder {
                     walk,
                     parents_at,
                 )
-            });
+            })?;
             self.record_build_inner(rec, &out.prims, None, &scratch, &mut out.accel)
                 .map(drop)
         })?;
@@ -371,7 +371,7 @@ impl AccelBuilder {
                 &out.accel.info,
                 walk,
                 parents_at,
-            );
+            )?;
             self.record_refit(rec, &out.prims, &out.accel, &visits)
         })
     }

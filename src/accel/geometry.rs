@@ -46,18 +46,65 @@ impl IndexType {
     }
 }
 
-/// An index buffer: three entries per triangle, starting at the range's offset.
+/// Where a geometry's data lies: a range of a buffer, or bytes at a device address.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum GeometryData {
+    /// A range of the caller's buffer (bound as a storage buffer, so at most
+    /// `maxStorageBufferRange` bytes from the aligned offset below its start).
+    Buffer(RawBuffer),
+    /// `size` bytes at a device address (`VkDeviceOrHostAddressConstKHR`), read with
+    /// `GL_EXT_buffer_reference`: no binding limit; needs `bufferDeviceAddress` enabled.
+    Address { address: u64, size: u64 },
+}
+
+impl From<RawBuffer> for GeometryData {
+    fn from(r: RawBuffer) -> Self {
+        GeometryData::Buffer(r)
+    }
+}
+
+impl GeometryData {
+    /// Bytes of the data.
+    pub fn size(&self) -> u64 {
+        match self {
+            GeometryData::Buffer(r) => r.size,
+            GeometryData::Address { size, .. } => *size,
+        }
+    }
+
+    /// The offset or address of its first byte (what alignment rules apply to).
+    fn start(&self) -> u64 {
+        match self {
+            GeometryData::Buffer(r) => r.offset,
+            GeometryData::Address { address, .. } => *address,
+        }
+    }
+
+    fn is_null(&self) -> bool {
+        match self {
+            GeometryData::Buffer(r) => r.raw == crate::gpu::vk::Buffer::null(),
+            GeometryData::Address { address, .. } => *address == 0,
+        }
+    }
+
+    fn is_address(&self) -> bool {
+        matches!(self, GeometryData::Address { .. })
+    }
+}
+
+/// An index buffer: three entries per triangle, starting at the data's first byte.
 #[derive(Clone, Copy, Debug)]
 pub struct Indices {
-    pub data: RawBuffer,
+    pub data: GeometryData,
     pub index_type: IndexType,
 }
 
 /// Triangles (`VkAccelerationStructureGeometryTrianglesDataKHR`).
 #[derive(Clone, Copy, Debug)]
 pub struct Triangles {
-    /// The vertex buffer; the first vertex is at the range's offset.
-    pub vertices: RawBuffer,
+    /// The vertices; the first is at the data's first byte.
+    pub vertices: GeometryData,
     pub format: VertexFormat,
     /// Bytes from one vertex to the next (a multiple of 4, at least 12).
     pub stride: u64,
@@ -76,9 +123,9 @@ pub struct Triangles {
 
 impl Triangles {
     /// Non-indexed triangles: `vertex_count / 3` of them, tightly packed `vec3`s.
-    pub fn soup(vertices: RawBuffer, vertex_count: u32) -> Self {
+    pub fn soup(vertices: impl Into<GeometryData>, vertex_count: u32) -> Self {
         Self {
-            vertices,
+            vertices: vertices.into(),
             format: VertexFormat::Rgb32Float,
             stride: 12,
             vertex_count,
@@ -91,15 +138,15 @@ impl Triangles {
 
     /// Indexed triangles over tightly packed `vec3` vertices.
     pub fn indexed(
-        vertices: RawBuffer,
+        vertices: impl Into<GeometryData>,
         vertex_count: u32,
-        indices: RawBuffer,
+        indices: impl Into<GeometryData>,
         index_type: IndexType,
         triangle_count: u32,
     ) -> Self {
         Self {
             indices: Some(Indices {
-                data: indices,
+                data: indices.into(),
                 index_type,
             }),
             triangle_count,
@@ -111,7 +158,7 @@ impl Triangles {
 /// Spheres: a centre and a radius, four floats, `stride` bytes apart.
 #[derive(Clone, Copy, Debug)]
 pub struct Spheres {
-    pub data: RawBuffer,
+    pub data: GeometryData,
     /// At least 16, a multiple of 4.
     pub stride: u64,
     pub count: u32,
@@ -222,7 +269,6 @@ impl GeometryLayout {
 
 fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
     let err = |what: String| Err(usage(format!("geometry {k}: {what}")));
-    let null = |b: &RawBuffer| b.raw == crate::gpu::vk::Buffer::null();
     match g {
         Geometry::Triangles(t) => {
             if !t.opaque {
@@ -238,11 +284,20 @@ fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
                     t.stride
                 ));
             }
-            if t.vertices.offset % 4 != 0 {
+            if t.vertices.start() % 4 != 0 {
                 return err(format!(
-                    "vertex offset {} is not a multiple of 4",
-                    t.vertices.offset
+                    "vertex offset (address) {} is not a multiple of 4",
+                    t.vertices.start()
                 ));
+            }
+            if let Some(ix) = &t.indices {
+                if ix.data.is_address() != t.vertices.is_address() {
+                    return err(
+                        "vertices and indices are both in buffers or both at device \
+                                addresses"
+                            .into(),
+                    );
+                }
             }
             if let Some(m) = t.transform {
                 if m.iter().flatten().any(|x| !x.is_finite()) {
@@ -252,17 +307,19 @@ fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
             if t.triangle_count == 0 {
                 return Ok(());
             }
-            if null(&t.vertices) {
-                return err("a null vertex buffer".into());
+            if t.vertices.is_null() {
+                return err("a null vertex buffer (address)".into());
             }
             let needed = match t.vertex_count {
                 0 => return err("triangles over 0 vertices".into()),
                 n => u64::from(n - 1) * t.stride + 12,
             };
-            if needed > t.vertices.size {
+            if needed > t.vertices.size() {
                 return err(format!(
                     "{} vertices at stride {} need {needed} bytes; the range holds {}",
-                    t.vertex_count, t.stride, t.vertices.size
+                    t.vertex_count,
+                    t.stride,
+                    t.vertices.size()
                 ));
             }
             match t.indices {
@@ -278,17 +335,19 @@ fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
                 Some(ix) => {
                     let size = ix.index_type.bytes();
                     let needed = 3 * u64::from(t.triangle_count) * size;
-                    if null(&ix.data) {
-                        err("a null index buffer".into())
-                    } else if ix.data.offset % size != 0 {
+                    if ix.data.is_null() {
+                        err("a null index buffer (address)".into())
+                    } else if ix.data.start() % size != 0 {
                         err(format!(
-                            "index offset {} is not a multiple of the index size {size}",
-                            ix.data.offset
+                            "index offset (address) {} is not a multiple of the index size \
+                             {size}",
+                            ix.data.start()
                         ))
-                    } else if needed > ix.data.size {
+                    } else if needed > ix.data.size() {
                         err(format!(
                             "{} triangles need {needed} bytes of indices; the range holds {}",
-                            t.triangle_count, ix.data.size
+                            t.triangle_count,
+                            ix.data.size()
                         ))
                     } else {
                         range_fits(ctx, k, &ix.data)
@@ -305,23 +364,27 @@ fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
                         .into(),
                 );
             }
-            if s.stride < 16 || s.stride % 4 != 0 || s.data.offset % 4 != 0 {
+            if s.stride < 16 || s.stride % 4 != 0 || s.data.start() % 4 != 0 {
                 return err(format!(
-                    "sphere stride {} and offset {} (multiples of 4, stride at least 16)",
-                    s.stride, s.data.offset
+                    "sphere stride {} and offset (address) {} (multiples of 4, stride at \
+                     least 16)",
+                    s.stride,
+                    s.data.start()
                 ));
             }
             if s.count == 0 {
                 return Ok(());
             }
-            if null(&s.data) {
-                return err("a null sphere buffer".into());
+            if s.data.is_null() {
+                return err("a null sphere buffer (address)".into());
             }
             let needed = u64::from(s.count - 1) * s.stride + 16;
-            if needed > s.data.size {
+            if needed > s.data.size() {
                 return err(format!(
                     "{} spheres at stride {} need {needed} bytes; the range holds {}",
-                    s.count, s.stride, s.data.size
+                    s.count,
+                    s.stride,
+                    s.data.size()
                 ));
             }
             range_fits(ctx, k, &s.data)
@@ -344,7 +407,27 @@ fn bound(ctx: &Context, r: &RawBuffer) -> (RawBuffer, u64) {
     )
 }
 
-fn range_fits(ctx: &Context, k: usize, r: &RawBuffer) -> Result<()> {
+fn range_fits(ctx: &Context, k: usize, data: &GeometryData) -> Result<()> {
+    let r = match data {
+        GeometryData::Buffer(r) => r,
+        GeometryData::Address { .. } => {
+            let f = &ctx.info().features;
+            if !(f.buffer_device_address || f.ray_query) {
+                return Err(usage(format!(
+                    "geometry {k}: data at a device address needs bufferDeviceAddress, which \
+                     this device (or its context) does not enable"
+                )));
+            }
+            // Words are indexed with 32 bits.
+            if data.size() / 4 > u64::from(u32::MAX) {
+                return Err(usage(format!(
+                    "geometry {k}: {} bytes at one address",
+                    data.size()
+                )));
+            }
+            return Ok(());
+        }
+    };
     let (b, _) = bound(ctx, r);
     let limit = ctx.info().max_storage_buffer_range;
     if b.size > limit || b.size / 4 > u64::from(u32::MAX) {
@@ -373,18 +456,53 @@ struct GatherPush {
     geometry: u32,
     has_transform: u32,
     rows: [[f32; 4]; 3],
+    src_address: u64,
+    idx_address: u64,
+}
+
+/// Where the gather reads one of a geometry's inputs: a binding (buffers) or a word-aligned
+/// address, and the bytes from there to the data's first byte.
+#[derive(Clone, Copy)]
+enum Read {
+    Bound(RawBuffer, u64),
+    At(u64, u64),
+}
+
+impl Read {
+    fn of(ctx: &Context, data: &GeometryData) -> Self {
+        match data {
+            GeometryData::Buffer(r) => {
+                let (b, skip) = bound(ctx, r);
+                Read::Bound(b, skip)
+            }
+            GeometryData::Address { address, .. } => Read::At(address & !3, address & 3),
+        }
+    }
+
+    fn skip(&self) -> u64 {
+        match self {
+            Read::Bound(_, s) | Read::At(_, s) => *s,
+        }
+    }
+
+    fn address(&self) -> u64 {
+        match self {
+            Read::Bound(..) => 0,
+            Read::At(a, _) => *a,
+        }
+    }
 }
 
 /// `accel.geometry_gather`: the caller's geometry into a structure's primitive arrays.
 pub struct GeometryGather {
-    kernel: std::sync::Arc<Kernel>,
+    buffers: std::sync::Arc<Kernel>,
 }
 
 impl GeometryGather {
     pub fn new(ctx: &Context) -> Result<Self> {
         Ok(Self {
-            kernel: ctx.kernel(
-                &kernels::ACCEL_GEOMETRY_GATHER,
+            buffers: ctx.kernel(
+                &kernels::ACCEL_GEOMETRY_GATHER_BUFFERS,
                 &Spec::new().workgroup(WORKGROUP),
             )?,
         })
@@ -404,7 +522,7 @@ impl GeometryGather {
         info: &crate::gpu::Buffer<SceneInfo>,
         walk: u32,
         parents_at: u32,
-    ) {
+    ) -> Result<()> {
         let ctx = rec.context().clone();
         let header = GatherPush {
             mode: 2,
@@ -418,7 +536,7 @@ impl GeometryGather {
         let outputs: [&dyn BufferArg; 4] = [&prims.tri_verts, &prims.spheres, &prims.boxes, info];
         let [o0, o1, o2, o3] = outputs;
         rec.dispatch(
-            &self.kernel,
+            &self.buffers,
             [1, 1, 1],
             &[info, info, o0, o1, o2, o3],
             &header,
@@ -435,78 +553,80 @@ impl GeometryGather {
             let first = layout.first[k];
             let (src, indices, push) = match g {
                 Geometry::Triangles(t) => {
-                    let (src, skip) = bound(&ctx, &t.vertices);
+                    let src = Read::of(&ctx, &t.vertices);
                     let (ix, index_type, index_first) = match &t.indices {
                         Some(i) => {
-                            let (b, skip) = bound(&ctx, &i.data);
-                            let size = i.index_type.bytes();
+                            let ix = Read::of(&ctx, &i.data);
                             let kind = match i.index_type {
                                 IndexType::U16 => 1,
                                 IndexType::U32 => 2,
                             };
-                            (b, kind, (skip / size) as u32)
+                            (ix, kind, (ix.skip() / i.index_type.bytes()) as u32)
                         }
                         None => (src, 0, 0),
                     };
-                    let rows = t.transform.unwrap_or_default();
-                    (
-                        src,
-                        ix,
-                        GatherPush {
-                            mode: 0,
-                            count,
-                            first,
-                            out_first: first,
-                            src_word: (skip / 4) as u32,
-                            stride_words: (t.stride / 4) as u32,
-                            index_type,
-                            index_first,
-                            vertex_count: t.vertex_count,
-                            table_slot: slot,
-                            geometry: k as u32,
-                            has_transform: t.transform.is_some() as u32,
-                            rows,
-                        },
-                    )
+                    let push = GatherPush {
+                        mode: 0,
+                        count,
+                        first,
+                        out_first: first,
+                        src_word: (src.skip() / 4) as u32,
+                        stride_words: (t.stride / 4) as u32,
+                        index_type,
+                        index_first,
+                        vertex_count: t.vertex_count,
+                        table_slot: slot,
+                        geometry: k as u32,
+                        has_transform: t.transform.is_some() as u32,
+                        rows: t.transform.unwrap_or_default(),
+                        src_address: src.address(),
+                        idx_address: ix.address(),
+                    };
+                    (src, ix, push)
                 }
                 Geometry::Spheres(s) => {
-                    let (src, skip) = bound(&ctx, &s.data);
-                    (
-                        src,
-                        src,
-                        GatherPush {
-                            mode: 1,
-                            count,
-                            first,
-                            out_first: first - layout.n_tris,
-                            src_word: (skip / 4) as u32,
-                            stride_words: (s.stride / 4) as u32,
-                            table_slot: slot,
-                            geometry: k as u32,
-                            ..GatherPush::default()
-                        },
-                    )
+                    let src = Read::of(&ctx, &s.data);
+                    let push = GatherPush {
+                        mode: 1,
+                        count,
+                        first,
+                        out_first: first - layout.n_tris,
+                        src_word: (src.skip() / 4) as u32,
+                        stride_words: (s.stride / 4) as u32,
+                        table_slot: slot,
+                        geometry: k as u32,
+                        src_address: src.address(),
+                        ..GatherPush::default()
+                    };
+                    (src, src, push)
                 }
             };
             slot += 1;
             let groups = rec.groups_1d(u64::from(count), WORKGROUP);
-            rec.dispatch(
-                &self.kernel,
-                groups,
-                &[&src, &indices, o0, o1, o2, o3],
-                &push,
-            );
+            match (src, indices) {
+                (Read::Bound(s, _), Read::Bound(i, _)) => {
+                    rec.dispatch(&self.buffers, groups, &[&s, &i, o0, o1, o2, o3], &push)
+                }
+                _ => {
+                    let kernel = ctx.kernel(
+                        &kernels::ACCEL_GEOMETRY_GATHER_ADDRESS,
+                        &Spec::new().workgroup(WORKGROUP),
+                    )?;
+                    rec.dispatch(&kernel, groups, &[o0, o1, o2, o3], &push)
+                }
+            }
             rec.compute_to_compute();
         }
+        Ok(())
     }
 }
 
 /// The CPU twin of the gather: `geometries` as a [`TraceGeometry`], read from host copies
-/// of their buffers (`read(range)` returns the bytes of a range). Tests compare the device's
+/// of their data (`read(data)` returns its bytes). Tests compare the device's
 /// arrays with it.
 pub fn gather_on_host(
     geometries: &[Geometry],
-    read: impl Fn(&RawBuffer) -> Vec<u8>,
+    read: impl Fn(&GeometryData) -> Vec<u8>,
 ) -> (TraceGeometry, u32) {
     let mut tris: Vec<[Vec3; 3]> = Vec::new();
     let mut spheres: Vec<Vec4> = Vec::new();

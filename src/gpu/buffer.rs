@@ -26,7 +26,7 @@ pub trait BufferArg {
 }
 
 /// A range of a buffer that the embedding renderer owns; vkrt never frees it.
-#[derive(Clone, Copy, Debug)]
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RawBuffer {
     pub raw: vk::Buffer,
     pub offset: u64,
@@ -159,16 +159,22 @@ impl<T: Pod> Buffer<T> {
                 .device_allocations
                 .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         }
+        let f = &ctx.info().features;
         let usage = vk::BufferUsageFlags::STORAGE_BUFFER
             | vk::BufferUsageFlags::TRANSFER_SRC
             | vk::BufferUsageFlags::TRANSFER_DST
             | vk::BufferUsageFlags::INDIRECT_BUFFER
-            | if ctx.info().features.ray_query {
-                // The driver's acceleration structures live in buffers and read their inputs
-                // (vertices, instances, scratch) at device addresses; the allocator then
-                // allocates every block with VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT.
+            | if f.buffer_device_address || f.ray_query {
+                // Geometry may be read at device addresses; the allocator then allocates
+                // every block with VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT.
                 vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS
-                    | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR
+            } else {
+                vk::BufferUsageFlags::empty()
+            }
+            | if f.ray_query {
+                // The driver's acceleration structures live in buffers and read their inputs
+                // (vertices, instances, scratch) at device addresses.
+                vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR
                     | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR
             } else {
                 vk::BufferUsageFlags::empty()
@@ -270,15 +276,16 @@ impl<T: Pod> Buffer<T> {
         (self.len * std::mem::size_of::<T>()) as u64
     }
 
-    /// The buffer's device address (for acceleration-structure builds and ray queries).
-    /// Only on devices with [`super::DeviceFeatures::ray_query`], which enables
-    /// `bufferDeviceAddress`.
+    /// The buffer's device address (for acceleration-structure builds, ray queries and
+    /// geometry read at addresses). Only where `bufferDeviceAddress` is enabled
+    /// ([`super::DeviceFeatures::buffer_device_address`], or `ray_query`, which needs it).
     pub fn device_address(&self) -> u64 {
-        if !self.ctx.info().features.ray_query {
+        let f = &self.ctx.info().features;
+        if !(f.buffer_device_address || f.ray_query) {
             super::error::usage_error("device_address() without bufferDeviceAddress");
         }
         let info = vk::BufferDeviceAddressInfo::default().buffer(self.raw);
-        // SAFETY: bufferDeviceAddress is enabled (ray_query, checked above) and the buffer
+        // SAFETY: bufferDeviceAddress is enabled (checked above) and the buffer
         // was created with SHADER_DEVICE_ADDRESS usage and bound to memory allocated with the
         // device-address flag (the allocator is created with buffer_device_address then).
         unsafe { self.ctx.inner.device.get_buffer_device_address(&info) + self.offset }

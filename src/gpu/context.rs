@@ -218,7 +218,8 @@ impl Context {
                     physical_device: parts.physical_device,
                     debug_settings: Default::default(),
                     // Acceleration structures and their inputs live at device addresses.
-                    buffer_device_address: parts.enabled_features.ray_query,
+                    buffer_device_address: parts.enabled_features.buffer_device_address
+                        || parts.enabled_features.ray_query,
                     allocation_sizes: Default::default(),
                 };
                 let a = Allocator::new(&desc).map_err(|e| GpuError::Allocation {
@@ -496,7 +497,7 @@ fn create_device(
         .shader_buffer_int64_atomics(features.shader_buffer_int64_atomics)
         .shader_float16(features.shader_float16)
         .host_query_reset(features.host_query_reset)
-        .buffer_device_address(features.ray_query);
+        .buffer_device_address(features.buffer_device_address || features.ray_query);
     let mut accel =
         vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default().acceleration_structure(true);
     let mut query = vk::PhysicalDeviceRayQueryFeaturesKHR::default().ray_query(true);

@@ -23,6 +23,9 @@ pub struct DeviceFeatures {
     pub compute_full_subgroups: bool,
     /// The device speaks Vulkan 1.3 (subgroup size control is core there).
     pub api_1_3: bool,
+    /// `bufferDeviceAddress`: geometry given to the builders at device addresses
+    /// (`accel::geometry::GeometryData::Address`); the driver's structure needs it too.
+    pub buffer_device_address: bool,
     /// The driver's own ray tracing from compute shaders: `VK_KHR_acceleration_structure`
     /// (with `VK_KHR_deferred_host_operations`, which it requires) and `VK_KHR_ray_query`,
     /// their features, and `bufferDeviceAddress` (Mesa 25's lavapipe has them; 22.3's not).
@@ -231,6 +234,7 @@ pub(crate) fn supported_features(
         subgroup_size_control: size_control.subgroup_size_control == vk::TRUE,
         compute_full_subgroups: size_control.compute_full_subgroups == vk::TRUE,
         api_1_3,
+        buffer_device_address: f12.buffer_device_address == vk::TRUE,
         ray_query: has_ray_query_exts
             && accel.acceleration_structure == vk::TRUE
             && query.ray_query == vk::TRUE
