@@ -131,7 +131,25 @@ fn frames_equal_single_renders_and_the_preview_animates() {
             assert_eq!(f["built"], k == 0 || update == "rebuild", "{v}");
             assert!(f["render_ms"].as_f64().unwrap() > 0.0, "{v}");
             assert!(f["rays"].as_u64().unwrap() > 0, "{v}");
+            // One submission per frame (one more per redone record); read back: the image
+            // (RGBA8) and the frame's counters (a few words), per submission.
+            let redone = f["redone"].as_u64().unwrap();
+            let submits = f["submits"].as_u64().unwrap();
+            assert_eq!(submits, 1 + redone, "{v}");
+            let (w, h) = (v["width"].as_u64().unwrap(), v["height"].as_u64().unwrap());
+            let read = f["readback_bytes"].as_u64().unwrap();
+            assert!(
+                (w * h * 4..=(w * h * 4 + 256) * submits).contains(&read),
+                "{read} bytes read back: {v}"
+            );
         }
+        let sum = |key: &str| frames.iter().map(|f| f[key].as_u64().unwrap()).sum::<u64>();
+        assert_eq!(v["submits"].as_u64().unwrap(), sum("submits"), "{v}");
+        assert_eq!(
+            v["readback_bytes"].as_u64().unwrap(),
+            sum("readback_bytes"),
+            "{v}"
+        );
         assert_eq!(
             files_in(&out),
             ["f_000.png", "f_001.png", "f_002.png", "f_003.png"]

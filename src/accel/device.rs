@@ -484,6 +484,7 @@ pub enum AccelScratch {
 }
 
 /// Builds one kind of structure; compiled once, used for any number of builds.
+#[must_use]
 pub struct AccelBuilder {
     kind: AccelKind,
     kd: Option<KdTreeBuilder>,

@@ -122,6 +122,9 @@ pub fn print_report(r: &AnimationReport, json: bool) -> CliResult<()> {
             "mean_render_ms": r.mean_render_ms(),
             "fps": r.fps(),
             "mrays_per_s": r.mrays_per_s(),
+            "submits": r.traffic_totals().0,
+            "readback_bytes": r.traffic_totals().1,
+            "upload_bytes": r.traffic_totals().2,
         });
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());

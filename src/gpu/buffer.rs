@@ -303,12 +303,15 @@ impl<T: Pod> Buffer<T> {
     /// Writes `data` at the start of the buffer (through staging for device memory).
     pub fn upload(&self, data: &[T]) -> Result<()> {
         if data.len() > self.len {
-            super::error::usage_error(&format!(
-                "upload of {} elements into `{}` of {}",
-                data.len(),
-                self.name,
-                self.len
-            ));
+            return Err(GpuError::Usage {
+                call: "Buffer::upload",
+                reason: format!(
+                    "{} elements into `{}` of {}",
+                    data.len(),
+                    self.name,
+                    self.len
+                ),
+            });
         }
         if data.is_empty() {
             return Ok(());

@@ -398,12 +398,15 @@ impl Recorder {
     /// kernels read `dst` with [`Recorder::transfer_to_compute`].
     pub fn upload<T: Pod>(&mut self, dst: &Buffer<T>, data: &[T]) -> Result<()> {
         if data.len() > dst.len() {
-            usage_error(&format!(
-                "upload of {} elements into `{}` of {}",
-                data.len(),
-                dst.name(),
-                dst.len()
-            ));
+            return Err(GpuError::Usage {
+                call: "Recorder::upload",
+                reason: format!(
+                    "{} elements into `{}` of {}",
+                    data.len(),
+                    dst.name(),
+                    dst.len()
+                ),
+            });
         }
         if data.is_empty() {
             return Ok(());

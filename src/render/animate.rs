@@ -320,6 +320,11 @@ pub struct FrameRow {
     pub wall_ms: f64,
     /// Records made again (a wave overflowed, a kd-tree outgrew its budget).
     pub redone: u32,
+    /// Queue submissions vkrt made for the frame (1 unless a record was redone), and the
+    /// bytes it read back (the image) and uploaded (moved primitives): `Context::traffic`.
+    pub submits: u64,
+    pub readback_bytes: u64,
+    pub upload_bytes: u64,
     /// The SAH cost of the frame's structure, and of a structure of the same kind built anew
     /// over the frame (BVHs, with `quality`: a read-back outside the timed frame).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -362,6 +367,13 @@ impl AnimationReport {
         1e3 / self.mean(|f| f.wall_ms).max(1e-9)
     }
 
+    /// Submissions, bytes read back and bytes uploaded over every frame.
+    pub fn traffic_totals(&self) -> (u64, u64, u64) {
+        self.frames.iter().fold((0, 0, 0), |(s, r, u), f| {
+            (s + f.submits, r + f.readback_bytes, u + f.upload_bytes)
+        })
+    }
+
     pub fn mrays_per_s(&self) -> f64 {
         let rays: u64 = self.frames.iter().map(|f| f.rays).sum();
         let ms: f64 = self.frames.iter().map(|f| f.render_ms).sum();
@@ -400,6 +412,7 @@ pub fn run(
     let mut rows = Vec::with_capacity(opt.frames as usize);
     for k in 0..opt.frames {
         let start = std::time::Instant::now();
+        let traffic = ctx.traffic();
         let (time, scene) = if k == 0 {
             (0.0, first.clone())
         } else {
@@ -411,6 +424,7 @@ pub fn run(
         let image = frames.render(ctx, &rs, &plan)?;
         sink(k, image.rgba)?;
         let wall_ms = start.elapsed().as_secs_f64() * 1e3;
+        let traffic = ctx.traffic() - traffic;
         let (sah_cost, rebuilt_sah_cost) = match opt.quality {
             true => frame_quality(&frames, &rs, accel.kind)?,
             false => (None, None),
@@ -424,6 +438,9 @@ pub fn run(
             rays: image.counts.total(),
             wall_ms,
             redone: image.redone,
+            submits: traffic.submits,
+            readback_bytes: traffic.readback_bytes,
+            upload_bytes: traffic.upload_bytes,
             sah_cost,
             rebuilt_sah_cost,
         });

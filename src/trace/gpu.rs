@@ -197,6 +197,7 @@ pub struct TraceBatch {
     pub profile: Profile,
 }
 
+#[must_use]
 pub struct Tracer {
     kernel: Arc<Kernel>,
     options: TraceOptions,
