@@ -141,7 +141,7 @@ impl<T: Pod> Buffer<T> {
         // Vulkan forbids empty buffers; an empty one gets 4 bytes and len 0.
         let bytes = wanted.max(4).next_multiple_of(4);
         if memory == Memory::Device && bound_whole {
-            if let Some(range) = placement::take(ctx, bytes) {
+            if let Some(range) = placement::take(bytes) {
                 return Ok(Self {
                     ctx: ctx.clone(),
                     raw: range.raw,
@@ -481,7 +481,7 @@ pub mod placement {
     }
 
     /// The range for a new device buffer of `bytes`, when a [`place`] is active.
-    pub(super) fn take(_ctx: &Context, bytes: u64) -> Option<RawBuffer> {
+    pub(super) fn take(bytes: u64) -> Option<RawBuffer> {
         ARENAS.with(|a| {
             let mut arenas = a.borrow_mut();
             let arena = arenas.last_mut()?;
