@@ -48,7 +48,7 @@ enum Command {
         /// Scene (.toml, .obj, seed-002 text); omit for the embedded default scene.
         scene: Option<PathBuf>,
         /// The structure to build: sah-bvh (seed 003's SAH BVH, on the CPU's threads; the
-        /// default, by measurement: README, Measured) or kdtree (seed 001's SAH kd-tree, on
+        /// default, by measurement: docs/performance.md) or kdtree (seed 001's SAH kd-tree, on
         /// the GPU) or lbvh (seed 000's LBVH, on the GPU) or ploc (PLOC, on the GPU) or
         /// driver / driver-fast-build (the driver's own, where it has ray query).
         #[arg(long, default_value = "sah-bvh")]

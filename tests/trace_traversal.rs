@@ -340,7 +340,7 @@ fn moving_geometry_is_traced_at_the_ray_time() {
 /// two-entry stack that overflows on every path: GPU and CPU twin agree, and every ray the
 /// walk answers equals brute force (a ray that ran out of steps would be reported and
 /// answered as a miss). The restart past the last cell can still lose a flat triangle
-/// lying in the plane itself (README, Ray queries).
+/// lying in the plane itself (docs/features.md, Ray queries).
 #[test]
 fn in_plane_rays_through_an_overflowing_stack_equal_brute_force() {
     let Some(ctx) = context() else { return };

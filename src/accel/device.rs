@@ -951,13 +951,7 @@ impl AccelBuilder {
                 let lbvh = self.lbvh.as_ref().ok_or_else(missing("an LBVH builder"))?;
                 let n_nodes = if n == 0 { 0 } else { bvh_nodes(n) };
                 if host.is_some() {
-                    rec.upload(
-                        &out.info,
-                        &[prims
-                            .info(&Aabb::EMPTY, n as u32)
-                            .walked(SceneInfo::WALK_BVH)],
-                    )?;
-                    rec.transfer_to_compute();
+                    upload_gpu_bvh_info(rec, prims, &out.info)?;
                 }
                 // The references go to the collapse's scratch where it collapses.
                 let collapsing = collapse::applies(n, &self.bvh_params);
@@ -1008,13 +1002,7 @@ impl AccelBuilder {
                 let ploc = self.ploc.as_ref().ok_or_else(missing("a PLOC builder"))?;
                 let n_nodes = if n == 0 { 0 } else { bvh_nodes(n) };
                 if host.is_some() {
-                    rec.upload(
-                        &out.info,
-                        &[prims
-                            .info(&Aabb::EMPTY, n as u32)
-                            .walked(SceneInfo::WALK_BVH)],
-                    )?;
-                    rec.transfer_to_compute();
+                    upload_gpu_bvh_info(rec, prims, &out.info)?;
                 }
                 *counts = (n_nodes, n);
                 if collapse::applies(n, &self.bvh_params) {
@@ -1150,6 +1138,22 @@ impl AccelBuilder {
         }
         Ok(())
     }
+}
+
+/// The scene constants of a GPU-built BVH (LBVH, PLOC) over host-uploaded primitives: the
+/// root box is written by the build, the parent links follow the `n` references.
+fn upload_gpu_bvh_info(
+    rec: &mut Recorder,
+    prims: &DevicePrimitives,
+    info: &Buffer<SceneInfo>,
+) -> Result<()> {
+    let n = prims.count() as u32;
+    rec.upload(
+        info,
+        &[prims.info(&Aabb::EMPTY, n).walked(SceneInfo::WALK_BVH)],
+    )?;
+    rec.transfer_to_compute();
+    Ok(())
 }
 
 /// The error for a builder part that `AccelBuilder::new` made for another kind.

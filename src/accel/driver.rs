@@ -1,4 +1,4 @@
-//! The driver's own ray tracing as a structure kind (issue 16, `--accel driver`): a
+//! The driver's own ray tracing as a structure kind (`--accel driver`): a
 //! bottom-level structure over the device primitives and one identity instance of it in a
 //! top-level structure, both built by the driver (`VK_KHR_acceleration_structure`) into the
 //! caller's [`Recorder`], and queried with `VK_KHR_ray_query` by the `query` variants of the

@@ -245,6 +245,26 @@ impl AccelBuilder {
         Ok(g)
     }
 
+    /// Records the read of `geometries` into `out`'s primitive arrays and scene constants.
+    fn record_gather(
+        &self,
+        rec: &mut Recorder,
+        geometries: &[Geometry],
+        input: &DeviceInput,
+        out: &GpuGeometry,
+    ) -> Result<()> {
+        let (walk, parents_at) = header_of(self.kind(), input.layout.primitive_count());
+        GeometryGather::new(rec.context())?.record(
+            rec,
+            geometries,
+            &input.layout,
+            &out.prims,
+            &out.accel.info,
+            walk,
+            parents_at,
+        )
+    }
+
     fn input_of<'a>(
         &self,
         call: &'static str,
@@ -299,19 +319,9 @@ impl AccelBuilder {
             let f = &input.flags;
             self.create_scratch(&ctx, n, f.kd_capacity_doublings, f.allow_update)
         })?;
-        let gather = GeometryGather::new(&ctx)?;
         rec.scope("build", |rec| {
-            let (walk, parents_at) = header_of(self.kind(), n);
             rec.scope("gather", |rec| {
-                gather.record(
-                    rec,
-                    geometries,
-                    &input.layout,
-                    &out.prims,
-                    &out.accel.info,
-                    walk,
-                    parents_at,
-                )
+                self.record_gather(rec, geometries, &input, out)
             })?;
             self.record_build_inner(rec, &out.prims, None, &scratch, &mut out.accel)
                 .map(drop)
@@ -360,18 +370,8 @@ impl AccelBuilder {
             self.update_scratch(&ctx, n)
         })?;
         let visits = visits.ok_or_else(|| usage(call, "this kind cannot be updated"))?;
-        let gather = GeometryGather::new(&ctx)?;
         rec.scope("update", |rec| {
-            let (walk, parents_at) = header_of(self.kind(), n);
-            gather.record(
-                rec,
-                geometries,
-                &input.layout,
-                &out.prims,
-                &out.accel.info,
-                walk,
-                parents_at,
-            )?;
+            self.record_gather(rec, geometries, &input, out)?;
             self.record_refit(rec, &out.prims, &out.accel, &visits)
         })
     }

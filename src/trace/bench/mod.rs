@@ -1,4 +1,4 @@
-//! `vkrt bench trace` (issue 16): ray throughput of every structure vkrt builds, walked
+//! `vkrt bench trace`: ray throughput of every structure vkrt builds, walked
 //! every way, against the driver's own ray tracing (`VK_KHR_ray_query`, where the device
 //! has it) and a CPU peer (obvhs), on the same rays in one run.
 //!
