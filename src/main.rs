@@ -47,9 +47,9 @@ enum Command {
     Build {
         /// Scene (.toml, .obj, seed-002 text); omit for the embedded default scene.
         scene: Option<PathBuf>,
-        /// The structure to build: sah-bvh (seed 003's SAH BVH, on the CPU's threads; the
-        /// default, by measurement: docs/performance.md) or kdtree (seed 001's SAH kd-tree, on
-        /// the GPU) or lbvh (seed 000's LBVH, on the GPU) or ploc (PLOC, on the GPU) or
+        /// The structure to build: sah-bvh (the SAH BVH, on the CPU's threads; the
+        /// default, by measurement: docs/performance.md) or kdtree (the SAH kd-tree after Wu, Zhao & Liu 2011, on
+        /// the GPU) or lbvh (LBVH, Karras 2012, on the GPU) or ploc (PLOC, on the GPU) or
         /// driver / driver-fast-build (the driver's own, where it has ray query).
         #[arg(long, default_value = "sah-bvh")]
         accel: String,
@@ -93,12 +93,12 @@ enum Command {
         /// Ray/triangle test: watertight (default) or moller-trumbore.
         #[arg(long, default_value = "watertight")]
         intersector: String,
-        /// The acceleration structure: seed 003's SAH BVH built on the CPU's threads (the
+        /// The acceleration structure: the SAH BVH built on the CPU's threads (the
         /// default, by measurement: it builds 25-30x and traces 1.3-1.8x faster here), or
-        /// seed 001's kd-tree built on the GPU. The image is the same.
+        /// the SAH kd-tree built on the GPU. The image is the same.
         #[arg(long, value_enum, default_value_t = AccelArg::SahBvh)]
         accel: AccelArg,
-        /// How a BVH is walked: a stack, or seed 000's stackless bitstack.
+        /// How a BVH is walked: a stack, or the stackless bitstack walk with parent links.
         #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
         traversal: TraversalArg,
         #[arg(long)]
@@ -133,12 +133,12 @@ enum Command {
         /// Rays per GPU batch (default and maximum: what fits the device's buffer limit).
         #[arg(long, hide = true)]
         batch_rays: Option<usize>,
-        /// The acceleration structure: seed 003's SAH BVH built on the CPU's threads (the
-        /// default, by measurement), or seed 001's kd-tree built on the GPU. The hits are the
+        /// The acceleration structure: the SAH BVH built on the CPU's threads (the
+        /// default, by measurement), or the SAH kd-tree built on the GPU. The hits are the
         /// same.
         #[arg(long, value_enum, default_value_t = AccelArg::SahBvh)]
         accel: AccelArg,
-        /// How a BVH is walked: a stack, or seed 000's stackless bitstack.
+        /// How a BVH is walked: a stack, or the stackless bitstack walk with parent links.
         #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
         traversal: TraversalArg,
         #[arg(long)]
@@ -221,7 +221,7 @@ enum BenchCommand {
     },
     /// GPU kd-tree build time against N (the bunny when ../shared is present, icospheres of
     /// 100 K, 200 K, 500 K, 1 M, 2 M triangles up to --max-n), per phase, the fitted growth
-    /// exponent, and with --ablation seed 001's Table 6.2: each optimisation switched back to
+    /// exponent, and with --ablation the GPU kd-tree thesis's Table 6.2: each optimisation switched back to
     /// its baseline, same tree asserted, time ratio to the default in the same run.
     Kdtree {
         /// Largest icosphere (triangles).
@@ -908,7 +908,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
         } => {
             if accel == "sah-bvh" {
                 if seed_termination {
-                    return Err("--seed-termination is seed 001's kd-tree termination: add \
+                    return Err("--seed-termination is the GPU kd-tree thesis's termination rule: add \
                                 --accel kdtree"
                         .into());
                 }
@@ -936,7 +936,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             };
             if let Some(kind) = gpu_bvh {
                 if seed_termination {
-                    return Err("--seed-termination is seed 001's kd-tree termination: add \
+                    return Err("--seed-termination is the GPU kd-tree thesis's termination rule: add \
                                 --accel kdtree"
                         .into());
                 }
@@ -1423,7 +1423,7 @@ fn trace_command(
     Ok(())
 }
 
-/// `vkrt build --accel sah-bvh`: seed 003's node-queue build on every core over the scene's
+/// `vkrt build --accel sah-bvh`: the parallel node-queue build on every core over the scene's
 /// primitives at the shutter-open time; with `reference`, also on one thread (must be equal).
 fn bvh_build_command(
     scene: &vkrt::scene::Scene,
@@ -1476,7 +1476,7 @@ fn bvh_build_command(
     Ok(())
 }
 
-/// `vkrt build --accel lbvh|ploc`: seed 000's LBVH or PLOC built on the device over the
+/// `vkrt build --accel lbvh|ploc`: LBVH, Karras 2012 or PLOC built on the device over the
 /// scene's primitives at the shutter-open time, read back (this command is a tool),
 /// validated; with `reference`, also the CPU twin (must be equal bit for bit).
 fn gpu_bvh_build_command(
