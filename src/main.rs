@@ -908,9 +908,11 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
         } => {
             if accel == "sah-bvh" {
                 if seed_termination {
-                    return Err("--seed-termination is the GPU kd-tree thesis's termination rule: add \
+                    return Err(
+                        "--seed-termination is the GPU kd-tree thesis's termination rule: add \
                                 --accel kdtree"
-                        .into());
+                            .into(),
+                    );
                 }
                 return bvh_build_command(&load_scene(&scene)?, reference, json);
             }
@@ -936,9 +938,11 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             };
             if let Some(kind) = gpu_bvh {
                 if seed_termination {
-                    return Err("--seed-termination is the GPU kd-tree thesis's termination rule: add \
+                    return Err(
+                        "--seed-termination is the GPU kd-tree thesis's termination rule: add \
                                 --accel kdtree"
-                        .into());
+                            .into(),
+                    );
                 }
                 let ctx = context(cli.validate)?;
                 let scene = load_scene(&scene)?;
