@@ -191,12 +191,14 @@ pub fn run_with(
     validation: Validation,
     check: bool,
 ) -> BoxResult<Summary> {
-    let spirv = Shaders {
-        generic: compile_ao_shader(None)?,
-        kdtree: compile_ao_shader(Some("VKRT_WALK_KDTREE"))?,
-        bvh: compile_ao_shader(Some("VKRT_WALK_BVH"))?,
-    };
     let host = Host::new(validation)?;
+    // Exact hits (equal to vkrt's CPU twin on any device) where the host enabled doubles.
+    let exact = host.features.shader_float64 && host.features.shader_int64;
+    let spirv = Shaders {
+        generic: compile_ao_shader(None, exact)?,
+        kdtree: compile_ao_shader(Some("VKRT_WALK_KDTREE"), exact)?,
+        bvh: compile_ao_shader(Some("VKRT_WALK_BVH"), exact)?,
+    };
     let sink = host.sink.clone();
     let result = build_and_trace(&host, mesh, rays, kinds, &spirv, check);
     drop(host);
@@ -213,8 +215,9 @@ pub struct Shaders {
 }
 
 /// The host compiles its shader with its own compiler (`glslc`), given vkrt's include
-/// directory; `walk`: the one walk to compile in (`VKRT_WALK`), else every walk.
-pub fn compile_ao_shader(walk: Option<&str>) -> BoxResult<Vec<u32>> {
+/// directory; `walk`: the one walk to compile in (`VKRT_WALK`), else every walk; `exact`:
+/// `VKRT_EXACT` (the device has doubles and 64-bit integers enabled).
+pub fn compile_ao_shader(walk: Option<&str>, exact: bool) -> BoxResult<Vec<u32>> {
     let dir = std::env::temp_dir().join(format!(
         "vkrt-own-shader-{}-{}",
         std::process::id(),
@@ -227,6 +230,9 @@ pub fn compile_ao_shader(walk: Option<&str>) -> BoxResult<Vec<u32>> {
     let mut glslc = std::process::Command::new("glslc");
     if let Some(w) = walk {
         glslc.arg(format!("-DVKRT_WALK={w}"));
+    }
+    if exact {
+        glslc.arg("-DVKRT_EXACT");
     }
     let result = glslc
         .arg("--target-env=vulkan1.2")

@@ -110,14 +110,20 @@ bool finite3(vec3 v) {
     return all(notEqual(e, uvec3(0x7f800000u)));
 }
 
-// The next float towards +inf / -inf (next_up / next_down in src/trace/geometry.rs).
+// The next float towards +inf / -inf, never a subnormal (a device may flush them): above
+// zero and the subnormals is the smallest normal, above its negation zero (next_up /
+// next_down in src/trace/geometry.rs). Tested on the bits: a flushing device would read a
+// subnormal as zero.
 float next_up(float x) {
     uint b = floatBitsToUint(x);
     if ((b & 0x7fffffffu) > 0x7f800000u || b == 0x7f800000u) {
         return x;
     }
-    if ((b & 0x7fffffffu) == 0u) {
-        return uintBitsToFloat(1u);
+    if ((b & 0x7fffffffu) < 0x00800000u) {
+        return uintBitsToFloat(0x00800000u);
+    }
+    if (b == 0x80800000u) {
+        return uintBitsToFloat(0x80000000u);
     }
     return uintBitsToFloat((b & 0x80000000u) == 0u ? b + 1u : b - 1u);
 }
@@ -186,7 +192,10 @@ void main() {
         // (TraceGeometry::from_triangles does the same).
         precise vec3 e1 = p1 - p0;
         precise vec3 e2 = p2 - p0;
-        precise vec3 n = cross(e1, e2);
+        // The twin's order of operations: the builtin may fuse on a GPU even under
+        // `precise`, which makes cross(e, e) non-zero.
+        precise vec3 n = vec3(e1.y * e2.z - e2.y * e1.z, e1.z * e2.x - e2.z * e1.x,
+                              e1.x * e2.y - e2.x * e1.y);
         if (all(equal(n, vec3(0.0)))) {
             p0 = vec3(uintBitsToFloat(0x7fc00000u));
             p1 = p0;

@@ -297,13 +297,19 @@ pub fn sphere_box(c: Vec3, r: f32) -> Aabb {
     }
 }
 
-/// The next float towards +inf (`f32::next_up`, stable only since Rust 1.86; MSRV 1.85).
+/// The next float towards +inf, never a subnormal: a GPU may flush subnormals to zero, so
+/// rounding outwards steps over them (above zero and the subnormals is `f32::MIN_POSITIVE`,
+/// above `-f32::MIN_POSITIVE` is `-0.0`). Otherwise `f32::next_up` (stable only since Rust
+/// 1.86; MSRV 1.85).
 pub fn next_up(x: f32) -> f32 {
     if x.is_nan() || x == f32::INFINITY {
         return x;
     }
-    if x == 0.0 {
-        return f32::from_bits(1);
+    if x.abs() < f32::MIN_POSITIVE {
+        return f32::MIN_POSITIVE;
+    }
+    if x == -f32::MIN_POSITIVE {
+        return -0.0;
     }
     let b = x.to_bits();
     f32::from_bits(if x > 0.0 { b + 1 } else { b - 1 })

@@ -75,7 +75,7 @@ Hit trace_bvh_stack(Ray r, float time, bool any_hit) {
     }
     float tmin = max(r.tmin, 0.0);
     Shear sh = make_shear(r.d);
-    vec3 inv_d = vec3(1.0) / r.d;
+    vec3 inv_d = recip3(r.d);
     float best_t = r.tmax;
     // (index, count): count 0 is an interior node, count > 0 a leaf's references.
     uvec2 stack[BVH_MAX_DEPTH];
@@ -147,7 +147,7 @@ Hit trace_bvh_bitstack(Ray r, float time, bool any_hit) {
     }
     float tmin = max(r.tmin, 0.0);
     Shear sh = make_shear(r.d);
-    vec3 inv_d = vec3(1.0) / r.d;
+    vec3 inv_d = recip3(r.d);
     float best_t = r.tmax;
     uvec4 trail = uvec4(0u); // one bit per level, 128 in all; .x the lowest word
     uint node = 0u;

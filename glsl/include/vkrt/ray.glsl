@@ -54,6 +54,102 @@ bool is_nan(float x) {
     return (floatBitsToUint(x) & 0x7fffffffu) > 0x7f800000u;
 }
 
+#define FLT_MIN uintBitsToFloat(0x00800000u)
+
+// dot and cross in the CPU twins' order of operations (src/trace/intersect.rs): a driver may
+// evaluate the builtins with fused multiply-adds even under `precise`.
+float dot3(vec3 a, vec3 b) {
+    precise float r = a.x * b.x + a.y * b.y + a.z * b.z;
+    return r;
+}
+
+vec3 cross3(vec3 a, vec3 b) {
+    precise vec3 r = vec3(a.y * b.z - b.y * a.z, a.z * b.x - b.z * a.x, a.x * b.y - b.x * a.y);
+    return r;
+}
+
+// The float next to x (normal, non-zero) towards +inf (up) or -inf.
+float next_toward(float x, bool up) {
+    uint b = floatBitsToUint(x);
+    return uintBitsToFloat((x > 0.0) == up ? b + 1u : b - 1u);
+}
+
+// Vulkan lets a driver's a / b be 2.5 ulp off and its sqrt 3 ulp (GPUs use reciprocals),
+// while + - * round correctly. With doubles (the `exact` variants), division and square
+// root round correctly too, as on the CPU: the driver's answer is checked against a residual
+// that is exact in doubles (a product of two floats is) and moved to the nearer neighbour.
+// Up to 7 ulps are corrected (the steps after the first are rare). Only normal results are
+// refined (a device may flush subnormals to zero).
+#ifndef VKRT_DRIVER_DIV
+#define VKRT_DRIVER_DIV(a, b) ((a) / (b))
+#endif
+#ifndef VKRT_DRIVER_SQRT
+#define VKRT_DRIVER_SQRT(x) sqrt(x)
+#endif
+#if FP64_FALLBACK
+bool refinable(float x) {
+    return is_finite(x) && abs(x) >= uintBitsToFloat(0x03800000u); // 2^-120
+}
+
+float div_rn(float a, float b) {
+    precise float q = VKRT_DRIVER_DIV(a, b);
+    if (!refinable(q) || !is_finite(a) || !is_finite(b)) {
+        return q;
+    }
+    for (uint i = 0u; i < 8u; i++) {
+        // a - q b is exact: q b has 48 significant bits and lies within a few ulps of a.
+        precise double r = double(a) - double(q) * double(b);
+        if (r == 0.0) {
+            break;
+        }
+        float n = next_toward(q, (r > 0.0) == (b > 0.0));
+        precise double gap = abs(double(n) - double(q));
+        // q is the nearest float to a / b when |a/b - q| < gap / 2 (never a tie: a quotient
+        // of floats is never a midpoint).
+        if (2.0 * abs(r) < abs(double(b)) * gap) {
+            break;
+        }
+        q = n;
+    }
+    return q;
+}
+
+// Tuckerman's test: s rounds sqrt(x) to nearest iff s- s < x <= s s+ (products exact in
+// doubles).
+float sqrt_rn(float x) {
+    precise float s = VKRT_DRIVER_SQRT(x);
+    if (!(x > 0.0) || !refinable(x) || !refinable(s)) {
+        return s;
+    }
+    for (uint i = 0u; i < 8u; i++) {
+        float up = next_toward(s, true);
+        float down = next_toward(s, false);
+        if (double(x) > double(s) * double(up)) {
+            s = up;
+        } else if (double(x) <= double(down) * double(s)) {
+            s = down;
+        } else {
+            break;
+        }
+    }
+    return s;
+}
+#else
+float div_rn(float a, float b) {
+    precise float q = VKRT_DRIVER_DIV(a, b);
+    return q;
+}
+
+float sqrt_rn(float x) {
+    return VKRT_DRIVER_SQRT(x);
+}
+#endif
+
+// 1 / d per axis (the slab tests' inverse direction).
+vec3 recip3(vec3 d) {
+    return vec3(div_rn(1.0, d.x), div_rn(1.0, d.y), div_rn(1.0, d.z));
+}
+
 // A ray the traversal accepts: finite origin, direction and tmin, a tmax that is not NaN
 // (+inf is unbounded), a non-zero direction, tmin <= tmax. Everything else is answered as
 // a miss (src/trace/mod.rs documents the contract).
@@ -88,9 +184,9 @@ Shear make_shear(vec3 d) {
         s.kx = s.ky;
         s.ky = t;
     }
-    precise float sx = d[s.kx] / d[s.kz];
-    precise float sy = d[s.ky] / d[s.kz];
-    precise float sz = 1.0 / d[s.kz];
+    precise float sx = div_rn(d[s.kx], d[s.kz]);
+    precise float sy = div_rn(d[s.ky], d[s.kz]);
+    precise float sz = div_rn(1.0, d[s.kz]);
     s.sx = sx;
     s.sy = sy;
     s.sz = sz;
@@ -139,18 +235,18 @@ bool hit_triangle_watertight(vec3 o, Shear s, vec3 p0, vec3 p1, vec3 p2, float t
     precise float bz = s.sz * b[s.kz];
     precise float cz = s.sz * c[s.kz];
     precise float tt = e0 * az + e1 * bz + e2 * cz;
-    precise float hit_t = tt / det;
+    precise float hit_t = div_rn(tt, det);
     if (!(hit_t >= tmin && hit_t <= tmax)) {
         return false;
     }
     // A triangle of zero area (collinear or repeated vertices: the edges' cross product is
     // exactly zero) passes the 2-D test by rounding when the ray crosses its line, at a
     // meaningless t: it never hits. Tested only for candidates that passed everything else.
-    precise vec3 n = cross(p1 - p0, p2 - p0);
+    precise vec3 n = cross3(p1 - p0, p2 - p0);
     if (n.x == 0.0 && n.y == 0.0 && n.z == 0.0) {
         return false;
     }
-    precise float inv = 1.0 / det;
+    precise float inv = div_rn(1.0, det);
     // Conservative t (pbrt-v3 3.9.6): a hit closer than the rounding bound of the computed
     // t may lie behind the origin (a spawned ray re-hitting its own surface): rejected.
     // The bounds of the sheared x and y use the unscaled z (pbrt uses the z scaled by
@@ -184,26 +280,26 @@ bool hit_triangle_moller(vec3 o, vec3 d, vec3 p0, vec3 p1, vec3 p2, float tmin, 
                          out float t, out float u, out float v) {
     precise vec3 e1 = p1 - p0;
     precise vec3 e2 = p2 - p0;
-    precise vec3 pv = cross(d, e2);
-    precise float det = dot(e1, pv);
+    precise vec3 pv = cross3(d, e2);
+    precise float det = dot3(e1, pv);
     t = 0.0;
     u = 0.0;
     v = 0.0;
     if (det == 0.0) {
         return false;
     }
-    precise float inv = 1.0 / det;
+    precise float inv = div_rn(1.0, det);
     precise vec3 tv = o - p0;
-    precise float uu = dot(tv, pv) * inv;
+    precise float uu = dot3(tv, pv) * inv;
     if (uu < 0.0 || uu > 1.0) {
         return false;
     }
-    precise vec3 qv = cross(tv, e1);
-    precise float vv = dot(d, qv) * inv;
+    precise vec3 qv = cross3(tv, e1);
+    precise float vv = dot3(d, qv) * inv;
     if (vv < 0.0 || uu + vv > 1.0) {
         return false;
     }
-    precise float hit_t = dot(e2, qv) * inv;
+    precise float hit_t = dot3(e2, qv) * inv;
     if (!(hit_t >= tmin && hit_t <= tmax)) {
         return false;
     }
@@ -218,22 +314,22 @@ bool hit_triangle_moller(vec3 o, vec3 d, vec3 p0, vec3 p1, vec3 p2, float tmin, 
 // line (no catastrophic cancellation far from the sphere) and the stable quadratic roots.
 bool hit_sphere(vec3 o, vec3 d, vec4 sphere, float tmin, float tmax, out float t) {
     precise vec3 f = o - sphere.xyz;
-    precise float a = dot(d, d);
-    precise float bp = -dot(f, d);
-    precise vec3 l = f + (bp / a) * d;
+    precise float a = dot3(d, d);
+    precise float bp = -dot3(f, d);
+    precise vec3 l = f + div_rn(bp, a) * d;
     precise float r2 = sphere.w * sphere.w;
-    precise float disc = r2 - dot(l, l);
+    precise float disc = r2 - dot3(l, l);
     t = 0.0;
     if (disc < 0.0) {
         return false;
     }
-    precise float c = dot(f, f) - r2;
-    precise float q = bp + (bp >= 0.0 ? 1.0 : -1.0) * sqrt(a * disc);
+    precise float c = dot3(f, f) - r2;
+    precise float q = bp + (bp >= 0.0 ? 1.0 : -1.0) * sqrt_rn(a * disc);
     if (q == 0.0) {
         return false;
     }
-    precise float t0 = c / q;
-    precise float t1 = q / a;
+    precise float t0 = div_rn(c, q);
+    precise float t1 = div_rn(q, a);
     float lo = min(t0, t1);
     float hi = max(t0, t1);
     if (lo >= tmin && lo <= tmax) {
@@ -266,9 +362,14 @@ vec3 offset_ray_origin(vec3 p, vec3 n) {
 }
 
 // The next float towards +inf / -inf (finite x).
+// Never a subnormal (a device may flush them to zero): above zero and the subnormals is the
+// smallest normal float, above -FLT_MIN is zero (next_up in src/trace/geometry.rs).
 float next_float_up(float x) {
-    if (x == 0.0) {
-        return uintBitsToFloat(1u);
+    if (abs(x) < FLT_MIN) {
+        return FLT_MIN;
+    }
+    if (x == -FLT_MIN) {
+        return -0.0;
     }
     uint b = floatBitsToUint(x);
     return uintBitsToFloat(x > 0.0 ? b + 1u : b - 1u);
@@ -284,7 +385,7 @@ float next_float_down(float x) {
 // of p is not proportional to |p| (a hit point interpolated from vertices far larger than
 // itself), where offset_ray_origin's few ulps of p are not enough.
 vec3 offset_ray_origin_bounded(vec3 p, vec3 n, vec3 err) {
-    precise float d = dot(abs(n), err);
+    precise float d = dot3(abs(n), err);
     precise vec3 off = d * n;
     precise vec3 po = p + off;
     for (uint i = 0u; i < 3u; i++) {
@@ -309,7 +410,7 @@ vec3 triangle_hit_point(vec3 p0, vec3 p1, vec3 p2, float u, float v, out vec3 er
 // A sphere hit point `p` re-projected onto the sphere (centre c, radius r) and an error
 // bound that also covers the ray/sphere test's own rounding (about 3 u r).
 vec3 sphere_hit_point(vec3 c, float r, vec3 p, out vec3 err) {
-    precise vec3 q = c + (p - c) * (r / length(p - c));
+    precise vec3 q = c + (p - c) * div_rn(r, sqrt_rn(dot3(p - c, p - c)));
     precise vec3 e = GAMMA8 * (vec3(r) + abs(q));
     err = e;
     return q;

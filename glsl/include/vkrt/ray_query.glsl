@@ -22,6 +22,11 @@
 //   VKRT_WALK         compile one walk only: VKRT_WALK_KDTREE, VKRT_WALK_BVH (stack) or
 //                     VKRT_WALK_BVH_BITSTACK (default: every walk, chosen per structure at
 //                     run time). A structure of another kind then reports `exhausted`.
+//   VKRT_EXACT        hits equal to vkrt's CPU twin bit for bit on any device: divisions
+//                     and square roots rounded correctly (Vulkan lets a driver's be 2.5 and
+//                     3 ulp off) and the watertight test's double-precision fallback; needs
+//                     shaderFloat64 and shaderInt64 (vkrt's own kernels do the same where the
+//                     device has them)
 //   VKRT_RAY_QUERY    also walk the driver's structure with GL_EXT_ray_query (needs the
 //                     device's VK_KHR_ray_query; without it such a structure reports
 //                     `exhausted`)
@@ -53,6 +58,9 @@
 #define BvhNode vkrt_internal_BvhNode
 #define MotionRecord vkrt_internal_MotionRecord
 
+#ifdef VKRT_EXACT
+#define FP64_FALLBACK 1
+#endif
 #include "ray.glsl"
 #include "kdtree.glsl"
 

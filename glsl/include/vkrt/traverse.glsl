@@ -96,7 +96,7 @@ vec3 move_point(vec3 p, uint slot, float time) {
         precise vec3 r = p - m.center.xyz;
         float c = cos(angle);
         float s = sin(angle);
-        precise vec3 rot = r * c + cross(k, r) * s + k * (dot(k, r) * (1.0 - c));
+        precise vec3 rot = r * c + cross3(k, r) * s + k * (dot3(k, r) * (1.0 - c));
         q = rot + m.center.xyz;
     }
     precise vec3 moved = q + m.velocity.xyz * time;
@@ -204,7 +204,7 @@ bool clip_to_box(vec3 bmin, vec3 bmax, Ray r, vec3 inv_d, inout float t0, inout 
 }
 
 bool clip_to_scene(Ray r, inout float t0, inout float t1) {
-    precise vec3 inv_d = vec3(1.0) / r.d;
+    precise vec3 inv_d = recip3(r.d);
     return clip_to_box(scene_info.bounds_min.xyz, scene_info.bounds_max.xyz, r, inv_d, t0, t1);
 }
 
@@ -246,7 +246,7 @@ Hit trace_kdtree(Ray r, float time, bool any_hit) {
     }
     float scene_t1 = t1;
     Shear sh = make_shear(r.d);
-    vec3 inv_d = vec3(1.0) / r.d;
+    vec3 inv_d = recip3(r.d);
     float best_t = r.tmax;
 
     // Ring buffer: when full, a push overwrites the oldest (farthest) entry and the traversal
