@@ -748,6 +748,14 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     if info.timestamps { "yes" } else { "no" },
                     info.timestamp_period_ns
                 );
+                println!(
+                    "f32 division        {}",
+                    if info.ieee_division {
+                        "correctly rounded"
+                    } else {
+                        "within Vulkan's 2.5 ulp: the exact walks round it correctly"
+                    }
+                );
             }
         }
         Command::Bench {

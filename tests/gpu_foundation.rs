@@ -469,6 +469,7 @@ fn the_drivers_ray_query_is_found_and_enabled_where_it_exists() {
 /// arithmetic does, both from the device's own division and square root and from ones up to
 /// 3 ulps off (Vulkan allows 2.5 and 3): the walks' hits then equal the twins' on any device
 /// with doubles. Compared where the results are normal floats well inside the range.
+/// Where the device is known to divide correctly, its unrefined answers must be exact too.
 #[test]
 fn division_and_square_root_round_correctly_from_an_inexact_driver() {
     let Some(ctx) = common::context() else { return };
@@ -510,11 +511,19 @@ fn division_and_square_root_round_correctly_from_an_inexact_driver() {
     let input = Buffer::from_slice(&ctx, "rounding.in", &pairs).unwrap();
     let n = pairs.len();
     let in_range = |x: f32| x.is_finite() && (1e-30..=1e30).contains(&x.abs());
-    for variant in [
-        &kernels::GPU_ROUNDING_PROBE_EXACT,
-        &kernels::GPU_ROUNDING_PROBE_SLOPPY,
-    ] {
-        let kernel = ctx.kernel(variant, &Spec::new().workgroup(64)).unwrap();
+    // The refinement from the driver's answers and from sloppy ones; and where the device
+    // is said to divide correctly (DeviceInfo::ieee_division, which turns the refinement
+    // off), the driver's own answers unrefined.
+    let mut runs = vec![
+        (&kernels::GPU_ROUNDING_PROBE_EXACT, true),
+        (&kernels::GPU_ROUNDING_PROBE_SLOPPY, true),
+    ];
+    if ctx.info().ieee_division {
+        runs.push((&kernels::GPU_ROUNDING_PROBE_EXACT, false));
+    }
+    for (variant, refine) in runs {
+        let spec = Spec::new().workgroup(64).u32(21, refine as u32);
+        let kernel = ctx.kernel(variant, &spec).unwrap();
         let out = Buffer::<[u32; 2]>::zeroed(&ctx, "rounding.out", n).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
         let groups = rec.groups_1d(n as u64, 64);

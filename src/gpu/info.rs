@@ -61,6 +61,10 @@ pub struct DeviceInfo {
     pub max_push_constants_size: u32,
     pub timestamp_period_ns: f32,
     pub timestamps: bool,
+    /// The driver's f32 division and square root round correctly (lavapipe's are the CPU's
+    /// instructions). Vulkan allows 2.5 and 3 ulps, so elsewhere the exact walks check the
+    /// driver's answer against an exact residual (`div_rn` in `vkrt/ray.glsl`).
+    pub ieee_division: bool,
     pub features: DeviceFeatures,
     #[serde(skip)]
     pub(crate) api_version_raw: u32,
@@ -178,6 +182,7 @@ pub(crate) fn query(
         max_push_constants_size: limits.max_push_constants_size,
         timestamp_period_ns: limits.timestamp_period,
         timestamps: limits.timestamp_compute_and_graphics == vk::TRUE,
+        ieee_division: driver.driver_id == vk::DriverId::MESA_LLVMPIPE,
         features,
         api_version_raw: v,
         type_rank,

@@ -128,16 +128,22 @@ impl Renderer {
         let walk = plan.accel.traversal();
         walk.require(ctx)?;
         let opt = effective_options(ctx, trace, walk);
-        let closest = traversal_spec(&TraceOptions {
-            query: Query::Closest,
-            ..opt
-        })
+        let closest = traversal_spec(
+            ctx,
+            &TraceOptions {
+                query: Query::Closest,
+                ..opt
+            },
+        )
         .u32(20, walk.spec())
         .workgroup(WG);
-        let any = traversal_spec(&TraceOptions {
-            query: Query::Any,
-            ..opt
-        })
+        let any = traversal_spec(
+            ctx,
+            &TraceOptions {
+                query: Query::Any,
+                ..opt
+            },
+        )
         .u32(20, walk.spec())
         .workgroup(WG);
         let b = |v: bool| v as u32;
@@ -150,7 +156,8 @@ impl Renderer {
             .u32(8, b(plan.glossy))
             .u32(9, b(plan.ambient_occlusion))
             .u32(10, b(plan.emission))
-            .u32(11, b(plan.bounces));
+            .u32(11, b(plan.bounces))
+            .u32(21, b(!ctx.info().ieee_division));
         let camera = Spec::new()
             .workgroup(WG)
             .u32(1, b(plan.thin_lens))

@@ -182,11 +182,12 @@ impl GpuGeometry {
 }
 
 /// Spec constant ids shared by every kernel that includes `traverse.glsl`.
-pub fn traversal_spec(opt: &TraceOptions) -> Spec {
+pub fn traversal_spec(ctx: &Context, opt: &TraceOptions) -> Spec {
     Spec::new()
         .u32(1, opt.intersector.spec())
         .u32(2, (opt.query == Query::Any) as u32)
         .u32(3, opt.stack_size.max(1))
+        .u32(21, !ctx.info().ieee_division as u32)
 }
 
 /// Result of a batch.
@@ -234,7 +235,7 @@ impl Tracer {
     pub fn for_accel(ctx: &Context, opt: &TraceOptions, accel: AccelTraversal) -> Result<Self> {
         accel.require(ctx)?;
         let opt = effective_options(ctx, opt, accel);
-        let spec = traversal_spec(&opt)
+        let spec = traversal_spec(ctx, &opt)
             .u32(20, accel.spec())
             .workgroup(WORKGROUP);
         let blob = accel.variant(

@@ -87,13 +87,21 @@ float next_toward(float x, bool up) {
 #define VKRT_DRIVER_SQRT(x) sqrt(x)
 #endif
 #if FP64_FALLBACK
+// False where the driver's division and square root are known to round correctly
+// (DeviceInfo::ieee_division): the check is then left out.
+#ifdef VKRT_LIBRARY
+const bool REFINE_DIVISION = true;
+#else
+layout(constant_id = 21) const bool REFINE_DIVISION = true;
+#endif
+
 bool refinable(float x) {
     return is_finite(x) && abs(x) >= uintBitsToFloat(0x03800000u); // 2^-120
 }
 
 float div_rn(float a, float b) {
     precise float q = VKRT_DRIVER_DIV(a, b);
-    if (!refinable(q) || !is_finite(a) || !is_finite(b)) {
+    if (!REFINE_DIVISION || !refinable(q) || !is_finite(a) || !is_finite(b)) {
         return q;
     }
     for (uint i = 0u; i < 8u; i++) {
@@ -118,7 +126,7 @@ float div_rn(float a, float b) {
 // doubles).
 float sqrt_rn(float x) {
     precise float s = VKRT_DRIVER_SQRT(x);
-    if (!(x > 0.0) || !refinable(x) || !refinable(s)) {
+    if (!REFINE_DIVISION || !(x > 0.0) || !refinable(x) || !refinable(s)) {
         return s;
     }
     for (uint i = 0u; i < 8u; i++) {
