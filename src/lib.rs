@@ -20,3 +20,4 @@ pub mod prims;
 pub mod render;
 pub mod scene;
 pub mod trace;
+pub mod verify;

@@ -36,6 +36,20 @@ enum Command {
         #[arg(long)]
         json: bool,
     },
+    /// Check that vkrt computes correctly on this device: every GPU primitive and builder
+    /// against its CPU twin, every walk against brute force, the hard cases on every
+    /// structure. Exits non-zero when a check fails; the first thing to run on a new GPU.
+    Verify {
+        /// Print JSON: {"device", "driver", "checks", "failed", "groups": {...}}.
+        #[arg(long)]
+        json: bool,
+        /// Fewer sizes and rays (about a third of the time).
+        #[arg(long)]
+        quick: bool,
+        /// The device whose name contains this (default: as `vkrt info`, or VKRT_DEVICE).
+        #[arg(long)]
+        device: Option<String>,
+    },
     /// Summarise a scene file (.toml, .obj, seed-002 text): counts, bounds, the effects it calls for.
     Scene {
         /// The scene; omit for the embedded default scene (a Cornell box).
@@ -718,6 +732,11 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 &profile,
             )?;
         }
+        Command::Verify {
+            json,
+            quick,
+            device,
+        } => cli::verify::verify_command(cli.validate, device, quick, json)?,
         Command::Info { json } => {
             let ctx = context(cli.validate)?;
             let info = ctx.info();

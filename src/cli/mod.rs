@@ -2,3 +2,4 @@
 //! `main.rs`).
 
 pub mod animate;
+pub mod verify;

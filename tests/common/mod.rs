@@ -100,27 +100,9 @@ impl Rng {
 /// size and the tile, several tiles, and large ones past every scan level (2^20+13 and
 /// 2^24+3, unless VKRT_TEST_QUICK=1).
 pub fn edge_sizes(subgroup: usize, workgroup: usize, tile: usize) -> Vec<usize> {
-    let mut sizes = vec![
-        0,
-        1,
-        subgroup - 1,
-        subgroup,
-        subgroup + 1,
-        workgroup - 1,
-        workgroup,
-        workgroup + 1,
-        tile - 1,
-        tile,
-        tile + 1,
-        4 * tile + 3,
-    ];
     // VKRT_TEST_QUICK=1 (while developing) leaves the large sizes out.
-    if !std::env::var("VKRT_TEST_QUICK").is_ok_and(|v| v == "1") {
-        sizes.extend([(1 << 20) + 13, (1 << 24) + 3]);
-    }
-    sizes.sort_unstable();
-    sizes.dedup();
-    sizes
+    let quick = std::env::var("VKRT_TEST_QUICK").is_ok_and(|v| v == "1");
+    vkrt::verify::edge_sizes(subgroup, workgroup, tile, !quick)
 }
 
 /// World-space triangles of a mesh.

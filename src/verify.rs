@@ -1,0 +1,664 @@
+//! `vkrt verify`: does vkrt compute correctly on this device? The conformance checks, run on
+//! whatever device the context holds (Embree ships `verify` for the same question):
+//!
+//! - **rounding**: the walks' correctly rounded division and square root against the CPU's;
+//! - **primitives**: scan, reductions and radix sort against their CPU twins at the sizes
+//!   that hit every edge (0, 1, subgroup ± 1, workgroup ± 1, tile ± 1, several tiles, large);
+//! - **builders**: the GPU kd-tree, LBVH and PLOC against their CPU twins, bit for bit, and
+//!   validated;
+//! - **walks**: every structure and walk, both ray/triangle tests, closest and any hit,
+//!   against brute force over every primitive;
+//! - **hard cases**: the robustness suite (watertightness, self-intersection, rays in split
+//!   planes, degenerate geometry, builder stress, bad rays) on every vkrt structure, which
+//!   must have no failure; the driver's own structure is reported, not required (Vulkan
+//!   promises no watertightness);
+//! - **validation**: with the validation layer on, it must stay silent.
+//!
+//! A check that errors is a failed check; the others still run. The integration test
+//! `tests/verify.rs` runs the same checks.
+
+use std::collections::BTreeMap;
+use std::time::Instant;
+
+use glam::{Vec3, Vec4};
+use serde::Serialize;
+
+use crate::accel::bvh::collapse::collapse;
+use crate::accel::bvh::{self, lbvh, ploc};
+use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelStructure, HostStructure};
+use crate::accel::kdtree::{seed001, SahParams};
+use crate::gpu::{kernels, Buffer, Context, Recorder, Result, Spec};
+use crate::prims::radix_sort::{self, RadixSort, DEFAULT_BITS_PER_PASS};
+use crate::prims::reduce::{self, Reduce};
+use crate::prims::scan::{self, Scan, ScanInput, ScanOp};
+use crate::prims::PrimConfig;
+use crate::scene::gen::{self, Rng};
+use crate::trace::bvh_cpu::Traversal;
+use crate::trace::gpu::{GpuGeometry, Tracer};
+use crate::trace::robust::{self, SuiteSize};
+use crate::trace::{cpu, Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
+
+/// How much to check.
+#[derive(Clone, Copy, Debug, Default)]
+pub struct Options {
+    /// Fewer sizes and rays (no sizes past 2^16, the smallest hard-case suite): about a
+    /// third of the default's time.
+    pub quick: bool,
+}
+
+/// One check's outcome.
+#[derive(Clone, Debug, Serialize)]
+pub struct Check {
+    pub group: &'static str,
+    pub name: String,
+    pub passed: bool,
+    /// False for what is reported but not promised (the driver's hard cases).
+    pub required: bool,
+    /// What went wrong (the first difference), or what was measured.
+    #[serde(skip_serializing_if = "String::is_empty")]
+    pub detail: String,
+}
+
+/// A group's checks in `Report::groups`.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct GroupSummary {
+    pub checks: usize,
+    pub failed: usize,
+    /// Each failed check: `name: detail`.
+    #[serde(skip_serializing_if = "Vec::is_empty")]
+    pub failures: Vec<String>,
+}
+
+/// Every check of a run; `vkrt verify --json` prints it (without `results`).
+#[derive(Clone, Debug, Serialize)]
+pub struct Report {
+    pub device: String,
+    pub driver: String,
+    pub checks: usize,
+    /// Failed required checks: non-zero is a device vkrt cannot be trusted on.
+    pub failed: usize,
+    pub groups: BTreeMap<&'static str, GroupSummary>,
+    pub seconds: f64,
+    #[serde(skip)]
+    pub results: Vec<Check>,
+}
+
+/// Sizes that hit every edge of a kernel with these `subgroup`, `workgroup` and `tile`
+/// sizes: 0, 1, each ± 1, several tiles, and with `large` two past every scan level.
+pub fn edge_sizes(subgroup: usize, workgroup: usize, tile: usize, large: bool) -> Vec<usize> {
+    let mut sizes = vec![
+        0,
+        1,
+        subgroup - 1,
+        subgroup,
+        subgroup + 1,
+        workgroup - 1,
+        workgroup,
+        workgroup + 1,
+        tile - 1,
+        tile,
+        tile + 1,
+        4 * tile + 3,
+    ];
+    if large {
+        sizes.extend([(1 << 20) + 13, (1 << 24) + 3]);
+    }
+    sizes.sort_unstable();
+    sizes.dedup();
+    sizes
+}
+
+/// Runs every check on `ctx`'s device; `progress` sees each check as it ends.
+pub fn run(ctx: &Context, options: &Options, progress: &mut dyn FnMut(&Check)) -> Report {
+    let start = Instant::now();
+    let mut v = Verifier {
+        ctx,
+        quick: options.quick,
+        results: Vec::new(),
+        progress,
+    };
+    v.rounding();
+    v.primitives();
+    v.builders();
+    v.walks();
+    v.hard_cases();
+    if ctx.validation_enabled() {
+        let messages = ctx.take_validation_messages();
+        let detail = messages.first().map(|m| m.to_string()).unwrap_or_default();
+        v.record(
+            "validation",
+            "the layer stayed silent".into(),
+            true,
+            messages.is_empty(),
+            detail,
+        );
+    }
+    let info = ctx.info();
+    let mut groups: BTreeMap<&'static str, GroupSummary> = BTreeMap::new();
+    for c in &v.results {
+        let g = groups.entry(c.group).or_default();
+        g.checks += 1;
+        if !c.passed && c.required {
+            g.failed += 1;
+            g.failures.push(format!("{}: {}", c.name, c.detail));
+        }
+    }
+    Report {
+        device: info.device.clone(),
+        driver: info.driver.clone(),
+        checks: v.results.len(),
+        failed: groups.values().map(|g| g.failed).sum(),
+        groups,
+        seconds: start.elapsed().as_secs_f64(),
+        results: v.results,
+    }
+}
+
+struct Verifier<'a> {
+    ctx: &'a Context,
+    quick: bool,
+    results: Vec<Check>,
+    progress: &'a mut dyn FnMut(&Check),
+}
+
+/// `Ok(None)`: passed; `Ok(Some(why))`: failed; `Err`: the check could not run (a failure).
+type Outcome = Result<Option<String>>;
+
+impl Verifier<'_> {
+    fn record(
+        &mut self,
+        group: &'static str,
+        name: String,
+        required: bool,
+        passed: bool,
+        detail: String,
+    ) {
+        let check = Check {
+            group,
+            name,
+            passed,
+            required,
+            detail,
+        };
+        (self.progress)(&check);
+        self.results.push(check);
+    }
+
+    fn check(&mut self, group: &'static str, name: String, outcome: Outcome) {
+        let (passed, detail) = match outcome {
+            Ok(None) => (true, String::new()),
+            Ok(Some(why)) => (false, why),
+            Err(e) => (false, format!("error: {e}")),
+        };
+        self.record(group, name, true, passed, detail);
+    }
+
+    fn rounding(&mut self) {
+        let f = &self.ctx.info().features;
+        if !(f.shader_float64 && f.shader_int64) {
+            self.record(
+                "rounding",
+                "correctly rounded division (needs shaderFloat64 and shaderInt64)".into(),
+                false,
+                true,
+                "skipped: hits may differ from the CPU twin's by an ulp of t".into(),
+            );
+            return;
+        }
+        let outcome = rounding_check(self.ctx, if self.quick { 1 << 14 } else { 1 << 18 });
+        self.check(
+            "rounding",
+            "a / b and sqrt(a) equal the CPU's, bit for bit".into(),
+            outcome,
+        );
+    }
+
+    fn primitives(&mut self) {
+        let ctx = self.ctx;
+        let sg = ctx.info().subgroup_size as usize;
+        let cfg = PrimConfig::default_for(ctx);
+        let wg = cfg.workgroup_size as usize;
+        let mut sizes = edge_sizes(sg, wg, cfg.tile() as usize, false);
+        if !self.quick {
+            sizes.push((1 << 20) + 13);
+        }
+        let mut rng = Rng::new(0x7e51);
+        for &n in &sizes {
+            let data: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32 % 1000).collect();
+            let floats: Vec<f32> = (0..n).map(|_| rng.range(-1e3, 1e3)).collect();
+            let o = scan_check(ctx, cfg, &data);
+            self.check("primitives", format!("scan, n = {n}"), o);
+            let o = reduce_check(ctx, &data, &floats);
+            self.check("primitives", format!("reductions and argmin, n = {n}"), o);
+            let keys: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
+            let o = sort_check(ctx, cfg, &keys);
+            self.check("primitives", format!("radix sort, n = {n}"), o);
+        }
+    }
+
+    fn builders(&mut self) {
+        let ctx = self.ctx;
+        let sg = ctx.info().subgroup_size as usize;
+        let mut sizes = edge_sizes(sg, 256, 1024, false);
+        sizes.extend([2, 3000]);
+        if !self.quick {
+            sizes.push(30_000);
+        }
+        sizes.sort_unstable();
+        sizes.dedup();
+        for kind in [AccelKind::KdTree, AccelKind::Lbvh, AccelKind::Ploc] {
+            let builder = match AccelBuilder::new(ctx, kind) {
+                Ok(b) => b,
+                Err(e) => {
+                    self.check("builders", format!("{} builder", kind.name()), Err(e));
+                    continue;
+                }
+            };
+            for &n in &sizes {
+                let g = soup_scene(n, n as u64 + 1, true);
+                let o = builder_check(ctx, &builder, kind, &g);
+                self.check("builders", format!("{}, {n} primitives", kind.name()), o);
+            }
+        }
+    }
+
+    fn walks(&mut self) {
+        let ctx = self.ctx;
+        let rays_n = if self.quick { 2_000 } else { 10_000 };
+        let mut scenes = vec![("soup", soup_scene(3000, 5, true), soup_rays(rays_n, 9))];
+        if let Ok(mesh) = gen::icosphere(5) {
+            let tris: Vec<[Vec3; 3]> = mesh
+                .indices
+                .iter()
+                .map(|t| t.map(|i| mesh.positions[i as usize]))
+                .collect();
+            let g = TraceGeometry::from_triangles(&tris);
+            let rays = sphere_rays(rays_n, 11);
+            scenes.push(("icosphere", g, rays));
+        }
+        // Brute force once per scene and query, for every structure and walk.
+        let tests = [Intersector::Watertight, Intersector::MollerTrumbore];
+        let queries = [Query::Closest, Query::Any];
+        let options = |intersector, query| TraceOptions {
+            intersector,
+            query,
+            ..crate::trace::gpu::effective_options(
+                ctx,
+                &TraceOptions::default(),
+                crate::trace::gpu::AccelTraversal::KdTree,
+            )
+        };
+        let brute: Vec<Vec<Vec<Hit>>> = scenes
+            .iter()
+            .map(|(_, g, rays)| {
+                tests
+                    .iter()
+                    .flat_map(|&i| queries.map(|q| (i, q)))
+                    .map(|(i, q)| {
+                        let opt = options(i, q);
+                        rays.iter()
+                            .map(|r| cpu::brute_force(g, r, 0.0, &opt))
+                            .collect()
+                    })
+                    .collect()
+            })
+            .collect();
+        for kind in AccelKind::ALL {
+            let builder = match AccelBuilder::new(ctx, kind) {
+                Ok(b) => b,
+                Err(e) => {
+                    self.check("walks", format!("{} builder", kind.name()), Err(e));
+                    continue;
+                }
+            };
+            for (s, (scene, g, rays)) in scenes.iter().enumerate() {
+                let built = (|| {
+                    let mut rec = Recorder::new(ctx)?;
+                    let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, g, 0)?;
+                    rec.submit_and_wait()?;
+                    Ok(dev)
+                })();
+                let dev = match built {
+                    Ok(d) => d,
+                    Err(e) => {
+                        self.check(
+                            "walks",
+                            format!("{} build over {scene}", kind.name()),
+                            Err(e),
+                        );
+                        continue;
+                    }
+                };
+                let walks: &[Traversal] = if kind == AccelKind::KdTree {
+                    &[Traversal::Stack]
+                } else {
+                    &[Traversal::Stack, Traversal::Bitstack]
+                };
+                for &walk in walks {
+                    for (t, &intersector) in tests.iter().enumerate() {
+                        for (q, &query) in queries.iter().enumerate() {
+                            let accel = kind.walked(walk);
+                            let name = format!(
+                                "{} over {scene}: {intersector:?} {query:?}",
+                                accel.label()
+                            );
+                            let want = &brute[s][t * queries.len() + q];
+                            let o = walk_check(
+                                ctx,
+                                &dev,
+                                accel,
+                                &options(intersector, query),
+                                rays,
+                                want,
+                            );
+                            self.check("walks", name, o);
+                        }
+                    }
+                }
+            }
+        }
+    }
+
+    fn hard_cases(&mut self) {
+        let ctx = self.ctx;
+        let size = if self.quick {
+            SuiteSize {
+                big_soup: 0,
+                ..SuiteSize::tiny()
+            }
+        } else {
+            SuiteSize::tiny()
+        };
+        let mut kinds: Vec<AccelChoice> = AccelKind::ALL
+            .iter()
+            .map(|&k| AccelChoice::new(k, Traversal::Stack))
+            .collect();
+        kinds.push(AccelChoice::new(AccelKind::Lbvh, Traversal::Bitstack));
+        let driver = ctx.info().features.ray_query;
+        if driver {
+            kinds.push(AccelChoice::new(AccelKind::Driver, Traversal::Stack));
+        }
+        for choice in kinds {
+            let required = choice.kind != AccelKind::Driver;
+            let label = choice.label();
+            match robust::run_all(ctx, &size, &[Intersector::Watertight], choice) {
+                Err(e) => self.record(
+                    "hard cases",
+                    format!("{label}: the suite"),
+                    required,
+                    false,
+                    format!("error: {e}"),
+                ),
+                Ok(cases) => {
+                    for c in cases {
+                        // A known limitation is reported, not required (see robust::CaseResult).
+                        let required = required && !c.known_limit;
+                        let passed = c.failures == 0;
+                        let detail = if passed {
+                            String::new()
+                        } else {
+                            format!("{} {} of {} rays", c.failures, c.failure_kind, c.rays)
+                        };
+                        self.record(
+                            "hard cases",
+                            format!("{label}: {}", c.case),
+                            required,
+                            passed,
+                            detail,
+                        );
+                    }
+                }
+            }
+        }
+    }
+}
+
+/// Triangles scattered in a 10³ box (and spheres beside them when `spheres`).
+fn soup_scene(n: usize, seed: u64, spheres: bool) -> TraceGeometry {
+    let mut rng = Rng::new(seed);
+    let mut v = || Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32());
+    let tris: Vec<[Vec3; 3]> = (0..n)
+        .map(|_| {
+            let c = v() * 10.0;
+            [c, c + v(), c + v()]
+        })
+        .collect();
+    let s: Vec<Vec4> = if spheres {
+        (0..n.div_ceil(7))
+            .map(|i| Vec4::new(i as f32 % 11.0, (i % 5) as f32, -3.0, 0.4))
+            .collect()
+    } else {
+        Vec::new()
+    };
+    TraceGeometry::from_triangles_and_spheres(&tris, &s)
+}
+
+/// Rays from around the soup's box in random directions, some of them axis-parallel with
+/// ±0 components.
+fn soup_rays(n: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = Rng::new(seed);
+    (0..n)
+        .map(|i| {
+            let o = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 14.0 - 2.0;
+            let mut d = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+            if i % 5 == 0 {
+                let axis = i / 5 % 3;
+                d = Vec3::ZERO;
+                d[axis] = if i % 2 == 0 { 1.0 } else { -1.0 };
+                d[(axis + 1) % 3] = -0.0;
+            }
+            Ray::new(o, d, 0.0, f32::INFINITY)
+        })
+        .collect()
+}
+
+/// Rays at the unit sphere from outside and from inside.
+fn sphere_rays(n: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = Rng::new(seed);
+    (0..n)
+        .map(|i| {
+            let o = if i % 2 == 0 {
+                rng.vec3_signed() * 3.0
+            } else {
+                rng.vec3_signed() * 0.5
+            };
+            let target = rng.vec3_signed() * 0.8;
+            Ray::new(o, target - o, 0.0, f32::INFINITY)
+        })
+        .collect()
+}
+
+fn rounding_check(ctx: &Context, n: usize) -> Outcome {
+    let mut rng = Rng::new(0x05ee_dd1f);
+    let mut any = |span: u64| {
+        let r = rng.next_u64();
+        let e = ((r >> 32) % (2 * span)) as i32 - span as i32;
+        let sign = (r as u32 & 1) << 31;
+        f32::from_bits(sign | (((127 + e) as u32) << 23) | (r as u32 >> 9))
+    };
+    let pairs: Vec<[f32; 2]> = (0..n)
+        .map(|i| {
+            let b = any(60);
+            let a = if i % 3 == 0 { 1.0 } else { any(60) };
+            [a, b]
+        })
+        .collect();
+    let spec = Spec::new()
+        .workgroup(64)
+        .u32(21, !ctx.info().ieee_division as u32);
+    let kernel = ctx.kernel(&kernels::GPU_ROUNDING_PROBE_EXACT, &spec)?;
+    let input = Buffer::from_slice(ctx, "verify.rounding.in", &pairs)?;
+    let out = Buffer::<[u32; 2]>::zeroed(ctx, "verify.rounding.out", n)?;
+    let mut rec = Recorder::new(ctx)?;
+    let groups = rec.groups_1d(n as u64, 64);
+    rec.dispatch(&kernel, groups, &[&input, &out], &(n as u32));
+    rec.compute_to_transfer();
+    rec.submit_and_wait()?;
+    let got = out.download()?;
+    let in_range = |x: f32| x.is_finite() && (1e-30..=1e30).contains(&x.abs());
+    for (&[a, b], &[q, s]) in pairs.iter().zip(&got) {
+        let (want_q, want_s) = (a / b, a.abs().sqrt());
+        if in_range(want_q) && q != want_q.to_bits() {
+            return Ok(Some(format!(
+                "{a:e} / {b:e} = {} on the GPU, {want_q:e} on the CPU",
+                f32::from_bits(q)
+            )));
+        }
+        if s != want_s.to_bits() {
+            return Ok(Some(format!(
+                "sqrt {a:e} = {} on the GPU, {want_s:e} on the CPU",
+                f32::from_bits(s)
+            )));
+        }
+    }
+    Ok(None)
+}
+
+fn scan_check(ctx: &Context, cfg: PrimConfig, data: &[u32]) -> Outcome {
+    let scan = Scan::new(ctx, cfg, ScanInput::U32)?;
+    for op in [ScanOp::Exclusive, ScanOp::Inclusive] {
+        let got = scan.run_u32(ctx, data, op)?;
+        let want = scan::scan_cpu(data, op);
+        if got != want {
+            let at = got.0.iter().zip(&want.0).position(|(a, b)| a != b);
+            return Ok(Some(format!(
+                "{op:?}: first difference at {at:?}, totals {} vs {}",
+                got.1, want.1
+            )));
+        }
+    }
+    Ok(None)
+}
+
+fn reduce_check(ctx: &Context, data: &[u32], floats: &[f32]) -> Outcome {
+    let cfg = reduce::recommended_config(ctx);
+    let r = Reduce::new(ctx, cfg)?;
+    let pairs = [
+        ("sum_u32", r.sum_u32(ctx, data)?, reduce::sum_u32_cpu(data)),
+        ("min_u32", r.min_u32(ctx, data)?, reduce::min_u32_cpu(data)),
+        ("max_u32", r.max_u32(ctx, data)?, reduce::max_u32_cpu(data)),
+        (
+            "sum_f32",
+            r.sum_f32(ctx, floats)?.to_bits(),
+            reduce::sum_f32_cpu(floats, cfg).to_bits(),
+        ),
+        (
+            "min_f32",
+            r.min_f32(ctx, floats)?.to_bits(),
+            reduce::min_f32_cpu(floats).to_bits(),
+        ),
+        (
+            "max_f32",
+            r.max_f32(ctx, floats)?.to_bits(),
+            reduce::max_f32_cpu(floats).to_bits(),
+        ),
+    ];
+    for (name, got, want) in pairs {
+        if got != want {
+            return Ok(Some(format!(
+                "{name}: {got:#x} on the GPU, {want:#x} on the CPU"
+            )));
+        }
+    }
+    let got = r.argmin(ctx, floats)?;
+    let want = reduce::argmin_cpu(floats);
+    if got.0.to_bits() != want.0.to_bits() || got.1 != want.1 {
+        return Ok(Some(format!(
+            "argmin: {got:?} on the GPU, {want:?} on the CPU"
+        )));
+    }
+    Ok(None)
+}
+
+fn sort_check(ctx: &Context, cfg: PrimConfig, keys: &[u32]) -> Outcome {
+    let sort = RadixSort::new(ctx, cfg, DEFAULT_BITS_PER_PASS)?;
+    let values: Vec<u32> = (0..keys.len() as u32).collect();
+    let got = sort.sort_u32(ctx, keys, &values)?;
+    let want = radix_sort::radix_sort_cpu(keys, &values);
+    if got != want {
+        let at = got.1.iter().zip(&want.1).position(|(a, b)| a != b);
+        return Ok(Some(format!("first difference at {at:?}")));
+    }
+    Ok(None)
+}
+
+fn builder_check(
+    ctx: &Context,
+    builder: &AccelBuilder,
+    kind: AccelKind,
+    g: &TraceGeometry,
+) -> Outcome {
+    // A kd-tree that ran out of its reference budget is built again with twice the budget,
+    // as a caller does (the build says so on the device).
+    let mut built = None;
+    for grow in 0..8 {
+        let mut rec = Recorder::new(ctx)?;
+        let (dev, _) = GpuGeometry::record_build(&mut rec, builder, g, grow)?;
+        rec.compute_to_transfer();
+        let report = dev.accel.record_read_built(&mut rec)?;
+        rec.transfer_to_host();
+        rec.submit_and_wait()?;
+        if let Some(r) = report {
+            if AccelStructure::kd_built(&r.read()?).overflow {
+                continue;
+            }
+        }
+        built = Some(dev);
+        break;
+    }
+    let Some(dev) = built else {
+        return Ok(Some("out of capacity after 8 doublings".into()));
+    };
+    let equal = match dev.accel.download()? {
+        HostStructure::KdTree(tree) => {
+            let (twin, _) = seed001::build_boxes(&g.boxes, &SahParams::default());
+            tree == twin
+        }
+        HostStructure::Bvh(tree) => {
+            if let Err(e) = bvh::validate::validate(&tree, &g.boxes) {
+                return Ok(Some(format!("invalid: {e}")));
+            }
+            let twin = match kind {
+                AccelKind::Ploc => {
+                    ploc::build(&g.boxes, &builder.ploc_params().unwrap_or_default()).0
+                }
+                _ => lbvh::build(&g.boxes, builder.lbvh_bits()),
+            };
+            collapse(&twin, &builder.bvh_params) == tree
+        }
+    };
+    Ok((!equal).then(|| "differs from its CPU twin".to_string()))
+}
+
+fn walk_check(
+    ctx: &Context,
+    dev: &GpuGeometry,
+    accel: crate::trace::gpu::AccelTraversal,
+    opt: &TraceOptions,
+    rays: &[Ray],
+    brute: &[Hit],
+) -> Outcome {
+    let tracer = Tracer::for_accel(ctx, opt, accel)?;
+    if tracer.options().exact != opt.exact {
+        return Ok(Some(
+            "the walk cannot run the brute force's arithmetic".into(),
+        ));
+    }
+    let batch = tracer.trace(ctx, dev, rays, 0.0)?;
+    if batch.exhausted > 0 {
+        return Ok(Some(format!("{} rays ran out of steps", batch.exhausted)));
+    }
+    let mut wrong = 0;
+    let mut first = None;
+    for (i, (got, want)) in batch.hits.iter().zip(brute).enumerate() {
+        let same = match opt.query {
+            Query::Closest => robust::same_answer(got, want),
+            Query::Any => got.is_hit() == want.is_hit(),
+        };
+        if !same {
+            wrong += 1;
+            first.get_or_insert(format!("ray {i}: {got:?} vs brute force {want:?}"));
+        }
+    }
+    Ok(first.map(|f| format!("{wrong} of {} rays differ; {f}", rays.len())))
+}
