@@ -156,8 +156,7 @@ impl Renderer {
             .u32(8, b(plan.glossy))
             .u32(9, b(plan.ambient_occlusion))
             .u32(10, b(plan.emission))
-            .u32(11, b(plan.bounces))
-            .u32(21, b(!ctx.info().ieee_division));
+            .u32(11, b(plan.bounces));
         let camera = Spec::new()
             .workgroup(WG)
             .u32(1, b(plan.thin_lens))

@@ -181,13 +181,18 @@ impl GpuGeometry {
     }
 }
 
-/// Spec constant ids shared by every kernel that includes `traverse.glsl`.
+/// Spec constant ids shared by every kernel that includes `traverse.glsl`; the exact
+/// variants also check the driver's division (21) where it is not known to be correct.
 pub fn traversal_spec(ctx: &Context, opt: &TraceOptions) -> Spec {
-    Spec::new()
+    let spec = Spec::new()
         .u32(1, opt.intersector.spec())
         .u32(2, (opt.query == Query::Any) as u32)
-        .u32(3, opt.stack_size.max(1))
-        .u32(21, !ctx.info().ieee_division as u32)
+        .u32(3, opt.stack_size.max(1));
+    if opt.exact {
+        spec.u32(21, !ctx.info().ieee_division as u32)
+    } else {
+        spec
+    }
 }
 
 /// Result of a batch.
