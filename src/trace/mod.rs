@@ -213,6 +213,24 @@ impl Default for TraceOptions {
     }
 }
 
-/// Short-stack entries by default: deeper than the kd-tree depth bound for up to ~2^18
-/// primitives, so restarts are rare yet exercised on large scenes.
-pub const DEFAULT_STACK_SIZE: u32 = 32;
+/// Short-stack entries by default: at least the kd-tree builders' depth limit for any
+/// primitive count a `u32` holds (`SahParams::depth_limit`: 48 at 2^32 - 1), so with the
+/// default limit the stack never overflows and the walk never restarts (pbrt's kd-tree
+/// stack has 64 entries too). A power of two: the ring buffer wraps with a mask.
+pub const DEFAULT_STACK_SIZE: u32 = 64;
+
+#[cfg(test)]
+mod tests {
+    use super::DEFAULT_STACK_SIZE;
+    use crate::accel::kdtree::SahParams;
+
+    /// The kd-tree walk's stack holds a path of the deepest tree the builders make with
+    /// their default depth limit, for any primitive count: it never overflows, so it never
+    /// restarts (the restart can skip a cell for a ray lying in a split plane).
+    #[test]
+    fn the_default_stack_holds_every_default_kd_tree() {
+        let deepest = SahParams::default().depth_limit(u32::MAX as usize);
+        assert!(deepest <= DEFAULT_STACK_SIZE, "{deepest} levels");
+        assert!(DEFAULT_STACK_SIZE.is_power_of_two());
+    }
+}

@@ -17,7 +17,8 @@
 // from the structure itself, so one pipeline traces any of them.
 //
 // Options (define before the include):
-//   VKRT_STACK_SIZE   the kd-tree walk's short-stack entries (default 32)
+//   VKRT_STACK_SIZE   the kd-tree walk's short-stack entries (default 64: deeper than any
+//                     kd-tree vkrt builds with its default depth limit, so no restarts)
 //   VKRT_MOLLER_TRUMBORE  use the Moller-Trumbore test instead of the watertight one
 //   VKRT_WALK         compile one walk only: VKRT_WALK_KDTREE, VKRT_WALK_BVH (stack) or
 //                     VKRT_WALK_BVH_BITSTACK (default: every walk, chosen per structure at
@@ -72,7 +73,7 @@ const uint INTERSECTOR = INTERSECT_WATERTIGHT;
 #ifdef VKRT_STACK_SIZE
 const uint STACK_SIZE = VKRT_STACK_SIZE;
 #else
-const uint STACK_SIZE = 32u;
+const uint STACK_SIZE = 64u;
 #endif
 
 #include "traverse.glsl"
