@@ -1,4 +1,4 @@
-//! `vkrt bench accuracy` (issue 18): what accuracy costs in time, every knob measured in one
+//! `vkrt bench accuracy`: what accuracy costs in time, every knob measured in one
 //! run on one device against a reference, grouped, with each group's Pareto front and a
 //! recommendation per use derived from the numbers.
 //!

@@ -1,4 +1,4 @@
-//! `vkrt animate` and `vkrt bench animate` (issue 17): the frames of an animated scene, each
+//! `vkrt animate` and `vkrt bench animate`: the frames of an animated scene, each
 //! rendered in one submission after its structure was rebuilt or refit on the device.
 
 use std::path::{Path, PathBuf};

@@ -1,4 +1,4 @@
-//! The robustness suite (issue 7): hard cases for the GPU tracer, each with its own
+//! The robustness suite: hard cases for the GPU tracer, each with its own
 //! definition of a failure, run through the public API (kd-tree built on the GPU, rays traced
 //! by the GPU kernel). The integration test `tests/trace_robustness.rs` asserts 0 failures
 //! with the default (watertight) intersector; `vkrt bench robustness` runs every case for

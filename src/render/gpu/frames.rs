@@ -1,4 +1,4 @@
-//! Frames of an animation on the device (issue 17). The renderer's buffers, the primitives
+//! Frames of an animation on the device. The renderer's buffers, the primitives
 //! and the structure are made once, with the first frame; every later frame writes its moved
 //! primitives where they lie, rebuilds or refits the structure, and renders every sample and
 //! the tone map after it: one submission per frame, with nothing read back but the image (and
