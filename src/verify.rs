@@ -469,49 +469,98 @@ fn sphere_rays(n: usize, seed: u64) -> Vec<Ray> {
 }
 
 fn rounding_check(ctx: &Context, n: usize) -> Outcome {
+    let pairs = rounding_pairs(n);
+    let refine = !ctx.info().ieee_division;
+    let got = run_rounding_probe(ctx, &kernels::GPU_ROUNDING_PROBE_EXACT, refine, &pairs)?;
+    Ok(rounding_mismatch(&pairs, &got).err())
+}
+
+/// `n` operand pairs for the rounding probe: reciprocals (the slab tests' 1 / d), quotients
+/// near 1, random ones over 2^±60, and a few exact cases.
+pub fn rounding_pairs(n: usize) -> Vec<[f32; 2]> {
     let mut rng = Rng::new(0x05ee_dd1f);
-    let mut any = |span: u64| {
+    let mut any = || {
         let r = rng.next_u64();
-        let e = ((r >> 32) % (2 * span)) as i32 - span as i32;
+        let e = ((r >> 32) % 120) as i32 - 60;
         let sign = (r as u32 & 1) << 31;
         f32::from_bits(sign | (((127 + e) as u32) << 23) | (r as u32 >> 9))
     };
-    let pairs: Vec<[f32; 2]> = (0..n)
+    let mut pairs: Vec<[f32; 2]> = (0..n)
         .map(|i| {
-            let b = any(60);
-            let a = if i % 3 == 0 { 1.0 } else { any(60) };
+            let b = any();
+            let a = match i % 4 {
+                0 => 1.0,
+                1 => b * f32::from_bits(0x3f80_0000 + (i as u32 % 16)),
+                _ => any(),
+            };
             [a, b]
         })
         .collect();
-    let spec = Spec::new()
-        .workgroup(64)
-        .u32(21, !ctx.info().ieee_division as u32);
-    let kernel = ctx.kernel(&kernels::GPU_ROUNDING_PROBE_EXACT, &spec)?;
-    let input = Buffer::from_slice(ctx, "verify.rounding.in", &pairs)?;
+    let exact = [
+        1.0f32,
+        2.0,
+        0.5,
+        3.0,
+        4.0,
+        1.0 - f32::EPSILON / 2.0,
+        1.0 + f32::EPSILON,
+    ];
+    for x in exact {
+        pairs.extend([[x, 1.0], [x, 3.0], [1.0, x]]);
+    }
+    pairs
+}
+
+/// `div_rn` and `sqrt_rn` of every pair by a variant of `glsl/gpu/rounding_probe.comp`,
+/// with the refinement on or off (spec constant 21): (quotient bits, square-root bits).
+pub fn run_rounding_probe(
+    ctx: &Context,
+    variant: &'static crate::gpu::ShaderBlob,
+    refine: bool,
+    pairs: &[[f32; 2]],
+) -> Result<Vec<[u32; 2]>> {
+    let n = pairs.len();
+    let kernel = ctx.kernel(variant, &Spec::new().workgroup(64).u32(21, refine as u32))?;
+    let input = Buffer::from_slice(ctx, "verify.rounding.in", pairs)?;
     let out = Buffer::<[u32; 2]>::zeroed(ctx, "verify.rounding.out", n)?;
     let mut rec = Recorder::new(ctx)?;
     let groups = rec.groups_1d(n as u64, 64);
     rec.dispatch(&kernel, groups, &[&input, &out], &(n as u32));
     rec.compute_to_transfer();
     rec.submit_and_wait()?;
-    let got = out.download()?;
+    out.download()
+}
+
+/// The probe's answers against the CPU's IEEE ones, where operands and results are normal
+/// and well inside the range: the quotients compared, or the first difference.
+pub fn rounding_mismatch(
+    pairs: &[[f32; 2]],
+    got: &[[u32; 2]],
+) -> std::result::Result<usize, String> {
     let in_range = |x: f32| x.is_finite() && (1e-30..=1e30).contains(&x.abs());
-    for (&[a, b], &[q, s]) in pairs.iter().zip(&got) {
+    let mut compared = 0;
+    for (&[a, b], &[q, s]) in pairs.iter().zip(got) {
         let (want_q, want_s) = (a / b, a.abs().sqrt());
-        if in_range(want_q) && q != want_q.to_bits() {
-            return Ok(Some(format!(
-                "{a:e} / {b:e} = {} on the GPU, {want_q:e} on the CPU",
-                f32::from_bits(q)
-            )));
+        if !in_range(a) {
+            continue;
+        }
+        if in_range(want_q) && in_range(b) {
+            if q != want_q.to_bits() {
+                let gpu = f32::from_bits(q);
+                return Err(format!(
+                    "{a:e} / {b:e} = {gpu:e} on the GPU, {want_q:e} on the CPU"
+                ));
+            }
+            compared += 1;
         }
         if s != want_s.to_bits() {
-            return Ok(Some(format!(
-                "sqrt {a:e} = {} on the GPU, {want_s:e} on the CPU",
-                f32::from_bits(s)
-            )));
+            let gpu = f32::from_bits(s);
+            return Err(format!(
+                "sqrt {a:e} = {gpu:e} on the GPU, {want_s:e} on the CPU"
+            ));
         }
     }
-    Ok(None)
+    Ok(compared)
 }
 
 fn scan_check(ctx: &Context, cfg: PrimConfig, data: &[u32]) -> Outcome {

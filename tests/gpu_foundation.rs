@@ -5,6 +5,7 @@
 mod common;
 
 use vkrt::gpu::{kernels, Buffer, Context, GpuError, Recorder, Spec};
+use vkrt::verify;
 
 const SAXPY_WG: u32 = 256;
 
@@ -478,39 +479,7 @@ fn division_and_square_root_round_correctly_from_an_inexact_driver() {
         eprintln!("skipped: the exact variants need shaderFloat64 and shaderInt64");
         return;
     }
-    let mut rng = common::Rng(0x05ee_dd1f);
-    let any = |rng: &mut common::Rng, span: i32| {
-        let r = rng.next_u64();
-        let e = (r >> 32) as i32 % span;
-        let sign = (r as u32 & 1) << 31;
-        f32::from_bits(sign | (((127 + e) as u32) << 23) | (r as u32 >> 9))
-    };
-    let mut pairs = Vec::new();
-    for i in 0..(1 << 18) {
-        let b = any(&mut rng, 60);
-        let a = match i % 4 {
-            0 => 1.0, // reciprocals (the slab tests' 1 / d)
-            1 => b * f32::from_bits(0x3f80_0000 + (i as u32 % 16)), // quotients near 1
-            _ => any(&mut rng, 60),
-        };
-        pairs.push([a, b]);
-    }
-    for x in [
-        1.0f32,
-        2.0,
-        0.5,
-        3.0,
-        4.0,
-        1.0 - f32::EPSILON / 2.0,
-        1.0 + f32::EPSILON,
-    ] {
-        pairs.push([x, 1.0]);
-        pairs.push([x, 3.0]);
-        pairs.push([1.0, x]);
-    }
-    let input = Buffer::from_slice(&ctx, "rounding.in", &pairs).unwrap();
-    let n = pairs.len();
-    let in_range = |x: f32| x.is_finite() && (1e-30..=1e30).contains(&x.abs());
+    let pairs = verify::rounding_pairs(1 << 18);
     // The refinement from the driver's answers and from sloppy ones; and where the device
     // is said to divide correctly (DeviceInfo::ieee_division, which turns the refinement
     // off), the driver's own answers unrefined.
@@ -522,37 +491,11 @@ fn division_and_square_root_round_correctly_from_an_inexact_driver() {
         runs.push((&kernels::GPU_ROUNDING_PROBE_EXACT, false));
     }
     for (variant, refine) in runs {
-        let spec = Spec::new().workgroup(64).u32(21, refine as u32);
-        let kernel = ctx.kernel(variant, &spec).unwrap();
-        let out = Buffer::<[u32; 2]>::zeroed(&ctx, "rounding.out", n).unwrap();
-        let mut rec = Recorder::new(&ctx).unwrap();
-        let groups = rec.groups_1d(n as u64, 64);
-        rec.dispatch(&kernel, groups, &[&input, &out], &(n as u32));
-        rec.compute_to_transfer();
-        rec.submit_and_wait().unwrap();
-        let got = out.download().unwrap();
-        let mut checked = 0;
-        for (&[a, b], &[q, s]) in pairs.iter().zip(&got) {
-            let (want_q, want_s) = (a / b, a.abs().sqrt());
-            if in_range(want_q) && in_range(a) && in_range(b) {
-                assert_eq!(
-                    q,
-                    want_q.to_bits(),
-                    "{a:e} / {b:e}: {} vs {want_q:e}",
-                    f32::from_bits(q)
-                );
-                checked += 1;
-            }
-            if in_range(a) {
-                assert_eq!(
-                    s,
-                    want_s.to_bits(),
-                    "sqrt {a:e}: {} vs {want_s:e}",
-                    f32::from_bits(s)
-                );
-            }
+        let got = verify::run_rounding_probe(&ctx, variant, refine, &pairs).unwrap();
+        match verify::rounding_mismatch(&pairs, &got) {
+            Ok(compared) => assert!(compared > pairs.len() / 2, "only {compared} compared"),
+            Err(e) => panic!("rounding probe (refine {refine}): {e}"),
         }
-        assert!(checked > n / 2, "only {checked} of {n} quotients in range");
     }
     common::assert_silent(&ctx);
 }
