@@ -1,7 +1,7 @@
-//! Seed 003's Tables 3/4 on this machine (issue 14): build time of the CPU SAH BVH with each
+//! Sochora's (2013) Tables 3/4 on this machine: build time of the CPU SAH BVH with each
 //! threading scheme (uneven, even, node queue; rayon as today's baseline) at 1 and all
 //! threads, full sweep and 16-bin SAH, speed-up over one thread — beside Embree 3's build of
-//! the same triangles at 1 and 2 threads (medium quality, best of 3) and seed 001's GPU
+//! the same triangles at 1 and 2 threads (medium quality, best of 3) and Kolodzey's GPU
 //! kd-tree build, in one run. Every scheme must give the one-thread tree (checked).
 //!
 //! Scenes: the Stanford bunny (../shared/scenes), the default scene, icospheres of 100K,

@@ -1,9 +1,9 @@
-//! The GPU BVH builders over N (issue 15), one run: seed 000's LBVH (63- and 30-bit Morton
+//! The GPU BVH builders over N, one run: Karras's LBVH (63- and 30-bit Morton
 //! codes) and PLOC (r = 4, 8, 16) built on the device, per pass (GPU timestamps, best of 3
 //! after a warm-up build), the same built to be updated (`allow_update`: the refit's
 //! schedule recorded too), the per-depth refit of that tree and the climbing refit of the
 //! other, and the fitted growth exponent over the icospheres; beside them the GPU
-//! kd-tree (seed 001), the CPU SAH BVH on 2 threads (seed 003, node queue, full sweep) and
+//! kd-tree (Kolodzey 2014), the CPU SAH BVH on 2 threads (Sochora 2013, node queue, full sweep) and
 //! Embree 3's build on 2 threads (when `libembree-dev` is installed), with the SAH cost of
 //! each BVH under one cost model (`validate::sah_cost`, `BvhParams::default`) — the SAH
 //! BVH's also with leaves of one primitive. The GPU builders run with their SAH leaf

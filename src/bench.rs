@@ -255,7 +255,7 @@ pub struct KdBenchRow {
     pub scene: String,
     pub primitives: u32,
     /// The build variant: `default`, or the one optimisation switched back to its baseline
-    /// (seed 001's Table 6.2 ablation).
+    /// (Kolodzey's Table 6.2 ablation).
     pub variant: String,
     pub build_ms: f64,
     /// `build_ms` of this variant over `build_ms` of the default on the same scene, in the
@@ -283,7 +283,7 @@ pub struct KdBenchReport {
 }
 
 /// What each ablation variant of `vkrt bench kdtree --ablation` switches back (label, the
-/// baseline it runs, seed 001's Table 6.2 row).
+/// baseline it runs, Kolodzey's Table 6.2 row).
 pub const KD_VARIANT_NOTES: [(&str, &str); 4] = [
     (
         "workgroup_per_segment",
@@ -366,7 +366,7 @@ fn fit_exponent(points: &[(f64, f64)]) -> Option<f64> {
 }
 
 /// Builds each scene with the default builder and, for scenes of at most `ablation_max_n`
-/// primitives, with each of seed 001's optimisations switched back to its baseline (Table
+/// primitives, with each of Kolodzey's optimisations switched back to its baseline (Table
 /// 6.2): one workgroup per segment instead of the hybrid reduction, a shared-memory instead
 /// of a shuffle argmin, a u32 instead of a byte-flag scan, full event records written to a
 /// temporary slot list and compacted from there (each record moved twice) instead of the

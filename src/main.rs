@@ -50,7 +50,7 @@ enum Command {
         #[arg(long)]
         device: Option<String>,
     },
-    /// Summarise a scene file (.toml, .obj, seed-002 text): counts, bounds, the effects it calls for.
+    /// Summarise a scene file (.toml, .obj, .scn text): counts, bounds, the effects it calls for.
     Scene {
         /// The scene; omit for the embedded default scene (a Cornell box).
         file: Option<PathBuf>,
@@ -59,7 +59,7 @@ enum Command {
     },
     /// Build an acceleration structure and report its time and quality.
     Build {
-        /// Scene (.toml, .obj, seed-002 text); omit for the embedded default scene.
+        /// Scene (.toml, .obj, .scn text); omit for the embedded default scene.
         scene: Option<PathBuf>,
         /// The structure to build: sah-bvh (the SAH BVH, on the CPU's threads; the
         /// default, by measurement: docs/performance.md) or kdtree (the SAH kd-tree after Wu, Zhao & Liu 2011, on
@@ -71,9 +71,9 @@ enum Command {
         /// reference; BVH: also build on one thread (must be equal).
         #[arg(long)]
         reference: bool,
-        /// Seed 001's termination: no SAH leaf test, leaves below 64 primitives.
+        /// Kolodzey's (2014) termination: no SAH leaf test, leaves below 64 primitives.
         #[arg(long)]
-        seed_termination: bool,
+        kolodzey_termination: bool,
         #[arg(long)]
         json: bool,
         /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
@@ -82,7 +82,7 @@ enum Command {
     },
     /// Render a scene to an image (.png, .jpg, .exr or .pfm) with the wavefront renderer.
     Render {
-        /// Scene (.toml, .obj, seed-002 text); omit for the embedded default scene.
+        /// Scene (.toml, .obj, .scn text); omit for the embedded default scene.
         scene: Option<PathBuf>,
         /// Output image, by extension: .png or .jpg/.jpeg (8-bit sRGB), .exr or .pfm (linear
         /// float radiance).
@@ -130,7 +130,7 @@ enum Command {
     /// Rays with NaN/Inf components are misses. Moving geometry is placed at the camera's
     /// shutter-open time.
     Trace {
-        /// Scene (.toml, .obj, seed-002 text).
+        /// Scene (.toml, .obj, .scn text).
         scene: PathBuf,
         /// The ray file (.rays or .csv).
         #[arg(long)]
@@ -216,7 +216,7 @@ enum BenchCommand {
         #[arg(long)]
         profile: Option<PathBuf>,
     },
-    /// Seed 003's Tables 3/4 on this machine: CPU SAH BVH build time of every threading
+    /// Sochora's (2013) Tables 3/4 on this machine: CPU SAH BVH build time of every threading
     /// scheme (single, uneven, even, node queue, rayon) at 1 and all threads, full sweep and
     /// binned (16 bins), over the bunny and icospheres up to --max-n; the speed-up over one
     /// thread, the SAH cost, and the same tree from every scheme asserted.
@@ -250,10 +250,10 @@ enum BenchCommand {
         /// of each is reported (the machine may be shared).
         #[arg(long, default_value_t = 1)]
         reps: u32,
-        /// Seed 001's termination: leaves below 64 primitives, no SAH leaf test (much smaller
+        /// Kolodzey's (2014) termination: leaves below 64 primitives, no SAH leaf test (much smaller
         /// trees than the default leaves of at most 2 primitives).
         #[arg(long)]
-        seed_termination: bool,
+        kolodzey_termination: bool,
         /// Mesh to include (default: ../shared/scenes/stanford-bunny.obj when present).
         #[arg(long)]
         mesh: Option<PathBuf>,
@@ -328,8 +328,8 @@ enum BenchCommand {
     /// against a rebuild's; after how many refit frames a rebuild pays off. Writes
     /// OUT/frames.svg (the per-frame plot) and OUT/report.json.
     Animate {
-        /// The animated scene (default: scenes/seed001_demo.toml).
-        #[arg(default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/seed001_demo.toml"))]
+        /// The animated scene (default: scenes/dynamic_demo.toml).
+        #[arg(default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/dynamic_demo.toml"))]
         scene: PathBuf,
         /// Frames rendered per run.
         #[arg(long, default_value_t = 8)]
@@ -929,14 +929,14 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             scene,
             accel,
             reference,
-            seed_termination,
+            kolodzey_termination,
             json,
             profile,
         } => {
             if accel == "sah-bvh" {
-                if seed_termination {
+                if kolodzey_termination {
                     return Err(
-                        "--seed-termination is the GPU kd-tree thesis's termination rule: add \
+                        "--kolodzey-termination is the GPU kd-tree thesis's termination rule: add \
                                 --accel kdtree"
                             .into(),
                     );
@@ -949,10 +949,12 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 _ => None,
             };
             if let Some(prefer) = driver {
-                if seed_termination || reference {
-                    return Err("--seed-termination and --reference do not apply to the \
+                if kolodzey_termination || reference {
+                    return Err(
+                        "--kolodzey-termination and --reference do not apply to the \
                                 driver's structure (it is opaque)"
-                        .into());
+                            .into(),
+                    );
                 }
                 let ctx = context(cli.validate)?;
                 let scene = load_scene(&scene)?;
@@ -964,9 +966,9 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 _ => None,
             };
             if let Some(kind) = gpu_bvh {
-                if seed_termination {
+                if kolodzey_termination {
                     return Err(
-                        "--seed-termination is the GPU kd-tree thesis's termination rule: add \
+                        "--kolodzey-termination is the GPU kd-tree thesis's termination rule: add \
                                 --accel kdtree"
                             .into(),
                     );
@@ -988,7 +990,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 return Err("the scene has no triangles to build a kd-tree over (spheres are not in the kd-tree yet)".into());
             }
             let mut params = vkrt::accel::kdtree::SahParams::default();
-            if seed_termination {
+            if kolodzey_termination {
                 params.sah_leaf_test = false;
                 params.max_leaf_prims = 63;
             }
@@ -1048,7 +1050,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             let opt = measure::AccuracyOptions {
                 quick,
                 mesh,
-                motion_scene: scenes.join("seed001_demo.toml"),
+                motion_scene: scenes.join("dynamic_demo.toml"),
                 scenes_dir: scenes,
                 command: std::env::args().collect::<Vec<_>>().join(" "),
             };
@@ -1283,7 +1285,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     ablation,
                     ablation_max_n,
                     reps,
-                    seed_termination,
+                    kolodzey_termination,
                     mesh,
                     json,
                     profile,
@@ -1292,7 +1294,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             let scenes = bench_scenes(mesh, max_n)?;
             let ctx = context(cli.validate)?;
             let mut params = vkrt::accel::kdtree::SahParams::default();
-            if seed_termination {
+            if kolodzey_termination {
                 params.max_leaf_prims = 63;
                 params.sah_leaf_test = false;
             }

@@ -26,7 +26,7 @@ use serde::Serialize;
 use crate::accel::bvh::collapse::collapse;
 use crate::accel::bvh::{self, lbvh, ploc};
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelStructure, HostStructure};
-use crate::accel::kdtree::{seed001, SahParams};
+use crate::accel::kdtree::{breadth_first, SahParams};
 use crate::gpu::{kernels, Buffer, Context, Recorder, Result, Spec};
 use crate::prims::radix_sort::{self, RadixSort, DEFAULT_BITS_PER_PASS};
 use crate::prims::reduce::{self, Reduce};
@@ -660,7 +660,7 @@ fn builder_check(
     };
     let equal = match dev.accel.download()? {
         HostStructure::KdTree(tree) => {
-            let (twin, _) = seed001::build_boxes(&g.boxes, &SahParams::default());
+            let (twin, _) = breadth_first::build_boxes(&g.boxes, &SahParams::default());
             tree == twin
         }
         HostStructure::Bvh(tree) => {

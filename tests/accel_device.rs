@@ -1,7 +1,7 @@
 //! Structures built where they are traced, behind the one interface
 //! (`vkrt::accel::device`): sizes first, the build recorded into the caller's recorder, the
 //! trace in the same submission with nothing read back between. Every kind's device build
-//! equals its host twin (the kd-tree bit for bit with seed 001's CPU build, the SAH BVH with
+//! equals its host twin (the kd-tree bit for bit with Kolodzey's CPU build, the SAH BVH with
 //! the one-thread build), fits the sizes it announced, and traces like brute force; a
 //! kd-tree that runs out of its reference budget never answers wrongly.
 
@@ -13,7 +13,7 @@ use vkrt::accel::bvh::collapse::collapse;
 use vkrt::accel::bvh::lbvh::{self, MortonBits};
 use vkrt::accel::bvh::{self, BvhParams, Threading};
 use vkrt::accel::device::{AccelBuilder, AccelKind, AccelStructure, HostStructure};
-use vkrt::accel::kdtree::{seed001, SahParams};
+use vkrt::accel::kdtree::{breadth_first, SahParams};
 use vkrt::gpu::{Buffer, Context, Recorder};
 use vkrt::trace::bvh_cpu::Traversal;
 use vkrt::trace::gpu::{build_and_trace, GpuGeometry, Tracer};
@@ -85,7 +85,7 @@ fn device_builds_equal_their_host_twins_and_fit_their_sizes() {
                 let (dev, host) = device_build(&ctx, &builder, &g);
                 let used = match &host {
                     HostStructure::KdTree(tree) => {
-                        let (twin, _) = seed001::build_boxes(&g.boxes, &SahParams::default());
+                        let (twin, _) = breadth_first::build_boxes(&g.boxes, &SahParams::default());
                         assert_eq!(
                             tree, &twin,
                             "kd-tree of {n} primitives (spheres: {spheres})"

@@ -1,4 +1,4 @@
-//! The GPU BVH builders against their CPU twins, bit for bit: the LBVH (seed 000, Karras
+//! The GPU BVH builders against their CPU twins, bit for bit: the LBVH (Karras
 //! 2012) with 30- and 63-bit Morton codes and PLOC (Meister & Bittner 2018) with search
 //! radii 4, 8 and 16 (and with the pairing fallback after two rounds), on every size edge (0, 1, 2, subgroup ± 1, workgroup ± 1, the radix
 //! sort's tile ± 1, large, random) and the inputs that break naive builders: every code

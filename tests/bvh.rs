@@ -1,7 +1,7 @@
-//! The CPU SAH BVH of seed 003: valid trees at every edge size and on degenerate input,
+//! The CPU SAH BVH of Sochora (2013): valid trees at every edge size and on degenerate input,
 //! the same tree from every threading scheme and thread count, the full sweep and binned
 //! SAH, the depth cap, clear errors on bad parameters and boxes — both CPU traversals
-//! (stack and seed 000's bitstack) equal to brute force, closest hit bit for bit, and the
+//! (stack and the bitstack (Áfra & Szirmay-Kalos 2014)) equal to brute force, closest hit bit for bit, and the
 //! GPU traversals (`glsl/include/vkrt/bvh.glsl`) equal to their CPU twin, under validation.
 
 mod common;

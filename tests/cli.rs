@@ -212,7 +212,7 @@ fn build_kdtree_reports_and_equals_its_twin() {
     assert!(String::from_utf8_lossy(&out.stderr).contains("bvh"));
     // The default structure is the BVH: a kd-tree option without --accel kdtree is an error,
     // not silently ignored.
-    let out = vkrt(&["build", "--seed-termination"]);
+    let out = vkrt(&["build", "--kolodzey-termination"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--accel kdtree"));
 }

@@ -1,4 +1,4 @@
-//! `vkrt bench accuracy --quick` as a user runs it (issue 18): the report folder holds an
+//! `vkrt bench accuracy --quick` as a user runs it: the report folder holds an
 //! `index.html` with one inline plot per group, a `report.json` whose every group has
 //! points with finite numbers, a Pareto front and recommendations for every use, and the
 //! images it compared; the validation layer stays silent. Bad output folders are refused

@@ -1,4 +1,4 @@
-//! `vkrt bench trace --quick` as a user runs it (issue 16): every structure and walk in the
+//! `vkrt bench trace --quick` as a user runs it: every structure and walk in the
 //! report, the driver's rows exactly where the device has ray query (else the note that
 //! says why not), every number finite, vkrt's structures finding the same hits and the
 //! driver within 0.1 % of them, and the validation layer silent.

@@ -1,4 +1,4 @@
-//! The driver's own ray tracing as a structure kind (issue 16, `AccelKind::Driver`): a
+//! The driver's own ray tracing as a structure kind (`AccelKind::Driver`): a
 //! BLAS/TLAS built by the driver over the device primitives in the caller's recorder and the
 //! `query` variant of `render/trace.comp` tracing through it, against brute force —
 //! closest and any hit, 0, 1 and many triangles, spheres as boxes, moving primitives at

@@ -446,7 +446,7 @@ fn empty_buffers_and_dispatches_are_fine() {
     common::assert_silent(&ctx);
 }
 
-/// The driver's own ray tracing (issue 16's backend) is found where it exists and enabled:
+/// The driver's own ray tracing (`AccelKind::Driver`) is found where it exists and enabled:
 /// Mesa 25's lavapipe has `VK_KHR_acceleration_structure` and `VK_KHR_ray_query`, 22.3's
 /// has neither. Creating the context with them (and buffer device addresses in the
 /// allocator) keeps the validation layer silent.

@@ -1,10 +1,10 @@
-//! The GPU kd-tree build against its CPU twin (seed001), bit for bit, phase by phase.
+//! The GPU kd-tree build against its CPU twin (breadth_first), bit for bit, phase by phase.
 
 mod common;
 
 use glam::Vec3;
+use vkrt::accel::kdtree::breadth_first;
 use vkrt::accel::kdtree::gpu::KdTreeBuilder;
-use vkrt::accel::kdtree::seed001;
 use vkrt::scene::gen;
 
 fn bits(v: &[f32]) -> Vec<u32> {
@@ -18,8 +18,8 @@ fn assert_phase_one_equal(
     tris: &[[Vec3; 3]],
 ) {
     let (got, events) = builder.phase_one(ctx, tris).unwrap();
-    let boxes: Vec<_> = tris.iter().map(seed001::prim_box).collect();
-    let bounds = seed001::bounds_of(&boxes);
+    let boxes: Vec<_> = tris.iter().map(breadth_first::prim_box).collect();
+    let bounds = breadth_first::bounds_of(&boxes);
     if !tris.is_empty() {
         assert_eq!(
             bits(&got.min.to_array()),
@@ -32,7 +32,7 @@ fn assert_phase_one_equal(
             "{name}: bounds.max"
         );
     }
-    let cpu = seed001::initial_events(&boxes);
+    let cpu = breadth_first::initial_events(&boxes);
     for a in 0..3 {
         let g = &events[a];
         let c = &cpu[a];
@@ -100,7 +100,7 @@ fn assert_build_equal(
     tris: &[[Vec3; 3]],
     params: &vkrt::accel::kdtree::SahParams,
 ) {
-    let (cpu, _) = seed001::build(tris, params);
+    let (cpu, _) = breadth_first::build(tris, params);
     let (gpu, _) = builder.build(ctx, tris, params).unwrap();
     assert_eq!(gpu.nodes.len(), cpu.nodes.len(), "{name}: node count");
     let first = gpu.nodes.iter().zip(&cpu.nodes).position(|(g, c)| {
@@ -188,7 +188,7 @@ fn overflow_stops_cleanly_and_the_retry_builds_the_same_tree() {
     let builder = KdTreeBuilder::new(&ctx).unwrap();
     let p = vkrt::accel::kdtree::SahParams::default();
     let tris = common::mesh_triangles(&gen::random_soup(3000, 11).unwrap());
-    let (cpu, _) = seed001::build(&tris, &p);
+    let (cpu, _) = breadth_first::build(&tris, &p);
     // Room for barely the root's references: the first clipping level overflows.
     let tiny = vkrt::accel::kdtree::gpu::BuildCapacity::with_refs(tris.len(), tris.len());
     let r = builder.build_from(&ctx, &tris, &p, tiny).unwrap();
@@ -211,7 +211,7 @@ fn gpu_build_equals_cpu_twin_on_hard_cases() {
     }
     // Zero triangles: one empty leaf, as the twin (no GPU work).
     let (gpu, _) = builder.build(&ctx, &[], &p).unwrap();
-    assert_trees_equal("zero triangles", &gpu, &seed001::build(&[], &p).0);
+    assert_trees_equal("zero triangles", &gpu, &breadth_first::build(&[], &p).0);
     common::assert_silent(&ctx);
 }
 
@@ -264,12 +264,12 @@ fn box_cases() -> Vec<(&'static str, Vec<vkrt::accel::kdtree::Aabb>)> {
     };
     let mut mixed: Vec<Aabb> = common::mesh_triangles(&gen::icosphere(3).unwrap())
         .iter()
-        .map(seed001::prim_box)
+        .map(breadth_first::prim_box)
         .collect();
     mixed.extend(
         random_spheres(700, 5)
             .into_iter()
-            .map(|(c, r)| seed001::sphere_box(c, r)),
+            .map(|(c, r)| breadth_first::sphere_box(c, r)),
     );
     let flat: Vec<Aabb> = (0..300)
         .map(|i| {
@@ -329,14 +329,18 @@ fn box_input_equals_cpu_twin() {
         let (bounds, events) = builder
             .phase_one_input(&ctx, BuildInput::Boxes(&boxes))
             .unwrap();
-        let cpu_bounds = seed001::bounds_of(&boxes);
+        let cpu_bounds = breadth_first::bounds_of(&boxes);
         assert_eq!(
             bits(&[bounds.min.to_array(), bounds.max.to_array()].concat()),
             bits(&[cpu_bounds.min.to_array(), cpu_bounds.max.to_array()].concat()),
             "{name}: phase one bounds"
         );
-        assert_eq!(events, seed001::initial_events(&boxes), "{name}: events");
-        let (cpu, _) = seed001::build_boxes(&boxes, &p);
+        assert_eq!(
+            events,
+            breadth_first::initial_events(&boxes),
+            "{name}: events"
+        );
+        let (cpu, _) = breadth_first::build_boxes(&boxes, &p);
         let (gpu, _) = builder.build_boxes(&ctx, &boxes, &p).unwrap();
         assert_trees_equal(name, &gpu, &cpu);
         eprintln!(
@@ -348,10 +352,10 @@ fn box_input_equals_cpu_twin() {
     }
     // Zero boxes: one empty leaf, as the twin.
     let (gpu, _) = builder.build_boxes(&ctx, &[], &p).unwrap();
-    assert_trees_equal("empty", &gpu, &seed001::build_boxes(&[], &p).0);
+    assert_trees_equal("empty", &gpu, &breadth_first::build_boxes(&[], &p).0);
     // Triangles through their boxes give the triangle build's tree.
     let tris = common::mesh_triangles(&gen::random_soup(3000, 4).unwrap());
-    let boxes: Vec<_> = tris.iter().map(seed001::prim_box).collect();
+    let boxes: Vec<_> = tris.iter().map(breadth_first::prim_box).collect();
     let (via_boxes, _) = builder.build_boxes(&ctx, &boxes, &p).unwrap();
     let (direct, _) = builder.build(&ctx, &tris, &p).unwrap();
     assert_trees_equal("soup via boxes", &via_boxes, &direct);
@@ -410,7 +414,7 @@ fn sphere_boxes_on_the_gpu_equal_the_cpu_twin_and_build_the_same_tree() {
     // in the same command buffer: the renderer's path with no host round trip.
     let tri_boxes: Vec<_> = common::mesh_triangles(&gen::icosphere(2).unwrap())
         .iter()
-        .map(seed001::prim_box)
+        .map(breadth_first::prim_box)
         .collect();
     let mut spheres = random_spheres(1000, 8);
     spheres.push((Vec3::new(-0.0, 1e-30, 3.0e7), 0.1)); // rounding: 3e7 ± 0.1 rounds
@@ -440,7 +444,11 @@ fn sphere_boxes_on_the_gpu_equal_the_cpu_twin_and_build_the_same_tree() {
     // The sphere boxes, bit for bit.
     let got = boxes_buf.download().unwrap();
     let mut boxes = tri_boxes.clone();
-    boxes.extend(spheres.iter().map(|&(c, r)| seed001::sphere_box(c, r)));
+    boxes.extend(
+        spheres
+            .iter()
+            .map(|&(c, r)| breadth_first::sphere_box(c, r)),
+    );
     let want: Vec<f32> = boxes
         .iter()
         .flat_map(|b| b.min.to_array().into_iter().chain(b.max.to_array()))
@@ -452,7 +460,7 @@ fn sphere_boxes_on_the_gpu_equal_the_cpu_twin_and_build_the_same_tree() {
     let nodes = out.download_nodes(outcome.nodes as usize).unwrap();
     let mut refs = out.prim_refs.download().unwrap();
     refs.truncate(outcome.refs as usize);
-    let (cpu, _) = seed001::build_boxes(&boxes, &p);
+    let (cpu, _) = breadth_first::build_boxes(&boxes, &p);
     let gpu = vkrt::accel::kdtree::KdTree {
         nodes,
         prim_refs: refs,
@@ -520,7 +528,7 @@ fn ablation_variants_build_the_same_tree() {
             builder.segmented_mode = mode;
         }
         for (name, tris) in &scenes {
-            let (cpu, _) = seed001::build(tris, &p);
+            let (cpu, _) = breadth_first::build(tris, &p);
             let (gpu, _) = builder.build(&ctx, tris, &p).unwrap();
             assert_trees_equal(&format!("{name}, {label}"), &gpu, &cpu);
         }
@@ -557,7 +565,7 @@ fn output_nodes_split_across_two_buffers() {
     let tris = common::mesh_triangles(&gen::random_soup(2000, 7).unwrap());
     let mut builder = KdTreeBuilder::new(&ctx).unwrap();
     builder.max_nodes_per_buffer = Some(1000);
-    let (cpu, _) = seed001::build(&tris, &p);
+    let (cpu, _) = breadth_first::build(&tris, &p);
     assert!(cpu.nodes.len() > 1000, "{} nodes", cpu.nodes.len());
     let (gpu, _) = builder.build(&ctx, &tris, &p).unwrap();
     assert_trees_equal("two node buffers", &gpu, &cpu);

@@ -533,16 +533,16 @@ fn identical_triangles_make_one_leaf() {
     let t = vec![one; 500];
     let (_, s) = check("500 identical", &t, &params());
     assert_eq!((s.nodes, s.references), (1, 500));
-    // Without the SAH leaf test (seed 001's rules) no split separates anything either.
-    let seed_rules = SahParams {
+    // Without the SAH leaf test (Kolodzey's rules) no split separates anything either.
+    let kolodzey_rules = SahParams {
         sah_leaf_test: false,
         ..params()
     };
-    let (_, s) = check("500 identical, no SAH leaf test", &t, &seed_rules);
+    let (_, s) = check("500 identical, no SAH leaf test", &t, &kolodzey_rules);
     assert_eq!((s.nodes, s.references), (1, 500));
     // Identical axis-aligned (flat) triangles too.
     let flat = vec![[Vec3::ZERO, Vec3::X, Vec3::Y]; 300];
-    let (_, s) = check("300 identical flat", &flat, &seed_rules);
+    let (_, s) = check("300 identical flat", &flat, &kolodzey_rules);
     assert_eq!((s.nodes, s.references), (1, 300));
 }
 
@@ -592,12 +592,12 @@ fn axis_aligned_quads_on_candidate_planes() {
     check_rays("cube grid", &tree, &t, 400, 32);
     // Planar primitives lie on split planes: each must be on (at least) one side, and the
     // validator checks exactly that.
-    let seed_rules = SahParams {
+    let kolodzey_rules = SahParams {
         sah_leaf_test: false,
         max_leaf_prims: 1,
         ..params()
     };
-    check("3³ unit cubes, seed rules", &t, &seed_rules);
+    check("3³ unit cubes, Kolodzey rules", &t, &kolodzey_rules);
 }
 
 #[test]
@@ -657,12 +657,12 @@ fn degenerate_and_non_finite_triangles() {
     }
     let (_, s) = check("soup + 400 zero-area", &t, &params());
     assert_eq!(s.primitives, 2400);
-    let seed_rules = SahParams {
+    let kolodzey_rules = SahParams {
         sah_leaf_test: false,
         max_leaf_prims: 1,
         ..params()
     };
-    check("soup + 400 zero-area, seed rules", &t, &seed_rules);
+    check("soup + 400 zero-area, Kolodzey rules", &t, &kolodzey_rules);
     // Everything degenerate at one point: a single leaf.
     let points = vec![[Vec3::splat(0.5); 3]; 50];
     let (_, s) = check("50 identical points", &points, &params());
@@ -704,16 +704,16 @@ fn builds_are_deterministic() {
 }
 
 #[test]
-fn seed_rules_without_sah_leaf_test() {
-    // Seed 001 splits until the leaf size or depth limit; the references stay bounded.
+fn kolodzey_rules_without_sah_leaf_test() {
+    // Kolodzey's build splits until the leaf size or depth limit; the references stay bounded.
     let t = tris(&gen::random_soup(3000, 12).unwrap());
     let p = SahParams {
         sah_leaf_test: false,
         max_leaf_prims: 1,
         ..params()
     };
-    let (tree, s) = check("soup 3000, seed rules", &t, &p);
-    check_rays("soup 3000, seed rules", &tree, &t, 300, 12);
+    let (tree, s) = check("soup 3000, Kolodzey rules", &t, &p);
+    check_rays("soup 3000, Kolodzey rules", &tree, &t, 300, 12);
     assert!(s.refs_per_primitive < 20.0, "{}", s.refs_per_primitive);
     let with_test = stats(&full_clip::build(&t, &params()), &params());
     eprintln!(
@@ -1111,7 +1111,7 @@ fn stanford_bunny() {
     assert!(s.sah_cost > 5.0 && s.sah_cost < 200.0, "SAH {}", s.sah_cost);
 }
 
-/// Seed 003's "Icosahedron" scale: the build and the validator stay practical at 1 M.
+/// Sochora's (2013) "Icosahedron" scale: the build and the validator stay practical at 1 M.
 #[test]
 fn one_million_triangle_icosphere() {
     let t = tris(&gen::icosphere_with_at_least(1_000_000).unwrap());

@@ -8,7 +8,7 @@ use std::path::Path;
 
 use common::{assert_silent, context};
 use glam::Vec3;
-use vkrt::accel::kdtree::{seed001, SahParams};
+use vkrt::accel::kdtree::{breadth_first, SahParams};
 use vkrt::gpu::Context;
 use vkrt::render::gpu::{GpuRender, Renderer};
 use vkrt::render::output::srgb8;
@@ -52,7 +52,7 @@ fn prepare(scene: &Scene, opt: &RenderOptions) -> (Plan, RenderScene) {
     let plan = Plan::new(scene, opt).unwrap();
     let rs = RenderScene::new(scene, &plan, |g| {
         Ok::<_, ()>(RenderAccel::KdTree(
-            seed001::build_boxes(&g.boxes, &SahParams::default()).0,
+            breadth_first::build_boxes(&g.boxes, &SahParams::default()).0,
         ))
     })
     .unwrap();
@@ -226,7 +226,7 @@ fn bench_strips_exactly_the_effect() {
     }
 }
 
-/// One renderer serves every structure: seed 003's BVH, walked with a stack or the
+/// One renderer serves every structure: Sochora's (2013) BVH, walked with a stack or the
 /// bitstack, gives the kd-tree's image byte for byte (the closest hit is the same hit, ties
 /// to the lowest id), and its CPU twin counts the same rays.
 #[test]
@@ -420,7 +420,7 @@ fn the_driver_renders_the_kdtree_image_within_tolerance() {
     }
 }
 
-/// Frames of an animated scene render as stills of their time: seed 001's demo with its
+/// Frames of an animated scene render as stills of their time: Kolodzey's demo with its
 /// shutter opened for half a frame (so the orbiting ring also blurs within the frame), at
 /// frames 0 and 24. Each GPU image matches its CPU twin as every effect's does (the frame's
 /// shutter is shifted to 1 s, the keyframed bunny held at its pose then), and frame 24 is not
@@ -428,7 +428,7 @@ fn the_driver_renders_the_kdtree_image_within_tolerance() {
 #[test]
 fn animation_frames_match_the_cpu_twin() {
     let Some(ctx) = context() else { return };
-    let mut scene = scene_file("seed001_demo.toml");
+    let mut scene = scene_file("dynamic_demo.toml");
     scene.camera.shutter_close = 0.5 / 24.0;
     let mut frames = Vec::new();
     for k in [0, 24] {

@@ -1,5 +1,5 @@
 //! Animated scenes: `[animation]`, keyframed meshes, frames as stills
-//! (`Scene::at_frame`), optional mesh files (`fallback`), the seed 001
+//! (`Scene::at_frame`), optional mesh files (`fallback`), the dynamic demo
 //! example, and every bad animation input as an error naming its line.
 
 use std::path::{Path, PathBuf};
@@ -515,16 +515,16 @@ fn fallback_errors_name_their_own_keys() {
     assert!(r.is_err());
 }
 
-// --- the seed 001 example ------------------------------------------------------------
+// --- the dynamic demo ------------------------------------------------------------
 
 fn shared_bunny() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj")
 }
 
 #[test]
-fn seed001_demo_loads_animates_and_has_a_glass_twin() {
-    let metal = Scene::load(&scenes_dir().join("seed001_demo.toml")).unwrap();
-    let glass = Scene::load(&scenes_dir().join("seed001_demo_glass.toml")).unwrap();
+fn dynamic_demo_loads_animates_and_has_a_glass_twin() {
+    let metal = Scene::load(&scenes_dir().join("dynamic_demo.toml")).unwrap();
+    let glass = Scene::load(&scenes_dir().join("dynamic_demo_glass.toml")).unwrap();
     let bunny_tris = if shared_bunny().exists() {
         assert!(metal.warnings.is_empty(), "{:?}", metal.warnings);
         assert_eq!(metal.scene.meshes[1].name, "bunny");
@@ -584,12 +584,12 @@ fn seed001_demo_loads_animates_and_has_a_glass_twin() {
 }
 
 #[test]
-fn seed001_demo_falls_back_without_shared() {
+fn dynamic_demo_falls_back_without_shared() {
     // The example parsed where ../shared does not exist: the stand-in.
-    let text = std::fs::read_to_string(scenes_dir().join("seed001_demo.toml")).unwrap();
+    let text = std::fs::read_to_string(scenes_dir().join("dynamic_demo.toml")).unwrap();
     let l = Scene::from_toml_str_with(
         &text,
-        Path::new("mem/scenes/seed001_demo.toml"),
+        Path::new("mem/scenes/dynamic_demo.toml"),
         &MemoryFiles::new(),
         &Limits::default(),
     )

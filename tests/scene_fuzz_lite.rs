@@ -19,7 +19,7 @@ use std::path::{Path, PathBuf};
 
 use vkrt::scene::gen::Rng;
 use vkrt::scene::obj::parse_obj_str;
-use vkrt::scene::seed002::parse_seed002;
+use vkrt::scene::scn::parse_scn;
 use vkrt::scene::{Limits, LoadedScene, MemoryFiles, Scene, SceneError};
 
 const DICTIONARY: &[&str] = &[
@@ -124,7 +124,7 @@ const DICTIONARY: &[&str] = &[
     "-4",
     "0/0",
     "1//1",
-    // seed 002
+    // .scn (Bidmon 2010)
     "<Sphere>",
     "<Triangle>",
     "<end>",
@@ -256,7 +256,7 @@ fn mutated_example_files_never_panic() {
     let mut total = 0u64;
     let mut loaded_ok = 0u64;
     for (file_no, (name, bytes)) in inputs.iter().enumerate() {
-        // Seed 001's demo loads ~100 K triangles (its bunny's stand-in is
+        // Kolodzey's (2014) demo loads ~100 K triangles (its bunny's stand-in is
         // generated here), ~100× a small scene per mutant: an eighth of the
         // mutants keeps the suite fast and still covers its keys.
         let big = name.ends_with(".toml")
@@ -312,7 +312,7 @@ fn mutated_example_files_never_panic() {
                         }
                     })
                 } else {
-                    parse_seed002(&text, Path::new("mem/scene.scn"), &limits)
+                    parse_scn(&text, Path::new("mem/scene.scn"), &limits)
                 };
                 let ok = result.is_ok();
                 check(result, &limits);

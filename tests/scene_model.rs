@@ -77,7 +77,7 @@ fn icosphere_with_at_least_is_tight() {
         assert_eq!(gen::geodesic_triangle_count(f), got);
         assert!(f == 1 || gen::geodesic_triangle_count(f - 1) < n);
     }
-    // Seed 003's "Icosahedron": 1.8 M triangles exactly (frequency 300).
+    // Sochora's (2013) "Icosahedron": 1.8 M triangles exactly (frequency 300).
     assert_eq!(
         gen::icosphere_with_at_least(1_800_000)
             .unwrap()

@@ -394,7 +394,7 @@ fn obj_triangle_limit() {
 fn load_dispatches_on_extension() {
     assert!(Scene::load(&scenes_dir().join("house.obj")).is_ok());
     assert!(Scene::load(&scenes_dir().join("hard_shadows.toml")).is_ok());
-    assert!(Scene::load(&scenes_dir().join("seed002_example.scn")).is_ok());
+    assert!(Scene::load(&scenes_dir().join("whitted_example.scn")).is_ok());
     let e = Scene::load(&scenes_dir().join("house.mtl")).unwrap_err();
     assert!(matches!(e, SceneError::UnsupportedFormat { .. }), "{e}");
 }

@@ -113,11 +113,11 @@ const EXAMPLES: &[(&str, &[&str])] = &[
         &["hard_shadows", "reflection", "refraction", "antialiasing"],
     ),
     (
-        "seed001_demo.toml",
+        "dynamic_demo.toml",
         &["hard_shadows", "reflection", "refraction"],
     ),
     (
-        "seed001_demo_glass.toml",
+        "dynamic_demo_glass.toml",
         &["hard_shadows", "reflection", "refraction"],
     ),
 ];
@@ -141,7 +141,7 @@ fn every_example_loads_with_its_effects() {
     for (file, effects) in EXAMPLES {
         let loaded = Scene::load(&scenes_dir().join(file)).unwrap_or_else(|e| panic!("{e}"));
         // The one warning an example may give: ../shared's bunny is absent
-        // and its stand-in is used (seed001_demo*.toml).
+        // and its stand-in is used (dynamic_demo*.toml).
         assert!(
             loaded
                 .warnings

@@ -1,4 +1,4 @@
-//! The robustness suite (issue 7) through the public API, on every structure and walk (the
+//! The robustness suite through the public API, on every structure and walk (the
 //! kd-tree; the SAH BVH, the LBVH and PLOC, each with a stack and with the bitstack), each
 //! built on the device as `vkrt trace` builds it: GPU tracer, default (watertight)
 //! intersector, validation on.

@@ -6,14 +6,14 @@ mod common;
 
 use common::{assert_silent, context, same_answer, Rng};
 use glam::{Vec3, Vec4};
-use vkrt::accel::kdtree::{seed001, KdTree, SahParams};
+use vkrt::accel::kdtree::{breadth_first, KdTree, SahParams};
 use vkrt::gpu::Context;
 use vkrt::trace::cpu::{self, TraceScene};
 use vkrt::trace::gpu::{GpuGeometry, Tracer};
 use vkrt::trace::{Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
 
 fn tree_of(g: &TraceGeometry) -> KdTree {
-    seed001::build_boxes(&g.boxes, &SahParams::default()).0
+    breadth_first::build_boxes(&g.boxes, &SahParams::default()).0
 }
 
 /// A point on primitive `p` of `g` (triangles by random barycentrics, spheres on the

@@ -1,6 +1,6 @@
 #version 460
 // kd-tree Phase I: the box of every triangle (SoA: six arrays), from 9 floats per triangle.
-// min/max are exact, so the CPU twin (seed001::build) gets the same bits.
+// min/max are exact, so the CPU twin (breadth_first::build) gets the same bits.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 

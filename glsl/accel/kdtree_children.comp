@@ -1,6 +1,6 @@
 #version 460
 // kd-tree Phase II: the next level's nodes — boxes split at the plane, event ranges and
-// counts from the scanned virtual slots of axis 0 (twin: seed001 "children").
+// counts from the scanned virtual slots of axis 0 (twin: breadth_first "children").
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "accel/kdtree_level.glsl"

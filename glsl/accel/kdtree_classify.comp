@@ -2,9 +2,9 @@
 #extension GL_EXT_shader_8bit_storage : require
 // kd-tree Phase II: the clip-mask of every event of one axis list, written as 0/1 flags into
 // the virtual [below | above] slots of its node (node i owns [4·first, 4·first + 4·count)),
-// so one scan gives every copy its place (twin: seed001 classify + virtual_slots).
+// so one scan gives every copy its place (twin: breadth_first classify + virtual_slots).
 //
-// Variant `records` is the baseline of seed 001's clip-mask optimisation (Table 6.2,
+// Variant `records` is the baseline of Kolodzey's clip-mask optimisation (Table 6.2,
 // "Clip-Mask"; the ablation `full_record_scatter`): besides the flags it writes the complete
 // clipped record (plane, type, primitive, child node, 6 box floats = 37 bytes) into each of
 // the event's valid virtual slots of a temporary list twice as long as the event list, and

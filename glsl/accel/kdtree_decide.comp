@@ -1,5 +1,5 @@
 #version 460
-// kd-tree Phase II, pass 3: leaf or split, per node of the level (twin: seed001 "decide").
+// kd-tree Phase II, pass 3: leaf or split, per node of the level (twin: breadth_first "decide").
 // node_split[2i] = split axis, or KD_LEAF; node_split[2i + 1] = plane bits.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"

@@ -1,7 +1,7 @@
 #version 460
 // kd-tree Phase I for box input (spheres, moving primitives, any mix): splits 6 floats per
 // primitive (min x, y, z, max x, y, z) into the six SoA arrays kdtree_boxes writes for
-// triangles. A plain copy, so the CPU twin (seed001::build_boxes) sees the same bits.
+// triangles. A plain copy, so the CPU twin (breadth_first::build_boxes) sees the same bits.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 

@@ -1,6 +1,6 @@
 #version 460
 // kd-tree Phase II: leaf primitive lists, written once — the axis-0 START events of leaf
-// nodes, in list order (twin: seed001 "leaves").
+// nodes, in list order (twin: breadth_first "leaves").
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "accel/kdtree_level.glsl"

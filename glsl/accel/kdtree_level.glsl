@@ -1,5 +1,5 @@
 // Shared by the per-level kernels of the GPU kd-tree build (keep in sync with
-// src/accel/kdtree/gpu.rs and the CPU twin src/accel/kdtree/seed001.rs).
+// src/accel/kdtree/gpu.rs and the CPU twin src/accel/kdtree/breadth_first.rs).
 #ifndef VKRT_ACCEL_KDTREE_LEVEL_GLSL
 #define VKRT_ACCEL_KDTREE_LEVEL_GLSL
 
@@ -29,7 +29,7 @@ uint kind_of(uint word, uint id) {
     return (word >> (8u * (id & 3u))) & 0xffu;
 }
 
-// The SAH scaled by the node's half area, division-free (twin: seed001::sah_scaled).
+// The SAH scaled by the node's half area, division-free (twin: breadth_first::sah_scaled).
 float sah_scaled(vec3 mn, vec3 mx, uint axis, float plane, uint below, uint above,
                  float trav, float isect, float bonus) {
     if (!(plane > mn[axis] && plane < mx[axis])) {

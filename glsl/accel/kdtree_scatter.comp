@@ -1,9 +1,9 @@
 #version 460
 // kd-tree Phase II: one compaction moves each event record of one axis list once per side,
 // to its scanned slot, with its box clipped on the split axis only; lists stay sorted
-// (stable subsequences), so they are never re-sorted (twin: seed001::scatter).
+// (stable subsequences), so they are never re-sorted (twin: breadth_first::scatter).
 //
-// Variant `records` (the ablation `full_record_scatter`, seed 001's pre-clip-mask baseline):
+// Variant `records` (the ablation `full_record_scatter`, Kolodzey's pre-clip-mask baseline):
 // the records were already clipped and written to their virtual slots of a temporary list by
 // `kdtree_classify.records`; this pass moves each valid slot's complete record a second time,
 // to its scanned place (one invocation per event, for its two slots).

@@ -2,7 +2,7 @@
 // The boxes of spheres, center ± radius, in the box-input format of kdtree_input_boxes
 // (6 floats per primitive) starting at primitive `first` of the output, so triangles' and
 // spheres' boxes can share one buffer. Each bound is one correctly rounded f32 add or
-// subtract (`precise`: no contraction), as the CPU twin seed001::sphere_box.
+// subtract (`precise`: no contraction), as the CPU twin breadth_first::sphere_box.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 

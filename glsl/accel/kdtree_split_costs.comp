@@ -1,6 +1,6 @@
 #version 460
 // kd-tree Phase II, pass 1: per event, the SAH of its plane on each axis list (counts from
-// the START flag scans), the cheapest axis kept. Twin: seed001::split_costs.
+// the START flag scans), the cheapest axis kept. Twin: breadth_first::split_costs.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "accel/kdtree_level.glsl"

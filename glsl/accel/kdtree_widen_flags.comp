@@ -2,7 +2,7 @@
 // Ablation baseline only (KdTreeBuilder::ablation.u32_event_scan): the event types of one
 // axis list (END = 0 / START = 1, one byte each) widened to one u32 each, so the START
 // counts can be taken by the plain u32 scan instead of the byte-flag scan. Same counts, same
-// tree; the twin is the identity (seed001 scans the bytes).
+// tree; the twin is the identity (breadth_first scans the bytes).
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "accel/kdtree_level.glsl"

@@ -6,7 +6,7 @@
 // winner is unique: the result does not depend on the order in which pairs are combined, and
 // every kernel may combine them however is fastest.
 //
-// The subgroup step is seed 001's SAH shuffle reduction (Listing 6.7): the 64-bit pair
+// The subgroup step is Kolodzey's SAH shuffle reduction (Listing 6.7): the 64-bit pair
 // moves as two 32-bit shuffles, here an xor butterfly (subgroupShuffleXor), so every lane
 // ends with the subgroup's winner.
 //
@@ -54,7 +54,7 @@ void subgroup_argmin(inout float c, inout uint i) {
 }
 
 #ifdef ARGMIN_SHARED
-// The shared-memory workgroup reduction that seed 001's shuffle reduction replaced (Fig. 6.12;
+// The shared-memory workgroup reduction that Kolodzey's shuffle reduction replaced (Fig. 6.12;
 // the ablation benchmark's baseline): every invocation stores its pair, then a tree over
 // shared memory halves the live invocations with one barrier per step. No shuffles. The
 // winner ends in invocation 0 (reduce_lane() == 0 in subgroup 0); the closing barrier makes

@@ -4,7 +4,7 @@
 // loads on lavapipe).
 //
 // FLAGS=0: a granule is a uvec4 of four u32 elements.
-// FLAGS=1: a granule is four words of four 0/1 byte flags each: 16 elements (seed 001's
+// FLAGS=1: a granule is four words of four 0/1 byte flags each: 16 elements (Kolodzey's
 //          uchar4 trick, here uchar16 per load).
 // Full granules load as one uvec4 (binding `in4`); the granule straddling n loads word by
 // word (binding `in1`, the same buffer) and masks what lies past n.

@@ -38,7 +38,7 @@ void main() {
     uint lane = gl_LocalInvocationIndex;
     uint lanes = gl_WorkGroupSize.x;
     uint count = min(count_in[0], pc.max_segments);
-    // Long: at least a tile, and more than 1/share of the span of all segments (the seed's
+    // Long: at least a tile, and more than 1/share of the span of all segments (Kolodzey's
     // node-count switch, per segment), or more than a workgroup may loop over.
     uint total = 0u;
     if (count > 0u) {

@@ -9,9 +9,9 @@
 //!    where they lie by every kernel that traces (`glsl/include/vkrt/traverse.glsl`, whose walk is
 //!    chosen by the `ACCEL_KIND` specialization constant of [`AccelTraversal`]).
 //!
-//! The GPU kd-tree (seed 001) is built by kernels and finished on the device
+//! The GPU kd-tree (Kolodzey 2014) is built by kernels and finished on the device
 //! (`accel.kdtree_finish` writes the scene constants, and an empty root if the build ran
-//! out of capacity). The SAH BVH (seed 003) is a host builder, as Embree's are: it reads the
+//! out of capacity). The SAH BVH (Sochora 2013) is a host builder, as Embree's are: it reads the
 //! host's copy of the primitive boxes and records the upload of its nodes. Downloading a
 //! structure ([`AccelStructure::download`]) is for tests and tools only.
 
@@ -47,12 +47,12 @@ fn refit_workgroup(ctx: &Context) -> u32 {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
 #[serde(rename_all = "kebab-case")]
 pub enum AccelKind {
-    /// Seed 001's SAH kd-tree, built on the GPU.
+    /// Kolodzey's (2014) SAH kd-tree, built on the GPU.
     #[default]
     KdTree,
-    /// Seed 003's SAH BVH, built on the host's cores and uploaded.
+    /// Sochora's (2013) SAH BVH, built on the host's cores and uploaded.
     SahBvh,
-    /// Seed 000's LBVH (Karras 2012), built on the GPU.
+    /// Karras's LBVH (2012), built on the GPU.
     Lbvh,
     /// PLOC (Meister & Bittner 2018), built on the GPU.
     Ploc,

@@ -1,6 +1,6 @@
-//! Acceleration structures: the SAH kd-tree of seed 001 (GPU build, CPU twin of the same
+//! Acceleration structures: the SAH kd-tree of Kolodzey (2014) (GPU build, CPU twin of the same
 //! algorithm, and the classic full-clipping CPU build as the quality reference), with
-//! statistics and a structural validator, and the SAH BVH of seed 003 (multithreaded CPU
+//! statistics and a structural validator, and the SAH BVH of Sochora (2013) (multithreaded CPU
 //! build). Node layouts are shared byte for byte with GLSL.
 #![forbid(unsafe_code)]
 

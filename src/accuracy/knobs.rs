@@ -25,7 +25,7 @@ pub enum Build {
         ploc: Option<PlocParams>,
     },
     /// The host kd-tree with full clipping (`accel::kdtree::full_clip`), uploaded: the
-    /// quality reference seed 001's split-axis clipping is measured against.
+    /// quality reference Kolodzey's split-axis clipping is measured against.
     KdFullClip(SahParams),
 }
 
@@ -210,8 +210,8 @@ fn bvh_kind(kind: AccelKind, walk: Traversal, bvh: BvhParams) -> Build {
     }
 }
 
-/// Seed 001's termination: leaves below 64 primitives, no SAH leaf test.
-pub fn seed001_termination() -> SahParams {
+/// Kolodzey's (2014) termination: leaves below 64 primitives, no SAH leaf test.
+pub fn kolodzey_termination() -> SahParams {
     SahParams {
         sah_leaf_test: false,
         max_leaf_prims: 63,
@@ -227,7 +227,7 @@ pub fn groups(ctx: &Context, quick: bool) -> Vec<GroupSpec> {
     // Structures: every builder and its main parameter.
     let mut structures = vec![
         structure(
-            "kd-tree (seed 001: split-axis clipping)",
+            "kd-tree (Wu et al. 2011: split-axis clipping)",
             kd(SahParams::default()),
             true,
         ),
@@ -302,8 +302,8 @@ pub fn groups(ctx: &Context, quick: bool) -> Vec<GroupSpec> {
             false,
         ),
         structure(
-            "seed 001: leaves < 64, no SAH leaf test",
-            kd(seed001_termination()),
+            "Kolodzey 2014: leaves < 64, no SAH leaf test",
+            kd(kolodzey_termination()),
             false,
         ),
     ];
@@ -334,7 +334,7 @@ pub fn groups(ctx: &Context, quick: bool) -> Vec<GroupSpec> {
         })
         .collect();
 
-    // Traversal: the BVH's stack and seed 000's bitstack; the kd-tree's short stack.
+    // Traversal: the BVH's stack and the bitstack (Áfra & Szirmay-Kalos 2014); the kd-tree's short stack.
     let mut traversal = vec![
         structure(
             "SAH BVH, stack",
@@ -342,7 +342,7 @@ pub fn groups(ctx: &Context, quick: bool) -> Vec<GroupSpec> {
             true,
         ),
         structure(
-            "SAH BVH, bitstack (seed 000)",
+            "SAH BVH, bitstack (Áfra & Szirmay-Kalos 2014)",
             bvh_kind(AccelKind::SahBvh, Traversal::Bitstack, BvhParams::default()),
             true,
         ),

@@ -12,7 +12,7 @@
 //! - **Image settings** (samples per pixel, ray depth): the default scene and every effect
 //!   scene rendered with the setting on the watertight kd-tree. Time axis: the renders' GPU
 //!   ms, summed; error axis: the mean RMSE against the reference.
-//! - **Motion settings** (refit vs rebuild): seed 001's demo animated (`vkrt bench animate`'s
+//! - **Motion settings** (refit vs rebuild): Kolodzey's demo animated (`vkrt bench animate`'s
 //!   loop). Time axis: mean update + render ms per frame after the first; error axis: the
 //!   last frame's SAH cost over a fresh build's, minus 1.
 //!
@@ -59,7 +59,7 @@ pub struct AccuracyOptions {
     pub mesh: Option<PathBuf>,
     /// The folder of the effect scenes (`scenes/`).
     pub scenes_dir: PathBuf,
-    /// The animated scene of the motion group (`scenes/seed001_demo.toml`).
+    /// The animated scene of the motion group (`scenes/dynamic_demo.toml`).
     pub motion_scene: PathBuf,
     /// The command line, for the report.
     pub command: String,
@@ -235,7 +235,7 @@ impl Axes {
     /// A preview tolerates a tree 25 % worse than a fresh build.
     fn motion() -> Self {
         Self {
-            time: "update + render GPU ms per frame (seed 001's demo)",
+            time: "update + render GPU ms per frame (the dynamic demo)",
             error: "SAH cost over a fresh build's, minus 1 (last frame)",
             preview_error_max: 0.25,
             uses: &pareto::USES[..2],

@@ -1,7 +1,7 @@
 //! GPU parallel primitives on subgroup operations, each with a plain CPU twin that the
 //! tests compare against bit for bit: scans (u32 and 0/1 flags packed four per u32),
 //! reductions and argmin, segmented and hybrid segmented argmin, stream compaction and
-//! key-value radix sort. They are the building blocks of the kd-tree builder (seed 001 §2).
+//! key-value radix sort. They are the building blocks of the kd-tree builder (Kolodzey 2014, §2).
 //!
 //! Rules every kernel here follows (see ../shared/DESIGN.md):
 //! - the subgroup size is read at run time (`gl_SubgroupSize`); nothing assumes 32 lanes,
@@ -26,7 +26,7 @@ use crate::gpu::Context;
 pub struct PrimConfig {
     /// Invocations per workgroup: a power of two, a multiple of the subgroup size.
     pub workgroup_size: u32,
-    /// Elements each invocation handles per tile ("algorithm cascading", seed 001).
+    /// Elements each invocation handles per tile ("algorithm cascading", Kolodzey 2014).
     pub items_per_invocation: u32,
 }
 

@@ -1,9 +1,9 @@
 //! Device-wide reductions: sum, min and max of u32 and f32, and the argmin of (f32 cost,
-//! u32 index) that picks the kd-tree's best split planes (seed 001 §2.7).
+//! u32 index) that picks the kd-tree's best split planes (Kolodzey 2014, §2.7).
 //!
 //! Each reduction is a chain of passes of one kernel (`glsl/prims/reduce.comp`,
 //! `glsl/prims/reduce_argmin.comp`): workgroup g reduces tile g of `workgroup_size ×
-//! items_per_invocation` elements (16-byte loads; seed 001's "algorithm cascading") to one
+//! items_per_invocation` elements (16-byte loads; Kolodzey's "algorithm cascading") to one
 //! partial, and the host records passes over the partials until one value is left. No
 //! workgroup waits for another, so this runs on drivers without forward-progress
 //! guarantees, and `n` is known when recording, so the chain is fixed then. Partials live in
@@ -35,7 +35,7 @@
 //! depends on the workgroup size and the items per invocation only, and [`sum_f32_cpu`]
 //! mirrors it bit for bit (the tests check it under subgroup sizes 4 to 32).
 //!
-//! Argmin is seed 001's SAH shuffle reduction: the 64-bit (cost, index) pair moves as two
+//! Argmin is Kolodzey's SAH shuffle reduction: the 64-bit (cost, index) pair moves as two
 //! 32-bit `subgroupShuffleXor`s per butterfly step (`glsl/common/argmin.glsl`).
 //!
 //! Barriers: a `record_*` call orders its own passes. The caller orders the writes of the

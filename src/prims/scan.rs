@@ -40,8 +40,8 @@
 //!
 //! Inside a workgroup: a subgroup scan (`subgroupInclusiveAdd`, or `subgroupShuffleUp`
 //! steps with [`Scan::with_shuffle`]), subgroup totals through shared memory, and several
-//! elements per invocation (seed 001's "algorithm cascading"). Flags are bytes read four
-//! per u32 word (seed 001's uchar4 trick, here 32 per granule), so a flag scan reads a
+//! elements per invocation (Kolodzey's "algorithm cascading"). Flags are bytes read four
+//! per u32 word (Kolodzey's uchar4 trick, here 32 per granule), so a flag scan reads a
 //! quarter of the bytes of a u32 scan of the same length.
 //!
 //! Sums wrap modulo 2^32, on the GPU and in the CPU twins alike.

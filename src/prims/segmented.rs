@@ -1,5 +1,5 @@
 //! Segmented argmin: the best (cost, index) of every segment of a flat cost array — the
-//! kd-tree builder's "best split of every node of a level" (seed 001 §2.8).
+//! kd-tree builder's "best split of every node of a level" (Kolodzey 2014, §2.8).
 //!
 //! Segment s is `costs[offsets[s]..offsets[s + 1]]`; the segment count lives in a GPU buffer
 //! (the previous level's compaction wrote it), with a host-side capacity `max_segments` for
@@ -7,7 +7,7 @@
 //! (best cost, global index of it), lowest cost then lowest index, -0.0 == +0.0 (the order of
 //! [`super::reduce`]); [`CostIndex::NONE`] = (+inf, `u32::MAX`) for an empty segment.
 //!
-//! Two paths, as in the seed:
+//! Two paths, as in Kolodzey (2014):
 //!
 //! - **workgroup per segment** (`segmented_segments.comp`): workgroup s loops over segment
 //!   s. Ideal with many segments; with a few huge ones (the first kd-tree levels) a few
@@ -23,7 +23,7 @@
 //! with the prefix sum of the tiles each touches, and writes the indirect workgroup counts
 //! of both paths (the tiles get none when no segment is long). The host records plan →
 //! `compute_to_indirect` → tiles → `compute_to_indirect` → segments without knowing the
-//! count. `Hybrid { threshold }` is the seed's node-count switch made per segment: a
+//! count. `Hybrid { threshold }` is Kolodzey's node-count switch made per segment: a
 //! segment is long when it holds more than 1/`threshold` of all the segments' elements (and
 //! at least a tile). On a balanced level k (2^k equal segments) that is exactly "tiles while
 //! 2^k < threshold"; on the skewed levels of real scenes it also splits the one node that
@@ -198,7 +198,7 @@ pub struct SegmentedArgmin {
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub enum WorkgroupReduction {
     /// Subgroup shuffles (xor butterfly), then one barrier and one subgroup over the
-    /// subgroup winners: seed 001's Listing 6.7.
+    /// subgroup winners: Kolodzey's Listing 6.7.
     #[default]
     Shuffle,
     /// A tree over shared memory, one barrier per halving step, no subgroup operations.

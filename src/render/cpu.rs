@@ -106,7 +106,9 @@ fn host_twin(kind: AccelKind, g: &TraceGeometry) -> RenderAccel {
     match kind {
         AccelKind::KdTree => {
             let params = crate::accel::kdtree::SahParams::default();
-            RenderAccel::KdTree(crate::accel::kdtree::seed001::build_boxes(&g.boxes, &params).0)
+            RenderAccel::KdTree(
+                crate::accel::kdtree::breadth_first::build_boxes(&g.boxes, &params).0,
+            )
         }
         AccelKind::SahBvh | AccelKind::Driver => RenderAccel::Bvh(
             crate::accel::bvh::build(&g.boxes, &Default::default(), Threading::all_cores())
@@ -130,7 +132,7 @@ pub fn render(rs: &RenderScene, plan: &Plan, trace_opt: &TraceOptions) -> CpuRen
     let mut accum = vec![Vec3::ZERO; n_pixels];
     let mut counts = RayCounts::default();
     // A structure the GPU builds on the device: its CPU twin builds the same one here
-    // (seed 001's CPU build is bit-exact with the GPU's; the SAH BVH is deterministic).
+    // (Kolodzey's CPU build is bit-exact with the GPU's; the SAH BVH is deterministic).
     let host = match &rs.accel {
         RenderAccel::OnDevice(choice) => Some(host_twin(choice.kind, &rs.geometry)),
         _ => None,

@@ -12,7 +12,7 @@
 //!
 //! where `E_light` is `I/d²` for point lights, `I` for directional ones and one area sample
 //! `L_e·cosθ_l·A/d²` per path vertex for sphere and quad lights (soft over the samples of a
-//! pixel). Diffuse albedo is used without 1/π, as in seed 002.
+//! pixel). Diffuse albedo is used without 1/π, as in Bidmon (2010).
 
 pub mod animate;
 pub mod bench;
@@ -71,7 +71,7 @@ impl RayCounts {
     }
 }
 
-/// The structure a render traces: seed 001's kd-tree or seed 003's BVH.
+/// The structure a render traces: Kolodzey's kd-tree or Sochora's (2013) BVH.
 pub enum RenderAccel {
     /// Built on the host (the CPU twins, tests).
     KdTree(KdTree),

@@ -103,7 +103,7 @@ pub enum SceneError {
 
     /// `Scene::load` was given a file whose extension names no format.
     #[error(
-        "{}: unsupported scene file extension {extension:?}: expected .toml, .obj, or .scn/.txt (seed-002 text format)",
+        "{}: unsupported scene file extension {extension:?}: expected .toml, .obj, or .scn/.txt (Bidmon's plain-text format)",
         path.display()
     )]
     UnsupportedFormat {
@@ -113,7 +113,7 @@ pub enum SceneError {
         extension: String,
     },
 
-    /// Malformed text: TOML, OBJ, MTL or seed-002 syntax, a value of the
+    /// Malformed text: TOML, OBJ, MTL or .scn syntax, a value of the
     /// wrong type, an unknown key, a missing key, invalid UTF-8.
     #[error("{origin}: {message}")]
     Syntax {

@@ -1,7 +1,7 @@
 //! Surface materials.
 //!
 //! One flat struct rather than an enum of material kinds: a Whitted-style
-//! surface is a *sum* of responses (seed 002 adds direct light, the mirror
+//! surface is a *sum* of responses (Bidmon (2010) adds direct light, the mirror
 //! ray and the refracted ray), so any combination of diffuse, Phong
 //! highlight, mirror, glossy, glass and emission must be expressible. The
 //! renderer reads which terms are non-zero (see [`Material::reflects`] and
@@ -20,7 +20,7 @@
 //!
 //! where `F` is the Fresnel reflectance of the dielectric boundary (total
 //! internal reflection gives `F = 1`). With `fresnel = false` the weights are
-//! exactly seed 002's `reflection` and `transparency`.
+//! exactly Bidmon's (2010) `reflection` and `transparency`.
 
 use glam::Vec3;
 
@@ -47,7 +47,7 @@ pub struct Material {
     pub ior: f32,
     /// Whether the reflect/refract split of `transmission` follows the
     /// Fresnel equations (true, physically based glass) or uses the fixed
-    /// weights (false, seed 002's model).
+    /// weights (false, Bidmon's (2010) model).
     pub fresnel: bool,
     /// Emitted radiance, each channel ≥ 0.
     pub emission: Vec3,
@@ -105,12 +105,12 @@ impl Material {
         }
     }
 
-    /// Seed 002's material (thesis Appendix B) for an object of colour
+    /// Bidmon's (2010) material (thesis Appendix B) for an object of colour
     /// `color`: `shininess` is the Phong exponent, `specular` scales a white
     /// highlight, `reflection` (0..1) is the mirror weight, `refraction` the
     /// index of refraction and `transparency` (0..1) the refracted weight.
-    /// Fresnel is off: seed 002 uses fixed weights.
-    pub fn seed002(
+    /// Fresnel is off: Bidmon (2010) uses fixed weights.
+    pub fn scn(
         name: &str,
         color: Vec3,
         shininess: f32,

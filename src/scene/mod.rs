@@ -8,8 +8,8 @@
 //!
 //! - front ends: the TOML scene format ([`toml_format`], documented in
 //!   `docs/scene-format.md`), Wavefront OBJ + MTL ([`obj`], parsed by `tobj`
-//!   after a line-numbered pre-validation), seed 002's plain-text format
-//!   ([`seed002`]) and procedural generators ([`gen`]);
+//!   after a line-numbered pre-validation), Bidmon's (2010) plain-text format
+//!   ([`scn`]) and procedural generators ([`gen`]);
 //! - one validation pass ([`validate`]) that every front end runs, so "no
 //!   NaN, no index out of range, no zero-size image, nothing above the
 //!   documented limits" holds for every scene the renderer ever sees;
@@ -29,7 +29,7 @@ pub mod limits;
 pub mod material;
 pub mod model;
 pub mod obj;
-pub mod seed002;
+pub mod scn;
 mod toml_anim;
 mod toml_defs;
 pub mod toml_format;
@@ -94,8 +94,8 @@ pub enum SceneFormat {
     /// `.obj`: a Wavefront mesh (with its MTL libraries), framed by a
     /// default camera and light.
     Obj,
-    /// `.scn` or `.txt`: seed 002's plain-text format.
-    Seed002,
+    /// `.scn` or `.txt`: Bidmon's (2010) plain-text format.
+    Scn,
 }
 
 impl SceneFormat {
@@ -108,7 +108,7 @@ impl SceneFormat {
         match ext.as_str() {
             "toml" => Ok(SceneFormat::Toml),
             "obj" => Ok(SceneFormat::Obj),
-            "scn" | "txt" => Ok(SceneFormat::Seed002),
+            "scn" | "txt" => Ok(SceneFormat::Scn),
             _ => Err(SceneError::UnsupportedFormat {
                 path: path.to_owned(),
                 extension: ext,
@@ -135,7 +135,7 @@ impl Scene {
                 toml_format::parse_toml_scene(&text, path, &base_dir, &DiskFiles, limits)
             }
             SceneFormat::Obj => obj::load_obj_scene(&text, path, &DiskFiles, limits),
-            SceneFormat::Seed002 => seed002::parse_seed002(&text, path, limits),
+            SceneFormat::Scn => scn::parse_scn(&text, path, limits),
         }
     }
 

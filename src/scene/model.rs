@@ -420,7 +420,7 @@ pub struct RenderSettings {
     /// Samples per pixel, 1 ..= [`MAX_SPP`](super::MAX_SPP).
     pub spp: u32,
     /// Bounces after the primary hit, 0 ..= [`MAX_DEPTH`](super::MAX_DEPTH)
-    /// (0 = primary rays and direct light only, like seed 002's depth 0).
+    /// (0 = primary rays and direct light only, like Bidmon's (2010) depth 0).
     pub max_depth: u32,
     /// Colour of rays that hit nothing.
     pub background: Vec3,

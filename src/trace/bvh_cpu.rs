@@ -1,6 +1,7 @@
-//! BVH queries on the CPU: closest or any hit with a short stack, or with seed 000's
-//! stackless bitstack traversal (its Algorithm 3: parent links and one bit per level of the
-//! path from the root, "the other child is still to visit"). Same contract as the kd-tree
+//! BVH queries on the CPU: closest or any hit with a short stack, or with the stackless
+//! bitstack traversal of Áfra & Szirmay-Kalos (2014) as Novák (2019, Algorithm 3) writes it:
+//! parent links and one bit per level of the path from the root, "the other child is still
+//! to visit". Same contract as the kd-tree
 //! query (`super` module docs); the twin of the GLSL BVH traversal.
 
 use glam::Vec3;
@@ -19,7 +20,7 @@ pub enum Traversal {
     /// Far children on a stack.
     #[default]
     Stack,
-    /// No stack: parent links and a trail of one bit per level (seed 000).
+    /// No stack: parent links and a trail of one bit per level (Áfra & Szirmay-Kalos 2014).
     Bitstack,
 }
 
@@ -237,7 +238,7 @@ fn pop(stack: &mut Vec<(Child, f32)>, best_t: f32) -> Option<Child> {
     None
 }
 
-/// Seed 000's Algorithm 3: descend to the nearer child pushing a 1 bit when the farther one
+/// Novák's (2019) Algorithm 3 (the bitstack of Áfra & Szirmay-Kalos 2014): descend to the nearer child pushing a 1 bit when the farther one
 /// waits, 0 otherwise; on a dead end climb the parent links to the deepest 1 bit and take
 /// that level's other child (its box tested again against the best hit so far).
 fn bitstack(q: &mut Query1<'_>) -> bool {

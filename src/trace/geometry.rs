@@ -9,7 +9,7 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec3, Vec4};
 
-use crate::accel::kdtree::seed001::prim_box;
+use crate::accel::kdtree::breadth_first::prim_box;
 use crate::scene::{swept_points, Aabb, Motion, Scene};
 
 /// Motion slot of a primitive that does not move.

@@ -390,7 +390,7 @@ impl Tracer {
     }
 }
 
-/// Builds the kd-tree of `g` on the GPU (seed 001's builder over the primitives' boxes).
+/// Builds the kd-tree of `g` on the GPU (Kolodzey's builder over the primitives' boxes).
 pub fn build_kdtree(
     ctx: &Context,
     g: &TraceGeometry,

@@ -1230,7 +1230,7 @@ impl Suite<'_> {
             }
         }
         if self.size.big_soup > 0 {
-            // The SahParams defaults first; if the tree does not fit the device, seed 001's
+            // The SahParams defaults first; if the tree does not fit the device, Kolodzey's
             // termination (leaves below 64, no SAH leaf test); if that does not fit either,
             // half the triangles, until one fits. The note says which.
             let seed = SahParams {
@@ -1246,7 +1246,7 @@ impl Suite<'_> {
                 let mut built = None;
                 for (label, params) in [
                     ("the suite's SahParams", self.config.kd_params),
-                    ("seed-001 termination", seed),
+                    ("Kolodzey termination", seed),
                 ] {
                     match self.prepare(g.clone(), &params) {
                         Ok(p) => {

@@ -3,7 +3,7 @@
 // interior node (count 0), a leaf (count > 0 references from index on) or missing (count 0,
 // index NO_NODE). Two walks, the same decisions in the same order as src/trace/bvh_cpu.rs:
 // a while-while stack walk (trace_bvh_stack: interior nodes until a leaf is in hand, then the
-// leaf; far children and leaves on the stack with their entry distance), or seed 000's
+// leaf; far children and leaves on the stack with their entry distance), or Novák's (2019)
 // stackless bitstack (trace_bvh_bitstack: parent links and one bit per level, "the other
 // child still waits"). Trees are at most 128 levels deep (MAX_TRAVERSAL_DEPTH in
 // src/accel/bvh/layout.rs: the SAH builder stops at 64, the LBVH's codes and indices give at
@@ -139,7 +139,7 @@ Hit trace_bvh_stack(Ray r, float time, bool any_hit) {
     return best;
 }
 
-// Seed 000's bitstack walk (its Algorithm 3).
+// The bitstack walk (Áfra & Szirmay-Kalos 2014; Novák 2019, Algorithm 3).
 Hit trace_bvh_bitstack(Ray r, float time, bool any_hit) {
     Hit best = miss_hit();
     if (!ray_is_valid(r) || scene_info.n_tris + scene_info.n_spheres == 0u) {

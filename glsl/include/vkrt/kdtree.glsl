@@ -19,7 +19,7 @@ bool sign_bit(float x) {
 }
 
 // min / max with -0.0 below +0.0 (GLSL's min/max leave that case open), as the CPU twin
-// (`seed001::fmin`, `seed001::fmax`) and the reductions.
+// (`breadth_first::fmin`, `breadth_first::fmax`) and the reductions.
 float fmin_total(float a, float b) {
     return (a < b || (a == b && sign_bit(a))) ? a : b;
 }

@@ -1,4 +1,4 @@
-//! `vkrt bench bvh`: seed 003's build-time tables on this machine.
+//! `vkrt bench bvh`: Sochora's (2013) build-time tables on this machine.
 
 use glam::Vec3;
 

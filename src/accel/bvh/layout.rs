@@ -1,6 +1,6 @@
 //! The BVH as the traversal reads it: binary nodes that hold both children's boxes (Aila &
 //! Laine 2009: one node fetch decides both children), parent links for the stackless
-//! bitstack traversal of seed 000, and the primitive references the leaves point into.
+//! bitstack traversal (Áfra & Szirmay-Kalos 2014), and the primitive references the leaves point into.
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;

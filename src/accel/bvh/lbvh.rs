@@ -1,4 +1,4 @@
-//! Karras's LBVH (2012), seed 000's GPU builder: primitives ordered along a Morton curve of
+//! Karras's LBVH (2012), Novák's (2019) GPU builder: primitives ordered along a Morton curve of
 //! their box centroids, every internal node's range and split found from the common prefixes
 //! of the sorted codes, boxes computed bottom-up. This is the CPU twin of the GPU build
 //! (`glsl/accel/lbvh_*.comp` + `accel.bvh_refit`, [`super::lbvh_gpu`]): the same codes, the

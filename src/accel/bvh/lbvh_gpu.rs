@@ -1,4 +1,4 @@
-//! The LBVH built on the GPU (seed 000's builder, Karras 2012), recorded into the caller's
+//! The LBVH built on the GPU (Karras 2012), recorded into the caller's
 //! recorder with no read-back: centroid bounds (`accel.lbvh_bounds`), Morton codes
 //! (`accel.lbvh_morton`), a stable key-value radix sort of the codes (`prims`; 63-bit codes
 //! sort the low word, then the high word), the topology (`accel.lbvh_karras`) written in the

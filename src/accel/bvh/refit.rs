@@ -1,12 +1,12 @@
 //! Refit: every box of a built BVH recomputed bottom-up from moved primitive boxes, the
 //! topology kept (for dynamic scenes where objects move but stay close together). The CPU
-//! twin of `glsl/accel/bvh_refit.comp`; both take the union with seed 001's total order on
+//! twin of `glsl/accel/bvh_refit.comp`; both take the union with Kolodzey's total order on
 //! ±0 (`fmin_total`/`fmax_total`), so they agree bit for bit.
 
 use glam::Vec3;
 
 use super::layout::{Bvh, Child};
-use crate::accel::kdtree::seed001::{fmax, fmin};
+use crate::accel::kdtree::breadth_first::{fmax, fmin};
 use crate::scene::Aabb;
 
 /// `a ∪ b`, -0 below +0.

@@ -1,10 +1,10 @@
-//! The CPU SAH BVH builder of seed 003: top-down, greedy, binary object splits.
+//! The CPU SAH BVH builder of Sochora (2013): top-down, greedy, binary object splits.
 //!
 //! Each node keeps its primitives in three index arrays sorted by box centroid along x, y
 //! and z (ties by primitive id), sorted once at the root and stably partitioned at every
 //! split, so no node sorts again (O(n log n) in all). A split is "the first `i` primitives
 //! of axis `k`'s order go left"; it is found either
-//! - by the **full sweep** of seed 003 over all n − 1 positions of every axis: areas of the
+//! - by the **full sweep** of Sochora (2013) over all n − 1 positions of every axis: areas of the
 //!   right-hand boxes accumulated right to left, then a left-to-right sweep that grows the
 //!   left box, or
 //! - **binned** (Wald 2007): centroids into `bins` equal slabs of the node's centroid box
@@ -16,7 +16,7 @@
 //! `C_isect·A·n`, with A half surface areas. A node of one primitive is a leaf; a node of
 //! more than `max_leaf_prims` is always split; in between, the cheaper wins.
 //!
-//! Threading (seed 003, Chapter 4): [`Threading::Uneven`] hands the bigger child of a split
+//! Threading (Sochora 2013, Chapter 4): [`Threading::Uneven`] hands the bigger child of a split
 //! to a new thread with one core fewer and builds the other child without threads;
 //! [`Threading::Even`] halves the free cores per child; [`Threading::Queue`] processes nodes
 //! breadth-first from a shared queue with as many workers as cores and switches a node to
@@ -58,7 +58,7 @@ impl Default for BvhParams {
     }
 }
 
-/// How the build uses threads (seed 003's three schemes and a rayon baseline).
+/// How the build uses threads (Sochora's (2013) three schemes and a rayon baseline).
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Threading {
@@ -80,7 +80,7 @@ pub enum Threading {
 }
 
 impl Threading {
-    /// Seed 003's winner, the node queue, on every core of this machine: what the CLI and
+    /// Sochora's (2013) winner, the node queue, on every core of this machine: what the CLI and
     /// the renderer build with.
     pub fn all_cores() -> Self {
         Threading::Queue {
@@ -249,7 +249,7 @@ struct Ctx<'a> {
     centroids: &'a [Vec3],
     params: BvhParams,
     threads: Threading,
-    /// Seed 003's condition 4 (depth) for scenes under 500 K primitives, else condition 2.
+    /// Sochora's (2013) condition 4 (depth) for scenes under 500 K primitives, else condition 2.
     queue_switch_depth: bool,
 }
 
@@ -431,7 +431,7 @@ impl<'a> Ctx<'a> {
         }
     }
 
-    /// Seed 003's uneven and even thread assignment; `cores` = threads this call may start.
+    /// Sochora's (2013) uneven and even thread assignment; `cores` = threads this call may start.
     fn spawning(&self, s: Slices<'_>, cores: usize) -> Tmp {
         if cores == 0 {
             return self.recurse(s);
@@ -490,7 +490,7 @@ impl<'a> Ctx<'a> {
         }
     }
 
-    /// Seed 003's node queue: breadth-first from a shared queue, subtrees recursive once
+    /// Sochora's (2013) node queue: breadth-first from a shared queue, subtrees recursive once
     /// the switch condition holds.
     fn queue(&self, root: Slices<'_>, threads: usize) -> Tmp {
         struct State<'s> {

@@ -18,13 +18,13 @@
 //!   (there are O(√N) of them) and merged into the child lists. No list is ever re-sorted,
 //!   which is what makes the build O(N log N).
 //!
-//! Seed 001 (Kolodzey 2014) clips only on the split axis, so that its GPU event lists never
+//! Kolodzey (2014) clips only on the split axis, so that its GPU event lists never
 //! need re-sorting; its secondary-axis boxes stay loose. This builder clips on all axes, as
 //! the thesis' own CPU reference and Wu et al. 2011 do, so comparing the two trees measures
 //! what the shortcut costs.
 //!
 //! SAH ([`SahParams`]): `C = C_trav + c_obj·(SA_L·N_L + SA_R·N_R)/SA`, multiplied by the
-//! empty bonus λ when one side has no primitive (Wald & Havran; seed 001 Eq. 2.6).
+//! empty bonus λ when one side has no primitive (Wald & Havran; Kolodzey 2014, Eq. 2.6).
 //! Candidate planes lie strictly inside the node box: a plane on the boundary cuts off no
 //! volume, and with λ < 1 it would look cheaper than the node itself forever.
 //!

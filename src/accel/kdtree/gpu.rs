@@ -1,5 +1,5 @@
-//! The GPU build of seed 001, recorded into one command buffer with no read-back between
-//! levels (see [`super::seed001`] for the algorithm; it is this build's CPU twin and the
+//! The GPU build of Kolodzey (2014), recorded into one command buffer with no read-back between
+//! levels (see [`super::breadth_first`] for the algorithm; it is this build's CPU twin and the
 //! tests require both to give the same tree, bit for bit).
 //!
 //! Phase I: primitive boxes — from triangles (`accel.kdtree_boxes`) or from boxes the
@@ -28,7 +28,7 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
-use super::seed001::Events;
+use super::breadth_first::Events;
 use super::{Aabb, KdNode, KdTree, SahParams};
 use crate::gpu::{
     kernels, Buffer, BufferArg, Context, GpuError, Kernel, Profile, Recorder, Result, Spec,
@@ -267,18 +267,18 @@ pub struct KdTreeBuilder {
     ablation: Ablation,
 }
 
-/// The baselines of seed 001's Table 6.2 ablation that the build can switch back to. Every
+/// The baselines of Kolodzey's Table 6.2 ablation that the build can switch back to. Every
 /// combination gives the same tree, bit for bit (tests/kdtree_gpu.rs); only speed differs.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
 pub struct Ablation {
     /// The best split's workgroup reduction through shared memory (one barrier per halving
-    /// step) instead of subgroup shuffles (seed 001 Listing 6.7 vs its Fig. 6.12 baseline).
+    /// step) instead of subgroup shuffles (Kolodzey 2014, Listing 6.7 vs its Fig. 6.12 baseline).
     pub shared_memory_argmin: bool,
     /// START counts by the plain u32 scan over event types widened to u32 (an extra pass)
-    /// instead of the byte-flag scan that reads 4 types per u32 (seed 001 Listing 6.6).
+    /// instead of the byte-flag scan that reads 4 types per u32 (Kolodzey 2014, Listing 6.6).
     pub u32_event_scan: bool,
     /// Clipping and partitioning by scattering full event records instead of the 1-byte
-    /// clip-mask (seed 001 Alg. 10 / Table 6.1 vs its baseline, "Clip-Mask" in Table 6.2).
+    /// clip-mask (Kolodzey 2014, Alg. 10 / Table 6.1 vs its baseline, "Clip-Mask" in Table 6.2).
     /// Default: `classify` writes one flag byte per event and side, one flag scan, and
     /// `scatter` reads each record once and writes it, clipped, to its place (≈ 37 bytes
     /// written per kept copy). Baseline: `classify.records` also writes each event's complete
@@ -384,7 +384,7 @@ impl KdTreeBuilder {
         })
     }
 
-    /// A builder with some of seed 001's optimisations switched back to their baselines
+    /// A builder with some of Kolodzey's optimisations switched back to their baselines
     /// (for the ablation benchmark; [`KdTreeBuilder::new`] is the default, all on).
     pub fn with_ablation(ctx: &Context, ablation: Ablation) -> Result<Self> {
         Self::require(ctx)?;
@@ -622,7 +622,7 @@ impl KdTreeBuilder {
     /// Records the boxes of `n` spheres (4 floats each: center x, y, z, radius) into
     /// `boxes` as primitives `first .. first + n` of the box input of
     /// [`KdTreeBuilder::record_build_boxes`]: `center ± radius`, exactly as
-    /// [`super::seed001::sphere_box`]. The caller orders the writes of `spheres` before and
+    /// [`super::breadth_first::sphere_box`]. The caller orders the writes of `spheres` before and
     /// a `compute_to_compute` barrier before the build reads `boxes`.
     pub fn record_sphere_boxes(
         &self,
@@ -1098,9 +1098,9 @@ impl KdTreeBuilder {
     }
 
     /// [`KdTreeBuilder::build`] over primitive boxes (spheres, moving primitives, a mix:
-    /// e.g. [`super::seed001::prim_box`] of every triangle followed by
-    /// [`super::seed001::sphere_box`] of every sphere). Primitive `i` of the tree is
-    /// `boxes[i]`; the tree equals [`super::seed001::build_boxes`] bit for bit. A box that is
+    /// e.g. [`super::breadth_first::prim_box`] of every triangle followed by
+    /// [`super::breadth_first::sphere_box`] of every sphere). Primitive `i` of the tree is
+    /// `boxes[i]`; the tree equals [`super::breadth_first::build_boxes`] bit for bit. A box that is
     /// not finite or has min > max on an axis is an error.
     pub fn build_boxes(
         &self,
@@ -1145,7 +1145,7 @@ impl KdTreeBuilder {
     ) -> Result<BuildResult> {
         input.check()?;
         let n = input.len();
-        let bounds = super::seed001::bounds_of(&input.boxes());
+        let bounds = super::breadth_first::bounds_of(&input.boxes());
         if n == 0 {
             let tree = KdTree {
                 nodes: vec![KdNode::leaf(0, 0)],
@@ -1321,7 +1321,7 @@ impl BuildInput<'_> {
     /// The primitive boxes, as Phase I computes them.
     pub fn boxes(&self) -> Vec<Aabb> {
         match self {
-            Self::Triangles(t) => t.iter().map(super::seed001::prim_box).collect(),
+            Self::Triangles(t) => t.iter().map(super::breadth_first::prim_box).collect(),
             Self::Boxes(b) => b.to_vec(),
         }
     }

@@ -2,7 +2,7 @@
 //! traversal, the SAH parameters, statistics and a structural validator.
 //!
 //! Builders take triangles (world space) or primitive boxes (spheres, moving primitives, a
-//! mix: [`gpu::KdTreeBuilder::build_boxes`], [`seed001::build_boxes`]) and return a
+//! mix: [`gpu::KdTreeBuilder::build_boxes`], [`breadth_first::build_boxes`]) and return a
 //! [`KdTree`] whose primitive `i` is input `i`; they do not know what a material or a mesh
 //! is.
 //!
@@ -12,10 +12,10 @@
 //!   all nodes of depth d come before those of depth d + 1);
 //! - leaf: `kind` = [`LEAF`], primitives `prim_refs[a .. a + b]` (b may be 0: empty leaf).
 
+pub mod breadth_first;
 pub mod full_clip;
 pub mod gpu;
 pub mod report;
-pub mod seed001;
 pub mod stats;
 pub mod validate;
 
@@ -77,21 +77,21 @@ pub struct KdTree {
     pub primitives: u32,
 }
 
-/// SAH parameters and termination rules (pbrt's and seed 001's defaults).
+/// SAH parameters and termination rules (pbrt's and Kolodzey's defaults).
 #[derive(Clone, Copy, Debug, PartialEq, serde::Serialize)]
 pub struct SahParams {
     /// Cost of one traversal step (C_trav).
     pub traversal_cost: f32,
     /// Cost of one primitive intersection (c_obj).
     pub intersection_cost: f32,
-    /// Factor on the SAH when one side of a split is empty (seed 001: λ = 0.8).
+    /// Factor on the SAH when one side of a split is empty (Kolodzey 2014: λ = 0.8).
     pub empty_bonus: f32,
     /// Maximum depth; `None` = `8 + 1.3·log2(N)` (pbrt).
     pub max_depth: Option<u32>,
     /// A node with at most this many primitives becomes a leaf.
     pub max_leaf_prims: u32,
     /// Make a leaf when the best split costs more than intersecting everything
-    /// (seed 001 lacked this test; switch it off to reproduce the seed).
+    /// (Kolodzey 2014 lacked this test; switch it off to reproduce that build).
     pub sah_leaf_test: bool,
 }
 

@@ -9,10 +9,10 @@ use glam::Vec3;
 use serde::Serialize;
 
 use super::gpu::KdTreeBuilder;
-use super::{full_clip, seed001, stats, SahParams};
+use super::{breadth_first, full_clip, stats, SahParams};
 use crate::gpu::{Context, Profile, Result};
 
-/// The phases of seed 001 as profiler scopes (summed over all levels).
+/// The phases of Kolodzey (2014) as profiler scopes (summed over all levels).
 pub const PHASES: [&str; 5] = [
     "kdtree.phase1",
     "kdtree.split_costs",
@@ -85,7 +85,7 @@ pub fn build_report(
     };
     if reference {
         let t = Instant::now();
-        let (twin, _) = seed001::build(triangles, params);
+        let (twin, _) = breadth_first::build(triangles, params);
         report.cpu_twin_ms = Some(t.elapsed().as_secs_f64() * 1e3);
         let same_nodes = twin.nodes.len() == result.tree.nodes.len()
             && twin.nodes.iter().zip(&result.tree.nodes).all(|(a, b)| {

@@ -9,7 +9,7 @@
 //! Node boxes are derived top-down from `tree.bounds` and the split planes, so the number
 //! measures the tree as traversal sees it (a leaf's box is its region, not the box of its
 //! primitives). The empty bonus λ is a build-time bias, not a cost, and does not appear.
-//! Areas and sums are accumulated in f64. It is the number seed 001's GPU builder (split-
+//! Areas and sums are accumulated in f64. It is the number Kolodzey's GPU builder (split-
 //! axis clipping) and the full-clipping reference are compared by; a single leaf holding all
 //! N primitives costs `c_obj·N`.
 //!

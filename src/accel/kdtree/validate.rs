@@ -1,5 +1,5 @@
 //! Structural validator for kd-trees in the shared layout: the oracle every builder (the
-//! full-clipping reference, seed 001's GPU build and its CPU twin) is checked against.
+//! full-clipping reference, Kolodzey's GPU build and its CPU twin) is checked against.
 //!
 //! Checks, in order (the first failure is returned, naming the node or primitive):
 //!
@@ -19,7 +19,7 @@
 //!    where it has points more than `ε` from the plane, clipped to that side. Every leaf
 //!    reached must reference the triangle. A polygon within `ε` of the
 //!    plane (a flat triangle lying on it, or a sliver) must be covered entirely by **one**
-//!    of the two sides — that is how Wald & Havran (2006) and seed 001 place planar
+//!    of the two sides — that is how Wald & Havran (2006) and Kolodzey (2014) place planar
 //!    primitives. So every triangle whose clip against a leaf box leaves a polygon reaching
 //!    more than `ε` into the box must be referenced there, flat and zero-area triangles
 //!    included, and every triangle is referenced at least once.

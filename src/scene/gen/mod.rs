@@ -15,7 +15,7 @@
 //! triangles take a few tens of milliseconds. Frequency `2^s` gives the same
 //! counts as `s` rounds of midpoint subdivision (`20·4^s` triangles,
 //! `10·4^s + 2` vertices); other frequencies reach counts in between, e.g.
-//! seed 003's 1.8 M-triangle "Icosahedron" is frequency 300.
+//! Sochora's (2013) 1.8 M-triangle "Icosahedron" is frequency 300.
 
 mod flake;
 mod meshes;

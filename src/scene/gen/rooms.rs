@@ -1,4 +1,4 @@
-//! Whole scenes: the embedded Cornell box and seed 001's dynamic scene.
+//! Whole scenes: the embedded Cornell box and Kolodzey's dynamic scene.
 
 use glam::Vec3;
 
@@ -144,14 +144,14 @@ pub fn cornell_box() -> Scene {
     }
 }
 
-/// Seed 001's dynamic scene (chapter 7.2): `model` in metal, scaled to fit
+/// Kolodzey's (2014) dynamic scene (chapter 7.2): `model` in metal, scaled to fit
 /// a unit sphere and standing on the floor, inside a room with mirrored
 /// walls, circled by a ring of `n_spheres` spheres (alternately glass and
 /// coloured) that orbit it at 45°/s about the vertical axis. Render frame
 /// `k` at time `k / fps` (`triangles_world(t)`, `spheres_at(t)`); the
 /// shutter is `[0, 0]`, so there is no motion blur unless the caller opens
 /// it. A glass-model variant (the thesis' Fig. 7.3) is one material away:
-/// material 1 is "glass". `scenes/seed001_demo.toml` is this scene as a
+/// material 1 is "glass". `scenes/dynamic_demo.toml` is this scene as a
 /// file, with an `[animation]` and icosphere meshes for the ring.
 pub fn dynamic_ring(model: Mesh, n_spheres: u32) -> Result<Scene, SceneError> {
     if u64::from(n_spheres) > MAX_SPHERES {

@@ -1,4 +1,4 @@
-//! Seed 002's plain-text scene format (Bidmon 2010, §4.1.1 and Appendix B).
+//! The plain-text scene format of Bidmon (2010, §4.1.1 and Appendix B).
 //!
 //! ```text
 //! scene file version 1.0
@@ -34,7 +34,7 @@
 //!   700 px at zoom 3400, gives 11.8°, which frames its 200-unit scene at
 //!   ~1100 units).
 //! - Colour is per object and the material is shared, so each (material,
-//!   colour) pair becomes one [`Material::seed002`].
+//!   colour) pair becomes one [`Material::scn`].
 //! - Lights are points with the given colour; the thesis has no falloff, so
 //!   the intensity is the squared distance from the light to the centre of
 //!   the scene bounds, which makes the irradiance there equal to `color`.
@@ -208,8 +208,8 @@ fn vec3(text: &str, path: &Path, line: usize, key: &str) -> Result<Vec3, SceneEr
     ))
 }
 
-/// Parse (and validate) a seed-002 scene. `path` names the text in messages.
-pub fn parse_seed002(text: &str, path: &Path, limits: &Limits) -> Result<LoadedScene, SceneError> {
+/// Parse (and validate) a .scn scene. `path` names the text in messages.
+pub fn parse_scn(text: &str, path: &Path, limits: &Limits) -> Result<LoadedScene, SceneError> {
     let mut lines = text.lines().enumerate().map(|(i, l)| (i + 1, l.trim()));
     let mut header = Vec::with_capacity(4);
     for (ln, l) in lines.by_ref() {
@@ -233,7 +233,7 @@ pub fn parse_seed002(text: &str, path: &Path, limits: &Limits) -> Result<LoadedS
             return Err(syntax(
                 path,
                 header.last().map_or(1, |h| h.0),
-                format!("seed-002 header incomplete: expected a line `{prefix} …`"),
+                format!(".scn header incomplete: expected a line `{prefix} …`"),
             ));
         };
         let lower = l.to_ascii_lowercase();
@@ -241,7 +241,7 @@ pub fn parse_seed002(text: &str, path: &Path, limits: &Limits) -> Result<LoadedS
             return Err(syntax(
                 path,
                 ln,
-                format!("expected seed-002 header line `{prefix} …`, found `{l}`"),
+                format!("expected .scn header line `{prefix} …`, found `{l}`"),
             ));
         };
         let rest = rest.trim();
@@ -425,7 +425,7 @@ fn build(
             } else {
                 format!("material{n}.{}", colours_of[k])
             };
-            materials.push(Material::seed002(&name, color, sh, sp, refl, ior, tr));
+            materials.push(Material::scn(&name, color, sh, sp, refl, ior, tr));
             (materials.len() - 1) as MaterialId
         }))
     };

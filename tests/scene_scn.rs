@@ -1,17 +1,17 @@
-//! Seed 002's plain-text scene format.
+//! Bidmon's (2010) plain-text scene format.
 
 use std::path::{Path, PathBuf};
 
 use glam::Vec3;
-use vkrt::scene::seed002::parse_seed002;
+use vkrt::scene::scn::parse_scn;
 use vkrt::scene::{Light, Limits, MeshMaterials, Scene, SceneError};
 
 fn example() -> PathBuf {
-    Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/seed002_example.scn")
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/whitted_example.scn")
 }
 
 fn parse(text: &str) -> Result<vkrt::scene::LoadedScene, SceneError> {
-    parse_seed002(text, Path::new("mem/t.scn"), &Limits::default())
+    parse_scn(text, Path::new("mem/t.scn"), &Limits::default())
 }
 
 #[track_caller]
@@ -77,7 +77,7 @@ fn example_loads_with_seed_materials() {
     assert_eq!(
         s.effects().names(),
         ["hard_shadows", "reflection", "refraction"],
-        "seed 002: no AA, no area lights"
+        "Bidmon 2010: no AA, no area lights"
     );
 }
 

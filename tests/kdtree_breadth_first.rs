@@ -1,10 +1,10 @@
-//! The seed-001 kd-tree build (CPU twin of the GPU build): structure, coverage of every
+//! The breadth-first kd-tree build (CPU twin of the GPU build): structure, coverage of every
 //! triangle by point location, determinism and termination on the hard cases.
 
 mod common;
 
 use glam::Vec3;
-use vkrt::accel::kdtree::{seed001, KdNode, KdTree, SahParams};
+use vkrt::accel::kdtree::{breadth_first, KdNode, KdTree, SahParams};
 use vkrt::scene::gen;
 
 /// Depth of every node, checking the BFS layout on the way.
@@ -94,7 +94,7 @@ fn assert_covers(tree: &KdTree, tris: &[[Vec3; 3]]) {
 
 fn check(name: &str, tris: &[[Vec3; 3]], params: &SahParams) -> KdTree {
     let start = std::time::Instant::now();
-    let (tree, trace) = seed001::build(tris, params);
+    let (tree, trace) = breadth_first::build(tris, params);
     let ms = start.elapsed().as_secs_f64() * 1e3;
     let d = depths(&tree);
     let max_depth = d.iter().copied().max().unwrap_or(0);
@@ -112,7 +112,7 @@ fn check(name: &str, tris: &[[Vec3; 3]], params: &SahParams) -> KdTree {
     }
     assert!(seen.iter().all(|&s| s), "{name}: a triangle is in no leaf");
     assert_covers(&tree, tris);
-    let (again, _) = seed001::build(tris, params);
+    let (again, _) = breadth_first::build(tris, params);
     assert!(again == tree, "{name}: two builds differ");
     eprintln!(
         "{name}: {} tris, {} nodes, {} refs, depth {max_depth}, {} levels, {ms:.1} ms",
@@ -142,7 +142,7 @@ fn meshes_build_valid_deterministic_trees() {
         &common::mesh_triangles(&gen::integer_grid(40, 40).unwrap()),
         &p,
     );
-    // Seed 001's termination: no SAH leaf test, leaves below 64 primitives... reproduced
+    // Kolodzey's (2014) termination: no SAH leaf test, leaves below 64 primitives... reproduced
     // with max_leaf_prims and the switch.
     let seed = SahParams {
         sah_leaf_test: false,
@@ -150,7 +150,7 @@ fn meshes_build_valid_deterministic_trees() {
         ..p
     };
     check(
-        "icosphere.seed-termination",
+        "icosphere.kolodzey-termination",
         &common::mesh_triangles(&gen::icosphere(4).unwrap()),
         &seed,
     );
@@ -165,7 +165,7 @@ fn hard_cases_terminate_and_stay_valid() {
 
 #[test]
 fn empty_input_is_one_empty_leaf() {
-    let (tree, _) = seed001::build(&[], &SahParams::default());
+    let (tree, _) = breadth_first::build(&[], &SahParams::default());
     assert_eq!(tree.nodes, vec![KdNode::leaf(0, 0)]);
     assert!(tree.prim_refs.is_empty());
 }

@@ -1,10 +1,10 @@
-//! Seed 002's plain-text format: never panics, errors name the file.
+//! Bidmon's (2010) plain-text format: never panics, errors name the file.
 #![no_main]
 
 use std::path::Path;
 
 use libfuzzer_sys::fuzz_target;
-use vkrt::scene::seed002::parse_seed002;
+use vkrt::scene::scn::parse_scn;
 use vkrt::scene::Limits;
 use vkrt::scene::SceneError;
 
@@ -26,7 +26,7 @@ fuzz_target!(|data: &[u8]| {
         max_spheres: 20_000,
         ..Limits::default()
     };
-    if let Err(e) = parse_seed002(text, Path::new("mem/scene.scn"), &limits) {
+    if let Err(e) = parse_scn(text, Path::new("mem/scene.scn"), &limits) {
         assert!(names_a_file(&e), "error names no file: {e}");
     }
 });

@@ -1,4 +1,4 @@
-//! The breadth-first SAH kd-tree build of seed 001, on the CPU, pass for pass as the GPU
+//! The breadth-first SAH kd-tree build of Kolodzey (2014), on the CPU, pass for pass as the GPU
 //! kernels run it: the oracle the GPU build must equal bit for bit.
 //!
 //! Phase I: primitive boxes, the scene box, six events per primitive (START and END on
@@ -29,7 +29,7 @@
 //!   with A the half surface area of the node — so it uses only +, − and ×, which Vulkan
 //!   rounds exactly (GLSL `precise`, no FMA), and the CPU and GPU costs agree bit for bit;
 //! - the SAH leaf test of pbrt (leaf when splitting costs at least intersecting all),
-//!   switchable to reproduce the seed.
+//!   switchable to reproduce Kolodzey's build.
 
 use glam::Vec3;
 
@@ -202,7 +202,7 @@ pub fn initial_events(boxes: &[Aabb]) -> [Events; 3] {
     })
 }
 
-/// Builds the tree of `triangles` with the seed-001 algorithm.
+/// Builds the tree of `triangles` with the breadth-first algorithm.
 pub fn build(triangles: &[[Vec3; 3]], params: &SahParams) -> (KdTree, BuildTrace) {
     let boxes: Vec<Aabb> = triangles.iter().map(prim_box).collect();
     build_boxes(&boxes, params)
