@@ -775,6 +775,14 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                         "within Vulkan's 2.5 ulp: the exact walks round it correctly"
                     }
                 );
+                match info.loop_budget {
+                    Some(b) => println!("loop budget         {b} iterations per invocation"),
+                    None => println!("loop budget         none (loops run to their end)"),
+                }
+                println!(
+                    "walk step cap       {} node visits + primitive tests per ray",
+                    info.max_traversal_steps
+                );
             }
         }
         Command::Bench {

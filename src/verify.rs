@@ -2,6 +2,8 @@
 //! whatever device the context holds (Embree ships `verify` for the same question):
 //!
 //! - **rounding**: the walks' correctly rounded division and square root against the CPU's;
+//! - **limits**: the loop budget the device is said to have (which sizes the walks' step
+//!   cap) against what a long loop really runs;
 //! - **primitives**: scan, reductions and radix sort against their CPU twins at the sizes
 //!   that hit every edge (0, 1, subgroup ± 1, workgroup ± 1, tile ± 1, several tiles, large);
 //! - **builders**: the GPU kd-tree, LBVH and PLOC against their CPU twins, bit for bit, and
@@ -118,6 +120,7 @@ pub fn run(ctx: &Context, options: &Options, progress: &mut dyn FnMut(&Check)) -
         progress,
     };
     v.rounding();
+    v.limits();
     v.primitives();
     v.builders();
     v.walks();
@@ -211,6 +214,16 @@ impl Verifier<'_> {
             "a / b and sqrt(a) equal the CPU's, bit for bit".into(),
             outcome,
         );
+    }
+
+    fn limits(&mut self) {
+        let budget = self.ctx.info().loop_budget;
+        let name = match budget {
+            Some(b) => format!("loops run at least {b} iterations, as stated"),
+            None => "loops run to their end, as stated".into(),
+        };
+        let outcome = loop_budget_check(self.ctx);
+        self.check("limits", name, outcome);
     }
 
     fn primitives(&mut self) {
@@ -473,6 +486,37 @@ fn rounding_check(ctx: &Context, n: usize) -> Outcome {
     let refine = !ctx.info().ieee_division;
     let got = run_rounding_probe(ctx, &kernels::GPU_ROUNDING_PROBE_EXACT, refine, &pairs)?;
     Ok(rounding_mismatch(&pairs, &got).err())
+}
+
+/// A loop of 2^20 trips (`glsl/gpu/loop_probe.comp`) against the device's stated loop
+/// budget: a driver that ends loops silently below the walks' step cap would turn rays
+/// into silent misses.
+fn loop_budget_check(ctx: &Context) -> Outcome {
+    let n = 1 << 20;
+    let trips = loop_trips(ctx, n)?;
+    let stated = ctx.info().loop_budget;
+    // A stated budget the loop did not hit only lowers the step cap (safe); a budget the
+    // loop hits below what is stated ends walks silently.
+    let ok = match stated {
+        Some(b) => trips >= b.min(n),
+        None => trips == n,
+    };
+    Ok((!ok).then(|| {
+        format!(
+            "a loop of {n} trips ran {trips} on the device; its stated loop budget is {stated:?}"
+        )
+    }))
+}
+
+/// The iterations a loop of `n` trips really runs in one invocation.
+pub fn loop_trips(ctx: &Context, n: u32) -> Result<u32> {
+    let kernel = ctx.kernel(&kernels::GPU_LOOP_PROBE, &Spec::new())?;
+    let out = Buffer::<u32>::zeroed(ctx, "verify.loop.out", 2)?;
+    let mut rec = Recorder::new(ctx)?;
+    rec.dispatch(&kernel, [1, 1, 1], &[&out], &n);
+    rec.compute_to_transfer();
+    rec.submit_and_wait()?;
+    Ok(out.download()?[0])
 }
 
 /// `n` operand pairs for the rounding probe: reciprocals (the slab tests' 1 / d), quotients

@@ -361,3 +361,61 @@ fn bench_animate_reports_every_structure_and_update_mode() {
     assert!(String::from_utf8_lossy(&bad.stderr).contains("frames 0..4"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A soak: the dynamic demo over 60 frames at low resolution, refit every frame, validation
+/// on: device memory and host RSS flat from frame 10 to the last (growth ≤ 1 %), one
+/// submission per frame, no validation message. (`vkrt animate … --frames 500` is the long
+/// form: docs/testing.md.)
+#[test]
+fn a_long_animation_holds_memory_flat() {
+    let dir = scratch("soak");
+    let scene = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/dynamic_demo.toml");
+    let pattern = dir.join("f_%03d.png");
+    let Some(run) = vkrt_ok(&[
+        "animate",
+        s(&scene),
+        "-o",
+        s(&pattern),
+        "--frames",
+        "60",
+        "--width",
+        "32",
+        "--height",
+        "24",
+        "--spp",
+        "1",
+        "--accel",
+        "lbvh",
+        "--update",
+        "refit",
+        "--json",
+        "--validate",
+    ]) else {
+        return;
+    };
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(!err.contains("validation"), "{err}");
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let frames = v["frames"].as_array().unwrap();
+    assert_eq!(frames.len(), 60);
+    for f in frames {
+        assert_eq!(
+            f["submits"].as_u64().unwrap(),
+            1 + f["redone"].as_u64().unwrap()
+        );
+        assert!(f["device_bytes"].as_u64().unwrap() > 0, "{f}");
+    }
+    let m = &v["memory"];
+    println!("{m}");
+    assert_eq!(m["from_frame"], 10, "{m}");
+    let device = m["device_growth"].as_f64().unwrap();
+    assert!(
+        device.abs() <= 0.01,
+        "device memory grew {:.2} %: {m}",
+        device * 100.0
+    );
+    if let Some(rss) = m["host_rss_growth"].as_f64() {
+        assert!(rss <= 0.01, "host RSS grew {:.2} %: {m}", rss * 100.0);
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+}

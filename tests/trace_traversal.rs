@@ -382,10 +382,10 @@ fn in_plane_rays_through_an_overflowing_stack_equal_brute_force() {
         ..TraceOptions::default()
     };
     let dev = GpuGeometry::upload(&ctx, &g, &tree).unwrap();
-    let batch = Tracer::new(&ctx, &opt)
-        .unwrap()
-        .trace(&ctx, &dev, &rays, 0.0)
-        .unwrap();
+    let tracer = Tracer::new(&ctx, &opt).unwrap();
+    let batch = tracer.trace(&ctx, &dev, &rays, 0.0).unwrap();
+    // The twin runs with the tracer's step cap (the device's).
+    let opt = tracer.options();
     let scene = TraceScene {
         geometry: &g,
         tree: &tree,
@@ -420,5 +420,79 @@ fn in_plane_rays_through_an_overflowing_stack_equal_brute_force() {
         "{exhausted} of {} exhausted",
         rays.len()
     );
+    assert_silent(&ctx);
+}
+
+/// The step cap is the device's (specialization constant 22), never above it, and one set
+/// lower is honoured: rays that need more steps are reported exhausted and answered as
+/// misses, the same rays on the GPU and in the CPU twin, on every walk.
+#[test]
+fn the_step_cap_comes_from_the_device_and_a_lower_one_is_honoured() {
+    let Some(ctx) = context() else { return };
+    let cap = ctx.info().max_traversal_steps;
+    assert_eq!(
+        cap,
+        vkrt::gpu::traversal_steps_within(ctx.info().loop_budget)
+    );
+    let resolved = Tracer::new(&ctx, &TraceOptions::default())
+        .unwrap()
+        .options();
+    assert_eq!(resolved.max_steps, Some(cap));
+    let above = TraceOptions {
+        max_steps: Some(u32::MAX),
+        ..TraceOptions::default()
+    };
+    assert_eq!(
+        Tracer::new(&ctx, &above).unwrap().options().max_steps,
+        Some(cap)
+    );
+
+    let (_, g) = scenes().into_iter().next().unwrap();
+    let tree = tree_of(&g);
+    let rays = random_rays(&g, &tree, 2000, 17);
+    let dev = GpuGeometry::upload(&ctx, &g, &tree).unwrap();
+    let scene = TraceScene {
+        geometry: &g,
+        tree: &tree,
+    };
+    for steps in [8, 24, 60] {
+        let opt = TraceOptions {
+            max_steps: Some(steps),
+            ..TraceOptions::default()
+        };
+        let tracer = Tracer::new(&ctx, &opt).unwrap();
+        assert_eq!(tracer.options().max_steps, Some(steps));
+        let batch = tracer.trace(&ctx, &dev, &rays, 0.0).unwrap();
+        let mut exhausted = 0;
+        for (i, r) in rays.iter().enumerate() {
+            let (twin, out_of_steps) = cpu::trace(&scene, r, 0.0, &tracer.options());
+            let gpu = batch.hits[i];
+            if out_of_steps {
+                assert!(
+                    !gpu.is_hit(),
+                    "{steps} steps, ray {i}: exhausted but {gpu:?}"
+                );
+                exhausted += 1;
+            } else {
+                assert!(
+                    same_answer(&gpu, &twin),
+                    "{steps} steps, ray {i}: {gpu:?} vs {twin:?}"
+                );
+            }
+        }
+        assert_eq!(
+            batch.exhausted, exhausted,
+            "{steps} steps: GPU and twin exhausted counts"
+        );
+        println!(
+            "{steps} steps: {exhausted} of {} rays exhausted",
+            rays.len()
+        );
+        assert!(exhausted > 0, "{steps} steps: no ray ran out of steps");
+        assert!(
+            exhausted < rays.len() as u32,
+            "{steps} steps: every ray ran out"
+        );
+    }
     assert_silent(&ctx);
 }

@@ -7,7 +7,7 @@ use vkrt::accel::device::{AccelChoice, AccelKind};
 use vkrt::accel::driver::Prefer;
 use vkrt::gpu::Context;
 use vkrt::render::animate::{
-    self, AnimateOptions, AnimationReport, FramePattern, FrameWriter, Preview,
+    self, growth, AnimateOptions, AnimationReport, FramePattern, FrameWriter, Preview,
 };
 use vkrt::render::gpu::Update;
 use vkrt::render::RenderOptions;
@@ -125,6 +125,7 @@ pub fn print_report(r: &AnimationReport, json: bool) -> CliResult<()> {
             "submits": r.traffic_totals().0,
             "readback_bytes": r.traffic_totals().1,
             "upload_bytes": r.traffic_totals().2,
+            "memory": memory_summary(r),
         });
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
@@ -161,7 +162,50 @@ pub fn print_report(r: &AnimationReport, json: bool) -> CliResult<()> {
         r.fps(),
         r.mrays_per_s()
     );
+    if let Some(m) = memory_line(r) {
+        println!("{m}");
+    }
     Ok(())
+}
+
+/// The frame a memory comparison starts from: caches and pools settle in the first frames.
+const SETTLED_FRAME: usize = 10;
+
+/// Device memory and host RSS at the settled frame and at the last, and their growth.
+fn memory_summary(r: &AnimationReport) -> serde_json::Value {
+    let from = SETTLED_FRAME.min(r.frames.len().saturating_sub(1));
+    let at = |i: usize| r.frames.get(i);
+    let last = r.frames.len().saturating_sub(1);
+    serde_json::json!({
+        "from_frame": from,
+        "device_bytes": [at(from).map(|f| f.device_bytes), at(last).map(|f| f.device_bytes)],
+        "host_rss_bytes": [at(from).and_then(|f| f.host_rss_bytes), at(last).and_then(|f| f.host_rss_bytes)],
+        "device_growth": growth(&r.frames, from, |f| Some(f.device_bytes)),
+        "host_rss_growth": growth(&r.frames, from, |f| f.host_rss_bytes),
+    })
+}
+
+fn memory_line(r: &AnimationReport) -> Option<String> {
+    let from = SETTLED_FRAME.min(r.frames.len().checked_sub(1)?);
+    let (a, b) = (&r.frames[from], r.frames.last()?);
+    let mib = |x: u64| x as f64 / (1 << 20) as f64;
+    let pct = |g: Option<f64>| g.map_or("-".into(), |g| format!("{:+.2} %", g * 100.0));
+    let rss = match (a.host_rss_bytes, b.host_rss_bytes) {
+        (Some(x), Some(y)) => format!(
+            "host RSS {:.1} → {:.1} MiB ({})",
+            mib(x),
+            mib(y),
+            pct(growth(&r.frames, from, |f| f.host_rss_bytes))
+        ),
+        _ => "host RSS not reported by this OS".into(),
+    };
+    Some(format!(
+        "memory from frame {from} to {}: device {:.1} → {:.1} MiB ({}), {rss}",
+        b.frame,
+        mib(a.device_bytes),
+        mib(b.device_bytes),
+        pct(growth(&r.frames, from, |f| Some(f.device_bytes))),
+    ))
 }
 
 /// The structures and update modes `vkrt bench animate` compares: every kind rebuilt, every

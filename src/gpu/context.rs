@@ -80,6 +80,18 @@ pub struct Traffic {
     pub device_allocations: u64,
 }
 
+/// Device memory held through the context's allocator (the caller's too, where a renderer
+/// handed in its own): see [`Context::memory`].
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, serde::Serialize)]
+pub struct MemoryUsage {
+    /// Live allocations.
+    pub allocations: u64,
+    /// Bytes the live allocations use.
+    pub allocated_bytes: u64,
+    /// Bytes of the memory blocks the allocator holds from the driver (used or not).
+    pub capacity_bytes: u64,
+}
+
 impl std::ops::Sub for Traffic {
     type Output = Traffic;
     fn sub(self, earlier: Traffic) -> Traffic {
@@ -277,6 +289,23 @@ impl Context {
             readback_bytes: self.inner.readback_bytes.load(Ordering::Relaxed),
             upload_bytes: self.inner.upload_bytes.load(Ordering::Relaxed),
             device_allocations: self.inner.device_allocations.load(Ordering::Relaxed),
+        }
+    }
+
+    /// Device memory held through the allocator now: a long-running renderer checks that
+    /// it stays flat (`vkrt animate` reports it per frame). Memory placed in the caller's
+    /// own allocations is the caller's to count.
+    pub fn memory(&self) -> MemoryUsage {
+        let allocator = self
+            .inner
+            .allocator
+            .lock()
+            .unwrap_or_else(std::sync::PoisonError::into_inner);
+        let report = allocator.generate_report();
+        MemoryUsage {
+            allocations: report.allocations.len() as u64,
+            allocated_bytes: report.total_allocated_bytes,
+            capacity_bytes: report.total_capacity_bytes,
         }
     }
 

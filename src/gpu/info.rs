@@ -65,6 +65,15 @@ pub struct DeviceInfo {
     /// instructions). Vulkan allows 2.5 and 3 ulps, so elsewhere the exact walks check the
     /// driver's answer against an exact residual (`div_rn` in `vkrt/ray.glsl`).
     pub ieee_division: bool,
+    /// Loop iterations an invocation may run in all before the driver silently ends its
+    /// loops: llvmpipe's 65,535 (gallivm's `LP_MAX_TGSI_LOOP_ITERATIONS`, shared by every
+    /// loop of the invocation); `None` where loops run to their end. `vkrt verify` measures it.
+    pub loop_budget: Option<u32>,
+    /// Node visits + primitive tests a walk may spend per ray before it gives up and reports
+    /// the ray as exhausted: 60,000 within a loop budget (the rest is the walk's other
+    /// loops' headroom), 2^24 elsewhere (a guard against a corrupt structure, far above
+    /// any real tree's walk). Specialization constant 22 of every walking kernel.
+    pub max_traversal_steps: u32,
     pub features: DeviceFeatures,
     #[serde(skip)]
     pub(crate) api_version_raw: u32,
@@ -152,6 +161,9 @@ pub(crate) fn query(
     } else {
         (subgroup.subgroup_size, subgroup.subgroup_size)
     };
+    let loop_budget = (driver.driver_id == vk::DriverId::MESA_LLVMPIPE
+        && mesa_version(&driver_info).is_none_or(|v| v < (25, 0)))
+    .then_some(LLVMPIPE_LOOP_BUDGET);
     DeviceInfo {
         device: name,
         driver: format!("{driver_name} {driver_info}").trim().to_string(),
@@ -183,11 +195,36 @@ pub(crate) fn query(
         timestamp_period_ns: limits.timestamp_period,
         timestamps: limits.timestamp_compute_and_graphics == vk::TRUE,
         ieee_division: driver.driver_id == vk::DriverId::MESA_LLVMPIPE,
+        loop_budget,
+        max_traversal_steps: traversal_steps_within(loop_budget),
         features,
         api_version_raw: v,
         type_rank,
         subgroup_ops_raw: subgroup.supported_operations,
         pipeline_cache_uuid: p.pipeline_cache_uuid,
+    }
+}
+
+/// Loop iterations a llvmpipe invocation runs in all its loops together before the rest are
+/// skipped (gallivm's `LP_MAX_TGSI_LOOP_ITERATIONS`). Measured: Mesa 22.3 has it, 25.0 runs
+/// loops to their end. Versions between (or unknown) are taken to have it: a lower step cap
+/// costs nothing on real trees, a missing one would make silent misses.
+pub const LLVMPIPE_LOOP_BUDGET: u32 = 65_535;
+
+/// `(major, minor)` of "Mesa X.Y…" in a driver's info string.
+fn mesa_version(driver_info: &str) -> Option<(u32, u32)> {
+    let rest = &driver_info[driver_info.find("Mesa ")? + 5..];
+    let mut parts = rest.split(|c: char| !c.is_ascii_digit());
+    let major = parts.next()?.parse().ok()?;
+    let minor = parts.next()?.parse().ok()?;
+    Some((major, minor))
+}
+
+/// The walks' step cap on a device with `loop_budget` ([`DeviceInfo::max_traversal_steps`]).
+pub fn traversal_steps_within(loop_budget: Option<u32>) -> u32 {
+    match loop_budget {
+        Some(budget) => budget.saturating_sub(5_535).max(1),
+        None => 1 << 24,
     }
 }
 
@@ -350,5 +387,29 @@ pub fn device_requirements() -> DeviceRequirements {
             ),
         ],
         ray_query_extensions: RAY_QUERY_EXTENSIONS.to_vec(),
+    }
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{mesa_version, traversal_steps_within, LLVMPIPE_LOOP_BUDGET};
+
+    #[test]
+    fn mesa_versions_parse_from_driver_info() {
+        assert_eq!(
+            mesa_version("Mesa 25.0.7-2~bpo12+1 (LLVM 15.0.6)"),
+            Some((25, 0))
+        );
+        assert_eq!(mesa_version("Mesa 22.3.6 (LLVM 15.0.6)"), Some((22, 3)));
+        assert_eq!(mesa_version("580.159.04"), None);
+        assert_eq!(mesa_version("Mesa devel"), None);
+    }
+
+    #[test]
+    fn the_step_cap_stays_inside_the_loop_budget() {
+        let cap = traversal_steps_within(Some(LLVMPIPE_LOOP_BUDGET));
+        assert_eq!(cap, 60_000);
+        assert!(traversal_steps_within(None) > cap);
+        assert_eq!(traversal_steps_within(Some(10)), 1);
     }
 }

@@ -33,9 +33,12 @@ pub use accel_ext::{
 };
 pub use ash::vk;
 pub use buffer::{placement, Buffer, BufferArg, Memory, RawBuffer};
-pub use context::{Context, ContextOptions, RawParts, Traffic};
+pub use context::{Context, ContextOptions, MemoryUsage, RawParts, Traffic};
 pub use error::{GpuError, Result};
-pub use info::{device_requirements, DeviceFeatures, DeviceInfo, DeviceRequirements};
+pub use info::{
+    device_requirements, traversal_steps_within, DeviceFeatures, DeviceInfo, DeviceRequirements,
+    LLVMPIPE_LOOP_BUDGET,
+};
 pub use kernel::{Kernel, Spec, PUSH_CONSTANT_BYTES};
 pub use profiler::{
     capture as capture_profiles, write_atomically, PassTime, Profile, DEFAULT_QUERY_CAPACITY,

@@ -325,6 +325,12 @@ pub struct FrameRow {
     pub submits: u64,
     pub readback_bytes: u64,
     pub upload_bytes: u64,
+    /// After the frame: device memory held through vkrt's allocator, and the process's
+    /// resident host memory (Linux; absent elsewhere). Flat over a long run: nothing leaks.
+    pub device_bytes: u64,
+    pub device_allocations: u64,
+    #[serde(skip_serializing_if = "Option::is_none")]
+    pub host_rss_bytes: Option<u64>,
     /// The SAH cost of the frame's structure, and of a structure of the same kind built anew
     /// over the frame (BVHs, with `quality`: a read-back outside the timed frame).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -381,6 +387,26 @@ impl AnimationReport {
     }
 }
 
+/// The process's resident set (`VmRSS` of `/proc/self/status`), where the OS reports it.
+pub fn host_rss_bytes() -> Option<u64> {
+    let status = std::fs::read_to_string("/proc/self/status").ok()?;
+    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
+    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
+    Some(kb * 1024)
+}
+
+/// Growth of a per-frame quantity from frame `from` to the last frame, relative to its value
+/// at `from` (`None` with fewer frames or no values): the soak measure.
+pub fn growth(
+    frames: &[FrameRow],
+    from: usize,
+    value: impl Fn(&FrameRow) -> Option<u64>,
+) -> Option<f64> {
+    let first = value(frames.get(from)?)? as f64;
+    let last = value(frames.last()?)? as f64;
+    (first > 0.0).then(|| (last - first) / first)
+}
+
 /// How to render an animation.
 #[derive(Clone, Debug)]
 pub struct AnimateOptions {
@@ -425,6 +451,7 @@ pub fn run(
         sink(k, image.rgba)?;
         let wall_ms = start.elapsed().as_secs_f64() * 1e3;
         let traffic = ctx.traffic() - traffic;
+        let memory = ctx.memory();
         let (sah_cost, rebuilt_sah_cost) = match opt.quality {
             true => frame_quality(&frames, &rs, accel.kind)?,
             false => (None, None),
@@ -441,6 +468,9 @@ pub fn run(
             submits: traffic.submits,
             readback_bytes: traffic.readback_bytes,
             upload_bytes: traffic.upload_bytes,
+            device_bytes: memory.allocated_bytes,
+            device_allocations: memory.allocations,
+            host_rss_bytes: host_rss_bytes(),
             sah_cost,
             rebuilt_sah_cost,
         });

@@ -6,7 +6,7 @@
 
 use glam::Vec3;
 
-use super::cpu::{clip_to_box, hit_primitive, MAX_TRAVERSAL_STEPS};
+use super::cpu::{clip_to_box, hit_primitive};
 use super::geometry::TraceGeometry;
 use super::intersect::Shear;
 use super::{Hit, Query, Ray, TraceOptions};
@@ -193,7 +193,7 @@ fn stack(q: &mut Query1<'_>) -> bool {
     while let Some(c) = cur {
         match c {
             Child::Node(n) => {
-                if q.steps > MAX_TRAVERSAL_STEPS {
+                if q.steps > q.opt.max_steps() {
                     return false;
                 }
                 q.steps += 1;
@@ -245,7 +245,7 @@ fn bitstack(q: &mut Query1<'_>) -> bool {
     // One bit per level: trees are at most MAX_TRAVERSAL_DEPTH (128) levels deep.
     let (mut node, mut trail) = (0u32, 0u128);
     loop {
-        if q.steps > MAX_TRAVERSAL_STEPS {
+        if q.steps > q.opt.max_steps() {
             return false;
         }
         let Some([near, far]) = q.children(node) else {

@@ -9,8 +9,11 @@ use super::{Hit, Intersector, Query, Ray, TraceOptions};
 use crate::accel::kdtree::{KdTree, LEAF};
 use crate::scene::Aabb;
 
-/// `MAX_TRAVERSAL_STEPS` in `traverse.glsl`.
-pub const MAX_TRAVERSAL_STEPS: u32 = 60_000;
+/// Node visits + primitive tests per ray when [`TraceOptions::max_steps`] is `None`: the
+/// default of `VKRT_MAX_TRAVERSAL_STEPS` in `vkrt/ray_query.glsl`, within lavapipe's loop
+/// budget. A GPU tracer resolves `None` to the device's cap
+/// ([`DeviceInfo::max_traversal_steps`](crate::gpu::DeviceInfo::max_traversal_steps)).
+pub const DEFAULT_MAX_TRAVERSAL_STEPS: u32 = 60_000;
 /// `PLANE_SLACK` in `traverse.glsl`.
 pub const PLANE_SLACK: f32 = 4e-7;
 
@@ -121,7 +124,8 @@ pub fn trace(s: &TraceScene, r: &Ray, time: f32, opt: &TraceOptions) -> (Hit, bo
     };
     let (mut node, mut n0, mut n1) = (0u32, t0, t1);
     let mut step = 0u32;
-    while step < MAX_TRAVERSAL_STEPS {
+    let max_steps = opt.max_steps();
+    while step < max_steps {
         step += 1;
         let nd = s.tree.nodes[node as usize];
         if nd.kind != LEAF {

@@ -181,13 +181,15 @@ impl GpuGeometry {
     }
 }
 
-/// Spec constant ids shared by every kernel that includes `traverse.glsl`; the exact
-/// variants also check the driver's division (21) where it is not known to be correct.
+/// Spec constant ids shared by every kernel that includes `traverse.glsl` (for options
+/// resolved by [`effective_options`]): the step cap (22); the exact variants also check the
+/// driver's division (21) where it is not known to be correct.
 pub fn traversal_spec(ctx: &Context, opt: &TraceOptions) -> Spec {
     let spec = Spec::new()
         .u32(1, opt.intersector.spec())
         .u32(2, (opt.query == Query::Any) as u32)
-        .u32(3, opt.stack_size.max(1));
+        .u32(3, opt.stack_size.max(1))
+        .u32(22, opt.max_steps.unwrap_or(ctx.info().max_traversal_steps));
     if opt.exact {
         spec.u32(21, !ctx.info().ieee_division as u32)
     } else {
@@ -216,8 +218,10 @@ pub struct Tracer {
 /// driver's ray query (its intersector is its own).
 pub fn effective_options(ctx: &Context, opt: &TraceOptions, accel: AccelTraversal) -> TraceOptions {
     let f = &ctx.info().features;
+    let cap = ctx.info().max_traversal_steps;
     TraceOptions {
         exact: opt.exact && f.shader_float64 && f.shader_int64 && accel != AccelTraversal::RayQuery,
+        max_steps: Some(opt.max_steps.map_or(cap, |m| m.clamp(1, cap))),
         ..*opt
     }
 }

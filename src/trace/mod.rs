@@ -200,6 +200,20 @@ pub struct TraceOptions {
     /// The watertight test's double-precision fallback for edge functions that round to
     /// zero. On by default; the GPU tracer turns it off on devices without shaderFloat64.
     pub exact: bool,
+    /// Node visits + primitive tests per ray before the walk gives up and reports the ray
+    /// as exhausted (never a silent miss). `None`: the device's cap on the GPU
+    /// ([`DeviceInfo::max_traversal_steps`](crate::gpu::DeviceInfo::max_traversal_steps)),
+    /// [`DEFAULT_MAX_TRAVERSAL_STEPS`](cpu::DEFAULT_MAX_TRAVERSAL_STEPS) on the CPU. A GPU
+    /// tracer never goes past the device's cap ([`Tracer::options`](gpu::Tracer::options)
+    /// says what it runs with): past a loop budget the driver would end the walk silently.
+    pub max_steps: Option<u32>,
+}
+
+impl TraceOptions {
+    /// The step cap the CPU twins run with.
+    pub fn max_steps(&self) -> u32 {
+        self.max_steps.unwrap_or(cpu::DEFAULT_MAX_TRAVERSAL_STEPS)
+    }
 }
 
 impl Default for TraceOptions {
@@ -209,6 +223,7 @@ impl Default for TraceOptions {
             query: Query::Closest,
             stack_size: DEFAULT_STACK_SIZE,
             exact: true,
+            max_steps: None,
         }
     }
 }

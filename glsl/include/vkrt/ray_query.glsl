@@ -28,6 +28,10 @@
 //                     3 ulp off) and the watertight test's double-precision fallback; needs
 //                     shaderFloat64 and shaderInt64 (vkrt's own kernels do the same where the
 //                     device has them)
+//   VKRT_MAX_TRAVERSAL_STEPS  node visits + primitive tests per ray before the walk gives
+//                     up and reports `exhausted` (default 60000, within lavapipe's loop
+//                     budget; the device's value is `DeviceInfo::max_traversal_steps`, e.g.
+//                     through the includer's own specialization constant)
 //   VKRT_RAY_QUERY    also walk the driver's structure with GL_EXT_ray_query (needs the
 //                     device's VK_KHR_ray_query; without it such a structure reports
 //                     `exhausted`)

@@ -30,9 +30,19 @@
 #endif
 
 #define NO_MOTION 0xffffffffu
-// Node visits + primitive tests per ray before giving up (lavapipe silently ends loops at
-// 65,535 iterations; a ray that gives up is reported through `trace_steps_exhausted`).
-#define MAX_TRAVERSAL_STEPS 60000u
+// Node visits + primitive tests per ray before giving up; a ray that gives up is reported
+// through `trace_steps_exhausted`. A device fact (`DeviceInfo::max_traversal_steps`): within
+// llvmpipe's loop budget (it silently ends an invocation's loops after 65,535 iterations),
+// 2^24 elsewhere. vkrt's kernels take it as specialization constant 22; the library takes
+// VKRT_MAX_TRAVERSAL_STEPS (a number, or the includer's own specialization constant).
+#ifdef VKRT_LIBRARY
+#ifndef VKRT_MAX_TRAVERSAL_STEPS
+#define VKRT_MAX_TRAVERSAL_STEPS 60000u
+#endif
+#define MAX_TRAVERSAL_STEPS (VKRT_MAX_TRAVERSAL_STEPS)
+#else
+layout(constant_id = 22) const uint MAX_TRAVERSAL_STEPS = 60000u;
+#endif
 // Relative slack on split-plane crossings: a cell whose interval only touches the ray's
 // within rounding is visited rather than skipped (visiting costs time, skipping loses hits).
 #define PLANE_SLACK 4e-7
