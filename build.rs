@@ -1,6 +1,12 @@
-//! Compiles every `glsl/**/*.comp` to SPIR-V (Vulkan 1.2, optimised) with shaderc and
-//! generates `$OUT_DIR/shaders.rs`: one `ShaderBlob` constant per kernel variant, with
-//! the bindings, specialization constants and workgroup size reflected from the SPIR-V.
+//! Generates `$OUT_DIR/shaders.rs`: one `ShaderBlob` constant per kernel variant, with the
+//! bindings, specialization constants and workgroup size reflected from the SPIR-V.
+//!
+//! With the `shaderc` feature (the repository's own builds) every `glsl/**/*.comp` is
+//! compiled to SPIR-V (Vulkan 1.2, optimised) here, and the result is compared with the
+//! checked-in copy `kernels/shaders.rs`: `VKRT_KERNELS=update` rewrites that copy,
+//! `VKRT_KERNELS=check` fails the build where it differs (CI), otherwise a difference is a
+//! warning. Without the feature (a library dependent: no C++ toolchain, no 9-minute shaderc
+//! build) the checked-in copy is used as it is.
 //!
 //! Variants: a line `//! variant NAME DEF[=VALUE] ...` in a kernel adds a variant compiled
 //! with those macro definitions. A kernel without such lines compiles once. Kernel names
@@ -10,11 +16,68 @@
 //! Every shader error is collected and reported (file and line, from the compiler)
 //! before the build fails.
 
+#![cfg_attr(not(feature = "shaderc"), allow(dead_code))]
+
 use std::fmt::Write as _;
 use std::path::{Path, PathBuf};
 
+/// The compiled kernels as checked in, relative to the manifest.
+const CHECKED_IN: &str = "kernels/shaders.rs";
+
 fn main() {
     let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
+    let out = PathBuf::from(std::env::var("OUT_DIR").unwrap()).join("shaders.rs");
+    let checked_in = root.join(CHECKED_IN);
+    println!("cargo:rerun-if-env-changed=VKRT_KERNELS");
+    #[cfg(feature = "shaderc")]
+    {
+        let text = compile_all(&root);
+        std::fs::write(&out, &text).expect("cannot write shaders.rs");
+        sync_checked_in(&checked_in, &text);
+    }
+    #[cfg(not(feature = "shaderc"))]
+    {
+        println!("cargo:rerun-if-changed={CHECKED_IN}");
+        let text = std::fs::read_to_string(&checked_in).unwrap_or_else(|e| {
+            panic!(
+                "{}: {e}: the compiled kernels are missing; build with the `shaderc` feature \
+                 to compile glsl/ (needs cmake, ninja, python3 and a C++ compiler)",
+                checked_in.display()
+            )
+        });
+        std::fs::write(&out, text).expect("cannot write shaders.rs");
+    }
+}
+
+/// Compares a fresh compile with the checked-in kernels; `VKRT_KERNELS` says what to do
+/// where they differ.
+#[cfg(feature = "shaderc")]
+fn sync_checked_in(checked_in: &Path, text: &str) {
+    let same = std::fs::read_to_string(checked_in).is_ok_and(|old| old == text);
+    if same {
+        return;
+    }
+    match std::env::var("VKRT_KERNELS").as_deref() {
+        Ok("update") => {
+            if let Some(dir) = checked_in.parent() {
+                std::fs::create_dir_all(dir).expect("cannot create kernels/");
+            }
+            std::fs::write(checked_in, text).expect("cannot write kernels/shaders.rs");
+        }
+        Ok("check") => panic!(
+            "{CHECKED_IN} differs from a fresh compile of glsl/: rebuild with \
+             VKRT_KERNELS=update and commit it (dependents without the shaderc feature use it)"
+        ),
+        _ => println!(
+            "cargo:warning={CHECKED_IN} differs from a fresh compile of glsl/: rebuild with \
+             VKRT_KERNELS=update and commit it"
+        ),
+    }
+}
+
+/// Compiles every kernel variant under `root/glsl` and generates `shaders.rs`.
+#[cfg(feature = "shaderc")]
+fn compile_all(root: &Path) -> String {
     let glsl = root.join("glsl");
     println!("cargo:rerun-if-changed=glsl");
     let mut files = Vec::new();
@@ -32,7 +95,7 @@ fn main() {
         .filter(|f| f.extension().is_some_and(|e| e == "comp"))
     {
         let rel = file
-            .strip_prefix(&root)
+            .strip_prefix(root)
             .unwrap()
             .to_string_lossy()
             .replace('\\', "/");
@@ -73,8 +136,7 @@ fn main() {
             errors.len()
         );
     }
-    let out = PathBuf::from(std::env::var("OUT_DIR").unwrap()).join("shaders.rs");
-    std::fs::write(out, generate(&blobs)).expect("cannot write shaders.rs");
+    generate(&blobs)
 }
 
 fn collect_files(dir: &Path, out: &mut Vec<PathBuf>) {
@@ -140,6 +202,7 @@ fn parse_variants(source: &str, rel: &str, errors: &mut Vec<String>) -> Vec<Vari
     variants
 }
 
+#[cfg(feature = "shaderc")]
 fn compile(
     compiler: &shaderc::Compiler,
     glsl: &Path,

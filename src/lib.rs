@@ -14,7 +14,9 @@
 pub mod gpu;
 
 pub mod accel;
+#[cfg(feature = "cli")]
 pub mod accuracy;
+#[cfg(feature = "cli")]
 pub mod bench;
 pub mod prims;
 pub mod render;

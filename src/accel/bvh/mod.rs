@@ -4,6 +4,7 @@
 //! with the SAH cost of a built tree ([`validate`]); the GPU builders' LBVH ([`lbvh`]) and
 //! PLOC ([`ploc`]) with the SAH leaf collapse of their trees ([`collapse`]).
 
+#[cfg(feature = "cli")]
 pub mod bench;
 pub mod collapse;
 pub mod collapse_gpu;
