@@ -1003,11 +1003,14 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 params.max_leaf_prims = 63;
             }
             let ctx = context(cli.validate)?;
+            let before = device_bytes_start(&ctx);
             let (report, trace) =
                 vkrt::accel::kdtree::report::build_report(&ctx, &triangles, &params, reference)?;
             write_profile(&profile, &trace)?;
             if json {
-                println!("{}", serde_json::to_string_pretty(&report)?);
+                let mut v = serde_json::to_value(&report)?;
+                extend_json(&mut v, device_bytes_json(&ctx, before, triangles.len()));
+                println!("{}", serde_json::to_string_pretty(&v)?);
             } else {
                 println!(
                     "{} triangles: GPU build {:.2} ms in {} levels",
@@ -1532,9 +1535,12 @@ fn gpu_bvh_build_command(
     use vkrt::accel::device::{AccelBuilder, AccelKind, HostStructure};
     let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
     let builder = AccelBuilder::new(ctx, kind)?;
+    let before = device_bytes_start(ctx);
     // Once to compile and warm the pipelines, then the timed build.
     let mut timed = None;
     for _ in 0..2 {
+        // The previous build's buffers go before the next is made (the peak is one build).
+        drop(timed.take());
         let mut rec = vkrt::gpu::Recorder::new(ctx)?;
         let (dev, _) = vkrt::trace::gpu::GpuGeometry::record_build(&mut rec, &builder, &g, 0)?;
         let prof = rec.submit_and_wait()?;
@@ -1576,6 +1582,7 @@ fn gpu_bvh_build_command(
         "cpu_twin_ms": twin.as_ref().map(|(_, ms)| *ms),
     });
     report.as_object_mut().expect("an object").extend(shape);
+    extend_json(&mut report, device_bytes_json(ctx, before, g.primitive_count()));
     if json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
@@ -1613,10 +1620,13 @@ fn driver_build_command(
     use vkrt::accel::driver::DriverAccel;
     let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
     let builder = AccelBuilder::for_choice(ctx, AccelChoice::driver(prefer))?;
+    let before = device_bytes_start(ctx);
     let prims = DevicePrimitives::upload(ctx, &g)?;
     let sizes = DriverAccel::sizes(ctx, &prims, prefer, false)?;
     let mut timed = None;
     for _ in 0..2 {
+        // The previous build's buffers go before the next is made (the peak is one build).
+        drop(timed.take());
         let (mut accel, scratch) = builder.create(ctx, prims.count(), 0)?;
         let mut rec = vkrt::gpu::Recorder::new(ctx)?;
         rec.scope("build", |rec| {
@@ -1639,6 +1649,8 @@ fn driver_build_command(
             "bytes": sizes.structure_bytes,
             "build_scratch_bytes": sizes.build_scratch_bytes,
         });
+        let mut v = v;
+        extend_json(&mut v, device_bytes_json(ctx, before, g.primitive_count()));
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!(
@@ -1651,6 +1663,28 @@ fn driver_build_command(
         );
     }
     Ok(())
+}
+
+/// Starts measuring the device memory a build needs: vkrt's live bytes now.
+fn device_bytes_start(ctx: &vkrt::gpu::Context) -> u64 {
+    ctx.reset_memory_peak();
+    ctx.memory().vkrt_bytes
+}
+
+/// `device_bytes`: the most device memory vkrt's buffers held at once since `before`
+/// (primitives, structure, scratch, the build's read-backs), and per primitive.
+fn device_bytes_json(ctx: &vkrt::gpu::Context, before: u64, n: usize) -> serde_json::Value {
+    let bytes = ctx.memory().vkrt_peak_bytes.saturating_sub(before);
+    serde_json::json!({
+        "device_bytes": bytes,
+        "device_bytes_per_primitive": bytes as f64 / n.max(1) as f64,
+    })
+}
+
+fn extend_json(v: &mut serde_json::Value, more: serde_json::Value) {
+    if let (Some(v), serde_json::Value::Object(more)) = (v.as_object_mut(), more) {
+        v.extend(more);
+    }
 }
 
 /// What `vkrt build --json` reports of a BVH's shape, and the same as a line of text.

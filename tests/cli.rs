@@ -201,11 +201,14 @@ fn build_kdtree_reports_and_equals_its_twin() {
         "cpu_twin_ms",
         "full_clip_sah_cost",
         "full_clip_ms",
+        "device_bytes",
+        "device_bytes_per_primitive",
     ];
     let Some(v) = build_report("kdtree", &keys) else {
         return;
     };
     assert_eq!(v["equal_to_cpu_twin"], true);
+    assert_device_bytes(&v);
     assert!(v["build_ms"].as_f64().unwrap() > 0.0);
     let out = vkrt(&["build", "--accel", "bvh"]);
     assert!(!out.status.success());
@@ -215,6 +218,41 @@ fn build_kdtree_reports_and_equals_its_twin() {
     let out = vkrt(&["build", "--kolodzey-termination"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--accel kdtree"));
+}
+
+/// The device memory a build needed at its peak covers at least the structure, and per
+/// primitive is that over the primitive count.
+fn assert_device_bytes(v: &serde_json::Value) {
+    let bytes = v["device_bytes"].as_u64().unwrap();
+    let n = v["primitives"].as_u64().unwrap();
+    assert!(bytes > v["bytes"].as_u64().unwrap(), "{v}");
+    let per = v["device_bytes_per_primitive"].as_f64().unwrap();
+    assert!((per - bytes as f64 / n as f64).abs() < 1e-6 * per, "{v}");
+}
+
+#[test]
+fn build_gpu_bvhs_report_and_equal_their_twins() {
+    let keys = [
+        "kind",
+        "primitives",
+        "build_ms",
+        "passes_ms",
+        "nodes",
+        "leaves",
+        "sah_cost",
+        "bytes",
+        "equal_to_cpu_twin",
+        "device_bytes",
+        "device_bytes_per_primitive",
+    ];
+    for kind in ["lbvh", "ploc"] {
+        let Some(v) = build_report(kind, &keys) else {
+            return;
+        };
+        assert_eq!(v["kind"], kind, "{v}");
+        assert_eq!(v["equal_to_cpu_twin"], true, "{v}");
+        assert_device_bytes(&v);
+    }
 }
 
 #[test]

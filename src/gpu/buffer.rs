@@ -228,6 +228,7 @@ impl<T: Pod> Buffer<T> {
             return Err(vk_err("vkBindBufferMemory")(e));
         }
         ctx.set_object_name(raw, name);
+        ctx.count_allocation(allocation.size(), true);
         Ok(Self {
             ctx: ctx.clone(),
             raw,
@@ -390,6 +391,7 @@ impl<T: Pod> Drop for Buffer<T> {
         // command buffer must outlive it (documented on `Recorder::from_raw`).
         unsafe { self.ctx.inner.device.destroy_buffer(self.raw, None) };
         if let Some(a) = self.allocation.take() {
+            self.ctx.count_allocation(a.size(), false);
             let _ = self.ctx.inner.allocator.lock().unwrap().free(a);
         }
     }

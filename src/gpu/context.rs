@@ -90,6 +90,11 @@ pub struct MemoryUsage {
     pub allocated_bytes: u64,
     /// Bytes of the memory blocks the allocator holds from the driver (used or not).
     pub capacity_bytes: u64,
+    /// Bytes of vkrt's own buffers alive now, and the most alive at once since the last
+    /// [`Context::reset_memory_peak`] (what a build needed at its peak: primitives,
+    /// structure and scratch).
+    pub vkrt_bytes: u64,
+    pub vkrt_peak_bytes: u64,
 }
 
 impl std::ops::Sub for Traffic {
@@ -125,6 +130,10 @@ pub(crate) struct Inner {
     pub(crate) readback_bytes: AtomicU64,
     pub(crate) upload_bytes: AtomicU64,
     pub(crate) device_allocations: AtomicU64,
+    /// Bytes of vkrt's own live allocations and their high-water mark since the last
+    /// [`Context::reset_memory_peak`].
+    pub(crate) live_bytes: AtomicU64,
+    pub(crate) peak_bytes: AtomicU64,
     messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     sink: Box<MessageSink>,
     owns_device: bool,
@@ -274,6 +283,8 @@ impl Context {
                 readback_bytes: AtomicU64::new(0),
                 upload_bytes: AtomicU64::new(0),
                 device_allocations: AtomicU64::new(0),
+                live_bytes: AtomicU64::new(0),
+                peak_bytes: AtomicU64::new(0),
                 messenger,
                 sink,
                 owns_device,
@@ -306,6 +317,24 @@ impl Context {
             allocations: report.allocations.len() as u64,
             allocated_bytes: report.total_allocated_bytes,
             capacity_bytes: report.total_capacity_bytes,
+            vkrt_bytes: self.inner.live_bytes.load(Ordering::Relaxed),
+            vkrt_peak_bytes: self.inner.peak_bytes.load(Ordering::Relaxed),
+        }
+    }
+
+    /// Starts a new high-water mark of vkrt's buffers at what is alive now.
+    pub fn reset_memory_peak(&self) {
+        let live = self.inner.live_bytes.load(Ordering::Relaxed);
+        self.inner.peak_bytes.store(live, Ordering::Relaxed);
+    }
+
+    /// Counts an allocation of `bytes` made (`+`) or freed (`-`).
+    pub(crate) fn count_allocation(&self, bytes: u64, made: bool) {
+        if made {
+            let live = self.inner.live_bytes.fetch_add(bytes, Ordering::Relaxed) + bytes;
+            self.inner.peak_bytes.fetch_max(live, Ordering::Relaxed);
+        } else {
+            self.inner.live_bytes.fetch_sub(bytes, Ordering::Relaxed);
         }
     }
 
