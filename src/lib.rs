@@ -1,8 +1,42 @@
 //! vkrt: a Vulkan-native ray-tracing engine whose acceleration structures are built on the
 //! GPU with raw Vulkan compute, meant to be read, embedded and profiled.
 //!
-//! Layers (calls go downward only): [`gpu`] (all Vulkan, all `unsafe`), then the host-side
-//! [`scene`] model. See `README.md` for the architecture.
+//! Build a structure on the GPU and trace rays against it:
+//!
+//! ```
+//! use vkrt::glam::Vec3;
+//! use vkrt::{AccelBuilder, AccelKind, Context, ContextOptions, GpuGeometry, Ray, Recorder};
+//! use vkrt::{TraceGeometry, TraceOptions, Tracer};
+//!
+//! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! let ctx = Context::new(&ContextOptions::default())?;
+//! let triangle = [Vec3::new(-1.0, -1.0, 0.0), Vec3::new(1.0, -1.0, 0.0), Vec3::Y];
+//! let geometry = TraceGeometry::from_triangles(&[triangle]);
+//!
+//! // Karras's LBVH, built by GPU kernels in one submission.
+//! let builder = AccelBuilder::new(&ctx, AccelKind::Lbvh)?;
+//! let mut rec = Recorder::new(&ctx)?;
+//! let (structure, _) = GpuGeometry::record_build(&mut rec, &builder, &geometry, 0)?;
+//! rec.submit_and_wait()?;
+//!
+//! let walk = AccelKind::Lbvh.walked(Default::default());
+//! let tracer = Tracer::for_accel(&ctx, &TraceOptions::default(), walk)?;
+//! let ray = Ray::new(Vec3::new(0.0, 0.0, 2.0), -Vec3::Z, 0.0, f32::INFINITY);
+//! let batch = tracer.trace(&ctx, &structure, &[ray], 0.0)?;
+//! assert!(batch.hits[0].is_hit());
+//! assert_eq!(batch.hits[0].t, 2.0);
+//! # Ok(())
+//! # }
+//! ```
+//!
+//! A renderer embeds vkrt on its own terms ([`Context::from_raw`] adopts its device,
+//! [`accel::geometry`] describes its vertex and index buffers, [`AccelBuilder::create_in`]
+//! places a structure in its memory, `vkrt/ray_query.glsl` traces from its own shaders):
+//! `docs/embedding.md`.
+//!
+//! Layers (calls go downward only): [`gpu`] (all Vulkan, all `unsafe`), [`prims`] (scans,
+//! reductions, sorts), [`scene`] (the host-side model), [`accel`] (the builders), [`trace`]
+//! (the walks) and [`render`]; [`verify`] checks them all on a device.
 
 #![deny(unsafe_code)]
 #![warn(unsafe_op_in_unsafe_fn, clippy::undocumented_unsafe_blocks)]
@@ -23,3 +57,16 @@ pub mod render;
 pub mod scene;
 pub mod trace;
 pub mod verify;
+
+pub use glam;
+
+pub use accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelSizes, AccelStructure};
+pub use accel::embedded::{BuildFlags, REQUIRED_BUFFER_USAGE};
+pub use accel::geometry::{Geometry, IndexType, Indices, Spheres, Triangles, VertexFormat};
+pub use gpu::{
+    Buffer, Context, ContextOptions, DeviceInfo, GpuError, RawBuffer, RawParts, Recorder,
+    Validation,
+};
+pub use scene::Scene;
+pub use trace::gpu::{GpuGeometry, Tracer};
+pub use trace::{Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};

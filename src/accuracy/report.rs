@@ -54,7 +54,7 @@ pub fn write(dir: &Path, report: &AccuracyReport, images: &[ImageFile]) -> Resul
     written
 }
 
-/// Refuses, before a long run, a folder [`write`] would refuse: a missing parent, a file, a
+/// Refuses, before a long run, a folder [`write()`] would refuse: a missing parent, a file, a
 /// folder holding something other than a previous report.
 pub fn check_target(dir: &Path) -> Result<(), GpuError> {
     target(dir)?;

@@ -64,7 +64,7 @@
 //! so the items per invocation decide; the workgroup size hardly matters. With one
 //! lavapipe thread (`LP_NUM_THREADS=1`) 256 × 1024 took 3.9 ms and with two 2.05 ms (a
 //! quieter moment): the kernel scales and then approaches this machine's memory bandwidth
-//! (about 9.6 GB/s for one thread reading). At n = 2^24 (64 MiB), [`bench`]: about 16 ms
+//! (about 9.6 GB/s for one thread reading). At n = 2^24 (64 MiB), [`bench()`]: about 16 ms
 //! (1.0 G elements/s) for every reduction with [`recommended_config`], 19–29 ms with the
 //! default 256 × 16.
 //!
@@ -599,7 +599,7 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
     bench_with(ctx, recommended_config(ctx), n, reps)
 }
 
-/// [`bench`] with a given configuration (for tuning).
+/// [`bench()`] with a given configuration (for tuning).
 pub fn bench_with(ctx: &Context, cfg: PrimConfig, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
     let reduce = Reduce::new(ctx, cfg)?;
     let n32 = u32::try_from(n).expect("bench size fits u32");

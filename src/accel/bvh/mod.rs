@@ -1,6 +1,6 @@
 //! Bounding volume hierarchies: the binary two-boxes-per-node layout the traversal reads
 //! ([`layout`]), Sochora's (2013) multithreaded CPU SAH builder ([`sah`]), the refit that follows
-//! moved primitives ([`refit`], CPU twin of the GPU kernel), and a structural validator
+//! moved primitives ([`refit`](mod@refit), CPU twin of the GPU kernel), and a structural validator
 //! with the SAH cost of a built tree ([`validate`]); the GPU builders' LBVH ([`lbvh`]) and
 //! PLOC ([`ploc`]) with the SAH leaf collapse of their trees ([`collapse`]).
 

@@ -64,7 +64,7 @@ pub fn icosphere_triangle_count(subdivisions: u32) -> u64 {
 
 /// Unit sphere from an icosahedron subdivided `subdivisions` times
 /// (frequency `2^s`): `20·4^s` triangles, `10·4^s + 2` vertices, closed,
-/// outward-facing, with unit normals. Error if above [`MAX_TRIANGLES`]
+/// outward-facing, with unit normals. Error if above [`MAX_TRIANGLES`](crate::scene::limits::MAX_TRIANGLES)
 /// (`s ≥ 10`).
 pub fn icosphere(subdivisions: u32) -> Result<Mesh, SceneError> {
     let count = icosphere_triangle_count(subdivisions);

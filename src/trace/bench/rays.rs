@@ -160,7 +160,7 @@ impl BenchScene {
 
     /// From every hit of `primary`: a shadow ray towards [`BenchScene::shadow`] and a mirror
     /// reflection, both leaving the side the primary ray came from: spawned off the surface
-    /// as the renderer spawns them, and starting at [`SPAWN_TMIN`] × the scene's diagonal.
+    /// as the renderer spawns them, and starting at `SPAWN_TMIN` × the scene's diagonal.
     pub fn secondary_rays(&self, primary: &[Ray], hits: &[Hit]) -> (RaySet, RaySet) {
         let g = &self.geometry;
         let (lo, hi) = bounds(g);
