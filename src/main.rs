@@ -1582,7 +1582,10 @@ fn gpu_bvh_build_command(
         "cpu_twin_ms": twin.as_ref().map(|(_, ms)| *ms),
     });
     report.as_object_mut().expect("an object").extend(shape);
-    extend_json(&mut report, device_bytes_json(ctx, before, g.primitive_count()));
+    extend_json(
+        &mut report,
+        device_bytes_json(ctx, before, g.primitive_count()),
+    );
     if json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
