@@ -436,9 +436,26 @@ fn sphere_boxes_on_the_gpu_equal_the_cpu_twin_and_build_the_same_tree() {
     let scratch = builder.scratch(&ctx, n, cap).unwrap();
     let out = builder.output(&ctx, &cap).unwrap();
     let mut rec = Recorder::new(&ctx).unwrap();
-    builder.record_sphere_boxes(&mut rec, &spheres_buf, ns, &boxes_buf, nt);
+    // Misuse is an error, never a panic or an out-of-bounds write: more spheres than the
+    // box buffer holds after `nt`, a build of more primitives than the scratch was made for.
+    let e = builder
+        .record_sphere_boxes(&mut rec, &spheres_buf, ns, &boxes_buf, nt + 1)
+        .unwrap_err();
+    assert!(e.to_string().contains("record_sphere_boxes"), "{e}");
+    let e = builder
+        .record_build_boxes(&mut rec, &boxes_buf, n + 1, &p, &scratch, &out)
+        .unwrap_err();
+    assert!(
+        e.to_string().contains("record_build_boxes") || e.to_string().contains("record_build"),
+        "{e}"
+    );
+    builder
+        .record_sphere_boxes(&mut rec, &spheres_buf, ns, &boxes_buf, nt)
+        .unwrap();
     rec.compute_to_compute();
-    builder.record_build_boxes(&mut rec, &boxes_buf, n, &p, &scratch, &out);
+    builder
+        .record_build_boxes(&mut rec, &boxes_buf, n, &p, &scratch, &out)
+        .unwrap();
     rec.compute_to_transfer();
     rec.submit_and_wait().unwrap();
     // The sphere boxes, bit for bit.

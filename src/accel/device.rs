@@ -871,7 +871,7 @@ impl AccelBuilder {
                     rec.transfer_to_compute();
                 }
                 if n > 0 {
-                    kd.record_build_boxes(rec, &prims.boxes, n, &self.kd_params, s, o);
+                    kd.record_build_boxes(rec, &prims.boxes, n, &self.kd_params, s, o)?;
                     rec.compute_to_compute();
                 }
                 kd.record_finish(
@@ -959,7 +959,7 @@ impl AccelBuilder {
                     true => s.collapse.tree_refs(),
                     false => &*refs,
                 };
-                lbvh.record_topology(rec, &prims.boxes, n, &s.topology, nodes, tree_refs);
+                lbvh.record_topology(rec, &prims.boxes, n, &s.topology, nodes, tree_refs)?;
                 *counts = (n_nodes, n);
                 if collapsing {
                     // The boxes' refit decides the collapse on the same climb.
@@ -978,7 +978,7 @@ impl AccelBuilder {
                         cs,
                         p,
                     );
-                    collapse.record(rec, n, visits, cs, p, nodes, refs, true);
+                    collapse.record(rec, n, visits, cs, p, nodes, refs, true)?;
                 } else {
                     let refit = self
                         .refit
@@ -1009,18 +1009,18 @@ impl AccelBuilder {
                     // The references go to the collapse's scratch, and are laid out in `refs`.
                     let tree_refs = s.collapse.tree_refs();
                     let info = &out.info;
-                    ploc.record_build(rec, &prims.boxes, n, &s.build, nodes, tree_refs, info);
+                    ploc.record_build(rec, &prims.boxes, n, &s.build, nodes, tree_refs, info)?;
                     rec.compute_to_compute();
                     let collapse = self
                         .collapse
                         .as_ref()
                         .ok_or_else(missing("the collapse kernels"))?;
                     let p = &self.bvh_params;
-                    collapse.record(rec, n, &s.visits, &s.collapse, p, nodes, refs, false);
+                    collapse.record(rec, n, &s.visits, &s.collapse, p, nodes, refs, false)?;
                 } else if n >= 2 {
-                    ploc.record_build(rec, &prims.boxes, n, &s.build, nodes, refs, &out.info);
+                    ploc.record_build(rec, &prims.boxes, n, &s.build, nodes, refs, &out.info)?;
                 } else {
-                    ploc.record_small(rec, &prims.boxes, n, &s.build, nodes, refs);
+                    ploc.record_small(rec, &prims.boxes, n, &s.build, nodes, refs)?;
                     let refit = self
                         .refit
                         .as_ref()

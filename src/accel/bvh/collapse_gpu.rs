@@ -160,17 +160,23 @@ impl CollapseKernels {
         nodes: &Buffer<BvhNode>,
         refs: &Buffer<u32>,
         decided: bool,
-    ) {
-        assert!(
-            super::collapse::applies(n_prims, params),
-            "a collapse that changes nothing"
-        );
+    ) -> Result<()> {
+        if !(super::collapse::applies(n_prims, params)) {
+            return Err(GpuError::Usage {
+                call: "CollapseBuilder::record",
+                reason: "a collapse that changes nothing".into(),
+            });
+        }
         let n_nodes = n_prims - 1;
-        assert!(
-            n_nodes <= scratch.max_nodes,
-            "collapse of {n_nodes} nodes, scratch for {}",
-            scratch.max_nodes
-        );
+        if n_nodes > scratch.max_nodes {
+            return Err(GpuError::Usage {
+                call: "CollapseBuilder::record",
+                reason: format!(
+                    "collapse of {n_nodes} nodes, scratch for {}",
+                    scratch.max_nodes
+                ),
+            });
+        }
         let s = scratch;
         let parents_at = n_prims as u32;
         let max_leaf = params.max_leaf_prims.min(MAX_COLLAPSE_LEAF);
@@ -215,5 +221,6 @@ impl CollapseKernels {
             });
         });
         rec.compute_to_compute();
+        Ok(())
     }
 }

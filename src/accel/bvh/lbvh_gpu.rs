@@ -9,7 +9,7 @@ use std::sync::Arc;
 
 use super::lbvh::MortonBits;
 use super::BvhNode;
-use crate::gpu::{kernels, Buffer, BufferArg, Context, Kernel, Recorder, Result, Spec};
+use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, Spec};
 use crate::prims::radix_sort::{RadixScratch, RadixSort};
 use crate::prims::PrimConfig;
 
@@ -91,11 +91,11 @@ impl LbvhBuilder {
         scratch: &LbvhScratch,
         nodes: &Buffer<BvhNode>,
         refs: &Buffer<u32>,
-    ) {
+    ) -> Result<()> {
         if n == 0 {
-            return;
+            return Ok(());
         }
-        self.record_sort(rec, boxes, n, scratch, refs);
+        self.record_sort(rec, boxes, n, scratch, refs)?;
         let s = scratch;
         let groups = rec.groups_1d(n as u64, WORKGROUP);
         let n32 = n as u32;
@@ -108,6 +108,7 @@ impl LbvhBuilder {
             rec.dispatch(&self.karras, internal, &b, &n32);
         });
         rec.compute_to_compute();
+        Ok(())
     }
 
     /// Records the primitive ids sorted by the Morton codes of their centroids into
@@ -120,14 +121,15 @@ impl LbvhBuilder {
         n: usize,
         scratch: &LbvhScratch,
         refs: &Buffer<u32>,
-    ) {
-        assert!(
-            n <= scratch.max_n,
-            "LBVH of {n} primitives, scratch for {}",
-            scratch.max_n
-        );
+    ) -> Result<()> {
+        if n > scratch.max_n {
+            return Err(GpuError::Usage {
+                call: "LbvhBuilder::record_sort",
+                reason: format!("LBVH of {n} primitives, scratch for {}", scratch.max_n),
+            });
+        }
         if n == 0 {
-            return;
+            return Ok(());
         }
         let s = scratch;
         let groups = rec.groups_1d(n as u64, WORKGROUP);
@@ -159,5 +161,6 @@ impl LbvhBuilder {
             }
         });
         rec.compute_to_compute();
+        Ok(())
     }
 }

@@ -13,7 +13,7 @@ use std::sync::Arc;
 use super::lbvh_gpu::{LbvhBuilder, LbvhScratch};
 use super::ploc::{PlocParams, PAIRING_ROUNDS};
 use super::BvhNode;
-use crate::gpu::{kernels, Buffer, BufferArg, Context, Kernel, Recorder, Result, Spec};
+use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, Spec};
 use crate::trace::geometry::SceneInfo;
 
 /// Words of the round state (`ST_*` in `glsl/accel/ploc_common.glsl`).
@@ -115,10 +115,15 @@ impl PlocBuilder {
         s: &PlocScratch,
         nodes: &Buffer<BvhNode>,
         refs: &Buffer<u32>,
-    ) {
-        assert!(n <= 1);
+    ) -> Result<()> {
+        if n > 1 {
+            return Err(GpuError::Usage {
+                call: "PlocBuilder::record_small",
+                reason: format!("{n} primitives: record_build takes two or more"),
+            });
+        }
         self.sort
-            .record_topology(rec, boxes, n, &s.sort, nodes, refs);
+            .record_topology(rec, boxes, n, &s.sort, nodes, refs)
     }
 
     /// Records the PLOC tree over the `n >= 2` primitive boxes `boxes`: the sorted ids into
@@ -134,9 +139,16 @@ impl PlocBuilder {
         nodes: &Buffer<BvhNode>,
         refs: &Buffer<u32>,
         info: &Buffer<SceneInfo>,
-    ) {
-        assert!(n >= 2, "PLOC records trees of two primitives or more");
-        self.sort.record_sort(rec, boxes, n, &s.sort, refs);
+    ) -> Result<()> {
+        if n < 2 {
+            return Err(GpuError::Usage {
+                call: "PlocBuilder::record_build",
+                reason: format!(
+                    "{n} primitives: PLOC records trees of two or more (record_small takes fewer)"
+                ),
+            });
+        }
+        self.sort.record_sort(rec, boxes, n, &s.sort, refs)?;
         let wg = self.workgroup;
         rec.scope("ploc.init", |rec| {
             let groups = rec.groups_1d(n as u64, wg);
@@ -190,5 +202,6 @@ impl PlocBuilder {
                 rec.compute_to_indirect();
             }
         });
+        Ok(())
     }
 }

@@ -599,8 +599,8 @@ impl KdTreeBuilder {
         params: &SahParams,
         s: &BuildScratch,
         out: &BuildOutput,
-    ) {
-        self.record_source(rec, Source::Triangles(triangles), n, params, s, out);
+    ) -> Result<()> {
+        self.record_source(rec, Source::Triangles(triangles), n, params, s, out)
     }
 
     /// [`KdTreeBuilder::record_build`] over `n` primitive boxes, 6 floats each (min x, y,
@@ -615,8 +615,8 @@ impl KdTreeBuilder {
         params: &SahParams,
         s: &BuildScratch,
         out: &BuildOutput,
-    ) {
-        self.record_source(rec, Source::Boxes(boxes), n, params, s, out);
+    ) -> Result<()> {
+        self.record_source(rec, Source::Boxes(boxes), n, params, s, out)
     }
 
     /// Records the boxes of `n` spheres (4 floats each: center x, y, z, radius) into
@@ -631,15 +631,19 @@ impl KdTreeBuilder {
         n: usize,
         boxes: &Buffer<f32>,
         first: usize,
-    ) {
-        assert!(
-            4 * n <= spheres.len() && 6 * (first + n) <= boxes.len(),
-            "sphere boxes {first}..{} into {} floats",
-            first + n,
-            boxes.len()
-        );
+    ) -> Result<()> {
+        if !(4 * n <= spheres.len() && 6 * (first + n) <= boxes.len()) {
+            return Err(GpuError::Usage {
+                call: "KdTreeBuilder::record_sphere_boxes",
+                reason: format!(
+                    "sphere boxes {first}..{} into {} floats",
+                    first + n,
+                    boxes.len()
+                ),
+            });
+        }
         if n == 0 {
-            return;
+            return Ok(());
         }
         rec.scope("kdtree.sphere_boxes", |rec| {
             let groups = rec.groups_1d(n as u64, WORKGROUP);
@@ -650,6 +654,7 @@ impl KdTreeBuilder {
                 &[n as u32, first as u32],
             );
         });
+        Ok(())
     }
 
     fn record_source(
@@ -660,12 +665,13 @@ impl KdTreeBuilder {
         params: &SahParams,
         s: &BuildScratch,
         out: &BuildOutput,
-    ) {
-        assert!(
-            n >= 1 && n <= s.max_prims && input.floats_per_prim() * n <= input.buffer().len(),
-            "build of {n} {}",
-            input.what()
-        );
+    ) -> Result<()> {
+        if !(n >= 1 && n <= s.max_prims && input.floats_per_prim() * n <= input.buffer().len()) {
+            return Err(GpuError::Usage {
+                call: "KdTreeBuilder::record_build",
+                reason: format!("build of {n} {}", input.what()),
+            });
+        }
         self.record_phase_one(rec, input, n, s);
         let depth_limit = params.depth_limit(n);
         rec.scope("kdtree.phase2", |rec| {
@@ -676,6 +682,7 @@ impl KdTreeBuilder {
                 });
             }
         });
+        Ok(())
     }
 
     fn record_phase_one(&self, rec: &mut Recorder, input: Source, n: usize, s: &BuildScratch) {
@@ -1168,7 +1175,7 @@ impl KdTreeBuilder {
             let scratch = self.scratch(ctx, n, capacity)?;
             let out = self.output(ctx, &capacity)?;
             let mut rec = Recorder::new(ctx)?;
-            self.record_source(&mut rec, uploaded.source(), n, params, &scratch, &out);
+            self.record_source(&mut rec, uploaded.source(), n, params, &scratch, &out)?;
             rec.compute_to_transfer();
             let profile = rec.submit_and_wait()?;
             let outcome = self.read_outcome(&scratch)?;
@@ -1249,11 +1256,11 @@ impl KdTreeBuilder {
         let mut rec = Recorder::new(ctx)?;
         rec.scope("kdtree.warmup", |rec| {
             self.record_source(rec, uploaded.source(), n, params, &scratch, &out)
-        });
+        })?;
         rec.compute_to_compute();
         rec.scope("kdtree.timed", |rec| {
             self.record_source(rec, uploaded.source(), n, params, &scratch, &out)
-        });
+        })?;
         rec.compute_to_transfer();
         Ok(rec.submit_and_wait()?.subtree("kdtree.timed"))
     }
