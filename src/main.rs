@@ -164,7 +164,8 @@ enum Command {
     Animate {
         /// The animated scene (.toml with `[animation]`).
         scene: PathBuf,
-        /// Frame files: a pattern with one %d or %0Nd, .png or .jpg.
+        /// Frame files: a pattern with one %d or %0Nd; .png or .jpg (8-bit sRGB), .exr or .pfm
+        /// (linear radiance, as `render -o x.exr`).
         #[arg(short, long, default_value = "frames/frame_%04d.png")]
         output: PathBuf,
         /// Frames 0..N (default: the scene's).

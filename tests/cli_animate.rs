@@ -206,7 +206,7 @@ fn bad_animation_input_is_a_clear_error_and_leaves_no_frame() {
     std::fs::write(&blocked, b"not a directory").unwrap();
     let under_file = blocked.join("f_%d.png");
     let no_number = out.join("frame.png");
-    let exr = out.join("f_%d.exr");
+    let tiff = out.join("f_%d.tiff");
     let gif = dir.join("p.gif");
     let single = dir.join("x.png");
     let cases: Vec<(Vec<&str>, &str)> = vec![
@@ -223,7 +223,7 @@ fn bad_animation_input_is_a_clear_error_and_leaves_no_frame() {
             vec!["animate", s(&scene), "-o", s(&no_number)],
             "frame number",
         ),
-        (vec!["animate", s(&scene), "-o", s(&exr)], "8-bit"),
+        (vec!["animate", s(&scene), "-o", s(&tiff)], ".exr"),
         (
             vec!["animate", s(&scene), "-o", s(&under_file)],
             "cannot write frames",
@@ -418,4 +418,54 @@ fn a_long_animation_holds_memory_flat() {
         assert!(rss <= 0.01, "host RSS grew {:.2} %: {m}", rss * 100.0);
     }
     let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// Float frames: `.exr` and `.pfm` patterns hold the linear radiance, each frame the same
+/// bytes as `vkrt render --frame k -o x.exr` (or `.pfm`) of the same scene.
+#[test]
+fn float_frames_equal_single_float_renders() {
+    let dir = scratch("float");
+    let scene = scene_file(&dir);
+    for ext in ["exr", "pfm"] {
+        let pattern = dir.join(format!("f_%02d.{ext}"));
+        let Some(_) = vkrt_ok(&[
+            "animate",
+            s(&scene),
+            "-o",
+            s(&pattern),
+            "--frames",
+            "2",
+            "--update",
+            "refit",
+            "--validate",
+        ]) else {
+            return;
+        };
+        for k in 0..2u32 {
+            let single = dir.join(format!("single_{k}.{ext}"));
+            vkrt_ok(&[
+                "render",
+                s(&scene),
+                "--frame",
+                &k.to_string(),
+                "-o",
+                s(&single),
+            ])
+            .unwrap();
+            let frame = std::fs::read(dir.join(format!("f_{k:02}.{ext}"))).unwrap();
+            if ext == "pfm" {
+                // Three floats a pixel after the header: the radiance, not 8-bit values.
+                assert!(
+                    frame.len() > 40 * 30 * 12,
+                    "frame {k}: {} bytes",
+                    frame.len()
+                );
+            }
+            assert!(
+                frame == std::fs::read(&single).unwrap(),
+                "{ext}: frame {k} differs from render --frame"
+            );
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
 }

@@ -553,6 +553,7 @@ fn measure_motion(
         },
         update: s.update,
         frames,
+        radiance: false,
         quality: true,
     };
     // Untimed first: two tiny frames compile the loop's pipelines.
@@ -572,7 +573,7 @@ fn measure_motion(
             |k| (scene.frame_time(k * step), scene.at_frame(k * step)),
             o,
             &TraceOptions::default(),
-            |_, _| Ok(()),
+            |_| Ok(()),
             |_| {},
         )
     };

@@ -56,6 +56,7 @@ pub fn animate_command(
 ) -> CliResult<AnimationReport> {
     let scene = animated(scene, args.frames)?;
     let pattern = FramePattern::parse(&args.output)?;
+    let pattern_float = pattern.float();
     if let Some(p) = &args.preview {
         if !p
             .extension()
@@ -85,6 +86,7 @@ pub fn animate_command(
         render: args.render,
         update: args.update,
         frames,
+        radiance: pattern_float,
         quality: false,
     };
     let report = animate::run(
@@ -92,7 +94,7 @@ pub fn animate_command(
         |k| (scene.frame_time(k), scene.at_frame(k)),
         &opt,
         trace,
-        |k, rgba| writer.write(k, rgba),
+        |frame| writer.write(frame),
         |done| bar.set_position(done as u64),
     );
     bar.finish_and_clear();
@@ -273,6 +275,7 @@ pub fn bench_animate(
             render: RenderOptions { accel, ..*render },
             update,
             frames,
+            radiance: false,
             quality: true,
         };
         let r = animate::run(
@@ -280,7 +283,7 @@ pub fn bench_animate(
             |k| (scene.frame_time(k * step), scene.at_frame(k * step)),
             &opt,
             &TraceOptions::default(),
-            |_, _| Ok(()),
+            |_| Ok(()),
             |_| {},
         )
         .map_err(|e| e.to_string())?;

@@ -14,7 +14,7 @@ use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
 use std::thread::JoinHandle;
 
 use super::gpu::{FrameLoop, Renderer, Update};
-use super::output::{jpeg_bytes, png_bytes, ImageFormat};
+use super::output::{exr_bytes, jpeg_bytes, pfm_bytes, png_bytes, ImageFormat};
 use super::{Plan, RenderAccel, RenderOptions, RenderScene};
 use crate::accel::device::{AccelKind, HostStructure};
 use crate::gpu::{write_atomically, Context, GpuError};
@@ -48,9 +48,6 @@ impl FramePattern {
             .and_then(|n| n.to_str())
             .ok_or_else(|| err("not a file name pattern"))?;
         let format = ImageFormat::from_path(pattern)?;
-        if !matches!(format, ImageFormat::Png | ImageFormat::Jpeg) {
-            return Err(err("frames are 8-bit images: use .png or .jpg"));
-        }
         let Some(at) = name.find('%') else {
             return Err(err("the file name needs a frame number: %d or %04d"));
         };
@@ -102,23 +99,37 @@ impl FramePattern {
         std::fs::remove_file(&probe).map_err(io)
     }
 
-    fn encode(&self, width: u32, height: u32, rgba: &[u8]) -> Result<Vec<u8>, GpuError> {
+    /// Whether the frames hold linear radiance (EXR, PFM) rather than 8-bit sRGB.
+    pub fn float(&self) -> bool {
+        matches!(self.format, ImageFormat::Exr | ImageFormat::Pfm)
+    }
+
+    fn encode(&self, width: u32, height: u32, frame: &Frame) -> Result<Vec<u8>, GpuError> {
+        let radiance = || {
+            frame
+                .radiance
+                .as_deref()
+                .ok_or_else(|| pattern_error(&self.path(frame.k), "no radiance was read back"))
+        };
         match self.format {
-            ImageFormat::Jpeg => jpeg_bytes(width, height, rgba),
-            _ => png_bytes(width, height, rgba),
+            ImageFormat::Png => png_bytes(width, height, &frame.rgba),
+            ImageFormat::Jpeg => jpeg_bytes(width, height, &frame.rgba),
+            ImageFormat::Exr => exr_bytes(width, height, radiance()?),
+            ImageFormat::Pfm => Ok(pfm_bytes(width, height, radiance()?)),
         }
     }
 }
 
-/// One finished frame for the writer.
-struct Job {
-    k: u32,
-    rgba: Vec<u8>,
+/// One finished frame: 8-bit sRGB, and the linear radiance where it was read back.
+pub struct Frame {
+    pub k: u32,
+    pub rgba: Vec<u8>,
+    pub radiance: Option<Vec<[f32; 3]>>,
 }
 
 /// Writes frames on its own thread; [`FrameWriter::finish`] waits for it.
 pub struct FrameWriter {
-    send: Option<SyncSender<Job>>,
+    send: Option<SyncSender<Frame>>,
     thread: Option<JoinHandle<Result<(), GpuError>>>,
     written: std::sync::Arc<std::sync::Mutex<Vec<PathBuf>>>,
 }
@@ -139,7 +150,7 @@ impl FrameWriter {
         preview: Option<Preview>,
     ) -> Result<Self, GpuError> {
         // One frame may wait while the next renders: double buffering.
-        let (send, recv) = sync_channel::<Job>(1);
+        let (send, recv) = sync_channel::<Frame>(1);
         let written = std::sync::Arc::new(std::sync::Mutex::new(Vec::new()));
         let list = written.clone();
         let thread = std::thread::Builder::new()
@@ -155,8 +166,8 @@ impl FrameWriter {
 
     /// Hands frame `k` to the writer; blocks while the previous one is still waiting. An
     /// error is the writer's, which has stopped.
-    pub fn write(&mut self, k: u32, rgba: Vec<u8>) -> Result<(), GpuError> {
-        let sent = self.send.as_ref().map(|s| s.send(Job { k, rgba }));
+    pub fn write(&mut self, frame: Frame) -> Result<(), GpuError> {
+        let sent = self.send.as_ref().map(|s| s.send(frame));
         match sent {
             Some(Ok(())) => Ok(()),
             _ => self.join().and(Err(pattern_error(
@@ -199,7 +210,7 @@ impl Drop for FrameWriter {
 }
 
 fn write_frames(
-    recv: Receiver<Job>,
+    recv: Receiver<Frame>,
     pattern: &FramePattern,
     (width, height): (u32, u32),
     preview: Option<Preview>,
@@ -212,7 +223,7 @@ fn write_frames(
     let result = (|| {
         for job in recv {
             let path = pattern.path(job.k);
-            write_atomically(&path, &pattern.encode(width, height, &job.rgba)?)?;
+            write_atomically(&path, &pattern.encode(width, height, &job)?)?;
             written.lock().expect("not poisoned").push(path);
             if let Some(a) = apng.as_mut() {
                 a.frame(&job.rgba)?;
@@ -442,27 +453,30 @@ pub struct AnimateOptions {
     pub update: Update,
     /// Frames `0 .. frames`.
     pub frames: u32,
+    /// Also read back each frame's linear radiance (for EXR and PFM frames).
+    pub radiance: bool,
     /// Also the SAH cost of every frame's structure and of one built anew (BVHs only; a
     /// read-back after each frame, outside its timing).
     pub quality: bool,
 }
 
 /// Renders frames `0 .. opt.frames` of the scenes `frame_scene(k)` gives (the same
-/// primitives, moved), one submission each, handing each image to `sink(k, rgba)` (a
+/// primitives, moved), one submission each, handing each [`Frame`] to `sink` (a
 /// [`FrameWriter`], or nothing) while the next renders. `progress(done)` after each frame.
 pub fn run(
     ctx: &Context,
     frame_scene: impl Fn(u32) -> (f32, Scene),
     opt: &AnimateOptions,
     trace: &TraceOptions,
-    mut sink: impl FnMut(u32, Vec<u8>) -> Result<(), GpuError>,
+    mut sink: impl FnMut(Frame) -> Result<(), GpuError>,
     mut progress: impl FnMut(u32),
 ) -> Result<AnimationReport, Box<dyn std::error::Error + Send + Sync>> {
     let (_, first) = frame_scene(0);
     let plan = Plan::new(&first, &opt.render)?;
     let accel = opt.render.accel;
     let renderer = Renderer::new(ctx, &plan, trace)?;
-    let mut frames = FrameLoop::new(ctx, &renderer, &plan, accel, opt.update)?;
+    let mut frames =
+        FrameLoop::new(ctx, &renderer, &plan, accel, opt.update)?.with_radiance(opt.radiance);
     let mut rows = Vec::with_capacity(opt.frames as usize);
     for k in 0..opt.frames {
         let start = std::time::Instant::now();
@@ -476,7 +490,11 @@ pub fn run(
             Ok::<_, std::convert::Infallible>(RenderAccel::OnDevice(accel))
         })?;
         let image = frames.render(ctx, &rs, &plan)?;
-        sink(k, image.rgba)?;
+        sink(Frame {
+            k,
+            rgba: image.rgba,
+            radiance: image.radiance,
+        })?;
         let wall_ms = start.elapsed().as_secs_f64() * 1e3;
         let traffic = ctx.traffic() - traffic;
         let memory = ctx.memory();

@@ -37,6 +37,9 @@ impl Update {
 pub struct FrameImage {
     /// 8-bit sRGB RGBA, row-major from the top-left.
     pub rgba: Vec<u8>,
+    /// Mean radiance per pixel (linear), row-major from the top-left, where the loop reads
+    /// it back ([`FrameLoop::with_radiance`]: EXR and PFM frames).
+    pub radiance: Option<Vec<[f32; 3]>>,
     pub counts: RayCounts,
     pub profile: Profile,
     /// GPU ms of the structure's build or refit (a host builder's wall ms for the SAH BVH's
@@ -68,6 +71,7 @@ pub struct FrameLoop<'r> {
     state: Option<State>,
     wave_pixels: u32,
     grow: u32,
+    radiance: bool,
 }
 
 impl<'r> FrameLoop<'r> {
@@ -97,7 +101,15 @@ impl<'r> FrameLoop<'r> {
             state: None,
             wave_pixels: plan.wave_pixels,
             grow: 0,
+            radiance: false,
         })
+    }
+
+    /// Also reads back each frame's linear radiance (16 bytes a pixel more), for float
+    /// frame files.
+    pub fn with_radiance(mut self, on: bool) -> Self {
+        self.radiance = on;
+        self
     }
 
     /// The structure as it is now, read back (tools and reports; `None` before the first
@@ -126,6 +138,10 @@ impl<'r> FrameLoop<'r> {
             let kd_report = st.f.geom.accel.record_read_built(&mut rec)?;
             let counters = rec.read_back(&st.f.counters)?;
             let pixels = rec.read_back(&st.f.pixels)?;
+            let accum = match self.radiance {
+                true => Some(rec.read_back(&st.f.accum)?),
+                false => None,
+            };
             rec.transfer_to_host();
             let profile = rec.submit_and_wait()?;
             if let Some(b) = kd_report {
@@ -163,8 +179,19 @@ impl<'r> FrameLoop<'r> {
             }
             let scope = |name: &str| profile.ms(name).unwrap_or(0.0);
             let update_ms = host_ms.unwrap_or_else(|| scope("build") + scope("update"));
+            let inv = 1.0 / plan.spp.max(1) as f32;
+            let radiance = match accum {
+                Some(a) => Some(
+                    a.read()?
+                        .iter()
+                        .map(|a| [a[0] * inv, a[1] * inv, a[2] * inv])
+                        .collect(),
+                ),
+                None => None,
+            };
             return Ok(FrameImage {
                 rgba: bytemuck::cast_slice(&pixels.read()?).to_vec(),
+                radiance,
                 counts: RayCounts::from_counters(&counters),
                 update_ms,
                 built,
