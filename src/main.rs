@@ -168,9 +168,14 @@ enum Command {
         /// (linear radiance, as `render -o x.exr`).
         #[arg(short, long, default_value = "frames/frame_%04d.png")]
         output: PathBuf,
-        /// Frames 0..N (default: the scene's).
+        /// The frames to render, by number: A..B (B excluded), A..=B, A.. (to the end), ..B,
+        /// or one frame K (default: all). Any split renders the same frames: a render farm's
+        /// tasks each take a range.
         #[arg(long)]
-        frames: Option<u32>,
+        frames: Option<String>,
+        /// The animation's frame count, overriding the scene's.
+        #[arg(long)]
+        length: Option<u32>,
         #[arg(long)]
         spp: Option<u32>,
         #[arg(long)]
@@ -1081,6 +1086,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             scene,
             output,
             frames,
+            length,
             spp,
             width,
             height,
@@ -1103,6 +1109,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             let args = cli::animate::AnimateArgs {
                 output,
                 frames,
+                length,
                 render,
                 update: match update {
                     UpdateArg::Rebuild => vkrt::render::gpu::Update::Rebuild,

@@ -211,12 +211,36 @@ fn bad_animation_input_is_a_clear_error_and_leaves_no_frame() {
     let single = dir.join("x.png");
     let cases: Vec<(Vec<&str>, &str)> = vec![
         (
-            vec!["animate", s(&scene), "-o", p, "--frames", "0"],
-            "--frames must be 1..=",
+            vec!["animate", s(&scene), "-o", p, "--length", "0"],
+            "--length must be 1..=",
         ),
         (
-            vec!["animate", s(&scene), "-o", p, "--frames", "100000000"],
-            "--frames must be 1..=",
+            vec!["animate", s(&scene), "-o", p, "--length", "100000000"],
+            "--length must be 1..=",
+        ),
+        (
+            vec!["animate", s(&scene), "-o", p, "--frames", "2..2"],
+            "is empty",
+        ),
+        (
+            vec!["animate", s(&scene), "-o", p, "--frames", "3..1"],
+            "is empty",
+        ),
+        (
+            vec!["animate", s(&scene), "-o", p, "--frames", "2..9"],
+            "outside the animation's frames 0..4",
+        ),
+        (
+            vec!["animate", s(&scene), "-o", p, "--frames", "4"],
+            "outside the animation's frames 0..4",
+        ),
+        (
+            vec!["animate", s(&scene), "-o", p, "--frames", "1-3"],
+            "expected A..B",
+        ),
+        (
+            vec!["animate", s(&scene), "-o", p, "--frames", "..x"],
+            "expected A..B",
         ),
         (vec!["animate", s(&still), "-o", p], "no [animation]"),
         (
@@ -376,7 +400,7 @@ fn a_long_animation_holds_memory_flat() {
         s(&scene),
         "-o",
         s(&pattern),
-        "--frames",
+        "--length",
         "60",
         "--width",
         "32",
@@ -434,7 +458,7 @@ fn float_frames_equal_single_float_renders() {
             "-o",
             s(&pattern),
             "--frames",
-            "2",
+            "0..2",
             "--update",
             "refit",
             "--validate",
@@ -465,6 +489,64 @@ fn float_frames_equal_single_float_renders() {
                 frame == std::fs::read(&single).unwrap(),
                 "{ext}: frame {k} differs from render --frame"
             );
+        }
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+/// A render farm's split: the animation rendered as two ranges (in two processes, each
+/// starting fresh) gives the same frame files as one whole run, byte for byte, for every
+/// structure and both update modes; `A..=B`, `A..`, `..B` and a single frame name the
+/// same frames.
+#[test]
+fn any_split_into_ranges_gives_the_same_frames() {
+    let dir = scratch("split");
+    let scene = scene_file(&dir);
+    let mut runs = vec![
+        ("kdtree", "rebuild"),
+        ("sah-bvh", "rebuild"),
+        ("sah-bvh", "refit"),
+        ("lbvh", "rebuild"),
+        ("lbvh", "refit"),
+        ("ploc", "rebuild"),
+        ("ploc", "refit"),
+    ];
+    if String::from_utf8_lossy(&vkrt(&["info", "--json"]).stdout).contains("\"ray_query\": true") {
+        runs.push(("driver", "refit"));
+    }
+    for (accel, update) in runs {
+        let render = |sub: &str, ranges: &[&str]| -> Option<Vec<Vec<u8>>> {
+            let out = dir.join(format!("{accel}-{update}-{sub}"));
+            for range in ranges {
+                let pattern = out.join("f_%02d.png");
+                let mut args = vec!["animate", s(&scene), "-o", s(&pattern)];
+                args.extend(["--accel", accel, "--update", update]);
+                if !range.is_empty() {
+                    args.extend(["--frames", range]);
+                }
+                vkrt_ok(&args)?;
+            }
+            Some(
+                (0..4)
+                    .map(|k| std::fs::read(out.join(format!("f_{k:02}.png"))).unwrap())
+                    .collect(),
+            )
+        };
+        let Some(whole) = render("whole", &[""]) else {
+            return;
+        };
+        for (sub, ranges) in [
+            ("halves", &["0..2", "2..4"][..]),
+            ("inclusive", &["..=0", "1..=2", "3.."][..]),
+            ("singles", &["3", "1", "0", "2"][..]),
+        ] {
+            let split = render(sub, ranges).unwrap();
+            for k in 0..4 {
+                assert!(
+                    split[k] == whole[k],
+                    "{accel} {update}, {sub}: frame {k} differs from the whole run"
+                );
+            }
         }
     }
     std::fs::remove_dir_all(&dir).unwrap();

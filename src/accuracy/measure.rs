@@ -552,7 +552,7 @@ fn measure_motion(
             accel: AccelChoice::new(s.kind, Default::default()),
         },
         update: s.update,
-        frames,
+        frames: 0..frames,
         radiance: false,
         quality: true,
     };
@@ -563,9 +563,9 @@ fn measure_motion(
             height: Some(6),
             ..opt.render
         },
-        frames: 2.min(frames),
+        frames: 0..2.min(frames),
         quality: false,
-        ..opt
+        ..opt.clone()
     };
     let frames_of = |o: &AnimateOptions| {
         animate::run(

@@ -19,7 +19,11 @@ type CliResult<T> = Result<T, Box<dyn std::error::Error>>;
 
 /// `scene` with `frames` frames (its own count by default): at most
 /// [`vkrt::scene::MAX_FRAMES`], and the scene must be animated.
-pub fn animated(mut scene: Scene, frames: Option<u32>) -> CliResult<Scene> {
+pub fn animated(scene: Scene, frames: Option<u32>) -> CliResult<Scene> {
+    animated_as(scene, frames, "--frames")
+}
+
+fn animated_as(mut scene: Scene, frames: Option<u32>, flag: &str) -> CliResult<Scene> {
     let Some(anim) = scene.animation.as_mut() else {
         return Err(
             "the scene has no [animation] (fps, and frames or end_time): \
@@ -29,17 +33,55 @@ pub fn animated(mut scene: Scene, frames: Option<u32>) -> CliResult<Scene> {
     };
     if let Some(n) = frames {
         if n == 0 || n > vkrt::scene::MAX_FRAMES {
-            return Err(format!("--frames must be 1..={}", vkrt::scene::MAX_FRAMES).into());
+            return Err(format!("{flag} must be 1..={}", vkrt::scene::MAX_FRAMES).into());
         }
         anim.frames = n;
     }
     Ok(scene)
 }
 
+/// The frames `spec` names among `0..count`: `A..B` (B excluded, as Rust's ranges),
+/// `A..=B`, `A..`, `..B`, or one frame `K`. Empty, reversed or outside: an error.
+pub fn frame_range(spec: &str, count: u32) -> CliResult<std::ops::Range<u32>> {
+    let bad = || -> Box<dyn std::error::Error> {
+        format!("--frames `{spec}`: expected A..B (B excluded), A..=B, A.., ..B or one frame K")
+            .into()
+    };
+    let num = |s: &str| s.trim().parse::<u32>().map_err(|_| bad());
+    let (start, end) = match spec.split_once("..") {
+        None => {
+            let k = num(spec)?;
+            (k, k.checked_add(1).ok_or_else(bad)?)
+        }
+        Some((a, b)) => {
+            let start = if a.trim().is_empty() { 0 } else { num(a)? };
+            let end = match b.strip_prefix('=') {
+                Some(b) => num(b)?.checked_add(1).ok_or_else(bad)?,
+                None if b.trim().is_empty() => count,
+                None => num(b)?,
+            };
+            (start, end)
+        }
+    };
+    if end <= start {
+        return Err(format!("--frames `{spec}` is empty").into());
+    }
+    if end > count {
+        return Err(format!(
+            "--frames `{spec}` is outside the animation's frames 0..{count} (--length sets the count)"
+        )
+        .into());
+    }
+    Ok(start..end)
+}
+
 /// What `vkrt animate` was asked.
 pub struct AnimateArgs {
     pub output: PathBuf,
-    pub frames: Option<u32>,
+    /// `--frames`: a range or one frame ([`frame_range`]); all by default.
+    pub frames: Option<String>,
+    /// `--length`: the animation's frame count.
+    pub length: Option<u32>,
     pub render: RenderOptions,
     pub update: Update,
     pub preview: Option<PathBuf>,
@@ -54,7 +96,11 @@ pub fn animate_command(
     args: AnimateArgs,
     trace: &TraceOptions,
 ) -> CliResult<AnimationReport> {
-    let scene = animated(scene, args.frames)?;
+    let scene = animated_as(scene, args.length, "--length")?;
+    let range = match &args.frames {
+        Some(spec) => frame_range(spec, scene.frame_count())?,
+        None => 0..scene.frame_count(),
+    };
     let pattern = FramePattern::parse(&args.output)?;
     let pattern_float = pattern.float();
     if let Some(p) = &args.preview {
@@ -68,7 +114,7 @@ pub fn animate_command(
     let plan = vkrt::render::Plan::new(&scene.at_frame(0), &args.render)?;
     pattern.prepare()?;
     let ctx = ctx()?;
-    let frames = scene.frame_count();
+    let frames = range.len() as u32;
     let preview = args.preview.clone().map(|path| Preview {
         path,
         fps: scene.animation.map_or(24.0, |a| a.fps),
@@ -85,7 +131,7 @@ pub fn animate_command(
     let opt = AnimateOptions {
         render: args.render,
         update: args.update,
-        frames,
+        frames: range,
         radiance: pattern_float,
         quality: false,
     };
@@ -274,7 +320,7 @@ pub fn bench_animate(
         let opt = AnimateOptions {
             render: RenderOptions { accel, ..*render },
             update,
-            frames,
+            frames: 0..frames,
             radiance: false,
             quality: true,
         };

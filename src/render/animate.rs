@@ -451,8 +451,8 @@ pub fn growth(
 pub struct AnimateOptions {
     pub render: RenderOptions,
     pub update: Update,
-    /// Frames `0 .. frames`.
-    pub frames: u32,
+    /// The frames to render, by their number in the animation.
+    pub frames: std::ops::Range<u32>,
     /// Also read back each frame's linear radiance (for EXR and PFM frames).
     pub radiance: bool,
     /// Also the SAH cost of every frame's structure and of one built anew (BVHs only; a
@@ -460,9 +460,13 @@ pub struct AnimateOptions {
     pub quality: bool,
 }
 
-/// Renders frames `0 .. opt.frames` of the scenes `frame_scene(k)` gives (the same
-/// primitives, moved), one submission each, handing each [`Frame`] to `sink` (a
-/// [`FrameWriter`], or nothing) while the next renders. `progress(done)` after each frame.
+/// Renders frames `opt.frames` of the scenes `frame_scene(k)` gives (the same primitives,
+/// moved), one submission each, handing each [`Frame`] to `sink` (a [`FrameWriter`], or
+/// nothing) while the next renders. `progress(done)` after each frame.
+///
+/// Any split of an animation into ranges gives the same frames: a rebuilt frame's tree
+/// depends on that frame alone, and a refit frame's tree is always frame 0's refit to it
+/// (a range starting past frame 0 first builds over frame 0, one submission more).
 pub fn run(
     ctx: &Context,
     frame_scene: impl Fn(u32) -> (f32, Scene),
@@ -477,8 +481,16 @@ pub fn run(
     let renderer = Renderer::new(ctx, &plan, trace)?;
     let mut frames =
         FrameLoop::new(ctx, &renderer, &plan, accel, opt.update)?.with_radiance(opt.radiance);
-    let mut rows = Vec::with_capacity(opt.frames as usize);
-    for k in 0..opt.frames {
+    let flatten = |scene: &Scene| {
+        RenderScene::new(scene, &plan, |_| {
+            Ok::<_, std::convert::Infallible>(RenderAccel::OnDevice(accel))
+        })
+    };
+    if opt.update == Update::Refit && opt.frames.start > 0 {
+        frames.prepare(ctx, &flatten(&first)?, &plan)?;
+    }
+    let mut rows = Vec::with_capacity(opt.frames.len());
+    for k in opt.frames.clone() {
         let start = std::time::Instant::now();
         let traffic = ctx.traffic();
         let (time, scene) = if k == 0 {
@@ -486,9 +498,7 @@ pub fn run(
         } else {
             frame_scene(k)
         };
-        let rs = RenderScene::new(&scene, &plan, |_| {
-            Ok::<_, std::convert::Infallible>(RenderAccel::OnDevice(accel))
-        })?;
+        let rs = flatten(&scene)?;
         let image = frames.render(ctx, &rs, &plan)?;
         sink(Frame {
             k,
@@ -520,7 +530,7 @@ pub fn run(
             sah_cost,
             rebuilt_sah_cost,
         });
-        progress(k + 1);
+        progress(k - opt.frames.start + 1);
     }
     Ok(AnimationReport {
         accel: accel.label(),

@@ -112,6 +112,17 @@ impl<'r> FrameLoop<'r> {
         self
     }
 
+    /// Builds the structure over `rs` without rendering: the tree later frames refit. A
+    /// range of an animation that starts past frame 0 builds over frame 0 first, so that
+    /// every frame's tree is frame 0's refit to it, whichever range renders the frame.
+    pub fn prepare(&mut self, ctx: &Context, rs: &RenderScene, plan: &Plan) -> Result<()> {
+        self.state = None;
+        let mut rec = Recorder::new(ctx)?;
+        self.record_update(&mut rec, rs, plan)?;
+        rec.submit_and_wait()?;
+        Ok(())
+    }
+
     /// The structure as it is now, read back (tools and reports; `None` before the first
     /// frame). The driver's is opaque: an error.
     pub fn download(&self) -> Result<Option<crate::accel::device::HostStructure>> {
