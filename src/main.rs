@@ -176,6 +176,10 @@ enum Command {
         /// The animation's frame count, overriding the scene's.
         #[arg(long)]
         length: Option<u32>,
+        /// Leave frames whose files are already complete (a whole image of the right size):
+        /// a re-queued farm task does not redo finished frames.
+        #[arg(long)]
+        skip_existing: bool,
         #[arg(long)]
         spp: Option<u32>,
         #[arg(long)]
@@ -1087,6 +1091,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             output,
             frames,
             length,
+            skip_existing,
             spp,
             width,
             height,
@@ -1110,6 +1115,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 output,
                 frames,
                 length,
+                skip_existing,
                 render,
                 update: match update {
                     UpdateArg::Rebuild => vkrt::render::gpu::Update::Rebuild,

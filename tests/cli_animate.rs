@@ -551,3 +551,54 @@ fn any_split_into_ranges_gives_the_same_frames() {
     }
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// A re-queued task: `--skip-existing` leaves complete frame files alone and renders the
+/// missing and the broken ones again, equal to a whole run's; with `--preview` it is refused.
+#[test]
+fn skip_existing_renders_only_missing_or_broken_frames() {
+    let dir = scratch("skip");
+    let scene = scene_file(&dir);
+    for ext in ["png", "pfm"] {
+        let pattern = dir.join(format!("f_%d.{ext}"));
+        let frame = |k: u32| dir.join(format!("f_{k}.{ext}"));
+        let args = ["animate", s(&scene), "-o", s(&pattern), "--update", "refit"];
+        let Some(_) = vkrt_ok(&args) else {
+            return;
+        };
+        let whole: Vec<Vec<u8>> = (0..4).map(|k| std::fs::read(frame(k)).unwrap()).collect();
+        std::fs::remove_file(frame(1)).unwrap();
+        std::fs::write(frame(2), &whole[2][..whole[2].len() / 2]).unwrap(); // cut short
+        let mut again = args.to_vec();
+        again.extend(["--skip-existing", "--json"]);
+        let run = vkrt_ok(&again).unwrap();
+        let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+        assert_eq!(v["skipped"], serde_json::json!([0, 3]), "{ext}: {v}");
+        let rendered: Vec<_> = v["frames"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|f| f["frame"].clone())
+            .collect();
+        assert_eq!(rendered, [1, 2], "{ext}: {v}");
+        for k in 0..4 {
+            assert!(
+                std::fs::read(frame(k)).unwrap() == whole[k as usize],
+                "{ext}: frame {k}"
+            );
+        }
+    }
+    let preview = dir.join("p.png");
+    let pattern = dir.join("g_%d.png");
+    let run = vkrt(&[
+        "animate",
+        s(&scene),
+        "-o",
+        s(&pattern),
+        "--skip-existing",
+        "--preview",
+        s(&preview),
+    ]);
+    assert!(!run.status.success());
+    assert!(String::from_utf8_lossy(&run.stderr).contains("--skip-existing"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}

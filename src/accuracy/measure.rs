@@ -552,7 +552,7 @@ fn measure_motion(
             accel: AccelChoice::new(s.kind, Default::default()),
         },
         update: s.update,
-        frames: 0..frames,
+        frames: (0..frames).collect(),
         radiance: false,
         quality: true,
     };
@@ -563,7 +563,7 @@ fn measure_motion(
             height: Some(6),
             ..opt.render
         },
-        frames: 0..2.min(frames),
+        frames: (0..2.min(frames)).collect(),
         quality: false,
         ..opt.clone()
     };

@@ -82,6 +82,8 @@ pub struct AnimateArgs {
     pub frames: Option<String>,
     /// `--length`: the animation's frame count.
     pub length: Option<u32>,
+    /// `--skip-existing`: leave frames whose files are already complete.
+    pub skip_existing: bool,
     pub render: RenderOptions,
     pub update: Update,
     pub preview: Option<PathBuf>,
@@ -111,10 +113,16 @@ pub fn animate_command(
             return Err(format!("{}: the preview is an animated PNG (.png)", p.display()).into());
         }
     }
+    if args.preview.is_some() && args.skip_existing {
+        return Err("--preview needs every frame rendered: not with --skip-existing".into());
+    }
     let plan = vkrt::render::Plan::new(&scene.at_frame(0), &args.render)?;
     pattern.prepare()?;
+    let (todo, skipped): (Vec<u32>, Vec<u32>) = range
+        .clone()
+        .partition(|&k| !(args.skip_existing && pattern.complete(k, plan.width, plan.height)));
     let ctx = ctx()?;
-    let frames = range.len() as u32;
+    let frames = todo.len() as u32;
     let preview = args.preview.clone().map(|path| Preview {
         path,
         fps: scene.animation.map_or(24.0, |a| a.fps),
@@ -131,7 +139,7 @@ pub fn animate_command(
     let opt = AnimateOptions {
         render: args.render,
         update: args.update,
-        frames: range,
+        frames: todo,
         radiance: pattern_float,
         quality: false,
     };
@@ -145,8 +153,9 @@ pub fn animate_command(
     );
     bar.finish_and_clear();
     match report {
-        Ok(r) => {
+        Ok(mut r) => {
             writer.finish()?;
+            r.skipped = skipped;
             Ok(r)
         }
         Err(e) => {
@@ -166,6 +175,7 @@ pub fn print_report(r: &AnimationReport, json: bool) -> CliResult<()> {
             "height": r.height,
             "spp": r.spp,
             "frames": r.frames,
+            "skipped": r.skipped,
             "mean_update_ms": r.mean_update_ms(),
             "mean_render_ms": r.mean_render_ms(),
             "fps": r.fps(),
@@ -210,6 +220,12 @@ pub fn print_report(r: &AnimationReport, json: bool) -> CliResult<()> {
         r.fps(),
         r.mrays_per_s()
     );
+    if !r.skipped.is_empty() {
+        println!(
+            "skipped {} frames whose files were complete",
+            r.skipped.len()
+        );
+    }
     if let Some(m) = memory_line(r) {
         println!("{m}");
     }
@@ -320,7 +336,7 @@ pub fn bench_animate(
         let opt = AnimateOptions {
             render: RenderOptions { accel, ..*render },
             update,
-            frames: 0..frames,
+            frames: (0..frames).collect(),
             radiance: false,
             quality: true,
         };

@@ -99,6 +99,21 @@ impl FramePattern {
         std::fs::remove_file(&probe).map_err(io)
     }
 
+    /// Whether frame `k`'s file exists and is a whole `width`×`height` image of this
+    /// pattern's format (what `--skip-existing` leaves alone). Writes are atomic, so a file
+    /// is either whole or absent unless something else wrote it.
+    pub fn complete(&self, k: u32, width: u32, height: u32) -> bool {
+        let path = self.path(k);
+        match self.format {
+            ImageFormat::Pfm => std::fs::read(&path).is_ok_and(|b| pfm_complete(&b, width, height)),
+            _ => image::ImageReader::open(&path)
+                .and_then(|r| r.with_guessed_format())
+                .ok()
+                .and_then(|r| r.decode().ok())
+                .is_some_and(|img| img.width() == width && img.height() == height),
+        }
+    }
+
     /// Whether the frames hold linear radiance (EXR, PFM) rather than 8-bit sRGB.
     pub fn float(&self) -> bool {
         matches!(self.format, ImageFormat::Exr | ImageFormat::Pfm)
@@ -118,6 +133,28 @@ impl FramePattern {
             ImageFormat::Pfm => Ok(pfm_bytes(width, height, radiance()?)),
         }
     }
+}
+
+/// A colour PFM of `width`×`height` with its whole raster.
+fn pfm_complete(bytes: &[u8], width: u32, height: u32) -> bool {
+    let mut fields = Vec::new();
+    let mut at = 0;
+    while fields.len() < 4 && at < bytes.len() {
+        while at < bytes.len() && bytes[at].is_ascii_whitespace() {
+            at += 1;
+        }
+        let start = at;
+        while at < bytes.len() && !bytes[at].is_ascii_whitespace() {
+            at += 1;
+        }
+        fields.push(String::from_utf8_lossy(&bytes[start..at]).into_owned());
+        at += 1;
+    }
+    fields.len() == 4
+        && fields[0] == "PF"
+        && fields[1] == width.to_string()
+        && fields[2] == height.to_string()
+        && bytes.len().saturating_sub(at) == width as usize * height as usize * 12
 }
 
 /// One finished frame: 8-bit sRGB, and the linear radiance where it was read back.
@@ -387,6 +424,8 @@ pub struct AnimationReport {
     pub height: u32,
     pub spp: u32,
     pub frames: Vec<FrameRow>,
+    /// Frames left alone because their files were already complete (`--skip-existing`).
+    pub skipped: Vec<u32>,
 }
 
 impl AnimationReport {
@@ -451,8 +490,8 @@ pub fn growth(
 pub struct AnimateOptions {
     pub render: RenderOptions,
     pub update: Update,
-    /// The frames to render, by their number in the animation.
-    pub frames: std::ops::Range<u32>,
+    /// The frames to render, by their number in the animation, in increasing order.
+    pub frames: Vec<u32>,
     /// Also read back each frame's linear radiance (for EXR and PFM frames).
     pub radiance: bool,
     /// Also the SAH cost of every frame's structure and of one built anew (BVHs only; a
@@ -466,7 +505,8 @@ pub struct AnimateOptions {
 ///
 /// Any split of an animation into ranges gives the same frames: a rebuilt frame's tree
 /// depends on that frame alone, and a refit frame's tree is always frame 0's refit to it
-/// (a range starting past frame 0 first builds over frame 0, one submission more).
+/// (a run whose first frame is past frame 0 first builds over frame 0, one submission
+/// more).
 pub fn run(
     ctx: &Context,
     frame_scene: impl Fn(u32) -> (f32, Scene),
@@ -486,11 +526,11 @@ pub fn run(
             Ok::<_, std::convert::Infallible>(RenderAccel::OnDevice(accel))
         })
     };
-    if opt.update == Update::Refit && opt.frames.start > 0 {
+    if opt.update == Update::Refit && opt.frames.first().is_some_and(|&k| k > 0) {
         frames.prepare(ctx, &flatten(&first)?, &plan)?;
     }
     let mut rows = Vec::with_capacity(opt.frames.len());
-    for k in opt.frames.clone() {
+    for (done, &k) in opt.frames.iter().enumerate() {
         let start = std::time::Instant::now();
         let traffic = ctx.traffic();
         let (time, scene) = if k == 0 {
@@ -530,7 +570,7 @@ pub fn run(
             sah_cost,
             rebuilt_sah_cost,
         });
-        progress(k - opt.frames.start + 1);
+        progress(done as u32 + 1);
     }
     Ok(AnimationReport {
         accel: accel.label(),
@@ -539,6 +579,7 @@ pub fn run(
         height: plan.height,
         spp: plan.spp,
         frames: rows,
+        skipped: Vec::new(),
     })
 }
 
