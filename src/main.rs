@@ -180,6 +180,14 @@ enum Command {
         /// a re-queued farm task does not redo finished frames.
         #[arg(long)]
         skip_existing: bool,
+        /// Render nothing: measure the first frames and print (JSON) how to split the
+        /// animation into render-farm tasks of about --task-seconds each, with each task's
+        /// command.
+        #[arg(long)]
+        plan: bool,
+        /// The wall time a farm task should take, for --plan.
+        #[arg(long, default_value_t = 600.0)]
+        task_seconds: f64,
         #[arg(long)]
         spp: Option<u32>,
         #[arg(long)]
@@ -1092,6 +1100,8 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             frames,
             length,
             skip_existing,
+            plan,
+            task_seconds,
             spp,
             width,
             height,
@@ -1124,6 +1134,19 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 preview,
             };
             let validate = cli.validate;
+            if plan {
+                let argv: Vec<String> = std::env::args().collect();
+                let v = cli::animate::plan_command(
+                    || context(validate),
+                    loaded,
+                    args,
+                    &Default::default(),
+                    task_seconds,
+                    &argv,
+                )?;
+                println!("{}", serde_json::to_string_pretty(&v)?);
+                return Ok(());
+            }
             let (report, trace_profile) = vkrt::gpu::capture_profiles(|| {
                 cli::animate::animate_command(
                     || context(validate),

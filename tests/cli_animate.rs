@@ -602,3 +602,58 @@ fn skip_existing_renders_only_missing_or_broken_frames() {
     assert!(String::from_utf8_lossy(&run.stderr).contains("--skip-existing"));
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// `--plan`: chunks that tile the range, each with a command that renders its chunk (run
+/// here: together they give the whole run's frames).
+#[test]
+fn plan_splits_the_animation_into_task_commands() {
+    let dir = scratch("plan");
+    let scene = scene_file(&dir);
+    let pattern = dir.join("f_%d.png");
+    let args = ["animate", s(&scene), "-o", s(&pattern), "--update", "refit"];
+    let mut plan_args = args.to_vec();
+    plan_args.extend(["--plan", "--task-seconds", "0.000001", "--frames", "1.."]);
+    let Some(run) = vkrt_ok(&plan_args) else {
+        return;
+    };
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(v["frames"], 3, "{v}");
+    assert_eq!(v["chunk"], 1, "{v}");
+    let chunks = v["chunks"].as_array().unwrap();
+    let ranges: Vec<&str> = chunks
+        .iter()
+        .map(|c| c["frames"].as_str().unwrap())
+        .collect();
+    assert_eq!(ranges, ["1..2", "2..3", "3..4"]);
+    assert!(
+        files_in(&dir).iter().all(|f| !f.starts_with("f_")),
+        "--plan wrote frames"
+    );
+    for c in chunks {
+        let cmd: Vec<&str> = c["command"]
+            .as_array()
+            .unwrap()
+            .iter()
+            .map(|a| a.as_str().unwrap())
+            .collect();
+        assert_eq!(cmd[0], "vkrt");
+        assert!(
+            !cmd.contains(&"--plan") && cmd.ends_with(&["--skip-existing"]),
+            "{cmd:?}"
+        );
+        vkrt_ok(&cmd[1..]).unwrap();
+    }
+    let whole = dir.join("whole");
+    let mut whole_args = args.to_vec();
+    let whole_pattern = whole.join("f_%d.png");
+    whole_args[3] = s(&whole_pattern);
+    vkrt_ok(&whole_args).unwrap();
+    for k in 1..4 {
+        let name = format!("f_{k}.png");
+        assert!(
+            std::fs::read(dir.join(&name)).unwrap() == std::fs::read(whole.join(&name)).unwrap(),
+            "{name}"
+        );
+    }
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -426,3 +426,98 @@ pub fn bench_animate(
 fn same_kind(a: &str, b: &str) -> bool {
     a.split('/').next() == b.split('/').next()
 }
+
+/// `vkrt animate --plan`: how to split the animation into render-farm tasks. Renders the
+/// first two frames of the range (no files) to measure a task's first frame (pipelines,
+/// upload, build) and a following one, then sizes chunks to about `task_seconds` each.
+/// Every chunk's command is `argv` with `--frames A..B --skip-existing` (a re-queued task
+/// skips what it finished).
+pub fn plan_command(
+    ctx: impl FnOnce() -> CliResult<Context>,
+    scene: Scene,
+    args: AnimateArgs,
+    trace: &TraceOptions,
+    task_seconds: f64,
+    argv: &[String],
+) -> CliResult<serde_json::Value> {
+    if !(task_seconds.is_finite() && task_seconds > 0.0) {
+        return Err("--task-seconds must be a positive number".into());
+    }
+    let scene = animated_as(scene, args.length, "--length")?;
+    let range = match &args.frames {
+        Some(spec) => frame_range(spec, scene.frame_count())?,
+        None => 0..scene.frame_count(),
+    };
+    FramePattern::parse(&args.output)?;
+    let ctx = ctx()?;
+    let probe: Vec<u32> = range.clone().take(2).collect();
+    let opt = AnimateOptions {
+        render: args.render,
+        update: args.update,
+        frames: probe,
+        radiance: false,
+        quality: false,
+    };
+    let report = animate::run(
+        &ctx,
+        |k| (scene.frame_time(k), scene.at_frame(k)),
+        &opt,
+        trace,
+        |_| Ok(()),
+        |_| {},
+    )
+    .map_err(|e| e.to_string())?;
+    let first_ms = report.frames.first().map_or(0.0, |f| f.wall_ms);
+    let next_ms = report
+        .frames
+        .get(1)
+        .map_or(first_ms, |f| f.wall_ms)
+        .max(1e-3);
+    let budget_ms = task_seconds * 1e3;
+    let chunk =
+        (((budget_ms - first_ms) / next_ms).floor() as i64 + 1).clamp(1, range.len() as i64) as u32;
+    let base = plan_argv(argv);
+    let chunks: Vec<serde_json::Value> = range
+        .clone()
+        .step_by(chunk as usize)
+        .map(|a| {
+            let b = (a + chunk).min(range.end);
+            let mut cmd = base.clone();
+            cmd.extend([
+                "--frames".into(),
+                format!("{a}..{b}"),
+                "--skip-existing".into(),
+            ]);
+            serde_json::json!({ "frames": format!("{a}..{b}"), "command": cmd })
+        })
+        .collect();
+    Ok(serde_json::json!({
+        "frames": range.len(),
+        "range": format!("{}..{}", range.start, range.end),
+        "first_frame_ms": first_ms,
+        "frame_ms": next_ms,
+        "task_seconds": task_seconds,
+        "chunk": chunk,
+        "chunks": chunks,
+    }))
+}
+
+/// The invocation as a task runs it: `vkrt` and the arguments, less the planning ones and
+/// those each task sets itself (`--frames`, `--skip-existing`, `--json`, `--preview`).
+fn plan_argv(argv: &[String]) -> Vec<String> {
+    let mut out = vec!["vkrt".to_string()];
+    let mut args = argv.iter().skip(1);
+    while let Some(a) = args.next() {
+        let flag = a.split('=').next().unwrap_or(a);
+        match flag {
+            "--plan" | "--skip-existing" | "--json" => {}
+            "--frames" | "--task-seconds" | "--preview" => {
+                if !a.contains('=') {
+                    args.next();
+                }
+            }
+            _ => out.push(a.clone()),
+        }
+    }
+    out
+}
