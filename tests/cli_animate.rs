@@ -512,7 +512,7 @@ fn any_split_into_ranges_gives_the_same_frames() {
         ("ploc", "refit"),
     ];
     if String::from_utf8_lossy(&vkrt(&["info", "--json"]).stdout).contains("\"ray_query\": true") {
-        runs.push(("driver", "refit"));
+        runs.extend([("driver", "rebuild"), ("driver", "refit")]);
     }
     for (accel, update) in runs {
         let render = |sub: &str, ranges: &[&str]| -> Option<Vec<Vec<u8>>> {
