@@ -628,7 +628,6 @@ mod tests {
         assert_eq!(p.path(3), Path::new("f3-x.JPG"));
         for (bad, why) in [
             ("out/frame.png", "frame number"),
-            ("out/frame_%04d.exr", "8-bit"),
             ("out/frame_%04d.bmp", "unsupported"),
             ("out/frame_%4d.png", "0Nd"),
             ("out/frame_%s.png", "followed by d"),
@@ -638,5 +637,14 @@ mod tests {
             let e = FramePattern::parse(Path::new(bad)).unwrap_err().to_string();
             assert!(e.contains(why) && e.contains(bad), "{bad}: {e}");
         }
+        for float in ["out/frame_%04d.exr", "out/f_%d.PFM"] {
+            assert!(
+                FramePattern::parse(Path::new(float)).unwrap().float(),
+                "{float}"
+            );
+        }
+        assert!(!FramePattern::parse(Path::new("out/f_%d.jpg"))
+            .unwrap()
+            .float());
     }
 }
