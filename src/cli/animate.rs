@@ -75,6 +75,16 @@ pub fn frame_range(spec: &str, count: u32) -> CliResult<std::ops::Range<u32>> {
     Ok(start..end)
 }
 
+/// The scene with `--length` applied, and the frames `--frames` names (all by default).
+fn scene_and_range(scene: Scene, args: &AnimateArgs) -> CliResult<(Scene, std::ops::Range<u32>)> {
+    let scene = animated_as(scene, args.length, "--length")?;
+    let range = match &args.frames {
+        Some(spec) => frame_range(spec, scene.frame_count())?,
+        None => 0..scene.frame_count(),
+    };
+    Ok((scene, range))
+}
+
 /// What `vkrt animate` was asked.
 pub struct AnimateArgs {
     pub output: PathBuf,
@@ -98,11 +108,7 @@ pub fn animate_command(
     args: AnimateArgs,
     trace: &TraceOptions,
 ) -> CliResult<AnimationReport> {
-    let scene = animated_as(scene, args.length, "--length")?;
-    let range = match &args.frames {
-        Some(spec) => frame_range(spec, scene.frame_count())?,
-        None => 0..scene.frame_count(),
-    };
+    let (scene, range) = scene_and_range(scene, &args)?;
     let pattern = FramePattern::parse(&args.output)?;
     let pattern_float = pattern.float();
     if let Some(p) = &args.preview {
@@ -443,11 +449,7 @@ pub fn plan_command(
     if !(task_seconds.is_finite() && task_seconds > 0.0) {
         return Err("--task-seconds must be a positive number".into());
     }
-    let scene = animated_as(scene, args.length, "--length")?;
-    let range = match &args.frames {
-        Some(spec) => frame_range(spec, scene.frame_count())?,
-        None => 0..scene.frame_count(),
-    };
+    let (scene, range) = scene_and_range(scene, &args)?;
     FramePattern::parse(&args.output)?;
     let ctx = ctx()?;
     let probe: Vec<u32> = range.clone().take(2).collect();

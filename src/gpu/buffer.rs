@@ -400,10 +400,11 @@ impl<T: Pod> Drop for Buffer<T> {
 /// Placing device buffers in memory the caller owns, the way `VK_KHR_acceleration_structure`
 /// lets an application place a structure and its scratch.
 ///
-/// While [`place`](placement::place) runs its closure on this thread, every device-local [`Buffer`] the closure
-/// creates is a range of the caller's buffer (carved in creation order, each aligned to
-/// `minStorageBufferOffsetAlignment`), or, with [`Placement::Measure`](placement::Placement::Measure), a placeholder that
-/// only counts bytes. Because sizing and placing run the same code, a size query is exact
+/// While [`place`](placement::place) runs its closure on this thread, every device-local
+/// [`Buffer`] the closure creates is a range of the caller's buffer (carved in creation
+/// order, each aligned to `minStorageBufferOffsetAlignment`), or, with
+/// [`Placement::Measure`](placement::Placement::Measure), a placeholder that only counts
+/// bytes. Because sizing and placing run the same code, a size query is exact
 /// for the input it was asked about.
 pub mod placement {
     use std::cell::RefCell;

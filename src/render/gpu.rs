@@ -105,6 +105,16 @@ pub struct GpuRender {
     pub readback_before_trace: u64,
 }
 
+/// The mean radiance per pixel from the accumulated sums of `spp` samples: one helper, so a
+/// still render and an animation's frame of the same scene agree bit for bit.
+pub(crate) fn mean_radiance(accum: &[[f32; 4]], spp: u32) -> Vec<[f32; 3]> {
+    let inv = 1.0 / spp as f32;
+    accum
+        .iter()
+        .map(|a| [a[0] * inv, a[1] * inv, a[2] * inv])
+        .collect()
+}
+
 /// Records the undo of a sample: `accum` and `counters` as they were before it.
 fn restore(rec: &mut Recorder, f: &Frame, pixels: u32) {
     rec.compute_to_transfer();
@@ -369,13 +379,7 @@ impl Renderer {
         let mut rec = Recorder::new(ctx)?;
         self.record_tonemap(&mut rec, &f, plan);
         profile.append(rec.submit_and_wait()?);
-        let inv = 1.0 / plan.spp as f32;
-        let radiance = f
-            .accum
-            .download()?
-            .iter()
-            .map(|a| [a[0] * inv, a[1] * inv, a[2] * inv])
-            .collect();
+        let radiance = mean_radiance(&f.accum.download()?, plan.spp);
         let rgba = bytemuck::cast_slice(&f.pixels.download()?).to_vec();
         let c = f.counters.download()?;
         Ok(GpuRender {

@@ -190,14 +190,8 @@ impl<'r> FrameLoop<'r> {
             }
             let scope = |name: &str| profile.ms(name).unwrap_or(0.0);
             let update_ms = host_ms.unwrap_or_else(|| scope("build") + scope("update"));
-            let inv = 1.0 / plan.spp.max(1) as f32;
             let radiance = match accum {
-                Some(a) => Some(
-                    a.read()?
-                        .iter()
-                        .map(|a| [a[0] * inv, a[1] * inv, a[2] * inv])
-                        .collect(),
-                ),
+                Some(a) => Some(super::mean_radiance(&a.read()?, plan.spp)),
                 None => None,
             };
             return Ok(FrameImage {
