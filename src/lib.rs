@@ -62,7 +62,7 @@ pub use glam;
 
 pub use accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelSizes, AccelStructure};
 pub use accel::embedded::{BuildFlags, REQUIRED_BUFFER_USAGE};
-pub use accel::geometry::{Geometry, IndexType, Indices, Spheres, Triangles, VertexFormat};
+pub use accel::geometry::{Aabbs, Geometry, IndexType, Indices, Spheres, Triangles, VertexFormat};
 pub use gpu::{
     Buffer, Context, ContextOptions, DeviceInfo, GpuError, RawBuffer, RawParts, Recorder,
     Validation,

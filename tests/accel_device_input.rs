@@ -9,10 +9,12 @@ use glam::{Vec3, Vec4};
 use vkrt::accel::device::{AccelBuilder, AccelKind, DevicePrimitives};
 use vkrt::accel::embedded::BuildFlags;
 use vkrt::accel::geometry::{
-    gather_on_host, Geometry, GeometryData, GeometryGather, GeometryLayout, IndexType, Indices,
-    Spheres, Triangles,
+    gather_on_host, Aabbs, Geometry, GeometryData, GeometryGather, GeometryLayout, IndexType,
+    Indices, Spheres, Triangles,
 };
 use vkrt::gpu::{Buffer, Context, GpuError, RawBuffer, Recorder};
+use vkrt::scene::Aabb;
+use vkrt::trace::bvh_cpu::Traversal;
 use vkrt::trace::gpu::{GpuGeometry, Tracer};
 use vkrt::trace::{cpu, Hit, Ray, TraceGeometry, TraceOptions};
 
@@ -117,9 +119,20 @@ fn gather_on_device(ctx: &Context, geometries: &[Geometry]) -> (TraceGeometry, u
     tri_verts.truncate(9 * n_tris);
     let boxes = prims.boxes.download().unwrap();
     let info = info.download().unwrap();
+    // The spheres, then two words per box primitive.
+    let mut spheres = prims.spheres.download().unwrap();
+    let aabbs = spheres
+        .split_off(layout.n_spheres as usize)
+        .chunks(2)
+        .map(|w| Aabb {
+            min: Vec4::from_array(w[0]).truncate(),
+            max: Vec4::from_array(w[1]).truncate(),
+        })
+        .collect();
     let g = TraceGeometry {
         tri_verts,
-        spheres: prims.spheres.download().unwrap(),
+        spheres,
+        aabbs,
         boxes: boxes
             .chunks(6)
             .map(|b| vkrt::scene::Aabb {
@@ -131,22 +144,47 @@ fn gather_on_device(ctx: &Context, geometries: &[Geometry]) -> (TraceGeometry, u
     };
     assert_eq!(info[0].n_tris, layout.n_tris);
     assert_eq!(info[0].n_spheres, layout.n_spheres);
+    assert_eq!(info[0].n_aabbs, layout.n_aabbs);
     assert_eq!(info[0].n_geometries as usize, layout.table.len());
-    (g, info[0].reserved_invalid())
+    // The table the walk searches, ordered by first id.
+    let words: &[u32] = bytemuck::cast_slice(&info);
+    let table: Vec<[u32; 2]> = words[16..16 + 2 * layout.table.len()]
+        .chunks(2)
+        .map(|w| [w[0], w[1]])
+        .collect();
+    assert_eq!(table, layout.table);
+    (g, info[0].invalid)
 }
 
-fn bits(g: &TraceGeometry) -> (Vec<u32>, Vec<[u32; 4]>, Vec<[u32; 6]>) {
+type Bits = (Vec<u32>, Vec<[u32; 4]>, Vec<[u32; 6]>, Vec<[u32; 6]>);
+
+fn bits(g: &TraceGeometry) -> Bits {
+    let box_bits =
+        |b: &Aabb| [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z].map(f32::to_bits);
     (
         g.tri_verts.iter().map(|x| x.to_bits()).collect(),
         g.spheres.iter().map(|s| s.map(f32::to_bits)).collect(),
-        g.boxes
-            .iter()
-            .map(|b| {
-                let a = [b.min.x, b.min.y, b.min.z, b.max.x, b.max.y, b.max.z];
-                a.map(f32::to_bits)
-            })
-            .collect(),
+        g.aabbs.iter().map(box_bits).collect(),
+        g.boxes.iter().map(box_bits).collect(),
     )
+}
+
+/// `n` random boxes (some flat, one inactive: min > max) as the caller's bytes at `stride`.
+fn random_aabbs(rng: &mut common::Rng, n: usize, stride: usize) -> Vec<u8> {
+    let mut out = vec![0xCD; n * stride];
+    for k in 0..n {
+        let lo = rng.next_vec3() * 1.2;
+        let mut size = (rng.next_vec3() + 1.0) * 0.15;
+        if k % 7 == 3 {
+            size.y = 0.0;
+        }
+        if k % 11 == 5 {
+            size.x = -0.1;
+        }
+        let b = [lo, lo + size].map(|v| v.to_array());
+        out[k * stride..k * stride + 24].copy_from_slice(bytemuck::cast_slice(&b));
+    }
+    out
 }
 
 #[test]
@@ -213,7 +251,17 @@ fn the_gather_equals_its_cpu_twin_on_every_edge() {
                 .map(|_| (rng.next_vec3() * 2.0 - 1.0).extend(rng.next_f32()))
                 .collect();
             let sphere_range = place(&mut caller, bytemuck::cast_slice(&spheres), 0);
+            let n_boxes = (n * 7) % 300;
+            let box_stride = [24, 28, 32][n % 3];
+            let box_bytes = random_aabbs(&mut rng, n_boxes, box_stride);
+            let box_range = place(&mut caller, &box_bytes, pad);
             let geometries = [
+                Geometry::Aabbs(Aabbs {
+                    data: box_range,
+                    stride: box_stride as u64,
+                    count: n_boxes as u32,
+                    opaque: true,
+                }),
                 Geometry::Spheres(Spheres {
                     data: sphere_range,
                     stride: 16,
@@ -256,6 +304,15 @@ fn bad_indices_and_coordinates_become_unhittable_points_and_are_counted() {
         Vec4::new(1.0, 1.0, 1.0, 0.5),
     ];
     let sph = caller.put(&ctx, bytemuck::cast_slice(&spheres), 0);
+    // A good box, one with a NaN, one with an infinite bound, and an inactive one (min > max:
+    // not invalid, as in Vulkan).
+    let boxes: [[f32; 6]; 4] = [
+        [0.0, 0.0, 0.0, 1.0, 1.0, 1.0],
+        [0.0, f32::NAN, 0.0, 1.0, 1.0, 1.0],
+        [0.0, 0.0, 0.0, 1.0, f32::INFINITY, 1.0],
+        [2.0, 0.0, 0.0, 1.0, 1.0, 1.0],
+    ];
+    let bx = caller.put(&ctx, bytemuck::cast_slice(&boxes), 0);
     let geometries = [
         Geometry::Triangles(Triangles::indexed(vertices, 4, data, IndexType::U32, 3)),
         Geometry::Spheres(Spheres {
@@ -264,10 +321,23 @@ fn bad_indices_and_coordinates_become_unhittable_points_and_are_counted() {
             count: 2,
             opaque: true,
         }),
+        Geometry::Aabbs(Aabbs {
+            data: bx.into(),
+            stride: 24,
+            count: 4,
+            opaque: true,
+        }),
     ];
     let (device, invalid) = gather_on_device(&ctx, &geometries);
     let (host, host_invalid) = gather_on_host(&geometries, |r| caller.read(r));
-    assert_eq!((invalid, host_invalid), (3, 3));
+    assert_eq!((invalid, host_invalid), (5, 5));
+    // No ray hits an invalid or inactive box; the good one is hit.
+    let r = Ray::new(Vec3::new(0.9, 0.9, -5.0), Vec3::Z, 0.0, f32::INFINITY);
+    let h = cpu::brute_force(&host, &r, 0.0, &opt());
+    assert_eq!((h.prim, h.t), (3 + 2, 5.0));
+    for b in &host.aabbs[1..] {
+        assert!(!b.min.cmple(b.max).all(), "{b:?} is inactive");
+    }
     assert_eq!(bits(&device), bits(&host));
     common::assert_silent(&ctx);
 }
@@ -389,6 +459,240 @@ fn builds_from_device_buffers_equal_the_host_soup_path_and_brute_force() {
             }
         }
     }
+    common::assert_silent(&ctx);
+}
+
+/// Triangles, spheres and boxes (flat and inactive ones among them) in caller buffers, and
+/// the same primitives as the CPU twin holds them.
+fn mixed_scene(ctx: &Context, caller: &mut CallerBuffers) -> (Vec<Geometry>, TraceGeometry) {
+    let mut rng = common::Rng(21);
+    // A small icosphere among the spheres and boxes, so that rays reach all three.
+    let tris: Vec<[Vec3; 3]> = common::mesh_triangles(&vkrt::scene::gen::icosphere(2).unwrap())
+        .iter()
+        .map(|t| t.map(|p| p * 0.4))
+        .collect();
+    let spheres: Vec<Vec4> = (0..20)
+        .map(|_| (rng.next_vec3() * 1.2).extend(0.15 + 0.1 * rng.next_f32()))
+        .collect();
+    let box_bytes = random_aabbs(&mut rng, 60, 32);
+    let geometries = vec![
+        Geometry::Aabbs(Aabbs {
+            data: caller.put(ctx, &box_bytes, 8).into(),
+            stride: 32,
+            count: 60,
+            opaque: true,
+        }),
+        soup_geometry(ctx, caller, &tris),
+        Geometry::Spheres(Spheres {
+            data: caller.put(ctx, bytemuck::cast_slice(&spheres), 0).into(),
+            stride: 16,
+            count: spheres.len() as u32,
+            opaque: true,
+        }),
+    ];
+    let (host, invalid) = gather_on_host(&geometries, |r| caller.read(r));
+    assert_eq!(invalid, 0);
+    (geometries, host)
+}
+
+#[test]
+fn box_primitives_are_traced_by_every_kind_and_walk_as_brute_force() {
+    let Some(ctx) = common::context() else { return };
+    let mut caller = CallerBuffers::new();
+    let (geometries, host) = mixed_scene(&ctx, &mut caller);
+    let layout = GeometryLayout::of(&ctx, &geometries).unwrap();
+    assert_eq!(
+        (layout.n_tris, layout.n_spheres, layout.n_aabbs),
+        (320, 20, 60)
+    );
+    // Rays from around the scene through it, at every box's centre and sphere's centre,
+    // and from inside boxes.
+    let mut rng = common::Rng(5);
+    let mut rays = Vec::new();
+    let mut towards = |target: Vec3, rng: &mut common::Rng| {
+        let o = rng.next_vec3().normalize_or(Vec3::X) * 4.0;
+        rays.push(Ray::new(o, target - o, 0.0, f32::INFINITY));
+    };
+    for _ in 0..300 {
+        let t = rng.next_vec3() * 1.3;
+        towards(t, &mut rng);
+    }
+    for b in &host.aabbs {
+        towards((b.min + b.max) * 0.5, &mut rng);
+    }
+    for s in &host.spheres {
+        towards(Vec4::from_array(*s).truncate(), &mut rng);
+    }
+    for b in host
+        .aabbs
+        .iter()
+        .filter(|b| b.min.cmplt(b.max).all())
+        .take(20)
+    {
+        rays.push(Ray::new(
+            (b.min + b.max) * 0.5,
+            Vec3::new(0.3, -1.0, 0.2),
+            0.0,
+            f32::INFINITY,
+        ));
+    }
+    let brute: Vec<Hit> = rays
+        .iter()
+        .map(|r| cpu::brute_force(&host, r, 0.0, &opt()))
+        .collect();
+    let first_box = layout.n_tris + layout.n_spheres;
+    let box_hits = brute
+        .iter()
+        .filter(|h| h.is_hit() && h.prim >= first_box)
+        .count();
+    let sphere_hits = brute
+        .iter()
+        .filter(|h| h.is_hit() && h.prim >= layout.n_tris && h.prim < first_box)
+        .count();
+    assert!(
+        box_hits > 60 && sphere_hits > 20,
+        "{box_hits} box hits, {sphere_hits} sphere hits"
+    );
+    let mut kinds = vec![AccelKind::KdTree, AccelKind::Lbvh, AccelKind::Ploc];
+    if ctx.info().features.ray_query {
+        kinds.push(AccelKind::Driver);
+    }
+    let check = |label: &str, hits: &[Hit]| {
+        for (k, (h, b)) in hits.iter().zip(&brute).enumerate() {
+            assert!(common::same_answer(h, b), "{label} ray {k}: {h:?} vs {b:?}");
+        }
+    };
+    for kind in kinds {
+        let builder = AccelBuilder::new(&ctx, kind).unwrap();
+        let (g, _mem) = build_in_caller_memory(&ctx, &builder, &geometries, &BuildFlags::default());
+        let walks: &[Traversal] = match kind {
+            AccelKind::Lbvh | AccelKind::Ploc => &[Traversal::Stack, Traversal::Bitstack],
+            _ => &[Traversal::Stack],
+        };
+        for &walk in walks {
+            let tracer = Tracer::for_accel(&ctx, &opt(), kind.walked(walk)).unwrap();
+            let b = tracer.trace(&ctx, &g, &rays, 0.0).unwrap();
+            assert_eq!(b.exhausted, 0);
+            check(&format!("{kind:?} {walk:?} from device buffers"), &b.hits);
+        }
+    }
+    // The host path: the CPU twin's arrays uploaded, every kind including the SAH BVH.
+    for kind in AccelKind::available(&ctx) {
+        let builder = AccelBuilder::new(&ctx, kind).unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        let (g, _) = GpuGeometry::record_build(&mut rec, &builder, &host, 0).unwrap();
+        rec.submit_and_wait().unwrap();
+        let tracer = Tracer::for_accel(&ctx, &opt(), kind.walked(Traversal::Stack)).unwrap();
+        let b = tracer.trace(&ctx, &g, &rays, 0.0).unwrap();
+        check(&format!("{kind:?} from the host"), &b.hits);
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn a_shader_s_own_box_intersection_is_called_with_its_indices() {
+    let Some(ctx) = common::context() else { return };
+    let mut caller = CallerBuffers::new();
+    let (mut geometries, host) = mixed_scene(&ctx, &mut caller);
+    // Boxes and triangles only (spheres appear as the boxes' inscribed ones), the boxes in
+    // two geometries around the triangles.
+    geometries.pop();
+    let half = host.aabbs.len() / 2;
+    let tail = random_aabbs(&mut common::Rng(8), half, 24);
+    geometries.push(Geometry::Aabbs(Aabbs {
+        data: caller.put(&ctx, &tail, 0).into(),
+        stride: 24,
+        count: half as u32,
+        opaque: true,
+    }));
+    let layout = GeometryLayout::of(&ctx, &geometries).unwrap();
+    let (boxes_host, _) = gather_on_host(&geometries, |r| caller.read(r));
+    // The CPU twin: each box's inscribed sphere, as the probe's intersection makes it (none
+    // for an inactive box: the walk never asks the shader about one).
+    let inscribed: Vec<Vec4> = boxes_host
+        .aabbs
+        .iter()
+        .map(|b| {
+            if !b.min.cmple(b.max).all() {
+                return Vec4::NAN;
+            }
+            let c = (b.min + b.max) * 0.5;
+            let e = b.max - b.min;
+            c.extend(0.5 * e.x.min(e.y).min(e.z))
+        })
+        .collect();
+    let tris: Vec<[Vec3; 3]> = (0..boxes_host.triangle_count())
+        .map(|k| boxes_host.triangle_at(k, 0.0))
+        .collect();
+    let twin = TraceGeometry::from_triangles_and_spheres(&tris, &inscribed);
+    let mut rng = common::Rng(9);
+    let mut targets: Vec<Vec3> = inscribed
+        .iter()
+        .filter(|s| s.is_finite())
+        .map(|s| s.truncate())
+        .collect();
+    targets.extend((0..200).map(|_| rng.next_vec3() * 1.3));
+    let rays: Vec<Ray> = targets
+        .into_iter()
+        .map(|t| {
+            let o = rng.next_vec3().normalize_or(Vec3::X) * 4.0;
+            Ray::new(o, t - o, 0.0, f32::INFINITY)
+        })
+        .collect();
+    let kernel = ctx
+        .kernel(
+            &vkrt::gpu::kernels::GPU_PROCEDURAL_PROBE,
+            &vkrt::gpu::Spec::new().workgroup(64),
+        )
+        .unwrap();
+    let ray_buf = Buffer::from_slice(&ctx, "probe.rays", &rays).unwrap();
+    let mut box_hits = 0;
+    for kind in [AccelKind::KdTree, AccelKind::Lbvh, AccelKind::Ploc] {
+        let builder = AccelBuilder::new(&ctx, kind).unwrap();
+        let (g, _mem) = build_in_caller_memory(&ctx, &builder, &geometries, &BuildFlags::default());
+        let out = Buffer::<[u32; 4]>::zeroed(&ctx, "probe.hits", rays.len()).unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        let [b0, b1, b2, b3, b4, b5, b6] = g.bindings();
+        let groups = rec.groups_1d(rays.len() as u64, 64);
+        rec.dispatch(
+            &kernel,
+            groups,
+            &[&ray_buf, &out, b0, b1, b2, b3, b4, b5, b6],
+            &(rays.len() as u32),
+        );
+        rec.compute_to_transfer();
+        rec.submit_and_wait().unwrap();
+        for (k, (r, got)) in rays.iter().zip(out.download().unwrap()).enumerate() {
+            let want = cpu::brute_force(&twin, r, 0.0, &opt());
+            assert_ne!(got[0], 0xffff_fffe, "{kind:?} ray {k} exhausted");
+            assert_eq!(
+                got[0] != u32::MAX,
+                want.is_hit(),
+                "{kind:?} ray {k}: {got:?} vs {want:?}"
+            );
+            if !want.is_hit() {
+                continue;
+            }
+            let h = Hit {
+                t: f32::from_bits(got[0]),
+                prim: want.prim,
+                ..want
+            };
+            assert!(
+                common::same_answer(&h, &want),
+                "{kind:?} ray {k}: {got:?} vs {want:?}"
+            );
+            // The twin's ids are vkrt's: triangles, then the boxes of both geometries.
+            let (geometry, primitive) = layout.locate(want.prim).unwrap();
+            assert_eq!([got[1], got[2]], [geometry, primitive], "{kind:?} ray {k}");
+            if want.prim >= layout.n_tris {
+                box_hits += 1;
+                // The intersection got the same indices as the walk reports.
+                assert_eq!(got[3], geometry | (primitive << 16), "{kind:?} ray {k}");
+            }
+        }
+    }
+    assert!(box_hits > 90, "{box_hits} hits on boxes");
     common::assert_silent(&ctx);
 }
 

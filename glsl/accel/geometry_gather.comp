@@ -1,14 +1,16 @@
 #version 460
 // Reads one geometry of the caller's (its vertex and index buffers where they lie, as
 // VkAccelerationStructureGeometryKHR describes them) into the layout vkrt's builders and walk
-// read: triangles as nine floats in primitive order, spheres as (center, radius), and a box
-// per primitive; the geometry's entry of the table that maps primitive ids back to (geometry,
+// read: triangles as nine floats in primitive order, spheres as (center, radius), axis-aligned
+// box primitives as two vec4s (min, max) after the spheres, and a bounding box per primitive; the geometry's entry of the table that maps primitive ids back to (geometry,
 // primitive). One dispatch per geometry (src/accel/geometry.rs), plus one that writes the
 // scene constants (MODE_HEADER).
 //
 // A primitive the caller's data cannot give (an index past the vertex count, a non-finite
 // coordinate or radius, a negative radius) becomes a point that no ray hits, and is counted
-// in `invalid` for the host to report: never a box that breaks a build.
+// in `invalid` for the host to report: never a box that breaks a build. A box primitive with
+// a non-finite coordinate becomes an inactive one (min > max), counted too; an inactive box
+// (active in no axis) is bounded by the point at the origin for the builders.
 //! variant buffers ADDRESS=0
 //! variant address ADDRESS=1
 // `address`: the caller's vertices and indices are read at device addresses
@@ -23,6 +25,7 @@ layout(local_size_x_id = 0) in;
 #define MODE_TRIANGLES 0u
 #define MODE_SPHERES 1u
 #define MODE_HEADER 2u
+#define MODE_AABBS 3u
 #define INDEX_NONE 0u
 #define INDEX_U16 1u
 #define INDEX_U32 2u
@@ -51,7 +54,7 @@ layout(std430, binding = 5) buffer SceneInfoBuf {
     uint walk;
     uint n_geometries;
     uint invalid;
-    uint reserved1;
+    uint n_aabbs;
     uvec2 geometry_first[];
 } info;
 
@@ -64,7 +67,7 @@ layout(push_constant) uniform Push {
     uint stride_words; // words between vertices (spheres)
     uint index_type;
     uint index_first;  // first index, in indices, within the bound range (MODE_HEADER: n_geometries)
-    uint vertex_count;
+    uint vertex_count; // (MODE_HEADER: n_aabbs)
     uint table_slot;
     uint geometry;
     uint has_transform;
@@ -155,7 +158,7 @@ void main() {
             info.walk = pc.src_word;
             info.n_geometries = pc.index_first;
             info.invalid = 0u;
-            info.reserved1 = 0u;
+            info.n_aabbs = pc.vertex_count;
         }
         return;
     }
@@ -212,6 +215,22 @@ void main() {
         tri_verts[t + 7u] = p2.y;
         tri_verts[t + 8u] = p2.z;
         write_box(prim, lo, hi);
+    } else if (pc.mode == MODE_AABBS) {
+        uint w = pc.src_word + i * pc.stride_words;
+        vec3 lo = vec3(uintBitsToFloat(SRC(w)), uintBitsToFloat(SRC(w + 1u)),
+                       uintBitsToFloat(SRC(w + 2u)));
+        vec3 hi = vec3(uintBitsToFloat(SRC(w + 3u)), uintBitsToFloat(SRC(w + 4u)),
+                       uintBitsToFloat(SRC(w + 5u)));
+        if (!(finite3(lo) && finite3(hi))) {
+            atomicAdd(info.invalid, 1u);
+            lo = vec3(uintBitsToFloat(0x7f800000u));
+            hi = -lo;
+        }
+        spheres[pc.out_first + 2u * i] = vec4(lo, 0.0);
+        spheres[pc.out_first + 2u * i + 1u] = vec4(hi, 0.0);
+        // TraceGeometry::from_primitives: an inactive box is bounded by the origin.
+        bool in_use = all(lessThanEqual(lo, hi));
+        write_box(prim, in_use ? lo : vec3(0.0), in_use ? hi : vec3(0.0));
     } else {
         uint w = pc.src_word + i * pc.stride_words;
         vec3 c = vec3(uintBitsToFloat(SRC(w)), uintBitsToFloat(SRC(w + 1u)),

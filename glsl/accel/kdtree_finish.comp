@@ -24,6 +24,10 @@ layout(std430, binding = 8) writeonly buffer SceneInfoBuf {
     uint n_spheres;
     uint has_motion;
     uint parents_at;
+    uint walk;
+    uint n_geometries;
+    uint invalid;
+    uint n_aabbs;
 } info;
 // What the host reads after the work (AccelStructure::kd_built): nodes, references, the
 // overflow flag, references the overflowing level needed.
@@ -33,6 +37,7 @@ layout(push_constant) uniform Push {
     uint n_tris;
     uint n_spheres;
     uint has_motion;
+    uint n_aabbs;
 } pc;
 
 void main() {
@@ -54,4 +59,5 @@ void main() {
     info.n_spheres = pc.n_spheres;
     info.has_motion = pc.has_motion;
     info.parents_at = 0u;
+    info.n_aabbs = pc.n_aabbs;
 }

@@ -146,10 +146,16 @@ void main() {
         vec3 n = w * normal_at(h.prim, 0u) + h.u * normal_at(h.prim, 1u)
             + h.v * normal_at(h.prim, 2u);
         ns = dot(n, n) > 0.0 ? normalize(move_vector(n, h.prim, p.time)) : ng;
-    } else {
+    } else if (h.prim - scene_info.n_tris < scene_info.n_spheres) {
         vec4 s = sphere_at(h.prim - scene_info.n_tris, p.time);
         ng = normalize(p.o + h.t * p.d - s.xyz);
         x = s.xyz + ng * s.w;
+        ns = ng;
+    } else {
+        vec3 lo, hi;
+        aabb_at(h.prim - scene_info.n_tris - scene_info.n_spheres, lo, hi);
+        x = p.o + h.t * p.d;
+        ng = aabb_normal(lo, hi, x);
         ns = ng;
     }
     bool front = dot(p.d, ng) < 0.0;

@@ -191,6 +191,7 @@ pub struct AccelSizes {
 /// The scene's primitives on the device, as the builders and the traversal read them.
 pub struct DevicePrimitives {
     pub tri_verts: Buffer<f32>,
+    /// The spheres (centre, radius), then two per box primitive (min, 0 and max, 0).
     pub spheres: Buffer<[f32; 4]>,
     pub prim_motion: Buffer<u32>,
     pub motions: Buffer<MotionRecord>,
@@ -198,6 +199,7 @@ pub struct DevicePrimitives {
     pub boxes: Buffer<f32>,
     pub n_tris: usize,
     pub n_spheres: usize,
+    pub n_aabbs: usize,
     pub has_motion: bool,
 }
 
@@ -207,19 +209,21 @@ impl DevicePrimitives {
     pub fn record_upload(rec: &mut Recorder, g: &TraceGeometry) -> Result<Self> {
         let ctx = rec.context().clone();
         let boxes = flat_boxes(&g.boxes);
+        let spheres = g.sphere_words();
         let p = Self {
             // Two floats of padding: the exact kernels read a triangle as five 64-bit words.
             tri_verts: Buffer::new(&ctx, "trace.tri_verts", g.tri_verts.len() + 2)?,
-            spheres: Buffer::new(&ctx, "trace.spheres", g.spheres.len())?,
+            spheres: Buffer::new(&ctx, "trace.spheres", spheres.len())?,
             prim_motion: Buffer::new(&ctx, "trace.prim_motion", g.prim_motion.len())?,
             motions: Buffer::new(&ctx, "trace.motions", g.motions.len())?,
             boxes: Buffer::new(&ctx, "trace.boxes", boxes.len())?,
             n_tris: g.triangle_count(),
             n_spheres: g.spheres.len(),
+            n_aabbs: g.aabbs.len(),
             has_motion: g.has_motion(),
         };
         rec.upload(&p.tri_verts, &g.tri_verts)?;
-        rec.upload(&p.spheres, &g.spheres)?;
+        rec.upload(&p.spheres, &spheres)?;
         rec.upload(&p.prim_motion, &g.prim_motion)?;
         rec.upload(&p.motions, &g.motions)?;
         rec.upload(&p.boxes, &boxes)?;
@@ -233,24 +237,27 @@ impl DevicePrimitives {
     pub fn record_update(&self, rec: &mut Recorder, g: &TraceGeometry) -> Result<()> {
         if g.triangle_count() != self.n_tris
             || g.spheres.len() != self.n_spheres
+            || g.aabbs.len() != self.n_aabbs
             || g.has_motion() != self.has_motion
             || g.motions.len() != self.motions.len()
         {
             return Err(GpuError::Kernel {
                 kernel: "accel.update",
                 reason: format!(
-                    "an update keeps the primitives: {} triangles and {} spheres on the \
-                     device, {} and {} given",
+                    "an update keeps the primitives: {} triangles, {} spheres and {} boxes \
+                     on the device, {}, {} and {} given",
                     self.n_tris,
                     self.n_spheres,
+                    self.n_aabbs,
                     g.triangle_count(),
-                    g.spheres.len()
+                    g.spheres.len(),
+                    g.aabbs.len()
                 ),
             });
         }
         rec.compute_to_transfer();
         rec.upload(&self.tri_verts, &g.tri_verts)?;
-        rec.upload(&self.spheres, &g.spheres)?;
+        rec.upload(&self.spheres, &g.sphere_words())?;
         rec.upload(&self.prim_motion, &g.prim_motion)?;
         rec.upload(&self.motions, &g.motions)?;
         rec.upload(&self.boxes, &flat_boxes(&g.boxes))?;
@@ -262,16 +269,18 @@ impl DevicePrimitives {
     /// `accel.geometry_gather` from the caller's buffers.
     pub fn for_layout(ctx: &Context, layout: &GeometryLayout) -> Result<Self> {
         let (n_tris, n_spheres) = (layout.n_tris as usize, layout.n_spheres as usize);
-        let n = n_tris + n_spheres;
+        let n_aabbs = layout.n_aabbs as usize;
+        let n = layout.primitive_count();
         Ok(Self {
             // Two floats of padding, as in record_upload.
             tri_verts: Buffer::new(ctx, "trace.tri_verts", 9 * n_tris + 2)?,
-            spheres: Buffer::new(ctx, "trace.spheres", n_spheres)?,
+            spheres: Buffer::new(ctx, "trace.spheres", n_spheres + 2 * n_aabbs)?,
             prim_motion: Buffer::new(ctx, "trace.prim_motion", 0)?,
             motions: Buffer::new(ctx, "trace.motions", 0)?,
             boxes: Buffer::new(ctx, "trace.boxes", 6 * n)?,
             n_tris,
             n_spheres,
+            n_aabbs,
             has_motion: false,
         })
     }
@@ -285,15 +294,14 @@ impl DevicePrimitives {
     }
 
     pub fn count(&self) -> usize {
-        self.n_tris + self.n_spheres
+        self.n_tris + self.n_spheres + self.n_aabbs
     }
 
     /// The scene constants of a structure with root box `bounds`.
     fn info(&self, bounds: &Aabb, parents_at: u32) -> SceneInfo {
         SceneInfo::new(
             bounds,
-            self.n_tris,
-            self.n_spheres,
+            [self.n_tris, self.n_spheres, self.n_aabbs],
             self.has_motion,
             parents_at,
         )
@@ -436,7 +444,7 @@ impl AccelStructure {
                         ),
                     });
                 }
-                let primitives = info.n_tris + info.n_spheres;
+                let primitives = info.n_tris + info.n_spheres + info.n_aabbs;
                 let nodes: Vec<KdNode> = out.download_nodes(b.nodes.max(1) as usize)?;
                 let mut prim_refs = out.prim_refs.download()?;
                 prim_refs.truncate(b.refs as usize);
@@ -885,6 +893,7 @@ impl AccelBuilder {
                         prims.n_tris as u32,
                         prims.n_spheres as u32,
                         prims.has_motion as u32,
+                        prims.n_aabbs as u32,
                     ],
                 );
                 rec.compute_to_compute();

@@ -5,7 +5,8 @@
 //! kernels that trace (`trace_ray_query` in `glsl/include/vkrt/traverse.glsl`).
 //!
 //! Geometry ([`DriverAccel::geometries`]): static triangles are the driver's triangle
-//! geometry, tested by its own intersector; spheres are boxes the kernel intersects. A
+//! geometry, tested by its own intersector; spheres and box primitives are boxes the kernel
+//! intersects. A
 //! scene with motion is one box geometry over every primitive's swept box, each intersected
 //! by the kernel at the ray's time — the driver's structures hold one position per vertex.
 //!
@@ -104,11 +105,12 @@ impl DriverAccel {
             };
             g.push((tris, 0));
         }
-        if prims.n_spheres > 0 {
+        if prims.n_spheres + prims.n_aabbs > 0 {
+            // Spheres and box primitives: boxes the kernel intersects.
             let spheres = AccelGeometry::Aabbs {
                 boxes: boxes + prims.n_tris as u64 * BOX_BYTES,
                 stride: BOX_BYTES,
-                count: count(prims.n_spheres)?,
+                count: count(prims.n_spheres + prims.n_aabbs)?,
             };
             g.push((spheres, count(prims.n_tris)?));
         }

@@ -134,7 +134,7 @@ impl StatusReadback {
             None => false,
         };
         Ok(BuildStatus {
-            invalid_primitives: info.first().map_or(0, |i| i.reserved_invalid()),
+            invalid_primitives: info.first().map_or(0, |i| i.invalid),
             kd_overflow,
         })
     }

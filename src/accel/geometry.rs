@@ -1,7 +1,8 @@
 //! Geometry that lives in the caller's device buffers, described the way
 //! `VkAccelerationStructureGeometryKHR` describes it: triangles (a vertex buffer with format
-//! and stride, an optional `u16`/`u32` index buffer, an optional 3×4 transform) and spheres
-//! (centre and radius), several geometries per structure.
+//! and stride, an optional `u16`/`u32` index buffer, an optional 3×4 transform), spheres
+//! (centre and radius) and axis-aligned boxes (`VkAabbPositionsKHR`), several geometries per
+//! structure.
 //!
 //! The GPU builders read these buffers where they lie: `accel.geometry_gather` copies each
 //! geometry, on the device, into the structure's own primitive arrays (as a driver copies its
@@ -11,6 +12,7 @@
 use crate::gpu::{
     kernels, BufferArg, Context, GpuError, Kernel, RawBuffer, Recorder, Result, Spec,
 };
+use crate::scene::Aabb;
 use crate::trace::geometry::SceneInfo;
 use crate::trace::TraceGeometry;
 use glam::{Vec3, Vec4};
@@ -166,12 +168,32 @@ pub struct Spheres {
     pub opaque: bool,
 }
 
+/// Axis-aligned boxes (`VkAccelerationStructureGeometryAabbsDataKHR`): six floats each,
+/// min x, y, z then max x, y, z (`VkAabbPositionsKHR`), `stride` bytes apart.
+///
+/// A box is hit where the ray enters it (or leaves it, from inside), unless the shader that
+/// traces supplies its own intersection for boxes (`VKRT_AABB_INTERSECTION` in
+/// `vkrt/ray_query.glsl`), as a ray query's procedural candidates are. A box with min > max
+/// on an axis is inactive (never hit), as in Vulkan; a non-finite coordinate makes it
+/// inactive too, and is counted in [`crate::accel::embedded::BuildStatus::invalid_primitives`].
+/// Boxes do not move.
+#[derive(Clone, Copy, Debug)]
+pub struct Aabbs {
+    pub data: GeometryData,
+    /// At least 24, a multiple of 4.
+    pub stride: u64,
+    pub count: u32,
+    /// As for [`Triangles::opaque`].
+    pub opaque: bool,
+}
+
 /// One geometry of a structure.
 #[derive(Clone, Copy, Debug)]
 #[non_exhaustive]
 pub enum Geometry {
     Triangles(Triangles),
     Spheres(Spheres),
+    Aabbs(Aabbs),
 }
 
 impl Geometry {
@@ -180,16 +202,19 @@ impl Geometry {
         match self {
             Geometry::Triangles(t) => t.triangle_count,
             Geometry::Spheres(s) => s.count,
+            Geometry::Aabbs(b) => b.count,
         }
     }
 }
 
-/// Triangles and spheres over `geometries`, and where each geometry's primitives start in
-/// vkrt's ids (triangles of every geometry first, then spheres: `traverse.glsl`'s order).
+/// Triangles, spheres and boxes over `geometries`, and where each geometry's primitives
+/// start in vkrt's ids (triangles of every geometry first, then spheres, then boxes:
+/// `traverse.glsl`'s order).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct GeometryLayout {
     pub n_tris: u32,
     pub n_spheres: u32,
+    pub n_aabbs: u32,
     /// Per geometry: its first primitive id.
     pub first: Vec<u32>,
     /// The table the walk searches: (first id, geometry index), ordered by first id, for
@@ -207,48 +232,42 @@ fn usage(reason: String) -> GpuError {
 impl GeometryLayout {
     /// Checks every description against the limits of `ctx`'s device and lays them out.
     pub fn of(ctx: &Context, geometries: &[Geometry]) -> Result<Self> {
-        let mut n_tris = 0u64;
-        let mut n_spheres = 0u64;
+        // Per primitive type (triangles, spheres, boxes): its count.
+        let mut n = [0u64; 3];
         for (k, g) in geometries.iter().enumerate() {
             check(ctx, k, g)?;
-            match g {
-                Geometry::Triangles(t) => n_tris += u64::from(t.triangle_count),
-                Geometry::Spheres(s) => n_spheres += u64::from(s.count),
-            }
+            n[type_of(g)] += u64::from(g.primitive_count());
         }
-        if n_tris + n_spheres > u64::from(u32::MAX / 9) {
+        let total: u64 = n.iter().sum();
+        if total > u64::from(u32::MAX / 9) {
             return Err(usage(format!(
-                "{} primitives in all: above the {} one structure holds",
-                n_tris + n_spheres,
+                "{total} primitives in all: above the {} one structure holds",
                 u32::MAX / 9
             )));
         }
-        let (mut tri, mut sph) = (0u32, n_tris as u32);
+        // Where each type's ids start, and the table's entries per type.
+        let mut at = [0, n[0] as u32, (n[0] + n[1]) as u32];
         let mut first = Vec::with_capacity(geometries.len());
-        let mut tris = Vec::new();
-        let mut sphs = Vec::new();
+        let mut lists: [Vec<[u32; 2]>; 3] = Default::default();
         for (k, g) in geometries.iter().enumerate() {
-            let (at, list) = match g {
-                Geometry::Triangles(_) => (&mut tri, &mut tris),
-                Geometry::Spheres(_) => (&mut sph, &mut sphs),
-            };
-            first.push(*at);
+            let t = type_of(g);
+            first.push(at[t]);
             if g.primitive_count() > 0 {
-                list.push([*at, k as u32]);
+                lists[t].push([at[t], k as u32]);
             }
-            *at += g.primitive_count();
+            at[t] += g.primitive_count();
         }
-        tris.extend(sphs);
         Ok(Self {
-            n_tris: n_tris as u32,
-            n_spheres: n_spheres as u32,
+            n_tris: n[0] as u32,
+            n_spheres: n[1] as u32,
+            n_aabbs: n[2] as u32,
             first,
-            table: tris,
+            table: lists.concat(),
         })
     }
 
     pub fn primitive_count(&self) -> usize {
-        (self.n_tris + self.n_spheres) as usize
+        (self.n_tris + self.n_spheres + self.n_aabbs) as usize
     }
 
     /// `SceneInfo` elements (64 bytes each) holding the constants and the table.
@@ -263,7 +282,16 @@ impl GeometryLayout {
             .partition_point(|e| e[0] <= prim)
             .checked_sub(1)?;
         let [first, geometry] = self.table[k];
-        (prim < self.n_tris + self.n_spheres).then_some((geometry, prim - first))
+        ((prim as usize) < self.primitive_count()).then_some((geometry, prim - first))
+    }
+}
+
+/// 0 triangles, 1 spheres, 2 boxes: the order of their ids.
+fn type_of(g: &Geometry) -> usize {
+    match g {
+        Geometry::Triangles(_) => 0,
+        Geometry::Spheres(_) => 1,
+        Geometry::Aabbs(_) => 2,
     }
 }
 
@@ -388,6 +416,39 @@ fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
                 ));
             }
             range_fits(ctx, k, &s.data)
+        }
+        Geometry::Aabbs(b) => {
+            if !b.opaque {
+                return err(
+                    "non-opaque geometry needs any-hit shaders, which vkrt has not: \
+                     mark it opaque"
+                        .into(),
+                );
+            }
+            if b.stride < 24 || b.stride % 4 != 0 || b.data.start() % 4 != 0 {
+                return err(format!(
+                    "box stride {} and offset (address) {} (multiples of 4, stride at least \
+                     24)",
+                    b.stride,
+                    b.data.start()
+                ));
+            }
+            if b.count == 0 {
+                return Ok(());
+            }
+            if b.data.is_null() {
+                return err("a null box buffer (address)".into());
+            }
+            let needed = u64::from(b.count - 1) * b.stride + 24;
+            if needed > b.data.size() {
+                return err(format!(
+                    "{} boxes at stride {} need {needed} bytes; the range holds {}",
+                    b.count,
+                    b.stride,
+                    b.data.size()
+                ));
+            }
+            range_fits(ctx, k, &b.data)
         }
     }
 }
@@ -531,6 +592,7 @@ impl GeometryGather {
             out_first: parents_at,
             src_word: walk,
             index_first: layout.table.len() as u32,
+            vertex_count: layout.n_aabbs,
             ..GatherPush::default()
         };
         let outputs: [&dyn BufferArg; 4] = [&prims.tri_verts, &prims.spheres, &prims.boxes, info];
@@ -544,13 +606,19 @@ impl GeometryGather {
         // Every dispatch may write every output (as synchronization validation reads a
         // binding): each is ordered after the one before.
         rec.compute_to_compute();
-        let mut slot = 0u32;
         for (k, g) in geometries.iter().enumerate() {
             let count = g.primitive_count();
             if count == 0 {
                 continue;
             }
             let first = layout.first[k];
+            // The table is ordered by first id (triangles, spheres, boxes), not by `k`.
+            let slot = layout
+                .table
+                .iter()
+                .position(|e| e[1] == k as u32)
+                .ok_or_else(|| usage(format!("geometry {k} is not in the layout")))?
+                as u32;
             let (src, indices, push) = match g {
                 Geometry::Triangles(t) => {
                     let src = Read::of(&ctx, &t.vertices);
@@ -600,8 +668,25 @@ impl GeometryGather {
                     };
                     (src, src, push)
                 }
+                Geometry::Aabbs(b) => {
+                    let src = Read::of(&ctx, &b.data);
+                    // Two vec4s per box, after the spheres.
+                    let push = GatherPush {
+                        mode: 3,
+                        count,
+                        first,
+                        out_first: layout.n_spheres
+                            + 2 * (first - layout.n_tris - layout.n_spheres),
+                        src_word: (src.skip() / 4) as u32,
+                        stride_words: (b.stride / 4) as u32,
+                        table_slot: slot,
+                        geometry: k as u32,
+                        src_address: src.address(),
+                        ..GatherPush::default()
+                    };
+                    (src, src, push)
+                }
             };
-            slot += 1;
             let groups = rec.groups_1d(u64::from(count), WORKGROUP);
             match (src, indices) {
                 (Read::Bound(s, _), Read::Bound(i, _)) => {
@@ -630,6 +715,7 @@ pub fn gather_on_host(
 ) -> (TraceGeometry, u32) {
     let mut tris: Vec<[Vec3; 3]> = Vec::new();
     let mut spheres: Vec<Vec4> = Vec::new();
+    let mut aabbs: Vec<Aabb> = Vec::new();
     let mut invalid = 0u32;
     let f32_at = |b: &[u8], at: usize| f32::from_le_bytes(b[at..at + 4].try_into().unwrap());
     for g in geometries {
@@ -688,10 +774,26 @@ pub fn gather_on_host(
                     spheres.push(c);
                 }
             }
+            Geometry::Aabbs(a) => {
+                let b = read(&a.data);
+                for k in 0..a.count as usize {
+                    let at = k * a.stride as usize;
+                    let f = |i: usize| f32_at(&b, at + 4 * i);
+                    let mut bx = Aabb {
+                        min: Vec3::new(f(0), f(1), f(2)),
+                        max: Vec3::new(f(3), f(4), f(5)),
+                    };
+                    if !(bx.min.is_finite() && bx.max.is_finite()) {
+                        invalid += 1;
+                        bx = Aabb::EMPTY;
+                    }
+                    aabbs.push(bx);
+                }
+            }
         }
     }
     (
-        TraceGeometry::from_triangles_and_spheres(&tris, &spheres),
+        TraceGeometry::from_primitives(&tris, &spheres, &aabbs),
         invalid,
     )
 }

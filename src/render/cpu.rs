@@ -401,10 +401,15 @@ fn shade(rs: &RenderScene, plan: &Plan, p: &PathRay, h: &Hit) -> Shaded {
         } else {
             ng
         };
-    } else {
+    } else if prim < g.triangle_count() + g.spheres.len() {
         let s: Vec4 = g.sphere_at(prim - g.triangle_count(), p.time);
         ng = (o + h.t * d - s.truncate()).normalize();
         x = s.truncate() + ng * s.w;
+        ns = ng;
+    } else {
+        let b = &g.aabbs[prim - g.triangle_count() - g.spheres.len()];
+        x = o + h.t * d;
+        ng = crate::trace::intersect::aabb_normal(b.min, b.max, x);
         ns = ng;
     }
     let front = d.dot(ng) < 0.0;

@@ -48,9 +48,12 @@ pub(crate) fn hit_primitive(
             }
             Intersector::MollerTrumbore => intersect::triangle_moller(o, d, p0, p1, p2, tmin, tmax),
         }
-    } else {
+    } else if (prim as usize) < n_tris + g.spheres.len() {
         let s: Vec4 = g.sphere_at(prim as usize - n_tris, time);
         intersect::sphere(o, d, s, tmin, tmax).map(|t| (t, 0.0, 0.0))
+    } else {
+        let b = &g.aabbs[prim as usize - n_tris - g.spheres.len()];
+        intersect::aabb(o, d, b.min, b.max, tmin, tmax).map(|t| (t, 0.0, 0.0))
     }
 }
 

@@ -82,7 +82,10 @@ pub struct SceneInfo {
     pub walk: u32,
     /// Entries of the geometry table that follows (0: one geometry, ids are its indices).
     pub n_geometries: u32,
-    pub reserved: [u32; 2],
+    /// Primitives `accel.geometry_gather` could not read from the caller's data.
+    pub invalid: u32,
+    /// Axis-aligned box primitives, after the spheres in id order.
+    pub n_aabbs: u32,
 }
 
 impl SceneInfo {
@@ -91,22 +94,16 @@ impl SceneInfo {
     pub const WALK_BVH: u32 = 1;
     pub const WALK_RAY_QUERY: u32 = 3;
 
-    /// Primitives `accel.geometry_gather` could not read from the caller's data.
-    pub fn reserved_invalid(&self) -> u32 {
-        self.reserved[0]
-    }
-
     /// These constants, walked as `walk`.
     pub fn walked(self, walk: u32) -> Self {
         Self { walk, ..self }
     }
 
     /// The constants of a structure with root box `bounds` (an empty box is stored as zeros)
-    /// over `n_tris` triangles and `n_spheres` spheres; `parents_at`: see the field.
+    /// over `[n_tris, n_spheres, n_aabbs]` primitives; `parents_at`: see the field.
     pub fn new(
         bounds: &Aabb,
-        n_tris: usize,
-        n_spheres: usize,
+        [n_tris, n_spheres, n_aabbs]: [usize; 3],
         has_motion: bool,
         parents_at: u32,
     ) -> Self {
@@ -124,18 +121,24 @@ impl SceneInfo {
             parents_at,
             walk: 0,
             n_geometries: 0,
-            reserved: [0; 2],
+            invalid: 0,
+            n_aabbs: n_aabbs as u32,
         }
     }
 }
 
-/// Geometry ready to upload and trace. Primitive ids: triangles first, then spheres.
+/// Geometry ready to upload and trace. Primitive ids: triangles first, then spheres, then
+/// axis-aligned boxes.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct TraceGeometry {
     /// 9 floats per triangle.
     pub tri_verts: Vec<f32>,
     /// Centre and radius per sphere.
     pub spheres: Vec<[f32; 4]>,
+    /// Axis-aligned box primitives (`VK_GEOMETRY_TYPE_AABBS_KHR`): hit where the ray enters
+    /// the box (or leaves it, from inside), unless a shader supplies its own intersection.
+    /// They never move. One with `min > max` on an axis is never hit.
+    pub aabbs: Vec<Aabb>,
     /// Motion slot per primitive ([`NO_MOTION`] if static); empty when nothing moves.
     pub prim_motion: Vec<u32>,
     pub motions: Vec<MotionRecord>,
@@ -236,7 +239,37 @@ impl TraceGeometry {
     }
 
     pub fn primitive_count(&self) -> usize {
-        self.triangle_count() + self.spheres.len()
+        self.triangle_count() + self.spheres.len() + self.aabbs.len()
+    }
+
+    /// [`TraceGeometry::from_triangles_and_spheres`] and axis-aligned boxes after them (an
+    /// empty box — `min > max` — is stored as it is and never hit; its bounding box for the
+    /// builders is the point at the origin).
+    pub fn from_primitives(tris: &[[Vec3; 3]], spheres: &[Vec4], aabbs: &[Aabb]) -> Self {
+        let mut g = Self::from_triangles_and_spheres(tris, spheres);
+        for b in aabbs {
+            g.aabbs.push(*b);
+            g.boxes.push(if b.min.cmple(b.max).all() {
+                *b
+            } else {
+                Aabb {
+                    min: Vec3::ZERO,
+                    max: Vec3::ZERO,
+                }
+            });
+        }
+        g
+    }
+
+    /// The spheres buffer as the walk reads it: the spheres, then two `vec4`s per
+    /// axis-aligned box (min, 0 and max, 0).
+    pub fn sphere_words(&self) -> Vec<[f32; 4]> {
+        let mut w = self.spheres.clone();
+        for b in &self.aabbs {
+            w.push(b.min.extend(0.0).to_array());
+            w.push(b.max.extend(0.0).to_array());
+        }
+        w
     }
 
     pub fn has_motion(&self) -> bool {
@@ -247,8 +280,7 @@ impl TraceGeometry {
     pub fn info(&self, bounds: &Aabb) -> SceneInfo {
         SceneInfo::new(
             bounds,
-            self.triangle_count(),
-            self.spheres.len(),
+            [self.triangle_count(), self.spheres.len(), self.aabbs.len()],
             self.has_motion(),
             0,
         )

@@ -195,6 +195,57 @@ pub fn sphere(o: Vec3, d: Vec3, sphere: Vec4, tmin: f32, tmax: f32) -> Option<f3
     }
 }
 
+/// Ray/axis-aligned box `[lo, hi]` (a box primitive): where the ray enters the box, or
+/// leaves it when it starts inside, within `[tmin, tmax]`; `hit_aabb` in `ray.glsl`. A box
+/// with `lo > hi` (or NaN) on an axis is never hit. Minima and maxima are comparisons, not
+/// `min`/`max`, so that ±0 resolve the same way on every device.
+pub fn aabb(o: Vec3, d: Vec3, lo: Vec3, hi: Vec3, tmin: f32, tmax: f32) -> Option<f32> {
+    if !lo.cmple(hi).all() {
+        return None;
+    }
+    let (mut near, mut far) = (f32::NEG_INFINITY, f32::INFINITY);
+    for k in 0..3 {
+        if d[k] == 0.0 {
+            if o[k] < lo[k] || o[k] > hi[k] {
+                return None;
+            }
+            continue;
+        }
+        let a = (lo[k] - o[k]) / d[k];
+        let b = (hi[k] - o[k]) / d[k];
+        let (n, f) = if a < b { (a, b) } else { (b, a) };
+        near = if n > near { n } else { near };
+        far = if f < far { f } else { far };
+    }
+    if near > far {
+        None
+    } else if near >= tmin && near <= tmax {
+        Some(near)
+    } else if far >= tmin && far <= tmax {
+        Some(far)
+    } else {
+        None
+    }
+}
+
+/// The outward normal of the face of box `[lo, hi]` that point `p` lies on (the axis where
+/// `p` is nearest a face; ties: x before y before z).
+pub fn aabb_normal(lo: Vec3, hi: Vec3, p: Vec3) -> Vec3 {
+    let mut best = f32::INFINITY;
+    let mut n = Vec3::X;
+    for k in 0..3 {
+        for (face, sign) in [(lo[k], -1.0), (hi[k], 1.0)] {
+            let d = (p[k] - face).abs();
+            if d < best {
+                best = d;
+                n = Vec3::ZERO;
+                n[k] = sign;
+            }
+        }
+    }
+    n
+}
+
 /// A spawned ray's origin, moved off the surface at `p` along the geometric normal `n`
 /// (pointing to the side the ray leaves on) by a few ulps of `p` (Wächter & Binder, Ray
 /// Tracing Gems ch. 6); `offset_ray_origin` in `ray.glsl`.

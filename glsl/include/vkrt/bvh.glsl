@@ -70,7 +70,7 @@ uint bvh_parent(uint node) {
 // dropped when popped.
 Hit trace_bvh_stack(Ray r, float time, bool any_hit) {
     Hit best = miss_hit();
-    if (!ray_is_valid(r) || scene_info.n_tris + scene_info.n_spheres == 0u) {
+    if (!ray_is_valid(r) || primitive_count() == 0u) {
         return best;
     }
     float tmin = max(r.tmin, 0.0);
@@ -142,7 +142,7 @@ Hit trace_bvh_stack(Ray r, float time, bool any_hit) {
 // The bitstack walk (Áfra & Szirmay-Kalos 2014; Novák 2019, Algorithm 3).
 Hit trace_bvh_bitstack(Ray r, float time, bool any_hit) {
     Hit best = miss_hit();
-    if (!ray_is_valid(r) || scene_info.n_tris + scene_info.n_spheres == 0u) {
+    if (!ray_is_valid(r) || primitive_count() == 0u) {
         return best;
     }
     float tmin = max(r.tmin, 0.0);

@@ -351,6 +351,67 @@ bool hit_sphere(vec3 o, vec3 d, vec4 sphere, float tmin, float tmax, out float t
     return false;
 }
 
+// Ray/axis-aligned box [lo, hi] (a box primitive): where the ray enters the box, or leaves
+// it when it starts inside, within [tmin, tmax]; intersect::aabb in src/trace/intersect.rs.
+// A box with lo > hi on an axis (inactive) is never hit. Minima and maxima are comparisons,
+// not min/max, so that +-0 resolve as in the twin.
+bool hit_aabb(vec3 o, vec3 d, vec3 lo, vec3 hi, float tmin, float tmax, out float t) {
+    t = 0.0;
+    if (!all(lessThanEqual(lo, hi))) {
+        return false;
+    }
+    float near = uintBitsToFloat(0xff800000u);
+    float far = uintBitsToFloat(0x7f800000u);
+    for (int k = 0; k < 3; k++) {
+        if (d[k] == 0.0) {
+            if (o[k] < lo[k] || o[k] > hi[k]) {
+                return false;
+            }
+            continue;
+        }
+        precise float a = div_rn(lo[k] - o[k], d[k]);
+        precise float b = div_rn(hi[k] - o[k], d[k]);
+        float n = a < b ? a : b;
+        float f = a < b ? b : a;
+        near = n > near ? n : near;
+        far = f < far ? f : far;
+    }
+    if (near > far) {
+        return false;
+    }
+    if (near >= tmin && near <= tmax) {
+        t = near;
+        return true;
+    }
+    if (far >= tmin && far <= tmax) {
+        t = far;
+        return true;
+    }
+    return false;
+}
+
+// The outward normal of the face of box [lo, hi] that `p` lies on (the axis where p is
+// nearest a face; ties: x, y, z, min face first); intersect::aabb_normal.
+vec3 aabb_normal(vec3 lo, vec3 hi, vec3 p) {
+    float best = uintBitsToFloat(0x7f800000u);
+    vec3 n = vec3(1.0, 0.0, 0.0);
+    for (int k = 0; k < 3; k++) {
+        float dl = abs(p[k] - lo[k]);
+        if (dl < best) {
+            best = dl;
+            n = vec3(0.0);
+            n[k] = -1.0;
+        }
+        float dh = abs(p[k] - hi[k]);
+        if (dh < best) {
+            best = dh;
+            n = vec3(0.0);
+            n[k] = 1.0;
+        }
+    }
+    return n;
+}
+
 // A ray origin moved off a surface along its geometric normal `n` (pointing to the side the
 // new ray leaves on) by a few ulps of the position, not a fixed epsilon: Wächter & Binder,
 // "A Fast and Robust Method for Avoiding Self-Intersection" (Ray Tracing Gems ch. 6).

@@ -35,6 +35,17 @@
 //   VKRT_RAY_QUERY    also walk the driver's structure with GL_EXT_ray_query (needs the
 //                     device's VK_KHR_ray_query; without it such a structure reports
 //                     `exhausted`)
+//   VKRT_AABB_INTERSECTION  the shader intersects box primitives itself (procedural
+//                     geometry, as a ray query's AABB candidates): it defines, anywhere in
+//                     the file,
+//                       bool vkrtIntersectAabb(uint geometryIndex, uint primitiveIndex,
+//                           vec3 origin, vec3 direction, float tMin, float tMax,
+//                           vec3 boxMin, vec3 boxMax, out float t, out vec2 attributes);
+//                     returning whether the primitive is hit at a t in [tMin, tMax] (tMax
+//                     is the closest hit so far); `attributes` become the hit's
+//                     barycentrics. The walk finds the box, so t must lie within it along
+//                     the ray. Without it a box is hit where the ray enters it (or leaves
+//                     it, from inside).
 //
 // Rays follow VK_KHR_ray_query: t in [tMin, tMax], tMax may be +inf; a ray with a NaN or
 // infinite origin or direction, a zero direction or tMin > tMax is a miss. A walk that ran
@@ -87,10 +98,11 @@ struct VkrtHit {
     bool hit;
     float t;
     // The weights of the triangle's second and third vertices (as VK_KHR_ray_query's
-    // barycentrics); 0 for spheres.
+    // barycentrics); 0 for spheres and boxes (a box's are its intersection's attributes
+    // under VKRT_AABB_INTERSECTION).
     vec2 barycentrics;
     // The geometry (its index in the build's list) and the primitive within it: a triangle
-    // index (index buffer order), a sphere index.
+    // index (index buffer order), a sphere index, a box index.
     uint geometryIndex;
     uint primitiveIndex;
     // The walk gave up (its step budget ran out): the answer is a miss, not to be trusted.

@@ -12,7 +12,8 @@
 // A BVH's parent links follow its primitive references in the prim_refs buffer, from
 // `scene_info.parents_at` on.
 //
-// Primitive ids: 0 .. n_tris are triangles, n_tris .. n_tris + n_spheres spheres.
+// Primitive ids: 0 .. n_tris are triangles, then n_spheres spheres, then n_aabbs axis-aligned
+// boxes (stored after the spheres in the spheres binding, two vec4s each: min, max).
 #ifndef VKRT_COMMON_TRAVERSE_GLSL
 #define VKRT_COMMON_TRAVERSE_GLSL
 
@@ -70,8 +71,8 @@ layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 6) readonly buffer Scene
     uint parents_at; // BVH: index of node 0's parent link in kd_refs
     uint walk;       // ACCEL_KDTREE, ACCEL_BVH_STACK or ACCEL_RAY_QUERY: how to walk it
     uint n_geometries;
-    uint reserved0;
-    uint reserved1;
+    uint invalid;    // primitives the gather could not read (the host reports them)
+    uint n_aabbs;
     // Per geometry, ordered by first id: (first primitive id, the caller's geometry index).
     uvec2 geometry_first[];
 } scene_info;
@@ -174,6 +175,46 @@ vec4 sphere_at(uint sphere, float time) {
     return s;
 }
 
+// Every primitive of the structure.
+uint primitive_count() {
+    return scene_info.n_tris + scene_info.n_spheres + scene_info.n_aabbs;
+}
+
+// Box primitive `b`: (min, max).
+void aabb_at(uint b, out vec3 lo, out vec3 hi) {
+    uint at = scene_info.n_spheres + 2u * b;
+    lo = spheres[at].xyz;
+    hi = spheres[at + 1u].xyz;
+}
+
+// The caller's (geometry index, primitive index within it) of primitive id `prim`.
+uvec2 geometry_of(uint prim) {
+    uint n = scene_info.n_geometries;
+    if (n == 0u) {
+        return uvec2(0u, prim);
+    }
+    // The last geometry whose first id is <= prim (binary search over the ordered table).
+    uint lo = 0u;
+    uint hi = n - 1u;
+    while (lo < hi) {
+        uint mid = (lo + hi + 1u) >> 1u;
+        if (scene_info.geometry_first[mid].x <= prim) {
+            lo = mid;
+        } else {
+            hi = mid - 1u;
+        }
+    }
+    uvec2 g = scene_info.geometry_first[lo];
+    return uvec2(g.y, prim - g.x);
+}
+
+#if defined(VKRT_LIBRARY) && defined(VKRT_AABB_INTERSECTION)
+// The includer's intersection for box primitives (vkrt/ray_query.glsl).
+bool vkrtIntersectAabb(uint geometryIndex, uint primitiveIndex, vec3 origin, vec3 direction,
+                       float tMin, float tMax, vec3 boxMin, vec3 boxMax, out float t,
+                       out vec2 attributes);
+#endif
+
 bool hit_primitive(uint prim, Ray r, Shear sh, float time, float tmin, float tmax,
                    out float t, out float u, out float v) {
     if (prim < scene_info.n_tris) {
@@ -186,7 +227,25 @@ bool hit_primitive(uint prim, Ray r, Shear sh, float time, float tmin, float tma
     }
     u = 0.0;
     v = 0.0;
-    return hit_sphere(r.o, r.d, sphere_at(prim - scene_info.n_tris, time), tmin, tmax, t);
+    uint s = prim - scene_info.n_tris;
+    if (s < scene_info.n_spheres) {
+        return hit_sphere(r.o, r.d, sphere_at(s, time), tmin, tmax, t);
+    }
+    vec3 lo, hi;
+    aabb_at(s - scene_info.n_spheres, lo, hi);
+#if defined(VKRT_LIBRARY) && defined(VKRT_AABB_INTERSECTION)
+    if (!all(lessThanEqual(lo, hi))) {
+        return false; // inactive
+    }
+    uvec2 g = geometry_of(prim);
+    vec2 a = vec2(0.0);
+    bool found = vkrtIntersectAabb(g.x, g.y, r.o, r.d, tmin, tmax, lo, hi, t, a);
+    u = a.x;
+    v = a.y;
+    return found && t >= tmin && t <= tmax;
+#else
+    return hit_aabb(r.o, r.d, lo, hi, tmin, tmax, t);
+#endif
 }
 
 // Clips [t0, t1] to the box [bmin, bmax]; false if the ray misses it. Axes the ray is
@@ -245,7 +304,7 @@ bool test_leaf(uint first, uint count, Ray r, Shear sh, float time, float tmin, 
 // `time`. Invalid rays (see ray_is_valid) miss.
 Hit trace_kdtree(Ray r, float time, bool any_hit) {
     Hit best = miss_hit();
-    if (!ray_is_valid(r) || scene_info.n_tris + scene_info.n_spheres == 0u) {
+    if (!ray_is_valid(r) || primitive_count() == 0u) {
         return best;
     }
     float tmin = max(r.tmin, 0.0);
@@ -372,7 +431,7 @@ Hit trace_ray_query(Ray r, float time, bool any_hit) {
     // An invalid ray is a miss (src/trace/mod.rs); Vulkan leaves queries with NaN, a negative
     // tmin or tmin > tmax undefined, so none is made.
     float tmin = max(r.tmin, 0.0);
-    if (!ray_is_valid(r) || tmin > r.tmax || scene_info.n_tris + scene_info.n_spheres == 0u) {
+    if (!ray_is_valid(r) || tmin > r.tmax || primitive_count() == 0u) {
         return miss_hit();
     }
     Shear sh = make_shear(r.d);
@@ -437,27 +496,6 @@ Hit trace_walk(uint walk, Ray r, float time, bool any_hit) {
     // reported like a walk that gave up, never as a silent miss.
     trace_steps_exhausted = true;
     return miss_hit();
-}
-
-// The caller's (geometry index, primitive index within it) of primitive id `prim`.
-uvec2 geometry_of(uint prim) {
-    uint n = scene_info.n_geometries;
-    if (n == 0u) {
-        return uvec2(0u, prim);
-    }
-    // The last geometry whose first id is <= prim (binary search over the ordered table).
-    uint lo = 0u;
-    uint hi = n - 1u;
-    while (lo < hi) {
-        uint mid = (lo + hi + 1u) >> 1u;
-        if (scene_info.geometry_first[mid].x <= prim) {
-            lo = mid;
-        } else {
-            hi = mid - 1u;
-        }
-    }
-    uvec2 g = scene_info.geometry_first[lo];
-    return uvec2(g.y, prim - g.x);
 }
 
 #ifndef VKRT_LIBRARY

@@ -1052,7 +1052,7 @@ impl KdTreeBuilder {
 
     /// Records `accel.kdtree_finish` after a recorded build of `counts[0]` primitives (or
     /// none): the scene constants (`SceneInfo`: root box and `counts` = primitives,
-    /// triangles, spheres, has-motion) into `info`, the build's report (nodes, references,
+    /// triangles, spheres, has-motion, box primitives) into `info`, the build's report (nodes, references,
     /// overflow, references needed) into `built`, and an empty root leaf into `nodes` when
     /// the build overflowed or had no primitives. The caller orders the build before.
     pub fn record_finish(
@@ -1062,7 +1062,7 @@ impl KdTreeBuilder {
         nodes: &Buffer<KdNode>,
         info: &dyn BufferArg,
         built: &Buffer<u32>,
-        counts: [u32; 4],
+        counts: [u32; 5],
     ) {
         let b: [&dyn BufferArg; 10] = [
             &s.state,

@@ -172,6 +172,16 @@ impl BenchScene {
                 let [p0, p1, p2] = g.triangle_at(prim, 0.0);
                 let (p, err) = triangle_hit_point(p0, p1, p2, h.u, h.v);
                 (p, err, (p1 - p0).cross(p2 - p0).normalize())
+            } else if prim >= g.triangle_count() + g.spheres.len() {
+                let b = &g.aabbs[prim - g.triangle_count() - g.spheres.len()];
+                let p = r.o() + r.d() * h.t;
+                // o + t·d: two roundings of each term, a few ulps of its magnitudes.
+                let err = (r.o().abs() + (r.d() * h.t).abs()) * (4.0 * f32::EPSILON);
+                (
+                    p,
+                    err,
+                    crate::trace::intersect::aabb_normal(b.min, b.max, p),
+                )
             } else {
                 let s = g.sphere_at(prim - g.triangle_count(), 0.0);
                 let c = s.truncate();
