@@ -1657,12 +1657,12 @@ fn driver_build_command(
     profile: &Option<PathBuf>,
 ) -> Result<(), Box<dyn std::error::Error>> {
     use vkrt::accel::device::{AccelBuilder, AccelChoice, DevicePrimitives};
-    use vkrt::accel::driver::DriverAccel;
+    use vkrt::accel::driver::{DriverAccel, DriverInput};
     let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
     let builder = AccelBuilder::for_choice(ctx, AccelChoice::driver(prefer))?;
     let before = device_bytes_start(ctx);
     let prims = DevicePrimitives::upload(ctx, &g)?;
-    let sizes = DriverAccel::sizes(ctx, &prims, prefer, false)?;
+    let sizes = DriverAccel::sizes(ctx, &DriverInput::counts(&prims), prefer, false)?;
     let mut timed = None;
     for _ in 0..2 {
         // The previous build's buffers go before the next is made (the peak is one build).

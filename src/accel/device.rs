@@ -23,7 +23,7 @@ use crate::accel::bvh::ploc::PlocParams;
 use crate::accel::bvh::ploc_gpu::{PlocBuilder, PlocScratch};
 use crate::accel::bvh::refit_gpu::{LevelRefit, RefitSchedule, ScheduleScratch};
 use crate::accel::bvh::{self, Bvh, BvhNode, BvhParams, Threading};
-use crate::accel::driver::{DriverAccel, Prefer};
+use crate::accel::driver::{DriverAccel, DriverInput, Prefer};
 use crate::accel::geometry::GeometryLayout;
 use crate::accel::kdtree::gpu::{BuildCapacity, BuildOutput, BuildScratch, KdTreeBuilder};
 use crate::accel::kdtree::{KdNode, KdTree, SahParams};
@@ -390,6 +390,21 @@ impl AccelStructure {
         }
     }
 
+    /// The driver's levels, where this is the driver's structure and they exist.
+    pub(crate) fn driver_levels(&mut self) -> Option<&mut Option<Box<DriverAccel>>> {
+        match &mut self.storage {
+            Storage::Driver { accel, .. } => Some(accel),
+            _ => None,
+        }
+    }
+
+    pub(crate) fn driver_levels_ref(&self) -> Option<Option<&DriverAccel>> {
+        match &self.storage {
+            Storage::Driver { accel, .. } => Some(accel.as_deref()),
+            _ => None,
+        }
+    }
+
     /// The `nodes` and `prim_refs` bindings of `traverse.glsl`.
     pub fn node_bindings(&self) -> [&dyn BufferArg; 2] {
         match &self.storage {
@@ -487,7 +502,9 @@ pub enum AccelScratch {
     KdTree(Box<BuildScratch>),
     Lbvh(Box<LbvhScratch>),
     Ploc(Box<PlocDeviceScratch>),
-    /// The builder works in host memory.
+    /// The driver's builds and updates, for levels placed in a caller's memory.
+    Driver(Buffer<u8>),
+    /// The builder works in host memory (or the driver's levels keep their own scratch).
     None,
 }
 
@@ -743,7 +760,7 @@ impl AccelBuilder {
             AccelKind::Driver => Storage::Driver {
                 accel: None,
                 address: Buffer::new(ctx, "accel.driver.address", 1)?,
-                // Triangles and spheres at most (DriverAccel::geometries).
+                // Triangles and boxes at most (DriverAccel::geometries).
                 bases: Buffer::new(ctx, "accel.driver.bases", 2)?,
             },
         };
@@ -862,12 +879,25 @@ impl AccelBuilder {
                         &[prims.info(&bounds, 0).walked(SceneInfo::WALK_RAY_QUERY)],
                     )?;
                 }
-                rec.upload(bases, &DriverAccel::instance_bases(prims)?)?;
-                let built =
-                    DriverAccel::record_build(rec, prims, self.driver_prefer, out.allow_update)?;
-                rec.upload(address, &[built.tlas_address()])?;
+                let input = DriverInput::of(prims);
+                // The caller's scratch where its levels were placed in its memory
+                // (`create_in`); else the levels are made now, in vkrt's memory, with a
+                // scratch of their own.
+                let given = match scratch {
+                    AccelScratch::Driver(b) => Some(b),
+                    _ => None,
+                };
+                if given.is_none() || accel.is_none() {
+                    let ctx = rec.context().clone();
+                    let (prefer, update) = (self.driver_prefer, out.allow_update);
+                    *accel = DriverAccel::create(&ctx, &input, prefer, update, given.is_none())?
+                        .map(Box::new);
+                }
+                let built = accel.as_ref().ok_or_else(missing("the driver's levels"))?;
+                rec.update(bases, 0, &DriverAccel::instance_bases(&input)?)?;
+                rec.update(address, 0, &[built.tlas_address()])?;
+                built.record_build(rec, given)?;
                 rec.transfer_to_compute();
-                *accel = Some(Box::new(built));
                 Ok(RecordedBuild::default())
             }
             (Storage::KdTree { out: o, built }, AccelScratch::KdTree(s)) => {
@@ -1102,7 +1132,7 @@ impl AccelBuilder {
                 call: "AccelBuilder::record_refit",
                 reason: "the driver's structure has not been built yet".into(),
             })?;
-            return accel.record_update(rec);
+            return accel.record_update(rec, None);
         }
         let (
             Storage::Bvh {

@@ -10,7 +10,8 @@
 //! scene with motion is one box geometry over every primitive's swept box, each intersected
 //! by the kernel at the ray's time — the driver's structures hold one position per vertex.
 //!
-//! Nothing here submits.
+//! Nothing here submits or uploads: the instance records are written by the recorded build
+//! (`vkCmdUpdateBuffer`), so the levels can live in a caller's memory.
 
 use crate::gpu::{
     accel_build_sizes, accel_scratch, require_ray_query, vk, AccelGeometry, AccelInstance,
@@ -68,73 +69,110 @@ struct Bottom {
 pub struct DriverAccel {
     bottoms: Vec<Bottom>,
     tlas: AccelerationStructure,
-    // The TLAS build reads it.
-    instances: Buffer<AccelInstance>,
+    /// The instance records (with room to start them at a 16-byte aligned address), written
+    /// by the recorded build from constants: nothing is uploaded.
+    instances: Buffer<u32>,
     flags: vk::BuildAccelerationStructureFlagsKHR,
-    /// Scratch of every build and update, reused after the barrier between them.
-    scratch: Buffer<u8>,
+    /// Scratch of every build and update, reused after the barrier between them; `None`
+    /// where the caller hands in its own with each recording.
+    scratch: Option<Buffer<u8>>,
+}
+
+/// Primitive counts and where their device copies lie: what the driver's levels are built
+/// over.
+#[derive(Clone, Copy, Debug)]
+pub struct DriverInput {
+    pub n_tris: usize,
+    /// Spheres and box primitives: boxes the kernels intersect.
+    pub n_boxes: usize,
+    pub has_motion: bool,
+    /// Device addresses of the triangle vertices and the primitive boxes (0 to size only).
+    pub tri_verts: u64,
+    pub boxes: u64,
+}
+
+impl DriverInput {
+    /// The primitives of `prims`, at their addresses.
+    pub fn of(prims: &DevicePrimitives) -> Self {
+        Self {
+            tri_verts: prims.tri_verts.device_address(),
+            boxes: prims.boxes.device_address(),
+            ..Self::counts(prims)
+        }
+    }
+
+    /// The primitives of `prims` without addresses: for sizes, and for buffers that are
+    /// placeholders while sizes are measured.
+    pub fn counts(prims: &DevicePrimitives) -> Self {
+        Self {
+            n_tris: prims.n_tris,
+            n_boxes: prims.n_spheres + prims.n_aabbs,
+            has_motion: prims.has_motion,
+            tri_verts: 0,
+            boxes: 0,
+        }
+    }
 }
 
 impl DriverAccel {
-    /// The bottom levels for `prims` (see the module's notes), each with the id of its first
+    /// The bottom levels for `input` (see the module's notes), each with the id of its first
     /// primitive (instance `i` of the top level is bottom level `i`): none for a scene
     /// without primitives.
-    pub fn geometries(prims: &DevicePrimitives) -> Result<Vec<(AccelGeometry, u32)>> {
+    pub fn geometries(input: &DriverInput) -> Result<Vec<(AccelGeometry, u32)>> {
         let count = |n: usize| {
             u32::try_from(n).map_err(|_| GpuError::Kernel {
                 kernel: "accel.driver",
                 reason: format!("{n} primitives do not fit a u32 count"),
             })
         };
-        let boxes = prims.boxes.device_address();
-        if prims.has_motion {
+        if input.has_motion {
             let all = AccelGeometry::Aabbs {
-                boxes,
+                boxes: input.boxes,
                 stride: BOX_BYTES,
-                count: count(prims.count())?,
+                count: count(input.n_tris + input.n_boxes)?,
             };
             return Ok(vec![(all, 0)]);
         }
         let mut g = Vec::new();
-        if prims.n_tris > 0 {
+        if input.n_tris > 0 {
             // `tri_verts` is 9 floats per triangle, non-indexed (its two floats of padding
             // are past the count): stride-12 vertices.
             let tris = AccelGeometry::Triangles {
-                vertices: prims.tri_verts.device_address(),
-                count: count(prims.n_tris)?,
+                vertices: input.tri_verts,
+                count: count(input.n_tris)?,
             };
             g.push((tris, 0));
         }
-        if prims.n_spheres + prims.n_aabbs > 0 {
+        if input.n_boxes > 0 {
             // Spheres and box primitives: boxes the kernel intersects.
-            let spheres = AccelGeometry::Aabbs {
-                boxes: boxes + prims.n_tris as u64 * BOX_BYTES,
+            let boxes = AccelGeometry::Aabbs {
+                boxes: input.boxes + input.n_tris as u64 * BOX_BYTES,
                 stride: BOX_BYTES,
-                count: count(prims.n_spheres + prims.n_aabbs)?,
+                count: count(input.n_boxes)?,
             };
-            g.push((spheres, count(prims.n_tris)?));
+            g.push((boxes, count(input.n_tris)?));
         }
         Ok(g)
     }
 
     /// The first primitive id of each instance, as the kernels read them (at least one
     /// word: a binding is never empty).
-    pub fn instance_bases(prims: &DevicePrimitives) -> Result<Vec<u32>> {
-        let mut bases: Vec<u32> = Self::geometries(prims)?.iter().map(|g| g.1).collect();
+    pub fn instance_bases(input: &DriverInput) -> Result<Vec<u32>> {
+        let mut bases: Vec<u32> = Self::geometries(input)?.iter().map(|g| g.1).collect();
         bases.resize(bases.len().max(1), 0);
         Ok(bases)
     }
 
     /// Bytes of the structure (every level) and of a build's and an update's scratch for
-    /// `prims`, as the driver reports them.
+    /// `input`, as the driver reports them.
     pub fn sizes(
         ctx: &Context,
-        prims: &DevicePrimitives,
+        input: &DriverInput,
         prefer: Prefer,
         allow_update: bool,
     ) -> Result<crate::accel::device::AccelSizes> {
         let flags = prefer.flags(allow_update);
-        let bottoms = Self::geometries(prims)?;
+        let bottoms = Self::geometries(input)?;
         let top = accel_build_sizes(ctx, &[Self::top(0, bottoms.len())], flags)?;
         let (mut structure, mut scratch, mut update) = (top.structure, top.scratch, top.scratch);
         for (g, _) in &bottoms {
@@ -150,6 +188,22 @@ impl DriverAccel {
         })
     }
 
+    /// The scratch buffer for every build and update of a structure over `input` (created
+    /// where buffers are created now: vkrt's memory, or a caller's range being placed).
+    pub fn create_scratch(
+        ctx: &Context,
+        input: &DriverInput,
+        prefer: Prefer,
+        allow_update: bool,
+    ) -> Result<Buffer<u8>> {
+        let s = Self::sizes(ctx, input, prefer, allow_update)?;
+        accel_scratch(
+            ctx,
+            s.build_scratch_bytes
+                .max(s.update_scratch_bytes.unwrap_or(0)),
+        )
+    }
+
     fn top(instances: u64, count: usize) -> AccelGeometry {
         AccelGeometry::Instances {
             instances,
@@ -157,55 +211,99 @@ impl DriverAccel {
         }
     }
 
-    /// Records the build over `prims` (uploaded before, into the same recorder or an earlier
-    /// submission) into `rec`, ending with the barrier that lets kernels query it.
-    /// `allow_update`: built so that [`DriverAccel::record_update`] may refit it. Without the
-    /// driver's ray query: [`GpuError::MissingCapability`] naming the extensions.
-    pub fn record_build(
-        rec: &mut Recorder,
-        prims: &DevicePrimitives,
+    /// The levels over `input`, unbuilt, on buffers created where buffers are created now
+    /// (vkrt's memory, or the caller's range being placed). While sizes are measured
+    /// ([`crate::gpu::placement::measuring`]) only their bytes are counted: `None`.
+    /// `own_scratch`: keep a scratch buffer of its own (else each recording brings one).
+    pub fn create(
+        ctx: &Context,
+        input: &DriverInput,
         prefer: Prefer,
         allow_update: bool,
-    ) -> Result<Self> {
-        let ctx = rec.context().clone();
-        require_ray_query(&ctx)?;
+        own_scratch: bool,
+    ) -> Result<Option<Self>> {
+        require_ray_query(ctx)?;
+        let measuring = crate::gpu::placement::measuring();
         let flags = prefer.flags(allow_update);
         let mut bottoms = Vec::new();
-        let mut scratch_bytes = 0;
-        for (geometry, _) in Self::geometries(prims)? {
-            let sizes = accel_build_sizes(&ctx, &[geometry], flags)?;
-            scratch_bytes = scratch_bytes.max(sizes.scratch.max(sizes.update_scratch));
+        for (geometry, _) in Self::geometries(input)? {
+            let sizes = accel_build_sizes(ctx, &[geometry], flags)?;
             let name = "accel.driver.blas";
-            let blas = AccelerationStructure::new(&ctx, name, &[geometry], sizes.structure)?;
-            bottoms.push(Bottom { blas, geometry });
+            if measuring {
+                AccelerationStructure::reserve(ctx, name, sizes.structure)?;
+            } else {
+                let blas = AccelerationStructure::new(ctx, name, &[geometry], sizes.structure)?;
+                bottoms.push(Bottom { blas, geometry });
+            }
         }
-        let n = bottoms.len();
-        let instances = Buffer::<AccelInstance>::new(&ctx, "accel.driver.instances", n.max(1))?;
-        let list: Vec<AccelInstance> = bottoms
-            .iter()
-            .map(|b| AccelInstance::identity(b.blas.device_address()))
-            .collect();
-        rec.upload(&instances, &list)?;
-        let top = [Self::top(instances.device_address(), n)];
-        let top_sizes = accel_build_sizes(&ctx, &top, flags)?;
-        let tlas =
-            AccelerationStructure::new(&ctx, "accel.driver.tlas", &top, top_sizes.structure)?;
-        let scratch = accel_scratch(&ctx, scratch_bytes.max(top_sizes.scratch))?;
-        let accel = Self {
+        let n = Self::geometries(input)?.len();
+        // 16 words per instance, and three more to reach a 16-byte aligned start.
+        let instances = Buffer::<u32>::new(ctx, "accel.driver.instances", 16 * n.max(1) + 3)?;
+        let top = [Self::top(0, n)];
+        let top_sizes = accel_build_sizes(ctx, &top, flags)?;
+        let name = "accel.driver.tlas";
+        if measuring {
+            AccelerationStructure::reserve(ctx, name, top_sizes.structure)?;
+            if own_scratch {
+                Self::create_scratch(ctx, input, prefer, allow_update)?;
+            }
+            return Ok(None);
+        }
+        let tlas = AccelerationStructure::new(ctx, name, &top, top_sizes.structure)?;
+        let scratch = match own_scratch {
+            true => Some(Self::create_scratch(ctx, input, prefer, allow_update)?),
+            false => None,
+        };
+        Ok(Some(Self {
             bottoms,
             tlas,
             instances,
             flags,
             scratch,
-        };
-        rec.scope("driver_build", |rec| accel.record_levels(rec, false))?;
-        Ok(accel)
+        }))
+    }
+
+    /// Where the instance records start: the first 16-byte aligned word of `instances`.
+    fn instance_word(&self) -> usize {
+        let a = self.instances.device_address();
+        ((a.next_multiple_of(16) - a) / 4) as usize
+    }
+
+    /// Records the build over the primitives (written before, into the same recorder or an
+    /// earlier submission): the instance records, the levels, then the barrier that lets
+    /// kernels query it. `scratch`: the caller's, where the structure keeps none. Without the
+    /// driver's ray query: [`GpuError::MissingCapability`] naming the extensions.
+    pub fn record_build(&self, rec: &mut Recorder, scratch: Option<&Buffer<u8>>) -> Result<()> {
+        let list: Vec<AccelInstance> = self
+            .bottoms
+            .iter()
+            .map(|b| AccelInstance::identity(b.blas.device_address()))
+            .collect();
+        rec.update(
+            &self.instances,
+            self.instance_word(),
+            bytemuck::cast_slice(&list),
+        )?;
+        let scratch = self.scratch_or(scratch)?;
+        rec.scope("driver_build", |rec| {
+            self.record_levels(rec, false, scratch)
+        })
+    }
+
+    fn scratch_or<'a>(&'a self, given: Option<&'a Buffer<u8>>) -> Result<&'a Buffer<u8>> {
+        given
+            .or(self.scratch.as_ref())
+            .ok_or_else(|| GpuError::Usage {
+                call: "DriverAccel::record_build",
+                reason: "the driver's structure has no scratch of its own: pass the caller's"
+                    .into(),
+            })
     }
 
     /// Records a refit of a structure built with `allow_update` to its primitives as they
     /// are now (the same primitives, moved; the caller orders their writes before): the
     /// driver updates the bottom levels in place and the top level is rebuilt.
-    pub fn record_update(&self, rec: &mut Recorder) -> Result<()> {
+    pub fn record_update(&self, rec: &mut Recorder, scratch: Option<&Buffer<u8>>) -> Result<()> {
         if !self
             .flags
             .contains(vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE)
@@ -215,12 +313,15 @@ impl DriverAccel {
                 reason: "the driver's structure was not built to be updated; rebuild it".into(),
             });
         }
-        rec.scope("driver_update", |rec| self.record_levels(rec, true))
+        let scratch = self.scratch_or(scratch)?;
+        rec.scope("driver_update", |rec| {
+            self.record_levels(rec, true, scratch)
+        })
     }
 
     /// The bottom levels (built or updated), one after the other on the one scratch, then
     /// the top level over them, then the barrier to the kernels.
-    fn record_levels(&self, rec: &mut Recorder, update: bool) -> Result<()> {
+    fn record_levels(&self, rec: &mut Recorder, update: bool, scratch: &Buffer<u8>) -> Result<()> {
         rec.to_accel_build();
         for (i, b) in self.bottoms.iter().enumerate() {
             if i > 0 {
@@ -228,17 +329,14 @@ impl DriverAccel {
             }
             let g = [b.geometry];
             match update {
-                true => b.blas.record_update(rec, &g, self.flags, &self.scratch)?,
-                false => b.blas.record_build(rec, &g, self.flags, &self.scratch)?,
+                true => b.blas.record_update(rec, &g, self.flags, scratch)?,
+                false => b.blas.record_build(rec, &g, self.flags, scratch)?,
             }
         }
         rec.accel_build_to_accel_build();
-        let top = [Self::top(
-            self.instances.device_address(),
-            self.bottoms.len(),
-        )];
-        self.tlas
-            .record_build(rec, &top, self.flags, &self.scratch)?;
+        let at = self.instances.device_address() + 4 * self.instance_word() as u64;
+        let top = [Self::top(at, self.bottoms.len())];
+        self.tlas.record_build(rec, &top, self.flags, scratch)?;
         rec.accel_build_to_compute();
         Ok(())
     }

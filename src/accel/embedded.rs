@@ -16,11 +16,13 @@
 //! slices ([`AccelBuilder::record_build`]); the kd-tree's references per level are a
 //! capacity, so its build may report that it ran out ([`BuildStatus`]), and the caller asks
 //! for sizes with one more doubling and builds again — an answer the caller acts on, never
-//! a hidden host round trip. The driver's own structure keeps its opaque levels in memory
-//! vkrt allocates when the build is recorded.
+//! a hidden host round trip. The driver's own structure places its opaque levels, their
+//! instance records and its scratch in the caller's ranges too (the records are written by
+//! the recorded build with `vkCmdUpdateBuffer`: a few constants in the command buffer, no
+//! staging).
 
-use crate::accel::device::{AccelBuilder, AccelKind, AccelSizes, DevicePrimitives};
-use crate::accel::driver::Prefer;
+use crate::accel::device::{AccelBuilder, AccelKind, AccelScratch, AccelSizes, DevicePrimitives};
+use crate::accel::driver::{DriverAccel, DriverInput, Prefer};
 use crate::accel::geometry::{Geometry, GeometryGather, GeometryLayout};
 use crate::gpu::placement::{place, Placement};
 use crate::gpu::{vk, Buffer, Context, GpuError, RawBuffer, Readback, Recorder, Result};
@@ -39,7 +41,8 @@ pub const REQUIRED_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::fr
 /// What the driver's structure needs in addition: its inputs are read at device addresses.
 pub const DRIVER_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::from_raw(
     vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS.as_raw()
-        | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR.as_raw(),
+        | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR.as_raw()
+        | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR.as_raw(),
 );
 
 /// How a structure is built (`VkBuildAccelerationStructureFlagsKHR`, and the kd-tree's
@@ -97,6 +100,17 @@ fn header_of(kind: AccelKind, n: usize) -> (u32, u32) {
         _ => 0,
     };
     (walk, parents_at)
+}
+
+/// The driver's levels over `layout`'s primitive counts (no addresses: for sizes).
+fn driver_counts(layout: &GeometryLayout) -> DriverInput {
+    DriverInput {
+        n_tris: layout.n_tris as usize,
+        n_boxes: (layout.n_spheres + layout.n_aabbs) as usize,
+        has_motion: false,
+        tri_verts: 0,
+        boxes: 0,
+    }
 }
 
 fn usage(call: &'static str, reason: impl Into<String>) -> GpuError {
@@ -187,12 +201,12 @@ impl AccelBuilder {
             self.place_structure(ctx, &input)
         })?;
         let n = input.layout.primitive_count();
-        let grow = flags.kd_capacity_doublings;
         let (_, build_scratch_bytes) = place(ctx, "the build scratch", Placement::Measure, || {
-            self.create_scratch(ctx, n, grow, flags.allow_update)
+            self.scratch_for(ctx, &input)
         })?;
         let update_scratch_bytes = match (self.kind(), flags.allow_update) {
             (AccelKind::KdTree, _) | (_, false) => None,
+            (AccelKind::Driver, _) => Some(build_scratch_bytes),
             _ => Some(
                 place(ctx, "the update scratch", Placement::Measure, || {
                     self.update_scratch(ctx, n)
@@ -207,17 +221,46 @@ impl AccelBuilder {
         })
     }
 
+    /// The build scratch (and the driver's update scratch: one buffer serves both).
+    fn scratch_for(&self, ctx: &Context, input: &DeviceInput) -> Result<AccelScratch> {
+        let f = &input.flags;
+        match self.kind() {
+            AccelKind::Driver => Ok(AccelScratch::Driver(DriverAccel::create_scratch(
+                ctx,
+                &driver_counts(&input.layout),
+                f.prefer,
+                f.allow_update,
+            )?)),
+            _ => self.create_scratch(
+                ctx,
+                input.layout.primitive_count(),
+                f.kd_capacity_doublings,
+                f.allow_update,
+            ),
+        }
+    }
+
     fn place_structure(&self, ctx: &Context, input: &DeviceInput) -> Result<GpuGeometry> {
         let l = &input.layout;
         let n = l.primitive_count();
         let prims = DevicePrimitives::for_layout(ctx, l)?;
-        let accel = self.create_structure(
+        let mut accel = self.create_structure(
             ctx,
             n,
             input.flags.kd_capacity_doublings,
             input.flags.allow_update,
             l.info_len(),
         )?;
+        if let Some(levels) = accel.driver_levels() {
+            // While measuring, the primitives' buffers are placeholders without addresses.
+            let driver_input = match crate::gpu::placement::measuring() {
+                true => driver_counts(l),
+                false => DriverInput::of(&prims),
+            };
+            let f = &input.flags;
+            *levels = DriverAccel::create(ctx, &driver_input, f.prefer, f.allow_update, false)?
+                .map(Box::new);
+        }
         Ok(GpuGeometry {
             prims,
             accel,
@@ -314,10 +357,8 @@ impl AccelBuilder {
         let call = "AccelBuilder::record_build_from";
         let input = self.input_of(call, geometries, out)?.clone();
         let ctx = rec.context().clone();
-        let n = input.layout.primitive_count();
         let (scratch, _) = place(&ctx, "the build scratch", Placement::Into(scratch), || {
-            let f = &input.flags;
-            self.create_scratch(&ctx, n, f.kd_capacity_doublings, f.allow_update)
+            self.scratch_for(&ctx, &input)
         })?;
         rec.scope("build", |rec| {
             rec.scope("gather", |rec| {
@@ -366,6 +407,22 @@ impl AccelBuilder {
         }
         let ctx = rec.context().clone();
         let n = input.layout.primitive_count();
+        if self.kind() == AccelKind::Driver {
+            let (scratch, _) = place(&ctx, "the update scratch", Placement::Into(scratch), || {
+                self.scratch_for(&ctx, &input)
+            })?;
+            let (AccelScratch::Driver(scratch), Some(Some(levels))) =
+                (scratch, out.accel.driver_levels_ref())
+            else {
+                return Err(usage(call, "the driver's levels were not created"));
+            };
+            return rec.scope("update", |rec| {
+                self.record_gather(rec, geometries, &input, out)?;
+                levels.record_update(rec, Some(&scratch))?;
+                rec.keep_alive(scratch);
+                Ok(())
+            });
+        }
         let (visits, _) = place(&ctx, "the update scratch", Placement::Into(scratch), || {
             self.update_scratch(&ctx, n)
         })?;

@@ -8,7 +8,7 @@
 
 use ash::vk;
 
-use super::buffer::Buffer;
+use super::buffer::{Buffer, BufferArg};
 use super::context::Context;
 use super::error::{usage_error, vk_err, GpuError, Result};
 use super::recorder::Recorder;
@@ -236,16 +236,18 @@ impl AccelerationStructure {
         bytes: u64,
     ) -> Result<Self> {
         let ext = ext(ctx)?;
-        let storage = Buffer::<u8>::new(ctx, name, bytes as usize)?;
+        let storage = Buffer::<u8>::new(ctx, name, Self::storage_bytes(bytes) as usize)?;
         let level = level_of(geometries);
+        let offset = storage.offset().next_multiple_of(256);
         let create = vk::AccelerationStructureCreateInfoKHR::default()
             .buffer(storage.raw)
-            .offset(0)
+            .offset(offset)
             .size(bytes)
             .ty(level);
         // SAFETY: the extension is enabled; `storage` has ACCELERATION_STRUCTURE_STORAGE
-        // usage (Buffer adds it with ray query), at least `bytes` long, offset 0 (aligned to
-        // 256); it outlives the structure (field order and Drop).
+        // usage (Buffer adds it with ray query; a caller's buffer it is placed in must have
+        // it, DRIVER_BUFFER_USAGE), and `bytes` from `offset` (a multiple of 256, as Vulkan
+        // requires) lie inside it; it outlives the structure (field order and Drop).
         let raw = unsafe { ext.create_acceleration_structure(&create, None) }
             .map_err(vk_err("vkCreateAccelerationStructureKHR"))?;
         let info =
@@ -261,6 +263,19 @@ impl AccelerationStructure {
             address,
             _storage: storage,
         })
+    }
+
+    /// Counts the bytes of a structure's buffer while sizes are measured
+    /// ([`super::placement::measuring`]), where no structure can be created.
+    pub fn reserve(ctx: &Context, name: &str, bytes: u64) -> Result<()> {
+        ext(ctx)?;
+        Buffer::<u8>::new(ctx, name, Self::storage_bytes(bytes) as usize).map(drop)
+    }
+
+    /// Bytes of buffer a structure of `bytes` is created on (room to start it at a multiple
+    /// of 256 wherever the buffer is placed).
+    pub fn storage_bytes(bytes: u64) -> u64 {
+        bytes + 255
     }
 
     /// Bytes of its storage.

@@ -141,7 +141,8 @@ impl<T: Pod> Buffer<T> {
         // Vulkan forbids empty buffers; an empty one gets 4 bytes and len 0.
         let bytes = wanted.max(4).next_multiple_of(4);
         if memory == Memory::Device && bound_whole {
-            if let Some(range) = placement::take(bytes) {
+            if let Some(range) = placement::take(name, bytes) {
+                let range = range?;
                 return Ok(Self {
                     ctx: ctx.clone(),
                     raw: range.raw,
@@ -483,24 +484,39 @@ pub mod placement {
         Ok((value, arena.used))
     }
 
-    /// The range for a new device buffer of `bytes`, when a [`place`] is active.
-    pub(super) fn take(bytes: u64) -> Option<RawBuffer> {
+    /// Whether buffers created now are placeholders ([`Placement::Measure`]): code that
+    /// would hand a buffer to the driver (an acceleration structure on it) only counts then.
+    pub fn measuring() -> bool {
+        ARENAS.with(|a| {
+            a.borrow()
+                .last()
+                .is_some_and(|arena| arena.target.is_none())
+        })
+    }
+
+    /// The range for a new device buffer `name` of `bytes`, when a [`place`] is active: an
+    /// error once the caller's range is too small, before anything is created on it.
+    pub(super) fn take(name: &str, bytes: u64) -> Option<Result<RawBuffer>> {
         ARENAS.with(|a| {
             let mut arenas = a.borrow_mut();
             let arena = arenas.last_mut()?;
             let start = arena.used.next_multiple_of(arena.align);
             arena.used = start + bytes;
             Some(match arena.target {
-                Some(t) => RawBuffer {
+                Some(t) if arena.used > t.size => Err(GpuError::Placement(format!(
+                    "`{name}` ends {} bytes into a buffer range of {}",
+                    arena.used, t.size
+                ))),
+                Some(t) => Ok(RawBuffer {
                     raw: t.raw,
                     offset: t.offset + start,
                     size: bytes,
-                },
-                None => RawBuffer {
+                }),
+                None => Ok(RawBuffer {
                     raw: vk::Buffer::null(),
                     offset: start,
                     size: bytes,
-                },
+                }),
             })
         })
     }

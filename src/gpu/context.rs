@@ -75,6 +75,9 @@ pub struct Traffic {
     pub readback_bytes: u64,
     /// Bytes written from host memory into device buffers (staging uploads).
     pub upload_bytes: u64,
+    /// Bytes written by `vkCmdUpdateBuffer` (constants carried in the command buffer, as
+    /// push constants are: no staging buffer).
+    pub inline_bytes: u64,
     /// Device-local buffers vkrt allocated from its own allocator (buffers placed in a
     /// caller's memory are not counted).
     pub device_allocations: u64,
@@ -104,6 +107,7 @@ impl std::ops::Sub for Traffic {
             submits: self.submits - earlier.submits,
             readback_bytes: self.readback_bytes - earlier.readback_bytes,
             upload_bytes: self.upload_bytes - earlier.upload_bytes,
+            inline_bytes: self.inline_bytes - earlier.inline_bytes,
             device_allocations: self.device_allocations - earlier.device_allocations,
         }
     }
@@ -129,6 +133,7 @@ pub(crate) struct Inner {
     pub(crate) submits: AtomicU64,
     pub(crate) readback_bytes: AtomicU64,
     pub(crate) upload_bytes: AtomicU64,
+    pub(crate) inline_bytes: AtomicU64,
     pub(crate) device_allocations: AtomicU64,
     /// Bytes of vkrt's own live allocations and their high-water mark since the last
     /// [`Context::reset_memory_peak`].
@@ -282,6 +287,7 @@ impl Context {
                 submits: AtomicU64::new(0),
                 readback_bytes: AtomicU64::new(0),
                 upload_bytes: AtomicU64::new(0),
+                inline_bytes: AtomicU64::new(0),
                 device_allocations: AtomicU64::new(0),
                 live_bytes: AtomicU64::new(0),
                 peak_bytes: AtomicU64::new(0),
@@ -299,6 +305,7 @@ impl Context {
             submits: self.inner.submits.load(Ordering::Relaxed),
             readback_bytes: self.inner.readback_bytes.load(Ordering::Relaxed),
             upload_bytes: self.inner.upload_bytes.load(Ordering::Relaxed),
+            inline_bytes: self.inner.inline_bytes.load(Ordering::Relaxed),
             device_allocations: self.inner.device_allocations.load(Ordering::Relaxed),
         }
     }

@@ -423,6 +423,46 @@ impl Recorder {
         Ok(())
     }
 
+    /// Records the write of `data` into `dst` from element `at` on, carried in the command
+    /// buffer (`vkCmdUpdateBuffer`: at most 65,536 bytes, for constants a recording knows;
+    /// no staging buffer). A transfer write: order it with [`Recorder::transfer_to_compute`]
+    /// or [`Recorder::to_accel_build`].
+    pub fn update<T: Pod>(&mut self, dst: &Buffer<T>, at: usize, data: &[T]) -> Result<()> {
+        let elem = std::mem::size_of::<T>();
+        let bytes = std::mem::size_of_val(data);
+        if at + data.len() > dst.len() || elem % 4 != 0 || bytes > 65_536 {
+            return Err(GpuError::Usage {
+                call: "Recorder::update",
+                reason: format!(
+                    "{} elements of {elem} bytes at {at} into `{}` of {} (whole words, at \
+                     most 65,536 bytes)",
+                    data.len(),
+                    dst.name(),
+                    dst.len()
+                ),
+            });
+        }
+        if data.is_empty() {
+            return Ok(());
+        }
+        self.ctx
+            .inner
+            .inline_bytes
+            .fetch_add(bytes as u64, std::sync::atomic::Ordering::Relaxed);
+        // SAFETY: recording outside a render pass; `dst` has TRANSFER_DST usage; the range
+        // is inside it, its offset and size multiples of 4 (buffers start word-aligned,
+        // elements are whole words: checked above) and at most 65,536 bytes.
+        unsafe {
+            self.ctx.inner.device.cmd_update_buffer(
+                self.cmd,
+                dst.raw(),
+                dst.offset() + (at * elem) as u64,
+                bytemuck::cast_slice(data),
+            )
+        };
+        Ok(())
+    }
+
     /// Keeps `value` (e.g. a build's scratch buffers) alive until this recorder's work has
     /// executed and the recorder is dropped.
     pub fn keep_alive<T: 'static>(&mut self, value: T) {
