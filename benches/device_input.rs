@@ -14,6 +14,12 @@
 //! (`Context::traffic`). Best of 3 after a warm-up; the ratio device / host is taken in the
 //! same run.
 //!
+//! Then, for the bunny, the two ways a shader reaches a structure through
+//! `vkrt/ray_query.glsl` (`gpu.handle_probe`, closest hits of 256² rays from around the
+//! mesh): its seven arrays bound as storage buffers, or read at the device addresses of its
+//! handle (`VKRT_DEVICE_ADDRESS`); GPU ms of each, best of 3 interleaved rounds, and the
+//! ratio address / bindings.
+//!
 //! `cargo bench --bench device_input [-- --json] [-- --quick]` (`--quick`: the bunny only)
 
 use std::time::Instant;
@@ -22,9 +28,10 @@ use glam::Vec3;
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::embedded::BuildFlags;
 use vkrt::accel::geometry::{Geometry, IndexType, Triangles};
+use vkrt::gpu::{kernels, BufferArg, Spec};
 use vkrt::gpu::{Buffer, Context, ContextOptions, Recorder};
 use vkrt::trace::gpu::GpuGeometry;
-use vkrt::trace::TraceGeometry;
+use vkrt::trace::{Ray, TraceGeometry};
 
 #[derive(serde::Serialize)]
 struct Row {
@@ -97,6 +104,72 @@ fn best_of(ctx: &Context, mut record: impl FnMut(&mut Recorder)) -> (f64, f64, u
                 up,
                 best.3.min(p.ms("gather").unwrap_or(0.0)),
             );
+        }
+    }
+    best
+}
+
+#[derive(serde::Serialize)]
+struct BindingRow {
+    kind: &'static str,
+    rays: usize,
+    bindings_ms: f64,
+    address_ms: f64,
+    /// address_ms / bindings_ms (above 1: the handle is slower).
+    ratio: f64,
+}
+
+/// 256² rays from points around the mesh's box towards points inside it.
+fn rays_around(tris: &[[Vec3; 3]]) -> Vec<Ray> {
+    let (lo, hi) = tris.iter().flatten().fold(
+        (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+        |(lo, hi), &p| (lo.min(p), hi.max(p)),
+    );
+    let (c, r) = ((lo + hi) * 0.5, (hi - lo).length());
+    let mut state = 0x2545_f491_4f6c_dd1d_u64;
+    let mut next = || {
+        state ^= state << 13;
+        state ^= state >> 7;
+        state ^= state << 17;
+        (state >> 40) as f32 / (1u64 << 24) as f32 * 2.0 - 1.0
+    };
+    (0..256 * 256)
+        .map(|_| {
+            let o = c + Vec3::new(next(), next(), next()).normalize_or(Vec3::X) * r;
+            let t = c + Vec3::new(next(), next(), next()) * (hi - lo) * 0.5;
+            Ray::new(o, t - o, 0.0, f32::INFINITY)
+        })
+        .collect()
+}
+
+/// GPU ms of tracing `rays` through the bindings and through the handle, best of 3
+/// interleaved rounds.
+fn bindings_vs_address(ctx: &Context, g: &GpuGeometry, rays: &[Ray]) -> (f64, f64) {
+    let spec = Spec::new().workgroup(64);
+    let set = ctx.kernel(&kernels::GPU_HANDLE_PROBE_SET, &spec).unwrap();
+    let address = ctx
+        .kernel(&kernels::GPU_HANDLE_PROBE_ADDRESS, &spec)
+        .unwrap();
+    let ray_buf = Buffer::from_slice(ctx, "probe.rays", rays).unwrap();
+    let out = Buffer::<[u32; 4]>::zeroed(ctx, "probe.hits", rays.len()).unwrap();
+    let handle = Buffer::from_slice(ctx, "probe.handle", &g.address_handle().unwrap()).unwrap();
+    let at = handle.device_address();
+    let push = [rays.len() as u32, 0, at as u32, (at >> 32) as u32];
+    let [b0, b1, b2, b3, b4, b5, b6] = g.bindings();
+    let all: [&dyn BufferArg; 9] = [&ray_buf, &out, b0, b1, b2, b3, b4, b5, b6];
+    let mut best = (f64::INFINITY, f64::INFINITY);
+    for round in 0..4 {
+        let mut rec = Recorder::new(ctx).unwrap();
+        let groups = rec.groups_1d(rays.len() as u64, 64);
+        rec.scope("bindings", |rec| rec.dispatch(&set, groups, &all, &push));
+        rec.compute_to_compute();
+        rec.scope("address", |rec| {
+            rec.dispatch(&address, groups, &all[..2], &push)
+        });
+        let p = rec.submit_and_wait().unwrap();
+        if round > 0 {
+            best.0 = best.0.min(p.ms("bindings").unwrap_or(f64::NAN));
+            best.1 = best.1.min(p.ms("address").unwrap_or(f64::NAN));
         }
     }
     best
@@ -190,7 +263,44 @@ fn main() {
             rows.push(row);
         }
     }
+    let mut bindings = Vec::new();
+    if ctx.info().features.buffer_device_address {
+        if let Some(mesh) = meshes(true).first() {
+            let tris: Vec<[Vec3; 3]> = mesh
+                .indices
+                .iter()
+                .map(|t| t.map(|v| mesh.positions[v as usize]))
+                .collect();
+            let soup = TraceGeometry::from_triangles(&tris);
+            let rays = rays_around(&tris);
+            for kind in [AccelKind::KdTree, AccelKind::Lbvh, AccelKind::Ploc] {
+                let builder = AccelBuilder::new(&ctx, kind).unwrap();
+                let mut rec = Recorder::new(&ctx).unwrap();
+                let (g, _) = GpuGeometry::record_build(&mut rec, &builder, &soup, 0).unwrap();
+                rec.submit_and_wait().unwrap();
+                let (b, a) = bindings_vs_address(&ctx, &g, &rays);
+                let row = BindingRow {
+                    kind: kind.name(),
+                    rays: rays.len(),
+                    bindings_ms: b,
+                    address_ms: a,
+                    ratio: a / b,
+                };
+                if !json {
+                    println!(
+                        "{} {:7} {} rays through the library: bindings {:7.1} ms, device-address \
+                         handle {:7.1} ms (×{:.2})",
+                        mesh.name, row.kind, row.rays, b, a, row.ratio
+                    );
+                }
+                bindings.push(row);
+            }
+        }
+    }
     if json {
-        println!("{}", serde_json::to_string(&rows).unwrap());
+        println!(
+            "{}",
+            serde_json::json!({ "builds": rows, "bindings": bindings })
+        );
     }
 }

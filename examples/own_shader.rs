@@ -4,7 +4,8 @@
 //! buffer. It puts the mesh's vertex and index buffers in its own memory (two geometries over
 //! one vertex buffer: the first half of the triangles with `u32` indices, the second with
 //! `u16` indices and a transform), asks vkrt for the sizes of each structure (kd-tree, LBVH,
-//! PLOC), allocates the structure and scratch buffers itself, records vkrt's build into its
+//! PLOC, and the driver's where the device has ray query, which the host then enables),
+//! allocates the structure and scratch buffers itself, records vkrt's build into its
 //! own command buffer, then dispatches ITS OWN compute shader — ambient-occlusion rays,
 //! compiled here with `glslc` against `vkrt/ray_query.glsl` — which traces through the
 //! include. Every hit is checked against a brute-force CPU reference.
@@ -26,7 +27,7 @@ use ash::vk;
 use glam::Vec3;
 use gpu_allocator::MemoryLocation;
 use vkrt::accel::device::{AccelBuilder, AccelKind};
-use vkrt::accel::embedded::{BuildFlags, REQUIRED_BUFFER_USAGE};
+use vkrt::accel::embedded::{BuildFlags, DRIVER_BUFFER_USAGE, REQUIRED_BUFFER_USAGE};
 use vkrt::accel::geometry::{transform_point, Geometry, IndexType, Indices, Triangles};
 use vkrt::accel::shader_library;
 use vkrt::gpu::{Buffer, Context, RawBuffer, Recorder, Validation, DEFAULT_QUERY_CAPACITY};
@@ -114,6 +115,8 @@ pub struct Summary {
     pub vkrt_submits: u64,
     pub vkrt_upload_bytes: u64,
     pub vkrt_allocations: u64,
+    /// The host enabled the driver's ray query (and so built the driver's structure too).
+    pub ray_query: bool,
     #[serde(skip)]
     pub messages: Vec<String>,
 }
@@ -198,6 +201,10 @@ pub fn run_with(
         generic: compile_ao_shader(None, exact)?,
         kdtree: compile_ao_shader(Some("VKRT_WALK_KDTREE"), exact)?,
         bvh: compile_ao_shader(Some("VKRT_WALK_BVH"), exact)?,
+        driver: match host.features.ray_query {
+            true => Some(compile_ao_shader(Some("VKRT_RAY_QUERY"), exact)?),
+            false => None,
+        },
     };
     let sink = host.sink.clone();
     let result = build_and_trace(&host, mesh, rays, kinds, &spirv, check);
@@ -212,11 +219,14 @@ pub struct Shaders {
     pub generic: Vec<u32>,
     pub kdtree: Vec<u32>,
     pub bvh: Vec<u32>,
+    /// Every walk and the driver's ray query (`VKRT_RAY_QUERY`), where the device has it.
+    pub driver: Option<Vec<u32>>,
 }
 
 /// The host compiles its shader with its own compiler (`glslc`), given vkrt's include
-/// directory; `walk`: the one walk to compile in (`VKRT_WALK`), else every walk; `exact`:
-/// `VKRT_EXACT` (the device has doubles and 64-bit integers enabled).
+/// directory; `walk`: the one walk to compile in (`VKRT_WALK`), else every walk, or
+/// `VKRT_RAY_QUERY`: every walk and the driver's ray query; `exact`: `VKRT_EXACT` (the device
+/// has doubles and 64-bit integers enabled).
 pub fn compile_ao_shader(walk: Option<&str>, exact: bool) -> BoxResult<Vec<u32>> {
     let dir = std::env::temp_dir().join(format!(
         "vkrt-own-shader-{}-{}",
@@ -228,8 +238,14 @@ pub fn compile_ao_shader(walk: Option<&str>, exact: bool) -> BoxResult<Vec<u32>>
     let out = dir.join("ao.spv");
     std::fs::write(&src, AO_SHADER)?;
     let mut glslc = std::process::Command::new("glslc");
-    if let Some(w) = walk {
-        glslc.arg(format!("-DVKRT_WALK={w}"));
+    match walk {
+        Some("VKRT_RAY_QUERY") => {
+            glslc.arg("-DVKRT_RAY_QUERY");
+        }
+        Some(w) => {
+            glslc.arg(format!("-DVKRT_WALK={w}"));
+        }
+        None => {}
     }
     if exact {
         glslc.arg("-DVKRT_EXACT");
@@ -503,6 +519,16 @@ fn build_and_trace(
     let pipeline = AoPipeline::new(&host.device, &spirv.generic)?;
     let kd_pipeline = AoPipeline::new(&host.device, &spirv.kdtree)?;
     let bvh_pipeline = AoPipeline::new(&host.device, &spirv.bvh)?;
+    let driver_pipeline = match &spirv.driver {
+        Some(code) => Some(AoPipeline::new(&host.device, code)?),
+        None => None,
+    };
+    // The driver's structure reads its inputs at device addresses and lives in buffers of
+    // the acceleration-structure kind.
+    let structure_usage = match host.features.ray_query {
+        true => REQUIRED_BUFFER_USAGE | DRIVER_BUFFER_USAGE,
+        false => REQUIRED_BUFFER_USAGE,
+    };
 
     // SAFETY: every handle in `parts` is the host's, valid, of one instance and device; the
     // host outlives the context (dropped before `host` at the end of `run`) and this thread
@@ -520,6 +546,7 @@ fn build_and_trace(
         vkrt_submits: 0,
         vkrt_upload_bytes: 0,
         vkrt_allocations: 0,
+        ray_query: host.features.ray_query,
         messages: Vec::new(),
     };
     // vkrt's own trace kernel, for the timing comparison, reads the same rays.
@@ -528,6 +555,13 @@ fn build_and_trace(
     let vkrt_errors = Buffer::<u32>::new(&ctx, "own_shader.vkrt_errors", 1)?;
     vkrt_rays.upload(rays)?;
     for &kind in kinds {
+        // The driver's structure needs the driver's ray query, and its own shader.
+        let (pipeline, specialized) = match (kind, &driver_pipeline) {
+            (AccelKind::Driver, None) => continue,
+            (AccelKind::Driver, Some(d)) => (d, d),
+            (AccelKind::KdTree, _) => (&pipeline, &kd_pipeline),
+            _ => (&pipeline, &bvh_pipeline),
+        };
         let builder = AccelBuilder::new(&ctx, kind)?;
         let flags = BuildFlags::default();
         let sizes = builder.sizes_for(&ctx, &geometries, &flags)?;
@@ -536,13 +570,13 @@ fn build_and_trace(
             "host.structure",
             sizes.structure_bytes.max(4),
             MemoryLocation::GpuOnly,
-            REQUIRED_BUFFER_USAGE,
+            structure_usage,
         )?;
         let scratch_buf = host.buffer(
             "host.scratch",
             sizes.build_scratch_bytes.max(4),
             MemoryLocation::GpuOnly,
-            REQUIRED_BUFFER_USAGE,
+            structure_usage,
         )?;
         let mut structure = builder.create_in(
             &ctx,
@@ -562,10 +596,6 @@ fn build_and_trace(
             [info(&host_rays, ray_bytes), info(&results, result_bytes)],
             structure.descriptor_buffer_infos(),
         )?;
-        let specialized = match kind {
-            AccelKind::KdTree => &kd_pipeline,
-            _ => &bvh_pipeline,
-        };
         let special_sets = specialized.sets(
             [info(&host_rays, ray_bytes), info(&results, result_bytes)],
             structure.descriptor_buffer_infos(),
@@ -638,7 +668,7 @@ fn build_and_trace(
         report.vkrt_upload_bytes += after.upload_bytes;
         report.vkrt_allocations += after.device_allocations;
         // The checked pass: closest hits and occlusion, in a command buffer of its own.
-        let checked = checked_pass(host, &pipeline, &sets, push(0), n, &results)?;
+        let checked = checked_pass(host, pipeline, &sets, push(0), n, &results)?;
         let mut k = KindReport {
             rays: n,
             mismatches: check.then_some(0),
@@ -660,7 +690,16 @@ fn build_and_trace(
                 Some((t, g, p)) => [t.to_bits(), *p, *g],
                 None => [f32::INFINITY.to_bits(), u32::MAX, u32::MAX],
             };
-            *k.mismatches.get_or_insert(0) += (got[..3] != want_row) as usize;
+            // vkrt's walks give the twin's hits bit for bit; the driver's triangle test is
+            // its own: the same primitive at a t within a few ulps.
+            let same = match (kind, want) {
+                (AccelKind::Driver, Some((t, _, _))) => {
+                    got[1..3] == want_row[1..3]
+                        && (f32::from_bits(got[0]) - t).abs() <= 1e-5 * t.abs()
+                }
+                _ => got[..3] == want_row,
+            };
+            *k.mismatches.get_or_insert(0) += (!same) as usize;
             *k.any_mismatches.get_or_insert(0) += ((got[3] & 1 == 1) != *want_any) as usize;
         }
         report.kinds.insert(kind.name().to_string(), k);
@@ -818,7 +857,12 @@ fn main() -> BoxResult<()> {
         None => 4096,
     };
     let rays = ao_rays(&mesh, n, 7);
-    let kinds = [AccelKind::KdTree, AccelKind::Lbvh, AccelKind::Ploc];
+    let kinds = [
+        AccelKind::KdTree,
+        AccelKind::Lbvh,
+        AccelKind::Ploc,
+        AccelKind::Driver,
+    ];
     let s = run_with(&mesh, &rays, &kinds, Validation::FromEnv, check)?;
     if json {
         let v = serde_json::json!({

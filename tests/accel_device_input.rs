@@ -700,6 +700,73 @@ fn a_shader_s_own_box_intersection_is_called_with_its_indices() {
     common::assert_silent(&ctx);
 }
 
+/// Closest hits of `rays` through `vkrt/ray_query.glsl` from `gpu.handle_probe`: the
+/// structure bound as seven buffers (`set`) or read through its handle's device addresses.
+pub fn probe_hits(ctx: &Context, g: &GpuGeometry, rays: &[Ray], address: bool) -> Vec<[u32; 4]> {
+    let blob = match address {
+        true => &vkrt::gpu::kernels::GPU_HANDLE_PROBE_ADDRESS,
+        false => &vkrt::gpu::kernels::GPU_HANDLE_PROBE_SET,
+    };
+    let kernel = ctx
+        .kernel(blob, &vkrt::gpu::Spec::new().workgroup(64))
+        .unwrap();
+    let ray_buf = Buffer::from_slice(ctx, "probe.rays", rays).unwrap();
+    let out = Buffer::<[u32; 4]>::zeroed(ctx, "probe.hits", rays.len()).unwrap();
+    let handle = Buffer::from_slice(ctx, "probe.handle", &g.address_handle().unwrap()).unwrap();
+    let at = handle.device_address();
+    let push = [rays.len() as u32, 0, at as u32, (at >> 32) as u32];
+    let mut rec = Recorder::new(ctx).unwrap();
+    let [b0, b1, b2, b3, b4, b5, b6] = g.bindings();
+    let groups = rec.groups_1d(rays.len() as u64, 64);
+    let all: [&dyn vkrt::gpu::BufferArg; 9] = [&ray_buf, &out, b0, b1, b2, b3, b4, b5, b6];
+    // The address variant binds only its rays and hits.
+    let bound = if address { &all[..2] } else { &all[..] };
+    rec.dispatch(&kernel, groups, bound, &push);
+    rec.compute_to_transfer();
+    rec.submit_and_wait().unwrap();
+    out.download().unwrap()
+}
+
+#[test]
+fn the_structure_s_handle_and_its_bindings_give_the_same_hits() {
+    let Some(ctx) = common::context() else { return };
+    if !ctx.info().features.buffer_device_address {
+        eprintln!("skipped: no bufferDeviceAddress");
+        return;
+    }
+    let mut caller = CallerBuffers::new();
+    let (geometries, host) = mixed_scene(&ctx, &mut caller);
+    let layout = GeometryLayout::of(&ctx, &geometries).unwrap();
+    let mut rng = common::Rng(17);
+    let rays: Vec<Ray> = (0..500)
+        .map(|_| {
+            let o = rng.next_vec3().normalize_or(Vec3::X) * 4.0;
+            Ray::new(o, rng.next_vec3() * 1.3 - o, 0.0, f32::INFINITY)
+        })
+        .collect();
+    for kind in [AccelKind::KdTree, AccelKind::Lbvh, AccelKind::Ploc] {
+        let builder = AccelBuilder::new(&ctx, kind).unwrap();
+        let (g, _mem) = build_in_caller_memory(&ctx, &builder, &geometries, &BuildFlags::default());
+        let set = probe_hits(&ctx, &g, &rays, false);
+        let address = probe_hits(&ctx, &g, &rays, true);
+        assert_eq!(set, address, "{kind:?}");
+        for (k, (r, got)) in rays.iter().zip(&set).enumerate() {
+            let want = cpu::brute_force(&host, r, 0.0, &opt());
+            assert_eq!(got[0] != u32::MAX, want.is_hit(), "{kind:?} ray {k}");
+            if want.is_hit() {
+                let h = Hit {
+                    t: f32::from_bits(got[0]),
+                    ..want
+                };
+                assert!(common::same_answer(&h, &want), "{kind:?} ray {k}");
+                let (geometry, primitive) = layout.locate(want.prim).unwrap();
+                assert_eq!([got[1], got[2]], [geometry, primitive], "{kind:?} ray {k}");
+            }
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
 #[test]
 fn sizes_are_exact_and_too_little_memory_is_an_error() {
     let Some(ctx) = common::context() else { return };

@@ -231,22 +231,61 @@ impl Host {
         let mut query = vk::PhysicalDeviceFeatures2::default().push_next(&mut supported12);
         // SAFETY: a plain query of a valid physical device of a Vulkan 1.2 instance.
         unsafe { instance.get_physical_device_features2(physical_device, &mut query) };
+        // The driver's own ray tracing where the device has it, as vkrt lists it
+        // (`device_requirements().ray_query_extensions` and three features).
+        let ray_query_exts = vkrt::gpu::device_requirements().ray_query_extensions;
+        // SAFETY: a plain query of a valid physical device.
+        let available = unsafe { instance.enumerate_device_extension_properties(physical_device) }?;
+        let has_exts = ray_query_exts.iter().all(|&want| {
+            available
+                .iter()
+                .any(|e| e.extension_name_as_c_str() == Ok(want))
+        });
+        let mut accel_supported = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default();
+        let mut query_supported = vk::PhysicalDeviceRayQueryFeaturesKHR::default();
+        if has_exts {
+            let mut query = vk::PhysicalDeviceFeatures2::default()
+                .push_next(&mut accel_supported)
+                .push_next(&mut query_supported);
+            // SAFETY: as above; the chained structs belong to extensions the device has.
+            unsafe { instance.get_physical_device_features2(physical_device, &mut query) };
+        }
+        let ray_query = has_exts
+            && accel_supported.acceleration_structure == vk::TRUE
+            && query_supported.ray_query == vk::TRUE
+            && supported12.buffer_device_address == vk::TRUE;
         let mut enable12 = vk::PhysicalDeviceVulkan12Features::default()
-            .storage_buffer8_bit_access(supported12.storage_buffer8_bit_access == vk::TRUE);
+            .storage_buffer8_bit_access(supported12.storage_buffer8_bit_access == vk::TRUE)
+            .buffer_device_address(ray_query);
+        let mut enable_accel = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default()
+            .acceleration_structure(true);
+        let mut enable_query = vk::PhysicalDeviceRayQueryFeaturesKHR::default().ray_query(true);
         let features = DeviceFeatures {
             shader_int64: base.shader_int64 == vk::TRUE,
             shader_float64: base.shader_float64 == vk::TRUE,
             storage_buffer_8bit: enable12.storage_buffer8_bit_access == vk::TRUE,
+            buffer_device_address: ray_query,
+            ray_query,
             ..DeviceFeatures::default()
+        };
+        let ext_names: Vec<*const c_char> = match ray_query {
+            true => ray_query_exts.iter().map(|e| e.as_ptr()).collect(),
+            false => Vec::new(),
         };
         let priorities = [1.0];
         let queues = [vk::DeviceQueueCreateInfo::default()
             .queue_family_index(family)
             .queue_priorities(&priorities)];
-        let create = vk::DeviceCreateInfo::default()
+        let mut create = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queues)
             .enabled_features(&base)
+            .enabled_extension_names(&ext_names)
             .push_next(&mut enable12);
+        if ray_query {
+            create = create
+                .push_next(&mut enable_accel)
+                .push_next(&mut enable_query);
+        }
         // SAFETY: `create` points at locals that outlive the call; only supported features
         // are enabled.
         let device = unsafe { instance.create_device(physical_device, &create, None) }?;
@@ -255,7 +294,7 @@ impl Host {
             device: device.clone(),
             physical_device,
             debug_settings: Default::default(),
-            buffer_device_address: false,
+            buffer_device_address: ray_query,
             allocation_sizes: Default::default(),
         });
         match allocator {

@@ -25,6 +25,23 @@ pub trait BufferArg {
     fn range(&self) -> u64;
 }
 
+/// The device address of `b`'s first byte: an error where the context has no
+/// `bufferDeviceAddress` (the buffer must have `SHADER_DEVICE_ADDRESS` usage, as vkrt's own
+/// buffers and ranges of them do there).
+pub fn address_of(ctx: &Context, b: &dyn BufferArg) -> Result<u64> {
+    let f = &ctx.info().features;
+    if !(f.buffer_device_address || f.ray_query) {
+        return Err(GpuError::MissingCapability {
+            device: ctx.info().device.clone(),
+            what: "bufferDeviceAddress (device addresses of buffers)".into(),
+        });
+    }
+    let info = vk::BufferDeviceAddressInfo::default().buffer(b.raw());
+    // SAFETY: bufferDeviceAddress is enabled (checked above); `b` is a live buffer of this
+    // device with SHADER_DEVICE_ADDRESS usage (the caller's contract, stated above).
+    Ok(unsafe { ctx.inner.device.get_buffer_device_address(&info) } + b.offset())
+}
+
 /// A range of a buffer that the embedding renderer owns; vkrt never frees it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RawBuffer {
@@ -267,6 +284,11 @@ impl<T: Pod> Buffer<T> {
 
     pub fn is_empty(&self) -> bool {
         self.len == 0
+    }
+
+    /// The context it was created in.
+    pub fn context(&self) -> &Context {
+        &self.ctx
     }
 
     pub fn name(&self) -> &str {

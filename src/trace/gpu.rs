@@ -165,6 +165,21 @@ impl GpuGeometry {
         })
     }
 
+    /// The structure's handle for a shader that reads it at device addresses
+    /// (`VKRT_DEVICE_ADDRESS` in `vkrt/ray_query.glsl`): the addresses of its seven arrays,
+    /// in the bindings' order, 56 bytes the caller writes where the shader reads them and
+    /// passes to `vkrtUseStructure`. An error where the context has no
+    /// `bufferDeviceAddress`.
+    pub fn address_handle(&self) -> Result<[u64; 7]> {
+        let ctx = self.prims.tri_verts.context();
+        let b = self.bindings();
+        let mut out = [0u64; 7];
+        for (o, b) in out.iter_mut().zip(b) {
+            *o = crate::gpu::address_of(ctx, b)?;
+        }
+        Ok(out)
+    }
+
     /// The seven bindings in `traverse.glsl`'s order.
     pub fn bindings(&self) -> [&dyn BufferArg; 7] {
         let [nodes, refs] = self.accel.node_bindings();

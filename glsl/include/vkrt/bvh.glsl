@@ -18,11 +18,23 @@
 
 
 // The same binding as the kd-tree's nodes: one structure is bound at a time.
+#ifdef VKRT_DEVICE_ADDRESS
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtBvhNodes { BvhNode v[]; };
+VkrtBvhNodes vkrt_bvh_nodes;
+#define bvh_nodes vkrt_bvh_nodes.v
+#else
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer BvhNodes { BvhNode bvh_nodes[]; };
+#endif
 #if FP64_FALLBACK
 // The same nodes as two 64-bit vectors each: on lavapipe every load is a loop over lanes and
 // components, so eight 64-bit components cost half the trips of sixteen 32-bit ones.
+#ifdef VKRT_DEVICE_ADDRESS
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtBvhNodes64 { u64vec4 v[]; };
+VkrtBvhNodes64 vkrt_bvh_nodes64;
+#define bvh_nodes64 vkrt_bvh_nodes64.v
+#else
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer BvhNodes64 { u64vec4 bvh_nodes64[]; };
+#endif
 
 vec2 two_floats(uint64_t w) {
     return uintBitsToFloat(unpack32(w));

@@ -35,6 +35,13 @@
 //   VKRT_RAY_QUERY    also walk the driver's structure with GL_EXT_ray_query (needs the
 //                     device's VK_KHR_ray_query; without it such a structure reports
 //                     `exhausted`)
+//   VKRT_DEVICE_ADDRESS  read the structure at device addresses instead of seven bindings:
+//                     call vkrtUseStructure(handle) before the queries, with the address
+//                     of the structure's handle (`GpuGeometry::address_handle()`, 56 bytes
+//                     the host writes where it likes); needs bufferDeviceAddress. One
+//                     64-bit value per structure, as a TLAS is, and no binding limit; on
+//                     lavapipe as fast as the bindings or up to 14 % slower
+//                     (docs/performance.md)
 //   VKRT_AABB_INTERSECTION  the shader intersects box primitives itself (procedural
 //                     geometry, as a ray query's AABB candidates): it defines, anywhere in
 //                     the file,
@@ -120,6 +127,34 @@ VkrtHit vkrt_to_public(Hit h) {
     o.exhausted = trace_steps_exhausted;
     return o;
 }
+
+#ifdef VKRT_DEVICE_ADDRESS
+layout(buffer_reference, std430, buffer_reference_align = 8) readonly buffer VkrtHandle {
+    uint64_t addresses[7];
+};
+
+// Makes the structure whose handle (`GpuGeometry::address_handle`: its seven arrays'
+// addresses, written where the shader reads them) lies at `handle` the one the queries
+// that follow trace.
+void vkrtUseStructure(uint64_t handle) {
+    VkrtHandle h = VkrtHandle(handle);
+    vkrt_kd_nodes = VkrtKdNodes(h.addresses[0]);
+    vkrt_bvh_nodes = VkrtBvhNodes(h.addresses[0]);
+    vkrt_kd_refs = VkrtWords(h.addresses[1]);
+    vkrt_tri_verts = VkrtFloats(h.addresses[2]);
+    vkrt_spheres = VkrtVec4s(h.addresses[3]);
+    vkrt_prim_motion = VkrtWords(h.addresses[4]);
+    vkrt_motions = VkrtMotions(h.addresses[5]);
+    scene_info = VkrtSceneInfo(h.addresses[6]);
+#if FP64_FALLBACK
+    vkrt_tri_verts64 = VkrtWords64(h.addresses[2]);
+    vkrt_bvh_nodes64 = VkrtBvhNodes64(h.addresses[0]);
+#endif
+#ifdef RAY_QUERY
+    vkrt_tlas = VkrtU64s(h.addresses[0]);
+#endif
+}
+#endif
 
 #define VKRT_WALK_KDTREE 0u
 #define VKRT_WALK_BVH 1u

@@ -55,6 +55,44 @@ struct MotionRecord {
     vec4 axis;       // xyz: unit rotation axis
 };
 
+#ifdef VKRT_DEVICE_ADDRESS
+// The structure read at device addresses (the library's VKRT_DEVICE_ADDRESS): the same seven
+// arrays, reached through references that vkrtUseStructure sets from the structure's handle
+// (a record of their seven addresses), instead of bindings.
+#extension GL_EXT_buffer_reference : require
+#extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtKdNodes { KdNode v[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtWords { uint v[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtFloats { float v[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtVec4s { vec4 v[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtMotions { MotionRecord v[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtSceneInfo {
+    vec4 bounds_min;
+    vec4 bounds_max;
+    uint n_tris;
+    uint n_spheres;
+    uint has_motion;
+    uint parents_at;
+    uint walk;
+    uint n_geometries;
+    uint invalid;
+    uint n_aabbs;
+    uvec2 geometry_first[];
+};
+VkrtKdNodes vkrt_kd_nodes;
+VkrtWords vkrt_kd_refs;
+VkrtFloats vkrt_tri_verts;
+VkrtVec4s vkrt_spheres;
+VkrtWords vkrt_prim_motion;
+VkrtMotions vkrt_motions;
+VkrtSceneInfo scene_info;
+#define kd_nodes vkrt_kd_nodes.v
+#define kd_refs vkrt_kd_refs.v
+#define tri_verts vkrt_tri_verts.v
+#define spheres vkrt_spheres.v
+#define prim_motion vkrt_prim_motion.v
+#define motions vkrt_motions.v
+#else
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer KdNodes { KdNode kd_nodes[]; };
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 1) readonly buffer KdRefs { uint kd_refs[]; };
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 2) readonly buffer TriVerts { float tri_verts[]; };
@@ -77,12 +115,20 @@ layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 6) readonly buffer Scene
     uvec2 geometry_first[];
 } scene_info;
 
+#endif
+
 #ifdef RAY_QUERY
 // The driver's structure (src/accel/driver.rs): the nodes binding holds the device address
 // of its top level, which the query converts (OpConvertUToAccelerationStructureKHR), so no
 // acceleration-structure descriptor is needed; the prim_refs binding (kd_refs) holds the
 // first primitive id of each instance.
+#ifdef VKRT_DEVICE_ADDRESS
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtU64s { uint64_t v[]; };
+VkrtU64s vkrt_tlas;
+#define tlas_address vkrt_tlas.v[0]
+#else
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer DriverTlas { uint64_t tlas_address; };
+#endif
 #endif
 
 // 0: kd-tree; 1: BVH with a stack; 2: BVH with the bitstack walk; 3: the driver's ray query
@@ -123,7 +169,13 @@ vec3 tri_vertex(uint tri, uint corner) {
 // The same vertices as 64-bit words: a triangle's nine floats lie in five of them (the
 // buffer holds two padding floats, DevicePrimitives), five loads instead of nine — on
 // lavapipe every load is a loop over lanes.
+#ifdef VKRT_DEVICE_ADDRESS
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtWords64 { uint64_t v[]; };
+VkrtWords64 vkrt_tri_verts64;
+#define tri_verts64 vkrt_tri_verts64.v
+#else
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 2) readonly buffer TriVerts64 { uint64_t tri_verts64[]; };
+#endif
 
 void load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
     uint first = 9u * tri;

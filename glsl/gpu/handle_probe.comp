@@ -1,0 +1,43 @@
+#version 460
+// The two ways a shader reaches a structure through vkrt/ray_query.glsl, on the same rays:
+// `set` binds its seven arrays (VKRT_BINDING), `address` reads them at the device addresses
+// of its handle (VKRT_DEVICE_ADDRESS). tests/accel_device_input.rs checks that both give the
+// CPU twin's hits; benches/device_input.rs times one against the other.
+//! variant set
+//! variant address VKRT_DEVICE_ADDRESS=1
+layout(local_size_x_id = 0) in;
+
+#define VKRT_BINDING 2
+#include "include/vkrt/ray_query.glsl"
+
+struct ProbeRay {
+    vec4 origin_tmin;
+    vec4 dir_tmax;
+};
+layout(std430, binding = 0) readonly buffer Rays { ProbeRay rays[]; };
+// Per ray: t (bits; NO_HIT for a miss, NO_HIT - 1 when the walk gave up), geometry index,
+// primitive index, 0.
+layout(std430, binding = 1) writeonly buffer Hits { uvec4 hits[]; };
+layout(push_constant) uniform Push {
+    uint n;
+    uint pad;
+    uvec2 handle; // `address`: where the structure's handle lies
+} pc;
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= pc.n) {
+        return;
+    }
+#ifdef VKRT_DEVICE_ADDRESS
+    vkrtUseStructure(packUint2x32(pc.handle));
+#endif
+    ProbeRay r = rays[i];
+    VkrtHit h = vkrtTraceClosest(r.origin_tmin.xyz, r.origin_tmin.w, r.dir_tmax.xyz,
+                                 r.dir_tmax.w);
+    if (!h.hit || h.exhausted) {
+        hits[i] = uvec4(h.exhausted ? 0xfffffffeu : 0xffffffffu, 0u, 0u, 0u);
+        return;
+    }
+    hits[i] = uvec4(floatBitsToUint(h.t), h.geometryIndex, h.primitiveIndex, 0u);
+}
