@@ -941,6 +941,40 @@ fn misuse_is_an_error_not_a_panic() {
         "misaligned indices",
     );
 
+    // Boxes: stride below a box, non-opaque, more boxes than the range holds.
+    let boxes = Aabbs {
+        data: vertices.into(),
+        stride: 24,
+        count: (vertices.size / 24) as u32,
+        opaque: true,
+    };
+    let bad_boxes = |b: Aabbs| {
+        lbvh.sizes_for(&ctx, &[Geometry::Aabbs(b)], &flags)
+            .map(drop)
+    };
+    assert!(bad_boxes(boxes).is_ok());
+    is_usage(
+        bad_boxes(Aabbs {
+            stride: 20,
+            ..boxes
+        }),
+        "box stride 20",
+    );
+    is_usage(
+        bad_boxes(Aabbs {
+            opaque: false,
+            ..boxes
+        }),
+        "non-opaque boxes",
+    );
+    is_usage(
+        bad_boxes(Aabbs {
+            count: boxes.count + 1,
+            ..boxes
+        }),
+        "boxes past the range",
+    );
+
     // The SAH BVH is a host builder.
     let sah = AccelBuilder::new(&ctx, AccelKind::SahBvh).unwrap();
     is_usage(

@@ -367,6 +367,7 @@ impl AccelBuilder {
             self.record_build_inner(rec, &out.prims, None, &scratch, &mut out.accel)
                 .map(drop)
         })?;
+        rec.check()?;
         if let Some(d) = out.device_input.as_mut() {
             d.built = true;
         }
@@ -420,7 +421,7 @@ impl AccelBuilder {
                 self.record_gather(rec, geometries, &input, out)?;
                 levels.record_update(rec, Some(&scratch))?;
                 rec.keep_alive(scratch);
-                Ok(())
+                rec.check()
             });
         }
         let (visits, _) = place(&ctx, "the update scratch", Placement::Into(scratch), || {
@@ -430,6 +431,7 @@ impl AccelBuilder {
         rec.scope("update", |rec| {
             self.record_gather(rec, geometries, &input, out)?;
             self.record_refit(rec, &out.prims, &out.accel, &visits)
-        })
+        })?;
+        rec.check()
     }
 }

@@ -10,7 +10,7 @@ use ash::vk;
 
 use super::buffer::{Buffer, BufferArg};
 use super::context::Context;
-use super::error::{usage_error, vk_err, GpuError, Result};
+use super::error::{vk_err, GpuError, Result};
 use super::recorder::Recorder;
 
 /// One instance of a bottom-level structure in a top-level one: `VkAccelerationStructureInstanceKHR`
@@ -116,13 +116,22 @@ impl AccelGeometry {
 
 /// The level of a structure built over `geometries`: bottom (triangles and boxes; also an
 /// empty list) or top (instances); a mix is a usage error.
-fn level_of(geometries: &[AccelGeometry]) -> vk::AccelerationStructureTypeKHR {
+fn level_of(geometries: &[AccelGeometry]) -> Result<vk::AccelerationStructureTypeKHR> {
     let bottom = vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL;
     let level = geometries.first().map_or(bottom, |g| g.level());
     if geometries.iter().any(|g| g.level() != level) {
-        usage_error("instances and primitives in one acceleration structure");
+        return Err(misuse(
+            "instances and primitives in one acceleration structure",
+        ));
     }
-    level
+    Ok(level)
+}
+
+fn misuse(reason: impl Into<String>) -> GpuError {
+    GpuError::Usage {
+        call: "AccelerationStructure",
+        reason: reason.into(),
+    }
 }
 
 /// Bytes a build needs: the structure's storage and the scratch of a build and of an
@@ -162,7 +171,7 @@ pub fn accel_build_sizes(
     flags: vk::BuildAccelerationStructureFlagsKHR,
 ) -> Result<AccelSizes> {
     let ext = ext(ctx)?;
-    let level = level_of(geometries);
+    let level = level_of(geometries)?;
     let counts: Vec<u32> = geometries.iter().map(|g| g.count()).collect();
     let geometries: Vec<_> = geometries.iter().map(|g| g.vk()).collect();
     let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
@@ -237,7 +246,7 @@ impl AccelerationStructure {
     ) -> Result<Self> {
         let ext = ext(ctx)?;
         let storage = Buffer::<u8>::new(ctx, name, Self::storage_bytes(bytes) as usize)?;
-        let level = level_of(geometries);
+        let level = level_of(geometries)?;
         let offset = storage.offset().next_multiple_of(256);
         let create = vk::AccelerationStructureCreateInfoKHR::default()
             .buffer(storage.raw)
@@ -316,7 +325,9 @@ impl AccelerationStructure {
         scratch: &Buffer<u8>,
     ) -> Result<()> {
         if !flags.contains(vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE) {
-            usage_error("an update of a structure not built with ALLOW_UPDATE");
+            return Err(misuse(
+                "an update of a structure not built with ALLOW_UPDATE",
+            ));
         }
         self.record(rec, geometries, flags, scratch, true)
     }
@@ -331,15 +342,17 @@ impl AccelerationStructure {
     ) -> Result<()> {
         let ctx = rec.context().clone();
         let ext = ext(&ctx)?;
-        if level_of(geometries) != self.geometry_level {
-            usage_error("an acceleration structure built at another level than created");
+        if level_of(geometries)? != self.geometry_level {
+            return Err(misuse(
+                "an acceleration structure built at another level than created",
+            ));
         }
         let sizes = accel_build_sizes(&ctx, geometries, flags)?;
         if sizes.structure > self.bytes {
-            usage_error(&format!(
+            return Err(misuse(format!(
                 "the build needs {} bytes of structure, {} were created",
                 sizes.structure, self.bytes
-            ));
+            )));
         }
         let needed = if update {
             sizes.update_scratch
@@ -350,11 +363,11 @@ impl AccelerationStructure {
         let base = scratch.device_address();
         let scratch_address = base.next_multiple_of(align);
         if scratch_address - base + needed > scratch.byte_len() {
-            usage_error(&format!(
+            return Err(misuse(format!(
                 "`{}` holds {} bytes; the build needs {needed} of scratch aligned to {align}",
                 scratch.name(),
                 scratch.byte_len(),
-            ));
+            )));
         }
         let (mode, src) = if update {
             (vk::BuildAccelerationStructureModeKHR::UPDATE, self.raw)

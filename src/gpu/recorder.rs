@@ -29,6 +29,10 @@ pub struct Recorder {
     scopes: ScopeRecorder,
     /// Staging buffers of recorded uploads, alive until the work has executed.
     staging: Vec<Box<dyn std::any::Any>>,
+    /// A Vulkan call that failed while recording (descriptor pools: out of memory): the
+    /// dispatches after it were left out, and the recording reports it
+    /// ([`Recorder::check`], `submit_and_wait`, [`RecordedWork::complete`]).
+    failed: Option<(&'static str, vk::Result)>,
 }
 
 /// A copy of a device buffer into host memory, recorded by [`Recorder::read_back`]; read it
@@ -131,6 +135,7 @@ impl Recorder {
             descriptor_pools: Vec::new(),
             scopes: ScopeRecorder::new(query_pool, queries),
             staging: Vec::new(),
+            failed: None,
         })
     }
 
@@ -189,7 +194,9 @@ impl Recorder {
                 kernel.name()
             ));
         }
-        self.bind(kernel, buffers, bytemuck::bytes_of(push));
+        if !self.bind(kernel, buffers, bytemuck::bytes_of(push)) {
+            return;
+        }
         // SAFETY: recording; pipeline, set and push constants were bound for this kernel.
         unsafe {
             self.ctx
@@ -216,7 +223,9 @@ impl Recorder {
                 kernel.name()
             ));
         }
-        self.bind(kernel, buffers, bytemuck::bytes_of(push));
+        if !self.bind(kernel, buffers, bytemuck::bytes_of(push)) {
+            return;
+        }
         // SAFETY: recording; the indirect range was checked above.
         unsafe {
             self.ctx.inner.device.cmd_dispatch_indirect(
@@ -227,7 +236,9 @@ impl Recorder {
         };
     }
 
-    fn bind(&mut self, kernel: &Kernel, buffers: &[&dyn BufferArg], push: &[u8]) {
+    /// Binds the kernel's pipeline, a descriptor set of `buffers` and `push`; false (and the
+    /// recording marked failed) when no descriptor set could be allocated.
+    fn bind(&mut self, kernel: &Kernel, buffers: &[&dyn BufferArg], push: &[u8]) -> bool {
         let blob = kernel.blob;
         if buffers.len() != blob.bindings.len() {
             usage_error(&format!(
@@ -244,7 +255,9 @@ impl Recorder {
                 push.len()
             ));
         }
-        let set = self.allocate_set(kernel.set_layout);
+        let Some(set) = self.allocate_set(kernel.set_layout) else {
+            return false;
+        };
         let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
             .iter()
             .map(|b| {
@@ -291,9 +304,22 @@ impl Recorder {
                 );
             }
         }
+        true
     }
 
-    fn allocate_set(&mut self, layout: vk::DescriptorSetLayout) -> vk::DescriptorSet {
+    /// `Err` when a Vulkan call failed while recording (the work is incomplete and must not
+    /// be submitted); vkrt's recording calls return it before handing the work back.
+    pub fn check(&self) -> Result<()> {
+        match self.failed {
+            Some((call, code)) => Err(vk_err(call)(code)),
+            None => Ok(()),
+        }
+    }
+
+    fn allocate_set(&mut self, layout: vk::DescriptorSetLayout) -> Option<vk::DescriptorSet> {
+        if self.failed.is_some() {
+            return None;
+        }
         let device = &self.ctx.inner.device;
         let layouts = [layout];
         if let Some(&pool) = self.descriptor_pools.last() {
@@ -302,7 +328,7 @@ impl Recorder {
                 .set_layouts(&layouts);
             // SAFETY: the pool is ours and not used by another thread.
             if let Ok(sets) = unsafe { device.allocate_descriptor_sets(&info) } {
-                return sets[0];
+                return Some(sets[0]);
             }
         }
         let sizes = [vk::DescriptorPoolSize {
@@ -313,16 +339,25 @@ impl Recorder {
             .max_sets(SETS_PER_POOL)
             .pool_sizes(&sizes);
         // SAFETY: valid device; pools are destroyed when the recorder's work has completed.
-        let pool = unsafe { device.create_descriptor_pool(&pool_info, None) }
-            .unwrap_or_else(|e| usage_error(&format!("vkCreateDescriptorPool failed: {e}")));
+        let pool = match unsafe { device.create_descriptor_pool(&pool_info, None) } {
+            Ok(pool) => pool,
+            Err(code) => {
+                self.failed = Some(("vkCreateDescriptorPool", code));
+                return None;
+            }
+        };
         self.descriptor_pools.push(pool);
         let info = vk::DescriptorSetAllocateInfo::default()
             .descriptor_pool(pool)
             .set_layouts(&layouts);
-        // SAFETY: a fresh pool sized for far more than one set of at most 8 buffers... unless
-        // a kernel has more bindings than BUFFERS_PER_POOL, which build.rs never produces.
-        unsafe { device.allocate_descriptor_sets(&info) }
-            .unwrap_or_else(|e| usage_error(&format!("vkAllocateDescriptorSets failed: {e}")))[0]
+        // SAFETY: a fresh pool sized for far more than one set of at most 9 buffers.
+        match unsafe { device.allocate_descriptor_sets(&info) } {
+            Ok(sets) => Some(sets[0]),
+            Err(code) => {
+                self.failed = Some(("vkAllocateDescriptorSets", code));
+                None
+            }
+        }
     }
 
     /// Fills the whole buffer with the 32-bit pattern `value`.
@@ -623,6 +658,8 @@ impl Recorder {
             usage_error("submit_and_wait on a caller-owned command buffer; use finish()");
         }
         self.check_closed();
+        // Incomplete work is never submitted.
+        self.check()?;
         let device = &self.ctx.inner.device;
         // SAFETY: recording state, opened by `new`.
         unsafe { device.end_command_buffer(self.cmd) }.map_err(vk_err("vkEndCommandBuffer"))?;
@@ -718,6 +755,7 @@ impl RecordedWork {
     /// The command buffer has finished executing (or was never submitted).
     pub unsafe fn complete(mut self) -> Result<Profile> {
         self.completed = true;
+        self.recorder.check()?;
         self.recorder
             .read_profile()
             .inspect(super::profiler::record_captured)

@@ -337,7 +337,7 @@ impl Tracer {
             [rays, hits, g[0], g[1], g[2], g[3], g[4], g[5], g[6], errors];
         let groups = rec.groups_1d(n as u64, WORKGROUP);
         rec.dispatch(&self.kernel, groups, &b, &TracePush { n: n as u32, time });
-        Ok(())
+        rec.check()
     }
 
     /// Uploads `rays`, traces them at `time` and reads the hits back, in one submission. The
