@@ -406,6 +406,51 @@ fn generated_kernel_table_matches_what_the_code_binds() {
 }
 
 #[test]
+fn commands_given_wrong_arguments_fail_the_recording_instead_of_panicking() {
+    let Some(ctx) = common::context() else { return };
+    let kernel = ctx
+        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
+        .unwrap();
+    let x = Buffer::from_slice(&ctx, "x", &[1.0f32; 8]).unwrap();
+    let y = Buffer::from_slice(&ctx, "y", &[2.0f32; 8]).unwrap();
+    let small = Buffer::<f32>::new(&ctx, "small", 4).unwrap();
+    let push = SaxpyPush { a: 3.0, n: 8 };
+    type Case<'a> = (&'a str, Box<dyn Fn(&mut Recorder) + 'a>);
+    let cases: Vec<Case> = vec![
+        (
+            "one buffer of two",
+            Box::new(|rec| rec.dispatch(&kernel, [1, 1, 1], &[&x], &push)),
+        ),
+        (
+            "a grid past the device's",
+            Box::new(|rec| rec.dispatch(&kernel, [u32::MAX, 1, 1], &[&x, &y], &push)),
+        ),
+        (
+            "a copy past a buffer",
+            Box::new(|rec| rec.copy(&x, &small, 8)),
+        ),
+        (
+            "a fill past a buffer",
+            Box::new(|rec| rec.fill_first(&small, 5, 0)),
+        ),
+    ];
+    for (what, record) in cases {
+        let before = ctx.traffic();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        record(&mut rec);
+        // Later commands are left out; nothing is submitted.
+        rec.dispatch(&kernel, [1, 1, 1], &[&x, &y], &push);
+        assert!(matches!(rec.check(), Err(GpuError::Usage { .. })), "{what}");
+        let err = rec.submit_and_wait().unwrap_err();
+        assert!(matches!(err, GpuError::Usage { .. }), "{what}: {err}");
+        assert_eq!((ctx.traffic() - before).submits, 0, "{what}");
+    }
+    // y untouched by every refused recording.
+    assert_eq!(y.download().unwrap(), vec![2.0; 8]);
+    common::assert_silent(&ctx);
+}
+
+#[test]
 fn oversized_buffers_are_a_clear_error() {
     let Some(ctx) = common::context() else { return };
     let limit = ctx.info().max_storage_buffer_range;

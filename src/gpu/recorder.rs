@@ -29,10 +29,11 @@ pub struct Recorder {
     scopes: ScopeRecorder,
     /// Staging buffers of recorded uploads, alive until the work has executed.
     staging: Vec<Box<dyn std::any::Any>>,
-    /// A Vulkan call that failed while recording (descriptor pools: out of memory): the
-    /// dispatches after it were left out, and the recording reports it
-    /// ([`Recorder::check`], `submit_and_wait`, [`RecordedWork::complete`]).
-    failed: Option<(&'static str, vk::Result)>,
+    /// The first thing that went wrong while recording — a Vulkan call that failed
+    /// (descriptor pools: out of memory) or a command given arguments it cannot take: what
+    /// follows is left out, and the recording reports it ([`Recorder::check`],
+    /// `submit_and_wait`, [`RecordedWork::complete`]) instead of running incomplete work.
+    failed: Option<GpuError>,
 }
 
 /// A copy of a device buffer into host memory, recorded by [`Recorder::read_back`]; read it
@@ -189,10 +190,12 @@ impl Recorder {
     ) {
         let max = self.ctx.info().max_workgroup_count;
         if (0..3).any(|a| groups[a] > max[a]) {
-            usage_error(&format!(
+            let reason = format!(
                 "`{}`: {groups:?} workgroups exceed maxComputeWorkGroupCount {max:?}",
                 kernel.name()
-            ));
+            );
+            self.refuse("Recorder::dispatch", reason);
+            return;
         }
         if !self.bind(kernel, buffers, bytemuck::bytes_of(push)) {
             return;
@@ -218,10 +221,9 @@ impl Recorder {
         push: &P,
     ) {
         if offset % 4 != 0 || offset + 12 > indirect.range() {
-            usage_error(&format!(
-                "`{}`: indirect offset {offset} out of range",
-                kernel.name()
-            ));
+            let reason = format!("`{}`: indirect offset {offset} out of range", kernel.name());
+            self.refuse("Recorder::dispatch_indirect", reason);
+            return;
         }
         if !self.bind(kernel, buffers, bytemuck::bytes_of(push)) {
             return;
@@ -241,19 +243,21 @@ impl Recorder {
     fn bind(&mut self, kernel: &Kernel, buffers: &[&dyn BufferArg], push: &[u8]) -> bool {
         let blob = kernel.blob;
         if buffers.len() != blob.bindings.len() {
-            usage_error(&format!(
+            let reason = format!(
                 "`{}` has bindings {:?} but {} buffers were given",
                 blob.name,
                 blob.bindings,
                 buffers.len()
-            ));
+            );
+            return self.refuse("Recorder::dispatch", reason);
         }
         if push.len() > PUSH_CONSTANT_BYTES as usize || (!push.is_empty() && !blob.push_constants) {
-            usage_error(&format!(
+            let reason = format!(
                 "`{}`: {} push-constant bytes do not fit its layout",
                 blob.name,
                 push.len()
-            ));
+            );
+            return self.refuse("Recorder::dispatch", reason);
         }
         let Some(set) = self.allocate_set(kernel.set_layout) else {
             return false;
@@ -310,10 +314,17 @@ impl Recorder {
     /// `Err` when a Vulkan call failed while recording (the work is incomplete and must not
     /// be submitted); vkrt's recording calls return it before handing the work back.
     pub fn check(&self) -> Result<()> {
-        match self.failed {
-            Some((call, code)) => Err(vk_err(call)(code)),
+        match &self.failed {
+            Some(e) => Err(e.clone()),
             None => Ok(()),
         }
+    }
+
+    /// Marks the recording failed with `reason` (the first failure is the one reported);
+    /// false, for the command to leave itself out.
+    fn refuse(&mut self, call: &'static str, reason: String) -> bool {
+        self.failed.get_or_insert(GpuError::Usage { call, reason });
+        false
     }
 
     fn allocate_set(&mut self, layout: vk::DescriptorSetLayout) -> Option<vk::DescriptorSet> {
@@ -342,7 +353,8 @@ impl Recorder {
         let pool = match unsafe { device.create_descriptor_pool(&pool_info, None) } {
             Ok(pool) => pool,
             Err(code) => {
-                self.failed = Some(("vkCreateDescriptorPool", code));
+                self.failed
+                    .get_or_insert(vk_err("vkCreateDescriptorPool")(code));
                 return None;
             }
         };
@@ -354,7 +366,8 @@ impl Recorder {
         match unsafe { device.allocate_descriptor_sets(&info) } {
             Ok(sets) => Some(sets[0]),
             Err(code) => {
-                self.failed = Some(("vkAllocateDescriptorSets", code));
+                self.failed
+                    .get_or_insert(vk_err("vkAllocateDescriptorSets")(code));
                 None
             }
         }
@@ -380,13 +393,15 @@ impl Recorder {
     pub fn fill_first<T: Pod>(&mut self, buffer: &Buffer<T>, len: usize, value: u32) {
         let elem = std::mem::size_of::<T>();
         if len > buffer.len() || elem % 4 != 0 {
-            usage_error(&format!(
+            let reason = format!(
                 "fill of {len} elements of {elem} bytes in `{}` ({} elements)",
                 buffer.name(),
                 buffer.len()
-            ));
+            );
+            self.refuse("Recorder::fill_first", reason);
+            return;
         }
-        if len == 0 {
+        if len == 0 || self.failed.is_some() {
             return;
         }
         // SAFETY: recording; the buffer has TRANSFER_DST usage; offset 0 and a size of
@@ -405,13 +420,15 @@ impl Recorder {
     /// Copies the first `len` elements of `src` into `dst`.
     pub fn copy<T: Pod>(&mut self, src: &Buffer<T>, dst: &Buffer<T>, len: usize) {
         if len > src.len() || len > dst.len() {
-            usage_error(&format!(
+            let reason = format!(
                 "copy of {len} elements from `{}` to `{}`",
                 src.name(),
                 dst.name()
-            ));
+            );
+            self.refuse("Recorder::copy", reason);
+            return;
         }
-        if len == 0 {
+        if len == 0 || self.failed.is_some() {
             return;
         }
         let region = vk::BufferCopy {
