@@ -260,6 +260,8 @@ fn compile(
 #[derive(Default)]
 struct Reflection {
     bindings: Vec<u32>,
+    /// Of `bindings`, those that are uniform texel buffers (`samplerBuffer` and kin).
+    texel_bindings: Vec<u32>,
     spec_constants: Vec<(u32, u32)>,
     local_size: [u32; 3],
     local_size_spec_ids: [Option<u32>; 3],
@@ -346,9 +348,20 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
                 r.bindings.push(b);
             }
             SC_PUSH_CONSTANT => r.push_constants = true,
-            SC_UNIFORM | SC_UNIFORM_CONSTANT if binding.contains_key(&id) => {
+            // A `uniform utextureBuffer` (and kin): read through the sampler path.
+            SC_UNIFORM_CONSTANT if binding.contains_key(&id) => {
+                if set.get(&id).copied().unwrap_or(0) != 0 {
+                    return Err("only descriptor set 0 is supported".into());
+                }
+                let b = binding[&id];
+                r.bindings.push(b);
+                r.texel_bindings.push(b);
+            }
+            SC_UNIFORM if binding.contains_key(&id) => {
                 return Err(
-                    "kernels may bind only storage buffers (std430 `buffer` blocks)".into(),
+                    "kernels may bind only storage buffers (std430 `buffer` blocks) and \
+                     texel buffers"
+                        .into(),
                 );
             }
             _ => {}
@@ -357,6 +370,8 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
     r.bindings.sort_unstable();
     // Blocks that alias one binding (traverse.glsl's kd-tree and BVH nodes) bind one buffer.
     r.bindings.dedup();
+    r.texel_bindings.sort_unstable();
+    r.texel_bindings.dedup();
     for (id, sid) in &spec_id {
         let default = spec_default.get(id).copied().unwrap_or(0);
         r.spec_constants.push((*sid, default));
@@ -400,6 +415,7 @@ fn generate(blobs: &[Blob]) -> String {
                 .collect::<Vec<_>>()
         );
         let _ = writeln!(s, "    bindings: &{:?},", b.info.bindings);
+        let _ = writeln!(s, "    texel_bindings: &{:?},", b.info.texel_bindings);
         let _ = writeln!(s, "    spec_constants: &{:?},", b.info.spec_constants);
         let _ = writeln!(s, "    local_size: {:?},", b.info.local_size);
         let _ = writeln!(

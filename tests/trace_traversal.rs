@@ -496,3 +496,59 @@ fn the_step_cap_comes_from_the_device_and_a_lower_one_is_honoured() {
     }
     assert_silent(&ctx);
 }
+
+#[test]
+fn nodes_read_through_texel_buffers_give_the_storage_walks_hits_bit_for_bit() {
+    use vkrt::accel::device::{AccelBuilder, AccelKind};
+    use vkrt::gpu::Recorder;
+    use vkrt::trace::bvh_cpu::Traversal;
+    use vkrt::trace::gpu::NodeAccess;
+    let Some(ctx) = context() else { return };
+    let bits = |h: &[Hit]| -> Vec<[u32; 4]> {
+        h.iter()
+            .map(|h| [h.t.to_bits(), h.prim, h.u.to_bits(), h.v.to_bits()])
+            .collect()
+    };
+    for (name, g) in scenes().into_iter().take(4) {
+        let tree = tree_of(&g);
+        let rays = random_rays(&g, &tree, 20_000, 13);
+        for kind in [
+            AccelKind::KdTree,
+            AccelKind::SahBvh,
+            AccelKind::Lbvh,
+            AccelKind::Ploc,
+        ] {
+            let builder = AccelBuilder::new(&ctx, kind).unwrap();
+            let mut rec = Recorder::new(&ctx).unwrap();
+            let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
+            rec.submit_and_wait().unwrap();
+            let walks: &[Traversal] = match kind {
+                AccelKind::KdTree => &[Traversal::Stack],
+                _ => &[Traversal::Stack, Traversal::Bitstack],
+            };
+            for &walk in walks {
+                for query in [Query::Closest, Query::Any] {
+                    let opt = TraceOptions {
+                        query,
+                        ..TraceOptions::default()
+                    };
+                    let run = |nodes| {
+                        let t = Tracer::for_accel_reading(&ctx, &opt, kind.walked(walk), nodes)
+                            .unwrap();
+                        let b = t.trace(&ctx, &dev, &rays, 0.0).unwrap();
+                        assert_eq!(b.exhausted, 0);
+                        bits(&b.hits)
+                    };
+                    let storage = run(NodeAccess::Storage);
+                    let texel = run(NodeAccess::Texel);
+                    assert!(
+                        storage == texel,
+                        "{name} {kind:?} {walk:?} {query:?}: texel reads differ"
+                    );
+                    assert!(storage.iter().any(|h| h[1] != u32::MAX), "{name}: no hits");
+                }
+            }
+        }
+    }
+    assert_silent(&ctx);
+}

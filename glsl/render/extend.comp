@@ -3,6 +3,8 @@
 //! variant exact FP64_FALLBACK=1
 //! variant float FP64_FALLBACK=0
 //! variant query FP64_FALLBACK=0 RAY_QUERY=1
+//! variant exact_texel FP64_FALLBACK=1 TEXEL_NODES=1
+//! variant float_texel FP64_FALLBACK=0 TEXEL_NODES=1
 layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint INTERSECTOR = 0u;
 layout(constant_id = 2) const bool ANY_HIT = false;

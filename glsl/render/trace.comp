@@ -1,10 +1,13 @@
 #version 460
 // Batch ray queries (`vkrt trace`, Tracer::trace): one invocation per ray, closest or any hit.
 // `exact`: the watertight test's double-precision fallback (devices with shaderFloat64);
-// `query`: the driver's ray query walks its own structure (devices with VK_KHR_ray_query).
+// `query`: the driver's ray query walks its own structure (devices with VK_KHR_ray_query);
+// `*_texel`: nodes read through a texel buffer (NodeAccess::Texel).
 //! variant exact FP64_FALLBACK=1
 //! variant float FP64_FALLBACK=0
 //! variant query FP64_FALLBACK=0 RAY_QUERY=1
+//! variant exact_texel FP64_FALLBACK=1 TEXEL_NODES=1
+//! variant float_texel FP64_FALLBACK=0 TEXEL_NODES=1
 layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint INTERSECTOR = 0u;
 layout(constant_id = 2) const bool ANY_HIT = false;

@@ -30,12 +30,14 @@ use crate::trace::geometry::SceneInfo;
 use crate::trace::gpu::GpuGeometry;
 
 /// Usage the caller's structure and scratch buffers need: vkrt binds ranges of them as
-/// storage buffers, fills and copies within them and dispatches indirectly from them.
+/// storage buffers (and texel buffers), fills and copies within them and dispatches
+/// indirectly from them.
 pub const REQUIRED_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::from_raw(
     vk::BufferUsageFlags::STORAGE_BUFFER.as_raw()
         | vk::BufferUsageFlags::TRANSFER_SRC.as_raw()
         | vk::BufferUsageFlags::TRANSFER_DST.as_raw()
-        | vk::BufferUsageFlags::INDIRECT_BUFFER.as_raw(),
+        | vk::BufferUsageFlags::INDIRECT_BUFFER.as_raw()
+        | vk::BufferUsageFlags::UNIFORM_TEXEL_BUFFER.as_raw(),
 );
 
 /// What the driver's structure needs in addition: its inputs are read at device addresses.

@@ -182,6 +182,8 @@ impl<T: Pod> Buffer<T> {
             | vk::BufferUsageFlags::TRANSFER_SRC
             | vk::BufferUsageFlags::TRANSFER_DST
             | vk::BufferUsageFlags::INDIRECT_BUFFER
+            // Traversal data may be read through texel-buffer views.
+            | vk::BufferUsageFlags::UNIFORM_TEXEL_BUFFER
             | if f.buffer_device_address || f.ray_query {
                 // Geometry may be read at device addresses; the allocator then allocates
                 // every block with VK_MEMORY_ALLOCATE_DEVICE_ADDRESS_BIT.
@@ -425,7 +427,7 @@ impl<T: Pod> Drop for Buffer<T> {
 ///
 /// While [`place`](placement::place) runs its closure on this thread, every device-local
 /// [`Buffer`] the closure creates is a range of the caller's buffer (carved in creation
-/// order, each aligned to `minStorageBufferOffsetAlignment`), or, with
+/// order, each aligned to `minStorageBufferOffsetAlignment` and `minTexelBufferOffsetAlignment`), or, with
 /// [`Placement::Measure`](placement::Placement::Measure), a placeholder that only counts
 /// bytes. Because sizing and placing run the same code, a size query is exact
 /// for the input it was asked about.
@@ -442,7 +444,8 @@ pub mod placement {
         /// Nowhere: count the bytes (the buffers are placeholders that must not be used).
         Measure,
         /// In this range of a caller's buffer, which needs `STORAGE_BUFFER`,
-        /// `TRANSFER_SRC`, `TRANSFER_DST` and `INDIRECT_BUFFER` usage (and
+        /// `TRANSFER_SRC`, `TRANSFER_DST`, `INDIRECT_BUFFER` and `UNIFORM_TEXEL_BUFFER`
+        /// usage (and
         /// `SHADER_DEVICE_ADDRESS` for the driver's structure).
         Into(RawBuffer),
     }
@@ -466,7 +469,12 @@ pub mod placement {
         placement: Placement,
         f: impl FnOnce() -> Result<R>,
     ) -> Result<(R, u64)> {
-        let align = ctx.info().min_storage_buffer_offset_alignment.clamp(4, 256);
+        // Every placed buffer may be bound as a storage buffer or viewed as a texel buffer.
+        let info = ctx.info();
+        let align = info
+            .min_storage_buffer_offset_alignment
+            .max(info.min_texel_buffer_offset_alignment)
+            .clamp(4, 256);
         let target = match placement {
             Placement::Measure => None,
             Placement::Into(r) => {
@@ -476,7 +484,7 @@ pub mod placement {
                 if r.offset % align != 0 {
                     return Err(GpuError::Placement(format!(
                         "{what}: offset {} is not a multiple of this device's \
-                         minStorageBufferOffsetAlignment ({align})",
+                         buffer offset alignment ({align})",
                         r.offset
                     )));
                 }

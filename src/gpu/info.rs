@@ -54,6 +54,10 @@ pub struct DeviceInfo {
     pub max_storage_buffer_range: u64,
     /// `minStorageBufferOffsetAlignment`: where a bound range of a buffer may start.
     pub min_storage_buffer_offset_alignment: u64,
+    /// `minTexelBufferOffsetAlignment`: where a texel-buffer view may start.
+    pub min_texel_buffer_offset_alignment: u64,
+    /// `maxTexelBufferElements`: texels one texel-buffer view may hold.
+    pub max_texel_buffer_elements: u32,
     pub max_shared_memory: u32,
     pub max_workgroup_invocations: u32,
     pub max_workgroup_size: [u32; 3],
@@ -187,6 +191,8 @@ pub(crate) fn query(
             .contains(vk::ShaderStageFlags::COMPUTE),
         max_storage_buffer_range: u64::from(limits.max_storage_buffer_range),
         min_storage_buffer_offset_alignment: limits.min_storage_buffer_offset_alignment,
+        min_texel_buffer_offset_alignment: limits.min_texel_buffer_offset_alignment,
+        max_texel_buffer_elements: limits.max_texel_buffer_elements,
         max_shared_memory: limits.max_compute_shared_memory_size,
         max_workgroup_invocations: limits.max_compute_work_group_invocations,
         max_workgroup_size: limits.max_compute_work_group_size,

@@ -183,7 +183,7 @@ impl Context {
             .map(|&b| {
                 vk::DescriptorSetLayoutBinding::default()
                     .binding(b)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                    .descriptor_type(descriptor_type(blob, b))
                     .descriptor_count(1)
                     .stage_flags(vk::ShaderStageFlags::COMPUTE)
             })
@@ -249,5 +249,14 @@ impl Context {
                 }
             }
         }
+    }
+}
+
+/// How binding `b` of `blob` is bound: a storage buffer, or a uniform texel buffer.
+pub(crate) fn descriptor_type(blob: &ShaderBlob, b: u32) -> vk::DescriptorType {
+    if blob.texel_bindings.contains(&b) {
+        vk::DescriptorType::UNIFORM_TEXEL_BUFFER
+    } else {
+        vk::DescriptorType::STORAGE_BUFFER
     }
 }

@@ -34,6 +34,8 @@ pub struct Recorder {
     /// follows is left out, and the recording reports it ([`Recorder::check`],
     /// `submit_and_wait`, [`RecordedWork::complete`]) instead of running incomplete work.
     failed: Option<GpuError>,
+    /// Views of the buffers bound as texel buffers, alive until the work has executed.
+    views: Vec<vk::BufferView>,
 }
 
 /// A copy of a device buffer into host memory, recorded by [`Recorder::read_back`]; read it
@@ -137,6 +139,7 @@ impl Recorder {
             scopes: ScopeRecorder::new(query_pool, queries),
             staging: Vec::new(),
             failed: None,
+            views: Vec::new(),
         })
     }
 
@@ -272,16 +275,35 @@ impl Recorder {
                 }]
             })
             .collect();
+        // Texel bindings: an RGBA32UI view of each buffer's range.
+        let mut views = Vec::new();
+        for (&binding, b) in blob.bindings.iter().zip(buffers) {
+            if blob.texel_bindings.contains(&binding) {
+                match self.texel_view(*b) {
+                    Ok(v) => views.push([v]),
+                    Err(e) => {
+                        self.failed.get_or_insert(e);
+                        return false;
+                    }
+                }
+            }
+        }
+        let mut next_view = views.iter();
         let writes: Vec<vk::WriteDescriptorSet> = blob
             .bindings
             .iter()
             .zip(&infos)
             .map(|(&binding, info)| {
-                vk::WriteDescriptorSet::default()
+                let w = vk::WriteDescriptorSet::default()
                     .dst_set(set)
                     .dst_binding(binding)
-                    .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
-                    .buffer_info(info)
+                    .descriptor_type(super::kernel::descriptor_type(blob, binding));
+                match blob.texel_bindings.contains(&binding) {
+                    true => {
+                        w.texel_buffer_view(next_view.next().expect("one view per texel binding"))
+                    }
+                    false => w.buffer_info(info),
+                }
             })
             .collect();
         let device = &self.ctx.inner.device;
@@ -309,6 +331,41 @@ impl Recorder {
             }
         }
         true
+    }
+
+    /// An RGBA32UI view of `b`'s range (whole 16-byte texels), destroyed with the recorder.
+    fn texel_view(&mut self, b: &dyn BufferArg) -> Result<vk::BufferView> {
+        let info = self.ctx.info();
+        let align = info.min_texel_buffer_offset_alignment.max(1);
+        let range = b.range() / 16 * 16;
+        if b.offset() % align != 0
+            || range == 0
+            || range / 16 > u64::from(info.max_texel_buffer_elements)
+        {
+            return Err(GpuError::Usage {
+                call: "Recorder::dispatch",
+                reason: format!(
+                    "a texel buffer of {} bytes at offset {} (offsets a multiple of {align}, at \
+                     most {} texels of 16 bytes)",
+                    b.range(),
+                    b.offset(),
+                    info.max_texel_buffer_elements
+                ),
+            });
+        }
+        let create = vk::BufferViewCreateInfo::default()
+            .buffer(b.raw())
+            .format(vk::Format::R32G32B32A32_UINT)
+            .offset(b.offset())
+            .range(range);
+        // SAFETY: valid device; the buffer has UNIFORM_TEXEL_BUFFER usage (vkrt's buffers
+        // and REQUIRED_BUFFER_USAGE have it); offset, range and texel count were checked
+        // against the device's limits above; the view is destroyed when the recorder is
+        // dropped, after its work has executed.
+        let view = unsafe { self.ctx.inner.device.create_buffer_view(&create, None) }
+            .map_err(vk_err("vkCreateBufferView"))?;
+        self.views.push(view);
+        Ok(view)
     }
 
     /// `Err` when a Vulkan call failed while recording (the work is incomplete and must not
@@ -342,10 +399,16 @@ impl Recorder {
                 return Some(sets[0]);
             }
         }
-        let sizes = [vk::DescriptorPoolSize {
-            ty: vk::DescriptorType::STORAGE_BUFFER,
-            descriptor_count: BUFFERS_PER_POOL,
-        }];
+        let sizes = [
+            vk::DescriptorPoolSize {
+                ty: vk::DescriptorType::STORAGE_BUFFER,
+                descriptor_count: BUFFERS_PER_POOL,
+            },
+            vk::DescriptorPoolSize {
+                ty: vk::DescriptorType::UNIFORM_TEXEL_BUFFER,
+                descriptor_count: SETS_PER_POOL * 2,
+            },
+        ];
         let pool_info = vk::DescriptorPoolCreateInfo::default()
             .max_sets(SETS_PER_POOL)
             .pool_sizes(&sizes);
@@ -799,6 +862,9 @@ impl Drop for Recorder {
         unsafe {
             for pool in self.descriptor_pools.drain(..) {
                 device.destroy_descriptor_pool(pool, None);
+            }
+            for view in self.views.drain(..) {
+                device.destroy_buffer_view(view, None);
             }
             if let Some(pool) = self.scopes.pool.take() {
                 device.destroy_query_pool(pool, None);

@@ -10,8 +10,11 @@ pub struct ShaderBlob {
     pub source: &'static str,
     /// Macro definitions of this variant.
     pub defines: &'static [(&'static str, &'static str)],
-    /// Storage-buffer bindings of descriptor set 0, ascending.
+    /// Bindings of descriptor set 0, ascending: storage buffers, and the uniform texel
+    /// buffers among them listed in `texel_bindings`.
     pub bindings: &'static [u32],
+    /// Of `bindings`, the uniform texel buffers (read as RGBA32UI texels).
+    pub texel_bindings: &'static [u32],
     /// `(constant_id, default value bits)` of every specialization constant.
     pub spec_constants: &'static [(u32, u32)],
     /// Default workgroup size.

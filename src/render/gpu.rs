@@ -173,20 +173,27 @@ impl Renderer {
             .u32(2, b(plan.jitter))
             .u32(3, b(plan.motion));
         let plain = Spec::new().workgroup(WG);
+        let nodes = crate::trace::gpu::NodeAccess::for_device(ctx);
         let extend = walk.variant(
             opt.exact,
+            nodes,
             [
                 &kernels::RENDER_EXTEND_EXACT,
                 &kernels::RENDER_EXTEND_FLOAT,
                 &kernels::RENDER_EXTEND_QUERY,
+                &kernels::RENDER_EXTEND_EXACT_TEXEL,
+                &kernels::RENDER_EXTEND_FLOAT_TEXEL,
             ],
         );
         let shadow = walk.variant(
             opt.exact,
+            nodes,
             [
                 &kernels::RENDER_SHADOW_EXACT,
                 &kernels::RENDER_SHADOW_FLOAT,
                 &kernels::RENDER_SHADOW_QUERY,
+                &kernels::RENDER_SHADOW_EXACT_TEXEL,
+                &kernels::RENDER_SHADOW_FLOAT_TEXEL,
             ],
         );
         Ok(Self {

@@ -83,17 +83,21 @@ impl AccelTraversal {
         }
     }
 
-    /// The kernel variant of `base` (`render.trace`, `render.extend`, `render.shadow`) this
-    /// walk runs: `query` for the driver's, else `exact` or `float`.
+    /// The kernel variant (of `render.trace`, `render.extend`, `render.shadow`: `[exact,
+    /// float, query, exact_texel, float_texel]`) this walk runs: `query` for the driver's,
+    /// else `exact` or `float`, reading nodes as `nodes` says.
     pub fn variant(
         self,
         exact: bool,
-        [exact_blob, float, query]: [&'static ShaderBlob; 3],
+        nodes: NodeAccess,
+        [exact_blob, float, query, exact_texel, float_texel]: [&'static ShaderBlob; 5],
     ) -> &'static ShaderBlob {
-        match (self, exact) {
-            (AccelTraversal::RayQuery, _) => query,
-            (_, true) => exact_blob,
-            (_, false) => float,
+        match (self, exact, nodes) {
+            (AccelTraversal::RayQuery, _, _) => query,
+            (_, true, NodeAccess::Storage) => exact_blob,
+            (_, false, NodeAccess::Storage) => float,
+            (_, true, NodeAccess::Texel) => exact_texel,
+            (_, false, NodeAccess::Texel) => float_texel,
         }
     }
 
@@ -102,6 +106,47 @@ impl AccelTraversal {
         match self {
             AccelTraversal::RayQuery => spec.declared_in(blob),
             _ => spec,
+        }
+    }
+}
+
+/// How the walks read the structure's nodes: both give the same hits bit for bit.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+#[non_exhaustive]
+pub enum NodeAccess {
+    /// As a storage buffer (on Mesa < 25.1's lavapipe: a loop over the lanes with a bounds
+    /// check each, for every load at a divergent offset).
+    Storage,
+    /// Through a uniform texel buffer (RGBA32UI texels), the sampler path: on lavapipe a
+    /// branch-free gather.
+    Texel,
+}
+
+impl NodeAccess {
+    /// The device's: texel buffers wherever a view holds as many bytes as a storage binding
+    /// (`maxTexelBufferElements` × 16 ≥ `maxStorageBufferRange`, so every structure that
+    /// can be bound can be viewed), else storage buffers. `VKRT_NODE_ACCESS=storage` or
+    /// `texel` overrides it (for measuring one against the other).
+    pub fn for_device(ctx: &Context) -> Self {
+        match std::env::var("VKRT_NODE_ACCESS").as_deref() {
+            Ok("storage") => return NodeAccess::Storage,
+            Ok("texel") => return NodeAccess::Texel,
+            _ => {}
+        }
+        let info = ctx.info();
+        if u64::from(info.max_texel_buffer_elements) * 16 >= info.max_storage_buffer_range {
+            NodeAccess::Texel
+        } else {
+            NodeAccess::Storage
+        }
+    }
+
+    /// `storage` or `texel`.
+    pub fn name(self) -> &'static str {
+        match self {
+            NodeAccess::Storage => "storage",
+            NodeAccess::Texel => "texel",
         }
     }
 }
@@ -255,8 +300,19 @@ impl Tracer {
         Self::for_accel(ctx, opt, AccelTraversal::KdTree)
     }
 
-    /// The tracer for geometry holding `accel`'s structure, walked its way.
+    /// The tracer for geometry holding `accel`'s structure, walked its way, reading nodes
+    /// the device's way ([`NodeAccess::for_device`]).
     pub fn for_accel(ctx: &Context, opt: &TraceOptions, accel: AccelTraversal) -> Result<Self> {
+        Self::for_accel_reading(ctx, opt, accel, NodeAccess::for_device(ctx))
+    }
+
+    /// [`Tracer::for_accel`], reading the nodes as `nodes` says.
+    pub fn for_accel_reading(
+        ctx: &Context,
+        opt: &TraceOptions,
+        accel: AccelTraversal,
+        nodes: NodeAccess,
+    ) -> Result<Self> {
         accel.require(ctx)?;
         let opt = effective_options(ctx, opt, accel);
         let spec = traversal_spec(ctx, &opt)
@@ -264,10 +320,13 @@ impl Tracer {
             .workgroup(WORKGROUP);
         let blob = accel.variant(
             opt.exact,
+            nodes,
             [
                 &kernels::RENDER_TRACE_EXACT,
                 &kernels::RENDER_TRACE_FLOAT,
                 &kernels::RENDER_TRACE_QUERY,
+                &kernels::RENDER_TRACE_EXACT_TEXEL,
+                &kernels::RENDER_TRACE_FLOAT_TEXEL,
             ],
         );
         Ok(Self {

@@ -22,10 +22,21 @@
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtBvhNodes { BvhNode v[]; };
 VkrtBvhNodes vkrt_bvh_nodes;
 #define bvh_nodes vkrt_bvh_nodes.v
-#else
+#elif !TEXEL_NODES
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer BvhNodes { BvhNode bvh_nodes[]; };
 #endif
-#if FP64_FALLBACK
+#if TEXEL_NODES
+// Four RGBA32UI texels per node (node_texels, traverse.glsl).
+BvhNode load_bvh_node(uint i) {
+    int t = int(4u * i);
+    uvec4 a = texelFetch(node_texels, t);
+    uvec4 b = texelFetch(node_texels, t + 1);
+    uvec4 c = texelFetch(node_texels, t + 2);
+    uvec4 d = texelFetch(node_texels, t + 3);
+    return BvhNode(uintBitsToFloat(a.xyz), a.w, uintBitsToFloat(b.xyz), b.w,
+                   uintBitsToFloat(c.xyz), c.w, uintBitsToFloat(d.xyz), d.w);
+}
+#elif FP64_FALLBACK
 // The same nodes as two 64-bit vectors each: on lavapipe every load is a loop over lanes and
 // components, so eight 64-bit components cost half the trips of sixteen 32-bit ones.
 #ifdef VKRT_DEVICE_ADDRESS

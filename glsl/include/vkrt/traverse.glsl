@@ -29,6 +29,9 @@
 #ifndef VKRT_SET
 #define VKRT_SET 0
 #endif
+#ifndef TEXEL_NODES
+#define TEXEL_NODES 0
+#endif
 
 #define NO_MOTION 0xffffffffu
 // Node visits + primitive tests per ray before giving up; a ray that gives up is reported
@@ -93,7 +96,19 @@ VkrtSceneInfo scene_info;
 #define prim_motion vkrt_prim_motion.v
 #define motions vkrt_motions.v
 #else
+#if TEXEL_NODES
+// The nodes through the sampler path: a uniform texel buffer of RGBA32UI texels (a kd-tree
+// node is one, a BVH node four). On lavapipe a texel fetch is a branch-free gather, where a
+// storage-buffer load at a divergent offset is a loop over the lanes with a bounds check
+// each (Mesa < 25.1); Aila & Laine's GPU walks fetched nodes through textures for the same
+// reason. vkrt's `texel` kernel variants; the same node bits either way.
+// A texture without a sampler (`utextureBuffer`): SPIR-V 1.6 forbids the sampled-image type
+// glslang makes of a `usamplerBuffer`, and Mesa warns of it.
+#extension GL_EXT_samplerless_texture_functions : require
+layout(set = VKRT_SET, binding = GEOM_BINDING + 0) uniform utextureBuffer node_texels;
+#else
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer KdNodes { KdNode kd_nodes[]; };
+#endif
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 1) readonly buffer KdRefs { uint kd_refs[]; };
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 2) readonly buffer TriVerts { float tri_verts[]; };
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 3) readonly buffer Spheres { vec4 spheres[]; };
@@ -142,6 +157,18 @@ layout(constant_id = 20) const uint ACCEL_KIND = 0u;
 #endif
 
 bool trace_steps_exhausted = false;
+
+// `nd = node i`. A statement, not a function: glslang takes minutes and gigabytes to
+// compile the kd-tree walk when a call there returns its node (its `precise` propagation).
+#if TEXEL_NODES
+#define LOAD_KD_NODE(nd, i)                                                  \
+    {                                                                        \
+        uvec4 texel_ = texelFetch(node_texels, int(i));                      \
+        nd = KdNode(uintBitsToFloat(texel_.x), texel_.y, texel_.z, texel_.w); \
+    }
+#else
+#define LOAD_KD_NODE(nd, i) nd = kd_nodes[i];
+#endif
 
 // The rigid motion at `time`: rotate about the orbit axis, then translate (Motion::at).
 vec3 move_point(vec3 p, uint slot, float time) {
@@ -383,7 +410,8 @@ Hit trace_kdtree(Ray r, float time, bool any_hit) {
     float n0 = t0;
     float n1 = t1;
     for (uint step = 0u; step < MAX_TRAVERSAL_STEPS; step++) {
-        KdNode nd = kd_nodes[node];
+        KdNode nd;
+        LOAD_KD_NODE(nd, node)
         if (nd.kind != KD_LEAF) {
             uint axis = nd.kind;
             float o = r.o[axis];
