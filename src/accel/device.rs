@@ -211,8 +211,9 @@ impl DevicePrimitives {
         let boxes = flat_boxes(&g.boxes);
         let spheres = g.sphere_words();
         let p = Self {
-            // Two floats of padding: the exact kernels read a triangle as five 64-bit words.
-            tri_verts: Buffer::new(&ctx, "trace.tri_verts", g.tri_verts.len() + 2)?,
+            // Four floats of padding: the exact kernels read a triangle as five 64-bit words,
+            // the texel walks as three 16-byte texels (up to three floats past its end).
+            tri_verts: Buffer::new(&ctx, "trace.tri_verts", g.tri_verts.len() + 4)?,
             spheres: Buffer::new(&ctx, "trace.spheres", spheres.len())?,
             prim_motion: Buffer::new(&ctx, "trace.prim_motion", g.prim_motion.len())?,
             motions: Buffer::new(&ctx, "trace.motions", g.motions.len())?,
@@ -272,8 +273,8 @@ impl DevicePrimitives {
         let n_aabbs = layout.n_aabbs as usize;
         let n = layout.primitive_count();
         Ok(Self {
-            // Two floats of padding, as in record_upload.
-            tri_verts: Buffer::new(ctx, "trace.tri_verts", 9 * n_tris + 2)?,
+            // Four floats of padding, as in record_upload.
+            tri_verts: Buffer::new(ctx, "trace.tri_verts", 9 * n_tris + 4)?,
             spheres: Buffer::new(ctx, "trace.spheres", n_spheres + 2 * n_aabbs)?,
             prim_motion: Buffer::new(ctx, "trace.prim_motion", 0)?,
             motions: Buffer::new(ctx, "trace.motions", 0)?,

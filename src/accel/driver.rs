@@ -135,7 +135,7 @@ impl DriverAccel {
         }
         let mut g = Vec::new();
         if input.n_tris > 0 {
-            // `tri_verts` is 9 floats per triangle, non-indexed (its two floats of padding
+            // `tri_verts` is 9 floats per triangle, non-indexed (its floats of padding
             // are past the count): stride-12 vertices.
             let tris = AccelGeometry::Triangles {
                 vertices: input.tri_verts,

@@ -155,8 +155,13 @@ impl<T: Pod> Buffer<T> {
                 limit,
             });
         }
-        // Vulkan forbids empty buffers; an empty one gets 4 bytes and len 0.
-        let bytes = wanted.max(4).next_multiple_of(4);
+        // Vulkan forbids empty buffers; an empty one gets 16 bytes and len 0. Whole 16-byte
+        // texels (where the binding limit allows), so that any buffer can be viewed as an
+        // RGBA32UI texel buffer in full.
+        let bytes = match wanted.max(16).next_multiple_of(16) {
+            b if b <= limit || memory != Memory::Device => b,
+            _ => wanted.next_multiple_of(4),
+        };
         if memory == Memory::Device && bound_whole {
             if let Some(range) = placement::take(name, bytes) {
                 let range = range?;

@@ -333,20 +333,22 @@ impl Recorder {
         true
     }
 
-    /// An RGBA32UI view of `b`'s range (whole 16-byte texels), destroyed with the recorder.
+    /// An RGBA32UI view of `b`'s range (whole 16-byte texels: vkrt's buffers are), destroyed
+    /// with the recorder.
     fn texel_view(&mut self, b: &dyn BufferArg) -> Result<vk::BufferView> {
         let info = self.ctx.info();
         let align = info.min_texel_buffer_offset_alignment.max(1);
-        let range = b.range() / 16 * 16;
+        let range = b.range();
         if b.offset() % align != 0
             || range == 0
+            || range % 16 != 0
             || range / 16 > u64::from(info.max_texel_buffer_elements)
         {
             return Err(GpuError::Usage {
                 call: "Recorder::dispatch",
                 reason: format!(
-                    "a texel buffer of {} bytes at offset {} (offsets a multiple of {align}, at \
-                     most {} texels of 16 bytes)",
+                    "a texel buffer of {} bytes at offset {} (offsets a multiple of {align}, \
+                     whole texels of 16 bytes, at most {} of them)",
                     b.range(),
                     b.offset(),
                     info.max_texel_buffer_elements

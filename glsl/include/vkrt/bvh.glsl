@@ -83,7 +83,7 @@ bool bvh_enter(vec3 bmin, vec3 bmax, Ray r, vec3 inv_d, float t0, float t1, out 
 }
 
 uint bvh_parent(uint node) {
-    return kd_refs[scene_info.parents_at + node];
+    return KD_REF(scene_info.parents_at + node);
 }
 
 // The stack walk, "while-while" (Aila & Laine 2009): descend through interior nodes until a

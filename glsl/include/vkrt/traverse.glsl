@@ -109,8 +109,14 @@ layout(set = VKRT_SET, binding = GEOM_BINDING + 0) uniform utextureBuffer node_t
 #else
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer KdNodes { KdNode kd_nodes[]; };
 #endif
+#if TEXEL_NODES
+// The references and the triangle vertices as texels too (four words each).
+layout(set = VKRT_SET, binding = GEOM_BINDING + 1) uniform utextureBuffer ref_texels;
+layout(set = VKRT_SET, binding = GEOM_BINDING + 2) uniform utextureBuffer vertex_texels;
+#else
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 1) readonly buffer KdRefs { uint kd_refs[]; };
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 2) readonly buffer TriVerts { float tri_verts[]; };
+#endif
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 3) readonly buffer Spheres { vec4 spheres[]; };
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 4) readonly buffer PrimMotion { uint prim_motion[]; };
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 5) readonly buffer Motions { MotionRecord motions[]; };
@@ -187,14 +193,43 @@ vec3 move_point(vec3 p, uint slot, float time) {
     return moved;
 }
 
+#if TEXEL_NODES
+// Reference `i` (of the structure's references, then a BVH's parent links).
+uint ref_at(uint i) {
+    return texelFetch(ref_texels, int(i >> 2u))[i & 3u];
+}
+#define KD_REF(i) ref_at(i)
+
+// A triangle's nine floats lie in three texels: three fetches instead of nine loads.
+void load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
+    uint first = 9u * tri;
+    int t = int(first >> 2u);
+    uint o = first & 3u;
+    uvec4 a = texelFetch(vertex_texels, t);
+    uvec4 b = texelFetch(vertex_texels, t + 1);
+    uvec4 c = texelFetch(vertex_texels, t + 2);
+    uint w[12] = uint[12](a.x, a.y, a.z, a.w, b.x, b.y, b.z, b.w, c.x, c.y, c.z, c.w);
+    float f[9];
+    for (uint k = 0u; k < 9u; k++) {
+        f[k] = uintBitsToFloat(w[o + k]);
+    }
+    p0 = vec3(f[0], f[1], f[2]);
+    p1 = vec3(f[3], f[4], f[5]);
+    p2 = vec3(f[6], f[7], f[8]);
+}
+#else
+#define KD_REF(i) kd_refs[i]
+
 vec3 tri_vertex(uint tri, uint corner) {
     uint i = 9u * tri + 3u * corner;
     return vec3(tri_verts[i], tri_verts[i + 1u], tri_verts[i + 2u]);
 }
+#endif
 
-#if FP64_FALLBACK
+#if TEXEL_NODES
+#elif FP64_FALLBACK
 // The same vertices as 64-bit words: a triangle's nine floats lie in five of them (the
-// buffer holds two padding floats, DevicePrimitives), five loads instead of nine — on
+// buffer holds four padding floats, DevicePrimitives), five loads instead of nine — on
 // lavapipe every load is a loop over lanes.
 #ifdef VKRT_DEVICE_ADDRESS
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtWords64 { uint64_t v[]; };
@@ -362,7 +397,7 @@ bool clip_to_scene(Ray r, inout float t0, inout float t1) {
 bool test_leaf(uint first, uint count, Ray r, Shear sh, float time, float tmin, bool any_hit,
                inout Hit best, inout float best_t) {
     for (uint i = first; i < first + count; i++) {
-        uint prim = kd_refs[i];
+        uint prim = KD_REF(i);
         float t, u, v;
         if (hit_primitive(prim, r, sh, time, tmin, best_t, t, u, v)) {
             if (best.prim == NO_HIT || t < best_t || (t == best_t && prim < best.prim)) {
