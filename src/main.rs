@@ -801,6 +801,11 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                     "walk step cap       {} node visits + primitive tests per ray",
                     info.max_traversal_steps
                 );
+                println!(
+                    "walks read          {} buffers (texel views up to {} texels)",
+                    vkrt::trace::gpu::NodeAccess::for_device(&ctx).name(),
+                    info.max_texel_buffer_elements
+                );
             }
         }
         Command::Bench {
