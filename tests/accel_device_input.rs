@@ -790,21 +790,29 @@ fn sizes_are_exact_and_too_little_memory_is_an_error() {
             "{kind:?} {s:?}"
         );
         assert_eq!(s.update_scratch_bytes.is_some(), kind != AccelKind::KdTree);
-        let small = Buffer::<u8>::arena(&ctx, "small", s.structure_bytes as usize - 4).unwrap();
+        // A range 4 bytes short (buffers themselves hold whole 16-byte texels).
+        let short = |b: &Buffer<u8>, bytes: u64| RawBuffer {
+            size: bytes - 4,
+            ..b.as_raw()
+        };
+        let exact = Buffer::<u8>::arena(&ctx, "exact", s.structure_bytes as usize).unwrap();
         let err = builder
-            .create_in(&ctx, &geometries, &flags, small.as_raw())
+            .create_in(&ctx, &geometries, &flags, short(&exact, s.structure_bytes))
             .err()
             .expect("a structure in too little memory");
         assert!(matches!(err, GpuError::Placement(_)), "{err}");
-        let exact = Buffer::<u8>::arena(&ctx, "exact", s.structure_bytes as usize).unwrap();
         let mut g = builder
             .create_in(&ctx, &geometries, &flags, exact.as_raw())
             .unwrap();
-        let scratch =
-            Buffer::<u8>::arena(&ctx, "scratch", s.build_scratch_bytes as usize - 4).unwrap();
+        let scratch = Buffer::<u8>::arena(&ctx, "scratch", s.build_scratch_bytes as usize).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
         let err = builder
-            .record_build_from(&mut rec, &geometries, &mut g, scratch.as_raw())
+            .record_build_from(
+                &mut rec,
+                &geometries,
+                &mut g,
+                short(&scratch, s.build_scratch_bytes),
+            )
             .expect_err("a build with too little scratch");
         assert!(matches!(err, GpuError::Placement(_)), "{err}");
         drop(rec);
