@@ -355,6 +355,23 @@ bool hit_sphere(vec3 o, vec3 d, vec4 sphere, float tmin, float tmax, out float t
 // it when it starts inside, within [tmin, tmax]; intersect::aabb in src/trace/intersect.rs.
 // A box with lo > hi on an axis (inactive) is never hit. Minima and maxima are comparisons,
 // not min/max, so that +-0 resolve as in the twin.
+// One axis of hit_aabb: narrows [near, far] to the slab; false when the ray misses it.
+bool aabb_slab(float o, float d, float lo, float hi, inout float near, inout float far) {
+    if (d == 0.0) {
+        return !(o < lo || o > hi);
+    }
+    precise float a = div_rn(lo - o, d);
+    precise float b = div_rn(hi - o, d);
+    float n = a < b ? a : b;
+    float f = a < b ? b : a;
+    near = n > near ? n : near;
+    far = f < far ? f : far;
+    return true;
+}
+
+// No loop over the axes: llvmpipe before Mesa 25 counts every iteration of every loop,
+// even in a branch no lane takes, against its budget of 65,535 per invocation, and this
+// test is compiled into every primitive test of the walk.
 bool hit_aabb(vec3 o, vec3 d, vec3 lo, vec3 hi, float tmin, float tmax, out float t) {
     t = 0.0;
     if (!all(lessThanEqual(lo, hi))) {
@@ -362,19 +379,9 @@ bool hit_aabb(vec3 o, vec3 d, vec3 lo, vec3 hi, float tmin, float tmax, out floa
     }
     float near = uintBitsToFloat(0xff800000u);
     float far = uintBitsToFloat(0x7f800000u);
-    for (int k = 0; k < 3; k++) {
-        if (d[k] == 0.0) {
-            if (o[k] < lo[k] || o[k] > hi[k]) {
-                return false;
-            }
-            continue;
-        }
-        precise float a = div_rn(lo[k] - o[k], d[k]);
-        precise float b = div_rn(hi[k] - o[k], d[k]);
-        float n = a < b ? a : b;
-        float f = a < b ? b : a;
-        near = n > near ? n : near;
-        far = f < far ? f : far;
+    if (!aabb_slab(o.x, d.x, lo.x, hi.x, near, far) || !aabb_slab(o.y, d.y, lo.y, hi.y, near, far)
+        || !aabb_slab(o.z, d.z, lo.z, hi.z, near, far)) {
+        return false;
     }
     if (near > far) {
         return false;

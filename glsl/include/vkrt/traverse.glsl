@@ -200,7 +200,10 @@ uint ref_at(uint i) {
 }
 #define KD_REF(i) ref_at(i)
 
-// A triangle's nine floats lie in three texels: three fetches instead of nine loads.
+// A triangle's nine floats lie in three texels: three fetches instead of nine loads. Shifted
+// into place by selects, not a loop over an array: llvmpipe before Mesa 25 counts every
+// iteration of every loop against its budget of 65,535 per invocation, and a loop per
+// triangle tested exhausts it on big leaves.
 void load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
     uint first = 9u * tri;
     int t = int(first >> 2u);
@@ -208,14 +211,12 @@ void load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
     uvec4 a = texelFetch(vertex_texels, t);
     uvec4 b = texelFetch(vertex_texels, t + 1);
     uvec4 c = texelFetch(vertex_texels, t + 2);
-    uint w[12] = uint[12](a.x, a.y, a.z, a.w, b.x, b.y, b.z, b.w, c.x, c.y, c.z, c.w);
-    float f[9];
-    for (uint k = 0u; k < 9u; k++) {
-        f[k] = uintBitsToFloat(w[o + k]);
-    }
-    p0 = vec3(f[0], f[1], f[2]);
-    p1 = vec3(f[3], f[4], f[5]);
-    p2 = vec3(f[6], f[7], f[8]);
+    uvec4 x = o == 0u ? a : (o == 1u ? uvec4(a.yzw, b.x) : (o == 2u ? uvec4(a.zw, b.xy) : uvec4(a.w, b.xyz)));
+    uvec4 y = o == 0u ? b : (o == 1u ? uvec4(b.yzw, c.x) : (o == 2u ? uvec4(b.zw, c.xy) : uvec4(b.w, c.xyz)));
+    uint z = o == 0u ? c.x : (o == 1u ? c.y : (o == 2u ? c.z : c.w));
+    p0 = uintBitsToFloat(x.xyz);
+    p1 = uintBitsToFloat(uvec3(x.w, y.xy));
+    p2 = uintBitsToFloat(uvec3(y.zw, z));
 }
 #else
 #define KD_REF(i) kd_refs[i]
