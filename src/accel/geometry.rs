@@ -384,73 +384,50 @@ fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
             }?;
             range_fits(ctx, k, &t.vertices)
         }
-        Geometry::Spheres(s) => {
-            if !s.opaque {
-                return err(
-                    "non-opaque geometry needs any-hit shaders, which vkrt has not: \
-                     mark it opaque"
-                        .into(),
-                );
-            }
-            if s.stride < 16 || s.stride % 4 != 0 || s.data.start() % 4 != 0 {
-                return err(format!(
-                    "sphere stride {} and offset (address) {} (multiples of 4, stride at \
-                     least 16)",
-                    s.stride,
-                    s.data.start()
-                ));
-            }
-            if s.count == 0 {
-                return Ok(());
-            }
-            if s.data.is_null() {
-                return err("a null sphere buffer (address)".into());
-            }
-            let needed = u64::from(s.count - 1) * s.stride + 16;
-            if needed > s.data.size() {
-                return err(format!(
-                    "{} spheres at stride {} need {needed} bytes; the range holds {}",
-                    s.count,
-                    s.stride,
-                    s.data.size()
-                ));
-            }
-            range_fits(ctx, k, &s.data)
-        }
-        Geometry::Aabbs(b) => {
-            if !b.opaque {
-                return err(
-                    "non-opaque geometry needs any-hit shaders, which vkrt has not: \
-                     mark it opaque"
-                        .into(),
-                );
-            }
-            if b.stride < 24 || b.stride % 4 != 0 || b.data.start() % 4 != 0 {
-                return err(format!(
-                    "box stride {} and offset (address) {} (multiples of 4, stride at least \
-                     24)",
-                    b.stride,
-                    b.data.start()
-                ));
-            }
-            if b.count == 0 {
-                return Ok(());
-            }
-            if b.data.is_null() {
-                return err("a null box buffer (address)".into());
-            }
-            let needed = u64::from(b.count - 1) * b.stride + 24;
-            if needed > b.data.size() {
-                return err(format!(
-                    "{} boxes at stride {} need {needed} bytes; the range holds {}",
-                    b.count,
-                    b.stride,
-                    b.data.size()
-                ));
-            }
-            range_fits(ctx, k, &b.data)
-        }
+        Geometry::Spheres(s) => records(ctx, k, "sphere", &s.data, s.stride, 16, s.count, s.opaque),
+        Geometry::Aabbs(b) => records(ctx, k, "box", &b.data, b.stride, 24, b.count, b.opaque),
     }
+}
+
+/// Checks `count` records of `size` bytes (`what`: spheres, boxes) every `stride` bytes.
+#[allow(clippy::too_many_arguments, reason = "one record array's description")]
+fn records(
+    ctx: &Context,
+    k: usize,
+    what: &str,
+    data: &GeometryData,
+    stride: u64,
+    size: u64,
+    count: u32,
+    opaque: bool,
+) -> Result<()> {
+    let err = |why: String| Err(usage(format!("geometry {k}: {why}")));
+    if !opaque {
+        return err(
+            "non-opaque geometry needs any-hit shaders, which vkrt has not: mark it opaque".into(),
+        );
+    }
+    if stride < size || stride % 4 != 0 || data.start() % 4 != 0 {
+        return err(format!(
+            "{what} stride {stride} and offset (address) {} (multiples of 4, stride at least \
+             {size})",
+            data.start()
+        ));
+    }
+    if count == 0 {
+        return Ok(());
+    }
+    if data.is_null() {
+        return err(format!("a null {what} buffer (address)"));
+    }
+    let needed = u64::from(count - 1) * stride + size;
+    if needed > data.size() {
+        return err(format!(
+            "{count} {what} records at stride {stride} need {needed} bytes; the range holds {}",
+            data.size()
+        ));
+    }
+    range_fits(ctx, k, data)
 }
 
 /// The range as bound: from the aligned offset at or below its start, within one binding.

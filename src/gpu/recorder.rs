@@ -34,8 +34,9 @@ pub struct Recorder {
     /// follows is left out, and the recording reports it ([`Recorder::check`],
     /// `submit_and_wait`, [`RecordedWork::complete`]) instead of running incomplete work.
     failed: Option<GpuError>,
-    /// Views of the buffers bound as texel buffers, alive until the work has executed.
-    views: Vec<vk::BufferView>,
+    /// Views of the ranges bound as texel buffers, made once per range (the renderer binds
+    /// the same structure in every wave), alive until the work has executed.
+    views: std::collections::HashMap<(vk::Buffer, u64, u64), vk::BufferView>,
 }
 
 /// A copy of a device buffer into host memory, recorded by [`Recorder::read_back`]; read it
@@ -139,7 +140,7 @@ impl Recorder {
             scopes: ScopeRecorder::new(query_pool, queries),
             staging: Vec::new(),
             failed: None,
-            views: Vec::new(),
+            views: Default::default(),
         })
     }
 
@@ -336,6 +337,10 @@ impl Recorder {
     /// An RGBA32UI view of `b`'s range (whole 16-byte texels: vkrt's buffers are), destroyed
     /// with the recorder.
     fn texel_view(&mut self, b: &dyn BufferArg) -> Result<vk::BufferView> {
+        let key = (b.raw(), b.offset(), b.range());
+        if let Some(&view) = self.views.get(&key) {
+            return Ok(view);
+        }
         let info = self.ctx.info();
         let align = info.min_texel_buffer_offset_alignment.max(1);
         let range = b.range();
@@ -366,7 +371,7 @@ impl Recorder {
         // dropped, after its work has executed.
         let view = unsafe { self.ctx.inner.device.create_buffer_view(&create, None) }
             .map_err(vk_err("vkCreateBufferView"))?;
-        self.views.push(view);
+        self.views.insert(key, view);
         Ok(view)
     }
 
@@ -865,7 +870,7 @@ impl Drop for Recorder {
             for pool in self.descriptor_pools.drain(..) {
                 device.destroy_descriptor_pool(pool, None);
             }
-            for view in self.views.drain(..) {
+            for (_, view) in self.views.drain() {
                 device.destroy_buffer_view(view, None);
             }
             if let Some(pool) = self.scopes.pool.take() {
