@@ -114,9 +114,13 @@ struct BindingRow {
     kind: &'static str,
     rays: usize,
     bindings_ms: f64,
+    /// The first three bindings as texel buffers (`VKRT_TEXEL_BUFFERS`).
+    texel_ms: f64,
     address_ms: f64,
     /// address_ms / bindings_ms (above 1: the handle is slower).
     ratio: f64,
+    /// texel_ms / bindings_ms (below 1: the texel buffers are faster).
+    texel_ratio: f64,
 }
 
 /// 256² rays from points around the mesh's box towards points inside it.
@@ -142,11 +146,12 @@ fn rays_around(tris: &[[Vec3; 3]]) -> Vec<Ray> {
         .collect()
 }
 
-/// GPU ms of tracing `rays` through the bindings and through the handle, best of 3
-/// interleaved rounds.
-fn bindings_vs_address(ctx: &Context, g: &GpuGeometry, rays: &[Ray]) -> (f64, f64) {
+/// GPU ms of tracing `rays` through the bindings, through texel buffers and through the
+/// handle, best of 3 interleaved rounds.
+fn bindings_vs_address(ctx: &Context, g: &GpuGeometry, rays: &[Ray]) -> (f64, f64, f64) {
     let spec = Spec::new().workgroup(64);
     let set = ctx.kernel(&kernels::GPU_HANDLE_PROBE_SET, &spec).unwrap();
+    let texel = ctx.kernel(&kernels::GPU_HANDLE_PROBE_TEXEL, &spec).unwrap();
     let address = ctx
         .kernel(&kernels::GPU_HANDLE_PROBE_ADDRESS, &spec)
         .unwrap();
@@ -157,11 +162,13 @@ fn bindings_vs_address(ctx: &Context, g: &GpuGeometry, rays: &[Ray]) -> (f64, f6
     let push = [rays.len() as u32, 0, at as u32, (at >> 32) as u32];
     let [b0, b1, b2, b3, b4, b5, b6] = g.bindings();
     let all: [&dyn BufferArg; 9] = [&ray_buf, &out, b0, b1, b2, b3, b4, b5, b6];
-    let mut best = (f64::INFINITY, f64::INFINITY);
+    let mut best = (f64::INFINITY, f64::INFINITY, f64::INFINITY);
     for round in 0..4 {
         let mut rec = Recorder::new(ctx).unwrap();
         let groups = rec.groups_1d(rays.len() as u64, 64);
         rec.scope("bindings", |rec| rec.dispatch(&set, groups, &all, &push));
+        rec.compute_to_compute();
+        rec.scope("texel", |rec| rec.dispatch(&texel, groups, &all, &push));
         rec.compute_to_compute();
         rec.scope("address", |rec| {
             rec.dispatch(&address, groups, &all[..2], &push)
@@ -169,7 +176,8 @@ fn bindings_vs_address(ctx: &Context, g: &GpuGeometry, rays: &[Ray]) -> (f64, f6
         let p = rec.submit_and_wait().unwrap();
         if round > 0 {
             best.0 = best.0.min(p.ms("bindings").unwrap_or(f64::NAN));
-            best.1 = best.1.min(p.ms("address").unwrap_or(f64::NAN));
+            best.1 = best.1.min(p.ms("texel").unwrap_or(f64::NAN));
+            best.2 = best.2.min(p.ms("address").unwrap_or(f64::NAN));
         }
     }
     best
@@ -278,19 +286,21 @@ fn main() {
                 let mut rec = Recorder::new(&ctx).unwrap();
                 let (g, _) = GpuGeometry::record_build(&mut rec, &builder, &soup, 0).unwrap();
                 rec.submit_and_wait().unwrap();
-                let (b, a) = bindings_vs_address(&ctx, &g, &rays);
+                let (b, t, a) = bindings_vs_address(&ctx, &g, &rays);
                 let row = BindingRow {
                     kind: kind.name(),
                     rays: rays.len(),
                     bindings_ms: b,
+                    texel_ms: t,
                     address_ms: a,
                     ratio: a / b,
+                    texel_ratio: t / b,
                 };
                 if !json {
                     println!(
-                        "{} {:7} {} rays through the library: bindings {:7.1} ms, device-address \
-                         handle {:7.1} ms (×{:.2})",
-                        mesh.name, row.kind, row.rays, b, a, row.ratio
+                        "{} {:7} {} rays through the library: bindings {:7.1} ms, texel buffers \
+                         {:7.1} ms (×{:.2}), device-address handle {:7.1} ms (×{:.2})",
+                        mesh.name, row.kind, row.rays, b, t, row.texel_ratio, a, row.ratio
                     );
                 }
                 bindings.push(row);

@@ -439,8 +439,12 @@ enum UpdateArg {
 
 #[derive(Clone, Copy, ValueEnum)]
 enum TraversalArg {
+    /// Binary nodes, far children on a stack.
     Stack,
+    /// Binary nodes, no stack: parent links and one bit per level.
     Bitstack,
+    /// 4-wide quantized nodes (Ylitie et al. 2017) with a stack.
+    Wide,
 }
 
 fn accel_traversal(accel: AccelArg, walk: TraversalArg) -> vkrt::accel::device::AccelChoice {
@@ -458,6 +462,7 @@ fn accel_traversal(accel: AccelArg, walk: TraversalArg) -> vkrt::accel::device::
     let walk = match walk {
         TraversalArg::Stack => Traversal::Stack,
         TraversalArg::Bitstack => Traversal::Bitstack,
+        TraversalArg::Wide => Traversal::Wide,
     };
     AccelChoice::new(kind, walk)
 }

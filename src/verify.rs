@@ -317,40 +317,39 @@ impl Verifier<'_> {
             })
             .collect();
         for kind in AccelKind::ALL {
-            let builder = match AccelBuilder::new(ctx, kind) {
+            let mut builder = match AccelBuilder::new(ctx, kind) {
                 Ok(b) => b,
                 Err(e) => {
                     self.check("walks", format!("{} builder", kind.name()), Err(e));
                     continue;
                 }
             };
-            for (s, (scene, g, rays)) in scenes.iter().enumerate() {
-                let built = (|| {
-                    let mut rec = Recorder::new(ctx)?;
-                    let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, g, 0)?;
-                    rec.submit_and_wait()?;
-                    Ok(dev)
-                })();
-                let dev = match built {
-                    Ok(d) => d,
-                    Err(e) => {
-                        self.check(
-                            "walks",
-                            format!("{} build over {scene}", kind.name()),
-                            Err(e),
-                        );
-                        continue;
-                    }
-                };
-                let walks: &[Traversal] = if kind == AccelKind::KdTree {
-                    &[Traversal::Stack]
-                } else {
-                    &[Traversal::Stack, Traversal::Bitstack]
-                };
-                for &walk in walks {
+            let walks: &[Traversal] = if kind == AccelKind::KdTree {
+                &[Traversal::Stack]
+            } else {
+                &Traversal::ALL
+            };
+            for &walk in walks {
+                // The wide walk reads a structure built with wide nodes.
+                builder.wide = walk == Traversal::Wide;
+                let accel = kind.walked(walk);
+                for (s, (scene, g, rays)) in scenes.iter().enumerate() {
+                    let built = (|| {
+                        let mut rec = Recorder::new(ctx)?;
+                        let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, g, 0)?;
+                        rec.submit_and_wait()?;
+                        Ok(dev)
+                    })();
+                    let dev = match built {
+                        Ok(d) => d,
+                        Err(e) => {
+                            let name = format!("{} build over {scene}", accel.label());
+                            self.check("walks", name, Err(e));
+                            continue;
+                        }
+                    };
                     for (t, &intersector) in tests.iter().enumerate() {
                         for (q, &query) in queries.iter().enumerate() {
-                            let accel = kind.walked(walk);
                             let name = format!(
                                 "{} over {scene}: {intersector:?} {query:?}",
                                 accel.label()
@@ -387,6 +386,7 @@ impl Verifier<'_> {
             .map(|&k| AccelChoice::new(k, Traversal::Stack))
             .collect();
         kinds.push(AccelChoice::new(AccelKind::Lbvh, Traversal::Bitstack));
+        kinds.push(AccelChoice::new(AccelKind::Ploc, Traversal::Wide));
         let driver = ctx.info().features.ray_query;
         if driver {
             kinds.push(AccelChoice::new(AccelKind::Driver, Traversal::Stack));

@@ -133,8 +133,9 @@ fn build_and_trace_is_one_submission_and_equals_brute_force() {
         .map(|r| cpu::brute_force(&g, r, 0.0, &opt))
         .collect();
     for kind in AccelKind::ALL {
-        let builder = AccelBuilder::new(&ctx, kind).unwrap();
-        for walk in [Traversal::Stack, Traversal::Bitstack] {
+        let mut builder = AccelBuilder::new(&ctx, kind).unwrap();
+        for walk in Traversal::ALL {
+            builder.wide = walk == Traversal::Wide;
             let accel = kind.walked(walk);
             let tracer = Tracer::for_accel(&ctx, &opt, accel).unwrap();
             let before = ctx.traffic();

@@ -567,13 +567,15 @@ fn box_primitives_are_traced_by_every_kind_and_walk_as_brute_force() {
         }
     };
     for kind in kinds {
-        let builder = AccelBuilder::new(&ctx, kind).unwrap();
-        let (g, _mem) = build_in_caller_memory(&ctx, &builder, &geometries, &BuildFlags::default());
         let walks: &[Traversal] = match kind {
-            AccelKind::Lbvh | AccelKind::Ploc => &[Traversal::Stack, Traversal::Bitstack],
+            AccelKind::Lbvh | AccelKind::Ploc => &Traversal::ALL,
             _ => &[Traversal::Stack],
         };
         for &walk in walks {
+            let mut builder = AccelBuilder::new(&ctx, kind).unwrap();
+            builder.wide = walk == Traversal::Wide;
+            let flags = BuildFlags::default();
+            let (g, _mem) = build_in_caller_memory(&ctx, &builder, &geometries, &flags);
             let tracer = Tracer::for_accel(&ctx, &opt(), kind.walked(walk)).unwrap();
             let b = tracer.trace(&ctx, &g, &rays, 0.0).unwrap();
             assert_eq!(b.exhausted, 0);
@@ -700,20 +702,38 @@ fn a_shader_s_own_box_intersection_is_called_with_its_indices() {
     common::assert_silent(&ctx);
 }
 
-/// Closest hits of `rays` through `vkrt/ray_query.glsl` from `gpu.handle_probe`: the
-/// structure bound as seven buffers (`set`) or read through its handle's device addresses.
-pub fn probe_hits(ctx: &Context, g: &GpuGeometry, rays: &[Ray], address: bool) -> Vec<[u32; 4]> {
-    let blob = match address {
-        true => &vkrt::gpu::kernels::GPU_HANDLE_PROBE_ADDRESS,
-        false => &vkrt::gpu::kernels::GPU_HANDLE_PROBE_SET,
+/// How `gpu.handle_probe` reaches the structure.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Probe {
+    /// Seven storage buffers.
+    Set,
+    /// The first three as texel buffers (`VKRT_TEXEL_BUFFERS`).
+    Texel,
+    /// Its handle's device addresses.
+    Address,
+}
+
+/// Closest hits of `rays` through `vkrt/ray_query.glsl` from `gpu.handle_probe`, reaching
+/// the structure as `how` says.
+pub fn probe_hits(ctx: &Context, g: &GpuGeometry, rays: &[Ray], how: Probe) -> Vec<[u32; 4]> {
+    let address = how == Probe::Address;
+    let blob = match how {
+        Probe::Address => &vkrt::gpu::kernels::GPU_HANDLE_PROBE_ADDRESS,
+        Probe::Texel => &vkrt::gpu::kernels::GPU_HANDLE_PROBE_TEXEL,
+        Probe::Set => &vkrt::gpu::kernels::GPU_HANDLE_PROBE_SET,
     };
     let kernel = ctx
         .kernel(blob, &vkrt::gpu::Spec::new().workgroup(64))
         .unwrap();
     let ray_buf = Buffer::from_slice(ctx, "probe.rays", rays).unwrap();
     let out = Buffer::<[u32; 4]>::zeroed(ctx, "probe.hits", rays.len()).unwrap();
-    let handle = Buffer::from_slice(ctx, "probe.handle", &g.address_handle().unwrap()).unwrap();
-    let at = handle.device_address();
+    let handle = match address {
+        true => {
+            Some(Buffer::from_slice(ctx, "probe.handle", &g.address_handle().unwrap()).unwrap())
+        }
+        false => None,
+    };
+    let at = handle.as_ref().map_or(0, |h| h.device_address());
     let push = [rays.len() as u32, 0, at as u32, (at >> 32) as u32];
     let mut rec = Recorder::new(ctx).unwrap();
     let [b0, b1, b2, b3, b4, b5, b6] = g.bindings();
@@ -727,12 +747,15 @@ pub fn probe_hits(ctx: &Context, g: &GpuGeometry, rays: &[Ray], address: bool) -
     out.download().unwrap()
 }
 
+/// Through `vkrt/ray_query.glsl` as storage buffers, texel buffers and device addresses:
+/// the same hits bit for bit, every kind and BVH walk (wide nodes included), and brute
+/// force's.
 #[test]
-fn the_structure_s_handle_and_its_bindings_give_the_same_hits() {
+fn the_structure_s_bindings_texel_views_and_handle_give_the_same_hits() {
     let Some(ctx) = common::context() else { return };
-    if !ctx.info().features.buffer_device_address {
-        eprintln!("skipped: no bufferDeviceAddress");
-        return;
+    let addresses = ctx.info().features.buffer_device_address;
+    if !addresses {
+        eprintln!("no bufferDeviceAddress: the address variant is left out");
     }
     let mut caller = CallerBuffers::new();
     let (geometries, host) = mixed_scene(&ctx, &mut caller);
@@ -744,12 +767,28 @@ fn the_structure_s_handle_and_its_bindings_give_the_same_hits() {
             Ray::new(o, rng.next_vec3() * 1.3 - o, 0.0, f32::INFINITY)
         })
         .collect();
-    for kind in [AccelKind::KdTree, AccelKind::Lbvh, AccelKind::Ploc] {
-        let builder = AccelBuilder::new(&ctx, kind).unwrap();
+    let choices = [
+        (AccelKind::KdTree, false),
+        (AccelKind::Lbvh, false),
+        (AccelKind::Lbvh, true),
+        (AccelKind::Ploc, false),
+        (AccelKind::Ploc, true),
+    ];
+    for (kind, wide) in choices {
+        let mut builder = AccelBuilder::new(&ctx, kind).unwrap();
+        builder.wide = wide;
         let (g, _mem) = build_in_caller_memory(&ctx, &builder, &geometries, &BuildFlags::default());
-        let set = probe_hits(&ctx, &g, &rays, false);
-        let address = probe_hits(&ctx, &g, &rays, true);
-        assert_eq!(set, address, "{kind:?}");
+        let set = probe_hits(&ctx, &g, &rays, Probe::Set);
+        let texel = probe_hits(&ctx, &g, &rays, Probe::Texel);
+        assert_eq!(set, texel, "{kind:?} (wide: {wide}): texel buffers");
+        if addresses {
+            let address = probe_hits(&ctx, &g, &rays, Probe::Address);
+            assert_eq!(set, address, "{kind:?} (wide: {wide}): addresses");
+        }
+        assert!(
+            set.iter().all(|h| h[0] != 0xffff_fffe),
+            "{kind:?}: exhausted"
+        );
         for (k, (r, got)) in rays.iter().zip(&set).enumerate() {
             let want = cpu::brute_force(&host, r, 0.0, &opt());
             assert_eq!(got[0] != u32::MAX, want.is_hit(), "{kind:?} ray {k}");

@@ -223,10 +223,11 @@ fn deep_chain() -> Vec<[Vec3; 3]> {
 
 /// The deep chain's geometry, its LBVH built on the device, and the tree read back.
 /// The deep chain's LBVH, with leaves of up to `max_leaf` primitives.
-fn deep_lbvh(ctx: &Context, max_leaf: u32) -> (TraceGeometry, GpuGeometry, Bvh) {
+fn deep_lbvh(ctx: &Context, max_leaf: u32, wide: bool) -> (TraceGeometry, GpuGeometry, Bvh) {
     let g = TraceGeometry::from_triangles(&deep_chain());
     let mut builder = AccelBuilder::lbvh(ctx, MortonBits::Bits63).unwrap();
     builder.bvh_params.max_leaf_prims = max_leaf;
+    builder.wide = wide;
     let dev = {
         let mut rec = Recorder::new(ctx).unwrap();
         let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
@@ -243,7 +244,8 @@ fn trees_deeper_than_64_levels_trace_like_brute_force() {
     use vkrt::trace::gpu::{AccelTraversal, Tracer};
     use vkrt::trace::{cpu, Ray, TraceOptions};
     let Some(ctx) = context() else { return };
-    let (g, dev, tree) = deep_lbvh(&ctx, 4);
+    let (g, binary, tree) = deep_lbvh(&ctx, 4, false);
+    let wide = deep_lbvh(&ctx, 4, true).1;
     assert!(
         tree.depth() > 70,
         "depth {}: the case is not deep",
@@ -271,9 +273,14 @@ fn trees_deeper_than_64_levels_trace_like_brute_force() {
         "{first:?}"
     );
 
-    for walk in [Traversal::Stack, Traversal::Bitstack] {
+    for walk in Traversal::ALL {
+        let dev = if walk == Traversal::Wide {
+            &wide
+        } else {
+            &binary
+        };
         let tracer = Tracer::for_accel(&ctx, &opt, AccelTraversal::Bvh(walk)).unwrap();
-        let batch = tracer.trace(&ctx, &dev, &rays, 0.0).unwrap();
+        let batch = tracer.trace(&ctx, dev, &rays, 0.0).unwrap();
         assert_eq!(batch.exhausted, 0);
         for (r, h) in rays.iter().zip(&batch.hits) {
             let b = cpu::brute_force(&g, r, 0.0, &opt);
@@ -304,7 +311,8 @@ fn slanted_ray_in_a_deep_tree() {
     use vkrt::trace::{cpu, Ray, TraceOptions};
     let Some(ctx) = context() else { return };
     // One primitive per leaf: the longest walk (with leaves of 4 it fits 22.3's budget).
-    let (g, dev, _) = deep_lbvh(&ctx, 1);
+    let (g, binary, _) = deep_lbvh(&ctx, 1, false);
+    let wide = deep_lbvh(&ctx, 1, true).1;
     let r = Ray::new(
         Vec3::new(0.009_917_641, -0.526_685_6, 8.012_146),
         Vec3::new(-0.009_584_308, 0.860_018_97, -8.0),
@@ -315,9 +323,14 @@ fn slanted_ray_in_a_deep_tree() {
     let b = cpu::brute_force(&g, &r, 0.0, &opt);
     assert!(b.is_hit());
     let budgeted = ctx.info().loop_budget.is_some();
-    for walk in [Traversal::Stack, Traversal::Bitstack] {
+    for walk in Traversal::ALL {
+        let dev = if walk == Traversal::Wide {
+            &wide
+        } else {
+            &binary
+        };
         let tracer = Tracer::for_accel(&ctx, &opt, AccelTraversal::Bvh(walk)).unwrap();
-        let out = tracer.trace(&ctx, &dev, &[r], 0.0).unwrap();
+        let out = tracer.trace(&ctx, dev, &[r], 0.0).unwrap();
         let h = out.hits[0];
         if out.exhausted == 1 {
             eprintln!(

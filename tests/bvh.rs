@@ -235,7 +235,7 @@ fn check_traversal(name: &str, g: &TraceGeometry, p: &BvhParams, n_rays: usize) 
             query,
             ..TraceOptions::default()
         };
-        for traversal in [Traversal::Stack, Traversal::Bitstack] {
+        for traversal in Traversal::ALL {
             for (i, r) in rays.iter().enumerate() {
                 let (h, exhausted) = bvh_cpu::trace(g, &tree, r, 0.0, &opt, traversal);
                 assert!(!exhausted, "{name}: ray {i} ran out of steps");
@@ -287,7 +287,7 @@ fn empty_and_invalid_rays_miss() {
     let g = TraceGeometry::from_triangles(&[]);
     let t = bvh::build(&g.boxes, &BvhParams::default(), Threading::Single).unwrap();
     let r = Ray::new(Vec3::ZERO, Vec3::X, 0.0, f32::INFINITY);
-    for traversal in [Traversal::Stack, Traversal::Bitstack] {
+    for traversal in Traversal::ALL {
         let (h, _) = bvh_cpu::trace(&g, &t, &r, 0.0, &TraceOptions::default(), traversal);
         assert!(!h.is_hit());
     }
@@ -299,7 +299,7 @@ fn empty_and_invalid_rays_miss() {
     let t = bvh::build(&g.boxes, &BvhParams::default(), Threading::Single).unwrap();
     let o = Vec3::new(-1.0, 0.0, 0.0);
     let good = Ray::new(o, Vec3::X, 0.0, f32::INFINITY);
-    for traversal in [Traversal::Stack, Traversal::Bitstack] {
+    for traversal in Traversal::ALL {
         let opt = TraceOptions::default();
         assert!(bvh_cpu::trace(&g, &t, &good, 0.0, &opt, traversal)
             .0
@@ -348,13 +348,19 @@ fn gpu_stack_and_bitstack_equal_the_cpu_twin() {
     }
     for (name, g) in &scenes {
         let tree = bvh::build(&g.boxes, &BvhParams::default(), Threading::Rayon).unwrap();
-        let dev = GpuGeometry::upload_bvh(&ctx, g, &tree).unwrap();
+        let binary = GpuGeometry::upload_bvh(&ctx, g, &tree).unwrap();
+        let wide = GpuGeometry::upload_wide_bvh(&ctx, g, &tree).unwrap();
         let mut rays = rays(g, &tree.bounds, 4000, 5);
         // Invalid rays miss on the GPU too.
         rays.push(Ray::new(Vec3::ZERO, Vec3::ZERO, 0.0, 1.0));
         rays.push(Ray::new(Vec3::ZERO, Vec3::X, f32::NAN, 1.0));
         rays.push(Ray::new(Vec3::ZERO, Vec3::X, 0.0, f32::NEG_INFINITY));
-        for traversal in [Traversal::Stack, Traversal::Bitstack] {
+        for traversal in Traversal::ALL {
+            let dev = if traversal == Traversal::Wide {
+                &wide
+            } else {
+                &binary
+            };
             for (query, intersector) in [
                 (Query::Closest, Intersector::Watertight),
                 (Query::Any, Intersector::Watertight),
@@ -367,7 +373,7 @@ fn gpu_stack_and_bitstack_equal_the_cpu_twin() {
                 };
                 let tracer = Tracer::for_accel(&ctx, &opt, AccelTraversal::Bvh(traversal)).unwrap();
                 let opt = tracer.options();
-                let batch = tracer.trace(&ctx, &dev, &rays, 0.0).unwrap();
+                let batch = tracer.trace(&ctx, dev, &rays, 0.0).unwrap();
                 assert_eq!(batch.exhausted, 0, "{name}: rays ran out of steps");
                 for (i, r) in rays.iter().enumerate() {
                     let (twin, exhausted) = bvh_cpu::trace(g, &tree, r, 0.0, &opt, traversal);

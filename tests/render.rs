@@ -244,7 +244,7 @@ fn the_bvh_renders_the_kdtree_image() {
         let scene = scene_file(file);
         let (plan, rs) = prepare(&scene, &small(spp));
         let kd = gpu_render(&ctx, &plan, &rs);
-        for walk in [Traversal::Stack, Traversal::Bitstack] {
+        for walk in Traversal::ALL {
             let opt = RenderOptions {
                 accel: vkrt::accel::device::AccelChoice::new(
                     vkrt::accel::device::AccelKind::SahBvh,

@@ -499,7 +499,7 @@ fn the_step_cap_comes_from_the_device_and_a_lower_one_is_honoured() {
 
 #[test]
 fn nodes_read_through_texel_buffers_give_the_storage_walks_hits_bit_for_bit() {
-    use vkrt::accel::device::{AccelBuilder, AccelKind};
+    use vkrt::accel::device::{AccelBuilder, AccelChoice, AccelKind};
     use vkrt::gpu::Recorder;
     use vkrt::trace::bvh_cpu::Traversal;
     use vkrt::trace::gpu::NodeAccess;
@@ -518,15 +518,16 @@ fn nodes_read_through_texel_buffers_give_the_storage_walks_hits_bit_for_bit() {
             AccelKind::Lbvh,
             AccelKind::Ploc,
         ] {
-            let builder = AccelBuilder::new(&ctx, kind).unwrap();
-            let mut rec = Recorder::new(&ctx).unwrap();
-            let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
-            rec.submit_and_wait().unwrap();
             let walks: &[Traversal] = match kind {
                 AccelKind::KdTree => &[Traversal::Stack],
-                _ => &[Traversal::Stack, Traversal::Bitstack],
+                _ => &Traversal::ALL,
             };
             for &walk in walks {
+                let choice = AccelChoice::new(kind, walk);
+                let builder = AccelBuilder::for_choice(&ctx, choice).unwrap();
+                let mut rec = Recorder::new(&ctx).unwrap();
+                let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
+                rec.submit_and_wait().unwrap();
                 for query in [Query::Closest, Query::Any] {
                     let opt = TraceOptions {
                         query,

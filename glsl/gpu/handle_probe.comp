@@ -1,9 +1,11 @@
 #version 460
-// The two ways a shader reaches a structure through vkrt/ray_query.glsl, on the same rays:
-// `set` binds its seven arrays (VKRT_BINDING), `address` reads them at the device addresses
-// of its handle (VKRT_DEVICE_ADDRESS). tests/accel_device_input.rs checks that both give the
-// CPU twin's hits; benches/device_input.rs times one against the other.
+// The ways a shader reaches a structure through vkrt/ray_query.glsl, on the same rays:
+// `set` binds its seven arrays (VKRT_BINDING), `texel` the first three of them as texel
+// buffers (VKRT_TEXEL_BUFFERS), `address` reads them at the device addresses of its handle
+// (VKRT_DEVICE_ADDRESS). tests/accel_device_input.rs checks that all give the CPU twin's
+// hits; benches/device_input.rs times one against the other.
 //! variant set
+//! variant texel VKRT_TEXEL_BUFFERS=1
 //! variant address VKRT_DEVICE_ADDRESS=1
 layout(local_size_x_id = 0) in;
 

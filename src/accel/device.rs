@@ -22,6 +22,8 @@ use crate::accel::bvh::lbvh_gpu::LbvhBuilder;
 use crate::accel::bvh::ploc::PlocParams;
 use crate::accel::bvh::ploc_gpu::{PlocBuilder, PlocScratch};
 use crate::accel::bvh::refit_gpu::{LevelRefit, RefitSchedule, ScheduleScratch};
+use crate::accel::bvh::wide::{WideNode, MAX_WIDE_LEAF};
+use crate::accel::bvh::wide_gpu::Widen;
 use crate::accel::bvh::{self, Bvh, BvhNode, BvhParams, Threading};
 use crate::accel::driver::{DriverAccel, DriverInput, Prefer};
 use crate::accel::geometry::GeometryLayout;
@@ -159,7 +161,7 @@ impl AccelChoice {
                 let walks: &[Traversal] = if kind.single_walk() {
                     &[Traversal::Stack]
                 } else {
-                    &[Traversal::Stack, Traversal::Bitstack]
+                    &Traversal::ALL
                 };
                 walks.iter().map(move |&w| Self::new(kind, w))
             })
@@ -342,6 +344,9 @@ enum Storage {
         counts: (usize, usize),
         /// The refit's schedule, for a structure built to be updated.
         schedule: Option<Box<RefitSchedule>>,
+        /// The 4-wide nodes, one per binary slot, for a structure walked wide: bound in
+        /// place of the binary nodes.
+        wide: Option<Buffer<WideNode>>,
     },
     Driver {
         /// Recorded by the build.
@@ -365,6 +370,8 @@ pub enum HostStructure {
 pub enum HostRef<'a> {
     KdTree(&'a KdTree),
     Bvh(&'a Bvh),
+    /// A BVH walked wide: its binary nodes and its wide ones ([`Bvh::wide`]).
+    WideBvh(&'a Bvh),
 }
 
 /// What a kd-tree build recorded on the device reports once it has executed.
@@ -406,10 +413,43 @@ impl AccelStructure {
         }
     }
 
-    /// The `nodes` and `prim_refs` bindings of `traverse.glsl`.
+    /// Whether the structure has wide nodes ([`AccelBuilder::wide`]): the wide walk, and no
+    /// other, serves it.
+    pub fn is_wide(&self) -> bool {
+        matches!(&self.storage, Storage::Bvh { wide: Some(_), .. })
+    }
+
+    /// The device's binary and wide node slots of a BVH walked wide (tests and tools: the
+    /// wide nodes against their CPU twin, [`crate::accel::bvh::wide::widen`] of the binary
+    /// slots); `None` for other structures.
+    pub fn download_wide(&self) -> Result<Option<(Vec<BvhNode>, Vec<WideNode>)>> {
+        match &self.storage {
+            Storage::Bvh {
+                nodes,
+                wide: Some(wide),
+                counts,
+                ..
+            } => {
+                let mut binary = nodes.download()?;
+                let mut w = wide.download()?;
+                binary.truncate(counts.0);
+                w.truncate(counts.0);
+                Ok(Some((binary, w)))
+            }
+            _ => Ok(None),
+        }
+    }
+
+    /// The `nodes` and `prim_refs` bindings of `traverse.glsl` (a BVH walked wide: its wide
+    /// nodes).
     pub fn node_bindings(&self) -> [&dyn BufferArg; 2] {
         match &self.storage {
             Storage::KdTree { out, .. } => [&out.nodes[0], &out.prim_refs],
+            Storage::Bvh {
+                wide: Some(wide),
+                refs,
+                ..
+            } => [wide, refs],
             Storage::Bvh { nodes, refs, .. } => [nodes, refs],
             Storage::Driver { address, bases, .. } => [address, bases],
         }
@@ -488,6 +528,7 @@ impl AccelStructure {
                     parents,
                     refs: all[..*n_refs].to_vec(),
                     bounds: bounds(*n_refs == 0),
+                    wide: Default::default(),
                 }))
             }
             Storage::Driver { .. } => Err(GpuError::Kernel {
@@ -532,6 +573,12 @@ pub struct AccelBuilder {
     pub allow_update: bool,
     /// `accel.bvh_refit_level` and the schedule's kernels (BVH kinds).
     level_refit: Option<LevelRefit>,
+    /// Also make the 4-wide nodes ([`crate::accel::bvh::wide`]) after every build and
+    /// refit, for the wide walk (`Traversal::Wide`); BVH kinds only. Set by
+    /// [`AccelBuilder::for_choice`] from the choice's walk.
+    pub wide: bool,
+    /// `accel.bvh_widen` (BVH kinds).
+    widen: Option<Widen>,
     /// The kd-tree's first reference budget per level; `None`: 4 per primitive
     /// ([`BuildCapacity::for_primitives`]). Tests set it tiny to exercise running out.
     pub kd_refs_per_level: Option<usize>,
@@ -592,6 +639,11 @@ impl AccelBuilder {
                 }
                 _ => None,
             },
+            widen: match kind {
+                AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => Some(Widen::new(ctx)?),
+                _ => None,
+            },
+            wide: false,
             allow_update: false,
             kd_params: SahParams::default(),
             bvh_params: BvhParams::default(),
@@ -609,6 +661,7 @@ impl AccelBuilder {
     pub fn for_choice(ctx: &Context, choice: AccelChoice) -> Result<Self> {
         let mut b = Self::new(ctx, choice.kind)?;
         b.driver_prefer = choice.prefer;
+        b.wide = choice.walk == Traversal::Wide && b.widen.is_some();
         Ok(b)
     }
 
@@ -688,8 +741,9 @@ impl AccelBuilder {
                     ),
                     _ => (0, 0),
                 };
+                let wide = if self.wide { nodes * 64 } else { 0 };
                 AccelSizes {
-                    structure_bytes: nodes * 64 + (n as u64 + nodes) * 4 + info + schedule,
+                    structure_bytes: nodes * 64 + wide + (n as u64 + nodes) * 4 + info + schedule,
                     build_scratch_bytes: build_scratch_bytes + schedule_scratch,
                     update_scratch_bytes: Some(nodes * 4),
                 }
@@ -753,6 +807,11 @@ impl AccelBuilder {
                     counts: (0, 0),
                     schedule: if allow_update {
                         Some(Box::new(RefitSchedule::new(ctx, nodes)?))
+                    } else {
+                        None
+                    },
+                    wide: if self.wide {
+                        Some(Buffer::new(ctx, "accel.bvh_wide", nodes)?)
                     } else {
                         None
                     },
@@ -954,6 +1013,16 @@ impl AccelBuilder {
                         ),
                     });
                 }
+                if self.wide && self.bvh_params.max_leaf_prims > MAX_WIDE_LEAF {
+                    return Err(GpuError::Usage {
+                        call: "AccelBuilder::record_build",
+                        reason: format!(
+                            "max_leaf_prims = {}: wide nodes name leaves of at most \
+                             {MAX_WIDE_LEAF} primitives",
+                            self.bvh_params.max_leaf_prims
+                        ),
+                    });
+                }
                 let t = std::time::Instant::now();
                 let bvh =
                     bvh::build(&host.boxes, &self.bvh_params, self.threading).map_err(|e| {
@@ -971,7 +1040,7 @@ impl AccelBuilder {
                     &out.info,
                     &[prims
                         .info(&bvh.bounds, bvh.refs.len() as u32)
-                        .walked(SceneInfo::WALK_BVH)],
+                        .walked(self.bvh_walk())],
                 )?;
                 rec.transfer_to_compute();
                 *counts = (bvh.nodes.len(), bvh.refs.len());
@@ -991,7 +1060,7 @@ impl AccelBuilder {
                 let lbvh = self.lbvh.as_ref().ok_or_else(missing("an LBVH builder"))?;
                 let n_nodes = if n == 0 { 0 } else { bvh_nodes(n) };
                 if host.is_some() {
-                    upload_gpu_bvh_info(rec, prims, &out.info)?;
+                    upload_gpu_bvh_info(rec, prims, &out.info, self.bvh_walk())?;
                 }
                 // The references go to the collapse's scratch where it collapses.
                 let collapsing = collapse::applies(n, &self.bvh_params);
@@ -1042,7 +1111,7 @@ impl AccelBuilder {
                 let ploc = self.ploc.as_ref().ok_or_else(missing("a PLOC builder"))?;
                 let n_nodes = if n == 0 { 0 } else { bvh_nodes(n) };
                 if host.is_some() {
-                    upload_gpu_bvh_info(rec, prims, &out.info)?;
+                    upload_gpu_bvh_info(rec, prims, &out.info, self.bvh_walk())?;
                 }
                 *counts = (n_nodes, n);
                 if collapse::applies(n, &self.bvh_params) {
@@ -1098,6 +1167,7 @@ impl AccelBuilder {
             };
             level.record_schedule(rec, refs, counts.0, counts.1 as u32, schedule, placed)?;
         }
+        self.record_widen(rec, out)?;
         Ok(recorded)
     }
 }
@@ -1141,6 +1211,7 @@ impl AccelBuilder {
                 refs,
                 counts,
                 schedule,
+                ..
             },
             Some(kernel),
         ) = (&out.storage, &self.refit)
@@ -1176,6 +1247,35 @@ impl AccelBuilder {
             }
             _ => record_refit_nodes(rec, kernel, prims, nodes, refs, scratch, &out.info, n_nodes),
         }
+        self.record_widen(rec, out)
+    }
+
+    /// How the shader library walks the BVHs this builder makes (`SceneInfo::walk`).
+    pub(crate) fn bvh_walk(&self) -> u32 {
+        if self.wide {
+            SceneInfo::WALK_BVH_WIDE
+        } else {
+            SceneInfo::WALK_BVH
+        }
+    }
+
+    /// Records `accel.bvh_widen` over `out`'s binary nodes where it has wide ones (after a
+    /// build or refit wrote them).
+    fn record_widen(&self, rec: &mut Recorder, out: &AccelStructure) -> Result<()> {
+        let Storage::Bvh {
+            nodes,
+            wide: Some(wide),
+            counts,
+            ..
+        } = &out.storage
+        else {
+            return Ok(());
+        };
+        let widen = self
+            .widen
+            .as_ref()
+            .ok_or_else(missing("the widen kernel"))?;
+        widen.record(rec, nodes, wide, counts.0);
         Ok(())
     }
 }
@@ -1186,12 +1286,10 @@ fn upload_gpu_bvh_info(
     rec: &mut Recorder,
     prims: &DevicePrimitives,
     info: &Buffer<SceneInfo>,
+    walk: u32,
 ) -> Result<()> {
     let n = prims.count() as u32;
-    rec.upload(
-        info,
-        &[prims.info(&Aabb::EMPTY, n).walked(SceneInfo::WALK_BVH)],
-    )?;
+    rec.upload(info, &[prims.info(&Aabb::EMPTY, n).walked(walk)])?;
     rec.transfer_to_compute();
     Ok(())
 }
@@ -1287,7 +1385,8 @@ pub fn upload_structure(
                 allow_update: false,
             })
         }
-        HostRef::Bvh(bvh) => {
+        HostRef::Bvh(bvh) | HostRef::WideBvh(bvh) => {
+            let wide = matches!(host, HostRef::WideBvh(_));
             let mut words = bvh.refs.clone();
             words.extend_from_slice(&bvh.parents);
             Ok(AccelStructure {
@@ -1297,13 +1396,20 @@ pub fn upload_structure(
                     refs: Buffer::from_slice(ctx, "accel.bvh_refs", &words)?,
                     counts: (bvh.nodes.len(), bvh.refs.len()),
                     schedule: None,
+                    wide: match wide {
+                        true => Some(Buffer::from_slice(ctx, "accel.bvh_wide", bvh.wide())?),
+                        false => None,
+                    },
                 },
                 info: Buffer::from_slice(
                     ctx,
                     "accel.info",
                     &[prims
                         .info(&bvh.bounds, bvh.refs.len() as u32)
-                        .walked(SceneInfo::WALK_BVH)],
+                        .walked(match wide {
+                            true => SceneInfo::WALK_BVH_WIDE,
+                            false => SceneInfo::WALK_BVH,
+                        })],
                 )?,
                 allow_update: false,
             })

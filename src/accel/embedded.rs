@@ -91,11 +91,12 @@ fn shape(geometries: &[Geometry]) -> Vec<(bool, u32)> {
 
 /// The scene constants the gather writes for a structure of `kind` over `n` primitives:
 /// how the shader library walks it, and where a BVH's parent links start.
-fn header_of(kind: AccelKind, n: usize) -> (u32, u32) {
+fn header_of(builder: &AccelBuilder, n: usize) -> (u32, u32) {
+    let kind = builder.kind();
     let walk = match kind {
         AccelKind::KdTree => SceneInfo::WALK_KDTREE,
         AccelKind::Driver => SceneInfo::WALK_RAY_QUERY,
-        _ => SceneInfo::WALK_BVH,
+        _ => builder.bvh_walk(),
     };
     let parents_at = match kind {
         AccelKind::Lbvh | AccelKind::Ploc => n as u32,
@@ -298,7 +299,7 @@ impl AccelBuilder {
         input: &DeviceInput,
         out: &GpuGeometry,
     ) -> Result<()> {
-        let (walk, parents_at) = header_of(self.kind(), input.layout.primitive_count());
+        let (walk, parents_at) = header_of(self, input.layout.primitive_count());
         GeometryGather::new(rec.context())?.record(
             rec,
             geometries,

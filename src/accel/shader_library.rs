@@ -8,8 +8,8 @@
 //! `vkrtTraceAny`. One descriptor set layout serves every kind of structure vkrt builds:
 //! the walk is chosen from the structure itself.
 
-use crate::gpu::vk;
-use crate::trace::gpu::GpuGeometry;
+use crate::gpu::{vk, TexelView};
+use crate::trace::gpu::{GpuGeometry, NodeAccess};
 
 /// The library's files, by the name an `#include` gives them (relative to
 /// [`include_dir`]).
@@ -29,6 +29,10 @@ pub const FILES: &[(&str, &str)] = &[
     (
         "vkrt/bvh_node.glsl",
         include_str!("../../glsl/include/vkrt/bvh_node.glsl"),
+    ),
+    (
+        "vkrt/bvh_wide_node.glsl",
+        include_str!("../../glsl/include/vkrt/bvh_wide_node.glsl"),
     ),
     (
         "vkrt/kdtree.glsl",
@@ -76,16 +80,50 @@ pub fn descriptor_set_layout_bindings(
     first: u32,
     stages: vk::ShaderStageFlags,
 ) -> [vk::DescriptorSetLayoutBinding<'static>; BINDINGS as usize] {
+    descriptor_set_layout_bindings_for(first, stages, NodeAccess::Storage)
+}
+
+/// Bindings through texel buffers (`VKRT_TEXEL_BUFFERS`): the first three (nodes,
+/// references, triangle vertices).
+pub const TEXEL_BINDINGS: u32 = 3;
+
+/// [`descriptor_set_layout_bindings`] for a shader that reads the structure as `access`
+/// says: [`NodeAccess::Texel`] (`VKRT_TEXEL_BUFFERS`) makes the first
+/// [`TEXEL_BINDINGS`] uniform texel buffers, written from [`GpuGeometry::texel_views`].
+pub fn descriptor_set_layout_bindings_for(
+    first: u32,
+    stages: vk::ShaderStageFlags,
+    access: NodeAccess,
+) -> [vk::DescriptorSetLayoutBinding<'static>; BINDINGS as usize] {
     std::array::from_fn(|k| {
+        let texel = access == NodeAccess::Texel && (k as u32) < TEXEL_BINDINGS;
         vk::DescriptorSetLayoutBinding::default()
             .binding(first + k as u32)
-            .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+            .descriptor_type(if texel {
+                vk::DescriptorType::UNIFORM_TEXEL_BUFFER
+            } else {
+                vk::DescriptorType::STORAGE_BUFFER
+            })
             .descriptor_count(1)
             .stage_flags(stages)
     })
 }
 
 impl GpuGeometry {
+    /// RGBA32UI views of the first [`TEXEL_BINDINGS`] ranges (nodes, references, triangle
+    /// vertices), for a shader compiled with `VKRT_TEXEL_BUFFERS`: write them as uniform
+    /// texel buffers, and the other bindings from [`GpuGeometry::descriptor_buffer_infos`].
+    /// Keep the views until the work that reads them has executed.
+    pub fn texel_views(&self) -> crate::gpu::Result<[TexelView; TEXEL_BINDINGS as usize]> {
+        let ctx = self.prims.tri_verts.context();
+        let [nodes, refs, verts, ..] = self.bindings();
+        Ok([
+            TexelView::new(ctx, nodes)?,
+            TexelView::new(ctx, refs)?,
+            TexelView::new(ctx, verts)?,
+        ])
+    }
+
     /// The seven buffer ranges to write into the descriptor set of a shader that includes
     /// `vkrt/ray_query.glsl`, in binding order.
     pub fn descriptor_buffer_infos(&self) -> [vk::DescriptorBufferInfo; BINDINGS as usize] {

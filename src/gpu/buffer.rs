@@ -42,6 +42,71 @@ pub fn address_of(ctx: &Context, b: &dyn BufferArg) -> Result<u64> {
     Ok(unsafe { ctx.inner.device.get_buffer_device_address(&info) } + b.offset())
 }
 
+/// An RGBA32UI view of a buffer range, for a uniform texel buffer binding (the structure
+/// read through texel buffers: `VKRT_TEXEL_BUFFERS` of `vkrt/ray_query.glsl`); destroyed
+/// when dropped. Keep it, and the buffer, until the work that reads it has executed.
+pub struct TexelView {
+    ctx: Context,
+    view: vk::BufferView,
+}
+
+impl TexelView {
+    /// A view of `b`'s range: an error unless the offset is a multiple of the device's
+    /// `minTexelBufferOffsetAlignment` and the range whole 16-byte texels, at most
+    /// `maxTexelBufferElements` of them (vkrt's own buffers and ranges are whole texels).
+    pub fn new(ctx: &Context, b: &dyn BufferArg) -> Result<Self> {
+        Ok(Self {
+            ctx: ctx.clone(),
+            view: create_texel_view(ctx, b)?,
+        })
+    }
+
+    pub fn raw(&self) -> vk::BufferView {
+        self.view
+    }
+}
+
+impl Drop for TexelView {
+    fn drop(&mut self) {
+        // SAFETY: the view was made on this device, and its owner keeps it until the work
+        // that reads it has executed (the type's contract).
+        unsafe { self.ctx.inner.device.destroy_buffer_view(self.view, None) };
+    }
+}
+
+/// An RGBA32UI view of `b`'s range, checked against the device's limits; the caller
+/// destroys it.
+pub(crate) fn create_texel_view(ctx: &Context, b: &dyn BufferArg) -> Result<vk::BufferView> {
+    let info = ctx.info();
+    let align = info.min_texel_buffer_offset_alignment.max(1);
+    let range = b.range();
+    if b.offset() % align != 0
+        || range == 0
+        || range % 16 != 0
+        || range / 16 > u64::from(info.max_texel_buffer_elements)
+    {
+        return Err(GpuError::Usage {
+            call: "texel buffer view",
+            reason: format!(
+                "a texel buffer of {range} bytes at offset {} (offsets a multiple of {align}, \
+                 whole texels of 16 bytes, at most {} of them)",
+                b.offset(),
+                info.max_texel_buffer_elements
+            ),
+        });
+    }
+    let create = vk::BufferViewCreateInfo::default()
+        .buffer(b.raw())
+        .format(vk::Format::R32G32B32A32_UINT)
+        .offset(b.offset())
+        .range(range);
+    // SAFETY: valid device; the buffer has UNIFORM_TEXEL_BUFFER usage (vkrt's buffers and
+    // REQUIRED_BUFFER_USAGE have it); offset, range and texel count were checked against the
+    // device's limits above.
+    unsafe { ctx.inner.device.create_buffer_view(&create, None) }
+        .map_err(vk_err("vkCreateBufferView"))
+}
+
 /// A range of a buffer that the embedding renderer owns; vkrt never frees it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RawBuffer {

@@ -32,7 +32,7 @@ pub use accel_ext::{
     AccelerationStructure,
 };
 pub use ash::vk;
-pub use buffer::{address_of, placement, Buffer, BufferArg, Memory, RawBuffer};
+pub use buffer::{address_of, placement, Buffer, BufferArg, Memory, RawBuffer, TexelView};
 pub use context::{Context, ContextOptions, MemoryUsage, RawParts, Traffic};
 pub use error::{GpuError, Result};
 pub use info::{

@@ -341,36 +341,8 @@ impl Recorder {
         if let Some(&view) = self.views.get(&key) {
             return Ok(view);
         }
-        let info = self.ctx.info();
-        let align = info.min_texel_buffer_offset_alignment.max(1);
-        let range = b.range();
-        if b.offset() % align != 0
-            || range == 0
-            || range % 16 != 0
-            || range / 16 > u64::from(info.max_texel_buffer_elements)
-        {
-            return Err(GpuError::Usage {
-                call: "Recorder::dispatch",
-                reason: format!(
-                    "a texel buffer of {} bytes at offset {} (offsets a multiple of {align}, \
-                     whole texels of 16 bytes, at most {} of them)",
-                    b.range(),
-                    b.offset(),
-                    info.max_texel_buffer_elements
-                ),
-            });
-        }
-        let create = vk::BufferViewCreateInfo::default()
-            .buffer(b.raw())
-            .format(vk::Format::R32G32B32A32_UINT)
-            .offset(b.offset())
-            .range(range);
-        // SAFETY: valid device; the buffer has UNIFORM_TEXEL_BUFFER usage (vkrt's buffers
-        // and REQUIRED_BUFFER_USAGE have it); offset, range and texel count were checked
-        // against the device's limits above; the view is destroyed when the recorder is
-        // dropped, after its work has executed.
-        let view = unsafe { self.ctx.inner.device.create_buffer_view(&create, None) }
-            .map_err(vk_err("vkCreateBufferView"))?;
+        // Destroyed when the recorder is dropped, after its work has executed.
+        let view = super::buffer::create_texel_view(&self.ctx, b)?;
         self.views.insert(key, view);
         Ok(view)
     }

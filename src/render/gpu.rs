@@ -12,7 +12,8 @@ use crate::gpu::{
 use crate::prims::compact::{Compact, CompactScratch};
 use crate::prims::scan::GpuCount;
 use crate::prims::PrimConfig;
-use crate::trace::gpu::{effective_options, traversal_spec, GpuGeometry};
+use crate::trace::bvh_cpu::Traversal;
+use crate::trace::gpu::{effective_options, traversal_spec, AccelTraversal, GpuGeometry};
 use crate::trace::{Hit, Query, TraceOptions};
 
 use super::plan::Plan;
@@ -39,6 +40,9 @@ struct Kernels {
 pub struct Renderer {
     k: Kernels,
     compact: Compact,
+    /// How the kernels walk the structure (a host BVH walked wide is uploaded with its wide
+    /// nodes).
+    walk: AccelTraversal,
 }
 
 #[repr(C)]
@@ -208,6 +212,7 @@ impl Renderer {
                 tonemap: ctx.kernel(&kernels::RENDER_TONEMAP, &plain)?,
             },
             compact: Compact::new(ctx, PrimConfig::default_for(ctx))?,
+            walk,
         })
     }
 
@@ -287,6 +292,11 @@ impl Renderer {
         let mut rec = Recorder::new(ctx)?;
         Ok(match &rs.accel {
             RenderAccel::KdTree(tree) => (GpuGeometry::upload(ctx, &rs.geometry, tree)?, rec, None),
+            RenderAccel::Bvh(bvh) if self.walk == AccelTraversal::Bvh(Traversal::Wide) => (
+                GpuGeometry::upload_wide_bvh(ctx, &rs.geometry, bvh)?,
+                rec,
+                None,
+            ),
             RenderAccel::Bvh(bvh) => (GpuGeometry::upload_bvh(ctx, &rs.geometry, bvh)?, rec, None),
             RenderAccel::OnDevice(choice) => {
                 let builder = AccelBuilder::for_choice(ctx, *choice)?;

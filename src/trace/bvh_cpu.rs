@@ -22,6 +22,9 @@ pub enum Traversal {
     Stack,
     /// No stack: parent links and a trail of one bit per level (Áfra & Szirmay-Kalos 2014).
     Bitstack,
+    /// The 4-wide quantized nodes (Ylitie et al. 2017) with a stack: one node fetch decides
+    /// four children ([`crate::accel::bvh::wide`]).
+    Wide,
 }
 
 impl Traversal {
@@ -30,8 +33,12 @@ impl Traversal {
         match self {
             Traversal::Stack => "stack",
             Traversal::Bitstack => "bitstack",
+            Traversal::Wide => "wide",
         }
     }
+
+    /// Every walk, binary ones first.
+    pub const ALL: [Traversal; 3] = [Traversal::Stack, Traversal::Bitstack, Traversal::Wide];
 }
 
 /// Where the ray enters `b` within `[t0, t1]` (the kd-tree walk's slab test); `None` when
@@ -174,6 +181,7 @@ pub fn trace(
     let done = match traversal {
         Traversal::Stack => stack(&mut q),
         Traversal::Bitstack => bitstack(&mut q),
+        Traversal::Wide => wide_stack(&mut q),
     };
     if done {
         (q.best, false)
@@ -214,6 +222,60 @@ fn stack(q: &mut Query1<'_>) -> bool {
                     }
                     (Some(one), None) | (None, Some(one)) => Some(one.0),
                     (None, None) => pop(&mut stack, q.best_t()),
+                };
+            }
+            Child::Leaf { first, count } => {
+                if q.leaf(first, count) {
+                    return true;
+                }
+                cur = pop(&mut stack, q.best_t());
+            }
+            Child::None => unreachable!("missing children are never visited"),
+        }
+    }
+    true
+}
+
+/// The stack walk over the 4-wide nodes, as the GPU runs it (`trace_bvh_wide` in
+/// `glsl/include/vkrt/bvh.glsl`): at a node the four children's decoded boxes are tested,
+/// sorted by entry distance with the same five compare-exchanges (ties keep their order), the
+/// ones entered pushed farthest first and the nearest taken; leaves are tested when in hand.
+fn wide_stack(q: &mut Query1<'_>) -> bool {
+    let wide = q.bvh.wide();
+    let mut stack: Vec<(Child, f32)> = Vec::new();
+    let mut cur = Some(Child::Node(0));
+    while let Some(c) = cur {
+        match c {
+            Child::Node(n) => {
+                if q.steps > q.opt.max_steps() {
+                    return false;
+                }
+                q.steps += 1;
+                let node = &wide[n as usize];
+                let best_t = q.best_t();
+                let mut kids: [(f32, Child); 4] = std::array::from_fn(|k| {
+                    let (b, child) = node.child(k);
+                    if child == Child::None {
+                        return (f32::INFINITY, Child::None);
+                    }
+                    match enter(&b, q.o, q.d, q.inv_d, q.tmin, best_t) {
+                        Some(t) => (t, child),
+                        None => (f32::INFINITY, Child::None),
+                    }
+                });
+                for (a, b) in [(0, 1), (2, 3), (0, 2), (1, 3), (1, 2)] {
+                    if kids[b].0 < kids[a].0 {
+                        kids.swap(a, b);
+                    }
+                }
+                for &(t, child) in kids[1..].iter().rev() {
+                    if child != Child::None {
+                        stack.push((child, t));
+                    }
+                }
+                cur = match kids[0].1 {
+                    Child::None => pop(&mut stack, q.best_t()),
+                    near => Some(near),
                 };
             }
             Child::Leaf { first, count } => {

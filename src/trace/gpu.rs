@@ -6,8 +6,7 @@ use std::sync::Arc;
 
 use crate::accel::bvh::Bvh;
 use crate::accel::device::{
-    upload_structure, AccelBuilder, AccelKind, AccelStructure, DevicePrimitives, HostRef,
-    RecordedBuild,
+    upload_structure, AccelBuilder, AccelStructure, DevicePrimitives, HostRef, RecordedBuild,
 };
 use crate::accel::kdtree::KdTree;
 use crate::gpu::{kernels, ShaderBlob};
@@ -41,22 +40,25 @@ impl AccelTraversal {
             AccelTraversal::Bvh(Traversal::Stack) => 1,
             AccelTraversal::Bvh(Traversal::Bitstack) => 2,
             AccelTraversal::RayQuery => 3,
+            AccelTraversal::Bvh(Traversal::Wide) => 4,
         }
     }
 
     /// Every structure and walk, for suites and benchmarks.
-    pub const ALL: [AccelTraversal; 3] = [
+    pub const ALL: [AccelTraversal; 4] = [
         AccelTraversal::KdTree,
         AccelTraversal::Bvh(Traversal::Stack),
         AccelTraversal::Bvh(Traversal::Bitstack),
+        AccelTraversal::Bvh(Traversal::Wide),
     ];
 
-    /// `kdtree`, `sah-bvh/stack` or `sah-bvh/bitstack`.
+    /// `kdtree`, `sah-bvh/stack`, `sah-bvh/bitstack` or `sah-bvh/wide`.
     pub fn label(self) -> &'static str {
         match self {
             AccelTraversal::KdTree => "kdtree",
             AccelTraversal::Bvh(Traversal::Stack) => "sah-bvh/stack",
             AccelTraversal::Bvh(Traversal::Bitstack) => "sah-bvh/bitstack",
+            AccelTraversal::Bvh(Traversal::Wide) => "sah-bvh/wide",
             AccelTraversal::RayQuery => "driver",
         }
     }
@@ -70,9 +72,11 @@ impl AccelTraversal {
         }
     }
 
-    /// Whether this walk serves a structure of `kind`.
-    fn walks(self, kind: AccelKind) -> bool {
-        kind.walked(Traversal::default()).family() == self.family()
+    /// Whether this walk serves `s`: its kind's family, and the wide walk exactly the
+    /// structures built with wide nodes (they bind those in place of the binary ones).
+    pub fn walks(self, s: &AccelStructure) -> bool {
+        s.kind().walked(Traversal::default()).family() == self.family()
+            && (self == AccelTraversal::Bvh(Traversal::Wide)) == s.is_wide()
     }
 
     fn family(self) -> u32 {
@@ -171,6 +175,11 @@ impl GpuGeometry {
     /// Geometry and a BVH built over `g`'s boxes on the host.
     pub fn upload_bvh(ctx: &Context, g: &TraceGeometry, bvh: &Bvh) -> Result<Self> {
         Self::with_host(ctx, g, HostRef::Bvh(bvh))
+    }
+
+    /// [`GpuGeometry::upload_bvh`] with the BVH's wide nodes, for the wide walk.
+    pub fn upload_wide_bvh(ctx: &Context, g: &TraceGeometry, bvh: &Bvh) -> Result<Self> {
+        Self::with_host(ctx, g, HostRef::WideBvh(bvh))
     }
 
     /// Records the upload of `g` and the build of `builder`'s structure over it into `rec`
@@ -365,11 +374,16 @@ impl Tracer {
                 reason,
             })
         };
-        if !self.accel.walks(geom.accel.kind()) {
+        if !self.accel.walks(&geom.accel) {
             return refuse(format!(
-                "a {} tracer cannot walk a {} structure",
+                "a {} tracer cannot walk a {} structure{}",
                 self.accel.label(),
-                geom.accel.kind().name()
+                geom.accel.kind().name(),
+                if geom.accel.is_wide() {
+                    " built with wide nodes"
+                } else {
+                    ""
+                }
             ));
         }
         if geom.device_input.as_ref().is_some_and(|d| !d.built) {

@@ -13,8 +13,12 @@
 #define VKRT_COMMON_BVH_GLSL
 
 #include "bvh_node.glsl"
+#include "bvh_wide_node.glsl"
 
 #define BVH_MAX_DEPTH 128u
+// The wide walk's stack: a wide level spans two binary ones (at most 64 levels), and each
+// pushes at most three children.
+#define WIDE_STACK_SIZE 192u
 
 
 // The same binding as the kd-tree's nodes: one structure is bound at a time.
@@ -72,6 +76,33 @@ BvhNode load_bvh_node(uint i) {
 #else
 BvhNode load_bvh_node(uint i) {
     return bvh_nodes[i];
+}
+#endif
+
+// Wide nodes (bvh_wide_node.glsl) in the nodes binding, read the binary nodes' way.
+#if TEXEL_NODES
+WideNode load_wide_node(uint i) {
+    int t = int(4u * i);
+    return WideNode(texelFetch(node_texels, t), texelFetch(node_texels, t + 1),
+                    texelFetch(node_texels, t + 2), texelFetch(node_texels, t + 3));
+}
+#elif FP64_FALLBACK
+WideNode load_wide_node(uint i) {
+    u64vec4 p = bvh_nodes64[2u * i];
+    u64vec4 q = bvh_nodes64[2u * i + 1u];
+    return WideNode(uvec4(unpack32(p.x), unpack32(p.y)), uvec4(unpack32(p.z), unpack32(p.w)),
+                    uvec4(unpack32(q.x), unpack32(q.y)), uvec4(unpack32(q.z), unpack32(q.w)));
+}
+#else
+#ifdef VKRT_DEVICE_ADDRESS
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtWideNodes { WideNode v[]; };
+VkrtWideNodes vkrt_wide_nodes;
+#define wide_nodes vkrt_wide_nodes.v
+#else
+layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer WideNodes { WideNode wide_nodes[]; };
+#endif
+WideNode load_wide_node(uint i) {
+    return wide_nodes[i];
 }
 #endif
 
@@ -238,6 +269,116 @@ Hit trace_bvh_bitstack(Ray r, float time, bool any_hit) {
             float te;
             found = bvh_enter(smin, smax, r, inv_d, tmin, best_t, te);
             node = sibling;
+        }
+    }
+    trace_steps_exhausted = true;
+    return best;
+}
+
+// Child k of a wide node: where the ray enters it (+inf and NO_CHILD where it does not).
+void wide_child(WideNode w, uint k, vec3 p, vec3 s, Ray r, vec3 inv_d, float tmin, float best_t,
+                out float t, out uvec2 c) {
+    uint count = wide_count(w, k);
+    uint index = w.index[k];
+    t = 1.0 / 0.0;
+    c = uvec2(NO_NODE, 0u);
+    if (count == 0u && index == NO_NODE) {
+        return;
+    }
+    vec3 bmin;
+    vec3 bmax;
+    wide_box(w, k, p, s, bmin, bmax);
+    float te;
+    if (bvh_enter(bmin, bmax, r, inv_d, tmin, best_t, te)) {
+        t = te;
+        c = uvec2(index, count);
+    }
+}
+
+// Compare-exchange of two children by entry distance (a sorting network: no loop).
+#define WIDE_ORDER(ta, ca, tb, cb) \
+    if (tb < ta) {                 \
+        float t_ = ta;             \
+        ta = tb;                   \
+        tb = t_;                   \
+        uvec2 c_ = ca;             \
+        ca = cb;                   \
+        cb = c_;                   \
+    }
+
+#define WIDE_PUSH(t, c)                            \
+    if (c.x != NO_NODE || c.y != 0u) {             \
+        stack[top] = c;                            \
+        stack_t[top] = t;                          \
+        top++;                                     \
+    }
+
+// The stack walk over the 4-wide nodes (Ylitie et al. 2017's layout, Aila & Laine's
+// while-while order): at a node, its four children's boxes are tested, sorted by entry
+// distance, pushed farthest first, and the nearest taken; leaves are tested when in hand.
+// Wide node 0 is the root. Twin: `wide_stack` in src/trace/bvh_cpu.rs.
+Hit trace_bvh_wide(Ray r, float time, bool any_hit) {
+    Hit best = miss_hit();
+    if (!ray_is_valid(r) || primitive_count() == 0u) {
+        return best;
+    }
+    float tmin = max(r.tmin, 0.0);
+    Shear sh = make_shear(r.d);
+    vec3 inv_d = recip3(r.d);
+    float best_t = r.tmax;
+    uvec2 stack[WIDE_STACK_SIZE];
+    float stack_t[WIDE_STACK_SIZE];
+    uint top = 0u;
+    uvec2 cur = uvec2(0u, 0u);
+    bool have = true;
+    uint steps = 0u;
+    // As in the binary stack walk: every natural end returns inside the loop.
+    while (true) {
+        while (have && cur.y == 0u && steps <= MAX_TRAVERSAL_STEPS) {
+            steps++;
+            WideNode w = load_wide_node(cur.x);
+            vec3 p = uintBitsToFloat(w.frame.xyz);
+            vec3 s = wide_scales(w.frame.w);
+            float t0, t1, t2, t3;
+            uvec2 c0, c1, c2, c3;
+            wide_child(w, 0u, p, s, r, inv_d, tmin, best_t, t0, c0);
+            wide_child(w, 1u, p, s, r, inv_d, tmin, best_t, t1, c1);
+            wide_child(w, 2u, p, s, r, inv_d, tmin, best_t, t2, c2);
+            wide_child(w, 3u, p, s, r, inv_d, tmin, best_t, t3, c3);
+            WIDE_ORDER(t0, c0, t1, c1)
+            WIDE_ORDER(t2, c2, t3, c3)
+            WIDE_ORDER(t0, c0, t2, c2)
+            WIDE_ORDER(t1, c1, t3, c3)
+            WIDE_ORDER(t1, c1, t2, c2)
+            WIDE_PUSH(t3, c3)
+            WIDE_PUSH(t2, c2)
+            WIDE_PUSH(t1, c1)
+            if (c0.x != NO_NODE || c0.y != 0u) {
+                cur = c0;
+            } else {
+                have = false;
+                while (top > 0u && !have) {
+                    top--;
+                    cur = stack[top];
+                    have = stack_t[top] <= best_t;
+                }
+            }
+        }
+        if (!have) {
+            return best;
+        }
+        if (cur.y == 0u) {
+            break; // the step cap (or the driver) ended the walk
+        }
+        steps += cur.y;
+        if (test_leaf(cur.x, cur.y, r, sh, time, tmin, any_hit, best, best_t)) {
+            return best;
+        }
+        have = false;
+        while (top > 0u && !have) {
+            top--;
+            cur = stack[top];
+            have = stack_t[top] <= best_t;
         }
     }
     trace_steps_exhausted = true;

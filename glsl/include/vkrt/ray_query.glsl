@@ -20,9 +20,10 @@
 //   VKRT_STACK_SIZE   the kd-tree walk's short-stack entries (default 64: deeper than any
 //                     kd-tree vkrt builds with its default depth limit, so no restarts)
 //   VKRT_MOLLER_TRUMBORE  use the Moller-Trumbore test instead of the watertight one
-//   VKRT_WALK         compile one walk only: VKRT_WALK_KDTREE, VKRT_WALK_BVH (stack) or
-//                     VKRT_WALK_BVH_BITSTACK (default: every walk, chosen per structure at
-//                     run time). A structure of another kind then reports `exhausted`.
+//   VKRT_WALK         compile one walk only: VKRT_WALK_KDTREE, VKRT_WALK_BVH (stack),
+//                     VKRT_WALK_BVH_BITSTACK or VKRT_WALK_BVH_WIDE (a BVH built with 4-wide
+//                     nodes; default: every walk, chosen per structure at run time). A
+//                     structure of another kind then reports `exhausted`.
 //   VKRT_EXACT        hits equal to vkrt's CPU twin bit for bit on any device: divisions
 //                     and square roots rounded correctly (Vulkan lets a driver's be 2.5 and
 //                     3 ulp off) and the watertight test's double-precision fallback; needs
@@ -42,6 +43,13 @@
 //                     64-bit value per structure, as a TLAS is, and no binding limit; on
 //                     lavapipe as fast as the bindings or up to 14 % slower
 //                     (docs/performance.md)
+//   VKRT_TEXEL_BUFFERS  read the nodes, references and triangle vertices (bindings + 0,
+//                     + 1, + 2) through uniform texel buffers instead of storage buffers:
+//                     RGBA32UI views of the same ranges (`GpuGeometry::texel_views()`,
+//                     `descriptor_set_layout_bindings_for(.., NodeAccess::Texel)`); the same
+//                     hits bit for bit. On lavapipe a texel fetch is a branch-free gather
+//                     where a storage load at a divergent offset loops over the lanes (Mesa
+//                     < 25.1): up to 2.3x faster walks (docs/performance.md)
 //   VKRT_AABB_INTERSECTION  the shader intersects box primitives itself (procedural
 //                     geometry, as a ray query's AABB candidates): it defines, anywhere in
 //                     the file,
@@ -83,6 +91,12 @@
 
 #ifdef VKRT_EXACT
 #define FP64_FALLBACK 1
+#endif
+#ifdef VKRT_TEXEL_BUFFERS
+#ifdef VKRT_DEVICE_ADDRESS
+#error "VKRT_TEXEL_BUFFERS reads the structure through bindings; VKRT_DEVICE_ADDRESS through addresses: choose one"
+#endif
+#define TEXEL_NODES 1
 #endif
 #include "ray.glsl"
 #include "kdtree.glsl"
@@ -140,6 +154,9 @@ void vkrtUseStructure(uint64_t handle) {
     VkrtHandle h = VkrtHandle(handle);
     vkrt_kd_nodes = VkrtKdNodes(h.addresses[0]);
     vkrt_bvh_nodes = VkrtBvhNodes(h.addresses[0]);
+#if !FP64_FALLBACK
+    vkrt_wide_nodes = VkrtWideNodes(h.addresses[0]);
+#endif
     vkrt_kd_refs = VkrtWords(h.addresses[1]);
     vkrt_tri_verts = VkrtFloats(h.addresses[2]);
     vkrt_spheres = VkrtVec4s(h.addresses[3]);
@@ -159,6 +176,7 @@ void vkrtUseStructure(uint64_t handle) {
 #define VKRT_WALK_KDTREE 0u
 #define VKRT_WALK_BVH 1u
 #define VKRT_WALK_BVH_BITSTACK 2u
+#define VKRT_WALK_BVH_WIDE 4u
 
 Hit vkrt_trace(vec3 origin, float tMin, vec3 direction, float tMax, float time, bool any_hit) {
     trace_steps_exhausted = false;
@@ -166,7 +184,8 @@ Hit vkrt_trace(vec3 origin, float tMin, vec3 direction, float tMax, float time, 
 #ifdef VKRT_WALK
     // One walk compiled in: a structure it does not serve is reported, never misread.
     uint kind = scene_info.walk;
-    if (VKRT_WALK == VKRT_WALK_KDTREE ? kind != ACCEL_KDTREE : kind != ACCEL_BVH_STACK) {
+    // (the bitstack walks a binary BVH, whose structures say ACCEL_BVH_STACK)
+    if (kind != (VKRT_WALK == VKRT_WALK_BVH_BITSTACK ? ACCEL_BVH_STACK : VKRT_WALK)) {
         trace_steps_exhausted = true;
         return miss_hit();
     }

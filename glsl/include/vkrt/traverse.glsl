@@ -147,17 +147,22 @@ layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 6) readonly buffer Scene
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtU64s { uint64_t v[]; };
 VkrtU64s vkrt_tlas;
 #define tlas_address vkrt_tlas.v[0]
+#elif TEXEL_NODES
+// The nodes binding is a texel buffer: the address is the first texel's two low words.
+#define tlas_address packUint2x32(texelFetch(node_texels, 0).xy)
 #else
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer DriverTlas { uint64_t tlas_address; };
 #endif
 #endif
 
 // 0: kd-tree; 1: BVH with a stack; 2: BVH with the bitstack walk; 3: the driver's ray query
-// (AccelTraversal::spec; kernels compiled with RAY_QUERY walk only that).
+// (AccelTraversal::spec; kernels compiled with RAY_QUERY walk only that); 4: the 4-wide BVH
+// with a stack.
 #define ACCEL_KDTREE 0u
 #define ACCEL_BVH_STACK 1u
 #define ACCEL_BVH_BITSTACK 2u
 #define ACCEL_RAY_QUERY 3u
+#define ACCEL_BVH_WIDE 4u
 #ifndef VKRT_LIBRARY
 layout(constant_id = 20) const uint ACCEL_KIND = 0u;
 #endif
@@ -567,7 +572,7 @@ Hit trace_ray_query(Ray r, float time, bool any_hit) {
             return miss_hit();
         }
         if (rayQueryGetIntersectionTypeEXT(q, false) == gl_RayQueryCandidateIntersectionAABBEXT) {
-            uint prim = kd_refs[rayQueryGetIntersectionInstanceIdEXT(q, false)]
+            uint prim = KD_REF(rayQueryGetIntersectionInstanceIdEXT(q, false))
                 + uint(rayQueryGetIntersectionPrimitiveIndexEXT(q, false));
             float t, u, v;
             if (hit_primitive(prim, r, sh, time, tmin, best_t, t, u, v)) {
@@ -581,7 +586,7 @@ Hit trace_ray_query(Ray r, float time, bool any_hit) {
     if (committed == gl_RayQueryCommittedIntersectionNoneEXT) {
         return miss_hit();
     }
-    uint prim = kd_refs[rayQueryGetIntersectionInstanceIdEXT(q, true)]
+    uint prim = KD_REF(rayQueryGetIntersectionInstanceIdEXT(q, true))
         + uint(rayQueryGetIntersectionPrimitiveIndexEXT(q, true));
     float t = rayQueryGetIntersectionTEXT(q, true);
     if (committed == gl_RayQueryCommittedIntersectionTriangleEXT) {
@@ -607,6 +612,9 @@ Hit trace_walk(uint walk, Ray r, float time, bool any_hit) {
     }
     if (walk == ACCEL_BVH_BITSTACK) {
         return trace_bvh_bitstack(r, time, any_hit);
+    }
+    if (walk == ACCEL_BVH_WIDE) {
+        return trace_bvh_wide(r, time, any_hit);
     }
     // A walk this shader was not compiled for (the driver's structure without RAY_QUERY):
     // reported like a walk that gave up, never as a silent miss.

@@ -119,6 +119,7 @@ pub fn collapse(bvh: &Bvh, p: &BvhParams) -> Bvh {
         parents: vec![NO_NODE; next_node as usize],
         refs: vec![0; bvh.refs.len()],
         bounds: bvh.bounds,
+        wide: Default::default(),
     };
     for i in (0..n_nodes).filter(|&i| live[i]) {
         let j = index[i] as usize;

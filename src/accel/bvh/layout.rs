@@ -76,7 +76,8 @@ impl BvhNode {
         (bounds, child)
     }
 
-    pub(crate) fn set_child(&mut self, which: usize, bounds: Aabb, child: Child) {
+    /// Sets child `which` (0: `a`, 1: `b`) to `child` with box `bounds`.
+    pub fn set_child(&mut self, which: usize, bounds: Aabb, child: Child) {
         let (index, count) = match child {
             Child::Node(n) => (n, 0),
             Child::Leaf { first, count } => (first, count),
@@ -102,9 +103,35 @@ pub struct Bvh {
     pub refs: Vec<u32>,
     /// Box of every primitive.
     pub bounds: Aabb,
+    /// The 4-wide nodes of [`Bvh::wide`], made when first asked for.
+    pub wide: WideCache,
+}
+
+/// [`Bvh::wide`]'s nodes, derived from the binary ones (equal whether made or not).
+#[derive(Clone, Debug, Default)]
+pub struct WideCache(std::sync::OnceLock<Vec<super::wide::WideNode>>);
+
+impl PartialEq for WideCache {
+    fn eq(&self, _: &Self) -> bool {
+        true
+    }
 }
 
 impl Bvh {
+    /// The 4-wide nodes ([`super::wide`]): wide node `i` from binary node `i`, the root 0.
+    /// Made from the nodes when first asked for; code that edits `nodes` after that calls
+    /// [`Bvh::nodes_changed`].
+    pub fn wide(&self) -> &[super::wide::WideNode] {
+        self.wide
+            .0
+            .get_or_init(|| super::wide::widen(&self.nodes, self.nodes.len()))
+    }
+
+    /// Forgets the wide nodes made from the old `nodes`.
+    pub fn nodes_changed(&mut self) {
+        self.wide = WideCache::default();
+    }
+
     /// Device bytes of the layout: nodes, parent links and references.
     pub fn bytes(&self) -> usize {
         std::mem::size_of_val(self.nodes.as_slice())

@@ -242,6 +242,7 @@ pub fn build(boxes: &[Aabb], bits: MortonBits) -> Bvh {
         parents,
         refs: order,
         bounds: Aabb::EMPTY,
+        wide: Default::default(),
     };
     refit(&mut bvh, boxes);
     bvh

@@ -2,7 +2,8 @@
 //! ([`layout`]), Sochora's (2013) multithreaded CPU SAH builder ([`sah`]), the refit that follows
 //! moved primitives ([`refit`](mod@refit), CPU twin of the GPU kernel), and a structural validator
 //! with the SAH cost of a built tree ([`validate`]); the GPU builders' LBVH ([`lbvh`]) and
-//! PLOC ([`ploc`]) with the SAH leaf collapse of their trees ([`collapse`]).
+//! PLOC ([`ploc`]) with the SAH leaf collapse of their trees ([`collapse`]); and the 4-wide
+//! quantized layout every BVH can be walked in ([`wide`]).
 
 #[cfg(feature = "cli")]
 pub mod bench;
@@ -17,6 +18,8 @@ pub mod refit;
 pub mod refit_gpu;
 pub mod sah;
 pub mod validate;
+pub mod wide;
+pub mod wide_gpu;
 
 pub use layout::{Bvh, BvhNode, Child, NO_NODE};
 

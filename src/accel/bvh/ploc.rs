@@ -179,6 +179,7 @@ pub fn build(boxes: &[Aabb], params: &PlocParams) -> (Bvh, PlocStats) {
             parents,
             refs: order,
             bounds: Aabb::EMPTY,
+            wide: Default::default(),
         };
         super::refit::refit(&mut bvh, boxes);
         return (bvh, stats);
@@ -228,6 +229,7 @@ pub fn build(boxes: &[Aabb], params: &PlocParams) -> (Bvh, PlocStats) {
             parents,
             refs: order,
             bounds,
+            wide: Default::default(),
         },
         stats,
     )

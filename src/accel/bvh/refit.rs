@@ -22,6 +22,7 @@ pub fn union(a: &Aabb, b: &Aabb) -> Aabb {
 /// Recomputes every child box of `bvh` (and its bounds) over `boxes`, the primitives' boxes
 /// after they moved; the topology is unchanged.
 pub fn refit(bvh: &mut Bvh, boxes: &[Aabb]) {
+    bvh.nodes_changed();
     if bvh.nodes.is_empty() {
         bvh.bounds = Aabb::EMPTY;
         return;

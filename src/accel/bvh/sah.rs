@@ -142,6 +142,7 @@ pub fn build(boxes: &[Aabb], params: &BvhParams, threading: Threading) -> Result
             parents: Vec::new(),
             refs: Vec::new(),
             bounds,
+            wide: Default::default(),
         });
     }
     let [x, y, z] = &mut order;
@@ -611,6 +612,7 @@ fn flatten(tree: &Tmp, bounds: Aabb, refs: Vec<u32>) -> Bvh {
         parents: Vec::new(),
         refs,
         bounds,
+        wide: Default::default(),
     };
     match tree {
         Tmp::Leaf { .. } => {
