@@ -112,7 +112,8 @@ enum Command {
         /// the SAH kd-tree built on the GPU. The image is the same.
         #[arg(long, value_enum, default_value_t = AccelArg::SahBvh)]
         accel: AccelArg,
-        /// How a BVH is walked: a stack, or the stackless bitstack walk with parent links.
+        /// How a BVH is walked: a stack, the stackless bitstack walk with parent links, or
+        /// a stack over 4-wide quantized nodes made after the build.
         #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
         traversal: TraversalArg,
         #[arg(long)]
@@ -152,7 +153,8 @@ enum Command {
         /// same.
         #[arg(long, value_enum, default_value_t = AccelArg::SahBvh)]
         accel: AccelArg,
-        /// How a BVH is walked: a stack, or the stackless bitstack walk with parent links.
+        /// How a BVH is walked: a stack, the stackless bitstack walk with parent links, or
+        /// a stack over 4-wide quantized nodes made after the build.
         #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
         traversal: TraversalArg,
         #[arg(long)]

@@ -31,6 +31,7 @@ pub use rays::{BenchScene, RayKind, RaySet, ShadowTarget};
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelStructure};
 use crate::accel::driver::Prefer;
 use crate::gpu::{Context, GpuError, Recorder, Result};
+use crate::trace::bvh_cpu::Traversal;
 use crate::trace::gpu::{GpuGeometry, Tracer};
 use crate::trace::{Hit, Query, TraceGeometry, TraceOptions};
 
@@ -233,7 +234,8 @@ pub fn run(ctx: &Context, scenes: &[BenchScene], opt: &BenchOptions) -> Result<T
 }
 
 /// The structures to build, each with the walks that trace it: every [`AccelChoice`] the
-/// device has, and the driver's structure built for a fast build too.
+/// device has, and the driver's structure built for a fast build too. A BVH walked wide is a
+/// structure of its own (its wide nodes are made after the build).
 fn structures(ctx: &Context) -> Vec<(AccelChoice, Vec<AccelChoice>)> {
     let mut choices = AccelChoice::all_on(ctx);
     if ctx.info().features.ray_query {
@@ -242,7 +244,13 @@ fn structures(ctx: &Context) -> Vec<(AccelChoice, Vec<AccelChoice>)> {
     let mut out: Vec<(AccelChoice, Vec<AccelChoice>)> = Vec::new();
     for c in choices {
         match out.last_mut() {
-            Some((s, walks)) if s.kind == c.kind && s.prefer == c.prefer => walks.push(c),
+            Some((s, walks))
+                if s.kind == c.kind
+                    && s.prefer == c.prefer
+                    && (s.walk == Traversal::Wide) == (c.walk == Traversal::Wide) =>
+            {
+                walks.push(c)
+            }
             _ => out.push((c, vec![c])),
         }
     }
@@ -274,6 +282,7 @@ pub fn bench_scene(
         };
         let name = match structure.kind {
             AccelKind::Driver => structure.label(),
+            _ if structure.walk == Traversal::Wide => structure.label(),
             kind => kind.name().to_string(),
         };
         builds.push(BuildRow {
