@@ -152,7 +152,7 @@ fn widen_node(nodes: &[BvhNode], n_slots: usize, i: usize) -> WideNode {
 /// empty or flat union, or one with a non-finite plane) gets the smallest scale at the
 /// origin `lo` (0 where `lo` is not finite).
 fn frame(lo: f32, hi: f32) -> (f32, u32) {
-    if !(lo <= hi) || !lo.is_finite() {
+    if !lo.is_finite() || hi.is_nan() || lo > hi {
         return (0.0, 1);
     }
     let extent = hi - lo;
