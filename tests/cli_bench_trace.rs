@@ -28,10 +28,13 @@ fn expected_structures(ray_query: bool) -> Vec<&'static str> {
         "kdtree",
         "sah-bvh/stack",
         "sah-bvh/bitstack",
+        "sah-bvh/wide",
         "lbvh/stack",
         "lbvh/bitstack",
+        "lbvh/wide",
         "ploc/stack",
         "ploc/bitstack",
+        "ploc/wide",
     ];
     if ray_query {
         s.extend(["driver", "driver/fast-build"]);
@@ -82,7 +85,16 @@ fn quick_json_has_every_structure_and_agreeing_hits() {
                 b["structure"].as_str().unwrap()
             })
             .collect();
-        let mut want_builds = vec!["kdtree", "sah-bvh", "lbvh", "ploc"];
+        // A BVH walked wide is built for it (its wide nodes follow the build).
+        let mut want_builds = vec![
+            "kdtree",
+            "sah-bvh",
+            "sah-bvh/wide",
+            "lbvh",
+            "lbvh/wide",
+            "ploc",
+            "ploc/wide",
+        ];
         if ray_query {
             want_builds.extend(["driver", "driver/fast-build"]);
         }

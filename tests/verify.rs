@@ -27,7 +27,7 @@ fn every_check_passes_on_this_device() {
         assert!(report.groups.contains_key(group), "no {group} checks");
     }
     // Every structure and walk against brute force, both tests, both queries, two scenes.
-    assert_eq!(report.groups["walks"].checks, 7 * 2 * 2 * 2);
+    assert_eq!(report.groups["walks"].checks, 10 * 2 * 2 * 2);
     // The validation layer was on and stayed silent (a check of its own).
     if ctx.validation_enabled() {
         assert_eq!(report.groups["validation"].failed, 0);
