@@ -117,19 +117,6 @@ fn gpu_build(ctx: &Context, builder: &mut AccelBuilder, g: &TraceGeometry) -> Me
     }
 }
 
-/// Least-squares slope of log(ms) over log(n).
-fn exponent(points: &[(f64, f64)]) -> f64 {
-    let xs: Vec<f64> = points.iter().map(|p| p.0.ln()).collect();
-    let ys: Vec<f64> = points.iter().map(|p| p.1.ln()).collect();
-    let (mx, my) = (
-        xs.iter().sum::<f64>() / xs.len() as f64,
-        ys.iter().sum::<f64>() / ys.len() as f64,
-    );
-    let num: f64 = xs.iter().zip(&ys).map(|(x, y)| (x - mx) * (y - my)).sum();
-    let den: f64 = xs.iter().map(|x| (x - mx) * (x - mx)).sum();
-    num / den
-}
-
 fn main() {
     let args: Vec<String> = std::env::args().collect();
     let json = args.iter().any(|a| a == "--json");
@@ -225,7 +212,7 @@ fn main() {
                 .filter(|r| &r.builder == label && r.scene.starts_with("icosphere"))
                 .map(|r| (r.triangles as f64, r.build_ms))
                 .collect();
-            (label.clone(), (pts.len() >= 2).then(|| exponent(&pts)))
+            (label.clone(), vkrt::bench::power_law_exponent(&pts))
         })
         .collect();
     if json {

@@ -352,15 +352,16 @@ fn kd_variants() -> Vec<(
     ]
 }
 
-fn fit_exponent(points: &[(f64, f64)]) -> Option<f64> {
+/// The exponent `k` of the power law `ms ≈ c·n^k` through `(n, ms)` points: the
+/// least-squares slope of log(ms) over log(n); `None` for fewer than two points.
+pub fn power_law_exponent(points: &[(f64, f64)]) -> Option<f64> {
     (points.len() >= 2).then(|| {
-        let n = points.len() as f64;
-        let (sx, sy) = points
-            .iter()
-            .fold((0.0, 0.0), |a, p| (a.0 + p.0, a.1 + p.1));
+        let logs: Vec<(f64, f64)> = points.iter().map(|p| (p.0.ln(), p.1.ln())).collect();
+        let n = logs.len() as f64;
+        let (sx, sy) = logs.iter().fold((0.0, 0.0), |a, p| (a.0 + p.0, a.1 + p.1));
         let (mx, my) = (sx / n, sy / n);
-        let num: f64 = points.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
-        let den: f64 = points.iter().map(|p| (p.0 - mx).powi(2)).sum();
+        let num: f64 = logs.iter().map(|p| (p.0 - mx) * (p.1 - my)).sum();
+        let den: f64 = logs.iter().map(|p| (p.0 - mx).powi(2)).sum();
         num / den
     })
 }
@@ -468,14 +469,30 @@ pub fn kdtree_report(
         rows.iter()
             .filter(|r| r.variant == "default" && r.error.is_none())
             .filter(|r| all || r.scene.starts_with("icosphere"))
-            .map(|r| ((r.primitives as f64).ln(), r.build_ms.ln()))
+            .map(|r| (r.primitives as f64, r.build_ms))
             .collect()
     };
     Ok(KdBenchReport {
         device: ctx.info().device.clone(),
         params: *params,
-        fitted_exponent: fit_exponent(&points(false)),
-        fitted_exponent_all: fit_exponent(&points(true)),
+        fitted_exponent: power_law_exponent(&points(false)),
+        fitted_exponent_all: power_law_exponent(&points(true)),
         rows,
     })
+}
+
+#[cfg(test)]
+mod tests {
+    use super::power_law_exponent;
+
+    #[test]
+    fn the_power_law_exponent_of_exact_points_is_their_power() {
+        let pts: Vec<(f64, f64)> = [1e3, 1e4, 2e5, 3e6]
+            .iter()
+            .map(|&n: &f64| (n, 0.25 * n.powf(1.37)))
+            .collect();
+        let k = power_law_exponent(&pts).unwrap();
+        assert!((k - 1.37).abs() < 1e-9, "{k}");
+        assert_eq!(power_law_exponent(&pts[..1]), None);
+    }
 }
