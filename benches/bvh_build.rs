@@ -18,10 +18,11 @@ use vkrt::gpu::Recorder;
 use vkrt::trace::gpu::GpuGeometry;
 use vkrt::trace::TraceGeometry;
 
+#[path = "common/args.rs"]
+mod args;
+
 fn main() {
-    let args: Vec<String> = std::env::args().collect();
-    let json = args.iter().any(|a| a == "--json");
-    let quick = args.iter().any(|a| a == "--quick");
+    let args::BenchArgs { json, quick, .. } = args::parse();
     let (ctx, embree) = embree::context_and_peer();
     let sizes: &[u64] = if quick {
         &[100_000, 500_000]

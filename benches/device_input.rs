@@ -183,10 +183,11 @@ fn bindings_vs_address(ctx: &Context, g: &GpuGeometry, rays: &[Ray]) -> (f64, f6
     best
 }
 
+#[path = "common/args.rs"]
+mod args;
+
 fn main() {
-    let args: Vec<String> = std::env::args().collect();
-    let json = args.iter().any(|a| a == "--json");
-    let quick = args.iter().any(|a| a == "--quick");
+    let args::BenchArgs { json, quick, .. } = args::parse();
     let ctx = Context::new(&ContextOptions::default()).expect("a Vulkan device");
     let mut rows = Vec::new();
     for mesh in meshes(quick) {

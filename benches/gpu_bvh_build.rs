@@ -117,10 +117,11 @@ fn gpu_build(ctx: &Context, builder: &mut AccelBuilder, g: &TraceGeometry) -> Me
     }
 }
 
+#[path = "common/args.rs"]
+mod args;
+
 fn main() {
-    let args: Vec<String> = std::env::args().collect();
-    let json = args.iter().any(|a| a == "--json");
-    let quick = args.iter().any(|a| a == "--quick");
+    let args::BenchArgs { json, quick, .. } = args::parse();
     let (ctx, embree) = embree::context_and_peer();
     let sizes: &[u64] = if quick {
         &[100_000, 200_000, 500_000]

@@ -17,14 +17,11 @@ mod embree;
 use vkrt::trace::bench::{self, Backend, BenchOptions, BenchScene, BuildRow, TraceRow};
 use vkrt::trace::Query;
 
+#[path = "common/args.rs"]
+mod args;
+
 fn main() {
-    let args: Vec<String> = std::env::args().collect();
-    let json = args.iter().any(|a| a == "--json");
-    let size: u32 = args
-        .iter()
-        .position(|a| a == "--size")
-        .and_then(|i| args.get(i + 1)?.parse().ok())
-        .unwrap_or(512);
+    let args::BenchArgs { json, size, .. } = args::parse();
     let opt = BenchOptions { size, reps: 3 };
     let (ctx, embree) = embree::context_and_peer();
     let mut report = bench::TraceBenchReport {
