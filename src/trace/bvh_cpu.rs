@@ -196,44 +196,26 @@ pub fn trace(
 /// them, and one beyond the closest hit so far is dropped when popped. True when finished
 /// within the step cap.
 fn stack(q: &mut Query1<'_>) -> bool {
-    let mut stack: Vec<(Child, f32)> = Vec::new();
-    let mut cur = Some(Child::Node(0));
-    while let Some(c) = cur {
-        match c {
-            Child::Node(n) => {
-                if q.steps > q.opt.max_steps() {
-                    return false;
-                }
-                q.steps += 1;
-                let node = q.bvh.nodes[n as usize];
-                let best_t = q.best_t();
-                let hit = |which: usize| {
-                    let (b, child) = node.child(which);
-                    if child == Child::None {
-                        return None;
-                    }
-                    enter(&b, q.o, q.d, q.inv_d, q.tmin, best_t).map(|t| (child, t))
-                };
-                cur = match (hit(0), hit(1)) {
-                    (Some(a), Some(b)) => {
-                        let (near, far) = if b.1 < a.1 { (b, a) } else { (a, b) };
-                        stack.push(far);
-                        Some(near.0)
-                    }
-                    (Some(one), None) | (None, Some(one)) => Some(one.0),
-                    (None, None) => pop(&mut stack, q.best_t()),
-                };
+    walk_with_stack(q, |q, n, stack| {
+        let node = q.bvh.nodes[n as usize];
+        let best_t = q.best_t();
+        let hit = |which: usize| {
+            let (b, child) = node.child(which);
+            if child == Child::None {
+                return None;
             }
-            Child::Leaf { first, count } => {
-                if q.leaf(first, count) {
-                    return true;
-                }
-                cur = pop(&mut stack, q.best_t());
+            enter(&b, q.o, q.d, q.inv_d, q.tmin, best_t).map(|t| (child, t))
+        };
+        match (hit(0), hit(1)) {
+            (Some(a), Some(b)) => {
+                let (near, far) = if b.1 < a.1 { (b, a) } else { (a, b) };
+                stack.push(far);
+                Some(near.0)
             }
-            Child::None => unreachable!("missing children are never visited"),
+            (Some(one), None) | (None, Some(one)) => Some(one.0),
+            (None, None) => None,
         }
-    }
-    true
+    })
 }
 
 /// The stack walk over the 4-wide nodes, as the GPU runs it (`trace_bvh_wide` in
@@ -242,6 +224,39 @@ fn stack(q: &mut Query1<'_>) -> bool {
 /// ones entered pushed farthest first and the nearest taken; leaves are tested when in hand.
 fn wide_stack(q: &mut Query1<'_>) -> bool {
     let wide = q.bvh.wide();
+    walk_with_stack(q, |q, n, stack| {
+        let node = &wide[n as usize];
+        let best_t = q.best_t();
+        let mut kids: [(f32, Child); 4] = std::array::from_fn(|k| {
+            let (b, child) = node.child(k);
+            match enter(&b, q.o, q.d, q.inv_d, q.tmin, best_t) {
+                Some(t) if child != Child::None => (t, child),
+                _ => (f32::INFINITY, Child::None),
+            }
+        });
+        for (a, b) in [(0, 1), (2, 3), (0, 2), (1, 3), (1, 2)] {
+            if kids[b].0 < kids[a].0 {
+                kids.swap(a, b);
+            }
+        }
+        for &(t, child) in kids[1..].iter().rev() {
+            if child != Child::None {
+                stack.push((child, t));
+            }
+        }
+        match kids[0].1 {
+            Child::None => None,
+            near => Some(near),
+        }
+    })
+}
+
+/// The while-while loop both stack walks share: `expand(q, node, stack)` visits an interior
+/// node, pushes the children that wait and returns the one to take next (`None`: pop).
+fn walk_with_stack<'a>(
+    q: &mut Query1<'a>,
+    mut expand: impl FnMut(&Query1<'a>, u32, &mut Vec<(Child, f32)>) -> Option<Child>,
+) -> bool {
     let mut stack: Vec<(Child, f32)> = Vec::new();
     let mut cur = Some(Child::Node(0));
     while let Some(c) = cur {
@@ -251,31 +266,9 @@ fn wide_stack(q: &mut Query1<'_>) -> bool {
                     return false;
                 }
                 q.steps += 1;
-                let node = &wide[n as usize];
-                let best_t = q.best_t();
-                let mut kids: [(f32, Child); 4] = std::array::from_fn(|k| {
-                    let (b, child) = node.child(k);
-                    if child == Child::None {
-                        return (f32::INFINITY, Child::None);
-                    }
-                    match enter(&b, q.o, q.d, q.inv_d, q.tmin, best_t) {
-                        Some(t) => (t, child),
-                        None => (f32::INFINITY, Child::None),
-                    }
-                });
-                for (a, b) in [(0, 1), (2, 3), (0, 2), (1, 3), (1, 2)] {
-                    if kids[b].0 < kids[a].0 {
-                        kids.swap(a, b);
-                    }
-                }
-                for &(t, child) in kids[1..].iter().rev() {
-                    if child != Child::None {
-                        stack.push((child, t));
-                    }
-                }
-                cur = match kids[0].1 {
-                    Child::None => pop(&mut stack, q.best_t()),
-                    near => Some(near),
+                cur = match expand(q, n, &mut stack) {
+                    Some(next) => Some(next),
+                    None => pop(&mut stack, q.best_t()),
                 };
             }
             Child::Leaf { first, count } => {
