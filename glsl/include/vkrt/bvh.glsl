@@ -106,6 +106,17 @@ WideNode load_wide_node(uint i) {
 }
 #endif
 
+// The stack walks' pop: the nearest entry the ray still reaches before its closest hit
+// (`have` false when none is left). A statement over the walk's own `stack`, `stack_t`,
+// `top`, `cur`, `have` and `best_t`: GLSL passes arrays by copy.
+#define BVH_POP()                           \
+    have = false;                           \
+    while (top > 0u && !have) {             \
+        top--;                              \
+        cur = stack[top];                   \
+        have = stack_t[top] <= best_t;      \
+    }
+
 // Where the ray enters the box within [t0, t1] (traverse.glsl's clip_to_box).
 bool bvh_enter(vec3 bmin, vec3 bmax, Ray r, vec3 inv_d, float t0, float t1, out float t_in) {
     float hi = t1;
@@ -164,12 +175,7 @@ Hit trace_bvh_stack(Ray r, float time, bool any_hit) {
                 cur = hit_a ? ca : cb;
             } else {
                 // Pop the nearest entry the ray still reaches before its closest hit.
-                have = false;
-                while (top > 0u && !have) {
-                    top--;
-                    cur = stack[top];
-                    have = stack_t[top] <= best_t;
-                }
+                BVH_POP();
             }
         }
         if (!have) {
@@ -182,12 +188,7 @@ Hit trace_bvh_stack(Ray r, float time, bool any_hit) {
         if (test_leaf(cur.x, cur.y, r, sh, time, tmin, any_hit, best, best_t)) {
             return best;
         }
-        have = false;
-        while (top > 0u && !have) {
-            top--;
-            cur = stack[top];
-            have = stack_t[top] <= best_t;
-        }
+        BVH_POP();
     }
     trace_steps_exhausted = true;
     return best;
@@ -356,12 +357,7 @@ Hit trace_bvh_wide(Ray r, float time, bool any_hit) {
             if (c0.x != NO_NODE || c0.y != 0u) {
                 cur = c0;
             } else {
-                have = false;
-                while (top > 0u && !have) {
-                    top--;
-                    cur = stack[top];
-                    have = stack_t[top] <= best_t;
-                }
+                BVH_POP();
             }
         }
         if (!have) {
@@ -374,12 +370,7 @@ Hit trace_bvh_wide(Ray r, float time, bool any_hit) {
         if (test_leaf(cur.x, cur.y, r, sh, time, tmin, any_hit, best, best_t)) {
             return best;
         }
-        have = false;
-        while (top > 0u && !have) {
-            top--;
-            cur = stack[top];
-            have = stack_t[top] <= best_t;
-        }
+        BVH_POP();
     }
     trace_steps_exhausted = true;
     return best;
