@@ -18,11 +18,13 @@ struct ProbeRay {
 };
 layout(std430, binding = 0) readonly buffer Rays { ProbeRay rays[]; };
 // Per ray: t (bits; NO_HIT for a miss, NO_HIT - 1 when the walk gave up), geometry index,
-// primitive index, 0.
+// primitive index, instance index (or, with `mode` bit 0, the instance's custom index).
 layout(std430, binding = 1) writeonly buffer Hits { uvec4 hits[]; };
 layout(push_constant) uniform Push {
     uint n;
-    uint pad;
+    // Bit 0: report custom indices; bit 1: any-hit queries; bits 8..16: the cull mask,
+    // inverted (0: every instance).
+    uint mode;
     uvec2 handle; // `address`: where the structure's handle lies
 } pc;
 
@@ -35,11 +37,13 @@ void main() {
     vkrtUseStructure(packUint2x32(pc.handle));
 #endif
     ProbeRay r = rays[i];
-    VkrtHit h = vkrtTraceClosest(r.origin_tmin.xyz, r.origin_tmin.w, r.dir_tmax.xyz,
-                                 r.dir_tmax.w);
+    uint cull_mask = ~(pc.mode >> 8u) & 0xffu;
+    VkrtHit h = vkrtTrace(r.origin_tmin.xyz, r.origin_tmin.w, r.dir_tmax.xyz, r.dir_tmax.w, 0.0,
+                          cull_mask, (pc.mode & 2u) != 0u);
     if (!h.hit || h.exhausted) {
         hits[i] = uvec4(h.exhausted ? 0xfffffffeu : 0xffffffffu, 0u, 0u, 0u);
         return;
     }
-    hits[i] = uvec4(floatBitsToUint(h.t), h.geometryIndex, h.primitiveIndex, 0u);
+    uint instance = (pc.mode & 1u) != 0u ? h.instanceCustomIndex : h.instanceIndex;
+    hits[i] = uvec4(floatBitsToUint(h.t), h.geometryIndex, h.primitiveIndex, instance);
 }

@@ -579,6 +579,10 @@ pub struct AccelBuilder {
     pub wide: bool,
     /// `accel.bvh_widen` (BVH kinds).
     widen: Option<Widen>,
+    /// The tree of a top level over instances' boxes
+    /// ([`crate::accel::instances::TopLevelBuilder`]): walked as one
+    /// (`SceneInfo::WALK_INSTANCES`).
+    pub(crate) top_level: bool,
     /// The kd-tree's first reference budget per level; `None`: 4 per primitive
     /// ([`BuildCapacity::for_primitives`]). Tests set it tiny to exercise running out.
     pub kd_refs_per_level: Option<usize>,
@@ -644,6 +648,7 @@ impl AccelBuilder {
                 _ => None,
             },
             wide: false,
+            top_level: false,
             allow_update: false,
             kd_params: SahParams::default(),
             bvh_params: BvhParams::default(),

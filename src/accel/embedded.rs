@@ -96,6 +96,7 @@ fn header_of(builder: &AccelBuilder, n: usize) -> (u32, u32) {
     let walk = match kind {
         AccelKind::KdTree => SceneInfo::WALK_KDTREE,
         AccelKind::Driver => SceneInfo::WALK_RAY_QUERY,
+        _ if builder.top_level => SceneInfo::WALK_INSTANCES,
         _ => builder.bvh_walk(),
     };
     let parents_at = match kind {

@@ -431,7 +431,7 @@ fn records(
 }
 
 /// The range as bound: from the aligned offset at or below its start, within one binding.
-fn bound(ctx: &Context, r: &RawBuffer) -> (RawBuffer, u64) {
+pub(crate) fn bound(ctx: &Context, r: &RawBuffer) -> (RawBuffer, u64) {
     let align = ctx.info().min_storage_buffer_offset_alignment.max(4);
     let start = r.offset - r.offset % align;
     let skip = r.offset - start;

@@ -9,5 +9,6 @@ pub mod device;
 pub mod driver;
 pub mod embedded;
 pub mod geometry;
+pub mod instances;
 pub mod kdtree;
 pub mod shader_library;

@@ -19,6 +19,10 @@ pub const FILES: &[(&str, &str)] = &[
         include_str!("../../glsl/include/vkrt/ray_query.glsl"),
     ),
     (
+        "vkrt/instances.glsl",
+        include_str!("../../glsl/include/vkrt/instances.glsl"),
+    ),
+    (
         "vkrt/traverse.glsl",
         include_str!("../../glsl/include/vkrt/traverse.glsl"),
     ),

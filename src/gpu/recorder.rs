@@ -487,6 +487,43 @@ impl Recorder {
         };
     }
 
+    /// Copies `len` elements of `src` from element `src_at` on into `dst` from `dst_at` on.
+    pub fn copy_range<T: Pod>(
+        &mut self,
+        src: &Buffer<T>,
+        src_at: usize,
+        dst: &Buffer<T>,
+        dst_at: usize,
+        len: usize,
+    ) {
+        if src_at + len > src.len() || dst_at + len > dst.len() {
+            let reason = format!(
+                "copy of {len} elements from `{}` at {src_at} to `{}` at {dst_at}",
+                src.name(),
+                dst.name()
+            );
+            self.refuse("Recorder::copy_range", reason);
+            return;
+        }
+        if len == 0 || self.failed.is_some() {
+            return;
+        }
+        let elem = std::mem::size_of::<T>() as u64;
+        let region = vk::BufferCopy {
+            src_offset: src.offset() + src_at as u64 * elem,
+            dst_offset: dst.offset() + dst_at as u64 * elem,
+            size: len as u64 * elem,
+        };
+        // SAFETY: recording; both buffers have transfer usage and the regions are in range
+        // (checked above).
+        unsafe {
+            self.ctx
+                .inner
+                .device
+                .cmd_copy_buffer(self.cmd, src.raw(), dst.raw(), &[region])
+        };
+    }
+
     /// Records the upload of `data` into the start of `dst` (a transfer write, through a
     /// staging buffer this recorder keeps until its work has executed). Order it before
     /// kernels read `dst` with [`Recorder::transfer_to_compute`].

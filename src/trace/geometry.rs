@@ -78,7 +78,7 @@ pub struct SceneInfo {
     /// BVH: where the parent links start in the references buffer (0 for a kd-tree).
     pub parents_at: u32,
     /// How the shader library walks it (`ACCEL_*` in `traverse.glsl`): 0 kd-tree, 1 BVH,
-    /// 3 the driver's ray query, 4 a BVH's wide nodes.
+    /// 3 the driver's ray query, 4 a BVH's wide nodes, 8 a top level over instances.
     pub walk: u32,
     /// Entries of the geometry table that follows (0: one geometry, ids are its indices).
     pub n_geometries: u32,
@@ -95,6 +95,9 @@ impl SceneInfo {
     pub const WALK_RAY_QUERY: u32 = 3;
     /// A BVH with 4-wide nodes in the nodes binding.
     pub const WALK_BVH_WIDE: u32 = 4;
+    /// A top level: a BVH over instances' boxes, whose leaves name instances of bottom
+    /// levels (`vkrt/instances.glsl`).
+    pub const WALK_INSTANCES: u32 = 8;
 
     /// These constants, walked as `walk`.
     pub fn walked(self, walk: u32) -> Self {

@@ -128,29 +128,35 @@ struct VkrtHit {
     uint primitiveIndex;
     // The walk gave up (its step budget ran out): the answer is a miss, not to be trusted.
     bool exhausted;
+    // Through a top level: the instance hit (its index in the top level's list) and its
+    // custom index; 0xffffffff and 0 for a structure without instances.
+    uint instanceIndex;
+    uint instanceCustomIndex;
 };
-
-VkrtHit vkrt_to_public(Hit h) {
-    VkrtHit o;
-    o.hit = h.prim != NO_HIT;
-    o.t = h.t;
-    o.barycentrics = vec2(h.u, h.v);
-    uvec2 g = o.hit ? geometry_of(h.prim) : uvec2(0xffffffffu);
-    o.geometryIndex = g.x;
-    o.primitiveIndex = g.y;
-    o.exhausted = trace_steps_exhausted;
-    return o;
-}
 
 #ifdef VKRT_DEVICE_ADDRESS
-layout(buffer_reference, std430, buffer_reference_align = 8) readonly buffer VkrtHandle {
-    uint64_t addresses[7];
+// A top level's instance as its walk reads it (`InstanceRecord` in src/accel/instances.rs):
+// world-to-object rows, then (bottom level's handle address lo, hi, custom index | mask <<
+// 24, flags | bottom-level index << 8).
+struct VkrtInstanceRecord {
+    vec4 rows[3];
+    uvec4 meta;
 };
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer VkrtInstances {
+    VkrtInstanceRecord v[];
+};
+VkrtInstances vkrt_instances;
 
-// Makes the structure whose handle (`GpuGeometry::address_handle`: its seven arrays'
-// addresses, written where the shader reads them) lies at `handle` the one the queries
-// that follow trace.
-void vkrtUseStructure(uint64_t handle) {
+layout(buffer_reference, std430, buffer_reference_align = 8) readonly buffer VkrtHandle {
+    // Seven arrays; a top level's eighth is its instance records.
+    uint64_t addresses[];
+};
+// The structure in use (vkrtUseStructure): a top level's walk comes back to it after each
+// instance.
+uint64_t vkrt_top;
+
+// The arrays of the structure whose handle lies at `handle`.
+void vkrt_use(uint64_t handle) {
     VkrtHandle h = VkrtHandle(handle);
     vkrt_kd_nodes = VkrtKdNodes(h.addresses[0]);
     vkrt_bvh_nodes = VkrtBvhNodes(h.addresses[0]);
@@ -170,6 +176,17 @@ void vkrtUseStructure(uint64_t handle) {
 #ifdef RAY_QUERY
     vkrt_tlas = VkrtU64s(h.addresses[0]);
 #endif
+    if (scene_info.walk == ACCEL_INSTANCES) {
+        vkrt_instances = VkrtInstances(h.addresses[7]);
+    }
+}
+
+// Makes the structure whose handle lies at `handle` the one the queries that follow trace:
+// `GpuGeometry::address_handle` (its seven arrays' addresses, written where the shader reads
+// them), or a top level's `TopLevel::handle_address` (written by its build).
+void vkrtUseStructure(uint64_t handle) {
+    vkrt_top = handle;
+    vkrt_use(handle);
 }
 #endif
 
@@ -178,9 +195,8 @@ void vkrtUseStructure(uint64_t handle) {
 #define VKRT_WALK_BVH_BITSTACK 2u
 #define VKRT_WALK_BVH_WIDE 4u
 
-Hit vkrt_trace(vec3 origin, float tMin, vec3 direction, float tMax, float time, bool any_hit) {
-    trace_steps_exhausted = false;
-    Ray r = Ray(origin, tMin, direction, tMax);
+// The structure's own walk (a bottom level's, under a top level).
+Hit vkrt_walk(Ray r, float time, bool any_hit) {
 #ifdef VKRT_WALK
     // One walk compiled in: a structure it does not serve is reported, never misread.
     uint kind = scene_info.walk;
@@ -189,35 +205,74 @@ Hit vkrt_trace(vec3 origin, float tMin, vec3 direction, float tMax, float time, 
         trace_steps_exhausted = true;
         return miss_hit();
     }
-    Hit h = trace_walk(VKRT_WALK, r, time, any_hit);
+    return trace_walk(VKRT_WALK, r, time, any_hit);
 #else
-    Hit h = trace_walk(scene_info.walk, r, time, any_hit);
+    return trace_walk(scene_info.walk, r, time, any_hit);
 #endif
-    if (trace_steps_exhausted) {
-        h = miss_hit();
+}
+
+#ifdef VKRT_DEVICE_ADDRESS
+#include "instances.glsl"
+#endif
+
+VkrtHit vkrt_trace(vec3 origin, float tMin, vec3 direction, float tMax, float time,
+                   uint cull_mask, bool any_hit) {
+    trace_steps_exhausted = false;
+    Ray r = Ray(origin, tMin, direction, tMax);
+    Hit h;
+    uvec2 g = uvec2(0xffffffffu);
+    uvec2 instance = uvec2(0xffffffffu, 0u);
+#ifdef VKRT_DEVICE_ADDRESS
+    if (scene_info.walk == ACCEL_INSTANCES) {
+        h = trace_instances(r, time, any_hit, cull_mask, g, instance);
+    } else
+#endif
+    {
+        // (a top level read through bindings: trace_walk reports it exhausted)
+        h = vkrt_walk(r, time, any_hit);
+        if (h.prim != NO_HIT) {
+            g = geometry_of(h.prim);
+        }
     }
-    return h;
+    VkrtHit o;
+    o.exhausted = trace_steps_exhausted;
+    o.hit = h.prim != NO_HIT && !o.exhausted;
+    o.t = o.hit ? h.t : positive_inf();
+    o.barycentrics = o.hit ? vec2(h.u, h.v) : vec2(0.0);
+    o.geometryIndex = o.hit ? g.x : 0xffffffffu;
+    o.primitiveIndex = o.hit ? g.y : 0xffffffffu;
+    o.instanceIndex = o.hit ? instance.x : 0xffffffffu;
+    o.instanceCustomIndex = o.hit ? instance.y : 0u;
+    return o;
+}
+
+// The full form: the closest (or, with anyHit, any) hit with t in [tMin, tMax] at `time`,
+// among the instances whose mask shares a bit with `cullMask` (as VK_KHR_ray_query's
+// cullMask; a structure without instances ignores it).
+VkrtHit vkrtTrace(vec3 origin, float tMin, vec3 direction, float tMax, float time,
+                  uint cullMask, bool anyHit) {
+    return vkrt_trace(origin, tMin, direction, tMax, time, cullMask, anyHit);
 }
 
 // The closest hit with t in [tMin, tMax] (ties: the lowest primitive id).
 VkrtHit vkrtTraceClosest(vec3 origin, float tMin, vec3 direction, float tMax) {
-    return vkrt_to_public(vkrt_trace(origin, tMin, direction, tMax, 0.0, false));
+    return vkrt_trace(origin, tMin, direction, tMax, 0.0, 0xffu, false);
 }
 
 // vkrtTraceClosest at `time` (scenes with moving primitives; 0 otherwise).
 VkrtHit vkrtTraceClosestAt(vec3 origin, float tMin, vec3 direction, float tMax, float time) {
-    return vkrt_to_public(vkrt_trace(origin, tMin, direction, tMax, time, false));
+    return vkrt_trace(origin, tMin, direction, tMax, time, 0xffu, false);
 }
 
 // Any hit with t in [tMin, tMax] (the first found; for shadows and occlusion): the whole
 // answer of an any-hit query, with the hit's data.
 VkrtHit vkrtTraceAnyHit(vec3 origin, float tMin, vec3 direction, float tMax) {
-    return vkrt_to_public(vkrt_trace(origin, tMin, direction, tMax, 0.0, true));
+    return vkrt_trace(origin, tMin, direction, tMax, 0.0, 0xffu, true);
 }
 
 // Whether anything lies on the ray in [tMin, tMax].
 bool vkrtTraceAny(vec3 origin, float tMin, vec3 direction, float tMax) {
-    return vkrt_trace(origin, tMin, direction, tMax, 0.0, true).prim != NO_HIT;
+    return vkrt_trace(origin, tMin, direction, tMax, 0.0, 0xffu, true).hit;
 }
 
 // Whether the last query on this invocation gave up (its answer was then a miss).

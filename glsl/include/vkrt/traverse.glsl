@@ -163,6 +163,8 @@ layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer Drive
 #define ACCEL_BVH_BITSTACK 2u
 #define ACCEL_RAY_QUERY 3u
 #define ACCEL_BVH_WIDE 4u
+// A top level over instances (vkrt/instances.glsl; read at device addresses only).
+#define ACCEL_INSTANCES 8u
 #ifndef VKRT_LIBRARY
 layout(constant_id = 20) const uint ACCEL_KIND = 0u;
 #endif

@@ -1,0 +1,107 @@
+// The walk of a top level (vkrt/ray_query.glsl with VKRT_DEVICE_ADDRESS): a BVH over the
+// instances' world boxes, whose leaves name instances; at each the ray moves into the
+// instance's object space by its world-to-object rows (the direction not renormalised, so t
+// keeps its meaning and the closest hit so far bounds the bottom level's walk) and the
+// bottom level is walked with its own walk. CPU twin: `trace_instances` in
+// src/accel/instances.rs. Two levels only: a top level named by an instance reports the
+// query exhausted, as any structure a walk does not serve.
+#ifndef VKRT_INSTANCES_GLSL
+#define VKRT_INSTANCES_GLSL
+
+// rows · (p, 1), summed left to right and rounded term by term, as the CPU twin.
+vec3 vkrt_to_object(VkrtInstanceRecord rec, vec3 p, float w) {
+    precise vec3 q = vec3(rec.rows[0].x * p.x + rec.rows[0].y * p.y + rec.rows[0].z * p.z,
+                          rec.rows[1].x * p.x + rec.rows[1].y * p.y + rec.rows[1].z * p.z,
+                          rec.rows[2].x * p.x + rec.rows[2].y * p.y + rec.rows[2].z * p.z);
+    precise vec3 t = q + vec3(rec.rows[0].w, rec.rows[1].w, rec.rows[2].w);
+    return w != 0.0 ? t : q;
+}
+
+// The closest hit (or any, with any_hit) over the instances whose mask shares a bit with
+// `cull_mask`: its bottom-level hit, `geom` (geometry and primitive index in the bottom
+// level, found while that level is in use) and `instance` (index, custom index). Ties in t
+// go to the lowest instance index. Called with the top level in use; returns with it in use.
+Hit trace_instances(Ray r, float time, bool any_hit, uint cull_mask, out uvec2 geom,
+                    out uvec2 instance) {
+    Hit best = miss_hit();
+    geom = uvec2(0xffffffffu);
+    instance = uvec2(0xffffffffu, 0u);
+    if (!ray_is_valid(r) || primitive_count() == 0u) {
+        return best;
+    }
+    VkrtInstances records = vkrt_instances;
+    float tmin = max(r.tmin, 0.0);
+    vec3 inv_d = recip3(r.d);
+    float best_t = r.tmax;
+    uvec2 stack[BVH_MAX_DEPTH];
+    float stack_t[BVH_MAX_DEPTH];
+    uint top = 0u;
+    uvec2 cur = uvec2(0u, 0u);
+    bool have = true;
+    uint steps = 0u;
+    // The stack walk of trace_bvh_stack (bvh.glsl), with instances at its leaves.
+    while (true) {
+        while (have && cur.y == 0u && steps <= MAX_TRAVERSAL_STEPS) {
+            steps++;
+            BvhNode nd = load_bvh_node(cur.x);
+            float ta;
+            float tb;
+            bool hit_a = (nd.a_count > 0u || nd.a_index != NO_NODE)
+                && bvh_enter(nd.a_min, nd.a_max, r, inv_d, tmin, best_t, ta);
+            bool hit_b = (nd.b_count > 0u || nd.b_index != NO_NODE)
+                && bvh_enter(nd.b_min, nd.b_max, r, inv_d, tmin, best_t, tb);
+            uvec2 ca = uvec2(nd.a_index, nd.a_count);
+            uvec2 cb = uvec2(nd.b_index, nd.b_count);
+            if (hit_a && hit_b) {
+                bool b_first = tb < ta;
+                stack[top] = b_first ? ca : cb;
+                stack_t[top] = b_first ? ta : tb;
+                top++;
+                cur = b_first ? cb : ca;
+            } else if (hit_a || hit_b) {
+                cur = hit_a ? ca : cb;
+            } else {
+                BVH_POP();
+            }
+        }
+        if (!have) {
+            return best;
+        }
+        if (cur.y == 0u) {
+            break; // the step cap (or the driver) ended the walk
+        }
+        for (uint k = cur.x; k < cur.x + cur.y; k++) {
+            uint i = KD_REF(k);
+            VkrtInstanceRecord rec = records.v[i];
+            if (all(equal(rec.meta.xy, uvec2(0u))) || ((rec.meta.z >> 24u) & cull_mask) == 0u) {
+                continue;
+            }
+            Ray ro = Ray(vkrt_to_object(rec, r.o, 1.0), r.tmin, vkrt_to_object(rec, r.d, 0.0),
+                         best_t);
+            vkrt_use(packUint2x32(rec.meta.xy));
+            Hit h = vkrt_walk(ro, time, any_hit);
+            bool better = h.prim != NO_HIT && !trace_steps_exhausted
+                && (instance.x == 0xffffffffu || h.t < best_t || (h.t == best_t && i < instance.x));
+            if (better) {
+                geom = geometry_of(h.prim);
+            }
+            vkrt_use(vkrt_top);
+            if (trace_steps_exhausted) {
+                return miss_hit();
+            }
+            if (better) {
+                best = h;
+                best_t = h.t;
+                instance = uvec2(i, rec.meta.z & 0xffffffu);
+                if (any_hit) {
+                    return best;
+                }
+            }
+        }
+        BVH_POP();
+    }
+    trace_steps_exhausted = true;
+    return best;
+}
+
+#endif

@@ -1,0 +1,818 @@
+//! Two levels, as `VK_KHR_acceleration_structure`, Embree and OptiX organise a scene:
+//! bottom-level structures (any vkrt kind over geometries, [`GpuGeometry`]) and a top level
+//! over *instances* of them, each with an object-to-world transform, a custom index, an
+//! 8-bit visibility mask and flags ([`Instance`], the layout of
+//! `VkAccelerationStructureInstanceKHR`).
+//!
+//! The top level is a BVH (LBVH or PLOC) over the instances' world boxes, built on the
+//! device in memory the caller allocates and recorded into the caller's command buffer, as
+//! every build: [`TopLevelBuilder::sizes_for`], [`TopLevelBuilder::create_in`],
+//! [`TopLevelBuilder::record_build_from`], and [`TopLevelBuilder::record_update_from`] for
+//! instances that moved (a refit of the same tree). `accel.instance_boxes` (CPU twin
+//! [`instance_boxes`], bit for bit) turns the caller's records into world boxes and
+//! world-to-object transforms first. [`TopLevelBuilder::build`] does all of it from host
+//! records, checking each one first.
+//!
+//! Shaders trace it through `vkrt/ray_query.glsl` with `VKRT_DEVICE_ADDRESS`, passing
+//! [`TopLevel::handle_address`] to `vkrtUseStructure`: at an instance the walk moves the ray
+//! into the instance's object space (the direction is not renormalised, so `t` keeps its
+//! meaning) and walks its bottom level with that level's own walk; hits name the instance
+//! and its custom index ([`trace_instances`] is the CPU twin).
+//!
+//! Where vkrt differs from Vulkan: an instance names its bottom level by its index in the
+//! list the top level was created with, not by a device address, an index the device can
+//! check. An instance with an index out of range, or a transform that is not finite or not
+//! invertible, is never hit and is counted in [`BuildStatus::invalid_primitives`]
+//! ([`TopLevel::record_read_status`]); [`TopLevelBuilder::build`] refuses it with an error.
+//! vkrt's walks treat every primitive as opaque and cull no faces, so the flags change
+//! nothing in them; they are kept for the driver's structures.
+
+use bytemuck::{Pod, Zeroable};
+use glam::Vec3;
+
+use crate::accel::device::{AccelBuilder, AccelKind, AccelSizes};
+use crate::accel::embedded::{BuildFlags, BuildStatus};
+use crate::accel::geometry::{bound, Aabbs, Geometry, GeometryData};
+use crate::gpu::placement::{place, Placement};
+use crate::gpu::{
+    kernels, vk, Buffer, BufferArg, Context, GpuError, Kernel, RawBuffer, Readback, Recorder,
+    Result, Spec,
+};
+use crate::trace::geometry::SceneInfo;
+use crate::trace::gpu::GpuGeometry;
+use crate::trace::{Hit, Ray};
+
+const WORKGROUP: u32 = 64;
+/// Bottom levels one top level may name (the index shares a word with the flags).
+pub const MAX_BOTTOM_LEVELS: usize = 1 << 24;
+
+/// `VkGeometryInstanceFlagBitsKHR`.
+pub mod flags {
+    pub const TRIANGLE_FACING_CULL_DISABLE: u8 = 0x1;
+    pub const TRIANGLE_FLIP_FACING: u8 = 0x2;
+    pub const FORCE_OPAQUE: u8 = 0x4;
+    pub const FORCE_NO_OPAQUE: u8 = 0x8;
+}
+
+/// One instance: 64 bytes, the layout of `VkAccelerationStructureInstanceKHR`, except that
+/// [`Instance::bottom`] is an index into the top level's list of bottom levels (where Vulkan
+/// has a device address).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct Instance {
+    /// Object to world, row-major 3×4 (`VkTransformMatrixKHR`).
+    pub transform: [[f32; 4]; 3],
+    /// Bits 0..24: the custom index the hit reports; bits 24..32: the mask (a ray traced
+    /// with cull mask `c` sees the instance where `mask & c != 0`).
+    pub custom_index_and_mask: u32,
+    /// Bits 24..32: [`flags`] (bits 0..24, Vulkan's shader-binding-table offset, are kept
+    /// and unused).
+    pub sbt_offset_and_flags: u32,
+    /// The bottom level: its index in the list the top level was created with.
+    pub bottom: u64,
+}
+
+impl Instance {
+    /// An instance of bottom level `bottom` placed by `transform` (object to world,
+    /// row-major 3×4), custom index 0, visible to every ray (mask 0xff), no flags.
+    pub fn new(bottom: u32, transform: [[f32; 4]; 3]) -> Self {
+        Self {
+            transform,
+            custom_index_and_mask: 0xff << 24,
+            sbt_offset_and_flags: 0,
+            bottom: u64::from(bottom),
+        }
+    }
+
+    /// The identity transform.
+    pub const IDENTITY: [[f32; 4]; 3] = [
+        [1.0, 0.0, 0.0, 0.0],
+        [0.0, 1.0, 0.0, 0.0],
+        [0.0, 0.0, 1.0, 0.0],
+    ];
+
+    /// From glam's affine transform.
+    pub fn rows_of(a: &glam::Affine3A) -> [[f32; 4]; 3] {
+        let m = a.matrix3;
+        let t = a.translation;
+        [
+            [m.x_axis.x, m.y_axis.x, m.z_axis.x, t.x],
+            [m.x_axis.y, m.y_axis.y, m.z_axis.y, t.y],
+            [m.x_axis.z, m.y_axis.z, m.z_axis.z, t.z],
+        ]
+    }
+
+    /// With custom index `index` (24 bits: higher bits are an error in [`Instance::check`]).
+    pub fn with_custom_index(mut self, index: u32) -> Self {
+        self.custom_index_and_mask = (self.custom_index_and_mask & 0xff00_0000) | index;
+        self
+    }
+
+    pub fn with_mask(mut self, mask: u8) -> Self {
+        self.custom_index_and_mask =
+            (self.custom_index_and_mask & 0x00ff_ffff) | (u32::from(mask) << 24);
+        self
+    }
+
+    pub fn with_flags(mut self, flags: u8) -> Self {
+        self.sbt_offset_and_flags =
+            (self.sbt_offset_and_flags & 0x00ff_ffff) | (u32::from(flags) << 24);
+        self
+    }
+
+    pub fn custom_index(&self) -> u32 {
+        self.custom_index_and_mask & 0x00ff_ffff
+    }
+
+    pub fn mask(&self) -> u8 {
+        (self.custom_index_and_mask >> 24) as u8
+    }
+
+    pub fn flags(&self) -> u8 {
+        (self.sbt_offset_and_flags >> 24) as u8
+    }
+
+    /// Why the device would never hit this instance of one of `n_bottoms` levels (`None`: it
+    /// is valid). The checks `accel.instance_boxes` makes.
+    pub fn check(&self, n_bottoms: usize) -> std::result::Result<(), String> {
+        if self.bottom >= n_bottoms as u64 {
+            return Err(format!(
+                "it names bottom level {}, but the top level has {n_bottoms}",
+                self.bottom
+            ));
+        }
+        if self.transform.iter().flatten().any(|x| !x.is_finite()) {
+            return Err(format!("its transform {:?} is not finite", self.transform));
+        }
+        match world_to_object(&self.transform) {
+            Some(_) => Ok(()),
+            None => Err(format!(
+                "its transform {:?} is singular (not invertible in single precision): an \
+                 instance cannot be flattened; leave it out instead",
+                self.transform
+            )),
+        }
+    }
+}
+
+/// What the walk reads per instance: 64 bytes, `InstanceRecord` in
+/// `glsl/accel/instance_boxes.comp` and `vkrt/instances.glsl`.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
+pub struct InstanceRecord {
+    /// World to object, row-major 3×4.
+    pub world_to_object: [[f32; 4]; 3],
+    /// Where the bottom level's handle lies (0: never hit).
+    pub handle: u64,
+    /// The instance's custom index | mask << 24 (mask 0: never hit).
+    pub custom_index_and_mask: u32,
+    /// Its flags | bottom-level index << 8.
+    pub flags_and_bottom: u32,
+}
+
+impl InstanceRecord {
+    pub fn bottom(&self) -> u32 {
+        self.flags_and_bottom >> 8
+    }
+
+    pub fn mask(&self) -> u32 {
+        self.custom_index_and_mask >> 24
+    }
+}
+
+fn finite(v: &[f32]) -> bool {
+    v.iter().all(|x| x.is_finite())
+}
+
+/// The inverse of object-to-world `m` as the device computes it (cofactors, one division;
+/// every product and sum rounded on its own, left to right), `None` where `m` is not
+/// invertible or its inverse not finite.
+pub fn world_to_object(m: &[[f32; 4]; 3]) -> Option<[[f32; 4]; 3]> {
+    let [a, b, c] = m;
+    let c00 = a_minus_b(b[1] * c[2], b[2] * c[1]);
+    let c01 = a_minus_b(a[2] * c[1], a[1] * c[2]);
+    let c02 = a_minus_b(a[1] * b[2], a[2] * b[1]);
+    let c10 = a_minus_b(b[2] * c[0], b[0] * c[2]);
+    let c11 = a_minus_b(a[0] * c[2], a[2] * c[0]);
+    let c12 = a_minus_b(a[2] * b[0], a[0] * b[2]);
+    let c20 = a_minus_b(b[0] * c[1], b[1] * c[0]);
+    let c21 = a_minus_b(a[1] * c[0], a[0] * c[1]);
+    let c22 = a_minus_b(a[0] * b[1], a[1] * b[0]);
+    let det = a[0] * c00 + a[1] * c10 + a[2] * c20;
+    let inv_det = 1.0 / det;
+    let rows = [
+        [c00 * inv_det, c01 * inv_det, c02 * inv_det],
+        [c10 * inv_det, c11 * inv_det, c12 * inv_det],
+        [c20 * inv_det, c21 * inv_det, c22 * inv_det],
+    ];
+    let t = [a[3], b[3], c[3]];
+    let row = |r: [f32; 3]| [r[0], r[1], r[2], -(r[0] * t[0] + r[1] * t[1] + r[2] * t[2])];
+    let out = [row(rows[0]), row(rows[1]), row(rows[2])];
+    let ok = finite(m.as_flattened()) && det != 0.0 && finite(out.as_flattened());
+    ok.then_some(out)
+}
+
+fn a_minus_b(a: f32, b: f32) -> f32 {
+    a - b
+}
+
+/// `rows · (p, w)`, each row summed left to right (`w` 1 for a point, 0 for a direction).
+fn apply(rows: &[[f32; 4]; 3], p: Vec3, point: bool) -> Vec3 {
+    let row = |r: &[f32; 4]| {
+        let x = r[0] * p.x + r[1] * p.y + r[2] * p.z;
+        if point {
+            x + r[3]
+        } else {
+            x
+        }
+    };
+    Vec3::new(row(&rows[0]), row(&rows[1]), row(&rows[2]))
+}
+
+/// The CPU twin of `accel.instance_boxes`: per instance its world box (min x, y, z, max x,
+/// y, z; an inactive one has min 1 > max 0) and its record, given each bottom level's scene
+/// constants and where their handles lie (64 bytes apart from `handles_at`); and the number
+/// of invalid instances.
+pub fn instance_boxes(
+    instances: &[Instance],
+    bottoms: &[SceneInfo],
+    handles_at: u64,
+) -> (Vec<[f32; 6]>, Vec<InstanceRecord>, u32) {
+    let mut invalid = 0;
+    let mut boxes = Vec::with_capacity(instances.len());
+    let mut records = Vec::with_capacity(instances.len());
+    for inst in instances {
+        let bottom_ok = inst.bottom < bottoms.len() as u64;
+        let bottom = if bottom_ok { inst.bottom as u32 } else { 0 };
+        let meta_w = u32::from(inst.flags()) | (bottom << 8);
+        let inactive = InstanceRecord {
+            world_to_object: [[0.0; 4]; 3],
+            handle: 0,
+            custom_index_and_mask: 0,
+            flags_and_bottom: meta_w,
+        };
+        let m = &inst.transform;
+        let Some(inv) = world_to_object(m).filter(|_| bottom_ok) else {
+            invalid += 1;
+            boxes.push([1.0, 1.0, 1.0, 0.0, 0.0, 0.0]);
+            records.push(inactive);
+            continue;
+        };
+        let b = &bottoms[bottom as usize];
+        if b.n_tris + b.n_spheres + b.n_aabbs == 0 || inst.mask() == 0 {
+            boxes.push([1.0, 1.0, 1.0, 0.0, 0.0, 0.0]);
+            records.push(inactive);
+            continue;
+        }
+        let (bmin, bmax) = (
+            Vec3::from_slice(&b.bounds_min),
+            Vec3::from_slice(&b.bounds_max),
+        );
+        let mut lo = Vec3::INFINITY;
+        let mut hi = Vec3::NEG_INFINITY;
+        for k in 0..8 {
+            let p = Vec3::new(
+                if k & 1 != 0 { bmax.x } else { bmin.x },
+                if k & 2 != 0 { bmax.y } else { bmin.y },
+                if k & 4 != 0 { bmax.z } else { bmin.z },
+            );
+            let q = apply(m, p, true);
+            lo = lo.min(q);
+            hi = hi.max(q);
+        }
+        let e = bmin.abs().max(bmax.abs());
+        let pad_row = |r: &[f32; 4]| {
+            (r[0].abs() * e.x + r[1].abs() * e.y + r[2].abs() * e.z + r[3].abs())
+                * f32::from_bits(0x3580_0000)
+        };
+        let pad = Vec3::new(pad_row(&m[0]), pad_row(&m[1]), pad_row(&m[2]));
+        let (lo, hi) = (lo - pad, hi + pad);
+        boxes.push([lo.x, lo.y, lo.z, hi.x, hi.y, hi.z]);
+        records.push(InstanceRecord {
+            world_to_object: inv,
+            handle: handles_at + 64 * u64::from(bottom),
+            custom_index_and_mask: inst.custom_index_and_mask,
+            flags_and_bottom: meta_w,
+        });
+    }
+    (boxes, records, invalid)
+}
+
+/// The ray in an instance's object space, as the walk moves it: origin and direction by the
+/// world-to-object rows (the direction not renormalised, so `t` means the same), `tmin`
+/// kept, `tmax` the closest hit so far.
+pub fn object_ray(rec: &InstanceRecord, r: &Ray, tmax: f32) -> Ray {
+    let m = &rec.world_to_object;
+    Ray::new(apply(m, r.o(), true), apply(m, r.d(), false), r.tmin, tmax)
+}
+
+/// A two-level query's answer: the hit (its `prim` the primitive id in the bottom level),
+/// the instance hit, and whether a walk ran out of steps (the answer is then a miss).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InstanceHit {
+    pub hit: Hit,
+    pub instance: Option<u32>,
+    pub exhausted: bool,
+}
+
+/// The CPU twin of the two-level walk (`vkrt/instances.glsl`): the closest hit over every
+/// instance the ray's cull mask sees, each traced by `bottom(level, object-space ray)` —
+/// the bottom level's own walk, returning its hit and whether it gave up. Ties in `t` go to
+/// the lowest instance index; an any-hit query returns the first hit in index order (the
+/// device's may be another: any hit answers it).
+pub fn trace_instances(
+    records: &[InstanceRecord],
+    r: &Ray,
+    cull_mask: u32,
+    any_hit: bool,
+    mut bottom: impl FnMut(u32, &Ray) -> (Hit, bool),
+) -> InstanceHit {
+    let mut best = InstanceHit {
+        hit: Hit::MISS,
+        instance: None,
+        exhausted: false,
+    };
+    if !r.is_valid() {
+        return best;
+    }
+    let mut best_t = r.tmax;
+    for (i, rec) in records.iter().enumerate() {
+        if rec.handle == 0 || rec.mask() & cull_mask == 0 {
+            continue;
+        }
+        let (h, exhausted) = bottom(rec.bottom(), &object_ray(rec, r, best_t));
+        if exhausted {
+            return InstanceHit {
+                hit: Hit::MISS,
+                instance: None,
+                exhausted: true,
+            };
+        }
+        if h.is_hit() && (best.instance.is_none() || h.t < best_t) {
+            best_t = h.t;
+            best.hit = h;
+            best.instance = Some(i as u32);
+            if any_hit {
+                break;
+            }
+        }
+    }
+    best
+}
+
+fn usage(call: &'static str, reason: impl Into<String>) -> GpuError {
+    GpuError::Usage {
+        call,
+        reason: reason.into(),
+    }
+}
+
+/// Builds top levels of one kind (an LBVH or PLOC over the instances' boxes).
+pub struct TopLevelBuilder {
+    tree: AccelBuilder,
+    boxes: std::sync::Arc<Kernel>,
+}
+
+/// The top level's own arrays (before its tree in the caller's memory).
+struct Parts {
+    boxes: Buffer<[f32; 6]>,
+    records: Buffer<InstanceRecord>,
+    bottom_info: Buffer<SceneInfo>,
+    handles: Buffer<[u64; 8]>,
+    handle: Buffer<[u64; 8]>,
+    status: Buffer<u32>,
+}
+
+impl Parts {
+    fn create(ctx: &Context, count: u32, n_bottoms: usize) -> Result<Self> {
+        let n = (count as usize).max(1);
+        let b = n_bottoms.max(1);
+        Ok(Self {
+            boxes: Buffer::new(ctx, "accel.instance_boxes", n)?,
+            records: Buffer::new(ctx, "accel.instance_records", n)?,
+            bottom_info: Buffer::new(ctx, "accel.bottom_info", b)?,
+            handles: Buffer::new(ctx, "accel.bottom_handles", b)?,
+            handle: Buffer::new(ctx, "accel.top_handle", 1)?,
+            status: Buffer::new(ctx, "accel.instance_status", 1)?,
+        })
+    }
+}
+
+/// A top level over instances of `'a`'s bottom levels, in the caller's memory.
+pub struct TopLevel<'a> {
+    /// The BVH over the instances' world boxes (box primitive `i` is instance `i`).
+    pub tree: GpuGeometry,
+    parts: Parts,
+    bottoms: Vec<&'a GpuGeometry>,
+    count: u32,
+    /// Memory [`TopLevelBuilder::build`] allocated (none for [`TopLevelBuilder::create_in`]).
+    owned: Vec<Buffer<u8>>,
+}
+
+/// The top level's part of the caller's memory, rounded up so that its tree starts aligned.
+fn parts_bytes(ctx: &Context, count: u32, n_bottoms: usize) -> Result<u64> {
+    let (_, bytes) = place(ctx, "the instances", Placement::Measure, || {
+        Parts::create(ctx, count, n_bottoms)
+    })?;
+    Ok(bytes.next_multiple_of(256))
+}
+
+/// The tree's geometry: one box per instance.
+fn boxes_geometry(data: GeometryData, count: u32) -> Geometry {
+    Geometry::Aabbs(Aabbs {
+        data,
+        stride: 24,
+        count,
+        opaque: true,
+    })
+}
+
+/// A stand-in for the boxes while measuring (sizes depend on the count alone).
+fn measured_boxes(count: u32) -> Geometry {
+    use vk::Handle;
+    let raw = RawBuffer {
+        raw: vk::Buffer::from_raw(1),
+        offset: 0,
+        size: 24 * u64::from(count.max(1)),
+    };
+    boxes_geometry(GeometryData::Buffer(raw), count)
+}
+
+impl TopLevelBuilder {
+    /// A builder of top levels that are `kind` trees ([`AccelKind::Lbvh`] or
+    /// [`AccelKind::Ploc`]: builders over boxes on the device, with refit).
+    pub fn new(ctx: &Context, kind: AccelKind) -> Result<Self> {
+        if !matches!(kind, AccelKind::Lbvh | AccelKind::Ploc) {
+            return Err(usage(
+                "TopLevelBuilder::new",
+                format!(
+                    "a top level is an LBVH or a PLOC tree over the instances' boxes, not a {}",
+                    kind.name()
+                ),
+            ));
+        }
+        let f = &ctx.info().features;
+        if !(f.buffer_device_address || f.ray_query) {
+            return Err(GpuError::MissingCapability {
+                device: ctx.info().device.clone(),
+                what: "bufferDeviceAddress (a top level reaches its bottom levels at device \
+                       addresses)"
+                    .into(),
+            });
+        }
+        let mut tree = AccelBuilder::new(ctx, kind)?;
+        tree.top_level = true;
+        Ok(Self {
+            tree,
+            boxes: ctx.kernel(
+                &kernels::ACCEL_INSTANCE_BOXES,
+                &Spec::new().workgroup(WORKGROUP),
+            )?,
+        })
+    }
+
+    pub fn kind(&self) -> AccelKind {
+        self.tree.kind()
+    }
+
+    /// Bytes of a top level over `count` instances of `n_bottoms` bottom levels, of its
+    /// build's scratch and of an update's (with `flags.allow_update`).
+    pub fn sizes_for(
+        &self,
+        ctx: &Context,
+        count: u32,
+        n_bottoms: usize,
+        flags: &BuildFlags,
+    ) -> Result<AccelSizes> {
+        let own = parts_bytes(ctx, count, n_bottoms)?;
+        let tree = self.tree.sizes_for(ctx, &[measured_boxes(count)], flags)?;
+        Ok(AccelSizes {
+            structure_bytes: own + tree.structure_bytes,
+            ..tree
+        })
+    }
+
+    /// A top level over `count` instances of `bottoms` (each built, or to be built before
+    /// this one's build executes), placed at the start of `memory`, a range of the caller's
+    /// buffer of at least [`AccelSizes::structure_bytes`] with
+    /// [`crate::accel::embedded::REQUIRED_BUFFER_USAGE`] and `SHADER_DEVICE_ADDRESS`.
+    pub fn create_in<'a>(
+        &self,
+        ctx: &Context,
+        bottoms: &[&'a GpuGeometry],
+        count: u32,
+        flags: &BuildFlags,
+        memory: RawBuffer,
+    ) -> Result<TopLevel<'a>> {
+        let call = "TopLevelBuilder::create_in";
+        if bottoms.len() >= MAX_BOTTOM_LEVELS {
+            return Err(usage(
+                call,
+                format!(
+                    "{} bottom levels: at most {MAX_BOTTOM_LEVELS}",
+                    bottoms.len()
+                ),
+            ));
+        }
+        let own = parts_bytes(ctx, count, bottoms.len())?;
+        if memory.size < own {
+            return Err(usage(
+                call,
+                format!(
+                    "{} bytes of memory; the top level needs {} (TopLevelBuilder::sizes_for)",
+                    memory.size, own
+                ),
+            ));
+        }
+        let (parts, _) = place(ctx, "the instances", Placement::Into(memory), || {
+            Parts::create(ctx, count, bottoms.len())
+        })?;
+        let rest = RawBuffer {
+            raw: memory.raw,
+            offset: memory.offset + own,
+            size: memory.size - own,
+        };
+        let geometry = boxes_geometry(GeometryData::Buffer(parts.boxes.as_raw()), count);
+        let tree = self.tree.create_in(ctx, &[geometry], flags, rest)?;
+        Ok(TopLevel {
+            tree,
+            parts,
+            bottoms: bottoms.to_vec(),
+            count,
+            owned: Vec::new(),
+        })
+    }
+
+    /// Records what a build and an update share: the bottom levels' constants and handles,
+    /// the top level's handle, and `accel.instance_boxes` over the caller's `instances`.
+    fn record_instances(
+        &self,
+        rec: &mut Recorder,
+        call: &'static str,
+        instances: RawBuffer,
+        top: &TopLevel<'_>,
+    ) -> Result<()> {
+        let ctx = rec.context().clone();
+        let need = 64 * u64::from(top.count);
+        if instances.size < need {
+            return Err(usage(
+                call,
+                format!(
+                    "{} instances need {need} bytes; the range holds {}",
+                    top.count, instances.size
+                ),
+            ));
+        }
+        if instances.offset % 4 != 0 {
+            return Err(usage(call, "the instances' offset is not a multiple of 4"));
+        }
+        let p = &top.parts;
+        let handles = top
+            .bottoms
+            .iter()
+            .map(|b| {
+                let h = b.address_handle()?;
+                let mut out = [0u64; 8];
+                out[..7].copy_from_slice(&h);
+                Ok(out)
+            })
+            .collect::<Result<Vec<_>>>()?;
+        let mut handle = [0u64; 8];
+        handle[..7].copy_from_slice(&top.tree.address_handle()?);
+        handle[7] = p.records.device_address();
+        rec.scope("instances", |rec| {
+            // The bottom levels' builds (compute writes) before their constants are copied.
+            rec.compute_to_transfer();
+            rec.fill(&p.status, 0);
+            for (k, b) in top.bottoms.iter().enumerate() {
+                rec.copy_range(&b.accel.info, 0, &p.bottom_info, k, 1);
+            }
+            for (k, chunk) in handles.chunks(1024).enumerate() {
+                rec.update(&p.handles, k * 1024, chunk)?;
+            }
+            rec.update(&p.handle, 0, &[handle])?;
+            rec.transfer_to_compute();
+            if top.count > 0 {
+                let (bound_instances, skip) = bound(&ctx, &instances);
+                let push = BoxesPush {
+                    n: top.count,
+                    first_word: (skip / 4) as u32,
+                    n_bottoms: top.bottoms.len() as u32,
+                    pad: 0,
+                    handles_at: p.handles.device_address(),
+                };
+                let groups = rec.groups_1d(u64::from(top.count), WORKGROUP);
+                let b: [&dyn BufferArg; 5] = [
+                    &bound_instances,
+                    &p.bottom_info,
+                    &p.boxes,
+                    &p.records,
+                    &p.status,
+                ];
+                rec.dispatch(&self.boxes, groups, &b, &push);
+            }
+            rec.compute_to_compute();
+            Ok(())
+        })
+    }
+
+    /// Records the build of `top` from the `count` instance records in `instances` (a range
+    /// of the caller's buffer, [`Instance`]'s layout, written before as compute or transfer
+    /// writes; the bottom levels' builds recorded before too), with its scratch in `scratch`
+    /// ([`AccelSizes::build_scratch_bytes`]). Ends with a compute → compute barrier, after
+    /// which the caller's kernels may trace it.
+    pub fn record_build_from(
+        &self,
+        rec: &mut Recorder,
+        instances: RawBuffer,
+        top: &mut TopLevel<'_>,
+        scratch: RawBuffer,
+    ) -> Result<()> {
+        let call = "TopLevelBuilder::record_build_from";
+        self.check_kind(call, top)?;
+        rec.scope("top level", |rec| {
+            self.record_instances(rec, call, instances, top)?;
+            let geometry = top.geometry();
+            self.tree
+                .record_build_from(rec, &[geometry], &mut top.tree, scratch)
+        })
+    }
+
+    /// Records an update of `top` (built with `allow_update`) to the records `instances`
+    /// holds now: new transforms, masks and bottom levels of the same count (a refit of the
+    /// same tree: fast, and as good as the tree was while the instances move together;
+    /// rebuild when they have rearranged).
+    pub fn record_update_from(
+        &self,
+        rec: &mut Recorder,
+        instances: RawBuffer,
+        top: &TopLevel<'_>,
+        scratch: RawBuffer,
+    ) -> Result<()> {
+        let call = "TopLevelBuilder::record_update_from";
+        self.check_kind(call, top)?;
+        rec.scope("top level update", |rec| {
+            self.record_instances(rec, call, instances, top)?;
+            self.tree
+                .record_update_from(rec, &[top.geometry()], &top.tree, scratch)
+        })
+    }
+
+    fn check_kind(&self, call: &'static str, top: &TopLevel<'_>) -> Result<()> {
+        if top.tree.accel.kind() != self.kind() {
+            return Err(usage(
+                call,
+                format!(
+                    "a {} top-level builder cannot build a {} top level",
+                    self.kind().name(),
+                    top.tree.accel.kind().name()
+                ),
+            ));
+        }
+        Ok(())
+    }
+
+    /// A top level over `instances` of `bottoms`, built and waited for: each instance is
+    /// checked first ([`Instance::check`]), and one that the device would never hit is an
+    /// error naming it. Allocates its memory (kept by the result) and submits once.
+    pub fn build<'a>(
+        &self,
+        ctx: &Context,
+        bottoms: &[&'a GpuGeometry],
+        instances: &[Instance],
+        flags: &BuildFlags,
+    ) -> Result<TopLevel<'a>> {
+        let call = "TopLevelBuilder::build";
+        for (i, inst) in instances.iter().enumerate() {
+            inst.check(bottoms.len())
+                .map_err(|why| usage(call, format!("instance {i}: {why}")))?;
+        }
+        let count =
+            u32::try_from(instances.len()).map_err(|_| usage(call, "more than 2^32 instances"))?;
+        let sizes = self.sizes_for(ctx, count, bottoms.len(), flags)?;
+        let memory = Buffer::<u8>::arena(ctx, "accel.top_level", sizes.structure_bytes as usize)?;
+        let scratch_bytes = sizes
+            .build_scratch_bytes
+            .max(sizes.update_scratch_bytes.unwrap_or(0));
+        let scratch = Buffer::<u8>::arena(ctx, "accel.top_scratch", scratch_bytes as usize)?;
+        let records = Buffer::<Instance>::new(ctx, "accel.instances", instances.len().max(1))?;
+        let mut top = self.create_in(ctx, bottoms, count, flags, memory.as_raw())?;
+        let mut rec = Recorder::new(ctx)?;
+        rec.upload(&records, instances)?;
+        rec.transfer_to_compute();
+        self.record_build_from(&mut rec, records.as_raw(), &mut top, scratch.as_raw())?;
+        rec.submit_and_wait()?;
+        top.owned = vec![memory, scratch];
+        Ok(top)
+    }
+
+    /// The update of a top level [`TopLevelBuilder::build`] made (with `allow_update`) to
+    /// `instances` (as many as before, each checked), waited for.
+    pub fn update(&self, ctx: &Context, top: &TopLevel<'_>, instances: &[Instance]) -> Result<()> {
+        let call = "TopLevelBuilder::update";
+        if instances.len() != top.count as usize {
+            return Err(usage(
+                call,
+                format!(
+                    "{} instances; the top level holds {}: build a new one",
+                    instances.len(),
+                    top.count
+                ),
+            ));
+        }
+        for (i, inst) in instances.iter().enumerate() {
+            inst.check(top.bottoms.len())
+                .map_err(|why| usage(call, format!("instance {i}: {why}")))?;
+        }
+        let [_, scratch] = top.owned.as_slice() else {
+            return Err(usage(
+                call,
+                "this top level lies in the caller's memory: record_update_from",
+            ));
+        };
+        let records = Buffer::<Instance>::new(ctx, "accel.instances", instances.len().max(1))?;
+        let mut rec = Recorder::new(ctx)?;
+        rec.upload(&records, instances)?;
+        rec.transfer_to_compute();
+        self.record_update_from(&mut rec, records.as_raw(), top, scratch.as_raw())?;
+        rec.submit_and_wait()?;
+        Ok(())
+    }
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct BoxesPush {
+    n: u32,
+    first_word: u32,
+    n_bottoms: u32,
+    pad: u32,
+    handles_at: u64,
+}
+
+impl TopLevel<'_> {
+    fn geometry(&self) -> Geometry {
+        boxes_geometry(GeometryData::Buffer(self.parts.boxes.as_raw()), self.count)
+    }
+
+    pub fn instance_count(&self) -> u32 {
+        self.count
+    }
+
+    pub fn bottoms(&self) -> &[&GpuGeometry] {
+        &self.bottoms
+    }
+
+    /// Where the top level's handle lies: what a shader passes to `vkrtUseStructure`
+    /// (`VKRT_DEVICE_ADDRESS` in `vkrt/ray_query.glsl`), written by the build.
+    pub fn handle_address(&self) -> u64 {
+        self.parts.handle.device_address()
+    }
+
+    /// Where the bottom levels' handles lie, 64 bytes apart (in [`InstanceRecord::handle`]).
+    pub fn bottom_handles_address(&self) -> u64 {
+        self.parts.handles.device_address()
+    }
+
+    /// Records the copy of the build's report: invalid instances (never hit) in
+    /// [`BuildStatus::invalid_primitives`]. Order the build before with
+    /// [`Recorder::compute_to_transfer`].
+    pub fn record_read_status(&self, rec: &mut Recorder) -> Result<InstanceStatus> {
+        Ok(InstanceStatus(rec.read_back(&self.parts.status)?))
+    }
+
+    /// The world boxes and records the build wrote (tests and tools).
+    pub fn download(&self) -> Result<(Vec<[f32; 6]>, Vec<InstanceRecord>)> {
+        let n = self.count as usize;
+        let mut boxes = self.parts.boxes.download()?;
+        let mut records = self.parts.records.download()?;
+        boxes.truncate(n);
+        records.truncate(n);
+        Ok((boxes, records))
+    }
+
+    /// Bytes of the top level's own arrays (before its tree: `sizes_for` gives both).
+    pub fn instance_bytes(&self) -> u64 {
+        let p = &self.parts;
+        p.boxes.byte_len()
+            + p.records.byte_len()
+            + p.bottom_info.byte_len()
+            + p.handles.byte_len()
+            + p.handle.byte_len()
+            + p.status.byte_len()
+    }
+}
+
+/// The copy of a top level's report, read after the work has executed.
+#[must_use = "read() it once the work has executed"]
+pub struct InstanceStatus(Readback<u32>);
+
+impl InstanceStatus {
+    pub fn read(self) -> Result<BuildStatus> {
+        let words = self.0.read()?;
+        Ok(BuildStatus {
+            invalid_primitives: words.first().copied().unwrap_or(0),
+            kd_overflow: false,
+        })
+    }
+}

@@ -1,0 +1,550 @@
+//! Two levels: a top level over instances of bottom-level structures, traced through
+//! `vkrt/ray_query.glsl` at device addresses. `accel.instance_boxes` against its CPU twin bit
+//! for bit; the top level's tree the same as the one built from the same boxes on the host;
+//! hits against the CPU twin of the two-level walk and against the flattened scene (every
+//! instance's triangles moved to the world); identity instances against the bottom level
+//! itself; masks, custom indices, any-hit, empty levels, updates and every misuse class.
+
+mod common;
+
+use glam::{Affine3A, Quat, Vec3};
+use vkrt::accel::device::{AccelBuilder, AccelKind};
+use vkrt::accel::embedded::BuildFlags;
+use vkrt::accel::geometry::transform_point;
+use vkrt::accel::instances::{
+    instance_boxes, trace_instances, Instance, InstanceRecord, TopLevelBuilder,
+};
+use vkrt::gpu::{Buffer, Context, GpuError, Recorder};
+use vkrt::scene::Aabb;
+use vkrt::trace::geometry::SceneInfo;
+use vkrt::trace::gpu::GpuGeometry;
+use vkrt::trace::{cpu, Hit, Ray, TraceGeometry, TraceOptions};
+
+fn opt() -> TraceOptions {
+    TraceOptions {
+        exact: false,
+        ..TraceOptions::default()
+    }
+}
+
+/// A bottom level of `kind` (walked wide where `wide`) over `tris`, built on the device.
+fn bottom(ctx: &Context, kind: AccelKind, wide: bool, tris: &[[Vec3; 3]]) -> GpuGeometry {
+    let mut builder = AccelBuilder::new(ctx, kind).unwrap();
+    builder.wide = wide;
+    let g = TraceGeometry::from_triangles(tris);
+    let mut rec = Recorder::new(ctx).unwrap();
+    let (out, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
+    rec.submit_and_wait().unwrap();
+    out
+}
+
+/// Closest (or any) hits through `gpu.handle_probe`'s address variant from the structure
+/// whose handle lies at `handle`: (t bits, geometry, primitive, instance or custom index).
+fn probe(ctx: &Context, handle: u64, rays: &[Ray], mode: u32) -> Vec<[u32; 4]> {
+    let kernel = ctx
+        .kernel(
+            &vkrt::gpu::kernels::GPU_HANDLE_PROBE_ADDRESS,
+            &vkrt::gpu::Spec::new().workgroup(64),
+        )
+        .unwrap();
+    let ray_buf = Buffer::from_slice(ctx, "probe.rays", rays).unwrap();
+    let out = Buffer::<[u32; 4]>::zeroed(ctx, "probe.hits", rays.len()).unwrap();
+    let push = [
+        rays.len() as u32,
+        mode,
+        handle as u32,
+        (handle >> 32) as u32,
+    ];
+    let mut rec = Recorder::new(ctx).unwrap();
+    let groups = rec.groups_1d(rays.len() as u64, 64);
+    let b: [&dyn vkrt::gpu::BufferArg; 2] = [&ray_buf, &out];
+    rec.dispatch(&kernel, groups, &b, &push);
+    rec.compute_to_transfer();
+    rec.submit_and_wait().unwrap();
+    out.download().unwrap()
+}
+
+/// A flat structure's handle, written where the probe reads it.
+fn flat_handle(ctx: &Context, g: &GpuGeometry) -> Buffer<u64> {
+    Buffer::from_slice(ctx, "probe.handle", &g.address_handle().unwrap()).unwrap()
+}
+
+/// In [0, 1).
+fn unit(rng: &mut common::Rng) -> f32 {
+    (rng.next_f32() + 1.0) * 0.5
+}
+
+/// In [-0.5, 0.5)³.
+fn centered(rng: &mut common::Rng) -> Vec3 {
+    rng.next_vec3() * 0.5
+}
+
+fn random_transform(rng: &mut common::Rng, spread: f32) -> Affine3A {
+    let axis = centered(rng).normalize_or(Vec3::Y);
+    let angle = unit(rng) * std::f32::consts::TAU;
+    let s = 0.3 + unit(rng);
+    // Every fourth instance mirrored (a negative determinant), some scaled unevenly.
+    let mirror = if rng.next_u64() % 4 == 0 { -1.0 } else { 1.0 };
+    let scale = Vec3::new(s * mirror, s * (0.5 + unit(rng)), s);
+    let t = centered(rng) * spread;
+    Affine3A::from_scale_rotation_translation(scale, Quat::from_axis_angle(axis, angle), t)
+}
+
+fn sphere_tris(subdivisions: u32) -> Vec<[Vec3; 3]> {
+    common::mesh_triangles(&vkrt::scene::gen::icosphere(subdivisions).unwrap())
+}
+
+fn random_tris(rng: &mut common::Rng, n: usize) -> Vec<[Vec3; 3]> {
+    (0..n)
+        .map(|_| {
+            let c = rng.next_vec3();
+            [0, 1, 2].map(|_| c + centered(rng) * 0.4)
+        })
+        .collect()
+}
+
+/// Rays from a sphere of radius `r` around the origin towards points near it.
+fn rays_at(rng: &mut common::Rng, n: usize, r: f32) -> Vec<Ray> {
+    (0..n)
+        .map(|_| {
+            let o = centered(rng).normalize_or(Vec3::X) * r;
+            let target = centered(rng) * r * 0.8;
+            Ray::new(o, target - o, 0.0, f32::INFINITY)
+        })
+        .collect()
+}
+
+/// The CPU twin's answers: the two-level walk over `records` with brute force in each
+/// bottom level.
+fn twin(
+    records: &[InstanceRecord],
+    bottoms: &[TraceGeometry],
+    rays: &[Ray],
+) -> Vec<(Hit, Option<u32>)> {
+    rays.iter()
+        .map(|r| {
+            let h = trace_instances(records, r, 0xff, false, |b, ro| {
+                (
+                    cpu::brute_force(&bottoms[b as usize], ro, 0.0, &opt()),
+                    false,
+                )
+            });
+            assert!(!h.exhausted);
+            (h.hit, h.instance)
+        })
+        .collect()
+}
+
+/// Every instance's triangles in the world, and per flat triangle its (instance, primitive).
+fn flattened(
+    instances: &[Instance],
+    bottoms: &[Vec<[Vec3; 3]>],
+) -> (TraceGeometry, Vec<(u32, u32)>) {
+    let mut tris = Vec::new();
+    let mut owner = Vec::new();
+    for (i, inst) in instances.iter().enumerate() {
+        for (p, t) in bottoms[inst.bottom as usize].iter().enumerate() {
+            tris.push(t.map(|v| transform_point(&inst.transform, v)));
+            owner.push((i as u32, p as u32));
+        }
+    }
+    (TraceGeometry::from_triangles(&tris), owner)
+}
+
+fn as_hit(h: &[u32; 4]) -> (Hit, Option<u32>) {
+    if h[0] == u32::MAX {
+        return (Hit::MISS, None);
+    }
+    assert_ne!(h[0], 0xffff_fffe, "a walk gave up");
+    let hit = Hit {
+        t: f32::from_bits(h[0]),
+        prim: h[2],
+        u: 0.0,
+        v: 0.0,
+    };
+    (hit, Some(h[3]))
+}
+
+fn scene_infos(bottoms: &[&GpuGeometry]) -> Vec<SceneInfo> {
+    bottoms
+        .iter()
+        .map(|b| b.accel.info.download().unwrap()[0])
+        .collect()
+}
+
+#[test]
+fn instance_boxes_equal_their_cpu_twin_bit_for_bit_and_the_tree_the_host_s() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(5);
+    let a = bottom(&ctx, AccelKind::Lbvh, false, &sphere_tris(1));
+    let b = bottom(&ctx, AccelKind::Ploc, false, &random_tris(&mut rng, 50));
+    let empty = bottom(&ctx, AccelKind::Lbvh, false, &[]);
+    let bottoms = [&a, &b, &empty];
+    let infos = scene_infos(&bottoms);
+    for kind in [AccelKind::Lbvh, AccelKind::Ploc] {
+        let builder = TopLevelBuilder::new(&ctx, kind).unwrap();
+        for n in [0usize, 1, 2, 63, 64, 65, 1000] {
+            // Valid instances, and among them every class the device must neutralise: a
+            // singular transform, a non-finite one, a bottom level out of range, mask 0, an
+            // empty bottom level.
+            let instances: Vec<Instance> = (0..n)
+                .map(|i| {
+                    let rows = Instance::rows_of(&random_transform(&mut rng, 20.0));
+                    let inst = Instance::new((i % 2) as u32, rows).with_custom_index(i as u32);
+                    match i % 17 {
+                        3 => Instance {
+                            transform: [[1.0, 0.0, 0.0, 0.0], [2.0, 0.0, 0.0, 0.0], [0.0; 4]],
+                            ..inst
+                        },
+                        5 => Instance {
+                            transform: [[f32::NAN, 0.0, 0.0, 0.0], [0.0; 4], [0.0; 4]],
+                            ..inst
+                        },
+                        7 => Instance { bottom: 9, ..inst },
+                        11 => inst.with_mask(0),
+                        13 => Instance { bottom: 2, ..inst },
+                        _ => inst,
+                    }
+                })
+                .collect();
+            let flags = BuildFlags::default();
+            let sizes = builder.sizes_for(&ctx, n as u32, 3, &flags).unwrap();
+            let memory =
+                Buffer::<u8>::arena(&ctx, "caller.top", sizes.structure_bytes as usize).unwrap();
+            let scratch =
+                Buffer::<u8>::arena(&ctx, "caller.scratch", sizes.build_scratch_bytes as usize)
+                    .unwrap();
+            let input = Buffer::from_slice(&ctx, "caller.instances", &instances[..])
+                .unwrap_or_else(|_| Buffer::new(&ctx, "caller.instances", 1).unwrap());
+            let mut top = builder
+                .create_in(&ctx, &bottoms, n as u32, &flags, memory.as_raw())
+                .unwrap();
+            let mut rec = Recorder::new(&ctx).unwrap();
+            builder
+                .record_build_from(&mut rec, input.as_raw(), &mut top, scratch.as_raw())
+                .unwrap();
+            rec.compute_to_transfer();
+            let status = top.record_read_status(&mut rec).unwrap();
+            rec.transfer_to_host();
+            rec.submit_and_wait().unwrap();
+            let (boxes, records) = top.download().unwrap();
+            let (want_boxes, want_records, invalid) =
+                instance_boxes(&instances, &infos, top.bottom_handles_address());
+            let bits =
+                |b: &[[f32; 6]]| -> Vec<u32> { b.iter().flatten().map(|x| x.to_bits()).collect() };
+            assert_eq!(bits(&boxes), bits(&want_boxes), "{kind:?} n {n}: boxes");
+            assert_eq!(
+                bytemuck::cast_slice::<_, u32>(&records),
+                bytemuck::cast_slice::<_, u32>(&want_records),
+                "{kind:?} n {n}: records"
+            );
+            assert_eq!(
+                status.read().unwrap().invalid_primitives,
+                invalid,
+                "{kind:?} n {n}"
+            );
+            assert_eq!(
+                invalid as usize,
+                (0..n).filter(|i| [3, 5, 7].contains(&(i % 17))).count()
+            );
+            // The tree: the one the same builder makes from the same boxes given on the host.
+            if n > 0 {
+                let host = TraceGeometry::from_primitives(
+                    &[],
+                    &[],
+                    &want_boxes
+                        .iter()
+                        .map(|b| Aabb {
+                            min: Vec3::from_slice(&b[..3]),
+                            max: Vec3::from_slice(&b[3..]),
+                        })
+                        .collect::<Vec<_>>(),
+                );
+                let tree_builder = AccelBuilder::new(&ctx, kind).unwrap();
+                let mut rec = Recorder::new(&ctx).unwrap();
+                let (g, _) = GpuGeometry::record_build(&mut rec, &tree_builder, &host, 0).unwrap();
+                rec.submit_and_wait().unwrap();
+                assert_eq!(
+                    top.tree.accel.download().unwrap(),
+                    g.accel.download().unwrap(),
+                    "{kind:?} n {n}: tree"
+                );
+            }
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+/// Two-level hits against the CPU twin (bit for bit in t where the device divides exactly,
+/// else within a few ulps) and against the flattened scene: the same instance and primitive
+/// except where another triangle is hit within 1e-5 of the same t, t within 1e-5 relative.
+#[test]
+fn two_level_hits_equal_the_twin_and_the_flattened_scene_under_every_bottom_walk() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(11);
+    let meshes = vec![sphere_tris(2), random_tris(&mut rng, 300), sphere_tris(1)];
+    let hosts: Vec<TraceGeometry> = meshes
+        .iter()
+        .map(|m| TraceGeometry::from_triangles(m))
+        .collect();
+    let choices = [
+        (AccelKind::KdTree, false),
+        (AccelKind::Lbvh, false),
+        (AccelKind::Ploc, true),
+        (AccelKind::SahBvh, false),
+        (AccelKind::SahBvh, true),
+    ];
+    let instances: Vec<Instance> = (0..40)
+        .map(|i| {
+            Instance::new(
+                (i % 3) as u32,
+                Instance::rows_of(&random_transform(&mut rng, 24.0)),
+            )
+            .with_custom_index(1000 + i as u32)
+        })
+        .collect();
+    // Rays from afar towards points near the instances' centres.
+    let rays: Vec<Ray> = (0..600)
+        .map(|k| {
+            let c = Vec3::from_array(instances[k % 40].transform.map(|r| r[3]));
+            let o = centered(&mut rng).normalize_or(Vec3::X) * 40.0;
+            let target = c + centered(&mut rng) * 1.5;
+            Ray::new(o, target - o, 0.0, f32::INFINITY)
+        })
+        .collect();
+    let (flat, owner) = flattened(&instances, &meshes);
+    let flat_hits: Vec<Hit> = rays
+        .iter()
+        .map(|r| cpu::brute_force(&flat, r, 0.0, &opt()))
+        .collect();
+    for (kind, wide) in choices {
+        let levels: Vec<GpuGeometry> = meshes.iter().map(|m| bottom(&ctx, kind, wide, m)).collect();
+        let refs: Vec<&GpuGeometry> = levels.iter().collect();
+        let top = TopLevelBuilder::new(&ctx, AccelKind::Lbvh)
+            .unwrap()
+            .build(&ctx, &refs, &instances, &BuildFlags::default())
+            .unwrap();
+        let got = probe(&ctx, top.handle_address(), &rays, 0);
+        let customs = probe(&ctx, top.handle_address(), &rays, 1);
+        let (_, records) = top.download().unwrap();
+        let want = twin(&records, &hosts, &rays);
+        let mut ties = 0;
+        let mut hits = 0;
+        let mut exact = 0;
+        let mut worst = 0f32;
+        for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+            let (h, inst) = as_hit(g);
+            let label = format!("{kind:?} wide {wide} ray {k}");
+            assert_eq!(inst, w.1, "{label}: instance (twin)");
+            assert!(
+                common::same_answer(&h, &w.0),
+                "{label}: {h:?} vs twin {:?}",
+                w.0
+            );
+            exact += usize::from(h.t.to_bits() == w.0.t.to_bits() && h.prim == w.0.prim);
+            let f = flat_hits[k];
+            assert_eq!(h.is_hit(), f.is_hit(), "{label}: hit (flattened)");
+            if !h.is_hit() {
+                continue;
+            }
+            hits += 1;
+            assert_eq!(customs[k][3], 1000 + inst.unwrap(), "{label}: custom index");
+            assert!(
+                (h.t - f.t).abs() <= 1e-5 * f.t.abs(),
+                "{label}: t {} vs {}",
+                h.t,
+                f.t
+            );
+            worst = worst.max((h.t - f.t).abs() / f.t.abs());
+            if (inst.unwrap(), h.prim) != owner[f.prim as usize] {
+                ties += 1;
+            }
+        }
+        eprintln!("{kind:?} wide {wide}: {hits} hits, {exact} of all rays bit for bit as the twin, {ties} on another triangle than the flattened scene's, t within {worst:e} of its");
+        assert!(hits > 200, "{kind:?}: {hits} hits");
+        assert!(
+            ties * 100 <= hits,
+            "{kind:?}: {ties} of {hits} hits on another triangle"
+        );
+    }
+    common::assert_silent(&ctx);
+}
+
+/// An identity instance is the bottom level itself: the same hits, bit for bit, for every
+/// kind; a top level of none misses everything; an instance of an empty level is never hit.
+#[test]
+fn an_identity_instance_traces_as_its_bottom_level_and_empty_levels_miss() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(3);
+    let tris = sphere_tris(2);
+    let rays = rays_at(&mut rng, 400, 3.0);
+    for (kind, wide) in [
+        (AccelKind::KdTree, false),
+        (AccelKind::Lbvh, false),
+        (AccelKind::Lbvh, true),
+        (AccelKind::Ploc, false),
+    ] {
+        let level = bottom(&ctx, kind, wide, &tris);
+        let handle = flat_handle(&ctx, &level);
+        let flat = probe(&ctx, handle.device_address(), &rays, 0);
+        for top_kind in [AccelKind::Lbvh, AccelKind::Ploc] {
+            let top = TopLevelBuilder::new(&ctx, top_kind)
+                .unwrap()
+                .build(
+                    &ctx,
+                    &[&level],
+                    &[Instance::new(0, Instance::IDENTITY)],
+                    &BuildFlags::default(),
+                )
+                .unwrap();
+            let got = probe(&ctx, top.handle_address(), &rays, 0);
+            for (k, (g, f)) in got.iter().zip(&flat).enumerate() {
+                assert_eq!(
+                    g[..3],
+                    f[..3],
+                    "{kind:?} wide {wide} under {top_kind:?}: ray {k}"
+                );
+                if f[0] != u32::MAX {
+                    assert_eq!(g[3], 0, "ray {k}: the instance");
+                    assert_eq!(f[3], u32::MAX, "a flat structure names no instance");
+                }
+            }
+            assert!(flat.iter().filter(|h| h[0] != u32::MAX).count() > 100);
+        }
+    }
+    let level = bottom(&ctx, AccelKind::Lbvh, false, &tris);
+    let empty = bottom(&ctx, AccelKind::Lbvh, false, &[]);
+    let builder = TopLevelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
+    let none = builder
+        .build(&ctx, &[&level], &[], &BuildFlags::default())
+        .unwrap();
+    let of_empty = builder
+        .build(
+            &ctx,
+            &[&level, &empty],
+            &[Instance::new(1, Instance::IDENTITY)],
+            &BuildFlags::default(),
+        )
+        .unwrap();
+    for top in [&none, &of_empty] {
+        let got = probe(&ctx, top.handle_address(), &rays, 0);
+        assert!(got.iter().all(|h| h[0] == u32::MAX), "a hit on nothing");
+    }
+    common::assert_silent(&ctx);
+}
+
+/// Masks against the cull mask, any-hit queries, and an update (moved instances, a refit)
+/// that traces as a fresh build.
+#[test]
+fn masks_any_hit_and_updates() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(8);
+    let tris = sphere_tris(2);
+    let level = bottom(&ctx, AccelKind::Ploc, false, &tris);
+    let rays = rays_at(&mut rng, 500, 20.0);
+    let place = |rng: &mut common::Rng| -> Vec<Instance> {
+        (0..30)
+            .map(|i| {
+                Instance::new(0, Instance::rows_of(&random_transform(rng, 14.0)))
+                    .with_mask(if i % 2 == 0 { 0x01 } else { 0x02 })
+            })
+            .collect()
+    };
+    let first = place(&mut rng);
+    let flags = BuildFlags {
+        allow_update: true,
+        ..BuildFlags::default()
+    };
+    let builder = TopLevelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
+    let top = builder.build(&ctx, &[&level], &first, &flags).unwrap();
+    let hosts = [TraceGeometry::from_triangles(&tris)];
+    let (_, records) = top.download().unwrap();
+    // Mode bits 8..16: the inverted cull mask. 0x01 sees the even instances only.
+    let even = probe(&ctx, top.handle_address(), &rays, 0xfe << 8);
+    for (k, (g, r)) in even.iter().zip(&rays).enumerate() {
+        let w = trace_instances(&records, r, 0x01, false, |b, ro| {
+            (cpu::brute_force(&hosts[b as usize], ro, 0.0, &opt()), false)
+        });
+        let (h, inst) = as_hit(g);
+        assert_eq!(inst, w.instance, "ray {k}");
+        assert!(common::same_answer(&h, &w.hit), "ray {k}");
+        if let Some(i) = inst {
+            assert_eq!(i % 2, 0);
+        }
+    }
+    // Any hit: hit or miss as the closest-hit query.
+    let any = probe(&ctx, top.handle_address(), &rays, 2);
+    let closest = probe(&ctx, top.handle_address(), &rays, 0);
+    for (a, c) in any.iter().zip(&closest) {
+        assert_eq!(a[0] == u32::MAX, c[0] == u32::MAX);
+    }
+    // Moved: the update traces as a new build over the same instances.
+    let moved = place(&mut rng);
+    builder.update(&ctx, &top, &moved).unwrap();
+    let fresh = builder.build(&ctx, &[&level], &moved, &flags).unwrap();
+    assert_eq!(
+        probe(&ctx, top.handle_address(), &rays, 0),
+        probe(&ctx, fresh.handle_address(), &rays, 0)
+    );
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn misuse_is_an_error_naming_the_instance() {
+    let Some(ctx) = common::context() else { return };
+    let level = bottom(&ctx, AccelKind::Lbvh, false, &sphere_tris(0));
+    fn refused<T>(r: Result<T, GpuError>) -> String {
+        match r {
+            Ok(_) => panic!("misuse accepted"),
+            Err(e) => e.to_string(),
+        }
+    }
+    assert!(refused(TopLevelBuilder::new(&ctx, AccelKind::KdTree)).contains("LBVH or a PLOC"));
+    let builder = TopLevelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
+    let flags = BuildFlags::default();
+    let good = Instance::new(0, Instance::IDENTITY);
+    let cases = [
+        (
+            Instance {
+                transform: [
+                    [1.0, 0.0, 0.0, 0.0],
+                    [0.0, 1.0, 0.0, 0.0],
+                    [0.0, 0.0, 0.0, 0.0],
+                ],
+                ..good
+            },
+            "singular",
+        ),
+        (
+            Instance {
+                transform: [
+                    [1.0, 0.0, 0.0, f32::INFINITY],
+                    [0.0, 1.0, 0.0, 0.0],
+                    [0.0, 0.0, 1.0, 0.0],
+                ],
+                ..good
+            },
+            "not finite",
+        ),
+        (Instance { bottom: 1, ..good }, "bottom level 1"),
+    ];
+    for (bad, words) in cases {
+        let m = refused(builder.build(&ctx, &[&level], &[good, bad], &flags));
+        assert!(m.contains("instance 1") && m.contains(words), "{m}");
+    }
+    // An update of another count, and one of a top level not built to be updated.
+    let top = builder.build(&ctx, &[&level], &[good], &flags).unwrap();
+    assert!(builder.update(&ctx, &top, &[good, good]).is_err());
+    assert!(refused(builder.update(&ctx, &top, &[good])).contains("allow_update"));
+    // A top-level builder of the other kind.
+    let ploc = TopLevelBuilder::new(&ctx, AccelKind::Ploc).unwrap();
+    assert!(ploc.update(&ctx, &top, &[good]).is_err());
+    // Too little memory.
+    let sizes = builder.sizes_for(&ctx, 4, 1, &flags).unwrap();
+    let small = Buffer::<u8>::arena(&ctx, "caller.small", 64).unwrap();
+    assert!(builder
+        .create_in(&ctx, &[&level], 4, &flags, small.as_raw())
+        .is_err());
+    assert!(sizes.structure_bytes > 64);
+    common::assert_silent(&ctx);
+}
