@@ -58,6 +58,9 @@ pub struct EmbreeRun {
     pub build_ms: f64,
     /// Per ray set: hits and the best of 3 wall times.
     pub traces: Vec<(usize, f64)>,
+    /// With instances: the mesh's own commit (`build_ms` is then the top level's).
+    #[allow(dead_code, reason = "only the instancing bench reads it")]
+    pub blas_ms: Option<f64>,
 }
 
 impl Embree {
@@ -89,6 +92,18 @@ impl Embree {
 
     /// Builds over `tris` and traces each ray set (`true`: any hit) on `threads` threads.
     pub fn run(&self, tris: &[[Vec3; 3]], threads: usize, sets: &[(&[Ray], bool)]) -> EmbreeRun {
+        self.run_instanced(tris, &[], threads, sets)
+    }
+
+    /// [`Embree::run`] over instances of `tris` placed by `transforms` (row-major 3×4
+    /// object to world; none: the triangles themselves).
+    pub fn run_instanced(
+        &self,
+        tris: &[[Vec3; 3]],
+        transforms: &[[[f32; 4]; 3]],
+        threads: usize,
+        sets: &[(&[Ray], bool)],
+    ) -> EmbreeRun {
         let tri_path = self.dir.join("scene.tris");
         let floats: Vec<f32> = tris
             .iter()
@@ -97,6 +112,13 @@ impl Embree {
         std::fs::write(&tri_path, bytemuck::cast_slice(&floats)).expect("write triangles");
         let mut cmd = Command::new(&self.exe);
         cmd.arg(&tri_path).arg(threads.to_string());
+        if !transforms.is_empty() {
+            let p = self.dir.join("instances.xf");
+            std::fs::write(&p, bytemuck::cast_slice(transforms)).expect("write transforms");
+            cmd.env("EMBREE_INSTANCES", &p);
+        } else {
+            cmd.env_remove("EMBREE_INSTANCES");
+        }
         for (k, (rays, any)) in sets.iter().enumerate() {
             let p = self.dir.join(format!("set{k}.rays"));
             std::fs::write(&p, vkrt::trace::files::encode_rays(rays)).expect("write rays");
@@ -116,11 +138,13 @@ impl Embree {
         let mut run = EmbreeRun {
             build_ms: f64::NAN,
             traces: Vec::new(),
+            blas_ms: None,
         };
         for line in text.lines() {
             let f: Vec<&str> = line.split_whitespace().collect();
             match f.as_slice() {
                 ["build_ms", ms] => run.build_ms = ms.parse().unwrap(),
+                ["blas_ms", ms] => run.blas_ms = Some(ms.parse().unwrap()),
                 ["trace", _, _, hits, ms] => run
                     .traces
                     .push((hits.parse().unwrap(), ms.parse().unwrap())),
