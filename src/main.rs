@@ -157,6 +157,11 @@ enum Command {
         /// a stack over 4-wide quantized nodes made after the build.
         #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
         traversal: TraversalArg,
+        /// Trace one structure over every triangle even where meshes repeat (by default a
+        /// mesh named more than once becomes one bottom-level structure with an instance
+        /// per copy, under a top level).
+        #[arg(long)]
+        flatten: bool,
         #[arg(long)]
         json: bool,
     },
@@ -1276,6 +1281,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             batch_rays,
             accel,
             traversal,
+            flatten,
             json,
         } => {
             let accel = accel_traversal(accel, traversal);
@@ -1294,7 +1300,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 &rays,
                 out.as_deref(),
                 (&opt, accel),
-                batch_rays,
+                (batch_rays, flatten),
                 json,
             )?;
         }
@@ -1430,20 +1436,97 @@ fn trace_command(
     rays_path: &std::path::Path,
     out: Option<&std::path::Path>,
     (opt, accel): (&vkrt::trace::TraceOptions, vkrt::accel::device::AccelChoice),
-    batch_rays: Option<usize>,
+    (batch_rays, flatten): (Option<usize>, bool),
     json: bool,
 ) -> Result<(), Box<dyn std::error::Error>> {
-    use vkrt::trace::{files, gpu, TraceGeometry};
+    use vkrt::trace::{files, gpu, instanced, TraceGeometry};
     let rays = files::read_rays(rays_path)?;
     let scene = load_scene(&Some(scene_path.to_path_buf()))?;
-    let geometry = TraceGeometry::at_time(&scene, scene.camera.shutter_open);
+    let time = scene.camera.shutter_open;
     let ctx = context(validate)?;
+    // Meshes named more than once: bottom levels and instances, unless asked flat (or
+    // traced by the driver's structure, which vkrt builds as one level).
+    let flatten = flatten || accel.kind == vkrt::accel::device::AccelKind::Driver;
+    if let Some(two) = (!flatten)
+        .then(|| instanced::TwoLevelScene::of(&scene, time))
+        .flatten()
+    {
+        let done = instanced::build_and_trace(&ctx, accel, opt, &two, &rays, time)?;
+        let extra = serde_json::json!({
+            "levels": 2,
+            "instances": two.mesh_instances(),
+            "bottom_levels": two.bottoms.len(),
+            "unique_primitives": two.unique_primitives,
+            "bottom_build_ms": done.bottom_build_ms,
+            "top_build_ms": done.top_build_ms,
+            "bottom_bytes": done.bottom_bytes,
+            "top_bytes": done.top_bytes,
+        });
+        let summary = format!(
+            "{} primitives as {} bottom levels under {} instances ({} unique primitives)",
+            scene.triangle_count() + scene.spheres.len(),
+            two.bottoms.len(),
+            two.instances.len(),
+            two.unique_primitives
+        );
+        let batch = gpu::TraceBatch {
+            hits: done.hits,
+            exhausted: done.exhausted,
+            profile: Default::default(),
+        };
+        let report = TraceReport {
+            accel,
+            build_ms: done.bottom_build_ms + done.top_build_ms,
+            trace_ms: done.trace_ms,
+            attempts: 1,
+            traffic: None,
+            extra,
+            summary,
+        };
+        return report_trace(&rays, &batch, out, report, json);
+    }
+    let geometry = TraceGeometry::at_time(&scene, time);
     let builder = vkrt::accel::device::AccelBuilder::for_choice(&ctx, accel)?;
     let tracer = gpu::Tracer::for_accel(&ctx, opt, accel.traversal())?;
     // Upload, build and the first batch's trace in one submission; nothing read back
     // between build and trace.
     let done = gpu::build_and_trace(&ctx, &builder, &tracer, &geometry, &rays, 0.0, batch_rays)?;
-    let (batch, build_ms) = (done.batch, done.build_ms);
+    let report = TraceReport {
+        accel,
+        build_ms: done.build_ms,
+        trace_ms: done.batch.profile.ms("trace").unwrap_or(0.0),
+        attempts: done.attempts,
+        traffic: Some((
+            done.traffic.submits,
+            done.readback_before_trace,
+            done.traffic.readback_bytes,
+        )),
+        extra: serde_json::json!({ "levels": 1 }),
+        summary: format!("{} primitives", geometry.primitive_count()),
+    };
+    report_trace(&rays, &done.batch, out, report, json)
+}
+
+/// What `vkrt trace` prints besides the hits.
+struct TraceReport {
+    accel: vkrt::accel::device::AccelChoice,
+    build_ms: f64,
+    trace_ms: f64,
+    attempts: u32,
+    /// Submissions, bytes read back before the trace and in all (the flat path's).
+    traffic: Option<(u64, u64, u64)>,
+    extra: serde_json::Value,
+    summary: String,
+}
+
+fn report_trace(
+    rays: &[vkrt::trace::Ray],
+    batch: &vkrt::trace::gpu::TraceBatch,
+    out: Option<&std::path::Path>,
+    r: TraceReport,
+    json: bool,
+) -> Result<(), Box<dyn std::error::Error>> {
+    use vkrt::trace::files;
     // Invalid rays are answered as misses; say how many and why, never silently.
     let invalid = vkrt::trace::count_invalid(&rays);
     let n_invalid: usize = invalid.iter().sum();
@@ -1472,14 +1555,14 @@ fn trace_command(
         vkrt::gpu::write_atomically(out, &files::encode_hits(out, &batch.hits))?;
     }
     let hits = batch.hits.iter().filter(|h| h.is_hit()).count();
-    let trace_ms = batch.profile.ms("trace").unwrap_or(0.0);
+    let trace_ms = r.trace_ms;
     let mrays_per_s = if trace_ms > 0.0 {
         rays.len() as f64 / (trace_ms * 1e3)
     } else {
         0.0
     };
     if json {
-        let v = serde_json::json!({
+        let mut v = serde_json::json!({
             "rays": rays.len(),
             "hits": hits,
             "invalid": n_invalid,
@@ -1489,25 +1572,33 @@ fn trace_command(
                 .map(|(r, n)| (r.name().to_string(), n.into()))
                 .collect::<serde_json::Map<_, _>>(),
             "exhausted": batch.exhausted,
-            "accel": accel.label(),
-            "build_ms": build_ms,
-            "build_attempts": done.attempts,
-            "submits": done.traffic.submits,
-            "readback_bytes": done.readback_before_trace,
-            "readback_bytes_total": done.traffic.readback_bytes,
+            "accel": r.accel.label(),
+            "build_ms": r.build_ms,
+            "build_attempts": r.attempts,
             "trace_ms": trace_ms,
             "mrays_per_s": mrays_per_s,
         });
+        if let Some((submits, before, total)) = r.traffic {
+            extend_json(
+                &mut v,
+                serde_json::json!({
+                    "submits": submits,
+                    "readback_bytes": before,
+                    "readback_bytes_total": total,
+                }),
+            );
+        }
+        extend_json(&mut v, r.extra);
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!(
-            "{} rays, {} hits, {} misses: trace {:.3} ms on the GPU ({:.2} Mrays/s), {} primitives",
+            "{} rays, {} hits, {} misses: trace {:.3} ms on the GPU ({:.2} Mrays/s), {}",
             rays.len(),
             hits,
             rays.len() - hits,
             trace_ms,
             mrays_per_s,
-            geometry.primitive_count()
+            r.summary
         );
         if let Some(out) = out {
             println!("wrote {}", out.display());

@@ -548,3 +548,41 @@ fn misuse_is_an_error_naming_the_instance() {
     assert!(sizes.structure_bytes > 64);
     common::assert_silent(&ctx);
 }
+
+/// A scene's repeated meshes: the dynamic demo's 24 spheres are one icosphere placed 24
+/// times, and split as two levels they are one bottom level with 24 instances, the rest
+/// (bunny and room) another under an identity instance.
+#[test]
+fn repeated_meshes_become_instances_of_one_bottom_level() {
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/dynamic_demo.toml");
+    let scene = vkrt::scene::Scene::load(&path).unwrap().scene;
+    let groups = scene.mesh_groups();
+    let repeated: Vec<&Vec<usize>> = groups.iter().filter(|g| g.len() > 1).collect();
+    assert_eq!(repeated.len(), 1);
+    assert_eq!(repeated[0].len(), 24);
+    let summary = scene.summary();
+    let sphere = scene.meshes[repeated[0][0]].indices.len() as u64;
+    assert_eq!(summary.instances, 24);
+    assert_eq!(summary.unique_triangles, summary.triangles - 23 * sphere);
+    let two = vkrt::trace::instanced::TwoLevelScene::of(&scene, 0.0).unwrap();
+    assert_eq!(two.bottoms.len(), 2);
+    assert_eq!((two.instances.len(), two.mesh_instances()), (25, 24));
+    assert_eq!(
+        two.unique_primitives as u64,
+        summary.unique_triangles + summary.spheres
+    );
+    // Every instance of the sphere is placed where the flat scene has its triangles.
+    let flat = scene.triangles_world(0.0);
+    for inst in two.instances.iter().filter(|i| i.bottom == 0) {
+        let mesh = inst.custom_index() as usize;
+        let first = two.mesh_first[mesh] as usize;
+        let [a, _, _] = scene.meshes[mesh].indices[0];
+        let p = transform_point(&inst.transform, scene.meshes[mesh].positions[a as usize]);
+        assert!((p - flat[first][0]).length() < 1e-5, "mesh {mesh}");
+    }
+    // A scene without repeats stays flat.
+    let once = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/motion_blur.toml");
+    let once = vkrt::scene::Scene::load(&once).unwrap().scene;
+    assert!(vkrt::trace::instanced::TwoLevelScene::of(&once, 0.0).is_none());
+    assert_eq!(once.summary().instances, 0);
+}

@@ -407,6 +407,8 @@ pub struct TopLevel<'a> {
     count: u32,
     /// Memory [`TopLevelBuilder::build`] allocated (none for [`TopLevelBuilder::create_in`]).
     owned: Vec<Buffer<u8>>,
+    /// Bytes of its memory ([`AccelSizes::structure_bytes`]).
+    bytes: u64,
 }
 
 /// The top level's part of the caller's memory, rounded up so that its tree starts aligned.
@@ -534,12 +536,18 @@ impl TopLevelBuilder {
         };
         let geometry = boxes_geometry(GeometryData::Buffer(parts.boxes.as_raw()), count);
         let tree = self.tree.create_in(ctx, &[geometry], flags, rest)?;
+        let bytes = own
+            + self
+                .tree
+                .sizes_for(ctx, &[measured_boxes(count)], flags)?
+                .structure_bytes;
         Ok(TopLevel {
             tree,
             parts,
             bottoms: bottoms.to_vec(),
             count,
             owned: Vec::new(),
+            bytes,
         })
     }
 
@@ -682,6 +690,21 @@ impl TopLevelBuilder {
         instances: &[Instance],
         flags: &BuildFlags,
     ) -> Result<TopLevel<'a>> {
+        let mut rec = Recorder::new(ctx)?;
+        let top = self.record_build(&mut rec, bottoms, instances, flags)?;
+        rec.submit_and_wait()?;
+        Ok(top)
+    }
+
+    /// [`TopLevelBuilder::build`] recorded into `rec` (in a scope `top level`), not
+    /// submitted: the upload of `instances` and the build, in memory the result keeps.
+    pub fn record_build<'a>(
+        &self,
+        rec: &mut Recorder,
+        bottoms: &[&'a GpuGeometry],
+        instances: &[Instance],
+        flags: &BuildFlags,
+    ) -> Result<TopLevel<'a>> {
         let call = "TopLevelBuilder::build";
         for (i, inst) in instances.iter().enumerate() {
             inst.check(bottoms.len())
@@ -689,20 +712,21 @@ impl TopLevelBuilder {
         }
         let count =
             u32::try_from(instances.len()).map_err(|_| usage(call, "more than 2^32 instances"))?;
-        let sizes = self.sizes_for(ctx, count, bottoms.len(), flags)?;
-        let memory = Buffer::<u8>::arena(ctx, "accel.top_level", sizes.structure_bytes as usize)?;
+        let ctx = rec.context().clone();
+        let sizes = self.sizes_for(&ctx, count, bottoms.len(), flags)?;
+        let memory = Buffer::<u8>::arena(&ctx, "accel.top_level", sizes.structure_bytes as usize)?;
         let scratch_bytes = sizes
             .build_scratch_bytes
             .max(sizes.update_scratch_bytes.unwrap_or(0));
-        let scratch = Buffer::<u8>::arena(ctx, "accel.top_scratch", scratch_bytes as usize)?;
-        let records = Buffer::<Instance>::new(ctx, "accel.instances", instances.len().max(1))?;
-        let mut top = self.create_in(ctx, bottoms, count, flags, memory.as_raw())?;
-        let mut rec = Recorder::new(ctx)?;
+        let scratch = Buffer::<u8>::arena(&ctx, "accel.top_scratch", scratch_bytes as usize)?;
+        let records = Buffer::<Instance>::new(&ctx, "accel.instances", instances.len().max(1))?;
+        let mut top = self.create_in(&ctx, bottoms, count, flags, memory.as_raw())?;
         rec.upload(&records, instances)?;
         rec.transfer_to_compute();
-        self.record_build_from(&mut rec, records.as_raw(), &mut top, scratch.as_raw())?;
-        rec.submit_and_wait()?;
+        self.record_build_from(rec, records.as_raw(), &mut top, scratch.as_raw())?;
+        rec.keep_alive(records);
         top.owned = vec![memory, scratch];
+        top.bytes = sizes.structure_bytes;
         Ok(top)
     }
 
@@ -791,15 +815,10 @@ impl TopLevel<'_> {
         Ok((boxes, records))
     }
 
-    /// Bytes of the top level's own arrays (before its tree: `sizes_for` gives both).
-    pub fn instance_bytes(&self) -> u64 {
-        let p = &self.parts;
-        p.boxes.byte_len()
-            + p.records.byte_len()
-            + p.bottom_info.byte_len()
-            + p.handles.byte_len()
-            + p.handle.byte_len()
-            + p.status.byte_len()
+    /// Bytes of the top level: its instances' arrays and its tree (as
+    /// [`TopLevelBuilder::sizes_for`] reports them).
+    pub fn bytes(&self) -> u64 {
+        self.bytes
     }
 }
 

@@ -169,12 +169,22 @@ impl Scene {
             (b.min.to_array(), b.max.to_array())
         };
         let s = &self.settings;
+        let groups = self.mesh_groups();
         SceneSummary {
             triangles: self.triangle_count() as u64,
             spheres: self.spheres.len() as u64,
             lights: self.lights.len() as u64,
             materials: self.materials.len() as u64,
             meshes: self.meshes.len() as u64,
+            instances: groups
+                .iter()
+                .filter(|g| g.len() > 1)
+                .map(|g| g.len() as u64)
+                .sum(),
+            unique_triangles: groups
+                .iter()
+                .map(|g| self.meshes[g[0]].indices.len() as u64)
+                .sum(),
             bounds: BoundsSummary { min, max },
             effects: self
                 .effects()
@@ -229,6 +239,11 @@ pub struct SceneSummary {
     pub materials: u64,
     /// Meshes.
     pub meshes: u64,
+    /// Meshes placed as instances of a shared bottom level: those whose geometry another
+    /// mesh repeats ([`Scene::mesh_groups`]).
+    pub instances: u64,
+    /// Triangles with every repeated mesh counted once: what the structures hold.
+    pub unique_triangles: u64,
     /// World bounds at shutter open (zeros for an empty scene).
     pub bounds: BoundsSummary,
     /// [`Effects::names`].
@@ -258,6 +273,13 @@ impl fmt::Display for SceneSummary {
         writeln!(f, "triangles: {}", self.triangles)?;
         writeln!(f, "spheres:   {}", self.spheres)?;
         writeln!(f, "meshes:    {}", self.meshes)?;
+        if self.instances > 0 {
+            writeln!(
+                f,
+                "instances: {} (unique triangles: {})",
+                self.instances, self.unique_triangles
+            )?;
+        }
         writeln!(f, "lights:    {}", self.lights)?;
         writeln!(f, "materials: {}", self.materials)?;
         let [a, b, c] = self.bounds.min;

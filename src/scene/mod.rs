@@ -234,6 +234,46 @@ impl Scene {
         validate::validate(self, &Limits::default())
     }
 
+    /// The meshes grouped by their object-space geometry (the same positions and
+    /// triangles: a mesh file or generator named more than once with the same parameters),
+    /// in order of first appearance; each group lists mesh indices in scene order. A group
+    /// of more than one becomes one bottom-level structure with an instance per mesh.
+    pub fn mesh_groups(&self) -> Vec<Vec<usize>> {
+        use std::hash::{Hash, Hasher};
+        let key = |m: &Mesh| {
+            let mut h = std::collections::hash_map::DefaultHasher::new();
+            for p in &m.positions {
+                p.to_array().map(f32::to_bits).hash(&mut h);
+            }
+            m.indices.hash(&mut h);
+            h.finish()
+        };
+        let same = |a: &Mesh, b: &Mesh| {
+            a.indices == b.indices
+                && a.positions.len() == b.positions.len()
+                && a.positions
+                    .iter()
+                    .zip(&b.positions)
+                    .all(|(p, q)| p.to_array().map(f32::to_bits) == q.to_array().map(f32::to_bits))
+        };
+        let mut groups: Vec<Vec<usize>> = Vec::new();
+        let mut by_key: std::collections::HashMap<u64, Vec<usize>> = Default::default();
+        for (i, m) in self.meshes.iter().enumerate() {
+            let candidates = by_key.entry(key(m)).or_default();
+            match candidates
+                .iter()
+                .find(|&&g| same(&self.meshes[groups[g][0]], m))
+            {
+                Some(&g) => groups[g].push(i),
+                None => {
+                    candidates.push(groups.len());
+                    groups.push(vec![i]);
+                }
+            }
+        }
+        groups
+    }
+
     /// Total number of triangles over all meshes.
     pub fn triangle_count(&self) -> usize {
         self.meshes.iter().map(|m| m.indices.len()).sum()

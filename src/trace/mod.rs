@@ -21,6 +21,7 @@ pub mod cpu;
 pub mod files;
 pub mod geometry;
 pub mod gpu;
+pub mod instanced;
 pub mod intersect;
 pub mod robust;
 
