@@ -1528,7 +1528,7 @@ fn report_trace(
 ) -> Result<(), Box<dyn std::error::Error>> {
     use vkrt::trace::files;
     // Invalid rays are answered as misses; say how many and why, never silently.
-    let invalid = vkrt::trace::count_invalid(&rays);
+    let invalid = vkrt::trace::count_invalid(rays);
     let n_invalid: usize = invalid.iter().sum();
     if n_invalid > 0 {
         let why: Vec<String> = vkrt::trace::InvalidRay::ALL
