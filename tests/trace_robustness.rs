@@ -12,7 +12,7 @@ mod common;
 
 use common::{assert_silent, context};
 use vkrt::accel::device::{AccelChoice, AccelKind};
-use vkrt::trace::robust::{run_group, CaseResult, Group, SuiteSize};
+use vkrt::trace::robust::{run_group, run_group_with, CaseResult, Group, SuiteConfig, SuiteSize};
 use vkrt::trace::Intersector;
 
 fn check(group: Group, size: SuiteSize) {
@@ -25,8 +25,53 @@ fn check(group: Group, size: SuiteSize) {
                 .unwrap_or_else(|e| panic!("{group:?} on {}: {e}", accel.label())),
         );
     }
+    report(&format!("{group:?}"), &results, start);
+    assert_silent(&ctx);
+}
+
+/// Every group with each case's structure as the one bottom level of a top level (an
+/// identity instance), the kd-tree and the BVHs each walked their own way: the two-level
+/// walk must answer as the structure alone (0 failures).
+#[test]
+fn every_case_under_an_identity_instance() {
+    let Some(ctx) = context() else { return };
+    let start = std::time::Instant::now();
+    let config = SuiteConfig {
+        under_instance: true,
+        ..SuiteConfig::default()
+    };
+    let mut results: Vec<CaseResult> = Vec::new();
+    let choices = [
+        AccelChoice::new(AccelKind::KdTree, Default::default()),
+        AccelChoice::new(AccelKind::Lbvh, vkrt::trace::bvh_cpu::Traversal::Bitstack),
+        AccelChoice::new(AccelKind::Ploc, vkrt::trace::bvh_cpu::Traversal::Wide),
+    ];
+    for group in Group::ALL {
+        for accel in choices {
+            results.extend(
+                run_group_with(
+                    &ctx,
+                    group,
+                    &SuiteSize::tiny(),
+                    &[Intersector::Watertight],
+                    accel,
+                    &config,
+                )
+                .unwrap_or_else(|e| panic!("{group:?} on {}: {e}", accel.label())),
+            );
+        }
+    }
+    assert!(results
+        .iter()
+        .all(|r| r.accel.ends_with("under an instance")));
+    report("every group under an instance", &results, start);
+    assert_silent(&ctx);
+}
+
+/// Prints every case and asserts 0 failures on vkrt's structures.
+fn report(group: &str, results: &[CaseResult], start: std::time::Instant) {
     assert!(!results.is_empty());
-    for r in &results {
+    for r in results {
         eprintln!(
             "{:<52} {:<17} {:>8} rays {:>6} {} ({} errors) {:>9.2} ms {}{}",
             r.case,
@@ -43,15 +88,15 @@ fn check(group: Group, size: SuiteSize) {
             eprintln!("    failing ray {ray:?} -> {hit:?}");
         }
     }
-    eprintln!("{group:?}: {:.1} s", start.elapsed().as_secs_f64());
+    eprintln!("{group}: {:.1} s", start.elapsed().as_secs_f64());
     let driver = AccelKind::Driver.name();
     let driver_failures: u64 = results
         .iter()
         .filter(|r| r.accel == driver)
         .map(|r| r.failures)
         .sum();
-    eprintln!("{group:?}: the driver's failures in all: {driver_failures}");
-    for r in &results {
+    eprintln!("{group}: the driver's failures in all: {driver_failures}");
+    for r in results {
         assert!(r.rays > 0, "{} on {}: no rays", r.case, r.accel);
         if r.accel == driver {
             continue;
@@ -63,7 +108,6 @@ fn check(group: Group, size: SuiteSize) {
             assert_eq!(r.failures, 0, "{} on {}: {r:?}", r.case, r.accel);
         }
     }
-    assert_silent(&ctx);
 }
 
 #[test]

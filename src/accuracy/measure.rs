@@ -482,6 +482,7 @@ fn measure_structure(
                 })),
                 kd_params: s.build.kd_params(),
                 trace: s.trace,
+                under_instance: false,
             };
             let cases = robust::run_all_with(ctx, suite, &[s.trace.intersector], choice, &config)?;
             Some(hard_cases(&cases))

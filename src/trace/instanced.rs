@@ -14,11 +14,11 @@ use glam::{Vec3, Vec4};
 
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelStructure};
 use crate::accel::embedded::BuildFlags;
-use crate::accel::instances::{Instance, TopLevelBuilder};
+use crate::accel::instances::{Instance, TopLevel, TopLevelBuilder};
 use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Recorder, Result, Spec};
 use crate::scene::Scene;
 use crate::trace::bvh_cpu::Traversal;
-use crate::trace::gpu::{effective_options, AccelTraversal, GpuGeometry, Tracer};
+use crate::trace::gpu::{effective_options, AccelTraversal, GpuGeometry, TraceBatch, Tracer};
 use crate::trace::{Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
 
 /// The custom index of the instance of the rest (meshes named once, spheres).
@@ -167,6 +167,42 @@ pub fn build_and_trace(
     let top_build_ms = profile.ms("top level").unwrap_or(0.0);
 
     let bitstack = choice.traversal() == AccelTraversal::Bvh(Traversal::Bitstack);
+    let batch = trace_top_level(
+        ctx,
+        &top,
+        (&s.mesh_first, &s.rest_ids),
+        &opt,
+        bitstack,
+        rays,
+        time,
+    )?;
+    Ok(TwoLevelTrace {
+        trace_ms: batch.profile.ms("trace").unwrap_or(0.0),
+        hits: batch.hits,
+        exhausted: batch.exhausted,
+        bottom_build_ms,
+        top_build_ms,
+        bottom_bytes,
+        top_bytes: top.bytes(),
+        options: opt,
+    })
+}
+
+/// Closest (or any, as `opt.query` says) hits of `rays` at `time` through top level `top`
+/// (`render.trace_instances`, one `trace` scope per batch in the profile), with the scene's
+/// primitive ids: an instance's custom index `k` names the mesh whose first id is
+/// `ids.0[k]`, and the instance with custom index [`REST`] maps its primitives through
+/// `ids.1`. `opt` as the device runs it ([`effective_options`]); `bitstack`: binary BVH
+/// bottom levels walked with the bitstack walk (else each level's own).
+pub fn trace_top_level(
+    ctx: &Context,
+    top: &TopLevel<'_>,
+    (mesh_first, rest_ids): (&[u32], &[u32]),
+    opt: &TraceOptions,
+    bitstack: bool,
+    rays: &[Ray],
+    time: f32,
+) -> Result<TraceBatch> {
     let blob = match (opt.intersector, opt.exact, bitstack) {
         (Intersector::MollerTrumbore, _, false) => &kernels::RENDER_TRACE_INSTANCES_MOLLER,
         (Intersector::Watertight, true, false) => &kernels::RENDER_TRACE_INSTANCES_EXACT,
@@ -175,22 +211,18 @@ pub fn build_and_trace(
         (Intersector::Watertight, true, true) => &kernels::RENDER_TRACE_INSTANCES_BITSTACK_EXACT,
         (Intersector::Watertight, false, true) => &kernels::RENDER_TRACE_INSTANCES_BITSTACK_FLOAT,
     };
+    let cap = ctx.info().max_traversal_steps;
     let spec = Spec::new()
         .workgroup(WORKGROUP)
-        .u32(22, opt.max_steps.unwrap_or(ctx.info().max_traversal_steps));
+        .u32(22, opt.max_steps.map_or(cap, |m| m.clamp(1, cap)));
     let kernel = ctx.kernel(blob, &spec)?;
-    let mesh_first = Buffer::from_slice(ctx, "trace.mesh_first", &nonempty(&s.mesh_first))?;
-    let rest_ids = Buffer::from_slice(ctx, "trace.rest_ids", &nonempty(&s.rest_ids))?;
+    let mesh_first = Buffer::from_slice(ctx, "trace.mesh_first", &nonempty(mesh_first))?;
+    let rest_ids = Buffer::from_slice(ctx, "trace.rest_ids", &nonempty(rest_ids))?;
     let handle = top.handle_address();
-    let mut out = TwoLevelTrace {
+    let mut out = TraceBatch {
         hits: Vec::with_capacity(rays.len()),
         exhausted: 0,
-        bottom_build_ms,
-        top_build_ms,
-        trace_ms: 0.0,
-        bottom_bytes,
-        top_bytes: top.bytes(),
-        options: opt,
+        profile: Default::default(),
     };
     let batch = Tracer::max_batch(ctx).max(1);
     for chunk in rays.chunks(batch) {
@@ -212,12 +244,30 @@ pub fn build_and_trace(
         let hits_back = rec.read_back(&hits)?;
         let errors_back = rec.read_back(&errors)?;
         rec.transfer_to_host();
-        let profile = rec.submit_and_wait()?;
-        out.trace_ms += profile.ms("trace").unwrap_or(0.0);
+        out.profile.append(rec.submit_and_wait()?);
         out.hits.extend(hits_back.read()?);
         out.exhausted += errors_back.read()?[0];
     }
     Ok(out)
+}
+
+/// Closest (or any) hits of `rays` through `structure` placed by one identity instance
+/// under a top level (an LBVH): the same answers as the structure traced alone, through
+/// the two-level walk (the robustness suite's `under an instance` runs).
+pub fn trace_under_identity(
+    ctx: &Context,
+    structure: &GpuGeometry,
+    opt: &TraceOptions,
+    bitstack: bool,
+    rays: &[Ray],
+) -> Result<TraceBatch> {
+    let top = TopLevelBuilder::new(ctx, AccelKind::Lbvh)?.build(
+        ctx,
+        &[structure],
+        &[Instance::new(0, Instance::IDENTITY)],
+        &BuildFlags::default(),
+    )?;
+    trace_top_level(ctx, &top, (&[0], &[]), opt, bitstack, rays, 0.0)
 }
 
 fn nonempty(v: &[u32]) -> Vec<u32> {

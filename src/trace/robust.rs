@@ -193,6 +193,10 @@ pub struct SuiteConfig {
     /// The trace options every case starts from (the case sets the intersector and the
     /// query): the fp64 fallback and the short stack's size.
     pub trace: TraceOptions,
+    /// Trace each case's structure as the one bottom level of a top level, placed by an
+    /// identity instance (`trace::instanced::trace_under_identity`): the two-level walk
+    /// must answer every case as the structure alone does.
+    pub under_instance: bool,
 }
 
 /// Runs the cases of `group` for each intersector in `intersectors` (each scene and tree is
@@ -280,6 +284,8 @@ struct Prepared {
     host: HostStructure,
     device: GpuGeometry,
     accel: AccelChoice,
+    /// [`SuiteConfig::under_instance`].
+    under_instance: bool,
 }
 
 impl Prepared {
@@ -328,6 +334,7 @@ impl Prepared {
                 host,
                 device,
                 accel,
+                under_instance: config.under_instance,
             });
         }
         Err(GpuError::Kernel {
@@ -340,6 +347,12 @@ impl Prepared {
     }
 
     fn trace(&self, ctx: &Context, rays: &[Ray], opt: &TraceOptions) -> Result<TraceBatch> {
+        if self.under_instance {
+            let walk = self.accel.traversal();
+            let opt = super::gpu::effective_options(ctx, opt, walk);
+            let bitstack = walk == super::gpu::AccelTraversal::Bvh(bvh_cpu::Traversal::Bitstack);
+            return super::instanced::trace_under_identity(ctx, &self.device, &opt, bitstack, rays);
+        }
         Tracer::for_accel(ctx, opt, self.accel.traversal())?.trace_batched(
             ctx,
             &self.device,
@@ -511,7 +524,10 @@ impl Suite<'_> {
     ) {
         self.out.push(CaseResult {
             case: case.to_string(),
-            accel: self.accel.label(),
+            accel: match self.config.under_instance {
+                true => format!("{} under an instance", self.accel.label()),
+                false => self.accel.label(),
+            },
             intersector: match self.accel.kind {
                 AccelKind::Driver => "driver",
                 _ => i.name(),
