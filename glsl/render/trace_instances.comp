@@ -17,8 +17,11 @@
 //! variant bitstack_moller VKRT_MOLLER_TRUMBORE=1 VKRT_WALK=VKRT_WALK_BVH_BITSTACK
 layout(local_size_x_id = 0) in;
 layout(constant_id = 22) const uint STEP_CAP = 60000u;
+// False where the driver's division rounds correctly (the exact variants' check left out).
+layout(constant_id = 21) const bool REFINE = true;
 #define VKRT_DEVICE_ADDRESS 1
 #define VKRT_MAX_TRAVERSAL_STEPS STEP_CAP
+#define VKRT_REFINE_DIVISION REFINE
 #include "include/vkrt/ray_query.glsl"
 #include "common/grid.glsl"
 

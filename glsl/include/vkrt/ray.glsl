@@ -89,7 +89,9 @@ float next_toward(float x, bool up) {
 #if FP64_FALLBACK
 // False where the driver's division and square root are known to round correctly
 // (DeviceInfo::ieee_division): the check is then left out.
-#ifdef VKRT_LIBRARY
+#if defined(VKRT_LIBRARY) && defined(VKRT_REFINE_DIVISION)
+const bool REFINE_DIVISION = VKRT_REFINE_DIVISION;
+#elif defined(VKRT_LIBRARY)
 const bool REFINE_DIVISION = true;
 #else
 layout(constant_id = 21) const bool REFINE_DIVISION = true;

@@ -29,6 +29,11 @@
 //                     3 ulp off) and the watertight test's double-precision fallback; needs
 //                     shaderFloat64 and shaderInt64 (vkrt's own kernels do the same where the
 //                     device has them)
+//   VKRT_REFINE_DIVISION  with VKRT_EXACT: false where the driver's division and square
+//                     root are known to round correctly (`DeviceInfo::ieee_division`, e.g.
+//                     through the includer's specialization constant), which leaves out the
+//                     check (a loop per division: on Mesa 22.3's lavapipe every iteration
+//                     counts against its 65,535-iteration budget); default true
 //   VKRT_MAX_TRAVERSAL_STEPS  node visits + primitive tests per ray before the walk gives
 //                     up and reports `exhausted` (default 60000, within lavapipe's loop
 //                     budget; the device's value is `DeviceInfo::max_traversal_steps`, e.g.
