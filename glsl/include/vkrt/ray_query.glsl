@@ -10,6 +10,8 @@
 //     VkrtHit h = vkrtTraceClosest(origin, tMin, direction, tMax);
 //     if (h.hit) { ... h.t, h.barycentrics, h.geometryIndex, h.primitiveIndex ... }
 //     bool blocked = vkrtTraceAny(origin, tMin, direction, tMax);
+//     // the full form: a time, a cull mask for instances, closest or any hit
+//     VkrtHit a = vkrtTrace(origin, tMin, direction, tMax, time, cullMask, anyHit);
 //
 // The structure is seven read-only storage buffers at bindings VKRT_BINDING + 0 .. + 6 of set
 // VKRT_SET, in the order vkrt's `StructureBindings` lists them (the host fills them from
@@ -47,7 +49,10 @@
 //                     the host writes where it likes); needs bufferDeviceAddress. One
 //                     64-bit value per structure, as a TLAS is, and no binding limit; on
 //                     lavapipe as fast as the bindings or up to 14 % slower
-//                     (docs/performance.md)
+//                     (docs/performance.md). A top level over instances
+//                     (`TopLevel::handle_address`, vkrt/instances.glsl) is traced this way
+//                     only: hits then also name the instance (`instanceIndex`,
+//                     `instanceCustomIndex`), and vkrtTrace's cull mask selects instances
 //   VKRT_TEXEL_BUFFERS  read the nodes, references and triangle vertices (bindings + 0,
 //                     + 1, + 2) through uniform texel buffers instead of storage buffers:
 //                     RGBA32UI views of the same ranges (`GpuGeometry::texel_views()`,
