@@ -12,7 +12,8 @@ use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::embedded::BuildFlags;
 use vkrt::accel::geometry::transform_point;
 use vkrt::accel::instances::{
-    instance_boxes, trace_instances, Instance, InstanceRecord, TopLevelBuilder,
+    instance_boxes, object_ray, trace_instances, world_to_object, Instance, InstanceRecord,
+    TopLevelBuilder,
 };
 use vkrt::gpu::{Buffer, Context, GpuError, Recorder};
 use vkrt::scene::Aabb;
@@ -585,4 +586,134 @@ fn repeated_meshes_become_instances_of_one_bottom_level() {
     let once = vkrt::scene::Scene::load(&once).unwrap().scene;
     assert!(vkrt::trace::instanced::TwoLevelScene::of(&once, 0.0).is_none());
     assert_eq!(once.summary().instances, 0);
+}
+
+/// Rays grazing the instances' boxes: a unit cube placed by exact transforms (quarter turns,
+/// a mirror, a stretch, integer offsets), so the world boxes coincide with the cube's faces
+/// up to their padding. Rays parallel to a face 1e-4 inside it (they enter through a side)
+/// and 1e-4 outside it (they miss), at random heights and angles: the flattened scene's
+/// answers (hit or miss, hit points within 1e-5 of the coordinates' size, the instance and triangle except at ties). Rays
+/// exactly in a face plane or at a corner may go either way (a measure-zero boundary that the
+/// two roundings see differently): a hit must be a point of the cube, and no walk gives up.
+#[test]
+fn rays_grazing_instance_boxes_answer_as_the_flattened_scene() {
+    let Some(ctx) = common::context() else { return };
+    let corner = |k: usize| Vec3::new((k & 1) as f32, ((k >> 1) & 1) as f32, ((k >> 2) & 1) as f32);
+    let faces = [
+        [0, 1, 3, 2],
+        [4, 5, 7, 6],
+        [0, 1, 5, 4],
+        [2, 3, 7, 6],
+        [0, 2, 6, 4],
+        [1, 3, 7, 5],
+    ];
+    let cube: Vec<[Vec3; 3]> = faces
+        .iter()
+        .flat_map(|f| {
+            [
+                [corner(f[0]), corner(f[1]), corner(f[2])],
+                [corner(f[0]), corner(f[2]), corner(f[3])],
+            ]
+        })
+        .collect();
+    let rows = [
+        Instance::IDENTITY,
+        [
+            [0.0, -1.0, 0.0, 3.0],
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, 0.0],
+        ],
+        [
+            [-1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 2.0],
+            [0.0, 0.0, 1.0, 0.0],
+        ],
+        [
+            [0.0, 0.0, 2.0, -3.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [-1.0, 0.0, 0.0, 1.0],
+        ],
+    ];
+    let instances: Vec<Instance> = rows.iter().map(|r| Instance::new(0, *r)).collect();
+    // (ray, the instance it is about, whether it must answer as the flattened scene)
+    let mut rays = Vec::new();
+    let mut rng = common::Rng(21);
+    for (i, inst) in instances.iter().enumerate() {
+        let world = |p: Vec3| transform_point(&inst.transform, p);
+        for _ in 0..80 {
+            // In the plane z = h, from outside the cube's x extent towards a point in it.
+            for (h, decided) in [
+                (1e-4, true),
+                (-1e-4, true),
+                (0.0, false),
+                (1.0 + 1e-4, true),
+            ] {
+                let y0 = unit(&mut rng) * 1.4 - 0.2;
+                let y1 = unit(&mut rng) * 1.4 - 0.2;
+                let from = world(Vec3::new(-2.0, y0, h));
+                let to = world(Vec3::new(unit(&mut rng), y1, h));
+                rays.push((Ray::new(from, to - from, 0.0, f32::INFINITY), i, decided));
+            }
+            let c = corner((rng.next_u64() % 8) as usize);
+            let from = world(c + rng.next_vec3().normalize_or(Vec3::X) * 4.0);
+            rays.push((
+                Ray::new(from, world(c) - from, 0.0, f32::INFINITY),
+                i,
+                false,
+            ));
+        }
+    }
+    let level = bottom(&ctx, AccelKind::Lbvh, false, &cube);
+    let top = TopLevelBuilder::new(&ctx, AccelKind::Ploc)
+        .unwrap()
+        .build(&ctx, &[&level], &instances, &BuildFlags::default())
+        .unwrap();
+    let only: Vec<Ray> = rays.iter().map(|r| r.0).collect();
+    let got = probe(&ctx, top.handle_address(), &only, 0);
+    let (flat, owner) = flattened(&instances, &[cube]);
+    let (mut hits, mut decided_hits) = (0, 0);
+    for (k, (g, (r, _, decided))) in got.iter().zip(&rays).enumerate() {
+        let (h, inst) = as_hit(g);
+        if !*decided {
+            if let Some(i) = inst {
+                let m = world_to_object(&instances[i as usize].transform).unwrap();
+                let p = object_ray(
+                    &InstanceRecord {
+                        world_to_object: m,
+                        handle: 1,
+                        custom_index_and_mask: 0xff << 24,
+                        flags_and_bottom: 0,
+                    },
+                    r,
+                    f32::INFINITY,
+                );
+                let at = p.o() + p.d() * h.t;
+                let outside = (at - at.clamp(Vec3::ZERO, Vec3::ONE)).length();
+                assert!(outside < 1e-5, "ray {k}: a hit {outside} off the cube");
+            }
+            continue;
+        }
+        let f = cpu::brute_force(&flat, r, 0.0, &opt());
+        assert_eq!(h.is_hit(), f.is_hit(), "ray {k} {r:?}: {h:?} vs {f:?}");
+        if !h.is_hit() {
+            continue;
+        }
+        decided_hits += 1;
+        // The hit points within 1e-5 of the coordinates' magnitude (a small t's relative
+        // error is large: the two roundings act on positions, not on t).
+        let scale = r.o().abs().max_element() + r.d().length() * f.t;
+        let apart = (h.t - f.t).abs() * r.d().length();
+        assert!(apart <= 1e-5 * scale, "ray {k}: t {} vs {}", h.t, f.t);
+        if (inst.unwrap(), h.prim) != owner[f.prim as usize] {
+            assert!(apart <= 1e-6 * scale, "ray {k}: another triangle");
+        }
+        hits += 1;
+    }
+    assert!(
+        decided_hits > rays.len() / 8,
+        "{decided_hits} hits of {}",
+        rays.len()
+    );
+    assert!(hits > 0);
+    common::assert_silent(&ctx);
 }
