@@ -10,6 +10,10 @@
 //!   validated;
 //! - **walks**: every structure and walk, both ray/triangle tests, closest and any hit,
 //!   against brute force over every primitive;
+//! - **instances**: `accel.instance_boxes` against its CPU twin bit for bit at the edge
+//!   sizes (invalid instances among them), and the two-level walk over every kind of
+//!   bottom level against its CPU twin (brute force in each bottom level), both tests,
+//!   closest and any hit;
 //! - **hard cases**: the robustness suite (watertightness, self-intersection, rays in split
 //!   planes, degenerate geometry, builder stress, bad rays) on every vkrt structure, which
 //!   must have no failure; the driver's own structure is reported, not required (Vulkan
@@ -124,6 +128,7 @@ pub fn run(ctx: &Context, options: &Options, progress: &mut dyn FnMut(&Check)) -
     v.primitives();
     v.builders();
     v.walks();
+    v.instances();
     v.hard_cases();
     if ctx.validation_enabled() {
         let messages = ctx.take_validation_messages();
@@ -371,6 +376,57 @@ impl Verifier<'_> {
         }
     }
 
+    fn instances(&mut self) {
+        let ctx = self.ctx;
+        let f = &ctx.info().features;
+        if !(f.buffer_device_address || f.ray_query) {
+            let why = "no bufferDeviceAddress: a top level reaches its bottom levels at \
+                       device addresses"
+                .to_string();
+            self.record("instances", "two levels".into(), false, false, why);
+            return;
+        }
+        let sphere = gen::icosphere(2).map(|m| {
+            let tris: Vec<[Vec3; 3]> = m
+                .indices
+                .iter()
+                .map(|t| t.map(|i| m.positions[i as usize]))
+                .collect();
+            TraceGeometry::from_triangles(&tris)
+        });
+        let Ok(sphere) = sphere else {
+            return;
+        };
+        let hosts = [sphere, soup_scene(200, 3, false)];
+        let mut sizes = vec![0, 1, 63, 64, 65];
+        if !self.quick {
+            sizes.push(1000);
+        }
+        for n in sizes {
+            let o = instance_boxes_check(ctx, &hosts, n);
+            self.check("instances", format!("instance boxes, {n} instances"), o);
+        }
+        let choices = [
+            AccelChoice::new(AccelKind::KdTree, Traversal::Stack),
+            AccelChoice::new(AccelKind::SahBvh, Traversal::Stack),
+            AccelChoice::new(AccelKind::Lbvh, Traversal::Bitstack),
+            AccelChoice::new(AccelKind::Ploc, Traversal::Wide),
+        ];
+        let rays = instance_rays(if self.quick { 1_000 } else { 4_000 }, 23);
+        for choice in choices {
+            for intersector in [Intersector::Watertight, Intersector::MollerTrumbore] {
+                for query in [Query::Closest, Query::Any] {
+                    let name = format!(
+                        "two levels over {} bottom levels: {intersector:?} {query:?}",
+                        choice.label()
+                    );
+                    let o = two_level_check(ctx, &hosts, choice, intersector, query, &rays);
+                    self.check("instances", name, o);
+                }
+            }
+        }
+    }
+
     fn hard_cases(&mut self) {
         let ctx = self.ctx;
         let size = if self.quick {
@@ -424,6 +480,205 @@ impl Verifier<'_> {
             }
         }
     }
+}
+
+/// An object-to-world transform: a turn, a scale (some mirrored, some uneven) and an offset
+/// within a 16³ box.
+fn instance_transform(rng: &mut Rng) -> [[f32; 4]; 3] {
+    let mut u = || rng.next_f32();
+    let axis = (Vec3::new(u(), u(), u()) - 0.5).normalize_or(Vec3::Y);
+    let turn = glam::Quat::from_axis_angle(axis, u() * std::f32::consts::TAU);
+    let s = 0.3 + u();
+    let mirror = if u() < 0.25 { -1.0 } else { 1.0 };
+    let scale = Vec3::new(s * mirror, s * (0.5 + u()), s);
+    let at = (Vec3::new(u(), u(), u()) - 0.5) * 16.0;
+    crate::accel::instances::Instance::rows_of(&glam::Affine3A::from_scale_rotation_translation(
+        scale, turn, at,
+    ))
+}
+
+/// Rays from a sphere of radius 20 towards points within the instances' box.
+fn instance_rays(n: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = Rng::new(seed);
+    let mut v = || Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) - 0.5;
+    (0..n)
+        .map(|_| {
+            let o = v().normalize_or(Vec3::X) * 20.0;
+            let t = v() * 16.0;
+            Ray::new(o, t - o, 0.0, f32::INFINITY)
+        })
+        .collect()
+}
+
+/// Bottom levels over `hosts` built by `choice`'s builder.
+fn bottom_levels(
+    ctx: &Context,
+    hosts: &[TraceGeometry],
+    choice: AccelChoice,
+) -> Result<Vec<GpuGeometry>> {
+    let builder = AccelBuilder::for_choice(ctx, choice)?;
+    hosts
+        .iter()
+        .map(|g| {
+            let mut rec = Recorder::new(ctx)?;
+            let (level, _) = GpuGeometry::record_build(&mut rec, &builder, g, 1)?;
+            rec.submit_and_wait()?;
+            Ok(level)
+        })
+        .collect()
+}
+
+/// `accel.instance_boxes` over `n` instances of `hosts`' levels (every 17th an invalid
+/// class: singular, non-finite, a bottom level out of range; some with mask 0), built in
+/// memory of the reported size, against its CPU twin bit for bit, and the count of invalid
+/// ones.
+fn instance_boxes_check(ctx: &Context, hosts: &[TraceGeometry], n: usize) -> Outcome {
+    use crate::accel::instances::{instance_boxes, Instance, TopLevelBuilder};
+    let levels = bottom_levels(
+        ctx,
+        hosts,
+        AccelChoice::new(AccelKind::Lbvh, Traversal::Stack),
+    )?;
+    let refs: Vec<&GpuGeometry> = levels.iter().collect();
+    let mut rng = Rng::new(n as u64 + 5);
+    let instances: Vec<Instance> = (0..n)
+        .map(|i| {
+            let inst = Instance::new((i % 2) as u32, instance_transform(&mut rng))
+                .with_custom_index(i as u32);
+            match i % 17 {
+                3 => Instance {
+                    transform: [[1.0, 0.0, 0.0, 0.0], [2.0, 0.0, 0.0, 0.0], [0.0; 4]],
+                    ..inst
+                },
+                5 => Instance {
+                    transform: [[f32::NAN, 0.0, 0.0, 0.0], [0.0; 4], [0.0; 4]],
+                    ..inst
+                },
+                7 => Instance { bottom: 9, ..inst },
+                11 => inst.with_mask(0),
+                _ => inst,
+            }
+        })
+        .collect();
+    let builder = TopLevelBuilder::new(ctx, AccelKind::Lbvh)?;
+    let flags = crate::accel::embedded::BuildFlags::default();
+    let sizes = builder.sizes_for(ctx, n as u32, refs.len(), &flags)?;
+    let memory = Buffer::<u8>::arena(ctx, "verify.top", sizes.structure_bytes as usize)?;
+    let scratch = Buffer::<u8>::arena(ctx, "verify.scratch", sizes.build_scratch_bytes as usize)?;
+    let input = Buffer::<Instance>::new(ctx, "verify.instances", n.max(1))?;
+    let mut top = builder.create_in(ctx, &refs, n as u32, &flags, memory.as_raw())?;
+    let mut rec = Recorder::new(ctx)?;
+    rec.upload(&input, &instances)?;
+    rec.transfer_to_compute();
+    builder.record_build_from(&mut rec, input.as_raw(), &mut top, scratch.as_raw())?;
+    rec.compute_to_transfer();
+    let status = top.record_read_status(&mut rec)?;
+    rec.transfer_to_host();
+    rec.submit_and_wait()?;
+    let infos: Vec<_> = levels
+        .iter()
+        .map(|l| Ok(l.accel.info.download()?[0]))
+        .collect::<Result<_>>()?;
+    let (boxes, records) = top.download()?;
+    let (want_boxes, want_records, invalid) =
+        instance_boxes(&instances, &infos, top.bottom_handles_address());
+    let bits = |b: &[[f32; 6]]| -> Vec<u32> { b.iter().flatten().map(|x| x.to_bits()).collect() };
+    if let Some(i) = (0..n).find(|&i| bits(&boxes[i..=i]) != bits(&want_boxes[i..=i])) {
+        return Ok(Some(format!(
+            "instance {i}: box {:?}, its CPU twin's {:?}",
+            boxes[i], want_boxes[i]
+        )));
+    }
+    if let Some(i) = (0..n).find(|&i| records[i] != want_records[i]) {
+        return Ok(Some(format!(
+            "instance {i}: record {:?}, its CPU twin's {:?}",
+            records[i], want_records[i]
+        )));
+    }
+    let got = status.read()?.invalid_primitives;
+    Ok((got != invalid).then(|| format!("{got} invalid instances counted, {invalid} expected")))
+}
+
+/// 30 instances of `hosts`' levels built by `choice`'s builder, traced through the
+/// two-level walk, against its CPU twin with brute force in each bottom level: the same
+/// instance and primitive (or a tie), t within 1e-5; any hit: the same hit or miss.
+fn two_level_check(
+    ctx: &Context,
+    hosts: &[TraceGeometry],
+    choice: AccelChoice,
+    intersector: Intersector,
+    query: Query,
+    rays: &[Ray],
+) -> Outcome {
+    use crate::accel::instances::{trace_instances, Instance, TopLevelBuilder};
+    use crate::trace::gpu::{effective_options, AccelTraversal};
+    let levels = bottom_levels(ctx, hosts, choice)?;
+    let refs: Vec<&GpuGeometry> = levels.iter().collect();
+    let mut rng = Rng::new(29);
+    let n = 30;
+    let instances: Vec<Instance> = (0..n)
+        .map(|i| Instance::new(i % 2, instance_transform(&mut rng)).with_custom_index(i))
+        .collect();
+    let top = TopLevelBuilder::new(ctx, AccelKind::Lbvh)?.build(
+        ctx,
+        &refs,
+        &instances,
+        &Default::default(),
+    )?;
+    // Hit ids as instance · STRIDE + primitive.
+    const STRIDE: u32 = 100_000;
+    let first: Vec<u32> = (0..n).map(|i| i * STRIDE).collect();
+    let walk = choice.traversal();
+    let opt = effective_options(
+        ctx,
+        &TraceOptions {
+            intersector,
+            query,
+            ..TraceOptions::default()
+        },
+        walk,
+    );
+    let bitstack = walk == AccelTraversal::Bvh(Traversal::Bitstack);
+    let batch = crate::trace::instanced::trace_top_level(
+        ctx,
+        &top,
+        (&first, &[]),
+        &opt,
+        bitstack,
+        rays,
+        0.0,
+    )?;
+    if batch.exhausted > 0 {
+        return Ok(Some(format!("{} rays ran out of steps", batch.exhausted)));
+    }
+    let (_, records) = top.download()?;
+    let mut wrong = 0;
+    let mut example = None;
+    for (i, (r, got)) in rays.iter().zip(&batch.hits).enumerate() {
+        let want = trace_instances(&records, r, 0xff, query == Query::Any, |b, ro| {
+            (cpu::brute_force(&hosts[b as usize], ro, 0.0, &opt), false)
+        });
+        let same = match query {
+            Query::Any => got.is_hit() == want.hit.is_hit(),
+            Query::Closest => {
+                let local = match got.is_hit() {
+                    true => Hit {
+                        prim: got.prim % STRIDE,
+                        ..*got
+                    },
+                    false => *got,
+                };
+                let instance = got.is_hit().then_some(got.prim / STRIDE);
+                robust::same_answer(&local, &want.hit)
+                    && (instance == want.instance || local.t == want.hit.t)
+            }
+        };
+        if !same {
+            wrong += 1;
+            example.get_or_insert(format!("ray {i}: {got:?} vs the twin's {want:?}"));
+        }
+    }
+    Ok(example.map(|e| format!("{wrong} of {} rays differ; {e}", rays.len())))
 }
 
 /// Triangles scattered in a 10³ box (and spheres beside them when `spheres`).

@@ -23,11 +23,20 @@ fn every_check_passes_on_this_device() {
         failures.join("\n")
     );
     assert_eq!(report.failed, 0);
-    for group in ["rounding", "primitives", "builders", "walks", "hard cases"] {
+    for group in [
+        "rounding",
+        "primitives",
+        "builders",
+        "walks",
+        "instances",
+        "hard cases",
+    ] {
         assert!(report.groups.contains_key(group), "no {group} checks");
     }
     // Every structure and walk against brute force, both tests, both queries, two scenes.
     assert_eq!(report.groups["walks"].checks, 10 * 2 * 2 * 2);
+    // Boxes at 5 or 6 sizes; 4 kinds of bottom level × 2 tests × 2 queries.
+    assert!(report.groups["instances"].checks >= 5 + 4 * 2 * 2);
     // The validation layer was on and stayed silent (a check of its own).
     if ctx.validation_enabled() {
         assert_eq!(report.groups["validation"].failed, 0);

@@ -212,10 +212,13 @@ pub fn trace_top_level(
         (Intersector::Watertight, false, true) => &kernels::RENDER_TRACE_INSTANCES_BITSTACK_FLOAT,
     };
     let cap = ctx.info().max_traversal_steps;
-    let spec = Spec::new()
+    let mut spec = Spec::new()
         .workgroup(WORKGROUP)
-        .u32(22, opt.max_steps.map_or(cap, |m| m.clamp(1, cap)))
-        .u32(21, u32::from(!ctx.info().ieee_division));
+        .u32(22, opt.max_steps.map_or(cap, |m| m.clamp(1, cap)));
+    // (only the exact variants check the division)
+    if opt.exact && opt.intersector == Intersector::Watertight {
+        spec = spec.u32(21, u32::from(!ctx.info().ieee_division));
+    }
     let kernel = ctx.kernel(blob, &spec)?;
     let mesh_first = Buffer::from_slice(ctx, "trace.mesh_first", &nonempty(mesh_first))?;
     let rest_ids = Buffer::from_slice(ctx, "trace.rest_ids", &nonempty(rest_ids))?;
