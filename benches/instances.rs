@@ -10,6 +10,13 @@
 //! (`gpu.handle_probe` through `vkrt/ray_query.glsl` at device addresses: GPU ms, best of
 //! 3 interleaved rounds), as Mrays/s, ÷ the bunny alone, and ÷ Embree's.
 //!
+//! Then the dynamic demo (`scenes/dynamic_demo.toml`: a room, a bunny turning on keyframes,
+//! 24 orbiting copies of one icosphere) per frame: the update as two levels (the 25
+//! instances' records written and the top level refit, `TopLevelBuilder::record_update_from`;
+//! the bottom levels do not change) against the flat
+//! scene's (its moved triangles uploaded and the LBVH rebuilt, or refit), GPU ms, best of 3
+//! per frame over 8 frames.
+//!
 //! `cargo bench --bench instances [-- --json] [-- --quick] [-- --size N]` (`--quick`: 64
 //! copies only, 128² rays)
 
@@ -26,6 +33,20 @@ use vkrt::accel::instances::{Instance, TopLevel, TopLevelBuilder};
 use vkrt::gpu::{kernels, Buffer, BufferArg, Context, Recorder, Spec};
 use vkrt::trace::gpu::GpuGeometry;
 use vkrt::trace::Ray;
+
+#[derive(serde::Serialize)]
+struct UpdateRow {
+    frames: u32,
+    instances: usize,
+    triangles: usize,
+    /// Mean GPU ms per frame: the two-level update, the flat LBVH's rebuild and refit (each
+    /// with its upload of the moved data).
+    two_level_ms: f64,
+    flat_rebuild_ms: f64,
+    flat_refit_ms: f64,
+    rebuild_over_two_level: f64,
+    refit_over_two_level: f64,
+}
 
 #[derive(serde::Serialize)]
 struct Row {
@@ -228,6 +249,106 @@ fn trace(ctx: &Context, sets: &[(u64, &[Ray])]) -> Vec<(usize, f64)> {
         .collect()
 }
 
+/// The dynamic demo's per-frame updates, two levels against flat (see the module docs).
+fn dynamic_demo(ctx: &Context) -> Option<UpdateRow> {
+    use vkrt::trace::instanced::TwoLevelScene;
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/dynamic_demo.toml");
+    let scene = vkrt::scene::Scene::load(&path).ok()?.scene;
+    let anim = scene.animation?;
+    let frames = 8.min(anim.frames);
+    let two = TwoLevelScene::of(&scene, 0.0)?;
+    // Two levels: bottom levels built once, the top level built at frame 0 to be updated.
+    let builder = AccelBuilder::new(ctx, AccelKind::Lbvh).unwrap();
+    let levels: Vec<GpuGeometry> = two
+        .bottoms
+        .iter()
+        .map(|g| {
+            let mut rec = Recorder::new(ctx).unwrap();
+            let (l, _) = GpuGeometry::record_build(&mut rec, &builder, g, 0).unwrap();
+            rec.submit_and_wait().unwrap();
+            l
+        })
+        .collect();
+    let refs: Vec<&GpuGeometry> = levels.iter().collect();
+    let top_builder = TopLevelBuilder::new(ctx, AccelKind::Lbvh).unwrap();
+    let flags = BuildFlags {
+        allow_update: true,
+        ..BuildFlags::default()
+    };
+    let n = two.instances.len() as u32;
+    let sizes = top_builder.sizes_for(ctx, n, refs.len(), &flags).unwrap();
+    let memory = Buffer::<u8>::arena(ctx, "bench.top", sizes.structure_bytes as usize).unwrap();
+    let scratch_bytes = sizes
+        .build_scratch_bytes
+        .max(sizes.update_scratch_bytes.unwrap());
+    let scratch = Buffer::<u8>::arena(ctx, "bench.top_scratch", scratch_bytes as usize).unwrap();
+    let input = Buffer::from_slice(ctx, "renderer.instances", &two.instances).unwrap();
+    let mut top = top_builder
+        .create_in(ctx, &refs, n, &flags, memory.as_raw())
+        .unwrap();
+    let mut rec = Recorder::new(ctx).unwrap();
+    top_builder
+        .record_build_from(&mut rec, input.as_raw(), &mut top, scratch.as_raw())
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+    // Flat: the LBVH over every triangle, built at frame 0 to be refit.
+    let mut flat_builder = AccelBuilder::new(ctx, AccelKind::Lbvh).unwrap();
+    flat_builder.allow_update = true;
+    let g0 = vkrt::trace::TraceGeometry::at_time(&scene, 0.0);
+    let mut rec = Recorder::new(ctx).unwrap();
+    let (flat, _) = GpuGeometry::record_build(&mut rec, &flat_builder, &g0, 0).unwrap();
+    rec.submit_and_wait().unwrap();
+    let visits = flat_builder
+        .update_scratch(ctx, g0.primitive_count())
+        .unwrap()
+        .unwrap();
+    let best = |f: &mut dyn FnMut(&mut Recorder)| -> f64 {
+        (0..3)
+            .map(|_| {
+                let mut rec = Recorder::new(ctx).unwrap();
+                rec.begin_scope("all");
+                f(&mut rec);
+                rec.end_scope();
+                rec.submit_and_wait().unwrap().ms("all").unwrap_or(f64::NAN)
+            })
+            .fold(f64::INFINITY, f64::min)
+    };
+    let (mut two_ms, mut rebuild_ms, mut refit_ms) = (0.0, 0.0, 0.0);
+    for k in 1..=frames {
+        let t = anim.frame_time(k);
+        let moved = TwoLevelScene::of(&scene, t)?.instances;
+        two_ms += best(&mut |rec| {
+            rec.upload(&input, &moved).unwrap();
+            rec.transfer_to_compute();
+            top_builder
+                .record_update_from(rec, input.as_raw(), &top, scratch.as_raw())
+                .unwrap();
+        });
+        let g = vkrt::trace::TraceGeometry::at_time(&scene, t);
+        rebuild_ms += best(&mut |rec| {
+            let (built, _) = GpuGeometry::record_build(rec, &builder, &g, 0).unwrap();
+            rec.keep_alive(built);
+        });
+        refit_ms += best(&mut |rec| {
+            flat.prims.record_update(rec, &g).unwrap();
+            flat_builder
+                .record_refit(rec, &flat.prims, &flat.accel, &visits)
+                .unwrap();
+        });
+    }
+    let f = f64::from(frames);
+    Some(UpdateRow {
+        frames,
+        instances: two.mesh_instances(),
+        triangles: g0.primitive_count(),
+        two_level_ms: two_ms / f,
+        flat_rebuild_ms: rebuild_ms / f,
+        flat_refit_ms: refit_ms / f,
+        rebuild_over_two_level: rebuild_ms / two_ms,
+        refit_over_two_level: refit_ms / two_ms,
+    })
+}
+
 fn main() {
     let a = args::parse();
     let size = if a.quick { 128 } else { a.size };
@@ -329,8 +450,10 @@ fn main() {
     for r in &mut rows {
         r.vs_embree = r.embree_mrays_per_s.map(|e| r.mrays_per_s / e);
     }
+    let update = dynamic_demo(&ctx);
     if a.json {
-        println!("{}", serde_json::to_string_pretty(&rows).unwrap());
+        let v = serde_json::json!({ "scenes": rows, "dynamic_demo": update });
+        println!("{}", serde_json::to_string_pretty(&v).unwrap());
         return;
     }
     println!(
@@ -370,4 +493,19 @@ fn main() {
          vkrt/ray_query.glsl at device addresses (GPU ms, best of 3); Embree 3: 2 threads, \
          wall time"
     );
+    if let Some(u) = update {
+        println!(
+            "\ndynamic demo, {} frames ({} instances, {} triangles), mean GPU ms per frame: \
+             two levels (records + top-level refit) {:.3}; flat LBVH rebuild {:.3} ({:.1}×), \
+             flat refit {:.3} ({:.1}×)",
+            u.frames,
+            u.instances,
+            u.triangles,
+            u.two_level_ms,
+            u.flat_rebuild_ms,
+            u.rebuild_over_two_level,
+            u.flat_refit_ms,
+            u.refit_over_two_level
+        );
+    }
 }

@@ -1,7 +1,8 @@
 //! A scene traced as two levels: each mesh whose geometry another mesh repeats
 //! ([`Scene::mesh_groups`]) becomes one bottom-level structure, object space, with one
-//! instance per mesh placed by that mesh's transform; the meshes named once and the spheres
-//! stay together in one more bottom level (world space, an identity instance). The top
+//! instance per mesh placed by that mesh's transform (as does a moving mesh named once); the
+//! static meshes named once and the spheres stay together in one more bottom level (world
+//! space, an identity instance). The top
 //! level is an LBVH over the instances ([`crate::accel::instances`]); rays go through
 //! `vkrt/ray_query.glsl` at device addresses (`render.trace_instances`), and hits come back
 //! with the scene's primitive ids, as the flat scene's ([`TraceGeometry::at_time`]) would.
@@ -61,7 +62,11 @@ impl TwoLevelScene {
         let mut rest_tris = Vec::new();
         let mut rest_ids = Vec::new();
         for g in &groups {
-            if g.len() < 2 {
+            let mesh = &scene.meshes[g[0]];
+            // A mesh named once stays in the world (the rest) unless it moves: then it is
+            // placed by an instance too, so that its motion changes one transform.
+            let moves = !mesh.motion.is_static() || !mesh.keyframes.is_empty();
+            if g.len() < 2 && !moves {
                 let mesh = &scene.meshes[g[0]];
                 let m = mesh.world_matrix(time);
                 for (k, &[a, b, c]) in mesh.indices.iter().enumerate() {
