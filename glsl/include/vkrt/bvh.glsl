@@ -117,6 +117,36 @@ WideNode load_wide_node(uint i) {
         have = stack_t[top] <= best_t;      \
     }
 
+// The stack walks' descent: interior nodes, the nearer child first (ties: child a) and the
+// other one on the stack, until a leaf is in hand (`cur.y` > 0), the stack is empty (`have`
+// false) or the step cap is reached. A statement over the walk's `r`, `inv_d`, `tmin`,
+// `steps` and BVH_POP's variables (the binary stack walk and the top-level walk of
+// vkrt/instances.glsl).
+#define BVH_DESCEND()                                                                  \
+    while (have && cur.y == 0u && steps <= MAX_TRAVERSAL_STEPS) {                      \
+        steps++;                                                                       \
+        BvhNode nd = load_bvh_node(cur.x);                                             \
+        float ta;                                                                      \
+        float tb;                                                                      \
+        bool hit_a = (nd.a_count > 0u || nd.a_index != NO_NODE)                        \
+            && bvh_enter(nd.a_min, nd.a_max, r, inv_d, tmin, best_t, ta);              \
+        bool hit_b = (nd.b_count > 0u || nd.b_index != NO_NODE)                        \
+            && bvh_enter(nd.b_min, nd.b_max, r, inv_d, tmin, best_t, tb);              \
+        uvec2 ca = uvec2(nd.a_index, nd.a_count);                                      \
+        uvec2 cb = uvec2(nd.b_index, nd.b_count);                                      \
+        if (hit_a && hit_b) {                                                          \
+            bool b_first = tb < ta;                                                    \
+            stack[top] = b_first ? ca : cb;                                            \
+            stack_t[top] = b_first ? ta : tb;                                          \
+            top++;                                                                     \
+            cur = b_first ? cb : ca;                                                   \
+        } else if (hit_a || hit_b) {                                                   \
+            cur = hit_a ? ca : cb;                                                     \
+        } else {                                                                       \
+            BVH_POP();                                                                 \
+        }                                                                              \
+    }
+
 // Where the ray enters the box within [t0, t1] (traverse.glsl's clip_to_box).
 bool bvh_enter(vec3 bmin, vec3 bmax, Ray r, vec3 inv_d, float t0, float t1, out float t_in) {
     float hi = t1;
@@ -154,30 +184,7 @@ Hit trace_bvh_stack(Ray r, float time, bool any_hit) {
     // every loop of an invocation after 65,535 iterations in all): both report exhaustion,
     // never a silent miss.
     while (true) {
-        while (have && cur.y == 0u && steps <= MAX_TRAVERSAL_STEPS) {
-            steps++;
-            BvhNode nd = load_bvh_node(cur.x);
-            float ta;
-            float tb;
-            bool hit_a = (nd.a_count > 0u || nd.a_index != NO_NODE)
-                && bvh_enter(nd.a_min, nd.a_max, r, inv_d, tmin, best_t, ta);
-            bool hit_b = (nd.b_count > 0u || nd.b_index != NO_NODE)
-                && bvh_enter(nd.b_min, nd.b_max, r, inv_d, tmin, best_t, tb);
-            uvec2 ca = uvec2(nd.a_index, nd.a_count);
-            uvec2 cb = uvec2(nd.b_index, nd.b_count);
-            if (hit_a && hit_b) {
-                bool b_first = tb < ta;
-                stack[top] = b_first ? ca : cb;
-                stack_t[top] = b_first ? ta : tb;
-                top++;
-                cur = b_first ? cb : ca;
-            } else if (hit_a || hit_b) {
-                cur = hit_a ? ca : cb;
-            } else {
-                // Pop the nearest entry the ray still reaches before its closest hit.
-                BVH_POP();
-            }
-        }
+        BVH_DESCEND();
         if (!have) {
             return best; // the stack is empty: the walk is complete
         }

@@ -41,29 +41,7 @@ Hit trace_instances(Ray r, float time, bool any_hit, uint cull_mask, out uvec2 g
     uint steps = 0u;
     // The stack walk of trace_bvh_stack (bvh.glsl), with instances at its leaves.
     while (true) {
-        while (have && cur.y == 0u && steps <= MAX_TRAVERSAL_STEPS) {
-            steps++;
-            BvhNode nd = load_bvh_node(cur.x);
-            float ta;
-            float tb;
-            bool hit_a = (nd.a_count > 0u || nd.a_index != NO_NODE)
-                && bvh_enter(nd.a_min, nd.a_max, r, inv_d, tmin, best_t, ta);
-            bool hit_b = (nd.b_count > 0u || nd.b_index != NO_NODE)
-                && bvh_enter(nd.b_min, nd.b_max, r, inv_d, tmin, best_t, tb);
-            uvec2 ca = uvec2(nd.a_index, nd.a_count);
-            uvec2 cb = uvec2(nd.b_index, nd.b_count);
-            if (hit_a && hit_b) {
-                bool b_first = tb < ta;
-                stack[top] = b_first ? ca : cb;
-                stack_t[top] = b_first ? ta : tb;
-                top++;
-                cur = b_first ? cb : ca;
-            } else if (hit_a || hit_b) {
-                cur = hit_a ? ca : cb;
-            } else {
-                BVH_POP();
-            }
-        }
+        BVH_DESCEND();
         if (!have) {
             return best;
         }
