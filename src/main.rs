@@ -1045,6 +1045,8 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             if json {
                 let mut v = serde_json::to_value(&report)?;
                 extend_json(&mut v, device_bytes_json(&ctx, before, triangles.len()));
+                let kd = vkrt::accel::device::AccelKind::KdTree;
+                extend_json(&mut v, levels_json(&ctx, kd, &scene)?);
                 println!("{}", serde_json::to_string_pretty(&v)?);
             } else {
                 println!(
@@ -1727,6 +1729,7 @@ fn gpu_bvh_build_command(
         device_bytes_json(ctx, before, g.primitive_count()),
     );
     if json {
+        extend_json(&mut report, levels_json(ctx, kind, scene)?);
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         println!(
@@ -1822,6 +1825,21 @@ fn device_bytes_json(ctx: &vkrt::gpu::Context, before: u64, n: usize) -> serde_j
         "device_bytes": bytes,
         "device_bytes_per_primitive": bytes as f64 / n.max(1) as f64,
     })
+}
+
+/// `levels`: where the scene names a mesh more than once, the bytes of its two levels as
+/// `vkrt trace` builds them (bottom levels of `kind`, the top level); absent otherwise.
+fn levels_json(
+    ctx: &vkrt::gpu::Context,
+    kind: vkrt::accel::device::AccelKind,
+    scene: &vkrt::scene::Scene,
+) -> Result<serde_json::Value, Box<dyn std::error::Error>> {
+    use vkrt::trace::instanced::{level_bytes, TwoLevelScene};
+    let Some(two) = TwoLevelScene::of(scene, scene.camera.shutter_open) else {
+        return Ok(serde_json::json!({}));
+    };
+    let choice = vkrt::accel::device::AccelChoice::new(kind, Default::default());
+    Ok(serde_json::json!({ "levels": level_bytes(ctx, choice, &two)? }))
 }
 
 fn extend_json(v: &mut serde_json::Value, more: serde_json::Value) {

@@ -278,6 +278,16 @@ fn round_trip_two_levels_where_a_mesh_repeats() {
         );
         round_trip(scene, &name, extra, TraceOptions::default());
     }
+    // `vkrt build` reports the bytes of both levels beside the flat structure's.
+    let scene = example("mesh_file.toml");
+    if let Some(run) = vkrt_ok(&["build", s(&scene), "--accel", "lbvh", "--json"]) {
+        let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+        let levels = &v["levels"];
+        assert_eq!(levels["instances"], 2, "{v}");
+        assert_eq!(levels["bottom_levels"], 2, "{v}");
+        assert!(levels["bottom_bytes"].as_u64().unwrap() > 0, "{v}");
+        assert!(levels["top_bytes"].as_u64().unwrap() > 0, "{v}");
+    }
     round_trip(
         "mesh_file.toml",
         "hits-2l-any.csv",

@@ -124,6 +124,40 @@ impl TwoLevelScene {
     }
 }
 
+/// Bytes of a scene's two levels ([`level_bytes`]).
+#[derive(Clone, Copy, Debug, serde::Serialize)]
+pub struct LevelBytes {
+    pub bottom_levels: usize,
+    pub instances: usize,
+    pub unique_primitives: usize,
+    /// Device bytes of the bottom levels (primitives and structures).
+    pub bottom_bytes: u64,
+    /// Bytes of the top level ([`TopLevelBuilder::sizes_for`]).
+    pub top_bytes: u64,
+}
+
+/// `s`'s bottom levels built with `choice`'s builder, and the bytes of both levels.
+pub fn level_bytes(ctx: &Context, choice: AccelChoice, s: &TwoLevelScene) -> Result<LevelBytes> {
+    let before = ctx.memory().vkrt_bytes;
+    let builder = AccelBuilder::for_choice(ctx, choice)?;
+    let (levels, _) = build_bottoms(ctx, &builder, &s.bottoms)?;
+    let bottom_bytes = ctx.memory().vkrt_bytes.saturating_sub(before);
+    drop(levels);
+    let top = TopLevelBuilder::new(ctx, AccelKind::Lbvh)?.sizes_for(
+        ctx,
+        s.instances.len() as u32,
+        s.bottoms.len(),
+        &BuildFlags::default(),
+    )?;
+    Ok(LevelBytes {
+        bottom_levels: s.bottoms.len(),
+        instances: s.mesh_instances(),
+        unique_primitives: s.unique_primitives,
+        bottom_bytes,
+        top_bytes: top.structure_bytes,
+    })
+}
+
 /// What [`build_and_trace`] measured.
 pub struct TwoLevelTrace {
     pub hits: Vec<Hit>,
