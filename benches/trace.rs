@@ -1,5 +1,5 @@
 //! Ray throughput of every structure and walk against the driver and CPU peers in the same
-//! run (issues 6, 14 and 16): `vkrt bench trace`'s measurement (`vkrt::trace::bench`: every
+//! run: `vkrt bench trace`'s measurement (`vkrt::trace::bench`: every
 //! structure vkrt builds, walked every way, the driver's ray query where the device has it,
 //! obvhs on one thread) on the Stanford bunny (../shared/scenes, skipped with a message when
 //! absent) and icospheres of 100K and 500K triangles, with Embree 3.13 on top

@@ -252,7 +252,7 @@ fn random_spheres(n: usize, seed: u64) -> Vec<(Vec3, f32)> {
         .collect()
 }
 
-/// The box inputs of the issue: triangle boxes followed by sphere boxes (as the renderer
+/// The box inputs that matter: triangle boxes followed by sphere boxes (as the renderer
 /// builds them), flat boxes on candidate planes, points, identical boxes, one and two
 /// boxes, random boxes, signed zeros.
 fn box_cases() -> Vec<(&'static str, Vec<vkrt::accel::kdtree::Aabb>)> {
