@@ -147,8 +147,8 @@ impl Instance {
         match world_to_object(&self.transform) {
             Some(_) => Ok(()),
             None => Err(format!(
-                "its transform {:?} is singular (not invertible in single precision): an \
-                 instance cannot be flattened; leave it out instead",
+                "its transform {:?} is singular (not invertible in single precision): no ray \
+                 can be moved into its object space; leave the instance out",
                 self.transform
             )),
         }
@@ -507,7 +507,7 @@ impl TopLevelBuilder {
         memory: RawBuffer,
     ) -> Result<TopLevel<'a>> {
         let call = "TopLevelBuilder::create_in";
-        if bottoms.len() >= MAX_BOTTOM_LEVELS {
+        if bottoms.len() > MAX_BOTTOM_LEVELS {
             return Err(usage(
                 call,
                 format!(
