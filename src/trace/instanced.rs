@@ -32,7 +32,7 @@ pub struct TwoLevelScene {
     /// world (last, when there is any).
     pub bottoms: Vec<TraceGeometry>,
     /// One per repeated mesh (custom index: the mesh's index in the scene), then the
-    /// rest's identity instance (custom index [`REST`]).
+    /// rest's identity instance (custom index 0xffffff).
     pub instances: Vec<Instance>,
     /// Per mesh: its first primitive id in the scene's flat order.
     pub mesh_first: Vec<u32>,
@@ -230,7 +230,7 @@ pub fn build_and_trace(
 /// Closest (or any, as `opt.query` says) hits of `rays` at `time` through top level `top`
 /// (`render.trace_instances`, one `trace` scope per batch in the profile), with the scene's
 /// primitive ids: an instance's custom index `k` names the mesh whose first id is
-/// `ids.0[k]`, and the instance with custom index [`REST`] maps its primitives through
+/// `ids.0[k]`, and the instance with custom index 0xffffff maps its primitives through
 /// `ids.1`. `opt` as the device runs it ([`effective_options`]); `bitstack`: binary BVH
 /// bottom levels walked with the bitstack walk (else each level's own).
 pub fn trace_top_level(
