@@ -31,7 +31,7 @@ use serde::Serialize;
 
 use crate::accel::bvh::collapse::collapse;
 use crate::accel::bvh::{self, lbvh, ploc};
-use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelStructure, HostStructure};
+use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, HostStructure};
 use crate::accel::kdtree::{breadth_first, SahParams};
 use crate::gpu::{kernels, Buffer, Context, Recorder, Result, Spec};
 use crate::prims::radix_sort::{self, RadixSort, DEFAULT_BITS_PER_PASS};
@@ -519,12 +519,7 @@ fn bottom_levels(
     let builder = AccelBuilder::for_choice(ctx, choice)?;
     hosts
         .iter()
-        .map(|g| {
-            let mut rec = Recorder::new(ctx)?;
-            let (level, _) = GpuGeometry::record_build(&mut rec, &builder, g, 1)?;
-            rec.submit_and_wait()?;
-            Ok(level)
-        })
+        .map(|g| Ok(GpuGeometry::build_fitting(ctx, &builder, g)?.0))
         .collect()
 }
 
@@ -938,25 +933,7 @@ fn builder_check(
 ) -> Outcome {
     // A kd-tree that ran out of its reference budget is built again with twice the budget,
     // as a caller does (the build says so on the device).
-    let mut built = None;
-    for grow in 0..8 {
-        let mut rec = Recorder::new(ctx)?;
-        let (dev, _) = GpuGeometry::record_build(&mut rec, builder, g, grow)?;
-        rec.compute_to_transfer();
-        let report = dev.accel.record_read_built(&mut rec)?;
-        rec.transfer_to_host();
-        rec.submit_and_wait()?;
-        if let Some(r) = report {
-            if AccelStructure::kd_built(&r.read()?).overflow {
-                continue;
-            }
-        }
-        built = Some(dev);
-        break;
-    }
-    let Some(dev) = built else {
-        return Ok(Some("out of capacity after 8 doublings".into()));
-    };
+    let (dev, _) = GpuGeometry::build_fitting(ctx, builder, g)?;
     let equal = match dev.accel.download()? {
         HostStructure::KdTree(tree) => {
             let (twin, _) = breadth_first::build_boxes(&g.boxes, &SahParams::default());

@@ -32,7 +32,7 @@ use glam::Vec3;
 
 use crate::accel::device::{AccelBuilder, AccelKind, AccelSizes};
 use crate::accel::embedded::{BuildFlags, BuildStatus};
-use crate::accel::geometry::{bound, Aabbs, Geometry, GeometryData};
+use crate::accel::geometry::{bound, transform_point, Aabbs, Geometry, GeometryData};
 use crate::gpu::placement::{place, Placement};
 use crate::gpu::{
     kernels, vk, Buffer, BufferArg, Context, GpuError, Kernel, RawBuffer, Readback, Recorder,
@@ -216,16 +216,10 @@ fn a_minus_b(a: f32, b: f32) -> f32 {
     a - b
 }
 
-/// `rows · (p, w)`, each row summed left to right (`w` 1 for a point, 0 for a direction).
-fn apply(rows: &[[f32; 4]; 3], p: Vec3, point: bool) -> Vec3 {
-    let row = |r: &[f32; 4]| {
-        let x = r[0] * p.x + r[1] * p.y + r[2] * p.z;
-        if point {
-            x + r[3]
-        } else {
-            x
-        }
-    };
+/// `rows · (d, 0)`: a direction moved, each row summed left to right (as
+/// [`transform_point`] moves points).
+fn transform_direction(rows: &[[f32; 4]; 3], d: Vec3) -> Vec3 {
+    let row = |r: &[f32; 4]| r[0] * d.x + r[1] * d.y + r[2] * d.z;
     Vec3::new(row(&rows[0]), row(&rows[1]), row(&rows[2]))
 }
 
@@ -276,7 +270,7 @@ pub fn instance_boxes(
                 if k & 2 != 0 { bmax.y } else { bmin.y },
                 if k & 4 != 0 { bmax.z } else { bmin.z },
             );
-            let q = apply(m, p, true);
+            let q = transform_point(m, p);
             lo = lo.min(q);
             hi = hi.max(q);
         }
@@ -303,7 +297,12 @@ pub fn instance_boxes(
 /// kept, `tmax` the closest hit so far.
 pub fn object_ray(rec: &InstanceRecord, r: &Ray, tmax: f32) -> Ray {
     let m = &rec.world_to_object;
-    Ray::new(apply(m, r.o(), true), apply(m, r.d(), false), r.tmin, tmax)
+    Ray::new(
+        transform_point(m, r.o()),
+        transform_direction(m, r.d()),
+        r.tmin,
+        tmax,
+    )
 }
 
 /// A two-level query's answer: the hit (its `prim` the primitive id in the bottom level),
@@ -559,6 +558,7 @@ impl TopLevelBuilder {
         call: &'static str,
         instances: RawBuffer,
         top: &TopLevel<'_>,
+        build: bool,
     ) -> Result<()> {
         let ctx = rec.context().clone();
         let need = 64 * u64::from(top.count);
@@ -575,19 +575,19 @@ impl TopLevelBuilder {
             return Err(usage(call, "the instances' offset is not a multiple of 4"));
         }
         let p = &top.parts;
-        let handles = top
-            .bottoms
-            .iter()
-            .map(|b| {
-                let h = b.address_handle()?;
-                let mut out = [0u64; 8];
-                out[..7].copy_from_slice(&h);
-                Ok(out)
-            })
-            .collect::<Result<Vec<_>>>()?;
+        // The bottom levels' handles and the top level's own (the tree's seven arrays, then
+        // the records): written by a build only.
+        let mut handles = Vec::new();
         let mut handle = [0u64; 8];
-        handle[..7].copy_from_slice(&top.tree.address_handle()?);
-        handle[7] = p.records.device_address();
+        if build {
+            for b in &top.bottoms {
+                let mut out = [0u64; 8];
+                out[..7].copy_from_slice(&b.address_handle()?);
+                handles.push(out);
+            }
+            handle[..7].copy_from_slice(&top.tree.address_handle()?);
+            handle[7] = p.records.device_address();
+        }
         rec.scope("instances", |rec| {
             // The bottom levels' builds (compute writes) before their constants are copied.
             rec.compute_to_transfer();
@@ -595,10 +595,14 @@ impl TopLevelBuilder {
             for (k, b) in top.bottoms.iter().enumerate() {
                 rec.copy_range(&b.accel.info, 0, &p.bottom_info, k, 1);
             }
-            for (k, chunk) in handles.chunks(1024).enumerate() {
-                rec.update(&p.handles, k * 1024, chunk)?;
+            // The handles never change: an update leaves them (the bottom levels' boxes may
+            // have, after their refits).
+            if build {
+                for (k, chunk) in handles.chunks(1024).enumerate() {
+                    rec.update(&p.handles, k * 1024, chunk)?;
+                }
+                rec.update(&p.handle, 0, &[handle])?;
             }
-            rec.update(&p.handle, 0, &[handle])?;
             rec.transfer_to_compute();
             if top.count > 0 {
                 let (bound_instances, skip) = bound(&ctx, &instances);
@@ -639,7 +643,7 @@ impl TopLevelBuilder {
         let call = "TopLevelBuilder::record_build_from";
         self.check_kind(call, top)?;
         rec.scope("top level", |rec| {
-            self.record_instances(rec, call, instances, top)?;
+            self.record_instances(rec, call, instances, top, true)?;
             let geometry = top.geometry();
             self.tree
                 .record_build_from(rec, &[geometry], &mut top.tree, scratch)
@@ -660,7 +664,7 @@ impl TopLevelBuilder {
         let call = "TopLevelBuilder::record_update_from";
         self.check_kind(call, top)?;
         rec.scope("top level update", |rec| {
-            self.record_instances(rec, call, instances, top)?;
+            self.record_instances(rec, call, instances, top, false)?;
             self.tree
                 .record_update_from(rec, &[top.geometry()], &top.tree, scratch)
         })

@@ -209,6 +209,38 @@ impl GpuGeometry {
         ))
     }
 
+    /// One build of `builder`'s structure over `g`, submitted and waited for, redone with
+    /// twice the kd-tree's reference budget while it runs out (as `vkrt trace` does); the
+    /// successful build's milliseconds ([`RecordedBuild::ms`]).
+    pub fn build_fitting(
+        ctx: &Context,
+        builder: &AccelBuilder,
+        g: &TraceGeometry,
+    ) -> Result<(Self, f64)> {
+        for grow in 0..8 {
+            let mut rec = Recorder::new(ctx)?;
+            let (geom, recorded) = Self::record_build(&mut rec, builder, g, grow)?;
+            rec.compute_to_transfer();
+            let built = geom.accel.record_read_built(&mut rec)?;
+            rec.transfer_to_host();
+            let profile = rec.submit_and_wait()?;
+            if let Some(b) = built {
+                if AccelStructure::kd_built(&b.read()?).overflow {
+                    continue;
+                }
+            }
+            return Ok((geom, recorded.ms(&profile)));
+        }
+        Err(GpuError::Kernel {
+            kernel: "accel.kdtree",
+            reason: format!(
+                "the kd-tree of {} primitives still ran out of references after 8 doublings \
+                 of its budget",
+                g.primitive_count()
+            ),
+        })
+    }
+
     fn with_host(ctx: &Context, g: &TraceGeometry, host: HostRef<'_>) -> Result<Self> {
         let prims = DevicePrimitives::upload(ctx, g)?;
         let accel = upload_structure(ctx, &prims, host)?;

@@ -13,7 +13,7 @@
 
 use glam::{Vec3, Vec4};
 
-use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelStructure};
+use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
 use crate::accel::embedded::BuildFlags;
 use crate::accel::instances::{Instance, TopLevel, TopLevelBuilder};
 use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Recorder, Result, Spec};
@@ -341,31 +341,9 @@ fn build_bottoms(
     let mut levels = Vec::with_capacity(bottoms.len());
     let mut ms = 0.0;
     for g in bottoms {
-        let mut built = None;
-        for grow in 0..8 {
-            let mut rec = Recorder::new(ctx)?;
-            let (level, recorded) = GpuGeometry::record_build(&mut rec, builder, g, grow)?;
-            rec.compute_to_transfer();
-            let kd = level.accel.record_read_built(&mut rec)?;
-            rec.transfer_to_host();
-            let profile = rec.submit_and_wait()?;
-            if let Some(k) = kd {
-                if AccelStructure::kd_built(&k.read()?).overflow {
-                    continue;
-                }
-            }
-            ms += recorded.ms(&profile);
-            built = Some(level);
-            break;
-        }
-        levels.push(built.ok_or_else(|| GpuError::Kernel {
-            kernel: "accel.kdtree",
-            reason: format!(
-                "the kd-tree of {} primitives still ran out of references after 8 doublings \
-                 of its budget",
-                g.primitive_count()
-            ),
-        })?);
+        let (level, build_ms) = GpuGeometry::build_fitting(ctx, builder, g)?;
+        levels.push(level);
+        ms += build_ms;
     }
     Ok((levels, ms))
 }

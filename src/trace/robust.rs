@@ -51,9 +51,8 @@ use super::intersect::{
 };
 use super::{cpu, Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
 use crate::accel::bvh;
-use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelStructure, HostStructure};
+use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, HostStructure};
 use crate::accel::kdtree::{stats, validate, SahParams};
-use crate::gpu::Recorder;
 use crate::gpu::{Context, GpuError, Result};
 use crate::scene::gen::{self, Rng};
 use crate::scene::Aabb;
@@ -303,46 +302,27 @@ impl Prepared {
             None => AccelBuilder::for_choice(ctx, accel)?,
         };
         builder.kd_params = *params;
-        for grow in 0..8 {
-            let mut rec = Recorder::new(ctx)?;
-            let (device, _) = GpuGeometry::record_build(&mut rec, &builder, &geometry, grow)?;
-            rec.compute_to_transfer();
-            let built = device.accel.record_read_built(&mut rec)?;
-            rec.transfer_to_host();
-            rec.submit_and_wait()?;
-            if let Some(b) = built {
-                if AccelStructure::kd_built(&b.read()?).overflow {
-                    continue;
-                }
-            }
-            let host = match accel.kind {
-                AccelKind::Driver => HostStructure::Bvh(
-                    bvh::build(
-                        &geometry.boxes,
-                        &Default::default(),
-                        bvh::Threading::all_cores(),
-                    )
-                    .map_err(|e| GpuError::Kernel {
-                        kernel: "accel.sah_bvh",
-                        reason: e.to_string(),
-                    })?,
-                ),
-                _ => device.accel.download()?,
-            };
-            return Ok(Self {
-                geometry,
-                host,
-                device,
-                accel,
-                under_instance: config.under_instance,
-            });
-        }
-        Err(GpuError::Kernel {
-            kernel: "accel.kdtree",
-            reason: format!(
-                "the kd-tree of {} primitives does not fit after 8 doublings of its budget",
-                geometry.primitive_count()
+        let (device, _) = GpuGeometry::build_fitting(ctx, &builder, &geometry)?;
+        let host = match accel.kind {
+            AccelKind::Driver => HostStructure::Bvh(
+                bvh::build(
+                    &geometry.boxes,
+                    &Default::default(),
+                    bvh::Threading::all_cores(),
+                )
+                .map_err(|e| GpuError::Kernel {
+                    kernel: "accel.sah_bvh",
+                    reason: e.to_string(),
+                })?,
             ),
+            _ => device.accel.download()?,
+        };
+        Ok(Self {
+            geometry,
+            host,
+            device,
+            accel,
+            under_instance: config.under_instance,
         })
     }
 

@@ -28,9 +28,9 @@ use serde::Serialize;
 pub use obvhs_peer::ObvhsPeer;
 pub use rays::{BenchScene, RayKind, RaySet, ShadowTarget};
 
-use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelStructure};
+use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
 use crate::accel::driver::Prefer;
-use crate::gpu::{Context, GpuError, Recorder, Result};
+use crate::gpu::{Context, Result};
 use crate::trace::bvh_cpu::Traversal;
 use crate::trace::gpu::{GpuGeometry, Tracer};
 use crate::trace::{Hit, Query, TraceGeometry, TraceOptions};
@@ -390,34 +390,13 @@ fn best_build(
     Ok((kept.expect("at least one build"), best))
 }
 
-/// One build of `builder`'s structure over `g`, redone with twice the kd-tree's reference
-/// budget while it runs out (as `vkrt trace` does); the successful build's milliseconds.
+/// [`GpuGeometry::build_fitting`]: the build and its milliseconds.
 pub(crate) fn build(
     ctx: &Context,
     builder: &AccelBuilder,
     g: &TraceGeometry,
 ) -> Result<(GpuGeometry, f64)> {
-    for grow in 0..8 {
-        let mut rec = Recorder::new(ctx)?;
-        let (geom, recorded) = GpuGeometry::record_build(&mut rec, builder, g, grow)?;
-        rec.compute_to_transfer();
-        let built = geom.accel.record_read_built(&mut rec)?;
-        rec.transfer_to_host();
-        let profile = rec.submit_and_wait()?;
-        if let Some(b) = built {
-            if AccelStructure::kd_built(&b.read()?).overflow {
-                continue;
-            }
-        }
-        return Ok((geom, recorded.ms(&profile)));
-    }
-    Err(GpuError::Kernel {
-        kernel: "accel.kdtree",
-        reason: format!(
-            "the kd-tree of {} primitives still ran out of references after 8 doublings",
-            g.primitive_count()
-        ),
-    })
+    GpuGeometry::build_fitting(ctx, builder, g)
 }
 
 /// `set` traced `reps` times through `geom`, walked as `walk`: the hits, the best kernel
