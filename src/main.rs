@@ -116,6 +116,11 @@ enum Command {
         /// a stack over 4-wide quantized nodes made after the build.
         #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
         traversal: TraversalArg,
+        /// Trace one structure over every primitive even where meshes repeat (by default a
+        /// mesh named more than once becomes one bottom-level structure with an instance
+        /// per copy, under a top level; the image is the same).
+        #[arg(long)]
+        flatten: bool,
         #[arg(long)]
         json: bool,
         /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
@@ -205,9 +210,15 @@ enum Command {
         accel: AccelArg,
         #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
         traversal: TraversalArg,
-        /// Per frame: build the structure anew, or refit it (BVHs and the driver's).
+        /// Per frame: build the structure anew, or refit it (BVHs and the driver's). Over
+        /// two levels only the top level is rebuilt or refit: rigid motions move instances.
         #[arg(long, value_enum, default_value_t = UpdateArg::Rebuild)]
         update: UpdateArg,
+        /// Trace one structure over every primitive even where meshes repeat (by default a
+        /// mesh named more than once, and a moving mesh beside it, get instances under a top
+        /// level; the frames are the same).
+        #[arg(long)]
+        flatten: bool,
         /// Also an animated PNG of every frame, for a quick look.
         #[arg(long)]
         preview: Option<PathBuf>,
@@ -684,6 +695,7 @@ fn render_command(
             "height": p.height,
             "spp": p.spp,
             "accel": p.accel.label(),
+            "levels": p.levels,
             "build_ms": r.build_ms,
             "render_ms": r.render_ms,
             "build_attempts": r.image.build_attempts,
@@ -741,6 +753,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             intersector,
             accel,
             traversal,
+            flatten,
             json,
             profile,
         } => {
@@ -750,6 +763,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 spp,
                 all_effects,
                 accel: accel_traversal(accel, traversal),
+                flatten,
             };
             render_command(
                 cli.validate,
@@ -1127,6 +1141,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
             accel,
             traversal,
             update,
+            flatten,
             preview,
             json,
             profile,
@@ -1137,6 +1152,7 @@ fn run(cli: Cli) -> Result<(), Box<dyn std::error::Error>> {
                 spp,
                 all_effects: false,
                 accel: accel_traversal(accel, traversal),
+                flatten,
             };
             check_resolution(&render)?;
             let loaded = load_scene(&Some(scene))?;

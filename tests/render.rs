@@ -45,6 +45,7 @@ fn small(spp: u32) -> RenderOptions {
         spp: Some(spp),
         all_effects: false,
         accel: Default::default(),
+        flatten: false,
     }
 }
 

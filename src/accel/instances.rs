@@ -27,6 +27,8 @@
 //! vkrt's walks treat every primitive as opaque and cull no faces, so the flags change
 //! nothing in them; they are kept for the driver's structures.
 
+use std::sync::Arc;
+
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
@@ -369,7 +371,7 @@ fn usage(call: &'static str, reason: impl Into<String>) -> GpuError {
 /// Builds top levels of one kind (an LBVH or PLOC over the instances' boxes).
 pub struct TopLevelBuilder {
     tree: AccelBuilder,
-    boxes: std::sync::Arc<Kernel>,
+    boxes: Arc<Kernel>,
 }
 
 /// The top level's own arrays (before its tree in the caller's memory).
@@ -397,12 +399,31 @@ impl Parts {
     }
 }
 
-/// A top level over instances of `'a`'s bottom levels, in the caller's memory.
+/// A bottom level as a top level holds it: borrowed (the caller keeps it alive), or shared
+/// (the top level keeps it alive, so both can live in one struct).
+#[derive(Clone)]
+enum Bottom<'a> {
+    Borrowed(&'a GpuGeometry),
+    Shared(Arc<GpuGeometry>),
+}
+
+impl std::ops::Deref for Bottom<'_> {
+    type Target = GpuGeometry;
+    fn deref(&self) -> &GpuGeometry {
+        match self {
+            Bottom::Borrowed(b) => b,
+            Bottom::Shared(b) => b,
+        }
+    }
+}
+
+/// A top level over instances of `'a`'s bottom levels (or of bottom levels it shares:
+/// [`TopLevelBuilder::record_build_shared`]), in the caller's memory or its own.
 pub struct TopLevel<'a> {
     /// The BVH over the instances' world boxes (box primitive `i` is instance `i`).
     pub tree: GpuGeometry,
     parts: Parts,
-    bottoms: Vec<&'a GpuGeometry>,
+    bottoms: Vec<Bottom<'a>>,
     count: u32,
     /// Memory [`TopLevelBuilder::build`] allocated (none for [`TopLevelBuilder::create_in`]).
     owned: Vec<Buffer<u8>>,
@@ -505,6 +526,18 @@ impl TopLevelBuilder {
         flags: &BuildFlags,
         memory: RawBuffer,
     ) -> Result<TopLevel<'a>> {
+        let bottoms = bottoms.iter().map(|&b| Bottom::Borrowed(b)).collect();
+        self.create_in_bottoms(ctx, bottoms, count, flags, memory)
+    }
+
+    fn create_in_bottoms<'a>(
+        &self,
+        ctx: &Context,
+        bottoms: Vec<Bottom<'a>>,
+        count: u32,
+        flags: &BuildFlags,
+        memory: RawBuffer,
+    ) -> Result<TopLevel<'a>> {
         let call = "TopLevelBuilder::create_in";
         if bottoms.len() > MAX_BOTTOM_LEVELS {
             return Err(usage(
@@ -543,7 +576,7 @@ impl TopLevelBuilder {
         Ok(TopLevel {
             tree,
             parts,
-            bottoms: bottoms.to_vec(),
+            bottoms,
             count,
             owned: Vec::new(),
             bytes,
@@ -709,6 +742,31 @@ impl TopLevelBuilder {
         instances: &[Instance],
         flags: &BuildFlags,
     ) -> Result<TopLevel<'a>> {
+        let bottoms = bottoms.iter().map(|&b| Bottom::Borrowed(b)).collect();
+        self.record_build_bottoms(rec, bottoms, instances, flags)
+    }
+
+    /// [`TopLevelBuilder::record_build`] of a top level that keeps its bottom levels alive
+    /// (shared with the caller): a top level that can be stored beside them, as a renderer
+    /// keeps its scene from frame to frame.
+    pub fn record_build_shared(
+        &self,
+        rec: &mut Recorder,
+        bottoms: &[Arc<GpuGeometry>],
+        instances: &[Instance],
+        flags: &BuildFlags,
+    ) -> Result<TopLevel<'static>> {
+        let bottoms = bottoms.iter().map(|b| Bottom::Shared(b.clone())).collect();
+        self.record_build_bottoms(rec, bottoms, instances, flags)
+    }
+
+    fn record_build_bottoms<'a>(
+        &self,
+        rec: &mut Recorder,
+        bottoms: Vec<Bottom<'a>>,
+        instances: &[Instance],
+        flags: &BuildFlags,
+    ) -> Result<TopLevel<'a>> {
         let call = "TopLevelBuilder::build";
         for (i, inst) in instances.iter().enumerate() {
             inst.check(bottoms.len())
@@ -724,7 +782,7 @@ impl TopLevelBuilder {
             .max(sizes.update_scratch_bytes.unwrap_or(0));
         let scratch = Buffer::<u8>::arena(&ctx, "accel.top_scratch", scratch_bytes as usize)?;
         let records = Buffer::<Instance>::new(&ctx, "accel.instances", instances.len().max(1))?;
-        let mut top = self.create_in(&ctx, bottoms, count, flags, memory.as_raw())?;
+        let mut top = self.create_in_bottoms(&ctx, bottoms, count, flags, memory.as_raw())?;
         rec.upload(&records, instances)?;
         rec.transfer_to_compute();
         self.record_build_from(rec, records.as_raw(), &mut top, scratch.as_raw())?;
@@ -737,7 +795,53 @@ impl TopLevelBuilder {
     /// The update of a top level [`TopLevelBuilder::build`] made (with `allow_update`) to
     /// `instances` (as many as before, each checked), waited for.
     pub fn update(&self, ctx: &Context, top: &TopLevel<'_>, instances: &[Instance]) -> Result<()> {
-        let call = "TopLevelBuilder::update";
+        let mut rec = Recorder::new(ctx)?;
+        self.record_update(&mut rec, top, instances)?;
+        rec.submit_and_wait()?;
+        Ok(())
+    }
+
+    /// [`TopLevelBuilder::update`] recorded into `rec` (in a scope `top level update`), not
+    /// submitted: the upload of `instances` and the refit, in the memory and scratch the
+    /// build allocated. Ends with a compute → compute barrier.
+    pub fn record_update(
+        &self,
+        rec: &mut Recorder,
+        top: &TopLevel<'_>,
+        instances: &[Instance],
+    ) -> Result<()> {
+        let (records, scratch) =
+            self.host_records(rec, "TopLevelBuilder::update", top, instances)?;
+        self.record_update_from(rec, records.as_raw(), top, scratch)?;
+        rec.keep_alive(records);
+        Ok(())
+    }
+
+    /// A new build of a top level [`TopLevelBuilder::build`] made, over `instances` (as many
+    /// as before, each checked), recorded into `rec` in the memory and scratch the first
+    /// build allocated: the rebuild twin of [`TopLevelBuilder::record_update`].
+    pub fn record_rebuild(
+        &self,
+        rec: &mut Recorder,
+        top: &mut TopLevel<'_>,
+        instances: &[Instance],
+    ) -> Result<()> {
+        let (records, scratch) =
+            self.host_records(rec, "TopLevelBuilder::record_rebuild", top, instances)?;
+        self.record_build_from(rec, records.as_raw(), top, scratch)?;
+        rec.keep_alive(records);
+        Ok(())
+    }
+
+    /// `instances`, checked against `top`, uploaded by `rec`; and the scratch `top`'s own
+    /// build allocated.
+    fn host_records(
+        &self,
+        rec: &mut Recorder,
+        call: &'static str,
+        top: &TopLevel<'_>,
+        instances: &[Instance],
+    ) -> Result<(Buffer<Instance>, RawBuffer)> {
         if instances.len() != top.count as usize {
             return Err(usage(
                 call,
@@ -755,16 +859,16 @@ impl TopLevelBuilder {
         let [_, scratch] = top.owned.as_slice() else {
             return Err(usage(
                 call,
-                "this top level lies in the caller's memory: record_update_from",
+                "this top level lies in the caller's memory: record_update_from or \
+                 record_build_from",
             ));
         };
-        let records = Buffer::<Instance>::new(ctx, "accel.instances", instances.len().max(1))?;
-        let mut rec = Recorder::new(ctx)?;
+        let ctx = rec.context().clone();
+        let records = Buffer::<Instance>::new(&ctx, "accel.instances", instances.len().max(1))?;
+        rec.compute_to_transfer();
         rec.upload(&records, instances)?;
         rec.transfer_to_compute();
-        self.record_update_from(&mut rec, records.as_raw(), top, scratch.as_raw())?;
-        rec.submit_and_wait()?;
-        Ok(())
+        Ok((records, scratch.as_raw()))
     }
 }
 
@@ -787,8 +891,9 @@ impl TopLevel<'_> {
         self.count
     }
 
-    pub fn bottoms(&self) -> &[&GpuGeometry] {
-        &self.bottoms
+    /// The bottom levels its instances name, in order.
+    pub fn bottoms(&self) -> impl ExactSizeIterator<Item = &GpuGeometry> {
+        self.bottoms.iter().map(|b| &**b)
     }
 
     /// Where the top level's handle lies: what a shader passes to `vkrtUseStructure`

@@ -551,6 +551,8 @@ fn measure_motion(
             spp: Some(1),
             all_effects: false,
             accel: AccelChoice::new(s.kind, Default::default()),
+            // the flat structure's update strategies are what this measures
+            flatten: true,
         },
         update: s.update,
         frames: (0..frames).collect(),

@@ -419,6 +419,8 @@ pub struct FrameRow {
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct AnimationReport {
     pub accel: String,
+    /// 2: traced as two levels (each frame updates the top level only), 1: flat.
+    pub levels: u32,
     pub update: Update,
     pub width: u32,
     pub height: u32,
@@ -574,6 +576,7 @@ pub fn run(
     }
     Ok(AnimationReport {
         accel: accel.label(),
+        levels: plan.levels,
         update: opt.update,
         width: plan.width,
         height: plan.height,

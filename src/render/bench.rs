@@ -68,6 +68,7 @@ pub fn effect_costs(
         spp: None,
         all_effects: false,
         accel,
+        flatten: false,
     };
     let mut rows = Vec::new();
     for (name, scene, effect) in scenes {

@@ -14,14 +14,16 @@ use crate::prims::scan::GpuCount;
 use crate::prims::PrimConfig;
 use crate::trace::bvh_cpu::Traversal;
 use crate::trace::gpu::{effective_options, traversal_spec, AccelTraversal, GpuGeometry};
-use crate::trace::{Hit, Query, TraceOptions};
+use crate::trace::{Hit, Intersector, Query, TraceOptions};
 
 use super::plan::Plan;
 use super::types::{counter, PathRay, ShadowRay};
 use super::{RayCounts, RenderAccel, RenderScene};
 
 mod frames;
+mod levels;
 pub use frames::{FrameImage, FrameLoop, Update};
+use levels::{Levels, Traced};
 
 const WG: u32 = 64;
 
@@ -34,6 +36,8 @@ struct Kernels {
     advance: Arc<Kernel>,
     gather: Arc<Kernel>,
     tonemap: Arc<Kernel>,
+    /// Extend and shadow over two levels (plans that trace two levels).
+    instances: Option<Arc<Kernel>>,
 }
 
 /// Kernels specialised for one plan.
@@ -56,6 +60,14 @@ struct CameraPush {
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct InstancesPush {
+    shadow: u32,
+    pad: u32,
+    handle: u64,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
 struct TonemapPush {
     n: u32,
     inv_spp: f32,
@@ -64,7 +76,7 @@ struct TonemapPush {
 /// Device buffers of one render.
 struct Frame {
     params: Buffer<super::types::RenderParams>,
-    geom: GpuGeometry,
+    geom: Traced,
     materials: Buffer<super::types::GpuMaterial>,
     lights: Buffer<super::types::GpuLight>,
     prim_material: Buffer<u32>,
@@ -200,8 +212,13 @@ impl Renderer {
                 &kernels::RENDER_SHADOW_FLOAT_TEXEL,
             ],
         );
+        let instances = match plan.levels {
+            2 => Some(instances_kernel(ctx, &opt)?),
+            _ => None,
+        };
         Ok(Self {
             k: Kernels {
+                instances,
                 camera: ctx.kernel(&kernels::RENDER_CAMERA, &camera)?,
                 extend: ctx.kernel(extend, &walk.spec_for(closest, extend))?,
                 shade: ctx.kernel(&kernels::RENDER_SHADE, &shade)?,
@@ -222,7 +239,7 @@ impl Renderer {
         rec: &mut Recorder,
         rs: &RenderScene,
         plan: &Plan,
-        geom: GpuGeometry,
+        geom: Traced,
     ) -> Result<Frame> {
         let ctx = &rec.context().clone();
         let cap = plan.queue_capacity;
@@ -279,30 +296,45 @@ impl Renderer {
         Ok(())
     }
 
-    /// The geometry and its structure on the device, and the recorder of the first
+    /// The geometry and its structures on the device, and the recorder of the first
     /// submission: a structure built on the device ([`RenderAccel::OnDevice`]) is recorded
-    /// into it, so it is built and traced in one submission with nothing read back between;
-    /// a host structure is uploaded.
+    /// into it, so it is built and traced in one submission with nothing read back between
+    /// (two levels: the bottom levels are built before, in submissions of their own); a host
+    /// structure is uploaded.
     fn geometry(
         &self,
         ctx: &Context,
         rs: &RenderScene,
         grow: u32,
-    ) -> Result<(GpuGeometry, Recorder, Option<RecordedBuild>)> {
+    ) -> Result<(Traced, Recorder, Option<RecordedBuild>)> {
         let mut rec = Recorder::new(ctx)?;
-        Ok(match &rs.accel {
-            RenderAccel::KdTree(tree) => (GpuGeometry::upload(ctx, &rs.geometry, tree)?, rec, None),
-            RenderAccel::Bvh(bvh) if self.walk == AccelTraversal::Bvh(Traversal::Wide) => (
-                GpuGeometry::upload_wide_bvh(ctx, &rs.geometry, bvh)?,
+        let flat = |g| Traced::Flat(g);
+        Ok(match (&rs.accel, &rs.levels) {
+            (RenderAccel::OnDevice(choice), Some(two)) => {
+                let levels = Levels::record_build(&mut rec, *choice, two, &rs.geometry, false)?;
+                let built = RecordedBuild { host_ms: None };
+                (Traced::Levels(levels), rec, Some(built))
+            }
+            (RenderAccel::KdTree(tree), _) => (
+                flat(GpuGeometry::upload(ctx, &rs.geometry, tree)?),
                 rec,
                 None,
             ),
-            RenderAccel::Bvh(bvh) => (GpuGeometry::upload_bvh(ctx, &rs.geometry, bvh)?, rec, None),
-            RenderAccel::OnDevice(choice) => {
+            (RenderAccel::Bvh(bvh), _) if self.walk == AccelTraversal::Bvh(Traversal::Wide) => (
+                flat(GpuGeometry::upload_wide_bvh(ctx, &rs.geometry, bvh)?),
+                rec,
+                None,
+            ),
+            (RenderAccel::Bvh(bvh), _) => (
+                flat(GpuGeometry::upload_bvh(ctx, &rs.geometry, bvh)?),
+                rec,
+                None,
+            ),
+            (RenderAccel::OnDevice(choice), None) => {
                 let builder = AccelBuilder::for_choice(ctx, *choice)?;
                 let (geom, recorded) =
                     GpuGeometry::record_build(&mut rec, &builder, &rs.geometry, grow)?;
-                (geom, rec, Some(recorded))
+                (flat(geom), rec, Some(recorded))
             }
         })
     }
@@ -339,9 +371,9 @@ impl Renderer {
             };
             self.record_sample(&mut rec, &f, plan, wave_pixels, sample, true);
             rec.compute_to_transfer();
-            let built = match build_ms {
-                None => f.geom.accel.record_read_built(&mut rec)?,
-                Some(_) => None,
+            let built = match (build_ms, f.geom.flat()) {
+                (None, Some(g)) => g.accel.record_read_built(&mut rec)?,
+                _ => None,
             };
             let counters = rec.read_back(&f.counters)?;
             rec.transfer_to_host();
@@ -368,7 +400,11 @@ impl Renderer {
                 }
             }
             if build_ms.is_none() {
-                build_ms = Some(recorded.map(|r| r.ms(&p)));
+                let bottom_ms = match &f.geom {
+                    Traced::Levels(l) => l.bottom_ms,
+                    Traced::Flat(_) => 0.0,
+                };
+                build_ms = Some(recorded.map(|r| r.ms(&p) + bottom_ms));
             }
             if counters.read()?[counter::OVERFLOW] != 0 {
                 // A wave's queue overflowed: undo the sample, redo it with smaller waves.
@@ -466,7 +502,6 @@ impl Renderer {
         let total = plan.width as u64 * plan.height as u64;
         let first = wave as u64 * wave_pixels as u64;
         let pixels = (total - first).min(wave_pixels as u64) as u32;
-        let g = f.geom.bindings();
         rec.compute_to_compute();
         rec.scope("render.camera", |rec| {
             let push = CameraPush {
@@ -489,9 +524,12 @@ impl Renderer {
         let mut capacity = pixels as usize;
         for depth in 0..=plan.max_depth {
             let spawn = plan.bounces && depth < plan.max_depth;
-            rec.scope("render.extend", |rec| {
-                let b = around_geometry(&[&f.queue, &f.hits, &f.counters], &g, &[]);
-                rec.dispatch_indirect(&k.extend, &f.counters, args_queue, &b, &());
+            rec.scope("render.extend", |rec| match &f.geom {
+                Traced::Flat(g) => {
+                    let b = around_geometry(&[&f.queue, &f.hits, &f.counters], &g.bindings(), &[]);
+                    rec.dispatch_indirect(&k.extend, &f.counters, args_queue, &b, &());
+                }
+                Traced::Levels(l) => self.record_levels(rec, f, l, false),
             });
             if spawn {
                 rec.compute_to_transfer();
@@ -504,7 +542,7 @@ impl Renderer {
                 // shade reads the primitives, not the tree (bindings 3 and 4 are unused)
                 let b = around_geometry(
                     &[&f.queue, &f.hits, &f.counters],
-                    &g[2..],
+                    &f.geom.shading_bindings(),
                     &[
                         &f.params,
                         &f.materials,
@@ -521,9 +559,13 @@ impl Renderer {
             });
             rec.compute_to_compute();
             if plan.shadow_slots > 0 {
-                rec.scope("render.shadow", |rec| {
-                    let b = around_geometry(&[&f.shadows, &f.params, &f.counters], &g, &[&f.queue]);
-                    rec.dispatch_indirect(&k.shadow, &f.counters, args_shadow, &b, &());
+                rec.scope("render.shadow", |rec| match &f.geom {
+                    Traced::Flat(g) => {
+                        let head: [&dyn BufferArg; 3] = [&f.shadows, &f.params, &f.counters];
+                        let b = around_geometry(&head, &g.bindings(), &[&f.queue]);
+                        rec.dispatch_indirect(&k.shadow, &f.counters, args_shadow, &b, &());
+                    }
+                    Traced::Levels(l) => self.record_levels(rec, f, l, true),
                 });
                 rec.compute_to_compute();
             }
@@ -574,4 +616,48 @@ impl Renderer {
             capacity = capacity.saturating_mul(plan.branching as usize);
         }
     }
+
+    /// Records the extend pass (closest hits) or, with `shadow`, the shadow pass (occlusion)
+    /// over two levels: `render.instances`, as many invocations as the flat kernels.
+    fn record_levels(&self, rec: &mut Recorder, f: &Frame, l: &Levels, shadow: bool) {
+        let kernel = self.k.instances.as_ref().expect("a plan over two levels");
+        let b: [&dyn BufferArg; 7] = [
+            &f.queue,
+            &f.hits,
+            &f.counters,
+            &f.shadows,
+            &f.params,
+            &l.mesh_first,
+            &l.rest_ids,
+        ];
+        let push = InstancesPush {
+            shadow: shadow as u32,
+            pad: 0,
+            handle: l.handle(),
+        };
+        let args = match shadow {
+            true => counter::ARGS_SHADOW,
+            false => counter::ARGS_QUEUE,
+        };
+        rec.dispatch_indirect(kernel, &f.counters, (args * 4) as u64, &b, &push);
+    }
+}
+
+/// The extend and shadow passes over two levels, for the options the device runs
+/// (`render.instances`).
+fn instances_kernel(ctx: &Context, opt: &TraceOptions) -> Result<Arc<Kernel>> {
+    let blob = match (opt.intersector, opt.exact) {
+        (Intersector::MollerTrumbore, _) => &kernels::RENDER_INSTANCES_MOLLER,
+        (Intersector::Watertight, true) => &kernels::RENDER_INSTANCES_EXACT,
+        (Intersector::Watertight, false) => &kernels::RENDER_INSTANCES_FLOAT,
+    };
+    let cap = ctx.info().max_traversal_steps;
+    let mut spec = Spec::new()
+        .workgroup(WG)
+        .u32(22, opt.max_steps.map_or(cap, |m| m.clamp(1, cap)));
+    // (only the exact variant checks the division)
+    if opt.exact && opt.intersector == Intersector::Watertight {
+        spec = spec.u32(21, u32::from(!ctx.info().ieee_division));
+    }
+    ctx.kernel(blob, &spec)
 }

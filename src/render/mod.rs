@@ -30,6 +30,7 @@ use crate::accel::bvh::Bvh;
 use crate::accel::device::AccelChoice;
 use crate::accel::kdtree::KdTree;
 use crate::scene::{Light, Scene};
+use crate::trace::instanced::TwoLevelScene;
 use crate::trace::TraceGeometry;
 
 pub use plan::{Plan, RenderOptions};
@@ -87,6 +88,9 @@ pub enum RenderAccel {
 pub struct RenderScene {
     pub geometry: TraceGeometry,
     pub accel: RenderAccel,
+    /// The scene as two levels, where the plan traces two ([`Plan::levels`]) and the
+    /// structure is built on the device; the same primitives as `geometry`.
+    pub levels: Option<TwoLevelScene>,
     /// Material of every primitive (triangles, then spheres).
     pub prim_material: Vec<u32>,
     /// Shading normals, 9 floats per triangle (zero when the mesh has none).
@@ -130,6 +134,10 @@ impl RenderScene {
             cam.shutter_open
         };
         let accel = build(&geometry)?;
+        let levels = match (&accel, plan.levels) {
+            (RenderAccel::OnDevice(_), 2) => TwoLevelScene::of(scene, cam.shutter_open),
+            _ => None,
+        };
         let mut prim_material = scene.triangle_materials();
         prim_material.extend(scene.spheres.iter().map(|s| s.material));
         let tri_normals = scene
@@ -204,6 +212,7 @@ impl RenderScene {
         Ok(Self {
             geometry,
             accel,
+            levels,
             prim_material,
             tri_normals,
             materials,

@@ -24,6 +24,9 @@ pub struct RenderOptions {
     pub all_effects: bool,
     /// The structure the renderer traces and how it is walked.
     pub accel: AccelChoice,
+    /// Trace one structure over every primitive even where meshes repeat (else such a
+    /// scene is traced as two levels where it can be: [`Plan::levels`]).
+    pub flatten: bool,
 }
 
 /// Pixels × samples × bounce tree bounded by this many rays per wave (queue capacity).
@@ -69,6 +72,9 @@ pub struct Plan {
     pub passes: Vec<&'static str>,
     /// Notes for the user (e.g. a requested spp that the scene does not need).
     pub notes: Vec<String>,
+    /// 2: the scene is traced as two levels (a mesh repeats: one bottom level per repeated
+    /// or moving mesh, an instance per copy, `trace::instanced`); 1: one structure.
+    pub levels: u32,
 }
 
 /// Why a scene cannot be rendered.
@@ -124,6 +130,7 @@ impl Plan {
         let wave_pixels = (queue_capacity / growth)
             .min(width as usize * height as usize)
             .max(1) as u32;
+        let levels = levels(scene, opt, fx.motion_blur, &mut notes);
         let mut passes = vec!["camera", "extend", "shade"];
         if shadow_slots > 0 {
             passes.push("shadow");
@@ -160,6 +167,7 @@ impl Plan {
             queue_capacity,
             passes,
             notes,
+            levels,
         })
     }
 
@@ -171,6 +179,35 @@ impl Plan {
     /// Waves per sample at the plan's wave size.
     pub fn waves(&self) -> u32 {
         self.waves_of(self.wave_pixels)
+    }
+}
+
+/// How many levels the scene is traced as: two where a mesh repeats and the two levels
+/// can serve the render, with a note where they cannot.
+fn levels(scene: &Scene, opt: &RenderOptions, blur: bool, notes: &mut Vec<String>) -> u32 {
+    use crate::accel::device::AccelKind;
+    use crate::trace::bvh_cpu::Traversal;
+    use crate::trace::gpu::AccelTraversal;
+    if opt.flatten || !scene.mesh_groups().iter().any(|g| g.len() > 1) {
+        return 1;
+    }
+    let why_flat = if opt.accel.kind == AccelKind::Driver {
+        Some("the driver's structure is traced flat")
+    } else if opt.accel.traversal() == AccelTraversal::Bvh(Traversal::Bitstack) {
+        Some("the bitstack walk is traced flat")
+    } else if blur {
+        Some("motion blur is traced flat (instances are placed at shutter open)")
+    } else if scene.spheres.iter().any(|s| !s.motion.is_static()) {
+        Some("moving spheres are traced flat")
+    } else {
+        None
+    };
+    match why_flat {
+        Some(why) => {
+            notes.push(format!("meshes repeat, but {why}: one structure"));
+            1
+        }
+        None => 2,
     }
 }
 
@@ -202,6 +239,13 @@ impl fmt::Display for Plan {
             self.queue_capacity
         )?;
         writeln!(f, "passes: {}", self.passes.join(" → "))?;
+        if self.levels == 2 {
+            writeln!(
+                f,
+                "structure: two levels (a bottom level per repeated or moving mesh, an \
+                 instance per copy)"
+            )?;
+        }
         writeln!(
             f,
             "camera: {}, jitter {}, time sampling {}",

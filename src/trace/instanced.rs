@@ -313,7 +313,7 @@ pub fn trace_under_identity(
     trace_top_level(ctx, &top, (&[0], &[]), opt, bitstack, rays, 0.0)
 }
 
-fn nonempty(v: &[u32]) -> Vec<u32> {
+pub(crate) fn nonempty(v: &[u32]) -> Vec<u32> {
     if v.is_empty() {
         vec![0]
     } else {

@@ -98,6 +98,7 @@ fn render(
         spp: Some(spp),
         all_effects: false,
         accel,
+        flatten: false,
     };
     // lavapipe compiles a pipeline at its first dispatch: a tiny render first, untimed.
     let warm = RenderOptions {

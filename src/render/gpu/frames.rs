@@ -10,6 +10,7 @@ use crate::render::types::counter;
 use crate::render::{Plan, RayCounts, RenderScene};
 use crate::trace::gpu::GpuGeometry;
 
+use super::levels::{Levels, Traced};
 use super::{Frame, Renderer};
 
 /// How the structure follows the primitives from one frame to the next.
@@ -59,7 +60,8 @@ pub struct FrameImage {
 /// What stays on the device from frame to frame.
 struct State {
     f: Frame,
-    scratch: AccelScratch,
+    /// The flat structure's build and refit scratch (none over two levels).
+    scratch: Option<AccelScratch>,
     refit_scratch: Option<Buffer<u32>>,
 }
 
@@ -84,7 +86,7 @@ impl<'r> FrameLoop<'r> {
         choice: AccelChoice,
         update: Update,
     ) -> Result<Self> {
-        if update == Update::Refit && choice.kind == AccelKind::KdTree {
+        if update == Update::Refit && choice.kind == AccelKind::KdTree && plan.levels < 2 {
             return Err(GpuError::Kernel {
                 kernel: "accel.refit",
                 reason: "a kd-tree cannot be refit (its split planes are fixed): \
@@ -124,11 +126,12 @@ impl<'r> FrameLoop<'r> {
     }
 
     /// The structure as it is now, read back (tools and reports; `None` before the first
-    /// frame). The driver's is opaque: an error.
+    /// frame, and over two levels). The driver's is opaque: an error.
     pub fn download(&self) -> Result<Option<crate::accel::device::HostStructure>> {
         self.state
             .as_ref()
-            .map(|st| st.f.geom.accel.download())
+            .and_then(|st| st.f.geom.flat())
+            .map(|g| g.accel.download())
             .transpose()
     }
 
@@ -139,14 +142,17 @@ impl<'r> FrameLoop<'r> {
         let mut redone = 0;
         loop {
             let mut rec = Recorder::new(ctx)?;
-            let (built, host_ms) = self.record_update(&mut rec, rs, plan)?;
+            let (built, host_ms, bottom_ms) = self.record_update(&mut rec, rs, plan)?;
             let st = self.state.as_ref().expect("recorded");
             for sample in 0..plan.spp {
                 self.renderer
                     .record_sample(&mut rec, &st.f, plan, self.wave_pixels, sample, false);
             }
             self.renderer.record_tonemap(&mut rec, &st.f, plan);
-            let kd_report = st.f.geom.accel.record_read_built(&mut rec)?;
+            let kd_report = match st.f.geom.flat() {
+                Some(g) => g.accel.record_read_built(&mut rec)?,
+                None => None,
+            };
             let counters = rec.read_back(&st.f.counters)?;
             let pixels = rec.read_back(&st.f.pixels)?;
             let accum = match self.radiance {
@@ -190,6 +196,7 @@ impl<'r> FrameLoop<'r> {
             }
             let scope = |name: &str| profile.ms(name).unwrap_or(0.0);
             let update_ms = host_ms.unwrap_or_else(|| scope("build") + scope("update"));
+            let update_ms = update_ms + bottom_ms;
             let radiance = match accum {
                 Some(a) => Some(super::mean_radiance(&a.read()?, plan.spp)),
                 None => None,
@@ -209,27 +216,47 @@ impl<'r> FrameLoop<'r> {
     }
 
     /// Records what brings the device to this frame: the first time (or after a kd-tree
-    /// outgrew its budget) the upload of everything and the build; later the moved
-    /// primitives, the frame's constants and a rebuild or refit. Returns whether it built,
-    /// and a host builder's milliseconds.
+    /// outgrew its budget) the upload of everything and the build (two levels: the bottom
+    /// levels built before, waited for); later the moved primitives, the frame's constants
+    /// and a rebuild or refit (two levels: of the top level only). Returns whether it built,
+    /// a host builder's milliseconds and the bottom levels' build milliseconds.
     fn record_update(
         &mut self,
         rec: &mut Recorder,
         rs: &RenderScene,
         plan: &Plan,
-    ) -> Result<(bool, Option<f64>)> {
+    ) -> Result<(bool, Option<f64>, f64)> {
         let b = &self.builder;
         let Some(st) = self.state.as_mut() else {
-            let prims = DevicePrimitives::record_upload(rec, &rs.geometry)?;
-            let (mut accel, scratch) = b.create(rec.context(), prims.count(), self.grow)?;
-            let recorded = rec.scope("build", |rec| {
-                b.record_build(rec, &prims, &rs.geometry, &scratch, &mut accel)
-            })?;
-            let refit_scratch = b.update_scratch(rec.context(), prims.count())?;
-            let geom = GpuGeometry {
-                prims,
-                accel,
-                device_input: None,
+            let allow_update = self.update == Update::Refit;
+            let (geom, scratch, refit_scratch, host_ms, bottom_ms) = match &rs.levels {
+                Some(two) => {
+                    let levels =
+                        Levels::record_build(rec, plan.accel, two, &rs.geometry, allow_update)?;
+                    let ms = levels.bottom_ms;
+                    (Traced::Levels(levels), None, None, None, ms)
+                }
+                None => {
+                    let prims = DevicePrimitives::record_upload(rec, &rs.geometry)?;
+                    let (mut accel, scratch) = b.create(rec.context(), prims.count(), self.grow)?;
+                    let recorded = rec.scope("build", |rec| {
+                        b.record_build(rec, &prims, &rs.geometry, &scratch, &mut accel)
+                    })?;
+                    let refit_scratch = b.update_scratch(rec.context(), prims.count())?;
+                    let geom = GpuGeometry {
+                        prims,
+                        accel,
+                        device_input: None,
+                    };
+                    let host_ms = recorded.host_ms;
+                    (
+                        Traced::Flat(geom),
+                        Some(scratch),
+                        refit_scratch,
+                        host_ms,
+                        0.0,
+                    )
+                }
             };
             let f = self.renderer.frame(rec, rs, plan, geom)?;
             self.state = Some(State {
@@ -237,24 +264,36 @@ impl<'r> FrameLoop<'r> {
                 scratch,
                 refit_scratch,
             });
-            return Ok((true, recorded.host_ms));
+            return Ok((true, host_ms, bottom_ms));
         };
         self.renderer.record_reset(rec, &st.f, rs)?;
-        let (prims, g) = (&st.f.geom.prims, &rs.geometry);
+        let g = &rs.geometry;
+        let geom = match &mut st.f.geom {
+            Traced::Levels(levels) => {
+                let two = rs.levels.as_ref().ok_or_else(|| GpuError::Kernel {
+                    kernel: "render",
+                    reason: "a frame of a two-level animation came flat".into(),
+                })?;
+                levels.record_update(rec, g, &two.instances, self.update)?;
+                return Ok((self.update == Update::Rebuild, None, 0.0));
+            }
+            Traced::Flat(geom) => geom,
+        };
+        let prims = &geom.prims;
         prims.record_update(rec, g)?;
         match self.update {
             Update::Rebuild => {
-                let accel = &mut st.f.geom.accel;
-                let recorded = rec.scope("build", |rec| {
-                    b.record_build(rec, prims, g, &st.scratch, accel)
-                })?;
-                Ok((true, recorded.host_ms))
+                let accel = &mut geom.accel;
+                let scratch = st.scratch.as_ref().expect("build scratch");
+                let recorded =
+                    rec.scope("build", |rec| b.record_build(rec, prims, g, scratch, accel))?;
+                Ok((true, recorded.host_ms, 0.0))
             }
             Update::Refit => {
                 let scratch = st.refit_scratch.as_ref().expect("refit scratch");
-                let accel = &st.f.geom.accel;
+                let accel = &geom.accel;
                 rec.scope("update", |rec| b.record_refit(rec, prims, accel, scratch))?;
-                Ok((false, None))
+                Ok((false, None, 0.0))
             }
         }
     }

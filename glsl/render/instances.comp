@@ -1,0 +1,98 @@
+#version 460
+// The renderer's extend (closest hit of every live ray) and shadow (any hit of every
+// occlusion query) passes over a scene traced as two levels (src/render/levels.rs): one
+// invocation per ray through vkrt/ray_query.glsl at device addresses, the top level's handle
+// in the push constants. Hits come back with the scene's flat primitive ids, as extend.comp's
+// over the flat structure: an instance of a repeated or moving mesh has the mesh's index as
+// its custom index and `mesh_first` gives that mesh's first id; the bottom level of the
+// meshes named once and the spheres maps its ids through `rest_ids`.
+//! variant exact VKRT_EXACT=1
+//! variant float FLOAT=1
+//! variant moller VKRT_MOLLER_TRUMBORE=1
+layout(local_size_x_id = 0) in;
+layout(constant_id = 22) const uint STEP_CAP = 60000u;
+// False where the driver's division rounds correctly (the exact variant's check left out).
+layout(constant_id = 21) const bool REFINE = true;
+#define VKRT_DEVICE_ADDRESS 1
+#define VKRT_MAX_TRAVERSAL_STEPS STEP_CAP
+#define VKRT_REFINE_DIVISION REFINE
+#include "include/vkrt/ray_query.glsl"
+#include "common/grid.glsl"
+#include "render/common.glsl"
+
+// 16 bytes: extend.comp's `Hit` (the library keeps its own names to itself).
+struct PathHit {
+    float t;
+    uint prim;
+    float u;
+    float v;
+};
+
+layout(std430, binding = 0) readonly buffer Queue { PathRay queue[]; };
+layout(std430, binding = 1) writeonly buffer Hits { PathHit hits[]; };
+layout(std430, binding = 2) buffer Counters { uint counters[]; };
+layout(std430, binding = 3) buffer Shadows { ShadowRay shadows[]; };
+layout(std430, binding = 4) readonly buffer Params { RenderParams prm; };
+// Per mesh (an instance's custom index): its first primitive id in the scene.
+layout(std430, binding = 5) readonly buffer MeshFirst { uint mesh_first[]; };
+// Per primitive of the rest's bottom level: its id in the scene.
+layout(std430, binding = 6) readonly buffer RestIds { uint rest_ids[]; };
+layout(push_constant) uniform Push {
+    uint shadow;   // 0: extend (closest hits into `hits`), 1: shadow (occlusion queries)
+    uint pad;
+    uvec2 handle;
+} pc;
+
+// The custom index of the rest's instance.
+#define REST 0xffffffu
+
+void main() {
+    uint i = linear_invocation_id();
+    bool shadow = pc.shadow != 0u;
+    // One query per invocation, one call of the walk (each call is inlined whole).
+    vec3 o, d;
+    float tmin, tmax, time;
+    if (!shadow) {
+        if (i >= counters[CNT_QUEUE]) {
+            return;
+        }
+        PathRay p = queue[i];
+        o = p.o;
+        d = p.d;
+        tmin = p.tmin;
+        tmax = p.tmax;
+        time = p.time;
+    } else {
+        uint slots = prm.shadow_slots;
+        if (slots == 0u || i >= counters[CNT_QUEUE] * slots) {
+            return;
+        }
+        ShadowRay s = shadows[i];
+        if (s.kind == SHADOW_NONE) {
+            return;
+        }
+        atomicAdd(counters[s.kind == SHADOW_AO ? CNT_AO : CNT_SHADOW], 1u);
+        o = s.o;
+        d = s.d;
+        tmin = s.tmin;
+        tmax = s.tmax;
+        time = queue[i / slots].time;
+    }
+    vkrtUseStructure(packUint2x32(pc.handle));
+    VkrtHit h = vkrtTrace(o, tmin, d, tmax, time, 0xffu, shadow);
+    if (h.exhausted) {
+        atomicAdd(counters[CNT_EXHAUSTED], 1u);
+    }
+    if (shadow) {
+        if (h.hit || h.exhausted) {
+            shadows[i].contrib = vec3(0.0);
+        }
+    } else if (h.exhausted || !h.hit) {
+        hits[i] = PathHit(uintBitsToFloat(0x7f800000u), 0xffffffffu, 0.0, 0.0);
+    } else {
+        uint prim = h.instanceCustomIndex == REST
+            ? rest_ids[h.primitiveIndex]
+            : mesh_first[h.instanceCustomIndex] + h.primitiveIndex;
+        hits[i] = PathHit(h.t, prim, h.barycentrics.x, h.barycentrics.y);
+    }
+}
