@@ -176,6 +176,7 @@ pub fn print_report(r: &AnimationReport, json: bool) -> CliResult<()> {
     if json {
         let v = serde_json::json!({
             "accel": r.accel,
+            "levels": r.levels,
             "update": r.update,
             "width": r.width,
             "height": r.height,
@@ -195,13 +196,17 @@ pub fn print_report(r: &AnimationReport, json: bool) -> CliResult<()> {
         return Ok(());
     }
     println!(
-        "{} frames {}×{}, {} spp, {} ({})",
+        "{} frames {}×{}, {} spp, {} ({}{})",
         r.frames.len(),
         r.width,
         r.height,
         r.spp,
         r.accel,
-        r.update.name()
+        r.update.name(),
+        match r.levels {
+            2 => " of the top level over the instances",
+            _ => "",
+        }
     );
     println!(
         "{:>6} {:>8} {:>9} {:>11} {:>10} {:>12} {:>9}",
@@ -280,16 +285,31 @@ fn memory_line(r: &AnimationReport) -> Option<String> {
 
 /// The structures and update modes `vkrt bench animate` compares: every kind rebuilt, every
 /// kind that can be refit refit, the driver's where the device has it.
-fn bench_runs(ctx: &Context) -> Vec<(AccelChoice, Update)> {
+/// The runs of `vkrt bench animate`: every structure flat (`true`: flatten), and where
+/// meshes repeat (`levels`) LBVH bottom levels under a top level rebuilt or refit per frame.
+fn bench_runs(ctx: &Context, levels: bool) -> Vec<(AccelChoice, Update, bool)> {
     let walk = Traversal::Stack;
-    let mut runs = vec![(AccelChoice::new(AccelKind::KdTree, walk), Update::Rebuild)];
+    let mut runs = vec![(
+        AccelChoice::new(AccelKind::KdTree, walk),
+        Update::Rebuild,
+        true,
+    )];
     for kind in [AccelKind::SahBvh, AccelKind::Lbvh, AccelKind::Ploc] {
-        runs.push((AccelChoice::new(kind, walk), Update::Rebuild));
-        runs.push((AccelChoice::new(kind, walk), Update::Refit));
+        runs.push((AccelChoice::new(kind, walk), Update::Rebuild, true));
+        runs.push((AccelChoice::new(kind, walk), Update::Refit, true));
     }
     if ctx.info().features.ray_query {
-        runs.push((AccelChoice::driver(Prefer::FastBuild), Update::Rebuild));
-        runs.push((AccelChoice::driver(Prefer::FastTrace), Update::Refit));
+        runs.push((
+            AccelChoice::driver(Prefer::FastBuild),
+            Update::Rebuild,
+            true,
+        ));
+        runs.push((AccelChoice::driver(Prefer::FastTrace), Update::Refit, true));
+    }
+    if levels {
+        for update in [Update::Rebuild, Update::Refit] {
+            runs.push((AccelChoice::new(AccelKind::Lbvh, walk), update, false));
+        }
     }
     runs
 }
@@ -338,9 +358,17 @@ pub fn bench_animate(
     }
     std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
     let mut reports: Vec<AnimationReport> = Vec::new();
-    for (accel, update) in bench_runs(ctx) {
+    let levels = vkrt::render::Plan::new(scene, render)
+        .map_err(|e| e.to_string())?
+        .levels
+        == 2;
+    for (accel, update, flatten) in bench_runs(ctx, levels) {
         let opt = AnimateOptions {
-            render: RenderOptions { accel, ..*render },
+            render: RenderOptions {
+                accel,
+                flatten,
+                ..*render
+            },
             update,
             frames: (0..frames).collect(),
             radiance: false,
@@ -363,10 +391,16 @@ pub fn bench_animate(
         .iter()
         .filter(|r| r.update == Update::Refit)
         .filter_map(|refit| {
-            let rebuild = reports
-                .iter()
-                .find(|r| r.update == Update::Rebuild && same_kind(&r.accel, &refit.accel))?;
-            Some((refit.accel.clone(), refit_pays_until(refit, rebuild)))
+            let rebuild = reports.iter().find(|r| {
+                r.update == Update::Rebuild
+                    && r.levels == refit.levels
+                    && same_kind(&r.accel, &refit.accel)
+            })?;
+            let label = match refit.levels {
+                2 => format!("{} (two levels)", refit.accel),
+                _ => refit.accel.clone(),
+            };
+            Some((label, refit_pays_until(refit, rebuild)))
         })
         .collect();
     let report = serde_json::json!({
@@ -403,7 +437,10 @@ pub fn bench_animate(
             .unwrap_or_else(|| "-".into());
         println!(
             "{:<20} {:<8} {:>11.2} {:>11.2} {:>8.3} {:>9.2} {:>15}",
-            r.accel,
+            match r.levels {
+                2 => format!("{} + top", r.accel),
+                _ => r.accel.clone(),
+            },
             r.update.name(),
             r.mean_update_ms(),
             r.mean_render_ms(),

@@ -5,7 +5,7 @@
 
 use std::sync::Arc;
 
-use crate::accel::device::{AccelBuilder, AccelStructure, RecordedBuild};
+use crate::accel::device::{AccelBuilder, RecordedBuild};
 use crate::gpu::{
     kernels, Buffer, BufferArg, Context, Kernel, Profile, Recorder, Result, Spec, Traffic,
 };
@@ -311,7 +311,8 @@ impl Renderer {
         let flat = |g| Traced::Flat(g);
         Ok(match (&rs.accel, &rs.levels) {
             (RenderAccel::OnDevice(choice), Some(two)) => {
-                let levels = Levels::record_build(&mut rec, *choice, two, &rs.geometry, false)?;
+                let geometry = (two, &rs.geometry);
+                let levels = Levels::record_build(&mut rec, *choice, geometry, grow, false)?;
                 let built = RecordedBuild { host_ms: None };
                 (Traced::Levels(levels), rec, Some(built))
             }
@@ -371,33 +372,31 @@ impl Renderer {
             };
             self.record_sample(&mut rec, &f, plan, wave_pixels, sample, true);
             rec.compute_to_transfer();
-            let built = match (build_ms, f.geom.flat()) {
-                (None, Some(g)) => g.accel.record_read_built(&mut rec)?,
-                _ => None,
+            let built = match build_ms {
+                None => f.geom.record_read_built(&mut rec)?,
+                Some(_) => Vec::new(),
             };
             let counters = rec.read_back(&f.counters)?;
             rec.transfer_to_host();
             let p = rec.submit_and_wait()?;
-            if let Some(b) = built {
-                if AccelStructure::kd_built(&b.read()?).overflow {
-                    // The kd-tree ran out of references: every ray of the sample missed.
-                    // Undo the sample and build again with twice the budget.
-                    grow += 1;
-                    if grow > 8 {
-                        return Err(crate::gpu::GpuError::Kernel {
-                            kernel: "accel.kdtree",
-                            reason: "the kd-tree still ran out of references after 8 \
-                                     doublings of its budget"
-                                .into(),
-                        });
-                    }
-                    let (geom, mut rec, r) = self.geometry(ctx, rs, grow)?;
-                    recorded = r;
-                    f.geom = geom;
-                    restore(&mut rec, &f, pixels);
-                    pending = Some(rec);
-                    continue;
+            if Traced::kd_overflow(built)? {
+                // The kd-tree ran out of references: every ray of the sample missed.
+                // Undo the sample and build again with twice the budget.
+                grow += 1;
+                if grow > 8 {
+                    return Err(crate::gpu::GpuError::Kernel {
+                        kernel: "accel.kdtree",
+                        reason: "the kd-tree still ran out of references after 8 \
+                                 doublings of its budget"
+                            .into(),
+                    });
                 }
+                let (geom, mut rec, r) = self.geometry(ctx, rs, grow)?;
+                recorded = r;
+                f.geom = geom;
+                restore(&mut rec, &f, pixels);
+                pending = Some(rec);
+                continue;
             }
             if build_ms.is_none() {
                 let bottom_ms = match &f.geom {

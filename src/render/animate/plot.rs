@@ -52,7 +52,10 @@ fn draw(reports: &[AnimationReport], svg: &mut String) -> Result<(), Box<dyn std
             let points = r.frames.iter().map(|f| (f.frame as f64, value(f)));
             chart
                 .draw_series(LineSeries::new(points, color.stroke_width(2)))?
-                .label(format!("{} {}", r.accel, r.update.name()))
+                .label(match r.levels {
+                    2 => format!("{} {} (two levels)", r.accel, r.update.name()),
+                    _ => format!("{} {}", r.accel, r.update.name()),
+                })
                 .legend(move |(x, y)| PathElement::new(vec![(x, y), (x + 18, y)], color));
         }
         chart

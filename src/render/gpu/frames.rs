@@ -142,16 +142,17 @@ impl<'r> FrameLoop<'r> {
         let mut redone = 0;
         loop {
             let mut rec = Recorder::new(ctx)?;
-            let (built, host_ms, bottom_ms) = self.record_update(&mut rec, rs, plan)?;
+            let (built, host_ms, bottoms) = self.record_update(&mut rec, rs, plan)?;
             let st = self.state.as_ref().expect("recorded");
             for sample in 0..plan.spp {
                 self.renderer
                     .record_sample(&mut rec, &st.f, plan, self.wave_pixels, sample, false);
             }
             self.renderer.record_tonemap(&mut rec, &st.f, plan);
-            let kd_report = match st.f.geom.flat() {
-                Some(g) => g.accel.record_read_built(&mut rec)?,
-                None => None,
+            // (a flat kd-tree is built every frame; bottom levels with the first)
+            let kd_reports = match (st.f.geom.flat(), bottoms) {
+                (None, None) => Vec::new(),
+                _ => st.f.geom.record_read_built(&mut rec)?,
             };
             let counters = rec.read_back(&st.f.counters)?;
             let pixels = rec.read_back(&st.f.pixels)?;
@@ -161,22 +162,20 @@ impl<'r> FrameLoop<'r> {
             };
             rec.transfer_to_host();
             let profile = rec.submit_and_wait()?;
-            if let Some(b) = kd_report {
-                if crate::accel::device::AccelStructure::kd_built(&b.read()?).overflow {
-                    // Every ray of the frame missed: build again with twice the budget.
-                    self.grow += 1;
-                    if self.grow > 8 {
-                        return Err(GpuError::Kernel {
-                            kernel: "accel.kdtree",
-                            reason: "the kd-tree still ran out of references after 8 \
-                                     doublings of its budget"
-                                .into(),
-                        });
-                    }
-                    self.state = None;
-                    redone += 1;
-                    continue;
+            if Traced::kd_overflow(kd_reports)? {
+                // Every ray of the frame missed: build again with twice the budget.
+                self.grow += 1;
+                if self.grow > 8 {
+                    return Err(GpuError::Kernel {
+                        kernel: "accel.kdtree",
+                        reason: "the kd-tree still ran out of references after 8 \
+                                 doublings of its budget"
+                            .into(),
+                    });
                 }
+                self.state = None;
+                redone += 1;
+                continue;
             }
             let counters = counters.read()?;
             if counters[counter::OVERFLOW] != 0 {
@@ -196,7 +195,7 @@ impl<'r> FrameLoop<'r> {
             }
             let scope = |name: &str| profile.ms(name).unwrap_or(0.0);
             let update_ms = host_ms.unwrap_or_else(|| scope("build") + scope("update"));
-            let update_ms = update_ms + bottom_ms;
+            let update_ms = update_ms + bottoms.unwrap_or(0.0);
             let radiance = match accum {
                 Some(a) => Some(super::mean_radiance(&a.read()?, plan.spp)),
                 None => None,
@@ -219,21 +218,23 @@ impl<'r> FrameLoop<'r> {
     /// outgrew its budget) the upload of everything and the build (two levels: the bottom
     /// levels built before, waited for); later the moved primitives, the frame's constants
     /// and a rebuild or refit (two levels: of the top level only). Returns whether it built,
-    /// a host builder's milliseconds and the bottom levels' build milliseconds.
+    /// a host builder's milliseconds and, where it built bottom levels, their host
+    /// builder's milliseconds.
     fn record_update(
         &mut self,
         rec: &mut Recorder,
         rs: &RenderScene,
         plan: &Plan,
-    ) -> Result<(bool, Option<f64>, f64)> {
+    ) -> Result<(bool, Option<f64>, Option<f64>)> {
         let b = &self.builder;
         let Some(st) = self.state.as_mut() else {
             let allow_update = self.update == Update::Refit;
             let (geom, scratch, refit_scratch, host_ms, bottom_ms) = match &rs.levels {
                 Some(two) => {
+                    let geometry = (two, &rs.geometry);
                     let levels =
-                        Levels::record_build(rec, plan.accel, two, &rs.geometry, allow_update)?;
-                    let ms = levels.bottom_ms;
+                        Levels::record_build(rec, plan.accel, geometry, self.grow, allow_update)?;
+                    let ms = Some(levels.bottom_ms);
                     (Traced::Levels(levels), None, None, None, ms)
                 }
                 None => {
@@ -254,7 +255,7 @@ impl<'r> FrameLoop<'r> {
                         Some(scratch),
                         refit_scratch,
                         host_ms,
-                        0.0,
+                        None,
                     )
                 }
             };
@@ -275,7 +276,7 @@ impl<'r> FrameLoop<'r> {
                     reason: "a frame of a two-level animation came flat".into(),
                 })?;
                 levels.record_update(rec, g, &two.instances, self.update)?;
-                return Ok((self.update == Update::Rebuild, None, 0.0));
+                return Ok((self.update == Update::Rebuild, None, None));
             }
             Traced::Flat(geom) => geom,
         };
@@ -287,13 +288,13 @@ impl<'r> FrameLoop<'r> {
                 let scratch = st.scratch.as_ref().expect("build scratch");
                 let recorded =
                     rec.scope("build", |rec| b.record_build(rec, prims, g, scratch, accel))?;
-                Ok((true, recorded.host_ms, 0.0))
+                Ok((true, recorded.host_ms, None))
             }
             Update::Refit => {
                 let scratch = st.refit_scratch.as_ref().expect("refit scratch");
                 let accel = &geom.accel;
                 rec.scope("update", |rec| b.record_refit(rec, prims, accel, scratch))?;
-                Ok((false, None, 0.0))
+                Ok((false, None, None))
             }
         }
     }

@@ -8,10 +8,12 @@
 
 use std::sync::Arc;
 
-use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, DevicePrimitives};
+use crate::accel::device::{
+    AccelBuilder, AccelChoice, AccelKind, AccelStructure, DevicePrimitives,
+};
 use crate::accel::embedded::BuildFlags;
 use crate::accel::instances::{Instance, TopLevel, TopLevelBuilder};
-use crate::gpu::{Buffer, BufferArg, Recorder, Result};
+use crate::gpu::{Buffer, BufferArg, Readback, Recorder, Result};
 use crate::scene::Aabb;
 use crate::trace::geometry::SceneInfo;
 use crate::trace::gpu::GpuGeometry;
@@ -49,6 +51,32 @@ impl Traced {
         }
     }
 
+    /// Records the copies of the kd-tree builds' reports (16 bytes each; none for other
+    /// kinds), read with `AccelStructure::kd_built` after the work has executed.
+    pub fn record_read_built(&self, rec: &mut Recorder) -> Result<Vec<Readback<u32>>> {
+        let mut out = Vec::new();
+        match self {
+            Traced::Flat(g) => out.extend(g.accel.record_read_built(rec)?),
+            Traced::Levels(l) => {
+                for b in l.top.bottoms() {
+                    out.extend(b.accel.record_read_built(rec)?);
+                }
+            }
+        }
+        Ok(out)
+    }
+
+    /// Whether any of the reports [`Traced::record_read_built`] copied says a kd-tree ran
+    /// out of references.
+    pub fn kd_overflow(reports: Vec<Readback<u32>>) -> Result<bool> {
+        for r in reports {
+            if AccelStructure::kd_built(&r.read()?).overflow {
+                return Ok(true);
+            }
+        }
+        Ok(false)
+    }
+
     /// The flat structure, if that is what is traced.
     pub fn flat(&self) -> Option<&GpuGeometry> {
         match self {
@@ -67,21 +95,22 @@ pub(crate) struct Levels {
     top_builder: TopLevelBuilder,
     pub mesh_first: Buffer<u32>,
     pub rest_ids: Buffer<u32>,
-    /// Milliseconds of the bottom levels' builds outside `rec`'s profile: a kd-tree's (each
-    /// waited for before the first frame's submission), the SAH BVH's host builds.
+    /// Host milliseconds of the bottom levels' builds (the SAH BVH's host builder; the
+    /// device builders' passes are in the profile).
     pub bottom_ms: f64,
 }
 
 impl Levels {
     /// Records into `rec` the builds of `two`'s bottom levels with `choice`'s builder (a
-    /// kd-tree's before, each in a submission of its own, grown until its references fit),
-    /// the upload of `flat` (the same scene, flat, for shading) and the top level's build,
-    /// all in a scope `build`. With `allow_update`, the top level can be refit.
+    /// kd-tree's with `grow` doublings of its reference budget: read its reports with
+    /// [`Traced::record_read_built`]), the upload of `flat` (the same scene, flat, for
+    /// shading) and the top level's build, each in a scope `build`. With `allow_update`, the
+    /// top level can be refit.
     pub fn record_build(
         rec: &mut Recorder,
         choice: AccelChoice,
-        two: &TwoLevelScene,
-        flat: &TraceGeometry,
+        (two, flat): (&TwoLevelScene, &TraceGeometry),
+        grow: u32,
         allow_update: bool,
     ) -> Result<Self> {
         let ctx = rec.context().clone();
@@ -89,19 +118,8 @@ impl Levels {
         let mut bottoms = Vec::with_capacity(two.bottoms.len());
         let mut bottom_ms = 0.0;
         for g in &two.bottoms {
-            let level = match choice.kind {
-                AccelKind::KdTree => {
-                    let (level, ms) = GpuGeometry::build_fitting(&ctx, &builder, g)?;
-                    bottom_ms += ms;
-                    level
-                }
-                _ => {
-                    // (in a scope `build` of its own)
-                    let (level, recorded) = GpuGeometry::record_build(rec, &builder, g, 0)?;
-                    bottom_ms += recorded.host_ms.unwrap_or(0.0);
-                    level
-                }
-            };
+            let (level, recorded) = GpuGeometry::record_build(rec, &builder, g, grow)?;
+            bottom_ms += recorded.host_ms.unwrap_or(0.0);
             bottoms.push(Arc::new(level));
         }
         let prims = DevicePrimitives::record_upload(rec, flat)?;
