@@ -386,8 +386,8 @@ fn bench_animate_reports_every_structure_and_update_mode() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
-/// A soak: the dynamic demo over 60 frames at low resolution, refit every frame, validation
-/// on: device memory and host RSS flat from frame 10 to the last (growth ≤ 1 %), one
+/// A soak: the dynamic demo over 60 frames at low resolution (two levels), refit every frame,
+/// validation on: device memory and host RSS flat from frame 10 to the last (growth ≤ 1 %), one
 /// submission per frame, no validation message. (`vkrt animate … --frames 500` is the long
 /// form: docs/testing.md.)
 #[test]
@@ -420,6 +420,8 @@ fn a_long_animation_holds_memory_flat() {
     let err = String::from_utf8_lossy(&run.stderr);
     assert!(!err.contains("validation"), "{err}");
     let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    // the 24 icospheres repeat: two levels, each frame refits the top level
+    assert_eq!(v["levels"], 2, "{}", v["levels"]);
     let frames = v["frames"].as_array().unwrap();
     assert_eq!(frames.len(), 60);
     for f in frames {

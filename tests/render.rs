@@ -461,3 +461,56 @@ fn animation_frames_match_the_cpu_twin() {
         "frame 24 looks like frame 0 ({moved} channels changed)"
     );
 }
+
+/// Which scenes the plan traces as two levels: one that repeats a mesh (the dynamic demo's
+/// icospheres), unless asked to flatten, or where the two levels cannot serve the render yet
+/// (motion blur, the driver's structure, the bitstack walk), each said in a note; a scene
+/// whose meshes are all different stays one level.
+#[test]
+fn the_plan_traces_repeated_meshes_as_two_levels() {
+    use vkrt::accel::device::{AccelChoice, AccelKind};
+    use vkrt::accel::driver::Prefer;
+    use vkrt::trace::bvh_cpu::Traversal;
+    let demo = scene_file("dynamic_demo.toml");
+    let plan = |scene: &Scene, opt: RenderOptions| Plan::new(scene, &opt).unwrap();
+    assert_eq!(plan(&demo, small(1)).levels, 2);
+    let flat = plan(
+        &demo,
+        RenderOptions {
+            flatten: true,
+            ..small(1)
+        },
+    );
+    assert_eq!((flat.levels, flat.notes.len()), (1, 0));
+    let mut blurred = demo.clone();
+    blurred.camera.shutter_close = 0.02;
+    let cases = [
+        (blurred, small(1), "motion blur"),
+        (
+            demo.clone(),
+            RenderOptions {
+                accel: AccelChoice::driver(Prefer::FastTrace),
+                ..small(1)
+            },
+            "driver",
+        ),
+        (
+            demo.clone(),
+            RenderOptions {
+                accel: AccelChoice::new(AccelKind::Lbvh, Traversal::Bitstack),
+                ..small(1)
+            },
+            "bitstack",
+        ),
+    ];
+    for (scene, opt, why) in cases {
+        let p = plan(&scene, opt);
+        assert_eq!(p.levels, 1, "{why}");
+        assert!(
+            p.notes.iter().any(|n| n.contains(why)),
+            "{why}: {:?}",
+            p.notes
+        );
+    }
+    assert_eq!(plan(&scene_file("hard_shadows.toml"), small(1)).levels, 1);
+}

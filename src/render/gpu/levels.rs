@@ -23,6 +23,10 @@ use crate::trace::TraceGeometry;
 use super::Update;
 
 /// The structures a render traces.
+#[allow(
+    clippy::large_enum_variant,
+    reason = "one per render, made once and kept in place"
+)]
 pub(crate) enum Traced {
     Flat(GpuGeometry),
     Levels(Levels),
