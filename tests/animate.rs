@@ -186,8 +186,8 @@ fn two_level_frames_update_the_top_level_and_match_the_flat_renders() {
         let mut frames = FrameLoop::new(&ctx, &renderer, &plan, accel, update).unwrap();
         for k in [0, 6, 12] {
             let s = scene.at_frame(k);
-            let rs = flatten(&s, &plan, accel);
-            let two = rs.levels.as_ref().expect("two levels");
+            let rs = RenderScene::on_device(&s, &plan);
+            let two = &rs.levels.as_ref().expect("two levels").scene;
             assert_eq!(two.mesh_instances(), 25, "{what}: 24 spheres and the bunny");
             let frame = frames.render(&ctx, &rs, &plan).unwrap();
             let single = renderer.render(&ctx, &rs, &plan, |_| {}).unwrap();
@@ -197,7 +197,8 @@ fn two_level_frames_update_the_top_level_and_match_the_flat_renders() {
             assert_eq!(frame.built, k == 0 || update == Update::Rebuild, "{what}");
             assert!(frame.update_ms > 0.0, "{what}: frame {k}");
             assert_eq!(frame.traffic.submits, 1, "{what}: frame {k}");
-            let flat_rs = flatten(&s, &flat_plan, accel);
+            let flat_rs = RenderScene::on_device(&s, &flat_plan);
+            assert!(flat_rs.levels.is_none());
             let flat = flat_renderer
                 .render(&ctx, &flat_rs, &flat_plan, |_| {})
                 .unwrap();

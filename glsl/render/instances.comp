@@ -2,10 +2,8 @@
 // The renderer's extend (closest hit of every live ray) and shadow (any hit of every
 // occlusion query) passes over a scene traced as two levels (src/render/levels.rs): one
 // invocation per ray through vkrt/ray_query.glsl at device addresses, the top level's handle
-// in the push constants. Hits come back with the scene's flat primitive ids, as extend.comp's
-// over the flat structure: an instance of a repeated or moving mesh has the mesh's index as
-// its custom index and `mesh_first` gives that mesh's first id; the bottom level of the
-// meshes named once and the spheres maps its ids through `rest_ids`.
+// in the push constants. A hit names the primitive in its bottom level, and its instance in
+// `hit_instance` (what shade.comp's `levels` variant reads).
 //! variant exact VKRT_EXACT=1
 //! variant float FLOAT=1
 //! variant moller VKRT_MOLLER_TRUMBORE=1
@@ -33,18 +31,12 @@ layout(std430, binding = 1) writeonly buffer Hits { PathHit hits[]; };
 layout(std430, binding = 2) buffer Counters { uint counters[]; };
 layout(std430, binding = 3) buffer Shadows { ShadowRay shadows[]; };
 layout(std430, binding = 4) readonly buffer Params { RenderParams prm; };
-// Per mesh (an instance's custom index): its first primitive id in the scene.
-layout(std430, binding = 5) readonly buffer MeshFirst { uint mesh_first[]; };
-// Per primitive of the rest's bottom level: its id in the scene.
-layout(std430, binding = 6) readonly buffer RestIds { uint rest_ids[]; };
+layout(std430, binding = 5) writeonly buffer HitInstance { uint hit_instance[]; };
 layout(push_constant) uniform Push {
     uint shadow;   // 0: extend (closest hits into `hits`), 1: shadow (occlusion queries)
     uint pad;
     uvec2 handle;
 } pc;
-
-// The custom index of the rest's instance.
-#define REST 0xffffffu
 
 void main() {
     uint i = linear_invocation_id();
@@ -90,9 +82,7 @@ void main() {
     } else if (h.exhausted || !h.hit) {
         hits[i] = PathHit(uintBitsToFloat(0x7f800000u), 0xffffffffu, 0.0, 0.0);
     } else {
-        uint prim = h.instanceCustomIndex == REST
-            ? rest_ids[h.primitiveIndex]
-            : mesh_first[h.instanceCustomIndex] + h.primitiveIndex;
-        hits[i] = PathHit(h.t, prim, h.barycentrics.x, h.barycentrics.y);
+        hits[i] = PathHit(h.t, h.primitiveIndex, h.barycentrics.x, h.barycentrics.y);
+        hit_instance[i] = h.instanceIndex;
     }
 }

@@ -6,6 +6,12 @@
 // mirror or glossy reflection and refraction with Fresnel — into two slots per ray with 0/1
 // flags for the compaction. Every effect is a specialization constant the plan sets, so a
 // scene compiles only what it uses.
+// `levels`: the scene traced as two levels (src/render/gpu/levels.rs). A hit names its
+// instance (`hit_instance`) and the primitive in that instance's bottom level; the surface is
+// the bottom level's triangle (object space) placed by the instance, its shading normals
+// moved by the inverse transpose, its material the instance's (or the primitive's).
+//! variant flat
+//! variant levels LEVELS=1
 #extension GL_EXT_shader_8bit_storage : require
 #extension GL_EXT_shader_explicit_arithmetic_types_int8 : require
 layout(local_size_x_id = 0) in;
@@ -23,8 +29,25 @@ layout(constant_id = 11) const bool BOUNCES = false;
 #include "common/grid.glsl"
 #include "render/common.glsl"
 #include "render/shading.glsl"
+#if LEVELS
+#include "include/vkrt/ray.glsl"
+// 112 bytes: `Placement` in src/render/types.rs.
+struct Placement {
+    vec4 object_to_world[3];   // rows
+    vec4 world_to_object[3];   // rows
+    uvec4 info;                // first level primitive, triangles, first sphere, material
+};
+#define PER_PRIMITIVE 0xffffffffu
+// Per level primitive (every bottom level's triangles then spheres, bottom after bottom):
+// object-space vertices, 9 floats (spheres: unused).
+layout(std430, binding = 5) readonly buffer LevelVerts { float level_verts[]; };
+layout(std430, binding = 6) readonly buffer LevelSpheres { vec4 level_spheres[]; };
+layout(std430, binding = 7) readonly buffer Placements { Placement placements[]; };
+layout(std430, binding = 8) readonly buffer HitInstance { uint hit_instance[]; };
+#else
 #define GEOM_BINDING 3
 #include "include/vkrt/traverse.glsl"
+#endif
 
 layout(std430, binding = 0) readonly buffer Queue { PathRay queue[]; };
 layout(std430, binding = 1) readonly buffer Hits { Hit hits[]; };
@@ -47,6 +70,25 @@ vec3 normal_at(uint tri, uint corner) {
     return vec3(tri_normals[k], tri_normals[k + 1u], tri_normals[k + 2u]);
 }
 
+#if LEVELS
+vec3 level_vertex(uint prim, uint corner) {
+    uint k = 9u * prim + 3u * corner;
+    return vec3(level_verts[k], level_verts[k + 1u], level_verts[k + 2u]);
+}
+
+vec3 place_point(Placement pl, vec3 q) {
+    return vec3(dot(pl.object_to_world[0].xyz, q) + pl.object_to_world[0].w,
+                dot(pl.object_to_world[1].xyz, q) + pl.object_to_world[1].w,
+                dot(pl.object_to_world[2].xyz, q) + pl.object_to_world[2].w);
+}
+
+// An object-space normal in the world (the inverse transpose), unit or zero.
+vec3 place_normal(Placement pl, vec3 n) {
+    vec3 w = n.x * pl.world_to_object[0].xyz + n.y * pl.world_to_object[1].xyz
+        + n.z * pl.world_to_object[2].xyz;
+    return dot(w, w) > 0.0 ? normalize(w) : vec3(0.0);
+}
+#else
 // Rotation part of a motion, for normals.
 vec3 move_vector(vec3 n, uint prim, float time) {
     if (scene_info.has_motion == 0u || prim_motion[prim] == NO_MOTION) {
@@ -62,6 +104,7 @@ vec3 move_vector(vec3 n, uint prim, float time) {
     float s = sin(angle);
     return n * c + cross(k, n) * s + k * (dot(k, n) * (1.0 - c));
 }
+#endif
 
 // The nearest area light the ray meets before `tmax` (and after `tmin`), with its emitted
 // radiance: area lights are emitting shapes the camera and mirrors see, as in pbrt. A quad
@@ -137,6 +180,29 @@ void main() {
     vec3 x;
     vec3 ng;
     vec3 ns;
+#if LEVELS
+    Placement pl = placements[hit_instance[i]];
+    uint level_prim = pl.info.x + h.prim;
+    if (h.prim < pl.info.y) {
+        vec3 p0 = place_point(pl, level_vertex(level_prim, 0u));
+        vec3 p1 = place_point(pl, level_vertex(level_prim, 1u));
+        vec3 p2 = place_point(pl, level_vertex(level_prim, 2u));
+        float w = 1.0 - h.u - h.v;
+        x = w * p0 + h.u * p1 + h.v * p2;
+        ng = normalize(cross(p1 - p0, p2 - p0));
+        vec3 n = w * place_normal(pl, normal_at(level_prim, 0u))
+            + h.u * place_normal(pl, normal_at(level_prim, 1u))
+            + h.v * place_normal(pl, normal_at(level_prim, 2u));
+        ns = dot(n, n) > 0.0 ? normalize(n) : ng;
+    } else {
+        vec4 s = level_spheres[pl.info.z + h.prim - pl.info.y];
+        vec3 c = place_point(pl, s.xyz);
+        ng = normalize(p.o + h.t * p.d - c);
+        x = c + ng * s.w;
+        ns = ng;
+    }
+    uint material = pl.info.w != PER_PRIMITIVE ? pl.info.w : prim_material[level_prim];
+#else
     if (h.prim < scene_info.n_tris) {
         vec3 p0, p1, p2;
         triangle_at(h.prim, p.time, p0, p1, p2);
@@ -158,6 +224,8 @@ void main() {
         ng = aabb_normal(lo, hi, x);
         ns = ng;
     }
+    uint material = prim_material[h.prim];
+#endif
     bool front = dot(p.d, ng) < 0.0;
     if (!front) {
         ng = -ng;
@@ -166,7 +234,7 @@ void main() {
     if (dot(ns, p.d) >= 0.0) {
         ns = ng; // an interpolated normal facing away from the viewer: use the true one
     }
-    Material m = materials[prim_material[h.prim]];
+    Material m = materials[material];
     vec3 diffuse = m.diffuse.xyz;
     vec3 l = vec3(0.0);
     if (EMISSION) {

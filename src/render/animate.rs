@@ -15,7 +15,7 @@ use std::thread::JoinHandle;
 
 use super::gpu::{FrameLoop, Renderer, Update};
 use super::output::{exr_bytes, jpeg_bytes, pfm_bytes, png_bytes, ImageFormat};
-use super::{Plan, RenderAccel, RenderOptions, RenderScene};
+use super::{Plan, RenderOptions, RenderScene};
 use crate::accel::device::{AccelKind, HostStructure};
 use crate::gpu::{write_atomically, Context, GpuError};
 use crate::scene::Scene;
@@ -523,13 +523,9 @@ pub fn run(
     let renderer = Renderer::new(ctx, &plan, trace)?;
     let mut frames =
         FrameLoop::new(ctx, &renderer, &plan, accel, opt.update)?.with_radiance(opt.radiance);
-    let flatten = |scene: &Scene| {
-        RenderScene::new(scene, &plan, |_| {
-            Ok::<_, std::convert::Infallible>(RenderAccel::OnDevice(accel))
-        })
-    };
+    let flatten = |scene: &Scene| RenderScene::on_device(scene, &plan);
     if opt.update == Update::Refit && opt.frames.first().is_some_and(|&k| k > 0) {
-        frames.prepare(ctx, &flatten(&first)?, &plan)?;
+        frames.prepare(ctx, &flatten(&first), &plan)?;
     }
     let mut rows = Vec::with_capacity(opt.frames.len());
     for (done, &k) in opt.frames.iter().enumerate() {
@@ -540,7 +536,7 @@ pub fn run(
         } else {
             frame_scene(k)
         };
-        let rs = flatten(&scene)?;
+        let rs = flatten(&scene);
         let image = frames.render(ctx, &rs, &plan)?;
         sink(Frame {
             k,

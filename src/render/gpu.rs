@@ -36,8 +36,9 @@ struct Kernels {
     advance: Arc<Kernel>,
     gather: Arc<Kernel>,
     tonemap: Arc<Kernel>,
-    /// Extend and shadow over two levels (plans that trace two levels).
+    /// Extend and shadow, and shade, over two levels (plans that trace two levels).
     instances: Option<Arc<Kernel>>,
+    shade_levels: Option<Arc<Kernel>>,
 }
 
 /// Kernels specialised for one plan.
@@ -212,16 +213,20 @@ impl Renderer {
                 &kernels::RENDER_SHADOW_FLOAT_TEXEL,
             ],
         );
-        let instances = match plan.levels {
-            2 => Some(instances_kernel(ctx, &opt)?),
-            _ => None,
+        let (instances, shade_levels) = match plan.levels {
+            2 => (
+                Some(instances_kernel(ctx, &opt)?),
+                Some(ctx.kernel(&kernels::RENDER_SHADE_LEVELS, &shade)?),
+            ),
+            _ => (None, None),
         };
         Ok(Self {
             k: Kernels {
                 instances,
+                shade_levels,
                 camera: ctx.kernel(&kernels::RENDER_CAMERA, &camera)?,
                 extend: ctx.kernel(extend, &walk.spec_for(closest, extend))?,
-                shade: ctx.kernel(&kernels::RENDER_SHADE, &shade)?,
+                shade: ctx.kernel(&kernels::RENDER_SHADE_FLAT, &shade)?,
                 shadow: ctx.kernel(shadow, &walk.spec_for(any, shadow))?,
                 accumulate: ctx.kernel(&kernels::RENDER_ACCUMULATE, &plain)?,
                 advance: ctx.kernel(&kernels::RENDER_ADVANCE, &Spec::new())?,
@@ -304,15 +309,15 @@ impl Renderer {
     fn geometry(
         &self,
         ctx: &Context,
-        rs: &RenderScene,
+        (rs, plan): (&RenderScene, &Plan),
         grow: u32,
     ) -> Result<(Traced, Recorder, Option<RecordedBuild>)> {
         let mut rec = Recorder::new(ctx)?;
         let flat = |g| Traced::Flat(g);
         Ok(match (&rs.accel, &rs.levels) {
-            (RenderAccel::OnDevice(choice), Some(two)) => {
-                let geometry = (two, &rs.geometry);
-                let levels = Levels::record_build(&mut rec, *choice, geometry, grow, false)?;
+            (RenderAccel::OnDevice(choice), Some(rl)) => {
+                let sizes = (grow, plan.queue_capacity);
+                let levels = Levels::record_build(&mut rec, *choice, rl, sizes, false)?;
                 let built = RecordedBuild { host_ms: None };
                 (Traced::Levels(levels), rec, Some(built))
             }
@@ -350,7 +355,7 @@ impl Renderer {
     ) -> Result<GpuRender> {
         let start = ctx.traffic();
         let mut grow = 0;
-        let (geom, first, mut recorded) = self.geometry(ctx, rs, grow)?;
+        let (geom, first, mut recorded) = self.geometry(ctx, (rs, plan), grow)?;
         let mut pending = Some(first);
         let mut f = self.frame(
             pending.as_mut().expect("the first recorder"),
@@ -391,7 +396,7 @@ impl Renderer {
                             .into(),
                     });
                 }
-                let (geom, mut rec, r) = self.geometry(ctx, rs, grow)?;
+                let (geom, mut rec, r) = self.geometry(ctx, (rs, plan), grow)?;
                 recorded = r;
                 f.geom = geom;
                 restore(&mut rec, &f, pixels);
@@ -539,6 +544,10 @@ impl Renderer {
             }
             rec.scope("render.shade", |rec| {
                 // shade reads the primitives, not the tree (bindings 3 and 4 are unused)
+                let kernel = match &f.geom {
+                    Traced::Flat(_) => &k.shade,
+                    Traced::Levels(_) => k.shade_levels.as_ref().expect("a plan over two levels"),
+                };
                 let b = around_geometry(
                     &[&f.queue, &f.hits, &f.counters],
                     &f.geom.shading_bindings(),
@@ -554,7 +563,7 @@ impl Renderer {
                         &f.flags,
                     ],
                 );
-                rec.dispatch_indirect(&k.shade, &f.counters, args_queue, &b, &());
+                rec.dispatch_indirect(kernel, &f.counters, args_queue, &b, &());
             });
             rec.compute_to_compute();
             if plan.shadow_slots > 0 {
@@ -620,14 +629,13 @@ impl Renderer {
     /// over two levels: `render.instances`, as many invocations as the flat kernels.
     fn record_levels(&self, rec: &mut Recorder, f: &Frame, l: &Levels, shadow: bool) {
         let kernel = self.k.instances.as_ref().expect("a plan over two levels");
-        let b: [&dyn BufferArg; 7] = [
+        let b: [&dyn BufferArg; 6] = [
             &f.queue,
             &f.hits,
             &f.counters,
             &f.shadows,
             &f.params,
-            &l.mesh_first,
-            &l.rest_ids,
+            &l.hit_instance,
         ];
         let push = InstancesPush {
             shadow: shadow as u32,

@@ -19,6 +19,7 @@ pub mod animate;
 pub mod bench;
 pub mod cpu;
 pub mod gpu;
+mod levels;
 pub mod output;
 pub mod plan;
 pub mod types;
@@ -32,6 +33,7 @@ use crate::accel::kdtree::KdTree;
 use crate::scene::{Light, Scene};
 use crate::trace::instanced::TwoLevelScene;
 use crate::trace::TraceGeometry;
+pub use levels::RenderLevels;
 
 pub use plan::{Plan, RenderOptions};
 use types::{GpuLight, GpuMaterial, RenderParams};
@@ -88,9 +90,10 @@ pub enum RenderAccel {
 pub struct RenderScene {
     pub geometry: TraceGeometry,
     pub accel: RenderAccel,
-    /// The scene as two levels, where the plan traces two ([`Plan::levels`]) and the
-    /// structure is built on the device; the same primitives as `geometry`.
-    pub levels: Option<TwoLevelScene>,
+    /// The scene as two levels ([`RenderScene::on_device`] where the plan traces two); then
+    /// `geometry` is empty, and `prim_material` and `tri_normals` are per level primitive
+    /// ([`RenderLevels`]).
+    pub levels: Option<RenderLevels>,
     /// Material of every primitive (triangles, then spheres).
     pub prim_material: Vec<u32>,
     /// Shading normals, 9 floats per triangle (zero when the mesh has none).
@@ -111,17 +114,7 @@ impl RenderScene {
         plan: &Plan,
         build: impl FnOnce(&TraceGeometry) -> Result<RenderAccel, E>,
     ) -> Result<Self, E> {
-        // The traced motion model is rigid velocity + orbit: keyframed meshes
-        // hold their pose at shutter open for the exposure (scene::animation).
-        let held;
-        let scene = if scene.has_keyframe_motion() {
-            let mut s = scene.clone();
-            s.hold_keyframes(scene.camera.shutter_open);
-            held = s;
-            &held
-        } else {
-            scene
-        };
+        let scene = &held(scene);
         let cam = &scene.camera;
         let geometry = if plan.motion && cam.shutter_close > cam.shutter_open {
             TraceGeometry::over_interval(scene, cam.shutter_open, cam.shutter_close)
@@ -134,10 +127,6 @@ impl RenderScene {
             cam.shutter_open
         };
         let accel = build(&geometry)?;
-        let levels = match (&accel, plan.levels) {
-            (RenderAccel::OnDevice(_), 2) => TwoLevelScene::of(scene, cam.shutter_open),
-            _ => None,
-        };
         let mut prim_material = scene.triangle_materials();
         prim_material.extend(scene.spheres.iter().map(|s| s.material));
         let tri_normals = scene
@@ -157,62 +146,11 @@ impl RenderScene {
                 n.into_iter().flat_map(|v| v.to_array())
             })
             .collect();
-        let materials = scene
-            .materials
-            .iter()
-            .map(|m| GpuMaterial {
-                diffuse: m.diffuse.extend(m.shininess).to_array(),
-                specular: m.specular.extend(m.roughness).to_array(),
-                mirror: m.mirror.extend(m.transmission).to_array(),
-                emission: m.emission.extend(m.ior).to_array(),
-                flags: [m.fresnel as u32, 0, 0, 0],
-            })
-            .collect();
-        let lights: Vec<GpuLight> = if plan.lights {
-            scene
-                .lights
-                .iter()
-                .filter(|l| l.power().max_element() > 0.0)
-                .map(gpu_light)
-                .collect()
-        } else {
-            Vec::new()
-        };
-        let (forward, right, up) = cam.basis();
-        let tan = (cam.fov.to_radians() * 0.5).tan();
-        let aspect = plan.width as f32 / plan.height as f32;
-        let s = &scene.settings;
-        let params = RenderParams {
-            cam_pos: cam.position.extend(0.0).to_array(),
-            cam_forward: forward.extend(0.0).to_array(),
-            cam_right: (right * tan * aspect).extend(0.0).to_array(),
-            cam_up: (up * tan).extend(0.0).to_array(),
-            background: s.background.extend(0.0).to_array(),
-            ambient: scene.ambient.extend(0.0).to_array(),
-            width: plan.width,
-            height: plan.height,
-            spp: plan.spp,
-            max_depth: plan.max_depth,
-            n_lights: lights.len() as u32,
-            ao_samples: plan.ao_samples,
-            shadow_slots: lights.len() as u32 + plan.ao_samples,
-            jitter: (scene.effects().antialiasing && plan.spp > 1) as u32,
-            aperture: cam.aperture_radius,
-            focus_distance: cam.focus_distance,
-            shutter_open: cam.shutter_open,
-            shutter_close: if plan.motion {
-                cam.shutter_close
-            } else {
-                cam.shutter_open
-            },
-            ao_radius: s.ao.radius,
-            min_weight: MIN_WEIGHT,
-            pad: [0; 2],
-        };
+        let (materials, lights, params) = constants(scene, plan);
         Ok(Self {
             geometry,
             accel,
-            levels,
+            levels: None,
             prim_material,
             tri_normals,
             materials,
@@ -220,6 +158,111 @@ impl RenderScene {
             params,
         })
     }
+
+    /// `scene` for `plan`, its structures built by the renderer on the device: as two levels
+    /// where the plan says so ([`Plan::levels`]; no flat copy of the primitives is made),
+    /// else flat, as [`RenderScene::new`] with [`RenderAccel::OnDevice`].
+    pub fn on_device(scene: &Scene, plan: &Plan) -> Self {
+        let flat = || {
+            let on_device = |_: &TraceGeometry| {
+                Ok::<_, std::convert::Infallible>(RenderAccel::OnDevice(plan.accel))
+            };
+            match Self::new(scene, plan, on_device) {
+                Ok(rs) => rs,
+                Err(never) => match never {},
+            }
+        };
+        if plan.levels != 2 {
+            return flat();
+        }
+        let scene = &held(scene);
+        let time = scene.camera.shutter_open;
+        let Some(two) = TwoLevelScene::of(scene, time) else {
+            return flat();
+        };
+        let (levels, prim_material, tri_normals) = RenderLevels::new(scene, two, time);
+        let (materials, lights, params) = constants(scene, plan);
+        Self {
+            geometry: TraceGeometry::default(),
+            accel: RenderAccel::OnDevice(plan.accel),
+            levels: Some(levels),
+            prim_material,
+            tri_normals,
+            materials,
+            lights,
+            params,
+        }
+    }
+}
+
+/// `scene` with its keyframed meshes held at their pose at shutter open for the exposure:
+/// the traced motion model is rigid velocity + orbit (scene::animation).
+fn held(scene: &Scene) -> std::borrow::Cow<'_, Scene> {
+    if scene.has_keyframe_motion() {
+        let mut s = scene.clone();
+        s.hold_keyframes(scene.camera.shutter_open);
+        std::borrow::Cow::Owned(s)
+    } else {
+        std::borrow::Cow::Borrowed(scene)
+    }
+}
+
+/// The materials, the lights the plan shades with, and the render's constants.
+fn constants(scene: &Scene, plan: &Plan) -> (Vec<GpuMaterial>, Vec<GpuLight>, RenderParams) {
+    let cam = &scene.camera;
+    let materials = scene
+        .materials
+        .iter()
+        .map(|m| GpuMaterial {
+            diffuse: m.diffuse.extend(m.shininess).to_array(),
+            specular: m.specular.extend(m.roughness).to_array(),
+            mirror: m.mirror.extend(m.transmission).to_array(),
+            emission: m.emission.extend(m.ior).to_array(),
+            flags: [m.fresnel as u32, 0, 0, 0],
+        })
+        .collect();
+    let lights: Vec<GpuLight> = if plan.lights {
+        scene
+            .lights
+            .iter()
+            .filter(|l| l.power().max_element() > 0.0)
+            .map(gpu_light)
+            .collect()
+    } else {
+        Vec::new()
+    };
+    let (forward, right, up) = cam.basis();
+    let tan = (cam.fov.to_radians() * 0.5).tan();
+    let aspect = plan.width as f32 / plan.height as f32;
+    let s = &scene.settings;
+    let params = RenderParams {
+        cam_pos: cam.position.extend(0.0).to_array(),
+        cam_forward: forward.extend(0.0).to_array(),
+        cam_right: (right * tan * aspect).extend(0.0).to_array(),
+        cam_up: (up * tan).extend(0.0).to_array(),
+        background: s.background.extend(0.0).to_array(),
+        ambient: scene.ambient.extend(0.0).to_array(),
+        width: plan.width,
+        height: plan.height,
+        spp: plan.spp,
+        max_depth: plan.max_depth,
+        n_lights: lights.len() as u32,
+        ao_samples: plan.ao_samples,
+        shadow_slots: lights.len() as u32 + plan.ao_samples,
+        jitter: (scene.effects().antialiasing && plan.spp > 1) as u32,
+        aperture: cam.aperture_radius,
+        focus_distance: cam.focus_distance,
+        shutter_open: cam.shutter_open,
+        shutter_close: if plan.motion {
+            cam.shutter_close
+        } else {
+            cam.shutter_open
+        },
+        ao_radius: s.ao.radius,
+        min_weight: MIN_WEIGHT,
+        pad: [0; 2],
+    };
+    (materials, lights, params)
 }
 
 fn gpu_light(l: &Light) -> GpuLight {
@@ -303,10 +346,7 @@ pub fn render_scene(
 ) -> Result<Rendered, Box<dyn std::error::Error + Send + Sync>> {
     let plan = Plan::new(scene, opt)?;
     // The structure is built on the device in the render's first submission.
-    let choice = plan.accel;
-    let rs = RenderScene::new(scene, &plan, |_| {
-        Ok::<_, std::convert::Infallible>(RenderAccel::OnDevice(choice))
-    })?;
+    let rs = RenderScene::on_device(scene, &plan);
     let renderer = gpu::Renderer::new(ctx, &plan, trace)?;
     let spp = plan.spp;
     let image = renderer.render(ctx, &rs, &plan, |done| progress(done, spp))?;

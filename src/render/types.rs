@@ -53,6 +53,20 @@ pub struct GpuLight {
     pub power: [f32; 4],
 }
 
+/// An instance as shading reads it, over two levels (112 bytes, `glsl/render/shade.comp`):
+/// where its bottom level's primitives lie among the level primitives, and its transforms.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct Placement {
+    /// Rows of the object-to-world transform.
+    pub object_to_world: [[f32; 4]; 3],
+    /// Rows of its inverse (normals move by its transpose).
+    pub world_to_object: [[f32; 4]; 3],
+    /// The bottom level's first level primitive, its triangles, its first sphere (in the
+    /// level spheres), and the instance's material (`u32::MAX`: each primitive's).
+    pub info: [u32; 4],
+}
+
 /// Per-render constants (160 bytes).
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
@@ -85,6 +99,7 @@ const _: () = assert!(std::mem::size_of::<ShadowRay>() == 48);
 const _: () = assert!(std::mem::size_of::<GpuMaterial>() == 80);
 const _: () = assert!(std::mem::size_of::<GpuLight>() == 80);
 const _: () = assert!(std::mem::size_of::<RenderParams>() == 160);
+const _: () = assert!(std::mem::size_of::<Placement>() == 112);
 
 pub const RAY_PRIMARY: u32 = 0;
 pub const RAY_REFLECTION: u32 = 1;

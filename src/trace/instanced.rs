@@ -23,7 +23,7 @@ use crate::trace::gpu::{effective_options, AccelTraversal, GpuGeometry, TraceBat
 use crate::trace::{Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
 
 /// The custom index of the instance of the rest (meshes named once, spheres).
-const REST: u32 = 0x00ff_ffff;
+pub const REST: u32 = 0x00ff_ffff;
 const WORKGROUP: u32 = 64;
 
 /// A scene split into bottom levels and the instances that place them.

@@ -230,10 +230,9 @@ impl<'r> FrameLoop<'r> {
         let Some(st) = self.state.as_mut() else {
             let allow_update = self.update == Update::Refit;
             let (geom, scratch, refit_scratch, host_ms, bottom_ms) = match &rs.levels {
-                Some(two) => {
-                    let geometry = (two, &rs.geometry);
-                    let levels =
-                        Levels::record_build(rec, plan.accel, geometry, self.grow, allow_update)?;
+                Some(rl) => {
+                    let sizes = (self.grow, plan.queue_capacity);
+                    let levels = Levels::record_build(rec, plan.accel, rl, sizes, allow_update)?;
                     let ms = Some(levels.bottom_ms);
                     (Traced::Levels(levels), None, None, None, ms)
                 }
@@ -271,11 +270,11 @@ impl<'r> FrameLoop<'r> {
         let g = &rs.geometry;
         let geom = match &mut st.f.geom {
             Traced::Levels(levels) => {
-                let two = rs.levels.as_ref().ok_or_else(|| GpuError::Kernel {
+                let rl = rs.levels.as_ref().ok_or_else(|| GpuError::Kernel {
                     kernel: "render",
                     reason: "a frame of a two-level animation came flat".into(),
                 })?;
-                levels.record_update(rec, g, &two.instances, self.update)?;
+                levels.record_update(rec, rl, self.update)?;
                 return Ok((self.update == Update::Rebuild, None, None));
             }
             Traced::Flat(geom) => geom,

@@ -3,22 +3,18 @@
 //! instances) built with the first frame and, in an animation, refit or rebuilt from the
 //! moved instances every frame, so that a rigid motion changes one transform, not the
 //! primitives' structure. The extend and shadow passes walk the two levels
-//! (`render.instances`); shading reads the primitives where the flat scene has them (moved
-//! each frame as before, no structure over them), so both give the same images.
+//! (`render.instances`); shading reads the bottom levels' primitives placed by the hit's
+//! instance (`render.shade.levels`, [`RenderLevels`]): no flat copy of the scene is made.
 
 use std::sync::Arc;
 
-use crate::accel::device::{
-    AccelBuilder, AccelChoice, AccelKind, AccelStructure, DevicePrimitives,
-};
+use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelStructure};
 use crate::accel::embedded::BuildFlags;
-use crate::accel::instances::{Instance, TopLevel, TopLevelBuilder};
+use crate::accel::instances::{TopLevel, TopLevelBuilder};
 use crate::gpu::{Buffer, BufferArg, Readback, Recorder, Result};
-use crate::scene::Aabb;
-use crate::trace::geometry::SceneInfo;
+use crate::render::types::Placement;
+use crate::render::RenderLevels;
 use crate::trace::gpu::GpuGeometry;
-use crate::trace::instanced::{nonempty, TwoLevelScene};
-use crate::trace::TraceGeometry;
 
 use super::Update;
 
@@ -33,25 +29,14 @@ pub(crate) enum Traced {
 }
 
 impl Traced {
-    /// What `shade` binds after its head: the primitives (triangle vertices, spheres,
-    /// per-primitive motion slot, motions) and the scene constants, `traverse.glsl`'s last
-    /// five bindings.
-    pub fn shading_bindings(&self) -> [&dyn BufferArg; 5] {
+    /// What `shade` binds after its head (bindings 5 on): flat, the primitives (triangle
+    /// vertices, spheres, per-primitive motion slot, motions) and the scene constants,
+    /// `traverse.glsl`'s last five bindings; over two levels the level primitives, the
+    /// placements and the hits' instances.
+    pub fn shading_bindings(&self) -> Vec<&dyn BufferArg> {
         match self {
-            Traced::Flat(g) => {
-                let [_, _, rest @ ..] = g.bindings();
-                rest
-            }
-            Traced::Levels(l) => {
-                let p = &l.prims;
-                [
-                    &p.tri_verts,
-                    &p.spheres,
-                    &p.prim_motion,
-                    &p.motions,
-                    &l.info,
-                ]
-            }
+            Traced::Flat(g) => g.bindings()[2..].to_vec(),
+            Traced::Levels(l) => vec![&l.verts, &l.spheres, &l.placements, &l.hit_instance],
         }
     }
 
@@ -90,34 +75,35 @@ impl Traced {
     }
 }
 
-/// A scene's two levels on the device, and the flat primitives shading reads.
+/// A scene's two levels on the device, and what shading reads of them.
 pub(crate) struct Levels {
-    prims: DevicePrimitives,
-    /// The flat primitives' constants (counts, motion) for shading.
-    info: Buffer<SceneInfo>,
     top: TopLevel<'static>,
     top_builder: TopLevelBuilder,
-    pub mesh_first: Buffer<u32>,
-    pub rest_ids: Buffer<u32>,
+    verts: Buffer<f32>,
+    spheres: Buffer<[f32; 4]>,
+    placements: Buffer<Placement>,
+    /// Per queued ray: the instance its closest hit is in (`render.instances` writes it).
+    pub hit_instance: Buffer<u32>,
     /// Host milliseconds of the bottom levels' builds (the SAH BVH's host builder; the
     /// device builders' passes are in the profile).
     pub bottom_ms: f64,
 }
 
 impl Levels {
-    /// Records into `rec` the builds of `two`'s bottom levels with `choice`'s builder (a
+    /// Records into `rec` the builds of `rl`'s bottom levels with `choice`'s builder (a
     /// kd-tree's with `grow` doublings of its reference budget: read its reports with
-    /// [`Traced::record_read_built`]), the upload of `flat` (the same scene, flat, for
-    /// shading) and the top level's build, each in a scope `build`. With `allow_update`, the
-    /// top level can be refit.
+    /// [`Traced::record_read_built`]), the upload of what shading reads, and the top level's
+    /// build, each in a scope `build`; `queue` rays per wave. With `allow_update`, the top
+    /// level can be refit.
     pub fn record_build(
         rec: &mut Recorder,
         choice: AccelChoice,
-        (two, flat): (&TwoLevelScene, &TraceGeometry),
-        grow: u32,
+        rl: &RenderLevels,
+        (grow, queue): (u32, usize),
         allow_update: bool,
     ) -> Result<Self> {
         let ctx = rec.context().clone();
+        let two = &rl.scene;
         let builder = AccelBuilder::for_choice(&ctx, choice)?;
         let mut bottoms = Vec::with_capacity(two.bottoms.len());
         let mut bottom_ms = 0.0;
@@ -126,16 +112,13 @@ impl Levels {
             bottom_ms += recorded.host_ms.unwrap_or(0.0);
             bottoms.push(Arc::new(level));
         }
-        let prims = DevicePrimitives::record_upload(rec, flat)?;
-        let mut bounds = Aabb::EMPTY;
-        flat.boxes.iter().for_each(|b| bounds.union(b));
-        let info = Buffer::new(&ctx, "render.scene_info", 1)?;
-        rec.upload(&info, &[prims.info(&bounds, 0)])?;
-        let (mesh_first_words, rest_words) = (nonempty(&two.mesh_first), nonempty(&two.rest_ids));
-        let mesh_first = Buffer::new(&ctx, "render.mesh_first", mesh_first_words.len())?;
-        let rest_ids = Buffer::new(&ctx, "render.rest_ids", rest_words.len())?;
-        rec.upload(&mesh_first, &mesh_first_words)?;
-        rec.upload(&rest_ids, &rest_words)?;
+        let verts = Buffer::new(&ctx, "render.level_verts", rl.verts.len().max(1))?;
+        let spheres = Buffer::new(&ctx, "render.level_spheres", rl.spheres.len().max(1))?;
+        let placements = Buffer::new(&ctx, "render.placements", rl.placements.len().max(1))?;
+        let hit_instance = Buffer::new(&ctx, "render.hit_instance", queue.max(1))?;
+        rec.upload(&verts, &rl.verts)?;
+        rec.upload(&spheres, &rl.spheres)?;
+        rec.upload(&placements, &rl.placements)?;
         rec.transfer_to_compute();
         let top_builder = TopLevelBuilder::new(&ctx, AccelKind::Lbvh)?;
         let flags = BuildFlags {
@@ -146,28 +129,29 @@ impl Levels {
             top_builder.record_build_shared(rec, &bottoms, &two.instances, &flags)
         })?;
         Ok(Self {
-            prims,
-            info,
             top,
             top_builder,
-            mesh_first,
-            rest_ids,
+            verts,
+            spheres,
+            placements,
+            hit_instance,
             bottom_ms,
         })
     }
 
-    /// Records what a later frame changes: the moved primitives (for shading) and the top
-    /// level over `instances` (as many as it was built with), refit or rebuilt as `update`
+    /// Records what a later frame changes: the instances' placements and the top level
+    /// over `rl`'s instances (as many as it was built with), refit or rebuilt as `update`
     /// says (in a scope `update` or `build`). The bottom levels stay.
     pub fn record_update(
         &mut self,
         rec: &mut Recorder,
-        flat: &TraceGeometry,
-        instances: &[Instance],
+        rl: &RenderLevels,
         update: Update,
     ) -> Result<()> {
-        self.prims.record_update(rec, flat)?;
-        let (b, top) = (&self.top_builder, &mut self.top);
+        rec.compute_to_transfer();
+        rec.upload(&self.placements, &rl.placements)?;
+        rec.transfer_to_compute();
+        let (b, top, instances) = (&self.top_builder, &mut self.top, &rl.scene.instances);
         match update {
             Update::Refit => rec.scope("update", |rec| b.record_update(rec, top, instances)),
             Update::Rebuild => rec.scope("build", |rec| b.record_rebuild(rec, top, instances)),
