@@ -544,7 +544,8 @@ fn trace_with_the_drivers_structure_or_a_clear_error() {
 
 /// The Stanford bunny named 64 times (an 8×8 grid of turned copies, 4.4 M triangles): one
 /// bottom level under 64 instances traces it, each hit a point of the triangle it names;
-/// flattened, the same scene is refused with the limit it exceeds, and no hit file.
+/// flattened, the same scene is refused with the limit it exceeds, and no hit file. `vkrt
+/// render` draws it the same way, and refuses it flat.
 #[test]
 fn a_scene_naming_the_bunny_64_times_traces_as_instances() {
     let Some(bunny) = common::bunny_path() else {
@@ -552,7 +553,8 @@ fn a_scene_naming_the_bunny_64_times_traces_as_instances() {
     };
     let dir = scratch("bunnies");
     let mut toml =
-        String::from("[camera]\nposition = [0.0, 0.1, 6.0]\nlook_at = [0.0, 0.1, 0.0]\n");
+        String::from("ambient = [0.4, 0.4, 0.4]\n[camera]\nposition = [0.0, 0.1, 6.0]\n");
+    toml += "look_at = [0.0, 0.1, 0.0]\n";
     for j in 0..8 {
         for i in 0..8 {
             toml += &format!(
@@ -634,5 +636,41 @@ fn a_scene_naming_the_bunny_64_times_traces_as_instances() {
         "{err}"
     );
     assert!(!out.exists());
+    // It renders as two levels too (shading reads the one bunny, placed per instance); flat
+    // it is refused before any file is written.
+    let image = dir.join("bunnies.png");
+    let render = |extra: &[&str]| {
+        let size = [
+            "--width", "40", "--height", "40", "--accel", "lbvh", "--json",
+        ];
+        let args = [
+            &["render", s(&scene_path), "-o", s(&image)],
+            &size[..],
+            extra,
+        ]
+        .concat();
+        vkrt(&args)
+    };
+    let run = render(&[]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(v["levels"], 2, "{v}");
+    // (no light: the bunnies in ambient light on the black background)
+    let img = image::open(&image).unwrap().to_rgb8();
+    let background = *img.get_pixel(0, 0);
+    let drawn = img.pixels().filter(|&&p| p != background).count();
+    assert!(drawn > 40, "{drawn} bunny pixels of 1,600");
+    std::fs::remove_file(&image).unwrap();
+    let run = render(&["--flatten"]);
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        !run.status.success() && err.contains("maxStorageBufferRange"),
+        "{err}"
+    );
+    assert!(!image.exists());
     std::fs::remove_dir_all(&dir).unwrap();
 }
