@@ -1700,7 +1700,11 @@ fn gpu_bvh_build_command(
         // The previous build's buffers go before the next is made (the peak is one build).
         drop(timed.take());
         let mut rec = vkrt::gpu::Recorder::new(ctx)?;
-        let (dev, _) = vkrt::trace::gpu::GpuGeometry::record_build(&mut rec, &builder, &g, 0)?;
+        let dev = match vkrt::trace::gpu::GpuGeometry::record_build(&mut rec, &builder, &g, 0) {
+            Ok((dev, _)) => dev,
+            // A scene too big to build flat may still build as two levels: say both.
+            Err(flat) => return levels_only(ctx, kind, scene, flat, json),
+        };
         let prof = rec.submit_and_wait()?;
         timed = Some((dev, prof));
     }
@@ -1856,6 +1860,44 @@ fn levels_json(
     };
     let choice = vkrt::accel::device::AccelChoice::new(kind, Default::default());
     Ok(serde_json::json!({ "levels": level_bytes(ctx, choice, &two)? }))
+}
+
+/// `vkrt build` of a scene whose flat build failed with `flat`: where meshes repeat, the
+/// bytes of its two levels and why it does not build flat; else the error.
+fn levels_only(
+    ctx: &vkrt::gpu::Context,
+    kind: vkrt::accel::device::AccelKind,
+    scene: &vkrt::scene::Scene,
+    flat: vkrt::gpu::GpuError,
+    json: bool,
+) -> Result<(), Box<dyn std::error::Error>> {
+    use vkrt::trace::instanced::{level_bytes, TwoLevelScene};
+    let Some(two) = TwoLevelScene::of(scene, scene.camera.shutter_open) else {
+        return Err(flat.into());
+    };
+    let choice = vkrt::accel::device::AccelChoice::new(kind, Default::default());
+    let levels = level_bytes(ctx, choice, &two)?;
+    if json {
+        let v = serde_json::json!({
+            "kind": kind.name(),
+            "primitives": scene.triangle_count() + scene.spheres.len(),
+            "flat_error": flat.to_string(),
+            "levels": levels,
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!("flat: {flat}");
+        println!(
+            "as two levels: {} bottom levels ({} unique primitives, {} bytes) under {} \
+             instances ({} bytes)",
+            levels.bottom_levels,
+            levels.unique_primitives,
+            levels.bottom_bytes,
+            levels.instances,
+            levels.top_bytes
+        );
+    }
+    Ok(())
 }
 
 fn extend_json(v: &mut serde_json::Value, more: serde_json::Value) {

@@ -545,7 +545,7 @@ fn trace_with_the_drivers_structure_or_a_clear_error() {
 /// The Stanford bunny named 64 times (an 8×8 grid of turned copies, 4.4 M triangles): one
 /// bottom level under 64 instances traces it, each hit a point of the triangle it names;
 /// flattened, the same scene is refused with the limit it exceeds, and no hit file. `vkrt
-/// render` draws it the same way, and refuses it flat.
+/// render` draws it the same way, and refuses it flat; `vkrt build` reports both.
 #[test]
 fn a_scene_naming_the_bunny_64_times_traces_as_instances() {
     let Some(bunny) = common::bunny_path() else {
@@ -672,5 +672,23 @@ fn a_scene_naming_the_bunny_64_times_traces_as_instances() {
         "{err}"
     );
     assert!(!image.exists());
+    // `vkrt build` says why it does not build flat, and what the two levels take.
+    let run = vkrt(&["build", s(&scene_path), "--accel", "lbvh", "--json"]);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    let flat = v["flat_error"].as_str().unwrap_or_default();
+    assert!(flat.contains("maxStorageBufferRange"), "{v}");
+    assert_eq!(
+        (
+            v["levels"]["instances"].as_u64(),
+            v["levels"]["bottom_levels"].as_u64()
+        ),
+        (Some(64), Some(1)),
+        "{v}"
+    );
     std::fs::remove_dir_all(&dir).unwrap();
 }
