@@ -293,7 +293,10 @@ impl Renderer {
     fn record_reset(&self, rec: &mut Recorder, f: &Frame, rs: &RenderScene) -> Result<()> {
         rec.compute_to_transfer();
         rec.upload(&f.params, &[rs.params])?;
-        rec.upload(&f.tri_normals, &rs.tri_normals)?;
+        // (over two levels the normals are the bottom levels': they do not move)
+        if let Traced::Flat(_) = f.geom {
+            rec.upload(&f.tri_normals, &rs.tri_normals)?;
+        }
         rec.fill(&f.flags, 0);
         rec.fill(&f.counters, 0);
         rec.fill(&f.accum, 0);
@@ -304,7 +307,7 @@ impl Renderer {
     /// The geometry and its structures on the device, and the recorder of the first
     /// submission: a structure built on the device ([`RenderAccel::OnDevice`]) is recorded
     /// into it, so it is built and traced in one submission with nothing read back between
-    /// (two levels: the bottom levels are built before, in submissions of their own); a host
+    /// (two levels: the bottom levels' builds, then the top level's); a host
     /// structure is uploaded.
     fn geometry(
         &self,
