@@ -301,7 +301,7 @@ impl DevicePrimitives {
     }
 
     /// The scene constants of a structure with root box `bounds`.
-    pub(crate) fn info(&self, bounds: &Aabb, parents_at: u32) -> SceneInfo {
+    fn info(&self, bounds: &Aabb, parents_at: u32) -> SceneInfo {
         SceneInfo::new(
             bounds,
             [self.n_tris, self.n_spheres, self.n_aabbs],

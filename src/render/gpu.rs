@@ -661,13 +661,5 @@ fn instances_kernel(ctx: &Context, opt: &TraceOptions) -> Result<Arc<Kernel>> {
         (Intersector::Watertight, true) => &kernels::RENDER_INSTANCES_EXACT,
         (Intersector::Watertight, false) => &kernels::RENDER_INSTANCES_FLOAT,
     };
-    let cap = ctx.info().max_traversal_steps;
-    let mut spec = Spec::new()
-        .workgroup(WG)
-        .u32(22, opt.max_steps.map_or(cap, |m| m.clamp(1, cap)));
-    // (only the exact variant checks the division)
-    if opt.exact && opt.intersector == Intersector::Watertight {
-        spec = spec.u32(21, u32::from(!ctx.info().ieee_division));
-    }
-    ctx.kernel(blob, &spec)
+    ctx.kernel(blob, &crate::trace::instanced::library_spec(ctx, opt, WG))
 }

@@ -250,15 +250,7 @@ pub fn trace_top_level(
         (Intersector::Watertight, true, true) => &kernels::RENDER_TRACE_INSTANCES_BITSTACK_EXACT,
         (Intersector::Watertight, false, true) => &kernels::RENDER_TRACE_INSTANCES_BITSTACK_FLOAT,
     };
-    let cap = ctx.info().max_traversal_steps;
-    let mut spec = Spec::new()
-        .workgroup(WORKGROUP)
-        .u32(22, opt.max_steps.map_or(cap, |m| m.clamp(1, cap)));
-    // (only the exact variants check the division)
-    if opt.exact && opt.intersector == Intersector::Watertight {
-        spec = spec.u32(21, u32::from(!ctx.info().ieee_division));
-    }
-    let kernel = ctx.kernel(blob, &spec)?;
+    let kernel = ctx.kernel(blob, &library_spec(ctx, opt, WORKGROUP))?;
     let mesh_first = Buffer::from_slice(ctx, "trace.mesh_first", &nonempty(mesh_first))?;
     let rest_ids = Buffer::from_slice(ctx, "trace.rest_ids", &nonempty(rest_ids))?;
     let handle = top.handle_address();
@@ -313,7 +305,23 @@ pub fn trace_under_identity(
     trace_top_level(ctx, &top, (&[0], &[]), opt, bitstack, rays, 0.0)
 }
 
-pub(crate) fn nonempty(v: &[u32]) -> Vec<u32> {
+/// The specialization constants of a kernel that includes `vkrt/ray_query.glsl` with the
+/// step cap as constant 22 and, in its exact variants, the division check as 21: `opt` as
+/// the device runs it.
+pub(crate) fn library_spec(ctx: &Context, opt: &TraceOptions, workgroup: u32) -> Spec {
+    let cap = ctx.info().max_traversal_steps;
+    let spec = Spec::new()
+        .workgroup(workgroup)
+        .u32(22, opt.max_steps.map_or(cap, |m| m.clamp(1, cap)));
+    // (only the exact variants check the division)
+    if opt.exact && opt.intersector == Intersector::Watertight {
+        spec.u32(21, u32::from(!ctx.info().ieee_division))
+    } else {
+        spec
+    }
+}
+
+fn nonempty(v: &[u32]) -> Vec<u32> {
     if v.is_empty() {
         vec![0]
     } else {
