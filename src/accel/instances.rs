@@ -427,6 +427,9 @@ pub struct TopLevel<'a> {
     count: u32,
     /// Memory [`TopLevelBuilder::build`] allocated (none for [`TopLevelBuilder::create_in`]).
     owned: Vec<Buffer<u8>>,
+    /// Where the host's instance records are uploaded, for a top level vkrt allocated
+    /// (kept, so that an update allocates nothing).
+    host_records: Option<Buffer<Instance>>,
     /// Bytes of its memory ([`AccelSizes::structure_bytes`]).
     bytes: u64,
 }
@@ -579,6 +582,7 @@ impl TopLevelBuilder {
             bottoms,
             count,
             owned: Vec::new(),
+            host_records: None,
             bytes,
         })
     }
@@ -786,7 +790,7 @@ impl TopLevelBuilder {
         rec.upload(&records, instances)?;
         rec.transfer_to_compute();
         self.record_build_from(rec, records.as_raw(), &mut top, scratch.as_raw())?;
-        rec.keep_alive(records);
+        top.host_records = Some(records);
         top.owned = vec![memory, scratch];
         top.bytes = sizes.structure_bytes;
         Ok(top)
@@ -812,9 +816,7 @@ impl TopLevelBuilder {
     ) -> Result<()> {
         let (records, scratch) =
             self.host_records(rec, "TopLevelBuilder::update", top, instances)?;
-        self.record_update_from(rec, records.as_raw(), top, scratch)?;
-        rec.keep_alive(records);
-        Ok(())
+        self.record_update_from(rec, records, top, scratch)
     }
 
     /// A new build of a top level [`TopLevelBuilder::build`] made, over `instances` (as many
@@ -828,20 +830,18 @@ impl TopLevelBuilder {
     ) -> Result<()> {
         let (records, scratch) =
             self.host_records(rec, "TopLevelBuilder::record_rebuild", top, instances)?;
-        self.record_build_from(rec, records.as_raw(), top, scratch)?;
-        rec.keep_alive(records);
-        Ok(())
+        self.record_build_from(rec, records, top, scratch)
     }
 
-    /// `instances`, checked against `top`, uploaded by `rec`; and the scratch `top`'s own
-    /// build allocated.
+    /// `instances`, checked against `top`, uploaded by `rec` where `top`'s own build keeps
+    /// them; and the scratch that build allocated.
     fn host_records(
         &self,
         rec: &mut Recorder,
         call: &'static str,
         top: &TopLevel<'_>,
         instances: &[Instance],
-    ) -> Result<(Buffer<Instance>, RawBuffer)> {
+    ) -> Result<(RawBuffer, RawBuffer)> {
         if instances.len() != top.count as usize {
             return Err(usage(
                 call,
@@ -856,19 +856,18 @@ impl TopLevelBuilder {
             inst.check(top.bottoms.len())
                 .map_err(|why| usage(call, format!("instance {i}: {why}")))?;
         }
-        let [_, scratch] = top.owned.as_slice() else {
+        let ([_, scratch], Some(records)) = (top.owned.as_slice(), &top.host_records) else {
             return Err(usage(
                 call,
                 "this top level lies in the caller's memory: record_update_from or \
                  record_build_from",
             ));
         };
-        let ctx = rec.context().clone();
-        let records = Buffer::<Instance>::new(&ctx, "accel.instances", instances.len().max(1))?;
+        // (the last build or update read the records)
         rec.compute_to_transfer();
-        rec.upload(&records, instances)?;
+        rec.upload(records, instances)?;
         rec.transfer_to_compute();
-        Ok((records, scratch.as_raw()))
+        Ok((records.as_raw(), scratch.as_raw()))
     }
 }
 

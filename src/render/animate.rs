@@ -523,9 +523,12 @@ pub fn run(
     let renderer = Renderer::new(ctx, &plan, trace)?;
     let mut frames =
         FrameLoop::new(ctx, &renderer, &plan, accel, opt.update)?.with_radiance(opt.radiance);
-    let flatten = |scene: &Scene| RenderScene::on_device(scene, &plan);
+    // One scene moved from frame to frame (over two levels only its instances change).
+    let mut rs: Option<RenderScene> = None;
     if opt.update == Update::Refit && opt.frames.first().is_some_and(|&k| k > 0) {
-        frames.prepare(ctx, &flatten(&first), &plan)?;
+        let r = RenderScene::on_device(&first, &plan);
+        frames.prepare(ctx, &r, &plan)?;
+        rs = Some(r);
     }
     let mut rows = Vec::with_capacity(opt.frames.len());
     for (done, &k) in opt.frames.iter().enumerate() {
@@ -536,8 +539,17 @@ pub fn run(
         } else {
             frame_scene(k)
         };
-        let rs = flatten(&scene);
-        let image = frames.render(ctx, &rs, &plan)?;
+        let rs = match &mut rs {
+            Some(r) if r.levels.is_some() => {
+                r.move_to(&scene, &plan);
+                &*r
+            }
+            _ => {
+                rs = None; // (the last frame's flat scene goes before the next is made)
+                rs.insert(RenderScene::on_device(&scene, &plan))
+            }
+        };
+        let image = frames.render(ctx, rs, &plan)?;
         sink(Frame {
             k,
             rgba: image.rgba,
@@ -547,7 +559,7 @@ pub fn run(
         let traffic = ctx.traffic() - traffic;
         let memory = ctx.memory();
         let (sah_cost, rebuilt_sah_cost) = match opt.quality {
-            true => frame_quality(&frames, &rs, accel.kind)?,
+            true => frame_quality(&frames, rs, accel.kind)?,
             false => (None, None),
         };
         rows.push(FrameRow {

@@ -407,11 +407,10 @@ impl Renderer {
                 continue;
             }
             if build_ms.is_none() {
-                let bottom_ms = match &f.geom {
-                    Traced::Levels(l) => l.bottom_ms,
-                    Traced::Flat(_) => 0.0,
-                };
-                build_ms = Some(recorded.map(|r| r.ms(&p) + bottom_ms));
+                build_ms = Some(recorded.map(|r| match &f.geom {
+                    Traced::Levels(l) => p.ms("levels").unwrap_or(0.0) + l.bottom_ms,
+                    Traced::Flat(_) => r.ms(&p),
+                }));
             }
             if counters.read()?[counter::OVERFLOW] != 0 {
                 // A wave's queue overflowed: undo the sample, redo it with smaller waves.

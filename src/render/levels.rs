@@ -33,6 +33,8 @@ pub struct RenderLevels {
     pub spheres: Vec<[f32; 4]>,
     /// Per instance, in the top level's order.
     pub placements: Vec<Placement>,
+    /// Per bottom level, where its primitives lie among the level primitives.
+    spans: Vec<Span>,
 }
 
 /// The instance's material where it has one (`u32::MAX`: each primitive's).
@@ -106,8 +108,21 @@ impl RenderLevels {
             verts,
             spheres,
             placements,
+            spans,
         };
         (levels, materials, normals)
+    }
+
+    /// The instances and placements of `scene` (this one's scene, its meshes moved) at
+    /// `time`: what an animation's later frame changes. The bottom levels and the rest stay.
+    pub fn move_to(&mut self, scene: &Scene, time: f32) {
+        for inst in &mut self.scene.instances {
+            if inst.custom_index() != REST {
+                let m = scene.meshes[inst.custom_index() as usize].world_matrix(time);
+                inst.transform = Instance::rows_of(&m);
+            }
+        }
+        self.placements = placements(scene, &self.scene.instances, &self.spans);
     }
 }
 

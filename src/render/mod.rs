@@ -195,6 +195,22 @@ impl RenderScene {
     }
 }
 
+impl RenderScene {
+    /// This scene made `scene` (the same scene, moved: an animation's next frame) for
+    /// `plan`: over two levels only the instances, their placements and the constants
+    /// change, in place (nothing the size of the scene is made again); flat, everything.
+    pub fn move_to(&mut self, scene: &Scene, plan: &Plan) {
+        match &mut self.levels {
+            Some(levels) => {
+                let scene = &held(scene);
+                levels.move_to(scene, scene.camera.shutter_open);
+                (self.materials, self.lights, self.params) = constants(scene, plan);
+            }
+            None => *self = Self::on_device(scene, plan),
+        }
+    }
+}
+
 /// `scene` with its keyframed meshes held at their pose at shutter open for the exposure:
 /// the traced motion model is rigid velocity + orbit (scene::animation).
 fn held(scene: &Scene) -> std::borrow::Cow<'_, Scene> {

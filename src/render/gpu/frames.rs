@@ -194,8 +194,10 @@ impl<'r> FrameLoop<'r> {
                 continue;
             }
             let scope = |name: &str| profile.ms(name).unwrap_or(0.0);
-            let update_ms = host_ms.unwrap_or_else(|| scope("build") + scope("update"));
-            let update_ms = update_ms + bottoms.unwrap_or(0.0);
+            let update_ms = match st.f.geom {
+                Traced::Levels(_) => scope("levels") + bottoms.unwrap_or(0.0),
+                Traced::Flat(_) => host_ms.unwrap_or_else(|| scope("build") + scope("update")),
+            };
             let radiance = match accum {
                 Some(a) => Some(super::mean_radiance(&a.read()?, plan.spp)),
                 None => None,
@@ -216,8 +218,8 @@ impl<'r> FrameLoop<'r> {
 
     /// Records what brings the device to this frame: the first time (or after a kd-tree
     /// outgrew its budget) the upload of everything and the build (two levels: the bottom
-    /// levels built before, waited for); later the moved primitives, the frame's constants
-    /// and a rebuild or refit (two levels: of the top level only). Returns whether it built,
+    /// levels' and the top level's); later the moved primitives, the frame's constants and a
+    /// rebuild or refit (two levels: the moved instances and the top level only). Returns whether it built,
     /// a host builder's milliseconds and, where it built bottom levels, their host
     /// builder's milliseconds.
     fn record_update(

@@ -84,6 +84,8 @@ pub(crate) struct Levels {
     placements: Buffer<Placement>,
     /// Per queued ray: the instance its closest hit is in (`render.instances` writes it).
     pub hit_instance: Buffer<u32>,
+    /// Where the top level's handle lies (the kernels' push constant), asked once.
+    handle: u64,
     /// Host milliseconds of the bottom levels' builds (the SAH BVH's host builder; the
     /// device builders' passes are in the profile).
     pub bottom_ms: f64,
@@ -92,8 +94,8 @@ pub(crate) struct Levels {
 impl Levels {
     /// Records into `rec` the builds of `rl`'s bottom levels with `choice`'s builder (a
     /// kd-tree's with `grow` doublings of its reference budget: read its reports with
-    /// [`Traced::record_read_built`]), the upload of what shading reads, and the top level's
-    /// build, each in a scope `build`; `queue` rays per wave. With `allow_update`, the top
+    /// [`Traced::record_read_built`]) and of the top level, in a scope `levels`, and the
+    /// upload of what shading reads; `queue` rays per wave. With `allow_update`, the top
     /// level can be refit.
     pub fn record_build(
         rec: &mut Recorder,
@@ -104,31 +106,35 @@ impl Levels {
     ) -> Result<Self> {
         let ctx = rec.context().clone();
         let two = &rl.scene;
-        let builder = AccelBuilder::for_choice(&ctx, choice)?;
-        let mut bottoms = Vec::with_capacity(two.bottoms.len());
-        let mut bottom_ms = 0.0;
-        for g in &two.bottoms {
-            let (level, recorded) = GpuGeometry::record_build(rec, &builder, g, grow)?;
-            bottom_ms += recorded.host_ms.unwrap_or(0.0);
-            bottoms.push(Arc::new(level));
-        }
+        // Everything in one scope `levels` (nested scopes repeat names such as `build`).
+        let (top, top_builder, bottom_ms) = rec.scope("levels", |rec| {
+            let builder = AccelBuilder::for_choice(&ctx, choice)?;
+            let mut bottoms = Vec::with_capacity(two.bottoms.len());
+            let mut bottom_ms = 0.0;
+            for g in &two.bottoms {
+                let (level, recorded) = GpuGeometry::record_build(rec, &builder, g, grow)?;
+                bottom_ms += recorded.host_ms.unwrap_or(0.0);
+                bottoms.push(Arc::new(level));
+            }
+            let top_builder = TopLevelBuilder::new(&ctx, AccelKind::Lbvh)?;
+            let flags = BuildFlags {
+                allow_update,
+                ..BuildFlags::default()
+            };
+            let top = top_builder.record_build_shared(rec, &bottoms, &two.instances, &flags)?;
+            Ok::<_, crate::gpu::GpuError>((top, top_builder, bottom_ms))
+        })?;
         let verts = Buffer::new(&ctx, "render.level_verts", rl.verts.len().max(1))?;
         let spheres = Buffer::new(&ctx, "render.level_spheres", rl.spheres.len().max(1))?;
         let placements = Buffer::new(&ctx, "render.placements", rl.placements.len().max(1))?;
         let hit_instance = Buffer::new(&ctx, "render.hit_instance", queue.max(1))?;
+        rec.compute_to_transfer();
         rec.upload(&verts, &rl.verts)?;
         rec.upload(&spheres, &rl.spheres)?;
         rec.upload(&placements, &rl.placements)?;
         rec.transfer_to_compute();
-        let top_builder = TopLevelBuilder::new(&ctx, AccelKind::Lbvh)?;
-        let flags = BuildFlags {
-            allow_update,
-            ..BuildFlags::default()
-        };
-        let top = rec.scope("build", |rec| {
-            top_builder.record_build_shared(rec, &bottoms, &two.instances, &flags)
-        })?;
         Ok(Self {
+            handle: top.handle_address(),
             top,
             top_builder,
             verts,
@@ -141,7 +147,7 @@ impl Levels {
 
     /// Records what a later frame changes: the instances' placements and the top level
     /// over `rl`'s instances (as many as it was built with), refit or rebuilt as `update`
-    /// says (in a scope `update` or `build`). The bottom levels stay.
+    /// says (in a scope `levels`). The bottom levels stay.
     pub fn record_update(
         &mut self,
         rec: &mut Recorder,
@@ -153,13 +159,13 @@ impl Levels {
         rec.transfer_to_compute();
         let (b, top, instances) = (&self.top_builder, &mut self.top, &rl.scene.instances);
         match update {
-            Update::Refit => rec.scope("update", |rec| b.record_update(rec, top, instances)),
-            Update::Rebuild => rec.scope("build", |rec| b.record_rebuild(rec, top, instances)),
+            Update::Refit => rec.scope("levels", |rec| b.record_update(rec, top, instances)),
+            Update::Rebuild => rec.scope("levels", |rec| b.record_rebuild(rec, top, instances)),
         }
     }
 
     /// Where the top level's handle lies (the kernels' push constant).
     pub fn handle(&self) -> u64 {
-        self.top.handle_address()
+        self.handle
     }
 }
