@@ -425,13 +425,19 @@ pub struct TopLevel<'a> {
     parts: Parts,
     bottoms: Vec<Bottom<'a>>,
     count: u32,
-    /// Memory [`TopLevelBuilder::build`] allocated (none for [`TopLevelBuilder::create_in`]).
-    owned: Vec<Buffer<u8>>,
-    /// Where the host's instance records are uploaded, for a top level vkrt allocated
-    /// (kept, so that an update allocates nothing).
-    host_records: Option<Buffer<Instance>>,
+    /// What [`TopLevelBuilder::build`] allocated (none for [`TopLevelBuilder::create_in`]).
+    own: Option<Own>,
     /// Bytes of its memory ([`AccelSizes::structure_bytes`]).
     bytes: u64,
+}
+
+/// The memory of a top level vkrt allocated: the structure, the scratch of its builds and
+/// updates, and the buffer the host's instance records are uploaded to (kept, so that an
+/// update allocates nothing).
+struct Own {
+    _memory: Buffer<u8>,
+    scratch: Buffer<u8>,
+    records: Buffer<Instance>,
 }
 
 /// The top level's part of the caller's memory, rounded up so that its tree starts aligned.
@@ -581,8 +587,7 @@ impl TopLevelBuilder {
             parts,
             bottoms,
             count,
-            owned: Vec::new(),
-            host_records: None,
+            own: None,
             bytes,
         })
     }
@@ -790,8 +795,11 @@ impl TopLevelBuilder {
         rec.upload(&records, instances)?;
         rec.transfer_to_compute();
         self.record_build_from(rec, records.as_raw(), &mut top, scratch.as_raw())?;
-        top.host_records = Some(records);
-        top.owned = vec![memory, scratch];
+        top.own = Some(Own {
+            _memory: memory,
+            scratch,
+            records,
+        });
         top.bytes = sizes.structure_bytes;
         Ok(top)
     }
@@ -856,7 +864,10 @@ impl TopLevelBuilder {
             inst.check(top.bottoms.len())
                 .map_err(|why| usage(call, format!("instance {i}: {why}")))?;
         }
-        let ([_, scratch], Some(records)) = (top.owned.as_slice(), &top.host_records) else {
+        let Some(Own {
+            scratch, records, ..
+        }) = &top.own
+        else {
             return Err(usage(
                 call,
                 "this top level lies in the caller's memory: record_update_from or \

@@ -289,13 +289,15 @@ impl Renderer {
     }
 
     /// Records what a frame of an animation changes in `f` before its samples: the frame's
-    /// constants and shading normals, and zeroed accumulators, counters and flags.
+    /// constants and shading normals (over two levels the instances' placements), and zeroed
+    /// accumulators, counters and flags.
     fn record_reset(&self, rec: &mut Recorder, f: &Frame, rs: &RenderScene) -> Result<()> {
         rec.compute_to_transfer();
         rec.upload(&f.params, &[rs.params])?;
-        // (over two levels the normals are the bottom levels': they do not move)
-        if let Traced::Flat(_) = f.geom {
-            rec.upload(&f.tri_normals, &rs.tri_normals)?;
+        match (&f.geom, &rs.levels) {
+            // (the normals are the bottom levels': they do not move)
+            (Traced::Levels(l), Some(rl)) => l.record_placements(rec, rl)?,
+            _ => rec.upload(&f.tri_normals, &rs.tri_normals)?,
         }
         rec.fill(&f.flags, 0);
         rec.fill(&f.counters, 0);
@@ -316,7 +318,7 @@ impl Renderer {
         grow: u32,
     ) -> Result<(Traced, Recorder, Option<RecordedBuild>)> {
         let mut rec = Recorder::new(ctx)?;
-        let flat = |g| Traced::Flat(g);
+        let flat = Traced::Flat;
         Ok(match (&rs.accel, &rs.levels) {
             (RenderAccel::OnDevice(choice), Some(rl)) => {
                 let sizes = (grow, plan.queue_capacity);

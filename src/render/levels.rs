@@ -6,10 +6,10 @@
 //! in object space; the rest (meshes named once, spheres) in the world, as its identity
 //! instance places it.
 
-use glam::{Affine3A, Vec3};
+use glam::{Mat3A, Vec3};
 
 use crate::accel::instances::{world_to_object, Instance};
-use crate::scene::{MeshMaterials, Scene};
+use crate::scene::{Mesh, MeshMaterials, Scene};
 use crate::trace::instanced::{TwoLevelScene, REST};
 
 use super::types::Placement;
@@ -45,62 +45,60 @@ impl RenderLevels {
     /// material and its shading normals (9 floats, zeros where the mesh has none), what the
     /// flat scene's `prim_material` and `tri_normals` hold per primitive.
     pub fn new(scene: &Scene, two: TwoLevelScene, time: f32) -> (Self, Vec<u32>, Vec<f32>) {
-        let (mut verts, mut normals, mut materials) = (Vec::new(), Vec::new(), Vec::new());
-        let mut spheres = Vec::new();
+        let (mut verts, mut spheres) = (Vec::new(), Vec::new());
+        let (mut normals, mut materials) = (Vec::new(), Vec::new());
         let mut spans = Vec::with_capacity(two.bottoms.len());
         let world_spheres = scene.spheres_at(time);
         let n_tris = scene.triangle_count() as u32;
-        for (b, _) in two.bottoms.iter().enumerate() {
-            let span = Span {
+        for (b, g) in two.bottoms.iter().enumerate() {
+            spans.push(Span {
                 first: materials.len() as u32,
-                triangles: 0,
+                triangles: g.triangle_count() as u32,
                 first_sphere: spheres.len() as u32,
+            });
+            // The bottom level's own primitives, as it was built over them.
+            verts.extend_from_slice(&g.tri_verts);
+            verts.extend(std::iter::repeat_n(0.0, 9 * g.spheres.len()));
+            spheres.extend_from_slice(&g.spheres);
+            let mut triangle = |mesh: &Mesh, t: usize, normal_m: &Mat3A| {
+                let n = mesh.corner_normals(t, normal_m).unwrap_or([Vec3::ZERO; 3]);
+                normals.extend(n.iter().flat_map(|v| v.to_array()));
+                materials.push(match &mesh.materials {
+                    MeshMaterials::Single(m) => *m,
+                    MeshMaterials::PerTriangle(ids) => ids[t],
+                });
             };
             let instance = two.instances.iter().find(|i| i.bottom == b as u64);
-            let triangles = match instance.map(Instance::custom_index) {
+            match instance.map(Instance::custom_index) {
                 // A repeated or moving mesh, in object space.
                 Some(k) if k != REST => {
                     let mesh = &scene.meshes[k as usize];
-                    let place = Affine3A::IDENTITY;
-                    (0..mesh.indices.len())
-                        .map(|t| corners(mesh, t, &place, &mut verts, &mut normals))
-                        .count();
-                    match &mesh.materials {
-                        MeshMaterials::Single(id) => {
-                            materials.extend(std::iter::repeat_n(*id, mesh.indices.len()))
-                        }
-                        MeshMaterials::PerTriangle(ids) => materials.extend_from_slice(ids),
+                    for t in 0..mesh.indices.len() {
+                        triangle(mesh, t, &Mat3A::IDENTITY);
                     }
-                    mesh.indices.len()
                 }
-                // The rest: its triangles in the world, then its spheres.
+                // The rest: its triangles in the world (mesh after mesh), then its spheres.
                 _ => {
-                    let mut n = 0;
-                    for &id in &two.rest_ids {
-                        if id >= n_tris {
-                            let s = &world_spheres[(id - n_tris) as usize];
-                            spheres.push(s.center.extend(s.radius).to_array());
-                            verts.extend([0.0; 9]);
-                            normals.extend([0.0; 9]);
-                            materials.push(s.material);
-                            continue;
-                        }
+                    let mut placed: Option<(usize, Mat3A)> = None;
+                    for &id in two.rest_ids.iter().filter(|&&id| id < n_tris) {
                         let k = two.mesh_first.partition_point(|&f| f <= id) - 1;
-                        let (mesh, t) = (&scene.meshes[k], (id - two.mesh_first[k]) as usize);
-                        corners(mesh, t, &mesh.world_matrix(time), &mut verts, &mut normals);
-                        materials.push(match &mesh.materials {
-                            MeshMaterials::Single(m) => *m,
-                            MeshMaterials::PerTriangle(ids) => ids[t],
-                        });
-                        n += 1;
+                        let mesh = &scene.meshes[k];
+                        let normal_m = match placed {
+                            Some((at, m)) if at == k => m,
+                            _ => {
+                                let m = mesh.world_matrix(time).matrix3.inverse().transpose();
+                                placed = Some((k, m));
+                                m
+                            }
+                        };
+                        triangle(mesh, (id - two.mesh_first[k]) as usize, &normal_m);
                     }
-                    n
+                    for &id in two.rest_ids.iter().filter(|&&id| id >= n_tris) {
+                        normals.extend([0.0; 9]);
+                        materials.push(world_spheres[(id - n_tris) as usize].material);
+                    }
                 }
-            };
-            spans.push(Span {
-                triangles: triangles as u32,
-                ..span
-            });
+            }
         }
         let placements = placements(scene, &two.instances, &spans);
         let levels = Self {
@@ -123,27 +121,6 @@ impl RenderLevels {
             }
         }
         self.placements = placements(scene, &self.scene.instances, &self.spans);
-    }
-}
-
-/// Appends triangle `t` of `mesh` placed by `place`: its vertices, and its shading normals
-/// (moved by the inverse transpose, unit; zeros where the mesh has none).
-fn corners(
-    mesh: &crate::scene::Mesh,
-    t: usize,
-    place: &Affine3A,
-    verts: &mut Vec<f32>,
-    normals: &mut Vec<f32>,
-) {
-    let normal_m = place.matrix3.inverse().transpose();
-    for i in mesh.indices[t] {
-        let p = place.transform_point3(mesh.positions[i as usize]);
-        verts.extend(p.to_array());
-        let n = match mesh.normals.get(i as usize) {
-            Some(&n) => (normal_m * n).normalize_or_zero(),
-            None => Vec3::ZERO,
-        };
-        normals.extend(n.to_array());
     }
 }
 

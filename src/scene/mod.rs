@@ -321,25 +321,12 @@ impl Scene {
             let m = mesh.world_matrix(t);
             let normal_m = m.matrix3.inverse().transpose();
             let p = &mesh.positions;
-            let n = &mesh.normals;
-            let has_normals = !n.is_empty();
-            out.extend(mesh.indices.iter().map(|&[a, b, c]| {
-                let (a, b, c) = (a as usize, b as usize, c as usize);
-                if has_normals {
-                    [
-                        (normal_m * n[a]).normalize_or_zero(),
-                        (normal_m * n[b]).normalize_or_zero(),
-                        (normal_m * n[c]).normalize_or_zero(),
-                    ]
-                } else {
-                    let (pa, pb, pc) = (
-                        m.transform_point3(p[a]),
-                        m.transform_point3(p[b]),
-                        m.transform_point3(p[c]),
-                    );
+            out.extend((0..mesh.indices.len()).map(|t| {
+                mesh.corner_normals(t, &normal_m).unwrap_or_else(|| {
+                    let [pa, pb, pc] = mesh.indices[t].map(|i| m.transform_point3(p[i as usize]));
                     let f = (pb - pa).cross(pc - pa).normalize_or_zero();
                     [f, f, f]
-                }
+                })
             }));
         }
         out

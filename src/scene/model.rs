@@ -202,6 +202,15 @@ impl Mesh {
         self.motion.at(t) * self.placement(t)
     }
 
+    /// The shading normals at the corners of triangle `t` moved by `normal_m` (a placement's
+    /// inverse transpose), unit (zero where a normal is); `None` when the mesh has none.
+    pub fn corner_normals(&self, t: usize, normal_m: &glam::Mat3A) -> Option<[Vec3; 3]> {
+        if self.normals.is_empty() {
+            return None;
+        }
+        Some(self.indices[t].map(|i| (*normal_m * self.normals[i as usize]).normalize_or_zero()))
+    }
+
     /// Object-space bounds of the vertices that triangles use.
     pub fn object_bounds(&self) -> Aabb {
         let mut b = Aabb::EMPTY;

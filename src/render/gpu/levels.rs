@@ -84,8 +84,6 @@ pub(crate) struct Levels {
     placements: Buffer<Placement>,
     /// Per queued ray: the instance its closest hit is in (`render.instances` writes it).
     pub hit_instance: Buffer<u32>,
-    /// Where the top level's handle lies (the kernels' push constant), asked once.
-    handle: u64,
     /// Host milliseconds of the bottom levels' builds (the SAH BVH's host builder; the
     /// device builders' passes are in the profile).
     pub bottom_ms: f64,
@@ -128,13 +126,11 @@ impl Levels {
         let spheres = Buffer::new(&ctx, "render.level_spheres", rl.spheres.len().max(1))?;
         let placements = Buffer::new(&ctx, "render.placements", rl.placements.len().max(1))?;
         let hit_instance = Buffer::new(&ctx, "render.hit_instance", queue.max(1))?;
-        rec.compute_to_transfer();
         rec.upload(&verts, &rl.verts)?;
         rec.upload(&spheres, &rl.spheres)?;
         rec.upload(&placements, &rl.placements)?;
         rec.transfer_to_compute();
         Ok(Self {
-            handle: top.handle_address(),
             top,
             top_builder,
             verts,
@@ -145,18 +141,21 @@ impl Levels {
         })
     }
 
-    /// Records what a later frame changes: the instances' placements and the top level
-    /// over `rl`'s instances (as many as it was built with), refit or rebuilt as `update`
-    /// says (in a scope `levels`). The bottom levels stay.
+    /// Records the upload of `rl`'s placements (a later frame's; order it after the last
+    /// frame's shading and before the next, as [`super::Renderer`]'s reset of a frame does).
+    pub fn record_placements(&self, rec: &mut Recorder, rl: &RenderLevels) -> Result<()> {
+        rec.upload(&self.placements, &rl.placements)
+    }
+
+    /// Records the top level's update to `rl`'s instances (as many as it was built with),
+    /// refit or rebuilt as `update` says (in a scope `levels`): what a later frame changes
+    /// besides the placements. The bottom levels stay.
     pub fn record_update(
         &mut self,
         rec: &mut Recorder,
         rl: &RenderLevels,
         update: Update,
     ) -> Result<()> {
-        rec.compute_to_transfer();
-        rec.upload(&self.placements, &rl.placements)?;
-        rec.transfer_to_compute();
         let (b, top, instances) = (&self.top_builder, &mut self.top, &rl.scene.instances);
         match update {
             Update::Refit => rec.scope("levels", |rec| b.record_update(rec, top, instances)),
@@ -166,6 +165,6 @@ impl Levels {
 
     /// Where the top level's handle lies (the kernels' push constant).
     pub fn handle(&self) -> u64 {
-        self.handle
+        self.top.handle_address()
     }
 }
