@@ -224,7 +224,14 @@ fn trace(ctx: &Context, sets: &[(u64, &[Ray])]) -> Vec<(usize, f64)> {
     for round in 0..4 {
         let mut rec = Recorder::new(ctx).unwrap();
         for (k, ((handle, rays), (ray_buf, out))) in sets.iter().zip(&bufs).enumerate() {
-            let push = [rays.len() as u32, 0, *handle as u32, (*handle >> 32) as u32];
+            let push = [
+                rays.len() as u32,
+                0,
+                *handle as u32,
+                (*handle >> 32) as u32,
+                0,
+                0,
+            ];
             let groups = rec.groups_1d(rays.len() as u64, 64);
             let b: [&dyn BufferArg; 2] = [ray_buf, out];
             rec.scope(&format!("set{k}"), |rec| {

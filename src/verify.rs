@@ -403,8 +403,14 @@ impl Verifier<'_> {
             sizes.push(1000);
         }
         for n in sizes {
-            let o = instance_boxes_check(ctx, &hosts, n);
-            self.check("instances", format!("instance boxes, {n} instances"), o);
+            for steps in [1, 3] {
+                let o = instance_boxes_check(ctx, &hosts, n, steps);
+                let what = match steps {
+                    1 => format!("instance boxes, {n} instances"),
+                    _ => format!("instance boxes, {n} instances moving in {steps} steps"),
+                };
+                self.check("instances", what, o);
+            }
         }
         let choices = [
             AccelChoice::new(AccelKind::KdTree, Traversal::Stack),
@@ -524,11 +530,16 @@ fn bottom_levels(
 }
 
 /// `accel.instance_boxes` over `n` instances of `hosts`' levels (every 17th an invalid
-/// class: singular, non-finite, a bottom level out of range; some with mask 0), built in
-/// memory of the reported size, against its CPU twin bit for bit, and the count of invalid
-/// ones.
-fn instance_boxes_check(ctx: &Context, hosts: &[TraceGeometry], n: usize) -> Outcome {
-    use crate::accel::instances::{instance_boxes, Instance, TopLevelBuilder};
+/// class: singular, non-finite, a bottom level out of range; some with mask 0) moving in
+/// `steps` time steps (one more class: singular at the last step only), built in memory of
+/// the reported size, against its CPU twin bit for bit, and the count of invalid ones.
+fn instance_boxes_check(
+    ctx: &Context,
+    hosts: &[TraceGeometry],
+    n: usize,
+    steps: u32,
+) -> Outcome {
+    use crate::accel::instances::{instance_boxes, Instance, InstanceMotion, TopLevelBuilder};
     let levels = bottom_levels(
         ctx,
         hosts,
@@ -555,13 +566,30 @@ fn instance_boxes_check(ctx: &Context, hosts: &[TraceGeometry], n: usize) -> Out
             }
         })
         .collect();
+    // Later steps: each instance moved and turned a little.
+    let motion = InstanceMotion::new(steps, 0.5, 2.0);
+    let mut all = instances.clone();
+    for s in 1..steps as usize {
+        all.extend(instances.iter().enumerate().map(|(i, inst)| {
+            let mut moved = *inst;
+            let turn = glam::Affine3A::from_rotation_y(0.1 * s as f32)
+                * glam::Affine3A::from_translation(Vec3::new(s as f32, 0.0, -(s as f32)));
+            let m = Instance::affine_of(&inst.transform);
+            moved.transform = Instance::rows_of(&(turn * m));
+            if i % 17 == 13 && s + 1 == steps as usize {
+                moved.transform = [[0.0; 4]; 3];
+            }
+            moved
+        }));
+    }
+    let instances = all;
     let builder = TopLevelBuilder::new(ctx, AccelKind::Lbvh)?;
     let flags = crate::accel::embedded::BuildFlags::default();
-    let sizes = builder.sizes_for(ctx, n as u32, refs.len(), &flags)?;
+    let sizes = builder.sizes_for_motion(ctx, n as u32, refs.len(), motion, &flags)?;
     let memory = Buffer::<u8>::arena(ctx, "verify.top", sizes.structure_bytes as usize)?;
     let scratch = Buffer::<u8>::arena(ctx, "verify.scratch", sizes.build_scratch_bytes as usize)?;
-    let input = Buffer::<Instance>::new(ctx, "verify.instances", n.max(1))?;
-    let mut top = builder.create_in(ctx, &refs, n as u32, &flags, memory.as_raw())?;
+    let input = Buffer::<Instance>::new(ctx, "verify.instances", instances.len().max(1))?;
+    let mut top = builder.create_moving_in(ctx, &refs, n as u32, motion, &flags, memory.as_raw())?;
     let mut rec = Recorder::new(ctx)?;
     rec.upload(&input, &instances)?;
     rec.transfer_to_compute();
@@ -575,8 +603,14 @@ fn instance_boxes_check(ctx: &Context, hosts: &[TraceGeometry], n: usize) -> Out
         .map(|l| Ok(l.accel.info.download()?[0]))
         .collect::<Result<_>>()?;
     let (boxes, records) = top.download()?;
-    let (want_boxes, want_records, invalid) =
-        instance_boxes(&instances, &infos, top.bottom_handles_address());
+    let want = instance_boxes(&instances, motion, &infos, top.bottom_handles_address());
+    let (want_boxes, want_records, invalid) = (want.boxes, want.records, want.invalid);
+    let bits_of = |r: &[[[f32; 4]; 3]]| -> Vec<u32> {
+        r.iter().flatten().flatten().map(|x| x.to_bits()).collect()
+    };
+    if bits_of(&top.download_steps()?) != bits_of(&want.steps) {
+        return Ok(Some("the steps differ from their CPU twin's".into()));
+    }
     let bits = |b: &[[f32; 6]]| -> Vec<u32> { b.iter().flatten().map(|x| x.to_bits()).collect() };
     if let Some(i) = (0..n).find(|&i| bits(&boxes[i..=i]) != bits(&want_boxes[i..=i])) {
         return Ok(Some(format!(
@@ -650,7 +684,7 @@ fn two_level_check(
     let mut wrong = 0;
     let mut example = None;
     for (i, (r, got)) in rays.iter().zip(&batch.hits).enumerate() {
-        let want = trace_instances(&records, r, 0xff, query == Query::Any, |b, ro| {
+        let want = trace_instances(&records, &[], r, 0.0, 0xff, query == Query::Any, |b, ro| {
             (cpu::brute_force(&hosts[b as usize], ro, 0.0, &opt), false)
         });
         let same = match query {

@@ -734,7 +734,7 @@ pub fn probe_hits(ctx: &Context, g: &GpuGeometry, rays: &[Ray], how: Probe) -> V
         false => None,
     };
     let at = handle.as_ref().map_or(0, |h| h.device_address());
-    let push = [rays.len() as u32, 0, at as u32, (at >> 32) as u32];
+    let push = [rays.len() as u32, 0, at as u32, (at >> 32) as u32, 0, 0];
     let mut rec = Recorder::new(ctx).unwrap();
     let [b0, b1, b2, b3, b4, b5, b6] = g.bindings();
     let groups = rec.groups_1d(rays.len() as u64, 64);

@@ -12,8 +12,8 @@ use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::embedded::BuildFlags;
 use vkrt::accel::geometry::transform_point;
 use vkrt::accel::instances::{
-    instance_boxes, object_ray, trace_instances, world_to_object, Instance, InstanceRecord,
-    TopLevelBuilder,
+    instance_boxes, lerp_rows, object_ray, trace_instances, world_to_object, Instance,
+    InstanceMotion, InstanceRecord, TopLevelBuilder,
 };
 use vkrt::gpu::{Buffer, Context, GpuError, Recorder};
 use vkrt::scene::Aabb;
@@ -42,6 +42,11 @@ fn bottom(ctx: &Context, kind: AccelKind, wide: bool, tris: &[[Vec3; 3]]) -> Gpu
 /// Closest (or any) hits through `gpu.handle_probe`'s address variant from the structure
 /// whose handle lies at `handle`: (t bits, geometry, primitive, instance or custom index).
 fn probe(ctx: &Context, handle: u64, rays: &[Ray], mode: u32) -> Vec<[u32; 4]> {
+    probe_at(ctx, handle, rays, mode, 0.0)
+}
+
+/// [`probe`] with every ray at `time`.
+fn probe_at(ctx: &Context, handle: u64, rays: &[Ray], mode: u32, time: f32) -> Vec<[u32; 4]> {
     let kernel = ctx
         .kernel(
             &vkrt::gpu::kernels::GPU_HANDLE_PROBE_ADDRESS,
@@ -55,6 +60,8 @@ fn probe(ctx: &Context, handle: u64, rays: &[Ray], mode: u32) -> Vec<[u32; 4]> {
         mode,
         handle as u32,
         (handle >> 32) as u32,
+        time.to_bits(),
+        0,
     ];
     let mut rec = Recorder::new(ctx).unwrap();
     let groups = rec.groups_1d(rays.len() as u64, 64);
@@ -124,7 +131,7 @@ fn twin(
 ) -> Vec<(Hit, Option<u32>)> {
     rays.iter()
         .map(|r| {
-            let h = trace_instances(records, r, 0xff, false, |b, ro| {
+            let h = trace_instances(records, &[], r, 0.0, 0xff, false, |b, ro| {
                 (
                     cpu::brute_force(&bottoms[b as usize], ro, 0.0, &opt()),
                     false,
@@ -229,8 +236,13 @@ fn instance_boxes_equal_their_cpu_twin_bit_for_bit_and_the_tree_the_host_s() {
             rec.transfer_to_host();
             rec.submit_and_wait().unwrap();
             let (boxes, records) = top.download().unwrap();
-            let (want_boxes, want_records, invalid) =
-                instance_boxes(&instances, &infos, top.bottom_handles_address());
+            let want = instance_boxes(
+                &instances,
+                InstanceMotion::STATIC,
+                &infos,
+                top.bottom_handles_address(),
+            );
+            let (want_boxes, want_records, invalid) = (want.boxes, want.records, want.invalid);
             let bits =
                 |b: &[[f32; 6]]| -> Vec<u32> { b.iter().flatten().map(|x| x.to_bits()).collect() };
             assert_eq!(bits(&boxes), bits(&want_boxes), "{kind:?} n {n}: boxes");
@@ -463,7 +475,7 @@ fn masks_any_hit_and_updates() {
     // Mode bits 8..16: the inverted cull mask. 0x01 sees the even instances only.
     let even = probe(&ctx, top.handle_address(), &rays, 0xfe << 8);
     for (k, (g, r)) in even.iter().zip(&rays).enumerate() {
-        let w = trace_instances(&records, r, 0x01, false, |b, ro| {
+        let w = trace_instances(&records, &[], r, 0.0, 0x01, false, |b, ro| {
             (cpu::brute_force(&hosts[b as usize], ro, 0.0, &opt()), false)
         });
         let (h, inst) = as_hit(g);
@@ -678,16 +690,7 @@ fn rays_grazing_instance_boxes_answer_as_the_flattened_scene() {
         if !*decided {
             if let Some(i) = inst {
                 let m = world_to_object(&instances[i as usize].transform).unwrap();
-                let p = object_ray(
-                    &InstanceRecord {
-                        world_to_object: m,
-                        handle: 1,
-                        custom_index_and_mask: 0xff << 24,
-                        flags_and_bottom: 0,
-                    },
-                    r,
-                    f32::INFINITY,
-                );
+                let p = object_ray(&m, r, f32::INFINITY);
                 let at = p.o() + p.d() * h.t;
                 let outside = (at - at.clamp(Vec3::ZERO, Vec3::ONE)).length();
                 assert!(outside < 1e-5, "ray {k}: a hit {outside} off the cube");
@@ -716,5 +719,201 @@ fn rays_grazing_instance_boxes_answer_as_the_flattened_scene() {
         rays.len()
     );
     assert!(hits > 0);
+    common::assert_silent(&ctx);
+}
+
+/// Moving instances (three time steps, each instance moving and turning): the device's boxes,
+/// records and steps equal the CPU twin's bit for bit; at every time (before, inside and
+/// after the interval) the hits equal the twin's and the flattened scene's at that time
+/// (every instance's triangles placed by its interpolated transform); at a step's time they
+/// are the static top level of that step's instances, bit for bit; an update equals a new
+/// build; and misuse of motion is refused, naming the instance and the step.
+#[test]
+fn moving_instances_trace_as_their_interpolated_transforms() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(31);
+    let meshes = vec![sphere_tris(2), random_tris(&mut rng, 200)];
+    let hosts: Vec<TraceGeometry> = meshes
+        .iter()
+        .map(|m| TraceGeometry::from_triangles(m))
+        .collect();
+    let levels: Vec<GpuGeometry> = meshes
+        .iter()
+        .map(|m| bottom(&ctx, AccelKind::Lbvh, false, m))
+        .collect();
+    let refs: Vec<&GpuGeometry> = levels.iter().collect();
+    let infos = scene_infos(&refs);
+    let (n, steps) = (24usize, 3u32);
+    let motion = InstanceMotion::new(steps, 1.0, 2.0);
+    // Step s: moved by s·v and turned by s·0.4 rad about the instance's own centre.
+    let moving = |rng: &mut common::Rng| -> Vec<Instance> {
+        let start: Vec<Instance> = (0..n)
+            .map(|i| {
+                Instance::new(
+                    (i % 2) as u32,
+                    Instance::rows_of(&random_transform(rng, 20.0)),
+                )
+                .with_custom_index(i as u32)
+            })
+            .collect();
+        let paths: Vec<(Vec3, Vec3)> = (0..n)
+            .map(|_| (centered(rng) * 2.0, centered(rng).normalize_or(Vec3::Y)))
+            .collect();
+        let mut all = start.clone();
+        for s in 1..steps {
+            all.extend(start.iter().zip(&paths).map(|(inst, (v, axis))| {
+                let t0 = Instance::affine_of(&inst.transform);
+                let c = t0.translation.into();
+                let spin = Affine3A::from_translation(c)
+                    * Affine3A::from_axis_angle(*axis, 0.4 * s as f32)
+                    * Affine3A::from_translation(-c);
+                let moved = Affine3A::from_translation(*v * s as f32) * spin * t0;
+                Instance {
+                    transform: Instance::rows_of(&moved),
+                    ..*inst
+                }
+            }));
+        }
+        all
+    };
+    let instances = moving(&mut rng);
+    let rays: Vec<Ray> = (0..400)
+        .map(|k| {
+            // (towards the centre at the middle step)
+            let c = Vec3::from_array(instances[n + k % n].transform.map(|r| r[3]));
+            let o = centered(&mut rng).normalize_or(Vec3::X) * 45.0;
+            Ray::new(o, c + centered(&mut rng) * 2.5 - o, 0.0, f32::INFINITY)
+        })
+        .collect();
+    let flags = BuildFlags {
+        allow_update: true,
+        ..BuildFlags::default()
+    };
+    let builder = TopLevelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
+    let top = builder
+        .build_moving(&ctx, &refs, &instances, motion, &flags)
+        .unwrap();
+
+    // The build against its CPU twin, bit for bit.
+    let (boxes, records) = top.download().unwrap();
+    let device_steps = top.download_steps().unwrap();
+    let want = instance_boxes(&instances, motion, &infos, top.bottom_handles_address());
+    let bits = |v: &[f32]| -> Vec<u32> { v.iter().map(|x| x.to_bits()).collect() };
+    assert_eq!(bits(boxes.as_flattened()), bits(want.boxes.as_flattened()));
+    assert_eq!(records, want.records);
+    assert_eq!(
+        bits(device_steps.as_flattened().as_flattened()),
+        bits(want.steps.as_flattened().as_flattened())
+    );
+    assert_eq!(want.invalid, 0);
+
+    // Per time: the twin, the flattened scene at that time, and at step times the static
+    // top level of that step.
+    let step_of = |time: f32| -> (usize, f32) {
+        let u = ((time - 1.0) * motion.scale()).clamp(0.0, (steps - 1) as f32);
+        let k = (u as usize).min(steps as usize - 2);
+        (k, u - k as f32)
+    };
+    let mut hits = 0;
+    for time in [0.5, 1.0, 1.3, 1.5, 1.77, 2.0, 2.6] {
+        let got = probe_at(&ctx, top.handle_address(), &rays, 0, time);
+        let (k, f) = step_of(time);
+        let placed: Vec<Instance> = (0..n)
+            .map(|i| Instance {
+                transform: lerp_rows(
+                    &instances[k * n + i].transform,
+                    &instances[(k + 1) * n + i].transform,
+                    f,
+                ),
+                ..instances[i]
+            })
+            .collect();
+        let (flat, owner) = flattened(&placed, &meshes);
+        let mut ties = 0;
+        for (j, (g, r)) in got.iter().zip(&rays).enumerate() {
+            let (h, inst) = as_hit(g);
+            let label = format!("time {time} ray {j}");
+            let w = trace_instances(&records, &want.steps, r, time, 0xff, false, |b, ro| {
+                (cpu::brute_force(&hosts[b as usize], ro, 0.0, &opt()), false)
+            });
+            assert_eq!(inst, w.instance, "{label}: instance (twin)");
+            assert!(common::same_answer(&h, &w.hit), "{label}: {h:?} vs {w:?}");
+            let fh = cpu::brute_force(&flat, r, 0.0, &opt());
+            assert_eq!(h.is_hit(), fh.is_hit(), "{label}: hit (flattened)");
+            if h.is_hit() {
+                hits += 1;
+                assert!(
+                    (h.t - fh.t).abs() <= 1e-5 * fh.t.abs(),
+                    "{label}: t {} vs {}",
+                    h.t,
+                    fh.t
+                );
+                ties += usize::from((inst.unwrap(), h.prim) != owner[fh.prim as usize]);
+            }
+        }
+        assert!(ties * 100 <= rays.len(), "time {time}: {ties} ties");
+        if f == 0.0 || f == 1.0 {
+            let s = k + f as usize;
+            let still = builder
+                .build(&ctx, &refs, &instances[s * n..(s + 1) * n], &flags)
+                .unwrap();
+            assert_eq!(
+                got,
+                probe(&ctx, still.handle_address(), &rays, 0),
+                "time {time}: step {s}"
+            );
+        }
+    }
+    assert!(hits > 400, "{hits} hits");
+
+    // An update to new motion traces as a new build of it.
+    let next = moving(&mut rng);
+    builder.update(&ctx, &top, &next).unwrap();
+    let fresh = builder
+        .build_moving(&ctx, &refs, &next, motion, &flags)
+        .unwrap();
+    for time in [1.2, 1.9] {
+        assert_eq!(
+            probe_at(&ctx, top.handle_address(), &rays, 0, time),
+            probe_at(&ctx, fresh.handle_address(), &rays, 0, time)
+        );
+    }
+
+    // Misuse.
+    let refused = |r: Result<vkrt::accel::instances::TopLevel<'_>, GpuError>| -> String {
+        match r {
+            Ok(_) => panic!("misuse accepted"),
+            Err(e) => e.to_string(),
+        }
+    };
+    for (bad, what) in [
+        (InstanceMotion::new(0, 0.0, 1.0), "0 time steps"),
+        (InstanceMotion::new(200, 0.0, 1.0), "200 time steps"),
+        (InstanceMotion::new(2, 1.0, 1.0), "not finite and increasing"),
+        (InstanceMotion::new(2, f32::NAN, 1.0), "not finite and increasing"),
+    ] {
+        let e = refused(builder.build_moving(&ctx, &refs, &instances, bad, &flags));
+        assert!(e.contains(what), "{e}");
+    }
+    let e = refused(builder.build_moving(&ctx, &refs, &instances[1..], motion, &flags));
+    assert!(e.contains("not 3 time steps"), "{e}");
+    let mut other = instances.clone();
+    other[n + 4].bottom ^= 1;
+    let e = refused(builder.build_moving(&ctx, &refs, &other, motion, &flags));
+    assert!(e.contains("instance 4 at step 1") && e.contains("bottom level"), "{e}");
+    let mut mirrored = instances.clone();
+    mirrored[2 * n + 6].transform[0] = mirrored[2 * n + 6].transform[0].map(|x| -x);
+    mirrored[2 * n + 6].transform[0][3] *= -1.0;
+    let e = refused(builder.build_moving(&ctx, &refs, &mirrored, motion, &flags));
+    assert!(e.contains("instance 6 at step 2") && e.contains("mirrors"), "{e}");
+    let mut singular = instances.clone();
+    singular[n + 2].transform = [[0.0; 4]; 3];
+    let e = refused(builder.build_moving(&ctx, &refs, &singular, motion, &flags));
+    assert!(e.contains("instance 2 at step 1") && e.contains("singular"), "{e}");
+    let e = builder.update(&ctx, &top, &next[..2 * n]).unwrap_err().to_string();
+    assert!(
+        e.contains("48 instance records; the top level holds 24 instances at 3 time steps"),
+        "{e}"
+    );
     common::assert_silent(&ctx);
 }

@@ -26,6 +26,8 @@ layout(push_constant) uniform Push {
     // inverted (0: every instance).
     uint mode;
     uvec2 handle; // `address`: where the structure's handle lies
+    float time;   // every ray's time
+    uint pad;
 } pc;
 
 void main() {
@@ -38,7 +40,7 @@ void main() {
 #endif
     ProbeRay r = rays[i];
     uint cull_mask = ~(pc.mode >> 8u) & 0xffu;
-    VkrtHit h = vkrtTrace(r.origin_tmin.xyz, r.origin_tmin.w, r.dir_tmax.xyz, r.dir_tmax.w, 0.0,
+    VkrtHit h = vkrtTrace(r.origin_tmin.xyz, r.origin_tmin.w, r.dir_tmax.xyz, r.dir_tmax.w, pc.time,
                           cull_mask, (pc.mode & 2u) != 0u);
     if (!h.hit || h.exhausted) {
         hits[i] = uvec4(h.exhausted ? 0xfffffffeu : 0xffffffffu, 0u, 0u, 0u);

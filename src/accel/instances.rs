@@ -19,6 +19,13 @@
 //! meaning) and walks its bottom level with that level's own walk; hits name the instance
 //! and its custom index ([`trace_instances`] is the CPU twin).
 //!
+//! Instances move as Embree's motion-blurred instances do ([`InstanceMotion`]; two steps
+//! are `VK_NV_ray_tracing_motion_blur`'s matrix motion): each instance's object-to-world is
+//! given at `steps` evenly spaced times, and a ray at time `t` sees the two steps around `t`
+//! interpolated row by row (linearly: a rotation is followed by its chords, so give as many
+//! steps as the rotation needs). The top level boxes the union of an instance's steps, and
+//! the walk inverts the interpolated transform per ray.
+//!
 //! Where vkrt differs from Vulkan: an instance names its bottom level by its index in the
 //! list the top level was created with, not by a device address, an index the device can
 //! check. An instance with an index out of range, or a transform that is not finite or not
@@ -47,6 +54,72 @@ use crate::trace::{Hit, Ray};
 const WORKGROUP: u32 = 64;
 /// Bottom levels one top level may name (the index shares a word with the flags).
 pub const MAX_BOTTOM_LEVELS: usize = 1 << 24;
+/// Time steps a moving top level may give (Embree's `RTC_MAX_TIME_STEP_COUNT`).
+pub const MAX_MOTION_STEPS: u32 = 129;
+
+/// How a top level's instances move: each instance's object-to-world at `steps` evenly
+/// spaced times from `time[0]` to `time[1]`, given as `steps` lists of the instances, step
+/// after step (the record of instance `i` at step `s` is `s * count + i`; everything but the
+/// transform is step 0's). A ray at time `t` sees the two steps around `t` interpolated row
+/// by row, `(1 - f) * a + f * b`; a time outside the interval sees the first or the last
+/// step (Embree clamps the same way). [`InstanceMotion::STATIC`]: one step, no motion.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InstanceMotion {
+    pub steps: u32,
+    pub time: [f32; 2],
+}
+
+impl InstanceMotion {
+    /// Instances that do not move: one record each.
+    pub const STATIC: Self = Self {
+        steps: 1,
+        time: [0.0, 0.0],
+    };
+
+    /// `steps` evenly spaced over `[t0, t1]`.
+    pub fn new(steps: u32, t0: f32, t1: f32) -> Self {
+        Self {
+            steps,
+            time: [t0, t1],
+        }
+    }
+
+    /// Why a top level cannot move this way (`None`: it can).
+    pub fn check(&self) -> std::result::Result<(), String> {
+        if self.steps == 0 || self.steps > MAX_MOTION_STEPS {
+            return Err(format!(
+                "{} time steps: give 1 (no motion) to {MAX_MOTION_STEPS}",
+                self.steps
+            ));
+        }
+        let [t0, t1] = self.time;
+        if self.steps > 1 && !(t0.is_finite() && t1.is_finite() && t1 > t0) {
+            return Err(format!(
+                "the time interval [{t0}, {t1}] is not finite and increasing"
+            ));
+        }
+        if self.steps > 1 && !self.scale().is_finite() {
+            return Err(format!(
+                "the time interval [{t0}, {t1}] is too short for {} steps in single precision",
+                self.steps
+            ));
+        }
+        Ok(())
+    }
+
+    /// `(steps - 1) / (t1 - t0)` (0 without motion): what takes a time to a step.
+    pub fn scale(&self) -> f32 {
+        if self.steps < 2 {
+            return 0.0;
+        }
+        (self.steps - 1) as f32 / (self.time[1] - self.time[0])
+    }
+
+    /// The records a top level of `count` instances reads.
+    pub fn records(&self, count: u32) -> u64 {
+        u64::from(self.steps.max(1)) * u64::from(count)
+    }
+}
 
 /// `VkGeometryInstanceFlagBitsKHR`.
 pub mod flags {
@@ -104,6 +177,14 @@ impl Instance {
         ]
     }
 
+    /// The affine transform of object-to-world rows (the inverse of [`Instance::rows_of`]).
+    pub fn affine_of(rows: &[[f32; 4]; 3]) -> glam::Affine3A {
+        let [a, b, c] = rows;
+        glam::Affine3A::from_cols_array(&[
+            a[0], b[0], c[0], a[1], b[1], c[1], a[2], b[2], c[2], a[3], b[3], c[3],
+        ])
+    }
+
     /// With custom index `index` (24 bits: higher bits are an error in [`Instance::check`]).
     pub fn with_custom_index(mut self, index: u32) -> Self {
         self.custom_index_and_mask = (self.custom_index_and_mask & 0xff00_0000) | index;
@@ -157,8 +238,8 @@ impl Instance {
     }
 }
 
-/// What the walk reads per instance: 64 bytes, `InstanceRecord` in
-/// `glsl/accel/instance_boxes.comp` and `vkrt/instances.glsl`.
+/// What the walk reads per instance: 80 bytes, `InstanceRecord` in
+/// `glsl/accel/instance_boxes.comp` and `VkrtInstanceRecord` in `vkrt/ray_query.glsl`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct InstanceRecord {
@@ -170,6 +251,9 @@ pub struct InstanceRecord {
     pub custom_index_and_mask: u32,
     /// Its flags | bottom-level index << 8.
     pub flags_and_bottom: u32,
+    /// Its motion: steps (1: it does not move), where its steps start among the top level's,
+    /// the first step's time and [`InstanceMotion::scale`] (as bits).
+    pub motion: [u32; 4],
 }
 
 impl InstanceRecord {
@@ -180,6 +264,33 @@ impl InstanceRecord {
     pub fn mask(&self) -> u32 {
         self.custom_index_and_mask >> 24
     }
+
+    /// Its world-to-object rows at `time`, interpolated from `steps` (the top level's, as
+    /// [`instance_boxes`] returns them) as the walk does; `None` where the transform there is
+    /// not invertible (the ray misses the instance).
+    pub fn world_to_object_at(
+        &self,
+        steps: &[[[f32; 4]; 3]],
+        time: f32,
+    ) -> Option<[[f32; 4]; 3]> {
+        let [n, first, t0, scale] = self.motion;
+        if n < 2 {
+            return Some(self.world_to_object);
+        }
+        let (t0, scale) = (f32::from_bits(t0), f32::from_bits(scale));
+        let u = (time - t0) * scale;
+        let u = if u >= 0.0 { u.min((n - 1) as f32) } else { 0.0 };
+        let k = (u as u32).min(n - 2);
+        let f = u - k as f32;
+        let at = (first + k) as usize;
+        world_to_object(&lerp_rows(&steps[at], &steps[at + 1], f))
+    }
+}
+
+/// `(1 - f) * a + f * b`, element by element (`vkrt_lerp_rows` in `vkrt/affine.glsl`).
+pub fn lerp_rows(a: &[[f32; 4]; 3], b: &[[f32; 4]; 3], f: f32) -> [[f32; 4]; 3] {
+    let g = 1.0 - f;
+    std::array::from_fn(|r| std::array::from_fn(|c| g * a[r][c] + f * b[r][c]))
 }
 
 fn finite(v: &[f32]) -> bool {
@@ -225,19 +336,49 @@ fn transform_direction(rows: &[[f32; 4]; 3], d: Vec3) -> Vec3 {
     Vec3::new(row(&rows[0]), row(&rows[1]), row(&rows[2]))
 }
 
-/// The CPU twin of `accel.instance_boxes`: per instance its world box (min x, y, z, max x,
-/// y, z; an inactive one has min 1 > max 0) and its record, given each bottom level's scene
-/// constants and where their handles lie (64 bytes apart from `handles_at`); and the number
-/// of invalid instances.
+/// What [`instance_boxes`] makes of a top level's instances.
+#[derive(Clone, Debug, Default, PartialEq)]
+pub struct InstanceBoxes {
+    /// Per instance its world box (min x, y, z, max x, y, z; an inactive one has min 1 > max
+    /// 0): over all its steps when it moves.
+    pub boxes: Vec<[f32; 6]>,
+    /// Per instance what the walk reads.
+    pub records: Vec<InstanceRecord>,
+    /// A moving top level's object-to-world rows, `steps` per instance (empty without
+    /// motion).
+    pub steps: Vec<[[f32; 4]; 3]>,
+    /// Instances that are never hit for an error (counted in the build's status).
+    pub invalid: u32,
+}
+
+/// The CPU twin of `accel.instance_boxes`, bit for bit: the top level's boxes, records and
+/// steps for `instances` moving by `motion` (`motion.steps` lists of them, step after step),
+/// given each bottom level's scene constants and where their handles lie (64 bytes apart
+/// from `handles_at`).
 pub fn instance_boxes(
     instances: &[Instance],
+    motion: InstanceMotion,
     bottoms: &[SceneInfo],
     handles_at: u64,
-) -> (Vec<[f32; 6]>, Vec<InstanceRecord>, u32) {
-    let mut invalid = 0;
-    let mut boxes = Vec::with_capacity(instances.len());
-    let mut records = Vec::with_capacity(instances.len());
-    for inst in instances {
+) -> InstanceBoxes {
+    let n_steps = motion.steps.max(1) as usize;
+    let count = instances.len() / n_steps;
+    let mut out = InstanceBoxes::default();
+    if n_steps > 1 {
+        out.steps = (0..count * n_steps)
+            .map(|k| instances[(k % n_steps) * count + k / n_steps].transform)
+            .collect();
+    }
+    let motion_words = |i: usize| {
+        [
+            n_steps as u32,
+            (i * n_steps) as u32,
+            motion.time[0].to_bits(),
+            motion.scale().to_bits(),
+        ]
+    };
+    let inactive_box = [1.0, 1.0, 1.0, 0.0, 0.0, 0.0];
+    for (i, inst) in instances[..count].iter().enumerate() {
         let bottom_ok = inst.bottom < bottoms.len() as u64;
         let bottom = if bottom_ok { inst.bottom as u32 } else { 0 };
         let meta_w = u32::from(inst.flags()) | (bottom << 8);
@@ -246,59 +387,79 @@ pub fn instance_boxes(
             handle: 0,
             custom_index_and_mask: 0,
             flags_and_bottom: meta_w,
+            motion: [1, 0, 0, 0],
         };
-        let m = &inst.transform;
-        let Some(inv) = world_to_object(m).filter(|_| bottom_ok) else {
-            invalid += 1;
-            boxes.push([1.0, 1.0, 1.0, 0.0, 0.0, 0.0]);
-            records.push(inactive);
+        let step = |s: usize| &instances[s * count + i].transform;
+        let inv = world_to_object(step(0)).filter(|_| bottom_ok);
+        let Some(inv) = inv.filter(|_| (1..n_steps).all(|s| world_to_object(step(s)).is_some()))
+        else {
+            out.invalid += 1;
+            out.boxes.push(inactive_box);
+            out.records.push(inactive);
             continue;
         };
         let b = &bottoms[bottom as usize];
         if b.n_tris + b.n_spheres + b.n_aabbs == 0 || inst.mask() == 0 {
-            boxes.push([1.0, 1.0, 1.0, 0.0, 0.0, 0.0]);
-            records.push(inactive);
+            out.boxes.push(inactive_box);
+            out.records.push(inactive);
             continue;
         }
         let (bmin, bmax) = (
             Vec3::from_slice(&b.bounds_min),
             Vec3::from_slice(&b.bounds_max),
         );
-        let mut lo = Vec3::INFINITY;
-        let mut hi = Vec3::NEG_INFINITY;
-        for k in 0..8 {
-            let p = Vec3::new(
-                if k & 1 != 0 { bmax.x } else { bmin.x },
-                if k & 2 != 0 { bmax.y } else { bmin.y },
-                if k & 4 != 0 { bmax.z } else { bmin.z },
-            );
-            let q = transform_point(m, p);
-            lo = lo.min(q);
-            hi = hi.max(q);
+        let mut box_lo = Vec3::INFINITY;
+        let mut box_hi = Vec3::NEG_INFINITY;
+        for s in 0..n_steps {
+            let m = step(s);
+            let (lo, hi) = placed_box(m, bmin, bmax);
+            box_lo = box_lo.min(lo);
+            box_hi = box_hi.max(hi);
         }
-        let e = bmin.abs().max(bmax.abs());
-        let pad_row = |r: &[f32; 4]| {
-            (r[0].abs() * e.x + r[1].abs() * e.y + r[2].abs() * e.z + r[3].abs())
-                * f32::from_bits(0x3580_0000)
-        };
-        let pad = Vec3::new(pad_row(&m[0]), pad_row(&m[1]), pad_row(&m[2]));
-        let (lo, hi) = (lo - pad, hi + pad);
-        boxes.push([lo.x, lo.y, lo.z, hi.x, hi.y, hi.z]);
-        records.push(InstanceRecord {
+        out.boxes.push([
+            box_lo.x, box_lo.y, box_lo.z, box_hi.x, box_hi.y, box_hi.z,
+        ]);
+        out.records.push(InstanceRecord {
             world_to_object: inv,
             handle: handles_at + 64 * u64::from(bottom),
             custom_index_and_mask: inst.custom_index_and_mask,
             flags_and_bottom: meta_w,
+            motion: motion_words(i),
         });
     }
-    (boxes, records, invalid)
+    out
 }
 
-/// The ray in an instance's object space, as the walk moves it: origin and direction by the
-/// world-to-object rows (the direction not renormalised, so `t` means the same), `tmin`
-/// kept, `tmax` the closest hit so far.
-pub fn object_ray(rec: &InstanceRecord, r: &Ray, tmax: f32) -> Ray {
-    let m = &rec.world_to_object;
+/// The box of `[bmin, bmax]` placed by `m`: its eight corners moved, padded by 2^-20 of
+/// their terms' magnitudes (each coordinate is a sum of four rounded terms: that bounds its
+/// error, and the object-space ray's, with room to spare).
+fn placed_box(m: &[[f32; 4]; 3], bmin: Vec3, bmax: Vec3) -> (Vec3, Vec3) {
+    let mut lo = Vec3::INFINITY;
+    let mut hi = Vec3::NEG_INFINITY;
+    for k in 0..8 {
+        let p = Vec3::new(
+            if k & 1 != 0 { bmax.x } else { bmin.x },
+            if k & 2 != 0 { bmax.y } else { bmin.y },
+            if k & 4 != 0 { bmax.z } else { bmin.z },
+        );
+        let q = transform_point(m, p);
+        lo = lo.min(q);
+        hi = hi.max(q);
+    }
+    let e = bmin.abs().max(bmax.abs());
+    let pad_row = |r: &[f32; 4]| {
+        (r[0].abs() * e.x + r[1].abs() * e.y + r[2].abs() * e.z + r[3].abs())
+            * f32::from_bits(0x3580_0000)
+    };
+    let pad = Vec3::new(pad_row(&m[0]), pad_row(&m[1]), pad_row(&m[2]));
+    (lo - pad, hi + pad)
+}
+
+/// The ray in an instance's object space, as the walk moves it: origin and direction by
+/// `world_to_object` (the direction not renormalised, so `t` means the same), `tmin` kept,
+/// `tmax` the closest hit so far.
+pub fn object_ray(world_to_object: &[[f32; 4]; 3], r: &Ray, tmax: f32) -> Ray {
+    let m = world_to_object;
     Ray::new(
         transform_point(m, r.o()),
         transform_direction(m, r.d()),
@@ -316,14 +477,17 @@ pub struct InstanceHit {
     pub exhausted: bool,
 }
 
-/// The CPU twin of the two-level walk (`vkrt/instances.glsl`): the closest hit over every
-/// instance the ray's cull mask sees, each traced by `bottom(level, object-space ray)` —
+/// The CPU twin of the two-level walk (`vkrt/instances.glsl`): the closest hit at `time`
+/// over every instance the ray's cull mask sees (`steps`: the moving top level's, from
+/// [`instance_boxes`]), each traced by `bottom(level, object-space ray)` —
 /// the bottom level's own walk, returning its hit and whether it gave up. Ties in `t` go to
 /// the lowest instance index; an any-hit query returns the first hit in index order (the
 /// device's may be another: any hit answers it).
 pub fn trace_instances(
     records: &[InstanceRecord],
+    steps: &[[[f32; 4]; 3]],
     r: &Ray,
+    time: f32,
     cull_mask: u32,
     any_hit: bool,
     mut bottom: impl FnMut(u32, &Ray) -> (Hit, bool),
@@ -341,7 +505,10 @@ pub fn trace_instances(
         if rec.handle == 0 || rec.mask() & cull_mask == 0 {
             continue;
         }
-        let (h, exhausted) = bottom(rec.bottom(), &object_ray(rec, r, best_t));
+        let Some(m) = rec.world_to_object_at(steps, time) else {
+            continue;
+        };
+        let (h, exhausted) = bottom(rec.bottom(), &object_ray(&m, r, best_t));
         if exhausted {
             return InstanceHit {
                 hit: Hit::MISS,
@@ -378,22 +545,31 @@ pub struct TopLevelBuilder {
 struct Parts {
     boxes: Buffer<[f32; 6]>,
     records: Buffer<InstanceRecord>,
+    /// A moving top level's object-to-world rows per instance and step.
+    steps: Buffer<[[f32; 4]; 3]>,
     bottom_info: Buffer<SceneInfo>,
     handles: Buffer<[u64; 8]>,
+    /// The top level's handle: its tree's seven arrays, its records, its steps.
     handle: Buffer<[u64; 8]>,
     status: Buffer<u32>,
 }
 
 impl Parts {
-    fn create(ctx: &Context, count: u32, n_bottoms: usize) -> Result<Self> {
+    fn create(ctx: &Context, count: u32, n_bottoms: usize, motion: InstanceMotion) -> Result<Self> {
         let n = (count as usize).max(1);
         let b = n_bottoms.max(1);
+        let steps = if motion.steps > 1 {
+            motion.records(count).max(1) as usize
+        } else {
+            1
+        };
         Ok(Self {
             boxes: Buffer::new(ctx, "accel.instance_boxes", n)?,
             records: Buffer::new(ctx, "accel.instance_records", n)?,
+            steps: Buffer::new(ctx, "accel.instance_steps", steps)?,
             bottom_info: Buffer::new(ctx, "accel.bottom_info", b)?,
             handles: Buffer::new(ctx, "accel.bottom_handles", b)?,
-            handle: Buffer::new(ctx, "accel.top_handle", 1)?,
+            handle: Buffer::new(ctx, "accel.top_handle", 2)?,
             status: Buffer::new(ctx, "accel.instance_status", 1)?,
         })
     }
@@ -425,6 +601,7 @@ pub struct TopLevel<'a> {
     parts: Parts,
     bottoms: Vec<Bottom<'a>>,
     count: u32,
+    motion: InstanceMotion,
     /// What [`TopLevelBuilder::build`] allocated (none for [`TopLevelBuilder::create_in`]).
     own: Option<Own>,
     /// Bytes of its memory ([`AccelSizes::structure_bytes`]).
@@ -441,9 +618,9 @@ struct Own {
 }
 
 /// The top level's part of the caller's memory, rounded up so that its tree starts aligned.
-fn parts_bytes(ctx: &Context, count: u32, n_bottoms: usize) -> Result<u64> {
+fn parts_bytes(ctx: &Context, count: u32, n_bottoms: usize, motion: InstanceMotion) -> Result<u64> {
     let (_, bytes) = place(ctx, "the instances", Placement::Measure, || {
-        Parts::create(ctx, count, n_bottoms)
+        Parts::create(ctx, count, n_bottoms, motion)
     })?;
     Ok(bytes.next_multiple_of(256))
 }
@@ -515,7 +692,22 @@ impl TopLevelBuilder {
         n_bottoms: usize,
         flags: &BuildFlags,
     ) -> Result<AccelSizes> {
-        let own = parts_bytes(ctx, count, n_bottoms)?;
+        self.sizes_for_motion(ctx, count, n_bottoms, InstanceMotion::STATIC, flags)
+    }
+
+    /// [`TopLevelBuilder::sizes_for`] a top level whose instances move by `motion`.
+    pub fn sizes_for_motion(
+        &self,
+        ctx: &Context,
+        count: u32,
+        n_bottoms: usize,
+        motion: InstanceMotion,
+        flags: &BuildFlags,
+    ) -> Result<AccelSizes> {
+        motion
+            .check()
+            .map_err(|why| usage("TopLevelBuilder::sizes_for_motion", why))?;
+        let own = parts_bytes(ctx, count, n_bottoms, motion)?;
         let tree = self.tree.sizes_for(ctx, &[measured_boxes(count)], flags)?;
         Ok(AccelSizes {
             structure_bytes: own + tree.structure_bytes,
@@ -536,7 +728,23 @@ impl TopLevelBuilder {
         memory: RawBuffer,
     ) -> Result<TopLevel<'a>> {
         let bottoms = bottoms.iter().map(|&b| Bottom::Borrowed(b)).collect();
-        self.create_in_bottoms(ctx, bottoms, count, flags, memory)
+        self.create_in_bottoms(ctx, bottoms, count, InstanceMotion::STATIC, flags, memory)
+    }
+
+    /// [`TopLevelBuilder::create_in`] a top level whose instances move by `motion`: its
+    /// builds read `motion.steps` records per instance ([`InstanceMotion`]), and `memory`
+    /// holds at least [`TopLevelBuilder::sizes_for_motion`]'s bytes.
+    pub fn create_moving_in<'a>(
+        &self,
+        ctx: &Context,
+        bottoms: &[&'a GpuGeometry],
+        count: u32,
+        motion: InstanceMotion,
+        flags: &BuildFlags,
+        memory: RawBuffer,
+    ) -> Result<TopLevel<'a>> {
+        let bottoms = bottoms.iter().map(|&b| Bottom::Borrowed(b)).collect();
+        self.create_in_bottoms(ctx, bottoms, count, motion, flags, memory)
     }
 
     fn create_in_bottoms<'a>(
@@ -544,10 +752,12 @@ impl TopLevelBuilder {
         ctx: &Context,
         bottoms: Vec<Bottom<'a>>,
         count: u32,
+        motion: InstanceMotion,
         flags: &BuildFlags,
         memory: RawBuffer,
     ) -> Result<TopLevel<'a>> {
         let call = "TopLevelBuilder::create_in";
+        motion.check().map_err(|why| usage(call, why))?;
         if bottoms.len() > MAX_BOTTOM_LEVELS {
             return Err(usage(
                 call,
@@ -557,7 +767,7 @@ impl TopLevelBuilder {
                 ),
             ));
         }
-        let own = parts_bytes(ctx, count, bottoms.len())?;
+        let own = parts_bytes(ctx, count, bottoms.len(), motion)?;
         if memory.size < own {
             return Err(usage(
                 call,
@@ -568,7 +778,7 @@ impl TopLevelBuilder {
             ));
         }
         let (parts, _) = place(ctx, "the instances", Placement::Into(memory), || {
-            Parts::create(ctx, count, bottoms.len())
+            Parts::create(ctx, count, bottoms.len(), motion)
         })?;
         let rest = RawBuffer {
             raw: memory.raw,
@@ -587,6 +797,7 @@ impl TopLevelBuilder {
             parts,
             bottoms,
             count,
+            motion,
             own: None,
             bytes,
         })
@@ -603,13 +814,13 @@ impl TopLevelBuilder {
         build: bool,
     ) -> Result<()> {
         let ctx = rec.context().clone();
-        let need = 64 * u64::from(top.count);
+        let need = 64 * top.motion.records(top.count);
         if instances.size < need {
             return Err(usage(
                 call,
                 format!(
-                    "{} instances need {need} bytes; the range holds {}",
-                    top.count, instances.size
+                    "{} instances at {} time steps need {need} bytes; the range holds {}",
+                    top.count, top.motion.steps, instances.size
                 ),
             ));
         }
@@ -620,15 +831,16 @@ impl TopLevelBuilder {
         // The bottom levels' handles and the top level's own (the tree's seven arrays, then
         // the records): written by a build only.
         let mut handles = Vec::new();
-        let mut handle = [0u64; 8];
+        let mut handle = [[0u64; 8]; 2];
         if build {
             for b in &top.bottoms {
                 let mut out = [0u64; 8];
                 out[..7].copy_from_slice(&b.address_handle()?);
                 handles.push(out);
             }
-            handle[..7].copy_from_slice(&top.tree.address_handle()?);
-            handle[7] = p.records.device_address();
+            handle[0][..7].copy_from_slice(&top.tree.address_handle()?);
+            handle[0][7] = p.records.device_address();
+            handle[1][0] = p.steps.device_address();
         }
         rec.scope("instances", |rec| {
             // The bottom levels' builds (compute writes) before their constants are copied.
@@ -643,7 +855,7 @@ impl TopLevelBuilder {
                 for (k, chunk) in handles.chunks(1024).enumerate() {
                     rec.update(&p.handles, k * 1024, chunk)?;
                 }
-                rec.update(&p.handle, 0, &[handle])?;
+                rec.update(&p.handle, 0, &handle)?;
             }
             rec.transfer_to_compute();
             if top.count > 0 {
@@ -652,16 +864,19 @@ impl TopLevelBuilder {
                     n: top.count,
                     first_word: (skip / 4) as u32,
                     n_bottoms: top.bottoms.len() as u32,
-                    pad: 0,
+                    steps: top.motion.steps,
                     handles_at: p.handles.device_address(),
+                    t0: top.motion.time[0],
+                    scale: top.motion.scale(),
                 };
                 let groups = rec.groups_1d(u64::from(top.count), WORKGROUP);
-                let b: [&dyn BufferArg; 5] = [
+                let b: [&dyn BufferArg; 6] = [
                     &bound_instances,
                     &p.bottom_info,
                     &p.boxes,
                     &p.records,
                     &p.status,
+                    &p.steps,
                 ];
                 rec.dispatch(&self.boxes, groups, &b, &push);
             }
@@ -752,21 +967,43 @@ impl TopLevelBuilder {
         flags: &BuildFlags,
     ) -> Result<TopLevel<'a>> {
         let bottoms = bottoms.iter().map(|&b| Bottom::Borrowed(b)).collect();
-        self.record_build_bottoms(rec, bottoms, instances, flags)
+        self.record_build_bottoms(rec, bottoms, instances, InstanceMotion::STATIC, flags)
     }
 
-    /// [`TopLevelBuilder::record_build`] of a top level that keeps its bottom levels alive
-    /// (shared with the caller): a top level that can be stored beside them, as a renderer
-    /// keeps its scene from frame to frame.
+    /// [`TopLevelBuilder::build`] of a top level whose instances move by `motion`:
+    /// `instances` holds `motion.steps` lists of them, step after step ([`InstanceMotion`]).
+    /// Beyond each step's checks, an instance must name the same bottom level, custom
+    /// index, mask and flags at every step, and keep its handedness (a transform whose
+    /// determinant changes sign passes through a singular one between the steps).
+    pub fn build_moving<'a>(
+        &self,
+        ctx: &Context,
+        bottoms: &[&'a GpuGeometry],
+        instances: &[Instance],
+        motion: InstanceMotion,
+        flags: &BuildFlags,
+    ) -> Result<TopLevel<'a>> {
+        let mut rec = Recorder::new(ctx)?;
+        let bottoms = bottoms.iter().map(|&b| Bottom::Borrowed(b)).collect();
+        let top = self.record_build_bottoms(&mut rec, bottoms, instances, motion, flags)?;
+        rec.submit_and_wait()?;
+        Ok(top)
+    }
+
+    /// [`TopLevelBuilder::record_build`] (moving by `motion`, as
+    /// [`TopLevelBuilder::build_moving`]; [`InstanceMotion::STATIC`] for none) of a top level
+    /// that keeps its bottom levels alive (shared with the caller): a top level that can be
+    /// stored beside them, as a renderer keeps its scene from frame to frame.
     pub fn record_build_shared(
         &self,
         rec: &mut Recorder,
         bottoms: &[Arc<GpuGeometry>],
         instances: &[Instance],
+        motion: InstanceMotion,
         flags: &BuildFlags,
     ) -> Result<TopLevel<'static>> {
         let bottoms = bottoms.iter().map(|b| Bottom::Shared(b.clone())).collect();
-        self.record_build_bottoms(rec, bottoms, instances, flags)
+        self.record_build_bottoms(rec, bottoms, instances, motion, flags)
     }
 
     fn record_build_bottoms<'a>(
@@ -774,24 +1011,21 @@ impl TopLevelBuilder {
         rec: &mut Recorder,
         bottoms: Vec<Bottom<'a>>,
         instances: &[Instance],
+        motion: InstanceMotion,
         flags: &BuildFlags,
     ) -> Result<TopLevel<'a>> {
         let call = "TopLevelBuilder::build";
-        for (i, inst) in instances.iter().enumerate() {
-            inst.check(bottoms.len())
-                .map_err(|why| usage(call, format!("instance {i}: {why}")))?;
-        }
-        let count =
-            u32::try_from(instances.len()).map_err(|_| usage(call, "more than 2^32 instances"))?;
+        let count = check_instances(call, instances, motion, bottoms.len())?;
         let ctx = rec.context().clone();
-        let sizes = self.sizes_for(&ctx, count, bottoms.len(), flags)?;
+        let sizes = self.sizes_for_motion(&ctx, count, bottoms.len(), motion, flags)?;
         let memory = Buffer::<u8>::arena(&ctx, "accel.top_level", sizes.structure_bytes as usize)?;
         let scratch_bytes = sizes
             .build_scratch_bytes
             .max(sizes.update_scratch_bytes.unwrap_or(0));
         let scratch = Buffer::<u8>::arena(&ctx, "accel.top_scratch", scratch_bytes as usize)?;
         let records = Buffer::<Instance>::new(&ctx, "accel.instances", instances.len().max(1))?;
-        let mut top = self.create_in_bottoms(&ctx, bottoms, count, flags, memory.as_raw())?;
+        let mut top =
+            self.create_in_bottoms(&ctx, bottoms, count, motion, flags, memory.as_raw())?;
         rec.upload(&records, instances)?;
         rec.transfer_to_compute();
         self.record_build_from(rec, records.as_raw(), &mut top, scratch.as_raw())?;
@@ -850,20 +1084,21 @@ impl TopLevelBuilder {
         top: &TopLevel<'_>,
         instances: &[Instance],
     ) -> Result<(RawBuffer, RawBuffer)> {
-        if instances.len() != top.count as usize {
+        let want = top.motion.records(top.count);
+        if instances.len() as u64 != want {
+            let held = match top.motion.steps {
+                1 => format!("{} instances", top.count),
+                s => format!("{} instances at {s} time steps, {want} records", top.count),
+            };
             return Err(usage(
                 call,
                 format!(
-                    "{} instances; the top level holds {}: build a new one",
-                    instances.len(),
-                    top.count
+                    "{} instance records; the top level holds {held}: build a new one",
+                    instances.len()
                 ),
             ));
         }
-        for (i, inst) in instances.iter().enumerate() {
-            inst.check(top.bottoms.len())
-                .map_err(|why| usage(call, format!("instance {i}: {why}")))?;
-        }
+        check_instances(call, instances, top.motion, top.bottoms.len())?;
         let Some(Own {
             scratch, records, ..
         }) = &top.own
@@ -882,14 +1117,79 @@ impl TopLevelBuilder {
     }
 }
 
+/// The number of instances in `instances` moving by `motion`, after checking each (and,
+/// when it moves, that its steps agree); an error names the first that fails.
+fn check_instances(
+    call: &'static str,
+    instances: &[Instance],
+    motion: InstanceMotion,
+    n_bottoms: usize,
+) -> Result<u32> {
+    motion.check().map_err(|why| usage(call, why))?;
+    let steps = motion.steps as usize;
+    if instances.len() % steps != 0 {
+        return Err(usage(
+            call,
+            format!(
+                "{} instance records are not {steps} time steps of the same instances",
+                instances.len()
+            ),
+        ));
+    }
+    let count = instances.len() / steps;
+    let count = u32::try_from(count).map_err(|_| usage(call, "more than 2^32 instances"))?;
+    for (k, inst) in instances.iter().enumerate() {
+        let (i, s) = (k % count as usize, k / count as usize);
+        let at = if steps > 1 {
+            format!("instance {i} at step {s}")
+        } else {
+            format!("instance {i}")
+        };
+        inst.check(n_bottoms)
+            .map_err(|why| usage(call, format!("{at}: {why}")))?;
+        let first = &instances[i];
+        if s > 0 {
+            if (inst.bottom, inst.custom_index_and_mask, inst.sbt_offset_and_flags)
+                != (first.bottom, first.custom_index_and_mask, first.sbt_offset_and_flags)
+            {
+                return Err(usage(
+                    call,
+                    format!(
+                        "{at}: its bottom level, custom index, mask or flags differ from step \
+                         0's (only the transform moves)"
+                    ),
+                ));
+            }
+            if (determinant(&inst.transform) > 0.0) != (determinant(&first.transform) > 0.0) {
+                return Err(usage(
+                    call,
+                    format!(
+                        "{at}: its transform mirrors where step 0's does not (or the other \
+                         way): between them it passes through a singular transform"
+                    ),
+                ));
+            }
+        }
+    }
+    Ok(count)
+}
+
+fn determinant(m: &[[f32; 4]; 3]) -> f32 {
+    let [a, b, c] = m;
+    a[0] * (b[1] * c[2] - b[2] * c[1]) - a[1] * (b[0] * c[2] - b[2] * c[0])
+        + a[2] * (b[0] * c[1] - b[1] * c[0])
+}
+
 #[repr(C)]
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct BoxesPush {
     n: u32,
     first_word: u32,
     n_bottoms: u32,
-    pad: u32,
+    steps: u32,
     handles_at: u64,
+    t0: f32,
+    scale: f32,
 }
 
 impl TopLevel<'_> {
@@ -922,6 +1222,22 @@ impl TopLevel<'_> {
     /// [`Recorder::compute_to_transfer`].
     pub fn record_read_status(&self, rec: &mut Recorder) -> Result<InstanceStatus> {
         Ok(InstanceStatus(rec.read_back(&self.parts.status)?))
+    }
+
+    /// How its instances move.
+    pub fn motion(&self) -> InstanceMotion {
+        self.motion
+    }
+
+    /// A moving top level's steps as its build wrote them, `steps` per instance (empty when
+    /// it does not move).
+    pub fn download_steps(&self) -> Result<Vec<[[f32; 4]; 3]>> {
+        if self.motion.steps < 2 {
+            return Ok(Vec::new());
+        }
+        let mut steps = self.parts.steps.download()?;
+        steps.truncate(self.motion.records(self.count) as usize);
+        Ok(steps)
     }
 
     /// The world boxes and records the build wrote (tests and tools).

@@ -147,18 +147,28 @@ struct VkrtHit {
 #ifdef VKRT_DEVICE_ADDRESS
 // A top level's instance as its walk reads it (`InstanceRecord` in src/accel/instances.rs):
 // world-to-object rows, then (bottom level's handle address lo, hi, custom index | mask <<
-// 24, flags | bottom-level index << 8).
+// 24, flags | bottom-level index << 8), then its motion (steps, the first step's index, the
+// first step's time, (steps - 1) / the interval; one step: it does not move).
 struct VkrtInstanceRecord {
     vec4 rows[3];
     uvec4 meta;
+    uvec4 motion;
 };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer VkrtInstances {
     VkrtInstanceRecord v[];
 };
 VkrtInstances vkrt_instances;
+// A moving top level's object-to-world rows per instance and step.
+struct VkrtRows {
+    vec4 rows[3];
+};
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer VkrtSteps {
+    VkrtRows v[];
+};
+VkrtSteps vkrt_steps;
 
 layout(buffer_reference, std430, buffer_reference_align = 8) readonly buffer VkrtHandle {
-    // Seven arrays; a top level's eighth is its instance records.
+    // Seven arrays; a top level's eighth is its instance records, its ninth its steps.
     uint64_t addresses[];
 };
 // The structure in use (vkrtUseStructure): a top level's walk comes back to it after each
@@ -188,6 +198,7 @@ void vkrt_use(uint64_t handle) {
 #endif
     if (scene_info.walk == ACCEL_INSTANCES) {
         vkrt_instances = VkrtInstances(h.addresses[7]);
+        vkrt_steps = VkrtSteps(h.addresses[8]);
     }
 }
 

@@ -10,7 +10,7 @@ use std::sync::Arc;
 
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelStructure};
 use crate::accel::embedded::BuildFlags;
-use crate::accel::instances::{TopLevel, TopLevelBuilder};
+use crate::accel::instances::{InstanceMotion, TopLevel, TopLevelBuilder};
 use crate::gpu::{Buffer, BufferArg, Readback, Recorder, Result};
 use crate::render::types::Placement;
 use crate::render::RenderLevels;
@@ -119,7 +119,13 @@ impl Levels {
                 allow_update,
                 ..BuildFlags::default()
             };
-            let top = top_builder.record_build_shared(rec, &bottoms, &two.instances, &flags)?;
+            let top = top_builder.record_build_shared(
+                rec,
+                &bottoms,
+                &two.instances,
+                InstanceMotion::STATIC,
+                &flags,
+            )?;
             Ok::<_, crate::gpu::GpuError>((top, top_builder, bottom_ms))
         })?;
         let verts = Buffer::new(&ctx, "render.level_verts", rl.verts.len().max(1))?;
