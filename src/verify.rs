@@ -533,12 +533,7 @@ fn bottom_levels(
 /// class: singular, non-finite, a bottom level out of range; some with mask 0) moving in
 /// `steps` time steps (one more class: singular at the last step only), built in memory of
 /// the reported size, against its CPU twin bit for bit, and the count of invalid ones.
-fn instance_boxes_check(
-    ctx: &Context,
-    hosts: &[TraceGeometry],
-    n: usize,
-    steps: u32,
-) -> Outcome {
+fn instance_boxes_check(ctx: &Context, hosts: &[TraceGeometry], n: usize, steps: u32) -> Outcome {
     use crate::accel::instances::{instance_boxes, Instance, InstanceMotion, TopLevelBuilder};
     let levels = bottom_levels(
         ctx,
@@ -589,7 +584,8 @@ fn instance_boxes_check(
     let memory = Buffer::<u8>::arena(ctx, "verify.top", sizes.structure_bytes as usize)?;
     let scratch = Buffer::<u8>::arena(ctx, "verify.scratch", sizes.build_scratch_bytes as usize)?;
     let input = Buffer::<Instance>::new(ctx, "verify.instances", instances.len().max(1))?;
-    let mut top = builder.create_moving_in(ctx, &refs, n as u32, motion, &flags, memory.as_raw())?;
+    let mut top =
+        builder.create_moving_in(ctx, &refs, n as u32, motion, &flags, memory.as_raw())?;
     let mut rec = Recorder::new(ctx)?;
     rec.upload(&input, &instances)?;
     rec.transfer_to_compute();

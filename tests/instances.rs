@@ -889,8 +889,14 @@ fn moving_instances_trace_as_their_interpolated_transforms() {
     for (bad, what) in [
         (InstanceMotion::new(0, 0.0, 1.0), "0 time steps"),
         (InstanceMotion::new(200, 0.0, 1.0), "200 time steps"),
-        (InstanceMotion::new(2, 1.0, 1.0), "not finite and increasing"),
-        (InstanceMotion::new(2, f32::NAN, 1.0), "not finite and increasing"),
+        (
+            InstanceMotion::new(2, 1.0, 1.0),
+            "not finite and increasing",
+        ),
+        (
+            InstanceMotion::new(2, f32::NAN, 1.0),
+            "not finite and increasing",
+        ),
     ] {
         let e = refused(builder.build_moving(&ctx, &refs, &instances, bad, &flags));
         assert!(e.contains(what), "{e}");
@@ -900,17 +906,29 @@ fn moving_instances_trace_as_their_interpolated_transforms() {
     let mut other = instances.clone();
     other[n + 4].bottom ^= 1;
     let e = refused(builder.build_moving(&ctx, &refs, &other, motion, &flags));
-    assert!(e.contains("instance 4 at step 1") && e.contains("bottom level"), "{e}");
+    assert!(
+        e.contains("instance 4 at step 1") && e.contains("bottom level"),
+        "{e}"
+    );
     let mut mirrored = instances.clone();
     mirrored[2 * n + 6].transform[0] = mirrored[2 * n + 6].transform[0].map(|x| -x);
     mirrored[2 * n + 6].transform[0][3] *= -1.0;
     let e = refused(builder.build_moving(&ctx, &refs, &mirrored, motion, &flags));
-    assert!(e.contains("instance 6 at step 2") && e.contains("mirrors"), "{e}");
+    assert!(
+        e.contains("instance 6 at step 2") && e.contains("mirrors"),
+        "{e}"
+    );
     let mut singular = instances.clone();
     singular[n + 2].transform = [[0.0; 4]; 3];
     let e = refused(builder.build_moving(&ctx, &refs, &singular, motion, &flags));
-    assert!(e.contains("instance 2 at step 1") && e.contains("singular"), "{e}");
-    let e = builder.update(&ctx, &top, &next[..2 * n]).unwrap_err().to_string();
+    assert!(
+        e.contains("instance 2 at step 1") && e.contains("singular"),
+        "{e}"
+    );
+    let e = builder
+        .update(&ctx, &top, &next[..2 * n])
+        .unwrap_err()
+        .to_string();
     assert!(
         e.contains("48 instance records; the top level holds 24 instances at 3 time steps"),
         "{e}"

@@ -268,11 +268,7 @@ impl InstanceRecord {
     /// Its world-to-object rows at `time`, interpolated from `steps` (the top level's, as
     /// [`instance_boxes`] returns them) as the walk does; `None` where the transform there is
     /// not invertible (the ray misses the instance).
-    pub fn world_to_object_at(
-        &self,
-        steps: &[[[f32; 4]; 3]],
-        time: f32,
-    ) -> Option<[[f32; 4]; 3]> {
+    pub fn world_to_object_at(&self, steps: &[[[f32; 4]; 3]], time: f32) -> Option<[[f32; 4]; 3]> {
         let [n, first, t0, scale] = self.motion;
         if n < 2 {
             return Some(self.world_to_object);
@@ -416,9 +412,8 @@ pub fn instance_boxes(
             box_lo = box_lo.min(lo);
             box_hi = box_hi.max(hi);
         }
-        out.boxes.push([
-            box_lo.x, box_lo.y, box_lo.z, box_hi.x, box_hi.y, box_hi.z,
-        ]);
+        out.boxes
+            .push([box_lo.x, box_lo.y, box_lo.z, box_hi.x, box_hi.y, box_hi.z]);
         out.records.push(InstanceRecord {
             world_to_object: inv,
             handle: handles_at + 64 * u64::from(bottom),
@@ -1149,9 +1144,15 @@ fn check_instances(
             .map_err(|why| usage(call, format!("{at}: {why}")))?;
         let first = &instances[i];
         if s > 0 {
-            if (inst.bottom, inst.custom_index_and_mask, inst.sbt_offset_and_flags)
-                != (first.bottom, first.custom_index_and_mask, first.sbt_offset_and_flags)
-            {
+            if (
+                inst.bottom,
+                inst.custom_index_and_mask,
+                inst.sbt_offset_and_flags,
+            ) != (
+                first.bottom,
+                first.custom_index_and_mask,
+                first.sbt_offset_and_flags,
+            ) {
                 return Err(usage(
                     call,
                     format!(
