@@ -722,7 +722,7 @@ fn rays_grazing_instance_boxes_answer_as_the_flattened_scene() {
     common::assert_silent(&ctx);
 }
 
-/// Moving instances (three time steps, each instance moving and turning): the device's boxes,
+/// Moving instances (three time steps, most instances moving and turning): the device's boxes,
 /// records and steps equal the CPU twin's bit for bit; at every time (before, inside and
 /// after the interval) the hits equal the twin's and the flattened scene's at that time
 /// (every instance's triangles placed by its interpolated transform); at a step's time they
@@ -761,18 +761,27 @@ fn moving_instances_trace_as_their_interpolated_transforms() {
             .collect();
         let mut all = start.clone();
         for s in 1..steps {
-            all.extend(start.iter().zip(&paths).map(|(inst, (v, axis))| {
-                let t0 = Instance::affine_of(&inst.transform);
-                let c = t0.translation.into();
-                let spin = Affine3A::from_translation(c)
-                    * Affine3A::from_axis_angle(*axis, 0.4 * s as f32)
-                    * Affine3A::from_translation(-c);
-                let moved = Affine3A::from_translation(*v * s as f32) * spin * t0;
-                Instance {
-                    transform: Instance::rows_of(&moved),
-                    ..*inst
-                }
-            }));
+            all.extend(
+                start
+                    .iter()
+                    .zip(&paths)
+                    .enumerate()
+                    .map(|(i, (inst, (v, axis)))| {
+                        if i % 5 == 0 {
+                            return *inst; // still: recorded as one step
+                        }
+                        let t0 = Instance::affine_of(&inst.transform);
+                        let c = t0.translation.into();
+                        let spin = Affine3A::from_translation(c)
+                            * Affine3A::from_axis_angle(*axis, 0.4 * s as f32)
+                            * Affine3A::from_translation(-c);
+                        let moved = Affine3A::from_translation(*v * s as f32) * spin * t0;
+                        Instance {
+                            transform: Instance::rows_of(&moved),
+                            ..*inst
+                        }
+                    }),
+            );
         }
         all
     };
@@ -801,6 +810,13 @@ fn moving_instances_trace_as_their_interpolated_transforms() {
     let bits = |v: &[f32]| -> Vec<u32> { v.iter().map(|x| x.to_bits()).collect() };
     assert_eq!(bits(boxes.as_flattened()), bits(want.boxes.as_flattened()));
     assert_eq!(records, want.records);
+    for (i, r) in records.iter().enumerate() {
+        assert_eq!(
+            r.motion[0],
+            if i % 5 == 0 { 1 } else { steps },
+            "instance {i}"
+        );
+    }
     assert_eq!(
         bits(device_steps.as_flattened().as_flattened()),
         bits(want.steps.as_flattened().as_flattened())
@@ -866,11 +882,14 @@ fn moving_instances_trace_as_their_interpolated_transforms() {
     }
     assert!(hits > 400, "{hits} hits");
 
-    // An update to new motion traces as a new build of it.
+    // An update to new motion over a later interval traces as a new build of it.
     let next = moving(&mut rng);
+    let mut top = top;
+    let later = InstanceMotion::new(steps, 1.1, 2.3);
+    top.set_time(later.time).unwrap();
     builder.update(&ctx, &top, &next).unwrap();
     let fresh = builder
-        .build_moving(&ctx, &refs, &next, motion, &flags)
+        .build_moving(&ctx, &refs, &next, later, &flags)
         .unwrap();
     for time in [1.2, 1.9] {
         assert_eq!(
@@ -925,6 +944,15 @@ fn moving_instances_trace_as_their_interpolated_transforms() {
         e.contains("instance 2 at step 1") && e.contains("singular"),
         "{e}"
     );
+    let e = top.set_time([2.0, 1.0]).unwrap_err().to_string();
+    assert!(e.contains("not finite and increasing"), "{e}");
+    let e = builder
+        .build(&ctx, &refs, &instances[..n], &flags)
+        .unwrap()
+        .set_time([0.0, 1.0])
+        .unwrap_err()
+        .to_string();
+    assert!(e.contains("does not move"), "{e}");
     let e = builder
         .update(&ctx, &top, &next[..2 * n])
         .unwrap_err()

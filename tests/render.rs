@@ -463,9 +463,9 @@ fn animation_frames_match_the_cpu_twin() {
 }
 
 /// Which scenes the plan traces as two levels: one that repeats a mesh (the dynamic demo's
-/// icospheres), unless asked to flatten, or where the two levels cannot serve the render yet
-/// (motion blur, the driver's structure, the bitstack walk), each said in a note; a scene
-/// whose meshes are all different stays one level.
+/// icospheres, with or without motion blur), unless asked to flatten, or where the two levels
+/// cannot serve the render yet (the driver's structure, the bitstack walk), each said in a
+/// note; a scene whose meshes are all different stays one level.
 #[test]
 fn the_plan_traces_repeated_meshes_as_two_levels() {
     use vkrt::accel::device::{AccelChoice, AccelKind};
@@ -482,10 +482,11 @@ fn the_plan_traces_repeated_meshes_as_two_levels() {
         },
     );
     assert_eq!((flat.levels, flat.notes.len()), (1, 0));
+    // Motion blur too: the moving instances move over the shutter.
     let mut blurred = demo.clone();
     blurred.camera.shutter_close = 0.02;
+    assert_eq!(plan(&blurred, small(1)).levels, 2);
     let cases = [
-        (blurred, small(1), "motion blur"),
         (
             demo.clone(),
             RenderOptions {

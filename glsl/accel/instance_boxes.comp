@@ -9,7 +9,8 @@
 // A moving top level (`steps` > 1) reads `steps` records per instance, step after step
 // (`count` records apart), keeps each step's object-to-world for the walk, which
 // interpolates them at the ray's time, and boxes the union of the steps' boxes: within a
-// step's interval every point moves on a straight line, so the union holds it.
+// step's interval every point moves on a straight line, so the union holds it. An instance
+// whose steps are all equal is recorded as still (one step).
 //
 // An instance whose bottom-level index is out of range, or one of whose transforms is not
 // finite or not invertible, is never hit (an inactive box, min > max, and mask 0) and
@@ -102,9 +103,16 @@ void main() {
         vec4 unused[3];
         valid = valid && vkrt_invert_rows(rows_of(i, s), unused);
     }
-    // (every instance's steps, so that none is left undefined)
+    // (every instance's steps, so that none is left undefined) An instance whose steps
+    // are all the same is walked as a still one: nothing to interpolate per ray.
+    bool still = true;
     for (uint s = 0u; s < pc.steps && pc.steps > 1u; s++) {
-        steps[i * pc.steps + s] = Rows(rows_of(i, s));
+        vec4 m[3] = rows_of(i, s);
+        steps[i * pc.steps + s] = Rows(m);
+        vec4 m0[3] = rows_of(i, 0u);
+        for (uint r = 0u; r < 3u; r++) {
+            still = still && all(equal(floatBitsToUint(m[r]), floatBitsToUint(m0[r])));
+        }
     }
     if (!valid) {
         atomicAdd(status.invalid, 1u);
@@ -155,6 +163,6 @@ void main() {
     uint carry = lo_addr < pc.handles_at.x ? 1u : 0u;
     records[i] = InstanceRecord(inv, uvec4(lo_addr, pc.handles_at.y + carry, custom_mask,
                                            meta_w),
-                                uvec4(pc.steps, i * pc.steps, floatBitsToUint(pc.t0),
-                                      floatBitsToUint(pc.scale)));
+                                uvec4(still ? 1u : pc.steps, i * pc.steps,
+                                      floatBitsToUint(pc.t0), floatBitsToUint(pc.scale)));
 }

@@ -9,7 +9,8 @@
 // `levels`: the scene traced as two levels (src/render/gpu/levels.rs). A hit names its
 // instance (`hit_instance`) and the primitive in that instance's bottom level; the surface is
 // the bottom level's triangle (object space) placed by the instance, its shading normals
-// moved by the inverse transpose, its material the instance's (or the primitive's).
+// moved by the inverse transpose, its material the instance's (or the primitive's). A moving
+// instance is placed by its steps interpolated at the ray's time, as the walk placed it.
 //! variant flat
 //! variant levels LEVELS=1
 #extension GL_EXT_shader_8bit_storage : require
@@ -31,11 +32,16 @@ layout(constant_id = 11) const bool BOUNCES = false;
 #include "render/shading.glsl"
 #if LEVELS
 #include "include/vkrt/ray.glsl"
-// 112 bytes: `Placement` in src/render/types.rs.
+#include "include/vkrt/affine.glsl"
+// 128 bytes: `Placement` in src/render/types.rs.
 struct Placement {
     vec4 object_to_world[3];   // rows
     vec4 world_to_object[3];   // rows
     uvec4 info;                // first level primitive, triangles, first sphere, material
+    uvec4 motion;              // steps (1: still), first step, first step's time, scale
+};
+struct Rows {
+    vec4 rows[3];
 };
 #define PER_PRIMITIVE 0xffffffffu
 // Per level primitive (every bottom level's triangles then spheres, bottom after bottom):
@@ -44,6 +50,8 @@ layout(std430, binding = 5) readonly buffer LevelVerts { float level_verts[]; };
 layout(std430, binding = 6) readonly buffer LevelSpheres { vec4 level_spheres[]; };
 layout(std430, binding = 7) readonly buffer Placements { Placement placements[]; };
 layout(std430, binding = 8) readonly buffer HitInstance { uint hit_instance[]; };
+// Per moving instance its steps' object-to-world rows.
+layout(std430, binding = 9) readonly buffer Steps { Rows steps[]; };
 #else
 #define GEOM_BINDING 3
 #include "include/vkrt/traverse.glsl"
@@ -74,6 +82,21 @@ vec3 normal_at(uint tri, uint corner) {
 vec3 level_vertex(uint prim, uint corner) {
     uint k = 9u * prim + 3u * corner;
     return vec3(level_verts[k], level_verts[k + 1u], level_verts[k + 2u]);
+}
+
+// The placement at `time`: a moving instance's steps around it interpolated (and inverted),
+// as the two-level walk does.
+Placement placement_at(Placement pl, float time) {
+    if (pl.motion.x < 2u) {
+        return pl;
+    }
+    float f;
+    uint k = vkrt_motion_segment(time, uintBitsToFloat(pl.motion.z), uintBitsToFloat(pl.motion.w),
+                                 pl.motion.x, f);
+    uint first = pl.motion.y + k;
+    pl.object_to_world = vkrt_lerp_rows(steps[first].rows, steps[first + 1u].rows, f);
+    vkrt_invert_rows(pl.object_to_world, pl.world_to_object);
+    return pl;
 }
 
 vec3 place_point(Placement pl, vec3 q) {
@@ -181,7 +204,7 @@ void main() {
     vec3 ng;
     vec3 ns;
 #if LEVELS
-    Placement pl = placements[hit_instance[i]];
+    Placement pl = placement_at(placements[hit_instance[i]], p.time);
     uint level_prim = pl.info.x + h.prim;
     if (h.prim < pl.info.y) {
         vec3 p0 = place_point(pl, level_vertex(level_prim, 0u));

@@ -365,9 +365,12 @@ pub fn instance_boxes(
             .map(|k| instances[(k % n_steps) * count + k / n_steps].transform)
             .collect();
     }
+    // An instance whose steps are all the same is recorded as still.
     let motion_words = |i: usize| {
+        let rows = |s: usize| bytemuck::cast::<_, [u32; 12]>(instances[s * count + i].transform);
+        let still = (1..n_steps).all(|s| rows(s) == rows(0));
         [
-            n_steps as u32,
+            if still { 1 } else { n_steps as u32 },
             (i * n_steps) as u32,
             motion.time[0].to_bits(),
             motion.scale().to_bits(),
@@ -1228,6 +1231,27 @@ impl TopLevel<'_> {
     /// How its instances move.
     pub fn motion(&self) -> InstanceMotion {
         self.motion
+    }
+
+    /// Moves a moving top level's time interval to `time` (as `rtcSetGeometryTimeRange`), for
+    /// its next build or update (the steps' count stays): an animation's next frame opens
+    /// its shutter later.
+    pub fn set_time(&mut self, time: [f32; 2]) -> Result<()> {
+        let motion = InstanceMotion {
+            time,
+            ..self.motion
+        };
+        if self.motion.steps < 2 {
+            return Err(usage(
+                "TopLevel::set_time",
+                "this top level does not move (built with one time step)",
+            ));
+        }
+        motion
+            .check()
+            .map_err(|why| usage("TopLevel::set_time", why))?;
+        self.motion = motion;
+        Ok(())
     }
 
     /// A moving top level's steps as its build wrote them, `steps` per instance (empty when

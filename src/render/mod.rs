@@ -180,7 +180,8 @@ impl RenderScene {
         let Some(two) = TwoLevelScene::of(scene, time) else {
             return flat();
         };
-        let (levels, prim_material, tri_normals) = RenderLevels::new(scene, two, time);
+        let (levels, prim_material, tri_normals) =
+            RenderLevels::new(scene, two, time, shutter(scene, plan));
         let (materials, lights, params) = constants(scene, plan);
         Self {
             geometry: TraceGeometry::default(),
@@ -203,12 +204,20 @@ impl RenderScene {
         match &mut self.levels {
             Some(levels) => {
                 let scene = &held(scene);
-                levels.move_to(scene, scene.camera.shutter_open);
+                let cam = &scene.camera;
+                levels.move_to(scene, [cam.shutter_open, cam.shutter_close]);
                 (self.materials, self.lights, self.params) = constants(scene, plan);
             }
             None => *self = Self::on_device(scene, plan),
         }
     }
+}
+
+/// The shutter interval where `plan` blurs motion over an open shutter.
+fn shutter(scene: &Scene, plan: &Plan) -> Option<[f32; 2]> {
+    let cam = &scene.camera;
+    (plan.motion && cam.shutter_close > cam.shutter_open)
+        .then_some([cam.shutter_open, cam.shutter_close])
 }
 
 /// `scene` with its keyframed meshes held at their pose at shutter open for the exposure:

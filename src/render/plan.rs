@@ -130,7 +130,7 @@ impl Plan {
         let wave_pixels = (queue_capacity / growth)
             .min(width as usize * height as usize)
             .max(1) as u32;
-        let levels = levels(scene, opt, fx.motion_blur, &mut notes);
+        let levels = levels(scene, opt, &mut notes);
         let mut passes = vec!["camera", "extend", "shade"];
         if shadow_slots > 0 {
             passes.push("shadow");
@@ -184,7 +184,7 @@ impl Plan {
 
 /// How many levels the scene is traced as: two where a mesh repeats and the two levels
 /// can serve the render, with a note where they cannot.
-fn levels(scene: &Scene, opt: &RenderOptions, blur: bool, notes: &mut Vec<String>) -> u32 {
+fn levels(scene: &Scene, opt: &RenderOptions, notes: &mut Vec<String>) -> u32 {
     use crate::accel::device::AccelKind;
     use crate::trace::bvh_cpu::Traversal;
     use crate::trace::gpu::AccelTraversal;
@@ -195,8 +195,6 @@ fn levels(scene: &Scene, opt: &RenderOptions, blur: bool, notes: &mut Vec<String
         Some("the driver's structure is traced flat")
     } else if opt.accel.traversal() == AccelTraversal::Bvh(Traversal::Bitstack) {
         Some("the bitstack walk is traced flat")
-    } else if blur {
-        Some("motion blur is traced flat (instances are placed at shutter open)")
     } else if scene.spheres.iter().any(|s| !s.motion.is_static()) {
         Some("moving spheres are traced flat")
     } else {

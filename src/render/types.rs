@@ -53,8 +53,9 @@ pub struct GpuLight {
     pub power: [f32; 4],
 }
 
-/// An instance as shading reads it, over two levels (112 bytes, `glsl/render/shade.comp`):
-/// where its bottom level's primitives lie among the level primitives, and its transforms.
+/// An instance as shading reads it, over two levels (128 bytes, `glsl/render/shade.comp`):
+/// where its bottom level's primitives lie among the level primitives, its transforms, and
+/// how it moves over the shutter.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Placement {
@@ -65,6 +66,10 @@ pub struct Placement {
     /// The bottom level's first level primitive, its triangles, its first sphere (in the
     /// level spheres), and the instance's material (`u32::MAX`: each primitive's).
     pub info: [u32; 4],
+    /// As the top level's record has it ([`crate::accel::instances::InstanceRecord::motion`]):
+    /// steps (1: still; the transforms above), where its steps start among the levels'
+    /// steps, the first step's time and `(steps - 1) / shutter` (as bits).
+    pub motion: [u32; 4],
 }
 
 /// Per-render constants (160 bytes).
@@ -99,7 +104,7 @@ const _: () = assert!(std::mem::size_of::<ShadowRay>() == 48);
 const _: () = assert!(std::mem::size_of::<GpuMaterial>() == 80);
 const _: () = assert!(std::mem::size_of::<GpuLight>() == 80);
 const _: () = assert!(std::mem::size_of::<RenderParams>() == 160);
-const _: () = assert!(std::mem::size_of::<Placement>() == 112);
+const _: () = assert!(std::mem::size_of::<Placement>() == 128);
 
 pub const RAY_PRIMARY: u32 = 0;
 pub const RAY_REFLECTION: u32 = 1;

@@ -10,7 +10,7 @@ use std::sync::Arc;
 
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelStructure};
 use crate::accel::embedded::BuildFlags;
-use crate::accel::instances::{InstanceMotion, TopLevel, TopLevelBuilder};
+use crate::accel::instances::{TopLevel, TopLevelBuilder};
 use crate::gpu::{Buffer, BufferArg, Readback, Recorder, Result};
 use crate::render::types::Placement;
 use crate::render::RenderLevels;
@@ -32,11 +32,17 @@ impl Traced {
     /// What `shade` binds after its head (bindings 5 on): flat, the primitives (triangle
     /// vertices, spheres, per-primitive motion slot, motions) and the scene constants,
     /// `traverse.glsl`'s last five bindings; over two levels the level primitives, the
-    /// placements and the hits' instances.
+    /// placements, the hits' instances and the moving instances' steps.
     pub fn shading_bindings(&self) -> Vec<&dyn BufferArg> {
         match self {
             Traced::Flat(g) => g.bindings()[2..].to_vec(),
-            Traced::Levels(l) => vec![&l.verts, &l.spheres, &l.placements, &l.hit_instance],
+            Traced::Levels(l) => vec![
+                &l.verts,
+                &l.spheres,
+                &l.placements,
+                &l.hit_instance,
+                &l.steps,
+            ],
         }
     }
 
@@ -82,6 +88,8 @@ pub(crate) struct Levels {
     verts: Buffer<f32>,
     spheres: Buffer<[f32; 4]>,
     placements: Buffer<Placement>,
+    /// Per instance its steps' object-to-world rows (motion blur).
+    steps: Buffer<[[f32; 4]; 3]>,
     /// Per queued ray: the instance its closest hit is in (`render.instances` writes it).
     pub hit_instance: Buffer<u32>,
     /// Host milliseconds of the bottom levels' builds (the SAH BVH's host builder; the
@@ -119,22 +127,19 @@ impl Levels {
                 allow_update,
                 ..BuildFlags::default()
             };
-            let top = top_builder.record_build_shared(
-                rec,
-                &bottoms,
-                &two.instances,
-                InstanceMotion::STATIC,
-                &flags,
-            )?;
+            let top =
+                top_builder.record_build_shared(rec, &bottoms, &rl.moving, rl.motion, &flags)?;
             Ok::<_, crate::gpu::GpuError>((top, top_builder, bottom_ms))
         })?;
         let verts = Buffer::new(&ctx, "render.level_verts", rl.verts.len().max(1))?;
         let spheres = Buffer::new(&ctx, "render.level_spheres", rl.spheres.len().max(1))?;
         let placements = Buffer::new(&ctx, "render.placements", rl.placements.len().max(1))?;
+        let steps = Buffer::new(&ctx, "render.instance_steps", rl.steps.len().max(1))?;
         let hit_instance = Buffer::new(&ctx, "render.hit_instance", queue.max(1))?;
         rec.upload(&verts, &rl.verts)?;
         rec.upload(&spheres, &rl.spheres)?;
         rec.upload(&placements, &rl.placements)?;
+        rec.upload(&steps, &rl.steps)?;
         rec.transfer_to_compute();
         Ok(Self {
             top,
@@ -142,15 +147,18 @@ impl Levels {
             verts,
             spheres,
             placements,
+            steps,
             hit_instance,
             bottom_ms,
         })
     }
 
-    /// Records the upload of `rl`'s placements (a later frame's; order it after the last
-    /// frame's shading and before the next, as [`super::Renderer`]'s reset of a frame does).
+    /// Records the upload of `rl`'s placements and steps (a later frame's; order it after
+    /// the last frame's shading and before the next, as [`super::Renderer`]'s reset of a
+    /// frame does).
     pub fn record_placements(&self, rec: &mut Recorder, rl: &RenderLevels) -> Result<()> {
-        rec.upload(&self.placements, &rl.placements)
+        rec.upload(&self.placements, &rl.placements)?;
+        rec.upload(&self.steps, &rl.steps)
     }
 
     /// Records the top level's update to `rl`'s instances (as many as it was built with),
@@ -162,7 +170,10 @@ impl Levels {
         rl: &RenderLevels,
         update: Update,
     ) -> Result<()> {
-        let (b, top, instances) = (&self.top_builder, &mut self.top, &rl.scene.instances);
+        let (b, top, instances) = (&self.top_builder, &mut self.top, &rl.moving);
+        if rl.motion.steps > 1 {
+            top.set_time(rl.motion.time)?;
+        }
         match update {
             Update::Refit => rec.scope("levels", |rec| b.record_update(rec, top, instances)),
             Update::Rebuild => rec.scope("levels", |rec| b.record_rebuild(rec, top, instances)),
