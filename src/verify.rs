@@ -426,10 +426,15 @@ impl Verifier<'_> {
                         "two levels over {} bottom levels: {intersector:?} {query:?}",
                         choice.label()
                     );
-                    let o = two_level_check(ctx, &hosts, choice, intersector, query, &rays);
+                    let o =
+                        two_level_check(ctx, &hosts, choice, (intersector, query), &rays, false);
                     self.check("instances", name, o);
                 }
             }
+            let name = format!("moving instances over {} bottom levels", choice.label());
+            let how = (Intersector::Watertight, Query::Closest);
+            let o = two_level_check(ctx, &hosts, choice, how, &rays, true);
+            self.check("instances", name, o);
         }
     }
 
@@ -624,18 +629,19 @@ fn instance_boxes_check(ctx: &Context, hosts: &[TraceGeometry], n: usize, steps:
     Ok((got != invalid).then(|| format!("{got} invalid instances counted, {invalid} expected")))
 }
 
-/// 30 instances of `hosts`' levels built by `choice`'s builder, traced through the
-/// two-level walk, against its CPU twin with brute force in each bottom level: the same
-/// instance and primitive (or a tie), t within 1e-5; any hit: the same hit or miss.
+/// 30 instances of `hosts`' levels built by `choice`'s builder (`moving`: in three time
+/// steps, traced at a time between two), traced through the two-level walk, against its CPU
+/// twin with brute force in each bottom level: the same instance and primitive (or a tie), t
+/// within 1e-5; any hit: the same hit or miss.
 fn two_level_check(
     ctx: &Context,
     hosts: &[TraceGeometry],
     choice: AccelChoice,
-    intersector: Intersector,
-    query: Query,
+    (intersector, query): (Intersector, Query),
     rays: &[Ray],
+    moving: bool,
 ) -> Outcome {
-    use crate::accel::instances::{trace_instances, Instance, TopLevelBuilder};
+    use crate::accel::instances::{trace_instances, Instance, InstanceMotion, TopLevelBuilder};
     use crate::trace::gpu::{effective_options, AccelTraversal};
     let levels = bottom_levels(ctx, hosts, choice)?;
     let refs: Vec<&GpuGeometry> = levels.iter().collect();
@@ -644,10 +650,27 @@ fn two_level_check(
     let instances: Vec<Instance> = (0..n)
         .map(|i| Instance::new(i % 2, instance_transform(&mut rng)).with_custom_index(i))
         .collect();
-    let top = TopLevelBuilder::new(ctx, AccelKind::Lbvh)?.build(
+    let (motion, time) = match moving {
+        true => (InstanceMotion::new(3, 0.0, 1.0), 0.7),
+        false => (InstanceMotion::STATIC, 0.0),
+    };
+    // Later steps: each instance moved and turned a little.
+    let mut records = instances.clone();
+    for s in 1..motion.steps {
+        records.extend(instances.iter().map(|inst| {
+            let turn = glam::Affine3A::from_rotation_z(0.2 * s as f32)
+                * glam::Affine3A::from_translation(Vec3::new(0.0, 0.5 * s as f32, 0.0));
+            Instance {
+                transform: Instance::rows_of(&(turn * Instance::affine_of(&inst.transform))),
+                ..*inst
+            }
+        }));
+    }
+    let top = TopLevelBuilder::new(ctx, AccelKind::Lbvh)?.build_moving(
         ctx,
         &refs,
-        &instances,
+        &records,
+        motion,
         &Default::default(),
     )?;
     // Hit ids as instance · STRIDE + primitive.
@@ -671,18 +694,25 @@ fn two_level_check(
         &opt,
         bitstack,
         rays,
-        0.0,
+        time,
     )?;
     if batch.exhausted > 0 {
         return Ok(Some(format!("{} rays ran out of steps", batch.exhausted)));
     }
     let (_, records) = top.download()?;
+    let steps = top.download_steps()?;
     let mut wrong = 0;
     let mut example = None;
     for (i, (r, got)) in rays.iter().zip(&batch.hits).enumerate() {
-        let want = trace_instances(&records, &[], r, 0.0, 0xff, query == Query::Any, |b, ro| {
-            (cpu::brute_force(&hosts[b as usize], ro, 0.0, &opt), false)
-        });
+        let want = trace_instances(
+            &records,
+            &steps,
+            r,
+            time,
+            0xff,
+            query == Query::Any,
+            |b, ro| (cpu::brute_force(&hosts[b as usize], ro, 0.0, &opt), false),
+        );
         let same = match query {
             Query::Any => got.is_hit() == want.hit.is_hit(),
             Query::Closest => {
