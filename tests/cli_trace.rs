@@ -123,7 +123,8 @@ fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
         s(&scene_path),
         "--rays",
         s(&ray_path),
-        "--out",
+        // `-o/--output`; the tests below use its old name `--out`, kept as an alias.
+        "-o",
         s(&out),
         "--json",
         "--batch-rays",

@@ -1,10 +1,9 @@
-//! `vkrt animate` and `vkrt bench animate`: the frames of an animated scene, each
-//! rendered in one submission after its structure was rebuilt or refit on the device.
+//! `vkrt animate`: the frames of an animated scene, each rendered in one submission after
+//! its structure was rebuilt or refit on the device; `--plan` sizes render-farm tasks.
 
-use std::path::{Path, PathBuf};
+use std::path::PathBuf;
 
-use vkrt::accel::device::{AccelChoice, AccelKind};
-use vkrt::accel::driver::Prefer;
+use clap::Args;
 use vkrt::gpu::Context;
 use vkrt::render::animate::{
     self, growth, AnimateOptions, AnimationReport, FramePattern, FrameWriter, Preview,
@@ -12,10 +11,134 @@ use vkrt::render::animate::{
 use vkrt::render::gpu::Update;
 use vkrt::render::RenderOptions;
 use vkrt::scene::Scene;
-use vkrt::trace::bvh_cpu::Traversal;
 use vkrt::trace::TraceOptions;
 
-type CliResult<T> = Result<T, Box<dyn std::error::Error>>;
+use super::common::{
+    accel_traversal, check_resolution, context, load_scene, write_profile, AccelArg, CliResult,
+    TraversalArg, UpdateArg,
+};
+
+#[derive(Args)]
+pub struct AnimateArgs {
+    /// The animated scene (.toml with `[animation]`).
+    scene: PathBuf,
+    /// Frame files: a pattern with one %d or %0Nd; .png or .jpg (8-bit sRGB), .exr or .pfm
+    /// (linear radiance, as `render -o x.exr`).
+    #[arg(short, long, default_value = "frames/frame_%04d.png")]
+    output: PathBuf,
+    /// The frames to render, by number: A..B (B excluded), A..=B, A.. (to the end), ..B,
+    /// or one frame K (default: all). Any split renders the same frames: a render farm's
+    /// tasks each take a range.
+    #[arg(long)]
+    frames: Option<String>,
+    /// The animation's frame count, overriding the scene's.
+    #[arg(long)]
+    length: Option<u32>,
+    /// Leave frames whose files are already complete (a whole image of the right size):
+    /// a re-queued farm task does not redo finished frames.
+    #[arg(long)]
+    skip_existing: bool,
+    /// Render nothing: measure the first frames and print (JSON) how to split the
+    /// animation into render-farm tasks of about --task-seconds each, with each task's
+    /// command.
+    #[arg(long)]
+    plan: bool,
+    /// The wall time a farm task should take, for --plan.
+    #[arg(long, default_value_t = 600.0)]
+    task_seconds: f64,
+    #[arg(long)]
+    spp: Option<u32>,
+    #[arg(long)]
+    width: Option<u32>,
+    #[arg(long)]
+    height: Option<u32>,
+    #[arg(long, value_enum, default_value_t = AccelArg::SahBvh)]
+    accel: AccelArg,
+    #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
+    traversal: TraversalArg,
+    /// Per frame: build the structure anew, or refit it (BVHs and the driver's). Over
+    /// two levels only the top level is rebuilt or refit: rigid motions move instances.
+    #[arg(long, value_enum, default_value_t = UpdateArg::Rebuild)]
+    update: UpdateArg,
+    /// Trace one structure over every primitive even where meshes repeat (by default a
+    /// mesh named more than once, and a moving mesh beside it, get instances under a top
+    /// level; the frames are the same).
+    #[arg(long)]
+    flatten: bool,
+    /// Also an animated PNG of every frame, for a quick look.
+    #[arg(long)]
+    preview: Option<PathBuf>,
+    /// One JSON object: the frames' numbers and the means.
+    #[arg(long)]
+    json: bool,
+    /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
+    #[arg(long)]
+    profile: Option<PathBuf>,
+}
+
+pub fn run(args: AnimateArgs, validate: bool) -> CliResult<()> {
+    let AnimateArgs {
+        scene,
+        output,
+        frames,
+        length,
+        skip_existing,
+        plan,
+        task_seconds,
+        spp,
+        width,
+        height,
+        accel,
+        traversal,
+        update,
+        flatten,
+        preview,
+        json,
+        profile,
+    } = args;
+    let render = RenderOptions {
+        width,
+        height,
+        spp,
+        all_effects: false,
+        accel: accel_traversal(accel, traversal),
+        flatten,
+    };
+    check_resolution(&render)?;
+    let loaded = load_scene(&Some(scene))?;
+    let job = AnimateJob {
+        output,
+        frames,
+        length,
+        skip_existing,
+        render,
+        update: match update {
+            UpdateArg::Rebuild => Update::Rebuild,
+            UpdateArg::Refit => Update::Refit,
+        },
+        preview,
+    };
+    if plan {
+        let argv: Vec<String> = std::env::args().collect();
+        let v = plan_command(
+            || context(validate),
+            loaded,
+            job,
+            &Default::default(),
+            task_seconds,
+            &argv,
+        )?;
+        println!("{}", serde_json::to_string_pretty(&v)?);
+        return Ok(());
+    }
+    let (report, trace_profile) = vkrt::gpu::capture_profiles(|| {
+        animate_command(|| context(validate), loaded, job, &Default::default())
+            .map_err(|e| e.to_string())
+    });
+    write_profile(&profile, &trace_profile)?;
+    print_report(&report?, json)?;
+    Ok(())
+}
 
 /// `scene` with `frames` frames (its own count by default): at most
 /// [`vkrt::scene::MAX_FRAMES`], and the scene must be animated.
@@ -42,7 +165,7 @@ fn animated_as(mut scene: Scene, frames: Option<u32>, flag: &str) -> CliResult<S
 
 /// The frames `spec` names among `0..count`: `A..B` (B excluded, as Rust's ranges),
 /// `A..=B`, `A..`, `..B`, or one frame `K`. Empty, reversed or outside: an error.
-pub fn frame_range(spec: &str, count: u32) -> CliResult<std::ops::Range<u32>> {
+fn frame_range(spec: &str, count: u32) -> CliResult<std::ops::Range<u32>> {
     let bad = || -> Box<dyn std::error::Error> {
         format!("--frames `{spec}`: expected A..B (B excluded), A..=B, A.., ..B or one frame K")
             .into()
@@ -76,7 +199,7 @@ pub fn frame_range(spec: &str, count: u32) -> CliResult<std::ops::Range<u32>> {
 }
 
 /// The scene with `--length` applied, and the frames `--frames` names (all by default).
-fn scene_and_range(scene: Scene, args: &AnimateArgs) -> CliResult<(Scene, std::ops::Range<u32>)> {
+fn scene_and_range(scene: Scene, args: &AnimateJob) -> CliResult<(Scene, std::ops::Range<u32>)> {
     let scene = animated_as(scene, args.length, "--length")?;
     let range = match &args.frames {
         Some(spec) => frame_range(spec, scene.frame_count())?,
@@ -86,7 +209,7 @@ fn scene_and_range(scene: Scene, args: &AnimateArgs) -> CliResult<(Scene, std::o
 }
 
 /// What `vkrt animate` was asked.
-pub struct AnimateArgs {
+struct AnimateJob {
     pub output: PathBuf,
     /// `--frames`: a range or one frame ([`frame_range`]); all by default.
     pub frames: Option<String>,
@@ -102,10 +225,10 @@ pub struct AnimateArgs {
 /// `vkrt animate`: every input is checked and the output directory probed before the
 /// device is touched; frames are written while the next one renders; on any error the
 /// files this run wrote are removed.
-pub fn animate_command(
+fn animate_command(
     ctx: impl FnOnce() -> CliResult<Context>,
     scene: Scene,
-    args: AnimateArgs,
+    args: AnimateJob,
     trace: &TraceOptions,
 ) -> CliResult<AnimationReport> {
     let (scene, range) = scene_and_range(scene, &args)?;
@@ -172,7 +295,7 @@ pub fn animate_command(
 }
 
 /// Prints a report: one JSON object per frame and a summary, or a table.
-pub fn print_report(r: &AnimationReport, json: bool) -> CliResult<()> {
+fn print_report(r: &AnimationReport, json: bool) -> CliResult<()> {
     if json {
         let v = serde_json::json!({
             "accel": r.accel,
@@ -283,202 +406,15 @@ fn memory_line(r: &AnimationReport) -> Option<String> {
     ))
 }
 
-/// The structures and update modes `vkrt bench animate` compares: every kind rebuilt, every
-/// kind that can be refit refit, the driver's where the device has it.
-/// The runs of `vkrt bench animate`: every structure flat (`true`: flatten), and where
-/// meshes repeat (`levels`) LBVH bottom levels under a top level rebuilt or refit per frame.
-fn bench_runs(ctx: &Context, levels: bool) -> Vec<(AccelChoice, Update, bool)> {
-    let walk = Traversal::Stack;
-    let mut runs = vec![(
-        AccelChoice::new(AccelKind::KdTree, walk),
-        Update::Rebuild,
-        true,
-    )];
-    for kind in [AccelKind::SahBvh, AccelKind::Lbvh, AccelKind::Ploc] {
-        runs.push((AccelChoice::new(kind, walk), Update::Rebuild, true));
-        runs.push((AccelChoice::new(kind, walk), Update::Refit, true));
-    }
-    if ctx.info().features.ray_query {
-        runs.push((
-            AccelChoice::driver(Prefer::FastBuild),
-            Update::Rebuild,
-            true,
-        ));
-        runs.push((AccelChoice::driver(Prefer::FastTrace), Update::Refit, true));
-    }
-    if levels {
-        for update in [Update::Rebuild, Update::Refit] {
-            runs.push((AccelChoice::new(AccelKind::Lbvh, walk), update, false));
-        }
-    }
-    runs
-}
-
-/// When refitting stops paying: the frames after a build over which refit's extra render
-/// time adds up to more than one rebuild costs over one refit; `None` if it never does
-/// within the frames. The extra render time of a refit BVH is the rebuilt run's render ms
-/// times (the refit tree's SAH cost ÷ a fresh tree's − 1): the SAH models the trace cost
-/// both builders optimise, while per-frame render times swing ±5 % on a shared machine,
-/// more than a few frames of refit lose. Without SAH costs (the driver's structure), the
-/// measured difference.
-pub fn refit_pays_until(refit: &AnimationReport, rebuild: &AnimationReport) -> Option<u32> {
-    let later = |r: &AnimationReport| r.frames.iter().skip(1).cloned().collect::<Vec<_>>();
-    let (a, b) = (later(refit), later(rebuild));
-    let extra_build = rebuild.mean_update_ms() - refit.mean_update_ms();
-    let mut lost = 0.0;
-    for (i, (fa, fb)) in a.iter().zip(&b).enumerate() {
-        lost += match (fa.sah_cost, fa.rebuilt_sah_cost) {
-            (Some(now), Some(fresh)) if fresh > 0.0 => fb.render_ms * (now / fresh - 1.0),
-            _ => fa.render_ms - fb.render_ms,
-        };
-        if lost > extra_build {
-            return Some(i as u32 + 1);
-        }
-    }
-    None
-}
-
-/// `vkrt bench animate`: every structure and update mode over the same frames, in one run;
-/// the SAH cost of the refit BVHs against a rebuild per frame; a plot and a JSON report in
-/// `out`.
-pub fn bench_animate(
-    ctx: &Context,
-    scene: &Scene,
-    (frames, step): (u32, u32),
-    render: &RenderOptions,
-    out: &Path,
-    json: bool,
-) -> CliResult<()> {
-    if frames == 0 || step == 0 || (frames - 1).saturating_mul(step) >= scene.frame_count() {
-        return Err(format!(
-            "--frames {frames} --step {step}: the scene has frames 0..{}",
-            scene.frame_count()
-        )
-        .into());
-    }
-    std::fs::create_dir_all(out).map_err(|e| format!("{}: {e}", out.display()))?;
-    let mut reports: Vec<AnimationReport> = Vec::new();
-    let levels = vkrt::render::Plan::new(scene, render)
-        .map_err(|e| e.to_string())?
-        .levels
-        == 2;
-    for (accel, update, flatten) in bench_runs(ctx, levels) {
-        let opt = AnimateOptions {
-            render: RenderOptions {
-                accel,
-                flatten,
-                ..*render
-            },
-            update,
-            frames: (0..frames).collect(),
-            radiance: false,
-            quality: true,
-        };
-        let r = animate::run(
-            ctx,
-            |k| (scene.frame_time(k * step), scene.at_frame(k * step)),
-            &opt,
-            &TraceOptions::default(),
-            |_| Ok(()),
-            |_| {},
-        )
-        .map_err(|e| e.to_string())?;
-        log::info!("{} {}: done", r.accel, r.update.name());
-        reports.push(r);
-    }
-    animate::frames_svg(&reports, &out.join("frames.svg"))?;
-    let payoff: Vec<(String, Option<u32>)> = reports
-        .iter()
-        .filter(|r| r.update == Update::Refit)
-        .filter_map(|refit| {
-            let rebuild = reports.iter().find(|r| {
-                r.update == Update::Rebuild
-                    && r.levels == refit.levels
-                    && same_kind(&r.accel, &refit.accel)
-            })?;
-            let label = match refit.levels {
-                2 => format!("{} (two levels)", refit.accel),
-                _ => refit.accel.clone(),
-            };
-            Some((label, refit_pays_until(refit, rebuild)))
-        })
-        .collect();
-    let report = serde_json::json!({
-        "device": ctx.info().device,
-        "runs": reports,
-        "refit_pays_until_frame": payoff,
-    });
-    vkrt::gpu::write_atomically(
-        &out.join("report.json"),
-        serde_json::to_string_pretty(&report)?.as_bytes(),
-    )?;
-    if json {
-        println!("{}", serde_json::to_string_pretty(&report)?);
-        return Ok(());
-    }
-    let first = &reports[0];
-    println!(
-        "{}: {} frames (every {step}th of the animation's) {}×{}, {} spp",
-        ctx.info().device,
-        first.frames.len(),
-        first.width,
-        first.height,
-        first.spp
-    );
-    println!(
-        "{:<20} {:<8} {:>11} {:>11} {:>8} {:>9} {:>15}",
-        "structure", "update", "update ms", "render ms", "frames/s", "Mrays/s", "SAH last/fresh"
-    );
-    for r in &reports {
-        let sah = r
-            .frames
-            .last()
-            .and_then(|f| Some(format!("{:.2}/{:.2}", f.sah_cost?, f.rebuilt_sah_cost?)))
-            .unwrap_or_else(|| "-".into());
-        println!(
-            "{:<20} {:<8} {:>11.2} {:>11.2} {:>8.3} {:>9.2} {:>15}",
-            match r.levels {
-                2 => format!("{} + top", r.accel),
-                _ => r.accel.clone(),
-            },
-            r.update.name(),
-            r.mean_update_ms(),
-            r.mean_render_ms(),
-            r.fps(),
-            r.mrays_per_s(),
-            sah
-        );
-    }
-    for (accel, until) in &payoff {
-        match until {
-            Some(n) => println!("{accel}: after {n} refit frames a rebuild pays off"),
-            None => println!(
-                "{accel}: refit pays off over all {} frames",
-                first.frames.len()
-            ),
-        }
-    }
-    println!(
-        "update ms: after frame 0 (which builds); wrote {}/frames.svg and report.json",
-        out.display()
-    );
-    Ok(())
-}
-
-/// Whether two labels name the same kind (`driver/fast-build` and `driver` do).
-fn same_kind(a: &str, b: &str) -> bool {
-    a.split('/').next() == b.split('/').next()
-}
-
 /// `vkrt animate --plan`: how to split the animation into render-farm tasks. Renders the
 /// first two frames of the range (no files) to measure a task's first frame (pipelines,
 /// upload, build) and a following one, then sizes chunks to about `task_seconds` each.
 /// Every chunk's command is `argv` with `--frames A..B --skip-existing` (a re-queued task
 /// skips what it finished).
-pub fn plan_command(
+fn plan_command(
     ctx: impl FnOnce() -> CliResult<Context>,
     scene: Scene,
-    args: AnimateArgs,
+    args: AnimateJob,
     trace: &TraceOptions,
     task_seconds: f64,
     argv: &[String],

@@ -2,19 +2,33 @@
 //! line per failed check (and, with `-v`, per passed one), a summary, and a non-zero exit
 //! status when a required check failed.
 
+use clap::Args;
 use vkrt::gpu::{Context, ContextOptions, Validation};
 use vkrt::verify::{self, Options};
 
-type CliResult<T> = Result<T, Box<dyn std::error::Error>>;
+use super::common::CliResult;
+
+#[derive(Args)]
+pub struct VerifyArgs {
+    /// Print JSON: {"device", "driver", "checks", "failed", "groups": {...}}.
+    #[arg(long)]
+    json: bool,
+    /// Fewer sizes and rays (about a third of the time).
+    #[arg(long)]
+    quick: bool,
+    /// The device whose name contains this (default: as `vkrt info`, or VKRT_DEVICE).
+    #[arg(long)]
+    device: Option<String>,
+}
 
 /// Runs the checks on the device whose name contains `device` (else the one `vkrt info`
 /// names); `Err` when a required check failed.
-pub fn verify_command(
-    validate: bool,
-    device: Option<String>,
-    quick: bool,
-    json: bool,
-) -> CliResult<()> {
+pub fn run(args: VerifyArgs, validate: bool) -> CliResult<()> {
+    let VerifyArgs {
+        json,
+        quick,
+        device,
+    } = args;
     let env_on = std::env::var("VKRT_VALIDATION").is_ok_and(|v| v.trim() == "1");
     let ctx = Context::new(&ContextOptions {
         validation: if validate || env_on {

@@ -1,0 +1,50 @@
+//! `vkrt bench bvh`: CPU SAH BVH build time of every threading scheme (Sochora 2013,
+//! Tables 3/4), the speed-up over one thread and the SAH cost; no device needed.
+
+use std::path::PathBuf;
+
+use clap::Args;
+
+use super::bench_scenes;
+use crate::cli::common::CliResult;
+
+#[derive(Args)]
+pub struct BvhArgs {
+    /// Largest icosphere (triangles).
+    #[arg(long, default_value_t = 1_000_000)]
+    max_n: u64,
+    /// Timed repetitions (the best is reported).
+    #[arg(long, default_value_t = 3)]
+    reps: u32,
+    /// Mesh to include (default: ../shared/scenes/stanford-bunny.obj when present).
+    #[arg(long)]
+    mesh: Option<PathBuf>,
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(args: BvhArgs) -> CliResult<()> {
+    let BvhArgs {
+        max_n,
+        reps,
+        mesh,
+        json,
+    } = args;
+    let scenes = bench_scenes(mesh, max_n)?;
+    let rows = vkrt::accel::bvh::bench::bench(&scenes, reps)?;
+    if json {
+        println!("{}", serde_json::to_string_pretty(&rows)?);
+    } else {
+        println!(
+            "{:<16} {:>9} {:<8} {:<7} {:>7} {:>11} {:>8} {:>9}",
+            "scene", "triangles", "sah", "scheme", "threads", "build ms", "speed-up", "SAH cost"
+        );
+        for r in &rows {
+            println!(
+                "{:<16} {:>9} {:<8} {:<7} {:>7} {:>11.1} {:>8.2} {:>9.2}",
+                r.scene, r.triangles, r.sah, r.scheme, r.threads, r.build_ms, r.speedup, r.sah_cost
+            );
+        }
+    }
+    Ok(())
+}

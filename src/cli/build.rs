@@ -1,0 +1,459 @@
+//! `vkrt build`: builds one acceleration structure over a scene (the SAH BVH on the CPU's
+//! threads, the kd-tree, LBVH or PLOC on the GPU, or the driver's own) and reports its
+//! time and quality; `--reference` also builds the twin it must equal.
+
+use std::path::PathBuf;
+
+use clap::Args;
+
+use super::common::{context, extend_json, load_scene, write_profile, AccelArg, CliResult};
+
+#[derive(Args)]
+pub struct BuildArgs {
+    /// Scene (.toml, .obj, .scn text); omit for the embedded default scene.
+    scene: Option<PathBuf>,
+    /// The structure to build: sah-bvh (the SAH BVH, on the CPU's threads; the
+    /// default, by measurement: docs/performance.md) or kdtree (the SAH kd-tree after Wu, Zhao & Liu 2011, on
+    /// the GPU) or lbvh (LBVH, Karras 2012, on the GPU) or ploc (PLOC, on the GPU) or
+    /// driver / driver-fast-build (the driver's own, where it has ray query).
+    #[arg(long, value_enum, default_value_t = AccelArg::SahBvh)]
+    accel: AccelArg,
+    /// kd-tree: also build the CPU twin (must be equal) and the full-clipping CPU
+    /// reference; BVH: also build on one thread (must be equal).
+    #[arg(long)]
+    reference: bool,
+    /// Kolodzey's (2014) termination: no SAH leaf test, leaves below 64 primitives.
+    #[arg(long)]
+    kolodzey_termination: bool,
+    #[arg(long)]
+    json: bool,
+    /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
+    #[arg(long)]
+    profile: Option<PathBuf>,
+}
+
+pub fn run(args: BuildArgs, validate: bool) -> CliResult<()> {
+    let BuildArgs {
+        scene,
+        accel,
+        reference,
+        kolodzey_termination,
+        json,
+        profile,
+    } = args;
+    if accel == AccelArg::SahBvh {
+        if kolodzey_termination {
+            return Err(
+                "--kolodzey-termination is the GPU kd-tree thesis's termination rule: add \
+                        --accel kdtree"
+                    .into(),
+            );
+        }
+        return bvh_build_command(&load_scene(&scene)?, reference, json);
+    }
+    let driver = match accel {
+        AccelArg::Driver => Some(vkrt::accel::driver::Prefer::FastTrace),
+        AccelArg::DriverFastBuild => Some(vkrt::accel::driver::Prefer::FastBuild),
+        _ => None,
+    };
+    if let Some(prefer) = driver {
+        if kolodzey_termination || reference {
+            return Err(
+                "--kolodzey-termination and --reference do not apply to the \
+                        driver's structure (it is opaque)"
+                    .into(),
+            );
+        }
+        let ctx = context(validate)?;
+        let scene = load_scene(&scene)?;
+        return driver_build_command(&ctx, prefer, &scene, json, &profile);
+    }
+    let gpu_bvh = match accel {
+        AccelArg::Lbvh => Some(vkrt::accel::device::AccelKind::Lbvh),
+        AccelArg::Ploc => Some(vkrt::accel::device::AccelKind::Ploc),
+        _ => None,
+    };
+    if let Some(kind) = gpu_bvh {
+        if kolodzey_termination {
+            return Err(
+                "--kolodzey-termination is the GPU kd-tree thesis's termination rule: add \
+                        --accel kdtree"
+                    .into(),
+            );
+        }
+        let ctx = context(validate)?;
+        let scene = load_scene(&scene)?;
+        return gpu_bvh_build_command(&ctx, kind, &scene, reference, json, &profile);
+    }
+    // What is left is the kd-tree: clap refuses any other name.
+    kdtree_build_command(
+        validate,
+        &scene,
+        (reference, kolodzey_termination),
+        json,
+        &profile,
+    )
+}
+
+/// `vkrt build --accel kdtree`: the SAH kd-tree built on the GPU over the scene's triangles
+/// at time 0; with `reference`, also its CPU twin (must be equal) and the full-clipping
+/// CPU build.
+fn kdtree_build_command(
+    validate: bool,
+    scene: &Option<PathBuf>,
+    (reference, kolodzey_termination): (bool, bool),
+    json: bool,
+    profile: &Option<PathBuf>,
+) -> CliResult<()> {
+    let scene = load_scene(scene)?;
+    let triangles = scene.triangles_world(0.0);
+    if triangles.is_empty() {
+        return Err("the scene has no triangles to build a kd-tree over (spheres are not in the kd-tree yet)".into());
+    }
+    let mut params = vkrt::accel::kdtree::SahParams::default();
+    if kolodzey_termination {
+        params.sah_leaf_test = false;
+        params.max_leaf_prims = 63;
+    }
+    let ctx = context(validate)?;
+    let before = device_bytes_start(&ctx);
+    let (report, trace) =
+        vkrt::accel::kdtree::report::build_report(&ctx, &triangles, &params, reference)?;
+    write_profile(profile, &trace)?;
+    if json {
+        let mut v = serde_json::to_value(&report)?;
+        extend_json(&mut v, device_bytes_json(&ctx, before, triangles.len()));
+        let kd = vkrt::accel::device::AccelKind::KdTree;
+        extend_json(&mut v, levels_json(&ctx, kd, &scene)?);
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!(
+            "{} triangles: GPU build {:.2} ms in {} levels",
+            report.primitives, report.build_ms, report.levels
+        );
+        for (phase, ms) in &report.phases {
+            println!("  {phase:<16} {ms:>9.2} ms");
+        }
+        println!(
+            "{} nodes, {} leaves, depth {}, {} references ({:.2} per primitive), SAH cost {:.3}, {} bytes",
+            report.nodes,
+            report.leaves,
+            report.max_depth,
+            report.references,
+            report.references as f64 / f64::from(report.primitives.max(1)),
+            report.sah_cost,
+            report.bytes
+        );
+        if let (Some(eq), Some(twin), Some(cost), Some(full)) = (
+            report.equal_to_cpu_twin,
+            report.cpu_twin_ms,
+            report.full_clip_sah_cost,
+            report.full_clip_ms,
+        ) {
+            println!("CPU twin {twin:.1} ms, equal to the GPU tree: {eq}");
+            println!("full-clipping CPU build {full:.1} ms, SAH cost {cost:.3}");
+            if !eq {
+                return Err("the GPU tree differs from its CPU twin".into());
+            }
+        }
+    }
+    Ok(())
+}
+
+/// `vkrt build --accel sah-bvh`: the parallel node-queue build on every core over the scene's
+/// primitives at the shutter-open time; with `reference`, also on one thread (must be equal).
+fn bvh_build_command(scene: &vkrt::scene::Scene, reference: bool, json: bool) -> CliResult<()> {
+    use vkrt::accel::bvh::{self, validate, BvhParams, Threading};
+    let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
+    let params = BvhParams::default();
+    let all_cores = Threading::all_cores();
+    let Threading::Queue { threads } = all_cores else {
+        unreachable!("all_cores is the node queue")
+    };
+    let timed = |threading| bvh::build_timed(&g.boxes, &params, threading);
+    let (tree, build_ms) = timed(all_cores)?;
+    validate::validate(&tree, &g.boxes).map_err(|e| format!("invalid BVH: {e}"))?;
+    let single = if reference {
+        Some(timed(Threading::Single)?)
+    } else {
+        None
+    };
+    let equal = single.as_ref().map(|(t, _)| *t == tree);
+    let (shape, shape_line) = bvh_shape(&tree, &params);
+    let mut report = serde_json::json!({
+        "kind": "sah_bvh",
+        "primitives": g.primitive_count(),
+        "build_ms": build_ms,
+        "threads": threads,
+        "scheme": "queue",
+        "params": params,
+        "equal_to_single_thread": equal,
+        "single_thread_ms": single.as_ref().map(|(_, ms)| *ms),
+    });
+    report.as_object_mut().expect("an object").extend(shape);
+    if json {
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!(
+            "{} primitives: CPU build {build_ms:.2} ms on {threads} threads (node queue)",
+            g.primitive_count()
+        );
+        println!("{shape_line}");
+        if let (Some((_, ms)), Some(eq)) = (&single, equal) {
+            println!("one thread {ms:.1} ms, the same tree: {eq}");
+        }
+    }
+    if equal == Some(false) {
+        return Err("the multithreaded BVH differs from the single-threaded one".into());
+    }
+    Ok(())
+}
+
+/// `vkrt build --accel lbvh|ploc`: LBVH, Karras 2012 or PLOC built on the device over the
+/// scene's primitives at the shutter-open time, read back (this command is a tool),
+/// validated; with `reference`, also the CPU twin (must be equal bit for bit).
+fn gpu_bvh_build_command(
+    ctx: &vkrt::gpu::Context,
+    kind: vkrt::accel::device::AccelKind,
+    scene: &vkrt::scene::Scene,
+    reference: bool,
+    json: bool,
+    profile: &Option<PathBuf>,
+) -> CliResult<()> {
+    use vkrt::accel::bvh::{lbvh, ploc, validate, BvhParams};
+    use vkrt::accel::device::{AccelBuilder, AccelKind, HostStructure};
+    let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
+    let builder = AccelBuilder::new(ctx, kind)?;
+    let before = device_bytes_start(ctx);
+    // Once to compile and warm the pipelines, then the timed build.
+    let mut timed = None;
+    for _ in 0..2 {
+        // The previous build's buffers go before the next is made (the peak is one build).
+        drop(timed.take());
+        let mut rec = vkrt::gpu::Recorder::new(ctx)?;
+        let dev = match vkrt::trace::gpu::GpuGeometry::record_build(&mut rec, &builder, &g, 0) {
+            Ok((dev, _)) => dev,
+            // A scene too big to build flat may still build as two levels: say both.
+            Err(flat) => return levels_only(ctx, kind, scene, flat, json),
+        };
+        let prof = rec.submit_and_wait()?;
+        timed = Some((dev, prof));
+    }
+    let (dev, prof) = timed.expect("built");
+    write_profile(profile, &prof)?;
+    let HostStructure::Bvh(tree) = dev.accel.download()? else {
+        unreachable!("a GPU BVH")
+    };
+    validate::validate(&tree, &g.boxes).map_err(|e| format!("invalid {}: {e}", kind.name()))?;
+    let passes: serde_json::Map<String, serde_json::Value> = vkrt::accel::bvh::GPU_BUILD_PASSES
+        .iter()
+        .filter_map(|p| Some((p.to_string(), prof.ms(p)?.into())))
+        .collect();
+    let build_ms = prof.ms("build").unwrap_or(0.0);
+    let bits = builder.lbvh_bits();
+    let ploc_params = builder.ploc_params();
+    let twin = reference.then(|| {
+        let t = std::time::Instant::now();
+        let twin = match kind {
+            AccelKind::Ploc => ploc::build(&g.boxes, &ploc_params.unwrap_or_default()).0,
+            _ => lbvh::build(&g.boxes, bits),
+        };
+        let twin = vkrt::accel::bvh::collapse::collapse(&twin, &builder.bvh_params);
+        (twin, t.elapsed().as_secs_f64() * 1e3)
+    });
+    let equal = twin.as_ref().map(|(t, _)| *t == tree);
+    let params = BvhParams::default();
+    let (shape, shape_line) = bvh_shape(&tree, &params);
+    let mut report = serde_json::json!({
+        "kind": kind.name(),
+        "morton_bits": bits.spec(),
+        "ploc_radius": ploc_params.map(|p| p.radius),
+        "primitives": g.primitive_count(),
+        "build_ms": build_ms,
+        "passes_ms": passes,
+        "equal_to_cpu_twin": equal,
+        "cpu_twin_ms": twin.as_ref().map(|(_, ms)| *ms),
+    });
+    report.as_object_mut().expect("an object").extend(shape);
+    extend_json(
+        &mut report,
+        device_bytes_json(ctx, before, g.primitive_count()),
+    );
+    if json {
+        extend_json(&mut report, levels_json(ctx, kind, scene)?);
+        println!("{}", serde_json::to_string_pretty(&report)?);
+    } else {
+        println!(
+            "{} primitives: {} GPU build {build_ms:.2} ms ({}-bit Morton codes)",
+            g.primitive_count(),
+            kind.name(),
+            bits.spec()
+        );
+        for (name, ms) in &passes {
+            println!("  {name:<12} {ms} ms");
+        }
+        println!("{shape_line}");
+        if let (Some((_, ms)), Some(eq)) = (&twin, equal) {
+            println!("CPU twin {ms:.1} ms, the same tree: {eq}");
+        }
+    }
+    if equal == Some(false) {
+        return Err(format!("the GPU {} differs from its CPU twin", kind.name()).into());
+    }
+    Ok(())
+}
+
+/// `vkrt build --accel driver`: the driver's structure built over the scene's primitives at
+/// the shutter-open time, twice (the first warms up), with the build's GPU time from
+/// timestamps and the submission's wall time; its bytes as the driver reports them.
+fn driver_build_command(
+    ctx: &vkrt::gpu::Context,
+    prefer: vkrt::accel::driver::Prefer,
+    scene: &vkrt::scene::Scene,
+    json: bool,
+    profile: &Option<PathBuf>,
+) -> CliResult<()> {
+    use vkrt::accel::device::{AccelBuilder, AccelChoice, DevicePrimitives};
+    use vkrt::accel::driver::{DriverAccel, DriverInput};
+    let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
+    let builder = AccelBuilder::for_choice(ctx, AccelChoice::driver(prefer))?;
+    let before = device_bytes_start(ctx);
+    let prims = DevicePrimitives::upload(ctx, &g)?;
+    let sizes = DriverAccel::sizes(ctx, &DriverInput::counts(&prims), prefer, false)?;
+    let mut timed = None;
+    for _ in 0..2 {
+        // The previous build's buffers go before the next is made (the peak is one build).
+        drop(timed.take());
+        let (mut accel, scratch) = builder.create(ctx, prims.count(), 0)?;
+        let mut rec = vkrt::gpu::Recorder::new(ctx)?;
+        rec.scope("build", |rec| {
+            builder.record_build(rec, &prims, &g, &scratch, &mut accel)
+        })?;
+        let t = std::time::Instant::now();
+        let prof = rec.submit_and_wait()?;
+        timed = Some((prof, t.elapsed().as_secs_f64() * 1e3));
+    }
+    let (prof, wall_ms) = timed.expect("built");
+    write_profile(profile, &prof)?;
+    let build_ms = prof.ms("build").unwrap_or(0.0);
+    if json {
+        let v = serde_json::json!({
+            "kind": "driver",
+            "prefer": prefer,
+            "primitives": g.primitive_count(),
+            "build_ms": build_ms,
+            "submit_wall_ms": wall_ms,
+            "bytes": sizes.structure_bytes,
+            "build_scratch_bytes": sizes.build_scratch_bytes,
+        });
+        let mut v = v;
+        extend_json(&mut v, device_bytes_json(ctx, before, g.primitive_count()));
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!(
+            "{} primitives: driver build ({}) {build_ms:.2} ms on the GPU, submission \
+             {wall_ms:.2} ms wall; {} bytes, {} bytes of scratch",
+            g.primitive_count(),
+            prefer.name(),
+            sizes.structure_bytes,
+            sizes.build_scratch_bytes
+        );
+    }
+    Ok(())
+}
+
+/// Starts measuring the device memory a build needs: vkrt's live bytes now.
+fn device_bytes_start(ctx: &vkrt::gpu::Context) -> u64 {
+    ctx.reset_memory_peak();
+    ctx.memory().vkrt_bytes
+}
+
+/// `device_bytes`: the most device memory vkrt's buffers held at once since `before`
+/// (primitives, structure, scratch, the build's read-backs), and per primitive.
+fn device_bytes_json(ctx: &vkrt::gpu::Context, before: u64, n: usize) -> serde_json::Value {
+    let bytes = ctx.memory().vkrt_peak_bytes.saturating_sub(before);
+    serde_json::json!({
+        "device_bytes": bytes,
+        "device_bytes_per_primitive": bytes as f64 / n.max(1) as f64,
+    })
+}
+
+/// `levels`: where the scene names a mesh more than once, the bytes of its two levels as
+/// `vkrt trace` builds them (bottom levels of `kind`, the top level); absent otherwise.
+fn levels_json(
+    ctx: &vkrt::gpu::Context,
+    kind: vkrt::accel::device::AccelKind,
+    scene: &vkrt::scene::Scene,
+) -> CliResult<serde_json::Value> {
+    use vkrt::trace::instanced::{level_bytes, TwoLevelScene};
+    let Some(two) = TwoLevelScene::of(scene, scene.camera.shutter_open) else {
+        return Ok(serde_json::json!({}));
+    };
+    let choice = vkrt::accel::device::AccelChoice::new(kind, Default::default());
+    Ok(serde_json::json!({ "levels": level_bytes(ctx, choice, &two)? }))
+}
+
+/// `vkrt build` of a scene whose flat build failed with `flat`: where meshes repeat, the
+/// bytes of its two levels and why it does not build flat; else the error.
+fn levels_only(
+    ctx: &vkrt::gpu::Context,
+    kind: vkrt::accel::device::AccelKind,
+    scene: &vkrt::scene::Scene,
+    flat: vkrt::gpu::GpuError,
+    json: bool,
+) -> CliResult<()> {
+    use vkrt::trace::instanced::{level_bytes, TwoLevelScene};
+    let Some(two) = TwoLevelScene::of(scene, scene.camera.shutter_open) else {
+        return Err(flat.into());
+    };
+    let choice = vkrt::accel::device::AccelChoice::new(kind, Default::default());
+    let levels = level_bytes(ctx, choice, &two)?;
+    if json {
+        let v = serde_json::json!({
+            "kind": kind.name(),
+            "primitives": scene.triangle_count() + scene.spheres.len(),
+            "flat_error": flat.to_string(),
+            "levels": levels,
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        println!("flat: {flat}");
+        println!(
+            "as two levels: {} bottom levels ({} unique primitives, {} bytes) under {} \
+             instances ({} bytes)",
+            levels.bottom_levels,
+            levels.unique_primitives,
+            levels.bottom_bytes,
+            levels.instances,
+            levels.top_bytes
+        );
+    }
+    Ok(())
+}
+
+/// What `vkrt build --json` reports of a BVH's shape, and the same as a line of text.
+fn bvh_shape(
+    tree: &vkrt::accel::bvh::Bvh,
+    params: &vkrt::accel::bvh::BvhParams,
+) -> (serde_json::Map<String, serde_json::Value>, String) {
+    let sah = vkrt::accel::bvh::validate::sah_cost(tree, params);
+    let v = serde_json::json!({
+        "nodes": tree.nodes.len(),
+        "leaves": tree.leaf_count(),
+        "max_depth": tree.depth(),
+        "sah_cost": sah,
+        "references": tree.refs.len(),
+        "bytes": tree.bytes(),
+    });
+    let line = format!(
+        "{} nodes, {} leaves, depth {}, SAH cost {sah:.3}, {} bytes",
+        tree.nodes.len(),
+        tree.leaf_count(),
+        tree.depth(),
+        tree.bytes()
+    );
+    let serde_json::Value::Object(map) = v else {
+        unreachable!("an object")
+    };
+    (map, line)
+}

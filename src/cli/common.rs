@@ -1,0 +1,168 @@
+//! What several commands share: the error type, logging, the device context, scene
+//! loading, the render limits, profile writing, JSON merging and the `*Arg` value enums.
+
+use std::path::PathBuf;
+
+use clap::ValueEnum;
+use vkrt::gpu::{Context, ContextOptions, Profile, Validation};
+
+/// A command's result: its error is printed as `vkrt: error: ...` with exit status 1.
+pub type CliResult<T> = Result<T, Box<dyn std::error::Error>>;
+
+#[derive(Clone, Copy, PartialEq, ValueEnum)]
+pub enum AccelArg {
+    Kdtree,
+    SahBvh,
+    Lbvh,
+    Ploc,
+    /// The driver's own structure (VK_KHR_acceleration_structure, built preferring fast
+    /// trace) through its ray query (VK_KHR_ray_query), where the device has them.
+    Driver,
+    /// The driver's structure built preferring a fast build.
+    DriverFastBuild,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum UpdateArg {
+    Rebuild,
+    Refit,
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum TraversalArg {
+    /// Binary nodes, far children on a stack.
+    Stack,
+    /// Binary nodes, no stack: parent links and one bit per level.
+    Bitstack,
+    /// 4-wide quantized nodes (Ylitie et al. 2017) with a stack.
+    Wide,
+}
+
+pub fn accel_traversal(accel: AccelArg, walk: TraversalArg) -> vkrt::accel::device::AccelChoice {
+    use vkrt::accel::device::{AccelChoice, AccelKind};
+    use vkrt::accel::driver::Prefer;
+    use vkrt::trace::bvh_cpu::Traversal;
+    let kind = match accel {
+        AccelArg::Kdtree => AccelKind::KdTree,
+        AccelArg::SahBvh => AccelKind::SahBvh,
+        AccelArg::Lbvh => AccelKind::Lbvh,
+        AccelArg::Ploc => AccelKind::Ploc,
+        AccelArg::Driver => return AccelChoice::driver(Prefer::FastTrace),
+        AccelArg::DriverFastBuild => return AccelChoice::driver(Prefer::FastBuild),
+    };
+    let walk = match walk {
+        TraversalArg::Stack => Traversal::Stack,
+        TraversalArg::Bitstack => Traversal::Bitstack,
+        TraversalArg::Wide => Traversal::Wide,
+    };
+    AccelChoice::new(kind, walk)
+}
+
+#[derive(Clone, Copy, ValueEnum)]
+pub enum IntersectorArg {
+    /// Woop, Benthin & Wald 2013 (no ray slips between triangles sharing an edge).
+    Watertight,
+    /// Möller–Trumbore 1997 (faster, not watertight).
+    // The spellings `vkrt render` parsed by hand before it took this enum.
+    #[value(aliases = ["moller_trumbore", "moller"])]
+    MollerTrumbore,
+}
+
+impl From<IntersectorArg> for vkrt::trace::Intersector {
+    fn from(a: IntersectorArg) -> Self {
+        match a {
+            IntersectorArg::Watertight => Self::Watertight,
+            IntersectorArg::MollerTrumbore => Self::MollerTrumbore,
+        }
+    }
+}
+
+/// Logs go to stderr (stdout stays for results and --json) as `vkrt: LEVEL: message`, the
+/// style of the error line at exit; debug and trace also name the module.
+pub fn init_logging(verbose: u8, quiet: bool) {
+    use log::{Level, LevelFilter};
+    use std::io::Write;
+    let level = match (quiet, verbose) {
+        (true, _) => LevelFilter::Error,
+        (false, 0) => LevelFilter::Warn,
+        (false, 1) => LevelFilter::Info,
+        (false, 2) => LevelFilter::Debug,
+        _ => LevelFilter::Trace,
+    };
+    env_logger::Builder::new()
+        .filter_level(level)
+        .target(env_logger::Target::Stderr)
+        .format(|buf, record| match record.level() {
+            Level::Error => writeln!(buf, "vkrt: error: {}", record.args()),
+            Level::Warn => writeln!(buf, "vkrt: warning: {}", record.args()),
+            Level::Info => writeln!(buf, "vkrt: info: {}", record.args()),
+            l => writeln!(
+                buf,
+                "vkrt: {}: [{}] {}",
+                l.as_str().to_ascii_lowercase(),
+                record.target(),
+                record.args()
+            ),
+        })
+        .init();
+}
+
+pub fn context(validate: bool) -> CliResult<Context> {
+    let env_on = std::env::var("VKRT_VALIDATION").is_ok_and(|v| v.trim() == "1");
+    let validation = if validate || env_on {
+        Validation::On
+    } else {
+        Validation::Off
+    };
+    let ctx = Context::new(&ContextOptions {
+        validation,
+        device_name: None,
+    })?;
+    let info = ctx.info();
+    log::info!("device {}, driver {}", info.device, info.driver);
+    Ok(ctx)
+}
+
+pub fn load_scene(path: &Option<PathBuf>) -> CliResult<vkrt::scene::Scene> {
+    Ok(match path {
+        Some(path) => {
+            let loaded = vkrt::scene::Scene::load(path)?;
+            for w in &loaded.warnings {
+                log::warn!("{w}");
+            }
+            loaded.scene
+        }
+        None => vkrt::scene::Scene::default_scene(),
+    })
+}
+
+/// `--width`, `--height` and `--spp` within the scene limits.
+pub fn check_resolution(opt: &vkrt::render::RenderOptions) -> CliResult<()> {
+    use vkrt::scene::MAX_RESOLUTION;
+    for (name, v) in [("--width", opt.width), ("--height", opt.height)] {
+        if v.is_some_and(|v| v == 0 || v > MAX_RESOLUTION) {
+            return Err(format!("{name} must be 1..={MAX_RESOLUTION}").into());
+        }
+    }
+    if opt.spp.is_some_and(|s| s == 0 || s > vkrt::scene::MAX_SPP) {
+        return Err(format!("--spp must be 1..={}", vkrt::scene::MAX_SPP).into());
+    }
+    Ok(())
+}
+
+pub fn write_profile(path: &Option<PathBuf>, profile: &Profile) -> CliResult<()> {
+    if let Some(path) = path {
+        profile.write_chrome_trace(path)?;
+        eprintln!(
+            "vkrt: wrote GPU trace {} (open in ui.perfetto.dev)",
+            path.display()
+        );
+    }
+    Ok(())
+}
+
+pub fn extend_json(v: &mut serde_json::Value, more: serde_json::Value) {
+    if let (Some(v), serde_json::Value::Object(more)) = (v.as_object_mut(), more) {
+        v.extend(more);
+    }
+}

@@ -1,0 +1,65 @@
+//! `vkrt info`: the Vulkan device vkrt uses and what it can do, as text or JSON.
+
+use clap::Args;
+
+use super::common::{context, CliResult};
+
+#[derive(Args)]
+pub struct InfoArgs {
+    /// Print JSON instead of text.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(args: &InfoArgs, validate: bool) -> CliResult<()> {
+    let ctx = context(validate)?;
+    let info = ctx.info();
+    if args.json {
+        println!("{}", serde_json::to_string_pretty(info)?);
+        return Ok(());
+    }
+    println!("device              {} ({})", info.device, info.device_type);
+    println!("driver              {}", info.driver);
+    println!("vulkan              {}", info.api_version);
+    println!(
+        "subgroup size       {} (min {}, max {})",
+        info.subgroup_size, info.min_subgroup_size, info.max_subgroup_size
+    );
+    println!("subgroup ops        {}", info.subgroup_ops.join(" "));
+    println!(
+        "max storage buffer  {} bytes",
+        info.max_storage_buffer_range
+    );
+    println!("max shared memory   {} bytes", info.max_shared_memory);
+    println!(
+        "workgroups          {} invocations, size {:?}, count {:?}",
+        info.max_workgroup_invocations, info.max_workgroup_size, info.max_workgroup_count
+    );
+    println!(
+        "timestamps          {} (period {} ns)",
+        if info.timestamps { "yes" } else { "no" },
+        info.timestamp_period_ns
+    );
+    println!(
+        "f32 division        {}",
+        if info.ieee_division {
+            "correctly rounded"
+        } else {
+            "within Vulkan's 2.5 ulp: the exact walks round it correctly"
+        }
+    );
+    match info.loop_budget {
+        Some(b) => println!("loop budget         {b} iterations per invocation"),
+        None => println!("loop budget         none (loops run to their end)"),
+    }
+    println!(
+        "walk step cap       {} node visits + primitive tests per ray",
+        info.max_traversal_steps
+    );
+    println!(
+        "walks read          {} buffers (texel views up to {} texels)",
+        vkrt::trace::gpu::NodeAccess::for_device(&ctx).name(),
+        info.max_texel_buffer_elements
+    );
+    Ok(())
+}
