@@ -241,7 +241,12 @@ impl fmt::Display for Plan {
             writeln!(
                 f,
                 "structure: two levels (a bottom level per repeated or moving mesh, an \
-                 instance per copy)"
+                 instance per copy{})",
+                if self.effects.contains(&"motion_blur") {
+                    "; moving instances in time steps over the shutter, at most 1° of turn apart"
+                } else {
+                    ""
+                }
             )?;
         }
         writeln!(
