@@ -283,6 +283,8 @@ impl InstanceRecord {
     }
 }
 
+const _: () = assert!(std::mem::size_of::<InstanceRecord>() == 80);
+
 /// `(1 - f) * a + f * b`, element by element (`vkrt_lerp_rows` in `vkrt/affine.glsl`).
 pub fn lerp_rows(a: &[[f32; 4]; 3], b: &[[f32; 4]; 3], f: f32) -> [[f32; 4]; 3] {
     let g = 1.0 - f;

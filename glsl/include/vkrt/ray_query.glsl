@@ -52,7 +52,9 @@
 //                     (docs/performance.md). A top level over instances
 //                     (`TopLevel::handle_address`, vkrt/instances.glsl) is traced this way
 //                     only: hits then also name the instance (`instanceIndex`,
-//                     `instanceCustomIndex`), and vkrtTrace's cull mask selects instances
+//                     `instanceCustomIndex`), vkrtTrace's cull mask selects instances, and
+//                     moving instances (`TopLevelBuilder::build_moving`) are placed at the
+//                     query's time
 //   VKRT_TEXEL_BUFFERS  read the nodes, references and triangle vertices (bindings + 0,
 //                     + 1, + 2) through uniform texel buffers instead of storage buffers:
 //                     RGBA32UI views of the same ranges (`GpuGeometry::texel_views()`,
