@@ -518,6 +518,24 @@ fn trace_with_the_drivers_structure_or_a_clear_error() {
             &["--accel", "driver"],
             TraceOptions::default(),
         );
+        // Two levels as the driver's own: bottom-level structures under a top level of
+        // instances (the demo: icospheres repeated, the rest with its spheres).
+        for (scene, extra) in [
+            ("mesh_file.toml", &["--accel", "driver"][..]),
+            ("dynamic_demo.toml", &["--accel", "driver-fast-build"][..]),
+        ] {
+            let name = format!("hits-driver-2l-{}.bin", scene.replace('.', "-"));
+            round_trip(scene, &name, extra, TraceOptions::default());
+        }
+        round_trip(
+            "dynamic_demo.toml",
+            "hits-driver-2l-any.bin",
+            &["--accel", "driver", "--any-hit"],
+            TraceOptions {
+                query: Query::Any,
+                ..TraceOptions::default()
+            },
+        );
         return;
     }
     let dir = scratch("no-ray-query");
@@ -628,6 +646,32 @@ fn a_scene_naming_the_bunny_64_times_traces_as_instances() {
     }
     assert_eq!(v["hits"], n_hits);
     assert!(n_hits > 300, "{n_hits} hits");
+    // The driver's own two levels (where it has ray query): the same hits, but for its own
+    // triangle test (t within 1e-4, the triangle the same but for ties).
+    let driver_out = dir.join("hits-driver.bin");
+    let driver_args = [&args[..4], &["--out", s(&driver_out), "--accel", "driver"]].concat();
+    if vkrt_ok(&["info", "--json"]).is_some_and(|i| {
+        serde_json::from_slice::<serde_json::Value>(&i.stdout).unwrap()["features"]["ray_query"]
+            == true
+    }) {
+        let run = vkrt(&driver_args);
+        assert!(
+            run.status.success(),
+            "{}",
+            String::from_utf8_lossy(&run.stderr)
+        );
+        let theirs = read_hits(&driver_out);
+        let mut other = 0;
+        for (a, b) in hits.iter().zip(&theirs) {
+            assert_eq!(a.is_hit(), b.is_hit(), "{a:?} vs the driver's {b:?}");
+            assert!(
+                !a.is_hit() || (a.t - b.t).abs() <= 1e-4 * a.t.abs(),
+                "{a:?} vs {b:?}"
+            );
+            other += usize::from(a.prim != b.prim);
+        }
+        assert!(other * 100 <= n_hits, "{other} other triangles");
+    }
     // Flat, the scene needs more than one buffer's range: a clear error, no file.
     std::fs::remove_file(&out).unwrap();
     let run = vkrt(&[&args[..6], &["--flatten"]].concat());

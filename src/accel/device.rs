@@ -385,6 +385,44 @@ pub struct KdBuilt {
 }
 
 impl AccelStructure {
+    /// The driver's two levels over `instances` of `levels` (their primitives uploaded
+    /// before, into `rec` or earlier), recorded into `rec`: a structure the `query` kernels
+    /// trace with level `bound`'s primitives bound (see [`DriverAccel::record_instanced`]).
+    pub(crate) fn record_driver_instanced(
+        rec: &mut Recorder,
+        levels: &[&DevicePrimitives],
+        instances: &[crate::accel::instances::Instance],
+        bound: usize,
+        prefer: Prefer,
+    ) -> Result<(Self, crate::accel::driver::InstancedIds)> {
+        let ctx = rec.context().clone();
+        let (accel, ids) = DriverAccel::record_instanced(rec, levels, instances, bound, prefer)?;
+        let info = Buffer::new(&ctx, "accel.info", 1)?;
+        let address = Buffer::new(&ctx, "accel.driver.address", 1)?;
+        let bases = Buffer::new(&ctx, "accel.driver.bases", ids.bases.len())?;
+        let constants = match levels.get(bound) {
+            Some(p) => p.info(&Aabb::EMPTY, 0),
+            None => SceneInfo::new(&Aabb::EMPTY, [0, 0, 0], false, 0),
+        };
+        rec.update(&info, 0, &[constants.walked(SceneInfo::WALK_RAY_QUERY)])?;
+        rec.update(&address, 0, &[accel.tlas_address()])?;
+        for (k, chunk) in ids.bases.chunks(8192).enumerate() {
+            rec.update(&bases, 8192 * k, chunk)?;
+        }
+        rec.transfer_to_compute();
+        let out = AccelStructure {
+            kind: AccelKind::Driver,
+            storage: Storage::Driver {
+                accel: Some(Box::new(accel)),
+                address,
+                bases,
+            },
+            info,
+            allow_update: false,
+        };
+        Ok((out, ids))
+    }
+
     pub fn kind(&self) -> AccelKind {
         self.kind
     }

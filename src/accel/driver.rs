@@ -10,6 +10,10 @@
 //! scene with motion is one box geometry over every primitive's swept box, each intersected
 //! by the kernel at the ray's time — the driver's structures hold one position per vertex.
 //!
+//! A scene as two levels ([`DriverAccel::record_instanced`]) maps to the driver's own: a
+//! bottom-level structure per level (and kind of geometry), a top-level instance per vkrt
+//! instance (and geometry of its level) with its transform, custom index, mask and flags.
+//!
 //! Nothing here submits or uploads: the instance records are written by the recorded build
 //! (`vkCmdUpdateBuffer`), so the levels can live in a caller's memory.
 
@@ -19,6 +23,26 @@ use crate::gpu::{
 };
 
 use super::device::DevicePrimitives;
+use super::instances::Instance;
+
+/// Primitive ids of the driver's two levels ([`DriverAccel::record_instanced`]).
+#[derive(Clone, Debug, Default)]
+pub struct InstancedIds {
+    /// Per top-level instance: the id of its first primitive (what the kernels read).
+    pub bases: Vec<u32>,
+    /// Per vkrt instance: (first id, primitives, instance index), by first id.
+    starts: Vec<(u32, u32, u32)>,
+    bound_placed: bool,
+}
+
+impl InstancedIds {
+    /// The instance and its level's primitive of the kernels' primitive id `id`.
+    pub fn instance_primitive(&self, id: u32) -> Option<(u32, u32)> {
+        let k = self.starts.partition_point(|s| s.0 <= id).checked_sub(1)?;
+        let (start, count, instance) = self.starts[k];
+        (id - start < count).then_some((instance, id - start))
+    }
+}
 
 /// What the driver's builder optimises for (`VkBuildAccelerationStructureFlagsKHR`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
@@ -68,6 +92,8 @@ struct Bottom {
 /// primitives) alive until the recorded build and every trace of it have executed.
 pub struct DriverAccel {
     bottoms: Vec<Bottom>,
+    /// The top level's instances (one identity instance per bottom level for a flat scene).
+    records: Vec<AccelInstance>,
     tlas: AccelerationStructure,
     /// The instance records (with room to start them at a 16-byte aligned address), written
     /// by the recorded build from constants: nothing is uploaded.
@@ -254,8 +280,13 @@ impl DriverAccel {
             true => Some(Self::create_scratch(ctx, input, prefer, allow_update)?),
             false => None,
         };
+        let records = bottoms
+            .iter()
+            .map(|b| AccelInstance::identity(b.blas.device_address()))
+            .collect();
         Ok(Some(Self {
             bottoms,
+            records,
             tlas,
             instances,
             flags,
@@ -274,16 +305,13 @@ impl DriverAccel {
     /// kernels query it. `scratch`: the caller's, where the structure keeps none. Without the
     /// driver's ray query: [`GpuError::MissingCapability`] naming the extensions.
     pub fn record_build(&self, rec: &mut Recorder, scratch: Option<&Buffer<u8>>) -> Result<()> {
-        let list: Vec<AccelInstance> = self
-            .bottoms
-            .iter()
-            .map(|b| AccelInstance::identity(b.blas.device_address()))
-            .collect();
-        rec.update(
-            &self.instances,
-            self.instance_word(),
-            bytemuck::cast_slice(&list),
-        )?;
+        for (k, chunk) in self.records.chunks(256).enumerate() {
+            rec.update(
+                &self.instances,
+                self.instance_word() + 16 * 256 * k,
+                bytemuck::cast_slice(chunk),
+            )?;
+        }
         let scratch = self.scratch_or(scratch)?;
         rec.scope("driver_build", |rec| {
             self.record_levels(rec, false, scratch)
@@ -323,22 +351,146 @@ impl DriverAccel {
     /// the top level over them, then the barrier to the kernels.
     fn record_levels(&self, rec: &mut Recorder, update: bool, scratch: &Buffer<u8>) -> Result<()> {
         rec.to_accel_build();
-        for (i, b) in self.bottoms.iter().enumerate() {
-            if i > 0 {
-                rec.accel_build_to_accel_build();
+        rec.scope("driver_bottom_levels", |rec| {
+            for (i, b) in self.bottoms.iter().enumerate() {
+                if i > 0 {
+                    rec.accel_build_to_accel_build();
+                }
+                let g = [b.geometry];
+                match update {
+                    true => b.blas.record_update(rec, &g, self.flags, scratch)?,
+                    false => b.blas.record_build(rec, &g, self.flags, scratch)?,
+                }
             }
-            let g = [b.geometry];
-            match update {
-                true => b.blas.record_update(rec, &g, self.flags, scratch)?,
-                false => b.blas.record_build(rec, &g, self.flags, scratch)?,
-            }
-        }
+            Ok::<_, GpuError>(())
+        })?;
         rec.accel_build_to_accel_build();
         let at = self.instances.device_address() + 4 * self.instance_word() as u64;
-        let top = [Self::top(at, self.bottoms.len())];
-        self.tlas.record_build(rec, &top, self.flags, scratch)?;
+        let top = [Self::top(at, self.records.len())];
+        rec.scope("driver_top_level", |rec| {
+            self.tlas.record_build(rec, &top, self.flags, scratch)
+        })?;
         rec.accel_build_to_compute();
         Ok(())
+    }
+
+    /// Bytes of the top level's storage.
+    pub fn top_bytes(&self) -> u64 {
+        self.tlas.byte_len()
+    }
+
+    /// The driver's two levels for `instances` of `levels` (each level's primitives on the
+    /// device, static; an instance names its level by index), recorded into `rec` and built
+    /// with a scratch of their own: a bottom-level structure per level and kind of geometry,
+    /// a top-level instance per instance and geometry of its level. Returns the levels and,
+    /// per top-level instance, the id of its first primitive as the `query` kernels read it:
+    /// the primitives of `bound` (the level whose primitives the kernels bind, placed by one
+    /// identity instance; its spheres and boxes are intersected by the kernel) keep their
+    /// own ids, every other instance's follow, instance after instance ([`InstancedIds`]).
+    pub fn record_instanced(
+        rec: &mut Recorder,
+        levels: &[&DevicePrimitives],
+        instances: &[Instance],
+        bound: usize,
+        prefer: Prefer,
+    ) -> Result<(Self, InstancedIds)> {
+        let ctx = rec.context().clone();
+        require_ray_query(&ctx)?;
+        let usage = |reason: String| GpuError::Usage {
+            call: "DriverAccel::record_instanced",
+            reason,
+        };
+        let flags = prefer.flags(false);
+        let mut bottoms = Vec::new();
+        // Per level: its bottom-level structures (index, first primitive) and primitives.
+        let mut per_level = Vec::with_capacity(levels.len());
+        let mut scratch_bytes = 0;
+        for (l, prims) in levels.iter().enumerate() {
+            let input = DriverInput::of(prims);
+            if input.has_motion {
+                return Err(usage(format!(
+                    "level {l} moves: the driver's levels are static"
+                )));
+            }
+            let mut list = Vec::new();
+            for (geometry, first) in Self::geometries(&input)? {
+                let sizes = accel_build_sizes(&ctx, &[geometry], flags)?;
+                scratch_bytes = scratch_bytes.max(sizes.scratch);
+                let blas = AccelerationStructure::new(
+                    &ctx,
+                    "accel.driver.blas",
+                    &[geometry],
+                    sizes.structure,
+                )?;
+                list.push((bottoms.len(), first));
+                bottoms.push(Bottom { blas, geometry });
+            }
+            per_level.push((
+                list,
+                (input.n_tris + input.n_boxes) as u32,
+                input.n_boxes > 0,
+            ));
+        }
+        let mut records = Vec::new();
+        let mut ids = InstancedIds::default();
+        let mut next = per_level.get(bound).map_or(0, |l| l.1);
+        for (i, inst) in instances.iter().enumerate() {
+            let level = usize::try_from(inst.bottom)
+                .ok()
+                .filter(|&l| l < levels.len())
+                .ok_or_else(|| usage(format!("instance {i} names a missing level")))?;
+            let (list, count, boxes) = &per_level[level];
+            let start = if level == bound && *boxes {
+                if inst.transform != Instance::IDENTITY || ids.bound_placed {
+                    return Err(usage(format!(
+                        "instance {i}: the bound level's spheres and boxes are intersected in \
+                         the world, so one identity instance must place it"
+                    )));
+                }
+                ids.bound_placed = true;
+                0
+            } else if *boxes {
+                return Err(usage(format!(
+                    "instance {i}: level {level} holds spheres or boxes, which only the bound \
+                     level may"
+                )));
+            } else {
+                let at = next;
+                next = next
+                    .checked_add(*count)
+                    .ok_or_else(|| usage("more than 2^32 instanced primitives".into()))?;
+                at
+            };
+            ids.starts.push((start, *count, i as u32));
+            for &(b, first) in list {
+                records.push(AccelInstance {
+                    transform: *inst.transform.as_flattened().first_chunk().expect("12"),
+                    custom_index_and_mask: inst.custom_index_and_mask,
+                    sbt_offset_and_flags: inst.sbt_offset_and_flags,
+                    blas: bottoms[b].blas.device_address(),
+                });
+                ids.bases.push(start + first);
+            }
+        }
+        ids.starts.sort_unstable();
+        let n = records.len();
+        let instances_buf = Buffer::<u32>::new(&ctx, "accel.driver.instances", 16 * n.max(1) + 3)?;
+        let top = [Self::top(0, n)];
+        let top_sizes = accel_build_sizes(&ctx, &top, flags)?;
+        scratch_bytes = scratch_bytes.max(top_sizes.scratch);
+        let tlas =
+            AccelerationStructure::new(&ctx, "accel.driver.tlas", &top, top_sizes.structure)?;
+        let accel = Self {
+            bottoms,
+            records,
+            tlas,
+            instances: instances_buf,
+            flags,
+            scratch: Some(accel_scratch(&ctx, scratch_bytes)?),
+        };
+        accel.record_build(rec, None)?;
+        ids.bases.resize(ids.bases.len().max(1), 0);
+        Ok((accel, ids))
     }
 
     /// The TLAS's device address, which the `query` kernels read from the nodes binding.

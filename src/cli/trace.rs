@@ -98,9 +98,7 @@ fn trace_command(
     let scene = load_scene(&Some(scene_path.to_path_buf()))?;
     let time = scene.camera.shutter_open;
     let ctx = context(validate)?;
-    // Meshes named more than once: bottom levels and instances, unless asked flat (or
-    // traced by the driver's structure, which vkrt builds as one level).
-    let flatten = flatten || accel.kind == vkrt::accel::device::AccelKind::Driver;
+    // Meshes named more than once: bottom levels and instances, unless asked flat.
     if let Some(two) = (!flatten)
         .then(|| instanced::TwoLevelScene::of(&scene, time))
         .flatten()

@@ -186,12 +186,7 @@ pub fn build_and_trace(
     time: f32,
 ) -> Result<TwoLevelTrace> {
     if choice.kind == AccelKind::Driver {
-        return Err(GpuError::Usage {
-            call: "two-level trace",
-            reason: "the driver's structure is not a bottom level of vkrt's top level yet: \
-                     trace the scene flat (--flatten) with --accel driver"
-                .into(),
-        });
+        return driver_build_and_trace(ctx, choice.prefer, opt, s, rays, time);
     }
     let opt = effective_options(ctx, opt, choice.traversal());
     let before = ctx.memory().vkrt_bytes;
@@ -223,6 +218,82 @@ pub fn build_and_trace(
         top_build_ms,
         bottom_bytes,
         top_bytes: top.bytes(),
+        options: opt,
+    })
+}
+
+/// [`build_and_trace`] with the driver's own two levels (`VK_KHR_acceleration_structure`):
+/// a bottom-level structure per level, a top-level instance per instance with its
+/// transform, traced with the driver's ray query; the hits' ids mapped back to the scene's.
+fn driver_build_and_trace(
+    ctx: &Context,
+    prefer: crate::accel::driver::Prefer,
+    opt: &TraceOptions,
+    s: &TwoLevelScene,
+    rays: &[Ray],
+    time: f32,
+) -> Result<TwoLevelTrace> {
+    use crate::accel::device::{AccelStructure, DevicePrimitives};
+    let walk = AccelTraversal::RayQuery;
+    let opt = effective_options(ctx, opt, walk);
+    let before = ctx.memory().vkrt_bytes;
+    let mut rec = Recorder::new(ctx)?;
+    let mut prims = Vec::with_capacity(s.bottoms.len());
+    for g in &s.bottoms {
+        prims.push(DevicePrimitives::record_upload(&mut rec, g)?);
+    }
+    // The kernels bind the rest's primitives (its spheres are theirs to intersect).
+    let bound = s
+        .instances
+        .iter()
+        .find(|i| i.custom_index() == REST)
+        .map_or(0, |i| i.bottom as usize);
+    let refs: Vec<&DevicePrimitives> = prims.iter().collect();
+    let (accel, ids) =
+        AccelStructure::record_driver_instanced(&mut rec, &refs, &s.instances, bound, prefer)?;
+    let profile = rec.submit_and_wait()?;
+    let top_bytes = accel
+        .driver_levels_ref()
+        .flatten()
+        .map_or(0, |a| a.top_bytes());
+    let bytes = ctx.memory().vkrt_bytes.saturating_sub(before);
+    if prims.is_empty() {
+        return Err(GpuError::Usage {
+            call: "two-level trace",
+            reason: "a scene of two levels without a bottom level".into(),
+        });
+    }
+    let geom = GpuGeometry {
+        prims: prims.swap_remove(bound),
+        accel,
+        device_input: None,
+    };
+    let batch = Tracer::for_accel(ctx, &opt, walk)?.trace_batched(ctx, &geom, rays, time, None)?;
+    let hits = batch
+        .hits
+        .iter()
+        .map(|h| {
+            let scene_id = |(i, p): (u32, u32)| match s.instances[i as usize].custom_index() {
+                REST => s.rest_ids.get(p as usize).copied(),
+                k => s.mesh_first.get(k as usize).map(|f| f + p),
+            };
+            match h.is_hit() {
+                true => match ids.instance_primitive(h.prim).and_then(scene_id) {
+                    Some(prim) => Hit { prim, ..*h },
+                    None => Hit::MISS,
+                },
+                false => *h,
+            }
+        })
+        .collect();
+    Ok(TwoLevelTrace {
+        trace_ms: batch.profile.ms("trace").unwrap_or(0.0),
+        hits,
+        exhausted: batch.exhausted,
+        bottom_build_ms: profile.ms("driver_bottom_levels").unwrap_or(0.0),
+        top_build_ms: profile.ms("driver_top_level").unwrap_or(0.0),
+        bottom_bytes: bytes.saturating_sub(top_bytes),
+        top_bytes,
         options: opt,
     })
 }
