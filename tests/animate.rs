@@ -167,6 +167,10 @@ fn two_level_frames_update_the_top_level_and_match_the_flat_renders() {
             AccelChoice::new(AccelKind::KdTree, Traversal::Stack),
             Update::Refit,
         ),
+        (
+            AccelChoice::new(AccelKind::Ploc, Traversal::Bitstack),
+            Update::Refit,
+        ),
     ];
     for (accel, update) in cases {
         let what = format!("{} {}", accel.label(), update.name());

@@ -4,9 +4,13 @@
 // invocation per ray through vkrt/ray_query.glsl at device addresses, the top level's handle
 // in the push constants. A hit names the primitive in its bottom level, and its instance in
 // `hit_instance` (what shade.comp's `levels` variant reads).
+// `bitstack_*`: the bottom levels' BVHs walked with the bitstack walk (else each level's own).
 //! variant exact VKRT_EXACT=1
 //! variant float FLOAT=1
 //! variant moller VKRT_MOLLER_TRUMBORE=1
+//! variant bitstack_exact VKRT_EXACT=1 VKRT_WALK=VKRT_WALK_BVH_BITSTACK
+//! variant bitstack_float VKRT_WALK=VKRT_WALK_BVH_BITSTACK
+//! variant bitstack_moller VKRT_MOLLER_TRUMBORE=1 VKRT_WALK=VKRT_WALK_BVH_BITSTACK
 layout(local_size_x_id = 0) in;
 layout(constant_id = 22) const uint STEP_CAP = 60000u;
 // False where the driver's division rounds correctly (the exact variant's check left out).

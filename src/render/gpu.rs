@@ -215,7 +215,11 @@ impl Renderer {
         );
         let (instances, shade_levels) = match plan.levels {
             2 => (
-                Some(instances_kernel(ctx, &opt)?),
+                Some(instances_kernel(
+                    ctx,
+                    &opt,
+                    walk == AccelTraversal::Bvh(Traversal::Bitstack),
+                )?),
                 Some(ctx.kernel(&kernels::RENDER_SHADE_LEVELS, &shade)?),
             ),
             _ => (None, None),
@@ -656,11 +660,14 @@ impl Renderer {
 
 /// The extend and shadow passes over two levels, for the options the device runs
 /// (`render.instances`).
-fn instances_kernel(ctx: &Context, opt: &TraceOptions) -> Result<Arc<Kernel>> {
-    let blob = match (opt.intersector, opt.exact) {
-        (Intersector::MollerTrumbore, _) => &kernels::RENDER_INSTANCES_MOLLER,
-        (Intersector::Watertight, true) => &kernels::RENDER_INSTANCES_EXACT,
-        (Intersector::Watertight, false) => &kernels::RENDER_INSTANCES_FLOAT,
+fn instances_kernel(ctx: &Context, opt: &TraceOptions, bitstack: bool) -> Result<Arc<Kernel>> {
+    let blob = match (opt.intersector, opt.exact, bitstack) {
+        (Intersector::MollerTrumbore, _, false) => &kernels::RENDER_INSTANCES_MOLLER,
+        (Intersector::Watertight, true, false) => &kernels::RENDER_INSTANCES_EXACT,
+        (Intersector::Watertight, false, false) => &kernels::RENDER_INSTANCES_FLOAT,
+        (Intersector::MollerTrumbore, _, true) => &kernels::RENDER_INSTANCES_BITSTACK_MOLLER,
+        (Intersector::Watertight, true, true) => &kernels::RENDER_INSTANCES_BITSTACK_EXACT,
+        (Intersector::Watertight, false, true) => &kernels::RENDER_INSTANCES_BITSTACK_FLOAT,
     };
     ctx.kernel(blob, &crate::trace::instanced::library_spec(ctx, opt, WG))
 }

@@ -186,15 +186,11 @@ impl Plan {
 /// can serve the render, with a note where they cannot.
 fn levels(scene: &Scene, opt: &RenderOptions, notes: &mut Vec<String>) -> u32 {
     use crate::accel::device::AccelKind;
-    use crate::trace::bvh_cpu::Traversal;
-    use crate::trace::gpu::AccelTraversal;
     if opt.flatten || !scene.mesh_groups().iter().any(|g| g.len() > 1) {
         return 1;
     }
     let why_flat = if opt.accel.kind == AccelKind::Driver {
         Some("the driver's structure is traced flat")
-    } else if opt.accel.traversal() == AccelTraversal::Bvh(Traversal::Bitstack) {
-        Some("the bitstack walk is traced flat")
     } else if scene.spheres.iter().any(|s| !s.motion.is_static()) {
         Some("moving spheres are traced flat")
     } else {
