@@ -106,10 +106,10 @@ void main() {
     // (every instance's steps, so that none is left undefined) An instance whose steps
     // are all the same is walked as a still one: nothing to interpolate per ray.
     bool still = true;
+    vec4 m0[3] = rows_of(i, 0u);
     for (uint s = 0u; s < pc.steps && pc.steps > 1u; s++) {
         vec4 m[3] = rows_of(i, s);
         steps[i * pc.steps + s] = Rows(m);
-        vec4 m0[3] = rows_of(i, 0u);
         for (uint r = 0u; r < 3u; r++) {
             still = still && all(equal(floatBitsToUint(m[r]), floatBitsToUint(m0[r])));
         }

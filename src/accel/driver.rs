@@ -32,7 +32,6 @@ pub struct InstancedIds {
     pub bases: Vec<u32>,
     /// Per vkrt instance: (first id, primitives, instance index), by first id.
     starts: Vec<(u32, u32, u32)>,
-    bound_placed: bool,
 }
 
 impl InstancedIds {
@@ -434,6 +433,7 @@ impl DriverAccel {
         let mut records = Vec::new();
         let mut ids = InstancedIds::default();
         let mut next = per_level.get(bound).map_or(0, |l| l.1);
+        let mut bound_placed = false;
         for (i, inst) in instances.iter().enumerate() {
             let level = usize::try_from(inst.bottom)
                 .ok()
@@ -441,13 +441,13 @@ impl DriverAccel {
                 .ok_or_else(|| usage(format!("instance {i} names a missing level")))?;
             let (list, count, boxes) = &per_level[level];
             let start = if level == bound && *boxes {
-                if inst.transform != Instance::IDENTITY || ids.bound_placed {
+                if inst.transform != Instance::IDENTITY || bound_placed {
                     return Err(usage(format!(
                         "instance {i}: the bound level's spheres and boxes are intersected in \
                          the world, so one identity instance must place it"
                     )));
                 }
-                ids.bound_placed = true;
+                bound_placed = true;
                 0
             } else if *boxes {
                 return Err(usage(format!(

@@ -1230,6 +1230,13 @@ impl TopLevel<'_> {
         Ok(InstanceStatus(rec.read_back(&self.parts.status)?))
     }
 
+    /// A moving top level's object-to-world rows, `steps` per instance, instance after
+    /// instance, as its last build or update wrote them (one unused entry when it does not
+    /// move): what a renderer's shading reads to place a hit as the walk placed the ray.
+    pub fn steps(&self) -> &Buffer<[[f32; 4]; 3]> {
+        &self.parts.steps
+    }
+
     /// How its instances move.
     pub fn motion(&self) -> InstanceMotion {
         self.motion

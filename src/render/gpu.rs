@@ -14,7 +14,7 @@ use crate::prims::scan::GpuCount;
 use crate::prims::PrimConfig;
 use crate::trace::bvh_cpu::Traversal;
 use crate::trace::gpu::{effective_options, traversal_spec, AccelTraversal, GpuGeometry};
-use crate::trace::{Hit, Intersector, Query, TraceOptions};
+use crate::trace::{Hit, Query, TraceOptions};
 
 use super::plan::Plan;
 use super::types::{counter, PathRay, ShadowRay};
@@ -661,13 +661,13 @@ impl Renderer {
 /// The extend and shadow passes over two levels, for the options the device runs
 /// (`render.instances`).
 fn instances_kernel(ctx: &Context, opt: &TraceOptions, bitstack: bool) -> Result<Arc<Kernel>> {
-    let blob = match (opt.intersector, opt.exact, bitstack) {
-        (Intersector::MollerTrumbore, _, false) => &kernels::RENDER_INSTANCES_MOLLER,
-        (Intersector::Watertight, true, false) => &kernels::RENDER_INSTANCES_EXACT,
-        (Intersector::Watertight, false, false) => &kernels::RENDER_INSTANCES_FLOAT,
-        (Intersector::MollerTrumbore, _, true) => &kernels::RENDER_INSTANCES_BITSTACK_MOLLER,
-        (Intersector::Watertight, true, true) => &kernels::RENDER_INSTANCES_BITSTACK_EXACT,
-        (Intersector::Watertight, false, true) => &kernels::RENDER_INSTANCES_BITSTACK_FLOAT,
-    };
-    ctx.kernel(blob, &crate::trace::instanced::library_spec(ctx, opt, WG))
+    let variants = [
+        &kernels::RENDER_INSTANCES_MOLLER,
+        &kernels::RENDER_INSTANCES_EXACT,
+        &kernels::RENDER_INSTANCES_FLOAT,
+        &kernels::RENDER_INSTANCES_BITSTACK_MOLLER,
+        &kernels::RENDER_INSTANCES_BITSTACK_EXACT,
+        &kernels::RENDER_INSTANCES_BITSTACK_FLOAT,
+    ];
+    crate::trace::instanced::library_kernel(ctx, opt, bitstack, variants, WG)
 }

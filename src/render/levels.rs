@@ -40,9 +40,6 @@ pub struct RenderLevels {
     pub motion: InstanceMotion,
     /// The instances at every step, step after step: what the top level is built from.
     pub moving: Vec<Instance>,
-    /// Per instance its steps' object-to-world rows, instance after instance (shading's
-    /// copy; empty when nothing moves).
-    pub steps: Vec<[[f32; 4]; 3]>,
     /// Per level primitive: its three vertices, 9 floats, in its bottom level's space
     /// (spheres: zeros).
     pub verts: Vec<f32>,
@@ -133,7 +130,6 @@ impl RenderLevels {
             scene: two,
             motion,
             moving: Vec::new(),
-            steps: Vec::new(),
             verts,
             spheres,
             placements: Vec::new(),
@@ -159,7 +155,8 @@ impl RenderLevels {
         self.place(scene);
     }
 
-    /// The steps and placements of the instances.
+    /// The instances at every step and their placements (shading reads the steps the top
+    /// level's build keeps, instance after instance: `TopLevel::steps`).
     fn place(&mut self, scene: &Scene) {
         let instances = &self.scene.instances;
         let motion = self.motion;
@@ -181,14 +178,6 @@ impl RenderLevels {
                             None => *inst,
                         })
                 })
-                .collect()
-        };
-        let count = instances.len();
-        self.steps = if n < 2 {
-            Vec::new()
-        } else {
-            (0..count * n)
-                .map(|k| self.moving[(k % n) * count + k / n].transform)
                 .collect()
         };
         self.placements = placements(scene, instances, &self.spans);

@@ -16,7 +16,11 @@ use glam::{Vec3, Vec4};
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
 use crate::accel::embedded::BuildFlags;
 use crate::accel::instances::{Instance, TopLevel, TopLevelBuilder};
-use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Recorder, Result, Spec};
+use std::sync::Arc;
+
+use crate::gpu::{
+    kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, ShaderBlob, Spec,
+};
 use crate::scene::Scene;
 use crate::trace::bvh_cpu::Traversal;
 use crate::trace::gpu::{effective_options, AccelTraversal, GpuGeometry, TraceBatch, Tracer};
@@ -237,6 +241,12 @@ fn driver_build_and_trace(
     let walk = AccelTraversal::RayQuery;
     let opt = effective_options(ctx, opt, walk);
     let before = ctx.memory().vkrt_bytes;
+    if s.bottoms.is_empty() {
+        return Err(GpuError::Usage {
+            call: "two-level trace",
+            reason: "a scene of two levels without a bottom level".into(),
+        });
+    }
     let mut rec = Recorder::new(ctx)?;
     let mut prims = Vec::with_capacity(s.bottoms.len());
     for g in &s.bottoms {
@@ -257,12 +267,6 @@ fn driver_build_and_trace(
         .flatten()
         .map_or(0, |a| a.top_bytes());
     let bytes = ctx.memory().vkrt_bytes.saturating_sub(before);
-    if prims.is_empty() {
-        return Err(GpuError::Usage {
-            call: "two-level trace",
-            reason: "a scene of two levels without a bottom level".into(),
-        });
-    }
     let geom = GpuGeometry {
         prims: prims.swap_remove(bound),
         accel,
@@ -313,15 +317,15 @@ pub fn trace_top_level(
     rays: &[Ray],
     time: f32,
 ) -> Result<TraceBatch> {
-    let blob = match (opt.intersector, opt.exact, bitstack) {
-        (Intersector::MollerTrumbore, _, false) => &kernels::RENDER_TRACE_INSTANCES_MOLLER,
-        (Intersector::Watertight, true, false) => &kernels::RENDER_TRACE_INSTANCES_EXACT,
-        (Intersector::Watertight, false, false) => &kernels::RENDER_TRACE_INSTANCES_FLOAT,
-        (Intersector::MollerTrumbore, _, true) => &kernels::RENDER_TRACE_INSTANCES_BITSTACK_MOLLER,
-        (Intersector::Watertight, true, true) => &kernels::RENDER_TRACE_INSTANCES_BITSTACK_EXACT,
-        (Intersector::Watertight, false, true) => &kernels::RENDER_TRACE_INSTANCES_BITSTACK_FLOAT,
-    };
-    let kernel = ctx.kernel(blob, &library_spec(ctx, opt, WORKGROUP))?;
+    let variants = [
+        &kernels::RENDER_TRACE_INSTANCES_MOLLER,
+        &kernels::RENDER_TRACE_INSTANCES_EXACT,
+        &kernels::RENDER_TRACE_INSTANCES_FLOAT,
+        &kernels::RENDER_TRACE_INSTANCES_BITSTACK_MOLLER,
+        &kernels::RENDER_TRACE_INSTANCES_BITSTACK_EXACT,
+        &kernels::RENDER_TRACE_INSTANCES_BITSTACK_FLOAT,
+    ];
+    let kernel = library_kernel(ctx, opt, bitstack, variants, WORKGROUP)?;
     let mesh_first = Buffer::from_slice(ctx, "trace.mesh_first", &nonempty(mesh_first))?;
     let rest_ids = Buffer::from_slice(ctx, "trace.rest_ids", &nonempty(rest_ids))?;
     let handle = top.handle_address();
@@ -374,6 +378,27 @@ pub fn trace_under_identity(
         &BuildFlags::default(),
     )?;
     trace_top_level(ctx, &top, (&[0], &[]), opt, bitstack, rays, 0.0)
+}
+
+/// The variant of a kernel that walks two levels through `vkrt/ray_query.glsl` for `opt`
+/// (as the device runs it) and the bottom levels' walk, specialized: `variants` are its
+/// `moller`, `exact`, `float` variants, then their `bitstack_*` twins.
+pub(crate) fn library_kernel(
+    ctx: &Context,
+    opt: &TraceOptions,
+    bitstack: bool,
+    variants: [&'static ShaderBlob; 6],
+    workgroup: u32,
+) -> Result<Arc<Kernel>> {
+    let k = match (opt.intersector, opt.exact) {
+        (Intersector::MollerTrumbore, _) => 0,
+        (Intersector::Watertight, true) => 1,
+        (Intersector::Watertight, false) => 2,
+    };
+    ctx.kernel(
+        variants[k + 3 * usize::from(bitstack)],
+        &library_spec(ctx, opt, workgroup),
+    )
 }
 
 /// The specialization constants of a kernel that includes `vkrt/ray_query.glsl` with the

@@ -41,7 +41,7 @@ impl Traced {
                 &l.spheres,
                 &l.placements,
                 &l.hit_instance,
-                &l.steps,
+                l.top.steps(),
             ],
         }
     }
@@ -88,8 +88,6 @@ pub(crate) struct Levels {
     verts: Buffer<f32>,
     spheres: Buffer<[f32; 4]>,
     placements: Buffer<Placement>,
-    /// Per instance its steps' object-to-world rows (motion blur).
-    steps: Buffer<[[f32; 4]; 3]>,
     /// Per queued ray: the instance its closest hit is in (`render.instances` writes it).
     pub hit_instance: Buffer<u32>,
     /// Host milliseconds of the bottom levels' builds (the SAH BVH's host builder; the
@@ -134,12 +132,10 @@ impl Levels {
         let verts = Buffer::new(&ctx, "render.level_verts", rl.verts.len().max(1))?;
         let spheres = Buffer::new(&ctx, "render.level_spheres", rl.spheres.len().max(1))?;
         let placements = Buffer::new(&ctx, "render.placements", rl.placements.len().max(1))?;
-        let steps = Buffer::new(&ctx, "render.instance_steps", rl.steps.len().max(1))?;
         let hit_instance = Buffer::new(&ctx, "render.hit_instance", queue.max(1))?;
         rec.upload(&verts, &rl.verts)?;
         rec.upload(&spheres, &rl.spheres)?;
         rec.upload(&placements, &rl.placements)?;
-        rec.upload(&steps, &rl.steps)?;
         rec.transfer_to_compute();
         Ok(Self {
             top,
@@ -147,18 +143,16 @@ impl Levels {
             verts,
             spheres,
             placements,
-            steps,
             hit_instance,
             bottom_ms,
         })
     }
 
-    /// Records the upload of `rl`'s placements and steps (a later frame's; order it after
-    /// the last frame's shading and before the next, as [`super::Renderer`]'s reset of a
-    /// frame does).
+    /// Records the upload of `rl`'s placements (a later frame's; order it after the last
+    /// frame's shading and before the next, as [`super::Renderer`]'s reset of a frame does).
+    /// The moving instances' steps shading reads are the top level's, written by its update.
     pub fn record_placements(&self, rec: &mut Recorder, rl: &RenderLevels) -> Result<()> {
-        rec.upload(&self.placements, &rl.placements)?;
-        rec.upload(&self.steps, &rl.steps)
+        rec.upload(&self.placements, &rl.placements)
     }
 
     /// Records the top level's update to `rl`'s instances (as many as it was built with),
