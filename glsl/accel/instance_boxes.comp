@@ -16,8 +16,14 @@
 // finite or not invertible, is never hit (an inactive box, min > max, and mask 0) and
 // counted in `status`; an instance of an empty bottom level or with mask 0 is never hit, not
 // counted.
+// `exact`: the inverse's division rounded correctly in doubles where the driver's is not
+// (specialization constant 21), so the records equal the twin's on every device; `float`
+// (devices without shaderFloat64): the driver's division.
+//! variant exact FP64_FALLBACK=1
+//! variant float FP64_FALLBACK=0
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
+#include "include/vkrt/ray.glsl"
 #include "include/vkrt/affine.glsl"
 
 // The caller's records, 16 words each, from word `first_word` on (step-major when moving).

@@ -334,6 +334,22 @@ fn transform_direction(rows: &[[f32; 4]; 3], d: Vec3) -> Vec3 {
     Vec3::new(row(&rows[0]), row(&rows[1]), row(&rows[2]))
 }
 
+/// `accel.instance_boxes`: its exact variant (the inverse's division rounded correctly in
+/// doubles where the driver's is not, so that the records equal [`instance_boxes`]' on every
+/// device) wherever the device has doubles.
+fn instance_boxes_kernel(ctx: &Context) -> Result<Arc<Kernel>> {
+    let spec = Spec::new().workgroup(WORKGROUP);
+    if ctx.info().features.shader_float64 {
+        let refine = !ctx.info().ieee_division;
+        ctx.kernel(
+            &kernels::ACCEL_INSTANCE_BOXES_EXACT,
+            &spec.u32(21, u32::from(refine)),
+        )
+    } else {
+        ctx.kernel(&kernels::ACCEL_INSTANCE_BOXES_FLOAT, &spec)
+    }
+}
+
 /// What [`instance_boxes`] makes of a top level's instances.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct InstanceBoxes {
@@ -672,10 +688,7 @@ impl TopLevelBuilder {
         tree.top_level = true;
         Ok(Self {
             tree,
-            boxes: ctx.kernel(
-                &kernels::ACCEL_INSTANCE_BOXES,
-                &Spec::new().workgroup(WORKGROUP),
-            )?,
+            boxes: instance_boxes_kernel(ctx)?,
         })
     }
 

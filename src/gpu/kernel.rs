@@ -245,7 +245,19 @@ impl Context {
                 Err((_, e)) => {
                     device.destroy_pipeline_layout(layout, None);
                     device.destroy_descriptor_set_layout(set_layout, None);
-                    Err(vk_err("vkCreateComputePipelines")(e))
+                    if matches!(
+                        e,
+                        vk::Result::ERROR_OUT_OF_HOST_MEMORY
+                            | vk::Result::ERROR_OUT_OF_DEVICE_MEMORY
+                    ) {
+                        return Err(vk_err("vkCreateComputePipelines")(e));
+                    }
+                    // The driver's compiler refused this kernel: say which, and how it was
+                    // specialised, so that the failure can be reproduced.
+                    Err(err(format!(
+                        "vkCreateComputePipelines failed ({e:?}) for workgroup size \
+                         {workgroup_size:?} and specialization {entries:?}"
+                    )))
                 }
             }
         }

@@ -180,6 +180,10 @@ const CHAINED_SMALL_ROUNDS_PER_ITEM: u32 = 8;
 /// 9–13 ms.
 const CHAINED_LARGE_ROUNDS_PER_ITEM_U32: u32 = 64;
 const CHAINED_LARGE_ROUNDS_PER_ITEM_FLAGS: u32 = 32;
+/// The most granules per lane: each lane holds its granules (32 bytes each) in registers,
+/// and NVIDIA's compiler (driver 580) refuses the kernel at 256 (`VK_ERROR_UNKNOWN` at
+/// pipeline creation) while 128, the default's large tiles, compiles and runs.
+const MAX_CHAINED_ROUNDS: u32 = 128;
 /// Scans take the large tiles from this many large tiles on. Measured: at 2^18 elements
 /// (64 large u32 tiles) both sizes took 0.6 ms; at 2^20 large tiles were faster for u32
 /// (1.5 vs 1.8 ms) but slower for flags (64 large tiles: 1.04 vs 0.84 ms); at 2^16 small
@@ -299,7 +303,7 @@ impl Scan {
             ScanInput::Flags => (&kernels::PRIMS_SCAN_CHAINED_FLAGS, 4),
         };
         let tiles = |per_item: u32| -> Result<ChainedTiles> {
-            let rounds = (per_item * cfg.items_per_invocation / WORDS).max(1);
+            let rounds = (per_item * cfg.items_per_invocation / WORDS).clamp(1, MAX_CHAINED_ROUNDS);
             let spec = Spec::new()
                 .workgroup(cfg.workgroup_size)
                 .u32(1, rounds)
