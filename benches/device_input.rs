@@ -66,8 +66,8 @@ fn meshes(quick: bool) -> Vec<Mesh> {
         let m = &scene.meshes[0];
         out.push(Mesh {
             name: "bunny".into(),
-            positions: m.positions.clone(),
-            indices: m.indices.clone(),
+            positions: m.positions.to_vec(),
+            indices: m.indices.to_vec(),
         });
     } else {
         eprintln!("skipped the bunny: {} not present", bunny.display());
@@ -76,8 +76,8 @@ fn meshes(quick: bool) -> Vec<Mesh> {
         let m = vkrt::scene::gen::icosphere_with_at_least(2_000_000).expect("icosphere");
         out.push(Mesh {
             name: "icosphere 2M".into(),
-            positions: m.positions,
-            indices: m.indices,
+            positions: m.positions.to_vec(),
+            indices: m.indices.to_vec(),
         });
     }
     out

@@ -831,7 +831,7 @@ pub fn load_mesh(path: Option<PathBuf>) -> BoxResult<Mesh> {
         None => {
             eprintln!("own_shader: no mesh given and ../shared absent: a generated icosphere");
             let m = vkrt::scene::gen::icosphere(4)?;
-            (m.positions, m.indices)
+            (m.positions.to_vec(), m.indices.to_vec())
         }
     };
     Ok(Mesh {

@@ -737,3 +737,95 @@ fn a_scene_naming_the_bunny_64_times_traces_as_instances() {
     );
     std::fs::remove_dir_all(&dir).unwrap();
 }
+
+/// 1,024 copies of an 81,920-triangle sphere (84 M triangles placed, five times a scene's
+/// 2²⁴ held triangles): the scene holds the sphere once, `vkrt scene` counts both, `vkrt
+/// trace` answers it as two levels (each hit on the sphere copy whose centre the ray points
+/// at), and flattened it is refused before any work, naming the bytes it would need.
+#[test]
+fn a_thousand_copies_of_a_mesh_load_once_and_trace_as_instances() {
+    let dir = scratch("copies");
+    let mut toml = String::from(
+        "ambient = [0.4, 0.4, 0.4]\n[camera]\nposition = [0.0, 0.0, 40.0]\nlook_at = [0.0, 0.0, 0.0]\n",
+    );
+    for j in 0..32 {
+        for i in 0..32 {
+            toml += &format!(
+                "\n[[meshes]]\ngenerate = \"icosphere\"\nsubdivisions = 6\ntranslate = [{}, {}, 0.0]\nscale = 0.45\n",
+                i as f32 - 15.5,
+                j as f32 - 15.5
+            );
+        }
+    }
+    let scene_path = dir.join("copies.toml");
+    std::fs::write(&scene_path, toml).unwrap();
+    let Some(run) = vkrt_ok(&["scene", s(&scene_path), "--json"]) else {
+        return;
+    };
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(
+        (v["triangles"].as_u64(), v["unique_triangles"].as_u64()),
+        (Some(1024 * 81_920), Some(81_920)),
+        "{v}"
+    );
+    // One ray straight down the z axis through each sphere's centre.
+    let rays: Vec<Ray> = (0..1024)
+        .map(|k| {
+            let c = Vec3::new((k % 32) as f32 - 15.5, (k / 32) as f32 - 15.5, 0.0);
+            Ray::new(c + Vec3::Z * 10.0, -Vec3::Z, 0.0, f32::INFINITY)
+        })
+        .collect();
+    let ray_path = dir.join("in.rays");
+    std::fs::write(&ray_path, files::encode_rays(&rays)).unwrap();
+    let out = dir.join("hits.bin");
+    let args = [
+        "trace",
+        s(&scene_path),
+        "--rays",
+        s(&ray_path),
+        "-o",
+        s(&out),
+        "--accel",
+        "lbvh",
+        "--json",
+    ];
+    let run = vkrt(&args);
+    assert!(
+        run.status.success(),
+        "{}",
+        String::from_utf8_lossy(&run.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
+    assert_eq!(
+        (v["levels"].as_u64(), v["instances"].as_u64()),
+        (Some(2), Some(1024)),
+        "{v}"
+    );
+    for (k, h) in read_hits(&out).iter().enumerate() {
+        // The scene's primitive ids: copy k holds triangles k·81,920 ...
+        assert_eq!(h.prim as usize / 81_920, k, "ray {k}: {h:?}");
+        // ... and the ray meets it on its near pole, 10 − 0.45 away (the icosphere's
+        // vertices lie on the sphere, its faces within 0.05 % of the radius inside).
+        assert!((h.t - 9.55).abs() < 1e-3, "ray {k}: {h:?}");
+    }
+    std::fs::remove_file(&out).unwrap();
+    let info = vkrt_ok(&["info", "--json"]).unwrap();
+    let info: serde_json::Value = serde_json::from_slice(&info.stdout).unwrap();
+    let flat_bytes = 36u64 * 1024 * 81_920;
+    if info["max_storage_buffer_range"].as_u64().unwrap() >= flat_bytes {
+        // (a device whose buffers hold 3 GB traces it flat too)
+        std::fs::remove_dir_all(&dir).unwrap();
+        return;
+    }
+    let start = std::time::Instant::now();
+    let run = vkrt(&[&args[..], &["--flatten"]].concat());
+    let err = String::from_utf8_lossy(&run.stderr);
+    assert!(
+        !run.status.success() && err.contains("maxStorageBufferRange"),
+        "{err}"
+    );
+    assert!(err.contains(&flat_bytes.to_string()), "{err}");
+    assert!(!out.exists());
+    eprintln!("flat refused after {:.2} s", start.elapsed().as_secs_f64());
+    std::fs::remove_dir_all(&dir).unwrap();
+}

@@ -190,6 +190,7 @@ fn scenes_dir() -> PathBuf {
 fn small_limits() -> Limits {
     Limits {
         max_triangles: 200_000,
+        max_instanced_triangles: 2_000_000,
         max_vertices: 600_000,
         max_spheres: 20_000,
         ..Limits::default()

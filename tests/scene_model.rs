@@ -14,7 +14,7 @@ use vkrt::scene::{
 /// directions (closed, consistently oriented 2-manifold).
 fn assert_watertight(mesh: &Mesh) {
     let mut directed: HashMap<(u32, u32), u32> = HashMap::new();
-    for t in &mesh.indices {
+    for t in mesh.indices.iter() {
         for k in 0..3 {
             *directed.entry((t[k], t[(k + 1) % 3])).or_default() += 1;
         }
@@ -33,12 +33,12 @@ fn assert_watertight(mesh: &Mesh) {
 }
 
 fn assert_outward_unit_sphere(mesh: &Mesh) {
-    for t in &mesh.indices {
+    for t in mesh.indices.iter() {
         let [a, b, c] = t.map(|i| mesh.positions[i as usize]);
         let n = (b - a).cross(c - a);
         assert!(n.dot(a + b + c) > 0.0, "inward-facing triangle {t:?}");
     }
-    for p in &mesh.positions {
+    for p in mesh.positions.iter() {
         assert!(
             (p.length() - 1.0).abs() < 1e-5,
             "vertex {p} off the unit sphere"
@@ -134,7 +134,7 @@ fn random_soup_is_deterministic_and_non_degenerate() {
     assert_ne!(a.positions, c.positions);
     assert_eq!(a.indices.len(), 10_000);
     assert_eq!(a.positions.len(), 30_000);
-    for t in &a.indices {
+    for t in a.indices.iter() {
         let [p, q, r] = t.map(|i| a.positions[i as usize]);
         assert!((q - p).cross(r - p).length() > 0.0);
         for v in [p, q, r] {
@@ -166,13 +166,13 @@ fn integer_grid_has_integer_vertices_and_right_counts() {
     let m = gen::integer_grid(7, 3).unwrap();
     assert_eq!(m.indices.len(), 2 * 7 * 3);
     assert_eq!(m.positions.len(), 8 * 4);
-    for p in &m.positions {
+    for p in m.positions.iter() {
         assert_eq!(*p, p.round(), "{p} not on integer coordinates");
         assert_eq!(p.z, 0.0);
     }
     // Facing +Z, covering exactly the 7 × 3 rectangle.
     let mut area = 0.0;
-    for t in &m.indices {
+    for t in m.indices.iter() {
         let [a, b, c] = t.map(|i| m.positions[i as usize]);
         let n = (b - a).cross(c - a);
         assert!(n.z > 0.0);
@@ -181,7 +181,7 @@ fn integer_grid_has_integer_vertices_and_right_counts() {
     assert_eq!(area, 21.0);
     // Interior edges shared by exactly two triangles, boundary edges by one.
     let mut edges: HashMap<(u32, u32), u32> = HashMap::new();
-    for t in &m.indices {
+    for t in m.indices.iter() {
         for k in 0..3 {
             let (a, b) = (t[k], t[(k + 1) % 3]);
             *edges.entry((a.min(b), a.max(b))).or_default() += 1;
@@ -352,7 +352,7 @@ fn flattening_applies_transform_and_motion() {
     // Face normal when the mesh has none; non-uniform scale handled with the
     // inverse transpose when it does.
     assert_eq!(s.triangle_normals_world(0.0)[0], [Vec3::Z; 3]);
-    s.meshes[0].normals = vec![Vec3::new(1.0, 0.0, 1.0).normalize(); 3];
+    s.meshes[0].normals = vec![Vec3::new(1.0, 0.0, 1.0).normalize(); 3].into();
     let n = s.triangle_normals_world(0.0)[0][0];
     assert!(
         (n - Vec3::new(1.0, 0.0, 2.0).normalize()).length() < 1e-6,
@@ -360,7 +360,7 @@ fn flattening_applies_transform_and_motion() {
     );
     // Per-triangle materials come out in order.
     s.materials.push(Material::default());
-    s.meshes[0].materials = MeshMaterials::PerTriangle(vec![1]);
+    s.meshes[0].materials = MeshMaterials::PerTriangle(vec![1].into());
     assert_eq!(s.triangle_materials(), vec![1]);
 }
 
@@ -538,7 +538,7 @@ fn hand_built_scene_validation() {
     let e = s.validate().unwrap_err();
     assert!(e.to_string().contains("camera.look_at"), "{e}");
     let mut s = one_triangle_scene();
-    s.meshes[0].indices.push([0, 1, 3]);
+    std::sync::Arc::make_mut(&mut s.meshes[0].indices).push([0, 1, 3]);
     let e = s.validate().unwrap_err();
     assert!(
         matches!(
@@ -558,12 +558,15 @@ fn hand_built_scene_validation() {
 fn zero_area_triangles_dropped_and_counted() {
     let mut s = one_triangle_scene();
     let m = &mut s.meshes[0];
-    m.positions.push(Vec3::new(2.0, 0.0, 0.0)); // collinear with 0 and X
-    m.indices.extend([[0, 0, 1], [0, 1, 3], [1, 2, 2]]);
-    m.materials = MeshMaterials::PerTriangle(vec![0, 0, 0, 0]);
+    std::sync::Arc::make_mut(&mut m.positions).push(Vec3::new(2.0, 0.0, 0.0)); // collinear with 0 and X
+    std::sync::Arc::make_mut(&mut m.indices).extend([[0, 0, 1], [0, 1, 3], [1, 2, 2]]);
+    m.materials = MeshMaterials::PerTriangle(vec![0, 0, 0, 0].into());
     let warnings = s.validate().unwrap();
-    assert_eq!(s.meshes[0].indices, vec![[0, 1, 2]]);
-    assert_eq!(s.meshes[0].materials, MeshMaterials::PerTriangle(vec![0]));
+    assert_eq!(*s.meshes[0].indices, vec![[0, 1, 2]]);
+    assert_eq!(
+        s.meshes[0].materials,
+        MeshMaterials::PerTriangle(vec![0].into())
+    );
     assert!(
         warnings
             .iter()
@@ -576,13 +579,14 @@ fn zero_area_triangles_dropped_and_counted() {
         Vec3::ZERO,
         Vec3::new(1e-20, 0.0, 0.0),
         Vec3::new(0.0, 1e-20, 0.0),
-    ];
+    ]
+    .into();
     s.meshes[0].transform = Transform::IDENTITY;
     s.validate().unwrap();
     assert_eq!(s.triangle_count(), 1);
     // All degenerate: the scene is empty, and the message says why.
     let mut s = one_triangle_scene();
-    s.meshes[0].indices = vec![[0, 0, 0]];
+    s.meshes[0].indices = vec![[0, 0, 0]].into();
     let e = s.validate().unwrap_err();
     assert!(matches!(e, SceneError::Empty { .. }));
     assert!(e.to_string().contains("zero area"), "{e}");

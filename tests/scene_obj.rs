@@ -55,7 +55,7 @@ fn quads_polygons_and_relative_indices() {
     let m = obj(pentagon, "").unwrap();
     assert_eq!(m.mesh.indices.len(), 3);
     let mut area = 0.0;
-    for t in &m.mesh.indices {
+    for t in m.mesh.indices.iter() {
         let [a, b, c] = t.map(|i| m.mesh.positions[i as usize]);
         area += (b - a).cross(c - a).z * 0.5;
     }
@@ -64,7 +64,7 @@ fn quads_polygons_and_relative_indices() {
     let text = "v 0 0 0 2\nv 2 0 0 1 0 0\nv 0 2 0\nvt 0 0\nvt 1\nvn 0 0 1\nf 1/1/1 2/2/1 3//1\n";
     let m = obj(text, "").unwrap();
     assert_eq!(m.mesh.indices.len(), 1);
-    assert_eq!(m.mesh.normals, vec![Vec3::Z; 3]);
+    assert_eq!(*m.mesh.normals, vec![Vec3::Z; 3]);
 }
 
 #[test]
@@ -73,7 +73,10 @@ fn materials_from_mtl() {
     let m = obj(text, MTL).unwrap();
     let names: Vec<&str> = m.materials.iter().map(|m| m.name.as_str()).collect();
     assert_eq!(names, ["red", "glass"]);
-    assert_eq!(m.mesh.materials, MeshMaterials::PerTriangle(vec![0, 1, 1]));
+    assert_eq!(
+        m.mesh.materials,
+        MeshMaterials::PerTriangle(vec![0, 1, 1].into())
+    );
     let glass = &m.materials[1];
     assert!((glass.transmission - 0.9).abs() < 1e-6);
     assert_eq!(glass.ior, 1.5);

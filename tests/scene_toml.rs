@@ -644,7 +644,7 @@ fn zero_area_triangles_are_a_warning_not_an_error() {
         "{MINIMAL}\n[[meshes]]\npositions = [[0, 0, 0], [1, 0, 0], [0, 1, 0], [2, 0, 0]]\nindices = [[0, 1, 2], [0, 1, 3], [2, 2, 1]]\n"
     ))
     .unwrap();
-    assert_eq!(loaded.scene.meshes[0].indices, vec![[0, 1, 2]]);
+    assert_eq!(*loaded.scene.meshes[0].indices, vec![[0, 1, 2]]);
     assert_eq!(loaded.warnings.len(), 1, "{:?}", loaded.warnings);
     assert!(
         loaded.warnings[0].contains("dropped 2 zero-area triangles"),
@@ -705,6 +705,80 @@ fn scene_larger_than_the_limits() {
         "{MINIMAL}\n[[meshes]]\ngenerate = \"sphere_flake\"\ndepth = 4000000000\n"
     ));
     assert!(matches!(e, SceneError::TooLarge { .. }), "{e}");
+}
+
+/// A mesh named many times is held once: its entries share one geometry (each with its own
+/// placement and material) and count once against the triangle limit, every copy against
+/// the instanced limit.
+#[test]
+fn a_repeated_mesh_is_held_once_and_counted_once() {
+    let limits = Limits {
+        max_triangles: 1_000,
+        max_instanced_triangles: 100_000,
+        ..Limits::default()
+    };
+    let files = MemoryFiles::new();
+    let name = Path::new("mem/test.toml");
+    let entry = |i: usize| {
+        format!(
+            "\n[[meshes]]\ngenerate = \"icosphere\"\nsubdivisions = 2\ntranslate = [{i}, 0, 0]\n"
+        )
+    };
+    // 320 triangles, named 300 times: 96,000 placed, 320 held.
+    let text: String = (0..300).map(entry).collect();
+    let loaded =
+        Scene::from_toml_str_with(&format!("{MINIMAL}{text}"), name, &files, &limits).unwrap();
+    let meshes = &loaded.scene.meshes;
+    assert_eq!(meshes.len(), 300);
+    assert_eq!(loaded.scene.triangle_count(), 96_000);
+    for m in &meshes[1..] {
+        assert!(std::sync::Arc::ptr_eq(&m.positions, &meshes[0].positions));
+        assert!(std::sync::Arc::ptr_eq(&m.indices, &meshes[0].indices));
+    }
+    assert_eq!(meshes[299].transform.translate, Vec3::new(299.0, 0.0, 0.0));
+    assert_eq!(loaded.scene.mesh_groups().len(), 1);
+    // Another generator's parameters: another mesh, counted too.
+    let other = "\n[[meshes]]\ngenerate = \"icosphere\"\nsubdivisions = 3\n";
+    let e = Scene::from_toml_str_with(&format!("{MINIMAL}{text}{other}"), name, &files, &limits)
+        .unwrap_err();
+    assert!(
+        matches!(
+            e,
+            SceneError::TooLarge {
+                what: "triangle",
+                count: 1_600,
+                limit: 1_000,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    // Every copy counts against the instanced limit.
+    let text: String = (0..313).map(entry).collect();
+    let e =
+        Scene::from_toml_str_with(&format!("{MINIMAL}{text}"), name, &files, &limits).unwrap_err();
+    assert!(
+        matches!(
+            e,
+            SceneError::TooLarge {
+                what: "instanced triangle",
+                count: 100_160,
+                limit: 100_000,
+                ..
+            }
+        ),
+        "{e}"
+    );
+    let msg = e.to_string();
+    for needle in [
+        "mem/test.toml",
+        "meshes[312]",
+        "instanced triangle",
+        "100160",
+        "100000",
+    ] {
+        assert!(msg.contains(needle), "`{needle}` not in: {msg}");
+    }
 }
 
 #[test]

@@ -13,6 +13,7 @@ fn limits() -> Limits {
     // Small enough that generators cannot make an iteration slow.
     Limits {
         max_triangles: 200_000,
+        max_instanced_triangles: 2_000_000,
         max_vertices: 600_000,
         max_spheres: 20_000,
         max_file_bytes: 1 << 20,

@@ -106,6 +106,7 @@ fn kdtree_build_command(
     profile: &Option<PathBuf>,
 ) -> CliResult<()> {
     let scene = load_scene(scene)?;
+    flat_on_host(&scene)?;
     let triangles = scene.triangles_world(0.0);
     if triangles.is_empty() {
         return Err("the scene has no triangles to build a kd-tree over (spheres are not in the kd-tree yet)".into());
@@ -164,6 +165,7 @@ fn kdtree_build_command(
 /// primitives at the shutter-open time; with `reference`, also on one thread (must be equal).
 fn bvh_build_command(scene: &vkrt::scene::Scene, reference: bool, json: bool) -> CliResult<()> {
     use vkrt::accel::bvh::{self, validate, BvhParams, Threading};
+    flat_on_host(scene)?;
     let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
     let params = BvhParams::default();
     let all_cores = Threading::all_cores();
@@ -222,6 +224,9 @@ fn gpu_bvh_build_command(
 ) -> CliResult<()> {
     use vkrt::accel::bvh::{lbvh, ploc, validate, BvhParams};
     use vkrt::accel::device::{AccelBuilder, AccelKind, HostStructure};
+    if let Err(flat) = vkrt::trace::TraceGeometry::check_flat_fits(ctx, scene) {
+        return levels_only(ctx, kind, scene, flat, json);
+    }
     let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
     let builder = AccelBuilder::new(ctx, kind)?;
     let before = device_bytes_start(ctx);
@@ -315,6 +320,7 @@ fn driver_build_command(
 ) -> CliResult<()> {
     use vkrt::accel::device::{AccelBuilder, AccelChoice, DevicePrimitives};
     use vkrt::accel::driver::{DriverAccel, DriverInput};
+    vkrt::trace::TraceGeometry::check_flat_fits(ctx, scene)?;
     let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
     let builder = AccelBuilder::for_choice(ctx, AccelChoice::driver(prefer))?;
     let before = device_bytes_start(ctx);
@@ -456,4 +462,20 @@ fn bvh_shape(
         unreachable!("an object")
     };
     (map, line)
+}
+
+/// Refuses a CPU build over more triangles than a scene may hold, which only a scene naming
+/// meshes many times reaches when flattened (every copy held).
+fn flat_on_host(scene: &vkrt::scene::Scene) -> CliResult<()> {
+    use vkrt::scene::limits::MAX_TRIANGLES;
+    let n = scene.triangle_count() as u64;
+    if n > MAX_TRIANGLES {
+        return Err(format!(
+            "flattened, the scene holds {n} triangles (every copy of its repeated meshes), \
+             above the {MAX_TRIANGLES} one structure is built over here; `vkrt trace` and \
+             `vkrt render` trace it as two levels, each mesh held once"
+        )
+        .into());
+    }
+    Ok(())
 }

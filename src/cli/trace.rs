@@ -137,6 +137,7 @@ fn trace_command(
         };
         return report_trace(&rays, &batch, out, report, json);
     }
+    TraceGeometry::check_flat_fits(&ctx, &scene)?;
     let geometry = TraceGeometry::at_time(&scene, time);
     let builder = vkrt::accel::device::AccelBuilder::for_choice(&ctx, accel)?;
     let tracer = gpu::Tracer::for_accel(&ctx, opt, accel.traversal())?;

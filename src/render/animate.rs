@@ -519,6 +519,9 @@ pub fn run(
 ) -> Result<AnimationReport, Box<dyn std::error::Error + Send + Sync>> {
     let (_, first) = frame_scene(0);
     let plan = Plan::new(&first, &opt.render)?;
+    if plan.levels != 2 {
+        crate::trace::TraceGeometry::check_flat_fits(ctx, &first)?;
+    }
     let accel = opt.render.accel;
     let renderer = Renderer::new(ctx, &plan, trace)?;
     let mut frames =

@@ -370,6 +370,9 @@ pub fn render_scene(
     mut progress: impl FnMut(u32, u32),
 ) -> Result<Rendered, Box<dyn std::error::Error + Send + Sync>> {
     let plan = Plan::new(scene, opt)?;
+    if plan.levels != 2 {
+        crate::trace::TraceGeometry::check_flat_fits(ctx, scene)?;
+    }
     // The structure is built on the device in the render's first submission.
     let rs = RenderScene::on_device(scene, &plan);
     let renderer = gpu::Renderer::new(ctx, &plan, trace)?;

@@ -33,9 +33,13 @@ pub const MAX_FPS: f32 = 1_000.0;
 /// Most frames in an animation (about 69 minutes at 24 fps).
 pub const MAX_FRAMES: u32 = 100_000;
 
-/// Most triangles in a scene, after flattening all meshes.
+/// Most triangles a scene holds: a mesh file or generator named more than once is held
+/// once (its entries share it, as the instances they become) and counts once.
 pub const MAX_TRIANGLES: u64 = 1 << 24;
-/// Most vertices in a scene, summed over meshes.
+/// Most triangles a scene places, every entry of a repeated mesh counted (what a flat
+/// trace would hold; its primitive ids are 32-bit, with `u32::MAX` the miss).
+pub const MAX_INSTANCED_TRIANGLES: u64 = 1 << 31;
+/// Most vertices a scene holds, summed over its distinct meshes.
 pub const MAX_VERTICES: u64 = 1 << 25;
 /// Most analytic spheres.
 pub const MAX_SPHERES: u64 = 1 << 20;
@@ -54,6 +58,8 @@ pub const MAX_FILE_BYTES: u64 = 2 << 30;
 pub struct Limits {
     /// See [`MAX_TRIANGLES`].
     pub max_triangles: u64,
+    /// See [`MAX_INSTANCED_TRIANGLES`].
+    pub max_instanced_triangles: u64,
     /// See [`MAX_VERTICES`].
     pub max_vertices: u64,
     /// See [`MAX_SPHERES`].
@@ -72,6 +78,7 @@ impl Default for Limits {
     fn default() -> Self {
         Self {
             max_triangles: MAX_TRIANGLES,
+            max_instanced_triangles: MAX_INSTANCED_TRIANGLES,
             max_vertices: MAX_VERTICES,
             max_spheres: MAX_SPHERES,
             max_meshes: MAX_MESHES,

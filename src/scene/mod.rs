@@ -242,7 +242,7 @@ impl Scene {
         use std::hash::{Hash, Hasher};
         let key = |m: &Mesh| {
             let mut h = std::collections::hash_map::DefaultHasher::new();
-            for p in &m.positions {
+            for p in m.positions.iter() {
                 p.to_array().map(f32::to_bits).hash(&mut h);
             }
             m.indices.hash(&mut h);
@@ -253,23 +253,39 @@ impl Scene {
                 && a.positions.len() == b.positions.len()
                 && a.positions
                     .iter()
-                    .zip(&b.positions)
+                    .zip(b.positions.iter())
                     .all(|(p, q)| p.to_array().map(f32::to_bits) == q.to_array().map(f32::to_bits))
         };
         let mut groups: Vec<Vec<usize>> = Vec::new();
         let mut by_key: std::collections::HashMap<u64, Vec<usize>> = Default::default();
+        // Entries sharing their geometry (a file or generator named again) are one group
+        // without a look at their contents.
+        let mut by_identity: std::collections::HashMap<[usize; 2], usize> = Default::default();
         for (i, m) in self.meshes.iter().enumerate() {
+            let identity = [
+                std::sync::Arc::as_ptr(&m.positions) as usize,
+                std::sync::Arc::as_ptr(&m.indices) as usize,
+            ];
+            if let Some(&g) = by_identity.get(&identity) {
+                groups[g].push(i);
+                continue;
+            }
             let candidates = by_key.entry(key(m)).or_default();
-            match candidates
+            let g = match candidates
                 .iter()
                 .find(|&&g| same(&self.meshes[groups[g][0]], m))
             {
-                Some(&g) => groups[g].push(i),
+                Some(&g) => {
+                    groups[g].push(i);
+                    g
+                }
                 None => {
                     candidates.push(groups.len());
                     groups.push(vec![i]);
+                    groups.len() - 1
                 }
-            }
+            };
+            by_identity.insert(identity, g);
         }
         groups
     }
@@ -350,7 +366,7 @@ impl Scene {
         let mut b = Aabb::EMPTY;
         for mesh in &self.meshes {
             let m = mesh.world_matrix(t);
-            for tri in &mesh.indices {
+            for tri in mesh.indices.iter() {
                 for &i in tri {
                     if let Some(p) = mesh.positions.get(i as usize) {
                         b.grow(m.transform_point3(*p));

@@ -7,6 +7,8 @@
 //! [`Scene::triangles_world`](super::Scene::triangles_world) flattens it for
 //! a given time, which is all an accel builder needs.
 
+use std::sync::Arc;
+
 use glam::{Affine3A, EulerRot, Quat, Vec3};
 
 use super::animation::{pose_at, Keyframe};
@@ -127,23 +129,28 @@ impl Motion {
 pub enum MeshMaterials {
     /// Every triangle uses this material.
     Single(MaterialId),
-    /// One material per triangle (same length as `Mesh::indices`).
-    PerTriangle(Vec<MaterialId>),
+    /// One material per triangle (same length as `Mesh::indices`; shared as the
+    /// geometry is).
+    PerTriangle(Arc<Vec<MaterialId>>),
 }
 
 /// An indexed triangle mesh in object space.
+///
+/// The geometry is shared (`Arc`): a scene that names one mesh file or generator many
+/// times holds its vertices and triangles once, each entry with its own placement and
+/// material, as the instances it becomes. `Arc::make_mut` edits one entry's copy.
 #[derive(Clone, Debug, PartialEq)]
 pub struct Mesh {
     /// Name for messages (file name, OBJ object, generator).
     pub name: String,
     /// Vertex positions, object space.
-    pub positions: Vec<Vec3>,
+    pub positions: Arc<Vec<Vec3>>,
     /// Per-vertex shading normals (same length as `positions`), or empty
     /// when the source has none (the renderer then uses face normals).
-    pub normals: Vec<Vec3>,
+    pub normals: Arc<Vec<Vec3>>,
     /// Triangles as counter-clockwise vertex-index triples (front face by
     /// the right-hand rule).
-    pub indices: Vec<[u32; 3]>,
+    pub indices: Arc<Vec<[u32; 3]>>,
     /// Material per mesh or per triangle.
     pub materials: MeshMaterials,
     /// Placement.
@@ -165,9 +172,9 @@ impl Mesh {
     ) -> Self {
         Self {
             name: name.to_owned(),
-            positions,
-            normals: Vec::new(),
-            indices,
+            positions: Arc::new(positions),
+            normals: Arc::default(),
+            indices: Arc::new(indices),
             materials: MeshMaterials::Single(material),
             transform: Transform::IDENTITY,
             keyframes: Vec::new(),
@@ -214,7 +221,7 @@ impl Mesh {
     /// Object-space bounds of the vertices that triangles use.
     pub fn object_bounds(&self) -> Aabb {
         let mut b = Aabb::EMPTY;
-        for tri in &self.indices {
+        for tri in self.indices.iter() {
             for &i in tri {
                 if let Some(p) = self.positions.get(i as usize) {
                     b.grow(*p);

@@ -611,13 +611,13 @@ pub fn parse_obj_str(
     let materials_of_mesh = if tri_materials.iter().all(|&m| m == single) {
         MeshMaterials::Single(single)
     } else {
-        MeshMaterials::PerTriangle(tri_materials)
+        MeshMaterials::PerTriangle(tri_materials.into())
     };
     let name = path
         .file_name()
         .map_or_else(|| "obj".to_owned(), |n| n.to_string_lossy().into_owned());
     let mut mesh = Mesh::new(&name, positions, indices, 0);
-    mesh.normals = normals;
+    mesh.normals = normals.into();
     mesh.materials = materials_of_mesh;
     Ok(ObjMesh {
         mesh,

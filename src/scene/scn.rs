@@ -507,7 +507,7 @@ fn build(
     let mut meshes = Vec::new();
     if !indices.is_empty() {
         let mut mesh = Mesh::new("triangles", positions, indices, 0);
-        mesh.materials = MeshMaterials::PerTriangle(tri_materials);
+        mesh.materials = MeshMaterials::PerTriangle(tri_materials.into());
         meshes.push(mesh);
     }
     let mut scene = Scene {

@@ -24,8 +24,9 @@
 //! [`scene_to_toml`] writes the format back (meshes inline, floats in their
 //! shortest round-tripping form), so TOML → Scene → TOML → Scene is exact.
 
-use std::collections::HashMap;
+use std::collections::{HashMap, HashSet};
 use std::path::{Path, PathBuf};
+use std::sync::Arc;
 
 use glam::Vec3;
 
@@ -264,8 +265,10 @@ impl Builder<'_> {
         }
 
         let mut meshes = Vec::with_capacity(def.meshes.len());
-        let mut obj_cache: HashMap<PathBuf, (Mesh, MaterialId)> = HashMap::new();
-        let mut total_triangles: u64 = 0;
+        let mut obj_cache: HashMap<PathBuf, Mesh> = HashMap::new();
+        let mut generated: HashMap<String, Mesh> = HashMap::new();
+        let mut held = HashSet::new();
+        let (mut total_triangles, mut instanced_triangles) = (0u64, 0u64);
         let mut fallbacks = Vec::new();
         for (i, m) in def.meshes.iter().enumerate() {
             let top = format!("meshes[{i}]");
@@ -287,11 +290,32 @@ impl Builder<'_> {
             let mut mesh = if let Some(rel) = &m.path {
                 self.mesh_from_file(rel, &k, m, &mut materials, &mut obj_cache, &mut warnings)?
             } else if m.generate.is_some() {
-                self.generated_mesh(m, &k, total_triangles)?
+                // The same generator and parameters again: the same mesh, shared.
+                let params = generator_params(m);
+                match generated.get(&params) {
+                    Some(mesh) => Mesh::clone(mesh),
+                    None => {
+                        let mesh = self.generated_mesh(m, &k, total_triangles)?;
+                        generated.insert(params, mesh.clone());
+                        mesh
+                    }
+                }
             } else {
                 inline_mesh(m, &k)?
             };
-            total_triangles += mesh.indices.len() as u64;
+            // Triangles held: a mesh shared with an earlier entry counts once.
+            if held.insert(Arc::as_ptr(&mesh.indices)) {
+                total_triangles += mesh.indices.len() as u64;
+            }
+            instanced_triangles += mesh.indices.len() as u64;
+            if instanced_triangles > self.limits.max_instanced_triangles {
+                return Err(SceneError::TooLarge {
+                    origin: key(k),
+                    what: "instanced triangle",
+                    count: instanced_triangles,
+                    limit: self.limits.max_instanced_triangles,
+                });
+            }
             if total_triangles > self.limits.max_triangles {
                 return Err(SceneError::TooLarge {
                     origin: key(k),
@@ -320,7 +344,7 @@ impl Builder<'_> {
                         &mut materials,
                     )?);
                 }
-                mesh.materials = MeshMaterials::PerTriangle(ids);
+                mesh.materials = MeshMaterials::PerTriangle(ids.into());
             } else if m.material.is_some() || m.path.is_none() {
                 let id = resolve(m.material.as_ref(), format!("{k}.material"), &mut materials)?;
                 mesh.materials = MeshMaterials::Single(id);
@@ -416,7 +440,7 @@ impl Builder<'_> {
         k: &str,
         m: &MeshDef,
         materials: &mut Vec<Material>,
-        cache: &mut HashMap<PathBuf, (Mesh, MaterialId)>,
+        cache: &mut HashMap<PathBuf, Mesh>,
         warnings: &mut Vec<String>,
     ) -> Result<Mesh, SceneError> {
         for (present, name) in [
@@ -448,12 +472,9 @@ impl Builder<'_> {
                 format!("`{rel}`: mesh files must be Wavefront .obj"),
             ));
         }
-        if let Some((mesh, offset)) = cache.get(&full) {
-            let mut mesh = mesh.clone();
-            if m.material.is_none() {
-                offset_materials(&mut mesh, *offset);
-            }
-            return Ok(mesh);
+        // Named again: the same mesh, shared (its materials already offset).
+        if let Some(mesh) = cache.get(&full) {
+            return Ok(mesh.clone());
         }
         let text = self.files.read_text(&full, self.limits.max_file_bytes)?;
         let loaded = obj::parse_obj_str(&text, &full, self.files, self.limits)?;
@@ -470,8 +491,8 @@ impl Builder<'_> {
                 });
             }
             materials.extend(loaded.materials);
-            cache.insert(full, (mesh.clone(), offset));
             offset_materials(&mut mesh, offset);
+            cache.insert(full, mesh.clone());
         }
         Ok(mesh)
     }
@@ -575,6 +596,22 @@ impl Builder<'_> {
     }
 }
 
+/// What makes two generated meshes equal: the generator and every parameter.
+fn generator_params(m: &MeshDef) -> String {
+    format!(
+        "{:?}",
+        (
+            m.generate,
+            m.subdivisions,
+            m.frequency,
+            m.min_triangles,
+            m.count,
+            m.seed,
+            (m.nx, m.ny, m.depth)
+        )
+    )
+}
+
 fn gen_name(kind: GenKind) -> &'static str {
     match kind {
         GenKind::Icosphere => "icosphere",
@@ -597,7 +634,9 @@ fn require<T>(v: Option<T>, k: &str, name: &str, generator: &str) -> Result<T, S
 fn offset_materials(mesh: &mut Mesh, offset: MaterialId) {
     match &mut mesh.materials {
         MeshMaterials::Single(id) => *id += offset,
-        MeshMaterials::PerTriangle(ids) => ids.iter_mut().for_each(|id| *id += offset),
+        MeshMaterials::PerTriangle(ids) => {
+            Arc::make_mut(ids).iter_mut().for_each(|id| *id += offset)
+        }
     }
 }
 
@@ -647,7 +686,7 @@ fn inline_mesh(m: &MeshDef, k: &str) -> Result<Mesh, SceneError> {
         0,
     );
     if let Some(n) = &m.normals {
-        mesh.normals = n.iter().map(|p| v3(*p)).collect();
+        mesh.normals = Arc::new(n.iter().map(|p| v3(*p)).collect());
     }
     Ok(mesh)
 }

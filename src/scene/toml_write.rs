@@ -186,7 +186,7 @@ fn mesh_def(mesh: &Mesh, names: &[String]) -> MeshDef {
         name: Some(mesh.name.clone()),
         positions: Some(arrays(&mesh.positions)),
         normals: (!mesh.normals.is_empty()).then(|| arrays(&mesh.normals)),
-        indices: Some(mesh.indices.clone()),
+        indices: Some(mesh.indices.to_vec()),
         material,
         triangle_materials,
         translate: Some(t.translate.to_array()),

@@ -19,13 +19,16 @@
 //! materials as `materials[i]`; the TOML loader turns paths into line
 //! numbers, the other loaders add their file.
 
+use std::collections::{HashMap, HashSet};
+use std::sync::Arc;
+
 use glam::{DVec3, Vec3};
 
 use super::animation::Keyframe;
 use super::error::{Origin, SceneError};
 use super::limits::*;
 use super::material::Material;
-use super::model::{Light, MeshMaterials, Motion, Transform};
+use super::model::{Light, MaterialId, MeshMaterials, Motion, Transform};
 use super::Scene;
 
 fn key(k: impl Into<String>) -> Origin {
@@ -306,17 +309,41 @@ pub fn validate(scene: &mut Scene, limits: &Limits) -> Result<Vec<String>, Scene
         limits.max_meshes,
         "meshes",
     )?;
+    // A mesh named more than once shares its geometry: held, checked and counted once.
+    let mut seen = HashSet::new();
+    let (mut unique_tris, mut unique_verts) = (0u64, 0u64);
+    for m in &scene.meshes {
+        if seen.insert(Arc::as_ptr(&m.indices)) {
+            unique_tris += m.indices.len() as u64;
+            unique_verts += m.positions.len() as u64;
+        }
+    }
+    count_limit("triangle", unique_tris, limits.max_triangles, "meshes")?;
+    count_limit("vertex", unique_verts, limits.max_vertices, "meshes")?;
     let total_tris: u64 = scene.meshes.iter().map(|m| m.indices.len() as u64).sum();
-    count_limit("triangle", total_tris, limits.max_triangles, "meshes")?;
-    let total_verts: u64 = scene.meshes.iter().map(|m| m.positions.len() as u64).sum();
-    count_limit("vertex", total_verts, limits.max_vertices, "meshes")?;
+    count_limit(
+        "instanced triangle",
+        total_tris,
+        limits.max_instanced_triangles,
+        "meshes",
+    )?;
 
     let mut dropped_total = 0usize;
+    let mut checked: HashMap<GeometryKey, Checked> = HashMap::new();
     for (i, mesh) in scene.meshes.iter_mut().enumerate() {
         let k = format!("meshes[{i}]");
         transform(&mesh.transform, &k)?;
         keyframes(&mesh.keyframes, &k)?;
         motion(&mesh.motion, &k)?;
+        if let MeshMaterials::Single(id) = mesh.materials {
+            material_ref(id, n_materials, &format!("{k}.material"))?;
+        }
+        let geometry = GeometryKey::of(mesh);
+        if let Some(c) = checked.get(&geometry) {
+            c.apply_to(mesh);
+            dropped_total += c.dropped;
+            continue;
+        }
         let nv = mesh.positions.len();
         for (j, p) in mesh.positions.iter().enumerate() {
             if !p.is_finite() || p.abs().max_element() > MAX_COORDINATE {
@@ -345,7 +372,7 @@ pub fn validate(scene: &mut Scene, limits: &Limits) -> Result<Vec<String>, Scene
                     "mesh `{}` ({k}): normal {j} has zero length; using face normals for the whole mesh",
                     mesh.name
                 ));
-                mesh.normals.clear();
+                mesh.normals = Arc::default();
             }
         }
         for (j, tri) in mesh.indices.iter().enumerate() {
@@ -361,7 +388,7 @@ pub fn validate(scene: &mut Scene, limits: &Limits) -> Result<Vec<String>, Scene
             }
         }
         match &mesh.materials {
-            MeshMaterials::Single(id) => material_ref(*id, n_materials, &format!("{k}.material"))?,
+            MeshMaterials::Single(_) => {}
             MeshMaterials::PerTriangle(ids) => {
                 if ids.len() != mesh.indices.len() {
                     return Err(SceneError::invalid(
@@ -387,6 +414,7 @@ pub fn validate(scene: &mut Scene, limits: &Limits) -> Result<Vec<String>, Scene
             ));
             dropped_total += dropped;
         }
+        checked.insert(geometry, Checked::of(mesh, dropped));
     }
 
     if scene.triangle_count() == 0 && scene.spheres.is_empty() {
@@ -456,12 +484,63 @@ pub fn drop_zero_area(mesh: &mut super::Mesh) -> usize {
         return 0;
     }
     let mut it = keep.iter();
-    mesh.indices.retain(|_| *it.next().unwrap_or(&true));
+    Arc::make_mut(&mut mesh.indices).retain(|_| *it.next().unwrap_or(&true));
     if let MeshMaterials::PerTriangle(ids) = &mut mesh.materials {
         let mut it = keep.iter();
-        ids.retain(|_| *it.next().unwrap_or(&true));
+        Arc::make_mut(ids).retain(|_| *it.next().unwrap_or(&true));
     }
     dropped
+}
+
+/// A mesh's shared geometry, by identity: entries naming the same file or generator hold
+/// the same `Arc`s (and per-triangle materials, where they have them).
+#[derive(Clone, Copy, PartialEq, Eq, Hash)]
+struct GeometryKey([usize; 4]);
+
+impl GeometryKey {
+    fn of(mesh: &super::Mesh) -> Self {
+        let materials = match &mesh.materials {
+            MeshMaterials::Single(_) => 0,
+            MeshMaterials::PerTriangle(ids) => Arc::as_ptr(ids) as usize,
+        };
+        Self([
+            Arc::as_ptr(&mesh.positions) as usize,
+            Arc::as_ptr(&mesh.normals) as usize,
+            Arc::as_ptr(&mesh.indices) as usize,
+            materials,
+        ])
+    }
+}
+
+/// What checking one geometry left (normals dropped, zero-area triangles dropped): every
+/// other entry naming it takes the same, still shared.
+struct Checked {
+    normals: Arc<Vec<Vec3>>,
+    indices: Arc<Vec<[u32; 3]>>,
+    materials: Option<Arc<Vec<MaterialId>>>,
+    dropped: usize,
+}
+
+impl Checked {
+    fn of(mesh: &super::Mesh, dropped: usize) -> Self {
+        Self {
+            normals: mesh.normals.clone(),
+            indices: mesh.indices.clone(),
+            materials: match &mesh.materials {
+                MeshMaterials::Single(_) => None,
+                MeshMaterials::PerTriangle(ids) => Some(ids.clone()),
+            },
+            dropped,
+        }
+    }
+
+    fn apply_to(&self, mesh: &mut super::Mesh) {
+        mesh.normals = self.normals.clone();
+        mesh.indices = self.indices.clone();
+        if let (MeshMaterials::PerTriangle(ids), Some(m)) = (&mut mesh.materials, &self.materials) {
+            *ids = m.clone();
+        }
+    }
 }
 
 fn validate_settings(scene: &Scene) -> Result<(), SceneError> {

@@ -10,6 +10,7 @@ use bytemuck::{Pod, Zeroable};
 use glam::{Vec3, Vec4};
 
 use crate::accel::kdtree::breadth_first::prim_box;
+use crate::gpu::{Context, GpuError};
 use crate::scene::{swept_points, Aabb, Motion, Scene};
 
 /// Motion slot of a primitive that does not move.
@@ -178,6 +179,23 @@ impl TraceGeometry {
             g.boxes.push(sphere_box(s.truncate(), s.w));
         }
         g
+    }
+
+    /// Refuses, before any host work, a scene whose flattened triangles cannot fit one of
+    /// `ctx`'s storage buffers (`trace.tri_verts`, 36 bytes a triangle): flattened, a mesh
+    /// named many times holds every copy (a grid of 1,024 bunnies is 71 M triangles, 2.5 GB),
+    /// which its two levels never do.
+    pub fn check_flat_fits(ctx: &Context, scene: &Scene) -> Result<(), GpuError> {
+        let bytes = 36 * scene.triangle_count() as u64;
+        let limit = ctx.info().max_storage_buffer_range;
+        if bytes > limit {
+            return Err(GpuError::BufferTooLarge {
+                name: "trace.tri_verts".into(),
+                bytes,
+                limit,
+            });
+        }
+        Ok(())
     }
 
     /// The scene at one instant `time`, everything static.

@@ -110,6 +110,6 @@ pub fn sphere_flake_mesh(depth: u32, subdivisions: u32) -> Result<Mesh, SceneErr
         indices,
         0,
     );
-    mesh.normals = normals;
+    mesh.normals = normals.into();
     Ok(mesh)
 }

@@ -92,7 +92,7 @@ fn open_box(name: &str, min: Vec3, max: Vec3, walls: [MaterialId; 5]) -> Mesh {
         right,
     );
     Mesh {
-        materials: MeshMaterials::PerTriangle(m),
+        materials: MeshMaterials::PerTriangle(m.into()),
         ..Mesh::new(name, p, i, 0)
     }
 }
