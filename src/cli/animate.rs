@@ -14,8 +14,7 @@ use vkrt::scene::Scene;
 use vkrt::trace::TraceOptions;
 
 use super::common::{
-    accel_traversal, check_resolution, context, load_scene, write_profile, AccelArg, CliResult,
-    TraversalArg, UpdateArg,
+    check_resolution, context, load_scene, write_profile, CliResult, StructureArgs, UpdateArg,
 };
 
 #[derive(Args)]
@@ -52,19 +51,12 @@ pub struct AnimateArgs {
     width: Option<u32>,
     #[arg(long)]
     height: Option<u32>,
-    #[arg(long, value_enum, default_value_t = AccelArg::SahBvh)]
-    accel: AccelArg,
-    #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
-    traversal: TraversalArg,
+    #[command(flatten)]
+    structure: StructureArgs,
     /// Per frame: build the structure anew, or refit it (BVHs and the driver's). Over
     /// two levels only the top level is rebuilt or refit: rigid motions move instances.
     #[arg(long, value_enum, default_value_t = UpdateArg::Rebuild)]
     update: UpdateArg,
-    /// Trace one structure over every primitive even where meshes repeat (by default a
-    /// mesh named more than once, and a moving mesh beside it, get instances under a top
-    /// level; the frames are the same).
-    #[arg(long)]
-    flatten: bool,
     /// Also an animated PNG of every frame, for a quick look.
     #[arg(long)]
     preview: Option<PathBuf>,
@@ -88,10 +80,8 @@ pub fn run(args: AnimateArgs, validate: bool) -> CliResult<()> {
         spp,
         width,
         height,
-        accel,
-        traversal,
+        structure,
         update,
-        flatten,
         preview,
         json,
         profile,
@@ -101,8 +91,8 @@ pub fn run(args: AnimateArgs, validate: bool) -> CliResult<()> {
         height,
         spp,
         all_effects: false,
-        accel: accel_traversal(accel, traversal),
-        flatten,
+        accel: structure.choice(),
+        flatten: structure.flatten,
     };
     check_resolution(&render)?;
     let loaded = load_scene(&Some(scene))?;

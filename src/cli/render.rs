@@ -6,8 +6,7 @@ use std::path::PathBuf;
 use clap::Args;
 
 use super::common::{
-    accel_traversal, check_resolution, context, load_scene, write_profile, AccelArg, CliResult,
-    IntersectorArg, TraversalArg,
+    check_resolution, context, load_scene, write_profile, CliResult, IntersectorArg, StructureArgs,
 };
 
 #[derive(Args)]
@@ -37,20 +36,8 @@ pub struct RenderArgs {
     /// Ray/triangle test: watertight (default) or moller-trumbore.
     #[arg(long, value_enum, default_value_t = IntersectorArg::Watertight)]
     intersector: IntersectorArg,
-    /// The acceleration structure: the SAH BVH built on the CPU's threads (the
-    /// default, by measurement: it builds 25-30x and traces 1.3-1.8x faster here), or
-    /// the SAH kd-tree built on the GPU. The image is the same.
-    #[arg(long, value_enum, default_value_t = AccelArg::SahBvh)]
-    accel: AccelArg,
-    /// How a BVH is walked: a stack, the stackless bitstack walk with parent links, or
-    /// a stack over 4-wide quantized nodes made after the build.
-    #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
-    traversal: TraversalArg,
-    /// Trace one structure over every primitive even where meshes repeat (by default a
-    /// mesh named more than once becomes one bottom-level structure with an instance
-    /// per copy, under a top level; the image is the same).
-    #[arg(long)]
-    flatten: bool,
+    #[command(flatten)]
+    structure: StructureArgs,
     #[arg(long)]
     json: bool,
     /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
@@ -69,9 +56,7 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
         plan,
         all_effects,
         intersector,
-        accel,
-        traversal,
-        flatten,
+        structure,
         json,
         profile,
     } = args;
@@ -80,8 +65,8 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
         height,
         spp,
         all_effects,
-        accel: accel_traversal(accel, traversal),
-        flatten,
+        accel: structure.choice(),
+        flatten: structure.flatten,
     };
     // An unsupported image extension fails here, before the scene or the device is touched.
     vkrt::render::output::ImageFormat::from_path(&output)?;

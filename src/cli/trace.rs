@@ -5,10 +5,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use super::common::{
-    accel_traversal, context, extend_json, load_scene, AccelArg, CliResult, IntersectorArg,
-    TraversalArg,
-};
+use super::common::{context, extend_json, load_scene, CliResult, IntersectorArg, StructureArgs};
 
 #[derive(Args)]
 pub struct TraceArgs {
@@ -30,20 +27,8 @@ pub struct TraceArgs {
     /// Rays per GPU batch (default and maximum: what fits the device's buffer limit).
     #[arg(long, hide = true)]
     batch_rays: Option<usize>,
-    /// The acceleration structure: the SAH BVH built on the CPU's threads (the
-    /// default, by measurement), or the SAH kd-tree built on the GPU. The hits are the
-    /// same.
-    #[arg(long, value_enum, default_value_t = AccelArg::SahBvh)]
-    accel: AccelArg,
-    /// How a BVH is walked: a stack, the stackless bitstack walk with parent links, or
-    /// a stack over 4-wide quantized nodes made after the build.
-    #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
-    traversal: TraversalArg,
-    /// Trace one structure over every triangle even where meshes repeat (by default a
-    /// mesh named more than once becomes one bottom-level structure with an instance
-    /// per copy, under a top level).
-    #[arg(long)]
-    flatten: bool,
+    #[command(flatten)]
+    structure: StructureArgs,
     #[arg(long)]
     json: bool,
 }
@@ -56,12 +41,10 @@ pub fn run(args: TraceArgs, validate: bool) -> CliResult<()> {
         any_hit,
         intersector,
         batch_rays,
-        accel,
-        traversal,
-        flatten,
+        structure,
         json,
     } = args;
-    let accel = accel_traversal(accel, traversal);
+    let (accel, flatten) = (structure.choice(), structure.flatten);
     let opt = vkrt::trace::TraceOptions {
         intersector: intersector.into(),
         query: if any_hit {
