@@ -45,13 +45,30 @@ impl AccelInstance {
 pub enum AccelGeometry {
     /// A bottom level over `count` opaque non-indexed triangles: three R32G32B32_SFLOAT
     /// vertices each (stride 12), from device address `vertices`.
-    Triangles { vertices: u64, count: u32 },
+    Triangles {
+        /// Device address of the first vertex.
+        vertices: u64,
+        /// Number of triangles.
+        count: u32,
+    },
     /// A bottom level over `count` procedural primitives: boxes of six floats (min x, y, z,
     /// max x, y, z: `VkAabbPositionsKHR`) every `stride` bytes from device address `boxes`
     /// (both multiples of 8). Rays meet them as candidates the querying kernel intersects.
-    Aabbs { boxes: u64, stride: u64, count: u32 },
+    Aabbs {
+        /// Device address of the first box.
+        boxes: u64,
+        /// Bytes from one box to the next.
+        stride: u64,
+        /// Number of boxes.
+        count: u32,
+    },
     /// A top level over `count` [`AccelInstance`]s at device address `instances`.
-    Instances { instances: u64, count: u32 },
+    Instances {
+        /// Device address of the first instance.
+        instances: u64,
+        /// Number of instances.
+        count: u32,
+    },
 }
 
 impl AccelGeometry {
@@ -138,8 +155,11 @@ fn misuse(reason: impl Into<String>) -> GpuError {
 /// update (to be allocated with [`accel_scratch`]).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct AccelSizes {
+    /// Bytes of the structure itself (`accelerationStructureSize`).
     pub structure: u64,
+    /// Bytes of scratch a build needs (`buildScratchSize`).
     pub scratch: u64,
+    /// Bytes of scratch an update in place needs (`updateScratchSize`).
     pub update_scratch: u64,
 }
 

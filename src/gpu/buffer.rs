@@ -19,7 +19,9 @@ use super::recorder::Recorder;
 /// Anything a kernel can bind or a command can read or write: a whole [`Buffer`] or a
 /// caller-owned range ([`RawBuffer`]).
 pub trait BufferArg {
+    /// The Vulkan buffer the range lies in.
     fn raw(&self) -> vk::Buffer;
+    /// Byte offset of the range's start in that buffer.
     fn offset(&self) -> u64;
     /// Size in bytes of the bound range (at least 4, as Vulkan wants non-empty ranges).
     fn range(&self) -> u64;
@@ -61,6 +63,7 @@ impl TexelView {
         })
     }
 
+    /// The Vulkan buffer view, to write into a descriptor.
     pub fn raw(&self) -> vk::BufferView {
         self.view
     }
@@ -110,8 +113,11 @@ pub(crate) fn create_texel_view(ctx: &Context, b: &dyn BufferArg) -> Result<vk::
 /// A range of a buffer that the embedding renderer owns; vkrt never frees it.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RawBuffer {
+    /// The caller's Vulkan buffer.
     pub raw: vk::Buffer,
+    /// Byte offset of the range's start in `raw`.
     pub offset: u64,
+    /// Size of the range in bytes.
     pub size: u64,
 }
 
@@ -350,10 +356,12 @@ impl<T: Pod> Buffer<T> {
         Ok(buffer)
     }
 
+    /// Number of elements of type `T`.
     pub fn len(&self) -> usize {
         self.len
     }
 
+    /// Whether the buffer holds no elements.
     pub fn is_empty(&self) -> bool {
         self.len == 0
     }
@@ -363,6 +371,7 @@ impl<T: Pod> Buffer<T> {
         &self.ctx
     }
 
+    /// The debug name it was created with.
     pub fn name(&self) -> &str {
         &self.name
     }

@@ -22,6 +22,7 @@ use super::validation::{self, MessageSink, Validation, ValidationMessage};
 /// How to create a headless context.
 #[derive(Clone, Debug, Default)]
 pub struct ContextOptions {
+    /// Whether to enable the Khronos validation layer (with synchronization validation).
     pub validation: Validation,
     /// Substring of the device name; `None` reads `VKRT_DEVICE`, else the best device type
     /// wins (discrete > integrated > virtual > cpu).
@@ -41,12 +42,17 @@ impl ContextOptions {
 
 /// Handles an embedding renderer already owns, for [`Context::from_raw`].
 pub struct RawParts {
+    /// The loaded Vulkan entry points the instance was created from.
     pub entry: ash::Entry,
+    /// The renderer's instance.
     pub instance: ash::Instance,
+    /// The physical device `device` was created on.
     pub physical_device: vk::PhysicalDevice,
+    /// The renderer's logical device; vkrt never destroys it.
     pub device: ash::Device,
     /// A queue family with compute support, and a queue of it.
     pub queue_family: u32,
+    /// A queue of `queue_family`, which vkrt submits its work to.
     pub queue: vk::Queue,
     /// Features the caller enabled at device creation (vkrt cannot query them).
     pub enabled_features: DeviceFeatures,
@@ -93,10 +99,11 @@ pub struct MemoryUsage {
     pub allocated_bytes: u64,
     /// Bytes of the memory blocks the allocator holds from the driver (used or not).
     pub capacity_bytes: u64,
-    /// Bytes of vkrt's own buffers alive now, and the most alive at once since the last
+    /// Bytes of vkrt's own buffers alive now.
+    pub vkrt_bytes: u64,
+    /// The most bytes of vkrt's own buffers alive at once since the last
     /// [`Context::reset_memory_peak`] (what a build needed at its peak: primitives,
     /// structure and scratch).
-    pub vkrt_bytes: u64,
     pub vkrt_peak_bytes: u64,
 }
 

@@ -7,36 +7,68 @@ use ash::vk;
 #[derive(Clone, Debug, thiserror::Error)]
 #[non_exhaustive]
 pub enum GpuError {
+    /// The Vulkan loader library could not be loaded; holds the loader's message.
     #[error("cannot load the Vulkan loader (libvulkan.so.1): {0}; install libvulkan1 and a driver (e.g. mesa-vulkan-drivers for lavapipe)")]
     Loader(String),
+    /// No physical device passed the requirements (or none was found); holds why the
+    /// devices were rejected.
     #[error("no usable Vulkan device: {0}")]
     NoDevice(String),
+    /// The device lacks a capability the requested work needs.
     #[error("device `{device}` lacks a required capability: {what}")]
-    MissingCapability { device: String, what: String },
+    MissingCapability {
+        /// The device's name.
+        device: String,
+        /// The missing feature, extension or property.
+        what: String,
+    },
+    /// A Vulkan call returned an error not mapped to a more specific variant.
     #[error("{call} failed: {code}")]
     Vulkan {
+        /// The Vulkan function that failed.
         call: &'static str,
+        /// The `VkResult` it returned.
         code: vk::Result,
     },
+    /// A Vulkan call ran out of device or host memory.
     #[error("out of GPU memory during {call}")]
-    OutOfMemory { call: &'static str },
+    OutOfMemory {
+        /// The Vulkan function that failed.
+        call: &'static str,
+    },
+    /// The device was lost (`VK_ERROR_DEVICE_LOST`), or a wait for submitted work timed out.
     #[error("device lost (last pass recorded before the loss: {last_pass})")]
-    DeviceLost { last_pass: String },
+    DeviceLost {
+        /// The last profiler scope recorded before the loss, to locate the failing pass.
+        last_pass: String,
+    },
+    /// gpu-allocator could not create the allocator or allocate a buffer's memory.
     #[error("allocation of buffer `{name}` ({bytes} bytes) failed: {reason}")]
     Allocation {
+        /// The buffer's debug name.
         name: String,
+        /// The size asked for, in bytes.
         bytes: u64,
+        /// The allocator's message.
         reason: String,
     },
+    /// A device buffer bound whole would exceed `maxStorageBufferRange`.
     #[error("buffer `{name}` needs {bytes} bytes, above this device's maxStorageBufferRange of {limit} bytes; split the data or use a device with a larger limit")]
     BufferTooLarge {
+        /// The buffer's debug name.
         name: String,
+        /// The size needed, in bytes (`u64::MAX` where the size overflows).
         bytes: u64,
+        /// The device's `maxStorageBufferRange`, in bytes.
         limit: u64,
     },
+    /// A kernel cannot be built for this device or configuration, or its work failed
+    /// (a build that ran out of capacity, an invalid input).
     #[error("kernel `{kernel}`: {reason}")]
     Kernel {
+        /// The kernel or build step, by name (e.g. `prims.scan`, `accel.kdtree`).
         kernel: &'static str,
+        /// What went wrong.
         reason: String,
     },
     /// A structure or scratch placed in a caller's buffer that does not fit or is misaligned.
@@ -44,11 +76,24 @@ pub enum GpuError {
     Placement(String),
     /// A call the API refuses: wrong sizes, wrong kind, a buffer too small for the work.
     #[error("{call}: {reason}")]
-    Usage { call: &'static str, reason: String },
+    Usage {
+        /// The API function that refused.
+        call: &'static str,
+        /// Why it refused.
+        reason: String,
+    },
+    /// An output file (a profile, a report, an image) cannot be written: an I/O error, an
+    /// unsupported image extension, an encoder's error, or a scene that could not be generated.
     #[error("cannot write {path}: {reason}")]
-    Io { path: String, reason: String },
+    Io {
+        /// The file, or a label such as `<png>` where there is no path.
+        path: String,
+        /// What went wrong.
+        reason: String,
+    },
 }
 
+/// `std::result::Result` with [`GpuError`] as the default error.
 pub type Result<T, E = GpuError> = std::result::Result<T, E>;
 
 /// Maps a failed Vulkan call into a [`GpuError`] that names the call.

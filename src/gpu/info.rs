@@ -8,18 +8,30 @@ use super::error::{GpuError, Result};
 /// Optional device features vkrt enables where present.
 #[derive(Clone, Copy, Debug, Default, Serialize, PartialEq, Eq)]
 pub struct DeviceFeatures {
+    /// `storageBuffer8BitAccess`: 8-bit loads and stores in storage buffers (the GPU
+    /// kd-tree builder's 1-byte event flags need it).
     pub storage_buffer_8bit: bool,
+    /// `storageBuffer16BitAccess`: 16-bit loads and stores in storage buffers.
     pub storage_buffer_16bit: bool,
+    /// `shaderInt8`: 8-bit integer arithmetic in shaders.
     pub shader_int8: bool,
+    /// `shaderInt16`: 16-bit integer arithmetic in shaders.
     pub shader_int16: bool,
+    /// `shaderInt64`: 64-bit integers in shaders (the exact walk's 64-bit node loads,
+    /// 64-bit Morton codes).
     pub shader_int64: bool,
     /// 64-bit atomics on storage buffers: the chained scan publishes (flag, sum) as one word.
     pub shader_buffer_int64_atomics: bool,
     /// Doubles in shaders: the watertight triangle test's exact fallback uses them.
     pub shader_float64: bool,
+    /// `shaderFloat16`: 16-bit floats in shaders.
     pub shader_float16: bool,
+    /// `hostQueryReset`: query pools may be reset from the host (`vkResetQueryPool`).
     pub host_query_reset: bool,
+    /// `subgroupSizeControl`: a pipeline may ask for a subgroup size between
+    /// [`DeviceInfo::min_subgroup_size`] and [`DeviceInfo::max_subgroup_size`].
     pub subgroup_size_control: bool,
+    /// `computeFullSubgroups`: a compute pipeline may require every subgroup to be full.
     pub compute_full_subgroups: bool,
     /// The device speaks Vulkan 1.3 (subgroup size control is core there).
     pub api_1_3: bool,
@@ -42,15 +54,25 @@ pub(crate) const RAY_QUERY_EXTENSIONS: [&std::ffi::CStr; 3] = [
 /// Device facts. The JSON of `vkrt info --json` is this struct.
 #[derive(Clone, Debug, Serialize)]
 pub struct DeviceInfo {
+    /// The device name the driver reports (`deviceName`).
     pub device: String,
+    /// The driver's name and info string (e.g. `llvmpipe Mesa 25.0.7 (LLVM 15.0.6)`).
     pub driver: String,
+    /// The Vulkan version the device speaks, as `major.minor.patch`.
     pub api_version: String,
+    /// `discrete`, `integrated`, `virtual`, `cpu` or `other`.
     pub device_type: String,
+    /// `subgroupSize`: invocations per subgroup when a pipeline does not ask for a size.
     pub subgroup_size: u32,
+    /// `minSubgroupSize` (Vulkan 1.3); `subgroup_size` on older devices.
     pub min_subgroup_size: u32,
+    /// `maxSubgroupSize` (Vulkan 1.3); `subgroup_size` on older devices.
     pub max_subgroup_size: u32,
+    /// The supported subgroup operation classes (`basic`, `vote`, `arithmetic`, …).
     pub subgroup_ops: Vec<&'static str>,
+    /// Subgroup operations are supported in compute shaders (a requirement of vkrt).
     pub subgroup_in_compute: bool,
+    /// `maxStorageBufferRange`: the most bytes one storage-buffer binding may cover.
     pub max_storage_buffer_range: u64,
     /// `minStorageBufferOffsetAlignment`: where a bound range of a buffer may start.
     pub min_storage_buffer_offset_alignment: u64,
@@ -58,12 +80,20 @@ pub struct DeviceInfo {
     pub min_texel_buffer_offset_alignment: u64,
     /// `maxTexelBufferElements`: texels one texel-buffer view may hold.
     pub max_texel_buffer_elements: u32,
+    /// `maxComputeSharedMemorySize`: bytes of shared memory one workgroup may use.
     pub max_shared_memory: u32,
+    /// `maxComputeWorkGroupInvocations`: the most invocations in one workgroup.
     pub max_workgroup_invocations: u32,
+    /// `maxComputeWorkGroupSize`: the largest workgroup size per axis.
     pub max_workgroup_size: [u32; 3],
+    /// `maxComputeWorkGroupCount`: the most workgroups one dispatch may launch per axis.
     pub max_workgroup_count: [u32; 3],
+    /// `maxPushConstantsSize`: bytes of push constants a pipeline may use.
     pub max_push_constants_size: u32,
+    /// `timestampPeriod`: nanoseconds per timestamp tick.
     pub timestamp_period_ns: f32,
+    /// Timestamps work: `timestampComputeAndGraphics`, and (in a context) the queue family
+    /// has timestamp bits. Without them the profiler's pass times are `None`.
     pub timestamps: bool,
     /// The driver's f32 division and square root round correctly (lavapipe's are the CPU's
     /// instructions). Vulkan allows 2.5 and 3 ulps, so elsewhere the exact walks check the
@@ -78,6 +108,8 @@ pub struct DeviceInfo {
     /// loops' headroom), 2^24 elsewhere (a guard against a corrupt structure, far above
     /// any real tree's walk). Specialization constant 22 of every walking kernel.
     pub max_traversal_steps: u32,
+    /// The optional features enabled on the device (all that it supports, for a context
+    /// vkrt creates; those the caller names, for an adopted device).
     pub features: DeviceFeatures,
     #[serde(skip)]
     pub(crate) api_version_raw: u32,
@@ -351,6 +383,7 @@ pub(crate) fn timestamp_bits(instance: &ash::Instance, pd: vk::PhysicalDevice, f
 /// [`super::RawParts::enabled_features`].
 #[derive(Clone, Debug)]
 pub struct DeviceRequirements {
+    /// The lowest Vulkan version, encoded as by `vk::make_api_version` (1.2).
     pub api_version: u32,
     /// The subgroup operations kernels use in compute shaders.
     pub subgroup_operations: vk::SubgroupFeatureFlags,

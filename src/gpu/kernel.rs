@@ -23,6 +23,7 @@ pub struct Spec {
 }
 
 impl Spec {
+    /// No constants set: the kernel's defaults and declared workgroup size.
     pub fn new() -> Self {
         Self::default()
     }
@@ -74,6 +75,7 @@ pub struct Kernel {
 }
 
 impl Kernel {
+    /// The name of the blob it was made from ([`ShaderBlob::name`]).
     pub fn name(&self) -> &'static str {
         self.blob.name
     }

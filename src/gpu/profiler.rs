@@ -144,17 +144,22 @@ impl ScopeRecorder {
 /// capacity ran out.
 #[derive(Clone, Debug, Serialize)]
 pub struct PassTime {
+    /// The scope's name (also its debug-utils label).
     pub name: String,
+    /// Nesting depth: 0 for an outermost scope.
     pub depth: u32,
     /// Index of the enclosing scope in `Profile::passes`.
     pub parent: Option<usize>,
+    /// Start, in milliseconds after the earliest timed scope of the submission began.
     pub start_ms: Option<f64>,
+    /// Duration in milliseconds.
     pub ms: Option<f64>,
 }
 
 /// Every scope of one submission, in the order they were opened.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct Profile {
+    /// The scopes, in opening order; a scope's parent comes before it.
     pub passes: Vec<PassTime>,
 }
 

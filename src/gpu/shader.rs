@@ -23,6 +23,7 @@ pub struct ShaderBlob {
     pub local_size_spec_ids: [Option<u32>; 3],
     /// Whether the kernel declares a push-constant block.
     pub push_constants: bool,
+    /// The SPIR-V module, as 32-bit words.
     pub spirv: &'static [u32],
 }
 

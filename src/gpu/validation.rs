@@ -44,8 +44,11 @@ impl Validation {
 /// One message from the validation layer (or the loader).
 #[derive(Clone, Debug)]
 pub struct ValidationMessage {
+    /// `"error"` or `"warning"` (the only severities the messenger asks for).
     pub severity: &'static str,
+    /// The message ID name (e.g. `SYNC-HAZARD-READ-AFTER-WRITE`); empty if none was given.
     pub id: String,
+    /// The message text.
     pub text: String,
 }
 

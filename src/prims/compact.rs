@@ -14,6 +14,8 @@ use crate::gpu::{kernels, Buffer, BufferArg, Context, Kernel, Recorder, Result, 
 /// Arrays one scatter pass moves at most.
 pub const MAX_ARRAYS: usize = 4;
 
+/// Stream compaction of up to [`MAX_ARRAYS`] arrays by one set of flags, with its kernels
+/// compiled for one [`PrimConfig`].
 pub struct Compact {
     scan: Scan,
     scatter: [Arc<Kernel>; MAX_ARRAYS],
@@ -33,6 +35,8 @@ impl CompactScratch {
 }
 
 impl Compact {
+    /// Compiles the flag scan and the scatter kernels for the workgroup shape `cfg`; an
+    /// error if the scan rejects `cfg`.
     pub fn new(ctx: &Context, cfg: PrimConfig) -> Result<Self> {
         let spec = Spec::new().workgroup(cfg.workgroup_size);
         let k = |blob| ctx.kernel(blob, &spec);
@@ -52,6 +56,7 @@ impl Compact {
         self.scan.tile_elements()
     }
 
+    /// Scratch for compactions of up to `max_n` elements.
     pub fn scratch(&self, ctx: &Context, max_n: usize) -> Result<CompactScratch> {
         Ok(CompactScratch {
             scan: self.scan.scratch(ctx, max_n)?,

@@ -354,14 +354,18 @@ impl RadixSort {
         })
     }
 
+    /// The ranking this sort uses (the preferred one, or the fallback [`RadixSort::new`]
+    /// took).
     pub fn ranking(&self) -> Ranking {
         self.ranking
     }
 
+    /// The workgroup shape it was compiled for.
     pub fn config(&self) -> PrimConfig {
         self.cfg
     }
 
+    /// Key bits sorted per pass (the digit width).
     pub fn bits_per_pass(&self) -> u32 {
         self.bits
     }

@@ -86,7 +86,9 @@ use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Pod, Zeroable)]
 pub struct CostIndex {
+    /// The cost compared (NaN-free).
     pub cost: f32,
+    /// The index the cost belongs to; breaks ties (lowest wins).
     pub index: u32,
 }
 
@@ -190,6 +192,9 @@ pub fn recommended_config(ctx: &Context) -> PrimConfig {
 }
 
 impl Reduce {
+    /// Compiles every reduction for `cfg`: an error unless the workgroup size is a power of
+    /// two of at least 4 and a multiple of the subgroup size, the items per invocation a
+    /// multiple of 4 up to [`MAX_ITEMS_PER_INVOCATION`], and a tile at most 2^24 elements.
     pub fn new(ctx: &Context, cfg: PrimConfig) -> Result<Self> {
         check_config(ctx, cfg, "prims.reduce")?;
         let spec = Spec::new()
@@ -209,6 +214,7 @@ impl Reduce {
         })
     }
 
+    /// The workgroup shape it was compiled for.
     pub fn config(&self) -> PrimConfig {
         self.cfg
     }
@@ -410,22 +416,28 @@ impl Reduce {
         self.run(ctx, data, Self::record_sum_u32)
     }
 
+    /// The minimum of `data` on the GPU (`u32::MAX` when empty).
     pub fn min_u32(&self, ctx: &Context, data: &[u32]) -> Result<u32> {
         self.run(ctx, data, Self::record_min_u32)
     }
 
+    /// The maximum of `data` on the GPU (0 when empty).
     pub fn max_u32(&self, ctx: &Context, data: &[u32]) -> Result<u32> {
         self.run(ctx, data, Self::record_max_u32)
     }
 
+    /// The pairwise-tree sum of `data` on the GPU, bit-identical to [`sum_f32_cpu`] at this
+    /// configuration (+0.0 when empty).
     pub fn sum_f32(&self, ctx: &Context, data: &[f32]) -> Result<f32> {
         self.run(ctx, data, Self::record_sum_f32)
     }
 
+    /// The minimum of `data` on the GPU in IEEE total order, -0.0 < +0.0 (+inf when empty).
     pub fn min_f32(&self, ctx: &Context, data: &[f32]) -> Result<f32> {
         self.run(ctx, data, Self::record_min_f32)
     }
 
+    /// The maximum of `data` on the GPU in IEEE total order, +0.0 > -0.0 (-inf when empty).
     pub fn max_f32(&self, ctx: &Context, data: &[f32]) -> Result<f32> {
         self.run(ctx, data, Self::record_max_f32)
     }

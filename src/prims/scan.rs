@@ -68,7 +68,9 @@ fn count_binding<'a>(
 /// Inclusive (element i included) or exclusive (elements before i).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum ScanOp {
+    /// Output i is the sum of elements 0..=i.
     Inclusive,
+    /// Output i is the sum of elements 0..i (0 for the first).
     Exclusive,
 }
 
@@ -85,9 +87,13 @@ pub enum ScanInput {
 /// the capacity the scan was recorded for (see `glsl/common/gpu_count.glsl`).
 #[derive(Clone, Copy)]
 pub struct GpuCount<'a> {
+    /// The buffer holding the count.
     pub counts: &'a Buffer<u32>,
+    /// Which u32 of `counts` holds it.
     pub index: u32,
+    /// Multiplier applied to the stored count.
     pub mul: u32,
+    /// Divisor (rounding up); 0 means `n` is the capacity and `counts` is not read.
     pub div: u32,
 }
 
@@ -349,6 +355,7 @@ impl Scan {
         Ok(scan.chained.is_some().then_some(scan))
     }
 
+    /// The workgroup shape it was compiled for.
     pub fn config(&self) -> PrimConfig {
         self.cfg
     }

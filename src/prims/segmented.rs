@@ -123,7 +123,11 @@ pub enum SegmentedMode {
     /// A segment holding more than 1/`threshold` of all the segments' elements (and at least
     /// a tile) through the tiles, the others one workgroup each; decided on the GPU. With
     /// equal segments: tiles while there are fewer than `threshold` segments.
-    Hybrid { threshold: u32 },
+    Hybrid {
+        /// The fraction's denominator: a segment of more than 1/`threshold` of the elements
+        /// takes the tiles.
+        threshold: u32,
+    },
 }
 
 impl Default for SegmentedMode {

@@ -19,7 +19,9 @@ pub const PLANE_SLACK: f32 = 4e-7;
 
 /// Geometry plus its kd-tree: what a query runs against.
 pub struct TraceScene<'a> {
+    /// The primitives, by id.
     pub geometry: &'a TraceGeometry,
+    /// The kd-tree built over `geometry`'s boxes.
     pub tree: &'a KdTree,
 }
 

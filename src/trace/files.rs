@@ -20,16 +20,33 @@ use super::{Hit, Ray};
 /// Why a ray file was rejected.
 #[derive(Debug, thiserror::Error)]
 pub enum RayFileError {
+    /// The file could not be read.
     #[error("{path}: {reason}")]
-    Io { path: String, reason: String },
+    Io {
+        /// The ray file.
+        path: String,
+        /// The I/O error's message.
+        reason: String,
+    },
+    /// A binary ray file whose length is not a multiple of 32 bytes.
     #[error(
         "{path}: {len} bytes is not a whole number of 32-byte rays (8 little-endian f32 each)"
     )]
-    Truncated { path: String, len: usize },
+    Truncated {
+        /// The ray file.
+        path: String,
+        /// Its length in bytes.
+        len: usize,
+    },
+    /// A CSV ray file that is not UTF-8, or a line with a field that is not a number or
+    /// with neither 6 nor 8 values.
     #[error("{path}:{line}: {reason}")]
     Csv {
+        /// The ray file.
         path: String,
+        /// The offending line, 1-based (0 when the file is not UTF-8).
         line: usize,
+        /// What is wrong with it.
         reason: String,
     },
 }

@@ -29,6 +29,7 @@ pub struct MotionRecord {
 }
 
 impl MotionRecord {
+    /// The record of motion `m` (an orbit about a zero axis, or none, rotates nothing).
     pub fn new(m: &Motion) -> Self {
         let (center, axis, rate) = match m.orbit {
             Some(o) if o.axis.normalize_or_zero() != Vec3::ZERO => (
@@ -71,10 +72,15 @@ impl MotionRecord {
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct SceneInfo {
+    /// xyz: the minimum corner of the structure's root box (zeros for an empty box).
     pub bounds_min: [f32; 4],
+    /// xyz: the maximum corner of the structure's root box (zeros for an empty box).
     pub bounds_max: [f32; 4],
+    /// Triangles; their ids come first.
     pub n_tris: u32,
+    /// Spheres, after the triangles in id order.
     pub n_spheres: u32,
+    /// 1 when primitives move (the motion slots are bound), 0 otherwise.
     pub has_motion: u32,
     /// BVH: where the parent links start in the references buffer (0 for a kd-tree).
     pub parents_at: u32,
@@ -92,7 +98,9 @@ pub struct SceneInfo {
 impl SceneInfo {
     /// `ACCEL_*` of `traverse.glsl`: how the shader library walks a structure.
     pub const WALK_KDTREE: u32 = 0;
+    /// A binary BVH, walked with a stack.
     pub const WALK_BVH: u32 = 1;
+    /// The driver's structure, walked by `VK_KHR_ray_query`.
     pub const WALK_RAY_QUERY: u32 = 3;
     /// A BVH with 4-wide nodes in the nodes binding.
     pub const WALK_BVH_WIDE: u32 = 4;
@@ -147,6 +155,7 @@ pub struct TraceGeometry {
     pub aabbs: Vec<Aabb>,
     /// Motion slot per primitive ([`NO_MOTION`] if static); empty when nothing moves.
     pub prim_motion: Vec<u32>,
+    /// The motions the slots of `prim_motion` index.
     pub motions: Vec<MotionRecord>,
     /// Box of every primitive (swept over the time interval when moving).
     pub boxes: Vec<Aabb>,
@@ -257,10 +266,12 @@ impl TraceGeometry {
         g
     }
 
+    /// Number of triangles.
     pub fn triangle_count(&self) -> usize {
         self.tri_verts.len() / 9
     }
 
+    /// Number of primitives: triangles, spheres and boxes.
     pub fn primitive_count(&self) -> usize {
         self.triangle_count() + self.spheres.len() + self.aabbs.len()
     }
@@ -295,6 +306,7 @@ impl TraceGeometry {
         w
     }
 
+    /// Whether any primitive moves (has a motion slot).
     pub fn has_motion(&self) -> bool {
         !self.prim_motion.is_empty()
     }

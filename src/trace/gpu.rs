@@ -25,8 +25,10 @@ const WORKGROUP: u32 = 64;
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum AccelTraversal {
+    /// A kd-tree (`ACCEL_KIND` 0).
     #[default]
     KdTree,
+    /// A BVH, walked as the [`Traversal`] says.
     Bvh(Traversal),
     /// The driver's structure, through its ray query (the `query` kernel variants).
     RayQuery,
@@ -158,7 +160,9 @@ impl NodeAccess {
 /// Primitives and a structure over them in device memory: the seven buffers
 /// `traverse.glsl` binds.
 pub struct GpuGeometry {
+    /// The primitives on the device.
     pub prims: DevicePrimitives,
+    /// The structure over them on the device.
     pub accel: AccelStructure,
     /// For a structure over the caller's device geometry
     /// ([`AccelBuilder::create_in`](crate::accel::device::AccelBuilder::create_in)): its
@@ -300,12 +304,15 @@ pub fn traversal_spec(ctx: &Context, opt: &TraceOptions) -> Spec {
 
 /// Result of a batch.
 pub struct TraceBatch {
+    /// One hit per ray, in ray order (a miss has `prim == NO_HIT`).
     pub hits: Vec<Hit>,
     /// Rays that ran out of traversal steps (reported as misses).
     pub exhausted: u32,
+    /// The GPU passes of the submissions, with one `trace` scope around each batch's kernel.
     pub profile: Profile,
 }
 
+/// A compiled trace kernel for one structure, walk and set of [`TraceOptions`].
 #[must_use]
 pub struct Tracer {
     kernel: Arc<Kernel>,
@@ -525,6 +532,7 @@ pub fn build_kdtree(
 
 /// What [`build_and_trace`] did.
 pub struct DeviceTrace {
+    /// The hits of every ray; its profile holds the build's passes too.
     pub batch: TraceBatch,
     /// The geometry and structure, still on the device.
     pub geometry: GpuGeometry,

@@ -131,8 +131,11 @@ impl TwoLevelScene {
 /// Bytes of a scene's two levels ([`level_bytes`]).
 #[derive(Clone, Copy, Debug, serde::Serialize)]
 pub struct LevelBytes {
+    /// Bottom-level structures (one per repeated mesh, plus the rest's).
     pub bottom_levels: usize,
+    /// Instances of repeated meshes ([`TwoLevelScene::mesh_instances`]).
     pub instances: usize,
+    /// Primitives the bottom levels hold ([`TwoLevelScene::unique_primitives`]).
     pub unique_primitives: usize,
     /// Device bytes of the bottom levels (primitives and structures).
     pub bottom_bytes: u64,
@@ -164,16 +167,19 @@ pub fn level_bytes(ctx: &Context, choice: AccelChoice, s: &TwoLevelScene) -> Res
 
 /// What [`build_and_trace`] measured.
 pub struct TwoLevelTrace {
+    /// One hit per ray, with the scene's primitive ids.
     pub hits: Vec<Hit>,
     /// Rays whose walk ran out of steps (reported as misses).
     pub exhausted: u32,
-    /// GPU ms of the bottom levels' builds (host ms for the SAH BVH's), of the top level's
-    /// and of the trace.
+    /// GPU ms of the bottom levels' builds (host ms for the SAH BVH's).
     pub bottom_build_ms: f64,
+    /// GPU ms of the top level's build.
     pub top_build_ms: f64,
+    /// GPU ms of the trace kernel.
     pub trace_ms: f64,
-    /// Device bytes of the bottom levels (primitives and structures) and of the top level.
+    /// Device bytes of the bottom levels (primitives and structures).
     pub bottom_bytes: u64,
+    /// Device bytes of the top level.
     pub top_bytes: u64,
     /// The options the walk ran with (exactness as the device allows).
     pub options: TraceOptions,

@@ -6,19 +6,32 @@ use glam::{Vec3, Vec4};
 /// `gamma(n) = n u / (1 - n u)`, `u = 2^-24`: pbrt's bound on the relative error of `n`
 /// roundings (`GAMMAn` in `ray.glsl`, the same bits).
 pub const GAMMA2: f32 = f32::from_bits(0x3400_0001);
+/// `gamma(3)` (see [`GAMMA2`]): the watertight test's bounds on z and on `t`.
 pub const GAMMA3: f32 = f32::from_bits(0x3440_0002);
+/// `gamma(5)` (see [`GAMMA2`]): the watertight test's bounds on the sheared x and y.
 pub const GAMMA5: f32 = f32::from_bits(0x34a0_0003);
+/// `gamma(7)` (see [`GAMMA2`]): the error bound of a triangle hit point
+/// ([`triangle_hit_point`]).
 pub const GAMMA7: f32 = f32::from_bits(0x34e0_0006);
+/// `gamma(8)` (see [`GAMMA2`]): the error bound of a sphere hit point
+/// ([`sphere_hit_point`]).
 pub const GAMMA8: f32 = f32::from_bits(0x3500_0004);
 
 /// The per-ray shear of the watertight test.
 #[derive(Clone, Copy, Debug)]
 pub struct Shear {
+    /// The first axis of the sheared plane (swapped with `ky` when `d[kz] < 0`, to keep
+    /// the triangles' winding).
     pub kx: usize,
+    /// The second axis of the sheared plane.
     pub ky: usize,
+    /// The axis where the direction's magnitude is largest (ties: x, then y).
     pub kz: usize,
+    /// `d[kx] / d[kz]`.
     pub sx: f32,
+    /// `d[ky] / d[kz]`.
     pub sy: f32,
+    /// `1 / d[kz]`.
     pub sz: f32,
 }
 
@@ -38,6 +51,7 @@ fn max_dim(v: Vec3) -> usize {
 }
 
 impl Shear {
+    /// The shear of a ray with direction `d` (non-zero), computed once per ray.
     pub fn new(d: Vec3) -> Self {
         let kz = max_dim(d);
         let mut kx = if kz == 2 { 0 } else { kz + 1 };

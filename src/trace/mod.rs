@@ -34,13 +34,18 @@ pub use geometry::TraceGeometry;
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct Ray {
+    /// The ray's origin.
     pub origin: [f32; 3],
+    /// Start of the hit interval, in units of `dir`'s length.
     pub tmin: f32,
+    /// The direction; need not be normalized (`t` is measured in its length).
     pub dir: [f32; 3],
+    /// End of the hit interval; `+inf` means unbounded.
     pub tmax: f32,
 }
 
 impl Ray {
+    /// A ray from its origin, direction and `[tmin, tmax]` interval.
     pub fn new(origin: Vec3, dir: Vec3, tmin: f32, tmax: f32) -> Self {
         Self {
             origin: origin.to_array(),
@@ -50,10 +55,12 @@ impl Ray {
         }
     }
 
+    /// The origin as a vector.
     pub fn o(&self) -> Vec3 {
         Vec3::from_array(self.origin)
     }
 
+    /// The direction as a vector.
     pub fn d(&self) -> Vec3 {
         Vec3::from_array(self.dir)
     }
@@ -100,6 +107,7 @@ pub enum InvalidRay {
 }
 
 impl InvalidRay {
+    /// Every class, in the order they are checked.
     pub const ALL: [InvalidRay; 4] = [
         InvalidRay::Nan,
         InvalidRay::Infinite,
@@ -107,6 +115,7 @@ impl InvalidRay {
         InvalidRay::EmptyInterval,
     ];
 
+    /// The class's snake_case name, as in reports and JSON.
     pub fn name(self) -> &'static str {
         match self {
             InvalidRay::Nan => "nan",
@@ -135,13 +144,18 @@ pub const NO_HIT: u32 = u32::MAX;
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct Hit {
+    /// Ray parameter of the hit, in units of the ray direction's length (`+inf` for a miss).
     pub t: f32,
+    /// Id of the primitive hit, or [`NO_HIT`].
     pub prim: u32,
+    /// Barycentric weight of a triangle's second vertex.
     pub u: f32,
+    /// Barycentric weight of a triangle's third vertex.
     pub v: f32,
 }
 
 impl Hit {
+    /// The miss: `t = +inf`, `prim = NO_HIT`.
     pub const MISS: Hit = Hit {
         t: f32::INFINITY,
         prim: NO_HIT,
@@ -149,6 +163,7 @@ impl Hit {
         v: 0.0,
     };
 
+    /// Whether this is a hit (`prim != NO_HIT`).
     pub fn is_hit(&self) -> bool {
         self.prim != NO_HIT
     }
@@ -166,6 +181,7 @@ pub enum Intersector {
 }
 
 impl Intersector {
+    /// Both tests.
     pub const ALL: [Intersector; 2] = [Intersector::Watertight, Intersector::MollerTrumbore];
 
     /// The `INTERSECTOR` specialization constant.
@@ -176,6 +192,7 @@ impl Intersector {
         }
     }
 
+    /// The test's snake_case name, as in reports and JSON.
     pub fn name(self) -> &'static str {
         match self {
             Intersector::Watertight => "watertight",
@@ -187,15 +204,19 @@ impl Intersector {
 /// Closest hit or any hit.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash)]
 pub enum Query {
+    /// The closest hit in the interval (lowest primitive id among equal `t`).
     #[default]
     Closest,
+    /// Some hit in the interval: the first found.
     Any,
 }
 
 /// How a query runs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
 pub struct TraceOptions {
+    /// The ray/triangle test.
     pub intersector: Intersector,
+    /// Closest hit or any hit.
     pub query: Query,
     /// Entries of the traversal's short stack; deeper trees restart from the root.
     pub stack_size: u32,

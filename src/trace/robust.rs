@@ -60,10 +60,13 @@ use crate::scene::Aabb;
 /// One case's numbers for one intersector.
 #[derive(Clone, Debug, Serialize)]
 pub struct CaseResult {
+    /// The case's name, `group/case` (e.g. `watertight/icosphere`).
     pub case: String,
     /// The structure and walk (`AccelTraversal::label`).
     pub accel: String,
+    /// The triangle test ([`Intersector::name`]), or `driver` for the driver's structure.
     pub intersector: &'static str,
+    /// Rays traced and checked.
     pub rays: u64,
     /// Failures of any kind (`failure_kind`), errors included.
     pub failures: u64,
@@ -91,15 +94,27 @@ pub struct CaseResult {
 /// The groups of cases (see the module docs).
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum Group {
+    /// Closed icospheres and grid planes, near the origin and far from it: every ray must
+    /// hit.
     Watertight,
+    /// Triangles and spheres at scales 10^-8 to 10^8, rays spawned from their hits with
+    /// [`offset_ray_origin`]: re-hits of the spawning primitive fail.
     SelfIntersection,
+    /// Axis-parallel rays, rays in split planes and from node boundaries: compared with
+    /// brute force.
     Rays,
+    /// Zero-area, collinear, duplicated and coplanar overlapping triangles: hits of
+    /// zero-area ones, and answers other than brute force's, fail.
     Degenerate,
+    /// Builder stress (identical, coplanar and mixed-size triangles, a 2 M-triangle soup):
+    /// the tree must validate, respect its depth bound and agree with brute force.
     Builder,
+    /// NaN/Inf values, zero directions and `tmin > tmax`: any hit fails.
     BadRays,
 }
 
 impl Group {
+    /// Every group, in the order the suite runs them.
     pub const ALL: [Group; 6] = [
         Group::Watertight,
         Group::SelfIntersection,
