@@ -55,8 +55,11 @@ pub struct Options {
 /// One check's outcome.
 #[derive(Clone, Debug, Serialize)]
 pub struct Check {
+    /// The group the check belongs to (`rounding`, `walks`, `hard cases`, ...).
     pub group: &'static str,
+    /// What was checked, with its sizes or structure.
     pub name: String,
+    /// Whether it passed (a check that could not run failed).
     pub passed: bool,
     /// False for what is reported but not promised (the driver's hard cases).
     pub required: bool,
@@ -68,7 +71,9 @@ pub struct Check {
 /// A group's checks in `Report::groups`.
 #[derive(Clone, Debug, Default, Serialize)]
 pub struct GroupSummary {
+    /// Checks run in the group.
     pub checks: usize,
+    /// Required checks that failed.
     pub failed: usize,
     /// Each failed check: `name: detail`.
     #[serde(skip_serializing_if = "Vec::is_empty")]
@@ -78,13 +83,19 @@ pub struct GroupSummary {
 /// Every check of a run; `vkrt verify --json` prints it (without `results`).
 #[derive(Clone, Debug, Serialize)]
 pub struct Report {
+    /// The device name the driver reports.
     pub device: String,
+    /// The driver's name and info string.
     pub driver: String,
+    /// Checks run.
     pub checks: usize,
     /// Failed required checks: non-zero is a device vkrt cannot be trusted on.
     pub failed: usize,
+    /// Each group's summary, by group name.
     pub groups: BTreeMap<&'static str, GroupSummary>,
+    /// Wall seconds of the whole run.
     pub seconds: f64,
+    /// Every check in the order it ran.
     #[serde(skip)]
     pub results: Vec<Check>,
 }

@@ -159,8 +159,11 @@ fn pfm_complete(bytes: &[u8], width: u32, height: u32) -> bool {
 
 /// One finished frame: 8-bit sRGB, and the linear radiance where it was read back.
 pub struct Frame {
+    /// The frame's number in the animation.
     pub k: u32,
+    /// 8-bit sRGB RGBA, row-major from the top-left.
     pub rgba: Vec<u8>,
+    /// Mean linear radiance per pixel, where it was read back (EXR and PFM frames).
     pub radiance: Option<Vec<[f32; 3]>>,
 }
 
@@ -173,8 +176,11 @@ pub struct FrameWriter {
 
 /// The animated PNG of the frames: its path, the frame rate, the frame count.
 pub struct Preview {
+    /// Where the animated PNG is written.
     pub path: PathBuf,
+    /// Frames per second it plays at.
     pub fps: f32,
+    /// Frames it holds.
     pub frames: u32,
 }
 
@@ -380,6 +386,7 @@ impl Apng {
 /// One frame's numbers.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct FrameRow {
+    /// The frame's number in the animation.
     pub frame: u32,
     /// Seconds from the animation's start.
     pub time: f32,
@@ -399,18 +406,23 @@ pub struct FrameRow {
     /// Queue submissions vkrt made for the frame (1 unless a record was redone), and the
     /// bytes it read back (the image) and uploaded (moved primitives): `Context::traffic`.
     pub submits: u64,
+    /// Bytes read back for the frame.
     pub readback_bytes: u64,
+    /// Bytes uploaded for the frame.
     pub upload_bytes: u64,
     /// After the frame: device memory held through vkrt's allocator, and the process's
     /// resident host memory (Linux; absent elsewhere). Flat over a long run: nothing leaks.
     pub device_bytes: u64,
+    /// Live allocations through vkrt's allocator after the frame.
     pub device_allocations: u64,
+    /// Resident host memory after the frame ([`host_rss_bytes`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub host_rss_bytes: Option<u64>,
     /// The SAH cost of the frame's structure, and of a structure of the same kind built anew
     /// over the frame (BVHs, with `quality`: a read-back outside the timed frame).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub sah_cost: Option<f64>,
+    /// The SAH cost of a structure of the same kind built anew over the frame.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub rebuilt_sah_cost: Option<f64>,
 }
@@ -418,13 +430,19 @@ pub struct FrameRow {
 /// What the frames of one animation cost.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct AnimationReport {
+    /// The structure and its walk (`kdtree`, `sah-bvh/stack`, ...).
     pub accel: String,
     /// 2: traced as two levels (each frame updates the top level only), 1: flat.
     pub levels: u32,
+    /// How the structure followed the primitives from frame to frame.
     pub update: Update,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// Samples per pixel, as planned.
     pub spp: u32,
+    /// Each rendered frame's numbers, in order.
     pub frames: Vec<FrameRow>,
     /// Frames left alone because their files were already complete (`--skip-existing`).
     pub skipped: Vec<u32>,
@@ -444,6 +462,7 @@ impl AnimationReport {
         }
     }
 
+    /// Mean GPU ms per frame of the samples and the tone map.
     pub fn mean_render_ms(&self) -> f64 {
         self.mean(|f| f.render_ms)
     }
@@ -460,6 +479,7 @@ impl AnimationReport {
         })
     }
 
+    /// Rays per second over the frames' GPU render time, in millions.
     pub fn mrays_per_s(&self) -> f64 {
         let rays: u64 = self.frames.iter().map(|f| f.rays).sum();
         let ms: f64 = self.frames.iter().map(|f| f.render_ms).sum();
@@ -490,7 +510,9 @@ pub fn growth(
 /// How to render an animation.
 #[derive(Clone, Debug)]
 pub struct AnimateOptions {
+    /// Image size, samples and structure, as for a still render.
     pub render: RenderOptions,
+    /// How the structure follows the primitives from frame to frame.
     pub update: Update,
     /// The frames to render, by their number in the animation, in increasing order.
     pub frames: Vec<u32>,

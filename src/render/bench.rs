@@ -10,19 +10,29 @@ use crate::gpu::Context;
 use crate::scene::Scene;
 use crate::trace::TraceOptions;
 
+/// One example scene's render times: as planned, without its effect, and with every pass
+/// forced on.
 #[derive(Clone, Debug, Serialize)]
 pub struct EffectRow {
+    /// The example scene's name.
     pub scene: String,
     /// The effect taken out for `without_ms`.
     pub effect: String,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// Samples per pixel as planned (the render without the effect uses as many).
     pub spp: u32,
     /// GPU ms as planned, without the effect, and with every pass forced on.
     pub plan_ms: f64,
+    /// GPU ms without the effect, scaled to the planned sample count.
     pub without_ms: f64,
+    /// GPU ms with `--all-effects`.
     pub all_effects_ms: f64,
+    /// Rays the planned render traced.
     pub rays: u64,
+    /// Rays per second of the planned render, in millions.
     pub mrays_per_s: f64,
     /// plan_ms / without_ms: what the effect costs.
     pub effect_cost: f64,

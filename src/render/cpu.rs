@@ -91,7 +91,9 @@ fn refract_dir(d: Vec3, n: Vec3, eta: f32) -> Option<Vec3> {
 
 /// A CPU render: mean radiance per pixel and the ray counts.
 pub struct CpuRender {
+    /// Mean radiance per pixel (linear), row-major from the top-left.
     pub radiance: Vec<[f32; 3]>,
+    /// Rays traced per kind.
     pub counts: RayCounts,
 }
 
@@ -126,6 +128,9 @@ fn host_twin(kind: AccelKind, g: &TraceGeometry) -> RenderAccel {
     }
 }
 
+/// Renders `rs` for `plan` on the host, tracing with the CPU twin of the plan's walk
+/// (a structure the GPU builds on the device is built here by its host twin);
+/// `trace_opt` picks the intersector.
 pub fn render(rs: &RenderScene, plan: &Plan, trace_opt: &TraceOptions) -> CpuRender {
     let prm = &rs.params;
     let n_pixels = (prm.width * prm.height) as usize;

@@ -105,7 +105,9 @@ pub struct GpuRender {
     pub radiance: Vec<[f32; 3]>,
     /// 8-bit sRGB RGBA.
     pub rgba: Vec<u8>,
+    /// Rays traced per kind over every sample (a redone sample counted once).
     pub counts: RayCounts,
+    /// GPU timestamps of the render's submissions (`render.*` scopes, the build's).
     pub profile: Profile,
     /// Samples redone with smaller waves after a queue overflow.
     pub redone_samples: u32,
@@ -151,6 +153,8 @@ fn around_geometry<'a>(
 }
 
 impl Renderer {
+    /// Compiles the kernels specialised for `plan` and the walk of `plan.accel`; errors where
+    /// the device lacks what the walk needs or a kernel fails to build.
     pub fn new(ctx: &Context, plan: &Plan, trace: &TraceOptions) -> Result<Self> {
         let walk = plan.accel.traversal();
         walk.require(ctx)?;

@@ -41,17 +41,24 @@ use types::{GpuLight, GpuMaterial, RenderParams};
 /// Rays traced per kind.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
 pub struct RayCounts {
+    /// Camera rays (one per pixel and sample).
     pub primary: u64,
+    /// Perfect mirror reflection rays.
     pub reflection: u64,
+    /// Refraction rays (glossy ones included).
     pub refraction: u64,
+    /// Glossy reflection rays (Cook et al. 1984, distributed ray tracing).
     pub glossy: u64,
+    /// Occlusion queries towards lights.
     pub shadow: u64,
+    /// Ambient-occlusion queries.
     pub ambient_occlusion: u64,
     /// Rays that ran out of traversal steps (counted as misses).
     pub exhausted: u64,
 }
 
 impl RayCounts {
+    /// The counts in the `counters` words read back from the device ([`types::counter`]).
     pub fn from_counters(c: &[u32]) -> Self {
         use types::counter as k;
         Self {
@@ -70,6 +77,8 @@ impl RayCounts {
         self.reflection + self.refraction + self.glossy
     }
 
+    /// Every ray traced: primary, secondary, shadow and ambient occlusion (`exhausted` ones
+    /// are among them).
     pub fn total(&self) -> u64 {
         self.primary + self.secondary() + self.shadow + self.ambient_occlusion
     }
@@ -79,6 +88,7 @@ impl RayCounts {
 pub enum RenderAccel {
     /// Built on the host (the CPU twins, tests).
     KdTree(KdTree),
+    /// A BVH built on the host (the CPU twins, tests).
     Bvh(Bvh),
     /// Built by the GPU renderer in its first submission and traced where it lies (the
     /// CLI's path; the CPU twin cannot render it).
@@ -88,7 +98,10 @@ pub enum RenderAccel {
 /// The scene as the renderer reads it: geometry and its structure, materials, lights,
 /// constants.
 pub struct RenderScene {
+    /// The primitives as traced: at shutter open, or over the shutter where the plan blurs
+    /// motion; empty over two levels.
     pub geometry: TraceGeometry,
+    /// The structure over `geometry`, or which one the device builds.
     pub accel: RenderAccel,
     /// The scene as two levels ([`RenderScene::on_device`] where the plan traces two); then
     /// `geometry` is empty, and `prim_material` and `tri_normals` are per level primitive
@@ -98,8 +111,11 @@ pub struct RenderScene {
     pub prim_material: Vec<u32>,
     /// Shading normals, 9 floats per triangle (zero when the mesh has none).
     pub tri_normals: Vec<f32>,
+    /// Every material of the scene, packed as the shade kernel reads it.
     pub materials: Vec<GpuMaterial>,
+    /// The lights the plan shades with (those with non-zero power).
     pub lights: Vec<GpuLight>,
+    /// The render's constants: camera, image, sampling.
     pub params: RenderParams,
 }
 
@@ -332,19 +348,25 @@ fn gpu_light(l: &Light) -> GpuLight {
 /// One pass of a render: rays it handled and GPU time.
 #[derive(Clone, Debug, Serialize)]
 pub struct PassReport {
+    /// The pass, as in [`Plan::passes`].
     pub name: &'static str,
+    /// Rays the pass handled (0 for the tone map).
     pub rays: u64,
+    /// GPU milliseconds of the pass over every sample (timestamps).
     pub ms: f64,
 }
 
 /// A finished render with everything `vkrt render --json` reports.
 pub struct Rendered {
+    /// The plan the render ran.
     pub plan: Plan,
+    /// The image, its ray counts and its GPU profile.
     pub image: gpu::GpuRender,
     /// The structure's build: GPU passes (timestamps) or the host builder's time.
     pub build_ms: f64,
     /// GPU time of all samples (timestamps), tone mapping included.
     pub render_ms: f64,
+    /// Every pass of the plan, in order.
     pub passes: Vec<PassReport>,
 }
 

@@ -16,8 +16,11 @@ use crate::scene::{Effects, Scene};
 /// What the caller asks for on top of the scene.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 pub struct RenderOptions {
+    /// Image width in pixels (default: the scene's).
     pub width: Option<u32>,
+    /// Image height in pixels (default: the scene's).
     pub height: Option<u32>,
+    /// Samples per pixel (default: the scene's; 1 where no effect needs more).
     pub spp: Option<u32>,
     /// Force every pass and shader branch on (for the plan's equality test and for
     /// measuring what the plan saves).
@@ -34,33 +37,52 @@ pub const WAVE_RAYS: usize = 1 << 19;
 /// Largest occlusion-query buffer per wave, bytes (under lavapipe's 128 MiB per buffer).
 pub const WAVE_SHADOW_BYTES: usize = 96 << 20;
 
+/// What a render runs, decided from the scene and the options: image, samples, passes
+/// and shader switches (`vkrt render --plan` prints it).
 #[derive(Clone, Debug, PartialEq, Serialize)]
 pub struct Plan {
     /// The effects the scene calls for (`Scene::effects`).
     pub effects: Vec<&'static str>,
+    /// Every pass and shader branch forced on ([`RenderOptions::all_effects`]).
     pub all_effects: bool,
     /// The structure traced and its walk (the `ACCEL_KIND` of the tracing kernels).
     pub accel: AccelChoice,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
+    /// Samples per pixel (1 where no effect of the scene needs more).
     pub spp: u32,
     /// Bounces after the camera hit (0 when no effect needs secondary rays).
     pub max_depth: u32,
     /// Shader switches (specialization constants).
     pub lights: bool,
+    /// Sphere and quad lights sampled over their area and seen by rays (`AREA_LIGHTS`).
     pub area_lights: bool,
+    /// Perfect mirror reflection (`REFLECTION`).
     pub reflection: bool,
+    /// Refraction, Fresnel-weighted where the material asks (`REFRACTION`).
     pub refraction: bool,
+    /// Reflection and refraction sampled in a cone that widens with roughness (`GLOSSY`;
+    /// Cook et al. 1984, distributed ray tracing).
     pub glossy: bool,
+    /// Ambient-occlusion queries in place of the unoccluded ambient term (`AO`).
     pub ambient_occlusion: bool,
+    /// Emissive surfaces (`EMISSION`).
     pub emission: bool,
+    /// Secondary rays spawned, compacted and gathered (`BOUNCES`): `max_depth > 0`.
     pub bounces: bool,
+    /// Thin-lens camera rays: depth of field (`THIN_LENS`).
     pub thin_lens: bool,
+    /// Camera samples jittered over the pixel: antialiasing (`JITTER`).
     pub jitter: bool,
+    /// Ray times sampled over the open shutter: motion blur (`MOTION`).
     pub motion: bool,
     /// Shining lights and ambient-occlusion rays: occlusion queries per path vertex.
     pub n_lights: u32,
+    /// Ambient-occlusion queries per path vertex (0 without ambient occlusion).
     pub ao_samples: u32,
+    /// Occlusion-query slots per queue ray: `n_lights + ao_samples`.
     pub shadow_slots: u32,
     /// Children one ray can spawn (2 with refraction: reflected + refracted).
     pub branching: u32,
@@ -80,11 +102,13 @@ pub struct Plan {
 /// Why a scene cannot be rendered.
 #[derive(Debug, thiserror::Error)]
 pub enum PlanError {
+    /// The image has no pixels: the width and height asked for.
     #[error("image size {0}x{1}: width and height must be at least 1")]
     EmptyImage(u32, u32),
 }
 
 impl Plan {
+    /// Plans the render of `scene` with `opt`; errors when the image would have no pixels.
     pub fn new(scene: &Scene, opt: &RenderOptions) -> Result<Self, PlanError> {
         let fx: Effects = scene.effects();
         let all = opt.all_effects;

@@ -26,6 +26,7 @@ pub enum Update {
 }
 
 impl Update {
+    /// `rebuild` or `refit`, as reports print it.
     pub fn name(self) -> &'static str {
         match self {
             Update::Rebuild => "rebuild",
@@ -41,7 +42,9 @@ pub struct FrameImage {
     /// Mean radiance per pixel (linear), row-major from the top-left, where the loop reads
     /// it back ([`FrameLoop::with_radiance`]: EXR and PFM frames).
     pub radiance: Option<Vec<[f32; 3]>>,
+    /// Rays traced per kind in this frame.
     pub counts: RayCounts,
+    /// GPU timestamps of the frame's submission.
     pub profile: Profile,
     /// GPU ms of the structure's build or refit (a host builder's wall ms for the SAH BVH's
     /// builds).
