@@ -701,7 +701,10 @@ fn two_level_check(
     let batch = crate::trace::instanced::trace_top_level(
         ctx,
         &top,
-        (&first, &[]),
+        crate::trace::instanced::SceneIds {
+            mesh_first: &first,
+            ..Default::default()
+        },
         &opt,
         bitstack,
         rays,

@@ -963,3 +963,90 @@ fn moving_instances_trace_as_their_interpolated_transforms() {
     );
     common::assert_silent(&ctx);
 }
+
+/// A scene past one level's capacity traces in pieces: its triangles (a mesh named once and
+/// a random soup, both left in the world) and spheres cut along a Morton curve into bottom
+/// levels of at most 700 primitives, each under an identity instance, answer every ray as
+/// brute force over the flat scene does (the identity transform rounds nothing), with the
+/// scene's primitive ids, on every structure; `of_within` leaves a scene that fits alone.
+#[test]
+fn a_scene_cut_into_pieces_answers_as_the_flat_scene() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(11);
+    let mut text = String::from(
+        "[camera]\nposition = [0, 0, 5]\nlook_at = [0, 0, 0]\n[[lights]]\ntype = \"point\"\nposition = [0, 5, 5]\n",
+    );
+    text += "[[meshes]]\ngenerate = \"icosphere\"\nsubdivisions = 3\nscale = 0.8\n";
+    text += "[[meshes]]\ngenerate = \"random_soup\"\ncount = 2000\nseed = 5\n";
+    for k in 0..3 {
+        text += &format!("[[spheres]]\ncenter = [{}, 1.2, 0]\nradius = 0.2\n", k - 1);
+    }
+    let dir = std::env::temp_dir().join(format!("vkrt-pieces-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let path = dir.join("pieces.toml");
+    std::fs::write(&path, text).unwrap();
+    let scene = vkrt::scene::Scene::load(&path).unwrap().scene;
+    std::fs::remove_dir_all(&dir).unwrap();
+    let total = scene.triangle_count() + scene.spheres.len();
+    assert_eq!(total, 1280 + 2000 + 3);
+    assert!(vkrt::trace::instanced::TwoLevelScene::of_within(&scene, 0.0, total).is_none());
+    let two = vkrt::trace::instanced::TwoLevelScene::of_within(&scene, 0.0, 700).unwrap();
+    assert_eq!((two.bottoms.len(), two.rest_first.len()), (5, 5));
+    assert_eq!(two.mesh_instances(), 0);
+    assert!(two.bottoms.iter().all(|b| b.primitive_count() <= 700));
+    let mut ids = two.rest_ids.clone();
+    ids.sort_unstable();
+    assert!(
+        ids.iter().copied().eq(0..total as u32),
+        "every primitive once"
+    );
+
+    let flat = TraceGeometry::at_time(&scene, 0.0);
+    let rays = rays_at(&mut rng, 600, 3.0);
+    for any in [false, true] {
+        let o = TraceOptions {
+            query: if any {
+                vkrt::trace::Query::Any
+            } else {
+                vkrt::trace::Query::Closest
+            },
+            ..opt()
+        };
+        let want: Vec<Hit> = rays
+            .iter()
+            .map(|r| cpu::brute_force(&flat, r, 0.0, &o))
+            .collect();
+        let mut choices: Vec<vkrt::accel::device::AccelChoice> = [
+            AccelKind::KdTree,
+            AccelKind::SahBvh,
+            AccelKind::Lbvh,
+            AccelKind::Ploc,
+        ]
+        .map(|k| vkrt::accel::device::AccelChoice::new(k, Default::default()))
+        .to_vec();
+        // The driver's own levels, where it has them (its own triangle test: ties aside,
+        // the same answers).
+        if ctx.info().features.ray_query {
+            choices.push(vkrt::accel::device::AccelChoice::driver(
+                vkrt::accel::driver::Prefer::FastTrace,
+            ));
+        }
+        for choice in choices {
+            let kind = choice.kind;
+            let done = vkrt::trace::instanced::build_and_trace(&ctx, choice, &o, &two, &rays, 0.0)
+                .unwrap();
+            assert_eq!(done.exhausted, 0);
+            for (k, (got, want)) in done.hits.iter().zip(&want).enumerate() {
+                if any {
+                    assert_eq!(got.is_hit(), want.is_hit(), "{kind:?} any-hit ray {k}");
+                } else {
+                    assert!(
+                        common::same_answer(got, want),
+                        "{kind:?} ray {k}: {got:?}, brute force {want:?}"
+                    );
+                }
+            }
+        }
+    }
+    common::assert_silent(&ctx);
+}

@@ -40,18 +40,21 @@ layout(std430, binding = 0) readonly buffer Rays { TraceRay rays[]; };
 layout(std430, binding = 1) writeonly buffer Hits { TraceHit hits[]; };
 // [0]: rays that ran out of traversal steps (reported as misses)
 layout(std430, binding = 2) buffer Errors { uint errors[]; };
-// Per mesh (an instance's custom index): its first primitive id in the scene.
+// Per mesh (an instance's custom index): its first primitive id in the scene; then per piece
+// of the rest: where its primitives' entries start in `rest_ids`.
 layout(std430, binding = 3) readonly buffer MeshFirst { uint mesh_first[]; };
-// Per primitive of the rest's bottom level: its id in the scene.
+// Per primitive of the rest's bottom levels, piece after piece: its id in the scene.
 layout(std430, binding = 4) readonly buffer RestIds { uint rest_ids[]; };
 layout(push_constant) uniform Push {
     uint n;
     uint any_hit;
     uvec2 handle;
     float time;
+    uint n_meshes;
+    uint n_pieces;
 } pc;
 
-// The custom index of the rest's instance.
+// The custom index of the rest's first piece; piece c's is REST - c.
 #define REST 0xffffffu
 
 void main() {
@@ -70,7 +73,9 @@ void main() {
         hits[i] = TraceHit(uintBitsToFloat(0x7f800000u), 0xffffffffu, 0.0, 0.0);
         return;
     }
-    uint prim = h.instanceCustomIndex == REST ? rest_ids[h.primitiveIndex]
-                                              : mesh_first[h.instanceCustomIndex] + h.primitiveIndex;
+    uint piece = REST - h.instanceCustomIndex;
+    uint prim = piece < pc.n_pieces
+        ? rest_ids[mesh_first[pc.n_meshes + piece] + h.primitiveIndex]
+        : mesh_first[h.instanceCustomIndex] + h.primitiveIndex;
     hits[i] = TraceHit(h.t, prim, h.barycentrics.x, h.barycentrics.y);
 }

@@ -81,9 +81,11 @@ fn trace_command(
     let scene = load_scene(&Some(scene_path.to_path_buf()))?;
     let time = scene.camera.shutter_open;
     let ctx = context(validate)?;
-    // Meshes named more than once: bottom levels and instances, unless asked flat.
+    // Meshes named more than once: bottom levels and instances, unless asked flat; a
+    // scene past one buffer's range: its rest in pieces under identity instances.
+    let per_level = instanced::max_level_primitives(&ctx, accel.kind);
     if let Some(two) = (!flatten)
-        .then(|| instanced::TwoLevelScene::of(&scene, time))
+        .then(|| instanced::TwoLevelScene::of_within(&scene, time, per_level))
         .flatten()
     {
         let done = instanced::build_and_trace(&ctx, accel, opt, &two, &rays, time)?;
@@ -91,6 +93,7 @@ fn trace_command(
             "levels": 2,
             "instances": two.mesh_instances(),
             "bottom_levels": two.bottoms.len(),
+            "rest_pieces": two.rest_first.len(),
             "unique_primitives": two.unique_primitives,
             "bottom_build_ms": done.bottom_build_ms,
             "top_build_ms": done.top_build_ms,

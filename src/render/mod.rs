@@ -91,7 +91,7 @@ pub enum RenderAccel {
     /// A BVH built on the host (the CPU twins, tests).
     Bvh(Bvh),
     /// Built by the GPU renderer in its first submission and traced where it lies (the
-    /// CLI's path; the CPU twin cannot render it).
+    /// CLI's path; the CPU twin builds the same structure on the host first).
     OnDevice(AccelChoice),
 }
 

@@ -7,6 +7,13 @@
 //! `vkrt/ray_query.glsl` at device addresses (`render.trace_instances`), and hits come back
 //! with the scene's primitive ids, as the flat scene's ([`TraceGeometry::at_time`]) would.
 //!
+//! A scene whose primitives no one device buffer holds (a 10 M-triangle mesh needs 640 MB of
+//! binary BVH nodes; lavapipe binds 128 MiB) is traced the same way with its rest in pieces
+//! ([`TwoLevelScene::of_within`]): the rest's triangles in the order of a Morton curve
+//! through their centroids, cut into bottom levels of at most what one buffer holds, each
+//! under its own identity instance (custom index `REST - c` for piece `c`), so that each
+//! build binds one piece while the walk reaches every piece through the top level.
+//!
 //! t agrees with the flat scene's to about 1e-6 relative, not bit for bit: the flat scene's
 //! vertices are moved to the world and rounded there, the two-level walk moves the ray into
 //! object space and rounds there (measured within 1e-6 relative in `tests/instances.rs`).
@@ -26,7 +33,8 @@ use crate::trace::bvh_cpu::Traversal;
 use crate::trace::gpu::{effective_options, AccelTraversal, GpuGeometry, TraceBatch, Tracer};
 use crate::trace::{Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
 
-/// The custom index of the instance of the rest (meshes named once, spheres).
+/// The custom index of the instance of the rest (meshes named once, spheres); where the rest
+/// is in pieces, piece `c`'s instance has `REST - c`.
 pub const REST: u32 = 0x00ff_ffff;
 const WORKGROUP: u32 = 64;
 
@@ -40,8 +48,11 @@ pub struct TwoLevelScene {
     pub instances: Vec<Instance>,
     /// Per mesh: its first primitive id in the scene's flat order.
     pub mesh_first: Vec<u32>,
-    /// Per primitive of the rest's bottom level: its id in the scene.
+    /// Per primitive of the rest's bottom levels (piece after piece): its id in the scene.
     pub rest_ids: Vec<u32>,
+    /// Per piece of the rest (the instance with custom index `REST - c` places piece `c`):
+    /// where its primitives' entries start in `rest_ids`. Empty where there is no rest.
+    pub rest_first: Vec<u32>,
     /// Primitives the structures hold (every repeated mesh once).
     pub unique_primitives: usize,
 }
@@ -50,8 +61,18 @@ impl TwoLevelScene {
     /// The scene at `time` as two levels, or `None` when no mesh repeats another (the flat
     /// structure is then the whole story). Meshes with motion are placed at `time`.
     pub fn of(scene: &Scene, time: f32) -> Option<Self> {
+        Self::of_within(scene, time, usize::MAX)
+    }
+
+    /// As [`TwoLevelScene::of`], with no bottom level of the rest above `max_per_level`
+    /// primitives: a rest that is larger (where no mesh repeats too: the whole scene) is cut
+    /// into pieces along a Morton curve, each its own bottom level. `None` where no mesh
+    /// repeats and the scene fits one level.
+    pub fn of_within(scene: &Scene, time: f32, max_per_level: usize) -> Option<Self> {
         let groups = scene.mesh_groups();
-        if groups.iter().all(|g| g.len() < 2) {
+        let repeats = groups.iter().any(|g| g.len() >= 2);
+        let total = scene.triangle_count() + scene.spheres.len();
+        if !repeats && total <= max_per_level {
             return None;
         }
         let mut mesh_first = Vec::with_capacity(scene.meshes.len());
@@ -93,7 +114,8 @@ impl TwoLevelScene {
                 instances.push(Instance::new(level, rows).with_custom_index(k as u32));
             }
         }
-        // The rest: its triangles (in scene order within it), then the spheres.
+        // The rest: its triangles (in scene order within it), then the spheres; in pieces
+        // where it is larger than one level may be.
         let spheres: Vec<Vec4> = scene
             .spheres_at(time)
             .iter()
@@ -102,12 +124,28 @@ impl TwoLevelScene {
         for k in 0..spheres.len() {
             rest_ids.push(n_tris + k as u32);
         }
-        if !rest_ids.is_empty() {
+        let mut rest_first = Vec::new();
+        let max = max_per_level.max(1);
+        if rest_ids.len() > max {
+            let order = morton_order(&rest_tris);
+            rest_tris = order.iter().map(|&k| rest_tris[k]).collect();
+            let tri_ids: Vec<u32> = order.iter().map(|&k| rest_ids[k]).collect();
+            rest_ids.splice(..tri_ids.len(), tri_ids);
+        }
+        let mut start = 0;
+        while start < rest_ids.len() {
+            let end = (start + max).min(rest_ids.len());
+            // Triangles first, then the spheres, as in the scene's order of ids.
+            let tris = &rest_tris[start.min(rest_tris.len())..end.min(rest_tris.len())];
+            let balls = &spheres
+                [start.saturating_sub(rest_tris.len())..end.saturating_sub(rest_tris.len())];
             let level = bottoms.len() as u32;
-            bottoms.push(TraceGeometry::from_triangles_and_spheres(
-                &rest_tris, &spheres,
-            ));
-            instances.push(Instance::new(level, Instance::IDENTITY).with_custom_index(REST));
+            let piece = rest_first.len() as u32;
+            bottoms.push(TraceGeometry::from_triangles_and_spheres(tris, balls));
+            instances
+                .push(Instance::new(level, Instance::IDENTITY).with_custom_index(REST - piece));
+            rest_first.push(start as u32);
+            start = end;
         }
         let unique_primitives = bottoms.iter().map(TraceGeometry::primitive_count).sum();
         Some(Self {
@@ -115,17 +153,99 @@ impl TwoLevelScene {
             instances,
             mesh_first,
             rest_ids,
+            rest_first,
             unique_primitives,
         })
     }
 
-    /// Instances of repeated meshes (the rest's identity instance not counted).
+    /// Whether an instance's custom index names a piece of the rest (else a mesh).
+    pub fn is_rest(&self, custom_index: u32) -> bool {
+        custom_index <= REST && ((REST - custom_index) as usize) < self.rest_first.len()
+    }
+
+    /// The scene's id of primitive `prim` of the instance whose custom index is
+    /// `custom_index`.
+    pub fn scene_id(&self, custom_index: u32, prim: u32) -> Option<u32> {
+        if self.is_rest(custom_index) {
+            let first = self.rest_first[(REST - custom_index) as usize];
+            self.rest_ids.get((first + prim) as usize).copied()
+        } else {
+            self.mesh_first.get(custom_index as usize).map(|f| f + prim)
+        }
+    }
+
+    /// How the two-level walk's hits name the scene's primitives.
+    pub fn ids(&self) -> SceneIds<'_> {
+        SceneIds {
+            mesh_first: &self.mesh_first,
+            rest_first: &self.rest_first,
+            rest_ids: &self.rest_ids,
+        }
+    }
+
+    /// Instances of repeated meshes (the rest's identity instances not counted).
     pub fn mesh_instances(&self) -> usize {
         self.instances
             .iter()
-            .filter(|i| i.custom_index() != REST)
+            .filter(|i| !self.is_rest(i.custom_index()))
             .count()
     }
+}
+
+/// The most primitives one bottom level of `kind` holds on `ctx`'s device, so that its
+/// largest buffer stays within `maxStorageBufferRange`: a binary BVH's nodes (2n − 1 of 32
+/// bytes, 64 bytes a primitive; 2.1 M primitives on lavapipe's 128 MiB); a kd-tree's
+/// references of a level (16 bytes each, up to 2.4 per primitive measured on a random soup:
+/// 128 bytes a primitive are kept).
+pub fn max_level_primitives(ctx: &Context, kind: AccelKind) -> usize {
+    let per_primitive = match kind {
+        AccelKind::KdTree => 128,
+        _ => 64,
+    };
+    (ctx.info().max_storage_buffer_range / per_primitive) as usize
+}
+
+/// How a two-level walk's hits name the scene's primitives: an instance's custom index `k`
+/// names mesh `k` (its primitives' ids start at `mesh_first[k]`) or, as `REST - c`, piece
+/// `c` of the rest (its primitives' ids are `rest_ids[rest_first[c]..]`).
+#[derive(Clone, Copy, Default)]
+pub struct SceneIds<'a> {
+    /// Per mesh: its first primitive id in the scene.
+    pub mesh_first: &'a [u32],
+    /// Per piece of the rest: where its entries start in `rest_ids`.
+    pub rest_first: &'a [u32],
+    /// Per primitive of the rest's pieces, piece after piece: its id in the scene.
+    pub rest_ids: &'a [u32],
+}
+
+/// Indices of `tris` ordered along a Morton curve (Z-order, 10 bits per axis) through their
+/// centroids in the box of all of them: consecutive runs are compact in space, so pieces cut
+/// from the order overlap little (as an LBVH's leaves, Karras 2012).
+fn morton_order(tris: &[[Vec3; 3]]) -> Vec<usize> {
+    let centroid = |t: &[Vec3; 3]| (t[0] + t[1] + t[2]) / 3.0;
+    let (lo, hi) = tris.iter().fold(
+        (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
+        |(lo, hi), t| {
+            let c = centroid(t);
+            (lo.min(c), hi.max(c))
+        },
+    );
+    let scale = (hi - lo).max(Vec3::splat(f32::MIN_POSITIVE)).recip() * 1023.0;
+    let spread = |v: u32| {
+        let mut x = v & 0x3ff;
+        x = (x | (x << 16)) & 0x0300_00ff;
+        x = (x | (x << 8)) & 0x0300_f00f;
+        x = (x | (x << 4)) & 0x030c_30c3;
+        (x | (x << 2)) & 0x0924_9249
+    };
+    let code = |t: &[Vec3; 3]| {
+        // (a NaN centroid, from a degenerate triangle, lands at 0)
+        let q = ((centroid(t) - lo) * scale).clamp(Vec3::ZERO, Vec3::splat(1023.0));
+        (spread(q.x as u32) << 2) | (spread(q.y as u32) << 1) | spread(q.z as u32)
+    };
+    let mut order: Vec<usize> = (0..tris.len()).collect();
+    order.sort_by_cached_key(|&k| code(&tris[k]));
+    order
 }
 
 /// Bytes of a scene's two levels ([`level_bytes`]).
@@ -211,15 +331,7 @@ pub fn build_and_trace(
     let top_build_ms = profile.ms("top level").unwrap_or(0.0);
 
     let bitstack = choice.traversal() == AccelTraversal::Bvh(Traversal::Bitstack);
-    let batch = trace_top_level(
-        ctx,
-        &top,
-        (&s.mesh_first, &s.rest_ids),
-        &opt,
-        bitstack,
-        rays,
-        time,
-    )?;
+    let batch = trace_top_level(ctx, &top, s.ids(), &opt, bitstack, rays, time)?;
     Ok(TwoLevelTrace {
         trace_ms: batch.profile.ms("trace").unwrap_or(0.0),
         hits: batch.hits,
@@ -258,12 +370,27 @@ fn driver_build_and_trace(
     for g in &s.bottoms {
         prims.push(DevicePrimitives::record_upload(&mut rec, g)?);
     }
-    // The kernels bind the rest's primitives (its spheres are theirs to intersect).
-    let bound = s
-        .instances
-        .iter()
-        .find(|i| i.custom_index() == REST)
-        .map_or(0, |i| i.bottom as usize);
+    // The kernels bind the primitives of the rest's piece that holds the spheres (they
+    // are the kernels' to intersect), else of its first piece.
+    let with_spheres: Vec<usize> = (0..s.bottoms.len())
+        .filter(|&b| !s.bottoms[b].spheres.is_empty())
+        .collect();
+    if with_spheres.len() > 1 {
+        return Err(GpuError::Usage {
+            call: "two-level trace with the driver's structure",
+            reason: format!(
+                "the spheres lie in {} bottom levels; the driver's walk intersects one \
+                 level's spheres",
+                with_spheres.len()
+            ),
+        });
+    }
+    let bound = with_spheres.first().copied().unwrap_or_else(|| {
+        s.instances
+            .iter()
+            .find(|i| i.custom_index() == REST)
+            .map_or(0, |i| i.bottom as usize)
+    });
     let refs: Vec<&DevicePrimitives> = prims.iter().collect();
     let (accel, ids) =
         AccelStructure::record_driver_instanced(&mut rec, &refs, &s.instances, bound, prefer)?;
@@ -283,10 +410,8 @@ fn driver_build_and_trace(
         .hits
         .iter()
         .map(|h| {
-            let scene_id = |(i, p): (u32, u32)| match s.instances[i as usize].custom_index() {
-                REST => s.rest_ids.get(p as usize).copied(),
-                k => s.mesh_first.get(k as usize).map(|f| f + p),
-            };
+            let scene_id =
+                |(i, p): (u32, u32)| s.scene_id(s.instances[i as usize].custom_index(), p);
             match h.is_hit() {
                 true => match ids.instance_primitive(h.prim).and_then(scene_id) {
                     Some(prim) => Hit { prim, ..*h },
@@ -310,14 +435,13 @@ fn driver_build_and_trace(
 
 /// Closest (or any, as `opt.query` says) hits of `rays` at `time` through top level `top`
 /// (`render.trace_instances`, one `trace` scope per batch in the profile), with the scene's
-/// primitive ids: an instance's custom index `k` names the mesh whose first id is
-/// `ids.0[k]`, and the instance with custom index 0xffffff maps its primitives through
-/// `ids.1`. `opt` as the device runs it ([`effective_options`]); `bitstack`: binary BVH
-/// bottom levels walked with the bitstack walk (else each level's own).
+/// primitive ids as `ids` names them. `opt` as the device runs it ([`effective_options`]);
+/// `bitstack`: binary BVH bottom levels walked with the bitstack walk (else each level's
+/// own).
 pub fn trace_top_level(
     ctx: &Context,
     top: &TopLevel<'_>,
-    (mesh_first, rest_ids): (&[u32], &[u32]),
+    ids: SceneIds<'_>,
     opt: &TraceOptions,
     bitstack: bool,
     rays: &[Ray],
@@ -332,8 +456,10 @@ pub fn trace_top_level(
         &kernels::RENDER_TRACE_INSTANCES_BITSTACK_FLOAT,
     ];
     let kernel = library_kernel(ctx, opt, bitstack, variants, WORKGROUP)?;
-    let mesh_first = Buffer::from_slice(ctx, "trace.mesh_first", &nonempty(mesh_first))?;
-    let rest_ids = Buffer::from_slice(ctx, "trace.rest_ids", &nonempty(rest_ids))?;
+    // The pieces' starts in `rest_ids` follow the meshes' first ids in one buffer.
+    let firsts = [ids.mesh_first, ids.rest_first].concat();
+    let mesh_first = Buffer::from_slice(ctx, "trace.mesh_first", &nonempty(&firsts))?;
+    let rest_ids = Buffer::from_slice(ctx, "trace.rest_ids", &nonempty(ids.rest_ids))?;
     let handle = top.handle_address();
     let mut out = TraceBatch {
         hits: Vec::with_capacity(rays.len()),
@@ -351,7 +477,9 @@ pub fn trace_top_level(
             any_hit: u32::from(opt.query == Query::Any),
             handle,
             time,
-            pad: [0; 3],
+            n_meshes: ids.mesh_first.len() as u32,
+            n_pieces: ids.rest_first.len() as u32,
+            pad: 0,
         };
         let groups = rec.groups_1d(chunk.len() as u64, WORKGROUP);
         let b: [&dyn BufferArg; 5] = [&ray_buf, &hits, &errors, &mesh_first, &rest_ids];
@@ -383,7 +511,11 @@ pub fn trace_under_identity(
         &[Instance::new(0, Instance::IDENTITY)],
         &BuildFlags::default(),
     )?;
-    trace_top_level(ctx, &top, (&[0], &[]), opt, bitstack, rays, 0.0)
+    let ids = SceneIds {
+        mesh_first: &[0],
+        ..SceneIds::default()
+    };
+    trace_top_level(ctx, &top, ids, opt, bitstack, rays, 0.0)
 }
 
 /// The variant of a kernel that walks two levels through `vkrt/ray_query.glsl` for `opt`
@@ -438,7 +570,9 @@ struct TracePush {
     any_hit: u32,
     handle: u64,
     time: f32,
-    pad: [u32; 3],
+    n_meshes: u32,
+    n_pieces: u32,
+    pad: u32,
 }
 
 /// Each bottom level built (a kd-tree grown until its references fit), and the builds'
