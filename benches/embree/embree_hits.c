@@ -1,6 +1,6 @@
 // Traces a vkrt .rays file with Embree 3 (rtcIntersect1, tfar as given: +inf is unbounded)
 // and compares with a vkrt hits file: hit counts and per-ray agreement.
-// cc -O2 embree_hits.c -lembree3 -o embree_hits; ./embree_hits MESH.obj RAYS [HITS]
+// cc -O2 embree_hits.c -lembree3 -o embree_hits; [EMBREE_ROBUST=1] ./embree_hits MESH.obj RAYS [HITS]
 #include <embree3/rtcore.h>
 #include <math.h>
 #include <stdint.h>
@@ -43,6 +43,10 @@ int main(int argc, char **argv) {
     double t0 = now();
     RTCScene scene = rtcNewScene(dev);
     rtcSetSceneBuildQuality(scene, RTC_BUILD_QUALITY_MEDIUM);
+    // EMBREE_ROBUST=1: Embree's watertight mode (no ray slips between triangles sharing an
+    // edge, as vkrt's watertight test); by default Embree trades that for speed.
+    const char *robust = getenv("EMBREE_ROBUST");
+    if (robust && robust[0] == '1') rtcSetSceneFlags(scene, RTC_SCENE_FLAG_ROBUST);
     RTCGeometry g = rtcNewGeometry(dev, RTC_GEOMETRY_TYPE_TRIANGLE);
     rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_VERTEX, 0, RTC_FORMAT_FLOAT3, v, 0, 12, nv);
     rtcSetSharedGeometryBuffer(g, RTC_BUFFER_TYPE_INDEX, 0, RTC_FORMAT_UINT3, t, 0, 12, nt);
