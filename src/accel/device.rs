@@ -110,6 +110,7 @@ impl AccelKind {
 /// What `--accel` and `--traversal` choose: a structure and how kernels walk it.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
 pub struct AccelChoice {
+    /// The structure built.
     pub kind: AccelKind,
     /// How a BVH is walked (ignored for a kd-tree and the driver's structure).
     pub walk: Traversal,
@@ -118,6 +119,8 @@ pub struct AccelChoice {
 }
 
 impl AccelChoice {
+    /// `kind` walked by `walk` (the default walk for kinds with one walk: the kd-tree and
+    /// the driver's), with the driver's default preference.
     pub fn new(kind: AccelKind, walk: Traversal) -> Self {
         let walk = if kind.single_walk() {
             Traversal::default()
@@ -192,16 +195,23 @@ pub struct AccelSizes {
 
 /// The scene's primitives on the device, as the builders and the traversal read them.
 pub struct DevicePrimitives {
+    /// 9 floats per triangle (three vertices), then four floats of padding.
     pub tri_verts: Buffer<f32>,
     /// The spheres (centre, radius), then two per box primitive (min, 0 and max, 0).
     pub spheres: Buffer<[f32; 4]>,
+    /// Motion slot per primitive (`NO_MOTION` if static); empty when nothing moves.
     pub prim_motion: Buffer<u32>,
+    /// The rigid motions the slots of `prim_motion` index.
     pub motions: Buffer<MotionRecord>,
     /// Box of every primitive: min x, y, z, max x, y, z.
     pub boxes: Buffer<f32>,
+    /// Triangles (ids `0..n_tris`).
     pub n_tris: usize,
+    /// Spheres (ids after the triangles).
     pub n_spheres: usize,
+    /// Axis-aligned box primitives (ids after the spheres).
     pub n_aabbs: usize,
+    /// Whether any primitive moves (`prim_motion` is filled).
     pub has_motion: bool,
 }
 
@@ -296,6 +306,7 @@ impl DevicePrimitives {
         Ok(p)
     }
 
+    /// Primitives of every type.
     pub fn count(&self) -> usize {
         self.n_tris + self.n_spheres + self.n_aabbs
     }
@@ -324,6 +335,7 @@ fn flat_boxes(boxes: &[Aabb]) -> Vec<f32> {
 pub struct AccelStructure {
     kind: AccelKind,
     storage: Storage,
+    /// The scene constants (root box, primitive counts, walk) the traversal binds.
     pub info: Buffer<SceneInfo>,
     /// Built to be updated (`ALLOW_UPDATE`).
     allow_update: bool,
@@ -361,14 +373,18 @@ enum Storage {
 /// A structure downloaded to the host (tests and tools).
 #[derive(Clone, Debug, PartialEq)]
 pub enum HostStructure {
+    /// A kd-tree's nodes and references.
     KdTree(KdTree),
+    /// A BVH, without the slots a leaf collapse removed (the rest renumbered).
     Bvh(Bvh),
 }
 
 /// A host structure to upload, borrowed ([`upload_structure`]).
 #[derive(Clone, Copy, Debug)]
 pub enum HostRef<'a> {
+    /// A kd-tree, walked as one.
     KdTree(&'a KdTree),
+    /// A BVH walked by its binary nodes.
     Bvh(&'a Bvh),
     /// A BVH walked wide: its binary nodes and its wide ones ([`Bvh::wide`]).
     WideBvh(&'a Bvh),
@@ -377,10 +393,13 @@ pub enum HostRef<'a> {
 /// What a kd-tree build recorded on the device reports once it has executed.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct KdBuilt {
+    /// Nodes written (1, the empty root, when the build overflowed or had no primitives).
     pub nodes: u32,
+    /// Primitive references written (0 when the build overflowed or had no primitives).
     pub refs: u32,
     /// The build ran out of capacity: the structure is an empty leaf (every ray misses).
     pub overflow: bool,
+    /// References the level that overflowed needed (what to grow the budget to).
     pub needed_refs: u32,
 }
 
@@ -423,6 +442,7 @@ impl AccelStructure {
         Ok((out, ids))
     }
 
+    /// The kind of structure this is.
     pub fn kind(&self) -> AccelKind {
         self.kind
     }
@@ -579,8 +599,11 @@ impl AccelStructure {
 
 /// Scratch of a build.
 pub enum AccelScratch {
+    /// The GPU kd-tree build's.
     KdTree(Box<BuildScratch>),
+    /// The LBVH build's (and its collapse's).
     Lbvh(Box<LbvhScratch>),
+    /// The PLOC build's (and its collapse's).
     Ploc(Box<PlocDeviceScratch>),
     /// The driver's builds and updates, for levels placed in a caller's memory.
     Driver(Buffer<u8>),
@@ -600,8 +623,12 @@ pub struct AccelBuilder {
     /// The SAH leaf collapse of the GPU builders' trees (LBVH, PLOC), with `bvh_params`'
     /// costs and leaf size (`max_leaf_prims = 1` keeps one primitive per leaf).
     collapse: Option<CollapseKernels>,
+    /// The kd-tree build's SAH costs and termination rules.
     pub kd_params: SahParams,
+    /// The BVH kinds' SAH costs and leaf size: the SAH builder's, and the GPU builders'
+    /// leaf collapse.
     pub bvh_params: BvhParams,
+    /// How the SAH BVH's host build uses threads (default: the node queue on every core).
     pub threading: Threading,
     /// What the driver's builder optimises for (the driver's structure).
     pub driver_prefer: Prefer,
@@ -696,6 +723,7 @@ impl AccelBuilder {
         })
     }
 
+    /// The kind of structure this builds.
     pub fn kind(&self) -> AccelKind {
         self.kind
     }

@@ -107,12 +107,16 @@ pub struct DriverAccel {
 /// over.
 #[derive(Clone, Copy, Debug)]
 pub struct DriverInput {
+    /// Triangles: the driver's triangle geometry (when static).
     pub n_tris: usize,
     /// Spheres and box primitives: boxes the kernels intersect.
     pub n_boxes: usize,
+    /// Whether any primitive moves: then every primitive is one box geometry over its
+    /// swept box.
     pub has_motion: bool,
     /// Device addresses of the triangle vertices and the primitive boxes (0 to size only).
     pub tri_verts: u64,
+    /// Device address of the primitive boxes (24 bytes each; 0 to size only).
     pub boxes: u64,
 }
 

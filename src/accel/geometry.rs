@@ -35,7 +35,9 @@ pub enum VertexFormat {
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 #[non_exhaustive]
 pub enum IndexType {
+    /// `VK_INDEX_TYPE_UINT16`: 2-byte indices.
     U16,
+    /// `VK_INDEX_TYPE_UINT32`: 4-byte indices.
     U32,
 }
 
@@ -57,7 +59,12 @@ pub enum GeometryData {
     Buffer(RawBuffer),
     /// `size` bytes at a device address (`VkDeviceOrHostAddressConstKHR`), read with
     /// `GL_EXT_buffer_reference`: no binding limit; needs `bufferDeviceAddress` enabled.
-    Address { address: u64, size: u64 },
+    Address {
+        /// The device address of the first byte.
+        address: u64,
+        /// Bytes from there.
+        size: u64,
+    },
 }
 
 impl From<RawBuffer> for GeometryData {
@@ -98,7 +105,10 @@ impl GeometryData {
 /// An index buffer: three entries per triangle, starting at the data's first byte.
 #[derive(Clone, Copy, Debug)]
 pub struct Indices {
+    /// The entries (offset or address a multiple of the entry size; in a buffer exactly
+    /// when the vertices are).
     pub data: GeometryData,
+    /// The size of each entry.
     pub index_type: IndexType,
 }
 
@@ -107,6 +117,7 @@ pub struct Indices {
 pub struct Triangles {
     /// The vertices; the first is at the data's first byte.
     pub vertices: GeometryData,
+    /// How each vertex's position is stored.
     pub format: VertexFormat,
     /// Bytes from one vertex to the next (a multiple of 4, at least 12).
     pub stride: u64,
@@ -114,6 +125,7 @@ pub struct Triangles {
     pub vertex_count: u32,
     /// `None`: vertices `3k, 3k + 1, 3k + 2` form triangle `k`.
     pub indices: Option<Indices>,
+    /// Triangles to read (0: the geometry is empty).
     pub triangle_count: u32,
     /// Row-major object-to-structure transform (`VkTransformMatrixKHR`), applied as the
     /// geometry is read.
@@ -160,9 +172,12 @@ impl Triangles {
 /// Spheres: a centre and a radius, four floats, `stride` bytes apart.
 #[derive(Clone, Copy, Debug)]
 pub struct Spheres {
+    /// The records; the first is at the data's first byte (offset or address a multiple
+    /// of 4).
     pub data: GeometryData,
     /// At least 16, a multiple of 4.
     pub stride: u64,
+    /// Spheres to read.
     pub count: u32,
     /// As for [`Triangles::opaque`].
     pub opaque: bool,
@@ -179,9 +194,12 @@ pub struct Spheres {
 /// Boxes do not move.
 #[derive(Clone, Copy, Debug)]
 pub struct Aabbs {
+    /// The records; the first is at the data's first byte (offset or address a multiple
+    /// of 4).
     pub data: GeometryData,
     /// At least 24, a multiple of 4.
     pub stride: u64,
+    /// Boxes to read.
     pub count: u32,
     /// As for [`Triangles::opaque`].
     pub opaque: bool,
@@ -191,8 +209,11 @@ pub struct Aabbs {
 #[derive(Clone, Copy, Debug)]
 #[non_exhaustive]
 pub enum Geometry {
+    /// Triangles, optionally indexed and transformed.
     Triangles(Triangles),
+    /// Spheres (centre and radius).
     Spheres(Spheres),
+    /// Axis-aligned boxes.
     Aabbs(Aabbs),
 }
 
@@ -212,8 +233,11 @@ impl Geometry {
 /// `traverse.glsl`'s order).
 #[derive(Clone, Debug, PartialEq, Eq)]
 pub struct GeometryLayout {
+    /// Triangles of every geometry (ids `0..n_tris`).
     pub n_tris: u32,
+    /// Spheres of every geometry (ids after the triangles).
     pub n_spheres: u32,
+    /// Boxes of every geometry (ids after the spheres).
     pub n_aabbs: u32,
     /// Per geometry: its first primitive id.
     pub first: Vec<u32>,
@@ -266,6 +290,7 @@ impl GeometryLayout {
         })
     }
 
+    /// Primitives of every geometry.
     pub fn primitive_count(&self) -> usize {
         (self.n_tris + self.n_spheres + self.n_aabbs) as usize
     }
@@ -537,6 +562,7 @@ pub struct GeometryGather {
 }
 
 impl GeometryGather {
+    /// Compiles the gather kernel.
     pub fn new(ctx: &Context) -> Result<Self> {
         Ok(Self {
             buffers: ctx.kernel(

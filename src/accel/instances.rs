@@ -65,7 +65,9 @@ pub const MAX_MOTION_STEPS: u32 = 129;
 /// step (Embree clamps the same way). [`InstanceMotion::STATIC`]: one step, no motion.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct InstanceMotion {
+    /// Transforms given per instance, 1 (no motion) to [`MAX_MOTION_STEPS`].
     pub steps: u32,
+    /// The times of the first and the last step (`time[1] > time[0]` when moving).
     pub time: [f32; 2],
 }
 
@@ -123,9 +125,13 @@ impl InstanceMotion {
 
 /// `VkGeometryInstanceFlagBitsKHR`.
 pub mod flags {
+    /// `VK_GEOMETRY_INSTANCE_TRIANGLE_FACING_CULL_DISABLE_BIT_KHR`: no face culling.
     pub const TRIANGLE_FACING_CULL_DISABLE: u8 = 0x1;
+    /// `VK_GEOMETRY_INSTANCE_TRIANGLE_FLIP_FACING_BIT_KHR`: front and back faces swapped.
     pub const TRIANGLE_FLIP_FACING: u8 = 0x2;
+    /// `VK_GEOMETRY_INSTANCE_FORCE_OPAQUE_BIT_KHR`: every geometry treated as opaque.
     pub const FORCE_OPAQUE: u8 = 0x4;
+    /// `VK_GEOMETRY_INSTANCE_FORCE_NO_OPAQUE_BIT_KHR`: every geometry treated as non-opaque.
     pub const FORCE_NO_OPAQUE: u8 = 0x8;
 }
 
@@ -191,26 +197,31 @@ impl Instance {
         self
     }
 
+    /// With visibility mask `mask` (a ray with cull mask `c` sees it where `mask & c != 0`).
     pub fn with_mask(mut self, mask: u8) -> Self {
         self.custom_index_and_mask =
             (self.custom_index_and_mask & 0x00ff_ffff) | (u32::from(mask) << 24);
         self
     }
 
+    /// With [`flags`] `flags` (bits of `VkGeometryInstanceFlagBitsKHR`).
     pub fn with_flags(mut self, flags: u8) -> Self {
         self.sbt_offset_and_flags =
             (self.sbt_offset_and_flags & 0x00ff_ffff) | (u32::from(flags) << 24);
         self
     }
 
+    /// The custom index a hit reports (24 bits).
     pub fn custom_index(&self) -> u32 {
         self.custom_index_and_mask & 0x00ff_ffff
     }
 
+    /// The 8-bit visibility mask.
     pub fn mask(&self) -> u8 {
         (self.custom_index_and_mask >> 24) as u8
     }
 
+    /// The [`flags`] bits.
     pub fn flags(&self) -> u8 {
         (self.sbt_offset_and_flags >> 24) as u8
     }
@@ -257,10 +268,12 @@ pub struct InstanceRecord {
 }
 
 impl InstanceRecord {
+    /// The bottom level's index in the top level's list.
     pub fn bottom(&self) -> u32 {
         self.flags_and_bottom >> 8
     }
 
+    /// The visibility mask (0: never hit).
     pub fn mask(&self) -> u32 {
         self.custom_index_and_mask >> 24
     }
@@ -488,8 +501,11 @@ pub fn object_ray(world_to_object: &[[f32; 4]; 3], r: &Ray, tmax: f32) -> Ray {
 /// the instance hit, and whether a walk ran out of steps (the answer is then a miss).
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct InstanceHit {
+    /// The closest hit ([`Hit::MISS`] for none); its `prim` is the bottom level's id.
     pub hit: Hit,
+    /// Index of the instance hit (`None`: a miss).
     pub instance: Option<u32>,
+    /// A bottom level's walk gave up: the answer is a miss.
     pub exhausted: bool,
 }
 
@@ -692,6 +708,7 @@ impl TopLevelBuilder {
         })
     }
 
+    /// The kind of the top level's tree ([`AccelKind::Lbvh`] or [`AccelKind::Ploc`]).
     pub fn kind(&self) -> AccelKind {
         self.tree.kind()
     }
@@ -1216,6 +1233,7 @@ impl TopLevel<'_> {
         boxes_geometry(GeometryData::Buffer(self.parts.boxes.as_raw()), self.count)
     }
 
+    /// Instances the top level was created for.
     pub fn instance_count(&self) -> u32 {
         self.count
     }
@@ -1309,6 +1327,8 @@ impl TopLevel<'_> {
 pub struct InstanceStatus(Readback<u32>);
 
 impl InstanceStatus {
+    /// The build's status: the instances counted invalid (never hit) in
+    /// `invalid_primitives`.
     pub fn read(self) -> Result<BuildStatus> {
         let words = self.0.read()?;
         Ok(BuildStatus {

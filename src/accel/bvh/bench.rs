@@ -9,17 +9,23 @@ use crate::scene::Aabb;
 /// One build: scene, SAH variant, scheme and thread count.
 #[derive(Clone, Debug, serde::Serialize)]
 pub struct BvhBenchRow {
+    /// The scene's name.
     pub scene: String,
+    /// Triangles in the scene.
     pub triangles: usize,
     /// `sweep` or `binned16`.
     pub sah: String,
+    /// The [`Threading`] scheme: `single`, `uneven`, `even`, `queue` or `rayon`.
     pub scheme: String,
+    /// Threads the scheme ran with (rayon's pool size for `rayon`).
     pub threads: usize,
     /// Best of the repetitions, wall time.
     pub build_ms: f64,
     /// The single-threaded build's time over this one's (same scene and SAH variant).
     pub speedup: f64,
+    /// SAH cost of the built tree ([`sah_cost`]).
     pub sah_cost: f64,
+    /// Nodes of the built tree.
     pub nodes: usize,
 }
 

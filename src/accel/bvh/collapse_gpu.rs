@@ -78,6 +78,7 @@ impl CollapseKernels {
         (4 * (5 * nodes + n_prims.max(1) + nodes)) as u64 + self.scan.scratch_bytes(nodes)
     }
 
+    /// Allocates the scratch of collapses of trees of up to `n_prims` primitives.
     pub fn scratch(&self, ctx: &Context, n_prims: usize) -> Result<CollapseScratch> {
         let nodes = n_prims.saturating_sub(1).max(1);
         Ok(CollapseScratch {

@@ -23,21 +23,38 @@ pub const MAX_TRAVERSAL_DEPTH: u32 = 128;
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct BvhNode {
+    /// Minimum corner of child `a`'s box.
     pub a_min: [f32; 3],
+    /// Child `a`'s node (interior), first reference (leaf) or [`NO_NODE`] (missing).
     pub a_index: u32,
+    /// Maximum corner of child `a`'s box.
     pub a_max: [f32; 3],
+    /// Child `a`'s reference count: 0 for an interior or missing child.
     pub a_count: u32,
+    /// Minimum corner of child `b`'s box.
     pub b_min: [f32; 3],
+    /// Child `b`'s node (interior), first reference (leaf) or [`NO_NODE`] (missing).
     pub b_index: u32,
+    /// Maximum corner of child `b`'s box.
     pub b_max: [f32; 3],
+    /// Child `b`'s reference count: 0 for an interior or missing child.
     pub b_count: u32,
 }
 
 /// One child of a node, as the builder and the validators see it.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub enum Child {
+    /// An interior node, by index into [`Bvh::nodes`].
     Node(u32),
-    Leaf { first: u32, count: u32 },
+    /// A leaf: `count` references from `first` on in [`Bvh::refs`].
+    Leaf {
+        /// Index of the leaf's first reference in [`Bvh::refs`].
+        first: u32,
+        /// Number of references (at least 1).
+        count: u32,
+    },
+    /// A missing child (`count == 0`, `index == NO_NODE`, an empty box): the second child
+    /// of a root that is a single leaf.
     None,
 }
 

@@ -41,6 +41,7 @@ pub struct LbvhScratch {
 }
 
 impl LbvhBuilder {
+    /// Compiles the kernels and the radix sort for Morton codes of `bits`.
     pub fn new(ctx: &Context, bits: MortonBits) -> Result<Self> {
         let spec = Spec::new().workgroup(WORKGROUP);
         Ok(Self {
@@ -57,6 +58,7 @@ impl LbvhBuilder {
         })
     }
 
+    /// The Morton code width the builder sorts by.
     pub fn bits(&self) -> MortonBits {
         self.bits
     }
@@ -66,6 +68,7 @@ impl LbvhBuilder {
         4 * (6 + 5 * n.max(1)) as u64 + self.sort.scratch_bytes(n.max(1))
     }
 
+    /// Allocates the scratch of builds of up to `n` primitives.
     pub fn scratch(&self, ctx: &Context, n: usize) -> Result<LbvhScratch> {
         Ok(LbvhScratch {
             max_n: n,

@@ -23,6 +23,7 @@ pub const DEFAULT_RADIUS: u32 = 8;
 /// PLOC's knobs.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash, serde::Serialize)]
 pub struct PlocParams {
+    /// Width of the Morton codes that order the initial clusters.
     pub bits: MortonBits,
     /// Clusters searched on each side.
     pub radius: u32,
@@ -65,7 +66,9 @@ pub const PAIRING_ROUNDS: u32 = 32;
 /// A cluster: what it is as a child, and its box.
 #[derive(Clone, Copy, Debug, PartialEq)]
 pub struct Cluster {
+    /// A single-primitive leaf, or the node a merge made.
     pub child: Child,
+    /// Box of everything under the cluster.
     pub bounds: Aabb,
 }
 

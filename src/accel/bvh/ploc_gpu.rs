@@ -47,6 +47,8 @@ pub struct PlocScratch {
 }
 
 impl PlocBuilder {
+    /// Compiles the kernels (the LBVH's Morton sort included) for `params`, in workgroups
+    /// of whole subgroups.
     pub fn new(ctx: &Context, params: PlocParams) -> Result<Self> {
         let radius = params.radius;
         // Workgroups of whole subgroups (ploc_merge's ranks are subgroup-major).
@@ -74,6 +76,7 @@ impl PlocBuilder {
         })
     }
 
+    /// The parameters the kernels were compiled for.
     pub fn params(&self) -> PlocParams {
         self.params
     }
@@ -90,6 +93,7 @@ impl PlocBuilder {
             + 4 * STATE_WORDS as u64
     }
 
+    /// Allocates the scratch of builds of up to `n` primitives.
     pub fn scratch(&self, ctx: &Context, n: usize) -> Result<PlocScratch> {
         let groups = n.div_ceil(self.workgroup as usize).max(1);
         Ok(PlocScratch {

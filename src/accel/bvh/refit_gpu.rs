@@ -41,6 +41,7 @@ impl RefitSchedule {
         4 * (n_nodes.max(1) + LEVEL_WORDS) as u64
     }
 
+    /// Allocates the schedule of a tree of `n_nodes` nodes.
     pub fn new(ctx: &Context, n_nodes: usize) -> Result<Self> {
         Ok(Self {
             order: Buffer::new(ctx, "accel.refit.order", n_nodes)?,
@@ -57,6 +58,7 @@ pub struct ScheduleScratch {
 }
 
 impl LevelRefit {
+    /// Compiles the schedule, scan and per-depth refit kernels and the depth sort.
     pub fn new(ctx: &Context) -> Result<Self> {
         let spec = Spec::new().workgroup(WORKGROUP);
         Ok(Self {

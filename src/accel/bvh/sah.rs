@@ -62,17 +62,21 @@ impl Default for BvhParams {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum Threading {
+    /// Plain recursion on the calling thread.
     Single,
     /// The bigger child gets the new thread and all cores but one; the other none.
     Uneven {
+        /// Threads in all, the calling one included (it starts `threads - 1`).
         threads: usize,
     },
     /// Free cores halved between the children.
     Even {
+        /// Threads in all, the calling one included (it starts `threads - 1`).
         threads: usize,
     },
     /// Shared node queue, switching to recursion (conditions 2 and 4 of the thesis).
     Queue {
+        /// Workers on the queue, the calling thread included.
         threads: usize,
     },
     /// `rayon::join` on every split above a size threshold.
@@ -103,14 +107,19 @@ impl Threading {
 /// Why a build was refused.
 #[derive(Debug, thiserror::Error, PartialEq)]
 pub enum BvhError {
+    /// [`BvhParams::bins`] is outside 8 to 256.
     #[error("bins = {0}: binned SAH takes 8 to 256 bins")]
     Bins(u32),
+    /// [`BvhParams::max_leaf_prims`] is 0.
     #[error("max_leaf_prims = 0: a leaf holds at least one primitive")]
     LeafSize,
+    /// A cost is not finite and positive (the traversal and intersection costs given).
     #[error("SAH costs must be finite and positive (traversal {0}, intersection {1})")]
     Costs(f32, f32),
+    /// A primitive's box (index, min, max) has a non-finite corner or `min > max` on an axis.
     #[error("primitive {0} has a box that is not finite (min {1}, max {2})")]
     BadBox(usize, Vec3, Vec3),
+    /// More than 2^31 primitives (the count).
     #[error("{0} primitives: the layout indexes at most 2^31")]
     TooMany(usize),
 }

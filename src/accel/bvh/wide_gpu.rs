@@ -16,6 +16,7 @@ pub struct Widen {
 }
 
 impl Widen {
+    /// Compiles `accel.bvh_widen`.
     pub fn new(ctx: &Context) -> Result<Self> {
         Ok(Self {
             kernel: ctx.kernel(&kernels::ACCEL_BVH_WIDEN, &Spec::new().workgroup(WORKGROUP))?,

@@ -37,16 +37,23 @@ use super::{Aabb, KdNode, KdTree, SahParams};
 
 /// Event type, also its sort rank at equal planes (END first).
 pub const END: u8 = 0;
+/// Event type of a primitive's box start (its minimum on the axis); sorts after [`END`].
 pub const START: u8 = 1;
 
 /// One axis list of events (SoA, as on the GPU).
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct Events {
+    /// The event's plane on this axis (its primitive's unclipped box minimum or maximum).
     pub plane: Vec<f32>,
+    /// [`START`] or [`END`].
     pub kind: Vec<u8>,
+    /// The primitive the event belongs to.
     pub prim: Vec<u32>,
+    /// The event's node: its index within the level being built.
     pub node: Vec<u32>,
+    /// Minimum corner of the primitive's box, clipped by its node's ancestors' split planes.
     pub box_min: [Vec<f32>; 3],
+    /// Maximum corner of the primitive's box, clipped by its node's ancestors' split planes.
     pub box_max: [Vec<f32>; 3],
 }
 
@@ -81,6 +88,7 @@ struct Level {
 /// Per-phase work counters of one build (what the GPU profile times).
 #[derive(Clone, Debug, Default, PartialEq, serde::Serialize)]
 pub struct BuildTrace {
+    /// Levels built (iterations of Phase II).
     pub levels: u32,
     /// Primitive references per level (events per axis / 2).
     pub refs_per_level: Vec<u32>,
@@ -435,6 +443,7 @@ fn argmin(costs: &[f32], first: u32) -> (f32, u32) {
 
 /// Clip-mask bits.
 pub const BELOW: u8 = 1;
+/// Clip-mask bit of an event that goes to the child above the plane.
 pub const ABOVE: u8 = 2;
 
 /// Which child (or both) each event goes to; 0 for events of leaves.

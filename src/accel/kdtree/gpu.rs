@@ -54,15 +54,19 @@ const ST_WORDS: usize = 32;
 
 /// One axis list of events on the GPU (SoA, as [`Events`]).
 pub struct GpuEvents {
+    /// Each event's plane ([`Events::plane`]).
     pub plane: Buffer<f32>,
     /// END = 0 / START = 1, one byte each.
     pub kind: Buffer<u8>,
+    /// Each event's primitive.
     pub prim: Buffer<u32>,
+    /// Each event's node, by index within the level being built.
     pub node: Buffer<u32>,
     /// The (clipped) primitive box of every event: six arrays of `capacity` floats
     /// (min x, y, z, max x, y, z), one buffer each so that each stays within
     /// `maxStorageBufferRange` (8 bytes per reference of a level instead of 48).
     pub boxes: [Buffer<f32>; 6],
+    /// Events every array holds.
     pub capacity: usize,
 }
 
@@ -177,17 +181,21 @@ impl BuildCapacity {
 /// Bytes a build needs, for an embedding renderer that allocates itself.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct BuildSizes {
+    /// Device scratch of the build (events, per-event and per-node arrays, scans).
     pub scratch_bytes: u64,
+    /// The output tree: 16 bytes per node and 4 per leaf reference of the capacity.
     pub tree_bytes: u64,
 }
 
 /// What [`KdTreeBuilder::build_from`] returns.
 pub struct BuildResult {
+    /// The built tree.
     pub tree: KdTree,
     /// GPU passes of the successful attempt.
     pub profile: Profile,
     /// 1 unless a capacity overflowed and the build was retried larger.
     pub attempts: u32,
+    /// The capacity of the successful attempt.
     pub capacity: BuildCapacity,
     /// Levels that had nodes.
     pub levels: u32,
@@ -196,8 +204,11 @@ pub struct BuildResult {
 /// The state read back after a build.
 #[derive(Clone, Copy, Debug, PartialEq, Eq, serde::Serialize)]
 pub struct BuildOutcome {
+    /// Nodes written (clamped to the capacity).
     pub nodes: u32,
+    /// Leaf references written (clamped to the capacity).
     pub refs: u32,
+    /// Levels that had nodes.
     pub levels: u32,
     /// A capacity was too small; the tree is incomplete.
     pub overflow: bool,
@@ -345,6 +356,7 @@ pub struct BuildOutput {
     /// (`nodes[1]` is a one-node buffer when the first holds the whole capacity).
     /// [`BuildOutput::download_nodes`] reads them back as one list.
     pub nodes: [Buffer<KdNode>; 2],
+    /// The leaves' primitive references.
     pub prim_refs: Buffer<u32>,
 }
 
@@ -366,6 +378,8 @@ impl BuildOutput {
 }
 
 impl KdTreeBuilder {
+    /// The builder with every optimisation on; errors where the device lacks
+    /// `storageBuffer8BitAccess` ([`KdTreeBuilder::require`]).
     pub fn new(ctx: &Context) -> Result<Self> {
         Self::with_ablation(ctx, Ablation::default())
     }
@@ -571,6 +585,7 @@ impl KdTreeBuilder {
         })
     }
 
+    /// Allocates the output of a build at `capacity` (nodes split over two buffers).
     pub fn output(&self, ctx: &Context, capacity: &BuildCapacity) -> Result<BuildOutput> {
         let per_buffer = self
             .max_nodes_per_buffer
@@ -1307,6 +1322,7 @@ impl KdTreeBuilder {
 /// What a host-side build reads: triangles (world space) or primitive boxes.
 #[derive(Clone, Copy, Debug)]
 pub enum BuildInput<'a> {
+    /// Triangles, three world-space vertices each.
     Triangles(&'a [[Vec3; 3]]),
     /// One box per primitive (spheres, moving primitives, any mix).
     Boxes(&'a [Aabb]),
@@ -1321,6 +1337,7 @@ impl BuildInput<'_> {
         }
     }
 
+    /// Whether there are no primitives.
     pub fn is_empty(&self) -> bool {
         self.len() == 0
     }

@@ -43,6 +43,8 @@ pub struct KdNode {
 }
 
 impl KdNode {
+    /// An inner node splitting at `split` on `axis`; its children are `first_child` (below)
+    /// and `first_child + 1` (above).
     pub fn inner(axis: u32, split: f32, first_child: u32) -> Self {
         Self {
             split,
@@ -52,6 +54,7 @@ impl KdNode {
         }
     }
 
+    /// A leaf of the `count` references from `first_ref` on in `prim_refs`.
     pub fn leaf(first_ref: u32, count: u32) -> Self {
         Self {
             split: 0.0,
@@ -61,6 +64,7 @@ impl KdNode {
         }
     }
 
+    /// Whether this is a leaf (`kind == LEAF`).
     pub fn is_leaf(&self) -> bool {
         self.kind == LEAF
     }
@@ -70,8 +74,11 @@ impl KdNode {
 /// the root box.
 #[derive(Clone, Debug, PartialEq)]
 pub struct KdTree {
+    /// The nodes in BFS order, root at 0.
     pub nodes: Vec<KdNode>,
+    /// Primitive ids; each leaf's references are contiguous.
     pub prim_refs: Vec<u32>,
+    /// Box of every primitive (empty when there are none).
     pub bounds: Aabb,
     /// Number of input primitives.
     pub primitives: u32,

@@ -24,6 +24,7 @@ pub const PHASES: [&str; 5] = [
 /// The JSON of `vkrt build --json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct BuildReport {
+    /// Input triangles.
     pub primitives: u32,
     /// GPU milliseconds of the whole build (timestamps), buffers warm: a second build into
     /// the same buffers, as a renderer rebuilding every frame sees it.
@@ -31,21 +32,34 @@ pub struct BuildReport {
     /// GPU milliseconds per phase, summed over the levels (levels past the last one with
     /// nodes are recorded too and dispatch nothing; their barriers still cost a little).
     pub phases: BTreeMap<String, f64>,
+    /// Levels that had nodes.
     pub levels: u32,
+    /// All nodes of the tree ([`KdStats::nodes`](stats::KdStats::nodes)).
     pub nodes: u32,
+    /// Leaves reachable from the root, empty ones included.
     pub leaves: u32,
+    /// Depth of the deepest node (root = 0).
     pub max_depth: u32,
+    /// SAH cost of the whole tree ([`stats`](mod@stats)).
     pub sah_cost: f64,
+    /// Leaf references (primitives counted once per leaf that holds them).
     pub references: u64,
+    /// Memory of the layout: 16 bytes per node plus 4 per reference.
     pub bytes: u64,
     /// Build attempts (more than 1 when a capacity overflowed and the build was retried).
     pub attempts: u32,
+    /// With the references: whether the CPU twin ([`breadth_first`]) built the same nodes
+    /// (split planes bit for bit) and references.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub equal_to_cpu_twin: Option<bool>,
+    /// With the references: host milliseconds of the CPU twin's build.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub cpu_twin_ms: Option<f64>,
+    /// With the references: SAH cost of the full-clipping build (Wald & Havran 2006,
+    /// [`full_clip`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub full_clip_sah_cost: Option<f64>,
+    /// With the references: host milliseconds of the full-clipping build.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub full_clip_ms: Option<f64>,
 }

@@ -6,8 +6,8 @@
 //! 1. `tree.primitives` equals the number of triangles; there is a root.
 //! 2. Layout: every `kind` is an axis or [`LEAF`]; inner nodes have `b = 0` and children
 //!    `a`, `a + 1` in range and after the parent; every node except the root is the child of
-//!    exactly one node; depths never decrease with the index (breadth-first order, as seed
-//!    001's level-by-level build and the GLSL traversal expect).
+//!    exactly one node; depths never decrease with the index (breadth-first order, as the
+//!    level-by-level GPU build (Kolodzey 2014) and the GLSL traversal expect).
 //! 3. Geometry of the splits: every plane is finite and inside its node's box (inclusive),
 //!    the boxes being derived top-down from `tree.bounds`. The two children then partition
 //!    the parent by construction of the layout.
@@ -43,68 +43,153 @@ use super::{Aabb, KdNode, KdTree, LEAF};
 /// Why a tree is invalid.
 #[derive(Clone, Debug, PartialEq, thiserror::Error)]
 pub enum ValidationError {
+    /// `tree.primitives` differs from the number of triangles given.
     #[error("the tree says {tree} primitives, but {triangles} triangles were given")]
-    PrimitiveCount { tree: u32, triangles: usize },
+    PrimitiveCount {
+        /// `tree.primitives`.
+        tree: u32,
+        /// Triangles given.
+        triangles: usize,
+    },
+    /// The tree has no root.
     #[error("the tree has no nodes (an empty tree is one empty leaf)")]
     NoNodes,
+    /// A node's `kind` is neither an axis nor [`LEAF`].
     #[error("node {node}: kind {kind} is neither an axis (0..=2) nor LEAF ({LEAF})")]
-    BadKind { node: u32, kind: u32 },
+    BadKind {
+        /// The node's index.
+        node: u32,
+        /// Its `kind`.
+        kind: u32,
+    },
+    /// An inner node's `b` is not 0.
     #[error("inner node {node}: `b` = {b}, must be 0")]
-    InnerB { node: u32, b: u32 },
+    InnerB {
+        /// The node's index.
+        node: u32,
+        /// Its `b`.
+        b: u32,
+    },
+    /// An inner node's children `a`, `a + 1` are not both nodes of the tree.
     #[error("inner node {node}: children {first} and {first} + 1 are out of range ({len} nodes)")]
-    ChildOutOfRange { node: u32, first: u32, len: usize },
-    #[error("inner node {node}: child {child} is not stored after its parent")]
-    ChildBeforeParent { node: u32, child: u32 },
-    #[error("node {node} is a child of both node {first_parent} and node {second_parent}")]
-    SharedChild {
+    ChildOutOfRange {
+        /// The node's index.
         node: u32,
-        first_parent: u32,
-        second_parent: u32,
-    },
-    #[error("node {node} is not the root and no node's child")]
-    Orphan { node: u32 },
-    #[error("node {node} (depth {depth}) follows node {previous} (depth {previous_depth}): not breadth-first")]
-    NotBreadthFirst {
-        node: u32,
-        depth: u32,
-        previous: u32,
-        previous_depth: u32,
-    },
-    #[error("inner node {node}: split {split} on axis {axis} is outside its box [{min}, {max}]")]
-    SplitOutsideBox {
-        node: u32,
-        axis: u32,
-        split: f32,
-        min: f32,
-        max: f32,
-    },
-    #[error("leaf {node}: references {first} .. {first} + {count} exceed prim_refs ({len})")]
-    LeafRange {
-        node: u32,
+        /// Its first child (`a`).
         first: u32,
-        count: u32,
+        /// Nodes in the tree.
         len: usize,
     },
+    /// An inner node's first child is stored at or before it.
+    #[error("inner node {node}: child {child} is not stored after its parent")]
+    ChildBeforeParent {
+        /// The node's index.
+        node: u32,
+        /// Its first child (`a`).
+        child: u32,
+    },
+    /// A node is the child of two inner nodes.
+    #[error("node {node} is a child of both node {first_parent} and node {second_parent}")]
+    SharedChild {
+        /// The child's index.
+        node: u32,
+        /// The first parent found (the lower index).
+        first_parent: u32,
+        /// The second parent found.
+        second_parent: u32,
+    },
+    /// A node other than the root is no node's child.
+    #[error("node {node} is not the root and no node's child")]
+    Orphan {
+        /// The node's index.
+        node: u32,
+    },
+    /// A node is shallower than the node stored before it: the order is not breadth-first.
+    #[error("node {node} (depth {depth}) follows node {previous} (depth {previous_depth}): not breadth-first")]
+    NotBreadthFirst {
+        /// The node's index.
+        node: u32,
+        /// Its depth (root = 0).
+        depth: u32,
+        /// The node stored before it (`node - 1`).
+        previous: u32,
+        /// That node's depth.
+        previous_depth: u32,
+    },
+    /// A split plane is not finite or lies outside its node's box (inclusive).
+    #[error("inner node {node}: split {split} on axis {axis} is outside its box [{min}, {max}]")]
+    SplitOutsideBox {
+        /// The node's index.
+        node: u32,
+        /// The split axis.
+        axis: u32,
+        /// The split plane's position.
+        split: f32,
+        /// The node box's minimum on the axis.
+        min: f32,
+        /// The node box's maximum on the axis.
+        max: f32,
+    },
+    /// A leaf's references run past the end of `prim_refs`.
+    #[error("leaf {node}: references {first} .. {first} + {count} exceed prim_refs ({len})")]
+    LeafRange {
+        /// The leaf's index.
+        node: u32,
+        /// Its first reference (`a`).
+        first: u32,
+        /// Its reference count (`b`).
+        count: u32,
+        /// Entries in `prim_refs`.
+        len: usize,
+    },
+    /// A leaf references a primitive that does not exist.
     #[error(
         "leaf {node}: prim_refs[{index}] = {prim} is not below the primitive count {primitives}"
     )]
     RefOutOfRange {
+        /// The leaf's index.
         node: u32,
+        /// The offending entry's index in `prim_refs`.
         index: usize,
+        /// The primitive it names.
         prim: u32,
+        /// `tree.primitives`.
         primitives: u32,
     },
+    /// A leaf references one primitive twice.
     #[error("leaf {node}: primitive {prim} is referenced twice")]
-    DuplicateRef { node: u32, prim: u32 },
+    DuplicateRef {
+        /// The leaf's index.
+        node: u32,
+        /// The primitive referenced twice.
+        prim: u32,
+    },
+    /// `tree.bounds` is not finite with `min <= max`, though a triangle is finite.
     #[error("tree bounds {min:?} .. {max:?} are not a finite box")]
-    BadBounds { min: [f32; 3], max: [f32; 3] },
+    BadBounds {
+        /// `tree.bounds.min`.
+        min: [f32; 3],
+        /// `tree.bounds.max`.
+        max: [f32; 3],
+    },
+    /// A triangle's vertex lies outside `tree.bounds`.
     #[error("primitive {prim}: vertex {vertex:?} lies outside the tree bounds")]
-    OutsideBounds { prim: u32, vertex: [f32; 3] },
+    OutsideBounds {
+        /// The triangle's index.
+        prim: u32,
+        /// The vertex outside.
+        vertex: [f32; 3],
+    },
+    /// A triangle reaches more than `ε` into a leaf's box, but the leaf does not reference it.
     #[error("primitive {prim} overlaps leaf {leaf} (box {min:?} .. {max:?}) but the leaf does not reference it")]
     MissingReference {
+        /// The triangle's index.
         prim: u32,
+        /// The leaf's index.
         leaf: u32,
+        /// Minimum corner of the leaf's box.
         min: [f32; 3],
+        /// Maximum corner of the leaf's box.
         max: [f32; 3],
     },
 }
