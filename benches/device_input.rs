@@ -59,8 +59,14 @@ struct Mesh {
 
 fn meshes(quick: bool) -> Vec<Mesh> {
     let mut out = Vec::new();
-    let bunny = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/scenes/stanford-bunny.obj");
+    // `$VKRT_MESH`, else the Stanford bunny beside the checkout.
+    let bunny = std::env::var_os("VKRT_MESH").map_or_else(
+        || {
+            std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+                .join("../shared/scenes/stanford-bunny.obj")
+        },
+        std::path::PathBuf::from,
+    );
     if bunny.exists() {
         let scene = vkrt::scene::Scene::load(&bunny).expect("the bunny").scene;
         let m = &scene.meshes[0];

@@ -13,7 +13,9 @@ use crate::gpu::{kernels, Buffer, Context, Profile, Recorder, Result, Spec};
 /// One timed variant of a copy.
 #[derive(Clone, Debug, Serialize)]
 pub struct CopyResult {
+    /// `vkCmdCopyBuffer`, or `copy_kernel.<granule>.wg<workgroup size>`.
     pub method: String,
+    /// Bytes copied (read, and as many written).
     pub bytes: u64,
     /// Best of the timed repetitions, milliseconds of GPU time.
     pub gpu_ms: f64,
@@ -26,10 +28,16 @@ pub struct CopyResult {
 /// The copy baselines for `bytes` bytes (rounded down to a multiple of 16).
 #[derive(Clone, Debug, Serialize)]
 pub struct CopyBaselines {
+    /// The device name the driver reports.
     pub device: String,
+    /// The device's default subgroup size (invocations).
     pub subgroup_size: u32,
+    /// Bytes each variant copies.
     pub bytes: u64,
+    /// Timed repetitions of each variant (after one untimed warm-up).
     pub repetitions: u32,
+    /// `vkCmdCopyBuffer` first, then each copy kernel the device can run at each workgroup
+    /// size it allows.
     pub results: Vec<CopyResult>,
 }
 
@@ -151,9 +159,13 @@ pub fn copy_baselines(ctx: &Context, bytes: u64, reps: u32) -> Result<(CopyBasel
 /// One row of `vkrt bench prims --json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct PrimResult {
+    /// The primitive's name (e.g. `scan_u32`, `compact_4_arrays`).
     pub prim: String,
+    /// Elements processed.
     pub n: u64,
+    /// GPU milliseconds of the primitive's passes (best of the repetitions).
     pub gpu_ms: f64,
+    /// `n` over `gpu_ms`, elements per second.
     pub elements_per_s: f64,
     /// Bytes the primitive must at least read plus write.
     pub min_bytes: u64,
@@ -170,8 +182,11 @@ pub struct PrimResult {
 /// `vkrt bench prims --json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct PrimsReport {
+    /// The device name the driver reports.
     pub device: String,
+    /// The device's default subgroup size (invocations).
     pub subgroup_size: u32,
+    /// One row per primitive and size.
     pub results: Vec<PrimResult>,
 }
 
@@ -252,17 +267,24 @@ pub fn prims_report(
 /// One row of `vkrt bench kdtree`.
 #[derive(Clone, Debug, Serialize)]
 pub struct KdBenchRow {
+    /// The scene's name (the mesh's, or an icosphere's).
     pub scene: String,
+    /// Triangles of the scene.
     pub primitives: u32,
     /// The build variant: `default`, or the one optimisation switched back to its baseline
     /// (Kolodzey's Table 6.2 ablation).
     pub variant: String,
+    /// GPU ms of the build (`kdtree.phase1` + `kdtree.phase2`), the fastest repetition.
     pub build_ms: f64,
     /// `build_ms` of this variant over `build_ms` of the default on the same scene, in the
     /// same run (> 1: the optimisation pays).
     pub ratio_to_default: f64,
+    /// GPU ms of each of Kolodzey's phases in the fastest build, by name without the
+    /// `kdtree.` prefix.
     pub phases: std::collections::BTreeMap<String, f64>,
+    /// Nodes of the built tree.
     pub nodes: u32,
+    /// The built tree's SAH cost.
     pub sah_cost: f64,
     /// Why the scene has no timing (e.g. its tree does not fit the device's buffer limit).
     #[serde(skip_serializing_if = "Option::is_none")]
@@ -272,8 +294,11 @@ pub struct KdBenchRow {
 /// `vkrt bench kdtree --json`.
 #[derive(Clone, Debug, Serialize)]
 pub struct KdBenchReport {
+    /// The device name the driver reports.
     pub device: String,
+    /// The SAH parameters and termination every build used.
     pub params: crate::accel::kdtree::SahParams,
+    /// One row per scene and variant.
     pub rows: Vec<KdBenchRow>,
     /// Least-squares slope of log(build_ms) over log(N), default builds of the icospheres:
     /// O(N log N) shows as slightly above 1.

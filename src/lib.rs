@@ -40,6 +40,8 @@
 
 #![deny(unsafe_code)]
 #![warn(unsafe_op_in_unsafe_fn, clippy::undocumented_unsafe_blocks)]
+// Every public item says what it is: CI builds with `-D warnings`.
+#![warn(missing_docs)]
 
 #[allow(
     unsafe_code,

@@ -22,11 +22,19 @@ pub fn context_and_peer() -> (vkrt::gpu::Context, Option<Embree>) {
     (ctx, embree)
 }
 
-/// The Stanford bunny (when ../shared/scenes has it; else a note), then icospheres of at
+/// The benches' mesh: `$VKRT_MESH`, else the Stanford bunny beside the checkout.
+pub fn bench_mesh() -> std::path::PathBuf {
+    std::env::var_os("VKRT_MESH").map_or_else(
+        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj"),
+        std::path::PathBuf::from,
+    )
+}
+
+/// The benches' mesh ([`bench_mesh`], when present; else a note), then icospheres of at
 /// least each of `sizes` triangles.
 pub fn bench_scenes(sizes: &[u64]) -> Vec<(String, Vec<[Vec3; 3]>)> {
     let mut scenes = Vec::new();
-    let bunny = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
+    let bunny = bench_mesh();
     if bunny.exists() {
         let s = vkrt::scene::Scene::load(&bunny)
             .expect("load the bunny")

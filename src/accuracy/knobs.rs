@@ -18,10 +18,15 @@ pub enum Build {
     /// By an [`AccelBuilder`] of `choice.kind` with these parameters (the device builders,
     /// the host SAH BVH, the driver's).
     Builder {
+        /// The structure kind and the walk kernels trace it with.
         choice: AccelChoice,
+        /// The kd-tree builder's SAH parameters and termination.
         kd: SahParams,
+        /// The SAH BVH builder's parameters.
         bvh: BvhParams,
+        /// The LBVH's Morton code bits (LBVH only).
         bits: MortonBits,
+        /// PLOC's parameters (PLOC only; `None`: its defaults).
         ploc: Option<PlocParams>,
     },
     /// The host kd-tree with full clipping (`accel::kdtree::full_clip`), uploaded: the
@@ -84,7 +89,9 @@ impl Build {
 /// A setting that builds a structure and traces rays through it.
 #[derive(Clone, Debug)]
 pub struct StructureSetting {
+    /// The setting's name in the report.
     pub label: String,
+    /// How the structure is made.
     pub build: Build,
     /// Intersector, fp64 fallback, short-stack size (the query is the ray set's).
     pub trace: TraceOptions,
@@ -96,32 +103,44 @@ pub struct StructureSetting {
 /// A setting of the renderer: samples per pixel and bounces.
 #[derive(Clone, Debug)]
 pub struct ImageSetting {
+    /// The setting's name in the report.
     pub label: String,
+    /// Samples per pixel.
     pub spp: u32,
+    /// Ray depth (bounces).
     pub depth: u32,
 }
 
 /// A setting of an animation: a BVH kind kept up to date by a refit or a rebuild.
 #[derive(Clone, Debug)]
 pub struct MotionSetting {
+    /// The setting's name in the report (`<kind> <update>`).
     pub label: String,
+    /// The BVH kind.
     pub kind: AccelKind,
+    /// Whether each frame refits or rebuilds it.
     pub update: Update,
 }
 
 /// What a group's settings are.
 #[derive(Clone, Debug)]
 pub enum Settings {
+    /// Structures built over the bunny and traced.
     Structures(Vec<StructureSetting>),
+    /// Renders of the image scenes, compared with their references.
     Images(Vec<ImageSetting>),
+    /// Animations of the dynamic demo.
     Motion(Vec<MotionSetting>),
 }
 
 /// A group of knobs, before measuring.
 #[derive(Clone, Debug)]
 pub struct GroupSpec {
+    /// Short id (`KnobGroup::id`).
     pub id: &'static str,
+    /// Human-readable title (`KnobGroup::title`).
     pub title: &'static str,
+    /// The settings to measure.
     pub settings: Settings,
 }
 
@@ -130,24 +149,30 @@ pub struct GroupSpec {
 pub struct Sizes {
     /// Width of the bunny's primary-ray image (square).
     pub ray_image: u32,
-    /// The image scenes' resolution.
+    /// The image scenes' width in pixels.
     pub width: u32,
+    /// The image scenes' height in pixels.
     pub height: u32,
     /// The reference's samples per pixel and depth.
     pub reference_spp: u32,
+    /// The reference's ray depth, also the structure and spp settings' depth.
     pub reference_depth: u32,
     /// Samples per pixel of the structure settings' images and of the depth group.
     pub test_spp: u32,
     /// Frames of the motion group, every `frame_step`-th of the animation.
     pub frames: u32,
+    /// Animation frames between two measured frames.
     pub frame_step: u32,
+    /// The motion group's render width in pixels.
     pub motion_width: u32,
+    /// The motion group's render height in pixels.
     pub motion_height: u32,
     /// Timed repetitions of builds and traces (the best is kept).
     pub reps: u32,
 }
 
 impl Sizes {
+    /// The sizes of a full run, or smaller ones with `quick`.
     pub fn new(quick: bool) -> Self {
         if quick {
             Self {

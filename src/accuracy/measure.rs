@@ -53,6 +53,8 @@ type BoxError = Box<dyn std::error::Error + Send + Sync>;
 /// What to run.
 #[derive(Clone, Debug)]
 pub struct AccuracyOptions {
+    /// A smaller run (`--quick`): fewer settings, smaller images, ray sets and hard cases,
+    /// one repetition.
     pub quick: bool,
     /// The mesh whose rays time the structures (default: the bunny in `../shared`, else an
     /// icosphere of as many triangles).
@@ -65,7 +67,7 @@ pub struct AccuracyOptions {
     pub command: String,
 }
 
-/// Triangles of the stand-in mesh when the bunny is absent (the bunny's count).
+/// Triangles of the stand-in mesh where no mesh is given (the Stanford bunny's count).
 const STAND_IN_TRIANGLES: u64 = 69_451;
 /// Triangles of the mesh pipelines are warmed up on.
 const WARM_UP_TRIANGLES: u64 = 320;
@@ -257,11 +259,11 @@ struct RayBench {
 
 impl RayBench {
     fn new(ctx: &Context, opt: &AccuracyOptions, sizes: &Sizes) -> Result<Self, BoxError> {
-        let (name, triangles) = match opt.mesh.clone().or_else(scenes::shared_bunny) {
+        let (name, triangles) = match opt.mesh.clone().or_else(scenes::default_mesh) {
             Some(path) => scenes::mesh_triangles(&path)?,
             None => {
                 let (name, tris) = scenes::icosphere_triangles(STAND_IN_TRIANGLES)?;
-                (format!("{name} (the bunny is absent)"), tris)
+                (format!("{name} (no mesh given)"), tris)
             }
         };
         let scene = BenchScene::from_triangles(name, &triangles);

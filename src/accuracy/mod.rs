@@ -28,20 +28,25 @@ use serde::Serialize;
 pub struct AccuracyReport {
     /// The device and its driver (name, version) as Vulkan reports them.
     pub device: String,
+    /// The driver's name and info string.
     pub driver: String,
     /// The command line that produced the report.
     pub command: String,
+    /// Whether the run was `--quick` (fewer settings, smaller sizes).
     pub quick: bool,
     /// Wall seconds of the whole run.
     pub wall_s: f64,
     /// The mesh whose rays time the structures, and how many rays of each kind.
     pub mesh: String,
+    /// Rays of each kind traced through every structure setting.
     pub rays: RayCountsInfo,
     /// The robustness suite's sizes used for the hard cases (human-readable).
     pub hard_cases: String,
     /// The scenes images were compared on, with their references.
     pub image_scenes: Vec<ImageScene>,
+    /// The knob groups, each with its measured settings and Pareto front.
     pub groups: Vec<KnobGroup>,
+    /// The setting each use should pick in each group it matters for.
     pub recommendations: Vec<Recommendation>,
     /// What the run left out and why (e.g. the driver's structures without ray query).
     pub notes: Vec<String>,
@@ -50,19 +55,26 @@ pub struct AccuracyReport {
 /// How many rays of each kind time a structure.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct RayCountsInfo {
+    /// Primary rays (closest hit), one per pixel of the square ray image.
     pub primary: usize,
+    /// Shadow rays from the primary hits (any hit).
     pub shadow: usize,
+    /// Mirror rays from the primary hits (closest hit).
     pub secondary: usize,
 }
 
 /// A scene images are compared on.
 #[derive(Clone, Debug, Serialize)]
 pub struct ImageScene {
+    /// `default` or the effect scene's file stem.
     pub name: String,
+    /// Image width in pixels.
     pub width: u32,
+    /// Image height in pixels.
     pub height: u32,
     /// The reference: this many samples per pixel, ray depth, on the watertight kd-tree.
     pub reference_spp: u32,
+    /// The reference's ray depth (bounces).
     pub reference_depth: u32,
     /// The reference image's file in the report folder.
     pub reference_file: String,
@@ -74,14 +86,17 @@ pub struct KnobGroup {
     /// Short id (`structure`, `kd-termination`, `bvh-leaf`, `traversal`, `intersector`,
     /// `spp`, `depth`, `refit`).
     pub id: String,
+    /// Human-readable title (the plots' and recommendations' group name).
     pub title: String,
-    /// What `Point::time_ms` is, and what `Point::error` is.
+    /// What `Point::time_ms` is.
     pub time_axis: String,
+    /// What `Point::error` is.
     pub error_axis: String,
     /// The error a preview tolerates on this group's axis (see [`pareto`]).
     pub preview_error_max: f64,
     /// Which uses the group's knobs matter for (names of [`pareto::USES`]).
     pub uses: Vec<String>,
+    /// The group's settings, measured, in the order they were run.
     pub points: Vec<Point>,
     /// Indices into `points` on the Pareto front, fastest first.
     pub front: Vec<usize>,
@@ -90,16 +105,21 @@ pub struct KnobGroup {
 /// One setting of a group, measured.
 #[derive(Clone, Debug, Serialize)]
 pub struct Point {
+    /// The setting's label.
     pub setting: String,
     /// The group's time axis, milliseconds.
     pub time_ms: f64,
     /// The group's error axis.
     pub error: f64,
+    /// What the setting costs, measured.
     pub costs: Costs,
+    /// How wrong the setting is, measured.
     pub accuracy: Accuracy,
     /// What each use pays, where that is not `time_ms` (see [`UseTimes`]).
     #[serde(skip_serializing_if = "Option::is_none")]
     pub use_times: Option<UseTimes>,
+    /// Remarks on the measurement: what was left out (e.g. the driver's opaque structure has
+    /// no SAH cost), rays out of traversal steps, or the motion group's frames and resolution.
     #[serde(skip_serializing_if = "Option::is_none")]
     pub note: Option<String>,
 }
@@ -111,8 +131,11 @@ pub struct Point {
 /// once, so their cost is the trace alone. The recommendations rank by these.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct UseTimes {
+    /// Interactive preview: `build + trace`, ms.
     pub preview_ms: f64,
+    /// Final frame: `build + 256·trace`, ms.
     pub final_frame_ms: f64,
+    /// Physics/visibility queries: `trace`, ms.
     pub queries_ms: f64,
 }
 
@@ -121,6 +144,8 @@ pub struct UseTimes {
 pub const FINAL_FRAME_TRACES: f64 = 256.0;
 
 impl UseTimes {
+    /// The use times of a setting that builds in `build_ms` and traces the bench's rays in
+    /// `trace_ms`.
     pub fn new(build_ms: f64, trace_ms: f64) -> Self {
         Self {
             preview_ms: build_ms + trace_ms,
@@ -159,12 +184,16 @@ pub struct Costs {
 /// GPU trace ms of one ray set each.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct TraceMs {
+    /// Primary rays (closest hit), ms.
     pub primary: f64,
+    /// Shadow rays (any hit), ms.
     pub shadow: f64,
+    /// Mirror rays (closest hit), ms.
     pub secondary: f64,
 }
 
 impl TraceMs {
+    /// The three ray sets' ms, summed.
     pub fn total(&self) -> f64 {
         self.primary + self.shadow + self.secondary
     }
@@ -187,6 +216,7 @@ pub struct Accuracy {
 /// Failures on the hard cases, by kind.
 #[derive(Clone, Copy, Debug, Default, Serialize)]
 pub struct HardCases {
+    /// Rays traced over all the hard cases.
     pub rays: u64,
     /// Rays that should hit and missed (watertightness).
     pub misses: u64,
@@ -199,6 +229,7 @@ pub struct HardCases {
 }
 
 impl HardCases {
+    /// All failures: misses, self-hits, wrong hits and errors.
     pub fn failures(&self) -> u64 {
         self.misses + self.self_hits + self.wrong_hits + self.errors
     }
@@ -207,7 +238,9 @@ impl HardCases {
 /// One image against its reference, on display values (tone-mapped sRGB in [0, 1]).
 #[derive(Clone, Debug, Serialize)]
 pub struct ImageError {
+    /// The compared scene's name (`ImageScene::name`).
     pub scene: String,
+    /// Root-mean-square difference over every pixel's RGB channels.
     pub rmse: f64,
     /// The largest channel difference of any pixel.
     pub worst: f64,
@@ -220,15 +253,22 @@ pub struct ImageError {
 pub struct Recommendation {
     /// One of [`pareto::USES`].
     pub use_case: String,
+    /// The group's title.
     pub group: String,
+    /// The recommended setting's label.
     pub setting: String,
+    /// A sentence built from the measured numbers that says why.
     pub why: String,
 }
 
 /// An image the report writes: `file` in the report folder, 8-bit sRGB RGBA.
 pub struct ImageFile {
+    /// Path relative to the report folder (`images/<scene>/<name>.png`).
     pub file: String,
+    /// Width in pixels.
     pub width: u32,
+    /// Height in pixels.
     pub height: u32,
+    /// The pixels, row by row, 4 bytes each.
     pub rgba: Vec<u8>,
 }

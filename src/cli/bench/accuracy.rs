@@ -18,12 +18,14 @@ pub struct AccuracyArgs {
     // `--out` was the flag's name before every command's output was `-o/--output`.
     #[arg(short, long, alias = "out", default_value = "accuracy-report")]
     output: PathBuf,
-    /// Mesh whose rays time the structures (default: ../shared/scenes/stanford-bunny.obj
-    /// when present, else an icosphere of as many triangles).
+    /// Mesh whose rays time the structures (default: $VKRT_MESH, else an icosphere of the
+    /// bunny's size; `./x` sets it to the Stanford bunny in ../shared/scenes where that is
+    /// present).
     #[arg(long)]
     mesh: Option<PathBuf>,
-    /// Folder of the effect scenes.
-    #[arg(long, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes"))]
+    /// Folder of the effect scenes (default: `scenes` in the current directory: the
+    /// checkout's, run from there).
+    #[arg(long, default_value = "scenes")]
     scenes: PathBuf,
 }
 

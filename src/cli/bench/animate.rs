@@ -20,8 +20,9 @@ use crate::cli::common::{check_resolution, context, load_scene, CliResult};
 
 #[derive(Args)]
 pub struct BenchAnimateArgs {
-    /// The animated scene (default: scenes/dynamic_demo.toml).
-    #[arg(default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes/dynamic_demo.toml"))]
+    /// The animated scene (default: scenes/dynamic_demo.toml in the current directory: the
+    /// checkout's, run from there).
+    #[arg(default_value = "scenes/dynamic_demo.toml")]
     scene: PathBuf,
     /// Frames rendered per run.
     #[arg(long, default_value_t = 8)]

@@ -16,7 +16,8 @@ pub struct BvhArgs {
     /// Timed repetitions (the best is reported).
     #[arg(long, default_value_t = 3)]
     reps: u32,
-    /// Mesh to include (default: ../shared/scenes/stanford-bunny.obj when present).
+    /// Mesh to include (default: $VKRT_MESH; `./x` sets it to the Stanford bunny in
+    /// ../shared/scenes where that is present).
     #[arg(long)]
     mesh: Option<PathBuf>,
     #[arg(long)]

@@ -26,7 +26,8 @@ pub struct KdtreeArgs {
     /// trees than the default leaves of at most 2 primitives).
     #[arg(long)]
     kolodzey_termination: bool,
-    /// Mesh to include (default: ../shared/scenes/stanford-bunny.obj when present).
+    /// Mesh to include (default: $VKRT_MESH; `./x` sets it to the Stanford bunny in
+    /// ../shared/scenes where that is present).
     #[arg(long)]
     mesh: Option<PathBuf>,
     #[arg(long)]

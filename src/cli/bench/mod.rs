@@ -79,12 +79,12 @@ pub fn run(what: BenchCommand, validate: bool) -> CliResult<()> {
 /// Named triangle lists.
 type Meshes = Vec<(String, Vec<[glam::Vec3; 3]>)>;
 
-/// The meshes a build benchmark runs over: `mesh` (default: the bunny in ../shared when
-/// present), then icospheres of 100 K, 200 K, 500 K, 1 M and 2 M triangles up to `max_n`.
+/// The meshes a build benchmark runs over: `mesh` (default: `$VKRT_MESH`, see
+/// [`vkrt::trace::bench::scenes::default_mesh`]), then icospheres of 100 K, 200 K, 500 K, 1 M and 2 M triangles up to `max_n`.
 fn bench_scenes(mesh: Option<PathBuf>, max_n: u64) -> CliResult<Meshes> {
     use vkrt::trace::bench::scenes;
     let mut list = Vec::new();
-    if let Some(path) = mesh.or_else(scenes::shared_bunny) {
+    if let Some(path) = mesh.or_else(scenes::default_mesh) {
         list.push(scenes::mesh_triangles(&path)?);
     }
     for n in [100_000u64, 200_000, 500_000, 1_000_000, 2_000_000] {

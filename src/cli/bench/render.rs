@@ -9,8 +9,9 @@ use crate::cli::common::{accel_traversal, context, AccelArg, CliResult, Traversa
 
 #[derive(Args)]
 pub struct BenchRenderArgs {
-    /// Folder of the example scenes.
-    #[arg(long, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes"))]
+    /// Folder of the example scenes (default: `scenes` in the current directory: the
+    /// checkout's, run from there).
+    #[arg(long, default_value = "scenes")]
     scenes: PathBuf,
     #[arg(long, default_value_t = 256)]
     width: u32,

@@ -18,12 +18,13 @@ pub struct BenchTraceArgs {
     /// Triangles of the icosphere (default 500000; 10000 with --quick).
     #[arg(long)]
     max_n: Option<u64>,
-    /// Mesh to include (default: ../shared/scenes/stanford-bunny.obj when present, except
-    /// with --quick).
+    /// Mesh to include (default: $VKRT_MESH, except with --quick; `./x` sets it to the
+    /// Stanford bunny in ../shared/scenes where that is present).
     #[arg(long)]
     mesh: Option<PathBuf>,
-    /// Folder of the example scenes (every .toml in it).
-    #[arg(long, default_value = concat!(env!("CARGO_MANIFEST_DIR"), "/scenes"))]
+    /// Folder of the example scenes, every .toml in it (default: `scenes` in the current
+    /// directory: the checkout's, run from there).
+    #[arg(long, default_value = "scenes")]
     scenes: PathBuf,
     /// The integration test's run: 64-pixel-wide images, the example scenes and a 10 K
     /// icosphere, one repetition.
@@ -38,7 +39,7 @@ pub fn run(args: &BenchTraceArgs, validate: bool) -> CliResult<()> {
     use vkrt::trace::bench::{self, scenes, BenchOptions};
     let quick = args.quick;
     let mut list = Vec::new();
-    let default_mesh = scenes::shared_bunny().filter(|_| !quick);
+    let default_mesh = scenes::default_mesh().filter(|_| !quick);
     if let Some(path) = args.mesh.clone().or(default_mesh) {
         list.push(scenes::mesh(&path)?);
     }

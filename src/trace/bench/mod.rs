@@ -65,28 +65,38 @@ pub enum Backend {
 /// Everything one run measured.
 #[derive(Clone, Debug, Serialize)]
 pub struct TraceBenchReport {
+    /// The device name the driver reports.
     pub device: String,
     /// Whether the device has the driver's ray tracing (else no `driver` rows).
     pub ray_query: bool,
     /// Why the driver's rows are missing (`None` where they are present).
     pub driver_note: Option<String>,
+    /// Width of the camera image in pixels ([`BenchOptions::size`]).
     pub size: u32,
+    /// Repetitions of each build and trace (at least 1); the best is reported.
     pub reps: u32,
+    /// One report per scene, in the order measured.
     pub scenes: Vec<SceneReport>,
 }
 
 /// One scene: its builds and its three ray sets.
 #[derive(Clone, Debug, Serialize)]
 pub struct SceneReport {
+    /// The scene's name.
     pub name: String,
+    /// Triangles of the scene's geometry.
     pub triangles: usize,
+    /// Spheres of the scene's geometry.
     pub spheres: usize,
     /// The camera image (`width` × `height` primary rays).
     pub width: u32,
+    /// The camera image's height in pixels.
     pub height: u32,
     /// Where the shadow rays go.
     pub light: String,
+    /// One row per structure built: vkrt's, the driver's, obvhs's.
     pub builds: Vec<BuildRow>,
+    /// The primary, shadow and mirror ray sets, in that order.
     pub ray_sets: Vec<RaySetReport>,
 }
 
@@ -95,6 +105,7 @@ pub struct SceneReport {
 pub struct BuildRow {
     /// `kdtree`, `sah-bvh`, `driver/fast-build`, `obvhs`, ...
     pub structure: String,
+    /// Who built it.
     pub backend: Backend,
     /// Best of the repetitions, milliseconds.
     pub ms: f64,
@@ -103,10 +114,13 @@ pub struct BuildRow {
 /// One ray set on one scene, one row per structure and walk.
 #[derive(Clone, Debug, Serialize)]
 pub struct RaySetReport {
+    /// Which rays.
     pub kind: RayKind,
     /// `closest` or `any`.
     pub query: &'static str,
+    /// Rays in the set.
     pub rays: usize,
+    /// One row per structure and walk; the first is the reference of the hit comparisons.
     pub rows: Vec<TraceRow>,
     /// Every row of vkrt's own structures found as many hits as the first.
     pub vkrt_hits_agree: bool,
@@ -117,6 +131,7 @@ pub struct RaySetReport {
 pub struct TraceRow {
     /// [`AccelChoice::label`], or the peer's name.
     pub structure: String,
+    /// Who traced it.
     pub backend: Backend,
     /// The structure's build, milliseconds (shared by the walks of one structure).
     pub build_ms: f64,
@@ -124,6 +139,7 @@ pub struct TraceRow {
     pub trace_ms: f64,
     /// Rays / trace time, millions per second (0 for no rays).
     pub mrays_per_s: f64,
+    /// Rays that hit something (closest hit: found one; any hit: blocked).
     pub hits: usize,
     /// Whether this row traced the same primitives as the first (a peer without spheres
     /// does not, on a scene with spheres).
@@ -132,6 +148,7 @@ pub struct TraceRow {
     pub hits_vs_first: Option<i64>,
     /// `mrays_per_s` over the `driver` row's (`None` without one).
     pub over_driver: Option<f64>,
+    /// What sets the row apart (e.g. rays out of traversal steps, a peer's triangles only).
     pub note: Option<String>,
 }
 

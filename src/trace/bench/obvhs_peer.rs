@@ -16,6 +16,7 @@ fn v34(v: [f32; 3]) -> glam034::Vec3A {
     glam034::Vec3A::new(v[0], v[1], v[2])
 }
 
+/// obvhs's BVH over a scene's triangles, built and traced on the CPU (see the module docs).
 pub struct ObvhsPeer {
     tris: Vec<Triangle>,
     bvh: Bvh2,

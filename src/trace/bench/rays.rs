@@ -29,11 +29,15 @@ pub enum ShadowTarget {
 /// One scene of the benchmark: static geometry, a camera and where shadow rays go.
 #[derive(Clone, Debug)]
 pub struct BenchScene {
+    /// The scene's name in the report.
     pub name: String,
+    /// The static geometry every structure is built over.
     pub geometry: TraceGeometry,
+    /// The camera the primary rays leave.
     pub camera: Camera,
     /// Image height over width (the primary rays are `size` × `size · aspect`).
     pub aspect: f32,
+    /// Where the shadow rays go.
     pub shadow: ShadowTarget,
     /// Where `shadow` comes from ("point light", "no light: above the scene", ...).
     pub light: String,
@@ -43,14 +47,19 @@ pub struct BenchScene {
 #[derive(Clone, Copy, Debug, PartialEq, Eq, Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum RayKind {
+    /// From the camera through each pixel's centre (closest hit).
     Primary,
+    /// From each primary hit towards the light (any hit).
     Shadow,
+    /// The mirror reflection at each primary hit (closest hit).
     Mirror,
 }
 
 impl RayKind {
+    /// Every kind, in the order traced (the others start from the primary hits).
     pub const ALL: [RayKind; 3] = [RayKind::Primary, RayKind::Shadow, RayKind::Mirror];
 
+    /// `primary`, `shadow` or `mirror`, as reports print it.
     pub fn name(self) -> &'static str {
         match self {
             RayKind::Primary => "primary",
@@ -71,7 +80,9 @@ impl RayKind {
 /// The rays of one kind on one scene (kept so a caller can give the same rays to a peer).
 #[derive(Clone, Debug)]
 pub struct RaySet {
+    /// Which rays.
     pub kind: RayKind,
+    /// The rays, in the order traced.
     pub rays: Vec<Ray>,
 }
 

@@ -8,11 +8,23 @@ use glam::Vec3;
 use super::BenchScene;
 use crate::scene::{Scene, SceneError};
 
-/// The Stanford bunny in `../shared/scenes` beside the checkout, where it is present: the
-/// benchmarks' default mesh.
-pub fn shared_bunny() -> Option<PathBuf> {
-    let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj");
-    path.exists().then_some(path)
+/// The benchmarks' default mesh: the file `$VKRT_MESH` names (`./x` sets it to the Stanford
+/// bunny beside the checkout, where that is present). `None`, with a warning, where it is
+/// unset or names no file: the benchmarks then use generated meshes.
+pub fn default_mesh() -> Option<PathBuf> {
+    let Some(path) = std::env::var_os("VKRT_MESH").map(PathBuf::from) else {
+        log::warn!("no mesh given (--mesh or VKRT_MESH): generated meshes only");
+        return None;
+    };
+    if path.is_file() {
+        Some(path)
+    } else {
+        log::warn!(
+            "VKRT_MESH names no file ({}): generated meshes only",
+            path.display()
+        );
+        None
+    }
 }
 
 /// Every `*.toml` file in `dir`, in file-name order.
