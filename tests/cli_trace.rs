@@ -160,12 +160,15 @@ fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
             "bottom_bytes",
             "bottom_levels",
             "instances",
+            "rest_pieces",
             "top_build_ms",
             "top_bytes",
             "unique_primitives",
         ]);
         want.sort();
         assert!(v["instances"].as_u64().unwrap() >= 2, "{v}");
+        // (a scene this small is one piece)
+        assert_eq!(v["rest_pieces"], 1, "{v}");
         assert!(v["top_bytes"].as_u64().unwrap() > 0, "{v}");
         assert!(
             v["unique_primitives"].as_u64().unwrap() < g.primitive_count() as u64,
