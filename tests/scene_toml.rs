@@ -779,6 +779,22 @@ fn a_repeated_mesh_is_held_once_and_counted_once() {
     ] {
         assert!(msg.contains(needle), "`{needle}` not in: {msg}");
     }
+    // An OBJ file named again is read once and shared, with or without a material of the
+    // entry's own.
+    let mut files = MemoryFiles::new();
+    files.insert(
+        "mem/quad.obj",
+        "v 0 0 0\nv 1 0 0\nv 1 1 0\nv 0 1 0\nf 1 2 3\nf 1 3 4\n",
+    );
+    let quads = "\n[[meshes]]\npath = \"quad.obj\"\nmaterial = \"red\"\n\n[[meshes]]\npath = \"quad.obj\"\n";
+    let loaded =
+        Scene::from_toml_str_with(&format!("{MINIMAL}{quads}{quads}"), name, &files, &limits)
+            .unwrap();
+    let meshes = &loaded.scene.meshes;
+    assert_eq!(meshes.len(), 4);
+    for m in &meshes[1..] {
+        assert!(std::sync::Arc::ptr_eq(&m.indices, &meshes[0].indices));
+    }
 }
 
 #[test]

@@ -265,7 +265,7 @@ impl Builder<'_> {
         }
 
         let mut meshes = Vec::with_capacity(def.meshes.len());
-        let mut obj_cache: HashMap<PathBuf, Mesh> = HashMap::new();
+        let mut obj_cache: HashMap<PathBuf, CachedObj> = HashMap::new();
         let mut generated: HashMap<String, Mesh> = HashMap::new();
         let mut held = HashSet::new();
         let (mut total_triangles, mut instanced_triangles) = (0u64, 0u64);
@@ -440,7 +440,7 @@ impl Builder<'_> {
         k: &str,
         m: &MeshDef,
         materials: &mut Vec<Material>,
-        cache: &mut HashMap<PathBuf, Mesh>,
+        cache: &mut HashMap<PathBuf, CachedObj>,
         warnings: &mut Vec<String>,
     ) -> Result<Mesh, SceneError> {
         for (present, name) in [
@@ -472,29 +472,37 @@ impl Builder<'_> {
                 format!("`{rel}`: mesh files must be Wavefront .obj"),
             ));
         }
-        // Named again: the same mesh, shared (its materials already offset).
-        if let Some(mesh) = cache.get(&full) {
-            return Ok(mesh.clone());
-        }
-        let text = self.files.read_text(&full, self.limits.max_file_bytes)?;
-        let loaded = obj::parse_obj_str(&text, &full, self.files, self.limits)?;
-        warnings.extend(loaded.warnings);
-        let offset = materials.len() as MaterialId;
-        let mut mesh = loaded.mesh;
-        if m.material.is_none() {
-            if materials.len() as u64 + loaded.materials.len() as u64 > self.limits.max_materials {
-                return Err(SceneError::TooLarge {
-                    origin: key(format!("{k}.path")),
-                    what: "material",
-                    count: materials.len() as u64 + loaded.materials.len() as u64,
-                    limit: self.limits.max_materials,
-                });
+        // Read once; named again, the same mesh, shared, whatever each entry's material.
+        let cached = match cache.entry(full) {
+            std::collections::hash_map::Entry::Occupied(e) => e.into_mut(),
+            std::collections::hash_map::Entry::Vacant(e) => {
+                let text = self.files.read_text(e.key(), self.limits.max_file_bytes)?;
+                let loaded = obj::parse_obj_str(&text, e.key(), self.files, self.limits)?;
+                warnings.extend(loaded.warnings);
+                e.insert(CachedObj {
+                    mesh: loaded.mesh,
+                    own_materials: Some(loaded.materials),
+                })
             }
-            materials.extend(loaded.materials);
-            offset_materials(&mut mesh, offset);
-            cache.insert(full, mesh.clone());
+        };
+        // The file's own materials join the scene's the first time an entry uses them.
+        if m.material.is_none() {
+            if let Some(own) = cached.own_materials.take() {
+                let count = materials.len() as u64 + own.len() as u64;
+                if count > self.limits.max_materials {
+                    return Err(SceneError::TooLarge {
+                        origin: key(format!("{k}.path")),
+                        what: "material",
+                        count,
+                        limit: self.limits.max_materials,
+                    });
+                }
+                let offset = materials.len() as MaterialId;
+                materials.extend(own);
+                offset_materials(&mut cached.mesh, offset);
+            }
         }
-        Ok(mesh)
+        Ok(cached.mesh.clone())
     }
 
     fn generated_mesh(
@@ -594,6 +602,13 @@ impl Builder<'_> {
             e
         })
     }
+}
+
+/// An OBJ file a scene names: its mesh, and its own materials until an entry without a
+/// `material` of its own appends them to the scene's (then the mesh's ids are offset).
+struct CachedObj {
+    mesh: Mesh,
+    own_materials: Option<Vec<Material>>,
 }
 
 /// What makes two generated meshes equal: the generator and every parameter.
