@@ -14,9 +14,9 @@ mod embree;
 
 use vkrt::accel::bvh::bench::bench;
 use vkrt::accel::device::{AccelBuilder, AccelKind};
+use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::primitives::TraceGeometry;
 use vkrt::gpu::Recorder;
-use vkrt::trace::gpu::GpuGeometry;
-use vkrt::trace::TraceGeometry;
 
 #[path = "common/args.rs"]
 mod args;

@@ -28,10 +28,11 @@ use glam::Vec3;
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::embedded::BuildFlags;
 use vkrt::accel::geometry::{Geometry, IndexType, Triangles};
+use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::primitives::TraceGeometry;
 use vkrt::gpu::{kernels, BufferArg, Spec};
 use vkrt::gpu::{Buffer, Context, ContextOptions, Recorder};
-use vkrt::trace::gpu::GpuGeometry;
-use vkrt::trace::{Ray, TraceGeometry};
+use vkrt::trace::Ray;
 
 #[derive(serde::Serialize)]
 struct Row {

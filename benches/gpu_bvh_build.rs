@@ -21,9 +21,9 @@ use vkrt::accel::bvh::lbvh::MortonBits;
 use vkrt::accel::bvh::ploc::PlocParams;
 use vkrt::accel::bvh::{self, validate, BvhParams, Threading};
 use vkrt::accel::device::{AccelBuilder, AccelKind, HostStructure};
+use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::primitives::TraceGeometry;
 use vkrt::gpu::{Context, Profile, Recorder};
-use vkrt::trace::gpu::GpuGeometry;
-use vkrt::trace::TraceGeometry;
 
 const PASSES: [&str; 8] = bvh::GPU_BUILD_PASSES;
 

@@ -29,9 +29,9 @@ use glam::{Affine3A, Quat, Vec3};
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::embedded::BuildFlags;
 use vkrt::accel::geometry::{Geometry, Triangles};
+use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::instances::{Instance, TopLevel, TopLevelBuilder};
 use vkrt::gpu::{kernels, Buffer, BufferArg, Context, Recorder, Spec};
-use vkrt::trace::gpu::GpuGeometry;
 use vkrt::trace::Ray;
 
 #[derive(serde::Serialize)]
@@ -301,7 +301,7 @@ fn dynamic_demo(ctx: &Context) -> Option<UpdateRow> {
     // Flat: the LBVH over every triangle, built at frame 0 to be refit.
     let mut flat_builder = AccelBuilder::new(ctx, AccelKind::Lbvh).unwrap();
     flat_builder.allow_update = true;
-    let g0 = vkrt::trace::TraceGeometry::at_time(&scene, 0.0);
+    let g0 = vkrt::accel::primitives::TraceGeometry::at_time(&scene, 0.0);
     let mut rec = Recorder::new(ctx).unwrap();
     let (flat, _) = GpuGeometry::record_build(&mut rec, &flat_builder, &g0, 0).unwrap();
     rec.submit_and_wait().unwrap();
@@ -331,7 +331,7 @@ fn dynamic_demo(ctx: &Context) -> Option<UpdateRow> {
                 .record_update_from(rec, input.as_raw(), &top, scratch.as_raw())
                 .unwrap();
         });
-        let g = vkrt::trace::TraceGeometry::at_time(&scene, t);
+        let g = vkrt::accel::primitives::TraceGeometry::at_time(&scene, t);
         rebuild_ms += best(&mut |rec| {
             let (built, _) = GpuGeometry::record_build(rec, &builder, &g, 0).unwrap();
             rec.keep_alive(built);

@@ -27,11 +27,13 @@ use ash::vk;
 use glam::Vec3;
 use gpu_allocator::MemoryLocation;
 use vkrt::accel::device::{AccelBuilder, AccelKind};
+use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::primitives::TraceGeometry;
 use vkrt::gpu::{
     Buffer, BufferArg, Context, Profile, Recorder, Validation, DEFAULT_QUERY_CAPACITY,
 };
-use vkrt::trace::gpu::{GpuGeometry, Tracer};
-use vkrt::trace::{Hit, Ray, TraceGeometry, TraceOptions};
+use vkrt::trace::gpu::Tracer;
+use vkrt::trace::{Hit, Ray, TraceOptions};
 
 #[path = "common/host.rs"]
 mod host;

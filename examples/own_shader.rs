@@ -29,10 +29,11 @@ use gpu_allocator::MemoryLocation;
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::embedded::{BuildFlags, DRIVER_BUFFER_USAGE, REQUIRED_BUFFER_USAGE};
 use vkrt::accel::geometry::{transform_point, Geometry, IndexType, Indices, Triangles};
+use vkrt::accel::primitives::TraceGeometry;
 use vkrt::accel::shader_library;
 use vkrt::gpu::{Buffer, Context, RawBuffer, Recorder, Validation, DEFAULT_QUERY_CAPACITY};
 use vkrt::trace::gpu::Tracer;
-use vkrt::trace::{Hit, Query, Ray, TraceGeometry, TraceOptions};
+use vkrt::trace::{Hit, Query, Ray, TraceOptions};
 
 #[path = "common/host.rs"]
 mod host;

@@ -65,10 +65,12 @@ pub use glam;
 pub use accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelSizes, AccelStructure};
 pub use accel::embedded::{BuildFlags, REQUIRED_BUFFER_USAGE};
 pub use accel::geometry::{Aabbs, Geometry, IndexType, Indices, Spheres, Triangles, VertexFormat};
+pub use accel::gpu_geometry::GpuGeometry;
+pub use accel::primitives::TraceGeometry;
 pub use gpu::{
     Buffer, Context, ContextOptions, DeviceInfo, GpuError, RawBuffer, RawParts, Recorder,
     Validation,
 };
 pub use scene::Scene;
-pub use trace::gpu::{GpuGeometry, Tracer};
-pub use trace::{Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
+pub use trace::gpu::Tracer;
+pub use trace::{Hit, Intersector, Query, Ray, TraceOptions};

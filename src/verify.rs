@@ -32,17 +32,19 @@ use serde::Serialize;
 use crate::accel::bvh::collapse::collapse;
 use crate::accel::bvh::{self, lbvh, ploc};
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, HostStructure};
+use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::kdtree::{breadth_first, SahParams};
+use crate::accel::primitives::TraceGeometry;
+use crate::accel::walk::Traversal;
 use crate::gpu::{kernels, Buffer, Context, Recorder, Result, Spec};
 use crate::prims::radix_sort::{self, RadixSort, DEFAULT_BITS_PER_PASS};
 use crate::prims::reduce::{self, Reduce};
 use crate::prims::scan::{self, Scan, ScanInput, ScanOp};
 use crate::prims::PrimConfig;
 use crate::scene::gen::{self, Rng};
-use crate::trace::bvh_cpu::Traversal;
-use crate::trace::gpu::{GpuGeometry, Tracer};
+use crate::trace::gpu::Tracer;
 use crate::trace::robust::{self, SuiteSize};
-use crate::trace::{cpu, Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
+use crate::trace::{cpu, Hit, Intersector, Query, Ray, TraceOptions};
 
 /// How much to check.
 #[derive(Clone, Copy, Debug, Default)]
@@ -314,7 +316,7 @@ impl Verifier<'_> {
             ..crate::trace::gpu::effective_options(
                 ctx,
                 &TraceOptions::default(),
-                crate::trace::gpu::AccelTraversal::KdTree,
+                crate::accel::walk::AccelTraversal::KdTree,
             )
         };
         let brute: Vec<Vec<Vec<Hit>>> = scenes
@@ -652,8 +654,10 @@ fn two_level_check(
     rays: &[Ray],
     moving: bool,
 ) -> Outcome {
-    use crate::accel::instances::{trace_instances, Instance, InstanceMotion, TopLevelBuilder};
-    use crate::trace::gpu::{effective_options, AccelTraversal};
+    use crate::accel::instances::{Instance, InstanceMotion, TopLevelBuilder};
+    use crate::accel::walk::AccelTraversal;
+    use crate::trace::gpu::effective_options;
+    use crate::trace::instanced::trace_instances;
     let levels = bottom_levels(ctx, hosts, choice)?;
     let refs: Vec<&GpuGeometry> = levels.iter().collect();
     let mut rng = Rng::new(29);
@@ -1032,7 +1036,7 @@ fn builder_check(
 fn walk_check(
     ctx: &Context,
     dev: &GpuGeometry,
-    accel: crate::trace::gpu::AccelTraversal,
+    accel: crate::accel::walk::AccelTraversal,
     opt: &TraceOptions,
     rays: &[Ray],
     brute: &[Hit],

@@ -13,11 +13,13 @@ use vkrt::accel::bvh::collapse::collapse;
 use vkrt::accel::bvh::lbvh::{self, MortonBits};
 use vkrt::accel::bvh::{self, BvhParams, Threading};
 use vkrt::accel::device::{AccelBuilder, AccelKind, AccelStructure, HostStructure};
+use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::kdtree::{breadth_first, SahParams};
+use vkrt::accel::primitives::TraceGeometry;
+use vkrt::accel::walk::Traversal;
 use vkrt::gpu::{Buffer, Context, Recorder};
-use vkrt::trace::bvh_cpu::Traversal;
-use vkrt::trace::gpu::{build_and_trace, GpuGeometry, Tracer};
-use vkrt::trace::{cpu, Ray, TraceGeometry, TraceOptions};
+use vkrt::trace::gpu::{build_and_trace, Tracer};
+use vkrt::trace::{cpu, Ray, TraceOptions};
 
 fn soup(n: usize, seed: u64) -> Vec<[Vec3; 3]> {
     let mut rng = Rng(seed);

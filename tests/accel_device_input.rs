@@ -12,11 +12,13 @@ use vkrt::accel::geometry::{
     gather_on_host, Aabbs, Geometry, GeometryData, GeometryGather, GeometryLayout, IndexType,
     Indices, Spheres, Triangles,
 };
+use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::primitives::TraceGeometry;
+use vkrt::accel::walk::Traversal;
 use vkrt::gpu::{Buffer, Context, GpuError, RawBuffer, Recorder};
 use vkrt::scene::Aabb;
-use vkrt::trace::bvh_cpu::Traversal;
-use vkrt::trace::gpu::{GpuGeometry, Tracer};
-use vkrt::trace::{cpu, Hit, Ray, TraceGeometry, TraceOptions};
+use vkrt::trace::gpu::Tracer;
+use vkrt::trace::{cpu, Hit, Ray, TraceOptions};
 
 /// The caller's memory, as bytes in vkrt buffers (any buffer with storage usage would do).
 struct CallerBuffers {

@@ -19,9 +19,9 @@ use vkrt::accel::bvh::ploc::{self, PlocParams};
 use vkrt::accel::bvh::validate::validate;
 use vkrt::accel::bvh::Bvh;
 use vkrt::accel::device::{AccelBuilder, HostStructure};
+use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::primitives::TraceGeometry;
 use vkrt::gpu::{Context, Recorder};
-use vkrt::trace::gpu::GpuGeometry;
-use vkrt::trace::TraceGeometry;
 
 fn device_bvh(ctx: &Context, builder: &AccelBuilder, g: &TraceGeometry) -> Bvh {
     let mut rec = Recorder::new(ctx).unwrap();
@@ -240,8 +240,10 @@ fn deep_lbvh(ctx: &Context, max_leaf: u32, wide: bool) -> (TraceGeometry, GpuGeo
 
 #[test]
 fn trees_deeper_than_64_levels_trace_like_brute_force() {
-    use vkrt::trace::bvh_cpu::{self, Traversal};
-    use vkrt::trace::gpu::{AccelTraversal, Tracer};
+    use vkrt::accel::walk::AccelTraversal;
+    use vkrt::accel::walk::Traversal;
+    use vkrt::trace::bvh_cpu;
+    use vkrt::trace::gpu::Tracer;
     use vkrt::trace::{cpu, Ray, TraceOptions};
     let Some(ctx) = context() else { return };
     let (g, binary, tree) = deep_lbvh(&ctx, 4, false);
@@ -306,8 +308,9 @@ fn trees_deeper_than_64_levels_trace_like_brute_force() {
 /// walk hits.
 #[test]
 fn slanted_ray_in_a_deep_tree() {
-    use vkrt::trace::bvh_cpu::Traversal;
-    use vkrt::trace::gpu::{AccelTraversal, Tracer};
+    use vkrt::accel::walk::AccelTraversal;
+    use vkrt::accel::walk::Traversal;
+    use vkrt::trace::gpu::Tracer;
     use vkrt::trace::{cpu, Ray, TraceOptions};
     let Some(ctx) = context() else { return };
     // One primitive per leaf: the longest walk (with leaves of 4 it fits 22.3's budget).

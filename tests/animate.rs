@@ -10,11 +10,11 @@ use std::path::Path;
 use common::{assert_silent, context};
 use vkrt::accel::device::{AccelChoice, AccelKind};
 use vkrt::accel::driver::Prefer;
+use vkrt::accel::walk::Traversal;
 use vkrt::gpu::Context;
 use vkrt::render::gpu::{FrameLoop, Renderer, Update};
 use vkrt::render::{Plan, RenderAccel, RenderOptions, RenderScene};
 use vkrt::scene::Scene;
-use vkrt::trace::bvh_cpu::Traversal;
 use vkrt::trace::TraceOptions;
 
 /// The motion-blur example with its shutter closed: its meshes and sphere move from frame to

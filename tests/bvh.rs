@@ -9,10 +9,14 @@ mod common;
 use common::{assert_silent, context, same_answer, Rng};
 use glam::{Vec3, Vec4};
 use vkrt::accel::bvh::{self, validate, Bvh, BvhError, BvhParams, Threading};
+use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::primitives::TraceGeometry;
+use vkrt::accel::walk::AccelTraversal;
+use vkrt::accel::walk::Traversal;
 use vkrt::scene::{gen, Aabb};
-use vkrt::trace::bvh_cpu::{self, Traversal};
-use vkrt::trace::gpu::{AccelTraversal, GpuGeometry, Tracer};
-use vkrt::trace::{cpu, Intersector, Query, Ray, TraceGeometry, TraceOptions};
+use vkrt::trace::bvh_cpu;
+use vkrt::trace::gpu::Tracer;
+use vkrt::trace::{cpu, Intersector, Query, Ray, TraceOptions};
 
 fn soup(n: usize, seed: u64) -> Vec<[Vec3; 3]> {
     let mut rng = Rng(seed);

@@ -12,11 +12,14 @@ use vkrt::accel::bvh::wide::{widen, WideNode};
 use vkrt::accel::bvh::wide_gpu::Widen;
 use vkrt::accel::bvh::{self, Bvh, BvhNode, BvhParams, Child, Threading};
 use vkrt::accel::device::{AccelBuilder, AccelChoice, AccelKind};
+use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::primitives::TraceGeometry;
+use vkrt::accel::walk::AccelTraversal;
+use vkrt::accel::walk::Traversal;
 use vkrt::gpu::Recorder;
 use vkrt::scene::Aabb;
-use vkrt::trace::bvh_cpu::Traversal;
-use vkrt::trace::gpu::{AccelTraversal, GpuGeometry, Tracer};
-use vkrt::trace::{TraceGeometry, TraceOptions};
+use vkrt::trace::gpu::Tracer;
+use vkrt::trace::TraceOptions;
 
 fn soup(n: usize, seed: u64, scale: f32, offset: Vec3) -> Vec<[Vec3; 3]> {
     let mut rng = Rng(seed);

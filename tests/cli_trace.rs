@@ -7,8 +7,9 @@ use std::path::{Path, PathBuf};
 
 use common::{no_gpu_allowed, vkrt, vkrt_ok, Rng};
 use glam::Vec3;
+use vkrt::accel::primitives::TraceGeometry;
 use vkrt::scene::Scene;
-use vkrt::trace::{cpu, files, Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
+use vkrt::trace::{cpu, files, Hit, Intersector, Query, Ray, TraceOptions};
 
 fn scratch(name: &str) -> PathBuf {
     let dir = std::env::temp_dir().join(format!("vkrt-cli-trace-{name}-{}", std::process::id()));

@@ -12,10 +12,13 @@ use common::{assert_silent, context, same_answer, Rng};
 use glam::{Vec3, Vec4};
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::driver::Prefer;
+use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::primitives::TraceGeometry;
+use vkrt::accel::walk::AccelTraversal;
 use vkrt::gpu::{Context, GpuError, Recorder};
 use vkrt::trace::cpu::brute_force;
-use vkrt::trace::gpu::{build_and_trace, AccelTraversal, GpuGeometry, Tracer};
-use vkrt::trace::{Hit, Query, Ray, TraceGeometry, TraceOptions};
+use vkrt::trace::gpu::{build_and_trace, Tracer};
+use vkrt::trace::{Hit, Query, Ray, TraceOptions};
 
 /// Relative tolerance on `t` between the driver's intersector and ours.
 const T_TOL: f32 = 1e-4;

@@ -9,8 +9,9 @@ mod embed;
 
 mod common;
 
+use vkrt::accel::primitives::TraceGeometry;
 use vkrt::gpu::Validation;
-use vkrt::trace::{cpu, TraceGeometry};
+use vkrt::trace::cpu;
 
 #[test]
 fn the_embedding_example_traces_like_brute_force_and_validation_stays_silent() {

@@ -10,9 +10,11 @@ use ash::vk;
 use glam::Vec3;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
 use vkrt::accel::device::{AccelBuilder, AccelKind};
+use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::primitives::TraceGeometry;
 use vkrt::gpu::{kernels, Buffer, Context, DeviceFeatures, RawParts, Recorder, Spec};
-use vkrt::trace::gpu::{GpuGeometry, Tracer};
-use vkrt::trace::{cpu, Hit, Ray, TraceGeometry, TraceOptions};
+use vkrt::trace::gpu::Tracer;
+use vkrt::trace::{cpu, Hit, Ray, TraceOptions};
 
 #[repr(C)]
 #[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]

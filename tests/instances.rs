@@ -11,15 +11,17 @@ use glam::{Affine3A, Quat, Vec3};
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::embedded::BuildFlags;
 use vkrt::accel::geometry::transform_point;
+use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::instances::{
-    instance_boxes, lerp_rows, object_ray, trace_instances, world_to_object, Instance,
-    InstanceMotion, InstanceRecord, TopLevelBuilder,
+    instance_boxes, lerp_rows, world_to_object, Instance, InstanceMotion, InstanceRecord,
+    TopLevelBuilder,
 };
+use vkrt::accel::primitives::SceneInfo;
+use vkrt::accel::primitives::TraceGeometry;
 use vkrt::gpu::{Buffer, Context, GpuError, Recorder};
 use vkrt::scene::Aabb;
-use vkrt::trace::geometry::SceneInfo;
-use vkrt::trace::gpu::GpuGeometry;
-use vkrt::trace::{cpu, Hit, Ray, TraceGeometry, TraceOptions};
+use vkrt::trace::instanced::{object_ray, trace_instances};
+use vkrt::trace::{cpu, Hit, Ray, TraceOptions};
 
 fn opt() -> TraceOptions {
     TraceOptions {

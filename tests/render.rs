@@ -233,7 +233,7 @@ fn bench_strips_exactly_the_effect() {
 #[test]
 fn the_bvh_renders_the_kdtree_image() {
     use vkrt::accel::bvh::{self, BvhParams, Threading};
-    use vkrt::trace::bvh_cpu::Traversal;
+    use vkrt::accel::walk::Traversal;
     let Some(ctx) = context() else { return };
     for (file, spp) in [
         ("hard_shadows.toml", 1),
@@ -470,7 +470,7 @@ fn animation_frames_match_the_cpu_twin() {
 fn the_plan_traces_repeated_meshes_as_two_levels() {
     use vkrt::accel::device::{AccelChoice, AccelKind};
     use vkrt::accel::driver::Prefer;
-    use vkrt::trace::bvh_cpu::Traversal;
+    use vkrt::accel::walk::Traversal;
     let demo = scene_file("dynamic_demo.toml");
     let plan = |scene: &Scene, opt: RenderOptions| Plan::new(scene, &opt).unwrap();
     assert_eq!(plan(&demo, small(1)).levels, 2);

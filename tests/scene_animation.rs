@@ -5,13 +5,13 @@
 use std::path::{Path, PathBuf};
 
 use glam::{Affine3A, Quat, Vec3};
+use vkrt::accel::primitives::TraceGeometry;
 use vkrt::scene::animation::pose_at;
 use vkrt::scene::gen;
 use vkrt::scene::{
     Animation, Keyframe, Limits, LoadedScene, MemoryFiles, Motion, Orbit, Scene, SceneError,
     Transform, MAX_FRAMES,
 };
-use vkrt::trace::TraceGeometry;
 
 fn scenes_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes")

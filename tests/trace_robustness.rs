@@ -43,8 +43,8 @@ fn every_case_under_an_identity_instance() {
     let mut results: Vec<CaseResult> = Vec::new();
     let choices = [
         AccelChoice::new(AccelKind::KdTree, Default::default()),
-        AccelChoice::new(AccelKind::Lbvh, vkrt::trace::bvh_cpu::Traversal::Bitstack),
-        AccelChoice::new(AccelKind::Ploc, vkrt::trace::bvh_cpu::Traversal::Wide),
+        AccelChoice::new(AccelKind::Lbvh, vkrt::accel::walk::Traversal::Bitstack),
+        AccelChoice::new(AccelKind::Ploc, vkrt::accel::walk::Traversal::Wide),
     ];
     for group in Group::ALL {
         for accel in choices {

@@ -6,11 +6,13 @@ mod common;
 
 use common::{assert_silent, context, same_answer, Rng};
 use glam::{Vec3, Vec4};
+use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::kdtree::{breadth_first, KdTree, SahParams};
+use vkrt::accel::primitives::TraceGeometry;
 use vkrt::gpu::Context;
 use vkrt::trace::cpu::{self, TraceScene};
-use vkrt::trace::gpu::{GpuGeometry, Tracer};
-use vkrt::trace::{Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
+use vkrt::trace::gpu::Tracer;
+use vkrt::trace::{Hit, Intersector, Query, Ray, TraceOptions};
 
 fn tree_of(g: &TraceGeometry) -> KdTree {
     breadth_first::build_boxes(&g.boxes, &SahParams::default()).0
@@ -500,9 +502,9 @@ fn the_step_cap_comes_from_the_device_and_a_lower_one_is_honoured() {
 #[test]
 fn nodes_read_through_texel_buffers_give_the_storage_walks_hits_bit_for_bit() {
     use vkrt::accel::device::{AccelBuilder, AccelChoice, AccelKind};
+    use vkrt::accel::walk::NodeAccess;
+    use vkrt::accel::walk::Traversal;
     use vkrt::gpu::Recorder;
-    use vkrt::trace::bvh_cpu::Traversal;
-    use vkrt::trace::gpu::NodeAccess;
     let Some(ctx) = context() else { return };
     let bits = |h: &[Hit]| -> Vec<[u32; 4]> {
         h.iter()

@@ -25,7 +25,7 @@ layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
 layout(std430, binding = 2) readonly buffer Boxes { float boxes[]; };
 // One counter per node, zero before the dispatch.
 layout(std430, binding = 3) coherent buffer Visits { uint visits[]; };
-// `SceneInfo` (src/trace/geometry.rs): the root box is rewritten.
+// `SceneInfo` (src/accel/primitives.rs): the root box is rewritten.
 layout(std430, binding = 4) buffer SceneInfoBuf {
     vec4 bounds_min;
     vec4 bounds_max;

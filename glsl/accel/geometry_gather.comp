@@ -43,7 +43,7 @@ layout(std430, binding = 1) readonly buffer Indices { uint idx[]; };
 layout(std430, binding = 2) writeonly buffer TriVerts { float tri_verts[]; };
 layout(std430, binding = 3) writeonly buffer Spheres { vec4 spheres[]; };
 layout(std430, binding = 4) writeonly buffer Boxes { float boxes[]; };
-// `SceneInfo` (src/trace/geometry.rs) and the geometry table after it.
+// `SceneInfo` (src/accel/primitives.rs) and the geometry table after it.
 layout(std430, binding = 5) buffer SceneInfoBuf {
     vec4 bounds_min;
     vec4 bounds_max;
@@ -115,7 +115,7 @@ bool finite3(vec3 v) {
 
 // The next float towards +inf / -inf, never a subnormal (a device may flush them): above
 // zero and the subnormals is the smallest normal, above its negation zero (next_up /
-// next_down in src/trace/geometry.rs). Tested on the bits: a flushing device would read a
+// next_down in src/accel/primitives.rs). Tested on the bits: a flushing device would read a
 // subnormal as zero.
 float next_up(float x) {
     uint b = floatBitsToUint(x);
@@ -245,7 +245,7 @@ void main() {
         spheres[pc.out_first + i] = vec4(c, r);
         precise vec3 lo = c - vec3(r);
         precise vec3 hi = c + vec3(r);
-        // Rounded outwards, as sphere_box in src/trace/geometry.rs.
+        // Rounded outwards, as sphere_box in src/accel/primitives.rs.
         write_box(prim, vec3(next_down(lo.x), next_down(lo.y), next_down(lo.z)),
                   vec3(next_up(hi.x), next_up(hi.y), next_up(hi.z)));
     }

@@ -1,6 +1,6 @@
 #version 460
 // kd-tree, after the last level (one invocation): the scene constants the traversal reads
-// (`SceneInfo`, src/trace/geometry.rs), written on the device so that nothing is read back
+// (`SceneInfo`, src/accel/primitives.rs), written on the device so that nothing is read back
 // between build and trace. A build that overflowed its capacity (or has no primitives)
 // leaves an empty leaf at the root: the trace that follows in the same submission misses
 // everything instead of walking a truncated tree, and the host, reading the build state

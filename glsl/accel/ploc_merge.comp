@@ -20,7 +20,7 @@ layout(std430, binding = 5) writeonly buffer Nodes { BvhNode nodes[]; };
 // Sorted ids, then a parent link per node from n on.
 layout(std430, binding = 6) buffer Refs { uint refs[]; };
 layout(std430, binding = 7) readonly buffer State { uint state[]; };
-// `SceneInfo` (src/trace/geometry.rs): the root box is written by the last merge.
+// `SceneInfo` (src/accel/primitives.rs): the root box is written by the last merge.
 layout(std430, binding = 8) buffer SceneInfoBuf {
     vec4 bounds_min;
     vec4 bounds_max;

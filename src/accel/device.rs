@@ -31,14 +31,14 @@ use crate::accel::kdtree::gpu::{BuildCapacity, BuildOutput, BuildScratch, KdTree
 use crate::accel::kdtree::{KdNode, KdTree, SahParams};
 use std::sync::Arc;
 
+use crate::accel::primitives::{MotionRecord, SceneInfo, TraceGeometry};
+use crate::accel::walk::AccelTraversal;
+use crate::accel::walk::Traversal;
 use crate::gpu::{
     kernels, require_ray_query, AccelGeometry, Buffer, BufferArg, Context, GpuError, Kernel,
     Readback, Recorder, Result, Spec,
 };
 use crate::scene::Aabb;
-use crate::trace::bvh_cpu::Traversal;
-use crate::trace::geometry::{MotionRecord, SceneInfo, TraceGeometry};
-use crate::trace::gpu::AccelTraversal;
 
 /// The refit's workgroups are one subgroup each (`accel.bvh_refit` explains why).
 fn refit_workgroup(ctx: &Context) -> u32 {

@@ -24,10 +24,10 @@
 use crate::accel::device::{AccelBuilder, AccelKind, AccelScratch, AccelSizes, DevicePrimitives};
 use crate::accel::driver::{DriverAccel, DriverInput, Prefer};
 use crate::accel::geometry::{Geometry, GeometryGather, GeometryLayout};
+use crate::accel::gpu_geometry::GpuGeometry;
+use crate::accel::primitives::SceneInfo;
 use crate::gpu::placement::{place, Placement};
 use crate::gpu::{vk, Buffer, Context, GpuError, RawBuffer, Readback, Recorder, Result};
-use crate::trace::geometry::SceneInfo;
-use crate::trace::gpu::GpuGeometry;
 
 /// Usage the caller's structure and scratch buffers need: vkrt binds ranges of them as
 /// storage buffers (and texel buffers), fills and copies within them and dispatches

@@ -9,12 +9,12 @@
 //! input into its own format), so nothing passes through the host and nothing is uploaded.
 //! A hit reports the geometry's index in the list and the primitive's index within it.
 
+use crate::accel::primitives::SceneInfo;
+use crate::accel::primitives::TraceGeometry;
 use crate::gpu::{
     kernels, BufferArg, Context, GpuError, Kernel, RawBuffer, Recorder, Result, Spec,
 };
 use crate::scene::Aabb;
-use crate::trace::geometry::SceneInfo;
-use crate::trace::TraceGeometry;
 use glam::{Vec3, Vec4};
 
 use super::device::DevicePrimitives;

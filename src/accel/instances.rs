@@ -42,14 +42,13 @@ use glam::Vec3;
 use crate::accel::device::{AccelBuilder, AccelKind, AccelSizes};
 use crate::accel::embedded::{BuildFlags, BuildStatus};
 use crate::accel::geometry::{bound, transform_point, Aabbs, Geometry, GeometryData};
+use crate::accel::gpu_geometry::GpuGeometry;
+use crate::accel::primitives::SceneInfo;
 use crate::gpu::placement::{place, Placement};
 use crate::gpu::{
     kernels, vk, Buffer, BufferArg, Context, GpuError, Kernel, RawBuffer, Readback, Recorder,
     Result, Spec,
 };
-use crate::trace::geometry::SceneInfo;
-use crate::trace::gpu::GpuGeometry;
-use crate::trace::{Hit, Ray};
 
 const WORKGROUP: u32 = 64;
 /// Bottom levels one top level may name (the index shares a word with the flags).
@@ -342,7 +341,7 @@ fn a_minus_b(a: f32, b: f32) -> f32 {
 
 /// `rows · (d, 0)`: a direction moved, each row summed left to right (as
 /// [`transform_point`] moves points).
-fn transform_direction(rows: &[[f32; 4]; 3], d: Vec3) -> Vec3 {
+pub fn transform_direction(rows: &[[f32; 4]; 3], d: Vec3) -> Vec3 {
     let row = |r: &[f32; 4]| r[0] * d.x + r[1] * d.y + r[2] * d.z;
     Vec3::new(row(&rows[0]), row(&rows[1]), row(&rows[2]))
 }
@@ -482,82 +481,6 @@ fn placed_box(m: &[[f32; 4]; 3], bmin: Vec3, bmax: Vec3) -> (Vec3, Vec3) {
     };
     let pad = Vec3::new(pad_row(&m[0]), pad_row(&m[1]), pad_row(&m[2]));
     (lo - pad, hi + pad)
-}
-
-/// The ray in an instance's object space, as the walk moves it: origin and direction by
-/// `world_to_object` (the direction not renormalised, so `t` means the same), `tmin` kept,
-/// `tmax` the closest hit so far.
-pub fn object_ray(world_to_object: &[[f32; 4]; 3], r: &Ray, tmax: f32) -> Ray {
-    let m = world_to_object;
-    Ray::new(
-        transform_point(m, r.o()),
-        transform_direction(m, r.d()),
-        r.tmin,
-        tmax,
-    )
-}
-
-/// A two-level query's answer: the hit (its `prim` the primitive id in the bottom level),
-/// the instance hit, and whether a walk ran out of steps (the answer is then a miss).
-#[derive(Clone, Copy, Debug, PartialEq)]
-pub struct InstanceHit {
-    /// The closest hit ([`Hit::MISS`] for none); its `prim` is the bottom level's id.
-    pub hit: Hit,
-    /// Index of the instance hit (`None`: a miss).
-    pub instance: Option<u32>,
-    /// A bottom level's walk gave up: the answer is a miss.
-    pub exhausted: bool,
-}
-
-/// The CPU twin of the two-level walk (`vkrt/instances.glsl`): the closest hit at `time`
-/// over every instance the ray's cull mask sees (`steps`: the moving top level's, from
-/// [`instance_boxes`]), each traced by `bottom(level, object-space ray)` —
-/// the bottom level's own walk, returning its hit and whether it gave up. Ties in `t` go to
-/// the lowest instance index; an any-hit query returns the first hit in index order (the
-/// device's may be another: any hit answers it).
-pub fn trace_instances(
-    records: &[InstanceRecord],
-    steps: &[[[f32; 4]; 3]],
-    r: &Ray,
-    time: f32,
-    cull_mask: u32,
-    any_hit: bool,
-    mut bottom: impl FnMut(u32, &Ray) -> (Hit, bool),
-) -> InstanceHit {
-    let mut best = InstanceHit {
-        hit: Hit::MISS,
-        instance: None,
-        exhausted: false,
-    };
-    if !r.is_valid() {
-        return best;
-    }
-    let mut best_t = r.tmax;
-    for (i, rec) in records.iter().enumerate() {
-        if rec.handle == 0 || rec.mask() & cull_mask == 0 {
-            continue;
-        }
-        let Some(m) = rec.world_to_object_at(steps, time) else {
-            continue;
-        };
-        let (h, exhausted) = bottom(rec.bottom(), &object_ray(&m, r, best_t));
-        if exhausted {
-            return InstanceHit {
-                hit: Hit::MISS,
-                instance: None,
-                exhausted: true,
-            };
-        }
-        if h.is_hit() && (best.instance.is_none() || h.t < best_t) {
-            best_t = h.t;
-            best.hit = h;
-            best.instance = Some(i as u32);
-            if any_hit {
-                break;
-            }
-        }
-    }
-    best
 }
 
 fn usage(call: &'static str, reason: impl Into<String>) -> GpuError {

@@ -1,7 +1,22 @@
-//! Acceleration structures: the SAH kd-tree of Kolodzey (2014) (GPU build, CPU twin of the same
-//! algorithm, and the classic full-clipping CPU build as the quality reference), with
-//! statistics and a structural validator, and the SAH BVH of Sochora (2013) (multithreaded CPU
-//! build). Node layouts are shared byte for byte with GLSL.
+//! Acceleration structures and what they are built over.
+//!
+//! - [`primitives`]: the scene flattened into triangles and spheres (with motion), the input
+//!   every builder reads; [`geometry`]: the same described as the caller's own device buffers.
+//! - [`kdtree`]: the SAH kd-tree built breadth-first on the GPU with exact SAH at every level
+//!   and split-axis clipping (after Wu, Zhao & Liu 2011), its CPU twin, and the classic
+//!   full-clipping CPU build as the quality reference.
+//! - [`bvh`]: the CPU SAH BVH (sweep and binned builders and their threading schemes), the GPU
+//!   LBVH (Karras 2012) and PLOC (Meister & Bittner 2018) with SAH collapse and refit, and the
+//!   4-wide quantized nodes (Ylitie, Karras & Laine 2017).
+//! - [`device`]: one builder over every kind, sized, created in the caller's memory and
+//!   recorded into its command buffer; [`gpu_geometry`] pairs a structure with its primitives;
+//!   [`embedded`] builds over the caller's buffers; [`driver`] maps the same scene to the
+//!   driver's own acceleration structures.
+//! - [`instances`]: two levels, a top level over instances of bottom-level structures.
+//! - [`walk`]: which walk a kernel runs over a structure; [`shader_library`]: what a
+//!   renderer's own shader binds to walk it.
+//!
+//! Node layouts are shared byte for byte with GLSL.
 #![forbid(unsafe_code)]
 
 pub mod bvh;
@@ -9,6 +24,9 @@ pub mod device;
 pub mod driver;
 pub mod embedded;
 pub mod geometry;
+pub mod gpu_geometry;
 pub mod instances;
 pub mod kdtree;
+pub mod primitives;
 pub mod shader_library;
+pub mod walk;

@@ -8,8 +8,9 @@
 //! `vkrtTraceAny`. One descriptor set layout serves every kind of structure vkrt builds:
 //! the walk is chosen from the structure itself.
 
+use crate::accel::gpu_geometry::GpuGeometry;
+use crate::accel::walk::NodeAccess;
 use crate::gpu::{vk, TexelView};
-use crate::trace::gpu::{GpuGeometry, NodeAccess};
 
 /// The library's files, by the name an `#include` gives them (relative to
 /// [`include_dir`]).

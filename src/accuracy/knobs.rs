@@ -7,9 +7,9 @@ use crate::accel::bvh::BvhParams;
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
 use crate::accel::driver::Prefer;
 use crate::accel::kdtree::SahParams;
+use crate::accel::walk::Traversal;
 use crate::gpu::{Context, Result};
 use crate::render::gpu::Update;
-use crate::trace::bvh_cpu::Traversal;
 use crate::trace::{Intersector, TraceOptions};
 
 /// How a structure setting's structure is made.

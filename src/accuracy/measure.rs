@@ -34,13 +34,14 @@ use super::{
 };
 use crate::accel::bvh::{self, BvhParams};
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, HostStructure};
+use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::kdtree::{full_clip, stats, KdNode};
 use crate::gpu::{Context, GpuError};
 use crate::render::animate::{self, AnimateOptions};
 use crate::render::RenderOptions;
 use crate::scene::Scene;
 use crate::trace::bench::{self as trace_bench, scenes, BenchScene, RayKind, RaySet};
-use crate::trace::gpu::{GpuGeometry, Tracer};
+use crate::trace::gpu::Tracer;
 use crate::trace::robust::{self, SuiteConfig, SuiteSize};
 use crate::trace::{Hit, Query, TraceOptions};
 
@@ -253,7 +254,7 @@ struct RayBench {
     /// Primary, shadow, mirror.
     sets: Vec<RaySet>,
     /// A small mesh to warm pipelines up on.
-    warm: crate::trace::TraceGeometry,
+    warm: crate::accel::primitives::TraceGeometry,
     reference: Vec<Vec<Hit>>,
 }
 

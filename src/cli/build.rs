@@ -166,7 +166,7 @@ fn kdtree_build_command(
 fn bvh_build_command(scene: &vkrt::scene::Scene, reference: bool, json: bool) -> CliResult<()> {
     use vkrt::accel::bvh::{self, validate, BvhParams, Threading};
     flat_on_host(scene)?;
-    let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
+    let g = vkrt::accel::primitives::TraceGeometry::at_time(scene, scene.camera.shutter_open);
     let params = BvhParams::default();
     let all_cores = Threading::all_cores();
     let Threading::Queue { threads } = all_cores else {
@@ -224,10 +224,10 @@ fn gpu_bvh_build_command(
 ) -> CliResult<()> {
     use vkrt::accel::bvh::{lbvh, ploc, validate, BvhParams};
     use vkrt::accel::device::{AccelBuilder, AccelKind, HostStructure};
-    if let Err(flat) = vkrt::trace::TraceGeometry::check_flat_fits(ctx, scene) {
+    if let Err(flat) = vkrt::accel::primitives::TraceGeometry::check_flat_fits(ctx, scene) {
         return levels_only(ctx, kind, scene, flat, json);
     }
-    let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
+    let g = vkrt::accel::primitives::TraceGeometry::at_time(scene, scene.camera.shutter_open);
     let builder = AccelBuilder::new(ctx, kind)?;
     let before = device_bytes_start(ctx);
     // Once to compile and warm the pipelines, then the timed build.
@@ -236,11 +236,12 @@ fn gpu_bvh_build_command(
         // The previous build's buffers go before the next is made (the peak is one build).
         drop(timed.take());
         let mut rec = vkrt::gpu::Recorder::new(ctx)?;
-        let dev = match vkrt::trace::gpu::GpuGeometry::record_build(&mut rec, &builder, &g, 0) {
-            Ok((dev, _)) => dev,
-            // A scene too big to build flat may still build as two levels: say both.
-            Err(flat) => return levels_only(ctx, kind, scene, flat, json),
-        };
+        let dev =
+            match vkrt::accel::gpu_geometry::GpuGeometry::record_build(&mut rec, &builder, &g, 0) {
+                Ok((dev, _)) => dev,
+                // A scene too big to build flat may still build as two levels: say both.
+                Err(flat) => return levels_only(ctx, kind, scene, flat, json),
+            };
         let prof = rec.submit_and_wait()?;
         timed = Some((dev, prof));
     }
@@ -320,8 +321,8 @@ fn driver_build_command(
 ) -> CliResult<()> {
     use vkrt::accel::device::{AccelBuilder, AccelChoice, DevicePrimitives};
     use vkrt::accel::driver::{DriverAccel, DriverInput};
-    vkrt::trace::TraceGeometry::check_flat_fits(ctx, scene)?;
-    let g = vkrt::trace::TraceGeometry::at_time(scene, scene.camera.shutter_open);
+    vkrt::accel::primitives::TraceGeometry::check_flat_fits(ctx, scene)?;
+    let g = vkrt::accel::primitives::TraceGeometry::at_time(scene, scene.camera.shutter_open);
     let builder = AccelBuilder::for_choice(ctx, AccelChoice::driver(prefer))?;
     let before = device_bytes_start(ctx);
     let prims = DevicePrimitives::upload(ctx, &g)?;

@@ -68,7 +68,7 @@ impl StructureArgs {
 pub fn accel_traversal(accel: AccelArg, walk: TraversalArg) -> vkrt::accel::device::AccelChoice {
     use vkrt::accel::device::{AccelChoice, AccelKind};
     use vkrt::accel::driver::Prefer;
-    use vkrt::trace::bvh_cpu::Traversal;
+    use vkrt::accel::walk::Traversal;
     let kind = match accel {
         AccelArg::Kdtree => AccelKind::KdTree,
         AccelArg::SahBvh => AccelKind::SahBvh,

@@ -58,7 +58,7 @@ pub fn run(args: &InfoArgs, validate: bool) -> CliResult<()> {
     );
     println!(
         "walks read          {} buffers (texel views up to {} texels)",
-        vkrt::trace::gpu::NodeAccess::for_device(&ctx).name(),
+        vkrt::accel::walk::NodeAccess::for_device(&ctx).name(),
         info.max_texel_buffer_elements
     );
     Ok(())

@@ -76,7 +76,8 @@ fn trace_command(
     (batch_rays, flatten): (Option<usize>, bool),
     json: bool,
 ) -> CliResult<()> {
-    use vkrt::trace::{files, gpu, instanced, TraceGeometry};
+    use vkrt::accel::primitives::TraceGeometry;
+    use vkrt::trace::{files, gpu, instanced};
     let rays = files::read_rays(rays_path)?;
     let scene = load_scene(&Some(scene_path.to_path_buf()))?;
     let time = scene.camera.shutter_open;

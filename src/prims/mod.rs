@@ -1,9 +1,10 @@
 //! GPU parallel primitives on subgroup operations, each with a plain CPU twin that the
 //! tests compare against bit for bit: scans (u32 and 0/1 flags packed four per u32),
 //! reductions and argmin, segmented and hybrid segmented argmin, stream compaction and
-//! key-value radix sort. They are the building blocks of the kd-tree builder (Kolodzey 2014, §2).
+//! key-value radix sort. They are the building blocks of the GPU builders (the kd-tree, the
+//! LBVH and PLOC).
 //!
-//! Rules every kernel here follows (see ../shared/DESIGN.md):
+//! Rules every kernel here follows:
 //! - the subgroup size is read at run time (`gl_SubgroupSize`); nothing assumes 32 lanes,
 //!   and every kernel is tested under subgroup sizes 4, 8, 16 and 32;
 //! - no workgroup ever waits for another (lavapipe runs a thread's workgroups one after

@@ -542,7 +542,7 @@ pub fn run(
     let (_, first) = frame_scene(0);
     let plan = Plan::new(&first, &opt.render)?;
     if plan.levels != 2 {
-        crate::trace::TraceGeometry::check_flat_fits(ctx, &first)?;
+        crate::accel::primitives::TraceGeometry::check_flat_fits(ctx, &first)?;
     }
     let accel = opt.render.accel;
     let renderer = Renderer::new(ctx, &plan, trace)?;

@@ -10,10 +10,10 @@ use super::{RayCounts, RenderAccel, RenderScene};
 use crate::accel::bvh::collapse::collapse;
 use crate::accel::bvh::Threading;
 use crate::accel::device::AccelKind;
+use crate::accel::primitives::{TraceGeometry, NO_MOTION};
+use crate::accel::walk::AccelTraversal;
 use crate::trace::bvh_cpu;
 use crate::trace::cpu::{self, TraceScene};
-use crate::trace::geometry::{TraceGeometry, NO_MOTION};
-use crate::trace::gpu::AccelTraversal;
 use crate::trace::intersect::offset_ray_origin;
 use crate::trace::{Hit, Query, Ray, TraceOptions};
 

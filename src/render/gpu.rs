@@ -6,14 +6,16 @@
 use std::sync::Arc;
 
 use crate::accel::device::{AccelBuilder, RecordedBuild};
+use crate::accel::gpu_geometry::GpuGeometry;
+use crate::accel::walk::AccelTraversal;
+use crate::accel::walk::Traversal;
 use crate::gpu::{
     kernels, Buffer, BufferArg, Context, Kernel, Profile, Recorder, Result, Spec, Traffic,
 };
 use crate::prims::compact::{Compact, CompactScratch};
 use crate::prims::scan::GpuCount;
 use crate::prims::PrimConfig;
-use crate::trace::bvh_cpu::Traversal;
-use crate::trace::gpu::{effective_options, traversal_spec, AccelTraversal, GpuGeometry};
+use crate::trace::gpu::{effective_options, traversal_spec};
 use crate::trace::{Hit, Query, TraceOptions};
 
 use super::plan::Plan;
@@ -194,7 +196,7 @@ impl Renderer {
             .u32(2, b(plan.jitter))
             .u32(3, b(plan.motion));
         let plain = Spec::new().workgroup(WG);
-        let nodes = crate::trace::gpu::NodeAccess::for_device(ctx);
+        let nodes = crate::accel::walk::NodeAccess::for_device(ctx);
         let extend = walk.variant(
             opt.exact,
             nodes,

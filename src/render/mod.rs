@@ -30,9 +30,9 @@ use serde::Serialize;
 use crate::accel::bvh::Bvh;
 use crate::accel::device::AccelChoice;
 use crate::accel::kdtree::KdTree;
+use crate::accel::primitives::TraceGeometry;
 use crate::scene::{Light, Scene};
 use crate::trace::instanced::TwoLevelScene;
-use crate::trace::TraceGeometry;
 pub use levels::RenderLevels;
 
 pub use plan::{Plan, RenderOptions};
@@ -393,7 +393,7 @@ pub fn render_scene(
 ) -> Result<Rendered, Box<dyn std::error::Error + Send + Sync>> {
     let plan = Plan::new(scene, opt)?;
     if plan.levels != 2 {
-        crate::trace::TraceGeometry::check_flat_fits(ctx, scene)?;
+        crate::accel::primitives::TraceGeometry::check_flat_fits(ctx, scene)?;
     }
     // The structure is built on the device in the render's first submission.
     let rs = RenderScene::on_device(scene, &plan);

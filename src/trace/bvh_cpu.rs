@@ -7,39 +7,12 @@
 use glam::Vec3;
 
 use super::cpu::{clip_to_box, hit_primitive};
-use super::geometry::TraceGeometry;
 use super::intersect::Shear;
 use super::{Hit, Query, Ray, TraceOptions};
 use crate::accel::bvh::{Bvh, Child};
+use crate::accel::primitives::TraceGeometry;
+use crate::accel::walk::Traversal;
 use crate::scene::Aabb;
-
-/// How a BVH query walks the tree.
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
-#[serde(rename_all = "snake_case")]
-pub enum Traversal {
-    /// Far children on a stack.
-    #[default]
-    Stack,
-    /// No stack: parent links and a trail of one bit per level (Áfra & Szirmay-Kalos 2014).
-    Bitstack,
-    /// The 4-wide quantized nodes (Ylitie et al. 2017) with a stack: one node fetch decides
-    /// four children ([`crate::accel::bvh::wide`]).
-    Wide,
-}
-
-impl Traversal {
-    /// `stack` or `bitstack` (the CLI's `--traversal`).
-    pub fn name(self) -> &'static str {
-        match self {
-            Traversal::Stack => "stack",
-            Traversal::Bitstack => "bitstack",
-            Traversal::Wide => "wide",
-        }
-    }
-
-    /// Every walk, binary ones first.
-    pub const ALL: [Traversal; 3] = [Traversal::Stack, Traversal::Bitstack, Traversal::Wide];
-}
 
 /// Where the ray enters `b` within `[t0, t1]` (the kd-tree walk's slab test); `None` when
 /// it misses.

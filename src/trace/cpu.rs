@@ -3,10 +3,10 @@
 
 use glam::{Vec3, Vec4};
 
-use super::geometry::TraceGeometry;
 use super::intersect::{self, Shear, TriHit};
 use super::{Hit, Intersector, Query, Ray, TraceOptions};
 use crate::accel::kdtree::{KdTree, LEAF};
+use crate::accel::primitives::TraceGeometry;
 use crate::scene::Aabb;
 
 /// Node visits + primitive tests per ray when [`TraceOptions::max_steps`] is `None`: the

@@ -22,16 +22,22 @@ use glam::{Vec3, Vec4};
 
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
 use crate::accel::embedded::BuildFlags;
-use crate::accel::instances::{Instance, TopLevel, TopLevelBuilder};
+use crate::accel::geometry::transform_point;
+use crate::accel::instances::{
+    transform_direction, Instance, InstanceRecord, TopLevel, TopLevelBuilder,
+};
 use std::sync::Arc;
 
+use crate::accel::gpu_geometry::GpuGeometry;
+use crate::accel::primitives::TraceGeometry;
+use crate::accel::walk::AccelTraversal;
+use crate::accel::walk::Traversal;
 use crate::gpu::{
     kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, ShaderBlob, Spec,
 };
 use crate::scene::Scene;
-use crate::trace::bvh_cpu::Traversal;
-use crate::trace::gpu::{effective_options, AccelTraversal, GpuGeometry, TraceBatch, Tracer};
-use crate::trace::{Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
+use crate::trace::gpu::{effective_options, TraceBatch, Tracer};
+use crate::trace::{Hit, Intersector, Query, Ray, TraceOptions};
 
 /// The custom index of the instance of the rest (meshes named once, spheres); where the rest
 /// is in pieces, piece `c`'s instance has `REST - c`.
@@ -590,4 +596,79 @@ fn build_bottoms(
         ms += build_ms;
     }
     Ok((levels, ms))
+}
+/// The ray in an instance's object space, as the walk moves it: origin and direction by
+/// `world_to_object` (the direction not renormalised, so `t` means the same), `tmin` kept,
+/// `tmax` the closest hit so far.
+pub fn object_ray(world_to_object: &[[f32; 4]; 3], r: &Ray, tmax: f32) -> Ray {
+    let m = world_to_object;
+    Ray::new(
+        transform_point(m, r.o()),
+        transform_direction(m, r.d()),
+        r.tmin,
+        tmax,
+    )
+}
+
+/// A two-level query's answer: the hit (its `prim` the primitive id in the bottom level),
+/// the instance hit, and whether a walk ran out of steps (the answer is then a miss).
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub struct InstanceHit {
+    /// The closest hit ([`Hit::MISS`] for none); its `prim` is the bottom level's id.
+    pub hit: Hit,
+    /// Index of the instance hit (`None`: a miss).
+    pub instance: Option<u32>,
+    /// A bottom level's walk gave up: the answer is a miss.
+    pub exhausted: bool,
+}
+
+/// The CPU twin of the two-level walk (`vkrt/instances.glsl`): the closest hit at `time`
+/// over every instance the ray's cull mask sees (`steps`: the moving top level's, from
+/// [`instance_boxes`]), each traced by `bottom(level, object-space ray)` —
+/// the bottom level's own walk, returning its hit and whether it gave up. Ties in `t` go to
+/// the lowest instance index; an any-hit query returns the first hit in index order (the
+/// device's may be another: any hit answers it).
+pub fn trace_instances(
+    records: &[InstanceRecord],
+    steps: &[[[f32; 4]; 3]],
+    r: &Ray,
+    time: f32,
+    cull_mask: u32,
+    any_hit: bool,
+    mut bottom: impl FnMut(u32, &Ray) -> (Hit, bool),
+) -> InstanceHit {
+    let mut best = InstanceHit {
+        hit: Hit::MISS,
+        instance: None,
+        exhausted: false,
+    };
+    if !r.is_valid() {
+        return best;
+    }
+    let mut best_t = r.tmax;
+    for (i, rec) in records.iter().enumerate() {
+        if rec.handle == 0 || rec.mask() & cull_mask == 0 {
+            continue;
+        }
+        let Some(m) = rec.world_to_object_at(steps, time) else {
+            continue;
+        };
+        let (h, exhausted) = bottom(rec.bottom(), &object_ray(&m, r, best_t));
+        if exhausted {
+            return InstanceHit {
+                hit: Hit::MISS,
+                instance: None,
+                exhausted: true,
+            };
+        }
+        if h.is_hit() && (best.instance.is_none() || h.t < best_t) {
+            best_t = h.t;
+            best.hit = h;
+            best.instance = Some(i as u32);
+            if any_hit {
+                break;
+            }
+        }
+    }
+    best
 }

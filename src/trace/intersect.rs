@@ -290,9 +290,9 @@ pub fn offset_ray_origin_bounded(p: Vec3, n: Vec3, err: Vec3) -> Vec3 {
     let mut po = p + off;
     for i in 0..3 {
         if off[i] > 0.0 {
-            po[i] = super::geometry::next_up(po[i]);
+            po[i] = crate::accel::primitives::next_up(po[i]);
         } else if off[i] < 0.0 {
-            po[i] = super::geometry::next_down(po[i]);
+            po[i] = crate::accel::primitives::next_down(po[i]);
         }
     }
     po

@@ -1,6 +1,8 @@
-//! Ray queries against a kd-tree: rays and hits shared byte for byte with GLSL
-//! (`glsl/include/vkrt/ray.glsl`, `glsl/include/vkrt/traverse.glsl`), the flattened scene geometry the
-//! traversal reads, the GPU tracer and its CPU twin, and brute force as the oracle.
+//! Ray queries against any vkrt structure: rays and hits shared byte for byte with GLSL
+//! (`glsl/include/vkrt/ray.glsl`, `glsl/include/vkrt/traverse.glsl`), the GPU tracer
+//! ([`gpu`]) and its CPU twins (the kd-tree walk in [`cpu`], the BVH walks in [`bvh_cpu`]),
+//! scenes traced as two levels ([`instanced`]), ray files ([`files`]), the robustness suite
+//! ([`robust`]), and brute force as the oracle.
 //!
 //! Contract of a query (GPU and CPU alike):
 //! - `tmax = +inf` means unbounded, as in Embree, DXR and pbrt;
@@ -19,7 +21,6 @@ pub mod bench;
 pub mod bvh_cpu;
 pub mod cpu;
 pub mod files;
-pub mod geometry;
 pub mod gpu;
 pub mod instanced;
 pub mod intersect;
@@ -27,8 +28,6 @@ pub mod robust;
 
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
-
-pub use geometry::TraceGeometry;
 
 /// A ray: 32 bytes, `Ray` in `glsl/include/vkrt/ray.glsl`.
 #[repr(C)]

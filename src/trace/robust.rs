@@ -45,14 +45,17 @@ use glam::{Vec3, Vec4};
 use serde::Serialize;
 
 use super::bvh_cpu;
-use super::gpu::{GpuGeometry, TraceBatch, Tracer};
+use super::gpu::{TraceBatch, Tracer};
 use super::intersect::{
     offset_ray_origin, offset_ray_origin_bounded, sphere_hit_point, triangle_hit_point,
 };
-use super::{cpu, Hit, Intersector, Query, Ray, TraceGeometry, TraceOptions};
+use super::{cpu, Hit, Intersector, Query, Ray, TraceOptions};
 use crate::accel::bvh;
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, HostStructure};
+use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::kdtree::{stats, validate, SahParams};
+use crate::accel::primitives::TraceGeometry;
+use crate::accel::walk::{AccelTraversal, Traversal};
 use crate::gpu::{Context, GpuError, Result};
 use crate::scene::gen::{self, Rng};
 use crate::scene::Aabb;
@@ -345,7 +348,7 @@ impl Prepared {
         if self.under_instance {
             let walk = self.accel.traversal();
             let opt = super::gpu::effective_options(ctx, opt, walk);
-            let bitstack = walk == super::gpu::AccelTraversal::Bvh(bvh_cpu::Traversal::Bitstack);
+            let bitstack = walk == AccelTraversal::Bvh(Traversal::Bitstack);
             return super::instanced::trace_under_identity(ctx, &self.device, &opt, bitstack, rays);
         }
         Tracer::for_accel(ctx, opt, self.accel.traversal())?.trace_batched(

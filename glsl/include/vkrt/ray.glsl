@@ -441,7 +441,7 @@ vec3 offset_ray_origin(vec3 p, vec3 n) {
 
 // The next float towards +inf / -inf (finite x).
 // Never a subnormal (a device may flush them to zero): above zero and the subnormals is the
-// smallest normal float, above -FLT_MIN is zero (next_up in src/trace/geometry.rs).
+// smallest normal float, above -FLT_MIN is zero (next_up in src/accel/primitives.rs).
 float next_float_up(float x) {
     if (abs(x) < FLT_MIN) {
         return FLT_MIN;

@@ -51,7 +51,7 @@ layout(constant_id = 22) const uint MAX_TRAVERSAL_STEPS = 60000u;
 // within rounding is visited rather than skipped (visiting costs time, skipping loses hits).
 #define PLANE_SLACK 4e-7
 
-// 48 bytes: `MotionRecord` in src/trace/geometry.rs.
+// 48 bytes: `MotionRecord` in src/accel/primitives.rs.
 struct MotionRecord {
     vec4 velocity;   // xyz: units/s; w: angular speed, radians/s
     vec4 center;     // xyz: a point on the rotation axis
@@ -120,7 +120,7 @@ layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 2) readonly buffer TriVe
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 3) readonly buffer Spheres { vec4 spheres[]; };
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 4) readonly buffer PrimMotion { uint prim_motion[]; };
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 5) readonly buffer Motions { MotionRecord motions[]; };
-// `SceneInfo` in src/trace/geometry.rs.
+// `SceneInfo` in src/accel/primitives.rs.
 layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 6) readonly buffer SceneInfoBuf {
     vec4 bounds_min;
     vec4 bounds_max;

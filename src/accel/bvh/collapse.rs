@@ -229,7 +229,7 @@ mod tests {
             .iter()
             .map(|t| t.map(|i| sphere.positions[i as usize]))
             .collect();
-        crate::trace::TraceGeometry::from_triangles(&tris).boxes
+        crate::accel::primitives::TraceGeometry::from_triangles(&tris).boxes
     }
 
     #[test]

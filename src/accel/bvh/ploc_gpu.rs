@@ -13,8 +13,8 @@ use std::sync::Arc;
 use super::lbvh_gpu::{LbvhBuilder, LbvhScratch};
 use super::ploc::{PlocParams, PAIRING_ROUNDS};
 use super::BvhNode;
+use crate::accel::primitives::SceneInfo;
 use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, Spec};
-use crate::trace::geometry::SceneInfo;
 
 /// Words of the round state (`ST_*` in `glsl/accel/ploc_common.glsl`).
 const STATE_WORDS: usize = 16;

@@ -11,10 +11,10 @@ use std::sync::Arc;
 
 use super::layout::MAX_TRAVERSAL_DEPTH;
 use super::BvhNode;
+use crate::accel::primitives::SceneInfo;
 use crate::gpu::{kernels, Buffer, BufferArg, Context, Kernel, Recorder, Result, Spec};
 use crate::prims::radix_sort::{RadixScratch, RadixSort};
 use crate::prims::PrimConfig;
-use crate::trace::geometry::SceneInfo;
 
 const WORKGROUP: u32 = 64;
 /// Words of the levels buffer: counts, starts and dispatches of every depth.

@@ -7,12 +7,12 @@ use std::path::{Path, PathBuf};
 use clap::Args;
 use vkrt::accel::device::{AccelChoice, AccelKind};
 use vkrt::accel::driver::Prefer;
+use vkrt::accel::walk::Traversal;
 use vkrt::gpu::Context;
 use vkrt::render::animate::{self, AnimateOptions, AnimationReport};
 use vkrt::render::gpu::Update;
 use vkrt::render::RenderOptions;
 use vkrt::scene::Scene;
-use vkrt::trace::bvh_cpu::Traversal;
 use vkrt::trace::TraceOptions;
 
 use crate::cli::animate::animated;

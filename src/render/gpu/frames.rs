@@ -5,10 +5,10 @@
 //! the ray counters, which say whether a wave overflowed).
 
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelScratch, DevicePrimitives};
+use crate::accel::gpu_geometry::GpuGeometry;
 use crate::gpu::{Buffer, Context, GpuError, Profile, Recorder, Result, Traffic};
 use crate::render::types::counter;
 use crate::render::{Plan, RayCounts, RenderScene};
-use crate::trace::gpu::GpuGeometry;
 
 use super::levels::{Levels, Traced};
 use super::{Frame, Renderer};

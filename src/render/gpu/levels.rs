@@ -10,11 +10,11 @@ use std::sync::Arc;
 
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelStructure};
 use crate::accel::embedded::BuildFlags;
+use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::instances::{TopLevel, TopLevelBuilder};
 use crate::gpu::{Buffer, BufferArg, Readback, Recorder, Result};
 use crate::render::types::Placement;
 use crate::render::RenderLevels;
-use crate::trace::gpu::GpuGeometry;
 
 use super::Update;
 

@@ -30,10 +30,12 @@ pub use rays::{BenchScene, RayKind, RaySet, ShadowTarget};
 
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
 use crate::accel::driver::Prefer;
+use crate::accel::gpu_geometry::GpuGeometry;
+use crate::accel::primitives::TraceGeometry;
+use crate::accel::walk::Traversal;
 use crate::gpu::{Context, Result};
-use crate::trace::bvh_cpu::Traversal;
-use crate::trace::gpu::{GpuGeometry, Tracer};
-use crate::trace::{Hit, Query, TraceGeometry, TraceOptions};
+use crate::trace::gpu::Tracer;
+use crate::trace::{Hit, Query, TraceOptions};
 
 /// How much to measure.
 #[derive(Clone, Copy, Debug)]

@@ -5,9 +5,10 @@
 use glam::Vec3;
 use serde::Serialize;
 
+use crate::accel::primitives::TraceGeometry;
 use crate::scene::{Camera, Light, Scene};
 use crate::trace::intersect::{offset_ray_origin_bounded, sphere_hit_point, triangle_hit_point};
-use crate::trace::{Hit, Query, Ray, TraceGeometry};
+use crate::trace::{Hit, Query, Ray};
 
 /// Where secondary rays start, as a fraction of the scene's diagonal. vkrt's kernels need
 /// none (the spawn offset clears their watertight test's error), but lavapipe's ray query

@@ -1,0 +1,138 @@
+//! Primitives and a structure over them in device memory, as the tracing kernels bind them.
+
+use crate::accel::bvh::Bvh;
+use crate::accel::device::{
+    upload_structure, AccelBuilder, AccelStructure, DevicePrimitives, HostRef, RecordedBuild,
+};
+use crate::accel::kdtree::KdTree;
+use crate::accel::primitives::TraceGeometry;
+use crate::gpu::{BufferArg, Context, GpuError, Recorder, Result};
+
+/// Primitives and a structure over them in device memory: the seven buffers
+/// `traverse.glsl` binds.
+pub struct GpuGeometry {
+    /// The primitives on the device.
+    pub prims: DevicePrimitives,
+    /// The structure over them on the device.
+    pub accel: AccelStructure,
+    /// For a structure over the caller's device geometry
+    /// ([`AccelBuilder::create_in`](crate::accel::device::AccelBuilder::create_in)): its
+    /// layout and build flags, which every build and update into it must match.
+    pub(crate) device_input: Option<crate::accel::embedded::DeviceInput>,
+}
+
+impl GpuGeometry {
+    /// Geometry and a kd-tree built on the host (or downloaded).
+    pub fn upload(ctx: &Context, g: &TraceGeometry, tree: &KdTree) -> Result<Self> {
+        Self::with_host(ctx, g, HostRef::KdTree(tree))
+    }
+
+    /// Geometry and a BVH built over `g`'s boxes on the host.
+    pub fn upload_bvh(ctx: &Context, g: &TraceGeometry, bvh: &Bvh) -> Result<Self> {
+        Self::with_host(ctx, g, HostRef::Bvh(bvh))
+    }
+
+    /// [`GpuGeometry::upload_bvh`] with the BVH's wide nodes, for the wide walk.
+    pub fn upload_wide_bvh(ctx: &Context, g: &TraceGeometry, bvh: &Bvh) -> Result<Self> {
+        Self::with_host(ctx, g, HostRef::WideBvh(bvh))
+    }
+
+    /// Records the upload of `g` and the build of `builder`'s structure over it into `rec`
+    /// (in a profiler scope named `build`), ending with the barrier that lets the next
+    /// kernels trace it. `grow`: see [`AccelBuilder::sizes`]. Keep the returned geometry
+    /// until the work has executed: its buffers are the ones the recorded commands write.
+    pub fn record_build(
+        rec: &mut Recorder,
+        builder: &AccelBuilder,
+        g: &TraceGeometry,
+        grow: u32,
+    ) -> Result<(Self, RecordedBuild)> {
+        let prims = DevicePrimitives::record_upload(rec, g)?;
+        let (mut accel, scratch) = builder.create(rec.context(), prims.count(), grow)?;
+        let recorded = rec.scope("build", |rec| {
+            builder.record_build(rec, &prims, g, &scratch, &mut accel)
+        })?;
+        // The scratch is freed when this returns, before the work runs: keep it alive.
+        rec.keep_alive(scratch);
+        Ok((
+            Self {
+                prims,
+                accel,
+                device_input: None,
+            },
+            recorded,
+        ))
+    }
+
+    /// One build of `builder`'s structure over `g`, submitted and waited for, redone with
+    /// twice the kd-tree's reference budget while it runs out (as `vkrt trace` does); the
+    /// successful build's milliseconds ([`RecordedBuild::ms`]).
+    pub fn build_fitting(
+        ctx: &Context,
+        builder: &AccelBuilder,
+        g: &TraceGeometry,
+    ) -> Result<(Self, f64)> {
+        for grow in 0..8 {
+            let mut rec = Recorder::new(ctx)?;
+            let (geom, recorded) = Self::record_build(&mut rec, builder, g, grow)?;
+            rec.compute_to_transfer();
+            let built = geom.accel.record_read_built(&mut rec)?;
+            rec.transfer_to_host();
+            let profile = rec.submit_and_wait()?;
+            if let Some(b) = built {
+                if AccelStructure::kd_built(&b.read()?).overflow {
+                    continue;
+                }
+            }
+            return Ok((geom, recorded.ms(&profile)));
+        }
+        Err(GpuError::Kernel {
+            kernel: "accel.kdtree",
+            reason: format!(
+                "the kd-tree of {} primitives still ran out of references after 8 doublings \
+                 of its budget",
+                g.primitive_count()
+            ),
+        })
+    }
+
+    fn with_host(ctx: &Context, g: &TraceGeometry, host: HostRef<'_>) -> Result<Self> {
+        let prims = DevicePrimitives::upload(ctx, g)?;
+        let accel = upload_structure(ctx, &prims, host)?;
+        Ok(Self {
+            prims,
+            accel,
+            device_input: None,
+        })
+    }
+
+    /// The structure's handle for a shader that reads it at device addresses
+    /// (`VKRT_DEVICE_ADDRESS` in `vkrt/ray_query.glsl`): the addresses of its seven arrays,
+    /// in the bindings' order, 56 bytes the caller writes where the shader reads them and
+    /// passes to `vkrtUseStructure`. An error where the context has no
+    /// `bufferDeviceAddress`.
+    pub fn address_handle(&self) -> Result<[u64; 7]> {
+        let ctx = self.prims.tri_verts.context();
+        let b = self.bindings();
+        let mut out = [0u64; 7];
+        for (o, b) in out.iter_mut().zip(b) {
+            *o = crate::gpu::address_of(ctx, b)?;
+        }
+        Ok(out)
+    }
+
+    /// The seven bindings in `traverse.glsl`'s order.
+    pub fn bindings(&self) -> [&dyn BufferArg; 7] {
+        let [nodes, refs] = self.accel.node_bindings();
+        let p = &self.prims;
+        [
+            nodes,
+            refs,
+            &p.tri_verts,
+            &p.spheres,
+            &p.prim_motion,
+            &p.motions,
+            &self.accel.info,
+        ]
+    }
+}
