@@ -9,7 +9,10 @@
 //! use vkrt::{TraceGeometry, TraceOptions, Tracer};
 //!
 //! # fn main() -> Result<(), Box<dyn std::error::Error>> {
+//! # /*
 //! let ctx = Context::new(&ContextOptions::default())?;
+//! # */
+//! # let ctx = Context::new(&ContextOptions::for_tests())?; // validation as the tests run it
 //! let triangle = [Vec3::new(-1.0, -1.0, 0.0), Vec3::new(1.0, -1.0, 0.0), Vec3::Y];
 //! let geometry = TraceGeometry::from_triangles(&[triangle]);
 //!
@@ -25,6 +28,8 @@
 //! let batch = tracer.trace(&ctx, &structure, &[ray], 0.0)?;
 //! assert!(batch.hits[0].is_hit());
 //! assert_eq!(batch.hits[0].t, 2.0);
+//! # let messages = ctx.take_validation_messages();
+//! # assert!(messages.is_empty(), "validation: {messages:?}");
 //! # Ok(())
 //! # }
 //! ```

@@ -277,6 +277,49 @@ impl AccelBuilder {
     /// [`AccelSizes::structure_bytes`] with [`REQUIRED_BUFFER_USAGE`]. It holds no data
     /// until [`AccelBuilder::record_build_from`] has executed. The caller keeps `memory`
     /// alive as long as the structure is used.
+    ///
+    /// A structure over the caller's vertex buffer, in memory the caller allocates, as
+    /// `vkCreateAccelerationStructureKHR` places one:
+    ///
+    /// ```
+    /// use vkrt::accel::geometry::{Geometry, Triangles};
+    /// use vkrt::glam::Vec3;
+    /// use vkrt::{AccelBuilder, AccelKind, BuildFlags, Buffer, Context, ContextOptions};
+    /// use vkrt::{Ray, Recorder, TraceOptions, Tracer};
+    ///
+    /// # fn main() -> Result<(), Box<dyn std::error::Error>> {
+    /// # /*
+    /// let ctx = Context::new(&ContextOptions::default())?;
+    /// # */
+    /// # let ctx = Context::new(&ContextOptions::for_tests())?; // validation as the tests run it
+    /// // The renderer's vertex buffer: one triangle, tightly packed vec3s.
+    /// let vertices = [[-1.0f32, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]];
+    /// let vertex_buffer = Buffer::from_slice(&ctx, "renderer.vertices", &vertices)?;
+    /// let geometries = [Geometry::Triangles(Triangles::soup(vertex_buffer.as_raw(), 3))];
+    ///
+    /// let builder = AccelBuilder::new(&ctx, AccelKind::Ploc)?;
+    /// let flags = BuildFlags::default();
+    /// let sizes = builder.sizes_for(&ctx, &geometries, &flags)?;
+    /// let memory = Buffer::<u8>::arena(&ctx, "renderer.bvh", sizes.structure_bytes as usize)?;
+    /// let scratch_bytes = sizes.build_scratch_bytes as usize;
+    /// let scratch = Buffer::<u8>::arena(&ctx, "renderer.scratch", scratch_bytes)?;
+    /// let mut bvh = builder.create_in(&ctx, &geometries, &flags, memory.as_raw())?;
+    ///
+    /// // Recorded into a command buffer (here vkrt's own; `Recorder::from_raw` takes the
+    /// // renderer's), nothing allocated or submitted by the build.
+    /// let mut rec = Recorder::new(&ctx)?;
+    /// builder.record_build_from(&mut rec, &geometries, &mut bvh, scratch.as_raw())?;
+    /// rec.submit_and_wait()?;
+    ///
+    /// let walk = AccelKind::Ploc.walked(Default::default());
+    /// let tracer = Tracer::for_accel(&ctx, &TraceOptions::default(), walk)?;
+    /// let ray = Ray::new(Vec3::new(0.0, 0.0, 1.0), -Vec3::Z, 0.0, f32::INFINITY);
+    /// assert_eq!(tracer.trace(&ctx, &bvh, &[ray], 0.0)?.hits[0].t, 1.0);
+    /// # let messages = ctx.take_validation_messages();
+    /// # assert!(messages.is_empty(), "validation: {messages:?}");
+    /// # Ok(())
+    /// # }
+    /// ```
     pub fn create_in(
         &self,
         ctx: &Context,

@@ -491,6 +491,48 @@ fn usage(call: &'static str, reason: impl Into<String>) -> GpuError {
 }
 
 /// Builds top levels of one kind (an LBVH or PLOC over the instances' boxes).
+///
+/// Two instances of one bottom level, the second moved 3 units along x; a shader walks the
+/// result from [`TopLevel::handle_address`] (`vkrtUseStructure` in `vkrt/ray_query.glsl`):
+///
+/// ```
+/// use vkrt::accel::instances::{Instance, TopLevelBuilder};
+/// use vkrt::glam::{Affine3A, Vec3};
+/// use vkrt::{AccelBuilder, AccelKind, BuildFlags, Context, ContextOptions, GpuGeometry};
+/// use vkrt::{Recorder, TraceGeometry};
+///
+/// # fn main() -> Result<(), Box<dyn std::error::Error>> {
+/// # /*
+/// let ctx = Context::new(&ContextOptions::default())?;
+/// # */
+/// # let ctx = Context::new(&ContextOptions::for_tests())?; // validation as the tests run it
+/// let triangle = [Vec3::new(-1.0, -1.0, 0.0), Vec3::new(1.0, -1.0, 0.0), Vec3::Y];
+/// let mut rec = Recorder::new(&ctx)?;
+/// let builder = AccelBuilder::new(&ctx, AccelKind::Lbvh)?;
+/// let geometry = TraceGeometry::from_triangles(&[triangle]);
+/// let (bottom, _) = GpuGeometry::record_build(&mut rec, &builder, &geometry, 0)?;
+/// rec.submit_and_wait()?;
+///
+/// let moved = Instance::rows_of(&Affine3A::from_translation(Vec3::new(3.0, 0.0, 0.0)));
+/// let instances = [
+///     Instance::new(0, Instance::IDENTITY),
+///     Instance::new(0, moved).with_custom_index(7),
+/// ];
+/// let top = TopLevelBuilder::new(&ctx, AccelKind::Lbvh)?.build(
+///     &ctx,
+///     &[&bottom],
+///     &instances,
+///     &BuildFlags::default(),
+/// )?;
+/// assert_ne!(top.handle_address(), 0);
+/// let (boxes, _) = top.download()?;
+/// // World boxes (min xyz, max xyz), rounded outwards by a few ulps.
+/// assert!((boxes[1][0] - 2.0).abs() < 1e-5 && (boxes[1][3] - 4.0).abs() < 1e-5);
+/// # let messages = ctx.take_validation_messages();
+/// # assert!(messages.is_empty(), "validation: {messages:?}");
+/// # Ok(())
+/// # }
+/// ```
 pub struct TopLevelBuilder {
     tree: AccelBuilder,
     boxes: Arc<Kernel>,

@@ -7,6 +7,20 @@
 //! bindings of [`descriptor_set_layout_bindings`], and call `vkrtTraceClosest` /
 //! `vkrtTraceAny`. One descriptor set layout serves every kind of structure vkrt builds:
 //! the walk is chosen from the structure itself.
+//!
+//! ```
+//! use vkrt::accel::shader_library::{file, include_dir, write_to, ENTRY};
+//!
+//! // The entry point and everything it includes, for a compiler's includer...
+//! assert!(file(ENTRY).unwrap().contains("vkrtTraceClosest"));
+//! // ...or as a directory for `glslc -I`: this crate's own, or the files written out.
+//! assert!(include_dir().join(ENTRY).is_file());
+//! let dir = std::env::temp_dir().join(format!("vkrt-include-{}", std::process::id()));
+//! write_to(&dir)?;
+//! assert!(dir.join(ENTRY).is_file());
+//! # std::fs::remove_dir_all(&dir)?;
+//! # Ok::<(), std::io::Error>(())
+//! ```
 
 use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::walk::NodeAccess;

@@ -384,6 +384,49 @@ impl Rendered {
 
 /// Plans, builds the structure on the device and renders `scene`; `progress(done, spp)` after
 /// every sample.
+///
+/// ```
+/// use std::path::Path;
+/// use vkrt::render::{render_scene, RenderOptions};
+/// use vkrt::{Context, ContextOptions, Scene, TraceOptions};
+///
+/// # fn main() -> Result<(), Box<dyn std::error::Error + Send + Sync>> {
+/// let scene = Scene::from_toml_str(
+///     r#"
+///     [settings]
+///     width = 32
+///     height = 24
+///     [camera]
+///     position = [0.0, 0.0, 4.0]
+///     look_at = [0.0, 0.0, 0.0]
+///     [[lights]]
+///     type = "point"
+///     position = [2.0, 3.0, 4.0]
+///     intensity = 30.0
+///     [[spheres]]
+///     center = [0.0, 0.0, 0.0]
+///     radius = 1.0
+///     "#,
+///     Path::new("."),
+/// )?
+/// .scene;
+/// # /*
+/// let ctx = Context::new(&ContextOptions::default())?;
+/// # */
+/// # let ctx = Context::new(&ContextOptions::for_tests())?; // validation as the tests run it
+/// let opt = RenderOptions::default();
+/// let out = render_scene(&ctx, &scene, &opt, &TraceOptions::default(), |_, _| {})?;
+/// // RGBA, row-major from the top left: the sphere is lit at the centre, the corner is
+/// // background.
+/// let px = |x: usize, y: usize| &out.image.rgba[4 * (y * 32 + x)..][..3];
+/// assert!(px(16, 12).iter().any(|&c| c > 0));
+/// assert_ne!(px(16, 12), px(0, 0));
+/// assert!(out.plan.passes.contains(&"shadow"));
+/// # let messages = ctx.take_validation_messages();
+/// # assert!(messages.is_empty(), "validation: {messages:?}");
+/// # Ok(())
+/// # }
+/// ```
 pub fn render_scene(
     ctx: &crate::gpu::Context,
     scene: &Scene,
