@@ -46,6 +46,7 @@ fn small(spp: u32) -> RenderOptions {
         all_effects: false,
         accel: Default::default(),
         flatten: false,
+        max_level_primitives: None,
     }
 }
 
@@ -510,4 +511,74 @@ fn the_plan_traces_repeated_meshes_as_two_levels() {
         );
     }
     assert_eq!(plan(&scene_file("hard_shadows.toml"), small(1)).levels, 1);
+}
+
+/// A scene larger than one structure may hold renders as two levels with the rest cut into
+/// pieces, each a bottom level under an identity instance, and gives the image of the scene
+/// in one structure (the hits are the same; shading reads the pieces' world-space
+/// primitives at device addresses, placed by identities). With repeated meshes too (the
+/// dynamic demo: its icospheres instanced, the rest in pieces), against the same scene's
+/// two levels in one piece.
+#[test]
+fn a_scene_in_pieces_renders_the_image_of_one_structure() {
+    use vkrt::accel::device::{AccelChoice, AccelKind};
+    use vkrt::accel::walk::Traversal;
+    use vkrt::trace::instanced::TwoLevelScene;
+    let Some(ctx) = context() else { return };
+    let cases = [
+        ("hard_shadows.toml", AccelChoice::default(), 1),
+        (
+            "reflection.toml",
+            AccelChoice::new(AccelKind::Lbvh, Traversal::Bitstack),
+            1,
+        ),
+        (
+            "dynamic_demo.toml",
+            AccelChoice::new(AccelKind::Ploc, Traversal::Stack),
+            2,
+        ),
+    ];
+    for (name, accel, whole_levels) in cases {
+        let scene = scene_file(name);
+        let whole = RenderOptions { accel, ..small(1) };
+        // A quarter of what stays in the world (everything, where no mesh repeats).
+        let total = scene.triangle_count() + scene.spheres.len();
+        let rest = TwoLevelScene::of(&scene, 0.0).map_or(total, |two| two.rest_ids.len());
+        let max = rest / 4 + 1;
+        let pieces = RenderOptions {
+            max_level_primitives: Some(max),
+            ..whole
+        };
+        let plan = Plan::new(&scene, &pieces).unwrap();
+        assert_eq!((plan.levels, plan.pieces_of), (2, Some(max)), "{name}");
+        let rs = RenderScene::on_device(&scene, &plan);
+        let two = &rs.levels.as_ref().expect("two levels").scene;
+        assert!(
+            two.rest_first.len() >= 2,
+            "{name}: {} pieces",
+            two.rest_first.len()
+        );
+        let got = gpu_render(&ctx, &plan, &rs);
+
+        let want_plan = Plan::new(&scene, &whole).unwrap();
+        assert_eq!(want_plan.levels, whole_levels, "{name}");
+        let want = gpu_render(
+            &ctx,
+            &want_plan,
+            &RenderScene::on_device(&scene, &want_plan),
+        );
+        let differ = got
+            .rgba
+            .iter()
+            .zip(&want.rgba)
+            .filter(|(a, b)| a.abs_diff(**b) > 1)
+            .count();
+        eprintln!(
+            "{name}: {} pieces, {differ} of {} channels differ",
+            two.rest_first.len(),
+            got.rgba.len()
+        );
+        assert_eq!(got.counts.total(), want.counts.total(), "{name}");
+        assert_eq!(differ, 0, "{name}");
+    }
 }

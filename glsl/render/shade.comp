@@ -44,10 +44,21 @@ struct Rows {
     vec4 rows[3];
 };
 #define PER_PRIMITIVE 0xffffffffu
-// Per level primitive (every bottom level's triangles then spheres, bottom after bottom):
-// object-space vertices, 9 floats (spheres: unused).
-layout(std430, binding = 5) readonly buffer LevelVerts { float level_verts[]; };
-layout(std430, binding = 6) readonly buffer LevelSpheres { vec4 level_spheres[]; };
+// The per-primitive arrays are read at device addresses: a scene in pieces may hold more
+// primitives than one storage binding reaches (maxStorageBufferRange), as its walk does.
+#extension GL_EXT_buffer_reference : require
+#extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer LevelFloats { float v[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer LevelVec4s { vec4 v[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer LevelUints { uint v[]; };
+// Where the level arrays lie: per level primitive (every bottom level's triangles then
+// spheres, bottom after bottom) its object-space vertices, 9 floats (spheres: unused); the
+// level spheres; per level primitive its material and its shading normals (9 floats).
+layout(std430, binding = 5) readonly buffer LevelArrays { uint64_t level_addr[4]; };
+#define level_verts LevelFloats(level_addr[0]).v
+#define level_spheres LevelVec4s(level_addr[1]).v
+#define prim_material LevelUints(level_addr[2]).v
+#define tri_normals LevelFloats(level_addr[3]).v
 layout(std430, binding = 7) readonly buffer Placements { Placement placements[]; };
 layout(std430, binding = 8) readonly buffer HitInstance { uint hit_instance[]; };
 // Per moving instance its steps' object-to-world rows.
@@ -63,8 +74,10 @@ layout(std430, binding = 2) buffer Counters { uint counters[]; };
 layout(std430, binding = 10) readonly buffer Params { RenderParams prm; };
 layout(std430, binding = 11) readonly buffer Materials { Material materials[]; };
 layout(std430, binding = 12) readonly buffer Lights { Light lights[]; };
+#if !LEVELS
 layout(std430, binding = 13) readonly buffer PrimMaterial { uint prim_material[]; };
 layout(std430, binding = 14) readonly buffer TriNormals { float tri_normals[]; };
+#endif
 layout(std430, binding = 15) writeonly buffer Radiance { vec4 radiance[]; };
 layout(std430, binding = 16) writeonly buffer Shadows { ShadowRay shadows[]; };
 layout(std430, binding = 17) writeonly buffer Children { PathRay children[]; };

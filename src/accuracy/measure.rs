@@ -556,6 +556,7 @@ fn measure_motion(
             accel: AccelChoice::new(s.kind, Default::default()),
             // the flat structure's update strategies are what this measures
             flatten: true,
+            max_level_primitives: None,
         },
         update: s.update,
         frames: (0..frames).collect(),

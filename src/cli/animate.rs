@@ -93,6 +93,8 @@ pub fn run(args: AnimateArgs, validate: bool) -> CliResult<()> {
         all_effects: false,
         accel: structure.choice(),
         flatten: structure.flatten,
+        // (from the device, when it renders)
+        max_level_primitives: None,
     };
     check_resolution(&render)?;
     let loaded = load_scene(&Some(scene))?;

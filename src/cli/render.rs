@@ -67,6 +67,8 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
         all_effects,
         accel: structure.choice(),
         flatten: structure.flatten,
+        // (from the device, when it renders)
+        max_level_primitives: None,
     };
     // An unsupported image extension fails here, before the scene or the device is touched.
     vkrt::render::output::ImageFormat::from_path(&output)?;

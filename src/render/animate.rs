@@ -540,7 +540,7 @@ pub fn run(
     mut progress: impl FnMut(u32),
 ) -> Result<AnimationReport, Box<dyn std::error::Error + Send + Sync>> {
     let (_, first) = frame_scene(0);
-    let plan = Plan::new(&first, &opt.render)?;
+    let plan = Plan::new(&first, &opt.render.for_device(ctx))?;
     if plan.levels != 2 {
         crate::accel::primitives::TraceGeometry::check_flat_fits(ctx, &first)?;
     }

@@ -79,6 +79,7 @@ pub fn effect_costs(
         all_effects: false,
         accel,
         flatten: false,
+        max_level_primitives: None,
     };
     let mut rows = Vec::new();
     for (name, scene, effect) in scenes {

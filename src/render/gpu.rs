@@ -261,13 +261,19 @@ impl Renderer {
         let slots = plan.shadow_slots as usize;
         let pixels = plan.width as usize * plan.height as usize;
         let iota: Vec<u32> = (0..2 * cap as u32).collect();
+        // Over two levels the per-primitive arrays are the levels' own (`Levels`).
+        let levels = matches!(geom, Traced::Levels(_));
+        let (n_materials, n_normals) = match levels {
+            true => (0, 0),
+            false => (rs.prim_material.len(), rs.tri_normals.len()),
+        };
         let f = Frame {
             params: Buffer::new(ctx, "render.params", 1)?,
             geom,
             materials: Buffer::new(ctx, "render.materials", rs.materials.len())?,
             lights: Buffer::new(ctx, "render.lights", rs.lights.len())?,
-            prim_material: Buffer::new(ctx, "render.prim_material", rs.prim_material.len())?,
-            tri_normals: Buffer::new(ctx, "render.tri_normals", rs.tri_normals.len())?,
+            prim_material: Buffer::new(ctx, "render.prim_material", n_materials)?,
+            tri_normals: Buffer::new(ctx, "render.tri_normals", n_normals)?,
             queue: Buffer::new(ctx, "render.queue", cap)?,
             hits: Buffer::new(ctx, "render.hits", cap)?,
             radiance: Buffer::new(ctx, "render.radiance", cap)?,
@@ -286,8 +292,10 @@ impl Renderer {
         rec.upload(&f.params, &[rs.params])?;
         rec.upload(&f.materials, &rs.materials)?;
         rec.upload(&f.lights, &rs.lights)?;
-        rec.upload(&f.prim_material, &rs.prim_material)?;
-        rec.upload(&f.tri_normals, &rs.tri_normals)?;
+        if !levels {
+            rec.upload(&f.prim_material, &rs.prim_material)?;
+            rec.upload(&f.tri_normals, &rs.tri_normals)?;
+        }
         rec.upload(&f.iota, &iota)?;
         rec.fill(&f.flags, 0);
         rec.fill(&f.counters, 0);
@@ -332,7 +340,8 @@ impl Renderer {
         Ok(match (&rs.accel, &rs.levels) {
             (RenderAccel::OnDevice(choice), Some(rl)) => {
                 let sizes = (grow, plan.queue_capacity);
-                let levels = Levels::record_build(&mut rec, *choice, rl, sizes, false)?;
+                let shading = (rl, &rs.prim_material[..], &rs.tri_normals[..]);
+                let levels = Levels::record_build(&mut rec, *choice, shading, sizes, false)?;
                 let built = RecordedBuild { host_ms: None };
                 (Traced::Levels(levels), rec, Some(built))
             }
@@ -562,20 +571,26 @@ impl Renderer {
                     Traced::Flat(_) => &k.shade,
                     Traced::Levels(_) => k.shade_levels.as_ref().expect("a plan over two levels"),
                 };
+                let per_primitive: [&dyn BufferArg; 2] = [&f.prim_material, &f.tri_normals];
+                let per_primitive = match &f.geom {
+                    Traced::Flat(_) => &per_primitive[..],
+                    // (read at the levels' addresses)
+                    Traced::Levels(_) => &[],
+                };
                 let b = around_geometry(
                     &[&f.queue, &f.hits, &f.counters],
                     &f.geom.shading_bindings(),
                     &[
-                        &f.params,
-                        &f.materials,
-                        &f.lights,
-                        &f.prim_material,
-                        &f.tri_normals,
-                        &f.radiance,
-                        &f.shadows,
-                        &f.children,
-                        &f.flags,
-                    ],
+                        &[&f.params as &dyn BufferArg, &f.materials, &f.lights][..],
+                        per_primitive,
+                        &[
+                            &f.radiance as &dyn BufferArg,
+                            &f.shadows,
+                            &f.children,
+                            &f.flags,
+                        ],
+                    ]
+                    .concat(),
                 );
                 rec.dispatch_indirect(kernel, &f.counters, args_queue, &b, &());
             });

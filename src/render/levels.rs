@@ -89,40 +89,46 @@ impl RenderLevels {
                 });
             };
             let instance = two.instances.iter().find(|i| i.bottom == b as u64);
-            match instance.map(Instance::custom_index) {
-                // A repeated or moving mesh, in object space.
-                Some(k) if k != REST => {
-                    let mesh = &scene.meshes[k as usize];
-                    for t in 0..mesh.indices.len() {
-                        triangle(mesh, t, &Mat3A::IDENTITY);
-                    }
+            let k = instance.map_or(REST, Instance::custom_index);
+            if two.is_rest(k) {
+                // The rest (or its piece `REST - k`): its triangles in the world, then its
+                // spheres, as the piece's bottom level holds them.
+                let piece = (REST - k) as usize;
+                let first = two.rest_first[piece] as usize;
+                let end = two
+                    .rest_first
+                    .get(piece + 1)
+                    .map_or(two.rest_ids.len(), |&e| e as usize);
+                let ids = &two.rest_ids[first..end];
+                let mut placed: Option<(usize, Mat3A)> = None;
+                for &id in ids.iter().filter(|&&id| id < n_tris) {
+                    let k = two.mesh_first.partition_point(|&f| f <= id) - 1;
+                    let mesh = &scene.meshes[k];
+                    let normal_m = match placed {
+                        Some((at, m)) if at == k => m,
+                        _ => {
+                            let m = mesh.world_matrix(time).matrix3.inverse().transpose();
+                            placed = Some((k, m));
+                            m
+                        }
+                    };
+                    triangle(mesh, (id - two.mesh_first[k]) as usize, &normal_m);
                 }
-                // The rest: its triangles in the world (mesh after mesh), then its spheres.
-                _ => {
-                    let mut placed: Option<(usize, Mat3A)> = None;
-                    for &id in two.rest_ids.iter().filter(|&&id| id < n_tris) {
-                        let k = two.mesh_first.partition_point(|&f| f <= id) - 1;
-                        let mesh = &scene.meshes[k];
-                        let normal_m = match placed {
-                            Some((at, m)) if at == k => m,
-                            _ => {
-                                let m = mesh.world_matrix(time).matrix3.inverse().transpose();
-                                placed = Some((k, m));
-                                m
-                            }
-                        };
-                        triangle(mesh, (id - two.mesh_first[k]) as usize, &normal_m);
-                    }
-                    for &id in two.rest_ids.iter().filter(|&&id| id >= n_tris) {
-                        normals.extend([0.0; 9]);
-                        materials.push(world_spheres[(id - n_tris) as usize].material);
-                    }
+                for &id in ids.iter().filter(|&&id| id >= n_tris) {
+                    normals.extend([0.0; 9]);
+                    materials.push(world_spheres[(id - n_tris) as usize].material);
+                }
+            } else {
+                // A repeated or moving mesh, in object space.
+                let mesh = &scene.meshes[k as usize];
+                for t in 0..mesh.indices.len() {
+                    triangle(mesh, t, &Mat3A::IDENTITY);
                 }
             }
         }
         let motion = match shutter {
             Some([t0, t1]) if t1 > t0 => {
-                InstanceMotion::new(steps_for(scene, &two.instances, t1 - t0), t0, t1)
+                InstanceMotion::new(steps_for(scene, &two, t1 - t0), t0, t1)
             }
             _ => InstanceMotion::STATIC,
         };
@@ -143,10 +149,11 @@ impl RenderLevels {
     /// `shutter[0]`, moving over `shutter` in as many steps as before: what an animation's
     /// later frame changes. The bottom levels and the rest stay.
     pub fn move_to(&mut self, scene: &Scene, shutter: [f32; 2]) {
-        for inst in &mut self.scene.instances {
-            if inst.custom_index() != REST {
-                let m = scene.meshes[inst.custom_index() as usize].world_matrix(shutter[0]);
-                inst.transform = Instance::rows_of(&m);
+        let two = &mut self.scene;
+        for i in 0..two.instances.len() {
+            if let Some(k) = mesh_of(two, &two.instances[i]) {
+                let m = scene.meshes[k].world_matrix(shutter[0]);
+                two.instances[i].transform = Instance::rows_of(&m);
             }
         }
         if self.motion.steps > 1 {
@@ -158,7 +165,8 @@ impl RenderLevels {
     /// The instances at every step and their placements (shading reads the steps the top
     /// level's build keeps, instance after instance: `TopLevel::steps`).
     fn place(&mut self, scene: &Scene) {
-        let instances = &self.scene.instances;
+        let two = &self.scene;
+        let instances = &two.instances;
         let motion = self.motion;
         let n = motion.steps as usize;
         self.moving = if n < 2 {
@@ -170,7 +178,7 @@ impl RenderLevels {
                     let t = t0 + (t1 - t0) * (s as f32 / (n - 1) as f32);
                     instances
                         .iter()
-                        .map(move |inst| match moving_mesh(scene, inst) {
+                        .map(move |inst| match moving_mesh(scene, two, inst) {
                             Some(k) => Instance {
                                 transform: Instance::rows_of(&scene.meshes[k].world_matrix(t)),
                                 ..*inst
@@ -180,9 +188,9 @@ impl RenderLevels {
                 })
                 .collect()
         };
-        self.placements = placements(scene, instances, &self.spans);
+        self.placements = placements(scene, two, &self.spans);
         for (i, p) in self.placements.iter_mut().enumerate() {
-            if n > 1 && moving_mesh(scene, &instances[i]).is_some() {
+            if n > 1 && moving_mesh(scene, two, &instances[i]).is_some() {
                 p.motion = [
                     n as u32,
                     (i * n) as u32,
@@ -196,18 +204,23 @@ impl RenderLevels {
 
 /// The mesh an instance places, where it moves over a shutter (velocity or orbit; keyframes
 /// are held at shutter open).
-fn moving_mesh(scene: &Scene, inst: &Instance) -> Option<usize> {
+fn moving_mesh(scene: &Scene, two: &TwoLevelScene, inst: &Instance) -> Option<usize> {
+    mesh_of(two, inst).filter(|&k| !scene.meshes[k].motion.is_static())
+}
+
+/// The mesh an instance places (`None`: the rest, or a piece of it, in the world).
+fn mesh_of(two: &TwoLevelScene, inst: &Instance) -> Option<usize> {
     let k = inst.custom_index();
-    (k != REST && !scene.meshes[k as usize].motion.is_static()).then_some(k as usize)
+    (!two.is_rest(k)).then_some(k as usize)
 }
 
 /// Time steps for `instances` of `scene` moving over `shutter` seconds: two where they move
 /// on straight lines, more where they turn ([`MAX_STEP_DEGREES`] per step at most), one
 /// where nothing moves.
-fn steps_for(scene: &Scene, instances: &[Instance], shutter: f32) -> u32 {
+fn steps_for(scene: &Scene, two: &TwoLevelScene, shutter: f32) -> u32 {
     let mut segments = 0u32;
-    for inst in instances {
-        if let Some(k) = moving_mesh(scene, inst) {
+    for inst in &two.instances {
+        if let Some(k) = moving_mesh(scene, two, inst) {
             let turn = scene.meshes[k]
                 .motion
                 .orbit
@@ -221,17 +234,14 @@ fn steps_for(scene: &Scene, instances: &[Instance], shutter: f32) -> u32 {
 
 /// Per instance its placement: its bottom level's span, its transforms, its material (a mesh
 /// with one material: the instance's own mesh's, so copies may differ).
-fn placements(scene: &Scene, instances: &[Instance], spans: &[Span]) -> Vec<Placement> {
-    instances
+fn placements(scene: &Scene, two: &TwoLevelScene, spans: &[Span]) -> Vec<Placement> {
+    two.instances
         .iter()
         .map(|inst| {
             let span = spans[inst.bottom as usize];
-            let material = match inst.custom_index() {
-                REST => PER_PRIMITIVE,
-                k => match &scene.meshes[k as usize].materials {
-                    MeshMaterials::Single(id) => *id,
-                    MeshMaterials::PerTriangle(_) => PER_PRIMITIVE,
-                },
+            let material = match mesh_of(two, inst).map(|k| &scene.meshes[k].materials) {
+                Some(MeshMaterials::Single(id)) => *id,
+                _ => PER_PRIMITIVE,
             };
             Placement {
                 object_to_world: inst.transform,

@@ -193,7 +193,8 @@ impl RenderScene {
         }
         let scene = &held(scene);
         let time = scene.camera.shutter_open;
-        let Some(two) = TwoLevelScene::of(scene, time) else {
+        let max_per_level = plan.pieces_of.unwrap_or(usize::MAX);
+        let Some(two) = TwoLevelScene::of_within(scene, time, max_per_level) else {
             return flat();
         };
         let (levels, prim_material, tri_normals) =
@@ -434,7 +435,7 @@ pub fn render_scene(
     trace: &crate::trace::TraceOptions,
     mut progress: impl FnMut(u32, u32),
 ) -> Result<Rendered, Box<dyn std::error::Error + Send + Sync>> {
-    let plan = Plan::new(scene, opt)?;
+    let plan = Plan::new(scene, &opt.for_device(ctx))?;
     if plan.levels != 2 {
         crate::accel::primitives::TraceGeometry::check_flat_fits(ctx, scene)?;
     }

@@ -30,6 +30,24 @@ pub struct RenderOptions {
     /// Trace one structure over every primitive even where meshes repeat (else such a
     /// scene is traced as two levels where it can be: [`Plan::levels`]).
     pub flatten: bool,
+    /// The most primitives one structure may hold (`None`: no limit). A larger scene is
+    /// traced as two levels, what no repeated mesh holds cut into pieces of at most this
+    /// many ([`TwoLevelScene::of_within`](crate::trace::instanced::TwoLevelScene::of_within)).
+    /// [`RenderOptions::for_device`] sets it from the device's binding limit.
+    pub max_level_primitives: Option<usize>,
+}
+
+impl RenderOptions {
+    /// These options with [`RenderOptions::max_level_primitives`], where unset, what one
+    /// binding of `ctx`'s device holds of this structure
+    /// ([`max_level_primitives`](crate::trace::instanced::max_level_primitives)).
+    pub fn for_device(self, ctx: &crate::gpu::Context) -> Self {
+        let max = crate::trace::instanced::max_level_primitives(ctx, self.accel.kind);
+        Self {
+            max_level_primitives: self.max_level_primitives.or(Some(max)),
+            ..self
+        }
+    }
 }
 
 /// Pixels × samples × bounce tree bounded by this many rays per wave (queue capacity).
@@ -97,6 +115,9 @@ pub struct Plan {
     /// 2: the scene is traced as two levels (a mesh repeats: one bottom level per repeated
     /// or moving mesh, an instance per copy, `trace::instanced`); 1: one structure.
     pub levels: u32,
+    /// Over two levels, where the scene is larger than one structure may hold: the most
+    /// primitives in each piece the rest is cut into ([`RenderOptions::max_level_primitives`]).
+    pub pieces_of: Option<usize>,
 }
 
 /// Why a scene cannot be rendered.
@@ -155,6 +176,9 @@ impl Plan {
             .min(width as usize * height as usize)
             .max(1) as u32;
         let levels = levels(scene, opt, &mut notes);
+        let pieces_of = opt
+            .max_level_primitives
+            .filter(|&max| levels == 2 && scene.triangle_count() + scene.spheres.len() > max);
         let mut passes = vec!["camera", "extend", "shade"];
         if shadow_slots > 0 {
             passes.push("shadow");
@@ -192,6 +216,7 @@ impl Plan {
             passes,
             notes,
             levels,
+            pieces_of,
         })
     }
 
@@ -206,11 +231,15 @@ impl Plan {
     }
 }
 
-/// How many levels the scene is traced as: two where a mesh repeats and the two levels
-/// can serve the render, with a note where they cannot.
+/// How many levels the scene is traced as: two where a mesh repeats or the scene is larger
+/// than one structure may hold, and the two levels can serve the render, with a note where
+/// they cannot.
 fn levels(scene: &Scene, opt: &RenderOptions, notes: &mut Vec<String>) -> u32 {
     use crate::accel::device::AccelKind;
-    if opt.flatten || !scene.mesh_groups().iter().any(|g| g.len() > 1) {
+    let repeats = scene.mesh_groups().iter().any(|g| g.len() > 1);
+    let max = opt.max_level_primitives.unwrap_or(usize::MAX);
+    let too_large = scene.triangle_count() + scene.spheres.len() > max;
+    if opt.flatten || !(repeats || too_large) {
         return 1;
     }
     let why_flat = if opt.accel.kind == AccelKind::Driver {
@@ -222,7 +251,11 @@ fn levels(scene: &Scene, opt: &RenderOptions, notes: &mut Vec<String>) -> u32 {
     };
     match why_flat {
         Some(why) => {
-            notes.push(format!("meshes repeat, but {why}: one structure"));
+            let what = match repeats {
+                true => "meshes repeat",
+                false => "the scene is larger than one structure may hold",
+            };
+            notes.push(format!("{what}, but {why}: one structure"));
             1
         }
         None => 2,
@@ -261,7 +294,11 @@ impl fmt::Display for Plan {
             writeln!(
                 f,
                 "structure: two levels (a bottom level per repeated or moving mesh, an \
-                 instance per copy{})",
+                 instance per copy{}{})",
+                match self.pieces_of {
+                    Some(n) => format!("; the rest in pieces of at most {n} primitives"),
+                    None => String::new(),
+                },
                 if self.effects.contains(&"motion_blur") {
                     "; moving instances in time steps over the shutter, at most 1° of turn apart"
                 } else {

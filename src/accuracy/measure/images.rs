@@ -99,6 +99,7 @@ fn render(
         all_effects: false,
         accel,
         flatten: false,
+        max_level_primitives: None,
     };
     // lavapipe compiles a pipeline at its first dispatch: a tiny render first, untimed.
     let warm = RenderOptions {

@@ -237,7 +237,9 @@ impl<'r> FrameLoop<'r> {
             let (geom, scratch, refit_scratch, host_ms, bottom_ms) = match &rs.levels {
                 Some(rl) => {
                     let sizes = (self.grow, plan.queue_capacity);
-                    let levels = Levels::record_build(rec, plan.accel, rl, sizes, allow_update)?;
+                    let shading = (rl, &rs.prim_material[..], &rs.tri_normals[..]);
+                    let levels =
+                        Levels::record_build(rec, plan.accel, shading, sizes, allow_update)?;
                     let ms = Some(levels.bottom_ms);
                     (Traced::Levels(levels), None, None, None, ms)
                 }

@@ -31,18 +31,12 @@ pub(crate) enum Traced {
 impl Traced {
     /// What `shade` binds after its head (bindings 5 on): flat, the primitives (triangle
     /// vertices, spheres, per-primitive motion slot, motions) and the scene constants,
-    /// `traverse.glsl`'s last five bindings; over two levels the level primitives, the
-    /// placements, the hits' instances and the moving instances' steps.
+    /// `traverse.glsl`'s last five bindings; over two levels the level arrays' addresses,
+    /// the placements, the hits' instances and the moving instances' steps.
     pub fn shading_bindings(&self) -> Vec<&dyn BufferArg> {
         match self {
             Traced::Flat(g) => g.bindings()[2..].to_vec(),
-            Traced::Levels(l) => vec![
-                &l.verts,
-                &l.spheres,
-                &l.placements,
-                &l.hit_instance,
-                l.top.steps(),
-            ],
+            Traced::Levels(l) => vec![&l.arrays, &l.placements, &l.hit_instance, l.top.steps()],
         }
     }
 
@@ -85,8 +79,16 @@ impl Traced {
 pub(crate) struct Levels {
     top: TopLevel<'static>,
     top_builder: TopLevelBuilder,
-    verts: Buffer<f32>,
-    spheres: Buffer<[f32; 4]>,
+    /// The level arrays shading reads at device addresses (none is bound whole, so a scene
+    /// in pieces may hold more than one binding reaches): per level primitive its vertices,
+    /// the level spheres, per level primitive its material and its shading normals.
+    #[allow(
+        dead_code,
+        reason = "held for shading, which reads them at their addresses"
+    )]
+    level_arrays: (Buffer<f32>, Buffer<[f32; 4]>, Buffer<u32>, Buffer<f32>),
+    /// Their four addresses, in that order (`LevelArrays` in `render/shade.comp`).
+    arrays: Buffer<u64>,
     placements: Buffer<Placement>,
     /// Per queued ray: the instance its closest hit is in (`render.instances` writes it).
     pub hit_instance: Buffer<u32>,
@@ -99,12 +101,12 @@ impl Levels {
     /// Records into `rec` the builds of `rl`'s bottom levels with `choice`'s builder (a
     /// kd-tree's with `grow` doublings of its reference budget: read its reports with
     /// [`Traced::record_read_built`]) and of the top level, in a scope `levels`, and the
-    /// upload of what shading reads; `queue` rays per wave. With `allow_update`, the top
-    /// level can be refit.
+    /// upload of what shading reads (with `materials` and `normals` per level primitive);
+    /// `queue` rays per wave. With `allow_update`, the top level can be refit.
     pub fn record_build(
         rec: &mut Recorder,
         choice: AccelChoice,
-        rl: &RenderLevels,
+        (rl, materials, normals): (&RenderLevels, &[u32], &[f32]),
         (grow, queue): (u32, usize),
         allow_update: bool,
     ) -> Result<Self> {
@@ -129,19 +131,32 @@ impl Levels {
                 top_builder.record_build_shared(rec, &bottoms, &rl.moving, rl.motion, &flags)?;
             Ok::<_, crate::gpu::GpuError>((top, top_builder, bottom_ms))
         })?;
-        let verts = Buffer::new(&ctx, "render.level_verts", rl.verts.len().max(1))?;
-        let spheres = Buffer::new(&ctx, "render.level_spheres", rl.spheres.len().max(1))?;
+        let verts = Buffer::arena(&ctx, "render.level_verts", rl.verts.len().max(1))?;
+        let spheres = Buffer::arena(&ctx, "render.level_spheres", rl.spheres.len().max(1))?;
+        let level_materials =
+            Buffer::arena(&ctx, "render.level_materials", materials.len().max(1))?;
+        let level_normals = Buffer::arena(&ctx, "render.level_normals", normals.len().max(1))?;
+        let addresses = [
+            crate::gpu::address_of(&ctx, &verts)?,
+            crate::gpu::address_of(&ctx, &spheres)?,
+            crate::gpu::address_of(&ctx, &level_materials)?,
+            crate::gpu::address_of(&ctx, &level_normals)?,
+        ];
+        let arrays = Buffer::new(&ctx, "render.level_arrays", addresses.len())?;
         let placements = Buffer::new(&ctx, "render.placements", rl.placements.len().max(1))?;
         let hit_instance = Buffer::new(&ctx, "render.hit_instance", queue.max(1))?;
         rec.upload(&verts, &rl.verts)?;
         rec.upload(&spheres, &rl.spheres)?;
+        rec.upload(&level_materials, materials)?;
+        rec.upload(&level_normals, normals)?;
+        rec.upload(&arrays, &addresses)?;
         rec.upload(&placements, &rl.placements)?;
         rec.transfer_to_compute();
         Ok(Self {
             top,
             top_builder,
-            verts,
-            spheres,
+            level_arrays: (verts, spheres, level_materials, level_normals),
+            arrays,
             placements,
             hit_instance,
             bottom_ms,
