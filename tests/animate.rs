@@ -42,6 +42,7 @@ fn options(accel: AccelChoice, spp: u32) -> RenderOptions {
         all_effects: false,
         accel,
         flatten: false,
+        max_level_primitives: None,
     }
 }
 

@@ -146,6 +146,7 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
             "spp": p.spp,
             "accel": p.accel.label(),
             "levels": p.levels,
+            "pieces_of": p.pieces_of,
             "build_ms": r.build_ms,
             "render_ms": r.render_ms,
             "build_attempts": r.image.build_attempts,
