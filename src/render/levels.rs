@@ -90,16 +90,9 @@ impl RenderLevels {
             };
             let instance = two.instances.iter().find(|i| i.bottom == b as u64);
             let k = instance.map_or(REST, Instance::custom_index);
-            if two.is_rest(k) {
-                // The rest (or its piece `REST - k`): its triangles in the world, then its
-                // spheres, as the piece's bottom level holds them.
-                let piece = (REST - k) as usize;
-                let first = two.rest_first[piece] as usize;
-                let end = two
-                    .rest_first
-                    .get(piece + 1)
-                    .map_or(two.rest_ids.len(), |&e| e as usize);
-                let ids = &two.rest_ids[first..end];
+            if let Some(ids) = two.piece_ids(k) {
+                // The rest (or its piece `REST - k`, or a moving sphere's level): its
+                // triangles in the world, then its spheres, as the bottom level holds them.
                 let mut placed: Option<(usize, Mat3A)> = None;
                 for &id in ids.iter().filter(|&&id| id < n_tris) {
                     let k = two.mesh_first.partition_point(|&f| f <= id) - 1;
@@ -151,9 +144,8 @@ impl RenderLevels {
     pub fn move_to(&mut self, scene: &Scene, shutter: [f32; 2]) {
         let two = &mut self.scene;
         for i in 0..two.instances.len() {
-            if let Some(k) = mesh_of(two, &two.instances[i]) {
-                let m = scene.meshes[k].world_matrix(shutter[0]);
-                two.instances[i].transform = Instance::rows_of(&m);
+            if let Some(placed) = placed_at(scene, two, &two.instances[i], shutter[0]) {
+                two.instances[i].transform = placed;
             }
         }
         if self.motion.steps > 1 {
@@ -178,9 +170,9 @@ impl RenderLevels {
                     let t = t0 + (t1 - t0) * (s as f32 / (n - 1) as f32);
                     instances
                         .iter()
-                        .map(move |inst| match moving_mesh(scene, two, inst) {
-                            Some(k) => Instance {
-                                transform: Instance::rows_of(&scene.meshes[k].world_matrix(t)),
+                        .map(move |inst| match moving(scene, two, inst) {
+                            Some(_) => Instance {
+                                transform: placed_at(scene, two, inst, t).unwrap_or(inst.transform),
                                 ..*inst
                             },
                             None => *inst,
@@ -190,7 +182,7 @@ impl RenderLevels {
         };
         self.placements = placements(scene, two, &self.spans);
         for (i, p) in self.placements.iter_mut().enumerate() {
-            if n > 1 && moving_mesh(scene, two, &instances[i]).is_some() {
+            if n > 1 && moving(scene, two, &instances[i]).is_some() {
                 p.motion = [
                     n as u32,
                     (i * n) as u32,
@@ -202,16 +194,50 @@ impl RenderLevels {
     }
 }
 
-/// The mesh an instance places, where it moves over a shutter (velocity or orbit; keyframes
-/// are held at shutter open).
-fn moving_mesh(scene: &Scene, two: &TwoLevelScene, inst: &Instance) -> Option<usize> {
-    mesh_of(two, inst).filter(|&k| !scene.meshes[k].motion.is_static())
+/// What an instance places, where that can move: a mesh, or a moving sphere (an instance of
+/// its own over a bottom level of one sphere at the origin: [`TwoLevelScene::of_moving`]).
+#[derive(Clone, Copy)]
+enum Placed {
+    Mesh(usize),
+    Sphere(usize),
 }
 
-/// The mesh an instance places (`None`: the rest, or a piece of it, in the world).
-fn mesh_of(two: &TwoLevelScene, inst: &Instance) -> Option<usize> {
+/// What `inst` places (`None`: the rest, or a piece of it, in the world).
+fn placed(scene: &Scene, two: &TwoLevelScene, inst: &Instance) -> Option<Placed> {
     let k = inst.custom_index();
-    (!two.is_rest(k)).then_some(k as usize)
+    let n_tris = scene.triangle_count() as u32;
+    match two.piece_ids(k) {
+        None => Some(Placed::Mesh(k as usize)),
+        Some(&[id]) if id >= n_tris && two.bottoms[inst.bottom as usize].triangle_count() == 0 => {
+            let s = (id - n_tris) as usize;
+            // (a still sphere in a piece of its own stays in the world)
+            (!scene.spheres[s].motion.is_static()).then_some(Placed::Sphere(s))
+        }
+        Some(_) => None,
+    }
+}
+
+/// What `inst` places where it moves over a shutter (velocity or orbit; keyframes are held
+/// at shutter open).
+fn moving(scene: &Scene, two: &TwoLevelScene, inst: &Instance) -> Option<Placed> {
+    placed(scene, two, inst).filter(|&p| !motion_of(scene, p).is_static())
+}
+
+fn motion_of(scene: &Scene, p: Placed) -> &crate::scene::Motion {
+    match p {
+        Placed::Mesh(k) => &scene.meshes[k].motion,
+        Placed::Sphere(s) => &scene.spheres[s].motion,
+    }
+}
+
+/// `inst`'s object-to-world rows at `t` (`None`: it places the rest, which stays).
+fn placed_at(scene: &Scene, two: &TwoLevelScene, inst: &Instance, t: f32) -> Option<[[f32; 4]; 3]> {
+    Some(match placed(scene, two, inst)? {
+        Placed::Mesh(k) => Instance::rows_of(&scene.meshes[k].world_matrix(t)),
+        Placed::Sphere(s) => Instance::rows_of(&glam::Affine3A::from_translation(
+            scene.spheres[s].center_at(t),
+        )),
+    })
 }
 
 /// Time steps for `instances` of `scene` moving over `shutter` seconds: two where they move
@@ -220,12 +246,13 @@ fn mesh_of(two: &TwoLevelScene, inst: &Instance) -> Option<usize> {
 fn steps_for(scene: &Scene, two: &TwoLevelScene, shutter: f32) -> u32 {
     let mut segments = 0u32;
     for inst in &two.instances {
-        if let Some(k) = moving_mesh(scene, two, inst) {
-            let turn = scene.meshes[k]
-                .motion
+        if let Some(p) = moving(scene, two, inst) {
+            let turn = motion_of(scene, p)
                 .orbit
                 .map_or(0.0, |o| (o.degrees_per_second * shutter).abs());
-            let need = (turn / MAX_STEP_DEGREES).ceil().max(1.0);
+            // (a shutter's length rounds differently at each frame's time: a turn a few ulps
+            // past a whole number of degrees keeps the frames' step count)
+            let need = (turn / MAX_STEP_DEGREES * (1.0 - 1e-5)).ceil().max(1.0);
             segments = segments.max(need.min((MAX_MOTION_STEPS - 1) as f32) as u32);
         }
     }
@@ -239,9 +266,14 @@ fn placements(scene: &Scene, two: &TwoLevelScene, spans: &[Span]) -> Vec<Placeme
         .iter()
         .map(|inst| {
             let span = spans[inst.bottom as usize];
-            let material = match mesh_of(two, inst).map(|k| &scene.meshes[k].materials) {
-                Some(MeshMaterials::Single(id)) => *id,
-                _ => PER_PRIMITIVE,
+            // (the levels of moving spheres are shared by radius: each its own material)
+            let material = match placed(scene, two, inst) {
+                Some(Placed::Mesh(k)) => match &scene.meshes[k].materials {
+                    MeshMaterials::Single(id) => *id,
+                    MeshMaterials::PerTriangle(_) => PER_PRIMITIVE,
+                },
+                Some(Placed::Sphere(s)) => scene.spheres[s].material,
+                None => PER_PRIMITIVE,
             };
             Placement {
                 object_to_world: inst.transform,

@@ -194,7 +194,7 @@ impl RenderScene {
         let scene = &held(scene);
         let time = scene.camera.shutter_open;
         let max_per_level = plan.pieces_of.unwrap_or(usize::MAX);
-        let Some(two) = TwoLevelScene::of_within(scene, time, max_per_level) else {
+        let Some(two) = TwoLevelScene::of_moving(scene, time, max_per_level) else {
             return flat();
         };
         let (levels, prim_material, tri_normals) =

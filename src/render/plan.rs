@@ -244,8 +244,6 @@ fn levels(scene: &Scene, opt: &RenderOptions, notes: &mut Vec<String>) -> u32 {
     }
     let why_flat = if opt.accel.kind == AccelKind::Driver {
         Some("the driver's structure is traced flat")
-    } else if scene.spheres.iter().any(|s| !s.motion.is_static()) {
-        Some("moving spheres are traced flat")
     } else {
         None
     };

@@ -75,6 +75,24 @@ impl TwoLevelScene {
     /// into pieces along a Morton curve, each its own bottom level. `None` where no mesh
     /// repeats and the scene fits one level.
     pub fn of_within(scene: &Scene, time: f32, max_per_level: usize) -> Option<Self> {
+        Self::build(scene, time, max_per_level, false)
+    }
+
+    /// As [`TwoLevelScene::of_within`], for a scene whose motion is followed over time (a
+    /// renderer's shutter, an animation's frames): each moving sphere too is placed by an
+    /// instance of its own, of a bottom level holding one sphere of its radius at the origin
+    /// (one per radius), so that its motion changes one transform. Such an instance's custom
+    /// index names a piece of the rest (`REST - c`) whose one primitive is the sphere.
+    pub fn of_moving(scene: &Scene, time: f32, max_per_level: usize) -> Option<Self> {
+        Self::build(scene, time, max_per_level, true)
+    }
+
+    fn build(
+        scene: &Scene,
+        time: f32,
+        max_per_level: usize,
+        sphere_instances: bool,
+    ) -> Option<Self> {
         let groups = scene.mesh_groups();
         let repeats = groups.iter().any(|g| g.len() >= 2);
         let total = scene.triangle_count() + scene.spheres.len();
@@ -120,14 +138,14 @@ impl TwoLevelScene {
                 instances.push(Instance::new(level, rows).with_custom_index(k as u32));
             }
         }
-        // The rest: its triangles (in scene order within it), then the spheres; in pieces
-        // where it is larger than one level may be.
-        let spheres: Vec<Vec4> = scene
-            .spheres_at(time)
-            .iter()
-            .map(|s| s.center.extend(s.radius))
-            .collect();
-        for k in 0..spheres.len() {
+        // The rest: its triangles (in scene order within it), then the spheres (the still
+        // ones, where moving ones are placed by instances); in pieces where it is larger than
+        // one level may be.
+        let placed = scene.spheres_at(time);
+        let moves = |k: usize| sphere_instances && !scene.spheres[k].motion.is_static();
+        let mut spheres: Vec<Vec4> = Vec::with_capacity(placed.len());
+        for (k, s) in placed.iter().enumerate().filter(|&(k, _)| !moves(k)) {
+            spheres.push(s.center.extend(s.radius));
             rest_ids.push(n_tris + k as u32);
         }
         let mut rest_first = Vec::new();
@@ -152,6 +170,25 @@ impl TwoLevelScene {
                 .push(Instance::new(level, Instance::IDENTITY).with_custom_index(REST - piece));
             rest_first.push(start as u32);
             start = end;
+        }
+        // Moving spheres: one bottom level per radius, an instance per sphere at its centre.
+        let mut by_radius: Vec<(u32, u32)> = Vec::new();
+        for (k, s) in placed.iter().enumerate().filter(|&(k, _)| moves(k)) {
+            let level = match by_radius.iter().find(|(r, _)| *r == s.radius.to_bits()) {
+                Some(&(_, level)) => level,
+                None => {
+                    let level = bottoms.len() as u32;
+                    let ball = [Vec3::ZERO.extend(s.radius)];
+                    bottoms.push(TraceGeometry::from_triangles_and_spheres(&[], &ball));
+                    by_radius.push((s.radius.to_bits(), level));
+                    level
+                }
+            };
+            let piece = rest_first.len() as u32;
+            let rows = Instance::rows_of(&glam::Affine3A::from_translation(s.center));
+            instances.push(Instance::new(level, rows).with_custom_index(REST - piece));
+            rest_first.push(rest_ids.len() as u32);
+            rest_ids.push(n_tris + k as u32);
         }
         let unique_primitives = bottoms.iter().map(TraceGeometry::primitive_count).sum();
         Some(Self {
@@ -187,6 +224,21 @@ impl TwoLevelScene {
             rest_first: &self.rest_first,
             rest_ids: &self.rest_ids,
         }
+    }
+
+    /// The scene ids of the primitives of the rest's piece that the instance with
+    /// `custom_index` places (`None`: it places a mesh).
+    pub fn piece_ids(&self, custom_index: u32) -> Option<&[u32]> {
+        if !self.is_rest(custom_index) {
+            return None;
+        }
+        let c = (REST - custom_index) as usize;
+        let first = self.rest_first[c] as usize;
+        let end = self
+            .rest_first
+            .get(c + 1)
+            .map_or(self.rest_ids.len(), |&e| e as usize);
+        Some(&self.rest_ids[first..end])
     }
 
     /// Instances of repeated meshes (the rest's identity instances not counted).
