@@ -493,14 +493,13 @@ fn the_plan_traces_repeated_meshes_as_two_levels() {
         ..small(1)
     };
     assert_eq!(plan(&demo, bitstack).levels, 2);
-    let cases = [(
-        demo.clone(),
-        RenderOptions {
-            accel: AccelChoice::driver(Prefer::FastTrace),
-            ..small(1)
-        },
-        "driver",
-    )];
+    // The driver's own levels, where nothing moves over the shutter.
+    let driver = RenderOptions {
+        accel: AccelChoice::driver(Prefer::FastTrace),
+        ..small(1)
+    };
+    assert_eq!(plan(&demo, driver).levels, 2);
+    let cases = [(blurred.clone(), driver, "driver")];
     for (scene, opt, why) in cases {
         let p = plan(&scene, opt);
         assert_eq!(p.levels, 1, "{why}");
@@ -580,5 +579,58 @@ fn a_scene_in_pieces_renders_the_image_of_one_structure() {
         );
         assert_eq!(got.counts.total(), want.counts.total(), "{name}");
         assert_eq!(differ, 0, "{name}");
+    }
+}
+
+/// A scene that repeats a mesh (the dynamic demo: 24 icospheres and the bunny or its
+/// stand-in in a mirrored room) over the driver's own two levels (a BLAS per bottom level, a
+/// TLAS instance per instance, hits mapped to instances by `render.driver_hits`) renders the
+/// image of vkrt's two levels but for the driver's own triangle test.
+#[test]
+fn the_driver_renders_two_levels_as_vkrt_does() {
+    use vkrt::accel::device::{AccelChoice, AccelKind};
+    use vkrt::accel::driver::Prefer;
+    use vkrt::accel::walk::Traversal;
+    let Some(ctx) = context() else { return };
+    if !ctx.info().features.ray_query {
+        eprintln!("skipped: {} has no ray query", ctx.info().driver);
+        return;
+    }
+    let demo = scene_file("dynamic_demo.toml");
+    let own = RenderOptions {
+        accel: AccelChoice::new(AccelKind::Lbvh, Traversal::Stack),
+        ..small(1)
+    };
+    let own_plan = Plan::new(&demo, &own).unwrap();
+    let want = gpu_render(&ctx, &own_plan, &RenderScene::on_device(&demo, &own_plan));
+    for prefer in [Prefer::FastTrace, Prefer::FastBuild] {
+        let accel = AccelChoice::driver(prefer);
+        let plan = Plan::new(&demo, &RenderOptions { accel, ..small(1) }).unwrap();
+        assert_eq!(plan.levels, 2, "{}", accel.label());
+        let rs = RenderScene::on_device(&demo, &plan);
+        assert!(rs.levels.is_some());
+        let got = gpu_render(&ctx, &plan, &rs);
+        assert_eq!(got.readback_before_trace, 0);
+        assert_eq!(got.counts.primary, want.counts.primary);
+        let (a, b) = (got.counts.secondary(), want.counts.secondary());
+        assert!(
+            a.abs_diff(b) * 100 <= b.max(100),
+            "{a} secondary rays, vkrt's {b}"
+        );
+        let n = got.rgba.len() / 4 * 3;
+        let off = (0..got.rgba.len())
+            .filter(|i| i % 4 != 3 && got.rgba[*i].abs_diff(want.rgba[*i]) > 1)
+            .count();
+        eprintln!(
+            "{}: {off} of {n} channels differ by more than 1/255",
+            accel.label()
+        );
+        assert!(
+            off * 100 <= n,
+            "{}: {off} of {n} channels off",
+            accel.label()
+        );
+        // Not a blank image: the demo's room and spheres are lit.
+        assert!(got.rgba.chunks(4).filter(|p| p[..3] != [0, 0, 0]).count() * 2 > n / 3);
     }
 }

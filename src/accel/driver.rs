@@ -41,6 +41,12 @@ impl InstancedIds {
         let (start, count, instance) = self.starts[k];
         (id - start < count).then_some((instance, id - start))
     }
+
+    /// Per vkrt instance, by first id: (first id, primitives, instance index, 0), the table
+    /// a kernel searches to do what [`InstancedIds::instance_primitive`] does.
+    pub fn starts(&self) -> Vec<[u32; 4]> {
+        self.starts.iter().map(|&(s, n, i)| [s, n, i, 0]).collect()
+    }
 }
 
 /// What the driver's builder optimises for (`VkBuildAccelerationStructureFlagsKHR`).

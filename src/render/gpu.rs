@@ -25,7 +25,7 @@ use super::{RayCounts, RenderAccel, RenderScene};
 mod frames;
 mod levels;
 pub use frames::{FrameImage, FrameLoop, Update};
-use levels::{Levels, Traced};
+use levels::{Levels, Top, Traced};
 
 const WG: u32 = 64;
 
@@ -40,6 +40,8 @@ struct Kernels {
     tonemap: Arc<Kernel>,
     /// Extend and shadow, and shade, over two levels (plans that trace two levels).
     instances: Option<Arc<Kernel>>,
+    /// The driver's two levels: its hits mapped to instances (plans over them).
+    driver_hits: Option<Arc<Kernel>>,
     shade_levels: Option<Arc<Kernel>>,
 }
 
@@ -219,20 +221,28 @@ impl Renderer {
                 &kernels::RENDER_SHADOW_FLOAT_TEXEL,
             ],
         );
-        let (instances, shade_levels) = match plan.levels {
-            2 => (
+        let (instances, driver_hits, shade_levels) = match (plan.levels, walk) {
+            // The driver's levels: its query walks them in the flat kernels.
+            (2, AccelTraversal::RayQuery) => (
+                None,
+                Some(ctx.kernel(&kernels::RENDER_DRIVER_HITS, &plain)?),
+                Some(ctx.kernel(&kernels::RENDER_SHADE_LEVELS, &shade)?),
+            ),
+            (2, _) => (
                 Some(instances_kernel(
                     ctx,
                     &opt,
                     walk == AccelTraversal::Bvh(Traversal::Bitstack),
                 )?),
+                None,
                 Some(ctx.kernel(&kernels::RENDER_SHADE_LEVELS, &shade)?),
             ),
-            _ => (None, None),
+            _ => (None, None, None),
         };
         Ok(Self {
             k: Kernels {
                 instances,
+                driver_hits,
                 shade_levels,
                 camera: ctx.kernel(&kernels::RENDER_CAMERA, &camera)?,
                 extend: ctx.kernel(extend, &walk.spec_for(closest, extend))?,
@@ -657,6 +667,15 @@ impl Renderer {
     /// Records the extend pass (closest hits) or, with `shadow`, the shadow pass (occlusion)
     /// over two levels: `render.instances`, as many invocations as the flat kernels.
     fn record_levels(&self, rec: &mut Recorder, f: &Frame, l: &Levels, shadow: bool) {
+        if let Top::Driver {
+            geom,
+            starts,
+            n_starts,
+            ..
+        } = &l.top
+        {
+            return self.record_driver_levels(rec, f, l, (geom, starts, *n_starts), shadow);
+        }
         let kernel = self.k.instances.as_ref().expect("a plan over two levels");
         let b: [&dyn BufferArg; 6] = [
             &f.queue,
@@ -676,6 +695,44 @@ impl Renderer {
             false => counter::ARGS_QUEUE,
         };
         rec.dispatch_indirect(kernel, &f.counters, (args * 4) as u64, &b, &push);
+    }
+}
+
+impl Renderer {
+    /// [`Renderer::record_levels`] over the driver's levels: the flat kernels' ray query
+    /// walks its TLAS, then (extend) `render.driver_hits` maps each hit to its instance and
+    /// the primitive in that instance's bottom level.
+    fn record_driver_levels(
+        &self,
+        rec: &mut Recorder,
+        f: &Frame,
+        l: &Levels,
+        (geom, starts, n_starts): (&GpuGeometry, &Buffer<[u32; 4]>, u32),
+        shadow: bool,
+    ) {
+        let k = &self.k;
+        if shadow {
+            let head: [&dyn BufferArg; 3] = [&f.shadows, &f.params, &f.counters];
+            let b = around_geometry(&head, &geom.bindings(), &[&f.queue]);
+            rec.dispatch_indirect(
+                &k.shadow,
+                &f.counters,
+                (counter::ARGS_SHADOW * 4) as u64,
+                &b,
+                &(),
+            );
+            return;
+        }
+        let args = (counter::ARGS_QUEUE * 4) as u64;
+        let b = around_geometry(&[&f.queue, &f.hits, &f.counters], &geom.bindings(), &[]);
+        rec.dispatch_indirect(&k.extend, &f.counters, args, &b, &());
+        rec.compute_to_compute();
+        let kernel = k
+            .driver_hits
+            .as_ref()
+            .expect("a plan over the driver's levels");
+        let b: [&dyn BufferArg; 4] = [&f.hits, &f.counters, starts, &l.hit_instance];
+        rec.dispatch_indirect(kernel, &f.counters, args, &b, &n_starts);
     }
 }
 

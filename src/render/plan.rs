@@ -175,7 +175,7 @@ impl Plan {
         let wave_pixels = (queue_capacity / growth)
             .min(width as usize * height as usize)
             .max(1) as u32;
-        let levels = levels(scene, opt, &mut notes);
+        let levels = levels(scene, opt, fx.motion_blur || all, &mut notes);
         let pieces_of = opt
             .max_level_primitives
             .filter(|&max| levels == 2 && scene.triangle_count() + scene.spheres.len() > max);
@@ -234,7 +234,7 @@ impl Plan {
 /// How many levels the scene is traced as: two where a mesh repeats or the scene is larger
 /// than one structure may hold, and the two levels can serve the render, with a note where
 /// they cannot.
-fn levels(scene: &Scene, opt: &RenderOptions, notes: &mut Vec<String>) -> u32 {
+fn levels(scene: &Scene, opt: &RenderOptions, motion: bool, notes: &mut Vec<String>) -> u32 {
     use crate::accel::device::AccelKind;
     let repeats = scene.mesh_groups().iter().any(|g| g.len() > 1);
     let max = opt.max_level_primitives.unwrap_or(usize::MAX);
@@ -242,11 +242,8 @@ fn levels(scene: &Scene, opt: &RenderOptions, notes: &mut Vec<String>) -> u32 {
     if opt.flatten || !(repeats || too_large) {
         return 1;
     }
-    let why_flat = if opt.accel.kind == AccelKind::Driver {
-        Some("the driver's structure is traced flat")
-    } else {
-        None
-    };
+    let why_flat = (opt.accel.kind == AccelKind::Driver && motion)
+        .then_some("the driver's levels do not move over the shutter");
     match why_flat {
         Some(why) => {
             let what = match repeats {

@@ -8,7 +8,9 @@
 
 use std::sync::Arc;
 
-use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelStructure};
+use crate::accel::device::{
+    AccelBuilder, AccelChoice, AccelKind, AccelStructure, DevicePrimitives,
+};
 use crate::accel::embedded::BuildFlags;
 use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::instances::{TopLevel, TopLevelBuilder};
@@ -36,7 +38,14 @@ impl Traced {
     pub fn shading_bindings(&self) -> Vec<&dyn BufferArg> {
         match self {
             Traced::Flat(g) => g.bindings()[2..].to_vec(),
-            Traced::Levels(l) => vec![&l.arrays, &l.placements, &l.hit_instance, l.top.steps()],
+            Traced::Levels(l) => {
+                // (the driver's levels never move: shading never reads the steps)
+                let steps: &dyn BufferArg = match &l.top {
+                    Top::Own { top, .. } => top.steps(),
+                    Top::Driver { .. } => &l.placements,
+                };
+                vec![&l.arrays, &l.placements, &l.hit_instance, steps]
+            }
         }
     }
 
@@ -47,8 +56,10 @@ impl Traced {
         match self {
             Traced::Flat(g) => out.extend(g.accel.record_read_built(rec)?),
             Traced::Levels(l) => {
-                for b in l.top.bottoms() {
-                    out.extend(b.accel.record_read_built(rec)?);
+                if let Top::Own { top, .. } = &l.top {
+                    for b in top.bottoms() {
+                        out.extend(b.accel.record_read_built(rec)?);
+                    }
                 }
             }
         }
@@ -75,10 +86,29 @@ impl Traced {
     }
 }
 
+/// The top level a render traces: vkrt's own (walked by `render.instances` through the
+/// shader library), or the driver's TLAS over its BLASes (walked by the flat kernels' ray
+/// query, whose hits `render.driver_hits` maps to instances).
+pub(crate) enum Top {
+    Own {
+        top: TopLevel<'static>,
+        builder: TopLevelBuilder,
+    },
+    Driver {
+        /// The TLAS, with the primitives of the level that holds the spheres bound (they are
+        /// the kernels' to intersect), as the flat walk binds a structure.
+        geom: GpuGeometry,
+        /// The other levels' primitives, which the BLASes read.
+        _levels: Vec<DevicePrimitives>,
+        /// `InstancedIds::starts`, and how many.
+        starts: Buffer<[u32; 4]>,
+        n_starts: u32,
+    },
+}
+
 /// A scene's two levels on the device, and what shading reads of them.
 pub(crate) struct Levels {
-    top: TopLevel<'static>,
-    top_builder: TopLevelBuilder,
+    pub top: Top,
     /// The level arrays shading reads at device addresses (none is bound whole, so a scene
     /// in pieces may hold more than one binding reaches): per level primitive its vertices,
     /// the level spheres, per level primitive its material and its shading normals.
@@ -106,14 +136,19 @@ impl Levels {
     pub fn record_build(
         rec: &mut Recorder,
         choice: AccelChoice,
-        (rl, materials, normals): (&RenderLevels, &[u32], &[f32]),
+        shading: (&RenderLevels, &[u32], &[f32]),
         (grow, queue): (u32, usize),
         allow_update: bool,
     ) -> Result<Self> {
         let ctx = rec.context().clone();
+        let rl = shading.0;
         let two = &rl.scene;
+        if choice.kind == AccelKind::Driver {
+            let top = rec.scope("levels", |rec| driver_levels(rec, rl, choice))?;
+            return Self::with_top(rec, top, 0.0, shading, queue);
+        }
         // Everything in one scope `levels` (nested scopes repeat names such as `build`).
-        let (top, top_builder, bottom_ms) = rec.scope("levels", |rec| {
+        let (top, builder, bottom_ms) = rec.scope("levels", |rec| {
             let builder = AccelBuilder::for_choice(&ctx, choice)?;
             let mut bottoms = Vec::with_capacity(two.bottoms.len());
             let mut bottom_ms = 0.0;
@@ -131,6 +166,18 @@ impl Levels {
                 top_builder.record_build_shared(rec, &bottoms, &rl.moving, rl.motion, &flags)?;
             Ok::<_, crate::gpu::GpuError>((top, top_builder, bottom_ms))
         })?;
+        Self::with_top(rec, Top::Own { top, builder }, bottom_ms, shading, queue)
+    }
+
+    /// The levels over `top`, with the upload of what shading reads recorded into `rec`.
+    fn with_top(
+        rec: &mut Recorder,
+        top: Top,
+        bottom_ms: f64,
+        (rl, materials, normals): (&RenderLevels, &[u32], &[f32]),
+        queue: usize,
+    ) -> Result<Self> {
+        let ctx = rec.context().clone();
         let verts = Buffer::arena(&ctx, "render.level_verts", rl.verts.len().max(1))?;
         let spheres = Buffer::arena(&ctx, "render.level_spheres", rl.spheres.len().max(1))?;
         let level_materials =
@@ -154,7 +201,6 @@ impl Levels {
         rec.transfer_to_compute();
         Ok(Self {
             top,
-            top_builder,
             level_arrays: (verts, spheres, level_materials, level_normals),
             arrays,
             placements,
@@ -179,7 +225,15 @@ impl Levels {
         rl: &RenderLevels,
         update: Update,
     ) -> Result<()> {
-        let (b, top, instances) = (&self.top_builder, &mut self.top, &rl.moving);
+        let Top::Own { top, builder: b } = &mut self.top else {
+            return Err(crate::gpu::GpuError::Usage {
+                call: "FrameLoop::render",
+                reason: "the driver's two levels are built once: an animation over the \
+                         driver's structure is traced flat"
+                    .into(),
+            });
+        };
+        let instances = &rl.moving;
         if rl.motion.steps > 1 {
             top.set_time(rl.motion.time)?;
         }
@@ -189,8 +243,56 @@ impl Levels {
         }
     }
 
-    /// Where the top level's handle lies (the kernels' push constant).
+    /// Where vkrt's top level's handle lies (`render.instances`' push constant); 0 for the
+    /// driver's.
     pub fn handle(&self) -> u64 {
-        self.top.handle_address()
+        match &self.top {
+            Top::Own { top, .. } => top.handle_address(),
+            Top::Driver { .. } => 0,
+        }
     }
+}
+
+/// Records the build of the driver's own levels over `rl`'s bottom levels (a BLAS per level
+/// and kind of geometry, a TLAS instance per instance with its transform, custom index and
+/// mask: `DriverAccel::record_instanced`).
+fn driver_levels(rec: &mut Recorder, rl: &RenderLevels, choice: AccelChoice) -> Result<Top> {
+    let ctx = rec.context().clone();
+    let two = &rl.scene;
+    let mut prims = Vec::with_capacity(two.bottoms.len());
+    for g in &two.bottoms {
+        prims.push(DevicePrimitives::record_upload(rec, g)?);
+    }
+    let with_spheres: Vec<usize> = (0..two.bottoms.len())
+        .filter(|&b| !two.bottoms[b].spheres.is_empty())
+        .collect();
+    if with_spheres.len() > 1 {
+        return Err(crate::gpu::GpuError::Usage {
+            call: "render over the driver's two levels",
+            reason: format!(
+                "the spheres lie in {} bottom levels; the driver's walk intersects one \
+                 level's spheres",
+                with_spheres.len()
+            ),
+        });
+    }
+    let bound = with_spheres.first().copied().unwrap_or(0);
+    let refs: Vec<&DevicePrimitives> = prims.iter().collect();
+    let (accel, ids) =
+        AccelStructure::record_driver_instanced(rec, &refs, &two.instances, bound, choice.prefer)?;
+    let starts = ids.starts();
+    let n_starts = starts.len() as u32;
+    let table = Buffer::new(&ctx, "render.driver_starts", starts.len().max(1))?;
+    rec.upload(&table, &starts)?;
+    let geom = GpuGeometry {
+        prims: prims.swap_remove(bound),
+        accel,
+        device_input: None,
+    };
+    Ok(Top::Driver {
+        geom,
+        _levels: prims,
+        starts: table,
+        n_starts,
+    })
 }
