@@ -89,6 +89,10 @@ impl Traced {
 /// The top level a render traces: vkrt's own (walked by `render.instances` through the
 /// shader library), or the driver's TLAS over its BLASes (walked by the flat kernels' ray
 /// query, whose hits `render.driver_hits` maps to instances).
+#[allow(
+    clippy::large_enum_variant,
+    reason = "one per render, made once and kept in place"
+)]
 pub(crate) enum Top {
     Own {
         top: TopLevel<'static>,
