@@ -205,7 +205,11 @@ enum Placed {
 /// What `inst` places (`None`: the rest, or a piece of it, in the world).
 fn placed(scene: &Scene, two: &TwoLevelScene, inst: &Instance) -> Option<Placed> {
     let k = inst.custom_index();
-    let n_tris = scene.triangle_count() as u32;
+    // (the scene's triangle count, without a pass over its meshes per instance)
+    let n_tris = match (two.mesh_first.last(), scene.meshes.last()) {
+        (Some(&first), Some(mesh)) => first + mesh.indices.len() as u32,
+        _ => 0,
+    };
     match two.piece_ids(k) {
         None => Some(Placed::Mesh(k as usize)),
         Some(&[id]) if id >= n_tris && two.bottoms[inst.bottom as usize].triangle_count() == 0 => {
