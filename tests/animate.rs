@@ -46,6 +46,25 @@ fn options(accel: AccelChoice, spp: u32) -> RenderOptions {
     }
 }
 
+/// The plan of `scene` as one structure, with `opt`'s other settings.
+fn flat_plan(scene: &Scene, opt: RenderOptions) -> Plan {
+    let plan = Plan::new(
+        scene,
+        &RenderOptions {
+            flatten: true,
+            ..opt
+        },
+    )
+    .unwrap();
+    assert_eq!(plan.levels, 1);
+    plan
+}
+
+/// Channels of two 8-bit images that differ by more than 1/255.
+fn channels_off(a: &[u8], b: &[u8]) -> usize {
+    a.iter().zip(b).filter(|(x, y)| x.abs_diff(**y) > 1).count()
+}
+
 fn flatten(scene: &Scene, plan: &Plan, accel: AccelChoice) -> RenderScene {
     RenderScene::new(scene, plan, |_| Ok::<_, ()>(RenderAccel::OnDevice(accel))).unwrap()
 }
@@ -177,15 +196,7 @@ fn two_level_frames_update_the_top_level_and_match_the_flat_renders() {
         let what = format!("{} {}", accel.label(), update.name());
         let plan = Plan::new(&scene, &options(accel, 1)).unwrap();
         assert_eq!(plan.levels, 2, "{what}: the demo's spheres repeat");
-        let flat_plan = Plan::new(
-            &scene,
-            &RenderOptions {
-                flatten: true,
-                ..options(accel, 1)
-            },
-        )
-        .unwrap();
-        assert_eq!(flat_plan.levels, 1);
+        let flat_plan = flat_plan(&scene, options(accel, 1));
         let renderer = Renderer::new(&ctx, &plan, &TraceOptions::default()).unwrap();
         let flat_renderer = Renderer::new(&ctx, &flat_plan, &TraceOptions::default()).unwrap();
         let mut frames = FrameLoop::new(&ctx, &renderer, &plan, accel, update).unwrap();
@@ -208,12 +219,7 @@ fn two_level_frames_update_the_top_level_and_match_the_flat_renders() {
                 .render(&ctx, &flat_rs, &flat_plan, |_| {})
                 .unwrap();
             let n = frame.rgba.len();
-            let off = frame
-                .rgba
-                .iter()
-                .zip(&flat.rgba)
-                .filter(|(a, b)| a.abs_diff(**b) > 1)
-                .count();
+            let off = channels_off(&frame.rgba, &flat.rgba);
             eprintln!("{what}: frame {k}: {off} of {n} channels differ from flat by > 1/255");
             assert!(
                 off * 200 <= n,
@@ -239,14 +245,7 @@ fn motion_blurred_instances_match_the_flat_motion_blur() {
     let plan = Plan::new(&scene, &options(accel, 4)).unwrap();
     assert!(plan.motion, "the demo blurs with an open shutter");
     assert_eq!(plan.levels, 2);
-    let flat_plan = Plan::new(
-        &scene,
-        &RenderOptions {
-            flatten: true,
-            ..options(accel, 4)
-        },
-    )
-    .unwrap();
+    let flat_plan = flat_plan(&scene, options(accel, 4));
     let renderer = Renderer::new(&ctx, &plan, &TraceOptions::default()).unwrap();
     let flat_renderer = Renderer::new(&ctx, &flat_plan, &TraceOptions::default()).unwrap();
     let mut frames = FrameLoop::new(&ctx, &renderer, &plan, accel, Update::Refit).unwrap();
@@ -273,7 +272,7 @@ fn motion_blurred_instances_match_the_flat_motion_blur() {
             )
             .unwrap();
         let n = frame.rgba.len();
-        let off = |a: &[u8], b: &[u8]| a.iter().zip(b).filter(|(x, y)| x.abs_diff(**y) > 1).count();
+        let off = channels_off;
         let (blur_off, still_off) = (off(&frame.rgba, &flat.rgba), off(&still.rgba, &flat.rgba));
         eprintln!(
             "frame {k}: {blur_off} of {n} channels differ from the flat blur by > 1/255 \
@@ -333,14 +332,7 @@ fn moving_spheres_are_instances_that_match_the_flat_renders() {
         scene.camera.shutter_close = scene.camera.shutter_open + shutter;
         let plan = Plan::new(&scene, &options(accel, 2)).unwrap();
         assert_eq!(plan.levels, 2, "moving spheres no longer flatten the scene");
-        let flat_plan = Plan::new(
-            &scene,
-            &RenderOptions {
-                flatten: true,
-                ..options(accel, 2)
-            },
-        )
-        .unwrap();
+        let flat_plan = flat_plan(&scene, options(accel, 2));
         let renderer = Renderer::new(&ctx, &plan, &TraceOptions::default()).unwrap();
         let flat_renderer = Renderer::new(&ctx, &flat_plan, &TraceOptions::default()).unwrap();
         let mut frames = FrameLoop::new(&ctx, &renderer, &plan, accel, Update::Refit).unwrap();
@@ -373,12 +365,7 @@ fn moving_spheres_are_instances_that_match_the_flat_renders() {
                 .render(&ctx, &flat_rs, &flat_plan, |_| {})
                 .unwrap();
             let n = frame.rgba.len();
-            let off = frame
-                .rgba
-                .iter()
-                .zip(&flat.rgba)
-                .filter(|(a, b)| a.abs_diff(**b) > 1)
-                .count();
+            let off = channels_off(&frame.rgba, &flat.rgba);
             eprintln!("shutter {shutter}: frame {k}: {off} of {n} channels differ from flat");
             assert!(
                 off * 200 <= n,
