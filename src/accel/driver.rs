@@ -99,6 +99,9 @@ pub struct DriverAccel {
     bottoms: Vec<Bottom>,
     /// The top level's instances (one identity instance per bottom level for a flat scene).
     records: Vec<AccelInstance>,
+    /// Two levels ([`DriverAccel::record_instanced`]): per record, the instance it places,
+    /// and how many instances there are (empty and 0 for a flat scene).
+    placing: (Vec<u32>, usize),
     tlas: AccelerationStructure,
     /// The instance records (with room to start them at a 16-byte aligned address), written
     /// by the recorded build from constants: nothing is uploaded.
@@ -296,6 +299,7 @@ impl DriverAccel {
         Ok(Some(Self {
             bottoms,
             records,
+            placing: (Vec::new(), 0),
             tlas,
             instances,
             flags,
@@ -354,6 +358,49 @@ impl DriverAccel {
         rec.scope("driver_update", |rec| {
             self.record_levels(rec, true, scratch)
         })
+    }
+
+    /// Records the top level of two levels ([`DriverAccel::record_instanced`]) rebuilt over
+    /// `instances` moved: as many as it was built over, in the same order, of which only the
+    /// transforms are read (each keeps its level, custom index, mask and flags). The instance
+    /// records are rewritten, the TLAS rebuilt over the bottom levels as they are, then the
+    /// barrier to the kernels: an animation's frame over the driver's levels.
+    pub fn record_move_instances(
+        &mut self,
+        rec: &mut Recorder,
+        instances: &[Instance],
+    ) -> Result<()> {
+        let (placing, count) = &self.placing;
+        if *count == 0 || instances.len() != *count {
+            return Err(GpuError::Usage {
+                call: "DriverAccel::record_move_instances",
+                reason: format!(
+                    "{} instances for a top level of {count} (a flat structure has none): build \
+                     a new one",
+                    instances.len()
+                ),
+            });
+        }
+        for (r, &i) in self.records.iter_mut().zip(placing) {
+            let rows = &instances[i as usize].transform;
+            r.transform = *rows.as_flattened().first_chunk().expect("12 floats");
+        }
+        for (k, chunk) in self.records.chunks(256).enumerate() {
+            rec.update(
+                &self.instances,
+                self.instance_word() + 16 * 256 * k,
+                bytemuck::cast_slice(chunk),
+            )?;
+        }
+        let scratch = self.scratch_or(None)?;
+        rec.to_accel_build();
+        let at = self.instances.device_address() + 4 * self.instance_word() as u64;
+        let top = [Self::top(at, self.records.len())];
+        rec.scope("driver_top_level", |rec| {
+            self.tlas.record_build(rec, &top, self.flags, scratch)
+        })?;
+        rec.accel_build_to_compute();
+        Ok(())
     }
 
     /// The bottom levels (built or updated), one after the other on the one scratch, then
@@ -441,6 +488,7 @@ impl DriverAccel {
             ));
         }
         let mut records = Vec::new();
+        let mut placing = Vec::new();
         let mut ids = InstancedIds::default();
         let mut next = per_level.get(bound).map_or(0, |l| l.1);
         let mut bound_placed = false;
@@ -479,6 +527,7 @@ impl DriverAccel {
                     sbt_offset_and_flags: inst.sbt_offset_and_flags,
                     blas: bottoms[b].blas.device_address(),
                 });
+                placing.push(i as u32);
                 ids.bases.push(start + first);
             }
         }
@@ -493,6 +542,7 @@ impl DriverAccel {
         let accel = Self {
             bottoms,
             records,
+            placing: (placing, instances.len()),
             tlas,
             instances: instances_buf,
             flags,

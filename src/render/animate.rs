@@ -540,11 +540,7 @@ pub fn run(
     mut progress: impl FnMut(u32),
 ) -> Result<AnimationReport, Box<dyn std::error::Error + Send + Sync>> {
     let (_, first) = frame_scene(0);
-    let mut render = opt.render.for_device(ctx);
-    // The driver's two levels are built once (its TLAS is not updated from frame to frame):
-    // an animation over the driver's structure rebuilds one structure per frame.
-    render.flatten |= render.accel.kind == crate::accel::device::AccelKind::Driver;
-    let plan = Plan::new(&first, &render)?;
+    let plan = Plan::new(&first, &opt.render.for_device(ctx))?;
     if plan.levels != 2 {
         crate::accel::primitives::TraceGeometry::check_flat_fits(ctx, &first)?;
     }

@@ -229,13 +229,20 @@ impl Levels {
         rl: &RenderLevels,
         update: Update,
     ) -> Result<()> {
-        let Top::Own { top, builder: b } = &mut self.top else {
-            return Err(crate::gpu::GpuError::Usage {
-                call: "FrameLoop::render",
-                reason: "the driver's two levels are built once: an animation over the \
-                         driver's structure is traced flat"
-                    .into(),
-            });
+        let (top, b) = match &mut self.top {
+            Top::Own { top, builder } => (top, builder),
+            // The driver's TLAS is rebuilt over the moved instances (they never move over
+            // a shutter: `Plan::levels`), its BLASes kept.
+            Top::Driver { geom, .. } => {
+                let driver = geom.accel.driver_levels().and_then(|d| d.as_deref_mut());
+                let driver = driver.ok_or_else(|| crate::gpu::GpuError::Usage {
+                    call: "FrameLoop::render",
+                    reason: "the driver's levels were not built".into(),
+                })?;
+                return rec.scope("levels", |rec| {
+                    driver.record_move_instances(rec, &rl.moving)
+                });
+            }
         };
         let instances = &rl.moving;
         if rl.motion.steps > 1 {
