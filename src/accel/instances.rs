@@ -17,7 +17,8 @@
 //! [`TopLevel::handle_address`] to `vkrtUseStructure`: at an instance the walk moves the ray
 //! into the instance's object space (the direction is not renormalised, so `t` keeps its
 //! meaning) and walks its bottom level with that level's own walk; hits name the instance
-//! and its custom index ([`trace_instances`](crate::trace::instanced::trace_instances) is the CPU twin).
+//! and its custom index (the CPU twin:
+//! [`trace_instances`](crate::trace::instanced::trace_instances)).
 //!
 //! Instances move as Embree's motion-blurred instances do ([`InstanceMotion`]; two steps
 //! are `VK_NV_ray_tracing_motion_blur`'s matrix motion): each instance's object-to-world is

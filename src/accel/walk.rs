@@ -34,8 +34,8 @@ impl Traversal {
     pub const ALL: [Traversal; 3] = [Traversal::Stack, Traversal::Bitstack, Traversal::Wide];
 }
 
-/// Which structure a [`GpuGeometry`](crate::accel::gpu_geometry::GpuGeometry) holds, and how a kernel walks it (the `ACCEL_KIND`
-/// specialization constant of `traverse.glsl`).
+/// Which structure a [`GpuGeometry`](crate::accel::gpu_geometry::GpuGeometry) holds, and how
+/// a kernel walks it (the `ACCEL_KIND` specialization constant of `traverse.glsl`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
 #[serde(rename_all = "snake_case")]
 pub enum AccelTraversal {

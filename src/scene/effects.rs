@@ -1,11 +1,11 @@
 //! Which rendering effects a scene calls for, and its summary.
 //!
 //! The renderer builds only the passes and shader variants a scene needs: no
-//! refraction kernel without glass, no shadow rays without lights, a pinhole camera without depth of field. [`Effects`] is
-//! that decision, made once here from the scene data so the CLI (`vkrt
-//! scene`) and the renderer agree. Only materials actually used by some
-//! triangle or sphere count, and reflection/refraction need
-//! `max_depth ≥ 1` to be traced at all.
+//! refraction kernel without glass, no shadow rays without lights, a pinhole
+//! camera without depth of field. [`Effects`] is that decision, made once here
+//! from the scene data so the CLI (`vkrt scene`) and the renderer agree. Only
+//! materials actually used by some triangle or sphere count, and
+//! reflection/refraction need `max_depth ≥ 1` to be traced at all.
 
 use std::fmt;
 
