@@ -318,13 +318,7 @@ impl DriverAccel {
     /// kernels query it. `scratch`: the caller's, where the structure keeps none. Without the
     /// driver's ray query: [`GpuError::MissingCapability`] naming the extensions.
     pub fn record_build(&self, rec: &mut Recorder, scratch: Option<&Buffer<u8>>) -> Result<()> {
-        for (k, chunk) in self.records.chunks(256).enumerate() {
-            rec.update(
-                &self.instances,
-                self.instance_word() + 16 * 256 * k,
-                bytemuck::cast_slice(chunk),
-            )?;
-        }
+        self.record_records(rec)?;
         let scratch = self.scratch_or(scratch)?;
         rec.scope("driver_build", |rec| {
             self.record_levels(rec, false, scratch)
@@ -385,6 +379,15 @@ impl DriverAccel {
             let rows = &instances[i as usize].transform;
             r.transform = *rows.as_flattened().first_chunk().expect("12 floats");
         }
+        self.record_records(rec)?;
+        rec.to_accel_build();
+        self.record_top(rec, self.scratch_or(None)?)?;
+        rec.accel_build_to_compute();
+        Ok(())
+    }
+
+    /// Records the writes of the instance records (from constants: nothing is uploaded).
+    fn record_records(&self, rec: &mut Recorder) -> Result<()> {
         for (k, chunk) in self.records.chunks(256).enumerate() {
             rec.update(
                 &self.instances,
@@ -392,15 +395,16 @@ impl DriverAccel {
                 bytemuck::cast_slice(chunk),
             )?;
         }
-        let scratch = self.scratch_or(None)?;
-        rec.to_accel_build();
+        Ok(())
+    }
+
+    /// Records the top level's build over the instance records.
+    fn record_top(&self, rec: &mut Recorder, scratch: &Buffer<u8>) -> Result<()> {
         let at = self.instances.device_address() + 4 * self.instance_word() as u64;
         let top = [Self::top(at, self.records.len())];
         rec.scope("driver_top_level", |rec| {
             self.tlas.record_build(rec, &top, self.flags, scratch)
-        })?;
-        rec.accel_build_to_compute();
-        Ok(())
+        })
     }
 
     /// The bottom levels (built or updated), one after the other on the one scratch, then
@@ -421,11 +425,7 @@ impl DriverAccel {
             Ok::<_, GpuError>(())
         })?;
         rec.accel_build_to_accel_build();
-        let at = self.instances.device_address() + 4 * self.instance_word() as u64;
-        let top = [Self::top(at, self.records.len())];
-        rec.scope("driver_top_level", |rec| {
-            self.tlas.record_build(rec, &top, self.flags, scratch)
-        })?;
+        self.record_top(rec, scratch)?;
         rec.accel_build_to_compute();
         Ok(())
     }
