@@ -634,3 +634,73 @@ fn the_driver_renders_two_levels_as_vkrt_does() {
         assert!(got.rgba.chunks(4).filter(|p| p[..3] != [0, 0, 0]).count() * 2 > n / 3);
     }
 }
+
+/// `render.driver_hits` against its CPU twin (`instance_primitive_in`): tables of 0, 1, 7, 8,
+/// 9, 63, 64, 65 and 1,000 instances with gaps, empty instances and ids past the last, every
+/// id of each range's edges and random ones, misses kept; rays past the queue's live count
+/// untouched.
+#[test]
+fn driver_hits_map_ids_as_their_cpu_twin() {
+    use vkrt::accel::driver::instance_primitive_in;
+    use vkrt::gpu::{kernels, Buffer, BufferArg, Recorder, Spec};
+    let Some(ctx) = context() else { return };
+    let kernel = ctx
+        .kernel(&kernels::RENDER_DRIVER_HITS, &Spec::new().workgroup(64))
+        .unwrap();
+    let mut rng = vkrt::scene::gen::Rng::new(7);
+    for n in [0usize, 1, 7, 8, 9, 63, 64, 65, 1000] {
+        // Instances in a shuffled order of first ids, some empty, some with gaps between.
+        let mut starts = Vec::with_capacity(n);
+        let mut first = 0u32;
+        for i in 0..n {
+            let count = (rng.next_u64() % 5) as u32 * (rng.next_u64() % 40) as u32;
+            let index = ((i * 7919) % n.max(1)) as u32;
+            starts.push([first, count, index, 0]);
+            first += count + (rng.next_u64() % 3) as u32;
+        }
+        let mut ids: Vec<u32> = starts
+            .iter()
+            .flat_map(|s| [s[0], s[0] + s[1], (s[0] + s[1]).wrapping_sub(1)])
+            .collect();
+        ids.extend((0..300).map(|_| (rng.next_u64() % (u64::from(first) + 10)) as u32));
+        ids.extend([0, first, first + 1, u32::MAX - 1, u32::MAX]);
+        let live = ids.len() - 3;
+        let hits: Vec<[u32; 4]> = ids.iter().map(|&id| [1, id, 2, 3]).collect();
+        let hit_buf = Buffer::from_slice(&ctx, "test.hits", &hits).unwrap();
+        let mut counters = [0u32; 16];
+        counters[0] = live as u32;
+        let counter_buf = Buffer::from_slice(&ctx, "test.counters", &counters).unwrap();
+        let table = if starts.is_empty() {
+            vec![[0u32; 4]]
+        } else {
+            starts.clone()
+        };
+        let start_buf = Buffer::from_slice(&ctx, "test.starts", &table).unwrap();
+        let instance_buf = Buffer::<u32>::zeroed(&ctx, "test.instances", ids.len()).unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        let groups = rec.groups_1d(ids.len() as u64, 64);
+        let b: [&dyn BufferArg; 4] = [&hit_buf, &counter_buf, &start_buf, &instance_buf];
+        rec.dispatch(&kernel, groups, &b, &(starts.len() as u32));
+        rec.compute_to_transfer();
+        rec.submit_and_wait().unwrap();
+        let (got, got_instance) = (
+            hit_buf.download().unwrap(),
+            instance_buf.download().unwrap(),
+        );
+        for (r, &id) in ids.iter().enumerate() {
+            let want = match (r < live, id) {
+                (false, _) | (true, u32::MAX) => ([1, id, 2, 3], 0),
+                (true, _) => match instance_primitive_in(&starts, id) {
+                    Some((instance, prim)) => ([1, prim, 2, 3], instance),
+                    None => ([f32::INFINITY.to_bits(), u32::MAX, 0, 0], 0),
+                },
+            };
+            assert_eq!(
+                (got[r], got_instance[r]),
+                want,
+                "{n} instances: ray {r}, id {id}"
+            );
+        }
+    }
+    assert_silent(&ctx);
+}

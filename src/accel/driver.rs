@@ -30,23 +30,30 @@ use super::instances::Instance;
 pub struct InstancedIds {
     /// Per top-level instance: the id of its first primitive (what the kernels read).
     pub bases: Vec<u32>,
-    /// Per vkrt instance: (first id, primitives, instance index), by first id.
-    starts: Vec<(u32, u32, u32)>,
+    /// Per vkrt instance, by first id: (first id, primitives, instance index, 0).
+    starts: Vec<[u32; 4]>,
 }
 
 impl InstancedIds {
     /// The instance and its level's primitive of the kernels' primitive id `id`.
     pub fn instance_primitive(&self, id: u32) -> Option<(u32, u32)> {
-        let k = self.starts.partition_point(|s| s.0 <= id).checked_sub(1)?;
-        let (start, count, instance) = self.starts[k];
-        (id - start < count).then_some((instance, id - start))
+        instance_primitive_in(&self.starts, id)
     }
 
     /// Per vkrt instance, by first id: (first id, primitives, instance index, 0), the table
-    /// a kernel searches to do what [`InstancedIds::instance_primitive`] does.
-    pub fn starts(&self) -> Vec<[u32; 4]> {
-        self.starts.iter().map(|&(s, n, i)| [s, n, i, 0]).collect()
+    /// `render.driver_hits` searches as [`instance_primitive_in`] does.
+    pub fn starts(&self) -> &[[u32; 4]] {
+        &self.starts
     }
+}
+
+/// The instance and its level's primitive of the kernels' primitive id `id`, in `starts`
+/// (per instance, by first id: first id, primitives, instance index, 0; see
+/// [`InstancedIds::starts`]): the CPU twin of `render.driver_hits`.
+pub fn instance_primitive_in(starts: &[[u32; 4]], id: u32) -> Option<(u32, u32)> {
+    let k = starts.partition_point(|s| s[0] <= id).checked_sub(1)?;
+    let [start, count, instance, _] = starts[k];
+    (id - start < count).then_some((instance, id - start))
 }
 
 /// What the driver's builder optimises for (`VkBuildAccelerationStructureFlagsKHR`).
@@ -519,7 +526,7 @@ impl DriverAccel {
                     .ok_or_else(|| usage("more than 2^32 instanced primitives".into()))?;
                 at
             };
-            ids.starts.push((start, *count, i as u32));
+            ids.starts.push([start, *count, i as u32, 0]);
             for &(b, first) in list {
                 records.push(AccelInstance {
                     transform: *inst.transform.as_flattened().first_chunk().expect("12"),

@@ -171,8 +171,8 @@ impl RenderLevels {
                     instances
                         .iter()
                         .map(move |inst| match moving(scene, two, inst) {
-                            Some(_) => Instance {
-                                transform: placed_at(scene, two, inst, t).unwrap_or(inst.transform),
+                            Some(p) => Instance {
+                                transform: rows_at(scene, p, t),
                                 ..*inst
                             },
                             None => *inst,
@@ -236,12 +236,17 @@ fn motion_of(scene: &Scene, p: Placed) -> &crate::scene::Motion {
 
 /// `inst`'s object-to-world rows at `t` (`None`: it places the rest, which stays).
 fn placed_at(scene: &Scene, two: &TwoLevelScene, inst: &Instance, t: f32) -> Option<[[f32; 4]; 3]> {
-    Some(match placed(scene, two, inst)? {
+    placed(scene, two, inst).map(|p| rows_at(scene, p, t))
+}
+
+/// The object-to-world rows at `t` of what `p` names.
+fn rows_at(scene: &Scene, p: Placed, t: f32) -> [[f32; 4]; 3] {
+    match p {
         Placed::Mesh(k) => Instance::rows_of(&scene.meshes[k].world_matrix(t)),
         Placed::Sphere(s) => Instance::rows_of(&glam::Affine3A::from_translation(
             scene.spheres[s].center_at(t),
         )),
-    })
+    }
 }
 
 /// Time steps for `instances` of `scene` moving over `shutter` seconds: two where they move

@@ -294,7 +294,7 @@ fn driver_levels(rec: &mut Recorder, rl: &RenderLevels, choice: AccelChoice) -> 
     let starts = ids.starts();
     let n_starts = starts.len() as u32;
     let table = Buffer::new(&ctx, "render.driver_starts", starts.len().max(1))?;
-    rec.upload(&table, &starts)?;
+    rec.upload(&table, starts)?;
     let geom = GpuGeometry {
         prims: prims.swap_remove(bound),
         accel,
