@@ -22,10 +22,15 @@ mod args;
 
 fn main() {
     let args::BenchArgs { json, size, .. } = args::parse();
-    let opt = BenchOptions { size, reps: 3 };
+    let opt = BenchOptions {
+        size,
+        reps: 3,
+        node_access: None,
+    };
     let (ctx, embree) = embree::context_and_peer();
     let mut report = bench::TraceBenchReport {
         device: ctx.info().device.clone(),
+        node_access: opt.accesses_on(&ctx),
         ray_query: ctx.info().features.ray_query,
         driver_note: bench::driver_note(&ctx),
         size,

@@ -70,6 +70,9 @@ fn quick_json_has_every_structure_and_agreeing_hits() {
         }
     }
     let expected = expected_structures(ray_query);
+    // One row per walk, read the device's way.
+    let access = v["node_access"].as_array().unwrap();
+    assert_eq!(access.len(), 1, "{v}");
     let scenes = v["scenes"].as_array().unwrap();
     // The example scenes and the small icosphere.
     assert!(scenes.len() >= 12, "{} scenes", scenes.len());
@@ -124,7 +127,10 @@ fn quick_json_has_every_structure_and_agreeing_hits() {
                 let diff = r["hits_vs_first"].as_i64();
                 match r["backend"].as_str().unwrap() {
                     // One watertight test, conservative walks: the same hits, exactly.
-                    "vkrt" => assert_eq!(diff, Some(0), "{label}: {r}"),
+                    "vkrt" => {
+                        assert_eq!(diff, Some(0), "{label}: {r}");
+                        assert_eq!(r["node_access"], access[0], "{label}");
+                    }
                     // The driver's own intersector: at most 0.1 % of the rays apart.
                     "driver" => {
                         let d = diff.unwrap().abs();
@@ -163,4 +169,63 @@ fn quick_table_has_a_block_per_scene_and_ray_set_and_the_driver_note() {
     if let Some(note) = note {
         assert!(note.contains("has no VK_KHR_ray_query"), "{note}");
     }
+}
+
+#[test]
+fn both_node_accesses_give_every_walk_two_rows_with_the_same_hits() {
+    let Some(out) = bench_trace(&["--size", "16", "--node-access", "both", "--json"]) else {
+        return;
+    };
+    let v: Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(
+        v["node_access"],
+        serde_json::json!(["storage", "texel"]),
+        "{v}"
+    );
+    let ray_query = v["ray_query"].as_bool().unwrap();
+    // Every vkrt walk twice, storage first; the driver's and the peer's rows once.
+    let mut expected = Vec::new();
+    for s in expected_structures(ray_query) {
+        match s {
+            "driver" | "driver/fast-build" | "obvhs" => expected.push(s.to_string()),
+            walk => {
+                expected.push(format!("{walk} (storage)"));
+                expected.push(format!("{walk} (texel)"));
+            }
+        }
+    }
+    let mut compared = 0;
+    for scene in v["scenes"].as_array().unwrap() {
+        for set in scene["ray_sets"].as_array().unwrap() {
+            let what = format!("{} {}", scene["name"], set["kind"]);
+            let rows = set["rows"].as_array().unwrap();
+            let labels: Vec<&str> = rows
+                .iter()
+                .map(|r| r["structure"].as_str().unwrap())
+                .collect();
+            assert_eq!(labels, expected, "{what}");
+            for r in rows {
+                let label = format!("{what} {}", r["structure"]);
+                let name = r["structure"].as_str().unwrap();
+                match r["backend"].as_str().unwrap() {
+                    "vkrt" => {
+                        let access = r["node_access"].as_str().unwrap();
+                        assert!(name.ends_with(&format!("({access})")), "{label}");
+                        // The texel row's hits, ray by ray, against the storage row's.
+                        match access {
+                            "texel" => {
+                                assert_eq!(r["same_hits_as_storage"], true, "{label}: {r}");
+                                compared += 1;
+                            }
+                            _ => assert!(r["same_hits_as_storage"].is_null(), "{label}"),
+                        }
+                        assert_eq!(r["hits_vs_first"], 0, "{label}: {r}");
+                    }
+                    _ => assert!(r["node_access"].is_null(), "{label}"),
+                }
+            }
+            assert_eq!(set["vkrt_hits_agree"], true, "{what}");
+        }
+    }
+    assert!(compared >= 12 * 3 * 10, "{compared} comparisons");
 }

@@ -30,13 +30,25 @@ pub struct BenchTraceArgs {
     /// icosphere, one repetition.
     #[arg(long)]
     quick: bool,
+    /// How vkrt's walks read the structures (default: the device's way, as `vkrt trace`
+    /// does): `storage` or `texel` buffers, or `both`, every walk twice (rows `WALK
+    /// (storage)` and `WALK (texel)`, their hits compared ray by ray, bit for bit)
+    #[arg(long, value_enum)]
+    node_access: Option<NodeAccessArg>,
     #[arg(long)]
     json: bool,
 }
 
+#[derive(Clone, Copy, clap::ValueEnum)]
+enum NodeAccessArg {
+    Storage,
+    Texel,
+    Both,
+}
+
 /// `vkrt bench trace`: the scenes are loaded before the device is touched.
 pub fn run(args: &BenchTraceArgs, validate: bool) -> CliResult<()> {
-    use vkrt::trace::bench::{self, scenes, BenchOptions};
+    use vkrt::trace::bench::{self, scenes, AccessRows, BenchOptions};
     let quick = args.quick;
     let mut list = Vec::new();
     let default_mesh = scenes::default_mesh().filter(|_| !quick);
@@ -49,6 +61,11 @@ pub fn run(args: &BenchTraceArgs, validate: bool) -> CliResult<()> {
     let opt = BenchOptions {
         size: args.size.unwrap_or(if quick { 64 } else { 512 }).max(1),
         reps: args.reps.unwrap_or(if quick { 1 } else { 3 }).max(1),
+        node_access: args.node_access.map(|a| match a {
+            NodeAccessArg::Storage => AccessRows::Storage,
+            NodeAccessArg::Texel => AccessRows::Texel,
+            NodeAccessArg::Both => AccessRows::Both,
+        }),
     };
     let ctx = context(validate)?;
     let report = bench::run(&ctx, &list, &opt)?;

@@ -32,7 +32,7 @@ use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
 use crate::accel::driver::Prefer;
 use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::primitives::TraceGeometry;
-use crate::accel::walk::Traversal;
+use crate::accel::walk::{NodeAccess, Traversal};
 use crate::gpu::{Context, Result};
 use crate::trace::gpu::Tracer;
 use crate::trace::{Hit, Query, TraceOptions};
@@ -44,11 +44,51 @@ pub struct BenchOptions {
     pub size: u32,
     /// Repetitions of each build and trace; the best is reported.
     pub reps: u32,
+    /// How vkrt's walks read the structures: `None` the device's way
+    /// ([`NodeAccess::for_device`]), one row per walk; `Some(both)` every walk through
+    /// storage buffers and through texel buffers, two rows, their hits compared ray by ray.
+    pub node_access: Option<AccessRows>,
+}
+
+/// Which node accesses [`BenchOptions::node_access`] measures.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum AccessRows {
+    /// Storage buffers only.
+    Storage,
+    /// Texel buffers only.
+    Texel,
+    /// Both, storage first: the rows `WALK (storage)` and `WALK (texel)`.
+    Both,
+}
+
+impl AccessRows {
+    fn accesses(self) -> &'static [NodeAccess] {
+        match self {
+            AccessRows::Storage => &[NodeAccess::Storage],
+            AccessRows::Texel => &[NodeAccess::Texel],
+            AccessRows::Both => &[NodeAccess::Storage, NodeAccess::Texel],
+        }
+    }
+}
+
+impl BenchOptions {
+    /// The node accesses these options measure on `ctx`, in row order.
+    pub fn accesses_on(&self, ctx: &Context) -> Vec<NodeAccess> {
+        match self.node_access {
+            Some(rows) => rows.accesses().to_vec(),
+            None => vec![NodeAccess::for_device(ctx)],
+        }
+    }
 }
 
 impl Default for BenchOptions {
     fn default() -> Self {
-        Self { size: 512, reps: 3 }
+        Self {
+            size: 512,
+            reps: 3,
+            node_access: None,
+        }
     }
 }
 
@@ -69,6 +109,9 @@ pub enum Backend {
 pub struct TraceBenchReport {
     /// The device name the driver reports.
     pub device: String,
+    /// How vkrt's walks read the structures, in row order (`storage`, `texel`): the
+    /// device's way, or both where asked.
+    pub node_access: Vec<NodeAccess>,
     /// Whether the device has the driver's ray tracing (else no `driver` rows).
     pub ray_query: bool,
     /// Why the driver's rows are missing (`None` where they are present).
@@ -124,7 +167,8 @@ pub struct RaySetReport {
     pub rays: usize,
     /// One row per structure and walk; the first is the reference of the hit comparisons.
     pub rows: Vec<TraceRow>,
-    /// Every row of vkrt's own structures found as many hits as the first.
+    /// Every row of vkrt's own structures found as many hits as the first, and a walk
+    /// measured both ways the same hits through texel buffers as through storage buffers.
     pub vkrt_hits_agree: bool,
 }
 
@@ -150,6 +194,11 @@ pub struct TraceRow {
     pub hits_vs_first: Option<i64>,
     /// `mrays_per_s` over the `driver` row's (`None` without one).
     pub over_driver: Option<f64>,
+    /// How a vkrt walk read the structure (`None` for the driver's and peers' rows).
+    pub node_access: Option<NodeAccess>,
+    /// For a walk measured both ways, on its texel row: whether every hit (t, primitive,
+    /// u, v) equals the storage row's, bit for bit.
+    pub same_hits_as_storage: Option<bool>,
     /// What sets the row apart (e.g. rays out of traversal steps, a peer's triangles only).
     pub note: Option<String>,
 }
@@ -175,6 +224,8 @@ impl TraceRow {
             hits_comparable: true,
             hits_vs_first: None,
             over_driver: None,
+            node_access: None,
+            same_hits_as_storage: None,
             note: None,
         }
     }
@@ -221,7 +272,7 @@ impl RaySetReport {
             .rows
             .iter()
             .filter(|r| r.backend == Backend::Vkrt)
-            .all(|r| r.hits_vs_first == Some(0));
+            .all(|r| r.hits_vs_first == Some(0) && r.same_hits_as_storage != Some(false));
     }
 }
 
@@ -239,6 +290,7 @@ pub fn driver_note(ctx: &Context) -> Option<String> {
 pub fn run(ctx: &Context, scenes: &[BenchScene], opt: &BenchOptions) -> Result<TraceBenchReport> {
     let mut out = TraceBenchReport {
         device: ctx.info().device.clone(),
+        node_access: opt.accesses_on(ctx),
         ray_query: ctx.info().features.ray_query,
         driver_note: driver_note(ctx),
         size: opt.size,
@@ -292,6 +344,7 @@ pub fn bench_scene(
     }];
     let mut reports: Vec<RaySetReport> = Vec::new();
     let mut builds = Vec::new();
+    let accesses = opt.accesses_on(ctx);
     // One structure on the device at a time: the 500 K scenes' nine are large together.
     for (structure, walks) in structures(ctx) {
         let (geom, build_ms) = best_build(ctx, structure, g, reps)?;
@@ -309,24 +362,54 @@ pub fn bench_scene(
             backend,
             ms: build_ms,
         });
+        // The driver's walk reads its own structure: one row, whatever the accesses.
+        let walk_accesses = match backend {
+            Backend::Vkrt => accesses.clone(),
+            _ => vec![NodeAccess::for_device(ctx)],
+        };
         for walk in walks {
             // By index: the first primary trace adds the secondary sets to `sets`.
             for k in 0..RayKind::ALL.len() {
-                let set = &sets[k];
-                let (hits, ms, exhausted) = best_trace(ctx, walk, &geom, set, reps)?;
-                let n_hits = hits.iter().filter(|h| h.is_hit()).count();
-                let mut row =
-                    TraceRow::new(walk.label(), backend, build_ms, ms, set.rays.len(), n_hits);
-                if exhausted > 0 {
-                    row.note = Some(format!("{exhausted} rays ran out of traversal steps"));
-                }
-                if reports.len() == k {
-                    reports.push(RaySetReport::new(set.kind, set.rays.len()));
-                }
-                reports[k].rows.push(row);
-                if set.kind == RayKind::Primary && sets.len() == 1 {
-                    let (shadow, mirror) = scene.secondary_rays(&set.rays, &hits);
-                    sets.extend([shadow, mirror]);
+                let mut storage_hits: Option<Vec<Hit>> = None;
+                for &access in &walk_accesses {
+                    let set = &sets[k];
+                    let (hits, ms, exhausted) = best_trace(ctx, walk, access, &geom, set, reps)?;
+                    let n_hits = hits.iter().filter(|h| h.is_hit()).count();
+                    let label = match walk_accesses.len() {
+                        1 => walk.label(),
+                        _ => format!("{} ({})", walk.label(), access.name()),
+                    };
+                    let mut row =
+                        TraceRow::new(label, backend, build_ms, ms, set.rays.len(), n_hits);
+                    if backend == Backend::Vkrt {
+                        row.node_access = Some(access);
+                    }
+                    let mut notes = Vec::new();
+                    if exhausted > 0 {
+                        notes.push(format!("{exhausted} rays ran out of traversal steps"));
+                    }
+                    match (&storage_hits, access) {
+                        (Some(before), NodeAccess::Texel) => {
+                            let same = same_hits(before, &hits);
+                            row.same_hits_as_storage = Some(same);
+                            if !same {
+                                notes.push("hits differ from the storage walk's".into());
+                            }
+                        }
+                        (None, NodeAccess::Storage) if walk_accesses.len() > 1 => {
+                            storage_hits = Some(hits.clone());
+                        }
+                        _ => {}
+                    }
+                    row.note = (!notes.is_empty()).then(|| notes.join("; "));
+                    if reports.len() == k {
+                        reports.push(RaySetReport::new(set.kind, set.rays.len()));
+                    }
+                    reports[k].rows.push(row);
+                    if set.kind == RayKind::Primary && sets.len() == 1 {
+                        let (shadow, mirror) = scene.secondary_rays(&set.rays, &hits);
+                        sets.extend([shadow, mirror]);
+                    }
                 }
             }
         }
@@ -418,11 +501,17 @@ pub(crate) fn build(
     GpuGeometry::build_fitting(ctx, builder, g)
 }
 
-/// `set` traced `reps` times through `geom`, walked as `walk`: the hits, the best kernel
-/// milliseconds and how many rays ran out of steps.
+/// Whether two walks answered every ray alike, bit for bit (t, primitive, u, v).
+fn same_hits(a: &[Hit], b: &[Hit]) -> bool {
+    a.len() == b.len() && bytemuck::cast_slice::<Hit, u32>(a) == bytemuck::cast_slice::<Hit, u32>(b)
+}
+
+/// `set` traced `reps` times through `geom`, walked as `walk` reading the nodes as `access`
+/// says: the hits, the best kernel milliseconds and how many rays ran out of steps.
 fn best_trace(
     ctx: &Context,
     walk: AccelChoice,
+    access: NodeAccess,
     geom: &GpuGeometry,
     set: &RaySet,
     reps: u32,
@@ -431,7 +520,7 @@ fn best_trace(
         query: set.kind.query(),
         ..TraceOptions::default()
     };
-    let tracer = Tracer::for_accel(ctx, &opt, walk.traversal())?;
+    let tracer = Tracer::for_accel_reading(ctx, &opt, walk.traversal(), access)?;
     let mut best = (Vec::new(), f64::MAX, 0);
     for _ in 0..reps {
         let b = tracer.trace_batched(ctx, geom, &set.rays, 0.0, None)?;

@@ -15,6 +15,12 @@ impl fmt::Display for TraceBenchReport {
         if let Some(note) = &self.driver_note {
             writeln!(f, "{note}")?;
         }
+        let accesses: Vec<&str> = self.node_access.iter().map(|a| a.name()).collect();
+        writeln!(
+            f,
+            "vkrt's walks read the structures through {} buffers",
+            accesses.join(" and through ")
+        )?;
         for scene in &self.scenes {
             for set in &scene.ray_sets {
                 writeln!(f)?;
@@ -60,7 +66,7 @@ fn block(f: &mut fmt::Formatter<'_>, scene: &SceneReport, set: &RaySetReport) ->
     )?;
     writeln!(
         f,
-        "{:<20} {:>10} {:>10} {:>9} {:>9} {:>8}",
+        "{:<26} {:>10} {:>10} {:>9} {:>9} {:>8}",
         "structure", "build ms", "trace ms", "Mrays/s", "hits", "×driver"
     )?;
     for r in &set.rows {
@@ -71,7 +77,7 @@ fn block(f: &mut fmt::Formatter<'_>, scene: &SceneReport, set: &RaySetReport) ->
             .map_or(String::new(), |n| format!("  ({n})"));
         writeln!(
             f,
-            "{:<20} {:>10.2} {:>10.2} {:>9.2} {:>9} {:>8}{note}",
+            "{:<26} {:>10.2} {:>10.2} {:>9.2} {:>9} {:>8}{note}",
             r.structure, r.build_ms, r.trace_ms, r.mrays_per_s, r.hits, ratio
         )?;
     }
