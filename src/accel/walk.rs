@@ -144,10 +144,12 @@ pub enum NodeAccess {
 }
 
 impl NodeAccess {
-    /// The device's: texel buffers wherever a view holds as many bytes as a storage binding
-    /// (`maxTexelBufferElements` × 16 ≥ `maxStorageBufferRange`, so every structure that
-    /// can be bound can be viewed), else storage buffers. `VKRT_NODE_ACCESS=storage` or
-    /// `texel` overrides it (for measuring one against the other).
+    /// The device's: texel buffers where they measured faster
+    /// ([`DeviceInfo::texel_walks`](crate::gpu::DeviceInfo::texel_walks)) and a view holds
+    /// as many bytes as a storage binding (`maxTexelBufferElements` × 16 ≥
+    /// `maxStorageBufferRange`, so every structure that can be bound can be viewed), else
+    /// storage buffers. `VKRT_NODE_ACCESS=storage` or `texel` overrides it (for measuring
+    /// one against the other).
     pub fn for_device(ctx: &Context) -> Self {
         match std::env::var("VKRT_NODE_ACCESS").as_deref() {
             Ok("storage") => return NodeAccess::Storage,
@@ -155,7 +157,9 @@ impl NodeAccess {
             _ => {}
         }
         let info = ctx.info();
-        if u64::from(info.max_texel_buffer_elements) * 16 >= info.max_storage_buffer_range {
+        if info.texel_walks
+            && u64::from(info.max_texel_buffer_elements) * 16 >= info.max_storage_buffer_range
+        {
             NodeAccess::Texel
         } else {
             NodeAccess::Storage

@@ -103,6 +103,13 @@ pub struct DeviceInfo {
     /// loops: llvmpipe's 65,535 (gallivm's `LP_MAX_TGSI_LOOP_ITERATIONS`, shared by every
     /// loop of the invocation); `None` where loops run to their end. `vkrt verify` measures it.
     pub loop_budget: Option<u32>,
+    /// vkrt's walks read a structure faster through texel buffers than through storage
+    /// buffers here, as measured (`vkrt bench trace --node-access both`): lavapipe before
+    /// Mesa 25, where a storage load at a divergent offset is a loop over the lanes and a
+    /// texel fetch the sampler's branch-free gather (Mesa 22.3: texel 1.47× faster, median
+    /// of 450 walks and ray sets). Not on Mesa 25.0's lavapipe (storage 1.18× faster, the
+    /// same way) nor on other drivers, which read storage buffers.
+    pub texel_walks: bool,
     /// Node visits + primitive tests a walk may spend per ray before it gives up and reports
     /// the ray as exhausted: 60,000 within a loop budget (the rest is the walk's other
     /// loops' headroom), 2^24 elsewhere (a guard against a corrupt structure, far above
@@ -200,6 +207,8 @@ pub(crate) fn query(
     let loop_budget = (driver.driver_id == vk::DriverId::MESA_LLVMPIPE
         && mesa_version(&driver_info).is_none_or(|v| v < (25, 0)))
     .then_some(LLVMPIPE_LOOP_BUDGET);
+    let texel_walks = driver.driver_id == vk::DriverId::MESA_LLVMPIPE
+        && mesa_version(&driver_info).is_some_and(|v| v < (25, 0));
     DeviceInfo {
         device: name,
         driver: format!("{driver_name} {driver_info}").trim().to_string(),
@@ -234,6 +243,7 @@ pub(crate) fn query(
         timestamps: limits.timestamp_compute_and_graphics == vk::TRUE,
         ieee_division: driver.driver_id == vk::DriverId::MESA_LLVMPIPE,
         loop_budget,
+        texel_walks,
         max_traversal_steps: traversal_steps_within(loop_budget),
         features,
         api_version_raw: v,
