@@ -43,6 +43,13 @@ fn expected_structures(ray_query: bool) -> Vec<&'static str> {
     s
 }
 
+/// The `structure` of each row, in order.
+fn row_labels(rows: &[Value]) -> Vec<&str> {
+    rows.iter()
+        .map(|r| r["structure"].as_str().unwrap())
+        .collect()
+}
+
 fn finite(v: &Value, what: &str) -> f64 {
     let x = v
         .as_f64()
@@ -110,11 +117,7 @@ fn quick_json_has_every_structure_and_agreeing_hits() {
             let what = format!("{name} {}", set["kind"]);
             let rays = set["rays"].as_u64().unwrap() as i64;
             let rows = set["rows"].as_array().unwrap();
-            let labels: Vec<&str> = rows
-                .iter()
-                .map(|r| r["structure"].as_str().unwrap())
-                .collect();
-            assert_eq!(labels, expected, "{what}");
+            assert_eq!(row_labels(rows), expected, "{what}");
             for r in rows {
                 let label = format!("{what} {}", r["structure"]);
                 for key in ["build_ms", "trace_ms", "mrays_per_s"] {
@@ -199,11 +202,7 @@ fn both_node_accesses_give_every_walk_two_rows_with_the_same_hits() {
         for set in scene["ray_sets"].as_array().unwrap() {
             let what = format!("{} {}", scene["name"], set["kind"]);
             let rows = set["rows"].as_array().unwrap();
-            let labels: Vec<&str> = rows
-                .iter()
-                .map(|r| r["structure"].as_str().unwrap())
-                .collect();
-            assert_eq!(labels, expected, "{what}");
+            assert_eq!(row_labels(rows), expected, "{what}");
             for r in rows {
                 let label = format!("{what} {}", r["structure"]);
                 let name = r["structure"].as_str().unwrap();

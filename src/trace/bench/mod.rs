@@ -384,24 +384,14 @@ pub fn bench_scene(
                     if backend == Backend::Vkrt {
                         row.node_access = Some(access);
                     }
-                    let mut notes = Vec::new();
-                    if exhausted > 0 {
-                        notes.push(format!("{exhausted} rays ran out of traversal steps"));
+                    // The texel row against the storage row before it, ray by ray.
+                    if let (Some(before), NodeAccess::Texel) = (&storage_hits, access) {
+                        row.same_hits_as_storage = Some(same_hits(before, &hits));
                     }
-                    match (&storage_hits, access) {
-                        (Some(before), NodeAccess::Texel) => {
-                            let same = same_hits(before, &hits);
-                            row.same_hits_as_storage = Some(same);
-                            if !same {
-                                notes.push("hits differ from the storage walk's".into());
-                            }
-                        }
-                        (None, NodeAccess::Storage) if walk_accesses.len() > 1 => {
-                            storage_hits = Some(hits.clone());
-                        }
-                        _ => {}
+                    if walk_accesses.len() > 1 && access == NodeAccess::Storage {
+                        storage_hits = Some(hits.clone());
                     }
-                    row.note = (!notes.is_empty()).then(|| notes.join("; "));
+                    row.note = row_note(exhausted, row.same_hits_as_storage);
                     if reports.len() == k {
                         reports.push(RaySetReport::new(set.kind, set.rays.len()));
                     }
@@ -499,6 +489,18 @@ pub(crate) fn build(
     g: &TraceGeometry,
 ) -> Result<(GpuGeometry, f64)> {
     GpuGeometry::build_fitting(ctx, builder, g)
+}
+
+/// What sets a vkrt row apart: rays out of steps, hits unlike the storage walk's.
+fn row_note(exhausted: u32, same_hits_as_storage: Option<bool>) -> Option<String> {
+    let mut notes = Vec::new();
+    if exhausted > 0 {
+        notes.push(format!("{exhausted} rays ran out of traversal steps"));
+    }
+    if same_hits_as_storage == Some(false) {
+        notes.push("hits differ from the storage walk's".to_string());
+    }
+    (!notes.is_empty()).then(|| notes.join("; "))
 }
 
 /// Whether two walks answered every ray alike, bit for bit (t, primitive, u, v).
