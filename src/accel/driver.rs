@@ -106,9 +106,11 @@ pub struct DriverAccel {
     bottoms: Vec<Bottom>,
     /// The top level's instances (one identity instance per bottom level for a flat scene).
     records: Vec<AccelInstance>,
-    /// Two levels ([`DriverAccel::record_instanced`]): per record, the instance it places,
-    /// and how many instances there are (empty and 0 for a flat scene).
-    placing: (Vec<u32>, usize),
+    /// Two levels ([`DriverAccel::record_instanced`]): per record, the instance it places
+    /// (empty for a flat scene).
+    placing: Vec<u32>,
+    /// Two levels: the instances the top level was built over (0 for a flat scene).
+    placed_instances: usize,
     tlas: AccelerationStructure,
     /// The instance records (with room to start them at a 16-byte aligned address), written
     /// by the recorded build from constants: nothing is uploaded.
@@ -306,7 +308,8 @@ impl DriverAccel {
         Ok(Some(Self {
             bottoms,
             records,
-            placing: (Vec::new(), 0),
+            placing: Vec::new(),
+            placed_instances: 0,
             tlas,
             instances,
             flags,
@@ -371,8 +374,8 @@ impl DriverAccel {
         rec: &mut Recorder,
         instances: &[Instance],
     ) -> Result<()> {
-        let (placing, count) = &self.placing;
-        if *count == 0 || instances.len() != *count {
+        let count = self.placed_instances;
+        if count == 0 || instances.len() != count {
             return Err(GpuError::Usage {
                 call: "DriverAccel::record_move_instances",
                 reason: format!(
@@ -382,7 +385,7 @@ impl DriverAccel {
                 ),
             });
         }
-        for (r, &i) in self.records.iter_mut().zip(placing) {
+        for (r, &i) in self.records.iter_mut().zip(&self.placing) {
             let rows = &instances[i as usize].transform;
             r.transform = *rows.as_flattened().first_chunk().expect("12 floats");
         }
@@ -549,7 +552,8 @@ impl DriverAccel {
         let accel = Self {
             bottoms,
             records,
-            placing: (placing, instances.len()),
+            placing,
+            placed_instances: instances.len(),
             tlas,
             instances: instances_buf,
             flags,

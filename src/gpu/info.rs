@@ -204,11 +204,13 @@ pub(crate) fn query(
     } else {
         (subgroup.subgroup_size, subgroup.subgroup_size)
     };
-    let loop_budget = (driver.driver_id == vk::DriverId::MESA_LLVMPIPE
-        && mesa_version(&driver_info).is_none_or(|v| v < (25, 0)))
-    .then_some(LLVMPIPE_LOOP_BUDGET);
-    let texel_walks = driver.driver_id == vk::DriverId::MESA_LLVMPIPE
-        && mesa_version(&driver_info).is_some_and(|v| v < (25, 0));
+    // lavapipe's Mesa version (`None` inside: one it cannot read).
+    let lavapipe =
+        (driver.driver_id == vk::DriverId::MESA_LLVMPIPE).then(|| mesa_version(&driver_info));
+    let loop_budget = lavapipe
+        .is_some_and(|v| v.is_none_or(|v| v < (25, 0)))
+        .then_some(LLVMPIPE_LOOP_BUDGET);
+    let texel_walks = lavapipe.is_some_and(|v| v.is_some_and(|v| v < (25, 0)));
     DeviceInfo {
         device: name,
         driver: format!("{driver_name} {driver_info}").trim().to_string(),

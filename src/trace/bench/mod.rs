@@ -388,9 +388,6 @@ pub fn bench_scene(
                     if let (Some(before), NodeAccess::Texel) = (&storage_hits, access) {
                         row.same_hits_as_storage = Some(same_hits(before, &hits));
                     }
-                    if walk_accesses.len() > 1 && access == NodeAccess::Storage {
-                        storage_hits = Some(hits.clone());
-                    }
                     row.note = row_note(exhausted, row.same_hits_as_storage);
                     if reports.len() == k {
                         reports.push(RaySetReport::new(set.kind, set.rays.len()));
@@ -399,6 +396,9 @@ pub fn bench_scene(
                     if set.kind == RayKind::Primary && sets.len() == 1 {
                         let (shadow, mirror) = scene.secondary_rays(&set.rays, &hits);
                         sets.extend([shadow, mirror]);
+                    }
+                    if walk_accesses.len() > 1 && access == NodeAccess::Storage {
+                        storage_hits = Some(hits);
                     }
                 }
             }
