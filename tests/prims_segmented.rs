@@ -1,7 +1,7 @@
 //! Segmented argmin against its CPU twin, bit for bit, in every mode (workgroup per
-//! segment, device-wide tiles, hybrid at several thresholds) on many segment shapes, with a
-//! workgroup of one subgroup and with several, with the shuffle and the shared-memory
-//! workgroup reduction, under synchronization validation.
+//! segment, device-wide tiles, hybrid at several thresholds, which packs the levels of many
+//! segments) on many segment shapes, with a workgroup of one subgroup and with several, with
+//! the shuffle and the shared-memory workgroup reduction, under synchronization validation.
 
 mod common;
 
@@ -118,7 +118,12 @@ fn check(
 }
 
 /// The shapes every configuration is tested on: (name, offsets).
-fn shapes(cfg: PrimConfig, n_big: u32, rng: &mut Rng) -> Vec<(String, Vec<u32>)> {
+fn shapes(
+    cfg: PrimConfig,
+    packed_cut: u32,
+    n_big: u32,
+    rng: &mut Rng,
+) -> Vec<(String, Vec<u32>)> {
     let tile = cfg.tile();
     let threshold = 4 * tile;
     let mut shapes = vec![
@@ -159,6 +164,23 @@ fn shapes(cfg: PrimConfig, n_big: u32, rng: &mut Rng) -> Vec<(String, Vec<u32>)>
         })
         .collect();
     shapes.push(("mixed".to_string(), offsets_from_lengths(0, &lengths)));
+    // A level of many segments (the packed path's), mostly short, some around its cut:
+    // each lane's own loop, the subgroup's loop and the tiles' slots.
+    let mut lengths: Vec<u32> = (0..600).map(|_| (rng.next_u64() % 48) as u32).collect();
+    for (at, l) in [
+        (5, packed_cut - 1),
+        (64, packed_cut),
+        (65, packed_cut + tile + 1),
+        (300, 1000),
+        (301, 33),
+        (599, 2 * packed_cut),
+    ] {
+        lengths[at] = l;
+    }
+    shapes.push((
+        "packed level".to_string(),
+        offsets_from_lengths(1, &lengths),
+    ));
     // kd-tree levels: 2^k equal segments.
     for level in [1u32, 5, 10] {
         shapes.push((
@@ -181,7 +203,7 @@ fn every_mode_equals_the_twin_on_every_shape() {
     for (name, cfg) in configs(&ctx) {
         let seg = SegmentedArgmin::new(&ctx, cfg).unwrap();
         let mut rng = Rng(5);
-        for (shape, offsets) in shapes(cfg, n_big, &mut rng) {
+        for (shape, offsets) in shapes(cfg, seg.packed_cut(), n_big, &mut rng) {
             let n = *offsets.last().unwrap() as usize + (rng.next_u64() % 5) as usize;
             let costs = if shape.contains("tiny") || shape.contains("straddling") {
                 tie_costs(n, &mut rng)
@@ -230,10 +252,12 @@ fn the_shared_memory_reduction_equals_the_twin() {
         // ("mixed" is tens of millions of elements and 10^5 segments of 256-wide workgroups
         // take 20 s here: the shuffle test covers those sizes; 10^5 segments run with the
         // single-subgroup workgroups.)
-        for (shape, offsets) in shapes(cfg, 3 * cfg.tile() + 13, &mut rng)
+        for (shape, offsets) in shapes(cfg, seg.packed_cut(), 3 * cfg.tile() + 13, &mut rng)
             .into_iter()
             .filter(|(shape, _)| {
-                shape != "mixed" && (name == "single_subgroup" || shape != "100000 tiny")
+                shape != "mixed"
+                    && shape != "packed level"
+                    && (name == "single_subgroup" || shape != "100000 tiny")
             })
         {
             let n = *offsets.last().unwrap() as usize;

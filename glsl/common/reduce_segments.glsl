@@ -19,6 +19,7 @@
 #define PLAN_LONG 7u           // long segments (at least PLAN_CUT elements), listed
 #define PLAN_PAIRS 8u          // (long segment, tile) pairs: workgroups of segmented_tiles
 #define PLAN_CUT 9u            // segments of at least this many elements are long
+#define PLAN_PACKED_GROUPS 10u // uvec3: indirect workgroup counts of segmented_packed
 #define PLAN_WORDS 16u
 
 // Segment s clamped into [0, n_costs] and to a non-negative length, so malformed offsets

@@ -3,7 +3,10 @@
 // count the GPU left in `count`, decides which segments are long, lists them in segment
 // order with the prefix sum of the tiles each touches, and writes the plan record:
 // the indirect workgroup counts of segmented_tiles (one workgroup per (long segment, tile)
-// pair; none when no segment is long) and of segmented_segments (one per segment).
+// pair; none when no segment is long) and of the per-segment path: segmented_segments (one
+// workgroup per segment) or, on a level of at least `pack_min` segments, segmented_packed
+// (one invocation per segment, `pack_width` per workgroup; its segments of at least
+// `pack_cut` elements are long).
 // Invocation L scans the contiguous range of segments [L·chunk, (L + 1)·chunk) twice
 // (count, then write); one invocation turns the per-invocation counts into offsets.
 layout(local_size_x = 128) in;
@@ -19,6 +22,9 @@ layout(push_constant) uniform Push {
     uint share;        // long: more than 1/share of all elements (0: never, by that rule)
     uint capacity;     // long: more than a segment workgroup may loop over (>= tile)
     uint max_groups_x; // maxComputeWorkGroupCount[0]: larger counts fold into y
+    uint pack_min;     // segments from which the level takes segmented_packed (0: never)
+    uint pack_width;   // segmented_packed's workgroup size
+    uint pack_cut;     // segmented_packed: long from this many elements (its loop budget)
 } pc;
 
 #include "common/reduce_segments.glsl"
@@ -46,6 +52,10 @@ void main() {
         total = clamp(offsets[count], first, pc.n_costs) - first;
     }
     uint cut = pc.share == 0u ? pc.capacity : clamp(total / pc.share + 1u, pc.tile, pc.capacity);
+    bool packed = pc.pack_min != 0u && count >= pc.pack_min;
+    if (packed) {
+        cut = min(cut, pc.pack_cut);
+    }
     uint chunk = (count + lanes - 1u) / lanes;
     uint begin = min(lane * chunk, count);
     uint end = min(begin + chunk, count);
@@ -90,7 +100,8 @@ void main() {
         }
     }
     if (lane == 0u) {
-        write_groups(PLAN_SEGMENT_GROUPS, count);
+        write_groups(PLAN_SEGMENT_GROUPS, packed ? 0u : count);
+        write_groups(PLAN_PACKED_GROUPS, packed ? (count + pc.pack_width - 1u) / pc.pack_width : 0u);
         write_groups(PLAN_TILE_GROUPS, totals[1]);
         plan[PLAN_COUNT] = count;
         plan[PLAN_LONG] = totals[0];

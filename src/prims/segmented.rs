@@ -109,6 +109,7 @@ const MAX_PLAN_SEGMENTS: u64 = 128 * (LOOP_BUDGET - 1000) / 2;
 /// Plan record layout (keep in sync with `glsl/common/reduce_segments.glsl`).
 const PLAN_SEGMENT_GROUPS: u64 = 0;
 const PLAN_TILE_GROUPS: u64 = 3;
+const PLAN_PACKED_GROUPS: u64 = 10;
 const PLAN_WORDS: usize = 16;
 
 /// Which path reduces which segments.
@@ -178,6 +179,9 @@ struct PlanPush {
     share: u32,
     capacity: u32,
     max_groups_x: u32,
+    pack_min: u32,
+    pack_width: u32,
+    pack_cut: u32,
 }
 
 /// Push constants of `segmented_tiles.comp` and `segmented_segments.comp` (keep in sync).
@@ -189,6 +193,25 @@ struct PathPush {
     slot_base: u32,
 }
 
+/// Push constants of `segmented_packed.comp` (keep in sync).
+#[repr(C)]
+#[derive(Clone, Copy, Pod, Zeroable)]
+struct PackedPush {
+    n_costs: u32,
+    tile: u32,
+    slot_base: u32,
+    short_len: u32,
+}
+
+/// The packed path's workgroup: segments per workgroup.
+const PACK_WIDTH: u32 = 64;
+/// The packed path's segments of at most this many elements are reduced by one invocation
+/// each (measured: module docs).
+const PACK_SHORT: u32 = 32;
+/// The packed path's segments of at least this many elements take the tiles: a subgroup
+/// reduces up to one such segment per lane in turn, so their sum stays in the loop budget.
+const PACK_CUT: u32 = 1 << 17;
+
 /// The segmented argmin, with its kernels compiled for one [`PrimConfig`].
 pub struct SegmentedArgmin {
     cfg: PrimConfig,
@@ -196,6 +219,9 @@ pub struct SegmentedArgmin {
     plan: Arc<Kernel>,
     tiles: Arc<Kernel>,
     segments: Arc<Kernel>,
+    /// One invocation per short segment (`None` with the shared-memory reduction, which
+    /// uses no subgroup operations).
+    packed: Option<Arc<Kernel>>,
 }
 
 /// How a workgroup combines its invocations' winners.
@@ -291,6 +317,13 @@ impl SegmentedArgmin {
                 },
                 &segments,
             )?,
+            packed: match reduction {
+                WorkgroupReduction::Shuffle => Some(ctx.kernel(
+                    &kernels::PRIMS_SEGMENTED_PACKED,
+                    &Spec::new().workgroup(PACK_WIDTH.max(ctx.info().subgroup_size)),
+                )?),
+                WorkgroupReduction::SharedMemory => None,
+            },
         })
     }
 
@@ -309,6 +342,12 @@ impl SegmentedArgmin {
     /// mode (the results are the same; only the speed differs).
     pub fn loop_capacity(&self) -> u32 {
         loop_capacity(self.segment_workgroup_size).min(u64::from(u32::MAX)) as u32
+    }
+
+    /// On a level the packed path reduces (many segments), a segment of at least this many
+    /// elements takes the tiles.
+    pub fn packed_cut(&self) -> u32 {
+        PACK_CUT.min(self.loop_capacity())
     }
 
     /// The most segments [`Self::record`] takes (`max_segments`).
@@ -396,6 +435,7 @@ impl SegmentedArgmin {
             self.cfg.tile()
         };
         let max_groups_x = rec.context().info().max_workgroup_count[0];
+        let pack_width = PACK_WIDTH.max(rec.context().info().subgroup_size);
         let plan_push = PlanPush {
             max_segments,
             n_costs,
@@ -403,6 +443,9 @@ impl SegmentedArgmin {
             share,
             capacity,
             max_groups_x,
+            pack_min: self.pack_min(mode, n_costs).map_or(0, |m| m.max(1)),
+            pack_width,
+            pack_cut: self.packed_cut(),
         };
         let push = PathPush {
             n_costs,
@@ -443,7 +486,46 @@ impl SegmentedArgmin {
                     &push,
                 );
             });
+            if let Some(packed) = self.packed.as_ref().filter(|_| plan_push.pack_min > 0) {
+                // One of the two per-segment paths has no workgroups (the plan chose), but
+                // both write `out`.
+                rec.compute_to_compute();
+                let packed_push = PackedPush {
+                    n_costs,
+                    tile: push.tile,
+                    slot_base: push.slot_base,
+                    short_len: PACK_SHORT,
+                };
+                rec.scope("prims.segmented_packed", |rec| {
+                    rec.dispatch_indirect(
+                        packed,
+                        scratch,
+                        4 * PLAN_PACKED_GROUPS,
+                        &[costs, offsets, scratch, out],
+                        &packed_push,
+                    );
+                });
+            }
         });
+    }
+
+    /// The segment count from which `mode` takes the packed path on a level (`None`: never):
+    /// the hybrid packs a level once it has `threshold` workgroups of [`PACK_WIDTH`]
+    /// segments, enough for every thread or compute unit, where the available kernel and
+    /// llvmpipe's loop budget allow (its subgroups loop over every long segment's slots).
+    fn pack_min(&self, mode: SegmentedMode, n_costs: u32) -> Option<u32> {
+        let SegmentedMode::Hybrid { threshold } = mode else {
+            return None;
+        };
+        self.packed.as_ref()?;
+        let slots = u64::from(n_costs) / u64::from(self.cfg.tile()) + 1;
+        // Per lane: its own short segment, then up to one segment per subgroup lane (at
+        // most 128) of under PACK_CUT elements, UNROLL per lane and iteration, and the slots.
+        let iterations = u64::from(PACK_SHORT)
+            + u64::from(PACK_CUT) / UNROLL
+            + slots / UNROLL
+            + 128 * (2 * UNROLL + 8);
+        (iterations < LOOP_BUDGET - 1000).then(|| threshold.max(1).saturating_mul(PACK_WIDTH))
     }
 
     /// Uploads `costs` and `offsets` (`offsets.len() - 1` segments), runs [`Self::record`]
