@@ -17,13 +17,23 @@
 //!   the segment inside the tile into a (tile, segment) slot, and the per-segment kernel
 //!   then combines a long segment's slots instead of reading its elements. Every workgroup
 //!   gets at most a tile of work whatever the segment sizes.
+//! - **packed** (`segmented_packed.comp`), for levels of many short segments (the deep
+//!   kd-tree levels: tens of thousands of nodes of a few dozen events), where launching a
+//!   workgroup per segment costs far more than reducing it: an invocation per segment, 64
+//!   per workgroup. A segment of at most 32 elements its invocation reduces alone; every
+//!   longer one the whole subgroup then takes in turn, and those of at least
+//!   [`SegmentedArgmin::packed_cut`] take the tiles first. These are the size classes of
+//!   CUB's segmented reduction and sort (a thread, a warp or a block per segment).
 //!
 //! **Hybrid, decided on the GPU, per segment.** A one-workgroup plan kernel
 //! (`segmented_plan.comp`) reads the count, decides which segments are *long*, lists them
 //! with the prefix sum of the tiles each touches, and writes the indirect workgroup counts
 //! of both paths (the tiles get none when no segment is long). The host records plan →
-//! `compute_to_indirect` → tiles → `compute_to_indirect` → segments without knowing the
-//! count. `Hybrid { threshold }` is Kolodzey's node-count switch made per segment: a
+//! `compute_to_indirect` → tiles → `compute_to_indirect` → segments (→ packed) without
+//! knowing the count. The hybrid also packs a level once it has 64 × `threshold` segments
+//! (enough workgroups for every thread or compute unit): the plan then gives the
+//! per-segment kernel no workgroups and the packed one a workgroup per 64 segments.
+//! `Hybrid { threshold }` is Kolodzey's node-count switch made per segment: a
 //! segment is long when it holds more than 1/`threshold` of all the segments' elements (and
 //! at least a tile). On a balanced level k (2^k equal segments) that is exactly "tiles while
 //! 2^k < threshold"; on the skewed levels of real scenes it also splits the one node that
@@ -31,8 +41,8 @@
 //! `threshold` is, in effect, how many workgroups the device runs at once.
 //!
 //! The three [`SegmentedMode`]s are the same kernels: workgroup-per-segment has no share
-//! rule, device-wide makes every segment of at least a tile long (shorter ones cannot be
-//! split anyway). In every mode a segment longer than a segment workgroup may loop over
+//! rule and never packs, device-wide makes every segment of at least a tile long (shorter
+//! ones cannot be split anyway) and never packs. In every mode a segment longer than a segment workgroup may loop over
 //! ([`SegmentedArgmin::loop_capacity`], llvmpipe's loop budget) is long.
 //!
 //! **Threshold, measured** on lavapipe (Mesa 22.3, 2 cores shared with other jobs: load
@@ -72,6 +82,26 @@
 //! levels: with 256 invocations instead of one subgroup, the per-segment column reads 17.7
 //! ms at level 10, 55 ms at 12 and 1,606 ms at 16 (each invocation llvmpipe launches
 //! costs about as much as reading a few hundred elements).
+//!
+//! **Packing, measured** on Mesa 25.0.7's lavapipe (2 threads, subgroup 8, quiet machine),
+//! the same table with 32-invocation segment workgroups (the kd-tree builder's), GPU ms,
+//! n = 2^22 (`BENCH_SEG_WG=32 … threshold`; the hybrids pack from 64 × `threshold`
+//! segments):
+//!
+//! | level | segment | per segment | device-wide | t2 | t4 | t16 | t64 | t256 |
+//! |---|---|---|---|---|---|---|---|---|
+//! | 4 | 256K | 1.95 | 2.54 | 2.07 | 2.06 | 2.01 | 2.57 | 2.69 |
+//! | 8 | 16K | 3.39 | 2.24 | 4.04 | 2.32 | 2.22 | 2.67 | 2.84 |
+//! | 10 | 4K | 2.55 | 2.77 | 2.59 | 2.57 | 2.37 | 2.66 | 2.61 |
+//! | 12 | 1K | 4.63 | 4.55 | 2.45 | 2.50 | 2.45 | 2.48 | 4.65 |
+//! | 14 | 256 | 13.4 | 13.4 | 3.02 | 3.12 | 2.93 | 3.00 | 2.94 |
+//! | 16 | 64 | 86.0 | 87.1 | 5.64 | 5.23 | 5.64 | 5.65 | 6.14 |
+//!
+//! Packed levels cost what the elements cost (2.5–5.6 ms at every depth) where one
+//! workgroup per segment grows with the segment count (15× at level 16). On the bunny's
+//! kd-tree (up to 65 K nodes a level) the best-split phase fell from 375 ms to 31–38 ms,
+//! on Mesa 22.3 from 940 to 91 ms; a packed invocation's own loop of up to 16, 32, 64 or
+//! 128 elements measured alike (31–43 ms, within the run-to-run spread).
 //!
 //! Scratch: [`SegmentedArgmin::scratch_len`] words — the 16-word plan record, the list of
 //! long segments, then two words per (tile, segment) slot.
@@ -684,7 +714,7 @@ pub fn bench_levels(
     Ok(timings)
 }
 
-/// Times the three modes at `n` costs on kd-tree levels 0, 4, 8 and 12 (see
+/// Times the three modes at `n` costs on kd-tree levels 0, 4, 8, 12 and 16 (see
 /// [`bench_levels`]) with [`SegmentedArgmin::recommended`]: `segmented_argmin.hybrid`
 /// (this device's threshold, [`SegmentedMode::hybrid_for`]),
 /// `segmented_argmin.workgroup_per_segment` and `segmented_argmin.device_wide`.
@@ -698,5 +728,5 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
         ),
         ("device_wide".to_string(), SegmentedMode::DeviceWide),
     ];
-    bench_levels(ctx, &seg, n, reps, &[0, 4, 8, 12], &modes)
+    bench_levels(ctx, &seg, n, reps, &[0, 4, 8, 12, 16], &modes)
 }
