@@ -118,12 +118,7 @@ fn check(
 }
 
 /// The shapes every configuration is tested on: (name, offsets).
-fn shapes(
-    cfg: PrimConfig,
-    packed_cut: u32,
-    n_big: u32,
-    rng: &mut Rng,
-) -> Vec<(String, Vec<u32>)> {
+fn shapes(cfg: PrimConfig, packed_cut: u32, n_big: u32, rng: &mut Rng) -> Vec<(String, Vec<u32>)> {
     let tile = cfg.tile();
     let threshold = 4 * tile;
     let mut shapes = vec![
