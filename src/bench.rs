@@ -309,7 +309,7 @@ pub struct KdBenchReport {
 
 /// What each ablation variant of `vkrt bench kdtree --ablation` switches back (label, the
 /// baseline it runs, Kolodzey's Table 6.2 row).
-pub const KD_VARIANT_NOTES: [(&str, &str); 4] = [
+pub const KD_VARIANT_NOTES: [(&str, &str); 5] = [
     (
         "workgroup_per_segment",
         "one workgroup per node for the best split in every level, no device-wide \
@@ -332,6 +332,12 @@ pub const KD_VARIANT_NOTES: [(&str, &str); 4] = [
          long, then the same flag scan and a second pass moves every kept record to its \
          place: each record written twice, instead of 1-byte flags and one move (Table \
          6.2: Clip-Mask, 1.32)",
+    ),
+    (
+        "narrow_moves",
+        "classify and scatter move the event boxes and read the node fields as 32-bit \
+         components instead of 64-bit pairs (the path of devices without shaderInt64; \
+         not in Table 6.2)",
     ),
 ];
 
@@ -370,6 +376,14 @@ fn kd_variants() -> Vec<(
             "full_record_scatter",
             Ablation {
                 full_record_scatter: true,
+                ..Ablation::default()
+            },
+            None,
+        ),
+        (
+            "narrow_moves",
+            Ablation {
+                narrow_moves: true,
                 ..Ablation::default()
             },
             None,

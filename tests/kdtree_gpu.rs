@@ -530,13 +530,32 @@ fn ablation_variants_build_the_same_tree() {
             None,
         ),
         (
+            "narrow moves",
+            Ablation {
+                narrow_moves: true,
+                ..Ablation::default()
+            },
+            None,
+        ),
+        (
             "all, workgroup per segment",
             Ablation {
                 shared_memory_argmin: true,
                 u32_event_scan: true,
                 full_record_scatter: true,
+                narrow_moves: false,
             },
             Some(SegmentedMode::WorkgroupPerSegment),
+        ),
+        (
+            "all, narrow moves",
+            Ablation {
+                shared_memory_argmin: true,
+                u32_event_scan: true,
+                full_record_scatter: true,
+                narrow_moves: true,
+            },
+            None,
         ),
     ];
     for (label, ablation, mode) in variants {

@@ -11,23 +11,37 @@
 // `kdtree_scatter.records` moves each record a second time, from its slot to its scanned
 // place. The default (`mask`) writes only the flag bytes here; `kdtree_scatter.once` reads
 // each record once and writes it, clipped, straight to its place.
+//
+// The `*64` variants (where the device has shaderInt64) read the node's (first, count) and
+// (split, plane) as 64-bit components and write the records' box pairs as such
+// (accel/kdtree_level.glsl).
 //! variant mask MASK_ONLY=1
+//! variant mask64 MASK_ONLY=1 PAIRS64=1
 //! variant records FULL_RECORDS=1
+//! variant records64 FULL_RECORDS=1 PAIRS64=1
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "accel/kdtree_level.glsl"
 
 layout(std430, binding = 0) readonly buffer State { uint state[]; };
-layout(std430, binding = 1) readonly buffer NodeRange { uint node_range[]; };
-layout(std430, binding = 2) readonly buffer NodeSplit { uint node_split[]; };
+#if PAIRS64
+layout(std430, binding = 1) readonly buffer NodeRange { uint64_t node_range64[]; };
+layout(std430, binding = 2) readonly buffer NodeSplit { uint64_t node_split64[]; };
+uvec2 node_pair(uint64_t w) {
+    return unpackUint2x32(w);
+}
+#else
+layout(std430, binding = 1) readonly buffer NodeRange { uvec2 node_range64[]; };
+layout(std430, binding = 2) readonly buffer NodeSplit { uvec2 node_split64[]; };
+uvec2 node_pair(uvec2 w) {
+    return w;
+}
+#endif
 layout(std430, binding = 3) readonly buffer Node { uint node_of[]; };
-// The event boxes, one array per component.
-layout(std430, binding = 4) readonly buffer BoxMinX { float box_min_x[]; };
-layout(std430, binding = 5) readonly buffer BoxMinY { float box_min_y[]; };
-layout(std430, binding = 6) readonly buffer BoxMinZ { float box_min_z[]; };
-layout(std430, binding = 7) readonly buffer BoxMaxX { float box_max_x[]; };
-layout(std430, binding = 8) readonly buffer BoxMaxY { float box_max_y[]; };
-layout(std430, binding = 9) readonly buffer BoxMaxZ { float box_max_z[]; };
+// The event boxes' three pair arrays (accel/kdtree_level.glsl), read a component at a time.
+layout(std430, binding = 4) readonly buffer Box0 { float box0[]; }; // min x, min y
+layout(std430, binding = 5) readonly buffer Box1 { float box1[]; }; // min z, max x
+layout(std430, binding = 6) readonly buffer Box2 { float box2[]; }; // max y, max z
 layout(std430, binding = 10) writeonly buffer Slots { uint8_t slots[]; }; // 0/1 flags
 #ifdef FULL_RECORDS
 layout(std430, binding = 11) readonly buffer InnerBefore { uint inner_before[]; };
@@ -39,12 +53,9 @@ layout(std430, binding = 15) writeonly buffer TmpPlane { float tmp_plane[]; };
 layout(std430, binding = 16) writeonly buffer TmpKind { uint8_t tmp_kind[]; };
 layout(std430, binding = 17) writeonly buffer TmpPrim { uint tmp_prim[]; };
 layout(std430, binding = 18) writeonly buffer TmpNode { uint tmp_node[]; };
-layout(std430, binding = 19) writeonly buffer TmpMinX { float tmp_min_x[]; };
-layout(std430, binding = 20) writeonly buffer TmpMinY { float tmp_min_y[]; };
-layout(std430, binding = 21) writeonly buffer TmpMinZ { float tmp_min_z[]; };
-layout(std430, binding = 22) writeonly buffer TmpMaxX { float tmp_max_x[]; };
-layout(std430, binding = 23) writeonly buffer TmpMaxY { float tmp_max_y[]; };
-layout(std430, binding = 24) writeonly buffer TmpMaxZ { float tmp_max_z[]; };
+layout(std430, binding = 19) writeonly buffer TmpBox0 { BOX_PAIR tmp_box0[]; };
+layout(std430, binding = 20) writeonly buffer TmpBox1 { BOX_PAIR tmp_box1[]; };
+layout(std430, binding = 21) writeonly buffer TmpBox2 { BOX_PAIR tmp_box2[]; };
 #endif
 
 void main() {
@@ -53,16 +64,18 @@ void main() {
         return;
     }
     uint node = node_of[id];
-    uint first = node_range[2u * node];
-    uint count = node_range[2u * node + 1u];
-    uint s = node_split[2u * node];
+    uvec2 range = node_pair(node_range64[node]); // (first, count)
+    uint first = range.x;
+    uint count = range.y;
+    uvec2 split = node_pair(node_split64[node]); // (axis or KD_LEAF, plane)
+    uint s = split.x;
     uint below = 0u;
     uint above = 0u;
     float p = 0.0;
     if (s != KD_LEAF) {
-        p = uintBitsToFloat(node_split[2u * node + 1u]);
-        float lo = s == 0u ? box_min_x[id] : (s == 1u ? box_min_y[id] : box_min_z[id]);
-        float hi = s == 0u ? box_max_x[id] : (s == 1u ? box_max_y[id] : box_max_z[id]);
+        p = uintBitsToFloat(split.y);
+        float lo = s == 0u ? box0[2u * id] : (s == 1u ? box0[2u * id + 1u] : box1[2u * id]);
+        float hi = s == 0u ? box1[2u * id + 1u] : (s == 1u ? box2[2u * id] : box2[2u * id + 1u]);
         if (hi <= p) {
             below = 1u;
         } else if (lo >= p) {
@@ -79,8 +92,8 @@ void main() {
     if (s == KD_LEAF) {
         return;
     }
-    float mnx = box_min_x[id], mny = box_min_y[id], mnz = box_min_z[id];
-    float mxx = box_max_x[id], mxy = box_max_y[id], mxz = box_max_z[id];
+    float mnx = box0[2u * id], mny = box0[2u * id + 1u], mnz = box1[2u * id];
+    float mxx = box1[2u * id + 1u], mxy = box2[2u * id], mxz = box2[2u * id + 1u];
     float pl = plane[id];
     uint k = kind_of(kind_words[id / 4u], id);
     uint pr = prim[id];
@@ -95,12 +108,15 @@ void main() {
         tmp_prim[o] = pr;
         tmp_node[o] = child + side;
         bool up = side == 1u;
-        tmp_min_x[o] = (up && s == 0u) ? fmax_total(mnx, p) : mnx;
-        tmp_min_y[o] = (up && s == 1u) ? fmax_total(mny, p) : mny;
-        tmp_min_z[o] = (up && s == 2u) ? fmax_total(mnz, p) : mnz;
-        tmp_max_x[o] = (!up && s == 0u) ? fmin_total(mxx, p) : mxx;
-        tmp_max_y[o] = (!up && s == 1u) ? fmin_total(mxy, p) : mxy;
-        tmp_max_z[o] = (!up && s == 2u) ? fmin_total(mxz, p) : mxz;
+        float cmnx = (up && s == 0u) ? fmax_total(mnx, p) : mnx;
+        float cmny = (up && s == 1u) ? fmax_total(mny, p) : mny;
+        float cmnz = (up && s == 2u) ? fmax_total(mnz, p) : mnz;
+        float cmxx = (!up && s == 0u) ? fmin_total(mxx, p) : mxx;
+        float cmxy = (!up && s == 1u) ? fmin_total(mxy, p) : mxy;
+        float cmxz = (!up && s == 2u) ? fmin_total(mxz, p) : mxz;
+        PAIR_STORE(tmp_box0, o, vec2(cmnx, cmny));
+        PAIR_STORE(tmp_box1, o, vec2(cmnz, cmxx));
+        PAIR_STORE(tmp_box2, o, vec2(cmxy, cmxz));
     }
 #endif
 }

@@ -3,6 +3,7 @@
 // four events, so the 0/1 kind bytes are written as whole words.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
+#include "accel/kdtree_level.glsl"
 
 layout(std430, binding = 0) readonly buffer SortedKeys { float sorted_keys[]; };
 layout(std430, binding = 1) readonly buffer SortedValues { uint sorted_values[]; };
@@ -16,13 +17,11 @@ layout(std430, binding = 8) writeonly buffer Plane { float plane[]; };
 layout(std430, binding = 9) writeonly buffer Kind { uint kind_bytes[]; }; // 4 x u8 per word
 layout(std430, binding = 10) writeonly buffer Prim { uint prim_out[]; };
 layout(std430, binding = 11) writeonly buffer Node { uint node_out[]; };
-// The event boxes: one array per component (each within maxStorageBufferRange).
-layout(std430, binding = 12) writeonly buffer BoxMinX { float box_min_x[]; };
-layout(std430, binding = 13) writeonly buffer BoxMinY { float box_min_y[]; };
-layout(std430, binding = 14) writeonly buffer BoxMinZ { float box_min_z[]; };
-layout(std430, binding = 15) writeonly buffer BoxMaxX { float box_max_x[]; };
-layout(std430, binding = 16) writeonly buffer BoxMaxY { float box_max_y[]; };
-layout(std430, binding = 17) writeonly buffer BoxMaxZ { float box_max_z[]; };
+// The event boxes: three arrays of component pairs (accel/kdtree_level.glsl), one buffer each
+// (each within maxStorageBufferRange).
+layout(std430, binding = 12) writeonly buffer Box0 { BOX_PAIR box0[]; };
+layout(std430, binding = 13) writeonly buffer Box1 { BOX_PAIR box1[]; };
+layout(std430, binding = 14) writeonly buffer Box2 { BOX_PAIR box2[]; };
 layout(push_constant) uniform Push { uint n; } pc; // primitives
 
 void main() {
@@ -44,12 +43,9 @@ void main() {
         plane[j] = sorted_keys[j];
         prim_out[j] = prim;
         node_out[j] = 0;
-        box_min_x[j] = min_x[prim];
-        box_min_y[j] = min_y[prim];
-        box_min_z[j] = min_z[prim];
-        box_max_x[j] = max_x[prim];
-        box_max_y[j] = max_y[prim];
-        box_max_z[j] = max_z[prim];
+        PAIR_STORE(box0, j, vec2(min_x[prim], min_y[prim]));
+        PAIR_STORE(box1, j, vec2(min_z[prim], max_x[prim]));
+        PAIR_STORE(box2, j, vec2(max_y[prim], max_z[prim]));
     }
     kind_bytes[word] = packed;
 }

@@ -21,6 +21,27 @@
 
 #define WG_SIZE 256u
 
+// The event boxes: three arrays of component pairs (min x, min y), (min z, max x), (max y,
+// max z), one buffer each. Declare an array as `BOX_PAIR name[]` and move pairs with
+// PAIR_LOAD / PAIR_STORE: with PAIRS64 (where the device has shaderInt64) a pair is one
+// 64-bit component, and on lavapipe every load or store at a lane-varying address is a loop
+// over lanes and components, so a record moves in half the trips; without it a vec2, the
+// same bytes. A single component reads as `float` view: element 2·event + (k & 1) of array
+// k / 2.
+#ifndef PAIRS64
+#define PAIRS64 0
+#endif
+#if PAIRS64
+#extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
+#define BOX_PAIR uint64_t
+#define PAIR_LOAD(arr, i) uintBitsToFloat(unpackUint2x32(arr[i]))
+#define PAIR_STORE(arr, i, v) arr[i] = packUint2x32(floatBitsToUint(v))
+#else
+#define BOX_PAIR vec2
+#define PAIR_LOAD(arr, i) arr[i]
+#define PAIR_STORE(arr, i, v) arr[i] = (v)
+#endif
+
 float f32_inf() {
     return uintBitsToFloat(0x7f800000u);
 }

@@ -7,9 +7,14 @@
 // the records were already clipped and written to their virtual slots of a temporary list by
 // `kdtree_classify.records`; this pass moves each valid slot's complete record a second time,
 // to its scanned place (one invocation per event, for its two slots).
+//
+// The `*64` variants (where the device has shaderInt64) move the box pairs and read the
+// node's (split, plane) and (first, count) as 64-bit components (accel/kdtree_level.glsl).
 #extension GL_EXT_shader_8bit_storage : require
 //! variant once MOVE_ONCE=1
+//! variant once64 MOVE_ONCE=1 PAIRS64=1
 //! variant records FULL_RECORDS=1
+//! variant records64 FULL_RECORDS=1 PAIRS64=1
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "accel/kdtree_level.glsl"
@@ -26,40 +31,46 @@ layout(std430, binding = 6) readonly buffer TmpPlane { float tmp_plane[]; };
 layout(std430, binding = 7) readonly buffer TmpKind { uint tmp_kind_words[]; };
 layout(std430, binding = 8) readonly buffer TmpPrim { uint tmp_prim[]; };
 layout(std430, binding = 9) readonly buffer TmpNode { uint tmp_node[]; };
-layout(std430, binding = 10) readonly buffer TmpMinX { float tmp_min_x[]; };
-layout(std430, binding = 11) readonly buffer TmpMinY { float tmp_min_y[]; };
-layout(std430, binding = 12) readonly buffer TmpMinZ { float tmp_min_z[]; };
-layout(std430, binding = 13) readonly buffer TmpMaxX { float tmp_max_x[]; };
-layout(std430, binding = 14) readonly buffer TmpMaxY { float tmp_max_y[]; };
-layout(std430, binding = 15) readonly buffer TmpMaxZ { float tmp_max_z[]; };
+layout(std430, binding = 10) readonly buffer TmpBox0 { BOX_PAIR tmp_box0[]; };
+layout(std430, binding = 11) readonly buffer TmpBox1 { BOX_PAIR tmp_box1[]; };
+layout(std430, binding = 12) readonly buffer TmpBox2 { BOX_PAIR tmp_box2[]; };
 #else
 layout(std430, binding = 0) readonly buffer State { uint state[]; };
-layout(std430, binding = 1) readonly buffer NodeRange { uint node_range[]; };
-layout(std430, binding = 2) readonly buffer NodeSplit { uint node_split[]; };
+#if PAIRS64
+layout(std430, binding = 1) readonly buffer NodeRange { uint64_t node_range64[]; };
+layout(std430, binding = 2) readonly buffer NodeSplit { uint64_t node_split64[]; };
+#else
+layout(std430, binding = 1) readonly buffer NodeRange { uvec2 node_range64[]; };
+layout(std430, binding = 2) readonly buffer NodeSplit { uvec2 node_split64[]; };
+#endif
 layout(std430, binding = 3) readonly buffer InnerBefore { uint inner_before[]; };
 layout(std430, binding = 4) readonly buffer Offsets { uint offsets[]; };
 layout(std430, binding = 5) readonly buffer Plane { float plane[]; };
 layout(std430, binding = 6) readonly buffer Kind { uint kind_words[]; };
 layout(std430, binding = 7) readonly buffer Prim { uint prim[]; };
 layout(std430, binding = 8) readonly buffer Node { uint node_of[]; };
-layout(std430, binding = 10) readonly buffer BoxMinX { float box_min_x[]; };
-layout(std430, binding = 11) readonly buffer BoxMinY { float box_min_y[]; };
-layout(std430, binding = 12) readonly buffer BoxMinZ { float box_min_z[]; };
-layout(std430, binding = 13) readonly buffer BoxMaxX { float box_max_x[]; };
-layout(std430, binding = 14) readonly buffer BoxMaxY { float box_max_y[]; };
-layout(std430, binding = 15) readonly buffer BoxMaxZ { float box_max_z[]; };
+layout(std430, binding = 10) readonly buffer Box0 { BOX_PAIR box0[]; };
+layout(std430, binding = 11) readonly buffer Box1 { BOX_PAIR box1[]; };
+layout(std430, binding = 12) readonly buffer Box2 { BOX_PAIR box2[]; };
 #endif
-// The next level's list of this axis (box arrays one per component).
+// The next level's list of this axis (the box as three pair arrays).
 layout(std430, binding = 16) writeonly buffer OutPlane { float out_plane[]; };
 layout(std430, binding = 17) writeonly buffer OutKind { uint8_t out_kind[]; };
 layout(std430, binding = 18) writeonly buffer OutPrim { uint out_prim[]; };
 layout(std430, binding = 19) writeonly buffer OutNode { uint out_node[]; };
-layout(std430, binding = 20) writeonly buffer OutMinX { float out_min_x[]; };
-layout(std430, binding = 21) writeonly buffer OutMinY { float out_min_y[]; };
-layout(std430, binding = 22) writeonly buffer OutMinZ { float out_min_z[]; };
-layout(std430, binding = 23) writeonly buffer OutMaxX { float out_max_x[]; };
-layout(std430, binding = 24) writeonly buffer OutMaxY { float out_max_y[]; };
-layout(std430, binding = 25) writeonly buffer OutMaxZ { float out_max_z[]; };
+layout(std430, binding = 20) writeonly buffer OutBox0 { BOX_PAIR out_box0[]; };
+layout(std430, binding = 21) writeonly buffer OutBox1 { BOX_PAIR out_box1[]; };
+layout(std430, binding = 22) writeonly buffer OutBox2 { BOX_PAIR out_box2[]; };
+
+#if PAIRS64
+uvec2 node_pair(uint64_t w) {
+    return unpackUint2x32(w);
+}
+#else
+uvec2 node_pair(uvec2 w) {
+    return w;
+}
+#endif
 layout(push_constant) uniform Push { uint capacity; } pc; // events of the output list
 
 #ifdef FULL_RECORDS
@@ -87,12 +98,9 @@ void main() {
         out_kind[o] = uint8_t(kind_of(tmp_kind_words[v / 4u], v));
         out_prim[o] = tmp_prim[v];
         out_node[o] = tmp_node[v];
-        out_min_x[o] = tmp_min_x[v];
-        out_min_y[o] = tmp_min_y[v];
-        out_min_z[o] = tmp_min_z[v];
-        out_max_x[o] = tmp_max_x[v];
-        out_max_y[o] = tmp_max_y[v];
-        out_max_z[o] = tmp_max_z[v];
+        out_box0[o] = tmp_box0[v];
+        out_box1[o] = tmp_box1[v];
+        out_box2[o] = tmp_box2[v];
     }
 }
 #else
@@ -102,15 +110,20 @@ void main() {
         return;
     }
     uint node = node_of[id];
-    uint s = node_split[2u * node];
+    uvec2 split = node_pair(node_split64[node]); // (axis or KD_LEAF, plane)
+    uint s = split.x;
     if (s == KD_LEAF) {
         return;
     }
-    uint first = node_range[2u * node];
-    uint count = node_range[2u * node + 1u];
-    float p = uintBitsToFloat(node_split[2u * node + 1u]);
-    float mnx = box_min_x[id], mny = box_min_y[id], mnz = box_min_z[id];
-    float mxx = box_max_x[id], mxy = box_max_y[id], mxz = box_max_z[id];
+    uvec2 range = node_pair(node_range64[node]); // (first, count)
+    uint first = range.x;
+    uint count = range.y;
+    float p = uintBitsToFloat(split.y);
+    vec2 b0 = PAIR_LOAD(box0, id);
+    vec2 b1 = PAIR_LOAD(box1, id);
+    vec2 b2 = PAIR_LOAD(box2, id);
+    float mnx = b0.x, mny = b0.y, mnz = b1.x;
+    float mxx = b1.y, mxy = b2.x, mxz = b2.y;
     float lo = s == 0u ? mnx : (s == 1u ? mny : mnz);
     float hi = s == 0u ? mxx : (s == 1u ? mxy : mxz);
     bool below = hi <= p;
@@ -135,12 +148,15 @@ void main() {
         out_node[o] = child + side;
         // Clip on the split axis only: the below copy's max, the above copy's min.
         bool up = side == 1u;
-        out_min_x[o] = (up && s == 0u) ? fmax_total(mnx, p) : mnx;
-        out_min_y[o] = (up && s == 1u) ? fmax_total(mny, p) : mny;
-        out_min_z[o] = (up && s == 2u) ? fmax_total(mnz, p) : mnz;
-        out_max_x[o] = (!up && s == 0u) ? fmin_total(mxx, p) : mxx;
-        out_max_y[o] = (!up && s == 1u) ? fmin_total(mxy, p) : mxy;
-        out_max_z[o] = (!up && s == 2u) ? fmin_total(mxz, p) : mxz;
+        float cmnx = (up && s == 0u) ? fmax_total(mnx, p) : mnx;
+        float cmny = (up && s == 1u) ? fmax_total(mny, p) : mny;
+        float cmnz = (up && s == 2u) ? fmax_total(mnz, p) : mnz;
+        float cmxx = (!up && s == 0u) ? fmin_total(mxx, p) : mxx;
+        float cmxy = (!up && s == 1u) ? fmin_total(mxy, p) : mxy;
+        float cmxz = (!up && s == 2u) ? fmin_total(mxz, p) : mxz;
+        PAIR_STORE(out_box0, o, vec2(cmnx, cmny));
+        PAIR_STORE(out_box1, o, vec2(cmnz, cmxx));
+        PAIR_STORE(out_box2, o, vec2(cmxy, cmxz));
     }
 }
 #endif

@@ -62,10 +62,13 @@ pub struct GpuEvents {
     pub prim: Buffer<u32>,
     /// Each event's node, by index within the level being built.
     pub node: Buffer<u32>,
-    /// The (clipped) primitive box of every event: six arrays of `capacity` floats
-    /// (min x, y, z, max x, y, z), one buffer each so that each stays within
-    /// `maxStorageBufferRange` (8 bytes per reference of a level instead of 48).
-    pub boxes: [Buffer<f32>; 6],
+    /// The (clipped) primitive box of every event: three arrays of `capacity` component
+    /// pairs, (min x, min y), (min z, max x) and (max y, max z), one buffer each so that
+    /// each stays within `maxStorageBufferRange` (16 bytes per reference of a level instead
+    /// of 48). A kernel moves a pair as one 64-bit component where the device has
+    /// `shaderInt64`: on lavapipe every load and store at a lane-varying address is a loop
+    /// over lanes and components (`glsl/accel/kdtree_level.glsl`).
+    pub boxes: [Buffer<f32>; 3],
     /// Events every array holds.
     pub capacity: usize,
 }
@@ -79,24 +82,21 @@ impl GpuEvents {
             prim: Buffer::new(ctx, &name("prim"), len)?,
             node: Buffer::new(ctx, &name("node"), len)?,
             boxes: [
-                Buffer::new(ctx, &name("min_x"), len)?,
-                Buffer::new(ctx, &name("min_y"), len)?,
-                Buffer::new(ctx, &name("min_z"), len)?,
-                Buffer::new(ctx, &name("max_x"), len)?,
-                Buffer::new(ctx, &name("max_y"), len)?,
-                Buffer::new(ctx, &name("max_z"), len)?,
+                Buffer::new(ctx, &name("min_xy"), 2 * len)?,
+                Buffer::new(ctx, &name("min_z_max_x"), 2 * len)?,
+                Buffer::new(ctx, &name("max_yz"), 2 * len)?,
             ],
             capacity: len,
         })
     }
 
-    /// The six box arrays, as kernel arguments.
-    fn box_args(&self) -> [&dyn BufferArg; 6] {
+    /// The three box pair arrays, as kernel arguments.
+    fn box_args(&self) -> [&dyn BufferArg; 3] {
         let b = &self.boxes;
-        [&b[0], &b[1], &b[2], &b[3], &b[4], &b[5]]
+        [&b[0], &b[1], &b[2]]
     }
 
-    /// plane, kind, prim, node and the six box arrays, as kernel arguments.
+    /// plane, kind, prim, node and the three box pair arrays, as kernel arguments.
     fn record_args(&self) -> Vec<&dyn BufferArg> {
         let mut v: Vec<&dyn BufferArg> = vec![&self.plane, &self.kind, &self.prim, &self.node];
         v.extend(self.box_args());
@@ -105,10 +105,20 @@ impl GpuEvents {
 
     /// Reads the first `len` events back (for tests and the twin comparison).
     pub fn download(&self, len: usize) -> Result<Events> {
+        let pairs = [
+            self.boxes[0].download()?,
+            self.boxes[1].download()?,
+            self.boxes[2].download()?,
+        ];
+        // Component k (min x, y, z, max x, y, z) is element 2·event + k % 2 of array k / 2.
         let arr = |k: usize| -> Result<Vec<f32>> {
-            let mut v = self.boxes[k].download()?;
-            v.truncate(len);
-            Ok(v)
+            Ok(pairs[k / 2]
+                .iter()
+                .skip(k % 2)
+                .step_by(2)
+                .take(len)
+                .copied()
+                .collect())
         };
         let head = |mut v: Vec<u32>| {
             v.truncate(len);
@@ -301,6 +311,11 @@ pub struct Ablation {
     /// event; its largest arrays hold 16 bytes per reference, like the slot offsets, so
     /// the per-level capacity limit is the same).
     pub full_record_scatter: bool,
+    /// The classify and scatter passes move the event boxes' component pairs and read the
+    /// node's field pairs as two 32-bit components each (the path of devices without
+    /// `shaderInt64`) instead of one 64-bit component (not in Kolodzey 2014: on lavapipe
+    /// every load or store at a lane-varying address is a loop over lanes and components).
+    pub narrow_moves: bool,
 }
 
 /// The level's node arrays (ping-ponged between levels).
@@ -406,6 +421,8 @@ impl KdTreeBuilder {
         let k = |blob| ctx.kernel(blob, &spec);
         let one = |blob| ctx.kernel(blob, &Spec::new());
         let cfg = PrimConfig::default_for(ctx);
+        // Box pairs and node fields as 64-bit components where the device has them.
+        let wide = ctx.info().features.shader_int64 && !ablation.narrow_moves;
         Ok(Self {
             k: Kernels {
                 boxes: k(&kernels::ACCEL_KDTREE_BOXES)?,
@@ -419,15 +436,17 @@ impl KdTreeBuilder {
                 decide: k(&kernels::ACCEL_KDTREE_DECIDE)?,
                 write_nodes: k(&kernels::ACCEL_KDTREE_WRITE_NODES)?,
                 leaves: k(&kernels::ACCEL_KDTREE_LEAVES)?,
-                classify: k(if ablation.full_record_scatter {
-                    &kernels::ACCEL_KDTREE_CLASSIFY_RECORDS
-                } else {
-                    &kernels::ACCEL_KDTREE_CLASSIFY_MASK
+                classify: k(match (ablation.full_record_scatter, wide) {
+                    (true, true) => &kernels::ACCEL_KDTREE_CLASSIFY_RECORDS64,
+                    (true, false) => &kernels::ACCEL_KDTREE_CLASSIFY_RECORDS,
+                    (false, true) => &kernels::ACCEL_KDTREE_CLASSIFY_MASK64,
+                    (false, false) => &kernels::ACCEL_KDTREE_CLASSIFY_MASK,
                 })?,
-                scatter: k(if ablation.full_record_scatter {
-                    &kernels::ACCEL_KDTREE_SCATTER_RECORDS
-                } else {
-                    &kernels::ACCEL_KDTREE_SCATTER_ONCE
+                scatter: k(match (ablation.full_record_scatter, wide) {
+                    (true, true) => &kernels::ACCEL_KDTREE_SCATTER_RECORDS64,
+                    (true, false) => &kernels::ACCEL_KDTREE_SCATTER_RECORDS,
+                    (false, true) => &kernels::ACCEL_KDTREE_SCATTER_ONCE64,
+                    (false, false) => &kernels::ACCEL_KDTREE_SCATTER_ONCE,
                 })?,
                 children: k(&kernels::ACCEL_KDTREE_CHILDREN)?,
                 advance: one(&kernels::ACCEL_KDTREE_ADVANCE)?,
