@@ -335,9 +335,9 @@ pub const KD_VARIANT_NOTES: [(&str, &str); 5] = [
     ),
     (
         "narrow_moves",
-        "classify and scatter move the event boxes and read the node fields as 32-bit \
-         components instead of 64-bit pairs (the path of devices without shaderInt64; \
-         not in Table 6.2)",
+        "classify, scatter and split costs move the event boxes and read the node fields \
+         as 32-bit components instead of 64-bit pairs (the path of devices without \
+         shaderInt64; not in Table 6.2)",
     ),
 ];
 

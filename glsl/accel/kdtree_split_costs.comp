@@ -1,13 +1,34 @@
 #version 460
 // kd-tree Phase II, pass 1: per event, the SAH of its plane on each axis list (counts from
 // the START flag scans), the cheapest axis kept. Twin: breadth_first::split_costs.
+// Variant `wide` (where the device has shaderInt64) reads the node's box and (first, count)
+// as 64-bit components (accel/kdtree_level.glsl); `narrow` as 32-bit ones.
+//! variant narrow
+//! variant wide PAIRS64=1
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "accel/kdtree_level.glsl"
 
 layout(std430, binding = 0) readonly buffer State { uint state[]; };
-layout(std430, binding = 1) readonly buffer NodeBox { float node_box[]; };   // 6 per node
-layout(std430, binding = 2) readonly buffer NodeRange { uint node_range[]; }; // first, count
+#if PAIRS64
+layout(std430, binding = 1) readonly buffer NodeBox { uint64_t node_box64[]; };   // 3 per node
+layout(std430, binding = 2) readonly buffer NodeRange { uint64_t node_range64[]; }; // first, count
+vec2 node_floats(uint64_t w) {
+    return uintBitsToFloat(unpackUint2x32(w));
+}
+uvec2 node_uints(uint64_t w) {
+    return unpackUint2x32(w);
+}
+#else
+layout(std430, binding = 1) readonly buffer NodeBox { vec2 node_box64[]; };    // 3 per node
+layout(std430, binding = 2) readonly buffer NodeRange { uvec2 node_range64[]; }; // first, count
+vec2 node_floats(vec2 w) {
+    return w;
+}
+uvec2 node_uints(uvec2 w) {
+    return w;
+}
+#endif
 layout(std430, binding = 3) readonly buffer Plane0 { float plane0[]; };
 layout(std430, binding = 4) readonly buffer Plane1 { float plane1[]; };
 layout(std430, binding = 5) readonly buffer Plane2 { float plane2[]; };
@@ -28,10 +49,14 @@ void main() {
         return;
     }
     uint node = node0[id];
-    uint first = node_range[2u * node];
-    uint count = node_range[2u * node + 1u];
-    vec3 mn = vec3(node_box[6u * node], node_box[6u * node + 1u], node_box[6u * node + 2u]);
-    vec3 mx = vec3(node_box[6u * node + 3u], node_box[6u * node + 4u], node_box[6u * node + 5u]);
+    uvec2 range = node_uints(node_range64[node]);
+    uint first = range.x;
+    uint count = range.y;
+    vec2 b0 = node_floats(node_box64[3u * node]);
+    vec2 b1 = node_floats(node_box64[3u * node + 1u]);
+    vec2 b2 = node_floats(node_box64[3u * node + 2u]);
+    vec3 mn = vec3(b0, b1.x);
+    vec3 mx = vec3(b1.y, b2);
     float best = f32_inf();
     uint best_axis = 0u;
     for (uint a = 0u; a < 3u; a++) {

@@ -311,8 +311,8 @@ pub struct Ablation {
     /// event; its largest arrays hold 16 bytes per reference, like the slot offsets, so
     /// the per-level capacity limit is the same).
     pub full_record_scatter: bool,
-    /// The classify and scatter passes move the event boxes' component pairs and read the
-    /// node's field pairs as two 32-bit components each (the path of devices without
+    /// The classify, scatter and split-cost passes move the event boxes' component pairs and
+    /// read the node's field pairs as two 32-bit components each (the path of devices without
     /// `shaderInt64`) instead of one 64-bit component (not in Kolodzey 2014: on lavapipe
     /// every load or store at a lane-varying address is a loop over lanes and components).
     pub narrow_moves: bool,
@@ -432,7 +432,11 @@ impl KdTreeBuilder {
                 event_keys: k(&kernels::ACCEL_KDTREE_EVENT_KEYS)?,
                 event_gather: k(&kernels::ACCEL_KDTREE_EVENT_GATHER)?,
                 init: one(&kernels::ACCEL_KDTREE_INIT)?,
-                split_costs: k(&kernels::ACCEL_KDTREE_SPLIT_COSTS)?,
+                split_costs: k(if wide {
+                    &kernels::ACCEL_KDTREE_SPLIT_COSTS_WIDE
+                } else {
+                    &kernels::ACCEL_KDTREE_SPLIT_COSTS_NARROW
+                })?,
                 decide: k(&kernels::ACCEL_KDTREE_DECIDE)?,
                 write_nodes: k(&kernels::ACCEL_KDTREE_WRITE_NODES)?,
                 leaves: k(&kernels::ACCEL_KDTREE_LEAVES)?,
