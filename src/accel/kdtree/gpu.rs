@@ -172,7 +172,7 @@ impl BuildCapacity {
     /// This capacity with every buffer clamped to `max_range` bytes (the device's
     /// `maxStorageBufferRange`: 128 MiB on lavapipe). The largest buffers per unit are the
     /// scanned slot offsets (16 bytes per reference of a level: 4 virtual slots of a u32;
-    /// the event boxes are six arrays of 8 bytes per reference), the level's node boxes (24
+    /// the event boxes are three pair arrays of as much), the level's node boxes (24
     /// bytes per node) and the output nodes (16 bytes each, in two buffers). On lavapipe that
     /// is 8.4 M references per level, 5.6 M nodes per level and 16.8 M nodes. A build that
     /// needs more overflows and [`KdTreeBuilder::build_from`] reports it as an error naming
@@ -308,8 +308,8 @@ pub struct Ablation {
     /// flag scan, and `scatter.records` moves every valid slot's complete record a second
     /// time to its scanned place: every record is written twice and read twice (≈ 74 bytes
     /// written per kept copy), with the temporary list as extra memory (74 bytes per
-    /// event; its largest arrays hold 16 bytes per reference, like the slot offsets, so
-    /// the per-level capacity limit is the same).
+    /// event; its box pair arrays hold 32 bytes per reference, twice the slot offsets, so
+    /// [`KdTreeBuilder::fit_capacity`] halves the per-level limit).
     pub full_record_scatter: bool,
     /// The classify, scatter and split-cost passes move the event boxes' component pairs and
     /// read the node's field pairs as two 32-bit components each (the path of devices without
@@ -487,10 +487,19 @@ impl KdTreeBuilder {
     /// buffer within `maxStorageBufferRange` ([`BuildCapacity::fit`]), a level's nodes
     /// within the segmented argmin's segment limit, its events within its cost limit.
     pub fn fit_capacity(&self, ctx: &Context, capacity: BuildCapacity) -> BuildCapacity {
-        // (The ablation's temporary slot list has 16 bytes per reference per array too.)
         let c = capacity.fit(ctx.info().max_storage_buffer_range);
+        // The ablation's temporary slot list (twice the events) holds 32 bytes per reference
+        // in each box pair array.
+        let slot_list_refs = if self.ablation.full_record_scatter {
+            (ctx.info().max_storage_buffer_range / 32) as usize
+        } else {
+            usize::MAX
+        };
         BuildCapacity {
-            refs_per_level: c.refs_per_level.min(self.segmented.max_costs() / 2),
+            refs_per_level: c
+                .refs_per_level
+                .min(self.segmented.max_costs() / 2)
+                .min(slot_list_refs),
             nodes_per_level: c.nodes_per_level.min(self.segmented.max_segments()),
             ..c
         }
