@@ -101,7 +101,8 @@ void main() {
     }
     if (lane == 0u) {
         write_groups(PLAN_SEGMENT_GROUPS, packed ? 0u : count);
-        write_groups(PLAN_PACKED_GROUPS, packed ? (count + pc.pack_width - 1u) / pc.pack_width : 0u);
+        uint packed_groups = (count + pc.pack_width - 1u) / pc.pack_width;
+        write_groups(PLAN_PACKED_GROUPS, packed ? packed_groups : 0u);
         write_groups(PLAN_TILE_GROUPS, totals[1]);
         plan[PLAN_COUNT] = count;
         plan[PLAN_LONG] = totals[0];

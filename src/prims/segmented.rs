@@ -42,8 +42,9 @@
 //!
 //! The three [`SegmentedMode`]s are the same kernels: workgroup-per-segment has no share
 //! rule and never packs, device-wide makes every segment of at least a tile long (shorter
-//! ones cannot be split anyway) and never packs. In every mode a segment longer than a segment workgroup may loop over
-//! ([`SegmentedArgmin::loop_capacity`], llvmpipe's loop budget) is long.
+//! ones cannot be split anyway) and never packs. In every mode a segment longer than a
+//! segment workgroup may loop over ([`SegmentedArgmin::loop_capacity`], llvmpipe's loop
+//! budget) is long.
 //!
 //! **Threshold, measured** on lavapipe (Mesa 22.3, 2 cores shared with other jobs: load
 //! average about 3.5; subgroup 8) with [`SegmentedArgmin::recommended`] (tiles 256 × 256,
