@@ -24,19 +24,8 @@ layout(local_size_x_id = 0) in;
 #include "accel/kdtree_level.glsl"
 
 layout(std430, binding = 0) readonly buffer State { uint state[]; };
-#if PAIRS64
-layout(std430, binding = 1) readonly buffer NodeRange { uint64_t node_range64[]; };
-layout(std430, binding = 2) readonly buffer NodeSplit { uint64_t node_split64[]; };
-uvec2 node_pair(uint64_t w) {
-    return unpackUint2x32(w);
-}
-#else
-layout(std430, binding = 1) readonly buffer NodeRange { uvec2 node_range64[]; };
-layout(std430, binding = 2) readonly buffer NodeSplit { uvec2 node_split64[]; };
-uvec2 node_pair(uvec2 w) {
-    return w;
-}
-#endif
+layout(std430, binding = 1) readonly buffer NodeRange { WORD_PAIR node_range[]; }; // first, count
+layout(std430, binding = 2) readonly buffer NodeSplit { WORD_PAIR node_split[]; }; // axis, plane
 layout(std430, binding = 3) readonly buffer Node { uint node_of[]; };
 // The event boxes' three pair arrays (accel/kdtree_level.glsl), read a component at a time.
 layout(std430, binding = 4) readonly buffer Box0 { float box0[]; }; // min x, min y
@@ -53,9 +42,9 @@ layout(std430, binding = 15) writeonly buffer TmpPlane { float tmp_plane[]; };
 layout(std430, binding = 16) writeonly buffer TmpKind { uint8_t tmp_kind[]; };
 layout(std430, binding = 17) writeonly buffer TmpPrim { uint tmp_prim[]; };
 layout(std430, binding = 18) writeonly buffer TmpNode { uint tmp_node[]; };
-layout(std430, binding = 19) writeonly buffer TmpBox0 { BOX_PAIR tmp_box0[]; };
-layout(std430, binding = 20) writeonly buffer TmpBox1 { BOX_PAIR tmp_box1[]; };
-layout(std430, binding = 21) writeonly buffer TmpBox2 { BOX_PAIR tmp_box2[]; };
+layout(std430, binding = 19) writeonly buffer TmpBox0 { WORD_PAIR tmp_box0[]; };
+layout(std430, binding = 20) writeonly buffer TmpBox1 { WORD_PAIR tmp_box1[]; };
+layout(std430, binding = 21) writeonly buffer TmpBox2 { WORD_PAIR tmp_box2[]; };
 #endif
 
 void main() {
@@ -64,10 +53,10 @@ void main() {
         return;
     }
     uint node = node_of[id];
-    uvec2 range = node_pair(node_range64[node]); // (first, count)
+    uvec2 range = pair_uints(node_range[node]); // (first, count)
     uint first = range.x;
     uint count = range.y;
-    uvec2 split = node_pair(node_split64[node]); // (axis or KD_LEAF, plane)
+    uvec2 split = pair_uints(node_split[node]); // (axis or KD_LEAF, plane)
     uint s = split.x;
     uint below = 0u;
     uint above = 0u;
@@ -114,9 +103,9 @@ void main() {
         float cmxx = (!up && s == 0u) ? fmin_total(mxx, p) : mxx;
         float cmxy = (!up && s == 1u) ? fmin_total(mxy, p) : mxy;
         float cmxz = (!up && s == 2u) ? fmin_total(mxz, p) : mxz;
-        PAIR_STORE(tmp_box0, o, vec2(cmnx, cmny));
-        PAIR_STORE(tmp_box1, o, vec2(cmnz, cmxx));
-        PAIR_STORE(tmp_box2, o, vec2(cmxy, cmxz));
+        tmp_box0[o] = floats_pair(vec2(cmnx, cmny));
+        tmp_box1[o] = floats_pair(vec2(cmnz, cmxx));
+        tmp_box2[o] = floats_pair(vec2(cmxy, cmxz));
     }
 #endif
 }

@@ -19,9 +19,9 @@ layout(std430, binding = 10) writeonly buffer Prim { uint prim_out[]; };
 layout(std430, binding = 11) writeonly buffer Node { uint node_out[]; };
 // The event boxes: three arrays of component pairs (accel/kdtree_level.glsl), one buffer each
 // (each within maxStorageBufferRange).
-layout(std430, binding = 12) writeonly buffer Box0 { BOX_PAIR box0[]; };
-layout(std430, binding = 13) writeonly buffer Box1 { BOX_PAIR box1[]; };
-layout(std430, binding = 14) writeonly buffer Box2 { BOX_PAIR box2[]; };
+layout(std430, binding = 12) writeonly buffer Box0 { WORD_PAIR box0[]; };
+layout(std430, binding = 13) writeonly buffer Box1 { WORD_PAIR box1[]; };
+layout(std430, binding = 14) writeonly buffer Box2 { WORD_PAIR box2[]; };
 layout(push_constant) uniform Push { uint n; } pc; // primitives
 
 void main() {
@@ -43,9 +43,9 @@ void main() {
         plane[j] = sorted_keys[j];
         prim_out[j] = prim;
         node_out[j] = 0;
-        PAIR_STORE(box0, j, vec2(min_x[prim], min_y[prim]));
-        PAIR_STORE(box1, j, vec2(min_z[prim], max_x[prim]));
-        PAIR_STORE(box2, j, vec2(max_y[prim], max_z[prim]));
+        box0[j] = floats_pair(vec2(min_x[prim], min_y[prim]));
+        box1[j] = floats_pair(vec2(min_z[prim], max_x[prim]));
+        box2[j] = floats_pair(vec2(max_y[prim], max_z[prim]));
     }
     kind_bytes[word] = packed;
 }

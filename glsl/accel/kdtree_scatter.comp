@@ -31,46 +31,32 @@ layout(std430, binding = 6) readonly buffer TmpPlane { float tmp_plane[]; };
 layout(std430, binding = 7) readonly buffer TmpKind { uint tmp_kind_words[]; };
 layout(std430, binding = 8) readonly buffer TmpPrim { uint tmp_prim[]; };
 layout(std430, binding = 9) readonly buffer TmpNode { uint tmp_node[]; };
-layout(std430, binding = 10) readonly buffer TmpBox0 { BOX_PAIR tmp_box0[]; };
-layout(std430, binding = 11) readonly buffer TmpBox1 { BOX_PAIR tmp_box1[]; };
-layout(std430, binding = 12) readonly buffer TmpBox2 { BOX_PAIR tmp_box2[]; };
+layout(std430, binding = 10) readonly buffer TmpBox0 { WORD_PAIR tmp_box0[]; };
+layout(std430, binding = 11) readonly buffer TmpBox1 { WORD_PAIR tmp_box1[]; };
+layout(std430, binding = 12) readonly buffer TmpBox2 { WORD_PAIR tmp_box2[]; };
 #else
 layout(std430, binding = 0) readonly buffer State { uint state[]; };
-#if PAIRS64
-layout(std430, binding = 1) readonly buffer NodeRange { uint64_t node_range64[]; };
-layout(std430, binding = 2) readonly buffer NodeSplit { uint64_t node_split64[]; };
-#else
-layout(std430, binding = 1) readonly buffer NodeRange { uvec2 node_range64[]; };
-layout(std430, binding = 2) readonly buffer NodeSplit { uvec2 node_split64[]; };
-#endif
+layout(std430, binding = 1) readonly buffer NodeRange { WORD_PAIR node_range[]; }; // first, count
+layout(std430, binding = 2) readonly buffer NodeSplit { WORD_PAIR node_split[]; }; // axis, plane
 layout(std430, binding = 3) readonly buffer InnerBefore { uint inner_before[]; };
 layout(std430, binding = 4) readonly buffer Offsets { uint offsets[]; };
 layout(std430, binding = 5) readonly buffer Plane { float plane[]; };
 layout(std430, binding = 6) readonly buffer Kind { uint kind_words[]; };
 layout(std430, binding = 7) readonly buffer Prim { uint prim[]; };
 layout(std430, binding = 8) readonly buffer Node { uint node_of[]; };
-layout(std430, binding = 10) readonly buffer Box0 { BOX_PAIR box0[]; };
-layout(std430, binding = 11) readonly buffer Box1 { BOX_PAIR box1[]; };
-layout(std430, binding = 12) readonly buffer Box2 { BOX_PAIR box2[]; };
+layout(std430, binding = 10) readonly buffer Box0 { WORD_PAIR box0[]; };
+layout(std430, binding = 11) readonly buffer Box1 { WORD_PAIR box1[]; };
+layout(std430, binding = 12) readonly buffer Box2 { WORD_PAIR box2[]; };
 #endif
 // The next level's list of this axis (the box as three pair arrays).
 layout(std430, binding = 16) writeonly buffer OutPlane { float out_plane[]; };
 layout(std430, binding = 17) writeonly buffer OutKind { uint8_t out_kind[]; };
 layout(std430, binding = 18) writeonly buffer OutPrim { uint out_prim[]; };
 layout(std430, binding = 19) writeonly buffer OutNode { uint out_node[]; };
-layout(std430, binding = 20) writeonly buffer OutBox0 { BOX_PAIR out_box0[]; };
-layout(std430, binding = 21) writeonly buffer OutBox1 { BOX_PAIR out_box1[]; };
-layout(std430, binding = 22) writeonly buffer OutBox2 { BOX_PAIR out_box2[]; };
+layout(std430, binding = 20) writeonly buffer OutBox0 { WORD_PAIR out_box0[]; };
+layout(std430, binding = 21) writeonly buffer OutBox1 { WORD_PAIR out_box1[]; };
+layout(std430, binding = 22) writeonly buffer OutBox2 { WORD_PAIR out_box2[]; };
 
-#if PAIRS64
-uvec2 node_pair(uint64_t w) {
-    return unpackUint2x32(w);
-}
-#else
-uvec2 node_pair(uvec2 w) {
-    return w;
-}
-#endif
 layout(push_constant) uniform Push { uint capacity; } pc; // events of the output list
 
 #ifdef FULL_RECORDS
@@ -110,18 +96,18 @@ void main() {
         return;
     }
     uint node = node_of[id];
-    uvec2 split = node_pair(node_split64[node]); // (axis or KD_LEAF, plane)
+    uvec2 split = pair_uints(node_split[node]); // (axis or KD_LEAF, plane)
     uint s = split.x;
     if (s == KD_LEAF) {
         return;
     }
-    uvec2 range = node_pair(node_range64[node]); // (first, count)
+    uvec2 range = pair_uints(node_range[node]); // (first, count)
     uint first = range.x;
     uint count = range.y;
     float p = uintBitsToFloat(split.y);
-    vec2 b0 = PAIR_LOAD(box0, id);
-    vec2 b1 = PAIR_LOAD(box1, id);
-    vec2 b2 = PAIR_LOAD(box2, id);
+    vec2 b0 = pair_floats(box0[id]);
+    vec2 b1 = pair_floats(box1[id]);
+    vec2 b2 = pair_floats(box2[id]);
     float mnx = b0.x, mny = b0.y, mnz = b1.x;
     float mxx = b1.y, mxy = b2.x, mxz = b2.y;
     float lo = s == 0u ? mnx : (s == 1u ? mny : mnz);
@@ -154,9 +140,9 @@ void main() {
         float cmxx = (!up && s == 0u) ? fmin_total(mxx, p) : mxx;
         float cmxy = (!up && s == 1u) ? fmin_total(mxy, p) : mxy;
         float cmxz = (!up && s == 2u) ? fmin_total(mxz, p) : mxz;
-        PAIR_STORE(out_box0, o, vec2(cmnx, cmny));
-        PAIR_STORE(out_box1, o, vec2(cmnz, cmxx));
-        PAIR_STORE(out_box2, o, vec2(cmxy, cmxz));
+        out_box0[o] = floats_pair(vec2(cmnx, cmny));
+        out_box1[o] = floats_pair(vec2(cmnz, cmxx));
+        out_box2[o] = floats_pair(vec2(cmxy, cmxz));
     }
 }
 #endif

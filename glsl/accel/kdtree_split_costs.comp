@@ -10,25 +10,8 @@ layout(local_size_x_id = 0) in;
 #include "accel/kdtree_level.glsl"
 
 layout(std430, binding = 0) readonly buffer State { uint state[]; };
-#if PAIRS64
-layout(std430, binding = 1) readonly buffer NodeBox { uint64_t node_box64[]; };   // 3 per node
-layout(std430, binding = 2) readonly buffer NodeRange { uint64_t node_range64[]; }; // first, count
-vec2 node_floats(uint64_t w) {
-    return uintBitsToFloat(unpackUint2x32(w));
-}
-uvec2 node_uints(uint64_t w) {
-    return unpackUint2x32(w);
-}
-#else
-layout(std430, binding = 1) readonly buffer NodeBox { vec2 node_box64[]; };    // 3 per node
-layout(std430, binding = 2) readonly buffer NodeRange { uvec2 node_range64[]; }; // first, count
-vec2 node_floats(vec2 w) {
-    return w;
-}
-uvec2 node_uints(uvec2 w) {
-    return w;
-}
-#endif
+layout(std430, binding = 1) readonly buffer NodeBox { WORD_PAIR node_box[]; };     // 3 per node
+layout(std430, binding = 2) readonly buffer NodeRange { WORD_PAIR node_range[]; }; // first, count
 layout(std430, binding = 3) readonly buffer Plane0 { float plane0[]; };
 layout(std430, binding = 4) readonly buffer Plane1 { float plane1[]; };
 layout(std430, binding = 5) readonly buffer Plane2 { float plane2[]; };
@@ -49,12 +32,12 @@ void main() {
         return;
     }
     uint node = node0[id];
-    uvec2 range = node_uints(node_range64[node]);
+    uvec2 range = pair_uints(node_range[node]);
     uint first = range.x;
     uint count = range.y;
-    vec2 b0 = node_floats(node_box64[3u * node]);
-    vec2 b1 = node_floats(node_box64[3u * node + 1u]);
-    vec2 b2 = node_floats(node_box64[3u * node + 2u]);
+    vec2 b0 = pair_floats(node_box[3u * node]);
+    vec2 b1 = pair_floats(node_box[3u * node + 1u]);
+    vec2 b2 = pair_floats(node_box[3u * node + 2u]);
     vec3 mn = vec3(b0, b1.x);
     vec3 mx = vec3(b1.y, b2);
     float best = f32_inf();

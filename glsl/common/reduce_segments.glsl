@@ -35,4 +35,32 @@ uint segment_tiles(uvec2 seg, uint tile) {
     return (seg.y - 1u) / tile - seg.x / tile + 1u;
 }
 
+#ifdef VKRT_COMMON_ARGMIN_GLSL
+// Slot p's winner (the (tile, segment) pairs from word slot_base on) folded into (c, i).
+// Needs a `uint scratch[]` buffer; include after common/argmin.glsl.
+void argmin_consider_slot(uint slot_base, uint p, inout float c, inout uint i) {
+    uint w = slot_base + 2u * p;
+    argmin_consider(uintBitsToFloat(scratch[w]), scratch[w + 1u], c, i);
+}
+
+// Folds long segment s's tile winners into this lane's (c, i): the slots of tiles [first,
+// end) are the consecutive pairs first + s .. end + s, and the lane takes every lanes-th
+// from its own, REDUCE_UNROLL per iteration (llvmpipe's loop budget,
+// common/reduce_lanes.glsl).
+void argmin_segment_slots(uvec2 seg, uint s, uint lane, uint lanes, uint tile, uint slot_base,
+                          inout float c, inout uint i) {
+    uint p = seg.x / tile + s + lane;
+    uint p_end = (seg.y - 1u) / tile + 1u + s;
+    for (; p + 3u * lanes < p_end; p += 4u * lanes) {
+        argmin_consider_slot(slot_base, p, c, i);
+        argmin_consider_slot(slot_base, p + lanes, c, i);
+        argmin_consider_slot(slot_base, p + 2u * lanes, c, i);
+        argmin_consider_slot(slot_base, p + 3u * lanes, c, i);
+    }
+    for (; p < p_end; p += lanes) {
+        argmin_consider_slot(slot_base, p, c, i);
+    }
+}
+#endif
+
 #endif

@@ -28,11 +28,6 @@ layout(push_constant) uniform Push {
 #include "common/argmin.glsl"
 #include "common/reduce_segments.glsl"
 
-void consider_slot(uint p, inout float c, inout uint i) {
-    uint w = pc.slot_base + 2u * p;
-    argmin_consider(uintBitsToFloat(scratch[w]), scratch[w + 1u], c, i);
-}
-
 // Segment s's winner, reduced by the whole subgroup (uniform s); every lane ends with it.
 // Loop iterations per lane: under len / (REDUCE_UNROLL · lanes) + REDUCE_UNROLL, as in
 // segmented_segments (the plan keeps the sum over a subgroup's segments in the budget).
@@ -41,17 +36,7 @@ void subgroup_segment(uint s, uint lane, uint lanes, out float c, out uint i) {
     i = ARGMIN_NONE_INDEX;
     uvec2 seg = segment_bounds(s, pc.n_costs);
     if (seg.y - seg.x >= scratch[PLAN_CUT]) {
-        uint p = seg.x / pc.tile + s + lane;
-        uint p_end = (seg.y - 1u) / pc.tile + 1u + s;
-        for (; p + 3u * lanes < p_end; p += 4u * lanes) {
-            consider_slot(p, c, i);
-            consider_slot(p + lanes, c, i);
-            consider_slot(p + 2u * lanes, c, i);
-            consider_slot(p + 3u * lanes, c, i);
-        }
-        for (; p < p_end; p += lanes) {
-            consider_slot(p, c, i);
-        }
+        argmin_segment_slots(seg, s, lane, lanes, pc.tile, pc.slot_base, c, i);
     } else {
         uint e = seg.x + lane;
         for (; e + 3u * lanes < seg.y; e += 4u * lanes) {

@@ -26,11 +26,6 @@ layout(push_constant) uniform Push {
 #include "common/argmin.glsl"
 #include "common/reduce_segments.glsl"
 
-void consider_slot(uint p, inout float c, inout uint i) {
-    uint w = pc.slot_base + 2u * p;
-    argmin_consider(uintBitsToFloat(scratch[w]), scratch[w + 1u], c, i);
-}
-
 void main() {
     uint s = linear_group_id();
     if (s >= scratch[PLAN_COUNT]) {
@@ -41,20 +36,7 @@ void main() {
     uint i = ARGMIN_NONE_INDEX;
     uint lane = reduce_lane();
     if (seg.y - seg.x >= scratch[PLAN_CUT]) {
-        // The slots of tiles [first, end) are the consecutive pairs first + s .. end + s;
-        // REDUCE_UNROLL per iteration (llvmpipe's loop budget, common/reduce_lanes.glsl).
-        uint lanes = gl_WorkGroupSize.x;
-        uint p = seg.x / pc.tile + s + lane;
-        uint p_end = (seg.y - 1u) / pc.tile + 1u + s;
-        for (; p + 3u * lanes < p_end; p += 4u * lanes) {
-            consider_slot(p, c, i);
-            consider_slot(p + lanes, c, i);
-            consider_slot(p + 2u * lanes, c, i);
-            consider_slot(p + 3u * lanes, c, i);
-        }
-        for (; p < p_end; p += lanes) {
-            consider_slot(p, c, i);
-        }
+        argmin_segment_slots(seg, s, lane, gl_WorkGroupSize.x, pc.tile, pc.slot_base, c, i);
     } else {
         argmin_range(seg.x, seg.y, c, i);
     }

@@ -466,7 +466,6 @@ impl SegmentedArgmin {
             self.cfg.tile()
         };
         let max_groups_x = rec.context().info().max_workgroup_count[0];
-        let pack_width = PACK_WIDTH.max(rec.context().info().subgroup_size);
         let plan_push = PlanPush {
             max_segments,
             n_costs,
@@ -474,8 +473,8 @@ impl SegmentedArgmin {
             share,
             capacity,
             max_groups_x,
-            pack_min: self.pack_min(mode, n_costs).map_or(0, |m| m.max(1)),
-            pack_width,
+            pack_min: self.pack_min(mode, n_costs).unwrap_or(0),
+            pack_width: self.packed.as_ref().map_or(0, |k| k.invocations()),
             pack_cut: self.packed_cut(),
         };
         let push = PathPush {
@@ -541,14 +540,14 @@ impl SegmentedArgmin {
     }
 
     /// The segment count from which `mode` takes the packed path on a level (`None`: never):
-    /// the hybrid packs a level once it has `threshold` workgroups of [`PACK_WIDTH`]
-    /// segments, enough for every thread or compute unit, where the available kernel and
-    /// llvmpipe's loop budget allow (its subgroups loop over every long segment's slots).
+    /// the hybrid packs a level once it fills `threshold` packed workgroups, enough for
+    /// every thread or compute unit, where the available kernel and llvmpipe's loop budget
+    /// allow (its subgroups loop over every long segment's slots).
     fn pack_min(&self, mode: SegmentedMode, n_costs: u32) -> Option<u32> {
         let SegmentedMode::Hybrid { threshold } = mode else {
             return None;
         };
-        self.packed.as_ref()?;
+        let packed = self.packed.as_ref()?;
         let slots = u64::from(n_costs) / u64::from(self.cfg.tile()) + 1;
         // Per lane: its own short segment, then up to one segment per subgroup lane (at
         // most 128) of under PACK_CUT elements, UNROLL per lane and iteration, and the slots.
@@ -556,7 +555,8 @@ impl SegmentedArgmin {
             + u64::from(PACK_CUT) / UNROLL
             + slots / UNROLL
             + 128 * (2 * UNROLL + 8);
-        (iterations < LOOP_BUDGET - 1000).then(|| threshold.max(1).saturating_mul(PACK_WIDTH))
+        (iterations < LOOP_BUDGET - 1000)
+            .then(|| threshold.max(1).saturating_mul(packed.invocations()))
     }
 
     /// Uploads `costs` and `offsets` (`offsets.len() - 1` segments), runs [`Self::record`]
