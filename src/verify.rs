@@ -29,7 +29,7 @@ use std::time::Instant;
 use glam::{Vec3, Vec4};
 use serde::Serialize;
 
-use crate::accel::bvh::collapse::collapse;
+use crate::accel::bvh::collapse::{collapse, collapse_in_place};
 use crate::accel::bvh::{self, lbvh, ploc};
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, HostStructure};
 use crate::accel::gpu_geometry::GpuGeometry;
@@ -1021,13 +1021,15 @@ fn builder_check(
             if let Err(e) = bvh::validate::validate(&tree, &g.boxes) {
                 return Ok(Some(format!("invalid: {e}")));
             }
+            let p = &builder.bvh_params;
             let twin = match kind {
-                AccelKind::Ploc => {
-                    ploc::build(&g.boxes, &builder.ploc_params().unwrap_or_default()).0
-                }
-                _ => lbvh::build(&g.boxes, builder.lbvh_bits()),
+                AccelKind::Ploc => collapse(
+                    &ploc::build(&g.boxes, &builder.ploc_params().unwrap_or_default()).0,
+                    p,
+                ),
+                _ => collapse_in_place(&lbvh::build(&g.boxes, builder.lbvh_bits()), p),
             };
-            collapse(&twin, &builder.bvh_params) == tree
+            twin == tree
         }
     };
     Ok((!equal).then(|| "differs from its CPU twin".to_string()))

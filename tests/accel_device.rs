@@ -9,7 +9,7 @@ mod common;
 
 use common::{assert_silent, context, edge_sizes, same_answer, Rng};
 use glam::{Vec3, Vec4};
-use vkrt::accel::bvh::collapse::collapse;
+use vkrt::accel::bvh::collapse::{collapse, collapse_in_place};
 use vkrt::accel::bvh::lbvh::{self, MortonBits};
 use vkrt::accel::bvh::{self, BvhParams, Threading};
 use vkrt::accel::device::{AccelBuilder, AccelKind, AccelStructure, HostStructure};
@@ -96,7 +96,7 @@ fn device_builds_equal_their_host_twins_and_fit_their_sizes() {
                     }
                     HostStructure::Bvh(b) => {
                         let twin = match kind {
-                            AccelKind::Lbvh => collapse(
+                            AccelKind::Lbvh => collapse_in_place(
                                 &lbvh::build(&g.boxes, MortonBits::default()),
                                 &BvhParams::default(),
                             ),

@@ -12,7 +12,7 @@ mod common;
 
 use common::{assert_silent, context, edge_sizes, Rng};
 use glam::Vec3;
-use vkrt::accel::bvh::collapse::collapse;
+use vkrt::accel::bvh::collapse::{collapse, collapse_in_place};
 use vkrt::accel::bvh::collapse_gpu::MAX_COLLAPSE_LEAF;
 use vkrt::accel::bvh::lbvh::{self, MortonBits};
 use vkrt::accel::bvh::ploc::{self, PlocParams};
@@ -107,7 +107,7 @@ fn builders(ctx: &Context) -> Vec<Builder> {
         out.push((
             format!("LBVH {bits:?}, leaves <= {leaf}"),
             builder,
-            Box::new(move |g| collapse(&lbvh::build(&g.boxes, bits), &params)),
+            Box::new(move |g| collapse_in_place(&lbvh::build(&g.boxes, bits), &params)),
         ));
     }
     // The last: two rounds only, then the pairing fallback finishes the tree.

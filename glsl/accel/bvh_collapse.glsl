@@ -20,7 +20,23 @@ float half_area(vec3 lo, vec3 hi) {
     return s;
 }
 
-#ifndef COLLAPSE_NO_DECIDE
+#ifdef COLLAPSE_NO_DECIDE
+
+// Whether node `i` lives: neither it nor an ancestor collapsed. Only nodes of at most
+// `max_leaf` primitives can, so the walk up is a few steps. Needs `refs` (references, then
+// parent links from `parents_at` on).
+bool node_lives(uint i, uint parents_at, uint max_leaf) {
+    uint x = i;
+    while (x != NO_NODE && costs[COST_COUNT(x)] <= max_leaf) {
+        if (costs[COST_COLLAPSE(x)] != 0u) {
+            return false;
+        }
+        x = refs[parents_at + x];
+    }
+    return true;
+}
+
+#else
 
 // The SAH costs (C_trav, C_isect) and the largest leaf.
 struct CollapseParams {

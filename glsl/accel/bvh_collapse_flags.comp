@@ -1,13 +1,11 @@
 #version 460
 // The SAH leaf collapse's second pass (CPU twin: collapse::collapse): whether each node
-// lives — neither it nor an ancestor collapsed; only nodes of at most `max_leaf` primitives
-// can, so the walk up is a few steps — and how many references its leaves will hold (a leaf
-// child's, or a collapsed child's subtree's). Both are scanned next: a live node's new index
-// and its first reference.
+// lives (neither it nor an ancestor collapsed) and how many references its leaves will hold
+// (a leaf child's, or a collapsed child's subtree's). Both are scanned next: a live node's
+// new index and its first reference.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#define COLLAPSE_NO_DECIDE
-#include "accel/bvh_collapse.glsl"
+#include "include/vkrt/bvh_node.glsl"
 
 layout(std430, binding = 0) readonly buffer Nodes { BvhNode nodes[]; };
 layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
@@ -19,6 +17,9 @@ layout(push_constant) uniform Push {
     uint parents_at;
     uint max_leaf;
 } pc;
+
+#define COLLAPSE_NO_DECIDE
+#include "accel/bvh_collapse.glsl"
 
 uint leaf_child_refs(uint index, uint count) {
     if (count > 0u) {
@@ -35,15 +36,7 @@ void main() {
     if (i >= pc.n_nodes) {
         return;
     }
-    bool alive = true;
-    uint x = i;
-    while (x != NO_NODE && costs[COST_COUNT(x)] <= pc.max_leaf) {
-        if (costs[COST_COLLAPSE(x)] != 0u) {
-            alive = false;
-            break;
-        }
-        x = refs[pc.parents_at + x];
-    }
+    bool alive = node_lives(i, pc.parents_at, pc.max_leaf);
     BvhNode n = nodes[i];
     live[i] = uint(alive);
     leaf_refs[i] = alive ? leaf_child_refs(n.a_index, n.a_count) + leaf_child_refs(n.b_index, n.b_count) : 0u;

@@ -7,8 +7,7 @@
 // copy drops it). Only the references move: read from the builder's copy in scratch.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#define COLLAPSE_NO_DECIDE
-#include "accel/bvh_collapse.glsl"
+#include "include/vkrt/bvh_node.glsl"
 
 // Deep enough for any collapsed subtree: at most MAX_COLLAPSE_LEAF (32) primitives, so at
 // most 33 children wait at once.
@@ -27,6 +26,9 @@ layout(push_constant) uniform Push {
     uint n_nodes;
     uint parents_at;
 } pc;
+
+#define COLLAPSE_NO_DECIDE
+#include "accel/bvh_collapse.glsl"
 
 // Copies the references below `node` to out_refs[at...], depth first, `a` before `b`: a
 // stack of children, each a node (count 0) or a leaf.

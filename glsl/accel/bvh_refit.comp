@@ -1,7 +1,8 @@
 #version 460
 // BVH refit (CPU twin: src/accel/bvh/refit.rs): every child box recomputed bottom-up from
-// the primitives' boxes after they moved, the topology kept. One invocation per node; those
-// whose children are all leaves start, refit their node and climb: at each parent an atomic
+// the primitives' boxes after they moved, the topology kept. Nodes whose children are all
+// leaves start (accel/bvh_climb.glsl: each invocation takes `per_lane` of them in turn),
+// refit their node and climb: at each parent an atomic
 // visit counter lets the last child to arrive refit it (Karras 2012's scheme), so no
 // invocation waits for another (no forward-progress assumption). The buffer writes of the
 // child are made visible before its arrival is counted (memoryBarrierBuffer on coherent
@@ -11,18 +12,22 @@
 // Variant `boxes` refits; variant `costs`: the LBVH build's refit also decides the SAH leaf collapse of every node on
 // the same climb (accel/bvh_collapse_cost.comp's work, which the GPU builders' other trees
 // run as a pass of its own).
+// The `64` variants move nodes and boxes as 64-bit pairs (accel/bvh_pairs.glsl), where the
+// device has shaderInt64.
 //! variant boxes
+//! variant boxes64 PAIRS64=1
 //! variant costs COLLAPSE_COSTS=1
+//! variant costs64 COLLAPSE_COSTS=1 PAIRS64=1
 layout(local_size_x_id = 0) in;
 #extension GL_KHR_shader_subgroup_vote : require
 #include "common/grid.glsl"
-#include "include/vkrt/bvh_node.glsl"
+#include "accel/bvh_pairs.glsl"
 
-layout(std430, binding = 0) coherent buffer Nodes { BvhNode nodes[]; };
+layout(std430, binding = 0) coherent buffer Nodes { WORD_PAIR node_pairs[]; };
 // References, then one parent link per node from `parents_at` on.
 layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
-// Six floats per primitive: min x, y, z, max x, y, z.
-layout(std430, binding = 2) readonly buffer Boxes { float boxes[]; };
+// Six floats per primitive, min x, y, z, max x, y, z: three pairs.
+layout(std430, binding = 2) readonly buffer Boxes { WORD_PAIR box_pairs[]; };
 // One counter per node, zero before the dispatch.
 layout(std430, binding = 3) coherent buffer Visits { uint visits[]; };
 // `SceneInfo` (src/accel/primitives.rs): the root box is rewritten.
@@ -39,43 +44,44 @@ layout(std430, binding = 4) buffer SceneInfoBuf {
 layout(std430, binding = 5) coherent buffer Costs { uint costs[]; };
 layout(push_constant) uniform Push {
     uint n_nodes;
+    uint per_lane;
     uint max_leaf;
     float c_trav;
     float c_isect;
 } pc;
 #include "accel/bvh_collapse.glsl"
 #else
-layout(push_constant) uniform Push { uint n_nodes; } pc;
+layout(push_constant) uniform Push {
+    uint n_nodes;
+    uint per_lane;
+} pc;
 #endif
 
 #include "accel/bvh_refit.glsl"
+#include "accel/bvh_climb.glsl"
 
 void main() {
-    uint i = linear_invocation_id();
-    // Slots a leaf collapse freed (parent DEAD) hold no node.
-    bool climbing = i < pc.n_nodes && refs[info.parents_at + i] != DEAD && node_children(nodes[i]) == 0u;
-    uint cur = i;
+    uint taken = 0u;
+    uint cur = NO_NODE;
+    bool climbing = false;
     // Rounds in subgroup-uniform control flow, every memory barrier reached by every lane:
     // Mesa 22.3's lavapipe makes memoryBarrierBuffer (or an atomic with acquire/release
     // semantics) a coroutine switch, and a subgroup that runs more of them than the others
     // of its workgroup is never resumed (glsl/gpu/memory_barrier_probe.comp); a workgroup
     // is one subgroup here (AccelBuilder dispatches the subgroup size), so there are no
     // others. One round: refit (stores), memory barrier, arrive at the parent (atomic),
-    // memory barrier; the subgroup stops when none of its lanes climbs. A bound of one
-    // round per node: never a spin.
+    // memory barrier; a lane whose climb ended takes its next start; the subgroup stops when
+    // none of its lanes climbs. Every round refits a node: never a spin.
     for (uint round = 0u; round <= pc.n_nodes; round++) {
+        if (!climbing) {
+            climbing = next_climb(pc.n_nodes, info.parents_at, pc.per_lane, taken, cur);
+        }
         if (!subgroupAny(climbing)) {
             break;
         }
         BvhNode n;
         if (climbing) {
-            n = nodes[cur];
-            child_box(n.a_index, n.a_count, n.a_min, n.a_max);
-            child_box(n.b_index, n.b_count, n.b_min, n.b_max);
-            nodes[cur].a_min = n.a_min;
-            nodes[cur].a_max = n.a_max;
-            nodes[cur].b_min = n.b_min;
-            nodes[cur].b_max = n.b_max;
+            n = refit_node(cur);
 #ifdef COLLAPSE_COSTS
             decide(CollapseParams(pc.c_trav, pc.c_isect, pc.max_leaf), cur, n);
 #endif
@@ -90,7 +96,7 @@ void main() {
             } else {
                 // The sibling, arriving last, refits the parent.
                 uint arrived = atomicAdd(visits[parent], 1u) + 1u;
-                climbing = arrived >= node_children(nodes[parent]);
+                climbing = arrived >= node_children(LOAD_NODE(node_pairs, parent));
                 cur = parent;
             }
         }

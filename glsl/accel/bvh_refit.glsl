@@ -1,8 +1,10 @@
 // The child boxes a refit computes (CPU twin: src/accel/bvh/refit.rs), shared by the climbing
-// refit and the per-depth refit. Include after declaring `nodes` (BvhNode), `refs` (the
-// references) and `boxes` (six floats per primitive).
+// refit and the per-depth refit. Include after declaring `node_pairs` (BvhNode as word pairs,
+// accel/bvh_pairs.glsl), `refs` (the references) and `box_pairs` (three pairs per primitive).
 #ifndef VKRT_ACCEL_BVH_REFIT_GLSL
 #define VKRT_ACCEL_BVH_REFIT_GLSL
+
+#include "accel/bvh_pairs.glsl"
 
 // The box of a child (index, count); `lo`/`hi` hold its old box (kept for a missing child).
 void child_box(uint index, uint count, inout vec3 lo, inout vec3 hi) {
@@ -10,15 +12,25 @@ void child_box(uint index, uint count, inout vec3 lo, inout vec3 hi) {
         lo = vec3(1.0 / 0.0);
         hi = vec3(-1.0 / 0.0);
         for (uint k = 0u; k < count; k++) {
-            uint p = refs[index + k];
-            lo = vmin(lo, vec3(boxes[6u * p], boxes[6u * p + 1u], boxes[6u * p + 2u]));
-            hi = vmax(hi, vec3(boxes[6u * p + 3u], boxes[6u * p + 4u], boxes[6u * p + 5u]));
+            vec3 plo, phi;
+            LOAD_PRIM_BOX(box_pairs, refs[index + k], plo, phi);
+            lo = vmin(lo, plo);
+            hi = vmax(hi, phi);
         }
     } else if (index != NO_NODE) {
-        BvhNode c = nodes[index];
+        BvhNode c = LOAD_NODE(node_pairs, index);
         lo = vmin(c.a_min, c.b_min);
         hi = vmax(c.a_max, c.b_max);
     }
+}
+
+// Node `i` with its child boxes refit, stored whole.
+BvhNode refit_node(uint i) {
+    BvhNode n = LOAD_NODE(node_pairs, i);
+    child_box(n.a_index, n.a_count, n.a_min, n.a_max);
+    child_box(n.b_index, n.b_count, n.b_min, n.b_max);
+    STORE_NODE(node_pairs, i, n);
+    return n;
 }
 
 #endif

@@ -2,15 +2,19 @@
 // BVH refit of one depth (CPU twin: src/accel/bvh/refit.rs): every node at that depth gets
 // its children's boxes from the primitives (leaves) or from the children's nodes, which the
 // dispatch of the depth below refit before. Unions in the total order on ±0, as every refit.
+// Variant `pairs64` moves nodes and boxes as 64-bit pairs (accel/bvh_pairs.glsl), where the
+// device has shaderInt64.
+//! variant words
+//! variant pairs64 PAIRS64=1
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "include/vkrt/bvh_node.glsl"
+#include "accel/bvh_pairs.glsl"
 
 #define MAX_DEPTH 128u
 
-layout(std430, binding = 0) buffer Nodes { BvhNode nodes[]; };
+layout(std430, binding = 0) buffer Nodes { WORD_PAIR node_pairs[]; };
 layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
-layout(std430, binding = 2) readonly buffer Boxes { float boxes[]; };
+layout(std430, binding = 2) readonly buffer Boxes { WORD_PAIR box_pairs[]; };
 layout(std430, binding = 3) readonly buffer Order { uint order[]; };
 layout(std430, binding = 4) readonly buffer Levels { uint levels[]; };
 layout(std430, binding = 5) buffer SceneInfoBuf {
@@ -31,13 +35,7 @@ void main() {
         return;
     }
     uint node = order[levels[MAX_DEPTH + pc.depth] + i];
-    BvhNode n = nodes[node];
-    child_box(n.a_index, n.a_count, n.a_min, n.a_max);
-    child_box(n.b_index, n.b_count, n.b_min, n.b_max);
-    nodes[node].a_min = n.a_min;
-    nodes[node].a_max = n.a_max;
-    nodes[node].b_min = n.b_min;
-    nodes[node].b_max = n.b_max;
+    BvhNode n = refit_node(node);
     if (pc.depth == 0u) {
         info.bounds_min = vec4(vmin(n.a_min, n.b_min), 0.0);
         info.bounds_max = vec4(vmax(n.a_max, n.b_max), 0.0);

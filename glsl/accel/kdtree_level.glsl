@@ -21,41 +21,11 @@
 
 #define WG_SIZE 256u
 
-// Pairs of 32-bit words (the event boxes' component pairs, a node's (split, plane),
-// (first, count) and box pairs): declare an array as `WORD_PAIR name[]` and convert with
-// pair_uints / pair_floats / floats_pair. With PAIRS64 (where the device has shaderInt64) a
-// pair is one 64-bit component: on lavapipe every load or store at a lane-varying address
-// is a loop over lanes and components, so a pair moves in half the trips. Without it a
-// uvec2, the same bytes. The event boxes are three pair arrays, (min x, min y), (min z,
-// max x), (max y, max z), one buffer each; a single component reads through a `float` view:
-// element 2·event + (k & 1) of array k / 2.
-#ifndef PAIRS64
-#define PAIRS64 0
-#endif
-#if PAIRS64
-#extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
-#define WORD_PAIR uint64_t
-uvec2 pair_uints(WORD_PAIR w) {
-    return unpackUint2x32(w);
-}
-WORD_PAIR uints_pair(uvec2 v) {
-    return packUint2x32(v);
-}
-#else
-#define WORD_PAIR uvec2
-uvec2 pair_uints(WORD_PAIR w) {
-    return w;
-}
-WORD_PAIR uints_pair(uvec2 v) {
-    return v;
-}
-#endif
-vec2 pair_floats(WORD_PAIR w) {
-    return uintBitsToFloat(pair_uints(w));
-}
-WORD_PAIR floats_pair(vec2 v) {
-    return uints_pair(floatBitsToUint(v));
-}
+// The event boxes are three WORD_PAIR arrays (common/word_pair.glsl), (min x, min y),
+// (min z, max x), (max y, max z), one buffer each, as are a node's (split, plane), (first,
+// count) and box pairs; a single component reads through a `float` view: element
+// 2·event + (k & 1) of array k / 2.
+#include "common/word_pair.glsl"
 
 float f32_inf() {
     return uintBitsToFloat(0x7f800000u);

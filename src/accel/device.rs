@@ -15,7 +15,7 @@
 //! host's copy of the primitive boxes and records the upload of its nodes. Downloading a
 //! structure ([`AccelStructure::download`]) is for tests and tools only.
 
-use crate::accel::bvh::collapse;
+use crate::accel::bvh::collapse::{self, RefLayout};
 use crate::accel::bvh::collapse_gpu::{CollapseKernels, CollapseScratch};
 use crate::accel::bvh::lbvh::MortonBits;
 use crate::accel::bvh::lbvh_gpu::LbvhBuilder;
@@ -694,7 +694,11 @@ impl AccelBuilder {
             refit: match kind {
                 AccelKind::KdTree | AccelKind::Driver => None,
                 AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => Some(ctx.kernel(
-                    &kernels::ACCEL_BVH_REFIT_BOXES,
+                    if crate::accel::bvh::pairs64(ctx) {
+                        &kernels::ACCEL_BVH_REFIT_BOXES64
+                    } else {
+                        &kernels::ACCEL_BVH_REFIT_BOXES
+                    },
                     &Spec::new().workgroup(refit_workgroup(ctx)),
                 )?),
             },
@@ -1158,7 +1162,9 @@ impl AccelBuilder {
                         cs,
                         p,
                     );
-                    collapse.record(rec, n, visits, cs, p, nodes, refs, true)?;
+                    // Its references lie in Morton order, depth first: the collapse leaves them.
+                    let layout = RefLayout::InPlace;
+                    collapse.record(rec, n, visits, cs, p, nodes, refs, true, layout)?;
                 } else {
                     let refit = self
                         .refit
@@ -1196,7 +1202,18 @@ impl AccelBuilder {
                         .as_ref()
                         .ok_or_else(missing("the collapse kernels"))?;
                     let p = &self.bvh_params;
-                    collapse.record(rec, n, &s.visits, &s.collapse, p, nodes, refs, false)?;
+                    let layout = RefLayout::NodeOrder;
+                    collapse.record(
+                        rec,
+                        n,
+                        &s.visits,
+                        &s.collapse,
+                        p,
+                        nodes,
+                        refs,
+                        false,
+                        layout,
+                    )?;
                 } else if n >= 2 {
                     ploc.record_build(rec, &prims.boxes, n, &s.build, nodes, refs, &out.info)?;
                 } else {
@@ -1417,9 +1434,10 @@ fn record_refit_nodes(
     rec.scope("refit", |rec| {
         rec.fill_first(visits, n_nodes, 0);
         rec.transfer_to_compute();
-        let groups = rec.groups_1d(n_nodes as u64, refit_workgroup(rec.context()));
+        let (groups, per_lane) =
+            crate::accel::bvh::climb_grid(rec, n_nodes, refit_workgroup(rec.context()));
         let b: [&dyn BufferArg; 5] = [nodes, refs, &prims.boxes, visits, info];
-        rec.dispatch(kernel, groups, &b, &(n_nodes as u32));
+        rec.dispatch(kernel, groups, &b, &[n_nodes as u32, per_lane]);
     });
     rec.compute_to_compute();
 }

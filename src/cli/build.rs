@@ -260,11 +260,15 @@ fn gpu_bvh_build_command(
     let ploc_params = builder.ploc_params();
     let twin = reference.then(|| {
         let t = std::time::Instant::now();
+        use vkrt::accel::bvh::collapse::{collapse, collapse_in_place};
+        let p = &builder.bvh_params;
         let twin = match kind {
-            AccelKind::Ploc => ploc::build(&g.boxes, &ploc_params.unwrap_or_default()).0,
-            _ => lbvh::build(&g.boxes, bits),
+            AccelKind::Ploc => collapse(
+                &ploc::build(&g.boxes, &ploc_params.unwrap_or_default()).0,
+                p,
+            ),
+            _ => collapse_in_place(&lbvh::build(&g.boxes, bits), p),
         };
-        let twin = vkrt::accel::bvh::collapse::collapse(&twin, &builder.bvh_params);
         (twin, t.elapsed().as_secs_f64() * 1e3)
     });
     let equal = twin.as_ref().map(|(t, _)| *t == tree);

@@ -626,7 +626,8 @@ fn frame_quality(
     rs: &RenderScene,
     kind: AccelKind,
 ) -> Result<(Option<f64>, Option<f64>), GpuError> {
-    use crate::accel::bvh::{self, collapse::collapse, lbvh, ploc, validate::sah_cost};
+    use crate::accel::bvh::collapse::{collapse, collapse_in_place};
+    use crate::accel::bvh::{self, lbvh, ploc, validate::sah_cost};
     if matches!(kind, AccelKind::KdTree | AccelKind::Driver) {
         return Ok((None, None));
     }
@@ -636,7 +637,7 @@ fn frame_quality(
     let params = bvh::BvhParams::default();
     let boxes = &rs.geometry.boxes;
     let fresh = match kind {
-        AccelKind::Lbvh => collapse(&lbvh::build(boxes, Default::default()), &params),
+        AccelKind::Lbvh => collapse_in_place(&lbvh::build(boxes, Default::default()), &params),
         AccelKind::Ploc => collapse(&ploc::build(boxes, &Default::default()).0, &params),
         _ => bvh::build(boxes, &params, bvh::Threading::all_cores()).map_err(|e| {
             GpuError::Kernel {

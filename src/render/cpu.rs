@@ -7,7 +7,7 @@ use glam::{Vec3, Vec4};
 use super::plan::Plan;
 use super::types::*;
 use super::{RayCounts, RenderAccel, RenderScene};
-use crate::accel::bvh::collapse::collapse;
+use crate::accel::bvh::collapse::{collapse, collapse_in_place};
 use crate::accel::bvh::Threading;
 use crate::accel::device::AccelKind;
 use crate::accel::primitives::{TraceGeometry, NO_MOTION};
@@ -117,7 +117,7 @@ fn host_twin(kind: AccelKind, g: &TraceGeometry) -> RenderAccel {
                 .expect("the scene's boxes are finite"),
         ),
         // The GPU builders' trees with their SAH leaf collapse, as AccelBuilder records them.
-        AccelKind::Lbvh => RenderAccel::Bvh(collapse(
+        AccelKind::Lbvh => RenderAccel::Bvh(collapse_in_place(
             &crate::accel::bvh::lbvh::build(&g.boxes, Default::default()),
             &Default::default(),
         )),

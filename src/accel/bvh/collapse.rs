@@ -5,10 +5,13 @@
 //! `max_leaf_prims` and the leaf is no dearer — the optimal collapse under the SAH, as PLOC's
 //! paper (Meister & Bittner 2018, §4.3) and RADV's builder do it. The root stays a node.
 //!
-//! The references of every node's leaves are laid out contiguously in node order, child `a`
-//! before `b` and a collapsed subtree's in depth-first order. On the device the nodes keep
-//! their slots and a removed node's parent link becomes [`DEAD`]; the host tree is
-//! compacted in index order (the root stays node 0; [`drop_removed`] renumbers a
+//! [`collapse`] lays the references of every node's leaves out contiguously in node order,
+//! child `a` before `b` and a collapsed subtree's in depth-first order (PLOC's trees).
+//! [`collapse_in_place`] serves trees whose references already lie in depth-first order,
+//! every subtree a contiguous run (the LBVH's: its leaves are the Morton order): a
+//! collapsed subtree's leaf points at its run, and no reference moves. On the device the
+//! nodes keep their slots and a removed node's parent link becomes [`DEAD`]; the host tree
+//! is compacted in index order (the root stays node 0; [`drop_removed`] renumbers a
 //! downloaded one the same way). CPU twin of `glsl/accel/bvh_collapse_*.comp`, bit for bit.
 
 use super::layout::{half_area, Bvh, BvhNode, Child, NO_NODE};
@@ -73,9 +76,32 @@ fn node_cost(node: &BvhNode, done: &[NodeCost], root: bool, p: &BvhParams) -> No
     }
 }
 
-/// `bvh` with its subtrees collapsed into leaves where the SAH says so (see the module);
-/// `bvh` itself when [`applies`] says nothing would change.
+/// `bvh` with its subtrees collapsed into leaves where the SAH says so, the references laid
+/// out in node order (see the module); `bvh` itself when [`applies`] says nothing would
+/// change.
 pub fn collapse(bvh: &Bvh, p: &BvhParams) -> Bvh {
+    collapse_with(bvh, p, RefLayout::NodeOrder)
+}
+
+/// [`collapse`] of a tree whose references lie in depth-first order, `a` before `b`, every
+/// subtree a contiguous run (the LBVH's): the references stay where they are, and a
+/// collapsed subtree becomes a leaf over its run.
+pub fn collapse_in_place(bvh: &Bvh, p: &BvhParams) -> Bvh {
+    collapse_with(bvh, p, RefLayout::InPlace)
+}
+
+/// Where a collapse puts the references.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum RefLayout {
+    /// Laid out anew in node order ([`collapse`]).
+    NodeOrder,
+    /// Left where they are, for trees whose references lie in depth-first order
+    /// ([`collapse_in_place`]).
+    InPlace,
+}
+
+/// [`collapse`] or [`collapse_in_place`] by `layout`.
+pub fn collapse_with(bvh: &Bvh, p: &BvhParams, layout: RefLayout) -> Bvh {
     if !applies(bvh.refs.len(), p) {
         return bvh.clone();
     }
@@ -117,7 +143,10 @@ pub fn collapse(bvh: &Bvh, p: &BvhParams) -> Bvh {
     let mut out = Bvh {
         nodes: vec![BvhNode::empty(); next_node as usize],
         parents: vec![NO_NODE; next_node as usize],
-        refs: vec![0; bvh.refs.len()],
+        refs: match layout {
+            RefLayout::NodeOrder => vec![0; bvh.refs.len()],
+            RefLayout::InPlace => bvh.refs.clone(),
+        },
         bounds: bvh.bounds,
         wide: Default::default(),
     };
@@ -127,9 +156,15 @@ pub fn collapse(bvh: &Bvh, p: &BvhParams) -> Bvh {
         let mut node = bvh.nodes[i];
         for which in 0..2 {
             let (bounds, child) = bvh.nodes[i].child(which);
-            let child = match child {
-                Child::Node(c) if !costs[c as usize].collapse => Child::Node(index[c as usize]),
-                Child::Node(c) => {
+            let child = match (child, layout) {
+                (Child::Node(c), _) if !costs[c as usize].collapse => {
+                    Child::Node(index[c as usize])
+                }
+                (Child::Node(c), RefLayout::InPlace) => Child::Leaf {
+                    first: first_ref(bvh, c),
+                    count: costs[c as usize].count,
+                },
+                (Child::Node(c), RefLayout::NodeOrder) => {
                     let first = at;
                     gather(bvh, c, &mut out.refs, &mut at);
                     Child::Leaf {
@@ -137,7 +172,8 @@ pub fn collapse(bvh: &Bvh, p: &BvhParams) -> Bvh {
                         count: at - first,
                     }
                 }
-                Child::Leaf { first, count } => {
+                (Child::Leaf { .. }, RefLayout::InPlace) => child,
+                (Child::Leaf { first, count }, RefLayout::NodeOrder) => {
                     let refs = &bvh.refs[first as usize..(first + count) as usize];
                     out.refs[at as usize..(at + count) as usize].copy_from_slice(refs);
                     at += count;
@@ -146,7 +182,7 @@ pub fn collapse(bvh: &Bvh, p: &BvhParams) -> Bvh {
                         count,
                     }
                 }
-                Child::None => Child::None,
+                (Child::None, _) => Child::None,
             };
             node.set_child(which, bounds, child);
         }
@@ -159,6 +195,23 @@ pub fn collapse(bvh: &Bvh, p: &BvhParams) -> Bvh {
         };
     }
     out
+}
+
+/// The first reference below `node` in depth-first order: its leftmost leaf's (child `a`
+/// first, `b` where `a` is missing).
+fn first_ref(bvh: &Bvh, mut node: u32) -> u32 {
+    loop {
+        let n = &bvh.nodes[node as usize];
+        let child = match n.child(0).1 {
+            Child::None => n.child(1).1,
+            a => a,
+        };
+        match child {
+            Child::Leaf { first, .. } => return first,
+            Child::Node(c) => node = c,
+            Child::None => return 0,
+        }
+    }
 }
 
 /// The nodes and parent links of a device tree without the slots a collapse removed (parent
@@ -256,6 +309,56 @@ mod tests {
                         c.nodes.len() < tree.nodes.len(),
                         "n = {n}: nothing collapsed"
                     );
+                }
+            }
+        }
+    }
+
+    /// The leaves' references in depth-first order, `a` before `b`.
+    fn leaf_refs(t: &Bvh) -> Vec<Vec<u32>> {
+        let mut out = Vec::new();
+        let mut stack = vec![0u32];
+        while let Some(i) = stack.pop() {
+            for which in [1, 0] {
+                match t.nodes[i as usize].child(which).1 {
+                    Child::Node(c) => stack.push(c),
+                    Child::Leaf { first, count } => {
+                        out.push(t.refs[first as usize..(first + count) as usize].to_vec())
+                    }
+                    Child::None => {}
+                }
+            }
+        }
+        out
+    }
+
+    #[test]
+    fn in_place_collapse_is_the_same_tree_without_moving_a_reference() {
+        let p = BvhParams::default();
+        for n in [0, 1, 2, 3, 4, 5, 17, 64, 65, 1000] {
+            let b = boxes(n);
+            let tree = lbvh::build(&b, Default::default());
+            let moved = collapse(&tree, &p);
+            let kept = collapse_in_place(&tree, &p);
+            validate(&kept, &b).unwrap_or_else(|e| panic!("n = {n}: {e}"));
+            assert_eq!(kept.refs, tree.refs, "n = {n}");
+            assert_eq!(kept.parents, moved.parents, "n = {n}");
+            assert_eq!(kept.nodes.len(), moved.nodes.len(), "n = {n}");
+            assert_eq!(sah_cost(&kept, &p), sah_cost(&moved, &p), "n = {n}");
+            if n > 0 {
+                // The hits need the leaves to hold the same primitives in the same order.
+                assert_eq!(leaf_refs(&kept), leaf_refs(&moved), "n = {n}");
+            }
+            for (k, m) in kept.nodes.iter().zip(&moved.nodes) {
+                for which in 0..2 {
+                    let ((kb, kc), (mb, mc)) = (k.child(which), m.child(which));
+                    assert_eq!(kb, mb);
+                    match (kc, mc) {
+                        (Child::Leaf { count: a, .. }, Child::Leaf { count: b, .. }) => {
+                            assert_eq!(a, b)
+                        }
+                        _ => assert_eq!(kc, mc),
+                    }
                 }
             }
         }

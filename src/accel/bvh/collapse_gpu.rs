@@ -7,10 +7,14 @@
 //! with the parent link [`DEAD`](super::collapse::DEAD), which the refits and the schedule
 //! skip and the host's copy drops (`AccelStructure::download` renumbers, giving the twin's
 //! compacted tree). The builder writes its references into this scratch
-//! ([`CollapseScratch::tree_refs`]), so nothing is copied.
+//! ([`CollapseScratch::tree_refs`]). A tree whose references lie in depth-first order (the
+//! LBVH's, [`RefLayout::InPlace`]) skips the flags, the scan and the write: one pass
+//! (`accel.bvh_collapse_in_place`) copies the references as they are and points each
+//! collapsed child at its run.
 
 use std::sync::Arc;
 
+use super::collapse::RefLayout;
 use super::sah::BvhParams;
 use super::BvhNode;
 use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, Spec};
@@ -29,6 +33,7 @@ pub struct CollapseKernels {
     refit_deciding: Arc<Kernel>,
     flags: Arc<Kernel>,
     write: Arc<Kernel>,
+    in_place: Arc<Kernel>,
     scan: Scan,
 }
 
@@ -63,11 +68,16 @@ impl CollapseKernels {
                 &Spec::new().workgroup(climb_workgroup),
             )?,
             refit_deciding: ctx.kernel(
-                &kernels::ACCEL_BVH_REFIT_COSTS,
+                if super::pairs64(ctx) {
+                    &kernels::ACCEL_BVH_REFIT_COSTS64
+                } else {
+                    &kernels::ACCEL_BVH_REFIT_COSTS
+                },
                 &Spec::new().workgroup(climb_workgroup),
             )?,
             flags: ctx.kernel(&kernels::ACCEL_BVH_COLLAPSE_FLAGS, &spec)?,
             write: ctx.kernel(&kernels::ACCEL_BVH_COLLAPSE_WRITE, &spec)?,
+            in_place: ctx.kernel(&kernels::ACCEL_BVH_COLLAPSE_IN_PLACE, &spec)?,
             scan: Scan::new(ctx, PrimConfig::default_for(ctx), ScanInput::U32)?,
         })
     }
@@ -128,13 +138,15 @@ impl CollapseKernels {
         rec.scope("refit", |rec| {
             rec.fill_first(visits, n_nodes, 0);
             rec.transfer_to_compute();
+            let (groups, per_lane) =
+                super::climb_grid(rec, n_nodes, self.refit_deciding.invocations());
             let push = [
                 n_nodes as u32,
+                per_lane,
                 params.max_leaf_prims.min(MAX_COLLAPSE_LEAF),
                 params.traversal_cost.to_bits(),
                 params.intersection_cost.to_bits(),
             ];
-            let groups = rec.groups_1d(n_nodes as u64, self.refit_deciding.invocations());
             let b: [&dyn BufferArg; 6] =
                 [nodes, &scratch.words, boxes, visits, info, &scratch.costs];
             rec.dispatch(&self.refit_deciding, groups, &b, &push);
@@ -144,9 +156,11 @@ impl CollapseKernels {
 
     /// Records the collapse of the complete tree in `nodes` and `scratch.tree_refs()`
     /// (`n_prims` references, then `n_prims - 1` parent links) with `params`' costs and leaf
-    /// size: `nodes` in place, the structure's `refs` written. `visits` holds a zeroed-here counter per node. Only
-    /// where [`super::collapse::applies`]: elsewhere the builder writes the structure
-    /// itself. Ends with a compute → compute barrier.
+    /// size: `nodes` in place, the structure's `refs` written as `layout` says. `visits`
+    /// holds a zeroed-here counter per node; `decided`: the refit decided already
+    /// ([`CollapseKernels::record_refit_deciding`]). Only where [`super::collapse::applies`]:
+    /// elsewhere the builder writes the structure itself. Ends with a compute → compute
+    /// barrier.
     #[allow(
         clippy::too_many_arguments,
         reason = "the tree's buffers and the knobs"
@@ -161,6 +175,7 @@ impl CollapseKernels {
         nodes: &Buffer<BvhNode>,
         refs: &Buffer<u32>,
         decided: bool,
+        layout: RefLayout,
     ) -> Result<()> {
         if !(super::collapse::applies(n_prims, params)) {
             return Err(GpuError::Usage {
@@ -183,25 +198,34 @@ impl CollapseKernels {
         let max_leaf = params.max_leaf_prims.min(MAX_COLLAPSE_LEAF);
         rec.scope("collapse", |rec| {
             let tree: [&dyn BufferArg; 2] = [nodes, &s.words];
-            let push = [
-                n_nodes as u32,
-                parents_at,
-                max_leaf,
-                params.traversal_cost.to_bits(),
-                params.intersection_cost.to_bits(),
-            ];
             if !decided {
                 // The builder's last kernels read the counters.
                 rec.compute_to_transfer();
                 rec.fill_first(visits, n_nodes, 0);
                 rec.transfer_to_compute();
-                let wg = self.cost.invocations();
-                let groups = rec.groups_1d(n_nodes as u64, wg);
+                let (groups, per_lane) = super::climb_grid(rec, n_nodes, self.cost.invocations());
                 let b: [&dyn BufferArg; 4] = [tree[0], tree[1], visits, &s.costs];
+                let push = [
+                    n_nodes as u32,
+                    per_lane,
+                    parents_at,
+                    max_leaf,
+                    params.traversal_cost.to_bits(),
+                    params.intersection_cost.to_bits(),
+                ];
                 rec.scope("collapse.cost", |rec| {
                     rec.dispatch(&self.cost, groups, &b, &push)
                 });
                 rec.compute_to_compute();
+            }
+            if layout == RefLayout::InPlace {
+                let groups = rec.groups_1d(n_prims as u64, WORKGROUP);
+                let b: [&dyn BufferArg; 4] = [nodes, &s.words, &s.costs, refs];
+                let push = [n_nodes as u32, parents_at, max_leaf];
+                rec.scope("collapse.in_place", |rec| {
+                    rec.dispatch(&self.in_place, groups, &b, &push)
+                });
+                return;
             }
             let groups = rec.groups_1d(n_nodes as u64, WORKGROUP);
             let b: [&dyn BufferArg; 5] = [tree[0], tree[1], &s.costs, &s.live, &s.first_ref];

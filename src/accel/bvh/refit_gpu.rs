@@ -64,7 +64,14 @@ impl LevelRefit {
         Ok(Self {
             schedule: ctx.kernel(&kernels::ACCEL_BVH_SCHEDULE, &spec)?,
             scan: ctx.kernel(&kernels::ACCEL_BVH_SCHEDULE_SCAN, &Spec::new())?,
-            level: ctx.kernel(&kernels::ACCEL_BVH_REFIT_LEVEL, &spec)?,
+            level: ctx.kernel(
+                if super::pairs64(ctx) {
+                    &kernels::ACCEL_BVH_REFIT_LEVEL_PAIRS64
+                } else {
+                    &kernels::ACCEL_BVH_REFIT_LEVEL_WORDS
+                },
+                &spec,
+            )?,
             sort: RadixSort::new(ctx, PrimConfig::default_for(ctx), 8)?,
         })
     }
