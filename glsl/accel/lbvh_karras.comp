@@ -6,16 +6,19 @@
 // is γ + 1, each a leaf (one reference, at that position of the sorted ids) when its range
 // is one primitive. Equal codes are told apart by their positions (Karras's rule: δ = 64 +
 // the common prefix of the indices). Boxes are left empty: `accel.bvh_refit` computes them.
+// Variant `pairs64` reads each code as one 64-bit component (common/word_pair.glsl).
+//! variant words
+//! variant pairs64 PAIRS64=1
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
+#include "common/word_pair.glsl"
 #include "include/vkrt/bvh_node.glsl"
 
 layout(std430, binding = 0) writeonly buffer Nodes { BvhNode nodes[]; };
 // The sorted primitive ids (the leaves' references), then a parent link per node from n on.
 layout(std430, binding = 1) buffer Refs { uint refs[]; };
-// The codes' words in sorted order.
-layout(std430, binding = 2) readonly buffer SortedHi { uint sorted_hi[]; };
-layout(std430, binding = 3) readonly buffer SortedLo { uint sorted_lo[]; };
+// The codes in sorted order, (high, low) words.
+layout(std430, binding = 2) readonly buffer Codes { WORD_PAIR codes[]; };
 layout(push_constant) uniform Push { uint n; } pc;
 
 uint clz(uint x) {
@@ -23,7 +26,7 @@ uint clz(uint x) {
 }
 
 uvec2 code_at(int i) {
-    return uvec2(sorted_hi[i], sorted_lo[i]);
+    return pair_uints(codes[i]);
 }
 
 int delta(int i, uvec2 ci, int j) {

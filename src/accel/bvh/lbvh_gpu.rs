@@ -34,9 +34,8 @@ pub struct LbvhScratch {
     code_hi: Buffer<u32>,
     code_lo: Buffer<u32>,
     sort_keys: Buffer<u32>,
-    /// The codes' words in sorted order.
-    sorted_hi: Buffer<u32>,
-    sorted_lo: Buffer<u32>,
+    /// The codes in sorted order, (high, low) words.
+    sorted: Buffer<[u32; 2]>,
     sort: RadixScratch,
 }
 
@@ -50,9 +49,21 @@ impl LbvhBuilder {
                 &kernels::ACCEL_LBVH_MORTON,
                 &spec.clone().u32(1, bits.per_axis()),
             )?,
-            gather1: ctx.kernel(&kernels::ACCEL_LBVH_GATHER, &spec.clone().u32(1, 1))?,
-            gather2: ctx.kernel(&kernels::ACCEL_LBVH_GATHER, &spec.clone().u32(1, 2))?,
-            karras: ctx.kernel(&kernels::ACCEL_LBVH_KARRAS, &spec)?,
+            gather1: ctx.kernel(&kernels::ACCEL_LBVH_GATHER_ONE, &spec)?,
+            gather2: ctx.kernel(
+                match super::pairs64(ctx) {
+                    true => &kernels::ACCEL_LBVH_GATHER_CODES64,
+                    false => &kernels::ACCEL_LBVH_GATHER_CODES,
+                },
+                &spec,
+            )?,
+            karras: ctx.kernel(
+                match super::pairs64(ctx) {
+                    true => &kernels::ACCEL_LBVH_KARRAS_PAIRS64,
+                    false => &kernels::ACCEL_LBVH_KARRAS_WORDS,
+                },
+                &spec,
+            )?,
             sort: RadixSort::new(ctx, PrimConfig::default_for(ctx), 8)?,
             bits,
         })
@@ -76,8 +87,7 @@ impl LbvhBuilder {
             code_hi: Buffer::new(ctx, "accel.lbvh.code_hi", n)?,
             code_lo: Buffer::new(ctx, "accel.lbvh.code_lo", n)?,
             sort_keys: Buffer::new(ctx, "accel.lbvh.sort_keys", n)?,
-            sorted_hi: Buffer::new(ctx, "accel.lbvh.sorted_hi", n)?,
-            sorted_lo: Buffer::new(ctx, "accel.lbvh.sorted_lo", n)?,
+            sorted: Buffer::new(ctx, "accel.lbvh.sorted", n)?,
             sort: self.sort.scratch(ctx, n.max(1))?,
         })
     }
@@ -103,11 +113,11 @@ impl LbvhBuilder {
         let groups = rec.groups_1d(n as u64, WORKGROUP);
         let n32 = n as u32;
         rec.scope("lbvh.karras", |rec| {
-            let b: [&dyn BufferArg; 5] = [refs, &s.code_hi, &s.sorted_hi, &s.code_lo, &s.sorted_lo];
+            let b: [&dyn BufferArg; 4] = [refs, &s.code_hi, &s.code_lo, &s.sorted];
             rec.dispatch(&self.gather2, groups, &b, &n32);
             rec.compute_to_compute();
             let internal = rec.groups_1d(n.saturating_sub(1).max(1) as u64, WORKGROUP);
-            let b: [&dyn BufferArg; 4] = [nodes, refs, &s.sorted_hi, &s.sorted_lo];
+            let b: [&dyn BufferArg; 3] = [nodes, refs, &s.sorted];
             rec.dispatch(&self.karras, internal, &b, &n32);
         });
         rec.compute_to_compute();
@@ -156,8 +166,7 @@ impl LbvhBuilder {
             MortonBits::Bits63 => {
                 self.sort.record(rec, &s.sort_keys, refs, n, 32, &s.sort);
                 rec.compute_to_compute();
-                let b: [&dyn BufferArg; 5] =
-                    [refs, &s.code_hi, &s.sort_keys, &s.code_hi, &s.sort_keys];
+                let b: [&dyn BufferArg; 3] = [refs, &s.code_hi, &s.sort_keys];
                 rec.dispatch(&self.gather1, groups, &b, &n32);
                 rec.compute_to_compute();
                 self.sort.record(rec, &s.sort_keys, refs, n, 31, &s.sort);
