@@ -1,8 +1,7 @@
 #version 460
 // BVH refit (CPU twin: src/accel/bvh/refit.rs): every child box recomputed bottom-up from
-// the primitives' boxes after they moved, the topology kept. Nodes whose children are all
-// leaves start (accel/bvh_climb.glsl: each invocation takes `per_lane` of them in turn),
-// refit their node and climb: at each parent an atomic
+// the primitives' boxes after they moved, the topology kept. One invocation per node; those
+// whose children are all leaves start, refit their node and climb: at each parent an atomic
 // visit counter lets the last child to arrive refit it (Karras 2012's scheme), so no
 // invocation waits for another (no forward-progress assumption). The buffer writes of the
 // child are made visible before its arrival is counted (memoryBarrierBuffer on coherent
@@ -44,38 +43,32 @@ layout(std430, binding = 4) buffer SceneInfoBuf {
 layout(std430, binding = 5) coherent buffer Costs { uint costs[]; };
 layout(push_constant) uniform Push {
     uint n_nodes;
-    uint per_lane;
     uint max_leaf;
     float c_trav;
     float c_isect;
 } pc;
 #include "accel/bvh_collapse.glsl"
 #else
-layout(push_constant) uniform Push {
-    uint n_nodes;
-    uint per_lane;
-} pc;
+layout(push_constant) uniform Push { uint n_nodes; } pc;
 #endif
 
 #include "accel/bvh_refit.glsl"
-#include "accel/bvh_climb.glsl"
 
 void main() {
-    uint taken = 0u;
-    uint cur = NO_NODE;
-    bool climbing = false;
+    uint i = linear_invocation_id();
+    // Slots a leaf collapse freed (parent DEAD) hold no node.
+    bool climbing = i < pc.n_nodes && refs[info.parents_at + i] != DEAD &&
+                    node_children(LOAD_NODE(node_pairs, i)) == 0u;
+    uint cur = i;
     // Rounds in subgroup-uniform control flow, every memory barrier reached by every lane:
     // Mesa 22.3's lavapipe makes memoryBarrierBuffer (or an atomic with acquire/release
     // semantics) a coroutine switch, and a subgroup that runs more of them than the others
     // of its workgroup is never resumed (glsl/gpu/memory_barrier_probe.comp); a workgroup
     // is one subgroup here (AccelBuilder dispatches the subgroup size), so there are no
     // others. One round: refit (stores), memory barrier, arrive at the parent (atomic),
-    // memory barrier; a lane whose climb ended takes its next start; the subgroup stops when
-    // none of its lanes climbs. Every round refits a node: never a spin.
+    // memory barrier; the subgroup stops when none of its lanes climbs. A bound of one
+    // round per node: never a spin.
     for (uint round = 0u; round <= pc.n_nodes; round++) {
-        if (!climbing) {
-            climbing = next_climb(pc.n_nodes, info.parents_at, pc.per_lane, taken, cur);
-        }
         if (!subgroupAny(climbing)) {
             break;
         }

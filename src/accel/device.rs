@@ -1434,10 +1434,9 @@ fn record_refit_nodes(
     rec.scope("refit", |rec| {
         rec.fill_first(visits, n_nodes, 0);
         rec.transfer_to_compute();
-        let (groups, per_lane) =
-            crate::accel::bvh::climb_grid(rec, n_nodes, refit_workgroup(rec.context()));
+        let groups = rec.groups_1d(n_nodes as u64, refit_workgroup(rec.context()));
         let b: [&dyn BufferArg; 5] = [nodes, refs, &prims.boxes, visits, info];
-        rec.dispatch(kernel, groups, &b, &[n_nodes as u32, per_lane]);
+        rec.dispatch(kernel, groups, &b, &(n_nodes as u32));
     });
     rec.compute_to_compute();
 }

@@ -138,11 +138,9 @@ impl CollapseKernels {
         rec.scope("refit", |rec| {
             rec.fill_first(visits, n_nodes, 0);
             rec.transfer_to_compute();
-            let (groups, per_lane) =
-                super::climb_grid(rec, n_nodes, self.refit_deciding.invocations());
+            let groups = rec.groups_1d(n_nodes as u64, self.refit_deciding.invocations());
             let push = [
                 n_nodes as u32,
-                per_lane,
                 params.max_leaf_prims.min(MAX_COLLAPSE_LEAF),
                 params.traversal_cost.to_bits(),
                 params.intersection_cost.to_bits(),
@@ -203,11 +201,10 @@ impl CollapseKernels {
                 rec.compute_to_transfer();
                 rec.fill_first(visits, n_nodes, 0);
                 rec.transfer_to_compute();
-                let (groups, per_lane) = super::climb_grid(rec, n_nodes, self.cost.invocations());
+                let groups = rec.groups_1d(n_nodes as u64, self.cost.invocations());
                 let b: [&dyn BufferArg; 4] = [tree[0], tree[1], visits, &s.costs];
                 let push = [
                     n_nodes as u32,
-                    per_lane,
                     parents_at,
                     max_leaf,
                     params.traversal_cost.to_bits(),

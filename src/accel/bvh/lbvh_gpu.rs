@@ -1,9 +1,12 @@
 //! The LBVH built on the GPU (Karras 2012), recorded into the caller's
 //! recorder with no read-back: centroid bounds (`accel.lbvh_bounds`), Morton codes
 //! (`accel.lbvh_morton`), a stable key-value radix sort of the codes (`prims`; 63-bit codes
-//! sort the low word, then the high word), the topology (`accel.lbvh_karras`) written in the
-//! traversal's layout, and the boxes bottom-up with per-node visit counters
-//! (`accel.bvh_refit`, the refit of every BVH). CPU twin: [`super::lbvh`].
+//! sort the low word, then the high word), the codes gathered into sorted (high, low) pairs,
+//! the topology (`accel.lbvh_karras`, one 64-bit load per neighbour's code where the device
+//! has `shaderInt64`) written in the traversal's layout, and the boxes bottom-up with
+//! per-node visit counters (`accel.bvh_refit`, the refit of every BVH). Its references end
+//! in depth-first order, so the SAH collapse leaves them in place
+//! ([`super::collapse::RefLayout::InPlace`]). CPU twin: [`super::lbvh`].
 
 use std::sync::Arc;
 

@@ -46,18 +46,3 @@ pub use sah::{build, build_timed, BvhError, BvhParams, Threading};
 pub(crate) fn pairs64(ctx: &crate::gpu::Context) -> bool {
     ctx.info().features.shader_int64
 }
-
-/// Node slots each invocation of a climbing pass (the refit, the collapse's cost pass) takes
-/// its starts from, in turn (`per_lane`, accel/bvh_climb.glsl).
-pub(crate) const CLIMB_PER_LANE: u32 = 8;
-
-/// The grid of a climbing pass over `n_nodes` in workgroups of `workgroup`, and its
-/// `per_lane`.
-pub(crate) fn climb_grid(
-    rec: &crate::gpu::Recorder,
-    n_nodes: usize,
-    workgroup: u32,
-) -> ([u32; 3], u32) {
-    let slots = (n_nodes as u64).div_ceil(u64::from(CLIMB_PER_LANE));
-    (rec.groups_1d(slots, workgroup), CLIMB_PER_LANE)
-}
