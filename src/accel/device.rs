@@ -1143,36 +1143,30 @@ impl AccelBuilder {
                     true => s.collapse.tree_refs(),
                     false => &*refs,
                 };
-                lbvh.record_topology(rec, &prims.boxes, n, &s.topology, nodes, tree_refs)?;
                 *counts = (n_nodes, n);
+                // One climb builds the topology with its boxes (and the collapse's decisions).
+                let (p, visits, cs) = (&self.bvh_params, &s.visits, &s.collapse);
+                let decide = collapsing.then(|| (cs.costs(), p));
+                let (boxes, info) = (&prims.boxes, &out.info);
+                lbvh.record_build(
+                    rec,
+                    boxes,
+                    n,
+                    &s.topology,
+                    nodes,
+                    tree_refs,
+                    visits,
+                    info,
+                    decide,
+                )?;
                 if collapsing {
-                    // The boxes' refit decides the collapse on the same climb.
                     let collapse = self
                         .collapse
                         .as_ref()
                         .ok_or_else(missing("the collapse kernels"))?;
-                    let (p, visits, cs) = (&self.bvh_params, &s.visits, &s.collapse);
-                    collapse.record_refit_deciding(
-                        rec,
-                        nodes,
-                        &prims.boxes,
-                        visits,
-                        &out.info,
-                        n,
-                        cs,
-                        p,
-                    );
                     // Its references lie in Morton order, depth first: the collapse leaves them.
                     let layout = RefLayout::InPlace;
                     collapse.record(rec, n, visits, cs, p, nodes, refs, true, layout)?;
-                } else {
-                    let refit = self
-                        .refit
-                        .as_ref()
-                        .ok_or_else(missing("the refit kernel"))?;
-                    record_refit_nodes(
-                        rec, refit, prims, nodes, tree_refs, &s.visits, &out.info, n_nodes,
-                    );
                 }
                 Ok(RecordedBuild::default())
             }

@@ -56,6 +56,12 @@ impl CollapseScratch {
     pub fn tree_refs(&self) -> &Buffer<u32> {
         &self.words
     }
+
+    /// Every node's primitive count, SAH cost and collapse decision (three words each), for
+    /// a pass that decides on its own climb (`LbvhBuilder::record_build`).
+    pub fn costs(&self) -> &Buffer<u32> {
+        &self.costs
+    }
 }
 
 impl CollapseKernels {

@@ -10,8 +10,10 @@
 
 use std::sync::Arc;
 
+use super::collapse_gpu::MAX_COLLAPSE_LEAF;
 use super::lbvh::MortonBits;
-use super::BvhNode;
+use super::sah::BvhParams;
+use super::{BvhNode, NO_NODE};
 use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, Spec};
 use crate::prims::radix_sort::{RadixScratch, RadixSort};
 use crate::prims::PrimConfig;
@@ -25,6 +27,8 @@ pub struct LbvhBuilder {
     gather1: Arc<Kernel>,
     gather2: Arc<Kernel>,
     karras: Arc<Kernel>,
+    /// The bottom-up build (`accel.lbvh_climb`): `boxes`, and `costs` deciding the collapse.
+    climb: [Arc<Kernel>; 2],
     sort: RadixSort,
     bits: MortonBits,
 }
@@ -67,6 +71,21 @@ impl LbvhBuilder {
                 },
                 &spec,
             )?,
+            climb: {
+                // Workgroups of one subgroup, as the climbing refit's (accel/bvh_refit.comp).
+                let spec = Spec::new().workgroup(ctx.info().subgroup_size.max(1));
+                let (boxes, costs) = match super::pairs64(ctx) {
+                    true => (
+                        &kernels::ACCEL_LBVH_CLIMB_BOXES64,
+                        &kernels::ACCEL_LBVH_CLIMB_COSTS64,
+                    ),
+                    false => (
+                        &kernels::ACCEL_LBVH_CLIMB_BOXES,
+                        &kernels::ACCEL_LBVH_CLIMB_COSTS,
+                    ),
+                };
+                [ctx.kernel(boxes, &spec)?, ctx.kernel(costs, &spec)?]
+            },
             sort: RadixSort::new(ctx, PrimConfig::default_for(ctx), 8)?,
             bits,
         })
@@ -122,6 +141,72 @@ impl LbvhBuilder {
             let internal = rec.groups_1d(n.saturating_sub(1).max(1) as u64, WORKGROUP);
             let b: [&dyn BufferArg; 3] = [nodes, refs, &s.sorted];
             rec.dispatch(&self.karras, internal, &b, &n32);
+        });
+        rec.compute_to_compute();
+        Ok(())
+    }
+
+    /// Records the whole LBVH over the `n` primitive boxes `boxes` (six floats each) in one
+    /// bottom-up climb after the sort (Apetrei 2014, `accel.lbvh_climb`): the sorted ids
+    /// into `refs[..n]`, parent links into `refs[n..]`, every node with its boxes, the root
+    /// box into `info`; with `decide`, every node's SAH collapse decision into its costs
+    /// buffer too (the work of [`super::collapse_gpu::CollapseKernels::record_refit_deciding`]).
+    /// The same tree as [`LbvhBuilder::record_topology`] and a refit, bit for bit, without
+    /// the topology pass's binary searches. `meet` holds a word per node (`n - 1`, at least
+    /// one), filled here.
+    /// Ends with a compute → compute barrier.
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "the tree's buffers and the knobs"
+    )]
+    pub fn record_build(
+        &self,
+        rec: &mut Recorder,
+        boxes: &Buffer<f32>,
+        n: usize,
+        scratch: &LbvhScratch,
+        nodes: &Buffer<BvhNode>,
+        refs: &Buffer<u32>,
+        meet: &Buffer<u32>,
+        info: &dyn BufferArg,
+        decide: Option<(&Buffer<u32>, &BvhParams)>,
+    ) -> Result<()> {
+        if n == 0 {
+            return Ok(());
+        }
+        let splits = n.saturating_sub(1).max(1);
+        if meet.len() < splits {
+            return Err(GpuError::Usage {
+                call: "LbvhBuilder::record_build",
+                reason: format!("{} meeting words for {n} primitives", meet.len()),
+            });
+        }
+        self.record_sort(rec, boxes, n, scratch, refs)?;
+        let s = scratch;
+        let n32 = n as u32;
+        rec.scope("lbvh.climb", |rec| {
+            rec.fill_first(meet, splits, NO_NODE);
+            let groups = rec.groups_1d(n as u64, WORKGROUP);
+            let b: [&dyn BufferArg; 4] = [refs, &s.code_hi, &s.code_lo, &s.sorted];
+            rec.dispatch(&self.gather2, groups, &b, &n32);
+            rec.compute_to_compute();
+            rec.transfer_to_compute();
+            let kernel = &self.climb[usize::from(decide.is_some())];
+            let groups = rec.groups_1d(n as u64, kernel.invocations());
+            let b: [&dyn BufferArg; 6] = [nodes, refs, boxes, &s.sorted, meet, info];
+            match decide {
+                Some((costs, p)) => {
+                    let push = [
+                        n32,
+                        p.max_leaf_prims.min(MAX_COLLAPSE_LEAF),
+                        p.traversal_cost.to_bits(),
+                        p.intersection_cost.to_bits(),
+                    ];
+                    let b = [b[0], b[1], b[2], b[3], b[4], b[5], costs];
+                    rec.dispatch(kernel, groups, &b, &push);
+                }
+                None => rec.dispatch(kernel, groups, &b, &n32),
+            }
         });
         rec.compute_to_compute();
         Ok(())

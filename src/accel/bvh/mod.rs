@@ -30,7 +30,7 @@ pub const GPU_BUILD_PASSES: [&str; 8] = [
     "lbvh.bounds",
     "lbvh.morton",
     "lbvh.sort",
-    "lbvh.karras",
+    "lbvh.climb",
     "refit",
     "ploc.init",
     "ploc.rounds",
