@@ -7,16 +7,10 @@
 // child are made visible before its arrival is counted (memoryBarrierBuffer on coherent
 // buffers), and the arriving invocation reads them after. Unions use the total order on ±0
 // (fmin_total), so the result is bit for bit the CPU twin's, whatever the order.
-//
-// Variant `boxes` refits; variant `costs`: the LBVH build's refit also decides the SAH leaf collapse of every node on
-// the same climb (accel/bvh_collapse_cost.comp's work, which the GPU builders' other trees
-// run as a pass of its own).
-// The `64` variants move nodes and boxes as 64-bit pairs (accel/bvh_pairs.glsl), where the
-// device has shaderInt64.
+// Variant `boxes64` moves nodes and boxes as 64-bit pairs (accel/bvh_pairs.glsl), where the
+// device has shaderInt64. (The LBVH's build climbs in accel/lbvh_climb.comp.)
 //! variant boxes
 //! variant boxes64 PAIRS64=1
-//! variant costs COLLAPSE_COSTS=1
-//! variant costs64 COLLAPSE_COSTS=1 PAIRS64=1
 layout(local_size_x_id = 0) in;
 #extension GL_KHR_shader_subgroup_vote : require
 #include "common/grid.glsl"
@@ -38,19 +32,7 @@ layout(std430, binding = 4) buffer SceneInfoBuf {
     uint has_motion;
     uint parents_at;
 } info;
-#ifdef COLLAPSE_COSTS
-// Count, SAH cost and decision of every node (accel/bvh_collapse.glsl).
-layout(std430, binding = 5) coherent buffer Costs { uint costs[]; };
-layout(push_constant) uniform Push {
-    uint n_nodes;
-    uint max_leaf;
-    float c_trav;
-    float c_isect;
-} pc;
-#include "accel/bvh_collapse.glsl"
-#else
 layout(push_constant) uniform Push { uint n_nodes; } pc;
-#endif
 
 #include "accel/bvh_refit.glsl"
 
@@ -75,9 +57,6 @@ void main() {
         BvhNode n;
         if (climbing) {
             n = refit_node(cur);
-#ifdef COLLAPSE_COSTS
-            decide(CollapseParams(pc.c_trav, pc.c_isect, pc.max_leaf), cur, n);
-#endif
         }
         memoryBarrierBuffer(); // the boxes are visible before the arrival is counted
         if (climbing) {

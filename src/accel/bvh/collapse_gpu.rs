@@ -29,8 +29,6 @@ const WORKGROUP: u32 = 64;
 /// The kernels, compiled once.
 pub struct CollapseKernels {
     cost: Arc<Kernel>,
-    /// The refit that also decides (`accel.bvh_refit.costs`), for the LBVH's build.
-    refit_deciding: Arc<Kernel>,
     flags: Arc<Kernel>,
     write: Arc<Kernel>,
     in_place: Arc<Kernel>,
@@ -73,14 +71,6 @@ impl CollapseKernels {
                 &kernels::ACCEL_BVH_COLLAPSE_COST,
                 &Spec::new().workgroup(climb_workgroup),
             )?,
-            refit_deciding: ctx.kernel(
-                if super::pairs64(ctx) {
-                    &kernels::ACCEL_BVH_REFIT_COSTS64
-                } else {
-                    &kernels::ACCEL_BVH_REFIT_COSTS
-                },
-                &Spec::new().workgroup(climb_workgroup),
-            )?,
             flags: ctx.kernel(&kernels::ACCEL_BVH_COLLAPSE_FLAGS, &spec)?,
             write: ctx.kernel(&kernels::ACCEL_BVH_COLLAPSE_WRITE, &spec)?,
             in_place: ctx.kernel(&kernels::ACCEL_BVH_COLLAPSE_IN_PLACE, &spec)?,
@@ -121,48 +111,11 @@ impl CollapseKernels {
         Ok(())
     }
 
-    /// Records the LBVH build's refit — every box bottom-up from `boxes`, the root box into
-    /// `info` — deciding the collapse on the same climb (in the profiler scope `refit`);
-    /// [`CollapseKernels::record`] with `decided` then skips its cost pass. `visits` holds
-    /// a zeroed-here counter per node. Ends with a compute → compute barrier.
-    #[allow(
-        clippy::too_many_arguments,
-        reason = "the refit's bindings and the knobs"
-    )]
-    pub fn record_refit_deciding(
-        &self,
-        rec: &mut Recorder,
-        nodes: &Buffer<BvhNode>,
-        boxes: &Buffer<f32>,
-        visits: &Buffer<u32>,
-        info: &dyn BufferArg,
-        n_prims: usize,
-        scratch: &CollapseScratch,
-        params: &BvhParams,
-    ) {
-        let n_nodes = n_prims - 1;
-        rec.scope("refit", |rec| {
-            rec.fill_first(visits, n_nodes, 0);
-            rec.transfer_to_compute();
-            let groups = rec.groups_1d(n_nodes as u64, self.refit_deciding.invocations());
-            let push = [
-                n_nodes as u32,
-                params.max_leaf_prims.min(MAX_COLLAPSE_LEAF),
-                params.traversal_cost.to_bits(),
-                params.intersection_cost.to_bits(),
-            ];
-            let b: [&dyn BufferArg; 6] =
-                [nodes, &scratch.words, boxes, visits, info, &scratch.costs];
-            rec.dispatch(&self.refit_deciding, groups, &b, &push);
-        });
-        rec.compute_to_compute();
-    }
-
     /// Records the collapse of the complete tree in `nodes` and `scratch.tree_refs()`
     /// (`n_prims` references, then `n_prims - 1` parent links) with `params`' costs and leaf
     /// size: `nodes` in place, the structure's `refs` written as `layout` says. `visits`
-    /// holds a zeroed-here counter per node; `decided`: the refit decided already
-    /// ([`CollapseKernels::record_refit_deciding`]). Only where [`super::collapse::applies`]:
+    /// holds a zeroed-here counter per node; `decided`: the build decided already (the
+    /// LBVH's climb, `LbvhBuilder::record_build`). Only where [`super::collapse::applies`]:
     /// elsewhere the builder writes the structure itself. Ends with a compute → compute
     /// barrier.
     #[allow(

@@ -150,7 +150,7 @@ impl LbvhBuilder {
     /// bottom-up climb after the sort (Apetrei 2014, `accel.lbvh_climb`): the sorted ids
     /// into `refs[..n]`, parent links into `refs[n..]`, every node with its boxes, the root
     /// box into `info`; with `decide`, every node's SAH collapse decision into its costs
-    /// buffer too (the work of [`super::collapse_gpu::CollapseKernels::record_refit_deciding`]).
+    /// buffer too (the work of the collapse's cost pass).
     /// The same tree as [`LbvhBuilder::record_topology`] and a refit, bit for bit, without
     /// the topology pass's binary searches. `meet` holds a word per node (`n - 1`, at least
     /// one), filled here.
