@@ -8,9 +8,8 @@
 // two children meet at that split: an atomic exchange of their far ends tells the second
 // to arrive the parent's range, and it completes the parent in the next round. Each node
 // takes Karras's slot (a child `a` the slot of its last position, a child `b` of its first,
-// the root 0), so the tree is accel/lbvh_karras.comp's, bit for bit, boxes and collapse
-// decisions (accel/bvh_collapse.glsl) included; what the separate topology pass's binary
-// searches cost is saved. Rounds run in subgroup-uniform control flow with every memory
+// the root 0), so the tree is Karras's (2012), bit for bit, boxes and collapse decisions
+// (accel/bvh_collapse.glsl) included, without his topology pass's binary searches. Rounds run in subgroup-uniform control flow with every memory
 // barrier reached by every lane, as in accel/bvh_refit.comp (Mesa 22.3's lavapipe), in
 // workgroups of one subgroup; a round completes at least one node: never a spin.
 // The `64` variants move nodes, boxes and codes as 64-bit pairs (accel/bvh_pairs.glsl).
@@ -59,7 +58,7 @@ uint clz(uint x) {
     return uint(31 - findMSB(x)); // findMSB(0) = -1: 32
 }
 
-// δ(i): the common prefix of sorted codes i and i + 1 (Karras's δ, lbvh_karras.comp).
+// δ(i): the common prefix of sorted codes i and i + 1 (Karras's δ; CPU twin: lbvh::delta).
 int delta(uint i) {
     uvec2 ci = pair_uints(codes[i]);
     uvec2 cj = pair_uints(codes[i + 1u]);

@@ -1211,14 +1211,8 @@ impl AccelBuilder {
                 } else if n >= 2 {
                     ploc.record_build(rec, &prims.boxes, n, &s.build, nodes, refs, &out.info)?;
                 } else {
-                    ploc.record_small(rec, &prims.boxes, n, &s.build, nodes, refs)?;
-                    let refit = self
-                        .refit
-                        .as_ref()
-                        .ok_or_else(missing("the refit kernel"))?;
-                    record_refit_nodes(
-                        rec, refit, prims, nodes, refs, &s.visits, &out.info, n_nodes,
-                    );
+                    let (meet, info) = (&s.visits, &out.info);
+                    ploc.record_small(rec, &prims.boxes, n, &s.build, nodes, refs, meet, info)?;
                 }
                 rec.compute_to_compute();
                 Ok(RecordedBuild::default())

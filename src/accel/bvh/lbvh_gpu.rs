@@ -1,12 +1,12 @@
-//! The LBVH built on the GPU (Karras 2012), recorded into the caller's
-//! recorder with no read-back: centroid bounds (`accel.lbvh_bounds`), Morton codes
-//! (`accel.lbvh_morton`), a stable key-value radix sort of the codes (`prims`; 63-bit codes
-//! sort the low word, then the high word), the codes gathered into sorted (high, low) pairs,
-//! the topology (`accel.lbvh_karras`, one 64-bit load per neighbour's code where the device
-//! has `shaderInt64`) written in the traversal's layout, and the boxes bottom-up with
-//! per-node visit counters (`accel.bvh_refit`, the refit of every BVH). Its references end
-//! in depth-first order, so the SAH collapse leaves them in place
-//! ([`super::collapse::RefLayout::InPlace`]). CPU twin: [`super::lbvh`].
+//! The LBVH built on the GPU (Karras 2012), recorded into the caller's recorder with no
+//! read-back: centroid bounds (`accel.lbvh_bounds`), Morton codes (`accel.lbvh_morton`), a
+//! stable key-value radix sort of the codes (`prims`; 63-bit codes sort the low word, then
+//! the high word), the codes gathered into sorted (high, low) pairs, then the whole tree in
+//! one bottom-up climb after Apetrei (2014) (`accel.lbvh_climb`): topology, boxes and, with
+//! the SAH collapse, its decisions, every node in the slot Karras's topology pass gives it.
+//! Its references end in depth-first order, so the collapse leaves them in place
+//! ([`super::collapse::RefLayout::InPlace`]). CPU twin: [`super::lbvh`] (Karras's
+//! construction, then [`super::refit`]).
 
 use std::sync::Arc;
 
@@ -26,7 +26,6 @@ pub struct LbvhBuilder {
     morton: Arc<Kernel>,
     gather1: Arc<Kernel>,
     gather2: Arc<Kernel>,
-    karras: Arc<Kernel>,
     /// The bottom-up build (`accel.lbvh_climb`): `boxes`, and `costs` deciding the collapse.
     climb: [Arc<Kernel>; 2],
     sort: RadixSort,
@@ -50,6 +49,9 @@ impl LbvhBuilder {
     /// Compiles the kernels and the radix sort for Morton codes of `bits`.
     pub fn new(ctx: &Context, bits: MortonBits) -> Result<Self> {
         let spec = Spec::new().workgroup(WORKGROUP);
+        let climb = Spec::new().workgroup(ctx.info().subgroup_size.max(1));
+        // The variants that move 64-bit pairs where the device has shaderInt64.
+        let pairs = |wide, narrow| if super::pairs64(ctx) { wide } else { narrow };
         Ok(Self {
             bounds: ctx.kernel(&kernels::ACCEL_LBVH_BOUNDS, &spec)?,
             morton: ctx.kernel(
@@ -58,34 +60,29 @@ impl LbvhBuilder {
             )?,
             gather1: ctx.kernel(&kernels::ACCEL_LBVH_GATHER_ONE, &spec)?,
             gather2: ctx.kernel(
-                match super::pairs64(ctx) {
-                    true => &kernels::ACCEL_LBVH_GATHER_CODES64,
-                    false => &kernels::ACCEL_LBVH_GATHER_CODES,
-                },
+                pairs(
+                    &kernels::ACCEL_LBVH_GATHER_CODES64,
+                    &kernels::ACCEL_LBVH_GATHER_CODES,
+                ),
                 &spec,
             )?,
-            karras: ctx.kernel(
-                match super::pairs64(ctx) {
-                    true => &kernels::ACCEL_LBVH_KARRAS_PAIRS64,
-                    false => &kernels::ACCEL_LBVH_KARRAS_WORDS,
-                },
-                &spec,
-            )?,
-            climb: {
-                // Workgroups of one subgroup, as the climbing refit's (accel/bvh_refit.comp).
-                let spec = Spec::new().workgroup(ctx.info().subgroup_size.max(1));
-                let (boxes, costs) = match super::pairs64(ctx) {
-                    true => (
+            // Workgroups of one subgroup, as the climbing refit's (accel/bvh_refit.comp).
+            climb: [
+                ctx.kernel(
+                    pairs(
                         &kernels::ACCEL_LBVH_CLIMB_BOXES64,
-                        &kernels::ACCEL_LBVH_CLIMB_COSTS64,
-                    ),
-                    false => (
                         &kernels::ACCEL_LBVH_CLIMB_BOXES,
+                    ),
+                    &climb,
+                )?,
+                ctx.kernel(
+                    pairs(
+                        &kernels::ACCEL_LBVH_CLIMB_COSTS64,
                         &kernels::ACCEL_LBVH_CLIMB_COSTS,
                     ),
-                };
-                [ctx.kernel(boxes, &spec)?, ctx.kernel(costs, &spec)?]
-            },
+                    &climb,
+                )?,
+            ],
             sort: RadixSort::new(ctx, PrimConfig::default_for(ctx), 8)?,
             bits,
         })
@@ -114,45 +111,12 @@ impl LbvhBuilder {
         })
     }
 
-    /// Records the topology of the LBVH over the `n` primitive boxes `boxes` (six floats
-    /// each): the sorted ids into `refs[..n]`, parent links into `refs[n..]`, the nodes with
-    /// empty boxes. The caller records the refit that computes the boxes next. Ends with a
-    /// compute → compute barrier.
-    pub fn record_topology(
-        &self,
-        rec: &mut Recorder,
-        boxes: &Buffer<f32>,
-        n: usize,
-        scratch: &LbvhScratch,
-        nodes: &Buffer<BvhNode>,
-        refs: &Buffer<u32>,
-    ) -> Result<()> {
-        if n == 0 {
-            return Ok(());
-        }
-        self.record_sort(rec, boxes, n, scratch, refs)?;
-        let s = scratch;
-        let groups = rec.groups_1d(n as u64, WORKGROUP);
-        let n32 = n as u32;
-        rec.scope("lbvh.karras", |rec| {
-            let b: [&dyn BufferArg; 4] = [refs, &s.code_hi, &s.code_lo, &s.sorted];
-            rec.dispatch(&self.gather2, groups, &b, &n32);
-            rec.compute_to_compute();
-            let internal = rec.groups_1d(n.saturating_sub(1).max(1) as u64, WORKGROUP);
-            let b: [&dyn BufferArg; 3] = [nodes, refs, &s.sorted];
-            rec.dispatch(&self.karras, internal, &b, &n32);
-        });
-        rec.compute_to_compute();
-        Ok(())
-    }
-
     /// Records the whole LBVH over the `n` primitive boxes `boxes` (six floats each) in one
     /// bottom-up climb after the sort (Apetrei 2014, `accel.lbvh_climb`): the sorted ids
     /// into `refs[..n]`, parent links into `refs[n..]`, every node with its boxes, the root
     /// box into `info`; with `decide`, every node's SAH collapse decision into its costs
     /// buffer too (the work of the collapse's cost pass).
-    /// The same tree as [`LbvhBuilder::record_topology`] and a refit, bit for bit, without
-    /// the topology pass's binary searches. `meet` holds a word per node (`n - 1`, at least
+    /// Karras's (2012) tree, bit for bit, without his topology pass's binary searches. `meet` holds a word per node (`n - 1`, at least
     /// one), filled here.
     /// Ends with a compute → compute barrier.
     #[allow(

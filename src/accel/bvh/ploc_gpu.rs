@@ -109,8 +109,13 @@ impl PlocBuilder {
         })
     }
 
-    /// Records the tree of `n <= 1` primitives (the single-leaf root, boxes left to the
-    /// refit the caller records next; nothing for 0): PLOC has nothing to merge.
+    /// Records the tree of `n <= 1` primitives (the single-leaf root with its box, the
+    /// root box into `info`; nothing for 0): PLOC has nothing to merge. `meet`: a word of
+    /// scratch.
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "the tree's buffers and the knobs"
+    )]
     pub fn record_small(
         &self,
         rec: &mut Recorder,
@@ -119,6 +124,8 @@ impl PlocBuilder {
         s: &PlocScratch,
         nodes: &Buffer<BvhNode>,
         refs: &Buffer<u32>,
+        meet: &Buffer<u32>,
+        info: &dyn BufferArg,
     ) -> Result<()> {
         if n > 1 {
             return Err(GpuError::Usage {
@@ -127,7 +134,7 @@ impl PlocBuilder {
             });
         }
         self.sort
-            .record_topology(rec, boxes, n, &s.sort, nodes, refs)
+            .record_build(rec, boxes, n, &s.sort, nodes, refs, meet, info, None)
     }
 
     /// Records the PLOC tree over the `n >= 2` primitive boxes `boxes`: the sorted ids into
