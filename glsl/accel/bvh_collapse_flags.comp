@@ -39,5 +39,6 @@ void main() {
     bool alive = node_lives(i, pc.parents_at, pc.max_leaf);
     BvhNode n = nodes[i];
     live[i] = uint(alive);
-    leaf_refs[i] = alive ? leaf_child_refs(n.a_index, n.a_count) + leaf_child_refs(n.b_index, n.b_count) : 0u;
+    uint refs_below = leaf_child_refs(n.a_index, n.a_count) + leaf_child_refs(n.b_index, n.b_count);
+    leaf_refs[i] = alive ? refs_below : 0u;
 }

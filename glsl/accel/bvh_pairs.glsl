@@ -53,6 +53,7 @@ void box_of_pairs(WORD_PAIR p0, WORD_PAIR p1, WORD_PAIR p2, out vec3 lo, out vec
 }
 
 // Primitive `p`'s box from the pair array `arr` (three pairs per primitive).
-#define LOAD_PRIM_BOX(arr, p, lo, hi) box_of_pairs(arr[3u * (p)], arr[3u * (p) + 1u], arr[3u * (p) + 2u], lo, hi)
+#define LOAD_PRIM_BOX(arr, p, lo, hi)                                                      \
+    box_of_pairs(arr[3u * (p)], arr[3u * (p) + 1u], arr[3u * (p) + 2u], lo, hi)
 
 #endif

@@ -9,9 +9,10 @@
 // to arrive the parent's range, and it completes the parent in the next round. Each node
 // takes Karras's slot (a child `a` the slot of its last position, a child `b` of its first,
 // the root 0), so the tree is Karras's (2012), bit for bit, boxes and collapse decisions
-// (accel/bvh_collapse.glsl) included, without his topology pass's binary searches. Rounds run in subgroup-uniform control flow with every memory
-// barrier reached by every lane, as in accel/bvh_refit.comp (Mesa 22.3's lavapipe), in
-// workgroups of one subgroup; a round completes at least one node: never a spin.
+// (accel/bvh_collapse.glsl) included, without his topology pass's binary searches. Rounds
+// run in subgroup-uniform control flow with every memory barrier reached by every lane, as
+// in accel/bvh_refit.comp (Mesa 22.3's lavapipe), in workgroups of one subgroup; a round
+// completes at least one node: never a spin.
 // The `64` variants move nodes, boxes and codes as 64-bit pairs (accel/bvh_pairs.glsl).
 //! variant boxes
 //! variant boxes64 PAIRS64=1

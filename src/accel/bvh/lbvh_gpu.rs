@@ -115,10 +115,9 @@ impl LbvhBuilder {
     /// bottom-up climb after the sort (Apetrei 2014, `accel.lbvh_climb`): the sorted ids
     /// into `refs[..n]`, parent links into `refs[n..]`, every node with its boxes, the root
     /// box into `info`; with `decide`, every node's SAH collapse decision into its costs
-    /// buffer too (the work of the collapse's cost pass).
-    /// Karras's (2012) tree, bit for bit, without his topology pass's binary searches. `meet` holds a word per node (`n - 1`, at least
-    /// one), filled here.
-    /// Ends with a compute → compute barrier.
+    /// buffer too (the work of the collapse's cost pass). Karras's (2012) tree, bit for bit,
+    /// without his topology pass's binary searches. `meet` holds a word per node (`n - 1`, at
+    /// least one), filled here. Ends with a compute → compute barrier.
     #[allow(
         clippy::too_many_arguments,
         reason = "the tree's buffers and the knobs"
