@@ -6,7 +6,7 @@
 //! the SAH collapse, its decisions, every node in the slot Karras's topology pass gives it.
 //! Its references end in depth-first order, so the collapse leaves them in place
 //! ([`super::collapse::RefLayout::InPlace`]). CPU twin: [`super::lbvh`] (Karras's
-//! construction, then [`super::refit`]).
+//! construction, then [`super::refit()`]).
 
 use std::sync::Arc;
 
