@@ -55,6 +55,8 @@ layout(push_constant) uniform Push {
 layout(push_constant) uniform Push { uint n; } pc;
 #endif
 
+#include "accel/bvh_refit.glsl"
+
 uint clz(uint x) {
     return uint(31 - findMSB(x)); // findMSB(0) = -1: 32
 }
@@ -68,18 +70,6 @@ int delta(uint i) {
     }
     uint x = ci.x ^ cj.x;
     return int(x != 0u ? clz(x) : 32u + clz(ci.y ^ cj.y));
-}
-
-// The box of child `index` of a node: a leaf's primitive (one reference at that position),
-// or the union of a finished node's child boxes.
-void child_box(uint index, bool leaf, out vec3 lo, out vec3 hi) {
-    if (leaf) {
-        LOAD_PRIM_BOX(box_pairs, refs[index], lo, hi);
-    } else {
-        BvhNode c = LOAD_NODE(node_pairs, index);
-        lo = vmin(c.a_min, c.b_min);
-        hi = vmax(c.a_max, c.b_max);
-    }
 }
 
 void main() {
@@ -118,15 +108,18 @@ void main() {
             break;
         }
         if (climbing) {
-            vec3 lo, hi;
+            vec3 lo = vec3(0.0);
+            vec3 hi = vec3(0.0);
             bool root = l == 0u && r == n - 1u;
             is_a = !root && (l == 0u || (r != n - 1u && delta(r) > delta(l - 1u)));
             if (l == r) {
-                child_box(l, true, lo, hi);
+                child_box(l, 1u, lo, hi); // a leaf: one reference, at its position
             } else {
-                vec3 other_lo, other_hi;
+                // The sibling's box: a leaf's primitive, or the union of its finished node's.
+                vec3 other_lo = vec3(0.0);
+                vec3 other_hi = vec3(0.0);
                 uint other = known_a ? s + 1u : s;
-                child_box(other, known_a ? other == r : other == l, other_lo, other_hi);
+                child_box(other, uint(known_a ? other == r : other == l), other_lo, other_hi);
                 BvhNode node;
                 node.a_index = s;
                 node.a_count = uint(l == s);

@@ -694,11 +694,11 @@ impl AccelBuilder {
             refit: match kind {
                 AccelKind::KdTree | AccelKind::Driver => None,
                 AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => Some(ctx.kernel(
-                    if crate::accel::bvh::pairs64(ctx) {
-                        &kernels::ACCEL_BVH_REFIT_BOXES64
-                    } else {
-                        &kernels::ACCEL_BVH_REFIT_BOXES
-                    },
+                    crate::accel::bvh::pairs_variant(
+                        ctx,
+                        &kernels::ACCEL_BVH_REFIT_BOXES64,
+                        &kernels::ACCEL_BVH_REFIT_BOXES,
+                    ),
                     &Spec::new().workgroup(refit_workgroup(ctx)),
                 )?),
             },

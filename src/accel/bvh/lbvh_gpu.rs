@@ -50,8 +50,7 @@ impl LbvhBuilder {
     pub fn new(ctx: &Context, bits: MortonBits) -> Result<Self> {
         let spec = Spec::new().workgroup(WORKGROUP);
         let climb = Spec::new().workgroup(ctx.info().subgroup_size.max(1));
-        // The variants that move 64-bit pairs where the device has shaderInt64.
-        let pairs = |wide, narrow| if super::pairs64(ctx) { wide } else { narrow };
+        let pairs = |pairs64, words| super::pairs_variant(ctx, pairs64, words);
         Ok(Self {
             bounds: ctx.kernel(&kernels::ACCEL_LBVH_BOUNDS, &spec)?,
             morton: ctx.kernel(

@@ -39,10 +39,18 @@ pub const GPU_BUILD_PASSES: [&str; 8] = [
 pub use refit::refit;
 pub use sah::{build, build_timed, BvhError, BvhParams, Threading};
 
-/// Whether the GPU kernels that move whole BVH nodes and primitive boxes take their 64-bit
-/// pair variants (`PAIRS64`, where the device has `shaderInt64`): on lavapipe every load or
-/// store at a lane-varying address loops over lanes and components, so a 64-bit component
-/// moves two words in one trip.
-pub(crate) fn pairs64(ctx: &crate::gpu::Context) -> bool {
-    ctx.info().features.shader_int64
+/// The variant of a kernel that moves whole BVH nodes, boxes or codes: `pairs64` (64-bit
+/// pairs, `PAIRS64`) where the device has `shaderInt64`, else `words`. On lavapipe every
+/// load or store at a lane-varying address loops over lanes and components, so a 64-bit
+/// component moves two words in one trip.
+pub(crate) fn pairs_variant(
+    ctx: &crate::gpu::Context,
+    pairs64: &'static crate::gpu::ShaderBlob,
+    words: &'static crate::gpu::ShaderBlob,
+) -> &'static crate::gpu::ShaderBlob {
+    if ctx.info().features.shader_int64 {
+        pairs64
+    } else {
+        words
+    }
 }

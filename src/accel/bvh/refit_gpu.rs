@@ -65,11 +65,11 @@ impl LevelRefit {
             schedule: ctx.kernel(&kernels::ACCEL_BVH_SCHEDULE, &spec)?,
             scan: ctx.kernel(&kernels::ACCEL_BVH_SCHEDULE_SCAN, &Spec::new())?,
             level: ctx.kernel(
-                if super::pairs64(ctx) {
-                    &kernels::ACCEL_BVH_REFIT_LEVEL_PAIRS64
-                } else {
-                    &kernels::ACCEL_BVH_REFIT_LEVEL_WORDS
-                },
+                super::pairs_variant(
+                    ctx,
+                    &kernels::ACCEL_BVH_REFIT_LEVEL_PAIRS64,
+                    &kernels::ACCEL_BVH_REFIT_LEVEL_WORDS,
+                ),
                 &spec,
             )?,
             sort: RadixSort::new(ctx, PrimConfig::default_for(ctx), 8)?,
