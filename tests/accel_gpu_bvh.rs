@@ -12,16 +12,17 @@ mod common;
 
 use common::{assert_silent, context, edge_sizes, Rng};
 use glam::Vec3;
-use vkrt::accel::bvh::collapse::{collapse, collapse_in_place};
-use vkrt::accel::bvh::collapse_gpu::MAX_COLLAPSE_LEAF;
+use vkrt::accel::bvh::collapse::{collapse, collapse_in_place, RefLayout};
+use vkrt::accel::bvh::collapse_gpu::{CollapseKernels, MAX_COLLAPSE_LEAF};
 use vkrt::accel::bvh::lbvh::{self, MortonBits};
 use vkrt::accel::bvh::ploc::{self, PlocParams};
+use vkrt::accel::bvh::sah::BvhParams;
 use vkrt::accel::bvh::validate::validate;
-use vkrt::accel::bvh::Bvh;
+use vkrt::accel::bvh::{Bvh, BvhNode};
 use vkrt::accel::device::{AccelBuilder, HostStructure};
 use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::primitives::TraceGeometry;
-use vkrt::gpu::{Context, Recorder};
+use vkrt::gpu::{Buffer, Context, GpuError, Recorder};
 
 fn device_bvh(ctx: &Context, builder: &AccelBuilder, g: &TraceGeometry) -> Bvh {
     let mut rec = Recorder::new(ctx).unwrap();
@@ -345,5 +346,41 @@ fn slanted_ray_in_a_deep_tree() {
             assert!(common::same_answer(&h, &b), "{walk:?}: {h:?} vs {b:?}");
         }
     }
+    assert_silent(&ctx);
+}
+
+#[test]
+fn a_collapse_refuses_scratch_made_for_the_other_layout() {
+    // Scratch made for references left in place holds no flags or scan: a node-order
+    // collapse over it is refused with a usage error before anything is recorded.
+    let Some(ctx) = context() else { return };
+    let kernels = CollapseKernels::new(&ctx, ctx.info().subgroup_size.max(1)).unwrap();
+    let n = 100;
+    let scratch = kernels.scratch(&ctx, n, RefLayout::InPlace).unwrap();
+    assert!(
+        kernels.scratch_bytes(n, RefLayout::InPlace)
+            < kernels.scratch_bytes(n, RefLayout::NodeOrder)
+    );
+    let visits = Buffer::<u32>::new(&ctx, "visits", n).unwrap();
+    let nodes = Buffer::<BvhNode>::new(&ctx, "nodes", n).unwrap();
+    let refs = Buffer::<u32>::new(&ctx, "refs", 2 * n).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let params = BvhParams::default();
+    let err = kernels
+        .record(
+            &mut rec,
+            n,
+            &visits,
+            &scratch,
+            &params,
+            &nodes,
+            &refs,
+            false,
+            RefLayout::NodeOrder,
+        )
+        .unwrap_err();
+    assert!(matches!(err, GpuError::Usage { .. }), "{err}");
+    assert!(err.to_string().contains("in place"), "{err}");
+    drop(rec);
     assert_silent(&ctx);
 }

@@ -803,10 +803,14 @@ impl AccelBuilder {
             }
             AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => {
                 let nodes = bvh_nodes(n) as u64;
-                let collapse = self.collapse.as_ref().map_or(0, |c| c.scratch_bytes(n));
+                let collapse = |layout| {
+                    self.collapse
+                        .as_ref()
+                        .map_or(0, |c| c.scratch_bytes(n, layout))
+                };
                 let build_scratch_bytes = match (&self.lbvh, &self.ploc) {
-                    (Some(l), _) => l.scratch_bytes(n) + nodes * 4 + collapse,
-                    (_, Some(p)) => p.scratch_bytes(n) + nodes * 4 + collapse,
+                    (Some(l), _) => l.scratch_bytes(n) + nodes * 4 + collapse(RefLayout::InPlace),
+                    (_, Some(p)) => p.scratch_bytes(n) + nodes * 4 + collapse(RefLayout::NodeOrder),
                     _ => 0,
                 };
                 let (schedule, schedule_scratch) = match (&self.level_refit, self.allow_update) {
@@ -927,11 +931,12 @@ impl AccelBuilder {
             }
             AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => {
                 let nodes = bvh_nodes(n);
-                let collapse = |c: &Option<CollapseKernels>| -> Result<CollapseScratch> {
+                let collapse = |layout| -> Result<CollapseScratch> {
                     CollapseKernels::check(&self.bvh_params)?;
-                    c.as_ref()
+                    self.collapse
+                        .as_ref()
                         .ok_or_else(missing("the collapse kernels"))?
-                        .scratch(ctx, n)
+                        .scratch(ctx, n, layout)
                 };
                 let schedule = match (&self.level_refit, allow_update) {
                     (Some(l), true) => Some(l.schedule_scratch(ctx, nodes)?),
@@ -941,13 +946,13 @@ impl AccelBuilder {
                     (Some(l), _) => AccelScratch::Lbvh(Box::new(LbvhScratch {
                         topology: l.scratch(ctx, n)?,
                         visits: Buffer::new(ctx, "accel.lbvh.visits", nodes)?,
-                        collapse: collapse(&self.collapse)?,
+                        collapse: collapse(RefLayout::InPlace)?,
                         schedule,
                     })),
                     (_, Some(p)) => AccelScratch::Ploc(Box::new(PlocDeviceScratch {
                         build: p.scratch(ctx, n)?,
                         visits: Buffer::new(ctx, "accel.ploc.visits", nodes)?,
-                        collapse: collapse(&self.collapse)?,
+                        collapse: collapse(RefLayout::NodeOrder)?,
                         schedule,
                     })),
                     _ => AccelScratch::None,

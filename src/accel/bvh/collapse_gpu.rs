@@ -10,7 +10,7 @@
 //! ([`CollapseScratch::tree_refs`]). A tree whose references lie in depth-first order (the
 //! LBVH's, [`RefLayout::InPlace`]) skips the flags, the scan and the write: one pass
 //! (`accel.bvh_collapse_in_place`) copies the references as they are and points each
-//! collapsed child at its run.
+//! collapsed child at its run, and its scratch holds no flags and no scan.
 
 use std::sync::Arc;
 
@@ -40,11 +40,17 @@ pub struct CollapseScratch {
     max_nodes: usize,
     /// Count, SAH cost and decision of every node.
     costs: Buffer<u32>,
+    /// The builder's references, then its parent links.
+    words: Buffer<u32>,
+    /// What only [`RefLayout::NodeOrder`] lays out with: absent for [`RefLayout::InPlace`].
+    node_order: Option<NodeOrderScratch>,
+}
+
+/// The node-order layout's flags and scan.
+struct NodeOrderScratch {
     live: Buffer<u32>,
     /// Each live node's leaf references, scanned in place into its first reference.
     first_ref: Buffer<u32>,
-    /// The builder's references, then its parent links.
-    words: Buffer<u32>,
     scan: ScanScratch,
 }
 
@@ -79,21 +85,37 @@ impl CollapseKernels {
     }
 
     /// Bytes of [`CollapseKernels::scratch`] for a tree of `n_prims` primitives.
-    pub fn scratch_bytes(&self, n_prims: usize) -> u64 {
+    pub fn scratch_bytes(&self, n_prims: usize, layout: RefLayout) -> u64 {
         let nodes = n_prims.saturating_sub(1).max(1);
-        (4 * (5 * nodes + n_prims.max(1) + nodes)) as u64 + self.scan.scratch_bytes(nodes)
+        let both = (4 * (3 * nodes + n_prims.max(1) + nodes)) as u64;
+        match layout {
+            RefLayout::InPlace => both,
+            RefLayout::NodeOrder => both + (4 * 2 * nodes) as u64 + self.scan.scratch_bytes(nodes),
+        }
     }
 
-    /// Allocates the scratch of collapses of trees of up to `n_prims` primitives.
-    pub fn scratch(&self, ctx: &Context, n_prims: usize) -> Result<CollapseScratch> {
+    /// Allocates the scratch of collapses of trees of up to `n_prims` primitives whose
+    /// references are laid out as `layout` says.
+    pub fn scratch(
+        &self,
+        ctx: &Context,
+        n_prims: usize,
+        layout: RefLayout,
+    ) -> Result<CollapseScratch> {
         let nodes = n_prims.saturating_sub(1).max(1);
+        let node_order = match layout {
+            RefLayout::InPlace => None,
+            RefLayout::NodeOrder => Some(NodeOrderScratch {
+                live: Buffer::new(ctx, "accel.collapse.live", nodes)?,
+                first_ref: Buffer::new(ctx, "accel.collapse.first_ref", nodes)?,
+                scan: self.scan.scratch(ctx, nodes)?,
+            }),
+        };
         Ok(CollapseScratch {
             max_nodes: nodes,
             costs: Buffer::new(ctx, "accel.collapse.costs", 3 * nodes)?,
-            live: Buffer::new(ctx, "accel.collapse.live", nodes)?,
-            first_ref: Buffer::new(ctx, "accel.collapse.first_ref", nodes)?,
             words: Buffer::new(ctx, "accel.collapse.words", n_prims.max(1) + nodes)?,
-            scan: self.scan.scratch(ctx, nodes)?,
+            node_order,
         })
     }
 
@@ -136,14 +158,14 @@ impl CollapseKernels {
     ) -> Result<()> {
         if !(super::collapse::applies(n_prims, params)) {
             return Err(GpuError::Usage {
-                call: "CollapseBuilder::record",
+                call: "CollapseKernels::record",
                 reason: "a collapse that changes nothing".into(),
             });
         }
         let n_nodes = n_prims - 1;
         if n_nodes > scratch.max_nodes {
             return Err(GpuError::Usage {
-                call: "CollapseBuilder::record",
+                call: "CollapseKernels::record",
                 reason: format!(
                     "collapse of {n_nodes} nodes, scratch for {}",
                     scratch.max_nodes
@@ -151,6 +173,16 @@ impl CollapseKernels {
             });
         }
         let s = scratch;
+        let order = match (layout, &s.node_order) {
+            (RefLayout::NodeOrder, None) => {
+                return Err(GpuError::Usage {
+                    call: "CollapseKernels::record",
+                    reason: "a node-order collapse with scratch made for references in place"
+                        .into(),
+                })
+            }
+            (_, order) => order.as_ref(),
+        };
         let parents_at = n_prims as u32;
         let max_leaf = params.max_leaf_prims.min(MAX_COLLAPSE_LEAF);
         rec.scope("collapse", |rec| {
@@ -174,7 +206,7 @@ impl CollapseKernels {
                 });
                 rec.compute_to_compute();
             }
-            if layout == RefLayout::InPlace {
+            let Some(o) = order.filter(|_| layout == RefLayout::NodeOrder) else {
                 let groups = rec.groups_1d(n_prims as u64, WORKGROUP);
                 let b: [&dyn BufferArg; 4] = [nodes, &s.words, &s.costs, refs];
                 let push = [n_nodes as u32, parents_at, max_leaf];
@@ -182,9 +214,9 @@ impl CollapseKernels {
                     rec.dispatch(&self.in_place, groups, &b, &push)
                 });
                 return;
-            }
+            };
             let groups = rec.groups_1d(n_nodes as u64, WORKGROUP);
-            let b: [&dyn BufferArg; 5] = [tree[0], tree[1], &s.costs, &s.live, &s.first_ref];
+            let b: [&dyn BufferArg; 5] = [tree[0], tree[1], &s.costs, &o.live, &o.first_ref];
             rec.dispatch(
                 &self.flags,
                 groups,
@@ -194,9 +226,9 @@ impl CollapseKernels {
             rec.compute_to_compute();
             let op = ScanOp::Exclusive;
             self.scan
-                .record(rec, &s.first_ref, &s.first_ref, n_nodes, op, &s.scan);
+                .record(rec, &o.first_ref, &o.first_ref, n_nodes, op, &o.scan);
             rec.compute_to_compute();
-            let b: [&dyn BufferArg; 6] = [nodes, &s.words, &s.costs, &s.live, &s.first_ref, refs];
+            let b: [&dyn BufferArg; 6] = [nodes, &s.words, &s.costs, &o.live, &o.first_ref, refs];
             rec.scope("collapse.write", |rec| {
                 rec.dispatch(&self.write, groups, &b, &[n_nodes as u32, parents_at])
             });
