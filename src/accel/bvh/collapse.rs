@@ -137,7 +137,10 @@ pub fn collapse_with(bvh: &Bvh, p: &BvhParams, layout: RefLayout) -> Bvh {
             index[i] = next_node;
             offset[i] = next_ref;
             next_node += 1;
-            next_ref += leaf_prims(i);
+            // References left in place need no offsets of their own.
+            if layout == RefLayout::NodeOrder {
+                next_ref += leaf_prims(i);
+            }
         }
     }
     let mut out = Bvh {
