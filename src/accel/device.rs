@@ -40,6 +40,12 @@ use crate::gpu::{
 };
 use crate::scene::Aabb;
 
+/// Where the LBVH's collapse puts the references: its references lie in Morton order, depth
+/// first, so the collapse leaves them in place.
+const LBVH_REFS: RefLayout = RefLayout::InPlace;
+/// PLOC's references are in no such order: its collapse lays them out in node order.
+const PLOC_REFS: RefLayout = RefLayout::NodeOrder;
+
 /// The refit's workgroups are one subgroup each (`accel.bvh_refit` explains why).
 fn refit_workgroup(ctx: &Context) -> u32 {
     ctx.info().subgroup_size.max(1)
@@ -809,8 +815,8 @@ impl AccelBuilder {
                         .map_or(0, |c| c.scratch_bytes(n, layout))
                 };
                 let build_scratch_bytes = match (&self.lbvh, &self.ploc) {
-                    (Some(l), _) => l.scratch_bytes(n) + nodes * 4 + collapse(RefLayout::InPlace),
-                    (_, Some(p)) => p.scratch_bytes(n) + nodes * 4 + collapse(RefLayout::NodeOrder),
+                    (Some(l), _) => l.scratch_bytes(n) + nodes * 4 + collapse(LBVH_REFS),
+                    (_, Some(p)) => p.scratch_bytes(n) + nodes * 4 + collapse(PLOC_REFS),
                     _ => 0,
                 };
                 let (schedule, schedule_scratch) = match (&self.level_refit, self.allow_update) {
@@ -946,13 +952,13 @@ impl AccelBuilder {
                     (Some(l), _) => AccelScratch::Lbvh(Box::new(LbvhScratch {
                         topology: l.scratch(ctx, n)?,
                         visits: Buffer::new(ctx, "accel.lbvh.visits", nodes)?,
-                        collapse: collapse(RefLayout::InPlace)?,
+                        collapse: collapse(LBVH_REFS)?,
                         schedule,
                     })),
                     (_, Some(p)) => AccelScratch::Ploc(Box::new(PlocDeviceScratch {
                         build: p.scratch(ctx, n)?,
                         visits: Buffer::new(ctx, "accel.ploc.visits", nodes)?,
-                        collapse: collapse(RefLayout::NodeOrder)?,
+                        collapse: collapse(PLOC_REFS)?,
                         schedule,
                     })),
                     _ => AccelScratch::None,
@@ -1169,9 +1175,7 @@ impl AccelBuilder {
                         .collapse
                         .as_ref()
                         .ok_or_else(missing("the collapse kernels"))?;
-                    // Its references lie in Morton order, depth first: the collapse leaves them.
-                    let layout = RefLayout::InPlace;
-                    collapse.record(rec, n, visits, cs, p, nodes, refs, true, layout)?;
+                    collapse.record(rec, n, visits, cs, p, nodes, refs, true, LBVH_REFS)?;
                 }
                 Ok(RecordedBuild::default())
             }
@@ -1201,7 +1205,7 @@ impl AccelBuilder {
                         .as_ref()
                         .ok_or_else(missing("the collapse kernels"))?;
                     let p = &self.bvh_params;
-                    let layout = RefLayout::NodeOrder;
+                    let layout = PLOC_REFS;
                     collapse.record(
                         rec,
                         n,

@@ -87,10 +87,13 @@ impl CollapseKernels {
     /// Bytes of [`CollapseKernels::scratch`] for a tree of `n_prims` primitives.
     pub fn scratch_bytes(&self, n_prims: usize, layout: RefLayout) -> u64 {
         let nodes = n_prims.saturating_sub(1).max(1);
-        let both = (4 * (3 * nodes + n_prims.max(1) + nodes)) as u64;
+        // Costs (three words a node), then the builder's references and parent links.
+        let shared = (4 * (3 * nodes + n_prims.max(1) + nodes)) as u64;
         match layout {
-            RefLayout::InPlace => both,
-            RefLayout::NodeOrder => both + (4 * 2 * nodes) as u64 + self.scan.scratch_bytes(nodes),
+            RefLayout::InPlace => shared,
+            RefLayout::NodeOrder => {
+                shared + (4 * 2 * nodes) as u64 + self.scan.scratch_bytes(nodes)
+            }
         }
     }
 
@@ -173,15 +176,13 @@ impl CollapseKernels {
             });
         }
         let s = scratch;
-        let order = match (layout, &s.node_order) {
-            (RefLayout::NodeOrder, None) => {
-                return Err(GpuError::Usage {
-                    call: "CollapseKernels::record",
-                    reason: "a node-order collapse with scratch made for references in place"
-                        .into(),
-                })
-            }
-            (_, order) => order.as_ref(),
+        // The node-order layout's flags and scan; none for references left in place.
+        let node_order = match layout {
+            RefLayout::InPlace => None,
+            RefLayout::NodeOrder => Some(s.node_order.as_ref().ok_or_else(|| GpuError::Usage {
+                call: "CollapseKernels::record",
+                reason: "a node-order collapse with scratch made for references in place".into(),
+            })?),
         };
         let parents_at = n_prims as u32;
         let max_leaf = params.max_leaf_prims.min(MAX_COLLAPSE_LEAF);
@@ -206,7 +207,7 @@ impl CollapseKernels {
                 });
                 rec.compute_to_compute();
             }
-            let Some(o) = order.filter(|_| layout == RefLayout::NodeOrder) else {
+            let Some(o) = node_order else {
                 let groups = rec.groups_1d(n_prims as u64, WORKGROUP);
                 let b: [&dyn BufferArg; 4] = [nodes, &s.words, &s.costs, refs];
                 let push = [n_nodes as u32, parents_at, max_leaf];
