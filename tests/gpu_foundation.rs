@@ -177,12 +177,8 @@ fn subgroup_barriers_in_divergent_subgroups_keep_every_invocation() {
     let Some(ctx) = common::context() else { return };
     let info = ctx.info().clone();
     let lanes = info.max_subgroup_size.max(info.subgroup_size);
-    let mesa_major = info
-        .driver
-        .split("Mesa ")
-        .nth(1)
-        .and_then(|v| v.split('.').next()?.parse::<u32>().ok());
-    let known = info.device.contains("llvmpipe") && mesa_major.is_some_and(|m| m >= 25);
+    let known = info.device.contains("llvmpipe")
+        && vkrt::gpu::mesa_version(&info.driver).is_some_and(|v| v >= (25, 0));
     probe_keeps_every_invocation(
         &ctx,
         &kernels::GPU_SUBGROUP_BARRIER_PROBE,

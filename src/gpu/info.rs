@@ -261,8 +261,9 @@ pub(crate) fn query(
 /// costs nothing on real trees, a missing one would make silent misses.
 pub const LLVMPIPE_LOOP_BUDGET: u32 = 65_535;
 
-/// `(major, minor)` of "Mesa X.Y…" in a driver's info string.
-fn mesa_version(driver_info: &str) -> Option<(u32, u32)> {
+/// `(major, minor)` of "Mesa X.Y…" in a driver's info string ([`DeviceInfo::driver`] holds
+/// one), to tell lavapipe versions and their known bugs apart.
+pub fn mesa_version(driver_info: &str) -> Option<(u32, u32)> {
     let rest = &driver_info[driver_info.find("Mesa ")? + 5..];
     let mut parts = rest.split(|c: char| !c.is_ascii_digit());
     let major = parts.next()?.parse().ok()?;

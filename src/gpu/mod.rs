@@ -36,8 +36,8 @@ pub use buffer::{address_of, placement, Buffer, BufferArg, Memory, RawBuffer, Te
 pub use context::{Context, ContextOptions, MemoryUsage, RawParts, Traffic};
 pub use error::{GpuError, Result};
 pub use info::{
-    device_requirements, traversal_steps_within, DeviceFeatures, DeviceInfo, DeviceRequirements,
-    LLVMPIPE_LOOP_BUDGET,
+    device_requirements, mesa_version, traversal_steps_within, DeviceFeatures, DeviceInfo,
+    DeviceRequirements, LLVMPIPE_LOOP_BUDGET,
 };
 pub use kernel::{Kernel, Spec, PUSH_CONSTANT_BYTES};
 pub use profiler::{
