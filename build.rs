@@ -23,21 +23,27 @@ use std::path::{Path, PathBuf};
 
 /// The compiled kernels as checked in, relative to the manifest.
 const CHECKED_IN: &str = "kernels/shaders.rs";
+/// What the checked-in kernels were compiled from: `sha256sum`'s listing of `glsl/`.
+const SOURCES: &str = "kernels/glsl.sha256";
 
 fn main() {
     let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
     let out = PathBuf::from(std::env::var("OUT_DIR").unwrap()).join("shaders.rs");
     let checked_in = root.join(CHECKED_IN);
-    println!("cargo:rerun-if-env-changed=VKRT_KERNELS");
+    println!("cargo:rerun-if-changed=glsl");
+    let sources = source_listing(&root);
     #[cfg(feature = "shaderc")]
     {
+        println!("cargo:rerun-if-env-changed=VKRT_KERNELS");
         let text = compile_all(&root);
         std::fs::write(&out, &text).expect("cannot write shaders.rs");
-        sync_checked_in(&checked_in, &text);
+        sync_checked_in(&root, &text, &sources);
     }
     #[cfg(not(feature = "shaderc"))]
     {
         println!("cargo:rerun-if-changed={CHECKED_IN}");
+        println!("cargo:rerun-if-changed={SOURCES}");
+        check_sources(&root, &sources);
         let text = std::fs::read_to_string(&checked_in).unwrap_or_else(|e| {
             panic!(
                 "{}: {e}: the compiled kernels are missing; build with the `shaderc` feature \
@@ -49,28 +55,174 @@ fn main() {
     }
 }
 
-/// Compares a fresh compile with the checked-in kernels; `VKRT_KERNELS` says what to do
-/// where they differ.
+/// Without shaderc the checked-in kernels are used as they are, so they must have been
+/// compiled from the GLSL beside them: a kernel edited since is a build error naming it, never
+/// a stale kernel run silently. (A package without `glsl/` has nothing to be stale against.)
+#[cfg(not(feature = "shaderc"))]
+fn check_sources(root: &Path, sources: &str) {
+    if !root.join("glsl").is_dir() {
+        return;
+    }
+    let recorded = std::fs::read_to_string(root.join(SOURCES)).unwrap_or_default();
+    let changed = changed_sources(&recorded, sources);
+    if !changed.is_empty() {
+        eprintln!(
+            "error: {CHECKED_IN} was not compiled from this glsl/ ({} changed since: {}): build \
+             with `--features shaderc` to compile the kernels (`./x` does so by itself)",
+            changed.len(),
+            changed.join(", ")
+        );
+        std::process::exit(1);
+    }
+}
+
+/// The files whose line differs between two listings (added, removed or edited).
+#[cfg(not(feature = "shaderc"))]
+fn changed_sources(a: &str, b: &str) -> Vec<String> {
+    let set =
+        |s: &str| -> std::collections::BTreeSet<String> { s.lines().map(str::to_owned).collect() };
+    let (a, b) = (set(a), set(b));
+    let mut files: Vec<String> = a
+        .symmetric_difference(&b)
+        .filter_map(|line| line.split_once("  ").map(|(_, path)| path.to_owned()))
+        .collect();
+    files.sort();
+    files.dedup();
+    files
+}
+
+/// `sha256sum`'s listing of every file under `root/glsl`, sorted by path: what
+/// `kernels/glsl.sha256` records for the checked-in kernels, and what `./x` compares with
+/// `sha256sum` to decide whether a build needs shaderc.
+fn source_listing(root: &Path) -> String {
+    let mut files = Vec::new();
+    collect_files(&root.join("glsl"), &mut files);
+    let mut rows: Vec<(String, PathBuf)> = files
+        .into_iter()
+        .map(|f| {
+            let rel = f
+                .strip_prefix(root)
+                .unwrap()
+                .to_string_lossy()
+                .replace('\\', "/");
+            (rel, f)
+        })
+        .collect();
+    // Byte order of the paths, as `LC_ALL=C sort` gives.
+    rows.sort();
+    let mut listing = String::new();
+    for (rel, path) in rows {
+        let bytes = std::fs::read(&path).unwrap_or_else(|e| panic!("{rel}: cannot read: {e}"));
+        let _ = writeln!(listing, "{}  {rel}", hex(&sha256(&bytes)));
+    }
+    listing
+}
+
+fn hex(bytes: &[u8]) -> String {
+    bytes.iter().map(|b| format!("{b:02x}")).collect()
+}
+
+/// SHA-256 (FIPS 180-4), so that build.rs needs no dependency to hash the kernels' sources.
+fn sha256(data: &[u8]) -> [u8; 32] {
+    const K: [u32; 64] = [
+        0x428a2f98, 0x71374491, 0xb5c0fbcf, 0xe9b5dba5, 0x3956c25b, 0x59f111f1, 0x923f82a4,
+        0xab1c5ed5, 0xd807aa98, 0x12835b01, 0x243185be, 0x550c7dc3, 0x72be5d74, 0x80deb1fe,
+        0x9bdc06a7, 0xc19bf174, 0xe49b69c1, 0xefbe4786, 0x0fc19dc6, 0x240ca1cc, 0x2de92c6f,
+        0x4a7484aa, 0x5cb0a9dc, 0x76f988da, 0x983e5152, 0xa831c66d, 0xb00327c8, 0xbf597fc7,
+        0xc6e00bf3, 0xd5a79147, 0x06ca6351, 0x14292967, 0x27b70a85, 0x2e1b2138, 0x4d2c6dfc,
+        0x53380d13, 0x650a7354, 0x766a0abb, 0x81c2c92e, 0x92722c85, 0xa2bfe8a1, 0xa81a664b,
+        0xc24b8b70, 0xc76c51a3, 0xd192e819, 0xd6990624, 0xf40e3585, 0x106aa070, 0x19a4c116,
+        0x1e376c08, 0x2748774c, 0x34b0bcb5, 0x391c0cb3, 0x4ed8aa4a, 0x5b9cca4f, 0x682e6ff3,
+        0x748f82ee, 0x78a5636f, 0x84c87814, 0x8cc70208, 0x90befffa, 0xa4506ceb, 0xbef9a3f7,
+        0xc67178f2,
+    ];
+    let mut h: [u32; 8] = [
+        0x6a09e667, 0xbb67ae85, 0x3c6ef372, 0xa54ff53a, 0x510e527f, 0x9b05688c, 0x1f83d9ab,
+        0x5be0cd19,
+    ];
+    let mut message = data.to_vec();
+    message.push(0x80);
+    while message.len() % 64 != 56 {
+        message.push(0);
+    }
+    message.extend_from_slice(&((data.len() as u64) * 8).to_be_bytes());
+    for block in message.chunks_exact(64) {
+        let mut w = [0u32; 64];
+        for (i, word) in block.chunks_exact(4).enumerate() {
+            w[i] = u32::from_be_bytes([word[0], word[1], word[2], word[3]]);
+        }
+        for i in 16..64 {
+            let s0 = w[i - 15].rotate_right(7) ^ w[i - 15].rotate_right(18) ^ (w[i - 15] >> 3);
+            let s1 = w[i - 2].rotate_right(17) ^ w[i - 2].rotate_right(19) ^ (w[i - 2] >> 10);
+            w[i] = w[i - 16]
+                .wrapping_add(s0)
+                .wrapping_add(w[i - 7])
+                .wrapping_add(s1);
+        }
+        let [mut a, mut b, mut c, mut d, mut e, mut f, mut g, mut hh] = h;
+        for i in 0..64 {
+            let s1 = e.rotate_right(6) ^ e.rotate_right(11) ^ e.rotate_right(25);
+            let ch = (e & f) ^ (!e & g);
+            let t1 = hh
+                .wrapping_add(s1)
+                .wrapping_add(ch)
+                .wrapping_add(K[i])
+                .wrapping_add(w[i]);
+            let s0 = a.rotate_right(2) ^ a.rotate_right(13) ^ a.rotate_right(22);
+            let maj = (a & b) ^ (a & c) ^ (b & c);
+            let t2 = s0.wrapping_add(maj);
+            hh = g;
+            g = f;
+            f = e;
+            e = d.wrapping_add(t1);
+            d = c;
+            c = b;
+            b = a;
+            a = t1.wrapping_add(t2);
+        }
+        for (x, y) in h.iter_mut().zip([a, b, c, d, e, f, g, hh]) {
+            *x = x.wrapping_add(y);
+        }
+    }
+    let mut digest = [0u8; 32];
+    for (i, word) in h.iter().enumerate() {
+        digest[4 * i..4 * i + 4].copy_from_slice(&word.to_be_bytes());
+    }
+    digest
+}
+
+/// Compares a fresh compile (and the listing of its sources) with the checked-in kernels;
+/// `VKRT_KERNELS` says what to do where they differ.
 #[cfg(feature = "shaderc")]
-fn sync_checked_in(checked_in: &Path, text: &str) {
-    let same = std::fs::read_to_string(checked_in).is_ok_and(|old| old == text);
-    if same {
+fn sync_checked_in(root: &Path, text: &str, sources: &str) {
+    let files = [(CHECKED_IN, text), (SOURCES, sources)];
+    let stale: Vec<&str> = files
+        .iter()
+        .filter(|(rel, want)| {
+            std::fs::read_to_string(root.join(rel)).map_or(true, |old| old != *want)
+        })
+        .map(|(rel, _)| *rel)
+        .collect();
+    if stale.is_empty() {
         return;
     }
     match std::env::var("VKRT_KERNELS").as_deref() {
         Ok("update") => {
-            if let Some(dir) = checked_in.parent() {
-                std::fs::create_dir_all(dir).expect("cannot create kernels/");
+            std::fs::create_dir_all(root.join("kernels")).expect("cannot create kernels/");
+            for (rel, want) in files {
+                std::fs::write(root.join(rel), want)
+                    .unwrap_or_else(|e| panic!("cannot write {rel}: {e}"));
             }
-            std::fs::write(checked_in, text).expect("cannot write kernels/shaders.rs");
         }
         Ok("check") => panic!(
-            "{CHECKED_IN} differs from a fresh compile of glsl/: rebuild with \
-             VKRT_KERNELS=update and commit it (dependents without the shaderc feature use it)"
+            "{} differ(s) from a fresh compile of glsl/: rebuild with VKRT_KERNELS=update and \
+             commit them (dependents without the shaderc feature use them)",
+            stale.join(" and ")
         ),
         _ => println!(
-            "cargo:warning={CHECKED_IN} differs from a fresh compile of glsl/: rebuild with \
-             VKRT_KERNELS=update and commit it"
+            "cargo:warning={} differ(s) from a fresh compile of glsl/: rebuild with \
+             VKRT_KERNELS=update and commit them",
+            stale.join(" and ")
         ),
     }
 }
@@ -79,7 +231,6 @@ fn sync_checked_in(checked_in: &Path, text: &str) {
 #[cfg(feature = "shaderc")]
 fn compile_all(root: &Path) -> String {
     let glsl = root.join("glsl");
-    println!("cargo:rerun-if-changed=glsl");
     let mut files = Vec::new();
     collect_files(&glsl, &mut files);
     files.sort();

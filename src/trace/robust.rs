@@ -41,6 +41,8 @@
 //! rays at, the CPU twin's walk of the 2 M soup) use the SAH BVH built on the host over the
 //! same primitives instead, and there is no tree to validate.
 
+use std::sync::{Arc, Mutex};
+
 use glam::{Vec3, Vec4};
 use serde::Serialize;
 
@@ -473,15 +475,85 @@ pub fn same_answer(a: &Hit, b: &Hit) -> bool {
         && (!a.is_hit() || (a.t - b.t).abs() <= 1e-5 * a.t.abs().max(b.t.abs()).max(1e-30))
 }
 
-fn mismatch(g: &TraceGeometry, r: &Ray, h: &Hit, o: &TraceOptions) -> bool {
-    !same_answer(h, &cpu::brute_force(g, r, 0.0, o))
+fn brute_mismatches(g: &TraceGeometry, rays: &[Ray], hits: &[Hit], o: &TraceOptions) -> u64 {
+    let oracle = brute_force_all(g, rays, o);
+    oracle
+        .iter()
+        .zip(hits)
+        .filter(|(bf, h)| !same_answer(h, bf))
+        .count() as u64
 }
 
-fn brute_mismatches(g: &TraceGeometry, rays: &[Ray], hits: &[Hit], o: &TraceOptions) -> u64 {
-    rays.iter()
-        .zip(hits)
-        .filter(|(r, h)| !same_answer(h, &cpu::brute_force(g, r, 0.0, o)))
-        .count() as u64
+/// The brute-force oracle of one case's rays, computed on its first use with each options.
+struct Oracle<'a> {
+    geometry: &'a TraceGeometry,
+    rays: &'a [Ray],
+    last: std::cell::RefCell<Option<(TraceOptions, Arc<Vec<Hit>>)>>,
+}
+
+impl<'a> Oracle<'a> {
+    fn new(geometry: &'a TraceGeometry, rays: &'a [Ray]) -> Self {
+        Self {
+            geometry,
+            rays,
+            last: Default::default(),
+        }
+    }
+
+    /// Whether `h`, the answer to ray `k` under `o`, differs from brute force's.
+    fn mismatch(&self, k: usize, h: &Hit, o: &TraceOptions) -> bool {
+        let mut last = self.last.borrow_mut();
+        if last.as_ref().is_none_or(|(opt, _)| opt != o) {
+            *last = Some((*o, brute_force_all(self.geometry, self.rays, o)));
+        }
+        let (_, hits) = last.as_ref().expect("set above");
+        !same_answer(h, &hits[k])
+    }
+}
+
+/// Brute force's answer for every ray, on every core, and computed once per geometry, rays
+/// and options in a process: every structure and walk a suite runs on a case is checked
+/// against the same oracle, so the last few oracles are kept (keyed by a hash of their
+/// inputs; static geometry only — moving geometry is computed afresh).
+fn brute_force_all(g: &TraceGeometry, rays: &[Ray], o: &TraceOptions) -> Arc<Vec<Hit>> {
+    use rayon::prelude::*;
+    use std::hash::{Hash, Hasher};
+    type Oracles = Mutex<Vec<(u64, Arc<Vec<Hit>>)>>;
+    static ORACLES: Oracles = Mutex::new(Vec::new());
+    const KEPT: usize = 8;
+
+    let compute = || -> Arc<Vec<Hit>> {
+        Arc::new(
+            rays.par_iter()
+                .with_min_len(64)
+                .map(|r| cpu::brute_force(g, r, 0.0, o))
+                .collect(),
+        )
+    };
+    if !g.motions.is_empty() {
+        return compute();
+    }
+    let mut h = std::collections::hash_map::DefaultHasher::new();
+    bytemuck::cast_slice::<f32, u8>(&g.tri_verts).hash(&mut h);
+    bytemuck::cast_slice::<[f32; 4], u8>(&g.spheres).hash(&mut h);
+    for b in &g.aabbs {
+        b.min.to_array().map(f32::to_bits).hash(&mut h);
+        b.max.to_array().map(f32::to_bits).hash(&mut h);
+    }
+    bytemuck::cast_slice::<Ray, u8>(rays).hash(&mut h);
+    o.hash(&mut h);
+    let key = h.finish();
+    let lock = || ORACLES.lock().unwrap_or_else(|p| p.into_inner());
+    if let Some((_, hits)) = lock().iter().find(|(k, _)| *k == key) {
+        return hits.clone();
+    }
+    let hits = compute();
+    let mut kept = lock();
+    if kept.len() == KEPT {
+        kept.remove(0);
+    }
+    kept.push((key, hits.clone()));
+    hits
 }
 
 struct Suite<'a> {
@@ -961,8 +1033,9 @@ impl Suite<'_> {
             ("rays/in-split-plane", &in_plane),
             ("rays/start-on-node-boundary", &on_boundary),
         ] {
+            let oracle = Oracle::new(&g, rays);
             self.simple(name, &p, rays, "mismatches", |k, h, o| {
-                mismatch(&g, &rays[k], h, o)
+                oracle.mismatch(k, h, o)
             })?;
         }
         Ok(())
@@ -1076,10 +1149,10 @@ impl Suite<'_> {
             let o = self.opt(i);
             let a = p.trace(self.ctx, &rays, &o)?;
             let b = p.trace(self.ctx, &rays, &o)?;
+            let oracle = brute_force_all(&p.geometry, &rays, &o);
             let mut wrong = 0u64;
-            for (k, r) in rays.iter().enumerate() {
-                let bf = cpu::brute_force(&p.geometry, r, 0.0, &o);
-                let same = a.hits[k] == bf && b.hits[k] == a.hits[k];
+            for (k, bf) in oracle.iter().enumerate() {
+                let same = a.hits[k] == *bf && b.hits[k] == a.hits[k];
                 wrong += !same as u64;
             }
             self.push(
@@ -1126,12 +1199,13 @@ impl Suite<'_> {
             })
             .collect();
         let g = p.geometry.clone();
+        let oracle = Oracle::new(&g, &rays);
         self.simple(
             "degenerate/flat-on-split-planes",
             &p,
             &rays,
             "mismatches",
-            |k, h, o| mismatch(&g, &rays[k], h, o),
+            |k, h, o| oracle.mismatch(k, h, o),
         )?;
 
         // Extremes of scale: 1,000 triangles of size 1e-7 within 1e-3 of the origin, next to
@@ -1162,12 +1236,13 @@ impl Suite<'_> {
             })
             .collect();
         let g = p.geometry.clone();
+        let oracle = Oracle::new(&g, &rays);
         self.simple(
             "degenerate/1e-7-next-to-1e7",
             &p,
             &rays,
             "mismatches",
-            |k, h, o| mismatch(&g, &rays[k], h, o),
+            |k, h, o| oracle.mismatch(k, h, o),
         )?;
         Ok(())
     }
