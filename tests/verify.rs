@@ -19,12 +19,8 @@ fn the_command_passes_every_check_and_prints_its_report() {
     if !out.status.success() && common::no_gpu_allowed() && stdout.is_empty() {
         return;
     }
-    let report: serde_json::Value = serde_json::from_str(&stdout).unwrap_or_else(|e| {
-        panic!(
-            "{e}: {stdout}\n{}",
-            String::from_utf8_lossy(&out.stderr)
-        )
-    });
+    let report: serde_json::Value = serde_json::from_str(&stdout)
+        .unwrap_or_else(|e| panic!("{e}: {stdout}\n{}", String::from_utf8_lossy(&out.stderr)));
     let failures: Vec<String> = report["groups"]
         .as_object()
         .into_iter()
@@ -37,7 +33,11 @@ fn the_command_passes_every_check_and_prints_its_report() {
                 .map(move |f| format!("{group}: {f}"))
         })
         .collect();
-    assert!(out.status.success(), "{}", String::from_utf8_lossy(&out.stderr));
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
     assert!(report["device"].is_string() && report["driver"].is_string());
     assert_eq!(report["failed"], 0, "{}", failures.join("\n"));
     assert!(report["checks"].as_u64().unwrap() > 200, "{report}");
@@ -59,7 +59,11 @@ fn the_command_passes_every_check_and_prints_its_report() {
     assert!(groups["instances"]["checks"].as_u64().unwrap() >= 5 + 4 * 2 * 2);
     // The validation layer was on and stayed silent (a check of its own).
     if validate {
-        assert_eq!(groups["validation"]["failed"], 0, "{}", groups["validation"]);
+        assert_eq!(
+            groups["validation"]["failed"], 0,
+            "{}",
+            groups["validation"]
+        );
     }
 }
 
