@@ -29,7 +29,6 @@ const SOURCES: &str = "kernels/glsl.sha256";
 fn main() {
     let root = PathBuf::from(std::env::var("CARGO_MANIFEST_DIR").unwrap());
     let out = PathBuf::from(std::env::var("OUT_DIR").unwrap()).join("shaders.rs");
-    let checked_in = root.join(CHECKED_IN);
     println!("cargo:rerun-if-changed=glsl");
     let sources = source_listing(&root);
     #[cfg(feature = "shaderc")]
@@ -44,6 +43,7 @@ fn main() {
         println!("cargo:rerun-if-changed={CHECKED_IN}");
         println!("cargo:rerun-if-changed={SOURCES}");
         check_sources(&root, &sources);
+        let checked_in = root.join(CHECKED_IN);
         let text = std::fs::read_to_string(&checked_in).unwrap_or_else(|e| {
             panic!(
                 "{}: {e}: the compiled kernels are missing; build with the `shaderc` feature \
