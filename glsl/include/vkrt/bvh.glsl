@@ -15,7 +15,7 @@
 #include "bvh_node.glsl"
 #include "bvh_wide_node.glsl"
 
-#define BVH_MAX_DEPTH 128u
+#define VKRT_BVH_MAX_DEPTH 128u
 // The wide walk's stack: a wide level spans two binary ones (at most 64 levels), and each
 // pushes at most three children.
 #define WIDE_STACK_SIZE 192u
@@ -109,7 +109,7 @@ WideNode load_wide_node(uint i) {
 // The stack walks' pop: the nearest entry the ray still reaches before its closest hit
 // (`have` false when none is left). A statement over the walk's own `stack`, `stack_t`,
 // `top`, `cur`, `have` and `best_t`: GLSL passes arrays by copy.
-#define BVH_POP()                           \
+#define VKRT_BVH_POP()                      \
     have = false;                           \
     while (top > 0u && !have) {             \
         top--;                              \
@@ -120,9 +120,9 @@ WideNode load_wide_node(uint i) {
 // The stack walks' descent: interior nodes, the nearer child first (ties: child a) and the
 // other one on the stack, until a leaf is in hand (`cur.y` > 0), the stack is empty (`have`
 // false) or the step cap is reached. A statement over the walk's `r`, `inv_d`, `tmin`,
-// `steps` and BVH_POP's variables (the binary stack walk and the top-level walk of
+// `steps` and VKRT_BVH_POP's variables (the binary stack walk and the top-level walk of
 // vkrt/instances.glsl).
-#define BVH_DESCEND()                                                                  \
+#define VKRT_BVH_DESCEND()                                                             \
     while (have && cur.y == 0u && steps <= MAX_TRAVERSAL_STEPS) {                      \
         steps++;                                                                       \
         BvhNode nd = load_bvh_node(cur.x);                                             \
@@ -143,7 +143,7 @@ WideNode load_wide_node(uint i) {
         } else if (hit_a || hit_b) {                                                   \
             cur = hit_a ? ca : cb;                                                     \
         } else {                                                                       \
-            BVH_POP();                                                                 \
+            VKRT_BVH_POP();                                                            \
         }                                                                              \
     }
 
@@ -173,8 +173,8 @@ Hit trace_bvh_stack(Ray r, float time, bool any_hit) {
     vec3 inv_d = recip3(r.d);
     float best_t = r.tmax;
     // (index, count): count 0 is an interior node, count > 0 a leaf's references.
-    uvec2 stack[BVH_MAX_DEPTH];
-    float stack_t[BVH_MAX_DEPTH];
+    uvec2 stack[VKRT_BVH_MAX_DEPTH];
+    float stack_t[VKRT_BVH_MAX_DEPTH];
     uint top = 0u;
     uvec2 cur = uvec2(0u, 0u);
     bool have = true;
@@ -184,7 +184,7 @@ Hit trace_bvh_stack(Ray r, float time, bool any_hit) {
     // every loop of an invocation after 65,535 iterations in all): both report exhaustion,
     // never a silent miss.
     while (true) {
-        BVH_DESCEND();
+        VKRT_BVH_DESCEND();
         if (!have) {
             return best; // the stack is empty: the walk is complete
         }
@@ -195,7 +195,7 @@ Hit trace_bvh_stack(Ray r, float time, bool any_hit) {
         if (test_leaf(cur.x, cur.y, r, sh, time, tmin, any_hit, best, best_t)) {
             return best;
         }
-        BVH_POP();
+        VKRT_BVH_POP();
     }
     trace_steps_exhausted = true;
     return best;
@@ -364,7 +364,7 @@ Hit trace_bvh_wide(Ray r, float time, bool any_hit) {
             if (c0.x != NO_NODE || c0.y != 0u) {
                 cur = c0;
             } else {
-                BVH_POP();
+                VKRT_BVH_POP();
             }
         }
         if (!have) {
@@ -377,7 +377,7 @@ Hit trace_bvh_wide(Ray r, float time, bool any_hit) {
         if (test_leaf(cur.x, cur.y, r, sh, time, tmin, any_hit, best, best_t)) {
             return best;
         }
-        BVH_POP();
+        VKRT_BVH_POP();
     }
     trace_steps_exhausted = true;
     return best;

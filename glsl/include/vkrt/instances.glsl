@@ -52,15 +52,15 @@ Hit trace_instances(Ray r, float time, bool any_hit, uint cull_mask, out uvec2 g
     float tmin = max(r.tmin, 0.0);
     vec3 inv_d = recip3(r.d);
     float best_t = r.tmax;
-    uvec2 stack[BVH_MAX_DEPTH];
-    float stack_t[BVH_MAX_DEPTH];
+    uvec2 stack[VKRT_BVH_MAX_DEPTH];
+    float stack_t[VKRT_BVH_MAX_DEPTH];
     uint top = 0u;
     uvec2 cur = uvec2(0u, 0u);
     bool have = true;
     uint steps = 0u;
     // The stack walk of trace_bvh_stack (bvh.glsl), with instances at its leaves.
     while (true) {
-        BVH_DESCEND();
+        VKRT_BVH_DESCEND();
         if (!have) {
             return best;
         }
@@ -99,7 +99,7 @@ Hit trace_instances(Ray r, float time, bool any_hit, uint cull_mask, out uvec2 g
                 }
             }
         }
-        BVH_POP();
+        VKRT_BVH_POP();
     }
     trace_steps_exhausted = true;
     return best;

@@ -198,7 +198,7 @@ void vkrt_use(uint64_t handle) {
 #ifdef RAY_QUERY
     vkrt_tlas = VkrtU64s(h.addresses[0]);
 #endif
-    if (scene_info.walk == ACCEL_INSTANCES) {
+    if (scene_info.walk == VKRT_ACCEL_INSTANCES) {
         vkrt_instances = VkrtInstances(h.addresses[7]);
         vkrt_steps = VkrtSteps(h.addresses[8]);
     }
@@ -223,8 +223,8 @@ Hit vkrt_walk(Ray r, float time, bool any_hit) {
 #ifdef VKRT_WALK
     // One walk compiled in: a structure it does not serve is reported, never misread.
     uint kind = scene_info.walk;
-    // (the bitstack walks a binary BVH, whose structures say ACCEL_BVH_STACK)
-    if (kind != (VKRT_WALK == VKRT_WALK_BVH_BITSTACK ? ACCEL_BVH_STACK : VKRT_WALK)) {
+    // (the bitstack walks a binary BVH, whose structures say VKRT_ACCEL_BVH_STACK)
+    if (kind != (VKRT_WALK == VKRT_WALK_BVH_BITSTACK ? VKRT_ACCEL_BVH_STACK : VKRT_WALK)) {
         trace_steps_exhausted = true;
         return miss_hit();
     }
@@ -246,7 +246,7 @@ VkrtHit vkrt_trace(vec3 origin, float tMin, vec3 direction, float tMax, float ti
     uvec2 g = uvec2(0xffffffffu);
     uvec2 instance = uvec2(0xffffffffu, 0u);
 #ifdef VKRT_DEVICE_ADDRESS
-    if (scene_info.walk == ACCEL_INSTANCES) {
+    if (scene_info.walk == VKRT_ACCEL_INSTANCES) {
         h = trace_instances(r, time, any_hit, cull_mask, g, instance);
     } else
 #endif

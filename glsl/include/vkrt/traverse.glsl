@@ -128,7 +128,7 @@ layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 6) readonly buffer Scene
     uint n_spheres;
     uint has_motion;
     uint parents_at; // BVH: index of node 0's parent link in kd_refs
-    uint walk;       // ACCEL_KDTREE, ACCEL_BVH_STACK or ACCEL_RAY_QUERY: how to walk it
+    uint walk;       // VKRT_ACCEL_KDTREE, VKRT_ACCEL_BVH_STACK or VKRT_ACCEL_RAY_QUERY: how to walk it
     uint n_geometries;
     uint invalid;    // primitives the gather could not read (the host reports them)
     uint n_aabbs;
@@ -158,13 +158,13 @@ layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer Drive
 // 0: kd-tree; 1: BVH with a stack; 2: BVH with the bitstack walk; 3: the driver's ray query
 // (AccelTraversal::spec; kernels compiled with RAY_QUERY walk only that); 4: the 4-wide BVH
 // with a stack.
-#define ACCEL_KDTREE 0u
-#define ACCEL_BVH_STACK 1u
-#define ACCEL_BVH_BITSTACK 2u
-#define ACCEL_RAY_QUERY 3u
-#define ACCEL_BVH_WIDE 4u
+#define VKRT_ACCEL_KDTREE 0u
+#define VKRT_ACCEL_BVH_STACK 1u
+#define VKRT_ACCEL_BVH_BITSTACK 2u
+#define VKRT_ACCEL_RAY_QUERY 3u
+#define VKRT_ACCEL_BVH_WIDE 4u
 // A top level over instances (vkrt/instances.glsl; read at device addresses only).
-#define ACCEL_INSTANCES 8u
+#define VKRT_ACCEL_INSTANCES 8u
 #ifndef VKRT_LIBRARY
 layout(constant_id = 20) const uint ACCEL_KIND = 0u;
 #endif
@@ -602,20 +602,20 @@ Hit trace_ray_query(Ray r, float time, bool any_hit) {
 // The walk `walk` (ACCEL_*) over the bound structure.
 Hit trace_walk(uint walk, Ray r, float time, bool any_hit) {
 #ifdef RAY_QUERY
-    if (walk == ACCEL_RAY_QUERY) {
+    if (walk == VKRT_ACCEL_RAY_QUERY) {
         return trace_ray_query(r, time, any_hit);
     }
 #endif
-    if (walk == ACCEL_KDTREE) {
+    if (walk == VKRT_ACCEL_KDTREE) {
         return trace_kdtree(r, time, any_hit);
     }
-    if (walk == ACCEL_BVH_STACK) {
+    if (walk == VKRT_ACCEL_BVH_STACK) {
         return trace_bvh_stack(r, time, any_hit);
     }
-    if (walk == ACCEL_BVH_BITSTACK) {
+    if (walk == VKRT_ACCEL_BVH_BITSTACK) {
         return trace_bvh_bitstack(r, time, any_hit);
     }
-    if (walk == ACCEL_BVH_WIDE) {
+    if (walk == VKRT_ACCEL_BVH_WIDE) {
         return trace_bvh_wide(r, time, any_hit);
     }
     // A walk this shader was not compiled for (the driver's structure without RAY_QUERY):

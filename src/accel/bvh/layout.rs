@@ -11,7 +11,7 @@ use crate::scene::Aabb;
 /// single leaf.
 pub const NO_NODE: u32 = u32::MAX;
 
-/// The deepest tree the traversal walks (`BVH_MAX_DEPTH` in `glsl/include/vkrt/bvh.glsl`: its
+/// The deepest tree the traversal walks (`VKRT_BVH_MAX_DEPTH` in `glsl/include/vkrt/bvh.glsl`: its
 /// stack and its bit trail): the SAH builder stops at 64 levels, the LBVH's 63-bit codes and
 /// index tie-breaks give at most 95, and PLOC adds at most one level per round.
 pub const MAX_TRAVERSAL_DEPTH: u32 = 128;
