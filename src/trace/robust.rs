@@ -1027,13 +1027,12 @@ impl Suite<'_> {
                 Ray::new(o, d, 0.0, f32::MAX)
             })
             .collect();
-        let g = p.geometry.clone();
         for (name, rays) in [
             ("rays/axis-parallel-signed-zero", &parallel),
             ("rays/in-split-plane", &in_plane),
             ("rays/start-on-node-boundary", &on_boundary),
         ] {
-            let oracle = Oracle::new(&g, rays);
+            let oracle = Oracle::new(&p.geometry, rays);
             self.simple(name, &p, rays, "mismatches", |k, h, o| {
                 oracle.mismatch(k, h, o)
             })?;
@@ -1198,8 +1197,7 @@ impl Suite<'_> {
                 }
             })
             .collect();
-        let g = p.geometry.clone();
-        let oracle = Oracle::new(&g, &rays);
+        let oracle = Oracle::new(&p.geometry, &rays);
         self.simple(
             "degenerate/flat-on-split-planes",
             &p,
@@ -1235,8 +1233,7 @@ impl Suite<'_> {
                 Ray::new(from, target - from, 0.0, f32::MAX)
             })
             .collect();
-        let g = p.geometry.clone();
-        let oracle = Oracle::new(&g, &rays);
+        let oracle = Oracle::new(&p.geometry, &rays);
         self.simple(
             "degenerate/1e-7-next-to-1e7",
             &p,
