@@ -487,8 +487,10 @@ fn create_instance(
         .application_name(c"vkrt")
         .engine_name(c"vkrt")
         .api_version(vk::API_VERSION_1_2);
+    let (enabled_features, disabled_features) = validation::features();
     let mut validation_features = vk::ValidationFeaturesEXT::default()
-        .enabled_validation_features(&validation::ENABLED_FEATURES);
+        .enabled_validation_features(&enabled_features)
+        .disabled_validation_features(&disabled_features);
     let mut messenger_info = validation::messenger_info(sink);
     let mut create = vk::InstanceCreateInfo::default()
         .application_info(&app)

@@ -80,9 +80,37 @@ pub(crate) fn messenger_info(sink: &MessageSink) -> vk::DebugUtilsMessengerCreat
         .user_data(sink as *const MessageSink as *mut c_void)
 }
 
-/// The validation features chained into the instance: synchronization validation on.
-pub(crate) const ENABLED_FEATURES: [vk::ValidationFeatureEnableEXT; 1] =
-    [vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION];
+/// The validation features chained into the instance: synchronization validation; with
+/// `VKRT_BOUNDS=1` instead GPU-assisted validation, which instruments every shader to check
+/// each buffer access against its descriptor's range (and each device address against its
+/// buffer). lavapipe's device memory is host memory, so an access past a binding corrupts
+/// the host heap; on a GPU it corrupts a neighbouring buffer silently. The core checks are
+/// off in that mode (the layer's advice: both together are very slow; the plain mode runs
+/// them).
+pub(crate) fn features() -> (
+    Vec<vk::ValidationFeatureEnableEXT>,
+    Vec<vk::ValidationFeatureDisableEXT>,
+) {
+    if bounds_checked() {
+        (
+            vec![vk::ValidationFeatureEnableEXT::GPU_ASSISTED],
+            vec![
+                vk::ValidationFeatureDisableEXT::CORE_CHECKS,
+                vk::ValidationFeatureDisableEXT::THREAD_SAFETY,
+            ],
+        )
+    } else {
+        (
+            vec![vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION],
+            vec![],
+        )
+    }
+}
+
+/// Whether `VKRT_BOUNDS=1` asks for the shader bounds checks (with validation on).
+pub(crate) fn bounds_checked() -> bool {
+    std::env::var("VKRT_BOUNDS").is_ok_and(|v| v.trim() == "1")
+}
 
 unsafe extern "system" fn callback(
     severity: vk::DebugUtilsMessageSeverityFlagsEXT,
@@ -102,10 +130,15 @@ unsafe extern "system" fn callback(
         }
     };
     let error = severity.contains(vk::DebugUtilsMessageSeverityFlagsEXT::ERROR);
+    let text = cstr(data.p_message);
+    // GPU-assisted validation turns on the features its instrumentation needs and says so.
+    if !error && text.contains("Internal Warning: Forcing") {
+        return vk::FALSE;
+    }
     let message = ValidationMessage {
         severity: if error { "error" } else { "warning" },
         id: cstr(data.p_message_id_name),
-        text: cstr(data.p_message),
+        text,
     };
     // Through `log`, so the embedding application (or the CLI's -q/-v) decides what shows;
     // the sink keeps every message regardless.
