@@ -59,6 +59,7 @@ pub mod accel;
 pub mod accuracy;
 #[cfg(feature = "cli")]
 pub mod bench;
+pub mod host;
 pub mod prims;
 pub mod render;
 pub mod scene;

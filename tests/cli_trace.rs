@@ -108,6 +108,25 @@ fn read_hits(path: &Path) -> Vec<Hit> {
     }
 }
 
+/// A `--json` report's memory: the process's peak resident set, per triangle of the scene,
+/// and the device's peak bytes, all positive.
+#[track_caller]
+fn assert_memory_reported(v: &serde_json::Value, triangles: usize) {
+    assert_eq!(v["triangles"], triangles, "{v}");
+    if std::path::Path::new("/proc/self/status").exists() {
+        let peak = v["host_peak_rss_bytes"].as_u64().unwrap_or(0);
+        assert!(peak > 0, "{v}");
+        let per = v["host_peak_rss_bytes_per_triangle"]
+            .as_f64()
+            .unwrap_or(0.0);
+        assert!(
+            (per - peak as f64 / triangles as f64).abs() <= 1e-6 * per,
+            "{v}"
+        );
+    }
+    assert!(v["device_peak_bytes"].as_u64().unwrap_or(0) > 0, "{v}");
+}
+
 /// Writes rays, traces them with the CLI (in small batches, so batching is exercised),
 /// reads the hits back and compares every ray with brute force on the same geometry.
 fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
@@ -142,8 +161,11 @@ fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
         "accel",
         "build_attempts",
         "build_ms",
+        "device_peak_bytes",
         "exhausted",
         "hits",
+        "host_peak_rss_bytes",
+        "host_peak_rss_bytes_per_triangle",
         "invalid",
         "invalid_by_reason",
         "levels",
@@ -153,6 +175,7 @@ fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
         "readback_bytes_total",
         "submits",
         "trace_ms",
+        "triangles",
     ];
     if two_levels {
         want.retain(|k| !["readback_bytes", "readback_bytes_total", "submits"].contains(k));
@@ -178,6 +201,7 @@ fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
     }
     assert_eq!(keys, want, "{v}");
     assert_eq!(v["rays"], rays.len());
+    assert_memory_reported(&v, loaded.triangle_count());
     if !two_levels {
         // Upload, build and the first batch's trace are one submission with nothing read
         // back between build and trace; every further batch of 1000 rays is one more
@@ -708,6 +732,7 @@ fn a_scene_naming_the_bunny_64_times_traces_as_instances() {
     );
     let v: serde_json::Value = serde_json::from_slice(&run.stdout).unwrap();
     assert_eq!(v["levels"], 2, "{v}");
+    assert_memory_reported(&v, scene.triangle_count());
     // (no light: the bunnies in ambient light on the black background)
     let img = image::open(&image).unwrap().to_rgb8();
     let background = *img.get_pixel(0, 0);

@@ -558,6 +558,17 @@ fn a_scene_in_pieces_renders_the_image_of_one_structure() {
             two.rest_first.len()
         );
         let got = gpu_render(&ctx, &plan, &rs);
+        // Taken, the scene's pieces are built one after another ahead of the first sample,
+        // their host copies let go: the same image, bit for bit.
+        let taken = Renderer::new(&ctx, &plan, &TraceOptions::default())
+            .unwrap()
+            .render_owned(&ctx, RenderScene::on_device(&scene, &plan), &plan, |_| {})
+            .unwrap();
+        assert_silent(&ctx);
+        assert!(taken.rgba == got.rgba, "{name}: taken, the image differs");
+        assert_eq!(taken.radiance, got.radiance, "{name}");
+        assert_eq!(taken.counts, got.counts, "{name}");
+        assert!(taken.build_ms.is_some_and(|ms| ms > 0.0), "{name}");
 
         let want_plan = Plan::new(&scene, &whole).unwrap();
         assert_eq!(want_plan.levels, whole_levels, "{name}");

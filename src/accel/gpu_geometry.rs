@@ -2,7 +2,8 @@
 
 use crate::accel::bvh::Bvh;
 use crate::accel::device::{
-    upload_structure, AccelBuilder, AccelStructure, DevicePrimitives, HostRef, RecordedBuild,
+    upload_structure, AccelBuilder, AccelKind, AccelStructure, DevicePrimitives, HostRef,
+    RecordedBuild,
 };
 use crate::accel::kdtree::KdTree;
 use crate::accel::primitives::TraceGeometry;
@@ -48,6 +49,17 @@ impl GpuGeometry {
         grow: u32,
     ) -> Result<(Self, RecordedBuild)> {
         let prims = DevicePrimitives::record_upload(rec, g)?;
+        Self::record_build_over(rec, builder, prims, g, grow)
+    }
+
+    /// [`GpuGeometry::record_build`] over primitives `prims` already uploaded from `g`.
+    fn record_build_over(
+        rec: &mut Recorder,
+        builder: &AccelBuilder,
+        prims: DevicePrimitives,
+        g: &TraceGeometry,
+        grow: u32,
+    ) -> Result<(Self, RecordedBuild)> {
         let (mut accel, scratch) = builder.create(rec.context(), prims.count(), grow)?;
         let recorded = rec.scope("build", |rec| {
             builder.record_build(rec, &prims, g, &scratch, &mut accel)
@@ -94,6 +106,26 @@ impl GpuGeometry {
                 g.primitive_count()
             ),
         })
+    }
+
+    /// [`GpuGeometry::build_fitting`] of a geometry it takes (or borrows), with the least
+    /// memory at once: the primitives uploaded in a submission of their own (its staging
+    /// buffers freed before the build's scratch is used), `g` dropped once the build is
+    /// recorded, before it runs (a kd-tree's kept until its build fits).
+    pub fn build_fitting_taking<G: std::borrow::Borrow<TraceGeometry>>(
+        ctx: &Context,
+        builder: &AccelBuilder,
+        g: G,
+    ) -> Result<(Self, f64)> {
+        if builder.kind() == AccelKind::KdTree {
+            return Self::build_fitting(ctx, builder, g.borrow());
+        }
+        let prims = DevicePrimitives::upload(ctx, g.borrow())?;
+        let mut rec = Recorder::new(ctx)?;
+        let (geom, recorded) = Self::record_build_over(&mut rec, builder, prims, g.borrow(), 0)?;
+        drop(g);
+        let profile = rec.submit_and_wait()?;
+        Ok((geom, recorded.ms(&profile)))
     }
 
     fn with_host(ctx: &Context, g: &TraceGeometry, host: HostRef<'_>) -> Result<Self> {

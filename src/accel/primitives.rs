@@ -166,23 +166,26 @@ impl TraceGeometry {
     /// repeated vertices) keep their id and box but get NaN vertices, which no intersector
     /// ever hits (the watertight test's rounding could otherwise "hit" a collinear triangle).
     pub fn from_triangles(tris: &[[Vec3; 3]]) -> Self {
-        Self {
-            tri_verts: tris
-                .iter()
-                .flat_map(|t| {
-                    unhittable_if_degenerate(*t)
-                        .into_iter()
-                        .flat_map(|p| p.to_array())
-                })
-                .collect(),
-            boxes: tris.iter().map(prim_box).collect(),
-            ..Self::default()
-        }
+        Self::from_triangles_and_spheres(tris, &[])
     }
 
     /// Static triangles and spheres (centre, radius).
     pub fn from_triangles_and_spheres(tris: &[[Vec3; 3]], spheres: &[Vec4]) -> Self {
-        let mut g = Self::from_triangles(tris);
+        // (sized exactly: a piece of a large scene holds millions)
+        let mut tri_verts = Vec::with_capacity(9 * tris.len());
+        tri_verts.extend(tris.iter().flat_map(|t| {
+            unhittable_if_degenerate(*t)
+                .into_iter()
+                .flat_map(|p| p.to_array())
+        }));
+        let mut boxes = Vec::with_capacity(tris.len() + spheres.len());
+        boxes.extend(tris.iter().map(prim_box));
+        let mut g = Self {
+            tri_verts,
+            spheres: Vec::with_capacity(spheres.len()),
+            boxes,
+            ..Self::default()
+        };
         for s in spheres {
             g.spheres.push(s.to_array());
             g.boxes.push(sphere_box(s.truncate(), s.w));

@@ -188,6 +188,19 @@ pub fn write_profile(path: &Option<PathBuf>, profile: &Profile) -> CliResult<()>
     Ok(())
 }
 
+/// What `--json` reports of memory: the process's peak resident set (on lavapipe it
+/// includes the device's memory, which is host memory there), per triangle of the scene,
+/// and the most bytes of vkrt's device buffers alive at once.
+pub fn memory_json(triangles: usize, device: &vkrt::gpu::MemoryUsage) -> serde_json::Value {
+    let peak = vkrt::host::host_peak_rss_bytes();
+    serde_json::json!({
+        "triangles": triangles,
+        "host_peak_rss_bytes": peak,
+        "host_peak_rss_bytes_per_triangle": peak.map(|b| b as f64 / triangles.max(1) as f64),
+        "device_peak_bytes": device.vkrt_peak_bytes,
+    })
+}
+
 pub fn extend_json(v: &mut serde_json::Value, more: serde_json::Value) {
     if let (Some(v), serde_json::Value::Object(more)) = (v.as_object_mut(), more) {
         v.extend(more);

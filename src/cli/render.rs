@@ -6,7 +6,8 @@ use std::path::PathBuf;
 use clap::Args;
 
 use super::common::{
-    check_resolution, context, load_scene, write_profile, CliResult, IntersectorArg, StructureArgs,
+    check_resolution, context, extend_json, load_scene, memory_json, write_profile, CliResult,
+    IntersectorArg, StructureArgs,
 };
 
 #[derive(Args)]
@@ -102,6 +103,7 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
     if !dir.is_dir() {
         return Err(format!("{}: no such directory for the output image", dir.display()).into());
     }
+    let triangles = scene.triangle_count();
     let ctx = context(validate)?;
     let trace = vkrt::trace::TraceOptions {
         intersector: intersector.into(),
@@ -115,7 +117,7 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
         .map_err(|e| e.to_string())?,
     );
     let (rendered, trace_profile) = vkrt::gpu::capture_profiles(|| {
-        vkrt::render::render_scene(&ctx, &scene, &opt, &trace, |done, spp| {
+        vkrt::render::render_scene_owned(&ctx, scene, &opt, &trace, |done, spp| {
             if spp > 1 {
                 bar.set_length(spp as u64);
                 bar.set_position(done as u64);
@@ -140,7 +142,7 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
         );
     }
     if json {
-        let v = serde_json::json!({
+        let mut v = serde_json::json!({
             "width": p.width,
             "height": p.height,
             "spp": p.spp,
@@ -159,6 +161,7 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
             "rays": r.image.counts,
             "output": output.display().to_string(),
         });
+        extend_json(&mut v, memory_json(triangles, &ctx.memory()));
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!(

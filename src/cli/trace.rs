@@ -5,7 +5,9 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use super::common::{context, extend_json, load_scene, CliResult, IntersectorArg, StructureArgs};
+use super::common::{
+    context, extend_json, load_scene, memory_json, CliResult, IntersectorArg, StructureArgs,
+};
 
 #[derive(Args)]
 pub struct TraceArgs {
@@ -81,6 +83,7 @@ fn trace_command(
     let rays = files::read_rays(rays_path)?;
     let scene = load_scene(&Some(scene_path.to_path_buf()))?;
     let time = scene.camera.shutter_open;
+    let triangles = scene.triangle_count();
     let ctx = context(validate)?;
     // Meshes named more than once: bottom levels and instances, unless asked flat; a
     // scene past one buffer's range: its rest in pieces under identity instances.
@@ -89,17 +92,12 @@ fn trace_command(
         .then(|| instanced::TwoLevelScene::of_within(&scene, time, per_level))
         .flatten()
     {
-        let done = instanced::build_and_trace(&ctx, accel, opt, &two, &rays, time)?;
         let extra = serde_json::json!({
             "levels": 2,
             "instances": two.mesh_instances(),
             "bottom_levels": two.bottoms.len(),
             "rest_pieces": two.rest_first.len(),
             "unique_primitives": two.unique_primitives,
-            "bottom_build_ms": done.bottom_build_ms,
-            "top_build_ms": done.top_build_ms,
-            "bottom_bytes": done.bottom_bytes,
-            "top_bytes": done.top_bytes,
         });
         let summary = format!(
             "{} primitives as {} bottom levels under {} instances ({} unique primitives)",
@@ -107,6 +105,20 @@ fn trace_command(
             two.bottoms.len(),
             two.instances.len(),
             two.unique_primitives
+        );
+        // The bottom levels hold what the walk reads: the scene and each level's host copy
+        // go before the device copies grow.
+        drop(scene);
+        let done = instanced::build_and_trace_owned(&ctx, accel, opt, two, &rays, time)?;
+        let mut extra = extra;
+        extend_json(
+            &mut extra,
+            serde_json::json!({
+                "bottom_build_ms": done.bottom_build_ms,
+                "top_build_ms": done.top_build_ms,
+                "bottom_bytes": done.bottom_bytes,
+                "top_bytes": done.top_bytes,
+            }),
         );
         let batch = gpu::TraceBatch {
             hits: done.hits,
@@ -121,6 +133,7 @@ fn trace_command(
             traffic: None,
             extra,
             summary,
+            memory: (triangles, ctx.memory()),
         };
         return report_trace(&rays, &batch, out, report, json);
     }
@@ -143,6 +156,7 @@ fn trace_command(
         )),
         extra: serde_json::json!({ "levels": 1 }),
         summary: format!("{} primitives", geometry.primitive_count()),
+        memory: (triangles, ctx.memory()),
     };
     report_trace(&rays, &done.batch, out, report, json)
 }
@@ -157,6 +171,9 @@ struct TraceReport {
     traffic: Option<(u64, u64, u64)>,
     extra: serde_json::Value,
     summary: String,
+    /// The scene's triangles and the device's memory after the work (host memory is read
+    /// where the report is made).
+    memory: (usize, vkrt::gpu::MemoryUsage),
 }
 
 fn report_trace(
@@ -229,6 +246,7 @@ fn report_trace(
             );
         }
         extend_json(&mut v, r.extra);
+        extend_json(&mut v, memory_json(r.memory.0, &r.memory.1));
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!(

@@ -554,6 +554,35 @@ impl Recorder {
         Ok(())
     }
 
+    /// Records the upload of `data` into `dst` from element `at` on, as
+    /// [`Recorder::upload`] does into its start.
+    pub fn upload_at<T: Pod>(&mut self, dst: &Buffer<T>, at: usize, data: &[T]) -> Result<()> {
+        if at.checked_add(data.len()).is_none_or(|end| end > dst.len()) {
+            return Err(GpuError::Usage {
+                call: "Recorder::upload_at",
+                reason: format!(
+                    "{} elements at {at} into `{}` of {}",
+                    data.len(),
+                    dst.name(),
+                    dst.len()
+                ),
+            });
+        }
+        if data.is_empty() {
+            return Ok(());
+        }
+        let staging =
+            Buffer::<T>::with_memory(&self.ctx, "staging.upload", data.len(), Memory::Upload)?;
+        staging.write_mapped(bytemuck::cast_slice(data));
+        self.ctx.inner.upload_bytes.fetch_add(
+            std::mem::size_of_val(data) as u64,
+            std::sync::atomic::Ordering::Relaxed,
+        );
+        self.copy_range(&staging, 0, dst, at, data.len());
+        self.staging.push(Box::new(staging));
+        Ok(())
+    }
+
     /// Records the write of `data` into `dst` from element `at` on, carried in the command
     /// buffer (`vkCmdUpdateBuffer`: at most 65,536 bytes, for constants a recording knows;
     /// no staging buffer). A transfer write: order it with [`Recorder::transfer_to_compute`]

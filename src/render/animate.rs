@@ -487,13 +487,7 @@ impl AnimationReport {
     }
 }
 
-/// The process's resident set (`VmRSS` of `/proc/self/status`), where the OS reports it.
-pub fn host_rss_bytes() -> Option<u64> {
-    let status = std::fs::read_to_string("/proc/self/status").ok()?;
-    let line = status.lines().find(|l| l.starts_with("VmRSS:"))?;
-    let kb: u64 = line.split_whitespace().nth(1)?.parse().ok()?;
-    Some(kb * 1024)
-}
+pub use crate::host::host_rss_bytes;
 
 /// Growth of a per-frame quantity from frame `from` to the last frame, relative to its value
 /// at `from` (`None` with fewer frames or no values): the soak measure.

@@ -5,7 +5,7 @@
 
 use std::sync::Arc;
 
-use crate::accel::device::{AccelBuilder, RecordedBuild};
+use crate::accel::device::{AccelBuilder, AccelKind, RecordedBuild};
 use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::walk::AccelTraversal;
 use crate::accel::walk::Traversal;
@@ -385,11 +385,63 @@ impl Renderer {
         ctx: &Context,
         rs: &RenderScene,
         plan: &Plan,
-        mut progress: impl FnMut(u32),
+        progress: impl FnMut(u32),
     ) -> Result<GpuRender> {
+        self.render_from(ctx, rs, plan, progress, None)
+    }
+
+    /// [`Renderer::render`] of a scene it takes, the same image: a scene whose rest is in
+    /// pieces has its bottom levels built one after another, each in submissions of its own
+    /// before the first sample's (`Levels::record_build_in_pieces`), and lets go of each
+    /// piece's host geometry and of the host's copies of what shading reads as they reach
+    /// the device, so that the host holds the scene's primitives at most once besides the
+    /// device's copy (on a device whose memory is host memory, lavapipe, what that saves
+    /// is most of the render's memory).
+    pub fn render_owned(
+        &self,
+        ctx: &Context,
+        mut rs: RenderScene,
+        plan: &Plan,
+        progress: impl FnMut(u32),
+    ) -> Result<GpuRender> {
+        let choice = match (&rs.accel, &rs.levels) {
+            (RenderAccel::OnDevice(c), Some(rl))
+                if c.kind != AccelKind::Driver && rl.scene.rest_first.len() > 1 =>
+            {
+                *c
+            }
+            _ => return self.render(ctx, &rs, plan, progress),
+        };
         let start = ctx.traffic();
+        let mut rec = Recorder::new(ctx)?;
+        let shading = (
+            std::mem::take(&mut rs.prim_material),
+            std::mem::take(&mut rs.tri_normals),
+        );
+        let rl = rs.levels.as_mut().expect("two levels");
+        let levels =
+            Levels::record_build_in_pieces(&mut rec, choice, rl, shading, plan.queue_capacity)?;
+        let built = (Traced::Levels(levels), rec, start);
+        self.render_from(ctx, &rs, plan, progress, Some(built))
+    }
+
+    /// [`Renderer::render`], with the structures built already where `built` has them (and
+    /// the recorder of the first submission, and the traffic before their build).
+    fn render_from(
+        &self,
+        ctx: &Context,
+        rs: &RenderScene,
+        plan: &Plan,
+        mut progress: impl FnMut(u32),
+        built: Option<(Traced, Recorder, Traffic)>,
+    ) -> Result<GpuRender> {
+        let start = built.as_ref().map_or_else(|| ctx.traffic(), |b| b.2);
         let mut grow = 0;
-        let (geom, first, mut recorded) = self.geometry(ctx, (rs, plan), grow)?;
+        let prebuilt = built.is_some();
+        let (geom, first, mut recorded) = match built {
+            Some((geom, rec, _)) => (geom, rec, Some(RecordedBuild { host_ms: None })),
+            None => self.geometry(ctx, (rs, plan), grow)?,
+        };
         let mut pending = Some(first);
         let mut f = self.frame(
             pending.as_mut().expect("the first recorder"),
@@ -422,7 +474,8 @@ impl Renderer {
                 // The kd-tree ran out of references: every ray of the sample missed.
                 // Undo the sample and build again with twice the budget.
                 grow += 1;
-                if grow > 8 {
+                // (bottom levels built ahead were built until they fit)
+                if grow > 8 || prebuilt {
                     return Err(crate::gpu::GpuError::Kernel {
                         kernel: "accel.kdtree",
                         reason: "the kd-tree still ran out of references after 8 \

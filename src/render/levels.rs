@@ -40,15 +40,14 @@ pub struct RenderLevels {
     pub motion: InstanceMotion,
     /// The instances at every step, step after step: what the top level is built from.
     pub moving: Vec<Instance>,
-    /// Per level primitive: its three vertices, 9 floats, in its bottom level's space
-    /// (spheres: zeros).
-    pub verts: Vec<f32>,
     /// The level spheres: centre and radius, in their bottom level's space.
     pub spheres: Vec<[f32; 4]>,
     /// Per instance, in the top level's order.
     pub placements: Vec<Placement>,
     /// Per bottom level, where its primitives lie among the level primitives.
     spans: Vec<Span>,
+    /// The level primitives.
+    primitives: usize,
 }
 
 /// The instance's material where it has one (`u32::MAX`: each primitive's).
@@ -65,7 +64,7 @@ impl RenderLevels {
         time: f32,
         shutter: Option<[f32; 2]>,
     ) -> (Self, Vec<u32>, Vec<f32>) {
-        let (mut verts, mut spheres) = (Vec::new(), Vec::new());
+        let mut spheres = Vec::new();
         let (mut normals, mut materials) = (Vec::new(), Vec::new());
         let mut spans = Vec::with_capacity(two.bottoms.len());
         let world_spheres = scene.spheres_at(time);
@@ -76,9 +75,6 @@ impl RenderLevels {
                 triangles: g.triangle_count() as u32,
                 first_sphere: spheres.len() as u32,
             });
-            // The bottom level's own primitives, as it was built over them.
-            verts.extend_from_slice(&g.tri_verts);
-            verts.extend(std::iter::repeat_n(0.0, 9 * g.spheres.len()));
             spheres.extend_from_slice(&g.spheres);
             let mut triangle = |mesh: &Mesh, t: usize, normal_m: &Mat3A| {
                 let n = mesh.corner_normals(t, normal_m).unwrap_or([Vec3::ZERO; 3]);
@@ -129,13 +125,34 @@ impl RenderLevels {
             scene: two,
             motion,
             moving: Vec::new(),
-            verts,
             spheres,
             placements: Vec::new(),
             spans,
+            primitives: materials.len(),
         };
         levels.place(scene);
         (levels, materials, normals)
+    }
+
+    /// Per level primitive its three vertices, 9 floats, in its bottom level's space
+    /// (spheres: zeros): the bottom levels' own primitives, as they were built over them.
+    pub fn verts(&self) -> Vec<f32> {
+        let mut verts = Vec::with_capacity(9 * self.primitives());
+        for g in &self.scene.bottoms {
+            verts.extend_from_slice(&g.tri_verts);
+            verts.extend(std::iter::repeat_n(0.0, 9 * g.spheres.len()));
+        }
+        verts
+    }
+
+    /// The level primitives: every bottom level's triangles and spheres.
+    pub fn primitives(&self) -> usize {
+        self.primitives
+    }
+
+    /// Where bottom level `b`'s primitives start among the level primitives.
+    pub(crate) fn first_primitive(&self, b: usize) -> usize {
+        self.spans[b].first as usize
     }
 
     /// The instances and placements of `scene` (this one's scene, its meshes moved) at

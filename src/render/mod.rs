@@ -433,17 +433,47 @@ pub fn render_scene(
     scene: &Scene,
     opt: &RenderOptions,
     trace: &crate::trace::TraceOptions,
-    mut progress: impl FnMut(u32, u32),
+    progress: impl FnMut(u32, u32),
 ) -> Result<Rendered, Box<dyn std::error::Error + Send + Sync>> {
     let plan = Plan::new(scene, &opt.for_device(ctx))?;
     if plan.levels != 2 {
         crate::accel::primitives::TraceGeometry::check_flat_fits(ctx, scene)?;
     }
-    // The structure is built on the device in the render's first submission.
     let rs = RenderScene::on_device(scene, &plan);
+    render_prepared(ctx, plan, rs, trace, progress)
+}
+
+/// [`render_scene`] of a scene it takes: the scene goes once what the render reads is made
+/// of it (a large mesh is then never held twice on the host).
+pub fn render_scene_owned(
+    ctx: &crate::gpu::Context,
+    scene: Scene,
+    opt: &RenderOptions,
+    trace: &crate::trace::TraceOptions,
+    progress: impl FnMut(u32, u32),
+) -> Result<Rendered, Box<dyn std::error::Error + Send + Sync>> {
+    let plan = Plan::new(&scene, &opt.for_device(ctx))?;
+    if plan.levels != 2 {
+        crate::accel::primitives::TraceGeometry::check_flat_fits(ctx, &scene)?;
+    }
+    let rs = RenderScene::on_device(&scene, &plan);
+    drop(scene);
+    render_prepared(ctx, plan, rs, trace, progress)
+}
+
+/// [`render_scene`] of `rs`, made for `plan`.
+fn render_prepared(
+    ctx: &crate::gpu::Context,
+    plan: Plan,
+    rs: RenderScene,
+    trace: &crate::trace::TraceOptions,
+    mut progress: impl FnMut(u32, u32),
+) -> Result<Rendered, Box<dyn std::error::Error + Send + Sync>> {
+    // The structure is built on the device in the render's first submission (a scene in
+    // pieces: its bottom levels one after another before it, `Renderer::render_owned`).
     let renderer = gpu::Renderer::new(ctx, &plan, trace)?;
     let spp = plan.spp;
-    let image = renderer.render(ctx, &rs, &plan, |done| progress(done, spp))?;
+    let image = renderer.render_owned(ctx, rs, &plan, |done| progress(done, spp))?;
     let ms = |n: &str| image.profile.ms(n).unwrap_or(0.0);
     let c = image.counts;
     let traced = c.primary + c.secondary();

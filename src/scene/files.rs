@@ -89,6 +89,33 @@ pub fn read_file_text(path: &Path, max_bytes: u64) -> Result<String, SceneError>
         path: path.to_owned(),
         source,
     };
+    let (file, len) = open_regular(path, max_bytes)?;
+    let mut bytes = Vec::with_capacity(usize::try_from(len).unwrap_or(0));
+    // `take` guards against files that grow while we read them.
+    file.take(max_bytes.saturating_add(1))
+        .read_to_end(&mut bytes)
+        .map_err(io_err)?;
+    if bytes.len() as u64 > max_bytes {
+        return Err(SceneError::TooLarge {
+            origin: Origin::file(path),
+            what: "file byte",
+            count: bytes.len() as u64,
+            limit: max_bytes,
+        });
+    }
+    text_from_bytes(bytes, path)
+}
+
+/// The file at `path` opened for reading, and its length, where it is a regular file of at
+/// most `max_bytes` bytes.
+pub(crate) fn open_regular(
+    path: &Path,
+    max_bytes: u64,
+) -> Result<(std::fs::File, u64), SceneError> {
+    let io_err = |source: std::io::Error| SceneError::Io {
+        path: path.to_owned(),
+        source,
+    };
     let meta = std::fs::metadata(path).map_err(io_err)?;
     if !meta.is_file() {
         let what = if meta.is_dir() {
@@ -106,21 +133,7 @@ pub fn read_file_text(path: &Path, max_bytes: u64) -> Result<String, SceneError>
             limit: max_bytes,
         });
     }
-    let file = std::fs::File::open(path).map_err(io_err)?;
-    let mut bytes = Vec::with_capacity(usize::try_from(meta.len()).unwrap_or(0));
-    // `take` guards against files that grow while we read them.
-    file.take(max_bytes.saturating_add(1))
-        .read_to_end(&mut bytes)
-        .map_err(io_err)?;
-    if bytes.len() as u64 > max_bytes {
-        return Err(SceneError::TooLarge {
-            origin: Origin::file(path),
-            what: "file byte",
-            count: bytes.len() as u64,
-            limit: max_bytes,
-        });
-    }
-    text_from_bytes(bytes, path)
+    Ok((std::fs::File::open(path).map_err(io_err)?, meta.len()))
 }
 
 /// UTF-8 decode, reporting the line of the first invalid byte.
@@ -129,19 +142,24 @@ pub fn text_from_bytes(bytes: Vec<u8>, path: &Path) -> Result<String, SceneError
         let good = e.utf8_error().valid_up_to();
         let bytes = e.as_bytes();
         let line = 1 + bytes[..good].iter().filter(|&&b| b == b'\n').count();
-        let col = 1 + good
-            - bytes[..good]
-                .iter()
-                .rposition(|&b| b == b'\n')
-                .map_or(0, |p| p + 1);
-        SceneError::Syntax {
-            origin: Origin {
-                file: Some(path.to_owned()),
-                line: Some(u32::try_from(line).unwrap_or(u32::MAX)),
-                column: Some(u32::try_from(col).unwrap_or(u32::MAX)),
-                key: None,
-            },
-            message: format!("invalid UTF-8 (byte 0x{:02x})", bytes[good]),
-        }
+        let start = bytes[..good]
+            .iter()
+            .rposition(|&b| b == b'\n')
+            .map_or(0, |p| p + 1);
+        invalid_utf8(path, line, &bytes[start..], good - start)
     })
+}
+
+/// The error of invalid UTF-8 in line `line` (1-based) of `path`, whose bytes `line_bytes`
+/// are valid up to `good`.
+pub(crate) fn invalid_utf8(path: &Path, line: usize, line_bytes: &[u8], good: usize) -> SceneError {
+    SceneError::Syntax {
+        origin: Origin {
+            file: Some(path.to_owned()),
+            line: Some(u32::try_from(line).unwrap_or(u32::MAX)),
+            column: Some(u32::try_from(good + 1).unwrap_or(u32::MAX)),
+            key: None,
+        },
+        message: format!("invalid UTF-8 (byte 0x{:02x})", line_bytes[good]),
+    }
 }

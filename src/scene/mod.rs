@@ -128,14 +128,15 @@ impl Scene {
     /// [`Scene::load`] with explicit size limits.
     pub fn load_with(path: &Path, limits: &Limits) -> Result<LoadedScene, SceneError> {
         let format = SceneFormat::from_path(path)?;
-        let text = files::read_file_text(path, limits.max_file_bytes)?;
+        let text = || files::read_file_text(path, limits.max_file_bytes);
         let base_dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
         match format {
             SceneFormat::Toml => {
-                toml_format::parse_toml_scene(&text, path, &base_dir, &DiskFiles, limits)
+                toml_format::parse_toml_scene(&text()?, path, &base_dir, &DiskFiles, limits)
             }
-            SceneFormat::Obj => obj::load_obj_scene(&text, path, &DiskFiles, limits),
-            SceneFormat::Scn => scn::parse_scn(&text, path, limits),
+            // (read line by line: a large mesh's text is never held whole)
+            SceneFormat::Obj => obj::load_obj_scene_file(path, &DiskFiles, limits),
+            SceneFormat::Scn => scn::parse_scn(&text()?, path, limits),
         }
     }
 

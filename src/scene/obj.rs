@@ -1,16 +1,19 @@
-//! Wavefront OBJ + MTL, parsed by `tobj` behind a line-numbered validator.
+//! Wavefront OBJ + MTL, read statement by statement behind a line-numbered
+//! validator.
 //!
-//! `tobj` builds the meshes (triangulation, per-model de-indexing, material
-//! groups), but its errors carry no line numbers and a few inputs make it
-//! panic (`Kd 1 2` unwraps a short array) or silently misread (`l 1 2 3`
-//! becomes a triangle). So every OBJ and MTL line is first checked here,
-//! strictly, with `file:line` in every message, and rewritten into a
-//! canonical form that `tobj` cannot misread: statements we do not render
-//! (`l`, `p`, `vp`, `s`, free-form geometry) become blank lines and are
-//! counted in a warning, indices become absolute, `mtllib a b` becomes one
-//! `mtllib` per file, colours get three components. `tobj` then parses the
-//! canonical text; an error from it after validation would be a bug here,
-//! and is reported as such rather than panicking.
+//! Every OBJ and MTL line is checked here, strictly, with `file:line` in
+//! every message; statements we do not render (`l`, `p`, `vp`, `s`,
+//! free-form geometry) are counted in a warning. An OBJ's geometry goes
+//! straight into the mesh's arrays as its lines are read (a file on disk is
+//! read line by line, [`parse_obj_file`], never whole), with `tobj`'s
+//! semantics (`tobj::GPU_LOAD_OPTIONS`: triangle fans, one vertex per
+//! distinct `v/vt/vn` reference within a model, models merged in order; see
+//! `ObjParser`), so a 10 M-triangle mesh needs little more than the mesh.
+//! `tobj` parses the MTL files, from a canonical form of each that it cannot
+//! misread (its errors carry no line numbers, and a few inputs make it panic:
+//! `Kd 1 2` unwraps a short array): colours get three components, unsupported
+//! statements become blank lines; an error from it after validation would be
+//! a bug here, and is reported as such rather than panicking.
 //!
 //! Checks: numbers parse and are finite, coordinates within
 //! [`MAX_COORDINATE`], `w ≠ 0`; face references are non-zero, in range of
@@ -33,7 +36,7 @@ use std::path::{Path, PathBuf};
 use glam::Vec3;
 
 use super::error::{Origin, SceneError};
-use super::files::FileSource;
+use super::files::{invalid_utf8, open_regular, FileSource};
 use super::limits::{Limits, MAX_COORDINATE, MAX_IOR, MAX_SHININESS};
 use super::material::Material;
 use super::model::{MaterialId, Mesh, MeshMaterials};
@@ -92,8 +95,6 @@ fn split_line(line: &str) -> Option<(&str, Vec<&str>, &str)> {
 /// What was learned from one MTL file.
 struct MtlFile {
     canonical: String,
-    /// Material names in file order.
-    names: Vec<String>,
     warnings: Vec<String>,
 }
 
@@ -148,7 +149,6 @@ impl MtlCheck {
 /// line.
 fn check_mtl(text: &str, path: &Path) -> Result<MtlFile, SceneError> {
     let mut canonical = String::with_capacity(text.len());
-    let mut names = Vec::new();
     let mut ignored: HashMap<String, (usize, usize)> = HashMap::new();
     let mut cur = MtlCheck::default();
     for (i, raw) in text.lines().enumerate() {
@@ -182,7 +182,6 @@ fn check_mtl(text: &str, path: &Path) -> Result<MtlFile, SceneError> {
                     name: rest.to_owned(),
                     ..MtlCheck::default()
                 };
-                names.push(rest.to_owned());
                 canonical.push_str("newmtl ");
                 canonical.push_str(rest);
             }
@@ -284,7 +283,6 @@ fn check_mtl(text: &str, path: &Path) -> Result<MtlFile, SceneError> {
     warnings.sort();
     Ok(MtlFile {
         canonical,
-        names,
         warnings,
     })
 }
@@ -297,29 +295,216 @@ pub fn parse_obj_str(
     files: &dyn FileSource,
     limits: &Limits,
 ) -> Result<ObjMesh, SceneError> {
-    let dir = path.parent().unwrap_or(Path::new("")).to_path_buf();
-    let mut canonical = String::with_capacity(text.len() + text.len() / 8);
-    let mut warnings = Vec::new();
-    let (mut nv, mut nvt, mut nvn) = (0u64, 0u64, 0u64);
-    let mut triangles: u64 = 0;
-    let (mut refs_with_normal, mut refs_without_normal) = (0u64, 0u64);
-    let mut known_materials: HashMap<String, ()> = HashMap::new();
-    let mut mtl_texts: HashMap<PathBuf, String> = HashMap::new();
-    let mut ignored: HashMap<&'static str, (usize, usize)> = HashMap::new();
-    let mut ignore = |what: &'static str, ln: usize| {
-        let e = ignored.entry(what).or_insert((ln, 0));
-        e.1 += 1;
-    };
-
+    let mut obj = ObjParser::new(path, files, limits);
     for (i, raw) in text.lines().enumerate() {
-        let ln = i + 1;
+        obj.line(i + 1, raw)?;
+    }
+    obj.finish()
+}
+
+/// Parse the OBJ file at `path`, line by line as it is read (never the whole text at once),
+/// refusing what is not a regular file or is larger than `limits.max_file_bytes`; `mtllib`
+/// files are read through `files` relative to its directory. The mesh and the messages are
+/// those of [`parse_obj_str`] on the file's text.
+pub fn parse_obj_file(
+    path: &Path,
+    files: &dyn FileSource,
+    limits: &Limits,
+) -> Result<ObjMesh, SceneError> {
+    use std::io::BufRead;
+    let io_err = |source: std::io::Error| SceneError::Io {
+        path: path.to_owned(),
+        source,
+    };
+    let mut reader =
+        std::io::BufReader::with_capacity(1 << 16, open_regular(path, limits.max_file_bytes)?.0);
+    let mut obj = ObjParser::new(path, files, limits);
+    let mut bytes = Vec::new();
+    let mut read: u64 = 0;
+    for ln in 1.. {
+        bytes.clear();
+        let n = reader.read_until(b'\n', &mut bytes).map_err(io_err)?;
+        if n == 0 {
+            break;
+        }
+        read += n as u64;
+        // (a file that grows while it is read)
+        if read > limits.max_file_bytes {
+            return Err(SceneError::TooLarge {
+                origin: Origin::file(path),
+                what: "file byte",
+                count: read,
+                limit: limits.max_file_bytes,
+            });
+        }
+        let line = match std::str::from_utf8(&bytes) {
+            Ok(line) => line,
+            Err(e) => return Err(invalid_utf8(path, ln, &bytes, e.valid_up_to())),
+        };
+        let line = line.strip_suffix('\n').unwrap_or(line);
+        obj.line(ln, line.strip_suffix('\r').unwrap_or(line))?;
+    }
+    obj.finish()
+}
+
+/// No texture coordinate or normal in a face vertex.
+const NONE: u32 = u32::MAX;
+
+/// An OBJ file read statement by statement: every line checked (with `file:line` in every
+/// message) and its geometry added straight to the mesh's arrays, so that nothing but
+/// the positions and normals the file defined and the mesh itself is held.
+///
+/// The mesh is what `tobj` makes of the statements with triangulation and a single index
+/// (`tobj::GPU_LOAD_OPTIONS`), its models merged in order: a model ends where `o` or `g`
+/// follows faces, or a `usemtl` naming another material does; within a model each
+/// distinct (vertex, texture coordinate, normal) reference becomes one vertex, in the order
+/// of first use; a face of n vertices is the fan (1, k, k + 1) for k = 2..n−1. Normals are
+/// kept where every face vertex has one. Materials are `tobj`'s, from the canonical MTL
+/// text, merged per `mtllib` as `tobj` merges them.
+struct ObjParser<'a> {
+    path: &'a Path,
+    dir: PathBuf,
+    files: &'a dyn FileSource,
+    limits: &'a Limits,
+    warnings: Vec<String>,
+    nvt: u64,
+    triangles: u64,
+    refs_with_normal: u64,
+    refs_without_normal: u64,
+    /// Canonical text of each MTL file read, by path.
+    mtl_texts: HashMap<PathBuf, String>,
+    ignored: HashMap<&'static str, (usize, usize)>,
+    /// The materials of every `mtllib` so far, and each name's index (the last definition
+    /// of a name wins).
+    materials: Vec<tobj::Material>,
+    material_ids: HashMap<String, usize>,
+    /// A failed MTL parse (reported where no material was read at all).
+    mtl_error: Option<tobj::LoadError>,
+    /// Every `v` and `vn` so far.
+    points: Vec<Vec3>,
+    point_normals: Vec<Vec3>,
+    /// The mesh: positions, normals (while every face vertex so far has one), triangles.
+    positions: Vec<Vec3>,
+    normals: Vec<Vec3>,
+    indices: Vec<[u32; 3]>,
+    /// Per mesh vertex its texture coordinate and normal (`NONE`: none), from the first face
+    /// vertex that names either on (before, every vertex has neither).
+    corners: Vec<[u32; 2]>,
+    with_corners: bool,
+    /// Per `v`: the mesh vertex first made of it in the current model (where that is at
+    /// least `model_first_vertex`), and the model's other vertices made of a `v` by their
+    /// whole reference.
+    first_use: Vec<u32>,
+    other_uses: HashMap<[u32; 3], u32>,
+    /// The ended models: their first triangle and material.
+    models: Vec<(usize, Option<usize>)>,
+    model_first_vertex: u32,
+    model_first_triangle: usize,
+    model_material: Option<usize>,
+}
+
+impl<'a> ObjParser<'a> {
+    fn new(path: &'a Path, files: &'a dyn FileSource, limits: &'a Limits) -> Self {
+        Self {
+            path,
+            dir: path.parent().unwrap_or(Path::new("")).to_path_buf(),
+            files,
+            limits,
+            warnings: Vec::new(),
+            nvt: 0,
+            triangles: 0,
+            refs_with_normal: 0,
+            refs_without_normal: 0,
+            mtl_texts: HashMap::new(),
+            ignored: HashMap::new(),
+            materials: Vec::new(),
+            material_ids: HashMap::new(),
+            mtl_error: None,
+            points: Vec::new(),
+            point_normals: Vec::new(),
+            positions: Vec::new(),
+            normals: Vec::new(),
+            indices: Vec::new(),
+            corners: Vec::new(),
+            with_corners: false,
+            first_use: Vec::new(),
+            other_uses: HashMap::new(),
+            models: Vec::new(),
+            model_first_vertex: 0,
+            model_first_triangle: 0,
+            model_material: None,
+        }
+    }
+
+    fn ignore(&mut self, what: &'static str, ln: usize) {
+        let e = self.ignored.entry(what).or_insert((ln, 0));
+        e.1 += 1;
+    }
+
+    /// Ends the current model where it has faces.
+    fn end_model(&mut self) {
+        if self.indices.len() > self.model_first_triangle {
+            self.models
+                .push((self.model_first_triangle, self.model_material));
+            self.model_first_triangle = self.indices.len();
+            self.model_first_vertex = self.positions.len() as u32;
+            self.other_uses.clear();
+        }
+    }
+
+    /// The mesh vertex of a face vertex (1-based indices, checked), made where the model
+    /// has none of that reference yet.
+    fn vertex(&mut self, v: u64, vt: Option<u64>, vn: Option<u64>) -> u32 {
+        let v = (v - 1) as usize;
+        let corner = [
+            vt.map_or(NONE, |i| (i - 1) as u32),
+            vn.map_or(NONE, |i| (i - 1) as u32),
+        ];
+        if corner != [NONE; 2] && !self.with_corners {
+            self.corners.resize(self.positions.len(), [NONE; 2]);
+            self.with_corners = true;
+        }
+        let corner_of = |k: u32| match self.with_corners {
+            true => self.corners[k as usize],
+            false => [NONE; 2],
+        };
+        let first = self.first_use[v];
+        let first_here = first != NONE && first >= self.model_first_vertex;
+        if first_here && corner_of(first) == corner {
+            return first;
+        }
+        let key = [v as u32, corner[0], corner[1]];
+        if first_here {
+            if let Some(&k) = self.other_uses.get(&key) {
+                return k;
+            }
+        }
+        let k = self.positions.len() as u32;
+        self.positions.push(self.points[v]);
+        if self.refs_without_normal == 0 {
+            if let Some(n) = vn {
+                self.normals.push(self.point_normals[(n - 1) as usize]);
+            }
+        }
+        if self.with_corners {
+            self.corners.push(corner);
+        }
+        if first_here {
+            self.other_uses.insert(key, k);
+        } else {
+            self.first_use[v] = k;
+        }
+        k
+    }
+
+    fn line(&mut self, ln: usize, raw: &str) -> Result<(), SceneError> {
+        let path = self.path;
+        let limits = self.limits;
         let Some((kw, args, rest)) = split_line(raw) else {
-            canonical.push('\n');
-            continue;
+            return Ok(());
         };
         if kw.starts_with('#') {
-            canonical.push('\n');
-            continue;
+            return Ok(());
         }
         match kw {
             "v" => {
@@ -350,7 +535,7 @@ pub fn parse_obj_str(
                         format!("vertex coordinates must be within ±{MAX_COORDINATE:e}"),
                     ));
                 }
-                nv += 1;
+                let nv = self.points.len() as u64 + 1;
                 if nv > limits.max_vertices {
                     return Err(SceneError::TooLarge {
                         origin: Origin::line(path, ln),
@@ -359,23 +544,19 @@ pub fn parse_obj_str(
                         limit: limits.max_vertices,
                     });
                 }
-                canonical.push_str(&format!("v {:?} {:?} {:?}", p.x, p.y, p.z));
+                self.points.push(p);
+                self.first_use.push(NONE);
             }
             "vt" => {
                 let v = parse_all(&args, path, ln, "vt")?;
-                let (u, w) = match v.as_slice() {
-                    [u] => (*u, 0.0),
-                    [u, w] | [u, w, _] => (*u, *w),
-                    _ => {
-                        return Err(err_line(
-                            path,
-                            ln,
-                            format!("`vt` needs 1 to 3 numbers, found {}", v.len()),
-                        ))
-                    }
-                };
-                nvt += 1;
-                canonical.push_str(&format!("vt {u:?} {w:?}"));
+                if !(1..=3).contains(&v.len()) {
+                    return Err(err_line(
+                        path,
+                        ln,
+                        format!("`vt` needs 1 to 3 numbers, found {}", v.len()),
+                    ));
+                }
+                self.nvt += 1;
             }
             "vn" => {
                 let v = parse_all(&args, path, ln, "vn")?;
@@ -386,86 +567,16 @@ pub fn parse_obj_str(
                         format!("`vn` needs 3 numbers, found {}", v.len()),
                     ));
                 };
-                nvn += 1;
-                canonical.push_str(&format!("vn {x:?} {y:?} {z:?}"));
+                self.point_normals.push(Vec3::new(*x, *y, *z));
             }
-            "f" | "fo" => {
-                if args.len() < 3 {
-                    return Err(err_line(
-                        path,
-                        ln,
-                        format!("a face needs at least 3 vertices, found {}", args.len()),
-                    ));
-                }
-                canonical.push('f');
-                for tok in &args {
-                    let parts: Vec<&str> = tok.split('/').collect();
-                    if parts.len() > 3 || parts[0].is_empty() {
-                        return Err(err_line(
-                            path,
-                            ln,
-                            format!("`{tok}` is not a face vertex (v, v/vt, v//vn or v/vt/vn)"),
-                        ));
-                    }
-                    canonical.push(' ');
-                    let lists = [("vertex", nv), ("texture coordinate", nvt), ("normal", nvn)];
-                    for (k, part) in parts.iter().enumerate() {
-                        if k > 0 {
-                            canonical.push('/');
-                        }
-                        if part.is_empty() {
-                            continue;
-                        }
-                        let (what, count) = lists[k];
-                        let index: i64 = part.parse().map_err(|_| {
-                            err_line(
-                                path,
-                                ln,
-                                format!("`{tok}`: `{part}` is not an integer index"),
-                            )
-                        })?;
-                        let resolved = if index > 0 {
-                            index
-                        } else {
-                            (count as i64).saturating_add(index).saturating_add(1)
-                        };
-                        if index == 0 || resolved < 1 || resolved as u64 > count {
-                            return Err(SceneError::IndexOutOfRange {
-                                origin: Origin::line(path, ln),
-                                index,
-                                what: format!("the {what} list (so far)"),
-                                len: count,
-                            });
-                        }
-                        canonical.push_str(&resolved.to_string());
-                    }
-                    if parts.len() == 3 && !parts[2].is_empty() {
-                        refs_with_normal += 1;
-                    } else {
-                        refs_without_normal += 1;
-                    }
-                }
-                triangles += args.len() as u64 - 2;
-                if triangles > limits.max_triangles {
-                    return Err(SceneError::TooLarge {
-                        origin: Origin::line(path, ln),
-                        what: "triangle",
-                        count: triangles,
-                        limit: limits.max_triangles,
-                    });
-                }
-            }
-            "o" | "g" => {
-                canonical.push_str(kw);
-                canonical.push(' ');
-                canonical.push_str(rest);
-            }
+            "f" | "fo" => self.face(ln, &args)?,
+            "o" | "g" => self.end_model(),
             "usemtl" => {
                 if rest.is_empty() {
                     return Err(err_line(path, ln, "`usemtl` needs a material name"));
                 }
-                if !known_materials.contains_key(rest) {
-                    let hint = if mtl_texts.is_empty() {
+                let Some(&id) = self.material_ids.get(rest) else {
+                    let hint = if self.mtl_texts.is_empty() {
                         " (no `mtllib` before this line)"
                     } else {
                         ""
@@ -476,154 +587,240 @@ pub fn parse_obj_str(
                         name: rest.to_owned(),
                         hint: format!("{hint}: not defined in any earlier mtllib").into(),
                     });
+                };
+                if self.model_material != Some(id) {
+                    self.end_model();
                 }
-                canonical.push_str("usemtl ");
-                canonical.push_str(rest);
+                self.model_material = Some(id);
             }
             "mtllib" => {
                 if rest.is_empty() {
                     return Err(err_line(path, ln, "`mtllib` needs a file name"));
                 }
                 // One file whose name may contain spaces, or several names.
-                let whole = dir.join(rest);
-                let names: Vec<&str> =
-                    if args.len() > 1 && files.read_text(&whole, limits.max_file_bytes).is_err() {
-                        args.clone()
-                    } else {
-                        vec![rest]
-                    };
+                let whole = self.dir.join(rest);
+                let names: Vec<&str> = if args.len() > 1
+                    && self.files.read_text(&whole, limits.max_file_bytes).is_err()
+                {
+                    args.clone()
+                } else {
+                    vec![rest]
+                };
                 for name in names {
-                    let full = dir.join(name);
-                    if !mtl_texts.contains_key(&full) {
-                        let mtl = files.read_text(&full, limits.max_file_bytes)?;
+                    let full = self.dir.join(name);
+                    if !self.mtl_texts.contains_key(&full) {
+                        let mtl = self.files.read_text(&full, limits.max_file_bytes)?;
                         let checked = check_mtl(&mtl, &full)?;
-                        warnings.extend(checked.warnings);
-                        for n in checked.names {
-                            known_materials.insert(n, ());
-                        }
-                        mtl_texts.insert(full.clone(), checked.canonical);
+                        self.warnings.extend(checked.warnings);
+                        self.mtl_texts.insert(full.clone(), checked.canonical);
                     }
-                    canonical.push_str("mtllib ");
-                    canonical.push_str(&full.to_string_lossy());
-                    canonical.push('\n');
+                    // Each naming adds the file's materials again (as `tobj` merges them).
+                    match tobj::load_mtl_buf(&mut self.mtl_texts[&full].as_bytes()) {
+                        Ok((mut materials, ids)) => {
+                            let offset = self.materials.len();
+                            self.materials.append(&mut materials);
+                            self.material_ids
+                                .extend(ids.into_iter().map(|(n, k)| (n, k + offset)));
+                        }
+                        Err(e) => self.mtl_error = Some(e),
+                    }
                 }
-                continue;
             }
-            "l" => ignore("l (polyline)", ln),
-            "p" => ignore("p (point)", ln),
-            "s" => ignore("s (smoothing group)", ln),
+            "l" => self.ignore("l (polyline)", ln),
+            "p" => self.ignore("p (point)", ln),
+            "s" => self.ignore("s (smoothing group)", ln),
             "vp" | "cstype" | "deg" | "bmat" | "step" | "curv" | "curv2" | "surf" | "parm"
-            | "trim" | "hole" | "scrv" | "sp" | "end" | "con" => ignore("free-form geometry", ln),
+            | "trim" | "hole" | "scrv" | "sp" | "end" | "con" => {
+                self.ignore("free-form geometry", ln)
+            }
             "mg" | "bevel" | "c_interp" | "d_interp" | "lod" | "usemap" | "maplib"
-            | "shadow_obj" | "trace_obj" | "ctech" | "stech" => ignore("render attribute", ln),
+            | "shadow_obj" | "trace_obj" | "ctech" | "stech" => self.ignore("render attribute", ln),
             _ => {
                 return Err(err_line(path, ln, format!("unknown OBJ statement `{kw}`")));
             }
         }
-        canonical.push('\n');
+        Ok(())
     }
-    let mut ignored: Vec<_> = ignored.into_iter().collect();
-    ignored.sort();
-    for (what, (first, n)) in ignored {
-        if what != "s (smoothing group)" {
-            warnings.push(format!(
-                "{}:{first}: ignored {n} `{what}` statement{}",
-                path.display(),
-                if n == 1 { "" } else { "s" }
+
+    /// A face: its references checked against what was defined before it, then its fan of
+    /// triangles added.
+    fn face(&mut self, ln: usize, args: &[&str]) -> Result<(), SceneError> {
+        let path = self.path;
+        if args.len() < 3 {
+            return Err(err_line(
+                path,
+                ln,
+                format!("a face needs at least 3 vertices, found {}", args.len()),
             ));
         }
+        let counts = [
+            self.points.len() as u64,
+            self.nvt,
+            self.point_normals.len() as u64,
+        ];
+        let mut refs: Vec<[Option<u64>; 3]> = Vec::with_capacity(args.len());
+        for tok in args {
+            let parts: Vec<&str> = tok.split('/').collect();
+            if parts.len() > 3 || parts[0].is_empty() {
+                return Err(err_line(
+                    path,
+                    ln,
+                    format!("`{tok}` is not a face vertex (v, v/vt, v//vn or v/vt/vn)"),
+                ));
+            }
+            let mut r = [None; 3];
+            let lists = ["vertex", "texture coordinate", "normal"];
+            for (k, part) in parts.iter().enumerate() {
+                if part.is_empty() {
+                    continue;
+                }
+                let (what, count) = (lists[k], counts[k]);
+                let index: i64 = part.parse().map_err(|_| {
+                    err_line(
+                        path,
+                        ln,
+                        format!("`{tok}`: `{part}` is not an integer index"),
+                    )
+                })?;
+                let resolved = if index > 0 {
+                    index
+                } else {
+                    (count as i64).saturating_add(index).saturating_add(1)
+                };
+                if index == 0 || resolved < 1 || resolved as u64 > count {
+                    return Err(SceneError::IndexOutOfRange {
+                        origin: Origin::line(path, ln),
+                        index,
+                        what: format!("the {what} list (so far)"),
+                        len: count,
+                    });
+                }
+                r[k] = Some(resolved as u64);
+            }
+            refs.push(r);
+        }
+        self.triangles += args.len() as u64 - 2;
+        if self.triangles > self.limits.max_triangles {
+            return Err(SceneError::TooLarge {
+                origin: Origin::line(path, ln),
+                what: "triangle",
+                count: self.triangles,
+                limit: self.limits.max_triangles,
+            });
+        }
+        for r in &refs {
+            if r[2].is_some() {
+                self.refs_with_normal += 1;
+            } else {
+                self.refs_without_normal += 1;
+            }
+        }
+        if self.refs_without_normal > 0 {
+            self.normals = Vec::new();
+        }
+        // The fan (1, k, k + 1); `tobj` looks the first corner up again for each triangle,
+        // which finds the vertex it made.
+        let vertex =
+            |obj: &mut Self, [v, vt, vn]: [Option<u64>; 3]| obj.vertex(v.unwrap_or(1), vt, vn);
+        let a = vertex(self, refs[0]);
+        let mut b = vertex(self, refs[1]);
+        for &r in &refs[2..] {
+            let c = vertex(self, r);
+            self.indices.push([a, b, c]);
+            b = c;
+        }
+        Ok(())
     }
 
-    // tobj on the canonical text.
-    let options = tobj::LoadOptions {
-        single_index: true,
-        triangulate: true,
-        ignore_points: true,
-        ignore_lines: true,
-    };
-    let tobj_failed = |e: tobj::LoadError| {
-        SceneError::syntax(
-            Origin::file(path),
-            format!("tobj rejected the file after validation ({e}); this is a vkrt bug, please report it"),
-        )
-    };
-    let (models, mtl_result) = tobj::load_obj_buf(&mut canonical.as_bytes(), &options, |p| {
-        match mtl_texts.get(p) {
-            Some(t) => tobj::load_mtl_buf(&mut t.as_bytes()),
-            None => Err(tobj::LoadError::OpenFileFailed),
+    /// The mesh, its materials and the warnings.
+    fn finish(mut self) -> Result<ObjMesh, SceneError> {
+        let path = self.path;
+        // The last model, with or without faces (as `tobj` ends it).
+        self.models
+            .push((self.model_first_triangle, self.model_material));
+        let mut ignored: Vec<_> = std::mem::take(&mut self.ignored).into_iter().collect();
+        ignored.sort();
+        for (what, (first, n)) in ignored {
+            if what != "s (smoothing group)" {
+                self.warnings.push(format!(
+                    "{}:{first}: ignored {n} `{what}` statement{}",
+                    path.display(),
+                    if n == 1 { "" } else { "s" }
+                ));
+            }
         }
-    })
-    .map_err(tobj_failed)?;
-    let tobj_materials = mtl_result.map_err(tobj_failed)?;
+        if self.materials.is_empty() {
+            if let Some(e) = self.mtl_error.take() {
+                return Err(SceneError::syntax(
+                    Origin::file(path),
+                    format!(
+                        "tobj rejected the file after validation ({e}); this is a vkrt bug, \
+                         please report it"
+                    ),
+                ));
+            }
+        }
+        drop(std::mem::take(&mut self.points));
+        drop(std::mem::take(&mut self.point_normals));
+        drop(std::mem::take(&mut self.first_use));
+        drop(std::mem::take(&mut self.corners));
+        drop(std::mem::take(&mut self.other_uses));
 
-    let mut materials: Vec<Material> = tobj_materials.iter().map(material_from_mtl).collect();
-    let mut positions = Vec::new();
-    let mut normals = Vec::new();
-    let mut all_normals = refs_without_normal == 0 && refs_with_normal > 0;
-    let mut indices = Vec::new();
-    let mut tri_materials: Vec<MaterialId> = Vec::new();
-    let mut default_id: Option<MaterialId> = None;
-    for model in &models {
-        let m = &model.mesh;
-        let base = positions.len() as u32;
-        positions.extend(
-            m.positions
-                .chunks_exact(3)
-                .map(|c| Vec3::new(c[0], c[1], c[2])),
-        );
-        if m.normals.len() == m.positions.len() {
-            normals.extend(
-                m.normals
-                    .chunks_exact(3)
-                    .map(|c| Vec3::new(c[0], c[1], c[2])),
-            );
+        let mut materials: Vec<Material> = self.materials.iter().map(material_from_mtl).collect();
+        let mut default_id: Option<MaterialId> = None;
+        let n_tris = self.indices.len();
+        // Per model its material and triangles (`tobj`'s models, in order).
+        let mut runs: Vec<(MaterialId, usize)> = Vec::with_capacity(self.models.len());
+        for (i, &(first, id)) in self.models.iter().enumerate() {
+            let end = self.models.get(i + 1).map_or(n_tris, |m| m.0);
+            let material = match id {
+                Some(id) if id < materials.len() => id as MaterialId,
+                _ => *default_id.get_or_insert_with(|| {
+                    materials.push(Material::default());
+                    (materials.len() - 1) as MaterialId
+                }),
+            };
+            runs.push((material, end - first));
+        }
+        let all_normals = self.refs_without_normal == 0 && self.refs_with_normal > 0;
+        if !all_normals {
+            if self.refs_with_normal > 0 {
+                self.warnings.push(format!(
+                    "{}: only some face vertices have normals; using face normals everywhere",
+                    path.display()
+                ));
+            }
+            self.normals = Vec::new();
+        }
+        if materials.is_empty() {
+            materials.push(Material::default());
+        }
+        let mut used = runs.iter().filter(|r| r.1 > 0).map(|r| r.0);
+        let single = used.next().unwrap_or(0);
+        let materials_of_mesh = if used.all(|m| m == single) {
+            MeshMaterials::Single(single)
         } else {
-            all_normals = false;
-        }
-        let material = match m.material_id {
-            Some(id) if id < materials.len() => id as MaterialId,
-            _ => *default_id.get_or_insert_with(|| {
-                materials.push(Material::default());
-                (materials.len() - 1) as MaterialId
-            }),
+            let mut ids = Vec::with_capacity(n_tris);
+            for (m, n) in runs {
+                ids.extend(std::iter::repeat_n(m, n));
+            }
+            MeshMaterials::PerTriangle(ids.into())
         };
-        let before = indices.len();
-        indices.extend(
-            m.indices
-                .chunks_exact(3)
-                .map(|c| [c[0] + base, c[1] + base, c[2] + base]),
-        );
-        tri_materials.extend(std::iter::repeat_n(material, indices.len() - before));
+        let name = path
+            .file_name()
+            .map_or_else(|| "obj".to_owned(), |n| n.to_string_lossy().into_owned());
+        self.positions.shrink_to_fit();
+        self.indices.shrink_to_fit();
+        self.normals.shrink_to_fit();
+        let mut mesh = Mesh::new(&name, self.positions, self.indices, 0);
+        mesh.normals = self.normals.into();
+        mesh.materials = materials_of_mesh;
+        Ok(ObjMesh {
+            mesh,
+            materials,
+            warnings: self.warnings,
+        })
     }
-    if !all_normals {
-        if refs_with_normal > 0 {
-            warnings.push(format!(
-                "{}: only some face vertices have normals; using face normals everywhere",
-                path.display()
-            ));
-        }
-        normals.clear();
-    }
-    if materials.is_empty() {
-        materials.push(Material::default());
-    }
-    let single = tri_materials.first().copied().unwrap_or(0);
-    let materials_of_mesh = if tri_materials.iter().all(|&m| m == single) {
-        MeshMaterials::Single(single)
-    } else {
-        MeshMaterials::PerTriangle(tri_materials.into())
-    };
-    let name = path
-        .file_name()
-        .map_or_else(|| "obj".to_owned(), |n| n.to_string_lossy().into_owned());
-    let mut mesh = Mesh::new(&name, positions, indices, 0);
-    mesh.normals = normals.into();
-    mesh.materials = materials_of_mesh;
-    Ok(ObjMesh {
-        mesh,
-        materials,
-        warnings,
-    })
 }
 
 /// Convert a (validated) `tobj` material.
@@ -673,7 +870,19 @@ pub fn load_obj_scene(
     files: &dyn FileSource,
     limits: &Limits,
 ) -> Result<LoadedScene, SceneError> {
-    let obj = parse_obj_str(text, path, files, limits)?;
+    scene_of(parse_obj_str(text, path, files, limits)?, path, limits)
+}
+
+/// [`load_obj_scene`] of the file at `path`, read line by line ([`parse_obj_file`]).
+pub fn load_obj_scene_file(
+    path: &Path,
+    files: &dyn FileSource,
+    limits: &Limits,
+) -> Result<LoadedScene, SceneError> {
+    scene_of(parse_obj_file(path, files, limits)?, path, limits)
+}
+
+fn scene_of(obj: ObjMesh, path: &Path, limits: &Limits) -> Result<LoadedScene, SceneError> {
     let mut warnings = obj.warnings;
     let mut scene = Scene::from_geometry(vec![obj.mesh], Vec::new(), obj.materials);
     let more = validate::validate(&mut scene, limits).map_err(|mut e| {

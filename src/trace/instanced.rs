@@ -18,7 +18,7 @@
 //! vertices are moved to the world and rounded there, the two-level walk moves the ray into
 //! object space and rounds there (measured within 1e-6 relative in `tests/instances.rs`).
 
-use glam::{Vec3, Vec4};
+use glam::{Affine3A, Vec3, Vec4};
 
 use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
 use crate::accel::embedded::BuildFlags;
@@ -106,23 +106,24 @@ impl TwoLevelScene {
             at += m.indices.len() as u32;
         }
         let n_tris = at;
+        // A mesh named once stays in the world (the rest) unless it moves: then it is placed
+        // by an instance too, so that its motion changes one transform.
+        let in_rest = |g: &[usize]| {
+            let mesh = &scene.meshes[g[0]];
+            g.len() < 2 && mesh.motion.is_static() && mesh.keyframes.is_empty()
+        };
+        let rest_triangles: usize = groups
+            .iter()
+            .filter(|g| in_rest(g))
+            .map(|g| scene.meshes[g[0]].indices.len())
+            .sum();
         let mut bottoms = Vec::new();
         let mut instances = Vec::new();
-        let mut rest_tris = Vec::new();
-        let mut rest_ids = Vec::new();
+        let mut rest_ids = Vec::with_capacity(rest_triangles + scene.spheres.len());
         for g in &groups {
-            let mesh = &scene.meshes[g[0]];
-            // A mesh named once stays in the world (the rest) unless it moves: then it is
-            // placed by an instance too, so that its motion changes one transform.
-            let moves = !mesh.motion.is_static() || !mesh.keyframes.is_empty();
-            if g.len() < 2 && !moves {
-                let mesh = &scene.meshes[g[0]];
-                let m = mesh.world_matrix(time);
-                for (k, &[a, b, c]) in mesh.indices.iter().enumerate() {
-                    let p = |i: u32| m.transform_point3(mesh.positions[i as usize]);
-                    rest_tris.push([p(a), p(b), p(c)]);
-                    rest_ids.push(mesh_first[g[0]] + k as u32);
-                }
+            if in_rest(g) {
+                let first = mesh_first[g[0]];
+                rest_ids.extend((0..scene.meshes[g[0]].indices.len() as u32).map(|k| first + k));
                 continue;
             }
             let mesh = &scene.meshes[g[0]];
@@ -138,6 +139,16 @@ impl TwoLevelScene {
                 instances.push(Instance::new(level, rows).with_custom_index(k as u32));
             }
         }
+        // The rest's triangles in the world, by scene id: made where a piece needs them (a
+        // copy of the whole rest is never held).
+        let matrices: Vec<Affine3A> = scene.meshes.iter().map(|m| m.world_matrix(time)).collect();
+        let world = |id: u32| {
+            let k = mesh_first.partition_point(|&f| f <= id) - 1;
+            let mesh = &scene.meshes[k];
+            let [a, b, c] = mesh.indices[(id - mesh_first[k]) as usize];
+            let p = |i: u32| matrices[k].transform_point3(mesh.positions[i as usize]);
+            [p(a), p(b), p(c)]
+        };
         // The rest: its triangles (in scene order within it), then the spheres (the still
         // ones, where moving ones are placed by instances); in pieces where it is larger than
         // one level may be.
@@ -151,21 +162,25 @@ impl TwoLevelScene {
         let mut rest_first = Vec::new();
         let max = max_per_level.max(1);
         if rest_ids.len() > max {
-            let order = morton_order(&rest_tris);
-            rest_tris = order.iter().map(|&k| rest_tris[k]).collect();
-            let tri_ids: Vec<u32> = order.iter().map(|&k| rest_ids[k]).collect();
-            rest_ids.splice(..tri_ids.len(), tri_ids);
+            let ids = &mut rest_ids[..rest_triangles];
+            let order = morton_order(ids.len(), |k| world(ids[k]));
+            let sorted: Vec<u32> = order.iter().map(|&k| ids[k as usize]).collect();
+            drop(order);
+            ids.copy_from_slice(&sorted);
         }
         let mut start = 0;
         while start < rest_ids.len() {
             let end = (start + max).min(rest_ids.len());
             // Triangles first, then the spheres, as in the scene's order of ids.
-            let tris = &rest_tris[start.min(rest_tris.len())..end.min(rest_tris.len())];
-            let balls = &spheres
-                [start.saturating_sub(rest_tris.len())..end.saturating_sub(rest_tris.len())];
+            let tris: Vec<[Vec3; 3]> = rest_ids[start.min(rest_triangles)..end.min(rest_triangles)]
+                .iter()
+                .map(|&id| world(id))
+                .collect();
+            let balls =
+                &spheres[start.saturating_sub(rest_triangles)..end.saturating_sub(rest_triangles)];
             let level = bottoms.len() as u32;
             let piece = rest_first.len() as u32;
-            bottoms.push(TraceGeometry::from_triangles_and_spheres(tris, balls));
+            bottoms.push(TraceGeometry::from_triangles_and_spheres(&tris, balls));
             instances
                 .push(Instance::new(level, Instance::IDENTITY).with_custom_index(REST - piece));
             rest_first.push(start as u32);
@@ -276,15 +291,16 @@ pub struct SceneIds<'a> {
     pub rest_ids: &'a [u32],
 }
 
-/// Indices of `tris` ordered along a Morton curve (Z-order, 10 bits per axis) through their
-/// centroids in the box of all of them: consecutive runs are compact in space, so pieces cut
-/// from the order overlap little (as an LBVH's leaves, Karras 2012).
-fn morton_order(tris: &[[Vec3; 3]]) -> Vec<usize> {
+/// Indices of triangles `0..n` (`tri(k)`: triangle k) ordered along a Morton curve (Z-order,
+/// 10 bits per axis) through their centroids in the box of all of them, equal codes in index
+/// order: consecutive runs are compact in space, so pieces cut from the order overlap little
+/// (as an LBVH's leaves, Karras 2012).
+fn morton_order(n: usize, tri: impl Fn(usize) -> [Vec3; 3]) -> Vec<u32> {
     let centroid = |t: &[Vec3; 3]| (t[0] + t[1] + t[2]) / 3.0;
-    let (lo, hi) = tris.iter().fold(
+    let (lo, hi) = (0..n).fold(
         (Vec3::splat(f32::INFINITY), Vec3::splat(f32::NEG_INFINITY)),
-        |(lo, hi), t| {
-            let c = centroid(t);
+        |(lo, hi), k| {
+            let c = centroid(&tri(k));
             (lo.min(c), hi.max(c))
         },
     );
@@ -301,9 +317,12 @@ fn morton_order(tris: &[[Vec3; 3]]) -> Vec<usize> {
         let q = ((centroid(t) - lo) * scale).clamp(Vec3::ZERO, Vec3::splat(1023.0));
         (spread(q.x as u32) << 2) | (spread(q.y as u32) << 1) | spread(q.z as u32)
     };
-    let mut order: Vec<usize> = (0..tris.len()).collect();
-    order.sort_by_cached_key(|&k| code(&tris[k]));
-    order
+    // (code, index) pairs in one word each: sorted, the order of a stable sort by code
+    let mut keyed: Vec<u64> = (0..n)
+        .map(|k| (u64::from(code(&tri(k))) << 32) | k as u64)
+        .collect();
+    keyed.sort_unstable();
+    keyed.into_iter().map(|w| w as u32).collect()
 }
 
 /// Bytes of a scene's two levels ([`level_bytes`]).
@@ -376,10 +395,42 @@ pub fn build_and_trace(
     if choice.kind == AccelKind::Driver {
         return driver_build_and_trace(ctx, choice.prefer, opt, s, rays, time);
     }
+    own_build_and_trace(ctx, choice, opt, s, &s.bottoms, rays, time)
+}
+
+/// [`build_and_trace`] of a scene it takes: each bottom level's host geometry is dropped
+/// once its structure is on the device (the bottom levels are built one after another, each
+/// in its own submission), so that a scene in pieces is never held twice.
+pub fn build_and_trace_owned(
+    ctx: &Context,
+    choice: AccelChoice,
+    opt: &TraceOptions,
+    mut s: TwoLevelScene,
+    rays: &[Ray],
+    time: f32,
+) -> Result<TwoLevelTrace> {
+    if choice.kind == AccelKind::Driver {
+        return driver_build_and_trace(ctx, choice.prefer, opt, &s, rays, time);
+    }
+    let bottoms = std::mem::take(&mut s.bottoms);
+    own_build_and_trace(ctx, choice, opt, &s, bottoms, rays, time)
+}
+
+/// [`build_and_trace`] with vkrt's own structures, over `s`'s bottom levels `bottoms`
+/// (borrowed, or taken and dropped one by one as they are built).
+fn own_build_and_trace<G: std::borrow::Borrow<TraceGeometry>>(
+    ctx: &Context,
+    choice: AccelChoice,
+    opt: &TraceOptions,
+    s: &TwoLevelScene,
+    bottoms: impl IntoIterator<Item = G>,
+    rays: &[Ray],
+    time: f32,
+) -> Result<TwoLevelTrace> {
     let opt = effective_options(ctx, opt, choice.traversal());
     let before = ctx.memory().vkrt_bytes;
     let builder = AccelBuilder::for_choice(ctx, choice)?;
-    let (levels, bottom_build_ms) = build_bottoms(ctx, &builder, &s.bottoms)?;
+    let (levels, bottom_build_ms) = build_bottoms(ctx, &builder, bottoms)?;
     let bottom_bytes = ctx.memory().vkrt_bytes.saturating_sub(before);
     let refs: Vec<&GpuGeometry> = levels.iter().collect();
     let top_builder = TopLevelBuilder::new(ctx, AccelKind::Lbvh)?;
@@ -635,15 +686,18 @@ struct TracePush {
 
 /// Each bottom level built (a kd-tree grown until its references fit), and the builds'
 /// milliseconds.
-fn build_bottoms(
+fn build_bottoms<G: std::borrow::Borrow<TraceGeometry>>(
     ctx: &Context,
     builder: &AccelBuilder,
-    bottoms: &[TraceGeometry],
+    bottoms: impl IntoIterator<Item = G>,
 ) -> Result<(Vec<GpuGeometry>, f64)> {
-    let mut levels = Vec::with_capacity(bottoms.len());
+    let mut levels = Vec::new();
     let mut ms = 0.0;
     for g in bottoms {
-        let (level, build_ms) = GpuGeometry::build_fitting(ctx, builder, g)?;
+        // (a taken level's host geometry goes once its build is recorded)
+        let (mut level, build_ms) = GpuGeometry::build_fitting_taking(ctx, builder, g)?;
+        // Nothing refits a bottom level.
+        level.prims.release_boxes()?;
         levels.push(level);
         ms += build_ms;
     }

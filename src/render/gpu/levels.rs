@@ -120,7 +120,7 @@ pub(crate) struct Levels {
         dead_code,
         reason = "held for shading, which reads them at their addresses"
     )]
-    level_arrays: (Buffer<f32>, Buffer<[f32; 4]>, Buffer<u32>, Buffer<f32>),
+    level_arrays: LevelArrays,
     /// Their four addresses, in that order (`LevelArrays` in `render/shade.comp`).
     arrays: Buffer<u64>,
     placements: Buffer<Placement>,
@@ -149,7 +149,9 @@ impl Levels {
         let two = &rl.scene;
         if choice.kind == AccelKind::Driver {
             let top = rec.scope("levels", |rec| driver_levels(rec, rl, choice))?;
-            return Self::with_top(rec, top, 0.0, shading, queue);
+            let arrays = level_arrays(&ctx, rl)?;
+            let uploads = Some((shading.1, shading.2));
+            return Self::with_top(rec, top, 0.0, (rl, arrays), uploads, queue);
         }
         // Everything in one scope `levels` (nested scopes repeat names such as `build`).
         let (top, builder, bottom_ms) = rec.scope("levels", |rec| {
@@ -170,23 +172,83 @@ impl Levels {
                 top_builder.record_build_shared(rec, &bottoms, &rl.moving, rl.motion, &flags)?;
             Ok::<_, crate::gpu::GpuError>((top, top_builder, bottom_ms))
         })?;
-        Self::with_top(rec, Top::Own { top, builder }, bottom_ms, shading, queue)
+        let arrays = level_arrays(&ctx, rl)?;
+        let uploads = Some((shading.1, shading.2));
+        Self::with_top(
+            rec,
+            Top::Own { top, builder },
+            bottom_ms,
+            (rl, arrays),
+            uploads,
+            queue,
+        )
     }
 
-    /// The levels over `top`, with the upload of what shading reads recorded into `rec`.
+    /// Records into `rec` the build of `rl`'s top level over bottom levels built before it,
+    /// one after another, each in submissions of its own, and what shading reads, the
+    /// large arrays uploaded ahead in parts (as [`Levels::record_build`], which records it
+    /// all into `rec`): at no time are all the primitives held twice on the host. `rl`'s
+    /// bottom levels' host geometry (taken: `rl` keeps none) and `materials` and `normals`
+    /// go as they reach the device.
+    pub fn record_build_in_pieces(
+        rec: &mut Recorder,
+        choice: AccelChoice,
+        rl: &mut RenderLevels,
+        (materials, normals): (Vec<u32>, Vec<f32>),
+        queue: usize,
+    ) -> Result<Self> {
+        let ctx = rec.context().clone();
+        let arrays = level_arrays(&ctx, rl)?;
+        upload_in_parts(&ctx, &arrays.3, 0, &normals)?;
+        drop(normals);
+        upload_in_parts(&ctx, &arrays.2, 0, &materials)?;
+        drop(materials);
+        let builder = AccelBuilder::for_choice(&ctx, choice)?;
+        let taken = std::mem::take(&mut rl.scene.bottoms);
+        let mut bottoms = Vec::with_capacity(taken.len());
+        let mut bottom_ms = 0.0;
+        for (b, g) in taken.into_iter().enumerate() {
+            // The bottom level's own primitives, as it is built over them (spheres: zeros).
+            let first = 9 * rl.first_primitive(b);
+            upload_in_parts(&ctx, &arrays.0, first, &g.tri_verts)?;
+            let zeros = vec![0.0; 9 * g.spheres.len()];
+            upload_in_parts(&ctx, &arrays.0, first + g.tri_verts.len(), &zeros)?;
+            let (mut level, ms) = GpuGeometry::build_fitting_taking(&ctx, &builder, g)?;
+            // Nothing refits a bottom level.
+            level.prims.release_boxes()?;
+            bottom_ms += ms;
+            bottoms.push(Arc::new(level));
+        }
+        let (top, builder) = rec.scope("levels", |rec| {
+            let top_builder = TopLevelBuilder::new(&ctx, AccelKind::Lbvh)?;
+            let flags = BuildFlags::default();
+            let top =
+                top_builder.record_build_shared(rec, &bottoms, &rl.moving, rl.motion, &flags)?;
+            Ok::<_, crate::gpu::GpuError>((top, top_builder))
+        })?;
+        Self::with_top(
+            rec,
+            Top::Own { top, builder },
+            bottom_ms,
+            (rl, arrays),
+            None,
+            queue,
+        )
+    }
+
+    /// The levels over `top`, with the upload of what shading reads recorded into `rec`:
+    /// into `arrays`, of the level vertices, materials and normals where `uploads` has them
+    /// (else they are there already).
     fn with_top(
         rec: &mut Recorder,
         top: Top,
         bottom_ms: f64,
-        (rl, materials, normals): (&RenderLevels, &[u32], &[f32]),
+        (rl, arrays): (&RenderLevels, LevelArrays),
+        uploads: Option<(&[u32], &[f32])>,
         queue: usize,
     ) -> Result<Self> {
         let ctx = rec.context().clone();
-        let verts = Buffer::arena(&ctx, "render.level_verts", rl.verts.len().max(1))?;
-        let spheres = Buffer::arena(&ctx, "render.level_spheres", rl.spheres.len().max(1))?;
-        let level_materials =
-            Buffer::arena(&ctx, "render.level_materials", materials.len().max(1))?;
-        let level_normals = Buffer::arena(&ctx, "render.level_normals", normals.len().max(1))?;
+        let (verts, spheres, level_materials, level_normals) = arrays;
         let addresses = [
             crate::gpu::address_of(&ctx, &verts)?,
             crate::gpu::address_of(&ctx, &spheres)?,
@@ -196,10 +258,12 @@ impl Levels {
         let arrays = Buffer::new(&ctx, "render.level_arrays", addresses.len())?;
         let placements = Buffer::new(&ctx, "render.placements", rl.placements.len().max(1))?;
         let hit_instance = Buffer::new(&ctx, "render.hit_instance", queue.max(1))?;
-        rec.upload(&verts, &rl.verts)?;
+        if let Some((materials, normals)) = uploads {
+            rec.upload(&verts, &rl.verts())?;
+            rec.upload(&level_materials, materials)?;
+            rec.upload(&level_normals, normals)?;
+        }
         rec.upload(&spheres, &rl.spheres)?;
-        rec.upload(&level_materials, materials)?;
-        rec.upload(&level_normals, normals)?;
         rec.upload(&arrays, &addresses)?;
         rec.upload(&placements, &rl.placements)?;
         rec.transfer_to_compute();
@@ -262,6 +326,40 @@ impl Levels {
             Top::Driver { .. } => 0,
         }
     }
+}
+
+/// The level arrays shading reads: per level primitive its vertices, the level spheres, per
+/// level primitive its material and its shading normals.
+type LevelArrays = (Buffer<f32>, Buffer<[f32; 4]>, Buffer<u32>, Buffer<f32>);
+
+/// `rl`'s level arrays on the device, their contents not yet written.
+fn level_arrays(ctx: &crate::gpu::Context, rl: &RenderLevels) -> Result<LevelArrays> {
+    let n = rl.primitives();
+    Ok((
+        Buffer::arena(ctx, "render.level_verts", (9 * n).max(1))?,
+        Buffer::arena(ctx, "render.level_spheres", rl.spheres.len().max(1))?,
+        Buffer::arena(ctx, "render.level_materials", n.max(1))?,
+        Buffer::arena(ctx, "render.level_normals", (9 * n).max(1))?,
+    ))
+}
+
+/// Uploads `data` into `dst` from element `at` on, in submissions of at most 64 MiB each,
+/// waited for one after another (each one's staging buffer freed before the next is filled),
+/// ending with a transfer → compute barrier.
+fn upload_in_parts<T: bytemuck::Pod>(
+    ctx: &crate::gpu::Context,
+    dst: &Buffer<T>,
+    at: usize,
+    data: &[T],
+) -> Result<()> {
+    let per = ((64 << 20) / std::mem::size_of::<T>().max(1)).max(1);
+    for (k, part) in data.chunks(per).enumerate() {
+        let mut rec = Recorder::new(ctx)?;
+        rec.upload_at(dst, at + k * per, part)?;
+        rec.transfer_to_compute();
+        rec.submit_and_wait()?;
+    }
+    Ok(())
 }
 
 /// Records the build of the driver's own levels over `rl`'s bottom levels (a BLAS per level
