@@ -4,7 +4,7 @@
 
 mod common;
 
-use vkrt::gpu::{kernels, Buffer, Context, GpuError, Recorder, Spec};
+use vkrt::gpu::{kernels, Buffer, Context, GpuError, RawBuffer, Recorder, Spec};
 use vkrt::verify;
 
 const SAXPY_WG: u32 = 256;
@@ -417,8 +417,17 @@ fn commands_given_wrong_arguments_fail_the_recording_instead_of_panicking() {
     let y = Buffer::from_slice(&ctx, "y", &[2.0f32; 8]).unwrap();
     let small = Buffer::<f32>::new(&ctx, "small", 4).unwrap();
     let push = SaxpyPush { a: 3.0, n: 8 };
+    let raw = |offset: u64, size: u64| RawBuffer {
+        raw: y.as_raw().raw,
+        offset,
+        size,
+    };
+    let past_limit = raw(0, ctx.info().max_storage_buffer_range + 4);
+    let align = ctx.info().min_storage_buffer_offset_alignment;
+    let misaligned = raw(align / 2, 16);
+    let empty = raw(0, 0);
     type Case<'a> = (&'a str, Box<dyn Fn(&mut Recorder) + 'a>);
-    let cases: Vec<Case> = vec![
+    let mut cases: Vec<Case> = vec![
         (
             "one buffer of two",
             Box::new(|rec| rec.dispatch(&kernel, [1, 1, 1], &[&x], &push)),
@@ -435,7 +444,22 @@ fn commands_given_wrong_arguments_fail_the_recording_instead_of_panicking() {
             "a fill past a buffer",
             Box::new(|rec| rec.fill_first(&small, 5, 0)),
         ),
+        // The ranges a kernel trusts, checked at record time.
+        (
+            "a binding past the device's maxStorageBufferRange",
+            Box::new(|rec| rec.dispatch(&kernel, [1, 1, 1], &[&x, &past_limit], &push)),
+        ),
+        (
+            "an empty binding",
+            Box::new(|rec| rec.dispatch(&kernel, [1, 1, 1], &[&x, &empty], &push)),
+        ),
     ];
+    if align > 1 {
+        cases.push((
+            "a binding at an offset the device does not allow",
+            Box::new(|rec| rec.dispatch(&kernel, [1, 1, 1], &[&x, &misaligned], &push)),
+        ));
+    }
     for (what, record) in cases {
         let before = ctx.traffic();
         let mut rec = Recorder::new(&ctx).unwrap();

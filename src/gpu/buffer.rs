@@ -25,6 +25,11 @@ pub trait BufferArg {
     fn offset(&self) -> u64;
     /// Size in bytes of the bound range (at least 4, as Vulkan wants non-empty ranges).
     fn range(&self) -> u64;
+    /// Size in bytes of the whole Vulkan buffer where it is known (vkrt's own buffers), for
+    /// the check that the range lies within it.
+    fn buffer_size(&self) -> Option<u64> {
+        None
+    }
 }
 
 /// The device address of `b`'s first byte: an error where the context has no
@@ -169,6 +174,10 @@ impl<T: Pod> BufferArg for Buffer<T> {
     }
     fn range(&self) -> u64 {
         self.bytes
+    }
+    fn buffer_size(&self) -> Option<u64> {
+        // A range of a caller's buffer (placed): the caller's buffer's size is not known.
+        self.owned.then_some(self.bytes)
     }
 }
 

@@ -263,6 +263,9 @@ impl Recorder {
             );
             return self.refuse("Recorder::dispatch", reason);
         }
+        if let Err(reason) = check_ranges(&self.ctx, blob, buffers) {
+            return self.refuse("Recorder::dispatch", reason);
+        }
         let Some(set) = self.allocate_set(kernel.set_layout) else {
             return false;
         };
@@ -956,3 +959,43 @@ const ACCEL_BUILD_RW: (vk::PipelineStageFlags, vk::AccessFlags) = (
             | vk::AccessFlags::SHADER_READ.as_raw(),
     ),
 );
+
+/// The ranges a kernel's storage bindings get are the bounds its accesses trust: each must
+/// be non-empty, start at an offset the device allows, lie within the device's
+/// `maxStorageBufferRange` (lavapipe: 128 MiB; a longer range is invalid, and without the
+/// validation layer a kernel past the limit reads and writes memory it does not own) and,
+/// for vkrt's own buffers, within the buffer. Texel bindings are checked when their view is
+/// made.
+fn check_ranges(
+    ctx: &Context,
+    blob: &super::shader::ShaderBlob,
+    buffers: &[&dyn BufferArg],
+) -> std::result::Result<(), String> {
+    let info = ctx.info();
+    let align = info.min_storage_buffer_offset_alignment.max(1);
+    for (&binding, b) in blob.bindings.iter().zip(buffers) {
+        if blob.texel_bindings.contains(&binding) {
+            continue;
+        }
+        let (offset, range) = (b.offset(), b.range());
+        let fits_buffer = b
+            .buffer_size()
+            .is_none_or(|size| offset.checked_add(range).is_some_and(|end| end <= size));
+        if range == 0
+            || offset % align != 0
+            || range > info.max_storage_buffer_range
+            || !fits_buffer
+        {
+            return Err(format!(
+                "`{}` binding {binding}: a range of {range} bytes at offset {offset}{} (ranges \
+                 non-empty, offsets a multiple of {align}, at most {} bytes: the device's \
+                 maxStorageBufferRange)",
+                blob.name,
+                b.buffer_size()
+                    .map_or(String::new(), |s| format!(" of a {s}-byte buffer")),
+                info.max_storage_buffer_range
+            ));
+        }
+    }
+    Ok(())
+}

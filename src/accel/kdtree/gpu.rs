@@ -1216,6 +1216,23 @@ impl KdTreeBuilder {
             });
         }
         let limit = ctx.info().max_storage_buffer_range;
+        // The most this device and builder take: the first level alone holds every primitive
+        // once, so an input past it is refused before any GPU work.
+        let most = self.fit_capacity(ctx, BuildCapacity::with_refs(n, usize::MAX / 8));
+        let out_of_capacity = |needed: usize| GpuError::Kernel {
+            kernel: "accel.kdtree",
+            reason: format!(
+                "the kd-tree of {n} primitives needs {needed} references in one level, more \
+                 than this device takes ({} per level: its maxStorageBufferRange of {limit} \
+                 bytes per buffer and the segmented argmin's limits); build fewer primitives \
+                 per tree (e.g. a scene in pieces) or allow larger leaves \
+                 (SahParams::max_leaf_prims)",
+                most.refs_per_level
+            ),
+        };
+        if n > most.refs_per_level {
+            return Err(out_of_capacity(n));
+        }
         capacity = self.fit_capacity(ctx, capacity);
         let uploaded = Uploaded::new(ctx, input)?;
         for attempt in 1..=8 {
@@ -1227,22 +1244,13 @@ impl KdTreeBuilder {
             let profile = rec.submit_and_wait()?;
             let outcome = self.read_outcome(&scratch)?;
             if outcome.overflow {
-                let refs = (outcome.needed_refs as usize).max(2 * capacity.refs_per_level);
-                let larger = self.fit_capacity(ctx, BuildCapacity::with_refs(n, refs));
-                if larger == capacity {
-                    return Err(GpuError::Kernel {
-                        kernel: "accel.kdtree",
-                        reason: format!(
-                            "the kd-tree of {n} primitives does not fit this device's \
-                             maxStorageBufferRange of {limit} bytes per buffer or the segmented \
-                             argmin's limits (a level needed \
-                             {} references; capacity {capacity:?}); build fewer primitives \
-                             per tree or allow larger leaves (SahParams::max_leaf_prims)",
-                            outcome.needed_refs
-                        ),
-                    });
+                // A level past the device's most is final: no larger attempt can hold it.
+                let needed = outcome.needed_refs as usize;
+                if needed > most.refs_per_level || capacity == most {
+                    return Err(out_of_capacity(needed));
                 }
-                capacity = larger;
+                let refs = needed.max(2 * capacity.refs_per_level);
+                capacity = self.fit_capacity(ctx, BuildCapacity::with_refs(n, refs));
                 continue;
             }
             let nodes = out.download_nodes(outcome.nodes as usize)?;
