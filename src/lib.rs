@@ -63,6 +63,7 @@ pub mod host;
 pub mod prims;
 pub mod render;
 pub mod scene;
+pub mod soak;
 pub mod trace;
 pub mod verify;
 

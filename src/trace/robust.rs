@@ -1453,6 +1453,110 @@ impl Suite<'_> {
     }
 }
 
+/// What [`check_trace`] found over one structure and one set of rays.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct CheckedTrace {
+    /// Rays traced, over every query.
+    pub rays: u64,
+    /// Answers unlike brute force's: closest hits by [`same_answer`], any-hit queries by
+    /// hit or miss.
+    pub mismatches: u64,
+    /// Rays that ran out of traversal steps.
+    pub exhausted: u64,
+    /// 1 if the structure read back does not validate (or a kd-tree is deeper than its
+    /// bound); 0 for the driver's, which cannot be read, and over spheres.
+    pub invalid: u64,
+}
+
+/// Builds `accel` on the device over `geometry` (as the suite's cases do), traces `rays`
+/// on the GPU once per query in `queries` with the default (watertight) intersector, and
+/// checks every answer against brute force on the host (the suite's memoized oracle).
+pub fn check_trace(
+    ctx: &Context,
+    geometry: TraceGeometry,
+    accel: AccelChoice,
+    rays: &[Ray],
+    queries: &[Query],
+) -> Result<CheckedTrace> {
+    let params = SahParams::default();
+    let p = Prepared::new(ctx, geometry, &params, accel, &SuiteConfig::default())?;
+    let mut out = CheckedTrace::default();
+    if p.geometry.spheres.is_empty() {
+        let tris: Vec<[Vec3; 3]> = (0..p.geometry.triangle_count())
+            .map(|i| p.geometry.triangle_at(i, 0.0))
+            .collect();
+        out.invalid = p.errors(&tris, &params);
+    }
+    for &query in queries {
+        let opt = TraceOptions {
+            query,
+            ..Default::default()
+        };
+        let batch = p.trace(ctx, rays, &opt)?;
+        let oracle = Oracle::new(&p.geometry, rays);
+        out.rays += rays.len() as u64;
+        out.exhausted += u64::from(batch.exhausted);
+        out.mismatches += match query {
+            Query::Closest => batch
+                .hits
+                .iter()
+                .enumerate()
+                .filter(|(k, h)| oracle.mismatch(*k, h, &opt))
+                .count() as u64,
+            Query::Any => {
+                let bf = brute_force_all(&p.geometry, rays, &opt);
+                bf.iter()
+                    .zip(&batch.hits)
+                    .filter(|(b, h)| b.is_hit() != h.is_hit())
+                    .count() as u64
+            }
+        };
+    }
+    Ok(out)
+}
+
+/// `n` rays into `g`: origins in a ball 1.5 times the primitives' bounds around their
+/// centre; half aimed at a random point on a random primitive (of those, every other one a
+/// segment ending just short of it, `tmax` 0.999: a shadow ray), the rest in random
+/// directions, unbounded.
+pub fn random_rays(g: &TraceGeometry, n: usize, seed: u64) -> Vec<Ray> {
+    let mut rng = Rng::new(seed);
+    let mut bounds = Aabb::EMPTY;
+    for b in &g.boxes {
+        bounds.union(b);
+    }
+    let (c, r) = match bounds.is_empty() {
+        true => (Vec3::ZERO, 1.0),
+        false => (bounds.center(), 0.75 * bounds.diagonal().max(1e-6)),
+    };
+    let prims = g.primitive_count();
+    let tris = g.triangle_count();
+    (0..n)
+        .map(|k| {
+            let o = c + in_ball(&mut rng) * r;
+            if k % 2 == 1 || prims == 0 {
+                return Ray::new(o, unit(&mut rng), 0.0, f32::INFINITY);
+            }
+            let i = rng.below(prims as u32) as usize;
+            let target = match i < tris {
+                true => point_in(&mut rng, &g.triangle_at(i, 0.0)),
+                false => {
+                    let s = g.sphere_at(i - tris, 0.0);
+                    s.truncate() + unit(&mut rng) * s.w
+                }
+            };
+            // (a zero-area triangle's vertices are NaN: no point to aim at)
+            if !target.is_finite() || target == o {
+                return Ray::new(o, unit(&mut rng), 0.0, f32::INFINITY);
+            }
+            match k % 4 {
+                0 => Ray::new(o, target - o, 0.0, f32::INFINITY),
+                _ => Ray::new(o, target - o, 0.0, 0.999),
+            }
+        })
+        .collect()
+}
+
 /// `n` triangles in the manner of pbrt's re-intersection test: each picks a scale `r`
 /// log-uniform over 10^[-8, 8] and three vertices uniform in `[-r, r]³` (none of zero area).
 pub fn log_uniform_triangles(n: usize, seed: u64) -> Vec<[Vec3; 3]> {

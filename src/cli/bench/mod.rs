@@ -15,6 +15,7 @@ mod kdtree;
 mod prims;
 mod render;
 mod robustness;
+mod soak;
 mod trace;
 
 #[derive(Subcommand)]
@@ -60,6 +61,13 @@ pub enum BenchCommand {
     Animate(animate::BenchAnimateArgs),
     /// Every GPU primitive against the copy baselines of the same bytes, n = 2^16 .. max-n.
     Prims(prims::PrimsArgs),
+    /// A long run that shows nothing grows and nothing goes wrong: --frames frames of an
+    /// animated scene through `vkrt animate`'s loop (each frame finite; every
+    /// --check-every-th equal byte for byte to a fresh render and near the CPU twin), then
+    /// --builds random scenes (seeded) on random structures, random closest and any-hit rays
+    /// checked against brute force; device bytes and host RSS from the end of a warm-up to
+    /// the end. Exits non-zero on any mismatch or a growth above 1 %.
+    Soak(soak::SoakArgs),
 }
 
 pub fn run(what: BenchCommand, validate: bool) -> CliResult<()> {
@@ -73,6 +81,7 @@ pub fn run(what: BenchCommand, validate: bool) -> CliResult<()> {
         BenchCommand::Accuracy(args) => accuracy::run(args, validate),
         BenchCommand::Animate(args) => animate::run(args, validate),
         BenchCommand::Prims(args) => prims::run(args, validate),
+        BenchCommand::Soak(args) => soak::run(args, validate),
     }
 }
 
