@@ -531,30 +531,7 @@ impl Recorder {
     /// staging buffer this recorder keeps until its work has executed). Order it before
     /// kernels read `dst` with [`Recorder::transfer_to_compute`].
     pub fn upload<T: Pod>(&mut self, dst: &Buffer<T>, data: &[T]) -> Result<()> {
-        if data.len() > dst.len() {
-            return Err(GpuError::Usage {
-                call: "Recorder::upload",
-                reason: format!(
-                    "{} elements into `{}` of {}",
-                    data.len(),
-                    dst.name(),
-                    dst.len()
-                ),
-            });
-        }
-        if data.is_empty() {
-            return Ok(());
-        }
-        let staging =
-            Buffer::<T>::with_memory(&self.ctx, "staging.upload", data.len(), Memory::Upload)?;
-        staging.write_mapped(bytemuck::cast_slice(data));
-        self.ctx.inner.upload_bytes.fetch_add(
-            std::mem::size_of_val(data) as u64,
-            std::sync::atomic::Ordering::Relaxed,
-        );
-        self.copy(&staging, dst, data.len());
-        self.staging.push(Box::new(staging));
-        Ok(())
+        self.upload_at(dst, 0, data)
     }
 
     /// Records the upload of `data` into `dst` from element `at` on, as
