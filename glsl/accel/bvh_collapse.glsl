@@ -62,7 +62,7 @@ void child_cost(CollapseParams p, uint index, uint count, vec3 lo, vec3 hi, inou
 // Decides node `i` (its boxes final, its node children decided): a leaf of its parent where
 // it holds at most `max_leaf` primitives and `C_isect·A·n <= C_trav·A + cost(a) + cost(b)`;
 // the root never.
-void decide(CollapseParams p, uint i, BvhNode node) {
+void decide(CollapseParams p, uint i, VkrtBvhNode node) {
     uint n = 0u;
     float ca, cb;
     child_cost(p, node.a_index, node.a_count, node.a_min, node.a_max, n, ca);

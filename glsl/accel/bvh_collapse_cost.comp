@@ -10,7 +10,7 @@ layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "include/vkrt/bvh_node.glsl"
 
-layout(std430, binding = 0) readonly buffer Nodes { BvhNode nodes[]; };
+layout(std430, binding = 0) readonly buffer Nodes { VkrtBvhNode nodes[]; };
 // References, then one parent link per node from `parents_at` on.
 layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
 // One counter per node, zero before the dispatch.

@@ -7,7 +7,7 @@ layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "include/vkrt/bvh_node.glsl"
 
-layout(std430, binding = 0) readonly buffer Nodes { BvhNode nodes[]; };
+layout(std430, binding = 0) readonly buffer Nodes { VkrtBvhNode nodes[]; };
 layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
 layout(std430, binding = 2) readonly buffer Costs { uint costs[]; };
 layout(std430, binding = 3) writeonly buffer Live { uint live[]; };
@@ -37,7 +37,7 @@ void main() {
         return;
     }
     bool alive = node_lives(i, pc.parents_at, pc.max_leaf);
-    BvhNode n = nodes[i];
+    VkrtBvhNode n = nodes[i];
     live[i] = uint(alive);
     uint refs_below = leaf_child_refs(n.a_index, n.a_count) + leaf_child_refs(n.b_index, n.b_count);
     leaf_refs[i] = alive ? refs_below : 0u;

@@ -5,14 +5,14 @@
 // the scan and the write of accel/bvh_collapse_write.comp. Every invocation copies one
 // reference; every node learns whether it lives, and a live node points each collapsed
 // child at its run — the first reference of its leftmost leaf — as a leaf of the count the
-// cost pass found. Nodes keep their slots: a removed node's parent link becomes DEAD.
+// cost pass found. Nodes keep their slots: a removed node's parent link becomes VKRT_DEAD.
 // Only live nodes are written, and the walks below read only removed nodes, costs and
 // parent links: no invocation reads what another writes.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "include/vkrt/bvh_node.glsl"
 
-layout(std430, binding = 0) buffer Nodes { BvhNode nodes[]; };
+layout(std430, binding = 0) buffer Nodes { VkrtBvhNode nodes[]; };
 // The builder's references, then its parent links from `parents_at` on.
 layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
 layout(std430, binding = 2) readonly buffer Costs { uint costs[]; };
@@ -31,7 +31,7 @@ layout(push_constant) uniform Push {
 // subtree holds at most MAX_COLLAPSE_LEAF (32) primitives, so the walk down is short.
 uint first_ref(uint node) {
     for (uint step = 0u; step < 32u; step++) {
-        BvhNode n = nodes[node];
+        VkrtBvhNode n = nodes[node];
         bool a = n.a_count > 0u || n.a_index != NO_NODE;
         uint index = a ? n.a_index : n.b_index;
         uint count = a ? n.a_count : n.b_count;
@@ -65,11 +65,11 @@ void main() {
         return;
     }
     if (!node_lives(i, pc.parents_at, pc.max_leaf)) {
-        out_refs[pc.parents_at + i] = DEAD;
+        out_refs[pc.parents_at + i] = VKRT_DEAD;
         return;
     }
     out_refs[pc.parents_at + i] = refs[pc.parents_at + i];
-    BvhNode n = nodes[i];
+    VkrtBvhNode n = nodes[i];
     if (relay(n.a_index, n.a_count)) {
         nodes[i].a_index = n.a_index;
         nodes[i].a_count = n.a_count;

@@ -3,7 +3,7 @@
 // lays its leaves' references out from its first reference (the exclusive scan of the leaf
 // reference counts) on — child `a`'s before `b`'s, a collapsed subtree's depth first — and
 // points its leaf children there; a collapsed child becomes a leaf. Nodes keep their slots:
-// a removed node's parent link becomes DEAD (the refits and the schedule skip it, the host's
+// a removed node's parent link becomes VKRT_DEAD (the refits and the schedule skip it, the host's
 // copy drops it). Only the references move: read from the builder's copy in scratch.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
@@ -14,7 +14,7 @@ layout(local_size_x_id = 0) in;
 #define GATHER_STACK 34u
 
 // Written by this invocation only where the node lives; a removed node is only read.
-layout(std430, binding = 0) buffer Nodes { BvhNode nodes[]; };
+layout(std430, binding = 0) buffer Nodes { VkrtBvhNode nodes[]; };
 // The builder's references, then its parent links from `parents_at` on.
 layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
 layout(std430, binding = 2) readonly buffer Costs { uint costs[]; };
@@ -43,7 +43,7 @@ void gather(uint node, inout uint at) {
                 out_refs[at++] = refs[child.x + k];
             }
         } else if (child.x != NO_NODE && top + 2u <= GATHER_STACK) {
-            BvhNode n = nodes[child.x];
+            VkrtBvhNode n = nodes[child.x];
             stack[top++] = uvec2(n.b_index, n.b_count);
             stack[top++] = uvec2(n.a_index, n.a_count);
         }
@@ -74,11 +74,11 @@ void main() {
         return;
     }
     if (live[i] == 0u) {
-        out_refs[pc.parents_at + i] = DEAD;
+        out_refs[pc.parents_at + i] = VKRT_DEAD;
         return;
     }
     out_refs[pc.parents_at + i] = refs[pc.parents_at + i];
-    BvhNode n = nodes[i];
+    VkrtBvhNode n = nodes[i];
     uint at = first_ref[i];
     if (relay(n.a_index, n.a_count, at)) {
         nodes[i].a_index = n.a_index;

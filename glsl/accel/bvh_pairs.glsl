@@ -1,4 +1,4 @@
-// A BvhNode as eight word pairs (common/word_pair.glsl): (a_min.xy), (a_min.z, a_index),
+// A VkrtBvhNode as eight word pairs (common/word_pair.glsl): (a_min.xy), (a_min.z, a_index),
 // (a_max.xy), (a_max.z, a_count), then the same for b; a primitive's box (six floats) as
 // three, (min x, min y), (min z, max x), (max y, max z). Kernels that move whole nodes or
 // boxes declare `WORD_PAIR` arrays and move them in half the trips where PAIRS64.
@@ -10,13 +10,13 @@
 
 #define NODE_PAIRS 8u
 
-BvhNode node_of_pairs(WORD_PAIR p0, WORD_PAIR p1, WORD_PAIR p2, WORD_PAIR p3, WORD_PAIR p4,
+VkrtBvhNode node_of_pairs(WORD_PAIR p0, WORD_PAIR p1, WORD_PAIR p2, WORD_PAIR p3, WORD_PAIR p4,
                       WORD_PAIR p5, WORD_PAIR p6, WORD_PAIR p7) {
     uvec2 a1 = pair_uints(p1);
     uvec2 a3 = pair_uints(p3);
     uvec2 b1 = pair_uints(p5);
     uvec2 b3 = pair_uints(p7);
-    return BvhNode(vec3(pair_floats(p0), uintBitsToFloat(a1.x)), a1.y,
+    return VkrtBvhNode(vec3(pair_floats(p0), uintBitsToFloat(a1.x)), a1.y,
                    vec3(pair_floats(p2), uintBitsToFloat(a3.x)), a3.y,
                    vec3(pair_floats(p4), uintBitsToFloat(b1.x)), b1.y,
                    vec3(pair_floats(p6), uintBitsToFloat(b3.x)), b3.y);

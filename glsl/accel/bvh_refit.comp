@@ -38,8 +38,8 @@ layout(push_constant) uniform Push { uint n_nodes; } pc;
 
 void main() {
     uint i = linear_invocation_id();
-    // Slots a leaf collapse freed (parent DEAD) hold no node.
-    bool climbing = i < pc.n_nodes && refs[info.parents_at + i] != DEAD &&
+    // Slots a leaf collapse freed (parent VKRT_DEAD) hold no node.
+    bool climbing = i < pc.n_nodes && refs[info.parents_at + i] != VKRT_DEAD &&
                     node_children(LOAD_NODE(node_pairs, i)) == 0u;
     uint cur = i;
     // Rounds in subgroup-uniform control flow, every memory barrier reached by every lane:
@@ -54,7 +54,7 @@ void main() {
         if (!subgroupAny(climbing)) {
             break;
         }
-        BvhNode n;
+        VkrtBvhNode n;
         if (climbing) {
             n = refit_node(cur);
         }

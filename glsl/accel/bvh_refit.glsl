@@ -1,5 +1,5 @@
 // The child boxes a refit computes (CPU twin: src/accel/bvh/refit.rs), shared by the climbing
-// refit and the per-depth refit. Include after declaring `node_pairs` (BvhNode as word pairs,
+// refit and the per-depth refit. Include after declaring `node_pairs` (VkrtBvhNode as word pairs,
 // accel/bvh_pairs.glsl), `refs` (the references) and `box_pairs` (three pairs per primitive).
 #ifndef VKRT_ACCEL_BVH_REFIT_GLSL
 #define VKRT_ACCEL_BVH_REFIT_GLSL
@@ -18,15 +18,15 @@ void child_box(uint index, uint count, inout vec3 lo, inout vec3 hi) {
             hi = vmax(hi, phi);
         }
     } else if (index != NO_NODE) {
-        BvhNode c = LOAD_NODE(node_pairs, index);
+        VkrtBvhNode c = LOAD_NODE(node_pairs, index);
         lo = vmin(c.a_min, c.b_min);
         hi = vmax(c.a_max, c.b_max);
     }
 }
 
 // Node `i` with its child boxes refit, stored whole.
-BvhNode refit_node(uint i) {
-    BvhNode n = LOAD_NODE(node_pairs, i);
+VkrtBvhNode refit_node(uint i) {
+    VkrtBvhNode n = LOAD_NODE(node_pairs, i);
     child_box(n.a_index, n.a_count, n.a_min, n.a_max);
     child_box(n.b_index, n.b_count, n.b_min, n.b_max);
     STORE_NODE(node_pairs, i, n);

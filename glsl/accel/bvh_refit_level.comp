@@ -35,7 +35,7 @@ void main() {
         return;
     }
     uint node = order[levels[MAX_DEPTH + pc.depth] + i];
-    BvhNode n = refit_node(node);
+    VkrtBvhNode n = refit_node(node);
     if (pc.depth == 0u) {
         info.bounds_min = vec4(vmin(n.a_min, n.b_min), 0.0);
         info.bounds_max = vec4(vmax(n.a_max, n.b_max), 0.0);

@@ -24,7 +24,7 @@ void main() {
     }
     uint depth = 0u;
     uint p = refs[pc.parents_at + i];
-    if (p == DEAD) {
+    if (p == VKRT_DEAD) {
         // A slot the leaf collapse freed: sorted after every depth, refit at none.
         keys[i] = MAX_DEPTH;
         order[i] = i;

@@ -10,7 +10,7 @@ layout(local_size_x_id = 0) in;
 #include "include/vkrt/bvh_node.glsl"
 #include "include/vkrt/bvh_wide_node.glsl"
 
-layout(std430, binding = 0) readonly buffer Nodes { BvhNode nodes[]; };
+layout(std430, binding = 0) readonly buffer Nodes { VkrtBvhNode nodes[]; };
 layout(std430, binding = 1) writeonly buffer Wide { WideNode wide[]; };
 layout(push_constant) uniform Push { uint n_slots; } pc;
 
@@ -37,7 +37,7 @@ void add_child(vec3 bmin, vec3 bmax, uint index, uint count) {
     if (count > 0u) {
         add(bmin, bmax, index, count);
     } else if (index != NO_NODE && !stale(index, count)) {
-        BvhNode c = nodes[index];
+        VkrtBvhNode c = nodes[index];
         if ((c.a_count > 0u || c.a_index != NO_NODE) && !stale(c.a_index, c.a_count)) {
             add(c.a_min, c.a_max, c.a_index, c.a_count);
         }
@@ -99,7 +99,7 @@ void main() {
     if (i >= pc.n_slots) {
         return;
     }
-    BvhNode nd = nodes[i];
+    VkrtBvhNode nd = nodes[i];
     add_child(nd.a_min, nd.a_max, nd.a_index, nd.a_count);
     add_child(nd.b_min, nd.b_max, nd.b_index, nd.b_count);
     vec3 lo = vec3(1.0 / 0.0);

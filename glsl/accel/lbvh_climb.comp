@@ -82,7 +82,7 @@ void main() {
             LOAD_PRIM_BOX(box_pairs, refs[0], lo, hi);
             vec3 none_lo = vec3(1.0 / 0.0);
             vec3 none_hi = vec3(-1.0 / 0.0);
-            BvhNode root = BvhNode(lo, 0u, hi, 1u, none_lo, NO_NODE, none_hi, 0u);
+            VkrtBvhNode root = VkrtBvhNode(lo, 0u, hi, 1u, none_lo, NO_NODE, none_hi, 0u);
             STORE_NODE(node_pairs, 0u, root);
             refs[1] = NO_NODE;
             info.bounds_min = vec4(vmin(lo, none_lo), 0.0);
@@ -120,7 +120,7 @@ void main() {
                 vec3 other_hi = vec3(0.0);
                 uint other = known_a ? s + 1u : s;
                 child_box(other, uint(known_a ? other == r : other == l), other_lo, other_hi);
-                BvhNode node;
+                VkrtBvhNode node;
                 node.a_index = s;
                 node.a_count = uint(l == s);
                 node.b_index = s + 1u;

@@ -16,7 +16,7 @@ layout(std430, binding = 1) writeonly buffer Dst { Cluster dst[]; };
 layout(std430, binding = 2) readonly buffer Nearest { uint nn[]; };
 layout(std430, binding = 3) readonly buffer Flags { uvec2 flags[]; };
 layout(std430, binding = 4) readonly buffer GroupSums { uvec2 group_sums[]; };
-layout(std430, binding = 5) writeonly buffer Nodes { BvhNode nodes[]; };
+layout(std430, binding = 5) writeonly buffer Nodes { VkrtBvhNode nodes[]; };
 // Sorted ids, then a parent link per node from n on.
 layout(std430, binding = 6) buffer Refs { uint refs[]; };
 layout(std430, binding = 7) readonly buffer State { uint state[]; };
@@ -64,7 +64,7 @@ void main() {
     if (f.x == 1u) {
         Cluster o = src[nn[i]];
         uint idx = state[ST_BASE] + rank.x;
-        nodes[idx] = BvhNode(c.lo, child_index(c.child), c.hi, child_count(c.child),
+        nodes[idx] = VkrtBvhNode(c.lo, child_index(c.child), c.hi, child_count(c.child),
                              o.lo, child_index(o.child), o.hi, child_count(o.child));
         if (child_count(c.child) == 0u) {
             refs[pc.n + c.child] = idx;

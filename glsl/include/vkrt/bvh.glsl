@@ -23,21 +23,21 @@
 
 // The same binding as the kd-tree's nodes: one structure is bound at a time.
 #ifdef VKRT_DEVICE_ADDRESS
-layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtBvhNodes { BvhNode v[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtBvhNodes { VkrtBvhNode v[]; };
 VkrtBvhNodes vkrt_bvh_nodes;
 #define bvh_nodes vkrt_bvh_nodes.v
 #elif !TEXEL_NODES
-layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer BvhNodes { BvhNode bvh_nodes[]; };
+layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer BvhNodes { VkrtBvhNode bvh_nodes[]; };
 #endif
 #if TEXEL_NODES
 // Four RGBA32UI texels per node (node_texels, traverse.glsl).
-BvhNode load_bvh_node(uint i) {
+VkrtBvhNode load_bvh_node(uint i) {
     int t = int(4u * i);
     uvec4 a = texelFetch(node_texels, t);
     uvec4 b = texelFetch(node_texels, t + 1);
     uvec4 c = texelFetch(node_texels, t + 2);
     uvec4 d = texelFetch(node_texels, t + 3);
-    return BvhNode(uintBitsToFloat(a.xyz), a.w, uintBitsToFloat(b.xyz), b.w,
+    return VkrtBvhNode(uintBitsToFloat(a.xyz), a.w, uintBitsToFloat(b.xyz), b.w,
                    uintBitsToFloat(c.xyz), c.w, uintBitsToFloat(d.xyz), d.w);
 }
 #elif FP64_FALLBACK
@@ -59,7 +59,7 @@ uvec2 two_uints(uint64_t w) {
     return unpack32(w);
 }
 
-BvhNode load_bvh_node(uint i) {
+VkrtBvhNode load_bvh_node(uint i) {
     u64vec4 p = bvh_nodes64[2u * i];
     u64vec4 q = bvh_nodes64[2u * i + 1u];
     vec2 a0 = two_floats(p.x);
@@ -70,11 +70,11 @@ BvhNode load_bvh_node(uint i) {
     uvec2 b1 = two_uints(q.y);
     vec2 b2 = two_floats(q.z);
     uvec2 b3 = two_uints(q.w);
-    return BvhNode(vec3(a0, uintBitsToFloat(a1.x)), a1.y, vec3(a2, uintBitsToFloat(a3.x)), a3.y,
+    return VkrtBvhNode(vec3(a0, uintBitsToFloat(a1.x)), a1.y, vec3(a2, uintBitsToFloat(a3.x)), a3.y,
                    vec3(b0, uintBitsToFloat(b1.x)), b1.y, vec3(b2, uintBitsToFloat(b3.x)), b3.y);
 }
 #else
-BvhNode load_bvh_node(uint i) {
+VkrtBvhNode load_bvh_node(uint i) {
     return bvh_nodes[i];
 }
 #endif
@@ -125,7 +125,7 @@ WideNode load_wide_node(uint i) {
 #define VKRT_BVH_DESCEND()                                                             \
     while (have && cur.y == 0u && steps <= MAX_TRAVERSAL_STEPS) {                      \
         steps++;                                                                       \
-        BvhNode nd = load_bvh_node(cur.x);                                             \
+        VkrtBvhNode nd = load_bvh_node(cur.x);                                             \
         float ta;                                                                      \
         float tb;                                                                      \
         bool hit_a = (nd.a_count > 0u || nd.a_index != NO_NODE)                        \
@@ -218,7 +218,7 @@ Hit trace_bvh_bitstack(Ray r, float time, bool any_hit) {
     // (Mesa 22.3's loop budget, as in the stack walk) ended the walk.
     while (steps <= MAX_TRAVERSAL_STEPS) {
         steps++;
-        BvhNode nd = load_bvh_node(node);
+        VkrtBvhNode nd = load_bvh_node(node);
         uint inner[2] = uint[2](NO_NODE, NO_NODE);
         float t_in[2] = float[2](0.0, 0.0);
         for (uint which = 0u; which < 2u; which++) {
@@ -268,7 +268,7 @@ Hit trace_bvh_bitstack(Ray r, float time, bool any_hit) {
                 trail = (trail >> 1u) | (uvec4(trail.yzw, 0u) << 31u);
             }
             trail.x ^= 1u;
-            BvhNode pn = load_bvh_node(bvh_parent(node));
+            VkrtBvhNode pn = load_bvh_node(bvh_parent(node));
             bool node_is_a = pn.a_count == 0u && pn.a_index == node;
             uint sibling = node_is_a ? pn.b_index : pn.a_index;
             vec3 smin = node_is_a ? pn.b_min : pn.a_min;

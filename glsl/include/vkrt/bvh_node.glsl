@@ -1,4 +1,4 @@
-// The BVH node the builders and refits write (`BvhNode` in src/accel/bvh/layout.rs, 64
+// The BVH node the builders and refits write (`VkrtBvhNode` in src/accel/bvh/layout.rs, 64
 // bytes; read by the traversal, common/bvh.glsl), and box unions in the total order on
 // ±0 (fmin_total, common/kdtree.glsl), so every union is the CPU twins' bit for bit.
 #ifndef VKRT_COMMON_BVH_NODE_GLSL
@@ -7,10 +7,10 @@
 #include "kdtree.glsl"
 
 #define NO_NODE 0xffffffffu
-// The parent link of a node slot a leaf collapse freed (collapse::DEAD).
-#define DEAD 0xfffffffeu
+// The parent link of a node slot a leaf collapse freed (collapse::VKRT_DEAD).
+#define VKRT_DEAD 0xfffffffeu
 
-struct BvhNode {
+struct VkrtBvhNode {
     vec3 a_min;
     uint a_index;
     vec3 a_max;
@@ -22,7 +22,7 @@ struct BvhNode {
 };
 
 // Children of `n` that are nodes (not leaves, not missing): what a climbing pass waits for.
-uint node_children(BvhNode n) {
+uint node_children(VkrtBvhNode n) {
     return uint(n.a_count == 0u && n.a_index != NO_NODE) + uint(n.b_count == 0u && n.b_index != NO_NODE);
 }
 

@@ -25,11 +25,11 @@ struct Hit {
 #define FP64_FALLBACK 0
 #endif
 // gamma(n) = n u / (1 - n u), u = 2^-24 (pbrt's bound on n roundings), as exact bits.
-#define GAMMA2 uintBitsToFloat(0x34000001u)
-#define GAMMA3 uintBitsToFloat(0x34400002u)
-#define GAMMA5 uintBitsToFloat(0x34a00003u)
-#define GAMMA7 uintBitsToFloat(0x34e00006u)
-#define GAMMA8 uintBitsToFloat(0x35000004u)
+#define VKRT_GAMMA2 uintBitsToFloat(0x34000001u)
+#define VKRT_GAMMA3 uintBitsToFloat(0x34400002u)
+#define VKRT_GAMMA5 uintBitsToFloat(0x34a00003u)
+#define VKRT_GAMMA7 uintBitsToFloat(0x34e00006u)
+#define VKRT_GAMMA8 uintBitsToFloat(0x35000004u)
 #define INTERSECT_WATERTIGHT 0u
 #define INTERSECT_MOLLER_TRUMBORE 1u
 
@@ -54,7 +54,7 @@ bool is_nan(float x) {
     return (floatBitsToUint(x) & 0x7fffffffu) > 0x7f800000u;
 }
 
-#define FLT_MIN uintBitsToFloat(0x00800000u)
+#define VKRT_FLT_MIN uintBitsToFloat(0x00800000u)
 
 // dot and cross in the CPU twins' order of operations (src/trace/intersect.rs): a driver may
 // evaluate the builtins with fused multiply-adds even under `precise`.
@@ -268,13 +268,13 @@ bool hit_triangle_watertight(vec3 o, Shear s, vec3 p0, vec3 p1, vec3 p2, float t
     precise float max_zu = max(max(abs(a[s.kz]), abs(b[s.kz])), abs(c[s.kz]));
     precise float max_xt = max(max(abs(ax), abs(bx)), abs(cx));
     precise float max_yt = max(max(abs(ay), abs(by)), abs(cy));
-    precise float delta_z = GAMMA3 * max_zt;
-    precise float delta_x = GAMMA5 * (max_xt + abs(s.sx) * max_zu);
-    precise float delta_y = GAMMA5 * (max_yt + abs(s.sy) * max_zu);
-    precise float delta_e = 2.0 * (GAMMA2 * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
+    precise float delta_z = VKRT_GAMMA3 * max_zt;
+    precise float delta_x = VKRT_GAMMA5 * (max_xt + abs(s.sx) * max_zu);
+    precise float delta_y = VKRT_GAMMA5 * (max_yt + abs(s.sy) * max_zu);
+    precise float delta_e = 2.0 * (VKRT_GAMMA2 * max_xt * max_yt + delta_y * max_xt + delta_x * max_yt);
     precise float max_e = max(max(abs(e0), abs(e1)), abs(e2));
     precise float delta_t =
-        3.0 * (GAMMA3 * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * abs(inv);
+        3.0 * (VKRT_GAMMA3 * max_e * max_zt + delta_e * max_zt + delta_z * max_e) * abs(inv);
     if (hit_t <= delta_t) {
         return false;
     }
@@ -441,12 +441,12 @@ vec3 offset_ray_origin(vec3 p, vec3 n) {
 
 // The next float towards +inf / -inf (finite x).
 // Never a subnormal (a device may flush them to zero): above zero and the subnormals is the
-// smallest normal float, above -FLT_MIN is zero (next_up in src/accel/primitives.rs).
+// smallest normal float, above -VKRT_FLT_MIN is zero (next_up in src/accel/primitives.rs).
 float next_float_up(float x) {
-    if (abs(x) < FLT_MIN) {
-        return FLT_MIN;
+    if (abs(x) < VKRT_FLT_MIN) {
+        return VKRT_FLT_MIN;
     }
-    if (x == -FLT_MIN) {
+    if (x == -VKRT_FLT_MIN) {
         return -0.0;
     }
     uint b = floatBitsToUint(x);
@@ -480,7 +480,7 @@ vec3 offset_ray_origin_bounded(vec3 p, vec3 n, vec3 err) {
 vec3 triangle_hit_point(vec3 p0, vec3 p1, vec3 p2, float u, float v, out vec3 err) {
     precise float b0 = 1.0 - u - v;
     precise vec3 p = b0 * p0 + u * p1 + v * p2;
-    precise vec3 e = GAMMA7 * (abs(b0 * p0) + abs(u * p1) + abs(v * p2));
+    precise vec3 e = VKRT_GAMMA7 * (abs(b0 * p0) + abs(u * p1) + abs(v * p2));
     err = e;
     return p;
 }
@@ -489,7 +489,7 @@ vec3 triangle_hit_point(vec3 p0, vec3 p1, vec3 p2, float u, float v, out vec3 er
 // bound that also covers the ray/sphere test's own rounding (about 3 u r).
 vec3 sphere_hit_point(vec3 c, float r, vec3 p, out vec3 err) {
     precise vec3 q = c + (p - c) * div_rn(r, sqrt_rn(dot3(p - c, p - c)));
-    precise vec3 e = GAMMA8 * (vec3(r) + abs(q));
+    precise vec3 e = VKRT_GAMMA8 * (vec3(r) + abs(q));
     err = e;
     return q;
 }

@@ -98,7 +98,7 @@
 #define Hit vkrt_internal_Hit
 #define Shear vkrt_internal_Shear
 #define KdNode vkrt_internal_KdNode
-#define BvhNode vkrt_internal_BvhNode
+#define VkrtBvhNode vkrt_internal_BvhNode
 #define MotionRecord vkrt_internal_MotionRecord
 
 #ifdef VKRT_EXACT
@@ -307,6 +307,6 @@ bool vkrtExhausted() {
 #undef Hit
 #undef Shear
 #undef KdNode
-#undef BvhNode
+#undef VkrtBvhNode
 #undef MotionRecord
 #endif
