@@ -283,7 +283,7 @@ struct AoPipeline {
 }
 
 impl AoPipeline {
-    fn new(device: &ash::Device, spirv: &[u32]) -> BoxResult<Self> {
+    fn new(device: &ash::Device, spirv: &[u32], max_traversal_steps: u32) -> BoxResult<Self> {
         let own = [0, 1].map(|b| {
             vk::DescriptorSetLayoutBinding::default()
                 .binding(b)
@@ -320,10 +320,15 @@ impl AoPipeline {
             )?;
             let module = device
                 .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(spirv), None)?;
+            let (entries, data) = shader_library::steps_specialization(max_traversal_steps);
+            let specialization = vk::SpecializationInfo::default()
+                .map_entries(&entries)
+                .data(&data);
             let stage = vk::PipelineShaderStageCreateInfo::default()
                 .stage(vk::ShaderStageFlags::COMPUTE)
                 .module(module)
-                .name(c"main");
+                .name(c"main")
+                .specialization_info(&specialization);
             let created = device.create_compute_pipelines(
                 vk::PipelineCache::null(),
                 &[vk::ComputePipelineCreateInfo::default()
@@ -517,13 +522,6 @@ fn build_and_trace(
             ..Triangles::soup(vertex_range, vertex_count)
         }),
     ];
-    let pipeline = AoPipeline::new(&host.device, &spirv.generic)?;
-    let kd_pipeline = AoPipeline::new(&host.device, &spirv.kdtree)?;
-    let bvh_pipeline = AoPipeline::new(&host.device, &spirv.bvh)?;
-    let driver_pipeline = match &spirv.driver {
-        Some(code) => Some(AoPipeline::new(&host.device, code)?),
-        None => None,
-    };
     // The driver's structure reads its inputs at device addresses and lives in buffers of
     // the acceleration-structure kind.
     let structure_usage = match host.features.ray_query {
@@ -535,6 +533,15 @@ fn build_and_trace(
     // host outlives the context (dropped before `host` at the end of `run`) and this thread
     // is the only one using the queue.
     let ctx = unsafe { Context::from_raw(host.raw_parts()) }?;
+    // The walks' step cap is the device's, through the library's specialization constant.
+    let steps = ctx.info().max_traversal_steps;
+    let pipeline = AoPipeline::new(&host.device, &spirv.generic, steps)?;
+    let kd_pipeline = AoPipeline::new(&host.device, &spirv.kdtree, steps)?;
+    let bvh_pipeline = AoPipeline::new(&host.device, &spirv.bvh, steps)?;
+    let driver_pipeline = match &spirv.driver {
+        Some(code) => Some(AoPipeline::new(&host.device, code, steps)?),
+        None => None,
+    };
     let reference = if check {
         reference(mesh, rays)
     } else {

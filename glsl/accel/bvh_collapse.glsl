@@ -27,7 +27,7 @@ float half_area(vec3 lo, vec3 hi) {
 // parent links from `parents_at` on).
 bool node_lives(uint i, uint parents_at, uint max_leaf) {
     uint x = i;
-    while (x != NO_NODE && costs[COST_COUNT(x)] <= max_leaf) {
+    while (x != VKRT_NO_NODE && costs[COST_COUNT(x)] <= max_leaf) {
         if (costs[COST_COLLAPSE(x)] != 0u) {
             return false;
         }
@@ -53,7 +53,7 @@ void child_cost(CollapseParams p, uint index, uint count, vec3 lo, vec3 hi, inou
         n += count;
         precise float c = p.c_isect * half_area(lo, hi) * float(count);
         cost = c;
-    } else if (index != NO_NODE) {
+    } else if (index != VKRT_NO_NODE) {
         n += costs[COST_COUNT(index)];
         cost = uintBitsToFloat(costs[COST_SAH(index)]);
     }
@@ -67,7 +67,7 @@ void decide(CollapseParams p, uint i, VkrtBvhNode node) {
     float ca, cb;
     child_cost(p, node.a_index, node.a_count, node.a_min, node.a_max, n, ca);
     child_cost(p, node.b_index, node.b_count, node.b_min, node.b_max, n, cb);
-    float area = half_area(vmin(node.a_min, node.b_min), vmax(node.a_max, node.b_max));
+    float area = half_area(vkrt_vmin(node.a_min, node.b_min), vkrt_vmax(node.a_max, node.b_max));
     precise float split = p.c_trav * area + ca + cb;
     precise float leaf = p.c_isect * area * float(n);
     bool collapse = i != 0u && n <= p.max_leaf && leaf <= split;

@@ -28,7 +28,7 @@ layout(push_constant) uniform Push {
 
 void main() {
     uint i = linear_invocation_id();
-    bool climbing = i < pc.n_nodes && node_children(nodes[i]) == 0u;
+    bool climbing = i < pc.n_nodes && vkrt_node_children(nodes[i]) == 0u;
     uint cur = i;
     for (uint round = 0u; round <= pc.n_nodes; round++) {
         if (!subgroupAny(climbing)) {
@@ -40,11 +40,11 @@ void main() {
         memoryBarrierBuffer(); // the words are visible before the arrival is counted
         if (climbing) {
             uint parent = refs[pc.parents_at + cur];
-            if (parent == NO_NODE) {
+            if (parent == VKRT_NO_NODE) {
                 climbing = false;
             } else {
                 uint arrived = atomicAdd(visits[parent], 1u) + 1u;
-                climbing = arrived >= node_children(nodes[parent]);
+                climbing = arrived >= vkrt_node_children(nodes[parent]);
                 cur = parent;
             }
         }

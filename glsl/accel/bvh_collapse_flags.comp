@@ -25,7 +25,7 @@ uint leaf_child_refs(uint index, uint count) {
     if (count > 0u) {
         return count;
     }
-    if (index != NO_NODE && costs[COST_COLLAPSE(index)] != 0u) {
+    if (index != VKRT_NO_NODE && costs[COST_COLLAPSE(index)] != 0u) {
         return costs[COST_COUNT(index)];
     }
     return 0u;

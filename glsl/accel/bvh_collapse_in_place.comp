@@ -32,13 +32,13 @@ layout(push_constant) uniform Push {
 uint first_ref(uint node) {
     for (uint step = 0u; step < 32u; step++) {
         VkrtBvhNode n = nodes[node];
-        bool a = n.a_count > 0u || n.a_index != NO_NODE;
+        bool a = n.a_count > 0u || n.a_index != VKRT_NO_NODE;
         uint index = a ? n.a_index : n.b_index;
         uint count = a ? n.a_count : n.b_count;
         if (count > 0u) {
             return index;
         }
-        if (index == NO_NODE) {
+        if (index == VKRT_NO_NODE) {
             break;
         }
         node = index;
@@ -48,7 +48,7 @@ uint first_ref(uint node) {
 
 // A collapsed child becomes a leaf over its run; true where the child changed.
 bool relay(inout uint index, inout uint count) {
-    if (count > 0u || index == NO_NODE || costs[COST_COLLAPSE(index)] == 0u) {
+    if (count > 0u || index == VKRT_NO_NODE || costs[COST_COLLAPSE(index)] == 0u) {
         return false;
     }
     count = costs[COST_COUNT(index)];

@@ -42,7 +42,7 @@ void gather(uint node, inout uint at) {
             for (uint k = 0u; k < child.y; k++) {
                 out_refs[at++] = refs[child.x + k];
             }
-        } else if (child.x != NO_NODE && top + 2u <= GATHER_STACK) {
+        } else if (child.x != VKRT_NO_NODE && top + 2u <= GATHER_STACK) {
             VkrtBvhNode n = nodes[child.x];
             stack[top++] = uvec2(n.b_index, n.b_count);
             stack[top++] = uvec2(n.a_index, n.a_count);
@@ -58,7 +58,7 @@ bool relay(inout uint index, inout uint count, inout uint at) {
         for (uint k = 0u; k < count; k++) {
             out_refs[at++] = refs[index + k];
         }
-    } else if (index != NO_NODE && costs[COST_COLLAPSE(index)] != 0u) {
+    } else if (index != VKRT_NO_NODE && costs[COST_COLLAPSE(index)] != 0u) {
         gather(index, at);
         count = at - first;
     } else {

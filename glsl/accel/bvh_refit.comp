@@ -6,7 +6,7 @@
 // invocation waits for another (no forward-progress assumption). The buffer writes of the
 // child are made visible before its arrival is counted (memoryBarrierBuffer on coherent
 // buffers), and the arriving invocation reads them after. Unions use the total order on ±0
-// (fmin_total), so the result is bit for bit the CPU twin's, whatever the order.
+// (vkrt_fmin_total), so the result is bit for bit the CPU twin's, whatever the order.
 // Variant `boxes64` moves nodes and boxes as 64-bit pairs (accel/bvh_pairs.glsl), where the
 // device has shaderInt64. (The LBVH's build climbs in accel/lbvh_climb.comp.)
 //! variant boxes
@@ -24,7 +24,7 @@ layout(std430, binding = 2) readonly buffer Boxes { WORD_PAIR box_pairs[]; };
 // One counter per node, zero before the dispatch.
 layout(std430, binding = 3) coherent buffer Visits { uint visits[]; };
 // `SceneInfo` (src/accel/primitives.rs): the root box is rewritten.
-layout(std430, binding = 4) buffer SceneInfoBuf {
+layout(std430, binding = 4) buffer VkrtSceneInfoBinding {
     vec4 bounds_min;
     vec4 bounds_max;
     uint n_tris;
@@ -40,7 +40,7 @@ void main() {
     uint i = linear_invocation_id();
     // Slots a leaf collapse freed (parent VKRT_DEAD) hold no node.
     bool climbing = i < pc.n_nodes && refs[info.parents_at + i] != VKRT_DEAD &&
-                    node_children(LOAD_NODE(node_pairs, i)) == 0u;
+                    vkrt_node_children(LOAD_NODE(node_pairs, i)) == 0u;
     uint cur = i;
     // Rounds in subgroup-uniform control flow, every memory barrier reached by every lane:
     // Mesa 22.3's lavapipe makes memoryBarrierBuffer (or an atomic with acquire/release
@@ -61,14 +61,14 @@ void main() {
         memoryBarrierBuffer(); // the boxes are visible before the arrival is counted
         if (climbing) {
             uint parent = refs[info.parents_at + cur];
-            if (parent == NO_NODE) {
-                info.bounds_min = vec4(vmin(n.a_min, n.b_min), 0.0);
-                info.bounds_max = vec4(vmax(n.a_max, n.b_max), 0.0);
+            if (parent == VKRT_NO_NODE) {
+                info.bounds_min = vec4(vkrt_vmin(n.a_min, n.b_min), 0.0);
+                info.bounds_max = vec4(vkrt_vmax(n.a_max, n.b_max), 0.0);
                 climbing = false;
             } else {
                 // The sibling, arriving last, refits the parent.
                 uint arrived = atomicAdd(visits[parent], 1u) + 1u;
-                climbing = arrived >= node_children(LOAD_NODE(node_pairs, parent));
+                climbing = arrived >= vkrt_node_children(LOAD_NODE(node_pairs, parent));
                 cur = parent;
             }
         }

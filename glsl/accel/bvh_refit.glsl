@@ -14,13 +14,13 @@ void child_box(uint index, uint count, inout vec3 lo, inout vec3 hi) {
         for (uint k = 0u; k < count; k++) {
             vec3 plo, phi;
             LOAD_PRIM_BOX(box_pairs, refs[index + k], plo, phi);
-            lo = vmin(lo, plo);
-            hi = vmax(hi, phi);
+            lo = vkrt_vmin(lo, plo);
+            hi = vkrt_vmax(hi, phi);
         }
-    } else if (index != NO_NODE) {
+    } else if (index != VKRT_NO_NODE) {
         VkrtBvhNode c = LOAD_NODE(node_pairs, index);
-        lo = vmin(c.a_min, c.b_min);
-        hi = vmax(c.a_max, c.b_max);
+        lo = vkrt_vmin(c.a_min, c.b_min);
+        hi = vkrt_vmax(c.a_max, c.b_max);
     }
 }
 

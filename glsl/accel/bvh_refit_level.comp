@@ -17,7 +17,7 @@ layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
 layout(std430, binding = 2) readonly buffer Boxes { WORD_PAIR box_pairs[]; };
 layout(std430, binding = 3) readonly buffer Order { uint order[]; };
 layout(std430, binding = 4) readonly buffer Levels { uint levels[]; };
-layout(std430, binding = 5) buffer SceneInfoBuf {
+layout(std430, binding = 5) buffer VkrtSceneInfoBinding {
     vec4 bounds_min;
     vec4 bounds_max;
     uint n_tris;
@@ -37,7 +37,7 @@ void main() {
     uint node = order[levels[MAX_DEPTH + pc.depth] + i];
     VkrtBvhNode n = refit_node(node);
     if (pc.depth == 0u) {
-        info.bounds_min = vec4(vmin(n.a_min, n.b_min), 0.0);
-        info.bounds_max = vec4(vmax(n.a_max, n.b_max), 0.0);
+        info.bounds_min = vec4(vkrt_vmin(n.a_min, n.b_min), 0.0);
+        info.bounds_max = vec4(vkrt_vmax(n.a_max, n.b_max), 0.0);
     }
 }

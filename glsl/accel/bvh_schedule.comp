@@ -30,7 +30,7 @@ void main() {
         order[i] = i;
         return;
     }
-    while (p != NO_NODE && depth < MAX_DEPTH - 1u) {
+    while (p != VKRT_NO_NODE && depth < MAX_DEPTH - 1u) {
         depth++;
         p = refs[pc.parents_at + p];
     }

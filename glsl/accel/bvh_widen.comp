@@ -11,10 +11,10 @@ layout(local_size_x_id = 0) in;
 #include "include/vkrt/bvh_wide_node.glsl"
 
 layout(std430, binding = 0) readonly buffer Nodes { VkrtBvhNode nodes[]; };
-layout(std430, binding = 1) writeonly buffer Wide { WideNode wide[]; };
+layout(std430, binding = 1) writeonly buffer Wide { VkrtWideNode wide[]; };
 layout(push_constant) uniform Push { uint n_slots; } pc;
 
-// Up to four children: box, index, count (count 0 and NO_NODE: none).
+// Up to four children: box, index, count (count 0 and VKRT_NO_NODE: none).
 vec3 c_min[4];
 vec3 c_max[4];
 uint c_index[4];
@@ -30,18 +30,18 @@ void add(vec3 bmin, vec3 bmax, uint index, uint count) {
 }
 
 bool stale(uint index, uint count) {
-    return count == 0u && index != NO_NODE && index >= pc.n_slots;
+    return count == 0u && index != VKRT_NO_NODE && index >= pc.n_slots;
 }
 
 void add_child(vec3 bmin, vec3 bmax, uint index, uint count) {
     if (count > 0u) {
         add(bmin, bmax, index, count);
-    } else if (index != NO_NODE && !stale(index, count)) {
+    } else if (index != VKRT_NO_NODE && !stale(index, count)) {
         VkrtBvhNode c = nodes[index];
-        if ((c.a_count > 0u || c.a_index != NO_NODE) && !stale(c.a_index, c.a_count)) {
+        if ((c.a_count > 0u || c.a_index != VKRT_NO_NODE) && !stale(c.a_index, c.a_count)) {
             add(c.a_min, c.a_max, c.a_index, c.a_count);
         }
-        if ((c.b_count > 0u || c.b_index != NO_NODE) && !stale(c.b_index, c.b_count)) {
+        if ((c.b_count > 0u || c.b_index != VKRT_NO_NODE) && !stale(c.b_index, c.b_count)) {
             add(c.b_min, c.b_max, c.b_index, c.b_count);
         }
     }
@@ -105,14 +105,14 @@ void main() {
     vec3 lo = vec3(1.0 / 0.0);
     vec3 hi = vec3(-1.0 / 0.0);
     for (uint k = 0u; k < n_children; k++) {
-        lo = vmin(lo, c_min[k]);
-        hi = vmax(hi, c_max[k]);
+        lo = vkrt_vmin(lo, c_min[k]);
+        hi = vkrt_vmax(hi, c_max[k]);
     }
-    WideNode w;
+    VkrtWideNode w;
     w.frame = uvec4(0u);
     w.planes = uvec4(0u);
     w.more = uvec4(0u);
-    w.index = uvec4(NO_NODE);
+    w.index = uvec4(VKRT_NO_NODE);
     uvec3 qlo = uvec3(0u);
     uvec3 qhi = uvec3(0u);
     for (uint a = 0u; a < 3u; a++) {

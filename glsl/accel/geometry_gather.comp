@@ -1,8 +1,8 @@
 #version 460
 // Reads one geometry of the caller's (its vertex and index buffers where they lie, as
 // VkAccelerationStructureGeometryKHR describes them) into the layout vkrt's builders and walk
-// read: triangles as nine floats in primitive order, spheres as (center, radius), axis-aligned
-// box primitives as two vec4s (min, max) after the spheres, and a bounding box per primitive; the geometry's entry of the table that maps primitive ids back to (geometry,
+// read: triangles as nine floats in primitive order, vkrt_spheres as (center, radius), axis-aligned
+// box primitives as two vec4s (min, max) after the vkrt_spheres, and a bounding box per primitive; the geometry's entry of the table that maps primitive ids back to (geometry,
 // primitive). One dispatch per geometry (src/accel/geometry.rs), plus one that writes the
 // scene constants (MODE_HEADER).
 //
@@ -40,11 +40,11 @@ layout(std430, binding = 1) readonly buffer Indices { uint idx[]; };
 #define SRC(i) src[i]
 #define IDX(i) idx[i]
 #endif
-layout(std430, binding = 2) writeonly buffer TriVerts { float tri_verts[]; };
-layout(std430, binding = 3) writeonly buffer Spheres { vec4 spheres[]; };
+layout(std430, binding = 2) writeonly buffer VkrtTriVertsBinding { float vkrt_tri_verts[]; };
+layout(std430, binding = 3) writeonly buffer VkrtSpheresBinding { vec4 vkrt_spheres[]; };
 layout(std430, binding = 4) writeonly buffer Boxes { float boxes[]; };
 // `SceneInfo` (src/accel/primitives.rs) and the geometry table after it.
-layout(std430, binding = 5) buffer SceneInfoBuf {
+layout(std430, binding = 5) buffer VkrtSceneInfoBinding {
     vec4 bounds_min;
     vec4 bounds_max;
     uint n_tris;
@@ -64,7 +64,7 @@ layout(push_constant) uniform Push {
     uint first;        // first primitive id (MODE_HEADER: n_spheres)
     uint out_first;    // first triangle / sphere slot (MODE_HEADER: parents_at)
     uint src_word;     // first vertex (sphere) word in `src` (MODE_HEADER: walk)
-    uint stride_words; // words between vertices (spheres)
+    uint stride_words; // words between vertices (vkrt_spheres)
     uint index_type;
     uint index_first;  // first index, in indices, within the bound range (MODE_HEADER: n_geometries)
     uint vertex_count; // (MODE_HEADER: n_aabbs)
@@ -72,7 +72,7 @@ layout(push_constant) uniform Push {
     uint geometry;
     uint has_transform;
     vec4 rows[3];      // the 3x4 object-to-structure transform, row-major
-    uvec2 src_address; // `address`: where word 0 of the vertices (spheres) lies
+    uvec2 src_address; // `address`: where word 0 of the vertices (vkrt_spheres) lies
     uvec2 idx_address; // `address`: where word 0 of the indices lies
 } pc;
 
@@ -205,15 +205,15 @@ void main() {
             p2 = p0;
         }
         uint t = 9u * (pc.out_first + i);
-        tri_verts[t] = p0.x;
-        tri_verts[t + 1u] = p0.y;
-        tri_verts[t + 2u] = p0.z;
-        tri_verts[t + 3u] = p1.x;
-        tri_verts[t + 4u] = p1.y;
-        tri_verts[t + 5u] = p1.z;
-        tri_verts[t + 6u] = p2.x;
-        tri_verts[t + 7u] = p2.y;
-        tri_verts[t + 8u] = p2.z;
+        vkrt_tri_verts[t] = p0.x;
+        vkrt_tri_verts[t + 1u] = p0.y;
+        vkrt_tri_verts[t + 2u] = p0.z;
+        vkrt_tri_verts[t + 3u] = p1.x;
+        vkrt_tri_verts[t + 4u] = p1.y;
+        vkrt_tri_verts[t + 5u] = p1.z;
+        vkrt_tri_verts[t + 6u] = p2.x;
+        vkrt_tri_verts[t + 7u] = p2.y;
+        vkrt_tri_verts[t + 8u] = p2.z;
         write_box(prim, lo, hi);
     } else if (pc.mode == MODE_AABBS) {
         uint w = pc.src_word + i * pc.stride_words;
@@ -226,8 +226,8 @@ void main() {
             lo = vec3(uintBitsToFloat(0x7f800000u));
             hi = -lo;
         }
-        spheres[pc.out_first + 2u * i] = vec4(lo, 0.0);
-        spheres[pc.out_first + 2u * i + 1u] = vec4(hi, 0.0);
+        vkrt_spheres[pc.out_first + 2u * i] = vec4(lo, 0.0);
+        vkrt_spheres[pc.out_first + 2u * i + 1u] = vec4(hi, 0.0);
         // TraceGeometry::from_primitives: an inactive box is bounded by the origin.
         bool in_use = all(lessThanEqual(lo, hi));
         write_box(prim, in_use ? lo : vec3(0.0), in_use ? hi : vec3(0.0));
@@ -242,7 +242,7 @@ void main() {
             c = vec3(0.0);
             r = 0.0;
         }
-        spheres[pc.out_first + i] = vec4(c, r);
+        vkrt_spheres[pc.out_first + i] = vec4(c, r);
         precise vec3 lo = c - vec3(r);
         precise vec3 hi = c + vec3(r);
         // Rounded outwards, as sphere_box in src/accel/primitives.rs.

@@ -19,8 +19,8 @@
 // `exact`: the inverse's division rounded correctly in doubles where the driver's is not
 // (specialization constant 21), so the records equal the twin's on every device; `float`
 // (devices without shaderFloat64): the driver's division.
-//! variant exact FP64_FALLBACK=1
-//! variant float FP64_FALLBACK=0
+//! variant exact VKRT_FP64_FALLBACK=1
+//! variant float VKRT_FP64_FALLBACK=0
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "include/vkrt/ray.glsl"

@@ -23,10 +23,10 @@ void main() {
     vec3 p0 = vec3(verts[9 * i + 0], verts[9 * i + 1], verts[9 * i + 2]);
     vec3 p1 = vec3(verts[9 * i + 3], verts[9 * i + 4], verts[9 * i + 5]);
     vec3 p2 = vec3(verts[9 * i + 6], verts[9 * i + 7], verts[9 * i + 8]);
-    min_x[i] = fmin_total(fmin_total(p0.x, p1.x), p2.x);
-    min_y[i] = fmin_total(fmin_total(p0.y, p1.y), p2.y);
-    min_z[i] = fmin_total(fmin_total(p0.z, p1.z), p2.z);
-    max_x[i] = fmax_total(fmax_total(p0.x, p1.x), p2.x);
-    max_y[i] = fmax_total(fmax_total(p0.y, p1.y), p2.y);
-    max_z[i] = fmax_total(fmax_total(p0.z, p1.z), p2.z);
+    min_x[i] = vkrt_fmin_total(vkrt_fmin_total(p0.x, p1.x), p2.x);
+    min_y[i] = vkrt_fmin_total(vkrt_fmin_total(p0.y, p1.y), p2.y);
+    min_z[i] = vkrt_fmin_total(vkrt_fmin_total(p0.z, p1.z), p2.z);
+    max_x[i] = vkrt_fmax_total(vkrt_fmax_total(p0.x, p1.x), p2.x);
+    max_y[i] = vkrt_fmax_total(vkrt_fmax_total(p0.y, p1.y), p2.y);
+    max_z[i] = vkrt_fmax_total(vkrt_fmax_total(p0.z, p1.z), p2.z);
 }

@@ -23,7 +23,7 @@ void main() {
         return;
     }
     uint s = node_split[2u * i];
-    if (s == KD_LEAF) {
+    if (s == VKRT_KD_LEAF) {
         return;
     }
     uint first = node_range[2u * i];

@@ -56,12 +56,12 @@ void main() {
     uvec2 range = pair_uints(node_range[node]); // (first, count)
     uint first = range.x;
     uint count = range.y;
-    uvec2 split = pair_uints(node_split[node]); // (axis or KD_LEAF, plane)
+    uvec2 split = pair_uints(node_split[node]); // (axis or VKRT_KD_LEAF, plane)
     uint s = split.x;
     uint below = 0u;
     uint above = 0u;
     float p = 0.0;
-    if (s != KD_LEAF) {
+    if (s != VKRT_KD_LEAF) {
         p = uintBitsToFloat(split.y);
         float lo = s == 0u ? box0[2u * id] : (s == 1u ? box0[2u * id + 1u] : box1[2u * id]);
         float hi = s == 0u ? box1[2u * id + 1u] : (s == 1u ? box2[2u * id] : box2[2u * id + 1u]);
@@ -78,7 +78,7 @@ void main() {
     slots[v] = uint8_t(below);
     slots[v + 2u * count] = uint8_t(above);
 #ifdef FULL_RECORDS
-    if (s == KD_LEAF) {
+    if (s == VKRT_KD_LEAF) {
         return;
     }
     float mnx = box0[2u * id], mny = box0[2u * id + 1u], mnz = box1[2u * id];
@@ -97,12 +97,12 @@ void main() {
         tmp_prim[o] = pr;
         tmp_node[o] = child + side;
         bool up = side == 1u;
-        float cmnx = (up && s == 0u) ? fmax_total(mnx, p) : mnx;
-        float cmny = (up && s == 1u) ? fmax_total(mny, p) : mny;
-        float cmnz = (up && s == 2u) ? fmax_total(mnz, p) : mnz;
-        float cmxx = (!up && s == 0u) ? fmin_total(mxx, p) : mxx;
-        float cmxy = (!up && s == 1u) ? fmin_total(mxy, p) : mxy;
-        float cmxz = (!up && s == 2u) ? fmin_total(mxz, p) : mxz;
+        float cmnx = (up && s == 0u) ? vkrt_fmax_total(mnx, p) : mnx;
+        float cmny = (up && s == 1u) ? vkrt_fmax_total(mny, p) : mny;
+        float cmnz = (up && s == 2u) ? vkrt_fmax_total(mnz, p) : mnz;
+        float cmxx = (!up && s == 0u) ? vkrt_fmin_total(mxx, p) : mxx;
+        float cmxy = (!up && s == 1u) ? vkrt_fmin_total(mxy, p) : mxy;
+        float cmxz = (!up && s == 2u) ? vkrt_fmin_total(mxz, p) : mxz;
         tmp_box0[o] = floats_pair(vec2(cmnx, cmny));
         tmp_box1[o] = floats_pair(vec2(cmnz, cmxx));
         tmp_box2[o] = floats_pair(vec2(cmxy, cmxz));

@@ -1,6 +1,6 @@
 #version 460
 // kd-tree Phase II, pass 3: leaf or split, per node of the level (twin: breadth_first "decide").
-// node_split[2i] = split axis, or KD_LEAF; node_split[2i + 1] = plane bits.
+// node_split[2i] = split axis, or VKRT_KD_LEAF; node_split[2i + 1] = plane bits.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "accel/kdtree_level.glsl"
@@ -43,7 +43,7 @@ void main() {
         axis = axis_of[e];
         plane = axis == 0u ? plane0[e] : (axis == 1u ? plane1[e] : plane2[e]);
     }
-    node_split[2u * i] = leaf ? KD_LEAF : axis;
+    node_split[2u * i] = leaf ? VKRT_KD_LEAF : axis;
     node_split[2u * i + 1u] = floatBitsToUint(plane);
     inner_flag[i] = leaf ? 0u : 1u;
     leaf_count[i] = leaf ? count : 0u;

@@ -16,8 +16,8 @@ layout(std430, binding = 3) readonly buffer MinZ { float min_z[]; };
 layout(std430, binding = 4) readonly buffer MaxX { float max_x[]; };
 layout(std430, binding = 5) readonly buffer MaxY { float max_y[]; };
 layout(std430, binding = 6) readonly buffer MaxZ { float max_z[]; };
-layout(std430, binding = 7) buffer Nodes { KdNode nodes[]; };
-layout(std430, binding = 8) writeonly buffer SceneInfoBuf {
+layout(std430, binding = 7) buffer Nodes { VkrtKdNode nodes[]; };
+layout(std430, binding = 8) writeonly buffer VkrtSceneInfoBinding {
     vec4 bounds_min;
     vec4 bounds_max;
     uint n_tris;
@@ -49,7 +49,7 @@ void main() {
         // TraceGeometry::info of an empty box.
         info.bounds_min = vec4(0.0);
         info.bounds_max = vec4(0.0);
-        nodes[0] = KdNode(0.0, KD_LEAF, 0u, 0u);
+        nodes[0] = VkrtKdNode(0.0, VKRT_KD_LEAF, 0u, 0u);
     }
     built[0] = usable ? state[ST_NODE_BASE] : 1u;
     built[1] = usable ? state[ST_REF_BASE] : 0u;

@@ -1,5 +1,5 @@
 #version 460
-// kd-tree Phase I for box input (spheres, moving primitives, any mix): splits 6 floats per
+// kd-tree Phase I for box input (vkrt_spheres, moving primitives, any mix): splits 6 floats per
 // primitive (min x, y, z, max x, y, z) into the six SoA arrays kdtree_boxes writes for
 // triangles. A plain copy, so the CPU twin (breadth_first::build_boxes) sees the same bits.
 layout(local_size_x_id = 0) in;

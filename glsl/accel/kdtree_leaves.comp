@@ -22,7 +22,7 @@ void main() {
         return;
     }
     uint node = node0[id];
-    if (node_split[2u * node] != KD_LEAF || kind_of(kind0[id / 4u], id) != 1u) {
+    if (node_split[2u * node] != VKRT_KD_LEAF || kind_of(kind0[id / 4u], id) != 1u) {
         return;
     }
     uint rank = starts0[id] - node_range[2u * node];

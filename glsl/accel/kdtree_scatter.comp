@@ -66,7 +66,7 @@ void main() {
         return;
     }
     uint node = node_of[id];
-    if (node_split[2u * node] == KD_LEAF) {
+    if (node_split[2u * node] == VKRT_KD_LEAF) {
         return;
     }
     uint first = node_range[2u * node];
@@ -96,9 +96,9 @@ void main() {
         return;
     }
     uint node = node_of[id];
-    uvec2 split = pair_uints(node_split[node]); // (axis or KD_LEAF, plane)
+    uvec2 split = pair_uints(node_split[node]); // (axis or VKRT_KD_LEAF, plane)
     uint s = split.x;
-    if (s == KD_LEAF) {
+    if (s == VKRT_KD_LEAF) {
         return;
     }
     uvec2 range = pair_uints(node_range[node]); // (first, count)
@@ -134,12 +134,12 @@ void main() {
         out_node[o] = child + side;
         // Clip on the split axis only: the below copy's max, the above copy's min.
         bool up = side == 1u;
-        float cmnx = (up && s == 0u) ? fmax_total(mnx, p) : mnx;
-        float cmny = (up && s == 1u) ? fmax_total(mny, p) : mny;
-        float cmnz = (up && s == 2u) ? fmax_total(mnz, p) : mnz;
-        float cmxx = (!up && s == 0u) ? fmin_total(mxx, p) : mxx;
-        float cmxy = (!up && s == 1u) ? fmin_total(mxy, p) : mxy;
-        float cmxz = (!up && s == 2u) ? fmin_total(mxz, p) : mxz;
+        float cmnx = (up && s == 0u) ? vkrt_fmax_total(mnx, p) : mnx;
+        float cmny = (up && s == 1u) ? vkrt_fmax_total(mny, p) : mny;
+        float cmnz = (up && s == 2u) ? vkrt_fmax_total(mnz, p) : mnz;
+        float cmxx = (!up && s == 0u) ? vkrt_fmin_total(mxx, p) : mxx;
+        float cmxy = (!up && s == 1u) ? vkrt_fmin_total(mxy, p) : mxy;
+        float cmxz = (!up && s == 2u) ? vkrt_fmin_total(mxz, p) : mxz;
         out_box0[o] = floats_pair(vec2(cmnx, cmny));
         out_box1[o] = floats_pair(vec2(cmnz, cmxx));
         out_box2[o] = floats_pair(vec2(cmxy, cmxz));

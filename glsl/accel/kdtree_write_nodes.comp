@@ -11,11 +11,11 @@ layout(std430, binding = 3) readonly buffer InnerBefore { uint inner_before[]; }
 layout(std430, binding = 4) readonly buffer LeafBefore { uint leaf_before[]; };
 // The output nodes in two buffers (each within maxStorageBufferRange): node g is
 // nodes0[g] below `split`, nodes1[g − split] from there on.
-layout(std430, binding = 5) writeonly buffer Nodes0 { KdNode nodes0[]; };
-layout(std430, binding = 6) writeonly buffer Nodes1 { KdNode nodes1[]; };
+layout(std430, binding = 5) writeonly buffer Nodes0 { VkrtKdNode nodes0[]; };
+layout(std430, binding = 6) writeonly buffer Nodes1 { VkrtKdNode nodes1[]; };
 layout(push_constant) uniform Push { uint node_capacity; uint split; } pc;
 
-void put(uint g, KdNode n) {
+void put(uint g, VkrtKdNode n) {
     if (g < pc.split) {
         nodes0[g] = n;
     } else {
@@ -31,10 +31,10 @@ void main() {
         return; // past capacity: kdtree_advance raises the overflow flag
     }
     uint kind = node_split[2u * i];
-    if (kind == KD_LEAF) {
-        put(g, KdNode(0.0, KD_LEAF, state[ST_REF_BASE] + leaf_before[i], node_range[2u * i + 1u]));
+    if (kind == VKRT_KD_LEAF) {
+        put(g, VkrtKdNode(0.0, VKRT_KD_LEAF, state[ST_REF_BASE] + leaf_before[i], node_range[2u * i + 1u]));
     } else {
         uint first_child = state[ST_NODE_BASE] + m + 2u * inner_before[i];
-        put(g, KdNode(uintBitsToFloat(node_split[2u * i + 1u]), kind, first_child, 0u));
+        put(g, VkrtKdNode(uintBitsToFloat(node_split[2u * i + 1u]), kind, first_child, 0u));
     }
 }

@@ -30,10 +30,10 @@ layout(std430, binding = 1) buffer Refs { uint refs[]; };
 layout(std430, binding = 2) readonly buffer Boxes { WORD_PAIR box_pairs[]; };
 // The codes in sorted order, (high, low) words.
 layout(std430, binding = 3) readonly buffer Codes { WORD_PAIR codes[]; };
-// Per split: the far end of the child that arrived first; NO_NODE before the dispatch.
+// Per split: the far end of the child that arrived first; VKRT_NO_NODE before the dispatch.
 layout(std430, binding = 4) coherent buffer Meet { uint meet[]; };
 // `SceneInfo` (src/accel/primitives.rs): the root box is written.
-layout(std430, binding = 5) buffer SceneInfoBuf {
+layout(std430, binding = 5) buffer VkrtSceneInfoBinding {
     vec4 bounds_min;
     vec4 bounds_max;
     uint n_tris;
@@ -82,11 +82,11 @@ void main() {
             LOAD_PRIM_BOX(box_pairs, refs[0], lo, hi);
             vec3 none_lo = vec3(1.0 / 0.0);
             vec3 none_hi = vec3(-1.0 / 0.0);
-            VkrtBvhNode root = VkrtBvhNode(lo, 0u, hi, 1u, none_lo, NO_NODE, none_hi, 0u);
+            VkrtBvhNode root = VkrtBvhNode(lo, 0u, hi, 1u, none_lo, VKRT_NO_NODE, none_hi, 0u);
             STORE_NODE(node_pairs, 0u, root);
-            refs[1] = NO_NODE;
-            info.bounds_min = vec4(vmin(lo, none_lo), 0.0);
-            info.bounds_max = vec4(vmax(hi, none_hi), 0.0);
+            refs[1] = VKRT_NO_NODE;
+            info.bounds_min = vec4(vkrt_vmin(lo, none_lo), 0.0);
+            info.bounds_max = vec4(vkrt_vmax(hi, none_hi), 0.0);
         }
         return;
     }
@@ -140,11 +140,11 @@ void main() {
 #ifdef COLLAPSE_COSTS
                 decide(CollapseParams(pc.c_trav, pc.c_isect, pc.max_leaf), slot, node);
 #endif
-                lo = vmin(node.a_min, node.b_min);
-                hi = vmax(node.a_max, node.b_max);
+                lo = vkrt_vmin(node.a_min, node.b_min);
+                hi = vkrt_vmax(node.a_max, node.b_max);
             }
             if (root) {
-                refs[n] = NO_NODE;
+                refs[n] = VKRT_NO_NODE;
                 info.bounds_min = vec4(lo, 0.0);
                 info.bounds_max = vec4(hi, 0.0);
                 climbing = false;
@@ -158,7 +158,7 @@ void main() {
         memoryBarrierBuffer(); // the node is visible before its arrival is counted
         if (climbing) {
             uint other_end = atomicExchange(meet[meet_at], far_end);
-            if (other_end == NO_NODE) {
+            if (other_end == VKRT_NO_NODE) {
                 climbing = false; // the sibling, arriving last, completes the parent
             } else {
                 s = meet_at;

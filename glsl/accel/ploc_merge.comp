@@ -21,7 +21,7 @@ layout(std430, binding = 5) writeonly buffer Nodes { VkrtBvhNode nodes[]; };
 layout(std430, binding = 6) buffer Refs { uint refs[]; };
 layout(std430, binding = 7) readonly buffer State { uint state[]; };
 // `SceneInfo` (src/accel/primitives.rs): the root box is written by the last merge.
-layout(std430, binding = 8) buffer SceneInfoBuf {
+layout(std430, binding = 8) buffer VkrtSceneInfoBinding {
     vec4 bounds_min;
     vec4 bounds_max;
     uint n_tris;
@@ -72,10 +72,10 @@ void main() {
         if (child_count(o.child) == 0u) {
             refs[pc.n + o.child] = idx;
         }
-        Cluster m = Cluster(vmin(c.lo, o.lo), idx, vmax(c.hi, o.hi), 0u);
+        Cluster m = Cluster(vkrt_vmin(c.lo, o.lo), idx, vkrt_vmax(c.hi, o.hi), 0u);
         dst[rank.y] = m;
         if (idx == 0u) {
-            refs[pc.n] = NO_NODE;
+            refs[pc.n] = VKRT_NO_NODE;
             info.bounds_min = vec4(m.lo, 0.0);
             info.bounds_max = vec4(m.hi, 0.0);
         }

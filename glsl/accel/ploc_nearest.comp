@@ -24,7 +24,7 @@ uint pair_hash(uint lo, uint hi) {
 }
 
 float merged_area(Cluster a, Cluster b) {
-    precise vec3 d = vmax(a.hi, b.hi) - vmin(a.lo, b.lo);
+    precise vec3 d = vkrt_vmax(a.hi, b.hi) - vkrt_vmin(a.lo, b.lo);
     precise float s = d.x * d.y + d.y * d.z + d.z * d.x;
     return s;
 }
@@ -44,18 +44,18 @@ void main() {
     uint hi = min(i + RADIUS, count - 1u);
     float best_d = 1.0 / 0.0;
     uint best_h = 0xffffffffu;
-    uint best = NO_NODE;
+    uint best = VKRT_NO_NODE;
     for (uint j = lo; j <= hi; j++) {
         if (j == i) {
             continue;
         }
         float d = merged_area(c, clusters[j]);
         uint h = pair_hash(min(i, j), max(i, j));
-        if (best == NO_NODE || d < best_d || (d == best_d && (h < best_h || (h == best_h && j < best)))) {
+        if (best == VKRT_NO_NODE || d < best_d || (d == best_d && (h < best_h || (h == best_h && j < best)))) {
             best_d = d;
             best_h = h;
             best = j;
         }
     }
-    nn[i] = best == NO_NODE ? i : best;
+    nn[i] = best == VKRT_NO_NODE ? i : best;
 }

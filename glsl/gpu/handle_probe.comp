@@ -17,7 +17,7 @@ struct ProbeRay {
     vec4 dir_tmax;
 };
 layout(std430, binding = 0) readonly buffer Rays { ProbeRay rays[]; };
-// Per ray: t (bits; NO_HIT for a miss, NO_HIT - 1 when the walk gave up), geometry index,
+// Per ray: t (bits; VKRT_NO_HIT for a miss, VKRT_NO_HIT - 1 when the walk gave up), geometry index,
 // primitive index, instance index (or, with `mode` bit 0, the instance's custom index).
 layout(std430, binding = 1) writeonly buffer Hits { uvec4 hits[]; };
 layout(push_constant) uniform Push {

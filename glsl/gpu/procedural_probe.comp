@@ -4,7 +4,7 @@
 // inscribed in it (centre the box's centre, radius half its shortest side), and the
 // intersection hands the geometry and primitive index it was given back as the hit's
 // attributes. tests/accel_device_input.rs compares the hits with the CPU twin over those
-// spheres.
+// vkrt_spheres.
 layout(local_size_x_id = 0) in;
 
 #define VKRT_BINDING 2
@@ -17,7 +17,7 @@ struct ProbeRay {
 };
 layout(std430, binding = 0) readonly buffer Rays { ProbeRay rays[]; };
 // Per ray: t (bits), geometry index, primitive index, attributes (x, y as 16-bit halves),
-// or NO_HIT in the first word for a miss.
+// or VKRT_NO_HIT in the first word for a miss.
 layout(std430, binding = 1) writeonly buffer Hits { uvec4 hits[]; };
 layout(push_constant) uniform Push { uint n; } pc;
 
@@ -28,7 +28,7 @@ bool vkrtIntersectAabb(uint geometryIndex, uint primitiveIndex, vec3 origin, vec
     vec3 e = boxMax - boxMin;
     float r = 0.5 * min(min(e.x, e.y), e.z);
     attributes = vec2(float(geometryIndex), float(primitiveIndex));
-    return hit_sphere(origin, direction, vec4(c, r), tMin, tMax, t);
+    return vkrt_hit_sphere(origin, direction, vec4(c, r), tMin, tMax, t);
 }
 
 void main() {

@@ -1,10 +1,10 @@
 #version 460
-// div_rn and sqrt_rn (vkrt/ray.glsl) over pairs of floats, with the driver's division and
+// vkrt_div_rn and vkrt_sqrt_rn (vkrt/ray.glsl) over pairs of floats, with the driver's division and
 // square root as they are (`exact`) or made as inexact as Vulkan allows and more (`sloppy`:
 // up to 3 ulps off, chosen per input), so the refinement is tested on a device whose own
 // division is exact (lavapipe).
-//! variant exact FP64_FALLBACK=1
-//! variant sloppy FP64_FALLBACK=1 SLOPPY=1
+//! variant exact VKRT_FP64_FALLBACK=1
+//! variant sloppy VKRT_FP64_FALLBACK=1 SLOPPY=1
 #extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
 layout(local_size_x_id = 0) in;
 
@@ -36,5 +36,5 @@ void main() {
         return;
     }
     vec2 p = pairs[i];
-    result[i] = uvec2(floatBitsToUint(div_rn(p.x, p.y)), floatBitsToUint(sqrt_rn(abs(p.x))));
+    result[i] = uvec2(floatBitsToUint(vkrt_div_rn(p.x, p.y)), floatBitsToUint(vkrt_sqrt_rn(abs(p.x))));
 }

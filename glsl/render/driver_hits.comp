@@ -7,7 +7,7 @@ layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "render/common.glsl"
 
-// 16 bytes: extend.comp's `Hit`.
+// 16 bytes: extend.comp's `VkrtWalkHit`.
 struct PathHit {
     float t;
     uint prim;

@@ -22,7 +22,7 @@ layout(constant_id = 21) const bool REFINE = true;
 #include "common/grid.glsl"
 #include "render/common.glsl"
 
-// 16 bytes: extend.comp's `Hit` (the library keeps its own names to itself).
+// 16 bytes: extend.comp's `VkrtWalkHit` (the library keeps its own names to itself).
 struct PathHit {
     float t;
     uint prim;

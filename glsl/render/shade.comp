@@ -16,9 +16,9 @@
 #extension GL_EXT_shader_8bit_storage : require
 #extension GL_EXT_shader_explicit_arithmetic_types_int8 : require
 layout(local_size_x_id = 0) in;
-layout(constant_id = 1) const uint INTERSECTOR = 0u;
-layout(constant_id = 2) const bool ANY_HIT = false;
-layout(constant_id = 3) const uint STACK_SIZE = 1u;
+layout(constant_id = 1) const uint VKRT_INTERSECTOR = 0u;
+layout(constant_id = 2) const bool VKRT_ANY_HIT = false;
+layout(constant_id = 3) const uint VKRT_KD_STACK = 1u;
 layout(constant_id = 4) const bool LIGHTS = false;
 layout(constant_id = 5) const bool AREA_LIGHTS = false;
 layout(constant_id = 6) const bool REFLECTION = false;
@@ -52,8 +52,8 @@ layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer Lev
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer LevelVec4s { vec4 v[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer LevelUints { uint v[]; };
 // Where the level arrays lie: per level primitive (every bottom level's triangles then
-// spheres, bottom after bottom) its object-space vertices, 9 floats (spheres: unused); the
-// level spheres; per level primitive its material and its shading normals (9 floats).
+// vkrt_spheres, bottom after bottom) its object-space vertices, 9 floats (vkrt_spheres: unused); the
+// level vkrt_spheres; per level primitive its material and its shading normals (9 floats).
 layout(std430, binding = 5) readonly buffer LevelArrays { uint64_t level_addr[4]; };
 #define level_verts LevelFloats(level_addr[0]).v
 #define level_spheres LevelVec4s(level_addr[1]).v
@@ -64,12 +64,12 @@ layout(std430, binding = 8) readonly buffer HitInstance { uint hit_instance[]; }
 // Per moving instance its steps' object-to-world rows.
 layout(std430, binding = 9) readonly buffer Steps { Rows steps[]; };
 #else
-#define GEOM_BINDING 3
+#define VKRT_GEOM_BINDING 3
 #include "include/vkrt/traverse.glsl"
 #endif
 
 layout(std430, binding = 0) readonly buffer Queue { PathRay queue[]; };
-layout(std430, binding = 1) readonly buffer Hits { Hit hits[]; };
+layout(std430, binding = 1) readonly buffer Hits { VkrtWalkHit hits[]; };
 layout(std430, binding = 2) buffer Counters { uint counters[]; };
 layout(std430, binding = 10) readonly buffer Params { RenderParams prm; };
 layout(std430, binding = 11) readonly buffer Materials { Material materials[]; };
@@ -84,7 +84,7 @@ layout(std430, binding = 17) writeonly buffer Children { PathRay children[]; };
 layout(std430, binding = 18) writeonly buffer Flags { uint8_t flags[]; };
 
 // tmax of unbounded rays (reflection, refraction, directional-light shadows): +inf.
-#define FAR positive_inf()
+#define FAR vkrt_positive_inf()
 
 vec3 normal_at(uint tri, uint corner) {
     uint k = 9u * tri + 3u * corner;
@@ -127,10 +127,10 @@ vec3 place_normal(Placement pl, vec3 n) {
 #else
 // Rotation part of a motion, for normals.
 vec3 move_vector(vec3 n, uint prim, float time) {
-    if (scene_info.has_motion == 0u || prim_motion[prim] == NO_MOTION) {
+    if (vkrt_scene_info.has_motion == 0u || vkrt_prim_motion[prim] == VKRT_NO_MOTION) {
         return n;
     }
-    MotionRecord m = motions[prim_motion[prim]];
+    VkrtMotionRecord m = vkrt_motions[vkrt_prim_motion[prim]];
     float angle = m.velocity.w * time;
     if (angle == 0.0) {
         return n;
@@ -195,7 +195,7 @@ void main() {
         return;
     }
     PathRay p = queue[i];
-    Hit h = hits[i];
+    VkrtWalkHit h = hits[i];
     uint slots = prm.shadow_slots;
     for (uint k = 0u; k < slots; k++) {
         shadows[i * slots + k].kind = SHADOW_NONE;
@@ -203,11 +203,11 @@ void main() {
     // Glossy rays leave the lights to the Phong term of light sampling (no double count).
     vec3 le;
     if (AREA_LIGHTS && p.kind != RAY_GLOSSY
-        && light_seen(p.o, p.d, p.tmin, h.prim == NO_HIT ? p.tmax : h.t, le)) {
+        && light_seen(p.o, p.d, p.tmin, h.prim == VKRT_NO_HIT ? p.tmax : h.t, le)) {
         radiance[i] = vec4(p.weight * le, 0.0);
         return;
     }
-    if (h.prim == NO_HIT) {
+    if (h.prim == VKRT_NO_HIT) {
         radiance[i] = vec4(p.weight * prm.background.xyz, 0.0);
         return;
     }
@@ -239,25 +239,25 @@ void main() {
     }
     uint material = pl.info.w != PER_PRIMITIVE ? pl.info.w : prim_material[level_prim];
 #else
-    if (h.prim < scene_info.n_tris) {
+    if (h.prim < vkrt_scene_info.n_tris) {
         vec3 p0, p1, p2;
-        triangle_at(h.prim, p.time, p0, p1, p2);
+        vkrt_triangle_at(h.prim, p.time, p0, p1, p2);
         float w = 1.0 - h.u - h.v;
         x = w * p0 + h.u * p1 + h.v * p2;
         ng = normalize(cross(p1 - p0, p2 - p0));
         vec3 n = w * normal_at(h.prim, 0u) + h.u * normal_at(h.prim, 1u)
             + h.v * normal_at(h.prim, 2u);
         ns = dot(n, n) > 0.0 ? normalize(move_vector(n, h.prim, p.time)) : ng;
-    } else if (h.prim - scene_info.n_tris < scene_info.n_spheres) {
-        vec4 s = sphere_at(h.prim - scene_info.n_tris, p.time);
+    } else if (h.prim - vkrt_scene_info.n_tris < vkrt_scene_info.n_spheres) {
+        vec4 s = vkrt_sphere_at(h.prim - vkrt_scene_info.n_tris, p.time);
         ng = normalize(p.o + h.t * p.d - s.xyz);
         x = s.xyz + ng * s.w;
         ns = ng;
     } else {
         vec3 lo, hi;
-        aabb_at(h.prim - scene_info.n_tris - scene_info.n_spheres, lo, hi);
+        vkrt_aabb_at(h.prim - vkrt_scene_info.n_tris - vkrt_scene_info.n_spheres, lo, hi);
         x = p.o + h.t * p.d;
-        ng = aabb_normal(lo, hi, x);
+        ng = vkrt_aabb_normal(lo, hi, x);
         ns = ng;
     }
     uint material = prim_material[h.prim];
@@ -283,7 +283,7 @@ void main() {
     radiance[i] = vec4(p.weight * l, 0.0);
 
     uint rng = pcg(p.seed ^ 0xA511E9B3u);
-    vec3 o_front = offset_ray_origin(x, ng);
+    vec3 o_front = vkrt_offset_ray_origin(x, ng);
     if (LIGHTS) {
         for (uint li = 0u; li < prm.n_lights; li++) {
             Light lt = lights[li];
@@ -387,7 +387,7 @@ void main() {
             vec3 g = sample_cone(t, m.specular.w, rng);
             t = dot(g, ng) < 0.0 ? g : t;
         }
-        children[2u * i + 1u] = PathRay(offset_ray_origin(x, -ng), 0.0, t, FAR, tw, p.pixel,
+        children[2u * i + 1u] = PathRay(vkrt_offset_ray_origin(x, -ng), 0.0, t, FAR, tw, p.pixel,
                                         p.time, p.depth + 1u, pcg(p.seed ^ 0xCC9E2D51u),
                                         RAY_REFRACTION);
         flags[2u * i + 1u] = uint8_t(1u);

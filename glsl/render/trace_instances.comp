@@ -4,7 +4,7 @@
 // addresses, the top level's handle in the push constants. The hit's primitive becomes the
 // scene's primitive id (the flat order of `TraceGeometry::at_time`): an instance of a
 // repeated mesh has the mesh's index as its custom index, and `mesh_first` gives that mesh's
-// first id; the bottom level of the meshes named once and the spheres maps its ids through
+// first id; the bottom level of the meshes named once and the vkrt_spheres maps its ids through
 // `rest_ids`.
 // `exact`: VKRT_EXACT (devices with shaderFloat64 and shaderInt64); `moller`: the
 // Moller-Trumbore test; `bitstack_*`: the bottom levels' BVHs walked with the bitstack walk
@@ -25,7 +25,7 @@ layout(constant_id = 21) const bool REFINE = true;
 #include "include/vkrt/ray_query.glsl"
 #include "common/grid.glsl"
 
-// 32 bytes each: `Ray` and `Hit` in src/trace/mod.rs.
+// 32 bytes each: `VkrtRay` and `VkrtWalkHit` in src/trace/mod.rs.
 struct TraceRay {
     vec4 origin_tmin;
     vec4 dir_tmax;

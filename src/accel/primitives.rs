@@ -16,7 +16,7 @@ use crate::scene::{swept_points, Aabb, Motion, Scene};
 /// Motion slot of a primitive that does not move.
 pub const NO_MOTION: u32 = u32::MAX;
 
-/// One rigid motion: 48 bytes, `MotionRecord` in `traverse.glsl`.
+/// One rigid motion: 48 bytes, `VkrtMotionRecord` in `traverse.glsl`.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct MotionRecord {

@@ -69,6 +69,35 @@ pub const ENTRY: &str = "vkrt/ray_query.glsl";
 /// Storage buffers a structure binds, from the first binding on.
 pub const BINDINGS: u32 = 7;
 
+/// The specialization constant that holds the walks' step cap (node visits + primitive
+/// tests per ray before a query reports `vkrtExhausted`) where the shader does not define
+/// `VKRT_MAX_TRAVERSAL_STEPS`; `VKRT_STEPS_CONSTANT_ID` moves it where the shader's own
+/// constants need this id. Unset, the cap is 60,000 (within lavapipe's loop budget); set
+/// it to the device's [`DeviceInfo::max_traversal_steps`](crate::gpu::DeviceInfo) with
+/// [`steps_specialization`].
+pub const STEPS_CONSTANT_ID: u32 = 1900;
+
+/// The map entry and data of a `VkSpecializationInfo` that set the library's step cap
+/// ([`STEPS_CONSTANT_ID`]) to `max_traversal_steps`:
+///
+/// ```
+/// use vkrt::accel::shader_library::steps_specialization;
+/// use vkrt::gpu::vk;
+/// let (entries, data) = steps_specialization(1 << 24);
+/// let info = vk::SpecializationInfo::default().map_entries(&entries).data(&data);
+/// assert_eq!(info.data_size, 4);
+/// ```
+pub fn steps_specialization(
+    max_traversal_steps: u32,
+) -> ([vk::SpecializationMapEntry; 1], [u8; 4]) {
+    let entry = vk::SpecializationMapEntry {
+        constant_id: STEPS_CONSTANT_ID,
+        offset: 0,
+        size: 4,
+    };
+    ([entry], max_traversal_steps.to_ne_bytes())
+}
+
 /// The directory holding `vkrt/` in this crate's sources (for `-I` of `glslc` or
 /// `glslangValidator`). Where the crate's sources are not at hand, write [`FILES`] out with
 /// [`write_to`].

@@ -14,7 +14,7 @@
 //! by its keyframed transform at `t`, then moved by its velocity and orbit.
 //!
 //! The renderer's motion model (`TraceGeometry::over_interval` and the GPU
-//! `MotionRecord`) is rigid velocity + orbit, so within one exposure a
+//! `VkrtMotionRecord`) is rigid velocity + orbit, so within one exposure a
 //! keyframed mesh is held at its keyed pose at the shutter-open time
 //! ([`Scene::hold_keyframes`]); its velocity and orbit still blur.
 

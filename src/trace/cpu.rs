@@ -1,4 +1,4 @@
-//! CPU twin of `trace_ray` in `glsl/include/vkrt/traverse.glsl` (same decisions in the same
+//! CPU twin of `vkrt_trace_ray` in `glsl/include/vkrt/traverse.glsl` (same decisions in the same
 //! order), and brute force over every primitive: the oracle the traversal is tested against.
 
 use glam::{Vec3, Vec4};

@@ -74,7 +74,7 @@ impl Shear {
 pub type TriHit = (f32, f32, f32);
 
 /// Watertight ray/triangle test (Woop, Benthin & Wald 2013); see `ray.glsl`. `exact`: the
-/// double-precision fallback for edge functions that round to zero (`FP64_FALLBACK`).
+/// double-precision fallback for edge functions that round to zero (`VKRT_FP64_FALLBACK`).
 #[allow(clippy::too_many_arguments)]
 pub fn triangle_watertight(
     exact: bool,

@@ -2,7 +2,7 @@
 // level's instances are walked with, and the interpolation of a moving instance's steps.
 // Every product and sum is `precise` and summed left to right, as their CPU twins
 // (`world_to_object`, `transform_at` in src/accel/instances.rs) round them; the one division
-// is `div_rn` (vkrt/ray.glsl): correctly rounded where FP64_FALLBACK is on, as on the CPU,
+// is `vkrt_div_rn` (vkrt/ray.glsl): correctly rounded where VKRT_FP64_FALLBACK is on, as on the CPU,
 // while a driver's own `/` may be 2.5 ulp off (NVIDIA's is).
 #ifndef VKRT_AFFINE_GLSL
 #define VKRT_AFFINE_GLSL
@@ -25,7 +25,7 @@ bool vkrt_invert_rows(vec4 m[3], out vec4 inv[3]) {
     precise float c21 = m[0].y * m[2].x - m[0].x * m[2].y;
     precise float c22 = m[0].x * m[1].y - m[0].y * m[1].x;
     precise float det = m[0].x * c00 + m[0].y * c10 + m[0].z * c20;
-    precise float inv_det = div_rn(1.0, det);
+    precise float inv_det = vkrt_div_rn(1.0, det);
     precise vec3 r0 = vec3(c00, c01, c02) * inv_det;
     precise vec3 r1 = vec3(c10, c11, c12) * inv_det;
     precise vec3 r2 = vec3(c20, c21, c22) * inv_det;

@@ -1,10 +1,10 @@
 // BVH traversal, included by traverse.glsl (which declares the geometry buffers,
-// hit_primitive and test_leaf). Nodes hold both children's boxes (Aila & Laine 2009); a child is an
+// vkrt_hit_primitive and vkrt_test_leaf). Nodes hold both children's boxes (Aila & Laine 2009); a child is an
 // interior node (count 0), a leaf (count > 0 references from index on) or missing (count 0,
-// index NO_NODE). Two walks, the same decisions in the same order as src/trace/bvh_cpu.rs:
-// a while-while stack walk (trace_bvh_stack: interior nodes until a leaf is in hand, then the
+// index VKRT_NO_NODE). Two walks, the same decisions in the same order as src/trace/bvh_cpu.rs:
+// a while-while stack walk (vkrt_trace_bvh_stack: interior nodes until a leaf is in hand, then the
 // leaf; far children and leaves on the stack with their entry distance), or Novák's (2019)
-// stackless bitstack (trace_bvh_bitstack: parent links and one bit per level, "the other
+// stackless bitstack (vkrt_trace_bvh_bitstack: parent links and one bit per level, "the other
 // child still waits"). Trees are at most 128 levels deep (MAX_TRAVERSAL_DEPTH in
 // src/accel/bvh/layout.rs: the SAH builder stops at 64, the LBVH's codes and indices give at
 // most 95, PLOC one level per round), which sizes the stack (one entry per level at most)
@@ -18,91 +18,91 @@
 #define VKRT_BVH_MAX_DEPTH 128u
 // The wide walk's stack: a wide level spans two binary ones (at most 64 levels), and each
 // pushes at most three children.
-#define WIDE_STACK_SIZE 192u
+#define VKRT_WIDE_STACK_SIZE 192u
 
 
 // The same binding as the kd-tree's nodes: one structure is bound at a time.
 #ifdef VKRT_DEVICE_ADDRESS
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtBvhNodes { VkrtBvhNode v[]; };
-VkrtBvhNodes vkrt_bvh_nodes;
-#define bvh_nodes vkrt_bvh_nodes.v
-#elif !TEXEL_NODES
-layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer BvhNodes { VkrtBvhNode bvh_nodes[]; };
+VkrtBvhNodes vkrt_bvh_nodes_ref;
+#define vkrt_bvh_nodes vkrt_bvh_nodes_ref.v
+#elif !VKRT_TEXEL_NODES
+layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 0) readonly buffer VkrtBvhNodesBinding { VkrtBvhNode vkrt_bvh_nodes[]; };
 #endif
-#if TEXEL_NODES
-// Four RGBA32UI texels per node (node_texels, traverse.glsl).
-VkrtBvhNode load_bvh_node(uint i) {
+#if VKRT_TEXEL_NODES
+// Four RGBA32UI texels per node (vkrt_node_texels, traverse.glsl).
+VkrtBvhNode vkrt_load_bvh_node(uint i) {
     int t = int(4u * i);
-    uvec4 a = texelFetch(node_texels, t);
-    uvec4 b = texelFetch(node_texels, t + 1);
-    uvec4 c = texelFetch(node_texels, t + 2);
-    uvec4 d = texelFetch(node_texels, t + 3);
+    uvec4 a = texelFetch(vkrt_node_texels, t);
+    uvec4 b = texelFetch(vkrt_node_texels, t + 1);
+    uvec4 c = texelFetch(vkrt_node_texels, t + 2);
+    uvec4 d = texelFetch(vkrt_node_texels, t + 3);
     return VkrtBvhNode(uintBitsToFloat(a.xyz), a.w, uintBitsToFloat(b.xyz), b.w,
                    uintBitsToFloat(c.xyz), c.w, uintBitsToFloat(d.xyz), d.w);
 }
-#elif FP64_FALLBACK
+#elif VKRT_FP64_FALLBACK
 // The same nodes as two 64-bit vectors each: on lavapipe every load is a loop over lanes and
 // components, so eight 64-bit components cost half the trips of sixteen 32-bit ones.
 #ifdef VKRT_DEVICE_ADDRESS
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtBvhNodes64 { u64vec4 v[]; };
-VkrtBvhNodes64 vkrt_bvh_nodes64;
-#define bvh_nodes64 vkrt_bvh_nodes64.v
+VkrtBvhNodes64 vkrt_bvh_nodes64_ref;
+#define vkrt_bvh_nodes64 vkrt_bvh_nodes64_ref.v
 #else
-layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer BvhNodes64 { u64vec4 bvh_nodes64[]; };
+layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 0) readonly buffer VkrtBvhNodes64Binding { u64vec4 vkrt_bvh_nodes64[]; };
 #endif
 
-vec2 two_floats(uint64_t w) {
+vec2 vkrt_two_floats(uint64_t w) {
     return uintBitsToFloat(unpack32(w));
 }
 
-uvec2 two_uints(uint64_t w) {
+uvec2 vkrt_two_uints(uint64_t w) {
     return unpack32(w);
 }
 
-VkrtBvhNode load_bvh_node(uint i) {
-    u64vec4 p = bvh_nodes64[2u * i];
-    u64vec4 q = bvh_nodes64[2u * i + 1u];
-    vec2 a0 = two_floats(p.x);
-    uvec2 a1 = two_uints(p.y);
-    vec2 a2 = two_floats(p.z);
-    uvec2 a3 = two_uints(p.w);
-    vec2 b0 = two_floats(q.x);
-    uvec2 b1 = two_uints(q.y);
-    vec2 b2 = two_floats(q.z);
-    uvec2 b3 = two_uints(q.w);
+VkrtBvhNode vkrt_load_bvh_node(uint i) {
+    u64vec4 p = vkrt_bvh_nodes64[2u * i];
+    u64vec4 q = vkrt_bvh_nodes64[2u * i + 1u];
+    vec2 a0 = vkrt_two_floats(p.x);
+    uvec2 a1 = vkrt_two_uints(p.y);
+    vec2 a2 = vkrt_two_floats(p.z);
+    uvec2 a3 = vkrt_two_uints(p.w);
+    vec2 b0 = vkrt_two_floats(q.x);
+    uvec2 b1 = vkrt_two_uints(q.y);
+    vec2 b2 = vkrt_two_floats(q.z);
+    uvec2 b3 = vkrt_two_uints(q.w);
     return VkrtBvhNode(vec3(a0, uintBitsToFloat(a1.x)), a1.y, vec3(a2, uintBitsToFloat(a3.x)), a3.y,
                    vec3(b0, uintBitsToFloat(b1.x)), b1.y, vec3(b2, uintBitsToFloat(b3.x)), b3.y);
 }
 #else
-VkrtBvhNode load_bvh_node(uint i) {
-    return bvh_nodes[i];
+VkrtBvhNode vkrt_load_bvh_node(uint i) {
+    return vkrt_bvh_nodes[i];
 }
 #endif
 
 // Wide nodes (bvh_wide_node.glsl) in the nodes binding, read the binary nodes' way.
-#if TEXEL_NODES
-WideNode load_wide_node(uint i) {
+#if VKRT_TEXEL_NODES
+VkrtWideNode vkrt_load_wide_node(uint i) {
     int t = int(4u * i);
-    return WideNode(texelFetch(node_texels, t), texelFetch(node_texels, t + 1),
-                    texelFetch(node_texels, t + 2), texelFetch(node_texels, t + 3));
+    return VkrtWideNode(texelFetch(vkrt_node_texels, t), texelFetch(vkrt_node_texels, t + 1),
+                    texelFetch(vkrt_node_texels, t + 2), texelFetch(vkrt_node_texels, t + 3));
 }
-#elif FP64_FALLBACK
-WideNode load_wide_node(uint i) {
-    u64vec4 p = bvh_nodes64[2u * i];
-    u64vec4 q = bvh_nodes64[2u * i + 1u];
-    return WideNode(uvec4(unpack32(p.x), unpack32(p.y)), uvec4(unpack32(p.z), unpack32(p.w)),
+#elif VKRT_FP64_FALLBACK
+VkrtWideNode vkrt_load_wide_node(uint i) {
+    u64vec4 p = vkrt_bvh_nodes64[2u * i];
+    u64vec4 q = vkrt_bvh_nodes64[2u * i + 1u];
+    return VkrtWideNode(uvec4(unpack32(p.x), unpack32(p.y)), uvec4(unpack32(p.z), unpack32(p.w)),
                     uvec4(unpack32(q.x), unpack32(q.y)), uvec4(unpack32(q.z), unpack32(q.w)));
 }
 #else
 #ifdef VKRT_DEVICE_ADDRESS
-layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtWideNodes { WideNode v[]; };
-VkrtWideNodes vkrt_wide_nodes;
-#define wide_nodes vkrt_wide_nodes.v
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtWideNodes { VkrtWideNode v[]; };
+VkrtWideNodes vkrt_wide_nodes_ref;
+#define vkrt_wide_nodes vkrt_wide_nodes_ref.v
 #else
-layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer WideNodes { WideNode wide_nodes[]; };
+layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 0) readonly buffer VkrtWideNodesBinding { VkrtWideNode vkrt_wide_nodes[]; };
 #endif
-WideNode load_wide_node(uint i) {
-    return wide_nodes[i];
+VkrtWideNode vkrt_load_wide_node(uint i) {
+    return vkrt_wide_nodes[i];
 }
 #endif
 
@@ -123,15 +123,15 @@ WideNode load_wide_node(uint i) {
 // `steps` and VKRT_BVH_POP's variables (the binary stack walk and the top-level walk of
 // vkrt/instances.glsl).
 #define VKRT_BVH_DESCEND()                                                             \
-    while (have && cur.y == 0u && steps <= MAX_TRAVERSAL_STEPS) {                      \
+    while (have && cur.y == 0u && steps <= VKRT_STEP_LIMIT) {                      \
         steps++;                                                                       \
-        VkrtBvhNode nd = load_bvh_node(cur.x);                                             \
+        VkrtBvhNode nd = vkrt_load_bvh_node(cur.x);                                             \
         float ta;                                                                      \
         float tb;                                                                      \
-        bool hit_a = (nd.a_count > 0u || nd.a_index != NO_NODE)                        \
-            && bvh_enter(nd.a_min, nd.a_max, r, inv_d, tmin, best_t, ta);              \
-        bool hit_b = (nd.b_count > 0u || nd.b_index != NO_NODE)                        \
-            && bvh_enter(nd.b_min, nd.b_max, r, inv_d, tmin, best_t, tb);              \
+        bool hit_a = (nd.a_count > 0u || nd.a_index != VKRT_NO_NODE)                        \
+            && vkrt_bvh_enter(nd.a_min, nd.a_max, r, inv_d, tmin, best_t, ta);              \
+        bool hit_b = (nd.b_count > 0u || nd.b_index != VKRT_NO_NODE)                        \
+            && vkrt_bvh_enter(nd.b_min, nd.b_max, r, inv_d, tmin, best_t, tb);              \
         uvec2 ca = uvec2(nd.a_index, nd.a_count);                                      \
         uvec2 cb = uvec2(nd.b_index, nd.b_count);                                      \
         if (hit_a && hit_b) {                                                          \
@@ -147,15 +147,15 @@ WideNode load_wide_node(uint i) {
         }                                                                              \
     }
 
-// Where the ray enters the box within [t0, t1] (traverse.glsl's clip_to_box).
-bool bvh_enter(vec3 bmin, vec3 bmax, Ray r, vec3 inv_d, float t0, float t1, out float t_in) {
+// Where the ray enters the box within [t0, t1] (traverse.glsl's vkrt_clip_to_box).
+bool vkrt_bvh_enter(vec3 bmin, vec3 bmax, VkrtRay r, vec3 inv_d, float t0, float t1, out float t_in) {
     float hi = t1;
     t_in = t0;
-    return clip_to_box(bmin, bmax, r, inv_d, t_in, hi);
+    return vkrt_clip_to_box(bmin, bmax, r, inv_d, t_in, hi);
 }
 
-uint bvh_parent(uint node) {
-    return KD_REF(scene_info.parents_at + node);
+uint vkrt_bvh_parent(uint node) {
+    return VKRT_KD_REF(vkrt_scene_info.parents_at + node);
 }
 
 // The stack walk, "while-while" (Aila & Laine 2009): descend through interior nodes until a
@@ -163,22 +163,9 @@ uint bvh_parent(uint node) {
 // together instead of every node step carrying the leaf test under a mask. Entries keep the
 // distance at which the ray enters them, and one that lies beyond the closest hit so far is
 // dropped when popped.
-Hit trace_bvh_stack(Ray r, float time, bool any_hit) {
-    Hit best = miss_hit();
-    if (!ray_is_valid(r) || primitive_count() == 0u) {
-        return best;
-    }
-    float tmin = max(r.tmin, 0.0);
-    Shear sh = make_shear(r.d);
-    vec3 inv_d = recip3(r.d);
-    float best_t = r.tmax;
-    // (index, count): count 0 is an interior node, count > 0 a leaf's references.
-    uvec2 stack[VKRT_BVH_MAX_DEPTH];
-    float stack_t[VKRT_BVH_MAX_DEPTH];
-    uint top = 0u;
-    uvec2 cur = uvec2(0u, 0u);
-    bool have = true;
-    uint steps = 0u;
+VkrtWalkHit vkrt_trace_bvh_stack(VkrtRay r, float time, bool any_hit) {
+    VKRT_WALK_START(r);
+    VKRT_STACK_WALK_STATE(VKRT_BVH_MAX_DEPTH);
     // Every natural end returns inside the loop; the code after it runs when the step cap
     // ends the walk, or when a driver ends a loop on its own (Mesa 22.3's lavapipe stops
     // every loop of an invocation after 65,535 iterations in all): both report exhaustion,
@@ -192,34 +179,27 @@ Hit trace_bvh_stack(Ray r, float time, bool any_hit) {
             break; // an interior node still to visit: the step cap (or the driver) ended it
         }
         steps += cur.y;
-        if (test_leaf(cur.x, cur.y, r, sh, time, tmin, any_hit, best, best_t)) {
+        if (vkrt_test_leaf(cur.x, cur.y, r, sh, time, tmin, any_hit, best, best_t)) {
             return best;
         }
         VKRT_BVH_POP();
     }
-    trace_steps_exhausted = true;
+    vkrt_trace_steps_exhausted = true;
     return best;
 }
 
 // The bitstack walk (Áfra & Szirmay-Kalos 2014; Novák 2019, Algorithm 3).
-Hit trace_bvh_bitstack(Ray r, float time, bool any_hit) {
-    Hit best = miss_hit();
-    if (!ray_is_valid(r) || primitive_count() == 0u) {
-        return best;
-    }
-    float tmin = max(r.tmin, 0.0);
-    Shear sh = make_shear(r.d);
-    vec3 inv_d = recip3(r.d);
-    float best_t = r.tmax;
+VkrtWalkHit vkrt_trace_bvh_bitstack(VkrtRay r, float time, bool any_hit) {
+    VKRT_WALK_START(r);
     uvec4 trail = uvec4(0u); // one bit per level, 128 in all; .x the lowest word
     uint node = 0u;
     uint steps = 0u;
     // Every natural end returns inside the loop: after it, the step cap or the driver
     // (Mesa 22.3's loop budget, as in the stack walk) ended the walk.
-    while (steps <= MAX_TRAVERSAL_STEPS) {
+    while (steps <= VKRT_STEP_LIMIT) {
         steps++;
-        VkrtBvhNode nd = load_bvh_node(node);
-        uint inner[2] = uint[2](NO_NODE, NO_NODE);
+        VkrtBvhNode nd = vkrt_load_bvh_node(node);
+        uint inner[2] = uint[2](VKRT_NO_NODE, VKRT_NO_NODE);
         float t_in[2] = float[2](0.0, 0.0);
         for (uint which = 0u; which < 2u; which++) {
             vec3 bmin = which == 0u ? nd.a_min : nd.b_min;
@@ -227,31 +207,31 @@ Hit trace_bvh_bitstack(Ray r, float time, bool any_hit) {
             uint index = which == 0u ? nd.a_index : nd.b_index;
             uint count = which == 0u ? nd.a_count : nd.b_count;
             float te;
-            if (!bvh_enter(bmin, bmax, r, inv_d, tmin, best_t, te)) {
+            if (!vkrt_bvh_enter(bmin, bmax, r, inv_d, tmin, best_t, te)) {
                 continue;
             }
             if (count > 0u) {
                 steps += count;
-                if (test_leaf(index, count, r, sh, time, tmin, any_hit, best, best_t)) {
+                if (vkrt_test_leaf(index, count, r, sh, time, tmin, any_hit, best, best_t)) {
                     return best;
                 }
-            } else if (index != NO_NODE) {
+            } else if (index != VKRT_NO_NODE) {
                 inner[which] = index;
                 t_in[which] = te;
             }
         }
         uint near = inner[0];
         uint far = inner[1];
-        if (near == NO_NODE) {
+        if (near == VKRT_NO_NODE) {
             near = far;
-            far = NO_NODE;
-        } else if (far != NO_NODE && t_in[1] < t_in[0]) {
+            far = VKRT_NO_NODE;
+        } else if (far != VKRT_NO_NODE && t_in[1] < t_in[0]) {
             near = inner[1];
             far = inner[0];
         }
-        if (near != NO_NODE) {
+        if (near != VKRT_NO_NODE) {
             trail = (trail << 1u) | (uvec4(0u, trail.xyz) >> 31u);
-            trail.x |= far != NO_NODE ? 1u : 0u;
+            trail.x |= far != VKRT_NO_NODE ? 1u : 0u;
             node = near;
             continue;
         }
@@ -264,47 +244,47 @@ Hit trace_bvh_bitstack(Ray r, float time, bool any_hit) {
             }
             while ((trail.x & 1u) == 0u) {
                 steps++;
-                node = bvh_parent(node);
+                node = vkrt_bvh_parent(node);
                 trail = (trail >> 1u) | (uvec4(trail.yzw, 0u) << 31u);
             }
             trail.x ^= 1u;
-            VkrtBvhNode pn = load_bvh_node(bvh_parent(node));
+            VkrtBvhNode pn = vkrt_load_bvh_node(vkrt_bvh_parent(node));
             bool node_is_a = pn.a_count == 0u && pn.a_index == node;
             uint sibling = node_is_a ? pn.b_index : pn.a_index;
             vec3 smin = node_is_a ? pn.b_min : pn.a_min;
             vec3 smax = node_is_a ? pn.b_max : pn.a_max;
             steps++;
             float te;
-            found = bvh_enter(smin, smax, r, inv_d, tmin, best_t, te);
+            found = vkrt_bvh_enter(smin, smax, r, inv_d, tmin, best_t, te);
             node = sibling;
         }
     }
-    trace_steps_exhausted = true;
+    vkrt_trace_steps_exhausted = true;
     return best;
 }
 
 // Child k of a wide node: where the ray enters it (+inf and NO_CHILD where it does not).
-void wide_child(WideNode w, uint k, vec3 p, vec3 s, Ray r, vec3 inv_d, float tmin, float best_t,
+void vkrt_wide_child(VkrtWideNode w, uint k, vec3 p, vec3 s, VkrtRay r, vec3 inv_d, float tmin, float best_t,
                 out float t, out uvec2 c) {
-    uint count = wide_count(w, k);
+    uint count = vkrt_wide_count(w, k);
     uint index = w.index[k];
     t = 1.0 / 0.0;
-    c = uvec2(NO_NODE, 0u);
-    if (count == 0u && index == NO_NODE) {
+    c = uvec2(VKRT_NO_NODE, 0u);
+    if (count == 0u && index == VKRT_NO_NODE) {
         return;
     }
     vec3 bmin;
     vec3 bmax;
-    wide_box(w, k, p, s, bmin, bmax);
+    vkrt_wide_box(w, k, p, s, bmin, bmax);
     float te;
-    if (bvh_enter(bmin, bmax, r, inv_d, tmin, best_t, te)) {
+    if (vkrt_bvh_enter(bmin, bmax, r, inv_d, tmin, best_t, te)) {
         t = te;
         c = uvec2(index, count);
     }
 }
 
 // Compare-exchange of two children by entry distance (a sorting network: no loop).
-#define WIDE_ORDER(ta, ca, tb, cb) \
+#define VKRT_WIDE_ORDER(ta, ca, tb, cb) \
     if (tb < ta) {                 \
         float t_ = ta;             \
         ta = tb;                   \
@@ -314,8 +294,8 @@ void wide_child(WideNode w, uint k, vec3 p, vec3 s, Ray r, vec3 inv_d, float tmi
         cb = c_;                   \
     }
 
-#define WIDE_PUSH(t, c)                            \
-    if (c.x != NO_NODE || c.y != 0u) {             \
+#define VKRT_WIDE_PUSH(t, c)                            \
+    if (c.x != VKRT_NO_NODE || c.y != 0u) {             \
         stack[top] = c;                            \
         stack_t[top] = t;                          \
         top++;                                     \
@@ -325,43 +305,31 @@ void wide_child(WideNode w, uint k, vec3 p, vec3 s, Ray r, vec3 inv_d, float tmi
 // while-while order): at a node, its four children's boxes are tested, sorted by entry
 // distance, pushed farthest first, and the nearest taken; leaves are tested when in hand.
 // Wide node 0 is the root. Twin: `wide_stack` in src/trace/bvh_cpu.rs.
-Hit trace_bvh_wide(Ray r, float time, bool any_hit) {
-    Hit best = miss_hit();
-    if (!ray_is_valid(r) || primitive_count() == 0u) {
-        return best;
-    }
-    float tmin = max(r.tmin, 0.0);
-    Shear sh = make_shear(r.d);
-    vec3 inv_d = recip3(r.d);
-    float best_t = r.tmax;
-    uvec2 stack[WIDE_STACK_SIZE];
-    float stack_t[WIDE_STACK_SIZE];
-    uint top = 0u;
-    uvec2 cur = uvec2(0u, 0u);
-    bool have = true;
-    uint steps = 0u;
+VkrtWalkHit vkrt_trace_bvh_wide(VkrtRay r, float time, bool any_hit) {
+    VKRT_WALK_START(r);
+    VKRT_STACK_WALK_STATE(VKRT_WIDE_STACK_SIZE);
     // As in the binary stack walk: every natural end returns inside the loop.
     while (true) {
-        while (have && cur.y == 0u && steps <= MAX_TRAVERSAL_STEPS) {
+        while (have && cur.y == 0u && steps <= VKRT_STEP_LIMIT) {
             steps++;
-            WideNode w = load_wide_node(cur.x);
+            VkrtWideNode w = vkrt_load_wide_node(cur.x);
             vec3 p = uintBitsToFloat(w.frame.xyz);
-            vec3 s = wide_scales(w.frame.w);
+            vec3 s = vkrt_wide_scales(w.frame.w);
             float t0, t1, t2, t3;
             uvec2 c0, c1, c2, c3;
-            wide_child(w, 0u, p, s, r, inv_d, tmin, best_t, t0, c0);
-            wide_child(w, 1u, p, s, r, inv_d, tmin, best_t, t1, c1);
-            wide_child(w, 2u, p, s, r, inv_d, tmin, best_t, t2, c2);
-            wide_child(w, 3u, p, s, r, inv_d, tmin, best_t, t3, c3);
-            WIDE_ORDER(t0, c0, t1, c1)
-            WIDE_ORDER(t2, c2, t3, c3)
-            WIDE_ORDER(t0, c0, t2, c2)
-            WIDE_ORDER(t1, c1, t3, c3)
-            WIDE_ORDER(t1, c1, t2, c2)
-            WIDE_PUSH(t3, c3)
-            WIDE_PUSH(t2, c2)
-            WIDE_PUSH(t1, c1)
-            if (c0.x != NO_NODE || c0.y != 0u) {
+            vkrt_wide_child(w, 0u, p, s, r, inv_d, tmin, best_t, t0, c0);
+            vkrt_wide_child(w, 1u, p, s, r, inv_d, tmin, best_t, t1, c1);
+            vkrt_wide_child(w, 2u, p, s, r, inv_d, tmin, best_t, t2, c2);
+            vkrt_wide_child(w, 3u, p, s, r, inv_d, tmin, best_t, t3, c3);
+            VKRT_WIDE_ORDER(t0, c0, t1, c1)
+            VKRT_WIDE_ORDER(t2, c2, t3, c3)
+            VKRT_WIDE_ORDER(t0, c0, t2, c2)
+            VKRT_WIDE_ORDER(t1, c1, t3, c3)
+            VKRT_WIDE_ORDER(t1, c1, t2, c2)
+            VKRT_WIDE_PUSH(t3, c3)
+            VKRT_WIDE_PUSH(t2, c2)
+            VKRT_WIDE_PUSH(t1, c1)
+            if (c0.x != VKRT_NO_NODE || c0.y != 0u) {
                 cur = c0;
             } else {
                 VKRT_BVH_POP();
@@ -374,12 +342,12 @@ Hit trace_bvh_wide(Ray r, float time, bool any_hit) {
             break; // the step cap (or the driver) ended the walk
         }
         steps += cur.y;
-        if (test_leaf(cur.x, cur.y, r, sh, time, tmin, any_hit, best, best_t)) {
+        if (vkrt_test_leaf(cur.x, cur.y, r, sh, time, tmin, any_hit, best, best_t)) {
             return best;
         }
         VKRT_BVH_POP();
     }
-    trace_steps_exhausted = true;
+    vkrt_trace_steps_exhausted = true;
     return best;
 }
 

@@ -4,7 +4,7 @@
 // keeps its meaning and the closest hit so far bounds the bottom level's walk) and the
 // bottom level is walked with its own walk. A moving instance's object-to-world is its two
 // steps around the ray's time interpolated, and inverted, per ray (as Embree's
-// motion-blurred instances; vkrt/affine.glsl). CPU twin: `trace_instances` in
+// motion-blurred instances; vkrt/affine.glsl). CPU twin: `vkrt_trace_instances` in
 // src/accel/instances.rs. Two levels only: a top level named by an instance reports the
 // query exhausted, as any structure a walk does not serve.
 #ifndef VKRT_INSTANCES_GLSL
@@ -40,25 +40,14 @@ bool vkrt_world_to_object(VkrtInstanceRecord rec, float time, out vec4 rows[3]) 
 // `cull_mask`: its bottom-level hit, `geom` (geometry and primitive index in the bottom
 // level, found while that level is in use) and `instance` (index, custom index). Ties in t
 // go to the lowest instance index. Called with the top level in use; returns with it in use.
-Hit trace_instances(Ray r, float time, bool any_hit, uint cull_mask, out uvec2 geom,
+VkrtWalkHit vkrt_trace_instances(VkrtRay r, float time, bool any_hit, uint cull_mask, out uvec2 geom,
                     out uvec2 instance) {
-    Hit best = miss_hit();
     geom = uvec2(0xffffffffu);
     instance = uvec2(0xffffffffu, 0u);
-    if (!ray_is_valid(r) || primitive_count() == 0u) {
-        return best;
-    }
+    VKRT_WALK_START(r);
     VkrtInstances records = vkrt_instances;
-    float tmin = max(r.tmin, 0.0);
-    vec3 inv_d = recip3(r.d);
-    float best_t = r.tmax;
-    uvec2 stack[VKRT_BVH_MAX_DEPTH];
-    float stack_t[VKRT_BVH_MAX_DEPTH];
-    uint top = 0u;
-    uvec2 cur = uvec2(0u, 0u);
-    bool have = true;
-    uint steps = 0u;
-    // The stack walk of trace_bvh_stack (bvh.glsl), with instances at its leaves.
+    VKRT_STACK_WALK_STATE(VKRT_BVH_MAX_DEPTH);
+    // The stack walk of vkrt_trace_bvh_stack (bvh.glsl), with instances at its leaves.
     while (true) {
         VKRT_BVH_DESCEND();
         if (!have) {
@@ -68,7 +57,7 @@ Hit trace_instances(Ray r, float time, bool any_hit, uint cull_mask, out uvec2 g
             break; // the step cap (or the driver) ended the walk
         }
         for (uint k = cur.x; k < cur.x + cur.y; k++) {
-            uint i = KD_REF(k);
+            uint i = VKRT_KD_REF(k);
             VkrtInstanceRecord rec = records.v[i];
             if (all(equal(rec.meta.xy, uvec2(0u))) || ((rec.meta.z >> 24u) & cull_mask) == 0u) {
                 continue;
@@ -77,18 +66,18 @@ Hit trace_instances(Ray r, float time, bool any_hit, uint cull_mask, out uvec2 g
             if (!vkrt_world_to_object(rec, time, rows)) {
                 continue;
             }
-            Ray ro = Ray(vkrt_to_object(rows, r.o, 1.0), r.tmin, vkrt_to_object(rows, r.d, 0.0),
+            VkrtRay ro = VkrtRay(vkrt_to_object(rows, r.o, 1.0), r.tmin, vkrt_to_object(rows, r.d, 0.0),
                          best_t);
             vkrt_use(packUint2x32(rec.meta.xy));
-            Hit h = vkrt_walk(ro, time, any_hit);
-            bool better = h.prim != NO_HIT && !trace_steps_exhausted
+            VkrtWalkHit h = vkrt_walk(ro, time, any_hit);
+            bool better = h.prim != VKRT_NO_HIT && !vkrt_trace_steps_exhausted
                 && (instance.x == 0xffffffffu || h.t < best_t || (h.t == best_t && i < instance.x));
             if (better) {
-                geom = geometry_of(h.prim);
+                geom = vkrt_geometry_of(h.prim);
             }
             vkrt_use(vkrt_top);
-            if (trace_steps_exhausted) {
-                return miss_hit();
+            if (vkrt_trace_steps_exhausted) {
+                return vkrt_miss_hit();
             }
             if (better) {
                 best = h;
@@ -101,7 +90,7 @@ Hit trace_instances(Ray r, float time, bool any_hit, uint cull_mask, out uvec2 g
         }
         VKRT_BVH_POP();
     }
-    trace_steps_exhausted = true;
+    vkrt_trace_steps_exhausted = true;
     return best;
 }
 

@@ -4,25 +4,25 @@
 #ifndef VKRT_COMMON_RAY_GLSL
 #define VKRT_COMMON_RAY_GLSL
 
-// 32 bytes (std430): `Ray` in src/trace/mod.rs.
-struct Ray {
+// 32 bytes (std430): `VkrtRay` in src/trace/mod.rs.
+struct VkrtRay {
     vec3 o;
     float tmin;
     vec3 d;
     float tmax;
 };
 
-// 16 bytes: `Hit` in src/trace/mod.rs. A miss has t = +inf and prim = NO_HIT.
-struct Hit {
+// 16 bytes: `VkrtWalkHit` in src/trace/mod.rs. A miss has t = +inf and prim = VKRT_NO_HIT.
+struct VkrtWalkHit {
     float t;
     uint prim;
     float u; // barycentric weight of the triangle's second vertex (sphere: 0)
     float v; // barycentric weight of the third vertex (sphere: 0)
 };
 
-#define NO_HIT 0xffffffffu
-#ifndef FP64_FALLBACK
-#define FP64_FALLBACK 0
+#define VKRT_NO_HIT 0xffffffffu
+#ifndef VKRT_FP64_FALLBACK
+#define VKRT_FP64_FALLBACK 0
 #endif
 // gamma(n) = n u / (1 - n u), u = 2^-24 (pbrt's bound on n roundings), as exact bits.
 #define VKRT_GAMMA2 uintBitsToFloat(0x34000001u)
@@ -30,27 +30,27 @@ struct Hit {
 #define VKRT_GAMMA5 uintBitsToFloat(0x34a00003u)
 #define VKRT_GAMMA7 uintBitsToFloat(0x34e00006u)
 #define VKRT_GAMMA8 uintBitsToFloat(0x35000004u)
-#define INTERSECT_WATERTIGHT 0u
-#define INTERSECT_MOLLER_TRUMBORE 1u
+#define VKRT_INTERSECT_WATERTIGHT 0u
+#define VKRT_INTERSECT_MOLLER_TRUMBORE 1u
 
-float positive_inf() {
+float vkrt_positive_inf() {
     return uintBitsToFloat(0x7f800000u);
 }
 
-Hit miss_hit() {
-    return Hit(positive_inf(), NO_HIT, 0.0, 0.0);
+VkrtWalkHit vkrt_miss_hit() {
+    return VkrtWalkHit(vkrt_positive_inf(), VKRT_NO_HIT, 0.0, 0.0);
 }
 
 // Bit tests: the driver's compiler may assume no NaN in isnan/isinf.
-bool is_finite(float x) {
+bool vkrt_is_finite(float x) {
     return (floatBitsToUint(x) & 0x7f800000u) != 0x7f800000u;
 }
 
-bool is_finite3(vec3 v) {
-    return is_finite(v.x) && is_finite(v.y) && is_finite(v.z);
+bool vkrt_is_finite3(vec3 v) {
+    return vkrt_is_finite(v.x) && vkrt_is_finite(v.y) && vkrt_is_finite(v.z);
 }
 
-bool is_nan(float x) {
+bool vkrt_is_nan(float x) {
     return (floatBitsToUint(x) & 0x7fffffffu) > 0x7f800000u;
 }
 
@@ -58,18 +58,18 @@ bool is_nan(float x) {
 
 // dot and cross in the CPU twins' order of operations (src/trace/intersect.rs): a driver may
 // evaluate the builtins with fused multiply-adds even under `precise`.
-float dot3(vec3 a, vec3 b) {
+float vkrt_dot3(vec3 a, vec3 b) {
     precise float r = a.x * b.x + a.y * b.y + a.z * b.z;
     return r;
 }
 
-vec3 cross3(vec3 a, vec3 b) {
+vec3 vkrt_cross3(vec3 a, vec3 b) {
     precise vec3 r = vec3(a.y * b.z - b.y * a.z, a.z * b.x - b.z * a.x, a.x * b.y - b.x * a.y);
     return r;
 }
 
 // The float next to x (normal, non-zero) towards +inf (up) or -inf.
-float next_toward(float x, bool up) {
+float vkrt_next_toward(float x, bool up) {
     uint b = floatBitsToUint(x);
     return uintBitsToFloat((x > 0.0) == up ? b + 1u : b - 1u);
 }
@@ -86,24 +86,24 @@ float next_toward(float x, bool up) {
 #ifndef VKRT_DRIVER_SQRT
 #define VKRT_DRIVER_SQRT(x) sqrt(x)
 #endif
-#if FP64_FALLBACK
+#if VKRT_FP64_FALLBACK
 // False where the driver's division and square root are known to round correctly
 // (DeviceInfo::ieee_division): the check is then left out.
 #if defined(VKRT_LIBRARY) && defined(VKRT_REFINE_DIVISION)
-const bool REFINE_DIVISION = VKRT_REFINE_DIVISION;
+const bool VKRT_REFINE = VKRT_REFINE_DIVISION;
 #elif defined(VKRT_LIBRARY)
-const bool REFINE_DIVISION = true;
+const bool VKRT_REFINE = true;
 #else
-layout(constant_id = 21) const bool REFINE_DIVISION = true;
+layout(constant_id = 21) const bool VKRT_REFINE = true;
 #endif
 
-bool refinable(float x) {
-    return is_finite(x) && abs(x) >= uintBitsToFloat(0x03800000u); // 2^-120
+bool vkrt_refinable(float x) {
+    return vkrt_is_finite(x) && abs(x) >= uintBitsToFloat(0x03800000u); // 2^-120
 }
 
-float div_rn(float a, float b) {
+float vkrt_div_rn(float a, float b) {
     precise float q = VKRT_DRIVER_DIV(a, b);
-    if (!REFINE_DIVISION || !refinable(q) || !is_finite(a) || !is_finite(b)) {
+    if (!VKRT_REFINE || !vkrt_refinable(q) || !vkrt_is_finite(a) || !vkrt_is_finite(b)) {
         return q;
     }
     for (uint i = 0u; i < 8u; i++) {
@@ -112,7 +112,7 @@ float div_rn(float a, float b) {
         if (r == 0.0) {
             break;
         }
-        float n = next_toward(q, (r > 0.0) == (b > 0.0));
+        float n = vkrt_next_toward(q, (r > 0.0) == (b > 0.0));
         precise double gap = abs(double(n) - double(q));
         // q is the nearest float to a / b when |a/b - q| < gap / 2 (never a tie: a quotient
         // of floats is never a midpoint).
@@ -126,14 +126,14 @@ float div_rn(float a, float b) {
 
 // Tuckerman's test: s rounds sqrt(x) to nearest iff s- s < x <= s s+ (products exact in
 // doubles).
-float sqrt_rn(float x) {
+float vkrt_sqrt_rn(float x) {
     precise float s = VKRT_DRIVER_SQRT(x);
-    if (!REFINE_DIVISION || !(x > 0.0) || !refinable(x) || !refinable(s)) {
+    if (!VKRT_REFINE || !(x > 0.0) || !vkrt_refinable(x) || !vkrt_refinable(s)) {
         return s;
     }
     for (uint i = 0u; i < 8u; i++) {
-        float up = next_toward(s, true);
-        float down = next_toward(s, false);
+        float up = vkrt_next_toward(s, true);
+        float down = vkrt_next_toward(s, false);
         if (double(x) > double(s) * double(up)) {
             s = up;
         } else if (double(x) <= double(down) * double(s)) {
@@ -145,32 +145,32 @@ float sqrt_rn(float x) {
     return s;
 }
 #else
-float div_rn(float a, float b) {
+float vkrt_div_rn(float a, float b) {
     precise float q = VKRT_DRIVER_DIV(a, b);
     return q;
 }
 
-float sqrt_rn(float x) {
+float vkrt_sqrt_rn(float x) {
     return VKRT_DRIVER_SQRT(x);
 }
 #endif
 
 // 1 / d per axis (the slab tests' inverse direction).
-vec3 recip3(vec3 d) {
-    return vec3(div_rn(1.0, d.x), div_rn(1.0, d.y), div_rn(1.0, d.z));
+vec3 vkrt_recip3(vec3 d) {
+    return vec3(vkrt_div_rn(1.0, d.x), vkrt_div_rn(1.0, d.y), vkrt_div_rn(1.0, d.z));
 }
 
 // A ray the traversal accepts: finite origin, direction and tmin, a tmax that is not NaN
 // (+inf is unbounded), a non-zero direction, tmin <= tmax. Everything else is answered as
 // a miss (src/trace/mod.rs documents the contract).
-bool ray_is_valid(Ray r) {
-    return is_finite3(r.o) && is_finite3(r.d) && is_finite(r.tmin) && !is_nan(r.tmax)
+bool vkrt_ray_is_valid(VkrtRay r) {
+    return vkrt_is_finite3(r.o) && vkrt_is_finite3(r.d) && vkrt_is_finite(r.tmin) && !vkrt_is_nan(r.tmax)
         && (r.d.x != 0.0 || r.d.y != 0.0 || r.d.z != 0.0) && r.tmin <= r.tmax;
 }
 
 // Per-ray constants of the watertight test (Woop, Benthin, Wald 2013): the dominant axis kz,
 // the other two (swapped to keep the winding), and the shear.
-struct Shear {
+struct VkrtShear {
     uint kx;
     uint ky;
     uint kz;
@@ -179,14 +179,14 @@ struct Shear {
     float sz;
 };
 
-uint max_dim(vec3 v) {
+uint vkrt_max_dim(vec3 v) {
     vec3 a = abs(v);
     return a.x >= a.y ? (a.x >= a.z ? 0u : 2u) : (a.y >= a.z ? 1u : 2u);
 }
 
-Shear make_shear(vec3 d) {
-    Shear s;
-    s.kz = max_dim(d);
+VkrtShear vkrt_make_shear(vec3 d) {
+    VkrtShear s;
+    s.kz = vkrt_max_dim(d);
     s.kx = s.kz == 2u ? 0u : s.kz + 1u;
     s.ky = s.kx == 2u ? 0u : s.kx + 1u;
     if (d[s.kz] < 0.0) {
@@ -194,9 +194,9 @@ Shear make_shear(vec3 d) {
         s.kx = s.ky;
         s.ky = t;
     }
-    precise float sx = div_rn(d[s.kx], d[s.kz]);
-    precise float sy = div_rn(d[s.ky], d[s.kz]);
-    precise float sz = div_rn(1.0, d[s.kz]);
+    precise float sx = vkrt_div_rn(d[s.kx], d[s.kz]);
+    precise float sy = vkrt_div_rn(d[s.ky], d[s.kz]);
+    precise float sz = vkrt_div_rn(1.0, d[s.kz]);
     s.sx = sx;
     s.sy = sy;
     s.sz = sz;
@@ -207,7 +207,7 @@ Shear make_shear(vec3 d) {
 // share it (edge functions of zero count as inside on both sides, and a*b - c*d is the exact
 // negation of c*d - a*b in IEEE arithmetic). Degenerate triangles (det = 0, or a zero
 // cross product of the edges) never hit.
-bool hit_triangle_watertight(vec3 o, Shear s, vec3 p0, vec3 p1, vec3 p2, float tmin,
+bool vkrt_hit_triangle_watertight(vec3 o, VkrtShear s, vec3 p0, vec3 p1, vec3 p2, float tmin,
                              float tmax, out float t, out float u, out float v) {
     precise vec3 a = p0 - o;
     precise vec3 b = p1 - o;
@@ -221,7 +221,7 @@ bool hit_triangle_watertight(vec3 o, Shear s, vec3 p0, vec3 p1, vec3 p2, float t
     precise float e0 = cx * by - cy * bx;
     precise float e1 = ax * cy - ay * cx;
     precise float e2 = bx * ay - by * ax;
-#if FP64_FALLBACK
+#if VKRT_FP64_FALLBACK
     // An edge function that rounds to zero gets its exact sign from doubles (products of
     // floats are exact there): otherwise a grazing ray near an edge "hits" a triangle its
     // line passes beside, at a meaningless t (the paper's fallback).
@@ -245,18 +245,18 @@ bool hit_triangle_watertight(vec3 o, Shear s, vec3 p0, vec3 p1, vec3 p2, float t
     precise float bz = s.sz * b[s.kz];
     precise float cz = s.sz * c[s.kz];
     precise float tt = e0 * az + e1 * bz + e2 * cz;
-    precise float hit_t = div_rn(tt, det);
+    precise float hit_t = vkrt_div_rn(tt, det);
     if (!(hit_t >= tmin && hit_t <= tmax)) {
         return false;
     }
     // A triangle of zero area (collinear or repeated vertices: the edges' cross product is
     // exactly zero) passes the 2-D test by rounding when the ray crosses its line, at a
     // meaningless t: it never hits. Tested only for candidates that passed everything else.
-    precise vec3 n = cross3(p1 - p0, p2 - p0);
+    precise vec3 n = vkrt_cross3(p1 - p0, p2 - p0);
     if (n.x == 0.0 && n.y == 0.0 && n.z == 0.0) {
         return false;
     }
-    precise float inv = div_rn(1.0, det);
+    precise float inv = vkrt_div_rn(1.0, det);
     // Conservative t (pbrt-v3 3.9.6): a hit closer than the rounding bound of the computed
     // t may lie behind the origin (a spawned ray re-hitting its own surface): rejected.
     // The bounds of the sheared x and y use the unscaled z (pbrt uses the z scaled by
@@ -286,30 +286,30 @@ bool hit_triangle_watertight(vec3 o, Shear s, vec3 p0, vec3 p1, vec3 p2, float t
 
 // Möller–Trumbore (1997): fewer operations, not watertight (rays through shared edges can
 // slip between triangles); kept for the robustness comparison.
-bool hit_triangle_moller(vec3 o, vec3 d, vec3 p0, vec3 p1, vec3 p2, float tmin, float tmax,
+bool vkrt_hit_triangle_moller(vec3 o, vec3 d, vec3 p0, vec3 p1, vec3 p2, float tmin, float tmax,
                          out float t, out float u, out float v) {
     precise vec3 e1 = p1 - p0;
     precise vec3 e2 = p2 - p0;
-    precise vec3 pv = cross3(d, e2);
-    precise float det = dot3(e1, pv);
+    precise vec3 pv = vkrt_cross3(d, e2);
+    precise float det = vkrt_dot3(e1, pv);
     t = 0.0;
     u = 0.0;
     v = 0.0;
     if (det == 0.0) {
         return false;
     }
-    precise float inv = div_rn(1.0, det);
+    precise float inv = vkrt_div_rn(1.0, det);
     precise vec3 tv = o - p0;
-    precise float uu = dot3(tv, pv) * inv;
+    precise float uu = vkrt_dot3(tv, pv) * inv;
     if (uu < 0.0 || uu > 1.0) {
         return false;
     }
-    precise vec3 qv = cross3(tv, e1);
-    precise float vv = dot3(d, qv) * inv;
+    precise vec3 qv = vkrt_cross3(tv, e1);
+    precise float vv = vkrt_dot3(d, qv) * inv;
     if (vv < 0.0 || uu + vv > 1.0) {
         return false;
     }
-    precise float hit_t = dot3(e2, qv) * inv;
+    precise float hit_t = vkrt_dot3(e2, qv) * inv;
     if (!(hit_t >= tmin && hit_t <= tmax)) {
         return false;
     }
@@ -319,27 +319,27 @@ bool hit_triangle_moller(vec3 o, vec3 d, vec3 p0, vec3 p1, vec3 p2, float tmin, 
     return true;
 }
 
-// Ray/sphere after Haines et al., "Precision Improvements for Ray/Sphere Intersection"
-// (Ray Tracing Gems ch. 7): the discriminant from the distance of the centre to the ray
+// VkrtRay/sphere after Haines et al., "Precision Improvements for VkrtRay/Sphere Intersection"
+// (VkrtRay Tracing Gems ch. 7): the discriminant from the distance of the centre to the ray
 // line (no catastrophic cancellation far from the sphere) and the stable quadratic roots.
-bool hit_sphere(vec3 o, vec3 d, vec4 sphere, float tmin, float tmax, out float t) {
+bool vkrt_hit_sphere(vec3 o, vec3 d, vec4 sphere, float tmin, float tmax, out float t) {
     precise vec3 f = o - sphere.xyz;
-    precise float a = dot3(d, d);
-    precise float bp = -dot3(f, d);
-    precise vec3 l = f + div_rn(bp, a) * d;
+    precise float a = vkrt_dot3(d, d);
+    precise float bp = -vkrt_dot3(f, d);
+    precise vec3 l = f + vkrt_div_rn(bp, a) * d;
     precise float r2 = sphere.w * sphere.w;
-    precise float disc = r2 - dot3(l, l);
+    precise float disc = r2 - vkrt_dot3(l, l);
     t = 0.0;
     if (disc < 0.0) {
         return false;
     }
-    precise float c = dot3(f, f) - r2;
-    precise float q = bp + (bp >= 0.0 ? 1.0 : -1.0) * sqrt_rn(a * disc);
+    precise float c = vkrt_dot3(f, f) - r2;
+    precise float q = bp + (bp >= 0.0 ? 1.0 : -1.0) * vkrt_sqrt_rn(a * disc);
     if (q == 0.0) {
         return false;
     }
-    precise float t0 = div_rn(c, q);
-    precise float t1 = div_rn(q, a);
+    precise float t0 = vkrt_div_rn(c, q);
+    precise float t1 = vkrt_div_rn(q, a);
     float lo = min(t0, t1);
     float hi = max(t0, t1);
     if (lo >= tmin && lo <= tmax) {
@@ -353,17 +353,17 @@ bool hit_sphere(vec3 o, vec3 d, vec4 sphere, float tmin, float tmax, out float t
     return false;
 }
 
-// Ray/axis-aligned box [lo, hi] (a box primitive): where the ray enters the box, or leaves
+// VkrtRay/axis-aligned box [lo, hi] (a box primitive): where the ray enters the box, or leaves
 // it when it starts inside, within [tmin, tmax]; intersect::aabb in src/trace/intersect.rs.
 // A box with lo > hi on an axis (inactive) is never hit. Minima and maxima are comparisons,
 // not min/max, so that +-0 resolve as in the twin.
-// One axis of hit_aabb: narrows [near, far] to the slab; false when the ray misses it.
-bool aabb_slab(float o, float d, float lo, float hi, inout float near, inout float far) {
+// One axis of vkrt_hit_aabb: narrows [near, far] to the slab; false when the ray misses it.
+bool vkrt_aabb_slab(float o, float d, float lo, float hi, inout float near, inout float far) {
     if (d == 0.0) {
         return !(o < lo || o > hi);
     }
-    precise float a = div_rn(lo - o, d);
-    precise float b = div_rn(hi - o, d);
+    precise float a = vkrt_div_rn(lo - o, d);
+    precise float b = vkrt_div_rn(hi - o, d);
     float n = a < b ? a : b;
     float f = a < b ? b : a;
     near = n > near ? n : near;
@@ -374,15 +374,15 @@ bool aabb_slab(float o, float d, float lo, float hi, inout float near, inout flo
 // No loop over the axes: llvmpipe before Mesa 25 counts every iteration of every loop,
 // even in a branch no lane takes, against its budget of 65,535 per invocation, and this
 // test is compiled into every primitive test of the walk.
-bool hit_aabb(vec3 o, vec3 d, vec3 lo, vec3 hi, float tmin, float tmax, out float t) {
+bool vkrt_hit_aabb(vec3 o, vec3 d, vec3 lo, vec3 hi, float tmin, float tmax, out float t) {
     t = 0.0;
     if (!all(lessThanEqual(lo, hi))) {
         return false;
     }
     float near = uintBitsToFloat(0xff800000u);
     float far = uintBitsToFloat(0x7f800000u);
-    if (!aabb_slab(o.x, d.x, lo.x, hi.x, near, far) || !aabb_slab(o.y, d.y, lo.y, hi.y, near, far)
-        || !aabb_slab(o.z, d.z, lo.z, hi.z, near, far)) {
+    if (!vkrt_aabb_slab(o.x, d.x, lo.x, hi.x, near, far) || !vkrt_aabb_slab(o.y, d.y, lo.y, hi.y, near, far)
+        || !vkrt_aabb_slab(o.z, d.z, lo.z, hi.z, near, far)) {
         return false;
     }
     if (near > far) {
@@ -400,8 +400,8 @@ bool hit_aabb(vec3 o, vec3 d, vec3 lo, vec3 hi, float tmin, float tmax, out floa
 }
 
 // The outward normal of the face of box [lo, hi] that `p` lies on (the axis where p is
-// nearest a face; ties: x, y, z, min face first); intersect::aabb_normal.
-vec3 aabb_normal(vec3 lo, vec3 hi, vec3 p) {
+// nearest a face; ties: x, y, z, min face first); intersect::vkrt_aabb_normal.
+vec3 vkrt_aabb_normal(vec3 lo, vec3 hi, vec3 p) {
     float best = uintBitsToFloat(0x7f800000u);
     vec3 n = vec3(1.0, 0.0, 0.0);
     for (int k = 0; k < 3; k++) {
@@ -423,8 +423,8 @@ vec3 aabb_normal(vec3 lo, vec3 hi, vec3 p) {
 
 // A ray origin moved off a surface along its geometric normal `n` (pointing to the side the
 // new ray leaves on) by a few ulps of the position, not a fixed epsilon: Wächter & Binder,
-// "A Fast and Robust Method for Avoiding Self-Intersection" (Ray Tracing Gems ch. 6).
-vec3 offset_ray_origin(vec3 p, vec3 n) {
+// "A Fast and Robust Method for Avoiding Self-Intersection" (VkrtRay Tracing Gems ch. 6).
+vec3 vkrt_offset_ray_origin(vec3 p, vec3 n) {
     const float origin = 1.0 / 32.0;
     const float float_scale = 1.0 / 65536.0;
     const float int_scale = 256.0;
@@ -442,7 +442,7 @@ vec3 offset_ray_origin(vec3 p, vec3 n) {
 // The next float towards +inf / -inf (finite x).
 // Never a subnormal (a device may flush them to zero): above zero and the subnormals is the
 // smallest normal float, above -VKRT_FLT_MIN is zero (next_up in src/accel/primitives.rs).
-float next_float_up(float x) {
+float vkrt_next_float_up(float x) {
     if (abs(x) < VKRT_FLT_MIN) {
         return VKRT_FLT_MIN;
     }
@@ -453,31 +453,31 @@ float next_float_up(float x) {
     return uintBitsToFloat(x > 0.0 ? b + 1u : b - 1u);
 }
 
-float next_float_down(float x) {
-    return -next_float_up(-x);
+float vkrt_next_float_down(float x) {
+    return -vkrt_next_float_up(-x);
 }
 
 // A spawned ray's origin from a point `p` with a bound `err` on its rounding error (per
 // axis): moved along the unit normal `n` (pointing to the side the ray leaves on) past the
 // error box, then one float further away (pbrt-v4 OffsetRayOrigin). Sound when the error
 // of p is not proportional to |p| (a hit point interpolated from vertices far larger than
-// itself), where offset_ray_origin's few ulps of p are not enough.
-vec3 offset_ray_origin_bounded(vec3 p, vec3 n, vec3 err) {
-    precise float d = dot3(abs(n), err);
+// itself), where vkrt_offset_ray_origin's few ulps of p are not enough.
+vec3 vkrt_offset_ray_origin_bounded(vec3 p, vec3 n, vec3 err) {
+    precise float d = vkrt_dot3(abs(n), err);
     precise vec3 off = d * n;
     precise vec3 po = p + off;
     for (uint i = 0u; i < 3u; i++) {
         if (off[i] > 0.0) {
-            po[i] = next_float_up(po[i]);
+            po[i] = vkrt_next_float_up(po[i]);
         } else if (off[i] < 0.0) {
-            po[i] = next_float_down(po[i]);
+            po[i] = vkrt_next_float_down(po[i]);
         }
     }
     return po;
 }
 
 // A triangle hit point from its barycentrics and its error bound (pbrt-v4 3.9.4).
-vec3 triangle_hit_point(vec3 p0, vec3 p1, vec3 p2, float u, float v, out vec3 err) {
+vec3 vkrt_triangle_hit_point(vec3 p0, vec3 p1, vec3 p2, float u, float v, out vec3 err) {
     precise float b0 = 1.0 - u - v;
     precise vec3 p = b0 * p0 + u * p1 + v * p2;
     precise vec3 e = VKRT_GAMMA7 * (abs(b0 * p0) + abs(u * p1) + abs(v * p2));
@@ -487,8 +487,8 @@ vec3 triangle_hit_point(vec3 p0, vec3 p1, vec3 p2, float u, float v, out vec3 er
 
 // A sphere hit point `p` re-projected onto the sphere (centre c, radius r) and an error
 // bound that also covers the ray/sphere test's own rounding (about 3 u r).
-vec3 sphere_hit_point(vec3 c, float r, vec3 p, out vec3 err) {
-    precise vec3 q = c + (p - c) * div_rn(r, sqrt_rn(dot3(p - c, p - c)));
+vec3 vkrt_sphere_hit_point(vec3 c, float r, vec3 p, out vec3 err) {
+    precise vec3 q = c + (p - c) * vkrt_div_rn(r, vkrt_sqrt_rn(vkrt_dot3(p - c, p - c)));
     precise vec3 e = VKRT_GAMMA8 * (vec3(r) + abs(q));
     err = e;
     return q;

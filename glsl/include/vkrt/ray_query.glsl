@@ -37,9 +37,11 @@
 //                     check (a loop per division: on Mesa 22.3's lavapipe every iteration
 //                     counts against its 65,535-iteration budget); default true
 //   VKRT_MAX_TRAVERSAL_STEPS  node visits + primitive tests per ray before the walk gives
-//                     up and reports `exhausted` (default 60000, within lavapipe's loop
-//                     budget; the device's value is `DeviceInfo::max_traversal_steps`, e.g.
-//                     through the includer's own specialization constant)
+//                     up and reports `exhausted`. Without it the cap is the
+//                     specialization constant VKRT_STEPS_CONSTANT_ID (default 1900): set
+//                     it to the device's `DeviceInfo::max_traversal_steps`
+//                     (`shader_library::steps_specialization`); unset it is 60000, within
+//                     lavapipe's loop budget but short of what a GPU allows
 //   VKRT_RAY_QUERY    also walk the driver's structure with GL_EXT_ray_query (needs the
 //                     device's VK_KHR_ray_query; without it such a structure reports
 //                     `exhausted`)
@@ -74,14 +76,25 @@
 //                     the ray. Without it a box is hit where the ray enters it (or leaves
 //                     it, from inside).
 //
+// What each mode asks of the device (SPIR-V capabilities, and the feature that enables
+// them; checked by tests/include_names.rs):
+//   storage bindings (default), VKRT_AABB_INTERSECTION, VKRT_MOLLER_TRUMBORE, VKRT_WALK:
+//                       Shader only
+//   VKRT_TEXEL_BUFFERS  + SampledBuffer (core)
+//   VKRT_DEVICE_ADDRESS + PhysicalStorageBufferAddresses, Int64 (bufferDeviceAddress,
+//                       shaderInt64)
+//   VKRT_EXACT          + Float64, Int64 (shaderFloat64, shaderInt64)
+//   VKRT_RAY_QUERY      + RayQueryKHR, Int64 (VK_KHR_ray_query's rayQuery, shaderInt64)
+//
 // Rays follow VK_KHR_ray_query: t in [tMin, tMax], tMax may be +inf; a ray with a NaN or
 // infinite origin or direction, a zero direction or tMin > tMax is a miss. A walk that ran
 // out of its step budget reports `exhausted` (its answer is then a miss): never a silent
 // wrong answer.
 //
-// Names: the public ones start with `vkrt`/`Vkrt`; the internal functions this file
-// brings in are snake_case (trace_*, hit_*, clip_*, load_*, ...) and its internal types are
-// renamed here so that they cannot clash with the includer's `Ray` or `Hit`.
+// Names: every macro, function, type, block and global this file and the files it includes
+// declare starts with `vkrt`, `Vkrt` or `VKRT_`; the public ones are camelCase (vkrtTrace,
+// VkrtHit), the internal ones snake_case (vkrt_trace_walk, vkrt_hit_sphere) or VKRT_ macros.
+// An includer's own `VkrtRay`, `VkrtWalkHit`, `FLT_MIN`, `vkrt_spheres` or `vkrt_dot3` cannot clash with them.
 #ifndef VKRT_RAY_QUERY_GLSL
 #define VKRT_RAY_QUERY_GLSL
 
@@ -89,39 +102,32 @@
 #ifndef VKRT_BINDING
 #define VKRT_BINDING 0
 #endif
-#define GEOM_BINDING VKRT_BINDING
+#define VKRT_GEOM_BINDING VKRT_BINDING
 #ifdef VKRT_RAY_QUERY
-#define RAY_QUERY 1
+#define VKRT_HAS_RAY_QUERY 1
 #endif
 
-#define Ray vkrt_internal_Ray
-#define Hit vkrt_internal_Hit
-#define Shear vkrt_internal_Shear
-#define KdNode vkrt_internal_KdNode
-#define VkrtBvhNode vkrt_internal_BvhNode
-#define MotionRecord vkrt_internal_MotionRecord
-
 #ifdef VKRT_EXACT
-#define FP64_FALLBACK 1
+#define VKRT_FP64_FALLBACK 1
 #endif
 #ifdef VKRT_TEXEL_BUFFERS
 #ifdef VKRT_DEVICE_ADDRESS
 #error "VKRT_TEXEL_BUFFERS reads the structure through bindings; VKRT_DEVICE_ADDRESS through addresses: choose one"
 #endif
-#define TEXEL_NODES 1
+#define VKRT_TEXEL_NODES 1
 #endif
 #include "ray.glsl"
 #include "kdtree.glsl"
 
 #ifdef VKRT_MOLLER_TRUMBORE
-const uint INTERSECTOR = INTERSECT_MOLLER_TRUMBORE;
+const uint VKRT_INTERSECTOR = VKRT_INTERSECT_MOLLER_TRUMBORE;
 #else
-const uint INTERSECTOR = INTERSECT_WATERTIGHT;
+const uint VKRT_INTERSECTOR = VKRT_INTERSECT_WATERTIGHT;
 #endif
 #ifdef VKRT_STACK_SIZE
-const uint STACK_SIZE = VKRT_STACK_SIZE;
+const uint VKRT_KD_STACK = VKRT_STACK_SIZE;
 #else
-const uint STACK_SIZE = 64u;
+const uint VKRT_KD_STACK = 64u;
 #endif
 
 #include "traverse.glsl"
@@ -131,7 +137,7 @@ struct VkrtHit {
     bool hit;
     float t;
     // The weights of the triangle's second and third vertices (as VK_KHR_ray_query's
-    // barycentrics); 0 for spheres and boxes (a box's are its intersection's attributes
+    // barycentrics); 0 for vkrt_spheres and boxes (a box's are its intersection's attributes
     // under VKRT_AABB_INTERSECTION).
     vec2 barycentrics;
     // The geometry (its index in the build's list) and the primitive within it: a triangle
@@ -180,25 +186,25 @@ uint64_t vkrt_top;
 // The arrays of the structure whose handle lies at `handle`.
 void vkrt_use(uint64_t handle) {
     VkrtHandle h = VkrtHandle(handle);
-    vkrt_kd_nodes = VkrtKdNodes(h.addresses[0]);
-    vkrt_bvh_nodes = VkrtBvhNodes(h.addresses[0]);
-#if !FP64_FALLBACK
-    vkrt_wide_nodes = VkrtWideNodes(h.addresses[0]);
+    vkrt_kd_nodes_ref = VkrtKdNodes(h.addresses[0]);
+    vkrt_bvh_nodes_ref = VkrtBvhNodes(h.addresses[0]);
+#if !VKRT_FP64_FALLBACK
+    vkrt_wide_nodes_ref = VkrtWideNodes(h.addresses[0]);
 #endif
-    vkrt_kd_refs = VkrtWords(h.addresses[1]);
-    vkrt_tri_verts = VkrtFloats(h.addresses[2]);
-    vkrt_spheres = VkrtVec4s(h.addresses[3]);
-    vkrt_prim_motion = VkrtWords(h.addresses[4]);
-    vkrt_motions = VkrtMotions(h.addresses[5]);
-    scene_info = VkrtSceneInfo(h.addresses[6]);
-#if FP64_FALLBACK
-    vkrt_tri_verts64 = VkrtWords64(h.addresses[2]);
-    vkrt_bvh_nodes64 = VkrtBvhNodes64(h.addresses[0]);
+    vkrt_kd_refs_ref = VkrtWords(h.addresses[1]);
+    vkrt_tri_verts_ref = VkrtFloats(h.addresses[2]);
+    vkrt_spheres_ref = VkrtVec4s(h.addresses[3]);
+    vkrt_prim_motion_ref = VkrtWords(h.addresses[4]);
+    vkrt_motions_ref = VkrtMotions(h.addresses[5]);
+    vkrt_scene_info = VkrtSceneInfo(h.addresses[6]);
+#if VKRT_FP64_FALLBACK
+    vkrt_tri_verts64_ref = VkrtWords64(h.addresses[2]);
+    vkrt_bvh_nodes64_ref = VkrtBvhNodes64(h.addresses[0]);
 #endif
-#ifdef RAY_QUERY
-    vkrt_tlas = VkrtU64s(h.addresses[0]);
+#ifdef VKRT_HAS_RAY_QUERY
+    vkrt_tlas_ref = VkrtU64s(h.addresses[0]);
 #endif
-    if (scene_info.walk == VKRT_ACCEL_INSTANCES) {
+    if (vkrt_scene_info.walk == VKRT_ACCEL_INSTANCES) {
         vkrt_instances = VkrtInstances(h.addresses[7]);
         vkrt_steps = VkrtSteps(h.addresses[8]);
     }
@@ -219,18 +225,18 @@ void vkrtUseStructure(uint64_t handle) {
 #define VKRT_WALK_BVH_WIDE 4u
 
 // The structure's own walk (a bottom level's, under a top level).
-Hit vkrt_walk(Ray r, float time, bool any_hit) {
+VkrtWalkHit vkrt_walk(VkrtRay r, float time, bool any_hit) {
 #ifdef VKRT_WALK
     // One walk compiled in: a structure it does not serve is reported, never misread.
-    uint kind = scene_info.walk;
+    uint kind = vkrt_scene_info.walk;
     // (the bitstack walks a binary BVH, whose structures say VKRT_ACCEL_BVH_STACK)
     if (kind != (VKRT_WALK == VKRT_WALK_BVH_BITSTACK ? VKRT_ACCEL_BVH_STACK : VKRT_WALK)) {
-        trace_steps_exhausted = true;
-        return miss_hit();
+        vkrt_trace_steps_exhausted = true;
+        return vkrt_miss_hit();
     }
-    return trace_walk(VKRT_WALK, r, time, any_hit);
+    return vkrt_trace_walk(VKRT_WALK, r, time, any_hit);
 #else
-    return trace_walk(scene_info.walk, r, time, any_hit);
+    return vkrt_trace_walk(vkrt_scene_info.walk, r, time, any_hit);
 #endif
 }
 
@@ -240,27 +246,27 @@ Hit vkrt_walk(Ray r, float time, bool any_hit) {
 
 VkrtHit vkrt_trace(vec3 origin, float tMin, vec3 direction, float tMax, float time,
                    uint cull_mask, bool any_hit) {
-    trace_steps_exhausted = false;
-    Ray r = Ray(origin, tMin, direction, tMax);
-    Hit h;
+    vkrt_trace_steps_exhausted = false;
+    VkrtRay r = VkrtRay(origin, tMin, direction, tMax);
+    VkrtWalkHit h;
     uvec2 g = uvec2(0xffffffffu);
     uvec2 instance = uvec2(0xffffffffu, 0u);
 #ifdef VKRT_DEVICE_ADDRESS
-    if (scene_info.walk == VKRT_ACCEL_INSTANCES) {
-        h = trace_instances(r, time, any_hit, cull_mask, g, instance);
+    if (vkrt_scene_info.walk == VKRT_ACCEL_INSTANCES) {
+        h = vkrt_trace_instances(r, time, any_hit, cull_mask, g, instance);
     } else
 #endif
     {
-        // (a top level read through bindings: trace_walk reports it exhausted)
+        // (a top level read through bindings: vkrt_trace_walk reports it exhausted)
         h = vkrt_walk(r, time, any_hit);
-        if (h.prim != NO_HIT) {
-            g = geometry_of(h.prim);
+        if (h.prim != VKRT_NO_HIT) {
+            g = vkrt_geometry_of(h.prim);
         }
     }
     VkrtHit o;
-    o.exhausted = trace_steps_exhausted;
-    o.hit = h.prim != NO_HIT && !o.exhausted;
-    o.t = o.hit ? h.t : positive_inf();
+    o.exhausted = vkrt_trace_steps_exhausted;
+    o.hit = h.prim != VKRT_NO_HIT && !o.exhausted;
+    o.t = o.hit ? h.t : vkrt_positive_inf();
     o.barycentrics = o.hit ? vec2(h.u, h.v) : vec2(0.0);
     o.geometryIndex = o.hit ? g.x : 0xffffffffu;
     o.primitiveIndex = o.hit ? g.y : 0xffffffffu;
@@ -300,13 +306,13 @@ bool vkrtTraceAny(vec3 origin, float tMin, vec3 direction, float tMax) {
 
 // Whether the last query on this invocation gave up (its answer was then a miss).
 bool vkrtExhausted() {
-    return trace_steps_exhausted;
+    return vkrt_trace_steps_exhausted;
 }
 
-#undef Ray
-#undef Hit
-#undef Shear
-#undef KdNode
+#undef VkrtRay
+#undef VkrtWalkHit
+#undef VkrtShear
+#undef VkrtKdNode
 #undef VkrtBvhNode
-#undef MotionRecord
+#undef VkrtMotionRecord
 #endif

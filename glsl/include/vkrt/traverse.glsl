@@ -1,58 +1,62 @@
 // Geometry buffers and the traversal of the structure they hold: the kd-tree (closest hit
 // and any hit with a short stack and restart, Horn et al. 2007; Rust twin src/trace/cpu.rs)
-// or the BVH (glsl/include/vkrt/bvh.glsl; twin src/trace/bvh_cpu.rs), chosen by ACCEL_KIND when the
+// or the BVH (glsl/include/vkrt/bvh.glsl; twin src/trace/bvh_cpu.rs), chosen by VKRT_ACCEL_KIND when the
 // pipeline is created, so every kernel that includes this file serves every structure.
 //
-// The including kernel defines GEOM_BINDING (first of seven bindings of set VKRT_SET, default
-// 0, in this order: nodes, prim_refs, triangle vertices, spheres, per-primitive motion slot,
-// motions, scene info) and the specialization constants INTERSECTOR, ANY_HIT and STACK_SIZE,
+// The including kernel defines VKRT_GEOM_BINDING (first of seven bindings of set VKRT_SET, default
+// 0, in this order: nodes, prim_refs, triangle vertices, vkrt_spheres, per-primitive motion slot,
+// vkrt_motions, scene info) and the specialization constants VKRT_INTERSECTOR, VKRT_ANY_HIT and VKRT_KD_STACK,
 // then includes this file. With VKRT_LIBRARY defined (vkrt/ray_query.glsl, the public entry
 // point) the walk is chosen at run time from the scene constants, so one shader traces every
-// kind of structure, and ANY_HIT is not used (each query says which it wants).
+// kind of structure, and VKRT_ANY_HIT is not used (each query says which it wants).
 // A BVH's parent links follow its primitive references in the prim_refs buffer, from
-// `scene_info.parents_at` on.
+// `vkrt_scene_info.parents_at` on.
 //
-// Primitive ids: 0 .. n_tris are triangles, then n_spheres spheres, then n_aabbs axis-aligned
-// boxes (stored after the spheres in the spheres binding, two vec4s each: min, max).
+// Primitive ids: 0 .. n_tris are triangles, then n_spheres vkrt_spheres, then n_aabbs axis-aligned
+// boxes (stored after the vkrt_spheres in the vkrt_spheres binding, two vec4s each: min, max).
 #ifndef VKRT_COMMON_TRAVERSE_GLSL
 #define VKRT_COMMON_TRAVERSE_GLSL
 
 #include "kdtree.glsl"
 #include "ray.glsl"
-#if FP64_FALLBACK || defined(RAY_QUERY)
+#if VKRT_FP64_FALLBACK || defined(VKRT_HAS_RAY_QUERY)
 #extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
 #endif
-#ifdef RAY_QUERY
+#ifdef VKRT_HAS_RAY_QUERY
 #extension GL_EXT_ray_query : require
 #endif
 
 #ifndef VKRT_SET
 #define VKRT_SET 0
 #endif
-#ifndef TEXEL_NODES
-#define TEXEL_NODES 0
+#ifndef VKRT_TEXEL_NODES
+#define VKRT_TEXEL_NODES 0
 #endif
 
-#define NO_MOTION 0xffffffffu
+#define VKRT_NO_MOTION 0xffffffffu
 // Node visits + primitive tests per ray before giving up; a ray that gives up is reported
-// through `trace_steps_exhausted`. A device fact (`DeviceInfo::max_traversal_steps`): within
+// through `vkrt_trace_steps_exhausted`. A device fact (`DeviceInfo::max_traversal_steps`): within
 // llvmpipe's loop budget (it silently ends an invocation's loops after 65,535 iterations),
 // 2^24 elsewhere. vkrt's kernels take it as specialization constant 22; the library takes
-// VKRT_MAX_TRAVERSAL_STEPS (a number, or the includer's own specialization constant).
-#ifdef VKRT_LIBRARY
-#ifndef VKRT_MAX_TRAVERSAL_STEPS
-#define VKRT_MAX_TRAVERSAL_STEPS 60000u
+// VKRT_MAX_TRAVERSAL_STEPS where the includer defines it (a number, or its own
+// specialization constant), else the specialization constant VKRT_STEPS_CONSTANT_ID
+// (default 1900; `shader_library::STEPS_CONSTANT_ID`), 60,000 unless the pipeline sets it.
+#if defined(VKRT_LIBRARY) && defined(VKRT_MAX_TRAVERSAL_STEPS)
+#define VKRT_STEP_LIMIT (VKRT_MAX_TRAVERSAL_STEPS)
+#elif defined(VKRT_LIBRARY)
+#ifndef VKRT_STEPS_CONSTANT_ID
+#define VKRT_STEPS_CONSTANT_ID 1900
 #endif
-#define MAX_TRAVERSAL_STEPS (VKRT_MAX_TRAVERSAL_STEPS)
+layout(constant_id = VKRT_STEPS_CONSTANT_ID) const uint VKRT_STEP_LIMIT = 60000u;
 #else
-layout(constant_id = 22) const uint MAX_TRAVERSAL_STEPS = 60000u;
+layout(constant_id = 22) const uint VKRT_STEP_LIMIT = 60000u;
 #endif
 // Relative slack on split-plane crossings: a cell whose interval only touches the ray's
 // within rounding is visited rather than skipped (visiting costs time, skipping loses hits).
-#define PLANE_SLACK 4e-7
+#define VKRT_PLANE_SLACK 4e-7
 
-// 48 bytes: `MotionRecord` in src/accel/primitives.rs.
-struct MotionRecord {
+// 48 bytes: `VkrtMotionRecord` in src/accel/primitives.rs.
+struct VkrtMotionRecord {
     vec4 velocity;   // xyz: units/s; w: angular speed, radians/s
     vec4 center;     // xyz: a point on the rotation axis
     vec4 axis;       // xyz: unit rotation axis
@@ -64,11 +68,11 @@ struct MotionRecord {
 // (a record of their seven addresses), instead of bindings.
 #extension GL_EXT_buffer_reference : require
 #extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
-layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtKdNodes { KdNode v[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtKdNodes { VkrtKdNode v[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtWords { uint v[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtFloats { float v[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtVec4s { vec4 v[]; };
-layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtMotions { MotionRecord v[]; };
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtMotions { VkrtMotionRecord v[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtSceneInfo {
     vec4 bounds_min;
     vec4 bounds_max;
@@ -82,21 +86,21 @@ layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer Vkr
     uint n_aabbs;
     uvec2 geometry_first[];
 };
-VkrtKdNodes vkrt_kd_nodes;
-VkrtWords vkrt_kd_refs;
-VkrtFloats vkrt_tri_verts;
-VkrtVec4s vkrt_spheres;
-VkrtWords vkrt_prim_motion;
-VkrtMotions vkrt_motions;
-VkrtSceneInfo scene_info;
-#define kd_nodes vkrt_kd_nodes.v
-#define kd_refs vkrt_kd_refs.v
-#define tri_verts vkrt_tri_verts.v
-#define spheres vkrt_spheres.v
-#define prim_motion vkrt_prim_motion.v
-#define motions vkrt_motions.v
+VkrtKdNodes vkrt_kd_nodes_ref;
+VkrtWords vkrt_kd_refs_ref;
+VkrtFloats vkrt_tri_verts_ref;
+VkrtVec4s vkrt_spheres_ref;
+VkrtWords vkrt_prim_motion_ref;
+VkrtMotions vkrt_motions_ref;
+VkrtSceneInfo vkrt_scene_info;
+#define vkrt_kd_nodes vkrt_kd_nodes_ref.v
+#define vkrt_kd_refs vkrt_kd_refs_ref.v
+#define vkrt_tri_verts vkrt_tri_verts_ref.v
+#define vkrt_spheres vkrt_spheres_ref.v
+#define vkrt_prim_motion vkrt_prim_motion_ref.v
+#define vkrt_motions vkrt_motions_ref.v
 #else
-#if TEXEL_NODES
+#if VKRT_TEXEL_NODES
 // The nodes through the sampler path: a uniform texel buffer of RGBA32UI texels (a kd-tree
 // node is one, a BVH node four). On lavapipe a texel fetch is a branch-free gather, where a
 // storage-buffer load at a divergent offset is a loop over the lanes with a bounds check
@@ -105,58 +109,58 @@ VkrtSceneInfo scene_info;
 // A texture without a sampler (`utextureBuffer`): SPIR-V 1.6 forbids the sampled-image type
 // glslang makes of a `usamplerBuffer`, and Mesa warns of it.
 #extension GL_EXT_samplerless_texture_functions : require
-layout(set = VKRT_SET, binding = GEOM_BINDING + 0) uniform utextureBuffer node_texels;
+layout(set = VKRT_SET, binding = VKRT_GEOM_BINDING + 0) uniform utextureBuffer vkrt_node_texels;
 #else
-layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer KdNodes { KdNode kd_nodes[]; };
+layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 0) readonly buffer VkrtKdNodesBinding { VkrtKdNode vkrt_kd_nodes[]; };
 #endif
-#if TEXEL_NODES
+#if VKRT_TEXEL_NODES
 // The references and the triangle vertices as texels too (four words each).
-layout(set = VKRT_SET, binding = GEOM_BINDING + 1) uniform utextureBuffer ref_texels;
-layout(set = VKRT_SET, binding = GEOM_BINDING + 2) uniform utextureBuffer vertex_texels;
+layout(set = VKRT_SET, binding = VKRT_GEOM_BINDING + 1) uniform utextureBuffer vkrt_ref_texels;
+layout(set = VKRT_SET, binding = VKRT_GEOM_BINDING + 2) uniform utextureBuffer vkrt_vertex_texels;
 #else
-layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 1) readonly buffer KdRefs { uint kd_refs[]; };
-layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 2) readonly buffer TriVerts { float tri_verts[]; };
+layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 1) readonly buffer VkrtKdRefsBinding { uint vkrt_kd_refs[]; };
+layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 2) readonly buffer VkrtTriVertsBinding { float vkrt_tri_verts[]; };
 #endif
-layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 3) readonly buffer Spheres { vec4 spheres[]; };
-layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 4) readonly buffer PrimMotion { uint prim_motion[]; };
-layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 5) readonly buffer Motions { MotionRecord motions[]; };
+layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 3) readonly buffer VkrtSpheresBinding { vec4 vkrt_spheres[]; };
+layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 4) readonly buffer VkrtPrimMotionBinding { uint vkrt_prim_motion[]; };
+layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 5) readonly buffer VkrtMotionsBinding { VkrtMotionRecord vkrt_motions[]; };
 // `SceneInfo` in src/accel/primitives.rs.
-layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 6) readonly buffer SceneInfoBuf {
+layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 6) readonly buffer VkrtSceneInfoBinding {
     vec4 bounds_min;
     vec4 bounds_max;
     uint n_tris;
     uint n_spheres;
     uint has_motion;
-    uint parents_at; // BVH: index of node 0's parent link in kd_refs
+    uint parents_at; // BVH: index of node 0's parent link in vkrt_kd_refs
     uint walk;       // VKRT_ACCEL_KDTREE, VKRT_ACCEL_BVH_STACK or VKRT_ACCEL_RAY_QUERY: how to walk it
     uint n_geometries;
     uint invalid;    // primitives the gather could not read (the host reports them)
     uint n_aabbs;
     // Per geometry, ordered by first id: (first primitive id, the caller's geometry index).
     uvec2 geometry_first[];
-} scene_info;
+} vkrt_scene_info;
 
 #endif
 
-#ifdef RAY_QUERY
+#ifdef VKRT_HAS_RAY_QUERY
 // The driver's structure (src/accel/driver.rs): the nodes binding holds the device address
 // of its top level, which the query converts (OpConvertUToAccelerationStructureKHR), so no
-// acceleration-structure descriptor is needed; the prim_refs binding (kd_refs) holds the
+// acceleration-structure descriptor is needed; the prim_refs binding (vkrt_kd_refs) holds the
 // first primitive id of each instance.
 #ifdef VKRT_DEVICE_ADDRESS
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtU64s { uint64_t v[]; };
-VkrtU64s vkrt_tlas;
-#define tlas_address vkrt_tlas.v[0]
-#elif TEXEL_NODES
+VkrtU64s vkrt_tlas_ref;
+#define vkrt_tlas_address vkrt_tlas_ref.v[0]
+#elif VKRT_TEXEL_NODES
 // The nodes binding is a texel buffer: the address is the first texel's two low words.
-#define tlas_address packUint2x32(texelFetch(node_texels, 0).xy)
+#define vkrt_tlas_address packUint2x32(texelFetch(vkrt_node_texels, 0).xy)
 #else
-layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer DriverTlas { uint64_t tlas_address; };
+layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 0) readonly buffer VkrtDriverTlasBinding { uint64_t vkrt_tlas_address; };
 #endif
 #endif
 
 // 0: kd-tree; 1: BVH with a stack; 2: BVH with the bitstack walk; 3: the driver's ray query
-// (AccelTraversal::spec; kernels compiled with RAY_QUERY walk only that); 4: the 4-wide BVH
+// (AccelTraversal::spec; kernels compiled with VKRT_HAS_RAY_QUERY walk only that); 4: the 4-wide BVH
 // with a stack.
 #define VKRT_ACCEL_KDTREE 0u
 #define VKRT_ACCEL_BVH_STACK 1u
@@ -166,26 +170,26 @@ layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 0) readonly buffer Drive
 // A top level over instances (vkrt/instances.glsl; read at device addresses only).
 #define VKRT_ACCEL_INSTANCES 8u
 #ifndef VKRT_LIBRARY
-layout(constant_id = 20) const uint ACCEL_KIND = 0u;
+layout(constant_id = 20) const uint VKRT_ACCEL_KIND = 0u;
 #endif
 
-bool trace_steps_exhausted = false;
+bool vkrt_trace_steps_exhausted = false;
 
 // `nd = node i`. A statement, not a function: glslang takes minutes and gigabytes to
 // compile the kd-tree walk when a call there returns its node (its `precise` propagation).
-#if TEXEL_NODES
-#define LOAD_KD_NODE(nd, i)                                                  \
+#if VKRT_TEXEL_NODES
+#define VKRT_LOAD_KD_NODE(nd, i)                                                  \
     {                                                                        \
-        uvec4 texel_ = texelFetch(node_texels, int(i));                      \
-        nd = KdNode(uintBitsToFloat(texel_.x), texel_.y, texel_.z, texel_.w); \
+        uvec4 texel_ = texelFetch(vkrt_node_texels, int(i));                      \
+        nd = VkrtKdNode(uintBitsToFloat(texel_.x), texel_.y, texel_.z, texel_.w); \
     }
 #else
-#define LOAD_KD_NODE(nd, i) nd = kd_nodes[i];
+#define VKRT_LOAD_KD_NODE(nd, i) nd = vkrt_kd_nodes[i];
 #endif
 
 // The rigid motion at `time`: rotate about the orbit axis, then translate (Motion::at).
-vec3 move_point(vec3 p, uint slot, float time) {
-    MotionRecord m = motions[slot];
+vec3 vkrt_move_point(vec3 p, uint slot, float time) {
+    VkrtMotionRecord m = vkrt_motions[slot];
     precise float angle = m.velocity.w * time;
     precise vec3 q = p;
     if (angle != 0.0) {
@@ -193,31 +197,31 @@ vec3 move_point(vec3 p, uint slot, float time) {
         precise vec3 r = p - m.center.xyz;
         float c = cos(angle);
         float s = sin(angle);
-        precise vec3 rot = r * c + cross3(k, r) * s + k * (dot3(k, r) * (1.0 - c));
+        precise vec3 rot = r * c + vkrt_cross3(k, r) * s + k * (vkrt_dot3(k, r) * (1.0 - c));
         q = rot + m.center.xyz;
     }
     precise vec3 moved = q + m.velocity.xyz * time;
     return moved;
 }
 
-#if TEXEL_NODES
+#if VKRT_TEXEL_NODES
 // Reference `i` (of the structure's references, then a BVH's parent links).
-uint ref_at(uint i) {
-    return texelFetch(ref_texels, int(i >> 2u))[i & 3u];
+uint vkrt_ref_at(uint i) {
+    return texelFetch(vkrt_ref_texels, int(i >> 2u))[i & 3u];
 }
-#define KD_REF(i) ref_at(i)
+#define VKRT_KD_REF(i) vkrt_ref_at(i)
 
 // A triangle's nine floats lie in three texels: three fetches instead of nine loads. Shifted
 // into place by selects, not a loop over an array: llvmpipe before Mesa 25 counts every
 // iteration of every loop against its budget of 65,535 per invocation, and a loop per
 // triangle tested exhausts it on big leaves.
-void load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
+void vkrt_load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
     uint first = 9u * tri;
     int t = int(first >> 2u);
     uint o = first & 3u;
-    uvec4 a = texelFetch(vertex_texels, t);
-    uvec4 b = texelFetch(vertex_texels, t + 1);
-    uvec4 c = texelFetch(vertex_texels, t + 2);
+    uvec4 a = texelFetch(vkrt_vertex_texels, t);
+    uvec4 b = texelFetch(vkrt_vertex_texels, t + 1);
+    uvec4 c = texelFetch(vkrt_vertex_texels, t + 2);
     uvec4 x = o == 0u ? a : (o == 1u ? uvec4(a.yzw, b.x) : (o == 2u ? uvec4(a.zw, b.xy) : uvec4(a.w, b.xyz)));
     uvec4 y = o == 0u ? b : (o == 1u ? uvec4(b.yzw, c.x) : (o == 2u ? uvec4(b.zw, c.xy) : uvec4(b.w, c.xyz)));
     uint z = o == 0u ? c.x : (o == 1u ? c.y : (o == 2u ? c.z : c.w));
@@ -226,33 +230,33 @@ void load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
     p2 = uintBitsToFloat(uvec3(y.zw, z));
 }
 #else
-#define KD_REF(i) kd_refs[i]
+#define VKRT_KD_REF(i) vkrt_kd_refs[i]
 
-vec3 tri_vertex(uint tri, uint corner) {
+vec3 vkrt_tri_vertex(uint tri, uint corner) {
     uint i = 9u * tri + 3u * corner;
-    return vec3(tri_verts[i], tri_verts[i + 1u], tri_verts[i + 2u]);
+    return vec3(vkrt_tri_verts[i], vkrt_tri_verts[i + 1u], vkrt_tri_verts[i + 2u]);
 }
 #endif
 
-#if TEXEL_NODES
-#elif FP64_FALLBACK
+#if VKRT_TEXEL_NODES
+#elif VKRT_FP64_FALLBACK
 // The same vertices as 64-bit words: a triangle's nine floats lie in five of them (the
 // buffer holds four padding floats, DevicePrimitives), five loads instead of nine — on
 // lavapipe every load is a loop over lanes.
 #ifdef VKRT_DEVICE_ADDRESS
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtWords64 { uint64_t v[]; };
-VkrtWords64 vkrt_tri_verts64;
-#define tri_verts64 vkrt_tri_verts64.v
+VkrtWords64 vkrt_tri_verts64_ref;
+#define vkrt_tri_verts64 vkrt_tri_verts64_ref.v
 #else
-layout(std430, set = VKRT_SET, binding = GEOM_BINDING + 2) readonly buffer TriVerts64 { uint64_t tri_verts64[]; };
+layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 2) readonly buffer VkrtTriVerts64Binding { uint64_t vkrt_tri_verts64[]; };
 #endif
 
-void load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
+void vkrt_load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
     uint first = 9u * tri;
     uint base = first >> 1u;
     uint w[10];
     for (uint k = 0u; k < 5u; k++) {
-        uvec2 pair = unpack32(tri_verts64[base + k]);
+        uvec2 pair = unpack32(vkrt_tri_verts64[base + k]);
         w[2u * k] = pair.x;
         w[2u * k + 1u] = pair.y;
     }
@@ -266,52 +270,52 @@ void load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
     p2 = vec3(f[6], f[7], f[8]);
 }
 #else
-void load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
-    p0 = tri_vertex(tri, 0u);
-    p1 = tri_vertex(tri, 1u);
-    p2 = tri_vertex(tri, 2u);
+void vkrt_load_triangle(uint tri, out vec3 p0, out vec3 p1, out vec3 p2) {
+    p0 = vkrt_tri_vertex(tri, 0u);
+    p1 = vkrt_tri_vertex(tri, 1u);
+    p2 = vkrt_tri_vertex(tri, 2u);
 }
 #endif
 
 // The three vertices of triangle `tri` at `time`.
-void triangle_at(uint tri, float time, out vec3 p0, out vec3 p1, out vec3 p2) {
-    load_triangle(tri, p0, p1, p2);
-    if (scene_info.has_motion != 0u) {
-        uint slot = prim_motion[tri];
-        if (slot != NO_MOTION) {
-            p0 = move_point(p0, slot, time);
-            p1 = move_point(p1, slot, time);
-            p2 = move_point(p2, slot, time);
+void vkrt_triangle_at(uint tri, float time, out vec3 p0, out vec3 p1, out vec3 p2) {
+    vkrt_load_triangle(tri, p0, p1, p2);
+    if (vkrt_scene_info.has_motion != 0u) {
+        uint slot = vkrt_prim_motion[tri];
+        if (slot != VKRT_NO_MOTION) {
+            p0 = vkrt_move_point(p0, slot, time);
+            p1 = vkrt_move_point(p1, slot, time);
+            p2 = vkrt_move_point(p2, slot, time);
         }
     }
 }
 
-vec4 sphere_at(uint sphere, float time) {
-    vec4 s = spheres[sphere];
-    if (scene_info.has_motion != 0u) {
-        uint slot = prim_motion[scene_info.n_tris + sphere];
-        if (slot != NO_MOTION) {
-            s.xyz = move_point(s.xyz, slot, time);
+vec4 vkrt_sphere_at(uint sphere, float time) {
+    vec4 s = vkrt_spheres[sphere];
+    if (vkrt_scene_info.has_motion != 0u) {
+        uint slot = vkrt_prim_motion[vkrt_scene_info.n_tris + sphere];
+        if (slot != VKRT_NO_MOTION) {
+            s.xyz = vkrt_move_point(s.xyz, slot, time);
         }
     }
     return s;
 }
 
 // Every primitive of the structure.
-uint primitive_count() {
-    return scene_info.n_tris + scene_info.n_spheres + scene_info.n_aabbs;
+uint vkrt_primitive_count() {
+    return vkrt_scene_info.n_tris + vkrt_scene_info.n_spheres + vkrt_scene_info.n_aabbs;
 }
 
 // Box primitive `b`: (min, max).
-void aabb_at(uint b, out vec3 lo, out vec3 hi) {
-    uint at = scene_info.n_spheres + 2u * b;
-    lo = spheres[at].xyz;
-    hi = spheres[at + 1u].xyz;
+void vkrt_aabb_at(uint b, out vec3 lo, out vec3 hi) {
+    uint at = vkrt_scene_info.n_spheres + 2u * b;
+    lo = vkrt_spheres[at].xyz;
+    hi = vkrt_spheres[at + 1u].xyz;
 }
 
 // The caller's (geometry index, primitive index within it) of primitive id `prim`.
-uvec2 geometry_of(uint prim) {
-    uint n = scene_info.n_geometries;
+uvec2 vkrt_geometry_of(uint prim) {
+    uint n = vkrt_scene_info.n_geometries;
     if (n == 0u) {
         return uvec2(0u, prim);
     }
@@ -320,13 +324,13 @@ uvec2 geometry_of(uint prim) {
     uint hi = n - 1u;
     while (lo < hi) {
         uint mid = (lo + hi + 1u) >> 1u;
-        if (scene_info.geometry_first[mid].x <= prim) {
+        if (vkrt_scene_info.geometry_first[mid].x <= prim) {
             lo = mid;
         } else {
             hi = mid - 1u;
         }
     }
-    uvec2 g = scene_info.geometry_first[lo];
+    uvec2 g = vkrt_scene_info.geometry_first[lo];
     return uvec2(g.y, prim - g.x);
 }
 
@@ -337,36 +341,36 @@ bool vkrtIntersectAabb(uint geometryIndex, uint primitiveIndex, vec3 origin, vec
                        out vec2 attributes);
 #endif
 
-bool hit_primitive(uint prim, Ray r, Shear sh, float time, float tmin, float tmax,
+bool vkrt_hit_primitive(uint prim, VkrtRay r, VkrtShear sh, float time, float tmin, float tmax,
                    out float t, out float u, out float v) {
-    if (prim < scene_info.n_tris) {
+    if (prim < vkrt_scene_info.n_tris) {
         vec3 p0, p1, p2;
-        triangle_at(prim, time, p0, p1, p2);
-        if (INTERSECTOR == INTERSECT_MOLLER_TRUMBORE) {
-            return hit_triangle_moller(r.o, r.d, p0, p1, p2, tmin, tmax, t, u, v);
+        vkrt_triangle_at(prim, time, p0, p1, p2);
+        if (VKRT_INTERSECTOR == VKRT_INTERSECT_MOLLER_TRUMBORE) {
+            return vkrt_hit_triangle_moller(r.o, r.d, p0, p1, p2, tmin, tmax, t, u, v);
         }
-        return hit_triangle_watertight(r.o, sh, p0, p1, p2, tmin, tmax, t, u, v);
+        return vkrt_hit_triangle_watertight(r.o, sh, p0, p1, p2, tmin, tmax, t, u, v);
     }
     u = 0.0;
     v = 0.0;
-    uint s = prim - scene_info.n_tris;
-    if (s < scene_info.n_spheres) {
-        return hit_sphere(r.o, r.d, sphere_at(s, time), tmin, tmax, t);
+    uint s = prim - vkrt_scene_info.n_tris;
+    if (s < vkrt_scene_info.n_spheres) {
+        return vkrt_hit_sphere(r.o, r.d, vkrt_sphere_at(s, time), tmin, tmax, t);
     }
     vec3 lo, hi;
-    aabb_at(s - scene_info.n_spheres, lo, hi);
+    vkrt_aabb_at(s - vkrt_scene_info.n_spheres, lo, hi);
 #if defined(VKRT_LIBRARY) && defined(VKRT_AABB_INTERSECTION)
     if (!all(lessThanEqual(lo, hi))) {
         return false; // inactive
     }
-    uvec2 g = geometry_of(prim);
+    uvec2 g = vkrt_geometry_of(prim);
     vec2 a = vec2(0.0);
     bool found = vkrtIntersectAabb(g.x, g.y, r.o, r.d, tmin, tmax, lo, hi, t, a);
     u = a.x;
     v = a.y;
     return found && t >= tmin && t <= tmax;
 #else
-    return hit_aabb(r.o, r.d, lo, hi, tmin, tmax, t);
+    return vkrt_hit_aabb(r.o, r.d, lo, hi, tmin, tmax, t);
 #endif
 }
 
@@ -374,7 +378,7 @@ bool hit_primitive(uint prim, Ray r, Shear sh, float time, float tmin, float tma
 // parallel to only test the origin (no 0 * inf); the slab bounds are widened by a few ulps
 // (Ize 2013). `inv_d` is 1 / r.d. The scene box of the kd-tree walk and every child box of
 // the BVH walk.
-bool clip_to_box(vec3 bmin, vec3 bmax, Ray r, vec3 inv_d, inout float t0, inout float t1) {
+bool vkrt_clip_to_box(vec3 bmin, vec3 bmax, VkrtRay r, vec3 inv_d, inout float t0, inout float t1) {
     // Branch-free on the three axes (lavapipe runs both sides of every branch under a mask):
     // an axis the ray runs parallel to only decides inside or outside, as in the CPU twin;
     // the others narrow [t0, t1] in the order x, y, z. On a miss t0 and t1 are unspecified.
@@ -387,29 +391,29 @@ bool clip_to_box(vec3 bmin, vec3 bmax, Ray r, vec3 inv_d, inout float t0, inout 
     precise vec3 tb = (bmax - r.o) * inv_d;
     precise vec3 lo = min(ta, tb);
     precise vec3 hi = max(ta, tb);
-    precise vec3 lo_w = mix(lo - abs(lo) * PLANE_SLACK, vec3(-1.0 / 0.0), parallel);
-    precise vec3 hi_w = mix(hi + abs(hi) * PLANE_SLACK, vec3(1.0 / 0.0), parallel);
+    precise vec3 lo_w = mix(lo - abs(lo) * VKRT_PLANE_SLACK, vec3(-1.0 / 0.0), parallel);
+    precise vec3 hi_w = mix(hi + abs(hi) * VKRT_PLANE_SLACK, vec3(1.0 / 0.0), parallel);
     t0 = max(max(max(t0, lo_w.x), lo_w.y), lo_w.z);
     t1 = min(min(min(t1, hi_w.x), hi_w.y), hi_w.z);
     return t0 <= t1;
 }
 
-bool clip_to_scene(Ray r, inout float t0, inout float t1) {
-    precise vec3 inv_d = recip3(r.d);
-    return clip_to_box(scene_info.bounds_min.xyz, scene_info.bounds_max.xyz, r, inv_d, t0, t1);
+bool vkrt_clip_to_scene(VkrtRay r, inout float t0, inout float t1) {
+    precise vec3 inv_d = vkrt_recip3(r.d);
+    return vkrt_clip_to_box(vkrt_scene_info.bounds_min.xyz, vkrt_scene_info.bounds_max.xyz, r, inv_d, t0, t1);
 }
 
 // Tests a leaf's `count` references from `first` on against the ray up to `best_t`, keeping
 // the closest hit (the lowest primitive id among equal t); true when an any-hit query is
 // answered.
-bool test_leaf(uint first, uint count, Ray r, Shear sh, float time, float tmin, bool any_hit,
-               inout Hit best, inout float best_t) {
+bool vkrt_test_leaf(uint first, uint count, VkrtRay r, VkrtShear sh, float time, float tmin, bool any_hit,
+               inout VkrtWalkHit best, inout float best_t) {
     for (uint i = first; i < first + count; i++) {
-        uint prim = KD_REF(i);
+        uint prim = VKRT_KD_REF(i);
         float t, u, v;
-        if (hit_primitive(prim, r, sh, time, tmin, best_t, t, u, v)) {
-            if (best.prim == NO_HIT || t < best_t || (t == best_t && prim < best.prim)) {
-                best = Hit(t, prim, u, v);
+        if (vkrt_hit_primitive(prim, r, sh, time, tmin, best_t, t, u, v)) {
+            if (best.prim == VKRT_NO_HIT || t < best_t || (t == best_t && prim < best.prim)) {
+                best = VkrtWalkHit(t, prim, u, v);
                 best_t = t;
             }
             if (any_hit) {
@@ -420,42 +424,59 @@ bool test_leaf(uint first, uint count, Ray r, Shear sh, float time, float tmin, 
     return false;
 }
 
+// The start every walk shares: a miss for an invalid ray or an empty structure, then the
+// ray's start (t >= 0), its shear for the watertight test, its reciprocal direction and the
+// closest hit so far (`best`, at `best_t`).
+#define VKRT_WALK_START(r)                                       \
+    VkrtWalkHit best = vkrt_miss_hit();                          \
+    if (!vkrt_ray_is_valid(r) || vkrt_primitive_count() == 0u) { \
+        return best;                                             \
+    }                                                            \
+    float tmin = max(r.tmin, 0.0);                               \
+    VkrtShear sh = vkrt_make_shear(r.d);                         \
+    vec3 inv_d = vkrt_recip3(r.d);                               \
+    float best_t = r.tmax
+
+// The state of a stack walk (Aila & Laine's while-while loop, VKRT_BVH_DESCEND): entries
+// (index, count) — count 0 an interior node, count > 0 a leaf's references — with the
+// distance at which the ray enters each, the entry in hand, and the steps taken.
+#define VKRT_STACK_WALK_STATE(size) \
+    uvec2 stack[size];              \
+    float stack_t[size];            \
+    uint top = 0u;                  \
+    uvec2 cur = uvec2(0u, 0u);      \
+    bool have = true;               \
+    uint steps = 0u
+
 #include "bvh.glsl"
 
-// Closest hit (or, with ANY_HIT, the first hit found) with t in [max(tmin, 0), tmax] at
-// `time`. Invalid rays (see ray_is_valid) miss.
-Hit trace_kdtree(Ray r, float time, bool any_hit) {
-    Hit best = miss_hit();
-    if (!ray_is_valid(r) || primitive_count() == 0u) {
-        return best;
-    }
-    float tmin = max(r.tmin, 0.0);
+// Closest hit (or, with VKRT_ANY_HIT, the first hit found) with t in [max(tmin, 0), tmax] at
+// `time`. Invalid rays (see vkrt_ray_is_valid) miss.
+VkrtWalkHit vkrt_trace_kdtree(VkrtRay r, float time, bool any_hit) {
+    VKRT_WALK_START(r);
     float t0 = tmin;
     float t1 = r.tmax;
-    if (!clip_to_scene(r, t0, t1)) {
+    if (!vkrt_clip_to_scene(r, t0, t1)) {
         return best;
     }
     float scene_t1 = t1;
-    Shear sh = make_shear(r.d);
-    vec3 inv_d = recip3(r.d);
-    float best_t = r.tmax;
 
     // Ring buffer: when full, a push overwrites the oldest (farthest) entry and the traversal
     // restarts from the root past the last leaf when it runs out.
-    uint st_node[STACK_SIZE];
-    float st_t0[STACK_SIZE];
-    float st_t1[STACK_SIZE];
-    uint st_top = 0u;   // index one past the newest entry (mod STACK_SIZE)
+    uint st_node[VKRT_KD_STACK];
+    float st_t0[VKRT_KD_STACK];
+    float st_t1[VKRT_KD_STACK];
+    uint st_top = 0u;   // index one past the newest entry (mod VKRT_KD_STACK)
     uint st_count = 0u;
     bool dropped = false;
 
     uint node = 0u;
     float n0 = t0;
     float n1 = t1;
-    for (uint step = 0u; step < MAX_TRAVERSAL_STEPS; step++) {
-        KdNode nd;
-        LOAD_KD_NODE(nd, node)
-        if (nd.kind != KD_LEAF) {
+    for (uint step = 0u; step < VKRT_STEP_LIMIT; step++) {
+        VkrtKdNode nd;
+        VKRT_LOAD_KD_NODE(nd, node)
+        if (nd.kind != VKRT_KD_LEAF) {
             uint axis = nd.kind;
             float o = r.o[axis];
             float d = r.d[axis];
@@ -481,8 +502,8 @@ Hit trace_kdtree(Ray r, float time, bool any_hit) {
                 n1 = n0;
             } else {
                 precise float tp = (nd.split - o) * inv_d[axis];
-                precise float tp_lo = tp - abs(tp) * PLANE_SLACK;
-                precise float tp_hi = tp + abs(tp) * PLANE_SLACK;
+                precise float tp_lo = tp - abs(tp) * VKRT_PLANE_SLACK;
+                precise float tp_hi = tp + abs(tp) * VKRT_PLANE_SLACK;
                 if (tp > 0.0 && tp_lo <= n1) {
                     if (tp_hi < n0) {
                         node = second;
@@ -496,7 +517,7 @@ Hit trace_kdtree(Ray r, float time, bool any_hit) {
                 }
             }
             if (push) {
-                if (st_count == STACK_SIZE) {
+                if (st_count == VKRT_KD_STACK) {
                     dropped = true;
                 } else {
                     st_count++;
@@ -504,13 +525,13 @@ Hit trace_kdtree(Ray r, float time, bool any_hit) {
                 st_node[st_top] = far_node;
                 st_t0[st_top] = far0;
                 st_t1[st_top] = far1;
-                st_top = st_top + 1u == STACK_SIZE ? 0u : st_top + 1u;
+                st_top = st_top + 1u == VKRT_KD_STACK ? 0u : st_top + 1u;
             }
             continue;
         }
 
         // Leaf: test its primitives over the whole remaining ray interval.
-        if (test_leaf(nd.a, nd.b, r, sh, time, tmin, any_hit, best, best_t)) {
+        if (vkrt_test_leaf(nd.a, nd.b, r, sh, time, tmin, any_hit, best, best_t)) {
             return best;
         }
         step += nd.b;
@@ -519,9 +540,9 @@ Hit trace_kdtree(Ray r, float time, bool any_hit) {
         // lowest id. Next cell: pop, skipping cells that start beyond the best hit.
         bool found = false;
         while (st_count > 0u) {
-            st_top = st_top == 0u ? STACK_SIZE - 1u : st_top - 1u;
+            st_top = st_top == 0u ? VKRT_KD_STACK - 1u : st_top - 1u;
             st_count--;
-            if (best.prim == NO_HIT || st_t0[st_top] <= best_t) {
+            if (best.prim == VKRT_NO_HIT || st_t0[st_top] <= best_t) {
                 node = st_node[st_top];
                 n0 = st_t0[st_top];
                 n1 = st_t1[st_top];
@@ -530,7 +551,7 @@ Hit trace_kdtree(Ray r, float time, bool any_hit) {
             }
         }
         if (!found) {
-            if (!dropped || n1 >= scene_t1 || (best.prim != NO_HIT && best_t <= n1)) {
+            if (!dropped || n1 >= scene_t1 || (best.prim != VKRT_NO_HIT && best_t <= n1)) {
                 return best;
             }
             // Restart from the root past the last cell (entries were dropped).
@@ -540,44 +561,44 @@ Hit trace_kdtree(Ray r, float time, bool any_hit) {
             n1 = scene_t1;
         }
     }
-    trace_steps_exhausted = true;
+    vkrt_trace_steps_exhausted = true;
     return best;
 }
 
-#ifdef RAY_QUERY
+#ifdef VKRT_HAS_RAY_QUERY
 // The driver traverses its own structure. Static triangles are its triangle geometry (its
-// intersector, committed by the driver); spheres, and every primitive of a scene with motion,
+// intersector, committed by the driver); vkrt_spheres, and every primitive of a scene with motion,
 // are boxes (swept over the shutter for moving ones) that this loop intersects with
-// hit_primitive at `time` and commits. One instance per kind of geometry
-// (DriverAccel::geometries); kd_refs[instance] + the primitive's index is its id.
-Hit trace_ray_query(Ray r, float time, bool any_hit) {
+// vkrt_hit_primitive at `time` and commits. One instance per kind of geometry
+// (DriverAccel::geometries); vkrt_kd_refs[instance] + the primitive's index is its id.
+VkrtWalkHit vkrt_trace_ray_query(VkrtRay r, float time, bool any_hit) {
     // An invalid ray is a miss (src/trace/mod.rs); Vulkan leaves queries with NaN, a negative
     // tmin or tmin > tmax undefined, so none is made.
     float tmin = max(r.tmin, 0.0);
-    if (!ray_is_valid(r) || tmin > r.tmax || primitive_count() == 0u) {
-        return miss_hit();
+    if (!vkrt_ray_is_valid(r) || tmin > r.tmax || vkrt_primitive_count() == 0u) {
+        return vkrt_miss_hit();
     }
-    Shear sh = make_shear(r.d);
+    VkrtShear sh = vkrt_make_shear(r.d);
     // Opaque: triangle hits commit without the loop; any hit ends at the first commit.
     uint flags = gl_RayFlagsOpaqueEXT | (any_hit ? gl_RayFlagsTerminateOnFirstHitEXT : 0u);
     rayQueryEXT q;
-    rayQueryInitializeEXT(q, accelerationStructureEXT(tlas_address), flags, 0xffu, r.o, tmin,
+    rayQueryInitializeEXT(q, accelerationStructureEXT(vkrt_tlas_address), flags, 0xffu, r.o, tmin,
                           r.d, r.tmax);
     float best_t = r.tmax;
     vec2 best_uv = vec2(0.0);
     // Candidates (boxes the driver found) per ray before giving up, as for vkrt's walks.
     uint candidates = 0u;
     while (rayQueryProceedEXT(q)) {
-        if (++candidates > MAX_TRAVERSAL_STEPS) {
+        if (++candidates > VKRT_STEP_LIMIT) {
             rayQueryTerminateEXT(q);
-            trace_steps_exhausted = true;
-            return miss_hit();
+            vkrt_trace_steps_exhausted = true;
+            return vkrt_miss_hit();
         }
         if (rayQueryGetIntersectionTypeEXT(q, false) == gl_RayQueryCandidateIntersectionAABBEXT) {
-            uint prim = KD_REF(rayQueryGetIntersectionInstanceIdEXT(q, false))
+            uint prim = VKRT_KD_REF(rayQueryGetIntersectionInstanceIdEXT(q, false))
                 + uint(rayQueryGetIntersectionPrimitiveIndexEXT(q, false));
             float t, u, v;
-            if (hit_primitive(prim, r, sh, time, tmin, best_t, t, u, v)) {
+            if (vkrt_hit_primitive(prim, r, sh, time, tmin, best_t, t, u, v)) {
                 rayQueryGenerateIntersectionEXT(q, t);
                 best_t = t;
                 best_uv = vec2(u, v);
@@ -586,50 +607,50 @@ Hit trace_ray_query(Ray r, float time, bool any_hit) {
     }
     uint committed = rayQueryGetIntersectionTypeEXT(q, true);
     if (committed == gl_RayQueryCommittedIntersectionNoneEXT) {
-        return miss_hit();
+        return vkrt_miss_hit();
     }
-    uint prim = KD_REF(rayQueryGetIntersectionInstanceIdEXT(q, true))
+    uint prim = VKRT_KD_REF(rayQueryGetIntersectionInstanceIdEXT(q, true))
         + uint(rayQueryGetIntersectionPrimitiveIndexEXT(q, true));
     float t = rayQueryGetIntersectionTEXT(q, true);
     if (committed == gl_RayQueryCommittedIntersectionTriangleEXT) {
         vec2 uv = rayQueryGetIntersectionBarycentricsEXT(q, true);
-        return Hit(t, prim, uv.x, uv.y);
+        return VkrtWalkHit(t, prim, uv.x, uv.y);
     }
-    return Hit(t, prim, best_uv.x, best_uv.y);
+    return VkrtWalkHit(t, prim, best_uv.x, best_uv.y);
 }
 #endif
 
 // The walk `walk` (ACCEL_*) over the bound structure.
-Hit trace_walk(uint walk, Ray r, float time, bool any_hit) {
-#ifdef RAY_QUERY
+VkrtWalkHit vkrt_trace_walk(uint walk, VkrtRay r, float time, bool any_hit) {
+#ifdef VKRT_HAS_RAY_QUERY
     if (walk == VKRT_ACCEL_RAY_QUERY) {
-        return trace_ray_query(r, time, any_hit);
+        return vkrt_trace_ray_query(r, time, any_hit);
     }
 #endif
     if (walk == VKRT_ACCEL_KDTREE) {
-        return trace_kdtree(r, time, any_hit);
+        return vkrt_trace_kdtree(r, time, any_hit);
     }
     if (walk == VKRT_ACCEL_BVH_STACK) {
-        return trace_bvh_stack(r, time, any_hit);
+        return vkrt_trace_bvh_stack(r, time, any_hit);
     }
     if (walk == VKRT_ACCEL_BVH_BITSTACK) {
-        return trace_bvh_bitstack(r, time, any_hit);
+        return vkrt_trace_bvh_bitstack(r, time, any_hit);
     }
     if (walk == VKRT_ACCEL_BVH_WIDE) {
-        return trace_bvh_wide(r, time, any_hit);
+        return vkrt_trace_bvh_wide(r, time, any_hit);
     }
-    // A walk this shader was not compiled for (the driver's structure without RAY_QUERY):
+    // A walk this shader was not compiled for (the driver's structure without VKRT_HAS_RAY_QUERY):
     // reported like a walk that gave up, never as a silent miss.
-    trace_steps_exhausted = true;
-    return miss_hit();
+    vkrt_trace_steps_exhausted = true;
+    return vkrt_miss_hit();
 }
 
 #ifndef VKRT_LIBRARY
-Hit trace_ray(Ray r, float time) {
-#ifdef RAY_QUERY
-    return trace_ray_query(r, time, ANY_HIT);
+VkrtWalkHit vkrt_trace_ray(VkrtRay r, float time) {
+#ifdef VKRT_HAS_RAY_QUERY
+    return vkrt_trace_ray_query(r, time, VKRT_ANY_HIT);
 #else
-    return trace_walk(ACCEL_KIND, r, time, ANY_HIT);
+    return vkrt_trace_walk(VKRT_ACCEL_KIND, r, time, VKRT_ANY_HIT);
 #endif
 }
 #endif
