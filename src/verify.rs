@@ -547,6 +547,35 @@ fn bottom_levels(
         .collect()
 }
 
+/// Instance `i` of a mix in which a top-level build must neutralise every class of invalid
+/// instance: every 17th from the 3rd is singular, from the 5th non-finite, from the 7th
+/// names a bottom level out of range (9), from the 11th has mask 0 and, given
+/// `empty_bottom`, from the 13th names that (empty) bottom level; the rest are `inst`.
+pub fn invalid_instance_mix(
+    i: usize,
+    inst: crate::accel::instances::Instance,
+    empty_bottom: Option<u64>,
+) -> crate::accel::instances::Instance {
+    use crate::accel::instances::Instance;
+    match (i % 17, empty_bottom) {
+        (3, _) => Instance {
+            transform: [[1.0, 0.0, 0.0, 0.0], [2.0, 0.0, 0.0, 0.0], [0.0; 4]],
+            ..inst
+        },
+        (5, _) => Instance {
+            transform: [[f32::NAN, 0.0, 0.0, 0.0], [0.0; 4], [0.0; 4]],
+            ..inst
+        },
+        (7, _) => Instance { bottom: 9, ..inst },
+        (11, _) => inst.with_mask(0),
+        (13, Some(empty)) => Instance {
+            bottom: empty,
+            ..inst
+        },
+        _ => inst,
+    }
+}
+
 /// `accel.instance_boxes` over `n` instances of `hosts`' levels (every 17th an invalid
 /// class: singular, non-finite, a bottom level out of range; some with mask 0) moving in
 /// `steps` time steps (one more class: singular at the last step only), built in memory of
@@ -564,19 +593,7 @@ fn instance_boxes_check(ctx: &Context, hosts: &[TraceGeometry], n: usize, steps:
         .map(|i| {
             let inst = Instance::new((i % 2) as u32, instance_transform(&mut rng))
                 .with_custom_index(i as u32);
-            match i % 17 {
-                3 => Instance {
-                    transform: [[1.0, 0.0, 0.0, 0.0], [2.0, 0.0, 0.0, 0.0], [0.0; 4]],
-                    ..inst
-                },
-                5 => Instance {
-                    transform: [[f32::NAN, 0.0, 0.0, 0.0], [0.0; 4], [0.0; 4]],
-                    ..inst
-                },
-                7 => Instance { bottom: 9, ..inst },
-                11 => inst.with_mask(0),
-                _ => inst,
-            }
+            invalid_instance_mix(i, inst, None)
         })
         .collect();
     // Later steps: each instance moved and turned a little.

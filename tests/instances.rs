@@ -201,20 +201,7 @@ fn instance_boxes_equal_their_cpu_twin_bit_for_bit_and_the_tree_the_host_s() {
                 .map(|i| {
                     let rows = Instance::rows_of(&random_transform(&mut rng, 20.0));
                     let inst = Instance::new((i % 2) as u32, rows).with_custom_index(i as u32);
-                    match i % 17 {
-                        3 => Instance {
-                            transform: [[1.0, 0.0, 0.0, 0.0], [2.0, 0.0, 0.0, 0.0], [0.0; 4]],
-                            ..inst
-                        },
-                        5 => Instance {
-                            transform: [[f32::NAN, 0.0, 0.0, 0.0], [0.0; 4], [0.0; 4]],
-                            ..inst
-                        },
-                        7 => Instance { bottom: 9, ..inst },
-                        11 => inst.with_mask(0),
-                        13 => Instance { bottom: 2, ..inst },
-                        _ => inst,
-                    }
+                    vkrt::verify::invalid_instance_mix(i, inst, Some(2))
                 })
                 .collect();
             let flags = BuildFlags::default();

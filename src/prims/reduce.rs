@@ -191,6 +191,35 @@ pub fn recommended_config(ctx: &Context) -> PrimConfig {
     }
 }
 
+/// A reduction's two entry points: `$record` records `out[0] = ` the reduction of
+/// `src[..n]` with kernel `self.$run` (one kernel for every level of the chain), and `$run`
+/// uploads `data`, runs it and reads the result back.
+macro_rules! reductions {
+    ($($(#[doc = $doc:literal])* $record:ident / $run:ident: $t:ty, $label:literal;)*) => {
+        $(
+            #[doc = "Records `out[0] = `"]
+            $(#[doc = $doc])*
+            pub fn $record(
+                &self,
+                rec: &mut Recorder,
+                src: &Buffer<$t>,
+                n: u32,
+                scratch: &Buffer<u32>,
+                out: &Buffer<$t>,
+            ) {
+                check_len($label, src, n, out);
+                let k = (&*self.$run, &*self.$run);
+                self.record_chain(rec, $label, k, 1, src, n, scratch, out);
+            }
+
+            #[doc = concat!("[`Reduce::", stringify!($record), "`] of `data` on the GPU.")]
+            pub fn $run(&self, ctx: &Context, data: &[$t]) -> Result<$t> {
+                self.run(ctx, data, Self::$record)
+            }
+        )*
+    };
+}
+
 impl Reduce {
     /// Compiles every reduction for `cfg`: an error unless the workgroup size is a power of
     /// two of at least 4 and a multiple of the subgroup size, the items per invocation a
@@ -292,89 +321,20 @@ impl Reduce {
         });
     }
 
-    /// Records `out[0] = ` the wrapping sum of `src[..n]`.
-    pub fn record_sum_u32(
-        &self,
-        rec: &mut Recorder,
-        src: &Buffer<u32>,
-        n: u32,
-        scratch: &Buffer<u32>,
-        out: &Buffer<u32>,
-    ) {
-        check_len("prims.reduce.sum_u32", src, n, out);
-        let k = (&*self.sum_u32, &*self.sum_u32);
-        self.record_chain(rec, "prims.reduce.sum_u32", k, 1, src, n, scratch, out);
-    }
-
-    /// Records `out[0] = ` the minimum of `src[..n]` (`u32::MAX` for n = 0).
-    pub fn record_min_u32(
-        &self,
-        rec: &mut Recorder,
-        src: &Buffer<u32>,
-        n: u32,
-        scratch: &Buffer<u32>,
-        out: &Buffer<u32>,
-    ) {
-        check_len("prims.reduce.min_u32", src, n, out);
-        let k = (&*self.min_u32, &*self.min_u32);
-        self.record_chain(rec, "prims.reduce.min_u32", k, 1, src, n, scratch, out);
-    }
-
-    /// Records `out[0] = ` the maximum of `src[..n]` (0 for n = 0).
-    pub fn record_max_u32(
-        &self,
-        rec: &mut Recorder,
-        src: &Buffer<u32>,
-        n: u32,
-        scratch: &Buffer<u32>,
-        out: &Buffer<u32>,
-    ) {
-        check_len("prims.reduce.max_u32", src, n, out);
-        let k = (&*self.max_u32, &*self.max_u32);
-        self.record_chain(rec, "prims.reduce.max_u32", k, 1, src, n, scratch, out);
-    }
-
-    /// Records `out[0] = ` the sum of `src[..n]` in the fixed order of [`sum_f32_cpu`]
-    /// (+0.0 for n = 0).
-    pub fn record_sum_f32(
-        &self,
-        rec: &mut Recorder,
-        src: &Buffer<f32>,
-        n: u32,
-        scratch: &Buffer<u32>,
-        out: &Buffer<f32>,
-    ) {
-        check_len("prims.reduce.sum_f32", src, n, out);
-        let k = (&*self.sum_f32, &*self.sum_f32);
-        self.record_chain(rec, "prims.reduce.sum_f32", k, 1, src, n, scratch, out);
-    }
-
-    /// Records `out[0] = ` the minimum of `src[..n]`, -0.0 below +0.0 (+inf for n = 0).
-    pub fn record_min_f32(
-        &self,
-        rec: &mut Recorder,
-        src: &Buffer<f32>,
-        n: u32,
-        scratch: &Buffer<u32>,
-        out: &Buffer<f32>,
-    ) {
-        check_len("prims.reduce.min_f32", src, n, out);
-        let k = (&*self.min_f32, &*self.min_f32);
-        self.record_chain(rec, "prims.reduce.min_f32", k, 1, src, n, scratch, out);
-    }
-
-    /// Records `out[0] = ` the maximum of `src[..n]`, +0.0 above -0.0 (-inf for n = 0).
-    pub fn record_max_f32(
-        &self,
-        rec: &mut Recorder,
-        src: &Buffer<f32>,
-        n: u32,
-        scratch: &Buffer<u32>,
-        out: &Buffer<f32>,
-    ) {
-        check_len("prims.reduce.max_f32", src, n, out);
-        let k = (&*self.max_f32, &*self.max_f32);
-        self.record_chain(rec, "prims.reduce.max_f32", k, 1, src, n, scratch, out);
+    reductions! {
+        /// the wrapping sum of `src[..n]` (0 for n = 0)
+        record_sum_u32 / sum_u32: u32, "prims.reduce.sum_u32";
+        /// the minimum of `src[..n]` (`u32::MAX` for n = 0)
+        record_min_u32 / min_u32: u32, "prims.reduce.min_u32";
+        /// the maximum of `src[..n]` (0 for n = 0)
+        record_max_u32 / max_u32: u32, "prims.reduce.max_u32";
+        /// the pairwise-tree sum of `src[..n]` in the fixed order of [`sum_f32_cpu`], bit
+        /// for bit (+0.0 for n = 0)
+        record_sum_f32 / sum_f32: f32, "prims.reduce.sum_f32";
+        /// the minimum of `src[..n]` in IEEE total order, -0.0 below +0.0 (+inf for n = 0)
+        record_min_f32 / min_f32: f32, "prims.reduce.min_f32";
+        /// the maximum of `src[..n]` in IEEE total order, +0.0 above -0.0 (-inf for n = 0)
+        record_max_f32 / max_f32: f32, "prims.reduce.max_f32";
     }
 
     /// Records `out[0] = ` the argmin of `costs[..n]`: lowest cost, then lowest index,
@@ -409,37 +369,6 @@ impl Reduce {
         rec.compute_to_transfer();
         rec.submit_and_wait()?;
         Ok(out.download()?[0])
-    }
-
-    /// The wrapping sum of `data` on the GPU.
-    pub fn sum_u32(&self, ctx: &Context, data: &[u32]) -> Result<u32> {
-        self.run(ctx, data, Self::record_sum_u32)
-    }
-
-    /// The minimum of `data` on the GPU (`u32::MAX` when empty).
-    pub fn min_u32(&self, ctx: &Context, data: &[u32]) -> Result<u32> {
-        self.run(ctx, data, Self::record_min_u32)
-    }
-
-    /// The maximum of `data` on the GPU (0 when empty).
-    pub fn max_u32(&self, ctx: &Context, data: &[u32]) -> Result<u32> {
-        self.run(ctx, data, Self::record_max_u32)
-    }
-
-    /// The pairwise-tree sum of `data` on the GPU, bit-identical to [`sum_f32_cpu`] at this
-    /// configuration (+0.0 when empty).
-    pub fn sum_f32(&self, ctx: &Context, data: &[f32]) -> Result<f32> {
-        self.run(ctx, data, Self::record_sum_f32)
-    }
-
-    /// The minimum of `data` on the GPU in IEEE total order, -0.0 < +0.0 (+inf when empty).
-    pub fn min_f32(&self, ctx: &Context, data: &[f32]) -> Result<f32> {
-        self.run(ctx, data, Self::record_min_f32)
-    }
-
-    /// The maximum of `data` on the GPU in IEEE total order, +0.0 > -0.0 (-inf when empty).
-    pub fn max_f32(&self, ctx: &Context, data: &[f32]) -> Result<f32> {
-        self.run(ctx, data, Self::record_max_f32)
     }
 
     /// The argmin of `costs` on the GPU: (cost, index), (+inf, `u32::MAX`) when empty.

@@ -556,6 +556,14 @@ fn brute_force_all(g: &TraceGeometry, rays: &[Ray], o: &TraceOptions) -> Arc<Vec
     hits
 }
 
+/// One self-intersection case: which primitives, whether the origin offset is bounded by
+/// the hit point's error, and the rays spawned from the hits.
+struct SelfHits<'r> {
+    primitives: &'static str,
+    bounded: bool,
+    spawned: &'r [Ray],
+}
+
 struct Suite<'a> {
     ctx: &'a Context,
     size: SuiteSize,
@@ -799,28 +807,12 @@ impl Suite<'_> {
                 let bad: Vec<usize> = (0..spawned.len())
                     .filter(|&k| b.hits[k].prim == owner[k].0)
                     .collect();
-                let name = if bounded {
-                    "self-intersection/triangles-1e-8..1e8"
-                } else {
-                    "self-intersection/triangles-1e-8..1e8-wachter-binder"
+                let case = SelfHits {
+                    primitives: "triangles",
+                    bounded,
+                    spawned: &spawned,
                 };
-                self.push(
-                    name,
-                    i,
-                    &p,
-                    spawned.len(),
-                    bad.len() as u64,
-                    "re-hits",
-                    u64::from(b.exhausted + first.exhausted),
-                    ms(&b),
-                );
-                let last = self.out.last_mut().unwrap();
-                last.examples = bad
-                    .iter()
-                    .take(4)
-                    .map(|&k| (spawned[k], b.hits[k]))
-                    .collect();
-                last.known_limit = !bounded;
+                self.push_self_hits(case, i, &p, &b, first.exhausted, &bad);
             }
         }
 
@@ -886,31 +878,55 @@ impl Suite<'_> {
                         }
                     })
                     .collect();
-                let name = if bounded {
-                    "self-intersection/spheres-1e-8..1e8"
-                } else {
-                    "self-intersection/spheres-1e-8..1e8-wachter-binder"
+                let case = SelfHits {
+                    primitives: "spheres",
+                    bounded,
+                    spawned: &spawned,
                 };
-                self.push(
-                    name,
-                    i,
-                    &p,
-                    spawned.len(),
-                    bad.len() as u64,
-                    "re-hits",
-                    u64::from(b.exhausted + first.exhausted),
-                    ms(&b),
-                );
-                let last = self.out.last_mut().unwrap();
-                last.examples = bad
-                    .iter()
-                    .take(4)
-                    .map(|&k| (spawned[k], b.hits[k]))
-                    .collect();
-                last.known_limit = !bounded;
+                self.push_self_hits(case, i, &p, &b, first.exhausted, &bad);
             }
         }
         Ok(())
+    }
+
+    /// Records a self-intersection case: `bad` indexes the spawned rays that hit their own
+    /// primitive again (the first four kept as examples); the offset without error bounds
+    /// (Wächter & Binder's) is a known limit.
+    fn push_self_hits(
+        &mut self,
+        case: SelfHits,
+        i: Intersector,
+        p: &Prepared,
+        b: &TraceBatch,
+        first_exhausted: u32,
+        bad: &[usize],
+    ) {
+        let name = match case.bounded {
+            true => format!("self-intersection/{}-1e-8..1e8", case.primitives),
+            false => format!(
+                "self-intersection/{}-1e-8..1e8-wachter-binder",
+                case.primitives
+            ),
+        };
+        let errors = u64::from(b.exhausted + first_exhausted);
+        let spawned = case.spawned;
+        self.push(
+            &name,
+            i,
+            p,
+            spawned.len(),
+            bad.len() as u64,
+            "re-hits",
+            errors,
+            ms(b),
+        );
+        let last = self.out.last_mut().unwrap();
+        last.examples = bad
+            .iter()
+            .take(4)
+            .map(|&k| (spawned[k], b.hits[k]))
+            .collect();
+        last.known_limit = !case.bounded;
     }
 
     /// Rays spawned from `origin` (offset from `point` on primitive `prim`) to the side
