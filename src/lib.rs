@@ -37,7 +37,8 @@
 //! A renderer embeds vkrt on its own terms ([`Context::from_raw`] adopts its device,
 //! [`accel::geometry`] describes its vertex and index buffers, [`AccelBuilder::create_in`]
 //! places a structure in its memory, `vkrt/ray_query.glsl` traces from its own shaders):
-//! `docs/embedding.md`.
+//! the guide is [`guide::embedding`]. Cargo features, thread safety (which types are `Send`
+//! and `Sync`), versioning and the minimum Rust version: [`guide::versioning`].
 //!
 //! Layers (calls go downward only): [`gpu`] (all Vulkan, all `unsafe`), [`prims`] (scans,
 //! reductions, sorts), [`scene`] (the host-side model), [`accel`] (the builders), [`trace`]
@@ -59,6 +60,7 @@ pub mod accel;
 pub mod accuracy;
 #[cfg(feature = "cli")]
 pub mod bench;
+pub mod guide;
 pub mod host;
 pub mod prims;
 pub mod render;
