@@ -207,7 +207,7 @@ fn build_and_trace(host: &Host, tris: &[[Vec3; 3]], rays: &[Ray]) -> BoxResult<S
             );
         }
     });
-    let work = rec.finish();
+    let work = rec.finish()?;
     let vkrt_submits = (ctx.traffic() - before).submits;
 
     // One submission, by the host, on its queue.

@@ -668,7 +668,7 @@ fn build_and_trace(
                 (vk::PipelineStageFlags::HOST, vk::AccessFlags::HOST_READ),
             );
         }
-        let work = rec.finish();
+        let work = rec.finish()?;
         host.submit_and_wait(cmd)?;
         // SAFETY: the command buffer has finished executing (the fence was waited for).
         let profile = unsafe { work.complete() }?;

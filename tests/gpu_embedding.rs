@@ -192,7 +192,7 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
         rec.dispatch(&kernel, groups, &[&x, &y], &SaxpyPush { a: 3.0, n });
     });
     rec.compute_to_transfer();
-    let work = rec.finish();
+    let work = rec.finish().unwrap();
     r.submit_and_wait(cmd);
     // SAFETY: the command buffer has finished executing (fence waited above).
     let profile = unsafe { work.complete() }.unwrap();
@@ -288,7 +288,7 @@ fn embedded_build_and_trace(r: &Renderer, ctx: &Context, kind: AccelKind) {
     })
     .unwrap();
     rec.compute_to_transfer();
-    let work = rec.finish();
+    let work = rec.finish().unwrap();
     assert_eq!(
         (ctx.traffic() - before).submits,
         0,

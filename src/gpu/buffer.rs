@@ -299,18 +299,13 @@ impl<T: Pod> Buffer<T> {
             Memory::Upload => MemoryLocation::CpuToGpu,
             Memory::Readback => MemoryLocation::GpuToCpu,
         };
-        let allocation = ctx
-            .inner
-            .allocator
-            .lock()
-            .unwrap()
-            .allocate(&AllocationCreateDesc {
-                name,
-                requirements,
-                location,
-                linear: true,
-                allocation_scheme: AllocationScheme::GpuAllocatorManaged,
-            });
+        let allocation = super::error::lock(&ctx.inner.allocator).allocate(&AllocationCreateDesc {
+            name,
+            requirements,
+            location,
+            linear: true,
+            allocation_scheme: AllocationScheme::GpuAllocatorManaged,
+        });
         let allocation = match allocation {
             Ok(a) => a,
             Err(e) => {
@@ -329,7 +324,7 @@ impl<T: Pod> Buffer<T> {
         if let Err(e) = bound {
             // SAFETY: `raw` is unused; the allocation goes back to the allocator.
             unsafe { device.destroy_buffer(raw, None) };
-            let _ = ctx.inner.allocator.lock().unwrap().free(allocation);
+            let _ = super::error::lock(&ctx.inner.allocator).free(allocation);
             return Err(vk_err("vkBindBufferMemory")(e));
         }
         ctx.set_object_name(raw, name);
@@ -505,7 +500,7 @@ impl<T: Pod> Drop for Buffer<T> {
         unsafe { self.ctx.inner.device.destroy_buffer(self.raw, None) };
         if let Some(a) = self.allocation.take() {
             self.ctx.count_allocation(a.size(), false);
-            let _ = self.ctx.inner.allocator.lock().unwrap().free(a);
+            let _ = super::error::lock(&self.ctx.inner.allocator).free(a);
         }
     }
 }

@@ -364,7 +364,7 @@ impl Context {
 
     /// Takes the validation messages collected so far.
     pub fn take_validation_messages(&self) -> Vec<ValidationMessage> {
-        std::mem::take(&mut *self.inner.sink.messages.lock().unwrap())
+        std::mem::take(&mut *super::error::lock(&self.inner.sink.messages))
     }
 
     /// The raw ash device, for embedding renderers that mix their own commands in.
@@ -394,7 +394,7 @@ impl Context {
 
     /// Waits until the device is idle.
     pub fn wait_idle(&self) -> Result<()> {
-        let _queue = self.inner.queue.lock().unwrap();
+        let _queue = super::error::lock(&self.inner.queue);
         // SAFETY: the device is valid; holding the queue lock keeps our submissions out.
         unsafe { self.inner.device.device_wait_idle() }.map_err(vk_err("vkDeviceWaitIdle"))
     }

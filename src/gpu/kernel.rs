@@ -104,11 +104,11 @@ impl Context {
             name: blob.name,
             spec: spec.clone(),
         };
-        if let Some(k) = self.inner.kernels.lock().unwrap().get(&key) {
+        if let Some(k) = super::error::lock(&self.inner.kernels).get(&key) {
             return Ok(k.clone());
         }
         let kernel = Arc::new(self.create_kernel(blob, spec)?);
-        let mut cache = self.inner.kernels.lock().unwrap();
+        let mut cache = super::error::lock(&self.inner.kernels);
         match cache.get(&key) {
             // Another thread won the race: keep its kernel and destroy ours.
             Some(k) => {

@@ -31,6 +31,8 @@ pub(crate) struct ScopeRecorder {
     next_query: u32,
     scopes: Vec<Scope>,
     open: Vec<usize>,
+    /// `end` calls without an open scope: a usage error reported when the work is finished.
+    unmatched_ends: usize,
 }
 
 impl ScopeRecorder {
@@ -41,6 +43,7 @@ impl ScopeRecorder {
             next_query: 0,
             scopes: Vec::new(),
             open: Vec::new(),
+            unmatched_ends: 0,
         }
     }
 
@@ -68,7 +71,9 @@ impl ScopeRecorder {
     /// Closes the innermost scope; returns the query to write, if any.
     pub(crate) fn end(&mut self) -> Option<u32> {
         let Some(index) = self.open.pop() else {
-            super::error::usage_error("end_scope without a matching begin_scope")
+            // Reported when the work is finished or submitted (`Recorder::check_closed`).
+            self.unmatched_ends += 1;
+            return None;
         };
         let end = if self.scopes[index].begin.is_some() {
             self.take_query()
@@ -81,6 +86,10 @@ impl ScopeRecorder {
 
     pub(crate) fn open_scopes(&self) -> usize {
         self.open.len()
+    }
+
+    pub(crate) fn unmatched_ends(&self) -> usize {
+        self.unmatched_ends
     }
 
     pub(crate) fn last_name(&self) -> String {

@@ -10,7 +10,7 @@ use bytemuck::Pod;
 
 use super::buffer::{Buffer, BufferArg, Memory};
 use super::context::Context;
-use super::error::{usage_error, vk_err, GpuError, Result};
+use super::error::{vk_err, GpuError, Result};
 use super::kernel::{Kernel, PUSH_CONSTANT_BYTES};
 use super::profiler::{create_query_pool, Profile, ScopeRecorder, DEFAULT_QUERY_CAPACITY};
 
@@ -169,18 +169,14 @@ impl Recorder {
 
     /// Workgroup counts covering `items` with `per_group` items per workgroup, folded into
     /// a 2-D grid when they exceed `maxComputeWorkGroupCount[0]` (kernels use
-    /// `linear_group_id()` from `glsl/common/grid.glsl` and bounds-check).
+    /// `linear_group_id()` from `glsl/common/grid.glsl` and bounds-check). Counts beyond
+    /// the device's grid come back as they are, and [`Recorder::dispatch`] refuses them.
     pub fn groups_1d(&self, items: u64, per_group: u32) -> [u32; 3] {
         let groups = items.div_ceil(u64::from(per_group.max(1)));
         let max = self.ctx.info().max_workgroup_count;
         let x = groups.min(u64::from(max[0]));
-        let y = if x == 0 { 0 } else { groups.div_ceil(x) };
-        if y > u64::from(max[1]) {
-            usage_error(&format!(
-                "{items} items need {groups} workgroups, beyond this device's grid"
-            ));
-        }
-        [x as u32, if x == 0 { 1 } else { y as u32 }, 1]
+        let y = if x == 0 { 1 } else { groups.div_ceil(x) };
+        [x as u32, u32::try_from(y).unwrap_or(u32::MAX), 1]
     }
 
     /// Binds `buffers` (in the order of the kernel's bindings) and `push` and dispatches
@@ -728,8 +724,13 @@ impl Recorder {
         }
     }
 
-    /// Closes the innermost open pass.
+    /// Closes the innermost open pass. Without one, nothing is recorded and finishing or
+    /// submitting the work is an error.
     pub fn end_scope(&mut self) {
+        if self.scopes.open_scopes() == 0 {
+            self.scopes.end();
+            return;
+        }
         let query = self.scopes.end();
         if let (Some(pool), Some(q)) = (self.scopes.pool, query) {
             self.write_timestamp(pool, q);
@@ -748,21 +749,28 @@ impl Recorder {
         r
     }
 
-    fn check_closed(&self) {
-        if self.scopes.open_scopes() != 0 {
-            usage_error(&format!(
-                "{} profiler scope(s) left open",
-                self.scopes.open_scopes()
-            ));
+    /// `Err` where a scope was left open or closed without being opened.
+    fn check_closed(&self) -> Result<()> {
+        let (open, unmatched) = (self.scopes.open_scopes(), self.scopes.unmatched_ends());
+        if open == 0 && unmatched == 0 {
+            return Ok(());
         }
+        Err(GpuError::Usage {
+            call: "Recorder::end_scope",
+            reason: format!("{open} scope(s) left open, {unmatched} closed without begin_scope"),
+        })
     }
 
     /// Ends, submits and waits for the recorded work; returns the pass timings.
     pub fn submit_and_wait(self) -> Result<Profile> {
         if self.command_pool.is_none() {
-            usage_error("submit_and_wait on a caller-owned command buffer; use finish()");
+            return Err(GpuError::Usage {
+                call: "Recorder::submit_and_wait",
+                reason: "the command buffer is the caller's: end it with finish() and submit it"
+                    .into(),
+            });
         }
-        self.check_closed();
+        self.check_closed()?;
         // Incomplete work is never submitted.
         self.check()?;
         let device = &self.ctx.inner.device;
@@ -778,7 +786,7 @@ impl Recorder {
             .submits
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
         let result = {
-            let queue = self.ctx.inner.queue.lock().unwrap();
+            let queue = super::error::lock(&self.ctx.inner.queue);
             // SAFETY: the queue is externally synchronised by the lock; the command buffer is
             // executable; the fence is unsignalled.
             unsafe { device.queue_submit(*queue, &submit, fence) }.map_err(vk_err("vkQueueSubmit"))
@@ -815,15 +823,20 @@ impl Recorder {
 
     /// Stops recording into a caller-owned command buffer (which the caller ends and
     /// submits). Call [`RecordedWork::complete`] once it has executed.
-    pub fn finish(self) -> RecordedWork {
+    /// `Err` (and nothing recorded is left to complete) on vkrt's own command buffer, or
+    /// where a scope was left open.
+    pub fn finish(self) -> Result<RecordedWork> {
         if self.command_pool.is_some() {
-            usage_error("finish() is for caller-owned command buffers; use submit_and_wait()");
+            return Err(GpuError::Usage {
+                call: "Recorder::finish",
+                reason: "the command buffer is vkrt's own: submit it with submit_and_wait()".into(),
+            });
         }
-        self.check_closed();
-        RecordedWork {
+        self.check_closed()?;
+        Ok(RecordedWork {
             recorder: self,
             completed: false,
-        }
+        })
     }
 
     fn read_profile(&self) -> Result<Profile> {
