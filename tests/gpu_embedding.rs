@@ -12,7 +12,7 @@ use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::primitives::TraceGeometry;
-use vkrt::gpu::{kernels, Buffer, Context, DeviceFeatures, RawParts, Recorder, Spec};
+use vkrt::gpu::{kernels, Buffer, Context, DeviceFeatures, GpuError, RawParts, Recorder, Spec};
 use vkrt::trace::gpu::Tracer;
 use vkrt::trace::{cpu, Hit, Ray, TraceOptions};
 
@@ -202,6 +202,16 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
         assert!(profile.passes[0].ms.unwrap() > 0.0);
     }
     assert!(y.download().unwrap().iter().all(|&v| v == 7.0));
+
+    // vkrt never submits the renderer's command buffer: asked to, it says so.
+    let (pool2, cmd2) = r.begin_commands();
+    // SAFETY: as above; nothing is recorded and `cmd2` is submitted empty below.
+    let rec = unsafe { Recorder::from_raw(&ctx, cmd2, 0) }.unwrap();
+    let err = rec.submit_and_wait().unwrap_err();
+    assert!(matches!(err, GpuError::Usage { .. }), "{err}");
+    r.submit_and_wait(cmd2);
+    // SAFETY: the empty command buffer has executed.
+    unsafe { r.device.destroy_command_pool(pool2, None) };
 
     // A convenience submission on the adopted queue works too.
     let z = Buffer::from_slice(&ctx, "embed.z", &[5u32; 17]).unwrap();

@@ -477,6 +477,48 @@ fn commands_given_wrong_arguments_fail_the_recording_instead_of_panicking() {
 }
 
 #[test]
+fn a_recorder_used_the_wrong_way_is_an_error_not_a_panic() {
+    let Some(ctx) = common::context() else { return };
+    let kernel = ctx
+        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
+        .unwrap();
+    let x = Buffer::from_slice(&ctx, "x", &[1.0f32; 8]).unwrap();
+    let y = Buffer::from_slice(&ctx, "y", &[2.0f32; 8]).unwrap();
+    let push = SaxpyPush { a: 3.0, n: 8 };
+    let usage = |r: Result<vkrt::gpu::Profile, GpuError>, what: &str| match r {
+        Err(GpuError::Usage { .. }) => {}
+        other => panic!("{what}: {other:?}"),
+    };
+    // finish() is for the caller's command buffers.
+    let rec = Recorder::new(&ctx).unwrap();
+    assert!(matches!(rec.finish(), Err(GpuError::Usage { .. })));
+    // A scope left open, and one closed that was never opened.
+    let mut rec = Recorder::new(&ctx).unwrap();
+    rec.begin_scope("left.open");
+    usage(rec.submit_and_wait(), "a scope left open");
+    let mut rec = Recorder::new(&ctx).unwrap();
+    rec.end_scope();
+    rec.dispatch(&kernel, [1, 1, 1], &[&x, &y], &push);
+    usage(rec.submit_and_wait(), "a scope closed twice");
+    // More workgroups than the device's grid holds: refused at dispatch.
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let max = ctx.info().max_workgroup_count;
+    let items = u64::from(max[0]) * (u64::from(max[1]) + 1);
+    let groups = rec.groups_1d(items, 1);
+    rec.dispatch(&kernel, groups, &[&x, &y], &push);
+    usage(rec.submit_and_wait(), "a grid beyond the device's");
+    // y untouched; the recorder still works the right way.
+    assert_eq!(y.download().unwrap(), vec![2.0; 8]);
+    let mut rec = Recorder::new(&ctx).unwrap();
+    rec.scope("right", |rec| {
+        rec.dispatch(&kernel, [1, 1, 1], &[&x, &y], &push)
+    });
+    rec.submit_and_wait().unwrap();
+    assert_eq!(y.download().unwrap(), vec![5.0; 8]);
+    common::assert_silent(&ctx);
+}
+
+#[test]
 fn oversized_buffers_are_a_clear_error() {
     let Some(ctx) = common::context() else { return };
     let limit = ctx.info().max_storage_buffer_range;

@@ -162,7 +162,8 @@ pub struct Buffer<T: Pod> {
     owned: bool,
     name: String,
     memory: Memory,
-    _marker: PhantomData<T>,
+    // The elements live in device memory, not in the handle: it crosses threads whatever `T`.
+    _marker: PhantomData<fn() -> T>,
 }
 
 impl<T: Pod> BufferArg for Buffer<T> {

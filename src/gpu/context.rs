@@ -148,7 +148,7 @@ pub(crate) struct Inner {
     pub(crate) peak_bytes: AtomicU64,
     messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     sink: Box<MessageSink>,
-    owns_device: bool,
+    pub(crate) owns_device: bool,
 }
 
 impl Context {
@@ -218,7 +218,13 @@ impl Context {
     /// - `enabled_features` and `debug_utils` say truly what the device and instance enable;
     /// - the instance, device (and allocator) outlive this context and every clone of it;
     /// - the caller does not use `queue` from another thread while vkrt submits to it
-    ///   (vkrt submits only from `Recorder::submit_and_wait` and buffer up/downloads).
+    ///   (vkrt submits only from `Recorder::submit_and_wait` and buffer up/downloads);
+    /// - the last clone of the context is dropped only once the work recorded into the
+    ///   caller's command buffers through it has finished executing ([`RecordedWork`]
+    ///   completed): vkrt then destroys its pipelines and buffers without waiting for the
+    ///   device, whose other queues are the caller's.
+    ///
+    /// [`RecordedWork`]: super::RecordedWork
     pub unsafe fn from_raw(parts: RawParts) -> Result<Self> {
         let physical = info::query(
             &parts.instance,
@@ -403,10 +409,14 @@ impl Context {
 impl Drop for Inner {
     fn drop(&mut self) {
         // SAFETY: the last clone of the context is going away, so no buffer, recorder or
-        // kernel made from it is alive (they all hold a clone); we wait for the device to be
-        // idle before destroying what we created, and touch adopted handles only to wait.
+        // kernel made from it is alive (they all hold a clone). On vkrt's own device (and
+        // queue) we wait for it to be idle before destroying what we created; on an adopted
+        // one, `from_raw`'s contract says vkrt's work has finished, and waiting for the whole
+        // device would need the caller's other queues externally synchronized.
         unsafe {
-            let _ = self.device.device_wait_idle();
+            if self.owns_device {
+                let _ = self.device.device_wait_idle();
+            }
             for kernel in self.kernels.get_mut().unwrap().values() {
                 kernel.destroy(&self.device);
             }

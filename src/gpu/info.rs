@@ -422,20 +422,23 @@ pub fn device_requirements() -> DeviceRequirements {
             ),
             (
                 "shaderInt64",
-                "64-bit node loads of the exact walk, 64-bit Morton codes",
+                "64-bit node loads of the exact walk, 64-bit Morton codes; with \
+                 bufferDeviceAddress, two levels and `VKRT_DEVICE_ADDRESS` shaders (their \
+                 SPIR-V declares Int64)",
             ),
-            ("shaderFloat64", "the watertight test's exact fallback"),
+            (
+                "shaderFloat64",
+                "the watertight test's exact fallback (`VKRT_EXACT`, with shaderInt64)",
+            ),
             (
                 "shaderBufferInt64Atomics",
                 "the single-pass chained scan (a two-pass scan otherwise)",
             ),
             (
-                "hostQueryReset",
-                "profiler timestamps without a reset command",
-            ),
-            (
-                "subgroupSizeControl, computeFullSubgroups",
-                "kernels that need full subgroups of a fixed size",
+                "bufferDeviceAddress",
+                "two levels (instances of bottom levels under a top level), geometry read at \
+                 device addresses, `VKRT_DEVICE_ADDRESS` shaders; the driver's structure \
+                 needs it too",
             ),
         ],
         ray_query_extensions: RAY_QUERY_EXTENSIONS.to_vec(),

@@ -28,7 +28,7 @@ pub struct Recorder {
     descriptor_pools: Vec<vk::DescriptorPool>,
     scopes: ScopeRecorder,
     /// Staging buffers of recorded uploads, alive until the work has executed.
-    staging: Vec<Box<dyn std::any::Any>>,
+    staging: Vec<Box<dyn std::any::Any + Send>>,
     /// The first thing that went wrong while recording — a Vulkan call that failed
     /// (descriptor pools: out of memory) or a command given arguments it cannot take: what
     /// follows is left out, and the recording reports it ([`Recorder::check`],
@@ -61,9 +61,12 @@ impl<T: Pod> Readback<T> {
 /// Work recorded into a caller-owned command buffer, holding what that command buffer
 /// uses (descriptor sets, timestamp queries) until the caller says it has completed.
 ///
-/// Dropped without [`RecordedWork::complete`], it waits for the device to go idle before
-/// releasing them (the caller's command buffer may still be executing): safe, but a stall.
-#[must_use = "call complete() once the command buffer has executed; dropping it waits for the device"]
+/// Dropped without [`RecordedWork::complete`], it cannot know when the caller's command
+/// buffer finishes: on vkrt's own device it waits for the device to go idle; on an adopted
+/// device (whose other queues are the caller's) it waits for nothing and leaks what the
+/// command buffer uses — and the context its staging buffers hold — with an error in the
+/// log.
+#[must_use = "call complete() once the command buffer has executed; dropping it leaks or stalls"]
 pub struct RecordedWork {
     recorder: Recorder,
     completed: bool,
@@ -601,7 +604,7 @@ impl Recorder {
 
     /// Keeps `value` (e.g. a build's scratch buffers) alive until this recorder's work has
     /// executed and the recorder is dropped.
-    pub fn keep_alive<T: 'static>(&mut self, value: T) {
+    pub fn keep_alive<T: Send + 'static>(&mut self, value: T) {
         self.staging.push(Box::new(value));
     }
 
@@ -882,10 +885,26 @@ impl RecordedWork {
 
 impl Drop for RecordedWork {
     fn drop(&mut self) {
-        if !self.completed {
-            // The caller's command buffer may still be executing: wait before the recorder
-            // releases the pools it uses. A lost device has nothing left to wait for.
+        if self.completed {
+            return;
+        }
+        // The caller's command buffer may still be executing. On vkrt's own device, wait
+        // before the recorder releases what it uses (a lost device has nothing left to wait
+        // for); on an adopted one a device-wide wait is not vkrt's to make: leak instead.
+        if self.recorder.ctx.inner.owns_device {
             let _ = self.recorder.ctx.wait_idle();
+        } else {
+            log::error!(
+                "vkrt: RecordedWork dropped without complete(): its descriptor pools, queries \
+                 and staging buffers are leaked (the caller's command buffer may still use them)"
+            );
+            let r = &mut self.recorder;
+            // Handles dropped from the lists are left alive; the staging buffers are
+            // forgotten with their memory (and, as each holds a clone, the context).
+            r.descriptor_pools.clear();
+            r.views.clear();
+            r.scopes.pool = None;
+            std::mem::forget(std::mem::take(&mut r.staging));
         }
     }
 }
