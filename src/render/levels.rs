@@ -146,6 +146,15 @@ impl RenderLevels {
         (at(s.first_normal), at(s.first_material))
     }
 
+    /// Takes the bottom levels' host geometry to build them, and lets go of the rest's
+    /// primitive ids (4 bytes a primitive): a render that builds its levels this
+    /// way reads only the placements made already, and is never moved
+    /// ([`RenderLevels::move_to`] needs the ids).
+    pub(crate) fn take_bottoms(&mut self) -> Vec<crate::accel::primitives::TraceGeometry> {
+        self.scene.rest_ids = Vec::new();
+        std::mem::take(&mut self.scene.bottoms)
+    }
+
     /// The instances and placements of `scene` (this one's scene, its meshes moved) at
     /// `shutter[0]`, moving over `shutter` in as many steps as before: what an animation's
     /// later frame changes. The bottom levels and the rest stay.

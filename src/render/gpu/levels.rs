@@ -182,8 +182,9 @@ impl Levels {
     /// one after another, each in submissions of its own, and what shading reads, the
     /// large arrays uploaded ahead in parts (as [`Levels::record_build`], which records it
     /// all into `rec`): at no time are all the primitives held twice on the host. `rl`'s
-    /// bottom levels' host geometry (taken: `rl` keeps none) and the level `materials` and
-    /// `normals` go as they reach the device.
+    /// bottom levels' host geometry and the rest's primitive ids (taken:
+    /// [`RenderLevels::take_bottoms`]) and the level `materials` and `normals` go as they
+    /// reach the device.
     pub fn record_build_in_pieces(
         rec: &mut Recorder,
         choice: AccelChoice,
@@ -198,7 +199,7 @@ impl Levels {
         upload_in_parts(&ctx, &arrays.0, 0, &materials)?;
         drop(materials);
         let builder = AccelBuilder::for_choice(&ctx, choice)?;
-        let taken = std::mem::take(&mut rl.scene.bottoms);
+        let taken = rl.take_bottoms();
         let mut bottoms = Vec::with_capacity(taken.len());
         let mut bottom_ms = 0.0;
         for g in taken {
