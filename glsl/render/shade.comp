@@ -8,9 +8,10 @@
 // scene compiles only what it uses.
 // `levels`: the scene traced as two levels (src/render/gpu/levels.rs). A hit names its
 // instance (`hit_instance`) and the primitive in that instance's bottom level; the surface is
-// the bottom level's triangle (object space) placed by the instance, its shading normals
-// moved by the inverse transpose, its material the instance's (or the primitive's). A moving
-// instance is placed by its steps interpolated at the ray's time, as the walk placed it.
+// the bottom level's triangle (object space, read where the bottom level holds it) placed by
+// the instance, its shading normals (where its bottom level has some) moved by the inverse
+// transpose, its material the instance's (or the primitive's). A moving instance is placed by
+// its steps interpolated at the ray's time, as the walk placed it.
 //! variant flat
 //! variant levels LEVELS=1
 #extension GL_EXT_shader_8bit_storage : require
@@ -37,7 +38,7 @@ layout(constant_id = 11) const bool BOUNCES = false;
 struct Placement {
     vec4 object_to_world[3];   // rows
     vec4 world_to_object[3];   // rows
-    uvec4 info;                // first level primitive, triangles, first sphere, material
+    uvec4 info;                // bottom level, its triangles, 0, material
     uvec4 motion;              // steps (1: still), first step, first step's time, scale
 };
 struct Rows {
@@ -51,14 +52,17 @@ struct Rows {
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer LevelFloats { float v[]; };
 layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer LevelVec4s { vec4 v[]; };
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer LevelUints { uint v[]; };
-// Where the level arrays lie: per level primitive (every bottom level's triangles then
-// vkrt_spheres, bottom after bottom) its object-space vertices, 9 floats (vkrt_spheres: unused); the
-// level vkrt_spheres; per level primitive its material and its shading normals (9 floats).
-layout(std430, binding = 5) readonly buffer LevelArrays { uint64_t level_addr[4]; };
-#define level_verts LevelFloats(level_addr[0]).v
-#define level_spheres LevelVec4s(level_addr[1]).v
-#define prim_material LevelUints(level_addr[2]).v
-#define tri_normals LevelFloats(level_addr[3]).v
+// 32 bytes: `BottomShading` in src/render/types.rs. Where one bottom level's arrays lie: its
+// triangles' object-space vertices (9 floats each) and its vkrt_spheres (centre, radius), the
+// bottom level's own; its triangles' shading normals (9 floats each; 0: none) and its
+// primitives' materials (its triangles then its vkrt_spheres; 0: the placement's).
+struct BottomShading {
+    uint64_t verts;
+    uint64_t spheres;
+    uint64_t normals;
+    uint64_t materials;
+};
+layout(std430, binding = 5) readonly buffer Bottoms { BottomShading bottoms[]; };
 layout(std430, binding = 7) readonly buffer Placements { Placement placements[]; };
 layout(std430, binding = 8) readonly buffer HitInstance { uint hit_instance[]; };
 // Per moving instance its steps' object-to-world rows.
@@ -86,15 +90,11 @@ layout(std430, binding = 18) writeonly buffer Flags { uint8_t flags[]; };
 // tmax of unbounded rays (reflection, refraction, directional-light shadows): +inf.
 #define FAR vkrt_positive_inf()
 
-vec3 normal_at(uint tri, uint corner) {
-    uint k = 9u * tri + 3u * corner;
-    return vec3(tri_normals[k], tri_normals[k + 1u], tri_normals[k + 2u]);
-}
-
 #if LEVELS
-vec3 level_vertex(uint prim, uint corner) {
-    uint k = 9u * prim + 3u * corner;
-    return vec3(level_verts[k], level_verts[k + 1u], level_verts[k + 2u]);
+// Corner `corner` of triangle `tri` of an array of 9 floats per triangle.
+vec3 corner_of(LevelFloats a, uint tri, uint corner) {
+    uint k = 9u * tri + 3u * corner;
+    return vec3(a.v[k], a.v[k + 1u], a.v[k + 2u]);
 }
 
 // The placement at `time`: a moving instance's steps around it interpolated (and inverted),
@@ -125,6 +125,11 @@ vec3 place_normal(Placement pl, vec3 n) {
     return dot(w, w) > 0.0 ? normalize(w) : vec3(0.0);
 }
 #else
+vec3 normal_at(uint tri, uint corner) {
+    uint k = 9u * tri + 3u * corner;
+    return vec3(tri_normals[k], tri_normals[k + 1u], tri_normals[k + 2u]);
+}
+
 // Rotation part of a motion, for normals.
 vec3 move_vector(vec3 n, uint prim, float time) {
     if (vkrt_scene_info.has_motion == 0u || vkrt_prim_motion[prim] == VKRT_NO_MOTION) {
@@ -218,26 +223,32 @@ void main() {
     vec3 ns;
 #if LEVELS
     Placement pl = placement_at(placements[hit_instance[i]], p.time);
-    uint level_prim = pl.info.x + h.prim;
+    BottomShading bottom = bottoms[pl.info.x];
     if (h.prim < pl.info.y) {
-        vec3 p0 = place_point(pl, level_vertex(level_prim, 0u));
-        vec3 p1 = place_point(pl, level_vertex(level_prim, 1u));
-        vec3 p2 = place_point(pl, level_vertex(level_prim, 2u));
+        LevelFloats verts = LevelFloats(bottom.verts);
+        vec3 p0 = place_point(pl, corner_of(verts, h.prim, 0u));
+        vec3 p1 = place_point(pl, corner_of(verts, h.prim, 1u));
+        vec3 p2 = place_point(pl, corner_of(verts, h.prim, 2u));
         float w = 1.0 - h.u - h.v;
         x = w * p0 + h.u * p1 + h.v * p2;
         ng = normalize(cross(p1 - p0, p2 - p0));
-        vec3 n = w * place_normal(pl, normal_at(level_prim, 0u))
-            + h.u * place_normal(pl, normal_at(level_prim, 1u))
-            + h.v * place_normal(pl, normal_at(level_prim, 2u));
-        ns = dot(n, n) > 0.0 ? normalize(n) : ng;
+        ns = ng;
+        if (bottom.normals != 0ul) {
+            LevelFloats normals = LevelFloats(bottom.normals);
+            vec3 n = w * place_normal(pl, corner_of(normals, h.prim, 0u))
+                + h.u * place_normal(pl, corner_of(normals, h.prim, 1u))
+                + h.v * place_normal(pl, corner_of(normals, h.prim, 2u));
+            ns = dot(n, n) > 0.0 ? normalize(n) : ng;
+        }
     } else {
-        vec4 s = level_spheres[pl.info.z + h.prim - pl.info.y];
+        vec4 s = LevelVec4s(bottom.spheres).v[h.prim - pl.info.y];
         vec3 c = place_point(pl, s.xyz);
         ng = normalize(p.o + h.t * p.d - c);
         x = c + ng * s.w;
         ns = ng;
     }
-    uint material = pl.info.w != PER_PRIMITIVE ? pl.info.w : prim_material[level_prim];
+    uint material = pl.info.w != PER_PRIMITIVE ? pl.info.w
+                                               : LevelUints(bottom.materials).v[h.prim];
 #else
     if (h.prim < vkrt_scene_info.n_tris) {
         vec3 p0, p1, p2;

@@ -270,7 +270,10 @@ impl Renderer {
         let cap = plan.queue_capacity;
         let slots = plan.shadow_slots as usize;
         let pixels = plan.width as usize * plan.height as usize;
-        let iota: Vec<u32> = (0..2 * cap as u32).collect();
+        // Two child slots per queue ray, and the compaction's arrays over them, where rays
+        // bounce (else the kernels that touch them never run or never reach them).
+        let child_slots = if plan.bounces { 2 * cap } else { 1 };
+        let iota: Vec<u32> = (0..child_slots as u32).collect();
         // Over two levels the per-primitive arrays are the levels' own (`Levels`).
         let levels = matches!(geom, Traced::Levels(_));
         let (n_materials, n_normals) = match levels {
@@ -288,11 +291,11 @@ impl Renderer {
             hits: Buffer::new(ctx, "render.hits", cap)?,
             radiance: Buffer::new(ctx, "render.radiance", cap)?,
             shadows: Buffer::new(ctx, "render.shadows", (cap * slots).max(1))?,
-            children: Buffer::new(ctx, "render.children", 2 * cap)?,
-            flags: Buffer::new(ctx, "render.flags", 2 * cap)?,
+            children: Buffer::new(ctx, "render.children", child_slots)?,
+            flags: Buffer::new(ctx, "render.flags", child_slots)?,
             iota: Buffer::new(ctx, "render.iota", iota.len())?,
-            live: Buffer::new(ctx, "render.live", 2 * cap)?,
-            compact: self.compact.scratch(ctx, 2 * cap)?,
+            live: Buffer::new(ctx, "render.live", child_slots)?,
+            compact: self.compact.scratch(ctx, child_slots)?,
             counters: Buffer::new(ctx, "render.counters", counter::WORDS)?,
             accum: Buffer::new(ctx, "render.accum", pixels)?,
             accum_before: Buffer::new(ctx, "render.accum_before", pixels)?,

@@ -1,10 +1,12 @@
 //! A scene prepared to render as two levels ([`TwoLevelScene`]): what shading reads in place
-//! of the flat primitives. The level primitives are every bottom level's triangles then its
-//! spheres, bottom level after bottom level; a hit names its instance and the primitive in
-//! that instance's bottom level, and the instance's [`Placement`] says where its bottom
-//! level's primitives start and how it is placed. Repeated and moving meshes are stored once,
-//! in object space; the rest (meshes named once, spheres) in the world, as its identity
-//! instance places it.
+//! of the flat primitives. A hit names its instance and the primitive in that instance's
+//! bottom level (its triangles, then its spheres); the instance's [`Placement`] names its
+//! bottom level and says how it is placed. Shading reads the vertices and spheres where the
+//! bottom levels hold them for their walk, and keeps of its own only what they lack: the
+//! shading normals of the bottom levels with a mesh that has some, and per primitive the
+//! materials of those whose primitives differ in material (one shared material is the
+//! placement's). Repeated and moving meshes are stored once, in object space; the rest
+//! (meshes named once, spheres) in the world, as its identity instance places it.
 //!
 //! With motion blur, each moving mesh's instance moves over the shutter in time steps
 //! ([`InstanceMotion`]): its transform at evenly spaced times, interpolated at each ray's
@@ -19,13 +21,23 @@ use crate::trace::instanced::{TwoLevelScene, REST};
 
 use super::types::Placement;
 
-/// Where one bottom level's primitives lie among the level primitives.
+/// What shading reads of one bottom level besides its own primitives (which it reads where
+/// the bottom level holds them, on the device).
 #[derive(Clone, Copy, Debug)]
 struct Span {
-    first: u32,
     triangles: u32,
-    first_sphere: u32,
+    /// Where its shading normals start among the level normals, in triangles ([`NONE`]:
+    /// none of its meshes has shading normals).
+    first_normal: u32,
+    /// Where its materials start among the level materials ([`NONE`]: its primitives share
+    /// one, `material`).
+    first_material: u32,
+    /// The material its primitives share ([`PER_PRIMITIVE`]: they do not).
+    material: u32,
 }
+
+/// An array a bottom level has no part of.
+const NONE: u32 = u32::MAX;
 
 /// The most a moving instance turns from one time step to the next, in degrees: the
 /// interpolated transform follows the chord of the arc, at most r·(1 − cos 0.5°) ≈ 4·10⁻⁵ r
@@ -40,14 +52,10 @@ pub struct RenderLevels {
     pub motion: InstanceMotion,
     /// The instances at every step, step after step: what the top level is built from.
     pub moving: Vec<Instance>,
-    /// The level spheres: centre and radius, in their bottom level's space.
-    pub spheres: Vec<[f32; 4]>,
     /// Per instance, in the top level's order.
     pub placements: Vec<Placement>,
-    /// Per bottom level, where its primitives lie among the level primitives.
+    /// Per bottom level, what shading reads of it besides its primitives.
     spans: Vec<Span>,
-    /// The level primitives.
-    primitives: usize,
 }
 
 /// The instance's material where it has one (`u32::MAX`: each primitive's).
@@ -55,34 +63,29 @@ const PER_PRIMITIVE: u32 = u32::MAX;
 
 impl RenderLevels {
     /// `two` (made of `scene` at `time`) with its shading data, its moving meshes' instances
-    /// moving over `shutter` (`None`: no motion blur); and per level primitive its material
-    /// and its shading normals (9 floats, zeros where the mesh has none), what the flat
-    /// scene's `prim_material` and `tri_normals` hold per primitive.
+    /// moving over `shutter` (`None`: no motion blur); and the level materials and level
+    /// normals: per primitive of each bottom level whose primitives differ in material its
+    /// material, per triangle of each bottom level with a mesh that has shading normals its
+    /// three (9 floats, zeros for a triangle of a mesh without), bottom level after bottom
+    /// level. Shading reads the vertices and spheres where the bottom levels hold them.
     pub fn new(
         scene: &Scene,
         two: TwoLevelScene,
         time: f32,
         shutter: Option<[f32; 2]>,
     ) -> (Self, Vec<u32>, Vec<f32>) {
-        let mut spheres = Vec::new();
         let (mut normals, mut materials) = (Vec::new(), Vec::new());
         let mut spans = Vec::with_capacity(two.bottoms.len());
         let world_spheres = scene.spheres_at(time);
         let n_tris = scene.triangle_count() as u32;
         for (b, g) in two.bottoms.iter().enumerate() {
-            spans.push(Span {
-                first: materials.len() as u32,
-                triangles: g.triangle_count() as u32,
-                first_sphere: spheres.len() as u32,
-            });
-            spheres.extend_from_slice(&g.spheres);
+            let mut gather = Gather::new(&mut materials, &mut normals);
             let mut triangle = |mesh: &Mesh, t: usize, normal_m: &Mat3A| {
-                let n = mesh.corner_normals(t, normal_m).unwrap_or([Vec3::ZERO; 3]);
-                normals.extend(n.iter().flat_map(|v| v.to_array()));
-                materials.push(match &mesh.materials {
+                let material = match &mesh.materials {
                     MeshMaterials::Single(m) => *m,
                     MeshMaterials::PerTriangle(ids) => ids[t],
-                });
+                };
+                gather.triangle(mesh.corner_normals(t, normal_m), material);
             };
             let instance = two.instances.iter().find(|i| i.bottom == b as u64);
             let k = instance.map_or(REST, Instance::custom_index);
@@ -104,8 +107,7 @@ impl RenderLevels {
                     triangle(mesh, (id - two.mesh_first[k]) as usize, &normal_m);
                 }
                 for &id in ids.iter().filter(|&&id| id >= n_tris) {
-                    normals.extend([0.0; 9]);
-                    materials.push(world_spheres[(id - n_tris) as usize].material);
+                    gather.sphere(world_spheres[(id - n_tris) as usize].material);
                 }
             } else {
                 // A repeated or moving mesh, in object space.
@@ -114,7 +116,10 @@ impl RenderLevels {
                     triangle(mesh, t, &Mat3A::IDENTITY);
                 }
             }
+            spans.push(gather.span(g.triangle_count() as u32));
         }
+        materials.shrink_to_fit();
+        normals.shrink_to_fit();
         let motion = match shutter {
             Some([t0, t1]) if t1 > t0 => {
                 InstanceMotion::new(steps_for(scene, &two, t1 - t0), t0, t1)
@@ -125,34 +130,29 @@ impl RenderLevels {
             scene: two,
             motion,
             moving: Vec::new(),
-            spheres,
             placements: Vec::new(),
             spans,
-            primitives: materials.len(),
         };
         levels.place(scene);
         (levels, materials, normals)
     }
 
-    /// Per level primitive its three vertices, 9 floats, in its bottom level's space
-    /// (spheres: zeros): the bottom levels' own primitives, as they were built over them.
-    pub fn verts(&self) -> Vec<f32> {
-        let mut verts = Vec::with_capacity(9 * self.primitives());
-        for g in &self.scene.bottoms {
-            verts.extend_from_slice(&g.tri_verts);
-            verts.extend(std::iter::repeat_n(0.0, 9 * g.spheres.len()));
-        }
-        verts
+    /// Where bottom level `b`'s shading normals start among the level normals, in
+    /// triangles (`None`: it has none), and where its materials start among the level
+    /// materials (`None`: its primitives share one, which its instances' placements hold).
+    pub(crate) fn shading_of(&self, b: usize) -> (Option<usize>, Option<usize>) {
+        let s = self.spans[b];
+        let at = |first: u32| (first != NONE).then_some(first as usize);
+        (at(s.first_normal), at(s.first_material))
     }
 
-    /// The level primitives: every bottom level's triangles and spheres.
-    pub fn primitives(&self) -> usize {
-        self.primitives
-    }
-
-    /// Where bottom level `b`'s primitives start among the level primitives.
-    pub(crate) fn first_primitive(&self, b: usize) -> usize {
-        self.spans[b].first as usize
+    /// Takes the bottom levels' host geometry to build them, and lets go of the rest's
+    /// primitive ids (4 bytes a primitive): a render that builds its levels this
+    /// way reads only the placements made already, and is never moved
+    /// ([`RenderLevels::move_to`] needs the ids).
+    pub(crate) fn take_bottoms(&mut self) -> Vec<crate::accel::primitives::TraceGeometry> {
+        self.scene.rest_ids = Vec::new();
+        std::mem::take(&mut self.scene.bottoms)
     }
 
     /// The instances and placements of `scene` (this one's scene, its meshes moved) at
@@ -285,8 +285,9 @@ fn steps_for(scene: &Scene, two: &TwoLevelScene, shutter: f32) -> u32 {
     segments + 1
 }
 
-/// Per instance its placement: its bottom level's span, its transforms, its material (a mesh
-/// with one material: the instance's own mesh's, so copies may differ).
+/// Per instance its placement: its bottom level, its transforms, its material (a mesh with
+/// one material: the instance's own mesh's, so copies may differ; else its bottom level's
+/// where its primitives share one).
 fn placements(scene: &Scene, two: &TwoLevelScene, spans: &[Span]) -> Vec<Placement> {
     two.instances
         .iter()
@@ -296,18 +297,109 @@ fn placements(scene: &Scene, two: &TwoLevelScene, spans: &[Span]) -> Vec<Placeme
             let material = match placed(scene, two, inst) {
                 Some(Placed::Mesh(k)) => match &scene.meshes[k].materials {
                     MeshMaterials::Single(id) => *id,
-                    MeshMaterials::PerTriangle(_) => PER_PRIMITIVE,
+                    MeshMaterials::PerTriangle(_) => span.material,
                 },
                 Some(Placed::Sphere(s)) => scene.spheres[s].material,
-                None => PER_PRIMITIVE,
+                None => span.material,
             };
             Placement {
                 object_to_world: inst.transform,
                 // (a singular transform is never hit: its instance is inactive)
                 world_to_object: world_to_object(&inst.transform).unwrap_or_default(),
-                info: [span.first, span.triangles, span.first_sphere, material],
+                info: [inst.bottom as u32, span.triangles, 0, material],
                 motion: [1, 0, 0, 0],
             }
         })
         .collect()
+}
+
+/// One bottom level's materials and shading normals as they are gathered, primitive after
+/// primitive (its triangles, then its spheres), into the level arrays: its materials only
+/// once two differ, its normals only once a triangle has some (zeros for those before).
+struct Gather<'a> {
+    materials: &'a mut Vec<u32>,
+    normals: &'a mut Vec<f32>,
+    first_material: usize,
+    first_normal: usize,
+    /// The first primitive's material, and whether another differs from it.
+    shared: Option<u32>,
+    mixed: bool,
+    has_normals: bool,
+    primitives: usize,
+    triangles: usize,
+}
+
+impl<'a> Gather<'a> {
+    fn new(materials: &'a mut Vec<u32>, normals: &'a mut Vec<f32>) -> Self {
+        Self {
+            first_material: materials.len(),
+            first_normal: normals.len(),
+            materials,
+            normals,
+            shared: None,
+            mixed: false,
+            has_normals: false,
+            primitives: 0,
+            triangles: 0,
+        }
+    }
+
+    fn triangle(&mut self, corners: Option<[Vec3; 3]>, material: u32) {
+        match corners {
+            Some(n) => {
+                if !self.has_normals {
+                    let start = self.first_normal + 9 * self.triangles;
+                    self.normals.resize(start, 0.0);
+                    self.has_normals = true;
+                }
+                self.normals.extend(n.iter().flat_map(|v| v.to_array()));
+            }
+            None if self.has_normals => self.normals.extend([0.0; 9]),
+            None => {}
+        }
+        self.triangles += 1;
+        self.material(material);
+    }
+
+    fn sphere(&mut self, material: u32) {
+        self.material(material);
+    }
+
+    fn material(&mut self, m: u32) {
+        match self.shared {
+            None => self.shared = Some(m),
+            Some(first) if !self.mixed && first != m => {
+                self.materials
+                    .resize(self.first_material + self.primitives, first);
+                self.mixed = true;
+            }
+            Some(_) => {}
+        }
+        if self.mixed {
+            self.materials.push(m);
+        }
+        self.primitives += 1;
+    }
+
+    /// The bottom level's span (`triangles` of its primitives are triangles).
+    fn span(self, triangles: u32) -> Span {
+        debug_assert_eq!(self.triangles, triangles as usize);
+        Span {
+            triangles,
+            first_normal: if self.has_normals {
+                (self.first_normal / 9) as u32
+            } else {
+                NONE
+            },
+            first_material: if self.mixed {
+                self.first_material as u32
+            } else {
+                NONE
+            },
+            material: match (self.mixed, self.shared) {
+                (false, Some(m)) => m,
+                _ => PER_PRIMITIVE,
+            },
+        }
+    }
 }

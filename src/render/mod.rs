@@ -104,8 +104,8 @@ pub struct RenderScene {
     /// The structure over `geometry`, or which one the device builds.
     pub accel: RenderAccel,
     /// The scene as two levels ([`RenderScene::on_device`] where the plan traces two); then
-    /// `geometry` is empty, and `prim_material` and `tri_normals` are per level primitive
-    /// ([`RenderLevels`]).
+    /// `geometry` is empty, and `prim_material` and `tri_normals` are the level materials
+    /// and normals, only the bottom levels' that need them ([`RenderLevels::new`]).
     pub levels: Option<RenderLevels>,
     /// Material of every primitive (triangles, then spheres).
     pub prim_material: Vec<u32>,

@@ -170,6 +170,11 @@ impl Plan {
         if width == 0 || height == 0 {
             return Err(PlanError::EmptyImage(width, height));
         }
+        // Without bounces a wave's queue holds its camera rays only: no more than the image.
+        let queue_capacity = match bounces {
+            true => queue_capacity,
+            false => queue_capacity.min(width as usize * height as usize),
+        };
         let depth = if bounces { max_depth } else { 0 };
         let growth = (branching as usize).pow(depth.min(2));
         let wave_pixels = (queue_capacity / growth)

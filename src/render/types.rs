@@ -84,8 +84,7 @@ pub struct GpuLight {
 }
 
 /// An instance as shading reads it, over two levels (128 bytes, `glsl/render/shade.comp`):
-/// where its bottom level's primitives lie among the level primitives, its transforms, and
-/// how it moves over the shutter.
+/// its bottom level, its transforms, its material, and how it moves over the shutter.
 #[repr(C)]
 #[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
 pub struct Placement {
@@ -93,13 +92,32 @@ pub struct Placement {
     pub object_to_world: [[f32; 4]; 3],
     /// Rows of its inverse (normals move by its transpose).
     pub world_to_object: [[f32; 4]; 3],
-    /// The bottom level's first level primitive, its triangles, its first sphere (in the
-    /// level spheres), and the instance's material (`u32::MAX`: each primitive's).
+    /// Its bottom level (the index of its [`BottomShading`]), the bottom level's triangles,
+    /// 0, and the instance's material (`u32::MAX`: each primitive's, in the level
+    /// materials).
     pub info: [u32; 4],
     /// As the top level's record has it ([`crate::accel::instances::InstanceRecord::motion`]):
     /// steps (1: still; the transforms above), where its steps start among the levels'
     /// steps, the first step's time and `(steps - 1) / shutter` (as bits).
     pub motion: [u32; 4],
+}
+
+/// Where shading reads one bottom level's primitives and what it adds to them, over two
+/// levels (32 bytes, `glsl/render/shade.comp`): device addresses of its triangles' vertices
+/// and its spheres (the bottom level's own, as its walk reads them), and of its part of the
+/// level normals and of the level materials (0: it has none, its triangles have no shading
+/// normals; its primitives share the material of its instances' placements).
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Pod, Zeroable)]
+pub struct BottomShading {
+    /// 9 floats per triangle.
+    pub verts: u64,
+    /// Centre and radius per sphere (0 where it has none).
+    pub spheres: u64,
+    /// 9 floats per triangle.
+    pub normals: u64,
+    /// One per primitive, its triangles then its spheres.
+    pub materials: u64,
 }
 
 /// Per-render constants (160 bytes).
@@ -156,6 +174,7 @@ const _: () = assert!(std::mem::size_of::<GpuMaterial>() == 80);
 const _: () = assert!(std::mem::size_of::<GpuLight>() == 80);
 const _: () = assert!(std::mem::size_of::<RenderParams>() == 160);
 const _: () = assert!(std::mem::size_of::<Placement>() == 128);
+const _: () = assert!(std::mem::size_of::<BottomShading>() == 32);
 
 /// [`PathRay::kind`]: a camera ray.
 pub const RAY_PRIMARY: u32 = 0;

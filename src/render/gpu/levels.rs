@@ -15,7 +15,7 @@ use crate::accel::embedded::BuildFlags;
 use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::instances::{TopLevel, TopLevelBuilder};
 use crate::gpu::{Buffer, BufferArg, Readback, Recorder, Result};
-use crate::render::types::Placement;
+use crate::render::types::{BottomShading, Placement};
 use crate::render::RenderLevels;
 
 use super::Update;
@@ -33,8 +33,8 @@ pub(crate) enum Traced {
 impl Traced {
     /// What `shade` binds after its head (bindings 5 on): flat, the primitives (triangle
     /// vertices, spheres, per-primitive motion slot, motions) and the scene constants,
-    /// `traverse.glsl`'s last five bindings; over two levels the level arrays' addresses,
-    /// the placements, the hits' instances and the moving instances' steps.
+    /// `traverse.glsl`'s last five bindings; over two levels the bottom levels' shading
+    /// records, the placements, the hits' instances and the moving instances' steps.
     pub fn shading_bindings(&self) -> Vec<&dyn BufferArg> {
         match self {
             Traced::Flat(g) => g.bindings()[2..].to_vec(),
@@ -44,7 +44,7 @@ impl Traced {
                     Top::Own { top, .. } => top.steps(),
                     Top::Driver { .. } => &l.placements,
                 };
-                vec![&l.arrays, &l.placements, &l.hit_instance, steps]
+                vec![&l.bottoms, &l.placements, &l.hit_instance, steps]
             }
         }
     }
@@ -113,16 +113,16 @@ pub(crate) enum Top {
 /// A scene's two levels on the device, and what shading reads of them.
 pub(crate) struct Levels {
     pub top: Top,
-    /// The level arrays shading reads at device addresses (none is bound whole, so a scene
-    /// in pieces may hold more than one binding reaches): per level primitive its vertices,
-    /// the level spheres, per level primitive its material and its shading normals.
+    /// The level materials and normals ([`RenderLevels::new`]), which shading reads at
+    /// device addresses (neither is bound whole, so a scene in pieces may hold more than
+    /// one binding reaches), as it reads the bottom levels' own primitives.
     #[allow(
         dead_code,
         reason = "held for shading, which reads them at their addresses"
     )]
     level_arrays: LevelArrays,
-    /// Their four addresses, in that order (`LevelArrays` in `render/shade.comp`).
-    arrays: Buffer<u64>,
+    /// Per bottom level where shading reads it (`Bottoms` in `render/shade.comp`).
+    bottoms: Buffer<BottomShading>,
     placements: Buffer<Placement>,
     /// Per queued ray: the instance its closest hit is in (`render.instances` writes it).
     pub hit_instance: Buffer<u32>,
@@ -135,7 +135,7 @@ impl Levels {
     /// Records into `rec` the builds of `rl`'s bottom levels with `choice`'s builder (a
     /// kd-tree's with `grow` doublings of its reference budget: read its reports with
     /// [`Traced::record_read_built`]) and of the top level, in a scope `levels`, and the
-    /// upload of what shading reads (with `materials` and `normals` per level primitive);
+    /// upload of what shading reads (with the level `materials` and `normals`);
     /// `queue` rays per wave. With `allow_update`, the top level can be refit.
     pub fn record_build(
         rec: &mut Recorder,
@@ -147,11 +147,12 @@ impl Levels {
         let ctx = rec.context().clone();
         let rl = shading.0;
         let two = &rl.scene;
+        let arrays = level_arrays(&ctx, shading.1.len(), shading.2.len())?;
+        rec.upload(&arrays.0, shading.1)?;
+        rec.upload(&arrays.1, shading.2)?;
         if choice.kind == AccelKind::Driver {
-            let top = rec.scope("levels", |rec| driver_levels(rec, rl, choice))?;
-            let arrays = level_arrays(&ctx, rl)?;
-            let uploads = Some((shading.1, shading.2));
-            return Self::with_top(rec, top, 0.0, (rl, arrays), uploads, queue);
+            let (top, prims) = rec.scope("levels", |rec| driver_levels(rec, rl, choice))?;
+            return Self::with_top(rec, (top, prims), 0.0, (rl, arrays), queue);
         }
         // Everything in one scope `levels` (nested scopes repeat names such as `build`).
         let (top, builder, bottom_ms) = rec.scope("levels", |rec| {
@@ -172,24 +173,18 @@ impl Levels {
                 top_builder.record_build_shared(rec, &bottoms, &rl.moving, rl.motion, &flags)?;
             Ok::<_, crate::gpu::GpuError>((top, top_builder, bottom_ms))
         })?;
-        let arrays = level_arrays(&ctx, rl)?;
-        let uploads = Some((shading.1, shading.2));
-        Self::with_top(
-            rec,
-            Top::Own { top, builder },
-            bottom_ms,
-            (rl, arrays),
-            uploads,
-            queue,
-        )
+        let prims = primitive_addresses(&ctx, top.bottoms().map(|b| &b.prims))?;
+        let top = Top::Own { top, builder };
+        Self::with_top(rec, (top, prims), bottom_ms, (rl, arrays), queue)
     }
 
     /// Records into `rec` the build of `rl`'s top level over bottom levels built before it,
     /// one after another, each in submissions of its own, and what shading reads, the
     /// large arrays uploaded ahead in parts (as [`Levels::record_build`], which records it
     /// all into `rec`): at no time are all the primitives held twice on the host. `rl`'s
-    /// bottom levels' host geometry (taken: `rl` keeps none) and `materials` and `normals`
-    /// go as they reach the device.
+    /// bottom levels' host geometry and the rest's primitive ids (taken:
+    /// [`RenderLevels::take_bottoms`]) and the level `materials` and `normals` go as they
+    /// reach the device.
     pub fn record_build_in_pieces(
         rec: &mut Recorder,
         choice: AccelChoice,
@@ -198,21 +193,16 @@ impl Levels {
         queue: usize,
     ) -> Result<Self> {
         let ctx = rec.context().clone();
-        let arrays = level_arrays(&ctx, rl)?;
-        upload_in_parts(&ctx, &arrays.3, 0, &normals)?;
+        let arrays = level_arrays(&ctx, materials.len(), normals.len())?;
+        upload_in_parts(&ctx, &arrays.1, 0, &normals)?;
         drop(normals);
-        upload_in_parts(&ctx, &arrays.2, 0, &materials)?;
+        upload_in_parts(&ctx, &arrays.0, 0, &materials)?;
         drop(materials);
         let builder = AccelBuilder::for_choice(&ctx, choice)?;
-        let taken = std::mem::take(&mut rl.scene.bottoms);
+        let taken = rl.take_bottoms();
         let mut bottoms = Vec::with_capacity(taken.len());
         let mut bottom_ms = 0.0;
-        for (b, g) in taken.into_iter().enumerate() {
-            // The bottom level's own primitives, as it is built over them (spheres: zeros).
-            let first = 9 * rl.first_primitive(b);
-            upload_in_parts(&ctx, &arrays.0, first, &g.tri_verts)?;
-            let zeros = vec![0.0; 9 * g.spheres.len()];
-            upload_in_parts(&ctx, &arrays.0, first + g.tri_verts.len(), &zeros)?;
+        for g in taken {
             let (mut level, ms) = GpuGeometry::build_fitting_taking(&ctx, &builder, g)?;
             // Nothing refits a bottom level.
             level.prims.release_boxes()?;
@@ -226,51 +216,47 @@ impl Levels {
                 top_builder.record_build_shared(rec, &bottoms, &rl.moving, rl.motion, &flags)?;
             Ok::<_, crate::gpu::GpuError>((top, top_builder))
         })?;
-        Self::with_top(
-            rec,
-            Top::Own { top, builder },
-            bottom_ms,
-            (rl, arrays),
-            None,
-            queue,
-        )
+        let prims = primitive_addresses(&ctx, bottoms.iter().map(|b| &b.prims))?;
+        let top = Top::Own { top, builder };
+        Self::with_top(rec, (top, prims), bottom_ms, (rl, arrays), queue)
     }
 
-    /// The levels over `top`, with the upload of what shading reads recorded into `rec`:
-    /// into `arrays`, of the level vertices, materials and normals where `uploads` has them
-    /// (else they are there already).
+    /// The levels over `top` (and, per bottom level, where its triangles' vertices and its
+    /// spheres lie), with the upload of what shading reads besides the level `arrays`
+    /// recorded into `rec`.
     fn with_top(
         rec: &mut Recorder,
-        top: Top,
+        (top, prims): (Top, Vec<[u64; 2]>),
         bottom_ms: f64,
         (rl, arrays): (&RenderLevels, LevelArrays),
-        uploads: Option<(&[u32], &[f32])>,
         queue: usize,
     ) -> Result<Self> {
         let ctx = rec.context().clone();
-        let (verts, spheres, level_materials, level_normals) = arrays;
-        let addresses = [
-            crate::gpu::address_of(&ctx, &verts)?,
-            crate::gpu::address_of(&ctx, &spheres)?,
-            crate::gpu::address_of(&ctx, &level_materials)?,
-            crate::gpu::address_of(&ctx, &level_normals)?,
-        ];
-        let arrays = Buffer::new(&ctx, "render.level_arrays", addresses.len())?;
+        let materials = crate::gpu::address_of(&ctx, &arrays.0)?;
+        let normals = crate::gpu::address_of(&ctx, &arrays.1)?;
+        let shading: Vec<BottomShading> = prims
+            .iter()
+            .enumerate()
+            .map(|(b, &[verts, spheres])| {
+                let (first_normal, first_material) = rl.shading_of(b);
+                BottomShading {
+                    verts,
+                    spheres,
+                    normals: first_normal.map_or(0, |t| normals + 36 * t as u64),
+                    materials: first_material.map_or(0, |p| materials + 4 * p as u64),
+                }
+            })
+            .collect();
+        let bottoms = Buffer::new(&ctx, "render.bottoms", shading.len().max(1))?;
         let placements = Buffer::new(&ctx, "render.placements", rl.placements.len().max(1))?;
         let hit_instance = Buffer::new(&ctx, "render.hit_instance", queue.max(1))?;
-        if let Some((materials, normals)) = uploads {
-            rec.upload(&verts, &rl.verts())?;
-            rec.upload(&level_materials, materials)?;
-            rec.upload(&level_normals, normals)?;
-        }
-        rec.upload(&spheres, &rl.spheres)?;
-        rec.upload(&arrays, &addresses)?;
+        rec.upload(&bottoms, &shading)?;
         rec.upload(&placements, &rl.placements)?;
         rec.transfer_to_compute();
         Ok(Self {
             top,
-            level_arrays: (verts, spheres, level_materials, level_normals),
-            arrays,
+            level_arrays: arrays,
+            bottoms,
             placements,
             hit_instance,
             bottom_ms,
@@ -328,19 +314,38 @@ impl Levels {
     }
 }
 
-/// The level arrays shading reads: per level primitive its vertices, the level spheres, per
-/// level primitive its material and its shading normals.
-type LevelArrays = (Buffer<f32>, Buffer<[f32; 4]>, Buffer<u32>, Buffer<f32>);
+/// The level arrays shading reads besides the bottom levels' primitives: the level
+/// materials and the level normals ([`RenderLevels::new`]).
+type LevelArrays = (Buffer<u32>, Buffer<f32>);
 
-/// `rl`'s level arrays on the device, their contents not yet written.
-fn level_arrays(ctx: &crate::gpu::Context, rl: &RenderLevels) -> Result<LevelArrays> {
-    let n = rl.primitives();
+/// The level arrays on the device, for `materials` and `normals` elements, their contents not
+/// yet written.
+fn level_arrays(
+    ctx: &crate::gpu::Context,
+    materials: usize,
+    normals: usize,
+) -> Result<LevelArrays> {
     Ok((
-        Buffer::arena(ctx, "render.level_verts", (9 * n).max(1))?,
-        Buffer::arena(ctx, "render.level_spheres", rl.spheres.len().max(1))?,
-        Buffer::arena(ctx, "render.level_materials", n.max(1))?,
-        Buffer::arena(ctx, "render.level_normals", (9 * n).max(1))?,
+        Buffer::arena(ctx, "render.level_materials", materials.max(1))?,
+        Buffer::arena(ctx, "render.level_normals", normals.max(1))?,
     ))
+}
+
+/// Per bottom level the device addresses of its triangles' vertices and of its spheres (0
+/// where it has none), where its walk reads them.
+fn primitive_addresses<'a>(
+    ctx: &crate::gpu::Context,
+    prims: impl Iterator<Item = &'a DevicePrimitives>,
+) -> Result<Vec<[u64; 2]>> {
+    prims
+        .map(|p| {
+            let spheres = match p.n_spheres {
+                0 => 0,
+                _ => crate::gpu::address_of(ctx, &p.spheres)?,
+            };
+            Ok([crate::gpu::address_of(ctx, &p.tri_verts)?, spheres])
+        })
+        .collect()
 }
 
 /// Uploads `data` into `dst` from element `at` on, in submissions of at most 64 MiB each,
@@ -364,8 +369,13 @@ fn upload_in_parts<T: bytemuck::Pod>(
 
 /// Records the build of the driver's own levels over `rl`'s bottom levels (a BLAS per level
 /// and kind of geometry, a TLAS instance per instance with its transform, custom index and
-/// mask: `DriverAccel::record_instanced`).
-fn driver_levels(rec: &mut Recorder, rl: &RenderLevels, choice: AccelChoice) -> Result<Top> {
+/// mask: `DriverAccel::record_instanced`); with the addresses of each level's primitives
+/// ([`primitive_addresses`]).
+fn driver_levels(
+    rec: &mut Recorder,
+    rl: &RenderLevels,
+    choice: AccelChoice,
+) -> Result<(Top, Vec<[u64; 2]>)> {
     let ctx = rec.context().clone();
     let two = &rl.scene;
     let mut prims = Vec::with_capacity(two.bottoms.len());
@@ -386,6 +396,7 @@ fn driver_levels(rec: &mut Recorder, rl: &RenderLevels, choice: AccelChoice) -> 
         });
     }
     let bound = with_spheres.first().copied().unwrap_or(0);
+    let addresses = primitive_addresses(&ctx, prims.iter())?;
     let refs: Vec<&DevicePrimitives> = prims.iter().collect();
     let (accel, ids) =
         AccelStructure::record_driver_instanced(rec, &refs, &two.instances, bound, choice.prefer)?;
@@ -398,10 +409,11 @@ fn driver_levels(rec: &mut Recorder, rl: &RenderLevels, choice: AccelChoice) -> 
         accel,
         device_input: None,
     };
-    Ok(Top::Driver {
+    let top = Top::Driver {
         geom,
         _levels: prims,
         starts: table,
         n_starts,
-    })
+    };
+    Ok((top, addresses))
 }
