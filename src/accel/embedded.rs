@@ -22,7 +22,9 @@
 //! staging).
 
 use crate::accel::device::{AccelBuilder, AccelKind, AccelScratch, AccelSizes, DevicePrimitives};
-use crate::accel::driver::{DriverAccel, DriverInput, Prefer};
+pub use crate::accel::device_input::BuildFlags;
+use crate::accel::device_input::{shape, DeviceInput};
+use crate::accel::driver::{DriverAccel, DriverInput};
 use crate::accel::geometry::{Geometry, GeometryGather, GeometryLayout};
 use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::primitives::SceneInfo;
@@ -46,48 +48,6 @@ pub const DRIVER_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::from
         | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR.as_raw()
         | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR.as_raw(),
 );
-
-/// How a structure is built (`VkBuildAccelerationStructureFlagsKHR`, and the kd-tree's
-/// capacity).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct BuildFlags {
-    /// What the driver's builder optimises for (vkrt's own builders have one way each).
-    pub prefer: Prefer,
-    /// The structure will be updated ([`AccelBuilder::record_update_from`]).
-    pub allow_update: bool,
-    /// The kd-tree's reference budget per level doubled this many times (0 at first; one
-    /// more after [`BuildStatus::kd_overflow`]).
-    pub kd_capacity_doublings: u32,
-}
-
-/// What a structure over the caller's geometry was created for.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub(crate) struct DeviceInput {
-    layout: GeometryLayout,
-    /// Per geometry: a triangle geometry (else spheres), and its primitive count.
-    shape: Vec<(bool, u32)>,
-    flags: BuildFlags,
-    /// A build has been recorded (tracing or updating before one is an error).
-    pub(crate) built: bool,
-}
-
-impl DeviceInput {
-    fn new(ctx: &Context, geometries: &[Geometry], flags: BuildFlags) -> Result<Self> {
-        Ok(Self {
-            layout: GeometryLayout::of(ctx, geometries)?,
-            shape: shape(geometries),
-            flags,
-            built: false,
-        })
-    }
-}
-
-fn shape(geometries: &[Geometry]) -> Vec<(bool, u32)> {
-    geometries
-        .iter()
-        .map(|g| (matches!(g, Geometry::Triangles(_)), g.primitive_count()))
-        .collect()
-}
 
 /// The scene constants the gather writes for a structure of `kind` over `n` primitives:
 /// how the shader library walks it, and where a BVH's parent links start.

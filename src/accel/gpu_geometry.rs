@@ -19,7 +19,7 @@ pub struct GpuGeometry {
     /// For a structure over the caller's device geometry
     /// ([`AccelBuilder::create_in`](crate::accel::device::AccelBuilder::create_in)): its
     /// layout and build flags, which every build and update into it must match.
-    pub(crate) device_input: Option<crate::accel::embedded::DeviceInput>,
+    pub(crate) device_input: Option<crate::accel::device_input::DeviceInput>,
 }
 
 impl GpuGeometry {

@@ -3,7 +3,6 @@
 //! `glsl/include/vkrt/traverse.glsl`), and how they read the nodes. The choice belongs with
 //! the structures: a structure's kind says which walks serve it.
 
-use crate::accel::device::AccelStructure;
 use crate::gpu::{Context, Result, ShaderBlob, Spec};
 
 /// How a BVH query walks the tree.
@@ -88,14 +87,8 @@ impl AccelTraversal {
         }
     }
 
-    /// Whether this walk serves `s`: its kind's family, and the wide walk exactly the
-    /// structures built with wide nodes (they bind those in place of the binary ones).
-    pub fn walks(self, s: &AccelStructure) -> bool {
-        s.kind().walked(Traversal::default()).family() == self.family()
-            && (self == AccelTraversal::Bvh(Traversal::Wide)) == s.is_wide()
-    }
-
-    fn family(self) -> u32 {
+    /// The structure family this walk serves (kd-tree, BVH, the driver's).
+    pub(crate) fn family(self) -> u32 {
         match self {
             AccelTraversal::KdTree => 0,
             AccelTraversal::Bvh(_) => 1,
