@@ -31,8 +31,9 @@ use serde::Serialize;
 
 use crate::accel::bvh::collapse::{collapse, collapse_in_place};
 use crate::accel::bvh::{self, lbvh, ploc};
-use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, HostStructure};
+use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
 use crate::accel::gpu_geometry::GpuGeometry;
+use crate::accel::host::HostStructure;
 use crate::accel::kdtree::{breadth_first, SahParams};
 use crate::accel::primitives::TraceGeometry;
 use crate::accel::walk::Traversal;

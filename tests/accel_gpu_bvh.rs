@@ -19,8 +19,9 @@ use vkrt::accel::bvh::ploc::{self, PlocParams};
 use vkrt::accel::bvh::sah::BvhParams;
 use vkrt::accel::bvh::validate::validate;
 use vkrt::accel::bvh::{Bvh, BvhNode};
-use vkrt::accel::device::{AccelBuilder, HostStructure};
+use vkrt::accel::device::AccelBuilder;
 use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::host::HostStructure;
 use vkrt::accel::primitives::TraceGeometry;
 use vkrt::gpu::{Buffer, Context, GpuError, Recorder};
 

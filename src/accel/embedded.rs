@@ -21,9 +21,12 @@
 //! the recorded build with `vkCmdUpdateBuffer`: a few constants in the command buffer, no
 //! staging).
 
-use crate::accel::device::{AccelBuilder, AccelKind, AccelScratch, AccelSizes, DevicePrimitives};
+use crate::accel::device::{
+    AccelBuilder, AccelKind, AccelScratch, AccelSizes, DevicePrimitives, Scratch,
+};
 pub use crate::accel::device_input::BuildFlags;
 use crate::accel::device_input::{shape, DeviceInput};
+use crate::accel::driver::instanced as driver_levels;
 use crate::accel::driver::{DriverAccel, DriverInput};
 use crate::accel::geometry::{Geometry, GeometryGather, GeometryLayout};
 use crate::accel::gpu_geometry::GpuGeometry;
@@ -189,12 +192,14 @@ impl AccelBuilder {
     fn scratch_for(&self, ctx: &Context, input: &DeviceInput) -> Result<AccelScratch> {
         let f = &input.flags;
         match self.kind() {
-            AccelKind::Driver => Ok(AccelScratch::Driver(DriverAccel::create_scratch(
-                ctx,
-                &driver_counts(&input.layout),
-                f.prefer,
-                f.allow_update,
-            )?)),
+            AccelKind::Driver => Ok(AccelScratch(Scratch::Driver(Some(
+                DriverAccel::create_scratch(
+                    ctx,
+                    &driver_counts(&input.layout),
+                    f.prefer,
+                    f.allow_update,
+                )?,
+            )))),
             _ => self.create_scratch(
                 ctx,
                 input.layout.primitive_count(),
@@ -215,7 +220,7 @@ impl AccelBuilder {
             input.flags.allow_update,
             l.info_len(),
         )?;
-        if let Some(levels) = accel.driver_levels() {
+        if let Some(levels) = driver_levels::storage_mut(&mut accel).map(|d| &mut d.levels) {
             // While measuring, the primitives' buffers are placeholders without addresses.
             let driver_input = match crate::gpu::placement::measuring() {
                 true => driver_counts(l),
@@ -419,8 +424,8 @@ impl AccelBuilder {
             let (scratch, _) = place(&ctx, "the update scratch", Placement::Into(scratch), || {
                 self.scratch_for(&ctx, &input)
             })?;
-            let (AccelScratch::Driver(scratch), Some(Some(levels))) =
-                (scratch, out.accel.driver_levels_ref())
+            let (Scratch::Driver(Some(scratch)), Some(levels)) =
+                (scratch.0, driver_levels::levels(&out.accel))
             else {
                 return Err(usage(call, "the driver's levels were not created"));
             };

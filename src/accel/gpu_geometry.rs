@@ -2,9 +2,9 @@
 
 use crate::accel::bvh::Bvh;
 use crate::accel::device::{
-    upload_structure, AccelBuilder, AccelKind, AccelStructure, DevicePrimitives, HostRef,
-    RecordedBuild,
+    AccelBuilder, AccelKind, AccelStructure, DevicePrimitives, RecordedBuild,
 };
+use crate::accel::host::{upload_structure, HostRef};
 use crate::accel::kdtree::KdTree;
 use crate::accel::primitives::TraceGeometry;
 use crate::gpu::{BufferArg, Context, GpuError, Recorder, Result};

@@ -27,6 +27,7 @@ pub mod driver;
 pub mod embedded;
 pub mod geometry;
 pub mod gpu_geometry;
+pub mod host;
 pub mod instance;
 pub mod instances;
 pub mod kdtree;

@@ -223,7 +223,8 @@ fn gpu_bvh_build_command(
     profile: &Option<PathBuf>,
 ) -> CliResult<()> {
     use vkrt::accel::bvh::{lbvh, ploc, validate, BvhParams};
-    use vkrt::accel::device::{AccelBuilder, AccelKind, HostStructure};
+    use vkrt::accel::device::{AccelBuilder, AccelKind};
+    use vkrt::accel::host::HostStructure;
     if let Err(flat) = vkrt::accel::primitives::TraceGeometry::check_flat_fits(ctx, scene) {
         return levels_only(ctx, kind, scene, flat, json);
     }

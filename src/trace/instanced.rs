@@ -464,7 +464,7 @@ fn driver_build_and_trace(
     rays: &[Ray],
     time: f32,
 ) -> Result<TwoLevelTrace> {
-    use crate::accel::device::{AccelStructure, DevicePrimitives};
+    use crate::accel::device::DevicePrimitives;
     let walk = AccelTraversal::RayQuery;
     let opt = effective_options(ctx, opt, walk);
     let before = ctx.memory().vkrt_bytes;
@@ -501,13 +501,15 @@ fn driver_build_and_trace(
             .map_or(0, |i| i.bottom as usize)
     });
     let refs: Vec<&DevicePrimitives> = prims.iter().collect();
-    let (accel, ids) =
-        AccelStructure::record_driver_instanced(&mut rec, &refs, &s.instances, bound, prefer)?;
+    let (accel, ids) = crate::accel::driver::instanced::record_instanced(
+        &mut rec,
+        &refs,
+        &s.instances,
+        bound,
+        prefer,
+    )?;
     let profile = rec.submit_and_wait()?;
-    let top_bytes = accel
-        .driver_levels_ref()
-        .flatten()
-        .map_or(0, |a| a.top_bytes());
+    let top_bytes = crate::accel::driver::instanced::levels(&accel).map_or(0, |a| a.top_bytes());
     let bytes = ctx.memory().vkrt_bytes.saturating_sub(before);
     let geom = GpuGeometry {
         prims: prims.swap_remove(bound),

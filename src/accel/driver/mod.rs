@@ -17,6 +17,9 @@
 //! Nothing here submits or uploads: the instance records are written by the recorded build
 //! (`vkCmdUpdateBuffer`), so the levels can live in a caller's memory.
 
+pub(crate) mod instanced;
+pub(crate) mod storage;
+
 use crate::gpu::{
     accel_build_sizes, accel_scratch, require_ray_query, vk, AccelGeometry, AccelInstance,
     AccelerationStructure, Buffer, Context, GpuError, Recorder, Result,
