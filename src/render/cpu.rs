@@ -7,9 +7,8 @@ use glam::{Vec3, Vec4};
 use super::plan::Plan;
 use super::types::*;
 use super::{RayCounts, RenderAccel, RenderScene};
-use crate::accel::bvh::collapse::{collapse, collapse_in_place};
-use crate::accel::bvh::Threading;
 use crate::accel::device::AccelKind;
+use crate::accel::host::HostStructure;
 use crate::accel::primitives::{TraceGeometry, NO_MOTION};
 use crate::accel::walk::AccelTraversal;
 use crate::trace::bvh_cpu;
@@ -105,26 +104,10 @@ struct Shaded {
 
 /// The host build of the structure the GPU renderer builds on the device for `kind`.
 fn host_twin(kind: AccelKind, g: &TraceGeometry) -> RenderAccel {
-    match kind {
-        AccelKind::KdTree => {
-            let params = crate::accel::kdtree::SahParams::default();
-            RenderAccel::KdTree(
-                crate::accel::kdtree::breadth_first::build_boxes(&g.boxes, &params).0,
-            )
-        }
-        AccelKind::SahBvh | AccelKind::Driver => RenderAccel::Bvh(
-            crate::accel::bvh::build(&g.boxes, &Default::default(), Threading::all_cores())
-                .expect("the scene's boxes are finite"),
-        ),
-        // The GPU builders' trees with their SAH leaf collapse, as AccelBuilder records them.
-        AccelKind::Lbvh => RenderAccel::Bvh(collapse_in_place(
-            &crate::accel::bvh::lbvh::build(&g.boxes, Default::default()),
-            &Default::default(),
-        )),
-        AccelKind::Ploc => RenderAccel::Bvh(collapse(
-            &crate::accel::bvh::ploc::build(&g.boxes, &Default::default()).0,
-            &Default::default(),
-        )),
+    let twin = crate::accel::host::host_twin(kind, g, &Default::default());
+    match twin.expect("the scene's boxes are finite") {
+        HostStructure::KdTree(tree) => RenderAccel::KdTree(tree),
+        HostStructure::Bvh(bvh) => RenderAccel::Bvh(bvh),
     }
 }
 
