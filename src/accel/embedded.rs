@@ -31,6 +31,7 @@ use crate::accel::driver::{DriverAccel, DriverInput};
 use crate::accel::geometry::{Geometry, GeometryGather, GeometryLayout};
 use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::primitives::SceneInfo;
+use crate::accel::walk::AccelTraversal;
 use crate::gpu::placement::{place, Placement};
 use crate::gpu::{vk, Buffer, Context, GpuError, RawBuffer, Readback, Recorder, Result};
 
@@ -55,14 +56,11 @@ pub const DRIVER_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::from
 /// The scene constants the gather writes for a structure of `kind` over `n` primitives:
 /// how the shader library walks it, and where a BVH's parent links start.
 fn header_of(builder: &AccelBuilder, n: usize) -> (u32, u32) {
-    let kind = builder.kind();
-    let walk = match kind {
-        AccelKind::KdTree => SceneInfo::WALK_KDTREE,
-        AccelKind::Driver => SceneInfo::WALK_RAY_QUERY,
-        _ if builder.top_level => SceneInfo::WALK_INSTANCES,
-        _ => builder.bvh_walk(),
+    let walk = match builder.traversal() {
+        AccelTraversal::Bvh(_) if builder.top_level => SceneInfo::WALK_INSTANCES,
+        t => t.scene_walk(),
     };
-    let parents_at = match kind {
+    let parents_at = match builder.kind() {
         AccelKind::Lbvh | AccelKind::Ploc => n as u32,
         _ => 0,
     };

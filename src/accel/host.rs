@@ -12,7 +12,8 @@ use crate::accel::device::{AccelBuilder, AccelKind, AccelStructure, Storage};
 use crate::accel::device_primitives::DevicePrimitives;
 use crate::accel::kdtree::device::KdStorage;
 use crate::accel::kdtree::{breadth_first, KdTree, SahParams};
-use crate::accel::primitives::{SceneInfo, TraceGeometry};
+use crate::accel::primitives::TraceGeometry;
+use crate::accel::walk::{AccelTraversal, Traversal};
 use crate::gpu::{Buffer, Context, GpuError, Result};
 use crate::scene::Aabb;
 
@@ -72,9 +73,10 @@ pub fn upload_structure(
         HostRef::Bvh(bvh) | HostRef::WideBvh(bvh) => {
             let wide = matches!(host, HostRef::WideBvh(_));
             let walk = match wide {
-                true => SceneInfo::WALK_BVH_WIDE,
-                false => SceneInfo::WALK_BVH,
-            };
+                true => AccelTraversal::Bvh(Traversal::Wide),
+                false => AccelTraversal::Bvh(Traversal::Stack),
+            }
+            .scene_walk();
             let constants = prims.info(&bvh.bounds, bvh.refs.len() as u32).walked(walk);
             let storage = Storage::Bvh(BvhStorage::from_host(ctx, bvh, wide)?);
             (AccelKind::SahBvh, storage, constants)

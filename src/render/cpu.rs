@@ -105,10 +105,7 @@ struct Shaded {
 /// The host build of the structure the GPU renderer builds on the device for `kind`.
 fn host_twin(kind: AccelKind, g: &TraceGeometry) -> RenderAccel {
     let twin = crate::accel::host::host_twin(kind, g, &Default::default());
-    match twin.expect("the scene's boxes are finite") {
-        HostStructure::KdTree(tree) => RenderAccel::KdTree(tree),
-        HostStructure::Bvh(bvh) => RenderAccel::Bvh(bvh),
-    }
+    RenderAccel::Host(twin.expect("the scene's boxes are finite"))
 }
 
 /// Renders `rs` for `plan` on the host, tracing with the CPU twin of the plan's walk
@@ -128,20 +125,21 @@ pub fn render(rs: &RenderScene, plan: &Plan, trace_opt: &TraceOptions) -> CpuRen
     let accel = host.as_ref().unwrap_or(&rs.accel);
     // The structure's CPU twin walk, as the plan's kernels walk it.
     let trace = |r: &Ray, time: f32, opt: &TraceOptions| match (accel, plan.accel.traversal()) {
-        (RenderAccel::KdTree(tree), _) => {
+        (RenderAccel::Host(HostStructure::KdTree(tree)), _) => {
             let scene = TraceScene {
                 geometry: &rs.geometry,
                 tree,
             };
             cpu::trace(&scene, r, time, opt)
         }
-        (RenderAccel::Bvh(bvh), AccelTraversal::Bvh(walk)) => {
+        (RenderAccel::Host(HostStructure::Bvh(bvh)), AccelTraversal::Bvh(walk)) => {
             bvh_cpu::trace(&rs.geometry, bvh, r, time, opt, walk)
         }
         // A BVH stands in for the driver's structure, whose walk has no twin.
-        (RenderAccel::Bvh(bvh), AccelTraversal::KdTree | AccelTraversal::RayQuery) => {
-            bvh_cpu::trace(&rs.geometry, bvh, r, time, opt, Default::default())
-        }
+        (
+            RenderAccel::Host(HostStructure::Bvh(bvh)),
+            AccelTraversal::KdTree | AccelTraversal::RayQuery,
+        ) => bvh_cpu::trace(&rs.geometry, bvh, r, time, opt, Default::default()),
         (RenderAccel::OnDevice(_), _) => unreachable!("resolved to its host twin above"),
     };
     let closest = TraceOptions {
