@@ -704,7 +704,7 @@ fn two_level_check(
     let batch = crate::trace::instanced::trace_top_level(
         ctx,
         &top,
-        crate::trace::instanced::SceneIds {
+        crate::accel::two_levels::SceneIds {
             mesh_first: &first,
             ..Default::default()
         },

@@ -523,8 +523,8 @@ fn the_plan_traces_repeated_meshes_as_two_levels() {
 #[test]
 fn a_scene_in_pieces_renders_the_image_of_one_structure() {
     use vkrt::accel::device::{AccelChoice, AccelKind};
+    use vkrt::accel::two_levels::TwoLevelScene;
     use vkrt::accel::walk::Traversal;
-    use vkrt::trace::instanced::TwoLevelScene;
     let Some(ctx) = context() else { return };
     let cases = [
         ("hard_shadows.toml", AccelChoice::default(), 1),

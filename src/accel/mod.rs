@@ -34,4 +34,5 @@ pub mod kdtree;
 pub mod primitives;
 pub mod shader_library;
 pub mod sizes;
+pub mod two_levels;
 pub mod walk;

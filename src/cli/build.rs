@@ -394,7 +394,8 @@ fn levels_json(
     kind: vkrt::accel::device::AccelKind,
     scene: &vkrt::scene::Scene,
 ) -> CliResult<serde_json::Value> {
-    use vkrt::trace::instanced::{level_bytes, TwoLevelScene};
+    use vkrt::accel::two_levels::TwoLevelScene;
+    use vkrt::trace::instanced::level_bytes;
     let Some(two) = TwoLevelScene::of(scene, scene.camera.shutter_open) else {
         return Ok(serde_json::json!({}));
     };
@@ -411,7 +412,8 @@ fn levels_only(
     flat: vkrt::gpu::GpuError,
     json: bool,
 ) -> CliResult<()> {
-    use vkrt::trace::instanced::{level_bytes, TwoLevelScene};
+    use vkrt::accel::two_levels::TwoLevelScene;
+    use vkrt::trace::instanced::level_bytes;
     let Some(two) = TwoLevelScene::of(scene, scene.camera.shutter_open) else {
         return Err(flat.into());
     };

@@ -30,8 +30,8 @@ use serde::Serialize;
 use crate::accel::device::AccelChoice;
 use crate::accel::host::HostStructure;
 use crate::accel::primitives::TraceGeometry;
+use crate::accel::two_levels::TwoLevelScene;
 use crate::scene::{Light, Scene};
-use crate::trace::instanced::TwoLevelScene;
 pub use levels::RenderLevels;
 
 pub use plan::{Plan, RenderOptions};
