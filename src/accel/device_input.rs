@@ -11,7 +11,8 @@ use crate::gpu::{Context, Result};
 pub struct BuildFlags {
     /// What the driver's builder optimises for (vkrt's own builders have one way each).
     pub prefer: Prefer,
-    /// The structure will be updated ([`AccelBuilder::record_update_from`](crate::accel::device::AccelBuilder::record_update_from)).
+    /// The structure will be updated
+    /// ([`AccelBuilder::record_update_from`](crate::accel::device::AccelBuilder::record_update_from)).
     pub allow_update: bool,
     /// The kd-tree's reference budget per level doubled this many times (0 at first; one
     /// more after [`BuildStatus::kd_overflow`](crate::accel::embedded::BuildStatus::kd_overflow)).

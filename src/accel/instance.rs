@@ -233,8 +233,9 @@ impl InstanceRecord {
     }
 
     /// Its world-to-object rows at `time`, interpolated from `steps` (the top level's, as
-    /// [`instance_boxes`](crate::accel::instances::instance_boxes) returns them) as the walk does; `None` where the transform there is
-    /// not invertible (the ray misses the instance).
+    /// [`instance_boxes`](crate::accel::instances::instance_boxes) returns them) as the walk
+    /// does; `None` where the transform there is not invertible (the ray misses the
+    /// instance).
     pub fn world_to_object_at(&self, steps: &[[[f32; 4]; 3]], time: f32) -> Option<[[f32; 4]; 3]> {
         let [n, first, t0, scale] = self.motion;
         if n < 2 {

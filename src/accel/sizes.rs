@@ -13,7 +13,8 @@ pub struct AccelSizes {
     pub update_scratch_bytes: Option<u64>,
 }
 
-/// What [`AccelBuilder::record_build`] knows when it returns.
+/// What [`AccelBuilder::record_build`](crate::accel::device::AccelBuilder::record_build)
+/// knows when it returns.
 #[derive(Clone, Copy, Debug, Default, PartialEq, serde::Serialize)]
 pub struct RecordedBuild {
     /// Host milliseconds spent building (a host builder; `None` for a device builder,
