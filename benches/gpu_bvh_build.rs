@@ -20,8 +20,9 @@ mod embree;
 use vkrt::accel::bvh::lbvh::MortonBits;
 use vkrt::accel::bvh::ploc::PlocParams;
 use vkrt::accel::bvh::{self, validate, BvhParams, Threading};
-use vkrt::accel::device::{AccelBuilder, AccelKind, HostStructure};
+use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::host::HostStructure;
 use vkrt::accel::primitives::TraceGeometry;
 use vkrt::gpu::{Context, Profile, Recorder};
 

@@ -29,11 +29,10 @@ use std::time::Instant;
 use glam::{Vec3, Vec4};
 use serde::Serialize;
 
-use crate::accel::bvh::collapse::{collapse, collapse_in_place};
-use crate::accel::bvh::{self, lbvh, ploc};
-use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, HostStructure};
+use crate::accel::bvh;
+use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
 use crate::accel::gpu_geometry::GpuGeometry;
-use crate::accel::kdtree::{breadth_first, SahParams};
+use crate::accel::host::HostStructure;
 use crate::accel::primitives::TraceGeometry;
 use crate::accel::walk::Traversal;
 use crate::gpu::{kernels, Buffer, Context, Recorder, Result, Spec};
@@ -287,7 +286,7 @@ impl Verifier<'_> {
             };
             for &n in &sizes {
                 let g = soup_scene(n, n as u64 + 1, true);
-                let o = builder_check(ctx, &builder, kind, &g);
+                let o = builder_check(ctx, &builder, &g);
                 self.check("builders", format!("{}, {n} primitives", kind.name()), o);
             }
         }
@@ -722,7 +721,7 @@ fn two_level_check(
     let batch = crate::trace::instanced::trace_top_level(
         ctx,
         &top,
-        crate::trace::instanced::SceneIds {
+        crate::accel::two_levels::SceneIds {
             mesh_first: &first,
             ..Default::default()
         },
@@ -1020,35 +1019,17 @@ fn sort_check(ctx: &Context, cfg: PrimConfig, keys: &[u32]) -> Outcome {
     Ok(None)
 }
 
-fn builder_check(
-    ctx: &Context,
-    builder: &AccelBuilder,
-    kind: AccelKind,
-    g: &TraceGeometry,
-) -> Outcome {
+fn builder_check(ctx: &Context, builder: &AccelBuilder, g: &TraceGeometry) -> Outcome {
     // A kd-tree that ran out of its reference budget is built again with twice the budget,
     // as a caller does (the build says so on the device).
     let (dev, _) = GpuGeometry::build_fitting(ctx, builder, g)?;
-    let equal = match dev.accel.download()? {
-        HostStructure::KdTree(tree) => {
-            let (twin, _) = breadth_first::build_boxes(&g.boxes, &SahParams::default());
-            tree == twin
+    let host = dev.accel.download()?;
+    if let HostStructure::Bvh(tree) = &host {
+        if let Err(e) = bvh::validate::validate(tree, &g.boxes) {
+            return Ok(Some(format!("invalid: {e}")));
         }
-        HostStructure::Bvh(tree) => {
-            if let Err(e) = bvh::validate::validate(&tree, &g.boxes) {
-                return Ok(Some(format!("invalid: {e}")));
-            }
-            let p = &builder.bvh_params;
-            let twin = match kind {
-                AccelKind::Ploc => collapse(
-                    &ploc::build(&g.boxes, &builder.ploc_params().unwrap_or_default()).0,
-                    p,
-                ),
-                _ => collapse_in_place(&lbvh::build(&g.boxes, builder.lbvh_bits()), p),
-            };
-            twin == tree
-        }
-    };
+    }
+    let equal = host == builder.host_twin(g)?;
     Ok((!equal).then(|| "differs from its CPU twin".to_string()))
 }
 

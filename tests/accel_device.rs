@@ -9,12 +9,10 @@ mod common;
 
 use common::{assert_silent, context, edge_sizes, same_answer, Rng};
 use glam::{Vec3, Vec4};
-use vkrt::accel::bvh::collapse::{collapse, collapse_in_place};
-use vkrt::accel::bvh::lbvh::{self, MortonBits};
-use vkrt::accel::bvh::{self, BvhParams, Threading};
-use vkrt::accel::device::{AccelBuilder, AccelKind, AccelStructure, HostStructure};
+use vkrt::accel::bvh::{self, Threading};
+use vkrt::accel::device::{AccelBuilder, AccelKind, AccelStructure};
 use vkrt::accel::gpu_geometry::GpuGeometry;
-use vkrt::accel::kdtree::{breadth_first, SahParams};
+use vkrt::accel::host::HostStructure;
 use vkrt::accel::primitives::TraceGeometry;
 use vkrt::accel::walk::Traversal;
 use vkrt::gpu::{Buffer, Context, Recorder};
@@ -85,29 +83,14 @@ fn device_builds_equal_their_host_twins_and_fit_their_sizes() {
             for spheres in [false, true] {
                 let g = scene(n, n as u64 + 1, spheres);
                 let (dev, host) = device_build(&ctx, &builder, &g);
+                let twin = builder.host_twin(&g).unwrap();
+                assert_eq!(
+                    host, twin,
+                    "{kind:?} of {n} primitives (spheres: {spheres})"
+                );
                 let used = match &host {
-                    HostStructure::KdTree(tree) => {
-                        let (twin, _) = breadth_first::build_boxes(&g.boxes, &SahParams::default());
-                        assert_eq!(
-                            tree, &twin,
-                            "kd-tree of {n} primitives (spheres: {spheres})"
-                        );
-                        tree.nodes.len() * 16 + tree.prim_refs.len() * 4
-                    }
+                    HostStructure::KdTree(tree) => tree.nodes.len() * 16 + tree.prim_refs.len() * 4,
                     HostStructure::Bvh(b) => {
-                        let twin = match kind {
-                            AccelKind::Lbvh => collapse_in_place(
-                                &lbvh::build(&g.boxes, MortonBits::default()),
-                                &BvhParams::default(),
-                            ),
-                            AccelKind::Ploc => collapse(
-                                &bvh::ploc::build(&g.boxes, &Default::default()).0,
-                                &BvhParams::default(),
-                            ),
-                            _ => bvh::build(&g.boxes, &BvhParams::default(), Threading::Single)
-                                .unwrap(),
-                        };
-                        assert_eq!(b, &twin, "{kind:?} of {n} primitives (spheres: {spheres})");
                         bvh::validate::validate(b, &g.boxes).unwrap();
                         b.bytes()
                     }

@@ -307,8 +307,8 @@ fn motion_blurred_instances_match_the_flat_motion_blur() {
 /// the orbit's chords; the still sphere stays in the world.
 #[test]
 fn moving_spheres_are_instances_that_match_the_flat_renders() {
+    use vkrt::accel::two_levels::REST;
     use vkrt::scene::{Motion, Orbit, Sphere};
-    use vkrt::trace::instanced::REST;
     let Some(ctx) = context() else { return };
     let path = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/dynamic_demo.toml");
     let mut scene = Scene::load(&path).unwrap().scene;

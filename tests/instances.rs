@@ -567,7 +567,7 @@ fn repeated_meshes_become_instances_of_one_bottom_level() {
     let sphere = scene.meshes[repeated[0][0]].indices.len() as u64;
     assert_eq!(summary.instances, 24);
     assert_eq!(summary.unique_triangles, summary.triangles - 23 * sphere);
-    let two = vkrt::trace::instanced::TwoLevelScene::of(&scene, 0.0).unwrap();
+    let two = vkrt::accel::two_levels::TwoLevelScene::of(&scene, 0.0).unwrap();
     assert_eq!(two.bottoms.len(), 3);
     assert_eq!((two.instances.len(), two.mesh_instances()), (26, 25));
     assert_eq!(
@@ -586,7 +586,7 @@ fn repeated_meshes_become_instances_of_one_bottom_level() {
     // A scene without repeats stays flat.
     let once = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/motion_blur.toml");
     let once = vkrt::scene::Scene::load(&once).unwrap().scene;
-    assert!(vkrt::trace::instanced::TwoLevelScene::of(&once, 0.0).is_none());
+    assert!(vkrt::accel::two_levels::TwoLevelScene::of(&once, 0.0).is_none());
     assert_eq!(once.summary().instances, 0);
 }
 
@@ -978,8 +978,8 @@ fn a_scene_cut_into_pieces_answers_as_the_flat_scene() {
     std::fs::remove_dir_all(&dir).unwrap();
     let total = scene.triangle_count() + scene.spheres.len();
     assert_eq!(total, 1280 + 2000 + 3);
-    assert!(vkrt::trace::instanced::TwoLevelScene::of_within(&scene, 0.0, total).is_none());
-    let two = vkrt::trace::instanced::TwoLevelScene::of_within(&scene, 0.0, 700).unwrap();
+    assert!(vkrt::accel::two_levels::TwoLevelScene::of_within(&scene, 0.0, total).is_none());
+    let two = vkrt::accel::two_levels::TwoLevelScene::of_within(&scene, 0.0, 700).unwrap();
     assert_eq!((two.bottoms.len(), two.rest_first.len()), (5, 5));
     assert_eq!(two.mesh_instances(), 0);
     assert!(two.bottoms.iter().all(|b| b.primitive_count() <= 700));

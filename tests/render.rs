@@ -8,6 +8,7 @@ use std::path::Path;
 
 use common::{assert_silent, context};
 use glam::Vec3;
+use vkrt::accel::host::HostStructure;
 use vkrt::accel::kdtree::{breadth_first, SahParams};
 use vkrt::gpu::Context;
 use vkrt::render::gpu::{GpuRender, Renderer};
@@ -53,9 +54,9 @@ fn small(spp: u32) -> RenderOptions {
 fn prepare(scene: &Scene, opt: &RenderOptions) -> (Plan, RenderScene) {
     let plan = Plan::new(scene, opt).unwrap();
     let rs = RenderScene::new(scene, &plan, |g| {
-        Ok::<_, ()>(RenderAccel::KdTree(
+        Ok::<_, ()>(RenderAccel::Host(HostStructure::KdTree(
             breadth_first::build_boxes(&g.boxes, &SahParams::default()).0,
-        ))
+        )))
     })
     .unwrap();
     (plan, rs)
@@ -256,7 +257,8 @@ fn the_bvh_renders_the_kdtree_image() {
             };
             let plan = Plan::new(&scene, &opt).unwrap();
             let rs = RenderScene::new(&scene, &plan, |g| {
-                bvh::build(&g.boxes, &BvhParams::default(), Threading::Single).map(RenderAccel::Bvh)
+                bvh::build(&g.boxes, &BvhParams::default(), Threading::Single)
+                    .map(|b| RenderAccel::Host(HostStructure::Bvh(b)))
             })
             .unwrap();
             let b = gpu_render(&ctx, &plan, &rs);
@@ -521,8 +523,8 @@ fn the_plan_traces_repeated_meshes_as_two_levels() {
 #[test]
 fn a_scene_in_pieces_renders_the_image_of_one_structure() {
     use vkrt::accel::device::{AccelChoice, AccelKind};
+    use vkrt::accel::two_levels::TwoLevelScene;
     use vkrt::accel::walk::Traversal;
-    use vkrt::trace::instanced::TwoLevelScene;
     let Some(ctx) = context() else { return };
     let cases = [
         ("hard_shadows.toml", AccelChoice::default(), 1),

@@ -21,11 +21,17 @@
 //! the recorded build with `vkCmdUpdateBuffer`: a few constants in the command buffer, no
 //! staging).
 
-use crate::accel::device::{AccelBuilder, AccelKind, AccelScratch, AccelSizes, DevicePrimitives};
-use crate::accel::driver::{DriverAccel, DriverInput, Prefer};
+use crate::accel::device::{
+    AccelBuilder, AccelKind, AccelScratch, AccelSizes, DevicePrimitives, Scratch,
+};
+pub use crate::accel::device_input::BuildFlags;
+use crate::accel::device_input::{shape, DeviceInput};
+use crate::accel::driver::instanced as driver_levels;
+use crate::accel::driver::{DriverAccel, DriverInput};
 use crate::accel::geometry::{Geometry, GeometryGather, GeometryLayout};
 use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::primitives::SceneInfo;
+use crate::accel::walk::AccelTraversal;
 use crate::gpu::placement::{place, Placement};
 use crate::gpu::{vk, Buffer, Context, GpuError, RawBuffer, Readback, Recorder, Result};
 
@@ -47,59 +53,14 @@ pub const DRIVER_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::from
         | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR.as_raw(),
 );
 
-/// How a structure is built (`VkBuildAccelerationStructureFlagsKHR`, and the kd-tree's
-/// capacity).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-pub struct BuildFlags {
-    /// What the driver's builder optimises for (vkrt's own builders have one way each).
-    pub prefer: Prefer,
-    /// The structure will be updated ([`AccelBuilder::record_update_from`]).
-    pub allow_update: bool,
-    /// The kd-tree's reference budget per level doubled this many times (0 at first; one
-    /// more after [`BuildStatus::kd_overflow`]).
-    pub kd_capacity_doublings: u32,
-}
-
-/// What a structure over the caller's geometry was created for.
-#[derive(Clone, Debug, PartialEq, Eq)]
-pub(crate) struct DeviceInput {
-    layout: GeometryLayout,
-    /// Per geometry: a triangle geometry (else spheres), and its primitive count.
-    shape: Vec<(bool, u32)>,
-    flags: BuildFlags,
-    /// A build has been recorded (tracing or updating before one is an error).
-    pub(crate) built: bool,
-}
-
-impl DeviceInput {
-    fn new(ctx: &Context, geometries: &[Geometry], flags: BuildFlags) -> Result<Self> {
-        Ok(Self {
-            layout: GeometryLayout::of(ctx, geometries)?,
-            shape: shape(geometries),
-            flags,
-            built: false,
-        })
-    }
-}
-
-fn shape(geometries: &[Geometry]) -> Vec<(bool, u32)> {
-    geometries
-        .iter()
-        .map(|g| (matches!(g, Geometry::Triangles(_)), g.primitive_count()))
-        .collect()
-}
-
 /// The scene constants the gather writes for a structure of `kind` over `n` primitives:
 /// how the shader library walks it, and where a BVH's parent links start.
 fn header_of(builder: &AccelBuilder, n: usize) -> (u32, u32) {
-    let kind = builder.kind();
-    let walk = match kind {
-        AccelKind::KdTree => SceneInfo::WALK_KDTREE,
-        AccelKind::Driver => SceneInfo::WALK_RAY_QUERY,
-        _ if builder.top_level => SceneInfo::WALK_INSTANCES,
-        _ => builder.bvh_walk(),
+    let walk = match builder.traversal() {
+        AccelTraversal::Bvh(_) if builder.top_level => SceneInfo::WALK_INSTANCES,
+        t => t.scene_walk(),
     };
-    let parents_at = match kind {
+    let parents_at = match builder.kind() {
         AccelKind::Lbvh | AccelKind::Ploc => n as u32,
         _ => 0,
     };
@@ -229,12 +190,14 @@ impl AccelBuilder {
     fn scratch_for(&self, ctx: &Context, input: &DeviceInput) -> Result<AccelScratch> {
         let f = &input.flags;
         match self.kind() {
-            AccelKind::Driver => Ok(AccelScratch::Driver(DriverAccel::create_scratch(
-                ctx,
-                &driver_counts(&input.layout),
-                f.prefer,
-                f.allow_update,
-            )?)),
+            AccelKind::Driver => Ok(AccelScratch(Scratch::Driver(Some(
+                DriverAccel::create_scratch(
+                    ctx,
+                    &driver_counts(&input.layout),
+                    f.prefer,
+                    f.allow_update,
+                )?,
+            )))),
             _ => self.create_scratch(
                 ctx,
                 input.layout.primitive_count(),
@@ -255,7 +218,7 @@ impl AccelBuilder {
             input.flags.allow_update,
             l.info_len(),
         )?;
-        if let Some(levels) = accel.driver_levels() {
+        if let Some(levels) = driver_levels::storage_mut(&mut accel).map(|d| &mut d.levels) {
             // While measuring, the primitives' buffers are placeholders without addresses.
             let driver_input = match crate::gpu::placement::measuring() {
                 true => driver_counts(l),
@@ -459,8 +422,8 @@ impl AccelBuilder {
             let (scratch, _) = place(&ctx, "the update scratch", Placement::Into(scratch), || {
                 self.scratch_for(&ctx, &input)
             })?;
-            let (AccelScratch::Driver(scratch), Some(Some(levels))) =
-                (scratch, out.accel.driver_levels_ref())
+            let (Scratch::Driver(Some(scratch)), Some(levels)) =
+                (scratch.0, driver_levels::levels(&out.accel))
             else {
                 return Err(usage(call, "the driver's levels were not created"));
             };

@@ -12,12 +12,12 @@
 use crate::accel::primitives::SceneInfo;
 use crate::accel::primitives::TraceGeometry;
 use crate::gpu::{
-    kernels, BufferArg, Context, GpuError, Kernel, RawBuffer, Recorder, Result, Spec,
+    kernels, Buffer, BufferArg, Context, GpuError, Kernel, RawBuffer, Recorder, Result, Spec,
 };
 use crate::scene::Aabb;
 use glam::{Vec3, Vec4};
 
-use super::device::DevicePrimitives;
+use crate::accel::device_primitives::DevicePrimitives;
 
 const WORKGROUP: u32 = 64;
 
@@ -810,4 +810,26 @@ pub fn transform_point(m: &[[f32; 4]; 3], p: Vec3) -> Vec3 {
         x + r[3]
     };
     Vec3::new(row(&m[0]), row(&m[1]), row(&m[2]))
+}
+
+impl DevicePrimitives {
+    /// Buffers for the primitives of `layout` (static: no motion), filled on the device by
+    /// `accel.geometry_gather` from the caller's buffers.
+    pub fn for_layout(ctx: &Context, layout: &GeometryLayout) -> Result<Self> {
+        let (n_tris, n_spheres) = (layout.n_tris as usize, layout.n_spheres as usize);
+        let n_aabbs = layout.n_aabbs as usize;
+        let n = layout.primitive_count();
+        Ok(Self {
+            // Four floats of padding, as in record_upload.
+            tri_verts: Buffer::new(ctx, "trace.tri_verts", 9 * n_tris + 4)?,
+            spheres: Buffer::new(ctx, "trace.spheres", n_spheres + 2 * n_aabbs)?,
+            prim_motion: Buffer::new(ctx, "trace.prim_motion", 0)?,
+            motions: Buffer::new(ctx, "trace.motions", 0)?,
+            boxes: Buffer::new(ctx, "trace.boxes", 6 * n)?,
+            n_tris,
+            n_spheres,
+            n_aabbs,
+            has_motion: false,
+        })
+    }
 }

@@ -2,9 +2,9 @@
 
 use crate::accel::bvh::Bvh;
 use crate::accel::device::{
-    upload_structure, AccelBuilder, AccelKind, AccelStructure, DevicePrimitives, HostRef,
-    RecordedBuild,
+    AccelBuilder, AccelKind, AccelStructure, DevicePrimitives, RecordedBuild,
 };
+use crate::accel::host::{upload_structure, HostRef};
 use crate::accel::kdtree::KdTree;
 use crate::accel::primitives::TraceGeometry;
 use crate::gpu::{BufferArg, Context, GpuError, Recorder, Result};
@@ -19,7 +19,7 @@ pub struct GpuGeometry {
     /// For a structure over the caller's device geometry
     /// ([`AccelBuilder::create_in`](crate::accel::device::AccelBuilder::create_in)): its
     /// layout and build flags, which every build and update into it must match.
-    pub(crate) device_input: Option<crate::accel::embedded::DeviceInput>,
+    pub(crate) device_input: Option<crate::accel::device_input::DeviceInput>,
 }
 
 impl GpuGeometry {

@@ -21,12 +21,18 @@
 
 pub mod bvh;
 pub mod device;
+pub mod device_input;
+pub mod device_primitives;
 pub mod driver;
 pub mod embedded;
 pub mod geometry;
 pub mod gpu_geometry;
+pub mod host;
+pub mod instance;
 pub mod instances;
 pub mod kdtree;
 pub mod primitives;
 pub mod shader_library;
+pub mod sizes;
+pub mod two_levels;
 pub mod walk;

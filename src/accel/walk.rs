@@ -1,9 +1,13 @@
-//! Which structure a kernel walks and how: the BVH walks (stack, bitstack, wide), the
-//! structure-and-walk pairs the tracing kernels specialise on (`ACCEL_KIND` in
-//! `glsl/include/vkrt/traverse.glsl`), and how they read the nodes. The choice belongs with
-//! the structures: a structure's kind says which walks serve it.
+//! The structure kinds ([`AccelKind`]) and how kernels walk them: the BVH walks (stack,
+//! bitstack, wide), the structure-and-walk pairs the tracing kernels specialise on
+//! (`ACCEL_KIND` in `glsl/include/vkrt/traverse.glsl`), the pair `--accel` and `--traversal`
+//! choose ([`AccelChoice`]), and how the walks read the nodes. Every conversion between them
+//! is here: a kind's walk ([`AccelKind::walked`]), a walk's specialization constant
+//! ([`AccelTraversal::spec`]) and the scene constants' walk word
+//! ([`AccelTraversal::scene_walk`]).
 
-use crate::accel::device::AccelStructure;
+use crate::accel::driver::Prefer;
+use crate::accel::primitives::SceneInfo;
 use crate::gpu::{Context, Result, ShaderBlob, Spec};
 
 /// How a BVH query walks the tree.
@@ -34,6 +38,142 @@ impl Traversal {
     pub const ALL: [Traversal; 3] = [Traversal::Stack, Traversal::Bitstack, Traversal::Wide];
 }
 
+/// The structures vkrt builds.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum AccelKind {
+    /// Kolodzey's (2014) SAH kd-tree, built on the GPU.
+    #[default]
+    KdTree,
+    /// Sochora's (2013) SAH BVH, built on the host's cores and uploaded.
+    SahBvh,
+    /// Karras's LBVH (2012), built on the GPU.
+    Lbvh,
+    /// PLOC (Meister & Bittner 2018), built on the GPU.
+    Ploc,
+    /// The driver's own (`VK_KHR_acceleration_structure`), queried with `VK_KHR_ray_query`:
+    /// the peer vkrt's structures are measured against, where the device has it.
+    Driver,
+}
+
+impl AccelKind {
+    /// The structures vkrt itself builds (every device runs them).
+    pub const ALL: [AccelKind; 4] = [
+        AccelKind::KdTree,
+        AccelKind::SahBvh,
+        AccelKind::Lbvh,
+        AccelKind::Ploc,
+    ];
+
+    /// The CLI name (`--accel`).
+    pub fn name(self) -> &'static str {
+        match self {
+            AccelKind::KdTree => "kdtree",
+            AccelKind::SahBvh => "sah-bvh",
+            AccelKind::Lbvh => "lbvh",
+            AccelKind::Ploc => "ploc",
+            AccelKind::Driver => "driver",
+        }
+    }
+
+    /// How kernels walk this kind (`traversal` applies to vkrt's BVHs).
+    pub fn walked(self, traversal: Traversal) -> AccelTraversal {
+        match self {
+            AccelKind::KdTree => AccelTraversal::KdTree,
+            AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc => AccelTraversal::Bvh(traversal),
+            AccelKind::Driver => AccelTraversal::RayQuery,
+        }
+    }
+
+    /// [`AccelKind::ALL`], and the driver's where `ctx`'s device has ray query.
+    pub fn available(ctx: &Context) -> Vec<AccelKind> {
+        let mut kinds = Self::ALL.to_vec();
+        if ctx.info().features.ray_query {
+            kinds.push(AccelKind::Driver);
+        }
+        kinds
+    }
+
+    /// Whether one walk serves it (no `--traversal` choice).
+    fn single_walk(self) -> bool {
+        matches!(self, AccelKind::KdTree | AccelKind::Driver)
+    }
+}
+
+/// What `--accel` and `--traversal` choose: a structure and how kernels walk it.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
+pub struct AccelChoice {
+    /// The structure built.
+    pub kind: AccelKind,
+    /// How a BVH is walked (ignored for a kd-tree and the driver's structure).
+    pub walk: Traversal,
+    /// What the driver's builder optimises for (the driver's structure only).
+    pub prefer: Prefer,
+}
+
+impl AccelChoice {
+    /// `kind` walked by `walk` (the default walk for kinds with one walk: the kd-tree and
+    /// the driver's), with the driver's default preference.
+    pub fn new(kind: AccelKind, walk: Traversal) -> Self {
+        let walk = if kind.single_walk() {
+            Traversal::default()
+        } else {
+            walk
+        };
+        Self {
+            kind,
+            walk,
+            prefer: Prefer::default(),
+        }
+    }
+
+    /// The driver's structure built with `prefer`.
+    pub fn driver(prefer: Prefer) -> Self {
+        Self {
+            prefer,
+            ..Self::new(AccelKind::Driver, Traversal::default())
+        }
+    }
+
+    /// The walk the kernels compile in (`ACCEL_KIND`).
+    pub fn traversal(self) -> AccelTraversal {
+        self.kind.walked(self.walk)
+    }
+
+    /// Every structure vkrt builds with every walk, for suites and benchmarks.
+    pub fn all() -> Vec<Self> {
+        Self::every(AccelKind::ALL.to_vec())
+    }
+
+    /// [`AccelChoice::all`], and the driver's structure where `ctx`'s device has it.
+    pub fn all_on(ctx: &Context) -> Vec<Self> {
+        Self::every(AccelKind::available(ctx))
+    }
+
+    fn every(kinds: Vec<AccelKind>) -> Vec<Self> {
+        kinds
+            .into_iter()
+            .flat_map(|kind| {
+                let walks: &[Traversal] = if kind.single_walk() {
+                    &[Traversal::Stack]
+                } else {
+                    &Traversal::ALL
+                };
+                walks.iter().map(move |&w| Self::new(kind, w))
+            })
+            .collect()
+    }
+
+    /// `kdtree`, `sah-bvh/stack`, `lbvh/bitstack`, ...
+    pub fn label(self) -> String {
+        match (self.kind, self.prefer) {
+            (AccelKind::Driver, Prefer::FastBuild) => format!("driver/{}", self.prefer.name()),
+            (AccelKind::KdTree | AccelKind::Driver, _) => self.kind.name().to_string(),
+            _ => format!("{}/{}", self.kind.name(), self.walk.name()),
+        }
+    }
+}
+
 /// Which structure a [`GpuGeometry`](crate::accel::gpu_geometry::GpuGeometry) holds, and how
 /// a kernel walks it (the `ACCEL_KIND` specialization constant of `traverse.glsl`).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
@@ -57,6 +197,17 @@ impl AccelTraversal {
             AccelTraversal::Bvh(Traversal::Bitstack) => 2,
             AccelTraversal::RayQuery => 3,
             AccelTraversal::Bvh(Traversal::Wide) => 4,
+        }
+    }
+
+    /// The walk word of the scene constants (`SceneInfo::walk`): how the shader library
+    /// walks a structure this walk serves (a BVH's binary walks read the same nodes).
+    pub fn scene_walk(self) -> u32 {
+        match self {
+            AccelTraversal::KdTree => SceneInfo::WALK_KDTREE,
+            AccelTraversal::Bvh(Traversal::Wide) => SceneInfo::WALK_BVH_WIDE,
+            AccelTraversal::Bvh(_) => SceneInfo::WALK_BVH,
+            AccelTraversal::RayQuery => SceneInfo::WALK_RAY_QUERY,
         }
     }
 
@@ -88,14 +239,8 @@ impl AccelTraversal {
         }
     }
 
-    /// Whether this walk serves `s`: its kind's family, and the wide walk exactly the
-    /// structures built with wide nodes (they bind those in place of the binary ones).
-    pub fn walks(self, s: &AccelStructure) -> bool {
-        s.kind().walked(Traversal::default()).family() == self.family()
-            && (self == AccelTraversal::Bvh(Traversal::Wide)) == s.is_wide()
-    }
-
-    fn family(self) -> u32 {
+    /// The structure family this walk serves (kd-tree, BVH, the driver's).
+    pub(crate) fn family(self) -> u32 {
         match self {
             AccelTraversal::KdTree => 0,
             AccelTraversal::Bvh(_) => 1,

@@ -33,8 +33,9 @@ use super::{
     TraceMs, UseTimes,
 };
 use crate::accel::bvh::{self, BvhParams};
-use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, HostStructure};
+use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
 use crate::accel::gpu_geometry::GpuGeometry;
+use crate::accel::host::HostStructure;
 use crate::accel::kdtree::{full_clip, stats, KdNode};
 use crate::gpu::{Context, GpuError};
 use crate::render::animate::{self, AnimateOptions};

@@ -222,8 +222,9 @@ fn gpu_bvh_build_command(
     json: bool,
     profile: &Option<PathBuf>,
 ) -> CliResult<()> {
-    use vkrt::accel::bvh::{lbvh, ploc, validate, BvhParams};
-    use vkrt::accel::device::{AccelBuilder, AccelKind, HostStructure};
+    use vkrt::accel::bvh::{validate, BvhParams};
+    use vkrt::accel::device::AccelBuilder;
+    use vkrt::accel::host::HostStructure;
     if let Err(flat) = vkrt::accel::primitives::TraceGeometry::check_flat_fits(ctx, scene) {
         return levels_only(ctx, kind, scene, flat, json);
     }
@@ -258,19 +259,16 @@ fn gpu_bvh_build_command(
     let build_ms = prof.ms("build").unwrap_or(0.0);
     let bits = builder.lbvh_bits();
     let ploc_params = builder.ploc_params();
-    let twin = reference.then(|| {
-        let t = std::time::Instant::now();
-        use vkrt::accel::bvh::collapse::{collapse, collapse_in_place};
-        let p = &builder.bvh_params;
-        let twin = match kind {
-            AccelKind::Ploc => collapse(
-                &ploc::build(&g.boxes, &ploc_params.unwrap_or_default()).0,
-                p,
-            ),
-            _ => collapse_in_place(&lbvh::build(&g.boxes, bits), p),
-        };
-        (twin, t.elapsed().as_secs_f64() * 1e3)
-    });
+    let twin = match reference {
+        true => {
+            let t = std::time::Instant::now();
+            let HostStructure::Bvh(twin) = builder.host_twin(&g)? else {
+                unreachable!("a GPU BVH's twin is a BVH")
+            };
+            Some((twin, t.elapsed().as_secs_f64() * 1e3))
+        }
+        false => None,
+    };
     let equal = twin.as_ref().map(|(t, _)| *t == tree);
     let params = BvhParams::default();
     let (shape, shape_line) = bvh_shape(&tree, &params);
@@ -396,7 +394,8 @@ fn levels_json(
     kind: vkrt::accel::device::AccelKind,
     scene: &vkrt::scene::Scene,
 ) -> CliResult<serde_json::Value> {
-    use vkrt::trace::instanced::{level_bytes, TwoLevelScene};
+    use vkrt::accel::two_levels::TwoLevelScene;
+    use vkrt::trace::instanced::level_bytes;
     let Some(two) = TwoLevelScene::of(scene, scene.camera.shutter_open) else {
         return Ok(serde_json::json!({}));
     };
@@ -413,7 +412,8 @@ fn levels_only(
     flat: vkrt::gpu::GpuError,
     json: bool,
 ) -> CliResult<()> {
-    use vkrt::trace::instanced::{level_bytes, TwoLevelScene};
+    use vkrt::accel::two_levels::TwoLevelScene;
+    use vkrt::trace::instanced::level_bytes;
     let Some(two) = TwoLevelScene::of(scene, scene.camera.shutter_open) else {
         return Err(flat.into());
     };

@@ -87,9 +87,9 @@ fn trace_command(
     let ctx = context(validate)?;
     // Meshes named more than once: bottom levels and instances, unless asked flat; a
     // scene past one buffer's range: its rest in pieces under identity instances.
-    let per_level = instanced::max_level_primitives(&ctx, accel.kind);
+    let per_level = vkrt::accel::two_levels::max_level_primitives(&ctx, accel.kind);
     if let Some(two) = (!flatten)
-        .then(|| instanced::TwoLevelScene::of_within(&scene, time, per_level))
+        .then(|| vkrt::accel::two_levels::TwoLevelScene::of_within(&scene, time, per_level))
         .flatten()
     {
         let extra = serde_json::json!({

@@ -16,7 +16,8 @@ use std::thread::JoinHandle;
 use super::gpu::{FrameLoop, Renderer, Update};
 use super::output::{exr_bytes, jpeg_bytes, pfm_bytes, png_bytes, ImageFormat};
 use super::{Plan, RenderOptions, RenderScene};
-use crate::accel::device::{AccelKind, HostStructure};
+use crate::accel::device::AccelKind;
+use crate::accel::host::HostStructure;
 use crate::gpu::{write_atomically, Context, GpuError};
 use crate::scene::Scene;
 use crate::trace::TraceOptions;
@@ -620,8 +621,7 @@ fn frame_quality(
     rs: &RenderScene,
     kind: AccelKind,
 ) -> Result<(Option<f64>, Option<f64>), GpuError> {
-    use crate::accel::bvh::collapse::{collapse, collapse_in_place};
-    use crate::accel::bvh::{self, lbvh, ploc, validate::sah_cost};
+    use crate::accel::bvh::{self, validate::sah_cost};
     if matches!(kind, AccelKind::KdTree | AccelKind::Driver) {
         return Ok((None, None));
     }
@@ -629,16 +629,9 @@ fn frame_quality(
         return Ok((None, None));
     };
     let params = bvh::BvhParams::default();
-    let boxes = &rs.geometry.boxes;
-    let fresh = match kind {
-        AccelKind::Lbvh => collapse_in_place(&lbvh::build(boxes, Default::default()), &params),
-        AccelKind::Ploc => collapse(&ploc::build(boxes, &Default::default()).0, &params),
-        _ => bvh::build(boxes, &params, bvh::Threading::all_cores()).map_err(|e| {
-            GpuError::Kernel {
-                kernel: "accel.sah_bvh",
-                reason: e.to_string(),
-            }
-        })?,
+    let twin = crate::accel::host::host_twin(kind, &rs.geometry, &Default::default())?;
+    let HostStructure::Bvh(fresh) = twin else {
+        return Ok((None, None));
     };
     Ok((
         Some(sah_cost(&now, &params)),

@@ -7,9 +7,8 @@ use glam::{Vec3, Vec4};
 use super::plan::Plan;
 use super::types::*;
 use super::{RayCounts, RenderAccel, RenderScene};
-use crate::accel::bvh::collapse::{collapse, collapse_in_place};
-use crate::accel::bvh::Threading;
 use crate::accel::device::AccelKind;
+use crate::accel::host::HostStructure;
 use crate::accel::primitives::{TraceGeometry, NO_MOTION};
 use crate::accel::walk::AccelTraversal;
 use crate::trace::bvh_cpu;
@@ -105,27 +104,8 @@ struct Shaded {
 
 /// The host build of the structure the GPU renderer builds on the device for `kind`.
 fn host_twin(kind: AccelKind, g: &TraceGeometry) -> RenderAccel {
-    match kind {
-        AccelKind::KdTree => {
-            let params = crate::accel::kdtree::SahParams::default();
-            RenderAccel::KdTree(
-                crate::accel::kdtree::breadth_first::build_boxes(&g.boxes, &params).0,
-            )
-        }
-        AccelKind::SahBvh | AccelKind::Driver => RenderAccel::Bvh(
-            crate::accel::bvh::build(&g.boxes, &Default::default(), Threading::all_cores())
-                .expect("the scene's boxes are finite"),
-        ),
-        // The GPU builders' trees with their SAH leaf collapse, as AccelBuilder records them.
-        AccelKind::Lbvh => RenderAccel::Bvh(collapse_in_place(
-            &crate::accel::bvh::lbvh::build(&g.boxes, Default::default()),
-            &Default::default(),
-        )),
-        AccelKind::Ploc => RenderAccel::Bvh(collapse(
-            &crate::accel::bvh::ploc::build(&g.boxes, &Default::default()).0,
-            &Default::default(),
-        )),
-    }
+    let twin = crate::accel::host::host_twin(kind, g, &Default::default());
+    RenderAccel::Host(twin.expect("the scene's boxes are finite"))
 }
 
 /// Renders `rs` for `plan` on the host, tracing with the CPU twin of the plan's walk
@@ -145,20 +125,21 @@ pub fn render(rs: &RenderScene, plan: &Plan, trace_opt: &TraceOptions) -> CpuRen
     let accel = host.as_ref().unwrap_or(&rs.accel);
     // The structure's CPU twin walk, as the plan's kernels walk it.
     let trace = |r: &Ray, time: f32, opt: &TraceOptions| match (accel, plan.accel.traversal()) {
-        (RenderAccel::KdTree(tree), _) => {
+        (RenderAccel::Host(HostStructure::KdTree(tree)), _) => {
             let scene = TraceScene {
                 geometry: &rs.geometry,
                 tree,
             };
             cpu::trace(&scene, r, time, opt)
         }
-        (RenderAccel::Bvh(bvh), AccelTraversal::Bvh(walk)) => {
+        (RenderAccel::Host(HostStructure::Bvh(bvh)), AccelTraversal::Bvh(walk)) => {
             bvh_cpu::trace(&rs.geometry, bvh, r, time, opt, walk)
         }
         // A BVH stands in for the driver's structure, whose walk has no twin.
-        (RenderAccel::Bvh(bvh), AccelTraversal::KdTree | AccelTraversal::RayQuery) => {
-            bvh_cpu::trace(&rs.geometry, bvh, r, time, opt, Default::default())
-        }
+        (
+            RenderAccel::Host(HostStructure::Bvh(bvh)),
+            AccelTraversal::KdTree | AccelTraversal::RayQuery,
+        ) => bvh_cpu::trace(&rs.geometry, bvh, r, time, opt, Default::default()),
         (RenderAccel::OnDevice(_), _) => unreachable!("resolved to its host twin above"),
     };
     let closest = TraceOptions {

@@ -21,6 +21,7 @@ use crate::trace::{Hit, Query, TraceOptions};
 use super::plan::Plan;
 use super::types::{counter, PathRay, ShadowRay};
 use super::{RayCounts, RenderAccel, RenderScene};
+use crate::accel::host::HostStructure;
 
 mod frames;
 mod levels;
@@ -358,17 +359,21 @@ impl Renderer {
                 let built = RecordedBuild { host_ms: None };
                 (Traced::Levels(levels), rec, Some(built))
             }
-            (RenderAccel::KdTree(tree), _) => (
+            (RenderAccel::Host(HostStructure::KdTree(tree)), _) => (
                 flat(GpuGeometry::upload(ctx, &rs.geometry, tree)?),
                 rec,
                 None,
             ),
-            (RenderAccel::Bvh(bvh), _) if self.walk == AccelTraversal::Bvh(Traversal::Wide) => (
-                flat(GpuGeometry::upload_wide_bvh(ctx, &rs.geometry, bvh)?),
-                rec,
-                None,
-            ),
-            (RenderAccel::Bvh(bvh), _) => (
+            (RenderAccel::Host(HostStructure::Bvh(bvh)), _)
+                if self.walk == AccelTraversal::Bvh(Traversal::Wide) =>
+            {
+                (
+                    flat(GpuGeometry::upload_wide_bvh(ctx, &rs.geometry, bvh)?),
+                    rec,
+                    None,
+                )
+            }
+            (RenderAccel::Host(HostStructure::Bvh(bvh)), _) => (
                 flat(GpuGeometry::upload_bvh(ctx, &rs.geometry, bvh)?),
                 rec,
                 None,

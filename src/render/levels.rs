@@ -16,8 +16,8 @@
 use glam::{Mat3A, Vec3};
 
 use crate::accel::instances::{world_to_object, Instance, InstanceMotion, MAX_MOTION_STEPS};
+use crate::accel::two_levels::{TwoLevelScene, REST};
 use crate::scene::{Mesh, MeshMaterials, Scene};
-use crate::trace::instanced::{TwoLevelScene, REST};
 
 use super::types::Placement;
 

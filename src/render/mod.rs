@@ -27,12 +27,11 @@ pub mod types;
 use glam::Vec3;
 use serde::Serialize;
 
-use crate::accel::bvh::Bvh;
 use crate::accel::device::AccelChoice;
-use crate::accel::kdtree::KdTree;
+use crate::accel::host::HostStructure;
 use crate::accel::primitives::TraceGeometry;
+use crate::accel::two_levels::TwoLevelScene;
 use crate::scene::{Light, Scene};
-use crate::trace::instanced::TwoLevelScene;
 pub use levels::RenderLevels;
 
 pub use plan::{Plan, RenderOptions};
@@ -84,12 +83,10 @@ impl RayCounts {
     }
 }
 
-/// The structure a render traces: Kolodzey's kd-tree or Sochora's (2013) BVH.
+/// The structure a render traces.
 pub enum RenderAccel {
     /// Built on the host (the CPU twins, tests).
-    KdTree(KdTree),
-    /// A BVH built on the host (the CPU twins, tests).
-    Bvh(Bvh),
+    Host(HostStructure),
     /// Built by the GPU renderer in its first submission and traced where it lies (the
     /// CLI's path; the CPU twin builds the same structure on the host first).
     OnDevice(AccelChoice),

@@ -32,7 +32,7 @@ pub struct RenderOptions {
     pub flatten: bool,
     /// The most primitives one structure may hold (`None`: no limit). A larger scene is
     /// traced as two levels, what no repeated mesh holds cut into pieces of at most this
-    /// many ([`TwoLevelScene::of_within`](crate::trace::instanced::TwoLevelScene::of_within)).
+    /// many ([`TwoLevelScene::of_within`](crate::accel::two_levels::TwoLevelScene::of_within)).
     /// [`RenderOptions::for_device`] sets it from the device's binding limit.
     pub max_level_primitives: Option<usize>,
 }
@@ -40,9 +40,9 @@ pub struct RenderOptions {
 impl RenderOptions {
     /// These options with [`RenderOptions::max_level_primitives`], where unset, what one
     /// binding of `ctx`'s device holds of this structure
-    /// ([`max_level_primitives`](crate::trace::instanced::max_level_primitives)).
+    /// ([`max_level_primitives`](crate::accel::two_levels::max_level_primitives)).
     pub fn for_device(self, ctx: &crate::gpu::Context) -> Self {
-        let max = crate::trace::instanced::max_level_primitives(ctx, self.accel.kind);
+        let max = crate::accel::two_levels::max_level_primitives(ctx, self.accel.kind);
         Self {
             max_level_primitives: self.max_level_primitives.or(Some(max)),
             ..self

@@ -53,8 +53,9 @@ use super::intersect::{
 };
 use super::{cpu, Hit, Intersector, Query, Ray, TraceOptions};
 use crate::accel::bvh;
-use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind, HostStructure};
+use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
 use crate::accel::gpu_geometry::GpuGeometry;
+use crate::accel::host::HostStructure;
 use crate::accel::kdtree::{stats, validate, SahParams};
 use crate::accel::primitives::TraceGeometry;
 use crate::accel::walk::{AccelTraversal, Traversal};

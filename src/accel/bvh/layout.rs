@@ -126,7 +126,7 @@ pub struct Bvh {
 
 /// [`Bvh::wide`]'s nodes, derived from the binary ones (equal whether made or not).
 #[derive(Clone, Debug, Default)]
-pub struct WideCache(std::sync::OnceLock<Vec<super::wide::WideNode>>);
+pub struct WideCache(pub(super) std::sync::OnceLock<Vec<WideNode>>);
 
 impl PartialEq for WideCache {
     fn eq(&self, _: &Self) -> bool {
@@ -135,15 +135,6 @@ impl PartialEq for WideCache {
 }
 
 impl Bvh {
-    /// The 4-wide nodes ([`super::wide`]): wide node `i` from binary node `i`, the root 0.
-    /// Made from the nodes when first asked for; code that edits `nodes` after that calls
-    /// [`Bvh::nodes_changed`].
-    pub fn wide(&self) -> &[super::wide::WideNode] {
-        self.wide
-            .0
-            .get_or_init(|| super::wide::widen(&self.nodes, self.nodes.len()))
-    }
-
     /// Forgets the wide nodes made from the old `nodes`.
     pub fn nodes_changed(&mut self) {
         self.wide = WideCache::default();
@@ -212,4 +203,24 @@ pub fn half_area(b: &Aabb) -> f32 {
     }
     let d = b.max - b.min;
     d.x * d.y + d.y * d.z + d.z * d.x
+}
+
+/// One node, 64 bytes (16 words, four RGBA32UI texels; `glsl/include/vkrt/bvh_wide.glsl`).
+/// Child `k`'s planes are byte `k` of the `lo` and `hi` words.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
+pub struct WideNode {
+    /// The frame's origin (bits of three floats).
+    pub origin: [u32; 3],
+    /// Biased exponents of the three scales: x in bits 0..8, y 8..16, z 16..24.
+    pub exponents: u32,
+    /// Low planes, one word per axis.
+    pub lo: [u32; 3],
+    /// High planes, one word per axis.
+    pub hi: [u32; 3],
+    /// Leaf sizes, 16 bits per child (children 0, 1 in the first word): 0 for an interior
+    /// node or a missing child.
+    pub counts: [u32; 2],
+    /// Per child: its wide node (count 0), its first reference (count > 0), or [`NO_NODE`].
+    pub index: [u32; 4],
 }

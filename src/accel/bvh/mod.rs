@@ -9,6 +9,7 @@
 pub mod bench;
 pub mod collapse;
 pub mod collapse_gpu;
+pub(crate) mod device;
 pub mod layout;
 pub mod lbvh;
 pub mod lbvh_gpu;

@@ -18,35 +18,15 @@
 //! the decoded values with the walk's own arithmetic, so the decoded box always contains the
 //! child's box and no ray that enters the child misses it.
 
-use super::layout::{BvhNode, Child, NO_NODE};
+pub use super::layout::WideNode;
+use super::layout::{Bvh, BvhNode, Child, NO_NODE};
 use crate::scene::Aabb;
-use bytemuck::{Pod, Zeroable};
 
 /// Children per node.
 pub const WIDTH: usize = 4;
 
 /// The largest leaf a wide node can name (16 bits per child).
 pub const MAX_WIDE_LEAF: u32 = 0xffff;
-
-/// One node, 64 bytes (16 words, four RGBA32UI texels; `glsl/include/vkrt/bvh_wide.glsl`).
-/// Child `k`'s planes are byte `k` of the `lo` and `hi` words.
-#[repr(C)]
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Pod, Zeroable)]
-pub struct WideNode {
-    /// The frame's origin (bits of three floats).
-    pub origin: [u32; 3],
-    /// Biased exponents of the three scales: x in bits 0..8, y 8..16, z 16..24.
-    pub exponents: u32,
-    /// Low planes, one word per axis.
-    pub lo: [u32; 3],
-    /// High planes, one word per axis.
-    pub hi: [u32; 3],
-    /// Leaf sizes, 16 bits per child (children 0, 1 in the first word): 0 for an interior
-    /// node or a missing child.
-    pub counts: [u32; 2],
-    /// Per child: its wide node (count 0), its first reference (count > 0), or [`NO_NODE`].
-    pub index: [u32; 4],
-}
 
 impl WideNode {
     /// Child `k` and its decoded box.
@@ -190,5 +170,16 @@ fn first_guess(f: f32) -> u32 {
         f.min(255.0) as u32
     } else {
         0
+    }
+}
+
+impl Bvh {
+    /// The 4-wide nodes ([this module](self)): wide node `i` from binary node `i`, the root 0.
+    /// Made from the nodes when first asked for; code that edits `nodes` after that calls
+    /// [`Bvh::nodes_changed`].
+    pub fn wide(&self) -> &[WideNode] {
+        self.wide
+            .0
+            .get_or_init(|| widen(&self.nodes, self.nodes.len()))
     }
 }

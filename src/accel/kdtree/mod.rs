@@ -13,6 +13,7 @@
 //! - leaf: `kind` = [`LEAF`], primitives `prim_refs[a .. a + b]` (b may be 0: empty leaf).
 
 pub mod breadth_first;
+pub(crate) mod device;
 pub mod full_clip;
 pub mod gpu;
 pub mod report;

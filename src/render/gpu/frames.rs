@@ -130,7 +130,7 @@ impl<'r> FrameLoop<'r> {
 
     /// The structure as it is now, read back (tools and reports; `None` before the first
     /// frame, and over two levels). The driver's is opaque: an error.
-    pub fn download(&self) -> Result<Option<crate::accel::device::HostStructure>> {
+    pub fn download(&self) -> Result<Option<crate::accel::host::HostStructure>> {
         self.state
             .as_ref()
             .and_then(|st| st.f.geom.flat())

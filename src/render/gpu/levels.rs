@@ -284,7 +284,7 @@ impl Levels {
             // The driver's TLAS is rebuilt over the moved instances (they never move over
             // a shutter: `Plan::levels`), its BLASes kept.
             Top::Driver { geom, .. } => {
-                let driver = geom.accel.driver_levels().and_then(|d| d.as_deref_mut());
+                let driver = crate::accel::driver::instanced::levels_mut(&mut geom.accel);
                 let driver = driver.ok_or_else(|| crate::gpu::GpuError::Usage {
                     call: "FrameLoop::render",
                     reason: "the driver's levels were not built".into(),
@@ -398,8 +398,13 @@ fn driver_levels(
     let bound = with_spheres.first().copied().unwrap_or(0);
     let addresses = primitive_addresses(&ctx, prims.iter())?;
     let refs: Vec<&DevicePrimitives> = prims.iter().collect();
-    let (accel, ids) =
-        AccelStructure::record_driver_instanced(rec, &refs, &two.instances, bound, choice.prefer)?;
+    let (accel, ids) = crate::accel::driver::instanced::record_instanced(
+        rec,
+        &refs,
+        &two.instances,
+        bound,
+        choice.prefer,
+    )?;
     let starts = ids.starts();
     let n_starts = starts.len() as u32;
     let table = Buffer::new(&ctx, "render.driver_starts", starts.len().max(1))?;

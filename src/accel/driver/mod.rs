@@ -17,13 +17,17 @@
 //! Nothing here submits or uploads: the instance records are written by the recorded build
 //! (`vkCmdUpdateBuffer`), so the levels can live in a caller's memory.
 
+pub(crate) mod instanced;
+pub(crate) mod storage;
+
 use crate::gpu::{
     accel_build_sizes, accel_scratch, require_ray_query, vk, AccelGeometry, AccelInstance,
     AccelerationStructure, Buffer, Context, GpuError, Recorder, Result,
 };
 
-use super::device::DevicePrimitives;
-use super::instances::Instance;
+use crate::accel::device_primitives::DevicePrimitives;
+use crate::accel::instance::Instance;
+use crate::accel::sizes::AccelSizes;
 
 /// Primitive ids of the driver's two levels ([`DriverAccel::record_instanced`]).
 #[derive(Clone, Debug, Default)]
@@ -217,7 +221,7 @@ impl DriverAccel {
         input: &DriverInput,
         prefer: Prefer,
         allow_update: bool,
-    ) -> Result<crate::accel::device::AccelSizes> {
+    ) -> Result<AccelSizes> {
         let flags = prefer.flags(allow_update);
         let bottoms = Self::geometries(input)?;
         let top = accel_build_sizes(ctx, &[Self::top(0, bottoms.len())], flags)?;
@@ -228,7 +232,7 @@ impl DriverAccel {
             scratch = scratch.max(b.scratch);
             update = update.max(b.update_scratch);
         }
-        Ok(crate::accel::device::AccelSizes {
+        Ok(AccelSizes {
             structure_bytes: structure,
             build_scratch_bytes: scratch,
             update_scratch_bytes: allow_update.then_some(update),
