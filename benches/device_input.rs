@@ -165,7 +165,7 @@ fn bindings_vs_address(ctx: &Context, g: &GpuGeometry, rays: &[Ray]) -> (f64, f6
     let ray_buf = Buffer::from_slice(ctx, "probe.rays", rays).unwrap();
     let out = Buffer::<[u32; 4]>::zeroed(ctx, "probe.hits", rays.len()).unwrap();
     let handle = Buffer::from_slice(ctx, "probe.handle", &g.address_handle().unwrap()).unwrap();
-    let at = handle.device_address();
+    let at = handle.device_address().unwrap();
     let push = [rays.len() as u32, 0, at as u32, (at >> 32) as u32, 0, 0];
     let [b0, b1, b2, b3, b4, b5, b6] = g.bindings();
     let all: [&dyn BufferArg; 9] = [&ray_buf, &out, b0, b1, b2, b3, b4, b5, b6];

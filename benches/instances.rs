@@ -396,7 +396,7 @@ fn main() {
         .iter()
         .map(|(_, transforms, _)| top_level(&ctx, &bunny, transforms))
         .collect();
-    let mut sets: Vec<(u64, &[Ray])> = vec![(handle.device_address(), &one[..])];
+    let mut sets: Vec<(u64, &[Ray])> = vec![(handle.device_address().unwrap(), &one[..])];
     for (top, (_, _, rays)) in tops.iter().zip(&grids) {
         sets.push((top.0.handle_address(), &rays[..]));
     }

@@ -70,7 +70,7 @@ impl CallerBuffers {
     /// [`CallerBuffers::put`], as data at a device address.
     fn at(&mut self, ctx: &Context, bytes: &[u8], pad: usize) -> GeometryData {
         let r = self.put(ctx, bytes, pad);
-        let address = self.bufs.last().unwrap().device_address() + r.offset;
+        let address = self.bufs.last().unwrap().device_address().unwrap() + r.offset;
         *self.addresses.last_mut().unwrap() = address;
         GeometryData::Address {
             address,
@@ -735,7 +735,7 @@ pub fn probe_hits(ctx: &Context, g: &GpuGeometry, rays: &[Ray], how: Probe) -> V
         }
         false => None,
     };
-    let at = handle.as_ref().map_or(0, |h| h.device_address());
+    let at = handle.as_ref().map_or(0, |h| h.device_address().unwrap());
     let push = [rays.len() as u32, 0, at as u32, (at >> 32) as u32, 0, 0];
     let mut rec = Recorder::new(ctx).unwrap();
     let [b0, b1, b2, b3, b4, b5, b6] = g.bindings();

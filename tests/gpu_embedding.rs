@@ -178,6 +178,13 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
     let n = 1000u32;
     let x = Buffer::from_slice(&ctx, "embed.x", &vec![2.0f32; n as usize]).unwrap();
     let y = Buffer::from_slice(&ctx, "embed.y", &vec![1.0f32; n as usize]).unwrap();
+    // The renderer enabled no bufferDeviceAddress: an address is an error naming it.
+    match x.device_address() {
+        Err(GpuError::MissingCapability { what, .. }) => {
+            assert!(what.contains("bufferDeviceAddress"))
+        }
+        other => panic!("{other:?}"),
+    }
     let kernel = ctx
         .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
         .unwrap();

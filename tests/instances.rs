@@ -388,7 +388,7 @@ fn an_identity_instance_traces_as_its_bottom_level_and_empty_levels_miss() {
     ] {
         let level = bottom(&ctx, kind, wide, &tris);
         let handle = flat_handle(&ctx, &level);
-        let flat = probe(&ctx, handle.device_address(), &rays, 0);
+        let flat = probe(&ctx, handle.device_address().unwrap(), &rays, 0);
         for top_kind in [AccelKind::Lbvh, AccelKind::Ploc] {
             let top = TopLevelBuilder::new(&ctx, top_kind)
                 .unwrap()

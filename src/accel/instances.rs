@@ -544,8 +544,8 @@ impl TopLevelBuilder {
                 handles.push(out);
             }
             handle[0][..7].copy_from_slice(&top.tree.address_handle()?);
-            handle[0][7] = p.records.device_address();
-            handle[1][0] = p.steps.device_address();
+            handle[0][7] = p.records.address();
+            handle[1][0] = p.steps.address();
         }
         rec.scope("instances", |rec| {
             // The bottom levels' builds (compute writes) before their constants are copied.
@@ -570,7 +570,7 @@ impl TopLevelBuilder {
                     first_word: (skip / 4) as u32,
                     n_bottoms: top.bottoms.len() as u32,
                     steps: top.motion.steps,
-                    handles_at: p.handles.device_address(),
+                    handles_at: p.handles.address(),
                     t0: top.motion.time[0],
                     scale: top.motion.scale(),
                 };
@@ -921,12 +921,12 @@ impl TopLevel<'_> {
     /// Where the top level's handle lies: what a shader passes to `vkrtUseStructure`
     /// (`VKRT_DEVICE_ADDRESS` in `vkrt/ray_query.glsl`), written by the build.
     pub fn handle_address(&self) -> u64 {
-        self.parts.handle.device_address()
+        self.parts.handle.address()
     }
 
     /// Where the bottom levels' handles lie, 64 bytes apart (in [`InstanceRecord::handle`]).
     pub fn bottom_handles_address(&self) -> u64 {
-        self.parts.handles.device_address()
+        self.parts.handles.address()
     }
 
     /// Records the copy of the build's report: invalid instances (never hit) in

@@ -151,10 +151,11 @@ fn misuse(reason: impl Into<String>) -> GpuError {
     }
 }
 
-/// Bytes a build needs: the structure's storage and the scratch of a build and of an
-/// update (to be allocated with [`accel_scratch`]).
+/// Bytes the driver's build needs (`vkGetAccelerationStructureBuildSizesKHR`): the
+/// structure's storage and the scratch of a build and of an update (to be allocated with
+/// [`accel_scratch`]). vkrt's own structures report theirs as `accel::AccelSizes`.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
-pub struct AccelSizes {
+pub struct DriverBuildSizes {
     /// Bytes of the structure itself (`accelerationStructureSize`).
     pub structure: u64,
     /// Bytes of scratch a build needs (`buildScratchSize`).
@@ -189,7 +190,7 @@ pub fn accel_build_sizes(
     ctx: &Context,
     geometries: &[AccelGeometry],
     flags: vk::BuildAccelerationStructureFlagsKHR,
-) -> Result<AccelSizes> {
+) -> Result<DriverBuildSizes> {
     let ext = ext(ctx)?;
     let level = level_of(geometries)?;
     let counts: Vec<u32> = geometries.iter().map(|g| g.count()).collect();
@@ -210,7 +211,7 @@ pub fn accel_build_sizes(
             &mut sizes,
         )
     };
-    Ok(AccelSizes {
+    Ok(DriverBuildSizes {
         structure: sizes.acceleration_structure_size,
         scratch: sizes.build_scratch_size,
         update_scratch: sizes.update_scratch_size,
@@ -380,7 +381,7 @@ impl AccelerationStructure {
             sizes.scratch
         };
         let align = scratch_alignment(&ctx);
-        let base = scratch.device_address();
+        let base = scratch.address();
         let scratch_address = base.next_multiple_of(align);
         if scratch_address - base + needed > scratch.byte_len() {
             return Err(misuse(format!(

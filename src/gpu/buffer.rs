@@ -386,19 +386,30 @@ impl<T: Pod> Buffer<T> {
         (self.len * std::mem::size_of::<T>()) as u64
     }
 
+    /// [`Buffer::device_address`] where the feature is known to be on: vkrt's structures that
+    /// read addresses refuse to be made without it.
+    pub(crate) fn address(&self) -> u64 {
+        self.device_address()
+            .expect("bufferDeviceAddress, checked when the structure was made")
+    }
+
     /// The buffer's device address (for acceleration-structure builds, ray queries and
-    /// geometry read at addresses). Only where `bufferDeviceAddress` is enabled
-    /// ([`super::DeviceFeatures::buffer_device_address`], or `ray_query`, which needs it).
-    pub fn device_address(&self) -> u64 {
+    /// geometry read at addresses). [`GpuError::MissingCapability`] unless
+    /// `bufferDeviceAddress` is enabled ([`super::DeviceFeatures::buffer_device_address`], or
+    /// `ray_query`, which needs it).
+    pub fn device_address(&self) -> Result<u64> {
         let f = &self.ctx.info().features;
         if !(f.buffer_device_address || f.ray_query) {
-            super::error::usage_error("device_address() without bufferDeviceAddress");
+            return Err(GpuError::MissingCapability {
+                device: self.ctx.info().device.clone(),
+                what: "bufferDeviceAddress (a buffer's device address)".into(),
+            });
         }
         let info = vk::BufferDeviceAddressInfo::default().buffer(self.raw);
         // SAFETY: bufferDeviceAddress is enabled (checked above) and the buffer
         // was created with SHADER_DEVICE_ADDRESS usage and bound to memory allocated with the
         // device-address flag (the allocator is created with buffer_device_address then).
-        unsafe { self.ctx.inner.device.get_buffer_device_address(&info) + self.offset }
+        Ok(unsafe { self.ctx.inner.device.get_buffer_device_address(&info) } + self.offset)
     }
 
     /// The range this buffer covers, as a [`RawBuffer`].

@@ -28,8 +28,8 @@ mod shader;
 mod validation;
 
 pub use accel_ext::{
-    accel_build_sizes, accel_scratch, require_ray_query, AccelGeometry, AccelInstance, AccelSizes,
-    AccelerationStructure,
+    accel_build_sizes, accel_scratch, require_ray_query, AccelGeometry, AccelInstance,
+    AccelerationStructure, DriverBuildSizes,
 };
 pub use ash::vk;
 pub use buffer::{address_of, placement, Buffer, BufferArg, Memory, RawBuffer, TexelView};

@@ -146,8 +146,8 @@ impl DriverInput {
     /// The primitives of `prims`, at their addresses.
     pub fn of(prims: &DevicePrimitives) -> Self {
         Self {
-            tri_verts: prims.tri_verts.device_address(),
-            boxes: prims.boxes.device_address(),
+            tri_verts: prims.tri_verts.address(),
+            boxes: prims.boxes.address(),
             ..Self::counts(prims)
         }
     }
@@ -323,7 +323,7 @@ impl DriverAccel {
 
     /// Where the instance records start: the first 16-byte aligned word of `instances`.
     fn instance_word(&self) -> usize {
-        let a = self.instances.device_address();
+        let a = self.instances.address();
         ((a.next_multiple_of(16) - a) / 4) as usize
     }
 
@@ -414,7 +414,7 @@ impl DriverAccel {
 
     /// Records the top level's build over the instance records.
     fn record_top(&self, rec: &mut Recorder, scratch: &Buffer<u8>) -> Result<()> {
-        let at = self.instances.device_address() + 4 * self.instance_word() as u64;
+        let at = self.instances.address() + 4 * self.instance_word() as u64;
         let top = [Self::top(at, self.records.len())];
         rec.scope("driver_top_level", |rec| {
             self.tlas.record_build(rec, &top, self.flags, scratch)
