@@ -4,7 +4,7 @@
 
 mod common;
 
-use vkrt::gpu::{kernels, Buffer, Context, GpuError, RawBuffer, Recorder, Spec};
+use vkrt::gpu::{kernels, Buffer, Context, GpuError, Kernel, RawBuffer, Recorder, Spec};
 use vkrt::verify;
 
 const SAXPY_WG: u32 = 256;
@@ -407,14 +407,20 @@ fn generated_kernel_table_matches_what_the_code_binds() {
     assert!(vkrt::gpu::find_kernel("gpu.saxpy").is_some());
 }
 
-#[test]
-fn commands_given_wrong_arguments_fail_the_recording_instead_of_panicking() {
-    let Some(ctx) = common::context() else { return };
+/// The saxpy kernel and its two 8-element buffers (x = 1, y = 2) for the misuse tests.
+fn saxpy_on_eight(ctx: &Context) -> (std::sync::Arc<Kernel>, Buffer<f32>, Buffer<f32>) {
     let kernel = ctx
         .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
         .unwrap();
-    let x = Buffer::from_slice(&ctx, "x", &[1.0f32; 8]).unwrap();
-    let y = Buffer::from_slice(&ctx, "y", &[2.0f32; 8]).unwrap();
+    let x = Buffer::from_slice(ctx, "x", &[1.0f32; 8]).unwrap();
+    let y = Buffer::from_slice(ctx, "y", &[2.0f32; 8]).unwrap();
+    (kernel, x, y)
+}
+
+#[test]
+fn commands_given_wrong_arguments_fail_the_recording_instead_of_panicking() {
+    let Some(ctx) = common::context() else { return };
+    let (kernel, x, y) = saxpy_on_eight(&ctx);
     let small = Buffer::<f32>::new(&ctx, "small", 4).unwrap();
     let push = SaxpyPush { a: 3.0, n: 8 };
     let raw = |offset: u64, size: u64| RawBuffer {
@@ -479,11 +485,7 @@ fn commands_given_wrong_arguments_fail_the_recording_instead_of_panicking() {
 #[test]
 fn a_recorder_used_the_wrong_way_is_an_error_not_a_panic() {
     let Some(ctx) = common::context() else { return };
-    let kernel = ctx
-        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
-        .unwrap();
-    let x = Buffer::from_slice(&ctx, "x", &[1.0f32; 8]).unwrap();
-    let y = Buffer::from_slice(&ctx, "y", &[2.0f32; 8]).unwrap();
+    let (kernel, x, y) = saxpy_on_eight(&ctx);
     let push = SaxpyPush { a: 3.0, n: 8 };
     let usage = |r: Result<vkrt::gpu::Profile, GpuError>, what: &str| match r {
         Err(GpuError::Usage { .. }) => {}

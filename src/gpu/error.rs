@@ -109,7 +109,6 @@ pub(crate) fn vk_err(call: &'static str) -> impl Fn(vk::Result) -> GpuError {
     }
 }
 
-/// Our own misuse of the API: a bug in the caller, not a runtime condition.
 /// Locks `m` even where a thread panicked while holding it: what vkrt keeps behind its
 /// locks (the queue handle, the allocator, the kernel cache, validation messages) stays whole
 /// across a panic elsewhere, and a second panic would turn one failure into many.
@@ -117,6 +116,7 @@ pub(crate) fn lock<T>(m: &std::sync::Mutex<T>) -> std::sync::MutexGuard<'_, T> {
     m.lock().unwrap_or_else(std::sync::PoisonError::into_inner)
 }
 
+/// Our own misuse of the API: a bug in the caller, not a runtime condition.
 #[cold]
 #[track_caller]
 pub(crate) fn usage_error(msg: &str) -> ! {

@@ -759,7 +759,7 @@ impl Recorder {
             return Ok(());
         }
         Err(GpuError::Usage {
-            call: "Recorder::end_scope",
+            call: "Recorder::begin_scope/end_scope",
             reason: format!("{open} scope(s) left open, {unmatched} closed without begin_scope"),
         })
     }
@@ -826,8 +826,9 @@ impl Recorder {
 
     /// Stops recording into a caller-owned command buffer (which the caller ends and
     /// submits). Call [`RecordedWork::complete`] once it has executed.
-    /// `Err` (and nothing recorded is left to complete) on vkrt's own command buffer, or
-    /// where a scope was left open.
+    /// `Err` on vkrt's own command buffer, or where a scope was left open or closed twice:
+    /// the recording is then dropped with the descriptor sets it bound, so the caller resets
+    /// its command buffer rather than submit it.
     pub fn finish(self) -> Result<RecordedWork> {
         if self.command_pool.is_some() {
             return Err(GpuError::Usage {
