@@ -375,6 +375,12 @@ impl TopLevelBuilder {
                     .into(),
             });
         }
+        if !f.shader_int64 {
+            return Err(GpuError::MissingCapability {
+                device: ctx.info().device.clone(),
+                what: "shaderInt64 (the two-level walk reads 64-bit addresses)".into(),
+            });
+        }
         let mut tree = AccelBuilder::new(ctx, kind)?;
         tree.top_level = true;
         Ok(Self {
