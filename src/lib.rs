@@ -65,6 +65,8 @@ pub mod host;
 pub mod prims;
 pub mod render;
 pub mod scene;
+#[cfg(feature = "cli")]
+pub mod shader_check;
 pub mod soak;
 pub mod trace;
 pub mod verify;

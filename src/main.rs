@@ -54,6 +54,45 @@ enum Command {
     /// primitives are written on the device, the structure rebuilt or refit, and the frame
     /// rendered, all in one submission; frames are written while the next renders.
     Animate(cli::animate::AnimateArgs),
+    /// Run a renderer's own GL_EXT_ray_query compute shader over a scene and a ray file,
+    /// through vkrt and through the driver's own ray query, and compare what it wrote, ray
+    /// by ray.
+    ///
+    /// The shader's interface (binding 0's name is the shader's own):
+    ///
+    ///   layout(local_size_x = 64) in;  // one invocation per ray, any 1-D size
+    ///   layout(set = 0, binding = 0) uniform accelerationStructureEXT scene;
+    ///   layout(set = 0, binding = 1, std430) readonly buffer Rays { vec4 rays[]; };
+    ///   //   ray i: rays[2i] = (origin, tMin), rays[2i+1] = (direction, tMax)
+    ///   layout(set = 0, binding = 2, std430) writeonly buffer Results { uvec4 results[]; };
+    ///   layout(push_constant) uniform Count { uint rayCount; };
+    ///
+    /// The shader includes "vkrt/ext_ray_query.glsl" after its #extension lines; where it
+    /// does not, the line is inserted after the last #extension line (after #version where
+    /// there is none). It is compiled with glslc (VKRT_GLSLC names another) for Vulkan 1.2,
+    /// once through vkrt and once with VKRT_NATIVE_RAY_QUERY=1 for the driver's ray query
+    /// (the include is then empty). Through vkrt, binding 0 is a uniform texel buffer
+    /// (RGBA32UI) whose first texel's .xy is the top level's handle address.
+    ///
+    /// The scene's two levels, the same on both paths: each [[meshes]] entry is one
+    /// instance (its id: its place among the entries) of a bottom level holding its
+    /// triangles as geometry 0 (entries naming the same file share one); all spheres are one
+    /// more instance, the last, with the identity transform, of a bottom level of one box
+    /// geometry (primitive i: sphere i's box, centre ± radius). A mesh entry's `mask`,
+    /// `custom_index`, `sbt_offset`, `flags` and `opaque` keys fill its instance record.
+    ///
+    /// Two records agree when every 32-bit word is equal, or both words are normal floats
+    /// (not zero, denormal, infinite or NaN) of the same sign within 4 units in the last
+    /// place (drivers transform and intersect rays in their own order of operations;
+    /// integers below 2^23 are denormal bit patterns and so compared exactly). The exit
+    /// status is non-zero when any ray differs. A shader that does not compile or breaks the
+    /// interface, and a bad scene or ray file, are errors before any GPU work.
+    ///
+    /// --json prints {"rays", "native" (whether the driver's ray query ran),
+    /// "mismatching_rays", "mismatches" (the first ten: {"ray", "driver", "vkrt"}, 4 words
+    /// each), "vkrt_ms", "driver_ms" (the dispatches' GPU milliseconds)}.
+    #[command(verbatim_doc_comment)]
+    ShaderCheck(cli::shader_check::ShaderCheckArgs),
     /// Measure GPU baselines and primitives.
     Bench {
         #[command(subcommand)]
@@ -83,6 +122,7 @@ fn run(cli: Cli) -> cli::common::CliResult<()> {
         Command::Render(args) => cli::render::run(args, validate),
         Command::Trace(args) => cli::trace::run(args, validate),
         Command::Animate(args) => cli::animate::run(args, validate),
+        Command::ShaderCheck(args) => cli::shader_check::run(args, validate),
         Command::Bench { what } => cli::bench::run(what, validate),
     }
 }

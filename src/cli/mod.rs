@@ -10,5 +10,6 @@ pub mod common;
 pub mod info;
 pub mod render;
 pub mod scene;
+pub mod shader_check;
 pub mod trace;
 pub mod verify;

@@ -318,6 +318,11 @@ impl AccelerationStructure {
         self.address
     }
 
+    /// The Vulkan handle, for a descriptor write.
+    pub(crate) fn raw(&self) -> vk::AccelerationStructureKHR {
+        self.raw
+    }
+
     /// Records the build of this structure over `geometries` into `rec`, with scratch from
     /// `scratch` ([`accel_scratch`] of at least the size's scratch). Order the writes of
     /// the inputs before with [`Recorder::to_accel_build`], and the build before its users

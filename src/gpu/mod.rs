@@ -9,6 +9,7 @@
 //! - [`Profile`]: per-pass GPU milliseconds and a Chrome-trace/Perfetto export;
 //! - [`AccelerationStructure`]: the driver's own structures (`VK_KHR_acceleration_structure`),
 //!   where the device has ray query;
+//! - [`ForeignKernel`]: a pipeline over a renderer's own SPIR-V and the layout it states;
 //! - [`Validation`]: the Khronos layer with synchronization validation, for tests.
 //!
 //! Rules: every `unsafe` block states the contract it relies on; Vulkan errors are mapped
@@ -19,6 +20,7 @@ mod accel_ext;
 mod buffer;
 mod context;
 mod error;
+mod foreign;
 mod info;
 mod kernel;
 mod pipeline_cache;
@@ -35,6 +37,7 @@ pub use ash::vk;
 pub use buffer::{address_of, placement, Buffer, BufferArg, Memory, RawBuffer, TexelView};
 pub use context::{Context, ContextOptions, MemoryUsage, RawParts, Traffic};
 pub use error::{GpuError, Result};
+pub use foreign::{ForeignBinding, ForeignKernel};
 pub use info::{
     device_requirements, mesa_version, traversal_steps_within, DeviceFeatures, DeviceInfo,
     DeviceRequirements, LLVMPIPE_LOOP_BUDGET,

@@ -25,6 +25,7 @@ pub mod effects;
 pub mod error;
 pub mod files;
 pub mod gen;
+pub mod instance_keys;
 pub mod limits;
 pub mod material;
 pub mod model;

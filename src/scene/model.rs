@@ -160,6 +160,9 @@ pub struct Mesh {
     pub keyframes: Vec<Keyframe>,
     /// Motion over time.
     pub motion: Motion,
+    /// Its instance record's keys and its geometry's opaque flag (`vkrt shader-check`
+    /// places it with them; nothing else reads them).
+    pub instance: super::instance_keys::InstanceKeys,
 }
 
 impl Mesh {
@@ -179,6 +182,7 @@ impl Mesh {
             transform: Transform::IDENTITY,
             keyframes: Vec::new(),
             motion: Motion::STATIC,
+            instance: Default::default(),
         }
     }
 

@@ -247,6 +247,12 @@ pub(super) struct MeshDef {
     pub(super) keyframes: Vec<KeyframeDef>,
     /// The entry to use instead when `path` does not exist.
     pub(super) fallback: Option<Box<MeshDef>>,
+    /// The instance record's keys (`super::instance_keys`).
+    pub(super) mask: Option<i64>,
+    pub(super) custom_index: Option<i64>,
+    pub(super) sbt_offset: Option<i64>,
+    pub(super) flags: Option<Vec<String>>,
+    pub(super) opaque: Option<bool>,
 }
 
 /// One `[[meshes.keyframes]]` entry; omitted fields are the identity.

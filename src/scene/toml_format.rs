@@ -33,6 +33,7 @@ use glam::Vec3;
 use super::error::{Origin, SceneError};
 use super::files::FileSource;
 use super::gen;
+use super::instance_keys::InstanceKeys;
 use super::limits::Limits;
 use super::material::Material;
 use super::model::{
@@ -356,6 +357,14 @@ impl Builder<'_> {
             };
             mesh.keyframes = keyframes_from_defs(&m.keyframes);
             mesh.motion = motion_of(m.velocity, m.orbit.as_ref());
+            mesh.instance = InstanceKeys::from_def(
+                &k,
+                m.mask,
+                m.custom_index,
+                m.sbt_offset,
+                m.flags.as_deref(),
+                m.opaque,
+            )?;
             meshes.push(mesh);
         }
 

@@ -195,6 +195,11 @@ fn mesh_def(mesh: &Mesh, names: &[String]) -> MeshDef {
         velocity,
         orbit,
         keyframes: keyframe_defs(&mesh.keyframes),
+        mask: (mesh.instance.mask != 0xff).then_some(i64::from(mesh.instance.mask)),
+        custom_index: mesh.instance.custom_index.map(i64::from),
+        sbt_offset: (mesh.instance.sbt_offset != 0).then_some(i64::from(mesh.instance.sbt_offset)),
+        flags: (mesh.instance.flags != 0).then(|| mesh.instance.flag_names()),
+        opaque: (!mesh.instance.opaque).then_some(false),
         ..MeshDef::default()
     }
 }

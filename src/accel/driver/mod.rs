@@ -568,6 +568,11 @@ impl DriverAccel {
         Ok((accel, ids))
     }
 
+    /// The top-level structure, for a descriptor of a shader that queries it.
+    pub fn tlas(&self) -> &AccelerationStructure {
+        &self.tlas
+    }
+
     /// The TLAS's device address, which the `query` kernels read from the nodes binding.
     pub fn tlas_address(&self) -> u64 {
         self.tlas.device_address()

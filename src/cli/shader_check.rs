@@ -1,0 +1,182 @@
+//! `vkrt shader-check`: a renderer's own `GL_EXT_ray_query` compute shader run over a scene
+//! and a ray file through vkrt and through the driver's own ray query, compared ray by ray
+//! (the work is `vkrt::shader_check`'s).
+
+use std::path::PathBuf;
+
+use clap::{Args, ValueEnum};
+use vkrt::shader_check::{self as check, Through};
+
+use super::common::{context, load_scene, CliResult};
+
+#[derive(Clone, Copy, PartialEq, ValueEnum)]
+pub enum ThroughArg {
+    /// vkrt and the driver's ray query, compared (vkrt alone where the device has no ray
+    /// query).
+    Both,
+    /// vkrt alone.
+    Vkrt,
+    /// The driver's ray query alone.
+    Driver,
+}
+
+#[derive(Clone, Copy, PartialEq, ValueEnum)]
+pub enum BottomArg {
+    Lbvh,
+    Ploc,
+    SahBvh,
+}
+
+#[derive(Args)]
+pub struct ShaderCheckArgs {
+    /// The compute shader (GLSL, compiled with glslc or the program VKRT_GLSLC names).
+    shader: PathBuf,
+    /// Scene (.toml, .obj, .scn text).
+    scene: PathBuf,
+    /// The ray file (.rays: 32 bytes a ray, origin and tMin then direction and tMax, f32
+    /// little-endian; or .csv).
+    #[arg(long)]
+    rays: PathBuf,
+    /// Which ray queries run the shader.
+    #[arg(long, value_enum, default_value_t = ThroughArg::Both)]
+    through: ThroughArg,
+    /// vkrt's bottom levels (the top level is an LBVH).
+    #[arg(long, value_enum, default_value_t = BottomArg::Lbvh)]
+    accel: BottomArg,
+    /// Write the results (16 bytes a ray, as the shader wrote them): the driver's, or vkrt's
+    /// where the driver did not run. Written atomically; nothing is written on an error.
+    #[arg(short, long)]
+    output: Option<PathBuf>,
+    /// Print the report as JSON.
+    #[arg(long)]
+    json: bool,
+}
+
+pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
+    let through = match args.through {
+        ThroughArg::Both => Through::Both,
+        ThroughArg::Vkrt => Through::Vkrt,
+        ThroughArg::Driver => Through::Driver,
+    };
+    let kind = match args.accel {
+        BottomArg::Lbvh => vkrt::accel::device::AccelKind::Lbvh,
+        BottomArg::Ploc => vkrt::accel::device::AccelKind::Ploc,
+        BottomArg::SahBvh => vkrt::accel::device::AccelKind::SahBvh,
+    };
+    // Everything that can be refused before any GPU work: the shader (compiled for each path
+    // and its interface checked), the rays, the scene.
+    let source = std::fs::read_to_string(&args.shader)
+        .map_err(|e| format!("{}: cannot read the shader: {e}", args.shader.display()))?;
+    let include = check::compile::TempDir::new("shader-check-include")?;
+    vkrt::accel::shader_library::write_to(include.path())?;
+    let shader = check::compile_shader(&args.shader, &source, include.path(), through)?;
+    if shader.inserted_include {
+        log::info!(
+            "{} does not include \"{}\": inserted after its #extension lines",
+            args.shader.display(),
+            check::compile::INCLUDE
+        );
+    }
+    let rays = vkrt::trace::files::read_rays(&args.rays)?;
+    if u32::try_from(rays.len()).is_err() {
+        return Err(format!(
+            "{}: {} rays: the ray count is a 32-bit push constant",
+            args.rays.display(),
+            rays.len()
+        )
+        .into());
+    }
+    let scene = load_scene(&Some(args.scene.clone()))?;
+    let levels = check::scene_levels(&scene);
+    drop(scene);
+
+    let ctx = context(validate)?;
+    let has_ray_query = ctx.info().features.ray_query;
+    let native = match through {
+        Through::Vkrt => false,
+        Through::Driver => true,
+        Through::Both if !has_ray_query => {
+            log::warn!(
+                "{} has no ray query (VK_KHR_ray_query): the shader ran through vkrt alone",
+                ctx.info().device
+            );
+            false
+        }
+        Through::Both => true,
+    };
+    let vkrt_run = match &shader.vkrt {
+        Some((words, iface)) => Some(check::run_vkrt(&ctx, &levels, kind, (words, iface), &rays)?),
+        None => None,
+    };
+    let driver_run = match (&shader.native, native) {
+        (Some((words, iface)), true) => {
+            Some(check::run_driver(&ctx, &levels, (words, iface), &rays)?)
+        }
+        _ => None,
+    };
+    let messages = ctx.take_validation_messages();
+    if !messages.is_empty() {
+        for m in &messages {
+            log::error!("validation: {m:?}");
+        }
+        return Err(format!("{} validation messages", messages.len()).into());
+    }
+    let mismatches = match (&driver_run, &vkrt_run) {
+        (Some(d), Some(v)) => check::mismatches(&d.results, &v.results),
+        _ => Vec::new(),
+    };
+    if let Some(out) = &args.output {
+        let written = driver_run
+            .as_ref()
+            .or(vkrt_run.as_ref())
+            .expect("a path ran");
+        vkrt::gpu::write_atomically(out, bytemuck::cast_slice(&written.results))?;
+    }
+    let ms = |r: &Option<check::PathRun>| r.as_ref().and_then(|r| r.ms);
+    if args.json {
+        let first: Vec<serde_json::Value> = mismatches
+            .iter()
+            .take(10)
+            .map(|(ray, d, v)| serde_json::json!({ "ray": ray, "driver": d, "vkrt": v }))
+            .collect();
+        let v = serde_json::json!({
+            "rays": rays.len(),
+            "native": driver_run.is_some(),
+            "mismatching_rays": mismatches.len(),
+            "mismatches": first,
+            "vkrt_ms": ms(&vkrt_run),
+            "driver_ms": ms(&driver_run),
+        });
+        println!("{}", serde_json::to_string_pretty(&v)?);
+    } else {
+        let time = |name: &str, r: &Option<check::PathRun>| match r {
+            Some(r) => format!(
+                "{name} {}",
+                r.ms.map_or_else(|| "ran".into(), |ms| format!("{ms:.3} ms on the GPU"))
+            ),
+            None => format!("{name} did not run"),
+        };
+        println!(
+            "{} rays: {}, {}; {} rays differ",
+            rays.len(),
+            time("vkrt", &vkrt_run),
+            time("the driver's ray query", &driver_run),
+            mismatches.len()
+        );
+        for (ray, d, v) in mismatches.iter().take(10) {
+            println!("ray {ray}: driver {d:?}, vkrt {v:?}");
+        }
+        if let Some(out) = &args.output {
+            println!("wrote {}", out.display());
+        }
+    }
+    if !mismatches.is_empty() {
+        return Err(format!(
+            "{} of {} rays differ between the driver's ray query and vkrt",
+            mismatches.len(),
+            rays.len()
+        )
+        .into());
+    }
+    Ok(())
+}

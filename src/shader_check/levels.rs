@@ -1,0 +1,290 @@
+//! A scene as the two levels `vkrt shader-check` traces, the same on both paths: each
+//! `[[meshes]]` entry is one instance (its id: the entry's place among them) of a bottom level
+//! holding its triangles as geometry 0 (entries with the same geometry and opaque flag share
+//! one); all spheres are one more instance, the last, with the identity transform, of a
+//! bottom level holding one box geometry (primitive `i`: sphere `i`'s box, centre ± radius).
+
+use std::sync::Arc;
+
+use glam::Vec3;
+
+use crate::accel::device::{AccelBuilder, AccelKind};
+use crate::accel::device_primitives::DevicePrimitives;
+use crate::accel::driver::{DriverAccel, Prefer};
+use crate::accel::embedded::BuildFlags;
+use crate::accel::geometry::{Aabbs, Geometry, IndexType, Triangles};
+use crate::accel::gpu_geometry::GpuGeometry;
+use crate::accel::instance::{flags, Instance};
+use crate::accel::instances::{TopLevel, TopLevelBuilder};
+use crate::accel::primitives::TraceGeometry;
+use crate::gpu::{Buffer, GpuError, Recorder, Result};
+use crate::scene::{Aabb, Scene};
+
+/// What one bottom level holds.
+pub enum BottomSource {
+    /// Mesh `mesh`'s object-space triangles, with the geometry's opaque flag.
+    Mesh {
+        /// The first entry naming this geometry.
+        mesh: usize,
+        /// The geometry's opaque flag.
+        opaque: bool,
+    },
+    /// The spheres' boxes.
+    Spheres,
+}
+
+/// The scene's two levels, described (nothing built yet).
+pub struct SceneLevels {
+    /// The bottom levels, by index.
+    pub bottoms: Vec<BottomSource>,
+    /// The instances: one per mesh entry, then the spheres' (where there are spheres).
+    pub instances: Vec<Instance>,
+    /// Per sphere its box (min x, y, z, max x, y, z).
+    pub sphere_boxes: Vec<[f32; 6]>,
+    /// Object-space triangles and indices per mesh, shared with the scene.
+    meshes: Vec<(Arc<Vec<Vec3>>, Arc<Vec<[u32; 3]>>)>,
+}
+
+impl SceneLevels {
+    /// The levels of `scene` at time `time` (meshes placed, spheres moved there).
+    pub fn of(scene: &Scene, time: f32) -> Self {
+        let groups = scene.mesh_groups();
+        let mut group_of = vec![0; scene.meshes.len()];
+        for (g, members) in groups.iter().enumerate() {
+            for &m in members {
+                group_of[m] = g;
+            }
+        }
+        let mut bottoms = Vec::new();
+        // (group, opaque) -> bottom level
+        let mut level_of: Vec<((usize, bool), u32)> = Vec::new();
+        let mut instances = Vec::with_capacity(scene.meshes.len() + 1);
+        for (i, m) in scene.meshes.iter().enumerate() {
+            let keys = m.instance;
+            let key = (group_of[i], keys.opaque);
+            let level = match level_of.iter().find(|(k, _)| *k == key) {
+                Some(&(_, l)) => l,
+                None => {
+                    let l = bottoms.len() as u32;
+                    bottoms.push(BottomSource::Mesh {
+                        mesh: i,
+                        opaque: keys.opaque,
+                    });
+                    level_of.push((key, l));
+                    l
+                }
+            };
+            let rows = Instance::rows_of(&m.world_matrix(time));
+            let mut inst = Instance::new(level, rows)
+                .with_custom_index(keys.custom_index.unwrap_or(i as u32))
+                .with_mask(keys.mask)
+                .with_flags(keys.flags);
+            inst.sbt_offset_and_flags |= keys.sbt_offset;
+            instances.push(inst);
+        }
+        let sphere_boxes: Vec<[f32; 6]> = scene
+            .spheres_at(time)
+            .iter()
+            .map(|s| {
+                let (lo, hi) = (s.center - s.radius, s.center + s.radius);
+                [lo.x, lo.y, lo.z, hi.x, hi.y, hi.z]
+            })
+            .collect();
+        if !sphere_boxes.is_empty() {
+            let level = bottoms.len() as u32;
+            bottoms.push(BottomSource::Spheres);
+            let id = instances.len() as u32;
+            instances.push(Instance::new(level, Instance::IDENTITY).with_custom_index(id));
+        }
+        let meshes = scene
+            .meshes
+            .iter()
+            .map(|m| (m.positions.clone(), m.indices.clone()))
+            .collect();
+        Self {
+            bottoms,
+            instances,
+            sphere_boxes,
+            meshes,
+        }
+    }
+
+    /// Bottom level `b`'s primitives as host arrays (object-space triangles, or boxes).
+    fn host_geometry(&self, b: &BottomSource) -> TraceGeometry {
+        match *b {
+            BottomSource::Mesh { mesh, .. } => {
+                let (p, idx) = &self.meshes[mesh];
+                let tris: Vec<[Vec3; 3]> = idx.iter().map(|t| t.map(|v| p[v as usize])).collect();
+                TraceGeometry::from_triangles(&tris)
+            }
+            BottomSource::Spheres => {
+                let boxes: Vec<Aabb> = self
+                    .sphere_boxes
+                    .iter()
+                    .map(|b| Aabb {
+                        min: Vec3::new(b[0], b[1], b[2]),
+                        max: Vec3::new(b[3], b[4], b[5]),
+                    })
+                    .collect();
+                TraceGeometry::from_primitives(&[], &[], &boxes)
+            }
+        }
+    }
+
+    /// vkrt's two levels, recorded into `rec`: bottom levels of `kind` (LBVH or PLOC from
+    /// the geometry on the device, with its opaque flag; the SAH BVH from host arrays, which
+    /// carry none, so only where every geometry is opaque) and an LBVH top level over the
+    /// instance records. Keep the result until the work has executed.
+    pub fn record_vkrt(&self, rec: &mut Recorder, kind: AccelKind) -> Result<VkrtLevels> {
+        let ctx = rec.context().clone();
+        let builder = AccelBuilder::new(&ctx, kind)?;
+        let mut bottoms = Vec::with_capacity(self.bottoms.len());
+        let mut keep: Vec<Buffer<u8>> = Vec::new();
+        let mut inputs: Vec<Buffer<[f32; 3]>> = Vec::new();
+        let mut indices: Vec<Buffer<[u32; 3]>> = Vec::new();
+        let mut boxes: Vec<Buffer<[f32; 6]>> = Vec::new();
+        let flags = BuildFlags::default();
+        for b in &self.bottoms {
+            if kind == AccelKind::SahBvh {
+                if matches!(b, BottomSource::Mesh { opaque: false, .. }) {
+                    return Err(GpuError::Usage {
+                        call: "shader-check",
+                        reason: "the SAH BVH is built from host arrays, which carry no opaque \
+                                 flag: choose the LBVH or PLOC for a scene with `opaque = false`"
+                            .into(),
+                    });
+                }
+                let (g, _) = GpuGeometry::record_build(rec, &builder, &self.host_geometry(b), 0)?;
+                bottoms.push(g);
+                continue;
+            }
+            let geometry = match *b {
+                BottomSource::Mesh { mesh, opaque } => {
+                    let (p, idx) = &self.meshes[mesh];
+                    let verts: Vec<[f32; 3]> = p.iter().map(|v| v.to_array()).collect();
+                    let vb = Buffer::new(&ctx, "shader_check.vertices", verts.len())?;
+                    let ib = Buffer::new(&ctx, "shader_check.indices", idx.len())?;
+                    rec.upload(&vb, &verts)?;
+                    rec.upload(&ib, idx.as_slice())?;
+                    let mut t = Triangles::indexed(
+                        vb.as_raw(),
+                        verts.len() as u32,
+                        ib.as_raw(),
+                        IndexType::U32,
+                        idx.len() as u32,
+                    );
+                    t.opaque = opaque;
+                    inputs.push(vb);
+                    indices.push(ib);
+                    Geometry::Triangles(t)
+                }
+                BottomSource::Spheres => {
+                    let bb = Buffer::new(&ctx, "shader_check.boxes", self.sphere_boxes.len())?;
+                    rec.upload(&bb, &self.sphere_boxes)?;
+                    let g = Geometry::Aabbs(Aabbs {
+                        data: bb.as_raw().into(),
+                        stride: 24,
+                        count: self.sphere_boxes.len() as u32,
+                        opaque: true,
+                    });
+                    boxes.push(bb);
+                    g
+                }
+            };
+            let geometries = [geometry];
+            let sizes = builder.sizes_for(&ctx, &geometries, &flags)?;
+            let memory =
+                Buffer::<u8>::arena(&ctx, "shader_check.bottom", sizes.structure_bytes as usize)?;
+            let scratch = Buffer::<u8>::arena(
+                &ctx,
+                "shader_check.scratch",
+                sizes.build_scratch_bytes as usize,
+            )?;
+            let mut g = builder.create_in(&ctx, &geometries, &flags, memory.as_raw())?;
+            rec.transfer_to_compute();
+            builder.record_build_from(rec, &geometries, &mut g, scratch.as_raw())?;
+            bottoms.push(g);
+            keep.push(memory);
+            keep.push(scratch);
+        }
+        let bottoms: Vec<Arc<GpuGeometry>> = bottoms.into_iter().map(Arc::new).collect();
+        let top = TopLevelBuilder::new(&ctx, AccelKind::Lbvh)?.record_build_shared(
+            rec,
+            &bottoms,
+            &self.instances,
+            crate::accel::instance::InstanceMotion::STATIC,
+            &flags,
+        )?;
+        rec.compute_to_compute();
+        Ok(VkrtLevels {
+            top,
+            _buffers: (keep, inputs, indices, boxes),
+        })
+    }
+
+    /// The driver's two levels, recorded into `rec`: a bottom-level structure per bottom
+    /// level (triangles, or boxes) and a top-level instance per instance, with the same
+    /// records. The driver's triangle geometry is opaque: a mesh whose `opaque` is false and
+    /// whose instance forces neither way gets the force-no-opaque instance flag instead,
+    /// which the specification gives the same effect. Keep the result until the work has
+    /// executed.
+    pub fn record_driver(&self, rec: &mut Recorder) -> Result<DriverLevels> {
+        let mut prims = Vec::with_capacity(self.bottoms.len());
+        for b in &self.bottoms {
+            prims.push(DevicePrimitives::record_upload(
+                rec,
+                &self.host_geometry(b),
+            )?);
+        }
+        rec.transfer_to_compute();
+        let either = flags::FORCE_OPAQUE | flags::FORCE_NO_OPAQUE;
+        let instances: Vec<Instance> = self
+            .instances
+            .iter()
+            .map(|inst| {
+                let non_opaque = matches!(
+                    self.bottoms.get(inst.bottom as usize),
+                    Some(BottomSource::Mesh { opaque: false, .. })
+                );
+                match non_opaque && inst.flags() & either == 0 {
+                    true => inst.with_flags(inst.flags() | flags::FORCE_NO_OPAQUE),
+                    false => *inst,
+                }
+            })
+            .collect();
+        let levels: Vec<&DevicePrimitives> = prims.iter().collect();
+        // The spheres' level, where there is one, is the level whose boxes the driver's
+        // structure places in the world by one identity instance.
+        let bound = self
+            .bottoms
+            .iter()
+            .position(|b| matches!(b, BottomSource::Spheres))
+            .unwrap_or(self.bottoms.len());
+        let (accel, _) =
+            DriverAccel::record_instanced(rec, &levels, &instances, bound, Prefer::FastTrace)?;
+        Ok(DriverLevels {
+            accel,
+            _prims: prims,
+        })
+    }
+}
+
+/// vkrt's levels and the buffers they were built from.
+pub struct VkrtLevels {
+    /// The top level (it keeps its bottom levels).
+    pub top: TopLevel<'static>,
+    #[allow(clippy::type_complexity)]
+    _buffers: (
+        Vec<Buffer<u8>>,
+        Vec<Buffer<[f32; 3]>>,
+        Vec<Buffer<[u32; 3]>>,
+        Vec<Buffer<[f32; 6]>>,
+    ),
+}
+
+/// The driver's levels and the primitives they were built from.
+pub struct DriverLevels {
+    /// The driver's structures.
+    pub accel: DriverAccel,
+    _prims: Vec<DevicePrimitives>,
+}
