@@ -42,8 +42,11 @@ pub struct SceneLevels {
     /// Per sphere its box (min x, y, z, max x, y, z).
     pub sphere_boxes: Vec<[f32; 6]>,
     /// Object-space triangles and indices per mesh, shared with the scene.
-    meshes: Vec<(Arc<Vec<Vec3>>, Arc<Vec<[u32; 3]>>)>,
+    meshes: Vec<MeshArrays>,
 }
+
+/// A mesh's positions and triangles, shared with the scene.
+type MeshArrays = (Arc<Vec<Vec3>>, Arc<Vec<[u32; 3]>>);
 
 impl SceneLevels {
     /// The levels of `scene` at time `time` (meshes placed, spheres moved there).
@@ -218,7 +221,12 @@ impl SceneLevels {
         rec.compute_to_compute();
         Ok(VkrtLevels {
             top,
-            _buffers: (keep, inputs, indices, boxes),
+            _buffers: InputBuffers {
+                _levels: keep,
+                _vertices: inputs,
+                _indices: indices,
+                _boxes: boxes,
+            },
         })
     }
 
@@ -273,13 +281,15 @@ impl SceneLevels {
 pub struct VkrtLevels {
     /// The top level (it keeps its bottom levels).
     pub top: TopLevel<'static>,
-    #[allow(clippy::type_complexity)]
-    _buffers: (
-        Vec<Buffer<u8>>,
-        Vec<Buffer<[f32; 3]>>,
-        Vec<Buffer<[u32; 3]>>,
-        Vec<Buffer<[f32; 6]>>,
-    ),
+    _buffers: InputBuffers,
+}
+
+/// What vkrt's levels were built in and from, alive until the work has executed.
+struct InputBuffers {
+    _levels: Vec<Buffer<u8>>,
+    _vertices: Vec<Buffer<[f32; 3]>>,
+    _indices: Vec<Buffer<[u32; 3]>>,
+    _boxes: Vec<Buffer<[f32; 6]>>,
 }
 
 /// The driver's levels and the primitives they were built from.
