@@ -938,7 +938,7 @@ fn misuse_is_an_error_not_a_panic() {
     };
 
     // Bad descriptions: stride, counts past the buffer, huge counts, misaligned indices,
-    // non-opaque, a non-finite transform.
+    // non-opaque in a kd-tree (its walk may meet a primitive twice), a non-finite transform.
     let bad = |t: Triangles| {
         lbvh.sizes_for(&ctx, &[Geometry::Triangles(t)], &flags)
             .map(drop)
@@ -960,13 +960,19 @@ fn misuse_is_an_error_not_a_panic() {
         }),
         "a huge count",
     );
+    let non_opaque = [Geometry::Triangles(Triangles {
+        opaque: false,
+        ..ok
+    })];
     is_usage(
-        bad(Triangles {
-            opaque: false,
-            ..ok
-        }),
-        "non-opaque",
+        kd.sizes_for(&ctx, &non_opaque, &flags).map(drop),
+        "non-opaque in a kd-tree",
     );
+    assert!(bad(Triangles {
+        opaque: false,
+        ..ok
+    })
+    .is_ok());
     is_usage(
         bad(Triangles {
             transform: Some([[f32::NAN; 4]; 3]),
@@ -990,7 +996,7 @@ fn misuse_is_an_error_not_a_panic() {
         "misaligned indices",
     );
 
-    // Boxes: stride below a box, non-opaque, more boxes than the range holds.
+    // Boxes: stride below a box, non-opaque in a kd-tree, more boxes than the range holds.
     let boxes = Aabbs {
         data: vertices.into(),
         stride: 24,
@@ -1010,11 +1016,16 @@ fn misuse_is_an_error_not_a_panic() {
         "box stride 20",
     );
     is_usage(
-        bad_boxes(Aabbs {
-            opaque: false,
-            ..boxes
-        }),
-        "non-opaque boxes",
+        kd.sizes_for(
+            &ctx,
+            &[Geometry::Aabbs(Aabbs {
+                opaque: false,
+                ..boxes
+            })],
+            &flags,
+        )
+        .map(drop),
+        "non-opaque boxes in a kd-tree",
     );
     is_usage(
         bad_boxes(Aabbs {

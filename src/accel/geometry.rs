@@ -130,8 +130,12 @@ pub struct Triangles {
     /// Row-major object-to-structure transform (`VkTransformMatrixKHR`), applied as the
     /// geometry is read.
     pub transform: Option<[[f32; 4]; 3]>,
-    /// Accepted for the shape of the Vulkan API; every vkrt hit is opaque (there are no
-    /// any-hit shaders to call), so `false` is an error rather than a silently ignored flag.
+    /// `VK_GEOMETRY_OPAQUE_BIT_KHR`. A non-opaque geometry's hits are candidates a ray query
+    /// returns to the shader (`vkrt/ext_ray_query.glsl`), which confirms or ignores them;
+    /// vkrt's own walks (`vkrtTrace`, the renderer) take every hit as opaque. Non-opaque
+    /// geometry needs a binary BVH (LBVH, PLOC, SAH BVH: each primitive referenced once, so
+    /// no candidate comes twice, as `VK_GEOMETRY_NO_DUPLICATE_ANY_HIT_INVOCATION_BIT_KHR`
+    /// asks); other kinds refuse it.
     pub opaque: bool,
 }
 
@@ -217,7 +221,25 @@ pub enum Geometry {
     Aabbs(Aabbs),
 }
 
+/// In the structure's geometry table ([`GeometryLayout::table`]): the bit of the geometry
+/// word that marks a non-opaque geometry (the ray query reads it; the index is the rest).
+pub const NON_OPAQUE: u32 = 1 << 31;
+
 impl Geometry {
+    /// Whether its hits are opaque (`VK_GEOMETRY_OPAQUE_BIT_KHR`).
+    pub fn opaque(&self) -> bool {
+        match self {
+            Geometry::Triangles(t) => t.opaque,
+            Geometry::Spheres(s) => s.opaque,
+            Geometry::Aabbs(b) => b.opaque,
+        }
+    }
+
+    /// Its word in the geometry table: geometry `index`, [`NON_OPAQUE`] where it is not.
+    pub(crate) fn table_word(&self, index: usize) -> u32 {
+        index as u32 | if self.opaque() { 0 } else { NON_OPAQUE }
+    }
+
     /// Its primitives.
     pub fn primitive_count(&self) -> u32 {
         match self {
@@ -241,8 +263,8 @@ pub struct GeometryLayout {
     pub n_aabbs: u32,
     /// Per geometry: its first primitive id.
     pub first: Vec<u32>,
-    /// The table the walk searches: (first id, geometry index), ordered by first id, for
-    /// the geometries that have primitives.
+    /// The table the walk searches: (first id, geometry index, with [`NON_OPAQUE`] set for
+    /// a non-opaque geometry), ordered by first id, for the geometries that have primitives.
     pub table: Vec<[u32; 2]>,
 }
 
@@ -277,7 +299,7 @@ impl GeometryLayout {
             let t = type_of(g);
             first.push(at[t]);
             if g.primitive_count() > 0 {
-                lists[t].push([at[t], k as u32]);
+                lists[t].push([at[t], g.table_word(k)]);
             }
             at[t] += g.primitive_count();
         }
@@ -307,7 +329,7 @@ impl GeometryLayout {
             .partition_point(|e| e[0] <= prim)
             .checked_sub(1)?;
         let [first, geometry] = self.table[k];
-        ((prim as usize) < self.primitive_count()).then_some((geometry, prim - first))
+        ((prim as usize) < self.primitive_count()).then_some((geometry & !NON_OPAQUE, prim - first))
     }
 }
 
@@ -324,13 +346,6 @@ fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
     let err = |what: String| Err(usage(format!("geometry {k}: {what}")));
     match g {
         Geometry::Triangles(t) => {
-            if !t.opaque {
-                return err(
-                    "non-opaque geometry needs any-hit shaders, which vkrt has not: \
-                     mark it opaque"
-                        .into(),
-                );
-            }
             if t.stride < 12 || t.stride % 4 != 0 {
                 return err(format!(
                     "vertex stride {} (a multiple of 4, at least 12)",
@@ -409,8 +424,8 @@ fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
             }?;
             range_fits(ctx, k, &t.vertices)
         }
-        Geometry::Spheres(s) => records(ctx, k, "sphere", &s.data, s.stride, 16, s.count, s.opaque),
-        Geometry::Aabbs(b) => records(ctx, k, "box", &b.data, b.stride, 24, b.count, b.opaque),
+        Geometry::Spheres(s) => records(ctx, k, "sphere", &s.data, s.stride, 16, s.count),
+        Geometry::Aabbs(b) => records(ctx, k, "box", &b.data, b.stride, 24, b.count),
     }
 }
 
@@ -424,14 +439,8 @@ fn records(
     stride: u64,
     size: u64,
     count: u32,
-    opaque: bool,
 ) -> Result<()> {
     let err = |why: String| Err(usage(format!("geometry {k}: {why}")));
-    if !opaque {
-        return err(
-            "non-opaque geometry needs any-hit shaders, which vkrt has not: mark it opaque".into(),
-        );
-    }
     if stride < size || stride % 4 != 0 || data.start() % 4 != 0 {
         return err(format!(
             "{what} stride {stride} and offset (address) {} (multiples of 4, stride at least \
@@ -647,7 +656,7 @@ impl GeometryGather {
                         index_first,
                         vertex_count: t.vertex_count,
                         table_slot: slot,
-                        geometry: k as u32,
+                        geometry: g.table_word(k),
                         has_transform: t.transform.is_some() as u32,
                         rows: t.transform.unwrap_or_default(),
                         src_address: src.address(),
@@ -665,7 +674,7 @@ impl GeometryGather {
                         src_word: (src.skip() / 4) as u32,
                         stride_words: (s.stride / 4) as u32,
                         table_slot: slot,
-                        geometry: k as u32,
+                        geometry: g.table_word(k),
                         src_address: src.address(),
                         ..GatherPush::default()
                     };
@@ -683,7 +692,7 @@ impl GeometryGather {
                         src_word: (src.skip() / 4) as u32,
                         stride_words: (b.stride / 4) as u32,
                         table_slot: slot,
-                        geometry: k as u32,
+                        geometry: g.table_word(k),
                         src_address: src.address(),
                         ..GatherPush::default()
                     };

@@ -30,6 +30,14 @@ use crate::gpu::{vk, TexelView};
 /// [`include_dir`]).
 pub const FILES: &[(&str, &str)] = &[
     (
+        "vkrt/ext_ray_query.glsl",
+        include_str!("../../glsl/include/vkrt/ext_ray_query.glsl"),
+    ),
+    (
+        "vkrt/affine.glsl",
+        include_str!("../../glsl/include/vkrt/affine.glsl"),
+    ),
+    (
         "vkrt/ray_query.glsl",
         include_str!("../../glsl/include/vkrt/ray_query.glsl"),
     ),
@@ -65,6 +73,10 @@ pub const FILES: &[(&str, &str)] = &[
 
 /// The entry point to `#include`.
 pub const ENTRY: &str = "vkrt/ray_query.glsl";
+
+/// The entry point for a shader written against `GL_EXT_ray_query`: its queries, getters
+/// and `accelerationStructureEXT` over vkrt's structures (docs/ray-queries.md).
+pub const EXT_RAY_QUERY: &str = "vkrt/ext_ray_query.glsl";
 
 /// Storage buffers a structure binds, from the first binding on.
 pub const BINDINGS: u32 = 7;

@@ -107,22 +107,23 @@ VkrtWideNode vkrt_load_wide_node(uint i) {
 #endif
 
 // The stack walks' pop: the nearest entry the ray still reaches before its closest hit
-// (`have` false when none is left). A statement over the walk's own `stack`, `stack_t`,
-// `top`, `cur`, `have` and `best_t`: GLSL passes arrays by copy.
-#define VKRT_BVH_POP()                      \
+// (`have` false when none is left). A statement over the walk's own `top`, `cur`, `have` and
+// `best_t`, and its stack's entries AT(i) and their distances AT_T(i) (accessor macros: GLSL
+// passes arrays by copy; the walks' own arrays, or a ray query's, vkrt/ext_ray_query.glsl).
+#define VKRT_BVH_POP_ON(AT, AT_T)           \
     have = false;                           \
     while (top > 0u && !have) {             \
         top--;                              \
-        cur = stack[top];                   \
-        have = stack_t[top] <= best_t;      \
+        cur = AT(top);                      \
+        have = AT_T(top) <= best_t;         \
     }
 
 // The stack walks' descent: interior nodes, the nearer child first (ties: child a) and the
 // other one on the stack, until a leaf is in hand (`cur.y` > 0), the stack is empty (`have`
 // false) or the step cap is reached. A statement over the walk's `r`, `inv_d`, `tmin`,
-// `steps` and VKRT_BVH_POP's variables (the binary stack walk and the top-level walk of
-// vkrt/instances.glsl).
-#define VKRT_BVH_DESCEND()                                                             \
+// `steps` and VKRT_BVH_POP_ON's variables (the binary stack walk, the top-level walk of
+// vkrt/instances.glsl and the ray query's walk of vkrt/ext_ray_query.glsl).
+#define VKRT_BVH_DESCEND_ON(AT, AT_T)                                                  \
     while (have && cur.y == 0u && steps <= VKRT_STEP_LIMIT) {                      \
         steps++;                                                                       \
         VkrtBvhNode nd = vkrt_load_bvh_node(cur.x);                                             \
@@ -136,16 +137,22 @@ VkrtWideNode vkrt_load_wide_node(uint i) {
         uvec2 cb = uvec2(nd.b_index, nd.b_count);                                      \
         if (hit_a && hit_b) {                                                          \
             bool b_first = tb < ta;                                                    \
-            stack[top] = b_first ? ca : cb;                                            \
-            stack_t[top] = b_first ? ta : tb;                                          \
+            AT(top) = b_first ? ca : cb;                                               \
+            AT_T(top) = b_first ? ta : tb;                                             \
             top++;                                                                     \
             cur = b_first ? cb : ca;                                                   \
         } else if (hit_a || hit_b) {                                                   \
             cur = hit_a ? ca : cb;                                                     \
         } else {                                                                       \
-            VKRT_BVH_POP();                                                            \
+            VKRT_BVH_POP_ON(AT, AT_T);                                                 \
         }                                                                              \
     }
+
+// The walks' own stack: `stack` and `stack_t` (VKRT_STACK_WALK_STATE).
+#define VKRT_STACK_AT(i) stack[i]
+#define VKRT_STACK_T_AT(i) stack_t[i]
+#define VKRT_BVH_POP() VKRT_BVH_POP_ON(VKRT_STACK_AT, VKRT_STACK_T_AT)
+#define VKRT_BVH_DESCEND() VKRT_BVH_DESCEND_ON(VKRT_STACK_AT, VKRT_STACK_T_AT)
 
 // Where the ray enters the box within [t0, t1] (traverse.glsl's vkrt_clip_to_box).
 bool vkrt_bvh_enter(vec3 bmin, vec3 bmax, VkrtRay r, vec3 inv_d, float t0, float t1, out float t_in) {

@@ -207,8 +207,13 @@ VkrtShear vkrt_make_shear(vec3 d) {
 // share it (edge functions of zero count as inside on both sides, and a*b - c*d is the exact
 // negation of c*d - a*b in IEEE arithmetic). Degenerate triangles (det = 0, or a zero
 // cross product of the edges) never hit.
-bool vkrt_hit_triangle_watertight(vec3 o, VkrtShear s, vec3 p0, vec3 p1, vec3 p2, float tmin,
-                             float tmax, out float t, out float u, out float v) {
+// `front`: whether the ray meets the triangle's front (the sheared determinant positive:
+// its vertices counter-clockwise seen from the origin, Vulkan's facing before an instance
+// flips it); set on a hit.
+bool vkrt_hit_triangle_watertight_facing(vec3 o, VkrtShear s, vec3 p0, vec3 p1, vec3 p2, float tmin,
+                                         float tmax, out float t, out float u, out float v,
+                                         out bool front) {
+    front = false;
     precise vec3 a = p0 - o;
     precise vec3 b = p1 - o;
     precise vec3 c = p2 - o;
@@ -281,7 +286,14 @@ bool vkrt_hit_triangle_watertight(vec3 o, VkrtShear s, vec3 p0, vec3 p1, vec3 p2
     t = hit_t;
     u = e1 * inv;
     v = e2 * inv;
+    front = det > 0.0;
     return true;
+}
+
+bool vkrt_hit_triangle_watertight(vec3 o, VkrtShear s, vec3 p0, vec3 p1, vec3 p2, float tmin,
+                             float tmax, out float t, out float u, out float v) {
+    bool front;
+    return vkrt_hit_triangle_watertight_facing(o, s, p0, p1, p2, tmin, tmax, t, u, v, front);
 }
 
 // Möller–Trumbore (1997): fewer operations, not watertight (rays through shared edges can

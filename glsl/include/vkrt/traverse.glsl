@@ -313,11 +313,12 @@ void vkrt_aabb_at(uint b, out vec3 lo, out vec3 hi) {
     hi = vkrt_spheres[at + 1u].xyz;
 }
 
-// The caller's (geometry index, primitive index within it) of primitive id `prim`.
-uvec2 vkrt_geometry_of(uint prim) {
+// The geometry table's entry of primitive id `prim`: (first id, geometry word), or (0, 0)
+// for a structure without a table (one geometry, opaque).
+uvec2 vkrt_geometry_entry(uint prim) {
     uint n = vkrt_scene_info.n_geometries;
     if (n == 0u) {
-        return uvec2(0u, prim);
+        return uvec2(0u);
     }
     // The last geometry whose first id is <= prim (binary search over the ordered table).
     uint lo = 0u;
@@ -330,8 +331,14 @@ uvec2 vkrt_geometry_of(uint prim) {
             hi = mid - 1u;
         }
     }
-    uvec2 g = vkrt_scene_info.geometry_first[lo];
-    return uvec2(g.y, prim - g.x);
+    return vkrt_scene_info.geometry_first[lo];
+}
+
+// The caller's (geometry index, primitive index within it) of primitive id `prim`.
+uvec2 vkrt_geometry_of(uint prim) {
+    uvec2 g = vkrt_geometry_entry(prim);
+    // (bit 31 marks a non-opaque geometry: vkrt/ext_ray_query.glsl reads it)
+    return uvec2(g.y & 0x7fffffffu, prim - g.x);
 }
 
 #if defined(VKRT_LIBRARY) && defined(VKRT_AABB_INTERSECTION)

@@ -1,0 +1,710 @@
+// The standard's ray queries (GL_EXT_ray_query) over vkrt's structures, on any Vulkan 1.2
+// device: a shader written for the extension compiles against this file with one added line
+// after its #extension lines,
+//
+//     #include "vkrt/ext_ray_query.glsl"
+//
+// and needs no ray-query capability (SPIR-V: Shader, Int64, PhysicalStorageBufferAddresses,
+// SampledBuffer; device features bufferDeviceAddress and shaderInt64). Where the shader is
+// compiled with VKRT_NATIVE_RAY_QUERY defined, this file is empty: the same source then uses
+// the driver's own ray query.
+//
+// The one descriptor that changes: the shader's
+//     layout(set = S, binding = B) uniform accelerationStructureEXT scene;
+// becomes a uniform texel buffer (VK_DESCRIPTOR_TYPE_UNIFORM_TEXEL_BUFFER, a view in
+// VK_FORMAT_R32G32B32A32_UINT) whose first texel holds, in .x (low word) and .y, the device
+// address of the structure's handle: `TopLevel::handle_address()` for a top level (the
+// instances the driver's TLAS would hold), or the address where the host wrote a bottom
+// level's `GpuGeometry::address_handle()` (walked as one instance with the identity
+// transform, instance id and custom index 0). `accelerationStructureEXT(uint64_t address)`
+// takes such an address directly.
+//
+// Every function and value of the extension behaves as the Vulkan specification says: the
+// candidate loop (`rayQueryProceedEXT` returns each non-opaque triangle and each box in the
+// ray's reach to the shader, which confirms, generates or ignores it; opaque triangles are
+// committed inside it), `rayQueryTerminateEXT`, every committed and candidate getter, the
+// ray flags (opaque and no-opaque overrides, terminate on first hit, cull back/front facing,
+// cull opaque/no-opaque, skip triangles/AABBs), the cull mask against the instances' masks,
+// and facing with the instance flags triangle-facing-cull-disable, flip-facing,
+// force-opaque and force-no-opaque and the geometries' opaque flag. A query keeps its walk
+// between calls: `rayQueryProceedEXT` resumes where the last candidate was found (the binary
+// stack walk of vkrt/bvh.glsl, the same node order and tests as vkrtTrace, over the top
+// level and then each instance's bottom level).
+//
+// Where vkrt differs from a driver, within what the specification allows:
+//   - Ties: of opaque triangles at exactly the same t, the lowest instance, then the lowest
+//     primitive, is committed (vkrtTrace's rule); drivers keep the one they met first.
+//   - The triangle test is vkrt's watertight one (Woop et al. 2013) with its conservative
+//     lower bound: a hit nearer the origin than its own rounding error is not reported.
+//   - Box candidates come only where the ray meets the box itself within [tMin, committed
+//     t], one box per primitive; their candidate t is where the ray enters the box.
+//   - Bottom levels must be binary BVHs (LBVH, PLOC, SAH BVH); a query meeting another kind,
+//     or running past the step cap (VKRT_MAX_TRAVERSAL_STEPS, as vkrt/ray_query.glsl),
+//     ends, and `vkrtRayQueryExhausted(q)` says so.
+//   - A query is a handle to one of VKRT_RAY_QUERIES (default 2, at most 4) query states
+//     per invocation; `rayQueryInitializeEXT` takes the oldest when more are live. A query
+//     passed to a function is the same query (as the extension's opaque type is): the
+//     helper's rayQueryProceedEXT advances the caller's. Initialize a query in the function
+//     that declares it or in one it passes the query to by `inout`.
+//
+// Options (define before the include): VKRT_RAY_QUERIES (live queries per invocation, 1..4),
+// VKRT_MAX_TRAVERSAL_STEPS and VKRT_STEPS_CONSTANT_ID (vkrt/ray_query.glsl), VKRT_EXACT,
+// VKRT_MOLLER_TRUMBORE.
+//
+// Names: besides the extension's own (which it defines as macros: rayQueryEXT,
+// accelerationStructureEXT, rayQuery*EXT), everything here starts with vkrt, Vkrt or VKRT_.
+// One more: a function-like macro `utextureBuffer(a)`, which makes the constructor
+// `accelerationStructureEXT(address)` work (GLSL has no constructor of a texel buffer, so no
+// valid shader uses that name with parentheses).
+#ifndef VKRT_EXT_RAY_QUERY_GLSL
+#define VKRT_EXT_RAY_QUERY_GLSL
+#ifndef VKRT_NATIVE_RAY_QUERY
+
+// The extension's constants (gl_RayFlags*EXT, gl_RayQuery*EXT) come from the compiler; its
+// types and functions are never used, so no ray-query capability is declared.
+#extension GL_EXT_ray_query : enable
+#extension GL_EXT_samplerless_texture_functions : require
+#extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
+#extension GL_EXT_buffer_reference : require
+
+#ifndef VKRT_DEVICE_ADDRESS
+#define VKRT_DEVICE_ADDRESS 1
+#endif
+#include "ray_query.glsl"
+
+#ifndef VKRT_RAY_QUERIES
+#define VKRT_RAY_QUERIES 2
+#endif
+#if VKRT_RAY_QUERIES < 1 || VKRT_RAY_QUERIES > 4
+#error "VKRT_RAY_QUERIES: 1 to 4 live ray queries per invocation"
+#endif
+// Two levels of at most VKRT_BVH_MAX_DEPTH each: the stack holds both.
+#define VKRT_RQ_STACK (2u * VKRT_BVH_MAX_DEPTH)
+
+// A structure named by the address of its handle.
+struct VkrtAccelerationStructure {
+    uint64_t handle;
+};
+
+// A top level's copies of the caller's instance records (VkAccelerationStructureInstanceKHR:
+// object-to-world rows, custom index | mask << 24, sbt offset | flags << 24, reference),
+// four texels each, at the tenth address of its handle.
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer VkrtInstanceWords {
+    uvec4 v[];
+};
+
+VkrtAccelerationStructure vkrt_structure_at(uint64_t handle) {
+    return VkrtAccelerationStructure(handle);
+}
+
+VkrtAccelerationStructure vkrt_structure_at(utextureBuffer texels) {
+    return VkrtAccelerationStructure(packUint2x32(texelFetch(texels, 0).xy));
+}
+
+#define accelerationStructureEXT utextureBuffer
+#define utextureBuffer(a) vkrt_structure_at(a)
+#define rayQueryEXT uint
+
+// Committed intersection types (gl_RayQueryCommittedIntersection*EXT) and candidate ones
+// (gl_RayQueryCandidateIntersection*EXT), as the extension numbers them.
+#define VKRT_COMMITTED_NONE 0u
+#define VKRT_COMMITTED_TRIANGLE 1u
+#define VKRT_COMMITTED_GENERATED 2u
+#define VKRT_CANDIDATE_TRIANGLE 0u
+#define VKRT_CANDIDATE_AABB 1u
+
+// SpvRayFlags*KHRMask.
+#define VKRT_RAY_OPAQUE 0x1u
+#define VKRT_RAY_NO_OPAQUE 0x2u
+#define VKRT_RAY_TERMINATE_ON_FIRST_HIT 0x4u
+#define VKRT_RAY_CULL_BACK 0x10u
+#define VKRT_RAY_CULL_FRONT 0x20u
+#define VKRT_RAY_CULL_OPAQUE 0x40u
+#define VKRT_RAY_CULL_NO_OPAQUE 0x80u
+#define VKRT_RAY_SKIP_TRIANGLES 0x100u
+#define VKRT_RAY_SKIP_AABBS 0x200u
+
+// VkGeometryInstanceFlagBitsKHR.
+#define VKRT_INSTANCE_CULL_DISABLE 0x1u
+#define VKRT_INSTANCE_FLIP_FACING 0x2u
+#define VKRT_INSTANCE_FORCE_OPAQUE 0x4u
+#define VKRT_INSTANCE_FORCE_NO_OPAQUE 0x8u
+
+// The walk's state bits.
+#define VKRT_RQ_IN_BOTTOM 0x1u
+#define VKRT_RQ_DONE 0x2u
+#define VKRT_RQ_EXHAUSTED 0x4u
+#define VKRT_RQ_LEAF_DONE 0x8u
+#define VKRT_RQ_ONE_LEVEL 0x10u
+
+// An intersection, candidate or committed.
+struct VkrtRqHit {
+    uint type;
+    float t;
+    vec2 barycentrics;
+    // The instance (its index in the top level), the structure's primitive id, the
+    // caller's geometry and primitive index.
+    uint instance;
+    uint prim;
+    uint geometry;
+    uint primitive;
+    // Bit 0: front face; bit 1: opaque.
+    uint bits;
+    // The instance's custom index | mask << 24 and sbt record offset | flags << 24.
+    uint custom_mask;
+    uint sbt_flags;
+};
+
+// Per query: the world ray and its flags, the top level, the walk and two intersections.
+vec4 vkrt_rq_origin[VKRT_RAY_QUERIES];    // xyz; w: tMin
+vec4 vkrt_rq_direction[VKRT_RAY_QUERIES]; // xyz; w: tMax as given
+uvec4 vkrt_rq_setup[VKRT_RAY_QUERIES];    // flags, cull mask, handle lo, hi
+// sp (entries of both levels), base (the bottom level's first entry), steps, state bits
+uvec4 vkrt_rq_walk[VKRT_RAY_QUERIES];
+// the bottom leaf's next reference and end, the top leaf's next reference and end
+uvec4 vkrt_rq_leaf[VKRT_RAY_QUERIES];
+// In an instance: its index, custom index | mask << 24, sbt offset | flags << 24, and
+// its bottom level's handle.
+uvec4 vkrt_rq_instance[VKRT_RAY_QUERIES];
+uint64_t vkrt_rq_bottom[VKRT_RAY_QUERIES];
+vec4 vkrt_rq_object_origin[VKRT_RAY_QUERIES];
+vec4 vkrt_rq_object_direction[VKRT_RAY_QUERIES];
+float vkrt_rq_far[VKRT_RAY_QUERIES]; // the committed t, or tMax: where the walk stops
+VkrtRqHit vkrt_rq_candidate[VKRT_RAY_QUERIES];
+VkrtRqHit vkrt_rq_committed[VKRT_RAY_QUERIES];
+uvec2 vkrt_rq_stack[VKRT_RAY_QUERIES][VKRT_RQ_STACK];
+float vkrt_rq_stack_t[VKRT_RAY_QUERIES][VKRT_RQ_STACK];
+// Which handle owns each state (0: none), and how many handles were given.
+uvec4 vkrt_rq_owner = uvec4(0u);
+uint vkrt_rq_issued = 0u;
+
+// The state of query `q`, or VKRT_RAY_QUERIES when `q` is not a live query.
+uint vkrt_rq_slot(uint q) {
+    uint s = q & 3u;
+    return (s < uint(VKRT_RAY_QUERIES) && q >= 4u && vkrt_rq_owner[s] == q) ? s : uint(VKRT_RAY_QUERIES);
+}
+
+VkrtRqHit vkrt_rq_none() {
+    return VkrtRqHit(0u, 0.0, vec2(0.0), 0u, VKRT_NO_HIT, 0u, 0u, 0u, 0u, 0u);
+}
+
+// The stack of the walk in hand: entries from `vkrt_rq_base` on belong to its level.
+uint vkrt_rq_s;
+uint vkrt_rq_base;
+#define VKRT_RQ_AT(i) vkrt_rq_stack[vkrt_rq_s][vkrt_rq_base + (i)]
+#define VKRT_RQ_T_AT(i) vkrt_rq_stack_t[vkrt_rq_s][vkrt_rq_base + (i)]
+
+void vkrtRayQueryInitialize(inout uint q, VkrtAccelerationStructure as, uint flags, uint cull_mask,
+                        vec3 origin, float tmin, vec3 direction, float tmax) {
+    uint s = vkrt_rq_slot(q);
+    if (s == uint(VKRT_RAY_QUERIES)) {
+        s = vkrt_rq_issued % uint(VKRT_RAY_QUERIES);
+        vkrt_rq_issued++;
+        q = (vkrt_rq_issued << 2u) | s;
+        vkrt_rq_owner[s] = q;
+    }
+    vkrt_rq_origin[s] = vec4(origin, tmin);
+    vkrt_rq_direction[s] = vec4(direction, tmax);
+    uvec2 h = unpack32(as.handle);
+    vkrt_rq_setup[s] = uvec4(flags, cull_mask & 0xffu, h);
+    vkrt_rq_far[s] = tmax;
+    vkrt_rq_candidate[s] = vkrt_rq_none();
+    vkrt_rq_committed[s] = vkrt_rq_none();
+    vkrt_rq_leaf[s] = uvec4(0u);
+    uint bits = VKRT_RQ_LEAF_DONE;
+    VkrtRay r = VkrtRay(origin, tmin, direction, tmax);
+    // A ray Vulkan leaves undefined (NaN or infinite origin or direction, a zero direction,
+    // tMin < 0 or > tMax) and a null structure find nothing (vkrt's rule for rays).
+    if (!vkrt_ray_is_valid(r) || tmin < 0.0 || as.handle == 0ul) {
+        bits |= VKRT_RQ_DONE;
+    } else {
+        vkrt_use(as.handle);
+        if (vkrt_primitive_count() == 0u) {
+            bits |= VKRT_RQ_DONE;
+        } else if (vkrt_scene_info.walk != VKRT_ACCEL_INSTANCES) {
+            // One level: its own instance, with the identity transform.
+            bits |= VKRT_RQ_IN_BOTTOM | VKRT_RQ_ONE_LEVEL;
+            vkrt_rq_instance[s] = uvec4(0u, 0xffu << 24u, 0u, 0u);
+            vkrt_rq_bottom[s] = as.handle;
+            vkrt_rq_object_origin[s] = vec4(origin, 0.0);
+            vkrt_rq_object_direction[s] = vec4(direction, 0.0);
+        }
+    }
+    // The root entered: sp 1 (the root, popped first), base 0.
+    vkrt_rq_stack[s][0] = uvec2(0u);
+    vkrt_rq_stack_t[s][0] = tmin;
+    vkrt_rq_walk[s] = uvec4(1u, 0u, 0u, bits);
+}
+
+void vkrtRayQueryInitialize(inout uint q, utextureBuffer as, uint flags, uint cull_mask,
+                            vec3 origin, float tmin, vec3 direction, float tmax) {
+    vkrtRayQueryInitialize(q, vkrt_structure_at(as), flags, cull_mask, origin, tmin, direction,
+                           tmax);
+}
+
+// Whether a primitive of geometry word `gw` is opaque under instance flags `inst` and ray
+// flags `flags`.
+bool vkrt_rq_opaque(uint gw, uint inst, uint flags) {
+    bool opaque = (gw & 0x80000000u) == 0u;
+    opaque = (inst & VKRT_INSTANCE_FORCE_OPAQUE) != 0u ? true : opaque;
+    opaque = (inst & VKRT_INSTANCE_FORCE_NO_OPAQUE) != 0u ? false : opaque;
+    opaque = (flags & VKRT_RAY_OPAQUE) != 0u ? true : opaque;
+    opaque = (flags & VKRT_RAY_NO_OPAQUE) != 0u ? false : opaque;
+    return opaque;
+}
+
+// Moves the walk into instance `i` of the top level in use; false where the ray misses
+// it (its mask, an inactive record, a transform without inverse, an empty bottom level).
+bool vkrt_rq_enter(uint s, uint i, uint cull_mask) {
+    VkrtInstanceRecord rec = vkrt_instances.v[i];
+    if (all(equal(rec.meta.xy, uvec2(0u))) || ((rec.meta.z >> 24u) & cull_mask) == 0u) {
+        return false;
+    }
+    vec4 rows[3];
+    if (!vkrt_world_to_object(rec, 0.0, rows)) {
+        return false;
+    }
+    vec3 o = vkrt_rq_origin[s].xyz;
+    vec3 d = vkrt_rq_direction[s].xyz;
+    vkrt_rq_object_origin[s] = vec4(vkrt_to_object(rows, o, 1.0), 0.0);
+    vkrt_rq_object_direction[s] = vec4(vkrt_to_object(rows, d, 0.0), 0.0);
+    // The instance's sbt offset lies in the caller's record (the handle's tenth address).
+    uint sbt = 0u;
+    uint64_t originals = VkrtHandle(vkrt_top).addresses[9];
+    if (originals != 0ul) {
+        sbt = VkrtInstanceWords(originals).v[4u * i + 3u].y & 0xffffffu;
+    }
+    vkrt_rq_instance[s] = uvec4(i, rec.meta.z, sbt | ((rec.meta.w & 0xffu) << 24u), 0u);
+    vkrt_rq_bottom[s] = packUint2x32(rec.meta.xy);
+    return true;
+}
+
+// Whether the bottom level in use is one this walk serves (a binary BVH).
+bool vkrt_rq_walkable() {
+    uint walk = vkrt_scene_info.walk;
+    return walk == VKRT_ACCEL_BVH_STACK || walk == VKRT_ACCEL_BVH_BITSTACK;
+}
+
+bool vkrtRayQueryProceed(uint q) {
+    uint s = vkrt_rq_slot(q);
+    if (s == uint(VKRT_RAY_QUERIES)) {
+        return false;
+    }
+    uvec4 w = vkrt_rq_walk[s];
+    if ((w.w & VKRT_RQ_DONE) != 0u) {
+        return false;
+    }
+    uvec4 setup = vkrt_rq_setup[s];
+    uint flags = setup.x;
+    uint cull_mask = setup.y;
+    uint64_t top_handle = packUint2x32(setup.zw);
+    vkrt_top = top_handle;
+    vkrt_rq_s = s;
+    uint bits = w.w;
+    bool in_bottom = (bits & VKRT_RQ_IN_BOTTOM) != 0u;
+    float tmin = vkrt_rq_origin[s].w;
+    float best_t = vkrt_rq_far[s];
+    uint steps = w.z;
+    uint base = in_bottom ? w.y : 0u;
+    uint top = w.x - base;
+    vkrt_rq_base = base;
+    uvec4 leaf = vkrt_rq_leaf[s];
+    uvec4 inst = vkrt_rq_instance[s];
+    VkrtRay r;
+    if (in_bottom) {
+        vkrt_use(vkrt_rq_bottom[s]);
+        r = VkrtRay(vkrt_rq_object_origin[s].xyz, tmin, vkrt_rq_object_direction[s].xyz, best_t);
+    } else {
+        vkrt_use(top_handle);
+        r = VkrtRay(vkrt_rq_origin[s].xyz, tmin, vkrt_rq_direction[s].xyz, best_t);
+    }
+    if (in_bottom && !vkrt_rq_walkable()) {
+        vkrt_rq_walk[s].w = bits | VKRT_RQ_DONE | VKRT_RQ_EXHAUSTED;
+        return false;
+    }
+    vec3 inv_d = vkrt_recip3(r.d);
+    VkrtShear sh = vkrt_make_shear(r.d);
+    uvec2 cur = uvec2(0u);
+    bool have = true;
+    // A level's root in hand (descend from it rather than pop).
+    bool fresh = false;
+    bool found = false;
+    // Every way out of the loop but two says how the walk stands: the step cap, and a
+    // driver that ends a loop on its own (Mesa 22.3's lavapipe, after 65,535 iterations of
+    // an invocation's loops), both of which leave it exhausted.
+    uint end = VKRT_RQ_DONE | VKRT_RQ_EXHAUSTED;
+    while (true) {
+        if (steps > VKRT_STEP_LIMIT) {
+            break;
+        }
+        if (in_bottom && leaf.x < leaf.y) {
+            // The bottom leaf's next primitive.
+            uint prim = VKRT_KD_REF(leaf.x);
+            leaf.x++;
+            steps++;
+            uint iflags = inst.z >> 24u;
+            uint n_tris = vkrt_scene_info.n_tris;
+            VkrtRqHit h = VkrtRqHit(0u, 0.0, vec2(0.0), inst.x, prim, 0u, 0u, 0u, inst.y, inst.z);
+            bool opaque;
+            if (prim < n_tris) {
+                if ((flags & VKRT_RAY_SKIP_TRIANGLES) != 0u) {
+                    continue;
+                }
+                vec3 p0, p1, p2;
+                vkrt_triangle_at(prim, 0.0, p0, p1, p2);
+                float t, u, v;
+                bool front;
+#ifdef VKRT_MOLLER_TRUMBORE
+                bool hit = vkrt_hit_triangle_moller(r.o, r.d, p0, p1, p2, tmin, best_t, t, u, v);
+                front = vkrt_dot3(vkrt_cross3(p1 - p0, p2 - p0), r.d) < 0.0;
+#else
+                bool hit = vkrt_hit_triangle_watertight_facing(r.o, sh, p0, p1, p2, tmin, best_t,
+                                                                t, u, v, front);
+#endif
+                if (!hit) {
+                    continue;
+                }
+                front = front != ((iflags & VKRT_INSTANCE_FLIP_FACING) != 0u);
+                uint cull = front ? VKRT_RAY_CULL_FRONT : VKRT_RAY_CULL_BACK;
+                if ((iflags & VKRT_INSTANCE_CULL_DISABLE) == 0u && (flags & cull) != 0u) {
+                    continue;
+                }
+                uvec2 g = vkrt_geometry_entry(prim);
+                opaque = vkrt_rq_opaque(g.y, iflags, flags);
+                h.t = t;
+                h.barycentrics = vec2(u, v);
+                h.geometry = g.y & 0x7fffffffu;
+                h.primitive = prim - g.x;
+                h.bits = (front ? 1u : 0u) | (opaque ? 2u : 0u);
+                h.type = VKRT_CANDIDATE_TRIANGLE;
+            } else {
+                // A sphere or a box: the shader's to intersect, where the ray meets its box.
+                if ((flags & VKRT_RAY_SKIP_AABBS) != 0u) {
+                    continue;
+                }
+                uint b = prim - n_tris;
+                vec3 lo, hi;
+                if (b < vkrt_scene_info.n_spheres) {
+                    vec4 sphere = vkrt_sphere_at(b, 0.0);
+                    lo = sphere.xyz - vec3(abs(sphere.w));
+                    hi = sphere.xyz + vec3(abs(sphere.w));
+                } else {
+                    vkrt_aabb_at(b - vkrt_scene_info.n_spheres, lo, hi);
+                }
+                float t;
+                if (!all(lessThanEqual(lo, hi)) || !vkrt_hit_aabb(r.o, r.d, lo, hi, tmin, best_t, t)) {
+                    continue;
+                }
+                uvec2 g = vkrt_geometry_entry(prim);
+                opaque = vkrt_rq_opaque(g.y, iflags, flags);
+                h.t = t;
+                h.geometry = g.y & 0x7fffffffu;
+                h.primitive = prim - g.x;
+                h.bits = opaque ? 2u : 0u;
+                h.type = VKRT_CANDIDATE_AABB;
+            }
+            if ((flags & (opaque ? VKRT_RAY_CULL_OPAQUE : VKRT_RAY_CULL_NO_OPAQUE)) != 0u) {
+                continue;
+            }
+            if (!opaque || h.type == VKRT_CANDIDATE_AABB) {
+                vkrt_rq_candidate[s] = h;
+                found = true;
+                end = 0u;
+                break;
+            }
+            // An opaque triangle: committed where nearer (ties: the lower instance, then the
+            // lower primitive, as vkrtTrace).
+            VkrtRqHit c = vkrt_rq_committed[s];
+            bool better = c.type == VKRT_COMMITTED_NONE || h.t < c.t
+                || (h.t == c.t && (h.instance < c.instance || (h.instance == c.instance && prim < c.prim)));
+            if (better) {
+                h.type = VKRT_COMMITTED_TRIANGLE;
+                vkrt_rq_committed[s] = h;
+                best_t = h.t;
+                if ((flags & VKRT_RAY_TERMINATE_ON_FIRST_HIT) != 0u) {
+                    end = VKRT_RQ_DONE;
+                    break;
+                }
+            }
+            continue;
+        }
+        if (!in_bottom && leaf.z < leaf.w) {
+            // The top leaf's next instance: into its bottom level, whose entries go above
+            // the top level's.
+            uint i = VKRT_KD_REF(leaf.z);
+            leaf.z++;
+            steps++;
+            if (!vkrt_rq_enter(s, i, cull_mask)) {
+                continue;
+            }
+            inst = vkrt_rq_instance[s];
+            base = top;
+            top = 0u;
+            vkrt_rq_base = base;
+            in_bottom = true;
+            vkrt_use(vkrt_rq_bottom[s]);
+            if (!vkrt_rq_walkable()) {
+                end = VKRT_RQ_DONE | VKRT_RQ_EXHAUSTED;
+                break;
+            }
+            r = VkrtRay(vkrt_rq_object_origin[s].xyz, tmin, vkrt_rq_object_direction[s].xyz, best_t);
+            inv_d = vkrt_recip3(r.d);
+            sh = vkrt_make_shear(r.d);
+            cur = uvec2(0u);
+            have = vkrt_primitive_count() != 0u;
+            fresh = true;
+        }
+        if (!fresh) {
+            VKRT_BVH_POP_ON(VKRT_RQ_AT, VKRT_RQ_T_AT);
+        }
+        fresh = false;
+        VKRT_BVH_DESCEND_ON(VKRT_RQ_AT, VKRT_RQ_T_AT);
+        if (!have) {
+            if (in_bottom && (bits & VKRT_RQ_ONE_LEVEL) == 0u) {
+                // The instance is done: back to the top level, whose entries end where the
+                // bottom level's began.
+                top = base;
+                base = 0u;
+                vkrt_rq_base = 0u;
+                in_bottom = false;
+                vkrt_use(top_handle);
+                r = VkrtRay(vkrt_rq_origin[s].xyz, tmin, vkrt_rq_direction[s].xyz, best_t);
+                inv_d = vkrt_recip3(r.d);
+                sh = vkrt_make_shear(r.d);
+                continue;
+            }
+            end = VKRT_RQ_DONE;
+            break;
+        }
+        if (cur.y == 0u) {
+            end = VKRT_RQ_DONE | VKRT_RQ_EXHAUSTED; // the step cap ended the descent
+            break;
+        }
+        if (in_bottom) {
+            leaf.xy = uvec2(cur.x, cur.x + cur.y);
+        } else {
+            leaf.zw = uvec2(cur.x, cur.x + cur.y);
+        }
+    }
+    bits = (bits & ~VKRT_RQ_IN_BOTTOM) | (in_bottom ? VKRT_RQ_IN_BOTTOM : 0u) | end;
+    vkrt_rq_walk[s] = uvec4(base + top, base, steps, bits);
+    vkrt_rq_leaf[s] = leaf;
+    vkrt_rq_far[s] = best_t;
+    return found;
+}
+
+// The candidate in hand (a triangle) committed.
+void vkrtRayQueryConfirmIntersection(uint q) {
+    uint s = vkrt_rq_slot(q);
+    if (s == uint(VKRT_RAY_QUERIES)) {
+        return;
+    }
+    VkrtRqHit c = vkrt_rq_candidate[s];
+    if (c.prim == VKRT_NO_HIT || c.type != VKRT_CANDIDATE_TRIANGLE) {
+        return;
+    }
+    c.type = VKRT_COMMITTED_TRIANGLE;
+    vkrt_rq_committed[s] = c;
+    vkrt_rq_far[s] = c.t;
+    if ((vkrt_rq_setup[s].x & VKRT_RAY_TERMINATE_ON_FIRST_HIT) != 0u) {
+        vkrt_rq_walk[s].w |= VKRT_RQ_DONE;
+    }
+}
+
+// The candidate in hand (a box) committed at `t`, where t lies in [tMin, the committed t]
+// (elsewhere nothing changes).
+void vkrtRayQueryGenerateIntersection(uint q, float t) {
+    uint s = vkrt_rq_slot(q);
+    if (s == uint(VKRT_RAY_QUERIES)) {
+        return;
+    }
+    VkrtRqHit c = vkrt_rq_candidate[s];
+    if (c.prim == VKRT_NO_HIT || c.type != VKRT_CANDIDATE_AABB
+        || !(t >= vkrt_rq_origin[s].w && t <= vkrt_rq_far[s])) {
+        return;
+    }
+    c.type = VKRT_COMMITTED_GENERATED;
+    c.t = t;
+    c.barycentrics = vec2(0.0);
+    c.bits &= ~1u;
+    vkrt_rq_committed[s] = c;
+    vkrt_rq_far[s] = t;
+    if ((vkrt_rq_setup[s].x & VKRT_RAY_TERMINATE_ON_FIRST_HIT) != 0u) {
+        vkrt_rq_walk[s].w |= VKRT_RQ_DONE;
+    }
+}
+
+// Ends the query: rayQueryProceedEXT returns false from now on; the committed
+// intersection stays.
+void vkrtRayQueryTerminate(uint q) {
+    uint s = vkrt_rq_slot(q);
+    if (s != uint(VKRT_RAY_QUERIES)) {
+        vkrt_rq_walk[s].w |= VKRT_RQ_DONE;
+    }
+}
+
+// Whether query `q` ended without finishing its walk (its step cap ran out, or it met a
+// bottom level that is not a binary BVH): its committed intersection is then not to be
+// trusted. Not part of the extension; false on the driver's own ray query.
+bool vkrtRayQueryExhausted(uint q) {
+    uint s = vkrt_rq_slot(q);
+    return s != uint(VKRT_RAY_QUERIES) && (vkrt_rq_walk[s].w & VKRT_RQ_EXHAUSTED) != 0u;
+}
+
+VkrtRqHit vkrt_rq_hit(uint q, bool committed) {
+    uint s = vkrt_rq_slot(q);
+    if (s == uint(VKRT_RAY_QUERIES)) {
+        return vkrt_rq_none();
+    }
+    return committed ? vkrt_rq_committed[s] : vkrt_rq_candidate[s];
+}
+
+uint vkrtRayQueryGetIntersectionType(uint q, bool committed) {
+    return vkrt_rq_hit(q, committed).type;
+}
+
+float vkrtRayQueryGetIntersectionT(uint q, bool committed) {
+    return vkrt_rq_hit(q, committed).t;
+}
+
+int vkrtRayQueryGetIntersectionInstanceCustomIndex(uint q, bool committed) {
+    return int(vkrt_rq_hit(q, committed).custom_mask & 0xffffffu);
+}
+
+int vkrtRayQueryGetIntersectionInstanceId(uint q, bool committed) {
+    return int(vkrt_rq_hit(q, committed).instance);
+}
+
+uint vkrtRayQueryGetIntersectionInstanceShaderBindingTableRecordOffset(uint q, bool committed) {
+    return vkrt_rq_hit(q, committed).sbt_flags & 0xffffffu;
+}
+
+int vkrtRayQueryGetIntersectionGeometryIndex(uint q, bool committed) {
+    return int(vkrt_rq_hit(q, committed).geometry);
+}
+
+int vkrtRayQueryGetIntersectionPrimitiveIndex(uint q, bool committed) {
+    return int(vkrt_rq_hit(q, committed).primitive);
+}
+
+vec2 vkrtRayQueryGetIntersectionBarycentrics(uint q, bool committed) {
+    return vkrt_rq_hit(q, committed).barycentrics;
+}
+
+bool vkrtRayQueryGetIntersectionFrontFace(uint q, bool committed) {
+    return (vkrt_rq_hit(q, committed).bits & 1u) != 0u;
+}
+
+bool vkrtRayQueryGetIntersectionCandidateAABBOpaque(uint q) {
+    VkrtRqHit h = vkrt_rq_hit(q, false);
+    return h.type == VKRT_CANDIDATE_AABB && (h.bits & 2u) != 0u;
+}
+
+float vkrtRayQueryGetRayTMin(uint q) {
+    uint s = vkrt_rq_slot(q);
+    return s == uint(VKRT_RAY_QUERIES) ? 0.0 : vkrt_rq_origin[s].w;
+}
+
+uint vkrtRayQueryGetRayFlags(uint q) {
+    uint s = vkrt_rq_slot(q);
+    return s == uint(VKRT_RAY_QUERIES) ? 0u : vkrt_rq_setup[s].x;
+}
+
+vec3 vkrtRayQueryGetWorldRayOrigin(uint q) {
+    uint s = vkrt_rq_slot(q);
+    return s == uint(VKRT_RAY_QUERIES) ? vec3(0.0) : vkrt_rq_origin[s].xyz;
+}
+
+vec3 vkrtRayQueryGetWorldRayDirection(uint q) {
+    uint s = vkrt_rq_slot(q);
+    return s == uint(VKRT_RAY_QUERIES) ? vec3(0.0) : vkrt_rq_direction[s].xyz;
+}
+
+// The world-to-object rows of the hit's instance (the identity for a one-level query).
+void vkrt_rq_world_to_object(uint q, bool committed, out vec4 rows[3]) {
+    rows = vec4[3](vec4(1.0, 0.0, 0.0, 0.0), vec4(0.0, 1.0, 0.0, 0.0), vec4(0.0, 0.0, 1.0, 0.0));
+    uint s = vkrt_rq_slot(q);
+    if (s == uint(VKRT_RAY_QUERIES) || (vkrt_rq_walk[s].w & VKRT_RQ_ONE_LEVEL) != 0u) {
+        return;
+    }
+    uint64_t top = packUint2x32(vkrt_rq_setup[s].zw);
+    VkrtInstanceRecord rec = VkrtInstances(VkrtHandle(top).addresses[7]).v[vkrt_rq_hit(q, committed).instance];
+    vec4 m[3];
+    if (vkrt_world_to_object(rec, 0.0, m)) {
+        rows = m;
+    }
+}
+
+vec3 vkrtRayQueryGetIntersectionObjectRayOrigin(uint q, bool committed) {
+    vec4 rows[3];
+    vkrt_rq_world_to_object(q, committed, rows);
+    return vkrt_to_object(rows, vkrtRayQueryGetWorldRayOrigin(q), 1.0);
+}
+
+vec3 vkrtRayQueryGetIntersectionObjectRayDirection(uint q, bool committed) {
+    vec4 rows[3];
+    vkrt_rq_world_to_object(q, committed, rows);
+    return vkrt_to_object(rows, vkrtRayQueryGetWorldRayDirection(q), 0.0);
+}
+
+mat4x3 vkrt_rq_columns(vec4 rows[3]) {
+    return mat4x3(vec3(rows[0].x, rows[1].x, rows[2].x), vec3(rows[0].y, rows[1].y, rows[2].y),
+                  vec3(rows[0].z, rows[1].z, rows[2].z), vec3(rows[0].w, rows[1].w, rows[2].w));
+}
+
+mat4x3 vkrtRayQueryGetIntersectionWorldToObject(uint q, bool committed) {
+    vec4 rows[3];
+    vkrt_rq_world_to_object(q, committed, rows);
+    return vkrt_rq_columns(rows);
+}
+
+// The instance's object-to-world as the caller gave it (the inverse of world-to-object
+// where the top level keeps no copy of the caller's records).
+mat4x3 vkrtRayQueryGetIntersectionObjectToWorld(uint q, bool committed) {
+    vec4 rows[3] = vec4[3](vec4(1.0, 0.0, 0.0, 0.0), vec4(0.0, 1.0, 0.0, 0.0), vec4(0.0, 0.0, 1.0, 0.0));
+    uint s = vkrt_rq_slot(q);
+    if (s != uint(VKRT_RAY_QUERIES) && (vkrt_rq_walk[s].w & VKRT_RQ_ONE_LEVEL) == 0u) {
+        uint64_t top = packUint2x32(vkrt_rq_setup[s].zw);
+        uint64_t originals = VkrtHandle(top).addresses[9];
+        uint i = vkrt_rq_hit(q, committed).instance;
+        if (originals != 0ul) {
+            VkrtInstanceWords words = VkrtInstanceWords(originals);
+            for (uint k = 0u; k < 3u; k++) {
+                rows[k] = uintBitsToFloat(words.v[4u * i + k]);
+            }
+        } else {
+            vec4 inv[3];
+            vkrt_rq_world_to_object(q, committed, inv);
+            vkrt_invert_rows(inv, rows);
+        }
+    }
+    return vkrt_rq_columns(rows);
+}
+
+// The extension's names, on vkrt's functions.
+#define rayQueryInitializeEXT vkrtRayQueryInitialize
+#define rayQueryProceedEXT vkrtRayQueryProceed
+#define rayQueryConfirmIntersectionEXT vkrtRayQueryConfirmIntersection
+#define rayQueryGenerateIntersectionEXT vkrtRayQueryGenerateIntersection
+#define rayQueryTerminateEXT vkrtRayQueryTerminate
+#define rayQueryGetIntersectionTypeEXT vkrtRayQueryGetIntersectionType
+#define rayQueryGetIntersectionTEXT vkrtRayQueryGetIntersectionT
+#define rayQueryGetIntersectionInstanceCustomIndexEXT vkrtRayQueryGetIntersectionInstanceCustomIndex
+#define rayQueryGetIntersectionInstanceIdEXT vkrtRayQueryGetIntersectionInstanceId
+#define rayQueryGetIntersectionInstanceShaderBindingTableRecordOffsetEXT vkrtRayQueryGetIntersectionInstanceShaderBindingTableRecordOffset
+#define rayQueryGetIntersectionGeometryIndexEXT vkrtRayQueryGetIntersectionGeometryIndex
+#define rayQueryGetIntersectionPrimitiveIndexEXT vkrtRayQueryGetIntersectionPrimitiveIndex
+#define rayQueryGetIntersectionBarycentricsEXT vkrtRayQueryGetIntersectionBarycentrics
+#define rayQueryGetIntersectionFrontFaceEXT vkrtRayQueryGetIntersectionFrontFace
+#define rayQueryGetIntersectionCandidateAABBOpaqueEXT vkrtRayQueryGetIntersectionCandidateAABBOpaque
+#define rayQueryGetIntersectionObjectRayDirectionEXT vkrtRayQueryGetIntersectionObjectRayDirection
+#define rayQueryGetIntersectionObjectRayOriginEXT vkrtRayQueryGetIntersectionObjectRayOrigin
+#define rayQueryGetIntersectionObjectToWorldEXT vkrtRayQueryGetIntersectionObjectToWorld
+#define rayQueryGetIntersectionWorldToObjectEXT vkrtRayQueryGetIntersectionWorldToObject
+#define rayQueryGetRayTMinEXT vkrtRayQueryGetRayTMin
+#define rayQueryGetRayFlagsEXT vkrtRayQueryGetRayFlags
+#define rayQueryGetWorldRayOriginEXT vkrtRayQueryGetWorldRayOrigin
+#define rayQueryGetWorldRayDirectionEXT vkrtRayQueryGetWorldRayDirection
+
+#endif // !VKRT_NATIVE_RAY_QUERY
+#endif
