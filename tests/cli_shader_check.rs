@@ -138,16 +138,6 @@ struct Setup {
 fn setup(name: &str, shader: &str, scene: &str, rays: &[Ray]) -> Setup {
     let dir = scratch(name);
     std::fs::write(dir.join("square.obj"), SQUARE_OBJ).unwrap();
-    // A build whose library lacks the include yet: the shader's own directory serves one
-    // that leaves the query to the driver (the command searches it after vkrt's).
-    if vkrt::accel::shader_library::file("vkrt/ext_ray_query.glsl").is_none() {
-        std::fs::create_dir_all(dir.join("vkrt")).unwrap();
-        std::fs::write(
-            dir.join("vkrt/ext_ray_query.glsl"),
-            "#ifndef VKRT_NATIVE_RAY_QUERY\n#error \"the driver's ray query only\"\n#endif\n",
-        )
-        .unwrap();
-    }
     let setup = Setup {
         shader: dir.join("closest.comp"),
         scene: dir.join("scene.toml"),
@@ -458,4 +448,149 @@ fn instance_keys_change_nothing_for_other_commands() {
     assert_eq!(hits[0], hits[1]);
     let _ = std::fs::remove_dir_all(&plain.dir);
     let _ = std::fs::remove_dir_all(&with_keys.dir);
+}
+
+/// A shader that decides candidates itself: non-opaque triangles confirmed where their
+/// primitive index is even (an alpha test), boxes generated at the sphere, a cull mask and
+/// ray flags per ray; it writes the committed t, custom index, primitive index with the
+/// front face, and type with instance id and SBT record offset.
+const CANDIDATES: &str = r#"#version 460
+#extension GL_EXT_ray_query : require
+#extension GL_EXT_ray_flags_primitive_culling : require
+
+layout(local_size_x = 32) in;
+layout(set = 0, binding = 0) uniform accelerationStructureEXT topLevel;
+layout(set = 0, binding = 1, std430) readonly buffer Rays { vec4 rays[]; };
+layout(set = 0, binding = 2, std430) writeonly buffer Results { uvec4 results[]; };
+layout(push_constant) uniform Count { uint rayCount; float unused; } pc;
+
+const vec4 SPHERES[2] = vec4[2](vec4(-2.0, 0.0, 0.0, 0.5), vec4(2.0, 0.5, -1.0, 0.75));
+
+// A query passed to a function is the caller's query.
+void decide(rayQueryEXT q, float tmin, float tmax) {
+    if (rayQueryGetIntersectionTypeEXT(q, false) == gl_RayQueryCandidateIntersectionTriangleEXT) {
+        if ((rayQueryGetIntersectionPrimitiveIndexEXT(q, false) & 1) == 0) {
+            rayQueryConfirmIntersectionEXT(q);
+        }
+        return;
+    }
+    vec4 sph = SPHERES[rayQueryGetIntersectionPrimitiveIndexEXT(q, false)];
+    vec3 oc = rayQueryGetIntersectionObjectRayOriginEXT(q, false) - sph.xyz;
+    vec3 dir = rayQueryGetIntersectionObjectRayDirectionEXT(q, false);
+    float a = dot(dir, dir);
+    float b = dot(oc, dir);
+    float disc = b * b - a * (dot(oc, oc) - sph.w * sph.w);
+    float best = tmax;
+    if (rayQueryGetIntersectionTypeEXT(q, true) != gl_RayQueryCommittedIntersectionNoneEXT) {
+        best = rayQueryGetIntersectionTEXT(q, true);
+    }
+    if (disc >= 0.0) {
+        float t = (-b - sqrt(disc)) / a;
+        if (t >= tmin && t <= best) {
+            rayQueryGenerateIntersectionEXT(q, t);
+        }
+    }
+}
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= pc.rayCount) {
+        return;
+    }
+    vec4 o = rays[2 * i];
+    vec4 d = rays[2 * i + 1];
+    uint flags = gl_RayFlagsNoneEXT;
+    if (i % 3u == 1u) {
+        flags = gl_RayFlagsCullBackFacingTrianglesEXT;
+    } else if (i % 3u == 2u) {
+        flags = gl_RayFlagsCullFrontFacingTrianglesEXT;
+    }
+    if (i % 7u == 3u) {
+        flags |= gl_RayFlagsSkipAABBEXT;
+    }
+    uint mask = (i % 5u == 4u) ? 0x02u : 0xffu;
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, topLevel, flags, mask, o.xyz, o.w, d.xyz, d.w);
+    while (rayQueryProceedEXT(q)) {
+        decide(q, o.w, d.w);
+    }
+    uint kind = rayQueryGetIntersectionTypeEXT(q, true);
+    if (kind == gl_RayQueryCommittedIntersectionNoneEXT) {
+        results[i] = uvec4(0u, ~0u, ~0u, 0u);
+        return;
+    }
+    uint front = rayQueryGetIntersectionFrontFaceEXT(q, true) ? 1u : 0u;
+    results[i] = uvec4(floatBitsToUint(rayQueryGetIntersectionTEXT(q, true)),
+                       rayQueryGetIntersectionInstanceCustomIndexEXT(q, true),
+                       uint(rayQueryGetIntersectionPrimitiveIndexEXT(q, true)) | (front << 31),
+                       kind | (uint(rayQueryGetIntersectionInstanceIdEXT(q, true)) << 8)
+                           | (rayQueryGetIntersectionInstanceShaderBindingTableRecordOffsetEXT(q, true) << 16));
+}
+"#;
+
+/// The grid from both sides (down from z = 5, up from z = -5).
+fn two_sided_rays() -> Vec<Ray> {
+    let mut rays = grid_rays();
+    let up: Vec<Ray> = rays
+        .iter()
+        .map(|r| {
+            Ray::new(
+                Vec3::new(r.origin[0], r.origin[1], -5.0),
+                Vec3::Z,
+                0.0,
+                100.0,
+            )
+        })
+        .collect();
+    rays.extend(up);
+    rays
+}
+
+/// Runs `shader` through both paths; the parsed report.
+fn both(name: &str, shader: &str, scene: &str, rays: &[Ray]) -> Option<serde_json::Value> {
+    let st = setup(name, shader, scene, rays);
+    let out_path = st.dir.join("results.bin");
+    let out = vkrt_ok(&[
+        "shader-check",
+        s(&st.shader),
+        s(&st.scene),
+        "--rays",
+        s(&st.rays),
+        "-o",
+        s(&out_path),
+        "--json",
+    ])?;
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("validation"), "{stderr}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(read_records(&out_path).len(), rays.len());
+    let _ = std::fs::remove_dir_all(&st.dir);
+    Some(v)
+}
+
+#[test]
+fn vkrt_and_the_driver_agree_on_a_closest_hit_shader() {
+    let Some(v) = both("both-closest", CLOSEST_HIT, &scene_toml(""), &grid_rays()) else {
+        return;
+    };
+    assert_eq!(v["mismatching_rays"], 0, "{v}");
+    assert!(v["vkrt_ms"].as_f64().is_some(), "{v}");
+    assert_eq!(v["native"], has_ray_query(), "{v}");
+}
+
+#[test]
+fn vkrt_and_the_driver_agree_on_candidates_masks_flags_and_instance_keys() {
+    // The first square: non-opaque, seen by mask 1 only, faces flipped, custom index 42 and
+    // SBT offset 3; the second: faces never culled, seen by mask 2.
+    let keyed =
+        "opaque = false\nmask = 1\ncustom_index = 42\nsbt_offset = 3\nflags = [\"flip-facing\"]";
+    let scene = scene_toml(keyed).replace(
+        "translate = [0, 3, -1]",
+        "translate = [0, 3, -1]\nmask = 2\nflags = [\"cull-disable\"]",
+    );
+    let Some(v) = both("both-candidates", CANDIDATES, &scene, &two_sided_rays()) else {
+        return;
+    };
+    assert_eq!(v["mismatching_rays"], 0, "{v}");
+    assert_eq!(v["native"], has_ray_query(), "{v}");
 }
