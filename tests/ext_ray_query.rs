@@ -11,7 +11,7 @@ use glam::{Affine3A, Vec3};
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::embedded::BuildFlags;
 use vkrt::accel::gpu_geometry::GpuGeometry;
-use vkrt::accel::instance::Instance;
+use vkrt::accel::instance::{flags, Instance};
 use vkrt::accel::instances::{TopLevel, TopLevelBuilder};
 use vkrt::accel::primitives::TraceGeometry;
 use vkrt::accel::shader_library::{include_dir, STEPS_CONSTANT_ID};
@@ -70,12 +70,45 @@ fn run(
     ray_flags: u32,
     cull_mask: u32,
 ) -> Vec<[u32; 4]> {
+    run_shader(ctx, "", body, handle, rays, ray_flags, cull_mask)
+}
+
+/// [`run`] with `functions` declared before `main`, flags 0 and every instance seen.
+fn run_with_functions(
+    ctx: &Context,
+    functions: &str,
+    body: &str,
+    handle: u64,
+    rays: &[Ray],
+) -> Vec<[u32; 4]> {
+    run_shader(ctx, functions, body, handle, rays, 0, 0xff)
+}
+
+fn run_shader(
+    ctx: &Context,
+    functions: &str,
+    body: &str,
+    handle: u64,
+    rays: &[Ray],
+    ray_flags: u32,
+    cull_mask: u32,
+) -> Vec<[u32; 4]> {
     let source = format!(
-        "{HEADER}\nvoid main() {{\n    uint i = gl_GlobalInvocationID.x;\n    if (i >= rayCount) {{ return; }}\n    vec3 o = rays[2 * i].xyz;\n    float tmin = rays[2 * i].w;\n    vec3 d = rays[2 * i + 1].xyz;\n    float tmax = rays[2 * i + 1].w;\n{body}\n}}\n"
+        "{HEADER}\n{functions}\nvoid main() {{\n    uint i = gl_GlobalInvocationID.x;\n    if (i >= rayCount) {{ return; }}\n    vec3 o = rays[2 * i].xyz;\n    float tmin = rays[2 * i].w;\n    vec3 d = rays[2 * i + 1].xyz;\n    float tmax = rays[2 * i + 1].w;\n{body}\n}}\n"
     );
     let spirv: &'static [u32] = Box::leak(compile(&source, &[]).into_boxed_slice());
+    // Kernels are cached by name: one per source.
+    let name: &'static str = Box::leak(
+        format!("test.ext_ray_query.{:x}", {
+            use std::hash::{Hash, Hasher};
+            let mut h = std::collections::hash_map::DefaultHasher::new();
+            source.hash(&mut h);
+            h.finish()
+        })
+        .into_boxed_str(),
+    );
     let blob: &'static ShaderBlob = Box::leak(Box::new(ShaderBlob {
-        name: "test.ext_ray_query",
+        name,
         source: "tests/ext_ray_query.rs",
         defines: &[],
         bindings: &[0, 1, 2],
@@ -239,6 +272,372 @@ fn opaque_closest_hits_equal_vkrt_trace_bit_for_bit() {
         for (k, (g, w)) in got.iter().zip(&want).enumerate() {
             assert_eq!(g, w, "{kind:?}: ray {k}");
         }
+    }
+    common::assert_silent(&ctx);
+}
+
+/// The closest hit (t bits, instance, primitive, front face | committed type << 1) after a
+/// candidate loop whose body is `on_candidate` (with `c` the candidate's type).
+fn looped(on_candidate: &str) -> String {
+    format!(
+        r#"
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, flags, cullMask, o, tmin, d, tmax);
+    uint candidates = 0u;
+    while (rayQueryProceedEXT(q)) {{
+        uint c = rayQueryGetIntersectionTypeEXT(q, false);
+        candidates++;
+        {on_candidate}
+    }}
+    uint type = rayQueryGetIntersectionTypeEXT(q, true);
+    results[i] = type == gl_RayQueryCommittedIntersectionNoneEXT
+        ? uvec4(0xffffffffu, candidates, 0u, vkrtRayQueryExhausted(q) ? 1u : 0u)
+        : uvec4(floatBitsToUint(rayQueryGetIntersectionTEXT(q, true)),
+                rayQueryGetIntersectionInstanceIdEXT(q, true),
+                rayQueryGetIntersectionPrimitiveIndexEXT(q, true),
+                (rayQueryGetIntersectionFrontFaceEXT(q, true) ? 1u : 0u) | (type << 1u)
+                    | (candidates << 8u));
+"#
+    )
+}
+
+const NO_OPAQUE: u32 = 0x2;
+const TERMINATE_ON_FIRST_HIT: u32 = 0x4;
+const CULL_BACK: u32 = 0x10;
+const CULL_FRONT: u32 = 0x20;
+const CULL_NO_OPAQUE: u32 = 0x80;
+const SKIP_TRIANGLES: u32 = 0x100;
+
+/// (t bits, instance, primitive) of a result, `None` for a miss.
+fn hit_of(r: &[u32; 4]) -> Option<[u32; 3]> {
+    (r[0] != u32::MAX).then_some([r[0], r[1], r[2]])
+}
+
+#[test]
+fn non_opaque_candidates_confirmed_give_the_opaque_answer() {
+    let Some(ctx) = common::context() else { return };
+    // Non-opaque three ways: the ray's flag, the instances' force-no-opaque, and (below)
+    // the geometry's own flag.
+    let (levels, instances, rays) = scene(&ctx, AccelKind::Lbvh, |i| {
+        if i % 2 == 0 {
+            flags::FORCE_NO_OPAQUE
+        } else {
+            0
+        }
+    });
+    let top = top(&ctx, &levels, &instances);
+    let handle = top.handle_address();
+    let opaque = run(&ctx, &looped(""), handle, &rays, 0x1, 0xff);
+    let confirm_all = looped("rayQueryConfirmIntersectionEXT(q);");
+    for ray_flags in [0, NO_OPAQUE] {
+        let got = run(&ctx, &confirm_all, handle, &rays, ray_flags, 0xff);
+        let mut candidates = 0;
+        for (k, (g, w)) in got.iter().zip(&opaque).enumerate() {
+            assert_eq!(hit_of(g), hit_of(w), "flags {ray_flags:#x}, ray {k}");
+            if g[0] != u32::MAX {
+                assert_eq!(g[3] >> 1 & 0x7f, 1, "a confirmed triangle");
+                candidates += g[3] >> 8;
+            }
+        }
+        assert!(candidates > 0, "flags {ray_flags:#x}: no candidates came");
+        // Ignoring every candidate leaves only the opaque instances' hits; culling the
+        // non-opaque ones does the same without the loop.
+        let ignored = run(&ctx, &looped(""), handle, &rays, ray_flags, 0xff);
+        let culled = run(
+            &ctx,
+            &looped(""),
+            handle,
+            &rays,
+            ray_flags | CULL_NO_OPAQUE,
+            0xff,
+        );
+        for (k, (a, b)) in ignored.iter().zip(&culled).enumerate() {
+            assert_eq!(hit_of(a), hit_of(b), "flags {ray_flags:#x}, ray {k}");
+            if let Some([_, inst, _]) = hit_of(a) {
+                assert!(ray_flags == 0 && inst % 2 == 1, "ray {k}: instance {inst}");
+            }
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn an_alpha_test_equals_the_opaque_walk_of_what_it_keeps() {
+    let Some(ctx) = common::context() else { return };
+    let (levels, instances, rays) = scene(&ctx, AccelKind::Ploc, |_| flags::FORCE_NO_OPAQUE);
+    let top_all = top(&ctx, &levels, &instances);
+    let got = run(
+        &ctx,
+        &looped("if ((rayQueryGetIntersectionPrimitiveIndexEXT(q, false) & 1) == 0) { rayQueryConfirmIntersectionEXT(q); }"),
+        top_all.handle_address(),
+        &rays,
+        0,
+        0xff,
+    );
+    // The same instances of bottom levels holding the even triangles only.
+    let meshes = [sphere_tris(2), sphere_tris(1), sphere_tris(3)];
+    let even: Vec<GpuGeometry> = meshes
+        .iter()
+        .map(|m| {
+            let kept: Vec<[Vec3; 3]> = m.iter().step_by(2).copied().collect();
+            bottom(&ctx, AccelKind::Ploc, &kept)
+        })
+        .collect();
+    let opaque: Vec<Instance> = instances.iter().map(|i| i.with_flags(0)).collect();
+    let top_even = top(&ctx, &even, &opaque);
+    let want = run(&ctx, &looped(""), top_even.handle_address(), &rays, 0, 0xff);
+    let mut hits = 0;
+    for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+        let w = hit_of(w).map(|[t, inst, p]| [t, inst, 2 * p]);
+        assert_eq!(hit_of(g), w, "ray {k}");
+        hits += w.is_some() as usize;
+    }
+    assert!(hits > rays.len() / 8, "{hits} hits");
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn facing_culls_as_the_instance_flags_say() {
+    let Some(ctx) = common::context() else { return };
+    let per_instance = [
+        0,
+        flags::TRIANGLE_FLIP_FACING,
+        flags::TRIANGLE_FACING_CULL_DISABLE,
+        flags::TRIANGLE_FLIP_FACING | flags::TRIANGLE_FACING_CULL_DISABLE,
+    ];
+    let (levels, instances, rays) = scene(&ctx, AccelKind::Lbvh, |i| per_instance[i % 4]);
+    let top = top(&ctx, &levels, &instances);
+    let handle = top.handle_address();
+    let all = run(&ctx, &looped(""), handle, &rays, 0, 0xff);
+    let (mut front, mut back) = (0, 0);
+    for (cull, keeps_front) in [(CULL_BACK, true), (CULL_FRONT, false)] {
+        let culled = run(&ctx, &looped(""), handle, &rays, cull, 0xff);
+        for (k, (a, c)) in all.iter().zip(&culled).enumerate() {
+            let Some([t, inst, _]) = hit_of(a) else {
+                continue;
+            };
+            let is_front = a[3] & 1 == 1;
+            let exempt =
+                instances[inst as usize].flags() & flags::TRIANGLE_FACING_CULL_DISABLE != 0;
+            if exempt || is_front == keeps_front {
+                assert_eq!(hit_of(c), hit_of(a), "cull {cull:#x}, ray {k}");
+            } else {
+                // The nearest face is culled: the answer lies beyond it, or is a miss.
+                assert!(
+                    hit_of(c).is_none_or(|[tc, _, _]| f32::from_bits(tc) >= f32::from_bits(t)),
+                    "cull {cull:#x}, ray {k}"
+                );
+                assert_ne!(hit_of(c), hit_of(a), "cull {cull:#x}, ray {k}");
+            }
+            if cull == CULL_BACK && k % 7 != 5 {
+                // Flipping an instance turns what it shows the ray.
+                let flipped = instances[inst as usize].flags() & flags::TRIANGLE_FLIP_FACING != 0;
+                if is_front != flipped {
+                    front += 1;
+                } else {
+                    back += 1;
+                }
+            }
+        }
+    }
+    // Rays from outside the closed meshes (all but every seventh, which starts inside one)
+    // meet their outsides first: one facing, unless the instance flips it.
+    assert!(front > 10 * back.max(1), "{front} front, {back} back");
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn terminate_skip_and_cull_mask() {
+    let Some(ctx) = common::context() else { return };
+    let (levels, instances, rays) = scene(&ctx, AccelKind::Lbvh, |_| 0);
+    let top = top(&ctx, &levels, &instances);
+    let handle = top.handle_address();
+    let closest = run(&ctx, &looped(""), handle, &rays, 0, 0xff);
+    // Terminate on first hit: a hit exactly where there is one, never nearer than the
+    // closest.
+    let first = run(
+        &ctx,
+        &looped(""),
+        handle,
+        &rays,
+        TERMINATE_ON_FIRST_HIT,
+        0xff,
+    );
+    for (k, (f, c)) in first.iter().zip(&closest).enumerate() {
+        assert_eq!(hit_of(f).is_some(), hit_of(c).is_some(), "ray {k}");
+        if let (Some([tf, ..]), Some([tc, ..])) = (hit_of(f), hit_of(c)) {
+            assert!(f32::from_bits(tf) >= f32::from_bits(tc), "ray {k}");
+        }
+    }
+    // rayQueryTerminateEXT at the first candidate keeps what was committed before it.
+    let terminated = run(
+        &ctx,
+        &looped("rayQueryConfirmIntersectionEXT(q); rayQueryTerminateEXT(q);"),
+        handle,
+        &rays,
+        NO_OPAQUE,
+        0xff,
+    );
+    for (k, (t, c)) in terminated.iter().zip(&closest).enumerate() {
+        assert_eq!(hit_of(t).is_some(), hit_of(c).is_some(), "ray {k}");
+        if t[0] != u32::MAX {
+            assert_eq!(t[3] >> 8, 1, "ray {k}: one candidate, then the end");
+        }
+    }
+    // Skipping triangles finds nothing in a scene of triangles; skipping boxes changes
+    // nothing.
+    let skipped = run(&ctx, &looped(""), handle, &rays, SKIP_TRIANGLES, 0xff);
+    assert!(skipped.iter().all(|r| r[0] == u32::MAX));
+    assert_eq!(run(&ctx, &looped(""), handle, &rays, 0x200, 0xff), closest);
+    // The cull mask against each instance's mask (bit i % 8), as vkrtTrace's.
+    for mask in [0xa5u32, 0x01, 0x00] {
+        let got = run(&ctx, &looped(""), handle, &rays, 0, mask);
+        let want = probe(&ctx, handle, &rays, (!mask & 0xff) << 8);
+        for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+            assert_eq!(
+                hit_of(g).map(|h| [h[0], h[1]]),
+                (w[0] != u32::MAX).then_some([w[0], w[3]]),
+                "mask {mask:#x}, ray {k}"
+            );
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn getters_report_the_instance_as_given() {
+    let Some(ctx) = common::context() else { return };
+    let (levels, mut instances, rays) = scene(&ctx, AccelKind::Lbvh, |_| 0);
+    for (i, inst) in instances.iter_mut().enumerate() {
+        inst.sbt_offset_and_flags |= 7 * i as u32;
+    }
+    let top = top(&ctx, &levels, &instances);
+    let handle = top.handle_address();
+    let getters = r#"
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, flags, cullMask, o, tmin, d, tmax);
+    while (rayQueryProceedEXT(q)) {
+    }
+    if (rayQueryGetIntersectionTypeEXT(q, true) == gl_RayQueryCommittedIntersectionNoneEXT) {
+        results[i] = uvec4(0xffffffffu);
+        return;
+    }
+    mat4x3 otw = rayQueryGetIntersectionObjectToWorldEXT(q, true);
+    mat4x3 wto = rayQueryGetIntersectionWorldToObjectEXT(q, true);
+    // The object ray moved back to the world is the world ray; the two matrices invert
+    // each other; the object-to-world is the instance's, bit for bit (hashed).
+    vec3 oo = rayQueryGetIntersectionObjectRayOriginEXT(q, true);
+    vec3 od = rayQueryGetIntersectionObjectRayDirectionEXT(q, true);
+    vec3 back_o = otw * vec4(oo, 1.0);
+    vec3 back_d = otw * vec4(od, 0.0);
+    mat3 id = mat3(otw) * mat3(wto);
+    float err = max(length(back_o - o) / max(length(o), 1.0), length(back_d - d) / length(d));
+    err = max(err, length(id[0] - vec3(1, 0, 0)) + length(id[1] - vec3(0, 1, 0)) + length(id[2] - vec3(0, 0, 1)));
+    uint h = 0u;
+    for (int c = 0; c < 4; c++) {
+        for (int r = 0; r < 3; r++) {
+            h = h * 31u + floatBitsToUint(otw[c][r]);
+        }
+    }
+    bool same_ray = rayQueryGetWorldRayOriginEXT(q) == o && rayQueryGetWorldRayDirectionEXT(q) == d
+        && rayQueryGetRayTMinEXT(q) == tmin && rayQueryGetRayFlagsEXT(q) == flags;
+    results[i] = uvec4(rayQueryGetIntersectionInstanceCustomIndexEXT(q, true),
+                       rayQueryGetIntersectionInstanceShaderBindingTableRecordOffsetEXT(q, true)
+                           | (same_ray ? 0x80000000u : 0u),
+                       h, floatBitsToUint(err));
+"#;
+    let got = run(&ctx, getters, handle, &rays, 0, 0xff);
+    let closest = run(&ctx, &looped(""), handle, &rays, 0, 0xff);
+    let mut hits = 0;
+    for (k, (g, c)) in got.iter().zip(&closest).enumerate() {
+        let Some([_, inst, _]) = hit_of(c) else {
+            assert_eq!(g[0], u32::MAX, "ray {k}");
+            continue;
+        };
+        hits += 1;
+        let i = &instances[inst as usize];
+        let mut h = 0u32;
+        for c in 0..4 {
+            for r in 0..3 {
+                h = h.wrapping_mul(31).wrapping_add(i.transform[r][c].to_bits());
+            }
+        }
+        assert_eq!(g[0], i.custom_index(), "ray {k}");
+        assert_eq!(g[1], 0x8000_0000 | 7 * inst, "ray {k}");
+        assert_eq!(g[2], h, "ray {k}: object-to-world");
+        assert!(
+            f32::from_bits(g[3]) < 1e-4,
+            "ray {k}: error {}",
+            f32::from_bits(g[3])
+        );
+    }
+    assert!(hits > 100);
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn two_queries_in_one_invocation_and_a_query_passed_to_a_function() {
+    let Some(ctx) = common::context() else { return };
+    let (levels, instances, rays) = scene(&ctx, AccelKind::Lbvh, |i| {
+        if i % 3 == 0 {
+            flags::FORCE_NO_OPAQUE
+        } else {
+            0
+        }
+    });
+    let top = top(&ctx, &levels, &instances);
+    let handle = top.handle_address();
+    // Two queries advanced in turn (a closest hit with an alpha test, a shadow query
+    // through the opaque instances only), each helper advancing the caller's query.
+    let body = r#"
+    rayQueryEXT a;
+    rayQueryEXT b;
+    rayQueryInitializeEXT(a, scene, flags, cullMask, o, tmin, d, tmax);
+    rayQueryInitializeEXT(b, scene, flags | gl_RayFlagsTerminateOnFirstHitEXT | gl_RayFlagsCullNoOpaqueEXT, cullMask, o, tmin, d, tmax);
+    bool more_a = true;
+    bool more_b = true;
+    while (more_a || more_b) {
+        if (more_a) {
+            more_a = advance(a);
+        }
+        if (more_b) {
+            more_b = rayQueryProceedEXT(b);
+        }
+    }
+    results[i] = uvec4(rayQueryGetIntersectionTypeEXT(a, true) == 0u ? 0xffffffffu : floatBitsToUint(rayQueryGetIntersectionTEXT(a, true)),
+                       rayQueryGetIntersectionInstanceIdEXT(a, true),
+                       rayQueryGetIntersectionPrimitiveIndexEXT(a, true),
+                       rayQueryGetIntersectionTypeEXT(b, true));
+"#;
+    let helper = r#"
+bool advance(rayQueryEXT q) {
+    bool more = rayQueryProceedEXT(q);
+    if (more && (rayQueryGetIntersectionPrimitiveIndexEXT(q, false) % 3) != 1) {
+        rayQueryConfirmIntersectionEXT(q);
+    }
+    return more;
+}
+"#;
+    let got = run_with_functions(&ctx, helper, body, handle, &rays);
+    let alone_a = run(
+        &ctx,
+        &looped("if ((rayQueryGetIntersectionPrimitiveIndexEXT(q, false) % 3) != 1) { rayQueryConfirmIntersectionEXT(q); }"),
+        handle,
+        &rays,
+        0,
+        0xff,
+    );
+    let alone_b = run(
+        &ctx,
+        &looped(""),
+        handle,
+        &rays,
+        TERMINATE_ON_FIRST_HIT | CULL_NO_OPAQUE,
+        0xff,
+    );
+    for (k, ((g, a), b)) in got.iter().zip(&alone_a).zip(&alone_b).enumerate() {
+        assert_eq!(hit_of(g), hit_of(a), "ray {k}");
+        assert_eq!(g[3], if b[0] == u32::MAX { 0 } else { 1 }, "ray {k}");
     }
     common::assert_silent(&ctx);
 }

@@ -59,6 +59,9 @@ struct Rows {
     vec4 rows[3];
 };
 layout(std430, binding = 5) writeonly buffer Steps { Rows steps[]; };
+// The caller's records as given (step 0's), for the ray query's object-to-world and SBT
+// record offset getters (vkrt/ext_ray_query.glsl): four texels per instance.
+layout(std430, binding = 6) writeonly buffer Originals { uvec4 originals[]; };
 layout(push_constant) uniform Push {
     uint n;
     uint first_word;
@@ -97,6 +100,10 @@ void main() {
         return;
     }
     uint w = pc.first_word + 16u * i;
+    for (uint k = 0u; k < 4u; k++) {
+        originals[4u * i + k] = uvec4(words[w + 4u * k], words[w + 4u * k + 1u],
+                                      words[w + 4u * k + 2u], words[w + 4u * k + 3u]);
+    }
     uint custom_mask = words[w + 12u];
     uint flags = words[w + 13u] >> 24u;
     uint bottom = words[w + 14u];

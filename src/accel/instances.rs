@@ -256,7 +256,11 @@ struct Parts {
     steps: Buffer<[[f32; 4]; 3]>,
     bottom_info: Buffer<SceneInfo>,
     handles: Buffer<[u64; 8]>,
-    /// The top level's handle: its tree's seven arrays, its records, its steps.
+    /// The caller's records as given (step 0's): what a ray query reports of an instance
+    /// (object-to-world, SBT record offset).
+    originals: Buffer<Instance>,
+    /// The top level's handle: its tree's seven arrays, its records, its steps, its
+    /// originals.
     handle: Buffer<[u64; 8]>,
     status: Buffer<u32>,
 }
@@ -276,6 +280,7 @@ impl Parts {
             steps: Buffer::new(ctx, "accel.instance_steps", steps)?,
             bottom_info: Buffer::new(ctx, "accel.bottom_info", b)?,
             handles: Buffer::new(ctx, "accel.bottom_handles", b)?,
+            originals: Buffer::new(ctx, "accel.instance_originals", n)?,
             handle: Buffer::new(ctx, "accel.top_handle", 2)?,
             status: Buffer::new(ctx, "accel.instance_status", 1)?,
         })
@@ -552,6 +557,7 @@ impl TopLevelBuilder {
             handle[0][..7].copy_from_slice(&top.tree.address_handle()?);
             handle[0][7] = p.records.address();
             handle[1][0] = p.steps.address();
+            handle[1][1] = p.originals.address();
         }
         rec.scope("instances", |rec| {
             // The bottom levels' builds (compute writes) before their constants are copied.
@@ -581,13 +587,14 @@ impl TopLevelBuilder {
                     scale: top.motion.scale(),
                 };
                 let groups = rec.groups_1d(u64::from(top.count), WORKGROUP);
-                let b: [&dyn BufferArg; 6] = [
+                let b: [&dyn BufferArg; 7] = [
                     &bound_instances,
                     &p.bottom_info,
                     &p.boxes,
                     &p.records,
                     &p.status,
                     &p.steps,
+                    &p.originals,
                 ];
                 rec.dispatch(&self.boxes, groups, &b, &push);
             }
