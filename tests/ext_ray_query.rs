@@ -10,6 +10,7 @@ mod common;
 use glam::{Affine3A, Vec3};
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::embedded::BuildFlags;
+use vkrt::accel::geometry::{Geometry, Triangles};
 use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::instance::{flags, Instance};
 use vkrt::accel::instances::{TopLevel, TopLevelBuilder};
@@ -252,9 +253,13 @@ fn scene(
 
 fn top<'a>(ctx: &Context, levels: &'a [GpuGeometry], instances: &[Instance]) -> TopLevel<'a> {
     let refs: Vec<&GpuGeometry> = levels.iter().collect();
+    top_of(ctx, &refs, instances)
+}
+
+fn top_of<'a>(ctx: &Context, levels: &[&'a GpuGeometry], instances: &[Instance]) -> TopLevel<'a> {
     TopLevelBuilder::new(ctx, AccelKind::Lbvh)
         .unwrap()
-        .build(ctx, &refs, instances, &BuildFlags::default())
+        .build(ctx, levels, instances, &BuildFlags::default())
         .unwrap()
 }
 
@@ -639,5 +644,194 @@ bool advance(rayQueryEXT q) {
         assert_eq!(hit_of(g), hit_of(a), "ray {k}");
         assert_eq!(g[3], if b[0] == u32::MAX { 0 } else { 1 }, "ray {k}");
     }
+    common::assert_silent(&ctx);
+}
+
+/// A bottom level over `tris` built from device buffers, its geometry `opaque` or not.
+fn device_bottom(
+    ctx: &Context,
+    tris: &[[Vec3; 3]],
+    opaque: bool,
+) -> (GpuGeometry, Vec<Buffer<u8>>) {
+    let flat: Vec<Vec3> = tris.iter().flatten().copied().collect();
+    let vertices =
+        Buffer::<f32>::from_slice(ctx, "test.vertices", bytemuck::cast_slice(&flat)).unwrap();
+    let geometries = [Geometry::Triangles(Triangles {
+        opaque,
+        ..Triangles::soup(vertices.as_raw(), flat.len() as u32)
+    })];
+    let builder = AccelBuilder::new(ctx, AccelKind::Lbvh).unwrap();
+    let flags = BuildFlags::default();
+    let sizes = builder.sizes_for(ctx, &geometries, &flags).unwrap();
+    let memory =
+        Buffer::<u8>::arena(ctx, "test.structure", sizes.structure_bytes as usize).unwrap();
+    let scratch =
+        Buffer::<u8>::arena(ctx, "test.scratch", sizes.build_scratch_bytes as usize).unwrap();
+    let mut g = builder
+        .create_in(ctx, &geometries, &flags, memory.as_raw())
+        .unwrap();
+    let mut rec = Recorder::new(ctx).unwrap();
+    builder
+        .record_build_from(&mut rec, &geometries, &mut g, scratch.as_raw())
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+    // (the structure holds its own copy of the vertices: the caller's may go)
+    drop(vertices);
+    (g, vec![memory, scratch])
+}
+
+#[test]
+fn a_non_opaque_geometry_returns_its_triangles_as_candidates() {
+    let Some(ctx) = common::context() else { return };
+    let (_, instances, rays) = scene(&ctx, AccelKind::Lbvh, |_| 0);
+    let meshes = [sphere_tris(2), sphere_tris(1), sphere_tris(3)];
+    // Bottom level 1 is non-opaque: its instances' hits come as candidates.
+    let built: Vec<(GpuGeometry, Vec<Buffer<u8>>)> = meshes
+        .iter()
+        .enumerate()
+        .map(|(k, m)| device_bottom(&ctx, m, k != 1))
+        .collect();
+    let levels: Vec<&GpuGeometry> = built.iter().map(|(g, _)| g).collect();
+    let top = top_of(&ctx, &levels, &instances);
+    let handle = top.handle_address();
+    let opaque = run(&ctx, &looped(""), handle, &rays, 0x1, 0xff);
+    let confirmed = run(&ctx, &looped("if (c == gl_RayQueryCandidateIntersectionTriangleEXT && !rayQueryGetIntersectionCandidateAABBOpaqueEXT(q)) { rayQueryConfirmIntersectionEXT(q); }"), handle, &rays, 0, 0xff);
+    let ignored = run(&ctx, &looped(""), handle, &rays, 0, 0xff);
+    let (mut from_candidates, mut skipped) = (0, 0);
+    for (k, ((o, c), i)) in opaque.iter().zip(&confirmed).zip(&ignored).enumerate() {
+        assert_eq!(hit_of(c), hit_of(o), "ray {k}");
+        let Some([_, inst, _]) = hit_of(o) else {
+            continue;
+        };
+        if instances[inst as usize].bottom == 1 {
+            from_candidates += 1;
+            assert!(c[3] >> 8 > 0, "ray {k}: its hit came as a candidate");
+            // Ignored, the non-opaque hit is not committed.
+            assert_ne!(hit_of(i), hit_of(o), "ray {k}");
+            skipped += 1;
+        } else {
+            assert_eq!(hit_of(i), hit_of(o), "ray {k}");
+        }
+    }
+    assert!(from_candidates > 10 && skipped > 10, "{from_candidates}");
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn procedural_spheres_by_generate_equal_vkrt_trace_s_spheres() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(5);
+    let spheres: Vec<glam::Vec4> = (0..48)
+        .map(|_| (centered(&mut rng) * 1.5).extend(0.4 + 0.5 * rng.next_f32()))
+        .collect();
+    let g = TraceGeometry::from_triangles_and_spheres(&[], &spheres);
+    let builder = AccelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let (level, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
+    rec.submit_and_wait().unwrap();
+    let instances: Vec<Instance> = (0..12)
+        .map(|i| {
+            Instance::new(0, Instance::rows_of(&random_transform(&mut rng, 8.0)))
+                .with_custom_index(i)
+        })
+        .collect();
+    let rays: Vec<Ray> = (0..600)
+        .map(|k| {
+            let c = Vec3::from_array(instances[k % 12].transform.map(|r| r[3]));
+            let o = centered(&mut rng).normalize_or(Vec3::X) * 25.0;
+            Ray::new(o, c + centered(&mut rng) * 1.2 - o, 0.0, f32::INFINITY)
+        })
+        .collect();
+    let levels = [level];
+    let top = top(&ctx, &levels, &instances);
+    let handle = top.handle_address();
+    let list: Vec<String> = spheres
+        .iter()
+        .map(|s| format!("vec4({:?}, {:?}, {:?}, {:?})", s.x, s.y, s.z, s.w))
+        .collect();
+    let functions = format!(
+        r#"
+const vec4 SPHERES[{n}] = vec4[]({list});
+// The sphere's nearer root in [tMin, the committed t], in object space.
+void intersect(rayQueryEXT q) {{
+    vec4 s = SPHERES[rayQueryGetIntersectionPrimitiveIndexEXT(q, false)];
+    vec3 o = rayQueryGetIntersectionObjectRayOriginEXT(q, false) - s.xyz;
+    vec3 d = rayQueryGetIntersectionObjectRayDirectionEXT(q, false);
+    float a = dot(d, d);
+    float b = dot(o, d);
+    float c = dot(o, o) - s.w * s.w;
+    float disc = b * b - a * c;
+    if (disc < 0.0) {{
+        return;
+    }}
+    float t0 = (-b - sqrt(disc)) / a;
+    float t1 = (-b + sqrt(disc)) / a;
+    float t = t0 >= rayQueryGetRayTMinEXT(q) ? t0 : t1;
+    rayQueryGenerateIntersectionEXT(q, t);
+}}
+"#,
+        n = spheres.len(),
+        list = list.join(", ")
+    );
+    let body = r#"
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, 0u, 0xffu, o, tmin, d, tmax);
+    while (rayQueryProceedEXT(q)) {
+        if (rayQueryGetIntersectionTypeEXT(q, false) == gl_RayQueryCandidateIntersectionAABBEXT) {
+            intersect(q);
+        }
+    }
+    results[i] = rayQueryGetIntersectionTypeEXT(q, true) == gl_RayQueryCommittedIntersectionGeneratedEXT
+        ? uvec4(floatBitsToUint(rayQueryGetIntersectionTEXT(q, true)), rayQueryGetIntersectionInstanceIdEXT(q, true),
+                rayQueryGetIntersectionPrimitiveIndexEXT(q, true), rayQueryGetIntersectionInstanceCustomIndexEXT(q, true))
+        : uvec4(0xffffffffu);
+"#;
+    let got = run_with_functions(&ctx, &functions, body, handle, &rays);
+    let want = probe(&ctx, handle, &rays, 0);
+    let mut hits = 0;
+    for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+        assert_eq!(
+            g[0] == u32::MAX,
+            w[0] == u32::MAX,
+            "ray {k}: {g:?} vs {w:?}"
+        );
+        if w[0] == u32::MAX {
+            continue;
+        }
+        hits += 1;
+        let (tg, tw) = (f32::from_bits(g[0]), f32::from_bits(w[0]));
+        assert!((tg - tw).abs() <= 1e-4 * tw, "ray {k}: t {tg} vs {tw}");
+        assert_eq!([g[1], g[2], g[3]], [w[3], w[2], w[3]], "ray {k}");
+    }
+    assert!(hits > 100, "{hits} hits");
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn a_bottom_level_alone_is_one_identity_instance() {
+    let Some(ctx) = common::context() else { return };
+    let (levels, _, _) = scene(&ctx, AccelKind::Lbvh, |_| 0);
+    let mut rng = common::Rng(3);
+    let rays: Vec<Ray> = (0..300)
+        .map(|_| {
+            let o = centered(&mut rng).normalize_or(Vec3::X) * 5.0;
+            Ray::new(o, centered(&mut rng) * 0.8 - o, 0.0, f32::INFINITY)
+        })
+        .collect();
+    let flat = Buffer::from_slice(
+        &ctx,
+        "test.flat_handle",
+        &levels[2].address_handle().unwrap(),
+    )
+    .unwrap();
+    let handle = flat.device_address().unwrap();
+    let got = run(&ctx, &looped(""), handle, &rays, 0, 0xff);
+    let want = probe(&ctx, handle, &rays, 0);
+    let mut hits = 0;
+    for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+        assert_eq!(hit_of(g), hit_of(w).map(|[t, _, p]| [t, 0, p]), "ray {k}");
+        hits += hit_of(g).is_some() as usize;
+    }
+    assert!(hits > 0);
     common::assert_silent(&ctx);
 }

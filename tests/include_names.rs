@@ -85,7 +85,13 @@ fn every_name_the_library_declares_carries_its_prefix() {
     for (file, source) in FILES {
         for name in declared_names(source) {
             seen += 1;
-            if !prefixed(&name) {
+            // `vkrt/ext_ray_query.glsl` defines the extension's own names, and a
+            // constructor macro on a type that has none.
+            let extension = *file == "vkrt/ext_ray_query.glsl"
+                && ((name.starts_with("rayQuery") && name.ends_with("EXT"))
+                    || name == "accelerationStructureEXT"
+                    || name == "utextureBuffer");
+            if !prefixed(&name) && !extension {
                 unprefixed.push(format!("{file}: {name}"));
             }
         }
@@ -287,6 +293,64 @@ fn the_same_names_clash_without_the_library_s_prefix() {
         "const float PI = 3.14159265;\nconst float PI = 3.0;",
     );
     assert!(compile(&twice, &[]).is_err());
+}
+
+/// A renderer's `GL_EXT_ray_query` shader through `vkrt/ext_ray_query.glsl`, declaring
+/// the common names after the include.
+const EXT_RAY_QUERY_SHADER: &str = r#"#version 460
+#extension GL_EXT_ray_query : require
+#include "vkrt/ext_ray_query.glsl"
+
+#define NO_HIT 0xfffffffeu
+#define DEAD 9u
+const float FLT_MIN = 1.0e-30;
+const float PI = 3.14159265;
+const float INF = 1.0 / 0.0;
+struct Ray { vec3 o; vec3 d; };
+struct Hit { float t; uint id; };
+struct Query { uint q; };
+layout(local_size_x = 64) in;
+layout(set = 0, binding = 0) uniform accelerationStructureEXT scene;
+layout(set = 0, binding = 1) buffer Spheres { vec4 spheres[]; };
+layout(set = 0, binding = 2) buffer Motions { vec4 motions[]; };
+layout(set = 0, binding = 3) buffer Out { vec4 results[]; } scene_info;
+uint stack[4];
+float dot3(vec3 a, vec3 b) { return dot(a, b); }
+bool is_nan(float x) { return x != x; }
+Hit trace_ray(Ray r) { return Hit(INF, NO_HIT); }
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    Ray r = Ray(spheres[i].xyz, motions[i].xyz);
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, gl_RayFlagsNoneEXT, 0xFF, r.o, 0.0, r.d, INF);
+    while (rayQueryProceedEXT(q)) {
+        rayQueryConfirmIntersectionEXT(q);
+    }
+    stack[0] = DEAD;
+    float t = rayQueryGetIntersectionTEXT(q, true);
+    scene_info.results[i] = vec4(t + trace_ray(r).t + PI + FLT_MIN + float(stack[0]),
+                                 dot3(r.o, r.d), is_nan(t) ? 1.0 : 0.0, 0.0);
+}
+"#;
+
+#[test]
+fn a_ray_query_shader_declaring_common_names_needs_no_ray_query_capability() {
+    let mut got = capabilities(&compile(EXT_RAY_QUERY_SHADER, &[]).unwrap());
+    got.sort_unstable();
+    // docs/ray-queries.md: bufferDeviceAddress and shaderInt64, a texel buffer for the
+    // structure, and no RayQueryKHR.
+    let mut want = vec![
+        SHADER,
+        INT64,
+        SAMPLED_BUFFER,
+        PHYSICAL_STORAGE_BUFFER_ADDRESSES,
+    ];
+    want.sort_unstable();
+    assert_eq!(got, want);
+    // The same source on the driver's own ray query.
+    let native = capabilities(&compile(EXT_RAY_QUERY_SHADER, &["VKRT_NATIVE_RAY_QUERY"]).unwrap());
+    assert!(native.contains(&RAY_QUERY_KHR), "{native:?}");
 }
 
 #[test]

@@ -628,7 +628,7 @@ impl GeometryGather {
             let slot = layout
                 .table
                 .iter()
-                .position(|e| e[1] == k as u32)
+                .position(|e| e[1] & !NON_OPAQUE == k as u32)
                 .ok_or_else(|| usage(format!("geometry {k} is not in the layout")))?
                 as u32;
             let (src, indices, push) = match g {
