@@ -196,6 +196,42 @@ fn expected(x: f32, y: f32, margin: f32) -> Option<(u32, f32)> {
     Some((u32::MAX, 0.0))
 }
 
+/// The closest-hit shader's records for the grid rays, checked against the geometry: every
+/// instance hit where a ray meets it (t, instance, primitive, committed type), misses elsewhere.
+fn check_closest_hits(rays: &[Ray], records: &[[u32; 4]]) {
+    assert_eq!(records.len(), rays.len());
+    let mut seen = [0usize; 4];
+    for (r, rec) in rays.iter().zip(records) {
+        let Some((instance, t)) = expected(r.origin[0], r.origin[1], 1e-3) else {
+            continue;
+        };
+        if instance == u32::MAX {
+            assert_eq!(*rec, [0, u32::MAX, u32::MAX, 0], "ray {r:?} should miss");
+            seen[3] += 1;
+            continue;
+        }
+        assert_eq!(rec[1], instance, "ray {r:?}: {rec:?}");
+        let got = f32::from_bits(rec[0]);
+        assert!(
+            (got - t).abs() <= 1e-4 * t,
+            "ray {r:?}: t {got}, expected {t}"
+        );
+        // Triangles are committed by the query (type 1), spheres generated (type 2).
+        assert_eq!(rec[3], if instance == 2 { 2 } else { 1 }, "ray {r:?}");
+        if instance == 2 {
+            // The sphere's own index as its box's primitive index.
+            assert_eq!(rec[2], u32::from(r.origin[0] > 0.0));
+        } else {
+            assert!(rec[2] < 2, "a square has two triangles: {rec:?}");
+        }
+        seen[instance as usize] += 1;
+    }
+    assert!(
+        seen.iter().all(|&n| n > 0),
+        "every instance and a miss: {seen:?}"
+    );
+}
+
 fn has_ray_query() -> bool {
     let out = vkrt(&["info", "--json"]);
     String::from_utf8_lossy(&out.stdout).contains("\"ray_query\": true")
@@ -233,38 +269,7 @@ fn the_driver_runs_a_closest_hit_shader_over_the_instanced_scene() {
     assert_eq!(v["mismatches"].as_array().unwrap().len(), 0);
     assert!(v["vkrt_ms"].is_null(), "{v}");
     assert!(v["driver_ms"].as_f64().is_some_and(|ms| ms >= 0.0), "{v}");
-    let records = read_records(&out_path);
-    assert_eq!(records.len(), rays.len());
-    let mut seen = [0usize; 4];
-    for (r, rec) in rays.iter().zip(&records) {
-        let Some((instance, t)) = expected(r.origin[0], r.origin[1], 1e-3) else {
-            continue;
-        };
-        if instance == u32::MAX {
-            assert_eq!(*rec, [0, u32::MAX, u32::MAX, 0], "ray {r:?} should miss");
-            seen[3] += 1;
-            continue;
-        }
-        assert_eq!(rec[1], instance, "ray {r:?}: {rec:?}");
-        let got = f32::from_bits(rec[0]);
-        assert!(
-            (got - t).abs() <= 1e-4 * t,
-            "ray {r:?}: t {got}, expected {t}"
-        );
-        // Triangles are committed by the query (type 1), spheres generated (type 2).
-        assert_eq!(rec[3], if instance == 2 { 2 } else { 1 }, "ray {r:?}");
-        if instance == 2 {
-            // The sphere's own index as its box's primitive index.
-            assert_eq!(rec[2], u32::from(r.origin[0] > 0.0));
-        } else {
-            assert!(rec[2] < 2, "a square has two triangles: {rec:?}");
-        }
-        seen[instance as usize] += 1;
-    }
-    assert!(
-        seen.iter().all(|&n| n > 0),
-        "every instance and a miss: {seen:?}"
-    );
+    check_closest_hits(&rays, &read_records(&out_path));
     let _ = std::fs::remove_dir_all(&st.dir);
 }
 
@@ -546,8 +551,13 @@ fn two_sided_rays() -> Vec<Ray> {
     rays
 }
 
-/// Runs `shader` through both paths; the parsed report.
-fn both(name: &str, shader: &str, scene: &str, rays: &[Ray]) -> Option<serde_json::Value> {
+/// Runs `shader` through both paths; the parsed report and the results written.
+fn both(
+    name: &str,
+    shader: &str,
+    scene: &str,
+    rays: &[Ray],
+) -> Option<(serde_json::Value, Vec<[u32; 4]>)> {
     let st = setup(name, shader, scene, rays);
     let out_path = st.dir.join("results.bin");
     let out = vkrt_ok(&[
@@ -563,17 +573,22 @@ fn both(name: &str, shader: &str, scene: &str, rays: &[Ray]) -> Option<serde_jso
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!stderr.contains("validation"), "{stderr}");
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    assert_eq!(read_records(&out_path).len(), rays.len());
+    let records = read_records(&out_path);
+    assert_eq!(records.len(), rays.len());
     let _ = std::fs::remove_dir_all(&st.dir);
-    Some(v)
+    Some((v, records))
 }
 
 #[test]
 fn vkrt_and_the_driver_agree_on_a_closest_hit_shader() {
-    let Some(v) = both("both-closest", CLOSEST_HIT, &scene_toml(""), &grid_rays()) else {
+    let rays = grid_rays();
+    let Some((v, records)) = both("both-closest", CLOSEST_HIT, &scene_toml(""), &rays) else {
         return;
     };
     assert_eq!(v["mismatching_rays"], 0, "{v}");
+    // The records written (the driver's, or vkrt's on a device without ray query) are the
+    // scene's answers.
+    check_closest_hits(&rays, &records);
     assert!(v["vkrt_ms"].as_f64().is_some(), "{v}");
     assert_eq!(v["native"], has_ray_query(), "{v}");
 }
@@ -588,7 +603,7 @@ fn vkrt_and_the_driver_agree_on_candidates_masks_flags_and_instance_keys() {
         "translate = [0, 3, -1]",
         "translate = [0, 3, -1]\nmask = 2\nflags = [\"cull-disable\"]",
     );
-    let Some(v) = both("both-candidates", CANDIDATES, &scene, &two_sided_rays()) else {
+    let Some((v, _)) = both("both-candidates", CANDIDATES, &scene, &two_sided_rays()) else {
         return;
     };
     assert_eq!(v["mismatching_rays"], 0, "{v}");
