@@ -232,6 +232,18 @@ fn check_closest_hits(rays: &[Ray], records: &[[u32; 4]]) {
     );
 }
 
+/// `--validate` where the Khronos layer is installed and `VKRT_VALIDATION` is not 0, as the
+/// library's tests run (any message then fails the command).
+fn validate() -> Vec<&'static str> {
+    let layer = Path::new("/usr/share/vulkan/explicit_layer.d/VkLayer_khronos_validation.json");
+    let off = std::env::var("VKRT_VALIDATION").is_ok_and(|v| v.trim() == "0");
+    if layer.exists() && !off {
+        vec!["--validate"]
+    } else {
+        Vec::new()
+    }
+}
+
 fn has_ray_query() -> bool {
     let out = vkrt(&["info", "--json"]);
     String::from_utf8_lossy(&out.stdout).contains("\"ray_query\": true")
@@ -246,7 +258,8 @@ fn the_driver_runs_a_closest_hit_shader_over_the_instanced_scene() {
     let rays = grid_rays();
     let st = setup("driver", CLOSEST_HIT, &scene_toml(""), &rays);
     let out_path = st.dir.join("results.bin");
-    let Some(out) = vkrt_ok(&[
+    let mut args = validate();
+    args.extend([
         "shader-check",
         s(&st.shader),
         s(&st.scene),
@@ -257,7 +270,8 @@ fn the_driver_runs_a_closest_hit_shader_over_the_instanced_scene() {
         "-o",
         s(&out_path),
         "--json",
-    ]) else {
+    ]);
+    let Some(out) = vkrt_ok(&args) else {
         return;
     };
     let stderr = String::from_utf8_lossy(&out.stderr);
@@ -414,6 +428,29 @@ fn every_bad_input_is_a_clear_error_without_output() {
         None,
         &["meshes[0].opaque"],
     );
+    // The SAH BVH over a non-opaque mesh: its host arrays carry no opaque flag.
+    let st = setup(
+        "sah",
+        CLOSEST_HIT,
+        &scene_toml("opaque = false"),
+        &grid_rays(),
+    );
+    let out = vkrt(&[
+        "shader-check",
+        s(&st.shader),
+        s(&st.scene),
+        "--rays",
+        s(&st.rays),
+        "--accel",
+        "sah-bvh",
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success());
+    assert!(
+        stderr.contains("--accel sah-bvh") && stderr.contains("opaque"),
+        "{stderr}"
+    );
+    let _ = std::fs::remove_dir_all(&st.dir);
     // A ray file that is not whole rays.
     refused(
         "rays",
@@ -560,7 +597,8 @@ fn both(
 ) -> Option<(serde_json::Value, Vec<[u32; 4]>)> {
     let st = setup(name, shader, scene, rays);
     let out_path = st.dir.join("results.bin");
-    let out = vkrt_ok(&[
+    let mut args = validate();
+    args.extend([
         "shader-check",
         s(&st.shader),
         s(&st.scene),
@@ -569,7 +607,8 @@ fn both(
         "-o",
         s(&out_path),
         "--json",
-    ])?;
+    ]);
+    let out = vkrt_ok(&args)?;
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!stderr.contains("validation"), "{stderr}");
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();

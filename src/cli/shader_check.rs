@@ -89,6 +89,11 @@ pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
     let scene = load_scene(&Some(args.scene.clone()))?;
     let levels = check::scene_levels(&scene);
     drop(scene);
+    if through != Through::Driver {
+        levels
+            .check_kind(kind)
+            .map_err(|e| format!("--accel {}: {e}", kind.name()))?;
+    }
 
     let ctx = context(validate)?;
     let has_ray_query = ctx.info().features.ray_query;

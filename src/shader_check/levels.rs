@@ -134,6 +134,32 @@ impl SceneLevels {
         }
     }
 
+    /// Why vkrt's bottom levels cannot be `kind` trees for these levels: the binary BVHs
+    /// only (the walk of `vkrt/ext_ray_query.glsl`), and the SAH BVH, built from host arrays
+    /// that carry no opaque flag, only where every geometry is opaque.
+    pub fn check_kind(&self, kind: AccelKind) -> std::result::Result<(), String> {
+        match kind {
+            AccelKind::Lbvh | AccelKind::Ploc => Ok(()),
+            AccelKind::SahBvh
+                if self
+                    .bottoms
+                    .iter()
+                    .any(|b| matches!(b, BottomSource::Mesh { opaque: false, .. })) =>
+            {
+                Err(
+                    "the SAH BVH is built from host arrays, which carry no opaque flag: \
+                     choose the LBVH or PLOC for a scene with `opaque = false`"
+                        .into(),
+                )
+            }
+            AccelKind::SahBvh => Ok(()),
+            other => Err(format!(
+                "{} bottom levels: the ray queries walk binary BVHs (LBVH, PLOC, SAH BVH)",
+                other.name()
+            )),
+        }
+    }
+
     /// vkrt's two levels, recorded into `rec`: bottom levels of `kind` (LBVH or PLOC from
     /// the geometry on the device, with its opaque flag; the SAH BVH from host arrays, which
     /// carry none, so only where every geometry is opaque) and an LBVH top level over the
@@ -147,16 +173,14 @@ impl SceneLevels {
         let mut indices: Vec<Buffer<[u32; 3]>> = Vec::new();
         let mut boxes: Vec<Buffer<[f32; 6]>> = Vec::new();
         let flags = BuildFlags::default();
+        if let Err(reason) = self.check_kind(kind) {
+            return Err(GpuError::Usage {
+                call: "shader-check",
+                reason,
+            });
+        }
         for b in &self.bottoms {
             if kind == AccelKind::SahBvh {
-                if matches!(b, BottomSource::Mesh { opaque: false, .. }) {
-                    return Err(GpuError::Usage {
-                        call: "shader-check",
-                        reason: "the SAH BVH is built from host arrays, which carry no opaque \
-                                 flag: choose the LBVH or PLOC for a scene with `opaque = false`"
-                            .into(),
-                    });
-                }
                 let (g, _) = GpuGeometry::record_build(rec, &builder, &self.host_geometry(b), 0)?;
                 bottoms.push(g);
                 continue;
