@@ -6,3 +6,6 @@ pub mod embedding {}
 
 #[doc = include_str!("../docs/versioning.md")]
 pub mod versioning {}
+
+#[doc = include_str!("../docs/ray-queries.md")]
+pub mod ray_queries {}

@@ -630,7 +630,7 @@ fn instance_boxes_check(ctx: &Context, hosts: &[TraceGeometry], n: usize, steps:
     rec.submit_and_wait()?;
     let infos: Vec<_> = levels
         .iter()
-        .map(|l| Ok(l.accel.info.download()?[0]))
+        .map(|l| Ok((l.accel.info.download()?[0], l.reference()?)))
         .collect::<Result<_>>()?;
     let (boxes, records) = top.download()?;
     let want = instance_boxes(&instances, motion, &infos, top.bottom_handles_address());

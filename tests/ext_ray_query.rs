@@ -340,7 +340,7 @@ fn non_opaque_candidates_confirmed_give_the_opaque_answer() {
         for (k, (g, w)) in got.iter().zip(&opaque).enumerate() {
             assert_eq!(hit_of(g), hit_of(w), "flags {ray_flags:#x}, ray {k}");
             if g[0] != u32::MAX {
-                assert_eq!(g[3] >> 1 & 0x7f, 1, "a confirmed triangle");
+                assert_eq!((g[3] >> 1) & 0x7f, 1, "a confirmed triangle");
                 candidates += g[3] >> 8;
             }
         }
@@ -568,7 +568,7 @@ fn getters_report_the_instance_as_given() {
             }
         }
         assert_eq!(g[0], i.custom_index(), "ray {k}");
-        assert_eq!(g[1], 0x8000_0000 | 7 * inst, "ray {k}");
+        assert_eq!(g[1], 0x8000_0000 | (7 * inst), "ray {k}");
         assert_eq!(g[2], h, "ray {k}: object-to-world");
         assert!(
             f32::from_bits(g[3]) < 1e-4,

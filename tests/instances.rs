@@ -12,6 +12,7 @@ use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::embedded::BuildFlags;
 use vkrt::accel::geometry::transform_point;
 use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::instance::MAX_BOTTOM_LEVELS;
 use vkrt::accel::instances::{
     instance_boxes, lerp_rows, world_to_object, Instance, InstanceMotion, InstanceRecord,
     TopLevelBuilder,
@@ -175,10 +176,11 @@ fn as_hit(h: &[u32; 4]) -> (Hit, Option<u32>) {
     (hit, Some(h[3]))
 }
 
-fn scene_infos(bottoms: &[&GpuGeometry]) -> Vec<SceneInfo> {
+/// Each bottom level's scene constants and reference, as the twin takes them.
+fn scene_infos(bottoms: &[&GpuGeometry]) -> Vec<(SceneInfo, u64)> {
     bottoms
         .iter()
-        .map(|b| b.accel.info.download().unwrap()[0])
+        .map(|b| (b.accel.info.download().unwrap()[0], b.reference().unwrap()))
         .collect()
 }
 
@@ -488,6 +490,76 @@ fn masks_any_hit_and_updates() {
         probe(&ctx, top.handle_address(), &rays, 0),
         probe(&ctx, fresh.handle_address(), &rays, 0)
     );
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn instances_name_bottom_levels_by_reference_as_by_index() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(21);
+    let levels = [
+        bottom(&ctx, AccelKind::Lbvh, false, &sphere_tris(1)),
+        bottom(&ctx, AccelKind::Ploc, false, &sphere_tris(2)),
+        bottom(&ctx, AccelKind::SahBvh, false, &random_tris(&mut rng, 50)),
+    ];
+    let refs: Vec<&GpuGeometry> = levels.iter().collect();
+    let references: Vec<u64> = levels.iter().map(|l| l.reference().unwrap()).collect();
+    assert!(references.iter().all(|&r| r >= MAX_BOTTOM_LEVELS as u64));
+    let by_index: Vec<Instance> = (0..25)
+        .map(|i| Instance::new(i % 3, Instance::rows_of(&random_transform(&mut rng, 10.0))))
+        .collect();
+    let by_reference: Vec<Instance> = by_index
+        .iter()
+        .map(|i| Instance::referencing(references[i.bottom as usize], i.transform))
+        .collect();
+    let builder = TopLevelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
+    let flags = BuildFlags::default();
+    let a = builder.build(&ctx, &refs, &by_index, &flags).unwrap();
+    let b = builder.build(&ctx, &refs, &by_reference, &flags).unwrap();
+    let (boxes_a, records_a) = a.download().unwrap();
+    let (boxes_b, records_b) = b.download().unwrap();
+    assert_eq!(boxes_a, boxes_b);
+    // The same records but for where each top level keeps its copies of the handles.
+    let strip = |r: &[InstanceRecord], at: u64| -> Vec<InstanceRecord> {
+        r.iter()
+            .map(|r| InstanceRecord {
+                handle: r.handle - at,
+                ..*r
+            })
+            .collect()
+    };
+    assert_eq!(
+        strip(&records_a, a.bottom_handles_address()),
+        strip(&records_b, b.bottom_handles_address())
+    );
+    let infos = scene_infos(&refs);
+    let want = instance_boxes(
+        &by_reference,
+        InstanceMotion::STATIC,
+        &infos,
+        b.bottom_handles_address(),
+    );
+    assert_eq!(want.records, records_b);
+    let rays = rays_at(&mut rng, 300, 15.0);
+    assert_eq!(
+        probe(&ctx, a.handle_address(), &rays, 0),
+        probe(&ctx, b.handle_address(), &rays, 0)
+    );
+    // A reference to no level of the list is refused by the host, and never hit (counted)
+    // when it reaches the device in the caller's records.
+    let stranger = bottom(&ctx, AccelKind::Lbvh, false, &sphere_tris(0));
+    let mut bad = by_reference.clone();
+    bad[3].bottom = stranger.reference().unwrap();
+    let err = match builder.build(&ctx, &refs, &bad, &flags) {
+        Err(GpuError::Usage { reason, .. }) => reason,
+        other => panic!("{:?}", other.map(|_| ())),
+    };
+    assert!(
+        err.contains("instance 3") && err.contains("references"),
+        "{err}"
+    );
+    let want = instance_boxes(&bad, InstanceMotion::STATIC, &infos, 0);
+    assert_eq!(want.invalid, 1);
     common::assert_silent(&ctx);
 }
 

@@ -12,7 +12,8 @@
 // step's interval every point moves on a straight line, so the union holds it. An instance
 // whose steps are all equal is recorded as still (one step).
 //
-// An instance whose bottom-level index is out of range, or one of whose transforms is not
+// An instance naming no bottom level of the list (an index out of range, an unknown
+// reference), or one of whose transforms is not
 // finite or not invertible, is never hit (an inactive box, min > max, and mask 0) and
 // counted in `status`; an instance of an empty bottom level or with mask 0 is never hit, not
 // counted.
@@ -62,6 +63,9 @@ layout(std430, binding = 5) writeonly buffer Steps { Rows steps[]; };
 // The caller's records as given (step 0's), for the ray query's object-to-world and SBT
 // record offset getters (vkrt/ext_ray_query.glsl): four texels per instance.
 layout(std430, binding = 6) writeonly buffer Originals { uvec4 originals[]; };
+// The bottom levels by reference (`GpuGeometry::reference`): (low word, high word, index, 0),
+// ordered by reference.
+layout(std430, binding = 7) readonly buffer References { uvec4 references[]; };
 layout(push_constant) uniform Push {
     uint n;
     uint first_word;
@@ -94,6 +98,34 @@ vec4[3] rows_of(uint i, uint s) {
     return m;
 }
 
+// The index of the bottom level an instance names (`Instance::bottom_index`): an index
+// below MAX_BOTTOM_LEVELS (2^24), else a reference found in the table.
+bool find_bottom(uvec2 named, out uint bottom) {
+    bottom = 0u;
+    if (named.y == 0u && named.x < 0x1000000u) {
+        bottom = named.x;
+        return named.x < pc.n_bottoms;
+    }
+    // The first entry not below `named` (binary search over the ordered table).
+    uint lo = 0u;
+    uint hi = pc.n_bottoms;
+    while (lo < hi) {
+        uint mid = (lo + hi) >> 1u;
+        uvec2 r = references[mid].xy;
+        bool below = r.y < named.y || (r.y == named.y && r.x < named.x);
+        if (below) {
+            lo = mid + 1u;
+        } else {
+            hi = mid;
+        }
+    }
+    if (lo < pc.n_bottoms && all(equal(references[lo].xy, named))) {
+        bottom = references[lo].z;
+        return true;
+    }
+    return false;
+}
+
 void main() {
     uint i = linear_invocation_id();
     if (i >= pc.n) {
@@ -106,8 +138,8 @@ void main() {
     }
     uint custom_mask = words[w + 12u];
     uint flags = words[w + 13u] >> 24u;
-    uint bottom = words[w + 14u];
-    bool bottom_ok = words[w + 15u] == 0u && bottom < pc.n_bottoms;
+    uint bottom;
+    bool bottom_ok = find_bottom(uvec2(words[w + 14u], words[w + 15u]), bottom);
     uint meta_w = flags | ((bottom_ok ? bottom : 0u) << 8u);
 
     vec4 inv[3];

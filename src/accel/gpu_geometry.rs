@@ -153,6 +153,27 @@ impl GpuGeometry {
         Ok(out)
     }
 
+    /// How an instance names this bottom level in a top level's instance records
+    /// ([`Instance::bottom`](crate::accel::instance::Instance::bottom)), as
+    /// `VkAccelerationStructureInstanceKHR::accelerationStructureReference` holds a BLAS's
+    /// device address: the device address of its scene constants, fixed for as long as it
+    /// lives (rebuilds into it keep it). At least
+    /// [`MAX_BOTTOM_LEVELS`](crate::accel::instance::MAX_BOTTOM_LEVELS), so that it never
+    /// reads as an index.
+    pub fn reference(&self) -> Result<u64> {
+        let address = self.address_handle()?[6];
+        if address < crate::accel::instance::MAX_BOTTOM_LEVELS as u64 {
+            return Err(crate::gpu::GpuError::Usage {
+                call: "GpuGeometry::reference",
+                reason: format!(
+                    "the device placed the structure at address {address:#x}, below the \
+                     indices instances may use"
+                ),
+            });
+        }
+        Ok(address)
+    }
+
     /// The seven bindings in `traverse.glsl`'s order.
     pub fn bindings(&self) -> [&dyn BufferArg; 7] {
         let [nodes, refs] = self.accel.node_bindings();

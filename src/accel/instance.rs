@@ -89,9 +89,12 @@ pub mod flags {
     pub const FORCE_NO_OPAQUE: u8 = 0x8;
 }
 
-/// One instance: 64 bytes, the layout of `VkAccelerationStructureInstanceKHR`, except that
-/// [`Instance::bottom`] is an index into the top level's list of bottom levels (where Vulkan
-/// has a device address).
+/// One instance: 64 bytes, the layout of `VkAccelerationStructureInstanceKHR`. Its
+/// [`Instance::bottom`] names the bottom level as Vulkan's `accelerationStructureReference`
+/// does, by the level's reference ([`GpuGeometry::reference`]: an address), or by its index
+/// in the top level's list of bottom levels.
+///
+/// [`GpuGeometry::reference`]: crate::accel::gpu_geometry::GpuGeometry::reference
 #[repr(C)]
 #[derive(Clone, Copy, Debug, PartialEq, Pod, Zeroable)]
 pub struct Instance {
@@ -103,7 +106,11 @@ pub struct Instance {
     /// Bits 24..32: [`flags`] (bits 0..24, Vulkan's shader-binding-table offset, are kept
     /// and unused).
     pub sbt_offset_and_flags: u32,
-    /// The bottom level: its index in the list the top level was created with.
+    /// The bottom level: its reference ([`GpuGeometry::reference`], at least
+    /// [`MAX_BOTTOM_LEVELS`]), or below that its index in the list the top level was created
+    /// with.
+    ///
+    /// [`GpuGeometry::reference`]: crate::accel::gpu_geometry::GpuGeometry::reference
     pub bottom: u64,
 }
 
@@ -180,14 +187,46 @@ impl Instance {
         (self.sbt_offset_and_flags >> 24) as u8
     }
 
-    /// Why the device would never hit this instance of one of `n_bottoms` levels (`None`: it
-    /// is valid). The checks `accel.instance_boxes` makes.
-    pub fn check(&self, n_bottoms: usize) -> std::result::Result<(), String> {
-        if self.bottom >= n_bottoms as u64 {
-            return Err(format!(
-                "it names bottom level {}, but the top level has {n_bottoms}",
-                self.bottom
-            ));
+    /// An instance of the bottom level whose reference ([`GpuGeometry::reference`]) is
+    /// `reference`, placed by `transform`, custom index 0, mask 0xff, no flags.
+    ///
+    /// [`GpuGeometry::reference`]: crate::accel::gpu_geometry::GpuGeometry::reference
+    pub fn referencing(reference: u64, transform: [[f32; 4]; 3]) -> Self {
+        Self {
+            bottom: reference,
+            ..Self::new(0, transform)
+        }
+    }
+
+    /// The index of its bottom level among levels whose references are `references` (in
+    /// the top level's order): [`Instance::bottom`] as an index, or the level it references.
+    pub fn bottom_index(&self, references: &[u64]) -> Option<u32> {
+        if self.bottom < MAX_BOTTOM_LEVELS as u64 {
+            return (self.bottom < references.len() as u64).then_some(self.bottom as u32);
+        }
+        references
+            .iter()
+            .position(|&r| r == self.bottom)
+            .map(|k| k as u32)
+    }
+
+    /// Why the device would never hit this instance of one of the levels whose references
+    /// are `references` (`None`: it is valid). The checks `accel.instance_boxes` makes.
+    pub fn check(&self, references: &[u64]) -> std::result::Result<(), String> {
+        if self.bottom_index(references).is_none() {
+            return Err(if self.bottom < MAX_BOTTOM_LEVELS as u64 {
+                format!(
+                    "it names bottom level {}, but the top level has {}",
+                    self.bottom,
+                    references.len()
+                )
+            } else {
+                format!(
+                    "it references {:#x}, none of the top level's {} bottom levels",
+                    self.bottom,
+                    references.len()
+                )
+            });
         }
         if self.transform.iter().flatten().any(|x| !x.is_finite()) {
             return Err(format!("its transform {:?} is not finite", self.transform));

@@ -89,14 +89,15 @@ pub struct InstanceBoxes {
 
 /// The CPU twin of `accel.instance_boxes`, bit for bit: the top level's boxes, records and
 /// steps for `instances` moving by `motion` (`motion.steps` lists of them, step after step),
-/// given each bottom level's scene constants and where their handles lie (64 bytes apart
-/// from `handles_at`).
+/// given each bottom level's scene constants and reference ([`GpuGeometry::reference`]),
+/// and where their handles lie (64 bytes apart from `handles_at`).
 pub fn instance_boxes(
     instances: &[Instance],
     motion: InstanceMotion,
-    bottoms: &[SceneInfo],
+    bottoms: &[(SceneInfo, u64)],
     handles_at: u64,
 ) -> InstanceBoxes {
+    let references: Vec<u64> = bottoms.iter().map(|b| b.1).collect();
     let n_steps = motion.steps.max(1) as usize;
     let count = instances.len() / n_steps;
     let mut out = InstanceBoxes::default();
@@ -118,8 +119,9 @@ pub fn instance_boxes(
     };
     let inactive_box = [1.0, 1.0, 1.0, 0.0, 0.0, 0.0];
     for (i, inst) in instances[..count].iter().enumerate() {
-        let bottom_ok = inst.bottom < bottoms.len() as u64;
-        let bottom = if bottom_ok { inst.bottom as u32 } else { 0 };
+        let found = inst.bottom_index(&references);
+        let bottom_ok = found.is_some();
+        let bottom = found.unwrap_or(0);
         let meta_w = u32::from(inst.flags()) | (bottom << 8);
         let inactive = InstanceRecord {
             world_to_object: [[0.0; 4]; 3],
@@ -137,7 +139,7 @@ pub fn instance_boxes(
             out.records.push(inactive);
             continue;
         };
-        let b = &bottoms[bottom as usize];
+        let b = &bottoms[bottom as usize].0;
         if b.n_tris + b.n_spheres + b.n_aabbs == 0 || inst.mask() == 0 {
             out.boxes.push(inactive_box);
             out.records.push(inactive);
@@ -191,6 +193,23 @@ fn placed_box(m: &[[f32; 4]; 3], bmin: Vec3, bmax: Vec3) -> (Vec3, Vec3) {
     };
     let pad = Vec3::new(pad_row(&m[0]), pad_row(&m[1]), pad_row(&m[2]));
     (lo - pad, hi + pad)
+}
+
+/// Each bottom level's reference ([`GpuGeometry::reference`]), in the list's order.
+fn references(bottoms: &[Bottom<'_>]) -> Result<Vec<u64>> {
+    bottoms.iter().map(|b| b.reference()).collect()
+}
+
+/// The table `accel.instance_boxes` searches for an instance's reference: (reference low,
+/// high word, bottom index, 0) per bottom level, ordered by reference.
+fn reference_table(references: &[u64]) -> Vec<[u32; 4]> {
+    let mut table: Vec<[u32; 4]> = references
+        .iter()
+        .enumerate()
+        .map(|(k, &r)| [r as u32, (r >> 32) as u32, k as u32, 0])
+        .collect();
+    table.sort_unstable_by_key(|e| (u64::from(e[1]) << 32) | u64::from(e[0]));
+    table
 }
 
 fn usage(call: &'static str, reason: impl Into<String>) -> GpuError {
@@ -259,6 +278,8 @@ struct Parts {
     /// The caller's records as given (step 0's): what a ray query reports of an instance
     /// (object-to-world, SBT record offset).
     originals: Buffer<Instance>,
+    /// The bottom levels by reference ([`reference_table`]).
+    references: Buffer<[u32; 4]>,
     /// The top level's handle: its tree's seven arrays, its records, its steps, its
     /// originals.
     handle: Buffer<[u64; 8]>,
@@ -281,6 +302,7 @@ impl Parts {
             bottom_info: Buffer::new(ctx, "accel.bottom_info", b)?,
             handles: Buffer::new(ctx, "accel.bottom_handles", b)?,
             originals: Buffer::new(ctx, "accel.instance_originals", n)?,
+            references: Buffer::new(ctx, "accel.bottom_references", b)?,
             handle: Buffer::new(ctx, "accel.top_handle", 2)?,
             status: Buffer::new(ctx, "accel.instance_status", 1)?,
         })
@@ -548,7 +570,9 @@ impl TopLevelBuilder {
         // the records): written by a build only.
         let mut handles = Vec::new();
         let mut handle = [[0u64; 8]; 2];
+        let mut table = Vec::new();
         if build {
+            table = reference_table(&references(&top.bottoms)?);
             for b in &top.bottoms {
                 let mut out = [0u64; 8];
                 out[..7].copy_from_slice(&b.address_handle()?);
@@ -572,6 +596,9 @@ impl TopLevelBuilder {
                 for (k, chunk) in handles.chunks(1024).enumerate() {
                     rec.update(&p.handles, k * 1024, chunk)?;
                 }
+                for (k, chunk) in table.chunks(2048).enumerate() {
+                    rec.update(&p.references, k * 2048, chunk)?;
+                }
                 rec.update(&p.handle, 0, &handle)?;
             }
             rec.transfer_to_compute();
@@ -587,7 +614,7 @@ impl TopLevelBuilder {
                     scale: top.motion.scale(),
                 };
                 let groups = rec.groups_1d(u64::from(top.count), WORKGROUP);
-                let b: [&dyn BufferArg; 7] = [
+                let b: [&dyn BufferArg; 8] = [
                     &bound_instances,
                     &p.bottom_info,
                     &p.boxes,
@@ -595,6 +622,7 @@ impl TopLevelBuilder {
                     &p.status,
                     &p.steps,
                     &p.originals,
+                    &p.references,
                 ];
                 rec.dispatch(&self.boxes, groups, &b, &push);
             }
@@ -733,7 +761,8 @@ impl TopLevelBuilder {
         flags: &BuildFlags,
     ) -> Result<TopLevel<'a>> {
         let call = "TopLevelBuilder::build";
-        let count = check_instances(call, instances, motion, bottoms.len())?;
+        let references = references(&bottoms)?;
+        let count = check_instances(call, instances, motion, &references)?;
         let ctx = rec.context().clone();
         let sizes = self.sizes_for_motion(&ctx, count, bottoms.len(), motion, flags)?;
         let memory = Buffer::<u8>::arena(&ctx, "accel.top_level", sizes.structure_bytes as usize)?;
@@ -816,7 +845,7 @@ impl TopLevelBuilder {
                 ),
             ));
         }
-        check_instances(call, instances, top.motion, top.bottoms.len())?;
+        check_instances(call, instances, top.motion, &references(&top.bottoms)?)?;
         let Some(Own {
             scratch, records, ..
         }) = &top.own
@@ -841,7 +870,7 @@ fn check_instances(
     call: &'static str,
     instances: &[Instance],
     motion: InstanceMotion,
-    n_bottoms: usize,
+    references: &[u64],
 ) -> Result<u32> {
     motion.check().map_err(|why| usage(call, why))?;
     let steps = motion.steps as usize;
@@ -863,7 +892,7 @@ fn check_instances(
         } else {
             format!("instance {i}")
         };
-        inst.check(n_bottoms)
+        inst.check(references)
             .map_err(|why| usage(call, format!("{at}: {why}")))?;
         let first = &instances[i];
         if s > 0 {

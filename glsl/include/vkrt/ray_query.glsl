@@ -176,7 +176,8 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Vk
 VkrtSteps vkrt_steps;
 
 layout(buffer_reference, std430, buffer_reference_align = 8) readonly buffer VkrtHandle {
-    // Seven arrays; a top level's eighth is its instance records, its ninth its steps.
+    // Seven arrays; a top level's eighth is its instance records, its ninth its steps,
+    // its tenth the caller's records as given (vkrt/ext_ray_query.glsl).
     uint64_t addresses[];
 };
 // The structure in use (vkrtUseStructure): a top level's walk comes back to it after each
