@@ -81,10 +81,10 @@ enum Command {
     /// geometry (primitive i: sphere i's box, centre ± radius). A mesh entry's `mask`,
     /// `custom_index`, `sbt_offset`, `flags` and `opaque` keys fill its instance record.
     ///
-    /// Two records agree when every 32-bit word is equal, or both words are normal floats
-    /// (not zero, denormal, infinite or NaN) of the same sign within 4 units in the last
-    /// place (drivers transform and intersect rays in their own order of operations;
-    /// integers below 2^23 are denormal bit patterns and so compared exactly). The exit
+    /// Two records agree when every 32-bit word is equal, or both words are floats of the
+    /// same sign and magnitude at least 2^-60 within 2^-16 of the larger of 1 and their
+    /// magnitudes (drivers transform and intersect rays in their own order of operations;
+    /// integers below 2^29 read as smaller floats and so are compared exactly). The exit
     /// status is non-zero when any ray differs. A shader that does not compile or breaks the
     /// interface, and a bad scene or ray file, are errors before any GPU work.
     ///

@@ -1,0 +1,500 @@
+//! The conformance suite's ray-query families (`dEQP-VK.ray_query.*`), written here as
+//! `GL_EXT_ray_query` compute shaders run through `vkrt shader-check`'s machinery: each
+//! committed getter per intersection type, the candidate set, ray flags over triangles and
+//! boxes, cull masks, terminate on first hit, two queries in one invocation with one passed
+//! to a function, and watertightness at shared edges. Where the driver has ray query (Mesa
+//! 25.0.7 and 26.1.6 lavapipe) vkrt and the driver agree on every ray
+//! (`shader_check::records_agree`: equal words, or floats within 2^-16 of the larger of 1
+//! and their magnitudes); without it
+//! (Debian 12's Mesa 22.3) vkrt alone agrees with the answers the 25.0.7 driver recorded
+//! (`tests/data/ray_query/*.results`; `VKRT_RECORD_RAY_QUERY_ANSWERS=1` on a driver with ray
+//! query writes them again). Where a driver and the specification disagree, the
+//! specification wins: the families avoid what it leaves open (which of two hits at the
+//! same t, the order of candidates).
+
+mod common;
+
+use std::path::{Path, PathBuf};
+
+use vkrt::accel::device::AccelKind;
+use vkrt::accel::shader_library;
+use vkrt::scene::Scene;
+use vkrt::shader_check::{
+    compile_shader, mismatches, run_driver, run_vkrt, scene_levels, Through,
+};
+use vkrt::trace::Ray;
+
+const RAYS: usize = 384;
+
+/// Spheres of the scene (the last instance's box primitives), in the shaders and the TOML.
+const SPHERES: [[f32; 4]; 3] = [
+    [0.0, 0.0, 3.0, 0.6],
+    [2.5, 2.5, 0.0, 0.8],
+    [-2.5, -2.0, 1.0, 0.5],
+];
+
+/// Every instance key and flag: five mesh entries over three meshes, then the spheres.
+fn scene_toml() -> String {
+    let mut s = String::new();
+    let entries = [
+        ("ball.obj", "translate = [0.0, 0.0, 0.0]"),
+        (
+            "ball.obj",
+            "translate = [3.0, 0.0, 0.0]\nflags = [\"flip-facing\"]\ncustom_index = 77\nsbt_offset = 5\nmask = 2",
+        ),
+        (
+            "plate.obj",
+            "translate = [0.0, 3.0, 0.0]\nrotate = [30, 0, 0]\nopaque = false\nflags = [\"cull-disable\"]\nmask = 4",
+        ),
+        (
+            "ball.obj",
+            "translate = [0.0, -3.0, 0.0]\nscale = 1.5\nflags = [\"force-no-opaque\"]\nmask = 8",
+        ),
+        (
+            "plate.obj",
+            "translate = [-3.0, 0.0, 0.0]\nrotate = [0, 60, 0]\nopaque = false\nflags = [\"force-opaque\"]\nmask = 16\ncustom_index = 4000",
+        ),
+    ];
+    for (file, keys) in entries {
+        s += &format!("[[meshes]]\npath = \"{file}\"\n{keys}\n\n");
+    }
+    for [x, y, z, r] in SPHERES {
+        s += &format!("[[spheres]]\ncenter = [{x:?}, {y:?}, {z:?}]\nradius = {r:?}\n\n");
+    }
+    s
+}
+
+/// An icosphere (closed: rays from outside meet front faces first) and a square plate.
+fn write_meshes(dir: &Path) {
+    let ball = vkrt::scene::gen::icosphere(2).unwrap();
+    let mut obj = String::new();
+    for p in ball.positions.iter() {
+        obj += &format!("v {} {} {}\n", p.x, p.y, p.z);
+    }
+    for t in ball.indices.iter() {
+        obj += &format!("f {} {} {}\n", t[0] + 1, t[1] + 1, t[2] + 1);
+    }
+    std::fs::write(dir.join("ball.obj"), obj).unwrap();
+    std::fs::write(
+        dir.join("plate.obj"),
+        "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nf 1 2 3\nf 1 3 4\n",
+    )
+    .unwrap();
+}
+
+/// A grid of 8 x 8 squares (two triangles each) in z = 0, for watertightness.
+fn write_grid(dir: &Path) {
+    let mut obj = String::new();
+    for y in 0..=8 {
+        for x in 0..=8 {
+            obj += &format!("v {} {} 0\n", x as f32 * 0.25 - 1.0, y as f32 * 0.25 - 1.0);
+        }
+    }
+    for y in 0..8 {
+        for x in 0..8 {
+            let v = |dx: u32, dy: u32| (y + dy) * 9 + x + dx + 1;
+            obj += &format!("f {} {} {}\n", v(0, 0), v(1, 0), v(1, 1));
+            obj += &format!("f {} {} {}\n", v(0, 0), v(1, 1), v(0, 1));
+        }
+    }
+    std::fs::write(dir.join("grid.obj"), obj).unwrap();
+    std::fs::write(dir.join("grid.toml"), "[[meshes]]\npath = \"grid.obj\"\n").unwrap();
+}
+
+/// Rays from a sphere of radius 8 at points near the scene's instances and spheres; some
+/// bounded, some starting at tMin > 0.
+fn scene_rays() -> Vec<Ray> {
+    let mut rng = common::Rng(54);
+    let targets = [
+        [0.0, 0.0, 0.0],
+        [3.0, 0.0, 0.0],
+        [0.0, 3.0, 0.0],
+        [0.0, -3.0, 0.0],
+        [-3.0, 0.0, 0.0],
+        [0.0, 0.0, 3.0],
+        [2.5, 2.5, 0.0],
+        [-2.5, -2.0, 1.0],
+    ];
+    (0..RAYS)
+        .map(|i| {
+            let c = glam::Vec3::from_array(targets[i % targets.len()]);
+            let dir = glam::Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0
+                - glam::Vec3::ONE;
+            let o = dir.normalize_or(glam::Vec3::X) * 8.0;
+            let aim = c + (glam::Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32())
+                - glam::Vec3::splat(0.5))
+                * 1.6;
+            match i % 5 {
+                3 => Ray::new(o, aim - o, 0.0, 0.9),
+                4 => Ray::new(o, aim - o, 0.4, f32::INFINITY),
+                _ => Ray::new(o, aim - o, 0.0, f32::INFINITY),
+            }
+        })
+        .collect()
+}
+
+/// Straight down onto the grid through its vertices and the midpoints of its edges (shared
+/// by two triangles, or by up to six at a vertex): every ray must hit.
+fn grid_rays() -> Vec<Ray> {
+    let mut rays = Vec::new();
+    for y in 0..=16 {
+        for x in 0..=16 {
+            let (px, py) = (x as f32 * 0.125 - 1.0, y as f32 * 0.125 - 1.0);
+            if px.abs() < 1.0 && py.abs() < 1.0 {
+                rays.push(Ray::new(
+                    glam::Vec3::new(px, py, 2.0),
+                    glam::Vec3::new(0.0, 0.0, -1.0),
+                    0.0,
+                    f32::INFINITY,
+                ));
+            }
+        }
+    }
+    rays
+}
+
+/// The shaders' common part: the interface, the spheres and the candidate decisions.
+fn prelude() -> String {
+    let spheres: Vec<String> = SPHERES
+        .iter()
+        .map(|[x, y, z, r]| format!("vec4({x:?}, {y:?}, {z:?}, {r:?})"))
+        .collect();
+    format!(
+        r#"#version 460
+#extension GL_EXT_ray_query : require
+#extension GL_EXT_ray_flags_primitive_culling : require
+#include "vkrt/ext_ray_query.glsl"
+layout(local_size_x = 64) in;
+layout(set = 0, binding = 0) uniform accelerationStructureEXT scene;
+layout(set = 0, binding = 1, std430) readonly buffer Rays {{ vec4 rays[]; }};
+layout(set = 0, binding = 2, std430) writeonly buffer Results {{ uvec4 results[]; }};
+layout(push_constant) uniform Count {{ uint rayCount; }};
+
+const vec4 SPHERES[{n}] = vec4[]({list});
+
+// A box candidate's sphere, intersected in object space (the identity here): generated
+// where the ray meets it.
+void intersectSphere(rayQueryEXT q) {{
+    vec4 s = SPHERES[rayQueryGetIntersectionPrimitiveIndexEXT(q, false)];
+    vec3 o = rayQueryGetIntersectionObjectRayOriginEXT(q, false) - s.xyz;
+    vec3 d = rayQueryGetIntersectionObjectRayDirectionEXT(q, false);
+    float a = dot(d, d);
+    float b = dot(o, d);
+    float c = dot(o, o) - s.w * s.w;
+    float disc = b * b - a * c;
+    if (disc >= 0.0) {{
+        float t0 = (-b - sqrt(disc)) / a;
+        float t1 = (-b + sqrt(disc)) / a;
+        rayQueryGenerateIntersectionEXT(q, t0 >= rayQueryGetRayTMinEXT(q) ? t0 : t1);
+    }}
+}}
+
+// Non-opaque triangles confirmed, boxes intersected: the closest hit of the whole scene.
+bool advance(rayQueryEXT q) {{
+    bool more = rayQueryProceedEXT(q);
+    if (more) {{
+        if (rayQueryGetIntersectionTypeEXT(q, false) == gl_RayQueryCandidateIntersectionTriangleEXT) {{
+            rayQueryConfirmIntersectionEXT(q);
+        }} else {{
+            intersectSphere(q);
+        }}
+    }}
+    return more;
+}}
+
+bool committed(rayQueryEXT q) {{
+    return rayQueryGetIntersectionTypeEXT(q, true) != gl_RayQueryCommittedIntersectionNoneEXT;
+}}
+
+bool triangle(rayQueryEXT q) {{
+    return rayQueryGetIntersectionTypeEXT(q, true) == gl_RayQueryCommittedIntersectionTriangleEXT;
+}}
+
+// Small integers (below 2^29) are compared exactly. Front face and barycentrics are defined
+// for triangles only: a generated hit's are whatever the driver left there.
+uint packed(rayQueryEXT q) {{
+    return rayQueryGetIntersectionTypeEXT(q, true)
+        | ((triangle(q) && rayQueryGetIntersectionFrontFaceEXT(q, true) ? 1u : 0u) << 2u)
+        | (uint(rayQueryGetIntersectionInstanceIdEXT(q, true)) << 3u)
+        | (uint(rayQueryGetIntersectionGeometryIndexEXT(q, true)) << 9u);
+}}
+"#,
+        n = SPHERES.len(),
+        list = spheres.join(", ")
+    )
+}
+
+/// `main`'s start: ray `i` read as (o, tmin, d, tmax).
+const MAIN: &str = r#"
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= rayCount) {
+        return;
+    }
+    vec3 o = rays[2 * i].xyz;
+    float tmin = rays[2 * i].w;
+    vec3 d = rays[2 * i + 1].xyz;
+    float tmax = rays[2 * i + 1].w;
+"#;
+
+/// A closest-hit query with every candidate decided.
+const CLOSEST: &str = r#"
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, gl_RayFlagsNoneEXT, 0xFF, o, tmin, d, tmax);
+    while (advance(q)) {
+    }
+    if (!committed(q)) {
+        results[i] = uvec4(0xffffffffu);
+        return;
+    }
+"#;
+
+/// The families: name, scene (`scene` or `grid`), the body of `main`.
+fn families() -> Vec<(&'static str, &'static str, String)> {
+    let closest = |tail: &str| format!("{CLOSEST}{tail}");
+    vec![
+        (
+            "committed_t_barycentrics_type_facing",
+            "scene",
+            closest(
+                "    vec2 b = triangle(q) ? rayQueryGetIntersectionBarycentricsEXT(q, true) : vec2(0.0);\n    results[i] = uvec4(floatBitsToUint(rayQueryGetIntersectionTEXT(q, true)), floatBitsToUint(b.x), floatBitsToUint(b.y), packed(q));\n",
+            ),
+        ),
+        (
+            "committed_indices",
+            "scene",
+            closest(
+                "    results[i] = uvec4(rayQueryGetIntersectionPrimitiveIndexEXT(q, true), rayQueryGetIntersectionInstanceCustomIndexEXT(q, true), rayQueryGetIntersectionInstanceShaderBindingTableRecordOffsetEXT(q, true), packed(q));\n",
+            ),
+        ),
+        (
+            "committed_object_ray",
+            "scene",
+            closest(
+                "    vec3 oo = rayQueryGetIntersectionObjectRayOriginEXT(q, true);\n    vec3 od = rayQueryGetIntersectionObjectRayDirectionEXT(q, true);\n    results[i] = uvec4(floatBitsToUint(oo.x), floatBitsToUint(oo.y), floatBitsToUint(oo.z), floatBitsToUint(od.x + od.y + od.z));\n",
+            ),
+        ),
+        (
+            "committed_transforms",
+            "scene",
+            closest(
+                "    mat4x3 otw = rayQueryGetIntersectionObjectToWorldEXT(q, true);\n    mat4x3 wto = rayQueryGetIntersectionWorldToObjectEXT(q, true);\n    results[i] = uvec4(floatBitsToUint(otw[3].x), floatBitsToUint(otw[0].y + otw[1].z), floatBitsToUint(wto[3].y), floatBitsToUint(wto[2].x + wto[0].z));\n",
+            ),
+        ),
+        (
+            "ray_getters",
+            "scene",
+            r#"
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, gl_RayFlagsCullBackFacingTrianglesEXT, 0x7F, o, tmin, d, tmax);
+    vec3 wo = rayQueryGetWorldRayOriginEXT(q);
+    vec3 wd = rayQueryGetWorldRayDirectionEXT(q);
+    results[i] = uvec4(floatBitsToUint(wo.x + wd.y), floatBitsToUint(wo.z), floatBitsToUint(rayQueryGetRayTMinEXT(q)), rayQueryGetRayFlagsEXT(q));
+"#
+            .into(),
+        ),
+        (
+            "candidate_set",
+            "scene",
+            r#"
+    // Opaque hits culled, nothing committed: every non-opaque triangle on the ray is a
+    // candidate, whatever the walk's order (with opaque hits committed on the way, which
+    // candidates lie beyond them when met is the walk's choice). Boxes are left out: a
+    // box candidate may be reported conservatively.
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, gl_RayFlagsCullOpaqueEXT, 0xFF, o, tmin, d, tmax);
+    uint triangles = 0u;
+    uint front = 0u;
+    uint ids = 0u;
+    float nearest = 1.0e30;
+    while (rayQueryProceedEXT(q)) {
+        uint id = uint(rayQueryGetIntersectionInstanceIdEXT(q, false)) * 4096u + uint(rayQueryGetIntersectionPrimitiveIndexEXT(q, false));
+        if (rayQueryGetIntersectionTypeEXT(q, false) == gl_RayQueryCandidateIntersectionTriangleEXT) {
+            triangles++;
+            front += rayQueryGetIntersectionFrontFaceEXT(q, false) ? 1u : 0u;
+            ids = (ids + id) & 0x3fffffu;
+            nearest = min(nearest, rayQueryGetIntersectionTEXT(q, false));
+        }
+    }
+    results[i] = uvec4(triangles, front, ids, floatBitsToUint(nearest));
+"#
+            .into(),
+        ),
+        (
+            "ray_flags",
+            "scene",
+            r#"
+    const uint FLAGS[12] = uint[](
+        gl_RayFlagsNoneEXT, gl_RayFlagsOpaqueEXT, gl_RayFlagsNoOpaqueEXT,
+        gl_RayFlagsCullBackFacingTrianglesEXT, gl_RayFlagsCullFrontFacingTrianglesEXT,
+        gl_RayFlagsCullOpaqueEXT, gl_RayFlagsCullNoOpaqueEXT, gl_RayFlagsSkipTrianglesEXT,
+        gl_RayFlagsSkipAABBEXT, gl_RayFlagsNoOpaqueEXT | gl_RayFlagsCullBackFacingTrianglesEXT,
+        gl_RayFlagsOpaqueEXT | gl_RayFlagsCullFrontFacingTrianglesEXT,
+        gl_RayFlagsCullOpaqueEXT | gl_RayFlagsSkipAABBEXT);
+    uint flags = FLAGS[i % 12u];
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, flags, 0xFF, o, tmin, d, tmax);
+    while (advance(q)) {
+    }
+    results[i] = committed(q)
+        ? uvec4(floatBitsToUint(rayQueryGetIntersectionTEXT(q, true)), packed(q), rayQueryGetIntersectionPrimitiveIndexEXT(q, true), flags)
+        : uvec4(0xffffffffu, 0u, 0u, flags);
+"#
+            .into(),
+        ),
+        (
+            "cull_mask",
+            "scene",
+            r#"
+    uint mask = (i * 37u) & 0xFFu;
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, gl_RayFlagsNoneEXT, mask, o, tmin, d, tmax);
+    while (advance(q)) {
+    }
+    results[i] = committed(q)
+        ? uvec4(floatBitsToUint(rayQueryGetIntersectionTEXT(q, true)), packed(q), rayQueryGetIntersectionPrimitiveIndexEXT(q, true), mask)
+        : uvec4(0xffffffffu, 0u, 0u, mask);
+"#
+            .into(),
+        ),
+        (
+            "terminate_on_first_hit",
+            "scene",
+            r#"
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, gl_RayFlagsTerminateOnFirstHitEXT, 0xFF, o, tmin, d, tmax);
+    while (advance(q)) {
+    }
+    // Which hit ends the query is the walk's choice; that one does is not.
+    rayQueryEXT r;
+    rayQueryInitializeEXT(r, scene, gl_RayFlagsNoneEXT, 0xFF, o, tmin, d, tmax);
+    while (rayQueryProceedEXT(r)) {
+        rayQueryTerminateEXT(r);
+    }
+    results[i] = uvec4(committed(q) ? 1u : 0u, rayQueryProceedEXT(r) ? 1u : 0u, 0u, 0u);
+"#
+            .into(),
+        ),
+        (
+            "two_queries_one_passed_to_a_function",
+            "scene",
+            r#"
+    rayQueryEXT a;
+    rayQueryEXT b;
+    rayQueryInitializeEXT(a, scene, gl_RayFlagsNoneEXT, 0xFF, o, tmin, d, tmax);
+    rayQueryInitializeEXT(b, scene, gl_RayFlagsNoneEXT, 0x03, o, tmin, d, tmax);
+    bool more_a = true;
+    bool more_b = true;
+    while (more_a || more_b) {
+        if (more_a) {
+            more_a = advance(a);
+        }
+        if (more_b) {
+            more_b = advance(b);
+        }
+    }
+    results[i] = uvec4(committed(a) ? floatBitsToUint(rayQueryGetIntersectionTEXT(a, true)) : 0xffffffffu,
+                       committed(a) ? packed(a) : 0u,
+                       committed(b) ? floatBitsToUint(rayQueryGetIntersectionTEXT(b, true)) : 0xffffffffu,
+                       committed(b) ? packed(b) : 0u);
+"#
+            .into(),
+        ),
+        (
+            "watertight_shared_edges",
+            "grid",
+            r#"
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, gl_RayFlagsNoneEXT, 0xFF, o, tmin, d, tmax);
+    while (advance(q)) {
+    }
+    // Which of the triangles sharing the edge answers is open; that one does is not.
+    results[i] = uvec4(committed(q) ? 1u : 0u, committed(q) ? floatBitsToUint(rayQueryGetIntersectionTEXT(q, true)) : 0u, 0u, 0u);
+"#
+            .into(),
+        ),
+    ]
+}
+
+fn data_dir() -> PathBuf {
+    Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/ray_query")
+}
+
+fn read_results(path: &Path) -> Option<Vec<[u32; 4]>> {
+    let bytes = std::fs::read(path).ok()?;
+    Some(bytemuck::pod_collect_to_vec::<u8, [u32; 4]>(&bytes))
+}
+
+#[test]
+fn ray_query_families_agree_with_the_driver_s_answers() {
+    let Some(ctx) = common::context() else { return };
+    let dir = std::env::temp_dir().join(format!("vkrt-rq-families-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    write_meshes(&dir);
+    write_grid(&dir);
+    std::fs::write(dir.join("scene.toml"), scene_toml()).unwrap();
+    let include = dir.join("include");
+    shader_library::write_to(&include).unwrap();
+    let native = vkrt::gpu::require_ray_query(&ctx).is_ok();
+    let record = native && std::env::var_os("VKRT_RECORD_RAY_QUERY_ANSWERS").is_some();
+    let through = if native { Through::Both } else { Through::Vkrt };
+    let scenes = [("scene", scene_rays()), ("grid", grid_rays())];
+    let mut compared = 0;
+    for (name, scene_name, body) in families() {
+        let (_, rays) = scenes.iter().find(|(s, _)| *s == scene_name).unwrap();
+        let scene = Scene::load(&dir.join(format!("{scene_name}.toml"))).unwrap().scene;
+        let levels = scene_levels(&scene);
+        let source = format!("{}{MAIN}{body}}}\n", prelude());
+        let shader = dir.join(format!("{name}.comp"));
+        let compiled = compile_shader(&shader, &source, &include, through)
+            .unwrap_or_else(|e| panic!("{name}: {e}"));
+        assert!(!compiled.inserted_include, "{name}");
+        let (spirv, iface) = compiled.vkrt.as_ref().unwrap();
+        let vkrt = run_vkrt(&ctx, &levels, AccelKind::Lbvh, (spirv, iface), rays)
+            .unwrap()
+            .results;
+        let recorded_path = data_dir().join(format!("{name}.results"));
+        if let Some((spirv, iface)) = compiled.native.as_ref() {
+            let driver = run_driver(&ctx, &levels, (spirv, iface), rays).unwrap().results;
+            let differ = mismatches(&driver, &vkrt);
+            assert!(
+                differ.is_empty(),
+                "{name}: {} rays differ from the driver's, first {:x?}",
+                differ.len(),
+                &differ[..differ.len().min(3)]
+            );
+            if record {
+                std::fs::create_dir_all(data_dir()).unwrap();
+                std::fs::write(&recorded_path, bytemuck::cast_slice(&driver)).unwrap();
+            }
+        }
+        let recorded = read_results(&recorded_path)
+            .unwrap_or_else(|| panic!("{name}: no recorded answers at {}", recorded_path.display()));
+        let differ = mismatches(&recorded, &vkrt);
+        assert!(
+            differ.is_empty(),
+            "{name}: {} rays differ from the answers Mesa 25.0.7's ray query recorded, first {:x?}",
+            differ.len(),
+            &differ[..differ.len().min(3)]
+        );
+        // Each family must say something: beyond its most common answer (a miss, mostly),
+        // a tenth of its rays answer otherwise.
+        let mut counts = std::collections::HashMap::new();
+        for r in &vkrt {
+            *counts.entry(*r).or_insert(0usize) += 1;
+        }
+        let common = counts.values().copied().max().unwrap_or(0);
+        assert!(
+            rays.len() - common > rays.len() / 10 || name == "watertight_shared_edges",
+            "{name}: {common} of {} rays give the same answer",
+            rays.len()
+        );
+        if name == "watertight_shared_edges" {
+            assert!(vkrt.iter().all(|r| r[0] == 1), "{name}: a ray slipped through");
+        }
+        compared += rays.len();
+    }
+    assert!(compared > 3000);
+    let _ = std::fs::remove_dir_all(&dir);
+    common::assert_silent(&ctx);
+}
