@@ -79,7 +79,9 @@
 #error "VKRT_RAY_QUERIES: 1 to 4 live ray queries per invocation"
 #endif
 // Two levels of at most VKRT_BVH_MAX_DEPTH each: the stack holds both.
+#ifndef VKRT_RQ_STACK
 #define VKRT_RQ_STACK (2u * VKRT_BVH_MAX_DEPTH)
+#endif
 
 // A structure named by the address of its handle.
 struct VkrtAccelerationStructure {
