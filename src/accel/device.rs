@@ -344,9 +344,10 @@ impl AccelBuilder {
         }))
     }
 
-    /// Records the build of `out` over `prims` into `rec`, ending with a compute → compute
-    /// barrier so kernels recorded next may trace it. `host` is the host's copy of the same
-    /// geometry, read by host builders only (the SAH BVH); the kd-tree reads `prims.boxes`.
+    /// Records the build of `out` over `prims` into `rec`, ending with the barrier of
+    /// [`crate::accel::sync::RecordSync::build`] so kernels recorded next may trace it.
+    /// `host` is the host's copy of the same geometry, read by host builders only (the SAH
+    /// BVH); the kd-tree reads `prims.boxes`.
     pub fn record_build(
         &self,
         rec: &mut Recorder,
@@ -355,7 +356,9 @@ impl AccelBuilder {
         scratch: &AccelScratch,
         out: &mut AccelStructure,
     ) -> Result<RecordedBuild> {
-        self.record_build_inner(rec, prims, Some(host), scratch, out)
+        let built = self.record_build_inner(rec, prims, Some(host), scratch, out)?;
+        rec.end_of_build();
+        Ok(built)
     }
 
     /// [`AccelBuilder::record_build`]; `host: None` when the geometry came from the caller's
@@ -422,9 +425,21 @@ impl AccelBuilder {
     /// Records a refit of `out` (a BVH this builder built over the same primitives) to
     /// `prims.boxes` as they are now: every box recomputed bottom-up, the topology kept, the
     /// root box rewritten. The caller orders the writes of the moved geometry before; the
-    /// recording ends with a compute → compute barrier. A kd-tree cannot be refit (its
-    /// split planes are fixed): that is an error.
+    /// recording ends with the barrier of [`crate::accel::sync::RecordSync::build`]. A
+    /// kd-tree cannot be refit (its split planes are fixed): that is an error.
     pub fn record_refit(
+        &self,
+        rec: &mut Recorder,
+        prims: &DevicePrimitives,
+        out: &AccelStructure,
+        scratch: &Buffer<u32>,
+    ) -> Result<()> {
+        self.record_refit_inner(rec, prims, out, scratch)?;
+        rec.end_of_build();
+        Ok(())
+    }
+
+    fn record_refit_inner(
         &self,
         rec: &mut Recorder,
         prims: &DevicePrimitives,

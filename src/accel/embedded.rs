@@ -122,7 +122,11 @@ impl StatusReadback {
 impl GpuGeometry {
     /// Records the copy of the build's report (80 bytes at most) into host memory: read it
     /// with [`StatusReadback::read`] after the work has executed. Order the build before
-    /// with [`Recorder::compute_to_transfer`].
+    /// with [`Recorder::compute_to_transfer`], and the copy before the host's read with
+    /// [`Recorder::transfer_to_host`] ([`RecordSync::READ_STATUS`]), then wait for the
+    /// caller's fence.
+    ///
+    /// [`RecordSync::READ_STATUS`]: crate::accel::sync::RecordSync::READ_STATUS
     pub fn record_read_status(&self, rec: &mut Recorder) -> Result<StatusReadback> {
         let ctx = rec.context().clone();
         let head = Buffer::<SceneInfo>::with_memory(
@@ -354,9 +358,19 @@ impl AccelBuilder {
     /// Records the build of `out` over `geometries` (the ones it was created for, their
     /// buffers now holding the data: the caller orders its writes before, as compute or
     /// transfer writes) into `rec`, with its scratch in `scratch`, a range of the caller's
-    /// buffer of at least [`AccelSizes::build_scratch_bytes`]. Ends with a compute → compute
-    /// barrier, after which kernels recorded next (the caller's, through
-    /// `vkrt/ray_query.glsl`) may trace it. Allocates, uploads and submits nothing.
+    /// buffer of at least [`AccelSizes::build_scratch_bytes`]. Ends with one barrier from all
+    /// its work to compute-shader reads and writes, after which kernels recorded next (the
+    /// caller's, through `vkrt/ray_query.glsl`) may trace it. Allocates, uploads and submits
+    /// nothing.
+    ///
+    /// Synchronization ([`crate::accel::sync`]): the caller's barrier before it has
+    /// [`RecordSync::build`]`(kind).first` as its destination — with, for a rebuild in
+    /// place, every stage that read the structure before (the previous frame's fragment
+    /// shader, say) in its source; its consumers other than compute shaders wait on
+    /// [`RecordSync::build`]`(kind).last` (compute-shader writes). It leaves vkrt's compute
+    /// pipeline, descriptor set 0 and push constants bound at the compute bind point.
+    ///
+    /// [`RecordSync::build`]: crate::accel::sync::RecordSync::build
     pub fn record_build_from(
         &self,
         rec: &mut Recorder,
@@ -377,6 +391,7 @@ impl AccelBuilder {
             self.record_build_inner(rec, &out.prims, None, &scratch, &mut out.accel)
                 .map(drop)
         })?;
+        rec.end_of_build();
         rec.check()?;
         if let Some(d) = out.device_input.as_mut() {
             d.built = true;
@@ -387,7 +402,11 @@ impl AccelBuilder {
     /// Records an update (refit) of `out`, built with `allow_update`, to the positions its
     /// geometries' buffers hold now (the same geometries, moved), with its scratch in
     /// `scratch` (at least [`AccelSizes::update_scratch_bytes`]). A kd-tree cannot be
-    /// updated (its split planes are fixed): rebuild it.
+    /// updated (its split planes are fixed): rebuild it. Synchronized as
+    /// [`AccelBuilder::record_build_from`] is ([`RecordSync::build`]): an update in place
+    /// after the previous frame's reads needs the same write-after-read barrier.
+    ///
+    /// [`RecordSync::build`]: crate::accel::sync::RecordSync::build
     pub fn record_update_from(
         &self,
         rec: &mut Recorder,
@@ -431,6 +450,7 @@ impl AccelBuilder {
                 self.record_gather(rec, geometries, &input, out)?;
                 levels.record_update(rec, Some(&scratch))?;
                 rec.keep_alive(scratch);
+                rec.end_of_build();
                 rec.check()
             });
         }

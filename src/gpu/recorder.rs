@@ -649,6 +649,27 @@ impl Recorder {
         );
     }
 
+    /// Everything a build recorded (kernels, copies, fills, indirect reads, and the driver's
+    /// builds where the device has them) before → kernels after: the one barrier each of
+    /// vkrt's build, update and refit calls ends with, so that what it leaves last is
+    /// compute-shader work (`accel::sync::RecordSync::build`).
+    pub fn end_of_build(&mut self) {
+        let ray_query = self.ctx.info().features.ray_query;
+        let (mut src, mut dst) = (
+            (
+                vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER,
+                vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE,
+            ),
+            COMPUTE_RW,
+        );
+        if ray_query {
+            src.0 |= ACCEL_BUILD_W.0;
+            src.1 |= ACCEL_BUILD_W.1;
+            dst.1 |= vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR;
+        }
+        self.memory_barrier(src, dst);
+    }
+
     /// Kernel writes before → host reads after the submission completes.
     pub fn compute_to_host(&mut self) {
         self.memory_barrier(COMPUTE_RW, HOST_R);
