@@ -55,8 +55,8 @@ pub const DRIVER_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::from
 
 /// The scene constants the gather writes for a structure of `kind` over `n` primitives:
 /// how the shader library walks it, and where a BVH's parent links start.
-fn header_of(builder: &AccelBuilder, n: usize) -> (u32, u32) {
-    let walk = match builder.traversal() {
+fn header_of(builder: &AccelBuilder, flags: &BuildFlags, n: usize) -> (u32, u32) {
+    let walk = match builder.traversal(flags) {
         AccelTraversal::Bvh(_) if builder.top_level => SceneInfo::WALK_INSTANCES,
         t => t.scene_walk(),
     };
@@ -215,13 +215,7 @@ impl AccelBuilder {
         let l = &input.layout;
         let n = l.primitive_count();
         let prims = DevicePrimitives::for_layout(ctx, l)?;
-        let mut accel = self.create_structure(
-            ctx,
-            n,
-            input.flags.kd_capacity_doublings,
-            input.flags.allow_update,
-            l.info_len(),
-        )?;
+        let mut accel = self.create_structure(ctx, n, &input.flags, l.info_len())?;
         if let Some(levels) = driver_levels::storage_mut(&mut accel).map(|d| &mut d.levels) {
             // While measuring, the primitives' buffers are placeholders without addresses.
             let driver_input = match crate::gpu::placement::measuring() {
@@ -310,7 +304,9 @@ impl AccelBuilder {
         input: &DeviceInput,
         out: &GpuGeometry,
     ) -> Result<()> {
-        let (walk, parents_at) = header_of(self, input.layout.primitive_count());
+        // The structure's own flags: wide nodes only where its kind has them.
+        let flags = out.accel.flags();
+        let (walk, parents_at) = header_of(self, &flags, input.layout.primitive_count());
         GeometryGather::new(rec.context())?.record(
             rec,
             geometries,
@@ -335,16 +331,7 @@ impl AccelBuilder {
                 "this structure was not created over device geometry (AccelBuilder::create_in)",
             )
         })?;
-        if out.accel.kind() != self.kind() {
-            return Err(usage(
-                call,
-                format!(
-                    "a {} builder cannot build into a {} structure",
-                    self.kind().name(),
-                    out.accel.kind().name()
-                ),
-            ));
-        }
+        self.check_frozen(call, &out.accel)?;
         if shape(geometries) != input.shape {
             return Err(usage(
                 call,
