@@ -21,7 +21,7 @@ use glam::Vec3;
 use gpu_allocator::MemoryLocation;
 use host::{barrier, Host, HostBuffer};
 use vkrt::accel::device::{AccelBuilder, AccelKind};
-use vkrt::accel::embedded::{BuildFlags, REQUIRED_BUFFER_USAGE};
+use vkrt::accel::embedded::{BuildFlags, DRIVER_BUFFER_USAGE, REQUIRED_BUFFER_USAGE};
 use vkrt::accel::geometry::{Geometry, Triangles};
 use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::primitives::TraceGeometry;
@@ -139,6 +139,7 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
         return;
     };
     let sink = host.sink.clone();
+    let ray_query = host.features.ray_query;
     let tris = grid(0);
     let vertex_bytes = (tris.len() * 36) as u64;
     let mut vertices = host
@@ -146,7 +147,11 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
             "renderer.vertices",
             vertex_bytes,
             MemoryLocation::CpuToGpu,
-            vk::BufferUsageFlags::STORAGE_BUFFER,
+            // The driver's structure reads its vertices at a device address.
+            match ray_query {
+                true => vk::BufferUsageFlags::STORAGE_BUFFER | DRIVER_BUFFER_USAGE,
+                false => vk::BufferUsageFlags::STORAGE_BUFFER,
+            },
         )
         .unwrap();
     let geometries = [Geometry::Triangles(Triangles::soup(
@@ -157,13 +162,24 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
     let rays = down_rays(n);
     let ray_buffer = Buffer::from_slice(&ctx, "renderer.rays", &rays).unwrap();
     let flags = BuildFlags::default();
-    let mut structures: Vec<Structure> = [AccelKind::KdTree, AccelKind::Lbvh, AccelKind::Ploc]
-        .into_iter()
+    // The driver's own structure too, where the host enabled ray query.
+    let kinds = [
+        AccelKind::KdTree,
+        AccelKind::Lbvh,
+        AccelKind::Ploc,
+        AccelKind::Driver,
+    ];
+    let mut structures: Vec<Structure> = kinds[..3 + ray_query as usize]
+        .iter()
+        .copied()
         .map(|kind| {
             let builder = AccelBuilder::new(&ctx, kind).unwrap();
             let sizes = builder.sizes_for(&ctx, &geometries, &flags).unwrap();
             let memory = |name, bytes: u64| {
-                let usage = REQUIRED_BUFFER_USAGE;
+                let usage = match ray_query {
+                    true => REQUIRED_BUFFER_USAGE | DRIVER_BUFFER_USAGE,
+                    false => REQUIRED_BUFFER_USAGE,
+                };
                 host.buffer(name, bytes.max(4), MemoryLocation::GpuOnly, usage)
                     .unwrap()
             };
