@@ -20,7 +20,7 @@ mod embree;
 use vkrt::accel::bvh::lbvh::MortonBits;
 use vkrt::accel::bvh::ploc::PlocParams;
 use vkrt::accel::bvh::{self, validate, BvhParams, Threading};
-use vkrt::accel::device::{AccelBuilder, AccelKind};
+use vkrt::accel::device::{AccelBuilder, AccelKind, BuildFlags};
 use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::host::HostStructure;
 use vkrt::accel::primitives::TraceGeometry;
@@ -77,7 +77,10 @@ struct Measured {
 /// Best-of-3 builds (after a warm-up) of `builder` over `g`, without and with
 /// `allow_update`, and the best refit of each.
 fn gpu_build(ctx: &Context, builder: &mut AccelBuilder, g: &TraceGeometry) -> Measured {
-    builder.allow_update = false;
+    builder.set_flags(BuildFlags {
+        allow_update: false,
+        ..builder.flags()
+    });
     let mut best: Option<(f64, Profile, GpuGeometry)> = None;
     for _ in 0..4 {
         let mut rec = Recorder::new(ctx).expect("recorder");
@@ -100,7 +103,10 @@ fn gpu_build(ctx: &Context, builder: &mut AccelBuilder, g: &TraceGeometry) -> Me
         })
     };
     let refit_climb_ms = refit(builder, &structure);
-    builder.allow_update = true;
+    builder.set_flags(BuildFlags {
+        allow_update: true,
+        ..builder.flags()
+    });
     let mut updatable = None;
     let build_update_ms = best_of(ctx, "build", |rec| {
         let (dev, _) = GpuGeometry::record_build(rec, builder, g, 0).expect("build");
@@ -108,7 +114,10 @@ fn gpu_build(ctx: &Context, builder: &mut AccelBuilder, g: &TraceGeometry) -> Me
     });
     let updatable = updatable.expect("built");
     let refit_ms = refit(builder, &updatable);
-    builder.allow_update = false;
+    builder.set_flags(BuildFlags {
+        allow_update: false,
+        ..builder.flags()
+    });
     Measured {
         profile,
         structure,
@@ -139,7 +148,10 @@ fn main() {
         (MortonBits::Bits30, 4),
     ] {
         let mut b = AccelBuilder::lbvh(&ctx, bits).expect("LBVH builder");
-        b.bvh_params.max_leaf_prims = leaf;
+        b = b.with_bvh_params(BvhParams {
+            max_leaf_prims: leaf,
+            ..Default::default()
+        });
         let suffix = if leaf == 1 { "/l1" } else { "" };
         gpu_builders.push((format!("lbvh-{}{suffix}", bits.spec()), b));
     }
@@ -149,7 +161,10 @@ fn main() {
             ..PlocParams::default()
         };
         let mut b = AccelBuilder::ploc(&ctx, params).expect("PLOC builder");
-        b.bvh_params.max_leaf_prims = leaf;
+        b = b.with_bvh_params(BvhParams {
+            max_leaf_prims: leaf,
+            ..Default::default()
+        });
         let suffix = if leaf == 1 { "/l1" } else { "" };
         gpu_builders.push((format!("ploc-r{radius}{suffix}"), b));
     }

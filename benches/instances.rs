@@ -300,7 +300,7 @@ fn dynamic_demo(ctx: &Context) -> Option<UpdateRow> {
     rec.submit_and_wait().unwrap();
     // Flat: the LBVH over every triangle, built at frame 0 to be refit.
     let mut flat_builder = AccelBuilder::new(ctx, AccelKind::Lbvh).unwrap();
-    flat_builder.allow_update = true;
+    flat_builder = flat_builder.with_allow_update(true);
     let g0 = vkrt::accel::primitives::TraceGeometry::at_time(&scene, 0.0);
     let mut rec = Recorder::new(ctx).unwrap();
     let (flat, _) = GpuGeometry::record_build(&mut rec, &flat_builder, &g0, 0).unwrap();

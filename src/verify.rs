@@ -348,7 +348,7 @@ impl Verifier<'_> {
             };
             for &walk in walks {
                 // The wide walk reads a structure built with wide nodes.
-                builder.wide = walk == Traversal::Wide;
+                builder = builder.with_wide(walk == Traversal::Wide);
                 let accel = kind.walked(walk);
                 for (s, (scene, g, rays)) in scenes.iter().enumerate() {
                     let built = (|| {

@@ -78,7 +78,7 @@ fn device_builds_equal_their_host_twins_and_fit_their_sizes() {
     sizes.dedup();
     for kind in AccelKind::ALL {
         let mut builder = AccelBuilder::new(&ctx, kind).unwrap();
-        builder.threading = Threading::Queue { threads: 2 };
+        builder = builder.with_threading(Threading::Queue { threads: 2 });
         for &n in &sizes {
             for spheres in [false, true] {
                 let g = scene(n, n as u64 + 1, spheres);
@@ -120,7 +120,7 @@ fn build_and_trace_is_one_submission_and_equals_brute_force() {
     for kind in AccelKind::ALL {
         let mut builder = AccelBuilder::new(&ctx, kind).unwrap();
         for walk in Traversal::ALL {
-            builder.wide = walk == Traversal::Wide;
+            builder = builder.with_wide(walk == Traversal::Wide);
             let accel = kind.walked(walk);
             let tracer = Tracer::for_accel(&ctx, &opt, accel).unwrap();
             let before = ctx.traffic();
@@ -154,7 +154,7 @@ fn a_kd_tree_out_of_references_misses_everything_then_is_rebuilt_larger() {
     let rs = rays(2000, 3);
     let opt = TraceOptions::default();
     let mut builder = AccelBuilder::new(&ctx, AccelKind::KdTree).unwrap();
-    builder.kd_refs_per_level = Some(64);
+    builder = builder.with_kd_refs_per_level(Some(64));
     let tracer = Tracer::new(&ctx, &opt).unwrap();
 
     // Within the one submission, the trace after an overflowing build misses every ray.
@@ -229,7 +229,7 @@ fn refit_follows_moved_primitives_bit_for_bit_with_its_twin() {
     ];
     for (kind, allow_update) in configs {
         let mut builder = AccelBuilder::new(&ctx, kind).unwrap();
-        builder.allow_update = allow_update;
+        builder = builder.with_allow_update(allow_update);
         for n in [1, 2, 3, sg - 1, sg + 1, 65, 257, 1025, 3000] {
             let g = scene(n, 40 + n as u64, true);
             let (dev, host) = device_build(&ctx, &builder, &g);

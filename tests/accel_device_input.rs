@@ -574,9 +574,11 @@ fn box_primitives_are_traced_by_every_kind_and_walk_as_brute_force() {
             _ => &[Traversal::Stack],
         };
         for &walk in walks {
-            let mut builder = AccelBuilder::new(&ctx, kind).unwrap();
-            builder.wide = walk == Traversal::Wide;
-            let flags = BuildFlags::default();
+            let builder = AccelBuilder::new(&ctx, kind).unwrap();
+            let flags = BuildFlags {
+                wide: walk == Traversal::Wide,
+                ..BuildFlags::default()
+            };
             let (g, _mem) = build_in_caller_memory(&ctx, &builder, &geometries, &flags);
             let tracer = Tracer::for_accel(&ctx, &opt(), kind.walked(walk)).unwrap();
             let b = tracer.trace(&ctx, &g, &rays, 0.0).unwrap();
@@ -777,9 +779,12 @@ fn the_structure_s_bindings_texel_views_and_handle_give_the_same_hits() {
         (AccelKind::Ploc, true),
     ];
     for (kind, wide) in choices {
-        let mut builder = AccelBuilder::new(&ctx, kind).unwrap();
-        builder.wide = wide;
-        let (g, _mem) = build_in_caller_memory(&ctx, &builder, &geometries, &BuildFlags::default());
+        let builder = AccelBuilder::new(&ctx, kind).unwrap();
+        let flags = BuildFlags {
+            wide,
+            ..BuildFlags::default()
+        };
+        let (g, _mem) = build_in_caller_memory(&ctx, &builder, &geometries, &flags);
         let set = probe_hits(&ctx, &g, &rays, Probe::Set);
         let texel = probe_hits(&ctx, &g, &rays, Probe::Texel);
         assert_eq!(set, texel, "{kind:?} (wide: {wide}): texel buffers");
@@ -1108,7 +1113,7 @@ fn a_kd_tree_that_runs_out_of_capacity_says_so_and_the_caller_grows_it() {
     let geometries = [soup_geometry(&ctx, &mut caller, &tris)];
     let mut builder = AccelBuilder::new(&ctx, AccelKind::KdTree).unwrap();
     // A budget far too small for the first build.
-    builder.kd_refs_per_level = Some(2);
+    builder = builder.with_kd_refs_per_level(Some(2));
     let mut flags = BuildFlags::default();
     let mut overflowed = 0;
     let (g, _mem) = loop {
@@ -1137,5 +1142,85 @@ fn a_kd_tree_that_runs_out_of_capacity_says_so_and_the_caller_grows_it() {
         let b = cpu::brute_force(&soup, r, 0.0, &opt());
         assert!(common::same_answer(&h, &b), "{h:?} vs {b:?}");
     }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn settings_are_frozen_into_the_structure_and_checked_at_every_record_call() {
+    let Some(ctx) = common::context() else { return };
+    let tris = common::mesh_triangles(&vkrt::scene::gen::icosphere(2).unwrap());
+    let mut caller = CallerBuffers::new();
+    let geometries = [soup_geometry(&ctx, &mut caller, &tris)];
+    let rays = rays_into(&tris, 200, 9);
+    // Wide nodes and updates, given at creation.
+    let flags = BuildFlags {
+        wide: true,
+        allow_update: true,
+        ..BuildFlags::default()
+    };
+    let lbvh = AccelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
+    let (mut g, mem) = build_in_caller_memory(&ctx, &lbvh, &geometries, &flags);
+    assert!(g.accel.is_wide());
+    assert_eq!(g.accel.flags(), flags);
+    // A builder with other parameters (one primitive per leaf) cannot record into it: the
+    // build, the update and the refit are each an error, and nothing is recorded.
+    let other = AccelBuilder::new(&ctx, AccelKind::Lbvh)
+        .unwrap()
+        .with_bvh_params(vkrt::accel::bvh::BvhParams {
+            max_leaf_prims: 1,
+            ..Default::default()
+        });
+    let sizes = lbvh.sizes_for(&ctx, &geometries, &flags).unwrap();
+    let scratch = Buffer::<u8>::arena(
+        &ctx,
+        "caller.scratch",
+        sizes
+            .build_scratch_bytes
+            .max(sizes.update_scratch_bytes.unwrap()) as usize,
+    )
+    .unwrap();
+    let is_frozen = |r: Result<(), GpuError>, what: &str| match r {
+        Err(GpuError::Usage { reason, .. }) => {
+            assert!(reason.contains("other parameters"), "{what}: {reason}")
+        }
+        other => panic!("{what}: {other:?}"),
+    };
+    let mut rec = Recorder::new(&ctx).unwrap();
+    is_frozen(
+        other.record_build_from(&mut rec, &geometries, &mut g, scratch.as_raw()),
+        "build",
+    );
+    is_frozen(
+        other.record_update_from(&mut rec, &geometries, &g, scratch.as_raw()),
+        "update",
+    );
+    let visits = other.update_scratch(&ctx, tris.len()).unwrap().unwrap();
+    is_frozen(
+        other.record_refit(&mut rec, &g.prims, &g.accel, &visits),
+        "refit",
+    );
+    // The builder that made it rebuilds and updates it as created: still wide, walked wide
+    // to brute force's hits (a builder's flags cannot change a structure's node format).
+    lbvh.record_build_from(&mut rec, &geometries, &mut g, scratch.as_raw())
+        .unwrap();
+    lbvh.record_update_from(&mut rec, &geometries, &g, scratch.as_raw())
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+    assert!(g.accel.is_wide());
+    let wide = Tracer::for_accel(&ctx, &opt(), AccelKind::Lbvh.walked(Traversal::Wide)).unwrap();
+    let b = wide.trace(&ctx, &g, &rays, 0.0).unwrap();
+    assert_eq!(b.exhausted, 0);
+    let host = TraceGeometry::from_triangles(&tris);
+    for (r, got) in rays.iter().zip(&b.hits) {
+        let want = cpu::brute_force(&host, r, 0.0, &opt());
+        assert!(common::same_answer(got, &want), "{got:?} against {want:?}");
+    }
+    // The host path freezes the builder's flags at `create` the same way.
+    let wide_builder = AccelBuilder::new(&ctx, AccelKind::Ploc)
+        .unwrap()
+        .with_wide(true);
+    let (s, _) = wide_builder.create(&ctx, tris.len(), 0).unwrap();
+    assert!(s.is_wide() && s.flags().wide);
+    drop((g, mem, scratch));
     common::assert_silent(&ctx);
 }

@@ -105,7 +105,10 @@ fn builders(ctx: &Context) -> Vec<Builder> {
         (MortonBits::Bits63, MAX_COLLAPSE_LEAF),
     ] {
         let mut builder = AccelBuilder::lbvh(ctx, bits).unwrap();
-        builder.bvh_params.max_leaf_prims = leaf;
+        builder = builder.with_bvh_params(vkrt::accel::bvh::BvhParams {
+            max_leaf_prims: leaf,
+            ..Default::default()
+        });
         out.push((format!("LBVH {bits:?}, leaves <= {leaf}"), builder));
     }
     // The last: two rounds only, then the pairing fallback finishes the tree.
@@ -123,7 +126,10 @@ fn builders(ctx: &Context) -> Vec<Builder> {
             ..PlocParams::default()
         };
         let mut builder = AccelBuilder::ploc(ctx, params).unwrap();
-        builder.bvh_params.max_leaf_prims = leaf;
+        builder = builder.with_bvh_params(vkrt::accel::bvh::BvhParams {
+            max_leaf_prims: leaf,
+            ..Default::default()
+        });
         let what = format!("PLOC r = {radius}, rounds {max_rounds:?}, leaves <= {leaf}");
         out.push((what, builder));
     }
@@ -161,7 +167,10 @@ fn equal_codes_fall_back_to_the_index_and_stay_shallow() {
     let p = Vec3::splat(-3.0);
     let g = TraceGeometry::from_triangles(&vec![[p, p, p]; 4096]);
     let mut builder = AccelBuilder::lbvh(&ctx, MortonBits::Bits63).unwrap();
-    builder.bvh_params.max_leaf_prims = 1;
+    builder = builder.with_bvh_params(vkrt::accel::bvh::BvhParams {
+        max_leaf_prims: 1,
+        ..Default::default()
+    });
     let gpu = device_bvh(&ctx, &builder, &g);
     validate(&gpu, &g.boxes).unwrap();
     assert_eq!(gpu.depth(), 12);
@@ -220,8 +229,11 @@ fn deep_chain() -> Vec<[Vec3; 3]> {
 fn deep_lbvh(ctx: &Context, max_leaf: u32, wide: bool) -> (TraceGeometry, GpuGeometry, Bvh) {
     let g = TraceGeometry::from_triangles(&deep_chain());
     let mut builder = AccelBuilder::lbvh(ctx, MortonBits::Bits63).unwrap();
-    builder.bvh_params.max_leaf_prims = max_leaf;
-    builder.wide = wide;
+    builder = builder.with_bvh_params(vkrt::accel::bvh::BvhParams {
+        max_leaf_prims: max_leaf,
+        ..Default::default()
+    });
+    builder = builder.with_wide(wide);
     let dev = {
         let mut rec = Recorder::new(ctx).unwrap();
         let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();

@@ -208,7 +208,7 @@ fn device_built_wide_nodes_equal_the_twin_after_build_and_refit() {
             let g = TraceGeometry::from_triangles(&tris);
             let mut builder =
                 AccelBuilder::for_choice(&ctx, AccelChoice::new(kind, Traversal::Wide)).unwrap();
-            builder.allow_update = n % 2 == 0;
+            builder = builder.with_allow_update(n % 2 == 0);
             let mut rec = Recorder::new(&ctx).unwrap();
             let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
             rec.submit_and_wait().unwrap();
@@ -278,7 +278,10 @@ fn a_walk_that_does_not_fit_the_structure_is_refused() {
     let mut builder =
         AccelBuilder::for_choice(&ctx, AccelChoice::new(AccelKind::SahBvh, Traversal::Wide))
             .unwrap();
-    builder.bvh_params.max_leaf_prims = 70_000;
+    builder = builder.with_bvh_params(vkrt::accel::bvh::BvhParams {
+        max_leaf_prims: 70_000,
+        ..Default::default()
+    });
     let mut rec = Recorder::new(&ctx).unwrap();
     let e = GpuGeometry::record_build(&mut rec, &builder, &g, 0)
         .err()

@@ -71,7 +71,7 @@ fn driver_trace_at(
     time: f32,
 ) -> Vec<Hit> {
     let mut builder = AccelBuilder::new(ctx, AccelKind::Driver).unwrap();
-    builder.driver_prefer = prefer;
+    builder = builder.with_driver_prefer(prefer);
     let opt = TraceOptions {
         query,
         ..TraceOptions::default()
@@ -381,7 +381,7 @@ fn driver_refit_follows_moved_primitives() {
     let rays = random_rays(&moved_tris, 4096, 43);
 
     let mut builder = AccelBuilder::new(&ctx, AccelKind::Driver).unwrap();
-    builder.allow_update = true;
+    builder = builder.with_allow_update(true);
     let opt = TraceOptions::default();
     let tracer = Tracer::for_accel(&ctx, &opt, AccelTraversal::RayQuery).unwrap();
     let mut rec = Recorder::new(&ctx).unwrap();

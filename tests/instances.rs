@@ -34,7 +34,7 @@ fn opt() -> TraceOptions {
 /// A bottom level of `kind` (walked wide where `wide`) over `tris`, built on the device.
 fn bottom(ctx: &Context, kind: AccelKind, wide: bool, tris: &[[Vec3; 3]]) -> GpuGeometry {
     let mut builder = AccelBuilder::new(ctx, kind).unwrap();
-    builder.wide = wide;
+    builder = builder.with_wide(wide);
     let g = TraceGeometry::from_triangles(tris);
     let mut rec = Recorder::new(ctx).unwrap();
     let (out, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();

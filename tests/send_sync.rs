@@ -39,6 +39,8 @@ fn shared_types_are_send_and_sync() {
     send_and_sync::<Validation>();
     send_and_sync::<GpuError>();
     send_and_sync::<Buffer<u32>>();
+    // Shared by the recordings of every frame in flight.
+    send_and_sync::<vkrt::gpu::BindingCache>();
     send_and_sync::<RawBuffer>();
     send_and_sync::<Profile>();
     // Structures, their builders and inputs.

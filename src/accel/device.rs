@@ -19,6 +19,7 @@ use crate::accel::bvh::lbvh::MortonBits;
 use crate::accel::bvh::ploc::PlocParams;
 use crate::accel::bvh::wide::WideNode;
 use crate::accel::bvh::{BvhNode, BvhParams, Threading};
+pub use crate::accel::device_input::BuildFlags;
 pub use crate::accel::device_primitives::DevicePrimitives;
 use crate::accel::driver::storage::{self as driver, DriverStorage};
 use crate::accel::driver::Prefer;
@@ -41,8 +42,12 @@ pub struct AccelStructure {
     storage: Storage,
     /// The scene constants (root box, primitive counts, walk) the traversal binds.
     pub info: Buffer<SceneInfo>,
-    /// Built to be updated (`ALLOW_UPDATE`).
-    allow_update: bool,
+    /// What it was created with (`allow_update`, the driver's preference, wide nodes, the
+    /// kd-tree's budget), fixed for its life.
+    flags: BuildFlags,
+    /// The parameters of the builder that created it, which every builder recording into it
+    /// must have; `None` for a structure uploaded from the host.
+    params: Option<BuilderParams>,
 }
 
 /// A structure's buffers, by family.
@@ -54,18 +59,19 @@ pub(crate) enum Storage {
 
 impl AccelStructure {
     /// A structure of `kind` over `storage`.
-    pub(crate) fn from_parts(
-        kind: AccelKind,
-        storage: Storage,
-        info: Buffer<SceneInfo>,
-        allow_update: bool,
-    ) -> Self {
+    pub(crate) fn from_parts(kind: AccelKind, storage: Storage, info: Buffer<SceneInfo>) -> Self {
         Self {
             kind,
             storage,
             info,
-            allow_update,
+            flags: BuildFlags::default(),
+            params: None,
         }
+    }
+
+    /// The flags it was created with.
+    pub fn flags(&self) -> BuildFlags {
+        self.flags
     }
 
     pub(crate) fn storage(&self) -> &Storage {
@@ -90,7 +96,7 @@ impl AccelStructure {
         }
     }
 
-    /// Whether the structure has wide nodes ([`AccelBuilder::wide`]): the wide walk, and no
+    /// Whether the structure has wide nodes ([`BuildFlags::wide`]): the wide walk, and no
     /// other, serves it.
     pub fn is_wide(&self) -> bool {
         matches!(&self.storage, Storage::Bvh(b) if b.is_wide())
@@ -160,36 +166,43 @@ enum Family {
     Driver,
 }
 
-/// Builds one kind of structure; compiled once, used for any number of builds.
+/// A builder's parameters besides its kind, frozen into every structure it creates and
+/// checked at every record call into one.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub(crate) struct BuilderParams {
+    kd: SahParams,
+    bvh: BvhParams,
+    threading: Threading,
+    kd_refs_per_level: Option<usize>,
+    morton: Option<MortonBits>,
+    ploc: Option<PlocParams>,
+}
+
+/// Builds one kind of structure; compiled once, used for any number of builds. Its
+/// parameters are set when it is made (`with_*`) and frozen into each structure it creates
+/// (with the [`BuildFlags`] given then): a builder with other parameters cannot record into
+/// it.
 #[must_use]
 pub struct AccelBuilder {
     kind: AccelKind,
     family: Family,
     /// The kd-tree build's SAH costs and termination rules.
-    pub kd_params: SahParams,
+    kd_params: SahParams,
     /// The BVH kinds' SAH costs and leaf size: the SAH builder's, and the GPU builders'
     /// leaf collapse.
-    pub bvh_params: BvhParams,
+    bvh_params: BvhParams,
     /// How the SAH BVH's host build uses threads (default: the node queue on every core).
-    pub threading: Threading,
-    /// What the driver's builder optimises for (the driver's structure).
-    pub driver_prefer: Prefer,
-    /// Build BVHs to be updated (`VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_KHR`):
-    /// the build also records the refit's schedule, kept with the structure, and refits run
-    /// one dispatch per depth (`bvh::refit_gpu`) instead of climbing. Off by default.
-    pub allow_update: bool,
-    /// Also make the 4-wide nodes ([`crate::accel::bvh::wide`]) after every build and
-    /// refit, for the wide walk (`Traversal::Wide`); BVH kinds only. Set by
-    /// [`AccelBuilder::for_choice`] from the choice's walk.
-    pub wide: bool,
+    threading: Threading,
+    /// The flags of the structures [`AccelBuilder::create`] makes (the calls over the
+    /// caller's memory take theirs: [`AccelBuilder::create_in`]).
+    flags: BuildFlags,
     /// The tree of a top level over instances' boxes
     /// ([`crate::accel::instances::TopLevelBuilder`]): walked as one
     /// (`SceneInfo::WALK_INSTANCES`).
     pub(crate) top_level: bool,
     /// The kd-tree's first reference budget per level; `None`: 4 per primitive
     /// ([`BuildCapacity::for_primitives`](crate::accel::kdtree::gpu::BuildCapacity::for_primitives)).
-    /// Tests set it tiny to exercise running out.
-    pub kd_refs_per_level: Option<usize>,
+    kd_refs_per_level: Option<usize>,
 }
 
 impl AccelBuilder {
@@ -213,13 +226,11 @@ impl AccelBuilder {
         Self {
             kind,
             family,
-            wide: false,
             top_level: false,
-            allow_update: false,
+            flags: BuildFlags::default(),
             kd_params: SahParams::default(),
             bvh_params: BvhParams::default(),
             threading: Threading::all_cores(),
-            driver_prefer: Prefer::default(),
             kd_refs_per_level: None,
         }
     }
@@ -229,12 +240,135 @@ impl AccelBuilder {
         self.kind
     }
 
-    /// The builder of `choice`'s structure (its driver preference included).
+    /// The builder of `choice`'s structure, whose [`AccelBuilder::create`] makes them with
+    /// [`BuildFlags::for_choice`] (its driver preference, wide nodes for the wide walk).
     pub fn for_choice(ctx: &Context, choice: AccelChoice) -> Result<Self> {
-        let mut b = Self::new(ctx, choice.kind)?;
-        b.driver_prefer = choice.prefer;
-        b.wide = choice.walk == Traversal::Wide && matches!(b.family, Family::Bvh(_));
-        Ok(b)
+        Ok(Self::new(ctx, choice.kind)?.with_flags(BuildFlags::for_choice(choice)))
+    }
+
+    /// With the kd-tree build's SAH costs and termination rules.
+    pub fn with_kd_params(mut self, params: SahParams) -> Self {
+        self.kd_params = params;
+        self
+    }
+
+    /// With the BVH kinds' SAH costs and leaf size (the SAH builder's, and the GPU builders'
+    /// leaf collapse).
+    pub fn with_bvh_params(mut self, params: BvhParams) -> Self {
+        self.bvh_params = params;
+        self
+    }
+
+    /// With the SAH BVH's host build using threads as `threading` says (default: the node
+    /// queue on every core).
+    pub fn with_threading(mut self, threading: Threading) -> Self {
+        self.threading = threading;
+        self
+    }
+
+    /// With the kd-tree's first reference budget per level (`None`: 4 per primitive); tests
+    /// set it tiny to exercise running out.
+    pub fn with_kd_refs_per_level(mut self, refs: Option<usize>) -> Self {
+        self.kd_refs_per_level = refs;
+        self
+    }
+
+    /// With the flags [`AccelBuilder::create`] and [`AccelBuilder::sizes`] make structures
+    /// with (wide nodes only for BVH kinds).
+    pub fn with_flags(mut self, flags: BuildFlags) -> Self {
+        self.set_flags(flags);
+        self
+    }
+
+    /// Sets the flags of the structures [`AccelBuilder::create`] makes from now on; those
+    /// it made before keep theirs.
+    pub fn set_flags(&mut self, flags: BuildFlags) {
+        self.flags = BuildFlags {
+            wide: flags.wide && matches!(self.family, Family::Bvh(_)),
+            ..flags
+        };
+    }
+
+    /// [`AccelBuilder::with_flags`] with `allow_update` set: BVHs built to be updated
+    /// (`VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_KHR`) record the refit's schedule
+    /// with the structure, and refit one dispatch per depth (`bvh::refit_gpu`).
+    pub fn with_allow_update(self, allow_update: bool) -> Self {
+        let flags = BuildFlags {
+            allow_update,
+            ..self.flags
+        };
+        self.with_flags(flags)
+    }
+
+    /// [`AccelBuilder::with_flags`] with `wide` set: BVHs with 4-wide nodes too.
+    pub fn with_wide(self, wide: bool) -> Self {
+        let flags = BuildFlags { wide, ..self.flags };
+        self.with_flags(flags)
+    }
+
+    /// [`AccelBuilder::with_flags`] with the driver's preference set.
+    pub fn with_driver_prefer(self, prefer: Prefer) -> Self {
+        let flags = BuildFlags {
+            prefer,
+            ..self.flags
+        };
+        self.with_flags(flags)
+    }
+
+    /// The flags [`AccelBuilder::create`] makes structures with.
+    pub fn flags(&self) -> BuildFlags {
+        self.flags
+    }
+
+    /// The kd-tree build's parameters.
+    pub fn kd_params(&self) -> SahParams {
+        self.kd_params
+    }
+
+    /// The BVH kinds' parameters.
+    pub fn bvh_params(&self) -> BvhParams {
+        self.bvh_params
+    }
+
+    /// How the SAH BVH's host build uses threads.
+    pub fn threading(&self) -> Threading {
+        self.threading
+    }
+
+    /// What is frozen into each structure this builder creates.
+    pub(crate) fn params(&self) -> BuilderParams {
+        BuilderParams {
+            kd: self.kd_params,
+            bvh: self.bvh_params,
+            threading: self.threading,
+            kd_refs_per_level: self.kd_refs_per_level,
+            morton: match &self.family {
+                Family::Bvh(b) => b.morton_bits(),
+                _ => None,
+            },
+            ploc: self.ploc_params(),
+        }
+    }
+
+    /// `Err` unless `out` was created by a builder of this kind with these parameters.
+    pub(crate) fn check_frozen(&self, call: &'static str, out: &AccelStructure) -> Result<()> {
+        let reason = if out.kind != self.kind {
+            format!(
+                "a {} builder cannot build into a {} structure",
+                self.kind.name(),
+                out.kind.name()
+            )
+        } else if out.params.is_some_and(|p| p != self.params()) {
+            format!(
+                "the structure was created by a {} builder with other parameters ({:?}; this                  builder has {:?}): record with the builder that created it",
+                self.kind.name(),
+                out.params,
+                self.params()
+            )
+        } else {
+            return Ok(());
+        };
+        Err(GpuError::Usage { call, reason })
     }
 
     /// An LBVH builder with `bits`-bit Morton codes ([`AccelBuilder::new`] takes the
@@ -266,63 +400,69 @@ impl AccelBuilder {
         }
     }
 
-    fn bvh_settings(&self, allow_update: bool) -> BvhSettings<'_> {
+    fn bvh_settings(&self, flags: &BuildFlags) -> BvhSettings<'_> {
         BvhSettings {
             params: &self.bvh_params,
             threading: self.threading,
-            allow_update,
-            wide: self.wide,
-            walk: self.bvh_walk(),
+            allow_update: flags.allow_update,
+            wide: flags.wide,
+            walk: AccelTraversal::Bvh(bvh_traversal(flags.wide)).scene_walk(),
         }
     }
 
-    /// Bytes of the structure and scratch for `n` primitives (`grow`: how many times the
-    /// kd-tree's reference budget is doubled after a build ran out of it; 0 at first).
+    /// Bytes of the structure and scratch for `n` primitives, with this builder's
+    /// [`AccelBuilder::flags`] and `grow`: how many times the kd-tree's reference budget is
+    /// doubled after a build ran out of it (0 at first).
     pub fn sizes(&self, ctx: &Context, n: usize, grow: u32) -> Result<AccelSizes> {
         match &self.family {
             Family::KdTree(k) => Ok(k.sizes(ctx, n, grow, self.kd_refs_per_level)),
-            Family::Bvh(b) => Ok(b.sizes(n, &self.bvh_settings(self.allow_update))),
-            Family::Driver => driver::sizes(ctx, n, self.driver_prefer),
+            Family::Bvh(b) => Ok(b.sizes(n, &self.bvh_settings(&self.flags))),
+            Family::Driver => driver::sizes(ctx, n, self.flags.prefer),
         }
     }
 
     /// The structure's buffers and the build scratch for `n` primitives, at
-    /// [`AccelBuilder::sizes`].
+    /// [`AccelBuilder::sizes`], with this builder's [`AccelBuilder::flags`].
     pub fn create(
         &self,
         ctx: &Context,
         n: usize,
         grow: u32,
     ) -> Result<(AccelStructure, AccelScratch)> {
-        let structure = self.create_structure(ctx, n, grow, self.allow_update, 1)?;
-        let scratch = self.create_scratch(ctx, n, grow, self.allow_update)?;
+        let flags = BuildFlags {
+            kd_capacity_doublings: grow,
+            ..self.flags
+        };
+        let structure = self.create_structure(ctx, n, &flags, 1)?;
+        let scratch = self.create_scratch(ctx, n, grow, flags.allow_update)?;
         Ok((structure, scratch))
     }
 
-    /// The structure's buffers for `n` primitives (`info_len` elements of scene constants:
-    /// 1, and more where a geometry table follows them).
+    /// The structure's buffers for `n` primitives built with `flags` (`info_len` elements of
+    /// scene constants: 1, and more where a geometry table follows them).
     pub(crate) fn create_structure(
         &self,
         ctx: &Context,
         n: usize,
-        grow: u32,
-        allow_update: bool,
+        flags: &BuildFlags,
         info_len: usize,
     ) -> Result<AccelStructure> {
         let info = Buffer::new(ctx, "accel.info", info_len)?;
+        let grow = flags.kd_capacity_doublings;
+        // Wide nodes are a BVH's only.
+        let wide = flags.wide && matches!(self.family, Family::Bvh(_));
         let storage = match &self.family {
             Family::KdTree(k) => {
                 Storage::KdTree(k.create_storage(ctx, n, grow, self.kd_refs_per_level)?)
             }
-            Family::Bvh(b) => Storage::Bvh(b.create_storage(ctx, n, allow_update, self.wide)?),
+            Family::Bvh(b) => Storage::Bvh(b.create_storage(ctx, n, flags.allow_update, wide)?),
             Family::Driver => Storage::Driver(DriverStorage::new(ctx)?),
         };
-        Ok(AccelStructure::from_parts(
-            self.kind,
-            storage,
-            info,
-            allow_update,
-        ))
+        Ok(AccelStructure {
+            flags: BuildFlags { wide, ..*flags },
+            params: Some(self.params()),
+            ..AccelStructure::from_parts(self.kind, storage, info)
+        })
     }
 
     /// The build scratch for `n` primitives.
@@ -344,9 +484,10 @@ impl AccelBuilder {
         }))
     }
 
-    /// Records the build of `out` over `prims` into `rec`, ending with a compute → compute
-    /// barrier so kernels recorded next may trace it. `host` is the host's copy of the same
-    /// geometry, read by host builders only (the SAH BVH); the kd-tree reads `prims.boxes`.
+    /// Records the build of `out` over `prims` into `rec`, ending with the barrier of
+    /// [`crate::accel::sync::RecordSync::build`] so kernels recorded next may trace it.
+    /// `host` is the host's copy of the same geometry, read by host builders only (the SAH
+    /// BVH); the kd-tree reads `prims.boxes`.
     pub fn record_build(
         &self,
         rec: &mut Recorder,
@@ -355,7 +496,9 @@ impl AccelBuilder {
         scratch: &AccelScratch,
         out: &mut AccelStructure,
     ) -> Result<RecordedBuild> {
-        self.record_build_inner(rec, prims, Some(host), scratch, out)
+        let built = self.record_build_inner(rec, prims, Some(host), scratch, out)?;
+        rec.end_of_build();
+        Ok(built)
     }
 
     /// [`AccelBuilder::record_build`]; `host: None` when the geometry came from the caller's
@@ -370,14 +513,8 @@ impl AccelBuilder {
         out: &mut AccelStructure,
     ) -> Result<RecordedBuild> {
         let call = "AccelBuilder::record_build";
-        if out.kind != self.kind {
-            let reason = format!(
-                "a {} builder cannot build into a {} structure",
-                self.kind.name(),
-                out.kind.name()
-            );
-            return Err(GpuError::Usage { call, reason });
-        }
+        self.check_frozen(call, out)?;
+        let flags = out.flags;
         let info = &out.info;
         match (&self.family, &mut out.storage, &scratch.0) {
             (Family::KdTree(k), Storage::KdTree(s), Scratch::KdTree(sc)) => {
@@ -386,7 +523,7 @@ impl AccelBuilder {
                 Ok(RecordedBuild::default())
             }
             (Family::Bvh(b), Storage::Bvh(s), Scratch::Bvh(sc)) if b.takes(sc) => {
-                let settings = self.bvh_settings(out.allow_update);
+                let settings = self.bvh_settings(&flags);
                 b.record_build(rec, prims, host, &settings, sc, s, info)
             }
             (Family::Driver, Storage::Driver(s), sc) => {
@@ -394,7 +531,7 @@ impl AccelBuilder {
                     Scratch::Driver(given) => given.as_ref(),
                     _ => None,
                 };
-                let (prefer, update) = (self.driver_prefer, out.allow_update);
+                let (prefer, update) = (flags.prefer, flags.allow_update);
                 s.record_build(rec, prims, host, prefer, update, given, info)?;
                 Ok(RecordedBuild::default())
             }
@@ -422,9 +559,22 @@ impl AccelBuilder {
     /// Records a refit of `out` (a BVH this builder built over the same primitives) to
     /// `prims.boxes` as they are now: every box recomputed bottom-up, the topology kept, the
     /// root box rewritten. The caller orders the writes of the moved geometry before; the
-    /// recording ends with a compute → compute barrier. A kd-tree cannot be refit (its
-    /// split planes are fixed): that is an error.
+    /// recording ends with the barrier of [`crate::accel::sync::RecordSync::build`]. A
+    /// kd-tree cannot be refit (its split planes are fixed): that is an error.
     pub fn record_refit(
+        &self,
+        rec: &mut Recorder,
+        prims: &DevicePrimitives,
+        out: &AccelStructure,
+        scratch: &Buffer<u32>,
+    ) -> Result<()> {
+        self.check_frozen("AccelBuilder::record_refit", out)?;
+        self.record_refit_inner(rec, prims, out, scratch)?;
+        rec.end_of_build();
+        Ok(())
+    }
+
+    fn record_refit_inner(
         &self,
         rec: &mut Recorder,
         prims: &DevicePrimitives,
@@ -441,21 +591,16 @@ impl AccelBuilder {
         }
     }
 
-    /// How the shader library walks the BVHs this builder makes (`SceneInfo::walk`).
-    pub(crate) fn bvh_walk(&self) -> u32 {
-        AccelTraversal::Bvh(self.bvh_traversal()).scene_walk()
+    /// How kernels walk the structures this builder makes with `flags`.
+    pub(crate) fn traversal(&self, flags: &BuildFlags) -> AccelTraversal {
+        self.kind.walked(bvh_traversal(flags.wide))
     }
+}
 
-    /// How kernels walk the BVHs this builder makes: wide where it makes wide nodes.
-    fn bvh_traversal(&self) -> Traversal {
-        match self.wide {
-            true => Traversal::Wide,
-            false => Traversal::Stack,
-        }
-    }
-
-    /// How kernels walk the structures this builder makes.
-    pub(crate) fn traversal(&self) -> AccelTraversal {
-        self.kind.walked(self.bvh_traversal())
+/// How kernels walk a BVH: wide where it has wide nodes.
+fn bvh_traversal(wide: bool) -> Traversal {
+    match wide {
+        true => Traversal::Wide,
+        false => Traversal::Stack,
     }
 }

@@ -3,6 +3,7 @@
 
 use crate::accel::driver::Prefer;
 use crate::accel::geometry::{Geometry, GeometryLayout};
+use crate::accel::walk::{AccelChoice, AccelKind, Traversal};
 use crate::gpu::{Context, Result};
 
 /// How a structure is built (`VkBuildAccelerationStructureFlagsKHR`, and the kd-tree's
@@ -17,6 +18,25 @@ pub struct BuildFlags {
     /// The kd-tree's reference budget per level doubled this many times (0 at first; one
     /// more after [`BuildStatus::kd_overflow`](crate::accel::embedded::BuildStatus::kd_overflow)).
     pub kd_capacity_doublings: u32,
+    /// BVH kinds: also make the 4-wide nodes ([`crate::accel::bvh::wide`]) after every build
+    /// and update, for the wide walk (`Traversal::Wide`), in place of the binary ones the
+    /// shaders bind.
+    pub wide: bool,
+}
+
+impl BuildFlags {
+    /// The flags of `choice`: its driver preference, and wide nodes for the wide walk.
+    pub fn for_choice(choice: AccelChoice) -> Self {
+        Self {
+            prefer: choice.prefer,
+            wide: choice.walk == Traversal::Wide
+                && matches!(
+                    choice.kind,
+                    AccelKind::SahBvh | AccelKind::Lbvh | AccelKind::Ploc
+                ),
+            ..Self::default()
+        }
+    }
 }
 
 /// What a structure over the caller's geometry was created for.

@@ -55,8 +55,8 @@ pub const DRIVER_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::from
 
 /// The scene constants the gather writes for a structure of `kind` over `n` primitives:
 /// how the shader library walks it, and where a BVH's parent links start.
-fn header_of(builder: &AccelBuilder, n: usize) -> (u32, u32) {
-    let walk = match builder.traversal() {
+fn header_of(builder: &AccelBuilder, flags: &BuildFlags, n: usize) -> (u32, u32) {
+    let walk = match builder.traversal(flags) {
         AccelTraversal::Bvh(_) if builder.top_level => SceneInfo::WALK_INSTANCES,
         t => t.scene_walk(),
     };
@@ -122,7 +122,11 @@ impl StatusReadback {
 impl GpuGeometry {
     /// Records the copy of the build's report (80 bytes at most) into host memory: read it
     /// with [`StatusReadback::read`] after the work has executed. Order the build before
-    /// with [`Recorder::compute_to_transfer`].
+    /// with [`Recorder::compute_to_transfer`], and the copy before the host's read with
+    /// [`Recorder::transfer_to_host`] ([`RecordSync::READ_STATUS`]), then wait for the
+    /// caller's fence.
+    ///
+    /// [`RecordSync::READ_STATUS`]: crate::accel::sync::RecordSync::READ_STATUS
     pub fn record_read_status(&self, rec: &mut Recorder) -> Result<StatusReadback> {
         let ctx = rec.context().clone();
         let head = Buffer::<SceneInfo>::with_memory(
@@ -227,13 +231,7 @@ impl AccelBuilder {
         let l = &input.layout;
         let n = l.primitive_count();
         let prims = DevicePrimitives::for_layout(ctx, l)?;
-        let mut accel = self.create_structure(
-            ctx,
-            n,
-            input.flags.kd_capacity_doublings,
-            input.flags.allow_update,
-            l.info_len(),
-        )?;
+        let mut accel = self.create_structure(ctx, n, &input.flags, l.info_len())?;
         if let Some(levels) = driver_levels::storage_mut(&mut accel).map(|d| &mut d.levels) {
             // While measuring, the primitives' buffers are placeholders without addresses.
             let driver_input = match crate::gpu::placement::measuring() {
@@ -322,7 +320,9 @@ impl AccelBuilder {
         input: &DeviceInput,
         out: &GpuGeometry,
     ) -> Result<()> {
-        let (walk, parents_at) = header_of(self, input.layout.primitive_count());
+        // The structure's own flags: wide nodes only where its kind has them.
+        let flags = out.accel.flags();
+        let (walk, parents_at) = header_of(self, &flags, input.layout.primitive_count());
         GeometryGather::new(rec.context())?.record(
             rec,
             geometries,
@@ -347,16 +347,7 @@ impl AccelBuilder {
                 "this structure was not created over device geometry (AccelBuilder::create_in)",
             )
         })?;
-        if out.accel.kind() != self.kind() {
-            return Err(usage(
-                call,
-                format!(
-                    "a {} builder cannot build into a {} structure",
-                    self.kind().name(),
-                    out.accel.kind().name()
-                ),
-            ));
-        }
+        self.check_frozen(call, &out.accel)?;
         if shape(geometries) != input.shape {
             return Err(usage(
                 call,
@@ -370,9 +361,19 @@ impl AccelBuilder {
     /// Records the build of `out` over `geometries` (the ones it was created for, their
     /// buffers now holding the data: the caller orders its writes before, as compute or
     /// transfer writes) into `rec`, with its scratch in `scratch`, a range of the caller's
-    /// buffer of at least [`AccelSizes::build_scratch_bytes`]. Ends with a compute → compute
-    /// barrier, after which kernels recorded next (the caller's, through
-    /// `vkrt/ray_query.glsl`) may trace it. Allocates, uploads and submits nothing.
+    /// buffer of at least [`AccelSizes::build_scratch_bytes`]. Ends with one barrier from all
+    /// its work to compute-shader reads and writes, after which kernels recorded next (the
+    /// caller's, through `vkrt/ray_query.glsl`) may trace it. Allocates, uploads and submits
+    /// nothing.
+    ///
+    /// Synchronization ([`crate::accel::sync`]): the caller's barrier before it has
+    /// [`RecordSync::build`]`(kind).first` as its destination — with, for a rebuild in
+    /// place, every stage that read the structure before (the previous frame's fragment
+    /// shader, say) in its source; its consumers other than compute shaders wait on
+    /// [`RecordSync::build`]`(kind).last` (compute-shader writes). It leaves vkrt's compute
+    /// pipeline, descriptor set 0 and push constants bound at the compute bind point.
+    ///
+    /// [`RecordSync::build`]: crate::accel::sync::RecordSync::build
     pub fn record_build_from(
         &self,
         rec: &mut Recorder,
@@ -393,6 +394,7 @@ impl AccelBuilder {
             self.record_build_inner(rec, &out.prims, None, &scratch, &mut out.accel)
                 .map(drop)
         })?;
+        rec.end_of_build();
         rec.check()?;
         if let Some(d) = out.device_input.as_mut() {
             d.built = true;
@@ -403,7 +405,11 @@ impl AccelBuilder {
     /// Records an update (refit) of `out`, built with `allow_update`, to the positions its
     /// geometries' buffers hold now (the same geometries, moved), with its scratch in
     /// `scratch` (at least [`AccelSizes::update_scratch_bytes`]). A kd-tree cannot be
-    /// updated (its split planes are fixed): rebuild it.
+    /// updated (its split planes are fixed): rebuild it. Synchronized as
+    /// [`AccelBuilder::record_build_from`] is ([`RecordSync::build`]): an update in place
+    /// after the previous frame's reads needs the same write-after-read barrier.
+    ///
+    /// [`RecordSync::build`]: crate::accel::sync::RecordSync::build
     pub fn record_update_from(
         &self,
         rec: &mut Recorder,
@@ -447,6 +453,7 @@ impl AccelBuilder {
                 self.record_gather(rec, geometries, &input, out)?;
                 levels.record_update(rec, Some(&scratch))?;
                 rec.keep_alive(scratch);
+                rec.end_of_build();
                 rec.check()
             });
         }

@@ -83,7 +83,7 @@ pub fn upload_structure(
         }
     };
     let info = Buffer::from_slice(ctx, "accel.info", &[constants])?;
-    Ok(AccelStructure::from_parts(kind, storage, info, false))
+    Ok(AccelStructure::from_parts(kind, storage, info))
 }
 
 /// The settings a CPU twin builds with: those of the device builder it twins.
@@ -141,11 +141,11 @@ impl AccelBuilder {
     /// The settings of this builder's CPU twin.
     pub fn twin_params(&self) -> TwinParams {
         TwinParams {
-            kd: self.kd_params,
-            bvh: self.bvh_params,
+            kd: self.kd_params(),
+            bvh: self.bvh_params(),
             morton_bits: self.lbvh_bits(),
             ploc: self.ploc_params().unwrap_or_default(),
-            threading: self.threading,
+            threading: self.threading(),
         }
     }
 

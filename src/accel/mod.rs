@@ -12,6 +12,7 @@
 //!   recorded into its command buffer; [`gpu_geometry`] pairs a structure with its primitives;
 //!   [`embedded`] builds over the caller's buffers; [`driver`] maps the same scene to the
 //!   driver's own acceleration structures.
+//! - [`sync`]: the stages and accesses each record call touches first and leaves last.
 //! - [`instances`]: two levels, a top level over instances of bottom-level structures.
 //! - [`walk`]: which walk a kernel runs over a structure; [`shader_library`]: what a
 //!   renderer's own shader binds to walk it.
@@ -34,5 +35,6 @@ pub mod kdtree;
 pub mod primitives;
 pub mod shader_library;
 pub mod sizes;
+pub mod sync;
 pub mod two_levels;
 pub mod walk;

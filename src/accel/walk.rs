@@ -65,6 +65,13 @@ impl AccelKind {
         AccelKind::Ploc,
     ];
 
+    /// The kind a renderer embedding vkrt starts from: the LBVH, built on the device from the
+    /// caller's buffers in a fixed number of passes, with no capacity to run out of (the
+    /// kd-tree's reference budget may, and asks the caller to grow it) and a fraction of the
+    /// kd-tree's memory per primitive. (`AccelKind::default()` stays the kd-tree: the CLI's
+    /// default.)
+    pub const EMBEDDING_DEFAULT: AccelKind = AccelKind::Lbvh;
+
     /// The CLI name (`--accel`).
     pub fn name(self) -> &'static str {
         match self {

@@ -79,9 +79,9 @@ impl Build {
             (AccelKind::Ploc, Some(p)) => AccelBuilder::ploc(ctx, p)?,
             _ => AccelBuilder::for_choice(ctx, choice)?,
         };
-        b.driver_prefer = choice.prefer;
-        b.kd_params = kd;
-        b.bvh_params = bvh;
+        b = b.with_driver_prefer(choice.prefer);
+        b = b.with_kd_params(kd);
+        b = b.with_bvh_params(bvh);
         Ok(Some(b))
     }
 }

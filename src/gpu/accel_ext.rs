@@ -280,6 +280,7 @@ impl AccelerationStructure {
         // requires) lie inside it; it outlives the structure (field order and Drop).
         let raw = unsafe { ext.create_acceleration_structure(&create, None) }
             .map_err(vk_err("vkCreateAccelerationStructureKHR"))?;
+        ctx.inner.created(1);
         let info =
             vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(raw);
         // SAFETY: `raw` is a live structure of this device.

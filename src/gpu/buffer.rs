@@ -111,8 +111,10 @@ pub(crate) fn create_texel_view(ctx: &Context, b: &dyn BufferArg) -> Result<vk::
     // SAFETY: valid device; the buffer has UNIFORM_TEXEL_BUFFER usage (vkrt's buffers and
     // REQUIRED_BUFFER_USAGE have it); offset, range and texel count were checked against the
     // device's limits above.
-    unsafe { ctx.inner.device.create_buffer_view(&create, None) }
-        .map_err(vk_err("vkCreateBufferView"))
+    let view = unsafe { ctx.inner.device.create_buffer_view(&create, None) }
+        .map_err(vk_err("vkCreateBufferView"))?;
+    ctx.inner.created(1);
+    Ok(view)
 }
 
 /// A range of a buffer that the embedding renderer owns; vkrt never frees it.
@@ -293,6 +295,7 @@ impl<T: Pod> Buffer<T> {
         // SAFETY: valid device and create-info; the buffer is destroyed on every error path.
         let raw =
             unsafe { device.create_buffer(&create, None) }.map_err(vk_err("vkCreateBuffer"))?;
+        ctx.inner.created(1);
         // SAFETY: `raw` was just created on this device.
         let requirements = unsafe { device.get_buffer_memory_requirements(raw) };
         let location = match memory {

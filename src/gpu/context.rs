@@ -87,6 +87,11 @@ pub struct Traffic {
     /// Device-local buffers vkrt allocated from its own allocator (buffers placed in a
     /// caller's memory are not counted).
     pub device_allocations: u64,
+    /// Vulkan objects vkrt created on the device: buffers, buffer views, shader modules,
+    /// pipelines and their layouts, descriptor pools and sets, query pools, command pools
+    /// and buffers, fences, acceleration structures. Recording a frame after
+    /// [`crate::gpu::BindingCache::prepare`] creates none.
+    pub objects_created: u64,
 }
 
 /// Device memory held through the context's allocator (the caller's too, where a renderer
@@ -116,7 +121,15 @@ impl std::ops::Sub for Traffic {
             upload_bytes: self.upload_bytes - earlier.upload_bytes,
             inline_bytes: self.inline_bytes - earlier.inline_bytes,
             device_allocations: self.device_allocations - earlier.device_allocations,
+            objects_created: self.objects_created - earlier.objects_created,
         }
+    }
+}
+
+impl Inner {
+    /// Counts `n` Vulkan objects created ([`Traffic::objects_created`]).
+    pub(crate) fn created(&self, n: u64) {
+        self.objects_created.fetch_add(n, Ordering::Relaxed);
     }
 }
 
@@ -142,6 +155,8 @@ pub(crate) struct Inner {
     pub(crate) upload_bytes: AtomicU64,
     pub(crate) inline_bytes: AtomicU64,
     pub(crate) device_allocations: AtomicU64,
+    /// Every vkCreate*/vkAllocate* vkrt calls on the device ([`Traffic::objects_created`]).
+    pub(crate) objects_created: AtomicU64,
     /// Bytes of vkrt's own live allocations and their high-water mark since the last
     /// [`Context::reset_memory_peak`].
     pub(crate) live_bytes: AtomicU64,
@@ -302,6 +317,7 @@ impl Context {
                 upload_bytes: AtomicU64::new(0),
                 inline_bytes: AtomicU64::new(0),
                 device_allocations: AtomicU64::new(0),
+                objects_created: AtomicU64::new(0),
                 live_bytes: AtomicU64::new(0),
                 peak_bytes: AtomicU64::new(0),
                 messenger,
@@ -320,6 +336,7 @@ impl Context {
             upload_bytes: self.inner.upload_bytes.load(Ordering::Relaxed),
             inline_bytes: self.inner.inline_bytes.load(Ordering::Relaxed),
             device_allocations: self.inner.device_allocations.load(Ordering::Relaxed),
+            objects_created: self.inner.objects_created.load(Ordering::Relaxed),
         }
     }
 

@@ -236,6 +236,8 @@ impl Context {
                 .layout(layout)];
             let result = device.create_compute_pipelines(self.inner.pipeline_cache, &create, None);
             device.destroy_shader_module(module, None);
+            // The set layout, pipeline layout and shader module, and the pipeline.
+            self.inner.created(3 + result.is_ok() as u64);
             match result {
                 Ok(p) => Ok(Kernel {
                     blob,

@@ -4,6 +4,7 @@
 //!   renderer with [`Context::from_raw`];
 //! - [`Buffer`]: typed storage buffers on gpu-allocator;
 //! - [`Kernel`]: compute pipelines from the SPIR-V that `build.rs` embeds ([`kernels`]);
+//! - [`BindingCache`]: descriptor sets and texel views prepared once for every frame;
 //! - [`Recorder`]: dispatches, copies, fills, barrier helpers named by what they order, and
 //!   profiler scopes — into its own command buffer or the caller's;
 //! - [`Profile`]: per-pass GPU milliseconds and a Chrome-trace/Perfetto export;
@@ -17,6 +18,7 @@
 //! code panics through one cold helper.
 
 mod accel_ext;
+mod bindings;
 mod buffer;
 mod context;
 mod error;
@@ -34,6 +36,7 @@ pub use accel_ext::{
     AccelerationStructure, DriverBuildSizes,
 };
 pub use ash::vk;
+pub use bindings::BindingCache;
 pub use buffer::{address_of, placement, Buffer, BufferArg, Memory, RawBuffer, TexelView};
 pub use context::{Context, ContextOptions, MemoryUsage, RawParts, Traffic};
 pub use error::{GpuError, Result};

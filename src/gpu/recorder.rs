@@ -8,6 +8,7 @@
 use ash::vk;
 use bytemuck::Pod;
 
+use super::bindings::{check_serves, BindingCache, SetPools, Views};
 use super::buffer::{Buffer, BufferArg, Memory};
 use super::context::Context;
 use super::error::{vk_err, GpuError, Result};
@@ -16,8 +17,6 @@ use super::profiler::{create_query_pool, Profile, ScopeRecorder, DEFAULT_QUERY_C
 
 /// How long `submit_and_wait` waits before calling the device hung.
 const SUBMIT_TIMEOUT_NS: u64 = 30 * 60 * 1_000_000_000;
-const SETS_PER_POOL: u32 = 256;
-const BUFFERS_PER_POOL: u32 = SETS_PER_POOL * 8;
 
 /// Records GPU work. Create with [`Recorder::new`] (own command buffer, submitted by
 /// [`Recorder::submit_and_wait`]) or [`Recorder::from_raw`] (the caller's command buffer).
@@ -25,7 +24,11 @@ pub struct Recorder {
     ctx: Context,
     cmd: vk::CommandBuffer,
     command_pool: Option<vk::CommandPool>,
-    descriptor_pools: Vec<vk::DescriptorPool>,
+    /// The recording's own descriptor pools, where it binds from no cache.
+    descriptor_pools: SetPools,
+    /// The cache it binds from instead ([`Recorder::from_raw_with`]), held until the work
+    /// has completed.
+    cache: Option<BindingCache>,
     scopes: ScopeRecorder,
     /// Staging buffers of recorded uploads, alive until the work has executed.
     staging: Vec<Box<dyn std::any::Any + Send>>,
@@ -35,8 +38,9 @@ pub struct Recorder {
     /// `submit_and_wait`, [`RecordedWork::complete`]) instead of running incomplete work.
     failed: Option<GpuError>,
     /// Views of the ranges bound as texel buffers, made once per range (the renderer binds
-    /// the same structure in every wave), alive until the work has executed.
-    views: std::collections::HashMap<(vk::Buffer, u64, u64), vk::BufferView>,
+    /// the same structure in every wave), alive until the work has executed; where the
+    /// recording binds from a cache, the cache's.
+    views: Views,
 }
 
 /// A copy of a device buffer into host memory, recorded by [`Recorder::read_back`]; read it
@@ -75,6 +79,16 @@ pub struct RecordedWork {
 impl Recorder {
     /// A recorder with its own primary command buffer, in the recording state.
     pub fn new(ctx: &Context) -> Result<Self> {
+        Self::new_with(ctx, None)
+    }
+
+    /// [`Recorder::new`], binding from `cache` (which [`BindingCache::prepare`] fills
+    /// through a recording that is never submitted) and writing no timestamps.
+    pub(crate) fn new_with(ctx: &Context, cache: Option<BindingCache>) -> Result<Self> {
+        let queries = match cache {
+            Some(_) => 0,
+            None => DEFAULT_QUERY_CAPACITY,
+        };
         let device = &ctx.inner.device;
         let pool_info = vk::CommandPoolCreateInfo::default()
             .queue_family_index(ctx.inner.queue_family)
@@ -82,6 +96,8 @@ impl Recorder {
         // SAFETY: valid device; the pool is destroyed in Drop (or here on error).
         let pool = unsafe { device.create_command_pool(&pool_info, None) }
             .map_err(vk_err("vkCreateCommandPool"))?;
+        // The pool and its command buffer.
+        ctx.inner.created(2);
         let alloc = vk::CommandBufferAllocateInfo::default()
             .command_pool(pool)
             .level(vk::CommandBufferLevel::PRIMARY)
@@ -102,7 +118,7 @@ impl Recorder {
                 return Err(vk_err("vkAllocateCommandBuffers")(e));
             }
         };
-        match Self::wrap(ctx, cmd, Some(pool), DEFAULT_QUERY_CAPACITY) {
+        match Self::wrap(ctx, cmd, Some(pool), queries, cache) {
             Ok(r) => Ok(r),
             Err(e) => {
                 // SAFETY: the command buffer was never submitted.
@@ -125,7 +141,25 @@ impl Recorder {
         cmd: vk::CommandBuffer,
         query_capacity: u32,
     ) -> Result<Self> {
-        Self::wrap(ctx, cmd, None, query_capacity)
+        Self::wrap(ctx, cmd, None, query_capacity, None)
+    }
+
+    /// Records into a command buffer the embedding renderer owns, as
+    /// [`Recorder::from_raw`] does, creating no Vulkan object of its own: no timestamp
+    /// query pool (scopes become debug labels only; profile with `from_raw` and a query
+    /// capacity) and no descriptor pool — every descriptor set and texel view comes from
+    /// `cache`, which [`BindingCache::prepare`] filled before the first frame. Kernels are
+    /// the context's, compiled by that preparation too.
+    ///
+    /// # Safety
+    /// As [`Recorder::from_raw`].
+    pub unsafe fn from_raw_with(
+        ctx: &Context,
+        cmd: vk::CommandBuffer,
+        cache: &BindingCache,
+    ) -> Result<Self> {
+        check_serves(cache, ctx)?;
+        Self::wrap(ctx, cmd, None, 0, Some(cache.clone()))
     }
 
     fn wrap(
@@ -133,13 +167,16 @@ impl Recorder {
         cmd: vk::CommandBuffer,
         command_pool: Option<vk::CommandPool>,
         queries: u32,
+        cache: Option<BindingCache>,
     ) -> Result<Self> {
         let query_pool = create_query_pool(&ctx.inner.device, queries, ctx.info().timestamps)?;
+        ctx.inner.created(query_pool.is_some() as u64);
         Ok(Self {
             ctx: ctx.clone(),
             cmd,
             command_pool,
-            descriptor_pools: Vec::new(),
+            descriptor_pools: SetPools::default(),
+            cache,
             scopes: ScopeRecorder::new(query_pool, queries),
             staging: Vec::new(),
             failed: None,
@@ -242,7 +279,7 @@ impl Recorder {
     }
 
     /// Binds the kernel's pipeline, a descriptor set of `buffers` and `push`; false (and the
-    /// recording marked failed) when no descriptor set could be allocated.
+    /// recording marked failed) when no descriptor set could be made.
     fn bind(&mut self, kernel: &Kernel, buffers: &[&dyn BufferArg], push: &[u8]) -> bool {
         let blob = kernel.blob;
         if buffers.len() != blob.bindings.len() {
@@ -265,55 +302,29 @@ impl Recorder {
         if let Err(reason) = check_ranges(&self.ctx, blob, buffers) {
             return self.refuse("Recorder::dispatch", reason);
         }
-        let Some(set) = self.allocate_set(kernel.set_layout) else {
+        if self.failed.is_some() {
             return false;
-        };
-        let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
-            .iter()
-            .map(|b| {
-                [vk::DescriptorBufferInfo {
-                    buffer: b.raw(),
-                    offset: b.offset(),
-                    range: b.range(),
-                }]
-            })
-            .collect();
-        // Texel bindings: an RGBA32UI view of each buffer's range.
-        let mut views = Vec::new();
-        for (&binding, b) in blob.bindings.iter().zip(buffers) {
-            if blob.texel_bindings.contains(&binding) {
-                match self.texel_view(*b) {
-                    Ok(v) => views.push([v]),
-                    Err(e) => {
-                        self.failed.get_or_insert(e);
-                        return false;
-                    }
-                }
-            }
         }
-        let mut next_view = views.iter();
-        let writes: Vec<vk::WriteDescriptorSet> = blob
-            .bindings
-            .iter()
-            .zip(&infos)
-            .map(|(&binding, info)| {
-                let w = vk::WriteDescriptorSet::default()
-                    .dst_set(set)
-                    .dst_binding(binding)
-                    .descriptor_type(super::kernel::descriptor_type(blob, binding));
-                match blob.texel_bindings.contains(&binding) {
-                    true => {
-                        w.texel_buffer_view(next_view.next().expect("one view per texel binding"))
-                    }
-                    false => w.buffer_info(info),
-                }
-            })
-            .collect();
+        let ctx = &self.ctx;
+        let write = |set, views: &mut Views| write_set(ctx, blob, set, buffers, views);
+        let set = match &self.cache {
+            Some(cache) => cache.set_for(kernel.set_layout, buffers, write),
+            None => self
+                .descriptor_pools
+                .allocate(ctx, kernel.set_layout)
+                .and_then(|set| write(set, &mut self.views).map(|()| set)),
+        };
+        let set = match set {
+            Ok(set) => set,
+            Err(e) => {
+                self.failed.get_or_insert(e);
+                return false;
+            }
+        };
         let device = &self.ctx.inner.device;
-        // SAFETY: the set was allocated for this layout and is not in use by pending work
-        // (fresh from the pool); the command buffer is recording; `push` fits the range.
+        // SAFETY: the set was written for this layout; the command buffer is recording;
+        // `push` fits the range.
         unsafe {
-            device.update_descriptor_sets(&writes, &[]);
             device.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, kernel.pipeline);
             device.cmd_bind_descriptor_sets(
                 self.cmd,
@@ -336,19 +347,6 @@ impl Recorder {
         true
     }
 
-    /// An RGBA32UI view of `b`'s range (whole 16-byte texels: vkrt's buffers are), destroyed
-    /// with the recorder.
-    fn texel_view(&mut self, b: &dyn BufferArg) -> Result<vk::BufferView> {
-        let key = (b.raw(), b.offset(), b.range());
-        if let Some(&view) = self.views.get(&key) {
-            return Ok(view);
-        }
-        // Destroyed when the recorder is dropped, after its work has executed.
-        let view = super::buffer::create_texel_view(&self.ctx, b)?;
-        self.views.insert(key, view);
-        Ok(view)
-    }
-
     /// `Err` when a Vulkan call failed while recording (the work is incomplete and must not
     /// be submitted); vkrt's recording calls return it before handing the work back.
     pub fn check(&self) -> Result<()> {
@@ -363,58 +361,6 @@ impl Recorder {
     fn refuse(&mut self, call: &'static str, reason: String) -> bool {
         self.failed.get_or_insert(GpuError::Usage { call, reason });
         false
-    }
-
-    fn allocate_set(&mut self, layout: vk::DescriptorSetLayout) -> Option<vk::DescriptorSet> {
-        if self.failed.is_some() {
-            return None;
-        }
-        let device = &self.ctx.inner.device;
-        let layouts = [layout];
-        if let Some(&pool) = self.descriptor_pools.last() {
-            let info = vk::DescriptorSetAllocateInfo::default()
-                .descriptor_pool(pool)
-                .set_layouts(&layouts);
-            // SAFETY: the pool is ours and not used by another thread.
-            if let Ok(sets) = unsafe { device.allocate_descriptor_sets(&info) } {
-                return Some(sets[0]);
-            }
-        }
-        let sizes = [
-            vk::DescriptorPoolSize {
-                ty: vk::DescriptorType::STORAGE_BUFFER,
-                descriptor_count: BUFFERS_PER_POOL,
-            },
-            vk::DescriptorPoolSize {
-                ty: vk::DescriptorType::UNIFORM_TEXEL_BUFFER,
-                descriptor_count: SETS_PER_POOL * 2,
-            },
-        ];
-        let pool_info = vk::DescriptorPoolCreateInfo::default()
-            .max_sets(SETS_PER_POOL)
-            .pool_sizes(&sizes);
-        // SAFETY: valid device; pools are destroyed when the recorder's work has completed.
-        let pool = match unsafe { device.create_descriptor_pool(&pool_info, None) } {
-            Ok(pool) => pool,
-            Err(code) => {
-                self.failed
-                    .get_or_insert(vk_err("vkCreateDescriptorPool")(code));
-                return None;
-            }
-        };
-        self.descriptor_pools.push(pool);
-        let info = vk::DescriptorSetAllocateInfo::default()
-            .descriptor_pool(pool)
-            .set_layouts(&layouts);
-        // SAFETY: a fresh pool sized for far more than one set of at most 9 buffers.
-        match unsafe { device.allocate_descriptor_sets(&info) } {
-            Ok(sets) => Some(sets[0]),
-            Err(code) => {
-                self.failed
-                    .get_or_insert(vk_err("vkAllocateDescriptorSets")(code));
-                None
-            }
-        }
     }
 
     /// Fills the whole buffer with the 32-bit pattern `value`.
@@ -703,6 +649,27 @@ impl Recorder {
         );
     }
 
+    /// Everything a build recorded (kernels, copies, fills, indirect reads, and the driver's
+    /// builds where the device has them) before → kernels after: the one barrier each of
+    /// vkrt's build, update and refit calls ends with, so that what it leaves last is
+    /// compute-shader work (`accel::sync::RecordSync::build`).
+    pub fn end_of_build(&mut self) {
+        let ray_query = self.ctx.info().features.ray_query;
+        let (mut src, mut dst) = (
+            (
+                vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER,
+                vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE,
+            ),
+            COMPUTE_RW,
+        );
+        if ray_query {
+            src.0 |= ACCEL_BUILD_W.0;
+            src.1 |= ACCEL_BUILD_W.1;
+            dst.1 |= vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR;
+        }
+        self.memory_barrier(src, dst);
+    }
+
     /// Kernel writes before → host reads after the submission completes.
     pub fn compute_to_host(&mut self) {
         self.memory_barrier(COMPUTE_RW, HOST_R);
@@ -782,6 +749,7 @@ impl Recorder {
         // SAFETY: valid device.
         let fence = unsafe { device.create_fence(&vk::FenceCreateInfo::default(), None) }
             .map_err(vk_err("vkCreateFence"))?;
+        self.ctx.inner.created(1);
         let cmds = [self.cmd];
         let submit = [vk::SubmitInfo::default().command_buffers(&cmds)];
         self.ctx
@@ -902,10 +870,12 @@ impl Drop for RecordedWork {
             let r = &mut self.recorder;
             // Handles dropped from the lists are left alive; the staging buffers are
             // forgotten with their memory (and, as each holds a clone, the context).
-            r.descriptor_pools.clear();
-            r.views.clear();
+            r.descriptor_pools.leak();
+            r.views.leak();
             r.scopes.pool = None;
             std::mem::forget(std::mem::take(&mut r.staging));
+            // A shared cache must outlive the sets this command buffer binds.
+            std::mem::forget(r.cache.take());
         }
     }
 }
@@ -918,12 +888,8 @@ impl Drop for Recorder {
         // contract says it has executed) or was never handed over. Either way nothing pending
         // uses these pools.
         unsafe {
-            for pool in self.descriptor_pools.drain(..) {
-                device.destroy_descriptor_pool(pool, None);
-            }
-            for (_, view) in self.views.drain() {
-                device.destroy_buffer_view(view, None);
-            }
+            self.descriptor_pools.destroy(device);
+            self.views.destroy(device);
             if let Some(pool) = self.scopes.pool.take() {
                 device.destroy_query_pool(pool, None);
             }
@@ -969,6 +935,53 @@ const ACCEL_BUILD_RW: (vk::PipelineStageFlags, vk::AccessFlags) = (
             | vk::AccessFlags::SHADER_READ.as_raw(),
     ),
 );
+
+/// Writes `buffers` into `set` (a fresh set of `blob`'s layout, used by no command buffer
+/// yet): storage ranges, and texel bindings through RGBA32UI views of their ranges.
+fn write_set(
+    ctx: &Context,
+    blob: &super::shader::ShaderBlob,
+    set: vk::DescriptorSet,
+    buffers: &[&dyn BufferArg],
+    views: &mut Views,
+) -> Result<()> {
+    let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
+        .iter()
+        .map(|b| {
+            [vk::DescriptorBufferInfo {
+                buffer: b.raw(),
+                offset: b.offset(),
+                range: b.range(),
+            }]
+        })
+        .collect();
+    let mut texel = Vec::new();
+    for (&binding, b) in blob.bindings.iter().zip(buffers) {
+        if blob.texel_bindings.contains(&binding) {
+            texel.push([views.of(ctx, *b)?]);
+        }
+    }
+    let mut next_view = texel.iter();
+    let writes: Vec<vk::WriteDescriptorSet> = blob
+        .bindings
+        .iter()
+        .zip(&infos)
+        .map(|(&binding, info)| {
+            let w = vk::WriteDescriptorSet::default()
+                .dst_set(set)
+                .dst_binding(binding)
+                .descriptor_type(super::kernel::descriptor_type(blob, binding));
+            match blob.texel_bindings.contains(&binding) {
+                true => w.texel_buffer_view(next_view.next().expect("one view per texel binding")),
+                false => w.buffer_info(info),
+            }
+        })
+        .collect();
+    // SAFETY: the set is fresh (no command buffer binds it yet) and of this blob's layout;
+    // the infos and views outlive the call.
+    unsafe { ctx.inner.device.update_descriptor_sets(&writes, &[]) };
+    Ok(())
+}
 
 /// The ranges a kernel's storage bindings get are the bounds its accesses trust: each must
 /// be non-empty, start at an offset the device allows, lie within the device's

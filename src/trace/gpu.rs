@@ -125,6 +125,11 @@ impl Tracer {
     /// rays that ran out of steps. The caller orders the writes of the inputs before. `n`
     /// above the rays or hits the buffers hold, or a structure this tracer's walk does not
     /// serve, is an error (nothing is recorded).
+    ///
+    /// Synchronization ([`crate::accel::sync::RecordSync::TRACE`]): compute-shader reads of
+    /// the structure and rays and writes of the hits and counter, first and last, with no
+    /// barrier of its own; it leaves its compute pipeline, descriptor set 0 and push
+    /// constants bound at the compute bind point.
     #[allow(
         clippy::too_many_arguments,
         reason = "buffers of the dispatch, one by one"

@@ -322,7 +322,7 @@ impl Prepared {
             Some(make) => make(ctx)?,
             None => AccelBuilder::for_choice(ctx, accel)?,
         };
-        builder.kd_params = *params;
+        builder = builder.with_kd_params(*params);
         let (device, _) = GpuGeometry::build_fitting(ctx, &builder, &geometry)?;
         let host = match accel.kind {
             AccelKind::Driver => HostStructure::Bvh(

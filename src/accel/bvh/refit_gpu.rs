@@ -1,4 +1,4 @@
-//! The refit of a BVH built to be updated (`AccelBuilder::allow_update`, as
+//! The refit of a BVH built to be updated (`BuildFlags::allow_update`, as
 //! `VK_BUILD_ACCELERATION_STRUCTURE_ALLOW_UPDATE_BIT_KHR`): the build also records a
 //! schedule — the nodes sorted by depth (`accel.bvh_schedule`, a stable radix sort, so the
 //! schedule is the same on every run), and where each depth starts with its indirect

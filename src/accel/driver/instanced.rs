@@ -41,7 +41,7 @@ pub(crate) fn record_instanced(
         address,
         bases,
     };
-    let out = AccelStructure::from_parts(AccelKind::Driver, Storage::Driver(storage), info, false);
+    let out = AccelStructure::from_parts(AccelKind::Driver, Storage::Driver(storage), info);
     Ok((out, ids))
 }
 

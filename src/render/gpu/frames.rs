@@ -98,7 +98,7 @@ impl<'r> FrameLoop<'r> {
             });
         }
         let mut builder = AccelBuilder::for_choice(ctx, choice)?;
-        builder.allow_update = update == Update::Refit;
+        builder = builder.with_allow_update(update == Update::Refit);
         Ok(Self {
             renderer,
             builder,
