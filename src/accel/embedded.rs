@@ -145,18 +145,23 @@ impl GpuGeometry {
 
 impl AccelBuilder {
     /// What every call over device geometry checks first: the kind builds from device
-    /// buffers, and holds `geometries`' opacity.
-    fn check_device_input(&self, call: &'static str, geometries: &[Geometry]) -> Result<()> {
+    /// buffers, and holds `geometries`' opacity (with 4-wide nodes where `wide`).
+    fn check_device_input(
+        &self,
+        call: &'static str,
+        geometries: &[Geometry],
+        wide: bool,
+    ) -> Result<()> {
         // Non-opaque hits go back to a ray query as candidates, each once: the walk of a
         // binary BVH, which references every primitive once, does that.
-        let binary_bvh = matches!(self.kind(), AccelKind::Lbvh | AccelKind::Ploc) && !self.wide;
+        let binary_bvh = matches!(self.kind(), AccelKind::Lbvh | AccelKind::Ploc) && !wide;
         if !binary_bvh && geometries.iter().any(|g| !g.opaque()) {
             return Err(usage(
                 call,
                 format!(
                     "non-opaque geometry goes to ray queries as candidates through the walk of \
                      a binary BVH (LBVH or PLOC); a {}{} structure holds opaque geometry only",
-                    if self.wide { "4-wide " } else { "" },
+                    if wide { "4-wide " } else { "" },
                     self.kind().name()
                 ),
             ));
@@ -180,7 +185,7 @@ impl AccelBuilder {
         geometries: &[Geometry],
         flags: &BuildFlags,
     ) -> Result<AccelSizes> {
-        self.check_device_input("AccelBuilder::sizes_for", geometries)?;
+        self.check_device_input("AccelBuilder::sizes_for", geometries, flags.wide)?;
         let input = DeviceInput::new(ctx, geometries, *flags)?;
         let (_, structure_bytes) = place(ctx, "the structure", Placement::Measure, || {
             self.place_structure(ctx, &input)
@@ -304,7 +309,7 @@ impl AccelBuilder {
         flags: &BuildFlags,
         memory: RawBuffer,
     ) -> Result<GpuGeometry> {
-        self.check_device_input("AccelBuilder::create_in", geometries)?;
+        self.check_device_input("AccelBuilder::create_in", geometries, flags.wide)?;
         let input = DeviceInput::new(ctx, geometries, *flags)?;
         let (g, _) = place(ctx, "the structure", Placement::Into(memory), || {
             self.place_structure(ctx, &input)
@@ -340,13 +345,13 @@ impl AccelBuilder {
         geometries: &[Geometry],
         out: &'a GpuGeometry,
     ) -> Result<&'a DeviceInput> {
-        self.check_device_input(call, geometries)?;
         let input = out.device_input.as_ref().ok_or_else(|| {
             usage(
                 call,
                 "this structure was not created over device geometry (AccelBuilder::create_in)",
             )
         })?;
+        self.check_device_input(call, geometries, input.flags.wide)?;
         self.check_frozen(call, &out.accel)?;
         if shape(geometries) != input.shape {
             return Err(usage(
