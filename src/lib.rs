@@ -56,16 +56,11 @@
 pub mod gpu;
 
 pub mod accel;
-#[cfg(feature = "cli")]
-pub mod accuracy;
-#[cfg(feature = "cli")]
-pub mod bench;
 pub mod guide;
 pub mod host;
 pub mod prims;
 pub mod render;
 pub mod scene;
-pub mod soak;
 pub mod trace;
 pub mod verify;
 

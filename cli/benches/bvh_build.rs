@@ -12,11 +12,11 @@
 #[path = "embree/peer.rs"]
 mod embree;
 
-use vkrt::accel::bvh::bench::bench;
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::primitives::TraceGeometry;
 use vkrt::gpu::Recorder;
+use vkrt_cli::bvh_bench::bench;
 
 #[path = "common/args.rs"]
 mod args;

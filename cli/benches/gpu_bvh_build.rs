@@ -214,7 +214,7 @@ fn main() {
                 .filter(|r| &r.builder == label && r.scene.starts_with("icosphere"))
                 .map(|r| (r.triangles as f64, r.build_ms))
                 .collect();
-            (label.clone(), vkrt::bench::power_law_exponent(&pts))
+            (label.clone(), vkrt_cli::bench::power_law_exponent(&pts))
         })
         .collect();
     if json {

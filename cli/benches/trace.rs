@@ -1,5 +1,5 @@
 //! Ray throughput of every structure and walk against the driver and CPU peers in the same
-//! run: `vkrt bench trace`'s measurement (`vkrt::trace::bench`: every
+//! run: `vkrt bench trace`'s measurement (`vkrt_cli::trace_bench`: every
 //! structure vkrt builds, walked every way, the driver's ray query where the device has it,
 //! obvhs on one thread) on the Stanford bunny (../shared/scenes, skipped with a message when
 //! absent) and icospheres of 100K and 500K triangles, with Embree 3.13 on top
@@ -14,8 +14,8 @@
 #[path = "embree/peer.rs"]
 mod embree;
 
-use vkrt::trace::bench::{self, Backend, BenchOptions, BenchScene, BuildRow, TraceRow};
 use vkrt::trace::Query;
+use vkrt_cli::trace_bench::{self as bench, Backend, BenchOptions, BenchScene, BuildRow, TraceRow};
 
 #[path = "common/args.rs"]
 mod args;

@@ -5,8 +5,8 @@ use std::path::Path;
 
 use plotters::prelude::*;
 
-use super::AnimationReport;
-use crate::gpu::{write_atomically, GpuError};
+use vkrt::gpu::{write_atomically, GpuError};
+use vkrt::render::animate::{AnimationReport, FrameRow};
 
 /// Draws `reports` into an SVG at `path` (written atomically).
 pub fn frames_svg(reports: &[AnimationReport], path: &Path) -> Result<(), GpuError> {
@@ -18,7 +18,7 @@ pub fn frames_svg(reports: &[AnimationReport], path: &Path) -> Result<(), GpuErr
     write_atomically(path, svg.as_bytes())
 }
 
-type Panel<'a> = (&'a str, fn(&super::FrameRow) -> f64);
+type Panel<'a> = (&'a str, fn(&FrameRow) -> f64);
 
 fn draw(reports: &[AnimationReport], svg: &mut String) -> Result<(), Box<dyn std::error::Error>> {
     let root = SVGBackend::with_string(svg, (960, 720)).into_drawing_area();

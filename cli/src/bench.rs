@@ -8,7 +8,7 @@
 
 use serde::Serialize;
 
-use crate::gpu::{kernels, Buffer, Context, Profile, Recorder, Result, Spec};
+use vkrt::gpu::{kernels, Buffer, Context, Profile, Recorder, Result, Spec};
 
 /// One timed variant of a copy.
 #[derive(Clone, Debug, Serialize)]
@@ -52,13 +52,13 @@ impl CopyBaselines {
 }
 
 /// A copy kernel, its u32 words per element (its `ELEM`) and elements per invocation.
-type KernelVariant = (std::sync::Arc<crate::gpu::Kernel>, u32, u32);
+type KernelVariant = (std::sync::Arc<vkrt::gpu::Kernel>, u32, u32);
 
 const WORKGROUP_SIZES: [u32; 3] = [64, 256, 1024];
 
 /// The copy kernels: (name, blob, u32 words per element, elements per invocation, needs
 /// shaderInt64).
-const COPY_KERNELS: [(&str, &crate::gpu::ShaderBlob, u32, u32, bool); 6] = [
+const COPY_KERNELS: [(&str, &vkrt::gpu::ShaderBlob, u32, u32, bool); 6] = [
     ("u32", &kernels::GPU_COPY_U32, 1, 1, false),
     ("uvec4", &kernels::GPU_COPY_UVEC4, 4, 1, false),
     ("uvec4x4", &kernels::GPU_COPY_UVEC4X4, 4, 4, false),
@@ -191,18 +191,18 @@ pub struct PrimsReport {
 }
 
 /// A primitive's benchmark: times at `n` elements, best of `reps`.
-pub type PrimBench = fn(&Context, usize, u32) -> Result<Vec<crate::prims::PrimTiming>>;
+pub type PrimBench = fn(&Context, usize, u32) -> Result<Vec<vkrt::prims::PrimTiming>>;
 
 /// Every primitive's benchmark, in the order of the report.
 pub fn prim_benches() -> Vec<(&'static str, PrimBench)> {
     vec![
-        ("scan", crate::prims::scan::bench as PrimBench),
-        ("compact", crate::prims::compact::bench),
-        ("reduce", crate::prims::reduce::bench),
-        ("segmented", crate::prims::segmented::bench),
+        ("scan", vkrt::prims::scan::bench as PrimBench),
+        ("compact", vkrt::prims::compact::bench),
+        ("reduce", vkrt::prims::reduce::bench),
+        ("segmented", vkrt::prims::segmented::bench),
         // Its rows include `cpu_sort_unstable_by_key`: the CPU sort of the same pairs on one
         // core (its "gpu_ms" is CPU wall time).
-        ("radix", crate::prims::radix_sort::bench),
+        ("radix", vkrt::prims::radix_sort::bench),
     ]
 }
 
@@ -297,7 +297,7 @@ pub struct KdBenchReport {
     /// The device name the driver reports.
     pub device: String,
     /// The SAH parameters and termination every build used.
-    pub params: crate::accel::kdtree::SahParams,
+    pub params: vkrt::accel::kdtree::SahParams,
     /// One row per scene and variant.
     pub rows: Vec<KdBenchRow>,
     /// Least-squares slope of log(build_ms) over log(N), default builds of the icospheres:
@@ -344,11 +344,11 @@ pub const KD_VARIANT_NOTES: [(&str, &str); 5] = [
 /// The ablation variants: (label, builder switches, best-split mode or the default hybrid).
 fn kd_variants() -> Vec<(
     &'static str,
-    crate::accel::kdtree::gpu::Ablation,
-    Option<crate::prims::segmented::SegmentedMode>,
+    vkrt::accel::kdtree::gpu::Ablation,
+    Option<vkrt::prims::segmented::SegmentedMode>,
 )> {
-    use crate::accel::kdtree::gpu::Ablation;
-    use crate::prims::segmented::SegmentedMode;
+    use vkrt::accel::kdtree::gpu::Ablation;
+    use vkrt::prims::segmented::SegmentedMode;
     vec![
         ("default", Ablation::default(), None),
         (
@@ -410,18 +410,18 @@ pub fn power_law_exponent(points: &[(f64, f64)]) -> Option<f64> {
 /// 6.2): one workgroup per segment instead of the hybrid reduction, a shared-memory instead
 /// of a shuffle argmin, a u32 instead of a byte-flag scan, full event records written to a
 /// temporary slot list and compacted from there (each record moved twice) instead of the
-/// 1-byte clip-mask and one move (see [`crate::accel::kdtree::gpu::Ablation`]). Every variant must build the
+/// 1-byte clip-mask and one move (see [`vkrt::accel::kdtree::gpu::Ablation`]). Every variant must build the
 /// default's tree (an error otherwise). A scene whose build fails (e.g. above the device's
 /// buffer limit) gets a row with the error.
 pub fn kdtree_report(
     ctx: &Context,
     scenes: &[(String, Vec<[glam::Vec3; 3]>)],
-    params: &crate::accel::kdtree::SahParams,
+    params: &vkrt::accel::kdtree::SahParams,
     ablation_max_n: usize,
     reps: u32,
 ) -> Result<KdBenchReport> {
-    use crate::accel::kdtree::gpu::{BuildCapacity, KdTreeBuilder};
-    use crate::accel::kdtree::{report::PHASES, stats};
+    use vkrt::accel::kdtree::gpu::{BuildCapacity, KdTreeBuilder};
+    use vkrt::accel::kdtree::{report::PHASES, stats};
     let variants = kd_variants();
     let mut builders = Vec::new();
     for (_, ablation, mode) in &variants {
@@ -442,11 +442,11 @@ pub fn kdtree_report(
             match builder.build_from(ctx, tris, params, BuildCapacity::for_primitives(tris.len())) {
                 Ok(b) => {
                     if let Some((_, _, first)) = built.first() {
-                        let first: &crate::accel::kdtree::gpu::BuildResult = first;
+                        let first: &vkrt::accel::kdtree::gpu::BuildResult = first;
                         if first.tree.nodes != b.tree.nodes
                             || first.tree.prim_refs != b.tree.prim_refs
                         {
-                            return Err(crate::gpu::GpuError::Kernel {
+                            return Err(vkrt::gpu::GpuError::Kernel {
                                 kernel: "accel.kdtree",
                                 reason: format!("{name}: variant {label} built a different tree"),
                             });
@@ -472,7 +472,7 @@ pub fn kdtree_report(
         }
         // ... then time them round-robin, `reps` rounds, keeping each variant's fastest build
         // (the machine is shared: interleaving spreads other load over all variants).
-        let mut best: Vec<Option<(f64, crate::gpu::Profile)>> = vec![None; built.len()];
+        let mut best: Vec<Option<(f64, vkrt::gpu::Profile)>> = vec![None; built.len()];
         for _ in 0..reps.max(1) {
             for ((_, builder, b), best) in built.iter().zip(&mut best) {
                 let profile = builder.timed_build(ctx, tris, params, b.capacity)?;

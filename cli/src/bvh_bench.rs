@@ -2,9 +2,9 @@
 
 use glam::Vec3;
 
-use super::sah::{build_timed, BvhError, BvhParams, Threading};
-use super::validate::sah_cost;
-use crate::scene::Aabb;
+use vkrt::accel::bvh::sah::{build_timed, BvhError, BvhParams, Threading};
+use vkrt::accel::bvh::validate::sah_cost;
+use vkrt::scene::Aabb;
 
 /// One build: scene, SAH variant, scheme and thread count.
 #[derive(Clone, Debug, serde::Serialize)]

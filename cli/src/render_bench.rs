@@ -5,10 +5,10 @@
 
 use serde::Serialize;
 
-use super::{render_scene, RenderOptions};
-use crate::gpu::Context;
-use crate::scene::Scene;
-use crate::trace::TraceOptions;
+use vkrt::gpu::Context;
+use vkrt::render::{render_scene, RenderOptions};
+use vkrt::scene::Scene;
+use vkrt::trace::TraceOptions;
 
 /// One example scene's render times: as planned, without its effect, and with every pass
 /// forced on.
@@ -69,7 +69,7 @@ pub fn effect_costs(
     ctx: &Context,
     scenes: &[(String, Scene, String)],
     (width, height): (u32, u32),
-    accel: crate::accel::device::AccelChoice,
+    accel: vkrt::accel::device::AccelChoice,
 ) -> Result<Vec<EffectRow>, Box<dyn std::error::Error + Send + Sync>> {
     let trace = TraceOptions::default();
     let opt = RenderOptions {

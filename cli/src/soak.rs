@@ -19,18 +19,18 @@ use std::time::Instant;
 use glam::{Vec3, Vec4};
 use serde::Serialize;
 
-use crate::accel::device::{AccelChoice, AccelKind};
-use crate::accel::primitives::TraceGeometry;
-use crate::gpu::{Context, GpuError};
-use crate::host::host_rss_bytes;
-use crate::render::animate::{self, AnimateOptions, FrameRow};
-use crate::render::gpu::Update;
-use crate::render::output::srgb8;
-use crate::render::{cpu, Plan, RenderOptions, RenderScene};
-use crate::scene::gen::{self, Rng};
-use crate::scene::Scene;
-use crate::trace::robust::{self, CheckedTrace};
-use crate::trace::{Query, TraceOptions};
+use vkrt::accel::device::{AccelChoice, AccelKind};
+use vkrt::accel::primitives::TraceGeometry;
+use vkrt::gpu::{Context, GpuError};
+use vkrt::host::host_rss_bytes;
+use vkrt::render::animate::{self, AnimateOptions, FrameRow};
+use vkrt::render::gpu::Update;
+use vkrt::render::output::srgb8;
+use vkrt::render::{cpu, Plan, RenderOptions, RenderScene};
+use vkrt::scene::gen::{self, Rng};
+use vkrt::scene::Scene;
+use vkrt::trace::robust::{self, CheckedTrace};
+use vkrt::trace::{Query, TraceOptions};
 
 type Error = Box<dyn std::error::Error + Send + Sync>;
 
@@ -352,7 +352,7 @@ pub const SCENE_KINDS: [&str; 6] = [
 /// Scene `kind` of about `n` primitives (at least 1), from `rng`.
 pub fn random_scene(kind: &str, n: u32, rng: &mut Rng) -> Result<TraceGeometry, Error> {
     let n = n.max(1);
-    let tris = |m: &crate::scene::Mesh| -> Vec<[Vec3; 3]> {
+    let tris = |m: &vkrt::scene::Mesh| -> Vec<[Vec3; 3]> {
         m.indices
             .iter()
             .map(|t| t.map(|i| m.positions[i as usize]))

@@ -3,9 +3,9 @@
 
 use std::path::{Path, PathBuf};
 
-use vkrt::accuracy::pareto::{fill_fronts, recommend, USES};
-use vkrt::accuracy::report::{html, plot_svg, write};
-use vkrt::accuracy::{
+use vkrt_cli::accuracy::pareto::{fill_fronts, recommend, USES};
+use vkrt_cli::accuracy::report::{html, plot_svg, write};
+use vkrt_cli::accuracy::{
     Accuracy, AccuracyReport, Costs, HardCases, ImageError, ImageFile, ImageScene, KnobGroup,
     Point, RayCountsInfo, TraceMs,
 };

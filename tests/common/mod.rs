@@ -210,35 +210,6 @@ pub fn quick() -> bool {
     std::env::var("VKRT_TEST_QUICK").is_ok_and(|v| v == "1")
 }
 
-/// Runs the `vkrt` binary of this build.
-pub fn vkrt(args: &[&str]) -> std::process::Output {
-    std::process::Command::new(env!("CARGO_BIN_EXE_vkrt"))
-        .args(args)
-        .output()
-        .expect("run vkrt")
-}
-
-/// Whether a missing Vulkan device is allowed (VKRT_ALLOW_NO_GPU=1): tests then skip.
-pub fn no_gpu_allowed() -> bool {
-    std::env::var("VKRT_ALLOW_NO_GPU").is_ok_and(|v| v == "1")
-}
-
-/// Runs `vkrt` and expects success: `None` (skip) when it failed and no device is allowed,
-/// otherwise a failure shows its stderr.
-pub fn vkrt_ok(args: &[&str]) -> Option<std::process::Output> {
-    let out = vkrt(args);
-    if !out.status.success() && no_gpu_allowed() {
-        return None;
-    }
-    assert!(
-        out.status.success(),
-        "vkrt {}: {}",
-        args.join(" "),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    Some(out)
-}
-
 /// Same hit or miss; the same primitive with `t` within 1e-5 relative, or another one at a
 /// tie (`t` equal within 1e-6 relative).
 pub fn same_answer(a: &vkrt::trace::Hit, b: &vkrt::trace::Hit) -> bool {

@@ -1,16 +1,16 @@
 //! The knobs `vkrt bench accuracy` turns, in groups; each group is plotted on its own time
 //! and error axes (see [`super::measure`] for what is measured of each kind of setting).
 
-use crate::accel::bvh::lbvh::MortonBits;
-use crate::accel::bvh::ploc::PlocParams;
-use crate::accel::bvh::BvhParams;
-use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
-use crate::accel::driver::Prefer;
-use crate::accel::kdtree::SahParams;
-use crate::accel::walk::Traversal;
-use crate::gpu::{Context, Result};
-use crate::render::gpu::Update;
-use crate::trace::{Intersector, TraceOptions};
+use vkrt::accel::bvh::lbvh::MortonBits;
+use vkrt::accel::bvh::ploc::PlocParams;
+use vkrt::accel::bvh::BvhParams;
+use vkrt::accel::device::{AccelBuilder, AccelChoice, AccelKind};
+use vkrt::accel::driver::Prefer;
+use vkrt::accel::kdtree::SahParams;
+use vkrt::accel::walk::Traversal;
+use vkrt::gpu::{Context, Result};
+use vkrt::render::gpu::Update;
+use vkrt::trace::{Intersector, TraceOptions};
 
 /// How a structure setting's structure is made.
 #[derive(Clone, Copy, Debug, PartialEq)]

@@ -32,19 +32,19 @@ use super::{
     pareto, Accuracy, AccuracyReport, Costs, HardCases, ImageFile, KnobGroup, Point, RayCountsInfo,
     TraceMs, UseTimes,
 };
-use crate::accel::bvh::{self, BvhParams};
-use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
-use crate::accel::gpu_geometry::GpuGeometry;
-use crate::accel::host::HostStructure;
-use crate::accel::kdtree::{full_clip, stats, KdNode};
-use crate::gpu::{Context, GpuError};
-use crate::render::animate::{self, AnimateOptions};
-use crate::render::RenderOptions;
-use crate::scene::Scene;
-use crate::trace::bench::{self as trace_bench, scenes, BenchScene, RayKind, RaySet};
-use crate::trace::gpu::Tracer;
-use crate::trace::robust::{self, SuiteConfig, SuiteSize};
-use crate::trace::{Hit, Query, TraceOptions};
+use crate::trace_bench::{self as trace_bench, scenes, BenchScene, RayKind, RaySet};
+use vkrt::accel::bvh::{self, BvhParams};
+use vkrt::accel::device::{AccelBuilder, AccelChoice, AccelKind};
+use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::host::HostStructure;
+use vkrt::accel::kdtree::{full_clip, stats, KdNode};
+use vkrt::gpu::{Context, GpuError};
+use vkrt::render::animate::{self, AnimateOptions};
+use vkrt::render::RenderOptions;
+use vkrt::scene::Scene;
+use vkrt::trace::gpu::Tracer;
+use vkrt::trace::robust::{self, SuiteConfig, SuiteSize};
+use vkrt::trace::{Hit, Query, TraceOptions};
 
 mod images;
 
@@ -255,7 +255,7 @@ struct RayBench {
     /// Primary, shadow, mirror.
     sets: Vec<RaySet>,
     /// A small mesh to warm pipelines up on.
-    warm: crate::accel::primitives::TraceGeometry,
+    warm: vkrt::accel::primitives::TraceGeometry,
     reference: Vec<Vec<Hit>>,
 }
 

@@ -8,8 +8,8 @@ use std::path::{Component, Path, PathBuf};
 
 use super::pareto::{fmt_count, fmt_num};
 use super::{AccuracyReport, ImageFile, KnobGroup, Point};
-use crate::gpu::GpuError;
-use crate::render::output::png_bytes;
+use vkrt::gpu::GpuError;
+use vkrt::render::output::png_bytes;
 
 mod plot;
 pub use plot::plot_svg;

@@ -28,14 +28,14 @@ use serde::Serialize;
 pub use obvhs_peer::ObvhsPeer;
 pub use rays::{BenchScene, RayKind, RaySet, ShadowTarget};
 
-use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
-use crate::accel::driver::Prefer;
-use crate::accel::gpu_geometry::GpuGeometry;
-use crate::accel::primitives::TraceGeometry;
-use crate::accel::walk::{NodeAccess, Traversal};
-use crate::gpu::{Context, Result};
-use crate::trace::gpu::Tracer;
-use crate::trace::{Hit, Query, TraceOptions};
+use vkrt::accel::device::{AccelBuilder, AccelChoice, AccelKind};
+use vkrt::accel::driver::Prefer;
+use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::primitives::TraceGeometry;
+use vkrt::accel::walk::{NodeAccess, Traversal};
+use vkrt::gpu::{Context, Result};
+use vkrt::trace::gpu::Tracer;
+use vkrt::trace::{Hit, Query, TraceOptions};
 
 /// How much to measure.
 #[derive(Clone, Copy, Debug)]

@@ -9,9 +9,9 @@ use obvhs::bvh2::Bvh2;
 use obvhs::triangle::Triangle;
 use obvhs::BvhBuildParams;
 
-use crate::trace::{Query, Ray};
+use vkrt::trace::{Query, Ray};
 
-use crate::accel::primitives::TraceGeometry;
+use vkrt::accel::primitives::TraceGeometry;
 
 /// obvhs builds its rays and triangles with glam 0.34 (vkrt uses 0.30).
 fn v34(v: [f32; 3]) -> glam034::Vec3A {

@@ -5,10 +5,10 @@
 use glam::Vec3;
 use serde::Serialize;
 
-use crate::accel::primitives::TraceGeometry;
-use crate::scene::{Camera, Light, Scene};
-use crate::trace::intersect::{offset_ray_origin_bounded, sphere_hit_point, triangle_hit_point};
-use crate::trace::{Hit, Query, Ray};
+use vkrt::accel::primitives::TraceGeometry;
+use vkrt::scene::{Camera, Light, Scene};
+use vkrt::trace::intersect::{offset_ray_origin_bounded, sphere_hit_point, triangle_hit_point};
+use vkrt::trace::{Hit, Query, Ray};
 
 /// Where secondary rays start, as a fraction of the scene's diagonal. vkrt's kernels need
 /// none (the spawn offset clears their watertight test's error), but lavapipe's ray query
@@ -189,11 +189,7 @@ impl BenchScene {
                 let p = r.o() + r.d() * h.t;
                 // o + t·d: two roundings of each term, a few ulps of its magnitudes.
                 let err = (r.o().abs() + (r.d() * h.t).abs()) * (4.0 * f32::EPSILON);
-                (
-                    p,
-                    err,
-                    crate::trace::intersect::aabb_normal(b.min, b.max, p),
-                )
+                (p, err, vkrt::trace::intersect::aabb_normal(b.min, b.max, p))
             } else {
                 let s = g.sphere_at(prim - g.triangle_count(), 0.0);
                 let c = s.truncate();

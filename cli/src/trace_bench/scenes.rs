@@ -6,7 +6,7 @@ use std::path::{Path, PathBuf};
 use glam::Vec3;
 
 use super::BenchScene;
-use crate::scene::{Scene, SceneError};
+use vkrt::scene::{Scene, SceneError};
 
 /// The benchmarks' default mesh: the file `$VKRT_MESH` names (`./x` sets it to the Stanford
 /// bunny beside the checkout, where that is present). `None`, with a warning, where it is
@@ -66,7 +66,7 @@ pub fn mesh_triangles(path: &Path) -> Result<NamedTriangles, SceneError> {
 
 /// An icosphere of at least `n` triangles, named `icosphere{n/1000}k`.
 pub fn icosphere_triangles(n: u64) -> Result<NamedTriangles, SceneError> {
-    let m = crate::scene::gen::icosphere_with_at_least(n)?;
+    let m = vkrt::scene::gen::icosphere_with_at_least(n)?;
     let tris = m
         .indices
         .iter()

@@ -3,14 +3,14 @@
 //! module's docs for what is compared and how).
 
 use super::{AccuracyOptions, BoxError, Sizes};
-use crate::accel::device::AccelChoice;
 use crate::accuracy::knobs::ImageSetting;
 use crate::accuracy::{Accuracy, Costs, ImageError, ImageFile, ImageScene, Point};
-use crate::gpu::Context;
-use crate::render::{render_scene, RenderOptions};
-use crate::scene::Scene;
-use crate::trace::bench::scenes;
-use crate::trace::TraceOptions;
+use crate::trace_bench::scenes;
+use vkrt::accel::device::AccelChoice;
+use vkrt::gpu::Context;
+use vkrt::render::{render_scene, RenderOptions};
+use vkrt::scene::Scene;
+use vkrt::trace::TraceOptions;
 
 /// A scene images are compared on, its reference rendered.
 pub(super) struct Compared {

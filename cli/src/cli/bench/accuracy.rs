@@ -30,7 +30,7 @@ pub struct AccuracyArgs {
 }
 
 pub fn run(args: AccuracyArgs, validate: bool) -> CliResult<()> {
-    use vkrt::accuracy::{measure, report};
+    use vkrt_cli::accuracy::{measure, report};
     let AccuracyArgs {
         quick,
         json,

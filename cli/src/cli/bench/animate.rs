@@ -170,7 +170,7 @@ fn bench_animate(
         log::info!("{} {}: done", r.accel, r.update.name());
         reports.push(r);
     }
-    animate::frames_svg(&reports, &out.join("frames.svg"))?;
+    vkrt_cli::animate_plot::frames_svg(&reports, &out.join("frames.svg"))?;
     let payoff: Vec<(String, Option<u32>)> = reports
         .iter()
         .filter(|r| r.update == Update::Refit)

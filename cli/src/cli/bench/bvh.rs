@@ -32,7 +32,7 @@ pub fn run(args: BvhArgs) -> CliResult<()> {
         json,
     } = args;
     let scenes = bench_scenes(mesh, max_n)?;
-    let rows = vkrt::accel::bvh::bench::bench(&scenes, reps)?;
+    let rows = vkrt_cli::bvh_bench::bench(&scenes, reps)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
     } else {

@@ -89,9 +89,9 @@ pub fn run(what: BenchCommand, validate: bool) -> CliResult<()> {
 type Meshes = Vec<(String, Vec<[glam::Vec3; 3]>)>;
 
 /// The meshes a build benchmark runs over: `mesh` (default: `$VKRT_MESH`, see
-/// [`vkrt::trace::bench::scenes::default_mesh`]), then icospheres of 100 K, 200 K, 500 K, 1 M and 2 M triangles up to `max_n`.
+/// [`vkrt_cli::trace_bench::scenes::default_mesh`]), then icospheres of 100 K, 200 K, 500 K, 1 M and 2 M triangles up to `max_n`.
 fn bench_scenes(mesh: Option<PathBuf>, max_n: u64) -> CliResult<Meshes> {
-    use vkrt::trace::bench::scenes;
+    use vkrt_cli::trace_bench::scenes;
     let mut list = Vec::new();
     if let Some(path) = mesh.or_else(scenes::default_mesh) {
         list.push(scenes::mesh_triangles(&path)?);

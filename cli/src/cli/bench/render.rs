@@ -49,7 +49,7 @@ pub fn run(args: BenchRenderArgs, validate: bool) -> CliResult<()> {
     }
     let ctx = context(validate)?;
     let accel = accel_traversal(accel, traversal);
-    let rows = vkrt::render::bench::effect_costs(&ctx, &list, (width, height), accel)
+    let rows = vkrt_cli::render_bench::effect_costs(&ctx, &list, (width, height), accel)
         .map_err(|e| e.to_string())?;
     if json {
         println!(

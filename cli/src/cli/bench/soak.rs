@@ -9,7 +9,7 @@ use std::time::Instant;
 use clap::Args;
 use vkrt::render::gpu::Update;
 use vkrt::render::RenderOptions;
-use vkrt::soak::{self, BuildSoak, BuildSoakOptions, FrameSoak, FrameSoakOptions, Growth};
+use vkrt_cli::soak::{self, BuildSoak, BuildSoakOptions, FrameSoak, FrameSoakOptions, Growth};
 
 use crate::cli::animate::animated;
 use crate::cli::common::{check_resolution, context, load_scene, CliResult};

@@ -48,7 +48,7 @@ enum NodeAccessArg {
 
 /// `vkrt bench trace`: the scenes are loaded before the device is touched.
 pub fn run(args: &BenchTraceArgs, validate: bool) -> CliResult<()> {
-    use vkrt::trace::bench::{self, scenes, AccessRows, BenchOptions};
+    use vkrt_cli::trace_bench::{self as bench, scenes, AccessRows, BenchOptions};
     let quick = args.quick;
     let mut list = Vec::new();
     let default_mesh = scenes::default_mesh().filter(|_| !quick);
