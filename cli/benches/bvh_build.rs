@@ -69,16 +69,7 @@ fn main() {
         "{} — SAH BVH build, best of 3 (wall); speed-up over 1 thread",
         ctx.info().device
     );
-    println!(
-        "{:<15} {:>8} {:<9} {:<7} {:>3} {:>10} {:>8} {:>9}",
-        "scene", "tris", "sah", "scheme", "thr", "ms", "speedup", "SAH cost"
-    );
-    for r in &rows {
-        println!(
-            "{:<15} {:>8} {:<9} {:<7} {:>3} {:>10.1} {:>8.2} {:>9.2}",
-            r.scene, r.triangles, r.sah, r.scheme, r.threads, r.build_ms, r.speedup, r.sah_cost
-        );
-    }
+    print!("{}", vkrt_cli::bvh_bench::table(&rows));
     println!("peers: Embree 3 (medium BVH, best of 3) and vkrt's GPU kd-tree (timestamps)");
     let f = |v: &serde_json::Value| v.as_f64().map_or("-".into(), |x| format!("{x:.1}"));
     for p in &peers {

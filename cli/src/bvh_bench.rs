@@ -91,3 +91,46 @@ pub fn bench(scenes: &[(String, Vec<[Vec3; 3]>)], reps: u32) -> Result<Vec<BvhBe
     }
     Ok(rows)
 }
+
+/// The rows as one table, a line each, under one header: what `vkrt bench bvh` and
+/// `cargo bench --bench bvh_build` both print.
+pub fn table(rows: &[BvhBenchRow]) -> String {
+    let mut out = format!(
+        "{:<16} {:>9} {:<8} {:<7} {:>7} {:>11} {:>8} {:>9}\n",
+        "scene", "triangles", "sah", "scheme", "threads", "build ms", "speed-up", "SAH cost"
+    );
+    for r in rows {
+        out += &format!(
+            "{:<16} {:>9} {:<8} {:<7} {:>7} {:>11.1} {:>8.2} {:>9.2}\n",
+            r.scene, r.triangles, r.sah, r.scheme, r.threads, r.build_ms, r.speedup, r.sah_cost
+        );
+    }
+    out
+}
+
+#[cfg(test)]
+mod tests {
+    use super::*;
+
+    #[test]
+    fn the_table_has_one_header_and_a_line_per_row() {
+        let row = |scheme: &str, threads| BvhBenchRow {
+            scene: "bunny".into(),
+            triangles: 69_451,
+            sah: "sweep".into(),
+            scheme: scheme.into(),
+            threads,
+            build_ms: 12.25,
+            speedup: 1.5,
+            sah_cost: 80.0,
+            nodes: 9,
+        };
+        let text = table(&[row("single", 1), row("queue", 2)]);
+        let lines: Vec<&str> = text.lines().collect();
+        assert_eq!(lines.len(), 3);
+        assert!(lines[0].starts_with("scene") && lines[0].ends_with("SAH cost"));
+        assert!(lines[2].contains("queue") && lines[2].contains("12.2"));
+        // The columns line up under the header.
+        assert!(lines.iter().all(|l| l.len() == lines[0].len()));
+    }
+}

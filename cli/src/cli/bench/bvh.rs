@@ -36,16 +36,7 @@ pub fn run(args: BvhArgs) -> CliResult<()> {
     if json {
         println!("{}", serde_json::to_string_pretty(&rows)?);
     } else {
-        println!(
-            "{:<16} {:>9} {:<8} {:<7} {:>7} {:>11} {:>8} {:>9}",
-            "scene", "triangles", "sah", "scheme", "threads", "build ms", "speed-up", "SAH cost"
-        );
-        for r in &rows {
-            println!(
-                "{:<16} {:>9} {:<8} {:<7} {:>7} {:>11.1} {:>8.2} {:>9.2}",
-                r.scene, r.triangles, r.sah, r.scheme, r.threads, r.build_ms, r.speedup, r.sah_cost
-            );
-        }
+        print!("{}", vkrt_cli::bvh_bench::table(&rows));
     }
     Ok(())
 }
