@@ -96,6 +96,7 @@ impl Rng {
     }
 }
 
+#[cfg(feature = "verify")]
 /// The sizes every primitive is tested at: empty, one, around the subgroup and the workgroup
 /// size and the tile, several tiles, and large ones past every scan level (2^20+13 and
 /// 2^24+3, unless VKRT_TEST_QUICK=1).
@@ -130,6 +131,7 @@ pub fn bunny_path() -> Option<std::path::PathBuf> {
     Some(path)
 }
 
+#[cfg(feature = "scene-files")]
 /// The bunny's triangles, or `None` (with a printed skip) when ../shared is absent.
 pub fn bunny() -> Option<Vec<[glam::Vec3; 3]>> {
     let path = bunny_path()?;
