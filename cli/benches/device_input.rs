@@ -64,7 +64,7 @@ fn meshes(quick: bool) -> Vec<Mesh> {
     let bunny = std::env::var_os("VKRT_MESH").map_or_else(
         || {
             std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-                .join("../shared/scenes/stanford-bunny.obj")
+                .join("../../shared/scenes/stanford-bunny.obj")
         },
         std::path::PathBuf::from,
     );

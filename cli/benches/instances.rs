@@ -259,7 +259,7 @@ fn trace(ctx: &Context, sets: &[(u64, &[Ray])]) -> Vec<(usize, f64)> {
 /// The dynamic demo's per-frame updates, two levels against flat (see the module docs).
 fn dynamic_demo(ctx: &Context) -> Option<UpdateRow> {
     use vkrt::accel::two_levels::TwoLevelScene;
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/dynamic_demo.toml");
+    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/dynamic_demo.toml");
     let scene = vkrt::scene::Scene::load(&path).ok()?.scene;
     let anim = scene.animation?;
     let frames = 8.min(anim.frames);

@@ -144,7 +144,7 @@ fn scene_summary_json_and_errors() {
 
 #[test]
 fn every_example_scene_loads() {
-    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes");
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
     let mut count = 0;
     for entry in std::fs::read_dir(&dir).unwrap() {
         let path = entry.unwrap().path();
@@ -168,7 +168,7 @@ fn every_example_scene_loads() {
 /// `vkrt build HOUSE --accel ACCEL --reference --json`, its report checked for `keys`
 /// (`None` without a GPU).
 fn build_report(accel: &str, keys: &[&str]) -> Option<serde_json::Value> {
-    let house = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/house.obj");
+    let house = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/house.obj");
     let out = vkrt_ok(&[
         "build",
         house.to_str().unwrap(),

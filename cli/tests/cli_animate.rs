@@ -198,7 +198,7 @@ fn frames_equal_single_renders_and_the_preview_animates() {
 fn bad_animation_input_is_a_clear_error_and_leaves_no_frame() {
     let dir = scratch("bad");
     let scene = scene_file(&dir);
-    let still = Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/hard_shadows.toml");
+    let still = Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/hard_shadows.toml");
     let out = dir.join("out");
     let pattern = out.join("f_%03d.png");
     let p = s(&pattern);
@@ -397,7 +397,8 @@ fn bench_animate_reports_every_structure_and_update_mode() {
 #[test]
 fn a_long_animation_holds_memory_flat() {
     let dir = scratch("soak");
-    let scene = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("scenes/dynamic_demo.toml");
+    let scene =
+        std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/dynamic_demo.toml");
     let pattern = dir.join("f_%03d.png");
     let runs: [(&[&str], &str, u64); 4] = [
         (&["--flatten"], "60", 1),

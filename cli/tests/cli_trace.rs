@@ -20,7 +20,7 @@ fn scratch(name: &str) -> PathBuf {
 
 fn example(name: &str) -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("scenes")
+        .join("../scenes")
         .join(name)
 }
 

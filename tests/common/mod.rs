@@ -120,10 +120,19 @@ pub fn mesh_triangles(mesh: &vkrt::scene::Mesh) -> Vec<[glam::Vec3; 3]> {
         .collect()
 }
 
+/// The checkout's root: the nearest folder holding `Cargo.lock` above the manifest of the
+/// crate under test (this file serves the library's tests and, from cli/, the command
+/// line's).
+pub fn checkout() -> &'static std::path::Path {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .ancestors()
+        .find(|dir| dir.join("Cargo.lock").is_file())
+        .expect("a Cargo.lock above the crate")
+}
+
 /// The bunny's OBJ in ../shared, or `None` (with a printed skip) when ../shared is absent.
 pub fn bunny_path() -> Option<std::path::PathBuf> {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/scenes/stanford-bunny.obj");
+    let path = checkout().join("../shared/scenes/stanford-bunny.obj");
     if !path.exists() {
         eprintln!("skipped the bunny: {} not present", path.display());
         return None;

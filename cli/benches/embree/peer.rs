@@ -25,7 +25,7 @@ pub fn context_and_peer() -> (vkrt::gpu::Context, Option<Embree>) {
 /// The benches' mesh: `$VKRT_MESH`, else the Stanford bunny beside the checkout.
 pub fn bench_mesh() -> std::path::PathBuf {
     std::env::var_os("VKRT_MESH").map_or_else(
-        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../shared/scenes/stanford-bunny.obj"),
+        || Path::new(env!("CARGO_MANIFEST_DIR")).join("../../shared/scenes/stanford-bunny.obj"),
         std::path::PathBuf::from,
     )
 }

@@ -7,9 +7,11 @@ mod library;
 #[allow(unused_imports, reason = "each test binary uses a different part")]
 pub use library::*;
 
-/// Runs the `vkrt` binary of this build.
+/// Runs the `vkrt` binary of this build in the checkout's root, where `./x vkrt` runs it
+/// (its defaults name `scenes/...` there).
 pub fn vkrt(args: &[&str]) -> std::process::Output {
     std::process::Command::new(env!("CARGO_BIN_EXE_vkrt"))
+        .current_dir(checkout())
         .args(args)
         .output()
         .expect("run vkrt")
