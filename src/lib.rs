@@ -42,7 +42,9 @@
 //!
 //! Layers (calls go downward only): [`gpu`] (all Vulkan, all `unsafe`), [`prims`] (scans,
 //! reductions, sorts), [`scene`] (the host-side model), [`accel`] (the builders), [`trace`]
-//! (the walks) and [`render`]; [`verify`] checks them all on a device.
+//! (the walks) and [`render`]; [`verify`] checks them all on a device. The scene loaders, the
+//! renderer and the checks are the features `scene-files`, `render` and `verify`
+//! ([`guide::versioning`]).
 
 #![deny(unsafe_code)]
 #![warn(unsafe_op_in_unsafe_fn, clippy::undocumented_unsafe_blocks)]
@@ -56,19 +58,18 @@
 pub mod gpu;
 
 pub mod accel;
-#[cfg(feature = "cli")]
-pub mod accuracy;
-#[cfg(feature = "cli")]
-pub mod bench;
 pub mod guide;
 pub mod host;
 pub mod prims;
+#[cfg(feature = "render")]
 pub mod render;
 pub mod scene;
-#[cfg(feature = "cli")]
+// A renderer's GL_EXT_ray_query shaders run over a scene through vkrt and the driver
+// (`vkrt shader-check`).
+#[cfg(feature = "scene-files")]
 pub mod shader_check;
-pub mod soak;
 pub mod trace;
+#[cfg(feature = "verify")]
 pub mod verify;
 
 pub use glam;

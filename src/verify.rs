@@ -21,7 +21,7 @@
 //! - **validation**: with the validation layer on, it must stay silent.
 //!
 //! A check that errors is a failed check; the others still run. The integration test
-//! `tests/verify.rs` runs the same checks.
+//! `cli/tests/verify.rs` runs the same checks.
 
 use std::collections::BTreeMap;
 use std::time::Instant;

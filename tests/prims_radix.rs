@@ -371,38 +371,3 @@ fn unsupported_digit_widths_are_an_error() {
     assert!(RadixSort::with_ranking(&ctx, cfg, 12, Ranking::Runs).is_ok());
     common::assert_silent(&ctx);
 }
-
-/// `cargo test --release --test prims_radix -- --ignored --nocapture`: the digit-width
-/// table of the module docs, the CPU comparison and the copy-kernel bound.
-#[test]
-#[ignore = "benchmark, minutes on lavapipe: run with --ignored --nocapture"]
-fn bench_digit_widths() {
-    let Some(ctx) = common::context() else { return };
-    let reps = std::env::var("VKRT_BENCH_REPS")
-        .ok()
-        .and_then(|r| r.parse().ok())
-        .unwrap_or(3);
-    for n in [1usize << 22, 1 << 24] {
-        let timings = vkrt::prims::radix_sort::bench(&ctx, n, reps).unwrap();
-        // Keys and values read and written once: what one pass at least moves.
-        let (baselines, _) = vkrt::bench::copy_baselines(&ctx, 8 * n as u64, reps).unwrap();
-        let copy_kernel = baselines.best_kernel().map_or(f64::NAN, |r| r.gpu_ms);
-        let copy = baselines
-            .results
-            .iter()
-            .find(|r| r.method == "vkCmdCopyBuffer")
-            .map_or(f64::NAN, |r| r.gpu_ms);
-        println!("n = {n}: vkCmdCopyBuffer {copy:.1} ms, best copy kernel {copy_kernel:.1} ms per 8n bytes (one pass of keys+values)");
-        for t in timings {
-            let passes = t.min_bytes as f64 / (16.0 * n as f64);
-            println!(
-                "  {:32} {:9.1} ms  {:5.1} copy-kernel passes' worth ({:.0} passes)",
-                t.prim,
-                t.gpu_ms,
-                t.gpu_ms / copy_kernel,
-                passes
-            );
-        }
-    }
-    common::assert_silent(&ctx);
-}

@@ -324,34 +324,6 @@ fn bad_configurations_are_errors() {
     }
 }
 
-#[test]
-#[ignore = "benchmark: cargo test --release --test prims_reduce -- --ignored --nocapture"]
-fn bench_reductions() {
-    let Some(ctx) = common::context() else { return };
-    let n = 1 << 24;
-    let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<u32>().ok());
-    let mut cfg = PrimConfig::default_for(&ctx);
-    cfg.workgroup_size = env("BENCH_WG").unwrap_or(cfg.workgroup_size);
-    cfg.items_per_invocation = env("BENCH_ITEMS").unwrap_or(cfg.items_per_invocation);
-    println!("{cfg:?}");
-    if std::env::var("BENCH_COPY").is_ok() {
-        let (b, _) = vkrt::bench::copy_baselines(&ctx, 64 << 20, 3).unwrap();
-        for r in &b.results {
-            println!("{:<26} {:8.3} ms", r.method, r.gpu_ms);
-        }
-    }
-    for t in reduce::bench_with(&ctx, cfg, n, 5).unwrap() {
-        println!(
-            "{:<16} n = {}  {:8.3} ms  {:7.1} M elements/s  {:6.2} GB/s",
-            t.prim,
-            t.n,
-            t.gpu_ms,
-            t.n as f64 / t.gpu_ms / 1e3,
-            t.min_bytes as f64 / t.gpu_ms / 1e6
-        );
-    }
-}
-
 /// Configurations interleaved in one submission (best of many repetitions), so machine load
 /// affects them alike: the measurement behind the configuration the docs recommend.
 #[test]

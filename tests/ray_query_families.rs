@@ -19,9 +19,7 @@ use std::path::{Path, PathBuf};
 use vkrt::accel::device::AccelKind;
 use vkrt::accel::shader_library;
 use vkrt::scene::Scene;
-use vkrt::shader_check::{
-    compile_shader, mismatches, run_driver, run_vkrt, scene_levels, Through,
-};
+use vkrt::shader_check::{compile_shader, mismatches, run_driver, run_vkrt, scene_levels, Through};
 use vkrt::trace::Ray;
 
 const RAYS: usize = 384;
@@ -121,9 +119,10 @@ fn scene_rays() -> Vec<Ray> {
             let dir = glam::Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 2.0
                 - glam::Vec3::ONE;
             let o = dir.normalize_or(glam::Vec3::X) * 8.0;
-            let aim = c + (glam::Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32())
-                - glam::Vec3::splat(0.5))
-                * 1.6;
+            let aim = c
+                + (glam::Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32())
+                    - glam::Vec3::splat(0.5))
+                    * 1.6;
             match i % 5 {
                 3 => Ray::new(o, aim - o, 0.0, 0.9),
                 4 => Ray::new(o, aim - o, 0.4, f32::INFINITY),
@@ -442,7 +441,9 @@ fn ray_query_families_agree_with_the_driver_s_answers() {
     let mut compared = 0;
     for (name, scene_name, body) in families() {
         let (_, rays) = scenes.iter().find(|(s, _)| *s == scene_name).unwrap();
-        let scene = Scene::load(&dir.join(format!("{scene_name}.toml"))).unwrap().scene;
+        let scene = Scene::load(&dir.join(format!("{scene_name}.toml")))
+            .unwrap()
+            .scene;
         let levels = scene_levels(&scene);
         let source = format!("{}{MAIN}{body}}}\n", prelude());
         let shader = dir.join(format!("{name}.comp"));
@@ -455,7 +456,9 @@ fn ray_query_families_agree_with_the_driver_s_answers() {
             .results;
         let recorded_path = data_dir().join(format!("{name}.results"));
         if let Some((spirv, iface)) = compiled.native.as_ref() {
-            let driver = run_driver(&ctx, &levels, (spirv, iface), rays).unwrap().results;
+            let driver = run_driver(&ctx, &levels, (spirv, iface), rays)
+                .unwrap()
+                .results;
             let differ = mismatches(&driver, &vkrt);
             assert!(
                 differ.is_empty(),
@@ -468,8 +471,9 @@ fn ray_query_families_agree_with_the_driver_s_answers() {
                 std::fs::write(&recorded_path, bytemuck::cast_slice(&driver)).unwrap();
             }
         }
-        let recorded = read_results(&recorded_path)
-            .unwrap_or_else(|| panic!("{name}: no recorded answers at {}", recorded_path.display()));
+        let recorded = read_results(&recorded_path).unwrap_or_else(|| {
+            panic!("{name}: no recorded answers at {}", recorded_path.display())
+        });
         let differ = mismatches(&recorded, &vkrt);
         assert!(
             differ.is_empty(),
@@ -490,7 +494,10 @@ fn ray_query_families_agree_with_the_driver_s_answers() {
             rays.len()
         );
         if name == "watertight_shared_edges" {
-            assert!(vkrt.iter().all(|r| r[0] == 1), "{name}: a ray slipped through");
+            assert!(
+                vkrt.iter().all(|r| r[0] == 1),
+                "{name}: a ray slipped through"
+            );
         }
         compared += rays.len();
     }

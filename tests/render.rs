@@ -205,30 +205,6 @@ fn queue_overflow_redoes_the_sample_with_the_same_result() {
     assert!(retried.redone_samples > 0, "the overflow path did not run");
 }
 
-/// `vkrt bench render` compares each example scene with its effect taken out: the stripped
-/// scene must really lack that effect (and keep the others).
-#[test]
-fn bench_strips_exactly_the_effect() {
-    for effect in vkrt::scene::Effects::ALL_NAMES {
-        let scene = scene_file(&format!("{effect}.toml"));
-        let fx = scene.effects();
-        assert!(fx.has(effect), "{effect}.toml does not call for {effect}");
-        let stripped = vkrt::render::bench::without_effect(&scene, effect).effects();
-        assert!(!stripped.has(effect), "{effect} still on after stripping");
-        for other in fx.names() {
-            // glass's Fresnel reflection goes with its refraction
-            let coupled = (effect.ends_with("shadows") && other.ends_with("shadows"))
-                || (effect == "refraction" && other == "reflection");
-            if other != effect && !coupled {
-                assert!(
-                    stripped.has(other),
-                    "stripping {effect} also removed {other}"
-                );
-            }
-        }
-    }
-}
-
 /// One renderer serves every structure: Sochora's (2013) BVH, walked with a stack or the
 /// bitstack, gives the kd-tree's image byte for byte (the closest hit is the same hit, ties
 /// to the lowest id), and its CPU twin counts the same rays.

@@ -4,11 +4,6 @@
 //! animated PNG of every frame for a quick look. Each file is written atomically; on any
 //! error the files this run wrote are removed, so a failed animation leaves no partial set.
 
-#[cfg(feature = "cli")]
-mod plot;
-#[cfg(feature = "cli")]
-pub use plot::frames_svg;
-
 use std::path::{Path, PathBuf};
 use std::sync::mpsc::{sync_channel, Receiver, SyncSender};
 use std::thread::JoinHandle;
@@ -289,18 +284,15 @@ fn write_frames(
 
 /// An animated PNG being encoded into a temporary file beside its path, renamed into place
 /// when finished (removed on an error).
-#[cfg(feature = "cli")]
 struct Apng {
     writer: Option<png::Writer<std::io::BufWriter<std::fs::File>>>,
     tmp: PathBuf,
 }
 
-#[cfg(feature = "cli")]
 fn apng_error(e: png::EncodingError) -> GpuError {
     pattern_error(Path::new("<animated png>"), &e.to_string())
 }
 
-#[cfg(feature = "cli")]
 impl Apng {
     fn start(p: &Preview, width: u32, height: u32) -> Result<Self, GpuError> {
         let name = p.path.file_name().unwrap_or_default().to_string_lossy();
@@ -354,33 +346,10 @@ impl Apng {
     }
 }
 
-#[cfg(feature = "cli")]
 impl Drop for Apng {
     fn drop(&mut self) {
         // Unfinished (an error stopped the frames): no partial file.
         let _ = std::fs::remove_file(&self.tmp);
-    }
-}
-
-/// Without the `cli` feature (no `png` encoder) a preview is refused before any frame.
-#[cfg(not(feature = "cli"))]
-struct Apng;
-
-#[cfg(not(feature = "cli"))]
-impl Apng {
-    fn start(p: &Preview, _width: u32, _height: u32) -> Result<Self, GpuError> {
-        Err(pattern_error(
-            &p.path,
-            "animated PNG previews need vkrt's `cli` feature",
-        ))
-    }
-
-    fn frame(&mut self, _rgba: &[u8]) -> Result<(), GpuError> {
-        Ok(())
-    }
-
-    fn finish(self, _path: &Path) -> Result<(), GpuError> {
-        Ok(())
     }
 }
 

@@ -15,8 +15,6 @@
 //! pixel). Diffuse albedo is used without 1/π, as in Bidmon (2010).
 
 pub mod animate;
-#[cfg(feature = "cli")]
-pub mod bench;
 pub mod cpu;
 pub mod gpu;
 mod levels;

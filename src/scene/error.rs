@@ -236,6 +236,7 @@ impl SceneError {
         }
     }
 
+    #[cfg(feature = "scene-files")]
     pub(crate) fn syntax(origin: Origin, message: impl Into<String>) -> Self {
         SceneError::Syntax {
             origin,

@@ -3,6 +3,7 @@
 //! `custom_index`, `sbt_offset`, `flags` and `opaque`. `vkrt shader-check` places each
 //! entry's instance with them; every other command ignores them.
 
+#[cfg(feature = "scene-files")]
 use super::error::{Origin, SceneError};
 
 /// Largest custom index and shader-binding-table offset (24 bits each in the record).
@@ -46,6 +47,7 @@ impl Default for InstanceKeys {
 impl InstanceKeys {
     /// The keys of an entry (`None`: absent), checked; `entry` is its key path
     /// (`meshes[2]`), which errors name with the key.
+    #[cfg(feature = "scene-files")]
     pub(crate) fn from_def(
         entry: &str,
         mask: Option<i64>,

@@ -23,21 +23,30 @@
 pub mod animation;
 pub mod effects;
 pub mod error;
+#[cfg(feature = "scene-files")]
 pub mod files;
 pub mod gen;
 pub mod instance_keys;
 pub mod limits;
 pub mod material;
 pub mod model;
+#[cfg(feature = "scene-files")]
 pub mod obj;
+#[cfg(feature = "scene-files")]
 pub mod scn;
+#[cfg(feature = "scene-files")]
 mod toml_anim;
+#[cfg(feature = "scene-files")]
 mod toml_defs;
+#[cfg(feature = "scene-files")]
 pub mod toml_format;
+#[cfg(feature = "scene-files")]
 mod toml_locate;
+#[cfg(feature = "scene-files")]
 mod toml_write;
 pub mod validate;
 
+#[cfg(feature = "scene-files")]
 use std::path::{Path, PathBuf};
 
 use glam::Vec3;
@@ -45,6 +54,7 @@ use glam::Vec3;
 pub use animation::{Animation, Keyframe, Pose};
 pub use effects::{AnimationSummary, BoundsSummary, Effects, SceneSummary};
 pub use error::{Origin, SceneError};
+#[cfg(feature = "scene-files")]
 pub use files::{DiskFiles, FileSource, MemoryFiles};
 pub use limits::*;
 pub use material::Material;
@@ -76,6 +86,7 @@ pub struct Scene {
     pub animation: Option<Animation>,
 }
 
+#[cfg(feature = "scene-files")]
 /// A scene as loaded, with the warnings loading produced (for the caller to
 /// print or ignore; the library never prints).
 #[derive(Clone, Debug)]
@@ -87,6 +98,7 @@ pub struct LoadedScene {
     pub warnings: Vec<String>,
 }
 
+#[cfg(feature = "scene-files")]
 /// The file formats [`Scene::load`] understands.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub enum SceneFormat {
@@ -99,6 +111,7 @@ pub enum SceneFormat {
     Scn,
 }
 
+#[cfg(feature = "scene-files")]
 impl SceneFormat {
     /// The format a path's extension names (case-insensitive).
     pub fn from_path(path: &Path) -> Result<Self, SceneError> {
@@ -118,6 +131,7 @@ impl SceneFormat {
     }
 }
 
+#[cfg(feature = "scene-files")]
 impl Scene {
     /// Load and validate a scene file; the format is chosen by extension
     /// (see [`SceneFormat`]). Referenced files (meshes, MTL libraries) are
@@ -167,7 +181,9 @@ impl Scene {
     pub fn to_toml_string(&self) -> String {
         toml_format::scene_to_toml(self)
     }
+}
 
+impl Scene {
     /// The embedded default scene: a Cornell-style box with a mirror sphere,
     /// a glass sphere and a quad area light ([`gen::cornell_box`]).
     pub fn default_scene() -> Scene {

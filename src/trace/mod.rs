@@ -16,8 +16,6 @@
 //! - with the watertight test, triangles of zero area (the cross product of their edges is
 //!   exactly zero: collinear or repeated vertices) are never hit.
 
-#[cfg(feature = "cli")]
-pub mod bench;
 pub mod bvh_cpu;
 pub mod cpu;
 pub mod files;

@@ -96,6 +96,7 @@ impl Rng {
     }
 }
 
+#[cfg(feature = "verify")]
 /// The sizes every primitive is tested at: empty, one, around the subgroup and the workgroup
 /// size and the tile, several tiles, and large ones past every scan level (2^20+13 and
 /// 2^24+3, unless VKRT_TEST_QUICK=1).
@@ -119,10 +120,19 @@ pub fn mesh_triangles(mesh: &vkrt::scene::Mesh) -> Vec<[glam::Vec3; 3]> {
         .collect()
 }
 
+/// The checkout's root: the nearest folder holding `Cargo.lock` above the manifest of the
+/// crate under test (this file serves the library's tests and, from cli/, the command
+/// line's).
+pub fn checkout() -> &'static std::path::Path {
+    std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
+        .ancestors()
+        .find(|dir| dir.join("Cargo.lock").is_file())
+        .expect("a Cargo.lock above the crate")
+}
+
 /// The bunny's OBJ in ../shared, or `None` (with a printed skip) when ../shared is absent.
 pub fn bunny_path() -> Option<std::path::PathBuf> {
-    let path = std::path::Path::new(env!("CARGO_MANIFEST_DIR"))
-        .join("../shared/scenes/stanford-bunny.obj");
+    let path = checkout().join("../shared/scenes/stanford-bunny.obj");
     if !path.exists() {
         eprintln!("skipped the bunny: {} not present", path.display());
         return None;
@@ -130,6 +140,7 @@ pub fn bunny_path() -> Option<std::path::PathBuf> {
     Some(path)
 }
 
+#[cfg(feature = "scene-files")]
 /// The bunny's triangles, or `None` (with a printed skip) when ../shared is absent.
 pub fn bunny() -> Option<Vec<[glam::Vec3; 3]>> {
     let path = bunny_path()?;
@@ -210,35 +221,6 @@ pub fn quick() -> bool {
     std::env::var("VKRT_TEST_QUICK").is_ok_and(|v| v == "1")
 }
 
-/// Runs the `vkrt` binary of this build.
-pub fn vkrt(args: &[&str]) -> std::process::Output {
-    std::process::Command::new(env!("CARGO_BIN_EXE_vkrt"))
-        .args(args)
-        .output()
-        .expect("run vkrt")
-}
-
-/// Whether a missing Vulkan device is allowed (VKRT_ALLOW_NO_GPU=1): tests then skip.
-pub fn no_gpu_allowed() -> bool {
-    std::env::var("VKRT_ALLOW_NO_GPU").is_ok_and(|v| v == "1")
-}
-
-/// Runs `vkrt` and expects success: `None` (skip) when it failed and no device is allowed,
-/// otherwise a failure shows its stderr.
-pub fn vkrt_ok(args: &[&str]) -> Option<std::process::Output> {
-    let out = vkrt(args);
-    if !out.status.success() && no_gpu_allowed() {
-        return None;
-    }
-    assert!(
-        out.status.success(),
-        "vkrt {}: {}",
-        args.join(" "),
-        String::from_utf8_lossy(&out.stderr)
-    );
-    Some(out)
-}
-
 /// Same hit or miss; the same primitive with `t` within 1e-5 relative, or another one at a
 /// tie (`t` equal within 1e-6 relative).
 pub fn same_answer(a: &vkrt::trace::Hit, b: &vkrt::trace::Hit) -> bool {
@@ -255,4 +237,9 @@ pub fn same_answer(a: &vkrt::trace::Hit, b: &vkrt::trace::Hit) -> bool {
         // a different primitive only in a tie (equal t up to rounding)
         (a.t - b.t).abs() <= 1e-6 * scale
     }
+}
+
+/// Whether a missing Vulkan device is allowed (VKRT_ALLOW_NO_GPU=1): tests then skip.
+pub fn no_gpu_allowed() -> bool {
+    std::env::var("VKRT_ALLOW_NO_GPU").is_ok_and(|v| v == "1")
 }

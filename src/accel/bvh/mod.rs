@@ -5,8 +5,6 @@
 //! PLOC ([`ploc`]) with the SAH leaf collapse of their trees ([`collapse`]); and the 4-wide
 //! quantized layout every BVH can be walked in ([`wide`]).
 
-#[cfg(feature = "cli")]
-pub mod bench;
 pub mod collapse;
 pub mod collapse_gpu;
 pub(crate) mod device;

@@ -53,7 +53,8 @@ pub(crate) fn levels(accel: &AccelStructure) -> Option<&DriverAccel> {
     }
 }
 
-/// [`levels`], to move the instances.
+/// [`levels`], to move the instances (the renderer's animation does).
+#[cfg(feature = "render")]
 pub(crate) fn levels_mut(accel: &mut AccelStructure) -> Option<&mut DriverAccel> {
     match accel.storage_mut() {
         Storage::Driver(d) => d.levels.as_deref_mut(),

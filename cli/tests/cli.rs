@@ -1,0 +1,278 @@
+//! The `vkrt` binary as a user runs it.
+
+mod common;
+
+use common::{no_gpu_allowed, vkrt, vkrt_ok};
+
+#[test]
+fn info_json_has_the_documented_keys() {
+    let Some(out) = vkrt_ok(&["info", "--json"]) else {
+        return;
+    };
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for key in [
+        "device",
+        "driver",
+        "api_version",
+        "subgroup_size",
+        "subgroup_ops",
+        "max_storage_buffer_range",
+        "max_shared_memory",
+        "timestamp_period_ns",
+    ] {
+        assert!(v.get(key).is_some(), "missing key {key} in {v}");
+    }
+    let sg = v["subgroup_size"].as_u64().unwrap();
+    assert!(sg.is_power_of_two() && sg >= 4, "{v}");
+    let ops: Vec<&str> = v["subgroup_ops"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|o| o.as_str().unwrap())
+        .collect();
+    for op in [
+        "basic",
+        "arithmetic",
+        "ballot",
+        "shuffle",
+        "shuffle_relative",
+    ] {
+        assert!(ops.contains(&op), "{ops:?}");
+    }
+}
+
+#[test]
+fn bench_copy_writes_a_perfetto_trace() {
+    let dir = std::env::temp_dir().join(format!("vkrt-cli-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let trace = dir.join("trace.json");
+    let Some(out) = vkrt_ok(&[
+        "bench",
+        "copy",
+        "--mib",
+        "2",
+        "--reps",
+        "1",
+        "--json",
+        "--profile",
+        trace.to_str().unwrap(),
+    ]) else {
+        return;
+    };
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let results = v["results"].as_array().unwrap();
+    assert!(results.iter().any(|r| r["method"] == "vkCmdCopyBuffer"));
+    assert!(results.iter().any(|r| r["method"]
+        .as_str()
+        .unwrap()
+        .starts_with("copy_kernel.uvec4")));
+    let t: serde_json::Value = serde_json::from_slice(&std::fs::read(&trace).unwrap()).unwrap();
+    let events = t["traceEvents"].as_array().unwrap();
+    assert!(events
+        .iter()
+        .any(|e| e["ph"] == "X" && e["name"] == "vkCmdCopyBuffer"));
+    std::fs::remove_dir_all(&dir).unwrap();
+}
+
+#[test]
+fn an_unwritable_profile_path_is_an_error_and_leaves_no_file() {
+    let dir = std::env::temp_dir().join(format!("vkrt-cli-missing-{}", std::process::id()));
+    let trace = dir.join("sub").join("trace.json");
+    let out = vkrt(&[
+        "bench",
+        "copy",
+        "--mib",
+        "1",
+        "--reps",
+        "1",
+        "--profile",
+        trace.to_str().unwrap(),
+    ]);
+    if no_gpu_allowed()
+        && !out.status.success()
+        && !String::from_utf8_lossy(&out.stderr).contains("trace.json")
+    {
+        return;
+    }
+    assert!(!out.status.success());
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(err.contains("trace.json"), "{err}");
+    assert!(!trace.exists() && !dir.exists());
+}
+
+#[test]
+fn unknown_commands_fail_with_usage() {
+    let out = vkrt(&["no-such-command"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("Usage"));
+}
+
+#[test]
+fn scene_summary_json_and_errors() {
+    let out = vkrt(&["scene", "--json"]);
+    assert!(
+        out.status.success(),
+        "{}",
+        String::from_utf8_lossy(&out.stderr)
+    );
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for key in [
+        "triangles",
+        "spheres",
+        "lights",
+        "materials",
+        "bounds",
+        "effects",
+    ] {
+        assert!(v.get(key).is_some(), "missing {key} in {v}");
+    }
+    let effects: Vec<&str> = v["effects"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .map(|e| e.as_str().unwrap())
+        .collect();
+    assert!(
+        effects.contains(&"refraction") && effects.contains(&"reflection"),
+        "{effects:?}"
+    );
+
+    let out = vkrt(&["scene", "/no/such/scene.toml"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("/no/such/scene.toml"));
+}
+
+#[test]
+fn every_example_scene_loads() {
+    let dir = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes");
+    let mut count = 0;
+    for entry in std::fs::read_dir(&dir).unwrap() {
+        let path = entry.unwrap().path();
+        if path
+            .extension()
+            .is_some_and(|e| e == "toml" || e == "obj" || e == "scn")
+        {
+            let out = vkrt(&["scene", path.to_str().unwrap(), "--json"]);
+            assert!(
+                out.status.success(),
+                "{}: {}",
+                path.display(),
+                String::from_utf8_lossy(&out.stderr)
+            );
+            count += 1;
+        }
+    }
+    assert!(count >= 10, "expected the example scenes, found {count}");
+}
+
+/// `vkrt build HOUSE --accel ACCEL --reference --json`, its report checked for `keys`
+/// (`None` without a GPU).
+fn build_report(accel: &str, keys: &[&str]) -> Option<serde_json::Value> {
+    let house = std::path::Path::new(env!("CARGO_MANIFEST_DIR")).join("../scenes/house.obj");
+    let out = vkrt_ok(&[
+        "build",
+        house.to_str().unwrap(),
+        "--accel",
+        accel,
+        "--reference",
+        "--json",
+    ])?;
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for key in keys {
+        assert!(v.get(key).is_some(), "missing {key} in {v}");
+    }
+    Some(v)
+}
+
+#[test]
+fn build_kdtree_reports_and_equals_its_twin() {
+    let keys = [
+        "primitives",
+        "build_ms",
+        "phases",
+        "levels",
+        "nodes",
+        "leaves",
+        "max_depth",
+        "sah_cost",
+        "references",
+        "bytes",
+        "equal_to_cpu_twin",
+        "cpu_twin_ms",
+        "full_clip_sah_cost",
+        "full_clip_ms",
+        "device_bytes",
+        "device_bytes_per_primitive",
+    ];
+    let Some(v) = build_report("kdtree", &keys) else {
+        return;
+    };
+    assert_eq!(v["equal_to_cpu_twin"], true);
+    assert_device_bytes(&v);
+    assert!(v["build_ms"].as_f64().unwrap() > 0.0);
+    let out = vkrt(&["build", "--accel", "bvh"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("bvh"));
+    // The default structure is the BVH: a kd-tree option without --accel kdtree is an error,
+    // not silently ignored.
+    let out = vkrt(&["build", "--kolodzey-termination"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--accel kdtree"));
+}
+
+/// The device memory a build needed at its peak covers at least the structure, and per
+/// primitive is that over the primitive count.
+fn assert_device_bytes(v: &serde_json::Value) {
+    let bytes = v["device_bytes"].as_u64().unwrap();
+    let n = v["primitives"].as_u64().unwrap();
+    assert!(bytes > v["bytes"].as_u64().unwrap(), "{v}");
+    let per = v["device_bytes_per_primitive"].as_f64().unwrap();
+    assert!((per - bytes as f64 / n as f64).abs() < 1e-6 * per, "{v}");
+}
+
+#[test]
+fn build_gpu_bvhs_report_and_equal_their_twins() {
+    let keys = [
+        "kind",
+        "primitives",
+        "build_ms",
+        "passes_ms",
+        "nodes",
+        "leaves",
+        "sah_cost",
+        "bytes",
+        "equal_to_cpu_twin",
+        "device_bytes",
+        "device_bytes_per_primitive",
+    ];
+    for kind in ["lbvh", "ploc"] {
+        let Some(v) = build_report(kind, &keys) else {
+            return;
+        };
+        assert_eq!(v["kind"], kind, "{v}");
+        assert_eq!(v["equal_to_cpu_twin"], true, "{v}");
+        assert_device_bytes(&v);
+    }
+}
+
+#[test]
+fn build_sah_bvh_reports_and_equals_its_single_thread_build() {
+    let keys = [
+        "kind",
+        "primitives",
+        "build_ms",
+        "threads",
+        "nodes",
+        "leaves",
+        "max_depth",
+        "sah_cost",
+        "bytes",
+    ];
+    let Some(v) = build_report("sah-bvh", &keys) else {
+        return;
+    };
+    assert_eq!(v["kind"], "sah_bvh");
+    assert_eq!(v["equal_to_single_thread"], true);
+    let (nodes, leaves) = (v["nodes"].as_u64().unwrap(), v["leaves"].as_u64().unwrap());
+    assert!(leaves == nodes + 1 || (nodes, leaves) == (1, 1), "{v}");
+}
