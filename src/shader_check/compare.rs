@@ -15,7 +15,7 @@ pub const TOLERANCE: f32 = 1.0 / 65_536.0;
 
 /// The smallest magnitude compared with [`TOLERANCE`]: 2^-60, so that every bit pattern
 /// below 2^29 (the integers a shader writes) is compared exactly.
-pub const SMALLEST: f32 = 8.673_617e-19;
+pub const SMALLEST: f32 = f32::from_bits(67 << 23);
 
 /// Whether words `a` and `b` agree (see the module's notes).
 pub fn words_agree(a: u32, b: u32) -> bool {
