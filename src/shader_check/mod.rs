@@ -299,9 +299,13 @@ fn dispatch(
         spec,
     )?;
     let mut push = vec![0u8; push_bytes as usize];
-    push[..4].copy_from_slice(&(n as u32).to_le_bytes());
     let local = iface.local_size.map_or(1, |s| s[0]).max(1);
     let groups = (n as u64).div_ceil(u64::from(local));
+    // A driver may compile a pipeline's code at its first dispatch (lavapipe does): one
+    // group over no rays first, untimed, so that the timed dispatch is the shader's work.
+    rec.scope("compile", |rec| kernel.record_dispatch(rec, 1, &push))?;
+    rec.compute_to_compute();
+    push[..4].copy_from_slice(&(n as u32).to_le_bytes());
     rec.scope("shader", |rec| kernel.record_dispatch(rec, groups, &push))?;
     rec.compute_to_transfer();
     let back = rec.read_back(&results)?;
