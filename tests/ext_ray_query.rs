@@ -15,36 +15,13 @@ use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::instance::{flags, Instance};
 use vkrt::accel::instances::{TopLevel, TopLevelBuilder};
 use vkrt::accel::primitives::TraceGeometry;
-use vkrt::accel::shader_library::{include_dir, STEPS_CONSTANT_ID};
+use vkrt::accel::shader_library::STEPS_CONSTANT_ID;
 use vkrt::gpu::{Buffer, BufferArg, Context, Recorder, ShaderBlob, Spec};
 use vkrt::trace::Ray;
 
 /// Compiles a compute shader with glslc against the library; the SPIR-V.
 fn compile(source: &str, defines: &[&str]) -> Vec<u32> {
-    static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let dir = std::env::temp_dir().join(format!("vkrt-ext-rq-{}-{n}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let src = dir.join("shader.comp");
-    let out = dir.join("shader.spv");
-    std::fs::write(&src, source).unwrap();
-    let mut glslc = std::process::Command::new("glslc");
-    for d in defines {
-        glslc.arg(format!("-D{d}"));
-    }
-    let o = glslc
-        .arg("--target-env=vulkan1.2")
-        .arg("-I")
-        .arg(include_dir())
-        .arg(&src)
-        .arg("-o")
-        .arg(&out)
-        .output()
-        .expect("glslc (Debian: glslc) compiles the shaders of this test");
-    assert!(o.status.success(), "{}", String::from_utf8_lossy(&o.stderr));
-    let spirv = bytemuck::pod_collect_to_vec::<u8, u32>(&std::fs::read(&out).unwrap());
-    let _ = std::fs::remove_dir_all(&dir);
-    spirv
+    common::compile_glsl(source, defines).unwrap_or_else(|e| panic!("{e}"))
 }
 
 /// The interface of `vkrt shader-check`: the structure at binding 0 (a texel buffer

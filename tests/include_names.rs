@@ -3,7 +3,9 @@
 //! common names of its own after the include compiles in every mode of the library. Also
 //! what each mode asks of the device, read from the SPIR-V it compiles to.
 
-use vkrt::accel::shader_library::{include_dir, FILES};
+mod common;
+
+use vkrt::accel::shader_library::FILES;
 
 /// Whether `name` carries the library's prefix.
 fn prefixed(name: &str) -> bool {
@@ -216,36 +218,7 @@ const MODES: &[&[&str]] = &[
 
 /// Compiles `source` with glslc (the renderer's own compiler) and `defines`; the SPIR-V.
 fn compile(source: &str, defines: &[&str]) -> Result<Vec<u32>, String> {
-    static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
-    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
-    let dir = std::env::temp_dir().join(format!("vkrt-include-names-{}-{n}", std::process::id()));
-    std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
-    let src = dir.join("renderer.comp");
-    let out = dir.join("renderer.spv");
-    std::fs::write(&src, source).map_err(|e| e.to_string())?;
-    let mut glslc = std::process::Command::new("glslc");
-    for d in defines {
-        glslc.arg(format!("-D{d}"));
-    }
-    let result = glslc
-        .arg("--target-env=vulkan1.2")
-        .arg("-I")
-        .arg(include_dir())
-        .arg(&src)
-        .arg("-o")
-        .arg(&out)
-        .output();
-    let spirv = match result {
-        Err(e) => Err(format!(
-            "cannot run glslc ({e}): install it (Debian: glslc)"
-        )),
-        Ok(o) if !o.status.success() => Err(String::from_utf8_lossy(&o.stderr).into_owned()),
-        Ok(_) => std::fs::read(&out)
-            .map(|b| bytemuck::pod_collect_to_vec::<u8, u32>(&b))
-            .map_err(|e| e.to_string()),
-    };
-    let _ = std::fs::remove_dir_all(&dir);
-    spirv
+    common::compile_glsl(source, defines)
 }
 
 /// The `OpCapability` operands of a SPIR-V module.

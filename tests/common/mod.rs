@@ -243,3 +243,38 @@ pub fn same_answer(a: &vkrt::trace::Hit, b: &vkrt::trace::Hit) -> bool {
 pub fn no_gpu_allowed() -> bool {
     std::env::var("VKRT_ALLOW_NO_GPU").is_ok_and(|v| v == "1")
 }
+
+/// Compiles a compute shader with glslc (a renderer's own compiler) against the library's
+/// include files, with `-D` `defines`; the SPIR-V, or glslc's message.
+pub fn compile_glsl(source: &str, defines: &[&str]) -> Result<Vec<u32>, String> {
+    static NEXT: std::sync::atomic::AtomicUsize = std::sync::atomic::AtomicUsize::new(0);
+    let n = NEXT.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+    let dir = std::env::temp_dir().join(format!("vkrt-glslc-{}-{n}", std::process::id()));
+    std::fs::create_dir_all(&dir).map_err(|e| e.to_string())?;
+    let src = dir.join("shader.comp");
+    let out = dir.join("shader.spv");
+    std::fs::write(&src, source).map_err(|e| e.to_string())?;
+    let mut glslc = std::process::Command::new("glslc");
+    for d in defines {
+        glslc.arg(format!("-D{d}"));
+    }
+    let result = glslc
+        .arg("--target-env=vulkan1.2")
+        .arg("-I")
+        .arg(vkrt::accel::shader_library::include_dir())
+        .arg(&src)
+        .arg("-o")
+        .arg(&out)
+        .output();
+    let spirv = match result {
+        Err(e) => Err(format!(
+            "cannot run glslc ({e}): install it (Debian: glslc)"
+        )),
+        Ok(o) if !o.status.success() => Err(String::from_utf8_lossy(&o.stderr).into_owned()),
+        Ok(_) => std::fs::read(&out)
+            .map(|b| bytemuck::pod_collect_to_vec::<u8, u32>(&b))
+            .map_err(|e| e.to_string()),
+    };
+    let _ = std::fs::remove_dir_all(&dir);
+    spirv
+}

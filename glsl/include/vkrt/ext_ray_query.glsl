@@ -51,11 +51,14 @@
 // VKRT_MAX_TRAVERSAL_STEPS and VKRT_STEPS_CONSTANT_ID (vkrt/ray_query.glsl), VKRT_EXACT,
 // VKRT_MOLLER_TRUMBORE.
 //
-// Names: besides the extension's own (which it defines as macros: rayQueryEXT,
-// accelerationStructureEXT, rayQuery*EXT), everything here starts with vkrt, Vkrt or VKRT_.
-// One more: a function-like macro `utextureBuffer(a)`, which makes the constructor
+// Names: everything here starts with vkrt, Vkrt or VKRT_, but for the extension's own names,
+// which must keep working in the includer's source: its functions (rayQuery*EXT) are
+// function-like macros onto vkrt's, so only calls are rewritten; its two types are
+// object-like macros on the extension's reserved keywords (rayQueryEXT, a query's handle;
+// accelerationStructureEXT, a texel buffer), which no includer can use as names of its own;
+// and a function-like macro `utextureBuffer(a)` makes the constructor
 // `accelerationStructureEXT(address)` work (GLSL has no constructor of a texel buffer, so no
-// valid shader uses that name with parentheses).
+// valid shader writes that name with parentheses).
 #ifndef VKRT_EXT_RAY_QUERY_GLSL
 #define VKRT_EXT_RAY_QUERY_GLSL
 #ifndef VKRT_NATIVE_RAY_QUERY
@@ -683,30 +686,31 @@ mat4x3 vkrtRayQueryGetIntersectionObjectToWorld(uint q, bool committed) {
     return vkrt_rq_columns(rows);
 }
 
-// The extension's names, on vkrt's functions.
-#define rayQueryInitializeEXT vkrtRayQueryInitialize
-#define rayQueryProceedEXT vkrtRayQueryProceed
-#define rayQueryConfirmIntersectionEXT vkrtRayQueryConfirmIntersection
-#define rayQueryGenerateIntersectionEXT vkrtRayQueryGenerateIntersection
-#define rayQueryTerminateEXT vkrtRayQueryTerminate
-#define rayQueryGetIntersectionTypeEXT vkrtRayQueryGetIntersectionType
-#define rayQueryGetIntersectionTEXT vkrtRayQueryGetIntersectionT
-#define rayQueryGetIntersectionInstanceCustomIndexEXT vkrtRayQueryGetIntersectionInstanceCustomIndex
-#define rayQueryGetIntersectionInstanceIdEXT vkrtRayQueryGetIntersectionInstanceId
-#define rayQueryGetIntersectionInstanceShaderBindingTableRecordOffsetEXT vkrtRayQueryGetIntersectionInstanceShaderBindingTableRecordOffset
-#define rayQueryGetIntersectionGeometryIndexEXT vkrtRayQueryGetIntersectionGeometryIndex
-#define rayQueryGetIntersectionPrimitiveIndexEXT vkrtRayQueryGetIntersectionPrimitiveIndex
-#define rayQueryGetIntersectionBarycentricsEXT vkrtRayQueryGetIntersectionBarycentrics
-#define rayQueryGetIntersectionFrontFaceEXT vkrtRayQueryGetIntersectionFrontFace
-#define rayQueryGetIntersectionCandidateAABBOpaqueEXT vkrtRayQueryGetIntersectionCandidateAABBOpaque
-#define rayQueryGetIntersectionObjectRayDirectionEXT vkrtRayQueryGetIntersectionObjectRayDirection
-#define rayQueryGetIntersectionObjectRayOriginEXT vkrtRayQueryGetIntersectionObjectRayOrigin
-#define rayQueryGetIntersectionObjectToWorldEXT vkrtRayQueryGetIntersectionObjectToWorld
-#define rayQueryGetIntersectionWorldToObjectEXT vkrtRayQueryGetIntersectionWorldToObject
-#define rayQueryGetRayTMinEXT vkrtRayQueryGetRayTMin
-#define rayQueryGetRayFlagsEXT vkrtRayQueryGetRayFlags
-#define rayQueryGetWorldRayOriginEXT vkrtRayQueryGetWorldRayOrigin
-#define rayQueryGetWorldRayDirectionEXT vkrtRayQueryGetWorldRayDirection
+// The extension's functions, on vkrt's: function-like macros, so that only calls are
+// rewritten.
+#define rayQueryInitializeEXT(q, as_, flags_, mask_, origin_, tmin_, direction_, tmax_) vkrtRayQueryInitialize(q, as_, flags_, mask_, origin_, tmin_, direction_, tmax_)
+#define rayQueryProceedEXT(q) vkrtRayQueryProceed(q)
+#define rayQueryConfirmIntersectionEXT(q) vkrtRayQueryConfirmIntersection(q)
+#define rayQueryGenerateIntersectionEXT(q, c) vkrtRayQueryGenerateIntersection(q, c)
+#define rayQueryTerminateEXT(q) vkrtRayQueryTerminate(q)
+#define rayQueryGetIntersectionTypeEXT(q, c) vkrtRayQueryGetIntersectionType(q, c)
+#define rayQueryGetIntersectionTEXT(q, c) vkrtRayQueryGetIntersectionT(q, c)
+#define rayQueryGetIntersectionInstanceCustomIndexEXT(q, c) vkrtRayQueryGetIntersectionInstanceCustomIndex(q, c)
+#define rayQueryGetIntersectionInstanceIdEXT(q, c) vkrtRayQueryGetIntersectionInstanceId(q, c)
+#define rayQueryGetIntersectionInstanceShaderBindingTableRecordOffsetEXT(q, c) vkrtRayQueryGetIntersectionInstanceShaderBindingTableRecordOffset(q, c)
+#define rayQueryGetIntersectionGeometryIndexEXT(q, c) vkrtRayQueryGetIntersectionGeometryIndex(q, c)
+#define rayQueryGetIntersectionPrimitiveIndexEXT(q, c) vkrtRayQueryGetIntersectionPrimitiveIndex(q, c)
+#define rayQueryGetIntersectionBarycentricsEXT(q, c) vkrtRayQueryGetIntersectionBarycentrics(q, c)
+#define rayQueryGetIntersectionFrontFaceEXT(q, c) vkrtRayQueryGetIntersectionFrontFace(q, c)
+#define rayQueryGetIntersectionCandidateAABBOpaqueEXT(q) vkrtRayQueryGetIntersectionCandidateAABBOpaque(q)
+#define rayQueryGetIntersectionObjectRayDirectionEXT(q, c) vkrtRayQueryGetIntersectionObjectRayDirection(q, c)
+#define rayQueryGetIntersectionObjectRayOriginEXT(q, c) vkrtRayQueryGetIntersectionObjectRayOrigin(q, c)
+#define rayQueryGetIntersectionObjectToWorldEXT(q, c) vkrtRayQueryGetIntersectionObjectToWorld(q, c)
+#define rayQueryGetIntersectionWorldToObjectEXT(q, c) vkrtRayQueryGetIntersectionWorldToObject(q, c)
+#define rayQueryGetRayTMinEXT(q) vkrtRayQueryGetRayTMin(q)
+#define rayQueryGetRayFlagsEXT(q) vkrtRayQueryGetRayFlags(q)
+#define rayQueryGetWorldRayOriginEXT(q) vkrtRayQueryGetWorldRayOrigin(q)
+#define rayQueryGetWorldRayDirectionEXT(q) vkrtRayQueryGetWorldRayDirection(q)
 
 #endif // !VKRT_NATIVE_RAY_QUERY
 #endif
