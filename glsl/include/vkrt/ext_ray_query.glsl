@@ -155,9 +155,9 @@ struct VkrtRqHit {
     uint primitive;
     // Bit 0: front face; bit 1: opaque.
     uint bits;
-    // The instance's custom index | mask << 24 and sbt record offset | flags << 24.
+    // The instance's custom index | mask << 24, and its flags << 24.
     uint custom_mask;
-    uint sbt_flags;
+    uint instance_flags;
 };
 
 // Per query: the world ray and its flags, the top level, the walk and two intersections.
@@ -273,13 +273,8 @@ bool vkrt_rq_enter(uint s, uint i, uint cull_mask) {
     vec3 d = vkrt_rq_direction[s].xyz;
     vkrt_rq_object_origin[s] = vec4(vkrt_to_object(rows, o, 1.0), 0.0);
     vkrt_rq_object_direction[s] = vec4(vkrt_to_object(rows, d, 0.0), 0.0);
-    // The instance's sbt offset lies in the caller's record (the handle's tenth address).
-    uint sbt = 0u;
-    uint64_t originals = VkrtHandle(vkrt_top).addresses[9];
-    if (originals != 0ul) {
-        sbt = VkrtInstanceWords(originals).v[4u * i + 3u].y & 0xffffffu;
-    }
-    vkrt_rq_instance[s] = uvec4(i, rec.meta.z, sbt | ((rec.meta.w & 0xffu) << 24u), 0u);
+    // (its SBT record offset is read from the caller's record only when asked for)
+    vkrt_rq_instance[s] = uvec4(i, rec.meta.z, (rec.meta.w & 0xffu) << 24u, 0u);
     vkrt_rq_bottom[s] = packUint2x32(rec.meta.xy);
     return true;
 }
@@ -580,8 +575,16 @@ int vkrtRayQueryGetIntersectionInstanceId(uint q, bool committed) {
     return int(vkrt_rq_hit(q, committed).instance);
 }
 
+// From the caller's record as given (the top level's handle's tenth address); 0 for a
+// one-level query.
 uint vkrtRayQueryGetIntersectionInstanceShaderBindingTableRecordOffset(uint q, bool committed) {
-    return vkrt_rq_hit(q, committed).sbt_flags & 0xffffffu;
+    uint s = vkrt_rq_slot(q);
+    if (s == uint(VKRT_RAY_QUERIES) || (vkrt_rq_walk[s].w & VKRT_RQ_ONE_LEVEL) != 0u) {
+        return 0u;
+    }
+    uint64_t originals = VkrtHandle(packUint2x32(vkrt_rq_setup[s].zw)).addresses[9];
+    uint i = vkrt_rq_hit(q, committed).instance;
+    return originals == 0ul ? 0u : VkrtInstanceWords(originals).v[4u * i + 3u].y & 0xffffffu;
 }
 
 int vkrtRayQueryGetIntersectionGeometryIndex(uint q, bool committed) {
