@@ -210,27 +210,30 @@ void vkrtRayQueryInitialize(inout uint q, VkrtAccelerationStructure as, uint fla
     }
     vkrt_rq_origin[s] = vec4(origin, tmin);
     vkrt_rq_direction[s] = vec4(direction, tmax);
-    uvec2 h = unpack32(as.handle);
-    vkrt_rq_setup[s] = uvec4(flags, cull_mask & 0xffu, h);
+    VkrtRay r = VkrtRay(origin, tmin, direction, tmax);
+    // A ray Vulkan leaves undefined (NaN or infinite origin or direction, a zero direction,
+    // tMin < 0 or > tMax) and a null structure find nothing (vkrt's rule for rays). The
+    // handle is kept per ray (null for those): Mesa 26's lavapipe loads through an address
+    // it proves uniform from one lane, which may be one where the load before it did not
+    // run, and so reads address 0.
+    uint64_t handle = vkrt_ray_is_valid(r) && tmin >= 0.0 ? as.handle : 0ul;
+    vkrt_rq_setup[s] = uvec4(flags, cull_mask & 0xffu, unpack32(handle));
     vkrt_rq_far[s] = tmax;
     vkrt_rq_candidate[s] = vkrt_rq_none();
     vkrt_rq_committed[s] = vkrt_rq_none();
     vkrt_rq_leaf[s] = uvec4(0u);
     uint bits = VKRT_RQ_LEAF_DONE;
-    VkrtRay r = VkrtRay(origin, tmin, direction, tmax);
-    // A ray Vulkan leaves undefined (NaN or infinite origin or direction, a zero direction,
-    // tMin < 0 or > tMax) and a null structure find nothing (vkrt's rule for rays).
-    if (!vkrt_ray_is_valid(r) || tmin < 0.0 || as.handle == 0ul) {
+    if (handle == 0ul) {
         bits |= VKRT_RQ_DONE;
     } else {
-        vkrt_use(as.handle);
+        vkrt_use(handle);
         if (vkrt_primitive_count() == 0u) {
             bits |= VKRT_RQ_DONE;
         } else if (vkrt_scene_info.walk != VKRT_ACCEL_INSTANCES) {
             // One level: its own instance, with the identity transform.
             bits |= VKRT_RQ_IN_BOTTOM | VKRT_RQ_ONE_LEVEL;
             vkrt_rq_instance[s] = uvec4(0u, 0xffu << 24u, 0u, 0u);
-            vkrt_rq_bottom[s] = as.handle;
+            vkrt_rq_bottom[s] = handle;
             vkrt_rq_object_origin[s] = vec4(origin, 0.0);
             vkrt_rq_object_direction[s] = vec4(direction, 0.0);
         }
