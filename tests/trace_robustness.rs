@@ -111,8 +111,13 @@ fn report(group: &str, results: &[CaseResult], start: std::time::Instant) {
 }
 
 /// The suite's test sizes with smaller meshes: an 82K-triangle icosphere and a 200² grid
-/// (the grid's rays aim at exact vertices, edges and cell centres whatever its size).
+/// (the grid's rays aim at exact vertices, edges and cell centres whatever its size); at
+/// quick sizes (the other drivers' legs), the smallest that still run every case
+/// ([`SuiteSize::tiny`], what `vkrt bench accuracy --quick` runs).
 fn size() -> SuiteSize {
+    if common::quick() {
+        return SuiteSize::tiny();
+    }
     SuiteSize {
         sphere_subdivisions: 6,
         grid: 200,

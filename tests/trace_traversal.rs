@@ -36,6 +36,16 @@ fn point_on(g: &TraceGeometry, p: usize, rng: &mut Rng) -> Vec3 {
 
 /// Random rays: through the box from anywhere, aimed at points on primitives, parallel to
 /// the axes with ±0 components, and starting on primitives.
+/// `n` rays, a quarter of them at quick sizes (the other drivers' legs): every ray class
+/// still comes thousands of times.
+fn scaled(n: usize) -> usize {
+    if common::quick() {
+        n / 4
+    } else {
+        n
+    }
+}
+
 fn random_rays(g: &TraceGeometry, tree: &KdTree, n: usize, seed: u64) -> Vec<Ray> {
     let mut rng = Rng(seed);
     let (lo, hi) = (tree.bounds.min, tree.bounds.max);
@@ -190,7 +200,7 @@ fn bunny_closest_hit_equals_brute_force() {
     let Some(tris) = common::bunny() else { return };
     let g = TraceGeometry::from_triangles(&tris);
     let tree = tree_of(&g);
-    let rays = random_rays(&g, &tree, 100_000, 9);
+    let rays = random_rays(&g, &tree, scaled(100_000), 9);
     // Brute force over 69K triangles for every ray is minutes on 2 cores: the first 4,000
     // rays (every kind) against brute force, all 100,000 against the twin.
     check(
@@ -209,7 +219,7 @@ fn any_hit_and_moller_trumbore_and_short_stack() {
     let Some(ctx) = context() else { return };
     for (name, g) in scenes().into_iter().take(4) {
         let tree = tree_of(&g);
-        let rays = random_rays(&g, &tree, 20_000, 13);
+        let rays = random_rays(&g, &tree, scaled(20_000), 13);
         for opt in [
             TraceOptions {
                 query: Query::Any,
@@ -515,7 +525,7 @@ fn nodes_read_through_texel_buffers_give_the_storage_walks_hits_bit_for_bit() {
     };
     for (name, g) in scenes().into_iter().take(4) {
         let tree = tree_of(&g);
-        let rays = random_rays(&g, &tree, 20_000, 13);
+        let rays = random_rays(&g, &tree, scaled(20_000), 13);
         for kind in [
             AccelKind::KdTree,
             AccelKind::SahBvh,
