@@ -191,7 +191,7 @@ fn subgroup_barriers_in_divergent_subgroups_keep_every_invocation() {
 /// Memory barriers in divergent control flow (legal anywhere): every invocation must still
 /// reach the end of the kernel when one subgroup runs them and the others do not
 /// (glsl/gpu/memory_barrier_probe.comp). Mesa 22.3's llvmpipe loses that subgroup after 3
-/// barriers (the BVH refit met it; `glsl/accel/bvh_refit.comp` keeps its barriers in
+/// barriers (the BVH refit met it; `glsl/accel/bvh/refit.comp` keeps its barriers in
 /// uniform control flow); any other driver that does fails this test.
 #[test]
 fn memory_barriers_in_divergent_loops_keep_every_invocation() {

@@ -4,7 +4,7 @@
 // other subgroups run it never, and every invocation must then write its marker. Mesa 22.3.6
 // lavapipe (Debian 12) makes the barrier a coroutine switch, like barrier(): subgroup 0
 // switches away and is never resumed once the others have finished — its markers stay
-// unwritten. Mesa 25 writes every marker. It shaped glsl/accel/bvh_refit.comp (its barriers
+// unwritten. Mesa 25 writes every marker. It shaped glsl/accel/bvh/refit.comp (its barriers
 // run in workgroup-uniform rounds). (tests/gpu_foundation.rs)
 #extension GL_KHR_shader_subgroup_basic : require
 layout(local_size_x_id = 0) in;

@@ -6,7 +6,7 @@
 // of y, z and the leaf sizes (16 bits per child: 0 for an interior node or none); texel 3:
 // per child its wide node, first reference, or VKRT_NO_NODE. Decoding is one multiply-add per
 // plane, `p + q·s`, whose product is exact, so a fused one gives the same bits; the encoder
-// (accel/bvh_widen.comp) checks every plane with this arithmetic, so a decoded box always
+// (accel/bvh/widen.comp) checks every plane with this arithmetic, so a decoded box always
 // contains the child's box.
 #ifndef VKRT_COMMON_BVH_WIDE_NODE_GLSL
 #define VKRT_COMMON_BVH_WIDE_NODE_GLSL

@@ -52,32 +52,32 @@ impl LbvhBuilder {
         let climb = Spec::new().workgroup(ctx.info().subgroup_size.max(1));
         let pairs = |pairs64, words| super::pairs_variant(ctx, pairs64, words);
         Ok(Self {
-            bounds: ctx.kernel(&kernels::ACCEL_LBVH_BOUNDS, &spec)?,
+            bounds: ctx.kernel(&kernels::ACCEL_BVH_LBVH_BOUNDS, &spec)?,
             morton: ctx.kernel(
-                &kernels::ACCEL_LBVH_MORTON,
+                &kernels::ACCEL_BVH_LBVH_MORTON,
                 &spec.clone().u32(1, bits.per_axis()),
             )?,
-            gather1: ctx.kernel(&kernels::ACCEL_LBVH_GATHER_ONE, &spec)?,
+            gather1: ctx.kernel(&kernels::ACCEL_BVH_LBVH_GATHER_ONE, &spec)?,
             gather2: ctx.kernel(
                 pairs(
-                    &kernels::ACCEL_LBVH_GATHER_CODES64,
-                    &kernels::ACCEL_LBVH_GATHER_CODES,
+                    &kernels::ACCEL_BVH_LBVH_GATHER_CODES64,
+                    &kernels::ACCEL_BVH_LBVH_GATHER_CODES,
                 ),
                 &spec,
             )?,
-            // Workgroups of one subgroup, as the climbing refit's (accel/bvh_refit.comp).
+            // Workgroups of one subgroup, as the climbing refit's (accel/bvh/refit.comp).
             climb: [
                 ctx.kernel(
                     pairs(
-                        &kernels::ACCEL_LBVH_CLIMB_BOXES64,
-                        &kernels::ACCEL_LBVH_CLIMB_BOXES,
+                        &kernels::ACCEL_BVH_LBVH_CLIMB_BOXES64,
+                        &kernels::ACCEL_BVH_LBVH_CLIMB_BOXES,
                     ),
                     &climb,
                 )?,
                 ctx.kernel(
                     pairs(
-                        &kernels::ACCEL_LBVH_CLIMB_COSTS64,
-                        &kernels::ACCEL_LBVH_CLIMB_COSTS,
+                        &kernels::ACCEL_BVH_LBVH_CLIMB_COSTS64,
+                        &kernels::ACCEL_BVH_LBVH_CLIMB_COSTS,
                     ),
                     &climb,
                 )?,

@@ -16,7 +16,7 @@ use super::BvhNode;
 use crate::accel::primitives::SceneInfo;
 use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, Spec};
 
-/// Words of the round state (`ST_*` in `glsl/accel/ploc_common.glsl`).
+/// Words of the round state (`ST_*` in `glsl/accel/bvh/ploc_common.glsl`).
 const STATE_WORDS: usize = 16;
 /// Word offset of the even rounds' indirect dispatch (`ST_ARGS`).
 const ST_ARGS: u64 = 8;
@@ -58,19 +58,19 @@ impl PlocBuilder {
         let k = |blob, s: &Spec| ctx.kernel(blob, s);
         Ok(Self {
             sort: LbvhBuilder::new(ctx, params.bits)?,
-            init: k(&kernels::ACCEL_PLOC_INIT, &spec)?,
+            init: k(&kernels::ACCEL_BVH_PLOC_INIT, &spec)?,
             nearest: k(
-                &kernels::ACCEL_PLOC_NEAREST,
+                &kernels::ACCEL_BVH_PLOC_NEAREST,
                 &spec.clone().u32(1, radius).u32(2, 0),
             )?,
             pairing: k(
-                &kernels::ACCEL_PLOC_NEAREST,
+                &kernels::ACCEL_BVH_PLOC_NEAREST,
                 &spec.clone().u32(1, radius).u32(2, 1),
             )?,
-            flags: k(&kernels::ACCEL_PLOC_FLAGS, &spec)?,
-            sums: k(&kernels::ACCEL_PLOC_SUMS, &Spec::new().u32(1, 0))?,
-            sums_pairing: k(&kernels::ACCEL_PLOC_SUMS, &Spec::new().u32(1, 1))?,
-            merge: k(&kernels::ACCEL_PLOC_MERGE, &spec)?,
+            flags: k(&kernels::ACCEL_BVH_PLOC_FLAGS, &spec)?,
+            sums: k(&kernels::ACCEL_BVH_PLOC_SUMS, &Spec::new().u32(1, 0))?,
+            sums_pairing: k(&kernels::ACCEL_BVH_PLOC_SUMS, &Spec::new().u32(1, 1))?,
+            merge: k(&kernels::ACCEL_BVH_PLOC_MERGE, &spec)?,
             params,
             workgroup,
         })

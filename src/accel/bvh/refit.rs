@@ -1,6 +1,6 @@
 //! Refit: every box of a built BVH recomputed bottom-up from moved primitive boxes, the
 //! topology kept (for dynamic scenes where objects move but stay close together). The CPU
-//! twin of `glsl/accel/bvh_refit.comp`; both take the union with Kolodzey's total order on
+//! twin of `glsl/accel/bvh/refit.comp`; both take the union with Kolodzey's total order on
 //! ±0 (`fmin_total`/`fmax_total`), so they agree bit for bit.
 
 use glam::Vec3;

@@ -99,7 +99,7 @@ pub struct BuildTrace {
 /// `C_trav·A + C_isect·(A_L·n_L + A_R·n_R)` (times λ when a side is empty), where the A
 /// are half surface areas: the SAH scaled by the node's area, free of division. `+∞`
 /// when the plane is not strictly inside the node box. The GLSL twin is
-/// `sah_scaled` in `glsl/accel/kdtree_common.glsl`: keep the operation order identical.
+/// `sah_scaled` in `glsl/accel/kdtree/level.glsl`: keep the operation order identical.
 pub fn sah_scaled(
     min: Vec3,
     max: Vec3,

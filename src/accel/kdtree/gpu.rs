@@ -40,7 +40,7 @@ use crate::prims::segmented::{SegmentedArgmin, SegmentedMode, WorkgroupReduction
 use crate::prims::PrimConfig;
 
 const WORKGROUP: u32 = 256;
-// Words of the state buffer (keep in sync with glsl/accel/kdtree_level.glsl).
+// Words of the state buffer (keep in sync with glsl/accel/kdtree/level.glsl).
 const ST_REFS: u32 = 0;
 const ST_NODES: u32 = 1;
 const ST_NODE_BASE: usize = 2;
@@ -67,7 +67,7 @@ pub struct GpuEvents {
     /// each stays within `maxStorageBufferRange` (16 bytes per reference of a level instead
     /// of 48). A kernel moves a pair as one 64-bit component where the device has
     /// `shaderInt64`: on lavapipe every load and store at a lane-varying address is a loop
-    /// over lanes and components (`glsl/accel/kdtree_level.glsl`).
+    /// over lanes and components (`glsl/accel/kdtree/level.glsl`).
     pub boxes: [Buffer<f32>; 3],
     /// Events every array holds.
     pub capacity: usize,

@@ -14,20 +14,20 @@
 //
 // The `*64` variants (where the device has shaderInt64) read the node's (first, count) and
 // (split, plane) as 64-bit components and write the records' box pairs as such
-// (accel/kdtree_level.glsl).
+// (accel/kdtree/level.glsl).
 //! variant mask MASK_ONLY=1
 //! variant mask64 MASK_ONLY=1 PAIRS64=1
 //! variant records FULL_RECORDS=1
 //! variant records64 FULL_RECORDS=1 PAIRS64=1
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "accel/kdtree_level.glsl"
+#include "accel/kdtree/level.glsl"
 
 layout(std430, binding = 0) readonly buffer State { uint state[]; };
 layout(std430, binding = 1) readonly buffer NodeRange { WORD_PAIR node_range[]; }; // first, count
 layout(std430, binding = 2) readonly buffer NodeSplit { WORD_PAIR node_split[]; }; // axis, plane
 layout(std430, binding = 3) readonly buffer Node { uint node_of[]; };
-// The event boxes' three pair arrays (accel/kdtree_level.glsl), read a component at a time.
+// The event boxes' three pair arrays (accel/kdtree/level.glsl), read a component at a time.
 layout(std430, binding = 4) readonly buffer Box0 { float box0[]; }; // min x, min y
 layout(std430, binding = 5) readonly buffer Box1 { float box1[]; }; // min z, max x
 layout(std430, binding = 6) readonly buffer Box2 { float box2[]; }; // max y, max z

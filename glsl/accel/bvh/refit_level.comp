@@ -2,13 +2,13 @@
 // BVH refit of one depth (CPU twin: src/accel/bvh/refit.rs): every node at that depth gets
 // its children's boxes from the primitives (leaves) or from the children's nodes, which the
 // dispatch of the depth below refit before. Unions in the total order on ±0, as every refit.
-// Variant `pairs64` moves nodes and boxes as 64-bit pairs (accel/bvh_pairs.glsl), where the
+// Variant `pairs64` moves nodes and boxes as 64-bit pairs (accel/bvh/pairs.glsl), where the
 // device has shaderInt64.
 //! variant words
 //! variant pairs64 PAIRS64=1
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "accel/bvh_pairs.glsl"
+#include "accel/bvh/pairs.glsl"
 
 #define MAX_DEPTH 128u
 
@@ -27,7 +27,7 @@ layout(std430, binding = 5) buffer VkrtSceneInfoBinding {
 } info;
 layout(push_constant) uniform Push { uint depth; } pc;
 
-#include "accel/bvh_refit.glsl"
+#include "accel/bvh/refit.glsl"
 
 void main() {
     uint i = linear_invocation_id();

@@ -3,7 +3,7 @@
 // sorts of 63-bit codes: the high words, the keys of the second (stable) sort. Variants
 // `codes`, after the sort: each code's (high, low) words as one pair in sorted order
 // (common/word_pair.glsl; `codes64` moves it as one 64-bit component), so that the climb
-// (accel/lbvh_climb.comp) reads a neighbour's code in one load.
+// (accel/bvh/lbvh_climb.comp) reads a neighbour's code in one load.
 //! variant one
 //! variant codes CODES=1
 //! variant codes64 CODES=1 PAIRS64=1

@@ -2,7 +2,7 @@
 // The SAH leaf collapse's bottom-up pass (CPU twin: collapse::costs): every node's primitive
 // count and SAH cost, and whether it becomes a leaf of its parent — at most `max_leaf`
 // primitives and `C_isect·A·n <= C_trav·A + cost(a) + cost(b)`; the root never does. It climbs
-// like the refit (accel/bvh_refit.comp): invocations whose node has only leaf children start,
+// like the refit (accel/bvh/refit.comp): invocations whose node has only leaf children start,
 // and the last child to arrive at a parent (an atomic visit counter) decides it, so nothing
 // waits on another invocation. A child's words are visible before its arrival is counted.
 layout(local_size_x_id = 0) in;
@@ -24,7 +24,7 @@ layout(push_constant) uniform Push {
     float c_isect;
 } pc;
 
-#include "accel/bvh_collapse.glsl"
+#include "accel/bvh/collapse.glsl"
 
 void main() {
     uint i = linear_invocation_id();

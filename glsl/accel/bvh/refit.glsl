@@ -1,10 +1,10 @@
 // The child boxes a refit computes (CPU twin: src/accel/bvh/refit.rs), shared by the climbing
 // refit and the per-depth refit. Include after declaring `node_pairs` (VkrtBvhNode as word pairs,
-// accel/bvh_pairs.glsl), `refs` (the references) and `box_pairs` (three pairs per primitive).
+// accel/bvh/pairs.glsl), `refs` (the references) and `box_pairs` (three pairs per primitive).
 #ifndef VKRT_ACCEL_BVH_REFIT_GLSL
 #define VKRT_ACCEL_BVH_REFIT_GLSL
 
-#include "accel/bvh_pairs.glsl"
+#include "accel/bvh/pairs.glsl"
 
 // The box of a child (index, count); `lo`/`hi` hold its old box (kept for a missing child).
 void child_box(uint index, uint count, inout vec3 lo, inout vec3 hi) {

@@ -2,7 +2,7 @@
 // The SAH leaf collapse's last pass for trees whose references lie in depth-first order,
 // every subtree a contiguous run (the LBVH's Morton order; CPU twin:
 // collapse::collapse_in_place): no reference moves, so this one pass replaces the flags,
-// the scan and the write of accel/bvh_collapse_write.comp. Every invocation copies one
+// the scan and the write of accel/bvh/collapse_write.comp. Every invocation copies one
 // reference; every node learns whether it lives, and a live node points each collapsed
 // child at its run — the first reference of its leftmost leaf — as a leaf of the count the
 // cost pass found. Nodes keep their slots: a removed node's parent link becomes VKRT_DEAD.
@@ -25,7 +25,7 @@ layout(push_constant) uniform Push {
 } pc;
 
 #define COLLAPSE_NO_DECIDE
-#include "accel/bvh_collapse.glsl"
+#include "accel/bvh/collapse.glsl"
 
 // The first reference below `node` in depth-first order (collapse::first_ref): a collapsed
 // subtree holds at most MAX_COLLAPSE_LEAF (32) primitives, so the walk down is short.

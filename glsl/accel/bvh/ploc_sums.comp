@@ -6,7 +6,7 @@
 layout(local_size_x = 1) in;
 layout(constant_id = 1) const bool PAIRING = false;
 #include "include/vkrt/kdtree.glsl"
-#include "accel/ploc_common.glsl"
+#include "accel/bvh/ploc_common.glsl"
 
 layout(std430, binding = 0) buffer GroupSums { uvec2 group_sums[]; };
 layout(std430, binding = 1) buffer State { uint state[]; };

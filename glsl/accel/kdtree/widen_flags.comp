@@ -5,7 +5,7 @@
 // tree; the twin is the identity (breadth_first scans the bytes).
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "accel/kdtree_level.glsl"
+#include "accel/kdtree/level.glsl"
 
 layout(std430, binding = 0) readonly buffer State { uint state[]; };
 layout(std430, binding = 1) readonly buffer Kinds { uint kinds4[]; }; // 4 bytes per word

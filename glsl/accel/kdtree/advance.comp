@@ -3,7 +3,7 @@
 // dispatch arguments, the output bases, and the capacity check. On overflow the build stops
 // cleanly (no further level has work) and records what it needed; the host retries larger.
 layout(local_size_x = 1) in;
-#include "accel/kdtree_level.glsl"
+#include "accel/kdtree/level.glsl"
 
 layout(std430, binding = 0) buffer State { uint state[]; };
 layout(std430, binding = 1) readonly buffer SlotTotal { uint slot_total[]; };   // axis 0

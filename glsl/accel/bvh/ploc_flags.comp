@@ -6,7 +6,7 @@
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "include/vkrt/kdtree.glsl"
-#include "accel/ploc_common.glsl"
+#include "accel/bvh/ploc_common.glsl"
 
 layout(std430, binding = 0) readonly buffer Nearest { uint nn[]; };
 // Per cluster: (merges, survives).

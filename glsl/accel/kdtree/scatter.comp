@@ -9,7 +9,7 @@
 // to its scanned place (one invocation per event, for its two slots).
 //
 // The `*64` variants (where the device has shaderInt64) move the box pairs and read the
-// node's (split, plane) and (first, count) as 64-bit components (accel/kdtree_level.glsl).
+// node's (split, plane) and (first, count) as 64-bit components (accel/kdtree/level.glsl).
 #extension GL_EXT_shader_8bit_storage : require
 //! variant once MOVE_ONCE=1
 //! variant once64 MOVE_ONCE=1 PAIRS64=1
@@ -17,7 +17,7 @@
 //! variant records64 FULL_RECORDS=1 PAIRS64=1
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "accel/kdtree_level.glsl"
+#include "accel/kdtree/level.glsl"
 
 #ifdef FULL_RECORDS
 layout(std430, binding = 0) readonly buffer State { uint state[]; };

@@ -2,12 +2,12 @@
 // kd-tree Phase II, pass 1: per event, the SAH of its plane on each axis list (counts from
 // the START flag scans), the cheapest axis kept. Twin: breadth_first::split_costs.
 // Variant `wide` (where the device has shaderInt64) reads the node's box and (first, count)
-// as 64-bit components (accel/kdtree_level.glsl); `narrow` as 32-bit ones.
+// as 64-bit components (accel/kdtree/level.glsl); `narrow` as 32-bit ones.
 //! variant narrow
 //! variant wide PAIRS64=1
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "accel/kdtree_level.glsl"
+#include "accel/kdtree/level.glsl"
 
 layout(std430, binding = 0) readonly buffer State { uint state[]; };
 layout(std430, binding = 1) readonly buffer NodeBox { WORD_PAIR node_box[]; };     // 3 per node

@@ -7,7 +7,7 @@
 // afterwards, reports or retries it.
 layout(local_size_x = 1) in;
 #include "include/vkrt/kdtree.glsl"
-#include "accel/kdtree_level.glsl"
+#include "accel/kdtree/level.glsl"
 
 layout(std430, binding = 0) readonly buffer State { uint state[]; };
 layout(std430, binding = 1) readonly buffer MinX { float min_x[]; };

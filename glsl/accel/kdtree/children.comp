@@ -3,7 +3,7 @@
 // counts from the scanned virtual slots of axis 0 (twin: breadth_first "children").
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "accel/kdtree_level.glsl"
+#include "accel/kdtree/level.glsl"
 
 layout(std430, binding = 0) readonly buffer State { uint state[]; };
 layout(std430, binding = 1) readonly buffer NodeBox { float node_box[]; };

@@ -1,7 +1,7 @@
 #version 460
 // kd-tree Phase I, last step (one invocation): the root node and the build state.
 layout(local_size_x = 1) in;
-#include "accel/kdtree_level.glsl"
+#include "accel/kdtree/level.glsl"
 
 layout(std430, binding = 0) writeonly buffer State { uint state[]; };
 layout(std430, binding = 1) readonly buffer MinX { float min_x[]; };

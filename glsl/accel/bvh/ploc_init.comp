@@ -5,7 +5,7 @@
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "include/vkrt/kdtree.glsl"
-#include "accel/ploc_common.glsl"
+#include "accel/bvh/ploc_common.glsl"
 
 layout(std430, binding = 0) readonly buffer Boxes { float boxes[]; };
 layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };

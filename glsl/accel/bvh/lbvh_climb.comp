@@ -9,11 +9,11 @@
 // to arrive the parent's range, and it completes the parent in the next round. Each node
 // takes Karras's slot (a child `a` the slot of its last position, a child `b` of its first,
 // the root 0), so the tree is Karras's (2012), bit for bit, boxes and collapse decisions
-// (accel/bvh_collapse.glsl) included, without his topology pass's binary searches. Rounds
+// (accel/bvh/collapse.glsl) included, without his topology pass's binary searches. Rounds
 // run in subgroup-uniform control flow with every memory barrier reached by every lane, as
-// in accel/bvh_refit.comp (Mesa 22.3's lavapipe), in workgroups of one subgroup; a round
+// in accel/bvh/refit.comp (Mesa 22.3's lavapipe), in workgroups of one subgroup; a round
 // completes at least one node: never a spin.
-// The `64` variants move nodes, boxes and codes as 64-bit pairs (accel/bvh_pairs.glsl).
+// The `64` variants move nodes, boxes and codes as 64-bit pairs (accel/bvh/pairs.glsl).
 //! variant boxes
 //! variant boxes64 PAIRS64=1
 //! variant costs COLLAPSE_COSTS=1
@@ -21,7 +21,7 @@
 layout(local_size_x_id = 0) in;
 #extension GL_KHR_shader_subgroup_vote : require
 #include "common/grid.glsl"
-#include "accel/bvh_pairs.glsl"
+#include "accel/bvh/pairs.glsl"
 
 layout(std430, binding = 0) coherent buffer Nodes { WORD_PAIR node_pairs[]; };
 // The sorted primitive ids (the leaves' references), then a parent link per node from n on.
@@ -42,7 +42,7 @@ layout(std430, binding = 5) buffer VkrtSceneInfoBinding {
     uint parents_at;
 } info;
 #ifdef COLLAPSE_COSTS
-// Count, SAH cost and decision of every node (accel/bvh_collapse.glsl).
+// Count, SAH cost and decision of every node (accel/bvh/collapse.glsl).
 layout(std430, binding = 6) coherent buffer Costs { uint costs[]; };
 layout(push_constant) uniform Push {
     uint n;
@@ -50,12 +50,12 @@ layout(push_constant) uniform Push {
     float c_trav;
     float c_isect;
 } pc;
-#include "accel/bvh_collapse.glsl"
+#include "accel/bvh/collapse.glsl"
 #else
 layout(push_constant) uniform Push { uint n; } pc;
 #endif
 
-#include "accel/bvh_refit.glsl"
+#include "accel/bvh/refit.glsl"
 
 uint clz(uint x) {
     return uint(31 - findMSB(x)); // findMSB(0) = -1: 32

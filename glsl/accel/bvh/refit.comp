@@ -7,14 +7,14 @@
 // child are made visible before its arrival is counted (memoryBarrierBuffer on coherent
 // buffers), and the arriving invocation reads them after. Unions use the total order on ±0
 // (vkrt_fmin_total), so the result is bit for bit the CPU twin's, whatever the order.
-// Variant `boxes64` moves nodes and boxes as 64-bit pairs (accel/bvh_pairs.glsl), where the
-// device has shaderInt64. (The LBVH's build climbs in accel/lbvh_climb.comp.)
+// Variant `boxes64` moves nodes and boxes as 64-bit pairs (accel/bvh/pairs.glsl), where the
+// device has shaderInt64. (The LBVH's build climbs in accel/bvh/lbvh_climb.comp.)
 //! variant boxes
 //! variant boxes64 PAIRS64=1
 layout(local_size_x_id = 0) in;
 #extension GL_KHR_shader_subgroup_vote : require
 #include "common/grid.glsl"
-#include "accel/bvh_pairs.glsl"
+#include "accel/bvh/pairs.glsl"
 
 layout(std430, binding = 0) coherent buffer Nodes { WORD_PAIR node_pairs[]; };
 // References, then one parent link per node from `parents_at` on.
@@ -34,7 +34,7 @@ layout(std430, binding = 4) buffer VkrtSceneInfoBinding {
 } info;
 layout(push_constant) uniform Push { uint n_nodes; } pc;
 
-#include "accel/bvh_refit.glsl"
+#include "accel/bvh/refit.glsl"
 
 void main() {
     uint i = linear_invocation_id();

@@ -9,7 +9,7 @@ layout(constant_id = 1) const uint RADIUS = 8u;
 layout(constant_id = 2) const bool PAIRING = false;
 #include "common/grid.glsl"
 #include "include/vkrt/kdtree.glsl"
-#include "accel/ploc_common.glsl"
+#include "accel/bvh/ploc_common.glsl"
 
 layout(std430, binding = 0) readonly buffer Clusters { Cluster clusters[]; };
 layout(std430, binding = 1) writeonly buffer Nearest { uint nn[]; };

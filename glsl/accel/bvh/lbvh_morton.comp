@@ -8,7 +8,7 @@
 layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint PER_AXIS = 21u;
 #include "common/grid.glsl"
-#include "accel/lbvh_common.glsl"
+#include "accel/bvh/lbvh_common.glsl"
 
 layout(std430, binding = 0) readonly buffer Boxes { float boxes[]; };
 layout(std430, binding = 1) readonly buffer Bounds { uint bounds[]; };

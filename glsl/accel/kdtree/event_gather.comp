@@ -3,7 +3,7 @@
 // four events, so the 0/1 kind bytes are written as whole words.
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "accel/kdtree_level.glsl"
+#include "accel/kdtree/level.glsl"
 
 layout(std430, binding = 0) readonly buffer SortedKeys { float sorted_keys[]; };
 layout(std430, binding = 1) readonly buffer SortedValues { uint sorted_values[]; };
@@ -17,7 +17,7 @@ layout(std430, binding = 8) writeonly buffer Plane { float plane[]; };
 layout(std430, binding = 9) writeonly buffer Kind { uint kind_bytes[]; }; // 4 x u8 per word
 layout(std430, binding = 10) writeonly buffer Prim { uint prim_out[]; };
 layout(std430, binding = 11) writeonly buffer Node { uint node_out[]; };
-// The event boxes: three arrays of component pairs (accel/kdtree_level.glsl), one buffer each
+// The event boxes: three arrays of component pairs (accel/kdtree/level.glsl), one buffer each
 // (each within maxStorageBufferRange).
 layout(std430, binding = 12) writeonly buffer Box0 { WORD_PAIR box0[]; };
 layout(std430, binding = 13) writeonly buffer Box1 { WORD_PAIR box1[]; };

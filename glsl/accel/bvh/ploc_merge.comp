@@ -9,7 +9,7 @@
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "include/vkrt/bvh_node.glsl"
-#include "accel/ploc_common.glsl"
+#include "accel/bvh/ploc_common.glsl"
 
 layout(std430, binding = 0) readonly buffer Src { Cluster src[]; };
 layout(std430, binding = 1) writeonly buffer Dst { Cluster dst[]; };

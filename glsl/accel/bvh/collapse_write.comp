@@ -28,7 +28,7 @@ layout(push_constant) uniform Push {
 } pc;
 
 #define COLLAPSE_NO_DECIDE
-#include "accel/bvh_collapse.glsl"
+#include "accel/bvh/collapse.glsl"
 
 // Copies the references below `node` to out_refs[at...], depth first, `a` before `b`: a
 // stack of children, each a node (count 0) or a leaf.

@@ -8,7 +8,7 @@
 #extension GL_KHR_shader_subgroup_basic : require
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
-#include "accel/lbvh_common.glsl"
+#include "accel/bvh/lbvh_common.glsl"
 
 // Six floats per primitive: min x, y, z, max x, y, z.
 layout(std430, binding = 0) readonly buffer Boxes { float boxes[]; };

@@ -19,7 +19,7 @@ layout(push_constant) uniform Push {
 } pc;
 
 #define COLLAPSE_NO_DECIDE
-#include "accel/bvh_collapse.glsl"
+#include "accel/bvh/collapse.glsl"
 
 uint leaf_child_refs(uint index, uint count) {
     if (count > 0u) {
