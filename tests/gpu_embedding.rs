@@ -339,3 +339,110 @@ fn embedded_build_and_trace(r: &Renderer, ctx: &Context, kind: AccelKind) {
     // SAFETY: the pool's command buffer has executed.
     unsafe { r.device.destroy_command_pool(pool, None) };
 }
+
+/// `Tracer::record` over ranges of one buffer of the caller's (rays, hits and the counter at
+/// aligned offsets in it, as a renderer suballocates): the hits of the same rays through
+/// vkrt's own buffers, bit for bit; a range at an offset the device does not allow is an
+/// error before anything is recorded.
+#[test]
+fn tracer_records_over_ranges_of_the_callers_buffer() {
+    let Some(ctx) = common::context() else { return };
+    let sphere = vkrt::scene::gen::icosphere(3).unwrap();
+    let g = TraceGeometry::from_triangles(&common::mesh_triangles(&sphere));
+    let rays: Vec<Ray> = (0..300)
+        .map(|i| {
+            let a = i as f32 * 0.41;
+            let o = Vec3::new(a.cos(), (i as f32 * 0.07).sin(), a.sin()) * 3.0;
+            Ray::new(
+                o,
+                -o + Vec3::splat(0.02 * (i % 5) as f32),
+                0.0,
+                f32::INFINITY,
+            )
+        })
+        .collect();
+    let builder = AccelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
+    let tracer = Tracer::for_accel(
+        &ctx,
+        &TraceOptions::default(),
+        AccelKind::Lbvh.walked(Default::default()),
+    )
+    .unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let (geom, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
+    rec.submit_and_wait().unwrap();
+    let want = tracer.trace(&ctx, &geom, &rays, 0.0).unwrap().hits;
+
+    // One buffer of the caller's: rays, then hits, then the counter, each range starting
+    // at a multiple of the device's storage offset alignment.
+    let align = ctx.info().min_storage_buffer_offset_alignment.max(4);
+    let up = |x: u64| x.div_ceil(align) * align;
+    let ray_bytes = std::mem::size_of_val(rays.as_slice()) as u64;
+    let hit_bytes = (rays.len() * std::mem::size_of::<Hit>()) as u64;
+    let (hits_at, errors_at) = (up(ray_bytes), up(up(ray_bytes) + hit_bytes));
+    let words = Buffer::<u32>::new(&ctx, "renderer.arena", ((errors_at + 4) / 4) as usize).unwrap();
+    let range = |offset: u64, size: u64| vkrt::gpu::RawBuffer {
+        offset: words.as_raw().offset + offset,
+        size,
+        ..words.as_raw()
+    };
+    let mut rec = Recorder::new(&ctx).unwrap();
+    for (k, chunk) in bytemuck::cast_slice::<Ray, u32>(&rays)
+        .chunks(4096)
+        .enumerate()
+    {
+        rec.update(&words, k * 4096, chunk).unwrap();
+    }
+    rec.update(&words, (errors_at / 4) as usize, &[0]).unwrap();
+    rec.transfer_to_compute();
+    let misaligned = tracer.record(
+        &mut rec,
+        &geom,
+        &range(4, ray_bytes),
+        &range(hits_at, hit_bytes),
+        &range(errors_at, 4),
+        rays.len(),
+        0.0,
+    );
+    assert!(
+        misaligned.is_err() || align == 4,
+        "a misaligned ray range was recorded"
+    );
+    let short = tracer.record(
+        &mut rec,
+        &geom,
+        &range(0, ray_bytes - 32),
+        &range(hits_at, hit_bytes),
+        &range(errors_at, 4),
+        rays.len(),
+        0.0,
+    );
+    assert!(
+        matches!(short, Err(GpuError::Usage { .. })),
+        "{short:?}: a ray range one ray short"
+    );
+    tracer
+        .record(
+            &mut rec,
+            &geom,
+            &range(0, ray_bytes),
+            &range(hits_at, hit_bytes),
+            &range(errors_at, 4),
+            rays.len(),
+            0.0,
+        )
+        .unwrap();
+    rec.compute_to_transfer();
+    rec.submit_and_wait().unwrap();
+    let back = words.download().unwrap();
+    let bytes: &[u8] = bytemuck::cast_slice(&back);
+    let got: &[Hit] =
+        bytemuck::cast_slice(&bytes[hits_at as usize..(hits_at + hit_bytes) as usize]);
+    assert_eq!(
+        bytemuck::cast_slice::<Hit, u32>(got),
+        bytemuck::cast_slice::<Hit, u32>(&want)
+    );
+    assert_eq!(back[(errors_at / 4) as usize], 0);
+    assert!(want.iter().filter(|h| h.is_hit()).count() > 100);
+    common::assert_silent(&ctx);
+}

@@ -121,10 +121,13 @@ impl Tracer {
         self.options
     }
 
-    /// Records the trace of `n` rays into `hits` (both device buffers); `errors[0]` counts
-    /// rays that ran out of steps. The caller orders the writes of the inputs before. `n`
-    /// above the rays or hits the buffers hold, or a structure this tracer's walk does not
-    /// serve, is an error (nothing is recorded).
+    /// Records the trace of `n` rays into `hits`; the first word of `errors` counts rays that
+    /// ran out of steps. Each is a range of a device buffer: vkrt's [`Buffer`]s, or ranges of
+    /// the caller's own ([`RawBuffer`](crate::gpu::RawBuffer), with `STORAGE_BUFFER` usage,
+    /// offsets a multiple of `minStorageBufferOffsetAlignment`), rays as [`Ray`] (32 bytes)
+    /// and hits as [`Hit`]. The caller orders the writes of the inputs before. `n` above the
+    /// rays or hits the ranges hold, a counter range under 4 bytes, or a structure this
+    /// tracer's walk does not serve, is an error (nothing is recorded).
     ///
     /// Synchronization ([`crate::accel::sync::RecordSync::TRACE`]): compute-shader reads of
     /// the structure and rays and writes of the hits and counter, first and last, with no
@@ -138,9 +141,9 @@ impl Tracer {
         &self,
         rec: &mut Recorder,
         geom: &GpuGeometry,
-        rays: &Buffer<Ray>,
-        hits: &Buffer<Hit>,
-        errors: &Buffer<u32>,
+        rays: &dyn BufferArg,
+        hits: &dyn BufferArg,
+        errors: &dyn BufferArg,
         n: usize,
         time: f32,
     ) -> Result<()> {
@@ -165,15 +168,29 @@ impl Tracer {
         if geom.device_input.as_ref().is_some_and(|d| !d.built) {
             return refuse("the structure has not been built: record its build first".into());
         }
-        if n > rays.len() || n > hits.len() {
+        let ray_room = rays.range() / std::mem::size_of::<Ray>() as u64;
+        let hit_room = hits.range() / std::mem::size_of::<Hit>() as u64;
+        if n as u64 > ray_room || n as u64 > hit_room {
             return refuse(format!(
-                "{n} rays, but the ray buffer holds {} and the hit buffer {}",
-                rays.len(),
-                hits.len()
+                "{n} rays, but the ray range holds {ray_room} and the hit range {hit_room}"
             ));
         }
-        if errors.is_empty() {
-            return refuse("the error counter buffer is empty".into());
+        if errors.range() < 4 {
+            return refuse("the error counter range holds no 32-bit word".into());
+        }
+        let align = rec
+            .context()
+            .info()
+            .min_storage_buffer_offset_alignment
+            .max(1);
+        for (what, b) in [("ray", rays), ("hit", hits), ("error counter", errors)] {
+            if b.offset() % align != 0 {
+                return refuse(format!(
+                    "the {what} range starts at byte {}, not a multiple of the device's \
+                     minStorageBufferOffsetAlignment ({align})",
+                    b.offset()
+                ));
+            }
         }
         if n > u32::MAX as usize {
             return refuse(format!("{n} rays in one dispatch (at most {})", u32::MAX));
