@@ -239,13 +239,19 @@ impl Context {
             // The set layout, pipeline layout and shader module, and the pipeline.
             self.inner.created(3 + result.is_ok() as u64);
             match result {
-                Ok(p) => Ok(Kernel {
-                    blob,
-                    pipeline: p[0],
-                    layout,
-                    set_layout,
-                    workgroup_size,
-                }),
+                Ok(p) => {
+                    // Named for RenderDoc, Nsight and RGP, and in validation messages.
+                    self.set_object_name(p[0], blob.name);
+                    self.set_object_name(layout, &format!("{}.layout", blob.name));
+                    self.set_object_name(set_layout, &format!("{}.set_layout", blob.name));
+                    Ok(Kernel {
+                        blob,
+                        pipeline: p[0],
+                        layout,
+                        set_layout,
+                        workgroup_size,
+                    })
+                }
                 Err((_, e)) => {
                     device.destroy_pipeline_layout(layout, None);
                     device.destroy_descriptor_set_layout(set_layout, None);

@@ -33,6 +33,8 @@ pub(crate) struct ScopeRecorder {
     open: Vec<usize>,
     /// `end` calls without an open scope: a usage error reported when the work is finished.
     unmatched_ends: usize,
+    /// Scopes left untimed because the query capacity ran out.
+    untimed: usize,
 }
 
 impl ScopeRecorder {
@@ -44,6 +46,7 @@ impl ScopeRecorder {
             scopes: Vec::new(),
             open: Vec::new(),
             unmatched_ends: 0,
+            untimed: 0,
         }
     }
 
@@ -57,6 +60,9 @@ impl ScopeRecorder {
     /// Opens a scope; returns the query to write a timestamp into, if any.
     pub(crate) fn begin(&mut self, name: &str) -> Option<u32> {
         let begin = self.take_query();
+        if begin.is_none() && self.pool.is_some() {
+            self.untimed += 1;
+        }
         self.scopes.push(Scope {
             name: name.to_string(),
             depth: self.open.len() as u32,
@@ -139,7 +145,19 @@ impl ScopeRecorder {
                 }
             })
             .collect();
-        Profile { passes }
+        if self.untimed > 0 {
+            log::warn!(
+                "{} of {} scopes untimed: the recorder's {} timestamp queries ran out \
+                 (Recorder::from_raw takes the count)",
+                self.untimed,
+                self.scopes.len(),
+                self.capacity
+            );
+        }
+        Profile {
+            passes,
+            untimed_scopes: self.untimed,
+        }
     }
 
     /// The scope tree without times (no timestamp support).
@@ -170,6 +188,9 @@ pub struct PassTime {
 pub struct Profile {
     /// The scopes, in opening order; a scope's parent comes before it.
     pub passes: Vec<PassTime>,
+    /// Scopes left without a time because the recorder's timestamp queries ran out (never
+    /// silently: also logged as a warning).
+    pub untimed_scopes: usize,
 }
 
 impl Profile {
@@ -208,7 +229,10 @@ impl Profile {
                 p
             })
             .collect();
-        Profile { passes }
+        Profile {
+            passes,
+            untimed_scopes: self.untimed_scopes,
+        }
     }
 
     /// Appends `other`'s scopes (e.g. several submissions of one command) after a gap.
@@ -219,6 +243,7 @@ impl Profile {
             .iter()
             .filter_map(|p| Some(p.start_ms? + p.ms?))
             .fold(0.0, f64::max);
+        self.untimed_scopes += other.untimed_scopes;
         for mut p in other.passes {
             p.parent = p.parent.map(|i| i + offset);
             p.start_ms = p.start_ms.map(|s| s + shift);

@@ -240,6 +240,7 @@ impl Recorder {
         if !self.bind(kernel, buffers, bytemuck::bytes_of(push)) {
             return;
         }
+        self.label_dispatch(kernel);
         // SAFETY: recording; pipeline, set and push constants were bound for this kernel.
         unsafe {
             self.ctx
@@ -268,6 +269,7 @@ impl Recorder {
         if !self.bind(kernel, buffers, bytemuck::bytes_of(push)) {
             return;
         }
+        self.label_dispatch(kernel);
         // SAFETY: recording; the indirect range was checked above.
         unsafe {
             self.ctx.inner.device.cmd_dispatch_indirect(
@@ -276,6 +278,17 @@ impl Recorder {
                 indirect.offset() + offset,
             )
         };
+    }
+
+    /// A debug label naming the kernel (and its variant) at each dispatch, where the
+    /// instance has `VK_EXT_debug_utils`: captures show which kernel every dispatch runs.
+    fn label_dispatch(&mut self, kernel: &Kernel) {
+        if let Some(du) = &self.ctx.inner.debug_utils {
+            let name = std::ffi::CString::new(kernel.name().replace('\0', " ")).unwrap_or_default();
+            let label = vk::DebugUtilsLabelEXT::default().label_name(&name);
+            // SAFETY: recording; the instance has VK_EXT_debug_utils.
+            unsafe { du.cmd_insert_debug_utils_label(self.cmd, &label) };
+        }
     }
 
     /// Binds the kernel's pipeline, a descriptor set of `buffers` and `push`; false (and the
