@@ -2,7 +2,8 @@
 //! and shape and the build flags, which every build and update into it must match.
 
 use crate::accel::driver::Prefer;
-use crate::accel::geometry::{Geometry, GeometryLayout};
+use crate::accel::geometry::GeometryLayout;
+use crate::accel::geometry_shape::{GeometryDescription, GeometryShape};
 use crate::accel::walk::{AccelChoice, AccelKind, Traversal};
 use crate::gpu::{Context, Result};
 
@@ -51,9 +52,13 @@ pub(crate) struct DeviceInput {
 }
 
 impl DeviceInput {
-    pub(crate) fn new(ctx: &Context, geometries: &[Geometry], flags: BuildFlags) -> Result<Self> {
+    pub(crate) fn new<G: GeometryDescription>(
+        ctx: &Context,
+        geometries: &[G],
+        flags: BuildFlags,
+    ) -> Result<Self> {
         Ok(Self {
-            layout: GeometryLayout::of(ctx, geometries)?,
+            layout: GeometryLayout::of_described(ctx, geometries)?,
             shape: shape(geometries),
             flags,
             built: false,
@@ -61,9 +66,15 @@ impl DeviceInput {
     }
 }
 
-pub(crate) fn shape(geometries: &[Geometry]) -> Vec<(bool, u32)> {
+pub(crate) fn shape<G: GeometryDescription>(geometries: &[G]) -> Vec<(bool, u32)> {
     geometries
         .iter()
-        .map(|g| (matches!(g, Geometry::Triangles(_)), g.primitive_count()))
+        .map(|g| {
+            let s = g.shape();
+            (
+                matches!(s, GeometryShape::Triangles { .. }),
+                s.primitive_count(),
+            )
+        })
         .collect()
 }
