@@ -37,7 +37,7 @@ impl AccelBuilder {
     /// interleaved, each structure's passes, and one barrier at the end
     /// ([`RecordSync::build`], as the single call). Every target is checked before anything
     /// is recorded; an error names the target's index. Scratch ranges must not overlap
-    /// (each build writes its own while the others run).
+    /// (each build writes its own while the others run). No target records nothing.
     ///
     /// [`RecordSync::build`]: crate::accel::sync::RecordSync::build
     pub fn record_builds_from(
@@ -56,6 +56,9 @@ impl AccelBuilder {
         rec: &mut Recorder,
         targets: &mut [BuildTarget<'_>],
     ) -> Result<()> {
+        if targets.is_empty() {
+            return Ok(());
+        }
         let ctx = rec.context().clone();
         let single = targets.len() == 1;
         let entry = |i: usize, e: GpuError| match e {
@@ -64,6 +67,9 @@ impl AccelBuilder {
                 call,
                 reason: format!("target {i}: {reason}"),
             },
+            GpuError::Placement(why) if !single => {
+                GpuError::Placement(format!("target {i}: {why}"))
+            }
             e => e,
         };
         let mut placed = Vec::with_capacity(targets.len());
@@ -72,9 +78,12 @@ impl AccelBuilder {
                 .input_of(call, t.geometries, t.out)
                 .map_err(|e| entry(i, e))?
                 .clone();
-            let (scratch, bytes) = place(&ctx, "the build scratch", Placement::Into(t.scratch), || {
-                self.scratch_for(&ctx, &input)
-            })
+            let (scratch, bytes) = place(
+                &ctx,
+                "the build scratch",
+                Placement::Into(t.scratch),
+                || self.scratch_for(&ctx, &input),
+            )
             .map_err(|e| entry(i, e))?;
             for (j, (_, _, other)) in placed.iter().enumerate() {
                 if bytes > 0 && overlap((&t.scratch, bytes), (&targets[j].scratch, *other)) {

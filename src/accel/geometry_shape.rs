@@ -50,7 +50,11 @@ pub enum GeometryShape {
 impl GeometryShape {
     /// `triangle_count` opaque triangles over `vertex_count` tightly packed `vec3`s,
     /// indexed with `index_type` (`None`: a soup).
-    pub fn triangles(vertex_count: u32, index_type: Option<IndexType>, triangle_count: u32) -> Self {
+    pub fn triangles(
+        vertex_count: u32,
+        index_type: Option<IndexType>,
+        triangle_count: u32,
+    ) -> Self {
         GeometryShape::Triangles {
             format: VertexFormat::Rgb32Float,
             stride: 12,
@@ -148,9 +152,7 @@ impl GeometryShape {
                 if vertex_count == 0 {
                     return err("triangles over 0 vertices".into());
                 }
-                if index_type.is_none()
-                    && u64::from(triangle_count) * 3 > u64::from(vertex_count)
-                {
+                if index_type.is_none() && u64::from(triangle_count) * 3 > u64::from(vertex_count) {
                     return err(format!(
                         "{triangle_count} triangles without indices need {} vertices; \
                          {vertex_count} given",

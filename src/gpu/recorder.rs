@@ -41,6 +41,18 @@ pub struct Recorder {
     /// the same structure in every wave), alive until the work has executed; where the
     /// recording binds from a cache, the cache's.
     views: Views,
+    /// What has been recorded so far, counted.
+    counts: RecordCounts,
+}
+
+/// Commands a recorder has recorded ([`Recorder::counts`]): what a batched call saves, for
+/// tests and tools.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RecordCounts {
+    /// `vkCmdPipelineBarrier`s.
+    pub barriers: u64,
+    /// Dispatches, direct and indirect.
+    pub dispatches: u64,
 }
 
 /// A copy of a device buffer into host memory, recorded by [`Recorder::read_back`]; read it
@@ -181,6 +193,7 @@ impl Recorder {
             staging: Vec::new(),
             failed: None,
             views: Default::default(),
+            counts: RecordCounts::default(),
         })
     }
 
@@ -195,6 +208,11 @@ impl Recorder {
             device.cmd_reset_query_pool(self.cmd, pool, q, 1);
             device.cmd_write_timestamp(self.cmd, vk::PipelineStageFlags::BOTTOM_OF_PIPE, pool, q);
         }
+    }
+
+    /// The barriers and dispatches recorded so far.
+    pub fn counts(&self) -> RecordCounts {
+        self.counts
     }
 
     /// The context this recorder records for.
@@ -240,6 +258,7 @@ impl Recorder {
         if !self.bind(kernel, buffers, bytemuck::bytes_of(push)) {
             return;
         }
+        self.counts.dispatches += 1;
         // SAFETY: recording; pipeline, set and push constants were bound for this kernel.
         unsafe {
             self.ctx
@@ -268,6 +287,7 @@ impl Recorder {
         if !self.bind(kernel, buffers, bytemuck::bytes_of(push)) {
             return;
         }
+        self.counts.dispatches += 1;
         // SAFETY: recording; the indirect range was checked above.
         unsafe {
             self.ctx.inner.device.cmd_dispatch_indirect(
@@ -570,6 +590,7 @@ impl Recorder {
         src: (vk::PipelineStageFlags, vk::AccessFlags),
         dst: (vk::PipelineStageFlags, vk::AccessFlags),
     ) {
+        self.counts.barriers += 1;
         let barrier = vk::MemoryBarrier::default()
             .src_access_mask(src.1)
             .dst_access_mask(dst.1);
