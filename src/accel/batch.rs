@@ -1,11 +1,15 @@
 //! Several structures over the caller's geometry built by one record call, as
-//! `vkCmdBuildAccelerationStructuresKHR` takes `infoCount` builds: the builds' gathers
-//! interleaved (every structure's `k`-th geometry between the same two barriers) and one
-//! barrier at the end for all of them, where separate calls pay both per structure. Each
-//! structure's own passes keep their barriers; no barrier separates one structure's passes
-//! from the next structure's, whose memory is disjoint.
+//! `vkCmdBuildAccelerationStructuresKHR` takes `infoCount` builds, sharing their barriers:
+//! the gathers interleaved (every structure's `k`-th geometry between the same two
+//! barriers), then the builders' passes interleaved (pass `k` of every structure, one
+//! barrier, pass `k + 1` of every structure: [`crate::gpu`]'s capture), and one barrier at
+//! the end for all of them. Separate calls pay every barrier per structure; a batch of
+//! builds of one size pays those of one build. The structures' memory (and their scratch)
+//! is disjoint, so passes of different structures need no order among themselves. The
+//! driver's builds, recorded straight into the command buffer by its extension, follow one
+//! another.
 
-use crate::accel::device::AccelBuilder;
+use crate::accel::device::{AccelBuilder, AccelKind};
 use crate::accel::embedded::header_of;
 use crate::accel::geometry::{GatherJob, Geometry, GeometryGather};
 use crate::accel::gpu_geometry::GpuGeometry;
@@ -34,7 +38,8 @@ fn overlap(a: (&RawBuffer, u64), b: (&RawBuffer, u64)) -> bool {
 impl AccelBuilder {
     /// Records the builds of every target, as [`AccelBuilder::record_build_from`] records
     /// one and with the same results, in one sequence: the gathers of all targets
-    /// interleaved, each structure's passes, and one barrier at the end
+    /// interleaved, the builders' passes interleaved (the driver's builds one after
+    /// another), and one barrier at the end
     /// ([`RecordSync::build`], as the single call). Every target is checked before anything
     /// is recorded; an error names the target's index. Scratch ranges must not overlap
     /// (each build writes its own while the others run). No target records nothing.
@@ -123,10 +128,22 @@ impl AccelBuilder {
                     .collect();
                 gather.record_batch(rec, &jobs)
             })?;
+            // vkrt's builders are recorded pass by pass across the targets; the driver's
+            // builds (recorded straight into the command buffer) one after another.
+            let interleave = !single && self.kind() != AccelKind::Driver;
+            let mut lists = Vec::with_capacity(targets.len());
             for (t, (_, scratch, _)) in targets.iter_mut().zip(&placed) {
                 let out = &mut *t.out;
-                self.record_build_inner(rec, &out.prims, None, scratch, &mut out.accel)?;
+                if interleave {
+                    rec.begin_capture();
+                }
+                let built = self.record_build_inner(rec, &out.prims, None, scratch, &mut out.accel);
+                if interleave {
+                    lists.push(rec.end_capture());
+                }
+                built?;
             }
+            rec.record_interleaved(lists);
             Ok(())
         })?;
         rec.end_of_build();

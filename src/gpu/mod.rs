@@ -20,6 +20,7 @@
 mod accel_ext;
 mod bindings;
 mod buffer;
+mod capture;
 mod context;
 mod error;
 mod foreign;
