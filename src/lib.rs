@@ -74,6 +74,7 @@ pub mod verify;
 
 pub use glam;
 
+pub use accel::batch::BuildTarget;
 pub use accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelSizes, AccelStructure};
 pub use accel::embedded::{BuildFlags, REQUIRED_BUFFER_USAGE};
 pub use accel::geometry::{Aabbs, Geometry, IndexType, Indices, Spheres, Triangles, VertexFormat};

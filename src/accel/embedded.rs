@@ -6,7 +6,12 @@
 //! 2. [`AccelBuilder::create_in`]: the structure placed in a range of the caller's buffer;
 //! 3. [`AccelBuilder::record_build_from`] / [`AccelBuilder::record_update_from`]: recorded
 //!    into the caller's command buffer, with the scratch in another range of the caller's;
-//!    they allocate nothing, upload nothing and submit nothing.
+//!    they allocate nothing, upload nothing and submit nothing. Several structures are
+//!    built by one call with [`AccelBuilder::record_builds_from`]
+//!    ([`crate::accel::batch`]).
+//!
+//! Sizes may be asked from counts alone, before the geometry's buffers exist
+//! ([`GeometryShape`](crate::accel::geometry_shape::GeometryShape)).
 //!
 //! The sizes are exact because they come from the same code that places the buffers, run
 //! in a measuring mode ([`crate::gpu::placement`]). The caller's buffers need

@@ -12,6 +12,7 @@
 //! consumer when it is recorded (which a graph may record later, in another command buffer).
 //!
 //! - **Builds, updates and refits** (`AccelBuilder::record_build_from`,
+//!   `record_builds_from` (a batch: one barrier at its end, for all its structures),
 //!   `record_update_from`, `record_build`, `record_refit`; `TopLevelBuilder::record_build_from`,
 //!   `record_update_from` and the calls over them): [`RecordSync::build`]. They read the
 //!   geometry (or instances) as compute-shader reads and copies, and write the structure

@@ -12,6 +12,12 @@ use ash::vk;
 /// Stages and accesses on one side of a barrier.
 pub(crate) type Scope = (vk::PipelineStageFlags, vk::AccessFlags);
 
+/// A barrier's source and destination.
+type Barrier = (Scope, Scope);
+
+/// The commands of one pass and the barrier after them (`None`: the last pass).
+type Pass = (Vec<Cmd>, Option<Barrier>);
+
 /// One command, as the recorder records it.
 #[derive(Clone, Debug)]
 pub(crate) enum Cmd {
@@ -52,7 +58,7 @@ pub(crate) enum Cmd {
 
 /// Both barriers in one: every stage and access of either on each side (what either
 /// orders, the union orders too).
-fn union(a: (Scope, Scope), b: (Scope, Scope)) -> (Scope, Scope) {
+fn union(a: Barrier, b: Barrier) -> Barrier {
     (
         (a.0 .0 | b.0 .0, a.0 .1 | b.0 .1),
         (a.1 .0 | b.1 .0, a.1 .1 | b.1 .1),
@@ -61,8 +67,8 @@ fn union(a: (Scope, Scope), b: (Scope, Scope)) -> (Scope, Scope) {
 
 /// A sequence cut at its barriers: the commands before each, and the barrier after them
 /// (back-to-back barriers merged; `None` after the last commands).
-fn passes(list: Vec<Cmd>) -> Vec<(Vec<Cmd>, Option<(Scope, Scope)>)> {
-    let mut out: Vec<(Vec<Cmd>, Option<(Scope, Scope)>)> = Vec::new();
+fn passes(list: Vec<Cmd>) -> Vec<Pass> {
+    let mut out: Vec<Pass> = Vec::new();
     let mut current = Vec::new();
     for cmd in list {
         match cmd {
@@ -90,7 +96,7 @@ pub(crate) fn interleave(lists: Vec<Vec<Cmd>>) -> Vec<Cmd> {
     let mut cut: Vec<_> = cut.into_iter().map(Vec::into_iter).collect();
     let mut out = Vec::new();
     for _ in 0..steps {
-        let mut barrier: Option<(Scope, Scope)> = None;
+        let mut barrier: Option<Barrier> = None;
         for list in &mut cut {
             if let Some((cmds, after)) = list.next() {
                 out.extend(cmds);
