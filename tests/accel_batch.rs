@@ -1,13 +1,15 @@
 //! Several structures over the caller's geometry built by one record call
 //! (`AccelBuilder::record_builds_from`): each the same, bit for bit, as its twin built by a
 //! call of its own, with the gathers' and the end's barriers paid once; every bad target
-//! refused, by its index, before anything is recorded. And sizes asked from counts alone
-//! (`GeometryShape`) equal to those asked from the geometry.
+//! refused, by its index, before anything is recorded. Sizes asked from counts alone
+//! (`GeometryShape`) equal to those asked from the geometry. And compaction: a built
+//! kd-tree copied into the bytes it uses traces as the original, hit for hit.
 
 mod common;
 
 use glam::{Vec3, Vec4};
 use vkrt::accel::batch::BuildTarget;
+use vkrt::accel::compact::CompactedSize;
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::embedded::BuildFlags;
 use vkrt::accel::geometry::{Aabbs, Geometry, IndexType, Spheres, Triangles};
@@ -455,5 +457,163 @@ fn sizes_from_counts_alone_equal_sizes_from_the_geometry() {
             &flags
         )
         .is_ok());
+    common::assert_silent(&ctx);
+}
+
+/// The compacted sizes of `structures` (built), queried as a renderer does.
+fn compacted_sizes(ctx: &Context, structures: &[GpuGeometry]) -> Vec<CompactedSize> {
+    let mut rec = Recorder::new(ctx).unwrap();
+    rec.compute_to_transfer();
+    let queries: Vec<_> = structures
+        .iter()
+        .map(|g| g.record_compacted_size(&mut rec).unwrap())
+        .collect();
+    rec.transfer_to_host();
+    rec.submit_and_wait().unwrap();
+    queries.into_iter().map(|q| q.read().unwrap()).collect()
+}
+
+#[test]
+fn a_compacted_kd_tree_traces_as_the_original_in_fewer_bytes() {
+    let Some(ctx) = common::context() else { return };
+    let mut caller = Caller(Vec::new());
+    let lists = structures(&ctx, &mut caller);
+    let rays = rays(400);
+    let kd = AccelBuilder::new(&ctx, AccelKind::KdTree).unwrap();
+    let mut built = create(&ctx, &kd, &lists);
+    let mut rec = Recorder::new(&ctx).unwrap();
+    kd.record_builds_from(&mut rec, &mut targets(&lists, &mut built))
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+
+    let sizes = compacted_sizes(&ctx, &built.structures);
+    let (memory, at) = ranges(
+        &ctx,
+        "caller.compacted",
+        &sizes.iter().map(|s| s.bytes).collect::<Vec<_>>(),
+    );
+    let mut compacted: Vec<GpuGeometry> = built
+        .structures
+        .iter()
+        .zip(&sizes)
+        .zip(&at)
+        .map(|((g, s), &m)| g.create_compacted_in(&ctx, s, m).unwrap())
+        .collect();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    for (g, c) in built.structures.iter().zip(&mut compacted) {
+        g.record_compact_into(&mut rec, c).unwrap();
+    }
+    rec.submit_and_wait().unwrap();
+
+    let flags = flags_of(AccelKind::KdTree);
+    for (k, ((g, c), s)) in built
+        .structures
+        .iter()
+        .zip(&compacted)
+        .zip(&sizes)
+        .enumerate()
+    {
+        let full = kd
+            .sizes_for(&ctx, &lists[k], &flags)
+            .unwrap()
+            .structure_bytes;
+        assert!(s.bytes <= full, "structure {k}: {s:?} of {full}");
+        if lists[k].iter().map(|g| g.primitive_count()).sum::<u32>() > 100 {
+            assert!(s.bytes * 2 < full, "structure {k}: {s:?} of {full}");
+        }
+        assert_eq!(
+            g.accel.download().unwrap(),
+            c.accel.download().unwrap(),
+            "structure {k}"
+        );
+        assert_eq!(
+            hit_bits(&trace(&ctx, AccelKind::KdTree, g, &rays)),
+            hit_bits(&trace(&ctx, AccelKind::KdTree, c, &rays)),
+            "structure {k}"
+        );
+    }
+    // The compacted structures' handles point into the new memory.
+    if let (Ok(base), Ok(_)) = (memory.device_address(), compacted[0].address_handle()) {
+        let end = base + memory.as_raw().size;
+        for (c, r) in compacted.iter().zip(&at) {
+            let start = base + r.offset - memory.as_raw().offset;
+            for a in c.address_handle().unwrap() {
+                assert!(a >= start && a < start + r.size && a < end, "{a:#x}");
+            }
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn compaction_refuses_what_it_cannot_copy() {
+    let Some(ctx) = common::context() else { return };
+    let mut caller = Caller(Vec::new());
+    let lists: Vec<Vec<Geometry>> = structures(&ctx, &mut caller).into_iter().take(1).collect();
+    let is_usage = |r: Result<(), GpuError>, what: &str| match r {
+        Err(GpuError::Usage { .. }) => {}
+        other => panic!("{what}: {other:?}"),
+    };
+    let kd = AccelBuilder::new(&ctx, AccelKind::KdTree).unwrap();
+    let lbvh = AccelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
+
+    // Not built yet; then built.
+    let mut c = create(&ctx, &kd, &lists);
+    let mut rec = Recorder::new(&ctx).unwrap();
+    is_usage(
+        c.structures[0].record_compacted_size(&mut rec).map(drop),
+        "an unbuilt structure",
+    );
+    kd.record_builds_from(&mut rec, &mut targets(&lists, &mut c))
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+    let size = compacted_sizes(&ctx, &c.structures)[0];
+
+    // Too little memory.
+    let memory = Buffer::<u8>::arena(&ctx, "compacted", size.bytes as usize).unwrap();
+    let short = RawBuffer {
+        size: size.bytes - 4,
+        ..memory.as_raw()
+    };
+    match c.structures[0].create_compacted_in(&ctx, &size, short) {
+        Err(GpuError::Placement(_)) => {}
+        other => panic!("too little memory: {:?}", other.map(drop)),
+    }
+    let mut dst = c.structures[0]
+        .create_compacted_in(&ctx, &size, memory.as_raw())
+        .unwrap();
+
+    // Building into a compacted structure; compacting into one made for another.
+    let mut rec = Recorder::new(&ctx).unwrap();
+    is_usage(
+        kd.record_build_from(&mut rec, &lists[0], &mut dst, c.scratch[0]),
+        "a build into a compacted structure",
+    );
+    let mut other_caller = Caller(Vec::new());
+    let others: Vec<Vec<Geometry>> = structures(&ctx, &mut other_caller)
+        .into_iter()
+        .skip(5)
+        .take(1)
+        .collect();
+    let mut o = create(&ctx, &kd, &others);
+    kd.record_builds_from(&mut rec, &mut targets(&others, &mut o))
+        .unwrap();
+    is_usage(
+        o.structures[0].record_compact_into(&mut rec, &mut dst),
+        "a destination made for another structure",
+    );
+
+    // Kinds whose buffers are sized exactly.
+    let mut b = create(&ctx, &lbvh, &lists);
+    lbvh.record_builds_from(&mut rec, &mut targets(&lists, &mut b))
+        .unwrap();
+    is_usage(
+        b.structures[0].record_compacted_size(&mut rec).map(drop),
+        "an LBVH",
+    );
+    c.structures[0]
+        .record_compact_into(&mut rec, &mut dst)
+        .unwrap();
+    rec.submit_and_wait().unwrap();
     common::assert_silent(&ctx);
 }

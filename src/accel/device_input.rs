@@ -49,6 +49,9 @@ pub(crate) struct DeviceInput {
     pub(crate) flags: BuildFlags,
     /// A build has been recorded (tracing or updating before one is an error).
     pub(crate) built: bool,
+    /// A compacted copy ([`crate::accel::compact`]) of the structure whose scene constants
+    /// lie there: it holds that tree's bytes only, and is never built or updated into.
+    pub(crate) compacted: Option<(crate::gpu::vk::Buffer, u64)>,
 }
 
 impl DeviceInput {
@@ -62,6 +65,7 @@ impl DeviceInput {
             shape: shape(geometries),
             flags,
             built: false,
+            compacted: None,
         })
     }
 }

@@ -365,6 +365,13 @@ impl AccelBuilder {
                 "this structure was not created over device geometry (AccelBuilder::create_in)",
             )
         })?;
+        if input.compacted.is_some() {
+            return Err(usage(
+                call,
+                "a compacted structure holds its tree's bytes only: build into the structure \
+                 it was compacted from, or create one (create_in)",
+            ));
+        }
         self.check_device_input(call, geometries, input.flags.wide)?;
         self.check_frozen(call, &out.accel)?;
         if shape(geometries) != input.shape {

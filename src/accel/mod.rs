@@ -12,7 +12,8 @@
 //! - [`device`]: one builder over every kind, sized, created in the caller's memory and
 //!   recorded into its command buffer; [`gpu_geometry`] pairs a structure with its primitives;
 //!   [`embedded`] builds over the caller's buffers, [`batch`] several such structures at
-//!   once; [`driver`] maps the same scene to the driver's own acceleration structures.
+//!   once, [`compact`] copies a built kd-tree into the bytes it uses; [`driver`] maps the
+//!   same scene to the driver's own acceleration structures.
 //! - [`sync`]: the stages and accesses each record call touches first and leaves last.
 //! - [`instances`]: two levels, a top level over instances of bottom-level structures.
 //! - [`walk`]: which walk a kernel runs over a structure; [`shader_library`]: what a
@@ -23,6 +24,7 @@
 
 pub mod batch;
 pub mod bvh;
+pub mod compact;
 pub mod device;
 pub mod device_input;
 pub mod device_primitives;
