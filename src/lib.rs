@@ -74,9 +74,11 @@ pub mod verify;
 
 pub use glam;
 
+pub use accel::batch::BuildTarget;
 pub use accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelSizes, AccelStructure};
 pub use accel::embedded::{BuildFlags, REQUIRED_BUFFER_USAGE};
 pub use accel::geometry::{Aabbs, Geometry, IndexType, Indices, Spheres, Triangles, VertexFormat};
+pub use accel::geometry_shape::GeometryShape;
 pub use accel::gpu_geometry::GpuGeometry;
 pub use accel::primitives::TraceGeometry;
 pub use gpu::{

@@ -69,6 +69,18 @@ impl AccelStructure {
         }
     }
 
+    /// A structure of the same kind, flags and builder parameters as this one over
+    /// `storage` (a compacted copy's).
+    pub(crate) fn like(&self, storage: Storage, info: Buffer<SceneInfo>) -> Self {
+        Self {
+            kind: self.kind,
+            storage,
+            info,
+            flags: self.flags,
+            params: self.params,
+        }
+    }
+
     /// The flags it was created with.
     pub fn flags(&self) -> BuildFlags {
         self.flags

@@ -2,7 +2,8 @@
 //! and shape and the build flags, which every build and update into it must match.
 
 use crate::accel::driver::Prefer;
-use crate::accel::geometry::{Geometry, GeometryLayout};
+use crate::accel::geometry::GeometryLayout;
+use crate::accel::geometry_shape::{GeometryDescription, GeometryShape};
 use crate::accel::walk::{AccelChoice, AccelKind, Traversal};
 use crate::gpu::{Context, Result};
 
@@ -48,22 +49,36 @@ pub(crate) struct DeviceInput {
     pub(crate) flags: BuildFlags,
     /// A build has been recorded (tracing or updating before one is an error).
     pub(crate) built: bool,
+    /// A compacted copy ([`crate::accel::compact`]) of the structure whose scene constants
+    /// lie there: it holds that tree's bytes only, and is never built or updated into.
+    pub(crate) compacted: Option<(crate::gpu::vk::Buffer, u64)>,
 }
 
 impl DeviceInput {
-    pub(crate) fn new(ctx: &Context, geometries: &[Geometry], flags: BuildFlags) -> Result<Self> {
+    pub(crate) fn new<G: GeometryDescription>(
+        ctx: &Context,
+        geometries: &[G],
+        flags: BuildFlags,
+    ) -> Result<Self> {
         Ok(Self {
-            layout: GeometryLayout::of(ctx, geometries)?,
+            layout: GeometryLayout::of_described(ctx, geometries)?,
             shape: shape(geometries),
             flags,
             built: false,
+            compacted: None,
         })
     }
 }
 
-pub(crate) fn shape(geometries: &[Geometry]) -> Vec<(bool, u32)> {
+pub(crate) fn shape<G: GeometryDescription>(geometries: &[G]) -> Vec<(bool, u32)> {
     geometries
         .iter()
-        .map(|g| (matches!(g, Geometry::Triangles(_)), g.primitive_count()))
+        .map(|g| {
+            let s = g.shape();
+            (
+                matches!(s, GeometryShape::Triangles { .. }),
+                s.primitive_count(),
+            )
+        })
         .collect()
 }

@@ -6,7 +6,12 @@
 //! 2. [`AccelBuilder::create_in`]: the structure placed in a range of the caller's buffer;
 //! 3. [`AccelBuilder::record_build_from`] / [`AccelBuilder::record_update_from`]: recorded
 //!    into the caller's command buffer, with the scratch in another range of the caller's;
-//!    they allocate nothing, upload nothing and submit nothing.
+//!    they allocate nothing, upload nothing and submit nothing. Several structures are
+//!    built by one call with [`AccelBuilder::record_builds_from`]
+//!    ([`crate::accel::batch`]).
+//!
+//! Sizes may be asked from counts alone, before the geometry's buffers exist
+//! ([`GeometryShape`](crate::accel::geometry_shape::GeometryShape)).
 //!
 //! The sizes are exact because they come from the same code that places the buffers, run
 //! in a measuring mode ([`crate::gpu::placement`]). The caller's buffers need
@@ -21,6 +26,7 @@
 //! the recorded build with `vkCmdUpdateBuffer`: a few constants in the command buffer, no
 //! staging).
 
+use crate::accel::batch::BuildTarget;
 use crate::accel::device::{
     AccelBuilder, AccelKind, AccelScratch, AccelSizes, DevicePrimitives, Scratch,
 };
@@ -29,6 +35,7 @@ use crate::accel::device_input::{shape, DeviceInput};
 use crate::accel::driver::instanced as driver_levels;
 use crate::accel::driver::{DriverAccel, DriverInput};
 use crate::accel::geometry::{Geometry, GeometryGather, GeometryLayout};
+use crate::accel::geometry_shape::GeometryDescription;
 use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::primitives::SceneInfo;
 use crate::accel::walk::AccelTraversal;
@@ -55,7 +62,7 @@ pub const DRIVER_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::from
 
 /// The scene constants the gather writes for a structure of `kind` over `n` primitives:
 /// how the shader library walks it, and where a BVH's parent links start.
-fn header_of(builder: &AccelBuilder, flags: &BuildFlags, n: usize) -> (u32, u32) {
+pub(crate) fn header_of(builder: &AccelBuilder, flags: &BuildFlags, n: usize) -> (u32, u32) {
     let walk = match builder.traversal(flags) {
         AccelTraversal::Bvh(_) if builder.top_level => SceneInfo::WALK_INSTANCES,
         t => t.scene_walk(),
@@ -149,13 +156,13 @@ impl AccelBuilder {
     fn check_device_input(
         &self,
         call: &'static str,
-        geometries: &[Geometry],
+        geometries: &[impl GeometryDescription],
         wide: bool,
     ) -> Result<()> {
         // Non-opaque hits go back to a ray query as candidates, each once: the walk of a
         // binary BVH, which references every primitive once, does that.
         let binary_bvh = matches!(self.kind(), AccelKind::Lbvh | AccelKind::Ploc) && !wide;
-        if !binary_bvh && geometries.iter().any(|g| !g.opaque()) {
+        if !binary_bvh && geometries.iter().any(|g| !g.shape().opaque()) {
             return Err(usage(
                 call,
                 format!(
@@ -179,10 +186,17 @@ impl AccelBuilder {
     /// Bytes of the structure over `geometries` built with `flags`, of its build's scratch
     /// and of an update's scratch (`None`: this kind cannot be updated, or `flags` does not
     /// allow it), exactly as [`AccelBuilder::create_in`] and the recordings place them.
-    pub fn sizes_for(
+    ///
+    /// `geometries` are [`Geometry`]s (their buffers checked too) or [`GeometryShape`]s,
+    /// their counts alone (`vkGetAccelerationStructureBuildSizesKHR`'s `maxPrimitiveCount`
+    /// and description without addresses): the sizes are the same, and depend on nothing
+    /// else.
+    ///
+    /// [`GeometryShape`]: crate::accel::geometry_shape::GeometryShape
+    pub fn sizes_for<G: GeometryDescription>(
         &self,
         ctx: &Context,
-        geometries: &[Geometry],
+        geometries: &[G],
         flags: &BuildFlags,
     ) -> Result<AccelSizes> {
         self.check_device_input("AccelBuilder::sizes_for", geometries, flags.wide)?;
@@ -212,7 +226,7 @@ impl AccelBuilder {
     }
 
     /// The build scratch (and the driver's update scratch: one buffer serves both).
-    fn scratch_for(&self, ctx: &Context, input: &DeviceInput) -> Result<AccelScratch> {
+    pub(crate) fn scratch_for(&self, ctx: &Context, input: &DeviceInput) -> Result<AccelScratch> {
         let f = &input.flags;
         match self.kind() {
             AccelKind::Driver => Ok(AccelScratch(Scratch::Driver(Some(
@@ -339,7 +353,7 @@ impl AccelBuilder {
         )
     }
 
-    fn input_of<'a>(
+    pub(crate) fn input_of<'a>(
         &self,
         call: &'static str,
         geometries: &[Geometry],
@@ -351,6 +365,13 @@ impl AccelBuilder {
                 "this structure was not created over device geometry (AccelBuilder::create_in)",
             )
         })?;
+        if input.compacted.is_some() {
+            return Err(usage(
+                call,
+                "a compacted structure holds its tree's bytes only: build into the structure \
+                 it was compacted from, or create one (create_in)",
+            ));
+        }
         self.check_device_input(call, geometries, input.flags.wide)?;
         self.check_frozen(call, &out.accel)?;
         if shape(geometries) != input.shape {
@@ -386,25 +407,12 @@ impl AccelBuilder {
         out: &mut GpuGeometry,
         scratch: RawBuffer,
     ) -> Result<()> {
-        let call = "AccelBuilder::record_build_from";
-        let input = self.input_of(call, geometries, out)?.clone();
-        let ctx = rec.context().clone();
-        let (scratch, _) = place(&ctx, "the build scratch", Placement::Into(scratch), || {
-            self.scratch_for(&ctx, &input)
-        })?;
-        rec.scope("build", |rec| {
-            rec.scope("gather", |rec| {
-                self.record_gather(rec, geometries, &input, out)
-            })?;
-            self.record_build_inner(rec, &out.prims, None, &scratch, &mut out.accel)
-                .map(drop)
-        })?;
-        rec.end_of_build();
-        rec.check()?;
-        if let Some(d) = out.device_input.as_mut() {
-            d.built = true;
-        }
-        Ok(())
+        let target = BuildTarget {
+            geometries,
+            out,
+            scratch,
+        };
+        self.record_builds("AccelBuilder::record_build_from", rec, &mut [target])
     }
 
     /// Records an update (refit) of `out`, built with `allow_update`, to the positions its

@@ -9,6 +9,7 @@
 //! input into its own format), so nothing passes through the host and nothing is uploaded.
 //! A hit reports the geometry's index in the list and the primitive's index within it.
 
+use crate::accel::geometry_shape::{GeometryDescription, GeometryShape};
 use crate::accel::primitives::SceneInfo;
 use crate::accel::primitives::TraceGeometry;
 use crate::gpu::{
@@ -278,11 +279,24 @@ fn usage(reason: String) -> GpuError {
 impl GeometryLayout {
     /// Checks every description against the limits of `ctx`'s device and lays them out.
     pub fn of(ctx: &Context, geometries: &[Geometry]) -> Result<Self> {
+        Self::of_described(ctx, geometries)
+    }
+
+    /// [`GeometryLayout::of`] geometries with their data or by their counts alone.
+    pub fn of_described<G: GeometryDescription>(ctx: &Context, geometries: &[G]) -> Result<Self> {
+        for (k, g) in geometries.iter().enumerate() {
+            g.check(ctx, k)?;
+        }
+        let shapes: Vec<GeometryShape> = geometries.iter().map(|g| g.shape()).collect();
+        Self::of_shapes(&shapes)
+    }
+
+    /// The layout of checked shapes.
+    fn of_shapes(geometries: &[GeometryShape]) -> Result<Self> {
         // Per primitive type (triangles, spheres, boxes): its count.
         let mut n = [0u64; 3];
-        for (k, g) in geometries.iter().enumerate() {
-            check(ctx, k, g)?;
-            n[type_of(g)] += u64::from(g.primitive_count());
+        for g in geometries {
+            n[g.type_index()] += u64::from(g.primitive_count());
         }
         let total: u64 = n.iter().sum();
         if total > u64::from(u32::MAX / 9) {
@@ -296,7 +310,7 @@ impl GeometryLayout {
         let mut first = Vec::with_capacity(geometries.len());
         let mut lists: [Vec<[u32; 2]>; 3] = Default::default();
         for (k, g) in geometries.iter().enumerate() {
-            let t = type_of(g);
+            let t = g.type_index();
             first.push(at[t]);
             if g.primitive_count() > 0 {
                 lists[t].push([at[t], g.table_word(k)]);
@@ -333,16 +347,8 @@ impl GeometryLayout {
     }
 }
 
-/// 0 triangles, 1 spheres, 2 boxes: the order of their ids.
-fn type_of(g: &Geometry) -> usize {
-    match g {
-        Geometry::Triangles(_) => 0,
-        Geometry::Spheres(_) => 1,
-        Geometry::Aabbs(_) => 2,
-    }
-}
-
-fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
+/// Checks `g` (geometry `k`) and its data against `ctx`'s device.
+pub(crate) fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
     let err = |what: String| Err(usage(format!("geometry {k}: {what}")));
     match g {
         Geometry::Triangles(t) => {
@@ -565,6 +571,24 @@ impl Read {
     }
 }
 
+/// One structure's gather ([`GeometryGather::record_batch`]): its geometries, their layout,
+/// and the primitive arrays and scene constants it writes (walked as `walk`, parent links at
+/// `parents_at`).
+pub struct GatherJob<'a> {
+    /// The caller's geometries.
+    pub geometries: &'a [Geometry],
+    /// Their layout.
+    pub layout: &'a GeometryLayout,
+    /// The structure's primitive arrays.
+    pub prims: &'a DevicePrimitives,
+    /// The structure's scene constants.
+    pub info: &'a crate::gpu::Buffer<SceneInfo>,
+    /// `SceneInfo::walk`.
+    pub walk: u32,
+    /// Where the parent links start.
+    pub parents_at: u32,
+}
+
 /// `accel.geometry_gather`: the caller's geometry into a structure's primitive arrays.
 pub struct GeometryGather {
     buffers: std::sync::Arc<Kernel>,
@@ -596,13 +620,55 @@ impl GeometryGather {
         walk: u32,
         parents_at: u32,
     ) -> Result<()> {
-        let ctx = rec.context().clone();
+        let job = GatherJob {
+            geometries,
+            layout,
+            prims,
+            info,
+            walk,
+            parents_at,
+        };
+        self.record_batch(rec, &[job])
+    }
+
+    /// Records the gathers of several structures (their outputs disjoint) interleaved:
+    /// every structure's header, one barrier, then each structure's `k`-th geometry with
+    /// data, one barrier, and so on — as many barriers as the longest list needs, not the
+    /// sum of all. Ends with a compute → compute barrier.
+    pub fn record_batch(&self, rec: &mut Recorder, jobs: &[GatherJob<'_>]) -> Result<()> {
+        for job in jobs {
+            self.record_header(rec, job);
+        }
+        // Every dispatch may write every output of its structure (as synchronization
+        // validation reads a binding): each is ordered after the one before.
+        rec.compute_to_compute();
+        let with_data = |job: &GatherJob<'_>| -> Vec<usize> {
+            (0..job.geometries.len())
+                .filter(|&k| job.geometries[k].primitive_count() > 0)
+                .collect()
+        };
+        let lists: Vec<Vec<usize>> = jobs.iter().map(with_data).collect();
+        let steps = lists.iter().map(Vec::len).max().unwrap_or(0);
+        for step in 0..steps {
+            for (job, list) in jobs.iter().zip(&lists) {
+                if let Some(&k) = list.get(step) {
+                    self.record_geometry(rec, job, k)?;
+                }
+            }
+            rec.compute_to_compute();
+        }
+        Ok(())
+    }
+
+    /// The dispatch that writes a structure's scene constants and clears its table.
+    fn record_header(&self, rec: &mut Recorder, job: &GatherJob<'_>) {
+        let (layout, prims, info) = (job.layout, job.prims, job.info);
         let header = GatherPush {
             mode: 2,
             count: layout.n_tris,
             first: layout.n_spheres,
-            out_first: parents_at,
-            src_word: walk,
+            out_first: job.parents_at,
+            src_word: job.walk,
             index_first: layout.table.len() as u32,
             vertex_count: layout.n_aabbs,
             ..GatherPush::default()
@@ -615,104 +681,103 @@ impl GeometryGather {
             &[info, info, o0, o1, o2, o3],
             &header,
         );
-        // Every dispatch may write every output (as synchronization validation reads a
-        // binding): each is ordered after the one before.
-        rec.compute_to_compute();
-        for (k, g) in geometries.iter().enumerate() {
-            let count = g.primitive_count();
-            if count == 0 {
-                continue;
+    }
+
+    /// The dispatch that reads geometry `k` (which has primitives) of `job`.
+    fn record_geometry(&self, rec: &mut Recorder, job: &GatherJob<'_>, k: usize) -> Result<()> {
+        let ctx = rec.context().clone();
+        let (layout, prims, info) = (job.layout, job.prims, job.info);
+        let outputs: [&dyn BufferArg; 4] = [&prims.tri_verts, &prims.spheres, &prims.boxes, info];
+        let [o0, o1, o2, o3] = outputs;
+        let g = &job.geometries[k];
+        let count = g.primitive_count();
+        let first = layout.first[k];
+        // The table is ordered by first id (triangles, spheres, boxes), not by `k`.
+        let slot = layout
+            .table
+            .iter()
+            .position(|e| e[1] & !NON_OPAQUE == k as u32)
+            .ok_or_else(|| usage(format!("geometry {k} is not in the layout")))?
+            as u32;
+        let (src, indices, push) = match g {
+            Geometry::Triangles(t) => {
+                let src = Read::of(&ctx, &t.vertices);
+                let (ix, index_type, index_first) = match &t.indices {
+                    Some(i) => {
+                        let ix = Read::of(&ctx, &i.data);
+                        let kind = match i.index_type {
+                            IndexType::U16 => 1,
+                            IndexType::U32 => 2,
+                        };
+                        (ix, kind, (ix.skip() / i.index_type.bytes()) as u32)
+                    }
+                    None => (src, 0, 0),
+                };
+                let push = GatherPush {
+                    mode: 0,
+                    count,
+                    first,
+                    out_first: first,
+                    src_word: (src.skip() / 4) as u32,
+                    stride_words: (t.stride / 4) as u32,
+                    index_type,
+                    index_first,
+                    vertex_count: t.vertex_count,
+                    table_slot: slot,
+                    geometry: g.table_word(k),
+                    has_transform: t.transform.is_some() as u32,
+                    rows: t.transform.unwrap_or_default(),
+                    src_address: src.address(),
+                    idx_address: ix.address(),
+                };
+                (src, ix, push)
             }
-            let first = layout.first[k];
-            // The table is ordered by first id (triangles, spheres, boxes), not by `k`.
-            let slot = layout
-                .table
-                .iter()
-                .position(|e| e[1] & !NON_OPAQUE == k as u32)
-                .ok_or_else(|| usage(format!("geometry {k} is not in the layout")))?
-                as u32;
-            let (src, indices, push) = match g {
-                Geometry::Triangles(t) => {
-                    let src = Read::of(&ctx, &t.vertices);
-                    let (ix, index_type, index_first) = match &t.indices {
-                        Some(i) => {
-                            let ix = Read::of(&ctx, &i.data);
-                            let kind = match i.index_type {
-                                IndexType::U16 => 1,
-                                IndexType::U32 => 2,
-                            };
-                            (ix, kind, (ix.skip() / i.index_type.bytes()) as u32)
-                        }
-                        None => (src, 0, 0),
-                    };
-                    let push = GatherPush {
-                        mode: 0,
-                        count,
-                        first,
-                        out_first: first,
-                        src_word: (src.skip() / 4) as u32,
-                        stride_words: (t.stride / 4) as u32,
-                        index_type,
-                        index_first,
-                        vertex_count: t.vertex_count,
-                        table_slot: slot,
-                        geometry: g.table_word(k),
-                        has_transform: t.transform.is_some() as u32,
-                        rows: t.transform.unwrap_or_default(),
-                        src_address: src.address(),
-                        idx_address: ix.address(),
-                    };
-                    (src, ix, push)
-                }
-                Geometry::Spheres(s) => {
-                    let src = Read::of(&ctx, &s.data);
-                    let push = GatherPush {
-                        mode: 1,
-                        count,
-                        first,
-                        out_first: first - layout.n_tris,
-                        src_word: (src.skip() / 4) as u32,
-                        stride_words: (s.stride / 4) as u32,
-                        table_slot: slot,
-                        geometry: g.table_word(k),
-                        src_address: src.address(),
-                        ..GatherPush::default()
-                    };
-                    (src, src, push)
-                }
-                Geometry::Aabbs(b) => {
-                    let src = Read::of(&ctx, &b.data);
-                    // Two vec4s per box, after the spheres.
-                    let push = GatherPush {
-                        mode: 3,
-                        count,
-                        first,
-                        out_first: layout.n_spheres
-                            + 2 * (first - layout.n_tris - layout.n_spheres),
-                        src_word: (src.skip() / 4) as u32,
-                        stride_words: (b.stride / 4) as u32,
-                        table_slot: slot,
-                        geometry: g.table_word(k),
-                        src_address: src.address(),
-                        ..GatherPush::default()
-                    };
-                    (src, src, push)
-                }
-            };
-            let groups = rec.groups_1d(u64::from(count), WORKGROUP);
-            match (src, indices) {
-                (Read::Bound(s, _), Read::Bound(i, _)) => {
-                    rec.dispatch(&self.buffers, groups, &[&s, &i, o0, o1, o2, o3], &push)
-                }
-                _ => {
-                    let kernel = ctx.kernel(
-                        &kernels::ACCEL_GEOMETRY_GATHER_ADDRESS,
-                        &Spec::new().workgroup(WORKGROUP),
-                    )?;
-                    rec.dispatch(&kernel, groups, &[o0, o1, o2, o3], &push)
-                }
+            Geometry::Spheres(s) => {
+                let src = Read::of(&ctx, &s.data);
+                let push = GatherPush {
+                    mode: 1,
+                    count,
+                    first,
+                    out_first: first - layout.n_tris,
+                    src_word: (src.skip() / 4) as u32,
+                    stride_words: (s.stride / 4) as u32,
+                    table_slot: slot,
+                    geometry: g.table_word(k),
+                    src_address: src.address(),
+                    ..GatherPush::default()
+                };
+                (src, src, push)
             }
-            rec.compute_to_compute();
+            Geometry::Aabbs(b) => {
+                let src = Read::of(&ctx, &b.data);
+                // Two vec4s per box, after the spheres.
+                let push = GatherPush {
+                    mode: 3,
+                    count,
+                    first,
+                    out_first: layout.n_spheres + 2 * (first - layout.n_tris - layout.n_spheres),
+                    src_word: (src.skip() / 4) as u32,
+                    stride_words: (b.stride / 4) as u32,
+                    table_slot: slot,
+                    geometry: g.table_word(k),
+                    src_address: src.address(),
+                    ..GatherPush::default()
+                };
+                (src, src, push)
+            }
+        };
+        let groups = rec.groups_1d(u64::from(count), WORKGROUP);
+        match (src, indices) {
+            (Read::Bound(s, _), Read::Bound(i, _)) => {
+                rec.dispatch(&self.buffers, groups, &[&s, &i, o0, o1, o2, o3], &push)
+            }
+            _ => {
+                let kernel = ctx.kernel(
+                    &kernels::ACCEL_GEOMETRY_GATHER_ADDRESS,
+                    &Spec::new().workgroup(WORKGROUP),
+                )?;
+                rec.dispatch(&kernel, groups, &[o0, o1, o2, o3], &push)
+            }
         }
         Ok(())
     }

@@ -12,6 +12,7 @@
 //! consumer when it is recorded (which a graph may record later, in another command buffer).
 //!
 //! - **Builds, updates and refits** (`AccelBuilder::record_build_from`,
+//!   `record_builds_from` (a batch: one barrier at its end, for all its structures),
 //!   `record_update_from`, `record_build`, `record_refit`; `TopLevelBuilder::record_build_from`,
 //!   `record_update_from` and the calls over them): [`RecordSync::build`]. They read the
 //!   geometry (or instances) as compute-shader reads and copies, and write the structure
@@ -23,6 +24,10 @@
 //!   shader, a copy) needs one from [`RecordSync::last`].
 //! - **Traces** (`Tracer::record`): [`RecordSync::TRACE`], compute-shader reads of the
 //!   structure and rays and writes of the hits, with no barrier at the end.
+//! - **Compaction** (`GpuGeometry::record_compact_into`): [`RecordSync::COMPACT`], copies
+//!   (transfer reads of the built structure, transfer writes of the compacted one), ending
+//!   with the barrier a build ends with; its size query (`record_compacted_size`) is a
+//!   status read-back.
 //! - **The status read-back** (`GpuGeometry::record_read_status`,
 //!   `TopLevel::record_read_status`): [`RecordSync::READ_STATUS`], a copy. Before it, a
 //!   barrier from the build's last (`Recorder::compute_to_transfer`); after it, one from
@@ -96,6 +101,19 @@ impl RecordSync {
             stages: vk::PipelineStageFlags::COMPUTE_SHADER,
             access: vk::AccessFlags::from_raw(
                 vk::AccessFlags::SHADER_READ.as_raw() | vk::AccessFlags::SHADER_WRITE.as_raw(),
+            ),
+        },
+        last: COMPUTE_WRITE,
+    };
+
+    /// The copy of a built kd-tree into its compacted structure
+    /// (`GpuGeometry::record_compact_into`): copies, then the barrier a build ends with, so
+    /// what it leaves last is what a build leaves.
+    pub const COMPACT: Self = Self {
+        first: StageAccess {
+            stages: vk::PipelineStageFlags::TRANSFER,
+            access: vk::AccessFlags::from_raw(
+                vk::AccessFlags::TRANSFER_READ.as_raw() | vk::AccessFlags::TRANSFER_WRITE.as_raw(),
             ),
         },
         last: COMPUTE_WRITE,

@@ -20,6 +20,7 @@
 mod accel_ext;
 mod bindings;
 mod buffer;
+mod capture;
 mod context;
 mod error;
 mod foreign;
@@ -49,6 +50,6 @@ pub use kernel::{Kernel, Spec, PUSH_CONSTANT_BYTES};
 pub use profiler::{
     capture as capture_profiles, write_atomically, PassTime, Profile, DEFAULT_QUERY_CAPACITY,
 };
-pub use recorder::{Readback, RecordedWork, Recorder};
+pub use recorder::{Readback, RecordCounts, RecordedWork, Recorder};
 pub use shader::{find as find_kernel, kernels, ShaderBlob};
 pub use validation::{Validation, ValidationMessage};

@@ -10,6 +10,7 @@ use bytemuck::Pod;
 
 use super::bindings::{check_serves, BindingCache, SetPools, Views};
 use super::buffer::{Buffer, BufferArg, Memory};
+use super::capture::{interleave, Cmd};
 use super::context::Context;
 use super::error::{vk_err, GpuError, Result};
 use super::kernel::{Kernel, PUSH_CONSTANT_BYTES};
@@ -41,6 +42,20 @@ pub struct Recorder {
     /// the same structure in every wave), alive until the work has executed; where the
     /// recording binds from a cache, the cache's.
     views: Views,
+    /// What has been recorded so far, counted.
+    counts: RecordCounts,
+    /// Commands held back instead of recorded ([`Recorder::begin_capture`]).
+    capture: Option<Vec<Cmd>>,
+}
+
+/// Commands a recorder has recorded ([`Recorder::counts`]): what a batched call saves, for
+/// tests and tools.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+pub struct RecordCounts {
+    /// `vkCmdPipelineBarrier`s.
+    pub barriers: u64,
+    /// Dispatches, direct and indirect.
+    pub dispatches: u64,
 }
 
 /// A copy of a device buffer into host memory, recorded by [`Recorder::read_back`]; read it
@@ -181,6 +196,8 @@ impl Recorder {
             staging: Vec::new(),
             failed: None,
             views: Default::default(),
+            counts: RecordCounts::default(),
+            capture: None,
         })
     }
 
@@ -195,6 +212,11 @@ impl Recorder {
             device.cmd_reset_query_pool(self.cmd, pool, q, 1);
             device.cmd_write_timestamp(self.cmd, vk::PipelineStageFlags::BOTTOM_OF_PIPE, pool, q);
         }
+    }
+
+    /// The barriers and dispatches recorded so far.
+    pub fn counts(&self) -> RecordCounts {
+        self.counts
     }
 
     /// The context this recorder records for.
@@ -241,13 +263,7 @@ impl Recorder {
             return;
         }
         self.label_dispatch(kernel);
-        // SAFETY: recording; pipeline, set and push constants were bound for this kernel.
-        unsafe {
-            self.ctx
-                .inner
-                .device
-                .cmd_dispatch(self.cmd, groups[0], groups[1], groups[2])
-        };
+        self.emit(Cmd::Dispatch(groups));
     }
 
     /// Like [`Recorder::dispatch`], with the workgroup counts read from `indirect` at byte
@@ -270,24 +286,18 @@ impl Recorder {
             return;
         }
         self.label_dispatch(kernel);
-        // SAFETY: recording; the indirect range was checked above.
-        unsafe {
-            self.ctx.inner.device.cmd_dispatch_indirect(
-                self.cmd,
-                indirect.raw(),
-                indirect.offset() + offset,
-            )
-        };
+        self.emit(Cmd::DispatchIndirect {
+            buffer: indirect.raw(),
+            offset: indirect.offset() + offset,
+        });
     }
 
     /// A debug label naming the kernel (and its variant) at each dispatch, where the
     /// instance has `VK_EXT_debug_utils`: captures show which kernel every dispatch runs.
     fn label_dispatch(&mut self, kernel: &Kernel) {
-        if let Some(du) = &self.ctx.inner.debug_utils {
+        if self.ctx.inner.debug_utils.is_some() {
             let name = std::ffi::CString::new(kernel.name().replace('\0', " ")).unwrap_or_default();
-            let label = vk::DebugUtilsLabelEXT::default().label_name(&name);
-            // SAFETY: recording; the instance has VK_EXT_debug_utils.
-            unsafe { du.cmd_insert_debug_utils_label(self.cmd, &label) };
+            self.emit(Cmd::Label(name));
         }
     }
 
@@ -334,29 +344,12 @@ impl Recorder {
                 return false;
             }
         };
-        let device = &self.ctx.inner.device;
-        // SAFETY: the set was written for this layout; the command buffer is recording;
-        // `push` fits the range.
-        unsafe {
-            device.cmd_bind_pipeline(self.cmd, vk::PipelineBindPoint::COMPUTE, kernel.pipeline);
-            device.cmd_bind_descriptor_sets(
-                self.cmd,
-                vk::PipelineBindPoint::COMPUTE,
-                kernel.layout,
-                0,
-                &[set],
-                &[],
-            );
-            if !push.is_empty() {
-                device.cmd_push_constants(
-                    self.cmd,
-                    kernel.layout,
-                    vk::ShaderStageFlags::COMPUTE,
-                    0,
-                    push,
-                );
-            }
-        }
+        self.emit(Cmd::Bind {
+            pipeline: kernel.pipeline,
+            layout: kernel.layout,
+            set,
+            push: push.to_vec(),
+        });
         true
     }
 
@@ -378,17 +371,14 @@ impl Recorder {
 
     /// Fills the whole buffer with the 32-bit pattern `value`.
     pub fn fill<T: Pod>(&mut self, buffer: &Buffer<T>, value: u32) {
-        // SAFETY: recording; the buffer has TRANSFER_DST usage and a size that is a multiple
-        // of 4 (Buffer rounds up).
-        unsafe {
-            self.ctx.inner.device.cmd_fill_buffer(
-                self.cmd,
-                buffer.raw(),
-                buffer.offset(),
-                buffer.range(),
-                value,
-            )
-        };
+        // The buffer has TRANSFER_DST usage and a size that is a multiple of 4 (Buffer
+        // rounds up).
+        self.emit(Cmd::Fill {
+            buffer: buffer.raw(),
+            offset: buffer.offset(),
+            size: buffer.range(),
+            value,
+        });
     }
 
     /// Fills the first `len` elements of `buffer` with the 32-bit `value` repeated (all of
@@ -407,17 +397,13 @@ impl Recorder {
         if len == 0 || self.failed.is_some() {
             return;
         }
-        // SAFETY: recording; the buffer has TRANSFER_DST usage; offset 0 and a size of
-        // whole 32-bit words inside the buffer (checked above).
-        unsafe {
-            self.ctx.inner.device.cmd_fill_buffer(
-                self.cmd,
-                buffer.raw(),
-                buffer.offset(),
-                (len * elem) as vk::DeviceSize,
-                value,
-            )
-        };
+        // Offset 0 and a size of whole 32-bit words inside the buffer (checked above).
+        self.emit(Cmd::Fill {
+            buffer: buffer.raw(),
+            offset: buffer.offset(),
+            size: (len * elem) as vk::DeviceSize,
+            value,
+        });
     }
 
     /// Copies the first `len` elements of `src` into `dst`.
@@ -439,13 +425,12 @@ impl Recorder {
             dst_offset: dst.offset(),
             size: (len * std::mem::size_of::<T>()) as u64,
         };
-        // SAFETY: recording; both buffers have transfer usage and the region is in range.
-        unsafe {
-            self.ctx
-                .inner
-                .device
-                .cmd_copy_buffer(self.cmd, src.raw(), dst.raw(), &[region])
-        };
+        // Both buffers have transfer usage and the region is in range.
+        self.emit(Cmd::Copy {
+            src: src.raw(),
+            dst: dst.raw(),
+            region,
+        });
     }
 
     /// Copies `len` elements of `src` from element `src_at` on into `dst` from `dst_at` on.
@@ -475,14 +460,12 @@ impl Recorder {
             dst_offset: dst.offset() + dst_at as u64 * elem,
             size: len as u64 * elem,
         };
-        // SAFETY: recording; both buffers have transfer usage and the regions are in range
-        // (checked above).
-        unsafe {
-            self.ctx
-                .inner
-                .device
-                .cmd_copy_buffer(self.cmd, src.raw(), dst.raw(), &[region])
-        };
+        // Both buffers have transfer usage and the regions are in range (checked above).
+        self.emit(Cmd::Copy {
+            src: src.raw(),
+            dst: dst.raw(),
+            region,
+        });
     }
 
     /// Records the upload of `data` into the start of `dst` (a transfer write, through a
@@ -547,17 +530,14 @@ impl Recorder {
             .inner
             .inline_bytes
             .fetch_add(bytes as u64, std::sync::atomic::Ordering::Relaxed);
-        // SAFETY: recording outside a render pass; `dst` has TRANSFER_DST usage; the range
-        // is inside it, its offset and size multiples of 4 (buffers start word-aligned,
-        // elements are whole words: checked above) and at most 65,536 bytes.
-        unsafe {
-            self.ctx.inner.device.cmd_update_buffer(
-                self.cmd,
-                dst.raw(),
-                dst.offset() + (at * elem) as u64,
-                bytemuck::cast_slice(data),
-            )
-        };
+        // `dst` has TRANSFER_DST usage; the range is inside it, its offset and size
+        // multiples of 4 (buffers start word-aligned, elements are whole words: checked
+        // above) and at most 65,536 bytes.
+        self.emit(Cmd::Update {
+            buffer: dst.raw(),
+            offset: dst.offset() + (at * elem) as u64,
+            data: bytemuck::cast_slice(data).to_vec(),
+        });
         Ok(())
     }
 
@@ -583,21 +563,132 @@ impl Recorder {
         src: (vk::PipelineStageFlags, vk::AccessFlags),
         dst: (vk::PipelineStageFlags, vk::AccessFlags),
     ) {
-        let barrier = vk::MemoryBarrier::default()
-            .src_access_mask(src.1)
-            .dst_access_mask(dst.1);
-        // SAFETY: recording, outside a render pass.
-        unsafe {
-            self.ctx.inner.device.cmd_pipeline_barrier(
-                self.cmd,
-                src.0,
-                dst.0,
-                vk::DependencyFlags::empty(),
-                &[barrier],
-                &[],
-                &[],
-            )
-        };
+        self.emit(Cmd::Barrier { src, dst });
+    }
+
+    /// Records `cmd`, or holds it back while capturing.
+    fn emit(&mut self, cmd: Cmd) {
+        match &mut self.capture {
+            Some(held) => held.push(cmd),
+            None => self.record(&cmd),
+        }
+    }
+
+    /// Records `cmd` into the command buffer.
+    fn record(&mut self, cmd: &Cmd) {
+        let device = &self.ctx.inner.device;
+        let c = self.cmd;
+        match cmd {
+            Cmd::Bind {
+                pipeline,
+                layout,
+                set,
+                push,
+            } => {
+                // SAFETY: recording outside a render pass; the set was written for this
+                // layout (Recorder::bind); `push` fits the layout's range (checked there).
+                unsafe {
+                    device.cmd_bind_pipeline(c, vk::PipelineBindPoint::COMPUTE, *pipeline);
+                    device.cmd_bind_descriptor_sets(
+                        c,
+                        vk::PipelineBindPoint::COMPUTE,
+                        *layout,
+                        0,
+                        &[*set],
+                        &[],
+                    );
+                    if !push.is_empty() {
+                        device.cmd_push_constants(
+                            c,
+                            *layout,
+                            vk::ShaderStageFlags::COMPUTE,
+                            0,
+                            push,
+                        );
+                    }
+                }
+            }
+            Cmd::Label(name) => {
+                if let Some(du) = &self.ctx.inner.debug_utils {
+                    let label = vk::DebugUtilsLabelEXT::default().label_name(name);
+                    // SAFETY: recording; the instance has VK_EXT_debug_utils.
+                    unsafe { du.cmd_insert_debug_utils_label(c, &label) };
+                }
+            }
+            Cmd::Dispatch(groups) => {
+                self.counts.dispatches += 1;
+                // SAFETY: recording; a Bind of this kernel precedes it (dispatch binds
+                // before it dispatches, and a capture keeps each list's order).
+                unsafe { device.cmd_dispatch(c, groups[0], groups[1], groups[2]) };
+            }
+            Cmd::DispatchIndirect { buffer, offset } => {
+                self.counts.dispatches += 1;
+                // SAFETY: as Dispatch; the indirect range was checked by dispatch_indirect.
+                unsafe { device.cmd_dispatch_indirect(c, *buffer, *offset) };
+            }
+            Cmd::Fill {
+                buffer,
+                offset,
+                size,
+                value,
+            } => {
+                // SAFETY: recording; the fill's range was checked by its maker (fill,
+                // fill_first): inside a buffer with TRANSFER_DST usage, whole words.
+                unsafe { device.cmd_fill_buffer(c, *buffer, *offset, *size, *value) };
+            }
+            Cmd::Copy { src, dst, region } => {
+                // SAFETY: recording; both buffers have transfer usage and the region was
+                // checked in range by copy / copy_range.
+                unsafe { device.cmd_copy_buffer(c, *src, *dst, &[*region]) };
+            }
+            Cmd::Update {
+                buffer,
+                offset,
+                data,
+            } => {
+                // SAFETY: recording outside a render pass; checked by update: a range of a
+                // TRANSFER_DST buffer, offset and size multiples of 4, at most 65,536 bytes.
+                unsafe { device.cmd_update_buffer(c, *buffer, *offset, data) };
+            }
+            Cmd::Barrier { src, dst } => {
+                self.counts.barriers += 1;
+                let barrier = vk::MemoryBarrier::default()
+                    .src_access_mask(src.1)
+                    .dst_access_mask(dst.1);
+                // SAFETY: recording, outside a render pass.
+                unsafe {
+                    device.cmd_pipeline_barrier(
+                        c,
+                        src.0,
+                        dst.0,
+                        vk::DependencyFlags::empty(),
+                        &[barrier],
+                        &[],
+                        &[],
+                    )
+                };
+            }
+        }
+    }
+
+    /// Holds back every command recorded from now on (checks, descriptor sets and counters
+    /// as ever; scopes and labels left out) until [`Recorder::end_capture`] hands them over.
+    pub(crate) fn begin_capture(&mut self) {
+        self.capture = Some(Vec::new());
+    }
+
+    /// The commands held back since [`Recorder::begin_capture`]; recording resumes.
+    pub(crate) fn end_capture(&mut self) -> Vec<Cmd> {
+        self.capture.take().unwrap_or_default()
+    }
+
+    /// Records captured sequences interleaved: pass `k` of every sequence, then one
+    /// barrier (the union of theirs), for every `k`. The sequences must touch disjoint
+    /// memory (the builds of a batch, each in its own structure and scratch).
+    pub(crate) fn record_interleaved(&mut self, lists: Vec<Vec<Cmd>>) {
+        for cmd in interleave(lists) {
+            self.emit(cmd);
+        }
     }
 
     /// Kernel writes (and reads) before → kernel reads and writes after.
@@ -695,6 +786,9 @@ impl Recorder {
 
     /// Opens a named pass: a timestamp scope and a debug label. Scopes nest.
     pub fn begin_scope(&mut self, name: &str) {
+        if self.capture.is_some() {
+            return;
+        }
         let query = self.scopes.begin(name);
         if let Some(du) = &self.ctx.inner.debug_utils {
             let label_name = std::ffi::CString::new(name.replace('\0', " ")).unwrap_or_default();
@@ -710,6 +804,9 @@ impl Recorder {
     /// Closes the innermost open pass. Without one, nothing is recorded and finishing or
     /// submitting the work is an error.
     pub fn end_scope(&mut self) {
+        if self.capture.is_some() {
+            return;
+        }
         if self.scopes.open_scopes() == 0 {
             self.scopes.end();
             return;

@@ -179,6 +179,46 @@ impl KdStorage {
         })
     }
 
+    /// Buffers for a built tree of `nodes` nodes and `refs` references exactly (a
+    /// compacted copy, [`KdStorage::record_copy_into`]).
+    pub(crate) fn compacted(ctx: &Context, nodes: usize, refs: usize) -> Result<Self> {
+        Ok(Self {
+            out: Box::new(BuildOutput {
+                nodes: [
+                    Buffer::new(ctx, "accel.kdtree_nodes", nodes.max(1))?,
+                    Buffer::new(ctx, "accel.kdtree_nodes1", 1)?,
+                ],
+                prim_refs: Buffer::new(ctx, "accel.kdtree_refs", refs.max(1))?,
+            }),
+            built: Buffer::new(ctx, "accel.kdtree_built", 4)?,
+        })
+    }
+
+    /// Nodes and references `dst` holds.
+    pub(crate) fn capacity(&self) -> (usize, usize) {
+        (self.out.nodes[0].len(), self.out.prim_refs.len())
+    }
+
+    /// Records the copy of the built tree into `dst` ([`KdStorage::compacted`] for its
+    /// counts): its nodes, references and report. The tree lies in the first node buffer
+    /// (the one the walk binds).
+    pub(crate) fn record_copy_into(&self, rec: &mut Recorder, dst: &KdStorage) -> Result<()> {
+        let (nodes, refs) = dst.capacity();
+        if nodes > self.out.nodes[0].len() || refs > self.out.prim_refs.len() {
+            return Err(GpuError::Usage {
+                call: "GpuGeometry::record_compact_into",
+                reason: format!(
+                    "the destination holds {nodes} nodes and {refs} references, more than \
+                     the structure has room for"
+                ),
+            });
+        }
+        rec.copy(&self.out.nodes[0], &dst.out.nodes[0], nodes);
+        rec.copy(&self.out.prim_refs, &dst.out.prim_refs, refs);
+        rec.copy(&self.built, &dst.built, 4);
+        Ok(())
+    }
+
     /// The `nodes` and `prim_refs` bindings.
     pub(crate) fn node_bindings(&self) -> [&dyn BufferArg; 2] {
         [&self.out.nodes[0], &self.out.prim_refs]
