@@ -220,19 +220,14 @@ fn instance_boxes_equal_their_cpu_twin_bit_for_bit_and_the_tree_the_host_s() {
                 .unwrap();
             let mut rec = Recorder::new(&ctx).unwrap();
             builder
-                .record_build_from(&mut rec, input.as_raw(), &mut top, scratch.as_raw())
+                .record_build_from(&mut rec, input.as_raw(), n as u32, &mut top, scratch.as_raw())
                 .unwrap();
             rec.compute_to_transfer();
             let status = top.record_read_status(&mut rec).unwrap();
             rec.transfer_to_host();
             rec.submit_and_wait().unwrap();
             let (boxes, records) = top.download().unwrap();
-            let want = instance_boxes(
-                &instances,
-                InstanceMotion::STATIC,
-                &infos,
-                top.bottom_handles_address(),
-            );
+            let want = instance_boxes(&instances, InstanceMotion::STATIC, &infos, true);
             let (want_boxes, want_records, invalid) = (want.boxes, want.records, want.invalid);
             let bits =
                 |b: &[[f32; 6]]| -> Vec<u32> { b.iter().flatten().map(|x| x.to_bits()).collect() };
@@ -519,26 +514,14 @@ fn instances_name_bottom_levels_by_reference_as_by_index() {
     let (boxes_a, records_a) = a.download().unwrap();
     let (boxes_b, records_b) = b.download().unwrap();
     assert_eq!(boxes_a, boxes_b);
-    // The same records but for where each top level keeps its copies of the handles.
-    let strip = |r: &[InstanceRecord], at: u64| -> Vec<InstanceRecord> {
-        r.iter()
-            .map(|r| InstanceRecord {
-                handle: r.handle - at,
-                ..*r
-            })
-            .collect()
-    };
-    assert_eq!(
-        strip(&records_a, a.bottom_handles_address()),
-        strip(&records_b, b.bottom_handles_address())
-    );
+    // The same records: each holds its level's reference, where the level keeps its handle.
+    assert_eq!(records_a, records_b);
+    assert!(records_a
+        .iter()
+        .zip(&by_index)
+        .all(|(r, i)| r.handle == references[i.bottom as usize]));
     let infos = scene_infos(&refs);
-    let want = instance_boxes(
-        &by_reference,
-        InstanceMotion::STATIC,
-        &infos,
-        b.bottom_handles_address(),
-    );
+    let want = instance_boxes(&by_reference, InstanceMotion::STATIC, &infos, true);
     assert_eq!(want.records, records_b);
     let rays = rays_at(&mut rng, 300, 15.0);
     assert_eq!(
@@ -558,7 +541,7 @@ fn instances_name_bottom_levels_by_reference_as_by_index() {
         err.contains("instance 3") && err.contains("references"),
         "{err}"
     );
-    let want = instance_boxes(&bad, InstanceMotion::STATIC, &infos, 0);
+    let want = instance_boxes(&bad, InstanceMotion::STATIC, &infos, true);
     assert_eq!(want.invalid, 1);
     common::assert_silent(&ctx);
 }
@@ -867,7 +850,7 @@ fn moving_instances_trace_as_their_interpolated_transforms() {
     // The build against its CPU twin, bit for bit.
     let (boxes, records) = top.download().unwrap();
     let device_steps = top.download_steps().unwrap();
-    let want = instance_boxes(&instances, motion, &infos, top.bottom_handles_address());
+    let want = instance_boxes(&instances, motion, &infos, true);
     let bits = |v: &[f32]| -> Vec<u32> { v.iter().map(|x| x.to_bits()).collect() };
     assert_eq!(bits(boxes.as_flattened()), bits(want.boxes.as_flattened()));
     assert_eq!(records, want.records);
@@ -960,7 +943,7 @@ fn moving_instances_trace_as_their_interpolated_transforms() {
     }
 
     // Misuse.
-    let refused = |r: Result<vkrt::accel::instances::TopLevel<'_>, GpuError>| -> String {
+    let refused = |r: Result<vkrt::accel::instances::TopLevel, GpuError>| -> String {
         match r {
             Ok(_) => panic!("misuse accepted"),
             Err(e) => e.to_string(),

@@ -447,7 +447,8 @@ impl AccelBuilder {
         flags: &BuildFlags,
         info_len: usize,
     ) -> Result<AccelStructure> {
-        let info = Buffer::new(ctx, "accel.info", info_len)?;
+        // (and one more element: the structure's handle, GpuGeometry::reference)
+        let info = Buffer::new(ctx, "accel.info", info_len + 1)?;
         let grow = flags.kd_capacity_doublings;
         // Wide nodes are a BVH's only.
         let wide = flags.wide && matches!(self.family, Family::Bvh(_));
@@ -514,6 +515,25 @@ impl AccelBuilder {
     ) -> Result<RecordedBuild> {
         let call = "AccelBuilder::record_build";
         self.check_frozen(call, out)?;
+        let built = self.record_build_kind(call, rec, prims, host, scratch, out)?;
+        // The structure's handle after its constants (a kd-tree's build clears them), where
+        // a top level's instances reference it.
+        if let Some(record) = crate::accel::gpu_geometry::handle_record(rec.context(), prims, out)? {
+            rec.compute_to_transfer();
+            rec.update(&out.info, out.info.len() - 1, &[record])?;
+        }
+        Ok(built)
+    }
+
+    fn record_build_kind(
+        &self,
+        call: &'static str,
+        rec: &mut Recorder,
+        prims: &DevicePrimitives,
+        host: Option<&TraceGeometry>,
+        scratch: &AccelScratch,
+        out: &mut AccelStructure,
+    ) -> Result<RecordedBuild> {
         let flags = out.flags;
         let info = &out.info;
         match (&self.family, &mut out.storage, &scratch.0) {

@@ -257,7 +257,7 @@ fn driver_build_and_trace(
 /// own).
 pub fn trace_top_level(
     ctx: &Context,
-    top: &TopLevel<'_>,
+    top: &TopLevel,
     ids: SceneIds<'_>,
     opt: &TraceOptions,
     bitstack: bool,
