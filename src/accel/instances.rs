@@ -845,8 +845,8 @@ impl TopLevelBuilder {
             return Err(usage(
                 call,
                 format!(
-                    "{} instance records; the top level's last build read {held} (an update \
-                     keeps the count): build it again",
+                    "{} instance records; the top level holds {held} (its last build's \
+                     count, which an update keeps): build it again",
                     instances.len()
                 ),
             ));
