@@ -8,10 +8,11 @@
 //
 // An instance names its bottom level by reference (`GpuGeometry::reference`: the address of
 // the level's handle, whose seventh address is its scene constants, read here for its box),
-// or by index into the top level's list of bottom levels. Where the top level has a list,
-// a reference must be one of its levels (found in the ordered table); without one it is
-// followed as given, as Vulkan follows accelerationStructureReference (a reference to no
-// live bottom level is undefined there and here).
+// or by index into the top level's list of bottom levels, whose handles the top level keeps
+// a copy of. Where the top level has a list, a reference must be one of its levels (found in
+// the ordered table) and the record names the copy; without one the reference is followed
+// as given, as Vulkan follows accelerationStructureReference (a reference to no live bottom
+// level is undefined there and here).
 //
 // A moving top level (`steps` > 1) reads `steps` records per instance, step after step
 // (`count` records apart), keeps each step's object-to-world for the walk, which
@@ -58,7 +59,7 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Bo
 layout(buffer_reference, std430, buffer_reference_align = 8) readonly buffer BottomHandle {
     uvec2 addresses[7];
 };
-// The top level's list of bottom levels: each one's reference, in the list's order.
+// The top level's copies of its list's handles, 64 bytes (eight addresses) each.
 layout(std430, binding = 1) readonly buffer Listed { uvec2 listed[]; };
 // Six floats per instance: min x, y, z, max x, y, z (the top level's box primitives).
 layout(std430, binding = 2) writeonly buffer Boxes { float boxes[]; };
@@ -83,7 +84,7 @@ layout(std430, binding = 6) writeonly buffer Originals { uvec4 originals[]; };
 // The bottom levels by reference (`GpuGeometry::reference`): (low word, high word, index, 0),
 // ordered by reference.
 layout(std430, binding = 7) readonly buffer References { uvec4 references[]; };
-// The index an instance's record gives where the top level has no list (`InstanceRecord::UNLISTED`).
+// The index a record gives where the top level has no list (`InstanceRecord::UNLISTED`).
 const uint UNLISTED = 0xffffffu;
 layout(push_constant) uniform Push {
     // This build's instances; the top level's slots (the instances it was created for).
@@ -93,10 +94,11 @@ layout(push_constant) uniform Push {
     // Bottom levels in the top level's list (0: none, references followed as given).
     uint n_bottoms;
     uint steps;
+    // Where the copies of the list's handles lie, 64 bytes apart.
+    uvec2 handles_at;
     // The time of the first step, and (steps - 1) / the interval.
     float t0;
     float scale;
-    uint pad;
 } pc;
 
 void write_inactive(uint i, uint meta_w) {
@@ -119,21 +121,30 @@ vec4[3] rows_of(uint i, uint s) {
     return m;
 }
 
+// The copy of list entry `k`'s handle (64 bytes apart from handles_at) and its scene
+// constants' address; true.
+bool listed_handle(uint k, out uvec2 handle, out uvec2 info_at) {
+    uint lo_addr = pc.handles_at.x + 64u * k;
+    uint carry = lo_addr < pc.handles_at.x ? 1u : 0u;
+    handle = uvec2(lo_addr, pc.handles_at.y + carry);
+    info_at = listed[8u * k + 6u];
+    return true;
+}
+
 // The bottom level an instance names (`Instance::bottom_index` with the list; the reference
-// itself without one): its reference, and its index in the list (UNLISTED without one).
-bool find_bottom(uvec2 named, out uvec2 reference, out uint bottom) {
-    reference = named;
+// itself without one): its handle's address, where its scene constants lie, and its index in
+// the list (UNLISTED without one).
+bool find_bottom(uvec2 named, out uvec2 handle, out uvec2 info_at, out uint bottom) {
+    handle = named;
+    info_at = uvec2(0u);
     bottom = 0u;
     if (named.y == 0u && named.x < 0x1000000u) {
         bottom = named.x;
-        if (named.x < pc.n_bottoms) {
-            reference = listed[named.x];
-            return true;
-        }
-        return false;
+        return named.x < pc.n_bottoms && listed_handle(named.x, handle, info_at);
     }
     if (pc.n_bottoms == 0u) {
         bottom = UNLISTED;
+        info_at = BottomHandle(named).addresses[6];
         return true;
     }
     // The first entry not below `named` (binary search over the ordered table).
@@ -151,7 +162,7 @@ bool find_bottom(uvec2 named, out uvec2 reference, out uint bottom) {
     }
     if (lo < pc.n_bottoms && all(equal(references[lo].xy, named))) {
         bottom = references[lo].z;
-        return true;
+        return listed_handle(bottom, handle, info_at);
     }
     return false;
 }
@@ -176,8 +187,9 @@ void main() {
     uint custom_mask = words[w + 12u];
     uint flags = words[w + 13u] >> 24u;
     uint bottom;
-    uvec2 reference;
-    bool bottom_ok = find_bottom(uvec2(words[w + 14u], words[w + 15u]), reference, bottom);
+    uvec2 handle;
+    uvec2 info_at;
+    bool bottom_ok = find_bottom(uvec2(words[w + 14u], words[w + 15u]), handle, info_at, bottom);
     uint meta_w = flags | ((bottom_ok ? bottom : 0u) << 8u);
 
     vec4 inv[3];
@@ -202,7 +214,7 @@ void main() {
         write_inactive(i, meta_w);
         return;
     }
-    BottomInfo b = BottomInfoRef(BottomHandle(reference).addresses[6]).v;
+    BottomInfo b = BottomInfoRef(info_at).v;
     uint mask = custom_mask >> 24u;
     if (b.n_tris + b.n_spheres + b.n_aabbs == 0u || mask == 0u) {
         write_inactive(i, meta_w);
@@ -241,7 +253,7 @@ void main() {
         boxes[6u * i + k] = box_lo[k];
         boxes[6u * i + 3u + k] = box_hi[k];
     }
-    records[i] = InstanceRecord(inv, uvec4(reference, custom_mask, meta_w),
+    records[i] = InstanceRecord(inv, uvec4(handle, custom_mask, meta_w),
                                 uvec4(still ? 1u : pc.steps, i * pc.steps,
                                       floatBitsToUint(pc.t0), floatBitsToUint(pc.scale)));
 }

@@ -48,6 +48,9 @@ pub struct AccelStructure {
     /// The parameters of the builder that created it, which every builder recording into it
     /// must have; `None` for a structure uploaded from the host.
     params: Option<BuilderParams>,
+    /// Its builds write its handle although it lies in the caller's memory
+    /// (`GpuGeometry::enable_references`).
+    pub(crate) references_enabled: bool,
 }
 
 /// A structure's buffers, by family.
@@ -66,6 +69,7 @@ impl AccelStructure {
             info,
             flags: BuildFlags::default(),
             params: None,
+            references_enabled: false,
         }
     }
 
@@ -518,7 +522,8 @@ impl AccelBuilder {
         let built = self.record_build_kind(call, rec, prims, host, scratch, out)?;
         // The structure's handle after its constants (a kd-tree's build clears them), where
         // a top level's instances reference it.
-        if let Some(record) = crate::accel::gpu_geometry::handle_record(rec.context(), prims, out)? {
+        if let Some(record) = crate::accel::gpu_geometry::handle_record(rec.context(), prims, out)?
+        {
             rec.compute_to_transfer();
             rec.update(&out.info, out.info.len() - 1, &[record])?;
         }

@@ -167,10 +167,27 @@ impl GpuGeometry {
         if info.len() < 2 {
             return Err(crate::gpu::GpuError::Usage {
                 call: "GpuGeometry::reference",
-                reason: "this structure keeps no handle of its own (the driver's two levels):                          it cannot be a bottom level"
+                reason: "this structure keeps no handle of its own (the driver's two levels): \
+                         it cannot be a bottom level"
                     .into(),
             });
         }
+        if !referenceable(&self.accel) {
+            return Err(crate::gpu::GpuError::Usage {
+                call: "GpuGeometry::reference",
+                reason: "this structure lies in the caller's memory: give that memory \
+                         SHADER_DEVICE_ADDRESS usage and call GpuGeometry::enable_references \
+                         before its builds"
+                    .into(),
+            });
+        }
+        self.reference_address()
+    }
+
+    /// Where [`GpuGeometry::reference`] points, whether or not its builds write a handle
+    /// there (a top level's list keys its levels by it).
+    pub(crate) fn reference_address(&self) -> Result<u64> {
+        let info = &self.accel.info;
         let ctx = self.prims.tri_verts.context();
         let address = crate::gpu::address_of(ctx, info)? + 64 * (info.len() as u64 - 1);
         if address < crate::accel::instance::MAX_BOTTOM_LEVELS as u64 {
@@ -183,6 +200,16 @@ impl GpuGeometry {
             });
         }
         Ok(address)
+    }
+
+    /// Lets instances reference this structure where it lies in the caller's memory
+    /// ([`AccelBuilder::create_in`](crate::accel::device::AccelBuilder::create_in)): its
+    /// builds then write its handle where [`GpuGeometry::reference`] points, which needs the
+    /// caller's buffer to have `SHADER_DEVICE_ADDRESS` usage (as Vulkan's acceleration
+    /// structures need theirs to be referenced). Call it before the builds top levels read.
+    /// A structure in vkrt's own memory is referenceable from the start.
+    pub fn enable_references(&mut self) {
+        self.accel.references_enabled = true;
     }
 
     /// The seven bindings in `traverse.glsl`'s order.
@@ -218,6 +245,12 @@ fn address_handle(
     Ok(out)
 }
 
+/// Whether a structure's builds write its handle: in vkrt's own memory (which has device
+/// addresses), or in the caller's where it says so.
+fn referenceable(accel: &AccelStructure) -> bool {
+    accel.references_enabled || accel.info.buffer_size().is_some()
+}
+
 /// The handle a structure keeps in the last element of its scene constants' buffer (what
 /// [`GpuGeometry::reference`] addresses: a top level reads a bottom level through it), as
 /// the element's bytes; `None` where the context has no device addresses or the structure
@@ -228,7 +261,8 @@ pub(crate) fn handle_record(
     accel: &AccelStructure,
 ) -> Result<Option<SceneInfo>> {
     let f = &ctx.info().features;
-    if !(f.buffer_device_address || f.ray_query) || accel.info.len() < 2 {
+    let addresses = f.buffer_device_address || f.ray_query;
+    if !addresses || accel.info.len() < 2 || !referenceable(accel) {
         return Ok(None);
     }
     let mut words = [0u64; 8];

@@ -101,15 +101,18 @@ pub struct InstanceBoxes {
 /// The CPU twin of `accel.instance_boxes`, bit for bit: the top level's boxes, records and
 /// steps for `instances` moving by `motion` (`motion.steps` lists of them, step after step),
 /// given bottom levels' scene constants and references ([`GpuGeometry::reference`]). With
-/// `listed`, `bottoms` is the top level's list (instances name its levels by index or by
-/// reference); without, the levels alive on the device, which instances name by reference
-/// (there, a reference to none of them is undefined; the twin counts it invalid).
+/// `handles_at` (where the top level keeps its copies of their handles, 64 bytes apart:
+/// [`TopLevel::bottom_handles_address`]), `bottoms` is the top level's list (instances name
+/// its levels by index or by reference); without, the levels alive on the device, which
+/// instances name by reference (there, a reference to none of them is undefined; the twin
+/// counts it invalid).
 pub fn instance_boxes(
     instances: &[Instance],
     motion: InstanceMotion,
     bottoms: &[(SceneInfo, u64)],
-    listed: bool,
+    handles_at: Option<u64>,
 ) -> InstanceBoxes {
+    let listed = handles_at.is_some();
     let references: Vec<u64> = bottoms.iter().map(|b| b.1).collect();
     let n_steps = motion.steps.max(1) as usize;
     let count = instances.len() / n_steps;
@@ -159,7 +162,11 @@ pub fn instance_boxes(
             out.records.push(inactive);
             continue;
         };
-        let (b, reference) = (&bottoms[at as usize].0, bottoms[at as usize].1);
+        let b = &bottoms[at as usize].0;
+        let handle = match handles_at {
+            Some(h) => h + 64 * u64::from(at),
+            None => bottoms[at as usize].1,
+        };
         if b.n_tris + b.n_spheres + b.n_aabbs == 0 || inst.mask() == 0 {
             out.boxes.push(inactive_box);
             out.records.push(inactive);
@@ -181,7 +188,7 @@ pub fn instance_boxes(
             .push([box_lo.x, box_lo.y, box_lo.z, box_hi.x, box_hi.y, box_hi.z]);
         out.records.push(InstanceRecord {
             world_to_object: inv,
-            handle: reference,
+            handle,
             custom_index_and_mask: inst.custom_index_and_mask,
             flags_and_bottom: meta_w,
             motion: motion_words(i),
@@ -215,9 +222,24 @@ fn placed_box(m: &[[f32; 4]; 3], bmin: Vec3, bmax: Vec3) -> (Vec3, Vec3) {
     (lo - pad, hi + pad)
 }
 
-/// Each bottom level's reference ([`GpuGeometry::reference`]), in the list's order.
-fn references<'a>(bottoms: impl IntoIterator<Item = &'a GpuGeometry>) -> Result<Vec<u64>> {
-    bottoms.into_iter().map(|b| b.reference()).collect()
+/// A top level's list of bottom levels, copied: per level its reference (where
+/// [`GpuGeometry::reference`] points, the key instances may name it by) and its handle.
+fn copy_list<'a>(bottoms: impl IntoIterator<Item = &'a GpuGeometry>) -> Result<Listed> {
+    let mut out = Listed::default();
+    for b in bottoms {
+        out.references.push(b.reference_address()?);
+        let mut handle = [0u64; 8];
+        handle[..7].copy_from_slice(&b.address_handle()?);
+        out.handles.push(handle);
+    }
+    Ok(out)
+}
+
+/// A top level's copy of its list of bottom levels ([`copy_list`]).
+#[derive(Default)]
+struct Listed {
+    references: Vec<u64>,
+    handles: Vec<[u64; 8]>,
 }
 
 /// The table `accel.instance_boxes` searches for an instance's reference: (reference low,
@@ -293,9 +315,9 @@ struct Parts {
     records: Buffer<InstanceRecord>,
     /// A moving top level's object-to-world rows per instance and step.
     steps: Buffer<[[f32; 4]; 3]>,
-    /// The references of the top level's list of bottom levels, in its order (what an
-    /// instance naming a level by index reads).
-    listed: Buffer<u64>,
+    /// The copies of its list's handles, 64 bytes apart (an instance naming a level of the
+    /// list walks the copy).
+    handles: Buffer<[u64; 8]>,
     /// The caller's records as given (step 0's): what a ray query reports of an instance
     /// (object-to-world, SBT record offset).
     originals: Buffer<Instance>,
@@ -320,7 +342,7 @@ impl Parts {
             boxes: Buffer::new(ctx, "accel.instance_boxes", n)?,
             records: Buffer::new(ctx, "accel.instance_records", n)?,
             steps: Buffer::new(ctx, "accel.instance_steps", steps)?,
-            listed: Buffer::new(ctx, "accel.bottom_list", b)?,
+            handles: Buffer::new(ctx, "accel.bottom_handles", b)?,
             originals: Buffer::new(ctx, "accel.instance_originals", n)?,
             references: Buffer::new(ctx, "accel.bottom_references", b)?,
             handle: Buffer::new(ctx, "accel.top_handle", 2)?,
@@ -338,8 +360,8 @@ pub struct TopLevel {
     /// every slot of the maximum it was created for.
     pub tree: GpuGeometry,
     parts: Parts,
-    /// The references of its list of bottom levels (index-named instances name these).
-    listed: Vec<u64>,
+    /// Its list of bottom levels, copied (instances name these by index or by reference).
+    listed: Listed,
     /// The bottom levels it keeps alive ([`TopLevelBuilder::record_build_shared`]).
     kept: Vec<Arc<GpuGeometry>>,
     /// Instances it has room for (its instance slots).
@@ -483,8 +505,15 @@ impl TopLevelBuilder {
         flags: &BuildFlags,
         memory: RawBuffer,
     ) -> Result<TopLevel> {
-        let listed = references(bottoms.iter().copied())?;
-        self.create_in_listed(ctx, listed, max_instances, InstanceMotion::STATIC, flags, memory)
+        let listed = copy_list(bottoms.iter().copied())?;
+        self.create_in_listed(
+            ctx,
+            listed,
+            max_instances,
+            InstanceMotion::STATIC,
+            flags,
+            memory,
+        )
     }
 
     /// [`TopLevelBuilder::create_in`] a top level whose instances move by `motion`: its
@@ -499,14 +528,14 @@ impl TopLevelBuilder {
         flags: &BuildFlags,
         memory: RawBuffer,
     ) -> Result<TopLevel> {
-        let listed = references(bottoms.iter().copied())?;
+        let listed = copy_list(bottoms.iter().copied())?;
         self.create_in_listed(ctx, listed, max_instances, motion, flags, memory)
     }
 
     fn create_in_listed(
         &self,
         ctx: &Context,
-        listed: Vec<u64>,
+        listed: Listed,
         max: u32,
         motion: InstanceMotion,
         flags: &BuildFlags,
@@ -514,13 +543,14 @@ impl TopLevelBuilder {
     ) -> Result<TopLevel> {
         let call = "TopLevelBuilder::create_in";
         motion.check().map_err(|why| usage(call, why))?;
-        if listed.len() > MAX_BOTTOM_LEVELS {
+        let n_bottoms = listed.references.len();
+        if n_bottoms > MAX_BOTTOM_LEVELS {
             return Err(usage(
                 call,
-                format!("{} bottom levels: at most {MAX_BOTTOM_LEVELS}", listed.len()),
+                format!("{n_bottoms} bottom levels: at most {MAX_BOTTOM_LEVELS}"),
             ));
         }
-        let own = parts_bytes(ctx, max, listed.len(), motion)?;
+        let own = parts_bytes(ctx, max, n_bottoms, motion)?;
         if memory.size < own {
             return Err(usage(
                 call,
@@ -531,7 +561,7 @@ impl TopLevelBuilder {
             ));
         }
         let (parts, _) = place(ctx, "the instances", Placement::Into(memory), || {
-            Parts::create(ctx, max, listed.len(), motion)
+            Parts::create(ctx, max, n_bottoms, motion)
         })?;
         let rest = RawBuffer {
             raw: memory.raw,
@@ -585,13 +615,13 @@ impl TopLevelBuilder {
             return Err(usage(call, "the instances' offset is not a multiple of 4"));
         }
         let p = &top.parts;
-        // The list's references, their ordered table and the top level's own handle (the
-        // tree's seven arrays, then the records, steps and originals): written by a build
-        // only, constants carried in the command buffer.
+        // The copies of the list's handles, its references' ordered table and the top level's
+        // own handle (the tree's seven arrays, then the records, steps and originals):
+        // written by a build only, constants carried in the command buffer.
         let mut handle = [[0u64; 8]; 2];
         let mut table = Vec::new();
         if build {
-            table = reference_table(&top.listed);
+            table = reference_table(&top.listed.references);
             handle[0][..7].copy_from_slice(&top.tree.address_handle()?);
             handle[0][7] = p.records.address();
             handle[1][0] = p.steps.address();
@@ -602,8 +632,8 @@ impl TopLevelBuilder {
             rec.compute_to_transfer();
             rec.fill(&p.status, 0);
             if build {
-                for (k, chunk) in top.listed.chunks(8192).enumerate() {
-                    rec.update(&p.listed, k * 8192, chunk)?;
+                for (k, chunk) in top.listed.handles.chunks(1024).enumerate() {
+                    rec.update(&p.handles, k * 1024, chunk)?;
                 }
                 for (k, chunk) in table.chunks(4096).enumerate() {
                     rec.update(&p.references, k * 4096, chunk)?;
@@ -617,16 +647,17 @@ impl TopLevelBuilder {
                     n: count,
                     slots: top.max,
                     first_word: (skip / 4) as u32,
-                    n_bottoms: top.listed.len() as u32,
+                    n_bottoms: top.listed.references.len() as u32,
                     steps: top.motion.steps,
+                    pad: 0,
+                    handles_at: p.handles.address(),
                     t0: top.motion.time[0],
                     scale: top.motion.scale(),
-                    pad: 0,
                 };
                 let groups = rec.groups_1d(u64::from(top.max), WORKGROUP);
                 let b: [&dyn BufferArg; 8] = [
                     &bound_instances,
-                    &p.listed,
+                    &p.handles,
                     &p.boxes,
                     &p.records,
                     &p.status,
@@ -742,7 +773,7 @@ impl TopLevelBuilder {
         instances: &[Instance],
         flags: &BuildFlags,
     ) -> Result<TopLevel> {
-        let listed = references(bottoms.iter().copied())?;
+        let listed = copy_list(bottoms.iter().copied())?;
         let motion = InstanceMotion::STATIC;
         self.record_build_listed(rec, listed, instances, motion, flags)
     }
@@ -761,7 +792,7 @@ impl TopLevelBuilder {
         flags: &BuildFlags,
     ) -> Result<TopLevel> {
         let mut rec = Recorder::new(ctx)?;
-        let listed = references(bottoms.iter().copied())?;
+        let listed = copy_list(bottoms.iter().copied())?;
         let top = self.record_build_listed(&mut rec, listed, instances, motion, flags)?;
         rec.submit_and_wait()?;
         Ok(top)
@@ -780,7 +811,7 @@ impl TopLevelBuilder {
         motion: InstanceMotion,
         flags: &BuildFlags,
     ) -> Result<TopLevel> {
-        let listed = references(bottoms.iter().map(|b| &**b))?;
+        let listed = copy_list(bottoms.iter().map(|b| &**b))?;
         let mut top = self.record_build_listed(rec, listed, instances, motion, flags)?;
         top.kept = bottoms.to_vec();
         Ok(top)
@@ -789,15 +820,16 @@ impl TopLevelBuilder {
     fn record_build_listed(
         &self,
         rec: &mut Recorder,
-        listed: Vec<u64>,
+        listed: Listed,
         instances: &[Instance],
         motion: InstanceMotion,
         flags: &BuildFlags,
     ) -> Result<TopLevel> {
         let call = "TopLevelBuilder::build";
-        let count = check_instances(call, instances, motion, &listed)?;
+        let count = check_instances(call, instances, motion, &listed.references)?;
         let ctx = rec.context().clone();
-        let sizes = self.sizes_for_motion(&ctx, count, listed.len(), motion, flags)?;
+        let n_bottoms = listed.references.len();
+        let sizes = self.sizes_for_motion(&ctx, count, n_bottoms, motion, flags)?;
         let memory = Buffer::<u8>::arena(&ctx, "accel.top_level", sizes.structure_bytes as usize)?;
         let scratch_bytes = sizes
             .build_scratch_bytes
@@ -894,7 +926,7 @@ impl TopLevelBuilder {
         top: &TopLevel,
         instances: &[Instance],
     ) -> Result<(RawBuffer, RawBuffer)> {
-        check_instances(call, instances, top.motion, &top.listed)?;
+        check_instances(call, instances, top.motion, &top.listed.references)?;
         let Some(Own {
             scratch, records, ..
         }) = &top.own
@@ -990,9 +1022,10 @@ struct BoxesPush {
     first_word: u32,
     n_bottoms: u32,
     steps: u32,
+    pad: u32,
+    handles_at: u64,
     t0: f32,
     scale: f32,
-    pad: u32,
 }
 
 impl TopLevel {
@@ -1015,7 +1048,13 @@ impl TopLevel {
     /// The references of its list of bottom levels, in order (what instances naming a level
     /// by index name; empty where they name theirs by reference only).
     pub fn listed_references(&self) -> &[u64] {
-        &self.listed
+        &self.listed.references
+    }
+
+    /// Where it keeps the copies of its list's handles, 64 bytes apart (in the records of
+    /// instances that name a level of the list: [`InstanceRecord::handle`]).
+    pub fn bottom_handles_address(&self) -> u64 {
+        self.parts.handles.address()
     }
 
     /// The bottom levels it keeps alive, in its list's order
