@@ -36,7 +36,8 @@
 //! bottom levels and borrows none: the caller keeps every level its instances reference
 //! alive, and built, for as long as the top level is built or traced, as Vulkan requires.
 //! A top level may also be given a list of bottom levels: its instances may then name them
-//! by index, and a reference must be one of them (a check the device makes).
+//! by index, and a reference must be one of them (a check the device makes); the top level
+//! keeps copies of their handles, which those instances walk.
 //!
 //! An instance with an index out of range (0 included, when there is no list), a reference
 //! not in the list, or a transform that is not finite or not invertible, is never hit and is
