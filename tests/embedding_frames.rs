@@ -342,7 +342,7 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
         cache.sets()
     );
 
-    for f in 0..FRAMES {
+    for (f, &count) in TOP_COUNTS.iter().enumerate() {
         let tris = grid(f);
         vertices.write(bytemuck::cast_slice(&vertex_words(&tris)));
         let commands = host.command_buffer().unwrap();
@@ -366,7 +366,7 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
                 ),
             )
         };
-        frame(&mut rec, &mut structures, top.as_mut(), TOP_COUNTS[f]).unwrap();
+        frame(&mut rec, &mut structures, top.as_mut(), count).unwrap();
         let work = rec.finish().unwrap();
         let recorded = ctx.traffic() - before;
         host.submit_and_wait(commands.cmd).unwrap();
@@ -397,7 +397,6 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
         // The top level over this frame's count: the level as it is where both instances
         // are built (the lowered one lies below it), else the lowered one, 3 further down.
         if let Some(t) = &top {
-            let count = TOP_COUNTS[f];
             assert_eq!(t.top.instance_count(), count);
             let got = probe(&ctx, t.top.handle_address(), &rays);
             let hits = got.iter().filter(|g| g[0] != u32::MAX).count();
