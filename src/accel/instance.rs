@@ -250,7 +250,8 @@ impl Instance {
 pub struct InstanceRecord {
     /// World to object, row-major 3×4.
     pub world_to_object: [[f32; 4]; 3],
-    /// Where the bottom level's handle lies: its reference (0: never hit).
+    /// Where the bottom level's handle lies: the top level's copy for a level of its list,
+    /// else the instance's reference (0: never hit).
     pub handle: u64,
     /// The instance's custom index | mask << 24 (mask 0: never hit).
     pub custom_index_and_mask: u32,
