@@ -623,7 +623,13 @@ fn instance_boxes_check(ctx: &Context, hosts: &[TraceGeometry], n: usize, steps:
     let mut rec = Recorder::new(ctx)?;
     rec.upload(&input, &instances)?;
     rec.transfer_to_compute();
-    builder.record_build_from(&mut rec, input.as_raw(), &mut top, scratch.as_raw())?;
+    builder.record_build_from(
+        &mut rec,
+        input.as_raw(),
+        n as u32,
+        &mut top,
+        scratch.as_raw(),
+    )?;
     rec.compute_to_transfer();
     let status = top.record_read_status(&mut rec)?;
     rec.transfer_to_host();
@@ -633,7 +639,12 @@ fn instance_boxes_check(ctx: &Context, hosts: &[TraceGeometry], n: usize, steps:
         .map(|l| Ok((l.accel.info.download()?[0], l.reference()?)))
         .collect::<Result<_>>()?;
     let (boxes, records) = top.download()?;
-    let want = instance_boxes(&instances, motion, &infos, top.bottom_handles_address());
+    let want = instance_boxes(
+        &instances,
+        motion,
+        &infos,
+        Some(top.bottom_handles_address()),
+    );
     let (want_boxes, want_records, invalid) = (want.boxes, want.records, want.invalid);
     let bits_of = |r: &[[[f32; 4]; 3]]| -> Vec<u32> {
         r.iter().flatten().flatten().map(|x| x.to_bits()).collect()

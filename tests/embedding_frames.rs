@@ -4,7 +4,10 @@
 //! rebuilt in place.
 //!
 //! - After [`BindingCache::prepare`], recording a frame creates no Vulkan object
-//!   (`Traffic::objects_created`, counted at every vkCreate*/vkAllocate* vkrt calls).
+//!   (`Traffic::objects_created`, counted at every vkCreate*/vkAllocate* vkrt calls), and
+//!   stages nothing: the bottom levels' builds, and (where the device has addresses) a top
+//!   level's, in the renderer's memory, over instances the renderer writes in its own buffer
+//!   by reference to a bottom level, a different count each frame.
 //! - The synchronization contract ([`vkrt::accel::sync`]): the consumer of each build is the
 //!   renderer's graphics pass, a fragment shader tracing through `vkrt/ray_query.glsl`;
 //!   three frames in one command buffer, each rebuilding the structures in place after the
@@ -24,6 +27,7 @@ use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::embedded::{BuildFlags, DRIVER_BUFFER_USAGE, REQUIRED_BUFFER_USAGE};
 use vkrt::accel::geometry::{Geometry, Triangles};
 use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::instances::{Instance, TopLevel, TopLevelBuilder};
 use vkrt::accel::primitives::TraceGeometry;
 use vkrt::accel::sync::{RecordSync, StageAccess};
 use vkrt::gpu::{BindingCache, Buffer, Context, Memory, RawBuffer, Recorder, Validation};
@@ -114,6 +118,47 @@ struct Structure {
     hits: Buffer<Hit>,
     errors: Buffer<u32>,
     _memory: [HostBuffer; 2],
+}
+
+/// The renderer's top level: in its memory, over its instance buffer.
+struct Top {
+    builder: TopLevelBuilder,
+    top: TopLevel,
+    instances: HostBuffer,
+    scratch: RawBuffer,
+    _memory: [HostBuffer; 2],
+}
+
+/// The instances a frame's top level reads: the LBVH's level lowered by 3, then as it is;
+/// frame `f` builds over the first `TOP_COUNTS[f]`.
+const TOP_COUNTS: [u32; FRAMES] = [2, 1, 2];
+
+/// Closest hits through the top level whose handle lies at `handle` (`gpu.handle_probe`):
+/// (t bits, geometry, primitive, instance) per ray.
+fn probe(ctx: &Context, handle: u64, rays: &[Ray]) -> Vec<[u32; 4]> {
+    let kernel = ctx
+        .kernel(
+            &vkrt::gpu::kernels::GPU_HANDLE_PROBE_ADDRESS,
+            &vkrt::gpu::Spec::new().workgroup(64),
+        )
+        .unwrap();
+    let ray_buf = Buffer::from_slice(ctx, "probe.rays", rays).unwrap();
+    let out = Buffer::<[u32; 4]>::zeroed(ctx, "probe.hits", rays.len()).unwrap();
+    let push = [
+        rays.len() as u32,
+        0,
+        handle as u32,
+        (handle >> 32) as u32,
+        0,
+        0,
+    ];
+    let mut rec = Recorder::new(ctx).unwrap();
+    let groups = rec.groups_1d(rays.len() as u64, 64);
+    let b: [&dyn vkrt::gpu::BufferArg; 2] = [&ray_buf, &out];
+    rec.dispatch(&kernel, groups, &b, &push);
+    rec.compute_to_transfer();
+    rec.submit_and_wait().unwrap();
+    out.download().unwrap()
 }
 
 fn host_and_context() -> Option<(Host, Context)> {
@@ -208,9 +253,57 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
             }
         })
         .collect();
+    // Where the device has addresses, a top level over instances of the LBVH's level by
+    // reference (the renderer's memory has SHADER_DEVICE_ADDRESS usage then).
+    let mut top = ray_query.then(|| {
+        structures[1].geometry.enable_references();
+        let builder = TopLevelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
+        let sizes = builder.sizes_for(&ctx, 2, 0, &flags).unwrap();
+        let usage = REQUIRED_BUFFER_USAGE | DRIVER_BUFFER_USAGE;
+        let memory = |name, bytes: u64| {
+            host.buffer(name, bytes.max(4), MemoryLocation::GpuOnly, usage)
+                .unwrap()
+        };
+        let structure = memory("renderer.top", sizes.structure_bytes);
+        let scratch = memory("renderer.top_scratch", sizes.build_scratch_bytes);
+        let top = builder
+            .create_in(&ctx, &[], 2, &flags, raw(&structure, sizes.structure_bytes))
+            .unwrap();
+        let reference = structures[1].geometry.reference().unwrap();
+        let lowered = [
+            [1.0, 0.0, 0.0, 0.0],
+            [0.0, 1.0, 0.0, 0.0],
+            [0.0, 0.0, 1.0, -3.0],
+        ];
+        let records = [
+            Instance::referencing(reference, lowered),
+            Instance::referencing(reference, Instance::IDENTITY),
+        ];
+        let mut instances = host
+            .buffer(
+                "renderer.instances",
+                128,
+                MemoryLocation::CpuToGpu,
+                vk::BufferUsageFlags::STORAGE_BUFFER,
+            )
+            .unwrap();
+        instances.write(bytemuck::cast_slice(&records));
+        Top {
+            builder,
+            top,
+            instances,
+            scratch: raw(&scratch, sizes.build_scratch_bytes.max(4)),
+            _memory: [structure, scratch],
+        }
+    });
 
-    // The frame: each structure rebuilt in place over the moved vertices, then traced.
-    let frame = |rec: &mut Recorder, structures: &mut [Structure]| -> vkrt::gpu::Result<()> {
+    // The frame: each structure rebuilt in place over the moved vertices, then the top level
+    // over `count` instances, then the structures traced.
+    let frame = |rec: &mut Recorder,
+                 structures: &mut [Structure],
+                 top: Option<&mut Top>,
+                 count: u32|
+     -> vkrt::gpu::Result<()> {
         for s in structures.iter_mut() {
             rec.fill(&s.errors, 0);
         }
@@ -219,6 +312,11 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
             let scratch = s.scratch;
             s.builder
                 .record_build_from(rec, &geometries, &mut s.geometry, scratch)?;
+        }
+        if let Some(t) = top {
+            let instances = raw(&t.instances, 128);
+            t.builder
+                .record_build_from(rec, instances, count, &mut t.top, t.scratch)?;
         }
         for s in structures.iter() {
             let (hits, errors) = (&s.hits, &s.errors);
@@ -233,7 +331,9 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
     // count sees what a frame would create.
     let cache = BindingCache::new(&ctx);
     let before = ctx.traffic();
-    cache.prepare(|rec| frame(rec, &mut structures)).unwrap();
+    cache
+        .prepare(|rec| frame(rec, &mut structures, top.as_mut(), 2))
+        .unwrap();
     let prepared = ctx.traffic() - before;
     assert!(
         prepared.objects_created > 0 && cache.sets() > 0,
@@ -242,7 +342,7 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
         cache.sets()
     );
 
-    for f in 0..FRAMES {
+    for (f, &count) in TOP_COUNTS.iter().enumerate() {
         let tris = grid(f);
         vertices.write(bytemuck::cast_slice(&vertex_words(&tris)));
         let commands = host.command_buffer().unwrap();
@@ -266,7 +366,7 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
                 ),
             )
         };
-        frame(&mut rec, &mut structures).unwrap();
+        frame(&mut rec, &mut structures, top.as_mut(), count).unwrap();
         let work = rec.finish().unwrap();
         let recorded = ctx.traffic() - before;
         host.submit_and_wait(commands.cmd).unwrap();
@@ -283,6 +383,7 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
         );
         assert_eq!(frame_traffic.submits, 0, "frame {f}: vkrt submitted");
         assert_eq!(frame_traffic.device_allocations, 0, "frame {f}");
+        assert_eq!(frame_traffic.upload_bytes, 0, "frame {f}: vkrt staged");
         let want = expected(&tris, &rays);
         for s in &structures {
             let kind = s.builder.kind().name();
@@ -293,8 +394,29 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
             assert_eq!(wrong, 0, "frame {f}, {kind}: hits differ from brute force");
             assert!(want.iter().any(Option::is_some) && want.iter().any(Option::is_none));
         }
+        // The top level over this frame's count: the level as it is where both instances
+        // are built (the lowered one lies below it), else the lowered one, 3 further down.
+        if let Some(t) = &top {
+            assert_eq!(t.top.instance_count(), count);
+            let got = probe(&ctx, t.top.handle_address(), &rays);
+            let hits = got.iter().filter(|g| g[0] != u32::MAX).count();
+            eprintln!("frame {f}: the top level over {count} instances: {hits} hits");
+            for (k, (g, w)) in got.iter().zip(&want).enumerate() {
+                let label = format!("frame {f}, {count} instances, ray {k}");
+                match w {
+                    None => assert_eq!(g[0], u32::MAX, "{label}: a hit"),
+                    Some(p) => {
+                        assert_eq!((g[2], g[3]), (*p, count - 1), "{label}");
+                        let z = tris[*p as usize][0].z - 3.0 * (2 - count) as f32;
+                        let t = f32::from_bits(g[0]);
+                        assert!((t - (10.0 - z)).abs() < 1e-4, "{label}: t {t}");
+                    }
+                }
+            }
+        }
         drop(commands);
     }
+    drop(top);
     drop(structures);
     drop(cache);
     drop(ray_buffer);

@@ -228,12 +228,12 @@ fn scene(
     (levels, instances, rays)
 }
 
-fn top<'a>(ctx: &Context, levels: &'a [GpuGeometry], instances: &[Instance]) -> TopLevel<'a> {
+fn top(ctx: &Context, levels: &[GpuGeometry], instances: &[Instance]) -> TopLevel {
     let refs: Vec<&GpuGeometry> = levels.iter().collect();
     top_of(ctx, &refs, instances)
 }
 
-fn top_of<'a>(ctx: &Context, levels: &[&'a GpuGeometry], instances: &[Instance]) -> TopLevel<'a> {
+fn top_of(ctx: &Context, levels: &[&GpuGeometry], instances: &[Instance]) -> TopLevel {
     TopLevelBuilder::new(ctx, AccelKind::Lbvh)
         .unwrap()
         .build(ctx, levels, instances, &BuildFlags::default())

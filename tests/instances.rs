@@ -220,7 +220,13 @@ fn instance_boxes_equal_their_cpu_twin_bit_for_bit_and_the_tree_the_host_s() {
                 .unwrap();
             let mut rec = Recorder::new(&ctx).unwrap();
             builder
-                .record_build_from(&mut rec, input.as_raw(), &mut top, scratch.as_raw())
+                .record_build_from(
+                    &mut rec,
+                    input.as_raw(),
+                    n as u32,
+                    &mut top,
+                    scratch.as_raw(),
+                )
                 .unwrap();
             rec.compute_to_transfer();
             let status = top.record_read_status(&mut rec).unwrap();
@@ -231,7 +237,7 @@ fn instance_boxes_equal_their_cpu_twin_bit_for_bit_and_the_tree_the_host_s() {
                 &instances,
                 InstanceMotion::STATIC,
                 &infos,
-                top.bottom_handles_address(),
+                Some(top.bottom_handles_address()),
             );
             let (want_boxes, want_records, invalid) = (want.boxes, want.records, want.invalid);
             let bits =
@@ -537,7 +543,7 @@ fn instances_name_bottom_levels_by_reference_as_by_index() {
         &by_reference,
         InstanceMotion::STATIC,
         &infos,
-        b.bottom_handles_address(),
+        Some(b.bottom_handles_address()),
     );
     assert_eq!(want.records, records_b);
     let rays = rays_at(&mut rng, 300, 15.0);
@@ -558,8 +564,171 @@ fn instances_name_bottom_levels_by_reference_as_by_index() {
         err.contains("instance 3") && err.contains("references"),
         "{err}"
     );
-    let want = instance_boxes(&bad, InstanceMotion::STATIC, &infos, 0);
+    let want = instance_boxes(&bad, InstanceMotion::STATIC, &infos, Some(0));
     assert_eq!(want.invalid, 1);
+    common::assert_silent(&ctx);
+}
+
+/// A top level as a Vulkan renderer keeps one: created for at most 40 instances with no list
+/// of bottom levels (its instances reference theirs, as `accelerationStructureReference`
+/// does, and it borrows none), built from the renderer's own instance buffer with 40, then
+/// 7, then 0 of them, then updated; after each, every ray answers as a top level built for
+/// exactly those instances and as brute force over them flattened. A count past the maximum
+/// is an error; an index (a null reference included) names nothing without a list: never
+/// hit, counted.
+#[test]
+fn builds_read_up_to_the_maximum_count_of_referenced_levels() {
+    let Some(ctx) = common::context() else { return };
+    let mut rng = common::Rng(31);
+    let meshes = [sphere_tris(1), random_tris(&mut rng, 40)];
+    let levels = [
+        bottom(&ctx, AccelKind::Lbvh, false, &meshes[0]),
+        bottom(&ctx, AccelKind::Ploc, false, &meshes[1]),
+    ];
+    let refs: Vec<&GpuGeometry> = levels.iter().collect();
+    let references: Vec<u64> = levels.iter().map(|l| l.reference().unwrap()).collect();
+    let place = |rng: &mut common::Rng| -> Vec<Instance> {
+        (0..40)
+            .map(|i| {
+                Instance::new(i % 2, Instance::rows_of(&random_transform(rng, 14.0)))
+                    .with_custom_index(i)
+            })
+            .collect()
+    };
+    let by_reference = |by_index: &[Instance]| -> Vec<Instance> {
+        by_index
+            .iter()
+            .map(|i| Instance {
+                bottom: references[i.bottom as usize],
+                ..*i
+            })
+            .collect()
+    };
+    let rays = rays_at(&mut rng, 400, 20.0);
+    let flags = BuildFlags {
+        allow_update: true,
+        ..BuildFlags::default()
+    };
+    // Every ray against a top level built for exactly `by_index` and against brute force
+    // over those of them with a mask.
+    let check =
+        |builder: &TopLevelBuilder, got: &[[u32; 4]], by_index: &[Instance], label: &str| {
+            let exact = builder
+                .build(&ctx, &refs, &by_reference(by_index), &flags)
+                .unwrap();
+            assert_eq!(
+                got,
+                probe(&ctx, exact.handle_address(), &rays, 0),
+                "{label}"
+            );
+            let seen: Vec<Instance> = by_index.iter().filter(|i| i.mask() != 0).copied().collect();
+            let (flat, _) = flattened(&seen, &meshes);
+            for (k, (g, r)) in got.iter().zip(&rays).enumerate() {
+                let (h, inst) = as_hit(g);
+                let f = cpu::brute_force(&flat, r, 0.0, &opt());
+                assert_eq!(h.is_hit(), f.is_hit(), "{label} ray {k}: hit (flattened)");
+                assert!(
+                    inst.is_none_or(|i| (i as usize) < by_index.len()),
+                    "{label}"
+                );
+                if h.is_hit() {
+                    assert!((h.t - f.t).abs() <= 1e-5 * f.t.abs(), "{label} ray {k}");
+                }
+            }
+            got.iter().filter(|h| h[0] != u32::MAX).count()
+        };
+    for kind in [AccelKind::Lbvh, AccelKind::Ploc] {
+        let builder = TopLevelBuilder::new(&ctx, kind).unwrap();
+        let sizes = builder.sizes_for(&ctx, 40, 0, &flags).unwrap();
+        let memory =
+            Buffer::<u8>::arena(&ctx, "renderer.top", sizes.structure_bytes as usize).unwrap();
+        let scratch_bytes = sizes
+            .build_scratch_bytes
+            .max(sizes.update_scratch_bytes.unwrap());
+        let scratch =
+            Buffer::<u8>::arena(&ctx, "renderer.scratch", scratch_bytes as usize).unwrap();
+        let mut top = builder
+            .create_in(&ctx, &[], 40, &flags, memory.as_raw())
+            .unwrap();
+        assert_eq!(top.max_instances(), 40);
+        let first = place(&mut rng);
+        let input = Buffer::from_slice(&ctx, "renderer.instances", &by_reference(&first)).unwrap();
+        let build = |top: &mut vkrt::accel::instances::TopLevel, count: u32, update: bool| {
+            let mut rec = Recorder::new(&ctx).unwrap();
+            match update {
+                false => builder.record_build_from(
+                    &mut rec,
+                    input.as_raw(),
+                    count,
+                    top,
+                    scratch.as_raw(),
+                ),
+                true => builder.record_update_from(&mut rec, input.as_raw(), top, scratch.as_raw()),
+            }
+            .unwrap();
+            rec.compute_to_transfer();
+            let status = top.record_read_status(&mut rec).unwrap();
+            rec.transfer_to_host();
+            rec.submit_and_wait().unwrap();
+            assert_eq!(status.read().unwrap().invalid_primitives, 0);
+        };
+        let mut hits = Vec::new();
+        for count in [40u32, 7, 0] {
+            build(&mut top, count, false);
+            assert_eq!(top.instance_count(), count);
+            assert_eq!(top.download().unwrap().0.len(), count as usize);
+            let got = probe(&ctx, top.handle_address(), &rays, 0);
+            let label = format!("{kind:?}, {count} of 40");
+            hits.push(check(&builder, &got, &first[..count as usize], &label));
+        }
+        assert!(hits[0] > hits[1] && hits[1] > 5 && hits[2] == 0, "{hits:?}");
+        // 7 again, moved: an update of those 7 (its count kept) traces as a build of them.
+        build(&mut top, 7, false);
+        let moved = place(&mut rng);
+        input.upload(&by_reference(&moved)).unwrap();
+        build(&mut top, 0, true);
+        assert_eq!(top.instance_count(), 7);
+        let got = probe(&ctx, top.handle_address(), &rays, 0);
+        check(&builder, &got, &moved[..7], &format!("{kind:?}, 7 moved"));
+        // Past the maximum.
+        let mut rec = Recorder::new(&ctx).unwrap();
+        let e = builder
+            .record_build_from(&mut rec, input.as_raw(), 41, &mut top, scratch.as_raw())
+            .unwrap_err()
+            .to_string();
+        assert!(
+            e.contains("41 instances") && e.contains("at most 40"),
+            "{e}"
+        );
+        drop(rec);
+        // Without a list an index names nothing, 0 (a null reference) too: never hit, counted.
+        let mut named = by_reference(&first[..7]);
+        named[0].bottom = 0;
+        named[2].bottom = 1;
+        input.upload(&named).unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        builder
+            .record_build_from(&mut rec, input.as_raw(), 7, &mut top, scratch.as_raw())
+            .unwrap();
+        rec.compute_to_transfer();
+        let status = top.record_read_status(&mut rec).unwrap();
+        rec.transfer_to_host();
+        rec.submit_and_wait().unwrap();
+        assert_eq!(status.read().unwrap().invalid_primitives, 2);
+        let (_, records) = top.download().unwrap();
+        assert_eq!(records[0].handle, 0);
+        assert_eq!(records[1].handle, references[1]);
+        assert_eq!(records[1].bottom(), InstanceRecord::UNLISTED);
+        let infos = scene_infos(&refs);
+        let want = instance_boxes(&named, InstanceMotion::STATIC, &infos, None);
+        assert_eq!((want.records, want.invalid), (records, 2));
+        let got = probe(&ctx, top.handle_address(), &rays, 0);
+        let mut masked = first[..7].to_vec();
+        masked[0] = masked[0].with_mask(0);
+        masked[2] = masked[2].with_mask(0);
+        let n = check(&builder, &got, &masked, &format!("{kind:?}, null"));
+        assert!(n > 0);
+    }
     common::assert_silent(&ctx);
 }
 
@@ -867,7 +1036,12 @@ fn moving_instances_trace_as_their_interpolated_transforms() {
     // The build against its CPU twin, bit for bit.
     let (boxes, records) = top.download().unwrap();
     let device_steps = top.download_steps().unwrap();
-    let want = instance_boxes(&instances, motion, &infos, top.bottom_handles_address());
+    let want = instance_boxes(
+        &instances,
+        motion,
+        &infos,
+        Some(top.bottom_handles_address()),
+    );
     let bits = |v: &[f32]| -> Vec<u32> { v.iter().map(|x| x.to_bits()).collect() };
     assert_eq!(bits(boxes.as_flattened()), bits(want.boxes.as_flattened()));
     assert_eq!(records, want.records);
@@ -960,7 +1134,7 @@ fn moving_instances_trace_as_their_interpolated_transforms() {
     }
 
     // Misuse.
-    let refused = |r: Result<vkrt::accel::instances::TopLevel<'_>, GpuError>| -> String {
+    let refused = |r: Result<vkrt::accel::instances::TopLevel, GpuError>| -> String {
         match r {
             Ok(_) => panic!("misuse accepted"),
             Err(e) => e.to_string(),

@@ -55,7 +55,7 @@ fn shared_types_are_send_and_sync() {
     send_and_sync::<GpuGeometry>();
     send_and_sync::<TraceGeometry>();
     send_and_sync::<TopLevelBuilder>();
-    send_and_sync::<TopLevel<'static>>();
+    send_and_sync::<TopLevel>();
     send_and_sync::<Instance>();
     send_and_sync::<DriverAccel>();
     // Tracing and scenes.

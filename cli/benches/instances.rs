@@ -165,11 +165,11 @@ fn flat_bytes(ctx: &Context, tris: usize, copies: usize) -> Option<u64> {
 
 /// The top level over `transforms`, built in this bench's memory; its bytes and the
 /// best GPU ms of 3 rebuilds.
-fn top_level<'a>(
+fn top_level(
     ctx: &Context,
-    bottom: &'a GpuGeometry,
+    bottom: &GpuGeometry,
     transforms: &[[[f32; 4]; 3]],
-) -> (TopLevel<'a>, u64, f64, Vec<Buffer<u8>>, Buffer<Instance>) {
+) -> (TopLevel, u64, f64, Vec<Buffer<u8>>, Buffer<Instance>) {
     let instances: Vec<Instance> = transforms.iter().map(|m| Instance::new(0, *m)).collect();
     let builder = TopLevelBuilder::new(ctx, AccelKind::Lbvh).unwrap();
     let flags = BuildFlags::default();
@@ -186,7 +186,7 @@ fn top_level<'a>(
     for round in 0..4 {
         let mut rec = Recorder::new(ctx).unwrap();
         builder
-            .record_build_from(&mut rec, input.as_raw(), &mut top, scratch.as_raw())
+            .record_build_from(&mut rec, input.as_raw(), n, &mut top, scratch.as_raw())
             .unwrap();
         let p = rec.submit_and_wait().unwrap();
         if round > 0 {
@@ -295,7 +295,7 @@ fn dynamic_demo(ctx: &Context) -> Option<UpdateRow> {
         .unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
     top_builder
-        .record_build_from(&mut rec, input.as_raw(), &mut top, scratch.as_raw())
+        .record_build_from(&mut rec, input.as_raw(), n, &mut top, scratch.as_raw())
         .unwrap();
     rec.submit_and_wait().unwrap();
     // Flat: the LBVH over every triangle, built at frame 0 to be refit.

@@ -6,22 +6,32 @@
 // its world-to-object transform for the walk. Every product and sum is `precise` and summed
 // left to right, as the twin does.
 //
+// An instance names its bottom level by reference (`GpuGeometry::reference`: the address of
+// the level's handle, whose seventh address is its scene constants, read here for its box),
+// or by index into the top level's list of bottom levels, whose handles the top level keeps
+// a copy of. Where the top level has a list, a reference must be one of its levels (found in
+// the ordered table) and the record names the copy; without one the reference is followed
+// as given, as Vulkan follows accelerationStructureReference (a reference to no live bottom
+// level is undefined there and here).
+//
 // A moving top level (`steps` > 1) reads `steps` records per instance, step after step
 // (`count` records apart), keeps each step's object-to-world for the walk, which
 // interpolates them at the ray's time, and boxes the union of the steps' boxes: within a
 // step's interval every point moves on a straight line, so the union holds it. An instance
 // whose steps are all equal is recorded as still (one step).
 //
-// An instance naming no bottom level of the list (an index out of range, an unknown
-// reference), or one of whose transforms is not
-// finite or not invertible, is never hit (an inactive box, min > max, and mask 0) and
-// counted in `status`; an instance of an empty bottom level or with mask 0 is never hit, not
-// counted.
+// An instance naming no bottom level (an index out of range, 0 without a list included, a
+// reference not in the list), or one of whose transforms is not finite or not invertible,
+// is never hit (an inactive box, min > max, and mask 0) and counted in `status`; an instance
+// of an empty bottom level or with mask 0 is never hit, not counted. The slots past this
+// build's count, up to the top level's maximum, are inactive too (its tree spans them all).
 // `exact`: the inverse's division rounded correctly in doubles where the driver's is not
 // (specialization constant 21), so the records equal the twin's on every device; `float`
 // (devices without shaderFloat64): the driver's division.
 //! variant exact VKRT_FP64_FALLBACK=1
 //! variant float VKRT_FP64_FALLBACK=0
+#extension GL_EXT_buffer_reference : require
+#extension GL_EXT_buffer_reference_uvec2 : require
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "include/vkrt/ray.glsl"
@@ -29,7 +39,7 @@ layout(local_size_x_id = 0) in;
 
 // The caller's records, 16 words each, from word `first_word` on (step-major when moving).
 layout(std430, binding = 0) readonly buffer Instances { uint words[]; };
-// The bottom levels' scene constants (`SceneInfo`, 64 bytes each, copied from each level).
+// A bottom level's scene constants (`SceneInfo`, 64 bytes), read where its handle says.
 struct BottomInfo {
     vec4 bounds_min;
     vec4 bounds_max;
@@ -42,7 +52,15 @@ struct BottomInfo {
     uint invalid;
     uint n_aabbs;
 };
-layout(std430, binding = 1) readonly buffer Bottoms { BottomInfo bottoms[]; };
+layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer BottomInfoRef {
+    BottomInfo v;
+};
+// A bottom level's handle: its seven arrays' addresses, the seventh its scene constants.
+layout(buffer_reference, std430, buffer_reference_align = 8) readonly buffer BottomHandle {
+    uvec2 addresses[7];
+};
+// The top level's copies of its list's handles, 64 bytes (eight addresses) each.
+layout(std430, binding = 1) readonly buffer Listed { uvec2 listed[]; };
 // Six floats per instance: min x, y, z, max x, y, z (the top level's box primitives).
 layout(std430, binding = 2) writeonly buffer Boxes { float boxes[]; };
 // `InstanceRecord`: world-to-object rows (the first step's), then (handle address lo, hi,
@@ -66,12 +84,17 @@ layout(std430, binding = 6) writeonly buffer Originals { uvec4 originals[]; };
 // The bottom levels by reference (`GpuGeometry::reference`): (low word, high word, index, 0),
 // ordered by reference.
 layout(std430, binding = 7) readonly buffer References { uvec4 references[]; };
+// The index a record gives where the top level has no list (`InstanceRecord::UNLISTED`).
+const uint UNLISTED = 0xffffffu;
 layout(push_constant) uniform Push {
+    // This build's instances; the top level's slots (the instances it was created for).
     uint n;
+    uint slots;
     uint first_word;
+    // Bottom levels in the top level's list (0: none, references followed as given).
     uint n_bottoms;
     uint steps;
-    // Where the bottom levels' handles lie, 64 bytes apart.
+    // Where the copies of the list's handles lie, 64 bytes apart.
     uvec2 handles_at;
     // The time of the first step, and (steps - 1) / the interval.
     float t0;
@@ -98,13 +121,31 @@ vec4[3] rows_of(uint i, uint s) {
     return m;
 }
 
-// The index of the bottom level an instance names (`Instance::bottom_index`): an index
-// below MAX_BOTTOM_LEVELS (2^24), else a reference found in the table.
-bool find_bottom(uvec2 named, out uint bottom) {
+// The copy of list entry `k`'s handle (64 bytes apart from handles_at) and its scene
+// constants' address; true.
+bool listed_handle(uint k, out uvec2 handle, out uvec2 info_at) {
+    uint lo_addr = pc.handles_at.x + 64u * k;
+    uint carry = lo_addr < pc.handles_at.x ? 1u : 0u;
+    handle = uvec2(lo_addr, pc.handles_at.y + carry);
+    info_at = listed[8u * k + 6u];
+    return true;
+}
+
+// The bottom level an instance names (`Instance::bottom_index` with the list; the reference
+// itself without one): its handle's address, where its scene constants lie, and its index in
+// the list (UNLISTED without one).
+bool find_bottom(uvec2 named, out uvec2 handle, out uvec2 info_at, out uint bottom) {
+    handle = named;
+    info_at = uvec2(0u);
     bottom = 0u;
     if (named.y == 0u && named.x < 0x1000000u) {
         bottom = named.x;
-        return named.x < pc.n_bottoms;
+        return named.x < pc.n_bottoms && listed_handle(named.x, handle, info_at);
+    }
+    if (pc.n_bottoms == 0u) {
+        bottom = UNLISTED;
+        info_at = BottomHandle(named).addresses[6];
+        return true;
     }
     // The first entry not below `named` (binary search over the ordered table).
     uint lo = 0u;
@@ -121,14 +162,21 @@ bool find_bottom(uvec2 named, out uint bottom) {
     }
     if (lo < pc.n_bottoms && all(equal(references[lo].xy, named))) {
         bottom = references[lo].z;
-        return true;
+        return listed_handle(bottom, handle, info_at);
     }
     return false;
 }
 
 void main() {
     uint i = linear_invocation_id();
+    if (i >= pc.slots) {
+        return;
+    }
     if (i >= pc.n) {
+        for (uint k = 0u; k < 4u; k++) {
+            originals[4u * i + k] = uvec4(0u);
+        }
+        write_inactive(i, 0u);
         return;
     }
     uint w = pc.first_word + 16u * i;
@@ -139,7 +187,9 @@ void main() {
     uint custom_mask = words[w + 12u];
     uint flags = words[w + 13u] >> 24u;
     uint bottom;
-    bool bottom_ok = find_bottom(uvec2(words[w + 14u], words[w + 15u]), bottom);
+    uvec2 handle;
+    uvec2 info_at;
+    bool bottom_ok = find_bottom(uvec2(words[w + 14u], words[w + 15u]), handle, info_at, bottom);
     uint meta_w = flags | ((bottom_ok ? bottom : 0u) << 8u);
 
     vec4 inv[3];
@@ -164,7 +214,7 @@ void main() {
         write_inactive(i, meta_w);
         return;
     }
-    BottomInfo b = bottoms[bottom];
+    BottomInfo b = BottomInfoRef(info_at).v;
     uint mask = custom_mask >> 24u;
     if (b.n_tris + b.n_spheres + b.n_aabbs == 0u || mask == 0u) {
         write_inactive(i, meta_w);
@@ -203,11 +253,7 @@ void main() {
         boxes[6u * i + k] = box_lo[k];
         boxes[6u * i + 3u + k] = box_hi[k];
     }
-    // The bottom level's handle, 64 bytes apart.
-    uint lo_addr = pc.handles_at.x + 64u * bottom;
-    uint carry = lo_addr < pc.handles_at.x ? 1u : 0u;
-    records[i] = InstanceRecord(inv, uvec4(lo_addr, pc.handles_at.y + carry, custom_mask,
-                                           meta_w),
+    records[i] = InstanceRecord(inv, uvec4(handle, custom_mask, meta_w),
                                 uvec4(still ? 1u : pc.steps, i * pc.steps,
                                       floatBitsToUint(pc.t0), floatBitsToUint(pc.scale)));
 }

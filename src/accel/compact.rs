@@ -25,6 +25,7 @@
 use crate::accel::device::{AccelKind, Storage};
 use crate::accel::device_input::DeviceInput;
 use crate::accel::device_primitives::DevicePrimitives;
+use crate::accel::gpu_geometry::handle_record;
 use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::kdtree::device::{KdBuilt, KdStorage};
 use crate::accel::primitives::SceneInfo;
@@ -94,7 +95,8 @@ fn compacted_buffers(
     refs: usize,
 ) -> Result<(DevicePrimitives, Buffer<SceneInfo>, KdStorage)> {
     let prims = DevicePrimitives::for_layout(ctx, &input.layout)?;
-    let info = Buffer::new(ctx, "accel.info", input.layout.info_len())?;
+    // (and one more element, where a top level's reference finds the structure's handle)
+    let info = Buffer::new(ctx, "accel.info", input.layout.info_len() + 1)?;
     let tree = KdStorage::compacted(ctx, nodes, refs)?;
     Ok((prims, info, tree))
 }
@@ -219,7 +221,11 @@ impl GpuGeometry {
             rec.copy(&s.tri_verts, &d.tri_verts, d.tri_verts.len());
             rec.copy(&s.spheres, &d.spheres, d.spheres.len());
             rec.copy(&s.boxes, &d.boxes, d.boxes.len());
-            rec.copy(&self.accel.info, &dst.accel.info, dst.accel.info.len());
+            // The constants; the handle after them is the copy's own (its arrays' addresses).
+            rec.copy(&self.accel.info, &dst.accel.info, dst.accel.info.len() - 1);
+            if let Some(record) = handle_record(rec.context(), &dst.prims, &dst.accel)? {
+                rec.update(&dst.accel.info, dst.accel.info.len() - 1, &[record])?;
+            }
             src_tree.record_copy_into(rec, dst_tree)
         })?;
         rec.end_of_build();

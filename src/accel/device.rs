@@ -48,6 +48,9 @@ pub struct AccelStructure {
     /// The parameters of the builder that created it, which every builder recording into it
     /// must have; `None` for a structure uploaded from the host.
     params: Option<BuilderParams>,
+    /// Its builds write its handle although it lies in the caller's memory
+    /// (`GpuGeometry::enable_references`).
+    pub(crate) references_enabled: bool,
 }
 
 /// A structure's buffers, by family.
@@ -66,6 +69,7 @@ impl AccelStructure {
             info,
             flags: BuildFlags::default(),
             params: None,
+            references_enabled: false,
         }
     }
 
@@ -78,6 +82,8 @@ impl AccelStructure {
             info,
             flags: self.flags,
             params: self.params,
+            // (a copy in the caller's memory: referenced once it says its memory allows)
+            references_enabled: false,
         }
     }
 
@@ -459,7 +465,8 @@ impl AccelBuilder {
         flags: &BuildFlags,
         info_len: usize,
     ) -> Result<AccelStructure> {
-        let info = Buffer::new(ctx, "accel.info", info_len)?;
+        // (and one more element: the structure's handle, GpuGeometry::reference)
+        let info = Buffer::new(ctx, "accel.info", info_len + 1)?;
         let grow = flags.kd_capacity_doublings;
         // Wide nodes are a BVH's only.
         let wide = flags.wide && matches!(self.family, Family::Bvh(_));
@@ -526,6 +533,26 @@ impl AccelBuilder {
     ) -> Result<RecordedBuild> {
         let call = "AccelBuilder::record_build";
         self.check_frozen(call, out)?;
+        let built = self.record_build_kind(call, rec, prims, host, scratch, out)?;
+        // The structure's handle after its constants (a kd-tree's build clears them), where
+        // a top level's instances reference it.
+        if let Some(record) = crate::accel::gpu_geometry::handle_record(rec.context(), prims, out)?
+        {
+            rec.compute_to_transfer();
+            rec.update(&out.info, out.info.len() - 1, &[record])?;
+        }
+        Ok(built)
+    }
+
+    fn record_build_kind(
+        &self,
+        call: &'static str,
+        rec: &mut Recorder,
+        prims: &DevicePrimitives,
+        host: Option<&TraceGeometry>,
+        scratch: &AccelScratch,
+        out: &mut AccelStructure,
+    ) -> Result<RecordedBuild> {
         let flags = out.flags;
         let info = &out.info;
         match (&self.family, &mut out.storage, &scratch.0) {

@@ -6,7 +6,7 @@ use crate::accel::device::{
 };
 use crate::accel::host::{upload_structure, HostRef};
 use crate::accel::kdtree::KdTree;
-use crate::accel::primitives::TraceGeometry;
+use crate::accel::primitives::{SceneInfo, TraceGeometry};
 use crate::gpu::{BufferArg, Context, GpuError, Recorder, Result};
 
 /// Primitives and a structure over them in device memory: the seven buffers
@@ -131,6 +131,11 @@ impl GpuGeometry {
     fn with_host(ctx: &Context, g: &TraceGeometry, host: HostRef<'_>) -> Result<Self> {
         let prims = DevicePrimitives::upload(ctx, g)?;
         let accel = upload_structure(ctx, &prims, host)?;
+        if let Some(record) = handle_record(ctx, &prims, &accel)? {
+            let mut rec = Recorder::new(ctx)?;
+            rec.update(&accel.info, accel.info.len() - 1, &[record])?;
+            rec.submit_and_wait()?;
+        }
         Ok(Self {
             prims,
             accel,
@@ -144,24 +149,47 @@ impl GpuGeometry {
     /// passes to `vkrtUseStructure`. An error where the context has no
     /// `bufferDeviceAddress`.
     pub fn address_handle(&self) -> Result<[u64; 7]> {
-        let ctx = self.prims.tri_verts.context();
-        let b = self.bindings();
-        let mut out = [0u64; 7];
-        for (o, b) in out.iter_mut().zip(b) {
-            *o = crate::gpu::address_of(ctx, b)?;
-        }
-        Ok(out)
+        address_handle(self.prims.tri_verts.context(), &self.prims, &self.accel)
     }
 
     /// How an instance names this bottom level in a top level's instance records
     /// ([`Instance::bottom`](crate::accel::instance::Instance::bottom)), as
     /// `VkAccelerationStructureInstanceKHR::accelerationStructureReference` holds a BLAS's
-    /// device address: the device address of its scene constants, fixed for as long as it
-    /// lives (rebuilds into it keep it). At least
+    /// device address: the device address of the level's own handle
+    /// ([`GpuGeometry::address_handle`], whose seventh address is its scene constants), which
+    /// each of its builds writes after its scene constants. Fixed for as long as the level
+    /// lives (rebuilds into it keep it); valid in a top level's build once a build of this
+    /// level has executed before it. At least
     /// [`MAX_BOTTOM_LEVELS`](crate::accel::instance::MAX_BOTTOM_LEVELS), so that it never
     /// reads as an index.
     pub fn reference(&self) -> Result<u64> {
-        let address = self.address_handle()?[6];
+        let info = &self.accel.info;
+        if info.len() < 2 {
+            return Err(crate::gpu::GpuError::Usage {
+                call: "GpuGeometry::reference",
+                reason: "this structure keeps no handle of its own (the driver's two levels): \
+                         it cannot be a bottom level"
+                    .into(),
+            });
+        }
+        if !referenceable(&self.accel) {
+            return Err(crate::gpu::GpuError::Usage {
+                call: "GpuGeometry::reference",
+                reason: "this structure lies in the caller's memory: give that memory \
+                         SHADER_DEVICE_ADDRESS usage and call GpuGeometry::enable_references \
+                         before its builds"
+                    .into(),
+            });
+        }
+        self.reference_address()
+    }
+
+    /// Where [`GpuGeometry::reference`] points, whether or not its builds write a handle
+    /// there (a top level's list keys its levels by it).
+    pub(crate) fn reference_address(&self) -> Result<u64> {
+        let info = &self.accel.info;
+        let ctx = self.prims.tri_verts.context();
+        let address = crate::gpu::address_of(ctx, info)? + 64 * (info.len() as u64 - 1);
         if address < crate::accel::instance::MAX_BOTTOM_LEVELS as u64 {
             return Err(crate::gpu::GpuError::Usage {
                 call: "GpuGeometry::reference",
@@ -174,18 +202,70 @@ impl GpuGeometry {
         Ok(address)
     }
 
+    /// Lets instances reference this structure where it lies in the caller's memory
+    /// ([`AccelBuilder::create_in`](crate::accel::device::AccelBuilder::create_in)): its
+    /// builds then write its handle where [`GpuGeometry::reference`] points, which needs the
+    /// caller's buffer to have `SHADER_DEVICE_ADDRESS` usage (as Vulkan's acceleration
+    /// structures need theirs to be referenced). Call it before the builds top levels read.
+    /// A structure in vkrt's own memory is referenceable from the start.
+    pub fn enable_references(&mut self) {
+        self.accel.references_enabled = true;
+    }
+
     /// The seven bindings in `traverse.glsl`'s order.
     pub fn bindings(&self) -> [&dyn BufferArg; 7] {
-        let [nodes, refs] = self.accel.node_bindings();
-        let p = &self.prims;
-        [
-            nodes,
-            refs,
-            &p.tri_verts,
-            &p.spheres,
-            &p.prim_motion,
-            &p.motions,
-            &self.accel.info,
-        ]
+        bindings(&self.prims, &self.accel)
     }
+}
+
+/// The seven bindings of `prims` and `accel` in `traverse.glsl`'s order.
+fn bindings<'a>(prims: &'a DevicePrimitives, accel: &'a AccelStructure) -> [&'a dyn BufferArg; 7] {
+    let [nodes, refs] = accel.node_bindings();
+    let p = prims;
+    [
+        nodes,
+        refs,
+        &p.tri_verts,
+        &p.spheres,
+        &p.prim_motion,
+        &p.motions,
+        &accel.info,
+    ]
+}
+
+fn address_handle(
+    ctx: &Context,
+    prims: &DevicePrimitives,
+    accel: &AccelStructure,
+) -> Result<[u64; 7]> {
+    let mut out = [0u64; 7];
+    for (o, b) in out.iter_mut().zip(bindings(prims, accel)) {
+        *o = crate::gpu::address_of(ctx, b)?;
+    }
+    Ok(out)
+}
+
+/// Whether a structure's builds write its handle: in vkrt's own memory (which has device
+/// addresses), or in the caller's where it says so.
+fn referenceable(accel: &AccelStructure) -> bool {
+    accel.references_enabled || accel.info.buffer_size().is_some()
+}
+
+/// The handle a structure keeps in the last element of its scene constants' buffer (what
+/// [`GpuGeometry::reference`] addresses: a top level reads a bottom level through it), as
+/// the element's bytes; `None` where the context has no device addresses or the structure
+/// keeps no handle.
+pub(crate) fn handle_record(
+    ctx: &Context,
+    prims: &DevicePrimitives,
+    accel: &AccelStructure,
+) -> Result<Option<SceneInfo>> {
+    let f = &ctx.info().features;
+    let addresses = f.buffer_device_address || f.ray_query;
+    if !addresses || accel.info.len() < 2 || !referenceable(accel) {
+        return Ok(None);
+    }
+    let mut words = [0u64; 8];
+    words[..7].copy_from_slice(&address_handle(ctx, prims, accel)?);
+    Ok(Some(bytemuck::cast(words)))
 }

@@ -12,10 +12,11 @@ use crate::accel::device::{AccelBuilder, AccelKind, AccelStructure, Storage};
 use crate::accel::device_primitives::DevicePrimitives;
 use crate::accel::kdtree::device::KdStorage;
 use crate::accel::kdtree::{breadth_first, KdTree, SahParams};
-use crate::accel::primitives::TraceGeometry;
+use crate::accel::primitives::{SceneInfo, TraceGeometry};
 use crate::accel::walk::{AccelTraversal, Traversal};
 use crate::gpu::{Buffer, Context, GpuError, Result};
 use crate::scene::Aabb;
+use bytemuck::Zeroable;
 
 /// A structure downloaded to the host (tests and tools).
 #[derive(Clone, Debug, PartialEq)]
@@ -82,7 +83,8 @@ pub fn upload_structure(
             (AccelKind::SahBvh, storage, constants)
         }
     };
-    let info = Buffer::from_slice(ctx, "accel.info", &[constants])?;
+    // (and the structure's handle after them, written once its buffers have addresses)
+    let info = Buffer::from_slice(ctx, "accel.info", &[constants, SceneInfo::zeroed()])?;
     Ok(AccelStructure::from_parts(kind, storage, info))
 }
 

@@ -107,8 +107,9 @@ pub struct Instance {
     /// and unused).
     pub sbt_offset_and_flags: u32,
     /// The bottom level: its reference ([`GpuGeometry::reference`], at least
-    /// [`MAX_BOTTOM_LEVELS`]), or below that its index in the list the top level was created
-    /// with.
+    /// [`MAX_BOTTOM_LEVELS`]: the address of the level's handle), or below that its index in
+    /// the list the top level was created with (0 with no list names nothing: a null
+    /// reference is never hit).
     ///
     /// [`GpuGeometry::reference`]: crate::accel::gpu_geometry::GpuGeometry::reference
     pub bottom: u64,
@@ -249,11 +250,13 @@ impl Instance {
 pub struct InstanceRecord {
     /// World to object, row-major 3×4.
     pub world_to_object: [[f32; 4]; 3],
-    /// Where the bottom level's handle lies (0: never hit).
+    /// Where the bottom level's handle lies: the top level's copy for a level of its list,
+    /// else the instance's reference (0: never hit).
     pub handle: u64,
     /// The instance's custom index | mask << 24 (mask 0: never hit).
     pub custom_index_and_mask: u32,
-    /// Its flags | bottom-level index << 8.
+    /// Its flags | bottom-level index << 8 ([`InstanceRecord::UNLISTED`] where the top level
+    /// has no list).
     pub flags_and_bottom: u32,
     /// Its motion: steps (1: it does not move), where its steps start among the top level's,
     /// the first step's time and [`InstanceMotion::scale`] (as bits).
@@ -261,7 +264,12 @@ pub struct InstanceRecord {
 }
 
 impl InstanceRecord {
-    /// The bottom level's index in the top level's list.
+    /// The index a record gives an instance that names its bottom level by reference in a
+    /// top level without a list of them.
+    pub const UNLISTED: u32 = 0x00ff_ffff;
+
+    /// The bottom level's index in the top level's list ([`InstanceRecord::UNLISTED`]
+    /// without one).
     pub fn bottom(&self) -> u32 {
         self.flags_and_bottom >> 8
     }

@@ -27,13 +27,25 @@
 //! steps as the rotation needs). The top level boxes the union of an instance's steps, and
 //! the walk inverts the interpolated transform per ray.
 //!
-//! Where vkrt differs from Vulkan: an instance names its bottom level by its index in the
-//! list the top level was created with, not by a device address, an index the device can
-//! check. An instance with an index out of range, or a transform that is not finite or not
-//! invertible, is never hit and is counted in [`BuildStatus::invalid_primitives`]
-//! ([`TopLevel::record_read_status`]); [`TopLevelBuilder::build`] refuses it with an error.
-//! vkrt's walks treat every primitive as opaque and cull no faces, so the flags change
-//! nothing in them; they are kept for the driver's structures.
+//! As in Vulkan, a top level is created for a maximum number of instances
+//! (`maxPrimitiveCount` of `vkGetAccelerationStructureBuildSizesKHR`) and each build reads
+//! as many as it is given, up to that (`primitiveCount`); an update keeps its build's count,
+//! as Vulkan requires. An instance names its bottom level as
+//! `accelerationStructureReference` does, by reference ([`GpuGeometry::reference`]: an
+//! address the device reads the level through), so that a top level needs no list of its
+//! bottom levels and borrows none: the caller keeps every level its instances reference
+//! alive, and built, for as long as the top level is built or traced, as Vulkan requires.
+//! A top level may also be given a list of bottom levels: its instances may then name them
+//! by index, and a reference must be one of them (a check the device makes); the top level
+//! keeps copies of their handles, which those instances walk.
+//!
+//! An instance with an index out of range (0 included, when there is no list), a reference
+//! not in the list, or a transform that is not finite or not invertible, is never hit and is
+//! counted in [`BuildStatus::invalid_primitives`] ([`TopLevel::record_read_status`]);
+//! [`TopLevelBuilder::build`] refuses it with an error. Without a list, a reference is
+//! followed as given: one to no live bottom level is undefined, as in Vulkan (the device
+//! reads whatever lies there). vkrt's walks treat every primitive as opaque and cull no
+//! faces, so the flags change nothing in them; they are kept for the driver's structures.
 
 use std::sync::Arc;
 
@@ -89,14 +101,19 @@ pub struct InstanceBoxes {
 
 /// The CPU twin of `accel.instance_boxes`, bit for bit: the top level's boxes, records and
 /// steps for `instances` moving by `motion` (`motion.steps` lists of them, step after step),
-/// given each bottom level's scene constants and reference ([`GpuGeometry::reference`]),
-/// and where their handles lie (64 bytes apart from `handles_at`).
+/// given bottom levels' scene constants and references ([`GpuGeometry::reference`]). With
+/// `handles_at` (where the top level keeps its copies of their handles, 64 bytes apart:
+/// [`TopLevel::bottom_handles_address`]), `bottoms` is the top level's list (instances name
+/// its levels by index or by reference); without, the levels alive on the device, which
+/// instances name by reference (there, a reference to none of them is undefined; the twin
+/// counts it invalid).
 pub fn instance_boxes(
     instances: &[Instance],
     motion: InstanceMotion,
     bottoms: &[(SceneInfo, u64)],
-    handles_at: u64,
+    handles_at: Option<u64>,
 ) -> InstanceBoxes {
+    let listed = handles_at.is_some();
     let references: Vec<u64> = bottoms.iter().map(|b| b.1).collect();
     let n_steps = motion.steps.max(1) as usize;
     let count = instances.len() / n_steps;
@@ -119,9 +136,16 @@ pub fn instance_boxes(
     };
     let inactive_box = [1.0, 1.0, 1.0, 0.0, 0.0, 0.0];
     for (i, inst) in instances[..count].iter().enumerate() {
-        let found = inst.bottom_index(&references);
+        // (the level's place among `bottoms`, and its index in the record)
+        let found = match listed {
+            true => inst.bottom_index(&references).map(|k| (k, k)),
+            false if inst.bottom < MAX_BOTTOM_LEVELS as u64 => None,
+            false => inst
+                .bottom_index(&references)
+                .map(|k| (k, InstanceRecord::UNLISTED)),
+        };
         let bottom_ok = found.is_some();
-        let bottom = found.unwrap_or(0);
+        let (at, bottom) = found.unwrap_or((0, 0));
         let meta_w = u32::from(inst.flags()) | (bottom << 8);
         let inactive = InstanceRecord {
             world_to_object: [[0.0; 4]; 3],
@@ -139,7 +163,11 @@ pub fn instance_boxes(
             out.records.push(inactive);
             continue;
         };
-        let b = &bottoms[bottom as usize].0;
+        let b = &bottoms[at as usize].0;
+        let handle = match handles_at {
+            Some(h) => h + 64 * u64::from(at),
+            None => bottoms[at as usize].1,
+        };
         if b.n_tris + b.n_spheres + b.n_aabbs == 0 || inst.mask() == 0 {
             out.boxes.push(inactive_box);
             out.records.push(inactive);
@@ -161,7 +189,7 @@ pub fn instance_boxes(
             .push([box_lo.x, box_lo.y, box_lo.z, box_hi.x, box_hi.y, box_hi.z]);
         out.records.push(InstanceRecord {
             world_to_object: inv,
-            handle: handles_at + 64 * u64::from(bottom),
+            handle,
             custom_index_and_mask: inst.custom_index_and_mask,
             flags_and_bottom: meta_w,
             motion: motion_words(i),
@@ -195,9 +223,24 @@ fn placed_box(m: &[[f32; 4]; 3], bmin: Vec3, bmax: Vec3) -> (Vec3, Vec3) {
     (lo - pad, hi + pad)
 }
 
-/// Each bottom level's reference ([`GpuGeometry::reference`]), in the list's order.
-fn references(bottoms: &[Bottom<'_>]) -> Result<Vec<u64>> {
-    bottoms.iter().map(|b| b.reference()).collect()
+/// A top level's list of bottom levels, copied: per level its reference (where
+/// [`GpuGeometry::reference`] points, the key instances may name it by) and its handle.
+fn copy_list<'a>(bottoms: impl IntoIterator<Item = &'a GpuGeometry>) -> Result<Listed> {
+    let mut out = Listed::default();
+    for b in bottoms {
+        out.references.push(b.reference_address()?);
+        let mut handle = [0u64; 8];
+        handle[..7].copy_from_slice(&b.address_handle()?);
+        out.handles.push(handle);
+    }
+    Ok(out)
+}
+
+/// A top level's copy of its list of bottom levels ([`copy_list`]).
+#[derive(Default)]
+struct Listed {
+    references: Vec<u64>,
+    handles: Vec<[u64; 8]>,
 }
 
 /// The table `accel.instance_boxes` searches for an instance's reference: (reference low,
@@ -273,7 +316,8 @@ struct Parts {
     records: Buffer<InstanceRecord>,
     /// A moving top level's object-to-world rows per instance and step.
     steps: Buffer<[[f32; 4]; 3]>,
-    bottom_info: Buffer<SceneInfo>,
+    /// The copies of its list's handles, 64 bytes apart (an instance naming a level of the
+    /// list walks the copy).
     handles: Buffer<[u64; 8]>,
     /// The caller's records as given (step 0's): what a ray query reports of an instance
     /// (object-to-world, SBT record offset).
@@ -287,11 +331,11 @@ struct Parts {
 }
 
 impl Parts {
-    fn create(ctx: &Context, count: u32, n_bottoms: usize, motion: InstanceMotion) -> Result<Self> {
-        let n = (count as usize).max(1);
+    fn create(ctx: &Context, slots: u32, n_bottoms: usize, motion: InstanceMotion) -> Result<Self> {
+        let n = (slots as usize).max(1);
         let b = n_bottoms.max(1);
         let steps = if motion.steps > 1 {
-            motion.records(count).max(1) as usize
+            motion.records(slots).max(1) as usize
         } else {
             1
         };
@@ -299,7 +343,6 @@ impl Parts {
             boxes: Buffer::new(ctx, "accel.instance_boxes", n)?,
             records: Buffer::new(ctx, "accel.instance_records", n)?,
             steps: Buffer::new(ctx, "accel.instance_steps", steps)?,
-            bottom_info: Buffer::new(ctx, "accel.bottom_info", b)?,
             handles: Buffer::new(ctx, "accel.bottom_handles", b)?,
             originals: Buffer::new(ctx, "accel.instance_originals", n)?,
             references: Buffer::new(ctx, "accel.bottom_references", b)?,
@@ -309,31 +352,22 @@ impl Parts {
     }
 }
 
-/// A bottom level as a top level holds it: borrowed (the caller keeps it alive), or shared
-/// (the top level keeps it alive, so both can live in one struct).
-#[derive(Clone)]
-enum Bottom<'a> {
-    Borrowed(&'a GpuGeometry),
-    Shared(Arc<GpuGeometry>),
-}
-
-impl std::ops::Deref for Bottom<'_> {
-    type Target = GpuGeometry;
-    fn deref(&self) -> &GpuGeometry {
-        match self {
-            Bottom::Borrowed(b) => b,
-            Bottom::Shared(b) => b,
-        }
-    }
-}
-
-/// A top level over instances of `'a`'s bottom levels (or of bottom levels it shares:
-/// [`TopLevelBuilder::record_build_shared`]), in the caller's memory or its own.
-pub struct TopLevel<'a> {
-    /// The BVH over the instances' world boxes (box primitive `i` is instance `i`).
+/// A top level over instances of bottom levels, in the caller's memory or its own. It
+/// borrows nothing: its instances reference their bottom levels as Vulkan's do, and the
+/// caller keeps those alive (and built) while the top level is built, updated or traced
+/// (but for the ones it keeps: [`TopLevelBuilder::record_build_shared`]).
+pub struct TopLevel {
+    /// The BVH over the instances' world boxes (box primitive `i` is instance `i`), over
+    /// every slot of the maximum it was created for.
     pub tree: GpuGeometry,
     parts: Parts,
-    bottoms: Vec<Bottom<'a>>,
+    /// Its list of bottom levels, copied (instances name these by index or by reference).
+    listed: Listed,
+    /// The bottom levels it keeps alive ([`TopLevelBuilder::record_build_shared`]).
+    kept: Vec<Arc<GpuGeometry>>,
+    /// Instances it has room for (its instance slots).
+    max: u32,
+    /// Instances its last build read (the maximum before one): its updates read as many.
     count: u32,
     motion: InstanceMotion,
     /// What [`TopLevelBuilder::build`] allocated (none for [`TopLevelBuilder::create_in`]).
@@ -352,9 +386,9 @@ struct Own {
 }
 
 /// The top level's part of the caller's memory, rounded up so that its tree starts aligned.
-fn parts_bytes(ctx: &Context, count: u32, n_bottoms: usize, motion: InstanceMotion) -> Result<u64> {
+fn parts_bytes(ctx: &Context, slots: u32, n_bottoms: usize, motion: InstanceMotion) -> Result<u64> {
     let (_, bytes) = place(ctx, "the instances", Placement::Measure, || {
-        Parts::create(ctx, count, n_bottoms, motion)
+        Parts::create(ctx, slots, n_bottoms, motion)
     })?;
     Ok(bytes.next_multiple_of(256))
 }
@@ -421,23 +455,25 @@ impl TopLevelBuilder {
         self.tree.kind()
     }
 
-    /// Bytes of a top level over `count` instances of `n_bottoms` bottom levels, of its
-    /// build's scratch and of an update's (with `flags.allow_update`).
+    /// Bytes of a top level of at most `max_instances` instances (Vulkan's
+    /// `maxPrimitiveCount`) with a list of `n_bottoms` bottom levels (0: its instances name
+    /// them by reference only), of its build's scratch and of an update's (with
+    /// `flags.allow_update`).
     pub fn sizes_for(
         &self,
         ctx: &Context,
-        count: u32,
+        max_instances: u32,
         n_bottoms: usize,
         flags: &BuildFlags,
     ) -> Result<AccelSizes> {
-        self.sizes_for_motion(ctx, count, n_bottoms, InstanceMotion::STATIC, flags)
+        self.sizes_for_motion(ctx, max_instances, n_bottoms, InstanceMotion::STATIC, flags)
     }
 
     /// [`TopLevelBuilder::sizes_for`] a top level whose instances move by `motion`.
     pub fn sizes_for_motion(
         &self,
         ctx: &Context,
-        count: u32,
+        max_instances: u32,
         n_bottoms: usize,
         motion: InstanceMotion,
         flags: &BuildFlags,
@@ -445,67 +481,77 @@ impl TopLevelBuilder {
         motion
             .check()
             .map_err(|why| usage("TopLevelBuilder::sizes_for_motion", why))?;
-        let own = parts_bytes(ctx, count, n_bottoms, motion)?;
-        let tree = self.tree.sizes_for(ctx, &[measured_boxes(count)], flags)?;
+        let own = parts_bytes(ctx, max_instances, n_bottoms, motion)?;
+        let tree = self
+            .tree
+            .sizes_for(ctx, &[measured_boxes(max_instances)], flags)?;
         Ok(AccelSizes {
             structure_bytes: own + tree.structure_bytes,
             ..tree
         })
     }
 
-    /// A top level over `count` instances of `bottoms` (each built, or to be built before
-    /// this one's build executes), placed at the start of `memory`, a range of the caller's
-    /// buffer of at least [`AccelSizes::structure_bytes`] with
+    /// A top level of at most `max_instances` instances, placed at the start of `memory`, a
+    /// range of the caller's buffer of at least [`AccelSizes::structure_bytes`] with
     /// [`crate::accel::embedded::REQUIRED_BUFFER_USAGE`] and `SHADER_DEVICE_ADDRESS`.
-    pub fn create_in<'a>(
+    /// `bottoms` is its list of bottom levels, which its instances may name by index (their
+    /// references are copied: the list is not borrowed); give none where every instance
+    /// names its level by reference, as Vulkan's do. Each level an instance names must be
+    /// built before the top level's build executes, and kept alive while it is used.
+    pub fn create_in(
         &self,
         ctx: &Context,
-        bottoms: &[&'a GpuGeometry],
-        count: u32,
+        bottoms: &[&GpuGeometry],
+        max_instances: u32,
         flags: &BuildFlags,
         memory: RawBuffer,
-    ) -> Result<TopLevel<'a>> {
-        let bottoms = bottoms.iter().map(|&b| Bottom::Borrowed(b)).collect();
-        self.create_in_bottoms(ctx, bottoms, count, InstanceMotion::STATIC, flags, memory)
+    ) -> Result<TopLevel> {
+        let listed = copy_list(bottoms.iter().copied())?;
+        self.create_in_listed(
+            ctx,
+            listed,
+            max_instances,
+            InstanceMotion::STATIC,
+            flags,
+            memory,
+        )
     }
 
     /// [`TopLevelBuilder::create_in`] a top level whose instances move by `motion`: its
     /// builds read `motion.steps` records per instance ([`InstanceMotion`]), and `memory`
     /// holds at least [`TopLevelBuilder::sizes_for_motion`]'s bytes.
-    pub fn create_moving_in<'a>(
+    pub fn create_moving_in(
         &self,
         ctx: &Context,
-        bottoms: &[&'a GpuGeometry],
-        count: u32,
+        bottoms: &[&GpuGeometry],
+        max_instances: u32,
         motion: InstanceMotion,
         flags: &BuildFlags,
         memory: RawBuffer,
-    ) -> Result<TopLevel<'a>> {
-        let bottoms = bottoms.iter().map(|&b| Bottom::Borrowed(b)).collect();
-        self.create_in_bottoms(ctx, bottoms, count, motion, flags, memory)
+    ) -> Result<TopLevel> {
+        let listed = copy_list(bottoms.iter().copied())?;
+        self.create_in_listed(ctx, listed, max_instances, motion, flags, memory)
     }
 
-    fn create_in_bottoms<'a>(
+    fn create_in_listed(
         &self,
         ctx: &Context,
-        bottoms: Vec<Bottom<'a>>,
-        count: u32,
+        listed: Listed,
+        max: u32,
         motion: InstanceMotion,
         flags: &BuildFlags,
         memory: RawBuffer,
-    ) -> Result<TopLevel<'a>> {
+    ) -> Result<TopLevel> {
         let call = "TopLevelBuilder::create_in";
         motion.check().map_err(|why| usage(call, why))?;
-        if bottoms.len() > MAX_BOTTOM_LEVELS {
+        let n_bottoms = listed.references.len();
+        if n_bottoms > MAX_BOTTOM_LEVELS {
             return Err(usage(
                 call,
-                format!(
-                    "{} bottom levels: at most {MAX_BOTTOM_LEVELS}",
-                    bottoms.len()
-                ),
+                format!("{n_bottoms} bottom levels: at most {MAX_BOTTOM_LEVELS}"),
             ));
         }
-        let own = parts_bytes(ctx, count, bottoms.len(), motion)?;
+        let own = parts_bytes(ctx, max, n_bottoms, motion)?;
         if memory.size < own {
             return Err(usage(
                 call,
@@ -516,49 +562,53 @@ impl TopLevelBuilder {
             ));
         }
         let (parts, _) = place(ctx, "the instances", Placement::Into(memory), || {
-            Parts::create(ctx, count, bottoms.len(), motion)
+            Parts::create(ctx, max, n_bottoms, motion)
         })?;
         let rest = RawBuffer {
             raw: memory.raw,
             offset: memory.offset + own,
             size: memory.size - own,
         };
-        let geometry = boxes_geometry(GeometryData::Buffer(parts.boxes.as_raw()), count);
+        let geometry = boxes_geometry(GeometryData::Buffer(parts.boxes.as_raw()), max);
         let tree = self.tree.create_in(ctx, &[geometry], flags, rest)?;
         let bytes = own
             + self
                 .tree
-                .sizes_for(ctx, &[measured_boxes(count)], flags)?
+                .sizes_for(ctx, &[measured_boxes(max)], flags)?
                 .structure_bytes;
         Ok(TopLevel {
             tree,
             parts,
-            bottoms,
-            count,
+            listed,
+            kept: Vec::new(),
+            max,
+            count: max,
             motion,
             own: None,
             bytes,
         })
     }
 
-    /// Records what a build and an update share: the bottom levels' constants and handles,
-    /// the top level's handle, and `accel.instance_boxes` over the caller's `instances`.
+    /// Records what a build and an update share: at a build the list's references and the
+    /// top level's handle, then `accel.instance_boxes` over the `count` instances of the
+    /// caller's `instances` (every slot past them inactive).
     fn record_instances(
         &self,
         rec: &mut Recorder,
         call: &'static str,
         instances: RawBuffer,
-        top: &TopLevel<'_>,
+        count: u32,
+        top: &TopLevel,
         build: bool,
     ) -> Result<()> {
         let ctx = rec.context().clone();
-        let need = 64 * top.motion.records(top.count);
+        let need = 64 * top.motion.records(count);
         if instances.size < need {
             return Err(usage(
                 call,
                 format!(
-                    "{} instances at {} time steps need {need} bytes; the range holds {}",
-                    top.count, top.motion.steps, instances.size
+                    "{count} instances at {} time steps need {need} bytes; the range holds {}",
+                    top.motion.steps, instances.size
                 ),
             ));
         }
@@ -566,57 +616,49 @@ impl TopLevelBuilder {
             return Err(usage(call, "the instances' offset is not a multiple of 4"));
         }
         let p = &top.parts;
-        // The bottom levels' handles and the top level's own (the tree's seven arrays, then
-        // the records): written by a build only.
-        let mut handles = Vec::new();
+        // The copies of the list's handles, its references' ordered table and the top level's
+        // own handle (the tree's seven arrays, then the records, steps and originals):
+        // written by a build only, constants carried in the command buffer.
         let mut handle = [[0u64; 8]; 2];
         let mut table = Vec::new();
         if build {
-            table = reference_table(&references(&top.bottoms)?);
-            for b in &top.bottoms {
-                let mut out = [0u64; 8];
-                out[..7].copy_from_slice(&b.address_handle()?);
-                handles.push(out);
-            }
+            table = reference_table(&top.listed.references);
             handle[0][..7].copy_from_slice(&top.tree.address_handle()?);
             handle[0][7] = p.records.address();
             handle[1][0] = p.steps.address();
             handle[1][1] = p.originals.address();
         }
         rec.scope("instances", |rec| {
-            // The bottom levels' builds (compute writes) before their constants are copied.
+            // (the last build's or update's kernel wrote the status)
             rec.compute_to_transfer();
             rec.fill(&p.status, 0);
-            for (k, b) in top.bottoms.iter().enumerate() {
-                rec.copy_range(&b.accel.info, 0, &p.bottom_info, k, 1);
-            }
-            // The handles never change: an update leaves them (the bottom levels' boxes may
-            // have, after their refits).
             if build {
-                for (k, chunk) in handles.chunks(1024).enumerate() {
+                for (k, chunk) in top.listed.handles.chunks(1024).enumerate() {
                     rec.update(&p.handles, k * 1024, chunk)?;
                 }
-                for (k, chunk) in table.chunks(2048).enumerate() {
-                    rec.update(&p.references, k * 2048, chunk)?;
+                for (k, chunk) in table.chunks(4096).enumerate() {
+                    rec.update(&p.references, k * 4096, chunk)?;
                 }
                 rec.update(&p.handle, 0, &handle)?;
             }
             rec.transfer_to_compute();
-            if top.count > 0 {
+            if top.max > 0 {
                 let (bound_instances, skip) = bound(&ctx, &instances);
                 let push = BoxesPush {
-                    n: top.count,
+                    n: count,
+                    slots: top.max,
                     first_word: (skip / 4) as u32,
-                    n_bottoms: top.bottoms.len() as u32,
+                    n_bottoms: top.listed.references.len() as u32,
                     steps: top.motion.steps,
+                    pad: 0,
                     handles_at: p.handles.address(),
                     t0: top.motion.time[0],
                     scale: top.motion.scale(),
                 };
-                let groups = rec.groups_1d(u64::from(top.count), WORKGROUP);
+                let groups = rec.groups_1d(u64::from(top.max), WORKGROUP);
                 let b: [&dyn BufferArg; 8] = [
                     &bound_instances,
-                    &p.bottom_info,
+                    &p.handles,
                     &p.boxes,
                     &p.records,
                     &p.status,
@@ -631,22 +673,38 @@ impl TopLevelBuilder {
         })
     }
 
-    /// Records the build of `top` from the `count` instance records in `instances` (a range
-    /// of the caller's buffer, [`Instance`]'s layout, written before as compute or transfer
-    /// writes; the bottom levels' builds recorded before too), with its scratch in `scratch`
-    /// ([`AccelSizes::build_scratch_bytes`]). Ends with a compute → compute barrier, after
+    /// Records the build of `top` from the first `count` instance records in `instances` (a
+    /// range of the caller's buffer, [`Instance`]'s layout, written before as compute or
+    /// transfer writes by the caller's host or shaders; the bottom levels' builds recorded
+    /// or executed before too), with its scratch in `scratch`
+    /// ([`AccelSizes::build_scratch_bytes`]). `count` is Vulkan's `primitiveCount`, at most
+    /// the maximum `top` was created for (an error otherwise); a moving top level reads
+    /// `motion.steps` lists of `count` records. Reads the instances where they lie:
+    /// stages, allocates and submits nothing. Ends with a compute → compute barrier, after
     /// which the caller's kernels may trace it.
     pub fn record_build_from(
         &self,
         rec: &mut Recorder,
         instances: RawBuffer,
-        top: &mut TopLevel<'_>,
+        count: u32,
+        top: &mut TopLevel,
         scratch: RawBuffer,
     ) -> Result<()> {
         let call = "TopLevelBuilder::record_build_from";
         self.check_kind(call, top)?;
+        if count > top.max {
+            return Err(usage(
+                call,
+                format!(
+                    "{count} instances; the top level was created for at most {} \
+                     (TopLevelBuilder::create_in)",
+                    top.max
+                ),
+            ));
+        }
         rec.scope("top level", |rec| {
-            self.record_instances(rec, call, instances, top, true)?;
+            self.record_instances(rec, call, instances, count, top, true)?;
+            top.count = count;
             let geometry = top.geometry();
             self.tree
                 .record_build_from(rec, &[geometry], &mut top.tree, scratch)
@@ -654,26 +712,28 @@ impl TopLevelBuilder {
     }
 
     /// Records an update of `top` (built with `allow_update`) to the records `instances`
-    /// holds now: new transforms, masks and bottom levels of the same count (a refit of the
-    /// same tree: fast, and as good as the tree was while the instances move together;
-    /// rebuild when they have rearranged).
+    /// holds now: new transforms, masks and bottom levels of as many instances as its last
+    /// build read (Vulkan's update keeps the build's `primitiveCount`: build again for
+    /// another count). A refit of the same tree: fast, and as good as the tree was while
+    /// the instances move together; rebuild when they have rearranged. Stages, allocates
+    /// and submits nothing.
     pub fn record_update_from(
         &self,
         rec: &mut Recorder,
         instances: RawBuffer,
-        top: &TopLevel<'_>,
+        top: &TopLevel,
         scratch: RawBuffer,
     ) -> Result<()> {
         let call = "TopLevelBuilder::record_update_from";
         self.check_kind(call, top)?;
         rec.scope("top level update", |rec| {
-            self.record_instances(rec, call, instances, top, false)?;
+            self.record_instances(rec, call, instances, top.count, top, false)?;
             self.tree
                 .record_update_from(rec, &[top.geometry()], &top.tree, scratch)
         })
     }
 
-    fn check_kind(&self, call: &'static str, top: &TopLevel<'_>) -> Result<()> {
+    fn check_kind(&self, call: &'static str, top: &TopLevel) -> Result<()> {
         if top.tree.accel.kind() != self.kind() {
             return Err(usage(
                 call,
@@ -688,15 +748,17 @@ impl TopLevelBuilder {
     }
 
     /// A top level over `instances` of `bottoms`, built and waited for: each instance is
-    /// checked first ([`Instance::check`]), and one that the device would never hit is an
-    /// error naming it. Allocates its memory (kept by the result) and submits once.
-    pub fn build<'a>(
+    /// checked first ([`Instance::check`]: it names one of `bottoms`, by index or by
+    /// reference), and one that the device would never hit is an error naming it. Allocates
+    /// its memory (kept by the result) and submits once. The caller keeps `bottoms` alive
+    /// while the result is used.
+    pub fn build(
         &self,
         ctx: &Context,
-        bottoms: &[&'a GpuGeometry],
+        bottoms: &[&GpuGeometry],
         instances: &[Instance],
         flags: &BuildFlags,
-    ) -> Result<TopLevel<'a>> {
+    ) -> Result<TopLevel> {
         let mut rec = Recorder::new(ctx)?;
         let top = self.record_build(&mut rec, bottoms, instances, flags)?;
         rec.submit_and_wait()?;
@@ -705,15 +767,16 @@ impl TopLevelBuilder {
 
     /// [`TopLevelBuilder::build`] recorded into `rec` (in a scope `top level`), not
     /// submitted: the upload of `instances` and the build, in memory the result keeps.
-    pub fn record_build<'a>(
+    pub fn record_build(
         &self,
         rec: &mut Recorder,
-        bottoms: &[&'a GpuGeometry],
+        bottoms: &[&GpuGeometry],
         instances: &[Instance],
         flags: &BuildFlags,
-    ) -> Result<TopLevel<'a>> {
-        let bottoms = bottoms.iter().map(|&b| Bottom::Borrowed(b)).collect();
-        self.record_build_bottoms(rec, bottoms, instances, InstanceMotion::STATIC, flags)
+    ) -> Result<TopLevel> {
+        let listed = copy_list(bottoms.iter().copied())?;
+        let motion = InstanceMotion::STATIC;
+        self.record_build_listed(rec, listed, instances, motion, flags)
     }
 
     /// [`TopLevelBuilder::build`] of a top level whose instances move by `motion`:
@@ -721,25 +784,26 @@ impl TopLevelBuilder {
     /// Beyond each step's checks, an instance must name the same bottom level, custom
     /// index, mask and flags at every step, and keep its handedness (a transform whose
     /// determinant changes sign passes through a singular one between the steps).
-    pub fn build_moving<'a>(
+    pub fn build_moving(
         &self,
         ctx: &Context,
-        bottoms: &[&'a GpuGeometry],
+        bottoms: &[&GpuGeometry],
         instances: &[Instance],
         motion: InstanceMotion,
         flags: &BuildFlags,
-    ) -> Result<TopLevel<'a>> {
+    ) -> Result<TopLevel> {
         let mut rec = Recorder::new(ctx)?;
-        let bottoms = bottoms.iter().map(|&b| Bottom::Borrowed(b)).collect();
-        let top = self.record_build_bottoms(&mut rec, bottoms, instances, motion, flags)?;
+        let listed = copy_list(bottoms.iter().copied())?;
+        let top = self.record_build_listed(&mut rec, listed, instances, motion, flags)?;
         rec.submit_and_wait()?;
         Ok(top)
     }
 
     /// [`TopLevelBuilder::record_build`] (moving by `motion`, as
     /// [`TopLevelBuilder::build_moving`]; [`InstanceMotion::STATIC`] for none) of a top level
-    /// that keeps its bottom levels alive (shared with the caller): a top level that can be
-    /// stored beside them, as a renderer keeps its scene from frame to frame.
+    /// that keeps its bottom levels alive (shared with the caller,
+    /// [`TopLevel::bottoms`]): a top level that can be stored beside them, as a renderer
+    /// keeps its scene from frame to frame.
     pub fn record_build_shared(
         &self,
         rec: &mut Recorder,
@@ -747,35 +811,36 @@ impl TopLevelBuilder {
         instances: &[Instance],
         motion: InstanceMotion,
         flags: &BuildFlags,
-    ) -> Result<TopLevel<'static>> {
-        let bottoms = bottoms.iter().map(|b| Bottom::Shared(b.clone())).collect();
-        self.record_build_bottoms(rec, bottoms, instances, motion, flags)
+    ) -> Result<TopLevel> {
+        let listed = copy_list(bottoms.iter().map(|b| &**b))?;
+        let mut top = self.record_build_listed(rec, listed, instances, motion, flags)?;
+        top.kept = bottoms.to_vec();
+        Ok(top)
     }
 
-    fn record_build_bottoms<'a>(
+    fn record_build_listed(
         &self,
         rec: &mut Recorder,
-        bottoms: Vec<Bottom<'a>>,
+        listed: Listed,
         instances: &[Instance],
         motion: InstanceMotion,
         flags: &BuildFlags,
-    ) -> Result<TopLevel<'a>> {
+    ) -> Result<TopLevel> {
         let call = "TopLevelBuilder::build";
-        let references = references(&bottoms)?;
-        let count = check_instances(call, instances, motion, &references)?;
+        let count = check_instances(call, instances, motion, &listed.references)?;
         let ctx = rec.context().clone();
-        let sizes = self.sizes_for_motion(&ctx, count, bottoms.len(), motion, flags)?;
+        let n_bottoms = listed.references.len();
+        let sizes = self.sizes_for_motion(&ctx, count, n_bottoms, motion, flags)?;
         let memory = Buffer::<u8>::arena(&ctx, "accel.top_level", sizes.structure_bytes as usize)?;
         let scratch_bytes = sizes
             .build_scratch_bytes
             .max(sizes.update_scratch_bytes.unwrap_or(0));
         let scratch = Buffer::<u8>::arena(&ctx, "accel.top_scratch", scratch_bytes as usize)?;
         let records = Buffer::<Instance>::new(&ctx, "accel.instances", instances.len().max(1))?;
-        let mut top =
-            self.create_in_bottoms(&ctx, bottoms, count, motion, flags, memory.as_raw())?;
+        let mut top = self.create_in_listed(&ctx, listed, count, motion, flags, memory.as_raw())?;
         rec.upload(&records, instances)?;
         rec.transfer_to_compute();
-        self.record_build_from(rec, records.as_raw(), &mut top, scratch.as_raw())?;
+        self.record_build_from(rec, records.as_raw(), count, &mut top, scratch.as_raw())?;
         top.own = Some(Own {
             _memory: memory,
             scratch,
@@ -786,8 +851,8 @@ impl TopLevelBuilder {
     }
 
     /// The update of a top level [`TopLevelBuilder::build`] made (with `allow_update`) to
-    /// `instances` (as many as before, each checked), waited for.
-    pub fn update(&self, ctx: &Context, top: &TopLevel<'_>, instances: &[Instance]) -> Result<()> {
+    /// `instances` (as many as its last build read, each checked), waited for.
+    pub fn update(&self, ctx: &Context, top: &TopLevel, instances: &[Instance]) -> Result<()> {
         let mut rec = Recorder::new(ctx)?;
         self.record_update(&mut rec, top, instances)?;
         rec.submit_and_wait()?;
@@ -800,37 +865,10 @@ impl TopLevelBuilder {
     pub fn record_update(
         &self,
         rec: &mut Recorder,
-        top: &TopLevel<'_>,
+        top: &TopLevel,
         instances: &[Instance],
     ) -> Result<()> {
-        let (records, scratch) =
-            self.host_records(rec, "TopLevelBuilder::update", top, instances)?;
-        self.record_update_from(rec, records, top, scratch)
-    }
-
-    /// A new build of a top level [`TopLevelBuilder::build`] made, over `instances` (as many
-    /// as before, each checked), recorded into `rec` in the memory and scratch the first
-    /// build allocated: the rebuild twin of [`TopLevelBuilder::record_update`].
-    pub fn record_rebuild(
-        &self,
-        rec: &mut Recorder,
-        top: &mut TopLevel<'_>,
-        instances: &[Instance],
-    ) -> Result<()> {
-        let (records, scratch) =
-            self.host_records(rec, "TopLevelBuilder::record_rebuild", top, instances)?;
-        self.record_build_from(rec, records, top, scratch)
-    }
-
-    /// `instances`, checked against `top`, uploaded by `rec` where `top`'s own build keeps
-    /// them; and the scratch that build allocated.
-    fn host_records(
-        &self,
-        rec: &mut Recorder,
-        call: &'static str,
-        top: &TopLevel<'_>,
-        instances: &[Instance],
-    ) -> Result<(RawBuffer, RawBuffer)> {
+        let call = "TopLevelBuilder::update";
         let want = top.motion.records(top.count);
         if instances.len() as u64 != want {
             let held = match top.motion.steps {
@@ -840,12 +878,56 @@ impl TopLevelBuilder {
             return Err(usage(
                 call,
                 format!(
-                    "{} instance records; the top level holds {held}: build a new one",
+                    "{} instance records; the top level holds {held} (its last build's \
+                     count, which an update keeps): build it again",
                     instances.len()
                 ),
             ));
         }
-        check_instances(call, instances, top.motion, &references(&top.bottoms)?)?;
+        let (records, scratch) = self.host_records(rec, call, top, instances)?;
+        self.record_update_from(rec, records, top, scratch)
+    }
+
+    /// A new build of a top level [`TopLevelBuilder::build`] made, over `instances` (each
+    /// checked; as many as its first build's, or fewer), recorded into `rec` in the memory
+    /// and scratch the first build allocated: the rebuild twin of
+    /// [`TopLevelBuilder::record_update`].
+    pub fn record_rebuild(
+        &self,
+        rec: &mut Recorder,
+        top: &mut TopLevel,
+        instances: &[Instance],
+    ) -> Result<()> {
+        let call = "TopLevelBuilder::record_rebuild";
+        let steps = u64::from(top.motion.steps);
+        let fits = instances.len() as u64 % steps == 0
+            && instances.len() as u64 / steps <= u64::from(top.max);
+        if !fits {
+            return Err(usage(
+                call,
+                format!(
+                    "{} instance records; the top level holds at most {} instances at {steps} \
+                     time steps: build a new one",
+                    instances.len(),
+                    top.max
+                ),
+            ));
+        }
+        let (records, scratch) = self.host_records(rec, call, top, instances)?;
+        let count = (instances.len() as u64 / steps) as u32;
+        self.record_build_from(rec, records, count, top, scratch)
+    }
+
+    /// `instances`, checked against `top`, uploaded by `rec` where `top`'s own build keeps
+    /// them; and the scratch that build allocated.
+    fn host_records(
+        &self,
+        rec: &mut Recorder,
+        call: &'static str,
+        top: &TopLevel,
+        instances: &[Instance],
+    ) -> Result<(RawBuffer, RawBuffer)> {
+        check_instances(call, instances, top.motion, &top.listed.references)?;
         let Some(Own {
             scratch, records, ..
         }) = &top.own
@@ -858,7 +940,7 @@ impl TopLevelBuilder {
         };
         // (the last build or update read the records)
         rec.compute_to_transfer();
-        rec.upload(records, instances)?;
+        rec.upload_at(records, 0, instances)?;
         rec.transfer_to_compute();
         Ok((records.as_raw(), scratch.as_raw()))
     }
@@ -937,38 +1019,55 @@ fn determinant(m: &[[f32; 4]; 3]) -> f32 {
 #[derive(Clone, Copy, Pod, Zeroable)]
 struct BoxesPush {
     n: u32,
+    slots: u32,
     first_word: u32,
     n_bottoms: u32,
     steps: u32,
+    pad: u32,
     handles_at: u64,
     t0: f32,
     scale: f32,
 }
 
-impl TopLevel<'_> {
+impl TopLevel {
+    /// The tree's geometry: a box per slot.
     fn geometry(&self) -> Geometry {
-        boxes_geometry(GeometryData::Buffer(self.parts.boxes.as_raw()), self.count)
+        boxes_geometry(GeometryData::Buffer(self.parts.boxes.as_raw()), self.max)
     }
 
-    /// Instances the top level was created for.
+    /// Instances its last build read (the maximum before one); its updates read as many.
     pub fn instance_count(&self) -> u32 {
         self.count
     }
 
-    /// The bottom levels its instances name, in order.
+    /// The most instances a build may read: what it was created for (Vulkan's
+    /// `maxPrimitiveCount`).
+    pub fn max_instances(&self) -> u32 {
+        self.max
+    }
+
+    /// The references of its list of bottom levels, in order (what instances naming a level
+    /// by index name; empty where they name theirs by reference only).
+    pub fn listed_references(&self) -> &[u64] {
+        &self.listed.references
+    }
+
+    /// Where it keeps the copies of its list's handles, 64 bytes apart (in the records of
+    /// instances that name a level of the list: [`InstanceRecord::handle`]).
+    pub fn bottom_handles_address(&self) -> u64 {
+        self.parts.handles.address()
+    }
+
+    /// The bottom levels it keeps alive, in its list's order
+    /// ([`TopLevelBuilder::record_build_shared`]; none otherwise: the caller keeps them).
     pub fn bottoms(&self) -> impl ExactSizeIterator<Item = &GpuGeometry> {
-        self.bottoms.iter().map(|b| &**b)
+        self.kept.iter().map(|b| &**b)
     }
 
     /// Where the top level's handle lies: what a shader passes to `vkrtUseStructure`
     /// (`VKRT_DEVICE_ADDRESS` in `vkrt/ray_query.glsl`), written by the build.
     pub fn handle_address(&self) -> u64 {
         self.parts.handle.address()
-    }
-
-    /// Where the bottom levels' handles lie, 64 bytes apart (in [`InstanceRecord::handle`]).
-    pub fn bottom_handles_address(&self) -> u64 {
-        self.parts.handles.address()
     }
 
     /// Records the copy of the build's report: invalid instances (never hit) in

@@ -304,7 +304,7 @@ impl SceneLevels {
 /// vkrt's levels and the buffers they were built from.
 pub struct VkrtLevels {
     /// The top level (it keeps its bottom levels).
-    pub top: TopLevel<'static>,
+    pub top: TopLevel,
     _buffers: InputBuffers,
 }
 

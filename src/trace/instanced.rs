@@ -257,7 +257,7 @@ fn driver_build_and_trace(
 /// own).
 pub fn trace_top_level(
     ctx: &Context,
-    top: &TopLevel<'_>,
+    top: &TopLevel,
     ids: SceneIds<'_>,
     opt: &TraceOptions,
     bitstack: bool,
@@ -440,7 +440,8 @@ pub struct InstanceHit {
 /// over every instance the ray's cull mask sees (`steps`: the moving top level's, from
 /// [`instance_boxes`](crate::accel::instances::instance_boxes)), each traced by
 /// `bottom(level, object-space ray)` — the bottom level's own walk, returning its hit and
-/// whether it gave up. Ties in `t` go to
+/// whether it gave up (`level`: [`InstanceRecord::bottom`], its index in the top level's
+/// list; [`InstanceRecord::UNLISTED`] where it has none). Ties in `t` go to
 /// the lowest instance index; an any-hit query returns the first hit in index order (the
 /// device's may be another: any hit answers it).
 pub fn trace_instances(

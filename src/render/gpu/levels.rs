@@ -95,7 +95,7 @@ impl Traced {
 )]
 pub(crate) enum Top {
     Own {
-        top: TopLevel<'static>,
+        top: TopLevel,
         builder: TopLevelBuilder,
     },
     Driver {
