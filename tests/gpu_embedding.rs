@@ -31,6 +31,8 @@ struct Renderer {
     device: ash::Device,
     family: u32,
     queue: vk::Queue,
+    /// The features its device was created with.
+    features: DeviceFeatures,
 }
 
 impl Renderer {
@@ -115,15 +117,12 @@ fn renderer() -> Option<Renderer> {
         // The kd-tree builder's 1-byte flags need 8-bit storage (lavapipe has it).
         let mut f12 =
             vk::PhysicalDeviceVulkan12Features::default().storage_buffer8_bit_access(true);
-        let device = instance
-            .create_device(
-                physical_device,
-                &vk::DeviceCreateInfo::default()
-                    .queue_create_infos(&queues)
-                    .push_next(&mut f12),
-                None,
-            )
-            .ok()?;
+        let info = vk::DeviceCreateInfo::default()
+            .queue_create_infos(&queues)
+            .push_next(&mut f12);
+        let device = instance.create_device(physical_device, &info, None).ok()?;
+        // What vkrt is told the device has: read from the same create info.
+        let features = DeviceFeatures::from_device_create_info(&info, vk::API_VERSION_1_2);
         let queue = device.get_device_queue(family, 0);
         Some(Renderer {
             entry,
@@ -132,6 +131,7 @@ fn renderer() -> Option<Renderer> {
             device,
             family,
             queue,
+            features,
         })
     }
 }
@@ -156,6 +156,13 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
         })
         .unwrap(),
     ));
+    assert_eq!(
+        r.features,
+        DeviceFeatures {
+            storage_buffer_8bit: true,
+            ..DeviceFeatures::default()
+        }
+    );
     let parts = RawParts {
         entry: r.entry.clone(),
         instance: r.instance.clone(),
@@ -163,10 +170,7 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
         device: r.device.clone(),
         queue_family: r.family,
         queue: r.queue,
-        enabled_features: DeviceFeatures {
-            storage_buffer_8bit: true,
-            ..DeviceFeatures::default()
-        },
+        enabled_features: r.features,
         debug_utils: false,
         allocator: Some(allocator.clone()),
         pipeline_cache_dir: None,

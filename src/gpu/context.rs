@@ -54,7 +54,8 @@ pub struct RawParts {
     pub queue_family: u32,
     /// A queue of `queue_family`, which vkrt submits its work to.
     pub queue: vk::Queue,
-    /// Features the caller enabled at device creation (vkrt cannot query them).
+    /// Features the caller enabled at device creation (vkrt cannot query them):
+    /// [`DeviceFeatures::from_device_create_info`] reads them from the create info.
     pub enabled_features: DeviceFeatures,
     /// Whether the instance has `VK_EXT_debug_utils` enabled (for pass labels).
     pub debug_utils: bool,

@@ -44,6 +44,123 @@ pub struct DeviceFeatures {
     pub ray_query: bool,
 }
 
+impl DeviceFeatures {
+    /// The features a device was created with, read from the `VkDeviceCreateInfo` the
+    /// renderer gave `vkCreateDevice`: `pEnabledFeatures` or a `VkPhysicalDeviceFeatures2`
+    /// in its chain, the Vulkan 1.1, 1.2 and 1.3 feature structs, the per-feature structs
+    /// of the extensions promoted into them, the acceleration-structure and ray-query
+    /// structs, and its enabled extensions; `api_version` is the device's. What
+    /// [`super::RawParts::enabled_features`] takes, so that the two cannot disagree.
+    ///
+    /// # Safety
+    /// `info` is valid as `vkCreateDevice` requires: its `pNext` chain holds live structs
+    /// whose `sType` matches their type, and its extension names are live C strings.
+    pub unsafe fn from_device_create_info(info: &vk::DeviceCreateInfo<'_>, api_version: u32) -> Self {
+        let on = |b: vk::Bool32| b == vk::TRUE;
+        let mut f = DeviceFeatures {
+            api_1_3: api_version >= vk::API_VERSION_1_3,
+            ..Self::default()
+        };
+        // SAFETY (all reads below): the caller's contract above.
+        let mut base = unsafe { info.p_enabled_features.as_ref() }.copied().unwrap_or_default();
+        let (mut accel, mut query) = (false, false);
+        let mut next = info.p_next.cast::<vk::BaseInStructure<'_>>();
+        while let Some(s) = unsafe { next.as_ref() } {
+            let at = next.cast::<u8>();
+            match s.s_type {
+                vk::StructureType::PHYSICAL_DEVICE_FEATURES_2 => {
+                    base = unsafe { &*at.cast::<vk::PhysicalDeviceFeatures2<'_>>() }.features;
+                }
+                vk::StructureType::PHYSICAL_DEVICE_VULKAN_1_1_FEATURES => {
+                    let v = unsafe { &*at.cast::<vk::PhysicalDeviceVulkan11Features<'_>>() };
+                    f.storage_buffer_16bit |= on(v.storage_buffer16_bit_access);
+                }
+                vk::StructureType::PHYSICAL_DEVICE_VULKAN_1_2_FEATURES => {
+                    let v = unsafe { &*at.cast::<vk::PhysicalDeviceVulkan12Features<'_>>() };
+                    f.storage_buffer_8bit |= on(v.storage_buffer8_bit_access);
+                    f.shader_int8 |= on(v.shader_int8);
+                    f.shader_float16 |= on(v.shader_float16);
+                    f.shader_buffer_int64_atomics |= on(v.shader_buffer_int64_atomics);
+                    f.host_query_reset |= on(v.host_query_reset);
+                    f.buffer_device_address |= on(v.buffer_device_address);
+                }
+                vk::StructureType::PHYSICAL_DEVICE_VULKAN_1_3_FEATURES => {
+                    let v = unsafe { &*at.cast::<vk::PhysicalDeviceVulkan13Features<'_>>() };
+                    f.subgroup_size_control |= on(v.subgroup_size_control);
+                    f.compute_full_subgroups |= on(v.compute_full_subgroups);
+                }
+                vk::StructureType::PHYSICAL_DEVICE_8BIT_STORAGE_FEATURES => {
+                    let v = unsafe { &*at.cast::<vk::PhysicalDevice8BitStorageFeatures<'_>>() };
+                    f.storage_buffer_8bit |= on(v.storage_buffer8_bit_access);
+                }
+                vk::StructureType::PHYSICAL_DEVICE_16BIT_STORAGE_FEATURES => {
+                    let v = unsafe { &*at.cast::<vk::PhysicalDevice16BitStorageFeatures<'_>>() };
+                    f.storage_buffer_16bit |= on(v.storage_buffer16_bit_access);
+                }
+                vk::StructureType::PHYSICAL_DEVICE_SHADER_FLOAT16_INT8_FEATURES => {
+                    let v =
+                        unsafe { &*at.cast::<vk::PhysicalDeviceShaderFloat16Int8Features<'_>>() };
+                    f.shader_float16 |= on(v.shader_float16);
+                    f.shader_int8 |= on(v.shader_int8);
+                }
+                vk::StructureType::PHYSICAL_DEVICE_SHADER_ATOMIC_INT64_FEATURES => {
+                    let v =
+                        unsafe { &*at.cast::<vk::PhysicalDeviceShaderAtomicInt64Features<'_>>() };
+                    f.shader_buffer_int64_atomics |= on(v.shader_buffer_int64_atomics);
+                }
+                vk::StructureType::PHYSICAL_DEVICE_BUFFER_DEVICE_ADDRESS_FEATURES => {
+                    let v = unsafe {
+                        &*at.cast::<vk::PhysicalDeviceBufferDeviceAddressFeatures<'_>>()
+                    };
+                    f.buffer_device_address |= on(v.buffer_device_address);
+                }
+                vk::StructureType::PHYSICAL_DEVICE_HOST_QUERY_RESET_FEATURES => {
+                    let v = unsafe { &*at.cast::<vk::PhysicalDeviceHostQueryResetFeatures<'_>>() };
+                    f.host_query_reset |= on(v.host_query_reset);
+                }
+                vk::StructureType::PHYSICAL_DEVICE_SUBGROUP_SIZE_CONTROL_FEATURES => {
+                    let v = unsafe {
+                        &*at.cast::<vk::PhysicalDeviceSubgroupSizeControlFeatures<'_>>()
+                    };
+                    f.subgroup_size_control |= on(v.subgroup_size_control);
+                    f.compute_full_subgroups |= on(v.compute_full_subgroups);
+                }
+                vk::StructureType::PHYSICAL_DEVICE_ACCELERATION_STRUCTURE_FEATURES_KHR => {
+                    let v = unsafe {
+                        &*at.cast::<vk::PhysicalDeviceAccelerationStructureFeaturesKHR<'_>>()
+                    };
+                    accel = on(v.acceleration_structure);
+                }
+                vk::StructureType::PHYSICAL_DEVICE_RAY_QUERY_FEATURES_KHR => {
+                    let v = unsafe { &*at.cast::<vk::PhysicalDeviceRayQueryFeaturesKHR<'_>>() };
+                    query = on(v.ray_query);
+                }
+                _ => {}
+            }
+            next = s.p_next;
+        }
+        f.shader_int16 = on(base.shader_int16);
+        f.shader_int64 = on(base.shader_int64);
+        f.shader_float64 = on(base.shader_float64);
+        let names: &[*const std::ffi::c_char] = match info.enabled_extension_count {
+            0 => &[],
+            n => unsafe {
+                std::slice::from_raw_parts(info.pp_enabled_extension_names, n as usize)
+            },
+        };
+        let enabled = |name: &std::ffi::CStr| {
+            names
+                .iter()
+                .any(|&p| !p.is_null() && unsafe { std::ffi::CStr::from_ptr(p) } == name)
+        };
+        f.ray_query = accel
+            && query
+            && f.buffer_device_address
+            && RAY_QUERY_EXTENSIONS.iter().all(|&n| enabled(n));
+        f
+    }
+}
+
 /// The device extensions [`DeviceFeatures::ray_query`] enables.
 pub(crate) const RAY_QUERY_EXTENSIONS: [&std::ffi::CStr; 3] = [
     ash::khr::acceleration_structure::NAME,
@@ -447,7 +564,61 @@ pub fn device_requirements() -> DeviceRequirements {
 
 #[cfg(test)]
 mod tests {
-    use super::{mesa_version, traversal_steps_within, LLVMPIPE_LOOP_BUDGET};
+    use super::{mesa_version, traversal_steps_within, DeviceFeatures, LLVMPIPE_LOOP_BUDGET};
+    use ash::vk;
+
+    #[test]
+    fn features_are_read_from_the_renderers_create_info() {
+        // Base features through pEnabledFeatures, 1.2 features, a promoted extension's own
+        // struct, and the driver's ray query without one of its extensions.
+        let base = vk::PhysicalDeviceFeatures::default()
+            .shader_int64(true)
+            .shader_float64(true);
+        let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
+            .storage_buffer8_bit_access(true)
+            .buffer_device_address(true)
+            .host_query_reset(true);
+        let mut atomics =
+            vk::PhysicalDeviceShaderAtomicInt64Features::default().shader_buffer_int64_atomics(true);
+        let mut accel =
+            vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default().acceleration_structure(true);
+        let mut query = vk::PhysicalDeviceRayQueryFeaturesKHR::default().ray_query(true);
+        let two = [ash::khr::acceleration_structure::NAME.as_ptr(), ash::khr::ray_query::NAME.as_ptr()];
+        let info = vk::DeviceCreateInfo::default()
+            .enabled_features(&base)
+            .enabled_extension_names(&two)
+            .push_next(&mut f12)
+            .push_next(&mut atomics)
+            .push_next(&mut accel)
+            .push_next(&mut query);
+        // SAFETY: every struct and name lives across the call.
+        let f = unsafe { DeviceFeatures::from_device_create_info(&info, vk::API_VERSION_1_2) };
+        let want = DeviceFeatures {
+            storage_buffer_8bit: true,
+            shader_int64: true,
+            shader_float64: true,
+            shader_buffer_int64_atomics: true,
+            host_query_reset: true,
+            buffer_device_address: true,
+            ..DeviceFeatures::default()
+        };
+        assert_eq!(f, want, "ray query needs all three extensions");
+        let three = [
+            ash::khr::acceleration_structure::NAME.as_ptr(),
+            ash::khr::deferred_host_operations::NAME.as_ptr(),
+            ash::khr::ray_query::NAME.as_ptr(),
+        ];
+        let info = info.enabled_extension_names(&three);
+        // SAFETY: as above.
+        let f = unsafe { DeviceFeatures::from_device_create_info(&info, vk::API_VERSION_1_3) };
+        assert_eq!(f, DeviceFeatures { ray_query: true, api_1_3: true, ..want });
+        // A VkPhysicalDeviceFeatures2 in the chain instead of pEnabledFeatures.
+        let mut f2 = vk::PhysicalDeviceFeatures2::default().features(base.shader_int16(true));
+        let info = vk::DeviceCreateInfo::default().push_next(&mut f2);
+        // SAFETY: as above.
+        let f = unsafe { DeviceFeatures::from_device_create_info(&info, vk::API_VERSION_1_2) };
+        assert!(f.shader_int16 && f.shader_int64 && !f.buffer_device_address);
+    }
 
     #[test]
     fn mesa_versions_parse_from_driver_info() {
