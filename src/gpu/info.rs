@@ -55,27 +55,36 @@ impl DeviceFeatures {
     /// # Safety
     /// `info` is valid as `vkCreateDevice` requires: its `pNext` chain holds live structs
     /// whose `sType` matches their type, and its extension names are live C strings.
-    pub unsafe fn from_device_create_info(info: &vk::DeviceCreateInfo<'_>, api_version: u32) -> Self {
+    pub unsafe fn from_device_create_info(
+        info: &vk::DeviceCreateInfo<'_>,
+        api_version: u32,
+    ) -> Self {
         let on = |b: vk::Bool32| b == vk::TRUE;
         let mut f = DeviceFeatures {
             api_1_3: api_version >= vk::API_VERSION_1_3,
             ..Self::default()
         };
-        // SAFETY (all reads below): the caller's contract above.
-        let mut base = unsafe { info.p_enabled_features.as_ref() }.copied().unwrap_or_default();
+        // SAFETY: the caller's contract: pEnabledFeatures is null or a live struct.
+        let mut base = unsafe { info.p_enabled_features.as_ref() }
+            .copied()
+            .unwrap_or_default();
         let (mut accel, mut query) = (false, false);
         let mut next = info.p_next.cast::<vk::BaseInStructure<'_>>();
+        // SAFETY: the caller's contract: a live struct of this sType, live names.
         while let Some(s) = unsafe { next.as_ref() } {
             let at = next.cast::<u8>();
             match s.s_type {
                 vk::StructureType::PHYSICAL_DEVICE_FEATURES_2 => {
+                    // SAFETY: the caller's contract: a live struct of this sType, live names.
                     base = unsafe { &*at.cast::<vk::PhysicalDeviceFeatures2<'_>>() }.features;
                 }
                 vk::StructureType::PHYSICAL_DEVICE_VULKAN_1_1_FEATURES => {
+                    // SAFETY: the caller's contract: a live struct of this sType, live names.
                     let v = unsafe { &*at.cast::<vk::PhysicalDeviceVulkan11Features<'_>>() };
                     f.storage_buffer_16bit |= on(v.storage_buffer16_bit_access);
                 }
                 vk::StructureType::PHYSICAL_DEVICE_VULKAN_1_2_FEATURES => {
+                    // SAFETY: the caller's contract: a live struct of this sType, live names.
                     let v = unsafe { &*at.cast::<vk::PhysicalDeviceVulkan12Features<'_>>() };
                     f.storage_buffer_8bit |= on(v.storage_buffer8_bit_access);
                     f.shader_int8 |= on(v.shader_int8);
@@ -85,53 +94,61 @@ impl DeviceFeatures {
                     f.buffer_device_address |= on(v.buffer_device_address);
                 }
                 vk::StructureType::PHYSICAL_DEVICE_VULKAN_1_3_FEATURES => {
+                    // SAFETY: the caller's contract: a live struct of this sType, live names.
                     let v = unsafe { &*at.cast::<vk::PhysicalDeviceVulkan13Features<'_>>() };
                     f.subgroup_size_control |= on(v.subgroup_size_control);
                     f.compute_full_subgroups |= on(v.compute_full_subgroups);
                 }
                 vk::StructureType::PHYSICAL_DEVICE_8BIT_STORAGE_FEATURES => {
+                    // SAFETY: the caller's contract: a live struct of this sType, live names.
                     let v = unsafe { &*at.cast::<vk::PhysicalDevice8BitStorageFeatures<'_>>() };
                     f.storage_buffer_8bit |= on(v.storage_buffer8_bit_access);
                 }
                 vk::StructureType::PHYSICAL_DEVICE_16BIT_STORAGE_FEATURES => {
+                    // SAFETY: the caller's contract: a live struct of this sType, live names.
                     let v = unsafe { &*at.cast::<vk::PhysicalDevice16BitStorageFeatures<'_>>() };
                     f.storage_buffer_16bit |= on(v.storage_buffer16_bit_access);
                 }
                 vk::StructureType::PHYSICAL_DEVICE_SHADER_FLOAT16_INT8_FEATURES => {
                     let v =
+                        // SAFETY: the caller's contract: a live struct of this sType, live names.
                         unsafe { &*at.cast::<vk::PhysicalDeviceShaderFloat16Int8Features<'_>>() };
                     f.shader_float16 |= on(v.shader_float16);
                     f.shader_int8 |= on(v.shader_int8);
                 }
                 vk::StructureType::PHYSICAL_DEVICE_SHADER_ATOMIC_INT64_FEATURES => {
                     let v =
+                        // SAFETY: the caller's contract: a live struct of this sType, live names.
                         unsafe { &*at.cast::<vk::PhysicalDeviceShaderAtomicInt64Features<'_>>() };
                     f.shader_buffer_int64_atomics |= on(v.shader_buffer_int64_atomics);
                 }
                 vk::StructureType::PHYSICAL_DEVICE_BUFFER_DEVICE_ADDRESS_FEATURES => {
-                    let v = unsafe {
-                        &*at.cast::<vk::PhysicalDeviceBufferDeviceAddressFeatures<'_>>()
-                    };
+                    // SAFETY: the caller's contract: a live struct of this sType, live names.
+                    let v =
+                        unsafe { &*at.cast::<vk::PhysicalDeviceBufferDeviceAddressFeatures<'_>>() };
                     f.buffer_device_address |= on(v.buffer_device_address);
                 }
                 vk::StructureType::PHYSICAL_DEVICE_HOST_QUERY_RESET_FEATURES => {
+                    // SAFETY: the caller's contract: a live struct of this sType, live names.
                     let v = unsafe { &*at.cast::<vk::PhysicalDeviceHostQueryResetFeatures<'_>>() };
                     f.host_query_reset |= on(v.host_query_reset);
                 }
                 vk::StructureType::PHYSICAL_DEVICE_SUBGROUP_SIZE_CONTROL_FEATURES => {
-                    let v = unsafe {
-                        &*at.cast::<vk::PhysicalDeviceSubgroupSizeControlFeatures<'_>>()
-                    };
+                    // SAFETY: the caller's contract: a live struct of this sType, live names.
+                    let v =
+                        unsafe { &*at.cast::<vk::PhysicalDeviceSubgroupSizeControlFeatures<'_>>() };
                     f.subgroup_size_control |= on(v.subgroup_size_control);
                     f.compute_full_subgroups |= on(v.compute_full_subgroups);
                 }
                 vk::StructureType::PHYSICAL_DEVICE_ACCELERATION_STRUCTURE_FEATURES_KHR => {
+                    // SAFETY: the caller's contract: a live struct of this sType, live names.
                     let v = unsafe {
                         &*at.cast::<vk::PhysicalDeviceAccelerationStructureFeaturesKHR<'_>>()
                     };
                     accel = on(v.acceleration_structure);
                 }
                 vk::StructureType::PHYSICAL_DEVICE_RAY_QUERY_FEATURES_KHR => {
+                    // SAFETY: the caller's contract: a live struct of this sType, live names.
                     let v = unsafe { &*at.cast::<vk::PhysicalDeviceRayQueryFeaturesKHR<'_>>() };
                     query = on(v.ray_query);
                 }
@@ -144,13 +161,13 @@ impl DeviceFeatures {
         f.shader_float64 = on(base.shader_float64);
         let names: &[*const std::ffi::c_char] = match info.enabled_extension_count {
             0 => &[],
-            n => unsafe {
-                std::slice::from_raw_parts(info.pp_enabled_extension_names, n as usize)
-            },
+            // SAFETY: the caller's contract: a live struct of this sType, live names.
+            n => unsafe { std::slice::from_raw_parts(info.pp_enabled_extension_names, n as usize) },
         };
         let enabled = |name: &std::ffi::CStr| {
             names
                 .iter()
+                // SAFETY: the caller's contract: a live struct of this sType, live names.
                 .any(|&p| !p.is_null() && unsafe { std::ffi::CStr::from_ptr(p) } == name)
         };
         f.ray_query = accel
@@ -578,12 +595,15 @@ mod tests {
             .storage_buffer8_bit_access(true)
             .buffer_device_address(true)
             .host_query_reset(true);
-        let mut atomics =
-            vk::PhysicalDeviceShaderAtomicInt64Features::default().shader_buffer_int64_atomics(true);
-        let mut accel =
-            vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default().acceleration_structure(true);
+        let mut atomics = vk::PhysicalDeviceShaderAtomicInt64Features::default()
+            .shader_buffer_int64_atomics(true);
+        let mut accel = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default()
+            .acceleration_structure(true);
         let mut query = vk::PhysicalDeviceRayQueryFeaturesKHR::default().ray_query(true);
-        let two = [ash::khr::acceleration_structure::NAME.as_ptr(), ash::khr::ray_query::NAME.as_ptr()];
+        let two = [
+            ash::khr::acceleration_structure::NAME.as_ptr(),
+            ash::khr::ray_query::NAME.as_ptr(),
+        ];
         let info = vk::DeviceCreateInfo::default()
             .enabled_features(&base)
             .enabled_extension_names(&two)
@@ -611,7 +631,14 @@ mod tests {
         let info = info.enabled_extension_names(&three);
         // SAFETY: as above.
         let f = unsafe { DeviceFeatures::from_device_create_info(&info, vk::API_VERSION_1_3) };
-        assert_eq!(f, DeviceFeatures { ray_query: true, api_1_3: true, ..want });
+        assert_eq!(
+            f,
+            DeviceFeatures {
+                ray_query: true,
+                api_1_3: true,
+                ..want
+            }
+        );
         // A VkPhysicalDeviceFeatures2 in the chain instead of pEnabledFeatures.
         let mut f2 = vk::PhysicalDeviceFeatures2::default().features(base.shader_int16(true));
         let info = vk::DeviceCreateInfo::default().push_next(&mut f2);
