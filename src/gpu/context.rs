@@ -587,40 +587,19 @@ fn create_device(
     let queues = [vk::DeviceQueueCreateInfo::default()
         .queue_family_index(family)
         .queue_priorities(&priorities)];
-    let base = vk::PhysicalDeviceFeatures::default()
-        .shader_int64(features.shader_int64)
-        .shader_float64(features.shader_float64)
-        .shader_int16(features.shader_int16);
-    let mut f11 = vk::PhysicalDeviceVulkan11Features::default()
-        .storage_buffer16_bit_access(features.storage_buffer_16bit);
-    let mut f12 = vk::PhysicalDeviceVulkan12Features::default()
-        .storage_buffer8_bit_access(features.storage_buffer_8bit)
-        .shader_int8(features.shader_int8)
-        .shader_buffer_int64_atomics(features.shader_buffer_int64_atomics)
-        .shader_float16(features.shader_float16)
-        .host_query_reset(features.host_query_reset)
-        .buffer_device_address(features.buffer_device_address || features.ray_query);
-    let mut accel =
-        vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default().acceleration_structure(true);
-    let mut query = vk::PhysicalDeviceRayQueryFeaturesKHR::default().ray_query(true);
-    let mut size_control = vk::PhysicalDeviceSubgroupSizeControlFeatures::default()
-        .subgroup_size_control(features.subgroup_size_control)
-        .compute_full_subgroups(features.compute_full_subgroups);
-    let mut ext_names = Vec::new();
+    // The same structs a renderer gets from `DeviceFeatures::request`.
+    let mut r = features.request();
+    let ext_names: Vec<_> = r.extensions.iter().map(|n| n.as_ptr()).collect();
     let mut create = vk::DeviceCreateInfo::default()
         .queue_create_infos(&queues)
-        .enabled_features(&base)
-        .push_next(&mut f11)
-        .push_next(&mut f12);
-    if features.subgroup_size_control {
-        if !features.api_1_3 {
-            ext_names.push(ash::ext::subgroup_size_control::NAME.as_ptr());
-        }
-        create = create.push_next(&mut size_control);
+        .enabled_features(&r.base)
+        .push_next(&mut r.v11)
+        .push_next(&mut r.v12);
+    if let Some(s) = r.size_control.as_mut() {
+        create = create.push_next(s);
     }
-    if features.ray_query {
-        ext_names.extend(info::RAY_QUERY_EXTENSIONS.iter().map(|n| n.as_ptr()));
-        create = create.push_next(&mut accel).push_next(&mut query);
+    if let (Some(a), Some(q)) = (r.acceleration_structure.as_mut(), r.ray_query.as_mut()) {
+        create = create.push_next(a).push_next(q);
     }
     create = create.enabled_extension_names(&ext_names);
     // SAFETY: `create` points at locals that outlive the call; only supported features and

@@ -178,6 +178,77 @@ impl DeviceFeatures {
     }
 }
 
+/// The feature structs and extensions that enable a [`DeviceFeatures`] set on a device, as
+/// vkrt enables them on a device it creates: for a renderer that creates its own, chain
+/// `v11` and `v12` (and `size_control`, `acceleration_structure` and `ray_query` where
+/// present) into its `VkDeviceCreateInfo` with `base` as `pEnabledFeatures` and
+/// `extensions` among its extensions — or set the same flags in the structs it already
+/// chains. [`DeviceFeatures::from_device_create_info`] of the result gives the set back.
+#[derive(Clone, Debug, Default)]
+pub struct DeviceFeatureRequest {
+    /// `VkPhysicalDeviceFeatures`: `shaderInt16`, `shaderInt64`, `shaderFloat64`.
+    pub base: vk::PhysicalDeviceFeatures,
+    /// `storageBuffer16BitAccess`.
+    pub v11: vk::PhysicalDeviceVulkan11Features<'static>,
+    /// 8-bit storage and arithmetic, 16-bit floats, 64-bit atomics, host query reset,
+    /// `bufferDeviceAddress`.
+    pub v12: vk::PhysicalDeviceVulkan12Features<'static>,
+    /// Subgroup size control (core in Vulkan 1.3; `VK_EXT_subgroup_size_control` before).
+    pub size_control: Option<vk::PhysicalDeviceSubgroupSizeControlFeatures<'static>>,
+    /// The driver's acceleration structures (with `ray_query`).
+    pub acceleration_structure: Option<vk::PhysicalDeviceAccelerationStructureFeaturesKHR<'static>>,
+    /// The driver's ray query.
+    pub ray_query: Option<vk::PhysicalDeviceRayQueryFeaturesKHR<'static>>,
+    /// The device extensions these need.
+    pub extensions: Vec<&'static std::ffi::CStr>,
+}
+
+impl DeviceFeatures {
+    /// What `pd` supports of the features vkrt uses (what a context vkrt creates enables).
+    pub fn supported(instance: &ash::Instance, pd: vk::PhysicalDevice) -> Self {
+        supported_features(instance, pd)
+    }
+
+    /// The structs and extensions that enable this set ([`DeviceFeatureRequest`]).
+    pub fn request(&self) -> DeviceFeatureRequest {
+        let mut r = DeviceFeatureRequest {
+            base: vk::PhysicalDeviceFeatures::default()
+                .shader_int64(self.shader_int64)
+                .shader_float64(self.shader_float64)
+                .shader_int16(self.shader_int16),
+            v11: vk::PhysicalDeviceVulkan11Features::default()
+                .storage_buffer16_bit_access(self.storage_buffer_16bit),
+            v12: vk::PhysicalDeviceVulkan12Features::default()
+                .storage_buffer8_bit_access(self.storage_buffer_8bit)
+                .shader_int8(self.shader_int8)
+                .shader_buffer_int64_atomics(self.shader_buffer_int64_atomics)
+                .shader_float16(self.shader_float16)
+                .host_query_reset(self.host_query_reset)
+                .buffer_device_address(self.buffer_device_address || self.ray_query),
+            ..DeviceFeatureRequest::default()
+        };
+        if self.subgroup_size_control {
+            if !self.api_1_3 {
+                r.extensions.push(ash::ext::subgroup_size_control::NAME);
+            }
+            r.size_control = Some(
+                vk::PhysicalDeviceSubgroupSizeControlFeatures::default()
+                    .subgroup_size_control(true)
+                    .compute_full_subgroups(self.compute_full_subgroups),
+            );
+        }
+        if self.ray_query {
+            r.extensions.extend(RAY_QUERY_EXTENSIONS);
+            r.acceleration_structure = Some(
+                vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default()
+                    .acceleration_structure(true),
+            );
+            r.ray_query = Some(vk::PhysicalDeviceRayQueryFeaturesKHR::default().ray_query(true));
+        }
+        r
+    }
+}
+
 /// The device extensions [`DeviceFeatures::ray_query`] enables.
 pub(crate) const RAY_QUERY_EXTENSIONS: [&std::ffi::CStr; 3] = [
     ash::khr::acceleration_structure::NAME,
@@ -645,6 +716,50 @@ mod tests {
         // SAFETY: as above.
         let f = unsafe { DeviceFeatures::from_device_create_info(&info, vk::API_VERSION_1_2) };
         assert!(f.shader_int16 && f.shader_int64 && !f.buffer_device_address);
+    }
+
+    #[test]
+    fn a_request_enables_exactly_its_features() {
+        let all = DeviceFeatures {
+            storage_buffer_8bit: true,
+            storage_buffer_16bit: true,
+            shader_int8: true,
+            shader_int16: true,
+            shader_int64: true,
+            shader_buffer_int64_atomics: true,
+            shader_float64: true,
+            shader_float16: true,
+            host_query_reset: true,
+            subgroup_size_control: true,
+            compute_full_subgroups: true,
+            api_1_3: false,
+            buffer_device_address: true,
+            ray_query: true,
+        };
+        let some = DeviceFeatures {
+            storage_buffer_8bit: true,
+            shader_int64: true,
+            api_1_3: true,
+            ..DeviceFeatures::default()
+        };
+        for (want, api) in [(all, vk::API_VERSION_1_2), (some, vk::API_VERSION_1_3)] {
+            let mut r = want.request();
+            let names: Vec<_> = r.extensions.iter().map(|n| n.as_ptr()).collect();
+            let mut info = vk::DeviceCreateInfo::default()
+                .enabled_features(&r.base)
+                .enabled_extension_names(&names)
+                .push_next(&mut r.v11)
+                .push_next(&mut r.v12);
+            if let Some(s) = r.size_control.as_mut() {
+                info = info.push_next(s);
+            }
+            if let (Some(a), Some(q)) = (r.acceleration_structure.as_mut(), r.ray_query.as_mut()) {
+                info = info.push_next(a).push_next(q);
+            }
+            // SAFETY: every struct and name lives across the call.
+            let got = unsafe { DeviceFeatures::from_device_create_info(&info, api) };
+            assert_eq!(got, want);
+        }
     }
 
     #[test]

@@ -43,8 +43,8 @@ pub use context::{Context, ContextOptions, MemoryUsage, RawParts, Traffic};
 pub use error::{GpuError, Result};
 pub use foreign::{ForeignBinding, ForeignKernel};
 pub use info::{
-    device_requirements, mesa_version, traversal_steps_within, DeviceFeatures, DeviceInfo,
-    DeviceRequirements, LLVMPIPE_LOOP_BUDGET,
+    device_requirements, mesa_version, traversal_steps_within, DeviceFeatureRequest,
+    DeviceFeatures, DeviceInfo, DeviceRequirements, LLVMPIPE_LOOP_BUDGET,
 };
 pub use kernel::{Kernel, Spec, PUSH_CONSTANT_BYTES};
 pub use profiler::{
