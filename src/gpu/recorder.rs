@@ -301,6 +301,17 @@ impl Recorder {
         }
     }
 
+    /// Whether `buffers` meet the ranges `kernel`'s bindings need ([`Recorder::dispatch`]'s
+    /// rule: non-empty, aligned offsets, within the device's limits and their buffers); the
+    /// reason where not. Records nothing, so a caller can refuse before it records.
+    pub fn check_bindings(
+        &self,
+        kernel: &Kernel,
+        buffers: &[&dyn BufferArg],
+    ) -> std::result::Result<(), String> {
+        check_ranges(&self.ctx, kernel.blob, buffers)
+    }
+
     /// Binds the kernel's pipeline, a descriptor set of `buffers` and `push`; false (and the
     /// recording marked failed) when no descriptor set could be made.
     fn bind(&mut self, kernel: &Kernel, buffers: &[&dyn BufferArg], push: &[u8]) -> bool {

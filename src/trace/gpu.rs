@@ -178,20 +178,6 @@ impl Tracer {
         if errors.range() < 4 {
             return refuse("the error counter range holds no 32-bit word".into());
         }
-        let align = rec
-            .context()
-            .info()
-            .min_storage_buffer_offset_alignment
-            .max(1);
-        for (what, b) in [("ray", rays), ("hit", hits), ("error counter", errors)] {
-            if b.offset() % align != 0 {
-                return refuse(format!(
-                    "the {what} range starts at byte {}, not a multiple of the device's \
-                     minStorageBufferOffsetAlignment ({align})",
-                    b.offset()
-                ));
-            }
-        }
         if n > u32::MAX as usize {
             return refuse(format!("{n} rays in one dispatch (at most {})", u32::MAX));
         }
@@ -201,6 +187,9 @@ impl Tracer {
         let g = geom.bindings();
         let b: [&dyn BufferArg; 10] =
             [rays, hits, g[0], g[1], g[2], g[3], g[4], g[5], g[6], errors];
+        // The dispatch's own range rules (offsets, limits), checked before anything is
+        // recorded rather than failing the recording.
+        rec.check_bindings(&self.kernel, &b).or_else(refuse)?;
         let groups = rec.groups_1d(n as u64, WORKGROUP);
         rec.dispatch(&self.kernel, groups, &b, &TracePush { n: n as u32, time });
         rec.check()
