@@ -617,8 +617,8 @@ fn build_and_trace(
         let mut rec = unsafe { Recorder::from_raw(&ctx, cmd, DEFAULT_QUERY_CAPACITY) }?;
         builder.record_build_from(
             &mut rec,
-            &geometries,
             &mut structure,
+            &geometries,
             raw(&scratch_buf, sizes.build_scratch_bytes.max(4)),
         )?;
         // The host's own trace, in a vkrt profiler scope so both are timed alike: closest

@@ -625,9 +625,9 @@ fn instance_boxes_check(ctx: &Context, hosts: &[TraceGeometry], n: usize, steps:
     rec.transfer_to_compute();
     builder.record_build_from(
         &mut rec,
+        &mut top,
         input.as_raw(),
         n as u32,
-        &mut top,
         scratch.as_raw(),
     )?;
     rec.compute_to_transfer();

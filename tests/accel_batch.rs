@@ -238,7 +238,7 @@ fn a_batch_builds_each_structure_as_its_own_call_does_sharing_its_barriers() {
         for t in targets(&lists, &mut separate) {
             let before = rec.counts().barriers;
             builder
-                .record_build_from(&mut rec, t.geometries, t.out, t.scratch)
+                .record_build_from(&mut rec, t.out, t.geometries, t.scratch)
                 .unwrap();
             each.push(rec.counts().barriers - before);
         }
@@ -278,8 +278,8 @@ fn a_batch_builds_each_structure_as_its_own_call_does_sharing_its_barriers() {
         {
             if kind != AccelKind::Driver {
                 assert_eq!(
-                    a.accel.download().unwrap(),
-                    b.accel.download().unwrap(),
+                    a.structure().download().unwrap(),
+                    b.structure().download().unwrap(),
                     "{kind:?} structure {k}"
                 );
             }
@@ -297,7 +297,10 @@ fn a_batch_builds_each_structure_as_its_own_call_does_sharing_its_barriers() {
         rec.submit_and_wait().unwrap();
         if kind != AccelKind::Driver {
             for (a, b) in batch.structures.iter().zip(&separate.structures) {
-                assert_eq!(a.accel.download().unwrap(), b.accel.download().unwrap());
+                assert_eq!(
+                    a.structure().download().unwrap(),
+                    b.structure().download().unwrap()
+                );
             }
         }
     }
@@ -522,8 +525,8 @@ fn a_compacted_kd_tree_traces_as_the_original_in_fewer_bytes() {
             assert!(s.bytes * 2 < full, "structure {k}: {s:?} of {full}");
         }
         assert_eq!(
-            g.accel.download().unwrap(),
-            c.accel.download().unwrap(),
+            g.structure().download().unwrap(),
+            c.structure().download().unwrap(),
             "structure {k}"
         );
         assert_eq!(
@@ -533,11 +536,11 @@ fn a_compacted_kd_tree_traces_as_the_original_in_fewer_bytes() {
         );
     }
     // The compacted structures' handles point into the new memory.
-    if let (Ok(base), Ok(_)) = (memory.device_address(), compacted[0].address_handle()) {
+    if let (Ok(base), Ok(_)) = (memory.device_address(), compacted[0].handle_words()) {
         let end = base + memory.as_raw().size;
         for (c, r) in compacted.iter().zip(&at) {
             let start = base + r.offset - memory.as_raw().offset;
-            for a in c.address_handle().unwrap() {
+            for a in c.handle_words().unwrap() {
                 assert!(a >= start && a < start + r.size && a < end, "{a:#x}");
             }
         }
@@ -586,7 +589,7 @@ fn compaction_refuses_what_it_cannot_copy() {
     // Building into a compacted structure; compacting into one made for another.
     let mut rec = Recorder::new(&ctx).unwrap();
     is_usage(
-        kd.record_build_from(&mut rec, &lists[0], &mut dst, c.scratch[0]),
+        kd.record_build_from(&mut rec, &mut dst, &lists[0], c.scratch[0]),
         "a build into a compacted structure",
     );
     let mut other_caller = Caller(Vec::new());

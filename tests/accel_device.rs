@@ -63,7 +63,7 @@ fn device_build(
     let mut rec = Recorder::new(ctx).unwrap();
     let (dev, _) = GpuGeometry::record_build(&mut rec, builder, g, 0).unwrap();
     rec.submit_and_wait().unwrap();
-    let host = dev.accel.download().unwrap();
+    let host = dev.structure().download().unwrap();
     (dev, host)
 }
 
@@ -100,7 +100,7 @@ fn device_builds_equal_their_host_twins_and_fit_their_sizes() {
                     used as u64 + 48 <= announced.structure_bytes,
                     "{kind:?}, {n}: {used} bytes used, {announced:?}"
                 );
-                assert_eq!(dev.accel.kind(), kind);
+                assert_eq!(dev.structure().kind(), kind);
             }
         }
     }
@@ -161,7 +161,7 @@ fn a_kd_tree_out_of_references_misses_everything_then_is_rebuilt_larger() {
     let mut rec = Recorder::new(&ctx).unwrap();
     let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
     rec.compute_to_transfer();
-    let built = dev.accel.record_read_built(&mut rec).unwrap();
+    let built = dev.structure().record_read_built(&mut rec).unwrap();
     rec.transfer_to_host();
     rec.submit_and_wait().unwrap();
     let report = AccelStructure::kd_built(&built.unwrap().read().unwrap());
@@ -173,7 +173,7 @@ fn a_kd_tree_out_of_references_misses_everything_then_is_rebuilt_larger() {
         "an overflowed tree answered a hit"
     );
     assert!(
-        dev.accel.download().is_err(),
+        dev.structure().download().is_err(),
         "downloading an overflowed tree is an error"
     );
 
@@ -232,7 +232,7 @@ fn refit_follows_moved_primitives_bit_for_bit_with_its_twin() {
         builder = builder.with_allow_update(allow_update);
         for n in [1, 2, 3, sg - 1, sg + 1, 65, 257, 1025, 3000] {
             let g = scene(n, 40 + n as u64, true);
-            let (dev, host) = device_build(&ctx, &builder, &g);
+            let (mut dev, host) = device_build(&ctx, &builder, &g);
             let HostStructure::Bvh(original) = host else {
                 unreachable!()
             };
@@ -251,22 +251,18 @@ fn refit_follows_moved_primitives_bit_for_bit_with_its_twin() {
                 .unwrap();
             // On the device, too, a refit of the unmoved scene gives the tree back.
             let mut rec = Recorder::new(&ctx).unwrap();
-            builder
-                .record_refit(&mut rec, &dev.prims, &dev.accel, &scratch)
-                .unwrap();
+            builder.record_refit(&mut rec, &mut dev, &scratch).unwrap();
             rec.submit_and_wait().unwrap();
-            let unmoved = dev.accel.download().unwrap();
+            let unmoved = dev.structure().download().unwrap();
             assert!(
                 unmoved == HostStructure::Bvh(original.clone()),
                 "{kind:?} {allow_update}, {n}: GPU refit of an unmoved scene"
             );
             let mut rec = Recorder::new(&ctx).unwrap();
-            dev.prims.record_update(&mut rec, &g2).unwrap();
-            builder
-                .record_refit(&mut rec, &dev.prims, &dev.accel, &scratch)
-                .unwrap();
+            dev.primitives().record_update(&mut rec, &g2).unwrap();
+            builder.record_refit(&mut rec, &mut dev, &scratch).unwrap();
             rec.submit_and_wait().unwrap();
-            let HostStructure::Bvh(gpu) = dev.accel.download().unwrap() else {
+            let HostStructure::Bvh(gpu) = dev.structure().download().unwrap() else {
                 unreachable!()
             };
             let bits = |nd: &bvh::BvhNode| -> Vec<u32> { bytemuck::cast_slice(&[*nd]).to_vec() };
@@ -293,14 +289,35 @@ fn refit_follows_moved_primitives_bit_for_bit_with_its_twin() {
     }
     let kd = AccelBuilder::new(&ctx, AccelKind::KdTree).unwrap();
     let g = scene(10, 1, false);
-    let (dev, _) = device_build(&ctx, &kd, &g);
+    let (mut dev, _) = device_build(&ctx, &kd, &g);
     assert!(kd.update_scratch(&ctx, 10).unwrap().is_none());
     let scratch = Buffer::<u32>::new(&ctx, "unused", 16).unwrap();
     let mut rec = Recorder::new(&ctx).unwrap();
-    let err = kd
-        .record_refit(&mut rec, &dev.prims, &dev.accel, &scratch)
-        .unwrap_err();
+    let err = kd.record_refit(&mut rec, &mut dev, &scratch).unwrap_err();
+    assert!(matches!(err, vkrt::gpu::GpuError::Usage { .. }), "{err}");
     assert!(err.to_string().contains("cannot be refit"), "{err}");
+    drop(rec);
+
+    // An update that changes the primitives' counts, and GPU leaves past the collapse's
+    // limit: the caller's mistakes, each a usage error.
+    let lbvh = AccelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
+    let (dev, _) = device_build(&ctx, &lbvh, &g);
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let err = dev
+        .primitives()
+        .record_update(&mut rec, &scene(11, 1, false))
+        .unwrap_err();
+    assert!(matches!(err, vkrt::gpu::GpuError::Usage { .. }), "{err}");
+    let wide_leaves = AccelBuilder::new(&ctx, AccelKind::Lbvh)
+        .unwrap()
+        .with_bvh_params(bvh::BvhParams {
+            max_leaf_prims: 33,
+            ..bvh::BvhParams::default()
+        });
+    let err = GpuGeometry::record_build(&mut rec, &wide_leaves, &g, 0)
+        .map(|_| ())
+        .unwrap_err();
+    assert!(matches!(err, vkrt::gpu::GpuError::Usage { .. }), "{err}");
     drop(rec);
     assert_silent(&ctx);
 }

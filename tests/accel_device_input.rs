@@ -369,7 +369,7 @@ fn build_in_caller_memory(
     let before = ctx.traffic();
     let mut rec = Recorder::new(ctx).unwrap();
     builder
-        .record_build_from(&mut rec, geometries, &mut g, scratch.as_raw())
+        .record_build_from(&mut rec, &mut g, geometries, scratch.as_raw())
         .unwrap();
     let recorded = ctx.traffic() - before;
     // Every kind, the driver's too: its levels, instance records and scratch lie in the
@@ -458,8 +458,8 @@ fn builds_from_device_buffers_equal_the_host_soup_path_and_brute_force() {
                 let (host, _) = GpuGeometry::record_build(&mut rec, &builder, &part, 0).unwrap();
                 rec.submit_and_wait().unwrap();
                 assert_eq!(
-                    g.accel.download().unwrap(),
-                    host.accel.download().unwrap(),
+                    g.structure().download().unwrap(),
+                    host.structure().download().unwrap(),
                     "{kind:?} n {n}"
                 );
             }
@@ -732,9 +732,7 @@ pub fn probe_hits(ctx: &Context, g: &GpuGeometry, rays: &[Ray], how: Probe) -> V
     let ray_buf = Buffer::from_slice(ctx, "probe.rays", rays).unwrap();
     let out = Buffer::<[u32; 4]>::zeroed(ctx, "probe.hits", rays.len()).unwrap();
     let handle = match address {
-        true => {
-            Some(Buffer::from_slice(ctx, "probe.handle", &g.address_handle().unwrap()).unwrap())
-        }
+        true => Some(Buffer::from_slice(ctx, "probe.handle", &g.handle_words().unwrap()).unwrap()),
         false => None,
     };
     let at = handle.as_ref().map_or(0, |h| h.device_address().unwrap());
@@ -855,8 +853,8 @@ fn sizes_are_exact_and_too_little_memory_is_an_error() {
         let err = builder
             .record_build_from(
                 &mut rec,
-                &geometries,
                 &mut g,
+                &geometries,
                 short(&scratch, s.build_scratch_bytes),
             )
             .expect_err("a build with too little scratch");
@@ -888,7 +886,7 @@ fn an_update_reads_moved_vertices_from_the_callers_buffer() {
             allow_update: true,
             ..BuildFlags::default()
         };
-        let (g, _mem) = build_in_caller_memory(&ctx, &builder, &geometries, &flags);
+        let (mut g, _mem) = build_in_caller_memory(&ctx, &builder, &geometries, &flags);
         // The caller moves its vertices, where they lie.
         let flat: Vec<Vec3> = moved.iter().flatten().copied().collect();
         caller.bufs[0].upload(bytemuck::cast_slice(&flat)).unwrap();
@@ -898,7 +896,7 @@ fn an_update_reads_moved_vertices_from_the_callers_buffer() {
         let mut rec = Recorder::new(&ctx).unwrap();
         let before = ctx.traffic();
         builder
-            .record_update_from(&mut rec, &geometries, &g, scratch.as_raw())
+            .record_update_from(&mut rec, &mut g, &geometries, scratch.as_raw())
             .unwrap();
         let recorded = ctx.traffic() - before;
         assert_eq!(
@@ -1052,25 +1050,25 @@ fn misuse_is_an_error_not_a_panic() {
     let scratch = Buffer::<u8>::arena(&ctx, "scratch", 1 << 20).unwrap();
     let mut rec = Recorder::new(&ctx).unwrap();
     is_usage(
-        lbvh.record_build_from(&mut rec, &geometries, &mut kd_g, scratch.as_raw()),
+        lbvh.record_build_from(&mut rec, &mut kd_g, &geometries, scratch.as_raw()),
         "an LBVH builder into a kd-tree",
     );
     is_usage(
-        kd.record_update_from(&mut rec, &geometries, &kd_g, scratch.as_raw()),
+        kd.record_update_from(&mut rec, &mut kd_g, &geometries, scratch.as_raw()),
         "an update of a kd-tree",
     );
     let half = [soup_geometry(&ctx, &mut caller, &tris[..tris.len() / 2])];
     is_usage(
-        kd.record_build_from(&mut rec, &half, &mut kd_g, scratch.as_raw()),
+        kd.record_build_from(&mut rec, &mut kd_g, &half, scratch.as_raw()),
         "other geometry",
     );
     let s = lbvh.sizes_for(&ctx, &geometries, &flags).unwrap();
     let mem = Buffer::<u8>::arena(&ctx, "mem", s.structure_bytes as usize).unwrap();
-    let unbuilt = lbvh
+    let mut unbuilt = lbvh
         .create_in(&ctx, &geometries, &flags, mem.as_raw())
         .unwrap();
     is_usage(
-        lbvh.record_update_from(&mut rec, &geometries, &unbuilt, scratch.as_raw()),
+        lbvh.record_update_from(&mut rec, &mut unbuilt, &geometries, scratch.as_raw()),
         "an update of an unbuilt structure",
     );
     let tracer =
@@ -1082,9 +1080,9 @@ fn misuse_is_an_error_not_a_panic() {
         tracer.record(&mut rec, &unbuilt, &rays, &hits, &errors, 4, 0.0),
         "a trace of an unbuilt structure",
     );
-    let (built, _m2) = build_in_caller_memory(&ctx, &lbvh, &geometries, &flags);
+    let (mut built, _m2) = build_in_caller_memory(&ctx, &lbvh, &geometries, &flags);
     is_usage(
-        lbvh.record_update_from(&mut rec, &geometries, &built, scratch.as_raw()),
+        lbvh.record_update_from(&mut rec, &mut built, &geometries, scratch.as_raw()),
         "an update without allow_update",
     );
     // Ray counts past the buffers, and a tracer of another walk.
@@ -1160,8 +1158,8 @@ fn settings_are_frozen_into_the_structure_and_checked_at_every_record_call() {
     };
     let lbvh = AccelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
     let (mut g, mem) = build_in_caller_memory(&ctx, &lbvh, &geometries, &flags);
-    assert!(g.accel.is_wide());
-    assert_eq!(g.accel.flags(), flags);
+    assert!(g.structure().is_wide());
+    assert_eq!(g.structure().flags(), flags);
     // A builder with other parameters (one primitive per leaf) cannot record into it: the
     // build, the update and the refit are each an error, and nothing is recorded.
     let other = AccelBuilder::new(&ctx, AccelKind::Lbvh)
@@ -1187,26 +1185,23 @@ fn settings_are_frozen_into_the_structure_and_checked_at_every_record_call() {
     };
     let mut rec = Recorder::new(&ctx).unwrap();
     is_frozen(
-        other.record_build_from(&mut rec, &geometries, &mut g, scratch.as_raw()),
+        other.record_build_from(&mut rec, &mut g, &geometries, scratch.as_raw()),
         "build",
     );
     is_frozen(
-        other.record_update_from(&mut rec, &geometries, &g, scratch.as_raw()),
+        other.record_update_from(&mut rec, &mut g, &geometries, scratch.as_raw()),
         "update",
     );
     let visits = other.update_scratch(&ctx, tris.len()).unwrap().unwrap();
-    is_frozen(
-        other.record_refit(&mut rec, &g.prims, &g.accel, &visits),
-        "refit",
-    );
+    is_frozen(other.record_refit(&mut rec, &mut g, &visits), "refit");
     // The builder that made it rebuilds and updates it as created: still wide, walked wide
     // to brute force's hits (a builder's flags cannot change a structure's node format).
-    lbvh.record_build_from(&mut rec, &geometries, &mut g, scratch.as_raw())
+    lbvh.record_build_from(&mut rec, &mut g, &geometries, scratch.as_raw())
         .unwrap();
-    lbvh.record_update_from(&mut rec, &geometries, &g, scratch.as_raw())
+    lbvh.record_update_from(&mut rec, &mut g, &geometries, scratch.as_raw())
         .unwrap();
     rec.submit_and_wait().unwrap();
-    assert!(g.accel.is_wide());
+    assert!(g.structure().is_wide());
     let wide = Tracer::for_accel(&ctx, &opt(), AccelKind::Lbvh.walked(Traversal::Wide)).unwrap();
     let b = wide.trace(&ctx, &g, &rays, 0.0).unwrap();
     assert_eq!(b.exhausted, 0);

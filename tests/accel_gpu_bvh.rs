@@ -34,7 +34,7 @@ fn device_bvh(ctx: &Context, builder: &AccelBuilder, g: &TraceGeometry) -> Bvh {
 
 /// A structure built on the device, read back.
 fn device_bvh_of(dev: &GpuGeometry) -> Bvh {
-    match dev.accel.download().unwrap() {
+    match dev.structure().download().unwrap() {
         HostStructure::Bvh(b) => b,
         HostStructure::KdTree(_) => unreachable!("a GPU BVH"),
     }

@@ -210,10 +210,10 @@ fn device_built_wide_nodes_equal_the_twin_after_build_and_refit() {
                 AccelBuilder::for_choice(&ctx, AccelChoice::new(kind, Traversal::Wide)).unwrap();
             builder = builder.with_allow_update(n % 2 == 0);
             let mut rec = Recorder::new(&ctx).unwrap();
-            let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
+            let (mut dev, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
             rec.submit_and_wait().unwrap();
-            assert!(dev.accel.is_wide());
-            let (binary, wide) = dev.accel.download_wide().unwrap().unwrap();
+            assert!(dev.structure().is_wide());
+            let (binary, wide) = dev.structure().download_wide().unwrap().unwrap();
             assert_eq!(
                 wide,
                 widen(&binary, binary.len()),
@@ -228,12 +228,10 @@ fn device_built_wide_nodes_equal_the_twin_after_build_and_refit() {
                 let moved = TraceGeometry::from_triangles(&moved);
                 let scratch = builder.update_scratch(&ctx, n).unwrap().unwrap();
                 let mut rec = Recorder::new(&ctx).unwrap();
-                dev.prims.record_update(&mut rec, &moved).unwrap();
-                builder
-                    .record_refit(&mut rec, &dev.prims, &dev.accel, &scratch)
-                    .unwrap();
+                dev.primitives().record_update(&mut rec, &moved).unwrap();
+                builder.record_refit(&mut rec, &mut dev, &scratch).unwrap();
                 rec.submit_and_wait().unwrap();
-                let (binary2, wide2) = dev.accel.download_wide().unwrap().unwrap();
+                let (binary2, wide2) = dev.structure().download_wide().unwrap().unwrap();
                 assert_ne!(binary2, binary, "{kind:?}, {n}: the refit moved nothing");
                 assert_eq!(
                     wide2,

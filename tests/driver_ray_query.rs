@@ -385,15 +385,13 @@ fn driver_refit_follows_moved_primitives() {
     let opt = TraceOptions::default();
     let tracer = Tracer::for_accel(&ctx, &opt, AccelTraversal::RayQuery).unwrap();
     let mut rec = Recorder::new(&ctx).unwrap();
-    let (dev, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
-    dev.prims.record_update(&mut rec, &moved).unwrap();
+    let (mut dev, _) = GpuGeometry::record_build(&mut rec, &builder, &g, 0).unwrap();
+    dev.primitives().record_update(&mut rec, &moved).unwrap();
     let scratch = builder
         .update_scratch(&ctx, g.primitive_count())
         .unwrap()
         .unwrap();
-    builder
-        .record_refit(&mut rec, &dev.prims, &dev.accel, &scratch)
-        .unwrap();
+    builder.record_refit(&mut rec, &mut dev, &scratch).unwrap();
     rec.submit_and_wait().unwrap();
     let hits = tracer.trace(&ctx, &dev, &rays, 0.0).unwrap().hits;
     let wrong = rays
@@ -416,15 +414,17 @@ fn driver_refit_follows_moved_primitives() {
     // Built without allow_update, a refit is a clear error.
     let plain = AccelBuilder::new(&ctx, AccelKind::Driver).unwrap();
     let mut rec = Recorder::new(&ctx).unwrap();
-    let (dev, _) = GpuGeometry::record_build(&mut rec, &plain, &g, 0).unwrap();
+    let (mut dev, _) = GpuGeometry::record_build(&mut rec, &plain, &g, 0).unwrap();
     let err = plain
-        .record_refit(&mut rec, &dev.prims, &dev.accel, &scratch)
+        .record_refit(&mut rec, &mut dev, &scratch)
         .expect_err("a refit without allow_update");
+    assert!(matches!(err, GpuError::Usage { .. }), "{err}");
     assert!(err.to_string().contains("rebuild"), "{err}");
     rec.submit_and_wait().unwrap();
+    let opaque = dev.structure().download().map(|_| ()).unwrap_err();
     assert!(
-        dev.accel.download().is_err(),
-        "the driver's structure is opaque"
+        matches!(opaque, GpuError::Usage { .. }),
+        "the driver's structure is opaque: {opaque}"
     );
     assert_silent(&ctx);
 }

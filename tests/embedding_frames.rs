@@ -311,12 +311,12 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
         for s in structures.iter_mut() {
             let scratch = s.scratch;
             s.builder
-                .record_build_from(rec, &geometries, &mut s.geometry, scratch)?;
+                .record_build_from(rec, &mut s.geometry, &geometries, scratch)?;
         }
         if let Some(t) = top {
             let instances = raw(&t.instances, 128);
             t.builder
-                .record_build_from(rec, instances, count, &mut t.top, t.scratch)?;
+                .record_build_from(rec, &mut t.top, instances, count, t.scratch)?;
         }
         for s in structures.iter() {
             let (hits, errors) = (&s.hits, &s.errors);
@@ -1072,7 +1072,7 @@ fn a_fragment_shader_traces_a_structure_rebuilt_in_place_frame_after_frame() {
         .prepare(|rec| {
             for f in 0..FRAMES {
                 for (builder, g, scratch) in builds.iter_mut() {
-                    builder.record_build_from(rec, &geometries_of(f), g, *scratch)?;
+                    builder.record_build_from(rec, g, &geometries_of(f), *scratch)?;
                 }
             }
             Ok(())
@@ -1100,7 +1100,7 @@ fn a_fragment_shader_traces_a_structure_rebuilt_in_place_frame_after_frame() {
             // SAFETY: the host's recording command buffer, outside a render pass.
             unsafe { sync(&host.device, cmd, war, contract.first) };
             builder
-                .record_build_from(&mut rec, &geometries_of(f), g, *scratch)
+                .record_build_from(&mut rec, g, &geometries_of(f), *scratch)
                 .unwrap();
             // The build's last accesses before the fragment shader's reads.
             // SAFETY: as above.

@@ -649,7 +649,7 @@ fn device_bottom(
         .unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
     builder
-        .record_build_from(&mut rec, &geometries, &mut g, scratch.as_raw())
+        .record_build_from(&mut rec, &mut g, &geometries, scratch.as_raw())
         .unwrap();
     rec.submit_and_wait().unwrap();
     // (the structure holds its own copy of the vertices: the caller's may go)
@@ -795,12 +795,8 @@ fn a_bottom_level_alone_is_one_identity_instance() {
             Ray::new(o, centered(&mut rng) * 0.8 - o, 0.0, f32::INFINITY)
         })
         .collect();
-    let flat = Buffer::from_slice(
-        &ctx,
-        "test.flat_handle",
-        &levels[2].address_handle().unwrap(),
-    )
-    .unwrap();
+    let flat =
+        Buffer::from_slice(&ctx, "test.flat_handle", &levels[2].handle_words().unwrap()).unwrap();
     let handle = flat.device_address().unwrap();
     let got = run(&ctx, &looped(""), handle, &rays, 0, 0xff);
     let want = probe(&ctx, handle, &rays, 0);

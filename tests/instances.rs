@@ -77,7 +77,7 @@ fn probe_at(ctx: &Context, handle: u64, rays: &[Ray], mode: u32, time: f32) -> V
 
 /// A flat structure's handle, written where the probe reads it.
 fn flat_handle(ctx: &Context, g: &GpuGeometry) -> Buffer<u64> {
-    Buffer::from_slice(ctx, "probe.handle", &g.address_handle().unwrap()).unwrap()
+    Buffer::from_slice(ctx, "probe.handle", &g.handle_words().unwrap()).unwrap()
 }
 
 /// In [0, 1).
@@ -180,7 +180,12 @@ fn as_hit(h: &[u32; 4]) -> (Hit, Option<u32>) {
 fn scene_infos(bottoms: &[&GpuGeometry]) -> Vec<(SceneInfo, u64)> {
     bottoms
         .iter()
-        .map(|b| (b.accel.info.download().unwrap()[0], b.reference().unwrap()))
+        .map(|b| {
+            (
+                b.structure().scene_info().download().unwrap()[0],
+                b.reference().unwrap(),
+            )
+        })
         .collect()
 }
 
@@ -222,9 +227,9 @@ fn instance_boxes_equal_their_cpu_twin_bit_for_bit_and_the_tree_the_host_s() {
             builder
                 .record_build_from(
                     &mut rec,
+                    &mut top,
                     input.as_raw(),
                     n as u32,
-                    &mut top,
                     scratch.as_raw(),
                 )
                 .unwrap();
@@ -275,8 +280,8 @@ fn instance_boxes_equal_their_cpu_twin_bit_for_bit_and_the_tree_the_host_s() {
                 let (g, _) = GpuGeometry::record_build(&mut rec, &tree_builder, &host, 0).unwrap();
                 rec.submit_and_wait().unwrap();
                 assert_eq!(
-                    top.tree.accel.download().unwrap(),
-                    g.accel.download().unwrap(),
+                    top.tree().structure().download().unwrap(),
+                    g.structure().download().unwrap(),
                     "{kind:?} n {n}: tree"
                 );
             }
@@ -466,7 +471,7 @@ fn masks_any_hit_and_updates() {
         ..BuildFlags::default()
     };
     let builder = TopLevelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
-    let top = builder.build(&ctx, &[&level], &first, &flags).unwrap();
+    let mut top = builder.build(&ctx, &[&level], &first, &flags).unwrap();
     let hosts = [TraceGeometry::from_triangles(&tris)];
     let (_, records) = top.download().unwrap();
     // Mode bits 8..16: the inverted cull mask. 0x01 sees the even instances only.
@@ -490,7 +495,7 @@ fn masks_any_hit_and_updates() {
     }
     // Moved: the update traces as a new build over the same instances.
     let moved = place(&mut rng);
-    builder.update(&ctx, &top, &moved).unwrap();
+    builder.update(&ctx, &mut top, &moved).unwrap();
     let fresh = builder.build(&ctx, &[&level], &moved, &flags).unwrap();
     assert_eq!(
         probe(&ctx, top.handle_address(), &rays, 0),
@@ -658,12 +663,12 @@ fn builds_read_up_to_the_maximum_count_of_referenced_levels() {
             match update {
                 false => builder.record_build_from(
                     &mut rec,
+                    top,
                     input.as_raw(),
                     count,
-                    top,
                     scratch.as_raw(),
                 ),
-                true => builder.record_update_from(&mut rec, input.as_raw(), top, scratch.as_raw()),
+                true => builder.record_update_from(&mut rec, top, input.as_raw(), scratch.as_raw()),
             }
             .unwrap();
             rec.compute_to_transfer();
@@ -693,7 +698,7 @@ fn builds_read_up_to_the_maximum_count_of_referenced_levels() {
         // Past the maximum.
         let mut rec = Recorder::new(&ctx).unwrap();
         let e = builder
-            .record_build_from(&mut rec, input.as_raw(), 41, &mut top, scratch.as_raw())
+            .record_build_from(&mut rec, &mut top, input.as_raw(), 41, scratch.as_raw())
             .unwrap_err()
             .to_string();
         assert!(
@@ -708,7 +713,7 @@ fn builds_read_up_to_the_maximum_count_of_referenced_levels() {
         input.upload(&named).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
         builder
-            .record_build_from(&mut rec, input.as_raw(), 7, &mut top, scratch.as_raw())
+            .record_build_from(&mut rec, &mut top, input.as_raw(), 7, scratch.as_raw())
             .unwrap();
         rec.compute_to_transfer();
         let status = top.record_read_status(&mut rec).unwrap();
@@ -776,19 +781,42 @@ fn misuse_is_an_error_naming_the_instance() {
         assert!(m.contains("instance 1") && m.contains(words), "{m}");
     }
     // An update of another count, and one of a top level not built to be updated.
-    let top = builder.build(&ctx, &[&level], &[good], &flags).unwrap();
-    assert!(builder.update(&ctx, &top, &[good, good]).is_err());
-    assert!(refused(builder.update(&ctx, &top, &[good])).contains("allow_update"));
+    let mut top = builder.build(&ctx, &[&level], &[good], &flags).unwrap();
+    assert!(builder.update(&ctx, &mut top, &[good, good]).is_err());
+    assert!(refused(builder.update(&ctx, &mut top, &[good])).contains("allow_update"));
     // A top-level builder of the other kind.
     let ploc = TopLevelBuilder::new(&ctx, AccelKind::Ploc).unwrap();
-    assert!(ploc.update(&ctx, &top, &[good]).is_err());
+    assert!(ploc.update(&ctx, &mut top, &[good]).is_err());
     // Too little memory.
     let sizes = builder.sizes_for(&ctx, 4, 1, &flags).unwrap();
     let small = Buffer::<u8>::arena(&ctx, "caller.small", 64).unwrap();
-    assert!(builder
+    let err = builder
         .create_in(&ctx, &[&level], 4, &flags, small.as_raw())
-        .is_err());
+        .err()
+        .expect("a top level in too little memory");
+    // The same class as a bottom level's: a placement error.
+    assert!(matches!(err, GpuError::Placement(_)), "{err}");
     assert!(sizes.structure_bytes > 64);
+    // The records' own checks, for a renderer that writes them itself.
+    for (bad, words) in [
+        (Instance { bottom: 1, ..good }, "bottom level 1"),
+        (
+            Instance {
+                transform: [[0.0; 4]; 3],
+                ..good
+            },
+            "singular",
+        ),
+    ] {
+        let err = bad.check(&[level.reference().unwrap()]).unwrap_err();
+        assert!(
+            matches!(&err, GpuError::Usage { call: "Instance::check", reason } if reason.contains(words)),
+            "{err}"
+        );
+    }
+    assert!(good.check(&[level.reference().unwrap()]).is_ok());
+    let still = vkrt::accel::instance::InstanceMotion::new(3, 1.0, 1.0).check();
+    assert!(matches!(still, Err(GpuError::Usage { .. })), "{still:?}");
     common::assert_silent(&ctx);
 }
 
@@ -1122,7 +1150,7 @@ fn moving_instances_trace_as_their_interpolated_transforms() {
     let mut top = top;
     let later = InstanceMotion::new(steps, 1.1, 2.3);
     top.set_time(later.time).unwrap();
-    builder.update(&ctx, &top, &next).unwrap();
+    builder.update(&ctx, &mut top, &next).unwrap();
     let fresh = builder
         .build_moving(&ctx, &refs, &next, later, &flags)
         .unwrap();
@@ -1189,7 +1217,7 @@ fn moving_instances_trace_as_their_interpolated_transforms() {
         .to_string();
     assert!(e.contains("does not move"), "{e}");
     let e = builder
-        .update(&ctx, &top, &next[..2 * n])
+        .update(&ctx, &mut top, &next[..2 * n])
         .unwrap_err()
         .to_string();
     assert!(

@@ -136,7 +136,7 @@ fn main() {
             let mut rec = Recorder::new(&ctx).unwrap();
             rec.scope("separate", |rec| {
                 for ((g, out), &s) in lists.iter().zip(&mut structures).zip(&scratch) {
-                    builder.record_build_from(rec, g, out, s).unwrap();
+                    builder.record_build_from(rec, out, g, s).unwrap();
                 }
             });
             separate_barriers = rec.counts().barriers;

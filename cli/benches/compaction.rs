@@ -79,7 +79,7 @@ fn main() {
             .unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
         builder
-            .record_build_from(&mut rec, &geometries, &mut g, scratch.as_raw())
+            .record_build_from(&mut rec, &mut g, &geometries, scratch.as_raw())
             .unwrap();
         rec.submit_and_wait().unwrap();
         let built = sizes.structure_bytes;
@@ -102,7 +102,7 @@ fn main() {
                 }
             }
             _ => {
-                let HostStructure::Bvh(tree) = g.accel.download().unwrap() else {
+                let HostStructure::Bvh(tree) = g.structure().download().unwrap() else {
                     unreachable!("a BVH kind downloads a BVH")
                 };
                 let slots = n - 1;

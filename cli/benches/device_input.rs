@@ -164,7 +164,7 @@ fn bindings_vs_address(ctx: &Context, g: &GpuGeometry, rays: &[Ray]) -> (f64, f6
         .unwrap();
     let ray_buf = Buffer::from_slice(ctx, "probe.rays", rays).unwrap();
     let out = Buffer::<[u32; 4]>::zeroed(ctx, "probe.hits", rays.len()).unwrap();
-    let handle = Buffer::from_slice(ctx, "probe.handle", &g.address_handle().unwrap()).unwrap();
+    let handle = Buffer::from_slice(ctx, "probe.handle", &g.handle_words().unwrap()).unwrap();
     let at = handle.device_address().unwrap();
     let push = [rays.len() as u32, 0, at as u32, (at >> 32) as u32, 0, 0];
     let [b0, b1, b2, b3, b4, b5, b6] = g.bindings();
@@ -242,7 +242,7 @@ fn main() {
                 .unwrap();
             let (dev_gpu, dev_wall, dev_up, gather_ms) = best_of(&ctx, |rec| {
                 builder
-                    .record_build_from(rec, &geometries, &mut g, scratch.as_raw())
+                    .record_build_from(rec, &mut g, &geometries, scratch.as_raw())
                     .unwrap();
             });
             let row = Row {

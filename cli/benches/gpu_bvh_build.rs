@@ -91,18 +91,17 @@ fn gpu_build(ctx: &Context, builder: &mut AccelBuilder, g: &TraceGeometry) -> Me
             best = Some((ms, prof, dev));
         }
     }
-    let (_, profile, structure) = best.expect("built");
+    let (_, profile, mut structure) = best.expect("built");
     let visits = builder
         .update_scratch(ctx, g.primitive_count())
         .expect("scratch")
         .expect("a BVH");
-    let refit = |b: &AccelBuilder, dev: &GpuGeometry| {
+    let refit = |b: &AccelBuilder, dev: &mut GpuGeometry| {
         best_of(ctx, "refit", |rec| {
-            b.record_refit(rec, &dev.prims, &dev.accel, &visits)
-                .expect("refit")
+            b.record_refit(rec, dev, &visits).expect("refit")
         })
     };
-    let refit_climb_ms = refit(builder, &structure);
+    let refit_climb_ms = refit(builder, &mut structure);
     builder.set_flags(BuildFlags {
         allow_update: true,
         ..builder.flags()
@@ -112,8 +111,8 @@ fn gpu_build(ctx: &Context, builder: &mut AccelBuilder, g: &TraceGeometry) -> Me
         let (dev, _) = GpuGeometry::record_build(rec, builder, g, 0).expect("build");
         updatable = Some(dev);
     });
-    let updatable = updatable.expect("built");
-    let refit_ms = refit(builder, &updatable);
+    let mut updatable = updatable.expect("built");
+    let refit_ms = refit(builder, &mut updatable);
     builder.set_flags(BuildFlags {
         allow_update: false,
         ..builder.flags()
@@ -196,7 +195,7 @@ fn main() {
         for (label, builder) in &mut gpu_builders {
             let m = gpu_build(&ctx, builder, &g);
             let (prof, dev) = (m.profile, m.structure);
-            let HostStructure::Bvh(tree) = dev.accel.download().expect("download") else {
+            let HostStructure::Bvh(tree) = dev.structure().download().expect("download") else {
                 unreachable!("a GPU BVH")
             };
             validate::validate(&tree, &g.boxes).expect("a valid tree");

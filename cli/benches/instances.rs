@@ -140,7 +140,7 @@ fn bottom(ctx: &Context, tris: &[[Vec3; 3]]) -> (GpuGeometry, u64, Vec<Buffer<u8
         .unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
     builder
-        .record_build_from(&mut rec, &geometry, &mut g, scratch.as_raw())
+        .record_build_from(&mut rec, &mut g, &geometry, scratch.as_raw())
         .unwrap();
     rec.submit_and_wait().unwrap();
     (g, sizes.structure_bytes, vec![memory, scratch], vertices)
@@ -186,7 +186,7 @@ fn top_level(
     for round in 0..4 {
         let mut rec = Recorder::new(ctx).unwrap();
         builder
-            .record_build_from(&mut rec, input.as_raw(), n, &mut top, scratch.as_raw())
+            .record_build_from(&mut rec, &mut top, input.as_raw(), n, scratch.as_raw())
             .unwrap();
         let p = rec.submit_and_wait().unwrap();
         if round > 0 {
@@ -295,7 +295,7 @@ fn dynamic_demo(ctx: &Context) -> Option<UpdateRow> {
         .unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
     top_builder
-        .record_build_from(&mut rec, input.as_raw(), n, &mut top, scratch.as_raw())
+        .record_build_from(&mut rec, &mut top, input.as_raw(), n, scratch.as_raw())
         .unwrap();
     rec.submit_and_wait().unwrap();
     // Flat: the LBVH over every triangle, built at frame 0 to be refit.
@@ -303,7 +303,7 @@ fn dynamic_demo(ctx: &Context) -> Option<UpdateRow> {
     flat_builder = flat_builder.with_allow_update(true);
     let g0 = vkrt::accel::primitives::TraceGeometry::at_time(&scene, 0.0);
     let mut rec = Recorder::new(ctx).unwrap();
-    let (flat, _) = GpuGeometry::record_build(&mut rec, &flat_builder, &g0, 0).unwrap();
+    let (mut flat, _) = GpuGeometry::record_build(&mut rec, &flat_builder, &g0, 0).unwrap();
     rec.submit_and_wait().unwrap();
     let visits = flat_builder
         .update_scratch(ctx, g0.primitive_count())
@@ -328,7 +328,7 @@ fn dynamic_demo(ctx: &Context) -> Option<UpdateRow> {
             rec.upload(&input, &moved).unwrap();
             rec.transfer_to_compute();
             top_builder
-                .record_update_from(rec, input.as_raw(), &top, scratch.as_raw())
+                .record_update_from(rec, &mut top, input.as_raw(), scratch.as_raw())
                 .unwrap();
         });
         let g = vkrt::accel::primitives::TraceGeometry::at_time(&scene, t);
@@ -337,10 +337,8 @@ fn dynamic_demo(ctx: &Context) -> Option<UpdateRow> {
             rec.keep_alive(built);
         });
         refit_ms += best(&mut |rec| {
-            flat.prims.record_update(rec, &g).unwrap();
-            flat_builder
-                .record_refit(rec, &flat.prims, &flat.accel, &visits)
-                .unwrap();
+            flat.primitives().record_update(rec, &g).unwrap();
+            flat_builder.record_refit(rec, &mut flat, &visits).unwrap();
         });
     }
     let f = f64::from(frames);
@@ -368,8 +366,7 @@ fn main() {
         return;
     };
     let (bunny, bottom_bytes, _bottom_memory, _vertices) = bottom(&ctx, &tris);
-    let handle =
-        Buffer::from_slice(&ctx, "bench.handle", &bunny.address_handle().unwrap()).unwrap();
+    let handle = Buffer::from_slice(&ctx, "bench.handle", &bunny.handle_words().unwrap()).unwrap();
     let (lo, hi) = bounds(tris.iter().flatten().copied());
     let extent = (hi - lo).max_element();
     let sides: &[usize] = if a.quick { &[8] } else { &[8, 32] };

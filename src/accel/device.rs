@@ -23,6 +23,7 @@ pub use crate::accel::device_input::BuildFlags;
 pub use crate::accel::device_primitives::DevicePrimitives;
 use crate::accel::driver::storage::{self as driver, DriverStorage};
 use crate::accel::driver::Prefer;
+use crate::accel::gpu_geometry::GpuGeometry;
 pub use crate::accel::kdtree::device::KdBuilt;
 use crate::accel::kdtree::device::{KdFamily, KdStorage};
 use crate::accel::kdtree::gpu::BuildScratch;
@@ -41,7 +42,7 @@ pub struct AccelStructure {
     kind: AccelKind,
     storage: Storage,
     /// The scene constants (root box, primitive counts, walk) the traversal binds.
-    pub info: Buffer<SceneInfo>,
+    pub(crate) info: Buffer<SceneInfo>,
     /// What it was created with (`allow_update`, the driver's preference, wide nodes, the
     /// kd-tree's budget), fixed for its life.
     flags: BuildFlags,
@@ -61,6 +62,11 @@ pub(crate) enum Storage {
 }
 
 impl AccelStructure {
+    /// The scene constants (root box, primitive counts, walk) the traversal binds.
+    pub fn scene_info(&self) -> &Buffer<SceneInfo> {
+        &self.info
+    }
+
     /// A structure of `kind` over `storage`.
     pub(crate) fn from_parts(kind: AccelKind, storage: Storage, info: Buffer<SceneInfo>) -> Self {
         Self {
@@ -510,10 +516,10 @@ impl AccelBuilder {
     pub fn record_build(
         &self,
         rec: &mut Recorder,
+        out: &mut AccelStructure,
         prims: &DevicePrimitives,
         host: &TraceGeometry,
         scratch: &AccelScratch,
-        out: &mut AccelStructure,
     ) -> Result<RecordedBuild> {
         let built = self.record_build_inner(rec, prims, Some(host), scratch, out)?;
         rec.end_of_build();
@@ -595,16 +601,28 @@ impl AccelBuilder {
         }
     }
 
-    /// Records a refit of `out` (a BVH this builder built over the same primitives) to
-    /// `prims.boxes` as they are now: every box recomputed bottom-up, the topology kept, the
-    /// root box rewritten. The caller orders the writes of the moved geometry before; the
-    /// recording ends with the barrier of [`crate::accel::sync::RecordSync::build`]. A
-    /// kd-tree cannot be refit (its split planes are fixed): that is an error.
+    /// Records a refit of `out` (a BVH this builder built) to its primitives' boxes as they
+    /// are now (after [`DevicePrimitives::record_update`] on [`GpuGeometry::primitives`]):
+    /// every box recomputed bottom-up, the topology kept, the root box rewritten. The caller
+    /// orders the writes of the moved geometry before; the recording ends with the barrier
+    /// of [`crate::accel::sync::RecordSync::build`]. A kd-tree cannot be refit (its split
+    /// planes are fixed): that is a [`GpuError::Usage`].
     pub fn record_refit(
         &self,
         rec: &mut Recorder,
+        out: &mut GpuGeometry,
+        scratch: &Buffer<u32>,
+    ) -> Result<()> {
+        self.record_refit_parts(rec, &mut out.accel, &out.prims, scratch)
+    }
+
+    /// [`AccelBuilder::record_refit`] of a structure and its primitives held apart (the
+    /// renderer's frames).
+    pub(crate) fn record_refit_parts(
+        &self,
+        rec: &mut Recorder,
+        out: &mut AccelStructure,
         prims: &DevicePrimitives,
-        out: &AccelStructure,
         scratch: &Buffer<u32>,
     ) -> Result<()> {
         self.check_frozen("AccelBuilder::record_refit", out)?;
@@ -623,8 +641,8 @@ impl AccelBuilder {
         match (&self.family, &out.storage) {
             (_, Storage::Driver(d)) => d.record_update(rec),
             (Family::Bvh(b), Storage::Bvh(s)) => b.record_refit(rec, prims, s, &out.info, scratch),
-            _ => Err(GpuError::Kernel {
-                kernel: "accel.refit",
+            _ => Err(GpuError::Usage {
+                call: "AccelBuilder::record_refit",
                 reason: format!("a {} cannot be refit; rebuild it", out.kind.name()),
             }),
         }

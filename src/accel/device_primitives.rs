@@ -65,8 +65,8 @@ impl DevicePrimitives {
             || g.has_motion() != self.has_motion
             || g.motions.len() != self.motions.len()
         {
-            return Err(GpuError::Kernel {
-                kernel: "accel.update",
+            return Err(GpuError::Usage {
+                call: "DevicePrimitives::record_update",
                 reason: format!(
                     "an update keeps the primitives: {} triangles, {} spheres and {} boxes \
                      on the device, {}, {} and {} given",

@@ -304,7 +304,7 @@ impl AccelBuilder {
     /// // Recorded into a command buffer (here vkrt's own; `Recorder::from_raw` takes the
     /// // renderer's), nothing allocated or submitted by the build.
     /// let mut rec = Recorder::new(&ctx)?;
-    /// builder.record_build_from(&mut rec, &geometries, &mut bvh, scratch.as_raw())?;
+    /// builder.record_build_from(&mut rec, &mut bvh, &geometries, scratch.as_raw())?;
     /// rec.submit_and_wait()?;
     ///
     /// let walk = AccelKind::Ploc.walked(Default::default());
@@ -403,8 +403,8 @@ impl AccelBuilder {
     pub fn record_build_from(
         &self,
         rec: &mut Recorder,
-        geometries: &[Geometry],
         out: &mut GpuGeometry,
+        geometries: &[Geometry],
         scratch: RawBuffer,
     ) -> Result<()> {
         let target = BuildTarget {
@@ -426,8 +426,8 @@ impl AccelBuilder {
     pub fn record_update_from(
         &self,
         rec: &mut Recorder,
+        out: &mut GpuGeometry,
         geometries: &[Geometry],
-        out: &GpuGeometry,
         scratch: RawBuffer,
     ) -> Result<()> {
         let call = "AccelBuilder::record_update_from";
@@ -476,7 +476,7 @@ impl AccelBuilder {
         let visits = visits.ok_or_else(|| usage(call, "this kind cannot be updated"))?;
         rec.scope("update", |rec| {
             self.record_gather(rec, geometries, &input, out)?;
-            self.record_refit(rec, &out.prims, &out.accel, &visits)
+            self.record_refit(rec, out, &visits)
         })?;
         rec.check()
     }

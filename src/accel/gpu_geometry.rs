@@ -13,9 +13,9 @@ use crate::gpu::{BufferArg, Context, GpuError, Recorder, Result};
 /// `traverse.glsl` binds.
 pub struct GpuGeometry {
     /// The primitives on the device.
-    pub prims: DevicePrimitives,
+    pub(crate) prims: DevicePrimitives,
     /// The structure over them on the device.
-    pub accel: AccelStructure,
+    pub(crate) accel: AccelStructure,
     /// For a structure over the caller's device geometry
     /// ([`AccelBuilder::create_in`](crate::accel::device::AccelBuilder::create_in)): its
     /// layout and build flags, which every build and update into it must match.
@@ -23,6 +23,17 @@ pub struct GpuGeometry {
 }
 
 impl GpuGeometry {
+    /// The primitives on the device (what [`DevicePrimitives::record_update`] moves before
+    /// a refit).
+    pub fn primitives(&self) -> &DevicePrimitives {
+        &self.prims
+    }
+
+    /// The structure over them on the device.
+    pub fn structure(&self) -> &AccelStructure {
+        &self.accel
+    }
+
     /// Geometry and a kd-tree built on the host (or downloaded).
     pub fn upload(ctx: &Context, g: &TraceGeometry, tree: &KdTree) -> Result<Self> {
         Self::with_host(ctx, g, HostRef::KdTree(tree))
@@ -62,7 +73,7 @@ impl GpuGeometry {
     ) -> Result<(Self, RecordedBuild)> {
         let (mut accel, scratch) = builder.create(rec.context(), prims.count(), grow)?;
         let recorded = rec.scope("build", |rec| {
-            builder.record_build(rec, &prims, g, &scratch, &mut accel)
+            builder.record_build(rec, &mut accel, &prims, g, &scratch)
         })?;
         // The scratch is freed when this returns, before the work runs: keep it alive.
         rec.keep_alive(scratch);
@@ -148,7 +159,7 @@ impl GpuGeometry {
     /// in the bindings' order, 56 bytes the caller writes where the shader reads them and
     /// passes to `vkrtUseStructure`. An error where the context has no
     /// `bufferDeviceAddress`.
-    pub fn address_handle(&self) -> Result<[u64; 7]> {
+    pub fn handle_words(&self) -> Result<[u64; 7]> {
         address_handle(self.prims.tri_verts.context(), &self.prims, &self.accel)
     }
 
@@ -156,7 +167,7 @@ impl GpuGeometry {
     /// ([`Instance::bottom`](crate::accel::instance::Instance::bottom)), as
     /// `VkAccelerationStructureInstanceKHR::accelerationStructureReference` holds a BLAS's
     /// device address: the device address of the level's own handle
-    /// ([`GpuGeometry::address_handle`], whose seventh address is its scene constants), which
+    /// ([`GpuGeometry::handle_words`], whose seventh address is its scene constants), which
     /// each of its builds writes after its scene constants. Fixed for as long as the level
     /// lives (rebuilds into it keep it); valid in a top level's build once a build of this
     /// level has executed before it. At least

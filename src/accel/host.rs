@@ -50,8 +50,8 @@ impl AccelStructure {
         match self.storage() {
             Storage::KdTree(k) => k.download(&info, bounds).map(HostStructure::KdTree),
             Storage::Bvh(b) => b.download(bounds).map(HostStructure::Bvh),
-            Storage::Driver(_) => Err(GpuError::Kernel {
-                kernel: "accel.driver",
+            Storage::Driver(_) => Err(GpuError::Usage {
+                call: "AccelStructure::download",
                 reason: "the driver's structure is opaque: it cannot be downloaded".into(),
             }),
         }

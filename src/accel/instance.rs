@@ -3,6 +3,7 @@
 //! record the walk reads per instance ([`InstanceRecord`]), with the transforms' arithmetic
 //! the device and its CPU twin share.
 
+use crate::gpu::{GpuError, Result};
 use bytemuck::{Pod, Zeroable};
 use glam::Vec3;
 
@@ -40,8 +41,16 @@ impl InstanceMotion {
         }
     }
 
-    /// Why a top level cannot move this way (`None`: it can).
-    pub fn check(&self) -> std::result::Result<(), String> {
+    /// Whether a top level can move this way: a [`GpuError::Usage`] saying why not.
+    pub fn check(&self) -> Result<()> {
+        self.why_not().map_err(|reason| GpuError::Usage {
+            call: "InstanceMotion::check",
+            reason,
+        })
+    }
+
+    /// Why a top level cannot move this way, for the calls that report it under their name.
+    pub(crate) fn why_not(&self) -> std::result::Result<(), String> {
         if self.steps == 0 || self.steps > MAX_MOTION_STEPS {
             return Err(format!(
                 "{} time steps: give 1 (no motion) to {MAX_MOTION_STEPS}",
@@ -211,9 +220,20 @@ impl Instance {
             .map(|k| k as u32)
     }
 
-    /// Why the device would never hit this instance of one of the levels whose references
-    /// are `references` (`None`: it is valid). The checks `accel.instance_boxes` makes.
-    pub fn check(&self, references: &[u64]) -> std::result::Result<(), String> {
+    /// Whether the device would hit this instance of one of the levels whose references are
+    /// `references`: a [`GpuError::Usage`] saying why not. The checks `accel.instance_boxes`
+    /// makes.
+    pub fn check(&self, references: &[u64]) -> Result<()> {
+        self.why_invalid(references)
+            .map_err(|reason| GpuError::Usage {
+                call: "Instance::check",
+                reason,
+            })
+    }
+
+    /// Why the device would never hit this instance, for the calls that report it under
+    /// their name.
+    pub(crate) fn why_invalid(&self, references: &[u64]) -> std::result::Result<(), String> {
         if self.bottom_index(references).is_none() {
             return Err(if self.bottom < MAX_BOTTOM_LEVELS as u64 {
                 format!(

@@ -230,7 +230,7 @@ fn copy_list<'a>(bottoms: impl IntoIterator<Item = &'a GpuGeometry>) -> Result<L
     for b in bottoms {
         out.references.push(b.reference_address()?);
         let mut handle = [0u64; 8];
-        handle[..7].copy_from_slice(&b.address_handle()?);
+        handle[..7].copy_from_slice(&b.handle_words()?);
         out.handles.push(handle);
     }
     Ok(out)
@@ -359,7 +359,7 @@ impl Parts {
 pub struct TopLevel {
     /// The BVH over the instances' world boxes (box primitive `i` is instance `i`), over
     /// every slot of the maximum it was created for.
-    pub tree: GpuGeometry,
+    pub(crate) tree: GpuGeometry,
     parts: Parts,
     /// Its list of bottom levels, copied (instances name these by index or by reference).
     listed: Listed,
@@ -479,7 +479,7 @@ impl TopLevelBuilder {
         flags: &BuildFlags,
     ) -> Result<AccelSizes> {
         motion
-            .check()
+            .why_not()
             .map_err(|why| usage("TopLevelBuilder::sizes_for_motion", why))?;
         let own = parts_bytes(ctx, max_instances, n_bottoms, motion)?;
         let tree = self
@@ -543,7 +543,7 @@ impl TopLevelBuilder {
         memory: RawBuffer,
     ) -> Result<TopLevel> {
         let call = "TopLevelBuilder::create_in";
-        motion.check().map_err(|why| usage(call, why))?;
+        motion.why_not().map_err(|why| usage(call, why))?;
         let n_bottoms = listed.references.len();
         if n_bottoms > MAX_BOTTOM_LEVELS {
             return Err(usage(
@@ -553,13 +553,10 @@ impl TopLevelBuilder {
         }
         let own = parts_bytes(ctx, max, n_bottoms, motion)?;
         if memory.size < own {
-            return Err(usage(
-                call,
-                format!(
-                    "{} bytes of memory; the top level needs {} (TopLevelBuilder::sizes_for)",
-                    memory.size, own
-                ),
-            ));
+            return Err(GpuError::Placement(format!(
+                "{call}: {} bytes of memory; the top level needs {} (TopLevelBuilder::sizes_for)",
+                memory.size, own
+            )));
         }
         let (parts, _) = place(ctx, "the instances", Placement::Into(memory), || {
             Parts::create(ctx, max, n_bottoms, motion)
@@ -623,7 +620,7 @@ impl TopLevelBuilder {
         let mut table = Vec::new();
         if build {
             table = reference_table(&top.listed.references);
-            handle[0][..7].copy_from_slice(&top.tree.address_handle()?);
+            handle[0][..7].copy_from_slice(&top.tree.handle_words()?);
             handle[0][7] = p.records.address();
             handle[1][0] = p.steps.address();
             handle[1][1] = p.originals.address();
@@ -685,9 +682,9 @@ impl TopLevelBuilder {
     pub fn record_build_from(
         &self,
         rec: &mut Recorder,
+        top: &mut TopLevel,
         instances: RawBuffer,
         count: u32,
-        top: &mut TopLevel,
         scratch: RawBuffer,
     ) -> Result<()> {
         let call = "TopLevelBuilder::record_build_from";
@@ -707,7 +704,7 @@ impl TopLevelBuilder {
             top.count = count;
             let geometry = top.geometry();
             self.tree
-                .record_build_from(rec, &[geometry], &mut top.tree, scratch)
+                .record_build_from(rec, &mut top.tree, &[geometry], scratch)
         })
     }
 
@@ -720,16 +717,17 @@ impl TopLevelBuilder {
     pub fn record_update_from(
         &self,
         rec: &mut Recorder,
+        top: &mut TopLevel,
         instances: RawBuffer,
-        top: &TopLevel,
         scratch: RawBuffer,
     ) -> Result<()> {
         let call = "TopLevelBuilder::record_update_from";
         self.check_kind(call, top)?;
         rec.scope("top level update", |rec| {
             self.record_instances(rec, call, instances, top.count, top, false)?;
+            let geometry = top.geometry();
             self.tree
-                .record_update_from(rec, &[top.geometry()], &top.tree, scratch)
+                .record_update_from(rec, &mut top.tree, &[geometry], scratch)
         })
     }
 
@@ -840,7 +838,7 @@ impl TopLevelBuilder {
         let mut top = self.create_in_listed(&ctx, listed, count, motion, flags, memory.as_raw())?;
         rec.upload(&records, instances)?;
         rec.transfer_to_compute();
-        self.record_build_from(rec, records.as_raw(), count, &mut top, scratch.as_raw())?;
+        self.record_build_from(rec, &mut top, records.as_raw(), count, scratch.as_raw())?;
         top.own = Some(Own {
             _memory: memory,
             scratch,
@@ -852,7 +850,7 @@ impl TopLevelBuilder {
 
     /// The update of a top level [`TopLevelBuilder::build`] made (with `allow_update`) to
     /// `instances` (as many as its last build read, each checked), waited for.
-    pub fn update(&self, ctx: &Context, top: &TopLevel, instances: &[Instance]) -> Result<()> {
+    pub fn update(&self, ctx: &Context, top: &mut TopLevel, instances: &[Instance]) -> Result<()> {
         let mut rec = Recorder::new(ctx)?;
         self.record_update(&mut rec, top, instances)?;
         rec.submit_and_wait()?;
@@ -865,7 +863,7 @@ impl TopLevelBuilder {
     pub fn record_update(
         &self,
         rec: &mut Recorder,
-        top: &TopLevel,
+        top: &mut TopLevel,
         instances: &[Instance],
     ) -> Result<()> {
         let call = "TopLevelBuilder::update";
@@ -885,7 +883,7 @@ impl TopLevelBuilder {
             ));
         }
         let (records, scratch) = self.host_records(rec, call, top, instances)?;
-        self.record_update_from(rec, records, top, scratch)
+        self.record_update_from(rec, top, records, scratch)
     }
 
     /// A new build of a top level [`TopLevelBuilder::build`] made, over `instances` (each
@@ -915,7 +913,7 @@ impl TopLevelBuilder {
         }
         let (records, scratch) = self.host_records(rec, call, top, instances)?;
         let count = (instances.len() as u64 / steps) as u32;
-        self.record_build_from(rec, records, count, top, scratch)
+        self.record_build_from(rec, top, records, count, scratch)
     }
 
     /// `instances`, checked against `top`, uploaded by `rec` where `top`'s own build keeps
@@ -954,7 +952,7 @@ fn check_instances(
     motion: InstanceMotion,
     references: &[u64],
 ) -> Result<u32> {
-    motion.check().map_err(|why| usage(call, why))?;
+    motion.why_not().map_err(|why| usage(call, why))?;
     let steps = motion.steps as usize;
     if instances.len() % steps != 0 {
         return Err(usage(
@@ -974,7 +972,7 @@ fn check_instances(
         } else {
             format!("instance {i}")
         };
-        inst.check(references)
+        inst.why_invalid(references)
             .map_err(|why| usage(call, format!("{at}: {why}")))?;
         let first = &instances[i];
         if s > 0 {
@@ -1030,6 +1028,11 @@ struct BoxesPush {
 }
 
 impl TopLevel {
+    /// The BVH over the instances' world boxes (box primitive `i` is instance `i`).
+    pub fn tree(&self) -> &GpuGeometry {
+        &self.tree
+    }
+
     /// The tree's geometry: a box per slot.
     fn geometry(&self) -> Geometry {
         boxes_geometry(GeometryData::Buffer(self.parts.boxes.as_raw()), self.max)
@@ -1104,7 +1107,7 @@ impl TopLevel {
             ));
         }
         motion
-            .check()
+            .why_not()
             .map_err(|why| usage("TopLevel::set_time", why))?;
         self.motion = motion;
         Ok(())

@@ -229,7 +229,7 @@ impl SceneLevels {
             )?;
             let mut g = builder.create_in(&ctx, &geometries, &flags, memory.as_raw())?;
             rec.transfer_to_compute();
-            builder.record_build_from(rec, &geometries, &mut g, scratch.as_raw())?;
+            builder.record_build_from(rec, &mut g, &geometries, scratch.as_raw())?;
             bottoms.push(g);
             keep.push(memory);
             keep.push(scratch);

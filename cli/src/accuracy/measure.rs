@@ -449,11 +449,11 @@ fn measure_structure(
     // Quality and size of the structure.
     let (sah_cost, bytes) = if choice.kind == AccelKind::Driver {
         notes.push("the driver's structure is opaque: no SAH cost".into());
-        (None, geom.accel.driver_bytes())
+        (None, geom.structure().driver_bytes())
     } else {
         let host = match host {
             Some(h) => h,
-            None => geom.accel.download()?,
+            None => geom.structure().download()?,
         };
         match host {
             HostStructure::KdTree(t) => (

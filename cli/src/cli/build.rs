@@ -248,7 +248,7 @@ fn gpu_bvh_build_command(
     }
     let (dev, prof) = timed.expect("built");
     write_profile(profile, &prof)?;
-    let HostStructure::Bvh(tree) = dev.accel.download()? else {
+    let HostStructure::Bvh(tree) = dev.structure().download()? else {
         unreachable!("a GPU BVH")
     };
     validate::validate(&tree, &g.boxes).map_err(|e| format!("invalid {}: {e}", kind.name()))?;
@@ -336,7 +336,7 @@ fn driver_build_command(
         let (mut accel, scratch) = builder.create(ctx, prims.count(), 0)?;
         let mut rec = vkrt::gpu::Recorder::new(ctx)?;
         rec.scope("build", |rec| {
-            builder.record_build(rec, &prims, &g, &scratch, &mut accel)
+            builder.record_build(rec, &mut accel, &prims, &g, &scratch)
         })?;
         let t = std::time::Instant::now();
         let prof = rec.submit_and_wait()?;

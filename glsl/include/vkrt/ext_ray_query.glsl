@@ -15,7 +15,7 @@
 // VK_FORMAT_R32G32B32A32_UINT) whose first texel holds, in .x (low word) and .y, the device
 // address of the structure's handle: `TopLevel::handle_address()` for a top level (the
 // instances the driver's TLAS would hold), or the address where the host wrote a bottom
-// level's `GpuGeometry::address_handle()` (walked as one instance with the identity
+// level's `GpuGeometry::handle_words()` (walked as one instance with the identity
 // transform, instance id and custom index 0). `accelerationStructureEXT(uint64_t address)`
 // takes such an address directly.
 //

@@ -47,7 +47,7 @@
 //                     `exhausted`)
 //   VKRT_DEVICE_ADDRESS  read the structure at device addresses instead of seven bindings:
 //                     call vkrtUseStructure(handle) before the queries, with the address
-//                     of the structure's handle (`GpuGeometry::address_handle()`, 56 bytes
+//                     of the structure's handle (`GpuGeometry::handle_words()`, 56 bytes
 //                     the host writes where it likes); needs bufferDeviceAddress. One
 //                     64-bit value per structure, as a TLAS is, and no binding limit; on
 //                     lavapipe as fast as the bindings or up to 14 % slower
@@ -212,7 +212,7 @@ void vkrt_use(uint64_t handle) {
 }
 
 // Makes the structure whose handle lies at `handle` the one the queries that follow trace:
-// `GpuGeometry::address_handle` (its seven arrays' addresses, written where the shader reads
+// `GpuGeometry::handle_words` (its seven arrays' addresses, written where the shader reads
 // them), or a top level's `TopLevel::handle_address` (written by its build).
 void vkrtUseStructure(uint64_t handle) {
     vkrt_top = handle;

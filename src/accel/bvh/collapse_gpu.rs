@@ -125,8 +125,8 @@ impl CollapseKernels {
     /// Checks that the device can collapse with `params` (the leaf size the gather holds).
     pub fn check(params: &BvhParams) -> Result<()> {
         if params.max_leaf_prims > MAX_COLLAPSE_LEAF {
-            return Err(GpuError::Kernel {
-                kernel: "accel.bvh_collapse",
+            return Err(GpuError::Usage {
+                call: "BvhParams::max_leaf_prims",
                 reason: format!(
                     "max_leaf_prims = {}: the GPU builders' leaves hold at most {MAX_COLLAPSE_LEAF}",
                     params.max_leaf_prims

@@ -357,8 +357,8 @@ impl DriverAccel {
             .flags
             .contains(vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE)
         {
-            return Err(GpuError::Kernel {
-                kernel: "accel.driver",
+            return Err(GpuError::Usage {
+                call: "AccelBuilder::record_refit",
                 reason: "the driver's structure was not built to be updated; rebuild it".into(),
             });
         }

@@ -247,7 +247,7 @@ impl<'r> FrameLoop<'r> {
                     let prims = DevicePrimitives::record_upload(rec, &rs.geometry)?;
                     let (mut accel, scratch) = b.create(rec.context(), prims.count(), self.grow)?;
                     let recorded = rec.scope("build", |rec| {
-                        b.record_build(rec, &prims, &rs.geometry, &scratch, &mut accel)
+                        b.record_build(rec, &mut accel, &prims, &rs.geometry, &scratch)
                     })?;
                     let refit_scratch = b.update_scratch(rec.context(), prims.count())?;
                     let geom = GpuGeometry {
@@ -293,13 +293,15 @@ impl<'r> FrameLoop<'r> {
                 let accel = &mut geom.accel;
                 let scratch = st.scratch.as_ref().expect("build scratch");
                 let recorded =
-                    rec.scope("build", |rec| b.record_build(rec, prims, g, scratch, accel))?;
+                    rec.scope("build", |rec| b.record_build(rec, accel, prims, g, scratch))?;
                 Ok((true, recorded.host_ms, None))
             }
             Update::Refit => {
                 let scratch = st.refit_scratch.as_ref().expect("refit scratch");
-                let accel = &geom.accel;
-                rec.scope("update", |rec| b.record_refit(rec, prims, accel, scratch))?;
+                let accel = &mut geom.accel;
+                rec.scope("update", |rec| {
+                    b.record_refit_parts(rec, accel, prims, scratch)
+                })?;
                 Ok((false, None, None))
             }
         }
