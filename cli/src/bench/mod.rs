@@ -10,6 +10,8 @@ use serde::Serialize;
 
 use vkrt::gpu::{kernels, Buffer, Context, Profile, Recorder, Result, Spec};
 
+pub mod prims;
+
 /// One timed variant of a copy.
 #[derive(Clone, Debug, Serialize)]
 pub struct CopyResult {
@@ -191,18 +193,18 @@ pub struct PrimsReport {
 }
 
 /// A primitive's benchmark: times at `n` elements, best of `reps`.
-pub type PrimBench = fn(&Context, usize, u32) -> Result<Vec<vkrt::prims::PrimTiming>>;
+pub type PrimBench = fn(&Context, usize, u32) -> Result<Vec<prims::PrimTiming>>;
 
 /// Every primitive's benchmark, in the order of the report.
 pub fn prim_benches() -> Vec<(&'static str, PrimBench)> {
     vec![
-        ("scan", vkrt::prims::scan::bench as PrimBench),
-        ("compact", vkrt::prims::compact::bench),
-        ("reduce", vkrt::prims::reduce::bench),
-        ("segmented", vkrt::prims::segmented::bench),
+        ("scan", prims::scan::bench as PrimBench),
+        ("compact", prims::compact::bench),
+        ("reduce", prims::reduce::bench),
+        ("segmented", prims::segmented::bench),
         // Its rows include `cpu_sort_unstable_by_key`: the CPU sort of the same pairs on one
         // core (its "gpu_ms" is CPU wall time).
-        ("radix", vkrt::prims::radix_sort::bench),
+        ("radix", prims::radix_sort::bench),
     ]
 }
 
