@@ -23,7 +23,8 @@ fn bench_digit_widths() {
     for n in [1usize << 22, 1 << 24] {
         let timings = prims::radix_sort::bench(&ctx, n, reps).unwrap();
         // Keys and values read and written once: what one pass at least moves.
-        let (baselines, _) = vkrt_cli::bench::copy_baselines(&ctx, 8 * n as u64, reps).unwrap();
+        let (baselines, _) =
+            vkrt_cli::bench::copy::copy_baselines(&ctx, 8 * n as u64, reps).unwrap();
         let copy_kernel = baselines.best_kernel().map_or(f64::NAN, |r| r.gpu_ms);
         let copy = baselines
             .results
@@ -56,7 +57,7 @@ fn bench_reductions() {
     cfg.items_per_invocation = env("BENCH_ITEMS").unwrap_or(cfg.items_per_invocation);
     println!("{cfg:?}");
     if std::env::var("BENCH_COPY").is_ok() {
-        let (b, _) = vkrt_cli::bench::copy_baselines(&ctx, 64 << 20, 3).unwrap();
+        let (b, _) = vkrt_cli::bench::copy::copy_baselines(&ctx, 64 << 20, 3).unwrap();
         for r in &b.results {
             println!("{:<26} {:8.3} ms", r.method, r.gpu_ms);
         }
