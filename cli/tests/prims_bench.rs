@@ -8,7 +8,13 @@ use vkrt::gpu::{Buffer, Recorder};
 use vkrt::prims::reduce::{self, CostIndex, Reduce};
 use vkrt::prims::segmented::{self, SegmentedArgmin, SegmentedMode};
 use vkrt::prims::PrimConfig;
-use vkrt_cli::bench::prims;
+use vkrt_cli::bench::{best_ms, prims, rep_scope};
+
+/// The number in the environment variable `key`, if it is set and parses: the knobs of
+/// these measurements.
+fn env<T: std::str::FromStr>(key: &str) -> Option<T> {
+    std::env::var(key).ok()?.parse().ok()
+}
 
 /// `cargo test --release --test prims_bench -- --ignored --nocapture bench_digit_widths`: the digit-width
 /// table of the module docs, the CPU comparison and the copy-kernel bound.
@@ -16,10 +22,7 @@ use vkrt_cli::bench::prims;
 #[ignore = "benchmark, minutes on lavapipe: run with --ignored --nocapture"]
 fn bench_digit_widths() {
     let Some(ctx) = common::context() else { return };
-    let reps = std::env::var("VKRT_BENCH_REPS")
-        .ok()
-        .and_then(|r| r.parse().ok())
-        .unwrap_or(3);
+    let reps = env("VKRT_BENCH_REPS").unwrap_or(3);
     for n in [1usize << 22, 1 << 24] {
         let timings = prims::radix_sort::bench(&ctx, n, reps).unwrap();
         // Keys and values read and written once: what one pass at least moves.
@@ -51,7 +54,6 @@ fn bench_digit_widths() {
 fn bench_reductions() {
     let Some(ctx) = common::context() else { return };
     let n = 1 << 24;
-    let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<u32>().ok());
     let mut cfg = PrimConfig::default_for(&ctx);
     cfg.workgroup_size = env("BENCH_WG").unwrap_or(cfg.workgroup_size);
     cfg.items_per_invocation = env("BENCH_ITEMS").unwrap_or(cfg.items_per_invocation);
@@ -80,10 +82,7 @@ fn bench_reductions() {
 #[ignore = "measurement: cargo test --release --test prims_bench -- --ignored --nocapture tune"]
 fn tune_configs() {
     let Some(ctx) = common::context() else { return };
-    let n: usize = std::env::var("BENCH_N")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(1 << 22);
+    let n: usize = env("BENCH_N").unwrap_or(1 << 22);
     let reps = 9;
     let sg = ctx.info().subgroup_size;
     let list = std::env::var("TUNE").unwrap_or_else(|_| "256x16,256x64,256x256,256x1024".into());
@@ -111,12 +110,11 @@ fn tune_configs() {
     let mut rec = Recorder::new(&ctx).unwrap();
     for rep in 0..=reps {
         for (i, r) in reduces.iter().enumerate() {
-            let tag = if rep == 0 { "warmup" } else { "t" };
-            rec.scope(&format!("{tag}.sum{i}"), |rec| {
+            rec.scope(&rep_scope(rep, &format!("sum{i}")), |rec| {
                 r.record_sum_f32(rec, &src, n as u32, &scratch, &out)
             });
             rec.compute_to_compute();
-            rec.scope(&format!("{tag}.argmin{i}"), |rec| {
+            rec.scope(&rep_scope(rep, &format!("argmin{i}")), |rec| {
                 r.record_argmin(rec, &src, n as u32, &scratch, &out_arg)
             });
             rec.compute_to_compute();
@@ -134,22 +132,15 @@ fn tune_configs() {
     let got = out_arg.download().unwrap()[0];
     let (c, i) = reduce::argmin_cpu(&data);
     assert_eq!(got.bits(), (c.to_bits(), i), "argmin with {last:?}");
-    let best = |name: &str| {
-        profile
-            .passes
-            .iter()
-            .filter(|p| p.name == name)
-            .filter_map(|p| p.ms)
-            .fold(f64::INFINITY, f64::min)
-    };
+    let best = |name: &str| best_ms(&profile, name);
     println!("n = {n}, best of {reps}");
     for (i, c) in cfgs.iter().enumerate() {
         println!(
             "wg {:5} items {:5}: sum_f32 {:8.3} ms  argmin {:8.3} ms",
             c.workgroup_size,
             c.items_per_invocation,
-            best(&format!("t.sum{i}")),
-            best(&format!("t.argmin{i}"))
+            best(&format!("sum{i}")),
+            best(&format!("argmin{i}"))
         );
     }
 }
@@ -176,10 +167,7 @@ fn bench_segmented() {
 #[ignore = "measurement: cargo test --release --test prims_bench -- --ignored --nocapture threshold"]
 fn threshold_measurement() {
     let Some(ctx) = common::context() else { return };
-    let n = std::env::var("BENCH_N")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(1 << 22);
+    let n = env("BENCH_N").unwrap_or(1 << 22);
     let levels: Vec<u32> = (0..=16).collect();
     let mut modes = vec![
         SegmentedMode::WorkgroupPerSegment,
@@ -189,7 +177,6 @@ fn threshold_measurement() {
         modes.push(SegmentedMode::Hybrid { threshold: t });
     }
     let labelled: Vec<(String, SegmentedMode)> = modes.iter().map(|m| (m.name(), *m)).collect();
-    let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<u32>().ok());
     let mut cfg = PrimConfig::default_for(&ctx);
     cfg.workgroup_size = env("BENCH_WG").unwrap_or(256);
     cfg.items_per_invocation = env("BENCH_ITEMS").unwrap_or(256);
@@ -218,7 +205,6 @@ fn threshold_measurement() {
 fn pass_breakdown() {
     let Some(ctx) = common::context() else { return };
     let n = 1u32 << 22;
-    let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<u32>().ok());
     let cfg = PrimConfig {
         workgroup_size: env("BENCH_WG").unwrap_or(256),
         items_per_invocation: env("BENCH_ITEMS").unwrap_or(256),

@@ -10,6 +10,8 @@ use serde::Serialize;
 
 use vkrt::gpu::{kernels, Buffer, Context, Profile, Recorder, Result, Spec};
 
+use super::{best_ms, rep_scope};
+
 /// One timed variant of a copy.
 #[derive(Clone, Debug, Serialize)]
 pub struct CopyResult {
@@ -100,12 +102,7 @@ pub fn copy_baselines(ctx: &Context, bytes: u64, reps: u32) -> Result<(CopyBasel
     rec.transfer_to_transfer();
     for rep in 0..=reps {
         for (name, kernel) in &variants {
-            let label = if rep == 0 {
-                format!("warmup.{name}")
-            } else {
-                name.clone()
-            };
-            rec.begin_scope(&label);
+            rec.begin_scope(&rep_scope(rep, name));
             match kernel {
                 None => rec.copy(&src, &dst, words),
                 Some((k, words_per_elem, per_invocation)) => {
@@ -124,14 +121,7 @@ pub fn copy_baselines(ctx: &Context, bytes: u64, reps: u32) -> Result<(CopyBasel
         }
     }
     let profile = rec.submit_and_wait()?;
-    let best = |name: &str| {
-        profile
-            .passes
-            .iter()
-            .filter(|p| p.name == name)
-            .filter_map(|p| p.ms)
-            .fold(f64::INFINITY, f64::min)
-    };
+    let best = |name: &str| best_ms(&profile, name);
     let copy_ms = best("vkCmdCopyBuffer");
     let results = variants
         .iter()

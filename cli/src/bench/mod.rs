@@ -2,9 +2,33 @@
 //! is set against ([`copy`]), the GPU primitives ([`prims`]) and Kolodzey's kd-tree build
 //! ([`kdtree`]).
 
+use vkrt::gpu::Profile;
+
 pub mod copy;
 pub mod kdtree;
 pub mod prims;
+
+/// The scope name of repetition `rep` of the variant `name`: repetition 0 is the untimed
+/// warm-up (`warmup.NAME`: the first touch of fresh memory costs page faults on lavapipe),
+/// the timed ones share `name` for [`best_ms`].
+pub fn rep_scope(rep: u32, name: &str) -> String {
+    if rep == 0 {
+        format!("warmup.{name}")
+    } else {
+        name.to_string()
+    }
+}
+
+/// The fastest of the timed scopes called `name` in `profile` (infinity where none was
+/// timed): a variant's figure when a submission ran it several times.
+pub fn best_ms(profile: &Profile, name: &str) -> f64 {
+    profile
+        .passes
+        .iter()
+        .filter(|p| p.name == name)
+        .filter_map(|p| p.ms)
+        .fold(f64::INFINITY, f64::min)
+}
 
 /// The exponent `k` of the power law `ms ≈ c·n^k` through `(n, ms)` points: the
 /// least-squares slope of log(ms) over log(n); `None` for fewer than two points.

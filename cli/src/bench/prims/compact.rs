@@ -6,6 +6,7 @@ use vkrt::prims::compact::{Compact, MAX_ARRAYS};
 use vkrt::prims::PrimConfig;
 
 use super::PrimTiming;
+use crate::bench::{best_ms, rep_scope};
 
 /// Times the compaction of one and of four SoA arrays at `n` elements (half the flags set).
 pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
@@ -32,12 +33,7 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
         for (name, k) in variants {
             let i: Vec<&dyn BufferArg> = ins[..k].iter().map(|b| b as &dyn BufferArg).collect();
             let o: Vec<&dyn BufferArg> = outs[..k].iter().map(|b| b as &dyn BufferArg).collect();
-            let label = if rep == 0 {
-                format!("warmup.{name}")
-            } else {
-                name.to_string()
-            };
-            rec.scope(&label, |rec| {
+            rec.scope(&rep_scope(rep, name), |rec| {
                 compact.record(rec, &flags, n, &i, &o, &scratch)
             });
             rec.compute_to_compute();
@@ -49,7 +45,7 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
         .map(|&(name, k)| PrimTiming {
             prim: name.to_string(),
             n: n as u64,
-            gpu_ms: super::scan::best_ms(&profile, name),
+            gpu_ms: best_ms(&profile, name),
             // flags read, offsets written and read, k arrays read and half written
             min_bytes: n as u64 * (1 + 4 + 4 * k as u64) + 2 * n as u64 * k as u64,
         })

@@ -6,6 +6,7 @@ use vkrt::prims::radix_sort::{RadixSort, Ranking, DEFAULT_BITS_PER_PASS};
 use vkrt::prims::PrimConfig;
 
 use super::PrimTiming;
+use crate::bench::best_ms;
 
 /// The keys a variant sorts.
 #[derive(Clone, Copy, PartialEq, Eq)]
@@ -142,13 +143,4 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
         min_bytes: 16 * n as u64,
     });
     Ok(timings)
-}
-
-fn best_ms(profile: &vkrt::gpu::Profile, name: &str) -> f64 {
-    profile
-        .passes
-        .iter()
-        .filter(|p| p.name == name)
-        .filter_map(|p| p.ms)
-        .fold(f64::INFINITY, f64::min)
 }

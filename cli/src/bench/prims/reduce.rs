@@ -5,6 +5,7 @@ use vkrt::prims::reduce::{recommended_config, CostIndex, Reduce};
 use vkrt::prims::PrimConfig;
 
 use super::PrimTiming;
+use crate::bench::{best_ms, rep_scope};
 
 /// Times the reductions over `n` elements with [`recommended_config`]: the best of `reps`
 /// runs after one untimed warm-up. `min_bytes` is the input read plus the result.
@@ -61,12 +62,7 @@ pub fn bench_with(ctx: &Context, cfg: PrimConfig, n: usize, reps: u32) -> Result
     let mut rec = Recorder::new(ctx)?;
     for rep in 0..=reps {
         for (name, _, run) in &runs {
-            let label = if rep == 0 {
-                format!("warmup.{name}")
-            } else {
-                (*name).to_string()
-            };
-            rec.scope(&label, |rec| run(rec));
+            rec.scope(&rep_scope(rep, name), |rec| run(rec));
             rec.compute_to_compute();
         }
     }
@@ -76,12 +72,7 @@ pub fn bench_with(ctx: &Context, cfg: PrimConfig, n: usize, reps: u32) -> Result
         .map(|(name, out_bytes, _)| PrimTiming {
             prim: (*name).to_string(),
             n: n as u64,
-            gpu_ms: profile
-                .passes
-                .iter()
-                .filter(|p| p.name == *name)
-                .filter_map(|p| p.ms)
-                .fold(f64::INFINITY, f64::min),
+            gpu_ms: best_ms(&profile, name),
             min_bytes: 4 * n as u64 + out_bytes,
         })
         .collect())

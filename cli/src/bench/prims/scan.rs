@@ -6,6 +6,7 @@ use vkrt::prims::scan::{Scan, ScanInput, ScanOp, ScanVariant};
 use vkrt::prims::PrimConfig;
 
 use super::PrimTiming;
+use crate::bench::{best_ms, rep_scope};
 
 /// Times the scans at `n` elements: u32 with `subgroupInclusiveAdd` and with shuffles, for
 /// several items per invocation ("algorithm cascading"), and the flag scan.
@@ -74,12 +75,7 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
     for rep in 0..=reps {
         for ((name, scan, is_flags), scratch) in variants.iter().zip(&scratches) {
             let input: &dyn BufferArg = if *is_flags { &flags } else { &words };
-            let label = if rep == 0 {
-                format!("warmup.{name}")
-            } else {
-                name.clone()
-            };
-            rec.scope(&label, |rec| {
+            rec.scope(&rep_scope(rep, name), |rec| {
                 scan.record(rec, input, &out, n, ScanOp::Exclusive, scratch)
             });
             rec.compute_to_compute();
@@ -99,14 +95,4 @@ pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
             },
         })
         .collect())
-}
-
-/// The fastest run of the scopes called `name`.
-pub(crate) fn best_ms(profile: &vkrt::gpu::Profile, name: &str) -> f64 {
-    profile
-        .passes
-        .iter()
-        .filter(|p| p.name == name)
-        .filter_map(|p| p.ms)
-        .fold(f64::INFINITY, f64::min)
 }

@@ -6,6 +6,7 @@ use vkrt::prims::reduce::CostIndex;
 use vkrt::prims::segmented::{level_offsets, SegmentedArgmin, SegmentedMode};
 
 use super::PrimTiming;
+use crate::bench::{best_ms, rep_scope};
 
 /// Times `modes` (label, mode) at `n` costs on kd-tree-like levels (level k: 2^k equal
 /// segments) for k in `levels`, best of `reps` after one untimed warm-up, interleaved so
@@ -48,12 +49,7 @@ pub fn bench_levels(
     for rep in 0..=reps {
         for (level, count, offsets, count_buf) in &inputs {
             for (label, mode) in modes {
-                let scope = if rep == 0 {
-                    format!("warmup.{}", name(label, *level))
-                } else {
-                    name(label, *level)
-                };
-                rec.scope(&scope, |rec| {
+                rec.scope(&rep_scope(rep, &name(label, *level)), |rec| {
                     seg.record(
                         rec, *mode, &costs, offsets, count_buf, *count, &scratch, &out,
                     )
@@ -68,12 +64,7 @@ pub fn bench_levels(
         for (label, _) in modes {
             let scope = name(label, *level);
             timings.push(PrimTiming {
-                gpu_ms: profile
-                    .passes
-                    .iter()
-                    .filter(|p| p.name == scope)
-                    .filter_map(|p| p.ms)
-                    .fold(f64::INFINITY, f64::min),
+                gpu_ms: best_ms(&profile, &scope),
                 prim: scope,
                 n: n as u64,
                 min_bytes: 4 * n as u64 + 4 * (u64::from(*count) + 1) + 8 * u64::from(*count),
