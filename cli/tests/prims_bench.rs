@@ -1,6 +1,7 @@
-//! The GPU primitives measured (benchmarks, run by hand): the radix sort's digit widths and
-//! the reductions against the copy baselines of `vkrt bench`, the reductions' workgroup
-//! shapes, and the segmented argmin's modes and hybrid thresholds on kd-tree levels.
+//! The GPU primitives measured: `vkrt bench prims`'s report, and benchmarks run by hand
+//! (ignored): the radix sort's digit widths and the reductions against the copy baselines
+//! of `vkrt bench`, the reductions' workgroup shapes, and the segmented argmin's modes and
+//! hybrid thresholds on kd-tree levels.
 
 mod common;
 
@@ -14,6 +15,58 @@ use vkrt_cli::bench::{best_ms, prims, rep_scope};
 /// these measurements.
 fn env<T: std::str::FromStr>(key: &str) -> Option<T> {
     std::env::var(key).ok()?.parse().ok()
+}
+
+/// `vkrt bench prims --json` as the docs describe it: a row per timed variant with its
+/// size, its bytes and its ratios to the copy baselines of the same bytes.
+#[test]
+fn bench_prims_reports_every_reduction_against_the_copies() {
+    let n = 4096u64;
+    let Some(out) = common::vkrt_ok(&[
+        "bench", "prims", "--min-n", "4096", "--max-n", "4096", "--reps", "1", "--only", "reduce",
+        "--json",
+    ]) else {
+        return;
+    };
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(
+        v["device"].is_string() && v["subgroup_size"].as_u64().unwrap() >= 4,
+        "{v}"
+    );
+    let rows = v["results"].as_array().unwrap();
+    let names: Vec<&str> = rows.iter().map(|r| r["prim"].as_str().unwrap()).collect();
+    assert_eq!(
+        names,
+        [
+            "reduce_sum_u32",
+            "reduce_min_u32",
+            "reduce_sum_f32",
+            "reduce_min_f32",
+            "argmin_f32"
+        ]
+    );
+    for r in rows {
+        assert_eq!(r["n"], n, "{r}");
+        // The input read plus the result: a u32 or f32, or argmin's (cost, index).
+        let result_bytes = if r["prim"] == "argmin_f32" { 8 } else { 4 };
+        assert_eq!(r["min_bytes"], 4 * n + result_bytes, "{r}");
+        for key in [
+            "gpu_ms",
+            "elements_per_s",
+            "copy_ms",
+            "copy_kernel_ms",
+            "ratio_to_copy",
+            "ratio_to_copy_kernel",
+        ] {
+            let x = r[key].as_f64().unwrap_or(f64::NAN);
+            assert!(x.is_finite() && x > 0.0, "{key} in {r}");
+        }
+        let per_s = n as f64 / (r["gpu_ms"].as_f64().unwrap() / 1e3);
+        assert!(
+            (r["elements_per_s"].as_f64().unwrap() / per_s - 1.0).abs() < 1e-9,
+            "{r}"
+        );
+    }
 }
 
 /// `cargo test --release --test prims_bench -- --ignored --nocapture bench_digit_widths`: the digit-width
