@@ -89,6 +89,20 @@ fn make_u32(costs: &[f32], pattern: Pattern) -> Vec<u32> {
     }
 }
 
+/// [`check_all`] on `n` elements of `pattern`, as f32 costs and as u32 values.
+fn check_pattern(
+    ctx: &Context,
+    reduce: &Reduce,
+    pattern: Pattern,
+    n: usize,
+    rng: &mut Rng,
+    what: &str,
+) {
+    let costs = make_f32(pattern, n, rng);
+    let values = make_u32(&costs, pattern);
+    check_all(ctx, reduce, &costs, &values, what);
+}
+
 struct Outputs {
     sum_u32: Buffer<u32>,
     min_u32: Buffer<u32>,
@@ -209,15 +223,8 @@ fn every_reduction_equals_its_twin_at_every_edge_size() {
                     .collect()
             };
             for pattern in patterns {
-                let costs = make_f32(pattern, n, &mut rng);
-                let values = make_u32(&costs, pattern);
-                check_all(
-                    &ctx,
-                    &reduce,
-                    &costs,
-                    &values,
-                    &format!("{name}, {pattern:?}"),
-                );
+                let what = format!("{name}, {pattern:?}");
+                check_pattern(&ctx, &reduce, pattern, n, &mut rng, &what);
             }
         }
     }
@@ -233,15 +240,8 @@ fn every_reduction_equals_its_twin_on_random_sizes_and_patterns() {
         for round in 0..24 {
             let n = (rng.next_u64() % 200_000) as usize;
             let pattern = ALL_PATTERNS[round % ALL_PATTERNS.len()];
-            let costs = make_f32(pattern, n, &mut rng);
-            let values = make_u32(&costs, pattern);
-            check_all(
-                &ctx,
-                &reduce,
-                &costs,
-                &values,
-                &format!("{name}, {pattern:?}, round {round}"),
-            );
+            let what = format!("{name}, {pattern:?}, round {round}");
+            check_pattern(&ctx, &reduce, pattern, n, &mut rng, &what);
         }
     }
     common::assert_silent(&ctx);

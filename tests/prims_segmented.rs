@@ -117,6 +117,17 @@ fn check(
     }
 }
 
+/// [`check`] over every segment of `offsets` (the count is the capacity).
+fn check_every_segment(
+    ctx: &Context,
+    seg: &SegmentedArgmin,
+    costs: &[f32],
+    offsets: &[u32],
+    what: &str,
+) {
+    check(ctx, seg, costs, offsets, offsets.len() as u32 - 1, what);
+}
+
 /// The shapes every configuration is tested on: (name, offsets).
 fn shapes(cfg: PrimConfig, packed_cut: u32, n_big: u32, rng: &mut Rng) -> Vec<(String, Vec<u32>)> {
     let tile = cfg.tile();
@@ -205,24 +216,10 @@ fn every_mode_equals_the_twin_on_every_shape() {
             } else {
                 random_costs(n, &mut rng)
             };
-            let count = offsets.len() as u32 - 1;
-            check(
-                &ctx,
-                &seg,
-                &costs,
-                &offsets,
-                count,
-                &format!("{name}, {shape}"),
-            );
+            check_every_segment(&ctx, &seg, &costs, &offsets, &format!("{name}, {shape}"));
             let ties = tie_costs(n, &mut rng);
-            check(
-                &ctx,
-                &seg,
-                &ties,
-                &offsets,
-                count,
-                &format!("{name}, {shape}, ties"),
-            );
+            let what = format!("{name}, {shape}, ties");
+            check_every_segment(&ctx, &seg, &ties, &offsets, &what);
         }
     }
     common::assert_silent(&ctx);
@@ -257,15 +254,8 @@ fn the_shared_memory_reduction_equals_the_twin() {
         {
             let n = *offsets.last().unwrap() as usize;
             let costs = tie_costs(n, &mut rng);
-            let count = offsets.len() as u32 - 1;
-            check(
-                &ctx,
-                &seg,
-                &costs,
-                &offsets,
-                count,
-                &format!("shared memory, {name}, {shape}"),
-            );
+            let what = format!("shared memory, {name}, {shape}");
+            check_every_segment(&ctx, &seg, &costs, &offsets, &what);
         }
     }
     common::assert_silent(&ctx);
@@ -284,12 +274,11 @@ fn a_segment_longer_than_llvmpipes_loop_limit() {
     let mut rng = Rng(77);
     let mut costs: Vec<f32> = (0..n).map(|_| 1.0 + rng.next_f32().abs()).collect();
     costs[n as usize - 3] = 0.5;
-    check(
+    check_every_segment(
         &ctx,
         &seg,
         &costs,
         &[0, n],
-        1,
         "one segment past the loop limit",
     );
     common::assert_silent(&ctx);
