@@ -89,6 +89,20 @@ fn make_u32(costs: &[f32], pattern: Pattern) -> Vec<u32> {
     }
 }
 
+/// [`check_all`] on `n` elements of `pattern`, as f32 costs and as u32 values.
+fn check_pattern(
+    ctx: &Context,
+    reduce: &Reduce,
+    pattern: Pattern,
+    n: usize,
+    rng: &mut Rng,
+    what: &str,
+) {
+    let costs = make_f32(pattern, n, rng);
+    let values = make_u32(&costs, pattern);
+    check_all(ctx, reduce, &costs, &values, what);
+}
+
 struct Outputs {
     sum_u32: Buffer<u32>,
     min_u32: Buffer<u32>,
@@ -209,15 +223,8 @@ fn every_reduction_equals_its_twin_at_every_edge_size() {
                     .collect()
             };
             for pattern in patterns {
-                let costs = make_f32(pattern, n, &mut rng);
-                let values = make_u32(&costs, pattern);
-                check_all(
-                    &ctx,
-                    &reduce,
-                    &costs,
-                    &values,
-                    &format!("{name}, {pattern:?}"),
-                );
+                let what = format!("{name}, {pattern:?}");
+                check_pattern(&ctx, &reduce, pattern, n, &mut rng, &what);
             }
         }
     }
@@ -233,15 +240,8 @@ fn every_reduction_equals_its_twin_on_random_sizes_and_patterns() {
         for round in 0..24 {
             let n = (rng.next_u64() % 200_000) as usize;
             let pattern = ALL_PATTERNS[round % ALL_PATTERNS.len()];
-            let costs = make_f32(pattern, n, &mut rng);
-            let values = make_u32(&costs, pattern);
-            check_all(
-                &ctx,
-                &reduce,
-                &costs,
-                &values,
-                &format!("{name}, {pattern:?}, round {round}"),
-            );
+            let what = format!("{name}, {pattern:?}, round {round}");
+            check_pattern(&ctx, &reduce, pattern, n, &mut rng, &what);
         }
     }
     common::assert_silent(&ctx);
@@ -321,86 +321,6 @@ fn bad_configurations_are_errors() {
         },
     ] {
         assert!(Reduce::new(&ctx, cfg).is_err(), "{cfg:?} accepted");
-    }
-}
-
-/// Configurations interleaved in one submission (best of many repetitions), so machine load
-/// affects them alike: the measurement behind the configuration the docs recommend.
-#[test]
-#[ignore = "measurement: cargo test --release --test prims_reduce -- --ignored --nocapture tune"]
-fn tune_configs() {
-    let Some(ctx) = common::context() else { return };
-    let n: usize = std::env::var("BENCH_N")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(1 << 22);
-    let reps = 9;
-    let sg = ctx.info().subgroup_size;
-    let list = std::env::var("TUNE").unwrap_or_else(|_| "256x16,256x64,256x256,256x1024".into());
-    let cfgs: Vec<PrimConfig> = list
-        .split(',')
-        .map(|c| {
-            let (w, i) = c.split_once('x').unwrap();
-            (w.parse::<u32>().unwrap(), i.parse::<u32>().unwrap())
-        })
-        .map(|(w, i)| PrimConfig {
-            workgroup_size: u32::max(w, sg),
-            items_per_invocation: i,
-        })
-        .collect();
-    let reduces: Vec<Reduce> = cfgs
-        .iter()
-        .map(|&c| Reduce::new(&ctx, c).unwrap())
-        .collect();
-    let data: Vec<f32> = (0..n).map(|i| (i % 1000) as f32).collect();
-    let src = Buffer::from_slice(&ctx, "tune.src", &data).unwrap();
-    let scratch_len = reduces.iter().map(|r| r.scratch_len(n)).max().unwrap();
-    let scratch = Buffer::<u32>::new(&ctx, "tune.scratch", scratch_len).unwrap();
-    let out = Buffer::<f32>::new(&ctx, "tune.out", 1).unwrap();
-    let out_arg = Buffer::<CostIndex>::new(&ctx, "tune.arg", 1).unwrap();
-    let mut rec = Recorder::new(&ctx).unwrap();
-    for rep in 0..=reps {
-        for (i, r) in reduces.iter().enumerate() {
-            let tag = if rep == 0 { "warmup" } else { "t" };
-            rec.scope(&format!("{tag}.sum{i}"), |rec| {
-                r.record_sum_f32(rec, &src, n as u32, &scratch, &out)
-            });
-            rec.compute_to_compute();
-            rec.scope(&format!("{tag}.argmin{i}"), |rec| {
-                r.record_argmin(rec, &src, n as u32, &scratch, &out_arg)
-            });
-            rec.compute_to_compute();
-        }
-    }
-    rec.compute_to_transfer();
-    let profile = rec.submit_and_wait().unwrap();
-    // The last configuration's results must be right.
-    let last = *cfgs.last().unwrap();
-    assert_eq!(
-        out.download().unwrap()[0].to_bits(),
-        reduce::sum_f32_cpu(&data, last).to_bits(),
-        "sum_f32 with {last:?}"
-    );
-    let got = out_arg.download().unwrap()[0];
-    let (c, i) = reduce::argmin_cpu(&data);
-    assert_eq!(got.bits(), (c.to_bits(), i), "argmin with {last:?}");
-    let best = |name: &str| {
-        profile
-            .passes
-            .iter()
-            .filter(|p| p.name == name)
-            .filter_map(|p| p.ms)
-            .fold(f64::INFINITY, f64::min)
-    };
-    println!("n = {n}, best of {reps}");
-    for (i, c) in cfgs.iter().enumerate() {
-        println!(
-            "wg {:5} items {:5}: sum_f32 {:8.3} ms  argmin {:8.3} ms",
-            c.workgroup_size,
-            c.items_per_invocation,
-            best(&format!("t.sum{i}")),
-            best(&format!("t.argmin{i}"))
-        );
     }
 }
 

@@ -117,6 +117,17 @@ fn check(
     }
 }
 
+/// [`check`] over every segment of `offsets` (the count is the capacity).
+fn check_every_segment(
+    ctx: &Context,
+    seg: &SegmentedArgmin,
+    costs: &[f32],
+    offsets: &[u32],
+    what: &str,
+) {
+    check(ctx, seg, costs, offsets, offsets.len() as u32 - 1, what);
+}
+
 /// The shapes every configuration is tested on: (name, offsets).
 fn shapes(cfg: PrimConfig, packed_cut: u32, n_big: u32, rng: &mut Rng) -> Vec<(String, Vec<u32>)> {
     let tile = cfg.tile();
@@ -205,24 +216,10 @@ fn every_mode_equals_the_twin_on_every_shape() {
             } else {
                 random_costs(n, &mut rng)
             };
-            let count = offsets.len() as u32 - 1;
-            check(
-                &ctx,
-                &seg,
-                &costs,
-                &offsets,
-                count,
-                &format!("{name}, {shape}"),
-            );
+            check_every_segment(&ctx, &seg, &costs, &offsets, &format!("{name}, {shape}"));
             let ties = tie_costs(n, &mut rng);
-            check(
-                &ctx,
-                &seg,
-                &ties,
-                &offsets,
-                count,
-                &format!("{name}, {shape}, ties"),
-            );
+            let what = format!("{name}, {shape}, ties");
+            check_every_segment(&ctx, &seg, &ties, &offsets, &what);
         }
     }
     common::assert_silent(&ctx);
@@ -257,15 +254,8 @@ fn the_shared_memory_reduction_equals_the_twin() {
         {
             let n = *offsets.last().unwrap() as usize;
             let costs = tie_costs(n, &mut rng);
-            let count = offsets.len() as u32 - 1;
-            check(
-                &ctx,
-                &seg,
-                &costs,
-                &offsets,
-                count,
-                &format!("shared memory, {name}, {shape}"),
-            );
+            let what = format!("shared memory, {name}, {shape}");
+            check_every_segment(&ctx, &seg, &costs, &offsets, &what);
         }
     }
     common::assert_silent(&ctx);
@@ -284,12 +274,11 @@ fn a_segment_longer_than_llvmpipes_loop_limit() {
     let mut rng = Rng(77);
     let mut costs: Vec<f32> = (0..n).map(|_| 1.0 + rng.next_f32().abs()).collect();
     costs[n as usize - 3] = 0.5;
-    check(
+    check_every_segment(
         &ctx,
         &seg,
         &costs,
         &[0, n],
-        1,
         "one segment past the loop limit",
     );
     common::assert_silent(&ctx);
@@ -351,108 +340,4 @@ fn the_convenience_call_and_empty_segments() {
         .unwrap()
         .is_empty());
     common::assert_silent(&ctx);
-}
-
-#[test]
-#[ignore = "benchmark: cargo test --release --test prims_segmented -- --ignored --nocapture bench"]
-fn bench_segmented() {
-    let Some(ctx) = common::context() else { return };
-    let n = 1 << 24;
-    for t in segmented::bench(&ctx, n, 3).unwrap() {
-        println!(
-            "{:<46} n = {}  {:8.3} ms  {:7.1} M elements/s",
-            t.prim,
-            t.n,
-            t.gpu_ms,
-            t.n as f64 / t.gpu_ms / 1e3
-        );
-    }
-}
-
-/// The measurement behind `DEFAULT_HYBRID_THRESHOLD`: both pure paths on kd-tree levels,
-/// and hybrids at several thresholds.
-#[test]
-#[ignore = "measurement: cargo test --release --test prims_segmented -- --ignored --nocapture threshold"]
-fn threshold_measurement() {
-    let Some(ctx) = common::context() else { return };
-    let n = std::env::var("BENCH_N")
-        .ok()
-        .and_then(|v| v.parse().ok())
-        .unwrap_or(1 << 22);
-    let levels: Vec<u32> = (0..=16).collect();
-    let mut modes = vec![
-        SegmentedMode::WorkgroupPerSegment,
-        SegmentedMode::DeviceWide,
-    ];
-    for t in [2u32, 4, 16, 64, 256] {
-        modes.push(SegmentedMode::Hybrid { threshold: t });
-    }
-    let labelled: Vec<(String, SegmentedMode)> = modes.iter().map(|m| (m.name(), *m)).collect();
-    let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<u32>().ok());
-    let mut cfg = PrimConfig::default_for(&ctx);
-    cfg.workgroup_size = env("BENCH_WG").unwrap_or(256);
-    cfg.items_per_invocation = env("BENCH_ITEMS").unwrap_or(256);
-    let seg_wg = env("BENCH_SEG_WG").unwrap_or(ctx.info().subgroup_size);
-    let seg = SegmentedArgmin::with_segment_workgroup(&ctx, cfg, seg_wg).unwrap();
-    println!("n = {n}, tiles {cfg:?}, segment workgroup {seg_wg}");
-    let timings = segmented::bench_levels(&ctx, &seg, n, 3, &levels, &labelled).unwrap();
-    print!("{:>6} {:>8}", "level", "seg len");
-    for m in &modes {
-        let name = m.name();
-        print!(" {:>12}", &name[..12.min(name.len())]);
-    }
-    println!();
-    for (i, level) in levels.iter().enumerate() {
-        print!("{level:>6} {:>8}", n >> level);
-        for j in 0..modes.len() {
-            print!(" {:>12.3}", timings[i * modes.len() + j].gpu_ms);
-        }
-        println!();
-    }
-}
-
-/// Per-pass times of one huge segment in the two pure modes (diagnostic).
-#[test]
-#[ignore = "diagnostic: cargo test --release --test prims_segmented -- --ignored --nocapture breakdown"]
-fn pass_breakdown() {
-    let Some(ctx) = common::context() else { return };
-    let n = 1u32 << 22;
-    let env = |k: &str| std::env::var(k).ok().and_then(|v| v.parse::<u32>().ok());
-    let cfg = PrimConfig {
-        workgroup_size: env("BENCH_WG").unwrap_or(256),
-        items_per_invocation: env("BENCH_ITEMS").unwrap_or(256),
-    };
-    let seg = SegmentedArgmin::with_segment_workgroup(&ctx, cfg, 8).unwrap();
-    let costs: Vec<f32> = (0..n).map(|i| (i % 1000) as f32).collect();
-    let costs = Buffer::from_slice(&ctx, "d.costs", &costs).unwrap();
-    let offsets = Buffer::from_slice(&ctx, "d.off", &segmented::level_offsets(n, 0)).unwrap();
-    let count = Buffer::from_slice(&ctx, "d.count", &[1u32]).unwrap();
-    let scratch = Buffer::<u32>::new(&ctx, "d.s", seg.scratch_len(n as usize, 1)).unwrap();
-    let out = Buffer::<CostIndex>::new(&ctx, "d.o", 1).unwrap();
-    let mut rec = Recorder::new(&ctx).unwrap();
-    for _ in 0..8 {
-        for mode in [
-            SegmentedMode::DeviceWide,
-            SegmentedMode::WorkgroupPerSegment,
-        ] {
-            seg.record(&mut rec, mode, &costs, &offsets, &count, 1, &scratch, &out);
-            rec.compute_to_indirect();
-        }
-    }
-    let profile = rec.submit_and_wait().unwrap();
-    for name in [
-        "prims.segmented_plan",
-        "prims.segmented_tiles",
-        "prims.segmented_segments",
-        "prims.segmented_argmin",
-    ] {
-        let v: Vec<String> = profile
-            .passes
-            .iter()
-            .filter(|p| p.name == name)
-            .filter_map(|p| p.ms)
-            .map(|m| format!("{m:.2}"))
-            .collect();
-        println!("{name}: {}", v.join(" "));
-    }
 }

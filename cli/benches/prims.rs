@@ -17,7 +17,7 @@ fn prims(c: &mut Criterion) {
         .unwrap_or(1 << 20);
     let mut group = c.benchmark_group(format!("prims.n{n}"));
     group.sample_size(10);
-    for (name, bench) in vkrt_cli::bench::prim_benches() {
+    for (name, bench) in vkrt_cli::bench::prims::prim_benches() {
         // One bench call times several variants; report each as its own criterion id.
         let variants = bench(&ctx, n, 1).expect("bench run");
         for v in variants {

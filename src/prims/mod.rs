@@ -59,16 +59,3 @@ impl PrimConfig {
         self.workgroup_size * self.items_per_invocation
     }
 }
-
-/// One primitive timed on the GPU, for `vkrt bench prims`.
-#[derive(Clone, Debug, serde::Serialize)]
-pub struct PrimTiming {
-    /// The primitive's name (e.g. `scan_u32`, `compact_4_arrays`).
-    pub prim: String,
-    /// Elements processed.
-    pub n: u64,
-    /// GPU milliseconds of the primitive's passes (best of the repetitions).
-    pub gpu_ms: f64,
-    /// Bytes the primitive must at least read plus write (the copy baselines move as much).
-    pub min_bytes: u64,
-}

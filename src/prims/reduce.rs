@@ -48,7 +48,7 @@
 //! that does not depend on the subgroup size.
 //!
 //! Measured on lavapipe (Mesa 22.3, LLVM 15, 2 cores shared with other jobs: load average
-//! about 3; subgroup 8), `cargo test --release --test prims_reduce -- --ignored --nocapture
+//! about 3; subgroup 8), `cargo test --release --test prims_bench -- --ignored --nocapture
 //! tune` (configurations interleaved in one submission, best of 9, n = 2^22):
 //!
 //! | workgroup × items | sum_f32 ms | argmin ms |
@@ -64,9 +64,9 @@
 //! so the items per invocation decide; the workgroup size hardly matters. With one
 //! lavapipe thread (`LP_NUM_THREADS=1`) 256 × 1024 took 3.9 ms and with two 2.05 ms (a
 //! quieter moment): the kernel scales and then approaches this machine's memory bandwidth
-//! (about 9.6 GB/s for one thread reading). At n = 2^24 (64 MiB), [`bench()`]: about 16 ms
-//! (1.0 G elements/s) for every reduction with [`recommended_config`], 19–29 ms with the
-//! default 256 × 16.
+//! (about 9.6 GB/s for one thread reading). At n = 2^24 (64 MiB), `vkrt bench prims --only
+//! reduce`: about 16 ms (1.0 G elements/s) for every reduction with [`recommended_config`],
+//! 19–29 ms with the default 256 × 16.
 //!
 //! Workaround (Mesa 22.3 lavapipe, found 2026-11): llvmpipe silently stops loops once an
 //! invocation has run 65,535 iterations in total across all its loops
@@ -78,7 +78,7 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 
-use super::{PrimConfig, PrimTiming};
+use super::PrimConfig;
 use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, Spec};
 
 /// The argmin's element: a cost and the index it belongs to (std430 `uvec2` of the cost
@@ -529,88 +529,4 @@ pub fn argmin_cpu(costs: &[f32]) -> (f32, u32) {
         }
     }
     (best.cost, best.index)
-}
-
-// ---------------------------------------------------------------------------------------
-// Benchmark
-
-/// Times the reductions over `n` elements with [`recommended_config`]: the best of `reps`
-/// runs after one untimed warm-up. `min_bytes` is the input read plus the result.
-pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
-    bench_with(ctx, recommended_config(ctx), n, reps)
-}
-
-/// [`bench()`] with a given configuration (for tuning).
-pub fn bench_with(ctx: &Context, cfg: PrimConfig, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
-    let reduce = Reduce::new(ctx, cfg)?;
-    let n32 = u32::try_from(n).expect("bench size fits u32");
-    let data_u32: Vec<u32> = (0..n as u32)
-        .map(|i| i.wrapping_mul(2_654_435_761))
-        .collect();
-    let data_f32: Vec<f32> = data_u32
-        .iter()
-        .map(|&x| (x >> 8) as f32 / (1 << 24) as f32)
-        .collect();
-    let src_u32 = Buffer::from_slice(ctx, "bench.reduce.u32", &data_u32)?;
-    let src_f32 = Buffer::from_slice(ctx, "bench.reduce.f32", &data_f32)?;
-    let scratch = Buffer::<u32>::new(ctx, "bench.reduce.scratch", reduce.scratch_len(n))?;
-    let out_u32 = Buffer::<u32>::new(ctx, "bench.reduce.out_u32", 1)?;
-    let out_f32 = Buffer::<f32>::new(ctx, "bench.reduce.out_f32", 1)?;
-    let out_arg = Buffer::<CostIndex>::new(ctx, "bench.reduce.out_argmin", 1)?;
-
-    type Run<'a> = Box<dyn Fn(&mut Recorder) + 'a>;
-    let runs: Vec<(&str, u64, Run)> = vec![
-        (
-            "reduce_sum_u32",
-            4,
-            Box::new(|rec| reduce.record_sum_u32(rec, &src_u32, n32, &scratch, &out_u32)),
-        ),
-        (
-            "reduce_min_u32",
-            4,
-            Box::new(|rec| reduce.record_min_u32(rec, &src_u32, n32, &scratch, &out_u32)),
-        ),
-        (
-            "reduce_sum_f32",
-            4,
-            Box::new(|rec| reduce.record_sum_f32(rec, &src_f32, n32, &scratch, &out_f32)),
-        ),
-        (
-            "reduce_min_f32",
-            4,
-            Box::new(|rec| reduce.record_min_f32(rec, &src_f32, n32, &scratch, &out_f32)),
-        ),
-        (
-            "argmin_f32",
-            8,
-            Box::new(|rec| reduce.record_argmin(rec, &src_f32, n32, &scratch, &out_arg)),
-        ),
-    ];
-    let mut rec = Recorder::new(ctx)?;
-    for rep in 0..=reps {
-        for (name, _, run) in &runs {
-            let label = if rep == 0 {
-                format!("warmup.{name}")
-            } else {
-                (*name).to_string()
-            };
-            rec.scope(&label, |rec| run(rec));
-            rec.compute_to_compute();
-        }
-    }
-    let profile = rec.submit_and_wait()?;
-    Ok(runs
-        .iter()
-        .map(|(name, out_bytes, _)| PrimTiming {
-            prim: (*name).to_string(),
-            n: n as u64,
-            gpu_ms: profile
-                .passes
-                .iter()
-                .filter(|p| p.name == *name)
-                .filter_map(|p| p.ms)
-                .fold(f64::INFINITY, f64::min),
-            min_bytes: 4 * n as u64 + out_bytes,
-        })
-        .collect())
 }

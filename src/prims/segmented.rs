@@ -49,7 +49,7 @@
 //! **Threshold, measured** on lavapipe (Mesa 22.3, 2 cores shared with other jobs: load
 //! average about 3.5; subgroup 8) with [`SegmentedArgmin::recommended`] (tiles 256 × 256,
 //! one-subgroup segment workgroups); level k = 2^k equal segments; GPU ms, best of 3,
-//! modes interleaved; `cargo test --release --test prims_segmented -- --ignored
+//! modes interleaved; `cargo test --release --test prims_bench -- --ignored
 //! --nocapture threshold` (`hybrid_tT` is `Hybrid { threshold: T }`):
 //!
 //! | n = 2^22, level | segment | per segment | device-wide | t2 | t4 | t16 | t64 | t256 |
@@ -116,7 +116,7 @@ use std::sync::Arc;
 use bytemuck::{Pod, Zeroable};
 
 use super::reduce::{check_config, misuse, CostIndex};
-use super::{PrimConfig, PrimTiming};
+use super::PrimConfig;
 use crate::gpu::{kernels, Buffer, Context, GpuError, Kernel, Recorder, Result, Spec};
 
 /// [`SegmentedMode::Hybrid`]'s default threshold, in segments: about the workgroups a GPU
@@ -637,97 +637,4 @@ pub fn level_offsets(n: u32, level: u32) -> Vec<u32> {
     (0..=segments)
         .map(|s| (s * u64::from(n) / segments) as u32)
         .collect()
-}
-
-/// Times `modes` (label, mode) at `n` costs on kd-tree-like levels (level k: 2^k equal
-/// segments) for k in `levels`, best of `reps` after one untimed warm-up, interleaved so
-/// machine load affects them alike. Names are `segmented_argmin.{label}.level{k}`;
-/// `min_bytes` = costs and offsets read, winners written.
-pub fn bench_levels(
-    ctx: &Context,
-    seg: &SegmentedArgmin,
-    n: usize,
-    reps: u32,
-    levels: &[u32],
-    modes: &[(String, SegmentedMode)],
-) -> Result<Vec<PrimTiming>> {
-    let n32 = u32::try_from(n).expect("bench size fits u32");
-    let max_level = levels.iter().copied().max().unwrap_or(0);
-    let max_segments = 1u32 << max_level;
-    let costs: Vec<f32> = (0..n32)
-        .map(|i| (i.wrapping_mul(2_654_435_761) >> 8) as f32)
-        .collect();
-    let costs = Buffer::from_slice(ctx, "bench.segmented.costs", &costs)?;
-    let scratch = Buffer::<u32>::new(
-        ctx,
-        "bench.segmented.scratch",
-        seg.scratch_len(n, max_segments as usize),
-    )?;
-    let out = Buffer::<CostIndex>::new(ctx, "bench.segmented.out", max_segments as usize)?;
-    let mut inputs = Vec::new();
-    for &level in levels {
-        let offsets = level_offsets(n32, level);
-        let count = offsets.len() as u32 - 1;
-        inputs.push((
-            level,
-            count,
-            Buffer::from_slice(ctx, "bench.segmented.offsets", &offsets)?,
-            Buffer::from_slice(ctx, "bench.segmented.count", &[count])?,
-        ));
-    }
-    let name = |label: &str, level: u32| format!("segmented_argmin.{label}.level{level}");
-    let mut rec = Recorder::new(ctx)?;
-    for rep in 0..=reps {
-        for (level, count, offsets, count_buf) in &inputs {
-            for (label, mode) in modes {
-                let scope = if rep == 0 {
-                    format!("warmup.{}", name(label, *level))
-                } else {
-                    name(label, *level)
-                };
-                rec.scope(&scope, |rec| {
-                    seg.record(
-                        rec, *mode, &costs, offsets, count_buf, *count, &scratch, &out,
-                    )
-                });
-                rec.compute_to_indirect();
-            }
-        }
-    }
-    let profile = rec.submit_and_wait()?;
-    let mut timings = Vec::new();
-    for (level, count, _, _) in &inputs {
-        for (label, _) in modes {
-            let scope = name(label, *level);
-            timings.push(PrimTiming {
-                gpu_ms: profile
-                    .passes
-                    .iter()
-                    .filter(|p| p.name == scope)
-                    .filter_map(|p| p.ms)
-                    .fold(f64::INFINITY, f64::min),
-                prim: scope,
-                n: n as u64,
-                min_bytes: 4 * n as u64 + 4 * (u64::from(*count) + 1) + 8 * u64::from(*count),
-            });
-        }
-    }
-    Ok(timings)
-}
-
-/// Times the three modes at `n` costs on kd-tree levels 0, 4, 8, 12 and 16 (see
-/// [`bench_levels`]) with [`SegmentedArgmin::recommended`]: `segmented_argmin.hybrid`
-/// (this device's threshold, [`SegmentedMode::hybrid_for`]),
-/// `segmented_argmin.workgroup_per_segment` and `segmented_argmin.device_wide`.
-pub fn bench(ctx: &Context, n: usize, reps: u32) -> Result<Vec<PrimTiming>> {
-    let seg = SegmentedArgmin::recommended(ctx)?;
-    let modes = [
-        ("hybrid".to_string(), SegmentedMode::hybrid_for(ctx)),
-        (
-            "workgroup_per_segment".to_string(),
-            SegmentedMode::WorkgroupPerSegment,
-        ),
-        ("device_wide".to_string(), SegmentedMode::DeviceWide),
-    ];
-    bench_levels(ctx, &seg, n, reps, &[0, 4, 8, 12, 16], &modes)
 }

@@ -30,7 +30,7 @@ pub fn run(args: CopyArgs, validate: bool) -> CliResult<()> {
         profile,
     } = args;
     let ctx = context(validate)?;
-    let (baselines, trace) = vkrt_cli::bench::copy_baselines(&ctx, mib << 20, reps.max(1))?;
+    let (baselines, trace) = vkrt_cli::bench::copy::copy_baselines(&ctx, mib << 20, reps.max(1))?;
     write_profile(&profile, &trace)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&baselines)?);

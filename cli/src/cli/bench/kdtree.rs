@@ -57,7 +57,7 @@ pub fn run(args: KdtreeArgs, validate: bool) -> CliResult<()> {
     }
     let ablation_max_n = if ablation { ablation_max_n as usize } else { 0 };
     let (report, trace) = vkrt::gpu::capture_profiles(|| {
-        vkrt_cli::bench::kdtree_report(&ctx, &scenes, &params, ablation_max_n, reps)
+        vkrt_cli::bench::kdtree::kdtree_report(&ctx, &scenes, &params, ablation_max_n, reps)
     });
     let report = report?;
     write_profile(&profile, &trace)?;
@@ -103,7 +103,7 @@ pub fn run(args: KdtreeArgs, validate: bool) -> CliResult<()> {
         }
         if report.rows.iter().any(|r| r.variant != "default") {
             println!("ratio: variant build ms / default build ms, same scene, same run, same tree");
-            for (label, note) in vkrt_cli::bench::KD_VARIANT_NOTES {
+            for (label, note) in vkrt_cli::bench::kdtree::KD_VARIANT_NOTES {
                 println!("  {label}: {note}");
             }
         }

@@ -49,7 +49,7 @@ pub fn run(args: PrimsArgs, validate: bool) -> CliResult<()> {
         n <<= step.max(1);
     }
     let (report, trace) = vkrt::gpu::capture_profiles(|| {
-        vkrt_cli::bench::prims_report(&ctx, &sizes, reps.max(1), only.as_deref())
+        vkrt_cli::bench::prims::prims_report(&ctx, &sizes, reps.max(1), only.as_deref())
     });
     let report = report?;
     write_profile(&profile, &trace)?;
