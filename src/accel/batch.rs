@@ -10,7 +10,6 @@
 //! another.
 
 use crate::accel::device::{AccelBuilder, AccelKind};
-use crate::accel::embedded::header_of;
 use crate::accel::geometry::{GatherJob, Geometry, GeometryGather};
 use crate::accel::gpu_geometry::GpuGeometry;
 use crate::gpu::placement::{place, Placement};
@@ -110,7 +109,7 @@ impl AccelBuilder {
                     .iter()
                     .zip(&placed)
                     .map(|(t, (input, _, _))| {
-                        header_of(self, &t.out.accel.flags(), input.layout.primitive_count())
+                        self.scene_header(&t.out.accel.flags(), input.layout.primitive_count())
                     })
                     .collect();
                 let jobs: Vec<GatherJob<'_>> = targets

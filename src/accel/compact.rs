@@ -22,10 +22,10 @@
 //! does not have, so they refuse compaction with an error rather than copy without saving.
 //! The driver's structure is opaque to vkrt.
 
+use crate::accel::device::handle_record;
 use crate::accel::device::{AccelKind, Storage};
 use crate::accel::device_input::DeviceInput;
 use crate::accel::device_primitives::DevicePrimitives;
-use crate::accel::gpu_geometry::handle_record;
 use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::kdtree::device::{KdBuilt, KdStorage};
 use crate::accel::primitives::SceneInfo;

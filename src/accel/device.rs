@@ -23,7 +23,6 @@ pub use crate::accel::device_input::BuildFlags;
 pub use crate::accel::device_primitives::DevicePrimitives;
 use crate::accel::driver::storage::{self as driver, DriverStorage};
 use crate::accel::driver::Prefer;
-use crate::accel::gpu_geometry::GpuGeometry;
 pub use crate::accel::kdtree::device::KdBuilt;
 use crate::accel::kdtree::device::{KdFamily, KdStorage};
 use crate::accel::kdtree::gpu::BuildScratch;
@@ -542,8 +541,7 @@ impl AccelBuilder {
         let built = self.record_build_kind(call, rec, prims, host, scratch, out)?;
         // The structure's handle after its constants (a kd-tree's build clears them), where
         // a top level's instances reference it.
-        if let Some(record) = crate::accel::gpu_geometry::handle_record(rec.context(), prims, out)?
-        {
+        if let Some(record) = handle_record(rec.context(), prims, out)? {
             rec.compute_to_transfer();
             rec.update(&out.info, out.info.len() - 1, &[record])?;
         }
@@ -601,21 +599,6 @@ impl AccelBuilder {
         }
     }
 
-    /// Records a refit of `out` (a BVH this builder built) to its primitives' boxes as they
-    /// are now (after [`DevicePrimitives::record_update`] on [`GpuGeometry::primitives`]):
-    /// every box recomputed bottom-up, the topology kept, the root box rewritten. The caller
-    /// orders the writes of the moved geometry before; the recording ends with the barrier
-    /// of [`crate::accel::sync::RecordSync::build`]. A kd-tree cannot be refit (its split
-    /// planes are fixed): that is a [`GpuError::Usage`].
-    pub fn record_refit(
-        &self,
-        rec: &mut Recorder,
-        out: &mut GpuGeometry,
-        scratch: &Buffer<u32>,
-    ) -> Result<()> {
-        self.record_refit_parts(rec, &mut out.accel, &out.prims, scratch)
-    }
-
     /// [`AccelBuilder::record_refit`] of a structure and its primitives held apart (the
     /// renderer's frames).
     pub(crate) fn record_refit_parts(
@@ -652,6 +635,21 @@ impl AccelBuilder {
     pub(crate) fn traversal(&self, flags: &BuildFlags) -> AccelTraversal {
         self.kind.walked(bvh_traversal(flags.wide))
     }
+
+    /// The scene constants the gather writes for a structure this builder makes with
+    /// `flags` over `n` primitives: how the shader library walks it, and where a BVH's
+    /// parent links start.
+    pub(crate) fn scene_header(&self, flags: &BuildFlags, n: usize) -> (u32, u32) {
+        let walk = match self.traversal(flags) {
+            AccelTraversal::Bvh(_) if self.top_level => SceneInfo::WALK_INSTANCES,
+            t => t.scene_walk(),
+        };
+        let parents_at = match self.kind() {
+            AccelKind::Lbvh | AccelKind::Ploc => n as u32,
+            _ => 0,
+        };
+        (walk, parents_at)
+    }
 }
 
 /// How kernels walk a BVH: wide where it has wide nodes.
@@ -660,4 +658,59 @@ fn bvh_traversal(wide: bool) -> Traversal {
         true => Traversal::Wide,
         false => Traversal::Stack,
     }
+}
+
+/// The seven bindings of `prims` and `accel` in `traverse.glsl`'s order.
+pub(crate) fn bindings<'a>(
+    prims: &'a DevicePrimitives,
+    accel: &'a AccelStructure,
+) -> [&'a dyn BufferArg; 7] {
+    let [nodes, refs] = accel.node_bindings();
+    let p = prims;
+    [
+        nodes,
+        refs,
+        &p.tri_verts,
+        &p.spheres,
+        &p.prim_motion,
+        &p.motions,
+        &accel.info,
+    ]
+}
+
+pub(crate) fn address_handle(
+    ctx: &Context,
+    prims: &DevicePrimitives,
+    accel: &AccelStructure,
+) -> Result<[u64; 7]> {
+    let mut out = [0u64; 7];
+    for (o, b) in out.iter_mut().zip(bindings(prims, accel)) {
+        *o = crate::gpu::address_of(ctx, b)?;
+    }
+    Ok(out)
+}
+
+/// Whether a structure's builds write its handle: in vkrt's own memory (which has device
+/// addresses), or in the caller's where it says so.
+pub(crate) fn referenceable(accel: &AccelStructure) -> bool {
+    accel.references_enabled || accel.info.buffer_size().is_some()
+}
+
+/// The handle a structure keeps in the last element of its scene constants' buffer (what
+/// [`GpuGeometry::reference`](crate::accel::gpu_geometry::GpuGeometry::reference) addresses: a top level reads a bottom level through it), as
+/// the element's bytes; `None` where the context has no device addresses or the structure
+/// keeps no handle.
+pub(crate) fn handle_record(
+    ctx: &Context,
+    prims: &DevicePrimitives,
+    accel: &AccelStructure,
+) -> Result<Option<SceneInfo>> {
+    let f = &ctx.info().features;
+    let addresses = f.buffer_device_address || f.ray_query;
+    if !addresses || accel.info.len() < 2 || !referenceable(accel) {
+        return Ok(None);
+    }
+    let mut words = [0u64; 8];
+    words[..7].copy_from_slice(&address_handle(ctx, prims, accel)?);
+    Ok(Some(bytemuck::cast(words)))
 }

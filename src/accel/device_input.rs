@@ -1,10 +1,9 @@
 //! What a structure over the caller's device geometry is created for: the geometries' layout
 //! and shape and the build flags, which every build and update into it must match.
 
-use crate::accel::driver::Prefer;
 use crate::accel::geometry::GeometryLayout;
 use crate::accel::geometry_shape::{GeometryDescription, GeometryShape};
-use crate::accel::walk::{AccelChoice, AccelKind, Traversal};
+use crate::accel::walk::{AccelChoice, AccelKind, Prefer, Traversal};
 use crate::gpu::{Context, Result};
 
 /// How a structure is built (`VkBuildAccelerationStructureFlagsKHR`, and the kd-tree's

@@ -32,13 +32,12 @@ use crate::accel::device::{
 };
 pub use crate::accel::device_input::BuildFlags;
 use crate::accel::device_input::{shape, DeviceInput};
-use crate::accel::driver::instanced as driver_levels;
 use crate::accel::driver::{DriverAccel, DriverInput};
+use crate::accel::driver_levels;
 use crate::accel::geometry::{Geometry, GeometryGather, GeometryLayout};
 use crate::accel::geometry_shape::GeometryDescription;
 use crate::accel::gpu_geometry::GpuGeometry;
 use crate::accel::primitives::SceneInfo;
-use crate::accel::walk::AccelTraversal;
 use crate::gpu::placement::{place, Placement};
 use crate::gpu::{vk, Buffer, Context, GpuError, RawBuffer, Readback, Recorder, Result};
 
@@ -59,20 +58,6 @@ pub const DRIVER_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::from
         | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR.as_raw()
         | vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR.as_raw(),
 );
-
-/// The scene constants the gather writes for a structure of `kind` over `n` primitives:
-/// how the shader library walks it, and where a BVH's parent links start.
-pub(crate) fn header_of(builder: &AccelBuilder, flags: &BuildFlags, n: usize) -> (u32, u32) {
-    let walk = match builder.traversal(flags) {
-        AccelTraversal::Bvh(_) if builder.top_level => SceneInfo::WALK_INSTANCES,
-        t => t.scene_walk(),
-    };
-    let parents_at = match builder.kind() {
-        AccelKind::Lbvh | AccelKind::Ploc => n as u32,
-        _ => 0,
-    };
-    (walk, parents_at)
-}
 
 /// The driver's levels over `layout`'s primitive counts (no addresses: for sizes).
 fn driver_counts(layout: &GeometryLayout) -> DriverInput {
@@ -341,7 +326,7 @@ impl AccelBuilder {
     ) -> Result<()> {
         // The structure's own flags: wide nodes only where its kind has them.
         let flags = out.accel.flags();
-        let (walk, parents_at) = header_of(self, &flags, input.layout.primitive_count());
+        let (walk, parents_at) = self.scene_header(&flags, input.layout.primitive_count());
         GeometryGather::new(rec.context())?.record(
             rec,
             geometries,

@@ -10,6 +10,7 @@
 //! A hit reports the geometry's index in the list and the primitive's index within it.
 
 use crate::accel::geometry_shape::{GeometryDescription, GeometryShape};
+pub use crate::accel::geometry_shape::{IndexType, VertexFormat, NON_OPAQUE};
 use crate::accel::primitives::SceneInfo;
 use crate::accel::primitives::TraceGeometry;
 use crate::gpu::{
@@ -21,35 +22,6 @@ use glam::{Vec3, Vec4};
 use crate::accel::device_primitives::DevicePrimitives;
 
 const WORKGROUP: u32 = 64;
-
-/// How vertex positions are stored (`VkFormat`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
-#[non_exhaustive]
-pub enum VertexFormat {
-    /// `VK_FORMAT_R32G32B32_SFLOAT`: three 32-bit floats (any trailing data up to the stride
-    /// is ignored, so `R32G32B32A32` vertices work with a 16-byte stride).
-    #[default]
-    Rgb32Float,
-}
-
-/// The type of an index buffer's entries (`VkIndexType`).
-#[derive(Clone, Copy, Debug, PartialEq, Eq)]
-#[non_exhaustive]
-pub enum IndexType {
-    /// `VK_INDEX_TYPE_UINT16`: 2-byte indices.
-    U16,
-    /// `VK_INDEX_TYPE_UINT32`: 4-byte indices.
-    U32,
-}
-
-impl IndexType {
-    fn bytes(self) -> u64 {
-        match self {
-            IndexType::U16 => 2,
-            IndexType::U32 => 4,
-        }
-    }
-}
 
 /// Where a geometry's data lies: a range of a buffer, or bytes at a device address.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -221,10 +193,6 @@ pub enum Geometry {
     /// Axis-aligned boxes.
     Aabbs(Aabbs),
 }
-
-/// In the structure's geometry table ([`GeometryLayout::table`]): the bit of the geometry
-/// word that marks a non-opaque geometry (the ray query reads it; the index is the rest).
-pub const NON_OPAQUE: u32 = 1 << 31;
 
 impl Geometry {
     /// Whether its hits are opaque (`VK_GEOMETRY_OPAQUE_BIT_KHR`).
@@ -905,5 +873,42 @@ impl DevicePrimitives {
             n_aabbs,
             has_motion: false,
         })
+    }
+}
+
+impl Geometry {
+    /// What it is without its data: the description sizes are asked with
+    /// ([`GeometryShape`]).
+    pub fn shape(&self) -> GeometryShape {
+        match self {
+            Geometry::Triangles(t) => GeometryShape::Triangles {
+                format: t.format,
+                stride: t.stride,
+                vertex_count: t.vertex_count,
+                index_type: t.indices.map(|i| i.index_type),
+                triangle_count: t.triangle_count,
+                opaque: t.opaque,
+            },
+            Geometry::Spheres(s) => GeometryShape::Spheres {
+                stride: s.stride,
+                count: s.count,
+                opaque: s.opaque,
+            },
+            Geometry::Aabbs(b) => GeometryShape::Aabbs {
+                stride: b.stride,
+                count: b.count,
+                opaque: b.opaque,
+            },
+        }
+    }
+}
+
+impl GeometryDescription for Geometry {
+    fn shape(&self) -> GeometryShape {
+        Geometry::shape(self)
+    }
+
+    fn check(&self, ctx: &Context, k: usize) -> Result<()> {
+        check(ctx, k, self)
     }
 }

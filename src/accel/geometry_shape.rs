@@ -1,12 +1,45 @@
 //! Geometry described by its counts alone, without buffers: what
 //! `vkGetAccelerationStructureBuildSizesKHR` reads of a `VkAccelerationStructureGeometryKHR`
-//! (format, stride, vertex and primitive counts, index type; no addresses). A structure's
+//! (format, stride, vertex and primitive counts, index type; no addresses), and the formats
+//! both forms share. A structure's
 //! sizes depend on nothing else, so a caller sizes its memory before any geometry buffer
 //! exists ([`AccelBuilder::sizes_for`](crate::accel::device::AccelBuilder::sizes_for) takes
 //! either form: [`GeometryDescription`]).
 
-use crate::accel::geometry::{Geometry, IndexType, VertexFormat, NON_OPAQUE};
 use crate::gpu::{Context, GpuError, Result};
+
+/// How vertex positions are stored (`VkFormat`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum VertexFormat {
+    /// `VK_FORMAT_R32G32B32_SFLOAT`: three 32-bit floats (any trailing data up to the stride
+    /// is ignored, so `R32G32B32A32` vertices work with a 16-byte stride).
+    #[default]
+    Rgb32Float,
+}
+
+/// The type of an index buffer's entries (`VkIndexType`).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+#[non_exhaustive]
+pub enum IndexType {
+    /// `VK_INDEX_TYPE_UINT16`: 2-byte indices.
+    U16,
+    /// `VK_INDEX_TYPE_UINT32`: 4-byte indices.
+    U32,
+}
+
+impl IndexType {
+    pub(crate) fn bytes(self) -> u64 {
+        match self {
+            IndexType::U16 => 2,
+            IndexType::U32 => 4,
+        }
+    }
+}
+
+/// In the structure's geometry table ([`GeometryLayout::table`](crate::accel::geometry::GeometryLayout::table)): the bit of the geometry
+/// word that marks a non-opaque geometry (the ray query reads it; the index is the rest).
+pub const NON_OPAQUE: u32 = 1 << 31;
 
 /// One geometry of a structure, without its data.
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
@@ -179,35 +212,9 @@ fn records_stride(k: usize, what: &str, stride: u64, size: u64) -> Result<()> {
     Ok(())
 }
 
-impl Geometry {
-    /// What it is without its data: the description sizes are asked with
-    /// ([`GeometryShape`]).
-    pub fn shape(&self) -> GeometryShape {
-        match self {
-            Geometry::Triangles(t) => GeometryShape::Triangles {
-                format: t.format,
-                stride: t.stride,
-                vertex_count: t.vertex_count,
-                index_type: t.indices.map(|i| i.index_type),
-                triangle_count: t.triangle_count,
-                opaque: t.opaque,
-            },
-            Geometry::Spheres(s) => GeometryShape::Spheres {
-                stride: s.stride,
-                count: s.count,
-                opaque: s.opaque,
-            },
-            Geometry::Aabbs(b) => GeometryShape::Aabbs {
-                stride: b.stride,
-                count: b.count,
-                opaque: b.opaque,
-            },
-        }
-    }
-}
-
-/// A geometry as sizes are asked for it: with its data ([`Geometry`], whose buffers are
-/// checked too) or by its counts alone ([`GeometryShape`]).
+/// A geometry as sizes are asked for it: with its data
+/// ([`Geometry`](crate::accel::geometry::Geometry), whose buffers are checked too) or by its
+/// counts alone ([`GeometryShape`]).
 pub trait GeometryDescription: Copy {
     /// What it is without its data.
     fn shape(&self) -> GeometryShape;
@@ -222,15 +229,5 @@ impl GeometryDescription for GeometryShape {
 
     fn check(&self, _: &Context, k: usize) -> Result<()> {
         GeometryShape::check(self, k)
-    }
-}
-
-impl GeometryDescription for Geometry {
-    fn shape(&self) -> GeometryShape {
-        Geometry::shape(self)
-    }
-
-    fn check(&self, ctx: &Context, k: usize) -> Result<()> {
-        crate::accel::geometry::check(ctx, k, self)
     }
 }

@@ -2,12 +2,13 @@
 
 use crate::accel::bvh::Bvh;
 use crate::accel::device::{
-    AccelBuilder, AccelKind, AccelStructure, DevicePrimitives, RecordedBuild,
+    address_handle, bindings, handle_record, referenceable, AccelBuilder, AccelKind,
+    AccelStructure, DevicePrimitives, RecordedBuild,
 };
 use crate::accel::host::{upload_structure, HostRef};
 use crate::accel::kdtree::KdTree;
-use crate::accel::primitives::{SceneInfo, TraceGeometry};
-use crate::gpu::{BufferArg, Context, GpuError, Recorder, Result};
+use crate::accel::primitives::TraceGeometry;
+use crate::gpu::{Buffer, BufferArg, Context, GpuError, Recorder, Result};
 
 /// Primitives and a structure over them in device memory: the seven buffers
 /// `traverse.glsl` binds.
@@ -229,54 +230,21 @@ impl GpuGeometry {
     }
 }
 
-/// The seven bindings of `prims` and `accel` in `traverse.glsl`'s order.
-fn bindings<'a>(prims: &'a DevicePrimitives, accel: &'a AccelStructure) -> [&'a dyn BufferArg; 7] {
-    let [nodes, refs] = accel.node_bindings();
-    let p = prims;
-    [
-        nodes,
-        refs,
-        &p.tri_verts,
-        &p.spheres,
-        &p.prim_motion,
-        &p.motions,
-        &accel.info,
-    ]
-}
-
-fn address_handle(
-    ctx: &Context,
-    prims: &DevicePrimitives,
-    accel: &AccelStructure,
-) -> Result<[u64; 7]> {
-    let mut out = [0u64; 7];
-    for (o, b) in out.iter_mut().zip(bindings(prims, accel)) {
-        *o = crate::gpu::address_of(ctx, b)?;
+// A refit of a structure held with its primitives lives with them, above the builder's
+// dispatch (`device`), which knows structures only.
+impl AccelBuilder {
+    /// Records a refit of `out` (a BVH this builder built) to its primitives' boxes as they
+    /// are now (after [`DevicePrimitives::record_update`] on [`GpuGeometry::primitives`]):
+    /// every box recomputed bottom-up, the topology kept, the root box rewritten. The caller
+    /// orders the writes of the moved geometry before; the recording ends with the barrier
+    /// of [`crate::accel::sync::RecordSync::build`]. A kd-tree cannot be refit (its split
+    /// planes are fixed): that is a [`GpuError::Usage`].
+    pub fn record_refit(
+        &self,
+        rec: &mut Recorder,
+        out: &mut GpuGeometry,
+        scratch: &Buffer<u32>,
+    ) -> Result<()> {
+        self.record_refit_parts(rec, &mut out.accel, &out.prims, scratch)
     }
-    Ok(out)
-}
-
-/// Whether a structure's builds write its handle: in vkrt's own memory (which has device
-/// addresses), or in the caller's where it says so.
-fn referenceable(accel: &AccelStructure) -> bool {
-    accel.references_enabled || accel.info.buffer_size().is_some()
-}
-
-/// The handle a structure keeps in the last element of its scene constants' buffer (what
-/// [`GpuGeometry::reference`] addresses: a top level reads a bottom level through it), as
-/// the element's bytes; `None` where the context has no device addresses or the structure
-/// keeps no handle.
-pub(crate) fn handle_record(
-    ctx: &Context,
-    prims: &DevicePrimitives,
-    accel: &AccelStructure,
-) -> Result<Option<SceneInfo>> {
-    let f = &ctx.info().features;
-    let addresses = f.buffer_device_address || f.ray_query;
-    if !addresses || accel.info.len() < 2 || !referenceable(accel) {
-        return Ok(None);
-    }
-    let mut words = [0u64; 8];
-    words[..7].copy_from_slice(&address_handle(ctx, prims, accel)?);
-    Ok(Some(bytemuck::cast(words)))
 }

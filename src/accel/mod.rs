@@ -29,6 +29,7 @@ pub mod device;
 pub mod device_input;
 pub mod device_primitives;
 pub mod driver;
+pub(crate) mod driver_levels;
 pub mod embedded;
 pub mod geometry;
 pub mod geometry_shape;

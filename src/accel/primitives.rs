@@ -9,7 +9,6 @@
 use bytemuck::{Pod, Zeroable};
 use glam::{Vec3, Vec4};
 
-use crate::accel::kdtree::breadth_first::prim_box;
 use crate::gpu::{Context, GpuError};
 use crate::scene::{swept_points, Aabb, Motion, Scene};
 
@@ -388,4 +387,32 @@ pub fn next_up(x: f32) -> f32 {
 /// The next float towards -inf (`f32::next_down`).
 pub fn next_down(x: f32) -> f32 {
     -next_up(-x)
+}
+
+/// min with -0.0 below +0.0 (`f32::min` leaves that case open); the GLSL twin is
+/// `fmin_total` in `glsl/include/vkrt/kdtree.glsl`.
+pub fn fmin(a: f32, b: f32) -> f32 {
+    if a < b || (a == b && a.is_sign_negative()) {
+        a
+    } else {
+        b
+    }
+}
+
+/// max with -0.0 below +0.0; the GLSL twin is `fmax_total`.
+pub fn fmax(a: f32, b: f32) -> f32 {
+    if a > b || (a == b && b.is_sign_negative()) {
+        a
+    } else {
+        b
+    }
+}
+
+/// A triangle's box, exactly as `accel.kdtree_boxes` computes it.
+pub fn prim_box(t: &[Vec3; 3]) -> Aabb {
+    let f = |g: fn(f32, f32) -> f32, a: usize| g(g(t[0][a], t[1][a]), t[2][a]);
+    Aabb {
+        min: Vec3::new(f(fmin, 0), f(fmin, 1), f(fmin, 2)),
+        max: Vec3::new(f(fmax, 0), f(fmax, 1), f(fmax, 2)),
+    }
 }

@@ -6,9 +6,8 @@
 //! ([`AccelTraversal::spec`]) and the scene constants' walk word
 //! ([`AccelTraversal::scene_walk`]).
 
-use crate::accel::driver::Prefer;
 use crate::accel::primitives::SceneInfo;
-use crate::gpu::{Context, Result, ShaderBlob, Spec};
+use crate::gpu::{vk, Context, Result, ShaderBlob, Spec};
 
 /// How a BVH query walks the tree.
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
@@ -323,6 +322,40 @@ impl NodeAccess {
         match self {
             NodeAccess::Storage => "storage",
             NodeAccess::Texel => "texel",
+        }
+    }
+}
+
+/// What the driver's builder optimises for (`VkBuildAccelerationStructureFlagsKHR`).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
+#[serde(rename_all = "kebab-case")]
+pub enum Prefer {
+    /// A slower build of a structure that traces faster.
+    #[default]
+    FastTrace,
+    /// A quicker build, for structures rebuilt often.
+    FastBuild,
+}
+
+impl Prefer {
+    /// The build flags, with `ALLOW_UPDATE` where the structure will be refit.
+    pub(crate) fn flags(self, allow_update: bool) -> vk::BuildAccelerationStructureFlagsKHR {
+        let prefer = match self {
+            Prefer::FastTrace => vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE,
+            Prefer::FastBuild => vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_BUILD,
+        };
+        if allow_update {
+            prefer | vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE
+        } else {
+            prefer
+        }
+    }
+
+    /// `fast-trace` or `fast-build`.
+    pub fn name(self) -> &'static str {
+        match self {
+            Prefer::FastTrace => "fast-trace",
+            Prefer::FastBuild => "fast-build",
         }
     }
 }

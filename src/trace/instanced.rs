@@ -207,7 +207,7 @@ fn driver_build_and_trace(
             .map_or(0, |i| i.bottom as usize)
     });
     let refs: Vec<&DevicePrimitives> = prims.iter().collect();
-    let (accel, ids) = crate::accel::driver::instanced::record_instanced(
+    let (accel, ids) = crate::accel::driver_levels::record_instanced(
         &mut rec,
         &refs,
         &s.instances,
@@ -215,7 +215,7 @@ fn driver_build_and_trace(
         prefer,
     )?;
     let profile = rec.submit_and_wait()?;
-    let top_bytes = crate::accel::driver::instanced::levels(&accel).map_or(0, |a| a.top_bytes());
+    let top_bytes = crate::accel::driver_levels::levels(&accel).map_or(0, |a| a.top_bytes());
     let bytes = ctx.memory().vkrt_bytes.saturating_sub(before);
     let geom = GpuGeometry {
         prims: prims.swap_remove(bound),

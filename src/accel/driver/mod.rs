@@ -17,7 +17,6 @@
 //! Nothing here submits or uploads: the instance records are written by the recorded build
 //! (`vkCmdUpdateBuffer`), so the levels can live in a caller's memory.
 
-pub(crate) mod instanced;
 pub(crate) mod storage;
 
 use crate::gpu::{
@@ -60,39 +59,9 @@ pub fn instance_primitive_in(starts: &[[u32; 4]], id: u32) -> Option<(u32, u32)>
     (id - start < count).then_some((instance, id - start))
 }
 
-/// What the driver's builder optimises for (`VkBuildAccelerationStructureFlagsKHR`).
-#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Hash, serde::Serialize)]
-#[serde(rename_all = "kebab-case")]
-pub enum Prefer {
-    /// A slower build of a structure that traces faster.
-    #[default]
-    FastTrace,
-    /// A quicker build, for structures rebuilt often.
-    FastBuild,
-}
-
-impl Prefer {
-    /// The build flags, with `ALLOW_UPDATE` where the structure will be refit.
-    pub(crate) fn flags(self, allow_update: bool) -> vk::BuildAccelerationStructureFlagsKHR {
-        let prefer = match self {
-            Prefer::FastTrace => vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE,
-            Prefer::FastBuild => vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_BUILD,
-        };
-        if allow_update {
-            prefer | vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE
-        } else {
-            prefer
-        }
-    }
-
-    /// `fast-trace` or `fast-build`.
-    pub fn name(self) -> &'static str {
-        match self {
-            Prefer::FastTrace => "fast-trace",
-            Prefer::FastBuild => "fast-build",
-        }
-    }
-}
+// The driver's build preference is part of the structure's kind and choice
+// ([`crate::accel::walk::AccelChoice`]); it lives there.
+pub use crate::accel::walk::Prefer;
 
 /// Bytes of a box in `DevicePrimitives::boxes` (six floats, `VkAabbPositionsKHR`).
 const BOX_BYTES: u64 = 24;

@@ -34,6 +34,9 @@
 use glam::Vec3;
 
 use super::{Aabb, KdNode, KdTree, SahParams};
+// The totally ordered min/max and the triangle box are the primitives' own (every builder
+// boxes triangles alike); kept here under their old path.
+pub use crate::accel::primitives::{fmax, fmin, prim_box};
 
 /// Event type, also its sort rank at equal planes (END first).
 pub const END: u8 = 0;
@@ -126,34 +129,6 @@ pub fn sah_scaled(
         cost * p.empty_bonus
     } else {
         cost
-    }
-}
-
-/// min with -0.0 below +0.0 (`f32::min` leaves that case open); the GLSL twin is
-/// `fmin_total` in `glsl/include/vkrt/kdtree.glsl`.
-pub fn fmin(a: f32, b: f32) -> f32 {
-    if a < b || (a == b && a.is_sign_negative()) {
-        a
-    } else {
-        b
-    }
-}
-
-/// max with -0.0 below +0.0; the GLSL twin is `fmax_total`.
-pub fn fmax(a: f32, b: f32) -> f32 {
-    if a > b || (a == b && b.is_sign_negative()) {
-        a
-    } else {
-        b
-    }
-}
-
-/// A triangle's box, exactly as `accel.kdtree_boxes` computes it.
-pub fn prim_box(t: &[Vec3; 3]) -> Aabb {
-    let f = |g: fn(f32, f32) -> f32, a: usize| g(g(t[0][a], t[1][a]), t[2][a]);
-    Aabb {
-        min: Vec3::new(f(fmin, 0), f(fmin, 1), f(fmin, 2)),
-        max: Vec3::new(f(fmax, 0), f(fmax, 1), f(fmax, 2)),
     }
 }
 

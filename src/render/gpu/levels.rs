@@ -284,7 +284,7 @@ impl Levels {
             // The driver's TLAS is rebuilt over the moved instances (they never move over
             // a shutter: `Plan::levels`), its BLASes kept.
             Top::Driver { geom, .. } => {
-                let driver = crate::accel::driver::instanced::levels_mut(&mut geom.accel);
+                let driver = crate::accel::driver_levels::levels_mut(&mut geom.accel);
                 let driver = driver.ok_or_else(|| crate::gpu::GpuError::Usage {
                     call: "FrameLoop::render",
                     reason: "the driver's levels were not built".into(),
@@ -398,7 +398,7 @@ fn driver_levels(
     let bound = with_spheres.first().copied().unwrap_or(0);
     let addresses = primitive_addresses(&ctx, prims.iter())?;
     let refs: Vec<&DevicePrimitives> = prims.iter().collect();
-    let (accel, ids) = crate::accel::driver::instanced::record_instanced(
+    let (accel, ids) = crate::accel::driver_levels::record_instanced(
         rec,
         &refs,
         &two.instances,

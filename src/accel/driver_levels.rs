@@ -1,6 +1,6 @@
 //! A scene's two levels on the driver's own structures ([`DriverAccel::record_instanced`])
 //! as a structure the `query` kernels trace, and its levels for a later move of the
-//! instances.
+//! instances: the bridge from the driver's family to [`AccelStructure`], above both.
 
 use crate::accel::device::{AccelKind, AccelStructure, Storage};
 use crate::accel::device_primitives::DevicePrimitives;
