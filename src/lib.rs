@@ -75,15 +75,19 @@ pub mod verify;
 pub use glam;
 
 pub use accel::batch::BuildTarget;
+pub use accel::compact::CompactedSize;
 pub use accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelSizes, AccelStructure};
-pub use accel::embedded::{BuildFlags, REQUIRED_BUFFER_USAGE};
+pub use accel::embedded::{BuildFlags, BuildStatus, DRIVER_BUFFER_USAGE, REQUIRED_BUFFER_USAGE};
 pub use accel::geometry::{Aabbs, Geometry, IndexType, Indices, Spheres, Triangles, VertexFormat};
 pub use accel::geometry_shape::GeometryShape;
 pub use accel::gpu_geometry::GpuGeometry;
+pub use accel::instance::Instance;
+pub use accel::instances::{TopLevel, TopLevelBuilder};
 pub use accel::primitives::TraceGeometry;
+pub use accel::sync::{RecordSync, StageAccess};
 pub use gpu::{
-    Buffer, Context, ContextOptions, DeviceInfo, GpuError, RawBuffer, RawParts, Recorder,
-    Validation,
+    BindingCache, Buffer, Context, ContextOptions, DeviceFeatures, DeviceInfo, GpuError, Memory,
+    RawBuffer, RawParts, RecordedWork, Recorder, Validation,
 };
 pub use scene::Scene;
 pub use trace::gpu::Tracer;
