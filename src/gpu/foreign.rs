@@ -14,6 +14,7 @@ use super::accel_ext::AccelerationStructure;
 use super::buffer::{BufferArg, TexelView};
 use super::context::Context;
 use super::error::{vk_err, GpuError, Result};
+use super::pipeline::PipelineDesc;
 use super::recorder::Recorder;
 
 /// What one binding of the set holds.
@@ -81,34 +82,6 @@ impl ForeignKernel {
             kernel: "foreign shader",
             reason: format!("{name}: {reason}"),
         };
-        let layout_bindings: Vec<vk::DescriptorSetLayoutBinding> = types
-            .iter()
-            .enumerate()
-            .map(|(k, &t)| {
-                vk::DescriptorSetLayoutBinding::default()
-                    .binding(k as u32)
-                    .descriptor_type(t)
-                    .descriptor_count(1)
-                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            })
-            .collect();
-        let push = [vk::PushConstantRange::default()
-            .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            .size(push_bytes)];
-        let push_ranges: &[vk::PushConstantRange] = if push_bytes > 0 { &push } else { &[] };
-        let map: Vec<vk::SpecializationMapEntry> = spec
-            .iter()
-            .enumerate()
-            .map(|(i, (id, _))| vk::SpecializationMapEntry {
-                constant_id: *id,
-                offset: 4 * i as u32,
-                size: 4,
-            })
-            .collect();
-        let data: Vec<u8> = spec.iter().flat_map(|(_, v)| v.to_ne_bytes()).collect();
-        let specialization = vk::SpecializationInfo::default()
-            .map_entries(&map)
-            .data(&data);
         let mut pool_sizes: Vec<vk::DescriptorPoolSize> = Vec::new();
         for &t in &types {
             match pool_sizes.iter_mut().find(|s| s.ty == t) {
@@ -119,6 +92,11 @@ impl ForeignKernel {
                 }),
             }
         }
+        let layout_bindings: Vec<(u32, vk::DescriptorType)> = types
+            .iter()
+            .enumerate()
+            .map(|(k, &t)| (k as u32, t))
+            .collect();
         let device = &ctx.inner.device;
         let mut out = Self {
             ctx: ctx.clone(),
@@ -130,43 +108,29 @@ impl ForeignKernel {
             types,
             push_bytes,
         };
-        // SAFETY: valid device; every create-info points at locals that outlive the calls;
+        let desc = PipelineDesc {
+            name,
+            spirv,
+            bindings: &layout_bindings,
+            push_bytes,
+            spec,
+            flags: vk::PipelineCreateFlags::DISPATCH_BASE,
+        };
+        let made =
+            ctx.create_compute_pipeline(&desc)
+                .map_err(|f| match f.code {
+                    vk::Result::ERROR_OUT_OF_HOST_MEMORY
+                    | vk::Result::ERROR_OUT_OF_DEVICE_MEMORY => vk_err(f.call)(f.code),
+                    code => kernel_err(format!("{} failed ({code:?})", f.call)),
+                })?;
+        out.set_layout = made.set_layout;
+        out.layout = made.layout;
+        out.pipeline = made.pipeline;
+        let set_layouts = [out.set_layout];
+        // SAFETY: valid device; the create-infos point at locals that outlive the calls;
         // each object is stored in `out` as soon as it exists, so that `Drop` destroys what
-        // was made when a later call fails (null handles are skipped). The module is
-        // destroyed right after pipeline creation, which Vulkan allows.
+        // was made when a later call fails (null handles are skipped).
         unsafe {
-            out.set_layout = device
-                .create_descriptor_set_layout(
-                    &vk::DescriptorSetLayoutCreateInfo::default().bindings(&layout_bindings),
-                    None,
-                )
-                .map_err(vk_err("vkCreateDescriptorSetLayout"))?;
-            let set_layouts = [out.set_layout];
-            out.layout = device
-                .create_pipeline_layout(
-                    &vk::PipelineLayoutCreateInfo::default()
-                        .set_layouts(&set_layouts)
-                        .push_constant_ranges(push_ranges),
-                    None,
-                )
-                .map_err(vk_err("vkCreatePipelineLayout"))?;
-            let module = device
-                .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(spirv), None)
-                .map_err(|e| kernel_err(format!("vkCreateShaderModule failed ({e:?})")))?;
-            let stage = vk::PipelineShaderStageCreateInfo::default()
-                .stage(vk::ShaderStageFlags::COMPUTE)
-                .module(module)
-                .name(c"main")
-                .specialization_info(&specialization);
-            let create = [vk::ComputePipelineCreateInfo::default()
-                .flags(vk::PipelineCreateFlags::DISPATCH_BASE)
-                .stage(stage)
-                .layout(out.layout)];
-            let result = device.create_compute_pipelines(ctx.inner.pipeline_cache, &create, None);
-            device.destroy_shader_module(module, None);
-            out.pipeline = result
-                .map_err(|(_, e)| kernel_err(format!("vkCreateComputePipelines failed ({e:?})")))?
-                [0];
             if !pool_sizes.is_empty() {
                 out.pool = device
                     .create_descriptor_pool(

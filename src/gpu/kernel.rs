@@ -10,6 +10,7 @@ use ash::vk;
 
 use super::context::Context;
 use super::error::{vk_err, GpuError, Result};
+use super::pipeline::{PipelineDesc, PipelineFailure};
 use super::shader::ShaderBlob;
 
 /// Push-constant bytes every kernel layout reserves: the minimum every device supports.
@@ -164,112 +165,47 @@ impl Context {
                 limits.max_workgroup_invocations, limits.max_workgroup_size
             )));
         }
-        let map: Vec<vk::SpecializationMapEntry> = entries
-            .iter()
-            .enumerate()
-            .map(|(i, (id, _))| vk::SpecializationMapEntry {
-                constant_id: *id,
-                offset: 4 * i as u32,
-                size: 4,
-            })
-            .collect();
-        let data: Vec<u8> = entries.iter().flat_map(|(_, v)| v.to_ne_bytes()).collect();
-        let specialization = vk::SpecializationInfo::default()
-            .map_entries(&map)
-            .data(&data);
-
-        let device = &self.inner.device;
-        let bindings: Vec<vk::DescriptorSetLayoutBinding> = blob
+        let bindings: Vec<(u32, vk::DescriptorType)> = blob
             .bindings
             .iter()
-            .map(|&b| {
-                vk::DescriptorSetLayoutBinding::default()
-                    .binding(b)
-                    .descriptor_type(descriptor_type(blob, b))
-                    .descriptor_count(1)
-                    .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            })
+            .map(|&b| (b, descriptor_type(blob, b)))
             .collect();
-        let push = [vk::PushConstantRange::default()
-            .stage_flags(vk::ShaderStageFlags::COMPUTE)
-            .size(PUSH_CONSTANT_BYTES)];
-        let push_ranges: &[vk::PushConstantRange] = if blob.push_constants { &push } else { &[] };
-        let module_info = vk::ShaderModuleCreateInfo::default().code(blob.spirv);
-        // SAFETY: valid device; `blob.spirv` is SPIR-V produced and checked by build.rs;
-        // every create-info points at locals that outlive the calls; on failure every object
-        // created so far is destroyed before returning.
-        unsafe {
-            let set_layout = device
-                .create_descriptor_set_layout(
-                    &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
-                    None,
-                )
-                .map_err(vk_err("vkCreateDescriptorSetLayout"))?;
-            let set_layouts = [set_layout];
-            let layout = match device.create_pipeline_layout(
-                &vk::PipelineLayoutCreateInfo::default()
-                    .set_layouts(&set_layouts)
-                    .push_constant_ranges(push_ranges),
-                None,
-            ) {
-                Ok(l) => l,
-                Err(e) => {
-                    device.destroy_descriptor_set_layout(set_layout, None);
-                    return Err(vk_err("vkCreatePipelineLayout")(e));
-                }
-            };
-            let module = match device.create_shader_module(&module_info, None) {
-                Ok(m) => m,
-                Err(e) => {
-                    device.destroy_pipeline_layout(layout, None);
-                    device.destroy_descriptor_set_layout(set_layout, None);
-                    return Err(vk_err("vkCreateShaderModule")(e));
-                }
-            };
-            let stage = vk::PipelineShaderStageCreateInfo::default()
-                .stage(vk::ShaderStageFlags::COMPUTE)
-                .module(module)
-                .name(c"main")
-                .specialization_info(&specialization);
-            let create = [vk::ComputePipelineCreateInfo::default()
-                .stage(stage)
-                .layout(layout)];
-            let result = device.create_compute_pipelines(self.inner.pipeline_cache, &create, None);
-            device.destroy_shader_module(module, None);
-            // The set layout, pipeline layout and shader module, and the pipeline.
-            self.inner.created(3 + result.is_ok() as u64);
-            match result {
-                Ok(p) => {
-                    // Named for RenderDoc, Nsight and RGP, and in validation messages.
-                    self.set_object_name(p[0], blob.name);
-                    self.set_object_name(layout, &format!("{}.layout", blob.name));
-                    self.set_object_name(set_layout, &format!("{}.set_layout", blob.name));
-                    Ok(Kernel {
-                        blob,
-                        pipeline: p[0],
-                        layout,
-                        set_layout,
-                        workgroup_size,
-                    })
-                }
-                Err((_, e)) => {
-                    device.destroy_pipeline_layout(layout, None);
-                    device.destroy_descriptor_set_layout(set_layout, None);
-                    if matches!(
-                        e,
-                        vk::Result::ERROR_OUT_OF_HOST_MEMORY
-                            | vk::Result::ERROR_OUT_OF_DEVICE_MEMORY
-                    ) {
-                        return Err(vk_err("vkCreateComputePipelines")(e));
-                    }
-                    // The driver's compiler refused this kernel: say which, and how it was
-                    // specialised, so that the failure can be reproduced.
-                    Err(err(format!(
-                        "vkCreateComputePipelines failed ({e:?}) for workgroup size \
-                         {workgroup_size:?} and specialization {entries:?}"
-                    )))
-                }
+        let desc = PipelineDesc {
+            name: blob.name,
+            spirv: blob.spirv,
+            bindings: &bindings,
+            push_bytes: if blob.push_constants {
+                PUSH_CONSTANT_BYTES
+            } else {
+                0
+            },
+            spec: &entries,
+            flags: vk::PipelineCreateFlags::empty(),
+        };
+        match self.create_compute_pipeline(&desc) {
+            Ok(p) => Ok(Kernel {
+                blob,
+                pipeline: p.pipeline,
+                layout: p.layout,
+                set_layout: p.set_layout,
+                workgroup_size,
+            }),
+            Err(PipelineFailure {
+                call: "vkCreateComputePipelines",
+                code,
+            }) if !matches!(
+                code,
+                vk::Result::ERROR_OUT_OF_HOST_MEMORY | vk::Result::ERROR_OUT_OF_DEVICE_MEMORY
+            ) =>
+            {
+                // The driver's compiler refused this kernel: say which, and how it was
+                // specialised, so that the failure can be reproduced.
+                Err(err(format!(
+                    "vkCreateComputePipelines failed ({code:?}) for workgroup size \
+                     {workgroup_size:?} and specialization {entries:?}"
+                )))
             }
+            Err(f) => Err(vk_err(f.call)(f.code)),
         }
     }
 }

@@ -26,6 +26,7 @@ mod error;
 mod foreign;
 mod info;
 mod kernel;
+mod pipeline;
 mod pipeline_cache;
 mod profiler;
 mod recorder;

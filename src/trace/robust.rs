@@ -559,6 +559,23 @@ fn brute_force_all(g: &TraceGeometry, rays: &[Ray], o: &TraceOptions) -> Arc<Vec
 
 /// One self-intersection case: which primitives, whether the origin offset is bounded by
 /// the hit point's error, and the rays spawned from the hits.
+/// A family of self-intersection cases: the primitives' name and the seeds of the primary
+/// and the spawned rays.
+struct SelfCase {
+    primitives: &'static str,
+    seeds: (u64, u64),
+}
+
+/// Where a primary hit spawns rays: the hit point and its error bound, the side they leave
+/// towards, the primitive's scale, and whether they go inward (a sphere's refraction).
+struct SpawnSurface {
+    point: Vec3,
+    err: Vec3,
+    side: Vec3,
+    scale: f32,
+    inward: bool,
+}
+
 struct SelfHits<'r> {
     primitives: &'static str,
     bounded: bool,
@@ -753,138 +770,140 @@ impl Suite<'_> {
         let n = self.size.self_prims;
         let tris = log_uniform_triangles(n, 3);
         let p = self.prepare(TraceGeometry::from_triangles(&tris), &self.config.kd_params)?;
-        for i in self.intersectors.clone() {
-            let o = self.opt(i);
-            let mut rng = Rng::new(4);
-            let primary: Vec<Ray> = tris
-                .iter()
+        let primary = |rng: &mut Rng| -> Vec<Ray> {
+            tris.iter()
                 .map(|t| {
-                    let target = point_in(&mut rng, t);
+                    let target = point_in(rng, t);
                     let r = (t[1] - t[0]).abs().max((t[2] - t[0]).abs()).max_element();
-                    let from = target + unit(&mut rng) * (2.0 * r);
+                    let from = target + unit(rng) * (2.0 * r);
                     Ray::new(from, target - from, 0.0, f32::MAX)
                 })
-                .collect();
-            let first = p.trace(self.ctx, &primary, &o)?;
-            for bounded in [true, false] {
-                let mut rng = Rng::new(5);
-                let mut spawned = Vec::new();
-                let mut owner = Vec::new();
-                for (k, h) in first.hits.iter().enumerate() {
-                    if !h.is_hit() {
-                        continue;
-                    }
-                    let [p0, p1, p2] = p.geometry.triangle_at(h.prim as usize, 0.0);
-                    let (point, err) = triangle_hit_point(p0, p1, p2, h.u, h.v);
-                    let d = [p0, p1, p2].map(|q| q.as_dvec3());
-                    let nrm = (d[1] - d[0]).cross(d[2] - d[0]).normalize().as_vec3();
-                    // Reflection side (against the primary ray) for even hits, transmission
-                    // for odd ones.
-                    let towards = if nrm.dot(primary[k].d()) < 0.0 {
-                        nrm
-                    } else {
-                        -nrm
-                    };
-                    let side = if k % 2 == 0 { towards } else { -towards };
-                    let origin = if bounded {
-                        offset_ray_origin_bounded(point, side, err)
-                    } else {
-                        offset_ray_origin(point, side)
-                    };
-                    let scale = (p1 - p0).length().max((p2 - p0).length());
-                    self.spawn(
-                        &mut rng,
-                        point,
-                        origin,
-                        side,
-                        scale,
-                        h.prim,
-                        false,
-                        &mut spawned,
-                        &mut owner,
-                    );
-                }
-                let b = p.trace(self.ctx, &spawned, &o)?;
-                let bad: Vec<usize> = (0..spawned.len())
-                    .filter(|&k| b.hits[k].prim == owner[k].0)
-                    .collect();
-                let case = SelfHits {
-                    primitives: "triangles",
-                    bounded,
-                    spawned: &spawned,
-                };
-                self.push_self_hits(case, i, &p, &b, first.exhausted, &bad);
+                .collect()
+        };
+        let surface = |k: usize, h: &Hit, primary: &[Ray]| {
+            let [p0, p1, p2] = p.geometry.triangle_at(h.prim as usize, 0.0);
+            let (point, err) = triangle_hit_point(p0, p1, p2, h.u, h.v);
+            let d = [p0, p1, p2].map(|q| q.as_dvec3());
+            let nrm = (d[1] - d[0]).cross(d[2] - d[0]).normalize().as_vec3();
+            // Reflection side (against the primary ray) for even hits, transmission for odd
+            // ones.
+            let towards = if nrm.dot(primary[k].d()) < 0.0 {
+                nrm
+            } else {
+                -nrm
+            };
+            SpawnSurface {
+                point,
+                err,
+                side: if k % 2 == 0 { towards } else { -towards },
+                scale: (p1 - p0).length().max((p2 - p0).length()),
+                inward: false,
             }
-        }
+        };
+        let own_hit = |h: &Hit, (prim, _): (u32, bool), _: &Ray| h.prim == prim;
+        let case = SelfCase {
+            primitives: "triangles",
+            seeds: (4, 5),
+        };
+        self.self_hit_cases(&p, case, primary, surface, own_hit)?;
 
         let spheres = log_uniform_spheres(n, 6);
         let p = self.prepare(
             TraceGeometry::from_triangles_and_spheres(&[], &spheres),
             &self.config.kd_params,
         )?;
-        for i in self.intersectors.clone() {
-            let o = self.opt(i);
-            let mut rng = Rng::new(7);
-            let primary: Vec<Ray> = spheres
+        let primary = |rng: &mut Rng| -> Vec<Ray> {
+            spheres
                 .iter()
                 .map(|s| {
-                    let from = s.truncate() + unit(&mut rng) * (3.0 * s.w);
-                    let target = s.truncate() + in_ball(&mut rng) * (0.5 * s.w);
+                    let from = s.truncate() + unit(rng) * (3.0 * s.w);
+                    let target = s.truncate() + in_ball(rng) * (0.5 * s.w);
                     Ray::new(from, target - from, 0.0, f32::MAX)
                 })
-                .collect();
+                .collect()
+        };
+        let surface = |k: usize, h: &Hit, primary: &[Ray]| {
+            let s = p.geometry.sphere_at(h.prim as usize, 0.0);
+            let (c, r) = (s.truncate(), s.w);
+            let (point, err) = sphere_hit_point(c, r, primary[k].o() + primary[k].d() * h.t);
+            let nrm = (point.as_dvec3() - c.as_dvec3()).normalize().as_vec3();
+            // Outward rays for even hits, inward (refraction) for odd ones.
+            let inward = k % 2 == 1;
+            SpawnSurface {
+                point,
+                err,
+                side: if inward { -nrm } else { nrm },
+                scale: r,
+                inward,
+            }
+        };
+        let own_hit = |h: &Hit, (prim, inward): (u32, bool), r: &Ray| {
+            if inward {
+                let radius = p.geometry.sphere_at(prim as usize, 0.0).w;
+                !h.is_hit() || (h.prim == prim && h.t * r.d().length() < 0.05 * radius)
+            } else {
+                h.prim == prim
+            }
+        };
+        let case = SelfCase {
+            primitives: "spheres",
+            seeds: (7, 8),
+        };
+        self.self_hit_cases(&p, case, primary, surface, own_hit)
+    }
+
+    /// The self-intersection cases over `p` for every intersector: `primary` rays (from the
+    /// first seed's stream), then from each hit's `surface` the spawned rays of the offset
+    /// with error bounds and of the one without (from the second seed's), each counted bad
+    /// where `bad` says it found its own primitive again.
+    fn self_hit_cases(
+        &mut self,
+        p: &Prepared,
+        case: SelfCase,
+        primary: impl Fn(&mut Rng) -> Vec<Ray>,
+        surface: impl Fn(usize, &Hit, &[Ray]) -> SpawnSurface,
+        bad: impl Fn(&Hit, (u32, bool), &Ray) -> bool,
+    ) -> Result<()> {
+        for i in self.intersectors.clone() {
+            let o = self.opt(i);
+            let primary = primary(&mut Rng::new(case.seeds.0));
             let first = p.trace(self.ctx, &primary, &o)?;
             for bounded in [true, false] {
-                let mut rng = Rng::new(8);
+                let mut rng = Rng::new(case.seeds.1);
                 let mut spawned = Vec::new();
                 let mut owner = Vec::new();
                 for (k, h) in first.hits.iter().enumerate() {
                     if !h.is_hit() {
                         continue;
                     }
-                    let s = p.geometry.sphere_at(h.prim as usize, 0.0);
-                    let (c, r) = (s.truncate(), s.w);
-                    let (point, err) =
-                        sphere_hit_point(c, r, primary[k].o() + primary[k].d() * h.t);
-                    let nrm = (point.as_dvec3() - c.as_dvec3()).normalize().as_vec3();
-                    // Outward rays for even hits, inward (refraction) for odd ones.
-                    let inward = k % 2 == 1;
-                    let side = if inward { -nrm } else { nrm };
+                    let s = surface(k, h, &primary);
                     let origin = if bounded {
-                        offset_ray_origin_bounded(point, side, err)
+                        offset_ray_origin_bounded(s.point, s.side, s.err)
                     } else {
-                        offset_ray_origin(point, side)
+                        offset_ray_origin(s.point, s.side)
                     };
                     self.spawn(
                         &mut rng,
-                        point,
+                        s.point,
                         origin,
-                        side,
-                        r,
+                        s.side,
+                        s.scale,
                         h.prim,
-                        inward,
+                        s.inward,
                         &mut spawned,
                         &mut owner,
                     );
                 }
                 let b = p.trace(self.ctx, &spawned, &o)?;
                 let bad: Vec<usize> = (0..spawned.len())
-                    .filter(|&k| {
-                        let (h, (prim, inward), r) = (b.hits[k], owner[k], spawned[k]);
-                        if inward {
-                            let radius = p.geometry.sphere_at(prim as usize, 0.0).w;
-                            !h.is_hit() || (h.prim == prim && h.t * r.d().length() < 0.05 * radius)
-                        } else {
-                            h.prim == prim
-                        }
-                    })
+                    .filter(|&k| bad(&b.hits[k], owner[k], &spawned[k]))
                     .collect();
-                let case = SelfHits {
-                    primitives: "spheres",
+                let hits = SelfHits {
+                    primitives: case.primitives,
                     bounded,
                     spawned: &spawned,
                 };
-                self.push_self_hits(case, i, &p, &b, first.exhausted, &bad);
+                self.push_self_hits(hits, i, p, &b, first.exhausted, &bad);
             }
         }
         Ok(())
