@@ -880,12 +880,13 @@ fn compacted_levels_answer_as_the_structures_they_were_compacted_from() {
                 "{kind:?} {k}"
             );
         }
-        let levels = |l: &[(GpuGeometry, Vec<Buffer<u8>>)]| -> Vec<&GpuGeometry> {
-            l.iter().map(|(g, _)| g).collect()
-        };
+        let (levels_a, levels_b): (Vec<&GpuGeometry>, Vec<&GpuGeometry>) = (
+            built.iter().map(|(g, _)| g).collect(),
+            small.iter().map(|(g, _)| g).collect(),
+        );
         let (top_a, top_b) = (
-            top_of(&ctx, &levels(&built), &instances),
-            top_of(&ctx, &levels(&small), &instances),
+            top_of(&ctx, &levels_a, &instances),
+            top_of(&ctx, &levels_b, &instances),
         );
         let (ha, hb) = (top_a.handle_address(), top_b.handle_address());
         let want = run(&ctx, CLOSEST, ha, &rays, 0, 0xff);

@@ -521,12 +521,14 @@ impl BvhStorage {
     }
 
     /// Zeroes the live-node count where the build records a leaf collapse, which counts
-    /// into it (the builders' first fill is ordered before their kernels by a transfer →
-    /// compute barrier, which orders this one too); what [`BvhStorage::live`] is then.
+    /// into it; what [`BvhStorage::live`] is then. After a compute → transfer barrier (the
+    /// last build's count was a kernel's write), before the builders' first fill, whose
+    /// transfer → compute barrier orders it before their kernels.
     fn record_zero_live(&self, rec: &mut Recorder, collapsing: bool) -> Result<Option<usize>> {
         if !collapsing {
             return Ok(Some(self.counts.0));
         }
+        rec.compute_to_transfer();
         rec.update(&self.refs, self.live_at(), &[0])?;
         Ok(None)
     }
