@@ -353,7 +353,7 @@ impl BvhFamily {
                     false => refs,
                 };
                 out.counts = (n_nodes, n);
-                out.live = out.record_zero_live(rec, collapsing)?;
+                out.live = out.record_zero_live(rec, collapsing);
                 // One climb builds the topology with its boxes (and the collapse's decisions).
                 let (visits, cs) = (&sc.visits, &sc.collapse);
                 let decide = collapsing.then(|| (cs.costs(), p));
@@ -380,7 +380,7 @@ impl BvhFamily {
                     upload_gpu_bvh_info(rec, prims, info, s.walk)?;
                 }
                 out.counts = (n_nodes, n);
-                out.live = out.record_zero_live(rec, collapse::applies(n, p))?;
+                out.live = out.record_zero_live(rec, collapse::applies(n, p));
                 if collapse::applies(n, p) {
                     // The references go to the collapse's scratch, and are laid out in `refs`.
                     let tree_refs = sc.collapse.tree_refs();
@@ -524,13 +524,13 @@ impl BvhStorage {
     /// into it; what [`BvhStorage::live`] is then. After a compute → transfer barrier (the
     /// last build's count was a kernel's write), before the builders' first fill, whose
     /// transfer → compute barrier orders it before their kernels.
-    fn record_zero_live(&self, rec: &mut Recorder, collapsing: bool) -> Result<Option<usize>> {
+    fn record_zero_live(&self, rec: &mut Recorder, collapsing: bool) -> Option<usize> {
         if !collapsing {
-            return Ok(Some(self.counts.0));
+            return Some(self.counts.0);
         }
         rec.compute_to_transfer();
-        rec.update(&self.refs, self.live_at(), &[0])?;
-        Ok(None)
+        rec.fill_range(&self.refs, self.live_at(), 1, 0);
+        None
     }
 
     /// Records the read of the built tree's live-node count (where the host does not know
