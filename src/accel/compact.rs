@@ -168,14 +168,14 @@ impl GpuGeometry {
         Ok(input)
     }
 
-    /// Records the query of the bytes this built structure uses (the copy of its build's
-    /// report, 16 bytes, into host memory), read with [`CompactedSizeQuery::read`] after the
-    /// work has executed. Synchronized as [`GpuGeometry::record_read_status`]
+    /// Records the query of the bytes this built structure uses, read with
+    /// [`CompactedSizeQuery::read`] after the work has executed: the copy into host memory
+    /// of a kd-tree's build report (16 bytes), or of the live-node count an LBVH's or PLOC's
+    /// leaf collapse wrote (4 bytes; no copy where nothing was collapsed: the host knows the
+    /// count then). Synchronized as [`GpuGeometry::record_read_status`]
     /// ([`RecordSync::READ_STATUS`]): a `compute_to_transfer` barrier before, a
-    /// `transfer_to_host` after, then the caller's fence. A kd-tree's report, or the live-node
-    /// count an LBVH's or PLOC's leaf collapse wrote (4 bytes; nothing where no node was
-    /// collapsed: the count is the host's); the driver's structure is an error
-    /// ([module docs](crate::accel::compact)).
+    /// `transfer_to_host` after, then the caller's fence. The driver's structure is an
+    /// error ([module docs](crate::accel::compact)).
     ///
     /// [`RecordSync::READ_STATUS`]: crate::accel::sync::RecordSync::READ_STATUS
     pub fn record_compacted_size(&self, rec: &mut Recorder) -> Result<CompactedSizeQuery> {
