@@ -3,7 +3,8 @@
 //! call of its own, with the gathers' and the end's barriers paid once; every bad target
 //! refused, by its index, before anything is recorded. Sizes asked from counts alone
 //! (`GeometryShape`) equal to those asked from the geometry. And compaction: a built
-//! kd-tree copied into the bytes it uses traces as the original, hit for hit.
+//! kd-tree copied into the bytes it uses traces as the original, hit for hit (the LBVH's
+//! and PLOC's: `tests/accel_compact.rs`).
 
 mod common;
 
@@ -504,7 +505,7 @@ fn a_compacted_kd_tree_traces_as_the_original_in_fewer_bytes() {
         .collect();
     let mut rec = Recorder::new(&ctx).unwrap();
     for (g, c) in built.structures.iter().zip(&mut compacted) {
-        g.record_compact_into(&mut rec, c).unwrap();
+        g.record_compact_into(&mut rec, c, None).unwrap();
     }
     rec.submit_and_wait().unwrap();
 
@@ -602,20 +603,20 @@ fn compaction_refuses_what_it_cannot_copy() {
     kd.record_builds_from(&mut rec, &mut targets(&others, &mut o))
         .unwrap();
     is_usage(
-        o.structures[0].record_compact_into(&mut rec, &mut dst),
+        o.structures[0].record_compact_into(&mut rec, &mut dst, None),
         "a destination made for another structure",
     );
 
-    // Kinds whose buffers are sized exactly.
-    let mut b = create(&ctx, &lbvh, &lists);
-    lbvh.record_builds_from(&mut rec, &mut targets(&lists, &mut b))
-        .unwrap();
+    // A structure over host geometry (its layout is not the caller's to copy).
+    let tris = common::mesh_triangles(&vkrt::scene::gen::icosphere(1).unwrap());
+    let host = vkrt::accel::primitives::TraceGeometry::from_triangles(&tris);
+    let (b, _) = GpuGeometry::record_build(&mut rec, &lbvh, &host, 0).unwrap();
     is_usage(
-        b.structures[0].record_compacted_size(&mut rec).map(drop),
-        "an LBVH",
+        b.record_compacted_size(&mut rec).map(drop),
+        "a structure over host geometry",
     );
     c.structures[0]
-        .record_compact_into(&mut rec, &mut dst)
+        .record_compact_into(&mut rec, &mut dst, None)
         .unwrap();
     rec.submit_and_wait().unwrap();
     common::assert_silent(&ctx);

@@ -7,7 +7,8 @@
 //!   (`Traffic::objects_created`, counted at every vkCreate*/vkAllocate* vkrt calls), and
 //!   stages nothing: the bottom levels' builds, and (where the device has addresses) a top
 //!   level's, in the renderer's memory, over instances the renderer writes in its own buffer
-//!   by reference to a bottom level, a different count each frame.
+//!   by reference to a bottom level, a different count each frame; and after the frames,
+//!   the compaction of the LBVH's and PLOC's structures.
 //! - The synchronization contract ([`vkrt::accel::sync`]): the consumer of each build is the
 //!   renderer's graphics pass, a fragment shader tracing through `vkrt/ray_query.glsl`;
 //!   three frames in one command buffer, each rebuilding the structures in place after the
@@ -416,6 +417,68 @@ fn recording_a_prepared_frame_creates_no_vulkan_object() {
         }
         drop(commands);
     }
+
+    // The LBVH's and PLOC's structures as the last frame left them, compacted: the size
+    // query, the compacted structures (their kernels compiled then) and the cache's sets
+    // prepared first, then the copies recorded into the renderer's command buffer without
+    // creating anything, and traced as the frame's were.
+    let usage = match ray_query {
+        true => REQUIRED_BUFFER_USAGE | DRIVER_BUFFER_USAGE,
+        false => REQUIRED_BUFFER_USAGE,
+    };
+    let mut compacted = Vec::new();
+    for s in &structures[1..3] {
+        let mut rec = Recorder::new(&ctx).unwrap();
+        rec.compute_to_transfer();
+        let query = s.geometry.record_compacted_size(&mut rec).unwrap();
+        rec.transfer_to_host();
+        rec.submit_and_wait().unwrap();
+        let size = query.read().unwrap();
+        let memory = |name, bytes: u64| {
+            host.buffer(name, bytes.max(4), MemoryLocation::GpuOnly, usage)
+                .unwrap()
+        };
+        let structure = memory("renderer.compacted", size.bytes);
+        let scratch = memory("renderer.compact_scratch", size.scratch_bytes);
+        let dst = s
+            .geometry
+            .create_compacted_in(&ctx, &size, raw(&structure, size.bytes))
+            .unwrap();
+        let scratch_range = raw(&scratch, size.scratch_bytes);
+        compacted.push((dst, scratch_range, [structure, scratch]));
+    }
+    let compact = |rec: &mut Recorder,
+                   compacted: &mut [(GpuGeometry, RawBuffer, [HostBuffer; 2])]| {
+        for (s, (dst, scratch, _)) in structures[1..3].iter().zip(compacted.iter_mut()) {
+            s.geometry.record_compact_into(rec, dst, Some(*scratch))?;
+        }
+        Ok(())
+    };
+    cache.prepare(|rec| compact(rec, &mut compacted)).unwrap();
+    let commands = host.command_buffer().unwrap();
+    let before = ctx.traffic();
+    // SAFETY: the host's command buffer, recording, outside a render pass; every buffer
+    // outlives its execution, completed after the host's fence below.
+    let mut rec = unsafe { Recorder::from_raw_with(&ctx, commands.cmd, &cache) }.unwrap();
+    compact(&mut rec, &mut compacted).unwrap();
+    let work = rec.finish().unwrap();
+    let recorded = ctx.traffic() - before;
+    host.submit_and_wait(commands.cmd).unwrap();
+    // SAFETY: the host waited for its command buffer.
+    unsafe { work.complete() }.unwrap();
+    assert_eq!(
+        recorded.objects_created, 0,
+        "objects created while recording the compaction"
+    );
+    let want = expected(&grid(TOP_COUNTS.len() - 1), &rays);
+    for (s, (dst, _, _)) in structures[1..3].iter().zip(&compacted) {
+        let kind = s.builder.kind().name();
+        let hits = s.tracer.trace(&ctx, dst, &rays, 0.0).unwrap().hits;
+        let got: Vec<Option<u32>> = hits.iter().map(|h| h.is_hit().then_some(h.prim)).collect();
+        assert_eq!(got, want, "{kind}, compacted: hits differ from brute force");
+    }
+    drop(commands);
+    drop(compacted);
     drop(top);
     drop(structures);
     drop(cache);

@@ -630,6 +630,16 @@ fn device_bottom(
     tris: &[[Vec3; 3]],
     opaque: bool,
 ) -> (GpuGeometry, Vec<Buffer<u8>>) {
+    device_bottom_of(ctx, AccelKind::Lbvh, tris, opaque)
+}
+
+/// [`device_bottom`] of `kind`.
+fn device_bottom_of(
+    ctx: &Context,
+    kind: AccelKind,
+    tris: &[[Vec3; 3]],
+    opaque: bool,
+) -> (GpuGeometry, Vec<Buffer<u8>>) {
     let flat: Vec<Vec3> = tris.iter().flatten().copied().collect();
     let vertices =
         Buffer::<f32>::from_slice(ctx, "test.vertices", bytemuck::cast_slice(&flat)).unwrap();
@@ -637,7 +647,7 @@ fn device_bottom(
         opaque,
         ..Triangles::soup(vertices.as_raw(), flat.len() as u32)
     })];
-    let builder = AccelBuilder::new(ctx, AccelKind::Lbvh).unwrap();
+    let builder = AccelBuilder::new(ctx, kind).unwrap();
     let flags = BuildFlags::default();
     let sizes = builder.sizes_for(ctx, &geometries, &flags).unwrap();
     let memory =
@@ -806,5 +816,83 @@ fn a_bottom_level_alone_is_one_identity_instance() {
         hits += hit_of(g).is_some() as usize;
     }
     assert!(hits > 0);
+    common::assert_silent(&ctx);
+}
+
+/// The compacted copy of `g` (`GpuGeometry::record_compact_into`) in memory of the size its
+/// query reports, with that memory.
+fn compacted(ctx: &Context, g: &GpuGeometry) -> (GpuGeometry, Vec<Buffer<u8>>) {
+    let mut rec = Recorder::new(ctx).unwrap();
+    rec.compute_to_transfer();
+    let query = g.record_compacted_size(&mut rec).unwrap();
+    rec.transfer_to_host();
+    rec.submit_and_wait().unwrap();
+    let size = query.read().unwrap();
+    let memory = Buffer::<u8>::arena(ctx, "test.compacted", size.bytes as usize).unwrap();
+    let scratch = Buffer::<u8>::arena(
+        ctx,
+        "test.compact_scratch",
+        size.scratch_bytes.max(4) as usize,
+    )
+    .unwrap();
+    let mut dst = g.create_compacted_in(ctx, &size, memory.as_raw()).unwrap();
+    let mut rec = Recorder::new(ctx).unwrap();
+    g.record_compact_into(&mut rec, &mut dst, Some(scratch.as_raw()))
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+    (dst, vec![memory, scratch])
+}
+
+#[test]
+fn compacted_levels_answer_as_the_structures_they_were_compacted_from() {
+    // An LBVH's and a PLOC's levels compacted: through the include, alone and as the bottom
+    // levels of a top level, every answer equals the original's, bit for bit.
+    let Some(ctx) = common::context() else { return };
+    let (_, instances, rays) = scene(&ctx, AccelKind::Lbvh, |_| 0);
+    let meshes = [sphere_tris(2), sphere_tris(1), sphere_tris(3)];
+    for kind in [AccelKind::Lbvh, AccelKind::Ploc] {
+        let built: Vec<(GpuGeometry, Vec<Buffer<u8>>)> = meshes
+            .iter()
+            .map(|m| device_bottom_of(&ctx, kind, m, true))
+            .collect();
+        let small: Vec<(GpuGeometry, Vec<Buffer<u8>>)> =
+            built.iter().map(|(g, _)| compacted(&ctx, g)).collect();
+        for (k, ((a, _), (b, _))) in built.iter().zip(&small).enumerate() {
+            let handle = |g: &GpuGeometry| {
+                let flat = Buffer::from_slice(&ctx, "test.flat", &g.handle_words().unwrap());
+                let flat = flat.unwrap();
+                (flat.device_address().unwrap(), flat)
+            };
+            let ((ha, _fa), (hb, _fb)) = (handle(a), handle(b));
+            let want = run(&ctx, &looped(""), ha, &rays, 0, 0xff);
+            assert_eq!(
+                run(&ctx, &looped(""), hb, &rays, 0, 0xff),
+                want,
+                "{kind:?} {k}"
+            );
+            assert_eq!(
+                probe(&ctx, hb, &rays, 0),
+                probe(&ctx, ha, &rays, 0),
+                "{kind:?} {k}"
+            );
+        }
+        let (levels_a, levels_b): (Vec<&GpuGeometry>, Vec<&GpuGeometry>) = (
+            built.iter().map(|(g, _)| g).collect(),
+            small.iter().map(|(g, _)| g).collect(),
+        );
+        let (top_a, top_b) = (
+            top_of(&ctx, &levels_a, &instances),
+            top_of(&ctx, &levels_b, &instances),
+        );
+        let (ha, hb) = (top_a.handle_address(), top_b.handle_address());
+        let want = run(&ctx, CLOSEST, ha, &rays, 0, 0xff);
+        assert!(want.iter().filter(|h| h[0] != u32::MAX).count() > rays.len() / 4);
+        assert_eq!(run(&ctx, CLOSEST, hb, &rays, 0, 0xff), want, "{kind:?}");
+        assert_eq!(
+            probe(&ctx, hb, &rays, 0),
+            probe(&ctx, ha, &rays, 0),
+            "{kind:?}"
+        );
+    }
     common::assert_silent(&ctx);
 }

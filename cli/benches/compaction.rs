@@ -1,20 +1,17 @@
 //! What compaction saves: the Stanford bunny (`$VKRT_MESH`, else ../shared/scenes; without
 //! it a generated icosphere) built over the renderer's buffers in memory of the sizes vkrt
-//! reports, then
-//!
-//! - **kd-tree**: compacted (`GpuGeometry::record_compacted_size`, `create_compacted_in`,
-//!   `record_compact_into`): compacted ÷ built bytes;
-//! - **LBVH, PLOC** (not compacted: their buffers are sized for their primitives): the node
-//!   slots the SAH leaf collapse freed, counted from the downloaded tree, and the bytes a
-//!   copy without them would take (64-byte node and 4-byte parent link per slot) ÷ built.
+//! reports, then compacted (`GpuGeometry::record_compacted_size`, `create_compacted_in`,
+//! `record_compact_into`) into memory of the size the query reports: compacted ÷ built
+//! bytes for the kd-tree (its capacity's unused part), the LBVH and PLOC (the node slots
+//! their SAH leaf collapse freed: the live nodes of all the slots, and the scratch their
+//! renumbering takes).
 //!
 //! Sizes only, no timing. `cargo bench --bench compaction [-- --json]`
 
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::embedded::BuildFlags;
 use vkrt::accel::geometry::{Geometry, IndexType, Triangles};
-use vkrt::accel::host::HostStructure;
-use vkrt::gpu::{Buffer, Context, ContextOptions, Recorder};
+use vkrt::gpu::{Buffer, Context, ContextOptions, RawBuffer, Recorder};
 
 #[path = "common/args.rs"]
 mod args;
@@ -24,10 +21,11 @@ struct Row {
     kind: &'static str,
     triangles: usize,
     built_bytes: u64,
-    /// The compacted structure's bytes (kd-tree), or those of the BVH without its freed
-    /// node slots.
+    /// The compacted structure's bytes.
     compacted_bytes: u64,
     ratio: f64,
+    /// The scratch of the compaction (0 for the kd-tree's copies).
+    scratch_bytes: u64,
     /// LBVH, PLOC: node slots and the live nodes among them.
     node_slots: Option<usize>,
     live_nodes: Option<usize>,
@@ -83,54 +81,57 @@ fn main() {
             .unwrap();
         rec.submit_and_wait().unwrap();
         let built = sizes.structure_bytes;
-        let row = match kind {
-            AccelKind::KdTree => {
-                let mut rec = Recorder::new(&ctx).unwrap();
-                rec.compute_to_transfer();
-                let query = g.record_compacted_size(&mut rec).unwrap();
-                rec.transfer_to_host();
-                rec.submit_and_wait().unwrap();
-                let size = query.read().unwrap();
-                Row {
-                    kind: kind.name(),
-                    triangles: n,
-                    built_bytes: built,
-                    compacted_bytes: size.bytes,
-                    ratio: size.bytes as f64 / built as f64,
-                    node_slots: None,
-                    live_nodes: None,
-                }
-            }
-            _ => {
-                let HostStructure::Bvh(tree) = g.structure().download().unwrap() else {
-                    unreachable!("a BVH kind downloads a BVH")
-                };
-                let slots = n - 1;
-                let live = tree.nodes.len();
-                let without = built - (slots - live) as u64 * (64 + 4);
-                Row {
-                    kind: kind.name(),
-                    triangles: n,
-                    built_bytes: built,
-                    compacted_bytes: without,
-                    ratio: without as f64 / built as f64,
-                    node_slots: Some(slots),
-                    live_nodes: Some(live),
-                }
-            }
+        let mut rec = Recorder::new(&ctx).unwrap();
+        rec.compute_to_transfer();
+        let query = g.record_compacted_size(&mut rec).unwrap();
+        rec.transfer_to_host();
+        rec.submit_and_wait().unwrap();
+        let size = query.read().unwrap();
+        let compacted_memory =
+            Buffer::<u8>::arena(&ctx, "caller.compacted", size.bytes as usize).unwrap();
+        let compact_scratch = Buffer::<u8>::arena(
+            &ctx,
+            "caller.compact_scratch",
+            size.scratch_bytes.max(4) as usize,
+        )
+        .unwrap();
+        let mut compacted = g
+            .create_compacted_in(&ctx, &size, compacted_memory.as_raw())
+            .unwrap();
+        let scratch_range = (size.scratch_bytes > 0).then(|| RawBuffer {
+            size: size.scratch_bytes,
+            ..compact_scratch.as_raw()
+        });
+        let mut rec = Recorder::new(&ctx).unwrap();
+        g.record_compact_into(&mut rec, &mut compacted, scratch_range)
+            .unwrap();
+        rec.submit_and_wait().unwrap();
+        let bvh = kind != AccelKind::KdTree;
+        let row = Row {
+            kind: kind.name(),
+            triangles: n,
+            built_bytes: built,
+            compacted_bytes: size.bytes,
+            ratio: size.bytes as f64 / built as f64,
+            scratch_bytes: size.scratch_bytes,
+            node_slots: bvh.then(|| n.saturating_sub(1).max(1)),
+            live_nodes: bvh.then_some(size.nodes as usize),
         };
         if !json {
-            match (row.node_slots, row.live_nodes) {
-                (Some(s), Some(l)) => println!(
-                    "{:7} {} triangles: {} bytes built; {l} of {s} node slots live: {} bytes \
-                     without the freed ones, ×{:.3} (not compacted)",
-                    row.kind, row.triangles, row.built_bytes, row.compacted_bytes, row.ratio
-                ),
-                _ => println!(
-                    "{:7} {} triangles: {} bytes built, {} compacted, ×{:.3}",
-                    row.kind, row.triangles, row.built_bytes, row.compacted_bytes, row.ratio
-                ),
-            }
+            let live = match (row.node_slots, row.live_nodes) {
+                (Some(s), Some(l)) => format!(" ({l} of {s} node slots live)"),
+                _ => String::new(),
+            };
+            println!(
+                "{:7} {} triangles: {} bytes built, {} compacted{live}, ×{:.3}; {} bytes of \
+                 scratch",
+                row.kind,
+                row.triangles,
+                row.built_bytes,
+                row.compacted_bytes,
+                row.ratio,
+                row.scratch_bytes
+            );
         }
         rows.push(row);
     }

@@ -9,19 +9,25 @@
 //!    [`CompactedSize`];
 //! 2. [`GpuGeometry::create_compacted_in`]: the compacted structure placed in a range of at
 //!    least [`CompactedSize::bytes`];
-//! 3. [`GpuGeometry::record_compact_into`]: the copy, recorded (copies only: no kernel, no
-//!    scratch), ending with the barrier a build ends with.
+//! 3. [`GpuGeometry::record_compact_into`]: the copy, recorded, ending with the barrier a
+//!    build ends with.
 //!
 //! Which kinds: the kd-tree, whose output is sized for a capacity — 16 nodes and 8
 //! references per primitive in the first budget — of which a build uses a fraction (the
 //! bunny's compacts to 0.59 of its bytes, primitives included: `cargo bench --bench
-//! compaction`). The LBVH's and PLOC's buffers are sized exactly
-//! for `n` primitives; their only slack is the node slots the SAH leaf collapse removes,
-//! which stay in place (a removed slot keeps its index, `bvh::collapse::DEAD`): compacting
-//! them means renumbering the live nodes and their children on the device, a kernel vkrt
-//! does not have, so they refuse compaction with an error rather than copy without saving.
-//! The driver's structure is opaque to vkrt.
+//! compaction`); its copy is copies only, with no scratch. And the LBVH and PLOC, whose
+//! buffers are sized exactly for `n` primitives but whose SAH leaf collapse frees node slots
+//! in place (a freed slot keeps its index, parent link `bvh::collapse::DEAD`): the collapse
+//! counts the live nodes on the device, the query reads that count, and the copy renumbers
+//! the live nodes densely on the device — their live flags, an exclusive scan (each one's
+//! new index), and a scatter that renames every interior child and parent link
+//! (`bvh::compact_gpu`, CPU twin `bvh::compact`) — with the references, the refit schedule
+//! of a structure built to be updated (which a compacted BVH keeps: it can be updated) and
+//! the wide nodes made anew. That renumbering needs scratch, which Vulkan's copy does not
+//! take: [`CompactedSize::scratch_bytes`]. The bunny's LBVH and PLOC compact to 0.83 and
+//! 0.79 of their bytes. The driver's structure is opaque to vkrt.
 
+use crate::accel::bvh::device::{BvhStorage, CompactShape, LiveCount};
 use crate::accel::device::handle_record;
 use crate::accel::device::{AccelKind, Storage};
 use crate::accel::device_input::DeviceInput;
@@ -44,16 +50,27 @@ fn usage(call: &'static str, reason: impl Into<String>) -> GpuError {
 pub struct CompactedSize {
     /// Bytes of the compacted structure (what [`GpuGeometry::create_compacted_in`] places).
     pub bytes: u64,
-    /// Nodes of the built tree.
+    /// Bytes of the scratch [`GpuGeometry::record_compact_into`] needs: 0 for a kd-tree
+    /// (copies only); a BVH's renumbering scans its node slots.
+    pub scratch_bytes: u64,
+    /// Nodes of the built tree (a BVH's live nodes, without the slots its collapse freed).
     pub nodes: u32,
     /// Primitive references of the built tree.
     pub refs: u32,
 }
 
+/// What a query reads back, by family.
+enum Report {
+    /// The kd-tree build's report.
+    Kd(Readback<u32>),
+    /// A BVH's live nodes, and what its compacted copy is made for.
+    Bvh(LiveCount, CompactShape),
+}
+
 /// The recorded query of a structure's compacted size; read it once the work has executed.
 #[must_use = "read() it once the work has executed"]
 pub struct CompactedSizeQuery {
-    report: Readback<u32>,
+    report: Report,
     ctx: Context,
     input: DeviceInput,
 }
@@ -63,20 +80,40 @@ impl CompactedSizeQuery {
     /// where the kd-tree's build ran out of capacity (there is no tree to compact: grow it
     /// and build again).
     pub fn read(self) -> Result<CompactedSize> {
-        let built = KdBuilt::decode(&self.report.read()?);
-        if built.overflow {
-            return Err(usage(
-                "CompactedSizeQuery::read",
-                "the build ran out of capacity: build again with one more \
-                 kd_capacity_doubling, then compact",
-            ));
-        }
-        let (nodes, refs) = (built.nodes.max(1), built.refs);
         let ctx = &self.ctx;
+        let (nodes, refs, scratch_bytes, shape) = match self.report {
+            Report::Kd(report) => {
+                let built = KdBuilt::decode(&report.read()?);
+                if built.overflow {
+                    return Err(usage(
+                        "CompactedSizeQuery::read",
+                        "the build ran out of capacity: build again with one more \
+                         kd_capacity_doubling, then compact",
+                    ));
+                }
+                (built.nodes.max(1), built.refs, 0, None)
+            }
+            Report::Bvh(live, shape) => {
+                let live = live.read()?;
+                if live > shape.slots {
+                    return Err(usage(
+                        "CompactedSizeQuery::read",
+                        format!("{live} live nodes reported of {} slots", shape.slots),
+                    ));
+                }
+                let scratch = BvhStorage::compact_scratch_bytes(ctx, &shape)?;
+                (live as u32, shape.refs as u32, scratch, Some(shape))
+            }
+        };
         let (_, bytes) = place(ctx, "the compacted structure", Placement::Measure, || {
-            compacted_buffers(ctx, &self.input, nodes as usize, refs as usize)
+            compacted_buffers(ctx, &self.input, nodes as usize, refs as usize, shape)
         })?;
-        Ok(CompactedSize { bytes, nodes, refs })
+        Ok(CompactedSize {
+            bytes,
+            scratch_bytes,
+            nodes,
+            refs,
+        })
     }
 }
 
@@ -86,18 +123,22 @@ fn identity(g: &GpuGeometry) -> (crate::gpu::vk::Buffer, u64) {
     (info.raw, info.offset)
 }
 
-/// The primitives, scene constants and tree buffers of a compacted kd-tree (in placement
-/// order).
+/// The primitives, scene constants and tree buffers of a compacted structure (in placement
+/// order): a kd-tree's, or a BVH's of `bvh`'s shape.
 fn compacted_buffers(
     ctx: &Context,
     input: &DeviceInput,
     nodes: usize,
     refs: usize,
-) -> Result<(DevicePrimitives, Buffer<SceneInfo>, KdStorage)> {
+    bvh: Option<CompactShape>,
+) -> Result<(DevicePrimitives, Buffer<SceneInfo>, Storage)> {
     let prims = DevicePrimitives::for_layout(ctx, &input.layout)?;
     // (and one more element, where a top level's reference finds the structure's handle)
     let info = Buffer::new(ctx, "accel.info", input.layout.info_len() + 1)?;
-    let tree = KdStorage::compacted(ctx, nodes, refs)?;
+    let tree = match bvh {
+        Some(shape) => Storage::Bvh(BvhStorage::compacted(ctx, &shape, nodes)?),
+        None => Storage::KdTree(KdStorage::compacted(ctx, nodes, refs)?),
+    };
     Ok((prims, info, tree))
 }
 
@@ -111,19 +152,12 @@ impl GpuGeometry {
                 "compaction copies structures over device geometry (AccelBuilder::create_in)",
             )
         })?;
-        match self.accel.kind() {
-            AccelKind::KdTree => {}
-            kind => {
-                return Err(usage(
-                    call,
-                    format!(
-                        "a {} structure cannot be compacted: its buffers are sized for its \
-                         primitives, and the node slots its leaf collapse frees stay in place \
-                         (only the kd-tree, sized for a capacity, is compacted)",
-                        kind.name()
-                    ),
-                ))
-            }
+        if let AccelKind::Driver = self.accel.kind() {
+            return Err(usage(
+                call,
+                "the driver's structure is opaque to vkrt: compact it with the driver's own \
+                 vkCmdCopyAccelerationStructureKHR",
+            ));
         }
         if !input.built {
             return Err(usage(
@@ -134,20 +168,27 @@ impl GpuGeometry {
         Ok(input)
     }
 
-    /// Records the query of the bytes this built structure uses (the copy of its build's
-    /// report, 16 bytes, into host memory), read with [`CompactedSizeQuery::read`] after the
-    /// work has executed. Synchronized as [`GpuGeometry::record_read_status`]
+    /// Records the query of the bytes this built structure uses, read with
+    /// [`CompactedSizeQuery::read`] after the work has executed: the copy into host memory
+    /// of a kd-tree's build report (16 bytes), or of the live-node count an LBVH's or PLOC's
+    /// leaf collapse wrote (4 bytes; no copy where nothing was collapsed: the host knows the
+    /// count then). Synchronized as [`GpuGeometry::record_read_status`]
     /// ([`RecordSync::READ_STATUS`]): a `compute_to_transfer` barrier before, a
-    /// `transfer_to_host` after, then the caller's fence. Only kd-trees are compacted
-    /// ([module docs](crate::accel::compact)); other kinds are an error.
+    /// `transfer_to_host` after, then the caller's fence. The driver's structure is an
+    /// error ([module docs](crate::accel::compact)).
     ///
     /// [`RecordSync::READ_STATUS`]: crate::accel::sync::RecordSync::READ_STATUS
     pub fn record_compacted_size(&self, rec: &mut Recorder) -> Result<CompactedSizeQuery> {
-        let input = self.compactable("GpuGeometry::record_compacted_size")?;
-        let report = self
-            .accel
-            .record_read_built(rec)?
-            .ok_or_else(|| usage("GpuGeometry::record_compacted_size", "no build report"))?;
+        let call = "GpuGeometry::record_compacted_size";
+        let input = self.compactable(call)?;
+        let report = match self.accel.storage() {
+            Storage::Bvh(b) => Report::Bvh(b.record_live_count(rec)?, b.compact_shape()),
+            _ => Report::Kd(
+                self.accel
+                    .record_read_built(rec)?
+                    .ok_or_else(|| usage(call, "no build report"))?,
+            ),
+        };
         Ok(CompactedSizeQuery {
             report,
             ctx: rec.context().clone(),
@@ -158,8 +199,10 @@ impl GpuGeometry {
     /// The compacted copy of this structure, placed at the start of `memory`, a range of
     /// the caller's buffer of at least `size.bytes` ([`REQUIRED_BUFFER_USAGE`]). It holds
     /// no data until [`GpuGeometry::record_compact_into`] has executed; it is traced as
-    /// the original is, and cannot be built or updated into (build the original again and
-    /// compact it again).
+    /// the original is, and cannot be built into (build the original again and compact it
+    /// again); a BVH built with `allow_update` can be updated
+    /// ([`AccelBuilder::record_update_from`](crate::accel::device::AccelBuilder::record_update_from)).
+    /// The kernels a BVH's copy records are compiled here, not while recording.
     ///
     /// [`REQUIRED_BUFFER_USAGE`]: crate::accel::embedded::REQUIRED_BUFFER_USAGE
     pub fn create_compacted_in(
@@ -168,17 +211,35 @@ impl GpuGeometry {
         size: &CompactedSize,
         memory: RawBuffer,
     ) -> Result<GpuGeometry> {
-        let input = self.compactable("GpuGeometry::create_compacted_in")?;
+        let call = "GpuGeometry::create_compacted_in";
+        let input = self.compactable(call)?;
         let (nodes, refs) = (size.nodes as usize, size.refs as usize);
+        let shape = match self.accel.storage() {
+            Storage::Bvh(b) => {
+                let shape = b.compact_shape();
+                if refs != shape.refs || nodes > shape.slots {
+                    return Err(usage(
+                        call,
+                        format!(
+                            "the size is for {nodes} nodes over {refs} references; this \
+                             structure was built with {} node slots over {}",
+                            shape.slots, shape.refs
+                        ),
+                    ));
+                }
+                Some(shape)
+            }
+            _ => None,
+        };
         let ((prims, info, tree), _) = place(
             ctx,
             "the compacted structure",
             Placement::Into(memory),
-            || compacted_buffers(ctx, input, nodes, refs),
+            || compacted_buffers(ctx, input, nodes, refs, shape),
         )?;
         Ok(GpuGeometry {
             prims,
-            accel: self.accel.like(Storage::KdTree(tree), info),
+            accel: self.accel.like(tree, info),
             device_input: Some(DeviceInput {
                 built: false,
                 compacted: Some(identity(self)),
@@ -189,8 +250,11 @@ impl GpuGeometry {
 
     /// Records the copy of this built structure into `dst`, made for it by
     /// [`GpuGeometry::create_compacted_in`] from the size its last build reported: its
-    /// primitives, scene constants and tree, with copies only. Ends with one barrier from
-    /// the copies to compute-shader reads and writes, as a build does.
+    /// primitives and scene constants copied, and its tree — a kd-tree's copied; an LBVH's
+    /// or PLOC's live nodes renumbered by kernels (see the [module docs](crate::accel::compact)),
+    /// with `scratch`, a range of the caller's buffer of at least
+    /// [`CompactedSize::scratch_bytes`] (`None` where that is 0). Ends with one barrier from
+    /// the copies and kernels to compute-shader reads and writes, as a build does.
     ///
     /// Synchronization ([`crate::accel::sync`]): the caller's barrier before it has
     /// [`RecordSync::COMPACT`]`.first` as its destination (from the build's last, and for a
@@ -198,7 +262,12 @@ impl GpuGeometry {
     /// than compute shaders wait on [`RecordSync::COMPACT`]`.last`.
     ///
     /// [`RecordSync::COMPACT`]: crate::accel::sync::RecordSync::COMPACT
-    pub fn record_compact_into(&self, rec: &mut Recorder, dst: &mut GpuGeometry) -> Result<()> {
+    pub fn record_compact_into(
+        &self,
+        rec: &mut Recorder,
+        dst: &mut GpuGeometry,
+        scratch: Option<RawBuffer>,
+    ) -> Result<()> {
         let call = "GpuGeometry::record_compact_into";
         self.compactable(call)?;
         let made_for_this = dst
@@ -211,12 +280,14 @@ impl GpuGeometry {
                 "the destination was not made for this structure (its create_compacted_in)",
             ));
         }
-        let (Storage::KdTree(src_tree), Storage::KdTree(dst_tree)) =
-            (self.accel.storage(), dst.accel.storage())
-        else {
-            return Err(usage(call, "compaction copies kd-trees only"));
-        };
         rec.scope("compact", |rec| -> Result<()> {
+            match (self.accel.storage(), dst.accel.storage()) {
+                (Storage::Bvh(src_tree), Storage::Bvh(dst_tree)) => {
+                    src_tree.record_compact_into(rec, dst_tree, scratch)?
+                }
+                (Storage::KdTree(_), Storage::KdTree(_)) => {}
+                _ => return Err(usage(call, "the destination is of another family")),
+            }
             let (s, d) = (&self.prims, &dst.prims);
             rec.copy(&s.tri_verts, &d.tri_verts, d.tri_verts.len());
             rec.copy(&s.spheres, &d.spheres, d.spheres.len());
@@ -226,7 +297,12 @@ impl GpuGeometry {
             if let Some(record) = handle_record(rec.context(), &dst.prims, &dst.accel)? {
                 rec.update(&dst.accel.info, dst.accel.info.len() - 1, &[record])?;
             }
-            src_tree.record_copy_into(rec, dst_tree)
+            match (self.accel.storage(), dst.accel.storage()) {
+                (Storage::KdTree(src_tree), Storage::KdTree(dst_tree)) => {
+                    src_tree.record_copy_into(rec, dst_tree)
+                }
+                _ => Ok(()),
+            }
         })?;
         rec.end_of_build();
         rec.check()?;

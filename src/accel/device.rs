@@ -14,6 +14,7 @@
 //! module dispatches to them. Downloading a
 //! structure ([`AccelStructure::download`]) is for tests and tools only.
 
+use crate::accel::bvh::compact::BvhSlots;
 use crate::accel::bvh::device::{BvhFamily, BvhScratch, BvhSettings, BvhStorage};
 use crate::accel::bvh::lbvh::MortonBits;
 use crate::accel::bvh::ploc::PlocParams;
@@ -131,6 +132,17 @@ impl AccelStructure {
     pub fn download_wide(&self) -> Result<Option<(Vec<BvhNode>, Vec<WideNode>)>> {
         match &self.storage {
             Storage::Bvh(b) => b.download_wide(),
+            _ => Ok(None),
+        }
+    }
+
+    /// A BVH's node slots, parent links and references as they lie on the device, the slots
+    /// its leaf collapse freed included, with its live-node count (tests and tools: the
+    /// compaction against its CPU twin, [`crate::accel::bvh::compact::renumber`]); `None` for
+    /// other structures.
+    pub fn download_slots(&self) -> Result<Option<BvhSlots>> {
+        match &self.storage {
+            Storage::Bvh(b) => b.download_slots().map(Some),
             _ => Ok(None),
         }
     }

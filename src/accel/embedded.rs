@@ -338,11 +338,33 @@ impl AccelBuilder {
         )
     }
 
+    /// The description of `out` that a build into it over `geometries` checks against.
     pub(crate) fn input_of<'a>(
         &self,
         call: &'static str,
         geometries: &[Geometry],
         out: &'a GpuGeometry,
+    ) -> Result<&'a DeviceInput> {
+        self.device_input_of(call, geometries, out, false)
+    }
+
+    /// [`AccelBuilder::input_of`] for an update, which a compacted BVH takes too (its
+    /// topology is the original's, renumbered, and its refit schedule came with it).
+    fn update_input_of<'a>(
+        &self,
+        call: &'static str,
+        geometries: &[Geometry],
+        out: &'a GpuGeometry,
+    ) -> Result<&'a DeviceInput> {
+        self.device_input_of(call, geometries, out, true)
+    }
+
+    fn device_input_of<'a>(
+        &self,
+        call: &'static str,
+        geometries: &[Geometry],
+        out: &'a GpuGeometry,
+        compacted_ok: bool,
     ) -> Result<&'a DeviceInput> {
         let input = out.device_input.as_ref().ok_or_else(|| {
             usage(
@@ -350,11 +372,12 @@ impl AccelBuilder {
                 "this structure was not created over device geometry (AccelBuilder::create_in)",
             )
         })?;
-        if input.compacted.is_some() {
+        if input.compacted.is_some() && !compacted_ok {
             return Err(usage(
                 call,
                 "a compacted structure holds its tree's bytes only: build into the structure \
-                 it was compacted from, or create one (create_in)",
+                 it was compacted from, or create one (create_in); a compacted BVH built \
+                 with allow_update can be updated",
             ));
         }
         self.check_device_input(call, geometries, input.flags.wide)?;
@@ -403,7 +426,9 @@ impl AccelBuilder {
     /// Records an update (refit) of `out`, built with `allow_update`, to the positions its
     /// geometries' buffers hold now (the same geometries, moved), with its scratch in
     /// `scratch` (at least [`AccelSizes::update_scratch_bytes`]). A kd-tree cannot be
-    /// updated (its split planes are fixed): rebuild it. Synchronized as
+    /// updated (its split planes are fixed): rebuild it. A compacted LBVH or PLOC
+    /// ([`crate::accel::compact`]) is updated as the structure it was compacted from, with
+    /// that structure's update scratch. Synchronized as
     /// [`AccelBuilder::record_build_from`] is ([`RecordSync::build`]): an update in place
     /// after the previous frame's reads needs the same write-after-read barrier.
     ///
@@ -416,7 +441,7 @@ impl AccelBuilder {
         scratch: RawBuffer,
     ) -> Result<()> {
         let call = "AccelBuilder::record_update_from";
-        let input = self.input_of(call, geometries, out)?.clone();
+        let input = self.update_input_of(call, geometries, out)?.clone();
         if self.kind() == AccelKind::KdTree {
             return Err(usage(
                 call,

@@ -25,9 +25,10 @@
 //! - **Traces** (`Tracer::record`): [`RecordSync::TRACE`], compute-shader reads of the
 //!   structure and rays and writes of the hits, with no barrier at the end.
 //! - **Compaction** (`GpuGeometry::record_compact_into`): [`RecordSync::COMPACT`], copies
-//!   (transfer reads of the built structure, transfer writes of the compacted one), ending
-//!   with the barrier a build ends with; its size query (`record_compacted_size`) is a
-//!   status read-back.
+//!   (transfer reads of the built structure, transfer writes of the compacted one) and, for
+//!   an LBVH or PLOC, kernels (compute-shader reads of the built structure and writes of the
+//!   compacted one and of the scratch), ending with the barrier a build ends with; its size
+//!   query (`record_compacted_size`) is a status read-back.
 //! - **The status read-back** (`GpuGeometry::record_read_status`,
 //!   `TopLevel::record_read_status`): [`RecordSync::READ_STATUS`], a copy. Before it, a
 //!   barrier from the build's last (`Recorder::compute_to_transfer`); after it, one from
@@ -106,14 +107,20 @@ impl RecordSync {
         last: COMPUTE_WRITE,
     };
 
-    /// The copy of a built kd-tree into its compacted structure
-    /// (`GpuGeometry::record_compact_into`): copies, then the barrier a build ends with, so
-    /// what it leaves last is what a build leaves.
+    /// The copy of a built structure into its compacted one
+    /// (`GpuGeometry::record_compact_into`): copies, and a BVH's renumbering kernels, then
+    /// the barrier a build ends with, so what it leaves last is what a build leaves.
     pub const COMPACT: Self = Self {
         first: StageAccess {
-            stages: vk::PipelineStageFlags::TRANSFER,
+            stages: vk::PipelineStageFlags::from_raw(
+                vk::PipelineStageFlags::TRANSFER.as_raw()
+                    | vk::PipelineStageFlags::COMPUTE_SHADER.as_raw(),
+            ),
             access: vk::AccessFlags::from_raw(
-                vk::AccessFlags::TRANSFER_READ.as_raw() | vk::AccessFlags::TRANSFER_WRITE.as_raw(),
+                vk::AccessFlags::TRANSFER_READ.as_raw()
+                    | vk::AccessFlags::TRANSFER_WRITE.as_raw()
+                    | vk::AccessFlags::SHADER_READ.as_raw()
+                    | vk::AccessFlags::SHADER_WRITE.as_raw(),
             ),
         },
         last: COMPUTE_WRITE,

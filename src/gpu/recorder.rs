@@ -417,6 +417,31 @@ impl Recorder {
         });
     }
 
+    /// Fills `len` elements of `buffer` from element `at` on with the 32-bit `value` repeated.
+    /// `T` must be a whole number of 32-bit words.
+    pub fn fill_range<T: Pod>(&mut self, buffer: &Buffer<T>, at: usize, len: usize, value: u32) {
+        let elem = std::mem::size_of::<T>();
+        if at + len > buffer.len() || elem % 4 != 0 {
+            let reason = format!(
+                "fill of {len} elements of {elem} bytes from {at} in `{}` ({} elements)",
+                buffer.name(),
+                buffer.len()
+            );
+            self.refuse("Recorder::fill_range", reason);
+            return;
+        }
+        if len == 0 || self.failed.is_some() {
+            return;
+        }
+        // A range of whole 32-bit words inside the buffer (checked above).
+        self.emit(Cmd::Fill {
+            buffer: buffer.raw(),
+            offset: buffer.offset() + (at * elem) as vk::DeviceSize,
+            size: (len * elem) as vk::DeviceSize,
+            value,
+        });
+    }
+
     /// Copies the first `len` elements of `src` into `dst`.
     pub fn copy<T: Pod>(&mut self, src: &Buffer<T>, dst: &Buffer<T>, len: usize) {
         if len > src.len() || len > dst.len() {

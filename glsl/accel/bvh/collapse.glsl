@@ -22,6 +22,18 @@ float half_area(vec3 lo, vec3 hi) {
 
 #ifdef COLLAPSE_NO_DECIDE
 
+#ifdef COLLAPSE_COUNT_LIVE
+// Adds the invocation's node to the live count at `out_refs[at]` (zero before the pass): one
+// atomic per set of invocations that reach it together. Needs `out_refs` (the structure's
+// words), COLLAPSE_COUNT_LIVE and the subgroup extensions.
+void count_live(bool alive, uint at) {
+    uint live_here = subgroupAdd(uint(alive));
+    if (subgroupElect() && live_here > 0u) {
+        atomicAdd(out_refs[at], live_here);
+    }
+}
+#endif
+
 // Whether node `i` lives: neither it nor an ancestor collapsed. Only nodes of at most
 // `max_leaf` primitives can, so the walk up is a few steps. Needs `refs` (references, then
 // parent links from `parents_at` on).

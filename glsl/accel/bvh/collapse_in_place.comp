@@ -5,9 +5,13 @@
 // the scan and the write of accel/bvh/collapse_write.comp. Every invocation copies one
 // reference; every node learns whether it lives, and a live node points each collapsed
 // child at its run — the first reference of its leftmost leaf — as a leaf of the count the
-// cost pass found. Nodes keep their slots: a removed node's parent link becomes VKRT_DEAD.
+// cost pass found. Nodes keep their slots: a removed node's parent link becomes VKRT_DEAD,
+// and the live nodes are counted into the word after the parent links (zero before), where
+// compaction reads how many there are.
 // Only live nodes are written, and the walks below read only removed nodes, costs and
 // parent links: no invocation reads what another writes.
+#extension GL_KHR_shader_subgroup_arithmetic : require
+#extension GL_KHR_shader_subgroup_basic : require
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "include/vkrt/bvh_node.glsl"
@@ -16,8 +20,8 @@ layout(std430, binding = 0) buffer Nodes { VkrtBvhNode nodes[]; };
 // The builder's references, then its parent links from `parents_at` on.
 layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
 layout(std430, binding = 2) readonly buffer Costs { uint costs[]; };
-// The structure's references and parent links.
-layout(std430, binding = 3) writeonly buffer OutRefs { uint out_refs[]; };
+// The structure's references, parent links and live-node count.
+layout(std430, binding = 3) buffer OutRefs { uint out_refs[]; };
 layout(push_constant) uniform Push {
     uint n_nodes;
     uint parents_at;
@@ -25,6 +29,7 @@ layout(push_constant) uniform Push {
 } pc;
 
 #define COLLAPSE_NO_DECIDE
+#define COLLAPSE_COUNT_LIVE
 #include "accel/bvh/collapse.glsl"
 
 // The first reference below `node` in depth-first order (collapse::first_ref): a collapsed
@@ -61,10 +66,12 @@ void main() {
     if (i < pc.parents_at) {
         out_refs[i] = refs[i];
     }
+    bool alive = i < pc.n_nodes && node_lives(i, pc.parents_at, pc.max_leaf);
+    count_live(alive, pc.parents_at + pc.n_nodes);
     if (i >= pc.n_nodes) {
         return;
     }
-    if (!node_lives(i, pc.parents_at, pc.max_leaf)) {
+    if (!alive) {
         out_refs[pc.parents_at + i] = VKRT_DEAD;
         return;
     }

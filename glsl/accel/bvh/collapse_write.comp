@@ -4,7 +4,11 @@
 // reference counts) on — child `a`'s before `b`'s, a collapsed subtree's depth first — and
 // points its leaf children there; a collapsed child becomes a leaf. Nodes keep their slots:
 // a removed node's parent link becomes VKRT_DEAD (the refits and the schedule skip it, the host's
-// copy drops it). Only the references move: read from the builder's copy in scratch.
+// copy drops it, compaction renumbers without it), and the live nodes are counted into the
+// word after the parent links (zero before). Only the references move: read from the
+// builder's copy in scratch.
+#extension GL_KHR_shader_subgroup_arithmetic : require
+#extension GL_KHR_shader_subgroup_basic : require
 layout(local_size_x_id = 0) in;
 #include "common/grid.glsl"
 #include "include/vkrt/bvh_node.glsl"
@@ -20,14 +24,15 @@ layout(std430, binding = 1) readonly buffer Refs { uint refs[]; };
 layout(std430, binding = 2) readonly buffer Costs { uint costs[]; };
 layout(std430, binding = 3) readonly buffer Live { uint live[]; };
 layout(std430, binding = 4) readonly buffer First { uint first_ref[]; };
-// The structure's references and parent links.
-layout(std430, binding = 5) writeonly buffer OutRefs { uint out_refs[]; };
+// The structure's references, parent links and live-node count.
+layout(std430, binding = 5) buffer OutRefs { uint out_refs[]; };
 layout(push_constant) uniform Push {
     uint n_nodes;
     uint parents_at;
 } pc;
 
 #define COLLAPSE_NO_DECIDE
+#define COLLAPSE_COUNT_LIVE
 #include "accel/bvh/collapse.glsl"
 
 // Copies the references below `node` to out_refs[at...], depth first, `a` before `b`: a
@@ -70,6 +75,7 @@ bool relay(inout uint index, inout uint count, inout uint at) {
 
 void main() {
     uint i = linear_invocation_id();
+    count_live(i < pc.n_nodes && live[i] != 0u, pc.parents_at + pc.n_nodes);
     if (i >= pc.n_nodes) {
         return;
     }

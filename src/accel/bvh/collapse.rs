@@ -218,39 +218,13 @@ fn first_ref(bvh: &Bvh, mut node: u32) -> u32 {
 }
 
 /// The nodes and parent links of a device tree without the slots a collapse removed (parent
-/// [`DEAD`]), the rest renumbered in index order: the host form [`collapse`] returns.
+/// [`DEAD`]), the rest renumbered in index order: the host form [`collapse`] returns (and
+/// what compaction makes on the device, [`super::compact::renumber`]).
 pub fn drop_removed(nodes: Vec<BvhNode>, parents: &[u32]) -> (Vec<BvhNode>, Vec<u32>) {
     if !parents.contains(&DEAD) {
         return (nodes, parents.to_vec());
     }
-    let mut index = vec![NO_NODE; nodes.len()];
-    let mut next = 0;
-    for (i, &p) in parents.iter().enumerate() {
-        if p != DEAD {
-            index[i] = next;
-            next += 1;
-        }
-    }
-    let rename = |i: u32| {
-        if i == NO_NODE {
-            NO_NODE
-        } else {
-            index[i as usize]
-        }
-    };
-    let kept = nodes.into_iter().zip(parents).filter(|(_, &p)| p != DEAD);
-    let (mut out, mut out_parents) = (Vec::new(), Vec::new());
-    for (mut node, &parent) in kept {
-        for which in 0..2 {
-            let (bounds, child) = node.child(which);
-            if let Child::Node(c) = child {
-                node.set_child(which, bounds, Child::Node(rename(c)));
-            }
-        }
-        out.push(node);
-        out_parents.push(rename(parent));
-    }
-    (out, out_parents)
+    super::compact::renumber(&nodes, parents)
 }
 
 /// Appends the references below `node` to `refs` from `*at` on, depth first, `a` before `b`.

@@ -6,7 +6,8 @@
 //! (`accel.bvh_collapse_write`). Nodes stay in their slots: a removed node keeps its slot
 //! with the parent link [`DEAD`](super::collapse::DEAD), which the refits and the schedule
 //! skip and the host's copy drops (`AccelStructure::download` renumbers, giving the twin's
-//! compacted tree). The builder writes its references into this scratch
+//! compacted tree); the last pass counts the live nodes into the structure, where
+//! compaction's size query reads them. The builder writes its references into this scratch
 //! ([`CollapseScratch::tree_refs`]). A tree whose references lie in depth-first order (the
 //! LBVH's, [`RefLayout::InPlace`]) skips the flags, the scan and the write: one pass
 //! (`accel.bvh_collapse_in_place`) copies the references as they are and points each
@@ -138,7 +139,9 @@ impl CollapseKernels {
 
     /// Records the collapse of the complete tree in `nodes` and `scratch.tree_refs()`
     /// (`n_prims` references, then `n_prims - 1` parent links) with `params`' costs and leaf
-    /// size: `nodes` in place, the structure's `refs` written as `layout` says. `visits`
+    /// size: `nodes` in place, the structure's `refs` written as `layout` says, and the live
+    /// nodes counted into the word after its parent links, which the caller zeroes before
+    /// (ordered by a transfer → compute barrier). `visits`
     /// holds a zeroed-here counter per node; `decided`: the build decided already (the
     /// LBVH's climb, `LbvhBuilder::record_build`). Only where [`super::collapse::applies`]:
     /// elsewhere the builder writes the structure itself. Ends with a compute → compute
@@ -172,6 +175,16 @@ impl CollapseKernels {
                 reason: format!(
                     "collapse of {n_nodes} nodes, scratch for {}",
                     scratch.max_nodes
+                ),
+            });
+        }
+        if refs.len() <= n_prims + n_nodes {
+            return Err(GpuError::Usage {
+                call: "CollapseKernels::record",
+                reason: format!(
+                    "the structure's words hold {}: {n_prims} references, {n_nodes} parent \
+                     links and the live-node count do not fit",
+                    refs.len()
                 ),
             });
         }

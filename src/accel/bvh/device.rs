@@ -8,6 +8,8 @@ use std::sync::Arc;
 
 use crate::accel::bvh::collapse::{self, RefLayout};
 use crate::accel::bvh::collapse_gpu::{CollapseKernels, CollapseScratch};
+use crate::accel::bvh::compact::BvhSlots;
+use crate::accel::bvh::compact_gpu::{CompactKernels, TreeArrays};
 use crate::accel::bvh::lbvh::MortonBits;
 use crate::accel::bvh::lbvh_gpu::{self, LbvhBuilder};
 use crate::accel::bvh::ploc::PlocParams;
@@ -19,7 +21,11 @@ use crate::accel::bvh::{self, Bvh, BvhNode, BvhParams, Threading};
 use crate::accel::device_primitives::DevicePrimitives;
 use crate::accel::primitives::{SceneInfo, TraceGeometry};
 use crate::accel::sizes::{AccelSizes, RecordedBuild};
-use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, Spec};
+use crate::gpu::placement::{place, Placement};
+use crate::gpu::{
+    kernels, Buffer, BufferArg, Context, GpuError, Kernel, Memory, RawBuffer, Readback, Recorder,
+    Result, Spec,
+};
 use crate::scene::Aabb;
 
 /// Where the LBVH's collapse puts the references: its references lie in Morton order, depth
@@ -73,10 +79,16 @@ pub(crate) struct BvhSettings<'a> {
 /// A BVH in device memory.
 pub(crate) struct BvhStorage {
     nodes: Buffer<BvhNode>,
-    /// References, then one parent link per node.
+    /// References, then one parent link per node slot; for a structure the GPU builders
+    /// build, then the count of live nodes their leaf collapse writes.
     refs: Buffer<u32>,
-    /// Nodes and references of the built tree.
+    /// Node slots and references of the built tree.
     counts: (usize, usize),
+    /// Live nodes of the built tree where the host knows them; `None` where a leaf collapse
+    /// counted them on the device (the word after the parent links).
+    live: Option<usize>,
+    /// The kernels of a compacted copy, prepared when it was created.
+    compaction: Option<Arc<BvhCompaction>>,
     /// The refit's schedule, for a structure built to be updated.
     schedule: Option<Box<RefitSchedule>>,
     /// The 4-wide nodes, one per binary slot, for a structure walked wide: bound in place
@@ -200,7 +212,7 @@ impl BvhFamily {
         };
         let wide = if s.wide { nodes * 64 } else { 0 };
         AccelSizes {
-            structure_bytes: nodes * 64 + wide + (n as u64 + nodes) * 4 + info + schedule,
+            structure_bytes: nodes * 64 + wide + (n as u64 + nodes + 1) * 4 + info + schedule,
             build_scratch_bytes: build_scratch_bytes + schedule_scratch,
             update_scratch_bytes: Some(nodes * 4),
         }
@@ -216,8 +228,11 @@ impl BvhFamily {
         let nodes = bvh_nodes(n);
         Ok(BvhStorage {
             nodes: Buffer::new(ctx, "accel.bvh_nodes", nodes)?,
-            refs: Buffer::new(ctx, "accel.bvh_refs", n + nodes)?,
+            // (and the live-node count a leaf collapse writes)
+            refs: Buffer::new(ctx, "accel.bvh_refs", n + nodes + 1)?,
             counts: (0, 0),
+            live: Some(0),
+            compaction: None,
             schedule: match allow_update {
                 true => Some(Box::new(RefitSchedule::new(ctx, nodes)?)),
                 false => None,
@@ -321,6 +336,7 @@ impl BvhFamily {
                 rec.upload(info, &[constants.walked(s.walk)])?;
                 rec.transfer_to_compute();
                 out.counts = (bvh.nodes.len(), bvh.refs.len());
+                out.live = Some(bvh.nodes.len());
                 RecordedBuild {
                     host_ms: Some(host_ms),
                 }
@@ -337,6 +353,7 @@ impl BvhFamily {
                     false => refs,
                 };
                 out.counts = (n_nodes, n);
+                out.live = out.record_zero_live(rec, collapsing);
                 // One climb builds the topology with its boxes (and the collapse's decisions).
                 let (visits, cs) = (&sc.visits, &sc.collapse);
                 let decide = collapsing.then(|| (cs.costs(), p));
@@ -363,6 +380,7 @@ impl BvhFamily {
                     upload_gpu_bvh_info(rec, prims, info, s.walk)?;
                 }
                 out.counts = (n_nodes, n);
+                out.live = out.record_zero_live(rec, collapse::applies(n, p));
                 if collapse::applies(n, p) {
                     // The references go to the collapse's scratch, and are laid out in `refs`.
                     let tree_refs = sc.collapse.tree_refs();
@@ -462,6 +480,8 @@ impl BvhStorage {
             nodes: Buffer::from_slice(ctx, "accel.bvh_nodes", &bvh.nodes)?,
             refs: Buffer::from_slice(ctx, "accel.bvh_refs", &words)?,
             counts: (bvh.nodes.len(), bvh.refs.len()),
+            live: Some(bvh.nodes.len()),
+            compaction: None,
             schedule: None,
             wide: match wide {
                 true => Some(Buffer::from_slice(ctx, "accel.bvh_wide", bvh.wide())?),
@@ -495,6 +515,161 @@ impl BvhStorage {
         Ok(Some((binary, w)))
     }
 
+    /// Where a leaf collapse counts the live nodes: after the references and parent links.
+    fn live_at(&self) -> usize {
+        self.nodes.len() + self.counts.1
+    }
+
+    /// Zeroes the live-node count where the build records a leaf collapse, which counts
+    /// into it; what [`BvhStorage::live`] is then. After a compute → transfer barrier (the
+    /// last build's count was a kernel's write), before the builders' first fill, whose
+    /// transfer → compute barrier orders it before their kernels.
+    fn record_zero_live(&self, rec: &mut Recorder, collapsing: bool) -> Option<usize> {
+        if !collapsing {
+            return Some(self.counts.0);
+        }
+        rec.compute_to_transfer();
+        rec.fill_range(&self.refs, self.live_at(), 1, 0);
+        None
+    }
+
+    /// Records the read of the built tree's live-node count (where the host does not know
+    /// it: a copy of the collapse's count into host memory). The caller orders the build
+    /// before (`compute_to_transfer`) and the copy before the host's read
+    /// (`transfer_to_host`).
+    pub(crate) fn record_live_count(&self, rec: &mut Recorder) -> Result<LiveCount> {
+        if let Some(live) = self.live {
+            return Ok(LiveCount::Known(live));
+        }
+        let ctx = rec.context().clone();
+        let staging = Buffer::with_memory(&ctx, "staging.readback", 1, Memory::Readback)?;
+        rec.copy_range(&self.refs, self.live_at(), &staging, 0, 1);
+        Ok(LiveCount::Counted(Readback::from_staging(staging)))
+    }
+
+    /// What its compacted copy is made for: node slots, references, schedule, wide nodes.
+    pub(crate) fn compact_shape(&self) -> CompactShape {
+        CompactShape {
+            slots: self.counts.0,
+            refs: self.counts.1,
+            schedule: self.schedule.is_some(),
+            wide: self.wide.is_some(),
+        }
+    }
+
+    /// The storage of a compacted copy of a tree of `shape` holding `live` nodes, with the
+    /// kernels that fill it.
+    pub(crate) fn compacted(ctx: &Context, shape: &CompactShape, live: usize) -> Result<Self> {
+        let slots = live.max(1);
+        Ok(Self {
+            nodes: Buffer::new(ctx, "accel.bvh_nodes", slots)?,
+            refs: Buffer::new(ctx, "accel.bvh_refs", shape.refs + slots)?,
+            counts: (live, shape.refs),
+            live: Some(live),
+            compaction: Some(Arc::new(BvhCompaction::new(ctx)?)),
+            schedule: match shape.schedule {
+                true => Some(Box::new(RefitSchedule::new(ctx, slots)?)),
+                false => None,
+            },
+            wide: match shape.wide {
+                true => Some(Buffer::new(ctx, "accel.bvh_wide", slots)?),
+                false => None,
+            },
+        })
+    }
+
+    /// Records the compaction of this built tree into `dst` ([`BvhStorage::compacted`] with
+    /// its live count), with its scratch placed in the caller's range (none for an empty
+    /// tree): the live nodes renumbered with their references and parent links, the
+    /// schedule renamed, the wide nodes made anew from the compacted ones. Kernels only;
+    /// ends with a compute → compute barrier.
+    pub(crate) fn record_compact_into(
+        &self,
+        rec: &mut Recorder,
+        dst: &BvhStorage,
+        scratch: Option<RawBuffer>,
+    ) -> Result<()> {
+        let call = "GpuGeometry::record_compact_into";
+        let c = dst.compaction.as_ref().ok_or_else(|| GpuError::Usage {
+            call,
+            reason: "the destination is not a compacted structure (create_compacted_in)".into(),
+        })?;
+        let (n_nodes, n_refs) = self.counts;
+        let live = dst.counts.0;
+        let (src_shape, dst_shape) = (self.compact_shape(), dst.compact_shape());
+        let same = (src_shape.schedule, src_shape.wide) == (dst_shape.schedule, dst_shape.wide);
+        if !same || dst.counts.1 != n_refs || live > n_nodes || (n_nodes > 0) != (live > 0) {
+            return Err(GpuError::Usage {
+                call,
+                reason: format!(
+                    "the destination holds {live} nodes over {} references; this tree has \
+                     {n_nodes} node slots over {n_refs}",
+                    dst.counts.1
+                ),
+            });
+        }
+        if n_nodes == 0 {
+            return Ok(());
+        }
+        let scratch = scratch.ok_or_else(|| GpuError::Usage {
+            call,
+            reason: "a BVH's compaction needs scratch of CompactedSize::scratch_bytes".into(),
+        })?;
+        let ctx = rec.context().clone();
+        let (sc, _) = place(
+            &ctx,
+            "the compaction's scratch",
+            Placement::Into(scratch),
+            || c.kernels.scratch(&ctx, n_nodes),
+        )?;
+        let src = TreeArrays {
+            nodes: &self.nodes,
+            refs: &self.refs,
+            schedule: self.schedule.as_ref().map(|s| s.arrays()),
+        };
+        let out = TreeArrays {
+            nodes: &dst.nodes,
+            refs: &dst.refs,
+            schedule: dst.schedule.as_ref().map(|s| s.arrays()),
+        };
+        c.kernels
+            .record(rec, &src, &out, n_nodes, n_refs, live, &sc);
+        if let Some(wide) = &dst.wide {
+            c.widen.record(rec, &dst.nodes, wide, live);
+        }
+        Ok(())
+    }
+
+    /// Bytes of the scratch [`BvhStorage::record_compact_into`] needs for a tree of `shape`.
+    pub(crate) fn compact_scratch_bytes(ctx: &Context, shape: &CompactShape) -> Result<u64> {
+        if shape.slots == 0 {
+            return Ok(0);
+        }
+        let kernels = CompactKernels::new(ctx)?;
+        let (_, bytes) = place(ctx, "the compaction's scratch", Placement::Measure, || {
+            kernels.scratch(ctx, shape.slots)
+        })?;
+        Ok(bytes)
+    }
+
+    /// The node slots, parent links and references as they lie (freed slots included),
+    /// and the live-node count where the device holds it (tests and tools).
+    pub(crate) fn download_slots(&self) -> Result<BvhSlots> {
+        let (n_nodes, n_refs) = self.counts;
+        let mut nodes = self.nodes.download()?;
+        nodes.truncate(n_nodes);
+        let words = self.refs.download()?;
+        Ok(BvhSlots {
+            nodes,
+            parents: words[n_refs..n_refs + n_nodes].to_vec(),
+            refs: words[..n_refs].to_vec(),
+            live: match self.live {
+                Some(live) => live,
+                None => words[self.live_at()] as usize,
+            },
+        })
+    }
+
     /// The tree as the host sees it, without the slots a leaf collapse removed; `bounds`
     /// from the scene constants.
     pub(crate) fn download(&self, bounds: Aabb) -> Result<Bvh> {
@@ -509,6 +684,52 @@ impl BvhStorage {
             refs: all[..n_refs].to_vec(),
             bounds: if n_refs == 0 { Aabb::EMPTY } else { bounds },
             wide: Default::default(),
+        })
+    }
+}
+
+/// The live nodes of a built tree, as [`BvhStorage::record_live_count`] finds them.
+pub(crate) enum LiveCount {
+    /// Known on the host.
+    Known(usize),
+    /// The collapse's count, read back once the work has executed.
+    Counted(Readback<u32>),
+}
+
+impl LiveCount {
+    /// The count. Call only after the recording's work has completed.
+    pub(crate) fn read(self) -> Result<usize> {
+        match self {
+            LiveCount::Known(live) => Ok(live),
+            LiveCount::Counted(words) => Ok(words.read()?[0] as usize),
+        }
+    }
+}
+
+/// What a BVH's compacted copy is made for ([`BvhStorage::compact_shape`]).
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub(crate) struct CompactShape {
+    /// Node slots of the built tree.
+    pub slots: usize,
+    /// References.
+    pub refs: usize,
+    /// With a refit schedule (built to be updated).
+    pub schedule: bool,
+    /// With wide nodes.
+    pub wide: bool,
+}
+
+/// The kernels of a BVH's compaction, and the widening of its wide nodes.
+pub(crate) struct BvhCompaction {
+    kernels: CompactKernels,
+    widen: Widen,
+}
+
+impl BvhCompaction {
+    fn new(ctx: &Context) -> Result<Self> {
+        Ok(Self {
+            kernels: CompactKernels::new(ctx)?,
+            widen: Widen::new(ctx)?,
         })
     }
 }

@@ -2,11 +2,14 @@
 //! ([`layout`]), Sochora's (2013) multithreaded CPU SAH builder ([`sah`]), the refit that follows
 //! moved primitives ([`refit`](mod@refit), CPU twin of the GPU kernel), and a structural validator
 //! with the SAH cost of a built tree ([`validate`]); the GPU builders' LBVH ([`lbvh`]) and
-//! PLOC ([`ploc`]) with the SAH leaf collapse of their trees ([`collapse`]); and the 4-wide
-//! quantized layout every BVH can be walked in ([`wide`]).
+//! PLOC ([`ploc`]) with the SAH leaf collapse of their trees ([`collapse`]) and the compaction
+//! that renumbers a collapsed tree densely ([`compact`]); and the 4-wide quantized layout
+//! every BVH can be walked in ([`wide`]).
 
 pub mod collapse;
 pub mod collapse_gpu;
+pub mod compact;
+pub mod compact_gpu;
 pub(crate) mod device;
 pub mod layout;
 pub mod lbvh;

@@ -48,6 +48,11 @@ impl RefitSchedule {
             levels: Buffer::new(ctx, "accel.refit.levels", LEVEL_WORDS)?,
         })
     }
+
+    /// The node ids sorted by depth, and the per-depth words (counts, starts, dispatches).
+    pub(crate) fn arrays(&self) -> (&Buffer<u32>, &Buffer<u32>) {
+        (&self.order, &self.levels)
+    }
 }
 
 /// Transient scratch of the schedule's build: the depth keys and the sort's.
