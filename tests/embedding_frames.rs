@@ -137,29 +137,7 @@ const TOP_COUNTS: [u32; FRAMES] = [2, 1, 2];
 /// Closest hits through the top level whose handle lies at `handle` (`gpu.handle_probe`):
 /// (t bits, geometry, primitive, instance) per ray.
 fn probe(ctx: &Context, handle: u64, rays: &[Ray]) -> Vec<[u32; 4]> {
-    let kernel = ctx
-        .kernel(
-            &vkrt::gpu::kernels::GPU_HANDLE_PROBE_ADDRESS,
-            &vkrt::gpu::Spec::new().workgroup(64),
-        )
-        .unwrap();
-    let ray_buf = Buffer::from_slice(ctx, "probe.rays", rays).unwrap();
-    let out = Buffer::<[u32; 4]>::zeroed(ctx, "probe.hits", rays.len()).unwrap();
-    let push = [
-        rays.len() as u32,
-        0,
-        handle as u32,
-        (handle >> 32) as u32,
-        0,
-        0,
-    ];
-    let mut rec = Recorder::new(ctx).unwrap();
-    let groups = rec.groups_1d(rays.len() as u64, 64);
-    let b: [&dyn vkrt::gpu::BufferArg; 2] = [&ray_buf, &out];
-    rec.dispatch(&kernel, groups, &b, &push);
-    rec.compute_to_transfer();
-    rec.submit_and_wait().unwrap();
-    out.download().unwrap()
+    common::probe_handle(ctx, handle, rays, 0, 0.0)
 }
 
 fn host_and_context() -> Option<(Host, Context)> {

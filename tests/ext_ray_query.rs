@@ -124,29 +124,7 @@ fn run_shader(
 /// vkrtTrace's closest hits through the same structure (`gpu.handle_probe`): t bits (all
 /// ones for a miss), geometry, primitive, instance.
 fn probe(ctx: &Context, handle: u64, rays: &[Ray], mode: u32) -> Vec<[u32; 4]> {
-    let kernel = ctx
-        .kernel(
-            &vkrt::gpu::kernels::GPU_HANDLE_PROBE_ADDRESS,
-            &Spec::new().workgroup(64),
-        )
-        .unwrap();
-    let ray_buf = Buffer::from_slice(ctx, "probe.rays", rays).unwrap();
-    let out = Buffer::<[u32; 4]>::zeroed(ctx, "probe.hits", rays.len()).unwrap();
-    let push = [
-        rays.len() as u32,
-        mode,
-        handle as u32,
-        (handle >> 32) as u32,
-        0,
-        0,
-    ];
-    let mut rec = Recorder::new(ctx).unwrap();
-    let groups = rec.groups_1d(rays.len() as u64, 64);
-    let b: [&dyn BufferArg; 2] = [&ray_buf, &out];
-    rec.dispatch(&kernel, groups, &b, &push);
-    rec.compute_to_transfer();
-    rec.submit_and_wait().unwrap();
-    out.download().unwrap()
+    common::probe_handle(ctx, handle, rays, mode, 0.0)
 }
 
 fn bottom(ctx: &Context, kind: AccelKind, tris: &[[Vec3; 3]]) -> GpuGeometry {

@@ -278,3 +278,39 @@ pub fn compile_glsl(source: &str, defines: &[&str]) -> Result<Vec<u32>, String> 
     let _ = std::fs::remove_dir_all(&dir);
     spirv
 }
+
+/// vkrtTrace's closest hits through the structure whose handle lies at device address
+/// `handle` (`gpu.handle_probe`), every ray at `time`; `mode` as the probe reads it. Per ray:
+/// t bits (all ones for a miss), geometry, primitive, instance.
+pub fn probe_handle(
+    ctx: &Context,
+    handle: u64,
+    rays: &[vkrt::trace::Ray],
+    mode: u32,
+    time: f32,
+) -> Vec<[u32; 4]> {
+    use vkrt::gpu::{Buffer, BufferArg, Recorder, Spec};
+    let kernel = ctx
+        .kernel(
+            &vkrt::gpu::kernels::GPU_HANDLE_PROBE_ADDRESS,
+            &Spec::new().workgroup(64),
+        )
+        .unwrap();
+    let ray_buf = Buffer::from_slice(ctx, "probe.rays", rays).unwrap();
+    let out = Buffer::<[u32; 4]>::zeroed(ctx, "probe.hits", rays.len()).unwrap();
+    let push = [
+        rays.len() as u32,
+        mode,
+        handle as u32,
+        (handle >> 32) as u32,
+        time.to_bits(),
+        0,
+    ];
+    let mut rec = Recorder::new(ctx).unwrap();
+    let groups = rec.groups_1d(rays.len() as u64, 64);
+    let b: [&dyn BufferArg; 2] = [&ray_buf, &out];
+    rec.dispatch(&kernel, groups, &b, &push);
+    rec.compute_to_transfer();
+    rec.submit_and_wait().unwrap();
+    out.download().unwrap()
+}
