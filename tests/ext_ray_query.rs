@@ -814,6 +814,8 @@ fn compacted(ctx: &Context, g: &GpuGeometry) -> (GpuGeometry, Vec<Buffer<u8>>) {
     )
     .unwrap();
     let mut dst = g.create_compacted_in(ctx, &size, memory.as_raw()).unwrap();
+    // Instances may name it by reference: the copy writes its own handle.
+    dst.enable_references();
     let mut rec = Recorder::new(ctx).unwrap();
     g.record_compact_into(&mut rec, &mut dst, Some(scratch.as_raw()))
         .unwrap();
@@ -870,6 +872,23 @@ fn compacted_levels_answer_as_the_structures_they_were_compacted_from() {
             probe(&ctx, hb, &rays, 0),
             probe(&ctx, ha, &rays, 0),
             "{kind:?}"
+        );
+        // Instances naming the compacted levels by reference, as the driver's name a BLAS by
+        // its address: the reference reaches the copy's own handle, not the original's.
+        let by_reference: Vec<Instance> = instances
+            .iter()
+            .map(|i| Instance {
+                bottom: levels_b[i.bottom as usize].reference().unwrap(),
+                ..*i
+            })
+            .collect();
+        let top_r = top_of(&ctx, &levels_b, &by_reference);
+        let hr = top_r.handle_address();
+        drop(built);
+        assert_eq!(
+            run(&ctx, CLOSEST, hr, &rays, 0, 0xff),
+            want,
+            "{kind:?} by reference"
         );
     }
     common::assert_silent(&ctx);
