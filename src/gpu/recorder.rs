@@ -221,8 +221,9 @@ impl Recorder {
     /// [`Context::set_dispatch_timestamps`] sets the default. Off, a dispatch writes no
     /// timestamp. On, vkrt's own recorder ([`Recorder::new`]) adds a query pool whenever
     /// its pools are full; a caller's ([`Recorder::from_raw`]) keeps the one it sized and
-    /// counts the scopes past it in [`Profile::untimed_scopes`]. Dispatches held back by
-    /// [`Recorder::begin_capture`] are not timed one by one.
+    /// counts the scopes past it in [`Profile::untimed_scopes`]. Dispatches held back to be
+    /// interleaved with others (the builds of a batch, which share barriers) are not timed
+    /// one by one.
     pub fn set_dispatch_timestamps(&mut self, on: bool) {
         self.dispatch_timestamps = on;
         self.scopes.set_growable(on && self.command_pool.is_some());
