@@ -7,7 +7,7 @@
 use std::collections::HashMap;
 use std::ffi::{c_char, CStr};
 use std::mem::ManuallyDrop;
-use std::sync::atomic::{AtomicU64, Ordering};
+use std::sync::atomic::{AtomicBool, AtomicU64, Ordering};
 use std::sync::{Arc, Mutex};
 
 use ash::vk;
@@ -162,6 +162,8 @@ pub(crate) struct Inner {
     /// [`Context::reset_memory_peak`].
     pub(crate) live_bytes: AtomicU64,
     pub(crate) peak_bytes: AtomicU64,
+    /// Whether new recorders time every dispatch ([`Context::set_dispatch_timestamps`]).
+    pub(crate) dispatch_timestamps: AtomicBool,
     messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     sink: Box<MessageSink>,
     pub(crate) owns_device: bool,
@@ -321,11 +323,22 @@ impl Context {
                 objects_created: AtomicU64::new(0),
                 live_bytes: AtomicU64::new(0),
                 peak_bytes: AtomicU64::new(0),
+                dispatch_timestamps: AtomicBool::new(false),
                 messenger,
                 sink,
                 owns_device,
             }),
         })
+    }
+
+    /// Whether recorders made from now on ([`Recorder::new`](super::Recorder::new),
+    /// [`Recorder::from_raw`](super::Recorder::from_raw)) time every dispatch as a scope
+    /// named after its kernel and variant, nested in the pass scopes. Off by default: then a
+    /// dispatch writes no timestamp. On, a recording takes two queries per dispatch, so
+    /// vkrt's own recorders add query pools as they fill (a caller's `from_raw` recorder
+    /// reports the dispatches its capacity left untimed instead).
+    pub fn set_dispatch_timestamps(&self, on: bool) {
+        self.inner.dispatch_timestamps.store(on, Ordering::Relaxed);
     }
 
     /// Queue submissions vkrt made and bytes it read back to the host through this context

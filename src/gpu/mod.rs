@@ -49,7 +49,8 @@ pub use info::{
 };
 pub use kernel::{Kernel, Spec, PUSH_CONSTANT_BYTES};
 pub use profiler::{
-    capture as capture_profiles, write_atomically, PassTime, Profile, DEFAULT_QUERY_CAPACITY,
+    capture as capture_profiles, write_atomically, PassTime, Profile, Spread,
+    DEFAULT_QUERY_CAPACITY,
 };
 pub use recorder::{Readback, RecordCounts, RecordedWork, Recorder};
 pub use shader::{find as find_kernel, kernels, ShaderBlob};

@@ -25,9 +25,15 @@ struct Scope {
 }
 
 /// The recording side: hands out query indices and remembers the scope tree.
+///
+/// Queries live in pools of `capacity` each; query `q` is index `q % capacity` of pool
+/// `q / capacity`. A recorder that may grow ([`ScopeRecorder::wants_pool`]) adds a pool when
+/// the last one is full; one that may not leaves later scopes untimed and counts them.
 pub(crate) struct ScopeRecorder {
-    pub(crate) pool: Option<vk::QueryPool>,
+    pub(crate) pools: Vec<vk::QueryPool>,
     capacity: u32,
+    /// Whether the recorder may add pools while recording.
+    grow: bool,
     next_query: u32,
     scopes: Vec<Scope>,
     open: Vec<usize>,
@@ -40,8 +46,9 @@ pub(crate) struct ScopeRecorder {
 impl ScopeRecorder {
     pub(crate) fn new(pool: Option<vk::QueryPool>, capacity: u32) -> Self {
         Self {
-            pool,
+            pools: pool.into_iter().collect(),
             capacity,
+            grow: false,
             next_query: 0,
             scopes: Vec::new(),
             open: Vec::new(),
@@ -50,8 +57,42 @@ impl ScopeRecorder {
         }
     }
 
+    /// Lets the recorder add pools as they fill ([`ScopeRecorder::add_pool`]).
+    pub(crate) fn set_growable(&mut self, grow: bool) {
+        self.grow = grow;
+    }
+
+    /// Whether the next query needs a pool the recorder should add first.
+    pub(crate) fn wants_pool(&self) -> bool {
+        self.grow && !self.pools.is_empty() && self.next_query >= self.queries_held()
+    }
+
+    /// A further pool of `capacity` queries.
+    pub(crate) fn add_pool(&mut self, pool: vk::QueryPool) {
+        self.pools.push(pool);
+    }
+
+    /// The capacity of each pool.
+    pub(crate) fn pool_capacity(&self) -> u32 {
+        self.capacity
+    }
+
+    fn queries_held(&self) -> u32 {
+        self.capacity.saturating_mul(self.pools.len() as u32)
+    }
+
+    /// The pool and the index in it of query `q`.
+    pub(crate) fn locate(&self, q: u32) -> (vk::QueryPool, u32) {
+        (self.pools[(q / self.capacity) as usize], q % self.capacity)
+    }
+
+    /// Whether scopes are timed at all (the device has timestamps and a pool was made).
+    pub(crate) fn timed(&self) -> bool {
+        !self.pools.is_empty()
+    }
+
     fn take_query(&mut self) -> Option<u32> {
-        (self.pool.is_some() && self.next_query < self.capacity).then(|| {
+        (self.timed() && self.next_query < self.queries_held()).then(|| {
             self.next_query += 1;
             self.next_query - 1
         })
@@ -60,7 +101,7 @@ impl ScopeRecorder {
     /// Opens a scope; returns the query to write a timestamp into, if any.
     pub(crate) fn begin(&mut self, name: &str) -> Option<u32> {
         let begin = self.take_query();
-        if begin.is_none() && self.pool.is_some() {
+        if begin.is_none() && self.timed() {
             self.untimed += 1;
         }
         self.scopes.push(Scope {
@@ -82,7 +123,12 @@ impl ScopeRecorder {
             return None;
         };
         let end = if self.scopes[index].begin.is_some() {
-            self.take_query()
+            let end = self.take_query();
+            if end.is_none() {
+                // Begun but never ended: a scope without a time, counted as one.
+                self.untimed += 1;
+            }
+            end
         } else {
             None
         };
@@ -151,7 +197,7 @@ impl ScopeRecorder {
                  (Recorder::from_raw takes the count)",
                 self.untimed,
                 self.scopes.len(),
-                self.capacity
+                self.queries_held()
             );
         }
         Profile {
@@ -194,15 +240,75 @@ pub struct Profile {
 }
 
 impl Profile {
-    /// Total milliseconds of every scope called `name`.
+    /// Whether scope `i` lies inside another scope of its own name (a dispatch scope named
+    /// like the pass around it): its time is already in that scope's.
+    fn inside_namesake(&self, i: usize) -> bool {
+        let mut up = self.passes[i].parent;
+        while let Some(a) = up {
+            if self.passes[a].name == self.passes[i].name {
+                return true;
+            }
+            up = self.passes[a].parent;
+        }
+        false
+    }
+
+    /// Total milliseconds of every scope called `name` (a scope inside another of the same
+    /// name counted once, with the outer one).
     pub fn ms(&self, name: &str) -> Option<f64> {
-        let times: Vec<f64> = self
-            .passes
-            .iter()
-            .filter(|p| p.name == name)
-            .filter_map(|p| p.ms)
+        let times: Vec<f64> = (0..self.passes.len())
+            .filter(|&i| self.passes[i].name == name && !self.inside_namesake(i))
+            .filter_map(|i| self.passes[i].ms)
             .collect();
         (!times.is_empty()).then(|| times.iter().sum())
+    }
+
+    /// Milliseconds of the scopes called `name` inside each scope called `within`, summed
+    /// per `within` scope, in order: e.g. one pass's time in every sample. A `within` scope
+    /// without a timed `name` inside gives nothing.
+    pub fn ms_within(&self, name: &str, within: &str) -> Vec<f64> {
+        let mut sums: Vec<(usize, f64)> = Vec::new();
+        for (i, p) in self.passes.iter().enumerate() {
+            let (true, Some(ms)) = (p.name == name, p.ms) else {
+                continue;
+            };
+            if self.inside_namesake(i) {
+                continue;
+            }
+            let mut up = self.passes[i].parent;
+            while let Some(a) = up {
+                if self.passes[a].name == within {
+                    match sums.last_mut() {
+                        Some((owner, sum)) if *owner == a => *sum += ms,
+                        _ => sums.push((a, ms)),
+                    }
+                    break;
+                }
+                up = self.passes[a].parent;
+            }
+        }
+        sums.into_iter().map(|(_, ms)| ms).collect()
+    }
+
+    /// The profile without the scopes called `name` and everything inside them, e.g. the
+    /// timed passes without the `warm-up` before them.
+    pub fn without(&self, name: &str) -> Profile {
+        let mut dropped = vec![false; self.passes.len()];
+        let mut kept: Vec<Option<usize>> = vec![None; self.passes.len()];
+        let mut passes = Vec::new();
+        for (i, p) in self.passes.iter().enumerate() {
+            dropped[i] = p.name == name || p.parent.is_some_and(|q| dropped[q]);
+            if !dropped[i] {
+                let mut p = p.clone();
+                p.parent = p.parent.and_then(|q| kept[q]);
+                kept[i] = Some(passes.len());
+                passes.push(p);
+            }
+        }
+        Profile {
+            passes,
+            untimed_scopes: self.untimed_scopes,
+        }
     }
 
     /// The scopes nested inside the last scope called `name` (that scope included), e.g.
@@ -272,6 +378,41 @@ impl Profile {
     pub fn write_chrome_trace(&self, path: &Path) -> Result<()> {
         let text = serde_json::to_string_pretty(&self.chrome_trace()).expect("JSON of plain data");
         write_atomically(path, text.as_bytes())
+    }
+}
+
+/// Count, median and range of repeated measurements (e.g. one pass over the samples).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Serialize)]
+pub struct Spread {
+    /// How many measurements.
+    pub count: usize,
+    /// Their median (the mean of the middle two for an even count).
+    pub median: f64,
+    /// The smallest.
+    pub min: f64,
+    /// The largest.
+    pub max: f64,
+}
+
+impl Spread {
+    /// The spread of `values` (all zero when there are none).
+    pub fn of(values: &[f64]) -> Self {
+        if values.is_empty() {
+            return Self::default();
+        }
+        let mut v = values.to_vec();
+        v.sort_by(f64::total_cmp);
+        let n = v.len();
+        let median = match n % 2 {
+            1 => v[n / 2],
+            _ => (v[n / 2 - 1] + v[n / 2]) / 2.0,
+        };
+        Self {
+            count: n,
+            median,
+            min: v[0],
+            max: v[n - 1],
+        }
     }
 }
 

@@ -46,6 +46,10 @@ pub struct Recorder {
     counts: RecordCounts,
     /// Commands held back instead of recorded ([`Recorder::begin_capture`]).
     capture: Option<Vec<Cmd>>,
+    /// Whether every dispatch is a timed scope of its own ([`Recorder::set_dispatch_timestamps`]).
+    dispatch_timestamps: bool,
+    /// Whether dispatches are recorded empty ([`Recorder::warm_up`]).
+    warming: bool,
 }
 
 /// Commands a recorder has recorded ([`Recorder::counts`]): what a batched call saves, for
@@ -186,26 +190,85 @@ impl Recorder {
     ) -> Result<Self> {
         let query_pool = create_query_pool(&ctx.inner.device, queries, ctx.info().timestamps)?;
         ctx.inner.created(query_pool.is_some() as u64);
+        let dispatch_timestamps = ctx
+            .inner
+            .dispatch_timestamps
+            .load(std::sync::atomic::Ordering::Relaxed);
+        let mut scopes = ScopeRecorder::new(query_pool, queries);
+        // Only vkrt's own command buffer, and only when every dispatch is timed, adds query
+        // pools while recording: a caller's recording creates no Vulkan object of its own
+        // beyond the pool it sized.
+        scopes.set_growable(dispatch_timestamps && command_pool.is_some());
         Ok(Self {
             ctx: ctx.clone(),
             cmd,
             command_pool,
             descriptor_pools: SetPools::default(),
             cache,
-            scopes: ScopeRecorder::new(query_pool, queries),
+            scopes,
             staging: Vec::new(),
             failed: None,
             views: Default::default(),
             counts: RecordCounts::default(),
             capture: None,
+            dispatch_timestamps,
+            warming: false,
         })
+    }
+
+    /// Times every dispatch recorded from now on as a scope named after its kernel (and
+    /// variant), nested in the open pass scopes; the context's
+    /// [`Context::set_dispatch_timestamps`] sets the default. Off, a dispatch writes no
+    /// timestamp. On, vkrt's own recorder ([`Recorder::new`]) adds a query pool whenever
+    /// its pools are full; a caller's ([`Recorder::from_raw`]) keeps the one it sized and
+    /// counts the scopes past it in [`Profile::untimed_scopes`]. Dispatches held back to be
+    /// interleaved with others (the builds of a batch, which share barriers) are not timed
+    /// one by one.
+    pub fn set_dispatch_timestamps(&mut self, on: bool) {
+        self.dispatch_timestamps = on;
+        self.scopes.set_growable(on && self.command_pool.is_some());
+    }
+
+    /// Records `f` with every dispatch emptied (zero workgroups) and every fill, copy and
+    /// update left out, inside a scope named `warm-up`: each pipeline `f` binds is
+    /// dispatched once without touching memory. A driver that compiles a pipeline's code
+    /// at its first dispatch (lavapipe's JIT) compiles it here, so the passes timed after
+    /// it measure the kernels alone.
+    pub fn warm_up<R>(&mut self, f: impl FnOnce(&mut Self) -> R) -> R {
+        self.begin_scope("warm-up");
+        let was = std::mem::replace(&mut self.warming, true);
+        let r = f(self);
+        self.warming = was;
+        self.end_scope();
+        r
+    }
+
+    /// Adds a query pool when the recorder may grow and its pools are full; a failure to
+    /// make one leaves the following scopes untimed (counted and reported, not fatal).
+    fn reserve_query(&mut self) {
+        if !self.scopes.wants_pool() {
+            return;
+        }
+        let capacity = self.scopes.pool_capacity();
+        match create_query_pool(&self.ctx.inner.device, capacity, true) {
+            Ok(Some(pool)) => {
+                self.ctx.inner.created(1);
+                self.scopes.add_pool(pool);
+            }
+            Ok(None) => {}
+            Err(e) => {
+                log::warn!("no further timestamp query pool: {e}");
+                self.scopes.set_growable(false);
+            }
+        }
     }
 
     /// Resets query `q` and writes the timestamp into it. Each query is reset as it is
     /// used, not the whole pool up front: the validation layer (1.3.239) keeps state for
     /// every query a command buffer resets and does not release it with the pool — a
     /// whole-pool reset of 32,768 queries grew the process by 4.6 MB per recorder.
-    fn write_timestamp(&self, pool: vk::QueryPool, q: u32) {
+    fn write_timestamp(&self, q: u32) {
+        let (pool, q) = self.scopes.locate(q);
         let device = &self.ctx.inner.device;
         // SAFETY: recording outside a render pass; `q` is below the pool's capacity.
         unsafe {
@@ -262,8 +325,8 @@ impl Recorder {
         if !self.bind(kernel, buffers, bytemuck::bytes_of(push)) {
             return;
         }
-        self.label_dispatch(kernel);
-        self.emit(Cmd::Dispatch(groups));
+        let groups = if self.warming { [0, 1, 1] } else { groups };
+        self.timed_dispatch(kernel, Cmd::Dispatch(groups));
     }
 
     /// Like [`Recorder::dispatch`], with the workgroup counts read from `indirect` at byte
@@ -285,11 +348,28 @@ impl Recorder {
         if !self.bind(kernel, buffers, bytemuck::bytes_of(push)) {
             return;
         }
-        self.label_dispatch(kernel);
-        self.emit(Cmd::DispatchIndirect {
-            buffer: indirect.raw(),
-            offset: indirect.offset() + offset,
-        });
+        let dispatch = match self.warming {
+            // Empty and direct: the counts may not have been written yet.
+            true => Cmd::Dispatch([0, 1, 1]),
+            false => Cmd::DispatchIndirect {
+                buffer: indirect.raw(),
+                offset: indirect.offset() + offset,
+            },
+        };
+        self.timed_dispatch(kernel, dispatch);
+    }
+
+    /// Records a dispatch, labelled with its kernel or, with dispatch timestamps on (and not
+    /// held back by a capture), inside a scope of that name.
+    fn timed_dispatch(&mut self, kernel: &Kernel, dispatch: Cmd) {
+        if self.dispatch_timestamps && self.capture.is_none() {
+            self.begin_scope(kernel.name());
+            self.emit(dispatch);
+            self.end_scope();
+        } else {
+            self.label_dispatch(kernel);
+            self.emit(dispatch);
+        }
     }
 
     /// A debug label naming the kernel (and its variant) at each dispatch, where the
@@ -604,6 +684,15 @@ impl Recorder {
 
     /// Records `cmd`, or holds it back while capturing.
     fn emit(&mut self, cmd: Cmd) {
+        if self.warming
+            && matches!(
+                cmd,
+                Cmd::Fill { .. } | Cmd::Copy { .. } | Cmd::Update { .. }
+            )
+        {
+            // A warm-up touches no memory.
+            return;
+        }
         match &mut self.capture {
             Some(held) => held.push(cmd),
             None => self.record(&cmd),
@@ -825,6 +914,7 @@ impl Recorder {
         if self.capture.is_some() {
             return;
         }
+        self.reserve_query();
         let query = self.scopes.begin(name);
         if let Some(du) = &self.ctx.inner.debug_utils {
             let label_name = std::ffi::CString::new(name.replace('\0', " ")).unwrap_or_default();
@@ -832,8 +922,8 @@ impl Recorder {
             // SAFETY: recording; the instance has VK_EXT_debug_utils.
             unsafe { du.cmd_begin_debug_utils_label(self.cmd, &label) };
         }
-        if let (Some(pool), Some(q)) = (self.scopes.pool, query) {
-            self.write_timestamp(pool, q);
+        if let Some(q) = query {
+            self.write_timestamp(q);
         }
     }
 
@@ -847,9 +937,10 @@ impl Recorder {
             self.scopes.end();
             return;
         }
+        self.reserve_query();
         let query = self.scopes.end();
-        if let (Some(pool), Some(q)) = (self.scopes.pool, query) {
-            self.write_timestamp(pool, q);
+        if let Some(q) = query {
+            self.write_timestamp(q);
         }
         if let Some(du) = &self.ctx.inner.debug_utils {
             // SAFETY: recording; a label was begun in begin_scope.
@@ -959,20 +1050,25 @@ impl Recorder {
 
     fn read_profile(&self) -> Result<Profile> {
         let used = self.scopes.queries_used();
-        let Some(pool) = self.scopes.pool.filter(|_| used > 0) else {
+        if used == 0 || !self.scopes.timed() {
             return Ok(self.scopes.untimed());
-        };
-        let mut ticks = vec![0u64; used as usize];
-        // SAFETY: the work writing these queries has completed; `ticks` holds `used` u64s.
-        unsafe {
-            self.ctx.inner.device.get_query_pool_results(
-                pool,
-                0,
-                &mut ticks,
-                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
-            )
         }
-        .map_err(vk_err("vkGetQueryPoolResults"))?;
+        let mut ticks = vec![0u64; used as usize];
+        let per_pool = self.scopes.pool_capacity() as usize;
+        for (i, chunk) in ticks.chunks_mut(per_pool).enumerate() {
+            let (pool, _) = self.scopes.locate((i * per_pool) as u32);
+            // SAFETY: the work writing these queries (the first `chunk.len()` of this pool)
+            // has completed; `chunk` holds that many u64s.
+            unsafe {
+                self.ctx.inner.device.get_query_pool_results(
+                    pool,
+                    0,
+                    chunk,
+                    vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+                )
+            }
+            .map_err(vk_err("vkGetQueryPoolResults"))?;
+        }
         let bits = super::info::timestamp_bits(
             &self.ctx.inner.instance,
             self.ctx.inner.physical_device,
@@ -1018,7 +1114,7 @@ impl Drop for RecordedWork {
             // forgotten with their memory (and, as each holds a clone, the context).
             r.descriptor_pools.leak();
             r.views.leak();
-            r.scopes.pool = None;
+            r.scopes.pools.clear();
             std::mem::forget(std::mem::take(&mut r.staging));
             // A shared cache must outlive the sets this command buffer binds.
             std::mem::forget(r.cache.take());
@@ -1036,7 +1132,7 @@ impl Drop for Recorder {
         unsafe {
             self.descriptor_pools.destroy(device);
             self.views.destroy(device);
-            if let Some(pool) = self.scopes.pool.take() {
+            for pool in self.scopes.pools.drain(..) {
                 device.destroy_query_pool(pool, None);
             }
             if let Some(pool) = self.command_pool.take() {

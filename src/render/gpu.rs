@@ -464,11 +464,21 @@ impl Renderer {
         let mut wave_pixels = plan.wave_pixels;
         let mut redone_samples = 0;
         let mut sample = 0;
+        let mut warmed = false;
         while sample < plan.spp {
             let mut rec = match pending.take() {
                 Some(rec) => rec,
                 None => Recorder::new(ctx)?,
             };
+            if !warmed {
+                // Every kernel of a sample and the tone map, dispatched empty before the
+                // first timed sample: their code is compiled here, not inside sample 0.
+                rec.warm_up(|rec| {
+                    self.record_sample(rec, &f, plan, wave_pixels, sample, false);
+                    self.record_tonemap(rec, &f, plan);
+                });
+                warmed = true;
+            }
             self.record_sample(&mut rec, &f, plan, wave_pixels, sample, true);
             rec.compute_to_transfer();
             let built = match build_ms {

@@ -350,6 +350,9 @@ pub struct PassReport {
     pub rays: u64,
     /// GPU milliseconds of the pass over every sample (timestamps).
     pub ms: f64,
+    /// The pass's milliseconds per sample: count, median and range (the tone map: its one
+    /// run). Compilation is not in them: it runs in the `warm-up` scope before sample 0.
+    pub per_sample: crate::gpu::Spread,
 }
 
 /// A finished render with everything `vkrt render --json` reports.
@@ -364,6 +367,9 @@ pub struct Rendered {
     pub render_ms: f64,
     /// Every pass of the plan, in order.
     pub passes: Vec<PassReport>,
+    /// GPU milliseconds of the warm-up before the first sample: the kernels' dispatches on
+    /// empty grids, where a driver compiling at first dispatch compiles them.
+    pub warm_up_ms: f64,
 }
 
 impl Rendered {
@@ -469,7 +475,9 @@ fn render_prepared(
     let renderer = gpu::Renderer::new(ctx, &plan, trace)?;
     let spp = plan.spp;
     let image = renderer.render_owned(ctx, rs, &plan, |done| progress(done, spp))?;
-    let ms = |n: &str| image.profile.ms(n).unwrap_or(0.0);
+    let warm_up_ms = image.profile.ms("warm-up").unwrap_or(0.0);
+    let timed = image.profile.without("warm-up");
+    let ms = |n: &str| timed.ms(n).unwrap_or(0.0);
     let c = image.counts;
     let traced = c.primary + c.secondary();
     let passes = plan
@@ -485,10 +493,15 @@ fn render_prepared(
                 _ => 0,
             },
             ms: ms(&format!("render.{name}")),
+            per_sample: crate::gpu::Spread::of(&match name {
+                "tonemap" => timed.ms("render.tonemap").into_iter().collect(),
+                _ => timed.ms_within(&format!("render.{name}"), "render.sample"),
+            }),
         })
         .collect();
     let render_ms = ms("render.sample") + ms("render.tonemap");
     Ok(Rendered {
+        warm_up_ms,
         plan,
         build_ms: image.build_ms.unwrap_or(0.0),
         image,

@@ -44,6 +44,10 @@ pub struct RenderArgs {
     /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
     #[arg(long)]
     profile: Option<PathBuf>,
+    /// Time every dispatch too, as a scope named after its kernel inside its pass (in the
+    /// trace; costs two timestamp queries per dispatch).
+    #[arg(long)]
+    profile_dispatches: bool,
 }
 
 pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
@@ -60,6 +64,7 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
         structure,
         json,
         profile,
+        profile_dispatches,
     } = args;
     let opt = vkrt::render::RenderOptions {
         width,
@@ -105,6 +110,7 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
     }
     let triangles = scene.triangle_count();
     let ctx = context(validate)?;
+    ctx.set_dispatch_timestamps(profile_dispatches);
     let trace = vkrt::trace::TraceOptions {
         intersector: intersector.into(),
         ..Default::default()
@@ -156,6 +162,7 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
             "readback_bytes": r.image.readback_before_trace,
             "readback_bytes_total": r.image.traffic.readback_bytes,
             "passes": r.passes,
+            "warm_up_ms": r.warm_up_ms,
             "effects": p.effects,
             "mrays_per_s": r.mrays_per_s(),
             "rays": r.image.counts,
@@ -183,12 +190,21 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
             r.render_ms,
             r.mrays_per_s()
         );
+        println!(
+            "  {:<11} {:>12}      {:>10} {:>6} {:>10} {:>19}",
+            "pass", "rays", "total", "runs", "median", "min-max"
+        );
         for pass in &r.passes {
+            let s = pass.per_sample;
             println!(
-                "  {:<11} {:>12} rays {:>10.1} ms",
-                pass.name, pass.rays, pass.ms
+                "  {:<11} {:>12} rays {:>7.1} ms {:>6} {:>7.2} ms {:>8.2}-{:<7.2} ms",
+                pass.name, pass.rays, pass.ms, s.count, s.median, s.min, s.max
             );
         }
+        println!(
+            "  {:<11} {:>12}      {:>7.1} ms (kernels dispatched empty before sample 0)",
+            "warm-up", "", r.warm_up_ms
+        );
     }
     Ok(())
 }

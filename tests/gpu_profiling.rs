@@ -1,0 +1,214 @@
+//! Fine-grained profiling on the test device, under validation: per-dispatch timestamps
+//! named after their kernels, the warm-up scope, query pools that grow or report running
+//! out, and the statistics the render table prints.
+
+mod common;
+
+use common::{assert_silent, context};
+use glam::Vec3;
+use vkrt::accel::device::{AccelBuilder, AccelKind};
+use vkrt::accel::gpu_geometry::GpuGeometry;
+use vkrt::accel::primitives::TraceGeometry;
+use vkrt::gpu::{kernels, Buffer, Context, PassTime, Profile, Recorder, Spec, Spread};
+
+/// Push constants of `glsl/gpu/saxpy.comp` (keep in sync).
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct SaxpyPush {
+    a: f32,
+    n: u32,
+}
+
+fn triangles(n: usize) -> TraceGeometry {
+    let tris: Vec<[Vec3; 3]> = (0..n)
+        .map(|i| {
+            let c = Vec3::new((i % 17) as f32, (i / 17) as f32, (i % 5) as f32);
+            [c, c + Vec3::X, c + Vec3::Y]
+        })
+        .collect();
+    TraceGeometry::from_triangles_and_spheres(&tris, &[])
+}
+
+/// An LBVH build in one submission: its profile and how many dispatches it recorded.
+fn lbvh_build(ctx: &Context, g: &TraceGeometry, per_dispatch: bool) -> (Profile, u64) {
+    let builder = AccelBuilder::new(ctx, AccelKind::Lbvh).unwrap();
+    let mut rec = Recorder::new(ctx).unwrap();
+    rec.set_dispatch_timestamps(per_dispatch);
+    let _built = GpuGeometry::record_build(&mut rec, &builder, g, 0).unwrap();
+    let dispatches = rec.counts().dispatches;
+    (rec.submit_and_wait().unwrap(), dispatches)
+}
+
+#[test]
+fn every_dispatch_of_a_build_is_a_timed_scope_named_after_its_kernel() {
+    let Some(ctx) = context() else { return };
+    if !ctx.info().timestamps {
+        eprintln!("skipped: device has no timestamps");
+        return;
+    }
+    let g = triangles(300);
+    let (off, dispatches) = lbvh_build(&ctx, &g, false);
+    let (on, dispatches_on) = lbvh_build(&ctx, &g, true);
+    assert_eq!(dispatches, dispatches_on);
+    assert!(dispatches > 0);
+    let kernel_names: Vec<&str> = kernels::ALL.iter().map(|b| b.name).collect();
+    // The timed build has the untimed build's scopes and one more per dispatch, named
+    // after its kernel, each inside a pass scope with a time of its own.
+    let mut extra: std::collections::HashMap<&str, i64> = Default::default();
+    for p in &on.passes {
+        *extra.entry(p.name.as_str()).or_default() += 1;
+    }
+    for p in &off.passes {
+        *extra.entry(p.name.as_str()).or_default() -= 1;
+    }
+    assert!(extra.values().all(|&n| n >= 0), "a pass scope went missing");
+    assert_eq!(
+        extra.values().sum::<i64>() as u64,
+        dispatches,
+        "one scope per dispatch"
+    );
+    for (name, n) in &extra {
+        if *n > 0 {
+            assert!(kernel_names.contains(name), "`{name}` is no kernel's name");
+        }
+    }
+    let dispatch_scopes = on
+        .passes
+        .iter()
+        .filter(|p| kernel_names.contains(&p.name.as_str()) && extra[p.name.as_str()] > 0);
+    for d in dispatch_scopes {
+        assert!(d.ms.is_some(), "`{}` has no time", d.name);
+        assert!(d.parent.is_some(), "`{}` is in no pass", d.name);
+    }
+    assert_eq!(on.untimed_scopes, 0);
+    // A pass's total is its own time, however its dispatches are named.
+    for name in ["build", "levels"] {
+        if let (Some(a), Some(b)) = (on.ms(name), off.ms(name)) {
+            assert!(a > 0.0 && b > 0.0);
+        }
+    }
+    assert_silent(&ctx);
+}
+
+fn saxpy(ctx: &Context, rec: &mut Recorder, x: &Buffer<f32>, y: &Buffer<f32>) {
+    let kernel = ctx
+        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
+        .unwrap();
+    let n = x.len() as u32;
+    let groups = rec.groups_1d(u64::from(n), kernel.invocations());
+    rec.dispatch(&kernel, groups, &[x, y], &SaxpyPush { a: 1.0, n });
+}
+
+#[test]
+fn a_warm_up_dispatches_empty_and_writes_nothing() {
+    let Some(ctx) = context() else { return };
+    let x = Buffer::from_slice(&ctx, "warm.x", &[1.0f32; 256]).unwrap();
+    let y = Buffer::from_slice(&ctx, "warm.y", &[1.0f32; 256]).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    rec.warm_up(|rec| {
+        saxpy(&ctx, rec, &x, &y);
+        rec.fill(&y, 7);
+        rec.compute_to_compute();
+    });
+    assert_eq!(rec.counts().dispatches, 1);
+    rec.scope("timed", |rec| saxpy(&ctx, rec, &x, &y));
+    rec.compute_to_transfer();
+    let profile = rec.submit_and_wait().unwrap();
+    // Only the timed dispatch ran: y = 1 + 1.
+    assert!(y.download().unwrap().iter().all(|&v| v == 2.0));
+    let names: Vec<&str> = profile.passes.iter().map(|p| p.name.as_str()).collect();
+    assert_eq!(names, ["warm-up", "timed"]);
+    assert_eq!(profile.without("warm-up").passes.len(), 1);
+    assert_silent(&ctx);
+}
+
+#[test]
+fn running_out_of_queries_is_reported_and_pools_grow_when_dispatches_are_timed() {
+    let Some(ctx) = context() else { return };
+    if !ctx.info().timestamps {
+        eprintln!("skipped: device has no timestamps");
+        return;
+    }
+    let x = Buffer::from_slice(&ctx, "q.x", &[1.0f32; 64]).unwrap();
+    let y = Buffer::from_slice(&ctx, "q.y", &[0.0f32; 64]).unwrap();
+    // Without per-dispatch timestamps a recorder keeps its one pool of 32,768 queries
+    // (16,384 scopes): the scopes past it are counted untimed, never silently dropped.
+    let scopes = vkrt::gpu::DEFAULT_QUERY_CAPACITY as usize / 2 + 16;
+    let mut rec = Recorder::new(&ctx).unwrap();
+    for _ in 0..scopes {
+        rec.begin_scope("pass");
+        rec.end_scope();
+    }
+    let profile = rec.submit_and_wait().unwrap();
+    assert_eq!(profile.passes.len(), scopes);
+    assert_eq!(profile.untimed_scopes, 16, "{:?}", profile.passes.last());
+    assert_eq!(profile.passes.iter().filter(|p| p.ms.is_none()).count(), 16);
+
+    // vkrt's own recorder with every dispatch timed adds pools past the first's 32,768
+    // queries instead: 20,000 dispatches, 40,000 queries, all timed.
+    let mut rec = Recorder::new(&ctx).unwrap();
+    rec.set_dispatch_timestamps(true);
+    let kernel = ctx
+        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
+        .unwrap();
+    for _ in 0..20_000 {
+        rec.dispatch(&kernel, [0, 1, 1], &[&x, &y], &SaxpyPush { a: 1.0, n: 64 });
+    }
+    let profile = rec.submit_and_wait().unwrap();
+    assert_eq!(profile.passes.len(), 20_000);
+    assert_eq!(profile.untimed_scopes, 0);
+    assert!(profile.passes.iter().all(|p| p.ms.is_some()));
+    assert_silent(&ctx);
+}
+
+fn pass(name: &str, depth: u32, parent: Option<usize>, ms: f64) -> PassTime {
+    PassTime {
+        name: name.into(),
+        depth,
+        parent,
+        start_ms: Some(0.0),
+        ms: Some(ms),
+    }
+}
+
+#[test]
+fn per_sample_statistics_of_a_synthetic_profile() {
+    // warm-up { sample { camera 9 } }, then three samples: camera 1+1, 4, 3 (the first in
+    // two waves, the last with a dispatch scope named like its pass inside).
+    let profile = Profile {
+        passes: vec![
+            pass("warm-up", 0, None, 9.0),
+            pass("render.sample", 1, Some(0), 9.0),
+            pass("render.camera", 2, Some(1), 9.0),
+            pass("render.sample", 0, None, 5.0),
+            pass("render.camera", 1, Some(3), 1.0),
+            pass("render.camera", 1, Some(3), 1.0),
+            pass("render.sample", 0, None, 5.0),
+            pass("render.camera", 1, Some(6), 4.0),
+            pass("render.sample", 0, None, 5.0),
+            pass("render.camera", 1, Some(8), 3.0),
+            pass("render.camera", 2, Some(9), 2.5),
+        ],
+        untimed_scopes: 0,
+    };
+    let timed = profile.without("warm-up");
+    assert_eq!(timed.passes.len(), 8);
+    assert_eq!(timed.passes[1].parent, Some(0));
+    assert_eq!(timed.passes[7].parent, Some(6));
+    assert_eq!(timed.ms("render.camera"), Some(9.0));
+    assert_eq!(profile.ms("render.camera"), Some(18.0));
+    let per = timed.ms_within("render.camera", "render.sample");
+    assert_eq!(per, [2.0, 4.0, 3.0]);
+    let s = Spread::of(&per);
+    assert_eq!(
+        s,
+        Spread {
+            count: 3,
+            median: 3.0,
+            min: 2.0,
+            max: 4.0
+        }
+    );
+    assert_eq!(Spread::of(&[4.0, 1.0, 3.0, 2.0]).median, 2.5);
+    assert_eq!(Spread::of(&[]).count, 0);
+}
