@@ -11,7 +11,7 @@ use std::fmt;
 use serde::{Deserialize, Serialize};
 
 use vkrt::accel::device::AccelKind;
-use vkrt::accel::walk::{NodeAccess, Traversal};
+use vkrt::accel::walk::{AccelChoice, NodeAccess, Traversal};
 use vkrt::gpu::{Buffer, Context, Recorder, Result};
 use vkrt::prims::scan::{Scan, ScanInput, ScanOp};
 use vkrt::prims::PrimConfig;
@@ -26,6 +26,9 @@ pub const SCHEMA: u32 = 1;
 
 /// Bytes a traced ray moves at least: the ray in (8 floats) and its hit out (4 words).
 const BYTES_PER_RAY: u64 = 48;
+/// Traces of each walk in each round of [`measure`] (a trace is short: more repetitions
+/// cost little and steady its best).
+const TRACE_REPS: u32 = 3;
 /// Bytes a triangle's input holds (three vertices of three floats).
 const BYTES_PER_TRIANGLE: u64 = 36;
 
@@ -36,7 +39,7 @@ pub struct HistoryOptions {
     pub size: u32,
     /// Elements of the scan (u32); the copy baseline moves `4 * scan_n` bytes.
     pub scan_n: u64,
-    /// Repetitions of each build, trace, scan and copy; the best is kept.
+    /// Rounds of the whole set; each item keeps its best over the rounds.
     pub reps: u32,
 }
 
@@ -45,7 +48,7 @@ impl Default for HistoryOptions {
         Self {
             size: 128,
             scan_n: 1 << 22,
-            reps: 3,
+            reps: 5,
         }
     }
 }
@@ -125,22 +128,11 @@ pub struct HistoryRun {
 }
 
 /// Measures the fixed set over `scene` (see the module docs); `date` and `commit` are the
-/// caller's.
+/// caller's. The repetitions are rounds, each measuring every item once (a trace
+/// [`TRACE_REPS`] times), and each item keeps its best over the rounds: a burst of other
+/// work on a shared machine slows one round of everything rather than every repetition of
+/// one item, and the copy baseline is measured in every round alike.
 pub fn measure(ctx: &Context, scene: &BenchScene, opt: &HistoryOptions) -> Result<HistoryRun> {
-    let reps = opt.reps.max(1);
-    let (baselines, _) = copy_baselines(ctx, 4 * opt.scan_n.max(32), reps)?;
-    let best = baselines
-        .best_kernel()
-        .expect("every device runs the u32 copy kernel");
-    let copy = CopyBaseline {
-        kernel: best.method.clone(),
-        bytes: best.bytes,
-        ms: best.gpu_ms,
-    };
-    let mut metrics = BTreeMap::new();
-    let scan_ms = scan_ms(ctx, (copy.bytes / 4) as usize, reps)?;
-    metrics.insert("scan.u32".into(), Metric::new(scan_ms, copy.ms));
-
     let g = &scene.geometry;
     let triangles = g.triangle_count() as u64;
     let set = RaySet {
@@ -148,34 +140,56 @@ pub fn measure(ctx: &Context, scene: &BenchScene, opt: &HistoryOptions) -> Resul
         rays: scene.primary_rays(opt.size),
     };
     let rays = set.rays.len() as u64;
-    let build_base = copy.ms_for(triangles * BYTES_PER_TRIANGLE);
-    let trace_base = copy.ms_for(rays * BYTES_PER_RAY);
     let access = NodeAccess::for_device(ctx);
-    let (mut vkrt_best, mut driver_ms) = (f64::INFINITY, None);
-    for (structure, walks) in structures(ctx) {
-        if structure.kind == AccelKind::Driver && structure.prefer == Prefer::FastBuild {
-            continue;
+    let structures: Vec<_> = structures(ctx)
+        .into_iter()
+        .filter(|(s, _)| !(s.kind == AccelKind::Driver && s.prefer == Prefer::FastBuild))
+        .collect();
+    let mut copy: Option<CopyBaseline> = None;
+    let mut scan_ms = f64::INFINITY;
+    // (name, best ms) of the builds and of the traces, in the order measured.
+    let mut builds: Vec<(&str, f64)> = Vec::new();
+    let mut traces: Vec<(AccelChoice, f64)> = Vec::new();
+    for _ in 0..opt.reps.max(1) {
+        let c = best_copy(ctx, 4 * opt.scan_n.max(32), 1)?;
+        scan_ms = scan_ms.min(self::scan_ms(ctx, (c.bytes / 4) as usize, 1)?);
+        if copy.as_ref().is_none_or(|best| c.ms < best.ms) {
+            copy = Some(c);
         }
-        let (geom, build_ms) = best_build(ctx, structure, g, reps)?;
-        let gpu_built = matches!(
-            structure.kind,
-            AccelKind::KdTree | AccelKind::Lbvh | AccelKind::Ploc
-        );
-        if gpu_built && structure.walk != Traversal::Wide {
-            let name = format!("build.{}", structure.kind.name());
-            metrics.insert(name, Metric::new(build_ms, build_base));
-        }
-        for walk in walks {
-            let (_, ms, _) = best_trace(ctx, walk, access, &geom, &set, reps)?;
-            metrics.insert(
-                format!("trace.{}", walk.label()),
-                Metric::new(ms, trace_base),
+        for (structure, walks) in &structures {
+            let (geom, build_ms) = best_build(ctx, *structure, g, 1)?;
+            let gpu_built = matches!(
+                structure.kind,
+                AccelKind::KdTree | AccelKind::Lbvh | AccelKind::Ploc
             );
-            if walk.kind == AccelKind::Driver {
-                driver_ms = Some(ms);
-            } else {
-                vkrt_best = vkrt_best.min(ms);
+            if gpu_built && structure.walk != Traversal::Wide {
+                keep_best(&mut builds, structure.kind.name(), build_ms);
             }
+            for &walk in walks {
+                let (_, ms, _) = best_trace(ctx, walk, access, &geom, &set, TRACE_REPS)?;
+                keep_best(&mut traces, walk, ms);
+            }
+        }
+    }
+    let copy = copy.expect("at least one round");
+
+    let mut metrics = BTreeMap::new();
+    metrics.insert("scan.u32".into(), Metric::new(scan_ms, copy.ms));
+    let build_base = copy.ms_for(triangles * BYTES_PER_TRIANGLE);
+    for (kind, ms) in builds {
+        metrics.insert(format!("build.{kind}"), Metric::new(ms, build_base));
+    }
+    let trace_base = copy.ms_for(rays * BYTES_PER_RAY);
+    let (mut vkrt_best, mut driver_ms) = (f64::INFINITY, None);
+    for (walk, ms) in traces {
+        metrics.insert(
+            format!("trace.{}", walk.label()),
+            Metric::new(ms, trace_base),
+        );
+        if walk.kind == AccelKind::Driver {
+            driver_ms = Some(ms);
+        } else {
+            vkrt_best = vkrt_best.min(ms);
         }
     }
     metrics.insert("trace.best".into(), Metric::new(vkrt_best, trace_base));
@@ -196,6 +210,27 @@ pub fn measure(ctx: &Context, scene: &BenchScene, opt: &HistoryOptions) -> Resul
         },
         copy,
         metrics,
+    })
+}
+
+/// Sets `key`'s entry in `list` to the smaller of it and `ms`, adding it where missing.
+fn keep_best<K: PartialEq>(list: &mut Vec<(K, f64)>, key: K, ms: f64) {
+    match list.iter_mut().find(|(k, _)| *k == key) {
+        Some((_, best)) => *best = best.min(ms),
+        None => list.push((key, ms)),
+    }
+}
+
+/// The fastest plain copy kernel over `bytes`, best of `reps`.
+fn best_copy(ctx: &Context, bytes: u64, reps: u32) -> Result<CopyBaseline> {
+    let (baselines, _) = copy_baselines(ctx, bytes, reps)?;
+    let best = baselines
+        .best_kernel()
+        .expect("every device runs the u32 copy kernel");
+    Ok(CopyBaseline {
+        kernel: best.method.clone(),
+        bytes: best.bytes,
+        ms: best.gpu_ms,
     })
 }
 

@@ -31,7 +31,8 @@ pub struct HistoryArgs {
     /// Elements of the scan (u32); the copy baseline moves 4 × this many bytes.
     #[arg(long, default_value_t = HistoryOptions::default().scan_n)]
     scan_n: u64,
-    /// Repetitions of each build, trace, scan and copy (the best is kept).
+    /// Rounds of the whole set, each measuring every item once (each trace three times);
+    /// each item keeps its best over the rounds.
     #[arg(long, default_value_t = HistoryOptions::default().reps)]
     reps: u32,
     /// Measure and print, but append nothing.
