@@ -77,7 +77,7 @@ pub enum BenchCommand {
     History(history::HistoryArgs),
     /// The newest line of a history (--file) against the previous one of the same device,
     /// driver and set: each ratio's change; exits non-zero where one grew by more than
-    /// --threshold percent.
+    /// --threshold percent (default 25).
     Compare(history::CompareArgs),
 }
 
