@@ -1,10 +1,11 @@
 //! What `vkrt bench` and the benches measure with a device: the copy baselines every kernel
-//! is set against ([`copy`]), the GPU primitives ([`prims`]) and Kolodzey's kd-tree build
-//! ([`kdtree`]).
+//! is set against ([`copy`]), the GPU primitives ([`prims`]), Kolodzey's kd-tree build
+//! ([`kdtree`]) and the fixed set whose history guards against regressions ([`history`]).
 
 use vkrt::gpu::Profile;
 
 pub mod copy;
+pub mod history;
 pub mod kdtree;
 pub mod prims;
 

@@ -11,6 +11,7 @@ mod accuracy;
 mod animate;
 mod bvh;
 mod copy;
+mod history;
 mod kdtree;
 mod prims;
 mod render;
@@ -68,6 +69,16 @@ pub enum BenchCommand {
     /// checked against brute force; device bytes and host RSS from the end of a warm-up to
     /// the end. Exits non-zero on any mismatch or a growth above 1 %.
     Soak(soak::SoakArgs),
+    /// The fixed quick set that guards against regressions, in one run: the mesh's primary
+    /// rays through every walk (and the driver's ray query where the device has it), the
+    /// kd-tree, LBVH and PLOC GPU builds, and the chained scan, each as a ratio to the best
+    /// copy kernel's time for as many bytes in the same run (lower is better); appends one
+    /// JSON line to --file (benches/history.jsonl).
+    History(history::HistoryArgs),
+    /// The newest line of a history (--file) against the previous one of the same device,
+    /// driver and set: each ratio's change; exits non-zero where one grew by more than
+    /// --threshold percent (default 25).
+    Compare(history::CompareArgs),
 }
 
 pub fn run(what: BenchCommand, validate: bool) -> CliResult<()> {
@@ -82,6 +93,8 @@ pub fn run(what: BenchCommand, validate: bool) -> CliResult<()> {
         BenchCommand::Animate(args) => animate::run(args, validate),
         BenchCommand::Prims(args) => prims::run(args, validate),
         BenchCommand::Soak(args) => soak::run(args, validate),
+        BenchCommand::History(args) => history::run_history(args, validate),
+        BenchCommand::Compare(args) => history::run_compare(args),
     }
 }
 
