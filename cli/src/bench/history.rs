@@ -129,7 +129,7 @@ pub struct HistoryRun {
 
 /// Measures the fixed set over `scene` (see the module docs); `date` and `commit` are the
 /// caller's. The repetitions are rounds, each measuring every item once (a trace
-/// [`TRACE_REPS`] times), and each item keeps its best over the rounds: a burst of other
+/// three times), and each item keeps its best over the rounds: a burst of other
 /// work on a shared machine slows one round of everything rather than every repetition of
 /// one item, and the copy baseline is measured in every round alike.
 pub fn measure(ctx: &Context, scene: &BenchScene, opt: &HistoryOptions) -> Result<HistoryRun> {
