@@ -272,18 +272,18 @@ fn a_walk_that_does_not_fit_the_structure_is_refused() {
             .expect("refused");
         assert!(e.to_string().contains("cannot walk"), "{walk:?}: {e}");
     }
-    // The SAH BVH's leaves must fit a wide node's 16-bit sizes.
+    // The SAH BVH's leaves must fit the walks' 8-bit leaf sizes.
     let mut builder =
         AccelBuilder::for_choice(&ctx, AccelChoice::new(AccelKind::SahBvh, Traversal::Wide))
             .unwrap();
     builder = builder.with_bvh_params(vkrt::accel::bvh::BvhParams {
-        max_leaf_prims: 70_000,
+        max_leaf_prims: 256,
         ..Default::default()
     });
     let mut rec = Recorder::new(&ctx).unwrap();
     let e = GpuGeometry::record_build(&mut rec, &builder, &g, 0)
         .err()
         .expect("refused");
-    assert!(e.to_string().contains("at most 65535"), "{e}");
+    assert!(e.to_string().contains("at most 255"), "{e}");
     assert_silent(&ctx);
 }

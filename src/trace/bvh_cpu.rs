@@ -9,6 +9,7 @@ use glam::Vec3;
 use super::cpu::{clip_to_box, hit_primitive};
 use super::intersect::Shear;
 use super::{Hit, Query, Ray, TraceOptions};
+use crate::accel::bvh::layout::stack_entry_t;
 use crate::accel::bvh::{Bvh, Child};
 use crate::accel::primitives::TraceGeometry;
 use crate::accel::walk::Traversal;
@@ -256,10 +257,11 @@ fn walk_with_stack<'a>(
     true
 }
 
-/// The nearest stack entry the ray enters before `best_t`.
+/// The nearest stack entry the ray enters before `best_t`, its distance rounded down as the
+/// GPU walks keep it ([`stack_entry_t`]).
 fn pop(stack: &mut Vec<(Child, f32)>, best_t: f32) -> Option<Child> {
     while let Some((c, t)) = stack.pop() {
-        if t <= best_t {
+        if stack_entry_t(t) <= best_t {
             return Some(c);
         }
     }

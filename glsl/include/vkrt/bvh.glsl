@@ -106,16 +106,27 @@ VkrtWideNode vkrt_load_wide_node(uint i) {
 }
 #endif
 
+// A stack entry: the child (index, count) and the distance at which the ray enters it, in
+// two words: the index, and the distance's bits with the leaf size (< 256) in the low eight.
+// Clearing those bits rounds a distance >= 0 down, so an entry is dropped at a pop only when
+// it lies beyond the closest hit (the CPU twins round the same way). One array of two
+// components, not three: on lavapipe every component of a private array is zeroed at entry
+// and read and written by its own gather and scatter.
+uvec2 vkrt_stack_entry(uvec2 child, float t) {
+    return uvec2(child.x, (floatBitsToUint(t) & ~0xffu) | child.y);
+}
+
 // The stack walks' pop: the nearest entry the ray still reaches before its closest hit
 // (`have` false when none is left). A statement over the walk's own `top`, `cur`, `have` and
-// `best_t`, and its stack's entries AT(i) and their distances AT_T(i) (accessor macros: GLSL
-// passes arrays by copy; the walks' own arrays, or a ray query's, vkrt/ext_ray_query.glsl).
-#define VKRT_BVH_POP_ON(AT, AT_T)           \
-    have = false;                           \
-    while (top > 0u && !have) {             \
-        top--;                              \
-        cur = AT(top);                      \
-        have = AT_T(top) <= best_t;         \
+// `best_t`, and its stack's entries AT(i) (an accessor macro: GLSL passes arrays by copy; the
+// walks' own array, or a ray query's, vkrt/ext_ray_query.glsl).
+#define VKRT_BVH_POP_ON(AT)                                       \
+    have = false;                                                 \
+    while (top > 0u && !have) {                                   \
+        top--;                                                    \
+        uvec2 e_ = AT(top);                                       \
+        cur = uvec2(e_.x, e_.y & 0xffu);                          \
+        have = uintBitsToFloat(e_.y & ~0xffu) <= best_t;          \
     }
 
 // The stack walks' descent: interior nodes, the nearer child first (ties: child a) and the
@@ -123,7 +134,7 @@ VkrtWideNode vkrt_load_wide_node(uint i) {
 // false) or the step cap is reached. A statement over the walk's `r`, `inv_d`, `tmin`,
 // `steps` and VKRT_BVH_POP_ON's variables (the binary stack walk, the top-level walk of
 // vkrt/instances.glsl and the ray query's walk of vkrt/ext_ray_query.glsl).
-#define VKRT_BVH_DESCEND_ON(AT, AT_T)                                                  \
+#define VKRT_BVH_DESCEND_ON(AT)                                                        \
     while (have && cur.y == 0u && steps <= VKRT_STEP_LIMIT) {                      \
         steps++;                                                                       \
         VkrtBvhNode nd = vkrt_load_bvh_node(cur.x);                                             \
@@ -137,22 +148,20 @@ VkrtWideNode vkrt_load_wide_node(uint i) {
         uvec2 cb = uvec2(nd.b_index, nd.b_count);                                      \
         if (hit_a && hit_b) {                                                          \
             bool b_first = tb < ta;                                                    \
-            AT(top) = b_first ? ca : cb;                                               \
-            AT_T(top) = b_first ? ta : tb;                                             \
+            AT(top) = vkrt_stack_entry(b_first ? ca : cb, b_first ? ta : tb);          \
             top++;                                                                     \
             cur = b_first ? cb : ca;                                                   \
         } else if (hit_a || hit_b) {                                                   \
             cur = hit_a ? ca : cb;                                                     \
         } else {                                                                       \
-            VKRT_BVH_POP_ON(AT, AT_T);                                                 \
+            VKRT_BVH_POP_ON(AT);                                                       \
         }                                                                              \
     }
 
-// The walks' own stack: `stack` and `stack_t` (VKRT_STACK_WALK_STATE).
+// The walks' own stack: `stack` (VKRT_STACK_WALK_STATE).
 #define VKRT_STACK_AT(i) stack[i]
-#define VKRT_STACK_T_AT(i) stack_t[i]
-#define VKRT_BVH_POP() VKRT_BVH_POP_ON(VKRT_STACK_AT, VKRT_STACK_T_AT)
-#define VKRT_BVH_DESCEND() VKRT_BVH_DESCEND_ON(VKRT_STACK_AT, VKRT_STACK_T_AT)
+#define VKRT_BVH_POP() VKRT_BVH_POP_ON(VKRT_STACK_AT)
+#define VKRT_BVH_DESCEND() VKRT_BVH_DESCEND_ON(VKRT_STACK_AT)
 
 // Where the ray enters the box within [t0, t1] (traverse.glsl's vkrt_clip_to_box).
 bool vkrt_bvh_enter(vec3 bmin, vec3 bmax, VkrtRay r, vec3 inv_d, float t0, float t1, out float t_in) {
@@ -303,8 +312,7 @@ void vkrt_wide_child(VkrtWideNode w, uint k, vec3 p, vec3 s, VkrtRay r, vec3 inv
 
 #define VKRT_WIDE_PUSH(t, c)                            \
     if (c.x != VKRT_NO_NODE || c.y != 0u) {             \
-        stack[top] = c;                            \
-        stack_t[top] = t;                          \
+        stack[top] = vkrt_stack_entry(c, t);       \
         top++;                                     \
     }
 

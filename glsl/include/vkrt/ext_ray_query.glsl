@@ -177,8 +177,7 @@ vec4 vkrt_rq_object_direction[VKRT_RAY_QUERIES];
 float vkrt_rq_far[VKRT_RAY_QUERIES]; // the committed t, or tMax: where the walk stops
 VkrtRqHit vkrt_rq_candidate[VKRT_RAY_QUERIES];
 VkrtRqHit vkrt_rq_committed[VKRT_RAY_QUERIES];
-uvec2 vkrt_rq_stack[VKRT_RAY_QUERIES][VKRT_RQ_STACK];
-float vkrt_rq_stack_t[VKRT_RAY_QUERIES][VKRT_RQ_STACK];
+uvec2 vkrt_rq_stack[VKRT_RAY_QUERIES][VKRT_RQ_STACK]; // vkrt_stack_entry (bvh.glsl)
 // Which handle owns each state (0: none), and how many handles were given.
 uvec4 vkrt_rq_owner = uvec4(0u);
 uint vkrt_rq_issued = 0u;
@@ -197,7 +196,6 @@ VkrtRqHit vkrt_rq_none() {
 uint vkrt_rq_s;
 uint vkrt_rq_base;
 #define VKRT_RQ_AT(i) vkrt_rq_stack[vkrt_rq_s][vkrt_rq_base + (i)]
-#define VKRT_RQ_T_AT(i) vkrt_rq_stack_t[vkrt_rq_s][vkrt_rq_base + (i)]
 
 void vkrtRayQueryInitialize(inout uint q, VkrtAccelerationStructure as, uint flags, uint cull_mask,
                         vec3 origin, float tmin, vec3 direction, float tmax) {
@@ -239,8 +237,7 @@ void vkrtRayQueryInitialize(inout uint q, VkrtAccelerationStructure as, uint fla
         }
     }
     // The root entered: sp 1 (the root, popped first), base 0.
-    vkrt_rq_stack[s][0] = uvec2(0u);
-    vkrt_rq_stack_t[s][0] = tmin;
+    vkrt_rq_stack[s][0] = vkrt_stack_entry(uvec2(0u), tmin);
     vkrt_rq_walk[s] = uvec4(1u, 0u, 0u, bits);
 }
 
@@ -458,10 +455,10 @@ bool vkrtRayQueryProceed(uint q) {
             fresh = true;
         }
         if (!fresh) {
-            VKRT_BVH_POP_ON(VKRT_RQ_AT, VKRT_RQ_T_AT);
+            VKRT_BVH_POP_ON(VKRT_RQ_AT);
         }
         fresh = false;
-        VKRT_BVH_DESCEND_ON(VKRT_RQ_AT, VKRT_RQ_T_AT);
+        VKRT_BVH_DESCEND_ON(VKRT_RQ_AT);
         if (!have) {
             if (in_bottom && (bits & VKRT_RQ_ONE_LEVEL) == 0u) {
                 // The instance is done: back to the top level, whose entries end where the

@@ -446,10 +446,10 @@ bool vkrt_test_leaf(uint first, uint count, VkrtRay r, VkrtShear sh, float time,
 
 // The state of a stack walk (Aila & Laine's while-while loop, VKRT_BVH_DESCEND): entries
 // (index, count) — count 0 an interior node, count > 0 a leaf's references — with the
-// distance at which the ray enters each, the entry in hand, and the steps taken.
+// distance at which the ray enters each (vkrt_stack_entry, bvh.glsl), the entry in hand, and
+// the steps taken.
 #define VKRT_STACK_WALK_STATE(size) \
     uvec2 stack[size];              \
-    float stack_t[size];            \
     uint top = 0u;                  \
     uvec2 cur = uvec2(0u, 0u);      \
     bool have = true;               \

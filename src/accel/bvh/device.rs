@@ -10,12 +10,13 @@ use crate::accel::bvh::collapse::{self, RefLayout};
 use crate::accel::bvh::collapse_gpu::{CollapseKernels, CollapseScratch};
 use crate::accel::bvh::compact::BvhSlots;
 use crate::accel::bvh::compact_gpu::{CompactKernels, TreeArrays};
+use crate::accel::bvh::layout::MAX_WALK_LEAF;
 use crate::accel::bvh::lbvh::MortonBits;
 use crate::accel::bvh::lbvh_gpu::{self, LbvhBuilder};
 use crate::accel::bvh::ploc::PlocParams;
 use crate::accel::bvh::ploc_gpu::{PlocBuilder, PlocScratch};
 use crate::accel::bvh::refit_gpu::{LevelRefit, RefitSchedule, ScheduleScratch};
-use crate::accel::bvh::wide::{WideNode, MAX_WIDE_LEAF};
+use crate::accel::bvh::wide::WideNode;
 use crate::accel::bvh::wide_gpu::Widen;
 use crate::accel::bvh::{self, Bvh, BvhNode, BvhParams, Threading};
 use crate::accel::device_primitives::DevicePrimitives;
@@ -311,12 +312,12 @@ impl BvhFamily {
                         ),
                     });
                 }
-                if s.wide && p.max_leaf_prims > MAX_WIDE_LEAF {
+                if p.max_leaf_prims > MAX_WALK_LEAF {
                     return Err(GpuError::Usage {
                         call: "AccelBuilder::record_build",
                         reason: format!(
-                            "max_leaf_prims = {}: wide nodes name leaves of at most \
-                             {MAX_WIDE_LEAF} primitives",
+                            "max_leaf_prims = {}: the GPU walks take leaves of at most \
+                             {MAX_WALK_LEAF} primitives",
                             p.max_leaf_prims
                         ),
                     });
@@ -474,6 +475,16 @@ impl BvhFamily {
 impl BvhStorage {
     /// A BVH built on the host (or downloaded), uploaded; with its wide nodes where `wide`.
     pub(crate) fn from_host(ctx: &Context, bvh: &Bvh, wide: bool) -> Result<Self> {
+        let largest = bvh.nodes.iter().map(|n| n.a_count.max(n.b_count)).max();
+        if let Some(count) = largest.filter(|&c| c > MAX_WALK_LEAF) {
+            return Err(GpuError::Usage {
+                call: "GpuGeometry::upload_bvh",
+                reason: format!(
+                    "a leaf of {count} primitives: the GPU walks take leaves of at most \
+                     {MAX_WALK_LEAF} (BvhParams::max_leaf_prims)"
+                ),
+            });
+        }
         let mut words = bvh.refs.clone();
         words.extend_from_slice(&bvh.parents);
         Ok(Self {

@@ -16,6 +16,17 @@ pub const NO_NODE: u32 = u32::MAX;
 /// index tie-breaks give at most 95, and PLOC adds at most one level per round.
 pub const MAX_TRAVERSAL_DEPTH: u32 = 128;
 
+/// The largest leaf the GPU walks take: a stack entry keeps a leaf's size in the low 8 bits
+/// of its entry distance (`vkrt_stack_entry` in `glsl/include/vkrt/bvh.glsl`).
+pub const MAX_WALK_LEAF: u32 = 255;
+
+/// The distance a stack entry keeps: `t` with its low 8 bits cleared, so rounded down for
+/// `t >= 0` (the GPU walks' `vkrt_stack_entry`). An entry is dropped at a pop only when this
+/// lies beyond the closest hit, so the CPU twins visit what the GPU walks visit.
+pub fn stack_entry_t(t: f32) -> f32 {
+    f32::from_bits(t.to_bits() & !0xff)
+}
+
 /// One node, 64 bytes: child `a` and child `b`, each a box and either an interior node
 /// (`count == 0`, `index` is its node) or a leaf (`count > 0` references from `index` on in
 /// [`Bvh::refs`]). A missing child (`count == 0`, `index == NO_NODE`) has an empty box
