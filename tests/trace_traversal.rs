@@ -437,6 +437,39 @@ fn in_plane_rays_through_an_overflowing_stack_equal_brute_force() {
     assert_silent(&ctx);
 }
 
+/// The walk `--traversal auto` takes follows the measured rule: 4-wide on lavapipe from
+/// Mesa 25.1 (where it traced faster in every measured case), the binary stack walk on
+/// older lavapipe (Mesa 25.0 and 22.3 are in the test matrix) and on other devices.
+#[test]
+fn the_device_walk_is_wide_only_where_it_measured_faster() {
+    let Some(ctx) = context() else { return };
+    if std::env::var("VKRT_TRAVERSAL").is_ok() {
+        return;
+    }
+    let info = ctx.info();
+    // "llvmpipe ... Mesa 26.1.6 ..." → (26, 1)
+    let mesa = info.driver.split("Mesa ").nth(1).and_then(|v| {
+        let mut parts = v.split(['.', '-', ' ']).map(|p| p.parse::<u32>().ok());
+        Some((parts.next()??, parts.next()??))
+    });
+    let lavapipe = info.device.contains("llvmpipe");
+    let expected = match (lavapipe, mesa) {
+        (true, Some(v)) if v >= (25, 1) => vkrt::accel::walk::Traversal::Wide,
+        _ => vkrt::accel::walk::Traversal::Stack,
+    };
+    assert_eq!(
+        vkrt::accel::walk::Traversal::for_device(&ctx),
+        expected,
+        "{} / {}",
+        info.device,
+        info.driver
+    );
+    assert_eq!(
+        info.wide_walks,
+        expected == vkrt::accel::walk::Traversal::Wide
+    );
+}
+
 /// The step cap is the device's (specialization constant 22), never above it, and one set
 /// lower is honoured: rays that need more steps are reported exhausted and answered as
 /// misses, the same rays on the GPU and in the CPU twin, on every walk.

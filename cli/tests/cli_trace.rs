@@ -273,7 +273,8 @@ fn round_trip_binary_closest_hit_matches_brute_force() {
 
 #[test]
 fn round_trip_sah_bvh_stack_and_bitstack_match_brute_force() {
-    for traversal in ["stack", "bitstack"] {
+    // `auto`: the device's walk (the 4-wide one on Mesa 26's lavapipe).
+    for traversal in ["stack", "bitstack", "auto"] {
         round_trip(
             "motion_blur.toml",
             &format!("hits-bvh-{traversal}.bin"),

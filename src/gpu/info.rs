@@ -315,6 +315,15 @@ pub struct DeviceInfo {
     /// of 450 walks and ray sets). Not on Mesa 25.0's lavapipe (storage 1.18× faster, the
     /// same way) nor on other drivers, which read storage buffers.
     pub texel_walks: bool,
+    /// vkrt's BVHs are walked 4-wide by default here
+    /// ([`Traversal::for_device`](crate::accel::walk::Traversal::for_device)), as measured
+    /// (`vkrt bench trace`: SAH BVH, LBVH and PLOC; the bunny and a 100 K icosphere; primary,
+    /// shadow and mirror rays): lavapipe from Mesa 25.1, the divergence-aware gallivm
+    /// (Mesa 26.1.6: the 4-wide walk 1.03–1.47× the binary stack walk's rate in all 18
+    /// cases). Not on Mesa 25.0's (0.84–1.26×, slower in 7 of 18), nor on older lavapipe
+    /// (texel reads: 0.49–0.95×), nor on NVIDIA's H100 (0.67–0.81×): the binary stack walk
+    /// stays there.
+    pub wide_walks: bool,
     /// Node visits + primitive tests a walk may spend per ray before it gives up and reports
     /// the ray as exhausted: 60,000 within a loop budget (the rest is the walk's other
     /// loops' headroom), 2^24 elsewhere (a guard against a corrupt structure, far above
@@ -416,6 +425,7 @@ pub(crate) fn query(
         .is_some_and(|v| v.is_none_or(|v| v < (25, 0)))
         .then_some(LLVMPIPE_LOOP_BUDGET);
     let texel_walks = lavapipe.is_some_and(|v| v.is_some_and(|v| v < (25, 0)));
+    let wide_walks = lavapipe.is_some_and(|v| v.is_some_and(|v| v >= (25, 1)));
     DeviceInfo {
         device: name,
         driver: format!("{driver_name} {driver_info}").trim().to_string(),
@@ -451,6 +461,7 @@ pub(crate) fn query(
         ieee_division: driver.driver_id == vk::DriverId::MESA_LLVMPIPE,
         loop_budget,
         texel_walks,
+        wide_walks,
         max_traversal_steps: traversal_steps_within(loop_budget),
         features,
         api_version_raw: v,

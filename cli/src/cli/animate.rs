@@ -91,7 +91,7 @@ pub fn run(args: AnimateArgs, validate: bool) -> CliResult<()> {
         height,
         spp,
         all_effects: false,
-        accel: structure.choice(),
+        accel: structure.choice(None),
         flatten: structure.flatten,
         // (from the device, when it renders)
         max_level_primitives: None,
@@ -104,6 +104,7 @@ pub fn run(args: AnimateArgs, validate: bool) -> CliResult<()> {
         length,
         skip_existing,
         render,
+        structure,
         update: match update {
             UpdateArg::Rebuild => Update::Rebuild,
             UpdateArg::Refit => Update::Refit,
@@ -210,6 +211,8 @@ struct AnimateJob {
     /// `--skip-existing`: leave frames whose files are already complete.
     pub skip_existing: bool,
     pub render: RenderOptions,
+    /// `--accel` and `--traversal` (the walk is the device's where `auto`).
+    pub structure: StructureArgs,
     pub update: Update,
     pub preview: Option<PathBuf>,
 }
@@ -243,6 +246,8 @@ fn animate_command(
         .clone()
         .partition(|&k| !(args.skip_existing && pattern.complete(k, plan.width, plan.height)));
     let ctx = ctx()?;
+    let mut args = args;
+    args.render.accel = args.structure.choice(Some(&ctx));
     let frames = todo.len() as u32;
     let preview = args.preview.clone().map(|path| Preview {
         path,
@@ -417,6 +422,8 @@ fn plan_command(
     let (scene, range) = scene_and_range(scene, &args)?;
     FramePattern::parse(&args.output)?;
     let ctx = ctx()?;
+    let mut args = args;
+    args.render.accel = args.structure.choice(Some(&ctx));
     let probe: Vec<u32> = range.clone().take(2).collect();
     let opt = AnimateOptions {
         render: args.render,

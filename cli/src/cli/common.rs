@@ -28,8 +28,10 @@ pub enum UpdateArg {
     Refit,
 }
 
-#[derive(Clone, Copy, ValueEnum)]
+#[derive(Clone, Copy, PartialEq, ValueEnum)]
 pub enum TraversalArg {
+    /// The walk that traces fastest on this device, as measured (`vkrt info` says which).
+    Auto,
     /// Binary nodes, far children on a stack.
     Stack,
     /// Binary nodes, no stack: parent links and one bit per level.
@@ -47,9 +49,10 @@ pub struct StructureArgs {
     /// driver's own through its ray query. The answers are the same.
     #[arg(long, value_enum, default_value_t = AccelArg::SahBvh)]
     pub accel: AccelArg,
-    /// How a BVH is walked: a stack, the stackless bitstack walk with parent links, or a
-    /// stack over 4-wide quantized nodes made after the build.
-    #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
+    /// How a BVH is walked: the device's fastest (auto: `vkrt info` says which), a stack,
+    /// the stackless bitstack walk with parent links, or a stack over 4-wide quantized nodes
+    /// made after the build. The answers are the same.
+    #[arg(long, value_enum, default_value_t = TraversalArg::Auto)]
     pub traversal: TraversalArg,
     /// Trace one structure over every primitive even where meshes repeat (by default a
     /// mesh named more than once, and a moving mesh beside it, become instances of one
@@ -59,13 +62,18 @@ pub struct StructureArgs {
 }
 
 impl StructureArgs {
-    /// The structure and walk chosen.
-    pub fn choice(&self) -> vkrt::accel::device::AccelChoice {
-        accel_traversal(self.accel, self.traversal)
+    /// The structure and walk chosen, on `ctx`'s device (`auto`: its fastest walk; the
+    /// binary stack walk before there is a device).
+    pub fn choice(&self, ctx: Option<&Context>) -> vkrt::accel::device::AccelChoice {
+        accel_traversal(self.accel, self.traversal, ctx)
     }
 }
 
-pub fn accel_traversal(accel: AccelArg, walk: TraversalArg) -> vkrt::accel::device::AccelChoice {
+pub fn accel_traversal(
+    accel: AccelArg,
+    walk: TraversalArg,
+    ctx: Option<&Context>,
+) -> vkrt::accel::device::AccelChoice {
     use vkrt::accel::device::{AccelChoice, AccelKind};
     use vkrt::accel::driver::Prefer;
     use vkrt::accel::walk::Traversal;
@@ -78,6 +86,7 @@ pub fn accel_traversal(accel: AccelArg, walk: TraversalArg) -> vkrt::accel::devi
         AccelArg::DriverFastBuild => return AccelChoice::driver(Prefer::FastBuild),
     };
     let walk = match walk {
+        TraversalArg::Auto => ctx.map_or(Traversal::Stack, Traversal::for_device),
         TraversalArg::Stack => Traversal::Stack,
         TraversalArg::Bitstack => Traversal::Bitstack,
         TraversalArg::Wide => Traversal::Wide,

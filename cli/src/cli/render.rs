@@ -66,12 +66,12 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
         profile,
         profile_dispatches,
     } = args;
-    let opt = vkrt::render::RenderOptions {
+    let mut opt = vkrt::render::RenderOptions {
         width,
         height,
         spp,
         all_effects,
-        accel: structure.choice(),
+        accel: structure.choice(None),
         flatten: structure.flatten,
         // (from the device, when it renders)
         max_level_primitives: None,
@@ -110,6 +110,7 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
     }
     let triangles = scene.triangle_count();
     let ctx = context(validate)?;
+    opt.accel = structure.choice(Some(&ctx));
     ctx.set_dispatch_timestamps(profile_dispatches);
     let trace = vkrt::trace::TraceOptions {
         intersector: intersector.into(),

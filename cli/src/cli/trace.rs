@@ -46,7 +46,6 @@ pub fn run(args: TraceArgs, validate: bool) -> CliResult<()> {
         structure,
         json,
     } = args;
-    let (accel, flatten) = (structure.choice(), structure.flatten);
     let opt = vkrt::trace::TraceOptions {
         intersector: intersector.into(),
         query: if any_hit {
@@ -61,8 +60,8 @@ pub fn run(args: TraceArgs, validate: bool) -> CliResult<()> {
         &scene,
         &rays,
         output.as_deref(),
-        (&opt, accel),
-        (batch_rays, flatten),
+        (&opt, structure),
+        batch_rays,
         json,
     )
 }
@@ -74,8 +73,8 @@ fn trace_command(
     scene_path: &std::path::Path,
     rays_path: &std::path::Path,
     out: Option<&std::path::Path>,
-    (opt, accel): (&vkrt::trace::TraceOptions, vkrt::accel::device::AccelChoice),
-    (batch_rays, flatten): (Option<usize>, bool),
+    (opt, structure): (&vkrt::trace::TraceOptions, StructureArgs),
+    batch_rays: Option<usize>,
     json: bool,
 ) -> CliResult<()> {
     use vkrt::accel::primitives::TraceGeometry;
@@ -85,6 +84,7 @@ fn trace_command(
     let time = scene.camera.shutter_open;
     let triangles = scene.triangle_count();
     let ctx = context(validate)?;
+    let (accel, flatten) = (structure.choice(Some(&ctx)), structure.flatten);
     // Meshes named more than once: bottom levels and instances, unless asked flat; a
     // scene past one buffer's range: its rest in pieces under identity instances.
     let per_level = vkrt::accel::two_levels::max_level_primitives(&ctx, accel.kind);

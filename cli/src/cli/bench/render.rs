@@ -20,8 +20,8 @@ pub struct BenchRenderArgs {
     /// The structure the renders trace (built on the device, as `vkrt render` does).
     #[arg(long, value_enum, default_value_t = AccelArg::SahBvh)]
     accel: AccelArg,
-    /// How a BVH is walked.
-    #[arg(long, value_enum, default_value_t = TraversalArg::Stack)]
+    /// How a BVH is walked (auto: the device's fastest walk, as `vkrt render`).
+    #[arg(long, value_enum, default_value_t = TraversalArg::Auto)]
     traversal: TraversalArg,
     #[arg(long)]
     json: bool,
@@ -48,7 +48,7 @@ pub fn run(args: BenchRenderArgs, validate: bool) -> CliResult<()> {
         return Err(format!("no effect scenes (EFFECT.toml) in {}", scenes.display()).into());
     }
     let ctx = context(validate)?;
-    let accel = accel_traversal(accel, traversal);
+    let accel = accel_traversal(accel, traversal, Some(&ctx));
     let rows = vkrt_cli::render_bench::effect_costs(&ctx, &list, (width, height), accel)
         .map_err(|e| e.to_string())?;
     if json {
