@@ -16,8 +16,9 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use vkrt::accel::device::AccelKind;
+use vkrt::accel::device::{AccelChoice, AccelKind};
 use vkrt::accel::shader_library;
+use vkrt::accel::walk::Traversal;
 use vkrt::scene::Scene;
 use vkrt::shader_check::{compile_shader, mismatches, run_driver, run_vkrt, scene_levels, Through};
 use vkrt::trace::Ray;
@@ -419,6 +420,10 @@ fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/ray_query")
 }
 
+fn lbvh(walk: Traversal) -> AccelChoice {
+    AccelChoice::new(AccelKind::Lbvh, walk)
+}
+
 fn read_results(path: &Path) -> Option<Vec<[u32; 4]>> {
     let bytes = std::fs::read(path).ok()?;
     Some(bytemuck::pod_collect_to_vec::<u8, [u32; 4]>(&bytes))
@@ -451,9 +456,20 @@ fn ray_query_families_agree_with_the_driver_s_answers() {
             .unwrap_or_else(|e| panic!("{name}: {e}"));
         assert!(!compiled.inserted_include, "{name}");
         let (spirv, iface) = compiled.vkrt.as_ref().unwrap();
-        let vkrt = run_vkrt(&ctx, &levels, AccelKind::Lbvh, (spirv, iface), rays)
+        let vkrt = run_vkrt(&ctx, &levels, lbvh(Traversal::Stack), (spirv, iface), rays)
             .unwrap()
             .results;
+        // The 4-wide walk of the same bottom levels: the same answers, bit for bit.
+        let wide = run_vkrt(&ctx, &levels, lbvh(Traversal::Wide), (spirv, iface), rays)
+            .unwrap()
+            .results;
+        let differ: Vec<usize> = (0..vkrt.len()).filter(|&i| vkrt[i] != wide[i]).collect();
+        assert!(
+            differ.is_empty(),
+            "{name}: {} rays differ between the binary and the 4-wide walk, first {:?}",
+            differ.len(),
+            &differ[..differ.len().min(3)]
+        );
         let recorded_path = data_dir().join(format!("{name}.results"));
         if let Some((spirv, iface)) = compiled.native.as_ref() {
             let driver = run_driver(&ctx, &levels, (spirv, iface), rays)

@@ -20,7 +20,7 @@ pub struct BuildFlags {
     pub kd_capacity_doublings: u32,
     /// BVH kinds: also make the 4-wide nodes ([`crate::accel::bvh::wide`]) after every build
     /// and update, for the wide walk (`Traversal::Wide`), in place of the binary ones the
-    /// shaders bind.
+    /// shaders bind. A top level's own nodes stay binary (the instance walk reads those).
     pub wide: bool,
 }
 

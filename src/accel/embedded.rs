@@ -137,23 +137,22 @@ impl GpuGeometry {
 
 impl AccelBuilder {
     /// What every call over device geometry checks first: the kind builds from device
-    /// buffers, and holds `geometries`' opacity (with 4-wide nodes where `wide`).
+    /// buffers, and holds `geometries`' opacity.
     fn check_device_input(
         &self,
         call: &'static str,
         geometries: &[impl GeometryDescription],
-        wide: bool,
     ) -> Result<()> {
         // Non-opaque hits go back to a ray query as candidates, each once: the walk of a
-        // binary BVH, which references every primitive once, does that.
-        let binary_bvh = matches!(self.kind(), AccelKind::Lbvh | AccelKind::Ploc) && !wide;
-        if !binary_bvh && geometries.iter().any(|g| !g.shape().opaque()) {
+        // BVH (binary or 4-wide), which references every primitive once, does that; a
+        // kd-tree's walk may meet a primitive in several leaves.
+        let bvh = matches!(self.kind(), AccelKind::Lbvh | AccelKind::Ploc);
+        if !bvh && geometries.iter().any(|g| !g.shape().opaque()) {
             return Err(usage(
                 call,
                 format!(
                     "non-opaque geometry goes to ray queries as candidates through the walk of \
-                     a binary BVH (LBVH or PLOC); a {}{} structure holds opaque geometry only",
-                    if wide { "4-wide " } else { "" },
+                     a BVH (LBVH or PLOC); a {} structure holds opaque geometry only",
                     self.kind().name()
                 ),
             ));
@@ -184,7 +183,7 @@ impl AccelBuilder {
         geometries: &[G],
         flags: &BuildFlags,
     ) -> Result<AccelSizes> {
-        self.check_device_input("AccelBuilder::sizes_for", geometries, flags.wide)?;
+        self.check_device_input("AccelBuilder::sizes_for", geometries)?;
         let input = DeviceInput::new(ctx, geometries, *flags)?;
         let (_, structure_bytes) = place(ctx, "the structure", Placement::Measure, || {
             self.place_structure(ctx, &input)
@@ -308,7 +307,7 @@ impl AccelBuilder {
         flags: &BuildFlags,
         memory: RawBuffer,
     ) -> Result<GpuGeometry> {
-        self.check_device_input("AccelBuilder::create_in", geometries, flags.wide)?;
+        self.check_device_input("AccelBuilder::create_in", geometries)?;
         let input = DeviceInput::new(ctx, geometries, *flags)?;
         let (g, _) = place(ctx, "the structure", Placement::Into(memory), || {
             self.place_structure(ctx, &input)
@@ -380,7 +379,7 @@ impl AccelBuilder {
                  with allow_update can be updated",
             ));
         }
-        self.check_device_input(call, geometries, input.flags.wide)?;
+        self.check_device_input(call, geometries)?;
         self.check_frozen(call, &out.accel)?;
         if shape(geometries) != input.shape {
             return Err(usage(

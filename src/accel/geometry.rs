@@ -106,9 +106,9 @@ pub struct Triangles {
     /// `VK_GEOMETRY_OPAQUE_BIT_KHR`. A non-opaque geometry's hits are candidates a ray query
     /// returns to the shader (`vkrt/ext_ray_query.glsl`), which confirms or ignores them;
     /// vkrt's own walks (`vkrtTrace`, the renderer) take every hit as opaque. Non-opaque
-    /// geometry needs a binary BVH (LBVH, PLOC, SAH BVH: each primitive referenced once, so
-    /// no candidate comes twice, as `VK_GEOMETRY_NO_DUPLICATE_ANY_HIT_INVOCATION_BIT_KHR`
-    /// asks); other kinds refuse it.
+    /// geometry needs a BVH (LBVH, PLOC, SAH BVH; binary or 4-wide: each primitive
+    /// referenced once, so no candidate comes twice, as
+    /// `VK_GEOMETRY_NO_DUPLICATE_ANY_HIT_INVOCATION_BIT_KHR` asks); the kd-tree refuses it.
     pub opaque: bool,
 }
 

@@ -385,6 +385,16 @@ struct Own {
     records: Buffer<Instance>,
 }
 
+/// `flags` for a top level's tree: its own nodes binary whatever `wide` says, since the
+/// instance walk (`vkrt/instances.glsl`) reads binary nodes; the bottom levels' walks are
+/// theirs.
+fn binary_nodes(flags: &BuildFlags) -> BuildFlags {
+    BuildFlags {
+        wide: false,
+        ..*flags
+    }
+}
+
 /// The top level's part of the caller's memory, rounded up so that its tree starts aligned.
 fn parts_bytes(ctx: &Context, slots: u32, n_bottoms: usize, motion: InstanceMotion) -> Result<u64> {
     let (_, bytes) = place(ctx, "the instances", Placement::Measure, || {
@@ -482,9 +492,9 @@ impl TopLevelBuilder {
             .why_not()
             .map_err(|why| usage("TopLevelBuilder::sizes_for_motion", why))?;
         let own = parts_bytes(ctx, max_instances, n_bottoms, motion)?;
-        let tree = self
-            .tree
-            .sizes_for(ctx, &[measured_boxes(max_instances)], flags)?;
+        let tree =
+            self.tree
+                .sizes_for(ctx, &[measured_boxes(max_instances)], &binary_nodes(flags))?;
         Ok(AccelSizes {
             structure_bytes: own + tree.structure_bytes,
             ..tree
@@ -567,6 +577,7 @@ impl TopLevelBuilder {
             size: memory.size - own,
         };
         let geometry = boxes_geometry(GeometryData::Buffer(parts.boxes.as_raw()), max);
+        let flags = &binary_nodes(flags);
         let tree = self.tree.create_in(ctx, &[geometry], flags, rest)?;
         let bytes = own
             + self

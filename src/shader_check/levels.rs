@@ -8,7 +8,7 @@ use std::sync::Arc;
 
 use glam::Vec3;
 
-use crate::accel::device::{AccelBuilder, AccelKind};
+use crate::accel::device::{AccelBuilder, AccelChoice, AccelKind};
 use crate::accel::device_primitives::DevicePrimitives;
 use crate::accel::driver::{DriverAccel, Prefer};
 use crate::accel::embedded::BuildFlags;
@@ -134,9 +134,9 @@ impl SceneLevels {
         }
     }
 
-    /// Why vkrt's bottom levels cannot be `kind` trees for these levels: the binary BVHs
-    /// only (the walk of `vkrt/ext_ray_query.glsl`), and the SAH BVH, built from host arrays
-    /// that carry no opaque flag, only where every geometry is opaque.
+    /// Why vkrt's bottom levels cannot be `kind` trees for these levels: BVHs only (the walk
+    /// of `vkrt/ext_ray_query.glsl`), and the SAH BVH, built from host arrays that carry no
+    /// opaque flag, only where every geometry is opaque.
     pub fn check_kind(&self, kind: AccelKind) -> std::result::Result<(), String> {
         match kind {
             AccelKind::Lbvh | AccelKind::Ploc => Ok(()),
@@ -154,25 +154,27 @@ impl SceneLevels {
             }
             AccelKind::SahBvh => Ok(()),
             other => Err(format!(
-                "{} bottom levels: the ray queries walk binary BVHs (LBVH, PLOC, SAH BVH)",
+                "{} bottom levels: the ray queries walk BVHs (LBVH, PLOC, SAH BVH)",
                 other.name()
             )),
         }
     }
 
-    /// vkrt's two levels, recorded into `rec`: bottom levels of `kind` (LBVH or PLOC from
-    /// the geometry on the device, with its opaque flag; the SAH BVH from host arrays, which
-    /// carry none, so only where every geometry is opaque) and an LBVH top level over the
-    /// instance records. Keep the result until the work has executed.
-    pub fn record_vkrt(&self, rec: &mut Recorder, kind: AccelKind) -> Result<VkrtLevels> {
+    /// vkrt's two levels, recorded into `rec`: bottom levels of `choice`'s kind (LBVH or
+    /// PLOC from the geometry on the device, with its opaque flag; the SAH BVH from host
+    /// arrays, which carry none, so only where every geometry is opaque), with 4-wide nodes
+    /// where its walk is the wide one, and an LBVH top level over the instance records. Keep
+    /// the result until the work has executed.
+    pub fn record_vkrt(&self, rec: &mut Recorder, choice: AccelChoice) -> Result<VkrtLevels> {
         let ctx = rec.context().clone();
-        let builder = AccelBuilder::new(&ctx, kind)?;
+        let kind = choice.kind;
+        let builder = AccelBuilder::for_choice(&ctx, choice)?;
         let mut bottoms = Vec::with_capacity(self.bottoms.len());
         let mut keep: Vec<Buffer<u8>> = Vec::new();
         let mut inputs: Vec<Buffer<[f32; 3]>> = Vec::new();
         let mut indices: Vec<Buffer<[u32; 3]>> = Vec::new();
         let mut boxes: Vec<Buffer<[f32; 6]>> = Vec::new();
-        let flags = BuildFlags::default();
+        let flags = BuildFlags::for_choice(choice);
         if let Err(reason) = self.check_kind(kind) {
             return Err(GpuError::Usage {
                 call: "shader-check",

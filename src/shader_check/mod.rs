@@ -28,7 +28,7 @@ pub mod reflect;
 
 use std::path::Path;
 
-use crate::accel::device::AccelKind;
+use crate::accel::device::AccelChoice;
 use crate::accel::shader_library::{steps_specialization, STEPS_CONSTANT_ID};
 use crate::gpu::{Buffer, Context, ForeignBinding, ForeignKernel, GpuError, Recorder, TexelView};
 use crate::scene::Scene;
@@ -201,11 +201,11 @@ pub struct PathRun {
 }
 
 /// Runs `spirv` (its interface `iface`) over `rays` through vkrt's two levels of `scene`
-/// (bottom levels of `kind`).
+/// (bottom levels of `choice`'s kind, with 4-wide nodes where its walk is the wide one).
 pub fn run_vkrt(
     ctx: &Context,
     levels: &SceneLevels,
-    kind: AccelKind,
+    choice: AccelChoice,
     (spirv, iface): (&[u32], &ShaderInterface),
     rays: &[Ray],
 ) -> Result<PathRun, GpuError> {
@@ -219,7 +219,7 @@ pub fn run_vkrt(
         });
     }
     let mut rec = Recorder::new(ctx)?;
-    let built = rec.scope("build", |rec| levels.record_vkrt(rec, kind))?;
+    let built = rec.scope("build", |rec| levels.record_vkrt(rec, choice))?;
     let address = built.top.handle_address();
     let handle = Buffer::<[u32; 4]>::new(ctx, "shader_check.handle", 1)?;
     rec.upload(&handle, &[[address as u32, (address >> 32) as u32, 0, 0]])?;

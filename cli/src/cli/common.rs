@@ -76,7 +76,6 @@ pub fn accel_traversal(
 ) -> vkrt::accel::device::AccelChoice {
     use vkrt::accel::device::{AccelChoice, AccelKind};
     use vkrt::accel::driver::Prefer;
-    use vkrt::accel::walk::Traversal;
     let kind = match accel {
         AccelArg::Kdtree => AccelKind::KdTree,
         AccelArg::SahBvh => AccelKind::SahBvh,
@@ -85,13 +84,19 @@ pub fn accel_traversal(
         AccelArg::Driver => return AccelChoice::driver(Prefer::FastTrace),
         AccelArg::DriverFastBuild => return AccelChoice::driver(Prefer::FastBuild),
     };
-    let walk = match walk {
+    AccelChoice::new(kind, traversal(walk, ctx))
+}
+
+/// The walk `--traversal` names, on `ctx`'s device (`auto`: its fastest walk; the binary
+/// stack walk before there is a device).
+pub fn traversal(walk: TraversalArg, ctx: Option<&Context>) -> vkrt::accel::walk::Traversal {
+    use vkrt::accel::walk::Traversal;
+    match walk {
         TraversalArg::Auto => ctx.map_or(Traversal::Stack, Traversal::for_device),
         TraversalArg::Stack => Traversal::Stack,
         TraversalArg::Bitstack => Traversal::Bitstack,
         TraversalArg::Wide => Traversal::Wide,
-    };
-    AccelChoice::new(kind, walk)
+    }
 }
 
 #[derive(Clone, Copy, ValueEnum)]

@@ -7,7 +7,7 @@ use std::path::PathBuf;
 use clap::{Args, ValueEnum};
 use vkrt::shader_check::{self as check, Through};
 
-use super::common::{context, load_scene, CliResult};
+use super::common::{context, load_scene, CliResult, TraversalArg};
 
 #[derive(Clone, Copy, PartialEq, ValueEnum)]
 pub enum ThroughArg {
@@ -43,6 +43,11 @@ pub struct ShaderCheckArgs {
     /// vkrt's bottom levels (the top level is an LBVH).
     #[arg(long, value_enum, default_value_t = BottomArg::Lbvh)]
     accel: BottomArg,
+    /// How vkrt walks its bottom levels: the device's fastest (auto: `vkrt info` says which),
+    /// binary nodes (stack or bitstack: the query's walk is the stack walk either way) or
+    /// 4-wide ones. The answers are the same.
+    #[arg(long, value_enum, default_value_t = TraversalArg::Auto)]
+    traversal: TraversalArg,
     /// Write the results (16 bytes a ray, as the shader wrote them): the driver's, or vkrt's
     /// where the driver did not run. Written atomically; nothing is written on an error.
     #[arg(short, long)]
@@ -110,7 +115,17 @@ pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
         Through::Both => true,
     };
     let vkrt_run = match &shader.vkrt {
-        Some((words, iface)) => Some(check::run_vkrt(&ctx, &levels, kind, (words, iface), &rays)?),
+        Some((words, iface)) => {
+            let walk = super::common::traversal(args.traversal, Some(&ctx));
+            let choice = vkrt::accel::device::AccelChoice::new(kind, walk);
+            Some(check::run_vkrt(
+                &ctx,
+                &levels,
+                choice,
+                (words, iface),
+                &rays,
+            )?)
+        }
         None => None,
     };
     let driver_run = match (&shader.native, native) {

@@ -310,46 +310,52 @@ void vkrt_wide_child(VkrtWideNode w, uint k, vec3 p, vec3 s, VkrtRay r, vec3 inv
         cb = c_;                   \
     }
 
-#define VKRT_WIDE_PUSH(t, c)                            \
+#define VKRT_WIDE_PUSH_ON(AT, t, c)                     \
     if (c.x != VKRT_NO_NODE || c.y != 0u) {             \
-        stack[top] = vkrt_stack_entry(c, t);       \
-        top++;                                     \
+        AT(top) = vkrt_stack_entry(c, t);               \
+        top++;                                          \
+    }
+
+// The 4-wide walk's descent: at a node, its four children's boxes are tested, sorted by entry
+// distance, pushed farthest first, and the nearest taken, until a leaf is in hand, the stack
+// is empty or the step cap is reached. A statement over the same variables as
+// VKRT_BVH_DESCEND_ON (the wide stack walk, and the ray query's walk of a wide bottom level).
+#define VKRT_WIDE_DESCEND_ON(AT)                                            \
+    while (have && cur.y == 0u && steps <= VKRT_STEP_LIMIT) {               \
+        steps++;                                                            \
+        VkrtWideNode w_ = vkrt_load_wide_node(cur.x);                       \
+        vec3 p_ = uintBitsToFloat(w_.frame.xyz);                            \
+        vec3 s_ = vkrt_wide_scales(w_.frame.w);                             \
+        float t0, t1, t2, t3;                                               \
+        uvec2 c0, c1, c2, c3;                                               \
+        vkrt_wide_child(w_, 0u, p_, s_, r, inv_d, tmin, best_t, t0, c0);    \
+        vkrt_wide_child(w_, 1u, p_, s_, r, inv_d, tmin, best_t, t1, c1);    \
+        vkrt_wide_child(w_, 2u, p_, s_, r, inv_d, tmin, best_t, t2, c2);    \
+        vkrt_wide_child(w_, 3u, p_, s_, r, inv_d, tmin, best_t, t3, c3);    \
+        VKRT_WIDE_ORDER(t0, c0, t1, c1)                                     \
+        VKRT_WIDE_ORDER(t2, c2, t3, c3)                                     \
+        VKRT_WIDE_ORDER(t0, c0, t2, c2)                                     \
+        VKRT_WIDE_ORDER(t1, c1, t3, c3)                                     \
+        VKRT_WIDE_ORDER(t1, c1, t2, c2)                                     \
+        VKRT_WIDE_PUSH_ON(AT, t3, c3)                                       \
+        VKRT_WIDE_PUSH_ON(AT, t2, c2)                                       \
+        VKRT_WIDE_PUSH_ON(AT, t1, c1)                                       \
+        if (c0.x != VKRT_NO_NODE || c0.y != 0u) {                           \
+            cur = c0;                                                       \
+        } else {                                                            \
+            VKRT_BVH_POP_ON(AT);                                            \
+        }                                                                   \
     }
 
 // The stack walk over the 4-wide nodes (Ylitie et al. 2017's layout, Aila & Laine's
-// while-while order): at a node, its four children's boxes are tested, sorted by entry
-// distance, pushed farthest first, and the nearest taken; leaves are tested when in hand.
+// while-while order): VKRT_WIDE_DESCEND_ON to a leaf; leaves are tested when in hand.
 // Wide node 0 is the root. Twin: `wide_stack` in src/trace/bvh_cpu.rs.
 VkrtWalkHit vkrt_trace_bvh_wide(VkrtRay r, float time, bool any_hit) {
     VKRT_WALK_START(r);
     VKRT_STACK_WALK_STATE(VKRT_WIDE_STACK_SIZE);
     // As in the binary stack walk: every natural end returns inside the loop.
     while (true) {
-        while (have && cur.y == 0u && steps <= VKRT_STEP_LIMIT) {
-            steps++;
-            VkrtWideNode w = vkrt_load_wide_node(cur.x);
-            vec3 p = uintBitsToFloat(w.frame.xyz);
-            vec3 s = vkrt_wide_scales(w.frame.w);
-            float t0, t1, t2, t3;
-            uvec2 c0, c1, c2, c3;
-            vkrt_wide_child(w, 0u, p, s, r, inv_d, tmin, best_t, t0, c0);
-            vkrt_wide_child(w, 1u, p, s, r, inv_d, tmin, best_t, t1, c1);
-            vkrt_wide_child(w, 2u, p, s, r, inv_d, tmin, best_t, t2, c2);
-            vkrt_wide_child(w, 3u, p, s, r, inv_d, tmin, best_t, t3, c3);
-            VKRT_WIDE_ORDER(t0, c0, t1, c1)
-            VKRT_WIDE_ORDER(t2, c2, t3, c3)
-            VKRT_WIDE_ORDER(t0, c0, t2, c2)
-            VKRT_WIDE_ORDER(t1, c1, t3, c3)
-            VKRT_WIDE_ORDER(t1, c1, t2, c2)
-            VKRT_WIDE_PUSH(t3, c3)
-            VKRT_WIDE_PUSH(t2, c2)
-            VKRT_WIDE_PUSH(t1, c1)
-            if (c0.x != VKRT_NO_NODE || c0.y != 0u) {
-                cur = c0;
-            } else {
-                VKRT_BVH_POP();
-            }
-        }
+        VKRT_WIDE_DESCEND_ON(VKRT_STACK_AT);
         if (!have) {
             return best;
         }

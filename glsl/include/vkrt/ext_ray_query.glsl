@@ -27,9 +27,9 @@
 // cull opaque/no-opaque, skip triangles/AABBs), the cull mask against the instances' masks,
 // and facing with the instance flags triangle-facing-cull-disable, flip-facing,
 // force-opaque and force-no-opaque and the geometries' opaque flag. A query keeps its walk
-// between calls: `rayQueryProceedEXT` resumes where the last candidate was found (the binary
-// stack walk of vkrt/bvh.glsl, the same node order and tests as vkrtTrace, over the top
-// level and then each instance's bottom level).
+// between calls: `rayQueryProceedEXT` resumes where the last candidate was found (the stack
+// walks of vkrt/bvh.glsl, binary or 4-wide as the bottom level was built, the same node
+// order and tests as vkrtTrace, over the top level and then each instance's bottom level).
 //
 // Where vkrt differs from a driver, within what the specification allows:
 //   - Ties: of opaque triangles at exactly the same t, the lowest instance, then the lowest
@@ -38,9 +38,9 @@
 //     lower bound: a hit nearer the origin than its own rounding error is not reported.
 //   - Box candidates come only where the ray meets the box itself within [tMin, committed
 //     t], one box per primitive; their candidate t is where the ray enters the box.
-//   - Bottom levels must be binary BVHs (LBVH, PLOC, SAH BVH); a query meeting another kind,
-//     or running past the step cap (VKRT_MAX_TRAVERSAL_STEPS, as vkrt/ray_query.glsl),
-//     ends, and `vkrtRayQueryExhausted(q)` says so.
+//   - Bottom levels must be BVHs (LBVH, PLOC, SAH BVH; binary or 4-wide); a query meeting a
+//     kd-tree, or running past the step cap (VKRT_MAX_TRAVERSAL_STEPS, as
+//     vkrt/ray_query.glsl), ends, and `vkrtRayQueryExhausted(q)` says so.
 //   - A query is a handle to one of VKRT_RAY_QUERIES (default 2, at most 4) query states
 //     per invocation; `rayQueryInitializeEXT` takes the oldest when more are live. A query
 //     passed to a function is the same query (as the extension's opaque type is): the
@@ -81,9 +81,10 @@
 #if VKRT_RAY_QUERIES < 1 || VKRT_RAY_QUERIES > 4
 #error "VKRT_RAY_QUERIES: 1 to 4 live ray queries per invocation"
 #endif
-// Two levels of at most VKRT_BVH_MAX_DEPTH each: the stack holds both.
+// A top level (binary, at most VKRT_BVH_MAX_DEPTH entries) and a bottom level (binary, or
+// 4-wide: at most VKRT_WIDE_STACK_SIZE): the stack holds both.
 #ifndef VKRT_RQ_STACK
-#define VKRT_RQ_STACK (2u * VKRT_BVH_MAX_DEPTH)
+#define VKRT_RQ_STACK (VKRT_BVH_MAX_DEPTH + VKRT_WIDE_STACK_SIZE)
 #endif
 
 // A structure named by the address of its handle.
@@ -279,10 +280,11 @@ bool vkrt_rq_enter(uint s, uint i, uint cull_mask) {
     return true;
 }
 
-// Whether the bottom level in use is one this walk serves (a binary BVH).
+// Whether the bottom level in use is one this walk serves (a BVH, binary or 4-wide).
 bool vkrt_rq_walkable() {
     uint walk = vkrt_scene_info.walk;
-    return walk == VKRT_ACCEL_BVH_STACK || walk == VKRT_ACCEL_BVH_BITSTACK;
+    return walk == VKRT_ACCEL_BVH_STACK || walk == VKRT_ACCEL_BVH_BITSTACK
+        || walk == VKRT_ACCEL_BVH_WIDE;
 }
 
 bool vkrtRayQueryProceed(uint q) {
@@ -322,6 +324,8 @@ bool vkrtRayQueryProceed(uint q) {
         vkrt_rq_walk[s].w = bits | VKRT_RQ_DONE | VKRT_RQ_EXHAUSTED;
         return false;
     }
+    // The level in hand has 4-wide nodes (a bottom level built for the wide walk).
+    bool wide = in_bottom && vkrt_scene_info.walk == VKRT_ACCEL_BVH_WIDE;
     vec3 inv_d = vkrt_recip3(r.d);
     VkrtShear sh = vkrt_make_shear(r.d);
     uvec2 cur = uvec2(0u);
@@ -447,6 +451,7 @@ bool vkrtRayQueryProceed(uint q) {
                 end = VKRT_RQ_DONE | VKRT_RQ_EXHAUSTED;
                 break;
             }
+            wide = vkrt_scene_info.walk == VKRT_ACCEL_BVH_WIDE;
             r = VkrtRay(vkrt_rq_object_origin[s].xyz, tmin, vkrt_rq_object_direction[s].xyz, best_t);
             inv_d = vkrt_recip3(r.d);
             sh = vkrt_make_shear(r.d);
@@ -458,7 +463,11 @@ bool vkrtRayQueryProceed(uint q) {
             VKRT_BVH_POP_ON(VKRT_RQ_AT);
         }
         fresh = false;
-        VKRT_BVH_DESCEND_ON(VKRT_RQ_AT);
+        if (wide) {
+            VKRT_WIDE_DESCEND_ON(VKRT_RQ_AT);
+        } else {
+            VKRT_BVH_DESCEND_ON(VKRT_RQ_AT);
+        }
         if (!have) {
             if (in_bottom && (bits & VKRT_RQ_ONE_LEVEL) == 0u) {
                 // The instance is done: back to the top level, whose entries end where the
@@ -467,6 +476,7 @@ bool vkrtRayQueryProceed(uint q) {
                 base = 0u;
                 vkrt_rq_base = 0u;
                 in_bottom = false;
+                wide = false;
                 vkrt_use(top_handle);
                 r = VkrtRay(vkrt_rq_origin[s].xyz, tmin, vkrt_rq_direction[s].xyz, best_t);
                 inv_d = vkrt_recip3(r.d);
