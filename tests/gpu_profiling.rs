@@ -1,6 +1,6 @@
 //! Fine-grained profiling on the test device, under validation: per-dispatch timestamps
 //! named after their kernels, the warm-up scope, query pools that grow or report running
-//! out, and the statistics the render table prints.
+//! out, the statistics the render table prints, and the one CPU+GPU timeline of a trace.
 
 mod common;
 
@@ -168,6 +168,7 @@ fn pass(name: &str, depth: u32, parent: Option<usize>, ms: f64) -> PassTime {
         parent,
         start_ms: Some(0.0),
         ms: Some(ms),
+        ..PassTime::default()
     }
 }
 
@@ -189,7 +190,7 @@ fn per_sample_statistics_of_a_synthetic_profile() {
             pass("render.camera", 1, Some(8), 3.0),
             pass("render.camera", 2, Some(9), 2.5),
         ],
-        untimed_scopes: 0,
+        ..Profile::default()
     };
     let timed = profile.without("warm-up");
     assert_eq!(timed.passes.len(), 8);
@@ -211,4 +212,141 @@ fn per_sample_statistics_of_a_synthetic_profile() {
     );
     assert_eq!(Spread::of(&[4.0, 1.0, 3.0, 2.0]).median, 2.5);
     assert_eq!(Spread::of(&[]).count, 0);
+}
+
+/// The complete events of a trace on thread `tid`, as (name, start, end) in microseconds.
+fn spans_on(trace: &serde_json::Value, tid: u64) -> Vec<(String, f64, f64)> {
+    trace["traceEvents"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["ph"] == "X" && e["tid"] == tid)
+        .map(|e| {
+            let ts = e["ts"].as_f64().unwrap();
+            let name = e["name"].as_str().unwrap().to_string();
+            (name, ts, ts + e["dur"].as_f64().unwrap())
+        })
+        .collect()
+}
+
+#[test]
+fn a_trace_puts_host_spans_and_gpu_passes_on_one_calibrated_time_axis() {
+    let Some(ctx) = context() else { return };
+    if !ctx.info().timestamps {
+        eprintln!("skipped: device has no timestamps");
+        return;
+    }
+    ctx.set_dispatch_timestamps(true);
+    let g = triangles(500);
+    // Three submissions (an upload, a build, a read-back) under one capture.
+    let ((), profile) = vkrt::gpu::capture_profiles(|| {
+        let x = Buffer::from_slice(&ctx, "timeline.x", &[1.0f32; 4096]).unwrap();
+        let y = Buffer::from_slice(&ctx, "timeline.y", &[2.0f32; 4096]).unwrap();
+        lbvh_build(&ctx, &g, true);
+        let mut rec = Recorder::new(&ctx).unwrap();
+        rec.scope("saxpy", |rec| saxpy(&ctx, rec, &x, &y));
+        rec.submit_and_wait().unwrap();
+        assert!(y.download().unwrap().iter().all(|&v| v == 3.0));
+    });
+    ctx.set_dispatch_timestamps(false);
+    assert!(
+        profile.submissions.len() >= 4,
+        "{}",
+        profile.submissions.len()
+    );
+    let names = |n: &str| profile.host_spans.iter().filter(|h| h.name == n).count();
+    assert_eq!(names("vkrt.submit"), profile.submissions.len());
+    assert_eq!(names("vkrt.wait"), profile.submissions.len());
+    assert_eq!(names("vkrt.record"), profile.submissions.len());
+    assert!(names("vkrt.upload") >= 2 && names("vkrt.read_back") >= 1);
+    // Every timed scope's interval on the host's clock lies inside its submission's,
+    // from just before vkQueueSubmit to the end of the fence wait, within the
+    // calibration's error bound.
+    let mut mapped = 0;
+    for (i, p) in profile.passes.iter().enumerate() {
+        let Some((b, e)) = profile.host_interval_ns(i) else {
+            assert!(
+                p.ms.is_none(),
+                "`{}` timed but not on the host's clock",
+                p.name
+            );
+            continue;
+        };
+        let s = &profile.submissions[p.submission.unwrap()];
+        let slack = s.calibration.unwrap().max_deviation_ns.unwrap_or(0) as f64 + 1_000.0;
+        assert!(
+            s.submitted_ns as f64 - slack <= b && b <= e && e <= s.completed_ns as f64 + slack,
+            "`{}` at {b}..{e} ns outside its submission {}..{} ns",
+            p.name,
+            s.submitted_ns,
+            s.completed_ns
+        );
+        mapped += 1;
+    }
+    assert!(mapped > 10, "{mapped} scopes on the host's clock");
+    // (Submissions without a timed scope, such as the uploads', have no calibration.)
+    let method = profile
+        .submissions
+        .iter()
+        .find_map(|s| s.calibration)
+        .unwrap()
+        .method;
+    assert!(
+        [
+            "VK_KHR_calibrated_timestamps",
+            "VK_EXT_calibrated_timestamps",
+            vkrt::gpu::timeline::SUBMIT_ALIGNED
+        ]
+        .contains(&method),
+        "{method}"
+    );
+
+    // The same in the written trace: a CPU track and a GPU track, every GPU span inside a
+    // submit-to-wait interval of the CPU track, the device and calibration in its metadata.
+    let trace = profile.chrome_trace();
+    let tracks: Vec<&str> = trace["traceEvents"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .filter(|e| e["ph"] == "M" && e["name"] == "thread_name")
+        .map(|e| e["args"]["name"].as_str().unwrap())
+        .collect();
+    let family = ctx.queue_family();
+    assert_eq!(
+        tracks,
+        [
+            "CPU (host thread)".to_string(),
+            format!("GPU queue family {family}")
+        ]
+    );
+    let host = spans_on(&trace, 1);
+    let submits: Vec<(f64, f64)> = host
+        .iter()
+        .filter(|h| h.0 == "vkrt.submit")
+        .zip(host.iter().filter(|h| h.0 == "vkrt.wait"))
+        .map(|(s, w)| (s.1, w.2))
+        .collect();
+    let gpu = spans_on(&trace, 100 + u64::from(family));
+    assert_eq!(gpu.len(), mapped);
+    let slack_us = 2.0;
+    for (name, b, e) in &gpu {
+        assert!(
+            submits
+                .iter()
+                .any(|&(s, w)| s - slack_us <= *b && *e <= w + slack_us),
+            "`{name}` at {b}..{e} us in no submit-to-wait interval of {submits:?}"
+        );
+    }
+    let meta = &trace["otherData"];
+    assert_eq!(meta["device"], ctx.info().device.as_str());
+    assert_eq!(meta["driver"], ctx.info().driver.as_str());
+    assert_eq!(
+        meta["timestamp_period_ns"].as_f64().unwrap() as f32,
+        ctx.info().timestamp_period_ns
+    );
+    assert_eq!(meta["calibration"], method);
+    if method != vkrt::gpu::timeline::SUBMIT_ALIGNED {
+        assert!(meta["calibration_max_deviation_ns"].as_u64().is_some());
+    }
+    assert_silent(&ctx);
 }

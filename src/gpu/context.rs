@@ -17,6 +17,7 @@ use super::error::{vk_err, GpuError, Result};
 use super::info::{self, DeviceFeatures, DeviceInfo};
 use super::kernel::{Kernel, KernelKey};
 use super::pipeline_cache;
+use super::timeline::Calibrator;
 use super::validation::{self, MessageSink, Validation, ValidationMessage};
 
 /// How to create a headless context.
@@ -164,6 +165,9 @@ pub(crate) struct Inner {
     pub(crate) peak_bytes: AtomicU64,
     /// Whether new recorders time every dispatch ([`Context::set_dispatch_timestamps`]).
     pub(crate) dispatch_timestamps: AtomicBool,
+    /// Device-tick ↔ host-clock samples, where the device was created with calibrated
+    /// timestamps (vkrt's own devices that have them).
+    pub(crate) calibrator: Option<Calibrator>,
     messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     sink: Box<MessageSink>,
     pub(crate) owns_device: bool,
@@ -195,9 +199,11 @@ impl Context {
         let picked = pick_device(&instance, wanted.as_deref());
         let built = picked.and_then(|(pd, family)| {
             let features = info::supported_features(&instance, pd);
-            create_device(&instance, pd, family, &features).map(|d| (pd, family, features, d))
+            let calibration = Calibrator::extension(&entry, &instance, pd);
+            create_device(&instance, pd, family, &features, calibration)
+                .map(|d| (pd, family, features, (d, calibration)))
         });
-        let (physical_device, queue_family, features, device) = match built {
+        let (physical_device, queue_family, features, (device, calibration)) = match built {
             Ok(v) => v,
             Err(e) => {
                 // SAFETY: nothing else was created from this instance yet.
@@ -224,7 +230,7 @@ impl Context {
             allocator: None,
             pipeline_cache_dir: None,
         };
-        Self::assemble(parts, messenger, sink, true)
+        Self::assemble(parts, messenger, sink, true, calibration)
     }
 
     /// Adopts a device that an embedding renderer owns. vkrt never destroys the adopted
@@ -250,14 +256,17 @@ impl Context {
             parts.enabled_features,
         );
         info::check_requirements(&physical)?;
-        Self::assemble(parts, None, Box::default(), false)
+        Self::assemble(parts, None, Box::default(), false, None)
     }
 
+    /// The context over `parts`; `calibration` names the calibrated-timestamps extension
+    /// the device was created with, if any.
     fn assemble(
         parts: RawParts,
         messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
         sink: Box<MessageSink>,
         owns_device: bool,
+        calibration: Option<&'static CStr>,
     ) -> Result<Self> {
         let mut info = info::query(
             &parts.instance,
@@ -300,6 +309,8 @@ impl Context {
             (None, false) => None,
         };
         let pipeline_cache = pipeline_cache::create(&parts.device, cache_path.as_deref())?;
+        let calibrator =
+            calibration.and_then(|ext| Calibrator::new(&parts.instance, &parts.device, ext));
         Ok(Self {
             inner: Arc::new(Inner {
                 entry: parts.entry,
@@ -324,6 +335,7 @@ impl Context {
                 live_bytes: AtomicU64::new(0),
                 peak_bytes: AtomicU64::new(0),
                 dispatch_timestamps: AtomicBool::new(false),
+                calibrator,
                 messenger,
                 sink,
                 owns_device,
@@ -595,6 +607,7 @@ fn create_device(
     pd: vk::PhysicalDevice,
     family: u32,
     features: &DeviceFeatures,
+    calibration: Option<&'static CStr>,
 ) -> Result<ash::Device> {
     let priorities = [1.0];
     let queues = [vk::DeviceQueueCreateInfo::default()
@@ -602,7 +615,13 @@ fn create_device(
         .queue_priorities(&priorities)];
     // The same structs a renderer gets from `DeviceFeatures::request`.
     let mut r = features.request();
-    let ext_names: Vec<_> = r.extensions.iter().map(|n| n.as_ptr()).collect();
+    // Calibrated timestamps put the device's ticks on the host's clock (`timeline`).
+    let ext_names: Vec<_> = r
+        .extensions
+        .iter()
+        .chain(&calibration)
+        .map(|n| n.as_ptr())
+        .collect();
     let mut create = vk::DeviceCreateInfo::default()
         .queue_create_infos(&queues)
         .enabled_features(&r.base)

@@ -7,7 +7,8 @@
 //! - [`BindingCache`]: descriptor sets and texel views prepared once for every frame;
 //! - [`Recorder`]: dispatches, copies, fills, barrier helpers named by what they order, and
 //!   profiler scopes — into its own command buffer or the caller's;
-//! - [`Profile`]: per-pass GPU milliseconds and a Chrome-trace/Perfetto export;
+//! - [`Profile`]: per-pass GPU milliseconds and a Chrome-trace/Perfetto export, on one time
+//!   axis with the host's spans ([`timeline`]);
 //! - [`AccelerationStructure`]: the driver's own structures (`VK_KHR_acceleration_structure`),
 //!   where the device has ray query;
 //! - [`ForeignKernel`]: a pipeline over a renderer's own SPIR-V and the layout it states;
@@ -31,6 +32,7 @@ mod pipeline_cache;
 mod profiler;
 mod recorder;
 mod shader;
+pub mod timeline;
 mod validation;
 
 pub use accel_ext::{
@@ -49,9 +51,10 @@ pub use info::{
 };
 pub use kernel::{Kernel, Spec, PUSH_CONSTANT_BYTES};
 pub use profiler::{
-    capture as capture_profiles, write_atomically, PassTime, Profile, Spread,
-    DEFAULT_QUERY_CAPACITY,
+    capture as capture_profiles, write_atomically, PassTime, Profile, ProfiledDevice, ScopeKind,
+    Spread, Submission, DEFAULT_QUERY_CAPACITY,
 };
 pub use recorder::{Readback, RecordCounts, RecordedWork, Recorder};
 pub use shader::{find as find_kernel, kernels, ShaderBlob};
+pub use timeline::{host_span, record_host_span, Calibration, HostSpan};
 pub use validation::{Validation, ValidationMessage};

@@ -14,7 +14,11 @@ use super::capture::{interleave, Cmd};
 use super::context::Context;
 use super::error::{vk_err, GpuError, Result};
 use super::kernel::{Kernel, PUSH_CONSTANT_BYTES};
-use super::profiler::{create_query_pool, Profile, ScopeRecorder, DEFAULT_QUERY_CAPACITY};
+use super::profiler::{
+    create_query_pool, Profile, ProfiledDevice, ScopeKind, ScopeRecorder, Submission,
+    DEFAULT_QUERY_CAPACITY,
+};
+use super::timeline::{self, Calibration, HostSpan};
 
 /// How long `submit_and_wait` waits before calling the device hung.
 const SUBMIT_TIMEOUT_NS: u64 = 30 * 60 * 1_000_000_000;
@@ -50,6 +54,9 @@ pub struct Recorder {
     dispatch_timestamps: bool,
     /// Whether dispatches are recorded empty ([`Recorder::warm_up`]).
     warming: bool,
+    /// Host time the recording began, and (a caller's command buffer) was finished.
+    started_ns: u64,
+    finished_ns: u64,
 }
 
 /// Commands a recorder has recorded ([`Recorder::counts`]): what a batched call saves, for
@@ -213,6 +220,8 @@ impl Recorder {
             capture: None,
             dispatch_timestamps,
             warming: false,
+            started_ns: timeline::host_now_ns(),
+            finished_ns: 0,
         })
     }
 
@@ -363,7 +372,7 @@ impl Recorder {
     /// held back by a capture), inside a scope of that name.
     fn timed_dispatch(&mut self, kernel: &Kernel, dispatch: Cmd) {
         if self.dispatch_timestamps && self.capture.is_none() {
-            self.begin_scope(kernel.name());
+            self.begin_scope_of(kernel.name(), ScopeKind::Dispatch);
             self.emit(dispatch);
             self.end_scope();
         } else {
@@ -608,9 +617,12 @@ impl Recorder {
         if data.is_empty() {
             return Ok(());
         }
-        let staging =
-            Buffer::<T>::with_memory(&self.ctx, "staging.upload", data.len(), Memory::Upload)?;
-        staging.write_mapped(bytemuck::cast_slice(data));
+        let staging = timeline::host_span("vkrt.upload", || {
+            let staging =
+                Buffer::<T>::with_memory(&self.ctx, "staging.upload", data.len(), Memory::Upload)?;
+            staging.write_mapped(bytemuck::cast_slice(data));
+            Ok::<_, GpuError>(staging)
+        })?;
         self.ctx.inner.upload_bytes.fetch_add(
             std::mem::size_of_val(data) as u64,
             std::sync::atomic::Ordering::Relaxed,
@@ -911,11 +923,15 @@ impl Recorder {
 
     /// Opens a named pass: a timestamp scope and a debug label. Scopes nest.
     pub fn begin_scope(&mut self, name: &str) {
+        self.begin_scope_of(name, ScopeKind::Pass);
+    }
+
+    fn begin_scope_of(&mut self, name: &str, kind: ScopeKind) {
         if self.capture.is_some() {
             return;
         }
         self.reserve_query();
-        let query = self.scopes.begin(name);
+        let query = self.scopes.begin(name, kind);
         if let Some(du) = &self.ctx.inner.debug_utils {
             let label_name = std::ffi::CString::new(name.replace('\0', " ")).unwrap_or_default();
             let label = vk::DebugUtilsLabelEXT::default().label_name(&label_name);
@@ -981,6 +997,7 @@ impl Recorder {
         // Incomplete work is never submitted.
         self.check()?;
         let device = &self.ctx.inner.device;
+        let recorded_ns = timeline::host_now_ns();
         // SAFETY: recording state, opened by `new`.
         unsafe { device.end_command_buffer(self.cmd) }.map_err(vk_err("vkEndCommandBuffer"))?;
         // SAFETY: valid device.
@@ -993,6 +1010,8 @@ impl Recorder {
             .inner
             .submits
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let submitted_ns = timeline::host_now_ns();
+        let mut waited_ns = submitted_ns;
         let result = {
             let queue = super::error::lock(&self.ctx.inner.queue);
             // SAFETY: the queue is externally synchronised by the lock; the command buffer is
@@ -1000,10 +1019,12 @@ impl Recorder {
             unsafe { device.queue_submit(*queue, &submit, fence) }.map_err(vk_err("vkQueueSubmit"))
         }
         .and_then(|()| {
+            waited_ns = timeline::host_now_ns();
             // SAFETY: the fence belongs to this device.
             unsafe { device.wait_for_fences(&[fence], true, SUBMIT_TIMEOUT_NS) }
                 .map_err(vk_err("vkWaitForFences"))
         });
+        let completed_ns = timeline::host_now_ns();
         // SAFETY: the wait succeeded (or the submit never happened), so the fence is idle.
         // On a timeout the device is hung: we wait for idle before destroying.
         unsafe {
@@ -1023,9 +1044,24 @@ impl Recorder {
                 last_pass: format!("{} (timed out)", self.scopes.last_name()),
             }),
             Err(e) => Err(e),
-            Ok(()) => self
-                .read_profile()
-                .inspect(super::profiler::record_captured),
+            Ok(()) => {
+                let spans = [
+                    ("vkrt.record", self.started_ns, recorded_ns),
+                    ("vkrt.submit", submitted_ns, waited_ns),
+                    ("vkrt.wait", waited_ns, completed_ns),
+                ];
+                let mut profile = self.read_profile(submitted_ns, completed_ns)?;
+                profile.host_spans = spans
+                    .into_iter()
+                    .map(|(name, start_ns, end_ns)| HostSpan {
+                        name,
+                        start_ns,
+                        end_ns,
+                    })
+                    .collect();
+                super::profiler::record_captured(&profile);
+                Ok(profile)
+            }
         }
     }
 
@@ -1034,7 +1070,8 @@ impl Recorder {
     /// `Err` on vkrt's own command buffer, or where a scope was left open or closed twice:
     /// the recording is then dropped with the descriptor sets it bound, so the caller resets
     /// its command buffer rather than submit it.
-    pub fn finish(self) -> Result<RecordedWork> {
+    pub fn finish(mut self) -> Result<RecordedWork> {
+        self.finished_ns = timeline::host_now_ns();
         if self.command_pool.is_some() {
             return Err(GpuError::Usage {
                 call: "Recorder::finish",
@@ -1048,10 +1085,29 @@ impl Recorder {
         })
     }
 
-    fn read_profile(&self) -> Result<Profile> {
+    /// The profile of the completed work, submitted at host time `submitted_ns` (or,
+    /// a caller's command buffer, finished then) and known complete at `completed_ns`.
+    fn read_profile(&self, submitted_ns: u64, completed_ns: u64) -> Result<Profile> {
+        let info = self.ctx.info();
+        let mut submission = Submission {
+            queue_family: self.ctx.inner.queue_family,
+            submitted_ns,
+            completed_ns,
+            timestamp_period_ns: info.timestamp_period_ns,
+            valid_bits: 0,
+            calibration: None,
+        };
+        let device = Some(ProfiledDevice {
+            device: info.device.clone(),
+            driver: info.driver.clone(),
+            timestamp_period_ns: info.timestamp_period_ns,
+        });
         let used = self.scopes.queries_used();
         if used == 0 || !self.scopes.timed() {
-            return Ok(self.scopes.untimed());
+            let mut profile = self.scopes.untimed();
+            profile.submissions.push(submission);
+            profile.device = device;
+            return Ok(profile);
         }
         let mut ticks = vec![0u64; used as usize];
         let per_pool = self.scopes.pool_capacity() as usize;
@@ -1074,9 +1130,35 @@ impl Recorder {
             self.ctx.inner.physical_device,
             self.ctx.inner.queue_family,
         );
-        Ok(self
-            .scopes
-            .resolve(&ticks, self.ctx.info().timestamp_period_ns, bits))
+        let mut profile = self.scopes.resolve(&ticks, info.timestamp_period_ns, bits);
+        submission.valid_bits = bits;
+        // Calibrated now that the work is done; else the first tick is put at the submit.
+        submission.calibration = self
+            .ctx
+            .inner
+            .calibrator
+            .as_ref()
+            .and_then(|c| c.sample())
+            .or_else(|| {
+                let first = profile
+                    .passes
+                    .iter()
+                    .filter_map(|p| p.ticks)
+                    .map(|t| t[0])
+                    .min()?;
+                Some(Calibration {
+                    method: timeline::SUBMIT_ALIGNED,
+                    gpu_tick: first,
+                    host_ns: submitted_ns,
+                    max_deviation_ns: None,
+                })
+            });
+        for p in &mut profile.passes {
+            p.submission = Some(0);
+        }
+        profile.submissions.push(submission);
+        profile.device = device;
+        Ok(profile)
     }
 }
 
@@ -1088,8 +1170,8 @@ impl RecordedWork {
     pub unsafe fn complete(mut self) -> Result<Profile> {
         self.completed = true;
         self.recorder.check()?;
-        self.recorder
-            .read_profile()
+        let r = &self.recorder;
+        r.read_profile(r.finished_ns, timeline::host_now_ns())
             .inspect(super::profiler::record_captured)
     }
 }
