@@ -1,15 +1,22 @@
 //! Fine-grained profiling on the test device, under validation: per-dispatch timestamps
 //! named after their kernels, the warm-up scope, query pools that grow or report running
-//! out, the statistics the render table prints, and the one CPU+GPU timeline of a trace.
+//! out, the statistics the render table prints, the one CPU+GPU timeline of a trace, the
+//! scope hook an embedder's profiler listens on, and the invocation counts of pipeline
+//! statistics.
 
 mod common;
 
 use common::{assert_silent, context};
 use glam::Vec3;
+use std::sync::{Arc, Mutex};
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::primitives::TraceGeometry;
-use vkrt::gpu::{kernels, Buffer, Context, PassTime, Profile, Recorder, Spec, Spread};
+
+use vkrt::gpu::{
+    kernels, vk, Buffer, CompletedScope, Context, PassTime, Profile, QuerySlot, RecordedScope,
+    Recorder, ScopeHook, ScopeKind, Spec, Spread, Submission,
+};
 
 /// Push constants of `glsl/gpu/saxpy.comp` (keep in sync).
 #[repr(C)]
@@ -348,5 +355,261 @@ fn a_trace_puts_host_spans_and_gpu_passes_on_one_calibrated_time_axis() {
     if method != vkrt::gpu::timeline::SUBMIT_ALIGNED {
         assert!(meta["calibration_max_deviation_ns"].as_u64().is_some());
     }
+    assert_silent(&ctx);
+}
+
+/// A scope begun: name, kind, begin query.
+type Begun = (String, ScopeKind, Option<QuerySlot>);
+/// A scope ended: name, begin and end queries.
+type Ended = (String, Option<QuerySlot>, Option<QuerySlot>);
+/// A scope completed: name, kind, depth, queries, ticks.
+type Done = (String, ScopeKind, u32, [QuerySlot; 2], [u64; 2]);
+
+/// What a test embedder's profiler hears from the scope hook.
+#[derive(Default)]
+struct Heard {
+    begun: Mutex<Vec<Begun>>,
+    ended: Mutex<Vec<Ended>>,
+    completed: Mutex<Vec<Done>>,
+}
+
+impl ScopeHook for Heard {
+    fn scope_begun(&self, s: &RecordedScope<'_>) {
+        assert!(s.end.is_none());
+        let entry = (s.name.to_string(), s.kind, s.begin);
+        self.begun.lock().unwrap().push(entry);
+    }
+    fn scope_ended(&self, s: &RecordedScope<'_>) {
+        let entry = (s.name.to_string(), s.begin, s.end);
+        self.ended.lock().unwrap().push(entry);
+    }
+    fn completed(&self, scopes: &[CompletedScope<'_>], submission: &Submission) {
+        assert!(submission.calibration.is_some());
+        let mut heard = self.completed.lock().unwrap();
+        for s in scopes {
+            heard.push((s.name.to_string(), s.kind, s.depth, s.queries, s.ticks));
+        }
+    }
+}
+
+#[test]
+fn a_scope_hook_hears_every_pass_and_dispatch_with_its_queries_and_ticks() {
+    let Some(ctx) = context() else { return };
+    if !ctx.info().timestamps {
+        eprintln!("skipped: device has no timestamps");
+        return;
+    }
+    let heard = Arc::new(Heard::default());
+    ctx.set_scope_hook(Some(heard.clone()));
+    let x = Buffer::from_slice(&ctx, "hook.x", &[1.0f32; 256]).unwrap();
+    let y = Buffer::from_slice(&ctx, "hook.y", &[1.0f32; 256]).unwrap();
+    let narrow = ctx
+        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(32))
+        .unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    rec.set_dispatch_timestamps(true);
+    rec.scope("outer", |rec| {
+        saxpy(&ctx, rec, &x, &y);
+        rec.compute_to_compute();
+        rec.scope("inner", |rec| {
+            rec.dispatch(&narrow, [8, 1, 1], &[&x, &y], &SaxpyPush { a: 1.0, n: 256 })
+        });
+    });
+    // Untimed dispatches are told too, without queries.
+    rec.set_dispatch_timestamps(false);
+    rec.compute_to_compute();
+    saxpy(&ctx, &mut rec, &x, &y);
+    let profile = rec.submit_and_wait().unwrap();
+    let wide = ctx
+        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
+        .unwrap();
+    let (w, n) = (wide.name().to_string(), narrow.name().to_string());
+
+    let begun = heard.begun.lock().unwrap().clone();
+    let names: Vec<&str> = begun.iter().map(|b| b.0.as_str()).collect();
+    assert_eq!(names, ["outer", &w, "inner", &n, &w]);
+    let kinds: Vec<ScopeKind> = begun.iter().map(|b| b.1).collect();
+    use ScopeKind::{Dispatch, Pass};
+    assert_eq!(kinds, [Pass, Dispatch, Pass, Dispatch, Dispatch]);
+    assert!(begun[..4].iter().all(|b| b.2.is_some()) && begun[4].2.is_none());
+    let ended = heard.ended.lock().unwrap().clone();
+    let ended_names: Vec<&str> = ended.iter().map(|e| e.0.as_str()).collect();
+    assert_eq!(ended_names, [&w, &n, "inner", "outer", &w]);
+
+    // At completion: the four timed scopes in opening order, with the queries told at
+    // record time, ticks that nest as the scopes do, and the profile's own ticks.
+    let done = heard.completed.lock().unwrap().clone();
+    let done_names: Vec<&str> = done.iter().map(|d| d.0.as_str()).collect();
+    assert_eq!(done_names, ["outer", &w, "inner", &n]);
+    assert_eq!(done.iter().map(|d| d.2).collect::<Vec<_>>(), [0, 1, 1, 2]);
+    // Scope i of the completed ones was begun i-th and ended as ended[closed[i]].
+    let closed = [3, 0, 2, 1];
+    for (i, d) in done.iter().enumerate() {
+        let (b, e) = (&begun[i], &ended[closed[i]]);
+        assert_eq!((b.2, e.1, e.2), (Some(d.3[0]), Some(d.3[0]), Some(d.3[1])));
+        assert_eq!(profile.passes[i].ticks, Some(d.4));
+    }
+    let t = |i: usize| done[i].4;
+    let order = [
+        t(0)[0],
+        t(1)[0],
+        t(1)[1],
+        t(2)[0],
+        t(3)[0],
+        t(3)[1],
+        t(2)[1],
+        t(0)[1],
+    ];
+    assert!(order.windows(2).all(|p| p[0] <= p[1]), "{order:?}");
+
+    // A build's dispatches are all heard, each named after its kernel.
+    heard.completed.lock().unwrap().clear();
+    let (_, dispatches) = lbvh_build(&ctx, &triangles(300), true);
+    let done = heard.completed.lock().unwrap().clone();
+    let kernel_names: Vec<&str> = kernels::ALL.iter().map(|b| b.name).collect();
+    let heard_dispatches: Vec<&str> = done
+        .iter()
+        .filter(|d| d.1 == Dispatch)
+        .map(|d| d.0.as_str())
+        .collect();
+    assert_eq!(heard_dispatches.len() as u64, dispatches);
+    assert!(heard_dispatches.iter().all(|n| kernel_names.contains(n)));
+    ctx.set_scope_hook(None);
+    assert_silent(&ctx);
+}
+
+#[test]
+fn pipeline_statistics_count_the_invocations_an_indirect_pass_really_ran() {
+    let Some(ctx) = context() else { return };
+    if !ctx.set_pipeline_statistics(true) {
+        eprintln!("skipped: device has no pipelineStatisticsQuery");
+        return;
+    }
+    let x = Buffer::from_slice(&ctx, "stats.x", &[1.0f32; 1024]).unwrap();
+    let y = Buffer::from_slice(&ctx, "stats.y", &[0.0f32; 1024]).unwrap();
+    let kernel = ctx
+        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
+        .unwrap();
+    let push = SaxpyPush { a: 1.0, n: 1024 };
+    // Workgroup counts the device reads when the dispatch runs: 5 x 1 x 1.
+    let indirect = Buffer::from_slice(&ctx, "stats.indirect", &[5u32, 1, 1]).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    rec.scope("direct", |rec| {
+        rec.dispatch(&kernel, [3, 1, 1], &[&x, &y], &push)
+    });
+    rec.compute_to_compute();
+    rec.scope("indirect", |rec| {
+        rec.dispatch_indirect(&kernel, &indirect, 0, &[&x, &y], &push)
+    });
+    rec.compute_to_compute();
+    rec.scope("both", |rec| {
+        rec.scope("inner", |rec| {
+            rec.dispatch(&kernel, [2, 1, 1], &[&x, &y], &push)
+        });
+        rec.compute_to_compute();
+        rec.dispatch(&kernel, [1, 1, 1], &[&x, &y], &push);
+    });
+    rec.scope("empty", |_| ());
+    let profile = rec.submit_and_wait().unwrap();
+    assert_eq!(profile.invocations("direct"), Some(3 * 64));
+    assert_eq!(profile.invocations("indirect"), Some(5 * 64));
+    assert_eq!(profile.invocations("inner"), Some(2 * 64));
+    assert_eq!(profile.invocations("both"), Some(3 * 64));
+    assert_eq!(profile.invocations("empty"), Some(0));
+    let trace = profile.chrome_trace();
+    let indirect_event = trace["traceEvents"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["name"] == "indirect" && e["ph"] == "X");
+    if let Some(e) = indirect_event {
+        assert_eq!(e["args"]["compute_invocations"], 5 * 64);
+    }
+
+    // Off, nothing is counted.
+    ctx.set_pipeline_statistics(false);
+    let mut rec = Recorder::new(&ctx).unwrap();
+    rec.scope("direct", |rec| {
+        rec.dispatch(&kernel, [3, 1, 1], &[&x, &y], &push)
+    });
+    let profile = rec.submit_and_wait().unwrap();
+    assert_eq!(profile.invocations("direct"), None);
+    assert_silent(&ctx);
+}
+
+/// Vulkan objects a caller's recording of six timed, counted-or-not dispatches creates
+/// while recording (after `Recorder::from_raw`), on a command buffer never submitted.
+fn objects_made_while_recording(ctx: &Context, x: &Buffer<f32>, y: &Buffer<f32>) -> u64 {
+    let kernel = ctx
+        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
+        .unwrap();
+    let device = ctx.device();
+    let info = vk::CommandPoolCreateInfo::default().queue_family_index(ctx.queue_family());
+    // SAFETY: a command pool and one primary buffer of the context's own device, begun
+    // once, never submitted, freed after the recording is dropped.
+    let (pool, cmd) = unsafe {
+        let pool = device.create_command_pool(&info, None).unwrap();
+        let alloc = vk::CommandBufferAllocateInfo::default()
+            .command_pool(pool)
+            .level(vk::CommandBufferLevel::PRIMARY)
+            .command_buffer_count(1);
+        let cmd = device.allocate_command_buffers(&alloc).unwrap()[0];
+        device
+            .begin_command_buffer(cmd, &vk::CommandBufferBeginInfo::default())
+            .unwrap();
+        (pool, cmd)
+    };
+    // SAFETY: `cmd` is recording, of the context's family; never submitted; the work is
+    // dropped (not completed) before the pool goes.
+    let mut rec = unsafe { Recorder::from_raw(ctx, cmd, 8) }.unwrap();
+    rec.set_dispatch_timestamps(true);
+    let before = ctx.traffic().objects_created;
+    // Counting has four queries here (half the capacity): the dispatches past them are
+    // left uncounted, never given a new pool.
+    for _ in 0..6 {
+        rec.scope("pass", |rec| {
+            rec.dispatch(&kernel, [1, 1, 1], &[x, y], &SaxpyPush { a: 1.0, n: 64 })
+        });
+    }
+    let made = ctx.traffic().objects_created - before;
+    drop(rec.finish().unwrap());
+    // SAFETY: the recording is gone and the buffer was never submitted.
+    unsafe { device.destroy_command_pool(pool, None) };
+    made
+}
+
+#[test]
+fn counting_makes_no_object_while_a_callers_command_buffer_records() {
+    let Some(ctx) = context() else { return };
+    let x = Buffer::from_slice(&ctx, "raw.x", &[1.0f32; 64]).unwrap();
+    let y = Buffer::from_slice(&ctx, "raw.y", &[0.0f32; 64]).unwrap();
+    let uncounted = objects_made_while_recording(&ctx, &x, &y);
+    if !ctx.set_pipeline_statistics(true) {
+        eprintln!("skipped: device has no pipelineStatisticsQuery");
+        return;
+    }
+    // What the recording itself binds (descriptor sets) and nothing more.
+    assert_eq!(objects_made_while_recording(&ctx, &x, &y), uncounted);
+    assert_silent(&ctx);
+}
+
+/// With the `tracy` feature: every timed scope of a build becomes a Tracy GPU zone, none
+/// left out, each given its ticks at completion (recorded where the application's
+/// tracy-client has `enable`; `--features tracy,tracy-client/enable` runs Tracy's client).
+#[cfg(feature = "tracy")]
+#[test]
+fn the_tracy_hook_turns_every_timed_scope_into_a_zone() {
+    let Some(ctx) = context() else { return };
+    if !ctx.info().timestamps {
+        eprintln!("skipped: device has no timestamps");
+        return;
+    }
+    let client = tracy_client::Client::start();
+    let tracy = vkrt::gpu::tracy::TracyScopes::new(&ctx, client, "vkrt test").unwrap();
+    ctx.set_scope_hook(Some(tracy.clone()));
+    let (profile, dispatches) = lbvh_build(&ctx, &triangles(300), true);
+    assert!(dispatches > 0 && profile.passes.iter().all(|p| p.ticks.is_some()));
+    assert_eq!(tracy.dropped_scopes(), 0);
+    ctx.set_scope_hook(None);
     assert_silent(&ctx);
 }

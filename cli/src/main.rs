@@ -33,6 +33,11 @@ struct Cli {
     /// timestamp queries per dispatch).
     #[arg(long, global = true)]
     profile_dispatches: bool,
+    /// Count each scope's compute-shader invocations (a pipeline-statistics query around
+    /// every dispatch, where the device has them), beside its time in `render`'s table and
+    /// in the trace.
+    #[arg(long, global = true)]
+    profile_stats: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -125,6 +130,7 @@ fn main() -> ExitCode {
 fn run(cli: Cli) -> cli::common::CliResult<()> {
     cli::common::set_profiling(cli::common::Profiling {
         dispatches: cli.profile_dispatches,
+        statistics: cli.profile_stats,
     });
     let Some(path) = cli.profile.clone() else {
         return run_command(cli);

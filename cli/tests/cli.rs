@@ -128,6 +128,38 @@ fn profile_is_global_and_writes_a_trace_for_build_and_render() {
 }
 
 #[test]
+fn profile_stats_puts_invocations_beside_each_render_pass() {
+    let image = std::env::temp_dir().join(format!("vkrt-cli-stats-{}.png", std::process::id()));
+    let image = image.to_str().unwrap();
+    let args = [
+        "render", "-o", image, "--width", "16", "--height", "16", "--spp", "1",
+    ];
+    let Some(out) = vkrt_ok(&[&args[..], &["--json", "--profile-stats"]].concat()) else {
+        return;
+    };
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for pass in v["passes"].as_array().unwrap() {
+        let (rays, n) = (pass["rays"].as_u64().unwrap(), pass["invocations"].as_u64());
+        // Where the device counts: at least one invocation per ray the pass handled.
+        if let Some(n) = n {
+            assert!(n >= rays, "{pass}");
+        }
+    }
+    let camera = &v["passes"][0];
+    assert_eq!(camera["name"], "camera");
+    if camera["invocations"].is_u64() {
+        assert!(camera["invocations"].as_u64().unwrap() >= 256);
+    }
+    // Without the flag nothing is counted.
+    let Some(out) = vkrt_ok(&[&args[..], &["--json"]].concat()) else {
+        return;
+    };
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["passes"][0]["invocations"].is_null());
+    std::fs::remove_file(image).unwrap();
+}
+
+#[test]
 fn an_unwritable_profile_path_is_an_error_and_leaves_no_file() {
     let dir = std::env::temp_dir().join(format!("vkrt-cli-missing-{}", std::process::id()));
     let trace = dir.join("sub").join("trace.json");

@@ -14,10 +14,11 @@ use ash::vk;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
 
 use super::error::{vk_err, GpuError, Result};
+use super::hook::ScopeHook;
 use super::info::{self, DeviceFeatures, DeviceInfo};
 use super::kernel::{Kernel, KernelKey};
 use super::pipeline_cache;
-use super::timeline::Calibrator;
+use super::timeline::{Calibration, Calibrator};
 use super::validation::{self, MessageSink, Validation, ValidationMessage};
 
 /// How to create a headless context.
@@ -165,6 +166,11 @@ pub(crate) struct Inner {
     pub(crate) peak_bytes: AtomicU64,
     /// Whether new recorders time every dispatch ([`Context::set_dispatch_timestamps`]).
     pub(crate) dispatch_timestamps: AtomicBool,
+    /// Whether new recorders count compute-shader invocations
+    /// ([`Context::set_pipeline_statistics`]).
+    pub(crate) pipeline_statistics: AtomicBool,
+    /// The hook new recorders tell their scopes ([`Context::set_scope_hook`]).
+    pub(crate) scope_hook: Mutex<Option<Arc<dyn ScopeHook>>>,
     /// Device-tick ↔ host-clock samples, where the device was created with calibrated
     /// timestamps (vkrt's own devices that have them).
     pub(crate) calibrator: Option<Calibrator>,
@@ -335,6 +341,8 @@ impl Context {
                 live_bytes: AtomicU64::new(0),
                 peak_bytes: AtomicU64::new(0),
                 dispatch_timestamps: AtomicBool::new(false),
+                pipeline_statistics: AtomicBool::new(false),
+                scope_hook: Mutex::new(None),
                 calibrator,
                 messenger,
                 sink,
@@ -351,6 +359,46 @@ impl Context {
     /// reports the dispatches its capacity left untimed instead).
     pub fn set_dispatch_timestamps(&self, on: bool) {
         self.inner.dispatch_timestamps.store(on, Ordering::Relaxed);
+    }
+
+    /// Whether recorders made from now on count the compute-shader invocations of every
+    /// dispatch with a pipeline-statistics query and sum them into the scopes around it
+    /// ([`super::PassTime::invocations`]): how much work an indirect pass really did. Off by
+    /// default. Needs `pipelineStatisticsQuery` ([`DeviceFeatures::pipeline_statistics_query`]);
+    /// returns whether counting is on. vkrt's own recorders make a query pool when they are
+    /// created and add one whenever it fills; a caller's [`Recorder::from_raw`] makes one of
+    /// half its query capacity when it is created, never while recording, and counts the
+    /// dispatches past it as uncounted (a warning); [`Recorder::from_raw_with`] counts
+    /// nothing (it creates no Vulkan object).
+    ///
+    /// [`Recorder::from_raw`]: super::Recorder::from_raw
+    /// [`Recorder::from_raw_with`]: super::Recorder::from_raw_with
+    pub fn set_pipeline_statistics(&self, on: bool) -> bool {
+        let on = on && self.inner.info.features.pipeline_statistics_query;
+        self.inner.pipeline_statistics.store(on, Ordering::Relaxed);
+        on
+    }
+
+    /// Registers `hook` on the recorders made from now on: each is told every scope and
+    /// dispatch as it is recorded, with the timestamp queries it wrote, and their ticks once
+    /// the work has completed ([`ScopeHook`]); `None` removes it.
+    pub fn set_scope_hook(&self, hook: Option<Arc<dyn ScopeHook>>) {
+        *super::error::lock(&self.inner.scope_hook) = hook;
+    }
+
+    /// A device tick and the host time it corresponds to, now: through calibrated
+    /// timestamps where the context has them, else from a submission of one timestamp
+    /// (placed at its submit). `None` where the device has no timestamps. What a GPU
+    /// profiler of the caller's starts its clock from (Tracy's `new_gpu_context`).
+    pub fn calibrate(&self) -> Result<Option<Calibration>> {
+        if let Some(c) = self.inner.calibrator.as_ref().and_then(|c| c.sample()) {
+            return Ok(Some(c));
+        }
+        let mut rec = super::Recorder::new(self)?;
+        rec.set_scope_hook(None);
+        rec.scope("vkrt.clock", |_| ());
+        let profile = rec.submit_and_wait()?;
+        Ok(profile.submissions.first().and_then(|s| s.calibration))
     }
 
     /// Queue submissions vkrt made and bytes it read back to the host through this context

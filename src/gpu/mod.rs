@@ -11,6 +11,9 @@
 //!   axis with the host's spans ([`timeline`]);
 //! - [`AccelerationStructure`]: the driver's own structures (`VK_KHR_acceleration_structure`),
 //!   where the device has ray query;
+//! - [`ScopeHook`]: every scope and dispatch with its queries as it is recorded, and their
+//!   ticks once done, for a renderer's own profiler (`tracy::TracyScopes` with the `tracy`
+//!   feature);
 //! - [`ForeignKernel`]: a pipeline over a renderer's own SPIR-V and the layout it states;
 //! - [`Validation`]: the Khronos layer with synchronization validation, for tests.
 //!
@@ -25,6 +28,7 @@ mod capture;
 mod context;
 mod error;
 mod foreign;
+mod hook;
 mod info;
 mod kernel;
 mod pipeline;
@@ -32,7 +36,10 @@ mod pipeline_cache;
 mod profiler;
 mod recorder;
 mod shader;
+mod stats;
 pub mod timeline;
+#[cfg(feature = "tracy")]
+pub mod tracy;
 mod validation;
 
 pub use accel_ext::{
@@ -45,6 +52,7 @@ pub use buffer::{address_of, placement, Buffer, BufferArg, Memory, RawBuffer, Te
 pub use context::{Context, ContextOptions, MemoryUsage, RawParts, Traffic};
 pub use error::{GpuError, Result};
 pub use foreign::{ForeignBinding, ForeignKernel};
+pub use hook::{CompletedScope, QuerySlot, RecordedScope, ScopeHook};
 pub use info::{
     device_requirements, mesa_version, traversal_steps_within, DeviceFeatureRequest,
     DeviceFeatures, DeviceInfo, DeviceRequirements, LLVMPIPE_LOOP_BUDGET,

@@ -219,10 +219,22 @@ impl ScopeRecorder {
 
     /// The queries of every timed scope, in opening order, with its name and kind (what a
     /// [`super::ScopeHook`] is told at completion).
-    pub(crate) fn timed_scopes(&self) -> impl Iterator<Item = (&str, ScopeKind, u32, u32)> {
+    pub(crate) fn timed_scopes(&self) -> impl Iterator<Item = (usize, &str, ScopeKind, u32, u32)> {
         self.scopes
             .iter()
-            .filter_map(|s| Some((s.name.as_str(), s.kind, s.begin?, s.end?)))
+            .enumerate()
+            .filter_map(|(i, s)| Some((i, s.name.as_str(), s.kind, s.begin?, s.end?)))
+    }
+
+    /// The innermost open scope.
+    pub(crate) fn innermost(&self) -> Option<usize> {
+        self.open.last().copied()
+    }
+
+    /// Scope `i`'s name, kind, depth and begin query.
+    pub(crate) fn scope(&self, i: usize) -> (&str, ScopeKind, u32, Option<u32>) {
+        let s = &self.scopes[i];
+        (s.name.as_str(), s.kind, s.depth, s.begin)
     }
 
     /// The scope tree without times (no timestamp support).

@@ -13,11 +13,13 @@ use super::buffer::{Buffer, BufferArg, Memory};
 use super::capture::{interleave, Cmd};
 use super::context::Context;
 use super::error::{vk_err, GpuError, Result};
+use super::hook::{CompletedScope, QuerySlot, RecordedScope, ScopeHook};
 use super::kernel::{Kernel, PUSH_CONSTANT_BYTES};
 use super::profiler::{
     create_query_pool, Profile, ProfiledDevice, ScopeKind, ScopeRecorder, Submission,
     DEFAULT_QUERY_CAPACITY,
 };
+use super::stats::{create_counts_pool, DispatchCounts, COUNTS_PER_POOL};
 use super::timeline::{self, Calibration, HostSpan};
 
 /// How long `submit_and_wait` waits before calling the device hung.
@@ -57,6 +59,10 @@ pub struct Recorder {
     /// Host time the recording began, and (a caller's command buffer) was finished.
     started_ns: u64,
     finished_ns: u64,
+    /// The hook told every scope ([`Recorder::set_scope_hook`]).
+    hook: Option<std::sync::Arc<dyn ScopeHook>>,
+    /// Compute-shader invocations counted per dispatch ([`Context::set_pipeline_statistics`]).
+    counts_queries: Option<DispatchCounts>,
 }
 
 /// Commands a recorder has recorded ([`Recorder::counts`]): what a batched call saves, for
@@ -206,6 +212,35 @@ impl Recorder {
         // pools while recording: a caller's recording creates no Vulkan object of its own
         // beyond the pool it sized.
         scopes.set_growable(dispatch_timestamps && command_pool.is_some());
+        // Counters are made here, before anything is recorded: a caller's recording gets
+        // half its query capacity; one binding from a cache, none.
+        let counting = ctx
+            .inner
+            .pipeline_statistics
+            .load(std::sync::atomic::Ordering::Relaxed)
+            && queries > 0;
+        let counts_queries = match counting {
+            true => {
+                let capacity = match command_pool {
+                    Some(_) => COUNTS_PER_POOL,
+                    None => (queries / 2).max(1),
+                };
+                let pool = match create_counts_pool(&ctx.inner.device, capacity) {
+                    Ok(p) => p,
+                    Err(e) => {
+                        if let Some(p) = query_pool {
+                            // SAFETY: just created, used by nothing.
+                            unsafe { ctx.inner.device.destroy_query_pool(p, None) };
+                        }
+                        return Err(e);
+                    }
+                };
+                ctx.inner.created(1);
+                Some(DispatchCounts::new(pool, capacity, command_pool.is_some()))
+            }
+            false => None,
+        };
+        let hook = super::error::lock(&ctx.inner.scope_hook).clone();
         Ok(Self {
             ctx: ctx.clone(),
             cmd,
@@ -222,6 +257,8 @@ impl Recorder {
             warming: false,
             started_ns: timeline::host_now_ns(),
             finished_ns: 0,
+            hook,
+            counts_queries,
         })
     }
 
@@ -236,6 +273,41 @@ impl Recorder {
     pub fn set_dispatch_timestamps(&mut self, on: bool) {
         self.dispatch_timestamps = on;
         self.scopes.set_growable(on && self.command_pool.is_some());
+    }
+
+    /// Tells `hook` every scope and dispatch recorded from now on, and their ticks once the
+    /// work has completed ([`ScopeHook`]); the context's [`Context::set_scope_hook`] sets the
+    /// default; `None` tells nothing.
+    pub fn set_scope_hook(&mut self, hook: Option<std::sync::Arc<dyn ScopeHook>>) {
+        self.hook = hook;
+    }
+
+    /// Tells the hook, if any, about a scope opened or (`end`) closed.
+    fn tell_hook(
+        &self,
+        name: &str,
+        kind: ScopeKind,
+        depth: usize,
+        queries: [Option<u32>; 2],
+        end: bool,
+    ) {
+        let Some(hook) = &self.hook else { return };
+        let slot = |q: u32| {
+            let (pool, index) = self.scopes.locate(q);
+            QuerySlot { pool, index }
+        };
+        let scope = RecordedScope {
+            name,
+            kind,
+            depth: depth as u32,
+            command_buffer: self.cmd,
+            begin: queries[0].map(slot),
+            end: queries[1].map(slot),
+        };
+        match end {
+            false => hook.scope_begun(&scope),
+            true => hook.scope_ended(&scope),
+        }
     }
 
     /// Records `f` with every dispatch emptied (zero workgroups) and every fill, copy and
@@ -377,7 +449,14 @@ impl Recorder {
             self.end_scope();
         } else {
             self.label_dispatch(kernel);
+            let depth = self.scopes.open_scopes();
+            if self.capture.is_none() {
+                self.tell_hook(kernel.name(), ScopeKind::Dispatch, depth, [None; 2], false);
+            }
             self.emit(dispatch);
+            if self.capture.is_none() {
+                self.tell_hook(kernel.name(), ScopeKind::Dispatch, depth, [None; 2], true);
+            }
         }
     }
 
@@ -711,8 +790,46 @@ impl Recorder {
         }
     }
 
+    /// Starts counting the dispatch about to be recorded, where counting is on.
+    fn begin_count(&mut self) -> Option<(vk::QueryPool, u32)> {
+        let counts = self.counts_queries.as_mut()?;
+        if counts.wants_pool() {
+            match create_counts_pool(&self.ctx.inner.device, COUNTS_PER_POOL) {
+                Ok(p) => {
+                    self.ctx.inner.created(1);
+                    counts.add_pool(Some(p));
+                }
+                Err(e) => {
+                    log::warn!("no further pipeline-statistics query pool: {e}");
+                    counts.add_pool(None);
+                }
+            }
+        }
+        let (pool, q) = counts.take(self.scopes.innermost())?;
+        // SAFETY: recording outside a render pass; `q` is below the pool's capacity; no
+        // other pipeline-statistics query is active (each spans one dispatch).
+        unsafe {
+            let device = &self.ctx.inner.device;
+            device.cmd_reset_query_pool(self.cmd, pool, q, 1);
+            device.cmd_begin_query(self.cmd, pool, q, vk::QueryControlFlags::empty());
+        }
+        Some((pool, q))
+    }
+
     /// Records `cmd` into the command buffer.
     fn record(&mut self, cmd: &Cmd) {
+        let counted = match cmd {
+            Cmd::Dispatch(_) | Cmd::DispatchIndirect { .. } => self.begin_count(),
+            _ => None,
+        };
+        self.record_now(cmd);
+        if let Some((pool, q)) = counted {
+            // SAFETY: the query begun by begin_count around this one dispatch.
+            unsafe { self.ctx.inner.device.cmd_end_query(self.cmd, pool, q) };
+        }
+    }
+
+    fn record_now(&mut self, cmd: &Cmd) {
         let device = &self.ctx.inner.device;
         let c = self.cmd;
         match cmd {
@@ -941,6 +1058,8 @@ impl Recorder {
         if let Some(q) = query {
             self.write_timestamp(q);
         }
+        let depth = self.scopes.open_scopes() - 1;
+        self.tell_hook(name, kind, depth, [query, None], false);
     }
 
     /// Closes the innermost open pass. Without one, nothing is recorded and finishing or
@@ -954,9 +1073,14 @@ impl Recorder {
             return;
         }
         self.reserve_query();
+        let closing = self.scopes.innermost();
         let query = self.scopes.end();
         if let Some(q) = query {
             self.write_timestamp(q);
+        }
+        if let Some((name, kind, depth, begin)) = closing.map(|i| self.scopes.scope(i)) {
+            let name = name.to_string();
+            self.tell_hook(&name, kind, depth as usize, [begin, query], true);
         }
         if let Some(du) = &self.ctx.inner.debug_utils {
             // SAFETY: recording; a label was begun in begin_scope.
@@ -1014,15 +1138,20 @@ impl Recorder {
         let mut waited_ns = submitted_ns;
         let result = {
             let queue = super::error::lock(&self.ctx.inner.queue);
-            // SAFETY: the queue is externally synchronised by the lock; the command buffer is
-            // executable; the fence is unsignalled.
-            unsafe { device.queue_submit(*queue, &submit, fence) }.map_err(vk_err("vkQueueSubmit"))
+            timeline::profiling_scope("vkrt.submit", || {
+                // SAFETY: the queue is externally synchronised by the lock; the command
+                // buffer is executable; the fence is unsignalled.
+                unsafe { device.queue_submit(*queue, &submit, fence) }
+                    .map_err(vk_err("vkQueueSubmit"))
+            })
         }
         .and_then(|()| {
             waited_ns = timeline::host_now_ns();
-            // SAFETY: the fence belongs to this device.
-            unsafe { device.wait_for_fences(&[fence], true, SUBMIT_TIMEOUT_NS) }
-                .map_err(vk_err("vkWaitForFences"))
+            timeline::profiling_scope("vkrt.wait", || {
+                // SAFETY: the fence belongs to this device.
+                unsafe { device.wait_for_fences(&[fence], true, SUBMIT_TIMEOUT_NS) }
+                    .map_err(vk_err("vkWaitForFences"))
+            })
         });
         let completed_ns = timeline::host_now_ns();
         // SAFETY: the wait succeeded (or the submit never happened), so the fence is idle.
@@ -1105,6 +1234,9 @@ impl Recorder {
         let used = self.scopes.queries_used();
         if used == 0 || !self.scopes.timed() {
             let mut profile = self.scopes.untimed();
+            if let Some(counts) = &self.counts_queries {
+                counts.attribute(&self.ctx.inner.device, &mut profile.passes)?;
+            }
             profile.submissions.push(submission);
             profile.device = device;
             return Ok(profile);
@@ -1131,6 +1263,9 @@ impl Recorder {
             self.ctx.inner.queue_family,
         );
         let mut profile = self.scopes.resolve(&ticks, info.timestamp_period_ns, bits);
+        if let Some(counts) = &self.counts_queries {
+            counts.attribute(&self.ctx.inner.device, &mut profile.passes)?;
+        }
         submission.valid_bits = bits;
         // Calibrated now that the work is done; else the first tick is put at the submit.
         submission.calibration = self
@@ -1155,6 +1290,25 @@ impl Recorder {
             });
         for p in &mut profile.passes {
             p.submission = Some(0);
+        }
+        if let Some(hook) = &self.hook {
+            let slot = |q: u32| {
+                let (pool, index) = self.scopes.locate(q);
+                QuerySlot { pool, index }
+            };
+            let completed: Vec<CompletedScope<'_>> = self
+                .scopes
+                .timed_scopes()
+                .map(|(i, name, kind, b, e)| CompletedScope {
+                    name,
+                    kind,
+                    depth: profile.passes[i].depth,
+                    queries: [slot(b), slot(e)],
+                    ticks: profile.passes[i].ticks.unwrap_or_default(),
+                    invocations: profile.passes[i].invocations,
+                })
+                .collect();
+            hook.completed(&completed, &submission);
         }
         profile.submissions.push(submission);
         profile.device = device;
@@ -1197,6 +1351,9 @@ impl Drop for RecordedWork {
             r.descriptor_pools.leak();
             r.views.leak();
             r.scopes.pools.clear();
+            if let Some(c) = r.counts_queries.as_mut() {
+                c.pools.clear();
+            }
             std::mem::forget(std::mem::take(&mut r.staging));
             // A shared cache must outlive the sets this command buffer binds.
             std::mem::forget(r.cache.take());
@@ -1215,6 +1372,13 @@ impl Drop for Recorder {
             self.descriptor_pools.destroy(device);
             self.views.destroy(device);
             for pool in self.scopes.pools.drain(..) {
+                device.destroy_query_pool(pool, None);
+            }
+            for pool in self
+                .counts_queries
+                .iter_mut()
+                .flat_map(|c| c.pools.drain(..))
+            {
                 device.destroy_query_pool(pool, None);
             }
             if let Some(pool) = self.command_pool.take() {

@@ -218,12 +218,20 @@ fn monotonic_at_epoch() -> Option<(u64, u64)> {
 /// ([`super::capture_profiles`]); with the `profiling` feature also as a `profiling` scope
 /// (Tracy, Puffin, Optick, Superluminal or `tracing`, as the application chose).
 pub fn host_span<R>(name: &'static str, f: impl FnOnce() -> R) -> R {
-    #[cfg(feature = "profiling")]
-    profiling::scope!(name);
     let start = Instant::now();
-    let r = f();
+    let r = profiling_scope(name, f);
     record_host_span(name, start);
     r
+}
+
+/// Runs `f` inside a `profiling` scope named `name` (with the `profiling` feature; else
+/// just runs it).
+pub(crate) fn profiling_scope<R>(name: &'static str, f: impl FnOnce() -> R) -> R {
+    #[cfg(feature = "profiling")]
+    profiling::scope!(name);
+    #[cfg(not(feature = "profiling"))]
+    let _ = name;
+    f()
 }
 
 /// Records a host span named `name` from `start` until now in the active profile capture.

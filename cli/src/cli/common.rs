@@ -139,6 +139,8 @@ pub fn init_logging(verbose: u8, quiet: bool) {
 pub struct Profiling {
     /// `--profile-dispatches`: every dispatch a timed scope of its own.
     pub dispatches: bool,
+    /// `--profile-stats`: compute-shader invocations counted per scope.
+    pub statistics: bool,
 }
 
 static PROFILING: std::sync::OnceLock<Profiling> = std::sync::OnceLock::new();
@@ -152,6 +154,9 @@ pub fn set_profiling(p: Profiling) {
 pub fn apply_profiling(ctx: &Context) {
     let p = PROFILING.get().copied().unwrap_or_default();
     ctx.set_dispatch_timestamps(p.dispatches);
+    if p.statistics && !ctx.set_pipeline_statistics(true) {
+        log::warn!("--profile-stats: the device has no pipeline-statistics queries");
+    }
 }
 
 pub fn context(validate: bool) -> CliResult<Context> {

@@ -177,16 +177,26 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
             r.render_ms,
             r.mrays_per_s()
         );
-        println!(
+        // The invocations column where --profile-stats counted them.
+        let counted = r.passes.iter().any(|p| p.invocations.is_some());
+        let head = format!(
             "  {:<11} {:>12}      {:>10} {:>6} {:>10} {:>19}",
             "pass", "rays", "total", "runs", "median", "min-max"
         );
+        match counted {
+            true => println!("{head}    {:>14}", "invocations"),
+            false => println!("{head}"),
+        }
         for pass in &r.passes {
             let s = pass.per_sample;
-            println!(
+            let line = format!(
                 "  {:<11} {:>12} rays {:>7.1} ms {:>6} {:>7.2} ms {:>8.2}-{:<7.2} ms",
                 pass.name, pass.rays, pass.ms, s.count, s.median, s.min, s.max
             );
+            match pass.invocations {
+                Some(n) if counted => println!("{line} {n:>14}"),
+                _ => println!("{line}"),
+            }
         }
         println!(
             "  {:<11} {:>12}      {:>7.1} ms (kernels dispatched empty before sample 0)",
