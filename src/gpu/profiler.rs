@@ -339,9 +339,8 @@ pub struct Profile {
     pub untimed_scopes: usize,
     /// The submissions the passes ran in, each with its host times and calibration.
     pub submissions: Vec<Submission>,
-    /// What the host did meanwhile: recording, submits, waits, read-backs, uploads, builds
-    /// on the CPU — the spans of vkrt's own submissions always, the rest while a capture
-    /// ([`capture`]) is active.
+    /// What the host did meanwhile, recorded while a capture ([`capture`]) is active:
+    /// recording, submits, waits, read-backs, uploads, builds on the CPU.
     pub host_spans: Vec<HostSpan>,
     /// The device the passes ran on.
     pub device: Option<ProfiledDevice>,

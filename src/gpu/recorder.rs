@@ -1179,15 +1179,14 @@ impl Recorder {
                     ("vkrt.submit", submitted_ns, waited_ns),
                     ("vkrt.wait", waited_ns, completed_ns),
                 ];
-                let mut profile = self.read_profile(submitted_ns, completed_ns)?;
-                profile.host_spans = spans
-                    .into_iter()
-                    .map(|(name, start_ns, end_ns)| HostSpan {
+                let profile = self.read_profile(submitted_ns, completed_ns)?;
+                for (name, start_ns, end_ns) in spans {
+                    super::profiler::record_host_span(HostSpan {
                         name,
                         start_ns,
                         end_ns,
-                    })
-                    .collect();
+                    });
+                }
                 super::profiler::record_captured(&profile);
                 Ok(profile)
             }
