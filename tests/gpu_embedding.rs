@@ -211,6 +211,17 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
     assert_eq!(profile.passes[0].name, "embedded.saxpy");
     if ctx.info().timestamps {
         assert!(profile.passes[0].ms.unwrap() > 0.0);
+        // An adopted device has no calibrated timestamps of vkrt's: the first tick is put
+        // at the host time the recording was finished.
+        let s = &profile.submissions[0];
+        let c = s.calibration.unwrap();
+        assert_eq!(c.method, vkrt::gpu::timeline::SUBMIT_ALIGNED);
+        assert_eq!(c.max_deviation_ns, None);
+        assert_eq!(
+            profile.host_interval_ns(0).unwrap().0,
+            s.submitted_ns as f64
+        );
+        assert!(s.submitted_ns <= s.completed_ns);
     }
     assert!(y.download().unwrap().iter().all(|&v| v == 7.0));
 

@@ -1,6 +1,7 @@
 //! The `vkrt` command line: a thin layer over the library. This file parses the global
 //! flags and picks the command; each command lives in its own file under `cli/`.
 
+use std::path::PathBuf;
 use std::process::ExitCode;
 
 use clap::{Parser, Subcommand};
@@ -23,6 +24,20 @@ struct Cli {
     /// Errors only on stderr (no warnings).
     #[arg(short, long, global = true, conflicts_with = "verbose")]
     quiet: bool,
+    /// Write a Chrome trace of the whole command (open in ui.perfetto.dev): the host's spans
+    /// (recording, submits, waits, read-backs, uploads, CPU builds) and every GPU pass, on
+    /// one calibrated time axis.
+    #[arg(long, global = true, value_name = "FILE")]
+    profile: Option<PathBuf>,
+    /// Time every dispatch too, as a scope named after its kernel inside its pass (costs two
+    /// timestamp queries per dispatch).
+    #[arg(long, global = true)]
+    profile_dispatches: bool,
+    /// Count each scope's compute-shader invocations (a pipeline-statistics query around
+    /// every dispatch, where the device has them), beside its time in `render`'s table and
+    /// in the trace.
+    #[arg(long, global = true)]
+    profile_stats: bool,
     #[command(subcommand)]
     command: Command,
 }
@@ -113,6 +128,19 @@ fn main() -> ExitCode {
 }
 
 fn run(cli: Cli) -> cli::common::CliResult<()> {
+    cli::common::set_profiling(cli::common::Profiling {
+        dispatches: cli.profile_dispatches,
+        statistics: cli.profile_stats,
+    });
+    let Some(path) = cli.profile.clone() else {
+        return run_command(cli);
+    };
+    let (result, profile) = vkrt::gpu::capture_profiles(|| run_command(cli));
+    result?;
+    cli::common::write_profile(&path, &profile)
+}
+
+fn run_command(cli: Cli) -> cli::common::CliResult<()> {
     let validate = cli.validate;
     match cli.command {
         Command::Info(args) => cli::info::run(&args, validate),

@@ -74,6 +74,91 @@ fn bench_copy_writes_a_perfetto_trace() {
     std::fs::remove_dir_all(&dir).unwrap();
 }
 
+/// A `--profile` trace of `args`: valid JSON with a CPU and a GPU track, host spans around
+/// every submission, GPU passes, and the device in its metadata.
+fn profiled(args: &[&str], pass: &str) {
+    let dir = std::env::temp_dir().join(format!("vkrt-cli-profile-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let trace = dir.join(format!("{}.json", args[0]));
+    let mut all: Vec<&str> = args.to_vec();
+    all.extend(["--profile", trace.to_str().unwrap()]);
+    let Some(_) = vkrt_ok(&all) else {
+        return;
+    };
+    let t: serde_json::Value = serde_json::from_slice(&std::fs::read(&trace).unwrap()).unwrap();
+    let events = t["traceEvents"].as_array().unwrap();
+    let on = |tid: u64, name: &str| {
+        events
+            .iter()
+            .any(|e| e["ph"] == "X" && e["tid"] == tid && e["name"] == name)
+    };
+    let gpu_tid = events
+        .iter()
+        .find(|e| e["ph"] == "M" && e["args"]["name"].as_str().unwrap_or("").starts_with("GPU"))
+        .map(|e| e["tid"].as_u64().unwrap())
+        .expect("a GPU track");
+    for span in ["vkrt.record", "vkrt.submit", "vkrt.wait"] {
+        assert!(
+            on(1, span),
+            "vkrt {}: no `{span}` on the CPU track",
+            args[0]
+        );
+    }
+    assert!(
+        on(gpu_tid, pass),
+        "vkrt {}: no `{pass}` on the GPU track",
+        args[0]
+    );
+    assert!(!t["otherData"]["device"].as_str().unwrap().is_empty());
+    assert!(!t["otherData"]["calibration"].as_str().unwrap().is_empty());
+    std::fs::remove_file(&trace).unwrap();
+}
+
+#[test]
+fn profile_is_global_and_writes_a_trace_for_build_and_render() {
+    profiled(&["build", "--accel", "lbvh"], "build");
+    let image = std::env::temp_dir().join(format!("vkrt-cli-profile-{}.png", std::process::id()));
+    let image = image.to_str().unwrap();
+    let small = ["--width", "16", "--height", "16", "--spp", "1"];
+    profiled(
+        &[&["render", "-o", image][..], &small].concat(),
+        "render.sample",
+    );
+    std::fs::remove_file(image).unwrap();
+}
+
+#[test]
+fn profile_stats_puts_invocations_beside_each_render_pass() {
+    let image = std::env::temp_dir().join(format!("vkrt-cli-stats-{}.png", std::process::id()));
+    let image = image.to_str().unwrap();
+    let args = [
+        "render", "-o", image, "--width", "16", "--height", "16", "--spp", "1",
+    ];
+    let Some(out) = vkrt_ok(&[&args[..], &["--json", "--profile-stats"]].concat()) else {
+        return;
+    };
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    for pass in v["passes"].as_array().unwrap() {
+        let (rays, n) = (pass["rays"].as_u64().unwrap(), pass["invocations"].as_u64());
+        // Where the device counts: at least one invocation per ray the pass handled.
+        if let Some(n) = n {
+            assert!(n >= rays, "{pass}");
+        }
+    }
+    let camera = &v["passes"][0];
+    assert_eq!(camera["name"], "camera");
+    if camera["invocations"].is_u64() {
+        assert!(camera["invocations"].as_u64().unwrap() >= 256);
+    }
+    // Without the flag nothing is counted.
+    let Some(out) = vkrt_ok(&[&args[..], &["--json"]].concat()) else {
+        return;
+    };
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert!(v["passes"][0]["invocations"].is_null());
+    std::fs::remove_file(image).unwrap();
+}
+
 #[test]
 fn an_unwritable_profile_path_is_an_error_and_leaves_no_file() {
     let dir = std::env::temp_dir().join(format!("vkrt-cli-missing-{}", std::process::id()));

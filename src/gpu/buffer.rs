@@ -426,6 +426,10 @@ impl<T: Pod> Buffer<T> {
 
     /// Writes `data` at the start of the buffer (through staging for device memory).
     pub fn upload(&self, data: &[T]) -> Result<()> {
+        super::timeline::host_span("vkrt.upload", || self.upload_now(data))
+    }
+
+    fn upload_now(&self, data: &[T]) -> Result<()> {
         if data.len() > self.len {
             return Err(GpuError::Usage {
                 call: "Buffer::upload",
@@ -446,7 +450,7 @@ impl<T: Pod> Buffer<T> {
         }
         let staging =
             Buffer::<T>::with_memory(&self.ctx, "staging.upload", data.len(), Memory::Upload)?;
-        staging.upload(data)?;
+        staging.write_mapped(bytemuck::cast_slice(data));
         self.ctx.inner.upload_bytes.fetch_add(
             std::mem::size_of_val(data) as u64,
             std::sync::atomic::Ordering::Relaxed,
@@ -459,6 +463,10 @@ impl<T: Pod> Buffer<T> {
 
     /// Reads the whole buffer back.
     pub fn download(&self) -> Result<Vec<T>> {
+        super::timeline::host_span("vkrt.read_back", || self.download_now())
+    }
+
+    fn download_now(&self) -> Result<Vec<T>> {
         if self.len == 0 {
             return Ok(Vec::new());
         }
@@ -479,7 +487,7 @@ impl<T: Pod> Buffer<T> {
         rec.copy(self, &staging, self.len);
         rec.transfer_to_host();
         rec.submit_and_wait()?;
-        staging.download()
+        staging.download_now()
     }
 
     fn mapped_bytes(&self) -> &[u8] {

@@ -14,9 +14,11 @@ use ash::vk;
 use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
 
 use super::error::{vk_err, GpuError, Result};
+use super::hook::ScopeHook;
 use super::info::{self, DeviceFeatures, DeviceInfo};
 use super::kernel::{Kernel, KernelKey};
 use super::pipeline_cache;
+use super::timeline::{Calibration, Calibrator};
 use super::validation::{self, MessageSink, Validation, ValidationMessage};
 
 /// How to create a headless context.
@@ -164,6 +166,14 @@ pub(crate) struct Inner {
     pub(crate) peak_bytes: AtomicU64,
     /// Whether new recorders time every dispatch ([`Context::set_dispatch_timestamps`]).
     pub(crate) dispatch_timestamps: AtomicBool,
+    /// Whether new recorders count compute-shader invocations
+    /// ([`Context::set_pipeline_statistics`]).
+    pub(crate) pipeline_statistics: AtomicBool,
+    /// The hook new recorders tell their scopes ([`Context::set_scope_hook`]).
+    pub(crate) scope_hook: Mutex<Option<Arc<dyn ScopeHook>>>,
+    /// Device-tick ↔ host-clock samples, where the device was created with calibrated
+    /// timestamps (vkrt's own devices that have them).
+    pub(crate) calibrator: Option<Calibrator>,
     messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     sink: Box<MessageSink>,
     pub(crate) owns_device: bool,
@@ -195,9 +205,11 @@ impl Context {
         let picked = pick_device(&instance, wanted.as_deref());
         let built = picked.and_then(|(pd, family)| {
             let features = info::supported_features(&instance, pd);
-            create_device(&instance, pd, family, &features).map(|d| (pd, family, features, d))
+            let calibration = Calibrator::extension(&entry, &instance, pd);
+            create_device(&instance, pd, family, &features, calibration)
+                .map(|d| (pd, family, features, (d, calibration)))
         });
-        let (physical_device, queue_family, features, device) = match built {
+        let (physical_device, queue_family, features, (device, calibration)) = match built {
             Ok(v) => v,
             Err(e) => {
                 // SAFETY: nothing else was created from this instance yet.
@@ -224,7 +236,7 @@ impl Context {
             allocator: None,
             pipeline_cache_dir: None,
         };
-        Self::assemble(parts, messenger, sink, true)
+        Self::assemble(parts, messenger, sink, true, calibration)
     }
 
     /// Adopts a device that an embedding renderer owns. vkrt never destroys the adopted
@@ -250,14 +262,17 @@ impl Context {
             parts.enabled_features,
         );
         info::check_requirements(&physical)?;
-        Self::assemble(parts, None, Box::default(), false)
+        Self::assemble(parts, None, Box::default(), false, None)
     }
 
+    /// The context over `parts`; `calibration` names the calibrated-timestamps extension
+    /// the device was created with, if any.
     fn assemble(
         parts: RawParts,
         messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
         sink: Box<MessageSink>,
         owns_device: bool,
+        calibration: Option<&'static CStr>,
     ) -> Result<Self> {
         let mut info = info::query(
             &parts.instance,
@@ -300,6 +315,8 @@ impl Context {
             (None, false) => None,
         };
         let pipeline_cache = pipeline_cache::create(&parts.device, cache_path.as_deref())?;
+        let calibrator =
+            calibration.and_then(|ext| Calibrator::new(&parts.instance, &parts.device, ext));
         Ok(Self {
             inner: Arc::new(Inner {
                 entry: parts.entry,
@@ -324,6 +341,9 @@ impl Context {
                 live_bytes: AtomicU64::new(0),
                 peak_bytes: AtomicU64::new(0),
                 dispatch_timestamps: AtomicBool::new(false),
+                pipeline_statistics: AtomicBool::new(false),
+                scope_hook: Mutex::new(None),
+                calibrator,
                 messenger,
                 sink,
                 owns_device,
@@ -339,6 +359,46 @@ impl Context {
     /// reports the dispatches its capacity left untimed instead).
     pub fn set_dispatch_timestamps(&self, on: bool) {
         self.inner.dispatch_timestamps.store(on, Ordering::Relaxed);
+    }
+
+    /// Whether recorders made from now on count the compute-shader invocations of every
+    /// dispatch with a pipeline-statistics query and sum them into the scopes around it
+    /// ([`super::PassTime::invocations`]): how much work an indirect pass really did. Off by
+    /// default. Needs `pipelineStatisticsQuery` ([`DeviceFeatures::pipeline_statistics_query`]);
+    /// returns whether counting is on. vkrt's own recorders make a query pool when they are
+    /// created and add one whenever it fills; a caller's [`Recorder::from_raw`] makes one of
+    /// half its query capacity when it is created, never while recording, and counts the
+    /// dispatches past it as uncounted (a warning); [`Recorder::from_raw_with`] counts
+    /// nothing (it creates no Vulkan object).
+    ///
+    /// [`Recorder::from_raw`]: super::Recorder::from_raw
+    /// [`Recorder::from_raw_with`]: super::Recorder::from_raw_with
+    pub fn set_pipeline_statistics(&self, on: bool) -> bool {
+        let on = on && self.inner.info.features.pipeline_statistics_query;
+        self.inner.pipeline_statistics.store(on, Ordering::Relaxed);
+        on
+    }
+
+    /// Registers `hook` on the recorders made from now on: each is told every scope and
+    /// dispatch as it is recorded, with the timestamp queries it wrote, and their ticks once
+    /// the work has completed ([`ScopeHook`]); `None` removes it.
+    pub fn set_scope_hook(&self, hook: Option<Arc<dyn ScopeHook>>) {
+        *super::error::lock(&self.inner.scope_hook) = hook;
+    }
+
+    /// A device tick and the host time it corresponds to, now: through calibrated
+    /// timestamps where the context has them, else from a submission of one timestamp
+    /// (placed at its submit). `None` where the device has no timestamps. What a GPU
+    /// profiler of the caller's starts its clock from (Tracy's `new_gpu_context`).
+    pub fn calibrate(&self) -> Result<Option<Calibration>> {
+        if let Some(c) = self.inner.calibrator.as_ref().and_then(|c| c.sample()) {
+            return Ok(Some(c));
+        }
+        let mut rec = super::Recorder::new(self)?;
+        rec.set_scope_hook(None);
+        rec.scope("vkrt.clock", |_| ());
+        let profile = rec.submit_and_wait()?;
+        Ok(profile.submissions.first().and_then(|s| s.calibration))
     }
 
     /// Queue submissions vkrt made and bytes it read back to the host through this context
@@ -595,6 +655,7 @@ fn create_device(
     pd: vk::PhysicalDevice,
     family: u32,
     features: &DeviceFeatures,
+    calibration: Option<&'static CStr>,
 ) -> Result<ash::Device> {
     let priorities = [1.0];
     let queues = [vk::DeviceQueueCreateInfo::default()
@@ -602,7 +663,13 @@ fn create_device(
         .queue_priorities(&priorities)];
     // The same structs a renderer gets from `DeviceFeatures::request`.
     let mut r = features.request();
-    let ext_names: Vec<_> = r.extensions.iter().map(|n| n.as_ptr()).collect();
+    // Calibrated timestamps put the device's ticks on the host's clock (`timeline`).
+    let ext_names: Vec<_> = r
+        .extensions
+        .iter()
+        .chain(&calibration)
+        .map(|n| n.as_ptr())
+        .collect();
     let mut create = vk::DeviceCreateInfo::default()
         .queue_create_infos(&queues)
         .enabled_features(&r.base)

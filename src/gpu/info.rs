@@ -28,6 +28,9 @@ pub struct DeviceFeatures {
     pub shader_float16: bool,
     /// `hostQueryReset`: query pools may be reset from the host (`vkResetQueryPool`).
     pub host_query_reset: bool,
+    /// `pipelineStatisticsQuery`: pipeline-statistics queries, which count each scope's
+    /// compute-shader invocations when asked to ([`super::Context::set_pipeline_statistics`]).
+    pub pipeline_statistics_query: bool,
     /// `subgroupSizeControl`: a pipeline may ask for a subgroup size between
     /// [`DeviceInfo::min_subgroup_size`] and [`DeviceInfo::max_subgroup_size`].
     pub subgroup_size_control: bool,
@@ -159,6 +162,7 @@ impl DeviceFeatures {
         f.shader_int16 = on(base.shader_int16);
         f.shader_int64 = on(base.shader_int64);
         f.shader_float64 = on(base.shader_float64);
+        f.pipeline_statistics_query = on(base.pipeline_statistics_query);
         let names: &[*const std::ffi::c_char] = match info.enabled_extension_count {
             0 => &[],
             // SAFETY: the caller's contract: a live struct of this sType, live names.
@@ -186,7 +190,8 @@ impl DeviceFeatures {
 /// chains. [`DeviceFeatures::from_device_create_info`] of the result gives the set back.
 #[derive(Clone, Debug, Default)]
 pub struct DeviceFeatureRequest {
-    /// `VkPhysicalDeviceFeatures`: `shaderInt16`, `shaderInt64`, `shaderFloat64`.
+    /// `VkPhysicalDeviceFeatures`: `shaderInt16`, `shaderInt64`, `shaderFloat64`,
+    /// `pipelineStatisticsQuery`.
     pub base: vk::PhysicalDeviceFeatures,
     /// `storageBuffer16BitAccess`.
     pub v11: vk::PhysicalDeviceVulkan11Features<'static>,
@@ -215,7 +220,8 @@ impl DeviceFeatures {
             base: vk::PhysicalDeviceFeatures::default()
                 .shader_int64(self.shader_int64)
                 .shader_float64(self.shader_float64)
-                .shader_int16(self.shader_int16),
+                .shader_int16(self.shader_int16)
+                .pipeline_statistics_query(self.pipeline_statistics_query),
             v11: vk::PhysicalDeviceVulkan11Features::default()
                 .storage_buffer16_bit_access(self.storage_buffer_16bit),
             v12: vk::PhysicalDeviceVulkan12Features::default()
@@ -540,6 +546,7 @@ pub(crate) fn supported_features(
         shader_float64: base.shader_float64 == vk::TRUE,
         shader_float16: f12.shader_float16 == vk::TRUE,
         host_query_reset: f12.host_query_reset == vk::TRUE,
+        pipeline_statistics_query: base.pipeline_statistics_query == vk::TRUE,
         subgroup_size_control: size_control.subgroup_size_control == vk::TRUE,
         compute_full_subgroups: size_control.compute_full_subgroups == vk::TRUE,
         api_1_3,
@@ -741,6 +748,7 @@ mod tests {
             shader_float64: true,
             shader_float16: true,
             host_query_reset: true,
+            pipeline_statistics_query: true,
             subgroup_size_control: true,
             compute_full_subgroups: true,
             api_1_3: false,

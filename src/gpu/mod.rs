@@ -7,9 +7,13 @@
 //! - [`BindingCache`]: descriptor sets and texel views prepared once for every frame;
 //! - [`Recorder`]: dispatches, copies, fills, barrier helpers named by what they order, and
 //!   profiler scopes — into its own command buffer or the caller's;
-//! - [`Profile`]: per-pass GPU milliseconds and a Chrome-trace/Perfetto export;
+//! - [`Profile`]: per-pass GPU milliseconds and a Chrome-trace/Perfetto export, on one time
+//!   axis with the host's spans ([`timeline`]);
 //! - [`AccelerationStructure`]: the driver's own structures (`VK_KHR_acceleration_structure`),
 //!   where the device has ray query;
+//! - [`ScopeHook`]: every scope and dispatch with its queries as it is recorded, and their
+//!   ticks once done, for a renderer's own profiler (`tracy::TracyScopes` with the `tracy`
+//!   feature);
 //! - [`ForeignKernel`]: a pipeline over a renderer's own SPIR-V and the layout it states;
 //! - [`Validation`]: the Khronos layer with synchronization validation, for tests.
 //!
@@ -24,6 +28,7 @@ mod capture;
 mod context;
 mod error;
 mod foreign;
+mod hook;
 mod info;
 mod kernel;
 mod pipeline;
@@ -31,6 +36,10 @@ mod pipeline_cache;
 mod profiler;
 mod recorder;
 mod shader;
+mod stats;
+pub mod timeline;
+#[cfg(feature = "tracy")]
+pub mod tracy;
 mod validation;
 
 pub use accel_ext::{
@@ -43,15 +52,17 @@ pub use buffer::{address_of, placement, Buffer, BufferArg, Memory, RawBuffer, Te
 pub use context::{Context, ContextOptions, MemoryUsage, RawParts, Traffic};
 pub use error::{GpuError, Result};
 pub use foreign::{ForeignBinding, ForeignKernel};
+pub use hook::{CompletedScope, QuerySlot, RecordedScope, ScopeHook};
 pub use info::{
     device_requirements, mesa_version, traversal_steps_within, DeviceFeatureRequest,
     DeviceFeatures, DeviceInfo, DeviceRequirements, LLVMPIPE_LOOP_BUDGET,
 };
 pub use kernel::{Kernel, Spec, PUSH_CONSTANT_BYTES};
 pub use profiler::{
-    capture as capture_profiles, write_atomically, PassTime, Profile, Spread,
-    DEFAULT_QUERY_CAPACITY,
+    capture as capture_profiles, write_atomically, PassTime, Profile, ProfiledDevice, ScopeKind,
+    Spread, Submission, DEFAULT_QUERY_CAPACITY,
 };
 pub use recorder::{Readback, RecordCounts, RecordedWork, Recorder};
 pub use shader::{find as find_kernel, kernels, ShaderBlob};
+pub use timeline::{host_span, record_host_span, Calibration, HostSpan};
 pub use validation::{Validation, ValidationMessage};

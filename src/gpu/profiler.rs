@@ -3,7 +3,8 @@
 //!
 //! The same name is the debug-utils label (RenderDoc, Nsight, validation messages) and the
 //! crash marker reported on `DEVICE_LOST`. `Profile::write_chrome_trace` exports the
-//! Chrome trace-event JSON that Perfetto (ui.perfetto.dev) and chrome://tracing open.
+//! Chrome trace-event JSON that Perfetto (ui.perfetto.dev) and chrome://tracing open: the
+//! host's spans and the device's passes on one time axis (`timeline`).
 
 use std::path::Path;
 
@@ -11,6 +12,7 @@ use ash::vk;
 use serde::Serialize;
 
 use super::error::{vk_err, GpuError, Result};
+use super::timeline::{Calibration, HostSpan};
 
 /// Timestamp queries one recorder reserves by default (two per scope).
 pub const DEFAULT_QUERY_CAPACITY: u32 = 32768;
@@ -18,6 +20,7 @@ pub const DEFAULT_QUERY_CAPACITY: u32 = 32768;
 #[derive(Debug)]
 struct Scope {
     name: String,
+    kind: ScopeKind,
     depth: u32,
     parent: Option<usize>,
     begin: Option<u32>,
@@ -99,13 +102,14 @@ impl ScopeRecorder {
     }
 
     /// Opens a scope; returns the query to write a timestamp into, if any.
-    pub(crate) fn begin(&mut self, name: &str) -> Option<u32> {
+    pub(crate) fn begin(&mut self, name: &str, kind: ScopeKind) -> Option<u32> {
         let begin = self.take_query();
         if begin.is_none() && self.timed() {
             self.untimed += 1;
         }
         self.scopes.push(Scope {
             name: name.to_string(),
+            kind,
             depth: self.open.len() as u32,
             parent: self.open.last().copied(),
             begin,
@@ -172,22 +176,28 @@ impl ScopeRecorder {
             .scopes
             .iter()
             .map(|s| {
-                let timed = match (s.begin, s.end) {
+                let ticks = match (s.begin, s.end) {
                     (Some(b), Some(e)) => {
-                        let (b, e) = (ticks[b as usize] & mask, ticks[e as usize] & mask);
-                        Some((
-                            to_ms(b),
-                            (e.wrapping_sub(b) & mask) as f64 * f64::from(period_ns) / 1e6,
-                        ))
+                        Some([ticks[b as usize] & mask, ticks[e as usize] & mask])
                     }
                     _ => None,
                 };
+                let timed = ticks.map(|[b, e]| {
+                    (
+                        to_ms(b),
+                        (e.wrapping_sub(b) & mask) as f64 * f64::from(period_ns) / 1e6,
+                    )
+                });
                 PassTime {
                     name: s.name.clone(),
+                    kind: s.kind,
                     depth: s.depth,
                     parent: s.parent,
                     start_ms: timed.map(|t| t.0),
                     ms: timed.map(|t| t.1),
+                    ticks,
+                    submission: None,
+                    invocations: None,
                 }
             })
             .collect();
@@ -203,7 +213,28 @@ impl ScopeRecorder {
         Profile {
             passes,
             untimed_scopes: self.untimed,
+            ..Profile::default()
         }
+    }
+
+    /// The queries of every timed scope, in opening order, with its name and kind (what a
+    /// [`super::ScopeHook`] is told at completion).
+    pub(crate) fn timed_scopes(&self) -> impl Iterator<Item = (usize, &str, ScopeKind, u32, u32)> {
+        self.scopes
+            .iter()
+            .enumerate()
+            .filter_map(|(i, s)| Some((i, s.name.as_str(), s.kind, s.begin?, s.end?)))
+    }
+
+    /// The innermost open scope.
+    pub(crate) fn innermost(&self) -> Option<usize> {
+        self.open.last().copied()
+    }
+
+    /// Scope `i`'s name, kind, depth and begin query.
+    pub(crate) fn scope(&self, i: usize) -> (&str, ScopeKind, u32, Option<u32>) {
+        let s = &self.scopes[i];
+        (s.name.as_str(), s.kind, s.depth, s.begin)
     }
 
     /// The scope tree without times (no timestamp support).
@@ -213,12 +244,26 @@ impl ScopeRecorder {
     }
 }
 
+/// Whether a scope is a pass ([`super::Recorder::begin_scope`]) or one dispatch timed on
+/// its own ([`super::Recorder::set_dispatch_timestamps`]).
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+#[serde(rename_all = "snake_case")]
+pub enum ScopeKind {
+    /// A named pass.
+    #[default]
+    Pass,
+    /// One dispatch, named after its kernel and variant.
+    Dispatch,
+}
+
 /// One scope's timing. `None` times mean the device has no timestamps or the query
 /// capacity ran out.
-#[derive(Clone, Debug, Serialize)]
+#[derive(Clone, Debug, Default, Serialize)]
 pub struct PassTime {
     /// The scope's name (also its debug-utils label).
     pub name: String,
+    /// A pass or one dispatch.
+    pub kind: ScopeKind,
     /// Nesting depth: 0 for an outermost scope.
     pub depth: u32,
     /// Index of the enclosing scope in `Profile::passes`.
@@ -227,6 +272,61 @@ pub struct PassTime {
     pub start_ms: Option<f64>,
     /// Duration in milliseconds.
     pub ms: Option<f64>,
+    /// The raw device ticks of its begin and end timestamps (masked to the queue's
+    /// `timestampValidBits`), for a profiler of the caller's own.
+    pub ticks: Option<[u64; 2]>,
+    /// Index of its submission in [`Profile::submissions`]: how its ticks map onto host time.
+    pub submission: Option<usize>,
+    /// Compute-shader invocations of the dispatches inside it (pipeline-statistics queries,
+    /// [`super::Context::set_pipeline_statistics`]); `None` when not counted.
+    pub invocations: Option<u64>,
+}
+
+/// One submission's place on the host's clock.
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct Submission {
+    /// The queue family it ran on (each is a track of the trace).
+    pub queue_family: u32,
+    /// Host time ([`super::timeline::host_ns`]) just before `vkQueueSubmit`; for a caller's
+    /// command buffer, when its recording was finished.
+    pub submitted_ns: u64,
+    /// Host time when its wait returned; for a caller's command buffer, when it was completed.
+    pub completed_ns: u64,
+    /// Nanoseconds per tick (`timestampPeriod`).
+    pub timestamp_period_ns: f32,
+    /// The queue's `timestampValidBits`.
+    pub valid_bits: u32,
+    /// How its ticks map onto host time; `None` where it has no timed scope.
+    pub calibration: Option<Calibration>,
+}
+
+impl Submission {
+    /// The host time (nanoseconds, [`super::timeline::host_ns`]'s clock) of device `tick`.
+    pub fn host_ns_of(&self, tick: u64) -> Option<f64> {
+        let c = self.calibration?;
+        let mask = match self.valid_bits {
+            0 | 64.. => u64::MAX,
+            bits => (1u64 << bits) - 1,
+        };
+        // The shorter way round the valid bits: a tick may precede the calibration's.
+        let ahead = tick.wrapping_sub(c.gpu_tick) & mask;
+        let delta = match ahead > mask / 2 {
+            true => -((c.gpu_tick.wrapping_sub(tick) & mask) as f64),
+            false => ahead as f64,
+        };
+        Some(c.host_ns as f64 + delta * f64::from(self.timestamp_period_ns))
+    }
+}
+
+/// The device and driver a profile's passes ran on (the trace's metadata).
+#[derive(Clone, Debug, Default, Serialize)]
+pub struct ProfiledDevice {
+    /// The device's name.
+    pub device: String,
+    /// The driver's name and version.
+    pub driver: String,
+    /// Nanoseconds per timestamp tick.
+    pub timestamp_period_ns: f32,
 }
 
 /// Every scope of one submission, in the order they were opened.
@@ -237,6 +337,13 @@ pub struct Profile {
     /// Scopes left without a time because the recorder's timestamp queries ran out (never
     /// silently: also logged as a warning).
     pub untimed_scopes: usize,
+    /// The submissions the passes ran in, each with its host times and calibration.
+    pub submissions: Vec<Submission>,
+    /// What the host did meanwhile, recorded while a capture ([`capture`]) is active:
+    /// recording, submits, waits, read-backs, uploads, builds on the CPU.
+    pub host_spans: Vec<HostSpan>,
+    /// The device the passes ran on.
+    pub device: Option<ProfiledDevice>,
 }
 
 impl Profile {
@@ -308,6 +415,9 @@ impl Profile {
         Profile {
             passes,
             untimed_scopes: self.untimed_scopes,
+            submissions: self.submissions.clone(),
+            host_spans: self.host_spans.clone(),
+            device: self.device.clone(),
         }
     }
 
@@ -338,12 +448,17 @@ impl Profile {
         Profile {
             passes,
             untimed_scopes: self.untimed_scopes,
+            submissions: self.submissions.clone(),
+            host_spans: self.host_spans.clone(),
+            device: self.device.clone(),
         }
     }
 
-    /// Appends `other`'s scopes (e.g. several submissions of one command) after a gap.
+    /// Appends `other`'s scopes (e.g. several submissions of one command) after a gap, with
+    /// its submissions and host spans.
     pub fn append(&mut self, other: Profile) {
         let offset = self.passes.len();
+        let submissions = self.submissions.len();
         let shift = self
             .passes
             .iter()
@@ -353,25 +468,135 @@ impl Profile {
         for mut p in other.passes {
             p.parent = p.parent.map(|i| i + offset);
             p.start_ms = p.start_ms.map(|s| s + shift);
+            p.submission = p.submission.map(|i| i + submissions);
             self.passes.push(p);
+        }
+        self.submissions.extend(other.submissions);
+        self.host_spans.extend(other.host_spans);
+        if self.device.is_none() {
+            self.device = other.device;
         }
     }
 
-    /// The Chrome trace-event JSON (complete events, microseconds) that Perfetto opens.
+    /// Compute-shader invocations of every scope called `name` (a scope inside another of
+    /// the same name counted once, with the outer one); `None` where none was counted.
+    pub fn invocations(&self, name: &str) -> Option<u64> {
+        let counts: Vec<u64> = (0..self.passes.len())
+            .filter(|&i| self.passes[i].name == name && !self.inside_namesake(i))
+            .filter_map(|i| self.passes[i].invocations)
+            .collect();
+        (!counts.is_empty()).then(|| counts.iter().sum())
+    }
+
+    /// Scope `i`'s start and end on the host's clock (nanoseconds), where its submission is
+    /// calibrated.
+    pub fn host_interval_ns(&self, i: usize) -> Option<(f64, f64)> {
+        let p = &self.passes[i];
+        let [b, e] = p.ticks?;
+        let s = self.submissions.get(p.submission?)?;
+        Some((s.host_ns_of(b)?, s.host_ns_of(e)?))
+    }
+
+    /// The Chrome trace-event JSON (complete events, microseconds) that Perfetto opens: a
+    /// CPU track of the host's spans and a GPU track per queue family, on one time axis
+    /// (the host's clock, from the earliest event), with the device, the driver, the
+    /// timestamp period and the calibration in `otherData`. Scopes of a profile without
+    /// calibration (made by hand) keep their relative times on the GPU track.
     pub fn chrome_trace(&self) -> serde_json::Value {
+        use serde_json::json;
+        const PID: u32 = 1;
+        const CPU_TID: u32 = 1;
+        let gpu_tid = |family: u32| 100 + family;
+        let mapped: Vec<Option<(f64, f64)>> = (0..self.passes.len())
+            .map(|i| self.host_interval_ns(i))
+            .collect();
+        let origin = self
+            .host_spans
+            .iter()
+            .map(|h| h.start_ns as f64)
+            .chain(self.submissions.iter().map(|s| s.submitted_ns as f64))
+            .chain(mapped.iter().flatten().map(|m| m.0))
+            .fold(f64::INFINITY, f64::min);
+        let origin = if origin.is_finite() { origin } else { 0.0 };
+        let us = |ns: f64| (ns - origin) / 1000.0;
         let mut events = vec![
-            serde_json::json!({"name": "process_name", "ph": "M", "pid": 1, "tid": 1, "args": {"name": "vkrt GPU"}}),
-            serde_json::json!({"name": "thread_name", "ph": "M", "pid": 1, "tid": 1, "args": {"name": "queue"}}),
+            json!({"name": "process_name", "ph": "M", "pid": PID, "tid": CPU_TID, "args": {"name": "vkrt"}}),
+            json!({"name": "thread_name", "ph": "M", "pid": PID, "tid": CPU_TID, "args": {"name": "CPU (host thread)"}}),
+            json!({"name": "thread_sort_index", "ph": "M", "pid": PID, "tid": CPU_TID, "args": {"sort_index": 0}}),
         ];
-        for p in &self.passes {
-            if let (Some(start), Some(ms)) = (p.start_ms, p.ms) {
-                events.push(serde_json::json!({
-                    "name": p.name, "cat": "gpu", "ph": "X", "pid": 1, "tid": 1,
-                    "ts": start * 1000.0, "dur": ms * 1000.0, "args": {"depth": p.depth},
-                }));
-            }
+        let mut families: Vec<u32> = self.submissions.iter().map(|s| s.queue_family).collect();
+        if families.is_empty() {
+            families.push(0);
         }
-        serde_json::json!({ "traceEvents": events, "displayTimeUnit": "ms" })
+        families.sort_unstable();
+        families.dedup();
+        for &f in &families {
+            events.push(json!({"name": "thread_name", "ph": "M", "pid": PID, "tid": gpu_tid(f), "args": {"name": format!("GPU queue family {f}")}}));
+            events.push(json!({"name": "thread_sort_index", "ph": "M", "pid": PID, "tid": gpu_tid(f), "args": {"sort_index": 1 + f}}));
+        }
+        let mut spans = Vec::new();
+        for h in &self.host_spans {
+            spans.push(json!({
+                "name": h.name, "cat": "host", "ph": "X", "pid": PID, "tid": CPU_TID,
+                "ts": us(h.start_ns as f64), "dur": (h.end_ns.saturating_sub(h.start_ns)) as f64 / 1000.0,
+            }));
+        }
+        for (p, m) in self.passes.iter().zip(&mapped) {
+            let (ts, dur) = match (m, p.start_ms, p.ms) {
+                (Some((b, e)), _, _) => (us(*b), (e - b) / 1000.0),
+                (None, Some(start), Some(ms)) => (start * 1000.0, ms * 1000.0),
+                _ => continue,
+            };
+            let family = p
+                .submission
+                .and_then(|i| self.submissions.get(i))
+                .map_or(families[0], |s| s.queue_family);
+            let mut args = json!({"depth": p.depth, "kind": p.kind});
+            if let Some(n) = p.invocations {
+                args["compute_invocations"] = json!(n);
+            }
+            spans.push(json!({
+                "name": p.name, "cat": "gpu", "ph": "X", "pid": PID, "tid": gpu_tid(family),
+                "ts": ts, "dur": dur, "args": args,
+            }));
+        }
+        // Earlier first, and of two starting together the longer (the enclosing) first.
+        spans.sort_by(|a, b| {
+            let key = |e: &serde_json::Value| {
+                (
+                    e["ts"].as_f64().unwrap_or(0.0),
+                    -e["dur"].as_f64().unwrap_or(0.0),
+                )
+            };
+            key(a)
+                .partial_cmp(&key(b))
+                .unwrap_or(std::cmp::Ordering::Equal)
+        });
+        events.extend(spans);
+        let calibrations: Vec<&Calibration> = self
+            .submissions
+            .iter()
+            .filter_map(|s| s.calibration.as_ref())
+            .collect();
+        let mut methods: Vec<&str> = calibrations.iter().map(|c| c.method).collect();
+        methods.sort_unstable();
+        methods.dedup();
+        let deviation = calibrations.iter().filter_map(|c| c.max_deviation_ns).max();
+        let device = self.device.clone().unwrap_or_default();
+        json!({
+            "traceEvents": events,
+            "displayTimeUnit": "ms",
+            "otherData": {
+                "device": device.device,
+                "driver": device.driver,
+                "timestamp_period_ns": device.timestamp_period_ns,
+                "calibration": methods.join(", "),
+                "calibration_max_deviation_ns": deviation,
+                "submissions": self.submissions.len(),
+                "untimed_scopes": self.untimed_scopes,
+                "time_origin_ns": origin,
+            },
+        })
     }
 
     /// Writes [`Profile::chrome_trace`] to `path` atomically: a failed write leaves no file.
@@ -421,7 +646,8 @@ thread_local! {
 }
 
 /// Runs `f` and returns, with its result, the profiles of every submission this thread
-/// completed meanwhile, one after another — how the CLI's `--profile` covers whole commands.
+/// completed meanwhile, one after another, and the host spans it recorded — how the CLI's
+/// `--profile` covers whole commands.
 pub fn capture<R>(f: impl FnOnce() -> R) -> (R, Profile) {
     let outer = CAPTURE.with(|c| c.borrow_mut().replace(Profile::default()));
     let result = f();
@@ -432,6 +658,15 @@ pub fn capture<R>(f: impl FnOnce() -> R) -> (R, Profile) {
         record_captured(&p);
     }
     (result, captured)
+}
+
+/// Adds a host span to the active capture, if any.
+pub(crate) fn record_host_span(span: HostSpan) {
+    CAPTURE.with(|c| {
+        if let Some(active) = c.borrow_mut().as_mut() {
+            active.host_spans.push(span);
+        }
+    });
 }
 
 /// Adds a completed submission's profile to the active capture, if any.
@@ -482,4 +717,75 @@ pub(crate) fn create_query_pool(
     let pool =
         unsafe { device.create_query_pool(&info, None) }.map_err(vk_err("vkCreateQueryPool"))?;
     Ok(Some(pool))
+}
+
+#[cfg(test)]
+mod tests {
+    use super::{Calibration, PassTime, Profile, Submission};
+
+    fn submission(valid_bits: u32, gpu_tick: u64, period: f32) -> Submission {
+        Submission {
+            queue_family: 2,
+            submitted_ns: 1_000,
+            completed_ns: 9_000,
+            timestamp_period_ns: period,
+            valid_bits,
+            calibration: Some(Calibration {
+                method: "VK_KHR_calibrated_timestamps",
+                gpu_tick,
+                host_ns: 5_000,
+                max_deviation_ns: Some(10),
+            }),
+        }
+    }
+
+    #[test]
+    fn ticks_map_onto_the_host_clock_across_a_wrap_of_the_valid_bits() {
+        let s = submission(36, 10, 2.0);
+        assert_eq!(s.host_ns_of(10), Some(5_000.0));
+        assert_eq!(s.host_ns_of(110), Some(5_200.0));
+        // 20 ticks before the calibration's, on the far side of the 36-bit wrap.
+        let before = (1u64 << 36) - 10;
+        assert_eq!(s.host_ns_of(before), Some(4_960.0));
+        let s = submission(64, u64::MAX - 4, 1.0);
+        assert_eq!(s.host_ns_of(5), Some(5_010.0));
+        assert_eq!(Submission::default().host_ns_of(5), None);
+    }
+
+    #[test]
+    fn appended_profiles_keep_each_scope_with_its_submission() {
+        let one = |name: &str, tick: u64| Profile {
+            passes: vec![PassTime {
+                name: name.into(),
+                start_ms: Some(0.0),
+                ms: Some(0.1),
+                ticks: Some([tick, tick + 100]),
+                submission: Some(0),
+                ..PassTime::default()
+            }],
+            submissions: vec![submission(64, tick, 1.0)],
+            ..Profile::default()
+        };
+        let mut p = one("a", 1_000);
+        p.append(one("b", 7_000));
+        assert_eq!(p.passes[1].submission, Some(1));
+        assert_eq!(p.host_interval_ns(0), Some((5_000.0, 5_100.0)));
+        assert_eq!(p.host_interval_ns(1), Some((5_000.0, 5_100.0)));
+        let trace = p.chrome_trace();
+        let events = trace["traceEvents"].as_array().unwrap();
+        let gpu: Vec<_> = events
+            .iter()
+            .filter(|e| e["ph"] == "X" && e["tid"] == 102)
+            .collect();
+        assert_eq!(gpu.len(), 2);
+        assert_eq!(gpu[0]["dur"], 0.1);
+        assert!(events
+            .iter()
+            .any(|e| e["ph"] == "M" && e["args"]["name"] == "GPU queue family 2"));
+        assert_eq!(
+            trace["otherData"]["calibration"],
+            "VK_KHR_calibrated_timestamps"
+        );
+        assert_eq!(trace["otherData"]["calibration_max_deviation_ns"], 10);
+    }
 }

@@ -13,8 +13,14 @@ use super::buffer::{Buffer, BufferArg, Memory};
 use super::capture::{interleave, Cmd};
 use super::context::Context;
 use super::error::{vk_err, GpuError, Result};
+use super::hook::{CompletedScope, QuerySlot, RecordedScope, ScopeHook};
 use super::kernel::{Kernel, PUSH_CONSTANT_BYTES};
-use super::profiler::{create_query_pool, Profile, ScopeRecorder, DEFAULT_QUERY_CAPACITY};
+use super::profiler::{
+    create_query_pool, Profile, ProfiledDevice, ScopeKind, ScopeRecorder, Submission,
+    DEFAULT_QUERY_CAPACITY,
+};
+use super::stats::{create_counts_pool, DispatchCounts, COUNTS_PER_POOL};
+use super::timeline::{self, Calibration, HostSpan};
 
 /// How long `submit_and_wait` waits before calling the device hung.
 const SUBMIT_TIMEOUT_NS: u64 = 30 * 60 * 1_000_000_000;
@@ -50,6 +56,13 @@ pub struct Recorder {
     dispatch_timestamps: bool,
     /// Whether dispatches are recorded empty ([`Recorder::warm_up`]).
     warming: bool,
+    /// Host time the recording began, and (a caller's command buffer) was finished.
+    started_ns: u64,
+    finished_ns: u64,
+    /// The hook told every scope ([`Recorder::set_scope_hook`]).
+    hook: Option<std::sync::Arc<dyn ScopeHook>>,
+    /// Compute-shader invocations counted per dispatch ([`Context::set_pipeline_statistics`]).
+    counts_queries: Option<DispatchCounts>,
 }
 
 /// Commands a recorder has recorded ([`Recorder::counts`]): what a batched call saves, for
@@ -199,6 +212,35 @@ impl Recorder {
         // pools while recording: a caller's recording creates no Vulkan object of its own
         // beyond the pool it sized.
         scopes.set_growable(dispatch_timestamps && command_pool.is_some());
+        // Counters are made here, before anything is recorded: a caller's recording gets
+        // half its query capacity; one binding from a cache, none.
+        let counting = ctx
+            .inner
+            .pipeline_statistics
+            .load(std::sync::atomic::Ordering::Relaxed)
+            && queries > 0;
+        let counts_queries = match counting {
+            true => {
+                let capacity = match command_pool {
+                    Some(_) => COUNTS_PER_POOL,
+                    None => (queries / 2).max(1),
+                };
+                let pool = match create_counts_pool(&ctx.inner.device, capacity) {
+                    Ok(p) => p,
+                    Err(e) => {
+                        if let Some(p) = query_pool {
+                            // SAFETY: just created, used by nothing.
+                            unsafe { ctx.inner.device.destroy_query_pool(p, None) };
+                        }
+                        return Err(e);
+                    }
+                };
+                ctx.inner.created(1);
+                Some(DispatchCounts::new(pool, capacity, command_pool.is_some()))
+            }
+            false => None,
+        };
+        let hook = super::error::lock(&ctx.inner.scope_hook).clone();
         Ok(Self {
             ctx: ctx.clone(),
             cmd,
@@ -213,6 +255,10 @@ impl Recorder {
             capture: None,
             dispatch_timestamps,
             warming: false,
+            started_ns: timeline::host_now_ns(),
+            finished_ns: 0,
+            hook,
+            counts_queries,
         })
     }
 
@@ -227,6 +273,41 @@ impl Recorder {
     pub fn set_dispatch_timestamps(&mut self, on: bool) {
         self.dispatch_timestamps = on;
         self.scopes.set_growable(on && self.command_pool.is_some());
+    }
+
+    /// Tells `hook` every scope and dispatch recorded from now on, and their ticks once the
+    /// work has completed ([`ScopeHook`]); the context's [`Context::set_scope_hook`] sets the
+    /// default; `None` tells nothing.
+    pub fn set_scope_hook(&mut self, hook: Option<std::sync::Arc<dyn ScopeHook>>) {
+        self.hook = hook;
+    }
+
+    /// Tells the hook, if any, about a scope opened or (`end`) closed.
+    fn tell_hook(
+        &self,
+        name: &str,
+        kind: ScopeKind,
+        depth: usize,
+        queries: [Option<u32>; 2],
+        end: bool,
+    ) {
+        let Some(hook) = &self.hook else { return };
+        let slot = |q: u32| {
+            let (pool, index) = self.scopes.locate(q);
+            QuerySlot { pool, index }
+        };
+        let scope = RecordedScope {
+            name,
+            kind,
+            depth: depth as u32,
+            command_buffer: self.cmd,
+            begin: queries[0].map(slot),
+            end: queries[1].map(slot),
+        };
+        match end {
+            false => hook.scope_begun(&scope),
+            true => hook.scope_ended(&scope),
+        }
     }
 
     /// Records `f` with every dispatch emptied (zero workgroups) and every fill, copy and
@@ -363,12 +444,19 @@ impl Recorder {
     /// held back by a capture), inside a scope of that name.
     fn timed_dispatch(&mut self, kernel: &Kernel, dispatch: Cmd) {
         if self.dispatch_timestamps && self.capture.is_none() {
-            self.begin_scope(kernel.name());
+            self.begin_scope_of(kernel.name(), ScopeKind::Dispatch);
             self.emit(dispatch);
             self.end_scope();
         } else {
             self.label_dispatch(kernel);
+            let depth = self.scopes.open_scopes();
+            if self.capture.is_none() {
+                self.tell_hook(kernel.name(), ScopeKind::Dispatch, depth, [None; 2], false);
+            }
             self.emit(dispatch);
+            if self.capture.is_none() {
+                self.tell_hook(kernel.name(), ScopeKind::Dispatch, depth, [None; 2], true);
+            }
         }
     }
 
@@ -608,9 +696,12 @@ impl Recorder {
         if data.is_empty() {
             return Ok(());
         }
-        let staging =
-            Buffer::<T>::with_memory(&self.ctx, "staging.upload", data.len(), Memory::Upload)?;
-        staging.write_mapped(bytemuck::cast_slice(data));
+        let staging = timeline::host_span("vkrt.upload", || {
+            let staging =
+                Buffer::<T>::with_memory(&self.ctx, "staging.upload", data.len(), Memory::Upload)?;
+            staging.write_mapped(bytemuck::cast_slice(data));
+            Ok::<_, GpuError>(staging)
+        })?;
         self.ctx.inner.upload_bytes.fetch_add(
             std::mem::size_of_val(data) as u64,
             std::sync::atomic::Ordering::Relaxed,
@@ -699,8 +790,46 @@ impl Recorder {
         }
     }
 
+    /// Starts counting the dispatch about to be recorded, where counting is on.
+    fn begin_count(&mut self) -> Option<(vk::QueryPool, u32)> {
+        let counts = self.counts_queries.as_mut()?;
+        if counts.wants_pool() {
+            match create_counts_pool(&self.ctx.inner.device, COUNTS_PER_POOL) {
+                Ok(p) => {
+                    self.ctx.inner.created(1);
+                    counts.add_pool(Some(p));
+                }
+                Err(e) => {
+                    log::warn!("no further pipeline-statistics query pool: {e}");
+                    counts.add_pool(None);
+                }
+            }
+        }
+        let (pool, q) = counts.take(self.scopes.innermost())?;
+        // SAFETY: recording outside a render pass; `q` is below the pool's capacity; no
+        // other pipeline-statistics query is active (each spans one dispatch).
+        unsafe {
+            let device = &self.ctx.inner.device;
+            device.cmd_reset_query_pool(self.cmd, pool, q, 1);
+            device.cmd_begin_query(self.cmd, pool, q, vk::QueryControlFlags::empty());
+        }
+        Some((pool, q))
+    }
+
     /// Records `cmd` into the command buffer.
     fn record(&mut self, cmd: &Cmd) {
+        let counted = match cmd {
+            Cmd::Dispatch(_) | Cmd::DispatchIndirect { .. } => self.begin_count(),
+            _ => None,
+        };
+        self.record_now(cmd);
+        if let Some((pool, q)) = counted {
+            // SAFETY: the query begun by begin_count around this one dispatch.
+            unsafe { self.ctx.inner.device.cmd_end_query(self.cmd, pool, q) };
+        }
+    }
+
+    fn record_now(&mut self, cmd: &Cmd) {
         let device = &self.ctx.inner.device;
         let c = self.cmd;
         match cmd {
@@ -911,11 +1040,15 @@ impl Recorder {
 
     /// Opens a named pass: a timestamp scope and a debug label. Scopes nest.
     pub fn begin_scope(&mut self, name: &str) {
+        self.begin_scope_of(name, ScopeKind::Pass);
+    }
+
+    fn begin_scope_of(&mut self, name: &str, kind: ScopeKind) {
         if self.capture.is_some() {
             return;
         }
         self.reserve_query();
-        let query = self.scopes.begin(name);
+        let query = self.scopes.begin(name, kind);
         if let Some(du) = &self.ctx.inner.debug_utils {
             let label_name = std::ffi::CString::new(name.replace('\0', " ")).unwrap_or_default();
             let label = vk::DebugUtilsLabelEXT::default().label_name(&label_name);
@@ -925,6 +1058,8 @@ impl Recorder {
         if let Some(q) = query {
             self.write_timestamp(q);
         }
+        let depth = self.scopes.open_scopes() - 1;
+        self.tell_hook(name, kind, depth, [query, None], false);
     }
 
     /// Closes the innermost open pass. Without one, nothing is recorded and finishing or
@@ -938,9 +1073,14 @@ impl Recorder {
             return;
         }
         self.reserve_query();
+        let closing = self.scopes.innermost();
         let query = self.scopes.end();
         if let Some(q) = query {
             self.write_timestamp(q);
+        }
+        if let Some((name, kind, depth, begin)) = closing.map(|i| self.scopes.scope(i)) {
+            let name = name.to_string();
+            self.tell_hook(&name, kind, depth as usize, [begin, query], true);
         }
         if let Some(du) = &self.ctx.inner.debug_utils {
             // SAFETY: recording; a label was begun in begin_scope.
@@ -981,6 +1121,7 @@ impl Recorder {
         // Incomplete work is never submitted.
         self.check()?;
         let device = &self.ctx.inner.device;
+        let recorded_ns = timeline::host_now_ns();
         // SAFETY: recording state, opened by `new`.
         unsafe { device.end_command_buffer(self.cmd) }.map_err(vk_err("vkEndCommandBuffer"))?;
         // SAFETY: valid device.
@@ -993,17 +1134,26 @@ impl Recorder {
             .inner
             .submits
             .fetch_add(1, std::sync::atomic::Ordering::Relaxed);
+        let submitted_ns = timeline::host_now_ns();
+        let mut waited_ns = submitted_ns;
         let result = {
             let queue = super::error::lock(&self.ctx.inner.queue);
-            // SAFETY: the queue is externally synchronised by the lock; the command buffer is
-            // executable; the fence is unsignalled.
-            unsafe { device.queue_submit(*queue, &submit, fence) }.map_err(vk_err("vkQueueSubmit"))
+            timeline::profiling_scope("vkrt.submit", || {
+                // SAFETY: the queue is externally synchronised by the lock; the command
+                // buffer is executable; the fence is unsignalled.
+                unsafe { device.queue_submit(*queue, &submit, fence) }
+                    .map_err(vk_err("vkQueueSubmit"))
+            })
         }
         .and_then(|()| {
-            // SAFETY: the fence belongs to this device.
-            unsafe { device.wait_for_fences(&[fence], true, SUBMIT_TIMEOUT_NS) }
-                .map_err(vk_err("vkWaitForFences"))
+            waited_ns = timeline::host_now_ns();
+            timeline::profiling_scope("vkrt.wait", || {
+                // SAFETY: the fence belongs to this device.
+                unsafe { device.wait_for_fences(&[fence], true, SUBMIT_TIMEOUT_NS) }
+                    .map_err(vk_err("vkWaitForFences"))
+            })
         });
+        let completed_ns = timeline::host_now_ns();
         // SAFETY: the wait succeeded (or the submit never happened), so the fence is idle.
         // On a timeout the device is hung: we wait for idle before destroying.
         unsafe {
@@ -1023,9 +1173,23 @@ impl Recorder {
                 last_pass: format!("{} (timed out)", self.scopes.last_name()),
             }),
             Err(e) => Err(e),
-            Ok(()) => self
-                .read_profile()
-                .inspect(super::profiler::record_captured),
+            Ok(()) => {
+                let spans = [
+                    ("vkrt.record", self.started_ns, recorded_ns),
+                    ("vkrt.submit", submitted_ns, waited_ns),
+                    ("vkrt.wait", waited_ns, completed_ns),
+                ];
+                let profile = self.read_profile(submitted_ns, completed_ns)?;
+                for (name, start_ns, end_ns) in spans {
+                    super::profiler::record_host_span(HostSpan {
+                        name,
+                        start_ns,
+                        end_ns,
+                    });
+                }
+                super::profiler::record_captured(&profile);
+                Ok(profile)
+            }
         }
     }
 
@@ -1034,7 +1198,8 @@ impl Recorder {
     /// `Err` on vkrt's own command buffer, or where a scope was left open or closed twice:
     /// the recording is then dropped with the descriptor sets it bound, so the caller resets
     /// its command buffer rather than submit it.
-    pub fn finish(self) -> Result<RecordedWork> {
+    pub fn finish(mut self) -> Result<RecordedWork> {
+        self.finished_ns = timeline::host_now_ns();
         if self.command_pool.is_some() {
             return Err(GpuError::Usage {
                 call: "Recorder::finish",
@@ -1048,10 +1213,32 @@ impl Recorder {
         })
     }
 
-    fn read_profile(&self) -> Result<Profile> {
+    /// The profile of the completed work, submitted at host time `submitted_ns` (or,
+    /// a caller's command buffer, finished then) and known complete at `completed_ns`.
+    fn read_profile(&self, submitted_ns: u64, completed_ns: u64) -> Result<Profile> {
+        let info = self.ctx.info();
+        let mut submission = Submission {
+            queue_family: self.ctx.inner.queue_family,
+            submitted_ns,
+            completed_ns,
+            timestamp_period_ns: info.timestamp_period_ns,
+            valid_bits: 0,
+            calibration: None,
+        };
+        let device = Some(ProfiledDevice {
+            device: info.device.clone(),
+            driver: info.driver.clone(),
+            timestamp_period_ns: info.timestamp_period_ns,
+        });
         let used = self.scopes.queries_used();
         if used == 0 || !self.scopes.timed() {
-            return Ok(self.scopes.untimed());
+            let mut profile = self.scopes.untimed();
+            if let Some(counts) = &self.counts_queries {
+                counts.attribute(&self.ctx.inner.device, &mut profile.passes)?;
+            }
+            profile.submissions.push(submission);
+            profile.device = device;
+            return Ok(profile);
         }
         let mut ticks = vec![0u64; used as usize];
         let per_pool = self.scopes.pool_capacity() as usize;
@@ -1074,9 +1261,57 @@ impl Recorder {
             self.ctx.inner.physical_device,
             self.ctx.inner.queue_family,
         );
-        Ok(self
-            .scopes
-            .resolve(&ticks, self.ctx.info().timestamp_period_ns, bits))
+        let mut profile = self.scopes.resolve(&ticks, info.timestamp_period_ns, bits);
+        if let Some(counts) = &self.counts_queries {
+            counts.attribute(&self.ctx.inner.device, &mut profile.passes)?;
+        }
+        submission.valid_bits = bits;
+        // Calibrated now that the work is done; else the first tick is put at the submit.
+        submission.calibration = self
+            .ctx
+            .inner
+            .calibrator
+            .as_ref()
+            .and_then(|c| c.sample())
+            .or_else(|| {
+                let first = profile
+                    .passes
+                    .iter()
+                    .filter_map(|p| p.ticks)
+                    .map(|t| t[0])
+                    .min()?;
+                Some(Calibration {
+                    method: timeline::SUBMIT_ALIGNED,
+                    gpu_tick: first,
+                    host_ns: submitted_ns,
+                    max_deviation_ns: None,
+                })
+            });
+        for p in &mut profile.passes {
+            p.submission = Some(0);
+        }
+        if let Some(hook) = &self.hook {
+            let slot = |q: u32| {
+                let (pool, index) = self.scopes.locate(q);
+                QuerySlot { pool, index }
+            };
+            let completed: Vec<CompletedScope<'_>> = self
+                .scopes
+                .timed_scopes()
+                .map(|(i, name, kind, b, e)| CompletedScope {
+                    name,
+                    kind,
+                    depth: profile.passes[i].depth,
+                    queries: [slot(b), slot(e)],
+                    ticks: profile.passes[i].ticks.unwrap_or_default(),
+                    invocations: profile.passes[i].invocations,
+                })
+                .collect();
+            hook.completed(&completed, &submission);
+        }
+        profile.submissions.push(submission);
+        profile.device = device;
+        Ok(profile)
     }
 }
 
@@ -1088,8 +1323,8 @@ impl RecordedWork {
     pub unsafe fn complete(mut self) -> Result<Profile> {
         self.completed = true;
         self.recorder.check()?;
-        self.recorder
-            .read_profile()
+        let r = &self.recorder;
+        r.read_profile(r.finished_ns, timeline::host_now_ns())
             .inspect(super::profiler::record_captured)
     }
 }
@@ -1115,6 +1350,9 @@ impl Drop for RecordedWork {
             r.descriptor_pools.leak();
             r.views.leak();
             r.scopes.pools.clear();
+            if let Some(c) = r.counts_queries.as_mut() {
+                c.pools.clear();
+            }
             std::mem::forget(std::mem::take(&mut r.staging));
             // A shared cache must outlive the sets this command buffer binds.
             std::mem::forget(r.cache.take());
@@ -1133,6 +1371,13 @@ impl Drop for Recorder {
             self.descriptor_pools.destroy(device);
             self.views.destroy(device);
             for pool in self.scopes.pools.drain(..) {
+                device.destroy_query_pool(pool, None);
+            }
+            for pool in self
+                .counts_queries
+                .iter_mut()
+                .flat_map(|c| c.pools.drain(..))
+            {
                 device.destroy_query_pool(pool, None);
             }
             if let Some(pool) = self.command_pool.take() {

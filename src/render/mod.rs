@@ -353,6 +353,10 @@ pub struct PassReport {
     /// The pass's milliseconds per sample: count, median and range (the tone map: its one
     /// run). Compilation is not in them: it runs in the `warm-up` scope before sample 0.
     pub per_sample: crate::gpu::Spread,
+    /// Compute-shader invocations of the pass over every sample, where counted
+    /// ([`crate::gpu::Context::set_pipeline_statistics`]): the work its indirect dispatches
+    /// really did.
+    pub invocations: Option<u64>,
 }
 
 /// A finished render with everything `vkrt render --json` reports.
@@ -497,6 +501,7 @@ fn render_prepared(
                 "tonemap" => timed.ms("render.tonemap").into_iter().collect(),
                 _ => timed.ms_within(&format!("render.{name}"), "render.sample"),
             }),
+            invocations: timed.invocations(&format!("render.{name}")),
         })
         .collect();
     let render_ms = ms("render.sample") + ms("render.tonemap");

@@ -13,9 +13,7 @@ use vkrt::render::RenderOptions;
 use vkrt::scene::Scene;
 use vkrt::trace::TraceOptions;
 
-use super::common::{
-    check_resolution, context, load_scene, write_profile, CliResult, StructureArgs, UpdateArg,
-};
+use super::common::{check_resolution, context, load_scene, CliResult, StructureArgs, UpdateArg};
 
 #[derive(Args)]
 pub struct AnimateArgs {
@@ -63,9 +61,6 @@ pub struct AnimateArgs {
     /// One JSON object: the frames' numbers and the means.
     #[arg(long)]
     json: bool,
-    /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
-    #[arg(long)]
-    profile: Option<PathBuf>,
 }
 
 pub fn run(args: AnimateArgs, validate: bool) -> CliResult<()> {
@@ -84,7 +79,6 @@ pub fn run(args: AnimateArgs, validate: bool) -> CliResult<()> {
         update,
         preview,
         json,
-        profile,
     } = args;
     let render = RenderOptions {
         width,
@@ -124,11 +118,8 @@ pub fn run(args: AnimateArgs, validate: bool) -> CliResult<()> {
         println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
-    let (report, trace_profile) = vkrt::gpu::capture_profiles(|| {
-        animate_command(|| context(validate), loaded, job, &Default::default())
-            .map_err(|e| e.to_string())
-    });
-    write_profile(&profile, &trace_profile)?;
+    let report = animate_command(|| context(validate), loaded, job, &Default::default())
+        .map_err(|e| e.to_string());
     print_report(&report?, json)?;
     Ok(())
 }

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use super::common::{context, extend_json, load_scene, write_profile, AccelArg, CliResult};
+use super::common::{context, extend_json, load_scene, AccelArg, CliResult};
 
 #[derive(Args)]
 pub struct BuildArgs {
@@ -27,9 +27,6 @@ pub struct BuildArgs {
     kolodzey_termination: bool,
     #[arg(long)]
     json: bool,
-    /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
-    #[arg(long)]
-    profile: Option<PathBuf>,
 }
 
 pub fn run(args: BuildArgs, validate: bool) -> CliResult<()> {
@@ -39,7 +36,6 @@ pub fn run(args: BuildArgs, validate: bool) -> CliResult<()> {
         reference,
         kolodzey_termination,
         json,
-        profile,
     } = args;
     if accel == AccelArg::SahBvh {
         if kolodzey_termination {
@@ -66,7 +62,7 @@ pub fn run(args: BuildArgs, validate: bool) -> CliResult<()> {
         }
         let ctx = context(validate)?;
         let scene = load_scene(&scene)?;
-        return driver_build_command(&ctx, prefer, &scene, json, &profile);
+        return driver_build_command(&ctx, prefer, &scene, json);
     }
     let gpu_bvh = match accel {
         AccelArg::Lbvh => Some(vkrt::accel::device::AccelKind::Lbvh),
@@ -83,16 +79,10 @@ pub fn run(args: BuildArgs, validate: bool) -> CliResult<()> {
         }
         let ctx = context(validate)?;
         let scene = load_scene(&scene)?;
-        return gpu_bvh_build_command(&ctx, kind, &scene, reference, json, &profile);
+        return gpu_bvh_build_command(&ctx, kind, &scene, reference, json);
     }
     // What is left is the kd-tree: clap refuses any other name.
-    kdtree_build_command(
-        validate,
-        &scene,
-        (reference, kolodzey_termination),
-        json,
-        &profile,
-    )
+    kdtree_build_command(validate, &scene, (reference, kolodzey_termination), json)
 }
 
 /// `vkrt build --accel kdtree`: the SAH kd-tree built on the GPU over the scene's triangles
@@ -103,7 +93,6 @@ fn kdtree_build_command(
     scene: &Option<PathBuf>,
     (reference, kolodzey_termination): (bool, bool),
     json: bool,
-    profile: &Option<PathBuf>,
 ) -> CliResult<()> {
     let scene = load_scene(scene)?;
     flat_on_host(&scene)?;
@@ -118,9 +107,8 @@ fn kdtree_build_command(
     }
     let ctx = context(validate)?;
     let before = device_bytes_start(&ctx);
-    let (report, trace) =
+    let (report, _) =
         vkrt::accel::kdtree::report::build_report(&ctx, &triangles, &params, reference)?;
-    write_profile(profile, &trace)?;
     if json {
         let mut v = serde_json::to_value(&report)?;
         extend_json(&mut v, device_bytes_json(&ctx, before, triangles.len()));
@@ -220,7 +208,6 @@ fn gpu_bvh_build_command(
     scene: &vkrt::scene::Scene,
     reference: bool,
     json: bool,
-    profile: &Option<PathBuf>,
 ) -> CliResult<()> {
     use vkrt::accel::bvh::{validate, BvhParams};
     use vkrt::accel::device::AccelBuilder;
@@ -247,7 +234,6 @@ fn gpu_bvh_build_command(
         timed = Some((dev, prof));
     }
     let (dev, prof) = timed.expect("built");
-    write_profile(profile, &prof)?;
     let HostStructure::Bvh(tree) = dev.structure().download()? else {
         unreachable!("a GPU BVH")
     };
@@ -319,7 +305,6 @@ fn driver_build_command(
     prefer: vkrt::accel::driver::Prefer,
     scene: &vkrt::scene::Scene,
     json: bool,
-    profile: &Option<PathBuf>,
 ) -> CliResult<()> {
     use vkrt::accel::device::{AccelBuilder, AccelChoice, DevicePrimitives};
     use vkrt::accel::driver::{DriverAccel, DriverInput};
@@ -343,7 +328,6 @@ fn driver_build_command(
         timed = Some((prof, t.elapsed().as_secs_f64() * 1e3));
     }
     let (prof, wall_ms) = timed.expect("built");
-    write_profile(profile, &prof)?;
     let build_ms = prof.ms("build").unwrap_or(0.0);
     if json {
         let v = serde_json::json!({

@@ -148,6 +148,31 @@ pub fn init_logging(verbose: u8, quiet: bool) {
         .init();
 }
 
+/// The global profiling flags: what every context a command makes is set to.
+#[derive(Clone, Copy, Default)]
+pub struct Profiling {
+    /// `--profile-dispatches`: every dispatch a timed scope of its own.
+    pub dispatches: bool,
+    /// `--profile-stats`: compute-shader invocations counted per scope.
+    pub statistics: bool,
+}
+
+static PROFILING: std::sync::OnceLock<Profiling> = std::sync::OnceLock::new();
+
+/// Sets the global profiling flags (once, before any command makes a context).
+pub fn set_profiling(p: Profiling) {
+    let _ = PROFILING.set(p);
+}
+
+/// Sets `ctx` to the global profiling flags.
+pub fn apply_profiling(ctx: &Context) {
+    let p = PROFILING.get().copied().unwrap_or_default();
+    ctx.set_dispatch_timestamps(p.dispatches);
+    if p.statistics && !ctx.set_pipeline_statistics(true) {
+        log::warn!("--profile-stats: the device has no pipeline-statistics queries");
+    }
+}
+
 pub fn context(validate: bool) -> CliResult<Context> {
     let env_on = std::env::var("VKRT_VALIDATION").is_ok_and(|v| v.trim() == "1");
     let validation = if validate || env_on {
@@ -161,6 +186,7 @@ pub fn context(validate: bool) -> CliResult<Context> {
     })?;
     let info = ctx.info();
     log::info!("device {}, driver {}", info.device, info.driver);
+    apply_profiling(&ctx);
     Ok(ctx)
 }
 
@@ -191,14 +217,13 @@ pub fn check_resolution(opt: &vkrt::render::RenderOptions) -> CliResult<()> {
     Ok(())
 }
 
-pub fn write_profile(path: &Option<PathBuf>, profile: &Profile) -> CliResult<()> {
-    if let Some(path) = path {
-        profile.write_chrome_trace(path)?;
-        eprintln!(
-            "vkrt: wrote GPU trace {} (open in ui.perfetto.dev)",
-            path.display()
-        );
-    }
+/// Writes `--profile`'s trace.
+pub fn write_profile(path: &std::path::Path, profile: &Profile) -> CliResult<()> {
+    profile.write_chrome_trace(path)?;
+    eprintln!(
+        "vkrt: wrote the CPU+GPU trace {} (open in ui.perfetto.dev)",
+        path.display()
+    );
     Ok(())
 }
 

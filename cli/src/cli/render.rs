@@ -6,8 +6,8 @@ use std::path::PathBuf;
 use clap::Args;
 
 use super::common::{
-    check_resolution, context, extend_json, load_scene, memory_json, write_profile, CliResult,
-    IntersectorArg, StructureArgs,
+    check_resolution, context, extend_json, load_scene, memory_json, CliResult, IntersectorArg,
+    StructureArgs,
 };
 
 #[derive(Args)]
@@ -41,13 +41,6 @@ pub struct RenderArgs {
     structure: StructureArgs,
     #[arg(long)]
     json: bool,
-    /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
-    #[arg(long)]
-    profile: Option<PathBuf>,
-    /// Time every dispatch too, as a scope named after its kernel inside its pass (in the
-    /// trace; costs two timestamp queries per dispatch).
-    #[arg(long)]
-    profile_dispatches: bool,
 }
 
 pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
@@ -63,8 +56,6 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
         intersector,
         structure,
         json,
-        profile,
-        profile_dispatches,
     } = args;
     let mut opt = vkrt::render::RenderOptions {
         width,
@@ -111,7 +102,6 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
     let triangles = scene.triangle_count();
     let ctx = context(validate)?;
     opt.accel = structure.choice(Some(&ctx));
-    ctx.set_dispatch_timestamps(profile_dispatches);
     let trace = vkrt::trace::TraceOptions {
         intersector: intersector.into(),
         ..Default::default()
@@ -123,13 +113,11 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
         )
         .map_err(|e| e.to_string())?,
     );
-    let (rendered, trace_profile) = vkrt::gpu::capture_profiles(|| {
-        vkrt::render::render_scene_owned(&ctx, scene, &opt, &trace, |done, spp| {
-            if spp > 1 {
-                bar.set_length(spp as u64);
-                bar.set_position(done as u64);
-            }
-        })
+    let rendered = vkrt::render::render_scene_owned(&ctx, scene, &opt, &trace, |done, spp| {
+        if spp > 1 {
+            bar.set_length(spp as u64);
+            bar.set_position(done as u64);
+        }
     });
     bar.finish_and_clear();
     let r = rendered.map_err(|e| e.to_string())?;
@@ -141,7 +129,6 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
         &r.image.rgba,
         &r.image.radiance,
     )?;
-    write_profile(&profile, &trace_profile)?;
     if r.image.counts.exhausted > 0 {
         log::warn!(
             "{} rays ran out of traversal steps (counted as misses)",
@@ -191,16 +178,26 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
             r.render_ms,
             r.mrays_per_s()
         );
-        println!(
+        // The invocations column where --profile-stats counted them.
+        let counted = r.passes.iter().any(|p| p.invocations.is_some());
+        let head = format!(
             "  {:<11} {:>12}      {:>10} {:>6} {:>10} {:>19}",
             "pass", "rays", "total", "runs", "median", "min-max"
         );
+        match counted {
+            true => println!("{head}    {:>14}", "invocations"),
+            false => println!("{head}"),
+        }
         for pass in &r.passes {
             let s = pass.per_sample;
-            println!(
+            let line = format!(
                 "  {:<11} {:>12} rays {:>7.1} ms {:>6} {:>7.2} ms {:>8.2}-{:<7.2} ms",
                 pass.name, pass.rays, pass.ms, s.count, s.median, s.min, s.max
             );
+            match pass.invocations {
+                Some(n) if counted => println!("{line} {n:>14}"),
+                _ => println!("{line}"),
+            }
         }
         println!(
             "  {:<11} {:>12}      {:>7.1} ms (kernels dispatched empty before sample 0)",

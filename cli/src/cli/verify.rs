@@ -38,6 +38,7 @@ pub fn run(args: VerifyArgs, validate: bool) -> CliResult<()> {
         },
         device_name: device,
     })?;
+    super::common::apply_profiling(&ctx);
     let info = ctx.info();
     if !json {
         println!("{} ({}), {}", info.device, info.device_type, info.driver);

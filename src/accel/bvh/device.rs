@@ -329,6 +329,7 @@ impl BvhFamily {
                         reason: e.to_string(),
                     })?;
                 let host_ms = t.elapsed().as_secs_f64() * 1e3;
+                crate::gpu::record_host_span("accel.sah_bvh.host_build", t);
                 let mut words = bvh.refs.clone();
                 words.extend_from_slice(&bvh.parents);
                 rec.upload(nodes, &bvh.nodes)?;

@@ -1,11 +1,9 @@
 //! `vkrt bench copy`: vkCmdCopyBuffer against the plain copy kernels on the same bytes, the
 //! baselines the primitives are measured against.
 
-use std::path::PathBuf;
-
 use clap::Args;
 
-use crate::cli::common::{context, write_profile, CliResult};
+use crate::cli::common::{context, CliResult};
 
 #[derive(Args)]
 pub struct CopyArgs {
@@ -17,21 +15,12 @@ pub struct CopyArgs {
     reps: u32,
     #[arg(long)]
     json: bool,
-    /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
-    #[arg(long)]
-    profile: Option<PathBuf>,
 }
 
 pub fn run(args: CopyArgs, validate: bool) -> CliResult<()> {
-    let CopyArgs {
-        mib,
-        reps,
-        json,
-        profile,
-    } = args;
+    let CopyArgs { mib, reps, json } = args;
     let ctx = context(validate)?;
-    let (baselines, trace) = vkrt_cli::bench::copy::copy_baselines(&ctx, mib << 20, reps.max(1))?;
-    write_profile(&profile, &trace)?;
+    let (baselines, _) = vkrt_cli::bench::copy::copy_baselines(&ctx, mib << 20, reps.max(1))?;
     if json {
         println!("{}", serde_json::to_string_pretty(&baselines)?);
     } else {

@@ -6,7 +6,7 @@ use std::path::PathBuf;
 use clap::Args;
 
 use super::bench_scenes;
-use crate::cli::common::{context, write_profile, CliResult};
+use crate::cli::common::{context, CliResult};
 
 #[derive(Args)]
 pub struct KdtreeArgs {
@@ -32,9 +32,6 @@ pub struct KdtreeArgs {
     mesh: Option<PathBuf>,
     #[arg(long)]
     json: bool,
-    /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
-    #[arg(long)]
-    profile: Option<PathBuf>,
 }
 
 pub fn run(args: KdtreeArgs, validate: bool) -> CliResult<()> {
@@ -46,7 +43,6 @@ pub fn run(args: KdtreeArgs, validate: bool) -> CliResult<()> {
         kolodzey_termination,
         mesh,
         json,
-        profile,
     } = args;
     let scenes = bench_scenes(mesh, max_n)?;
     let ctx = context(validate)?;
@@ -56,11 +52,8 @@ pub fn run(args: KdtreeArgs, validate: bool) -> CliResult<()> {
         params.sah_leaf_test = false;
     }
     let ablation_max_n = if ablation { ablation_max_n as usize } else { 0 };
-    let (report, trace) = vkrt::gpu::capture_profiles(|| {
-        vkrt_cli::bench::kdtree::kdtree_report(&ctx, &scenes, &params, ablation_max_n, reps)
-    });
-    let report = report?;
-    write_profile(&profile, &trace)?;
+    let report =
+        vkrt_cli::bench::kdtree::kdtree_report(&ctx, &scenes, &params, ablation_max_n, reps)?;
     if json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {

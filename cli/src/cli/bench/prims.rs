@@ -1,11 +1,9 @@
 //! `vkrt bench prims`: every GPU primitive against the copy baselines of the same bytes,
 //! over a range of sizes.
 
-use std::path::PathBuf;
-
 use clap::Args;
 
-use crate::cli::common::{context, write_profile, CliResult};
+use crate::cli::common::{context, CliResult};
 
 #[derive(Args)]
 pub struct PrimsArgs {
@@ -26,9 +24,6 @@ pub struct PrimsArgs {
     only: Option<String>,
     #[arg(long)]
     json: bool,
-    /// Write a Chrome-trace JSON of every GPU pass (open in ui.perfetto.dev).
-    #[arg(long)]
-    profile: Option<PathBuf>,
 }
 
 pub fn run(args: PrimsArgs, validate: bool) -> CliResult<()> {
@@ -39,7 +34,6 @@ pub fn run(args: PrimsArgs, validate: bool) -> CliResult<()> {
         reps,
         only,
         json,
-        profile,
     } = args;
     let ctx = context(validate)?;
     let mut sizes = Vec::new();
@@ -48,11 +42,7 @@ pub fn run(args: PrimsArgs, validate: bool) -> CliResult<()> {
         sizes.push(n);
         n <<= step.max(1);
     }
-    let (report, trace) = vkrt::gpu::capture_profiles(|| {
-        vkrt_cli::bench::prims::prims_report(&ctx, &sizes, reps.max(1), only.as_deref())
-    });
-    let report = report?;
-    write_profile(&profile, &trace)?;
+    let report = vkrt_cli::bench::prims::prims_report(&ctx, &sizes, reps.max(1), only.as_deref())?;
     if json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
