@@ -363,11 +363,21 @@ impl Profile {
     /// Total milliseconds of every scope called `name` (a scope inside another of the same
     /// name counted once, with the outer one).
     pub fn ms(&self, name: &str) -> Option<f64> {
-        let times: Vec<f64> = (0..self.passes.len())
+        self.sum_named(name, |p| p.ms)
+    }
+
+    /// The sum of `value` over the scopes called `name` that lie in no scope of that name;
+    /// `None` where none of them has a value.
+    fn sum_named<T: std::iter::Sum<T>>(
+        &self,
+        name: &str,
+        value: impl Fn(&PassTime) -> Option<T>,
+    ) -> Option<T> {
+        let values: Vec<T> = (0..self.passes.len())
             .filter(|&i| self.passes[i].name == name && !self.inside_namesake(i))
-            .filter_map(|i| self.passes[i].ms)
+            .filter_map(|i| value(&self.passes[i]))
             .collect();
-        (!times.is_empty()).then(|| times.iter().sum())
+        (!values.is_empty()).then(|| values.into_iter().sum())
     }
 
     /// Milliseconds of the scopes called `name` inside each scope called `within`, summed
@@ -481,11 +491,7 @@ impl Profile {
     /// Compute-shader invocations of every scope called `name` (a scope inside another of
     /// the same name counted once, with the outer one); `None` where none was counted.
     pub fn invocations(&self, name: &str) -> Option<u64> {
-        let counts: Vec<u64> = (0..self.passes.len())
-            .filter(|&i| self.passes[i].name == name && !self.inside_namesake(i))
-            .filter_map(|i| self.passes[i].invocations)
-            .collect();
-        (!counts.is_empty()).then(|| counts.iter().sum())
+        self.sum_named(name, |p| p.invocations)
     }
 
     /// Scope `i`'s start and end on the host's clock (nanoseconds), where its submission is
