@@ -422,13 +422,7 @@ impl Profile {
                 passes.push(p);
             }
         }
-        Profile {
-            passes,
-            untimed_scopes: self.untimed_scopes,
-            submissions: self.submissions.clone(),
-            host_spans: self.host_spans.clone(),
-            device: self.device.clone(),
-        }
+        self.with_passes(passes)
     }
 
     /// The scopes nested inside the last scope called `name` (that scope included), e.g.
@@ -455,6 +449,12 @@ impl Profile {
                 p
             })
             .collect();
+        self.with_passes(passes)
+    }
+
+    /// This profile with `passes` in place of its scopes (its submissions, host spans and
+    /// device kept).
+    fn with_passes(&self, passes: Vec<PassTime>) -> Profile {
         Profile {
             passes,
             untimed_scopes: self.untimed_scopes,
