@@ -413,6 +413,10 @@ struct Reflection {
     bindings: Vec<u32>,
     /// Of `bindings`, those that are uniform texel buffers (`samplerBuffer` and kin).
     texel_bindings: Vec<u32>,
+    /// Of `bindings`, those the kernel only reads (`readonly` blocks, texel buffers).
+    read_only_bindings: Vec<u32>,
+    /// Of `bindings`, those the kernel only writes (`writeonly` blocks).
+    write_only_bindings: Vec<u32>,
     spec_constants: Vec<(u32, u32)>,
     local_size: [u32; 3],
     local_size_spec_ids: [Option<u32>; 3],
@@ -426,8 +430,13 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
     const OP_SPEC_CONSTANT_FALSE: u32 = 49;
     const OP_SPEC_CONSTANT: u32 = 50;
     const OP_SPEC_CONSTANT_COMPOSITE: u32 = 51;
+    const OP_TYPE_STRUCT: u32 = 30;
+    const OP_TYPE_POINTER: u32 = 32;
     const OP_VARIABLE: u32 = 59;
     const OP_DECORATE: u32 = 71;
+    const OP_MEMBER_DECORATE: u32 = 72;
+    const DEC_NON_WRITABLE: u32 = 24;
+    const DEC_NON_READABLE: u32 = 25;
     const DEC_SPEC_ID: u32 = 1;
     const DEC_BUILTIN: u32 = 11;
     const DEC_BINDING: u32 = 33;
@@ -450,6 +459,13 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
     let mut workgroup_size_id = None;
     let mut composites = std::collections::HashMap::new();
     let mut variables = Vec::new();
+    // Access: the ids decorated NonWritable / NonReadable, the members so decorated per
+    // struct, the member count of each struct and the pointee of each pointer type.
+    let mut non_writable = std::collections::HashSet::new();
+    let mut non_readable = std::collections::HashSet::new();
+    let mut member_flags: std::collections::HashMap<u32, (usize, usize)> = Default::default();
+    let mut struct_members = std::collections::HashMap::new();
+    let mut pointee = std::collections::HashMap::new();
     let mut i = 5;
     while i < words.len() {
         let count = (words[i] >> 16) as usize;
@@ -472,6 +488,29 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
                 DEC_BUILTIN if w[3] == BUILTIN_WORKGROUP_SIZE => workgroup_size_id = Some(w[1]),
                 _ => {}
             },
+            OP_DECORATE if count == 3 => match w[2] {
+                DEC_NON_WRITABLE => {
+                    non_writable.insert(w[1]);
+                }
+                DEC_NON_READABLE => {
+                    non_readable.insert(w[1]);
+                }
+                _ => {}
+            },
+            OP_MEMBER_DECORATE if count >= 4 => {
+                let flags = member_flags.entry(w[1]).or_default();
+                match w[3] {
+                    DEC_NON_WRITABLE => flags.0 += 1,
+                    DEC_NON_READABLE => flags.1 += 1,
+                    _ => {}
+                }
+            }
+            OP_TYPE_STRUCT if count >= 2 => {
+                struct_members.insert(w[1], count - 2);
+            }
+            OP_TYPE_POINTER if count >= 4 => {
+                pointee.insert(w[1], w[3]);
+            }
             OP_EXECUTION_MODE if count >= 6 && w[2] == MODE_LOCAL_SIZE => {
                 r.local_size = [w[3], w[4], w[5]];
             }
@@ -484,12 +523,14 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
             OP_SPEC_CONSTANT_COMPOSITE if count >= 6 => {
                 composites.insert(w[2], [w[3], w[4], w[5]]);
             }
-            OP_VARIABLE if count >= 4 => variables.push((w[2], w[3])),
+            OP_VARIABLE if count >= 4 => variables.push((w[1], w[2], w[3])),
             _ => {}
         }
         i += count;
     }
-    for (id, class) in variables {
+    // Per binding: (every block on it read-only, every block on it write-only).
+    let mut access: std::collections::HashMap<u32, (bool, bool)> = Default::default();
+    for (ty, id, class) in variables {
         match class {
             SC_STORAGE_BUFFER => {
                 if set.get(&id).copied().unwrap_or(0) != 0 {
@@ -497,6 +538,15 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
                 }
                 let b = *binding.get(&id).ok_or("storage buffer without a binding")?;
                 r.bindings.push(b);
+                // A block is read-only (write-only) when the variable, or every member of
+                // its struct, is decorated so.
+                let block = pointee.get(&ty).copied().unwrap_or(0);
+                let members = struct_members.get(&block).copied().unwrap_or(usize::MAX);
+                let (nw, nr) = member_flags.get(&block).copied().unwrap_or((0, 0));
+                let read_only = non_writable.contains(&id) || nw == members;
+                let write_only = non_readable.contains(&id) || nr == members;
+                let a = access.entry(b).or_insert((true, true));
+                *a = (a.0 && read_only, a.1 && write_only);
             }
             SC_PUSH_CONSTANT => r.push_constants = true,
             // A `uniform utextureBuffer` (and kin): read through the sampler path.
@@ -507,6 +557,8 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
                 let b = binding[&id];
                 r.bindings.push(b);
                 r.texel_bindings.push(b);
+                let a = access.entry(b).or_insert((true, true));
+                *a = (a.0, false);
             }
             SC_UNIFORM if binding.contains_key(&id) => {
                 return Err(
@@ -523,6 +575,13 @@ fn reflect(words: &[u32]) -> Result<Reflection, String> {
     r.bindings.dedup();
     r.texel_bindings.sort_unstable();
     r.texel_bindings.dedup();
+    for &b in &r.bindings {
+        match access.get(&b) {
+            Some((true, _)) => r.read_only_bindings.push(b),
+            Some((false, true)) => r.write_only_bindings.push(b),
+            _ => {}
+        }
+    }
     for (id, sid) in &spec_id {
         let default = spec_default.get(id).copied().unwrap_or(0);
         r.spec_constants.push((*sid, default));
@@ -567,6 +626,16 @@ fn generate(blobs: &[Blob]) -> String {
         );
         let _ = writeln!(s, "    bindings: &{:?},", b.info.bindings);
         let _ = writeln!(s, "    texel_bindings: &{:?},", b.info.texel_bindings);
+        let _ = writeln!(
+            s,
+            "    read_only_bindings: &{:?},",
+            b.info.read_only_bindings
+        );
+        let _ = writeln!(
+            s,
+            "    write_only_bindings: &{:?},",
+            b.info.write_only_bindings
+        );
         let _ = writeln!(s, "    spec_constants: &{:?},", b.info.spec_constants);
         let _ = writeln!(s, "    local_size: {:?},", b.info.local_size);
         let _ = writeln!(

@@ -91,6 +91,8 @@ fn run_shader(
         defines: &[],
         bindings: &[0, 1, 2],
         texel_bindings: &[0],
+        read_only_bindings: &[0, 1],
+        write_only_bindings: &[2],
         spec_constants: &[(STEPS_CONSTANT_ID, 60000)],
         local_size: [64, 1, 1],
         local_size_spec_ids: [None; 3],

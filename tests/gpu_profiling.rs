@@ -1,8 +1,8 @@
 //! Fine-grained profiling on the test device, under validation: per-dispatch timestamps
 //! named after their kernels, the warm-up scope, query pools that grow or report running
 //! out, the statistics the render table prints, the one CPU+GPU timeline of a trace, the
-//! scope hook an embedder's profiler listens on, and the invocation counts of pipeline
-//! statistics.
+//! scope hook an embedder's profiler listens on, the invocation counts of pipeline
+//! statistics, and the bytes each scope binds beside the copy baseline.
 
 mod common;
 
@@ -14,8 +14,8 @@ use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::primitives::TraceGeometry;
 
 use vkrt::gpu::{
-    kernels, vk, Buffer, CompletedScope, Context, PassTime, Profile, QuerySlot, RecordedScope,
-    Recorder, ScopeHook, ScopeKind, Spec, Spread, Submission,
+    kernels, vk, Buffer, CompletedScope, Context, PassBytes, PassTime, Profile, QuerySlot,
+    RecordedScope, Recorder, ScopeHook, ScopeKind, Spec, Spread, Submission,
 };
 
 /// Push constants of `glsl/gpu/saxpy.comp` (keep in sync).
@@ -534,6 +534,96 @@ fn pipeline_statistics_count_the_invocations_an_indirect_pass_really_ran() {
     });
     let profile = rec.submit_and_wait().unwrap();
     assert_eq!(profile.invocations("direct"), None);
+    assert_silent(&ctx);
+}
+
+#[test]
+fn each_scope_knows_the_bytes_its_direct_dispatches_and_copies_bind() {
+    // What the kernels declare, as reflected from their SPIR-V.
+    assert_eq!(kernels::GPU_SAXPY.read_only_bindings, &[0]);
+    assert!(kernels::GPU_SAXPY.write_only_bindings.is_empty());
+    assert_eq!(kernels::GPU_COPY_U32.read_only_bindings, &[0]);
+    assert_eq!(kernels::GPU_COPY_U32.write_only_bindings, &[1]);
+
+    let Some(ctx) = context() else { return };
+    let x = Buffer::from_slice(&ctx, "bytes.x", &[1.0f32; 1024]).unwrap();
+    let y = Buffer::from_slice(&ctx, "bytes.y", &[0.0f32; 1024]).unwrap();
+    let z = Buffer::from_slice(&ctx, "bytes.z", &[0.0f32; 256]).unwrap();
+    let kernel = ctx
+        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
+        .unwrap();
+    let push = SaxpyPush { a: 1.0, n: 1024 };
+    let indirect = Buffer::from_slice(&ctx, "bytes.indirect", &[5u32, 1, 1]).unwrap();
+    ctx.set_copy_baseline(10.0);
+    let mut rec = Recorder::new(&ctx).unwrap();
+    // saxpy reads x and y and writes y.
+    rec.scope("saxpy", |rec| {
+        rec.dispatch(&kernel, [16, 1, 1], &[&x, &y], &push)
+    });
+    rec.compute_to_transfer();
+    rec.scope("copy", |rec| rec.copy(&x, &z, 200));
+    rec.transfer_to_transfer();
+    rec.scope("fill", |rec| rec.fill(&y, 0));
+    rec.transfer_to_compute();
+    rec.scope("indirect", |rec| {
+        rec.dispatch_indirect(&kernel, &indirect, 0, &[&x, &y], &push)
+    });
+    rec.compute_to_compute();
+    rec.scope("outer", |rec| {
+        rec.scope("inner", |rec| {
+            rec.dispatch(&kernel, [16, 1, 1], &[&x, &y], &push)
+        });
+        rec.compute_to_transfer();
+        rec.copy(&x, &z, 256);
+    });
+    rec.transfer_to_compute();
+    rec.scope("mixed", |rec| {
+        rec.dispatch(&kernel, [16, 1, 1], &[&x, &y], &push);
+        rec.compute_to_compute();
+        rec.dispatch_indirect(&kernel, &indirect, 0, &[&x, &y], &push);
+    });
+    rec.scope("empty", |_| ());
+    let profile = rec.submit_and_wait().unwrap();
+    let b = |read, written| Some(PassBytes { read, written });
+    assert_eq!(profile.bytes("saxpy"), b(8192, 4096));
+    assert_eq!(profile.bytes("copy"), b(800, 800));
+    assert_eq!(profile.bytes("fill"), b(0, 4096));
+    assert_eq!(profile.bytes("indirect"), None, "its grid is the device's");
+    assert_eq!(profile.bytes("inner"), b(8192, 4096));
+    assert_eq!(profile.bytes("outer"), b(8192 + 1024, 4096 + 1024));
+    assert_eq!(profile.bytes("mixed"), None);
+    assert_eq!(profile.bytes("empty"), b(0, 0));
+
+    // The trace carries them, the bandwidth and its ratio to the copy baseline.
+    let device = profile.device.clone().unwrap();
+    assert_eq!(device.copy_gib_per_s, Some(10.0));
+    let trace = profile.chrome_trace();
+    assert_eq!(trace["otherData"]["copy_gib_per_s"], 10.0);
+    let saxpy = trace["traceEvents"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["name"] == "saxpy" && e["ph"] == "X");
+    if let Some(e) = saxpy {
+        assert_eq!(e["args"]["read_bytes"], 8192);
+        assert_eq!(e["args"]["written_bytes"], 4096);
+        let gib = e["args"]["gib_per_s"].as_f64().unwrap();
+        let ms = profile.ms("saxpy").unwrap();
+        assert!((gib - 12288.0 / (ms / 1e3) / f64::from(1u32 << 30)).abs() <= 1e-9 * gib);
+        let of_copy = e["args"]["of_copy_bandwidth"].as_f64().unwrap();
+        assert!((of_copy - gib / 10.0).abs() <= 1e-9 * of_copy);
+    }
+    let indirect_event = trace["traceEvents"]
+        .as_array()
+        .unwrap()
+        .iter()
+        .find(|e| e["name"] == "indirect" && e["ph"] == "X");
+    if let Some(e) = indirect_event {
+        assert!(e["args"].get("read_bytes").is_none());
+    }
+    // A value that is no bandwidth clears the baseline.
+    ctx.set_copy_baseline(f64::NAN);
+    assert_eq!(ctx.copy_baseline(), None);
     assert_silent(&ctx);
 }
 

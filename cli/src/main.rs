@@ -34,8 +34,9 @@ struct Cli {
     #[arg(long, global = true)]
     profile_dispatches: bool,
     /// Count each scope's compute-shader invocations (a pipeline-statistics query around
-    /// every dispatch, where the device has them), beside its time in `render`'s table and
-    /// in the trace.
+    /// every dispatch, where the device has them) and the bytes it binds, and weigh its
+    /// bandwidth against a copy kernel's measured first: beside its time in `render`'s table
+    /// and in the trace.
     #[arg(long, global = true)]
     profile_stats: bool,
     #[command(subcommand)]

@@ -169,6 +169,8 @@ pub(crate) struct Inner {
     /// Whether new recorders count compute-shader invocations
     /// ([`Context::set_pipeline_statistics`]).
     pub(crate) pipeline_statistics: AtomicBool,
+    /// The copy kernel's bandwidth as f64 bits, 0 for none ([`Context::set_copy_baseline`]).
+    pub(crate) copy_baseline: AtomicU64,
     /// The hook new recorders tell their scopes ([`Context::set_scope_hook`]).
     pub(crate) scope_hook: Mutex<Option<Arc<dyn ScopeHook>>>,
     /// Device-tick ↔ host-clock samples, where the device was created with calibrated
@@ -342,6 +344,7 @@ impl Context {
                 peak_bytes: AtomicU64::new(0),
                 dispatch_timestamps: AtomicBool::new(false),
                 pipeline_statistics: AtomicBool::new(false),
+                copy_baseline: AtomicU64::new(0),
                 scope_hook: Mutex::new(None),
                 calibrator,
                 messenger,
@@ -377,6 +380,25 @@ impl Context {
         let on = on && self.inner.info.features.pipeline_statistics_query;
         self.inner.pipeline_statistics.store(on, Ordering::Relaxed);
         on
+    }
+
+    /// Records the bandwidth of the best plain copy kernel on this device, measured by the
+    /// caller (read plus written GiB per second; `vkrt bench copy` measures it): profiles
+    /// read from now on carry it ([`super::ProfiledDevice::copy_gib_per_s`]), so each
+    /// pass's bandwidth can be weighed against it. A value that is not finite and positive
+    /// clears it.
+    pub fn set_copy_baseline(&self, gib_per_s: f64) {
+        let bits = match gib_per_s.is_finite() && gib_per_s > 0.0 {
+            true => gib_per_s.to_bits(),
+            false => 0,
+        };
+        self.inner.copy_baseline.store(bits, Ordering::Relaxed);
+    }
+
+    /// The copy bandwidth [`Context::set_copy_baseline`] recorded, if any.
+    pub fn copy_baseline(&self) -> Option<f64> {
+        let bits = self.inner.copy_baseline.load(Ordering::Relaxed);
+        (bits != 0).then(|| f64::from_bits(bits))
     }
 
     /// Registers `hook` on the recorders made from now on: each is told every scope and

@@ -59,8 +59,8 @@ pub use info::{
 };
 pub use kernel::{Kernel, Spec, PUSH_CONSTANT_BYTES};
 pub use profiler::{
-    capture as capture_profiles, write_atomically, PassTime, Profile, ProfiledDevice, ScopeKind,
-    Spread, Submission, DEFAULT_QUERY_CAPACITY,
+    capture as capture_profiles, write_atomically, PassBytes, PassTime, Profile, ProfiledDevice,
+    ScopeKind, Spread, Submission, DEFAULT_QUERY_CAPACITY,
 };
 pub use recorder::{Readback, RecordCounts, RecordedWork, Recorder};
 pub use shader::{find as find_kernel, kernels, ShaderBlob};

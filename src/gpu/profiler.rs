@@ -25,6 +25,52 @@ struct Scope {
     parent: Option<usize>,
     begin: Option<u32>,
     end: Option<u32>,
+    /// The bytes its dispatches and copies bound; `None` once one of unknown size ran.
+    bytes: Option<PassBytes>,
+}
+
+/// The bytes a scope's work reads and writes, as far as the host knows them when it
+/// records: each storage or texel range bound to a dispatch whose grid the host set (one
+/// read per range the kernel reads, one write per range it writes, by the kernel's
+/// `readonly` and `writeonly` declarations), and each copy, fill and update. Exact for a
+/// kernel that streams once through buffers sized to its data (the copy baseline, a scan or
+/// sort of a fresh build); more than it moved where a bound buffer has room to spare (a
+/// wave's queues past its live rays, scratch kept from a larger build); and a walk's nodes
+/// count once, however often some are read and however many are never.
+#[derive(Clone, Copy, Debug, Default, PartialEq, Eq, Serialize)]
+pub struct PassBytes {
+    /// Bytes read.
+    pub read: u64,
+    /// Bytes written.
+    pub written: u64,
+}
+
+impl PassBytes {
+    /// Read plus written.
+    pub fn total(&self) -> u64 {
+        self.read + self.written
+    }
+
+    /// GiB per second moved in `ms` milliseconds.
+    pub fn gib_per_s(&self, ms: f64) -> f64 {
+        self.total() as f64 / (ms / 1e3) / f64::from(1u32 << 30)
+    }
+}
+
+impl std::ops::Add for PassBytes {
+    type Output = PassBytes;
+    fn add(self, o: PassBytes) -> PassBytes {
+        PassBytes {
+            read: self.read + o.read,
+            written: self.written + o.written,
+        }
+    }
+}
+
+impl std::iter::Sum for PassBytes {
+    fn sum<I: Iterator<Item = PassBytes>>(iter: I) -> PassBytes {
+        iter.fold(PassBytes::default(), |a, b| a + b)
+    }
 }
 
 /// The recording side: hands out query indices and remembers the scope tree.
@@ -114,6 +160,7 @@ impl ScopeRecorder {
             parent: self.open.last().copied(),
             begin,
             end: None,
+            bytes: Some(PassBytes::default()),
         });
         self.open.push(self.scopes.len() - 1);
         begin
@@ -138,6 +185,18 @@ impl ScopeRecorder {
         };
         self.scopes[index].end = end;
         end
+    }
+
+    /// Adds the bytes of one dispatch or copy to every open scope; `None` (a grid the host
+    /// does not know) leaves them without a byte count.
+    pub(crate) fn add_bytes(&mut self, t: Option<PassBytes>) {
+        for &i in &self.open {
+            let s = &mut self.scopes[i];
+            s.bytes = match (s.bytes, t) {
+                (Some(a), Some(b)) => Some(a + b),
+                _ => None,
+            };
+        }
     }
 
     pub(crate) fn open_scopes(&self) -> usize {
@@ -198,6 +257,7 @@ impl ScopeRecorder {
                     ticks,
                     submission: None,
                     invocations: None,
+                    bytes: s.bytes,
                 }
             })
             .collect();
@@ -280,6 +340,9 @@ pub struct PassTime {
     /// Compute-shader invocations of the dispatches inside it (pipeline-statistics queries,
     /// [`super::Context::set_pipeline_statistics`]); `None` when not counted.
     pub invocations: Option<u64>,
+    /// The bytes its work read and wrote, where the host knows them ([`PassBytes`]); `None`
+    /// where an indirect dispatch inside took its grid from the device.
+    pub bytes: Option<PassBytes>,
 }
 
 /// One submission's place on the host's clock.
@@ -327,6 +390,10 @@ pub struct ProfiledDevice {
     pub driver: String,
     /// Nanoseconds per timestamp tick.
     pub timestamp_period_ns: f32,
+    /// The bandwidth of the best plain copy kernel on this device (read plus written GiB
+    /// per second), measured in the same run: what a pass's [`PassBytes`] is weighed
+    /// against. `None` where nobody measured it.
+    pub copy_gib_per_s: Option<f64>,
 }
 
 /// Every scope of one submission, in the order they were opened.
@@ -494,6 +561,12 @@ impl Profile {
         self.sum_named(name, |p| p.invocations)
     }
 
+    /// The bytes every scope called `name` read and wrote (counted as
+    /// [`Profile::invocations`]); `None` where none of them knows its bytes.
+    pub fn bytes(&self, name: &str) -> Option<PassBytes> {
+        self.sum_named(name, |p| p.bytes)
+    }
+
     /// Scope `i`'s start and end on the host's clock (nanoseconds), where its submission is
     /// calibrated.
     pub fn host_interval_ns(&self, i: usize) -> Option<(f64, f64)> {
@@ -561,6 +634,17 @@ impl Profile {
             if let Some(n) = p.invocations {
                 args["compute_invocations"] = json!(n);
             }
+            if let Some(t) = p.bytes.filter(|t| t.total() > 0) {
+                args["read_bytes"] = json!(t.read);
+                args["written_bytes"] = json!(t.written);
+                if let Some(ms) = p.ms.filter(|&ms| ms > 0.0) {
+                    let gib = t.gib_per_s(ms);
+                    args["gib_per_s"] = json!(gib);
+                    if let Some(copy) = self.device.as_ref().and_then(|d| d.copy_gib_per_s) {
+                        args["of_copy_bandwidth"] = json!(gib / copy);
+                    }
+                }
+            }
             spans.push(json!({
                 "name": p.name, "cat": "gpu", "ph": "X", "pid": PID, "tid": gpu_tid(family),
                 "ts": ts, "dur": dur, "args": args,
@@ -596,6 +680,7 @@ impl Profile {
                 "device": device.device,
                 "driver": device.driver,
                 "timestamp_period_ns": device.timestamp_period_ns,
+                "copy_gib_per_s": device.copy_gib_per_s,
                 "calibration": methods.join(", "),
                 "calibration_max_deviation_ns": deviation,
                 "submissions": self.submissions.len(),

@@ -16,7 +16,7 @@ use super::error::{vk_err, GpuError, Result};
 use super::hook::{CompletedScope, QuerySlot, RecordedScope, ScopeHook};
 use super::kernel::{Kernel, PUSH_CONSTANT_BYTES};
 use super::profiler::{
-    create_query_pool, Profile, ProfiledDevice, ScopeKind, ScopeRecorder, Submission,
+    create_query_pool, PassBytes, Profile, ProfiledDevice, ScopeKind, ScopeRecorder, Submission,
     DEFAULT_QUERY_CAPACITY,
 };
 use super::stats::{create_counts_pool, DispatchCounts, COUNTS_PER_POOL};
@@ -407,7 +407,8 @@ impl Recorder {
             return;
         }
         let groups = if self.warming { [0, 1, 1] } else { groups };
-        self.timed_dispatch(kernel, Cmd::Dispatch(groups));
+        let bytes = bound_bytes(kernel.blob, buffers);
+        self.timed_dispatch(kernel, Cmd::Dispatch(groups), Some(bytes));
     }
 
     /// Like [`Recorder::dispatch`], with the workgroup counts read from `indirect` at byte
@@ -437,17 +438,21 @@ impl Recorder {
                 offset: indirect.offset() + offset,
             },
         };
-        self.timed_dispatch(kernel, dispatch);
+        // The grid, and so what the kernel touches, is the device's to know.
+        self.timed_dispatch(kernel, dispatch, None);
     }
 
     /// Records a dispatch, labelled with its kernel or, with dispatch timestamps on (and not
     /// held back by a capture), inside a scope of that name.
-    fn timed_dispatch(&mut self, kernel: &Kernel, dispatch: Cmd) {
+    /// `bytes` are the ranges it binds, where the host knows its grid.
+    fn timed_dispatch(&mut self, kernel: &Kernel, dispatch: Cmd, bytes: Option<PassBytes>) {
         if self.dispatch_timestamps && self.capture.is_none() {
             self.begin_scope_of(kernel.name(), ScopeKind::Dispatch);
+            self.count_bytes(bytes);
             self.emit(dispatch);
             self.end_scope();
         } else {
+            self.count_bytes(bytes);
             self.label_dispatch(kernel);
             let depth = self.scopes.open_scopes();
             if self.capture.is_none() {
@@ -773,6 +778,14 @@ impl Recorder {
         self.emit(Cmd::Barrier { src, dst });
     }
 
+    /// Adds the bytes of one dispatch or copy to the open scopes (a warm-up's, which touch
+    /// nothing, left out).
+    fn count_bytes(&mut self, bytes: Option<PassBytes>) {
+        if !self.warming {
+            self.scopes.add_bytes(bytes);
+        }
+    }
+
     /// Records `cmd`, or holds it back while capturing.
     fn emit(&mut self, cmd: Cmd) {
         if self.warming
@@ -783,6 +796,21 @@ impl Recorder {
         {
             // A warm-up touches no memory.
             return;
+        }
+        match &cmd {
+            Cmd::Fill { size, .. } => self.count_bytes(Some(PassBytes {
+                read: 0,
+                written: *size,
+            })),
+            Cmd::Copy { region, .. } => self.count_bytes(Some(PassBytes {
+                read: region.size,
+                written: region.size,
+            })),
+            Cmd::Update { data, .. } => self.count_bytes(Some(PassBytes {
+                read: 0,
+                written: data.len() as u64,
+            })),
+            _ => {}
         }
         match &mut self.capture {
             Some(held) => held.push(cmd),
@@ -1229,6 +1257,7 @@ impl Recorder {
             device: info.device.clone(),
             driver: info.driver.clone(),
             timestamp_period_ns: info.timestamp_period_ns,
+            copy_gib_per_s: self.ctx.copy_baseline(),
         });
         let used = self.scopes.queries_used();
         if used == 0 || !self.scopes.timed() {
@@ -1476,6 +1505,22 @@ fn write_set(
 /// validation layer a kernel past the limit reads and writes memory it does not own) and,
 /// for vkrt's own buffers, within the buffer. Texel bindings are checked when their view is
 /// made.
+/// The bytes a dispatch of `blob` over `buffers` reads and writes: each bound range read
+/// unless the kernel only writes it, written unless it only reads it.
+fn bound_bytes(blob: &super::shader::ShaderBlob, buffers: &[&dyn BufferArg]) -> PassBytes {
+    let mut bytes = PassBytes::default();
+    for (&binding, buffer) in blob.bindings.iter().zip(buffers) {
+        let range = buffer.range();
+        if !blob.write_only_bindings.contains(&binding) {
+            bytes.read += range;
+        }
+        if !blob.read_only_bindings.contains(&binding) {
+            bytes.written += range;
+        }
+    }
+    bytes
+}
+
 fn check_ranges(
     ctx: &Context,
     blob: &super::shader::ShaderBlob,

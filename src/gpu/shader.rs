@@ -15,6 +15,10 @@ pub struct ShaderBlob {
     pub bindings: &'static [u32],
     /// Of `bindings`, the uniform texel buffers (read as RGBA32UI texels).
     pub texel_bindings: &'static [u32],
+    /// Of `bindings`, those the kernel only reads (`readonly` blocks and texel buffers).
+    pub read_only_bindings: &'static [u32],
+    /// Of `bindings`, those the kernel only writes (`writeonly` blocks).
+    pub write_only_bindings: &'static [u32],
     /// `(constant_id, default value bits)` of every specialization constant.
     pub spec_constants: &'static [(u32, u32)],
     /// Default workgroup size.

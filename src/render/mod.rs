@@ -357,6 +357,10 @@ pub struct PassReport {
     /// ([`crate::gpu::Context::set_pipeline_statistics`]): the work its indirect dispatches
     /// really did.
     pub invocations: Option<u64>,
+    /// The bytes the pass read and wrote over every sample, where the host knows them
+    /// ([`crate::gpu::PassBytes`]: its dispatches' grids are set on the host); `None` for the
+    /// passes whose indirect dispatches take their grids from the device.
+    pub bytes: Option<crate::gpu::PassBytes>,
 }
 
 /// A finished render with everything `vkrt render --json` reports.
@@ -502,6 +506,7 @@ fn render_prepared(
                 _ => timed.ms_within(&format!("render.{name}"), "render.sample"),
             }),
             invocations: timed.invocations(&format!("render.{name}")),
+            bytes: timed.bytes(&format!("render.{name}")),
         })
         .collect();
     let render_ms = ms("render.sample") + ms("render.tonemap");

@@ -72,21 +72,46 @@ const COPY_KERNELS: [(&str, &vkrt::gpu::ShaderBlob, u32, u32, bool); 6] = [
 /// Measures `vkCmdCopyBuffer` and the copy kernels over `bytes`, `reps` times each, and
 /// returns the baselines plus the profile of every timed pass.
 pub fn copy_baselines(ctx: &Context, bytes: u64, reps: u32) -> Result<(CopyBaselines, Profile)> {
+    measure(ctx, bytes, reps, true, |_, _| true)
+}
+
+/// The best copy kernel's bandwidth (read plus written GiB/s) over 32 MiB, from the
+/// variants that are fastest on lavapipe (workgroups of 256, four uvec4 or sixteen
+/// u64vec4 per invocation), each run three times: the baseline `--profile-stats` weighs
+/// every pass's bytes against, in a fraction of `vkrt bench copy`'s time.
+pub fn copy_bandwidth(ctx: &Context) -> Result<f64> {
+    let (baselines, _) = measure(ctx, 32 << 20, 3, false, |name, wg| {
+        wg == 256 && matches!(name, "uvec4x4" | "u64vec4run16")
+    })?;
+    Ok(baselines.best_kernel().map_or(0.0, |r| r.gib_per_s))
+}
+
+/// Times `vkCmdCopyBuffer` (with `driver_copy`) and the copy kernels `keep(name,
+/// workgroup size)` selects.
+fn measure(
+    ctx: &Context,
+    bytes: u64,
+    reps: u32,
+    driver_copy: bool,
+    keep: impl Fn(&str, u32) -> bool,
+) -> Result<(CopyBaselines, Profile)> {
     // A whole number of the widest kernel's invocations (32 words).
     let words = (bytes / 128 * 32).max(32) as usize;
     let bytes = words as u64 * 4;
     let src = Buffer::<u32>::new(ctx, "bench.src", words)?;
     let dst = Buffer::<u32>::new(ctx, "bench.dst", words)?;
     // (name, None = vkCmdCopyBuffer | Some(kernel variant))
-    let mut variants: Vec<(String, Option<KernelVariant>)> =
-        vec![("vkCmdCopyBuffer".to_string(), None)];
+    let mut variants: Vec<(String, Option<KernelVariant>)> = Vec::new();
+    if driver_copy {
+        variants.push(("vkCmdCopyBuffer".to_string(), None));
+    }
     for wg in WORKGROUP_SIZES
         .into_iter()
         .filter(|&w| w <= ctx.info().max_workgroup_invocations)
     {
         let spec = Spec::new().workgroup(wg);
         for (name, blob, words_per_elem, per_invocation, int64) in COPY_KERNELS {
-            if int64 && !ctx.info().features.shader_int64 {
+            if int64 && !ctx.info().features.shader_int64 || !keep(name, wg) {
                 continue;
             }
             variants.push((

@@ -171,6 +171,13 @@ pub fn apply_profiling(ctx: &Context) {
     if p.statistics && !ctx.set_pipeline_statistics(true) {
         log::warn!("--profile-stats: the device has no pipeline-statistics queries");
     }
+    if p.statistics {
+        // The baseline each pass's bandwidth is weighed against, measured here and now.
+        match vkrt_cli::bench::copy::copy_bandwidth(ctx) {
+            Ok(gib) => ctx.set_copy_baseline(gib),
+            Err(e) => log::warn!("--profile-stats: no copy baseline: {e}"),
+        }
+    }
 }
 
 pub fn context(validate: bool) -> CliResult<Context> {

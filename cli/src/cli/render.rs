@@ -150,6 +150,7 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
             "readback_bytes": r.image.readback_before_trace,
             "readback_bytes_total": r.image.traffic.readback_bytes,
             "passes": r.passes,
+            "copy_gib_per_s": ctx.copy_baseline(),
             "warm_up_ms": r.warm_up_ms,
             "effects": p.effects,
             "mrays_per_s": r.mrays_per_s(),
@@ -178,14 +179,18 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
             r.render_ms,
             r.mrays_per_s()
         );
-        // The invocations column where --profile-stats counted them.
+        // Invocations, bytes and bandwidth where --profile-stats counted them.
         let counted = r.passes.iter().any(|p| p.invocations.is_some());
+        let copy = ctx.copy_baseline();
         let head = format!(
             "  {:<11} {:>12}      {:>10} {:>6} {:>10} {:>19}",
             "pass", "rays", "total", "runs", "median", "min-max"
         );
         match counted {
-            true => println!("{head}    {:>14}", "invocations"),
+            true => println!(
+                "{head}    {:>14} {:>10} {:>8} {:>7}",
+                "invocations", "MiB", "GiB/s", "÷copy"
+            ),
             false => println!("{head}"),
         }
         for pass in &r.passes {
@@ -194,10 +199,23 @@ pub fn run(args: RenderArgs, validate: bool) -> CliResult<()> {
                 "  {:<11} {:>12} rays {:>7.1} ms {:>6} {:>7.2} ms {:>8.2}-{:<7.2} ms",
                 pass.name, pass.rays, pass.ms, s.count, s.median, s.min, s.max
             );
-            match pass.invocations {
-                Some(n) if counted => println!("{line} {n:>14}"),
-                _ => println!("{line}"),
+            if !counted {
+                println!("{line}");
+                continue;
             }
+            let n = pass.invocations.map_or("-".into(), |n| n.to_string());
+            let (mib, gib, of_copy) = match pass.bytes.filter(|_| pass.ms > 0.0) {
+                Some(b) => {
+                    let gib = b.gib_per_s(pass.ms);
+                    (
+                        format!("{:.1}", b.total() as f64 / f64::from(1u32 << 20)),
+                        format!("{gib:.2}"),
+                        copy.map_or("-".into(), |c| format!("{:.2}", gib / c)),
+                    )
+                }
+                None => ("-".into(), "-".into(), "-".into()),
+            };
+            println!("{line} {n:>14} {mib:>10} {gib:>8} {of_copy:>7}");
         }
         println!(
             "  {:<11} {:>12}      {:>7.1} ms (kernels dispatched empty before sample 0)",
