@@ -550,7 +550,8 @@ impl Profile {
         }
         self.submissions.extend(other.submissions);
         self.host_spans.extend(other.host_spans);
-        if self.device.is_none() {
+        // The later record: a copy baseline measured after the first submission is in it.
+        if other.device.is_some() {
             self.device = other.device;
         }
     }
