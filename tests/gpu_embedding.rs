@@ -88,6 +88,12 @@ impl Renderer {
 }
 
 fn renderer() -> Option<Renderer> {
+    renderer_with(false)
+}
+
+/// The renderer's device, with its calibrated-timestamps extension enabled where the device
+/// lists one and `calibrated` asks for it.
+fn renderer_with(calibrated: bool) -> Option<Renderer> {
     // SAFETY: test code standing in for an embedding application: plain Vulkan setup with
     // every create-info pointing at locals that outlive the calls.
     unsafe {
@@ -117,8 +123,26 @@ fn renderer() -> Option<Renderer> {
         // The kd-tree builder's 1-byte flags need 8-bit storage (lavapipe has it).
         let mut f12 =
             vk::PhysicalDeviceVulkan12Features::default().storage_buffer8_bit_access(true);
+        let listed = instance
+            .enumerate_device_extension_properties(physical_device)
+            .ok()?;
+        let extensions: Vec<*const std::ffi::c_char> = [
+            ash::khr::calibrated_timestamps::NAME,
+            ash::ext::calibrated_timestamps::NAME,
+        ]
+        .into_iter()
+        .filter(|&n| {
+            calibrated
+                && listed
+                    .iter()
+                    .any(|e| e.extension_name_as_c_str().is_ok_and(|x| x == n))
+        })
+        .take(1)
+        .map(|n| n.as_ptr())
+        .collect();
         let info = vk::DeviceCreateInfo::default()
             .queue_create_infos(&queues)
+            .enabled_extension_names(&extensions)
             .push_next(&mut f12);
         let device = instance.create_device(physical_device, &info, None).ok()?;
         // What vkrt is told the device has: read from the same create info.
@@ -133,6 +157,38 @@ fn renderer() -> Option<Renderer> {
             queue,
             features,
         })
+    }
+}
+
+#[test]
+fn an_adopted_device_with_calibrated_timestamps_gets_calibrated_profiles() {
+    let Some(r) = renderer_with(true) else { return };
+    let Some(which) = r.features.calibrated_timestamps else {
+        eprintln!("skipped: the device has no calibrated timestamps");
+        return;
+    };
+    let parts = RawParts {
+        entry: r.entry.clone(),
+        instance: r.instance.clone(),
+        physical_device: r.physical_device,
+        device: r.device.clone(),
+        queue_family: r.family,
+        queue: r.queue,
+        enabled_features: r.features,
+        debug_utils: false,
+        allocator: None,
+        pipeline_cache_dir: None,
+    };
+    // SAFETY: as in the test above; the context is dropped before the device.
+    let ctx = unsafe { Context::from_raw(parts) }.expect("adopt the renderer's device");
+    let c = ctx.calibrate().unwrap().expect("a device with timestamps");
+    assert_eq!(c.method, which.name().to_str().unwrap());
+    assert!(c.max_deviation_ns.is_some(), "{c:?}");
+    drop(ctx);
+    // SAFETY: the context is gone; nothing of the device is in use.
+    unsafe {
+        r.device.destroy_device(None);
+        r.instance.destroy_instance(None);
     }
 }
 

@@ -15,7 +15,7 @@ use gpu_allocator::vulkan::{Allocator, AllocatorCreateDesc};
 
 use super::error::{vk_err, GpuError, Result};
 use super::hook::ScopeHook;
-use super::info::{self, DeviceFeatures, DeviceInfo};
+use super::info::{self, CalibratedTimestamps, DeviceFeatures, DeviceInfo};
 use super::kernel::{Kernel, KernelKey};
 use super::pipeline_cache;
 use super::timeline::{Calibration, Calibrator};
@@ -57,7 +57,9 @@ pub struct RawParts {
     /// A queue of `queue_family`, which vkrt submits its work to.
     pub queue: vk::Queue,
     /// Features the caller enabled at device creation (vkrt cannot query them):
-    /// [`DeviceFeatures::from_device_create_info`] reads them from the create info.
+    /// [`DeviceFeatures::from_device_create_info`] reads them from the create info. Its
+    /// `calibrated_timestamps`, where set, calibrates vkrt's profiles through that extension
+    /// (else they are aligned by a timestamp written at a submission).
     pub enabled_features: DeviceFeatures,
     /// Whether the instance has `VK_EXT_debug_utils` enabled (for pass labels).
     pub debug_utils: bool,
@@ -206,9 +208,13 @@ impl Context {
             .or_else(|| std::env::var("VKRT_DEVICE").ok().filter(|s| !s.is_empty()));
         let picked = pick_device(&instance, wanted.as_deref());
         let built = picked.and_then(|(pd, family)| {
-            let features = info::supported_features(&instance, pd);
+            let mut features = info::supported_features(&instance, pd);
+            // Only an extension whose time domains are the device's and the host clock's.
             let calibration = Calibrator::extension(&entry, &instance, pd);
-            create_device(&instance, pd, family, &features, calibration)
+            features.calibrated_timestamps = [CalibratedTimestamps::Khr, CalibratedTimestamps::Ext]
+                .into_iter()
+                .find(|c| Some(c.name()) == calibration);
+            create_device(&instance, pd, family, &features)
                 .map(|d| (pd, family, features, (d, calibration)))
         });
         let (physical_device, queue_family, features, (device, calibration)) = match built {
@@ -264,7 +270,12 @@ impl Context {
             parts.enabled_features,
         );
         info::check_requirements(&physical)?;
-        Self::assemble(parts, None, Box::default(), false, None)
+        // The caller's calibrated timestamps, where it enabled them.
+        let calibration = parts
+            .enabled_features
+            .calibrated_timestamps
+            .map(|c| c.name());
+        Self::assemble(parts, None, Box::default(), false, calibration)
     }
 
     /// The context over `parts`; `calibration` names the calibrated-timestamps extension
@@ -677,7 +688,6 @@ fn create_device(
     pd: vk::PhysicalDevice,
     family: u32,
     features: &DeviceFeatures,
-    calibration: Option<&'static CStr>,
 ) -> Result<ash::Device> {
     let priorities = [1.0];
     let queues = [vk::DeviceQueueCreateInfo::default()
@@ -685,13 +695,9 @@ fn create_device(
         .queue_priorities(&priorities)];
     // The same structs a renderer gets from `DeviceFeatures::request`.
     let mut r = features.request();
-    // Calibrated timestamps put the device's ticks on the host's clock (`timeline`).
-    let ext_names: Vec<_> = r
-        .extensions
-        .iter()
-        .chain(&calibration)
-        .map(|n| n.as_ptr())
-        .collect();
+    // Among them, calibrated timestamps put the device's ticks on the host's clock
+    // (`timeline`).
+    let ext_names: Vec<_> = r.extensions.iter().map(|n| n.as_ptr()).collect();
     let mut create = vk::DeviceCreateInfo::default()
         .queue_create_infos(&queues)
         .enabled_features(&r.base)

@@ -45,6 +45,35 @@ pub struct DeviceFeatures {
     /// (with `VK_KHR_deferred_host_operations`, which it requires) and `VK_KHR_ray_query`,
     /// their features, and `bufferDeviceAddress` (Mesa 25's lavapipe has them; 22.3's not).
     pub ray_query: bool,
+    /// The calibrated-timestamps extension the device has enabled, if any: profiles then
+    /// put the device's ticks on the host's clock through it ([`super::Calibration`]);
+    /// without one, by a timestamp written at a submission.
+    pub calibrated_timestamps: Option<CalibratedTimestamps>,
+}
+
+/// Which calibrated-timestamps extension a device has.
+#[derive(Clone, Copy, Debug, Serialize, PartialEq, Eq)]
+#[serde(rename_all = "snake_case")]
+pub enum CalibratedTimestamps {
+    /// `VK_KHR_calibrated_timestamps`.
+    Khr,
+    /// `VK_EXT_calibrated_timestamps`.
+    Ext,
+}
+
+impl CalibratedTimestamps {
+    /// The extension's name.
+    pub fn name(self) -> &'static std::ffi::CStr {
+        match self {
+            Self::Khr => ash::khr::calibrated_timestamps::NAME,
+            Self::Ext => ash::ext::calibrated_timestamps::NAME,
+        }
+    }
+
+    /// The one of `extensions` to use (the KHR one where both are), if any.
+    fn among(has: impl Fn(&std::ffi::CStr) -> bool) -> Option<Self> {
+        [Self::Khr, Self::Ext].into_iter().find(|c| has(c.name()))
+    }
 }
 
 impl DeviceFeatures {
@@ -178,6 +207,7 @@ impl DeviceFeatures {
             && query
             && f.buffer_device_address
             && RAY_QUERY_EXTENSIONS.iter().all(|&n| enabled(n));
+        f.calibrated_timestamps = CalibratedTimestamps::among(enabled);
         f
     }
 }
@@ -251,6 +281,8 @@ impl DeviceFeatures {
             );
             r.ray_query = Some(vk::PhysicalDeviceRayQueryFeaturesKHR::default().ray_query(true));
         }
+        r.extensions
+            .extend(self.calibrated_timestamps.map(CalibratedTimestamps::name));
         r
     }
 }
@@ -555,6 +587,7 @@ pub(crate) fn supported_features(
             && accel.acceleration_structure == vk::TRUE
             && query.ray_query == vk::TRUE
             && f12.buffer_device_address == vk::TRUE,
+        calibrated_timestamps: CalibratedTimestamps::among(has_ext),
     }
 }
 
@@ -670,7 +703,10 @@ pub fn device_requirements() -> DeviceRequirements {
 
 #[cfg(test)]
 mod tests {
-    use super::{mesa_version, traversal_steps_within, DeviceFeatures, LLVMPIPE_LOOP_BUDGET};
+    use super::{
+        mesa_version, traversal_steps_within, CalibratedTimestamps, DeviceFeatures,
+        LLVMPIPE_LOOP_BUDGET,
+    };
     use ash::vk;
 
     #[test]
@@ -754,11 +790,13 @@ mod tests {
             api_1_3: false,
             buffer_device_address: true,
             ray_query: true,
+            calibrated_timestamps: Some(CalibratedTimestamps::Khr),
         };
         let some = DeviceFeatures {
             storage_buffer_8bit: true,
             shader_int64: true,
             api_1_3: true,
+            calibrated_timestamps: Some(CalibratedTimestamps::Ext),
             ..DeviceFeatures::default()
         };
         for (want, api) in [(all, vk::API_VERSION_1_2), (some, vk::API_VERSION_1_3)] {

@@ -54,8 +54,8 @@ pub use error::{GpuError, Result};
 pub use foreign::{ForeignBinding, ForeignKernel};
 pub use hook::{CompletedScope, QuerySlot, RecordedScope, ScopeHook};
 pub use info::{
-    device_requirements, mesa_version, traversal_steps_within, DeviceFeatureRequest,
-    DeviceFeatures, DeviceInfo, DeviceRequirements, LLVMPIPE_LOOP_BUDGET,
+    device_requirements, mesa_version, traversal_steps_within, CalibratedTimestamps,
+    DeviceFeatureRequest, DeviceFeatures, DeviceInfo, DeviceRequirements, LLVMPIPE_LOOP_BUDGET,
 };
 pub use kernel::{Kernel, Spec, PUSH_CONSTANT_BYTES};
 pub use profiler::{
