@@ -62,6 +62,22 @@ impl Renderer {
         }
     }
 
+    /// What vkrt is given of the renderer's device, with the renderer's `allocator` if any.
+    fn parts(&self, allocator: Option<Arc<Mutex<Allocator>>>) -> RawParts {
+        RawParts {
+            entry: self.entry.clone(),
+            instance: self.instance.clone(),
+            physical_device: self.physical_device,
+            device: self.device.clone(),
+            queue_family: self.family,
+            queue: self.queue,
+            enabled_features: self.features,
+            debug_utils: false,
+            allocator,
+            pipeline_cache_dir: None,
+        }
+    }
+
     /// Ends `cmd`, submits it to the renderer's queue and waits for it.
     fn submit_and_wait(&self, cmd: vk::CommandBuffer) {
         // SAFETY: the renderer ends, submits and waits for its own command buffer.
@@ -167,18 +183,7 @@ fn an_adopted_device_with_calibrated_timestamps_gets_calibrated_profiles() {
         eprintln!("skipped: the device has no calibrated timestamps");
         return;
     };
-    let parts = RawParts {
-        entry: r.entry.clone(),
-        instance: r.instance.clone(),
-        physical_device: r.physical_device,
-        device: r.device.clone(),
-        queue_family: r.family,
-        queue: r.queue,
-        enabled_features: r.features,
-        debug_utils: false,
-        allocator: None,
-        pipeline_cache_dir: None,
-    };
+    let parts = r.parts(None);
     // SAFETY: as in the test above; the context is dropped before the device.
     let ctx = unsafe { Context::from_raw(parts) }.expect("adopt the renderer's device");
     let c = ctx.calibrate().unwrap().expect("a device with timestamps");
@@ -219,18 +224,7 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
             ..DeviceFeatures::default()
         }
     );
-    let parts = RawParts {
-        entry: r.entry.clone(),
-        instance: r.instance.clone(),
-        physical_device: r.physical_device,
-        device: r.device.clone(),
-        queue_family: r.family,
-        queue: r.queue,
-        enabled_features: r.features,
-        debug_utils: false,
-        allocator: Some(allocator.clone()),
-        pipeline_cache_dir: None,
-    };
+    let parts = r.parts(Some(allocator.clone()));
     // SAFETY: the handles are valid and outlive the context (destroyed at the end of the
     // test, after the context is dropped); this thread is the only queue user.
     let ctx = unsafe { Context::from_raw(parts) }.expect("adopt the renderer's device");
