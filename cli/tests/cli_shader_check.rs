@@ -648,3 +648,182 @@ fn vkrt_and_the_driver_agree_on_candidates_masks_flags_and_instance_keys() {
     assert_eq!(v["mismatching_rays"], 0, "{v}");
     assert_eq!(v["native"], has_ray_query(), "{v}");
 }
+
+/// Facing, masks and instance keys over opaque triangles: the culling flags by ray, the
+/// committed getters written.
+const KD_OPAQUE: &str = r#"#version 460
+#extension GL_EXT_ray_query : require
+
+layout(local_size_x = 32) in;
+layout(set = 0, binding = 0) uniform accelerationStructureEXT topLevel;
+layout(set = 0, binding = 1, std430) readonly buffer Rays { vec4 rays[]; };
+layout(set = 0, binding = 2, std430) writeonly buffer Results { uvec4 results[]; };
+layout(push_constant) uniform Count { uint rayCount; } pc;
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= pc.rayCount) {
+        return;
+    }
+    vec4 o = rays[2 * i];
+    vec4 d = rays[2 * i + 1];
+    uint flags = gl_RayFlagsOpaqueEXT;
+    if (i % 3u == 1u) {
+        flags |= gl_RayFlagsCullBackFacingTrianglesEXT;
+    } else if (i % 3u == 2u) {
+        flags |= gl_RayFlagsCullFrontFacingTrianglesEXT;
+    }
+    uint mask = (i % 5u == 4u) ? 0x02u : 0xffu;
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, topLevel, flags, mask, o.xyz, o.w, d.xyz, d.w);
+    while (rayQueryProceedEXT(q)) {
+    }
+    uint kind = rayQueryGetIntersectionTypeEXT(q, true);
+    if (kind == gl_RayQueryCommittedIntersectionNoneEXT) {
+        results[i] = uvec4(0u, ~0u, ~0u, 0u);
+        return;
+    }
+    uint front = rayQueryGetIntersectionFrontFaceEXT(q, true) ? 1u : 0u;
+    results[i] = uvec4(floatBitsToUint(rayQueryGetIntersectionTEXT(q, true)),
+                       rayQueryGetIntersectionInstanceCustomIndexEXT(q, true),
+                       uint(rayQueryGetIntersectionPrimitiveIndexEXT(q, true)) | (front << 31),
+                       kind | (uint(rayQueryGetIntersectionInstanceIdEXT(q, true)) << 8)
+                           | (rayQueryGetIntersectionInstanceShaderBindingTableRecordOffsetEXT(q, true) << 16));
+}
+"#;
+
+/// The two squares without the spheres, keyed: a scene of opaque triangles only.
+fn opaque_squares() -> String {
+    let keyed = "mask = 1\ncustom_index = 42\nsbt_offset = 3\nflags = [\"flip-facing\"]";
+    let scene = scene_toml(keyed).replace(
+        "translate = [0, 3, -1]",
+        "translate = [0, 3, -1]\nmask = 2\nflags = [\"cull-disable\"]",
+    );
+    scene[..scene.find("[[spheres]]").unwrap()].to_string()
+}
+
+/// `shader-check --accel ACCEL -o`: the report and the records.
+fn with_accel(
+    name: &str,
+    shader: &str,
+    scene: &str,
+    rays: &[Ray],
+    accel: &str,
+    through: &str,
+) -> Option<(serde_json::Value, Vec<[u32; 4]>)> {
+    let st = setup(name, shader, scene, rays);
+    let out_path = st.dir.join("results.bin");
+    let mut args = validate();
+    args.extend([
+        "shader-check",
+        s(&st.shader),
+        s(&st.scene),
+        "--rays",
+        s(&st.rays),
+        "--accel",
+        accel,
+        "--through",
+        through,
+        "-o",
+        s(&out_path),
+        "--json",
+    ]);
+    let out = vkrt_ok(&args)?;
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!stderr.contains("validation"), "{stderr}");
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    let records = read_records(&out_path);
+    let _ = std::fs::remove_dir_all(&st.dir);
+    Some((v, records))
+}
+
+#[test]
+fn kd_tree_bottom_levels_answer_as_the_bvh_and_the_driver() {
+    let rays = two_sided_rays();
+    let scene = opaque_squares();
+    let Some((kd, kd_records)) =
+        with_accel("kd-opaque", KD_OPAQUE, &scene, &rays, "kdtree", "both")
+    else {
+        return;
+    };
+    assert_eq!(kd["mismatching_rays"], 0, "{kd}");
+    let (_, bvh_records) =
+        with_accel("kd-opaque-lbvh", KD_OPAQUE, &scene, &rays, "lbvh", "vkrt").unwrap();
+    let (_, kd_vkrt) =
+        with_accel("kd-opaque-vkrt", KD_OPAQUE, &scene, &rays, "kdtree", "vkrt").unwrap();
+    assert_eq!(
+        kd_vkrt, bvh_records,
+        "the kd-tree's answers are the LBVH's, bit for bit"
+    );
+    if has_ray_query() {
+        // -o wrote the driver's there.
+        assert_eq!(kd_records, bvh_records);
+    }
+    let hits = bvh_records.iter().filter(|r| r[3] != 0).count();
+    assert!(
+        hits > rays.len() / 8 && hits < rays.len(),
+        "{hits} of {}",
+        rays.len()
+    );
+}
+
+#[test]
+fn a_kd_tree_holds_opaque_triangles_only_for_the_queries() {
+    // Spheres in the scene: refused before any GPU work, naming the rule.
+    let st = setup("kd-spheres", CLOSEST_HIT, &scene_toml(""), &grid_rays());
+    let out_path = st.dir.join("results.bin");
+    let out = vkrt(&[
+        "shader-check",
+        s(&st.shader),
+        s(&st.scene),
+        "--rays",
+        s(&st.rays),
+        "--accel",
+        "kdtree",
+        "-o",
+        s(&out_path),
+    ]);
+    let stderr = String::from_utf8_lossy(&out.stderr);
+    assert!(!out.status.success(), "{stderr}");
+    assert!(
+        stderr.contains("--accel kdtree") && stderr.contains("opaque triangles"),
+        "{stderr}"
+    );
+    assert!(!out_path.exists());
+    let _ = std::fs::remove_dir_all(&st.dir);
+
+    // A ray that makes them candidates (no-opaque) ends its query, exhausted, on a kd-tree
+    // level; on a BVH it answers.
+    let shader = KD_OPAQUE
+        .replace("uint flags = gl_RayFlagsOpaqueEXT;", "uint flags = gl_RayFlagsNoOpaqueEXT;")
+        .replace(
+            "    while (rayQueryProceedEXT(q)) {\n    }\n",
+            "    while (rayQueryProceedEXT(q)) {\n        rayQueryConfirmIntersectionEXT(q);\n    }\n    if (vkrtRayQueryExhausted(q)) {\n        results[i] = uvec4(0u, 0u, 0u, 7u);\n        return;\n    }\n",
+        );
+    let rays = grid_rays();
+    let Some((_, kd)) = with_accel(
+        "kd-no-opaque",
+        &shader,
+        &opaque_squares(),
+        &rays,
+        "kdtree",
+        "vkrt",
+    ) else {
+        return;
+    };
+    let (_, bvh) = with_accel(
+        "kd-no-opaque-lbvh",
+        &shader,
+        &opaque_squares(),
+        &rays,
+        "lbvh",
+        "vkrt",
+    )
+    .unwrap();
+    let exhausted = kd.iter().filter(|r| r[3] == 7).count();
+    assert!(exhausted > 0, "no kd-tree query met a candidate");
+    assert!(bvh.iter().all(|r| r[3] != 7), "a BVH query answers");
+    for (k, b) in kd.iter().zip(&bvh) {
+        assert!(k[3] == 7 || k == b, "{k:?} against {b:?}");
+    }
+}

@@ -134,12 +134,26 @@ impl SceneLevels {
         }
     }
 
-    /// Why vkrt's bottom levels cannot be `kind` trees for these levels: BVHs only (the walk
-    /// of `vkrt/ext_ray_query.glsl`), and the SAH BVH, built from host arrays that carry no
-    /// opaque flag, only where every geometry is opaque.
+    /// Why vkrt's bottom levels cannot be `kind` trees for these levels: the SAH BVH, built
+    /// from host arrays that carry no opaque flag, only where every geometry is opaque; the
+    /// kd-tree (which may hold a primitive in several leaves) only over opaque triangles.
     pub fn check_kind(&self, kind: AccelKind) -> std::result::Result<(), String> {
         match kind {
             AccelKind::Lbvh | AccelKind::Ploc => Ok(()),
+            AccelKind::KdTree
+                if self
+                    .bottoms
+                    .iter()
+                    .any(|b| !matches!(b, BottomSource::Mesh { opaque: true, .. })) =>
+            {
+                Err(
+                    "the kd-tree may hold a primitive in several leaves, so the ray queries \
+                     walk it over opaque triangles only: choose a BVH (LBVH, PLOC, SAH BVH) \
+                     for a scene with spheres or `opaque = false`"
+                        .into(),
+                )
+            }
+            AccelKind::KdTree => Ok(()),
             AccelKind::SahBvh
                 if self
                     .bottoms
@@ -154,7 +168,8 @@ impl SceneLevels {
             }
             AccelKind::SahBvh => Ok(()),
             other => Err(format!(
-                "{} bottom levels: the ray queries walk BVHs (LBVH, PLOC, SAH BVH)",
+                "{} bottom levels: the ray queries walk vkrt's structures (kd-tree, LBVH, \
+                 PLOC, SAH BVH)",
                 other.name()
             )),
         }
@@ -182,6 +197,13 @@ impl SceneLevels {
             });
         }
         for b in &self.bottoms {
+            if kind == AccelKind::KdTree {
+                // Built in a submission of its own, redone while its reference budget runs
+                // out: a recorded kd-tree build cannot grow its budget.
+                let (g, _) = GpuGeometry::build_fitting(&ctx, &builder, &self.host_geometry(b))?;
+                bottoms.push(g);
+                continue;
+            }
             if kind == AccelKind::SahBvh {
                 let (g, _) = GpuGeometry::record_build(rec, &builder, &self.host_geometry(b), 0)?;
                 bottoms.push(g);

@@ -22,6 +22,8 @@ pub enum ThroughArg {
 
 #[derive(Clone, Copy, PartialEq, ValueEnum)]
 pub enum BottomArg {
+    /// Kolodzey's SAH kd-tree (opaque triangles only).
+    Kdtree,
     Lbvh,
     Ploc,
     SahBvh,
@@ -64,6 +66,7 @@ pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
         ThroughArg::Driver => Through::Driver,
     };
     let kind = match args.accel {
+        BottomArg::Kdtree => vkrt::accel::device::AccelKind::KdTree,
         BottomArg::Lbvh => vkrt::accel::device::AccelKind::Lbvh,
         BottomArg::Ploc => vkrt::accel::device::AccelKind::Ploc,
         BottomArg::SahBvh => vkrt::accel::device::AccelKind::SahBvh,

@@ -179,6 +179,11 @@ float vkrt_rq_far[VKRT_RAY_QUERIES]; // the committed t, or tMax: where the walk
 VkrtRqHit vkrt_rq_candidate[VKRT_RAY_QUERIES];
 VkrtRqHit vkrt_rq_committed[VKRT_RAY_QUERIES];
 uvec2 vkrt_rq_stack[VKRT_RAY_QUERIES][VKRT_RQ_STACK]; // vkrt_stack_entry (bvh.glsl)
+// A kd-tree bottom level's walk (VKRT_KD_DESCEND_ON, traverse.glsl): n0, n1 and the scene's
+// far end (float bits), and the ring's top | count << 8 | dropped << 16 | fresh << 24
+// (fresh: its root cell in hand, to descend from rather than pop). Its ring of cells lies
+// in the stack above `base`, two entries a cell.
+uvec4 vkrt_rq_kd[VKRT_RAY_QUERIES];
 // Which handle owns each state (0: none), and how many handles were given.
 uvec4 vkrt_rq_owner = uvec4(0u);
 uint vkrt_rq_issued = 0u;
@@ -197,6 +202,30 @@ VkrtRqHit vkrt_rq_none() {
 uint vkrt_rq_s;
 uint vkrt_rq_base;
 #define VKRT_RQ_AT(i) vkrt_rq_stack[vkrt_rq_s][vkrt_rq_base + (i)]
+
+// The kd-tree walk's ring of cells (node, t0, t1) in the bottom level's part of the stack:
+// 64 cells, 128 of its VKRT_WIDE_STACK_SIZE (192) entries.
+#define VKRT_RQ_KD_RING 64u
+#define VKRT_RQ_KD_NODE(i) VKRT_RQ_AT(2u * (i)).x
+#define VKRT_RQ_KD_T0(i) uintBitsToFloat(VKRT_RQ_AT(2u * (i)).y)
+#define VKRT_RQ_KD_T1(i) uintBitsToFloat(VKRT_RQ_AT(2u * (i) + 1u).x)
+#define VKRT_RQ_KD_PUT(i, n_, a_, b_)                       \
+    VKRT_RQ_AT(2u * (i)) = uvec2(n_, floatBitsToUint(a_)); \
+    VKRT_RQ_AT(2u * (i) + 1u) = uvec2(floatBitsToUint(b_), 0u)
+#define VKRT_RQ_KD_FRESH (1u << 24u)
+
+// A kd-tree level's walk from its root: the ray's interval clipped to its scene box; false
+// where the ray misses the box.
+bool vkrt_rq_kd_start(VkrtRay r, float tmin, float far, out uvec4 kd) {
+    float t0 = tmin;
+    float t1 = far;
+    kd = uvec4(0u);
+    if (!vkrt_clip_to_scene(r, t0, t1)) {
+        return false;
+    }
+    kd = uvec4(floatBitsToUint(t0), floatBitsToUint(t1), floatBitsToUint(t1), VKRT_RQ_KD_FRESH);
+    return true;
+}
 
 void vkrtRayQueryInitialize(inout uint q, VkrtAccelerationStructure as, uint flags, uint cull_mask,
                         vec3 origin, float tmin, vec3 direction, float tmax) {
@@ -235,6 +264,9 @@ void vkrtRayQueryInitialize(inout uint q, VkrtAccelerationStructure as, uint fla
             vkrt_rq_bottom[s] = handle;
             vkrt_rq_object_origin[s] = vec4(origin, 0.0);
             vkrt_rq_object_direction[s] = vec4(direction, 0.0);
+            if (vkrt_scene_info.walk == VKRT_ACCEL_KDTREE && !vkrt_rq_kd_start(r, tmin, tmax, vkrt_rq_kd[s])) {
+                bits |= VKRT_RQ_DONE;
+            }
         }
     }
     // The root entered: sp 1 (the root, popped first), base 0.
@@ -280,11 +312,14 @@ bool vkrt_rq_enter(uint s, uint i, uint cull_mask) {
     return true;
 }
 
-// Whether the bottom level in use is one this walk serves (a BVH, binary or 4-wide).
+// Whether the bottom level in use is one this walk serves: a BVH, binary or 4-wide, or a
+// kd-tree of triangles (a kd-tree may hold a primitive in several leaves: a box would come
+// to the shader as a candidate more than once).
 bool vkrt_rq_walkable() {
     uint walk = vkrt_scene_info.walk;
     return walk == VKRT_ACCEL_BVH_STACK || walk == VKRT_ACCEL_BVH_BITSTACK
-        || walk == VKRT_ACCEL_BVH_WIDE;
+        || walk == VKRT_ACCEL_BVH_WIDE
+        || (walk == VKRT_ACCEL_KDTREE && vkrt_primitive_count() == vkrt_scene_info.n_tris);
 }
 
 bool vkrtRayQueryProceed(uint q) {
@@ -326,12 +361,23 @@ bool vkrtRayQueryProceed(uint q) {
     }
     // The level in hand has 4-wide nodes (a bottom level built for the wide walk).
     bool wide = in_bottom && vkrt_scene_info.walk == VKRT_ACCEL_BVH_WIDE;
+    // Or it is a kd-tree, walked on VKRT_KD_DESCEND_ON's state (traverse.glsl).
+    bool kd = in_bottom && vkrt_scene_info.walk == VKRT_ACCEL_KDTREE;
+    uvec4 kdw = vkrt_rq_kd[s];
+    uint node = 0u;
+    float n0 = uintBitsToFloat(kdw.x);
+    float n1 = uintBitsToFloat(kdw.y);
+    float scene_t1 = uintBitsToFloat(kdw.z);
+    uint st_top = kdw.w & 0xffu;
+    uint st_count = (kdw.w >> 8u) & 0xffu;
+    bool dropped = (kdw.w & (1u << 16u)) != 0u;
+    VkrtKdNode nd;
     vec3 inv_d = vkrt_recip3(r.d);
     VkrtShear sh = vkrt_make_shear(r.d);
     uvec2 cur = uvec2(0u);
     bool have = true;
     // A level's root in hand (descend from it rather than pop).
-    bool fresh = false;
+    bool fresh = kd && (kdw.w & VKRT_RQ_KD_FRESH) != 0u;
     bool found = false;
     // Every way out of the loop but two says how the walk stands: the step cap, and a
     // driver that ends a loop on its own (Mesa 22.3's lavapipe, after 65,535 iterations of
@@ -410,6 +456,13 @@ bool vkrtRayQueryProceed(uint q) {
             if ((flags & (opaque ? VKRT_RAY_CULL_OPAQUE : VKRT_RAY_CULL_NO_OPAQUE)) != 0u) {
                 continue;
             }
+            if (kd && !opaque) {
+                // A kd-tree may hold the triangle in several leaves: the shader would be
+                // asked about it more than once. The query ends, exhausted, rather than
+                // answer otherwise than the driver.
+                end = VKRT_RQ_DONE | VKRT_RQ_EXHAUSTED;
+                break;
+            }
             if (!opaque || h.type == VKRT_CANDIDATE_AABB) {
                 vkrt_rq_candidate[s] = h;
                 found = true;
@@ -458,15 +511,45 @@ bool vkrtRayQueryProceed(uint q) {
             cur = uvec2(0u);
             have = vkrt_primitive_count() != 0u;
             fresh = true;
+            kd = vkrt_scene_info.walk == VKRT_ACCEL_KDTREE;
+            if (kd && have) {
+                have = vkrt_rq_kd_start(r, tmin, best_t, kdw);
+                node = 0u;
+                n0 = uintBitsToFloat(kdw.x);
+                n1 = uintBitsToFloat(kdw.y);
+                scene_t1 = uintBitsToFloat(kdw.z);
+                st_top = 0u;
+                st_count = 0u;
+                dropped = false;
+            }
         }
-        if (!fresh) {
-            VKRT_BVH_POP_ON(VKRT_RQ_AT);
-        }
-        fresh = false;
-        if (wide) {
-            VKRT_WIDE_DESCEND_ON(VKRT_RQ_AT);
+        if (kd) {
+            if (!fresh) {
+                VKRT_KD_POP_ON(VKRT_RQ_KD, VKRT_RQ_KD_RING,
+                               vkrt_rq_committed[s].type == VKRT_COMMITTED_NONE);
+            }
+            fresh = false;
+            cur = uvec2(0u);
+            if (have) {
+                VKRT_KD_DESCEND_ON(VKRT_RQ_KD, VKRT_RQ_KD_RING);
+                if (steps < VKRT_STEP_LIMIT) {
+                    steps++;
+                    if (nd.b == 0u) {
+                        continue; // an empty leaf: the next cell
+                    }
+                    cur = uvec2(nd.a, nd.b);
+                }
+            }
         } else {
-            VKRT_BVH_DESCEND_ON(VKRT_RQ_AT);
+            if (!fresh) {
+                VKRT_BVH_POP_ON(VKRT_RQ_AT);
+            }
+            fresh = false;
+            if (wide) {
+                VKRT_WIDE_DESCEND_ON(VKRT_RQ_AT);
+            } else {
+                VKRT_BVH_DESCEND_ON(VKRT_RQ_AT);
+            }
         }
         if (!have) {
             if (in_bottom && (bits & VKRT_RQ_ONE_LEVEL) == 0u) {
@@ -477,6 +560,7 @@ bool vkrtRayQueryProceed(uint q) {
                 vkrt_rq_base = 0u;
                 in_bottom = false;
                 wide = false;
+                kd = false;
                 vkrt_use(top_handle);
                 r = VkrtRay(vkrt_rq_origin[s].xyz, tmin, vkrt_rq_direction[s].xyz, best_t);
                 inv_d = vkrt_recip3(r.d);
@@ -499,6 +583,8 @@ bool vkrtRayQueryProceed(uint q) {
     bits = (bits & ~VKRT_RQ_IN_BOTTOM) | (in_bottom ? VKRT_RQ_IN_BOTTOM : 0u) | end;
     vkrt_rq_walk[s] = uvec4(base + top, base, steps, bits);
     vkrt_rq_leaf[s] = leaf;
+    vkrt_rq_kd[s] = uvec4(floatBitsToUint(n0), floatBitsToUint(n1), floatBitsToUint(scene_t1),
+                          st_top | (st_count << 8u) | (dropped ? 1u << 16u : 0u));
     vkrt_rq_far[s] = best_t;
     return found;
 }

@@ -457,6 +457,113 @@ bool vkrt_test_leaf(uint first, uint count, VkrtRay r, VkrtShear sh, float time,
 
 #include "bvh.glsl"
 
+// The kd-tree walk in two steps both walks share (vkrt_trace_kdtree here, the ray query's
+// resumable walk in ext_ray_query.glsl), over the walk's state: the cell in hand (`node`
+// over [n0, n1]), the scene's far end `scene_t1`, the node loaded `nd`, the steps taken, and
+// a ring of cells still to visit (`st_top` one past the newest, `st_count` held, `dropped`
+// once a push overwrote the oldest), reached through RING_NODE(i), RING_T0(i), RING_T1(i)
+// and RING_PUT(i, node, t0, t1) (a ring of `size` entries).
+//
+// VKRT_KD_DESCEND_ON: from the cell in hand through interior nodes until `nd` is a leaf,
+// pushing each far cell; it stops with steps == VKRT_STEP_LIMIT at the cap instead.
+#define VKRT_KD_DESCEND_ON(RING, size)                                                     \
+    while (steps < VKRT_STEP_LIMIT) {                                                     \
+        VKRT_LOAD_KD_NODE(nd, node)                                                       \
+        if (nd.kind == VKRT_KD_LEAF) {                                                    \
+            break;                                                                        \
+        }                                                                                 \
+        steps++;                                                                          \
+        uint axis_ = nd.kind;                                                             \
+        float o_ = r.o[axis_];                                                            \
+        float d_ = r.d[axis_];                                                            \
+        bool below_first_ = o_ < nd.split || (o_ == nd.split && d_ <= 0.0);               \
+        uint first_ = below_first_ ? nd.a : nd.a + 1u;                                    \
+        uint second_ = below_first_ ? nd.a + 1u : nd.a;                                   \
+        /* Where to go now, and the cell to visit later (if any) over [far0_, far1_]. */  \
+        node = first_;                                                                    \
+        bool push_ = false;                                                               \
+        uint far_node_ = second_;                                                         \
+        float far0_ = n0;                                                                 \
+        float far1_ = n1;                                                                 \
+        if (d_ == 0.0) {                                                                  \
+            /* Parallel to the plane: the origin's side, or both when lying in it. */     \
+            push_ = o_ == nd.split;                                                       \
+        } else if (o_ == nd.split && n0 <= 0.0) {                                         \
+            /* Starting on the plane: the ray enters `first` at once and touches */       \
+            /* `second` at t = 0 only (primitives lying in the plane): `second` over */   \
+            /* [n0, n0] first, then `first` over the whole interval. */                   \
+            push_ = true;                                                                 \
+            far_node_ = first_;                                                           \
+            node = second_;                                                               \
+            n1 = n0;                                                                      \
+        } else {                                                                          \
+            precise float tp_ = (nd.split - o_) * inv_d[axis_];                           \
+            precise float tp_lo_ = tp_ - abs(tp_) * VKRT_PLANE_SLACK;                     \
+            precise float tp_hi_ = tp_ + abs(tp_) * VKRT_PLANE_SLACK;                     \
+            if (tp_ > 0.0 && tp_lo_ <= n1) {                                              \
+                if (tp_hi_ < n0) {                                                        \
+                    node = second_;                                                       \
+                } else {                                                                  \
+                    /* the far child starts at the (widened) crossing, the near one */    \
+                    /* ends there */                                                      \
+                    push_ = true;                                                         \
+                    far0_ = max(tp_lo_, n0);                                              \
+                    n1 = min(tp_hi_, n1);                                                 \
+                }                                                                         \
+            }                                                                             \
+        }                                                                                 \
+        if (push_) {                                                                      \
+            if (st_count == (size)) {                                                     \
+                dropped = true;                                                           \
+            } else {                                                                      \
+                st_count++;                                                               \
+            }                                                                             \
+            RING##_PUT(st_top, far_node_, far0_, far1_);                                  \
+            st_top = st_top + 1u == (size) ? 0u : st_top + 1u;                            \
+        }                                                                                 \
+    }
+
+// VKRT_KD_POP_ON: after a leaf, the next cell: popped, skipping cells that start beyond the
+// closest hit (at `best_t`; `no_hit` while there is none), or the root again past the last
+// cell when entries were dropped; `have` false when the walk is complete. No early exit on
+// best_t <= n1 before: entries pushed for rays lying in or starting on a split plane cover
+// the same interval as the leaf's cell, and ties at equal t go to the lowest id.
+#define VKRT_KD_POP_ON(RING, size, no_hit)                                                 \
+    {                                                                                     \
+        bool found_ = false;                                                              \
+        while (st_count > 0u) {                                                           \
+            st_top = st_top == 0u ? (size) - 1u : st_top - 1u;                            \
+            st_count--;                                                                   \
+            if ((no_hit) || RING##_T0(st_top) <= best_t) {                                \
+                node = RING##_NODE(st_top);                                               \
+                n0 = RING##_T0(st_top);                                                   \
+                n1 = RING##_T1(st_top);                                                   \
+                found_ = true;                                                            \
+                break;                                                                    \
+            }                                                                             \
+        }                                                                                 \
+        if (!found_) {                                                                    \
+            if (!dropped || n1 >= scene_t1 || (!(no_hit) && best_t <= n1)) {              \
+                have = false;                                                             \
+            } else {                                                                      \
+                /* Restart from the root past the last cell (entries were dropped). */    \
+                dropped = false;                                                          \
+                node = 0u;                                                                \
+                n0 = n1;                                                                  \
+                n1 = scene_t1;                                                            \
+            }                                                                             \
+        }                                                                                 \
+    }
+
+// The kernels' ring: three arrays of VKRT_KD_STACK entries.
+#define VKRT_KD_RING_NODE(i) st_node[i]
+#define VKRT_KD_RING_T0(i) st_t0[i]
+#define VKRT_KD_RING_T1(i) st_t1[i]
+#define VKRT_KD_RING_PUT(i, n_, a_, b_) \
+    st_node[i] = n_;                    \
+    st_t0[i] = a_;                      \
+    st_t1[i] = b_
+
 // Closest hit (or, with VKRT_ANY_HIT, the first hit found) with t in [max(tmin, 0), tmax] at
 // `time`. Invalid rays (see vkrt_ray_is_valid) miss.
 VkrtWalkHit vkrt_trace_kdtree(VkrtRay r, float time, bool any_hit) {
@@ -473,99 +580,29 @@ VkrtWalkHit vkrt_trace_kdtree(VkrtRay r, float time, bool any_hit) {
     uint st_node[VKRT_KD_STACK];
     float st_t0[VKRT_KD_STACK];
     float st_t1[VKRT_KD_STACK];
-    uint st_top = 0u;   // index one past the newest entry (mod VKRT_KD_STACK)
+    uint st_top = 0u;
     uint st_count = 0u;
     bool dropped = false;
 
     uint node = 0u;
     float n0 = t0;
     float n1 = t1;
-    for (uint step = 0u; step < VKRT_STEP_LIMIT; step++) {
-        VkrtKdNode nd;
-        VKRT_LOAD_KD_NODE(nd, node)
-        if (nd.kind != VKRT_KD_LEAF) {
-            uint axis = nd.kind;
-            float o = r.o[axis];
-            float d = r.d[axis];
-            bool below_first = o < nd.split || (o == nd.split && d <= 0.0);
-            uint first = below_first ? nd.a : nd.a + 1u;
-            uint second = below_first ? nd.a + 1u : nd.a;
-            // Where to go now, and the cell to visit later (if any) over [far0, far1].
-            node = first;
-            bool push = false;
-            uint far_node = second;
-            float far0 = n0;
-            float far1 = n1;
-            if (d == 0.0) {
-                // Parallel to the plane: the origin's side, or both when lying in it.
-                push = o == nd.split;
-            } else if (o == nd.split && n0 <= 0.0) {
-                // Starting on the plane: the ray enters `first` at once and touches `second`
-                // at t = 0 only (primitives lying in the plane): `second` over [n0, n0]
-                // first, then `first` over the whole interval.
-                push = true;
-                far_node = first;
-                node = second;
-                n1 = n0;
-            } else {
-                precise float tp = (nd.split - o) * inv_d[axis];
-                precise float tp_lo = tp - abs(tp) * VKRT_PLANE_SLACK;
-                precise float tp_hi = tp + abs(tp) * VKRT_PLANE_SLACK;
-                if (tp > 0.0 && tp_lo <= n1) {
-                    if (tp_hi < n0) {
-                        node = second;
-                    } else {
-                        // the far child starts at the (widened) crossing, the near one ends
-                        // there
-                        push = true;
-                        far0 = max(tp_lo, n0);
-                        n1 = min(tp_hi, n1);
-                    }
-                }
-            }
-            if (push) {
-                if (st_count == VKRT_KD_STACK) {
-                    dropped = true;
-                } else {
-                    st_count++;
-                }
-                st_node[st_top] = far_node;
-                st_t0[st_top] = far0;
-                st_t1[st_top] = far1;
-                st_top = st_top + 1u == VKRT_KD_STACK ? 0u : st_top + 1u;
-            }
-            continue;
+    uint steps = 0u;
+    bool have = true;
+    VkrtKdNode nd;
+    while (true) {
+        VKRT_KD_DESCEND_ON(VKRT_KD_RING, VKRT_KD_STACK);
+        if (steps >= VKRT_STEP_LIMIT) {
+            break;
         }
-
         // Leaf: test its primitives over the whole remaining ray interval.
         if (vkrt_test_leaf(nd.a, nd.b, r, sh, time, tmin, any_hit, best, best_t)) {
             return best;
         }
-        step += nd.b;
-        // No early exit on best_t <= n1: entries pushed for rays lying in or starting on a
-        // split plane cover the same interval as this cell, and ties at equal t go to the
-        // lowest id. Next cell: pop, skipping cells that start beyond the best hit.
-        bool found = false;
-        while (st_count > 0u) {
-            st_top = st_top == 0u ? VKRT_KD_STACK - 1u : st_top - 1u;
-            st_count--;
-            if (best.prim == VKRT_NO_HIT || st_t0[st_top] <= best_t) {
-                node = st_node[st_top];
-                n0 = st_t0[st_top];
-                n1 = st_t1[st_top];
-                found = true;
-                break;
-            }
-        }
-        if (!found) {
-            if (!dropped || n1 >= scene_t1 || (best.prim != VKRT_NO_HIT && best_t <= n1)) {
-                return best;
-            }
-            // Restart from the root past the last cell (entries were dropped).
-            dropped = false;
-            node = 0u;
-            n0 = n1;
-            n1 = scene_t1;
+        steps += nd.b + 1u;
+        VKRT_KD_POP_ON(VKRT_KD_RING, VKRT_KD_STACK, best.prim == VKRT_NO_HIT);
+        if (!have) {
+            return best;
         }
     }
     vkrt_trace_steps_exhausted = true;
