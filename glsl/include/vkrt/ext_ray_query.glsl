@@ -38,9 +38,11 @@
 //     lower bound: a hit nearer the origin than its own rounding error is not reported.
 //   - Box candidates come only where the ray meets the box itself within [tMin, committed
 //     t], one box per primitive; their candidate t is where the ray enters the box.
-//   - Bottom levels must be BVHs (LBVH, PLOC, SAH BVH; binary or 4-wide); a query meeting a
-//     kd-tree, or running past the step cap (VKRT_MAX_TRAVERSAL_STEPS, as
-//     vkrt/ray_query.glsl), ends, and `vkrtRayQueryExhausted(q)` says so.
+//   - Bottom levels are BVHs (LBVH, PLOC, SAH BVH; binary or 4-wide) or kd-trees of opaque
+//     triangles (a kd-tree may hold a primitive in several leaves); a query meeting a
+//     kd-tree's box or a triangle its flags make a candidate, or running past the step cap
+//     (VKRT_MAX_TRAVERSAL_STEPS, as vkrt/ray_query.glsl), ends, and
+//     `vkrtRayQueryExhausted(q)` says so.
 //   - A query is a handle to one of VKRT_RAY_QUERIES (default 2, at most 4) query states
 //     per invocation; `rayQueryInitializeEXT` takes the oldest when more are live. A query
 //     passed to a function is the same query (as the extension's opaque type is): the
@@ -640,8 +642,8 @@ void vkrtRayQueryTerminate(uint q) {
 }
 
 // Whether query `q` ended without finishing its walk (its step cap ran out, or it met a
-// bottom level that is not a binary BVH): its committed intersection is then not to be
-// trusted. Not part of the extension; false on the driver's own ray query.
+// bottom level or a candidate the walk does not serve): its committed intersection is then
+// not to be trusted. Not part of the extension; false on the driver's own ray query.
 bool vkrtRayQueryExhausted(uint q) {
     uint s = vkrt_rq_slot(q);
     return s != uint(VKRT_RAY_QUERIES) && (vkrt_rq_walk[s].w & VKRT_RQ_EXHAUSTED) != 0u;
