@@ -649,48 +649,14 @@ fn vkrt_and_the_driver_agree_on_candidates_masks_flags_and_instance_keys() {
     assert_eq!(v["native"], has_ray_query(), "{v}");
 }
 
-/// Facing, masks and instance keys over opaque triangles: the culling flags by ray, the
-/// committed getters written.
-const KD_OPAQUE: &str = r#"#version 460
-#extension GL_EXT_ray_query : require
-
-layout(local_size_x = 32) in;
-layout(set = 0, binding = 0) uniform accelerationStructureEXT topLevel;
-layout(set = 0, binding = 1, std430) readonly buffer Rays { vec4 rays[]; };
-layout(set = 0, binding = 2, std430) writeonly buffer Results { uvec4 results[]; };
-layout(push_constant) uniform Count { uint rayCount; } pc;
-
-void main() {
-    uint i = gl_GlobalInvocationID.x;
-    if (i >= pc.rayCount) {
-        return;
-    }
-    vec4 o = rays[2 * i];
-    vec4 d = rays[2 * i + 1];
-    uint flags = gl_RayFlagsOpaqueEXT;
-    if (i % 3u == 1u) {
-        flags |= gl_RayFlagsCullBackFacingTrianglesEXT;
-    } else if (i % 3u == 2u) {
-        flags |= gl_RayFlagsCullFrontFacingTrianglesEXT;
-    }
-    uint mask = (i % 5u == 4u) ? 0x02u : 0xffu;
-    rayQueryEXT q;
-    rayQueryInitializeEXT(q, topLevel, flags, mask, o.xyz, o.w, d.xyz, d.w);
-    while (rayQueryProceedEXT(q)) {
-    }
-    uint kind = rayQueryGetIntersectionTypeEXT(q, true);
-    if (kind == gl_RayQueryCommittedIntersectionNoneEXT) {
-        results[i] = uvec4(0u, ~0u, ~0u, 0u);
-        return;
-    }
-    uint front = rayQueryGetIntersectionFrontFaceEXT(q, true) ? 1u : 0u;
-    results[i] = uvec4(floatBitsToUint(rayQueryGetIntersectionTEXT(q, true)),
-                       rayQueryGetIntersectionInstanceCustomIndexEXT(q, true),
-                       uint(rayQueryGetIntersectionPrimitiveIndexEXT(q, true)) | (front << 31),
-                       kind | (uint(rayQueryGetIntersectionInstanceIdEXT(q, true)) << 8)
-                           | (rayQueryGetIntersectionInstanceShaderBindingTableRecordOffsetEXT(q, true) << 16));
+/// `CANDIDATES` with opaque rays: facing, masks and instance keys over opaque triangles (the
+/// culling flags by ray), the committed getters written.
+fn kd_opaque() -> String {
+    CANDIDATES.replace(
+        "uint flags = gl_RayFlagsNoneEXT;",
+        "uint flags = gl_RayFlagsOpaqueEXT;",
+    )
 }
-"#;
 
 /// The two squares without the spheres, keyed: a scene of opaque triangles only.
 fn opaque_squares() -> String {
@@ -742,15 +708,29 @@ fn kd_tree_bottom_levels_answer_as_the_bvh_and_the_driver() {
     let rays = two_sided_rays();
     let scene = opaque_squares();
     let Some((kd, kd_records)) =
-        with_accel("kd-opaque", KD_OPAQUE, &scene, &rays, "kdtree", "both")
+        with_accel("kd-opaque", &kd_opaque(), &scene, &rays, "kdtree", "both")
     else {
         return;
     };
     assert_eq!(kd["mismatching_rays"], 0, "{kd}");
-    let (_, bvh_records) =
-        with_accel("kd-opaque-lbvh", KD_OPAQUE, &scene, &rays, "lbvh", "vkrt").unwrap();
-    let (_, kd_vkrt) =
-        with_accel("kd-opaque-vkrt", KD_OPAQUE, &scene, &rays, "kdtree", "vkrt").unwrap();
+    let (_, bvh_records) = with_accel(
+        "kd-opaque-lbvh",
+        &kd_opaque(),
+        &scene,
+        &rays,
+        "lbvh",
+        "vkrt",
+    )
+    .unwrap();
+    let (_, kd_vkrt) = with_accel(
+        "kd-opaque-vkrt",
+        &kd_opaque(),
+        &scene,
+        &rays,
+        "kdtree",
+        "vkrt",
+    )
+    .unwrap();
     assert_eq!(
         kd_vkrt, bvh_records,
         "the kd-tree's answers are the LBVH's, bit for bit"
@@ -794,12 +774,13 @@ fn a_kd_tree_holds_opaque_triangles_only_for_the_queries() {
 
     // A ray that makes them candidates (no-opaque) ends its query, exhausted, on a kd-tree
     // level; on a BVH it answers.
-    let shader = KD_OPAQUE
-        .replace("uint flags = gl_RayFlagsOpaqueEXT;", "uint flags = gl_RayFlagsNoOpaqueEXT;")
+    let shader = CANDIDATES
+        .replace("uint flags = gl_RayFlagsNoneEXT;", "uint flags = gl_RayFlagsNoOpaqueEXT;")
         .replace(
-            "    while (rayQueryProceedEXT(q)) {\n    }\n",
-            "    while (rayQueryProceedEXT(q)) {\n        rayQueryConfirmIntersectionEXT(q);\n    }\n    if (vkrtRayQueryExhausted(q)) {\n        results[i] = uvec4(0u, 0u, 0u, 7u);\n        return;\n    }\n",
+            "        decide(q, o.w, d.w);\n    }\n",
+            "        decide(q, o.w, d.w);\n    }\n    if (vkrtRayQueryExhausted(q)) {\n        results[i] = uvec4(0u, 0u, 0u, 7u);\n        return;\n    }\n",
         );
+    assert!(shader.contains("vkrtRayQueryExhausted"));
     let rays = grid_rays();
     let Some((_, kd)) = with_accel(
         "kd-no-opaque",
