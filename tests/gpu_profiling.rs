@@ -478,6 +478,28 @@ fn a_scope_hook_hears_every_pass_and_dispatch_with_its_queries_and_ticks() {
     assert_silent(&ctx);
 }
 
+/// saxpy over 1,024 floats (`x` = 1, `y` = 0) in workgroups of 64, and workgroup counts the
+/// device reads when an indirect dispatch runs: 5 x 1 x 1.
+struct SaxpyRig {
+    x: Buffer<f32>,
+    y: Buffer<f32>,
+    kernel: std::sync::Arc<vkrt::gpu::Kernel>,
+    push: SaxpyPush,
+    indirect: Buffer<u32>,
+}
+
+fn saxpy_rig(ctx: &Context, name: &str) -> SaxpyRig {
+    SaxpyRig {
+        x: Buffer::from_slice(ctx, &format!("{name}.x"), &[1.0f32; 1024]).unwrap(),
+        y: Buffer::from_slice(ctx, &format!("{name}.y"), &[0.0f32; 1024]).unwrap(),
+        kernel: ctx
+            .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
+            .unwrap(),
+        push: SaxpyPush { a: 1.0, n: 1024 },
+        indirect: Buffer::from_slice(ctx, &format!("{name}.indirect"), &[5u32, 1, 1]).unwrap(),
+    }
+}
+
 #[test]
 fn pipeline_statistics_count_the_invocations_an_indirect_pass_really_ran() {
     let Some(ctx) = context() else { return };
@@ -485,14 +507,13 @@ fn pipeline_statistics_count_the_invocations_an_indirect_pass_really_ran() {
         eprintln!("skipped: device has no pipelineStatisticsQuery");
         return;
     }
-    let x = Buffer::from_slice(&ctx, "stats.x", &[1.0f32; 1024]).unwrap();
-    let y = Buffer::from_slice(&ctx, "stats.y", &[0.0f32; 1024]).unwrap();
-    let kernel = ctx
-        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
-        .unwrap();
-    let push = SaxpyPush { a: 1.0, n: 1024 };
-    // Workgroup counts the device reads when the dispatch runs: 5 x 1 x 1.
-    let indirect = Buffer::from_slice(&ctx, "stats.indirect", &[5u32, 1, 1]).unwrap();
+    let SaxpyRig {
+        x,
+        y,
+        kernel,
+        push,
+        indirect,
+    } = saxpy_rig(&ctx, "stats");
     let mut rec = Recorder::new(&ctx).unwrap();
     rec.scope("direct", |rec| {
         rec.dispatch(&kernel, [3, 1, 1], &[&x, &y], &push)
@@ -546,14 +567,14 @@ fn each_scope_knows_the_bytes_its_direct_dispatches_and_copies_bind() {
     assert_eq!(kernels::GPU_COPY_U32.write_only_bindings, &[1]);
 
     let Some(ctx) = context() else { return };
-    let x = Buffer::from_slice(&ctx, "bytes.x", &[1.0f32; 1024]).unwrap();
-    let y = Buffer::from_slice(&ctx, "bytes.y", &[0.0f32; 1024]).unwrap();
+    let SaxpyRig {
+        x,
+        y,
+        kernel,
+        push,
+        indirect,
+    } = saxpy_rig(&ctx, "bytes");
     let z = Buffer::from_slice(&ctx, "bytes.z", &[0.0f32; 256]).unwrap();
-    let kernel = ctx
-        .kernel(&kernels::GPU_SAXPY, &Spec::new().workgroup(64))
-        .unwrap();
-    let push = SaxpyPush { a: 1.0, n: 1024 };
-    let indirect = Buffer::from_slice(&ctx, "bytes.indirect", &[5u32, 1, 1]).unwrap();
     ctx.set_copy_baseline(10.0);
     let mut rec = Recorder::new(&ctx).unwrap();
     // saxpy reads x and y and writes y.

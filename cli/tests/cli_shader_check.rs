@@ -287,24 +287,36 @@ fn the_driver_runs_a_closest_hit_shader_over_the_instanced_scene() {
     let _ = std::fs::remove_dir_all(&st.dir);
 }
 
-/// Runs a check that must fail: non-zero exit, `needles` in the message, no output file.
+/// Runs a check through the driver that must fail: non-zero exit, `needles` in the message,
+/// no output file.
 fn refused(name: &str, shader: &str, scene: &str, rays: Option<&[u8]>, needles: &[&str]) {
+    refused_with(name, shader, scene, rays, &["--through", "driver"], needles);
+}
+
+/// [`refused`] with `options` (the path, the structure) in place of `--through driver`.
+fn refused_with(
+    name: &str,
+    shader: &str,
+    scene: &str,
+    rays: Option<&[u8]>,
+    options: &[&str],
+    needles: &[&str],
+) {
     let st = setup(name, shader, scene, &grid_rays());
     if let Some(bytes) = rays {
         std::fs::write(&st.rays, bytes).unwrap();
     }
     let out_path = st.dir.join("results.bin");
-    let out = vkrt(&[
+    let mut args = vec![
         "shader-check",
         s(&st.shader),
         s(&st.scene),
         "--rays",
         s(&st.rays),
-        "--through",
-        "driver",
-        "-o",
-        s(&out_path),
-    ]);
+    ];
+    args.extend(options);
+    args.extend(["-o", s(&out_path)]);
+    let out = vkrt(&args);
     let stderr = String::from_utf8_lossy(&out.stderr);
     if no_gpu_allowed() && stderr.contains("no Vulkan") {
         return;
@@ -750,27 +762,14 @@ fn kd_tree_bottom_levels_answer_as_the_bvh_and_the_driver() {
 #[test]
 fn a_kd_tree_holds_opaque_triangles_only_for_the_queries() {
     // Spheres in the scene: refused before any GPU work, naming the rule.
-    let st = setup("kd-spheres", CLOSEST_HIT, &scene_toml(""), &grid_rays());
-    let out_path = st.dir.join("results.bin");
-    let out = vkrt(&[
-        "shader-check",
-        s(&st.shader),
-        s(&st.scene),
-        "--rays",
-        s(&st.rays),
-        "--accel",
-        "kdtree",
-        "-o",
-        s(&out_path),
-    ]);
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!out.status.success(), "{stderr}");
-    assert!(
-        stderr.contains("--accel kdtree") && stderr.contains("opaque triangles"),
-        "{stderr}"
+    refused_with(
+        "kd-spheres",
+        CLOSEST_HIT,
+        &scene_toml(""),
+        None,
+        &["--accel", "kdtree"],
+        &["--accel kdtree", "opaque triangles"],
     );
-    assert!(!out_path.exists());
-    let _ = std::fs::remove_dir_all(&st.dir);
 
     // A ray that makes them candidates (no-opaque) ends its query, exhausted, on a kd-tree
     // level; on a BVH it answers.

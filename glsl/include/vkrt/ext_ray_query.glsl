@@ -365,7 +365,8 @@ bool vkrtRayQueryProceed(uint q) {
     bool wide = in_bottom && vkrt_scene_info.walk == VKRT_ACCEL_BVH_WIDE;
     // Or it is a kd-tree, walked on VKRT_KD_DESCEND_ON's state (traverse.glsl).
     bool kd = in_bottom && vkrt_scene_info.walk == VKRT_ACCEL_KDTREE;
-    uvec4 kdw = vkrt_rq_kd[s];
+    // (read and written back only on a kd-tree level: a BVH's walk pays nothing for it)
+    uvec4 kdw = kd ? vkrt_rq_kd[s] : uvec4(0u);
     uint node = 0u;
     float n0 = uintBitsToFloat(kdw.x);
     float n1 = uintBitsToFloat(kdw.y);
@@ -585,8 +586,10 @@ bool vkrtRayQueryProceed(uint q) {
     bits = (bits & ~VKRT_RQ_IN_BOTTOM) | (in_bottom ? VKRT_RQ_IN_BOTTOM : 0u) | end;
     vkrt_rq_walk[s] = uvec4(base + top, base, steps, bits);
     vkrt_rq_leaf[s] = leaf;
-    vkrt_rq_kd[s] = uvec4(floatBitsToUint(n0), floatBitsToUint(n1), floatBitsToUint(scene_t1),
-                          st_top | (st_count << 8u) | (dropped ? 1u << 16u : 0u));
+    if (kd) {
+        vkrt_rq_kd[s] = uvec4(floatBitsToUint(n0), floatBitsToUint(n1), floatBitsToUint(scene_t1),
+                              st_top | (st_count << 8u) | (dropped ? 1u << 16u : 0u));
+    }
     vkrt_rq_far[s] = best_t;
     return found;
 }
