@@ -1,6 +1,6 @@
 //! `vkrt bench history` and `vkrt bench compare` as a user runs them: a run at tiny sizes
-//! appends one well-formed line to the history it is given (never the repository's), with
-//! the validation layer silent; compare flags a regression of a run made from it and passes
+//! appends one well-formed line to the history it is given (never the repository's), every
+//! metric present (the ray-query include's too), with the validation layer silent; compare flags a regression of a run made from it and passes
 //! an improvement; a missing file, a malformed line and a history without an earlier run of
 //! the device are clear errors.
 
@@ -22,8 +22,8 @@ fn path_str(p: &Path) -> &str {
 }
 
 /// `vkrt bench history` at tiny sizes on a 2 K icosphere (VKRT_MESH unset), appending to
-/// `file`; `None` where it failed and no device is allowed.
-fn history_run(file: &Path) -> Option<std::process::Output> {
+/// `file`, with `extra` arguments; `None` where it failed and no device is allowed.
+fn history_run(file: &Path, extra: &[&str]) -> Option<std::process::Output> {
     let mut args = vec![
         "bench",
         "history",
@@ -38,6 +38,7 @@ fn history_run(file: &Path) -> Option<std::process::Output> {
         "--file",
         path_str(file),
     ];
+    args.extend_from_slice(extra);
     if !std::env::var("VKRT_VALIDATION").is_ok_and(|v| v.trim() == "0") {
         args.push("--validate");
     }
@@ -88,7 +89,7 @@ fn write_lines(file: &Path, lines: &[&Value]) {
 fn a_run_appends_one_well_formed_line_and_compare_judges_the_next() {
     let file = temp_file("run");
     std::fs::remove_file(&file).ok();
-    let Some(_) = history_run(&file) else {
+    let Some(_) = history_run(&file, &[]) else {
         return;
     };
     let text = std::fs::read_to_string(&file).unwrap();
@@ -118,9 +119,16 @@ fn a_run_appends_one_well_formed_line_and_compare_judges_the_next() {
         "trace.ploc/bitstack",
         "trace.sah-bvh/stack",
     ];
+    // The ray-query include's closest hit (examples/ray_queries/closest_hit.comp, compiled
+    // with glslc, which `./x setup` installs), and the driver's where it has ray query.
+    expected.push("query.include");
     let driver = metrics.contains_key("trace.driver");
     if driver {
-        expected.push("trace.best_over_driver");
+        expected.extend([
+            "trace.best_over_driver",
+            "query.driver",
+            "query.include_over_driver",
+        ]);
     }
     for name in expected {
         let m = &metrics
@@ -168,6 +176,26 @@ fn a_run_appends_one_well_formed_line_and_compare_judges_the_next() {
         assert!((c["change"].as_f64().unwrap() + 0.5).abs() < 1e-9, "{c}");
         assert_eq!(c["regressed"], false);
     }
+}
+
+#[test]
+fn a_query_shader_that_cannot_be_read_leaves_its_metrics_out_and_says_why() {
+    let file = temp_file("no-query");
+    std::fs::remove_file(&file).ok();
+    let missing = std::env::temp_dir().join("vkrt-history-no-such-shader.comp");
+    let Some(out) = history_run(&file, &["--query-shader", path_str(&missing)]) else {
+        return;
+    };
+    let err = String::from_utf8_lossy(&out.stderr);
+    assert!(
+        err.contains("no query.* metrics") && err.contains("cannot read the shader"),
+        "{err}"
+    );
+    let text = std::fs::read_to_string(&file).unwrap();
+    let run: Value = serde_json::from_str(text.lines().next().unwrap()).unwrap();
+    let metrics = run["metrics"].as_object().unwrap();
+    assert!(metrics.contains_key("trace.best"), "{run}");
+    assert!(!metrics.keys().any(|k| k.starts_with("query.")), "{run}");
 }
 
 #[test]

@@ -112,6 +112,24 @@ impl SceneLevels {
         }
     }
 
+    /// One opaque mesh of `tris` as the only instance (id and custom index 0, the identity
+    /// transform): what a scene of one `[[meshes]]` entry holding them gives.
+    pub fn of_triangles(tris: &[[Vec3; 3]]) -> Self {
+        let positions: Vec<Vec3> = tris.iter().flatten().copied().collect();
+        let indices: Vec<[u32; 3]> = (0..tris.len() as u32)
+            .map(|i| [3 * i, 3 * i + 1, 3 * i + 2])
+            .collect();
+        Self {
+            bottoms: vec![BottomSource::Mesh {
+                mesh: 0,
+                opaque: true,
+            }],
+            instances: vec![Instance::new(0, Instance::IDENTITY).with_custom_index(0)],
+            sphere_boxes: Vec::new(),
+            meshes: vec![(Arc::new(positions), Arc::new(indices))],
+        }
+    }
+
     /// Bottom level `b`'s primitives as host arrays (object-space triangles, or boxes).
     fn host_geometry(&self, b: &BottomSource) -> TraceGeometry {
         match *b {

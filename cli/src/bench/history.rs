@@ -1,12 +1,14 @@
 //! `vkrt bench history`: one fixed quick set measured in one process — every walk tracing
 //! one mesh's primary rays, the driver's ray query where the device has it, the GPU builds
-//! (kd-tree, LBVH, PLOC) and the chained scan — each as a ratio to the best copy kernel's
-//! time for as many bytes, measured in the same run, so that the machine's speed cancels and
-//! a run can be set against an earlier one ([`compare`]). Every ratio is a time over a time:
-//! lower is better.
+//! (kd-tree, LBVH, PLOC), the chained scan and, where a [`QueryShader`] is given, a
+//! renderer's `GL_EXT_ray_query` shader through `vkrt/ext_ray_query.glsl` on the same rays —
+//! each as a ratio to the best copy kernel's time for as many bytes, measured in the same
+//! run, so that the machine's speed cancels and a run can be set against an earlier one
+//! ([`compare`]). Every ratio is a time over a time: lower is better.
 
 use std::collections::BTreeMap;
 use std::fmt;
+use std::path::Path;
 
 use serde::{Deserialize, Serialize};
 
@@ -15,6 +17,9 @@ use vkrt::accel::walk::{AccelChoice, NodeAccess, Traversal};
 use vkrt::gpu::{Buffer, Context, Recorder, Result};
 use vkrt::prims::scan::{Scan, ScanInput, ScanOp};
 use vkrt::prims::PrimConfig;
+use vkrt::shader_check::levels::SceneLevels;
+use vkrt::shader_check::reflect::ShaderInterface;
+use vkrt::shader_check::{self as check, Through};
 
 use super::copy::copy_baselines;
 use super::{best_ms, rep_scope};
@@ -127,12 +132,43 @@ pub struct HistoryRun {
     pub metrics: BTreeMap<String, Metric>,
 }
 
+/// The ray-query part of the set (`query.*`): a renderer's opaque closest-hit
+/// `GL_EXT_ray_query` shader in `vkrt shader-check`'s interface, compiled once through the
+/// include and, where the device has ray query, for the driver's own.
+pub struct QueryShader {
+    vkrt: (Vec<u32>, ShaderInterface),
+    native: Option<(Vec<u32>, ShaderInterface)>,
+}
+
+impl QueryShader {
+    /// Compiles `path` (glslc, or the program `VKRT_GLSLC` names) with vkrt's include files,
+    /// and also for the driver's ray query where `native`.
+    pub fn compile(path: &Path, native: bool) -> std::result::Result<Self, String> {
+        let source = std::fs::read_to_string(path)
+            .map_err(|e| format!("{}: cannot read the shader: {e}", path.display()))?;
+        let include = check::compile::TempDir::new("history-include").map_err(|e| e.to_string())?;
+        vkrt::accel::shader_library::write_to(include.path()).map_err(|e| e.to_string())?;
+        let through = if native { Through::Both } else { Through::Vkrt };
+        let compiled = check::compile_shader(path, &source, include.path(), through)
+            .map_err(|e| e.to_string())?;
+        Ok(Self {
+            vkrt: compiled.vkrt.expect("compiled through vkrt"),
+            native: compiled.native,
+        })
+    }
+}
+
 /// Measures the fixed set over `scene` (see the module docs); `date` and `commit` are the
 /// caller's. The repetitions are rounds, each measuring every item once (a trace
 /// three times), and each item keeps its best over the rounds: a burst of other
 /// work on a shared machine slows one round of everything rather than every repetition of
 /// one item, and the copy baseline is measured in every round alike.
-pub fn measure(ctx: &Context, scene: &BenchScene, opt: &HistoryOptions) -> Result<HistoryRun> {
+pub fn measure(
+    ctx: &Context,
+    scene: &BenchScene,
+    opt: &HistoryOptions,
+    query: Option<&QueryShader>,
+) -> Result<HistoryRun> {
     let g = &scene.geometry;
     let triangles = g.triangle_count() as u64;
     let set = RaySet {
@@ -150,6 +186,16 @@ pub fn measure(ctx: &Context, scene: &BenchScene, opt: &HistoryOptions) -> Resul
     // (name, best ms) of the builds and of the traces, in the order measured.
     let mut builds: Vec<(&str, f64)> = Vec::new();
     let mut traces: Vec<(AccelChoice, f64)> = Vec::new();
+    // The query's two levels: the mesh as one instance over an SAH BVH bottom level walked
+    // the device's way; (include, driver) best ms.
+    let levels = query.map(|_| {
+        let tris: Vec<_> = (0..g.triangle_count())
+            .map(|i| g.triangle_at(i, 0.0))
+            .collect();
+        SceneLevels::of_triangles(&tris)
+    });
+    let query_choice = AccelChoice::new(AccelKind::SahBvh, Traversal::for_device(ctx));
+    let (mut include_ms, mut query_driver_ms) = (f64::INFINITY, f64::INFINITY);
     for _ in 0..opt.reps.max(1) {
         let c = best_copy(ctx, 4 * opt.scan_n.max(32), 1)?;
         scan_ms = scan_ms.min(self::scan_ms(ctx, (c.bytes / 4) as usize, 1)?);
@@ -168,6 +214,19 @@ pub fn measure(ctx: &Context, scene: &BenchScene, opt: &HistoryOptions) -> Resul
             for &walk in walks {
                 let (_, ms, _) = best_trace(ctx, walk, access, &geom, &set, TRACE_REPS)?;
                 keep_best(&mut traces, walk, ms);
+            }
+        }
+        if let (Some(q), Some(levels)) = (query, &levels) {
+            let (words, iface) = &q.vkrt;
+            let run = check::run_vkrt(ctx, levels, query_choice, (words, iface), &set.rays)?;
+            include_ms = include_ms.min(run.ms.unwrap_or(f64::INFINITY));
+            if let Some((words, iface)) = &q.native {
+                let native = check::run_driver(ctx, levels, (words, iface), &set.rays)?;
+                query_driver_ms = query_driver_ms.min(native.ms.unwrap_or(f64::INFINITY));
+                let differ = check::mismatches(&native.results, &run.results).len();
+                if differ > 0 {
+                    log::warn!("the ray-query shader: {differ} rays differ from the driver's");
+                }
             }
         }
     }
@@ -195,6 +254,19 @@ pub fn measure(ctx: &Context, scene: &BenchScene, opt: &HistoryOptions) -> Resul
     metrics.insert("trace.best".into(), Metric::new(vkrt_best, trace_base));
     if let Some(d) = driver_ms {
         metrics.insert("trace.best_over_driver".into(), Metric::new(vkrt_best, d));
+    }
+    if include_ms.is_finite() {
+        metrics.insert("query.include".into(), Metric::new(include_ms, trace_base));
+        if query_driver_ms.is_finite() {
+            metrics.insert(
+                "query.driver".into(),
+                Metric::new(query_driver_ms, trace_base),
+            );
+            metrics.insert(
+                "query.include_over_driver".into(),
+                Metric::new(include_ms, query_driver_ms),
+            );
+        }
     }
     Ok(HistoryRun {
         schema: SCHEMA,

@@ -6,12 +6,14 @@ use std::path::{Path, PathBuf};
 
 use clap::Args;
 
-use vkrt_cli::bench::history::{self, HistoryOptions, HistoryRun};
+use vkrt_cli::bench::history::{self, HistoryOptions, HistoryRun, QueryShader};
 
 use crate::cli::common::{context, CliResult};
 
 /// The repository's history, from the checkout's root.
 const DEFAULT_FILE: &str = "benches/history.jsonl";
+/// The ray-query shader of the set, from the checkout's root.
+const DEFAULT_QUERY_SHADER: &str = "examples/ray_queries/closest_hit.comp";
 
 #[derive(Args)]
 pub struct HistoryArgs {
@@ -35,6 +37,13 @@ pub struct HistoryArgs {
     /// each item keeps its best over the rounds.
     #[arg(long, default_value_t = HistoryOptions::default().reps)]
     reps: u32,
+    /// A `GL_EXT_ray_query` compute shader in `vkrt shader-check`'s interface, traced on the
+    /// same rays through vkrt/ext_ray_query.glsl (`query.include`) and, where the device has
+    /// ray query, through the driver's (`query.driver`); it needs glslc (or VKRT_GLSLC).
+    /// Where it cannot be read or compiled, the run leaves the `query.*` metrics out and
+    /// says why.
+    #[arg(long, default_value = DEFAULT_QUERY_SHADER)]
+    query_shader: PathBuf,
     /// Measure and print, but append nothing.
     #[arg(long)]
     dry_run: bool,
@@ -69,7 +78,10 @@ pub fn run_history(args: HistoryArgs, validate: bool) -> CliResult<()> {
         reps: args.reps.max(1),
     };
     let ctx = context(validate)?;
-    let mut run = history::measure(&ctx, &scene, &opt)?;
+    let query = QueryShader::compile(&args.query_shader, ctx.info().features.ray_query)
+        .map_err(|e| log::warn!("no query.* metrics: {e}"))
+        .ok();
+    let mut run = history::measure(&ctx, &scene, &opt, query.as_ref())?;
     run.date = history::utc_date(
         std::time::SystemTime::now()
             .duration_since(std::time::UNIX_EPOCH)?
