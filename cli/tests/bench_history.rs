@@ -69,12 +69,15 @@ fn compare(file: &Path, extra: &[&str]) -> (bool, String, String) {
     )
 }
 
-/// `run` with every ratio multiplied by `factor`, a minute later.
+/// `run` with every time and ratio multiplied by `factor` (the baseline unchanged), a
+/// minute later.
 fn scaled(run: &Value, factor: f64) -> Value {
     let mut run = run.clone();
     for m in run["metrics"].as_object_mut().unwrap().values_mut() {
-        let r = m["ratio"].as_f64().unwrap();
-        m["ratio"] = Value::from(r * factor);
+        for key in ["ms", "ratio"] {
+            let x = m[key].as_f64().unwrap();
+            m[key] = Value::from(x * factor);
+        }
     }
     run["date"] = Value::from("2100-01-01T00:01:00Z");
     run
@@ -164,6 +167,17 @@ fn a_run_appends_one_well_formed_line_and_compare_judges_the_next() {
     );
     assert!(compare(&file, &["--threshold", "60"]).0);
 
+    // Every ratio 50 % higher with the same times (a baseline that measured faster): no
+    // regression.
+    let mut shifted = run.clone();
+    for m in shifted["metrics"].as_object_mut().unwrap().values_mut() {
+        let r = m["ratio"].as_f64().unwrap();
+        m["ratio"] = Value::from(r * 1.5);
+    }
+    write_lines(&file, &[&run, &shifted]);
+    let (ok, out, err) = compare(&file, &[]);
+    assert!(ok && !out.contains("REGRESSION"), "{out}\n{err}");
+
     // Better everywhere passes, and --json names each change.
     let better = scaled(&run, 0.5);
     write_lines(&file, &[&run, &better]);
@@ -174,6 +188,7 @@ fn a_run_appends_one_well_formed_line_and_compare_judges_the_next() {
     assert_eq!(changes.len(), metrics.len());
     for c in changes {
         assert!((c["change"].as_f64().unwrap() + 0.5).abs() < 1e-9, "{c}");
+        assert!((c["ms_change"].as_f64().unwrap() + 0.5).abs() < 1e-9, "{c}");
         assert_eq!(c["regressed"], false);
     }
 }

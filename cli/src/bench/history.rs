@@ -399,9 +399,11 @@ pub struct Change {
     pub previous: Option<f64>,
     /// The newest run's ratio (`None`: not measured now).
     pub newest: Option<f64>,
-    /// `newest / previous - 1` (positive: slower).
+    /// `newest / previous - 1` of the ratios (positive: slower).
     pub change: Option<f64>,
-    /// Whether it got worse by more than the threshold.
+    /// `newest / previous - 1` of the times themselves.
+    pub ms_change: Option<f64>,
+    /// Whether it got worse by more than the threshold: its ratio and its time both.
     pub regressed: bool,
 }
 
@@ -430,7 +432,10 @@ impl Comparison {
 }
 
 /// Compares the last run in `runs` with the latest earlier one of the same device, driver
-/// and set; a ratio that grew by more than `threshold` (a fraction) is a regression.
+/// and set. A metric regressed where its ratio and its time both grew by more than
+/// `threshold` (a fraction): a busier machine slows the baseline with the work, so the ratio
+/// holds, and a baseline measured faster than before raises every ratio at once while no
+/// time grew; neither is a regression of the code.
 pub fn compare(
     runs: &[HistoryRun],
     threshold: f64,
@@ -454,16 +459,19 @@ pub fn compare(
     let changes = names
         .into_iter()
         .map(|name| {
-            let old = previous.metrics.get(name).map(|m| m.ratio);
-            let new = newest.metrics.get(name).map(|m| m.ratio);
-            let change = old.zip(new).map(|(o, n)| n / o - 1.0);
+            let (old, new) = (previous.metrics.get(name), newest.metrics.get(name));
+            let grew = |f: fn(&Metric) -> f64| old.zip(new).map(|(o, n)| f(n) / f(o) - 1.0);
+            let change = grew(|m| m.ratio);
+            let ms_change = grew(|m| m.ms);
+            // NaN (0/0) is no evidence either way; infinity is a regression.
+            let worse = |c: Option<f64>| c.is_some_and(|c| c > threshold);
             Change {
                 name: name.clone(),
-                previous: old,
-                newest: new,
+                previous: old.map(|m| m.ratio),
+                newest: new.map(|m| m.ratio),
                 change,
-                // NaN (a ratio of 0/0) is no evidence either way; infinity is a regression.
-                regressed: change.is_some_and(|c| c > threshold),
+                ms_change,
+                regressed: worse(change) && worse(ms_change),
             }
         })
         .collect();
@@ -549,6 +557,28 @@ mod tests {
         assert_eq!(c.changes.len(), 3);
         assert!(c.changes[0].change.is_none(), "build.lbvh is new");
         assert!(compare(&runs, 0.25).unwrap().regressions().is_empty());
+    }
+
+    #[test]
+    fn a_faster_baseline_alone_is_no_regression() {
+        // Every ratio 35 % higher because the copy baseline measured faster, every time the
+        // same: nothing regressed. Then one time 40 % longer as well: that one did.
+        let before = run("a", &[("scan.u32", 2.0), ("trace.best", 10.0)]);
+        let mut after = before.clone();
+        for m in after.metrics.values_mut() {
+            *m = Metric::new(m.ms, m.baseline_ms / 1.35);
+        }
+        let c = compare(&[before.clone(), after.clone()], 0.25).unwrap();
+        assert!(c.regressions().is_empty());
+        assert!(c.changes.iter().all(|c| c.change.unwrap() > 0.3));
+        let slower = after.metrics["trace.best"].ms * 1.4;
+        after.metrics.insert(
+            "trace.best".into(),
+            Metric::new(slower, after.metrics["trace.best"].baseline_ms),
+        );
+        let c = compare(&[before, after], 0.25).unwrap();
+        let names: Vec<_> = c.regressions().iter().map(|c| c.name.clone()).collect();
+        assert_eq!(names, ["trace.best"]);
     }
 
     #[test]

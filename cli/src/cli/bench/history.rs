@@ -122,21 +122,20 @@ pub fn run_compare(args: CompareArgs) -> CliResult<()> {
         println!("previous {}", at(&cmp.previous));
         println!("newest   {}", at(&cmp.newest));
         println!(
-            "{:<28} {:>10} {:>10} {:>9}",
-            "metric (lower is better)", "previous", "newest", "change"
+            "{:<28} {:>10} {:>10} {:>9} {:>9}",
+            "metric (lower is better)", "previous", "newest", "change", "time"
         );
         let num = |x: Option<f64>| x.map_or("—".to_string(), |x| format!("{x:.4}"));
+        let pct = |x: Option<f64>| x.map_or("—".to_string(), |x| format!("{:+.1} %", 100.0 * x));
         for c in &cmp.changes {
-            let change = c
-                .change
-                .map_or("—".to_string(), |x| format!("{:+.1} %", 100.0 * x));
             let flag = if c.regressed { "  REGRESSION" } else { "" };
             println!(
-                "{:<28} {:>10} {:>10} {:>9}{flag}",
+                "{:<28} {:>10} {:>10} {:>9} {:>9}{flag}",
                 c.name,
                 num(c.previous),
                 num(c.newest),
-                change
+                pct(c.change),
+                pct(c.ms_change)
             );
         }
     }
@@ -144,7 +143,7 @@ pub fn run_compare(args: CompareArgs) -> CliResult<()> {
     if !regressions.is_empty() {
         let names: Vec<&str> = regressions.iter().map(|c| c.name.as_str()).collect();
         return Err(format!(
-            "{} metric(s) more than {} % worse than the previous run: {}",
+            "{} metric(s) more than {} % worse than the previous run, ratio and time: {}",
             names.len(),
             args.threshold,
             names.join(", ")
