@@ -14,7 +14,7 @@ use serde::{Deserialize, Serialize};
 
 use vkrt::accel::device::AccelKind;
 use vkrt::accel::walk::{AccelChoice, NodeAccess, Traversal};
-use vkrt::gpu::{Buffer, Context, Recorder, Result};
+use vkrt::gpu::{Buffer, Context, GpuError, Recorder, Result};
 use vkrt::prims::scan::{Scan, ScanInput, ScanOp};
 use vkrt::prims::PrimConfig;
 use vkrt::shader_check::levels::SceneLevels;
@@ -167,7 +167,7 @@ pub fn measure(
     ctx: &Context,
     scene: &BenchScene,
     opt: &HistoryOptions,
-    query: Option<&QueryShader>,
+    mut query: Option<&QueryShader>,
 ) -> Result<HistoryRun> {
     let g = &scene.geometry;
     let triangles = g.triangle_count() as u64;
@@ -218,7 +218,16 @@ pub fn measure(
         }
         if let (Some(q), Some(levels)) = (query, &levels) {
             let (words, iface) = &q.vkrt;
-            let run = check::run_vkrt(ctx, levels, query_choice, (words, iface), &set.rays)?;
+            let run = match check::run_vkrt(ctx, levels, query_choice, (words, iface), &set.rays) {
+                Ok(run) => run,
+                // (a device the include cannot run on: the set goes on without it)
+                Err(e @ GpuError::MissingCapability { .. }) => {
+                    log::warn!("no query.* metrics: {e}");
+                    query = None;
+                    continue;
+                }
+                Err(e) => return Err(e),
+            };
             include_ms = include_ms.min(run.ms.unwrap_or(f64::INFINITY));
             if let Some((words, iface)) = &q.native {
                 let native = check::run_driver(ctx, levels, (words, iface), &set.rays)?;
