@@ -600,12 +600,14 @@ fn two_sided_rays() -> Vec<Ray> {
     rays
 }
 
-/// Runs `shader` through both paths; the parsed report and the results written.
-fn both(
+/// `shader-check SHADER SCENE --rays R -o OUT --json` with `extra` arguments: the parsed
+/// report and the records written.
+fn check_run(
     name: &str,
     shader: &str,
     scene: &str,
     rays: &[Ray],
+    extra: &[&str],
 ) -> Option<(serde_json::Value, Vec<[u32; 4]>)> {
     let st = setup(name, shader, scene, rays);
     let out_path = st.dir.join("results.bin");
@@ -616,17 +618,27 @@ fn both(
         s(&st.scene),
         "--rays",
         s(&st.rays),
-        "-o",
-        s(&out_path),
-        "--json",
     ]);
+    args.extend_from_slice(extra);
+    args.extend(["-o", s(&out_path), "--json"]);
     let out = vkrt_ok(&args)?;
     let stderr = String::from_utf8_lossy(&out.stderr);
     assert!(!stderr.contains("validation"), "{stderr}");
     let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
     let records = read_records(&out_path);
-    assert_eq!(records.len(), rays.len());
     let _ = std::fs::remove_dir_all(&st.dir);
+    Some((v, records))
+}
+
+/// Runs `shader` through both paths; the parsed report and the results written.
+fn both(
+    name: &str,
+    shader: &str,
+    scene: &str,
+    rays: &[Ray],
+) -> Option<(serde_json::Value, Vec<[u32; 4]>)> {
+    let (v, records) = check_run(name, shader, scene, rays, &[])?;
+    assert_eq!(records.len(), rays.len());
     Some((v, records))
 }
 
@@ -680,7 +692,7 @@ fn opaque_squares() -> String {
     scene[..scene.find("[[spheres]]").unwrap()].to_string()
 }
 
-/// `shader-check --accel ACCEL -o`: the report and the records.
+/// `shader-check --accel ACCEL --through THROUGH -o`: the report and the records.
 fn with_accel(
     name: &str,
     shader: &str,
@@ -689,30 +701,13 @@ fn with_accel(
     accel: &str,
     through: &str,
 ) -> Option<(serde_json::Value, Vec<[u32; 4]>)> {
-    let st = setup(name, shader, scene, rays);
-    let out_path = st.dir.join("results.bin");
-    let mut args = validate();
-    args.extend([
-        "shader-check",
-        s(&st.shader),
-        s(&st.scene),
-        "--rays",
-        s(&st.rays),
-        "--accel",
-        accel,
-        "--through",
-        through,
-        "-o",
-        s(&out_path),
-        "--json",
-    ]);
-    let out = vkrt_ok(&args)?;
-    let stderr = String::from_utf8_lossy(&out.stderr);
-    assert!(!stderr.contains("validation"), "{stderr}");
-    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
-    let records = read_records(&out_path);
-    let _ = std::fs::remove_dir_all(&st.dir);
-    Some((v, records))
+    check_run(
+        name,
+        shader,
+        scene,
+        rays,
+        &["--accel", accel, "--through", through],
+    )
 }
 
 #[test]
