@@ -263,7 +263,10 @@ fn compile_all(root: &Path) -> String {
                 Some(v) => format!("{base}.{v}"),
                 None => base.clone(),
             };
-            match compile(&compiler, &glsl, &source, &rel, &variant.defines) {
+            // `//! library`: a SPIR-V library (vkrt::spirv links its functions into other
+            // modules), compiled unoptimised to SPIR-V 1.3 so that its functions stay.
+            let library = source.lines().any(|l| l.trim() == "//! library");
+            match compile(&compiler, &glsl, &source, &rel, &variant.defines, library) {
                 Ok(words) => match reflect(&words) {
                     Ok(info) => blobs.push(Blob {
                         name,
@@ -360,14 +363,24 @@ fn compile(
     source: &str,
     rel: &str,
     defines: &[(String, String)],
+    library: bool,
 ) -> Result<Vec<u32>, String> {
     let mut options = shaderc::CompileOptions::new().map_err(|e| e.to_string())?;
-    options.set_target_env(
-        shaderc::TargetEnv::Vulkan,
-        shaderc::EnvVersion::Vulkan1_2 as u32,
-    );
-    options.set_target_spirv(shaderc::SpirvVersion::V1_5);
-    options.set_optimization_level(shaderc::OptimizationLevel::Performance);
+    if library {
+        options.set_target_env(
+            shaderc::TargetEnv::Vulkan,
+            shaderc::EnvVersion::Vulkan1_1 as u32,
+        );
+        options.set_target_spirv(shaderc::SpirvVersion::V1_3);
+        options.set_optimization_level(shaderc::OptimizationLevel::Zero);
+    } else {
+        options.set_target_env(
+            shaderc::TargetEnv::Vulkan,
+            shaderc::EnvVersion::Vulkan1_2 as u32,
+        );
+        options.set_target_spirv(shaderc::SpirvVersion::V1_5);
+        options.set_optimization_level(shaderc::OptimizationLevel::Performance);
+    }
     options.set_warnings_as_errors();
     for (k, v) in defines {
         options.add_macro_definition(k, Some(v));

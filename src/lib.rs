@@ -68,6 +68,7 @@ pub mod scene;
 // (`vkrt shader-check`).
 #[cfg(feature = "scene-files")]
 pub mod shader_check;
+pub mod spirv;
 pub mod trace;
 #[cfg(feature = "verify")]
 pub mod verify;

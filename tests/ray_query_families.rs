@@ -10,7 +10,8 @@
 //! (`tests/data/ray_query/*.results`; `VKRT_RECORD_RAY_QUERY_ANSWERS=1` on a driver with ray
 //! query writes them again). Where a driver and the specification disagree, the
 //! specification wins: the families avoid what it leaves open (which of two hits at the
-//! same t, the order of candidates).
+//! same t, the order of candidates). Each family also runs without the include, its
+//! SPIR-V for the driver rewritten by the SPIR-V pass (`vkrt::spirv`): the same answers.
 
 mod common;
 
@@ -20,7 +21,9 @@ use vkrt::accel::device::{AccelChoice, AccelKind};
 use vkrt::accel::shader_library;
 use vkrt::accel::walk::Traversal;
 use vkrt::scene::Scene;
-use vkrt::shader_check::{compile_shader, mismatches, run_driver, run_vkrt, scene_levels, Through};
+use vkrt::shader_check::{
+    compile_shader, lower_shader, mismatches, run_driver, run_vkrt, scene_levels, Through,
+};
 use vkrt::trace::Ray;
 
 const RAYS: usize = 384;
@@ -441,7 +444,9 @@ fn ray_query_families_agree_with_the_driver_s_answers() {
     shader_library::write_to(&include).unwrap();
     let native = vkrt::gpu::require_ray_query(&ctx).is_ok();
     let record = native && std::env::var_os("VKRT_RECORD_RAY_QUERY_ANSWERS").is_some();
-    let through = if native { Through::Both } else { Through::Vkrt };
+    // Both variants are compiled everywhere: the driver's is also what the SPIR-V pass
+    // lowers.
+    let through = Through::Both;
     let scenes = [("scene", scene_rays()), ("grid", grid_rays())];
     let mut compared = 0;
     for (name, scene_name, body) in families() {
@@ -471,7 +476,28 @@ fn ray_query_families_agree_with_the_driver_s_answers() {
             &differ[..differ.len().min(3)]
         );
         let recorded_path = data_dir().join(format!("{name}.results"));
-        if let Some((spirv, iface)) = compiled.native.as_ref() {
+        // The same shader without the include, its SPIR-V lowered by the pass: the same
+        // walk, so the same answers.
+        let (native_words, _) = compiled.native.as_ref().unwrap();
+        let (lowered, lowered_iface) =
+            lower_shader(&shader, native_words).unwrap_or_else(|e| panic!("{name}: {e}"));
+        let passed = run_vkrt(
+            &ctx,
+            &levels,
+            lbvh(Traversal::Stack),
+            (&lowered, &lowered_iface),
+            rays,
+        )
+        .unwrap()
+        .results;
+        let differ = mismatches(&vkrt, &passed);
+        assert!(
+            differ.is_empty(),
+            "{name}: {} rays differ between the include and the SPIR-V pass, first {:x?}",
+            differ.len(),
+            &differ[..differ.len().min(3)]
+        );
+        if let Some((spirv, iface)) = compiled.native.as_ref().filter(|_| native) {
             let driver = run_driver(&ctx, &levels, (spirv, iface), rays)
                 .unwrap()
                 .results;

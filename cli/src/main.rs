@@ -109,6 +109,17 @@ enum Command {
     /// each), "vkrt_ms", "driver_ms" (the dispatches' GPU milliseconds)}.
     #[command(verbatim_doc_comment)]
     ShaderCheck(cli::shader_check::ShaderCheckArgs),
+    /// Rewrite a SPIR-V module's ray queries (SPV_KHR_ray_query) into calls of vkrt's walk,
+    /// for a device without VK_KHR_ray_query: no include, any compiler.
+    ///
+    /// Each acceleration-structure binding becomes a uniform texel buffer (RGBA32UI) whose
+    /// first texel's .xy is the structure handle's device address, the descriptor
+    /// vkrt/ext_ray_query.glsl takes. A module without ray queries is written unchanged.
+    ///
+    /// --json prints {"changed", "ray_query_instructions", "query_states", "structures",
+    /// "functions_linked", "words_in", "words_out", "ms"}.
+    #[command(verbatim_doc_comment)]
+    Lower(cli::lower::LowerArgs),
     /// Measure GPU baselines and primitives.
     Bench {
         #[command(subcommand)]
@@ -152,6 +163,7 @@ fn run_command(cli: Cli) -> cli::common::CliResult<()> {
         Command::Trace(args) => cli::trace::run(args, validate),
         Command::Animate(args) => cli::animate::run(args, validate),
         Command::ShaderCheck(args) => cli::shader_check::run(args, validate),
+        Command::Lower(args) => cli::lower::run(&args),
         Command::Bench { what } => cli::bench::run(what, validate),
     }
 }

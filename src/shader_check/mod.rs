@@ -64,6 +64,14 @@ pub enum CheckError {
     /// The device cannot run it.
     #[error(transparent)]
     Gpu(#[from] GpuError),
+    /// The SPIR-V pass refused the module.
+    #[error("{shader}: the SPIR-V pass: {error}")]
+    Lower {
+        /// The shader's path.
+        shader: String,
+        /// Why.
+        error: crate::spirv::LowerError,
+    },
 }
 
 /// A shader compiled for both paths, its interfaces checked.
@@ -106,6 +114,46 @@ pub fn compile_shader(
             .transpose()?,
         inserted_include,
     })
+}
+
+/// The driver's variant `native` (SPIR-V that uses the driver's ray query, from any
+/// compiler) lowered by the SPIR-V pass ([`crate::spirv`]) to run through vkrt, its
+/// interface checked: what `vkrt shader-check --via pass` and a `.spv` shader run.
+pub fn lower_shader(
+    shader: &Path,
+    native: &[u32],
+) -> Result<(Vec<u32>, ShaderInterface), CheckError> {
+    let interface = |reason: String| CheckError::Interface {
+        shader: shader.display().to_string(),
+        reason,
+    };
+    let lowered = crate::spirv::lower_ray_queries(native, &crate::spirv::LowerOptions::default())
+        .map_err(|error| CheckError::Lower {
+        shader: shader.display().to_string(),
+        error,
+    })?;
+    if !lowered.changed {
+        return Err(interface(
+            "it has no ray query (no RayQueryKHR capability)".into(),
+        ));
+    }
+    let iface = reflect::reflect(&lowered.words).map_err(|e| interface(e.to_string()))?;
+    check_interface(&iface, false).map_err(interface)?;
+    Ok((lowered.words, iface))
+}
+
+/// SPIR-V for the driver's ray query (a `.spv` file), its interface checked.
+pub fn native_shader(
+    shader: &Path,
+    words: Vec<u32>,
+) -> Result<(Vec<u32>, ShaderInterface), CheckError> {
+    let interface = |reason: String| CheckError::Interface {
+        shader: shader.display().to_string(),
+        reason,
+    };
+    let iface = reflect::reflect(&words).map_err(|e| interface(e.to_string()))?;
+    check_interface(&iface, true).map_err(interface)?;
+    Ok((words, iface))
 }
 
 /// Why `iface` (compiled through vkrt, or for the driver's ray query where `native`) breaks

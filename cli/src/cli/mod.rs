@@ -8,6 +8,7 @@ pub mod bench;
 pub mod build;
 pub mod common;
 pub mod info;
+pub mod lower;
 pub mod render;
 pub mod scene;
 pub mod shader_check;

@@ -21,6 +21,15 @@ pub enum ThroughArg {
 }
 
 #[derive(Clone, Copy, PartialEq, ValueEnum)]
+pub enum ViaArg {
+    /// Compile the GLSL with vkrt's include (`vkrt/ext_ray_query.glsl`).
+    Include,
+    /// Compile the GLSL for the driver's ray query, then rewrite its SPIR-V with vkrt's pass
+    /// (`vkrt lower`): no include, as for a shader from any compiler.
+    Pass,
+}
+
+#[derive(Clone, Copy, PartialEq, ValueEnum)]
 pub enum BottomArg {
     /// Kolodzey's SAH kd-tree (opaque triangles only).
     Kdtree,
@@ -31,7 +40,9 @@ pub enum BottomArg {
 
 #[derive(Args)]
 pub struct ShaderCheckArgs {
-    /// The compute shader (GLSL, compiled with glslc or the program VKRT_GLSLC names).
+    /// The compute shader: GLSL (compiled with glslc or the program VKRT_GLSLC names), or
+    /// SPIR-V for the driver's ray query (`.spv`, from any compiler), which runs through vkrt
+    /// as the SPIR-V pass rewrites it.
     shader: PathBuf,
     /// Scene (.toml, .obj, .scn text).
     scene: PathBuf,
@@ -42,6 +53,9 @@ pub struct ShaderCheckArgs {
     /// Which ray queries run the shader.
     #[arg(long, value_enum, default_value_t = ThroughArg::Both)]
     through: ThroughArg,
+    /// How a GLSL shader reaches vkrt's walk (a `.spv` always goes through the pass).
+    #[arg(long, value_enum, default_value_t = ViaArg::Include)]
+    via: ViaArg,
     /// vkrt's bottom levels (the top level is an LBVH).
     #[arg(long, value_enum, default_value_t = BottomArg::Lbvh)]
     accel: BottomArg,
@@ -73,11 +87,7 @@ pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
     };
     // Everything that can be refused before any GPU work: the shader (compiled for each path
     // and its interface checked), the rays, the scene.
-    let source = std::fs::read_to_string(&args.shader)
-        .map_err(|e| format!("{}: cannot read the shader: {e}", args.shader.display()))?;
-    let include = check::compile::TempDir::new("shader-check-include")?;
-    vkrt::accel::shader_library::write_to(include.path())?;
-    let shader = check::compile_shader(&args.shader, &source, include.path(), through)?;
+    let shader = compile(&args, through)?;
     if shader.inserted_include {
         log::info!(
             "{} does not include \"{}\": inserted after its #extension lines",
@@ -202,4 +212,54 @@ pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
         .into());
     }
     Ok(())
+}
+
+/// The shader's variants for the paths `through` asks for: GLSL with the include, GLSL for
+/// the driver lowered by the pass, or SPIR-V as given and lowered.
+fn compile(args: &ShaderCheckArgs, through: Through) -> CliResult<check::CompiledShader> {
+    let path = &args.shader;
+    let spirv = path
+        .extension()
+        .is_some_and(|e| e.eq_ignore_ascii_case("spv"));
+    if spirv {
+        let bytes = std::fs::read(path)
+            .map_err(|e| format!("{}: cannot read the shader: {e}", path.display()))?;
+        if bytes.len() % 4 != 0 {
+            return Err(format!(
+                "{}: {} bytes: SPIR-V is a whole number of 32-bit words",
+                path.display(),
+                bytes.len()
+            )
+            .into());
+        }
+        let words: Vec<u32> = bytemuck::pod_collect_to_vec(&bytes);
+        let native = check::native_shader(path, words)?;
+        let vkrt = (through != Through::Driver)
+            .then(|| check::lower_shader(path, &native.0))
+            .transpose()?;
+        return Ok(check::CompiledShader {
+            vkrt,
+            native: (through != Through::Vkrt).then_some(native),
+            inserted_include: false,
+        });
+    }
+    let source = std::fs::read_to_string(path)
+        .map_err(|e| format!("{}: cannot read the shader: {e}", path.display()))?;
+    let include = check::compile::TempDir::new("shader-check-include")?;
+    vkrt::accel::shader_library::write_to(include.path())?;
+    if args.via == ViaArg::Include {
+        return Ok(check::compile_shader(
+            path,
+            &source,
+            include.path(),
+            through,
+        )?);
+    }
+    let mut shader = check::compile_shader(path, &source, include.path(), Through::Driver)?;
+    let native = shader.native.take().expect("compiled for the driver");
+    shader.vkrt = (through != Through::Driver)
+        .then(|| check::lower_shader(path, &native.0))
+        .transpose()?;
+    shader.native = (through != Through::Vkrt).then_some(native);
+    Ok(shader)
 }

@@ -17,7 +17,8 @@
 // instances the driver's TLAS would hold), or the address where the host wrote a bottom
 // level's `GpuGeometry::handle_words()` (walked as one instance with the identity
 // transform, instance id and custom index 0). `accelerationStructureEXT(uint64_t address)`
-// takes such an address directly.
+// and `accelerationStructureEXT(uvec2 address)` (low word first) take such an address
+// directly.
 //
 // Every function and value of the extension behaves as the Vulkan specification says: the
 // candidate loop (`rayQueryProceedEXT` returns each non-opaque triangle and each box in the
@@ -36,8 +37,9 @@
 //     primitive, is committed (vkrtTrace's rule); drivers keep the one they met first.
 //   - The triangle test is vkrt's watertight one (Woop et al. 2013) with its conservative
 //     lower bound: a hit nearer the origin than its own rounding error is not reported.
-//   - Box candidates come only where the ray meets the box itself within [tMin, committed
-//     t], one box per primitive; their candidate t is where the ray enters the box.
+//   - Box candidates come wherever the segment [tMin, committed t] meets the box itself
+//     (from an origin inside the box too), one box per primitive; their candidate t is
+//     where the segment enters the box.
 //   - Bottom levels are BVHs (LBVH, PLOC, SAH BVH; binary or 4-wide) or kd-trees of opaque
 //     triangles (a kd-tree may hold a primitive in several leaves); a query meeting a
 //     kd-tree's box or a triangle its flags make a candidate, or running past the step cap
@@ -77,11 +79,19 @@
 #endif
 #include "ray_query.glsl"
 
+#ifdef VKRT_RQ_STATIC_SLOTS
+// The SPIR-V pass's library (vkrt::spirv): a query's handle is its state's index, which
+// the pass gives each query variable from the entry point's static count, and the count
+// is this specialization constant, which the pass turns into a constant.
+layout(constant_id = VKRT_RQ_STATIC_SLOTS) const uint vkrt_rq_count = 1u;
+#define VKRT_RAY_QUERIES vkrt_rq_count
+#else
 #ifndef VKRT_RAY_QUERIES
 #define VKRT_RAY_QUERIES 2
 #endif
 #if VKRT_RAY_QUERIES < 1 || VKRT_RAY_QUERIES > 4
 #error "VKRT_RAY_QUERIES: 1 to 4 live ray queries per invocation"
+#endif
 #endif
 // A top level (binary, at most VKRT_BVH_MAX_DEPTH entries) and a bottom level (binary, or
 // 4-wide: at most VKRT_WIDE_STACK_SIZE): the stack holds both.
@@ -103,6 +113,11 @@ layout(buffer_reference, std430, buffer_reference_align = 16) readonly buffer Vk
 
 VkrtAccelerationStructure vkrt_structure_at(uint64_t handle) {
     return VkrtAccelerationStructure(handle);
+}
+
+// The extension's other constructor: the address as two words, low word first.
+VkrtAccelerationStructure vkrt_structure_at(uvec2 address) {
+    return VkrtAccelerationStructure(packUint2x32(address));
 }
 
 VkrtAccelerationStructure vkrt_structure_at(utextureBuffer texels) {
@@ -186,6 +201,12 @@ uvec2 vkrt_rq_stack[VKRT_RAY_QUERIES][VKRT_RQ_STACK]; // vkrt_stack_entry (bvh.g
 // (fresh: its root cell in hand, to descend from rather than pop). Its ring of cells lies
 // in the stack above `base`, two entries a cell.
 uvec4 vkrt_rq_kd[VKRT_RAY_QUERIES];
+#ifdef VKRT_RQ_STATIC_SLOTS
+// The state of query `q` (its own index), or VKRT_RAY_QUERIES when `q` names none.
+uint vkrt_rq_slot(uint q) {
+    return min(q, uint(VKRT_RAY_QUERIES));
+}
+#else
 // Which handle owns each state (0: none), and how many handles were given.
 uvec4 vkrt_rq_owner = uvec4(0u);
 uint vkrt_rq_issued = 0u;
@@ -195,6 +216,7 @@ uint vkrt_rq_slot(uint q) {
     uint s = q & 3u;
     return (s < uint(VKRT_RAY_QUERIES) && q >= 4u && vkrt_rq_owner[s] == q) ? s : uint(VKRT_RAY_QUERIES);
 }
+#endif
 
 VkrtRqHit vkrt_rq_none() {
     return VkrtRqHit(0u, 0.0, vec2(0.0), 0u, VKRT_NO_HIT, 0u, 0u, 0u, 0u, 0u);
@@ -233,10 +255,14 @@ void vkrtRayQueryInitialize(inout uint q, VkrtAccelerationStructure as, uint fla
                         vec3 origin, float tmin, vec3 direction, float tmax) {
     uint s = vkrt_rq_slot(q);
     if (s == uint(VKRT_RAY_QUERIES)) {
+#ifdef VKRT_RQ_STATIC_SLOTS
+        return; // a handle the pass gave no state (an undefined query)
+#else
         s = vkrt_rq_issued % uint(VKRT_RAY_QUERIES);
         vkrt_rq_issued++;
         q = (vkrt_rq_issued << 2u) | s;
         vkrt_rq_owner[s] = q;
+#endif
     }
     vkrt_rq_origin[s] = vec4(origin, tmin);
     vkrt_rq_direction[s] = vec4(direction, tmax);
@@ -312,6 +338,24 @@ bool vkrt_rq_enter(uint s, uint i, uint cull_mask) {
     vkrt_rq_instance[s] = uvec4(i, rec.meta.z, (rec.meta.w & 0xffu) << 24u, 0u);
     vkrt_rq_bottom[s] = packUint2x32(rec.meta.xy);
     return true;
+}
+
+// Whether box [lo, hi] is a candidate of the ray o + t d: as the specification has it,
+// whenever the segment [tmin, tmax] (tmax: the committed t) meets the box, also from an
+// origin inside it with a hit committed inside it; `t`: where the segment enters the box.
+bool vkrt_rq_box_candidate(vec3 o, vec3 d, vec3 lo, vec3 hi, float tmin, float tmax, out float t) {
+    t = tmin;
+    if (!all(lessThanEqual(lo, hi))) {
+        return false;
+    }
+    float near = tmin;
+    float far = tmax;
+    if (!vkrt_aabb_slab(o.x, d.x, lo.x, hi.x, near, far) || !vkrt_aabb_slab(o.y, d.y, lo.y, hi.y, near, far)
+        || !vkrt_aabb_slab(o.z, d.z, lo.z, hi.z, near, far)) {
+        return false;
+    }
+    t = near;
+    return near <= far;
 }
 
 // Whether the bottom level in use is one this walk serves: a BVH, binary or 4-wide, or a
@@ -445,7 +489,7 @@ bool vkrtRayQueryProceed(uint q) {
                     vkrt_aabb_at(b - vkrt_scene_info.n_spheres, lo, hi);
                 }
                 float t;
-                if (!all(lessThanEqual(lo, hi)) || !vkrt_hit_aabb(r.o, r.d, lo, hi, tmin, best_t, t)) {
+                if (!vkrt_rq_box_candidate(r.o, r.d, lo, hi, tmin, best_t, t)) {
                     continue;
                 }
                 uvec2 g = vkrt_geometry_entry(prim);
