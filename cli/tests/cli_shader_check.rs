@@ -802,3 +802,95 @@ fn a_kd_tree_holds_opaque_triangles_only_for_the_queries() {
         assert!(k[3] == 7 || k == b, "{k:?} against {b:?}");
     }
 }
+
+#[test]
+fn the_spirv_pass_agrees_with_the_driver_without_the_include() {
+    let rays = grid_rays();
+    let Some((v, records)) = check_run(
+        "pass-closest",
+        CLOSEST_HIT,
+        &scene_toml(""),
+        &rays,
+        &["--via", "pass"],
+    ) else {
+        return;
+    };
+    assert_eq!(v["mismatching_rays"], 0, "{v}");
+    check_closest_hits(&rays, &records);
+    assert!(v["vkrt_ms"].as_f64().is_some(), "{v}");
+    let keyed =
+        "opaque = false\nmask = 1\ncustom_index = 42\nsbt_offset = 3\nflags = [\"flip-facing\"]";
+    let scene = scene_toml(keyed).replace(
+        "translate = [0, 3, -1]",
+        "translate = [0, 3, -1]\nmask = 2\nflags = [\"cull-disable\"]",
+    );
+    let (v, _) = check_run(
+        "pass-candidates",
+        CANDIDATES,
+        &scene,
+        &two_sided_rays(),
+        &["--via", "pass"],
+    )
+    .unwrap();
+    assert_eq!(v["mismatching_rays"], 0, "{v}");
+}
+
+/// A shader that never saw vkrt's include, compiled for the driver's ray query: `vkrt lower`
+/// rewrites it, and `shader-check` takes the `.spv` as it is.
+#[test]
+fn a_spirv_module_from_the_driver_s_compiler_is_lowered_and_checked() {
+    let rays = grid_rays();
+    let plain = CLOSEST_HIT.replace("#include \"vkrt/ext_ray_query.glsl\"\n", "");
+    assert!(!plain.contains("vkrt/"));
+    let st = setup("spv", &plain, &scene_toml(""), &rays);
+    let spv = st.dir.join("closest.spv");
+    let compiled = std::process::Command::new("glslc")
+        .args(["--target-env=vulkan1.2", "-fshader-stage=compute", "-o"])
+        .arg(&spv)
+        .arg(&st.shader)
+        .output()
+        .expect("glslc (./x setup installs it)");
+    assert!(
+        compiled.status.success(),
+        "{}",
+        String::from_utf8_lossy(&compiled.stderr)
+    );
+    let lowered = st.dir.join("lowered.spv");
+    let Some(out) = vkrt_ok(&["lower", s(&spv), "-o", s(&lowered), "--json"]) else {
+        return;
+    };
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["changed"], true, "{v}");
+    assert_eq!(v["query_states"], 1, "{v}");
+    assert_eq!(v["structures"], 1, "{v}");
+    assert!(v["ray_query_instructions"].as_u64().unwrap() >= 8, "{v}");
+    assert!(v["functions_linked"].as_u64().unwrap() > 5, "{v}");
+    assert!(v["words_out"].as_u64() > v["words_in"].as_u64(), "{v}");
+    let words = std::fs::read(&lowered).unwrap();
+    assert_eq!(words.len() as u64, 4 * v["words_out"].as_u64().unwrap());
+
+    let out_path = st.dir.join("results.bin");
+    let mut args = validate();
+    args.extend(["shader-check", s(&spv), s(&st.scene), "--rays", s(&st.rays)]);
+    args.extend(["-o", s(&out_path), "--json"]);
+    let out = vkrt_ok(&args).unwrap();
+    let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+    assert_eq!(v["mismatching_rays"], 0, "{v}");
+    check_closest_hits(&rays, &read_records(&out_path));
+
+    // Not SPIR-V, and SPIR-V cut short: errors, and no output file.
+    let junk = st.dir.join("junk.spv");
+    std::fs::write(&junk, b"#version 460\n\n\n\n").unwrap();
+    let cut = st.dir.join("cut.spv");
+    let bytes = std::fs::read(&spv).unwrap();
+    std::fs::write(&cut, &bytes[..bytes.len() / 2 / 4 * 4]).unwrap();
+    for (input, needle) in [(&junk, "not SPIR-V"), (&cut, "malformed SPIR-V at word")] {
+        let target = st.dir.join("never.spv");
+        let out = vkrt(&["lower", s(input), "-o", s(&target)]);
+        assert!(!out.status.success());
+        let stderr = String::from_utf8_lossy(&out.stderr);
+        assert!(stderr.contains(needle), "{stderr}");
+        assert!(!target.exists());
+    }
+    let _ = std::fs::remove_dir_all(&st.dir);
+}
