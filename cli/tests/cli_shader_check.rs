@@ -894,3 +894,133 @@ fn a_spirv_module_from_the_driver_s_compiler_is_lowered_and_checked() {
     }
     let _ = std::fs::remove_dir_all(&st.dir);
 }
+
+/// `CLOSEST_HIT` in HLSL (DXR 1.1's inline ray tracing), as Slang's compiler takes it.
+const CLOSEST_HIT_HLSL: &str = r#"
+[[vk::binding(0, 0)]] RaytracingAccelerationStructure scene;
+[[vk::binding(1, 0)]] StructuredBuffer<float4> rays;
+[[vk::binding(2, 0)]] RWStructuredBuffer<uint4> results;
+[[vk::push_constant]] cbuffer Count { uint rayCount; };
+
+static const float4 SPHERES[2] = { float4(-2.0, 0.0, 0.0, 0.5), float4(2.0, 0.5, -1.0, 0.75) };
+
+[numthreads(64, 1, 1)]
+void main(uint3 id : SV_DispatchThreadID) {
+    uint i = id.x;
+    if (i >= rayCount) return;
+    float4 o = rays[2 * i];
+    float4 d = rays[2 * i + 1];
+    RayDesc ray;
+    ray.Origin = o.xyz;
+    ray.TMin = o.w;
+    ray.Direction = d.xyz;
+    ray.TMax = d.w;
+    RayQuery<RAY_FLAG_FORCE_OPAQUE> q;
+    q.TraceRayInline(scene, RAY_FLAG_NONE, 0xff, ray);
+    while (q.Proceed()) {
+        if (q.CandidateType() != CANDIDATE_PROCEDURAL_PRIMITIVE) continue;
+        float4 sph = SPHERES[q.CandidatePrimitiveIndex()];
+        float3 oc = q.CandidateObjectRayOrigin() - sph.xyz;
+        float3 dir = q.CandidateObjectRayDirection();
+        float a = dot(dir, dir);
+        float b = dot(oc, dir);
+        float c = dot(oc, oc) - sph.w * sph.w;
+        float disc = b * b - a * c;
+        float best = q.CommittedStatus() != COMMITTED_NOTHING ? q.CommittedRayT() : d.w;
+        if (disc >= 0.0) {
+            float t = (-b - sqrt(disc)) / a;
+            if (t >= o.w && t <= best) q.CommitProceduralPrimitiveHit(t);
+        }
+    }
+    uint kind = q.CommittedStatus();
+    if (kind == COMMITTED_NOTHING) {
+        results[i] = uint4(0, 0xffffffff, 0xffffffff, 0);
+    } else {
+        results[i] = uint4(asuint(q.CommittedRayT()), q.CommittedInstanceIndex(),
+                           q.CommittedPrimitiveIndex(), kind);
+    }
+}
+"#;
+
+/// The same in Slang's own dialect: a generic helper over the query, `let` and `var`.
+const CLOSEST_HIT_SLANG: &str = r#"
+[[vk::binding(0, 0)]] RaytracingAccelerationStructure scene;
+[[vk::binding(1, 0)]] StructuredBuffer<float4> rays;
+[[vk::binding(2, 0)]] RWStructuredBuffer<uint4> results;
+[[vk::push_constant]] cbuffer Count { uint rayCount; };
+
+static const float4 SPHERES[2] = { float4(-2.0, 0.0, 0.0, 0.5), float4(2.0, 0.5, -1.0, 0.75) };
+
+float sphereT(float4 sph, float3 origin, float3 dir, float tMin, float best) {
+    let oc = origin - sph.xyz;
+    let a = dot(dir, dir);
+    let b = dot(oc, dir);
+    let c = dot(oc, oc) - sph.w * sph.w;
+    let disc = b * b - a * c;
+    if (disc < 0.0) return -1.0;
+    let t = (-b - sqrt(disc)) / a;
+    return (t >= tMin && t <= best) ? t : -1.0;
+}
+
+void walk<let F : int>(inout RayQuery<F> q, float tMin, float tMax) {
+    while (q.Proceed()) {
+        if (q.CandidateType() != CANDIDATE_PROCEDURAL_PRIMITIVE) continue;
+        let best = q.CommittedStatus() != COMMITTED_NOTHING ? q.CommittedRayT() : tMax;
+        let t = sphereT(SPHERES[q.CandidatePrimitiveIndex()], q.CandidateObjectRayOrigin(),
+                        q.CandidateObjectRayDirection(), tMin, best);
+        if (t >= 0.0) q.CommitProceduralPrimitiveHit(t);
+    }
+}
+
+[shader("compute")]
+[numthreads(64, 1, 1)]
+void main(uint3 id : SV_DispatchThreadID) {
+    let i = id.x;
+    if (i >= rayCount) return;
+    let o = rays[2 * i];
+    let d = rays[2 * i + 1];
+    var ray : RayDesc;
+    ray.Origin = o.xyz;
+    ray.TMin = o.w;
+    ray.Direction = d.xyz;
+    ray.TMax = d.w;
+    var q : RayQuery<RAY_FLAG_FORCE_OPAQUE>;
+    q.TraceRayInline(scene, RAY_FLAG_NONE, 0xff, ray);
+    walk(q, o.w, d.w);
+    let kind = q.CommittedStatus();
+    results[i] = kind == COMMITTED_NOTHING
+        ? uint4(0, 0xffffffff, 0xffffffff, 0)
+        : uint4(asuint(q.CommittedRayT()), q.CommittedInstanceIndex(), q.CommittedPrimitiveIndex(), kind);
+}
+"#;
+
+/// Slang and HLSL, compiled by Slang's compiler for the driver's ray query and lowered by
+/// the pass: the same answers as the driver's, and the scene's. Where no Slang compiler can
+/// be run (VKRT_SLANGC unset and no slangc on the PATH; `./x setup` fetches one), it says so.
+#[test]
+fn slang_and_hlsl_shaders_run_through_the_pass() {
+    let have = std::env::var_os("VKRT_SLANGC").is_some()
+        || std::process::Command::new("slangc").arg("-v").output().is_ok();
+    if !have {
+        eprintln!("note: no Slang compiler (VKRT_SLANGC or slangc): Slang and HLSL are not checked");
+        return;
+    }
+    let rays = grid_rays();
+    for (name, source) in [("closest.hlsl", CLOSEST_HIT_HLSL), ("closest.slang", CLOSEST_HIT_SLANG)] {
+        let st = setup(name, source, &scene_toml(""), &rays);
+        let shader = st.dir.join(name);
+        std::fs::write(&shader, source).unwrap();
+        let out_path = st.dir.join("results.bin");
+        let mut args = validate();
+        args.extend(["shader-check", s(&shader), s(&st.scene), "--rays", s(&st.rays)]);
+        args.extend(["-o", s(&out_path), "--json"]);
+        let Some(out) = vkrt_ok(&args) else {
+            return;
+        };
+        let v: serde_json::Value = serde_json::from_slice(&out.stdout).unwrap();
+        assert_eq!(v["mismatching_rays"], 0, "{name}: {v}");
+        assert!(v["vkrt_ms"].as_f64().is_some(), "{name}: {v}");
+        check_closest_hits(&rays, &read_records(&out_path));
+        let _ = std::fs::remove_dir_all(&st.dir);
+    }
+}

@@ -51,7 +51,7 @@ pub fn with_include(source: &str) -> (String, bool) {
 #[derive(Debug, thiserror::Error)]
 pub enum CompileError {
     /// The compiler could not be run.
-    #[error("cannot run the shader compiler `{program}` ({reason}); install glslc (./x setup) or name one in VKRT_GLSLC")]
+    #[error("cannot run the shader compiler `{program}` ({reason}); install glslc (./x setup) or name one in VKRT_GLSLC (for Slang and HLSL: slangc, or VKRT_SLANGC)")]
     NoCompiler {
         /// The program.
         program: String,
@@ -71,6 +71,58 @@ pub enum CompileError {
     /// A temporary file could not be written or read.
     #[error("the shader compiler's files: {0}")]
     Io(#[from] std::io::Error),
+}
+
+/// Slang's compiler: `VKRT_SLANGC`, else `slangc`.
+pub fn slang_compiler() -> String {
+    std::env::var("VKRT_SLANGC")
+        .ok()
+        .filter(|s| !s.trim().is_empty())
+        .unwrap_or_else(|| "slangc".into())
+}
+
+/// A Slang or HLSL compute shader (entry point `main`) compiled to SPIR-V by Slang's
+/// compiler: the words, for the driver's ray query (the SPIR-V pass lowers them for vkrt).
+pub fn compile_slang(shader: &Path) -> Result<Vec<u32>, CompileError> {
+    let dir = TempDir::new("shader-check-slang")?;
+    let out = dir.path().join("shader.spv");
+    let program = slang_compiler();
+    let result = std::process::Command::new(&program)
+        .arg(shader)
+        .args([
+            "-target", "spirv", "-entry", "main", "-stage", "compute", "-o",
+        ])
+        .arg(&out)
+        .output()
+        .map_err(|e| CompileError::NoCompiler {
+            program: program.clone(),
+            reason: e.to_string(),
+        })?;
+    if !result.status.success() {
+        return Err(CompileError::Refused {
+            shader: shader.display().to_string(),
+            variant: " with Slang's compiler",
+            message: (String::from_utf8_lossy(&result.stderr).into_owned()
+                + &String::from_utf8_lossy(&result.stdout))
+                .trim_end()
+                .to_owned(),
+        });
+    }
+    read_words(&program, &out)
+}
+
+fn read_words(program: &str, out: &Path) -> Result<Vec<u32>, CompileError> {
+    let bytes = std::fs::read(out)?;
+    if bytes.len() % 4 != 0 {
+        return Err(CompileError::Io(std::io::Error::other(format!(
+            "{program} wrote {} bytes of SPIR-V, not whole words",
+            bytes.len()
+        ))));
+    }
+    Ok(bytes
+        .chunks_exact(4)
+        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
+        .collect())
 }
 
 /// The compiler's program: `VKRT_GLSLC`, else `glslc`.
@@ -165,17 +217,7 @@ pub fn compile(
             message,
         });
     }
-    let bytes = std::fs::read(&out)?;
-    if bytes.len() % 4 != 0 {
-        return Err(CompileError::Io(std::io::Error::other(format!(
-            "{program} wrote {} bytes of SPIR-V, not whole words",
-            bytes.len()
-        ))));
-    }
-    Ok(bytes
-        .chunks_exact(4)
-        .map(|c| u32::from_le_bytes([c[0], c[1], c[2], c[3]]))
-        .collect())
+    read_words(&program, &out)
 }
 
 #[cfg(test)]

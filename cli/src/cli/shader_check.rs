@@ -40,9 +40,10 @@ pub enum BottomArg {
 
 #[derive(Args)]
 pub struct ShaderCheckArgs {
-    /// The compute shader: GLSL (compiled with glslc or the program VKRT_GLSLC names), or
-    /// SPIR-V for the driver's ray query (`.spv`, from any compiler), which runs through vkrt
-    /// as the SPIR-V pass rewrites it.
+    /// The compute shader: GLSL (compiled with glslc or the program VKRT_GLSLC names); or,
+    /// run through vkrt as the SPIR-V pass rewrites it, SPIR-V for the driver's ray query
+    /// (`.spv`, from any compiler) or Slang and HLSL (`.slang`, `.hlsl`: entry point `main`,
+    /// compiled by slangc or the program VKRT_SLANGC names).
     shader: PathBuf,
     /// Scene (.toml, .obj, .scn text).
     scene: PathBuf,
@@ -218,21 +219,28 @@ pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
 /// the driver lowered by the pass, or SPIR-V as given and lowered.
 fn compile(args: &ShaderCheckArgs, through: Through) -> CliResult<check::CompiledShader> {
     let path = &args.shader;
-    let spirv = path
+    let ext = path
         .extension()
-        .is_some_and(|e| e.eq_ignore_ascii_case("spv"));
-    if spirv {
-        let bytes = std::fs::read(path)
-            .map_err(|e| format!("{}: cannot read the shader: {e}", path.display()))?;
-        if bytes.len() % 4 != 0 {
-            return Err(format!(
-                "{}: {} bytes: SPIR-V is a whole number of 32-bit words",
-                path.display(),
-                bytes.len()
-            )
-            .into());
+        .map(|e| e.to_string_lossy().to_ascii_lowercase())
+        .unwrap_or_default();
+    let words = match ext.as_str() {
+        "spv" => {
+            let bytes = std::fs::read(path)
+                .map_err(|e| format!("{}: cannot read the shader: {e}", path.display()))?;
+            if bytes.len() % 4 != 0 {
+                return Err(format!(
+                    "{}: {} bytes: SPIR-V is a whole number of 32-bit words",
+                    path.display(),
+                    bytes.len()
+                )
+                .into());
+            }
+            Some(bytemuck::pod_collect_to_vec(&bytes))
         }
-        let words: Vec<u32> = bytemuck::pod_collect_to_vec(&bytes);
+        "slang" | "hlsl" => Some(check::compile::compile_slang(path)?),
+        _ => None,
+    };
+    if let Some(words) = words {
         let native = check::native_shader(path, words)?;
         let vkrt = (through != Through::Driver)
             .then(|| check::lower_shader(path, &native.0))
