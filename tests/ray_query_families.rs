@@ -547,3 +547,71 @@ fn ray_query_families_agree_with_the_driver_s_answers() {
     let _ = std::fs::remove_dir_all(&dir);
     common::assert_silent(&ctx);
 }
+
+/// WGSL, compiled to SPIR-V by naga (wgpu's shader compiler), lowered by the SPIR-V pass:
+/// the family `committed_indices` written in WGSL gives the answers Mesa 25.0.7's ray query
+/// recorded for the GLSL, on every driver, and the driver's own answers where it has ray
+/// query.
+#[test]
+fn wgsl_through_naga_and_the_pass_gives_the_recorded_answers() {
+    let Some(ctx) = common::context() else { return };
+    let dir = std::env::temp_dir().join(format!("vkrt-rq-wgsl-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    write_meshes(&dir);
+    std::fs::write(dir.join("scene.toml"), scene_toml()).unwrap();
+    let scene = Scene::load(&dir.join("scene.toml")).unwrap().scene;
+    let levels = scene_levels(&scene);
+    let rays = scene_rays();
+    let source = std::fs::read_to_string(data_dir().join("committed_indices.wgsl")).unwrap();
+    let module = naga::front::wgsl::parse_str(&source)
+        .unwrap_or_else(|e| panic!("{}", e.emit_to_string(&source)));
+    let info = naga::valid::Validator::new(
+        naga::valid::ValidationFlags::all(),
+        naga::valid::Capabilities::all(),
+    )
+    .validate(&module)
+    .unwrap();
+    let options = naga::back::spv::Options {
+        lang_version: (1, 4),
+        ..Default::default()
+    };
+    let words = naga::back::spv::write_vec(&module, &info, &options, None).unwrap();
+    let shader = dir.join("committed_indices.wgsl");
+    let native = vkrt::shader_check::native_shader(&shader, words).unwrap();
+    let (lowered, iface) = lower_shader(&shader, &native.0).unwrap();
+    let got = run_vkrt(
+        &ctx,
+        &levels,
+        lbvh(Traversal::Stack),
+        (&lowered, &iface),
+        &rays,
+    )
+    .unwrap()
+    .results;
+    let recorded = read_results(&data_dir().join("committed_indices.results")).unwrap();
+    let differ = mismatches(&recorded, &got);
+    assert!(
+        differ.is_empty(),
+        "{} rays differ from the recorded answers, first {:x?}",
+        differ.len(),
+        &differ[..differ.len().min(3)]
+    );
+    if vkrt::gpu::require_ray_query(&ctx).is_ok() {
+        let driver = run_driver(&ctx, &levels, (&native.0, &native.1), &rays)
+            .unwrap()
+            .results;
+        let differ = mismatches(&driver, &got);
+        assert!(
+            differ.is_empty(),
+            "{} rays differ from the driver's",
+            differ.len()
+        );
+    }
+    let hits = got.iter().filter(|r| r[0] != u32::MAX).count();
+    assert!(
+        hits > rays.len() / 10 && hits < rays.len(),
+        "{hits} of {} rays hit",
+        rays.len()
+    );
+    let _ = std::fs::remove_dir_all(&dir);
+}

@@ -1000,19 +1000,33 @@ void main(uint3 id : SV_DispatchThreadID) {
 #[test]
 fn slang_and_hlsl_shaders_run_through_the_pass() {
     let have = std::env::var_os("VKRT_SLANGC").is_some()
-        || std::process::Command::new("slangc").arg("-v").output().is_ok();
+        || std::process::Command::new("slangc")
+            .arg("-v")
+            .output()
+            .is_ok();
     if !have {
-        eprintln!("note: no Slang compiler (VKRT_SLANGC or slangc): Slang and HLSL are not checked");
+        eprintln!(
+            "note: no Slang compiler (VKRT_SLANGC or slangc): Slang and HLSL are not checked"
+        );
         return;
     }
     let rays = grid_rays();
-    for (name, source) in [("closest.hlsl", CLOSEST_HIT_HLSL), ("closest.slang", CLOSEST_HIT_SLANG)] {
+    for (name, source) in [
+        ("closest.hlsl", CLOSEST_HIT_HLSL),
+        ("closest.slang", CLOSEST_HIT_SLANG),
+    ] {
         let st = setup(name, source, &scene_toml(""), &rays);
         let shader = st.dir.join(name);
         std::fs::write(&shader, source).unwrap();
         let out_path = st.dir.join("results.bin");
         let mut args = validate();
-        args.extend(["shader-check", s(&shader), s(&st.scene), "--rays", s(&st.rays)]);
+        args.extend([
+            "shader-check",
+            s(&shader),
+            s(&st.scene),
+            "--rays",
+            s(&st.rays),
+        ]);
         args.extend(["-o", s(&out_path), "--json"]);
         let Some(out) = vkrt_ok(&args) else {
             return;

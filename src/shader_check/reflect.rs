@@ -280,13 +280,24 @@ pub fn reflect(words: &[u32]) -> Result<ShaderInterface, NotSpirv> {
         let pointee = *pointee;
         if class == STORAGE_PUSH_CONSTANT {
             let bytes = size_of(pointee).unwrap_or(0);
-            let first_is_u32 = match types.get(&pointee) {
-                Some(Type::Struct(members)) => {
-                    offsets.get(&(pointee, 0)).copied() == Some(0)
-                        && matches!(types.get(&members[0]), Some(Type::Int(32)))
+            // The first word, through structs nested at offset 0 (naga wraps a WGSL push
+            // constant struct in a block of its own).
+            let mut first = pointee;
+            let mut first_is_u32 = false;
+            for _ in 0..8 {
+                match types.get(&first) {
+                    Some(Type::Struct(members))
+                        if !members.is_empty() && offsets.get(&(first, 0)).copied() == Some(0) =>
+                    {
+                        first = members[0];
+                    }
+                    Some(Type::Int(32)) => {
+                        first_is_u32 = first != pointee;
+                        break;
+                    }
+                    _ => break,
                 }
-                _ => false,
-            };
+            }
             out.push_constants = Some((bytes, first_is_u32));
             continue;
         }
