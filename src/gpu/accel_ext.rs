@@ -319,8 +319,8 @@ impl AccelerationStructure {
         self.address
     }
 
-    /// The Vulkan handle, for a descriptor write.
-    pub(crate) fn raw(&self) -> vk::AccelerationStructureKHR {
+    /// The Vulkan handle, for a descriptor write (valid while `self` lives).
+    pub fn raw(&self) -> vk::AccelerationStructureKHR {
         self.raw
     }
 

@@ -142,6 +142,16 @@ pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
         }
         None => None,
     };
+    // Where the driver ends an invocation's loops after a budget of iterations in all,
+    // the walk's steps count against the shader's own loops: said, since what is cut
+    // is cut silently.
+    let loop_budget = ctx.info().loop_budget.filter(|_| vkrt_run.is_some());
+    if let Some(budget) = loop_budget {
+        log::warn!(
+            "{} ends all of an invocation's loops once they have run {budget} iterations in              all (llvmpipe before Mesa 25): vkrt's walk spends one per node visit and              primitive test, so a shader that traces many rays per invocation (a many-sample              path tracer) can have its own loops cut short, silently; a query the budget cut              reports vkrtRayQueryExhausted",
+            ctx.info().device
+        );
+    }
     let driver_run = match (&shader.native, native) {
         (Some((words, iface)), true) => {
             Some(check::run_driver(&ctx, &levels, (words, iface), &rays)?)
@@ -180,6 +190,7 @@ pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
             "mismatches": first,
             "vkrt_ms": ms(&vkrt_run),
             "driver_ms": ms(&driver_run),
+            "loop_budget": loop_budget,
         });
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
