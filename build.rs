@@ -37,6 +37,7 @@ fn main() {
         let text = compile_all(&root);
         std::fs::write(&out, &text).expect("cannot write shaders.rs");
         sync_checked_in(&root, &text, &sources);
+        export_for_dependents(&root, &text);
     }
     #[cfg(not(feature = "shaderc"))]
     {
@@ -51,8 +52,40 @@ fn main() {
                 checked_in.display()
             )
         });
-        std::fs::write(&out, text).expect("cannot write shaders.rs");
+        std::fs::write(&out, &text).expect("cannot write shaders.rs");
+        export_for_dependents(&root, &text);
     }
+}
+
+/// What a dependent's build script finds through `links = "vkrt"`: `DEP_VKRT_INCLUDE`, the
+/// GLSL library's include directory (`#include "vkrt/ext_ray_query.glsl"`), and
+/// `DEP_VKRT_RAY_QUERY_LIBRARY`, the SPIR-V library the pass `vkrt::spirv` links into
+/// shaders, as a `.spv` file (taken from the kernel table `text`).
+fn export_for_dependents(root: &Path, text: &str) {
+    println!(
+        "cargo:include={}",
+        root.join("glsl").join("include").display()
+    );
+    let Some(words) = kernel_words(text, "SPIRV_RAY_QUERY_LIBRARY") else {
+        return;
+    };
+    let bytes: Vec<u8> = words.iter().flat_map(|w| w.to_le_bytes()).collect();
+    let path = PathBuf::from(std::env::var("OUT_DIR").unwrap()).join("ray_query_library.spv");
+    std::fs::write(&path, bytes).expect("cannot write ray_query_library.spv");
+    println!("cargo:ray_query_library={}", path.display());
+}
+
+/// The SPIR-V words of kernel `ident` in a generated kernel table.
+fn kernel_words(text: &str, ident: &str) -> Option<Vec<u32>> {
+    let start = text.find(&format!("pub static {ident}: ShaderBlob"))?;
+    let rest = &text[start..];
+    let list = &rest[rest.find("spirv: &[")? + "spirv: &[".len()..];
+    let list = &list[..list.find(']')?];
+    list.split(',')
+        .map(str::trim)
+        .filter(|w| !w.is_empty())
+        .map(|w| u32::from_str_radix(w.trim_start_matches("0x"), 16).ok())
+        .collect()
 }
 
 /// Without shaderc the checked-in kernels are used as they are, so they must have been

@@ -16,10 +16,9 @@
 
 layout(local_size_x = 1) in;
 
-// The library's version, which the pass checks against its own.
-const uint VKRT_SPIRV_LIBRARY_VERSION = 1u;
+// The library's version (VKRT_VERSION), which the pass checks against its crate's.
 uint vkrt_spv_version() {
-    return VKRT_SPIRV_LIBRARY_VERSION;
+    return uint(VKRT_VERSION);
 }
 
 void vkrt_spv_initialize(uint q, uint64_t as_, uint flags, uint cull_mask, vec3 origin, float tmin,

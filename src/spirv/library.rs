@@ -76,6 +76,11 @@ fn parse(words: &[u32]) -> Library {
             .expect("the library's specialization constants")
     };
     let (count, steps, keep) = (spec(COUNT_SPEC_ID), spec(STEPS_SPEC_ID), spec(KEEP_SPEC_ID));
+    assert_eq!(
+        version(&module, functions["version"]),
+        Some(crate_version()),
+        "the SPIR-V library's VKRT_VERSION is its crate's"
+    );
     hoist_global_initializers(&mut module, main);
     // The switch that keeps the functions is never on; its SpecId goes, so that it cannot
     // meet the shader's own.
@@ -87,6 +92,34 @@ fn parse(words: &[u32]) -> Library {
         count,
         steps,
     }
+}
+
+/// The crate's version as the GLSL library writes it (`VKRT_VERSION`): major * 10000 +
+/// minor * 100 + patch.
+pub(crate) fn crate_version() -> u32 {
+    let part = |s: &str| s.parse::<u32>().unwrap_or(0);
+    part(env!("CARGO_PKG_VERSION_MAJOR")) * 10_000
+        + part(env!("CARGO_PKG_VERSION_MINOR")) * 100
+        + part(env!("CARGO_PKG_VERSION_PATCH"))
+}
+
+/// The constant function `f` returns (the library's `vkrt_spv_version`).
+fn version(module: &Module, f: Word) -> Option<u32> {
+    let func = module.functions.iter().find(|x| x.def_id() == Some(f))?;
+    let ret = func
+        .blocks
+        .iter()
+        .flat_map(|b| &b.instructions)
+        .find(|i| i.class.opcode == Op::ReturnValue)?;
+    let Some(Operand::IdRef(value)) = ret.operands.first() else {
+        return None;
+    };
+    module.types_global_values.iter().find_map(|i| {
+        match (i.result_id == Some(*value), i.class.opcode, i.operands.first()) {
+            (true, Op::Constant, Some(Operand::LiteralBit32(v))) => Some(*v),
+            _ => None,
+        }
+    })
 }
 
 /// glslang sets a global's initial value at the start of `main` (`bool x = false;`);

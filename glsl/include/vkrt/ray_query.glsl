@@ -98,6 +98,11 @@
 #ifndef VKRT_RAY_QUERY_GLSL
 #define VKRT_RAY_QUERY_GLSL
 
+// The library's version, its crate's: major * 10000 + minor * 100 + patch (0.1.0: 100), for
+// `#if VKRT_VERSION >= ...` in an includer; the SPIR-V pass checks its library's against
+// its own.
+#define VKRT_VERSION 100
+
 #define VKRT_LIBRARY 1
 #ifndef VKRT_BINDING
 #define VKRT_BINDING 0
