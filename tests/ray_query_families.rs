@@ -615,3 +615,238 @@ fn wgsl_through_naga_and_the_pass_gives_the_recorded_answers() {
     );
     let _ = std::fs::remove_dir_all(&dir);
 }
+
+/// Position fetch (`GL_EXT_ray_tracing_position_fetch`): a committed triangle's vertices in
+/// object space, through the include and through the SPIR-V pass, equal to the mesh's own.
+/// The driver's module declares `RayQueryPositionFetchKHR`, which Debian 12's glslc and
+/// validation layer (1.3.239) predate: it is made from a shader that asks for the
+/// object-to-world matrix (read the same way, by columns), with that one instruction
+/// replaced, and runs through the pass only.
+#[test]
+fn position_fetch_gives_the_mesh_s_vertices_through_the_include_and_the_pass() {
+    let Some(ctx) = common::context() else { return };
+    let dir = std::env::temp_dir().join(format!("vkrt-rq-fetch-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    // A square in its object space, two instances: one as it is, one moved and turned.
+    std::fs::write(
+        dir.join("square.obj"),
+        "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nf 1 2 3\nf 1 3 4\n",
+    )
+    .unwrap();
+    std::fs::write(
+        dir.join("scene.toml"),
+        "[[meshes]]\npath = \"square.obj\"\n\n[[meshes]]\npath = \"square.obj\"\ntranslate = [0, 3, -1]\nrotate = [0, 0, 30]\n",
+    )
+    .unwrap();
+    let scene = Scene::load(&dir.join("scene.toml")).unwrap().scene;
+    let levels = scene_levels(&scene);
+    let mut rays = Vec::new();
+    for j in 0..24 {
+        for i in 0..16 {
+            let (x, y) = (
+                -1.6 + 3.2 * (i as f32 + 0.5) / 16.0,
+                -1.5 + 6.0 * (j as f32 + 0.5) / 24.0,
+            );
+            rays.push(Ray::new(
+                glam::Vec3::new(x, y, 5.0),
+                -glam::Vec3::Z,
+                0.0,
+                f32::INFINITY,
+            ));
+        }
+    }
+    let shader = |getter: &str| {
+        format!(
+            r#"#version 460
+#extension GL_EXT_ray_query : require
+#include "vkrt/ext_ray_query.glsl"
+layout(local_size_x = 64) in;
+layout(set = 0, binding = 0) uniform accelerationStructureEXT scene;
+layout(set = 0, binding = 1, std430) readonly buffer Rays {{ vec4 rays[]; }};
+layout(set = 0, binding = 2, std430) writeonly buffer Results {{ uvec4 results[]; }};
+layout(push_constant) uniform Count {{ uint rayCount; }};
+void main() {{
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= rayCount) return;
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, gl_RayFlagsOpaqueEXT, 0xFF, rays[2 * i].xyz, rays[2 * i].w,
+                          rays[2 * i + 1].xyz, rays[2 * i + 1].w);
+    while (rayQueryProceedEXT(q)) {{}}
+    {getter}
+    uint k = rayQueryGetIntersectionTypeEXT(q, true) | (uint(rayQueryGetIntersectionPrimitiveIndexEXT(q, true)) << 4u);
+    results[i] = uvec4(floatBitsToUint(p[0].x + 2.0 * p[0].y), floatBitsToUint(p[1].x + 2.0 * p[1].y),
+                       floatBitsToUint(p[2].x + 2.0 * p[2].y + 4.0 * (p[0].z + p[1].z + p[2].z)), k);
+}}
+"#
+        )
+    };
+    let include = dir.join("include");
+    vkrt::accel::shader_library::write_to(&include).unwrap();
+    let path = dir.join("fetch.comp");
+    let fetch = shader("vec3 p[3]; rayQueryGetIntersectionTriangleVertexPositionsEXT(q, true, p);");
+    let through_include = compile_shader(&path, &fetch, &include, Through::Vkrt).unwrap();
+    let (spirv, iface) = through_include.vkrt.as_ref().unwrap();
+    let included = run_vkrt(&ctx, &levels, lbvh(Traversal::Stack), (spirv, iface), &rays)
+        .unwrap()
+        .results;
+
+    // The driver's module: the matrix getter's instruction turned into position fetch.
+    let stand_in = shader("mat4x3 p = rayQueryGetIntersectionObjectToWorldEXT(q, true);");
+    let native = compile_shader(&path, &stand_in, &include, Through::Driver).unwrap();
+    let words = with_position_fetch(&native.native.unwrap().0);
+    let (lowered, lowered_iface) = lower_shader(&path, &words).unwrap();
+    let passed = run_vkrt(
+        &ctx,
+        &levels,
+        lbvh(Traversal::Stack),
+        (&lowered, &lowered_iface),
+        &rays,
+    )
+    .unwrap()
+    .results;
+    assert_eq!(included, passed, "the include and the pass");
+
+    // The mesh's vertices, in its object space, by primitive.
+    let tri = |prim: u32| -> [[f32; 3]; 3] {
+        let v = [
+            [-1.0, -1.0, 0.0],
+            [1.0, -1.0, 0.0],
+            [1.0, 1.0, 0.0],
+            [-1.0, 1.0, 0.0],
+        ];
+        if prim == 0 {
+            [v[0], v[1], v[2]]
+        } else {
+            [v[0], v[2], v[3]]
+        }
+    };
+    let mut hits = 0;
+    for (r, rec) in rays.iter().zip(&passed) {
+        if rec[3] & 0xf == 0 {
+            assert_eq!(&rec[..3], &[0, 0, 0], "a miss has no vertices: {r:?}");
+            continue;
+        }
+        hits += 1;
+        let p = tri(rec[3] >> 4);
+        let want = [
+            p[0][0] + 2.0 * p[0][1],
+            p[1][0] + 2.0 * p[1][1],
+            p[2][0] + 2.0 * p[2][1] + 4.0 * (p[0][2] + p[1][2] + p[2][2]),
+        ];
+        for k in 0..3 {
+            assert_eq!(f32::from_bits(rec[k]), want[k], "ray {r:?}: {rec:?}");
+        }
+    }
+    assert!(hits > rays.len() / 4, "{hits} of {} rays hit", rays.len());
+    let _ = std::fs::remove_dir_all(&dir);
+}
+
+/// `words` with its `OpRayQueryGetIntersectionObjectToWorldKHR` turned into
+/// `OpRayQueryGetIntersectionTriangleVertexPositionsKHR` (a `vec3[3]`), and the capability
+/// and extension that instruction needs.
+fn with_position_fetch(words: &[u32]) -> Vec<u32> {
+    use rspirv::binary::Assemble;
+    use rspirv::dr::{Instruction, Operand};
+    use rspirv::spirv::{Capability, Op};
+    let mut m = rspirv::dr::load_words(words).unwrap();
+    m.capabilities.push(Instruction::new(
+        Op::Capability,
+        None,
+        None,
+        vec![Operand::Capability(Capability::RayQueryPositionFetchKHR)],
+    ));
+    m.extensions.push(Instruction::new(
+        Op::Extension,
+        None,
+        None,
+        vec![Operand::LiteralString(
+            "SPV_KHR_ray_tracing_position_fetch".into(),
+        )],
+    ));
+    let find = |op: Op, operands: &[Operand]| {
+        m.types_global_values
+            .iter()
+            .find(|i| i.class.opcode == op && i.operands == operands)
+            .and_then(|i| i.result_id)
+            .unwrap()
+    };
+    let float = find(Op::TypeFloat, &[Operand::LiteralBit32(32)]);
+    let uint = find(
+        Op::TypeInt,
+        &[Operand::LiteralBit32(32), Operand::LiteralBit32(0)],
+    );
+    let vec3 = find(
+        Op::TypeVector,
+        &[Operand::IdRef(float), Operand::LiteralBit32(3)],
+    );
+    let header = m.header.as_mut().unwrap();
+    let (three, array, pointer) = (header.bound, header.bound + 1, header.bound + 2);
+    header.bound += 3;
+    m.types_global_values.push(Instruction::new(
+        Op::Constant,
+        Some(uint),
+        Some(three),
+        vec![Operand::LiteralBit32(3)],
+    ));
+    m.types_global_values.push(Instruction::new(
+        Op::TypeArray,
+        None,
+        Some(array),
+        vec![Operand::IdRef(vec3), Operand::IdRef(three)],
+    ));
+    m.types_global_values.push(Instruction::new(
+        Op::TypePointer,
+        None,
+        Some(pointer),
+        vec![
+            Operand::StorageClass(rspirv::spirv::StorageClass::Function),
+            Operand::IdRef(array),
+        ],
+    ));
+    // The variable the matrix was stored in holds the array instead (its columns and the
+    // array's elements are read alike: an access chain to a vec3).
+    let mut stored_in = None;
+    let mut replaced = 0;
+    for f in m.functions.iter_mut() {
+        for b in f.blocks.iter_mut() {
+            for i in b.instructions.iter_mut() {
+                if i.class.opcode == Op::RayQueryGetIntersectionObjectToWorldKHR {
+                    *i = Instruction::new(
+                        Op::RayQueryGetIntersectionTriangleVertexPositionsKHR,
+                        Some(array),
+                        i.result_id,
+                        i.operands.clone(),
+                    );
+                    replaced += 1;
+                }
+            }
+        }
+    }
+    assert_eq!(replaced, 1);
+    let result = m
+        .functions
+        .iter()
+        .flat_map(|f| f.blocks.iter().flat_map(|b| &b.instructions))
+        .find(|i| i.class.opcode == Op::RayQueryGetIntersectionTriangleVertexPositionsKHR)
+        .and_then(|i| i.result_id);
+    for f in m.functions.iter() {
+        for i in f.blocks.iter().flat_map(|b| &b.instructions) {
+            if let (Op::Store, [Operand::IdRef(p), Operand::IdRef(v), ..]) =
+                (i.class.opcode, i.operands.as_slice())
+            {
+                if Some(*v) == result {
+                    stored_in = Some(*p);
+                }
+            }
+        }
+    }
+    for f in m.functions.iter_mut() {
+        for i in f.blocks.iter_mut().flat_map(|b| b.instructions.iter_mut()) {
+            if i.class.opcode == Op::Variable && i.result_id == stored_in {
+                i.result_type = Some(pointer);
+            }
+        }
+    }
+    assert!(stored_in.is_some());
+    m.assemble()
+}

@@ -104,6 +104,12 @@ mat4x3 vkrt_spv_world_to_object(uint q, uint c) {
     return vkrtRayQueryGetIntersectionWorldToObject(q, c != 0u);
 }
 
+vec3[3] vkrt_spv_triangle_vertex_positions(uint q, uint c) {
+    vec3 p[3];
+    vkrtRayQueryGetIntersectionTriangleVertexPositions(q, c != 0u, p);
+    return p;
+}
+
 float vkrt_spv_ray_tmin(uint q) {
     return vkrtRayQueryGetRayTMin(q);
 }
@@ -140,7 +146,7 @@ void main() {
             + vkrt_spv_object_ray_direction(q, 1u).x + vkrt_spv_object_ray_origin(q, 1u).x
             + vkrt_spv_object_to_world(q, 1u)[0].x + vkrt_spv_world_to_object(q, 1u)[0].x
             + vkrt_spv_ray_tmin(q) + vkrt_spv_world_ray_origin(q).x
-            + vkrt_spv_world_ray_direction(q).x;
+            + vkrt_spv_world_ray_direction(q).x + vkrt_spv_triangle_vertex_positions(q, 1u)[2].y;
         if (b && u == 0u && f == 0.0) {
             vkrt_spv_terminate(u);
         }

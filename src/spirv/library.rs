@@ -115,7 +115,11 @@ fn version(module: &Module, f: Word) -> Option<u32> {
         return None;
     };
     module.types_global_values.iter().find_map(|i| {
-        match (i.result_id == Some(*value), i.class.opcode, i.operands.first()) {
+        match (
+            i.result_id == Some(*value),
+            i.class.opcode,
+            i.operands.first(),
+        ) {
             (true, Op::Constant, Some(Operand::LiteralBit32(v))) => Some(*v),
             _ => None,
         }

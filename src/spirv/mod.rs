@@ -14,7 +14,7 @@
 //! What the pass does:
 //!
 //! - Every ray-query instruction (initialize, proceed, confirm, generate, terminate, every
-//!   getter) becomes a call into a SPIR-V library compiled from the same GLSL walk that
+//!   getter, position fetch) becomes a call into a SPIR-V library compiled from the same GLSL walk that
 //!   `vkrt/ext_ray_query.glsl`, `vkrtTrace` and vkrt's kernels run
 //!   (`glsl/spirv/ray_query_library.comp`, checked in with the kernels). Only the
 //!   functions the module needs are linked.
@@ -40,8 +40,8 @@
 //! Input: SPIR-V 1.3 to 1.6 (at 1.4 and above the library's globals join every entry
 //! point's interface), either memory model. Stages: compute, fragment, vertex,
 //! tessellation, geometry, task and mesh; ray-tracing pipeline stages and instructions are
-//! refused. A module without the `RayQueryKHR` capability comes back unchanged, found by a
-//! scan of its leading capabilities. Bad input is a [`LowerError`] naming the instruction
+//! refused, as are hit objects and opacity micromaps. A module without the `RayQueryKHR`
+//! capability comes back unchanged, found by a scan of its leading capabilities. Bad input is a [`LowerError`] naming the instruction
 //! and its word offset, never a panic.
 
 mod library;

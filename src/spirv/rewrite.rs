@@ -9,7 +9,7 @@ use std::collections::{BTreeSet, HashMap, HashSet};
 
 use super::library::{decorates, Library};
 use super::queries::{self, Handles};
-use super::types::Types;
+use super::types::{Shape, Types};
 use super::words::Scan;
 use super::{LowerError, LowerOptions};
 
@@ -342,7 +342,31 @@ impl<'m> Rewriter<'m> {
             }
             Some((ty, id)) => {
                 let (have, want) = (self.types.shape(ret), self.types.shape(ty));
-                if have == want {
+                if let (true, Shape::Array(_, n)) = (have == want, &want) {
+                    // Arrays are declared once per module (the library's and the shader's
+                    // stay apart): the shader's is built from the library's elements.
+                    let tmp = self.fresh();
+                    out.push(inst(Op::FunctionCall, Some(ret), Some(tmp), operands));
+                    let element = self.types.element(ret).unwrap_or(0);
+                    let parts: Vec<Word> = (0..*n)
+                        .map(|k| {
+                            let part = self.fresh();
+                            out.push(inst(
+                                Op::CompositeExtract,
+                                Some(element),
+                                Some(part),
+                                vec![Operand::IdRef(tmp), Operand::LiteralBit32(k)],
+                            ));
+                            part
+                        })
+                        .collect();
+                    out.push(inst(
+                        Op::CompositeConstruct,
+                        Some(ty),
+                        Some(id),
+                        ids(&parts),
+                    ));
+                } else if have == want {
                     out.push(inst(Op::FunctionCall, Some(ty), Some(id), operands));
                 } else if have.bitcasts_to(&want) {
                     let tmp = self.fresh();
@@ -438,6 +462,9 @@ impl<'m> Rewriter<'m> {
                 Op::RayQueryGetRayFlagsKHR => ("ray_flags", false),
                 Op::RayQueryGetWorldRayOriginKHR => ("world_ray_origin", false),
                 Op::RayQueryGetWorldRayDirectionKHR => ("world_ray_direction", false),
+                Op::RayQueryGetIntersectionTriangleVertexPositionsKHR => {
+                    ("triangle_vertex_positions", true)
+                }
                 Op::RayQueryProceedKHR => ("proceed", false),
                 _ => return None,
             })
@@ -661,6 +688,7 @@ impl<'m> Rewriter<'m> {
             Capability::RayQueryKHR,
             Capability::RayQueryProvisionalKHR,
             Capability::RayTraversalPrimitiveCullingKHR,
+            Capability::RayQueryPositionFetchKHR,
         ];
         self.module
             .capabilities
@@ -689,7 +717,9 @@ impl<'m> Rewriter<'m> {
         }
         self.module.extensions.retain(|e| {
             !matches!(e.operands.first(), Some(Operand::LiteralString(s))
-                if s == "SPV_KHR_ray_query" || s == "SPV_KHR_ray_tracing")
+                if s == "SPV_KHR_ray_query"
+                    || s == "SPV_KHR_ray_tracing"
+                    || s == "SPV_KHR_ray_tracing_position_fetch")
         });
         if self.version.1 < 5 {
             add_extension(self.module, "SPV_KHR_physical_storage_buffer");

@@ -26,6 +26,8 @@ pub(crate) enum Shape {
     Vector(Box<Shape>, u32),
     Matrix(Box<Shape>, u32),
     Pointer(StorageClass, Box<Shape>),
+    /// An array of a constant length.
+    Array(Box<Shape>, u32),
     /// Anything else, by id (structs, arrays, images, ...).
     Other(Word),
 }
@@ -104,6 +106,10 @@ impl Types {
             Op::TypeFloat => Shape::Float { width: lit(0) },
             Op::TypeVector => Shape::Vector(Box::new(self.shape(idref(0))), lit(1)),
             Op::TypeMatrix => Shape::Matrix(Box::new(self.shape(idref(0))), lit(1)),
+            Op::TypeArray => match self.constant_u32(idref(1)) {
+                Some(n) => Shape::Array(Box::new(self.shape(idref(0))), n),
+                None => Shape::Other(id),
+            },
             Op::TypePointer => match inst.operands.first() {
                 Some(Operand::StorageClass(sc)) => {
                     Shape::Pointer(*sc, Box::new(self.shape(idref(1))))

@@ -157,12 +157,8 @@ fn refuse(opcode: u32, operands: &[u32], offset: usize) -> Result<(), LowerError
                 "opacity micromaps are not served",
             ),
             (
-                Capability::RayQueryPositionFetchKHR,
-                "position fetch is not served yet",
-            ),
-            (
                 Capability::RayTracingPositionFetchKHR,
-                "position fetch is not served yet",
+                "position fetch in ray-tracing pipelines is not lowered",
             ),
             (
                 Capability::ShaderInvocationReorderNV,
@@ -202,14 +198,13 @@ fn refuse(opcode: u32, operands: &[u32], offset: usize) -> Result<(), LowerError
         Op::TraceRayMotionNV,
         Op::ExecuteCallableNV,
         Op::TypeHitObjectNV,
-        Op::RayQueryGetIntersectionTriangleVertexPositionsKHR,
         Op::RayQueryGetClusterIdNV,
     ];
     if refused_ops.iter().any(|op| *op as u32 == opcode) {
         return Err(unsupported(
             op_name(opcode),
-            "an instruction the pass does not serve (ray-tracing pipelines, hit objects and \
-             position fetch are not lowered)",
+            "an instruction the pass does not serve (ray-tracing pipelines and hit objects \
+             are not lowered)",
         ));
     }
     Ok(())

@@ -834,6 +834,32 @@ mat4x3 vkrtRayQueryGetIntersectionObjectToWorld(uint q, bool committed) {
     return vkrt_rq_columns(rows);
 }
 
+// Position fetch (GL_EXT_ray_tracing_position_fetch): the vertices of the intersection's
+// triangle as its bottom level holds them (its object space); zeros where the intersection
+// is not a triangle.
+void vkrtRayQueryGetIntersectionTriangleVertexPositions(uint q, bool committed, out vec3 positions[3]) {
+    positions = vec3[3](vec3(0.0), vec3(0.0), vec3(0.0));
+    uint s = vkrt_rq_slot(q);
+    if (s == uint(VKRT_RAY_QUERIES)) {
+        return;
+    }
+    VkrtRqHit h = vkrt_rq_hit(q, committed);
+    if (h.prim == VKRT_NO_HIT
+        || h.type != (committed ? VKRT_COMMITTED_TRIANGLE : VKRT_CANDIDATE_TRIANGLE)) {
+        return;
+    }
+    uint64_t bottom = packUint2x32(vkrt_rq_setup[s].zw);
+    if ((vkrt_rq_walk[s].w & VKRT_RQ_ONE_LEVEL) == 0u) {
+        bottom = packUint2x32(VkrtInstances(VkrtHandle(bottom).addresses[7]).v[h.instance].meta.xy);
+    }
+    // (rayQueryProceedEXT reads its level's arrays afresh: nothing of the walk is lost here)
+    vkrt_use(bottom);
+    if (h.prim >= vkrt_scene_info.n_tris) {
+        return;
+    }
+    vkrt_triangle_at(h.prim, 0.0, positions[0], positions[1], positions[2]);
+}
+
 // The extension's functions, on vkrt's: function-like macros, so that only calls are
 // rewritten.
 #define rayQueryInitializeEXT(q, as_, flags_, mask_, origin_, tmin_, direction_, tmax_) vkrtRayQueryInitialize(q, as_, flags_, mask_, origin_, tmin_, direction_, tmax_)
@@ -859,6 +885,7 @@ mat4x3 vkrtRayQueryGetIntersectionObjectToWorld(uint q, bool committed) {
 #define rayQueryGetRayFlagsEXT(q) vkrtRayQueryGetRayFlags(q)
 #define rayQueryGetWorldRayOriginEXT(q) vkrtRayQueryGetWorldRayOrigin(q)
 #define rayQueryGetWorldRayDirectionEXT(q) vkrtRayQueryGetWorldRayDirection(q)
+#define rayQueryGetIntersectionTriangleVertexPositionsEXT(q, c, p) vkrtRayQueryGetIntersectionTriangleVertexPositions(q, c, p)
 
 #endif // !VKRT_NATIVE_RAY_QUERY
 #endif
