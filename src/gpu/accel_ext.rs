@@ -185,22 +185,6 @@ pub fn require_ray_query(ctx: &Context) -> Result<()> {
     ext(ctx).map(drop)
 }
 
-/// `flags` with `ALLOW_DATA_ACCESS` for a bottom level where the device has position fetch
-/// enabled, so that a ray query may read its triangles' vertices (sizes and builds alike).
-fn data_access(
-    ctx: &Context,
-    level: vk::AccelerationStructureTypeKHR,
-    flags: vk::BuildAccelerationStructureFlagsKHR,
-) -> vk::BuildAccelerationStructureFlagsKHR {
-    if level == vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL
-        && ctx.info().features.ray_tracing_position_fetch
-    {
-        flags | vk::BuildAccelerationStructureFlagsKHR::ALLOW_DATA_ACCESS
-    } else {
-        flags
-    }
-}
-
 /// Sizes of a device build over `geometries` (one level) with `flags`.
 pub fn accel_build_sizes(
     ctx: &Context,
@@ -213,7 +197,7 @@ pub fn accel_build_sizes(
     let geometries: Vec<_> = geometries.iter().map(|g| g.vk()).collect();
     let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
         .ty(level)
-        .flags(data_access(ctx, level, flags))
+        .flags(flags)
         .mode(vk::BuildAccelerationStructureModeKHR::BUILD)
         .geometries(&geometries);
     let mut sizes = vk::AccelerationStructureBuildSizesInfoKHR::default();
@@ -429,7 +413,7 @@ impl AccelerationStructure {
         let geometries: Vec<_> = geometries.iter().map(|g| g.vk()).collect();
         let info = [vk::AccelerationStructureBuildGeometryInfoKHR::default()
             .ty(self.geometry_level)
-            .flags(data_access(&self.ctx, self.geometry_level, flags))
+            .flags(flags)
             .mode(mode)
             .src_acceleration_structure(src)
             .dst_acceleration_structure(self.raw)

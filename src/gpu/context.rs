@@ -709,9 +709,6 @@ fn create_device(
     if let (Some(a), Some(q)) = (r.acceleration_structure.as_mut(), r.ray_query.as_mut()) {
         create = create.push_next(a).push_next(q);
     }
-    if let Some(p) = r.position_fetch.as_mut() {
-        create = create.push_next(p);
-    }
     create = create.enabled_extension_names(&ext_names);
     // SAFETY: `create` points at locals that outlive the call; only supported features and
     // extensions are requested.

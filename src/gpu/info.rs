@@ -45,9 +45,6 @@ pub struct DeviceFeatures {
     /// (with `VK_KHR_deferred_host_operations`, which it requires) and `VK_KHR_ray_query`,
     /// their features, and `bufferDeviceAddress` (Mesa 25's lavapipe has them; 22.3's not).
     pub ray_query: bool,
-    /// `VK_KHR_ray_tracing_position_fetch` with `ray_query`: the driver's ray queries give a
-    /// hit triangle's vertices (its bottom levels are built with `ALLOW_DATA_ACCESS`).
-    pub ray_tracing_position_fetch: bool,
     /// The calibrated-timestamps extension the device has enabled, if any: profiles then
     /// put the device's ticks on the host's clock through it ([`super::Calibration`]);
     /// without one, by a timestamp written at a submission.
@@ -103,7 +100,7 @@ impl DeviceFeatures {
         let mut base = unsafe { info.p_enabled_features.as_ref() }
             .copied()
             .unwrap_or_default();
-        let (mut accel, mut query, mut fetch) = (false, false, false);
+        let (mut accel, mut query) = (false, false);
         let mut next = info.p_next.cast::<vk::BaseInStructure<'_>>();
         // SAFETY: the caller's contract: a live struct of this sType, live names.
         while let Some(s) = unsafe { next.as_ref() } {
@@ -187,13 +184,6 @@ impl DeviceFeatures {
                     let v = unsafe { &*at.cast::<vk::PhysicalDeviceRayQueryFeaturesKHR<'_>>() };
                     query = on(v.ray_query);
                 }
-                vk::StructureType::PHYSICAL_DEVICE_RAY_TRACING_POSITION_FETCH_FEATURES_KHR => {
-                    // SAFETY: the caller's contract: a live struct of this sType, live names.
-                    let v = unsafe {
-                        &*at.cast::<vk::PhysicalDeviceRayTracingPositionFetchFeaturesKHR<'_>>()
-                    };
-                    fetch = on(v.ray_tracing_position_fetch);
-                }
                 _ => {}
             }
             next = s.p_next;
@@ -217,8 +207,6 @@ impl DeviceFeatures {
             && query
             && f.buffer_device_address
             && RAY_QUERY_EXTENSIONS.iter().all(|&n| enabled(n));
-        f.ray_tracing_position_fetch =
-            f.ray_query && fetch && enabled(ash::khr::ray_tracing_position_fetch::NAME);
         f.calibrated_timestamps = CalibratedTimestamps::among(enabled);
         f
     }
@@ -246,8 +234,6 @@ pub struct DeviceFeatureRequest {
     pub acceleration_structure: Option<vk::PhysicalDeviceAccelerationStructureFeaturesKHR<'static>>,
     /// The driver's ray query.
     pub ray_query: Option<vk::PhysicalDeviceRayQueryFeaturesKHR<'static>>,
-    /// Position fetch from the driver's ray queries (with `ray_query`).
-    pub position_fetch: Option<vk::PhysicalDeviceRayTracingPositionFetchFeaturesKHR<'static>>,
     /// The device extensions these need.
     pub extensions: Vec<&'static std::ffi::CStr>,
 }
@@ -294,14 +280,6 @@ impl DeviceFeatures {
                     .acceleration_structure(true),
             );
             r.ray_query = Some(vk::PhysicalDeviceRayQueryFeaturesKHR::default().ray_query(true));
-            if self.ray_tracing_position_fetch {
-                r.extensions
-                    .push(ash::khr::ray_tracing_position_fetch::NAME);
-                r.position_fetch = Some(
-                    vk::PhysicalDeviceRayTracingPositionFetchFeaturesKHR::default()
-                        .ray_tracing_position_fetch(true),
-                );
-            }
         }
         r.extensions
             .extend(self.calibrated_timestamps.map(CalibratedTimestamps::name));
@@ -567,7 +545,6 @@ pub(crate) fn supported_features(
     let mut size_control = vk::PhysicalDeviceSubgroupSizeControlFeatures::default();
     let mut accel = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default();
     let mut query = vk::PhysicalDeviceRayQueryFeaturesKHR::default();
-    let mut fetch = vk::PhysicalDeviceRayTracingPositionFetchFeaturesKHR::default();
     // SAFETY: as above.
     let extensions =
         unsafe { instance.enumerate_device_extension_properties(pd) }.unwrap_or_default();
@@ -588,10 +565,6 @@ pub(crate) fn supported_features(
     if has_ray_query_exts {
         f2 = f2.push_next(&mut accel).push_next(&mut query);
     }
-    let has_fetch_ext = has_ext(ash::khr::ray_tracing_position_fetch::NAME);
-    if has_ray_query_exts && has_fetch_ext {
-        f2 = f2.push_next(&mut fetch);
-    }
     // SAFETY: every chained struct lives across the call.
     unsafe { instance.get_physical_device_features2(pd, &mut f2) };
     let base = f2.features;
@@ -611,12 +584,6 @@ pub(crate) fn supported_features(
         api_1_3,
         buffer_device_address: f12.buffer_device_address == vk::TRUE,
         ray_query: has_ray_query_exts
-            && accel.acceleration_structure == vk::TRUE
-            && query.ray_query == vk::TRUE
-            && f12.buffer_device_address == vk::TRUE,
-        ray_tracing_position_fetch: has_ray_query_exts
-            && has_fetch_ext
-            && fetch.ray_tracing_position_fetch == vk::TRUE
             && accel.acceleration_structure == vk::TRUE
             && query.ray_query == vk::TRUE
             && f12.buffer_device_address == vk::TRUE,
