@@ -148,7 +148,11 @@ pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
     let loop_budget = ctx.info().loop_budget.filter(|_| vkrt_run.is_some());
     if let Some(budget) = loop_budget {
         log::warn!(
-            "{} ends all of an invocation's loops once they have run {budget} iterations in              all (llvmpipe before Mesa 25): vkrt's walk spends one per node visit and              primitive test, so a shader that traces many rays per invocation (a many-sample              path tracer) can have its own loops cut short, silently; a query the budget cut              reports vkrtRayQueryExhausted",
+            "{} ends all of an invocation's loops once they have run {budget} iterations in \
+             all (llvmpipe before Mesa 25): vkrt's walk spends one per node visit and \
+             primitive test, so a shader that traces many rays per invocation (a many-sample \
+             path tracer) can have its own loops cut short, silently; a query the budget cut \
+             reports vkrtRayQueryExhausted",
             ctx.info().device
         );
     }
