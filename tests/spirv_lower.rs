@@ -1,5 +1,6 @@
 //! The SPIR-V pass (`vkrt::spirv::lower_ray_queries`) on the shapes real shaders take,
-//! compiled by glslang (glslc) for every stage and SPIR-V version the pass takes: every
+//! compiled by glslang (glslc) for every stage (compute, fragment, vertex, geometry,
+//! tessellation, mesh and task) and SPIR-V version the pass takes: every
 //! rewrite passes `spirv-val` for its Vulkan version and keeps no ray-query instruction,
 //! capability or extension; query handles are numbered statically; bad input is an error
 //! naming the instruction and its word offset, never a panic. What the lowered shaders
@@ -254,6 +255,69 @@ void main() {
 }
 "#;
 
+/// A geometry shader's query per vertex, in a loop.
+const GEOMETRY: &str = r#"
+layout(triangles) in;
+layout(triangle_strip, max_vertices = 3) out;
+layout(set = 0, binding = 0) uniform accelerationStructureEXT scene;
+void main() {
+    for (int k = 0; k < 3; k++) {
+        rayQueryEXT q;
+        rayQueryInitializeEXT(q, scene, 0u, 0xff, gl_in[k].gl_Position.xyz, 0.0, vec3(0, 0, 1), 10.0);
+        rayQueryProceedEXT(q);
+        gl_Position = gl_in[k].gl_Position + vec4(0, 0, rayQueryGetIntersectionTEXT(q, true), 0);
+        EmitVertex();
+    }
+    EndPrimitive();
+}
+"#;
+
+/// A tessellation evaluation shader's query.
+const TESSELLATION: &str = r#"
+layout(triangles) in;
+layout(set = 0, binding = 0) uniform accelerationStructureEXT scene;
+void main() {
+    vec3 p = gl_TessCoord.x * gl_in[0].gl_Position.xyz + gl_TessCoord.y * gl_in[1].gl_Position.xyz
+        + gl_TessCoord.z * gl_in[2].gl_Position.xyz;
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, gl_RayFlagsOpaqueEXT, 0xff, p, 0.0, vec3(0, 1, 0), 10.0);
+    rayQueryProceedEXT(q);
+    gl_Position = vec4(p, rayQueryGetIntersectionTypeEXT(q, true) == 0u ? 1.0 : 2.0);
+}
+"#;
+
+/// A mesh shader's query (`GL_EXT_mesh_shader`).
+const MESH: &str = r#"
+#extension GL_EXT_mesh_shader : require
+layout(local_size_x = 1) in;
+layout(triangles, max_vertices = 3, max_primitives = 1) out;
+layout(set = 0, binding = 0) uniform accelerationStructureEXT scene;
+void main() {
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, 0u, 0xff, vec3(0), 0.0, vec3(0, 0, 1), 10.0);
+    rayQueryProceedEXT(q);
+    float z = rayQueryGetIntersectionTypeEXT(q, true) == 0u ? 0.0 : 1.0;
+    SetMeshOutputsEXT(3, 1);
+    gl_MeshVerticesEXT[0].gl_Position = vec4(0, 0, z, 1);
+    gl_MeshVerticesEXT[1].gl_Position = vec4(1, 0, z, 1);
+    gl_MeshVerticesEXT[2].gl_Position = vec4(0, 1, z, 1);
+    gl_PrimitiveTriangleIndicesEXT[0] = uvec3(0, 1, 2);
+}
+"#;
+
+/// A task shader's query deciding how many mesh groups to launch.
+const TASK: &str = r#"
+#extension GL_EXT_mesh_shader : require
+layout(local_size_x = 1) in;
+layout(set = 0, binding = 0) uniform accelerationStructureEXT scene;
+void main() {
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, scene, 0u, 0xff, vec3(0), 0.0, vec3(0, 0, 1), 10.0);
+    rayQueryProceedEXT(q);
+    EmitMeshTasksEXT(rayQueryGetIntersectionTypeEXT(q, true) == 0u ? 0u : 1u, 1u, 1u);
+}
+"#;
+
 /// `layout(primitive_culling)`, and a ray flag that skips triangles.
 const CULLING: &str = r#"
 #extension GL_EXT_ray_flags_primitive_culling : require
@@ -299,16 +363,17 @@ fn every_rewrite_passes_spirv_val_in_every_stage_and_version() {
             lower_valid(&format!("{name} ({env})"), &words, env);
         }
     }
-    for (name, body, stage) in [
-        ("fragment", FRAGMENT, "fragment"),
-        ("vertex", VERTEX, "vertex"),
+    for (name, body, stage, env) in [
+        ("fragment", FRAGMENT, "fragment", "vulkan1.2"),
+        ("vertex", VERTEX, "vertex", "vulkan1.2"),
+        ("geometry", GEOMETRY, "geometry", "vulkan1.2"),
+        ("tessellation", TESSELLATION, "tesseval", "vulkan1.2"),
+        ("mesh", MESH, "mesh", "vulkan1.3"),
+        ("task", TASK, "task", "vulkan1.3"),
     ] {
-        let words = glslc(
-            &format!("{HEADER}{body}"),
-            stage,
-            &["--target-env=vulkan1.2"],
-        );
-        lower_valid(name, &words, "vulkan1.2");
+        let target = format!("--target-env={env}");
+        let words = glslc(&format!("{HEADER}{body}"), stage, &[&target]);
+        lower_valid(name, &words, env);
     }
     // The Vulkan memory model.
     let source = format!("{HEADER}#pragma use_vulkan_memory_model\n{EVERY_INSTRUCTION}");
