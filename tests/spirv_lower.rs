@@ -519,6 +519,29 @@ fn bad_input_is_an_error_that_names_the_instruction_and_its_offset() {
     }
 }
 
+/// A type that names itself (an array whose element is the array): an error, not a hang.
+#[test]
+fn a_cycle_of_types_is_refused() {
+    let words = glslc(
+        &format!("{HEADER}#extension GL_EXT_shader_explicit_arithmetic_types_int64 : require\n{HELPERS_AND_ARRAYS}"),
+        "compute",
+        &["--target-env=vulkan1.2"],
+    );
+    let mut cyclic = words.clone();
+    let mut i = 5;
+    let mut patched = 0;
+    while i < cyclic.len() {
+        let count = (cyclic[i] >> 16) as usize;
+        if cyclic[i] & 0xffff == Op::TypeArray as u32 {
+            cyclic[i + 2] = cyclic[i + 1];
+            patched += 1;
+        }
+        i += count.max(1);
+    }
+    assert!(patched > 0);
+    assert!(lower_ray_queries(&cyclic, &LowerOptions::default()).is_err());
+}
+
 /// The word offset of the first instruction `op` inside a function.
 fn find_op(words: &[u32], op: Op) -> Option<usize> {
     let mut i = 5;

@@ -13,6 +13,10 @@ use std::collections::{HashMap, HashSet};
 use super::types::Types;
 use super::LowerError;
 
+/// How deep types may nest (arrays of arrays, vectors of ...): deeper is a cycle of ids in
+/// a malformed module, refused rather than followed.
+pub(crate) const MAX_NESTING: u32 = 64;
+
 /// The first handle and the number of handles of each query variable.
 pub(crate) struct Handles {
     pub of: HashMap<Word, (u32, u32)>,
@@ -23,8 +27,17 @@ pub(crate) struct Handles {
 /// How many queries a value of type `ty` holds (an array of queries holds one per
 /// element); `Err` for a query array whose length is not a plain constant.
 pub(crate) fn queries_in(types: &Types, rq: &HashSet<Word>, ty: Word) -> Result<u32, String> {
+    queries_within(types, rq, ty, 0)
+}
+
+fn queries_within(types: &Types, rq: &HashSet<Word>, ty: Word, depth: u32) -> Result<u32, String> {
     if rq.contains(&ty) {
         return Ok(1);
+    }
+    if depth > MAX_NESTING {
+        return Err(format!(
+            "types nested over {MAX_NESTING} deep (a cycle of ids?)"
+        ));
     }
     let Some(inst) = types.get(ty) else {
         return Ok(0);
@@ -36,7 +49,7 @@ pub(crate) fn queries_in(types: &Types, rq: &HashSet<Word>, ty: Word) -> Result<
             else {
                 return Ok(0);
             };
-            let per = queries_in(types, rq, *e)?;
+            let per = queries_within(types, rq, *e, depth + 1)?;
             if per == 0 {
                 return Ok(0);
             }

@@ -238,6 +238,7 @@ impl<'m> Rewriter<'m> {
     }
 
     fn constant_of(&mut self, ty: Word, first: u32, out: &mut Vec<Instruction>) -> Word {
+        // (the nesting was bounded when the variable's handles were counted)
         if self.rq.contains(&ty) {
             let id = self.fresh();
             out.push(inst(
@@ -673,8 +674,11 @@ impl<'m> Rewriter<'m> {
         else {
             return false;
         };
-        while let Some(e) = self.types.element(p) {
-            p = e;
+        for _ in 0..super::queries::MAX_NESTING {
+            match self.types.element(p) {
+                Some(e) => p = e,
+                None => break,
+            }
         }
         self.accel.contains(&p)
     }

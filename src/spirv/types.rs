@@ -85,7 +85,14 @@ impl Types {
     }
 
     pub fn shape(&self, id: Word) -> Shape {
-        let Some(inst) = self.get(id) else {
+        self.shape_within(id, 0)
+    }
+
+    fn shape_within(&self, id: Word, depth: u32) -> Shape {
+        let Some(inst) = self
+            .get(id)
+            .filter(|_| depth <= super::queries::MAX_NESTING)
+        else {
             return Shape::Other(id);
         };
         let lit = |i: usize| match inst.operands.get(i) {
@@ -104,15 +111,19 @@ impl Types {
                 signed: lit(1) != 0,
             },
             Op::TypeFloat => Shape::Float { width: lit(0) },
-            Op::TypeVector => Shape::Vector(Box::new(self.shape(idref(0))), lit(1)),
-            Op::TypeMatrix => Shape::Matrix(Box::new(self.shape(idref(0))), lit(1)),
+            Op::TypeVector => {
+                Shape::Vector(Box::new(self.shape_within(idref(0), depth + 1)), lit(1))
+            }
+            Op::TypeMatrix => {
+                Shape::Matrix(Box::new(self.shape_within(idref(0), depth + 1)), lit(1))
+            }
             Op::TypeArray => match self.constant_u32(idref(1)) {
-                Some(n) => Shape::Array(Box::new(self.shape(idref(0))), n),
+                Some(n) => Shape::Array(Box::new(self.shape_within(idref(0), depth + 1)), n),
                 None => Shape::Other(id),
             },
             Op::TypePointer => match inst.operands.first() {
                 Some(Operand::StorageClass(sc)) => {
-                    Shape::Pointer(*sc, Box::new(self.shape(idref(1))))
+                    Shape::Pointer(*sc, Box::new(self.shape_within(idref(1), depth + 1)))
                 }
                 _ => Shape::Other(id),
             },
