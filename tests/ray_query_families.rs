@@ -21,6 +21,7 @@ use vkrt::accel::device::{AccelChoice, AccelKind};
 use vkrt::accel::shader_library;
 use vkrt::accel::walk::Traversal;
 use vkrt::scene::Scene;
+use vkrt::shader_check::levels::SceneLevels;
 use vkrt::shader_check::{
     compile_shader, lower_shader, mismatches, run_driver, run_vkrt, scene_levels, Through,
 };
@@ -616,6 +617,59 @@ fn wgsl_through_naga_and_the_pass_gives_the_recorded_answers() {
     let _ = std::fs::remove_dir_all(&dir);
 }
 
+/// The square of the small scenes below: two triangles in the plane z = 0, of half-size
+/// `h`.
+fn square_obj(h: f32) -> String {
+    format!("v -{h} -{h} 0\nv {h} -{h} 0\nv {h} {h} 0\nv -{h} {h} 0\nf 1 2 3\nf 1 3 4\n")
+}
+
+/// A scratch directory named after `name` holding the square (`square.obj`, half-size `h`)
+/// and `scene` as `scene.toml`, with vkrt's include files under `include/`; the scene's
+/// levels.
+fn small_scene(name: &str, h: f32, scene: &str) -> (PathBuf, SceneLevels) {
+    let dir = std::env::temp_dir().join(format!("vkrt-rq-{name}-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    std::fs::write(dir.join("square.obj"), square_obj(h)).unwrap();
+    std::fs::write(dir.join("scene.toml"), scene).unwrap();
+    shader_library::write_to(&dir.join("include")).unwrap();
+    let scene = Scene::load(&dir.join("scene.toml")).unwrap().scene;
+    (dir, scene_levels(&scene))
+}
+
+/// The start of a query shader in `vkrt shader-check`'s interface; `INIT(q, flags)` starts
+/// query `q` on ray `i`.
+const INTERFACE: &str = r#"#version 460
+#extension GL_EXT_ray_query : require
+#include "vkrt/ext_ray_query.glsl"
+layout(local_size_x = 64) in;
+layout(set = 0, binding = 0) uniform accelerationStructureEXT scene;
+layout(set = 0, binding = 1, std430) readonly buffer Rays { vec4 rays[]; };
+layout(set = 0, binding = 2, std430) writeonly buffer Results { uvec4 results[]; };
+layout(push_constant) uniform Count { uint rayCount; };
+#define INIT(q, flags) rayQueryInitializeEXT(q, scene, flags, 0xFF, rays[2 * i].xyz, rays[2 * i].w, rays[2 * i + 1].xyz, rays[2 * i + 1].w)
+"#;
+
+/// `native` (SPIR-V for the driver's query) lowered by the pass and run through vkrt's
+/// levels (binary LBVH walk): what it wrote.
+fn through_pass(
+    ctx: &vkrt::gpu::Context,
+    levels: &SceneLevels,
+    path: &Path,
+    native: &[u32],
+    rays: &[Ray],
+) -> Vec<[u32; 4]> {
+    let (lowered, iface) = lower_shader(path, native).unwrap();
+    run_vkrt(
+        ctx,
+        levels,
+        lbvh(Traversal::Stack),
+        (&lowered, &iface),
+        rays,
+    )
+    .unwrap()
+    .results
+}
+
 /// Position fetch (`GL_EXT_ray_tracing_position_fetch`): a committed triangle's vertices in
 /// object space, through the include and through the SPIR-V pass, equal to the mesh's own.
 /// The driver's module declares `RayQueryPositionFetchKHR`, which Debian 12's glslc and
@@ -625,21 +679,12 @@ fn wgsl_through_naga_and_the_pass_gives_the_recorded_answers() {
 #[test]
 fn position_fetch_gives_the_mesh_s_vertices_through_the_include_and_the_pass() {
     let Some(ctx) = common::context() else { return };
-    let dir = std::env::temp_dir().join(format!("vkrt-rq-fetch-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
     // A square in its object space, two instances: one as it is, one moved and turned.
-    std::fs::write(
-        dir.join("square.obj"),
-        "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nf 1 2 3\nf 1 3 4\n",
-    )
-    .unwrap();
-    std::fs::write(
-        dir.join("scene.toml"),
+    let (dir, levels) = small_scene(
+        "fetch",
+        1.0,
         "[[meshes]]\npath = \"square.obj\"\n\n[[meshes]]\npath = \"square.obj\"\ntranslate = [0, 3, -1]\nrotate = [0, 0, 30]\n",
-    )
-    .unwrap();
-    let scene = Scene::load(&dir.join("scene.toml")).unwrap().scene;
-    let levels = scene_levels(&scene);
+    );
     let mut rays = Vec::new();
     for j in 0..24 {
         for i in 0..16 {
@@ -657,20 +702,12 @@ fn position_fetch_gives_the_mesh_s_vertices_through_the_include_and_the_pass() {
     }
     let shader = |getter: &str| {
         format!(
-            r#"#version 460
-#extension GL_EXT_ray_query : require
-#include "vkrt/ext_ray_query.glsl"
-layout(local_size_x = 64) in;
-layout(set = 0, binding = 0) uniform accelerationStructureEXT scene;
-layout(set = 0, binding = 1, std430) readonly buffer Rays {{ vec4 rays[]; }};
-layout(set = 0, binding = 2, std430) writeonly buffer Results {{ uvec4 results[]; }};
-layout(push_constant) uniform Count {{ uint rayCount; }};
+            r#"{INTERFACE}
 void main() {{
     uint i = gl_GlobalInvocationID.x;
     if (i >= rayCount) return;
     rayQueryEXT q;
-    rayQueryInitializeEXT(q, scene, gl_RayFlagsOpaqueEXT, 0xFF, rays[2 * i].xyz, rays[2 * i].w,
-                          rays[2 * i + 1].xyz, rays[2 * i + 1].w);
+    INIT(q, gl_RayFlagsOpaqueEXT);
     while (rayQueryProceedEXT(q)) {{}}
     {getter}
     uint k = rayQueryGetIntersectionTypeEXT(q, true) | (uint(rayQueryGetIntersectionPrimitiveIndexEXT(q, true)) << 4u);
@@ -681,7 +718,6 @@ void main() {{
         )
     };
     let include = dir.join("include");
-    vkrt::accel::shader_library::write_to(&include).unwrap();
     let path = dir.join("fetch.comp");
     let fetch = shader("vec3 p[3]; rayQueryGetIntersectionTriangleVertexPositionsEXT(q, true, p);");
     let through_include = compile_shader(&path, &fetch, &include, Through::Vkrt).unwrap();
@@ -694,16 +730,7 @@ void main() {{
     let stand_in = shader("mat4x3 p = rayQueryGetIntersectionObjectToWorldEXT(q, true);");
     let native = compile_shader(&path, &stand_in, &include, Through::Driver).unwrap();
     let words = with_position_fetch(&native.native.unwrap().0);
-    let (lowered, lowered_iface) = lower_shader(&path, &words).unwrap();
-    let passed = run_vkrt(
-        &ctx,
-        &levels,
-        lbvh(Traversal::Stack),
-        (&lowered, &lowered_iface),
-        &rays,
-    )
-    .unwrap()
-    .results;
+    let passed = through_pass(&ctx, &levels, &path, &words, &rays);
     assert_eq!(included, passed, "the include and the pass");
 
     // The mesh's vertices, in its object space, by primitive.
@@ -859,20 +886,11 @@ fn with_position_fetch(words: &[u32]) -> Vec<u32> {
 #[test]
 fn a_box_is_a_candidate_from_an_origin_inside_it() {
     let Some(ctx) = common::context() else { return };
-    let dir = std::env::temp_dir().join(format!("vkrt-rq-inside-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(
-        dir.join("square.obj"),
-        "v -0.5 -0.5 0\nv 0.5 -0.5 0\nv 0.5 0.5 0\nv -0.5 0.5 0\nf 1 2 3\nf 1 3 4\n",
-    )
-    .unwrap();
-    std::fs::write(
-        dir.join("scene.toml"),
+    let (dir, levels) = small_scene(
+        "inside",
+        0.5,
         "[[meshes]]\npath = \"square.obj\"\n\n[[spheres]]\ncenter = [0, 0, 0]\nradius = 1\n",
-    )
-    .unwrap();
-    let scene = Scene::load(&dir.join("scene.toml")).unwrap().scene;
-    let levels = scene_levels(&scene);
+    );
     let mut rays = Vec::new();
     let mut rng = common::Rng(7);
     for k in 0..192 {
@@ -908,20 +926,14 @@ fn a_box_is_a_candidate_from_an_origin_inside_it() {
             ),
         });
     }
-    let source = r#"#version 460
-#extension GL_EXT_ray_query : require
-#include "vkrt/ext_ray_query.glsl"
-layout(local_size_x = 64) in;
-layout(set = 0, binding = 0) uniform accelerationStructureEXT scene;
-layout(set = 0, binding = 1, std430) readonly buffer Rays { vec4 rays[]; };
-layout(set = 0, binding = 2, std430) writeonly buffer Results { uvec4 results[]; };
-layout(push_constant) uniform Count { uint rayCount; };
+    let source = format!(
+        "{INTERFACE}{}",
+        r#"
 void main() {
     uint i = gl_GlobalInvocationID.x;
     if (i >= rayCount) return;
     rayQueryEXT q;
-    rayQueryInitializeEXT(q, scene, gl_RayFlagsNoneEXT, 0xFF, rays[2 * i].xyz, rays[2 * i].w,
-                          rays[2 * i + 1].xyz, rays[2 * i + 1].w);
+    INIT(q, gl_RayFlagsNoneEXT);
     uint boxes = 0u;
     while (rayQueryProceedEXT(q)) {
         if (rayQueryGetIntersectionTypeEXT(q, false) == gl_RayQueryCandidateIntersectionAABBEXT) {
@@ -932,26 +944,16 @@ void main() {
     float t = kind == gl_RayQueryCommittedIntersectionNoneEXT ? 0.0 : rayQueryGetIntersectionTEXT(q, true);
     results[i] = uvec4(boxes, kind, floatBitsToUint(t), 0u);
 }
-"#;
-    let include = dir.join("include");
-    vkrt::accel::shader_library::write_to(&include).unwrap();
+"#
+    );
     let path = dir.join("inside.comp");
-    let compiled = compile_shader(&path, source, &include, Through::Both).unwrap();
+    let compiled = compile_shader(&path, &source, &dir.join("include"), Through::Both).unwrap();
     let (spirv, iface) = compiled.vkrt.as_ref().unwrap();
     let included = run_vkrt(&ctx, &levels, lbvh(Traversal::Stack), (spirv, iface), &rays)
         .unwrap()
         .results;
     let (native, native_iface) = compiled.native.as_ref().unwrap();
-    let (lowered, lowered_iface) = lower_shader(&path, native).unwrap();
-    let passed = run_vkrt(
-        &ctx,
-        &levels,
-        lbvh(Traversal::Stack),
-        (&lowered, &lowered_iface),
-        &rays,
-    )
-    .unwrap()
-    .results;
+    let passed = through_pass(&ctx, &levels, &path, native, &rays);
     assert_eq!(included, passed, "the include and the pass");
     for (k, (r, rec)) in rays.iter().zip(&passed).enumerate() {
         assert_eq!(rec[0], 1, "ray {k} {r:?}: the box came {} times", rec[0]);
@@ -984,20 +986,11 @@ void main() {
 #[test]
 fn a_query_value_passed_to_a_function_is_the_same_query() {
     let Some(ctx) = common::context() else { return };
-    let dir = std::env::temp_dir().join(format!("vkrt-rq-wrapper-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    std::fs::write(
-        dir.join("square.obj"),
-        "v -1 -1 0\nv 1 -1 0\nv 1 1 0\nv -1 1 0\nf 1 2 3\nf 1 3 4\n",
-    )
-    .unwrap();
-    std::fs::write(
-        dir.join("scene.toml"),
+    let (dir, levels) = small_scene(
+        "wrapper",
+        1.0,
         "[[meshes]]\npath = \"square.obj\"\nopaque = false\n",
-    )
-    .unwrap();
-    let scene = Scene::load(&dir.join("scene.toml")).unwrap().scene;
-    let levels = scene_levels(&scene);
+    );
     let rays: Vec<Ray> = (0..128)
         .map(|k| {
             let (x, y) = ((k % 16) as f32 * 0.2 - 1.55, (k / 16) as f32 * 0.4 - 1.5);
@@ -1009,14 +1002,9 @@ fn a_query_value_passed_to_a_function_is_the_same_query() {
             )
         })
         .collect();
-    let source = r#"#version 460
-#extension GL_EXT_ray_query : require
-#include "vkrt/ext_ray_query.glsl"
-layout(local_size_x = 64) in;
-layout(set = 0, binding = 0) uniform accelerationStructureEXT scene;
-layout(set = 0, binding = 1, std430) readonly buffer Rays { vec4 rays[]; };
-layout(set = 0, binding = 2, std430) writeonly buffer Results { uvec4 results[]; };
-layout(push_constant) uniform Count { uint rayCount; };
+    let source = format!(
+        "{INTERFACE}{}",
+        r#"
 void confirmThrough(rayQueryEXT q) {
     rayQueryConfirmIntersectionEXT(q);
 }
@@ -1024,8 +1012,7 @@ void main() {
     uint i = gl_GlobalInvocationID.x;
     if (i >= rayCount) return;
     rayQueryEXT q;
-    rayQueryInitializeEXT(q, scene, gl_RayFlagsNoneEXT, 0xFF, rays[2 * i].xyz, rays[2 * i].w,
-                          rays[2 * i + 1].xyz, rays[2 * i + 1].w);
+    INIT(q, gl_RayFlagsNoneEXT);
     while (rayQueryProceedEXT(q)) {
         confirmThrough(q);
     }
@@ -1033,26 +1020,16 @@ void main() {
     results[i] = uvec4(kind, kind == 0u ? 0u : floatBitsToUint(rayQueryGetIntersectionTEXT(q, true)),
                        kind == 0u ? ~0u : uint(rayQueryGetIntersectionPrimitiveIndexEXT(q, true)), 0u);
 }
-"#;
-    let include = dir.join("include");
-    vkrt::accel::shader_library::write_to(&include).unwrap();
+"#
+    );
     let path = dir.join("wrapper.comp");
-    let compiled = compile_shader(&path, source, &include, Through::Driver).unwrap();
+    let compiled = compile_shader(&path, &source, &dir.join("include"), Through::Driver).unwrap();
     let (native, _) = compiled.native.as_ref().unwrap();
     let by_value = with_query_by_value(native);
     let native_iface = vkrt::shader_check::native_shader(&path, by_value.clone())
         .unwrap()
         .1;
-    let (lowered, lowered_iface) = lower_shader(&path, &by_value).unwrap();
-    let passed = run_vkrt(
-        &ctx,
-        &levels,
-        lbvh(Traversal::Stack),
-        (&lowered, &lowered_iface),
-        &rays,
-    )
-    .unwrap()
-    .results;
+    let passed = through_pass(&ctx, &levels, &path, &by_value, &rays);
     let mut hits = 0;
     for (r, rec) in rays.iter().zip(&passed) {
         let inside = r.origin[0].abs() < 1.0 && r.origin[1].abs() < 1.0;

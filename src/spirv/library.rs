@@ -129,17 +129,9 @@ fn version(module: &Module, f: Word) -> Option<u32> {
 /// glslang sets a global's initial value at the start of `main` (`bool x = false;`);
 /// without `main` those become the variables' initializers.
 fn hoist_global_initializers(module: &mut Module, main: Word) {
-    let private: Vec<Word> = module
-        .types_global_values
-        .iter()
-        .filter(|i| {
-            i.class.opcode == Op::Variable
-                && matches!(
-                    i.operands.first(),
-                    Some(Operand::StorageClass(StorageClass::Private))
-                )
-                && i.operands.len() == 1
-        })
+    // Private variables without an initializer.
+    let private: Vec<Word> = private_variables(&module.types_global_values)
+        .filter(|i| i.operands.len() == 1)
         .filter_map(|i| i.result_id)
         .collect();
     let constants: Vec<Word> = module
@@ -188,6 +180,17 @@ fn hoist_global_initializers(module: &mut Module, main: Word) {
     }
     module.types_global_values = kept;
     module.types_global_values.append(&mut moved);
+}
+
+/// The `Private` variables among a module's globals.
+pub(crate) fn private_variables(globals: &[Instruction]) -> impl Iterator<Item = &Instruction> {
+    globals.iter().filter(|i| {
+        i.class.opcode == Op::Variable
+            && matches!(
+                i.operands.first(),
+                Some(Operand::StorageClass(StorageClass::Private))
+            )
+    })
 }
 
 /// Whether annotation `a` decorates `id`.

@@ -4,10 +4,10 @@
 //! vector, matrix, image, pointer or function types).
 
 use rspirv::dr::{Instruction, Module, Operand};
-use rspirv::spirv::{Decoration, Op, StorageClass, Word};
+use rspirv::spirv::{Decoration, Op, Word};
 use std::collections::{BTreeSet, HashMap, HashSet};
 
-use super::library::{shift_ids, Library};
+use super::library::{private_variables, shift_ids, Library};
 use super::rewrite::{add_extension, Stats};
 use super::words::Scan;
 use super::LowerOptions;
@@ -66,16 +66,7 @@ pub(crate) fn link(
             );
         }
     }
-    let library_privates: Vec<Word> = lm
-        .types_global_values
-        .iter()
-        .filter(|i| {
-            i.class.opcode == Op::Variable
-                && matches!(
-                    i.operands.first(),
-                    Some(Operand::StorageClass(StorageClass::Private))
-                )
-        })
+    let library_privates: Vec<Word> = private_variables(&lm.types_global_values)
         .filter_map(|i| i.result_id)
         .collect();
     module

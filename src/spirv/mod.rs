@@ -179,6 +179,3 @@ pub fn lower_ray_queries(words: &[u32], options: &LowerOptions) -> Result<Lowere
         functions_linked: linked,
     })
 }
-
-#[cfg(test)]
-mod tests;
