@@ -620,76 +620,21 @@ impl GraphicsPass {
                 )
                 .unwrap();
 
-            let module = |code: &[u32]| {
-                device
-                    .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(code), None)
-                    .unwrap()
-            };
-            let (vert, frag) = (module(&vert), module(&frag));
             // The walk's step cap: the device's, through the library's constant.
             let (entries, data) = vkrt::accel::shader_library::steps_specialization(steps);
             let spec = vk::SpecializationInfo::default()
                 .map_entries(&entries)
                 .data(&data);
-            let stages = [
-                vk::PipelineShaderStageCreateInfo::default()
-                    .stage(vk::ShaderStageFlags::VERTEX)
-                    .module(vert)
-                    .name(c"main"),
-                vk::PipelineShaderStageCreateInfo::default()
-                    .stage(stage)
-                    .module(frag)
-                    .name(c"main")
-                    .specialization_info(&spec),
-            ];
-            let viewports = [vk::Viewport {
-                x: 0.0,
-                y: 0.0,
-                width: size as f32,
-                height: size as f32,
-                min_depth: 0.0,
-                max_depth: 1.0,
-            }];
-            let scissors = [vk::Rect2D {
-                offset: vk::Offset2D::default(),
-                extent: vk::Extent2D {
-                    width: size,
-                    height: size,
-                },
-            }];
-            let vertex_input = vk::PipelineVertexInputStateCreateInfo::default();
-            let assembly = vk::PipelineInputAssemblyStateCreateInfo::default()
-                .topology(vk::PrimitiveTopology::TRIANGLE_LIST);
-            let viewport = vk::PipelineViewportStateCreateInfo::default()
-                .viewports(&viewports)
-                .scissors(&scissors);
-            let raster = vk::PipelineRasterizationStateCreateInfo::default()
-                .polygon_mode(vk::PolygonMode::FILL)
-                .cull_mode(vk::CullModeFlags::NONE)
-                .line_width(1.0);
-            let multisample = vk::PipelineMultisampleStateCreateInfo::default()
-                .rasterization_samples(vk::SampleCountFlags::TYPE_1);
-            let blend_attachment = [vk::PipelineColorBlendAttachmentState::default()
-                .color_write_mask(vk::ColorComponentFlags::R)];
-            let blend =
-                vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend_attachment);
-            let create = [vk::GraphicsPipelineCreateInfo::default()
-                .stages(&stages)
-                .vertex_input_state(&vertex_input)
-                .input_assembly_state(&assembly)
-                .viewport_state(&viewport)
-                .rasterization_state(&raster)
-                .multisample_state(&multisample)
-                .color_blend_state(&blend)
-                .layout(layout)
-                .render_pass(render_pass)
-                .subpass(0)];
-            let pipeline = device
-                .create_graphics_pipelines(vk::PipelineCache::null(), &create, None)
-                .map_err(|(_, e)| e)
-                .unwrap()[0];
-            device.destroy_shader_module(vert, None);
-            device.destroy_shader_module(frag, None);
+            let pipeline = common::fullscreen_pipeline(
+                &device,
+                &vert,
+                &frag,
+                &spec,
+                layout,
+                render_pass,
+                size,
+                vk::ColorComponentFlags::R,
+            );
 
             let n = structures.len() as u32;
             let sizes = [vk::DescriptorPoolSize {
