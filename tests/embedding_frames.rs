@@ -19,6 +19,8 @@
 mod host;
 
 mod common;
+#[path = "common/graphics.rs"]
+mod graphics;
 
 use ash::vk;
 use glam::Vec3;
@@ -625,7 +627,7 @@ impl GraphicsPass {
             let spec = vk::SpecializationInfo::default()
                 .map_entries(&entries)
                 .data(&data);
-            let pipeline = common::fullscreen_pipeline(
+            let pipeline = graphics::fullscreen_pipeline(
                 &device,
                 &vert,
                 &frag,

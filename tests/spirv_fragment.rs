@@ -6,6 +6,8 @@
 //! query (`shader_check::records_agree`).
 
 mod common;
+#[path = "common/graphics.rs"]
+mod graphics;
 
 use std::path::Path;
 
@@ -292,7 +294,7 @@ fn draw(
         let spec = vk::SpecializationInfo::default()
             .map_entries(&entries)
             .data(&data);
-        let pipeline = common::fullscreen_pipeline(
+        let pipeline = graphics::fullscreen_pipeline(
             &d,
             &vert,
             frag,

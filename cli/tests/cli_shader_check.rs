@@ -1038,3 +1038,61 @@ fn slang_and_hlsl_shaders_run_through_the_pass() {
         let _ = std::fs::remove_dir_all(&st.dir);
     }
 }
+
+/// `CLOSEST_HIT` as a renderer's image shader: 8 x 8 pixels a workgroup, the pixel from
+/// `gl_GlobalInvocationID.xy`, the image's width the push block's second word.
+fn closest_hit_2d() -> String {
+    let s = CLOSEST_HIT
+        .replace(
+            "layout(local_size_x = 64) in;",
+            "layout(local_size_x = 8, local_size_y = 8) in;",
+        )
+        .replace(
+            "layout(push_constant) uniform Count { uint rayCount; };",
+            "layout(push_constant) uniform Count { uint rayCount; uint width; };",
+        )
+        .replace(
+            "    uint i = gl_GlobalInvocationID.x;\n",
+            "    uvec2 px = gl_GlobalInvocationID.xy;\n    if (px.x >= width) {\n        return;\n    }\n    uint i = px.y * width + px.x;\n",
+        );
+    assert!(
+        s.contains("local_size_y = 8") && s.contains("uint width;") && s.contains("px.y * width")
+    );
+    s
+}
+
+#[test]
+fn a_two_dimensional_shader_runs_over_the_image_s_rows() {
+    let rays = grid_rays(); // 16 x 16, row by row
+    for via in ["include", "pass"] {
+        let Some((v, records)) = check_run(
+            &format!("grid-{via}"),
+            &closest_hit_2d(),
+            &scene_toml(""),
+            &rays,
+            &["--width", "16", "--via", via],
+        ) else {
+            return;
+        };
+        assert_eq!(v["mismatching_rays"], 0, "{via}: {v}");
+        check_closest_hits(&rays, &records);
+    }
+    // Without the width, and a width for a one-dimensional shader: refused before any GPU
+    // work, nothing written.
+    refused_with(
+        "grid-no-width",
+        &closest_hit_2d(),
+        &scene_toml(""),
+        None,
+        &["--through", "vkrt"],
+        &["two-dimensional", "--width"],
+    );
+    refused_with(
+        "grid-1d-width",
+        CLOSEST_HIT,
+        &scene_toml(""),
+        None,
+        &["--through", "vkrt", "--width", "16"],
+        &["--width is for a shader with a two-dimensional workgroup"],
+    );
+}

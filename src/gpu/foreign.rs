@@ -226,6 +226,28 @@ impl ForeignKernel {
     /// `maxComputeWorkGroupCount[0]`, each piece starting at its base so that
     /// `gl_WorkGroupID.x` runs on) with `push` (its range's bytes, or fewer) bound.
     pub fn record_dispatch(&self, rec: &mut Recorder, groups: u64, push: &[u8]) -> Result<()> {
+        self.record_dispatch_grid(rec, [groups, 1], push)
+    }
+
+    /// [`Self::record_dispatch`] over a two-dimensional grid of workgroups: `groups[0]` in
+    /// x (split as there), `groups[1]` in y (at most the device's `maxComputeWorkGroupCount`
+    /// in y).
+    pub fn record_dispatch_grid(
+        &self,
+        rec: &mut Recorder,
+        groups: [u64; 2],
+        push: &[u8],
+    ) -> Result<()> {
+        let [groups, rows] = groups;
+        if rows > u64::from(self.ctx.info().max_workgroup_count[1]) {
+            return Err(GpuError::Usage {
+                call: "ForeignKernel::record_dispatch_grid",
+                reason: format!(
+                    "{rows} workgroups in y: more than the device's {}",
+                    self.ctx.info().max_workgroup_count[1]
+                ),
+            });
+        }
         if push.len() > self.push_bytes as usize {
             return Err(GpuError::Usage {
                 call: "ForeignKernel::record_dispatch",
@@ -248,7 +270,7 @@ impl ForeignKernel {
         // SAFETY: the command buffer is recording; the pipeline, layout and set belong to
         // this kernel and live until its work has executed (the caller's contract); `push`
         // fits the range (checked); the bases and counts stay within u32 and the device's
-        // workgroup count (checked), and the pipeline was made with DISPATCH_BASE.
+        // workgroup counts (checked), and the pipeline was made with DISPATCH_BASE.
         unsafe {
             device.cmd_bind_pipeline(cmd, vk::PipelineBindPoint::COMPUTE, self.pipeline);
             if self.set != vk::DescriptorSet::null() {
@@ -267,7 +289,7 @@ impl ForeignKernel {
             let mut base = 0u64;
             while base < groups {
                 let count = (groups - base).min(max);
-                device.cmd_dispatch_base(cmd, base as u32, 0, 0, count as u32, 1, 1);
+                device.cmd_dispatch_base(cmd, base as u32, 0, 0, count as u32, rows as u32, 1);
                 base += count;
             }
         }

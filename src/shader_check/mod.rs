@@ -164,10 +164,21 @@ pub fn check_interface(iface: &ShaderInterface, native: bool) -> Result<(), Stri
     }
     match iface.local_size {
         Some([x, 1, 1]) if x >= 1 => {}
+        // Two-dimensional: an image's pixels, the push block's second word its width.
+        Some([x, y, 1]) if x >= 1 && y > 1 => {
+            if iface.push_constants.is_none_or(|(bytes, _)| bytes < 8) {
+                return Err(format!(
+                    "its workgroup is two-dimensional ({x} x {y}): its push-constant block \
+                     must hold the ray count and then the image's width, \
+                     layout(push_constant) uniform Count {{ uint rayCount; uint width; }};"
+                ));
+            }
+        }
         Some(s) => {
             return Err(format!(
                 "its workgroup size is {s:?}: give a one-dimensional one, \
-                 layout(local_size_x = N) in; (one invocation per ray)"
+                 layout(local_size_x = N) in; (one invocation per ray), or a two-dimensional \
+                 one over an image (local_size_x and local_size_y)"
             ))
         }
         None => return Err("it declares no workgroup size".into()),
@@ -347,14 +358,34 @@ fn dispatch(
         spec,
     )?;
     let mut push = vec![0u8; push_bytes as usize];
-    let local = iface.local_size.map_or(1, |s| s[0]).max(1);
-    let groups = (n as u64).div_ceil(u64::from(local));
+    let [lx, ly, _] = iface
+        .local_size
+        .unwrap_or([1, 1, 1])
+        .map(|v| u64::from(v.max(1)));
+    // One-dimensional: a workgroup per `lx` rays. Two-dimensional: the rays are an image's
+    // rows of `width`, `lx` by `ly` pixels a workgroup, and the width is the second word.
+    let groups = if ly > 1 {
+        let width = iface
+            .grid_width
+            .filter(|w| *w > 0)
+            .ok_or_else(|| GpuError::Usage {
+                call: "shader_check::run",
+                reason: "a two-dimensional shader needs the image's width (--width)".into(),
+            })?;
+        push[4..8].copy_from_slice(&width.to_le_bytes());
+        let rows = (n as u64).div_ceil(u64::from(width));
+        [u64::from(width).div_ceil(lx), rows.div_ceil(ly)]
+    } else {
+        [(n as u64).div_ceil(lx), 1]
+    };
     // A driver may compile a pipeline's code at its first dispatch (lavapipe does): one
     // group over no rays first, untimed, so that the timed dispatch is the shader's work.
     rec.scope("compile", |rec| kernel.record_dispatch(rec, 1, &push))?;
     rec.compute_to_compute();
     push[..4].copy_from_slice(&(n as u32).to_le_bytes());
-    rec.scope("shader", |rec| kernel.record_dispatch(rec, groups, &push))?;
+    rec.scope("shader", |rec| {
+        kernel.record_dispatch_grid(rec, groups, &push)
+    })?;
     rec.compute_to_transfer();
     let back = rec.read_back(&results)?;
     rec.transfer_to_host();

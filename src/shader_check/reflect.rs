@@ -116,6 +116,10 @@ pub struct ShaderInterface {
     pub spec_ids: Vec<u32>,
     /// Whether it declares the `RayQueryKHR` capability (the driver's ray query).
     pub uses_ray_query: bool,
+    /// For a two-dimensional workgroup: the width of the image the rays cover (the
+    /// caller's, not the module's: `vkrt shader-check --width`), which the shader reads as
+    /// its push block's second word.
+    pub grid_width: Option<u32>,
 }
 
 /// Why the words are not a SPIR-V module this reader can follow.

@@ -54,6 +54,11 @@ pub struct ShaderCheckArgs {
     /// Which ray queries run the shader.
     #[arg(long, value_enum, default_value_t = ThroughArg::Both)]
     through: ThroughArg,
+    /// The width of the image the rays cover, in row order, for a shader with a
+    /// two-dimensional workgroup (local_size_x by local_size_y pixels): it reads the width as
+    /// its push block's second word.
+    #[arg(long)]
+    width: Option<u32>,
     /// How a GLSL shader reaches vkrt's walk (a `.spv` always goes through the pass).
     #[arg(long, value_enum, default_value_t = ViaArg::Include)]
     via: ViaArg,
@@ -88,7 +93,27 @@ pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
     };
     // Everything that can be refused before any GPU work: the shader (compiled for each path
     // and its interface checked), the rays, the scene.
-    let shader = compile(&args, through)?;
+    let mut shader = compile(&args, through)?;
+    for (_, iface) in shader.vkrt.iter_mut().chain(shader.native.iter_mut()) {
+        let two_d = iface.local_size.is_some_and(|s| s[1] > 1);
+        match (two_d, args.width) {
+            (true, None) | (true, Some(0)) => {
+                return Err(format!(
+                    "{}: its workgroup is two-dimensional: give the image's width, --width W",
+                    args.shader.display()
+                )
+                .into())
+            }
+            (false, Some(_)) => {
+                return Err(format!(
+                    "{}: --width is for a shader with a two-dimensional workgroup",
+                    args.shader.display()
+                )
+                .into())
+            }
+            _ => iface.grid_width = args.width,
+        }
+    }
     if shader.inserted_include {
         log::info!(
             "{} does not include \"{}\": inserted after its #extension lines",
