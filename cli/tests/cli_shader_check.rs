@@ -356,14 +356,21 @@ fn every_bad_input_is_a_clear_error_without_output() {
         None,
         &["set 0 binding 2 is missing"],
     );
+    // A two-dimensional workgroup whose push block holds no width, and a three-dimensional
+    // one.
     let square = CLOSEST_HIT.replace("local_size_x = 64", "local_size_x = 8, local_size_y = 8");
     refused(
         "2d",
         &square,
         &scene,
         None,
-        &["[8, 8, 1]", "one-dimensional"],
+        &["two-dimensional (8 x 8)", "uint width;"],
     );
+    let cube = CLOSEST_HIT.replace(
+        "local_size_x = 64",
+        "local_size_x = 4, local_size_y = 4, local_size_z = 4",
+    );
+    refused("3d", &cube, &scene, None, &["[4, 4, 4]", "one-dimensional"]);
     let no_push = CLOSEST_HIT
         .replace(
             "layout(push_constant) uniform Count { uint rayCount; };",
