@@ -580,6 +580,19 @@ fn wgsl_through_naga_and_the_pass_gives_the_recorded_answers() {
     let shader = dir.join("committed_indices.wgsl");
     let native = vkrt::shader_check::native_shader(&shader, words).unwrap();
     let (lowered, iface) = lower_shader(&shader, &native.0).unwrap();
+    // The lowered module is valid SPIR-V for Vulkan 1.2 (spirv-val, Debian's spirv-tools).
+    let spv = dir.join("lowered.spv");
+    std::fs::write(&spv, bytemuck::cast_slice(&lowered)).unwrap();
+    let val = std::process::Command::new("spirv-val")
+        .args(["--target-env", "vulkan1.2"])
+        .arg(&spv)
+        .output()
+        .expect("spirv-val (./x setup installs spirv-tools)");
+    assert!(
+        val.status.success(),
+        "spirv-val: {}",
+        String::from_utf8_lossy(&val.stderr)
+    );
     let got = run_vkrt(
         &ctx,
         &levels,

@@ -1042,6 +1042,33 @@ fn slang_and_hlsl_shaders_run_through_the_pass() {
         assert_eq!(v["mismatching_rays"], 0, "{name}: {v}");
         assert!(v["vkrt_ms"].as_f64().is_some(), "{name}: {v}");
         check_closest_hits(&rays, &read_records(&out_path));
+        // The module Slang's compiler wrote, lowered by `vkrt lower`, is valid SPIR-V.
+        let (spv, lowered) = (st.dir.join("native.spv"), st.dir.join("lowered.spv"));
+        let slangc = std::env::var("VKRT_SLANGC").unwrap_or_else(|_| "slangc".into());
+        let compiled = std::process::Command::new(slangc)
+            .arg(&shader)
+            .args([
+                "-target", "spirv", "-entry", "main", "-stage", "compute", "-o",
+            ])
+            .arg(&spv)
+            .output()
+            .unwrap();
+        assert!(
+            compiled.status.success(),
+            "{}",
+            String::from_utf8_lossy(&compiled.stderr)
+        );
+        vkrt_ok(&["lower", s(&spv), "-o", s(&lowered)]).unwrap();
+        let val = std::process::Command::new("spirv-val")
+            .args(["--target-env", "vulkan1.2"])
+            .arg(&lowered)
+            .output()
+            .expect("spirv-val (./x setup installs spirv-tools)");
+        assert!(
+            val.status.success(),
+            "{name}: {}",
+            String::from_utf8_lossy(&val.stderr)
+        );
         let _ = std::fs::remove_dir_all(&st.dir);
     }
 }
