@@ -1084,6 +1084,20 @@ impl TopLevel {
         self.parts.handle.address()
     }
 
+    /// The sixteen words a build writes at [`TopLevel::handle_address`]: the tree's seven
+    /// arrays, then the addresses of its records, steps and originals. They depend on where
+    /// the top level lies only, so a copy of them elsewhere (where a caller's shaders look
+    /// for a structure whose place in memory must not move) is walked as the top level.
+    pub fn handle_words(&self) -> Result<[u64; 16]> {
+        let p = &self.parts;
+        let mut words = [0u64; 16];
+        words[..7].copy_from_slice(&self.tree.handle_words()?);
+        words[7] = p.records.address();
+        words[8] = p.steps.address();
+        words[9] = p.originals.address();
+        Ok(words)
+    }
+
     /// Records the copy of the build's report: invalid instances (never hit) in
     /// [`BuildStatus::invalid_primitives`]. Order the build before with
     /// [`Recorder::compute_to_transfer`].

@@ -1,0 +1,581 @@
+//! The application's command buffers: what vkrt's builds in them use (released when the
+//! command buffer is reset or freed: it cannot be pending then), the compute state the
+//! application bound (put back after every build), and barriers whose
+//! acceleration-structure stages and accesses become the compute and transfer work vkrt's
+//! builds are.
+
+use std::collections::HashMap;
+
+use ash::vk;
+use vkrt::gpu::RecordedWork;
+
+use crate::device::{served, Served};
+use crate::{guard, log, pfn};
+
+/// The command buffers of a device.
+#[derive(Default)]
+pub struct CommandBuffers {
+    buffers: HashMap<vk::CommandBuffer, CommandBufferState>,
+}
+
+#[derive(Default)]
+struct CommandBufferState {
+    pool: vk::CommandPool,
+    /// vkrt's recordings in it.
+    work: Vec<RecordedWork>,
+    compute: ComputeState,
+}
+
+/// What the application bound at the compute bind point.
+#[derive(Default)]
+struct ComputeState {
+    pipeline: Option<vk::Pipeline>,
+    /// Its descriptor-set binds, in order (layout, first set, sets, dynamic offsets).
+    sets: Vec<(vk::PipelineLayout, u32, Vec<vk::DescriptorSet>, Vec<u32>)>,
+    /// Its push constants, in order (layout, stages, offset, bytes).
+    push: Vec<(vk::PipelineLayout, vk::ShaderStageFlags, u32, Vec<u8>)>,
+}
+
+impl CommandBuffers {
+    /// Completes every recording (the device is idle).
+    pub fn clear(&mut self) {
+        for (_, s) in self.buffers.drain() {
+            complete(s.work);
+        }
+    }
+
+    fn reset(&mut self, cb: vk::CommandBuffer) {
+        if let Some(s) = self.buffers.get_mut(&cb) {
+            complete(std::mem::take(&mut s.work));
+            s.compute = ComputeState::default();
+        }
+    }
+}
+
+/// Releases what finished recordings used.
+fn complete(work: Vec<RecordedWork>) {
+    for w in work {
+        // SAFETY: the command buffer is being reset, freed or begun again, or its device
+        // destroyed: none of which the application may do while it is pending.
+        if let Err(e) = unsafe { w.complete() } {
+            log(&format!("a build recorded earlier failed: {e}"));
+        }
+    }
+}
+
+/// Keeps a build's recording until its command buffer is reset or freed.
+pub fn keep(s: &Served, cb: vk::CommandBuffer, work: RecordedWork) {
+    if let Ok(mut c) = s.commands.lock() {
+        c.buffers.entry(cb).or_default().work.push(work);
+    }
+}
+
+/// Binds the application's compute pipeline, descriptor sets and push constants again
+/// after vkrt's dispatches.
+pub fn restore(s: &Served, cb: vk::CommandBuffer) {
+    let Ok(c) = s.commands.lock() else { return };
+    let Some(state) = c.buffers.get(&cb) else {
+        return;
+    };
+    let st = &state.compute;
+    let d = &s.fns;
+    // SAFETY: the application's own binds, replayed in its command buffer in their order;
+    // every handle was valid when it bound it, and the application keeps what it bound
+    // alive while recording.
+    unsafe {
+        if let Some(p) = st.pipeline {
+            d.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, p);
+        }
+        for (layout, first, sets, offsets) in &st.sets {
+            d.cmd_bind_descriptor_sets(
+                cb,
+                vk::PipelineBindPoint::COMPUTE,
+                *layout,
+                *first,
+                sets,
+                offsets,
+            );
+        }
+        for (layout, stages, offset, bytes) in &st.push {
+            d.cmd_push_constants(cb, *layout, *stages, *offset, bytes);
+        }
+    }
+}
+
+pub fn function(name: &[u8]) -> vk::PFN_vkVoidFunction {
+    match name {
+        b"vkAllocateCommandBuffers" => {
+            pfn!(allocate_command_buffers, vk::PFN_vkAllocateCommandBuffers)
+        }
+        b"vkFreeCommandBuffers" => pfn!(free_command_buffers, vk::PFN_vkFreeCommandBuffers),
+        b"vkBeginCommandBuffer" => pfn!(begin_command_buffer, vk::PFN_vkBeginCommandBuffer),
+        b"vkResetCommandBuffer" => pfn!(reset_command_buffer, vk::PFN_vkResetCommandBuffer),
+        b"vkResetCommandPool" => pfn!(reset_command_pool, vk::PFN_vkResetCommandPool),
+        b"vkDestroyCommandPool" => pfn!(destroy_command_pool, vk::PFN_vkDestroyCommandPool),
+        b"vkCmdBindPipeline" => pfn!(cmd_bind_pipeline, vk::PFN_vkCmdBindPipeline),
+        b"vkCmdBindDescriptorSets" => {
+            pfn!(cmd_bind_descriptor_sets, vk::PFN_vkCmdBindDescriptorSets)
+        }
+        b"vkCmdPushConstants" => pfn!(cmd_push_constants, vk::PFN_vkCmdPushConstants),
+        b"vkCmdPipelineBarrier" => pfn!(cmd_pipeline_barrier, vk::PFN_vkCmdPipelineBarrier),
+        b"vkCmdPipelineBarrier2" | b"vkCmdPipelineBarrier2KHR" => {
+            pfn!(cmd_pipeline_barrier2, vk::PFN_vkCmdPipelineBarrier2)
+        }
+        _ => None,
+    }
+}
+
+unsafe extern "system" fn allocate_command_buffers(
+    device: vk::Device,
+    info: *const vk::CommandBufferAllocateInfo<'_>,
+    out: *mut vk::CommandBuffer,
+) -> vk::Result {
+    guard(vk::Result::ERROR_OUT_OF_HOST_MEMORY, || {
+        let Some(s) = served(device) else {
+            return vk::Result::ERROR_DEVICE_LOST;
+        };
+        // SAFETY: the application's call, passed on.
+        let r = unsafe { (s.fns.fp_v1_0().allocate_command_buffers)(device, info, out) };
+        if r == vk::Result::SUCCESS {
+            // SAFETY: the application's valid info; `out` holds its count.
+            let (info, made) = unsafe {
+                let info = &*info;
+                (
+                    info,
+                    std::slice::from_raw_parts(out, info.command_buffer_count as usize),
+                )
+            };
+            if let Ok(mut c) = s.commands.lock() {
+                for &cb in made {
+                    c.buffers.insert(
+                        cb,
+                        CommandBufferState {
+                            pool: info.command_pool,
+                            ..Default::default()
+                        },
+                    );
+                }
+            }
+        }
+        r
+    })
+}
+
+unsafe extern "system" fn free_command_buffers(
+    device: vk::Device,
+    pool: vk::CommandPool,
+    count: u32,
+    buffers: *const vk::CommandBuffer,
+) {
+    guard((), || {
+        let Some(s) = served(device) else { return };
+        if let Ok(mut c) = s.commands.lock() {
+            // SAFETY: the application's array of `count`.
+            for cb in unsafe { std::slice::from_raw_parts(buffers, count as usize) } {
+                if let Some(state) = c.buffers.remove(cb) {
+                    complete(state.work);
+                }
+            }
+        }
+        // SAFETY: the application's call, passed on.
+        unsafe { (s.fns.fp_v1_0().free_command_buffers)(device, pool, count, buffers) };
+    })
+}
+
+unsafe extern "system" fn begin_command_buffer(
+    cb: vk::CommandBuffer,
+    info: *const vk::CommandBufferBeginInfo<'_>,
+) -> vk::Result {
+    guard(vk::Result::ERROR_OUT_OF_HOST_MEMORY, || {
+        let Some(s) = served(cb) else {
+            return vk::Result::ERROR_DEVICE_LOST;
+        };
+        // Beginning resets it implicitly.
+        if let Ok(mut c) = s.commands.lock() {
+            c.reset(cb);
+        }
+        // SAFETY: the application's call, passed on.
+        unsafe { (s.fns.fp_v1_0().begin_command_buffer)(cb, info) }
+    })
+}
+
+unsafe extern "system" fn reset_command_buffer(
+    cb: vk::CommandBuffer,
+    flags: vk::CommandBufferResetFlags,
+) -> vk::Result {
+    guard(vk::Result::ERROR_OUT_OF_HOST_MEMORY, || {
+        let Some(s) = served(cb) else {
+            return vk::Result::ERROR_DEVICE_LOST;
+        };
+        if let Ok(mut c) = s.commands.lock() {
+            c.reset(cb);
+        }
+        // SAFETY: the application's call, passed on.
+        unsafe { (s.fns.fp_v1_0().reset_command_buffer)(cb, flags) }
+    })
+}
+
+unsafe extern "system" fn reset_command_pool(
+    device: vk::Device,
+    pool: vk::CommandPool,
+    flags: vk::CommandPoolResetFlags,
+) -> vk::Result {
+    guard(vk::Result::ERROR_OUT_OF_HOST_MEMORY, || {
+        let Some(s) = served(device) else {
+            return vk::Result::ERROR_DEVICE_LOST;
+        };
+        if let Ok(mut c) = s.commands.lock() {
+            let of_pool: Vec<_> = c
+                .buffers
+                .iter()
+                .filter(|(_, st)| st.pool == pool)
+                .map(|(&cb, _)| cb)
+                .collect();
+            for cb in of_pool {
+                c.reset(cb);
+            }
+        }
+        // SAFETY: the application's call, passed on.
+        unsafe { (s.fns.fp_v1_0().reset_command_pool)(device, pool, flags) }
+    })
+}
+
+unsafe extern "system" fn destroy_command_pool(
+    device: vk::Device,
+    pool: vk::CommandPool,
+    allocator: *const vk::AllocationCallbacks<'_>,
+) {
+    guard((), || {
+        let Some(s) = served(device) else { return };
+        if let Ok(mut c) = s.commands.lock() {
+            let of_pool: Vec<_> = c
+                .buffers
+                .iter()
+                .filter(|(_, st)| st.pool == pool)
+                .map(|(&cb, _)| cb)
+                .collect();
+            for cb in of_pool {
+                if let Some(st) = c.buffers.remove(&cb) {
+                    complete(st.work);
+                }
+            }
+        }
+        // SAFETY: the application's call, passed on.
+        unsafe { (s.fns.fp_v1_0().destroy_command_pool)(device, pool, allocator) };
+    })
+}
+
+unsafe extern "system" fn cmd_bind_pipeline(
+    cb: vk::CommandBuffer,
+    point: vk::PipelineBindPoint,
+    pipeline: vk::Pipeline,
+) {
+    guard((), || {
+        let Some(s) = served(cb) else { return };
+        if point == vk::PipelineBindPoint::COMPUTE {
+            if let Ok(mut c) = s.commands.lock() {
+                c.buffers.entry(cb).or_default().compute.pipeline = Some(pipeline);
+            }
+        }
+        // SAFETY: the application's call, passed on.
+        unsafe { (s.fns.fp_v1_0().cmd_bind_pipeline)(cb, point, pipeline) };
+    })
+}
+
+#[allow(clippy::too_many_arguments)]
+unsafe extern "system" fn cmd_bind_descriptor_sets(
+    cb: vk::CommandBuffer,
+    point: vk::PipelineBindPoint,
+    layout: vk::PipelineLayout,
+    first: u32,
+    count: u32,
+    sets: *const vk::DescriptorSet,
+    offsets_count: u32,
+    offsets: *const u32,
+) {
+    guard((), || {
+        let Some(s) = served(cb) else { return };
+        if point == vk::PipelineBindPoint::COMPUTE {
+            // SAFETY: the application's arrays of their counts.
+            let (sets_v, offsets_v) = unsafe {
+                (
+                    slice(sets, count).to_vec(),
+                    slice(offsets, offsets_count).to_vec(),
+                )
+            };
+            if let Ok(mut c) = s.commands.lock() {
+                let binds = &mut c.buffers.entry(cb).or_default().compute.sets;
+                // A bind that covers an earlier one's sets replaces it.
+                let end = first + count;
+                binds.retain(|(_, f, s, _)| !(first <= *f && *f + s.len() as u32 <= end));
+                binds.push((layout, first, sets_v, offsets_v));
+            }
+        }
+        // SAFETY: the application's call, passed on.
+        unsafe {
+            (s.fns.fp_v1_0().cmd_bind_descriptor_sets)(
+                cb,
+                point,
+                layout,
+                first,
+                count,
+                sets,
+                offsets_count,
+                offsets,
+            )
+        };
+    })
+}
+
+/// # Safety
+/// `p` is null with `n` 0, or holds `n` elements.
+unsafe fn slice<'a, T>(p: *const T, n: u32) -> &'a [T] {
+    match n {
+        0 => &[],
+        // SAFETY: the caller's contract.
+        n => unsafe { std::slice::from_raw_parts(p, n as usize) },
+    }
+}
+
+unsafe extern "system" fn cmd_push_constants(
+    cb: vk::CommandBuffer,
+    layout: vk::PipelineLayout,
+    stages: vk::ShaderStageFlags,
+    offset: u32,
+    size: u32,
+    values: *const std::ffi::c_void,
+) {
+    guard((), || {
+        let Some(s) = served(cb) else { return };
+        if stages.contains(vk::ShaderStageFlags::COMPUTE) {
+            // SAFETY: the application's `size` bytes.
+            let bytes = unsafe { slice(values.cast::<u8>(), size) }.to_vec();
+            if let Ok(mut c) = s.commands.lock() {
+                let push = &mut c.buffers.entry(cb).or_default().compute.push;
+                push.retain(|(_, st, o, b)| {
+                    !(*st == stages && *o == offset && b.len() == bytes.len())
+                });
+                push.push((layout, stages, offset, bytes));
+            }
+        }
+        // SAFETY: the application's call, passed on.
+        unsafe { (s.fns.fp_v1_0().cmd_push_constants)(cb, layout, stages, offset, size, values) };
+    })
+}
+
+// Acceleration-structure stages and accesses, as vkrt's builds and lowered shaders are.
+const AS_BUILD: u64 = vk::PipelineStageFlags2::ACCELERATION_STRUCTURE_BUILD_KHR.as_raw();
+const AS_COPY: u64 = vk::PipelineStageFlags2::ACCELERATION_STRUCTURE_COPY_KHR.as_raw();
+const AS_READ: u64 = vk::AccessFlags2::ACCELERATION_STRUCTURE_READ_KHR.as_raw();
+const AS_WRITE: u64 = vk::AccessFlags2::ACCELERATION_STRUCTURE_WRITE_KHR.as_raw();
+/// A build: compute kernels, fills and copies, indirect dispatches.
+const BUILD_STAGES: u64 = vk::PipelineStageFlags2::COMPUTE_SHADER.as_raw()
+    | vk::PipelineStageFlags2::TRANSFER.as_raw()
+    | vk::PipelineStageFlags2::DRAW_INDIRECT.as_raw();
+
+/// Stages that run shaders (a structure read there is a texel and device-address read).
+const SHADER_STAGES: u64 = vk::PipelineStageFlags2::VERTEX_SHADER.as_raw()
+    | vk::PipelineStageFlags2::TESSELLATION_CONTROL_SHADER.as_raw()
+    | vk::PipelineStageFlags2::TESSELLATION_EVALUATION_SHADER.as_raw()
+    | vk::PipelineStageFlags2::GEOMETRY_SHADER.as_raw()
+    | vk::PipelineStageFlags2::FRAGMENT_SHADER.as_raw()
+    | vk::PipelineStageFlags2::COMPUTE_SHADER.as_raw()
+    | vk::PipelineStageFlags2::PRE_RASTERIZATION_SHADERS.as_raw()
+    | vk::PipelineStageFlags2::ALL_GRAPHICS.as_raw()
+    | vk::PipelineStageFlags2::ALL_COMMANDS.as_raw()
+    | vk::PipelineStageFlags2::TASK_SHADER_EXT.as_raw()
+    | vk::PipelineStageFlags2::MESH_SHADER_EXT.as_raw();
+const TRANSFER_STAGES: u64 = vk::PipelineStageFlags2::TRANSFER.as_raw()
+    | vk::PipelineStageFlags2::ALL_TRANSFER.as_raw()
+    | vk::PipelineStageFlags2::COPY.as_raw()
+    | vk::PipelineStageFlags2::CLEAR.as_raw()
+    | vk::PipelineStageFlags2::ALL_COMMANDS.as_raw();
+const INDIRECT_STAGES: u64 = vk::PipelineStageFlags2::DRAW_INDIRECT.as_raw()
+    | vk::PipelineStageFlags2::ALL_COMMANDS.as_raw();
+
+fn stages(s: u64) -> u64 {
+    if s & (AS_BUILD | AS_COPY) == 0 {
+        return s;
+    }
+    (s & !(AS_BUILD | AS_COPY)) | BUILD_STAGES
+}
+
+/// An access mask for translated `stages` (each access one of those stages supports).
+fn access(a: u64, stages: u64) -> u64 {
+    if a & (AS_READ | AS_WRITE) == 0 {
+        return a;
+    }
+    let mut out = a & !(AS_READ | AS_WRITE);
+    let (shader, transfer, indirect) = (
+        stages & SHADER_STAGES != 0,
+        stages & TRANSFER_STAGES != 0,
+        stages & INDIRECT_STAGES != 0,
+    );
+    if a & AS_READ != 0 {
+        if shader {
+            out |= vk::AccessFlags2::SHADER_READ.as_raw();
+        }
+        if transfer {
+            out |= vk::AccessFlags2::TRANSFER_READ.as_raw();
+        }
+        if indirect {
+            out |= vk::AccessFlags2::INDIRECT_COMMAND_READ.as_raw();
+        }
+    }
+    if a & AS_WRITE != 0 {
+        if shader {
+            out |= vk::AccessFlags2::SHADER_WRITE.as_raw();
+        }
+        if transfer {
+            out |= vk::AccessFlags2::TRANSFER_WRITE.as_raw();
+        }
+    }
+    out
+}
+
+fn stages1(s: vk::PipelineStageFlags) -> vk::PipelineStageFlags {
+    vk::PipelineStageFlags::from_raw(stages(u64::from(s.as_raw())) as u32)
+}
+
+fn access1(a: vk::AccessFlags, s: vk::PipelineStageFlags) -> vk::AccessFlags {
+    vk::AccessFlags::from_raw(access(u64::from(a.as_raw()), u64::from(s.as_raw())) as u32)
+}
+
+#[allow(clippy::too_many_arguments)]
+unsafe extern "system" fn cmd_pipeline_barrier(
+    cb: vk::CommandBuffer,
+    src: vk::PipelineStageFlags,
+    dst: vk::PipelineStageFlags,
+    dependency: vk::DependencyFlags,
+    memory_count: u32,
+    memory: *const vk::MemoryBarrier<'_>,
+    buffer_count: u32,
+    buffers: *const vk::BufferMemoryBarrier<'_>,
+    image_count: u32,
+    images: *const vk::ImageMemoryBarrier<'_>,
+) {
+    guard((), || {
+        let Some(s) = served(cb) else { return };
+        let (src2, dst2) = (stages1(src), stages1(dst));
+        // SAFETY: the application's arrays of their counts.
+        let (memory_v, buffers_v, images_v) = unsafe {
+            (
+                slice(memory, memory_count),
+                slice(buffers, buffer_count),
+                slice(images, image_count),
+            )
+        };
+        let memory_t: Vec<_> = memory_v
+            .iter()
+            .map(|b| {
+                let mut b = *b;
+                b.src_access_mask = access1(b.src_access_mask, src2);
+                b.dst_access_mask = access1(b.dst_access_mask, dst2);
+                b
+            })
+            .collect();
+        let buffers_t: Vec<_> = buffers_v
+            .iter()
+            .map(|b| {
+                let mut b = *b;
+                b.src_access_mask = access1(b.src_access_mask, src2);
+                b.dst_access_mask = access1(b.dst_access_mask, dst2);
+                b
+            })
+            .collect();
+        let images_t: Vec<_> = images_v
+            .iter()
+            .map(|b| {
+                let mut b = *b;
+                b.src_access_mask = access1(b.src_access_mask, src2);
+                b.dst_access_mask = access1(b.dst_access_mask, dst2);
+                b
+            })
+            .collect();
+        // SAFETY: the application's barrier, its acceleration-structure bits translated.
+        unsafe {
+            (s.fns.fp_v1_0().cmd_pipeline_barrier)(
+                cb,
+                src2,
+                dst2,
+                dependency,
+                memory_count,
+                memory_t.as_ptr(),
+                buffer_count,
+                buffers_t.as_ptr(),
+                image_count,
+                images_t.as_ptr(),
+            )
+        };
+    })
+}
+
+unsafe extern "system" fn cmd_pipeline_barrier2(
+    cb: vk::CommandBuffer,
+    info: *const vk::DependencyInfo<'_>,
+) {
+    guard((), || {
+        let Some(s) = served(cb) else { return };
+        // SAFETY: the application's valid struct.
+        let mut ours = unsafe { *info };
+        let t2 = |src: &mut vk::PipelineStageFlags2,
+                  src_a: &mut vk::AccessFlags2,
+                  dst: &mut vk::PipelineStageFlags2,
+                  dst_a: &mut vk::AccessFlags2| {
+            *src = vk::PipelineStageFlags2::from_raw(stages(src.as_raw()));
+            *dst = vk::PipelineStageFlags2::from_raw(stages(dst.as_raw()));
+            *src_a = vk::AccessFlags2::from_raw(access(src_a.as_raw(), src.as_raw()));
+            *dst_a = vk::AccessFlags2::from_raw(access(dst_a.as_raw(), dst.as_raw()));
+        };
+        // SAFETY: the application's arrays of their counts.
+        let mut memory: Vec<_> =
+            unsafe { slice(ours.p_memory_barriers, ours.memory_barrier_count) }.to_vec();
+        for b in &mut memory {
+            t2(
+                &mut b.src_stage_mask,
+                &mut b.src_access_mask,
+                &mut b.dst_stage_mask,
+                &mut b.dst_access_mask,
+            );
+        }
+        // SAFETY: as above.
+        let mut buffers: Vec<_> = unsafe {
+            slice(
+                ours.p_buffer_memory_barriers,
+                ours.buffer_memory_barrier_count,
+            )
+        }
+        .to_vec();
+        for b in &mut buffers {
+            t2(
+                &mut b.src_stage_mask,
+                &mut b.src_access_mask,
+                &mut b.dst_stage_mask,
+                &mut b.dst_access_mask,
+            );
+        }
+        // SAFETY: as above.
+        let mut images: Vec<_> = unsafe {
+            slice(
+                ours.p_image_memory_barriers,
+                ours.image_memory_barrier_count,
+            )
+        }
+        .to_vec();
+        for b in &mut images {
+            t2(
+                &mut b.src_stage_mask,
+                &mut b.src_access_mask,
+                &mut b.dst_stage_mask,
+                &mut b.dst_access_mask,
+            );
+        }
+        ours.p_memory_barriers = memory.as_ptr();
+        ours.p_buffer_memory_barriers = buffers.as_ptr();
+        ours.p_image_memory_barriers = images.as_ptr();
+        // SAFETY: the application's barrier, its acceleration-structure bits translated.
+        if let Some(f) = s.cmd_pipeline_barrier2 {
+            unsafe { f(cb, &ours) };
+        }
+    })
+}

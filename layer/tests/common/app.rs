@@ -1,0 +1,982 @@
+//! An application written against the Khronos API only (ash; no vkrt call): bottom levels
+//! of indexed (u32, u16) and non-indexed triangles and of procedural boxes, a top level of
+//! instances with transforms, masks and flags, built with vkCmdBuildAccelerationStructuresKHR
+//! and traced by a compute shader's ray queries — alpha-tested candidates confirmed, boxes'
+//! spheres generated — then updated (vertices and instances moved) and traced again.
+//!
+//! Its compute pipeline, descriptor set and push constants are bound *before* the builds
+//! and used by the dispatch after them without a rebind: a layer that records builds into
+//! the command buffer must put the application's compute state back.
+
+use std::ffi::{c_void, CStr};
+use std::sync::Mutex;
+
+use ash::vk;
+
+/// Rays per side of the grid.
+pub const WIDTH: u32 = 32;
+/// The rays' cull mask: instance 4 (mask 0x08) is never seen.
+pub const CULL_MASK: u32 = 0x07;
+pub const T_MAX: f32 = 100.0;
+
+/// One ray's committed intersection, as the shader writes it.
+#[derive(Clone, Copy, Debug, Default, PartialEq)]
+pub struct Hit {
+    pub t: f32,
+    /// 0 none, 1 triangle, 2 generated.
+    pub kind: u32,
+    pub custom: u32,
+    pub instance: u32,
+    pub geometry: u32,
+    pub primitive: u32,
+    pub u: f32,
+    pub v: f32,
+}
+
+/// Where the validation layer sits, if anywhere.
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub enum Validation {
+    Off,
+    /// Enabled by the application, below a layer enabled through the environment.
+    Below,
+    /// Enabled by the application before vkrt's layer, which it also enables: above it.
+    Above,
+}
+
+// ----- the scene, shared with the reference -----
+
+/// A 4×4 grid of quads in z = 0 over [-2, 2]², indexed with u32, opaque; `bump` moves
+/// every other vertex in z (the update).
+pub fn grid(bump: f32) -> (Vec<[f32; 3]>, Vec<u32>) {
+    let mut v = Vec::new();
+    for j in 0..5 {
+        for i in 0..5 {
+            let z = if (i + j) % 2 == 1 { bump } else { 0.0 };
+            v.push([-2.0 + i as f32, -2.0 + j as f32, z]);
+        }
+    }
+    let mut idx = Vec::new();
+    for j in 0..4u32 {
+        for i in 0..4u32 {
+            let a = j * 5 + i;
+            idx.extend([a, a + 1, a + 6, a, a + 6, a + 5]);
+        }
+    }
+    (v, idx)
+}
+
+/// Geometry 0 of the second level: a fan of four triangles, u16 indices, not opaque (the
+/// shader confirms even primitives).
+pub fn fan() -> (Vec<[f32; 3]>, Vec<u16>) {
+    let v = vec![
+        [0.0, 0.0, 0.0],
+        [1.0, 0.0, 0.1],
+        [0.0, 1.0, -0.1],
+        [-1.0, 0.0, 0.05],
+        [0.0, -1.0, 0.0],
+    ];
+    let idx = vec![0, 1, 2, 0, 2, 3, 0, 3, 4, 0, 4, 1];
+    (v, idx)
+}
+
+/// Geometry 1 of the second level: two triangles, no indices, opaque.
+pub fn soup() -> Vec<[f32; 3]> {
+    vec![
+        [0.6, 0.6, 0.3],
+        [1.4, 0.6, 0.3],
+        [1.0, 1.4, 0.3],
+        [-1.4, -0.6, 0.2],
+        [-0.6, -0.6, 0.2],
+        [-1.0, -1.4, 0.2],
+    ]
+}
+
+/// The third level's spheres (centre, radius), each in its box.
+pub fn spheres() -> Vec<[f32; 4]> {
+    vec![
+        [0.0, 0.0, 0.0, 0.6],
+        [0.9, 0.2, -0.3, 0.3],
+        [-0.7, -0.5, 0.2, 0.35],
+    ]
+}
+
+/// An instance: its level (0 grid, 1 fan + soup, 2 spheres), row-major object-to-world,
+/// custom index, mask, flags.
+#[derive(Clone, Copy, Debug)]
+pub struct Placement {
+    pub level: usize,
+    pub rows: [[f32; 4]; 3],
+    pub custom: u32,
+    pub mask: u32,
+    pub flags: u32,
+}
+
+fn place(
+    level: usize,
+    angle: f32,
+    scale: f32,
+    at: [f32; 3],
+    custom: u32,
+    mask: u32,
+    flags: u32,
+) -> Placement {
+    let (s, c) = angle.sin_cos();
+    Placement {
+        level,
+        rows: [
+            [c * scale, -s * scale, 0.0, at[0]],
+            [s * scale, c * scale, 0.0, at[1]],
+            [0.0, 0.0, scale, at[2]],
+        ],
+        custom,
+        mask,
+        flags,
+    }
+}
+
+/// The instances of frame `frame` (0: the build, 1: the update, which moves them).
+pub fn instances(frame: u32) -> Vec<Placement> {
+    let d = frame as f32 * 0.3;
+    let force_opaque = vk::GeometryInstanceFlagsKHR::FORCE_OPAQUE.as_raw();
+    let cull_disable = vk::GeometryInstanceFlagsKHR::TRIANGLE_FACING_CULL_DISABLE.as_raw();
+    vec![
+        place(0, 0.0, 1.0, [0.0, 0.0, 0.0], 10, 0x01, 0),
+        place(
+            0,
+            0.5 + d,
+            0.5,
+            [0.6 + d, -0.7, 1.0],
+            11,
+            0x02,
+            cull_disable,
+        ),
+        place(1, 0.2, 0.8, [-1.5 + d, 1.4, 2.0], 12, 0x01, 0),
+        place(2, 0.0, 1.0, [1.5, 1.5 - d, 2.5], 13, 0x04, 0),
+        place(0, 0.0, 2.0, [0.0, 0.0, 3.0], 14, 0x08, 0),
+        place(1, -0.4, 0.8, [1.4, -1.5, 2.0 + d], 15, 0x01, force_opaque),
+    ]
+}
+
+/// Ray `i`'s origin and direction.
+pub fn ray(i: u32, z: f32) -> ([f32; 3], [f32; 3]) {
+    let u = ((i % WIDTH) as f32 + 0.37) / WIDTH as f32;
+    let v = ((i / WIDTH) as f32 + 0.61) / WIDTH as f32;
+    ([-3.0 + 6.0 * u, -3.0 + 6.0 * v, z], [0.05, 0.03, -1.0])
+}
+
+pub const SHADER: &str = r#"
+#version 460
+#extension GL_EXT_ray_query : require
+layout(local_size_x = 64) in;
+layout(set = 0, binding = 0) uniform accelerationStructureEXT tlas;
+struct Hit { float t; uint kind; uint custom; uint instance; uint geometry; uint primitive; float u; float v; };
+layout(set = 0, binding = 1) buffer Out { Hit hits[]; };
+layout(set = 0, binding = 2) readonly buffer Spheres { vec4 spheres[]; };
+layout(push_constant) uniform Push { uint count; uint width; float z; uint cull; } pc;
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= pc.count) return;
+    float u = (float(i % pc.width) + 0.37) / float(pc.width);
+    float v = (float(i / pc.width) + 0.61) / float(pc.width);
+    vec3 origin = vec3(-3.0 + 6.0 * u, -3.0 + 6.0 * v, pc.z);
+    vec3 dir = vec3(0.05, 0.03, -1.0);
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, tlas, gl_RayFlagsNoneEXT, pc.cull, origin, 0.0, dir, 100.0);
+    while (rayQueryProceedEXT(q)) {
+        uint prim = rayQueryGetIntersectionPrimitiveIndexEXT(q, false);
+        if (rayQueryGetIntersectionTypeEXT(q, false) == gl_RayQueryCandidateIntersectionTriangleEXT) {
+            // An alpha test: even primitives are solid.
+            if (prim % 2u == 0u) rayQueryConfirmIntersectionEXT(q);
+        } else {
+            vec3 o = rayQueryGetIntersectionObjectRayOriginEXT(q, false);
+            vec3 d = rayQueryGetIntersectionObjectRayDirectionEXT(q, false);
+            vec4 s = spheres[prim];
+            vec3 oc = o - s.xyz;
+            float a = dot(d, d), b = dot(oc, d), c = dot(oc, oc) - s.w * s.w;
+            float disc = b * b - a * c;
+            if (disc >= 0.0) {
+                float t = (-b - sqrt(disc)) / a;
+                float best = rayQueryGetIntersectionTypeEXT(q, true) == gl_RayQueryCommittedIntersectionNoneEXT
+                    ? 100.0 : rayQueryGetIntersectionTEXT(q, true);
+                if (t >= rayQueryGetRayTMinEXT(q) && t <= best) rayQueryGenerateIntersectionEXT(q, t);
+            }
+        }
+    }
+    Hit h;
+    h.kind = rayQueryGetIntersectionTypeEXT(q, true);
+    h.t = 0.0; h.custom = 0u; h.instance = 0u; h.geometry = 0u; h.primitive = 0u; h.u = 0.0; h.v = 0.0;
+    if (h.kind != gl_RayQueryCommittedIntersectionNoneEXT) {
+        h.t = rayQueryGetIntersectionTEXT(q, true);
+        h.custom = rayQueryGetIntersectionInstanceCustomIndexEXT(q, true);
+        h.instance = rayQueryGetIntersectionInstanceIdEXT(q, true);
+        h.geometry = rayQueryGetIntersectionGeometryIndexEXT(q, true);
+        h.primitive = rayQueryGetIntersectionPrimitiveIndexEXT(q, true);
+        if (h.kind == gl_RayQueryCommittedIntersectionTriangleEXT) {
+            vec2 b = rayQueryGetIntersectionBarycentricsEXT(q, true);
+            h.u = b.x; h.v = b.y;
+        }
+    }
+    hits[i] = h;
+}
+"#;
+
+pub fn compile(source: &str) -> Vec<u32> {
+    let dir = std::env::temp_dir().join(format!("vkrt-layer-app-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let src = dir.join("app.comp");
+    let out = dir.join("app.spv");
+    std::fs::write(&src, source).unwrap();
+    let o = std::process::Command::new("glslc")
+        .args(["--target-env=vulkan1.2", "-O"])
+        .arg(&src)
+        .arg("-o")
+        .arg(&out)
+        .output()
+        .expect("glslc (Debian: glslc)");
+    assert!(
+        o.status.success(),
+        "glslc: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    let bytes = std::fs::read(&out).unwrap();
+    let _ = std::fs::remove_dir_all(&dir);
+    bytes
+        .chunks_exact(4)
+        .map(|c| u32::from_le_bytes(c.try_into().unwrap()))
+        .collect()
+}
+
+// ----- the Vulkan side -----
+
+static MESSAGES: Mutex<Vec<String>> = Mutex::new(Vec::new());
+
+unsafe extern "system" fn on_message(
+    severity: vk::DebugUtilsMessageSeverityFlagsEXT,
+    _types: vk::DebugUtilsMessageTypeFlagsEXT,
+    data: *const vk::DebugUtilsMessengerCallbackDataEXT<'_>,
+    _user: *mut c_void,
+) -> vk::Bool32 {
+    // SAFETY: the layer's valid message.
+    let data = unsafe { &*data };
+    // SAFETY: as above: null or a name.
+    let id = unsafe { data.p_message_id_name.as_ref() }
+        .map(|_| {
+            unsafe { CStr::from_ptr(data.p_message_id_name) }
+                .to_string_lossy()
+                .into_owned()
+        })
+        .unwrap_or_default();
+    // The loader's notes on the layers the environment enables are not validation.
+    if id == "Loader Message" {
+        return vk::FALSE;
+    }
+    // SAFETY: as above.
+    let text = unsafe { CStr::from_ptr(data.p_message) }
+        .to_string_lossy()
+        .into_owned();
+    MESSAGES
+        .lock()
+        .unwrap()
+        .push(format!("{severity:?}: {text}"));
+    vk::FALSE
+}
+
+/// The validation layer's messages so far.
+pub fn messages() -> Vec<String> {
+    MESSAGES.lock().unwrap().clone()
+}
+
+struct Buf {
+    buffer: vk::Buffer,
+    memory: vk::DeviceMemory,
+    address: u64,
+    map: *mut u8,
+}
+
+struct Gpu {
+    instance: ash::Instance,
+    messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    device: ash::Device,
+    accel: ash::khr::acceleration_structure::Device,
+    props: vk::PhysicalDeviceMemoryProperties,
+    queue: vk::Queue,
+    family: u32,
+    bufs: Vec<Buf>,
+}
+
+impl Gpu {
+    fn buffer(&mut self, size: u64, usage: vk::BufferUsageFlags) -> usize {
+        let size = size.max(16);
+        let info = vk::BufferCreateInfo::default().size(size).usage(usage);
+        unsafe {
+            let buffer = self.device.create_buffer(&info, None).unwrap();
+            let req = self.device.get_buffer_memory_requirements(buffer);
+            let wanted =
+                vk::MemoryPropertyFlags::HOST_VISIBLE | vk::MemoryPropertyFlags::HOST_COHERENT;
+            let ty = (0..self.props.memory_type_count)
+                .find(|&i| {
+                    req.memory_type_bits & (1 << i) != 0
+                        && self.props.memory_types[i as usize]
+                            .property_flags
+                            .contains(wanted)
+                })
+                .expect("a host-visible memory type");
+            let mut flags = vk::MemoryAllocateFlagsInfo::default()
+                .flags(vk::MemoryAllocateFlags::DEVICE_ADDRESS);
+            let device_address = usage.contains(vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS);
+            let mut alloc = vk::MemoryAllocateInfo::default()
+                .allocation_size(req.size)
+                .memory_type_index(ty);
+            if device_address {
+                alloc = alloc.push_next(&mut flags);
+            }
+            let memory = self.device.allocate_memory(&alloc, None).unwrap();
+            self.device.bind_buffer_memory(buffer, memory, 0).unwrap();
+            let map = self
+                .device
+                .map_memory(memory, 0, vk::WHOLE_SIZE, vk::MemoryMapFlags::empty())
+                .unwrap()
+                .cast();
+            let address = match device_address {
+                true => self.device.get_buffer_device_address(
+                    &vk::BufferDeviceAddressInfo::default().buffer(buffer),
+                ),
+                false => 0,
+            };
+            self.bufs.push(Buf {
+                buffer,
+                memory,
+                address,
+                map,
+            });
+        }
+        self.bufs.len() - 1
+    }
+
+    fn write<T: Copy>(&self, b: usize, data: &[T]) {
+        unsafe {
+            std::ptr::copy_nonoverlapping(
+                data.as_ptr().cast::<u8>(),
+                self.bufs[b].map,
+                std::mem::size_of_val(data),
+            )
+        };
+    }
+}
+
+const INPUT: vk::BufferUsageFlags = vk::BufferUsageFlags::from_raw(
+    vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR.as_raw()
+        | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS.as_raw()
+        | vk::BufferUsageFlags::STORAGE_BUFFER.as_raw(),
+);
+
+fn instance_record(p: &Placement, reference: u64) -> [u32; 16] {
+    let mut r = [0u32; 16];
+    for (k, v) in p.rows.iter().flatten().enumerate() {
+        r[k] = v.to_bits();
+    }
+    r[12] = p.custom | (p.mask << 24);
+    r[13] = p.flags << 24;
+    r[14] = reference as u32;
+    r[15] = (reference >> 32) as u32;
+    r
+}
+
+/// Runs the application: two frames (build, then update), each traced; returns each
+/// frame's hits. `Err` where device creation fails (the code).
+pub fn run(validation: Validation) -> Result<Vec<Vec<Hit>>, vk::Result> {
+    unsafe { run_unsafe(validation, vk::API_VERSION_1_2) }
+}
+
+/// Creates the instance and device only, at `api`: the result of vkCreateDevice.
+pub fn create_only(api: u32) -> vk::Result {
+    match unsafe { setup(Validation::Off, api) } {
+        Ok(_) => vk::Result::SUCCESS,
+        Err(e) => e,
+    }
+}
+
+unsafe fn setup(validation: Validation, api: u32) -> Result<(ash::Entry, Gpu), vk::Result> {
+    let entry = ash::Entry::load().expect("the Vulkan loader");
+    let app = vk::ApplicationInfo::default().api_version(api);
+    let mut layers = Vec::new();
+    match validation {
+        Validation::Off => {}
+        Validation::Below => layers.push(c"VK_LAYER_KHRONOS_validation".as_ptr()),
+        Validation::Above => {
+            layers.push(c"VK_LAYER_KHRONOS_validation".as_ptr());
+            layers.push(c"VK_LAYER_VKRT_ray_query".as_ptr());
+        }
+    }
+    let exts = [ash::ext::debug_utils::NAME.as_ptr()];
+    let enables = [vk::ValidationFeatureEnableEXT::SYNCHRONIZATION_VALIDATION];
+    let mut features = vk::ValidationFeaturesEXT::default().enabled_validation_features(&enables);
+    let make_messenger = || {
+        vk::DebugUtilsMessengerCreateInfoEXT::default()
+            .message_severity(
+                vk::DebugUtilsMessageSeverityFlagsEXT::WARNING
+                    | vk::DebugUtilsMessageSeverityFlagsEXT::ERROR,
+            )
+            .message_type(
+                vk::DebugUtilsMessageTypeFlagsEXT::GENERAL
+                    | vk::DebugUtilsMessageTypeFlagsEXT::VALIDATION
+                    | vk::DebugUtilsMessageTypeFlagsEXT::PERFORMANCE,
+            )
+            .pfn_user_callback(Some(on_message))
+    };
+    let mut messenger = make_messenger();
+    let mut info = vk::InstanceCreateInfo::default()
+        .application_info(&app)
+        .enabled_layer_names(&layers);
+    if validation != Validation::Off {
+        info = info
+            .enabled_extension_names(&exts)
+            .push_next(&mut features)
+            .push_next(&mut messenger);
+    }
+    let instance = entry
+        .create_instance(&info, None)
+        .expect("vkCreateInstance");
+    let messenger = (validation != Validation::Off).then(|| {
+        let utils = ash::ext::debug_utils::Instance::new(&entry, &instance);
+        let m = utils
+            .create_debug_utils_messenger(&make_messenger(), None)
+            .unwrap();
+        (utils, m)
+    });
+    let pd = instance.enumerate_physical_devices().unwrap()[0];
+    let family = instance
+        .get_physical_device_queue_family_properties(pd)
+        .iter()
+        .position(|f| f.queue_flags.contains(vk::QueueFlags::COMPUTE))
+        .unwrap() as u32;
+    let priorities = [1.0];
+    let queues = [vk::DeviceQueueCreateInfo::default()
+        .queue_family_index(family)
+        .queue_priorities(&priorities)];
+    let dev_exts = [
+        ash::khr::acceleration_structure::NAME.as_ptr(),
+        ash::khr::ray_query::NAME.as_ptr(),
+        ash::khr::deferred_host_operations::NAME.as_ptr(),
+    ];
+    let mut v12 = vk::PhysicalDeviceVulkan12Features::default().buffer_device_address(true);
+    let mut asf =
+        vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default().acceleration_structure(true);
+    let mut rq = vk::PhysicalDeviceRayQueryFeaturesKHR::default().ray_query(true);
+    let dinfo = vk::DeviceCreateInfo::default()
+        .queue_create_infos(&queues)
+        .enabled_extension_names(&dev_exts)
+        .push_next(&mut v12)
+        .push_next(&mut asf)
+        .push_next(&mut rq);
+    let device = instance.create_device(pd, &dinfo, None)?;
+    let accel = ash::khr::acceleration_structure::Device::new(&instance, &device);
+    let props = instance.get_physical_device_memory_properties(pd);
+    let queue = device.get_device_queue(family, 0);
+    Ok((
+        entry,
+        Gpu {
+            instance,
+            messenger,
+            device,
+            accel,
+            props,
+            queue,
+            family,
+            bufs: Vec::new(),
+        },
+    ))
+}
+
+/// A bottom level's geometries and ranges over the buffers `b`.
+struct Level {
+    geometries: Vec<vk::AccelerationStructureGeometryKHR<'static>>,
+    ranges: Vec<vk::AccelerationStructureBuildRangeInfoKHR>,
+}
+
+unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, vk::Result> {
+    let (_entry, mut g) = setup(validation, api)?;
+    let d = g.device.clone();
+
+    // Inputs.
+    let (grid_v, grid_i) = grid(0.0);
+    let (fan_v, fan_i) = fan();
+    let soup_v = soup();
+    let sph = spheres();
+    let boxes: Vec<[f32; 6]> = sph
+        .iter()
+        .map(|s| {
+            [
+                s[0] - s[3],
+                s[1] - s[3],
+                s[2] - s[3],
+                s[0] + s[3],
+                s[1] + s[3],
+                s[2] + s[3],
+            ]
+        })
+        .collect();
+    let b_grid_v = g.buffer(4 * 3 * grid_v.len() as u64, INPUT);
+    let b_grid_i = g.buffer(4 * grid_i.len() as u64, INPUT);
+    let b_fan_v = g.buffer(4 * 3 * fan_v.len() as u64, INPUT);
+    let b_fan_i = g.buffer(2 * fan_i.len() as u64 + 8, INPUT);
+    let b_soup = g.buffer(4 * 3 * soup_v.len() as u64, INPUT);
+    let b_boxes = g.buffer(24 * boxes.len() as u64, INPUT);
+    let b_spheres = g.buffer(16 * sph.len() as u64, vk::BufferUsageFlags::STORAGE_BUFFER);
+    g.write(b_grid_v, &grid_v);
+    g.write(b_grid_i, &grid_i);
+    g.write(b_fan_v, &fan_v);
+    g.write(b_fan_i, &fan_i);
+    g.write(b_soup, &soup_v);
+    g.write(b_boxes, &boxes);
+    g.write(b_spheres, &sph);
+
+    let tri = |vb: usize, n_vertices: u32, ib: Option<(usize, vk::IndexType)>, opaque: bool| {
+        let data = vk::AccelerationStructureGeometryTrianglesDataKHR::default()
+            .vertex_format(vk::Format::R32G32B32_SFLOAT)
+            .vertex_data(vk::DeviceOrHostAddressConstKHR {
+                device_address: g.bufs[vb].address,
+            })
+            .vertex_stride(12)
+            .max_vertex(n_vertices - 1)
+            .index_type(ib.map_or(vk::IndexType::NONE_KHR, |i| i.1))
+            .index_data(vk::DeviceOrHostAddressConstKHR {
+                device_address: ib.map_or(0, |i| g.bufs[i.0].address),
+            });
+        vk::AccelerationStructureGeometryKHR::default()
+            .geometry_type(vk::GeometryTypeKHR::TRIANGLES)
+            .geometry(vk::AccelerationStructureGeometryDataKHR { triangles: data })
+            .flags(match opaque {
+                true => vk::GeometryFlagsKHR::OPAQUE,
+                false => vk::GeometryFlagsKHR::empty(),
+            })
+    };
+    let range = |n: u32| vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(n);
+    let levels = [
+        Level {
+            geometries: vec![tri(
+                b_grid_v,
+                grid_v.len() as u32,
+                Some((b_grid_i, vk::IndexType::UINT32)),
+                true,
+            )],
+            ranges: vec![range(grid_i.len() as u32 / 3)],
+        },
+        Level {
+            geometries: vec![
+                tri(
+                    b_fan_v,
+                    fan_v.len() as u32,
+                    Some((b_fan_i, vk::IndexType::UINT16)),
+                    false,
+                ),
+                tri(b_soup, soup_v.len() as u32, None, true),
+            ],
+            ranges: vec![
+                range(fan_i.len() as u32 / 3),
+                range(soup_v.len() as u32 / 3),
+            ],
+        },
+        Level {
+            geometries: vec![vk::AccelerationStructureGeometryKHR::default()
+                .geometry_type(vk::GeometryTypeKHR::AABBS)
+                .geometry(vk::AccelerationStructureGeometryDataKHR {
+                    aabbs: vk::AccelerationStructureGeometryAabbsDataKHR::default()
+                        .data(vk::DeviceOrHostAddressConstKHR {
+                            device_address: g.bufs[b_boxes].address,
+                        })
+                        .stride(24),
+                })],
+            ranges: vec![range(boxes.len() as u32)],
+        },
+    ];
+
+    // Bottom levels: sizes, storage, scratch.
+    let update_flags = vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE
+        | vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_BUILD;
+    let level_flags = [
+        update_flags,
+        vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE,
+        vk::BuildAccelerationStructureFlagsKHR::empty(),
+    ];
+    let mut blas = Vec::new();
+    let mut blas_scratch = Vec::new();
+    for (l, f) in levels.iter().zip(level_flags) {
+        let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+            .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL)
+            .flags(f)
+            .geometries(&l.geometries);
+        let counts: Vec<u32> = l.ranges.iter().map(|r| r.primitive_count).collect();
+        let mut sizes = vk::AccelerationStructureBuildSizesInfoKHR::default();
+        g.accel.get_acceleration_structure_build_sizes(
+            vk::AccelerationStructureBuildTypeKHR::DEVICE,
+            &info,
+            &counts,
+            &mut sizes,
+        );
+        let storage = g.buffer(
+            sizes.acceleration_structure_size,
+            vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR,
+        );
+        let scratch_bytes = sizes.build_scratch_size.max(sizes.update_scratch_size);
+        let scratch = g.buffer(
+            scratch_bytes,
+            vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS,
+        );
+        let create = vk::AccelerationStructureCreateInfoKHR::default()
+            .buffer(g.bufs[storage].buffer)
+            .size(sizes.acceleration_structure_size)
+            .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL);
+        blas.push(
+            g.accel
+                .create_acceleration_structure(&create, None)
+                .unwrap(),
+        );
+        blas_scratch.push(scratch);
+    }
+    let references: Vec<u64> = blas
+        .iter()
+        .map(|&a| {
+            g.accel.get_acceleration_structure_device_address(
+                &vk::AccelerationStructureDeviceAddressInfoKHR::default().acceleration_structure(a),
+            )
+        })
+        .collect();
+
+    // The top level.
+    let placements = instances(0);
+    let n_instances = placements.len() as u32;
+    let b_instances = g.buffer(64 * u64::from(n_instances), INPUT);
+    let inst_geometry = vk::AccelerationStructureGeometryKHR::default()
+        .geometry_type(vk::GeometryTypeKHR::INSTANCES)
+        .geometry(vk::AccelerationStructureGeometryDataKHR {
+            instances: vk::AccelerationStructureGeometryInstancesDataKHR::default().data(
+                vk::DeviceOrHostAddressConstKHR {
+                    device_address: g.bufs[b_instances].address,
+                },
+            ),
+        });
+    let top_geometries = [inst_geometry];
+    let top_info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+        .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL)
+        .flags(vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE)
+        .geometries(&top_geometries);
+    let mut top_sizes = vk::AccelerationStructureBuildSizesInfoKHR::default();
+    g.accel.get_acceleration_structure_build_sizes(
+        vk::AccelerationStructureBuildTypeKHR::DEVICE,
+        &top_info,
+        &[n_instances],
+        &mut top_sizes,
+    );
+    let top_storage = g.buffer(
+        top_sizes.acceleration_structure_size,
+        vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR,
+    );
+    let top_scratch = g.buffer(
+        top_sizes
+            .build_scratch_size
+            .max(top_sizes.update_scratch_size),
+        vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS,
+    );
+    let tlas = g
+        .accel
+        .create_acceleration_structure(
+            &vk::AccelerationStructureCreateInfoKHR::default()
+                .buffer(g.bufs[top_storage].buffer)
+                .size(top_sizes.acceleration_structure_size)
+                .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL),
+            None,
+        )
+        .unwrap();
+
+    // The pipeline.
+    let rays = WIDTH * WIDTH;
+    let b_out = g.buffer(32 * u64::from(rays), vk::BufferUsageFlags::STORAGE_BUFFER);
+    let code = compile(SHADER);
+    let module = d
+        .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None)
+        .unwrap();
+    let bindings = [
+        vk::DescriptorSetLayoutBinding::default()
+            .binding(0)
+            .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+            .descriptor_count(1)
+            .stage_flags(vk::ShaderStageFlags::COMPUTE),
+        vk::DescriptorSetLayoutBinding::default()
+            .binding(1)
+            .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+            .descriptor_count(1)
+            .stage_flags(vk::ShaderStageFlags::COMPUTE),
+        vk::DescriptorSetLayoutBinding::default()
+            .binding(2)
+            .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+            .descriptor_count(1)
+            .stage_flags(vk::ShaderStageFlags::COMPUTE),
+    ];
+    let set_layout = d
+        .create_descriptor_set_layout(
+            &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
+            None,
+        )
+        .unwrap();
+    let push_range = [vk::PushConstantRange::default()
+        .stage_flags(vk::ShaderStageFlags::COMPUTE)
+        .size(16)];
+    let set_layouts = [set_layout];
+    let layout = d
+        .create_pipeline_layout(
+            &vk::PipelineLayoutCreateInfo::default()
+                .set_layouts(&set_layouts)
+                .push_constant_ranges(&push_range),
+            None,
+        )
+        .unwrap();
+    let stage = vk::PipelineShaderStageCreateInfo::default()
+        .stage(vk::ShaderStageFlags::COMPUTE)
+        .module(module)
+        .name(c"main");
+    let pipeline = d
+        .create_compute_pipelines(
+            vk::PipelineCache::null(),
+            &[vk::ComputePipelineCreateInfo::default()
+                .stage(stage)
+                .layout(layout)],
+            None,
+        )
+        .unwrap()[0];
+    let pool_sizes = [
+        vk::DescriptorPoolSize {
+            ty: vk::DescriptorType::ACCELERATION_STRUCTURE_KHR,
+            descriptor_count: 1,
+        },
+        vk::DescriptorPoolSize {
+            ty: vk::DescriptorType::STORAGE_BUFFER,
+            descriptor_count: 2,
+        },
+    ];
+    let pool = d
+        .create_descriptor_pool(
+            &vk::DescriptorPoolCreateInfo::default()
+                .max_sets(1)
+                .pool_sizes(&pool_sizes),
+            None,
+        )
+        .unwrap();
+    let set = d
+        .allocate_descriptor_sets(
+            &vk::DescriptorSetAllocateInfo::default()
+                .descriptor_pool(pool)
+                .set_layouts(&set_layouts),
+        )
+        .unwrap()[0];
+    let tlases = [tlas];
+    let mut as_write =
+        vk::WriteDescriptorSetAccelerationStructureKHR::default().acceleration_structures(&tlases);
+    let out_info = [vk::DescriptorBufferInfo::default()
+        .buffer(g.bufs[b_out].buffer)
+        .range(vk::WHOLE_SIZE)];
+    let sph_info = [vk::DescriptorBufferInfo::default()
+        .buffer(g.bufs[b_spheres].buffer)
+        .range(vk::WHOLE_SIZE)];
+    let mut w0 = vk::WriteDescriptorSet::default()
+        .dst_set(set)
+        .dst_binding(0)
+        .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+        .push_next(&mut as_write);
+    w0.descriptor_count = 1;
+    let writes = [
+        w0,
+        vk::WriteDescriptorSet::default()
+            .dst_set(set)
+            .dst_binding(1)
+            .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+            .buffer_info(&out_info),
+        vk::WriteDescriptorSet::default()
+            .dst_set(set)
+            .dst_binding(2)
+            .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+            .buffer_info(&sph_info),
+    ];
+    d.update_descriptor_sets(&writes, &[]);
+
+    let cmd_pool = d
+        .create_command_pool(
+            &vk::CommandPoolCreateInfo::default()
+                .queue_family_index(g.family)
+                .flags(vk::CommandPoolCreateFlags::RESET_COMMAND_BUFFER),
+            None,
+        )
+        .unwrap();
+    let cb = d
+        .allocate_command_buffers(
+            &vk::CommandBufferAllocateInfo::default()
+                .command_pool(cmd_pool)
+                .command_buffer_count(1),
+        )
+        .unwrap()[0];
+    let fence = d
+        .create_fence(&vk::FenceCreateInfo::default(), None)
+        .unwrap();
+
+    let mut frames = Vec::new();
+    for frame in 0..2u32 {
+        let mode = match frame {
+            0 => vk::BuildAccelerationStructureModeKHR::BUILD,
+            _ => vk::BuildAccelerationStructureModeKHR::UPDATE,
+        };
+        // Frame 1 moves the grid's vertices and the instances.
+        let (moved, _) = grid(0.25 * frame as f32);
+        g.write(b_grid_v, &moved);
+        let records: Vec<[u32; 16]> = instances(frame)
+            .iter()
+            .map(|p| instance_record(p, references[p.level]))
+            .collect();
+        g.write(b_instances, &records);
+
+        d.begin_command_buffer(cb, &vk::CommandBufferBeginInfo::default())
+            .unwrap();
+        // The application binds first; the builds come between its binds and its dispatch.
+        d.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, pipeline);
+        d.cmd_bind_descriptor_sets(cb, vk::PipelineBindPoint::COMPUTE, layout, 0, &[set], &[]);
+        let push = [rays, WIDTH, 5.0f32.to_bits(), CULL_MASK];
+        d.cmd_push_constants(cb, layout, vk::ShaderStageFlags::COMPUTE, 0, bytes(&push));
+
+        // Bottom levels: frame 0 builds all, frame 1 updates the grid only.
+        let mut infos = Vec::new();
+        let mut range_ptrs = Vec::new();
+        for (k, l) in levels.iter().enumerate() {
+            if frame == 1 && k != 0 {
+                continue;
+            }
+            let src = match frame {
+                0 => vk::AccelerationStructureKHR::null(),
+                _ => blas[k],
+            };
+            infos.push(
+                vk::AccelerationStructureBuildGeometryInfoKHR::default()
+                    .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL)
+                    .flags(level_flags[k])
+                    .mode(mode)
+                    .src_acceleration_structure(src)
+                    .dst_acceleration_structure(blas[k])
+                    .geometries(&l.geometries)
+                    .scratch_data(vk::DeviceOrHostAddressKHR {
+                        device_address: g.bufs[blas_scratch[k]].address,
+                    }),
+            );
+            range_ptrs.push(l.ranges.as_slice());
+        }
+        g.accel
+            .cmd_build_acceleration_structures(cb, &infos, &range_ptrs);
+        let to_top = vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR)
+            .dst_access_mask(
+                vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR
+                    | vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR,
+            );
+        d.cmd_pipeline_barrier(
+            cb,
+            vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR,
+            vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR,
+            vk::DependencyFlags::empty(),
+            &[to_top],
+            &[],
+            &[],
+        );
+        let src = match frame {
+            0 => vk::AccelerationStructureKHR::null(),
+            _ => tlas,
+        };
+        let top = top_info
+            .mode(mode)
+            .src_acceleration_structure(src)
+            .dst_acceleration_structure(tlas)
+            .scratch_data(vk::DeviceOrHostAddressKHR {
+                device_address: g.bufs[top_scratch].address,
+            });
+        let top_range = [range(n_instances)];
+        g.accel
+            .cmd_build_acceleration_structures(cb, &[top], &[&top_range]);
+        let to_trace = vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR)
+            .dst_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR);
+        d.cmd_pipeline_barrier(
+            cb,
+            vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR,
+            vk::PipelineStageFlags::COMPUTE_SHADER,
+            vk::DependencyFlags::empty(),
+            &[to_trace],
+            &[],
+            &[],
+        );
+        // No rebind: the state bound before the builds.
+        d.cmd_dispatch(cb, rays.div_ceil(64), 1, 1);
+        let to_host = vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::SHADER_WRITE)
+            .dst_access_mask(vk::AccessFlags::HOST_READ);
+        d.cmd_pipeline_barrier(
+            cb,
+            vk::PipelineStageFlags::COMPUTE_SHADER,
+            vk::PipelineStageFlags::HOST,
+            vk::DependencyFlags::empty(),
+            &[to_host],
+            &[],
+            &[],
+        );
+        d.end_command_buffer(cb).unwrap();
+        let cbs = [cb];
+        d.queue_submit(
+            g.queue,
+            &[vk::SubmitInfo::default().command_buffers(&cbs)],
+            fence,
+        )
+        .unwrap();
+        d.wait_for_fences(&[fence], true, u64::MAX).unwrap();
+        d.reset_fences(&[fence]).unwrap();
+        let raw = std::slice::from_raw_parts(g.bufs[b_out].map.cast::<[u32; 8]>(), rays as usize);
+        frames.push(
+            raw.iter()
+                .map(|h| Hit {
+                    t: f32::from_bits(h[0]),
+                    kind: h[1],
+                    custom: h[2],
+                    instance: h[3],
+                    geometry: h[4],
+                    primitive: h[5],
+                    u: f32::from_bits(h[6]),
+                    v: f32::from_bits(h[7]),
+                })
+                .collect(),
+        );
+    }
+
+    // Teardown, in the application's order.
+    d.device_wait_idle().unwrap();
+    d.destroy_fence(fence, None);
+    d.free_command_buffers(cmd_pool, &[cb]);
+    d.destroy_command_pool(cmd_pool, None);
+    d.destroy_descriptor_pool(pool, None);
+    d.destroy_pipeline(pipeline, None);
+    d.destroy_pipeline_layout(layout, None);
+    d.destroy_descriptor_set_layout(set_layout, None);
+    d.destroy_shader_module(module, None);
+    g.accel.destroy_acceleration_structure(tlas, None);
+    for a in blas {
+        g.accel.destroy_acceleration_structure(a, None);
+    }
+    for b in g.bufs.drain(..) {
+        d.destroy_buffer(b.buffer, None);
+        d.free_memory(b.memory, None);
+    }
+    d.destroy_device(None);
+    if let Some((utils, m)) = g.messenger.take() {
+        utils.destroy_debug_utils_messenger(m, None);
+    }
+    g.instance.destroy_instance(None);
+    Ok(frames)
+}
+
+fn bytes<T: Copy>(v: &[T]) -> &[u8] {
+    unsafe { std::slice::from_raw_parts(v.as_ptr().cast(), std::mem::size_of_val(v)) }
+}
