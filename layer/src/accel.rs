@@ -49,6 +49,8 @@ enum Built {
         kind: AccelKind,
         flags: BuildFlags,
         shapes: Vec<GeometryShape>,
+        /// Its last build's geometries (a copy re-creates the structure over them).
+        geometries: Vec<Geometry>,
         sizes: AccelSizes,
         geometry: Box<GpuGeometry>,
     },
@@ -196,10 +198,6 @@ pub fn function(name: &[u8]) -> vk::PFN_vkVoidFunction {
         b"vkCmdCopyMemoryToAccelerationStructureKHR" => pfn!(
             cmd_copy_from_memory,
             vk::PFN_vkCmdCopyMemoryToAccelerationStructureKHR
-        ),
-        b"vkCmdWriteAccelerationStructuresPropertiesKHR" => pfn!(
-            cmd_properties,
-            vk::PFN_vkCmdWriteAccelerationStructuresPropertiesKHR
         ),
         _ => None,
     }
@@ -720,16 +718,21 @@ unsafe fn build_one(
             kind,
             flags,
             shapes,
+            geometries: list.clone(),
             sizes,
             geometry: Box::new(geometry),
         });
     }
     let Some(Built::Bottom {
-        geometry, sizes, ..
+        geometry,
+        sizes,
+        geometries,
+        ..
     }) = built.as_mut()
     else {
         unreachable!("created above")
     };
+    geometries.clone_from(&list);
     let words = geometry.handle_words().map_err(e)?;
     write_header(s, rec, dst, &words);
     let scratch = scratch(sizes.build_scratch_bytes)?;
@@ -840,10 +843,148 @@ unsafe extern "system" fn host_properties(
 }
 
 unsafe extern "system" fn cmd_copy(
-    _cb: vk::CommandBuffer,
-    _info: *const vk::CopyAccelerationStructureInfoKHR<'_>,
+    cb: vk::CommandBuffer,
+    info: *const vk::CopyAccelerationStructureInfoKHR<'_>,
 ) {
-    log("vkCmdCopyAccelerationStructureKHR: copies are not supported yet; nothing recorded");
+    guard((), || {
+        let Some(s) = served(cb) else { return };
+        // SAFETY: the application's valid struct.
+        let info = unsafe { &*info };
+        let call = "vkCmdCopyAccelerationStructureKHR";
+        match info.mode {
+            vk::CopyAccelerationStructureModeKHR::CLONE
+            | vk::CopyAccelerationStructureModeKHR::COMPACT => {}
+            m => {
+                return log(&format!(
+                    "{call}: mode {m:?} is not supported; nothing recorded"
+                ))
+            }
+        }
+        // SAFETY: the application's command buffer, recording, outside a render pass.
+        let mut rec = match unsafe { Recorder::from_raw(&s.ctx, cb, 0) } {
+            Ok(r) => r,
+            Err(e) => return log(&format!("{call}: {e}")),
+        };
+        if let Err(e) = copy(&s, &mut rec, info.src, info.dst) {
+            log(&format!("{call}: not recorded: {e}"));
+        }
+        match rec.finish() {
+            Ok(work) => commands::keep(&s, cb, work),
+            Err(e) => log(&format!("{call}: {e}")),
+        }
+        commands::restore(&s, cb);
+    })
+}
+
+/// The bytes a structure's copy holds: what `vkCmdWriteAccelerationStructuresPropertiesKHR`
+/// reports as its compacted size. Copies do not shrink (yet): a compaction is a clone.
+pub fn compacted_size(object: &AccelObject) -> Option<u64> {
+    match object.built.lock().ok()?.as_ref()? {
+        Built::Bottom { sizes, .. } | Built::Top { sizes, .. } => {
+            Some(HEADER + sizes.structure_bytes)
+        }
+    }
+}
+
+/// Records a clone of `src` into `dst`: vkrt's structure created in `dst` over the same
+/// geometries, counts and flags (so laid out alike), its bytes copied (vkrt's arrays refer
+/// to one another by index), and `dst`'s header written with its own addresses.
+fn copy(
+    s: &Served,
+    rec: &mut Recorder,
+    src: vk::AccelerationStructureKHR,
+    dst: vk::AccelerationStructureKHR,
+) -> Result<(), String> {
+    if src == dst {
+        return Err("the source is the destination".into());
+    }
+    let e = |e: vkrt::gpu::GpuError| e.to_string();
+    let from = s
+        .accel
+        .object(src)
+        .ok_or("the source is not a live acceleration structure")?;
+    let to = s
+        .accel
+        .object(dst)
+        .ok_or("the destination is not a live acceleration structure")?;
+    let from_built = from.built.lock().map_err(|e| e.to_string())?;
+    let mut to_built = to.built.lock().map_err(|e| e.to_string())?;
+    let bytes = match from_built.as_ref().ok_or("the source was never built")? {
+        Built::Bottom {
+            kind,
+            flags,
+            shapes,
+            geometries,
+            sizes,
+            ..
+        } => {
+            if HEADER + sizes.structure_bytes > to.size {
+                return Err(format!(
+                    "the destination holds {} bytes; the copy needs {}",
+                    to.size,
+                    HEADER + sizes.structure_bytes
+                ));
+            }
+            let builder = s.accel.bottom(&s.ctx, *kind).map_err(e)?;
+            let mut geometry = builder
+                .create_in(&s.ctx, geometries, flags, to.memory())
+                .map_err(e)?;
+            geometry.enable_references();
+            let words = geometry.handle_words().map_err(e)?;
+            write_header(s, rec, to, &words);
+            *to_built = Some(Built::Bottom {
+                kind: *kind,
+                flags: *flags,
+                shapes: shapes.clone(),
+                geometries: geometries.clone(),
+                sizes: *sizes,
+                geometry: Box::new(geometry),
+            });
+            sizes.structure_bytes
+        }
+        Built::Top {
+            kind,
+            flags,
+            max,
+            sizes,
+            ..
+        } => {
+            if HEADER + sizes.structure_bytes > to.size {
+                return Err(format!(
+                    "the destination holds {} bytes; the copy needs {}",
+                    to.size,
+                    HEADER + sizes.structure_bytes
+                ));
+            }
+            let builder = s.accel.top(&s.ctx, *kind).map_err(e)?;
+            let top = builder
+                .create_in(&s.ctx, &[], *max, flags, to.memory())
+                .map_err(e)?;
+            let words = top.handle_words().map_err(e)?;
+            write_header(s, rec, to, &words);
+            *to_built = Some(Built::Top {
+                kind: *kind,
+                flags: *flags,
+                max: *max,
+                sizes: *sizes,
+                top: Box::new(top),
+            });
+            sizes.structure_bytes
+        }
+    };
+    let region = vk::BufferCopy {
+        src_offset: from.offset + HEADER,
+        dst_offset: to.offset + HEADER,
+        size: bytes,
+    };
+    // SAFETY: ranges of the application's buffers (transfer usages: the layer's
+    // translation) within both structures; the command buffer is recording.
+    unsafe {
+        s.fns
+            .cmd_copy_buffer(rec.command_buffer(), from.buffer, to.buffer, &[region])
+    };
+    rec.transfer_to_compute();
+    Ok(())
 }
 
 unsafe extern "system" fn cmd_copy_to_memory(
@@ -858,15 +999,4 @@ unsafe extern "system" fn cmd_copy_from_memory(
     _info: *const vk::CopyMemoryToAccelerationStructureInfoKHR<'_>,
 ) {
     log("vkCmdCopyMemoryToAccelerationStructureKHR: deserialization is not supported; nothing recorded");
-}
-
-unsafe extern "system" fn cmd_properties(
-    _cb: vk::CommandBuffer,
-    _count: u32,
-    _structures: *const vk::AccelerationStructureKHR,
-    _query_type: vk::QueryType,
-    _pool: vk::QueryPool,
-    _first: u32,
-) {
-    log("vkCmdWriteAccelerationStructuresPropertiesKHR: compacted-size and serialization queries are not supported yet; nothing recorded");
 }

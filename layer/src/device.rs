@@ -10,7 +10,9 @@ use ash::vk::Handle;
 
 use crate::instance::{self, LayerInstance, PROVIDED};
 use crate::loader::{self, LayerDeviceCreateInfo};
-use crate::{accel, commands, deferred, descriptors, guard, log, memory, pfn, shaders};
+use crate::{
+    accel, commands, deferred, descriptors, guard, log, memory, pfn, queries, shaders, sync,
+};
 
 /// What the layer keeps of a device.
 pub struct LayerDevice {
@@ -30,8 +32,8 @@ pub struct Served {
     pub buffers: Mutex<memory::Buffers>,
     pub commands: Mutex<commands::CommandBuffers>,
     pub accel: accel::Builders,
-    /// `vkCmdPipelineBarrier2`, core or `VK_KHR_synchronization2`'s, where the device has it.
-    pub cmd_pipeline_barrier2: Option<vk::PFN_vkCmdPipelineBarrier2>,
+    /// The synchronization-2 entry points the layer translates.
+    pub sync2: sync::Sync2Fns,
 }
 
 static DEVICES: LazyLock<RwLock<HashMap<usize, Arc<LayerDevice>>>> =
@@ -63,7 +65,9 @@ pub fn intercepted(name: &CStr) -> vk::PFN_vkVoidFunction {
             .or_else(|| deferred::function(n))
             .or_else(|| commands::function(n))
             .or_else(|| descriptors::function(n))
-            .or_else(|| shaders::function(n)),
+            .or_else(|| shaders::function(n))
+            .or_else(|| sync::function(n))
+            .or_else(|| queries::function(n)),
     }
 }
 
@@ -226,14 +230,8 @@ unsafe fn create(
         buffers: Mutex::default(),
         commands: Mutex::default(),
         accel: accel::Builders::default(),
-        // SAFETY: the next layer's entry points, by name.
-        cmd_pipeline_barrier2: [c"vkCmdPipelineBarrier2", c"vkCmdPipelineBarrier2KHR"]
-            .iter()
-            .find_map(|n| unsafe { next_gdpa(device, n.as_ptr()) })
-            // SAFETY: the loader's pointer is the function of that name.
-            .map(|f| unsafe {
-                std::mem::transmute::<unsafe extern "system" fn(), vk::PFN_vkCmdPipelineBarrier2>(f)
-            }),
+        // SAFETY: the next layer's, for a live device.
+        sync2: unsafe { sync::Sync2Fns::load(next_gdpa, device) },
     };
     register(device, &inst, next_gdpa, Some(Arc::new(served)));
     vk::Result::SUCCESS

@@ -28,7 +28,9 @@ mod device;
 mod instance;
 pub mod loader;
 mod memory;
+mod queries;
 mod shaders;
+mod sync;
 
 use std::ffi::{c_char, CStr};
 use std::panic::{catch_unwind, AssertUnwindSafe};

@@ -489,6 +489,77 @@ unsafe fn setup(validation: Validation, api: u32) -> Result<(ash::Entry, Gpu), v
     ))
 }
 
+/// Reads the compacted sizes the first frame queried (from the pool and from the buffer it
+/// copied them to: the same), creates structures of those sizes and copies `originals` into
+/// them (`COMPACT`); returns the copies and their buffers.
+#[allow(clippy::too_many_arguments)]
+unsafe fn compact(
+    g: &mut Gpu,
+    cb: vk::CommandBuffer,
+    fence: vk::Fence,
+    pool: vk::QueryPool,
+    b_sizes: usize,
+    originals: &[vk::AccelerationStructureKHR],
+    original_bytes: &[u64],
+) -> Vec<(vk::AccelerationStructureKHR, usize)> {
+    let d = g.device.clone();
+    let mut sizes = [0u64; 2];
+    d.get_query_pool_results(
+        pool,
+        0,
+        &mut sizes,
+        vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+    )
+    .unwrap();
+    let copied = *g.bufs[b_sizes].map.cast::<[u64; 2]>();
+    assert_eq!(
+        sizes, copied,
+        "vkGetQueryPoolResults and vkCmdCopyQueryPoolResults disagree"
+    );
+    for (size, original) in sizes.iter().zip(original_bytes) {
+        assert!(
+            *size > 0 && size <= original,
+            "compacted size {size} of a structure of {original} bytes"
+        );
+    }
+    let mut out = Vec::new();
+    d.begin_command_buffer(cb, &vk::CommandBufferBeginInfo::default())
+        .unwrap();
+    for (&size, &original) in sizes.iter().zip(originals) {
+        let storage = g.buffer(
+            size,
+            vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR,
+        );
+        let create = vk::AccelerationStructureCreateInfoKHR::default()
+            .buffer(g.bufs[storage].buffer)
+            .size(size)
+            .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL);
+        let c = g
+            .accel
+            .create_acceleration_structure(&create, None)
+            .unwrap();
+        g.accel.cmd_copy_acceleration_structure(
+            cb,
+            &vk::CopyAccelerationStructureInfoKHR::default()
+                .src(original)
+                .dst(c)
+                .mode(vk::CopyAccelerationStructureModeKHR::COMPACT),
+        );
+        out.push((c, storage));
+    }
+    d.end_command_buffer(cb).unwrap();
+    let cbs = [cb];
+    d.queue_submit(
+        g.queue,
+        &[vk::SubmitInfo::default().command_buffers(&cbs)],
+        fence,
+    )
+    .unwrap();
+    d.wait_for_fences(&[fence], true, u64::MAX).unwrap();
+    d.reset_fences(&[fence]).unwrap();
+    out
+}
+
 /// A bottom level's geometries and ranges over the buffers `b`.
 struct Level {
     geometries: Vec<vk::AccelerationStructureGeometryKHR<'static>>,
@@ -595,12 +666,15 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
     // Bottom levels: sizes, storage, scratch.
     let update_flags = vk::BuildAccelerationStructureFlagsKHR::ALLOW_UPDATE
         | vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_BUILD;
+    // The second and third levels are compacted after the first frame.
     let level_flags = [
         update_flags,
-        vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE,
-        vk::BuildAccelerationStructureFlagsKHR::empty(),
+        vk::BuildAccelerationStructureFlagsKHR::PREFER_FAST_TRACE
+            | vk::BuildAccelerationStructureFlagsKHR::ALLOW_COMPACTION,
+        vk::BuildAccelerationStructureFlagsKHR::ALLOW_COMPACTION,
     ];
     let mut blas = Vec::new();
+    let mut blas_bytes = Vec::new();
     let mut blas_scratch = Vec::new();
     for (l, f) in levels.iter().zip(level_flags) {
         let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
@@ -634,8 +708,9 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
                 .unwrap(),
         );
         blas_scratch.push(scratch);
+        blas_bytes.push(sizes.acceleration_structure_size);
     }
-    let references: Vec<u64> = blas
+    let mut references: Vec<u64> = blas
         .iter()
         .map(|&a| {
             g.accel.get_acceleration_structure_device_address(
@@ -819,6 +894,18 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
         .create_fence(&vk::FenceCreateInfo::default(), None)
         .unwrap();
 
+    // Compacted sizes of the second and third levels, read back and copied to a buffer.
+    let query_pool = d
+        .create_query_pool(
+            &vk::QueryPoolCreateInfo::default()
+                .query_type(vk::QueryType::ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR)
+                .query_count(2),
+            None,
+        )
+        .unwrap();
+    let b_sizes = g.buffer(16, vk::BufferUsageFlags::TRANSFER_DST);
+    let mut compacted = Vec::new();
+
     let mut frames = Vec::new();
     for frame in 0..2u32 {
         let mode = match frame {
@@ -836,6 +923,19 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
 
         d.begin_command_buffer(cb, &vk::CommandBufferBeginInfo::default())
             .unwrap();
+        // What earlier submissions wrote (the compaction's copies) before this frame reads.
+        let earlier = vk::MemoryBarrier::default()
+            .src_access_mask(vk::AccessFlags::MEMORY_WRITE)
+            .dst_access_mask(vk::AccessFlags::MEMORY_READ | vk::AccessFlags::MEMORY_WRITE);
+        d.cmd_pipeline_barrier(
+            cb,
+            vk::PipelineStageFlags::ALL_COMMANDS,
+            vk::PipelineStageFlags::ALL_COMMANDS,
+            vk::DependencyFlags::empty(),
+            &[earlier],
+            &[],
+            &[],
+        );
         // The application binds first; the builds come between its binds and its dispatch.
         d.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, pipeline);
         d.cmd_bind_descriptor_sets(cb, vk::PipelineBindPoint::COMPUTE, layout, 0, &[set], &[]);
@@ -884,6 +984,26 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
             &[],
             &[],
         );
+        if frame == 0 {
+            d.cmd_reset_query_pool(cb, query_pool, 0, 2);
+            g.accel.cmd_write_acceleration_structures_properties(
+                cb,
+                &[blas[1], blas[2]],
+                vk::QueryType::ACCELERATION_STRUCTURE_COMPACTED_SIZE_KHR,
+                query_pool,
+                0,
+            );
+            d.cmd_copy_query_pool_results(
+                cb,
+                query_pool,
+                0,
+                2,
+                g.bufs[b_sizes].buffer,
+                0,
+                8,
+                vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
+            );
+        }
         let src = match frame {
             0 => vk::AccelerationStructureKHR::null(),
             _ => tlas,
@@ -913,11 +1033,11 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
         // No rebind: the state bound before the builds.
         d.cmd_dispatch(cb, rays.div_ceil(64), 1, 1);
         let to_host = vk::MemoryBarrier::default()
-            .src_access_mask(vk::AccessFlags::SHADER_WRITE)
+            .src_access_mask(vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE)
             .dst_access_mask(vk::AccessFlags::HOST_READ);
         d.cmd_pipeline_barrier(
             cb,
-            vk::PipelineStageFlags::COMPUTE_SHADER,
+            vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER,
             vk::PipelineStageFlags::HOST,
             vk::DependencyFlags::empty(),
             &[to_host],
@@ -949,6 +1069,26 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
                 })
                 .collect(),
         );
+        if frame == 0 {
+            compacted = compact(
+                &mut g,
+                cb,
+                fence,
+                query_pool,
+                b_sizes,
+                &blas[1..],
+                &blas_bytes[1..],
+            );
+            // The originals go: frame 1 traces the compacted copies.
+            for (k, &(c, _)) in compacted.iter().enumerate() {
+                g.accel.destroy_acceleration_structure(blas[1 + k], None);
+                blas[1 + k] = c;
+                references[1 + k] = g.accel.get_acceleration_structure_device_address(
+                    &vk::AccelerationStructureDeviceAddressInfoKHR::default()
+                        .acceleration_structure(c),
+                );
+            }
+        }
     }
 
     // Teardown, in the application's order.
@@ -957,6 +1097,8 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
     d.free_command_buffers(cmd_pool, &[cb]);
     d.destroy_command_pool(cmd_pool, None);
     d.destroy_descriptor_pool(pool, None);
+    d.destroy_query_pool(query_pool, None);
+    debug_assert_eq!(compacted.len(), 2);
     d.destroy_pipeline(pipeline, None);
     d.destroy_pipeline_layout(layout, None);
     d.destroy_descriptor_set_layout(set_layout, None);
