@@ -518,7 +518,7 @@ fn build_and_trace(
                 index_type: IndexType::U16,
             }),
             triangle_count: (mesh.triangles.len() - half) as u32,
-            transform: Some(SHIFT),
+            transform: Some(SHIFT.into()),
             ..Triangles::soup(vertex_range, vertex_count)
         }),
     ];

@@ -79,7 +79,9 @@ pub use accel::batch::BuildTarget;
 pub use accel::compact::CompactedSize;
 pub use accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelSizes, AccelStructure};
 pub use accel::embedded::{BuildFlags, BuildStatus, DRIVER_BUFFER_USAGE, REQUIRED_BUFFER_USAGE};
-pub use accel::geometry::{Aabbs, Geometry, IndexType, Indices, Spheres, Triangles, VertexFormat};
+pub use accel::geometry::{
+    Aabbs, Geometry, IndexType, Indices, Spheres, Transform, Triangles, VertexFormat,
+};
 pub use accel::geometry_shape::GeometryShape;
 pub use accel::gpu_geometry::GpuGeometry;
 pub use accel::instance::Instance;

@@ -10,7 +10,7 @@ use vkrt::accel::device::{AccelBuilder, AccelKind, DevicePrimitives};
 use vkrt::accel::embedded::BuildFlags;
 use vkrt::accel::geometry::{
     gather_on_host, Aabbs, Geometry, GeometryData, GeometryGather, GeometryLayout, IndexType,
-    Indices, Spheres, Triangles,
+    Indices, Spheres, Transform, Triangles,
 };
 use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::primitives::TraceGeometry;
@@ -244,11 +244,19 @@ fn the_gather_equals_its_cpu_twin_on_every_edge() {
                 }
             };
             let vertices = place(&mut caller, &vbytes, pad);
-            let transform = (stride == 16).then_some([
+            // Given by the host, or (at addresses) read by the build where it lies.
+            let rows = [
                 [0.5, 0.1, 0.0, 1.0],
                 [0.0, 1.5, 0.2, -2.0],
                 [0.3, 0.0, 1.0, 0.25],
-            ]);
+            ];
+            let transform = (stride == 16).then(|| match address {
+                true => match caller.at(&ctx, bytemuck::cast_slice(&rows), 0) {
+                    GeometryData::Address { address: at, .. } => Transform::At(at),
+                    _ => unreachable!("data at an address"),
+                },
+                false => Transform::Rows(rows),
+            });
             let spheres: Vec<Vec4> = (0..n % 5 + 1)
                 .map(|_| (rng.next_vec3() * 2.0 - 1.0).extend(rng.next_f32()))
                 .collect();
@@ -978,10 +986,17 @@ fn misuse_is_an_error_not_a_panic() {
     .is_ok());
     is_usage(
         bad(Triangles {
-            transform: Some([[f32::NAN; 4]; 3]),
+            transform: Some([[f32::NAN; 4]; 3].into()),
             ..ok
         }),
         "a NaN transform",
+    );
+    is_usage(
+        bad(Triangles {
+            transform: Some(Transform::At(0x1000)),
+            ..ok
+        }),
+        "a transform at an address over vertices in a buffer",
     );
     is_usage(
         bad(Triangles {

@@ -74,6 +74,7 @@ layout(push_constant) uniform Push {
     vec4 rows[3];      // the 3x4 object-to-structure transform, row-major
     uvec2 src_address; // `address`: where word 0 of the vertices (vkrt_spheres) lies
     uvec2 idx_address; // `address`: where word 0 of the indices lies
+    uvec2 xf_address;  // `address`, has_transform 2: where the transform's twelve floats lie
 } pc;
 
 uint index_at(uint k) {
@@ -87,6 +88,19 @@ uint index_at(uint k) {
     return IDX(e);
 }
 
+// Row k of the transform: from the push constants, or (has_transform 2) read where the
+// caller's VkTransformMatrixKHR lies.
+vec4 transform_row(uint k) {
+#if ADDRESS
+    if (pc.has_transform == 2u) {
+        Words xf = Words(pc.xf_address);
+        uint w = 4u * k;
+        return uintBitsToFloat(uvec4(xf.w[w], xf.w[w + 1u], xf.w[w + 2u], xf.w[w + 3u]));
+    }
+#endif
+    return pc.rows[k];
+}
+
 vec3 vertex_at(uint v) {
     uint w = pc.src_word + v * pc.stride_words;
     vec3 p = vec3(uintBitsToFloat(SRC(w)), uintBitsToFloat(SRC(w + 1u)),
@@ -96,7 +110,7 @@ vec3 vertex_at(uint v) {
         // the same way.
         precise vec3 q;
         for (uint k = 0u; k < 3u; k++) {
-            vec4 m = pc.rows[k];
+            vec4 m = transform_row(k);
             precise float x = m.x * p.x;
             x = x + m.y * p.y;
             x = x + m.z * p.z;

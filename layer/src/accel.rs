@@ -17,7 +17,7 @@ use vkrt::accel::geometry::GeometryData;
 use vkrt::gpu::{RawBuffer, Recorder};
 use vkrt::{
     Aabbs, AccelBuilder, AccelKind, AccelSizes, BuildFlags, Geometry, GeometryShape, GpuGeometry,
-    IndexType, Indices, TopLevel, TopLevelBuilder, Triangles, VertexFormat,
+    IndexType, Indices, TopLevel, TopLevelBuilder, Transform, Triangles, VertexFormat,
 };
 
 use crate::device::{served, Served};
@@ -394,13 +394,6 @@ fn bottom_geometries(
                         t.transform_data.device_address,
                     )
                 };
-                if transform != 0 {
-                    return Err(
-                        "a transform at a device address (transformData): vkrt's builders take \
-                         transforms from the host; not yet supported through the layer"
-                            .into(),
-                    );
-                }
                 let stride = t.vertex_stride;
                 let first = u64::from(r.first_vertex) * stride;
                 let (vertices_at, vertex_count) = match index_type {
@@ -431,7 +424,8 @@ fn bottom_geometries(
                     vertex_count,
                     indices,
                     triangle_count: r.primitive_count,
-                    transform: None,
+                    transform: (transform != 0)
+                        .then(|| Transform::At(transform + u64::from(r.transform_offset))),
                     opaque: opaque(g),
                 }))
             }

@@ -257,8 +257,14 @@ fn level_triangles(level: usize, frame: u32) -> Vec<(u32, u32, [[f64; 3]; 3], bo
                     false,
                 ));
             }
+            // Moved by its transform as the build reads it (in single precision, left to
+            // right, as Vulkan's builders apply VkTransformMatrixKHR).
+            let m = app::SOUP_TRANSFORM;
+            let moved = |v: [f32; 3]| {
+                [0, 1, 2].map(|r| m[r][0] * v[0] + m[r][1] * v[1] + m[r][2] * v[2] + m[r][3])
+            };
             for (p, t) in app::soup().chunks(3).enumerate() {
-                out.push((1, p as u32, [0, 1, 2].map(|k| to64(t[k])), true));
+                out.push((1, p as u32, [0, 1, 2].map(|k| to64(moved(t[k]))), true));
             }
         }
         _ => {}

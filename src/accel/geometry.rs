@@ -85,6 +85,23 @@ pub struct Indices {
     pub index_type: IndexType,
 }
 
+/// Where a triangle geometry's object-to-structure transform comes from.
+#[derive(Clone, Copy, Debug, PartialEq)]
+pub enum Transform {
+    /// Given by the host: three rows of a 3×4 matrix.
+    Rows([[f32; 4]; 3]),
+    /// A `VkTransformMatrixKHR` (twelve floats, row-major) at a 16-byte-aligned device
+    /// address, read by the build where it reads the vertices: they lie at device addresses
+    /// too. A non-finite entry makes the geometry's triangles invalid (never hit, counted).
+    At(u64),
+}
+
+impl From<[[f32; 4]; 3]> for Transform {
+    fn from(rows: [[f32; 4]; 3]) -> Self {
+        Transform::Rows(rows)
+    }
+}
+
 /// Triangles (`VkAccelerationStructureGeometryTrianglesDataKHR`).
 #[derive(Clone, Copy, Debug)]
 pub struct Triangles {
@@ -101,8 +118,9 @@ pub struct Triangles {
     /// Triangles to read (0: the geometry is empty).
     pub triangle_count: u32,
     /// Row-major object-to-structure transform (`VkTransformMatrixKHR`), applied as the
-    /// geometry is read.
-    pub transform: Option<[[f32; 4]; 3]>,
+    /// geometry is read: given by the host, or read by the build at a device address
+    /// (`transformData`). A `[[f32; 4]; 3]` converts (`.into()`).
+    pub transform: Option<Transform>,
     /// `VK_GEOMETRY_OPAQUE_BIT_KHR`. A non-opaque geometry's hits are candidates a ray query
     /// returns to the shader (`vkrt/ext_ray_query.glsl`), which confirms or ignores them;
     /// vkrt's own walks (`vkrtTrace`, the renderer) take every hit as opaque. Non-opaque
@@ -341,10 +359,25 @@ pub(crate) fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
                     );
                 }
             }
-            if let Some(m) = t.transform {
-                if m.iter().flatten().any(|x| !x.is_finite()) {
+            match t.transform {
+                Some(Transform::Rows(m)) if m.iter().flatten().any(|x| !x.is_finite()) => {
                     return err("the transform has a non-finite entry".into());
                 }
+                Some(Transform::At(address)) => {
+                    if !t.vertices.is_address() {
+                        return err(
+                            "a transform at a device address needs the vertices at device \
+                             addresses too"
+                                .into(),
+                        );
+                    }
+                    if address == 0 || address % 16 != 0 {
+                        return err(format!(
+                            "the transform's address {address:#x} is not a non-null multiple of 16"
+                        ));
+                    }
+                }
+                _ => {}
             }
             if t.triangle_count == 0 {
                 return Ok(());
@@ -504,6 +537,7 @@ struct GatherPush {
     rows: [[f32; 4]; 3],
     src_address: u64,
     idx_address: u64,
+    transform_address: u64,
 }
 
 /// Where the gather reads one of a geometry's inputs: a binding (buffers) or a word-aligned
@@ -693,10 +727,21 @@ impl GeometryGather {
                     vertex_count: t.vertex_count,
                     table_slot: slot,
                     geometry: g.table_word(k),
-                    has_transform: t.transform.is_some() as u32,
-                    rows: t.transform.unwrap_or_default(),
+                    has_transform: match t.transform {
+                        None => 0,
+                        Some(Transform::Rows(_)) => 1,
+                        Some(Transform::At(_)) => 2,
+                    },
+                    rows: match t.transform {
+                        Some(Transform::Rows(m)) => m,
+                        _ => Default::default(),
+                    },
                     src_address: src.address(),
                     idx_address: ix.address(),
+                    transform_address: match t.transform {
+                        Some(Transform::At(a)) => a,
+                        _ => 0,
+                    },
                 };
                 (src, ix, push)
             }
@@ -767,6 +812,13 @@ pub fn gather_on_host(
         match g {
             Geometry::Triangles(t) => {
                 let v = read(&t.vertices);
+                let transform = t.transform.map(|m| match m {
+                    Transform::Rows(m) => m,
+                    Transform::At(address) => {
+                        let b = read(&GeometryData::Address { address, size: 48 });
+                        std::array::from_fn(|r| std::array::from_fn(|c| f32_at(&b, 16 * r + 4 * c)))
+                    }
+                });
                 let ix = t.indices.map(|i| (read(&i.data), i.index_type));
                 let index = |k: usize| -> u32 {
                     match &ix {
@@ -788,8 +840,8 @@ pub fn gather_on_host(
                             let at = c as usize * t.stride as usize;
                             let p =
                                 Vec3::new(f32_at(&v, at), f32_at(&v, at + 4), f32_at(&v, at + 8));
-                            match t.transform {
-                                Some(m) => transform_point(&m, p),
+                            match &transform {
+                                Some(m) => transform_point(m, p),
                                 None => p,
                             }
                         });

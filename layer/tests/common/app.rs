@@ -91,6 +91,13 @@ pub fn soup() -> Vec<[f32; 3]> {
     ]
 }
 
+/// Geometry 1's transform (transformData): a turn about z and a shift.
+pub const SOUP_TRANSFORM: [[f32; 4]; 3] = [
+    [0.955_336_5, -0.295_520_2, 0.0, 0.1],
+    [0.295_520_2, 0.955_336_5, 0.0, -0.2],
+    [0.0, 0.0, 1.0, 0.05],
+];
+
 /// The third level's spheres (centre, radius), each in its box.
 pub fn spheres() -> Vec<[f32; 4]> {
     vec![
@@ -593,6 +600,8 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
     let b_fan_v = g.buffer(4 * 3 * fan_v.len() as u64, INPUT);
     let b_fan_i = g.buffer(2 * fan_i.len() as u64 + 8, INPUT);
     let b_soup = g.buffer(4 * 3 * soup_v.len() as u64, INPUT);
+    let b_transform = g.buffer(48, INPUT);
+    g.write(b_transform, &SOUP_TRANSFORM);
     let b_boxes = g.buffer(24 * boxes.len() as u64, INPUT);
     let b_spheres = g.buffer(16 * sph.len() as u64, vk::BufferUsageFlags::STORAGE_BUFFER);
     g.write(b_grid_v, &grid_v);
@@ -603,7 +612,11 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
     g.write(b_boxes, &boxes);
     g.write(b_spheres, &sph);
 
-    let tri = |vb: usize, n_vertices: u32, ib: Option<(usize, vk::IndexType)>, opaque: bool| {
+    let tri = |vb: usize,
+               n_vertices: u32,
+               ib: Option<(usize, vk::IndexType)>,
+               xf: Option<usize>,
+               opaque: bool| {
         let data = vk::AccelerationStructureGeometryTrianglesDataKHR::default()
             .vertex_format(vk::Format::R32G32B32_SFLOAT)
             .vertex_data(vk::DeviceOrHostAddressConstKHR {
@@ -614,6 +627,9 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
             .index_type(ib.map_or(vk::IndexType::NONE_KHR, |i| i.1))
             .index_data(vk::DeviceOrHostAddressConstKHR {
                 device_address: ib.map_or(0, |i| g.bufs[i.0].address),
+            })
+            .transform_data(vk::DeviceOrHostAddressConstKHR {
+                device_address: xf.map_or(0, |b| g.bufs[b].address),
             });
         vk::AccelerationStructureGeometryKHR::default()
             .geometry_type(vk::GeometryTypeKHR::TRIANGLES)
@@ -630,6 +646,7 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
                 b_grid_v,
                 grid_v.len() as u32,
                 Some((b_grid_i, vk::IndexType::UINT32)),
+                None,
                 true,
             )],
             ranges: vec![range(grid_i.len() as u32 / 3)],
@@ -640,9 +657,10 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
                     b_fan_v,
                     fan_v.len() as u32,
                     Some((b_fan_i, vk::IndexType::UINT16)),
+                    None,
                     false,
                 ),
-                tri(b_soup, soup_v.len() as u32, None, true),
+                tri(b_soup, soup_v.len() as u32, None, Some(b_transform), true),
             ],
             ranges: vec![
                 range(fan_i.len() as u32 / 3),
