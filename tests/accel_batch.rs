@@ -72,11 +72,14 @@ fn structures(ctx: &Context, caller: &mut Caller) -> Vec<Vec<Geometry>> {
         IndexType::U16,
         mesh.indices.len() as u32,
     );
-    indexed.transform = Some([
-        [0.5, 0.0, 0.0, 0.3],
-        [0.0, 0.6, 0.1, -0.2],
-        [0.0, 0.0, 0.4, 0.0],
-    ]);
+    indexed.transform = Some(
+        [
+            [0.5, 0.0, 0.0, 0.3],
+            [0.0, 0.6, 0.1, -0.2],
+            [0.0, 0.0, 0.4, 0.0],
+        ]
+        .into(),
+    );
     let mut rng = common::Rng(7);
     let spheres: Vec<Vec4> = (0..40)
         .map(|_| (rng.next_vec3() * 2.0 - 1.0).extend(0.05 + 0.1 * rng.next_f32()))
