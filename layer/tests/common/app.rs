@@ -229,6 +229,11 @@ void main() {
 "#;
 
 pub fn compile(source: &str) -> Vec<u32> {
+    compile_with(source, &[])
+}
+
+/// `source` compiled by glslc with `args` (include directories, say).
+pub fn compile_with(source: &str, args: &[&str]) -> Vec<u32> {
     let dir = std::env::temp_dir().join(format!("vkrt-layer-app-{}", std::process::id()));
     std::fs::create_dir_all(&dir).unwrap();
     let src = dir.join("app.comp");
@@ -236,6 +241,7 @@ pub fn compile(source: &str) -> Vec<u32> {
     std::fs::write(&src, source).unwrap();
     let o = std::process::Command::new("glslc")
         .args(["--target-env=vulkan1.2", "-O"])
+        .args(args)
         .arg(&src)
         .arg("-o")
         .arg(&out)
@@ -294,26 +300,27 @@ pub fn messages() -> Vec<String> {
     MESSAGES.lock().unwrap().clone()
 }
 
-struct Buf {
-    buffer: vk::Buffer,
-    memory: vk::DeviceMemory,
-    address: u64,
-    map: *mut u8,
+pub struct Buf {
+    pub buffer: vk::Buffer,
+    pub memory: vk::DeviceMemory,
+    pub address: u64,
+    pub map: *mut u8,
 }
 
-struct Gpu {
-    instance: ash::Instance,
-    messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
-    device: ash::Device,
-    accel: ash::khr::acceleration_structure::Device,
-    props: vk::PhysicalDeviceMemoryProperties,
-    queue: vk::Queue,
-    family: u32,
-    bufs: Vec<Buf>,
+pub struct Gpu {
+    pub instance: ash::Instance,
+    pub physical: vk::PhysicalDevice,
+    pub messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
+    pub device: ash::Device,
+    pub accel: ash::khr::acceleration_structure::Device,
+    pub props: vk::PhysicalDeviceMemoryProperties,
+    pub queue: vk::Queue,
+    pub family: u32,
+    pub bufs: Vec<Buf>,
 }
 
 impl Gpu {
-    fn buffer(&mut self, size: u64, usage: vk::BufferUsageFlags) -> usize {
+    pub fn buffer(&mut self, size: u64, usage: vk::BufferUsageFlags) -> usize {
         let size = size.max(16);
         let info = vk::BufferCreateInfo::default().size(size).usage(usage);
         unsafe {
@@ -361,7 +368,7 @@ impl Gpu {
         self.bufs.len() - 1
     }
 
-    fn write<T: Copy>(&self, b: usize, data: &[T]) {
+    pub fn write<T: Copy>(&self, b: usize, data: &[T]) {
         unsafe {
             std::ptr::copy_nonoverlapping(
                 data.as_ptr().cast::<u8>(),
@@ -372,7 +379,7 @@ impl Gpu {
     }
 }
 
-const INPUT: vk::BufferUsageFlags = vk::BufferUsageFlags::from_raw(
+pub const INPUT: vk::BufferUsageFlags = vk::BufferUsageFlags::from_raw(
     vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR.as_raw()
         | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS.as_raw()
         | vk::BufferUsageFlags::STORAGE_BUFFER.as_raw(),
@@ -404,7 +411,7 @@ pub fn create_only(api: u32) -> vk::Result {
     }
 }
 
-unsafe fn setup(validation: Validation, api: u32) -> Result<(ash::Entry, Gpu), vk::Result> {
+pub unsafe fn setup(validation: Validation, api: u32) -> Result<(ash::Entry, Gpu), vk::Result> {
     let entry = ash::Entry::load().expect("the Vulkan loader");
     let app = vk::ApplicationInfo::default().api_version(api);
     let mut layers = Vec::new();
@@ -485,6 +492,7 @@ unsafe fn setup(validation: Validation, api: u32) -> Result<(ash::Entry, Gpu), v
         entry,
         Gpu {
             instance,
+            physical: pd,
             messenger,
             device,
             accel,
@@ -1137,6 +1145,6 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
     Ok(frames)
 }
 
-fn bytes<T: Copy>(v: &[T]) -> &[u8] {
+pub fn bytes<T: Copy>(v: &[T]) -> &[u8] {
     unsafe { std::slice::from_raw_parts(v.as_ptr().cast(), std::mem::size_of_val(v)) }
 }

@@ -1,1 +1,2 @@
+#[allow(dead_code)] // the bench uses what the tests do not
 pub mod app;
