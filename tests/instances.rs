@@ -14,8 +14,8 @@ use vkrt::accel::geometry::transform_point;
 use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::instance::MAX_BOTTOM_LEVELS;
 use vkrt::accel::instances::{
-    instance_boxes, lerp_rows, world_to_object, Instance, InstanceMotion, InstanceRecord,
-    TopLevelBuilder,
+    instance_boxes, instance_pointers_on_host, lerp_rows, world_to_object, Instance,
+    InstanceMotion, InstancePointers, InstanceRecord, TopLevelBuilder,
 };
 use vkrt::accel::primitives::SceneInfo;
 use vkrt::accel::primitives::TraceGeometry;
@@ -1287,6 +1287,67 @@ fn a_scene_cut_into_pieces_answers_as_the_flat_scene() {
                     );
                 }
             }
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+/// Instance records named by an array of pointers (`arrayOfPointers`) are gathered in the
+/// pointers' order, a null pointer giving zeros: the device equals its CPU twin on every
+/// edge of the workgroup, over records in a shuffled order.
+#[test]
+fn instance_pointers_gather_as_their_cpu_twin() {
+    let Some(ctx) = common::context() else { return };
+    if !ctx.info().features.buffer_device_address {
+        return;
+    }
+    let gather = InstancePointers::new(&ctx).unwrap();
+    let sg = ctx.info().subgroup_size as usize;
+    let mut rng = common::Rng(41);
+    for n in common::edge_sizes(sg, 64, 64)
+        .into_iter()
+        .filter(|&n| n <= 20_000)
+    {
+        let slots = n.max(1);
+        let records: Vec<[u32; 16]> = (0..slots)
+            .map(|_| std::array::from_fn(|_| rng.next_u64() as u32))
+            .collect();
+        let source = Buffer::from_slice(&ctx, "records", &records).unwrap();
+        let base = source.device_address().unwrap();
+        // Every record named once in a random order; every seventh pointer null.
+        let mut order: Vec<usize> = (0..n).collect();
+        for k in (1..n).rev() {
+            order.swap(k, (rng.next_u64() % (k as u64 + 1)) as usize);
+        }
+        let pointers: Vec<u64> = order
+            .iter()
+            .enumerate()
+            .map(|(k, &slot)| match k % 7 {
+                6 => 0,
+                _ => base + 64 * slot as u64,
+            })
+            .collect();
+        let mut stored = pointers.clone();
+        stored.resize(n.max(1), 0);
+        let pointer_buffer = Buffer::from_slice(&ctx, "pointers", &stored).unwrap();
+        let out = Buffer::<[u32; 16]>::new(&ctx, "gathered", slots).unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        gather
+            .record(
+                &mut rec,
+                pointer_buffer.device_address().unwrap(),
+                n as u32,
+                out.as_raw(),
+            )
+            .unwrap();
+        rec.submit_and_wait().unwrap();
+        let device = out.download().unwrap();
+        let host = instance_pointers_on_host(&pointers, |p| {
+            bytemuck::cast(records[((p - base) / 64) as usize])
+        });
+        for k in 0..n {
+            let want: [u32; 16] = bytemuck::cast(host[k]);
+            assert_eq!(device[k], want, "n {n} record {k}");
         }
     }
     common::assert_silent(&ctx);

@@ -75,7 +75,25 @@ layout(push_constant) uniform Push {
     uvec2 src_address; // `address`: where word 0 of the vertices (vkrt_spheres) lies
     uvec2 idx_address; // `address`: where word 0 of the indices lies
     uvec2 xf_address;  // `address`, has_transform 2: where the transform's twelve floats lie
+    uint vertex_format; // FORMAT_*
+    uint pad;
 } pc;
+
+// VertexFormat::code.
+#define FORMAT_RGB32F 0u
+#define FORMAT_RG32F 1u
+#define FORMAT_RG16F 2u
+#define FORMAT_RGBA16F 3u
+#define FORMAT_RG16_SNORM 4u
+#define FORMAT_RGBA16_SNORM 5u
+
+// A signed 16-bit normalized value as VertexFormat::decode reads it: max(v / 32767, -1),
+// divided (not multiplied by a reciprocal) as the CPU twin is.
+float snorm16(uint bits) {
+    precise float v = float(int(bits << 16u) >> 16);
+    v = v / 32767.0;
+    return max(v, -1.0);
+}
 
 uint index_at(uint k) {
     if (pc.index_type == INDEX_NONE) {
@@ -103,8 +121,32 @@ vec4 transform_row(uint k) {
 
 vec3 vertex_at(uint v) {
     uint w = pc.src_word + v * pc.stride_words;
-    vec3 p = vec3(uintBitsToFloat(SRC(w)), uintBitsToFloat(SRC(w + 1u)),
-                  uintBitsToFloat(SRC(w + 2u)));
+    vec3 p;
+    switch (pc.vertex_format) {
+    case FORMAT_RG32F:
+        p = vec3(uintBitsToFloat(SRC(w)), uintBitsToFloat(SRC(w + 1u)), 0.0);
+        break;
+    case FORMAT_RG16F:
+        p = vec3(unpackHalf2x16(SRC(w)), 0.0);
+        break;
+    case FORMAT_RGBA16F:
+        p = vec3(unpackHalf2x16(SRC(w)), unpackHalf2x16(SRC(w + 1u)).x);
+        break;
+    case FORMAT_RG16_SNORM: {
+        uint a = SRC(w);
+        p = vec3(snorm16(a & 0xffffu), snorm16(a >> 16u), 0.0);
+        break;
+    }
+    case FORMAT_RGBA16_SNORM: {
+        uint a = SRC(w);
+        p = vec3(snorm16(a & 0xffffu), snorm16(a >> 16u), snorm16(SRC(w + 1u) & 0xffffu));
+        break;
+    }
+    default:
+        p = vec3(uintBitsToFloat(SRC(w)), uintBitsToFloat(SRC(w + 1u)),
+                 uintBitsToFloat(SRC(w + 2u)));
+        break;
+    }
     if (pc.has_transform != 0u) {
         // Left to right, no fused multiply-add: the CPU twin (Triangles::transformed) rounds
         // the same way.

@@ -14,6 +14,7 @@ use std::sync::{Arc, Mutex};
 
 use ash::vk;
 use vkrt::accel::geometry::GeometryData;
+use vkrt::accel::instances::InstancePointers;
 use vkrt::gpu::{RawBuffer, Recorder};
 use vkrt::{
     Aabbs, AccelBuilder, AccelKind, AccelSizes, BuildFlags, Geometry, GeometryShape, GpuGeometry,
@@ -79,6 +80,7 @@ impl AccelObject {
 pub struct Builders {
     bottom: Mutex<Vec<(AccelKind, Arc<AccelBuilder>)>>,
     top: Mutex<Vec<(AccelKind, Arc<TopLevelBuilder>)>>,
+    pointers: Mutex<Option<Arc<InstancePointers>>>,
     live: Mutex<HashSet<u64>>,
 }
 
@@ -90,6 +92,16 @@ impl Builders {
         }
         let new = Arc::new(AccelBuilder::new(ctx, kind)?);
         b.push((kind, new.clone()));
+        Ok(new)
+    }
+
+    fn pointers(&self, ctx: &vkrt::Context) -> vkrt::gpu::Result<Arc<InstancePointers>> {
+        let mut p = self.pointers.lock().expect("builders");
+        if let Some(p) = p.as_ref() {
+            return Ok(p.clone());
+        }
+        let new = Arc::new(InstancePointers::new(ctx)?);
+        *p = Some(new.clone());
         Ok(new)
     }
 
@@ -321,12 +333,9 @@ fn index_type(t: vk::IndexType) -> Result<Option<IndexType>, String> {
 }
 
 fn vertex_format(f: vk::Format) -> Result<VertexFormat, String> {
-    match f {
-        vk::Format::R32G32B32_SFLOAT => Ok(VertexFormat::Rgb32Float),
-        f => Err(format!(
-            "vertex format {f:?}: vkrt's builders read R32G32B32_SFLOAT"
-        )),
-    }
+    VertexFormat::from_vk(f).ok_or_else(|| {
+        format!("vertex format {f:?}: vkrt's builders read the six formats the extension requires")
+    })
 }
 
 fn opaque(g: &vk::AccelerationStructureGeometryKHR<'_>) -> bool {
@@ -473,7 +482,25 @@ fn sizes_of(
         vk::AccelerationStructureTypeKHR::TOP_LEVEL => {
             let max = counts.first().copied().unwrap_or(0);
             let builder = s.accel.top(&s.ctx, kind).map_err(|e| e.to_string())?;
-            builder.sizes_for(&s.ctx, max, 0, &flags)
+            // Instances given as pointers are gathered into the scratch, past the build's.
+            // SAFETY: a top level's one geometry is its instances.
+            let pointers = geometries.first().is_some_and(|g| unsafe {
+                g.geometry_type == vk::GeometryTypeKHR::INSTANCES
+                    && g.geometry.instances.array_of_pointers == vk::TRUE
+            });
+            builder
+                .sizes_for(&s.ctx, max, 0, &flags)
+                .map(|z| match pointers {
+                    false => z,
+                    true => {
+                        let room = |w: u64| pointer_room_at(w) + 64 * u64::from(max.max(1));
+                        AccelSizes {
+                            build_scratch_bytes: room(z.build_scratch_bytes),
+                            update_scratch_bytes: z.update_scratch_bytes.map(room),
+                            ..z
+                        }
+                    }
+                })
         }
         _ => {
             let shapes = bottom_shapes(geometries, counts)?;
@@ -616,62 +643,86 @@ unsafe fn build_one(
         }
         // SAFETY: the geometry type says which member holds.
         let instances = unsafe { g.geometry.instances };
-        if instances.array_of_pointers == vk::TRUE {
-            return Err("instances as an array of pointers are not supported yet".into());
-        }
+        let pointers = instances.array_of_pointers == vk::TRUE;
         let r = ranges[0];
         let count = r.primitive_count;
         // SAFETY: device builds give device addresses.
         let at = unsafe { instances.data.device_address } + u64::from(r.primitive_offset);
-        let records = match count {
-            // Nothing is read: any range of the structure's own buffer serves.
-            0 => RawBuffer {
-                raw: dst.buffer,
-                offset: dst.offset,
-                size: 64,
-            },
-            n => s
-                .buffers
-                .lock()
-                .map_err(|e| e.to_string())?
-                .resolve(at, 64 * u64::from(n))
-                .ok_or_else(|| format!("no buffer holds {n} instance records at {at:#x}"))?,
-        };
         let builder = s.accel.top(&s.ctx, kind).map_err(e)?;
+        if !update {
+            let reuse = matches!(built.as_ref(), Some(Built::Top { kind: k, flags: f, max, .. })
+                if *k == kind && *f == flags && count <= *max);
+            if !reuse {
+                let max = count.max(1);
+                let sizes = builder.sizes_for(&s.ctx, max, 0, &flags).map_err(e)?;
+                if HEADER + sizes.structure_bytes > dst.size {
+                    return Err(too_small(sizes.structure_bytes));
+                }
+                let top = builder
+                    .create_in(&s.ctx, &[], max, &flags, dst.memory())
+                    .map_err(e)?;
+                *built = Some(Built::Top {
+                    kind,
+                    flags,
+                    max,
+                    sizes,
+                    top: Box::new(top),
+                });
+            }
+        }
+        let Some(Built::Top { top, sizes, .. }) = built.as_mut() else {
+            return Err("an update of a top level never built".into());
+        };
+        let work = match update {
+            true => sizes.update_scratch_bytes.unwrap_or(0),
+            false => sizes.build_scratch_bytes,
+        };
+        let (scratch, records) = match (pointers, count) {
+            (true, n) if n > 0 => {
+                // The records the pointers name, gathered past the build's own scratch
+                // (the sizes reserve the room).
+                let room_at = pointer_room_at(work);
+                let whole = scratch(room_at + 64 * u64::from(n))?;
+                let records = RawBuffer {
+                    offset: whole.offset + room_at,
+                    size: 64 * u64::from(n),
+                    ..whole
+                };
+                let gather = s.accel.pointers(&s.ctx).map_err(e)?;
+                gather.record(rec, at, n, records).map_err(e)?;
+                (
+                    RawBuffer {
+                        size: room_at,
+                        ..whole
+                    },
+                    records,
+                )
+            }
+            // Nothing is read: any range of the structure's own buffer serves.
+            (_, 0) => (
+                scratch(work)?,
+                RawBuffer {
+                    raw: dst.buffer,
+                    offset: dst.offset,
+                    size: 64,
+                },
+            ),
+            (false, n) => (
+                scratch(work)?,
+                s.buffers
+                    .lock()
+                    .map_err(|e| e.to_string())?
+                    .resolve(at, 64 * u64::from(n))
+                    .ok_or_else(|| format!("no buffer holds {n} instance records at {at:#x}"))?,
+            ),
+        };
         if update {
-            let Some(Built::Top { top, sizes, .. }) = built.as_mut() else {
-                return Err("an update of a top level never built".into());
-            };
-            let scratch = scratch(sizes.update_scratch_bytes.unwrap_or(0))?;
             return builder
                 .record_update_from(rec, top, records, scratch)
                 .map_err(e);
         }
-        let reuse = matches!(built.as_ref(), Some(Built::Top { kind: k, flags: f, max, .. })
-            if *k == kind && *f == flags && count <= *max);
-        if !reuse {
-            let max = count.max(1);
-            let sizes = builder.sizes_for(&s.ctx, max, 0, &flags).map_err(e)?;
-            if HEADER + sizes.structure_bytes > dst.size {
-                return Err(too_small(sizes.structure_bytes));
-            }
-            let top = builder
-                .create_in(&s.ctx, &[], max, &flags, dst.memory())
-                .map_err(e)?;
-            *built = Some(Built::Top {
-                kind,
-                flags,
-                max,
-                sizes,
-                top: Box::new(top),
-            });
-        }
-        let Some(Built::Top { top, sizes, .. }) = built.as_mut() else {
-            unreachable!("created above")
-        };
         let words = top.handle_words().map_err(e)?;
         write_header(s, rec, dst, &words);
-        let scratch = scratch(sizes.build_scratch_bytes)?;
         return builder
             .record_build_from(rec, top, records, count, scratch)
             .map_err(e);
@@ -733,6 +784,12 @@ unsafe fn build_one(
     builder
         .record_build_from(rec, geometry, &list, scratch)
         .map_err(e)
+}
+
+/// Where, in a top level's scratch, the records gathered from pointers start: past the
+/// `work` bytes its build or update uses, aligned for a storage binding.
+fn pointer_room_at(work: u64) -> u64 {
+    work.max(MIN_SCRATCH).next_multiple_of(256)
 }
 
 /// Records the header's writes: the handle's words at the structure's address, the address

@@ -34,6 +34,84 @@ struct ComputeState {
     sets: Vec<(vk::PipelineLayout, u32, Vec<vk::DescriptorSet>, Vec<u32>)>,
     /// Its push constants, in order (layout, stages, offset, bytes).
     push: Vec<(vk::PipelineLayout, vk::ShaderStageFlags, u32, Vec<u8>)>,
+    /// Its push-descriptor writes, in order (layout, set, writes).
+    push_descriptors: Vec<(vk::PipelineLayout, u32, Vec<OwnedWrite>)>,
+}
+
+/// A descriptor write with the arrays it points to.
+struct OwnedWrite {
+    binding: u32,
+    element: u32,
+    ty: vk::DescriptorType,
+    count: u32,
+    images: Vec<vk::DescriptorImageInfo>,
+    buffers: Vec<vk::DescriptorBufferInfo>,
+    views: Vec<vk::BufferView>,
+}
+
+impl OwnedWrite {
+    /// # Safety
+    /// `w`'s arrays hold its count.
+    unsafe fn of(w: &vk::WriteDescriptorSet<'_>) -> Self {
+        let n = w.descriptor_count;
+        // SAFETY: the caller's contract; each array is read only for the types that use it.
+        unsafe {
+            Self {
+                binding: w.dst_binding,
+                element: w.dst_array_element,
+                ty: w.descriptor_type,
+                count: n,
+                images: match w.p_image_info.is_null() {
+                    true => Vec::new(),
+                    false => slice(w.p_image_info, n).to_vec(),
+                },
+                buffers: match w.p_buffer_info.is_null() {
+                    true => Vec::new(),
+                    false => slice(w.p_buffer_info, n).to_vec(),
+                },
+                views: match w.p_texel_buffer_view.is_null() {
+                    true => Vec::new(),
+                    false => slice(w.p_texel_buffer_view, n).to_vec(),
+                },
+            }
+        }
+    }
+
+    fn write(&self) -> vk::WriteDescriptorSet<'_> {
+        let mut w = vk::WriteDescriptorSet::default()
+            .dst_binding(self.binding)
+            .dst_array_element(self.element)
+            .descriptor_type(self.ty);
+        w.descriptor_count = self.count;
+        w.p_image_info = self.images.as_ptr();
+        w.p_buffer_info = self.buffers.as_ptr();
+        w.p_texel_buffer_view = self.views.as_ptr();
+        w
+    }
+}
+
+/// Keeps a compute push-descriptor write (its structures already texel views) to replay
+/// after vkrt's dispatches.
+pub fn note_push_descriptors(
+    s: &Served,
+    cb: vk::CommandBuffer,
+    layout: vk::PipelineLayout,
+    set: u32,
+    writes: &[vk::WriteDescriptorSet<'_>],
+) {
+    // SAFETY: writes the layer has just translated from the application's valid ones.
+    let owned: Vec<OwnedWrite> = writes
+        .iter()
+        .map(|w| unsafe { OwnedWrite::of(w) })
+        .collect();
+    if let Ok(mut c) = s.commands.lock() {
+        c.buffers
+            .entry(cb)
+            .or_default()
+            .compute
+            .push_descriptors
+            .push((layout, set, owned));
+    }
 }
 
 impl CommandBuffers {
@@ -98,6 +176,20 @@ pub fn restore(s: &Served, cb: vk::CommandBuffer) {
         }
         for (layout, stages, offset, bytes) in &st.push {
             d.cmd_push_constants(cb, *layout, *stages, *offset, bytes);
+        }
+        if let Some(f) = s.descriptor_fns.push_descriptor_set {
+            for (layout, set, writes) in &st.push_descriptors {
+                let w: Vec<vk::WriteDescriptorSet<'_>> =
+                    writes.iter().map(OwnedWrite::write).collect();
+                f(
+                    cb,
+                    vk::PipelineBindPoint::COMPUTE,
+                    *layout,
+                    *set,
+                    w.len() as u32,
+                    w.as_ptr(),
+                );
+            }
         }
     }
 }

@@ -34,6 +34,8 @@ pub struct Served {
     pub accel: accel::Builders,
     /// The synchronization-2 entry points the layer translates.
     pub sync2: sync::Sync2Fns,
+    /// The descriptor entry points the layer translates that a device may lack.
+    pub descriptor_fns: descriptors::DescriptorFns,
 }
 
 static DEVICES: LazyLock<RwLock<HashMap<usize, Arc<LayerDevice>>>> =
@@ -232,6 +234,8 @@ unsafe fn create(
         accel: accel::Builders::default(),
         // SAFETY: the next layer's, for a live device.
         sync2: unsafe { sync::Sync2Fns::load(next_gdpa, device) },
+        // SAFETY: as above.
+        descriptor_fns: unsafe { descriptors::DescriptorFns::load(next_gdpa, device) },
     };
     register(device, &inst, next_gdpa, Some(Arc::new(served)));
     vk::Result::SUCCESS

@@ -484,9 +484,9 @@ fn fill_properties(
     p.min_acceleration_structure_scratch_offset_alignment = 256;
 }
 
-/// The vertex formats vkrt's builders read.
+/// The vertex formats vkrt's builders read: the six the extension requires.
 fn is_vertex_format(format: vk::Format) -> bool {
-    format == vk::Format::R32G32B32_SFLOAT
+    vkrt::VertexFormat::from_vk(format).is_some()
 }
 
 unsafe extern "system" fn get_format_properties(

@@ -109,7 +109,7 @@ pub struct Triangles {
     pub vertices: GeometryData,
     /// How each vertex's position is stored.
     pub format: VertexFormat,
-    /// Bytes from one vertex to the next (a multiple of 4, at least 12).
+    /// Bytes from one vertex to the next (a multiple of 4, at least the format's bytes).
     pub stride: u64,
     /// Vertices the indices may name (`maxVertex + 1`).
     pub vertex_count: u32,
@@ -338,10 +338,12 @@ pub(crate) fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
     let err = |what: String| Err(usage(format!("geometry {k}: {what}")));
     match g {
         Geometry::Triangles(t) => {
-            if t.stride < 12 || t.stride % 4 != 0 {
+            if t.stride < t.format.bytes() || t.stride % 4 != 0 {
                 return err(format!(
-                    "vertex stride {} (a multiple of 4, at least 12)",
-                    t.stride
+                    "vertex stride {} (a multiple of 4, at least {} for {:?})",
+                    t.stride,
+                    t.format.bytes(),
+                    t.format
                 ));
             }
             if t.vertices.start() % 4 != 0 {
@@ -387,7 +389,7 @@ pub(crate) fn check(ctx: &Context, k: usize, g: &Geometry) -> Result<()> {
             }
             let needed = match t.vertex_count {
                 0 => return err("triangles over 0 vertices".into()),
-                n => u64::from(n - 1) * t.stride + 12,
+                n => u64::from(n - 1) * t.stride + t.format.bytes(),
             };
             if needed > t.vertices.size() {
                 return err(format!(
@@ -538,6 +540,8 @@ struct GatherPush {
     src_address: u64,
     idx_address: u64,
     transform_address: u64,
+    vertex_format: u32,
+    pad: u32,
 }
 
 /// Where the gather reads one of a geometry's inputs: a binding (buffers) or a word-aligned
@@ -742,6 +746,8 @@ impl GeometryGather {
                         Some(Transform::At(a)) => a,
                         _ => 0,
                     },
+                    vertex_format: t.format.code(),
+                    pad: 0,
                 };
                 (src, ix, push)
             }
@@ -838,8 +844,7 @@ pub fn gather_on_host(
                     if ok {
                         pts = corners.map(|c| {
                             let at = c as usize * t.stride as usize;
-                            let p =
-                                Vec3::new(f32_at(&v, at), f32_at(&v, at + 4), f32_at(&v, at + 8));
+                            let p = Vec3::from_array(t.format.decode(&v[at..]));
                             match &transform {
                                 Some(m) => transform_point(m, p),
                                 None => p,

@@ -8,14 +8,98 @@
 
 use crate::gpu::{Context, GpuError, Result};
 
-/// How vertex positions are stored (`VkFormat`).
+/// How vertex positions are stored (`VkFormat`): the six formats
+/// `VK_KHR_acceleration_structure` requires of every device. A format without a z component
+/// gives z = 0; a fourth component is ignored (as is any trailing data up to the stride, so
+/// `R32G32B32A32` vertices work as `Rgb32Float` with a 16-byte stride).
 #[derive(Clone, Copy, Debug, Default, PartialEq, Eq)]
 #[non_exhaustive]
 pub enum VertexFormat {
-    /// `VK_FORMAT_R32G32B32_SFLOAT`: three 32-bit floats (any trailing data up to the stride
-    /// is ignored, so `R32G32B32A32` vertices work with a 16-byte stride).
+    /// `VK_FORMAT_R32G32B32_SFLOAT`: three 32-bit floats.
     #[default]
     Rgb32Float,
+    /// `VK_FORMAT_R32G32_SFLOAT`: two 32-bit floats.
+    Rg32Float,
+    /// `VK_FORMAT_R16G16_SFLOAT`: two half floats.
+    Rg16Float,
+    /// `VK_FORMAT_R16G16B16A16_SFLOAT`: four half floats.
+    Rgba16Float,
+    /// `VK_FORMAT_R16G16_SNORM`: two signed 16-bit normalized values (`max(v / 32767, -1)`).
+    Rg16Snorm,
+    /// `VK_FORMAT_R16G16B16A16_SNORM`: four signed 16-bit normalized values.
+    Rgba16Snorm,
+}
+
+impl VertexFormat {
+    /// Bytes of one vertex: the least stride.
+    pub fn bytes(self) -> u64 {
+        match self {
+            VertexFormat::Rgb32Float => 12,
+            VertexFormat::Rg32Float | VertexFormat::Rgba16Float | VertexFormat::Rgba16Snorm => 8,
+            VertexFormat::Rg16Float | VertexFormat::Rg16Snorm => 4,
+        }
+    }
+
+    /// The format of `VkFormat` `raw`, if it is one of the six.
+    pub fn from_vk(raw: ash::vk::Format) -> Option<Self> {
+        use ash::vk::Format as F;
+        Some(match raw {
+            F::R32G32B32_SFLOAT => VertexFormat::Rgb32Float,
+            F::R32G32_SFLOAT => VertexFormat::Rg32Float,
+            F::R16G16_SFLOAT => VertexFormat::Rg16Float,
+            F::R16G16B16A16_SFLOAT => VertexFormat::Rgba16Float,
+            F::R16G16_SNORM => VertexFormat::Rg16Snorm,
+            F::R16G16B16A16_SNORM => VertexFormat::Rgba16Snorm,
+            _ => return None,
+        })
+    }
+
+    /// The gather kernel's code for it (`FORMAT_*` in `accel/geometry_gather.comp`).
+    pub(crate) fn code(self) -> u32 {
+        match self {
+            VertexFormat::Rgb32Float => 0,
+            VertexFormat::Rg32Float => 1,
+            VertexFormat::Rg16Float => 2,
+            VertexFormat::Rgba16Float => 3,
+            VertexFormat::Rg16Snorm => 4,
+            VertexFormat::Rgba16Snorm => 5,
+        }
+    }
+
+    /// The position of a vertex whose bytes start `v` (at least [`VertexFormat::bytes`]),
+    /// as the gather kernel reads it.
+    pub fn decode(self, v: &[u8]) -> [f32; 3] {
+        let f32_at = |k: usize| f32::from_le_bytes(v[4 * k..4 * k + 4].try_into().unwrap());
+        let u16_at = |k: usize| u16::from_le_bytes([v[2 * k], v[2 * k + 1]]);
+        let half = |k: usize| half_to_f32(u16_at(k));
+        let snorm = |k: usize| (f32::from(u16_at(k) as i16) / 32767.0).max(-1.0);
+        match self {
+            VertexFormat::Rgb32Float => [f32_at(0), f32_at(1), f32_at(2)],
+            VertexFormat::Rg32Float => [f32_at(0), f32_at(1), 0.0],
+            VertexFormat::Rg16Float => [half(0), half(1), 0.0],
+            VertexFormat::Rgba16Float => [half(0), half(1), half(2)],
+            VertexFormat::Rg16Snorm => [snorm(0), snorm(1), 0.0],
+            VertexFormat::Rgba16Snorm => [snorm(0), snorm(1), snorm(2)],
+        }
+    }
+}
+
+/// An IEEE half's value (exact: every half is a float).
+pub fn half_to_f32(h: u16) -> f32 {
+    let sign = u32::from(h >> 15) << 31;
+    let exponent = u32::from((h >> 10) & 0x1f);
+    let mantissa = u32::from(h & 0x3ff);
+    let bits = match (exponent, mantissa) {
+        (0, 0) => sign,
+        // Subnormal: m · 2^-24, normalized.
+        (0, m) => {
+            let shift = m.leading_zeros() - 21;
+            sign | ((113 - shift) << 23) | ((m << shift) & 0x3ff) << 13
+        }
+        (31, m) => sign | 0x7f80_0000 | (m << 13),
+        (e, m) => sign | ((e + 112) << 23) | (m << 13),
+    };
+    f32::from_bits(bits)
 }
 
 /// The type of an index buffer's entries (`VkIndexType`).
@@ -49,7 +133,7 @@ pub enum GeometryShape {
     Triangles {
         /// How each vertex's position is stored.
         format: VertexFormat,
-        /// Bytes from one vertex to the next (a multiple of 4, at least 12).
+        /// Bytes from one vertex to the next (a multiple of 4, at least the format's bytes).
         stride: u64,
         /// Vertices the indices may name (`maxVertex + 1`).
         vertex_count: u32,
@@ -168,15 +252,17 @@ impl GeometryShape {
         };
         match *self {
             GeometryShape::Triangles {
+                format,
                 stride,
                 vertex_count,
                 index_type,
                 triangle_count,
                 ..
             } => {
-                if stride < 12 || stride % 4 != 0 {
+                if stride < format.bytes() || stride % 4 != 0 {
                     return err(format!(
-                        "vertex stride {stride} (a multiple of 4, at least 12)"
+                        "vertex stride {stride} (a multiple of 4, at least {} for {format:?})",
+                        format.bytes()
                     ));
                 }
                 if triangle_count == 0 {

@@ -84,6 +84,97 @@ fn instance_boxes_kernel(ctx: &Context) -> Result<Arc<Kernel>> {
     }
 }
 
+/// `accel.instance_pointers`: instance records given as an array of pointers
+/// (`arrayOfPointers` in `VkAccelerationStructureGeometryInstancesDataKHR`) gathered into one
+/// array, which a top level's build then reads as it reads the caller's records.
+pub struct InstancePointers {
+    kernel: Arc<Kernel>,
+}
+
+#[repr(C)]
+#[derive(Clone, Copy, bytemuck::Pod, bytemuck::Zeroable)]
+struct PointersPush {
+    pointers: u64,
+    count: u32,
+    first: u32,
+}
+
+impl InstancePointers {
+    /// Compiles the gather (the context needs `bufferDeviceAddress`).
+    pub fn new(ctx: &Context) -> Result<Self> {
+        if !ctx.info().features.buffer_device_address {
+            return Err(usage(
+                "InstancePointers::new",
+                "instance pointers are device addresses: the context needs bufferDeviceAddress",
+            ));
+        }
+        let kernel = ctx.kernel(
+            &kernels::ACCEL_INSTANCE_POINTERS,
+            &Spec::new().workgroup(WORKGROUP),
+        )?;
+        Ok(Self { kernel })
+    }
+
+    /// Records the gather of the `count` records the pointers at `pointers` (device
+    /// addresses, 8 bytes each, each 16-byte aligned or null) point to into `out` (at least
+    /// `64 * count` bytes, offset a multiple of 16), in their order. A null pointer gives a
+    /// record of zeros. Ends with a compute → compute barrier; allocates nothing.
+    pub fn record(
+        &self,
+        rec: &mut Recorder,
+        pointers: u64,
+        count: u32,
+        out: RawBuffer,
+    ) -> Result<()> {
+        let call = "InstancePointers::record";
+        if count == 0 {
+            return Ok(());
+        }
+        if pointers == 0 || pointers % 8 != 0 {
+            return Err(usage(
+                call,
+                format!("the pointers' address {pointers:#x} is not a non-null multiple of 8"),
+            ));
+        }
+        if out.size < 64 * u64::from(count) || out.offset % 16 != 0 {
+            return Err(usage(
+                call,
+                format!(
+                    "{count} records need 64 bytes each at an offset a multiple of 16; the range \
+                     holds {} at {}",
+                    out.size, out.offset
+                ),
+            ));
+        }
+        let ctx = rec.context().clone();
+        let (bound_out, skip) = bound(&ctx, &out);
+        let push = PointersPush {
+            pointers,
+            count,
+            first: (skip / 16) as u32,
+        };
+        let groups = rec.groups_1d(u64::from(count), WORKGROUP);
+        rec.dispatch(&self.kernel, groups, &[&bound_out], &push);
+        rec.compute_to_compute();
+        rec.check()
+    }
+}
+
+/// [`InstancePointers::record`] on the host: the records `read` gives at each pointer (a null
+/// one: zeros), in order.
+pub fn instance_pointers_on_host(
+    pointers: &[u64],
+    read: impl Fn(u64) -> [u8; 64],
+) -> Vec<[u8; 64]> {
+    pointers
+        .iter()
+        .map(|&p| match p {
+            0 => [0; 64],
+            p => read(p),
+        })
+        .collect()
+}
+
 /// What [`instance_boxes`] makes of a top level's instances.
 #[derive(Clone, Debug, Default, PartialEq)]
 pub struct InstanceBoxes {

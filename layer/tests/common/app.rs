@@ -66,13 +66,14 @@ pub fn grid(bump: f32) -> (Vec<[f32; 3]>, Vec<u32>) {
 }
 
 /// Geometry 0 of the second level: a fan of four triangles, u16 indices, not opaque (the
-/// shader confirms even primitives).
+/// shader confirms even primitives), its vertices half floats (`R16G16B16A16_SFLOAT`).
 pub fn fan() -> (Vec<[f32; 3]>, Vec<u16>) {
+    // Values a half holds exactly: the geometry is read as R16G16B16A16_SFLOAT.
     let v = vec![
         [0.0, 0.0, 0.0],
-        [1.0, 0.0, 0.1],
-        [0.0, 1.0, -0.1],
-        [-1.0, 0.0, 0.05],
+        [1.0, 0.0, 0.125],
+        [0.0, 1.0, -0.125],
+        [-1.0, 0.0, 0.0625],
         [0.0, -1.0, 0.0],
     ];
     let idx = vec![0, 1, 2, 0, 2, 3, 0, 3, 4, 0, 4, 1];
@@ -379,6 +380,20 @@ impl Gpu {
     }
 }
 
+const F32X3: vk::Format = vk::Format::R32G32B32_SFLOAT;
+
+/// A half float's bits, for values a half holds exactly (sign, exponent, the top ten bits
+/// of the mantissa).
+fn half(x: f32) -> u16 {
+    if x == 0.0 {
+        return 0;
+    }
+    let b = x.to_bits();
+    assert_eq!(b & 0x1fff, 0, "{x} is not exact in a half");
+    let e = ((b >> 23) & 0xff) as i32 - 127 + 15;
+    (((b >> 16) & 0x8000) | ((e as u32) << 10) | ((b >> 13) & 0x3ff)) as u16
+}
+
 pub const INPUT: vk::BufferUsageFlags = vk::BufferUsageFlags::from_raw(
     vk::BufferUsageFlags::ACCELERATION_STRUCTURE_BUILD_INPUT_READ_ONLY_KHR.as_raw()
         | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS.as_raw()
@@ -504,6 +519,72 @@ pub unsafe fn setup(validation: Validation, api: u32) -> Result<(ash::Entry, Gpu
     ))
 }
 
+/// Writes `set` (the structure, the output and the spheres) through a descriptor update
+/// template, as an application that caches its descriptor layouts does.
+unsafe fn rewrite_with_template(
+    g: &Gpu,
+    set: vk::DescriptorSet,
+    set_layout: vk::DescriptorSetLayout,
+    tlas: vk::AccelerationStructureKHR,
+    out: vk::Buffer,
+    spheres: vk::Buffer,
+) {
+    #[repr(C)]
+    struct Data {
+        tlas: vk::AccelerationStructureKHR,
+        out: vk::DescriptorBufferInfo,
+        spheres: vk::DescriptorBufferInfo,
+    }
+    let entry =
+        |binding: u32, ty: vk::DescriptorType, offset: usize| vk::DescriptorUpdateTemplateEntry {
+            dst_binding: binding,
+            dst_array_element: 0,
+            descriptor_count: 1,
+            descriptor_type: ty,
+            offset,
+            stride: 0,
+        };
+    let entries = [
+        entry(
+            0,
+            vk::DescriptorType::ACCELERATION_STRUCTURE_KHR,
+            std::mem::offset_of!(Data, tlas),
+        ),
+        entry(
+            1,
+            vk::DescriptorType::STORAGE_BUFFER,
+            std::mem::offset_of!(Data, out),
+        ),
+        entry(
+            2,
+            vk::DescriptorType::STORAGE_BUFFER,
+            std::mem::offset_of!(Data, spheres),
+        ),
+    ];
+    let template = g
+        .device
+        .create_descriptor_update_template(
+            &vk::DescriptorUpdateTemplateCreateInfo::default()
+                .descriptor_update_entries(&entries)
+                .template_type(vk::DescriptorUpdateTemplateType::DESCRIPTOR_SET)
+                .descriptor_set_layout(set_layout),
+            None,
+        )
+        .unwrap();
+    let data = Data {
+        tlas,
+        out: vk::DescriptorBufferInfo::default()
+            .buffer(out)
+            .range(vk::WHOLE_SIZE),
+        spheres: vk::DescriptorBufferInfo::default()
+            .buffer(spheres)
+            .range(vk::WHOLE_SIZE),
+    };
+    g.device
+        .update_descriptor_set_with_template(set, template, (&data as *const Data).cast());
+    g.device.destroy_descriptor_update_template(template, None);
+}
+
 /// Reads the compacted sizes the first frame queried (from the pool and from the buffer it
 /// copied them to: the same), creates structures of those sizes and copies `originals` into
 /// them (`COMPACT`); returns the copies and their buffers.
@@ -605,7 +686,7 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
         .collect();
     let b_grid_v = g.buffer(4 * 3 * grid_v.len() as u64, INPUT);
     let b_grid_i = g.buffer(4 * grid_i.len() as u64, INPUT);
-    let b_fan_v = g.buffer(4 * 3 * fan_v.len() as u64, INPUT);
+    let b_fan_v = g.buffer(8 * fan_v.len() as u64, INPUT);
     let b_fan_i = g.buffer(2 * fan_i.len() as u64 + 8, INPUT);
     let b_soup = g.buffer(4 * 3 * soup_v.len() as u64, INPUT);
     let b_transform = g.buffer(48, INPUT);
@@ -614,23 +695,27 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
     let b_spheres = g.buffer(16 * sph.len() as u64, vk::BufferUsageFlags::STORAGE_BUFFER);
     g.write(b_grid_v, &grid_v);
     g.write(b_grid_i, &grid_i);
-    g.write(b_fan_v, &fan_v);
+    let fan_half: Vec<[u16; 4]> = fan_v
+        .iter()
+        .map(|p| [half(p[0]), half(p[1]), half(p[2]), 0])
+        .collect();
+    g.write(b_fan_v, &fan_half);
     g.write(b_fan_i, &fan_i);
     g.write(b_soup, &soup_v);
     g.write(b_boxes, &boxes);
     g.write(b_spheres, &sph);
 
-    let tri = |vb: usize,
+    let tri = |(vb, format, stride): (usize, vk::Format, u64),
                n_vertices: u32,
                ib: Option<(usize, vk::IndexType)>,
                xf: Option<usize>,
                opaque: bool| {
         let data = vk::AccelerationStructureGeometryTrianglesDataKHR::default()
-            .vertex_format(vk::Format::R32G32B32_SFLOAT)
+            .vertex_format(format)
             .vertex_data(vk::DeviceOrHostAddressConstKHR {
                 device_address: g.bufs[vb].address,
             })
-            .vertex_stride(12)
+            .vertex_stride(stride)
             .max_vertex(n_vertices - 1)
             .index_type(ib.map_or(vk::IndexType::NONE_KHR, |i| i.1))
             .index_data(vk::DeviceOrHostAddressConstKHR {
@@ -651,7 +736,7 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
     let levels = [
         Level {
             geometries: vec![tri(
-                b_grid_v,
+                (b_grid_v, F32X3, 12),
                 grid_v.len() as u32,
                 Some((b_grid_i, vk::IndexType::UINT32)),
                 None,
@@ -662,13 +747,19 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
         Level {
             geometries: vec![
                 tri(
-                    b_fan_v,
+                    (b_fan_v, vk::Format::R16G16B16A16_SFLOAT, 8),
                     fan_v.len() as u32,
                     Some((b_fan_i, vk::IndexType::UINT16)),
                     None,
                     false,
                 ),
-                tri(b_soup, soup_v.len() as u32, None, Some(b_transform), true),
+                tri(
+                    (b_soup, F32X3, 12),
+                    soup_v.len() as u32,
+                    None,
+                    Some(b_transform),
+                    true,
+                ),
             ],
             ranges: vec![
                 range(fan_i.len() as u32 / 3),
@@ -748,15 +839,21 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
     // The top level.
     let placements = instances(0);
     let n_instances = placements.len() as u32;
+    // The records lie in reverse order, named in order by an array of pointers.
     let b_instances = g.buffer(64 * u64::from(n_instances), INPUT);
+    let b_pointers = g.buffer(8 * u64::from(n_instances), INPUT);
+    let pointers: Vec<u64> = (0..u64::from(n_instances))
+        .map(|k| g.bufs[b_instances].address + 64 * (u64::from(n_instances) - 1 - k))
+        .collect();
+    g.write(b_pointers, &pointers);
     let inst_geometry = vk::AccelerationStructureGeometryKHR::default()
         .geometry_type(vk::GeometryTypeKHR::INSTANCES)
         .geometry(vk::AccelerationStructureGeometryDataKHR {
-            instances: vk::AccelerationStructureGeometryInstancesDataKHR::default().data(
-                vk::DeviceOrHostAddressConstKHR {
-                    device_address: g.bufs[b_instances].address,
-                },
-            ),
+            instances: vk::AccelerationStructureGeometryInstancesDataKHR::default()
+                .array_of_pointers(true)
+                .data(vk::DeviceOrHostAddressConstKHR {
+                    device_address: g.bufs[b_pointers].address,
+                }),
         });
     let top_geometries = [inst_geometry];
     let top_info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
@@ -943,6 +1040,7 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
         g.write(b_grid_v, &moved);
         let records: Vec<[u32; 16]> = instances(frame)
             .iter()
+            .rev()
             .map(|p| instance_record(p, references[p.level]))
             .collect();
         g.write(b_instances, &records);
@@ -1096,6 +1194,15 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
                 .collect(),
         );
         if frame == 0 {
+            // The set written again, through an update template this time.
+            rewrite_with_template(
+                &g,
+                set,
+                set_layout,
+                tlas,
+                g.bufs[b_out].buffer,
+                g.bufs[b_spheres].buffer,
+            );
             compacted = compact(
                 &mut g,
                 cb,
