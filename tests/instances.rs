@@ -1304,10 +1304,10 @@ fn instance_pointers_gather_as_their_cpu_twin() {
     let gather = InstancePointers::new(&ctx).unwrap();
     let sg = ctx.info().subgroup_size as usize;
     let mut rng = common::Rng(41);
-    for n in common::edge_sizes(sg, 64, 64)
+    let sizes = common::edge_sizes(sg, 64, 64)
         .into_iter()
-        .filter(|&n| n <= 20_000)
-    {
+        .filter(|&n| n <= 20_000);
+    for n in sizes.chain([12_345]) {
         let slots = n.max(1);
         let records: Vec<[u32; 16]> = (0..slots)
             .map(|_| std::array::from_fn(|_| rng.next_u64() as u32))

@@ -678,7 +678,7 @@ unsafe fn build_one(
             false => sizes.build_scratch_bytes,
         };
         let (scratch, records) = match (pointers, count) {
-            (true, n) if n > 0 => {
+            (true, n @ 1..) => {
                 // The records the pointers name, gathered past the build's own scratch
                 // (the sizes reserve the room).
                 let room_at = pointer_room_at(work);
