@@ -229,6 +229,68 @@ void main() {
 }
 "#;
 
+/// The full-screen triangle.
+pub const VERTEX_SHADER: &str = r#"
+#version 460
+void main() {
+    vec2 p = vec2(float((gl_VertexIndex << 1) & 2), float(gl_VertexIndex & 2));
+    gl_Position = vec4(p * 2.0 - 1.0, 0.0, 1.0);
+}
+"#;
+
+/// The compute shader's rays and query, one per pixel of a WIDTH² image: the committed hit
+/// in two RGBA32F attachments.
+pub const FRAGMENT_SHADER: &str = r#"
+#version 460
+#extension GL_EXT_ray_query : require
+layout(set = 0, binding = 0) uniform accelerationStructureEXT tlas;
+layout(set = 0, binding = 2) readonly buffer Spheres { vec4 spheres[]; };
+layout(push_constant) uniform Push { uint count; uint width; float z; uint cull; } pc;
+layout(location = 0) out vec4 hit0;
+layout(location = 1) out vec4 hit1;
+
+void main() {
+    uint i = uint(gl_FragCoord.y) * pc.width + uint(gl_FragCoord.x);
+    float u = (float(i % pc.width) + 0.37) / float(pc.width);
+    float v = (float(i / pc.width) + 0.61) / float(pc.width);
+    vec3 origin = vec3(-3.0 + 6.0 * u, -3.0 + 6.0 * v, pc.z);
+    vec3 dir = vec3(0.05, 0.03, -1.0);
+    rayQueryEXT q;
+    rayQueryInitializeEXT(q, tlas, gl_RayFlagsNoneEXT, pc.cull, origin, 0.0, dir, 100.0);
+    while (rayQueryProceedEXT(q)) {
+        uint prim = rayQueryGetIntersectionPrimitiveIndexEXT(q, false);
+        if (rayQueryGetIntersectionTypeEXT(q, false) == gl_RayQueryCandidateIntersectionTriangleEXT) {
+            if (prim % 2u == 0u) rayQueryConfirmIntersectionEXT(q);
+        } else {
+            vec3 o = rayQueryGetIntersectionObjectRayOriginEXT(q, false);
+            vec3 d = rayQueryGetIntersectionObjectRayDirectionEXT(q, false);
+            vec4 s = spheres[prim];
+            vec3 oc = o - s.xyz;
+            float a = dot(d, d), b = dot(oc, d), c = dot(oc, oc) - s.w * s.w;
+            float disc = b * b - a * c;
+            if (disc >= 0.0) {
+                float t = (-b - sqrt(disc)) / a;
+                float best = rayQueryGetIntersectionTypeEXT(q, true) == gl_RayQueryCommittedIntersectionNoneEXT
+                    ? 100.0 : rayQueryGetIntersectionTEXT(q, true);
+                if (t >= rayQueryGetRayTMinEXT(q) && t <= best) rayQueryGenerateIntersectionEXT(q, t);
+            }
+        }
+    }
+    uint kind = rayQueryGetIntersectionTypeEXT(q, true);
+    hit0 = vec4(0.0);
+    hit1 = vec4(0.0);
+    if (kind != gl_RayQueryCommittedIntersectionNoneEXT) {
+        hit0 = vec4(rayQueryGetIntersectionTEXT(q, true), float(kind),
+                    float(rayQueryGetIntersectionInstanceCustomIndexEXT(q, true)),
+                    float(rayQueryGetIntersectionInstanceIdEXT(q, true)));
+        vec2 b = kind == gl_RayQueryCommittedIntersectionTriangleEXT
+            ? rayQueryGetIntersectionBarycentricsEXT(q, true) : vec2(0.0);
+        hit1 = vec4(float(rayQueryGetIntersectionGeometryIndexEXT(q, true)),
+                    float(rayQueryGetIntersectionPrimitiveIndexEXT(q, true)), b);
+    }
+}
+"#;
+
 pub fn compile(source: &str) -> Vec<u32> {
     compile_with(source, &[])
 }
@@ -412,8 +474,9 @@ fn instance_record(p: &Placement, reference: u64) -> [u32; 16] {
     r
 }
 
-/// Runs the application: two frames (build, then update), each traced; returns each
-/// frame's hits. `Err` where device creation fails (the code).
+/// Runs the application: two frames (build, then update), each traced by the compute
+/// shader, then the second frame's scene traced by a fragment shader; returns the three
+/// sets of hits. `Err` where device creation fails (the code).
 pub fn run(validation: Validation) -> Result<Vec<Vec<Hit>>, vk::Result> {
     unsafe { run_unsafe(validation, vk::API_VERSION_1_2) }
 }
@@ -517,6 +580,390 @@ pub unsafe fn setup(validation: Validation, api: u32) -> Result<(ash::Entry, Gpu
             bufs: Vec::new(),
         },
     ))
+}
+
+/// Traces every ray once more from a fragment shader (one pixel each, a WIDTH² render
+/// pass into two RGBA32F attachments, copied to a buffer), as the second frame left the
+/// scene; returns its hits.
+unsafe fn fragment_pass(
+    g: &mut Gpu,
+    cmd_pool: vk::CommandPool,
+    fence: vk::Fence,
+    tlas: vk::AccelerationStructureKHR,
+    b_spheres: usize,
+) -> Vec<Hit> {
+    let d = g.device.clone();
+    let format = vk::Format::R32G32B32A32_SFLOAT;
+    let extent = vk::Extent3D {
+        width: WIDTH,
+        height: WIDTH,
+        depth: 1,
+    };
+    let rays = (WIDTH * WIDTH) as usize;
+    let mut images = Vec::new();
+    let mut views = Vec::new();
+    let mut memories = Vec::new();
+    for _ in 0..2 {
+        let image = d
+            .create_image(
+                &vk::ImageCreateInfo::default()
+                    .image_type(vk::ImageType::TYPE_2D)
+                    .format(format)
+                    .extent(extent)
+                    .mip_levels(1)
+                    .array_layers(1)
+                    .samples(vk::SampleCountFlags::TYPE_1)
+                    .usage(
+                        vk::ImageUsageFlags::COLOR_ATTACHMENT | vk::ImageUsageFlags::TRANSFER_SRC,
+                    ),
+                None,
+            )
+            .unwrap();
+        let req = d.get_image_memory_requirements(image);
+        let ty = (0..g.props.memory_type_count)
+            .find(|&i| req.memory_type_bits & (1 << i) != 0)
+            .unwrap();
+        let memory = d
+            .allocate_memory(
+                &vk::MemoryAllocateInfo::default()
+                    .allocation_size(req.size)
+                    .memory_type_index(ty),
+                None,
+            )
+            .unwrap();
+        d.bind_image_memory(image, memory, 0).unwrap();
+        let view = d
+            .create_image_view(
+                &vk::ImageViewCreateInfo::default()
+                    .image(image)
+                    .view_type(vk::ImageViewType::TYPE_2D)
+                    .format(format)
+                    .subresource_range(vk::ImageSubresourceRange {
+                        aspect_mask: vk::ImageAspectFlags::COLOR,
+                        base_mip_level: 0,
+                        level_count: 1,
+                        base_array_layer: 0,
+                        layer_count: 1,
+                    }),
+                None,
+            )
+            .unwrap();
+        images.push(image);
+        views.push(view);
+        memories.push(memory);
+    }
+    let attachment = vk::AttachmentDescription::default()
+        .format(format)
+        .samples(vk::SampleCountFlags::TYPE_1)
+        .load_op(vk::AttachmentLoadOp::CLEAR)
+        .store_op(vk::AttachmentStoreOp::STORE)
+        .initial_layout(vk::ImageLayout::UNDEFINED)
+        .final_layout(vk::ImageLayout::TRANSFER_SRC_OPTIMAL);
+    let attachments = [attachment, attachment];
+    let refs = [
+        vk::AttachmentReference {
+            attachment: 0,
+            layout: vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
+        },
+        vk::AttachmentReference {
+            attachment: 1,
+            layout: vk::ImageLayout::COLOR_ATTACHMENT_OPTIMAL,
+        },
+    ];
+    let subpass = [vk::SubpassDescription::default()
+        .pipeline_bind_point(vk::PipelineBindPoint::GRAPHICS)
+        .color_attachments(&refs)];
+    // The attachments' writes before the copy that follows the pass.
+    let dependencies = [vk::SubpassDependency {
+        src_subpass: 0,
+        dst_subpass: vk::SUBPASS_EXTERNAL,
+        src_stage_mask: vk::PipelineStageFlags::COLOR_ATTACHMENT_OUTPUT,
+        dst_stage_mask: vk::PipelineStageFlags::TRANSFER,
+        src_access_mask: vk::AccessFlags::COLOR_ATTACHMENT_WRITE,
+        dst_access_mask: vk::AccessFlags::TRANSFER_READ,
+        dependency_flags: vk::DependencyFlags::empty(),
+    }];
+    let render_pass = d
+        .create_render_pass(
+            &vk::RenderPassCreateInfo::default()
+                .attachments(&attachments)
+                .subpasses(&subpass)
+                .dependencies(&dependencies),
+            None,
+        )
+        .unwrap();
+    let framebuffer = d
+        .create_framebuffer(
+            &vk::FramebufferCreateInfo::default()
+                .render_pass(render_pass)
+                .attachments(&views)
+                .width(WIDTH)
+                .height(WIDTH)
+                .layers(1),
+            None,
+        )
+        .unwrap();
+    let bindings = [
+        vk::DescriptorSetLayoutBinding::default()
+            .binding(0)
+            .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+            .descriptor_count(1)
+            .stage_flags(vk::ShaderStageFlags::FRAGMENT),
+        vk::DescriptorSetLayoutBinding::default()
+            .binding(2)
+            .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+            .descriptor_count(1)
+            .stage_flags(vk::ShaderStageFlags::FRAGMENT),
+    ];
+    let set_layout = d
+        .create_descriptor_set_layout(
+            &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
+            None,
+        )
+        .unwrap();
+    let set_layouts = [set_layout];
+    let push_range = [vk::PushConstantRange::default()
+        .stage_flags(vk::ShaderStageFlags::FRAGMENT)
+        .size(16)];
+    let layout = d
+        .create_pipeline_layout(
+            &vk::PipelineLayoutCreateInfo::default()
+                .set_layouts(&set_layouts)
+                .push_constant_ranges(&push_range),
+            None,
+        )
+        .unwrap();
+    let sizes = [
+        vk::DescriptorPoolSize {
+            ty: vk::DescriptorType::ACCELERATION_STRUCTURE_KHR,
+            descriptor_count: 1,
+        },
+        vk::DescriptorPoolSize {
+            ty: vk::DescriptorType::STORAGE_BUFFER,
+            descriptor_count: 1,
+        },
+    ];
+    let pool = d
+        .create_descriptor_pool(
+            &vk::DescriptorPoolCreateInfo::default()
+                .max_sets(1)
+                .pool_sizes(&sizes),
+            None,
+        )
+        .unwrap();
+    let set = d
+        .allocate_descriptor_sets(
+            &vk::DescriptorSetAllocateInfo::default()
+                .descriptor_pool(pool)
+                .set_layouts(&set_layouts),
+        )
+        .unwrap()[0];
+    let tlases = [tlas];
+    let mut as_write =
+        vk::WriteDescriptorSetAccelerationStructureKHR::default().acceleration_structures(&tlases);
+    let mut w0 = vk::WriteDescriptorSet::default()
+        .dst_set(set)
+        .dst_binding(0)
+        .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+        .push_next(&mut as_write);
+    w0.descriptor_count = 1;
+    let sph_info = [vk::DescriptorBufferInfo::default()
+        .buffer(g.bufs[b_spheres].buffer)
+        .range(vk::WHOLE_SIZE)];
+    let w1 = vk::WriteDescriptorSet::default()
+        .dst_set(set)
+        .dst_binding(2)
+        .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+        .buffer_info(&sph_info);
+    d.update_descriptor_sets(&[w0, w1], &[]);
+
+    let vertex = d
+        .create_shader_module(
+            &vk::ShaderModuleCreateInfo::default()
+                .code(&compile_with(VERTEX_SHADER, &["-fshader-stage=vert"])),
+            None,
+        )
+        .unwrap();
+    let fragment = d
+        .create_shader_module(
+            &vk::ShaderModuleCreateInfo::default()
+                .code(&compile_with(FRAGMENT_SHADER, &["-fshader-stage=frag"])),
+            None,
+        )
+        .unwrap();
+    let stages = [
+        vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::VERTEX)
+            .module(vertex)
+            .name(c"main"),
+        vk::PipelineShaderStageCreateInfo::default()
+            .stage(vk::ShaderStageFlags::FRAGMENT)
+            .module(fragment)
+            .name(c"main"),
+    ];
+    let vertex_input = vk::PipelineVertexInputStateCreateInfo::default();
+    let assembly = vk::PipelineInputAssemblyStateCreateInfo::default()
+        .topology(vk::PrimitiveTopology::TRIANGLE_LIST);
+    let viewports = [vk::Viewport {
+        x: 0.0,
+        y: 0.0,
+        width: WIDTH as f32,
+        height: WIDTH as f32,
+        min_depth: 0.0,
+        max_depth: 1.0,
+    }];
+    let scissors = [vk::Rect2D {
+        offset: vk::Offset2D { x: 0, y: 0 },
+        extent: vk::Extent2D {
+            width: WIDTH,
+            height: WIDTH,
+        },
+    }];
+    let viewport = vk::PipelineViewportStateCreateInfo::default()
+        .viewports(&viewports)
+        .scissors(&scissors);
+    let raster = vk::PipelineRasterizationStateCreateInfo::default()
+        .polygon_mode(vk::PolygonMode::FILL)
+        .cull_mode(vk::CullModeFlags::NONE)
+        .line_width(1.0);
+    let multisample = vk::PipelineMultisampleStateCreateInfo::default()
+        .rasterization_samples(vk::SampleCountFlags::TYPE_1);
+    let blend_attachment = vk::PipelineColorBlendAttachmentState::default()
+        .color_write_mask(vk::ColorComponentFlags::RGBA);
+    let blend_attachments = [blend_attachment, blend_attachment];
+    let blend = vk::PipelineColorBlendStateCreateInfo::default().attachments(&blend_attachments);
+    let pipeline = d
+        .create_graphics_pipelines(
+            vk::PipelineCache::null(),
+            &[vk::GraphicsPipelineCreateInfo::default()
+                .stages(&stages)
+                .vertex_input_state(&vertex_input)
+                .input_assembly_state(&assembly)
+                .viewport_state(&viewport)
+                .rasterization_state(&raster)
+                .multisample_state(&multisample)
+                .color_blend_state(&blend)
+                .layout(layout)
+                .render_pass(render_pass)
+                .subpass(0)],
+            None,
+        )
+        .unwrap()[0];
+
+    let b_pixels = g.buffer(2 * 16 * rays as u64, vk::BufferUsageFlags::TRANSFER_DST);
+    let cb = d
+        .allocate_command_buffers(
+            &vk::CommandBufferAllocateInfo::default()
+                .command_pool(cmd_pool)
+                .command_buffer_count(1),
+        )
+        .unwrap()[0];
+    d.begin_command_buffer(cb, &vk::CommandBufferBeginInfo::default())
+        .unwrap();
+    // The structures' and spheres' last writes (earlier submissions) before the fragment reads.
+    let earlier = vk::MemoryBarrier::default()
+        .src_access_mask(vk::AccessFlags::MEMORY_WRITE)
+        .dst_access_mask(vk::AccessFlags::MEMORY_READ);
+    d.cmd_pipeline_barrier(
+        cb,
+        vk::PipelineStageFlags::ALL_COMMANDS,
+        vk::PipelineStageFlags::FRAGMENT_SHADER,
+        vk::DependencyFlags::empty(),
+        &[earlier],
+        &[],
+        &[],
+    );
+    let clear = [vk::ClearValue::default(), vk::ClearValue::default()];
+    d.cmd_begin_render_pass(
+        cb,
+        &vk::RenderPassBeginInfo::default()
+            .render_pass(render_pass)
+            .framebuffer(framebuffer)
+            .render_area(scissors[0])
+            .clear_values(&clear),
+        vk::SubpassContents::INLINE,
+    );
+    d.cmd_bind_pipeline(cb, vk::PipelineBindPoint::GRAPHICS, pipeline);
+    d.cmd_bind_descriptor_sets(cb, vk::PipelineBindPoint::GRAPHICS, layout, 0, &[set], &[]);
+    let push = [WIDTH * WIDTH, WIDTH, 5.0f32.to_bits(), CULL_MASK];
+    d.cmd_push_constants(cb, layout, vk::ShaderStageFlags::FRAGMENT, 0, bytes(&push));
+    d.cmd_draw(cb, 3, 1, 0, 0);
+    d.cmd_end_render_pass(cb);
+    for (k, &image) in images.iter().enumerate() {
+        let region = vk::BufferImageCopy {
+            buffer_offset: (k * 16 * rays) as u64,
+            buffer_row_length: 0,
+            buffer_image_height: 0,
+            image_subresource: vk::ImageSubresourceLayers {
+                aspect_mask: vk::ImageAspectFlags::COLOR,
+                mip_level: 0,
+                base_array_layer: 0,
+                layer_count: 1,
+            },
+            image_offset: vk::Offset3D::default(),
+            image_extent: extent,
+        };
+        d.cmd_copy_image_to_buffer(
+            cb,
+            image,
+            vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
+            g.bufs[b_pixels].buffer,
+            &[region],
+        );
+    }
+    let to_host = vk::MemoryBarrier::default()
+        .src_access_mask(vk::AccessFlags::TRANSFER_WRITE)
+        .dst_access_mask(vk::AccessFlags::HOST_READ);
+    d.cmd_pipeline_barrier(
+        cb,
+        vk::PipelineStageFlags::TRANSFER,
+        vk::PipelineStageFlags::HOST,
+        vk::DependencyFlags::empty(),
+        &[to_host],
+        &[],
+        &[],
+    );
+    d.end_command_buffer(cb).unwrap();
+    let cbs = [cb];
+    d.queue_submit(
+        g.queue,
+        &[vk::SubmitInfo::default().command_buffers(&cbs)],
+        fence,
+    )
+    .unwrap();
+    d.wait_for_fences(&[fence], true, u64::MAX).unwrap();
+    d.reset_fences(&[fence]).unwrap();
+    let px = std::slice::from_raw_parts(g.bufs[b_pixels].map.cast::<[f32; 4]>(), 2 * rays);
+    let hits = (0..rays)
+        .map(|i| {
+            let (a, b) = (px[i], px[rays + i]);
+            Hit {
+                t: a[0],
+                kind: a[1] as u32,
+                custom: a[2] as u32,
+                instance: a[3] as u32,
+                geometry: b[0] as u32,
+                primitive: b[1] as u32,
+                u: b[2],
+                v: b[3],
+            }
+        })
+        .collect();
+    d.free_command_buffers(cmd_pool, &[cb]);
+    d.destroy_pipeline(pipeline, None);
+    d.destroy_shader_module(vertex, None);
+    d.destroy_shader_module(fragment, None);
+    d.destroy_descriptor_pool(pool, None);
+    d.destroy_pipeline_layout(layout, None);
+    d.destroy_descriptor_set_layout(set_layout, None);
+    d.destroy_framebuffer(framebuffer, None);
+    d.destroy_render_pass(render_pass, None);
+    for ((image, view), memory) in images.into_iter().zip(views).zip(memories) {
+        d.destroy_image_view(view, None);
+        d.destroy_image(image, None);
+        d.free_memory(memory, None);
+    }
+    hits
 }
 
 /// Writes `set` (the structure, the output and the spheres) through a descriptor update
@@ -1223,6 +1670,9 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
             }
         }
     }
+
+    // The last state traced again from a fragment shader.
+    frames.push(fragment_pass(&mut g, cmd_pool, fence, tlas, b_spheres));
 
     // Teardown, in the application's order.
     d.device_wait_idle().unwrap();
