@@ -24,6 +24,10 @@ fn child() {
     let text = match mode.as_str() {
         "extensions" => extensions_text(),
         "old-api" => format!("{:?}\n", app::create_only(vk::API_VERSION_1_1)),
+        "misuse" => {
+            app::misuse();
+            "torn down\n".to_string()
+        }
         m => {
             let validation = match m {
                 "below" => Validation::Below,
@@ -588,4 +592,22 @@ fn an_instance_below_vulkan_1_2_gets_feature_not_present_and_a_reason() {
         stderr.contains("vkrt layer:") && stderr.contains("Vulkan 1.2"),
         "no reason given: {stderr}"
     );
+}
+
+#[test]
+fn misuse_is_logged_and_nothing_crashes() {
+    let force = driver_has_ray_query();
+    let (text, stderr) = run_child("misuse", Through::Layer { force });
+    assert_eq!(text.trim(), "torn down");
+    for expected in [
+        // A build into a structure too small for it.
+        "its geometries need",
+        // A vertex format the extension does not require.
+        "vertex format R8G8B8A8_SNORM",
+    ] {
+        assert!(
+            stderr.contains(expected),
+            "no log line with {expected:?}:\n{stderr}"
+        );
+    }
 }

@@ -489,6 +489,179 @@ pub fn create_only(api: u32) -> vk::Result {
     }
 }
 
+/// Misuse the layer must answer with a log line and no crash: a build into a structure too
+/// small for it, a geometry of a vertex format the extension does not require, a
+/// destroyed structure written to a descriptor; the application then tears down as usual.
+pub fn misuse() {
+    // SAFETY: the child's whole life is this application.
+    unsafe { misuse_unsafe() }
+}
+
+unsafe fn misuse_unsafe() {
+    let (_entry, mut g) = setup(Validation::Off, vk::API_VERSION_1_2).expect("a device");
+    let d = g.device.clone();
+    let (v, idx) = grid(0.0);
+    let b_v = g.buffer(12 * v.len() as u64, INPUT);
+    let b_i = g.buffer(4 * idx.len() as u64, INPUT);
+    g.write(b_v, &v);
+    g.write(b_i, &idx);
+    let (v_at, i_at) = (g.bufs[b_v].address, g.bufs[b_i].address);
+    let geometry = |format: vk::Format| {
+        let tris = vk::AccelerationStructureGeometryTrianglesDataKHR::default()
+            .vertex_format(format)
+            .vertex_data(vk::DeviceOrHostAddressConstKHR {
+                device_address: v_at,
+            })
+            .vertex_stride(12)
+            .max_vertex(v.len() as u32 - 1)
+            .index_type(vk::IndexType::UINT32)
+            .index_data(vk::DeviceOrHostAddressConstKHR {
+                device_address: i_at,
+            });
+        [vk::AccelerationStructureGeometryKHR::default()
+            .geometry_type(vk::GeometryTypeKHR::TRIANGLES)
+            .geometry(vk::AccelerationStructureGeometryDataKHR { triangles: tris })
+            .flags(vk::GeometryFlagsKHR::OPAQUE)]
+    };
+    let good = geometry(F32X3);
+    let info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+        .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL)
+        .geometries(&good);
+    let n = idx.len() as u32 / 3;
+    let mut sizes = vk::AccelerationStructureBuildSizesInfoKHR::default();
+    g.accel.get_acceleration_structure_build_sizes(
+        vk::AccelerationStructureBuildTypeKHR::DEVICE,
+        &info,
+        &[n],
+        &mut sizes,
+    );
+    // A quarter of what the sizes ask for.
+    let small = (sizes.acceleration_structure_size / 4).next_multiple_of(256);
+    let storage = g.buffer(
+        small,
+        vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR,
+    );
+    let scratch = g.buffer(
+        sizes.build_scratch_size,
+        vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS,
+    );
+    let create = |size| {
+        g.accel
+            .create_acceleration_structure(
+                &vk::AccelerationStructureCreateInfoKHR::default()
+                    .buffer(g.bufs[storage].buffer)
+                    .size(size)
+                    .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL),
+                None,
+            )
+            .unwrap()
+    };
+    let too_small = create(small);
+    let odd_format = create(small);
+    let pool = d
+        .create_command_pool(
+            &vk::CommandPoolCreateInfo::default().queue_family_index(g.family),
+            None,
+        )
+        .unwrap();
+    let cb = d
+        .allocate_command_buffers(
+            &vk::CommandBufferAllocateInfo::default()
+                .command_pool(pool)
+                .command_buffer_count(1),
+        )
+        .unwrap()[0];
+    d.begin_command_buffer(cb, &vk::CommandBufferBeginInfo::default())
+        .unwrap();
+    let range = [vk::AccelerationStructureBuildRangeInfoKHR::default().primitive_count(n)];
+    let scratch_at = vk::DeviceOrHostAddressKHR {
+        device_address: g.bufs[scratch].address,
+    };
+    g.accel.cmd_build_acceleration_structures(
+        cb,
+        &[info
+            .dst_acceleration_structure(too_small)
+            .scratch_data(scratch_at)],
+        &[&range],
+    );
+    let odd = geometry(vk::Format::R8G8B8A8_SNORM);
+    let odd_info = vk::AccelerationStructureBuildGeometryInfoKHR::default()
+        .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL)
+        .geometries(&odd)
+        .dst_acceleration_structure(odd_format)
+        .scratch_data(scratch_at);
+    g.accel
+        .cmd_build_acceleration_structures(cb, &[odd_info], &[&range]);
+    d.end_command_buffer(cb).unwrap();
+    let fence = d
+        .create_fence(&vk::FenceCreateInfo::default(), None)
+        .unwrap();
+    let cbs = [cb];
+    d.queue_submit(
+        g.queue,
+        &[vk::SubmitInfo::default().command_buffers(&cbs)],
+        fence,
+    )
+    .unwrap();
+    d.wait_for_fences(&[fence], true, u64::MAX).unwrap();
+
+    // A destroyed structure in a descriptor: the shader then finds no structure.
+    g.accel.destroy_acceleration_structure(odd_format, None);
+    let bindings = [vk::DescriptorSetLayoutBinding::default()
+        .binding(0)
+        .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+        .descriptor_count(1)
+        .stage_flags(vk::ShaderStageFlags::COMPUTE)];
+    let set_layout = d
+        .create_descriptor_set_layout(
+            &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
+            None,
+        )
+        .unwrap();
+    let sizes = [vk::DescriptorPoolSize {
+        ty: vk::DescriptorType::ACCELERATION_STRUCTURE_KHR,
+        descriptor_count: 1,
+    }];
+    let dpool = d
+        .create_descriptor_pool(
+            &vk::DescriptorPoolCreateInfo::default()
+                .max_sets(1)
+                .pool_sizes(&sizes),
+            None,
+        )
+        .unwrap();
+    let set_layouts = [set_layout];
+    let set = d
+        .allocate_descriptor_sets(
+            &vk::DescriptorSetAllocateInfo::default()
+                .descriptor_pool(dpool)
+                .set_layouts(&set_layouts),
+        )
+        .unwrap()[0];
+    let gone = [odd_format];
+    let mut as_write =
+        vk::WriteDescriptorSetAccelerationStructureKHR::default().acceleration_structures(&gone);
+    let mut w = vk::WriteDescriptorSet::default()
+        .dst_set(set)
+        .dst_binding(0)
+        .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+        .push_next(&mut as_write);
+    w.descriptor_count = 1;
+    d.update_descriptor_sets(&[w], &[]);
+    d.device_wait_idle().unwrap();
+    d.destroy_descriptor_pool(dpool, None);
+    d.destroy_descriptor_set_layout(set_layout, None);
+    d.destroy_fence(fence, None);
+    d.destroy_command_pool(pool, None);
+    g.accel.destroy_acceleration_structure(too_small, None);
+    for b in g.bufs.drain(..) {
+        d.destroy_buffer(b.buffer, None);
+        d.free_memory(b.memory, None);
+    }
+    d.destroy_device(None);
+    g.instance.destroy_instance(None);
+}
+
 pub unsafe fn setup(validation: Validation, api: u32) -> Result<(ash::Entry, Gpu), vk::Result> {
     let entry = ash::Entry::load().expect("the Vulkan loader");
     let app = vk::ApplicationInfo::default().api_version(api);
