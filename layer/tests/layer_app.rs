@@ -611,3 +611,50 @@ fn misuse_is_logged_and_nothing_crashes() {
         );
     }
 }
+
+/// `vulkaninfo` (Debian: vulkan-tools) through the layer, forced where the driver has ray
+/// query: the extensions, their features and the required limits.
+#[test]
+fn vulkaninfo_lists_the_extensions_and_features_through_the_layer() {
+    // A program started under a runner's other glibc cannot load that driver.
+    let runner = std::env::var("CARGO_TARGET_X86_64_UNKNOWN_LINUX_GNU_RUNNER");
+    if runner.is_ok_and(|r| !r.is_empty())
+        || Command::new("vulkaninfo").arg("--help").output().is_err()
+    {
+        eprintln!("vulkaninfo not runnable here: skipped");
+        return;
+    }
+    let force = driver_has_ray_query();
+    let mut cmd = Command::new("vulkaninfo");
+    cmd.env("VK_ADD_LAYER_PATH", manifest_dir())
+        .env("VK_INSTANCE_LAYERS", "VK_LAYER_VKRT_ray_query")
+        .env_remove("VKRT_LAYER_FORCE");
+    if force {
+        cmd.env("VKRT_LAYER_FORCE", "1");
+    }
+    let o = cmd.output().expect("vulkaninfo");
+    let text = String::from_utf8_lossy(&o.stdout);
+    assert!(
+        o.status.success(),
+        "vulkaninfo failed: {}",
+        String::from_utf8_lossy(&o.stderr)
+    );
+    for expected in [
+        "VK_KHR_acceleration_structure",
+        "VK_KHR_ray_query",
+        "VK_KHR_deferred_host_operations",
+    ] {
+        assert!(text.contains(expected), "{expected} not listed");
+    }
+    let value = |key: &str| {
+        text.lines()
+            .find(|l| l.trim_start().starts_with(key) && l.contains('='))
+            .map(|l| l.rsplit('=').next().unwrap().trim().to_string())
+            .unwrap_or_else(|| panic!("{key} not in vulkaninfo's output"))
+    };
+    assert_eq!(value("accelerationStructure "), "true");
+    assert_eq!(value("accelerationStructureHostCommands"), "false");
+    assert_eq!(value("rayQuery "), "true");
+    assert_eq!(value("maxPrimitiveCount"), (1u64 << 29).to_string());
+    assert_eq!(value("maxInstanceCount"), (1u64 << 24).to_string());
+}
