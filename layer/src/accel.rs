@@ -85,8 +85,22 @@ pub struct Builders {
 }
 
 impl Builders {
+    /// Makes every builder the layer may use, compiling their kernels: at device creation,
+    /// on a thread of its own, so that the application's first build records with kernels
+    /// ready (or waits for them) rather than compiling them while it records.
+    pub fn warm(&self, ctx: &vkrt::Context) {
+        for kind in [AccelKind::Lbvh, AccelKind::Ploc] {
+            if let Err(e) = self.bottom(ctx, kind).and(self.top(ctx, kind)) {
+                log(&format!("vkrt's {} builder: {e}", kind.name()));
+            }
+        }
+        if let Err(e) = self.pointers(ctx) {
+            log(&format!("the instance-pointer gather: {e}"));
+        }
+    }
+
     fn bottom(&self, ctx: &vkrt::Context, kind: AccelKind) -> vkrt::gpu::Result<Arc<AccelBuilder>> {
-        let mut b = self.bottom.lock().expect("builders");
+        let mut b = self.bottom.lock().unwrap_or_else(|e| e.into_inner());
         if let Some((_, b)) = b.iter().find(|(k, _)| *k == kind) {
             return Ok(b.clone());
         }
@@ -96,7 +110,7 @@ impl Builders {
     }
 
     fn pointers(&self, ctx: &vkrt::Context) -> vkrt::gpu::Result<Arc<InstancePointers>> {
-        let mut p = self.pointers.lock().expect("builders");
+        let mut p = self.pointers.lock().unwrap_or_else(|e| e.into_inner());
         if let Some(p) = p.as_ref() {
             return Ok(p.clone());
         }
@@ -106,7 +120,7 @@ impl Builders {
     }
 
     fn top(&self, ctx: &vkrt::Context, kind: AccelKind) -> vkrt::gpu::Result<Arc<TopLevelBuilder>> {
-        let mut t = self.top.lock().expect("builders");
+        let mut t = self.top.lock().unwrap_or_else(|e| e.into_inner());
         if let Some((_, t)) = t.iter().find(|(k, _)| *k == kind) {
             return Ok(t.clone());
         }

@@ -32,6 +32,8 @@ pub struct Served {
     pub buffers: Mutex<memory::Buffers>,
     pub commands: Mutex<commands::CommandBuffers>,
     pub accel: accel::Builders,
+    /// The thread compiling vkrt's builders since the device was created.
+    pub warming: Mutex<Option<std::thread::JoinHandle<()>>>,
     /// The synchronization-2 entry points the layer translates.
     pub sync2: sync::Sync2Fns,
     /// The descriptor entry points the layer translates that a device may lack.
@@ -232,12 +234,24 @@ unsafe fn create(
         buffers: Mutex::default(),
         commands: Mutex::default(),
         accel: accel::Builders::default(),
+        warming: Mutex::new(None),
         // SAFETY: the next layer's, for a live device.
         sync2: unsafe { sync::Sync2Fns::load(next_gdpa, device) },
         // SAFETY: as above.
         descriptor_fns: unsafe { descriptors::DescriptorFns::load(next_gdpa, device) },
     };
-    register(device, &inst, next_gdpa, Some(Arc::new(served)));
+    let served = Arc::new(served);
+    let warm = served.clone();
+    let thread = std::thread::Builder::new()
+        .name("vkrt-layer-kernels".into())
+        .spawn(move || guard((), || warm.accel.warm(&warm.ctx)));
+    match thread {
+        Ok(t) => *served.warming.lock().unwrap_or_else(|e| e.into_inner()) = Some(t),
+        Err(e) => log(&format!(
+            "no thread to compile vkrt's kernels ahead ({e}): the first build will"
+        )),
+    }
+    register(device, &inst, next_gdpa, Some(served));
     vk::Result::SUCCESS
 }
 
@@ -466,6 +480,11 @@ unsafe extern "system" fn destroy_device(
             return;
         };
         if let Some(served) = &layer.served {
+            // The kernels' thread uses the device: it ends first.
+            let warming = served.warming.lock().ok().and_then(|mut w| w.take());
+            if let Some(t) = warming {
+                let _ = t.join();
+            }
             // The device is idle (the specification's rule for vkDestroyDevice): what
             // its command buffers used, and the structures the application left, go first.
             served.commands.lock().map(|mut c| c.clear()).ok();
