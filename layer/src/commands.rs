@@ -4,18 +4,16 @@
 //! acceleration-structure stages and accesses become the compute and transfer work vkrt's
 //! builds are.
 
-use std::collections::HashMap;
-
 use ash::vk;
 use vkrt::gpu::RecordedWork;
 
 use crate::device::{served, Served};
-use crate::{guard, log, pfn};
+use crate::{guard, log, pfn, HandleMap};
 
 /// The command buffers of a device.
 #[derive(Default)]
 pub struct CommandBuffers {
-    buffers: HashMap<vk::CommandBuffer, CommandBufferState>,
+    buffers: HandleMap<vk::CommandBuffer, CommandBufferState>,
 }
 
 #[derive(Default)]
@@ -437,13 +435,24 @@ unsafe extern "system" fn cmd_push_constants(
         let Some(s) = served(cb) else { return };
         if stages.contains(vk::ShaderStageFlags::COMPUTE) {
             // SAFETY: the application's `size` bytes.
-            let bytes = unsafe { slice(values.cast::<u8>(), size) }.to_vec();
+            let bytes = unsafe { slice(values.cast::<u8>(), size) };
             if let Ok(mut c) = s.commands.lock() {
                 let push = &mut c.buffers.entry(cb).or_default().compute.push;
-                push.retain(|(_, st, o, b)| {
-                    !(*st == stages && *o == offset && b.len() == bytes.len())
-                });
-                push.push((layout, stages, offset, bytes));
+                // The same range pushed again replaces the earlier bytes (kept last).
+                match push.iter().position(|(_, st, o, b)| {
+                    *st == stages && *o == offset && b.len() == bytes.len()
+                }) {
+                    Some(k) if k + 1 == push.len() => {
+                        let last = &mut push[k];
+                        last.0 = layout;
+                        last.3.copy_from_slice(bytes);
+                    }
+                    Some(k) => {
+                        push.remove(k);
+                        push.push((layout, stages, offset, bytes.to_vec()));
+                    }
+                    None => push.push((layout, stages, offset, bytes.to_vec())),
+                }
             }
         }
         // SAFETY: the application's call, passed on.

@@ -1,7 +1,6 @@
 //! The device: its creation (the layer's extensions stripped, what vkrt's walk needs
 //! enabled), the dispatch of its functions, and its teardown.
 
-use std::collections::HashMap;
 use std::ffi::{c_char, CStr};
 use std::sync::{Arc, LazyLock, Mutex, RwLock};
 
@@ -12,6 +11,7 @@ use crate::instance::{self, LayerInstance, PROVIDED};
 use crate::loader::{self, LayerDeviceCreateInfo};
 use crate::{
     accel, commands, deferred, descriptors, guard, log, memory, pfn, queries, shaders, sync,
+    HandleMap,
 };
 
 /// What the layer keeps of a device.
@@ -40,7 +40,7 @@ pub struct Served {
     pub descriptor_fns: descriptors::DescriptorFns,
 }
 
-static DEVICES: LazyLock<RwLock<HashMap<usize, Arc<LayerDevice>>>> =
+static DEVICES: LazyLock<RwLock<HandleMap<usize, Arc<LayerDevice>>>> =
     LazyLock::new(Default::default);
 
 /// The layer's state of the device of `handle` (a device, queue or command buffer).

@@ -62,6 +62,35 @@ pub(crate) fn guard<R>(fallback: R, f: impl FnOnce() -> R) -> R {
     }
 }
 
+/// A map keyed by handles and dispatch keys: pointers or driver-chosen integers, hashed by
+/// one multiplication (the maps sit on the path of every intercepted command).
+pub(crate) type HandleMap<K, V> =
+    std::collections::HashMap<K, V, std::hash::BuildHasherDefault<HandleHasher>>;
+
+/// Fibonacci hashing of a single integer key.
+#[derive(Default)]
+pub(crate) struct HandleHasher(u64);
+
+impl std::hash::Hasher for HandleHasher {
+    fn finish(&self) -> u64 {
+        self.0
+    }
+
+    fn write(&mut self, bytes: &[u8]) {
+        for &b in bytes {
+            self.0 = (self.0.rotate_left(8) ^ u64::from(b)).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+        }
+    }
+
+    fn write_u64(&mut self, v: u64) {
+        self.0 = (self.0 ^ v).wrapping_mul(0x9e37_79b9_7f4a_7c15);
+    }
+
+    fn write_usize(&mut self, v: usize) {
+        self.write_u64(v as u64);
+    }
+}
+
 /// One line on standard error, as the loader's and Mesa's messages go.
 pub(crate) fn log(message: &str) {
     eprintln!("vkrt layer: {message}");
