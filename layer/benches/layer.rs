@@ -24,7 +24,6 @@ mod app;
 
 use std::collections::HashMap;
 use std::path::PathBuf;
-use std::process::Command;
 use std::time::Instant;
 
 use ash::vk;
@@ -541,50 +540,13 @@ unsafe fn child(include: bool) {
 
 // ----- the parent -----
 
-/// This binary (under a runner that starts it through another glibc's loader, argv[0]).
-fn this_binary() -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    match exe.file_name().and_then(|n| n.to_str()) {
-        Some(n) if n.starts_with("ld-linux") => PathBuf::from(std::env::args_os().next().unwrap())
-            .canonicalize()
-            .unwrap(),
-        _ => exe,
-    }
-}
-
 fn manifest_dir() -> PathBuf {
-    let exe = this_binary();
-    let deps = exe.parent().unwrap();
-    let library = [
-        deps.join("../libvkrt_layer.so"),
-        deps.join("libvkrt_layer.so"),
-    ]
-    .into_iter()
-    .filter_map(|p| Some((std::fs::metadata(&p).ok()?.modified().ok()?, p)))
-    .max()
-    .map(|(_, p)| p)
-    .expect("libvkrt_layer.so (cargo bench builds the layer first)");
-    let dir = std::env::temp_dir().join(format!("vkrt-layer-bench-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let manifest = include_str!("../VkLayer_vkrt_ray_query.json").replace(
-        "./libvkrt_layer.so",
-        library.canonicalize().unwrap().to_str().unwrap(),
-    );
-    std::fs::write(dir.join("VkLayer_vkrt_ray_query.json"), manifest).unwrap();
-    dir
+    app::manifest_dir(&std::env::temp_dir())
 }
 
 /// Runs a child: `layer` (Some(force)) or none; `include` also times the include's shader.
 fn run(layer: Option<bool>, include: bool) -> HashMap<String, f64> {
-    let exe = this_binary();
-    let mut cmd = match std::env::var("CARGO_TARGET_X86_64_UNKNOWN_LINUX_GNU_RUNNER") {
-        Ok(r) if !r.is_empty() => {
-            let mut c = Command::new(r);
-            c.arg(&exe);
-            c
-        }
-        _ => Command::new(&exe),
-    };
+    let mut cmd = app::this_binary_again();
     cmd.env(
         "VKRT_LAYER_BENCH_CHILD",
         if include { "include" } else { "plain" },

@@ -112,40 +112,8 @@ enum Through {
     },
 }
 
-/// This test binary. Under a runner that starts it through another glibc's dynamic
-/// loader, the process's executable is that loader, and argv[0] the binary.
-fn test_binary() -> PathBuf {
-    let exe = std::env::current_exe().unwrap();
-    match exe.file_name().and_then(|n| n.to_str()) {
-        Some(n) if n.starts_with("ld-linux") => PathBuf::from(std::env::args_os().next().unwrap())
-            .canonicalize()
-            .unwrap(),
-        _ => exe,
-    }
-}
-
-/// A directory holding the layer's manifest, pointing at the library this build made.
 fn manifest_dir() -> PathBuf {
-    let exe = test_binary();
-    let deps = exe.parent().unwrap();
-    // The newest of the two places cargo leaves it (deps/, and its copy beside).
-    let library = [
-        deps.join("../libvkrt_layer.so"),
-        deps.join("libvkrt_layer.so"),
-    ]
-    .into_iter()
-    .filter_map(|p| Some((std::fs::metadata(&p).ok()?.modified().ok()?, p)))
-    .max()
-    .map(|(_, p)| p)
-    .expect("libvkrt_layer.so beside the test binary (cargo builds the cdylib with the tests)");
-    let library = library.canonicalize().unwrap();
-    let dir = PathBuf::from(env!("CARGO_TARGET_TMPDIR"))
-        .join(format!("vkrt-layer-{}", std::process::id()));
-    std::fs::create_dir_all(&dir).unwrap();
-    let manifest = include_str!("../VkLayer_vkrt_ray_query.json")
-        .replace("./libvkrt_layer.so", library.to_str().unwrap());
-    std::fs::write(dir.join("VkLayer_vkrt_ray_query.json"), manifest).unwrap();
-    dir
+    app::manifest_dir(std::path::Path::new(env!("CARGO_TARGET_TMPDIR")))
 }
 
 /// Runs the child in `mode` and returns what it wrote, and its standard error.
@@ -161,16 +129,7 @@ fn run_child(mode: &str, through: Through) -> (String, String) {
             Through::LayerByApp { .. } => "layer-by-app",
         }
     ));
-    let exe = test_binary();
-    // Under a runner (the next Mesa's, with its own glibc), the child goes through it too.
-    let mut cmd = match std::env::var("CARGO_TARGET_X86_64_UNKNOWN_LINUX_GNU_RUNNER") {
-        Ok(runner) if !runner.is_empty() => {
-            let mut c = Command::new(runner);
-            c.arg(&exe);
-            c
-        }
-        _ => Command::new(&exe),
-    };
+    let mut cmd = app::this_binary_again();
     cmd.args(["child", "--exact", "--nocapture", "--test-threads=1"])
         .env("VKRT_LAYER_APP", mode)
         .env("VKRT_LAYER_APP_OUT", &out)

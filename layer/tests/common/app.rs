@@ -172,19 +172,16 @@ pub fn ray(i: u32, z: f32) -> ([f32; 3], [f32; 3]) {
     ([-3.0 + 6.0 * u, -3.0 + 6.0 * v, z], [0.05, 0.03, -1.0])
 }
 
-pub const SHADER: &str = r#"
-#version 460
+/// The declarations and the trace both shaders share: one ray (`ray(i)`) through the
+/// query, even triangle candidates confirmed (an alpha test), the spheres' hits generated.
+const TRACE: &str = r#"
 #extension GL_EXT_ray_query : require
-layout(local_size_x = 64) in;
 layout(set = 0, binding = 0) uniform accelerationStructureEXT tlas;
-struct Hit { float t; uint kind; uint custom; uint instance; uint geometry; uint primitive; float u; float v; };
-layout(set = 0, binding = 1) buffer Out { Hit hits[]; };
 layout(set = 0, binding = 2) readonly buffer Spheres { vec4 spheres[]; };
 layout(push_constant) uniform Push { uint count; uint width; float z; uint cull; } pc;
+struct Hit { float t; uint kind; uint custom; uint instance; uint geometry; uint primitive; float u; float v; };
 
-void main() {
-    uint i = gl_GlobalInvocationID.x;
-    if (i >= pc.count) return;
+Hit trace_ray(uint i) {
     float u = (float(i % pc.width) + 0.37) / float(pc.width);
     float v = (float(i / pc.width) + 0.61) / float(pc.width);
     vec3 origin = vec3(-3.0 + 6.0 * u, -3.0 + 6.0 * v, pc.z);
@@ -211,9 +208,7 @@ void main() {
             }
         }
     }
-    Hit h;
-    h.kind = rayQueryGetIntersectionTypeEXT(q, true);
-    h.t = 0.0; h.custom = 0u; h.instance = 0u; h.geometry = 0u; h.primitive = 0u; h.u = 0.0; h.v = 0.0;
+    Hit h = Hit(0.0, rayQueryGetIntersectionTypeEXT(q, true), 0u, 0u, 0u, 0u, 0.0, 0.0);
     if (h.kind != gl_RayQueryCommittedIntersectionNoneEXT) {
         h.t = rayQueryGetIntersectionTEXT(q, true);
         h.custom = rayQueryGetIntersectionInstanceCustomIndexEXT(q, true);
@@ -225,9 +220,24 @@ void main() {
             h.u = b.x; h.v = b.y;
         }
     }
-    hits[i] = h;
+    return h;
 }
 "#;
+
+/// The compute shader: one ray per invocation, its hit to the output buffer.
+pub fn compute_shader() -> String {
+    format!(
+        "#version 460\n{TRACE}\n{}",
+        r#"
+layout(local_size_x = 64) in;
+layout(set = 0, binding = 1) buffer Out { Hit hits[]; };
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i < pc.count) hits[i] = trace_ray(i);
+}
+"#
+    )
+}
 
 /// The full-screen triangle.
 pub const VERTEX_SHADER: &str = r#"
@@ -238,58 +248,75 @@ void main() {
 }
 "#;
 
-/// The compute shader's rays and query, one per pixel of a WIDTH² image: the committed hit
-/// in two RGBA32F attachments.
-pub const FRAGMENT_SHADER: &str = r#"
-#version 460
-#extension GL_EXT_ray_query : require
-layout(set = 0, binding = 0) uniform accelerationStructureEXT tlas;
-layout(set = 0, binding = 2) readonly buffer Spheres { vec4 spheres[]; };
-layout(push_constant) uniform Push { uint count; uint width; float z; uint cull; } pc;
+/// The fragment shader: one ray per pixel of a WIDTH² image, its hit in two RGBA32F
+/// attachments.
+pub fn fragment_shader() -> String {
+    format!(
+        "#version 460\n{TRACE}\n{}",
+        r#"
 layout(location = 0) out vec4 hit0;
 layout(location = 1) out vec4 hit1;
-
 void main() {
-    uint i = uint(gl_FragCoord.y) * pc.width + uint(gl_FragCoord.x);
-    float u = (float(i % pc.width) + 0.37) / float(pc.width);
-    float v = (float(i / pc.width) + 0.61) / float(pc.width);
-    vec3 origin = vec3(-3.0 + 6.0 * u, -3.0 + 6.0 * v, pc.z);
-    vec3 dir = vec3(0.05, 0.03, -1.0);
-    rayQueryEXT q;
-    rayQueryInitializeEXT(q, tlas, gl_RayFlagsNoneEXT, pc.cull, origin, 0.0, dir, 100.0);
-    while (rayQueryProceedEXT(q)) {
-        uint prim = rayQueryGetIntersectionPrimitiveIndexEXT(q, false);
-        if (rayQueryGetIntersectionTypeEXT(q, false) == gl_RayQueryCandidateIntersectionTriangleEXT) {
-            if (prim % 2u == 0u) rayQueryConfirmIntersectionEXT(q);
-        } else {
-            vec3 o = rayQueryGetIntersectionObjectRayOriginEXT(q, false);
-            vec3 d = rayQueryGetIntersectionObjectRayDirectionEXT(q, false);
-            vec4 s = spheres[prim];
-            vec3 oc = o - s.xyz;
-            float a = dot(d, d), b = dot(oc, d), c = dot(oc, oc) - s.w * s.w;
-            float disc = b * b - a * c;
-            if (disc >= 0.0) {
-                float t = (-b - sqrt(disc)) / a;
-                float best = rayQueryGetIntersectionTypeEXT(q, true) == gl_RayQueryCommittedIntersectionNoneEXT
-                    ? 100.0 : rayQueryGetIntersectionTEXT(q, true);
-                if (t >= rayQueryGetRayTMinEXT(q) && t <= best) rayQueryGenerateIntersectionEXT(q, t);
-            }
+    Hit h = trace_ray(uint(gl_FragCoord.y) * pc.width + uint(gl_FragCoord.x));
+    hit0 = vec4(h.t, float(h.kind), float(h.custom), float(h.instance));
+    hit1 = vec4(float(h.geometry), float(h.primitive), h.u, h.v);
+}
+"#
+    )
+}
+
+// ----- running as a child process through the layer -----
+
+/// This process's binary. Under a runner that starts it through another glibc's dynamic
+/// loader (the next Mesa's), the process's executable is that loader, and argv[0] the
+/// binary.
+pub fn this_binary() -> std::path::PathBuf {
+    let exe = std::env::current_exe().unwrap();
+    match exe.file_name().and_then(|n| n.to_str()) {
+        Some(n) if n.starts_with("ld-linux") => {
+            std::path::PathBuf::from(std::env::args_os().next().unwrap())
+                .canonicalize()
+                .unwrap()
         }
-    }
-    uint kind = rayQueryGetIntersectionTypeEXT(q, true);
-    hit0 = vec4(0.0);
-    hit1 = vec4(0.0);
-    if (kind != gl_RayQueryCommittedIntersectionNoneEXT) {
-        hit0 = vec4(rayQueryGetIntersectionTEXT(q, true), float(kind),
-                    float(rayQueryGetIntersectionInstanceCustomIndexEXT(q, true)),
-                    float(rayQueryGetIntersectionInstanceIdEXT(q, true)));
-        vec2 b = kind == gl_RayQueryCommittedIntersectionTriangleEXT
-            ? rayQueryGetIntersectionBarycentricsEXT(q, true) : vec2(0.0);
-        hit1 = vec4(float(rayQueryGetIntersectionGeometryIndexEXT(q, true)),
-                    float(rayQueryGetIntersectionPrimitiveIndexEXT(q, true)), b);
+        _ => exe,
     }
 }
-"#;
+
+/// A directory (under `parent`) holding the layer's manifest, pointing at the library this
+/// build made: the newest of the two places cargo leaves it (deps/, and its copy beside).
+pub fn manifest_dir(parent: &std::path::Path) -> std::path::PathBuf {
+    let exe = this_binary();
+    let deps = exe.parent().unwrap();
+    let library = [
+        deps.join("../libvkrt_layer.so"),
+        deps.join("libvkrt_layer.so"),
+    ]
+    .into_iter()
+    .filter_map(|p| Some((std::fs::metadata(&p).ok()?.modified().ok()?, p)))
+    .max()
+    .map(|(_, p)| p)
+    .expect("libvkrt_layer.so beside the binary (cargo builds the cdylib with the tests)");
+    let library = library.canonicalize().unwrap();
+    let dir = parent.join(format!("vkrt-layer-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let manifest = include_str!("../../VkLayer_vkrt_ray_query.json")
+        .replace("./libvkrt_layer.so", library.to_str().unwrap());
+    std::fs::write(dir.join("VkLayer_vkrt_ray_query.json"), manifest).unwrap();
+    dir
+}
+
+/// A command starting this binary again, through the runner it runs under, if any.
+pub fn this_binary_again() -> std::process::Command {
+    let exe = this_binary();
+    match std::env::var("CARGO_TARGET_X86_64_UNKNOWN_LINUX_GNU_RUNNER") {
+        Ok(runner) if !runner.is_empty() => {
+            let mut c = std::process::Command::new(runner);
+            c.arg(&exe);
+            c
+        }
+        _ => std::process::Command::new(&exe),
+    }
+}
 
 pub fn compile(source: &str) -> Vec<u32> {
     compile_with(source, &[])
@@ -960,7 +987,7 @@ unsafe fn fragment_pass(
     let fragment = d
         .create_shader_module(
             &vk::ShaderModuleCreateInfo::default()
-                .code(&compile_with(FRAGMENT_SHADER, &["-fshader-stage=frag"])),
+                .code(&compile_with(&fragment_shader(), &["-fshader-stage=frag"])),
             None,
         )
         .unwrap();
@@ -1511,7 +1538,7 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
     // The pipeline.
     let rays = WIDTH * WIDTH;
     let b_out = g.buffer(32 * u64::from(rays), vk::BufferUsageFlags::STORAGE_BUFFER);
-    let code = compile(SHADER);
+    let code = compile(&compute_shader());
     let module = d
         .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(&code), None)
         .unwrap();
