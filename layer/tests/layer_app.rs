@@ -30,11 +30,15 @@ fn child() {
         }
         m => {
             let validation = match m {
-                "below" => Validation::Below,
+                "below" | "sync2" => Validation::Below,
                 "above" => Validation::Above,
                 _ => Validation::Off,
             };
-            let frames = app::run(validation).expect("the application's device");
+            let frames = match m {
+                "sync2" => app::run_sync2(validation),
+                _ => app::run(validation),
+            }
+            .expect("the application's device");
             let mut text = String::new();
             for m in app::messages() {
                 text += &format!("message {}\n", m.replace('\n', " "));
@@ -616,4 +620,18 @@ fn vulkaninfo_lists_the_extensions_and_features_through_the_layer() {
     assert_eq!(value("rayQuery "), "true");
     assert_eq!(value("maxPrimitiveCount"), (1u64 << 29).to_string());
     assert_eq!(value("maxInstanceCount"), (1u64 << 24).to_string());
+}
+
+#[test]
+fn a_synchronization_2_application_runs_through_the_layer_with_validation_below() {
+    let force = driver_has_ray_query();
+    let (text, stderr) = run_child("sync2", Through::Layer { force });
+    let (frames, messages) = parse(&text);
+    assert!(
+        messages.is_empty(),
+        "validation below the layer:\n{}",
+        messages.join("\n")
+    );
+    assert_layer_quiet(&stderr);
+    check_against_reference("through the layer, synchronization 2", &frames);
 }

@@ -505,7 +505,40 @@ fn instance_record(p: &Placement, reference: u64) -> [u32; 16] {
 /// shader, then the second frame's scene traced by a fragment shader; returns the three
 /// sets of hits. `Err` where device creation fails (the code).
 pub fn run(validation: Validation) -> Result<Vec<Vec<Hit>>, vk::Result> {
-    unsafe { run_unsafe(validation, vk::API_VERSION_1_2) }
+    unsafe { run_unsafe(validation, vk::API_VERSION_1_2, false) }
+}
+
+/// [`run`] as a Vulkan 1.3 application whose barriers are synchronization 2's
+/// (`vkCmdPipelineBarrier2`, with the acceleration-structure stages and accesses of
+/// `VkPipelineStageFlags2`).
+pub fn run_sync2(validation: Validation) -> Result<Vec<Vec<Hit>>, vk::Result> {
+    unsafe { run_unsafe(validation, vk::API_VERSION_1_3, true) }
+}
+
+/// A memory barrier, recorded with synchronization 2 where `sync2` says so (its stage and
+/// access bits are synchronization 1's, which keep their values there).
+unsafe fn barrier(
+    d: &ash::Device,
+    cb: vk::CommandBuffer,
+    sync2: bool,
+    src: vk::PipelineStageFlags,
+    dst: vk::PipelineStageFlags,
+    b: vk::MemoryBarrier<'_>,
+) {
+    if !sync2 {
+        d.cmd_pipeline_barrier(cb, src, dst, vk::DependencyFlags::empty(), &[b], &[], &[]);
+        return;
+    }
+    let b2 = [vk::MemoryBarrier2::default()
+        .src_stage_mask(vk::PipelineStageFlags2::from_raw(u64::from(src.as_raw())))
+        .src_access_mask(vk::AccessFlags2::from_raw(u64::from(
+            b.src_access_mask.as_raw(),
+        )))
+        .dst_stage_mask(vk::PipelineStageFlags2::from_raw(u64::from(dst.as_raw())))
+        .dst_access_mask(vk::AccessFlags2::from_raw(u64::from(
+            b.dst_access_mask.as_raw(),
+        )))];
+    d.cmd_pipeline_barrier2(cb, &vk::DependencyInfo::default().memory_barriers(&b2));
 }
 
 /// Creates the instance and device only, at `api`: the result of vkCreateDevice.
@@ -690,6 +723,15 @@ unsafe fn misuse_unsafe() {
 }
 
 pub unsafe fn setup(validation: Validation, api: u32) -> Result<(ash::Entry, Gpu), vk::Result> {
+    setup_with(validation, api, false)
+}
+
+/// [`setup`], with `synchronization2` enabled where `sync2` says so (a Vulkan 1.3 device).
+pub unsafe fn setup_with(
+    validation: Validation,
+    api: u32,
+    sync2: bool,
+) -> Result<(ash::Entry, Gpu), vk::Result> {
     let entry = ash::Entry::load().expect("the Vulkan loader");
     let app = vk::ApplicationInfo::default().api_version(api);
     let mut layers = Vec::new();
@@ -762,6 +804,11 @@ pub unsafe fn setup(validation: Validation, api: u32) -> Result<(ash::Entry, Gpu
         .push_next(&mut v12)
         .push_next(&mut asf)
         .push_next(&mut rq);
+    let mut v13 = vk::PhysicalDeviceVulkan13Features::default().synchronization2(true);
+    let dinfo = match sync2 {
+        true => dinfo.push_next(&mut v13),
+        false => dinfo,
+    };
     let device = instance.create_device(pd, &dinfo, None)?;
     let accel = ash::khr::acceleration_structure::Device::new(&instance, &device);
     let props = instance.get_physical_device_memory_properties(pd);
@@ -1309,8 +1356,12 @@ struct Level {
     ranges: Vec<vk::AccelerationStructureBuildRangeInfoKHR>,
 }
 
-unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, vk::Result> {
-    let (_entry, mut g) = setup(validation, api)?;
+unsafe fn run_unsafe(
+    validation: Validation,
+    api: u32,
+    sync2: bool,
+) -> Result<Vec<Vec<Hit>>, vk::Result> {
+    let (_entry, mut g) = setup_with(validation, api, sync2)?;
     let d = g.device.clone();
 
     // Inputs.
@@ -1698,14 +1749,13 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
         let earlier = vk::MemoryBarrier::default()
             .src_access_mask(vk::AccessFlags::MEMORY_WRITE)
             .dst_access_mask(vk::AccessFlags::MEMORY_READ | vk::AccessFlags::MEMORY_WRITE);
-        d.cmd_pipeline_barrier(
+        barrier(
+            &d,
             cb,
+            sync2,
             vk::PipelineStageFlags::ALL_COMMANDS,
             vk::PipelineStageFlags::ALL_COMMANDS,
-            vk::DependencyFlags::empty(),
-            &[earlier],
-            &[],
-            &[],
+            earlier,
         );
         // The application binds first; the builds come between its binds and its dispatch.
         d.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, pipeline);
@@ -1746,14 +1796,13 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
                 vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR
                     | vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR,
             );
-        d.cmd_pipeline_barrier(
+        barrier(
+            &d,
             cb,
+            sync2,
             vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR,
             vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR,
-            vk::DependencyFlags::empty(),
-            &[to_top],
-            &[],
-            &[],
+            to_top,
         );
         if frame == 0 {
             d.cmd_reset_query_pool(cb, query_pool, 0, 2);
@@ -1792,28 +1841,26 @@ unsafe fn run_unsafe(validation: Validation, api: u32) -> Result<Vec<Vec<Hit>>, 
         let to_trace = vk::MemoryBarrier::default()
             .src_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_WRITE_KHR)
             .dst_access_mask(vk::AccessFlags::ACCELERATION_STRUCTURE_READ_KHR);
-        d.cmd_pipeline_barrier(
+        barrier(
+            &d,
             cb,
+            sync2,
             vk::PipelineStageFlags::ACCELERATION_STRUCTURE_BUILD_KHR,
             vk::PipelineStageFlags::COMPUTE_SHADER,
-            vk::DependencyFlags::empty(),
-            &[to_trace],
-            &[],
-            &[],
+            to_trace,
         );
         // No rebind: the state bound before the builds.
         d.cmd_dispatch(cb, rays.div_ceil(64), 1, 1);
         let to_host = vk::MemoryBarrier::default()
             .src_access_mask(vk::AccessFlags::SHADER_WRITE | vk::AccessFlags::TRANSFER_WRITE)
             .dst_access_mask(vk::AccessFlags::HOST_READ);
-        d.cmd_pipeline_barrier(
+        barrier(
+            &d,
             cb,
+            sync2,
             vk::PipelineStageFlags::COMPUTE_SHADER | vk::PipelineStageFlags::TRANSFER,
             vk::PipelineStageFlags::HOST,
-            vk::DependencyFlags::empty(),
-            &[to_host],
-            &[],
-            &[],
+            to_host,
         );
         d.end_command_buffer(cb).unwrap();
         let cbs = [cb];
