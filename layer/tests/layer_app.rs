@@ -427,6 +427,16 @@ fn check_against_reference(what: &str, frames: &[Vec<Hit>]) -> usize {
     hits
 }
 
+/// Runs the child in `mode` under the validation layer (`place` names where, for the
+/// message): no validation message, no complaint of the layer's; the frames' hits.
+fn run_validated(mode: &str, through: Through, place: &str) -> Vec<Vec<Hit>> {
+    let (text, stderr) = run_child(mode, through);
+    let (frames, messages) = parse(&text);
+    assert!(messages.is_empty(), "{place}:\n{}", messages.join("\n"));
+    assert_layer_quiet(&stderr);
+    frames
+}
+
 /// The layer's own complaints (it logs what it cannot do).
 fn assert_layer_quiet(stderr: &str) {
     let lines: Vec<&str> = stderr
@@ -438,15 +448,13 @@ fn assert_layer_quiet(stderr: &str) {
 
 #[test]
 fn the_app_traces_through_the_layer_as_the_reference_says_with_validation_below() {
-    let force = driver_has_ray_query();
-    let (text, stderr) = run_child("below", Through::Layer { force });
-    let (frames, messages) = parse(&text);
-    assert!(
-        messages.is_empty(),
-        "validation below the layer:\n{}",
-        messages.join("\n")
+    let frames = run_validated(
+        "below",
+        Through::Layer {
+            force: driver_has_ray_query(),
+        },
+        "validation below the layer:",
     );
-    assert_layer_quiet(&stderr);
     let hits = check_against_reference("through the layer", &frames);
     // The scene is seen: every instance the cull mask lets through, triangles of both
     // geometries of the second level, and generated hits.
@@ -473,15 +481,13 @@ fn the_app_traces_through_the_layer_as_the_reference_says_with_validation_below(
 
 #[test]
 fn validation_above_the_layer_is_silent_about_the_apps_use_of_the_extensions() {
-    let force = driver_has_ray_query();
-    let (text, stderr) = run_child("above", Through::LayerByApp { force });
-    let (frames, messages) = parse(&text);
-    assert!(
-        messages.is_empty(),
-        "validation above the layer:\n{}",
-        messages.join("\n")
+    let frames = run_validated(
+        "above",
+        Through::LayerByApp {
+            force: driver_has_ray_query(),
+        },
+        "validation above the layer:",
     );
-    assert_layer_quiet(&stderr);
     check_against_reference("through the layer, validated above", &frames);
 }
 
@@ -624,14 +630,12 @@ fn vulkaninfo_lists_the_extensions_and_features_through_the_layer() {
 
 #[test]
 fn a_synchronization_2_application_runs_through_the_layer_with_validation_below() {
-    let force = driver_has_ray_query();
-    let (text, stderr) = run_child("sync2", Through::Layer { force });
-    let (frames, messages) = parse(&text);
-    assert!(
-        messages.is_empty(),
-        "validation below the layer:\n{}",
-        messages.join("\n")
+    let frames = run_validated(
+        "sync2",
+        Through::Layer {
+            force: driver_has_ray_query(),
+        },
+        "validation below the layer:",
     );
-    assert_layer_quiet(&stderr);
     check_against_reference("through the layer, synchronization 2", &frames);
 }
