@@ -285,6 +285,24 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
     // SAFETY: the empty command buffer has executed.
     unsafe { r.device.destroy_command_pool(pool2, None) };
 
+    // A device-wide wait is the renderer's to make, not vkrt's.
+    let err = ctx.wait_idle().unwrap_err();
+    assert!(matches!(err, GpuError::Usage { .. }), "{err}");
+
+    // A recording with a refused command (a kernel given one binding of two) is no
+    // RecordedWork: finish() returns the refusal, and the renderer resets its command buffer.
+    let (pool3, cmd3) = r.begin_commands();
+    // SAFETY: as above; the command buffer is reset below and never submitted.
+    let mut rec = unsafe { Recorder::from_raw(&ctx, cmd3, 4) }.unwrap();
+    rec.dispatch(&kernel, [1, 1, 1], &[&x], &SaxpyPush { a: 1.0, n });
+    match rec.finish() {
+        Err(GpuError::Usage { call, .. }) => assert!(call.contains("dispatch"), "{call}"),
+        Err(e) => panic!("{e}"),
+        Ok(_) => panic!("a failed recording finished"),
+    }
+    // SAFETY: never submitted; the pool goes with its command buffer.
+    unsafe { r.device.destroy_command_pool(pool3, None) };
+
     // A convenience submission on the adopted queue works too.
     let z = Buffer::from_slice(&ctx, "embed.z", &[5u32; 17]).unwrap();
     assert_eq!(z.download().unwrap(), vec![5u32; 17]);

@@ -8,7 +8,7 @@ mod common;
 
 use std::path::{Path, PathBuf};
 
-use common::{checkout, no_gpu_allowed, vkrt};
+use common::{checkout, no_gpu_allowed, vkrt, vkrt_command};
 use serde_json::Value;
 
 fn temp_file(name: &str) -> PathBuf {
@@ -42,7 +42,7 @@ fn history_run(file: &Path, extra: &[&str]) -> Option<std::process::Output> {
     if !std::env::var("VKRT_VALIDATION").is_ok_and(|v| v.trim() == "0") {
         args.push("--validate");
     }
-    let out = std::process::Command::new(env!("CARGO_BIN_EXE_vkrt"))
+    let out = vkrt_command()
         .current_dir(checkout())
         .env_remove("VKRT_MESH")
         .args(&args)

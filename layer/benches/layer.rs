@@ -554,8 +554,8 @@ fn run(layer: Option<bool>, include: bool) -> HashMap<String, f64> {
     .env_remove("VK_INSTANCE_LAYERS")
     .env_remove("VKRT_LAYER_FORCE");
     if let Some(force) = layer {
-        cmd.env("VK_ADD_LAYER_PATH", manifest_dir())
-            .env("VK_INSTANCE_LAYERS", "VK_LAYER_VKRT_ray_query");
+        app::add_layer_path(&mut cmd, &manifest_dir());
+        cmd.env("VK_INSTANCE_LAYERS", "VK_LAYER_VKRT_ray_query");
         if force {
             cmd.env("VKRT_LAYER_FORCE", "1");
         }

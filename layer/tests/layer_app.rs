@@ -143,14 +143,14 @@ fn run_child(mode: &str, through: Through) -> (String, String) {
     match through {
         Through::Native => {}
         Through::Layer { force } => {
-            cmd.env("VK_ADD_LAYER_PATH", manifest_dir())
-                .env("VK_INSTANCE_LAYERS", "VK_LAYER_VKRT_ray_query");
+            app::add_layer_path(&mut cmd, &manifest_dir());
+            cmd.env("VK_INSTANCE_LAYERS", "VK_LAYER_VKRT_ray_query");
             if force {
                 cmd.env("VKRT_LAYER_FORCE", "1");
             }
         }
         Through::LayerByApp { force } => {
-            cmd.env("VK_ADD_LAYER_PATH", manifest_dir());
+            app::add_layer_path(&mut cmd, &manifest_dir());
             if force {
                 cmd.env("VKRT_LAYER_FORCE", "1");
             }
@@ -595,8 +595,8 @@ fn vulkaninfo_lists_the_extensions_and_features_through_the_layer() {
     }
     let force = driver_has_ray_query();
     let mut cmd = Command::new("vulkaninfo");
-    cmd.env("VK_ADD_LAYER_PATH", manifest_dir())
-        .env("VK_INSTANCE_LAYERS", "VK_LAYER_VKRT_ray_query")
+    app::add_layer_path(&mut cmd, &manifest_dir());
+    cmd.env("VK_INSTANCE_LAYERS", "VK_LAYER_VKRT_ray_query")
         .env_remove("VKRT_LAYER_FORCE");
     if force {
         cmd.env("VKRT_LAYER_FORCE", "1");

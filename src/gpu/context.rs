@@ -522,8 +522,18 @@ impl Context {
         let _ = unsafe { du.set_debug_utils_object_name(&info) };
     }
 
-    /// Waits until the device is idle.
+    /// Waits until the device is idle. Refused on a device adopted with
+    /// [`Context::from_raw`]: a device-wide wait would also wait for the renderer's other
+    /// queues, which it synchronizes itself; wait for its own fence instead.
     pub fn wait_idle(&self) -> Result<()> {
+        if !self.inner.owns_device {
+            return Err(GpuError::Usage {
+                call: "Context::wait_idle",
+                reason: "the device is the renderer's (Context::from_raw): wait for the fence \
+                         of the submission that carried vkrt's work instead"
+                    .into(),
+            });
+        }
         let _queue = super::error::lock(&self.inner.queue);
         // SAFETY: the device is valid; holding the queue lock keeps our submissions out.
         unsafe { self.inner.device.device_wait_idle() }.map_err(vk_err("vkDeviceWaitIdle"))

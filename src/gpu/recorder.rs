@@ -1137,7 +1137,7 @@ impl Recorder {
     }
 
     /// Ends, submits and waits for the recorded work; returns the pass timings.
-    pub fn submit_and_wait(self) -> Result<Profile> {
+    pub fn submit_and_wait(mut self) -> Result<Profile> {
         if self.command_pool.is_none() {
             return Err(GpuError::Usage {
                 call: "Recorder::submit_and_wait",
@@ -1182,13 +1182,27 @@ impl Recorder {
             })
         });
         let completed_ns = timeline::host_now_ns();
-        // SAFETY: the wait succeeded (or the submit never happened), so the fence is idle.
-        // On a timeout the device is hung: we wait for idle before destroying.
-        unsafe {
-            if result.is_err() {
-                let _ = device.device_wait_idle();
+        let timed_out = matches!(
+            result,
+            Err(GpuError::Vulkan {
+                code: vk::Result::TIMEOUT,
+                ..
+            })
+        );
+        if timed_out && !self.ctx.inner.owns_device {
+            // The work may still run, and a wait on the renderer's device or queue is not
+            // vkrt's to make: leave the fence, the command buffer and what it uses alive.
+            self.leak_in_flight();
+        } else {
+            // SAFETY: the wait succeeded, the submit never happened, or the device is lost
+            // (its objects may then be destroyed), so the fence is idle. A timeout on vkrt's
+            // own device is a hung device: wait for idle before destroying.
+            unsafe {
+                if timed_out {
+                    let _ = device.device_wait_idle();
+                }
+                device.destroy_fence(fence, None);
             }
-            device.destroy_fence(fence, None);
         }
         match result {
             Err(GpuError::DeviceLost { .. }) => Err(GpuError::DeviceLost {
@@ -1223,9 +1237,10 @@ impl Recorder {
 
     /// Stops recording into a caller-owned command buffer (which the caller ends and
     /// submits). Call [`RecordedWork::complete`] once it has executed.
-    /// `Err` on vkrt's own command buffer, or where a scope was left open or closed twice:
-    /// the recording is then dropped with the descriptor sets it bound, so the caller resets
-    /// its command buffer rather than submit it.
+    /// `Err` on vkrt's own command buffer, where a command was refused (the error
+    /// [`check`](Self::check) returns), or where a scope was left open or closed twice: the
+    /// recording is then dropped with the descriptor sets it bound, so the caller resets its
+    /// command buffer rather than submit it.
     pub fn finish(mut self) -> Result<RecordedWork> {
         self.finished_ns = timeline::host_now_ns();
         if self.command_pool.is_some() {
@@ -1235,6 +1250,8 @@ impl Recorder {
             });
         }
         self.check_closed()?;
+        // A command left out makes the rest wrong: the caller resets its command buffer.
+        self.check()?;
         Ok(RecordedWork {
             recorder: self,
             completed: false,
@@ -1373,19 +1390,28 @@ impl Drop for RecordedWork {
                 "vkrt: RecordedWork dropped without complete(): its descriptor pools, queries \
                  and staging buffers are leaked (the caller's command buffer may still use them)"
             );
-            let r = &mut self.recorder;
-            // Handles dropped from the lists are left alive; the staging buffers are
-            // forgotten with their memory (and, as each holds a clone, the context).
-            r.descriptor_pools.leak();
-            r.views.leak();
-            r.scopes.pools.clear();
-            if let Some(c) = r.counts_queries.as_mut() {
-                c.pools.clear();
-            }
-            std::mem::forget(std::mem::take(&mut r.staging));
-            // A shared cache must outlive the sets this command buffer binds.
-            std::mem::forget(r.cache.take());
+            self.recorder.leak_in_flight();
         }
+    }
+}
+
+impl Recorder {
+    /// Leaves alive everything the recorded commands use, for work that may still be
+    /// executing where vkrt may not wait for it: handles dropped from the lists stay alive,
+    /// and the staging buffers are forgotten with their memory (each holds a clone of the
+    /// context, which therefore stays too).
+    fn leak_in_flight(&mut self) {
+        self.descriptor_pools.leak();
+        self.views.leak();
+        self.scopes.pools.clear();
+        if let Some(c) = self.counts_queries.as_mut() {
+            c.pools.clear();
+        }
+        std::mem::forget(std::mem::take(&mut self.staging));
+        // A shared cache must outlive the sets this command buffer binds.
+        std::mem::forget(self.cache.take());
+        // An own command buffer still pending keeps its pool.
+        self.command_pool = None;
     }
 }
 

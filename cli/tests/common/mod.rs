@@ -10,11 +10,25 @@ pub use library::*;
 /// Runs the `vkrt` binary of this build in the checkout's root, where `./x vkrt` runs it
 /// (its defaults name `scenes/...` there).
 pub fn vkrt(args: &[&str]) -> std::process::Output {
-    std::process::Command::new(env!("CARGO_BIN_EXE_vkrt"))
+    vkrt_command()
         .current_dir(checkout())
         .args(args)
         .output()
         .expect("run vkrt")
+}
+
+/// A command starting the `vkrt` binary of this build, through the runner the tests run
+/// under, if any (a driver that needs another glibc needs it in the child too).
+pub fn vkrt_command() -> std::process::Command {
+    let exe = env!("CARGO_BIN_EXE_vkrt");
+    match std::env::var("CARGO_TARGET_X86_64_UNKNOWN_LINUX_GNU_RUNNER") {
+        Ok(runner) if !runner.is_empty() => {
+            let mut c = std::process::Command::new(runner);
+            c.arg(exe);
+            c
+        }
+        _ => std::process::Command::new(exe),
+    }
 }
 
 /// Runs `vkrt` and expects success: `None` (skip) when it failed and no device is allowed,

@@ -305,6 +305,21 @@ pub fn manifest_dir(parent: &std::path::Path) -> std::path::PathBuf {
     dir
 }
 
+/// Lets `cmd`'s loader find `VK_LAYER_VKRT_ray_query` in `dir`: beside the folders
+/// `VK_LAYER_PATH` names where it is set (the loader then ignores `VK_ADD_LAYER_PATH`), else
+/// through `VK_ADD_LAYER_PATH`.
+pub fn add_layer_path(cmd: &mut std::process::Command, dir: &std::path::Path) {
+    match std::env::var_os("VK_LAYER_PATH") {
+        Some(paths) if !paths.is_empty() => {
+            let mut all = dir.as_os_str().to_owned();
+            all.push(":");
+            all.push(paths);
+            cmd.env("VK_LAYER_PATH", all)
+        }
+        _ => cmd.env("VK_ADD_LAYER_PATH", dir),
+    };
+}
+
 /// A command starting this binary again, through the runner it runs under, if any.
 pub fn this_binary_again() -> std::process::Command {
     let exe = this_binary();
@@ -599,7 +614,8 @@ unsafe fn misuse_unsafe() {
     let small = (sizes.acceleration_structure_size / 4).next_multiple_of(256);
     let storage = g.buffer(
         small,
-        vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR,
+        vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR
+            | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS,
     );
     let scratch = g.buffer(
         sizes.build_scratch_size,
@@ -1318,7 +1334,8 @@ unsafe fn compact(
     for (&size, &original) in sizes.iter().zip(originals) {
         let storage = g.buffer(
             size,
-            vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR,
+            vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR
+                | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS,
         );
         let create = vk::AccelerationStructureCreateInfoKHR::default()
             .buffer(g.bufs[storage].buffer)
@@ -1506,7 +1523,8 @@ unsafe fn run_unsafe(
         );
         let storage = g.buffer(
             sizes.acceleration_structure_size,
-            vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR,
+            vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR
+                | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS,
         );
         let scratch_bytes = sizes.build_scratch_size.max(sizes.update_scratch_size);
         let scratch = g.buffer(
@@ -1567,7 +1585,8 @@ unsafe fn run_unsafe(
     );
     let top_storage = g.buffer(
         top_sizes.acceleration_structure_size,
-        vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR,
+        vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR
+            | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS,
     );
     let top_scratch = g.buffer(
         top_sizes
