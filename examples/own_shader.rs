@@ -434,11 +434,7 @@ impl Drop for AoPipeline {
 }
 
 fn raw(b: &HostBuffer, size: u64) -> RawBuffer {
-    RawBuffer {
-        raw: b.raw,
-        offset: 0,
-        size,
-    }
+    unsafe { RawBuffer::new(b.raw, 0, size) }
 }
 
 fn info(b: &HostBuffer, size: u64) -> vk::DescriptorBufferInfo {

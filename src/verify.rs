@@ -619,16 +619,16 @@ fn instance_boxes_check(ctx: &Context, hosts: &[TraceGeometry], n: usize, steps:
     let scratch = Buffer::<u8>::arena(ctx, "verify.scratch", sizes.build_scratch_bytes as usize)?;
     let input = Buffer::<Instance>::new(ctx, "verify.instances", instances.len().max(1))?;
     let mut top =
-        builder.create_moving_in(ctx, &refs, n as u32, motion, &flags, memory.as_raw())?;
+        builder.create_moving_in(ctx, &refs, n as u32, motion, &flags, memory.own_range())?;
     let mut rec = Recorder::new(ctx)?;
     rec.upload(&input, &instances)?;
     rec.transfer_to_compute();
     builder.record_build_from(
         &mut rec,
         &mut top,
-        input.as_raw(),
+        input.own_range(),
         n as u32,
-        scratch.as_raw(),
+        scratch.own_range(),
     )?;
     rec.compute_to_transfer();
     let status = top.record_read_status(&mut rec)?;

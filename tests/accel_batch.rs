@@ -31,10 +31,8 @@ impl Caller {
         let mut words = bytes.to_vec();
         words.resize(words.len().next_multiple_of(4).max(4), 0);
         let b = Buffer::from_slice(ctx, "caller", bytemuck::cast_slice::<u8, u32>(&words)).unwrap();
-        let raw = RawBuffer {
-            size: bytes.len() as u64,
-            ..b.as_raw()
-        };
+        let raw =
+            unsafe { RawBuffer::new(b.as_raw().buffer(), b.as_raw().offset(), bytes.len() as u64) };
         self.0.push(b);
         raw
     }
@@ -134,14 +132,12 @@ fn ranges(ctx: &Context, name: &str, sizes: &[u64]) -> (Buffer<u8>, Vec<RawBuffe
         end = (end + s.max(4)).next_multiple_of(ALIGN);
     }
     let buffer = Buffer::<u8>::arena(ctx, name, end.max(ALIGN) as usize).unwrap();
-    let whole = buffer.as_raw();
+    let whole = unsafe { buffer.as_raw() };
     let ranges = at
         .iter()
         .zip(sizes)
-        .map(|(&offset, &size)| RawBuffer {
-            offset: whole.offset + offset,
-            size: size.max(4),
-            ..whole
+        .map(|(&offset, &size)| unsafe {
+            RawBuffer::new(whole.buffer(), whole.offset() + offset, size.max(4))
         })
         .collect();
     (buffer, ranges)
@@ -345,7 +341,7 @@ fn a_bad_target_is_an_error_naming_it_before_anything_is_recorded() {
 
     // Too little scratch.
     let mut t = targets(&lists, &mut c);
-    t[1].scratch.size = 4;
+    t[1].scratch = t[1].scratch.slice(0, 4).unwrap();
     match builder.record_builds_from(&mut rec, &mut t).unwrap_err() {
         GpuError::Placement(why) => assert!(why.starts_with("target 1: "), "{why}"),
         e => panic!("{e}"),
@@ -541,11 +537,11 @@ fn a_compacted_kd_tree_traces_as_the_original_in_fewer_bytes() {
     }
     // The compacted structures' handles point into the new memory.
     if let (Ok(base), Ok(_)) = (memory.device_address(), compacted[0].handle_words()) {
-        let end = base + memory.as_raw().size;
+        let end = base + unsafe { memory.as_raw() }.size();
         for (c, r) in compacted.iter().zip(&at) {
-            let start = base + r.offset - memory.as_raw().offset;
+            let start = base + r.offset() - unsafe { memory.as_raw() }.offset();
             for a in c.handle_words().unwrap() {
-                assert!(a >= start && a < start + r.size && a < end, "{a:#x}");
+                assert!(a >= start && a < start + r.size() && a < end, "{a:#x}");
             }
         }
     }
@@ -578,16 +574,19 @@ fn compaction_refuses_what_it_cannot_copy() {
 
     // Too little memory.
     let memory = Buffer::<u8>::arena(&ctx, "compacted", size.bytes as usize).unwrap();
-    let short = RawBuffer {
-        size: size.bytes - 4,
-        ..memory.as_raw()
+    let short = unsafe {
+        RawBuffer::new(
+            memory.as_raw().buffer(),
+            memory.as_raw().offset(),
+            size.bytes - 4,
+        )
     };
     match c.structures[0].create_compacted_in(&ctx, &size, short) {
         Err(GpuError::Placement(_)) => {}
         other => panic!("too little memory: {:?}", other.map(drop)),
     }
     let mut dst = c.structures[0]
-        .create_compacted_in(&ctx, &size, memory.as_raw())
+        .create_compacted_in(&ctx, &size, unsafe { memory.as_raw() })
         .unwrap();
 
     // Building into a compacted structure; compacting into one made for another.

@@ -46,9 +46,12 @@ fn build(ctx: &Context, kind: AccelKind, tris: &[[Vec3; 3]], flags: &BuildFlags)
         words.clone()
     };
     let vertices = Buffer::from_slice(ctx, "caller.vertices", &held).unwrap();
-    let raw = RawBuffer {
-        size: 4 * words.len() as u64,
-        ..vertices.as_raw()
+    let raw = unsafe {
+        RawBuffer::new(
+            vertices.as_raw().buffer(),
+            vertices.as_raw().offset(),
+            4 * words.len() as u64,
+        )
     };
     let geometries = vec![Geometry::Triangles(Triangles::soup(
         raw,
@@ -59,11 +62,11 @@ fn build(ctx: &Context, kind: AccelKind, tris: &[[Vec3; 3]], flags: &BuildFlags)
     let memory = arena(ctx, "caller.structure", sizes.structure_bytes);
     let scratch = arena(ctx, "caller.scratch", sizes.build_scratch_bytes);
     let mut g = builder
-        .create_in(ctx, &geometries, flags, memory.as_raw())
+        .create_in(ctx, &geometries, flags, unsafe { memory.as_raw() })
         .unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
     builder
-        .record_build_from(&mut rec, &mut g, &geometries, scratch.as_raw())
+        .record_build_from(&mut rec, &mut g, &geometries, unsafe { scratch.as_raw() })
         .unwrap();
     rec.submit_and_wait().unwrap();
     Built {
@@ -93,15 +96,21 @@ fn compacted_size(ctx: &Context, g: &GpuGeometry) -> CompactedSize {
 fn compact(ctx: &Context, g: &GpuGeometry) -> (GpuGeometry, CompactedSize, [Buffer<u8>; 2]) {
     let size = compacted_size(ctx, g);
     let memory = arena(ctx, "caller.compacted", size.bytes);
-    let exact = RawBuffer {
-        size: size.bytes,
-        ..memory.as_raw()
+    let exact = unsafe {
+        RawBuffer::new(
+            memory.as_raw().buffer(),
+            memory.as_raw().offset(),
+            size.bytes,
+        )
     };
     let mut dst = g.create_compacted_in(ctx, &size, exact).unwrap();
     let scratch = arena(ctx, "caller.compact_scratch", size.scratch_bytes);
-    let scratch_range = (size.scratch_bytes > 0).then(|| RawBuffer {
-        size: size.scratch_bytes,
-        ..scratch.as_raw()
+    let scratch_range = (size.scratch_bytes > 0).then(|| unsafe {
+        RawBuffer::new(
+            scratch.as_raw().buffer(),
+            scratch.as_raw().offset(),
+            size.scratch_bytes,
+        )
     });
     let mut rec = Recorder::new(ctx).unwrap();
     g.record_compact_into(&mut rec, &mut dst, scratch_range)
@@ -267,7 +276,7 @@ fn a_compacted_structure_updates_as_the_original_does() {
             let mut rec = Recorder::new(&ctx).unwrap();
             for g in [&mut built.g, &mut dst] {
                 builder
-                    .record_update_from(&mut rec, g, &built.geometries, scratch.as_raw())
+                    .record_update_from(&mut rec, g, &built.geometries, unsafe { scratch.as_raw() })
                     .unwrap();
             }
             rec.submit_and_wait().unwrap();
@@ -304,7 +313,7 @@ fn compaction_refuses_what_it_cannot_renumber() {
     let memory = arena(&ctx, "caller.compacted", size.bytes);
     let mut dst = built
         .g
-        .create_compacted_in(&ctx, &size, memory.as_raw())
+        .create_compacted_in(&ctx, &size, unsafe { memory.as_raw() })
         .unwrap();
     let mut rec = Recorder::new(&ctx).unwrap();
     // Without scratch, or with too little.
@@ -313,9 +322,12 @@ fn compaction_refuses_what_it_cannot_renumber() {
         "no scratch",
     );
     let scratch = arena(&ctx, "caller.scratch", size.scratch_bytes);
-    let short = RawBuffer {
-        size: size.scratch_bytes - 4,
-        ..scratch.as_raw()
+    let short = unsafe {
+        RawBuffer::new(
+            scratch.as_raw().buffer(),
+            scratch.as_raw().offset(),
+            size.scratch_bytes - 4,
+        )
     };
     match built.g.record_compact_into(&mut rec, &mut dst, Some(short)) {
         Err(GpuError::Placement(_)) => {}
@@ -329,7 +341,7 @@ fn compaction_refuses_what_it_cannot_renumber() {
     usage(
         built
             .g
-            .create_compacted_in(&ctx, &other, memory.as_raw())
+            .create_compacted_in(&ctx, &other, unsafe { memory.as_raw() })
             .map(drop),
         "another structure's size",
     );
@@ -337,11 +349,15 @@ fn compaction_refuses_what_it_cannot_renumber() {
     // refused as the original's is).
     let builder = AccelBuilder::new(&ctx, AccelKind::Ploc).unwrap();
     usage(
-        builder.record_build_from(&mut rec, &mut dst, &built.geometries, scratch.as_raw()),
+        builder.record_build_from(&mut rec, &mut dst, &built.geometries, unsafe {
+            scratch.as_raw()
+        }),
         "a build into a compacted structure",
     );
     usage(
-        builder.record_update_from(&mut rec, &mut dst, &built.geometries, scratch.as_raw()),
+        builder.record_update_from(&mut rec, &mut dst, &built.geometries, unsafe {
+            scratch.as_raw()
+        }),
         "an update of a structure not built to be updated",
     );
     drop(rec);

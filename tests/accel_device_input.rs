@@ -43,11 +43,7 @@ impl CallerBuffers {
         data.extend_from_slice(bytes);
         data.resize(data.len().next_multiple_of(4).max(4), 0);
         let b = Buffer::from_slice(ctx, "caller", bytemuck::cast_slice::<u8, u32>(&data)).unwrap();
-        let raw = RawBuffer {
-            raw: b.as_raw().raw,
-            offset: pad as u64,
-            size: bytes.len() as u64,
-        };
+        let raw = unsafe { RawBuffer::new(b.as_raw().buffer(), pad as u64, bytes.len() as u64) };
         self.bufs.push(b);
         self.host.push(bytes.to_vec());
         self.addresses.push(0);
@@ -57,7 +53,10 @@ impl CallerBuffers {
     /// The host copy of data handed out by `put` (or `at`).
     fn read(&self, d: &GeometryData) -> Vec<u8> {
         let k = match d {
-            GeometryData::Buffer(r) => self.bufs.iter().position(|b| b.as_raw().raw == r.raw),
+            GeometryData::Buffer(r) => self
+                .bufs
+                .iter()
+                .position(|b| unsafe { b.as_raw() }.buffer() == r.buffer()),
             GeometryData::Address { address, .. } => {
                 self.addresses.iter().position(|a| a == address)
             }
@@ -70,12 +69,10 @@ impl CallerBuffers {
     /// [`CallerBuffers::put`], as data at a device address.
     fn at(&mut self, ctx: &Context, bytes: &[u8], pad: usize) -> GeometryData {
         let r = self.put(ctx, bytes, pad);
-        let address = self.bufs.last().unwrap().device_address().unwrap() + r.offset;
+        let address = self.bufs.last().unwrap().device_address().unwrap() + r.offset();
         *self.addresses.last_mut().unwrap() = address;
-        GeometryData::Address {
-            address,
-            size: r.size,
-        }
+        // SAFETY: the range of a buffer the test keeps until its builds have executed.
+        unsafe { GeometryData::address(address, r.size()) }
     }
 }
 
@@ -252,7 +249,8 @@ fn the_gather_equals_its_cpu_twin_on_every_edge() {
             ];
             let transform = (stride == 16).then(|| match address {
                 true => match caller.at(&ctx, bytemuck::cast_slice(&rows), 0) {
-                    GeometryData::Address { address: at, .. } => Transform::At(at),
+                    // SAFETY: as in `at`.
+                    GeometryData::Address { address: at, .. } => unsafe { Transform::at(at) },
                     _ => unreachable!("data at an address"),
                 },
                 false => Transform::Rows(rows),
@@ -446,12 +444,12 @@ fn build_in_caller_memory(
     let scratch =
         Buffer::<u8>::arena(ctx, "caller.scratch", sizes.build_scratch_bytes as usize).unwrap();
     let mut g = builder
-        .create_in(ctx, geometries, flags, structure.as_raw())
+        .create_in(ctx, geometries, flags, unsafe { structure.as_raw() })
         .unwrap();
     let before = ctx.traffic();
     let mut rec = Recorder::new(ctx).unwrap();
     builder
-        .record_build_from(&mut rec, &mut g, geometries, scratch.as_raw())
+        .record_build_from(&mut rec, &mut g, geometries, unsafe { scratch.as_raw() })
         .unwrap();
     let recorded = ctx.traffic() - before;
     // Every kind, the driver's too: its levels, instance records and scratch lie in the
@@ -917,9 +915,8 @@ fn sizes_are_exact_and_too_little_memory_is_an_error() {
         );
         assert_eq!(s.update_scratch_bytes.is_some(), kind != AccelKind::KdTree);
         // A range 4 bytes short (buffers themselves hold whole 16-byte texels).
-        let short = |b: &Buffer<u8>, bytes: u64| RawBuffer {
-            size: bytes - 4,
-            ..b.as_raw()
+        let short = |b: &Buffer<u8>, bytes: u64| unsafe {
+            RawBuffer::new(b.as_raw().buffer(), b.as_raw().offset(), bytes - 4)
         };
         let exact = Buffer::<u8>::arena(&ctx, "exact", s.structure_bytes as usize).unwrap();
         let err = builder
@@ -928,7 +925,7 @@ fn sizes_are_exact_and_too_little_memory_is_an_error() {
             .expect("a structure in too little memory");
         assert!(matches!(err, GpuError::Placement(_)), "{err}");
         let mut g = builder
-            .create_in(&ctx, &geometries, &flags, exact.as_raw())
+            .create_in(&ctx, &geometries, &flags, unsafe { exact.as_raw() })
             .unwrap();
         let scratch = Buffer::<u8>::arena(&ctx, "scratch", s.build_scratch_bytes as usize).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
@@ -978,7 +975,7 @@ fn an_update_reads_moved_vertices_from_the_callers_buffer() {
         let mut rec = Recorder::new(&ctx).unwrap();
         let before = ctx.traffic();
         builder
-            .record_update_from(&mut rec, &mut g, &geometries, scratch.as_raw())
+            .record_update_from(&mut rec, &mut g, &geometries, unsafe { scratch.as_raw() })
             .unwrap();
         let recorded = ctx.traffic() - before;
         assert_eq!(
@@ -1067,7 +1064,8 @@ fn misuse_is_an_error_not_a_panic() {
     );
     is_usage(
         bad(Triangles {
-            transform: Some(Transform::At(0x1000)),
+            // SAFETY: refused while recording, before anything could read it.
+            transform: Some(unsafe { Transform::at(0x1000) }),
             ..ok
         }),
         "a transform at an address over vertices in a buffer",
@@ -1075,11 +1073,7 @@ fn misuse_is_an_error_not_a_panic() {
     is_usage(
         bad(Triangles {
             indices: Some(Indices {
-                data: RawBuffer {
-                    offset: 1,
-                    ..vertices
-                }
-                .into(),
+                data: unsafe { RawBuffer::new(vertices.buffer(), 1, vertices.size()) }.into(),
                 index_type: IndexType::U16,
             }),
             triangle_count: 1,
@@ -1092,7 +1086,7 @@ fn misuse_is_an_error_not_a_panic() {
     let boxes = Aabbs {
         data: vertices.into(),
         stride: 24,
-        count: (vertices.size / 24) as u32,
+        count: (vertices.size() / 24) as u32,
         opaque: true,
     };
     let bad_boxes = |b: Aabbs| {
@@ -1139,25 +1133,31 @@ fn misuse_is_an_error_not_a_panic() {
     let scratch = Buffer::<u8>::arena(&ctx, "scratch", 1 << 20).unwrap();
     let mut rec = Recorder::new(&ctx).unwrap();
     is_usage(
-        lbvh.record_build_from(&mut rec, &mut kd_g, &geometries, scratch.as_raw()),
+        lbvh.record_build_from(&mut rec, &mut kd_g, &geometries, unsafe {
+            scratch.as_raw()
+        }),
         "an LBVH builder into a kd-tree",
     );
     is_usage(
-        kd.record_update_from(&mut rec, &mut kd_g, &geometries, scratch.as_raw()),
+        kd.record_update_from(&mut rec, &mut kd_g, &geometries, unsafe {
+            scratch.as_raw()
+        }),
         "an update of a kd-tree",
     );
     let half = [soup_geometry(&ctx, &mut caller, &tris[..tris.len() / 2])];
     is_usage(
-        kd.record_build_from(&mut rec, &mut kd_g, &half, scratch.as_raw()),
+        kd.record_build_from(&mut rec, &mut kd_g, &half, unsafe { scratch.as_raw() }),
         "other geometry",
     );
     let s = lbvh.sizes_for(&ctx, &geometries, &flags).unwrap();
     let mem = Buffer::<u8>::arena(&ctx, "mem", s.structure_bytes as usize).unwrap();
     let mut unbuilt = lbvh
-        .create_in(&ctx, &geometries, &flags, mem.as_raw())
+        .create_in(&ctx, &geometries, &flags, unsafe { mem.as_raw() })
         .unwrap();
     is_usage(
-        lbvh.record_update_from(&mut rec, &mut unbuilt, &geometries, scratch.as_raw()),
+        lbvh.record_update_from(&mut rec, &mut unbuilt, &geometries, unsafe {
+            scratch.as_raw()
+        }),
         "an update of an unbuilt structure",
     );
     let tracer =
@@ -1171,7 +1171,9 @@ fn misuse_is_an_error_not_a_panic() {
     );
     let (mut built, _m2) = build_in_caller_memory(&ctx, &lbvh, &geometries, &flags);
     is_usage(
-        lbvh.record_update_from(&mut rec, &mut built, &geometries, scratch.as_raw()),
+        lbvh.record_update_from(&mut rec, &mut built, &geometries, unsafe {
+            scratch.as_raw()
+        }),
         "an update without allow_update",
     );
     // Ray counts past the buffers, and a tracer of another walk.
@@ -1274,20 +1276,20 @@ fn settings_are_frozen_into_the_structure_and_checked_at_every_record_call() {
     };
     let mut rec = Recorder::new(&ctx).unwrap();
     is_frozen(
-        other.record_build_from(&mut rec, &mut g, &geometries, scratch.as_raw()),
+        other.record_build_from(&mut rec, &mut g, &geometries, unsafe { scratch.as_raw() }),
         "build",
     );
     is_frozen(
-        other.record_update_from(&mut rec, &mut g, &geometries, scratch.as_raw()),
+        other.record_update_from(&mut rec, &mut g, &geometries, unsafe { scratch.as_raw() }),
         "update",
     );
     let visits = other.update_scratch(&ctx, tris.len()).unwrap().unwrap();
     is_frozen(other.record_refit(&mut rec, &mut g, &visits), "refit");
     // The builder that made it rebuilds and updates it as created: still wide, walked wide
     // to brute force's hits (a builder's flags cannot change a structure's node format).
-    lbvh.record_build_from(&mut rec, &mut g, &geometries, scratch.as_raw())
+    lbvh.record_build_from(&mut rec, &mut g, &geometries, unsafe { scratch.as_raw() })
         .unwrap();
-    lbvh.record_update_from(&mut rec, &mut g, &geometries, scratch.as_raw())
+    lbvh.record_update_from(&mut rec, &mut g, &geometries, unsafe { scratch.as_raw() })
         .unwrap();
     rec.submit_and_wait().unwrap();
     assert!(g.structure().is_wide());

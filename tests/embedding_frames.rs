@@ -78,11 +78,7 @@ fn vertex_words(tris: &[[Vec3; 3]]) -> Vec<f32> {
 }
 
 fn raw(b: &HostBuffer, size: u64) -> RawBuffer {
-    RawBuffer {
-        raw: b.raw,
-        offset: 0,
-        size,
-    }
+    unsafe { RawBuffer::new(b.raw, 0, size) }
 }
 
 /// Rays straight down onto the grid, from points spread over a square a little larger.
@@ -967,11 +963,7 @@ fn a_fragment_shader_traces_a_structure_rebuilt_in_place_frame_after_frame() {
     }
     vertices.write(&words);
     let geometries_of = |f: usize| {
-        let range = RawBuffer {
-            raw: vertices.raw,
-            offset: f as u64 * region,
-            size: vertex_bytes,
-        };
+        let range = unsafe { RawBuffer::new(vertices.raw, f as u64 * region, vertex_bytes) };
         [Geometry::Triangles(Triangles::soup(
             range,
             (frames[f].len() * 3) as u32,

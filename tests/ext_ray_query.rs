@@ -625,7 +625,7 @@ fn device_bottom_of(
         Buffer::<f32>::from_slice(ctx, "test.vertices", bytemuck::cast_slice(&flat)).unwrap();
     let geometries = [Geometry::Triangles(Triangles {
         opaque,
-        ..Triangles::soup(vertices.as_raw(), flat.len() as u32)
+        ..Triangles::soup(unsafe { vertices.as_raw() }, flat.len() as u32)
     })];
     let builder = AccelBuilder::new(ctx, kind).unwrap();
     let flags = BuildFlags::default();
@@ -635,11 +635,11 @@ fn device_bottom_of(
     let scratch =
         Buffer::<u8>::arena(ctx, "test.scratch", sizes.build_scratch_bytes as usize).unwrap();
     let mut g = builder
-        .create_in(ctx, &geometries, &flags, memory.as_raw())
+        .create_in(ctx, &geometries, &flags, unsafe { memory.as_raw() })
         .unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
     builder
-        .record_build_from(&mut rec, &mut g, &geometries, scratch.as_raw())
+        .record_build_from(&mut rec, &mut g, &geometries, unsafe { scratch.as_raw() })
         .unwrap();
     rec.submit_and_wait().unwrap();
     // (the structure holds its own copy of the vertices: the caller's may go)
@@ -815,11 +815,13 @@ fn compacted(ctx: &Context, g: &GpuGeometry) -> (GpuGeometry, Vec<Buffer<u8>>) {
         size.scratch_bytes.max(4) as usize,
     )
     .unwrap();
-    let mut dst = g.create_compacted_in(ctx, &size, memory.as_raw()).unwrap();
+    let mut dst = g
+        .create_compacted_in(ctx, &size, unsafe { memory.as_raw() })
+        .unwrap();
     // Instances may name it by reference: the copy writes its own handle.
     dst.enable_references();
     let mut rec = Recorder::new(ctx).unwrap();
-    g.record_compact_into(&mut rec, &mut dst, Some(scratch.as_raw()))
+    g.record_compact_into(&mut rec, &mut dst, Some(unsafe { scratch.as_raw() }))
         .unwrap();
     rec.submit_and_wait().unwrap();
     (dst, vec![memory, scratch])

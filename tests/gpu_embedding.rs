@@ -464,10 +464,12 @@ fn tracer_records_over_ranges_of_the_callers_buffer() {
     let hit_bytes = (rays.len() * std::mem::size_of::<Hit>()) as u64;
     let (hits_at, errors_at) = (up(ray_bytes), up(up(ray_bytes) + hit_bytes));
     let words = Buffer::<u32>::new(&ctx, "renderer.arena", ((errors_at + 4) / 4) as usize).unwrap();
-    let range = |offset: u64, size: u64| vkrt::gpu::RawBuffer {
-        offset: words.as_raw().offset + offset,
-        size,
-        ..words.as_raw()
+    let range = |offset: u64, size: u64| unsafe {
+        vkrt::gpu::RawBuffer::new(
+            words.as_raw().buffer(),
+            words.as_raw().offset() + offset,
+            size,
+        )
     };
     let mut rec = Recorder::new(&ctx).unwrap();
     for (k, chunk) in bytemuck::cast_slice::<Ray, u32>(&rays)

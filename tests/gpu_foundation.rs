@@ -423,11 +423,7 @@ fn commands_given_wrong_arguments_fail_the_recording_instead_of_panicking() {
     let (kernel, x, y) = saxpy_on_eight(&ctx);
     let small = Buffer::<f32>::new(&ctx, "small", 4).unwrap();
     let push = SaxpyPush { a: 3.0, n: 8 };
-    let raw = |offset: u64, size: u64| RawBuffer {
-        raw: y.as_raw().raw,
-        offset,
-        size,
-    };
+    let raw = |offset: u64, size: u64| unsafe { RawBuffer::new(y.as_raw().buffer(), offset, size) };
     let past_limit = raw(0, ctx.info().max_storage_buffer_range + 4);
     let align = ctx.info().min_storage_buffer_offset_alignment;
     let misaligned = raw(align / 2, 16);

@@ -199,16 +199,16 @@ fn instance_boxes_equal_their_cpu_twin_bit_for_bit_and_the_tree_the_host_s() {
             let input = Buffer::from_slice(&ctx, "caller.instances", &instances[..])
                 .unwrap_or_else(|_| Buffer::new(&ctx, "caller.instances", 1).unwrap());
             let mut top = builder
-                .create_in(&ctx, &bottoms, n as u32, &flags, memory.as_raw())
+                .create_in(&ctx, &bottoms, n as u32, &flags, unsafe { memory.as_raw() })
                 .unwrap();
             let mut rec = Recorder::new(&ctx).unwrap();
             builder
                 .record_build_from(
                     &mut rec,
                     &mut top,
-                    input.as_raw(),
+                    unsafe { input.as_raw() },
                     n as u32,
-                    scratch.as_raw(),
+                    unsafe { scratch.as_raw() },
                 )
                 .unwrap();
             rec.compute_to_transfer();
@@ -631,7 +631,7 @@ fn builds_read_up_to_the_maximum_count_of_referenced_levels() {
         let scratch =
             Buffer::<u8>::arena(&ctx, "renderer.scratch", scratch_bytes as usize).unwrap();
         let mut top = builder
-            .create_in(&ctx, &[], 40, &flags, memory.as_raw())
+            .create_in(&ctx, &[], 40, &flags, unsafe { memory.as_raw() })
             .unwrap();
         assert_eq!(top.max_instances(), 40);
         let first = place(&mut rng);
@@ -642,11 +642,15 @@ fn builds_read_up_to_the_maximum_count_of_referenced_levels() {
                 false => builder.record_build_from(
                     &mut rec,
                     top,
-                    input.as_raw(),
+                    unsafe { input.as_raw() },
                     count,
-                    scratch.as_raw(),
+                    unsafe { scratch.as_raw() },
                 ),
-                true => builder.record_update_from(&mut rec, top, input.as_raw(), scratch.as_raw()),
+                true => {
+                    builder.record_update_from(&mut rec, top, unsafe { input.as_raw() }, unsafe {
+                        scratch.as_raw()
+                    })
+                }
             }
             .unwrap();
             rec.compute_to_transfer();
@@ -676,7 +680,9 @@ fn builds_read_up_to_the_maximum_count_of_referenced_levels() {
         // Past the maximum.
         let mut rec = Recorder::new(&ctx).unwrap();
         let e = builder
-            .record_build_from(&mut rec, &mut top, input.as_raw(), 41, scratch.as_raw())
+            .record_build_from(&mut rec, &mut top, unsafe { input.as_raw() }, 41, unsafe {
+                scratch.as_raw()
+            })
             .unwrap_err()
             .to_string();
         assert!(
@@ -691,7 +697,9 @@ fn builds_read_up_to_the_maximum_count_of_referenced_levels() {
         input.upload(&named).unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
         builder
-            .record_build_from(&mut rec, &mut top, input.as_raw(), 7, scratch.as_raw())
+            .record_build_from(&mut rec, &mut top, unsafe { input.as_raw() }, 7, unsafe {
+                scratch.as_raw()
+            })
             .unwrap();
         rec.compute_to_transfer();
         let status = top.record_read_status(&mut rec).unwrap();
@@ -769,7 +777,7 @@ fn misuse_is_an_error_naming_the_instance() {
     let sizes = builder.sizes_for(&ctx, 4, 1, &flags).unwrap();
     let small = Buffer::<u8>::arena(&ctx, "caller.small", 64).unwrap();
     let err = builder
-        .create_in(&ctx, &[&level], 4, &flags, small.as_raw())
+        .create_in(&ctx, &[&level], 4, &flags, unsafe { small.as_raw() })
         .err()
         .expect("a top level in too little memory");
     // The same class as a bottom level's: a placement error.
@@ -1337,7 +1345,7 @@ fn instance_pointers_gather_as_their_cpu_twin() {
                 &mut rec,
                 pointer_buffer.device_address().unwrap(),
                 n as u32,
-                out.as_raw(),
+                unsafe { out.as_raw() },
             )
             .unwrap();
         rec.submit_and_wait().unwrap();

@@ -386,7 +386,7 @@ fn draw(
         d.cmd_end_render_pass(cmd);
         let out = results.as_raw();
         let region = [vk::BufferImageCopy::default()
-            .buffer_offset(out.offset)
+            .buffer_offset(out.offset())
             .image_subresource(vk::ImageSubresourceLayers {
                 aspect_mask: vk::ImageAspectFlags::COLOR,
                 mip_level: 0,
@@ -402,7 +402,7 @@ fn draw(
             cmd,
             image,
             vk::ImageLayout::TRANSFER_SRC_OPTIMAL,
-            out.raw,
+            out.buffer(),
             &region,
         );
         // The copy's writes before the read-back's copy.

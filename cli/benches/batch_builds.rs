@@ -73,14 +73,12 @@ fn ranges(ctx: &Context, name: &str, sizes: &[u64]) -> (Buffer<u8>, Vec<RawBuffe
         end = (end + s.max(4)).next_multiple_of(ALIGN);
     }
     let buffer = Buffer::<u8>::arena(ctx, name, end as usize).expect("caller memory");
-    let whole = buffer.as_raw();
+    let whole = unsafe { buffer.as_raw() };
     let out = at
         .iter()
         .zip(sizes)
-        .map(|(&o, &size)| RawBuffer {
-            offset: whole.offset + o,
-            size: size.max(4),
-            ..whole
+        .map(|(&o, &size)| unsafe {
+            RawBuffer::new(whole.buffer(), whole.offset() + o, size.max(4))
         })
         .collect();
     (buffer, out)
@@ -99,13 +97,15 @@ fn main() {
     let indices = Buffer::from_slice(&ctx, "renderer.indices", &flat).unwrap();
     let lists: Vec<[Geometry; 1]> = (0..count)
         .map(|k| {
-            let run = RawBuffer {
-                offset: indices.as_raw().offset + (k * per * 12) as u64,
-                size: (per * 12) as u64,
-                ..indices.as_raw()
+            let run = unsafe {
+                RawBuffer::new(
+                    indices.as_raw().buffer(),
+                    indices.as_raw().offset() + (k * per * 12) as u64,
+                    (per * 12) as u64,
+                )
             };
             [Geometry::Triangles(Triangles::indexed(
-                vertices.as_raw(),
+                unsafe { vertices.as_raw() },
                 positions.len() as u32,
                 run,
                 IndexType::U32,

@@ -56,9 +56,9 @@ fn main() {
     let indices = Buffer::from_slice(&ctx, "renderer.indices", &flat).unwrap();
     let n = mesh.indices.len();
     let geometries = [Geometry::Triangles(Triangles::indexed(
-        vertices.as_raw(),
+        unsafe { vertices.as_raw() },
         mesh.positions.len() as u32,
-        indices.as_raw(),
+        unsafe { indices.as_raw() },
         IndexType::U32,
         n as u32,
     ))];
@@ -73,11 +73,11 @@ fn main() {
             Buffer::<u8>::arena(&ctx, "caller.scratch", sizes.build_scratch_bytes as usize)
                 .unwrap();
         let mut g = builder
-            .create_in(&ctx, &geometries, &flags, memory.as_raw())
+            .create_in(&ctx, &geometries, &flags, unsafe { memory.as_raw() })
             .unwrap();
         let mut rec = Recorder::new(&ctx).unwrap();
         builder
-            .record_build_from(&mut rec, &mut g, &geometries, scratch.as_raw())
+            .record_build_from(&mut rec, &mut g, &geometries, unsafe { scratch.as_raw() })
             .unwrap();
         rec.submit_and_wait().unwrap();
         let built = sizes.structure_bytes;
@@ -96,11 +96,14 @@ fn main() {
         )
         .unwrap();
         let mut compacted = g
-            .create_compacted_in(&ctx, &size, compacted_memory.as_raw())
+            .create_compacted_in(&ctx, &size, unsafe { compacted_memory.as_raw() })
             .unwrap();
-        let scratch_range = (size.scratch_bytes > 0).then(|| RawBuffer {
-            size: size.scratch_bytes,
-            ..compact_scratch.as_raw()
+        let scratch_range = (size.scratch_bytes > 0).then(|| unsafe {
+            RawBuffer::new(
+                compact_scratch.as_raw().buffer(),
+                compact_scratch.as_raw().offset(),
+                size.scratch_bytes,
+            )
         });
         let mut rec = Recorder::new(&ctx).unwrap();
         g.record_compact_into(&mut rec, &mut compacted, scratch_range)

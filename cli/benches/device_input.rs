@@ -208,9 +208,9 @@ fn main() {
         let flat: Vec<u32> = mesh.indices.iter().flatten().copied().collect();
         let indices = Buffer::from_slice(&ctx, "renderer.indices", &flat).unwrap();
         let geometries = [Geometry::Triangles(Triangles::indexed(
-            vertices.as_raw(),
+            unsafe { vertices.as_raw() },
             mesh.positions.len() as u32,
-            indices.as_raw(),
+            unsafe { indices.as_raw() },
             IndexType::U32,
             mesh.indices.len() as u32,
         ))];
@@ -238,11 +238,11 @@ fn main() {
                 Buffer::<u8>::arena(&ctx, "caller.scratch", s.build_scratch_bytes as usize)
                     .unwrap();
             let mut g = builder
-                .create_in(&ctx, &geometries, &flags, mem.as_raw())
+                .create_in(&ctx, &geometries, &flags, unsafe { mem.as_raw() })
                 .unwrap();
             let (dev_gpu, dev_wall, dev_up, gather_ms) = best_of(&ctx, |rec| {
                 builder
-                    .record_build_from(rec, &mut g, &geometries, scratch.as_raw())
+                    .record_build_from(rec, &mut g, &geometries, unsafe { scratch.as_raw() })
                     .unwrap();
             });
             let row = Row {

@@ -126,7 +126,7 @@ fn bottom(ctx: &Context, tris: &[[Vec3; 3]]) -> (GpuGeometry, u64, Vec<Buffer<u8
     let flat: Vec<Vec3> = tris.iter().flatten().copied().collect();
     let vertices = Buffer::from_slice(ctx, "renderer.vertices", &flat).unwrap();
     let geometry = [Geometry::Triangles(Triangles::soup(
-        vertices.as_raw(),
+        unsafe { vertices.as_raw() },
         flat.len() as u32,
     ))];
     let builder = AccelBuilder::new(ctx, AccelKind::Ploc).unwrap();
@@ -136,11 +136,11 @@ fn bottom(ctx: &Context, tris: &[[Vec3; 3]]) -> (GpuGeometry, u64, Vec<Buffer<u8
     let scratch =
         Buffer::<u8>::arena(ctx, "bench.scratch", sizes.build_scratch_bytes as usize).unwrap();
     let mut g = builder
-        .create_in(ctx, &geometry, &flags, memory.as_raw())
+        .create_in(ctx, &geometry, &flags, unsafe { memory.as_raw() })
         .unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
     builder
-        .record_build_from(&mut rec, &mut g, &geometry, scratch.as_raw())
+        .record_build_from(&mut rec, &mut g, &geometry, unsafe { scratch.as_raw() })
         .unwrap();
     rec.submit_and_wait().unwrap();
     (g, sizes.structure_bytes, vec![memory, scratch], vertices)
@@ -151,9 +151,12 @@ fn bottom(ctx: &Context, tris: &[[Vec3; 3]]) -> (GpuGeometry, u64, Vec<Buffer<u8
 fn flat_bytes(ctx: &Context, tris: usize, copies: usize) -> Option<u64> {
     let n = (tris * copies * 3) as u32;
     let vertices = Buffer::<Vec3>::new(ctx, "bench.flat", 3).unwrap();
-    let raw = vkrt::gpu::RawBuffer {
-        size: 12 * u64::from(n),
-        ..vertices.as_raw()
+    let raw = unsafe {
+        vkrt::gpu::RawBuffer::new(
+            vertices.as_raw().buffer(),
+            vertices.as_raw().offset(),
+            12 * u64::from(n),
+        )
     };
     let geometry = [Geometry::Triangles(Triangles::soup(raw, n))];
     let builder = AccelBuilder::new(ctx, AccelKind::Ploc).unwrap();
@@ -180,13 +183,15 @@ fn top_level(
         Buffer::<u8>::arena(ctx, "bench.top_scratch", sizes.build_scratch_bytes as usize).unwrap();
     let input = Buffer::from_slice(ctx, "renderer.instances", &instances).unwrap();
     let mut top = builder
-        .create_in(ctx, &[bottom], n, &flags, memory.as_raw())
+        .create_in(ctx, &[bottom], n, &flags, unsafe { memory.as_raw() })
         .unwrap();
     let mut best = f64::INFINITY;
     for round in 0..4 {
         let mut rec = Recorder::new(ctx).unwrap();
         builder
-            .record_build_from(&mut rec, &mut top, input.as_raw(), n, scratch.as_raw())
+            .record_build_from(&mut rec, &mut top, unsafe { input.as_raw() }, n, unsafe {
+                scratch.as_raw()
+            })
             .unwrap();
         let p = rec.submit_and_wait().unwrap();
         if round > 0 {
@@ -291,11 +296,13 @@ fn dynamic_demo(ctx: &Context) -> Option<UpdateRow> {
     let scratch = Buffer::<u8>::arena(ctx, "bench.top_scratch", scratch_bytes as usize).unwrap();
     let input = Buffer::from_slice(ctx, "renderer.instances", &two.instances).unwrap();
     let mut top = top_builder
-        .create_in(ctx, &refs, n, &flags, memory.as_raw())
+        .create_in(ctx, &refs, n, &flags, unsafe { memory.as_raw() })
         .unwrap();
     let mut rec = Recorder::new(ctx).unwrap();
     top_builder
-        .record_build_from(&mut rec, &mut top, input.as_raw(), n, scratch.as_raw())
+        .record_build_from(&mut rec, &mut top, unsafe { input.as_raw() }, n, unsafe {
+            scratch.as_raw()
+        })
         .unwrap();
     rec.submit_and_wait().unwrap();
     // Flat: the LBVH over every triangle, built at frame 0 to be refit.
@@ -328,7 +335,9 @@ fn dynamic_demo(ctx: &Context) -> Option<UpdateRow> {
             rec.upload(&input, &moved).unwrap();
             rec.transfer_to_compute();
             top_builder
-                .record_update_from(rec, &mut top, input.as_raw(), scratch.as_raw())
+                .record_update_from(rec, &mut top, unsafe { input.as_raw() }, unsafe {
+                    scratch.as_raw()
+                })
                 .unwrap();
         });
         let g = vkrt::accel::primitives::TraceGeometry::at_time(&scene, t);

@@ -583,9 +583,9 @@ fn vkrt_build_ms() -> f64 {
     let vb = Buffer::from_slice(&ctx, "vertices", &verts).unwrap();
     let ib = Buffer::from_slice(&ctx, "indices", &idx).unwrap();
     let geometries = [Geometry::Triangles(Triangles::indexed(
-        vb.as_raw(),
+        unsafe { vb.as_raw() },
         verts.len() as u32,
-        ib.as_raw(),
+        unsafe { ib.as_raw() },
         IndexType::U32,
         idx.len() as u32 / 3,
     ))];
@@ -595,14 +595,14 @@ fn vkrt_build_ms() -> f64 {
     let memory = Buffer::<u8>::arena(&ctx, "structure", sizes.structure_bytes as usize).unwrap();
     let scratch = Buffer::<u8>::arena(&ctx, "scratch", sizes.build_scratch_bytes as usize).unwrap();
     let mut out = builder
-        .create_in(&ctx, &geometries, &flags, memory.as_raw())
+        .create_in(&ctx, &geometries, &flags, unsafe { memory.as_raw() })
         .unwrap();
     let mut ms = Vec::new();
     for _ in 0..REPS {
         let mut rec = Recorder::new(&ctx).unwrap();
         rec.scope("build", |rec| {
             builder
-                .record_build_from(rec, &mut out, &geometries, scratch.as_raw())
+                .record_build_from(rec, &mut out, &geometries, unsafe { scratch.as_raw() })
                 .unwrap()
         });
         ms.push(

@@ -67,11 +67,22 @@ enum Built {
 impl AccelObject {
     /// The range vkrt's structure is placed in.
     fn memory(&self) -> RawBuffer {
-        RawBuffer {
-            raw: self.buffer,
-            offset: self.offset + HEADER,
-            size: self.size.saturating_sub(HEADER),
+        // SAFETY: the structure's own range of the app's buffer, which the extension's valid
+        // usage keeps alive and bound while commands using the structure execute.
+        unsafe {
+            RawBuffer::new(
+                self.buffer,
+                self.offset + HEADER,
+                self.size.saturating_sub(HEADER),
+            )
         }
+    }
+
+    /// The structure's header (its first 64 bytes), under the same contract.
+    fn header(&self) -> RawBuffer {
+        // SAFETY: as in `memory`; called by builds, which first check that the structure
+        // holds HEADER bytes and its tree.
+        unsafe { RawBuffer::new(self.buffer, self.offset, 64) }
     }
 }
 
@@ -430,25 +441,32 @@ fn bottom_geometries(
                     0 => 0,
                     n => u64::from(n - 1) * stride + 12,
                 };
+                // SAFETY (the three addresses below): the app's device addresses, which the
+                // build command's valid usage requires in live buffers with device-address
+                // usage until the build has executed; the layer reads only what the ranges
+                // and counts name.
                 let indices = index_type.map(|it| Indices {
-                    data: GeometryData::Address {
-                        address: index_data + u64::from(r.primitive_offset),
-                        size: u64::from(r.primitive_count) * 3 * it_bytes(it),
+                    data: unsafe {
+                        GeometryData::address(
+                            index_data + u64::from(r.primitive_offset),
+                            u64::from(r.primitive_count) * 3 * it_bytes(it),
+                        )
                     },
                     index_type: it,
                 });
                 Ok(Geometry::Triangles(Triangles {
-                    vertices: GeometryData::Address {
-                        address: vertices_at,
-                        size: vertex_bytes,
-                    },
+                    // SAFETY: as above.
+                    vertices: unsafe { GeometryData::address(vertices_at, vertex_bytes) },
                     format: vertex_format(t.vertex_format)?,
                     stride,
                     vertex_count,
                     indices,
                     triangle_count: r.primitive_count,
                     transform: (transform != 0)
-                        .then(|| Transform::At(transform + u64::from(r.transform_offset))),
+                        // SAFETY: as above.
+                        .then(|| unsafe {
+                            Transform::at(transform + u64::from(r.transform_offset))
+                        }),
                     opaque: opaque(g),
                 }))
             }
@@ -462,9 +480,9 @@ fn bottom_geometries(
                     n => u64::from(n - 1) * a.stride + 24,
                 };
                 Ok(Geometry::Aabbs(Aabbs {
-                    data: GeometryData::Address {
-                        address: data + u64::from(r.primitive_offset),
-                        size: bytes,
+                    // SAFETY: as for triangles.
+                    data: unsafe {
+                        GeometryData::address(data + u64::from(r.primitive_offset), bytes)
                     },
                     stride: a.stride,
                     count: r.primitive_count,
@@ -697,30 +715,18 @@ unsafe fn build_one(
                 // (the sizes reserve the room).
                 let room_at = pointer_room_at(work);
                 let whole = scratch(room_at + 64 * u64::from(n))?;
-                let records = RawBuffer {
-                    offset: whole.offset + room_at,
-                    size: 64 * u64::from(n),
-                    ..whole
+                let part = |at, size| {
+                    whole
+                        .slice(at, size)
+                        .ok_or_else(|| format!("a scratch of {} bytes", whole.size()))
                 };
+                let records = part(room_at, 64 * u64::from(n))?;
                 let gather = s.accel.pointers(&s.ctx).map_err(e)?;
                 gather.record(rec, at, n, records).map_err(e)?;
-                (
-                    RawBuffer {
-                        size: room_at,
-                        ..whole
-                    },
-                    records,
-                )
+                (part(0, room_at)?, records)
             }
             // Nothing is read: any range of the structure's own buffer serves.
-            (_, 0) => (
-                scratch(work)?,
-                RawBuffer {
-                    raw: dst.buffer,
-                    offset: dst.offset,
-                    size: 64,
-                },
-            ),
+            (_, 0) => (scratch(work)?, dst.header()),
             (false, n) => (
                 scratch(work)?,
                 s.buffers

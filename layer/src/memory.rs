@@ -38,12 +38,10 @@ impl Buffers {
             .map(|(&(start, raw), _)| {
                 // SAFETY (of the handle only): a buffer the application created.
                 let raw = <vk::Buffer as vk::Handle>::from_raw(raw);
-                // SAFETY: RawBuffer's fields are the range's own.
-                vkrt::gpu::RawBuffer {
-                    raw,
-                    offset: address - start,
-                    size: len,
-                }
+                // SAFETY: the range lies in a buffer the app bound to memory; the
+                // specification requires it alive and bound while the commands that read
+                // it through this address execute.
+                unsafe { vkrt::gpu::RawBuffer::new(raw, address - start, len) }
             })
     }
 }

@@ -119,7 +119,7 @@ impl CompactedSizeQuery {
 
 /// Where a structure's scene constants lie: which structure a compacted copy was made for.
 fn identity(g: &GpuGeometry) -> (crate::gpu::vk::Buffer, u64) {
-    let info = g.accel.info.as_raw();
+    let info = g.accel.info.own_range();
     (info.raw, info.offset)
 }
 

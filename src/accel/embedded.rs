@@ -275,7 +275,9 @@ impl AccelBuilder {
     /// // The renderer's vertex buffer: one triangle, tightly packed vec3s.
     /// let vertices = [[-1.0f32, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]];
     /// let vertex_buffer = Buffer::from_slice(&ctx, "renderer.vertices", &vertices)?;
-    /// let geometries = [Geometry::Triangles(Triangles::soup(vertex_buffer.as_raw(), 3))];
+    /// // SAFETY: the buffers outlive the work recorded with their ranges (waited for below).
+    /// let vertex_range = unsafe { vertex_buffer.as_raw() };
+    /// let geometries = [Geometry::Triangles(Triangles::soup(vertex_range, 3))];
     ///
     /// let builder = AccelBuilder::new(&ctx, AccelKind::Ploc)?;
     /// let flags = BuildFlags::default();
@@ -283,12 +285,13 @@ impl AccelBuilder {
     /// let memory = Buffer::<u8>::arena(&ctx, "renderer.bvh", sizes.structure_bytes as usize)?;
     /// let scratch_bytes = sizes.build_scratch_bytes as usize;
     /// let scratch = Buffer::<u8>::arena(&ctx, "renderer.scratch", scratch_bytes)?;
-    /// let mut bvh = builder.create_in(&ctx, &geometries, &flags, memory.as_raw())?;
+    /// let (memory_range, scratch_range) = unsafe { (memory.as_raw(), scratch.as_raw()) };
+    /// let mut bvh = builder.create_in(&ctx, &geometries, &flags, memory_range)?;
     ///
     /// // Recorded into a command buffer (here vkrt's own; `Recorder::from_raw` takes the
     /// // renderer's), nothing allocated or submitted by the build.
     /// let mut rec = Recorder::new(&ctx)?;
-    /// builder.record_build_from(&mut rec, &mut bvh, &geometries, scratch.as_raw())?;
+    /// builder.record_build_from(&mut rec, &mut bvh, &geometries, scratch_range)?;
     /// rec.submit_and_wait()?;
     ///
     /// let walk = AccelKind::Ploc.walked(Default::default());

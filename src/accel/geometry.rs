@@ -32,6 +32,13 @@ pub enum GeometryData {
     Buffer(RawBuffer),
     /// `size` bytes at a device address (`VkDeviceOrHostAddressConstKHR`), read with
     /// `GL_EXT_buffer_reference`: no binding limit; needs `bufferDeviceAddress` enabled.
+    /// Made with the `unsafe` [`GeometryData::address`]: vkrt cannot check an address.
+    ///
+    /// ```compile_fail
+    /// // Not in safe code: any u64 would reach the GPU.
+    /// let d = vkrt::accel::geometry::GeometryData::Address { address: 64, size: 12 };
+    /// ```
+    #[non_exhaustive]
     Address {
         /// The device address of the first byte.
         address: u64,
@@ -47,6 +54,18 @@ impl From<RawBuffer> for GeometryData {
 }
 
 impl GeometryData {
+    /// `size` bytes at device address `address`.
+    ///
+    /// # Safety
+    /// Until every command recorded with this data has finished executing, the `size` bytes
+    /// from `address` lie in one live buffer of the context's device, created with
+    /// `SHADER_DEVICE_ADDRESS` usage and bound to memory allocated with the device-address
+    /// flag, and nothing writes them while the build reads them.
+    #[allow(unsafe_code, reason = "a contract for the caller; no unsafe operation")]
+    pub unsafe fn address(address: u64, size: u64) -> Self {
+        GeometryData::Address { address, size }
+    }
+
     /// Bytes of the data.
     pub fn size(&self) -> u64 {
         match self {
@@ -93,7 +112,20 @@ pub enum Transform {
     /// A `VkTransformMatrixKHR` (twelve floats, row-major) at a 16-byte-aligned device
     /// address, read by the build where it reads the vertices: they lie at device addresses
     /// too. A non-finite entry makes the geometry's triangles invalid (never hit, counted).
+    /// Made with the `unsafe` [`Transform::at`].
+    #[non_exhaustive]
     At(u64),
+}
+
+impl Transform {
+    /// The matrix at device address `address`.
+    ///
+    /// # Safety
+    /// As [`GeometryData::address`], for the matrix's 48 bytes.
+    #[allow(unsafe_code, reason = "a contract for the caller; no unsafe operation")]
+    pub unsafe fn at(address: u64) -> Self {
+        Transform::At(address)
+    }
 }
 
 impl From<[[f32; 4]; 3]> for Transform {

@@ -667,7 +667,7 @@ impl TopLevelBuilder {
             offset: memory.offset + own,
             size: memory.size - own,
         };
-        let geometry = boxes_geometry(GeometryData::Buffer(parts.boxes.as_raw()), max);
+        let geometry = boxes_geometry(GeometryData::Buffer(parts.boxes.own_range()), max);
         let flags = &binary_nodes(flags);
         let tree = self.tree.create_in(ctx, &[geometry], flags, rest)?;
         let bytes = own
@@ -937,10 +937,17 @@ impl TopLevelBuilder {
             .max(sizes.update_scratch_bytes.unwrap_or(0));
         let scratch = Buffer::<u8>::arena(&ctx, "accel.top_scratch", scratch_bytes as usize)?;
         let records = Buffer::<Instance>::new(&ctx, "accel.instances", instances.len().max(1))?;
-        let mut top = self.create_in_listed(&ctx, listed, count, motion, flags, memory.as_raw())?;
+        let mut top =
+            self.create_in_listed(&ctx, listed, count, motion, flags, memory.own_range())?;
         rec.upload(&records, instances)?;
         rec.transfer_to_compute();
-        self.record_build_from(rec, &mut top, records.as_raw(), count, scratch.as_raw())?;
+        self.record_build_from(
+            rec,
+            &mut top,
+            records.own_range(),
+            count,
+            scratch.own_range(),
+        )?;
         top.own = Some(Own {
             _memory: memory,
             scratch,
@@ -1042,7 +1049,7 @@ impl TopLevelBuilder {
         rec.compute_to_transfer();
         rec.upload_at(records, 0, instances)?;
         rec.transfer_to_compute();
-        Ok((records.as_raw(), scratch.as_raw()))
+        Ok((records.own_range(), scratch.own_range()))
     }
 }
 
@@ -1137,7 +1144,7 @@ impl TopLevel {
 
     /// The tree's geometry: a box per slot.
     fn geometry(&self) -> Geometry {
-        boxes_geometry(GeometryData::Buffer(self.parts.boxes.as_raw()), self.max)
+        boxes_geometry(GeometryData::Buffer(self.parts.boxes.own_range()), self.max)
     }
 
     /// Instances its last build read (the maximum before one); its updates read as many.

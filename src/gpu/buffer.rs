@@ -118,14 +118,63 @@ pub(crate) fn create_texel_view(ctx: &Context, b: &dyn BufferArg) -> Result<vk::
 }
 
 /// A range of a buffer that the embedding renderer owns; vkrt never frees it.
+///
+/// Made only by [`RawBuffer::new`] (or [`Buffer::as_raw`]), whose contract is what makes the
+/// safe calls taking one sound: vkrt records reads and writes of the range and cannot check
+/// the handle behind it.
+///
+/// ```compile_fail
+/// // Not in safe code: the fields are private.
+/// let r = vkrt::gpu::RawBuffer { raw: vkrt::gpu::vk::Buffer::null(), offset: 0, size: 4 };
+/// ```
 #[derive(Clone, Copy, Debug, PartialEq, Eq)]
 pub struct RawBuffer {
-    /// The caller's Vulkan buffer.
-    pub raw: vk::Buffer,
-    /// Byte offset of the range's start in `raw`.
-    pub offset: u64,
+    pub(crate) raw: vk::Buffer,
+    pub(crate) offset: u64,
+    pub(crate) size: u64,
+}
+
+impl RawBuffer {
+    /// The `size` bytes of `raw` from byte `offset`.
+    ///
+    /// # Safety
+    /// Until every command recorded with this range (or a range taken from it) has finished
+    /// executing:
+    /// - `raw` is a live buffer of the context's device, bound to memory, and
+    ///   `offset + size` is within it;
+    /// - it was created with the usages the call taking the range documents (for a
+    ///   structure or scratch, [`REQUIRED_BUFFER_USAGE`](crate::REQUIRED_BUFFER_USAGE));
+    /// - nothing else writes the range while vkrt's commands use it, except as the call's
+    ///   synchronization contract says.
+    pub unsafe fn new(raw: vk::Buffer, offset: u64, size: u64) -> Self {
+        Self { raw, offset, size }
+    }
+
+    /// The Vulkan buffer.
+    pub fn buffer(&self) -> vk::Buffer {
+        self.raw
+    }
+
+    /// Byte offset of the range's start in the buffer.
+    pub fn offset(&self) -> u64 {
+        self.offset
+    }
+
     /// Size of the range in bytes.
-    pub size: u64,
+    pub fn size(&self) -> u64 {
+        self.size
+    }
+
+    /// `size` bytes from `offset` into this range, or `None` past its end: a part of a
+    /// range inherits its contract.
+    pub fn slice(&self, offset: u64, size: u64) -> Option<RawBuffer> {
+        let end = offset.checked_add(size)?;
+        (end <= self.size).then_some(RawBuffer {
+            raw: self.raw,
+            offset: self.offset + offset,
+            size,
+        })
+    }
 }
 
 impl BufferArg for RawBuffer {
@@ -415,8 +464,22 @@ impl<T: Pod> Buffer<T> {
         Ok(unsafe { self.ctx.inner.device.get_buffer_device_address(&info) } + self.offset)
     }
 
+    /// The range this buffer covers, for vkrt's own recordings, which keep the buffer alive
+    /// until their work has executed.
+    pub(crate) fn own_range(&self) -> RawBuffer {
+        RawBuffer {
+            raw: self.raw,
+            offset: self.offset,
+            size: self.bytes,
+        }
+    }
+
     /// The range this buffer covers, as a [`RawBuffer`].
-    pub fn as_raw(&self) -> RawBuffer {
+    ///
+    /// # Safety
+    /// This buffer outlives every command recorded with the range (a [`RawBuffer`] does not
+    /// keep it alive), as [`RawBuffer::new`] requires.
+    pub unsafe fn as_raw(&self) -> RawBuffer {
         RawBuffer {
             raw: self.raw,
             offset: self.offset,

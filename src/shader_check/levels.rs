@@ -236,9 +236,9 @@ impl SceneLevels {
                     rec.upload(&vb, &verts)?;
                     rec.upload(&ib, idx.as_slice())?;
                     let mut t = Triangles::indexed(
-                        vb.as_raw(),
+                        vb.own_range(),
                         verts.len() as u32,
-                        ib.as_raw(),
+                        ib.own_range(),
                         IndexType::U32,
                         idx.len() as u32,
                     );
@@ -251,7 +251,7 @@ impl SceneLevels {
                     let bb = Buffer::new(&ctx, "shader_check.boxes", self.sphere_boxes.len())?;
                     rec.upload(&bb, &self.sphere_boxes)?;
                     let g = Geometry::Aabbs(Aabbs {
-                        data: bb.as_raw().into(),
+                        data: bb.own_range().into(),
                         stride: 24,
                         count: self.sphere_boxes.len() as u32,
                         opaque: true,
@@ -269,9 +269,9 @@ impl SceneLevels {
                 "shader_check.scratch",
                 sizes.build_scratch_bytes as usize,
             )?;
-            let mut g = builder.create_in(&ctx, &geometries, &flags, memory.as_raw())?;
+            let mut g = builder.create_in(&ctx, &geometries, &flags, memory.own_range())?;
             rec.transfer_to_compute();
-            builder.record_build_from(rec, &mut g, &geometries, scratch.as_raw())?;
+            builder.record_build_from(rec, &mut g, &geometries, scratch.own_range())?;
             bottoms.push(g);
             keep.push(memory);
             keep.push(scratch);
