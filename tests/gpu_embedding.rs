@@ -253,10 +253,16 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
         rec.dispatch(&kernel, groups, &[&x, &y], &SaxpyPush { a: 3.0, n });
     });
     rec.compute_to_transfer();
+    let back = rec.read_back(&y).unwrap();
+    rec.transfer_to_host();
     let work = rec.finish().unwrap();
+    // Not yet: the work is not known complete, so the host may not read what it writes.
+    let early = back.read().unwrap_err();
+    assert!(matches!(early, GpuError::Usage { .. }), "{early}");
     r.submit_and_wait(cmd);
     // SAFETY: the command buffer has finished executing (fence waited above).
     let profile = unsafe { work.complete() }.unwrap();
+    assert!(back.read().unwrap().iter().all(|&v| v == 7.0));
     assert_eq!(profile.passes.len(), 1);
     assert_eq!(profile.passes[0].name, "embedded.saxpy");
     if ctx.info().timestamps {
@@ -311,7 +317,7 @@ fn vkrt_runs_in_a_caller_owned_command_buffer_and_leaves_the_device_alive() {
         embedded_build_and_trace(&r, &ctx, kind);
     }
 
-    drop((x, y, z, kernel));
+    drop((x, y, z, kernel, back));
     drop(ctx);
 
     // The renderer's device, queue and allocator are still alive and usable.

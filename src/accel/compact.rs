@@ -76,7 +76,8 @@ pub struct CompactedSizeQuery {
 }
 
 impl CompactedSizeQuery {
-    /// The compacted size. Call only after the recording's work has completed. An error
+    /// The compacted size, once the recording's work is known complete (an error before,
+    /// as [`crate::gpu::Readback::read`]). An error
     /// where the kd-tree's build ran out of capacity (there is no tree to compact: grow it
     /// and build again).
     pub fn read(self) -> Result<CompactedSize> {

@@ -97,7 +97,8 @@ pub struct StatusReadback {
 }
 
 impl StatusReadback {
-    /// The report. Call only after the recording's work has completed.
+    /// The report, once the recording's work is known complete ([`Recorder::submit_and_wait`]
+    /// returned, or [`crate::gpu::RecordedWork::complete`] was called): an error before.
     pub fn read(self) -> Result<BuildStatus> {
         let info = self.info.read()?;
         let kd_overflow = match self.kd {
@@ -129,7 +130,7 @@ impl GpuGeometry {
         )?;
         rec.copy(&self.accel.info, &head, 1);
         Ok(StatusReadback {
-            info: Readback::from_staging(head),
+            info: Readback::from_staging(rec, head),
             kd: self.accel.record_read_built(rec)?,
         })
     }

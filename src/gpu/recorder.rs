@@ -5,6 +5,9 @@
 //! of work it orders, so a sequence of passes reads like the dependency graph it is; the
 //! tests run under synchronization validation, which reports any that are missing.
 
+use std::sync::atomic::{AtomicBool, Ordering};
+use std::sync::Arc;
+
 use ash::vk;
 use bytemuck::Pod;
 
@@ -39,6 +42,8 @@ pub struct Recorder {
     scopes: ScopeRecorder,
     /// Staging buffers of recorded uploads, alive until the work has executed.
     staging: Vec<Box<dyn std::any::Any + Send>>,
+    /// Set once the recorded work is known complete: what read-backs wait for.
+    done: Arc<AtomicBool>,
     /// The first thing that went wrong while recording — a Vulkan call that failed
     /// (descriptor pools: out of memory) or a command given arguments it cannot take: what
     /// follows is left out, and the recording reports it ([`Recorder::check`],
@@ -78,18 +83,35 @@ pub struct RecordCounts {
 /// A copy of a device buffer into host memory, recorded by [`Recorder::read_back`]; read it
 /// once the recorder's work has executed.
 pub struct Readback<T: Pod> {
-    staging: Buffer<T>,
+    staging: Arc<Buffer<T>>,
+    /// Set when the recording's work is known complete.
+    done: Arc<AtomicBool>,
 }
 
 impl<T: Pod> Readback<T> {
-    /// A read-back whose copy into `staging` (host-visible) the caller recorded.
-    pub fn from_staging(staging: Buffer<T>) -> Self {
-        Self { staging }
+    /// A read-back of `staging` (host-visible), into which `rec` recorded a copy: `rec`
+    /// keeps the buffer alive until its work has completed, whenever this is dropped.
+    pub fn from_staging(rec: &mut Recorder, staging: Buffer<T>) -> Self {
+        let staging = Arc::new(staging);
+        rec.staging.push(Box::new(staging.clone()));
+        Self {
+            staging,
+            done: rec.done.clone(),
+        }
     }
 
-    /// The copied elements. Call only after the recording submission has completed
-    /// ([`Recorder::submit_and_wait`] returned, or the caller waited for its command buffer).
-    pub fn read(self) -> Result<Vec<T>> {
+    /// The copied elements, once the recording's work is known complete
+    /// ([`Recorder::submit_and_wait`] returned, or [`RecordedWork::complete`] was called
+    /// after the caller's fence): before, an error, never memory the GPU may still write.
+    pub fn read(&self) -> Result<Vec<T>> {
+        if !self.done.load(Ordering::Acquire) {
+            return Err(GpuError::Usage {
+                call: "Readback::read",
+                reason: "the work that writes it has not completed: read after \
+                         submit_and_wait, or after RecordedWork::complete"
+                    .into(),
+            });
+        }
         self.staging.download()
     }
 }
@@ -249,6 +271,7 @@ impl Recorder {
             cache,
             scopes,
             staging: Vec::new(),
+            done: Arc::default(),
             failed: None,
             views: Default::default(),
             counts: RecordCounts::default(),
@@ -767,7 +790,7 @@ impl Recorder {
         let staging =
             Buffer::<T>::with_memory(&self.ctx, "staging.readback", src.len(), Memory::Readback)?;
         self.copy(src, &staging, src.len());
-        Ok(Readback { staging })
+        Ok(Readback::from_staging(self, staging))
     }
 
     fn memory_barrier(
@@ -1216,6 +1239,7 @@ impl Recorder {
             }),
             Err(e) => Err(e),
             Ok(()) => {
+                self.done.store(true, Ordering::Release);
                 let spans = [
                     ("vkrt.record", self.started_ns, recorded_ns),
                     ("vkrt.submit", submitted_ns, waited_ns),
@@ -1368,6 +1392,7 @@ impl RecordedWork {
     /// The command buffer has finished executing (or was never submitted).
     pub unsafe fn complete(mut self) -> Result<Profile> {
         self.completed = true;
+        self.recorder.done.store(true, Ordering::Release);
         self.recorder.check()?;
         let r = &self.recorder;
         r.read_profile(r.finished_ns, timeline::host_now_ns())
@@ -1384,7 +1409,9 @@ impl Drop for RecordedWork {
         // before the recorder releases what it uses (a lost device has nothing left to wait
         // for); on an adopted one a device-wide wait is not vkrt's to make: leak instead.
         if self.recorder.ctx.inner.owns_device {
-            let _ = self.recorder.ctx.wait_idle();
+            if self.recorder.ctx.wait_idle().is_ok() {
+                self.recorder.done.store(true, Ordering::Release);
+            }
         } else {
             log::error!(
                 "vkrt: RecordedWork dropped without complete(): its descriptor pools, queries \

@@ -556,7 +556,7 @@ impl BvhStorage {
         let ctx = rec.context().clone();
         let staging = Buffer::with_memory(&ctx, "staging.readback", 1, Memory::Readback)?;
         rec.copy_range(&self.refs, self.live_at(), &staging, 0, 1);
-        Ok(LiveCount::Counted(Readback::from_staging(staging)))
+        Ok(LiveCount::Counted(Readback::from_staging(rec, staging)))
     }
 
     /// What its compacted copy is made for: node slots, references, schedule, wide nodes.
