@@ -90,7 +90,7 @@ pub use accel::primitives::TraceGeometry;
 pub use accel::sync::{RecordSync, StageAccess};
 pub use gpu::{
     BindingCache, Buffer, Context, ContextOptions, DeviceFeatures, DeviceInfo, GpuError, Memory,
-    RawBuffer, RawParts, RecordedWork, Recorder, Validation,
+    PlacementProblem, RawBuffer, RawParts, RecordedWork, Recorder, Validation,
 };
 pub use scene::Scene;
 pub use trace::gpu::Tracer;

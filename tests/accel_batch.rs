@@ -343,7 +343,7 @@ fn a_bad_target_is_an_error_naming_it_before_anything_is_recorded() {
     let mut t = targets(&lists, &mut c);
     t[1].scratch = t[1].scratch.slice(0, 4).unwrap();
     match builder.record_builds_from(&mut rec, &mut t).unwrap_err() {
-        GpuError::Placement(why) => assert!(why.starts_with("target 1: "), "{why}"),
+        GpuError::Placement { what, .. } => assert!(what.starts_with("target 1: "), "{what}"),
         e => panic!("{e}"),
     }
     assert_eq!(rec.counts(), nothing);
@@ -582,7 +582,7 @@ fn compaction_refuses_what_it_cannot_copy() {
         )
     };
     match c.structures[0].create_compacted_in(&ctx, &size, short) {
-        Err(GpuError::Placement(_)) => {}
+        Err(GpuError::Placement { .. }) => {}
         other => panic!("too little memory: {:?}", other.map(drop)),
     }
     let mut dst = c.structures[0]

@@ -330,7 +330,7 @@ fn compaction_refuses_what_it_cannot_renumber() {
         )
     };
     match built.g.record_compact_into(&mut rec, &mut dst, Some(short)) {
-        Err(GpuError::Placement(_)) => {}
+        Err(GpuError::Placement { .. }) => {}
         other => panic!("too little scratch: {other:?}"),
     }
     // A size that was not this structure's.

@@ -71,9 +71,10 @@ impl AccelBuilder {
                 call,
                 reason: format!("target {i}: {reason}"),
             },
-            GpuError::Placement(why) if !single => {
-                GpuError::Placement(format!("target {i}: {why}"))
-            }
+            GpuError::Placement { what, problem } if !single => GpuError::Placement {
+                what: format!("target {i}: {what}"),
+                problem,
+            },
             e => e,
         };
         let mut placed = Vec::with_capacity(targets.len());

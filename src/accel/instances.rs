@@ -63,8 +63,8 @@ pub use crate::accel::instance::{
 use crate::accel::primitives::SceneInfo;
 use crate::gpu::placement::{place, Placement};
 use crate::gpu::{
-    kernels, vk, Buffer, BufferArg, Context, GpuError, Kernel, RawBuffer, Readback, Recorder,
-    Result, Spec,
+    kernels, vk, Buffer, BufferArg, Context, GpuError, Kernel, PlacementProblem, RawBuffer,
+    Readback, Recorder, Result, Spec,
 };
 
 const WORKGROUP: u32 = 64;
@@ -654,10 +654,13 @@ impl TopLevelBuilder {
         }
         let own = parts_bytes(ctx, max, n_bottoms, motion)?;
         if memory.size < own {
-            return Err(GpuError::Placement(format!(
-                "{call}: {} bytes of memory; the top level needs {} (TopLevelBuilder::sizes_for)",
-                memory.size, own
-            )));
+            return Err(GpuError::Placement {
+                what: format!("{call}: the top level's arrays (TopLevelBuilder::sizes_for)"),
+                problem: PlacementProblem::TooSmall {
+                    needed: own,
+                    given: memory.size,
+                },
+            });
         }
         let (parts, _) = place(ctx, "the instances", Placement::Into(memory), || {
             Parts::create(ctx, max, n_bottoms, motion)

@@ -604,7 +604,7 @@ pub mod placement {
     use std::cell::RefCell;
 
     use super::{Context, RawBuffer};
-    use crate::gpu::error::{GpuError, Result};
+    use crate::gpu::error::{GpuError, PlacementProblem, Result};
     use ash::vk;
 
     /// Where [`place`] puts the device buffers its closure creates.
@@ -648,14 +648,19 @@ pub mod placement {
             Placement::Measure => None,
             Placement::Into(r) => {
                 if r.raw == vk::Buffer::null() {
-                    return Err(GpuError::Placement(format!("{what}: a null buffer")));
+                    return Err(GpuError::Placement {
+                        what: what.into(),
+                        problem: PlacementProblem::NullBuffer,
+                    });
                 }
                 if r.offset % align != 0 {
-                    return Err(GpuError::Placement(format!(
-                        "{what}: offset {} is not a multiple of this device's \
-                         buffer offset alignment ({align})",
-                        r.offset
-                    )));
+                    return Err(GpuError::Placement {
+                        what: what.into(),
+                        problem: PlacementProblem::Misaligned {
+                            offset: r.offset,
+                            alignment: align,
+                        },
+                    });
                 }
                 Some(r)
             }
@@ -674,10 +679,13 @@ pub mod placement {
         let value = result?;
         if let Some(t) = arena.target {
             if arena.used > t.size {
-                return Err(GpuError::Placement(format!(
-                    "{what} needs {} bytes; the buffer range given holds {}",
-                    arena.used, t.size
-                )));
+                return Err(GpuError::Placement {
+                    what: what.into(),
+                    problem: PlacementProblem::TooSmall {
+                        needed: arena.used,
+                        given: t.size,
+                    },
+                });
             }
         }
         Ok((value, arena.used))
@@ -702,10 +710,13 @@ pub mod placement {
             let start = arena.used.next_multiple_of(arena.align);
             arena.used = start + bytes;
             Some(match arena.target {
-                Some(t) if arena.used > t.size => Err(GpuError::Placement(format!(
-                    "`{name}` ends {} bytes into a buffer range of {}",
-                    arena.used, t.size
-                ))),
+                Some(t) if arena.used > t.size => Err(GpuError::Placement {
+                    what: format!("`{name}`"),
+                    problem: PlacementProblem::TooSmall {
+                        needed: arena.used,
+                        given: t.size,
+                    },
+                }),
                 Some(t) => Ok(RawBuffer {
                     raw: t.raw,
                     offset: t.offset + start,

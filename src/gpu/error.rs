@@ -71,9 +71,15 @@ pub enum GpuError {
         /// What went wrong.
         reason: String,
     },
-    /// A structure or scratch placed in a caller's buffer that does not fit or is misaligned.
-    #[error("placement: {0}")]
-    Placement(String),
+    /// A structure or scratch placed in a caller's buffer that does not fit or is misaligned:
+    /// nothing was created or recorded on the range.
+    #[error("placement: {what}: {problem}")]
+    Placement {
+        /// What was being placed (`target N: ...` for one target of a batch).
+        what: String,
+        /// What is wrong with the range, in numbers.
+        problem: PlacementProblem,
+    },
     /// A call the API refuses: wrong sizes, wrong kind, a buffer too small for the work.
     #[error("{call}: {reason}")]
     Usage {
@@ -91,6 +97,33 @@ pub enum GpuError {
         /// What went wrong.
         reason: String,
     },
+}
+
+/// Why a range of a caller's buffer cannot take what was placed in it.
+#[derive(Clone, Copy, Debug, PartialEq, Eq, thiserror::Error)]
+#[non_exhaustive]
+pub enum PlacementProblem {
+    /// The range is too small: grow it to `needed` bytes (what the sizes call returned).
+    #[error("needs {needed} bytes; the buffer range given holds {given}")]
+    TooSmall {
+        /// Bytes the placement needs.
+        needed: u64,
+        /// Bytes the range holds.
+        given: u64,
+    },
+    /// The range starts at an offset the device cannot bind.
+    #[error(
+        "offset {offset} is not a multiple of this device's buffer offset alignment ({alignment})"
+    )]
+    Misaligned {
+        /// The range's offset in its buffer.
+        offset: u64,
+        /// The alignment it needs (`AccelBuilder`'s placement alignment).
+        alignment: u64,
+    },
+    /// The range names no buffer.
+    #[error("a null buffer")]
+    NullBuffer,
 }
 
 /// `std::result::Result` with [`GpuError`] as the default error.

@@ -50,7 +50,7 @@ pub use ash::vk;
 pub use bindings::BindingCache;
 pub use buffer::{address_of, placement, Buffer, BufferArg, Memory, RawBuffer, TexelView};
 pub use context::{Context, ContextOptions, MemoryUsage, RawParts, Traffic};
-pub use error::{GpuError, Result};
+pub use error::{GpuError, PlacementProblem, Result};
 pub use foreign::{ForeignBinding, ForeignKernel};
 pub use hook::{CompletedScope, QuerySlot, RecordedScope, ScopeHook};
 pub use info::{
