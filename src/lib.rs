@@ -78,7 +78,10 @@ pub use glam;
 pub use accel::batch::BuildTarget;
 pub use accel::compact::CompactedSize;
 pub use accel::device::{AccelBuilder, AccelChoice, AccelKind, AccelSizes, AccelStructure};
-pub use accel::embedded::{BuildFlags, BuildStatus, DRIVER_BUFFER_USAGE, REQUIRED_BUFFER_USAGE};
+pub use accel::embedded::{
+    BuildFlags, BuildStatus, DRIVER_BUFFER_USAGE, GEOMETRY_BUFFER_USAGE,
+    REFERENCEABLE_BUFFER_USAGE, REFERENCEABLE_MEMORY_FLAGS, REQUIRED_BUFFER_USAGE,
+};
 pub use accel::geometry::{
     Aabbs, Geometry, IndexType, Indices, Spheres, Transform, Triangles, VertexFormat,
 };

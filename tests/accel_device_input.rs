@@ -931,6 +931,23 @@ fn sizes_are_exact_and_too_little_memory_is_an_error() {
             } => assert_eq!((needed, given), (s.structure_bytes, s.structure_bytes - 4)),
             e => panic!("{e}"),
         }
+        // An offset off the device's placement alignment is refused, naming that alignment.
+        let align = AccelBuilder::placement_alignment(&ctx);
+        assert!(
+            align.is_power_of_two() && (4..=256).contains(&align),
+            "{align}"
+        );
+        let roomy =
+            Buffer::<u8>::arena(&ctx, "roomy", (s.structure_bytes + align) as usize).unwrap();
+        // SAFETY: the test's buffer, alive until the end of the loop; nothing is recorded.
+        let off = unsafe { RawBuffer::new(roomy.as_raw().buffer(), align / 2, s.structure_bytes) };
+        match builder.create_in(&ctx, &geometries, &flags, off).err() {
+            Some(GpuError::Placement {
+                problem: PlacementProblem::Misaligned { offset, alignment },
+                ..
+            }) => assert_eq!((offset, alignment), (align / 2, align)),
+            other => panic!("{other:?}"),
+        }
         let mut g = builder
             .create_in(&ctx, &geometries, &flags, unsafe { exact.as_raw() })
             .unwrap();

@@ -52,6 +52,27 @@ pub const REQUIRED_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::fr
         | vk::BufferUsageFlags::UNIFORM_TEXEL_BUFFER.as_raw(),
 );
 
+/// Usage a structure's buffer needs where its address is taken — a top level's instances
+/// naming it by reference, [`TopLevel::handle_words`](crate::accel::instances::TopLevel::handle_words),
+/// a shader finding it at a device address: [`REQUIRED_BUFFER_USAGE`] and
+/// `SHADER_DEVICE_ADDRESS`, its memory allocated with [`REFERENCEABLE_MEMORY_FLAGS`].
+pub const REFERENCEABLE_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::from_raw(
+    REQUIRED_BUFFER_USAGE.as_raw() | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS.as_raw(),
+);
+
+/// The `VkMemoryAllocateFlagsInfo` flags of memory bound to a buffer with
+/// `SHADER_DEVICE_ADDRESS` usage ([`REFERENCEABLE_BUFFER_USAGE`], geometry read at device
+/// addresses).
+pub const REFERENCEABLE_MEMORY_FLAGS: vk::MemoryAllocateFlags =
+    vk::MemoryAllocateFlags::DEVICE_ADDRESS;
+
+/// Usage of a buffer holding geometry (vertices, indices, boxes, spheres, instance records)
+/// that a build reads as a range ([`GeometryData::Buffer`](crate::accel::geometry::GeometryData)):
+/// vkrt's gather binds it as a storage buffer. Data read at device addresses
+/// ([`GeometryData::address`](crate::accel::geometry::GeometryData::address)) needs
+/// `SHADER_DEVICE_ADDRESS` instead, with [`REFERENCEABLE_MEMORY_FLAGS`].
+pub const GEOMETRY_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::STORAGE_BUFFER;
+
 /// What the driver's structure needs in addition: its inputs are read at device addresses.
 pub const DRIVER_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::from_raw(
     vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS.as_raw()
@@ -166,6 +187,14 @@ impl AccelBuilder {
             )),
             _ => Ok(()),
         }
+    }
+
+    /// The alignment a structure's and a scratch's offset in the caller's buffer needs on
+    /// this device (`minStorageBufferOffsetAlignment` and `minTexelBufferOffsetAlignment`,
+    /// at least 4): a range at another offset is refused with
+    /// [`PlacementProblem::Misaligned`](crate::gpu::PlacementProblem::Misaligned).
+    pub fn placement_alignment(ctx: &Context) -> u64 {
+        crate::gpu::placement::alignment(ctx)
     }
 
     /// Bytes of the structure over `geometries` built with `flags`, of its build's scratch

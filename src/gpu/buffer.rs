@@ -638,12 +638,7 @@ pub mod placement {
         placement: Placement,
         f: impl FnOnce() -> Result<R>,
     ) -> Result<(R, u64)> {
-        // Every placed buffer may be bound as a storage buffer or viewed as a texel buffer.
-        let info = ctx.info();
-        let align = info
-            .min_storage_buffer_offset_alignment
-            .max(info.min_texel_buffer_offset_alignment)
-            .clamp(4, 256);
+        let align = alignment(ctx);
         let target = match placement {
             Placement::Measure => None,
             Placement::Into(r) => {
@@ -689,6 +684,15 @@ pub mod placement {
             }
         }
         Ok((value, arena.used))
+    }
+
+    /// The alignment of a placement's offset, and of each buffer within it: every placed
+    /// buffer may be bound as a storage buffer or viewed as a texel buffer.
+    pub fn alignment(ctx: &Context) -> u64 {
+        let info = ctx.info();
+        info.min_storage_buffer_offset_alignment
+            .max(info.min_texel_buffer_offset_alignment)
+            .clamp(4, 256)
     }
 
     /// Whether buffers created now are placeholders ([`Placement::Measure`]): code that
