@@ -19,8 +19,10 @@
 //! [`MAX_COORDINATE`], `w ≠ 0`; face references are non-zero, in range of
 //! what was defined *before* the face (negative = relative, as the spec
 //! says), at most `v/vt/vn`; at least 3 per face; triangle count within the
-//! limit; `usemtl` names a material from an earlier `mtllib`; referenced
-//! MTL files exist (error names the path). MTL: statements inside a
+//! limit; `usemtl` names a material from an earlier `mtllib`. A missing
+//! MTL file is a warning naming its path, as OBJ loaders have it, and a
+//! `usemtl` then naming no material read gets the default one (with a
+//! warning); an unreadable one is an error. MTL: statements inside a
 //! `newmtl`, colours non-negative, `illum` 0..=10, ranges of `Ns`, `Ni`, `d`,
 //! `Tr`, `Pr`.
 //!
@@ -380,6 +382,8 @@ struct ObjParser<'a> {
     material_ids: HashMap<String, usize>,
     /// A failed MTL parse (reported where no material was read at all).
     mtl_error: Option<tobj::LoadError>,
+    /// `mtllib` files that are absent: warned about, their materials the default.
+    missing_mtl: Vec<PathBuf>,
     /// Every `v` and `vn` so far.
     points: Vec<Vec3>,
     point_normals: Vec<Vec3>,
@@ -420,6 +424,7 @@ impl<'a> ObjParser<'a> {
             materials: Vec::new(),
             material_ids: HashMap::new(),
             mtl_error: None,
+            missing_mtl: Vec::new(),
             points: Vec::new(),
             point_normals: Vec::new(),
             positions: Vec::new(),
@@ -575,8 +580,23 @@ impl<'a> ObjParser<'a> {
                 if rest.is_empty() {
                     return Err(err_line(path, ln, "`usemtl` needs a material name"));
                 }
-                let Some(&id) = self.material_ids.get(rest) else {
-                    let hint = if self.mtl_texts.is_empty() {
+                let known = self.material_ids.get(rest).copied();
+                if known.is_none() && !self.missing_mtl.is_empty() {
+                    // Possibly a material of the missing library: the default, as loaders
+                    // do, with a warning.
+                    self.warnings.push(format!(
+                        "{}:{ln}: material `{rest}` is in no library read (one is missing): \
+                         the default material",
+                        path.display()
+                    ));
+                    if self.model_material.is_some() {
+                        self.end_model();
+                    }
+                    self.model_material = None;
+                    return Ok(());
+                }
+                let Some(id) = known else {
+                    let hint = if self.mtl_texts.is_empty() && self.missing_mtl.is_empty() {
                         " (no `mtllib` before this line)"
                     } else {
                         ""
@@ -608,6 +628,19 @@ impl<'a> ObjParser<'a> {
                 };
                 for name in names {
                     let full = self.dir.join(name);
+                    if !self.mtl_texts.contains_key(&full) && !self.files.exists(&full) {
+                        // As OBJ loaders do (tobj, Assimp, Blender): a missing library is a
+                        // warning, and the materials it would define are the default.
+                        self.warnings.push(format!(
+                            "{}:{ln}: mtllib `{}` not found: its materials are the default",
+                            path.display(),
+                            full.display()
+                        ));
+                        if !self.missing_mtl.contains(&full) {
+                            self.missing_mtl.push(full);
+                        }
+                        continue;
+                    }
                     if !self.mtl_texts.contains_key(&full) {
                         let mtl = self.files.read_text(&full, limits.max_file_bytes)?;
                         let checked = check_mtl(&mtl, &full)?;
