@@ -15,7 +15,7 @@ use vkrt::accel::geometry::{
 use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::primitives::TraceGeometry;
 use vkrt::accel::walk::Traversal;
-use vkrt::gpu::{Buffer, Context, GpuError, PlacementProblem, RawBuffer, Recorder};
+use vkrt::gpu::{Buffer, Context, DeviceRange, GpuError, PlacementProblem, RawBuffer, Recorder};
 use vkrt::scene::Aabb;
 use vkrt::trace::gpu::Tracer;
 use vkrt::trace::{cpu, Hit, Ray, TraceOptions};
@@ -72,7 +72,7 @@ impl CallerBuffers {
         let address = self.bufs.last().unwrap().device_address().unwrap() + r.offset();
         *self.addresses.last_mut().unwrap() = address;
         // SAFETY: the range of a buffer the test keeps until its builds have executed.
-        unsafe { GeometryData::address(address, r.size()) }
+        unsafe { DeviceRange::new(address, r.size()) }.into()
     }
 }
 
@@ -250,7 +250,9 @@ fn the_gather_equals_its_cpu_twin_on_every_edge() {
             let transform = (stride == 16).then(|| match address {
                 true => match caller.at(&ctx, bytemuck::cast_slice(&rows), 0) {
                     // SAFETY: as in `at`.
-                    GeometryData::Address { address: at, .. } => unsafe { Transform::at(at) },
+                    GeometryData::Address { address: at, .. } => {
+                        Transform::at(unsafe { DeviceRange::new(at, 48) })
+                    }
                     _ => unreachable!("data at an address"),
                 },
                 false => Transform::Rows(rows),
@@ -1089,7 +1091,7 @@ fn misuse_is_an_error_not_a_panic() {
     is_usage(
         bad(Triangles {
             // SAFETY: refused while recording, before anything could read it.
-            transform: Some(unsafe { Transform::at(0x1000) }),
+            transform: Some(Transform::at(unsafe { DeviceRange::new(0x1000, 48) })),
             ..ok
         }),
         "a transform at an address over vertices in a buffer",

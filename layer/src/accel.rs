@@ -13,9 +13,8 @@ use std::collections::HashSet;
 use std::sync::{Arc, Mutex};
 
 use ash::vk;
-use vkrt::accel::geometry::GeometryData;
 use vkrt::accel::instances::InstancePointers;
-use vkrt::gpu::{RawBuffer, Recorder};
+use vkrt::gpu::{DeviceRange, RawBuffer, Recorder};
 use vkrt::{
     Aabbs, AccelBuilder, AccelKind, AccelSizes, BuildFlags, Geometry, GeometryShape, GpuGeometry,
     IndexType, Indices, TopLevel, TopLevelBuilder, Transform, Triangles, VertexFormat,
@@ -447,16 +446,17 @@ fn bottom_geometries(
                 // and counts name.
                 let indices = index_type.map(|it| Indices {
                     data: unsafe {
-                        GeometryData::address(
+                        DeviceRange::new(
                             index_data + u64::from(r.primitive_offset),
                             u64::from(r.primitive_count) * 3 * it_bytes(it),
                         )
-                    },
+                    }
+                    .into(),
                     index_type: it,
                 });
                 Ok(Geometry::Triangles(Triangles {
                     // SAFETY: as above.
-                    vertices: unsafe { GeometryData::address(vertices_at, vertex_bytes) },
+                    vertices: unsafe { DeviceRange::new(vertices_at, vertex_bytes) }.into(),
                     format: vertex_format(t.vertex_format)?,
                     stride,
                     vertex_count,
@@ -464,8 +464,9 @@ fn bottom_geometries(
                     triangle_count: r.primitive_count,
                     transform: (transform != 0)
                         // SAFETY: as above.
-                        .then(|| unsafe {
-                            Transform::at(transform + u64::from(r.transform_offset))
+                        .then(|| {
+                            let at = transform + u64::from(r.transform_offset);
+                            Transform::at(unsafe { DeviceRange::new(at, 48) })
                         }),
                     opaque: opaque(g),
                 }))
@@ -481,9 +482,8 @@ fn bottom_geometries(
                 };
                 Ok(Geometry::Aabbs(Aabbs {
                     // SAFETY: as for triangles.
-                    data: unsafe {
-                        GeometryData::address(data + u64::from(r.primitive_offset), bytes)
-                    },
+                    data: unsafe { DeviceRange::new(data + u64::from(r.primitive_offset), bytes) }
+                        .into(),
                     stride: a.stride,
                     count: r.primitive_count,
                     opaque: opaque(g),

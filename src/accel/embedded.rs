@@ -69,7 +69,7 @@ pub const REFERENCEABLE_MEMORY_FLAGS: vk::MemoryAllocateFlags =
 /// Usage of a buffer holding geometry (vertices, indices, boxes, spheres, instance records)
 /// that a build reads as a range ([`GeometryData::Buffer`](crate::accel::geometry::GeometryData)):
 /// vkrt's gather binds it as a storage buffer. Data read at device addresses
-/// ([`GeometryData::address`](crate::accel::geometry::GeometryData::address)) needs
+/// (a [`DeviceRange`](crate::gpu::DeviceRange)) needs
 /// `SHADER_DEVICE_ADDRESS` instead, with [`REFERENCEABLE_MEMORY_FLAGS`].
 pub const GEOMETRY_BUFFER_USAGE: vk::BufferUsageFlags = vk::BufferUsageFlags::STORAGE_BUFFER;
 
@@ -289,50 +289,9 @@ impl AccelBuilder {
     /// alive as long as the structure is used.
     ///
     /// A structure over the caller's vertex buffer, in memory the caller allocates, as
-    /// `vkCreateAccelerationStructureKHR` places one:
-    ///
-    /// ```
-    /// use vkrt::accel::geometry::{Geometry, Triangles};
-    /// use vkrt::glam::Vec3;
-    /// use vkrt::{AccelBuilder, AccelKind, BuildFlags, Buffer, Context, ContextOptions};
-    /// use vkrt::{Ray, Recorder, TraceOptions, Tracer};
-    ///
-    /// # fn main() -> Result<(), Box<dyn std::error::Error>> {
-    /// # /*
-    /// let ctx = Context::new(&ContextOptions::default())?;
-    /// # */
-    /// # let ctx = Context::new(&ContextOptions::for_tests())?; // validation as the tests run it
-    /// // The renderer's vertex buffer: one triangle, tightly packed vec3s.
-    /// let vertices = [[-1.0f32, -1.0, 0.0], [1.0, -1.0, 0.0], [0.0, 1.0, 0.0]];
-    /// let vertex_buffer = Buffer::from_slice(&ctx, "renderer.vertices", &vertices)?;
-    /// // SAFETY: the buffers outlive the work recorded with their ranges (waited for below).
-    /// let vertex_range = unsafe { vertex_buffer.as_raw() };
-    /// let geometries = [Geometry::Triangles(Triangles::soup(vertex_range, 3))];
-    ///
-    /// let builder = AccelBuilder::new(&ctx, AccelKind::Ploc)?;
-    /// let flags = BuildFlags::default();
-    /// let sizes = builder.sizes_for(&ctx, &geometries, &flags)?;
-    /// let memory = Buffer::<u8>::arena(&ctx, "renderer.bvh", sizes.structure_bytes as usize)?;
-    /// let scratch_bytes = sizes.build_scratch_bytes as usize;
-    /// let scratch = Buffer::<u8>::arena(&ctx, "renderer.scratch", scratch_bytes)?;
-    /// let (memory_range, scratch_range) = unsafe { (memory.as_raw(), scratch.as_raw()) };
-    /// let mut bvh = builder.create_in(&ctx, &geometries, &flags, memory_range)?;
-    ///
-    /// // Recorded into a command buffer (here vkrt's own; `Recorder::from_raw` takes the
-    /// // renderer's), nothing allocated or submitted by the build.
-    /// let mut rec = Recorder::new(&ctx)?;
-    /// builder.record_build_from(&mut rec, &mut bvh, &geometries, scratch_range)?;
-    /// rec.submit_and_wait()?;
-    ///
-    /// let walk = AccelKind::Ploc.walked(Default::default());
-    /// let tracer = Tracer::for_accel(&ctx, &TraceOptions::default(), walk)?;
-    /// let ray = Ray::new(Vec3::new(0.0, 0.0, 1.0), -Vec3::Z, 0.0, f32::INFINITY);
-    /// assert_eq!(tracer.trace(&ctx, &bvh, &[ray], 0.0)?.hits[0].t, 1.0);
-    /// # let messages = ctx.take_validation_messages();
-    /// # assert!(messages.is_empty(), "validation: {messages:?}");
-    /// # Ok(())
-    /// # }
-    /// ```
+    /// `vkCreateAccelerationStructureKHR` places one: the
+    /// [embedding guide](crate::guide::embedding)'s section 3 has the whole of it, run as a
+    /// test.
     pub fn create_in(
         &self,
         ctx: &Context,

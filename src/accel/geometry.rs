@@ -14,7 +14,8 @@ pub use crate::accel::geometry_shape::{IndexType, VertexFormat, NON_OPAQUE};
 use crate::accel::primitives::SceneInfo;
 use crate::accel::primitives::TraceGeometry;
 use crate::gpu::{
-    kernels, Buffer, BufferArg, Context, GpuError, Kernel, RawBuffer, Recorder, Result, Spec,
+    kernels, Buffer, BufferArg, Context, DeviceRange, GpuError, Kernel, RawBuffer, Recorder,
+    Result, Spec,
 };
 use crate::scene::Aabb;
 use glam::{Vec3, Vec4};
@@ -32,10 +33,10 @@ pub enum GeometryData {
     Buffer(RawBuffer),
     /// `size` bytes at a device address (`VkDeviceOrHostAddressConstKHR`), read with
     /// `GL_EXT_buffer_reference`: no binding limit; needs `bufferDeviceAddress` enabled.
-    /// Made with the `unsafe` [`GeometryData::address`]: vkrt cannot check an address.
+    /// Made from a [`DeviceRange`], whose constructor carries the caller's promise.
     ///
     /// ```compile_fail
-    /// // Not in safe code: any u64 would reach the GPU.
+    /// // Not from a bare u64: any address would reach the GPU.
     /// let d = vkrt::accel::geometry::GeometryData::Address { address: 64, size: 12 };
     /// ```
     #[non_exhaustive]
@@ -47,6 +48,15 @@ pub enum GeometryData {
     },
 }
 
+impl From<DeviceRange> for GeometryData {
+    fn from(r: DeviceRange) -> Self {
+        GeometryData::Address {
+            address: r.address(),
+            size: r.size(),
+        }
+    }
+}
+
 impl From<RawBuffer> for GeometryData {
     fn from(r: RawBuffer) -> Self {
         GeometryData::Buffer(r)
@@ -54,18 +64,6 @@ impl From<RawBuffer> for GeometryData {
 }
 
 impl GeometryData {
-    /// `size` bytes at device address `address`.
-    ///
-    /// # Safety
-    /// Until every command recorded with this data has finished executing, the `size` bytes
-    /// from `address` lie in one live buffer of the context's device, created with
-    /// `SHADER_DEVICE_ADDRESS` usage and bound to memory allocated with the device-address
-    /// flag, and nothing writes them while the build reads them.
-    #[allow(unsafe_code, reason = "a contract for the caller; no unsafe operation")]
-    pub unsafe fn address(address: u64, size: u64) -> Self {
-        GeometryData::Address { address, size }
-    }
-
     /// Bytes of the data.
     pub fn size(&self) -> u64 {
         match self {
@@ -112,19 +110,15 @@ pub enum Transform {
     /// A `VkTransformMatrixKHR` (twelve floats, row-major) at a 16-byte-aligned device
     /// address, read by the build where it reads the vertices: they lie at device addresses
     /// too. A non-finite entry makes the geometry's triangles invalid (never hit, counted).
-    /// Made with the `unsafe` [`Transform::at`].
+    /// Made with [`Transform::at`] from a [`DeviceRange`].
     #[non_exhaustive]
     At(u64),
 }
 
 impl Transform {
-    /// The matrix at device address `address`.
-    ///
-    /// # Safety
-    /// As [`GeometryData::address`], for the matrix's 48 bytes.
-    #[allow(unsafe_code, reason = "a contract for the caller; no unsafe operation")]
-    pub unsafe fn at(address: u64) -> Self {
-        Transform::At(address)
+    /// The matrix at the start of `range` (whose promise covers its 48 bytes).
+    pub fn at(range: DeviceRange) -> Self {
+        Transform::At(range.address())
     }
 }
 

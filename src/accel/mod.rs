@@ -20,10 +20,7 @@
 //!   renderer's own shader binds to walk it.
 //!
 //! Node layouts are shared byte for byte with GLSL.
-//!
-//! No unsafe operation here (they live in the `gpu` layer); the two `unsafe fn`s of
-//! [`geometry`] only state a contract the caller keeps for a device address.
-#![deny(unsafe_code)]
+#![forbid(unsafe_code)]
 
 pub mod batch;
 pub mod bvh;

@@ -177,6 +177,43 @@ impl RawBuffer {
     }
 }
 
+/// `size` bytes at a device address (`VkDeviceOrHostAddressConstKHR`): geometry or a
+/// transform a build reads with `GL_EXT_buffer_reference`. Made only by the `unsafe`
+/// [`DeviceRange::new`]: vkrt cannot check an address.
+///
+/// ```compile_fail
+/// // Not in safe code: any u64 would reach the GPU.
+/// let d = vkrt::gpu::DeviceRange { address: 64, size: 12 };
+/// ```
+#[derive(Clone, Copy, Debug, PartialEq, Eq)]
+pub struct DeviceRange {
+    address: u64,
+    size: u64,
+}
+
+impl DeviceRange {
+    /// The `size` bytes from device address `address`.
+    ///
+    /// # Safety
+    /// Until every command recorded with this range has finished executing, the bytes lie
+    /// in one live buffer of the context's device, created with `SHADER_DEVICE_ADDRESS`
+    /// usage and bound to memory allocated with the device-address flag, and nothing writes
+    /// them while a build reads them.
+    pub unsafe fn new(address: u64, size: u64) -> Self {
+        Self { address, size }
+    }
+
+    /// The device address of the first byte.
+    pub fn address(&self) -> u64 {
+        self.address
+    }
+
+    /// Bytes from there.
+    pub fn size(&self) -> u64 {
+        self.size
+    }
+}
+
 impl BufferArg for RawBuffer {
     fn raw(&self) -> vk::Buffer {
         self.raw

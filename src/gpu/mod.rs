@@ -48,7 +48,9 @@ pub use accel_ext::{
 };
 pub use ash::vk;
 pub use bindings::BindingCache;
-pub use buffer::{address_of, placement, Buffer, BufferArg, Memory, RawBuffer, TexelView};
+pub use buffer::{
+    address_of, placement, Buffer, BufferArg, DeviceRange, Memory, RawBuffer, TexelView,
+};
 pub use context::{Context, ContextOptions, MemoryUsage, RawParts, Traffic};
 pub use error::{GpuError, PlacementProblem, Result};
 pub use foreign::{ForeignBinding, ForeignKernel};
