@@ -517,11 +517,7 @@ impl<T: Pod> Buffer<T> {
     /// This buffer outlives every command recorded with the range (a [`RawBuffer`] does not
     /// keep it alive), as [`RawBuffer::new`] requires.
     pub unsafe fn as_raw(&self) -> RawBuffer {
-        RawBuffer {
-            raw: self.raw,
-            offset: self.offset,
-            size: self.bytes,
-        }
+        self.own_range()
     }
 
     /// Writes `data` at the start of the buffer (through staging for device memory).
