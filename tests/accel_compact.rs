@@ -354,11 +354,12 @@ fn compaction_refuses_what_it_cannot_renumber() {
         }),
         "a build into a compacted structure",
     );
-    usage(
-        builder.record_update_from(&mut rec, &mut dst, &built.geometries, unsafe {
-            scratch.as_raw()
-        }),
-        "an update of a structure not built to be updated",
+    let update = builder.record_update_from(&mut rec, &mut dst, &built.geometries, unsafe {
+        scratch.as_raw()
+    });
+    assert!(
+        matches!(update, Err(GpuError::NotBuilt { .. })),
+        "an update of a structure not built to be updated: {update:?}"
     );
     drop(rec);
     common::assert_silent(&ctx);

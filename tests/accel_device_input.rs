@@ -1158,11 +1158,12 @@ fn misuse_is_an_error_not_a_panic() {
     let (mut kd_g, _m1) = build_in_caller_memory(&ctx, &kd, &geometries, &flags);
     let scratch = Buffer::<u8>::arena(&ctx, "scratch", 1 << 20).unwrap();
     let mut rec = Recorder::new(&ctx).unwrap();
-    is_usage(
-        lbvh.record_build_from(&mut rec, &mut kd_g, &geometries, unsafe {
-            scratch.as_raw()
-        }),
-        "an LBVH builder into a kd-tree",
+    let into_kd = lbvh.record_build_from(&mut rec, &mut kd_g, &geometries, unsafe {
+        scratch.as_raw()
+    });
+    assert!(
+        matches!(&into_kd, Err(GpuError::KindMismatch { built, .. }) if built == "kdtree"),
+        "an LBVH builder into a kd-tree: {into_kd:?}"
     );
     is_usage(
         kd.record_update_from(&mut rec, &mut kd_g, &geometries, unsafe {
@@ -1180,20 +1181,22 @@ fn misuse_is_an_error_not_a_panic() {
     let mut unbuilt = lbvh
         .create_in(&ctx, &geometries, &flags, unsafe { mem.as_raw() })
         .unwrap();
-    is_usage(
-        lbvh.record_update_from(&mut rec, &mut unbuilt, &geometries, unsafe {
-            scratch.as_raw()
-        }),
-        "an update of an unbuilt structure",
+    let r = lbvh.record_update_from(&mut rec, &mut unbuilt, &geometries, unsafe {
+        scratch.as_raw()
+    });
+    assert!(
+        matches!(r, Err(GpuError::NotBuilt { .. })),
+        "an update of an unbuilt structure: {r:?}"
     );
     let tracer =
         Tracer::for_accel(&ctx, &opt(), AccelKind::Lbvh.walked(Default::default())).unwrap();
     let rays = Buffer::<Ray>::new(&ctx, "rays", 4).unwrap();
     let hits = Buffer::<Hit>::new(&ctx, "hits", 4).unwrap();
     let errors = Buffer::<u32>::new(&ctx, "errors", 1).unwrap();
-    is_usage(
-        tracer.record(&mut rec, &unbuilt, &rays, &hits, &errors, 4, 0.0),
-        "a trace of an unbuilt structure",
+    let r = tracer.record(&mut rec, &unbuilt, &rays, &hits, &errors, 4, 0.0);
+    assert!(
+        matches!(r, Err(GpuError::NotBuilt { .. })),
+        "a trace of an unbuilt structure: {r:?}"
     );
     let (mut built, _m2) = build_in_caller_memory(&ctx, &lbvh, &geometries, &flags);
     is_usage(
@@ -1207,9 +1210,10 @@ fn misuse_is_an_error_not_a_panic() {
         tracer.record(&mut rec, &built, &rays, &hits, &errors, 5, 0.0),
         "5 rays in buffers of 4",
     );
-    is_usage(
-        tracer.record(&mut rec, &kd_g, &rays, &hits, &errors, 4, 0.0),
-        "a BVH tracer on a kd-tree",
+    let r = tracer.record(&mut rec, &kd_g, &rays, &hits, &errors, 4, 0.0);
+    assert!(
+        matches!(r, Err(GpuError::KindMismatch { .. })),
+        "a BVH tracer on a kd-tree: {r:?}"
     );
     // Zero rays are nothing to do.
     tracer
@@ -1295,8 +1299,11 @@ fn settings_are_frozen_into_the_structure_and_checked_at_every_record_call() {
     )
     .unwrap();
     let is_frozen = |r: Result<(), GpuError>, what: &str| match r {
-        Err(GpuError::Usage { reason, .. }) => {
-            assert!(reason.contains("other parameters"), "{what}: {reason}")
+        Err(GpuError::FrozenSetting { frozen, given, .. }) => {
+            assert!(
+                frozen.contains("max_leaf_prims") && frozen != given,
+                "{what}: {frozen}"
+            )
         }
         other => panic!("{what}: {other:?}"),
     };

@@ -75,6 +75,16 @@ impl AccelBuilder {
                 what: format!("target {i}: {what}"),
                 problem,
             },
+            e @ (GpuError::NotBuilt { .. }
+            | GpuError::KindMismatch { .. }
+            | GpuError::FrozenSetting { .. })
+                if !single =>
+            {
+                GpuError::Target {
+                    index: i,
+                    error: Box::new(e),
+                }
+            }
             e => e,
         };
         let mut placed = Vec::with_capacity(targets.len());

@@ -161,10 +161,7 @@ impl GpuGeometry {
             ));
         }
         if !input.built {
-            return Err(usage(
-                call,
-                "the structure has not been built: record its build first",
-            ));
+            return Err(GpuError::NotBuilt { call });
         }
         Ok(input)
     }

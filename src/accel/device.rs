@@ -54,7 +54,9 @@ pub struct AccelStructure {
     pub(crate) references_enabled: bool,
 }
 
-/// A structure's buffers, by family.
+/// A structure's buffers, by family. One per structure, never in an array: the variants'
+/// sizes (a BVH's buffers are more) cost nothing worth a box.
+#[allow(clippy::large_enum_variant)]
 pub(crate) enum Storage {
     KdTree(KdStorage),
     Bvh(BvhStorage),
@@ -387,23 +389,21 @@ impl AccelBuilder {
 
     /// `Err` unless `out` was created by a builder of this kind with these parameters.
     pub(crate) fn check_frozen(&self, call: &'static str, out: &AccelStructure) -> Result<()> {
-        let reason = if out.kind != self.kind {
-            format!(
-                "a {} builder cannot build into a {} structure",
-                self.kind.name(),
-                out.kind.name()
-            )
-        } else if out.params.is_some_and(|p| p != self.params()) {
-            format!(
-                "the structure was created by a {} builder with other parameters ({:?}; this                  builder has {:?}): record with the builder that created it",
-                self.kind.name(),
-                out.params,
-                self.params()
-            )
-        } else {
-            return Ok(());
-        };
-        Err(GpuError::Usage { call, reason })
+        if out.kind != self.kind {
+            return Err(GpuError::KindMismatch {
+                call,
+                built: out.kind.name().into(),
+                expected: format!("{} builder", self.kind.name()),
+            });
+        }
+        match out.params {
+            Some(frozen) if frozen != self.params() => Err(GpuError::FrozenSetting {
+                call,
+                frozen: format!("{frozen:?}"),
+                given: format!("{:?}", self.params()),
+            }),
+            _ => Ok(()),
+        }
     }
 
     /// An LBVH builder with `bits`-bit Morton codes ([`AccelBuilder::new`] takes the

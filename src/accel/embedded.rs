@@ -440,10 +440,7 @@ impl AccelBuilder {
             ));
         }
         if !input.built {
-            return Err(usage(
-                call,
-                "the structure has not been built: record its build first",
-            ));
+            return Err(GpuError::NotBuilt { call });
         }
         if !input.flags.allow_update {
             return Err(usage(

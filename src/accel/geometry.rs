@@ -509,6 +509,7 @@ pub(crate) fn bound(ctx: &Context, r: &RawBuffer) -> (RawBuffer, u64) {
             raw: r.raw,
             offset: start,
             size: (r.size + skip).next_multiple_of(4),
+            id: r.id,
         },
         skip,
     )

@@ -511,6 +511,7 @@ fn measured_boxes(count: u32) -> Geometry {
         raw: vk::Buffer::from_raw(1),
         offset: 0,
         size: 24 * u64::from(count.max(1)),
+        id: crate::gpu::BufferId::Caller(vk::Buffer::from_raw(1)),
     };
     boxes_geometry(GeometryData::Buffer(raw), count)
 }
@@ -669,6 +670,7 @@ impl TopLevelBuilder {
             raw: memory.raw,
             offset: memory.offset + own,
             size: memory.size - own,
+            id: memory.id,
         };
         let geometry = boxes_geometry(GeometryData::Buffer(parts.boxes.own_range()), max);
         let flags = &binary_nodes(flags);

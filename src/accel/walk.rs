@@ -60,11 +60,12 @@ impl Traversal {
 #[serde(rename_all = "kebab-case")]
 pub enum AccelKind {
     /// Kolodzey's (2014) SAH kd-tree, built on the GPU.
-    #[default]
     KdTree,
     /// Sochora's (2013) SAH BVH, built on the host's cores and uploaded.
     SahBvh,
-    /// Karras's LBVH (2012), built on the GPU.
+    /// Karras's LBVH (2012), built on the GPU: the default (see
+    /// [`AccelKind::EMBEDDING_DEFAULT`]).
+    #[default]
     Lbvh,
     /// PLOC (Meister & Bittner 2018), built on the GPU.
     Ploc,
@@ -85,8 +86,9 @@ impl AccelKind {
     /// The kind a renderer embedding vkrt starts from: the LBVH, built on the device from the
     /// caller's buffers in a fixed number of passes, with no capacity to run out of (the
     /// kd-tree's reference budget may, and asks the caller to grow it) and a fraction of the
-    /// kd-tree's memory per primitive. (`AccelKind::default()` stays the kd-tree: the CLI's
-    /// default.)
+    /// kd-tree's memory per primitive. `AccelKind::default()` is the same. (The command line's
+    /// default is the SAH BVH built on the host's cores, which a renderer's frame cannot
+    /// wait for.)
     pub const EMBEDDING_DEFAULT: AccelKind = AccelKind::Lbvh;
 
     /// The CLI name (`--accel`).

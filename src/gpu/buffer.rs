@@ -16,9 +16,39 @@ use super::context::Context;
 use super::error::{vk_err, GpuError, Result};
 use super::recorder::Recorder;
 
+pub(crate) use sealed::BufferId;
+
+/// The key a range's descriptor sets and views are cached under ([`BufferArg`] is sealed by
+/// it): public in a private module, so nothing outside vkrt can name or implement it.
+pub(crate) mod sealed {
+    use ash::vk;
+
+    /// Which buffer a range lies in, as bindings are keyed: a vkrt [`Buffer`](super::Buffer)'s
+    /// own id, never reused (its cached sets and views go when it drops), or a caller's
+    /// handle, which a driver may reuse once the buffer is destroyed (hence
+    /// [`BindingCache::forget`](crate::gpu::BindingCache::forget)).
+    #[derive(Clone, Copy, Debug, PartialEq, Eq, Hash)]
+    pub enum BufferId {
+        /// A vkrt buffer (or a range taken from one).
+        Vkrt(u64),
+        /// A caller's buffer.
+        Caller(vk::Buffer),
+    }
+
+    pub trait Identity {
+        fn id(&self) -> BufferId;
+    }
+}
+
+/// The next vkrt buffer's id (0 is never given).
+static NEXT_BUFFER_ID: std::sync::atomic::AtomicU64 = std::sync::atomic::AtomicU64::new(1);
+
 /// Anything a kernel can bind or a command can read or write: a whole [`Buffer`] or a
 /// caller-owned range ([`RawBuffer`]).
-pub trait BufferArg {
+///
+/// Sealed: only vkrt's types implement it, so a safe call cannot be handed a raw handle
+/// ([`RawBuffer::new`] is where one enters, `unsafe`).
+pub trait BufferArg: sealed::Identity {
     /// The Vulkan buffer the range lies in.
     fn raw(&self) -> vk::Buffer;
     /// Byte offset of the range's start in that buffer.
@@ -132,6 +162,9 @@ pub struct RawBuffer {
     pub(crate) raw: vk::Buffer,
     pub(crate) offset: u64,
     pub(crate) size: u64,
+    /// What its bindings are cached under: the caller's handle, or the vkrt buffer the range
+    /// was taken from ([`Buffer::as_raw`]).
+    pub(crate) id: BufferId,
 }
 
 impl RawBuffer {
@@ -146,8 +179,17 @@ impl RawBuffer {
     ///   structure or scratch, [`REQUIRED_BUFFER_USAGE`](crate::REQUIRED_BUFFER_USAGE));
     /// - nothing else writes the range while vkrt's commands use it, except as the call's
     ///   synchronization contract says.
+    /// - before `raw` is destroyed, every [`BindingCache`](crate::gpu::BindingCache) that
+    ///   bound a range of it has been told with
+    ///   [`forget`](crate::gpu::BindingCache::forget) (a driver may give a new buffer the same
+    ///   handle, and a cached descriptor set would then point at freed memory).
     pub unsafe fn new(raw: vk::Buffer, offset: u64, size: u64) -> Self {
-        Self { raw, offset, size }
+        Self {
+            raw,
+            offset,
+            size,
+            id: BufferId::Caller(raw),
+        }
     }
 
     /// The Vulkan buffer.
@@ -173,6 +215,7 @@ impl RawBuffer {
             raw: self.raw,
             offset: self.offset + offset,
             size,
+            id: self.id,
         })
     }
 }
@@ -214,6 +257,12 @@ impl DeviceRange {
     }
 }
 
+impl sealed::Identity for RawBuffer {
+    fn id(&self) -> BufferId {
+        self.id
+    }
+}
+
 impl BufferArg for RawBuffer {
     fn raw(&self) -> vk::Buffer {
         self.raw
@@ -248,10 +297,20 @@ pub struct Buffer<T: Pod> {
     offset: u64,
     /// Whether `raw` is ours to destroy (false for a range of a caller's buffer).
     owned: bool,
+    /// What its cached bindings are keyed by: an id unique in the process for a buffer of
+    /// its own, the caller's buffer's for a range placed in it (whose sets stay valid as
+    /// long as the caller's buffer, and go when it does).
+    id: BufferId,
     name: String,
     memory: Memory,
     // The elements live in device memory, not in the handle: it crosses threads whatever `T`.
     _marker: PhantomData<fn() -> T>,
+}
+
+impl<T: Pod> sealed::Identity for Buffer<T> {
+    fn id(&self) -> BufferId {
+        self.id
+    }
 }
 
 impl<T: Pod> BufferArg for Buffer<T> {
@@ -342,6 +401,7 @@ impl<T: Pod> Buffer<T> {
                     bytes,
                     offset: range.offset,
                     owned: false,
+                    id: range.id,
                     name: name.into(),
                     memory,
                     _marker: PhantomData,
@@ -427,6 +487,7 @@ impl<T: Pod> Buffer<T> {
             bytes,
             offset: 0,
             owned: true,
+            id: BufferId::Vkrt(NEXT_BUFFER_ID.fetch_add(1, std::sync::atomic::Ordering::Relaxed)),
             name: name.into(),
             memory,
             _marker: PhantomData,
@@ -508,6 +569,7 @@ impl<T: Pod> Buffer<T> {
             raw: self.raw,
             offset: self.offset,
             size: self.bytes,
+            id: self.id,
         }
     }
 
@@ -610,9 +672,14 @@ impl<T: Pod> Buffer<T> {
 impl<T: Pod> Drop for Buffer<T> {
     fn drop(&mut self) {
         if !self.owned {
-            // A range of a caller's buffer (or a measured placeholder): the caller frees it.
+            // A range of a caller's buffer (or a measured placeholder): the caller frees it,
+            // and its cached sets go then (they are keyed by the caller's buffer, so a range
+            // placed anew each recording, as a build's scratch is, binds the same sets).
             return;
         }
+        // SAFETY: no pending work uses the buffer (the contract below), so none binds the
+        // cached sets and views of its ranges, which go with it.
+        unsafe { self.ctx.inner.caches.evict(self.id) };
         // SAFETY: vkrt waits for every submission it makes before returning, so the buffer is
         // not in use by a pending command buffer of ours; buffers bound into a caller-owned
         // command buffer must outlive it (documented on `Recorder::from_raw`).
@@ -758,11 +825,13 @@ pub mod placement {
                     raw: t.raw,
                     offset: t.offset + start,
                     size: bytes,
+                    id: t.id,
                 }),
                 None => Ok(RawBuffer {
                     raw: vk::Buffer::null(),
                     offset: start,
                     size: bytes,
+                    id: super::BufferId::Caller(vk::Buffer::null()),
                 }),
             })
         })

@@ -154,6 +154,8 @@ pub(crate) struct Inner {
     /// Where the pipeline cache is saved (`None`: nowhere).
     cache_path: Option<std::path::PathBuf>,
     pub(crate) kernels: Mutex<HashMap<KernelKey, Arc<Kernel>>>,
+    /// The binding caches made on this context, told when a vkrt buffer drops.
+    pub(crate) caches: super::bindings::CacheRegistry,
     /// Queue submissions and bytes read back to the host so far ([`Context::traffic`]).
     pub(crate) submits: AtomicU64,
     pub(crate) readback_bytes: AtomicU64,
@@ -345,6 +347,7 @@ impl Context {
                 pipeline_cache,
                 cache_path,
                 kernels: Mutex::new(HashMap::new()),
+                caches: Default::default(),
                 submits: AtomicU64::new(0),
                 readback_bytes: AtomicU64::new(0),
                 upload_bytes: AtomicU64::new(0),

@@ -80,6 +80,51 @@ pub enum GpuError {
         /// What is wrong with the range, in numbers.
         problem: PlacementProblem,
     },
+    /// A recording through a sealed [`BindingCache`](crate::gpu::BindingCache) needed a
+    /// descriptor set the cache was not prepared with (a buffer it has not seen, or one
+    /// re-created since): nothing was created; prepare the cache with the new buffers.
+    #[error("kernel `{kernel}`: the sealed binding cache has no descriptor set for these buffers; prepare it with them")]
+    CacheMiss {
+        /// The kernel whose set was missing.
+        kernel: &'static str,
+    },
+    /// A structure used before any build of it was recorded (a trace, an update, a
+    /// compaction, a reference): record its build first.
+    #[error("{call}: the structure has not been built: record its build first")]
+    NotBuilt {
+        /// The API function that refused.
+        call: &'static str,
+    },
+    /// A structure handed to a builder or tracer of another kind (or walk).
+    #[error("{call}: a {expected} cannot take a {built} structure")]
+    KindMismatch {
+        /// The API function that refused.
+        call: &'static str,
+        /// What the structure is (`lbvh`, `kdtree`, `lbvh with wide nodes`, ...).
+        built: String,
+        /// What the call needs (`ploc builder`, `lbvh (stack) tracer`, ...).
+        expected: String,
+    },
+    /// A builder whose parameters differ from those frozen into the structure when it was
+    /// created: record with the builder that created it.
+    #[error("{call}: the structure was created with other builder parameters ({frozen}; this builder has {given}): record with the builder that created it")]
+    FrozenSetting {
+        /// The API function that refused.
+        call: &'static str,
+        /// The parameters frozen into the structure.
+        frozen: String,
+        /// The builder's.
+        given: String,
+    },
+    /// One target of a batch ([`crate::accel::device::AccelBuilder::record_builds_from`])
+    /// refused with a structured error: which target, and the error.
+    #[error("target {index}: {error}")]
+    Target {
+        /// The target's index in the batch.
+        index: usize,
+        /// Why it was refused.
+        error: Box<GpuError>,
+    },
     /// A call the API refuses: wrong sizes, wrong kind, a buffer too small for the work.
     #[error("{call}: {reason}")]
     Usage {

@@ -24,6 +24,7 @@
 mod accel_ext;
 mod bindings;
 mod buffer;
+pub(crate) use buffer::BufferId;
 mod capture;
 mod context;
 mod error;

@@ -39,6 +39,9 @@ pub struct Recorder {
     /// The cache it binds from instead ([`Recorder::from_raw_with`]), held until the work
     /// has completed.
     cache: Option<BindingCache>,
+    /// Whether this is [`BindingCache::prepare`]'s recording (vkrt's own command buffer,
+    /// never submitted), which adds to a sealed cache.
+    preparing: bool,
     scopes: ScopeRecorder,
     /// Staging buffers of recorded uploads, alive until the work has executed.
     staging: Vec<Box<dyn std::any::Any + Send>>,
@@ -268,6 +271,7 @@ impl Recorder {
             cmd,
             command_pool,
             descriptor_pools: SetPools::default(),
+            preparing: cache.is_some() && command_pool.is_some(),
             cache,
             scopes,
             staging: Vec::new(),
@@ -538,11 +542,13 @@ impl Recorder {
         let ctx = &self.ctx;
         let write = |set, views: &mut Views| write_set(ctx, blob, set, buffers, views);
         let set = match &self.cache {
-            Some(cache) => cache.set_for(kernel.set_layout, buffers, write),
+            Some(cache) => {
+                cache.set_for(blob.name, kernel.set_layout, buffers, self.preparing, write)
+            }
             None => self
                 .descriptor_pools
                 .allocate(ctx, kernel.set_layout)
-                .and_then(|set| write(set, &mut self.views).map(|()| set)),
+                .and_then(|(_, set)| write(set, &mut self.views).map(|()| set)),
         };
         let set = match set {
             Ok(set) => set,

@@ -154,19 +154,24 @@ impl Tracer {
             })
         };
         if !self.accel.walks(&geom.accel) {
-            return refuse(format!(
-                "a {} tracer cannot walk a {} structure{}",
-                self.accel.label(),
-                geom.accel.kind().name(),
-                if geom.accel.is_wide() {
-                    " built with wide nodes"
-                } else {
-                    ""
-                }
-            ));
+            return Err(GpuError::KindMismatch {
+                call: "Tracer::record",
+                built: format!(
+                    "{}{}",
+                    geom.accel.kind().name(),
+                    if geom.accel.is_wide() {
+                        " with wide nodes"
+                    } else {
+                        ""
+                    }
+                ),
+                expected: format!("{} tracer", self.accel.label()),
+            });
         }
         if geom.device_input.as_ref().is_some_and(|d| !d.built) {
-            return refuse("the structure has not been built: record its build first".into());
+            return Err(GpuError::NotBuilt {
+                call: "Tracer::record",
+            });
         }
         let ray_room = rays.range() / std::mem::size_of::<Ray>() as u64;
         let hit_room = hits.range() / std::mem::size_of::<Hit>() as u64;

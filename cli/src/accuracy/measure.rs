@@ -70,6 +70,14 @@ pub struct AccuracyOptions {
 }
 
 /// Triangles of the stand-in mesh where no mesh is given (the Stanford bunny's count).
+/// The structure every reference answer and image is made with: the kd-tree with the
+/// watertight test and its fp64 fallback, walked its one way.
+const REFERENCE_ACCEL: AccelChoice = AccelChoice {
+    kind: AccelKind::KdTree,
+    walk: vkrt::accel::walk::Traversal::Stack,
+    prefer: vkrt::accel::walk::Prefer::FastTrace,
+};
+
 const STAND_IN_TRIANGLES: u64 = 69_451;
 /// Triangles of the mesh pipelines are warmed up on.
 const WARM_UP_TRIANGLES: u64 = 320;
@@ -275,7 +283,7 @@ impl RayBench {
             rays: scene.primary_rays(sizes.ray_image),
         };
         // The reference: the kd-tree with the watertight test and its fp64 fallback.
-        let builder = Build::default_for(AccelChoice::default())
+        let builder = Build::default_for(REFERENCE_ACCEL)
             .builder(ctx)?
             .expect("a device builder");
         let (geom, _) = trace_bench::build(ctx, &builder, g)?;
@@ -284,7 +292,7 @@ impl RayBench {
                 ctx,
                 &geom,
                 set,
-                AccelChoice::default(),
+                REFERENCE_ACCEL,
                 &TraceOptions::default(),
                 1,
             )

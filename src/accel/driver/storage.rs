@@ -87,9 +87,8 @@ impl DriverStorage {
 
     /// Records an update of the levels built before, with their own scratch.
     pub(crate) fn record_update(&self, rec: &mut Recorder) -> Result<()> {
-        let levels = self.levels.as_ref().ok_or_else(|| GpuError::Usage {
+        let levels = self.levels.as_ref().ok_or(GpuError::NotBuilt {
             call: "AccelBuilder::record_refit",
-            reason: "the driver's structure has not been built yet".into(),
         })?;
         levels.record_update(rec, None)
     }

@@ -49,7 +49,7 @@ pub(super) fn image_scenes(
             &scene,
             sizes,
             sizes.reference_spp,
-            AccelChoice::default(),
+            super::REFERENCE_ACCEL,
             &TraceOptions::default(),
         )?;
         let file = format!("images/{name}/reference.png");
@@ -201,7 +201,7 @@ pub(super) fn measure_image(
         scenes,
         sizes,
         (s.spp, s.depth),
-        AccelChoice::default(),
+        super::REFERENCE_ACCEL,
         &TraceOptions::default(),
         &format!("{group}-{}", slug(&s.label)),
         images,
