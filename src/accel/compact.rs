@@ -71,7 +71,7 @@ enum Report {
 #[must_use = "read() it once the work has executed"]
 pub struct CompactedSizeQuery {
     report: Report,
-    ctx: Context,
+    ctx: crate::gpu::teardown::Held,
     input: DeviceInput,
 }
 
@@ -189,7 +189,10 @@ impl GpuGeometry {
         };
         Ok(CompactedSizeQuery {
             report,
-            ctx: rec.context().clone(),
+            ctx: crate::gpu::teardown::Held::new(
+                rec.context(),
+                crate::gpu::teardown::Holder::CompactedSizeQuery,
+            ),
             input: input.clone(),
         })
     }

@@ -248,7 +248,7 @@ pub fn accel_scratch(ctx: &Context, bytes: u64) -> Result<Buffer<u8>> {
 
 /// A driver acceleration structure on a buffer of its own.
 pub struct AccelerationStructure {
-    ctx: Context,
+    ctx: crate::gpu::teardown::Held,
     raw: vk::AccelerationStructureKHR,
     geometry_level: vk::AccelerationStructureTypeKHR,
     bytes: u64,
@@ -287,7 +287,10 @@ impl AccelerationStructure {
         let address = unsafe { ext.get_acceleration_structure_device_address(&info) };
         ctx.set_object_name(raw, name);
         Ok(Self {
-            ctx: ctx.clone(),
+            ctx: crate::gpu::teardown::Held::new(
+                ctx,
+                crate::gpu::teardown::Holder::DriverStructure,
+            ),
             raw,
             geometry_level: level,
             bytes,

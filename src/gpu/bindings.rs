@@ -210,7 +210,7 @@ impl CacheState {
 }
 
 pub(crate) struct CacheShared {
-    ctx: Context,
+    ctx: crate::gpu::teardown::Held,
     state: Mutex<CacheState>,
 }
 
@@ -250,7 +250,7 @@ impl BindingCache {
             ..CacheState::default()
         };
         let shared = Arc::new(CacheShared {
-            ctx: ctx.clone(),
+            ctx: crate::gpu::teardown::Held::new(ctx, crate::gpu::teardown::Holder::BindingCache),
             state: Mutex::new(state),
         });
         ctx.inner.caches.register(Arc::downgrade(&shared));

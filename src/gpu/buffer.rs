@@ -83,7 +83,7 @@ pub fn address_of(ctx: &Context, b: &dyn BufferArg) -> Result<u64> {
 /// read through texel buffers: `VKRT_TEXEL_BUFFERS` of `vkrt/ray_query.glsl`); destroyed
 /// when dropped. Keep it, and the buffer, until the work that reads it has executed.
 pub struct TexelView {
-    ctx: Context,
+    ctx: super::teardown::Held,
     view: vk::BufferView,
 }
 
@@ -93,7 +93,7 @@ impl TexelView {
     /// `maxTexelBufferElements` of them (vkrt's own buffers and ranges are whole texels).
     pub fn new(ctx: &Context, b: &dyn BufferArg) -> Result<Self> {
         Ok(Self {
-            ctx: ctx.clone(),
+            ctx: super::teardown::Held::new(ctx, super::teardown::Holder::TexelView),
             view: create_texel_view(ctx, b)?,
         })
     }
@@ -288,7 +288,7 @@ pub enum Memory {
 
 /// A typed buffer of `len` elements of `T`.
 pub struct Buffer<T: Pod> {
-    ctx: Context,
+    ctx: super::teardown::Held,
     pub(crate) raw: vk::Buffer,
     allocation: Option<Allocation>,
     len: usize,
@@ -394,7 +394,7 @@ impl<T: Pod> Buffer<T> {
             if let Some(range) = placement::take(name, bytes) {
                 let range = range?;
                 return Ok(Self {
-                    ctx: ctx.clone(),
+                    ctx: super::teardown::Held::new(ctx, super::teardown::Holder::Buffer),
                     raw: range.raw,
                     allocation: None,
                     len,
@@ -480,7 +480,7 @@ impl<T: Pod> Buffer<T> {
         ctx.set_object_name(raw, name);
         ctx.count_allocation(allocation.size(), true);
         Ok(Self {
-            ctx: ctx.clone(),
+            ctx: super::teardown::Held::new(ctx, super::teardown::Holder::Buffer),
             raw,
             allocation: Some(allocation),
             len,

@@ -156,6 +156,10 @@ pub(crate) struct Inner {
     pub(crate) kernels: Mutex<HashMap<KernelKey, Arc<Kernel>>>,
     /// The binding caches made on this context, told when a vkrt buffer drops.
     pub(crate) caches: super::bindings::CacheRegistry,
+    /// vkrt's objects alive that hold the context, by kind ([`Context::holders`]).
+    pub(crate) holders: super::teardown::HolderCounts,
+    /// Recordings dropped uncompleted on an adopted device, freed by [`Context::retire`].
+    pub(crate) retired: Mutex<Vec<super::recorder::Recorder>>,
     /// Queue submissions and bytes read back to the host so far ([`Context::traffic`]).
     pub(crate) submits: AtomicU64,
     pub(crate) readback_bytes: AtomicU64,
@@ -348,6 +352,8 @@ impl Context {
                 cache_path,
                 kernels: Mutex::new(HashMap::new()),
                 caches: Default::default(),
+                holders: Default::default(),
+                retired: Mutex::default(),
                 submits: AtomicU64::new(0),
                 readback_bytes: AtomicU64::new(0),
                 upload_bytes: AtomicU64::new(0),

@@ -41,7 +41,7 @@ impl ForeignBinding<'_> {
 /// A pipeline over foreign SPIR-V, its layouts and its one descriptor set (bindings
 /// `0..n` of set 0). Keep it until the work that dispatches it has executed.
 pub struct ForeignKernel {
-    ctx: Context,
+    ctx: crate::gpu::teardown::Held,
     pipeline: vk::Pipeline,
     layout: vk::PipelineLayout,
     set_layout: vk::DescriptorSetLayout,
@@ -99,7 +99,7 @@ impl ForeignKernel {
             .collect();
         let device = &ctx.inner.device;
         let mut out = Self {
-            ctx: ctx.clone(),
+            ctx: crate::gpu::teardown::Held::new(ctx, crate::gpu::teardown::Holder::ForeignKernel),
             pipeline: vk::Pipeline::null(),
             layout: vk::PipelineLayout::null(),
             set_layout: vk::DescriptorSetLayout::null(),

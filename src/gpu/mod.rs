@@ -24,7 +24,9 @@
 mod accel_ext;
 mod bindings;
 mod buffer;
+pub(crate) mod teardown;
 pub(crate) use buffer::BufferId;
+pub use teardown::Busy;
 mod capture;
 mod context;
 mod error;

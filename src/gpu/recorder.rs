@@ -31,7 +31,7 @@ const SUBMIT_TIMEOUT_NS: u64 = 30 * 60 * 1_000_000_000;
 /// Records GPU work. Create with [`Recorder::new`] (own command buffer, submitted by
 /// [`Recorder::submit_and_wait`]) or [`Recorder::from_raw`] (the caller's command buffer).
 pub struct Recorder {
-    ctx: Context,
+    ctx: crate::gpu::teardown::Held,
     cmd: vk::CommandBuffer,
     command_pool: Option<vk::CommandPool>,
     /// The recording's own descriptor pools, where it binds from no cache.
@@ -124,12 +124,13 @@ impl<T: Pod> Readback<T> {
 ///
 /// Dropped without [`RecordedWork::complete`], it cannot know when the caller's command
 /// buffer finishes: on vkrt's own device it waits for the device to go idle; on an adopted
-/// device (whose other queues are the caller's) it waits for nothing and leaks what the
-/// command buffer uses — and the context its staging buffers hold — with an error in the
-/// log.
-#[must_use = "call complete() once the command buffer has executed; dropping it leaks or stalls"]
+/// device (whose other queues are the caller's) it waits for nothing and hands what the
+/// command buffer uses to the context, with a warning in the log, until the renderer calls
+/// [`Context::retire`] after its fence ([`Context::holders`] counts them).
+#[must_use = "call complete() once the command buffer has executed; dropping it stalls, or keeps its resources until Context::retire"]
 pub struct RecordedWork {
-    recorder: Recorder,
+    /// Taken only in `drop`.
+    recorder: std::mem::ManuallyDrop<Recorder>,
     completed: bool,
 }
 
@@ -267,7 +268,7 @@ impl Recorder {
         };
         let hook = super::error::lock(&ctx.inner.scope_hook).clone();
         Ok(Self {
-            ctx: ctx.clone(),
+            ctx: crate::gpu::teardown::Held::new(ctx, crate::gpu::teardown::Holder::Recorder),
             cmd,
             command_pool,
             descriptor_pools: SetPools::default(),
@@ -1283,7 +1284,7 @@ impl Recorder {
         // A command left out makes the rest wrong: the caller resets its command buffer.
         self.check()?;
         Ok(RecordedWork {
-            recorder: self,
+            recorder: std::mem::ManuallyDrop::new(self),
             completed: false,
         })
     }
@@ -1408,22 +1409,26 @@ impl RecordedWork {
 
 impl Drop for RecordedWork {
     fn drop(&mut self) {
+        // SAFETY: taken once, here, and not used after.
+        let recorder = unsafe { std::mem::ManuallyDrop::take(&mut self.recorder) };
         if self.completed {
             return;
         }
         // The caller's command buffer may still be executing. On vkrt's own device, wait
         // before the recorder releases what it uses (a lost device has nothing left to wait
-        // for); on an adopted one a device-wide wait is not vkrt's to make: leak instead.
-        if self.recorder.ctx.inner.owns_device {
-            if self.recorder.ctx.wait_idle().is_ok() {
-                self.recorder.done.store(true, Ordering::Release);
+        // for); on an adopted one a device-wide wait is not vkrt's to make: the context keeps
+        // the recorder until the renderer retires it after its fence.
+        let ctx = recorder.ctx.clone();
+        if ctx.inner.owns_device {
+            if ctx.wait_idle().is_ok() {
+                recorder.done.store(true, Ordering::Release);
             }
         } else {
-            log::error!(
-                "vkrt: RecordedWork dropped without complete(): its descriptor pools, queries \
-                 and staging buffers are leaked (the caller's command buffer may still use them)"
+            log::warn!(
+                "vkrt: RecordedWork dropped without complete(): what its command buffer uses is \
+                 kept until Context::retire() is called after the renderer's fence"
             );
-            self.recorder.leak_in_flight();
+            ctx.keep_until_retired(recorder);
         }
     }
 }
