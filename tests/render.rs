@@ -8,8 +8,11 @@ use std::path::Path;
 
 use common::{assert_silent, context};
 use glam::Vec3;
+use vkrt::accel::device::{AccelChoice, AccelKind};
+use vkrt::accel::driver::Prefer;
 use vkrt::accel::host::HostStructure;
 use vkrt::accel::kdtree::{breadth_first, SahParams};
+use vkrt::accel::walk::Traversal;
 use vkrt::gpu::Context;
 use vkrt::render::gpu::{GpuRender, Renderer};
 use vkrt::render::output::srgb8;
@@ -39,13 +42,20 @@ const EFFECT_SCENES: [(&str, u32); 11] = [
     ("mesh_file.toml", 1),
 ];
 
+/// The structure [`prepare`] builds: the kd-tree on the host.
+const KD_TREE: AccelChoice = AccelChoice {
+    kind: AccelKind::KdTree,
+    walk: Traversal::Stack,
+    prefer: Prefer::FastTrace,
+};
+
 fn small(spp: u32) -> RenderOptions {
     RenderOptions {
         width: Some(64),
         height: Some(48),
         spp: Some(spp),
         all_effects: false,
-        accel: Default::default(),
+        accel: KD_TREE,
         flatten: false,
         max_level_primitives: None,
     }
@@ -255,7 +265,6 @@ fn the_bvh_renders_the_kdtree_image() {
 /// the CPU twin, building the same structure on the host, counts the same rays.
 #[test]
 fn structures_built_on_the_device_render_the_host_twins_image() {
-    use vkrt::accel::device::AccelChoice;
     let Some(ctx) = context() else { return };
     for (file, spp) in [("motion_blur.toml", 2), ("mesh_file.toml", 1)] {
         let scene = scene_file(file);
@@ -359,7 +368,6 @@ fn camera_rays_see_area_lights_as_their_radiance() {
 /// most 1 % of the 8-bit channels more than 1/255 off.
 #[test]
 fn the_driver_renders_the_kdtree_image_within_tolerance() {
-    use vkrt::accel::device::AccelChoice;
     use vkrt::accel::driver::Prefer;
     let Some(ctx) = context() else { return };
     if !ctx.info().features.ray_query {
@@ -498,12 +506,10 @@ fn the_plan_traces_repeated_meshes_as_two_levels() {
 /// two levels in one piece.
 #[test]
 fn a_scene_in_pieces_renders_the_image_of_one_structure() {
-    use vkrt::accel::device::{AccelChoice, AccelKind};
     use vkrt::accel::two_levels::TwoLevelScene;
-    use vkrt::accel::walk::Traversal;
     let Some(ctx) = context() else { return };
     let cases = [
-        ("hard_shadows.toml", AccelChoice::default(), 1),
+        ("hard_shadows.toml", KD_TREE, 1),
         (
             "reflection.toml",
             AccelChoice::new(AccelKind::Lbvh, Traversal::Bitstack),
