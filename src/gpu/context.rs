@@ -29,6 +29,141 @@ pub struct ContextOptions {
     /// Substring of the device name; `None` reads `VKRT_DEVICE`, else the best device type
     /// wins (discrete > integrated > virtual > cpu).
     pub device_name: Option<String>,
+    /// What the caller's own shaders on this device need beyond vkrt's features.
+    pub extra: ExtraFeatures,
+}
+
+/// Features and extensions a context vkrt creates enables besides its own, for the caller's
+/// shaders that run on it ([`crate::gpu::ForeignKernel`], a renderer's pipelines on the
+/// adopted-by-vkrt device): `scalarBlockLayout`, say. One the device lacks fails
+/// [`Context::new`] with [`GpuError::MissingCapability`] naming it.
+#[derive(Clone, Debug, Default)]
+pub struct ExtraFeatures {
+    /// Vulkan 1.2 features to enable (every `VK_TRUE` member), beside vkrt's.
+    pub v12: vk::PhysicalDeviceVulkan12Features<'static>,
+    /// Device extensions to enable (ones without a feature struct of their own).
+    pub extensions: Vec<std::ffi::CString>,
+}
+
+// SAFETY: `v12`'s `p_next` is never followed: only its feature members are read (and a
+// caller's non-null chain is refused by `Context::new`).
+unsafe impl Send for ExtraFeatures {}
+// SAFETY: as above.
+unsafe impl Sync for ExtraFeatures {}
+
+/// The feature members of a `VkPhysicalDeviceVulkan12Features`, in order.
+fn v12_members<'a>(f: &'a vk::PhysicalDeviceVulkan12Features<'_>) -> &'a [vk::Bool32] {
+    let first = std::mem::offset_of!(
+        vk::PhysicalDeviceVulkan12Features<'_>,
+        sampler_mirror_clamp_to_edge
+    );
+    let end = std::mem::offset_of!(
+        vk::PhysicalDeviceVulkan12Features<'_>,
+        subgroup_broadcast_dynamic_id
+    ) + std::mem::size_of::<vk::Bool32>();
+    // SAFETY: the struct is repr(C) and its members from the first feature to the last are
+    // `Bool32`s, contiguous (4-byte members, 4-byte aligned: no padding between them).
+    unsafe {
+        std::slice::from_raw_parts(
+            (f as *const vk::PhysicalDeviceVulkan12Features<'_>)
+                .cast::<u8>()
+                .add(first)
+                .cast::<vk::Bool32>(),
+            (end - first) / std::mem::size_of::<vk::Bool32>(),
+        )
+    }
+}
+
+/// `f`'s feature members, writable.
+fn v12_members_mut<'a>(f: &'a mut vk::PhysicalDeviceVulkan12Features<'_>) -> &'a mut [vk::Bool32] {
+    let n = v12_members(f).len();
+    let first = std::mem::offset_of!(
+        vk::PhysicalDeviceVulkan12Features<'_>,
+        sampler_mirror_clamp_to_edge
+    );
+    // SAFETY: as in `v12_members`, through the unique borrow.
+    unsafe {
+        std::slice::from_raw_parts_mut(
+            (f as *mut vk::PhysicalDeviceVulkan12Features<'_>)
+                .cast::<u8>()
+                .add(first)
+                .cast::<vk::Bool32>(),
+            n,
+        )
+    }
+}
+
+/// `Err` naming what of `extra` `pd` does not support.
+fn check_extra(
+    instance: &ash::Instance,
+    pd: vk::PhysicalDevice,
+    extra: &ExtraFeatures,
+) -> Result<()> {
+    let device = || {
+        // SAFETY: a physical device of this instance.
+        let p = unsafe { instance.get_physical_device_properties(pd) };
+        p.device_name_as_c_str()
+            .map(|n| n.to_string_lossy().into_owned())
+            .unwrap_or_default()
+    };
+    if !extra.v12.p_next.is_null() {
+        return Err(GpuError::Usage {
+            call: "Context::new",
+            reason: "ExtraFeatures::v12 carries a p_next chain, which vkrt does not follow".into(),
+        });
+    }
+    let mut supported = vk::PhysicalDeviceVulkan12Features::default();
+    let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut supported);
+    // SAFETY: a physical device of this instance; the chain outlives the call.
+    unsafe { instance.get_physical_device_features2(pd, &mut f2) };
+    let missing = v12_members(&extra.v12)
+        .iter()
+        .zip(v12_members(&supported))
+        .any(|(&want, &have)| want != 0 && have == 0);
+    if missing {
+        let mut only = vk::PhysicalDeviceVulkan12Features::default();
+        for ((o, &w), &h) in v12_members_mut(&mut only)
+            .iter_mut()
+            .zip(v12_members(&extra.v12))
+            .zip(v12_members(&supported))
+        {
+            *o = (w != 0 && h == 0) as vk::Bool32;
+        }
+        let names: Vec<String> = format!("{only:?}")
+            .split(", ")
+            .filter(|kv| kv.ends_with(": 1"))
+            .map(|kv| {
+                kv.trim_end_matches(": 1")
+                    .trim_start_matches("PhysicalDeviceVulkan12Features { ")
+                    .to_string()
+            })
+            .collect();
+        return Err(GpuError::MissingCapability {
+            device: device(),
+            what: format!(
+                "Vulkan 1.2 features asked for in ContextOptions::extra: {}",
+                names.join(", ")
+            ),
+        });
+    }
+    // SAFETY: a physical device of this instance.
+    let available = unsafe { instance.enumerate_device_extension_properties(pd) }
+        .map_err(vk_err("vkEnumerateDeviceExtensionProperties"))?;
+    for want in &extra.extensions {
+        if !available.iter().any(|e| {
+            e.extension_name_as_c_str()
+                .is_ok_and(|n| n == want.as_c_str())
+        }) {
+            return Err(GpuError::MissingCapability {
+                device: device(),
+                what: format!(
+                    "the extension {} asked for in ContextOptions::extra",
+                    want.to_string_lossy()
+                ),
+            });
+        }
+    }
+    Ok(())
 }
 
 impl ContextOptions {
@@ -37,7 +172,7 @@ impl ContextOptions {
     pub fn for_tests() -> Self {
         Self {
             validation: Validation::FromEnv,
-            device_name: None,
+            ..Self::default()
         }
     }
 }
@@ -220,7 +355,8 @@ impl Context {
             features.calibrated_timestamps = [CalibratedTimestamps::Khr, CalibratedTimestamps::Ext]
                 .into_iter()
                 .find(|c| Some(c.name()) == calibration);
-            create_device(&instance, pd, family, &features)
+            check_extra(&instance, pd, &options.extra)?;
+            create_device(&instance, pd, family, &features, &options.extra)
                 .map(|d| (pd, family, features, (d, calibration)))
         });
         let (physical_device, queue_family, features, (device, calibration)) = match built {
@@ -707,6 +843,7 @@ fn create_device(
     pd: vk::PhysicalDevice,
     family: u32,
     features: &DeviceFeatures,
+    extra: &ExtraFeatures,
 ) -> Result<ash::Device> {
     let priorities = [1.0];
     let queues = [vk::DeviceQueueCreateInfo::default()
@@ -714,9 +851,21 @@ fn create_device(
         .queue_priorities(&priorities)];
     // The same structs a renderer gets from `DeviceFeatures::request`.
     let mut r = features.request();
+    // The caller's extras beside them (checked as supported).
+    for (mine, &theirs) in v12_members_mut(&mut r.v12)
+        .iter_mut()
+        .zip(v12_members(&extra.v12))
+    {
+        *mine |= theirs;
+    }
     // Among them, calibrated timestamps put the device's ticks on the host's clock
     // (`timeline`).
-    let ext_names: Vec<_> = r.extensions.iter().map(|n| n.as_ptr()).collect();
+    let mut ext_names: Vec<_> = r.extensions.iter().map(|n| n.as_ptr()).collect();
+    for e in &extra.extensions {
+        if !r.extensions.contains(&e.as_c_str()) {
+            ext_names.push(e.as_ptr());
+        }
+    }
     let mut create = vk::DeviceCreateInfo::default()
         .queue_create_infos(&queues)
         .enabled_features(&r.base)

@@ -54,7 +54,7 @@ pub use bindings::BindingCache;
 pub use buffer::{
     address_of, placement, Buffer, BufferArg, DeviceRange, Memory, RawBuffer, TexelView,
 };
-pub use context::{Context, ContextOptions, MemoryUsage, RawParts, Traffic};
+pub use context::{Context, ContextOptions, ExtraFeatures, MemoryUsage, RawParts, Traffic};
 pub use error::{GpuError, PlacementProblem, Result};
 pub use foreign::{ForeignBinding, ForeignKernel};
 pub use hook::{CompletedScope, QuerySlot, RecordedScope, ScopeHook};

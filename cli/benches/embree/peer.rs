@@ -14,6 +14,7 @@ pub fn context_and_peer() -> (vkrt::gpu::Context, Option<Embree>) {
     let ctx = vkrt::gpu::Context::new(&vkrt::gpu::ContextOptions {
         validation: vkrt::gpu::Validation::Off,
         device_name: None,
+        ..Default::default()
     })
     .expect("a Vulkan device");
     let embree = Embree::new()

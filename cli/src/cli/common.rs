@@ -190,6 +190,7 @@ pub fn context(validate: bool) -> CliResult<Context> {
     let ctx = Context::new(&ContextOptions {
         validation,
         device_name: None,
+        ..Default::default()
     })?;
     let info = ctx.info();
     log::info!("device {}, driver {}", info.device, info.driver);

@@ -37,6 +37,7 @@ pub fn run(args: VerifyArgs, validate: bool) -> CliResult<()> {
             Validation::Off
         },
         device_name: device,
+        ..Default::default()
     })?;
     super::common::apply_profiling(&ctx);
     let info = ctx.info();
