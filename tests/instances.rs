@@ -1360,3 +1360,49 @@ fn instance_pointers_gather_as_their_cpu_twin() {
     }
     common::assert_silent(&ctx);
 }
+
+/// A top level that lists its bottom levels by borrowing them (`build`, `create_in`) refuses
+/// to be updated, rebuilt or handed out once one is dropped — the device would read freed
+/// memory — while one that keeps them (`record_build_shared`) goes on.
+#[test]
+fn a_top_level_refuses_work_once_a_borrowed_bottom_level_is_dropped() {
+    let Some(ctx) = common::context() else { return };
+    let tris = sphere_tris(1);
+    let builder = TopLevelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
+    let flags = BuildFlags {
+        allow_update: true,
+        ..BuildFlags::default()
+    };
+    let instances = [Instance::new(0, Instance::IDENTITY)];
+    let level = bottom(&ctx, AccelKind::Lbvh, false, &tris);
+    let mut top = builder.build(&ctx, &[&level], &instances, &flags).unwrap();
+    top.handle_words().unwrap();
+    builder.update(&ctx, &mut top, &instances).unwrap();
+    drop(level);
+    let refused = |r: Result<(), GpuError>, what: &str| match r {
+        Err(GpuError::Usage { reason, .. }) => {
+            assert!(reason.contains("bottom level 0"), "{what}: {reason}")
+        }
+        other => panic!("{what}: {other:?}"),
+    };
+    refused(top.handle_words().map(drop), "the handle");
+    refused(builder.update(&ctx, &mut top, &instances), "an update");
+
+    // Kept by the top level: the caller's handle on it may go.
+    let level = std::sync::Arc::new(bottom(&ctx, AccelKind::Lbvh, false, &tris));
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let mut shared = builder
+        .record_build_shared(
+            &mut rec,
+            std::slice::from_ref(&level),
+            &instances,
+            InstanceMotion::STATIC,
+            &flags,
+        )
+        .unwrap();
+    rec.submit_and_wait().unwrap();
+    drop(level);
+    shared.handle_words().unwrap();
+    builder.update(&ctx, &mut shared, &instances).unwrap();
+    common::assert_silent(&ctx);
+}

@@ -246,6 +246,7 @@ impl GpuGeometry {
                 compacted: Some(identity(self)),
                 ..input.clone()
             }),
+            life: Default::default(),
         })
     }
 

@@ -279,6 +279,7 @@ impl AccelBuilder {
             prims,
             accel,
             device_input: Some(input.clone()),
+            life: Default::default(),
         })
     }
 

@@ -21,6 +21,40 @@ pub struct GpuGeometry {
     /// ([`AccelBuilder::create_in`](crate::accel::device::AccelBuilder::create_in)): its
     /// layout and build flags, which every build and update into it must match.
     pub(crate) device_input: Option<crate::accel::device_input::DeviceInput>,
+    /// Whether it, and the bottom levels a top level's tree lists, are alive.
+    pub(crate) life: Life,
+}
+
+/// A structure's liveness, as a top level over it sees it: a top level that borrows its
+/// bottom levels (listed by [`TopLevelBuilder::create_in`] or
+/// [`TopLevelBuilder::build`], not kept) refuses to be built, updated or traced once one is
+/// dropped, rather than let the device read freed memory.
+///
+/// [`TopLevelBuilder::create_in`]: crate::accel::instances::TopLevelBuilder::create_in
+/// [`TopLevelBuilder::build`]: crate::accel::instances::TopLevelBuilder::build
+#[derive(Default)]
+pub(crate) struct Life {
+    /// Dropped with the structure.
+    pub(crate) token: std::sync::Arc<()>,
+    /// The listed bottom levels' tokens (a top level's tree; empty otherwise).
+    pub(crate) bottoms: Vec<std::sync::Weak<()>>,
+}
+
+impl GpuGeometry {
+    /// `Err` where a bottom level this top level's tree lists was dropped.
+    pub(crate) fn check_bottoms(&self, call: &'static str) -> Result<()> {
+        match self.life.bottoms.iter().position(|b| b.strong_count() == 0) {
+            None => Ok(()),
+            Some(k) => Err(crate::gpu::GpuError::Usage {
+                call,
+                reason: format!(
+                    "bottom level {k} of this top level was dropped: a top level reads its \
+                     bottom levels whenever it is built, updated or traced (keep them alive, or \
+                     build with TopLevelBuilder::record_build_shared, which keeps them)"
+                ),
+            }),
+        }
+    }
 }
 
 impl GpuGeometry {
@@ -83,6 +117,7 @@ impl GpuGeometry {
                 prims,
                 accel,
                 device_input: None,
+                life: Default::default(),
             },
             recorded,
         ))
@@ -152,6 +187,7 @@ impl GpuGeometry {
             prims,
             accel,
             device_input: None,
+            life: Default::default(),
         })
     }
 
@@ -161,6 +197,7 @@ impl GpuGeometry {
     /// passes to `vkrtUseStructure`. An error where the context has no
     /// `bufferDeviceAddress`.
     pub fn handle_words(&self) -> Result<[u64; 7]> {
+        self.check_bottoms("GpuGeometry::handle_words")?;
         address_handle(self.prims.tri_verts.context(), &self.prims, &self.accel)
     }
 

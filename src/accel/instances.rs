@@ -319,6 +319,7 @@ fn placed_box(m: &[[f32; 4]; 3], bmin: Vec3, bmax: Vec3) -> (Vec3, Vec3) {
 fn copy_list<'a>(bottoms: impl IntoIterator<Item = &'a GpuGeometry>) -> Result<Listed> {
     let mut out = Listed::default();
     for b in bottoms {
+        out.alive.push(Arc::downgrade(&b.life.token));
         out.references.push(b.reference_address()?);
         let mut handle = [0u64; 8];
         handle[..7].copy_from_slice(&b.handle_words()?);
@@ -332,6 +333,8 @@ fn copy_list<'a>(bottoms: impl IntoIterator<Item = &'a GpuGeometry>) -> Result<L
 struct Listed {
     references: Vec<u64>,
     handles: Vec<[u64; 8]>,
+    /// Whether each is alive: the tree refuses to be built or traced once one is dropped.
+    alive: Vec<std::sync::Weak<()>>,
 }
 
 /// The table `accel.instance_boxes` searches for an instance's reference: (reference low,
@@ -446,7 +449,10 @@ impl Parts {
 /// A top level over instances of bottom levels, in the caller's memory or its own. It
 /// borrows nothing: its instances reference their bottom levels as Vulkan's do, and the
 /// caller keeps those alive (and built) while the top level is built, updated or traced
-/// (but for the ones it keeps: [`TopLevelBuilder::record_build_shared`]).
+/// (but for the ones it keeps: [`TopLevelBuilder::record_build_shared`]). Once a bottom
+/// level it lists is dropped, its builds, updates, traces and handle are errors, not reads
+/// of freed memory; instances in the caller's buffer that name levels by reference alone
+/// are the caller's promise ([`RawBuffer::new`]).
 pub struct TopLevel {
     /// The BVH over the instances' world boxes (box primitive `i` is instance `i`), over
     /// every slot of the maximum it was created for.
@@ -674,7 +680,8 @@ impl TopLevelBuilder {
         };
         let geometry = boxes_geometry(GeometryData::Buffer(parts.boxes.own_range()), max);
         let flags = &binary_nodes(flags);
-        let tree = self.tree.create_in(ctx, &[geometry], flags, rest)?;
+        let mut tree = self.tree.create_in(ctx, &[geometry], flags, rest)?;
+        tree.life.bottoms = listed.alive.clone();
         let bytes = own
             + self
                 .tree
@@ -796,6 +803,7 @@ impl TopLevelBuilder {
     ) -> Result<()> {
         let call = "TopLevelBuilder::record_build_from";
         self.check_kind(call, top)?;
+        top.tree.check_bottoms(call)?;
         if count > top.max {
             return Err(usage(
                 call,
@@ -830,6 +838,7 @@ impl TopLevelBuilder {
     ) -> Result<()> {
         let call = "TopLevelBuilder::record_update_from";
         self.check_kind(call, top)?;
+        top.tree.check_bottoms(call)?;
         rec.scope("top level update", |rec| {
             self.record_instances(rec, call, instances, top.count, top, false)?;
             let geometry = top.geometry();

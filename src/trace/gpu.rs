@@ -168,6 +168,7 @@ impl Tracer {
                 expected: format!("{} tracer", self.accel.label()),
             });
         }
+        geom.check_bottoms("Tracer::record")?;
         if geom.device_input.as_ref().is_some_and(|d| !d.built) {
             return Err(GpuError::NotBuilt {
                 call: "Tracer::record",

@@ -221,6 +221,7 @@ fn driver_build_and_trace(
         prims: prims.swap_remove(bound),
         accel,
         device_input: None,
+        life: Default::default(),
     };
     let batch = Tracer::for_accel(ctx, &opt, walk)?.trace_batched(ctx, &geom, rays, time, None)?;
     let hits = batch

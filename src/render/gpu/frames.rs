@@ -254,6 +254,7 @@ impl<'r> FrameLoop<'r> {
                         prims,
                         accel,
                         device_input: None,
+                        life: Default::default(),
                     };
                     let host_ms = recorded.host_ms;
                     (

@@ -413,6 +413,7 @@ fn driver_levels(
         prims: prims.swap_remove(bound),
         accel,
         device_input: None,
+        life: Default::default(),
     };
     let top = Top::Driver {
         geom,
