@@ -168,15 +168,40 @@ fn a_forgotten_caller_buffer_frees_its_sets_and_its_handle_binds_anew_without_th
     streaming_caller_buffers(Validation::Off);
 }
 
+/// What each test starts from: the renderer's device, vkrt on it, a structure and its
+/// tracer, the hit buffers and an empty cache.
+struct Setup {
+    host: Host,
+    ctx: Context,
+    s: (GpuGeometry, Tracer),
+    out: Traced,
+    cache: BindingCache,
+}
+
+fn setup(validation: Validation) -> Option<Setup> {
+    let (host, ctx) = host_and_context(validation)?;
+    Some(Setup {
+        s: structure(&ctx),
+        out: Traced::new(&ctx),
+        cache: BindingCache::new(&ctx),
+        host,
+        ctx,
+    })
+}
+
 fn streaming_vkrt_buffers(validation: Validation) {
     let _turn = common::vulkan_turn();
-    let Some((host, ctx)) = host_and_context(validation) else {
+    let Some(Setup {
+        host,
+        ctx,
+        s,
+        out,
+        cache,
+    }) = setup(validation)
+    else {
         return;
     };
     let sink = host.sink.clone();
-    let s = structure(&ctx);
-    let out = Traced::new(&ctx);
-    let cache = BindingCache::new(&ctx);
     let trace = |rays: &Buffer<Ray>| {
         let (s, out) = (&s, &out);
         // A copy of the range: the frame records with the buffer, which the test keeps.
@@ -246,13 +271,17 @@ fn streaming_vkrt_buffers(validation: Validation) {
 
 fn streaming_caller_buffers(validation: Validation) {
     let _turn = common::vulkan_turn();
-    let Some((host, ctx)) = host_and_context(validation) else {
+    let Some(Setup {
+        host,
+        ctx,
+        s,
+        out,
+        cache,
+    }) = setup(validation)
+    else {
         return;
     };
     let sink = host.sink.clone();
-    let s = structure(&ctx);
-    let out = Traced::new(&ctx);
-    let cache = BindingCache::new(&ctx);
     let bytes = std::mem::size_of_val(rays(true).as_slice()) as u64;
     let caller_rays = |hit: bool| -> HostBuffer {
         let mut b = host

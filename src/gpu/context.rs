@@ -51,46 +51,31 @@ unsafe impl Send for ExtraFeatures {}
 // SAFETY: as above.
 unsafe impl Sync for ExtraFeatures {}
 
+/// Where the feature members of a `VkPhysicalDeviceVulkan12Features` lie: the byte offset
+/// of the first, and how many.
+fn v12_span() -> (usize, usize) {
+    type F = vk::PhysicalDeviceVulkan12Features<'static>;
+    let first = std::mem::offset_of!(F, sampler_mirror_clamp_to_edge);
+    let last = std::mem::offset_of!(F, subgroup_broadcast_dynamic_id);
+    (
+        first,
+        (last - first) / std::mem::size_of::<vk::Bool32>() + 1,
+    )
+}
+
 /// The feature members of a `VkPhysicalDeviceVulkan12Features`, in order.
 fn v12_members<'a>(f: &'a vk::PhysicalDeviceVulkan12Features<'_>) -> &'a [vk::Bool32] {
-    let first = std::mem::offset_of!(
-        vk::PhysicalDeviceVulkan12Features<'_>,
-        sampler_mirror_clamp_to_edge
-    );
-    let end = std::mem::offset_of!(
-        vk::PhysicalDeviceVulkan12Features<'_>,
-        subgroup_broadcast_dynamic_id
-    ) + std::mem::size_of::<vk::Bool32>();
+    let (first, n) = v12_span();
     // SAFETY: the struct is repr(C) and its members from the first feature to the last are
     // `Bool32`s, contiguous (4-byte members, 4-byte aligned: no padding between them).
-    unsafe {
-        std::slice::from_raw_parts(
-            (f as *const vk::PhysicalDeviceVulkan12Features<'_>)
-                .cast::<u8>()
-                .add(first)
-                .cast::<vk::Bool32>(),
-            (end - first) / std::mem::size_of::<vk::Bool32>(),
-        )
-    }
+    unsafe { std::slice::from_raw_parts((f as *const _ as *const u8).add(first).cast(), n) }
 }
 
 /// `f`'s feature members, writable.
 fn v12_members_mut<'a>(f: &'a mut vk::PhysicalDeviceVulkan12Features<'_>) -> &'a mut [vk::Bool32] {
-    let n = v12_members(f).len();
-    let first = std::mem::offset_of!(
-        vk::PhysicalDeviceVulkan12Features<'_>,
-        sampler_mirror_clamp_to_edge
-    );
+    let (first, n) = v12_span();
     // SAFETY: as in `v12_members`, through the unique borrow.
-    unsafe {
-        std::slice::from_raw_parts_mut(
-            (f as *mut vk::PhysicalDeviceVulkan12Features<'_>)
-                .cast::<u8>()
-                .add(first)
-                .cast::<vk::Bool32>(),
-            n,
-        )
-    }
+    unsafe { std::slice::from_raw_parts_mut((f as *mut _ as *mut u8).add(first).cast(), n) }
 }
 
 /// `Err` naming what of `extra` `pd` does not support.
