@@ -167,6 +167,27 @@ fn a_kd_tree_out_of_references_misses_everything_then_is_rebuilt_larger() {
     let report = AccelStructure::kd_built(&built.unwrap().read().unwrap());
     assert!(report.overflow, "{report:?}");
     assert!(report.needed_refs > 64, "{report:?}");
+    // The same report copied into the renderer's buffer, as a query pool's result is
+    // (vkCmdCopyQueryPoolResults): words past it untouched.
+    let caller = vkrt::gpu::Buffer::<u32>::from_slice(&ctx, "caller.status", &[7; 6]).unwrap();
+    // SAFETY: the buffer outlives the work (waited for below) and has transfer usage.
+    let range = unsafe { caller.as_raw() }.slice(4, 16).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    assert!(dev
+        .structure()
+        .record_copy_built_into(&mut rec, &range)
+        .unwrap());
+    rec.submit_and_wait().unwrap();
+    let words = caller.download().unwrap();
+    assert_eq!((words[0], words[5]), (7, 7), "outside the range");
+    assert_eq!(AccelStructure::kd_built(&words[1..5]), report);
+    // A range too small is refused, and nothing recorded.
+    let mut rec = Recorder::new(&ctx).unwrap();
+    let short = unsafe { caller.as_raw() }.slice(0, 12).unwrap();
+    assert!(dev
+        .structure()
+        .record_copy_built_into(&mut rec, &short)
+        .is_err());
     let b = tracer.trace(&ctx, &dev, &rs, 0.0).unwrap();
     assert!(
         b.hits.iter().all(|h| !h.is_hit()),

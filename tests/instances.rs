@@ -1404,5 +1404,11 @@ fn a_top_level_refuses_work_once_a_borrowed_bottom_level_is_dropped() {
     drop(level);
     shared.handle_words().unwrap();
     builder.update(&ctx, &mut shared, &instances).unwrap();
+    // Its build's report copied into the renderer's buffer: no invalid instance.
+    let caller = Buffer::<u32>::from_slice(&ctx, "caller.status", &[7, 7]).unwrap();
+    let mut rec = Recorder::new(&ctx).unwrap();
+    shared.record_copy_status_into(&mut rec, &caller).unwrap();
+    rec.submit_and_wait().unwrap();
+    assert_eq!(caller.download().unwrap(), [0, 7]);
     common::assert_silent(&ctx);
 }

@@ -168,6 +168,25 @@ impl AccelStructure {
         }
     }
 
+    /// Records the copy of a kd-tree build's report (16 bytes, [`AccelStructure::kd_built`]
+    /// decodes it) into the start of `dst`, a range of the caller's buffer, as the driver
+    /// writes a query's result into the caller's buffer with `vkCmdCopyQueryPoolResults`:
+    /// read in the renderer's own read-back, with no staging of vkrt's. True where recorded;
+    /// false for kinds without a report. Synchronized as [`Recorder::copy_into`].
+    pub fn record_copy_built_into(
+        &self,
+        rec: &mut Recorder,
+        dst: &dyn crate::gpu::BufferArg,
+    ) -> Result<bool> {
+        match &self.storage {
+            Storage::KdTree(k) => {
+                k.record_copy_built_into(rec, dst);
+                rec.check().map(|()| true)
+            }
+            Storage::Bvh(_) | Storage::Driver(_) => Ok(false),
+        }
+    }
+
     /// Decodes a kd-tree build's report.
     pub fn kd_built(words: &[u32]) -> KdBuilt {
         KdBuilt::decode(words)

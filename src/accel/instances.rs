@@ -1217,6 +1217,19 @@ impl TopLevel {
         Ok(InstanceStatus(rec.read_back(&self.parts.status)?))
     }
 
+    /// Records the copy of the build's report (one word: the invalid instances, never hit)
+    /// into the start of `dst`, a range of the caller's buffer, for the renderer's own
+    /// read-back (as `vkCmdCopyQueryPoolResults` writes a query's result). Synchronized as
+    /// [`Recorder::copy_into`].
+    pub fn record_copy_status_into(
+        &self,
+        rec: &mut Recorder,
+        dst: &dyn crate::gpu::BufferArg,
+    ) -> Result<()> {
+        rec.copy_into(&self.parts.status, dst);
+        rec.check()
+    }
+
     /// A moving top level's object-to-world rows, `steps` per instance, instance after
     /// instance, as its last build or update wrote them (one unused entry when it does not
     /// move): what a renderer's shading reads to place a hit as the walk placed the ray.

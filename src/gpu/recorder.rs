@@ -672,6 +672,42 @@ impl Recorder {
         });
     }
 
+    /// Copies the whole of `src` into the start of `dst` (a range of vkrt's buffer or of the
+    /// caller's, with `TRANSFER_DST` usage): a transfer read of `src` and a transfer write of
+    /// `dst`, with no barrier — order what wrote `src` before it
+    /// ([`Recorder::compute_to_transfer`]) and what reads `dst` after it.
+    pub fn copy_into<T: Pod>(&mut self, src: &Buffer<T>, dst: &dyn BufferArg) {
+        let bytes = (src.len() * std::mem::size_of::<T>()) as u64;
+        let fits = dst.range() >= bytes
+            && dst
+                .buffer_size()
+                .is_none_or(|size| dst.offset() + bytes <= size);
+        if !fits {
+            let reason = format!(
+                "copy of {bytes} bytes from `{}` into a range of {} bytes",
+                src.name(),
+                dst.range()
+            );
+            self.refuse("Recorder::copy_into", reason);
+            return;
+        }
+        if bytes == 0 || self.failed.is_some() {
+            return;
+        }
+        let region = vk::BufferCopy {
+            src_offset: src.offset(),
+            dst_offset: dst.offset(),
+            size: bytes,
+        };
+        // Both have transfer usage (vkrt's buffers always; the caller's by the range's
+        // contract) and the region is in range (checked above).
+        self.emit(Cmd::Copy {
+            src: src.raw(),
+            dst: dst.raw(),
+            region,
+        });
+    }
+
     /// Copies `len` elements of `src` from element `src_at` on into `dst` from `dst_at` on.
     pub fn copy_range<T: Pod>(
         &mut self,

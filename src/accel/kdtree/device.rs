@@ -229,6 +229,11 @@ impl KdStorage {
         rec.read_back(&self.built)
     }
 
+    /// Records the copy of the build's report into the start of `dst`.
+    pub(crate) fn record_copy_built_into(&self, rec: &mut Recorder, dst: &dyn BufferArg) {
+        rec.copy_into(&self.built, dst);
+    }
+
     /// The tree as the host sees it, with scene constants `info` (an error where the build
     /// ran out of capacity).
     pub(crate) fn download(&self, info: &SceneInfo, bounds: Aabb) -> Result<KdTree> {
