@@ -656,20 +656,16 @@ impl Recorder {
             self.refuse("Recorder::copy", reason);
             return;
         }
-        if len == 0 || self.failed.is_some() {
-            return;
-        }
-        let region = vk::BufferCopy {
-            src_offset: src.offset(),
-            dst_offset: dst.offset(),
-            size: (len * std::mem::size_of::<T>()) as u64,
-        };
         // Both buffers have transfer usage and the region is in range.
-        self.emit(Cmd::Copy {
-            src: src.raw(),
-            dst: dst.raw(),
-            region,
-        });
+        self.emit_copy(
+            src.raw(),
+            dst.raw(),
+            vk::BufferCopy {
+                src_offset: src.offset(),
+                dst_offset: dst.offset(),
+                size: (len * std::mem::size_of::<T>()) as u64,
+            },
+        );
     }
 
     /// Copies the whole of `src` into the start of `dst` (a range of vkrt's buffer or of the
@@ -691,21 +687,17 @@ impl Recorder {
             self.refuse("Recorder::copy_into", reason);
             return;
         }
-        if bytes == 0 || self.failed.is_some() {
-            return;
-        }
-        let region = vk::BufferCopy {
-            src_offset: src.offset(),
-            dst_offset: dst.offset(),
-            size: bytes,
-        };
         // Both have transfer usage (vkrt's buffers always; the caller's by the range's
         // contract) and the region is in range (checked above).
-        self.emit(Cmd::Copy {
-            src: src.raw(),
-            dst: dst.raw(),
-            region,
-        });
+        self.emit_copy(
+            src.raw(),
+            dst.raw(),
+            vk::BufferCopy {
+                src_offset: src.offset(),
+                dst_offset: dst.offset(),
+                size: bytes,
+            },
+        );
     }
 
     /// Copies `len` elements of `src` from element `src_at` on into `dst` from `dst_at` on.
@@ -726,21 +718,25 @@ impl Recorder {
             self.refuse("Recorder::copy_range", reason);
             return;
         }
-        if len == 0 || self.failed.is_some() {
+        let elem = std::mem::size_of::<T>() as u64;
+        // Both buffers have transfer usage and the regions are in range (checked above).
+        self.emit_copy(
+            src.raw(),
+            dst.raw(),
+            vk::BufferCopy {
+                src_offset: src.offset() + src_at as u64 * elem,
+                dst_offset: dst.offset() + dst_at as u64 * elem,
+                size: len as u64 * elem,
+            },
+        );
+    }
+
+    /// Records a checked copy: nothing for no bytes or a failed recording.
+    fn emit_copy(&mut self, src: vk::Buffer, dst: vk::Buffer, region: vk::BufferCopy) {
+        if region.size == 0 || self.failed.is_some() {
             return;
         }
-        let elem = std::mem::size_of::<T>() as u64;
-        let region = vk::BufferCopy {
-            src_offset: src.offset() + src_at as u64 * elem,
-            dst_offset: dst.offset() + dst_at as u64 * elem,
-            size: len as u64 * elem,
-        };
-        // Both buffers have transfer usage and the regions are in range (checked above).
-        self.emit(Cmd::Copy {
-            src: src.raw(),
-            dst: dst.raw(),
-            region,
-        });
+        self.emit(Cmd::Copy { src, dst, region });
     }
 
     /// Records the upload of `data` into the start of `dst` (a transfer write, through a
