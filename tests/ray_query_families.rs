@@ -23,8 +23,10 @@ use vkrt::accel::walk::Traversal;
 use vkrt::scene::Scene;
 use vkrt::shader_check::levels::SceneLevels;
 use vkrt::shader_check::{
-    compile_shader, lower_shader, mismatches, run_driver, run_vkrt, scene_levels, Through,
+    compile_shader, lower_shader, lower_shader_with, mismatches, run_driver, run_vkrt,
+    run_vkrt_walking, scene_levels, Through,
 };
+use vkrt::spirv::LowerOptions;
 use vkrt::trace::Ray;
 
 const RAYS: usize = 384;
@@ -476,6 +478,29 @@ fn ray_query_families_agree_with_the_driver_s_answers() {
             differ.len(),
             &differ[..differ.len().min(3)]
         );
+        // The other loop shape (the loop-budget walk where the device has no budget, the
+        // nested one where it has): the same answers, binary and 4-wide, through the include
+        // and through the pass.
+        let budget_walk = ctx.info().loop_budget.is_some();
+        for walk in [Traversal::Stack, Traversal::Wide] {
+            let other = run_vkrt_walking(
+                &ctx,
+                &levels,
+                lbvh(walk),
+                (spirv, iface),
+                rays,
+                !budget_walk,
+            )
+            .unwrap()
+            .results;
+            let differ = mismatches(&vkrt, &other);
+            assert!(
+                differ.is_empty(),
+                "{name}: {} rays differ between the nested and the loop-budget walk ({walk:?}), first {:x?}",
+                differ.len(),
+                &differ[..differ.len().min(3)]
+            );
+        }
         let recorded_path = data_dir().join(format!("{name}.results"));
         // The same shader without the include, its SPIR-V lowered by the pass: the same
         // walk, so the same answers.
@@ -495,6 +520,28 @@ fn ray_query_families_agree_with_the_driver_s_answers() {
         assert!(
             differ.is_empty(),
             "{name}: {} rays differ between the include and the SPIR-V pass, first {:x?}",
+            differ.len(),
+            &differ[..differ.len().min(3)]
+        );
+        // (`lower_shader` links the nested walk; this one the loop-budget walk.)
+        let options = LowerOptions {
+            loop_budget: true,
+            ..LowerOptions::default()
+        };
+        let (other, other_iface) = lower_shader_with(&shader, native_words, &options).unwrap();
+        let passed = run_vkrt(
+            &ctx,
+            &levels,
+            lbvh(Traversal::Stack),
+            (&other, &other_iface),
+            rays,
+        )
+        .unwrap()
+        .results;
+        let differ = mismatches(&vkrt, &passed);
+        assert!(
+            differ.is_empty(),
+            "{name}: {} rays differ through the pass's loop-budget walk, first {:x?}",
             differ.len(),
             &differ[..differ.len().min(3)]
         );
@@ -1187,3 +1234,133 @@ fn with_query_by_value(words: &[u32]) -> Vec<u32> {
     m.header.as_mut().unwrap().bound = next;
     m.assemble()
 }
+
+/// A shader's own loops around many queries: 768 queries an invocation (64 samples of 12
+/// jittered rays each) over the bunny. Mesa 22.3's lavapipe charges every loop of an
+/// invocation against one budget of 65,535 iterations; there the nested walk spends it and
+/// the shader's sample loop is cut short silently, while the loop-budget walk (the device's
+/// choice) keeps all 64 samples and gives the answers Mesa 25.0.7's ray query recorded.
+#[test]
+fn a_many_sample_shader_keeps_its_own_loops() {
+    let Some(ctx) = common::context() else { return };
+    let Some(bunny) = common::bunny_path() else {
+        return;
+    };
+    let scene = Scene::load(&bunny).unwrap().scene;
+    let levels = scene_levels(&scene);
+    let dir = std::env::temp_dir().join(format!("vkrt-rq-many-{}", std::process::id()));
+    std::fs::create_dir_all(&dir).unwrap();
+    let include = dir.join("include");
+    shader_library::write_to(&include).unwrap();
+    let shader = dir.join("many_samples.comp");
+    let compiled = compile_shader(&shader, MANY_SAMPLES, &include, Through::Both).unwrap();
+    let (spirv, iface) = compiled.vkrt.as_ref().unwrap();
+    // 64 rays from in front of the bunny, at its body.
+    let rays: Vec<Ray> = (0..64)
+        .map(|k| {
+            let (x, y) = ((k % 8) as f32, (k / 8) as f32);
+            Ray::new(
+                glam::Vec3::new(-0.045 + 0.01 * x, 0.07 + 0.01 * y, 0.4),
+                glam::Vec3::new(0.0, 0.0, -1.0),
+                0.0,
+                f32::INFINITY,
+            )
+        })
+        .collect();
+    let choice = lbvh(Traversal::Stack);
+    let vkrt = run_vkrt(&ctx, &levels, choice, (spirv, iface), &rays)
+        .unwrap()
+        .results;
+    assert!(
+        vkrt.iter().all(|r| r[0] == 64),
+        "the shader's sample loop was cut: {:?}",
+        vkrt.iter().map(|r| r[0]).collect::<Vec<_>>()
+    );
+    let hits: u32 = vkrt.iter().map(|r| r[1]).sum();
+    assert!(
+        hits > 64 * 768 / 2,
+        "{hits} hits: the rays should mostly hit"
+    );
+    let path = data_dir().join("many_samples_bunny.results");
+    if let Some((words, native_iface)) = compiled
+        .native
+        .as_ref()
+        .filter(|_| vkrt::gpu::require_ray_query(&ctx).is_ok())
+    {
+        let driver = run_driver(&ctx, &levels, (words, native_iface), &rays)
+            .unwrap()
+            .results;
+        assert!(
+            mismatches(&driver, &vkrt).is_empty(),
+            "vkrt and the driver differ"
+        );
+        if std::env::var_os("VKRT_RECORD_RAY_QUERY_ANSWERS").is_some() {
+            std::fs::write(&path, bytemuck::cast_slice(&driver)).unwrap();
+        }
+    }
+    let recorded = read_results(&path).expect("recorded answers");
+    let differ = mismatches(&recorded, &vkrt);
+    assert!(
+        differ.is_empty(),
+        "{} rays differ from the recorded answers",
+        differ.len()
+    );
+    if ctx.info().loop_budget.is_some() {
+        // The nested walk there: its loops spend the budget and the samples are cut.
+        let nested = run_vkrt_walking(&ctx, &levels, choice, (spirv, iface), &rays, false)
+            .unwrap()
+            .results;
+        let cut = nested.iter().filter(|r| r[0] < 64).count();
+        eprintln!(
+            "the nested walk on a loop budget: {cut} of {} invocations lost samples",
+            nested.len()
+        );
+        assert!(
+            cut > 0,
+            "the nested walk kept every sample: the budget test proves nothing"
+        );
+    }
+    let _ = std::fs::remove_dir_all(&dir);
+    common::assert_silent(&ctx);
+}
+
+/// 64 samples of 12 rays, each jittered by whole multiples of 1/2048 (exact in floats), the
+/// loops' trip counts unknown to the compiler. Results: samples run, hits, the sum of the
+/// hit primitives' indices.
+const MANY_SAMPLES: &str = r#"#version 460
+#extension GL_EXT_ray_query : require
+#include "vkrt/ext_ray_query.glsl"
+layout(local_size_x = 64) in;
+layout(set = 0, binding = 0) uniform accelerationStructureEXT scene;
+layout(set = 0, binding = 1, std430) readonly buffer Rays { vec4 rays[]; };
+layout(set = 0, binding = 2, std430) writeonly buffer Results { uvec4 results[]; };
+layout(push_constant) uniform Count { uint rayCount; };
+
+void main() {
+    uint i = gl_GlobalInvocationID.x;
+    if (i >= rayCount) {
+        return;
+    }
+    vec3 o = rays[2 * i].xyz;
+    vec3 d = rays[2 * i + 1].xyz;
+    uint extra = rayCount >> 31u;
+    uint samples = 0u;
+    uint hits = 0u;
+    uint prims = 0u;
+    for (uint s = 0u; s < 64u + extra; s++) {
+        for (uint k = 0u; k < 12u + extra; k++) {
+            vec2 j = vec2(float((s * 7u + k * 13u) % 17u) - 8.0, float((s * 5u + k * 3u) % 19u) - 9.0);
+            rayQueryEXT q;
+            rayQueryInitializeEXT(q, scene, gl_RayFlagsOpaqueEXT, 0xFF, o + vec3(j / 2048.0, 0.0), 0.0, d, 1e30);
+            while (rayQueryProceedEXT(q)) {
+            }
+            if (rayQueryGetIntersectionTypeEXT(q, true) != gl_RayQueryCommittedIntersectionNoneEXT) {
+                hits++;
+                prims += uint(rayQueryGetIntersectionPrimitiveIndexEXT(q, true));
+            }
+        }
+        samples++;
+    }
+    results[i] = uvec4(samples, hits, prims, 0u);
+}
+"#;

@@ -135,6 +135,19 @@ fn lower_valid(name: &str, words: &[u32], env: &str) -> vkrt::spirv::Lowered {
             "{name}: capability {cap:?} is left"
         );
     }
+    // The walk for a device with a loop budget: another loop, as valid.
+    let budget = LowerOptions {
+        loop_budget: true,
+        ..LowerOptions::default()
+    };
+    let flat = lower_ray_queries(words, &budget).unwrap_or_else(|e| panic!("{name}: {e}"));
+    assert_ne!(flat.words, lowered.words, "{name}: loop_budget changed nothing");
+    if let Err(e) = spirv_val(&flat.words, env) {
+        panic!(
+            "{name}: spirv-val refuses the module lowered for a loop budget:\n{e}\n{}",
+            dis(&flat.words)
+        );
+    }
     lowered
 }
 
@@ -492,6 +505,7 @@ fn bad_input_is_an_error_that_names_the_instruction_and_its_offset() {
     // The step cap's id taken by the shader's own constant.
     let taken = LowerOptions {
         steps_constant_id: 7,
+        ..LowerOptions::default()
     };
     assert_eq!(
         lower_ray_queries(&words, &taken).unwrap_err(),

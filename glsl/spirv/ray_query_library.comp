@@ -6,12 +6,14 @@
 // Compiled unoptimised to SPIR-V 1.3, so that every function stays a function the pass can
 // call; `main` only keeps them alive. The pass reads the functions by their names
 // (vkrt_spv_*), turns the count of states (specialization constant VKRT_RQ_STATIC_SLOTS)
-// into a constant, and keeps the step cap (VKRT_STEPS_CONSTANT_ID) a specialization
-// constant.
+// into a constant, as it does the choice of the loop-budget walk (VKRT_LOOP_BUDGET_CONSTANT_ID,
+// LowerOptions::loop_budget), and keeps the step cap (VKRT_STEPS_CONSTANT_ID) a
+// specialization constant.
 //! library
 #version 460
 #extension GL_EXT_ray_query : enable
 #define VKRT_RQ_STATIC_SLOTS 1899
+#define VKRT_LOOP_BUDGET_CONSTANT_ID 1897
 #include "include/vkrt/ext_ray_query.glsl"
 
 layout(local_size_x = 1) in;

@@ -35,7 +35,8 @@ unsafe extern "system" fn create_shader_module(
         let mut ours = unsafe { *info };
         // SAFETY: as above: codeSize bytes, 4-aligned.
         let words = unsafe { std::slice::from_raw_parts(ours.p_code, ours.code_size / 4) };
-        let lowered = match vkrt::spirv::lower_ray_queries(words, &Default::default()) {
+        let options = vkrt::spirv::LowerOptions::for_device(s.ctx.info());
+        let lowered = match vkrt::spirv::lower_ray_queries(words, &options) {
             Ok(l) => l,
             Err(e) => {
                 log(&format!(
@@ -75,7 +76,10 @@ impl Drop for Inline {
 ///
 /// # Safety
 /// The stages and their chains are valid and outlive the result.
-unsafe fn lower_inline(stages: &[vk::PipelineShaderStageCreateInfo<'_>]) -> Result<Inline, String> {
+unsafe fn lower_inline(
+    stages: &[vk::PipelineShaderStageCreateInfo<'_>],
+    options: &vkrt::spirv::LowerOptions,
+) -> Result<Inline, String> {
     let mut inline = Inline {
         edits: Vec::new(),
         _code: Vec::new(),
@@ -93,8 +97,8 @@ unsafe fn lower_inline(stages: &[vk::PipelineShaderStageCreateInfo<'_>]) -> Resu
                 let (size, code) = unsafe { ((*info).code_size, (*info).p_code) };
                 // SAFETY: as above.
                 let words = unsafe { std::slice::from_raw_parts(code, size / 4) };
-                let lowered = vkrt::spirv::lower_ray_queries(words, &Default::default())
-                    .map_err(|e| e.to_string())?;
+                let lowered =
+                    vkrt::spirv::lower_ray_queries(words, options).map_err(|e| e.to_string())?;
                 if lowered.changed {
                     inline.edits.push((info, size, code));
                     // SAFETY: as above; put back by Drop.
@@ -130,7 +134,12 @@ unsafe extern "system" fn create_compute_pipelines(
                 .map(|i| i.stage)
                 .collect();
         // SAFETY: the application's stages, alive for this call.
-        let _inline = match unsafe { lower_inline(&stages) } {
+        let _inline = match unsafe {
+            lower_inline(
+                &stages,
+                &vkrt::spirv::LowerOptions::for_device(s.ctx.info()),
+            )
+        } {
             Ok(i) => i,
             Err(e) => {
                 log(&format!("vkCreateComputePipelines: an inline module's ray queries cannot be lowered: {e}"));
@@ -164,7 +173,12 @@ unsafe extern "system" fn create_graphics_pipelines(
                 .copied()
                 .collect();
         // SAFETY: the application's stages, alive for this call.
-        let _inline = match unsafe { lower_inline(&stages) } {
+        let _inline = match unsafe {
+            lower_inline(
+                &stages,
+                &vkrt::spirv::LowerOptions::for_device(s.ctx.info()),
+            )
+        } {
             Ok(i) => i,
             Err(e) => {
                 log(&format!("vkCreateGraphicsPipelines: an inline module's ray queries cannot be lowered: {e}"));

@@ -34,6 +34,10 @@ pub const FILES: &[(&str, &str)] = &[
         include_str!("../../glsl/include/vkrt/ext_ray_query.glsl"),
     ),
     (
+        "vkrt/ext_ray_query_step.glsl",
+        include_str!("../../glsl/include/vkrt/ext_ray_query_step.glsl"),
+    ),
+    (
         "vkrt/affine.glsl",
         include_str!("../../glsl/include/vkrt/affine.glsl"),
     ),
@@ -88,6 +92,13 @@ pub const BINDINGS: u32 = 7;
 /// it to the device's [`DeviceInfo::max_traversal_steps`](crate::gpu::DeviceInfo) with
 /// [`steps_specialization`].
 pub const STEPS_CONSTANT_ID: u32 = 1900;
+
+/// The specialization constant (a `bool`) that gives `vkrt/ext_ray_query.glsl`'s queries the
+/// walk for a device with a loop budget ([`DeviceInfo::loop_budget`](crate::gpu::DeviceInfo),
+/// Mesa 22.3's lavapipe): set it to `loop_budget.is_some()`. Unset, it is false: the nested
+/// walk, which spends about four times the budget there. `VKRT_LOOP_BUDGET_CONSTANT_ID`
+/// moves it. The same answers either way.
+pub const LOOP_BUDGET_CONSTANT_ID: u32 = 1901;
 
 /// The map entry and data of a `VkSpecializationInfo` that set the library's step cap
 /// ([`STEPS_CONSTANT_ID`]) to `max_traversal_steps`:

@@ -29,7 +29,9 @@ pub mod reflect;
 use std::path::Path;
 
 use crate::accel::device::AccelChoice;
-use crate::accel::shader_library::{steps_specialization, STEPS_CONSTANT_ID};
+use crate::accel::shader_library::{
+    steps_specialization, LOOP_BUDGET_CONSTANT_ID, STEPS_CONSTANT_ID,
+};
 use crate::gpu::{Buffer, Context, ForeignBinding, ForeignKernel, GpuError, Recorder, TexelView};
 use crate::scene::Scene;
 use crate::trace::Ray;
@@ -123,15 +125,24 @@ pub fn lower_shader(
     shader: &Path,
     native: &[u32],
 ) -> Result<(Vec<u32>, ShaderInterface), CheckError> {
+    lower_shader_with(shader, native, &crate::spirv::LowerOptions::default())
+}
+
+/// [`lower_shader`] with `options` (the device's: `LowerOptions::for_device`).
+pub fn lower_shader_with(
+    shader: &Path,
+    native: &[u32],
+    options: &crate::spirv::LowerOptions,
+) -> Result<(Vec<u32>, ShaderInterface), CheckError> {
     let interface = |reason: String| CheckError::Interface {
         shader: shader.display().to_string(),
         reason,
     };
-    let lowered = crate::spirv::lower_ray_queries(native, &crate::spirv::LowerOptions::default())
-        .map_err(|error| CheckError::Lower {
-        shader: shader.display().to_string(),
-        error,
-    })?;
+    let lowered =
+        crate::spirv::lower_ray_queries(native, options).map_err(|error| CheckError::Lower {
+            shader: shader.display().to_string(),
+            error,
+        })?;
     if !lowered.changed {
         return Err(interface(
             "it has no ray query (no RayQueryKHR capability)".into(),
@@ -260,13 +271,29 @@ pub struct PathRun {
 }
 
 /// Runs `spirv` (its interface `iface`) over `rays` through vkrt's two levels of `scene`
-/// (bottom levels of `choice`'s kind, with 4-wide nodes where its walk is the wide one).
+/// (bottom levels of `choice`'s kind, with 4-wide nodes where its walk is the wide one),
+/// the include's loop-budget walk chosen as the device needs it
+/// ([`LOOP_BUDGET_CONSTANT_ID`]).
 pub fn run_vkrt(
+    ctx: &Context,
+    levels: &SceneLevels,
+    choice: AccelChoice,
+    shader: (&[u32], &ShaderInterface),
+    rays: &[Ray],
+) -> Result<PathRun, GpuError> {
+    let loop_budget_walk = ctx.info().loop_budget.is_some();
+    run_vkrt_walking(ctx, levels, choice, shader, rays, loop_budget_walk)
+}
+
+/// [`run_vkrt`] with the include's loop-budget walk on or off, whatever the device
+/// ([`LOOP_BUDGET_CONSTANT_ID`], where the shader declares it).
+pub fn run_vkrt_walking(
     ctx: &Context,
     levels: &SceneLevels,
     choice: AccelChoice,
     (spirv, iface): (&[u32], &ShaderInterface),
     rays: &[Ray],
+    loop_budget_walk: bool,
 ) -> Result<PathRun, GpuError> {
     let f = &ctx.info().features;
     if !(f.buffer_device_address && f.shader_int64) {
@@ -288,6 +315,9 @@ pub fn run_vkrt(
     if iface.spec_ids.contains(&STEPS_CONSTANT_ID) {
         let (entry, data) = steps_specialization(steps);
         spec.push((entry[0].constant_id, u32::from_ne_bytes(data)));
+    }
+    if iface.spec_ids.contains(&LOOP_BUDGET_CONSTANT_ID) {
+        spec.push((LOOP_BUDGET_CONSTANT_ID, u32::from(loop_budget_walk)));
     }
     let out = dispatch(
         ctx,

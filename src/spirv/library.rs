@@ -11,6 +11,9 @@ use std::sync::OnceLock;
 pub(crate) const COUNT_SPEC_ID: u32 = 1899;
 pub(crate) const STEPS_SPEC_ID: u32 = crate::accel::shader_library::STEPS_CONSTANT_ID;
 const KEEP_SPEC_ID: u32 = 1898;
+/// The library's switch of the loop-budget walk (`LowerOptions::loop_budget`), which the
+/// pass makes a constant.
+pub(crate) const LOOP_BUDGET_SPEC_ID: u32 = 1897;
 
 /// The library's SPIR-V version, the oldest input the pass takes.
 const LIBRARY_VERSION: (u8, u8) = (1, 3);
@@ -26,6 +29,8 @@ pub(crate) struct Library {
     /// The specialization constants of the state count and of the step cap.
     pub count: Word,
     pub steps: Word,
+    /// The specialization constant of the loop-budget walk.
+    pub loop_budget: Word,
 }
 
 /// The library, parsed from the checked-in SPIR-V (a failure here is a build error of
@@ -76,6 +81,7 @@ fn parse(words: &[u32]) -> Library {
             .expect("the library's specialization constants")
     };
     let (count, steps, keep) = (spec(COUNT_SPEC_ID), spec(STEPS_SPEC_ID), spec(KEEP_SPEC_ID));
+    let loop_budget = spec(LOOP_BUDGET_SPEC_ID);
     assert_eq!(
         version(&module, functions["version"]),
         Some(crate_version()),
@@ -91,6 +97,7 @@ fn parse(words: &[u32]) -> Library {
         main,
         count,
         steps,
+        loop_budget,
     }
 }
 
@@ -211,6 +218,7 @@ impl Library {
         self.main += by;
         self.count += by;
         self.steps += by;
+        self.loop_budget += by;
         if let Some(h) = self.module.header.as_mut() {
             h.bound += by;
         }

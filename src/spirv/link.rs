@@ -26,6 +26,7 @@ pub(crate) fn link(
         main,
         count,
         steps,
+        loop_budget,
         ..
     } = lib;
     let needed = closure(&lm, &stats.used_functions);
@@ -55,7 +56,8 @@ pub(crate) fn link(
         }
     }
 
-    // The state count becomes a constant: the entry points' static count.
+    // The state count becomes a constant: the entry points' static count; so does the
+    // choice of the loop-budget walk.
     for inst in lm.types_global_values.iter_mut() {
         if inst.result_id == Some(count) {
             *inst = Instruction::new(
@@ -64,6 +66,13 @@ pub(crate) fn link(
                 Some(count),
                 vec![Operand::LiteralBit32(stats.query_states)],
             );
+        } else if inst.result_id == Some(loop_budget) {
+            let op = if options.loop_budget {
+                Op::ConstantTrue
+            } else {
+                Op::ConstantFalse
+            };
+            *inst = Instruction::new(op, inst.result_type, Some(loop_budget), vec![]);
         }
     }
     let library_privates: Vec<Word> = private_variables(&lm.types_global_values)
@@ -87,15 +96,15 @@ pub(crate) fn link(
     }
 
     // The library's decorations of what was linked: not its main's, not its compute
-    // built-ins (gl_WorkGroupSize), not the state count's SpecId; the step cap's SpecId is
-    // the caller's.
+    // built-ins (gl_WorkGroupSize), not the state count's or the loop-budget walk's SpecId;
+    // the step cap's SpecId is the caller's.
     let defined: HashSet<Word> = module.all_inst_iter().filter_map(|i| i.result_id).collect();
     for mut a in lm.annotations.drain(..) {
         let target = match a.operands.first() {
             Some(Operand::IdRef(t)) => *t,
             _ => continue,
         };
-        if !defined.contains(&target) || target == count {
+        if !defined.contains(&target) || target == count || target == loop_budget {
             continue;
         }
         match a.operands.get(1) {

@@ -63,12 +63,27 @@ pub struct LowerOptions {
     /// `DeviceInfo::max_traversal_steps` when creating the pipeline; unset, the cap is
     /// 60,000. The module must not use this id itself.
     pub steps_constant_id: u32,
+    /// The walk for a device with a loop budget (`DeviceInfo::loop_budget`, Mesa 22.3's
+    /// lavapipe), whose loop reaches no other loop: there it spends about a quarter of the
+    /// budget the nested walk does. The same answers either way; default false.
+    pub loop_budget: bool,
 }
 
 impl Default for LowerOptions {
     fn default() -> Self {
         LowerOptions {
             steps_constant_id: crate::accel::shader_library::STEPS_CONSTANT_ID,
+            loop_budget: false,
+        }
+    }
+}
+
+impl LowerOptions {
+    /// The options for `device`: its loop budget decides the walk.
+    pub fn for_device(device: &crate::gpu::DeviceInfo) -> Self {
+        LowerOptions {
+            loop_budget: device.loop_budget.is_some(),
+            ..Self::default()
         }
     }
 }

@@ -18,6 +18,10 @@ pub struct LowerArgs {
     /// The specialization constant id of the walk's step cap in the lowered module.
     #[arg(long, default_value_t = vkrt::accel::shader_library::STEPS_CONSTANT_ID)]
     steps_constant_id: u32,
+    /// Link the walk for a device with a loop budget (Mesa 22.3's lavapipe; `vkrt info`
+    /// says whether the device has one): it spends about a quarter of the budget.
+    #[arg(long)]
+    loop_budget: bool,
     /// Print the report as JSON.
     #[arg(long)]
     json: bool,
@@ -37,6 +41,7 @@ pub fn run(args: &LowerArgs) -> CliResult<()> {
     let words: Vec<u32> = bytemuck::pod_collect_to_vec(&bytes);
     let options = vkrt::spirv::LowerOptions {
         steps_constant_id: args.steps_constant_id,
+        loop_budget: args.loop_budget,
     };
     let start = Instant::now();
     let lowered = vkrt::spirv::lower_ray_queries(&words, &options)

@@ -93,7 +93,7 @@ pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
     };
     // Everything that can be refused before any GPU work: the shader (compiled for each path
     // and its interface checked), the rays, the scene.
-    let mut shader = compile(&args, through)?;
+    let (mut shader, lowered_from) = compile(&args, through)?;
     for (_, iface) in shader.vkrt.iter_mut().chain(shader.native.iter_mut()) {
         let two_d = iface.local_size.is_some_and(|s| s[1] > 1);
         match (two_d, args.width) {
@@ -140,6 +140,14 @@ pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
     }
 
     let ctx = context(validate)?;
+    // A module the pass lowered is lowered again for a device with a loop budget, with the
+    // walk for it (the include's takes the specialization constant).
+    if let (Some(native), Some(_)) = (&lowered_from, ctx.info().loop_budget) {
+        let options = vkrt::spirv::LowerOptions::for_device(ctx.info());
+        let (words, mut iface) = check::lower_shader_with(&args.shader, native, &options)?;
+        iface.grid_width = args.width;
+        shader.vkrt = Some((words, iface));
+    }
     let has_ray_query = ctx.info().features.ray_query;
     let native = match through {
         Through::Vkrt => false,
@@ -174,10 +182,10 @@ pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
     if let Some(budget) = loop_budget {
         log::warn!(
             "{} ends all of an invocation's loops once they have run {budget} iterations in \
-             all (llvmpipe before Mesa 25): vkrt's walk spends one per node visit and \
-             primitive test, so a shader that traces many rays per invocation (a many-sample \
-             path tracer) can have its own loops cut short, silently; a query the budget cut \
-             reports vkrtRayQueryExhausted",
+             all (llvmpipe before Mesa 25): vkrt's walk for it spends about one per node \
+             visit, pop and primitive test, so a shader that traces many rays per invocation \
+             (hundreds of queries) can still have its own loops cut short, silently; a query \
+             the budget cut reports vkrtRayQueryExhausted",
             ctx.info().device
         );
     }
@@ -256,8 +264,12 @@ pub fn run(args: ShaderCheckArgs, validate: bool) -> CliResult<()> {
 }
 
 /// The shader's variants for the paths `through` asks for: GLSL with the include, GLSL for
-/// the driver lowered by the pass, or SPIR-V as given and lowered.
-fn compile(args: &ShaderCheckArgs, through: Through) -> CliResult<check::CompiledShader> {
+/// the driver lowered by the pass, or SPIR-V as given and lowered; with the driver's
+/// SPIR-V where the pass lowered it, to be lowered again once the device is known.
+fn compile(
+    args: &ShaderCheckArgs,
+    through: Through,
+) -> CliResult<(check::CompiledShader, Option<Vec<u32>>)> {
     let path = &args.shader;
     let ext = path
         .extension()
@@ -285,29 +297,28 @@ fn compile(args: &ShaderCheckArgs, through: Through) -> CliResult<check::Compile
         let vkrt = (through != Through::Driver)
             .then(|| check::lower_shader(path, &native.0))
             .transpose()?;
-        return Ok(check::CompiledShader {
+        let lowered_from = vkrt.as_ref().map(|_| native.0.clone());
+        let shader = check::CompiledShader {
             vkrt,
             native: (through != Through::Vkrt).then_some(native),
             inserted_include: false,
-        });
+        };
+        return Ok((shader, lowered_from));
     }
     let source = std::fs::read_to_string(path)
         .map_err(|e| format!("{}: cannot read the shader: {e}", path.display()))?;
     let include = check::compile::TempDir::new("shader-check-include")?;
     vkrt::accel::shader_library::write_to(include.path())?;
     if args.via == ViaArg::Include {
-        return Ok(check::compile_shader(
-            path,
-            &source,
-            include.path(),
-            through,
-        )?);
+        let shader = check::compile_shader(path, &source, include.path(), through)?;
+        return Ok((shader, None));
     }
     let mut shader = check::compile_shader(path, &source, include.path(), Through::Driver)?;
     let native = shader.native.take().expect("compiled for the driver");
     shader.vkrt = (through != Through::Driver)
         .then(|| check::lower_shader(path, &native.0))
         .transpose()?;
+    let lowered_from = shader.vkrt.as_ref().map(|_| native.0.clone());
     shader.native = (through != Through::Vkrt).then_some(native);
-    Ok(shader)
+    Ok((shader, lowered_from))
 }

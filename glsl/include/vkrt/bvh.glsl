@@ -123,27 +123,31 @@ uvec2 vkrt_stack_entry(uvec2 child, float t) {
 #define VKRT_BVH_POP_ON(AT)                                       \
     have = false;                                                 \
     while (top > 0u && !have) {                                   \
+        VKRT_BVH_POP_ONE_ON(AT)                                   \
+    }
+
+// One pop of VKRT_BVH_POP_ON, with no loop (`top` > 0): `have` false when the entry lies
+// beyond the closest hit and is dropped.
+#define VKRT_BVH_POP_ONE_ON(AT)                                   \
+    {                                                             \
         top--;                                                    \
         uvec2 e_ = AT(top);                                       \
         cur = uvec2(e_.x, e_.y & 0xffu);                          \
         have = uintBitsToFloat(e_.y & ~0xffu) <= best_t;          \
     }
 
-// The stack walks' descent: interior nodes, the nearer child first (ties: child a) and the
-// other one on the stack, until a leaf is in hand (`cur.y` > 0), the stack is empty (`have`
-// false) or the step cap is reached. A statement over the walk's `r`, `inv_d`, `tmin`,
-// `steps` and VKRT_BVH_POP_ON's variables (the binary stack walk, the top-level walk of
-// vkrt/instances.glsl and the ray query's walk of vkrt/ext_ray_query.glsl).
-#define VKRT_BVH_DESCEND_ON(AT)                                                        \
-    while (have && cur.y == 0u && steps <= VKRT_STEP_LIMIT) {                      \
+// One step of the descent at the interior node `cur`: the nearer child hit becomes `cur`
+// (ties: child a) and the other one goes on the stack; where neither is hit, NO_HIT runs.
+#define VKRT_BVH_NODE_STEP_ON(AT, NO_HIT)                                              \
+    {                                                                                  \
         steps++;                                                                       \
-        VkrtBvhNode nd = vkrt_load_bvh_node(cur.x);                                             \
+        VkrtBvhNode nd = vkrt_load_bvh_node(cur.x);                                    \
         float ta;                                                                      \
         float tb;                                                                      \
-        bool hit_a = (nd.a_count > 0u || nd.a_index != VKRT_NO_NODE)                        \
-            && vkrt_bvh_enter(nd.a_min, nd.a_max, r, inv_d, tmin, best_t, ta);              \
-        bool hit_b = (nd.b_count > 0u || nd.b_index != VKRT_NO_NODE)                        \
-            && vkrt_bvh_enter(nd.b_min, nd.b_max, r, inv_d, tmin, best_t, tb);              \
+        bool hit_a = (nd.a_count > 0u || nd.a_index != VKRT_NO_NODE)                   \
+            && vkrt_bvh_enter(nd.a_min, nd.a_max, r, inv_d, tmin, best_t, ta);         \
+        bool hit_b = (nd.b_count > 0u || nd.b_index != VKRT_NO_NODE)                   \
+            && vkrt_bvh_enter(nd.b_min, nd.b_max, r, inv_d, tmin, best_t, tb);         \
         uvec2 ca = uvec2(nd.a_index, nd.a_count);                                      \
         uvec2 cb = uvec2(nd.b_index, nd.b_count);                                      \
         if (hit_a && hit_b) {                                                          \
@@ -154,8 +158,18 @@ uvec2 vkrt_stack_entry(uvec2 child, float t) {
         } else if (hit_a || hit_b) {                                                   \
             cur = hit_a ? ca : cb;                                                     \
         } else {                                                                       \
-            VKRT_BVH_POP_ON(AT);                                                       \
+            NO_HIT;                                                                    \
         }                                                                              \
+    }
+
+// The stack walks' descent: interior nodes, the nearer child first (ties: child a) and the
+// other one on the stack, until a leaf is in hand (`cur.y` > 0), the stack is empty (`have`
+// false) or the step cap is reached. A statement over the walk's `r`, `inv_d`, `tmin`,
+// `steps` and VKRT_BVH_POP_ON's variables (the binary stack walk, the top-level walk of
+// vkrt/instances.glsl and the ray query's walk of vkrt/ext_ray_query.glsl).
+#define VKRT_BVH_DESCEND_ON(AT)                                                        \
+    while (have && cur.y == 0u && steps <= VKRT_STEP_LIMIT) {                          \
+        VKRT_BVH_NODE_STEP_ON(AT, VKRT_BVH_POP_ON(AT))                                 \
     }
 
 // The walks' own stack: `stack` (VKRT_STACK_WALK_STATE).
@@ -322,6 +336,13 @@ void vkrt_wide_child(VkrtWideNode w, uint k, vec3 p, vec3 s, VkrtRay r, vec3 inv
 // VKRT_BVH_DESCEND_ON (the wide stack walk, and the ray query's walk of a wide bottom level).
 #define VKRT_WIDE_DESCEND_ON(AT)                                            \
     while (have && cur.y == 0u && steps <= VKRT_STEP_LIMIT) {               \
+        VKRT_WIDE_NODE_STEP_ON(AT, VKRT_BVH_POP_ON(AT))                     \
+    }
+
+// One step of VKRT_WIDE_DESCEND_ON at the interior node `cur`; where no child is hit, NO_HIT
+// runs.
+#define VKRT_WIDE_NODE_STEP_ON(AT, NO_HIT)                                  \
+    {                                                                       \
         steps++;                                                            \
         VkrtWideNode w_ = vkrt_load_wide_node(cur.x);                       \
         vec3 p_ = uintBitsToFloat(w_.frame.xyz);                            \
@@ -343,7 +364,7 @@ void vkrt_wide_child(VkrtWideNode w, uint k, vec3 p, vec3 s, VkrtRay r, vec3 inv
         if (c0.x != VKRT_NO_NODE || c0.y != 0u) {                           \
             cur = c0;                                                       \
         } else {                                                            \
-            VKRT_BVH_POP_ON(AT);                                            \
+            NO_HIT;                                                         \
         }                                                                   \
     }
 

@@ -93,6 +93,18 @@ layout(constant_id = VKRT_RQ_STATIC_SLOTS) const uint vkrt_rq_count = 1u;
 #error "VKRT_RAY_QUERIES: 1 to 4 live ray queries per invocation"
 #endif
 #endif
+// Mesa 22.3's lavapipe (`DeviceInfo::loop_budget`) gives an invocation one budget of 65,535
+// loop iterations for all its loops, and charges a loop each time control reaches it, even
+// with every lane masked off (a loop in an untaken branch costs one). The nested descent
+// reaches about a dozen loops a pass; on such a device the walk runs a loop whose pass holds
+// none, at about a quarter of the cost. The specialization constant
+// VKRT_LOOP_BUDGET_CONSTANT_ID (default 1901) chooses it: true on such a device (the SPIR-V
+// pass makes it a constant: `LowerOptions::loop_budget`). The same nodes in the same order
+// either way, so the same answers.
+#ifndef VKRT_LOOP_BUDGET_CONSTANT_ID
+#define VKRT_LOOP_BUDGET_CONSTANT_ID 1901
+#endif
+layout(constant_id = VKRT_LOOP_BUDGET_CONSTANT_ID) const bool vkrt_rq_flat = false;
 // A top level (binary, at most VKRT_BVH_MAX_DEPTH entries) and a bottom level (binary, or
 // 4-wide: at most VKRT_WIDE_STACK_SIZE): the stack holds both.
 #ifndef VKRT_RQ_STACK
@@ -368,6 +380,40 @@ bool vkrt_rq_walkable() {
         || (walk == VKRT_ACCEL_KDTREE && vkrt_primitive_count() == vkrt_scene_info.n_tris);
 }
 
+// Whether the flat loop serves the bottom level in use: a BVH (binary or 4-wide) whose
+// geometry table the flat search covers (VKRT_RQ_FLAT_GEOMETRIES entries).
+#define VKRT_RQ_FLAT_GEOMETRIES 16u
+bool vkrt_rq_flat_serves() {
+    return vkrt_scene_info.walk != VKRT_ACCEL_KDTREE
+        && vkrt_scene_info.n_geometries <= VKRT_RQ_FLAT_GEOMETRIES;
+}
+
+// vkrt_geometry_entry (vkrt/traverse.glsl) over a table of at most VKRT_RQ_FLAT_GEOMETRIES
+// entries, with no loop: four halvings written out.
+uvec2 vkrt_rq_geometry_entry_flat(uint prim) {
+    uint n = vkrt_scene_info.n_geometries;
+    if (n == 0u) {
+        return uvec2(0u);
+    }
+    uint lo = 0u;
+    uint hi = n - 1u;
+#define VKRT_RQ_HALVE                                                   \
+    if (lo < hi) {                                                      \
+        uint mid = (lo + hi + 1u) >> 1u;                                \
+        if (vkrt_scene_info.geometry_first[mid].x <= prim) {            \
+            lo = mid;                                                   \
+        } else {                                                        \
+            hi = mid - 1u;                                              \
+        }                                                               \
+    }
+    VKRT_RQ_HALVE
+    VKRT_RQ_HALVE
+    VKRT_RQ_HALVE
+    VKRT_RQ_HALVE
+#undef VKRT_RQ_HALVE
+    return vkrt_scene_info.geometry_first[lo];
+}
+
 bool vkrtRayQueryProceed(uint q) {
     uint s = vkrt_rq_slot(q);
     if (s == uint(VKRT_RAY_QUERIES)) {
@@ -430,201 +476,21 @@ bool vkrtRayQueryProceed(uint q) {
     // driver that ends a loop on its own (Mesa 22.3's lavapipe, after 65,535 iterations of
     // an invocation's loops), both of which leave it exhausted.
     uint end = VKRT_RQ_DONE | VKRT_RQ_EXHAUSTED;
-    while (true) {
-        if (steps > VKRT_STEP_LIMIT) {
-            break;
+    // The flat loop where the device has a loop budget, handing the walk to the nested
+    // loop at a level it does not serve; the nested loop everywhere else.
+    bool nested = !vkrt_rq_flat || (in_bottom && !vkrt_rq_flat_serves());
+    if (!nested) {
+        while (true) {
+#define VKRT_RQ_FLAT_STEP 1
+#include "ext_ray_query_step.glsl"
+#undef VKRT_RQ_FLAT_STEP
         }
-        if (in_bottom && leaf.x < leaf.y) {
-            // The bottom leaf's next primitive.
-            uint prim = VKRT_KD_REF(leaf.x);
-            leaf.x++;
-            steps++;
-            uint iflags = inst.z >> 24u;
-            uint n_tris = vkrt_scene_info.n_tris;
-            VkrtRqHit h = VkrtRqHit(0u, 0.0, vec2(0.0), inst.x, prim, 0u, 0u, 0u, inst.y, inst.z);
-            bool opaque;
-            if (prim < n_tris) {
-                if ((flags & VKRT_RAY_SKIP_TRIANGLES) != 0u) {
-                    continue;
-                }
-                vec3 p0, p1, p2;
-                vkrt_triangle_at(prim, 0.0, p0, p1, p2);
-                float t, u, v;
-                bool front;
-#ifdef VKRT_MOLLER_TRUMBORE
-                bool hit = vkrt_hit_triangle_moller(r.o, r.d, p0, p1, p2, tmin, best_t, t, u, v);
-                front = vkrt_dot3(vkrt_cross3(p1 - p0, p2 - p0), r.d) < 0.0;
-#else
-                bool hit = vkrt_hit_triangle_watertight_facing(r.o, sh, p0, p1, p2, tmin, best_t,
-                                                                t, u, v, front);
-#endif
-                if (!hit) {
-                    continue;
-                }
-                front = front != ((iflags & VKRT_INSTANCE_FLIP_FACING) != 0u);
-                uint cull = front ? VKRT_RAY_CULL_FRONT : VKRT_RAY_CULL_BACK;
-                if ((iflags & VKRT_INSTANCE_CULL_DISABLE) == 0u && (flags & cull) != 0u) {
-                    continue;
-                }
-                uvec2 g = vkrt_geometry_entry(prim);
-                opaque = vkrt_rq_opaque(g.y, iflags, flags);
-                h.t = t;
-                h.barycentrics = vec2(u, v);
-                h.geometry = g.y & 0x7fffffffu;
-                h.primitive = prim - g.x;
-                h.bits = (front ? 1u : 0u) | (opaque ? 2u : 0u);
-                h.type = VKRT_CANDIDATE_TRIANGLE;
-            } else {
-                // A sphere or a box: the shader's to intersect, where the ray meets its box.
-                if ((flags & VKRT_RAY_SKIP_AABBS) != 0u) {
-                    continue;
-                }
-                uint b = prim - n_tris;
-                vec3 lo, hi;
-                if (b < vkrt_scene_info.n_spheres) {
-                    vec4 sphere = vkrt_sphere_at(b, 0.0);
-                    lo = sphere.xyz - vec3(abs(sphere.w));
-                    hi = sphere.xyz + vec3(abs(sphere.w));
-                } else {
-                    vkrt_aabb_at(b - vkrt_scene_info.n_spheres, lo, hi);
-                }
-                float t;
-                if (!vkrt_rq_box_candidate(r.o, r.d, lo, hi, tmin, best_t, t)) {
-                    continue;
-                }
-                uvec2 g = vkrt_geometry_entry(prim);
-                opaque = vkrt_rq_opaque(g.y, iflags, flags);
-                h.t = t;
-                h.geometry = g.y & 0x7fffffffu;
-                h.primitive = prim - g.x;
-                h.bits = opaque ? 2u : 0u;
-                h.type = VKRT_CANDIDATE_AABB;
-            }
-            if ((flags & (opaque ? VKRT_RAY_CULL_OPAQUE : VKRT_RAY_CULL_NO_OPAQUE)) != 0u) {
-                continue;
-            }
-            if (kd && !opaque) {
-                // A kd-tree may hold the triangle in several leaves: the shader would be
-                // asked about it more than once. The query ends, exhausted, rather than
-                // answer otherwise than the driver.
-                end = VKRT_RQ_DONE | VKRT_RQ_EXHAUSTED;
-                break;
-            }
-            if (!opaque || h.type == VKRT_CANDIDATE_AABB) {
-                vkrt_rq_candidate[s] = h;
-                found = true;
-                end = 0u;
-                break;
-            }
-            // An opaque triangle: committed where nearer (ties: the lower instance, then the
-            // lower primitive, as vkrtTrace).
-            VkrtRqHit c = vkrt_rq_committed[s];
-            bool better = c.type == VKRT_COMMITTED_NONE || h.t < c.t
-                || (h.t == c.t && (h.instance < c.instance || (h.instance == c.instance && prim < c.prim)));
-            if (better) {
-                h.type = VKRT_COMMITTED_TRIANGLE;
-                vkrt_rq_committed[s] = h;
-                best_t = h.t;
-                if ((flags & VKRT_RAY_TERMINATE_ON_FIRST_HIT) != 0u) {
-                    end = VKRT_RQ_DONE;
-                    break;
-                }
-            }
-            continue;
-        }
-        if (!in_bottom && leaf.z < leaf.w) {
-            // The top leaf's next instance: into its bottom level, whose entries go above
-            // the top level's.
-            uint i = VKRT_KD_REF(leaf.z);
-            leaf.z++;
-            steps++;
-            if (!vkrt_rq_enter(s, i, cull_mask)) {
-                continue;
-            }
-            inst = vkrt_rq_instance[s];
-            base = top;
-            top = 0u;
-            vkrt_rq_base = base;
-            in_bottom = true;
-            vkrt_use(vkrt_rq_bottom[s]);
-            if (!vkrt_rq_walkable()) {
-                end = VKRT_RQ_DONE | VKRT_RQ_EXHAUSTED;
-                break;
-            }
-            wide = vkrt_scene_info.walk == VKRT_ACCEL_BVH_WIDE;
-            r = VkrtRay(vkrt_rq_object_origin[s].xyz, tmin, vkrt_rq_object_direction[s].xyz, best_t);
-            inv_d = vkrt_recip3(r.d);
-            sh = vkrt_make_shear(r.d);
-            cur = uvec2(0u);
-            have = vkrt_primitive_count() != 0u;
-            fresh = true;
-            kd = vkrt_scene_info.walk == VKRT_ACCEL_KDTREE;
-            if (kd && have) {
-                have = vkrt_rq_kd_start(r, tmin, best_t, kdw);
-                node = 0u;
-                n0 = uintBitsToFloat(kdw.x);
-                n1 = uintBitsToFloat(kdw.y);
-                scene_t1 = uintBitsToFloat(kdw.z);
-                st_top = 0u;
-                st_count = 0u;
-                dropped = false;
-            }
-        }
-        if (kd) {
-            if (!fresh) {
-                VKRT_KD_POP_ON(VKRT_RQ_KD, VKRT_RQ_KD_RING,
-                               vkrt_rq_committed[s].type == VKRT_COMMITTED_NONE);
-            }
-            fresh = false;
-            cur = uvec2(0u);
-            if (have) {
-                VKRT_KD_DESCEND_ON(VKRT_RQ_KD, VKRT_RQ_KD_RING);
-                if (steps < VKRT_STEP_LIMIT) {
-                    steps++;
-                    if (nd.b == 0u) {
-                        continue; // an empty leaf: the next cell
-                    }
-                    cur = uvec2(nd.a, nd.b);
-                }
-            }
-        } else {
-            if (!fresh) {
-                VKRT_BVH_POP_ON(VKRT_RQ_AT);
-            }
-            fresh = false;
-            if (wide) {
-                VKRT_WIDE_DESCEND_ON(VKRT_RQ_AT);
-            } else {
-                VKRT_BVH_DESCEND_ON(VKRT_RQ_AT);
-            }
-        }
-        if (!have) {
-            if (in_bottom && (bits & VKRT_RQ_ONE_LEVEL) == 0u) {
-                // The instance is done: back to the top level, whose entries end where the
-                // bottom level's began.
-                top = base;
-                base = 0u;
-                vkrt_rq_base = 0u;
-                in_bottom = false;
-                wide = false;
-                kd = false;
-                vkrt_use(top_handle);
-                r = VkrtRay(vkrt_rq_origin[s].xyz, tmin, vkrt_rq_direction[s].xyz, best_t);
-                inv_d = vkrt_recip3(r.d);
-                sh = vkrt_make_shear(r.d);
-                continue;
-            }
-            end = VKRT_RQ_DONE;
-            break;
-        }
-        if (cur.y == 0u) {
-            end = VKRT_RQ_DONE | VKRT_RQ_EXHAUSTED; // the step cap ended the descent
-            break;
-        }
-        if (in_bottom) {
-            leaf.xy = uvec2(cur.x, cur.x + cur.y);
-        } else {
-            leaf.zw = uvec2(cur.x, cur.x + cur.y);
+    }
+    if (nested) {
+        while (true) {
+#define VKRT_RQ_FLAT_STEP 0
+#include "ext_ray_query_step.glsl"
+#undef VKRT_RQ_FLAT_STEP
         }
     }
     bits = (bits & ~VKRT_RQ_IN_BOTTOM) | (in_bottom ? VKRT_RQ_IN_BOTTOM : 0u) | end;
