@@ -141,7 +141,10 @@ fn lower_valid(name: &str, words: &[u32], env: &str) -> vkrt::spirv::Lowered {
         ..LowerOptions::default()
     };
     let flat = lower_ray_queries(words, &budget).unwrap_or_else(|e| panic!("{name}: {e}"));
-    assert_ne!(flat.words, lowered.words, "{name}: loop_budget changed nothing");
+    assert_ne!(
+        flat.words, lowered.words,
+        "{name}: loop_budget changed nothing"
+    );
     if let Err(e) = spirv_val(&flat.words, env) {
         panic!(
             "{name}: spirv-val refuses the module lowered for a loop budget:\n{e}\n{}",

@@ -380,14 +380,26 @@ fn every_bad_input_is_a_clear_error_without_output() {
     refused("no-push", &no_push, &scene, None, &["push-constant"]);
     let extra = CLOSEST_HIT.replace(
         "layout(push_constant)",
-        "layout(set = 0, binding = 3) buffer Extra { uint extra[]; };\nlayout(push_constant)",
+        "layout(set = 0, binding = 4) buffer Extra { uint extra[]; };\nlayout(push_constant)",
     );
     refused(
         "extra",
         &extra,
         &scene,
         None,
-        &["set 0 binding 3", "`Extra`"],
+        &["set 0 binding 4", "`Extra`"],
+    );
+    // Binding 3 holds the instance data: a storage buffer, not a uniform block.
+    let uniform_instances = CLOSEST_HIT.replace(
+        "layout(push_constant)",
+        "layout(set = 0, binding = 3) uniform Instances { uvec4 instances[4]; };\nlayout(push_constant)",
+    );
+    refused(
+        "uniform-instances",
+        &uniform_instances,
+        &scene,
+        None,
+        &["set 0 binding 3 is", "instance data"],
     );
     let floats = CLOSEST_HIT
         .replace(

@@ -41,6 +41,8 @@ pub struct SceneLevels {
     pub instances: Vec<Instance>,
     /// Per sphere its box (min x, y, z, max x, y, z).
     pub sphere_boxes: Vec<[f32; 6]>,
+    /// Per sphere its centre and radius.
+    spheres: Vec<[f32; 4]>,
     /// Object-space triangles and indices per mesh, shared with the scene.
     meshes: Vec<MeshArrays>,
 }
@@ -85,13 +87,17 @@ impl SceneLevels {
             inst.sbt_offset_and_flags |= keys.sbt_offset;
             instances.push(inst);
         }
-        let sphere_boxes: Vec<[f32; 6]> = scene
-            .spheres_at(time)
+        let placed = scene.spheres_at(time);
+        let sphere_boxes: Vec<[f32; 6]> = placed
             .iter()
             .map(|s| {
                 let (lo, hi) = (s.center - s.radius, s.center + s.radius);
                 [lo.x, lo.y, lo.z, hi.x, hi.y, hi.z]
             })
+            .collect();
+        let spheres = placed
+            .iter()
+            .map(|s| s.center.extend(s.radius).to_array())
             .collect();
         if !sphere_boxes.is_empty() {
             let level = bottoms.len() as u32;
@@ -108,6 +114,7 @@ impl SceneLevels {
             bottoms,
             instances,
             sphere_boxes,
+            spheres,
             meshes,
         }
     }
@@ -126,6 +133,7 @@ impl SceneLevels {
             }],
             instances: vec![Instance::new(0, Instance::IDENTITY).with_custom_index(0)],
             sphere_boxes: Vec::new(),
+            spheres: Vec::new(),
             meshes: vec![(Arc::new(positions), Arc::new(indices))],
         }
     }
@@ -339,6 +347,102 @@ impl SceneLevels {
         Ok(DriverLevels {
             accel,
             _prims: prims,
+        })
+    }
+}
+
+/// The scene's instance data as a shader reads it at device addresses: one 32-byte record
+/// per instance, in instance order (`InstanceData` in the command's interface).
+pub struct InstanceData {
+    /// The records.
+    pub records: Buffer<InstanceRecord>,
+    _positions: Vec<Buffer<[f32; 3]>>,
+    _triangles: Vec<Buffer<[u32; 3]>>,
+    _spheres: Option<Buffer<[f32; 4]>>,
+}
+
+/// One instance's record: a mesh's object-space positions (three floats a vertex) and
+/// triangles (three u32 indices a triangle) at device addresses, with their counts; the
+/// spheres' instance: the spheres (centre, radius: four floats each) and their count, no
+/// triangles.
+#[repr(C)]
+#[derive(Clone, Copy, Debug, Default, PartialEq, bytemuck::Pod, bytemuck::Zeroable)]
+pub struct InstanceRecord {
+    /// The positions' (or spheres') device address.
+    pub positions: u64,
+    /// The triangles' device address (0 for the spheres).
+    pub triangles: u64,
+    /// Triangles (0 for the spheres).
+    pub triangle_count: u32,
+    /// Vertices (spheres for the spheres' instance).
+    pub vertex_count: u32,
+    /// Zero.
+    pub reserved: [u32; 2],
+}
+
+impl SceneLevels {
+    /// The instance records and the arrays they point at, uploaded in `rec` (a buffer per
+    /// bottom level, shared by its instances). Keep the result until the work has
+    /// executed; the uploads need a transfer-to-compute barrier before a shader reads them.
+    pub fn record_instance_data(&self, rec: &mut Recorder) -> Result<InstanceData> {
+        let ctx = rec.context().clone();
+        let mut positions = Vec::new();
+        let mut triangles = Vec::new();
+        let mut spheres = None;
+        let mut per_bottom = Vec::with_capacity(self.bottoms.len());
+        for b in &self.bottoms {
+            let record = match *b {
+                BottomSource::Mesh { mesh, .. } => {
+                    let (p, idx) = &self.meshes[mesh];
+                    let verts: Vec<[f32; 3]> = p.iter().map(|v| v.to_array()).collect();
+                    // A buffer of at least one element, so that an empty mesh has an address.
+                    let vb =
+                        Buffer::new(&ctx, "shader_check.instance_positions", verts.len().max(1))?;
+                    let ib =
+                        Buffer::new(&ctx, "shader_check.instance_triangles", idx.len().max(1))?;
+                    rec.upload(&vb, &verts)?;
+                    rec.upload(&ib, idx.as_slice())?;
+                    let record = InstanceRecord {
+                        positions: vb.device_address()?,
+                        triangles: ib.device_address()?,
+                        triangle_count: idx.len() as u32,
+                        vertex_count: verts.len() as u32,
+                        reserved: [0; 2],
+                    };
+                    positions.push(vb);
+                    triangles.push(ib);
+                    record
+                }
+                BottomSource::Spheres => {
+                    let sb = Buffer::new(
+                        &ctx,
+                        "shader_check.instance_spheres",
+                        self.spheres.len().max(1),
+                    )?;
+                    rec.upload(&sb, &self.spheres)?;
+                    let record = InstanceRecord {
+                        positions: sb.device_address()?,
+                        vertex_count: self.spheres.len() as u32,
+                        ..InstanceRecord::default()
+                    };
+                    spheres = Some(sb);
+                    record
+                }
+            };
+            per_bottom.push(record);
+        }
+        let records: Vec<InstanceRecord> = self
+            .instances
+            .iter()
+            .map(|inst| per_bottom[inst.bottom as usize])
+            .collect();
+        let buffer = Buffer::new(&ctx, "shader_check.instance_data", records.len().max(1))?;
+        rec.upload(&buffer, &records)?;
+        Ok(InstanceData {
+            records: buffer,
+            _positions: positions,
+            _triangles: triangles,
+            _spheres: spheres,
         })
     }
 }

@@ -13,6 +13,8 @@
 //! layout(set = 0, binding = 1, std430) readonly buffer Rays { vec4 rays[]; };
 //! layout(set = 0, binding = 2, std430) writeonly buffer Results { uvec4 results[]; };
 //! layout(push_constant) uniform Count { uint rayCount; };
+//! // Optional: the scene's instance data, read at device addresses (levels::InstanceRecord).
+//! layout(set = 0, binding = 3, std430) readonly buffer Instances { InstanceData instances[]; };
 //! ```
 //!
 //! Through vkrt, binding 0 is a uniform texel buffer (RGBA32UI) whose first texel's `.xy`
@@ -195,14 +197,23 @@ pub fn check_interface(iface: &ShaderInterface, native: bool) -> Result<(), Stri
         None => return Err("it declares no workgroup size".into()),
     }
     let at = |b: u32| iface.bindings.iter().find(|x| x.set == 0 && x.binding == b);
-    if let Some(extra) = iface.bindings.iter().find(|b| b.set != 0 || b.binding > 2) {
+    if let Some(extra) = iface.bindings.iter().find(|b| b.set != 0 || b.binding > 3) {
         return Err(format!(
             "it declares set {} binding {}{}: the command binds set 0 bindings 0 \
-             (the structure), 1 (the rays) and 2 (the results) only",
+             (the structure), 1 (the rays), 2 (the results) and 3 (the instance data) only",
             extra.set,
             extra.binding,
             name_of(extra)
         ));
+    }
+    if let Some(kind) = at(3).map(|b| b.kind) {
+        if !matches!(kind, BindingKind::StorageBuffer { .. }) {
+            return Err(format!(
+                "set 0 binding 3 is {}: it must be a storage buffer of the instance data, \
+                 readonly buffer Instances {{ InstanceData instances[]; }}",
+                kind.describe()
+            ));
+        }
     }
     let structure = at(0).map(|b| b.kind);
     match (native, structure) {
@@ -322,9 +333,9 @@ pub fn run_vkrt_walking(
     let out = dispatch(
         ctx,
         rec,
-        spirv,
-        iface,
+        (spirv, iface),
         ForeignBinding::Texel(&view),
+        levels,
         &spec,
         rays,
     )?;
@@ -346,9 +357,9 @@ pub fn run_driver(
     let out = dispatch(
         ctx,
         rec,
-        spirv,
-        iface,
+        (spirv, iface),
         ForeignBinding::Accel(built.accel.tlas()),
+        levels,
         &[],
         rays,
     )?;
@@ -356,14 +367,15 @@ pub fn run_driver(
     Ok(out)
 }
 
-/// Records the rays' upload, the shader's dispatch (timed in a scope `shader`) and the
-/// results' read-back after what `rec` holds, submits and waits.
+/// Records the rays' upload (and the instance data's, where the shader declares binding 3),
+/// the shader's dispatch (timed in a scope `shader`) and the results' read-back after what
+/// `rec` holds, submits and waits.
 fn dispatch(
     ctx: &Context,
     mut rec: Recorder,
-    spirv: &[u32],
-    iface: &ShaderInterface,
+    (spirv, iface): (&[u32], &ShaderInterface),
     structure: ForeignBinding<'_>,
+    levels: &SceneLevels,
     spec: &[(u32, u32)],
     rays: &[Ray],
 ) -> Result<PathRun, GpuError> {
@@ -372,21 +384,22 @@ fn dispatch(
     let results = Buffer::<[u32; 4]>::new(ctx, "shader_check.results", n)?;
     rec.upload(&ray_buf, rays)?;
     rec.fill(&results, 0);
+    let wants_instances = iface.bindings.iter().any(|b| b.set == 0 && b.binding == 3);
+    let instances = wants_instances
+        .then(|| levels.record_instance_data(&mut rec))
+        .transpose()?;
     rec.transfer_to_compute();
     let (push_bytes, _) = iface.push_constants.unwrap_or((4, true));
     let push_bytes = push_bytes.next_multiple_of(4);
-    let kernel = ForeignKernel::new(
-        ctx,
-        "shader-check",
-        spirv,
-        &[
-            structure,
-            ForeignBinding::Storage(&ray_buf),
-            ForeignBinding::Storage(&results),
-        ],
-        push_bytes,
-        spec,
-    )?;
+    let mut bindings = vec![
+        structure,
+        ForeignBinding::Storage(&ray_buf),
+        ForeignBinding::Storage(&results),
+    ];
+    if let Some(data) = &instances {
+        bindings.push(ForeignBinding::Storage(&data.records));
+    }
+    let kernel = ForeignKernel::new(ctx, "shader-check", spirv, &bindings, push_bytes, spec)?;
     let mut push = vec![0u8; push_bytes as usize];
     let [lx, ly, _] = iface
         .local_size
@@ -422,6 +435,7 @@ fn dispatch(
     let profile = rec.submit_and_wait()?;
     let results = back.read()?;
     drop(kernel);
+    drop(instances);
     Ok(PathRun {
         results,
         ms: profile.ms("shader"),
