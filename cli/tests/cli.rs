@@ -274,6 +274,10 @@ fn build_kdtree_reports_and_equals_its_twin() {
     let keys = [
         "primitives",
         "build_ms",
+        "build_ms_min",
+        "build_ms_max",
+        "first_build_ms",
+        "reps",
         "phases",
         "levels",
         "nodes",
@@ -294,7 +298,12 @@ fn build_kdtree_reports_and_equals_its_twin() {
     };
     assert_eq!(v["equal_to_cpu_twin"], true);
     assert_device_bytes(&v);
+    assert_repeated(&v);
     assert!(v["build_ms"].as_f64().unwrap() > 0.0);
+    // No warm run to report: refused.
+    let out = vkrt(&["build", "--reps", "0"]);
+    assert!(!out.status.success());
+    assert!(String::from_utf8_lossy(&out.stderr).contains("--reps"));
     let out = vkrt(&["build", "--accel", "bvh"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("bvh"));
@@ -303,6 +312,18 @@ fn build_kdtree_reports_and_equals_its_twin() {
     let out = vkrt(&["build", "--kolodzey-termination"]);
     assert!(!out.status.success());
     assert!(String::from_utf8_lossy(&out.stderr).contains("--accel kdtree"));
+}
+
+/// The build time is the median of the default 3 warm builds, within their range; the
+/// first is apart.
+fn assert_repeated(v: &serde_json::Value) {
+    assert_eq!(v["reps"], 3, "{v}");
+    let f = |k: &str| v[k].as_f64().unwrap();
+    assert!(
+        f("build_ms_min") <= f("build_ms") && f("build_ms") <= f("build_ms_max"),
+        "{v}"
+    );
+    assert!(f("first_build_ms") > 0.0, "{v}");
 }
 
 /// The device memory a build needed at its peak covers at least the structure, and per
@@ -321,6 +342,10 @@ fn build_gpu_bvhs_report_and_equal_their_twins() {
         "kind",
         "primitives",
         "build_ms",
+        "build_ms_min",
+        "build_ms_max",
+        "first_build_ms",
+        "reps",
         "passes_ms",
         "nodes",
         "leaves",
@@ -337,6 +362,7 @@ fn build_gpu_bvhs_report_and_equal_their_twins() {
         assert_eq!(v["kind"], kind, "{v}");
         assert_eq!(v["equal_to_cpu_twin"], true, "{v}");
         assert_device_bytes(&v);
+        assert_repeated(&v);
     }
 }
 
@@ -346,6 +372,10 @@ fn build_sah_bvh_reports_and_equals_its_single_thread_build() {
         "kind",
         "primitives",
         "build_ms",
+        "build_ms_min",
+        "build_ms_max",
+        "first_build_ms",
+        "reps",
         "threads",
         "nodes",
         "leaves",
@@ -358,6 +388,7 @@ fn build_sah_bvh_reports_and_equals_its_single_thread_build() {
     };
     assert_eq!(v["kind"], "sah_bvh");
     assert_eq!(v["equal_to_single_thread"], true);
+    assert_repeated(&v);
     let (nodes, leaves) = (v["nodes"].as_u64().unwrap(), v["leaves"].as_u64().unwrap());
     assert!(leaves == nodes + 1 || (nodes, leaves) == (1, 1), "{v}");
 }

@@ -176,7 +176,16 @@ fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
         "submits",
         "trace_ms",
         "triangles",
+        // The median of 3 warm runs, their range, the first run apart.
+        "build_ms_max",
+        "build_ms_min",
+        "first_build_ms",
+        "first_trace_ms",
+        "reps",
+        "trace_ms_max",
+        "trace_ms_min",
     ];
+    want.sort();
     if two_levels {
         want.retain(|k| !["readback_bytes", "readback_bytes_total", "submits"].contains(k));
         want.extend([
@@ -236,6 +245,12 @@ fn round_trip(scene: &str, out_name: &str, extra: &[&str], opt: TraceOptions) {
     assert!(err.contains("warning: 5 of 3005 rays are invalid"), "{err}");
     assert!(v["trace_ms"].as_f64().unwrap() > 0.0, "{v}");
     assert!(v["mrays_per_s"].as_f64().unwrap() > 0.0, "{v}");
+    assert_eq!(v["reps"], 3, "{v}");
+    let f = |k: &str| v[k].as_f64().unwrap();
+    assert!(
+        f("trace_ms_min") <= f("trace_ms") && f("trace_ms") <= f("trace_ms_max"),
+        "{v}"
+    );
     let hits = read_hits(&out);
     assert_eq!(hits.len(), rays.len());
     let driver = extra.contains(&"driver");

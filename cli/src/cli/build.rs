@@ -6,7 +6,7 @@ use std::path::PathBuf;
 
 use clap::Args;
 
-use super::common::{context, extend_json, load_scene, AccelArg, CliResult};
+use super::common::{context, extend_json, load_scene, AccelArg, CliResult, Repeated};
 
 #[derive(Args)]
 pub struct BuildArgs {
@@ -25,6 +25,10 @@ pub struct BuildArgs {
     /// Kolodzey's (2014) termination: no SAH leaf test, leaves below 64 primitives.
     #[arg(long)]
     kolodzey_termination: bool,
+    /// Warm builds timed after the first (which compiles the driver's pipelines and is
+    /// reported apart): the times printed are their median.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..))]
+    reps: u32,
     #[arg(long)]
     json: bool,
 }
@@ -35,6 +39,7 @@ pub fn run(args: BuildArgs, validate: bool) -> CliResult<()> {
         accel,
         reference,
         kolodzey_termination,
+        reps,
         json,
     } = args;
     if accel == AccelArg::SahBvh {
@@ -45,7 +50,7 @@ pub fn run(args: BuildArgs, validate: bool) -> CliResult<()> {
                     .into(),
             );
         }
-        return bvh_build_command(&load_scene(&scene)?, reference, json);
+        return bvh_build_command(&load_scene(&scene)?, reference, reps, json);
     }
     let driver = match accel {
         AccelArg::Driver => Some(vkrt::accel::driver::Prefer::FastTrace),
@@ -62,7 +67,7 @@ pub fn run(args: BuildArgs, validate: bool) -> CliResult<()> {
         }
         let ctx = context(validate)?;
         let scene = load_scene(&scene)?;
-        return driver_build_command(&ctx, prefer, &scene, json);
+        return driver_build_command(&ctx, prefer, &scene, reps, json);
     }
     let gpu_bvh = match accel {
         AccelArg::Lbvh => Some(vkrt::accel::device::AccelKind::Lbvh),
@@ -79,10 +84,16 @@ pub fn run(args: BuildArgs, validate: bool) -> CliResult<()> {
         }
         let ctx = context(validate)?;
         let scene = load_scene(&scene)?;
-        return gpu_bvh_build_command(&ctx, kind, &scene, reference, json);
+        return gpu_bvh_build_command(&ctx, kind, &scene, (reference, reps), json);
     }
     // What is left is the kd-tree: clap refuses any other name.
-    kdtree_build_command(validate, &scene, (reference, kolodzey_termination), json)
+    kdtree_build_command(
+        validate,
+        &scene,
+        (reference, kolodzey_termination),
+        reps,
+        json,
+    )
 }
 
 /// `vkrt build --accel kdtree`: the SAH kd-tree built on the GPU over the scene's triangles
@@ -92,6 +103,7 @@ fn kdtree_build_command(
     validate: bool,
     scene: &Option<PathBuf>,
     (reference, kolodzey_termination): (bool, bool),
+    reps: u32,
     json: bool,
 ) -> CliResult<()> {
     let scene = load_scene(scene)?;
@@ -107,8 +119,9 @@ fn kdtree_build_command(
     }
     let ctx = context(validate)?;
     let before = device_bytes_start(&ctx);
-    let (report, _) =
-        vkrt::accel::kdtree::report::build_report(&ctx, &triangles, &params, reference)?;
+    let (report, _) = vkrt::accel::kdtree::report::build_report_repeated(
+        &ctx, &triangles, &params, reference, reps,
+    )?;
     if json {
         let mut v = serde_json::to_value(&report)?;
         extend_json(&mut v, device_bytes_json(&ctx, before, triangles.len()));
@@ -116,9 +129,19 @@ fn kdtree_build_command(
         extend_json(&mut v, levels_json(&ctx, kd, &scene)?);
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
+        let spread = match report.reps {
+            1 => format!(
+                "{:.2} ms (warm; the first {:.2})",
+                report.build_ms, report.first_build_ms
+            ),
+            n => format!(
+                "{:.2} ms (median of {n} warm builds, {:.2}–{:.2}; the first {:.2})",
+                report.build_ms, report.build_ms_min, report.build_ms_max, report.first_build_ms
+            ),
+        };
         println!(
-            "{} triangles: GPU build {:.2} ms in {} levels",
-            report.primitives, report.build_ms, report.levels
+            "{} triangles: GPU build {spread} in {} levels",
+            report.primitives, report.levels
         );
         for (phase, ms) in &report.phases {
             println!("  {phase:<16} {ms:>9.2} ms");
@@ -151,7 +174,12 @@ fn kdtree_build_command(
 
 /// `vkrt build --accel sah-bvh`: the parallel node-queue build on every core over the scene's
 /// primitives at the shutter-open time; with `reference`, also on one thread (must be equal).
-fn bvh_build_command(scene: &vkrt::scene::Scene, reference: bool, json: bool) -> CliResult<()> {
+fn bvh_build_command(
+    scene: &vkrt::scene::Scene,
+    reference: bool,
+    reps: u32,
+    json: bool,
+) -> CliResult<()> {
     use vkrt::accel::bvh::{self, validate, BvhParams, Threading};
     flat_on_host(scene)?;
     let g = vkrt::accel::primitives::TraceGeometry::at_time(scene, scene.camera.shutter_open);
@@ -161,7 +189,16 @@ fn bvh_build_command(scene: &vkrt::scene::Scene, reference: bool, json: bool) ->
         unreachable!("all_cores is the node queue")
     };
     let timed = |threading| bvh::build_timed(&g.boxes, &params, threading);
-    let (tree, build_ms) = timed(all_cores)?;
+    let mut times = Repeated::default();
+    let mut built = None;
+    for i in 0..=reps as usize {
+        // The previous tree goes before the next is built (the peak is one build).
+        drop(built.take());
+        let (tree, ms) = timed(all_cores)?;
+        times.push(i, ms);
+        built = Some(tree);
+    }
+    let tree = built.expect("built");
     validate::validate(&tree, &g.boxes).map_err(|e| format!("invalid BVH: {e}"))?;
     let single = if reference {
         Some(timed(Threading::Single)?)
@@ -173,7 +210,7 @@ fn bvh_build_command(scene: &vkrt::scene::Scene, reference: bool, json: bool) ->
     let mut report = serde_json::json!({
         "kind": "sah_bvh",
         "primitives": g.primitive_count(),
-        "build_ms": build_ms,
+        "reps": reps,
         "threads": threads,
         "scheme": "queue",
         "params": params,
@@ -181,12 +218,14 @@ fn bvh_build_command(scene: &vkrt::scene::Scene, reference: bool, json: bool) ->
         "single_thread_ms": single.as_ref().map(|(_, ms)| *ms),
     });
     report.as_object_mut().expect("an object").extend(shape);
+    extend_json(&mut report, times.json("build_ms"));
     if json {
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         println!(
-            "{} primitives: CPU build {build_ms:.2} ms on {threads} threads (node queue)",
-            g.primitive_count()
+            "{} primitives: CPU build {} on {threads} threads (node queue)",
+            g.primitive_count(),
+            times.text()
         );
         println!("{shape_line}");
         if let (Some((_, ms)), Some(eq)) = (&single, equal) {
@@ -206,7 +245,7 @@ fn gpu_bvh_build_command(
     ctx: &vkrt::gpu::Context,
     kind: vkrt::accel::device::AccelKind,
     scene: &vkrt::scene::Scene,
-    reference: bool,
+    (reference, reps): (bool, u32),
     json: bool,
 ) -> CliResult<()> {
     use vkrt::accel::bvh::{validate, BvhParams};
@@ -218,9 +257,14 @@ fn gpu_bvh_build_command(
     let g = vkrt::accel::primitives::TraceGeometry::at_time(scene, scene.camera.shutter_open);
     let builder = AccelBuilder::new(ctx, kind)?;
     let before = device_bytes_start(ctx);
-    // Once to compile and warm the pipelines, then the timed build.
+    // Once to compile and warm the pipelines, then the timed builds.
     let mut timed = None;
-    for _ in 0..2 {
+    let mut times = Repeated::default();
+    let mut pass_times: Vec<(&str, Vec<f64>)> = vkrt::accel::bvh::GPU_BUILD_PASSES
+        .iter()
+        .map(|p| (*p, Vec::new()))
+        .collect();
+    for i in 0..=reps as usize {
         // The previous build's buffers go before the next is made (the peak is one build).
         drop(timed.take());
         let mut rec = vkrt::gpu::Recorder::new(ctx)?;
@@ -231,18 +275,23 @@ fn gpu_bvh_build_command(
                 Err(flat) => return levels_only(ctx, kind, scene, flat, json),
             };
         let prof = rec.submit_and_wait()?;
-        timed = Some((dev, prof));
+        times.push(i, prof.ms("build").unwrap_or(0.0));
+        for (name, ms) in pass_times.iter_mut().filter(|_| i > 0) {
+            ms.extend(prof.ms(name));
+        }
+        timed = Some(dev);
     }
-    let (dev, prof) = timed.expect("built");
+    let dev = timed.expect("built");
     let HostStructure::Bvh(tree) = dev.structure().download()? else {
         unreachable!("a GPU BVH")
     };
     validate::validate(&tree, &g.boxes).map_err(|e| format!("invalid {}: {e}", kind.name()))?;
-    let passes: serde_json::Map<String, serde_json::Value> = vkrt::accel::bvh::GPU_BUILD_PASSES
+    // Each pass's median over the warm builds.
+    let passes: serde_json::Map<String, serde_json::Value> = pass_times
         .iter()
-        .filter_map(|p| Some((p.to_string(), prof.ms(p)?.into())))
+        .filter(|(_, ms)| !ms.is_empty())
+        .map(|(name, ms)| (name.to_string(), vkrt::gpu::Spread::of(ms).median.into()))
         .collect();
-    let build_ms = prof.ms("build").unwrap_or(0.0);
     let bits = builder.lbvh_bits();
     let ploc_params = builder.ploc_params();
     let twin = match reference {
@@ -263,12 +312,13 @@ fn gpu_bvh_build_command(
         "morton_bits": bits.spec(),
         "ploc_radius": ploc_params.map(|p| p.radius),
         "primitives": g.primitive_count(),
-        "build_ms": build_ms,
+        "reps": reps,
         "passes_ms": passes,
         "equal_to_cpu_twin": equal,
         "cpu_twin_ms": twin.as_ref().map(|(_, ms)| *ms),
     });
     report.as_object_mut().expect("an object").extend(shape);
+    extend_json(&mut report, times.json("build_ms"));
     extend_json(
         &mut report,
         device_bytes_json(ctx, before, g.primitive_count()),
@@ -278,13 +328,14 @@ fn gpu_bvh_build_command(
         println!("{}", serde_json::to_string_pretty(&report)?);
     } else {
         println!(
-            "{} primitives: {} GPU build {build_ms:.2} ms ({}-bit Morton codes)",
+            "{} primitives: {} GPU build {} ({}-bit Morton codes)",
             g.primitive_count(),
             kind.name(),
+            times.text(),
             bits.spec()
         );
         for (name, ms) in &passes {
-            println!("  {name:<12} {ms} ms");
+            println!("  {name:<12} {:.3} ms", ms.as_f64().unwrap_or(0.0));
         }
         println!("{shape_line}");
         if let (Some((_, ms)), Some(eq)) = (&twin, equal) {
@@ -304,6 +355,7 @@ fn driver_build_command(
     ctx: &vkrt::gpu::Context,
     prefer: vkrt::accel::driver::Prefer,
     scene: &vkrt::scene::Scene,
+    reps: u32,
     json: bool,
 ) -> CliResult<()> {
     use vkrt::accel::device::{AccelBuilder, AccelChoice, DevicePrimitives};
@@ -315,7 +367,8 @@ fn driver_build_command(
     let prims = DevicePrimitives::upload(ctx, &g)?;
     let sizes = DriverAccel::sizes(ctx, &DriverInput::counts(&prims), prefer, false)?;
     let mut timed = None;
-    for _ in 0..2 {
+    let (mut times, mut walls) = (Repeated::default(), Repeated::default());
+    for i in 0..=reps as usize {
         // The previous build's buffers go before the next is made (the peak is one build).
         drop(timed.take());
         let (mut accel, scratch) = builder.create(ctx, prims.count(), 0)?;
@@ -325,29 +378,32 @@ fn driver_build_command(
         })?;
         let t = std::time::Instant::now();
         let prof = rec.submit_and_wait()?;
-        timed = Some((prof, t.elapsed().as_secs_f64() * 1e3));
+        walls.push(i, t.elapsed().as_secs_f64() * 1e3);
+        times.push(i, prof.ms("build").unwrap_or(0.0));
+        timed = Some((accel, scratch));
     }
-    let (prof, wall_ms) = timed.expect("built");
-    let build_ms = prof.ms("build").unwrap_or(0.0);
+    drop(timed);
     if json {
-        let v = serde_json::json!({
+        let mut v = serde_json::json!({
             "kind": "driver",
             "prefer": prefer,
             "primitives": g.primitive_count(),
-            "build_ms": build_ms,
-            "submit_wall_ms": wall_ms,
+            "reps": reps,
+            "submit_wall_ms": walls.spread().median,
             "bytes": sizes.structure_bytes,
             "build_scratch_bytes": sizes.build_scratch_bytes,
         });
-        let mut v = v;
+        extend_json(&mut v, times.json("build_ms"));
         extend_json(&mut v, device_bytes_json(ctx, before, g.primitive_count()));
         println!("{}", serde_json::to_string_pretty(&v)?);
     } else {
         println!(
-            "{} primitives: driver build ({}) {build_ms:.2} ms on the GPU, submission \
-             {wall_ms:.2} ms wall; {} bytes, {} bytes of scratch",
+            "{} primitives: driver build ({}) {} on the GPU, submission {:.2} ms wall \
+             (median); {} bytes, {} bytes of scratch",
             g.primitive_count(),
             prefer.name(),
+            times.text(),
+            walls.spread().median,
             sizes.structure_bytes,
             sizes.build_scratch_bytes
         );

@@ -253,3 +253,52 @@ pub fn extend_json(v: &mut serde_json::Value, more: serde_json::Value) {
         v.extend(more);
     }
 }
+
+/// A time measured over repeats: the first run apart (a driver compiles a pipeline at its
+/// first dispatch, caches are cold), then the warm runs, whose median is what the command
+/// reports and the benches measure.
+#[derive(Clone, Debug, Default)]
+pub struct Repeated {
+    /// The first run's milliseconds.
+    pub first: f64,
+    /// The warm runs' milliseconds, in order.
+    pub warm: Vec<f64>,
+}
+
+impl Repeated {
+    /// Adds run `i`'s milliseconds (run 0 is the first).
+    pub fn push(&mut self, i: usize, ms: f64) {
+        match i {
+            0 => self.first = ms,
+            _ => self.warm.push(ms),
+        }
+    }
+
+    /// The warm runs' median, fastest and slowest.
+    pub fn spread(&self) -> vkrt::gpu::Spread {
+        vkrt::gpu::Spread::of(&self.warm)
+    }
+
+    /// `{key}` (the warm median), `{key}_min`, `{key}_max` and `first_{key}`.
+    pub fn json(&self, key: &str) -> serde_json::Value {
+        let s = self.spread();
+        let mut v = serde_json::Map::new();
+        v.insert(key.into(), s.median.into());
+        v.insert(format!("{key}_min"), s.min.into());
+        v.insert(format!("{key}_max"), s.max.into());
+        v.insert(format!("first_{key}"), self.first.into());
+        serde_json::Value::Object(v)
+    }
+
+    /// "12.34 ms (median of 3 warm runs, 11.90–13.02; the first 40.10)".
+    pub fn text(&self) -> String {
+        let s = self.spread();
+        match s.count {
+            1 => format!("{:.2} ms (warm; the first {:.2})", s.median, self.first),
+            n => format!(
+                "{:.2} ms (median of {n} warm runs, {:.2}–{:.2}; the first {:.2})",
+                s.median, s.min, s.max, self.first
+            ),
+        }
+    }
+}

@@ -6,7 +6,8 @@ use std::path::PathBuf;
 use clap::Args;
 
 use super::common::{
-    context, extend_json, load_scene, memory_json, CliResult, IntersectorArg, StructureArgs,
+    context, extend_json, load_scene, memory_json, CliResult, IntersectorArg, Repeated,
+    StructureArgs,
 };
 
 #[derive(Args)]
@@ -31,6 +32,11 @@ pub struct TraceArgs {
     batch_rays: Option<usize>,
     #[command(flatten)]
     structure: StructureArgs,
+    /// Warm runs (build and trace) timed after the first, which compiles the driver's
+    /// pipelines and is reported apart: the times printed are their median, and every run
+    /// must give the first run's hits.
+    #[arg(long, default_value_t = 3, value_parser = clap::value_parser!(u32).range(1..))]
+    reps: u32,
     #[arg(long)]
     json: bool,
 }
@@ -44,6 +50,7 @@ pub fn run(args: TraceArgs, validate: bool) -> CliResult<()> {
         intersector,
         batch_rays,
         structure,
+        reps,
         json,
     } = args;
     let opt = vkrt::trace::TraceOptions {
@@ -61,7 +68,7 @@ pub fn run(args: TraceArgs, validate: bool) -> CliResult<()> {
         &rays,
         output.as_deref(),
         (&opt, structure),
-        batch_rays,
+        (batch_rays, reps),
         json,
     )
 }
@@ -74,7 +81,7 @@ fn trace_command(
     rays_path: &std::path::Path,
     out: Option<&std::path::Path>,
     (opt, structure): (&vkrt::trace::TraceOptions, StructureArgs),
-    batch_rays: Option<usize>,
+    (batch_rays, reps): (Option<usize>, u32),
     json: bool,
 ) -> CliResult<()> {
     use vkrt::accel::primitives::TraceGeometry;
@@ -109,7 +116,25 @@ fn trace_command(
         // The bottom levels hold what the walk reads: the scene and each level's host copy
         // go before the device copies grow.
         drop(scene);
+        let mut runs = Runs::default();
+        for i in 0..reps as usize {
+            let done = instanced::build_and_trace(&ctx, accel, opt, &two, &rays, time)?;
+            runs.record(
+                i,
+                done.bottom_build_ms + done.top_build_ms,
+                done.trace_ms,
+                &done.hits,
+            )?;
+        }
+        // The last run takes the scene: each bottom level's host copy goes once it is built.
         let done = instanced::build_and_trace_owned(&ctx, accel, opt, two, &rays, time)?;
+        let last = reps as usize;
+        runs.record(
+            last,
+            done.bottom_build_ms + done.top_build_ms,
+            done.trace_ms,
+            &done.hits,
+        )?;
         let mut extra = extra;
         extend_json(
             &mut extra,
@@ -127,8 +152,7 @@ fn trace_command(
         };
         let report = TraceReport {
             accel,
-            build_ms: done.bottom_build_ms + done.top_build_ms,
-            trace_ms: done.trace_ms,
+            runs,
             attempts: 1,
             traffic: None,
             extra,
@@ -143,11 +167,20 @@ fn trace_command(
     let tracer = gpu::Tracer::for_accel(&ctx, opt, accel.traversal())?;
     // Upload, build and the first batch's trace in one submission; nothing read back
     // between build and trace.
-    let done = gpu::build_and_trace(&ctx, &builder, &tracer, &geometry, &rays, 0.0, batch_rays)?;
+    let mut runs = Runs::default();
+    let mut last = None;
+    for i in 0..=reps as usize {
+        drop(last.take());
+        let done =
+            gpu::build_and_trace(&ctx, &builder, &tracer, &geometry, &rays, 0.0, batch_rays)?;
+        let trace_ms = done.batch.profile.ms("trace").unwrap_or(0.0);
+        runs.record(i, done.build_ms, trace_ms, &done.batch.hits)?;
+        last = Some(done);
+    }
+    let done = last.expect("traced");
     let report = TraceReport {
         accel,
-        build_ms: done.build_ms,
-        trace_ms: done.batch.profile.ms("trace").unwrap_or(0.0),
+        runs,
         attempts: done.attempts,
         traffic: Some((
             done.traffic.submits,
@@ -161,11 +194,52 @@ fn trace_command(
     report_trace(&rays, &done.batch, out, report, json)
 }
 
+/// The build and trace times of repeated runs, and the first run's hits, which every later
+/// run must give.
+#[derive(Default)]
+struct Runs {
+    builds: Repeated,
+    traces: Repeated,
+    first_hits: Option<Vec<vkrt::trace::Hit>>,
+}
+
+impl Runs {
+    /// Run `i`'s times and hits (run 0 is the first).
+    fn record(
+        &mut self,
+        i: usize,
+        build_ms: f64,
+        trace_ms: f64,
+        hits: &[vkrt::trace::Hit],
+    ) -> CliResult<()> {
+        self.builds.push(i, build_ms);
+        self.traces.push(i, trace_ms);
+        let Some(first) = &self.first_hits else {
+            self.first_hits = Some(hits.to_vec());
+            return Ok(());
+        };
+        // Bit for bit: a NaN field is the same NaN.
+        let differ = first
+            .iter()
+            .zip(hits)
+            .filter(|(a, b)| bytemuck::bytes_of(*a) != bytemuck::bytes_of(*b))
+            .count();
+        if differ > 0 || first.len() != hits.len() {
+            return Err(format!(
+                "run {} gave {differ} hits other than the first run's: the build or the walk \
+                 is not deterministic",
+                i + 1
+            )
+            .into());
+        }
+        Ok(())
+    }
+}
+
 /// What `vkrt trace` prints besides the hits.
 struct TraceReport {
     accel: vkrt::accel::device::AccelChoice,
-    build_ms: f64,
-    trace_ms: f64,
+    runs: Runs,
     attempts: u32,
     /// Submissions, bytes read back before the trace and in all (the flat path's).
     traffic: Option<(u64, u64, u64)>,
@@ -212,7 +286,7 @@ fn report_trace(
         vkrt::gpu::write_atomically(out, &files::encode_hits(out, &batch.hits))?;
     }
     let hits = batch.hits.iter().filter(|h| h.is_hit()).count();
-    let trace_ms = r.trace_ms;
+    let trace_ms = r.runs.traces.spread().median;
     let mrays_per_s = if trace_ms > 0.0 {
         rays.len() as f64 / (trace_ms * 1e3)
     } else {
@@ -230,11 +304,12 @@ fn report_trace(
                 .collect::<serde_json::Map<_, _>>(),
             "exhausted": batch.exhausted,
             "accel": r.accel.label(),
-            "build_ms": r.build_ms,
             "build_attempts": r.attempts,
-            "trace_ms": trace_ms,
+            "reps": r.runs.traces.warm.len(),
             "mrays_per_s": mrays_per_s,
         });
+        extend_json(&mut v, r.runs.builds.json("build_ms"));
+        extend_json(&mut v, r.runs.traces.json("trace_ms"));
         if let Some((submits, before, total)) = r.traffic {
             extend_json(
                 &mut v,
@@ -257,6 +332,11 @@ fn report_trace(
             trace_ms,
             mrays_per_s,
             r.summary
+        );
+        println!(
+            "build {}; trace {}",
+            r.runs.builds.text(),
+            r.runs.traces.text()
         );
         if let Some(out) = out {
             println!("wrote {}", out.display());

@@ -10,7 +10,7 @@ use serde::Serialize;
 
 use super::gpu::KdTreeBuilder;
 use super::{breadth_first, full_clip, stats, SahParams};
-use crate::gpu::{Context, Profile, Result};
+use crate::gpu::{Context, Profile, Result, Spread};
 
 /// The phases of Kolodzey (2014) as profiler scopes (summed over all levels).
 pub const PHASES: [&str; 5] = [
@@ -26,11 +26,22 @@ pub const PHASES: [&str; 5] = [
 pub struct BuildReport {
     /// Input triangles.
     pub primitives: u32,
-    /// GPU milliseconds of the whole build (timestamps), buffers warm: a second build into
-    /// the same buffers, as a renderer rebuilding every frame sees it.
+    /// GPU milliseconds of the whole build (timestamps), buffers warm: the median of
+    /// `reps` builds into the same buffers after the first, as a renderer rebuilding every
+    /// frame sees it.
     pub build_ms: f64,
+    /// The fastest and slowest of the warm builds.
+    pub build_ms_min: f64,
+    /// See [`BuildReport::build_ms_min`].
+    pub build_ms_max: f64,
+    /// The first build's GPU milliseconds (its pipelines compiled at their first dispatch
+    /// on a driver that compiles then; its successful attempt where the capacity grew).
+    pub first_build_ms: f64,
+    /// Warm builds timed.
+    pub reps: u32,
     /// GPU milliseconds per phase, summed over the levels (levels past the last one with
-    /// nodes are recorded too and dispatch nothing; their barriers still cost a little).
+    /// nodes are recorded too and dispatch nothing; their barriers still cost a little):
+    /// each phase's median over the warm builds.
     pub phases: BTreeMap<String, f64>,
     /// Levels that had nodes.
     pub levels: u32,
@@ -64,25 +75,57 @@ pub struct BuildReport {
     pub full_clip_ms: Option<f64>,
 }
 
-/// Builds `triangles` on the GPU (and with `reference` on the CPU twice) and reports.
+/// Builds `triangles` on the GPU (and with `reference` on the CPU twice) and reports: the
+/// first build, then one timed warm build.
 pub fn build_report(
     ctx: &Context,
     triangles: &[[Vec3; 3]],
     params: &SahParams,
     reference: bool,
 ) -> Result<(BuildReport, Profile)> {
+    build_report_repeated(ctx, triangles, params, reference, 1)
+}
+
+/// [`build_report`] with `reps` (at least 1) timed warm builds after the first: the times
+/// are their medians. The profile is the last build's.
+pub fn build_report_repeated(
+    ctx: &Context,
+    triangles: &[[Vec3; 3]],
+    params: &SahParams,
+    reference: bool,
+    reps: u32,
+) -> Result<(BuildReport, Profile)> {
     let builder = KdTreeBuilder::new(ctx)?;
     let capacity = super::gpu::BuildCapacity::for_primitives(triangles.len());
     let result = builder.build_from(ctx, triangles, params, capacity)?;
     let s = stats::stats(&result.tree, params);
-    let timed = builder.timed_build(ctx, triangles, params, result.capacity)?;
-    let ms = |name: &str| timed.ms(name).unwrap_or(0.0);
+    let whole =
+        |p: &Profile| p.ms("kdtree.phase1").unwrap_or(0.0) + p.ms("kdtree.phase2").unwrap_or(0.0);
+    let mut builds = Vec::new();
+    let mut phases: BTreeMap<String, Vec<f64>> = BTreeMap::new();
+    let mut timed = Profile::default();
+    for _ in 0..reps.max(1) {
+        timed = builder.timed_build(ctx, triangles, params, result.capacity)?;
+        builds.push(whole(&timed));
+        for p in PHASES {
+            let name = p.trim_start_matches("kdtree.").to_string();
+            phases
+                .entry(name)
+                .or_default()
+                .push(timed.ms(p).unwrap_or(0.0));
+        }
+    }
+    let spread = Spread::of(&builds);
     let mut report = BuildReport {
         primitives: triangles.len() as u32,
-        build_ms: ms("kdtree.phase1") + ms("kdtree.phase2"),
-        phases: PHASES
-            .iter()
-            .map(|p| (p.trim_start_matches("kdtree.").to_string(), ms(p)))
+        build_ms: spread.median,
+        build_ms_min: spread.min,
+        build_ms_max: spread.max,
+        first_build_ms: whole(&result.profile),
+        reps: builds.len() as u32,
+        phases: phases
+            .into_iter()
+            .map(|(name, ms)| (name, Spread::of(&ms).median))
             .collect(),
         levels: result.levels,
         nodes: s.nodes,
