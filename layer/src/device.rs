@@ -14,6 +14,14 @@ use crate::{
     HandleMap,
 };
 
+/// Logged once per device whose driver ends all of an invocation's loops after a budget of
+/// iterations in all (llvmpipe before Mesa 25): an app's own loops can be cut short.
+const LOOP_BUDGET_WARNING: &str = "warning: the driver ends all of an \
+    invocation's loops once they have run a budget of iterations in all (llvmpipe before \
+    Mesa 25): ray queries walk with a flat loop, about one iteration per node visit, pop and \
+    primitive, so a shader that traces thousands of rays per invocation can still have its \
+    own loops cut short, silently, and a query it cuts ends early";
+
 /// What the layer keeps of a device.
 pub struct LayerDevice {
     pub next_gdpa: vk::PFN_vkGetDeviceProcAddr,
@@ -228,6 +236,12 @@ unsafe fn create(
             return vk::Result::ERROR_FEATURE_NOT_PRESENT;
         }
     };
+    if let Some(budget) = ctx.info().loop_budget {
+        log(&format!(
+            "{LOOP_BUDGET_WARNING} ({}: {budget} iterations)",
+            ctx.info().device
+        ));
+    }
     let served = Served {
         fns: fns.clone(),
         ctx,
