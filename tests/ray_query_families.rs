@@ -506,48 +506,33 @@ fn ray_query_families_agree_with_the_driver_s_answers() {
         }
         let recorded_path = data_dir().join(format!("{name}.results"));
         // The same shader without the include, its SPIR-V lowered by the pass: the same
-        // walk, so the same answers.
+        // walk, so the same answers, with either loop the pass links.
         let (native_words, _) = compiled.native.as_ref().unwrap();
-        let (lowered, lowered_iface) =
-            lower_shader(&shader, native_words).unwrap_or_else(|e| panic!("{name}: {e}"));
-        let passed = run_vkrt(
-            &ctx,
-            &levels,
-            lbvh(Traversal::Stack),
-            (&lowered, &lowered_iface),
-            rays,
-        )
-        .unwrap()
-        .results;
-        let differ = mismatches(&vkrt, &passed);
-        assert!(
-            differ.is_empty(),
-            "{name}: {} rays differ between the include and the SPIR-V pass, first {:x?}",
-            differ.len(),
-            &differ[..differ.len().min(3)]
-        );
-        // (`lower_shader` links the nested walk; this one the loop-budget walk.)
-        let options = LowerOptions {
-            loop_budget: true,
-            ..LowerOptions::default()
-        };
-        let (other, other_iface) = lower_shader_with(&shader, native_words, &options).unwrap();
-        let passed = run_vkrt(
-            &ctx,
-            &levels,
-            lbvh(Traversal::Stack),
-            (&other, &other_iface),
-            rays,
-        )
-        .unwrap()
-        .results;
-        let differ = mismatches(&vkrt, &passed);
-        assert!(
-            differ.is_empty(),
-            "{name}: {} rays differ through the pass's loop-budget walk, first {:x?}",
-            differ.len(),
-            &differ[..differ.len().min(3)]
-        );
+        for loop_budget in [false, true] {
+            let options = LowerOptions {
+                loop_budget,
+                ..LowerOptions::default()
+            };
+            let (lowered, lowered_iface) = lower_shader_with(&shader, native_words, &options)
+                .unwrap_or_else(|e| panic!("{name}: {e}"));
+            let passed = run_vkrt(
+                &ctx,
+                &levels,
+                lbvh(Traversal::Stack),
+                (&lowered, &lowered_iface),
+                rays,
+            )
+            .unwrap()
+            .results;
+            let differ = mismatches(&vkrt, &passed);
+            assert!(
+                differ.is_empty(),
+                "{name}: {} rays differ between the include and the SPIR-V pass \
+                 (loop_budget: {loop_budget}), first {:x?}",
+                differ.len(),
+                &differ[..differ.len().min(3)]
+            );
+        }
         if let Some((spirv, iface)) = compiled.native.as_ref().filter(|_| native) {
             let driver = run_driver(&ctx, &levels, (spirv, iface), rays)
                 .unwrap()
