@@ -425,6 +425,18 @@ fn families() -> Vec<(&'static str, &'static str, String)> {
     ]
 }
 
+/// Fails, naming how many rays and the first three, where the records of `a` and `b`
+/// differ (`shader_check::records_agree`).
+fn assert_agree(a: &[[u32; 4]], b: &[[u32; 4]], what: std::fmt::Arguments) {
+    let differ = mismatches(a, b);
+    assert!(
+        differ.is_empty(),
+        "{what}: {} rays, first {:x?}",
+        differ.len(),
+        &differ[..differ.len().min(3)]
+    );
+}
+
 fn data_dir() -> PathBuf {
     Path::new(env!("CARGO_MANIFEST_DIR")).join("tests/data/ray_query")
 }
@@ -496,12 +508,12 @@ fn ray_query_families_agree_with_the_driver_s_answers() {
             )
             .unwrap()
             .results;
-            let differ = mismatches(&vkrt, &other);
-            assert!(
-                differ.is_empty(),
-                "{name}: {} rays differ between the nested and the loop-budget walk ({walk:?}), first {:x?}",
-                differ.len(),
-                &differ[..differ.len().min(3)]
+            assert_agree(
+                &vkrt,
+                &other,
+                format_args!(
+                    "{name}: rays differ between the nested and the loop-budget walk ({walk:?})"
+                ),
             );
         }
         let recorded_path = data_dir().join(format!("{name}.results"));
@@ -524,25 +536,23 @@ fn ray_query_families_agree_with_the_driver_s_answers() {
             )
             .unwrap()
             .results;
-            let differ = mismatches(&vkrt, &passed);
-            assert!(
-                differ.is_empty(),
-                "{name}: {} rays differ between the include and the SPIR-V pass \
-                 (loop_budget: {loop_budget}), first {:x?}",
-                differ.len(),
-                &differ[..differ.len().min(3)]
+            assert_agree(
+                &vkrt,
+                &passed,
+                format_args!(
+                    "{name}: rays differ between the include and the SPIR-V pass \
+                 (loop_budget: {loop_budget})"
+                ),
             );
         }
         if let Some((spirv, iface)) = compiled.native.as_ref().filter(|_| native) {
             let driver = run_driver(&ctx, &levels, (spirv, iface), rays)
                 .unwrap()
                 .results;
-            let differ = mismatches(&driver, &vkrt);
-            assert!(
-                differ.is_empty(),
-                "{name}: {} rays differ from the driver's, first {:x?}",
-                differ.len(),
-                &differ[..differ.len().min(3)]
+            assert_agree(
+                &driver,
+                &vkrt,
+                format_args!("{name}: rays differ from the driver's"),
             );
             if record {
                 std::fs::create_dir_all(data_dir()).unwrap();
@@ -552,12 +562,10 @@ fn ray_query_families_agree_with_the_driver_s_answers() {
         let recorded = read_results(&recorded_path).unwrap_or_else(|| {
             panic!("{name}: no recorded answers at {}", recorded_path.display())
         });
-        let differ = mismatches(&recorded, &vkrt);
-        assert!(
-            differ.is_empty(),
-            "{name}: {} rays differ from the answers Mesa 25.0.7's ray query recorded, first {:x?}",
-            differ.len(),
-            &differ[..differ.len().min(3)]
+        assert_agree(
+            &recorded,
+            &vkrt,
+            format_args!("{name}: rays differ from the answers Mesa 25.0.7's ray query recorded"),
         );
         // Each family must say something: beyond its most common answer (a miss, mostly),
         // a tenth of its rays answer otherwise.
