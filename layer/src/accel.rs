@@ -380,9 +380,13 @@ fn bottom_shapes(
                 // SAFETY: the geometry type says which member holds.
                 let t = unsafe { g.geometry.triangles };
                 let index_type = index_type(t.index_type)?;
+                let format = vertex_format(t.vertex_format)?;
                 Ok(GeometryShape::Triangles {
-                    format: vertex_format(t.vertex_format)?,
-                    stride: t.vertex_stride,
+                    format,
+                    // Sizes come from counts, and applications ask for them before they
+                    // know their strides (wgpu passes 0, which the specification allows):
+                    // the least stride stands in; the build checks the real one.
+                    stride: format.bytes(),
                     vertex_count: match index_type {
                         Some(_) => t.max_vertex.saturating_add(1),
                         None => count.saturating_mul(3),
@@ -394,9 +398,9 @@ fn bottom_shapes(
             }
             vk::GeometryTypeKHR::AABBS => {
                 // SAFETY: as above.
-                let a = unsafe { g.geometry.aabbs };
                 Ok(GeometryShape::Aabbs {
-                    stride: a.stride,
+                    // As for triangles: the build checks the stride.
+                    stride: 24,
                     count,
                     opaque: opaque(g),
                 })

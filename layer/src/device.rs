@@ -10,7 +10,7 @@ use ash::vk::Handle;
 use crate::instance::{self, LayerInstance, PROVIDED};
 use crate::loader::{self, LayerDeviceCreateInfo};
 use crate::{
-    accel, commands, deferred, descriptors, guard, log, memory, pfn, queries, shaders, sync,
+    accel, commands, debug, deferred, descriptors, guard, log, memory, pfn, queries, shaders, sync,
     HandleMap,
 };
 
@@ -79,7 +79,8 @@ pub fn intercepted(name: &CStr) -> vk::PFN_vkVoidFunction {
             .or_else(|| descriptors::function(n))
             .or_else(|| shaders::function(n))
             .or_else(|| sync::function(n))
-            .or_else(|| queries::function(n)),
+            .or_else(|| queries::function(n))
+            .or_else(|| debug::function(n)),
     }
 }
 

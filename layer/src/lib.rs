@@ -16,12 +16,14 @@
 //!   (`commands`);
 //! - shader modules go through `vkrt::spirv::lower_ray_queries` (`shaders`), and
 //!   acceleration-structure descriptors become the uniform texel buffers the lowered
-//!   shaders read (`descriptors`).
+//!   shaders read (`descriptors`);
+//! - debug names of the layer's own handles stop at the layer (`debug`).
 //!
 //! Every entry point catches panics (`guard`): none crosses into the loader.
 
 mod accel;
 mod commands;
+mod debug;
 mod deferred;
 mod descriptors;
 mod device;
