@@ -604,10 +604,12 @@ unsafe extern "system" fn cmd_build(
                 std::slice::from_raw_parts(ranges, count as usize),
             )
         };
+        let before = s.ctx.traffic();
         // SAFETY: the application's command buffer, recording, outside a render pass (the
         // extension's rules for builds); what it binds lives until the command buffer is
-        // reset or freed, when the layer completes the work (`commands`).
-        let mut rec = match unsafe { Recorder::from_raw(&s.ctx, cb, 0) } {
+        // reset or freed, when the layer completes the work (`commands`); the cache's sets
+        // of a buffer are freed only when the application destroys it (`memory`).
+        let mut rec = match unsafe { Recorder::from_raw_with(&s.ctx, cb, &s.bindings) } {
             Ok(r) => r,
             Err(e) => return log(&format!("vkCmdBuildAccelerationStructuresKHR: {e}")),
         };
@@ -628,6 +630,7 @@ unsafe extern "system" fn cmd_build(
             Ok(work) => commands::keep(&s, cb, work),
             Err(e) => log(&format!("vkCmdBuildAccelerationStructuresKHR: {e}")),
         }
+        crate::stats("vkCmdBuildAccelerationStructuresKHR", &s.ctx, before);
         commands::restore(&s, cb);
     })
 }
@@ -935,8 +938,9 @@ unsafe extern "system" fn cmd_copy(
                 ))
             }
         }
+        let before = s.ctx.traffic();
         // SAFETY: the application's command buffer, recording, outside a render pass.
-        let mut rec = match unsafe { Recorder::from_raw(&s.ctx, cb, 0) } {
+        let mut rec = match unsafe { Recorder::from_raw_with(&s.ctx, cb, &s.bindings) } {
             Ok(r) => r,
             Err(e) => return log(&format!("{call}: {e}")),
         };
@@ -947,6 +951,7 @@ unsafe extern "system" fn cmd_copy(
             Ok(work) => commands::keep(&s, cb, work),
             Err(e) => log(&format!("{call}: {e}")),
         }
+        crate::stats(call, &s.ctx, before);
         commands::restore(&s, cb);
     })
 }

@@ -46,6 +46,11 @@ pub struct Served {
     pub sync2: sync::Sync2Fns,
     /// The descriptor entry points the layer translates that a device may lack.
     pub descriptor_fns: descriptors::DescriptorFns,
+    /// The descriptor sets and texel views of vkrt's kernels over the application's
+    /// buffers, made by the first build over a range and bound by every later one (a
+    /// structure rebuilt or updated in place with the same scratch records no new object);
+    /// a buffer's are freed when the application destroys it (`memory`).
+    pub bindings: vkrt::gpu::BindingCache,
 }
 
 static DEVICES: LazyLock<RwLock<HandleMap<usize, Arc<LayerDevice>>>> =
@@ -243,6 +248,7 @@ unsafe fn create(
             ctx.info().device
         ));
     }
+    let bindings = vkrt::gpu::BindingCache::new(&ctx);
     let served = Served {
         fns: fns.clone(),
         ctx,
@@ -254,6 +260,7 @@ unsafe fn create(
         sync2: unsafe { sync::Sync2Fns::load(next_gdpa, device) },
         // SAFETY: as above.
         descriptor_fns: unsafe { descriptors::DescriptorFns::load(next_gdpa, device) },
+        bindings,
     };
     let served = Arc::new(served);
     let warm = served.clone();

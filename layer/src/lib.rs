@@ -45,6 +45,23 @@ pub const LAYER_NAME: &CStr = c"VK_LAYER_VKRT_ray_query";
 /// The environment variable that turns the layer on where the driver has ray query.
 pub const FORCE_VARIABLE: &str = "VKRT_LAYER_FORCE";
 
+/// The environment variable that makes the layer say, after each command it records for
+/// vkrt, how many Vulkan objects vkrt created while recording it (`1`).
+pub const STATS_VARIABLE: &str = "VKRT_LAYER_STATS";
+
+/// Logs (where [`STATS_VARIABLE`] is `1`) the objects `ctx` created since `before` while
+/// `call` was recorded.
+pub(crate) fn stats(call: &str, ctx: &vkrt::Context, before: vkrt::gpu::Traffic) {
+    static ON: std::sync::LazyLock<bool> =
+        std::sync::LazyLock::new(|| std::env::var(STATS_VARIABLE).is_ok_and(|v| v.trim() == "1"));
+    if *ON {
+        let created = (ctx.traffic() - before).objects_created;
+        log(&format!(
+            "stats: {call}: {created} objects created while recording"
+        ));
+    }
+}
+
 /// Runs `f`, turning a panic into `fallback` and a log line: no panic unwinds into the
 /// loader or the application.
 pub(crate) fn guard<R>(fallback: R, f: impl FnOnce() -> R) -> R {

@@ -110,6 +110,9 @@ unsafe extern "system" fn destroy_buffer(
 ) {
     guard((), || {
         let Some(s) = served(device) else { return };
+        // SAFETY: the application may destroy `buffer` only once no pending work uses it,
+        // vkrt's builds over it included.
+        unsafe { s.bindings.forget(buffer) };
         if let Ok(mut b) = s.buffers.lock() {
             b.created.remove(&buffer);
             if let Some((address, _)) = b.bound.remove(&buffer) {

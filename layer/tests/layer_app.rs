@@ -122,6 +122,11 @@ fn manifest_dir() -> PathBuf {
 
 /// Runs the child in `mode` and returns what it wrote, and its standard error.
 fn run_child(mode: &str, through: Through) -> (String, String) {
+    run_child_with(mode, through, &[])
+}
+
+/// [`run_child`] with `env` set in the child's environment.
+fn run_child_with(mode: &str, through: Through, env: &[(&str, &str)]) -> (String, String) {
     static RUNS: std::sync::atomic::AtomicU32 = std::sync::atomic::AtomicU32::new(0);
     let run = RUNS.fetch_add(1, std::sync::atomic::Ordering::Relaxed);
     let out = PathBuf::from(env!("CARGO_TARGET_TMPDIR")).join(format!(
@@ -139,7 +144,8 @@ fn run_child(mode: &str, through: Through) -> (String, String) {
         .env("VKRT_LAYER_APP_OUT", &out)
         .env_remove("VK_INSTANCE_LAYERS")
         .env_remove("VK_LOADER_LAYERS_ENABLE")
-        .env_remove("VKRT_LAYER_FORCE");
+        .env_remove("VKRT_LAYER_FORCE")
+        .envs(env.iter().copied());
     match through {
         Through::Native => {}
         Through::Layer { force } => {
@@ -401,12 +407,12 @@ fn agree(a: &Hit, b: &Hit) -> bool {
 fn check_against_reference(what: &str, frames: &[Vec<Hit>]) -> usize {
     assert_eq!(
         frames.len(),
-        3,
-        "{what}: two frames and the fragment shader's pass"
+        4,
+        "{what}: three frames and the fragment shader's pass"
     );
     let mut hits = 0;
     for (f, hits_f) in frames.iter().enumerate() {
-        // The fragment shader traces the second frame's scene.
+        // The third frame and the fragment shader trace the second frame's scene.
         let want = reference(f.min(1) as u32);
         assert_eq!(hits_f.len(), want.len());
         let mut wrong = Vec::new();
@@ -497,6 +503,47 @@ fn the_app_traces_through_the_layer_as_the_reference_says_with_validation_below(
     assert_eq!(seen(&|h| h.geometry), [0, 1]);
 }
 
+/// An embedder's command buffer is the embedder's: once a structure has been built or
+/// updated over the same ranges, recording it again creates no Vulkan object (vkrt's
+/// descriptor sets come from the layer's cache, made by the first recording).
+#[test]
+fn an_update_repeated_in_place_records_no_new_object() {
+    let (_, stderr) = run_child_with(
+        "off",
+        Through::Layer {
+            force: driver_has_ray_query(),
+        },
+        &[(vkrt_layer::STATS_VARIABLE, "1")],
+    );
+    let created: Vec<(String, u64)> = stderr
+        .lines()
+        .filter_map(|l| l.strip_prefix("vkrt layer: stats: "))
+        .map(|l| {
+            let (call, rest) = l.split_once(": ").unwrap();
+            (
+                call.to_string(),
+                rest.split(' ').next().unwrap().parse().unwrap(),
+            )
+        })
+        .collect();
+    let builds: Vec<u64> = created
+        .iter()
+        .filter(|(c, _)| c == "vkCmdBuildAccelerationStructuresKHR")
+        .map(|&(_, n)| n)
+        .collect();
+    // Per frame a bottom-level call and a top-level call: build, update, the same update.
+    assert_eq!(builds.len(), 6, "{created:?}");
+    assert!(
+        builds[0] > 0,
+        "the first build made no descriptor set: {created:?}"
+    );
+    assert_eq!(
+        builds[4..],
+        [0, 0],
+        "the repeated update created objects: {created:?}"
+    );
+}
+
 #[test]
 fn validation_above_the_layer_is_silent_about_the_apps_use_of_the_extensions() {
     let frames = run_validated(
@@ -526,7 +573,7 @@ fn the_drivers_own_ray_query_gives_what_the_layer_gives() {
     let (layered, _) = run_child("off", Through::Layer { force: true });
     let (layered, _) = parse(&layered);
     let mut differ = 0;
-    for f in 0..3 {
+    for f in 0..4 {
         let want = reference(f.min(1) as u32);
         for ((a, b), (_, ambiguous)) in native[f].iter().zip(&layered[f]).zip(&want) {
             differ += usize::from(!ambiguous && !agree(b, a));

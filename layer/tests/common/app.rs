@@ -516,8 +516,8 @@ fn instance_record(p: &Placement, reference: u64) -> [u32; 16] {
     r
 }
 
-/// Runs the application: two frames (build, then update), each traced by the compute
-/// shader, then the second frame's scene traced by a fragment shader; returns the three
+/// Runs the application: three frames (build, update, the same update again), each traced
+/// by the compute shader, then the last frame's scene traced by a fragment shader; returns the four
 /// sets of hits. `Err` where device creation fails (the code).
 pub fn run(validation: Validation) -> Result<Vec<Vec<Hit>>, vk::Result> {
     unsafe { run_unsafe(validation, vk::API_VERSION_1_2, false) }
@@ -1747,15 +1747,17 @@ unsafe fn run_unsafe(
     let mut compacted = Vec::new();
 
     let mut frames = Vec::new();
-    for frame in 0..2u32 {
+    for frame in 0..3u32 {
         let mode = match frame {
             0 => vk::BuildAccelerationStructureModeKHR::BUILD,
             _ => vk::BuildAccelerationStructureModeKHR::UPDATE,
         };
-        // Frame 1 moves the grid's vertices and the instances.
-        let (moved, _) = grid(0.25 * frame as f32);
+        // Frame 1 moves the grid's vertices and the instances; frame 2 updates again with
+        // frame 1's scene, as a renderer updates every frame whether or not it moved.
+        let scene = frame.min(1);
+        let (moved, _) = grid(0.25 * scene as f32);
         g.write(b_grid_v, &moved);
-        let records: Vec<[u32; 16]> = instances(frame)
+        let records: Vec<[u32; 16]> = instances(scene)
             .iter()
             .rev()
             .map(|p| instance_record(p, references[p.level]))
@@ -1782,11 +1784,11 @@ unsafe fn run_unsafe(
         let push = [rays, WIDTH, 5.0f32.to_bits(), CULL_MASK];
         d.cmd_push_constants(cb, layout, vk::ShaderStageFlags::COMPUTE, 0, bytes(&push));
 
-        // Bottom levels: frame 0 builds all, frame 1 updates the grid only.
+        // Bottom levels: frame 0 builds all, later frames update the grid only.
         let mut infos = Vec::new();
         let mut range_ptrs = Vec::new();
         for (k, l) in levels.iter().enumerate() {
-            if frame == 1 && k != 0 {
+            if frame > 0 && k != 0 {
                 continue;
             }
             let src = match frame {
