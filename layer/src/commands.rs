@@ -32,8 +32,22 @@ struct ComputeState {
     sets: Vec<(vk::PipelineLayout, u32, Vec<vk::DescriptorSet>, Vec<u32>)>,
     /// Its push constants, in order (layout, stages, offset, bytes).
     push: Vec<(vk::PipelineLayout, vk::ShaderStageFlags, u32, Vec<u8>)>,
-    /// Its push-descriptor writes, in order (layout, set, writes).
-    push_descriptors: Vec<(vk::PipelineLayout, u32, Vec<OwnedWrite>)>,
+    /// Its push descriptors, in order.
+    push_descriptors: Vec<PushDescriptors>,
+}
+
+/// One push of descriptors at the compute bind point, its structures already texel views.
+enum PushDescriptors {
+    /// `vkCmdPushDescriptorSetKHR`: layout, set, writes.
+    Writes(vk::PipelineLayout, u32, Vec<OwnedWrite>),
+    /// `vkCmdPushDescriptorSetWithTemplateKHR`: template, layout, set, the data its entries
+    /// read.
+    Template(
+        vk::DescriptorUpdateTemplate,
+        vk::PipelineLayout,
+        u32,
+        Vec<u8>,
+    ),
 }
 
 /// A descriptor write with the arrays it points to.
@@ -108,7 +122,27 @@ pub fn note_push_descriptors(
             .or_default()
             .compute
             .push_descriptors
-            .push((layout, set, owned));
+            .push(PushDescriptors::Writes(layout, set, owned));
+    }
+}
+
+/// Keeps a compute push through a template (`data`: what its entries read, structures
+/// already texel views) to replay after vkrt's dispatches.
+pub fn note_push_template(
+    s: &Served,
+    cb: vk::CommandBuffer,
+    template: vk::DescriptorUpdateTemplate,
+    layout: vk::PipelineLayout,
+    set: u32,
+    data: Vec<u8>,
+) {
+    if let Ok(mut c) = s.commands.lock() {
+        c.buffers
+            .entry(cb)
+            .or_default()
+            .compute
+            .push_descriptors
+            .push(PushDescriptors::Template(template, layout, set, data));
     }
 }
 
@@ -175,18 +209,37 @@ pub fn restore(s: &Served, cb: vk::CommandBuffer) {
         for (layout, stages, offset, bytes) in &st.push {
             d.cmd_push_constants(cb, *layout, *stages, *offset, bytes);
         }
-        if let Some(f) = s.descriptor_fns.push_descriptor_set {
-            for (layout, set, writes) in &st.push_descriptors {
-                let w: Vec<vk::WriteDescriptorSet<'_>> =
-                    writes.iter().map(OwnedWrite::write).collect();
-                f(
-                    cb,
-                    vk::PipelineBindPoint::COMPUTE,
-                    *layout,
-                    *set,
-                    w.len() as u32,
-                    w.as_ptr(),
-                );
+        for push in &st.push_descriptors {
+            match push {
+                PushDescriptors::Writes(layout, set, writes) => {
+                    let Some(f) = s.descriptor_fns.push_descriptor_set else {
+                        continue;
+                    };
+                    let w: Vec<vk::WriteDescriptorSet<'_>> =
+                        writes.iter().map(OwnedWrite::write).collect();
+                    f(
+                        cb,
+                        vk::PipelineBindPoint::COMPUTE,
+                        *layout,
+                        *set,
+                        w.len() as u32,
+                        w.as_ptr(),
+                    );
+                }
+                PushDescriptors::Template(template, layout, set, data) => {
+                    let Some(f) = s.descriptor_fns.push_descriptor_set_with_template else {
+                        continue;
+                    };
+                    // A template destroyed since its push cannot be replayed.
+                    if !crate::descriptors::template_alive(*template) {
+                        log(
+                            "a push descriptor template was destroyed before a build in \
+                             the same command buffer: its push is not restored",
+                        );
+                        continue;
+                    }
+                    f(cb, *template, *layout, *set, data.as_ptr().cast());
+                }
             }
         }
     }

@@ -241,12 +241,21 @@ unsafe extern "system" fn cmd_push_descriptor_set(
     })
 }
 
-/// An update template's structure entries: (offset, stride, count) of handles in the data
-/// the application passes, which become view handles at the same places (both 8 bytes).
+/// An update template the application created: its structure entries, (offset, stride,
+/// count) of handles in the data it passes, which become view handles at the same places
+/// (both 8 bytes).
 pub struct Template {
     structures: Vec<(usize, usize, u32)>,
     /// Bytes the data spans (the farthest entry's end).
     span: usize,
+    /// Whether it pushes descriptors at the compute bind point (what a build in the same
+    /// command buffer must push again).
+    compute_push: bool,
+}
+
+/// Whether `template` is alive (the application has not destroyed it).
+pub fn template_alive(template: vk::DescriptorUpdateTemplate) -> bool {
+    TEMPLATES.lock().is_ok_and(|m| m.contains_key(&template))
 }
 
 static TEMPLATES: std::sync::LazyLock<
@@ -312,12 +321,24 @@ unsafe extern "system" fn create_update_template(
         ours.p_descriptor_update_entries = translated.as_ptr();
         // SAFETY: the application's call, its structure entries as texel buffers.
         let r = unsafe { f(device, &ours, allocator, out) };
-        if r == vk::Result::SUCCESS && !structures.is_empty() {
+        if r == vk::Result::SUCCESS {
+            let compute_push = ours.template_type
+                == vk::DescriptorUpdateTemplateType::PUSH_DESCRIPTORS_KHR
+                && ours.pipeline_bind_point == vk::PipelineBindPoint::COMPUTE;
             // SAFETY: created above.
             let t = unsafe { *out };
             TEMPLATES
                 .lock()
-                .map(|mut m| m.insert(t, Template { structures, span }))
+                .map(|mut m| {
+                    m.insert(
+                        t,
+                        Template {
+                            structures,
+                            span,
+                            compute_push,
+                        },
+                    )
+                })
                 .ok();
         }
         r
@@ -351,6 +372,9 @@ unsafe fn template_data(
 ) -> Option<Vec<u8>> {
     let templates = TEMPLATES.lock().ok()?;
     let t = templates.get(&template)?;
+    if t.structures.is_empty() {
+        return None;
+    }
     // SAFETY: the caller's contract: the entries' span.
     let mut bytes = unsafe { std::slice::from_raw_parts(data.cast::<u8>(), t.span) }.to_vec();
     for &(offset, stride, count) in &t.structures {
@@ -398,6 +422,16 @@ unsafe extern "system" fn cmd_push_descriptor_set_with_template(
         // SAFETY: the application's data for this template.
         let ours = unsafe { template_data(&s, template, data) };
         let data = ours.as_ref().map_or(data, |b| b.as_ptr().cast());
+        // A compute push is kept, to push again after a build in this command buffer.
+        let kept = TEMPLATES.lock().ok().and_then(|m| {
+            let t = m.get(&template)?;
+            // SAFETY: the data spans what the template's entries read.
+            t.compute_push
+                .then(|| unsafe { std::slice::from_raw_parts(data.cast::<u8>(), t.span) }.to_vec())
+        });
+        if let Some(bytes) = kept {
+            crate::commands::note_push_template(&s, cb, template, layout, set, bytes);
+        }
         // SAFETY: the application's call, its structures as their views.
         unsafe { f(cb, template, layout, set, data) };
     })

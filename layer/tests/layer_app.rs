@@ -30,12 +30,13 @@ fn child() {
         }
         m => {
             let validation = match m {
-                "below" | "sync2" => Validation::Below,
+                "below" | "sync2" | "push" => Validation::Below,
                 "above" => Validation::Above,
                 _ => Validation::Off,
             };
             let frames = match m {
                 "sync2" => app::run_sync2(validation),
+                "push" => app::run_push_template(validation),
                 _ => app::run(validation),
             }
             .expect("the application's device");
@@ -501,6 +502,21 @@ fn the_app_traces_through_the_layer_as_the_reference_says_with_validation_below(
     assert_eq!(seen(&|h| h.custom), [10, 11, 12, 13, 15]);
     assert_eq!(seen(&|h| h.kind), [1, 2]);
     assert_eq!(seen(&|h| h.geometry), [0, 1]);
+}
+
+/// Descriptors pushed through a template (`vkCmdPushDescriptorSetWithTemplateKHR`) before
+/// the builds are pushed again after them: the dispatch that follows, without a push of its
+/// own, reads the application's.
+#[test]
+fn descriptors_pushed_through_a_template_survive_the_builds() {
+    let frames = run_validated(
+        "push",
+        Through::Layer {
+            force: driver_has_ray_query(),
+        },
+        "validation below the layer, descriptors pushed:",
+    );
+    check_against_reference("descriptors pushed through a template", &frames);
 }
 
 /// An embedder's command buffer is the embedder's: once a structure has been built or

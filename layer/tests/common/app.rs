@@ -301,7 +301,15 @@ pub fn manifest_dir(parent: &std::path::Path) -> std::path::PathBuf {
     std::fs::create_dir_all(&dir).unwrap();
     let manifest = include_str!("../../VkLayer_vkrt_ray_query.json")
         .replace("./libvkrt_layer.so", library.to_str().unwrap());
-    std::fs::write(dir.join("VkLayer_vkrt_ray_query.json"), manifest).unwrap();
+    // Written whole and renamed into place: the tests of this process run in parallel, and
+    // a child's loader must never read a manifest another thread is rewriting (it would
+    // start without the layer).
+    let partial = dir.join(format!(
+        "manifest-{:?}.partial",
+        std::thread::current().id()
+    ));
+    std::fs::write(&partial, manifest).unwrap();
+    std::fs::rename(&partial, dir.join("VkLayer_vkrt_ray_query.json")).unwrap();
     dir
 }
 
@@ -418,6 +426,7 @@ pub struct Gpu {
     pub messenger: Option<(ash::ext::debug_utils::Instance, vk::DebugUtilsMessengerEXT)>,
     pub device: ash::Device,
     pub accel: ash::khr::acceleration_structure::Device,
+    pub push: ash::khr::push_descriptor::Device,
     pub props: vk::PhysicalDeviceMemoryProperties,
     pub queue: vk::Queue,
     pub family: u32,
@@ -520,14 +529,20 @@ fn instance_record(p: &Placement, reference: u64) -> [u32; 16] {
 /// by the compute shader, then the last frame's scene traced by a fragment shader; returns the four
 /// sets of hits. `Err` where device creation fails (the code).
 pub fn run(validation: Validation) -> Result<Vec<Vec<Hit>>, vk::Result> {
-    unsafe { run_unsafe(validation, vk::API_VERSION_1_2, false) }
+    unsafe { run_unsafe(validation, vk::API_VERSION_1_2, false, false) }
+}
+
+/// [`run`] with its descriptors pushed through a template (`VK_KHR_push_descriptor`,
+/// `vkCmdPushDescriptorSetWithTemplateKHR`) before the builds instead of a bound set.
+pub fn run_push_template(validation: Validation) -> Result<Vec<Vec<Hit>>, vk::Result> {
+    unsafe { run_unsafe(validation, vk::API_VERSION_1_2, false, true) }
 }
 
 /// [`run`] as a Vulkan 1.3 application whose barriers are synchronization 2's
 /// (`vkCmdPipelineBarrier2`, with the acceleration-structure stages and accesses of
 /// `VkPipelineStageFlags2`).
 pub fn run_sync2(validation: Validation) -> Result<Vec<Vec<Hit>>, vk::Result> {
-    unsafe { run_unsafe(validation, vk::API_VERSION_1_3, true) }
+    unsafe { run_unsafe(validation, vk::API_VERSION_1_3, true, false) }
 }
 
 /// A memory barrier, recorded with synchronization 2 where `sync2` says so (its stage and
@@ -809,6 +824,7 @@ pub unsafe fn setup_with(
         ash::khr::acceleration_structure::NAME.as_ptr(),
         ash::khr::ray_query::NAME.as_ptr(),
         ash::khr::deferred_host_operations::NAME.as_ptr(),
+        ash::khr::push_descriptor::NAME.as_ptr(),
     ];
     let mut v12 = vk::PhysicalDeviceVulkan12Features::default().buffer_device_address(true);
     let mut asf =
@@ -827,6 +843,7 @@ pub unsafe fn setup_with(
     };
     let device = instance.create_device(pd, &dinfo, None)?;
     let accel = ash::khr::acceleration_structure::Device::new(&instance, &device);
+    let push = ash::khr::push_descriptor::Device::new(&instance, &device);
     let props = instance.get_physical_device_memory_properties(pd);
     let queue = device.get_device_queue(family, 0);
     Ok((
@@ -837,6 +854,7 @@ pub unsafe fn setup_with(
             messenger,
             device,
             accel,
+            push,
             props,
             queue,
             family,
@@ -1231,6 +1249,76 @@ unsafe fn fragment_pass(
 
 /// Writes `set` (the structure, the output and the spheres) through a descriptor update
 /// template, as an application that caches its descriptor layouts does.
+/// The compute shader's descriptors as an update template reads them.
+#[repr(C)]
+struct Descriptors {
+    tlas: vk::AccelerationStructureKHR,
+    out: vk::DescriptorBufferInfo,
+    spheres: vk::DescriptorBufferInfo,
+}
+
+impl Descriptors {
+    fn new(tlas: vk::AccelerationStructureKHR, out: vk::Buffer, spheres: vk::Buffer) -> Self {
+        let whole = |b| {
+            vk::DescriptorBufferInfo::default()
+                .buffer(b)
+                .range(vk::WHOLE_SIZE)
+        };
+        Self {
+            tlas,
+            out: whole(out),
+            spheres: whole(spheres),
+        }
+    }
+
+    /// The template entries that read it.
+    fn entries() -> [vk::DescriptorUpdateTemplateEntry; 3] {
+        let entry = |binding: u32, ty: vk::DescriptorType, offset: usize| {
+            vk::DescriptorUpdateTemplateEntry {
+                dst_binding: binding,
+                dst_array_element: 0,
+                descriptor_count: 1,
+                descriptor_type: ty,
+                offset,
+                stride: 0,
+            }
+        };
+        [
+            entry(
+                0,
+                vk::DescriptorType::ACCELERATION_STRUCTURE_KHR,
+                std::mem::offset_of!(Descriptors, tlas),
+            ),
+            entry(
+                1,
+                vk::DescriptorType::STORAGE_BUFFER,
+                std::mem::offset_of!(Descriptors, out),
+            ),
+            entry(
+                2,
+                vk::DescriptorType::STORAGE_BUFFER,
+                std::mem::offset_of!(Descriptors, spheres),
+            ),
+        ]
+    }
+}
+
+/// A template that pushes [`Descriptors`] into set 0 of `layout` at the compute bind point.
+unsafe fn push_template(g: &Gpu, layout: vk::PipelineLayout) -> vk::DescriptorUpdateTemplate {
+    let entries = Descriptors::entries();
+    g.device
+        .create_descriptor_update_template(
+            &vk::DescriptorUpdateTemplateCreateInfo::default()
+                .descriptor_update_entries(&entries)
+                .template_type(vk::DescriptorUpdateTemplateType::PUSH_DESCRIPTORS_KHR)
+                .pipeline_bind_point(vk::PipelineBindPoint::COMPUTE)
+                .pipeline_layout(layout)
+                .set(0),
+            None,
+        )
+        .unwrap()
+}
+
 unsafe fn rewrite_with_template(
     g: &Gpu,
     set: vk::DescriptorSet,
@@ -1239,38 +1327,7 @@ unsafe fn rewrite_with_template(
     out: vk::Buffer,
     spheres: vk::Buffer,
 ) {
-    #[repr(C)]
-    struct Data {
-        tlas: vk::AccelerationStructureKHR,
-        out: vk::DescriptorBufferInfo,
-        spheres: vk::DescriptorBufferInfo,
-    }
-    let entry =
-        |binding: u32, ty: vk::DescriptorType, offset: usize| vk::DescriptorUpdateTemplateEntry {
-            dst_binding: binding,
-            dst_array_element: 0,
-            descriptor_count: 1,
-            descriptor_type: ty,
-            offset,
-            stride: 0,
-        };
-    let entries = [
-        entry(
-            0,
-            vk::DescriptorType::ACCELERATION_STRUCTURE_KHR,
-            std::mem::offset_of!(Data, tlas),
-        ),
-        entry(
-            1,
-            vk::DescriptorType::STORAGE_BUFFER,
-            std::mem::offset_of!(Data, out),
-        ),
-        entry(
-            2,
-            vk::DescriptorType::STORAGE_BUFFER,
-            std::mem::offset_of!(Data, spheres),
-        ),
-    ];
+    let entries = Descriptors::entries();
     let template = g
         .device
         .create_descriptor_update_template(
@@ -1281,17 +1338,12 @@ unsafe fn rewrite_with_template(
             None,
         )
         .unwrap();
-    let data = Data {
-        tlas,
-        out: vk::DescriptorBufferInfo::default()
-            .buffer(out)
-            .range(vk::WHOLE_SIZE),
-        spheres: vk::DescriptorBufferInfo::default()
-            .buffer(spheres)
-            .range(vk::WHOLE_SIZE),
-    };
-    g.device
-        .update_descriptor_set_with_template(set, template, (&data as *const Data).cast());
+    let data = Descriptors::new(tlas, out, spheres);
+    g.device.update_descriptor_set_with_template(
+        set,
+        template,
+        (&data as *const Descriptors).cast(),
+    );
     g.device.destroy_descriptor_update_template(template, None);
 }
 
@@ -1377,6 +1429,7 @@ unsafe fn run_unsafe(
     validation: Validation,
     api: u32,
     sync2: bool,
+    pushed: bool,
 ) -> Result<Vec<Vec<Hit>>, vk::Result> {
     let (_entry, mut g) = setup_with(validation, api, sync2)?;
     let d = g.device.clone();
@@ -1629,9 +1682,15 @@ unsafe fn run_unsafe(
             .descriptor_count(1)
             .stage_flags(vk::ShaderStageFlags::COMPUTE),
     ];
+    let set_flags = match pushed {
+        true => vk::DescriptorSetLayoutCreateFlags::PUSH_DESCRIPTOR_KHR,
+        false => vk::DescriptorSetLayoutCreateFlags::empty(),
+    };
     let set_layout = d
         .create_descriptor_set_layout(
-            &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
+            &vk::DescriptorSetLayoutCreateInfo::default()
+                .flags(set_flags)
+                .bindings(&bindings),
             None,
         )
         .unwrap();
@@ -1678,13 +1737,17 @@ unsafe fn run_unsafe(
             None,
         )
         .unwrap();
-    let set = d
-        .allocate_descriptor_sets(
-            &vk::DescriptorSetAllocateInfo::default()
-                .descriptor_pool(pool)
-                .set_layouts(&set_layouts),
-        )
-        .unwrap()[0];
+    let set = match pushed {
+        true => vk::DescriptorSet::null(),
+        false => d
+            .allocate_descriptor_sets(
+                &vk::DescriptorSetAllocateInfo::default()
+                    .descriptor_pool(pool)
+                    .set_layouts(&set_layouts),
+            )
+            .unwrap()[0],
+    };
+    let template = pushed.then(|| push_template(&g, layout));
     let tlases = [tlas];
     let mut as_write =
         vk::WriteDescriptorSetAccelerationStructureKHR::default().acceleration_structures(&tlases);
@@ -1713,7 +1776,9 @@ unsafe fn run_unsafe(
             .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
             .buffer_info(&sph_info),
     ];
-    d.update_descriptor_sets(&writes, &[]);
+    if !pushed {
+        d.update_descriptor_sets(&writes, &[]);
+    }
 
     let cmd_pool = d
         .create_command_pool(
@@ -1780,7 +1845,26 @@ unsafe fn run_unsafe(
         );
         // The application binds first; the builds come between its binds and its dispatch.
         d.cmd_bind_pipeline(cb, vk::PipelineBindPoint::COMPUTE, pipeline);
-        d.cmd_bind_descriptor_sets(cb, vk::PipelineBindPoint::COMPUTE, layout, 0, &[set], &[]);
+        match template {
+            Some(template) => {
+                let data = Descriptors::new(tlas, g.bufs[b_out].buffer, g.bufs[b_spheres].buffer);
+                g.push.cmd_push_descriptor_set_with_template(
+                    cb,
+                    template,
+                    layout,
+                    0,
+                    (&data as *const Descriptors).cast(),
+                );
+            }
+            None => d.cmd_bind_descriptor_sets(
+                cb,
+                vk::PipelineBindPoint::COMPUTE,
+                layout,
+                0,
+                &[set],
+                &[],
+            ),
+        }
         let push = [rays, WIDTH, 5.0f32.to_bits(), CULL_MASK];
         d.cmd_push_constants(cb, layout, vk::ShaderStageFlags::COMPUTE, 0, bytes(&push));
 
@@ -1908,7 +1992,7 @@ unsafe fn run_unsafe(
                 })
                 .collect(),
         );
-        if frame == 0 {
+        if frame == 0 && !pushed {
             // The set written again, through an update template this time.
             rewrite_with_template(
                 &g,
@@ -1918,6 +2002,8 @@ unsafe fn run_unsafe(
                 g.bufs[b_out].buffer,
                 g.bufs[b_spheres].buffer,
             );
+        }
+        if frame == 0 {
             compacted = compact(
                 &mut g,
                 cb,
@@ -1948,6 +2034,9 @@ unsafe fn run_unsafe(
     d.free_command_buffers(cmd_pool, &[cb]);
     d.destroy_command_pool(cmd_pool, None);
     d.destroy_descriptor_pool(pool, None);
+    if let Some(t) = template {
+        d.destroy_descriptor_update_template(t, None);
+    }
     d.destroy_query_pool(query_pool, None);
     debug_assert_eq!(compacted.len(), 2);
     d.destroy_pipeline(pipeline, None);
