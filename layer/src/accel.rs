@@ -649,7 +649,21 @@ unsafe fn build_one(
         .ok_or("the destination is not a live acceleration structure")?;
     let update = info.mode == vk::BuildAccelerationStructureModeKHR::UPDATE;
     if update && info.src_acceleration_structure != info.dst_acceleration_structure {
-        return Err("an update from another structure (src ≠ dst) is not supported".into());
+        if info.ty == vk::AccelerationStructureTypeKHR::TOP_LEVEL {
+            return Err(
+                "an update of a top level from another structure (src ≠ dst) is not supported"
+                    .into(),
+            );
+        }
+        // An update into another structure: the source cloned into the destination
+        // (ordered before the compute work that follows), then updated there.
+        copy(
+            s,
+            rec,
+            info.src_acceleration_structure,
+            info.dst_acceleration_structure,
+        )
+        .map_err(|e| format!("an update from another structure: {e}"))?;
     }
     let (kind, flags) = kind_and_flags(info.flags);
     // SAFETY: the caller's contract.
@@ -996,7 +1010,7 @@ fn copy(
             shapes,
             geometries,
             sizes,
-            ..
+            geometry: source,
         } => {
             if HEADER + sizes.structure_bytes > to.size {
                 return Err(format!(
@@ -1010,6 +1024,14 @@ fn copy(
                 .create_in(&s.ctx, geometries, flags, to.memory())
                 .map_err(e)?;
             geometry.enable_references();
+            // The copy takes the source's build state, so that it can be updated as the
+            // source could; where vkrt cannot carry it over (a kd-tree), the copy traces
+            // but an update of it is refused, logged.
+            // SAFETY: the copy recorded below brings the source's bytes (built: the source
+            // has a recorded build) over the same geometry and flags before anything that
+            // follows in the command buffer reads or updates the destination.
+            let copied = unsafe { vkrt::gpu::CopiedStructure::new() };
+            let _ = geometry.assume_built_by_copy(source, copied);
             let words = geometry.handle_words().map_err(e)?;
             write_header(s, rec, to, &words);
             *to_built = Some(Built::Bottom {
@@ -1063,7 +1085,9 @@ fn copy(
         s.fns
             .cmd_copy_buffer(rec.command_buffer(), from.buffer, to.buffer, &[region])
     };
-    rec.transfer_to_compute();
+    // What follows in this command reads the copy: a trace, or an update whose refit takes
+    // its dispatch arguments from the copied schedule.
+    rec.transfer_to_indirect();
     Ok(())
 }
 

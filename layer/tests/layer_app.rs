@@ -30,13 +30,14 @@ fn child() {
         }
         m => {
             let validation = match m {
-                "below" | "sync2" | "push" => Validation::Below,
+                "below" | "sync2" | "push" | "update-into" => Validation::Below,
                 "above" => Validation::Above,
                 _ => Validation::Off,
             };
             let frames = match m {
                 "sync2" => app::run_sync2(validation),
                 "push" => app::run_push_template(validation),
+                "update-into" => app::run_update_into(validation),
                 _ => app::run(validation),
             }
             .expect("the application's device");
@@ -517,6 +518,21 @@ fn descriptors_pushed_through_a_template_survive_the_builds() {
         "validation below the layer, descriptors pushed:",
     );
     check_against_reference("descriptors pushed through a template", &frames);
+}
+
+/// An update from one structure into another (`src` ≠ `dst`): the second frame's grid is
+/// updated into a second structure, which the top level names from then on and the third
+/// frame updates in place.
+#[test]
+fn an_update_into_another_structure_traces_as_the_reference_says() {
+    let frames = run_validated(
+        "update-into",
+        Through::Layer {
+            force: driver_has_ray_query(),
+        },
+        "validation below the layer, an update into another structure:",
+    );
+    check_against_reference("an update into another structure", &frames);
 }
 
 /// An embedder's command buffer is the embedder's: once a structure has been built or

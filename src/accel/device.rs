@@ -108,6 +108,22 @@ impl AccelStructure {
         &mut self.storage
     }
 
+    /// Takes `from`'s build state for a byte copy of its arrays (GPU BVHs; a kd-tree or the
+    /// driver's structure is refused).
+    pub(crate) fn adopt_build_state(&mut self, from: &AccelStructure) -> Result<()> {
+        let usage = |reason: &str| GpuError::Usage {
+            call: "GpuGeometry::assume_built_by_copy",
+            reason: reason.into(),
+        };
+        if self.kind != from.kind || self.flags != from.flags {
+            return Err(usage("the source is of another kind or flags"));
+        }
+        match (&mut self.storage, &from.storage) {
+            (Storage::Bvh(d), Storage::Bvh(s)) => d.adopt_build_state(s),
+            _ => Err(usage("only a BVH's copy can take its source's build state")),
+        }
+    }
+
     /// The kind of structure this is.
     pub fn kind(&self) -> AccelKind {
         self.kind

@@ -261,6 +261,42 @@ impl GpuGeometry {
         self.accel.references_enabled = true;
     }
 
+    /// Takes the structure as built from `from`, as `from`'s recorded build left it, because
+    /// its placed bytes are a copy of `from`'s (`copy`: the caller's word for it): what an API
+    /// layer's clone (`vkCmdCopyAccelerationStructureKHR`) records, so that the copy can then
+    /// be updated
+    /// ([`AccelBuilder::record_update_from`](crate::accel::device::AccelBuilder::record_update_from))
+    /// as `from` could. Both are BVHs over geometry of one description, with one kind and one
+    /// set of flags; `Err` otherwise, or where `from` has no recorded build.
+    pub fn assume_built_by_copy(
+        &mut self,
+        from: &GpuGeometry,
+        copy: crate::gpu::CopiedStructure,
+    ) -> Result<()> {
+        let _ = copy;
+        let call = "GpuGeometry::assume_built_by_copy";
+        let (Some(d), Some(f)) = (self.device_input.as_ref(), from.device_input.as_ref()) else {
+            return Err(GpuError::Usage {
+                call,
+                reason: "both must be structures over the caller's geometry (create_in)".into(),
+            });
+        };
+        if !f.built {
+            return Err(GpuError::NotBuilt { call });
+        }
+        if d.layout != f.layout || d.shape != f.shape || d.flags != f.flags {
+            return Err(GpuError::Usage {
+                call,
+                reason: "the source was made for other geometry or flags".into(),
+            });
+        }
+        self.accel.adopt_build_state(&from.accel)?;
+        if let Some(d) = self.device_input.as_mut() {
+            d.built = true;
+        }
+        Ok(())
+    }
+
     /// The seven bindings in `traverse.glsl`'s order.
     pub fn bindings(&self) -> [&dyn BufferArg; 7] {
         bindings(&self.prims, &self.accel)

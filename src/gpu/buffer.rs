@@ -234,6 +234,26 @@ pub struct DeviceRange {
     size: u64,
 }
 
+/// The caller's word that a structure's placed bytes are a copy of a built structure's, by
+/// the time recorded work reads them
+/// ([`GpuGeometry::assume_built_by_copy`](crate::accel::gpu_geometry::GpuGeometry::assume_built_by_copy)):
+/// what an API layer's clone of a structure records. Made only by the `unsafe`
+/// [`CopiedStructure::new`]: vkrt cannot see what a copy brought.
+#[derive(Clone, Copy, Debug)]
+pub struct CopiedStructure(());
+
+impl CopiedStructure {
+    /// The word for one structure.
+    ///
+    /// # Safety
+    /// Before any recorded work that reads or updates the structure this is given for
+    /// executes, the structure's placed range holds a byte copy of a structure built by the
+    /// same builder, over geometry of the same description, with the same build flags.
+    pub unsafe fn new() -> Self {
+        Self(())
+    }
+}
+
 impl DeviceRange {
     /// The `size` bytes from device address `address`.
     ///

@@ -52,7 +52,8 @@ pub use accel_ext::{
 pub use ash::vk;
 pub use bindings::BindingCache;
 pub use buffer::{
-    address_of, placement, Buffer, BufferArg, DeviceRange, Memory, RawBuffer, TexelView,
+    address_of, placement, Buffer, BufferArg, CopiedStructure, DeviceRange, Memory, RawBuffer,
+    TexelView,
 };
 pub use context::{Context, ContextOptions, ExtraFeatures, MemoryUsage, RawParts, Traffic};
 pub use error::{GpuError, PlacementProblem, Result};

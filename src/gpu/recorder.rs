@@ -1055,6 +1055,20 @@ impl Recorder {
         self.memory_barrier(TRANSFER_W, TRANSFER_RW);
     }
 
+    /// Copies and fills before → indirect dispatch arguments and kernels after (a copied
+    /// structure's refit schedule holds its dispatch arguments).
+    pub fn transfer_to_indirect(&mut self) {
+        self.memory_barrier(
+            TRANSFER_W,
+            (
+                vk::PipelineStageFlags::DRAW_INDIRECT | vk::PipelineStageFlags::COMPUTE_SHADER,
+                vk::AccessFlags::INDIRECT_COMMAND_READ
+                    | vk::AccessFlags::SHADER_READ
+                    | vk::AccessFlags::SHADER_WRITE,
+            ),
+        );
+    }
+
     /// Kernel writes before → indirect dispatch arguments (and kernels) after.
     pub fn compute_to_indirect(&mut self) {
         self.memory_barrier(

@@ -529,20 +529,27 @@ fn instance_record(p: &Placement, reference: u64) -> [u32; 16] {
 /// by the compute shader, then the last frame's scene traced by a fragment shader; returns the four
 /// sets of hits. `Err` where device creation fails (the code).
 pub fn run(validation: Validation) -> Result<Vec<Vec<Hit>>, vk::Result> {
-    unsafe { run_unsafe(validation, vk::API_VERSION_1_2, false, false) }
+    unsafe { run_unsafe(validation, vk::API_VERSION_1_2, false, false, false) }
+}
+
+/// [`run`] with the grid's first update written into a second structure
+/// (`srcAccelerationStructure` ≠ `dstAccelerationStructure`), which the top level then names
+/// and the third frame updates in place.
+pub fn run_update_into(validation: Validation) -> Result<Vec<Vec<Hit>>, vk::Result> {
+    unsafe { run_unsafe(validation, vk::API_VERSION_1_2, false, false, true) }
 }
 
 /// [`run`] with its descriptors pushed through a template (`VK_KHR_push_descriptor`,
 /// `vkCmdPushDescriptorSetWithTemplateKHR`) before the builds instead of a bound set.
 pub fn run_push_template(validation: Validation) -> Result<Vec<Vec<Hit>>, vk::Result> {
-    unsafe { run_unsafe(validation, vk::API_VERSION_1_2, false, true) }
+    unsafe { run_unsafe(validation, vk::API_VERSION_1_2, false, true, false) }
 }
 
 /// [`run`] as a Vulkan 1.3 application whose barriers are synchronization 2's
 /// (`vkCmdPipelineBarrier2`, with the acceleration-structure stages and accesses of
 /// `VkPipelineStageFlags2`).
 pub fn run_sync2(validation: Validation) -> Result<Vec<Vec<Hit>>, vk::Result> {
-    unsafe { run_unsafe(validation, vk::API_VERSION_1_3, true, false) }
+    unsafe { run_unsafe(validation, vk::API_VERSION_1_3, true, false, false) }
 }
 
 /// A memory barrier, recorded with synchronization 2 where `sync2` says so (its stage and
@@ -1430,6 +1437,7 @@ unsafe fn run_unsafe(
     api: u32,
     sync2: bool,
     pushed: bool,
+    update_into: bool,
 ) -> Result<Vec<Vec<Hit>>, vk::Result> {
     let (_entry, mut g) = setup_with(validation, api, sync2)?;
     let d = g.device.clone();
@@ -1596,6 +1604,23 @@ unsafe fn run_unsafe(
         blas_scratch.push(scratch);
         blas_bytes.push(sizes.acceleration_structure_size);
     }
+    // The structure the grid's first update goes into, where `update_into` says so.
+    let grid_into = update_into.then(|| {
+        let storage = g.buffer(
+            blas_bytes[0],
+            vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR
+                | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS,
+        );
+        let create = vk::AccelerationStructureCreateInfoKHR::default()
+            .buffer(g.bufs[storage].buffer)
+            .size(blas_bytes[0])
+            .ty(vk::AccelerationStructureTypeKHR::BOTTOM_LEVEL);
+        g.accel
+            .create_acceleration_structure(&create, None)
+            .unwrap()
+    });
+    // The grid's structure before its update went elsewhere, destroyed at teardown.
+    let mut retired = Vec::new();
     let mut references: Vec<u64> = blas
         .iter()
         .map(|&a| {
@@ -1820,6 +1845,20 @@ unsafe fn run_unsafe(
         // Frame 1 moves the grid's vertices and the instances; frame 2 updates again with
         // frame 1's scene, as a renderer updates every frame whether or not it moved.
         let scene = frame.min(1);
+        // The grid's first update goes from its structure into the other one, which the
+        // instances name from then on.
+        let grid_src = match (frame, grid_into) {
+            (1, Some(into)) => {
+                retired.push(blas[0]);
+                blas[0] = into;
+                references[0] = g.accel.get_acceleration_structure_device_address(
+                    &vk::AccelerationStructureDeviceAddressInfoKHR::default()
+                        .acceleration_structure(into),
+                );
+                retired[0]
+            }
+            _ => blas[0],
+        };
         let (moved, _) = grid(0.25 * scene as f32);
         g.write(b_grid_v, &moved);
         let records: Vec<[u32; 16]> = instances(scene)
@@ -1875,8 +1914,9 @@ unsafe fn run_unsafe(
             if frame > 0 && k != 0 {
                 continue;
             }
-            let src = match frame {
-                0 => vk::AccelerationStructureKHR::null(),
+            let src = match (frame, k) {
+                (0, _) => vk::AccelerationStructureKHR::null(),
+                (_, 0) => grid_src,
                 _ => blas[k],
             };
             infos.push(
@@ -2044,7 +2084,7 @@ unsafe fn run_unsafe(
     d.destroy_descriptor_set_layout(set_layout, None);
     d.destroy_shader_module(module, None);
     g.accel.destroy_acceleration_structure(tlas, None);
-    for a in blas {
+    for a in blas.into_iter().chain(retired) {
         g.accel.destroy_acceleration_structure(a, None);
     }
     for b in g.bufs.drain(..) {

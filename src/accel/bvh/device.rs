@@ -536,6 +536,26 @@ impl BvhStorage {
     /// into it; what [`BvhStorage::live`] is then. After a compute → transfer barrier (the
     /// last build's count was a kernel's write), before the builders' first fill, whose
     /// transfer → compute barrier orders it before their kernels.
+    /// Takes `from`'s build state (counts, live nodes) for a byte copy of its arrays: both
+    /// made for the same geometry and flags, so the arrays have the same shape.
+    pub(crate) fn adopt_build_state(&mut self, from: &BvhStorage) -> Result<()> {
+        let same = self.nodes.len() == from.nodes.len()
+            && self.refs.len() == from.refs.len()
+            && self.schedule.is_some() == from.schedule.is_some()
+            && self.wide.is_some() == from.wide.is_some()
+            && self.compaction.is_none()
+            && from.compaction.is_none();
+        if !same {
+            return Err(GpuError::Usage {
+                call: "GpuGeometry::assume_built_by_copy",
+                reason: "the source's arrays are of another shape".into(),
+            });
+        }
+        self.counts = from.counts;
+        self.live = from.live;
+        Ok(())
+    }
+
     fn record_zero_live(&self, rec: &mut Recorder, collapsing: bool) -> Option<usize> {
         if !collapsing {
             return Some(self.counts.0);
