@@ -649,12 +649,6 @@ unsafe fn build_one(
         .ok_or("the destination is not a live acceleration structure")?;
     let update = info.mode == vk::BuildAccelerationStructureModeKHR::UPDATE;
     if update && info.src_acceleration_structure != info.dst_acceleration_structure {
-        if info.ty == vk::AccelerationStructureTypeKHR::TOP_LEVEL {
-            return Err(
-                "an update of a top level from another structure (src ≠ dst) is not supported"
-                    .into(),
-            );
-        }
         // An update into another structure: the source cloned into the destination
         // (ordered before the compute work that follows), then updated there.
         copy(
@@ -1049,7 +1043,7 @@ fn copy(
             flags,
             max,
             sizes,
-            ..
+            top: source,
         } => {
             if HEADER + sizes.structure_bytes > to.size {
                 return Err(format!(
@@ -1059,9 +1053,14 @@ fn copy(
                 ));
             }
             let builder = s.accel.top(&s.ctx, *kind).map_err(e)?;
-            let top = builder
+            let mut top = builder
                 .create_in(&s.ctx, &[], *max, flags, to.memory())
                 .map_err(e)?;
+            // As for a bottom level: the copy can be updated as the source could.
+            // SAFETY: the copy recorded below brings the source's bytes (built) before
+            // anything that follows in the command buffer reads or updates the destination.
+            let copied = unsafe { vkrt::gpu::CopiedStructure::new() };
+            let _ = top.assume_built_by_copy(source, copied);
             let words = top.handle_words().map_err(e)?;
             write_header(s, rec, to, &words);
             *to_built = Some(Built::Top {

@@ -520,9 +520,9 @@ fn descriptors_pushed_through_a_template_survive_the_builds() {
     check_against_reference("descriptors pushed through a template", &frames);
 }
 
-/// An update from one structure into another (`src` ≠ `dst`): the second frame's grid is
-/// updated into a second structure, which the top level names from then on and the third
-/// frame updates in place.
+/// An update from one structure into another (`src` ≠ `dst`): the second frame updates the
+/// grid and the top level each into a second structure, which the instances and the
+/// descriptor name from then on, and the third frame updates those in place.
 #[test]
 fn an_update_into_another_structure_traces_as_the_reference_says() {
     let frames = run_validated(

@@ -1196,6 +1196,27 @@ impl TopLevel {
         self.parts.handle.address()
     }
 
+    /// Takes the top level as built from `from`, as `from`'s recorded build left it,
+    /// because its placed bytes are a copy of `from`'s (`copy`: the caller's word for it):
+    /// an API layer's clone, which can then be updated as `from` could. Both were created
+    /// for the same maximum of instances with the same flags; `Err` otherwise, or where
+    /// `from` has no recorded build.
+    pub fn assume_built_by_copy(
+        &mut self,
+        from: &TopLevel,
+        copy: crate::gpu::CopiedStructure,
+    ) -> Result<()> {
+        if self.max != from.max || self.bytes != from.bytes {
+            return Err(usage(
+                "TopLevel::assume_built_by_copy",
+                "the source was created for another maximum of instances",
+            ));
+        }
+        self.tree.assume_built_by_copy(&from.tree, copy)?;
+        self.count = from.count;
+        Ok(())
+    }
+
     /// The sixteen words a build writes at [`TopLevel::handle_address`]: the tree's seven
     /// arrays, then the addresses of its records, steps and originals. They depend on where
     /// the top level lies only, so a copy of them elsewhere (where a caller's shaders look

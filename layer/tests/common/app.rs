@@ -532,9 +532,9 @@ pub fn run(validation: Validation) -> Result<Vec<Vec<Hit>>, vk::Result> {
     unsafe { run_unsafe(validation, vk::API_VERSION_1_2, false, false, false) }
 }
 
-/// [`run`] with the grid's first update written into a second structure
-/// (`srcAccelerationStructure` ≠ `dstAccelerationStructure`), which the top level then names
-/// and the third frame updates in place.
+/// [`run`] with the first update of the grid and of the top level each written into a
+/// second structure (`srcAccelerationStructure` ≠ `dstAccelerationStructure`), which the
+/// instances and the descriptor then name and the third frame updates in place.
 pub fn run_update_into(validation: Validation) -> Result<Vec<Vec<Hit>>, vk::Result> {
     unsafe { run_unsafe(validation, vk::API_VERSION_1_2, false, false, true) }
 }
@@ -1672,7 +1672,7 @@ unsafe fn run_unsafe(
             .max(top_sizes.update_scratch_size),
         vk::BufferUsageFlags::STORAGE_BUFFER | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS,
     );
-    let tlas = g
+    let mut tlas = g
         .accel
         .create_acceleration_structure(
             &vk::AccelerationStructureCreateInfoKHR::default()
@@ -1682,6 +1682,23 @@ unsafe fn run_unsafe(
             None,
         )
         .unwrap();
+    // The top level the first update goes into, where `update_into` says so.
+    let tlas_into = update_into.then(|| {
+        let storage = g.buffer(
+            top_sizes.acceleration_structure_size,
+            vk::BufferUsageFlags::ACCELERATION_STRUCTURE_STORAGE_KHR
+                | vk::BufferUsageFlags::SHADER_DEVICE_ADDRESS,
+        );
+        g.accel
+            .create_acceleration_structure(
+                &vk::AccelerationStructureCreateInfoKHR::default()
+                    .buffer(g.bufs[storage].buffer)
+                    .size(top_sizes.acceleration_structure_size)
+                    .ty(vk::AccelerationStructureTypeKHR::TOP_LEVEL),
+                None,
+            )
+            .unwrap()
+    });
 
     // The pipeline.
     let rays = WIDTH * WIDTH;
@@ -1859,6 +1876,30 @@ unsafe fn run_unsafe(
             }
             _ => blas[0],
         };
+        // So does the top level's; the descriptor names the new one from then on (the
+        // first frame's work has completed).
+        let top_src = match (frame, tlas_into) {
+            (0, _) => vk::AccelerationStructureKHR::null(),
+            (1, Some(into)) => {
+                let old = tlas;
+                retired.push(old);
+                tlas = into;
+                if !pushed {
+                    let tlases = [tlas];
+                    let mut as_write = vk::WriteDescriptorSetAccelerationStructureKHR::default()
+                        .acceleration_structures(&tlases);
+                    let mut w = vk::WriteDescriptorSet::default()
+                        .dst_set(set)
+                        .dst_binding(0)
+                        .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+                        .push_next(&mut as_write);
+                    w.descriptor_count = 1;
+                    d.update_descriptor_sets(&[w], &[]);
+                }
+                old
+            }
+            _ => tlas,
+        };
         let (moved, _) = grid(0.25 * scene as f32);
         g.write(b_grid_v, &moved);
         let records: Vec<[u32; 16]> = instances(scene)
@@ -1969,13 +2010,9 @@ unsafe fn run_unsafe(
                 vk::QueryResultFlags::TYPE_64 | vk::QueryResultFlags::WAIT,
             );
         }
-        let src = match frame {
-            0 => vk::AccelerationStructureKHR::null(),
-            _ => tlas,
-        };
         let top = top_info
             .mode(mode)
-            .src_acceleration_structure(src)
+            .src_acceleration_structure(top_src)
             .dst_acceleration_structure(tlas)
             .scratch_data(vk::DeviceOrHostAddressKHR {
                 device_address: g.bufs[top_scratch].address,
