@@ -15,7 +15,9 @@ use vkrt::accel::geometry::{
 use vkrt::accel::gpu_geometry::GpuGeometry;
 use vkrt::accel::primitives::TraceGeometry;
 use vkrt::accel::walk::Traversal;
-use vkrt::gpu::{Buffer, Context, DeviceRange, GpuError, PlacementProblem, RawBuffer, Recorder};
+use vkrt::gpu::{
+    Buffer, Context, CopiedStructure, DeviceRange, GpuError, PlacementProblem, RawBuffer, Recorder,
+};
 use vkrt::scene::Aabb;
 use vkrt::trace::gpu::Tracer;
 use vkrt::trace::{cpu, Hit, Ray, TraceOptions};
@@ -1019,6 +1021,118 @@ fn an_update_reads_moved_vertices_from_the_callers_buffer() {
         for (r, h) in rays.iter().zip(&hits) {
             let b = cpu::brute_force(&soup, r, 0.0, &opt());
             assert!(common::same_answer(h, &b), "{kind:?}: {h:?} vs {b:?}");
+        }
+    }
+    common::assert_silent(&ctx);
+}
+
+/// A byte copy of a built structure's placed range, recorded as built by copy
+/// (`GpuGeometry::record_built_by_copy`: its own handle record, its source's build state),
+/// traces as its source did once the source's memory is gone, and updates as the source
+/// would have; a copy of a structure never built is refused.
+#[test]
+fn a_byte_copy_recorded_as_built_traces_and_updates_as_its_source() {
+    let Some(ctx) = common::context() else { return };
+    let sphere = vkrt::scene::gen::icosphere(3).unwrap();
+    let tris = common::mesh_triangles(&sphere);
+    let moved: Vec<[Vec3; 3]> = tris
+        .iter()
+        .map(|t| t.map(|p| p * 0.8 + Vec3::new(-0.1, 0.2, 0.0)))
+        .collect();
+    let flags = BuildFlags {
+        allow_update: true,
+        ..BuildFlags::default()
+    };
+    for kind in [AccelKind::Lbvh, AccelKind::Ploc] {
+        let mut caller = CallerBuffers::new();
+        let geometries = [soup_geometry(&ctx, &mut caller, &tris)];
+        let builder = AccelBuilder::new(&ctx, kind).unwrap();
+        let sizes = builder.sizes_for(&ctx, &geometries, &flags).unwrap();
+        let n = sizes.structure_bytes as usize;
+        let copy_mem = Buffer::<u8>::arena(&ctx, "caller.copy", n).unwrap();
+        let mut copy = builder
+            .create_in(&ctx, &geometries, &flags, unsafe { copy_mem.as_raw() })
+            .unwrap();
+        // A copy of a structure never built is refused.
+        let unbuilt_mem = Buffer::<u8>::arena(&ctx, "caller.unbuilt", n).unwrap();
+        let unbuilt = builder
+            .create_in(&ctx, &geometries, &flags, unsafe { unbuilt_mem.as_raw() })
+            .unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        let r = copy.record_built_by_copy(&mut rec, &unbuilt, unsafe { CopiedStructure::new() });
+        assert!(
+            matches!(r, Err(GpuError::NotBuilt { .. })),
+            "{kind:?}: {r:?}"
+        );
+        drop(rec);
+
+        // The source, referenceable (its build writes its handle record), and the copy.
+        let source_mem = Buffer::<u8>::arena(&ctx, "caller.structure", n).unwrap();
+        let scratch_mem =
+            Buffer::<u8>::arena(&ctx, "caller.scratch", sizes.build_scratch_bytes as usize)
+                .unwrap();
+        let mut original = builder
+            .create_in(&ctx, &geometries, &flags, unsafe { source_mem.as_raw() })
+            .unwrap();
+        original.enable_references();
+        copy.enable_references();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        builder
+            .record_build_from(&mut rec, &mut original, &geometries, unsafe {
+                scratch_mem.as_raw()
+            })
+            .unwrap();
+        rec.submit_and_wait().unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        rec.copy(&source_mem, &copy_mem, n);
+        copy.record_built_by_copy(&mut rec, &original, unsafe { CopiedStructure::new() })
+            .unwrap();
+        rec.transfer_to_indirect();
+        rec.submit_and_wait().unwrap();
+        // The copy's handle record (what a top level's instances reference) names its own
+        // arrays, not the source's, which the byte copy brought.
+        let words = |w: [u64; 7]| -> Vec<u8> { bytemuck::cast_slice(&w).to_vec() };
+        let (own, source) = (
+            words(copy.handle_words().unwrap()),
+            words(original.handle_words().unwrap()),
+        );
+        let bytes = copy_mem.download().unwrap();
+        let holds = |w: &[u8]| bytes.windows(w.len()).step_by(8).any(|b| b == w);
+        assert!(holds(&own), "{kind:?}: the copy's own handle record");
+        assert!(
+            !holds(&source),
+            "{kind:?}: the source's handle record in the copy"
+        );
+        // The source and its memory go: the copy stands on its own.
+        drop(original);
+        drop((source_mem, scratch_mem));
+        let rays = rays_into(&tris, 300, 11);
+        let soup = TraceGeometry::from_triangles(&tris);
+        for (r, h) in rays.iter().zip(trace(&ctx, kind, &copy, &rays)) {
+            let b = cpu::brute_force(&soup, r, 0.0, &opt());
+            assert!(common::same_answer(&h, &b), "{kind:?} copy: {h:?} vs {b:?}");
+        }
+        // Updated as its source would have been.
+        let flat: Vec<Vec3> = moved.iter().flatten().copied().collect();
+        caller.bufs[0].upload(bytemuck::cast_slice(&flat)).unwrap();
+        let scratch =
+            Buffer::<u8>::arena(&ctx, "update", sizes.update_scratch_bytes.unwrap() as usize)
+                .unwrap();
+        let mut rec = Recorder::new(&ctx).unwrap();
+        builder
+            .record_update_from(&mut rec, &mut copy, &geometries, unsafe {
+                scratch.as_raw()
+            })
+            .unwrap();
+        rec.submit_and_wait().unwrap();
+        let rays = rays_into(&moved, 300, 12);
+        let soup = TraceGeometry::from_triangles(&moved);
+        for (r, h) in rays.iter().zip(trace(&ctx, kind, &copy, &rays)) {
+            let b = cpu::brute_force(&soup, r, 0.0, &opt());
+            assert!(
+                common::same_answer(&h, &b),
+                "{kind:?} updated copy: {h:?} vs {b:?}"
+            );
         }
     }
     common::assert_silent(&ctx);

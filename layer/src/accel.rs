@@ -997,82 +997,17 @@ fn copy(
         .ok_or("the destination is not a live acceleration structure")?;
     let from_built = from.built.lock().map_err(|e| e.to_string())?;
     let mut to_built = to.built.lock().map_err(|e| e.to_string())?;
-    let bytes = match from_built.as_ref().ok_or("the source was never built")? {
-        Built::Bottom {
-            kind,
-            flags,
-            shapes,
-            geometries,
-            sizes,
-            geometry: source,
-        } => {
-            if HEADER + sizes.structure_bytes > to.size {
-                return Err(format!(
-                    "the destination holds {} bytes; the copy needs {}",
-                    to.size,
-                    HEADER + sizes.structure_bytes
-                ));
-            }
-            let builder = s.accel.bottom(&s.ctx, *kind).map_err(e)?;
-            let mut geometry = builder
-                .create_in(&s.ctx, geometries, flags, to.memory())
-                .map_err(e)?;
-            geometry.enable_references();
-            // The copy takes the source's build state, so that it can be updated as the
-            // source could; where vkrt cannot carry it over (a kd-tree), the copy traces
-            // but an update of it is refused, logged.
-            // SAFETY: the copy recorded below brings the source's bytes (built: the source
-            // has a recorded build) over the same geometry and flags before anything that
-            // follows in the command buffer reads or updates the destination.
-            let copied = unsafe { vkrt::gpu::CopiedStructure::new() };
-            let _ = geometry.assume_built_by_copy(source, copied);
-            let words = geometry.handle_words().map_err(e)?;
-            write_header(s, rec, to, &words);
-            *to_built = Some(Built::Bottom {
-                kind: *kind,
-                flags: *flags,
-                shapes: shapes.clone(),
-                geometries: geometries.clone(),
-                sizes: *sizes,
-                geometry: Box::new(geometry),
-            });
-            sizes.structure_bytes
-        }
-        Built::Top {
-            kind,
-            flags,
-            max,
-            sizes,
-            top: source,
-        } => {
-            if HEADER + sizes.structure_bytes > to.size {
-                return Err(format!(
-                    "the destination holds {} bytes; the copy needs {}",
-                    to.size,
-                    HEADER + sizes.structure_bytes
-                ));
-            }
-            let builder = s.accel.top(&s.ctx, *kind).map_err(e)?;
-            let mut top = builder
-                .create_in(&s.ctx, &[], *max, flags, to.memory())
-                .map_err(e)?;
-            // As for a bottom level: the copy can be updated as the source could.
-            // SAFETY: the copy recorded below brings the source's bytes (built) before
-            // anything that follows in the command buffer reads or updates the destination.
-            let copied = unsafe { vkrt::gpu::CopiedStructure::new() };
-            let _ = top.assume_built_by_copy(source, copied);
-            let words = top.handle_words().map_err(e)?;
-            write_header(s, rec, to, &words);
-            *to_built = Some(Built::Top {
-                kind: *kind,
-                flags: *flags,
-                max: *max,
-                sizes: *sizes,
-                top: Box::new(top),
-            });
-            sizes.structure_bytes
-        }
+    let source = from_built.as_ref().ok_or("the source was never built")?;
+    let bytes = match source {
+        Built::Bottom { sizes, .. } | Built::Top { sizes, .. } => sizes.structure_bytes,
     };
+    if HEADER + bytes > to.size {
+        return Err(format!(
+            "the destination holds {} bytes; the copy needs {}",
+            to.size,
+            HEADER + bytes
+        ));
+    }
     let region = vk::BufferCopy {
         src_offset: from.offset + HEADER,
         dst_offset: to.offset + HEADER,
@@ -1084,6 +1019,61 @@ fn copy(
         s.fns
             .cmd_copy_buffer(rec.command_buffer(), from.buffer, to.buffer, &[region])
     };
+    // The copy then takes the source's build state and its own handle record, so that it
+    // traces and can be updated as the source could; where vkrt cannot carry the state over
+    // (a kd-tree), the copy traces but an update of it is refused, logged.
+    // SAFETY: the copy just recorded brought the source's bytes (built: the source has a
+    // recorded build), over the same geometry and flags, into the destination's range.
+    let copied = unsafe { vkrt::gpu::CopiedStructure::new() };
+    match source {
+        Built::Bottom {
+            kind,
+            flags,
+            shapes,
+            geometries,
+            sizes,
+            geometry: source,
+        } => {
+            let builder = s.accel.bottom(&s.ctx, *kind).map_err(e)?;
+            let mut geometry = builder
+                .create_in(&s.ctx, geometries, flags, to.memory())
+                .map_err(e)?;
+            geometry.enable_references();
+            let _ = geometry.record_built_by_copy(rec, source, copied);
+            let words = geometry.handle_words().map_err(e)?;
+            write_header(s, rec, to, &words);
+            *to_built = Some(Built::Bottom {
+                kind: *kind,
+                flags: *flags,
+                shapes: shapes.clone(),
+                geometries: geometries.clone(),
+                sizes: *sizes,
+                geometry: Box::new(geometry),
+            });
+        }
+        Built::Top {
+            kind,
+            flags,
+            max,
+            sizes,
+            top: source,
+        } => {
+            let builder = s.accel.top(&s.ctx, *kind).map_err(e)?;
+            let mut top = builder
+                .create_in(&s.ctx, &[], *max, flags, to.memory())
+                .map_err(e)?;
+            let _ = top.record_built_by_copy(rec, source, copied);
+            let words = top.handle_words().map_err(e)?;
+            write_header(s, rec, to, &words);
+            *to_built = Some(Built::Top {
+                kind: *kind,
+                flags: *flags,
+                max: *max,
+                sizes: *sizes,
+                top: Box::new(top),
+            });
+        }
+    }
     // What follows in this command reads the copy: a trace, or an update whose refit takes
     // its dispatch arguments from the copied schedule.
     rec.transfer_to_indirect();

@@ -261,20 +261,25 @@ impl GpuGeometry {
         self.accel.references_enabled = true;
     }
 
-    /// Takes the structure as built from `from`, as `from`'s recorded build left it, because
-    /// its placed bytes are a copy of `from`'s (`copy`: the caller's word for it): what an API
-    /// layer's clone (`vkCmdCopyAccelerationStructureKHR`) records, so that the copy can then
-    /// be updated
+    /// Records what makes this structure a built copy of `from`, once the caller has recorded
+    /// a byte copy of `from`'s placed range into this one's (`copy`: the caller's word for
+    /// it): the copy's own handle record (the addresses of its arrays, which the byte copy
+    /// brought as `from`'s), after a transfer → transfer barrier; and it takes `from`'s build
+    /// state, so that the copy traces and can be updated
     /// ([`AccelBuilder::record_update_from`](crate::accel::device::AccelBuilder::record_update_from))
-    /// as `from` could. Both are BVHs over geometry of one description, with one kind and one
-    /// set of flags; `Err` otherwise, or where `from` has no recorded build.
-    pub fn assume_built_by_copy(
+    /// as `from` could. What an API layer's clone (`vkCmdCopyAccelerationStructureKHR`)
+    /// records. Ends with transfer writes: order them before readers
+    /// ([`Recorder::transfer_to_indirect`] before an update, whose refit reads dispatch
+    /// arguments there). Both are BVHs over geometry of one description, with one kind and
+    /// one set of flags; `Err` otherwise, or where `from` has no recorded build.
+    pub fn record_built_by_copy(
         &mut self,
+        rec: &mut Recorder,
         from: &GpuGeometry,
         copy: crate::gpu::CopiedStructure,
     ) -> Result<()> {
         let _ = copy;
-        let call = "GpuGeometry::assume_built_by_copy";
+        let call = "GpuGeometry::record_built_by_copy";
         let (Some(d), Some(f)) = (self.device_input.as_ref(), from.device_input.as_ref()) else {
             return Err(GpuError::Usage {
                 call,
@@ -291,6 +296,11 @@ impl GpuGeometry {
             });
         }
         self.accel.adopt_build_state(&from.accel)?;
+        rec.transfer_to_transfer();
+        if let Some(record) = handle_record(rec.context(), &self.prims, &self.accel)? {
+            let last = self.accel.info.len() - 1;
+            rec.update(&self.accel.info, last, &[record])?;
+        }
         if let Some(d) = self.device_input.as_mut() {
             d.built = true;
         }

@@ -1196,23 +1196,29 @@ impl TopLevel {
         self.parts.handle.address()
     }
 
-    /// Takes the top level as built from `from`, as `from`'s recorded build left it,
-    /// because its placed bytes are a copy of `from`'s (`copy`: the caller's word for it):
-    /// an API layer's clone, which can then be updated as `from` could. Both were created
-    /// for the same maximum of instances with the same flags; `Err` otherwise, or where
-    /// `from` has no recorded build.
-    pub fn assume_built_by_copy(
+    /// Records what makes this top level a built copy of `from`, once the caller has
+    /// recorded a byte copy of `from`'s placed range into this one's (`copy`: the caller's
+    /// word for it), as [`GpuGeometry::record_built_by_copy`] does for a bottom level: its
+    /// own handle (at [`TopLevel::handle_address`]) written anew, and `from`'s build state
+    /// taken, so that it traces and can be updated as `from` could. Both were created for the
+    /// same maximum of instances with the same flags; `Err` otherwise, or where `from` has no
+    /// recorded build. Ends with transfer writes.
+    pub fn record_built_by_copy(
         &mut self,
+        rec: &mut Recorder,
         from: &TopLevel,
         copy: crate::gpu::CopiedStructure,
     ) -> Result<()> {
         if self.max != from.max || self.bytes != from.bytes {
             return Err(usage(
-                "TopLevel::assume_built_by_copy",
+                "TopLevel::record_built_by_copy",
                 "the source was created for another maximum of instances",
             ));
         }
-        self.tree.assume_built_by_copy(&from.tree, copy)?;
+        self.tree.record_built_by_copy(rec, &from.tree, copy)?;
+        let words = self.handle_words()?;
+        let handle: [[u64; 8]; 2] = bytemuck::cast(words);
+        rec.update(&self.parts.handle, 0, &handle)?;
         self.count = from.count;
         Ok(())
     }
