@@ -112,7 +112,7 @@ impl AccelStructure {
     /// driver's structure is refused).
     pub(crate) fn adopt_build_state(&mut self, from: &AccelStructure) -> Result<()> {
         let usage = |reason: &str| GpuError::Usage {
-            call: "GpuGeometry::assume_built_by_copy",
+            call: "GpuGeometry::record_built_by_copy",
             reason: reason.into(),
         };
         if self.kind != from.kind || self.flags != from.flags {

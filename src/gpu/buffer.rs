@@ -236,7 +236,7 @@ pub struct DeviceRange {
 
 /// The caller's word that a structure's placed bytes are a copy of a built structure's, by
 /// the time recorded work reads them
-/// ([`GpuGeometry::assume_built_by_copy`](crate::accel::gpu_geometry::GpuGeometry::assume_built_by_copy)):
+/// ([`GpuGeometry::record_built_by_copy`](crate::accel::gpu_geometry::GpuGeometry::record_built_by_copy)):
 /// what an API layer's clone of a structure records. Made only by the `unsafe`
 /// [`CopiedStructure::new`]: vkrt cannot see what a copy brought.
 #[derive(Clone, Copy, Debug)]

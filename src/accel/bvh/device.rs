@@ -547,7 +547,7 @@ impl BvhStorage {
             && from.compaction.is_none();
         if !same {
             return Err(GpuError::Usage {
-                call: "GpuGeometry::assume_built_by_copy",
+                call: "GpuGeometry::record_built_by_copy",
                 reason: "the source's arrays are of another shape".into(),
             });
         }
