@@ -116,14 +116,7 @@ pub fn note_push_descriptors(
         .iter()
         .map(|w| unsafe { OwnedWrite::of(w) })
         .collect();
-    if let Ok(mut c) = s.commands.lock() {
-        c.buffers
-            .entry(cb)
-            .or_default()
-            .compute
-            .push_descriptors
-            .push(PushDescriptors::Writes(layout, set, owned));
-    }
+    note_push(s, cb, PushDescriptors::Writes(layout, set, owned));
 }
 
 /// Keeps a compute push through a template (`data`: what its entries read, structures
@@ -136,13 +129,21 @@ pub fn note_push_template(
     set: u32,
     data: Vec<u8>,
 ) {
+    note_push(
+        s,
+        cb,
+        PushDescriptors::Template(template, layout, set, data),
+    );
+}
+
+fn note_push(s: &Served, cb: vk::CommandBuffer, push: PushDescriptors) {
     if let Ok(mut c) = s.commands.lock() {
         c.buffers
             .entry(cb)
             .or_default()
             .compute
             .push_descriptors
-            .push(PushDescriptors::Template(template, layout, set, data));
+            .push(push);
     }
 }
 

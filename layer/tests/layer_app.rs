@@ -164,16 +164,7 @@ fn run_child_with(mode: &str, through: Through, env: &[(&str, &str)]) -> (String
             }
         }
     }
-    let o = cmd.output().expect("the test binary, again");
-    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert!(
-        o.status.success(),
-        "the child ({mode}) failed: {}\n{stderr}",
-        String::from_utf8_lossy(&o.stdout)
-    );
-    let text = std::fs::read_to_string(&out).unwrap();
-    let _ = std::fs::remove_file(&out);
-    (text, stderr)
+    common::run_to_file(cmd, &out, &format!("the child ({mode})"))
 }
 
 /// Whether the driver has its own ray query.
@@ -247,31 +238,6 @@ fn level_triangles(level: usize, frame: u32) -> Vec<(u32, u32, [[f64; 3]; 3], bo
     out
 }
 
-/// Ray-triangle (Möller–Trumbore, f64): t, u, v.
-fn intersect(o: [f64; 3], d: [f64; 3], t: &[[f64; 3]; 3]) -> Option<(f64, f64, f64)> {
-    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let cross = |a: [f64; 3], b: [f64; 3]| {
-        [
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        ]
-    };
-    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let (e1, e2) = (sub(t[1], t[0]), sub(t[2], t[0]));
-    let p = cross(d, e2);
-    let det = dot(e1, p);
-    if det.abs() < 1e-12 {
-        return None;
-    }
-    let s = sub(o, t[0]);
-    let u = dot(s, p) / det;
-    let q = cross(s, e1);
-    let v = dot(d, q) / det;
-    let tt = dot(e2, q) / det;
-    (u >= 0.0 && v >= 0.0 && u + v <= 1.0).then_some((tt, u, v))
-}
-
 /// The world-to-object map of an instance: the inverse of its rows.
 fn to_object(p: &Placement, x: [f64; 3], point: bool) -> [f64; 3] {
     let m: [[f64; 4]; 3] = p.rows.map(|r| r.map(f64::from));
@@ -325,7 +291,7 @@ fn reference(frame: u32) -> Vec<(Hit, bool)> {
                 }
                 let (oo, od) = (to_object(p, o, true), to_object(p, d, false));
                 for (geometry, primitive, t, opaque) in level_triangles(p.level, frame) {
-                    let Some((tt, u, v)) = intercept_ok(intersect(oo, od, &t)) else {
+                    let Some((tt, u, v)) = intercept_ok(common::intersect(oo, od, &t)) else {
                         continue;
                     };
                     let opaque = opaque || p.flags & force_opaque != 0;

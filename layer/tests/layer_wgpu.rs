@@ -584,15 +584,7 @@ fn run_child(through: Through) -> Run {
             cmd.env("VKRT_LAYER_FORCE", "1");
         }
     }
-    let o = cmd.output().expect("the test binary, again");
-    let stderr = String::from_utf8_lossy(&o.stderr).into_owned();
-    assert!(
-        o.status.success(),
-        "the wgpu application failed: {}\n{stderr}",
-        String::from_utf8_lossy(&o.stdout)
-    );
-    let text = std::fs::read_to_string(&out).unwrap();
-    let _ = std::fs::remove_file(&out);
+    let (text, stderr) = common::run_to_file(cmd, &out, "the wgpu application");
     let mut run = Run {
         frames: Vec::new(),
         messages: Vec::new(),
@@ -653,32 +645,6 @@ fn apply(m: &[f32; 12], p: [f64; 3], w: f64) -> [f64; 3] {
     [r(0), r(1), r(2)]
 }
 
-/// Möller–Trumbore in f64: (t, u, v) where the ray meets the triangle's plane, and whether
-/// the point lies inside.
-fn intersect(o: [f64; 3], d: [f64; 3], tri: [[f64; 3]; 3]) -> Option<(f64, f64, f64)> {
-    let sub = |a: [f64; 3], b: [f64; 3]| [a[0] - b[0], a[1] - b[1], a[2] - b[2]];
-    let cross = |a: [f64; 3], b: [f64; 3]| {
-        [
-            a[1] * b[2] - a[2] * b[1],
-            a[2] * b[0] - a[0] * b[2],
-            a[0] * b[1] - a[1] * b[0],
-        ]
-    };
-    let dot = |a: [f64; 3], b: [f64; 3]| a[0] * b[0] + a[1] * b[1] + a[2] * b[2];
-    let (e1, e2) = (sub(tri[1], tri[0]), sub(tri[2], tri[0]));
-    let p = cross(d, e2);
-    let det = dot(e1, p);
-    if det.abs() < 1e-12 {
-        return None;
-    }
-    let s = sub(o, tri[0]);
-    let u = dot(s, p) / det;
-    let q = cross(s, e1);
-    let v = dot(d, q) / det;
-    let t = dot(e2, q) / det;
-    Some((t, u, v))
-}
-
 /// The reference answer of every ray of `frame`, and whether the ray is at an edge (where
 /// the specification leaves the answer open to rounding), in world space from the f32
 /// inputs.
@@ -726,7 +692,7 @@ fn reference(frame: u32) -> Vec<(Option<Hit>, bool)> {
             let mut edge = false;
             let mut ts = Vec::new();
             for &(instance, custom, primitive, tri, kept) in &triangles {
-                let Some((t, u, v)) = intersect(o, d, tri) else {
+                let Some((t, u, v)) = common::intersect(o, d, &tri) else {
                     continue;
                 };
                 let inside = u >= 0.0 && v >= 0.0 && u + v <= 1.0 && (0.0..=100.0).contains(&t);
