@@ -37,95 +37,74 @@ fn own_marker(ty: vk::DebugReportObjectTypeEXT) -> bool {
     ty == vk::DebugReportObjectTypeEXT::ACCELERATION_STRUCTURE_KHR
 }
 
-/// The next layer's `name` on `device`, as `F`.
+/// An entry point of the four: a device and one info struct.
+type Entry<T> = unsafe extern "system" fn(vk::Device, *const T) -> vk::Result;
+
+/// Passes the call `name` on to the next layer unless `ours` (the object is the layer's
+/// own): what each of the four entry points does.
 ///
 /// # Safety
-/// `device` is live and `F` is the type of `name`'s entry point.
-unsafe fn next<F: Copy>(device: vk::Device, name: &CStr) -> Option<F> {
-    let layer = lookup(device)?;
-    // SAFETY: the next layer's entry point with a live device.
-    let f = unsafe { (layer.next_gdpa)(device, name.as_ptr()) }?;
-    debug_assert_eq!(size_of::<F>(), size_of::<unsafe extern "system" fn()>());
-    // SAFETY: the loader's pointer for `name`, whose type the caller names.
-    Some(unsafe { std::mem::transmute_copy::<unsafe extern "system" fn(), F>(&f) })
+/// `device` is live, `info` the application's valid struct, and `Entry<T>` the type of
+/// `name`'s entry point.
+unsafe fn pass_on<T>(device: vk::Device, info: *const T, ours: bool, name: &CStr) -> vk::Result {
+    guard(vk::Result::SUCCESS, || {
+        if ours {
+            return vk::Result::SUCCESS;
+        }
+        let Some(layer) = lookup(device) else {
+            return vk::Result::SUCCESS;
+        };
+        // SAFETY: the next layer's entry point with a live device.
+        let Some(f) = (unsafe { (layer.next_gdpa)(device, name.as_ptr()) }) else {
+            return vk::Result::SUCCESS;
+        };
+        // SAFETY: the loader's pointer for `name`, of the type the caller names.
+        let f = unsafe { std::mem::transmute::<unsafe extern "system" fn(), Entry<T>>(f) };
+        // SAFETY: the application's arguments, passed on.
+        unsafe { f(device, info) }
+    })
 }
 
 unsafe extern "system" fn set_name(
     device: vk::Device,
     info: *const vk::DebugUtilsObjectNameInfoEXT<'_>,
 ) -> vk::Result {
-    guard(vk::Result::SUCCESS, || {
-        // SAFETY: the application's valid struct.
-        if own(unsafe { (*info).object_type }) {
-            return vk::Result::SUCCESS;
-        }
-        // SAFETY: the entry point's own type; the caller's arguments.
-        match unsafe {
-            next::<vk::PFN_vkSetDebugUtilsObjectNameEXT>(device, c"vkSetDebugUtilsObjectNameEXT")
-        } {
-            // SAFETY: as above.
-            Some(f) => unsafe { f(device, info) },
-            None => vk::Result::SUCCESS,
-        }
-    })
+    // SAFETY: the application's valid struct; the entry point's own type.
+    unsafe {
+        let ours = own((*info).object_type);
+        pass_on(device, info, ours, c"vkSetDebugUtilsObjectNameEXT")
+    }
 }
 
 unsafe extern "system" fn set_tag(
     device: vk::Device,
     info: *const vk::DebugUtilsObjectTagInfoEXT<'_>,
 ) -> vk::Result {
-    guard(vk::Result::SUCCESS, || {
-        // SAFETY: the application's valid struct.
-        if own(unsafe { (*info).object_type }) {
-            return vk::Result::SUCCESS;
-        }
-        // SAFETY: the entry point's own type; the caller's arguments.
-        match unsafe {
-            next::<vk::PFN_vkSetDebugUtilsObjectTagEXT>(device, c"vkSetDebugUtilsObjectTagEXT")
-        } {
-            // SAFETY: as above.
-            Some(f) => unsafe { f(device, info) },
-            None => vk::Result::SUCCESS,
-        }
-    })
+    // SAFETY: as above.
+    unsafe {
+        let ours = own((*info).object_type);
+        pass_on(device, info, ours, c"vkSetDebugUtilsObjectTagEXT")
+    }
 }
 
 unsafe extern "system" fn marker_name(
     device: vk::Device,
     info: *const vk::DebugMarkerObjectNameInfoEXT<'_>,
 ) -> vk::Result {
-    guard(vk::Result::SUCCESS, || {
-        // SAFETY: the application's valid struct.
-        if own_marker(unsafe { (*info).object_type }) {
-            return vk::Result::SUCCESS;
-        }
-        // SAFETY: the entry point's own type; the caller's arguments.
-        match unsafe {
-            next::<vk::PFN_vkDebugMarkerSetObjectNameEXT>(device, c"vkDebugMarkerSetObjectNameEXT")
-        } {
-            // SAFETY: as above.
-            Some(f) => unsafe { f(device, info) },
-            None => vk::Result::SUCCESS,
-        }
-    })
+    // SAFETY: as above.
+    unsafe {
+        let ours = own_marker((*info).object_type);
+        pass_on(device, info, ours, c"vkDebugMarkerSetObjectNameEXT")
+    }
 }
 
 unsafe extern "system" fn marker_tag(
     device: vk::Device,
     info: *const vk::DebugMarkerObjectTagInfoEXT<'_>,
 ) -> vk::Result {
-    guard(vk::Result::SUCCESS, || {
-        // SAFETY: the application's valid struct.
-        if own_marker(unsafe { (*info).object_type }) {
-            return vk::Result::SUCCESS;
-        }
-        // SAFETY: the entry point's own type; the caller's arguments.
-        match unsafe {
-            next::<vk::PFN_vkDebugMarkerSetObjectTagEXT>(device, c"vkDebugMarkerSetObjectTagEXT")
-        } {
-            // SAFETY: as above.
-            Some(f) => unsafe { f(device, info) },
-            None => vk::Result::SUCCESS,
-        }
-    })
+    // SAFETY: as above.
+    unsafe {
+        let ours = own_marker((*info).object_type);
+        pass_on(device, info, ours, c"vkDebugMarkerSetObjectTagEXT")
+    }
 }

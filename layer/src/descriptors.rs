@@ -360,18 +360,21 @@ unsafe extern "system" fn destroy_update_template(
     })
 }
 
+/// Runs `f` on the layer's record of `template`, under one lock of the records.
+fn with_template<R>(
+    template: vk::DescriptorUpdateTemplate,
+    f: impl FnOnce(&Template) -> R,
+) -> Option<R> {
+    let templates = TEMPLATES.lock().ok()?;
+    Some(f(templates.get(&template)?))
+}
+
 /// The application's template data with its structure handles replaced by their views,
-/// where the template has structure entries.
+/// where `t` has structure entries.
 ///
 /// # Safety
 /// `data` holds what the template's entries read.
-unsafe fn template_data(
-    s: &Served,
-    template: vk::DescriptorUpdateTemplate,
-    data: *const std::ffi::c_void,
-) -> Option<Vec<u8>> {
-    let templates = TEMPLATES.lock().ok()?;
-    let t = templates.get(&template)?;
+unsafe fn translated(s: &Served, t: &Template, data: *const std::ffi::c_void) -> Option<Vec<u8>> {
     if t.structures.is_empty() {
         return None;
     }
@@ -400,7 +403,7 @@ unsafe extern "system" fn update_with_template(
             return;
         };
         // SAFETY: the application's data for this template.
-        let ours = unsafe { template_data(&s, template, data) };
+        let ours = with_template(template, |t| unsafe { translated(&s, t, data) }).flatten();
         let data = ours.as_ref().map_or(data, |b| b.as_ptr().cast());
         // SAFETY: the application's call, its structures as their views.
         unsafe { f(device, set, template, data) };
@@ -419,16 +422,20 @@ unsafe extern "system" fn cmd_push_descriptor_set_with_template(
         let Some(f) = s.descriptor_fns.push_descriptor_set_with_template else {
             return;
         };
-        // SAFETY: the application's data for this template.
-        let ours = unsafe { template_data(&s, template, data) };
+        // The data with its structures as views, and a compute push's bytes kept, to push
+        // again after a build in this command buffer.
+        let (ours, kept) = with_template(template, |t| {
+            // SAFETY: the application's data for this template.
+            let ours = unsafe { translated(&s, t, data) };
+            let kept = t.compute_push.then(|| match &ours {
+                Some(b) => b.clone(),
+                // SAFETY: the data spans what the template's entries read.
+                None => unsafe { std::slice::from_raw_parts(data.cast::<u8>(), t.span) }.to_vec(),
+            });
+            (ours, kept)
+        })
+        .unwrap_or_default();
         let data = ours.as_ref().map_or(data, |b| b.as_ptr().cast());
-        // A compute push is kept, to push again after a build in this command buffer.
-        let kept = TEMPLATES.lock().ok().and_then(|m| {
-            let t = m.get(&template)?;
-            // SAFETY: the data spans what the template's entries read.
-            t.compute_push
-                .then(|| unsafe { std::slice::from_raw_parts(data.cast::<u8>(), t.span) }.to_vec())
-        });
         if let Some(bytes) = kept {
             crate::commands::note_push_template(&s, cb, template, layout, set, bytes);
         }

@@ -1058,28 +1058,12 @@ impl Recorder {
     /// Copies and fills before → indirect dispatch arguments and kernels after (a copied
     /// structure's refit schedule holds its dispatch arguments).
     pub fn transfer_to_indirect(&mut self) {
-        self.memory_barrier(
-            TRANSFER_W,
-            (
-                vk::PipelineStageFlags::DRAW_INDIRECT | vk::PipelineStageFlags::COMPUTE_SHADER,
-                vk::AccessFlags::INDIRECT_COMMAND_READ
-                    | vk::AccessFlags::SHADER_READ
-                    | vk::AccessFlags::SHADER_WRITE,
-            ),
-        );
+        self.memory_barrier(TRANSFER_W, INDIRECT_COMPUTE_RW);
     }
 
     /// Kernel writes before → indirect dispatch arguments (and kernels) after.
     pub fn compute_to_indirect(&mut self) {
-        self.memory_barrier(
-            COMPUTE_RW,
-            (
-                vk::PipelineStageFlags::DRAW_INDIRECT | vk::PipelineStageFlags::COMPUTE_SHADER,
-                vk::AccessFlags::INDIRECT_COMMAND_READ
-                    | vk::AccessFlags::SHADER_READ
-                    | vk::AccessFlags::SHADER_WRITE,
-            ),
-        );
+        self.memory_barrier(COMPUTE_RW, INDIRECT_COMPUTE_RW);
     }
 
     /// Copies, fills and kernel writes before → acceleration-structure builds after (which
@@ -1530,6 +1514,19 @@ impl Drop for Recorder {
         }
     }
 }
+
+/// Indirect dispatch arguments and kernels, as readers after a barrier.
+const INDIRECT_COMPUTE_RW: (vk::PipelineStageFlags, vk::AccessFlags) = (
+    vk::PipelineStageFlags::from_raw(
+        vk::PipelineStageFlags::DRAW_INDIRECT.as_raw()
+            | vk::PipelineStageFlags::COMPUTE_SHADER.as_raw(),
+    ),
+    vk::AccessFlags::from_raw(
+        vk::AccessFlags::INDIRECT_COMMAND_READ.as_raw()
+            | vk::AccessFlags::SHADER_READ.as_raw()
+            | vk::AccessFlags::SHADER_WRITE.as_raw(),
+    ),
+);
 
 const COMPUTE_RW: (vk::PipelineStageFlags, vk::AccessFlags) = (
     vk::PipelineStageFlags::COMPUTE_SHADER,

@@ -736,16 +736,7 @@ unsafe fn misuse_unsafe() {
                 .set_layouts(&set_layouts),
         )
         .unwrap()[0];
-    let gone = [odd_format];
-    let mut as_write =
-        vk::WriteDescriptorSetAccelerationStructureKHR::default().acceleration_structures(&gone);
-    let mut w = vk::WriteDescriptorSet::default()
-        .dst_set(set)
-        .dst_binding(0)
-        .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
-        .push_next(&mut as_write);
-    w.descriptor_count = 1;
-    d.update_descriptor_sets(&[w], &[]);
+    write_structure(&d, set, odd_format);
     d.device_wait_idle().unwrap();
     d.destroy_descriptor_pool(dpool, None);
     d.destroy_descriptor_set_layout(set_layout, None);
@@ -1256,6 +1247,24 @@ unsafe fn fragment_pass(
 
 /// Writes `set` (the structure, the output and the spheres) through a descriptor update
 /// template, as an application that caches its descriptor layouts does.
+/// Writes `structure` to binding 0 of `set`.
+unsafe fn write_structure(
+    d: &ash::Device,
+    set: vk::DescriptorSet,
+    structure: vk::AccelerationStructureKHR,
+) {
+    let structures = [structure];
+    let mut as_write = vk::WriteDescriptorSetAccelerationStructureKHR::default()
+        .acceleration_structures(&structures);
+    let mut w = vk::WriteDescriptorSet::default()
+        .dst_set(set)
+        .dst_binding(0)
+        .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
+        .push_next(&mut as_write);
+    w.descriptor_count = 1;
+    d.update_descriptor_sets(&[w], &[]);
+}
+
 /// The compute shader's descriptors as an update template reads them.
 #[repr(C)]
 struct Descriptors {
@@ -1885,16 +1894,7 @@ unsafe fn run_unsafe(
                 retired.push(old);
                 tlas = into;
                 if !pushed {
-                    let tlases = [tlas];
-                    let mut as_write = vk::WriteDescriptorSetAccelerationStructureKHR::default()
-                        .acceleration_structures(&tlases);
-                    let mut w = vk::WriteDescriptorSet::default()
-                        .dst_set(set)
-                        .dst_binding(0)
-                        .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
-                        .push_next(&mut as_write);
-                    w.descriptor_count = 1;
-                    d.update_descriptor_sets(&[w], &[]);
+                    write_structure(&d, set, tlas);
                 }
                 old
             }
