@@ -29,7 +29,13 @@ use vkrt::trace::{Hit, Ray, TraceOptions};
 const RAYS: usize = 64;
 
 fn host_and_context(validation: Validation) -> Option<(Host, Context)> {
-    let host = match Host::new(validation) {
+    context_on(Host::new(validation))
+}
+
+/// vkrt's context on `host`, the renderer's device (`None`: skipped, where no device is
+/// allowed).
+fn context_on(host: host::BoxResult<Host>) -> Option<(Host, Context)> {
+    let host = match host {
         Ok(h) => h,
         Err(e) if common::no_gpu_allowed() => {
             eprintln!("skipped: {e}");
@@ -337,4 +343,58 @@ fn streaming_caller_buffers(validation: Validation) {
     drop((spare, up, cache, out, s, ctx));
     let messages = sink.lock().unwrap();
     assert!(messages.is_empty(), "validation messages: {messages:?}");
+}
+
+/// With `VK_KHR_push_descriptor` enabled on the renderer's device, vkrt's kernels without
+/// texel bindings (every builder's) push the ranges they bind: a build records into the
+/// renderer's command buffer through a sealed, empty cache, and the structure traces as the
+/// square says. On the same device without the extension, the same frame is a cache miss
+/// (what the pushes spare).
+#[test]
+fn with_push_descriptors_a_build_binds_no_descriptor_set() {
+    let _turn = common::vulkan_turn();
+    for push in [true, false] {
+        let host = match push {
+            true => Host::with_push_descriptors(Validation::FromEnv),
+            false => Host::new(Validation::FromEnv),
+        };
+        let Some((host, ctx)) = context_on(host) else {
+            return;
+        };
+        if push && !host.features.push_descriptor {
+            eprintln!("skipped: the device has no VK_KHR_push_descriptor");
+            return;
+        }
+        let sink = host.sink.clone();
+        let builder = AccelBuilder::new(&ctx, AccelKind::Lbvh).unwrap();
+        let cache = BindingCache::new(&ctx);
+        cache.seal();
+        let mut built = None;
+        let recorded = frame(&host, &ctx, &cache, |rec| {
+            built = Some(GpuGeometry::record_build(rec, &builder, &square(), 0)?.0);
+            rec.compute_to_host();
+            Ok(())
+        });
+        match push {
+            true => {
+                recorded.unwrap();
+                assert_eq!(cache.sets(), 0);
+                let (_, tracer) = structure(&ctx);
+                let geometry = built.take().unwrap();
+                let hits = tracer
+                    .trace(&ctx, &geometry, &rays(true), 0.0)
+                    .unwrap()
+                    .hits;
+                assert!(hits.iter().all(Hit::is_hit), "the rays down hit the square");
+                drop((geometry, tracer));
+            }
+            false => assert!(
+                matches!(recorded, Err(GpuError::CacheMiss { .. })),
+                "without push descriptors a sealed, empty cache misses: {recorded:?}"
+            ),
+        }
+        drop((built, cache, builder, ctx));
+        let messages = sink.lock().unwrap();
+        assert!(messages.is_empty(), "validation messages: {messages:?}");
+    }
 }

@@ -67,6 +67,17 @@ pub struct Host {
 
 impl Host {
     pub fn new(validation: Validation) -> BoxResult<Self> {
+        Self::new_with(validation, false)
+    }
+
+    /// [`Host::new`] on a device that also enables `VK_KHR_push_descriptor` where it has it
+    /// (vkrt's kernels without texel bindings then push their buffers, creating no set).
+    #[allow(dead_code, reason = "not every example or test pushes descriptors")]
+    pub fn with_push_descriptors(validation: Validation) -> BoxResult<Self> {
+        Self::new_with(validation, true)
+    }
+
+    fn new_with(validation: Validation, push_descriptors: bool) -> BoxResult<Self> {
         // SAFETY: loading the system's Vulkan loader runs its initialisation code; every
         // Vulkan program trusts the installed loader.
         let entry = unsafe { ash::Entry::load() }?;
@@ -145,7 +156,7 @@ impl Host {
         } else {
             None
         };
-        match Self::with_device(&instance) {
+        match Self::with_device(&instance, push_descriptors) {
             Ok((physical_device, family, device, features, allocator)) => {
                 // SAFETY: the device was created with one queue of `family`.
                 let queue = unsafe { device.get_device_queue(family, 0) };
@@ -182,6 +193,7 @@ impl Host {
     #[allow(clippy::type_complexity, reason = "a private constructor step")]
     fn with_device(
         instance: &ash::Instance,
+        push_descriptors: bool,
     ) -> BoxResult<(
         vk::PhysicalDevice,
         u32,
@@ -260,18 +272,27 @@ impl Host {
         let mut enable_accel = vk::PhysicalDeviceAccelerationStructureFeaturesKHR::default()
             .acceleration_structure(true);
         let mut enable_query = vk::PhysicalDeviceRayQueryFeaturesKHR::default().ray_query(true);
+        let push = ash::khr::push_descriptor::NAME;
+        let push_descriptor = push_descriptors
+            && available
+                .iter()
+                .any(|e| e.extension_name_as_c_str() == Ok(push));
         let features = DeviceFeatures {
             shader_int64: base.shader_int64 == vk::TRUE,
             shader_float64: base.shader_float64 == vk::TRUE,
             storage_buffer_8bit: enable12.storage_buffer8_bit_access == vk::TRUE,
             buffer_device_address: ray_query,
             ray_query,
+            push_descriptor,
             ..DeviceFeatures::default()
         };
-        let ext_names: Vec<*const c_char> = match ray_query {
+        let mut ext_names: Vec<*const c_char> = match ray_query {
             true => ray_query_exts.iter().map(|e| e.as_ptr()).collect(),
             false => Vec::new(),
         };
+        if push_descriptor {
+            ext_names.push(push.as_ptr());
+        }
         let priorities = [1.0];
         let queues = [vk::DeviceQueueCreateInfo::default()
             .queue_family_index(family)

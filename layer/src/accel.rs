@@ -107,6 +107,10 @@ impl Builders {
         if let Err(e) = self.pointers(ctx) {
             log(&format!("the instance-pointer gather: {e}"));
         }
+        // The geometry gather's kernels live in the context's kernel cache from now on.
+        if let Err(e) = vkrt::accel::geometry::GeometryGather::new(ctx) {
+            log(&format!("the geometry gather: {e}"));
+        }
     }
 
     fn bottom(&self, ctx: &vkrt::Context, kind: AccelKind) -> vkrt::gpu::Result<Arc<AccelBuilder>> {
@@ -604,6 +608,7 @@ unsafe extern "system" fn cmd_build(
                 std::slice::from_raw_parts(ranges, count as usize),
             )
         };
+        s.kernels_ready();
         let before = s.ctx.traffic();
         // SAFETY: the application's command buffer, recording, outside a render pass (the
         // extension's rules for builds); what it binds lives until the command buffer is
@@ -946,6 +951,7 @@ unsafe extern "system" fn cmd_copy(
                 ))
             }
         }
+        s.kernels_ready();
         let before = s.ctx.traffic();
         // SAFETY: the application's command buffer, recording, outside a render pass.
         let mut rec = match unsafe { Recorder::from_raw_with(&s.ctx, cb, &s.bindings) } {

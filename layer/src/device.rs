@@ -47,10 +47,23 @@ pub struct Served {
     /// The descriptor entry points the layer translates that a device may lack.
     pub descriptor_fns: descriptors::DescriptorFns,
     /// The descriptor sets and texel views of vkrt's kernels over the application's
-    /// buffers, made by the first build over a range and bound by every later one (a
-    /// structure rebuilt or updated in place with the same scratch records no new object);
-    /// a buffer's are freed when the application destroys it (`memory`).
+    /// buffers, where the device has no push descriptors (with them, the build kernels push
+    /// their ranges and the cache stays empty): made by the first build over a range and
+    /// bound by every later one; a buffer's are freed when the application destroys it
+    /// (`memory`).
     pub bindings: vkrt::gpu::BindingCache,
+}
+
+impl Served {
+    /// Waits, once, for the thread compiling vkrt's kernels since the device was created,
+    /// so that a recording binds kernels that exist rather than compiling its own beside
+    /// that thread's (objects created while the application records).
+    pub fn kernels_ready(&self) {
+        let warming = self.warming.lock().ok().and_then(|mut w| w.take());
+        if let Some(t) = warming {
+            let _ = t.join();
+        }
+    }
 }
 
 static DEVICES: LazyLock<RwLock<HandleMap<usize, Arc<LayerDevice>>>> =
@@ -175,12 +188,17 @@ unsafe fn create(
     let supported = supported_features(&inst, pd);
 
     // The driver's create info: the layer's extensions and feature structs taken out,
-    // bufferDeviceAddress and shaderInt64 enabled (the lowered shaders need both).
-    let kept: Vec<*const c_char> = names
+    // bufferDeviceAddress and shaderInt64 enabled (the lowered shaders need both), and
+    // push descriptors where the device has them (vkrt's builds then bind no set).
+    let mut kept: Vec<*const c_char> = names
         .iter()
         .filter(|n| !PROVIDED.iter().any(|(p, _)| p == *n))
         .map(|n| n.as_ptr())
         .collect();
+    let push = ash::khr::push_descriptor::NAME;
+    if supported.push_descriptor && !names.contains(&push) {
+        kept.push(push.as_ptr());
+    }
     let mut driver_info = *info_ref;
     driver_info.enabled_extension_count = kept.len() as u32;
     driver_info.pp_enabled_extension_names = kept.as_ptr();
@@ -219,9 +237,17 @@ unsafe fn create(
     let fns = unsafe { ash::Device::load(&fp, device) };
     // SAFETY: a queue the application asked for.
     let queue = unsafe { fns.get_device_queue(queue_family, 0) };
+    // vkrt loads device extensions (push descriptors) through the instance's
+    // vkGetDeviceProcAddr: the next layer's, as the device's own functions are.
+    let instance = ash::Instance::from_parts_1_3(
+        inst.fns.handle(),
+        fp,
+        inst.fns.fp_v1_1().clone(),
+        inst.fns.fp_v1_3().clone(),
+    );
     let parts = vkrt::gpu::RawParts {
         entry: inst.entry.clone(),
-        instance: inst.fns.clone(),
+        instance,
         physical_device: pd,
         device: fns.clone(),
         queue_family,
@@ -329,6 +355,9 @@ fn device_api(inst: &LayerInstance, pd: vk::PhysicalDevice) -> u32 {
 #[derive(Clone, Copy, Default)]
 struct Supported {
     int64_atomics: bool,
+    /// `VK_KHR_push_descriptor`: vkrt's build kernels push their buffers, so recording a
+    /// build creates no descriptor set.
+    push_descriptor: bool,
 }
 
 fn supported_features(inst: &LayerInstance, pd: vk::PhysicalDevice) -> Supported {
@@ -336,8 +365,14 @@ fn supported_features(inst: &LayerInstance, pd: vk::PhysicalDevice) -> Supported
     let mut f2 = vk::PhysicalDeviceFeatures2::default().push_next(&mut v12);
     // SAFETY: a physical device of the instance; the chain is ours.
     unsafe { (inst.fns.fp_v1_1().get_physical_device_features2)(pd, &mut f2) };
+    // SAFETY: as above.
+    let extensions =
+        unsafe { inst.fns.enumerate_device_extension_properties(pd) }.unwrap_or_default();
     Supported {
         int64_atomics: v12.shader_buffer_int64_atomics == vk::TRUE,
+        push_descriptor: extensions
+            .iter()
+            .any(|e| e.extension_name_as_c_str() == Ok(ash::khr::push_descriptor::NAME)),
     }
 }
 
@@ -503,10 +538,7 @@ unsafe extern "system" fn destroy_device(
         };
         if let Some(served) = &layer.served {
             // The kernels' thread uses the device: it ends first.
-            let warming = served.warming.lock().ok().and_then(|mut w| w.take());
-            if let Some(t) = warming {
-                let _ = t.join();
-            }
+            served.kernels_ready();
             // The device is idle (the specification's rule for vkDestroyDevice): what
             // its command buffers used, and the structures the application left, go first.
             served.commands.lock().map(|mut c| c.clear()).ok();

@@ -579,7 +579,8 @@ fn run_child(through: Through) -> Run {
     if let Through::Layer { force } = through {
         let dir = app::manifest_dir(std::path::Path::new(env!("CARGO_TARGET_TMPDIR")));
         app::add_layer_path(&mut cmd, &dir);
-        cmd.env("VK_INSTANCE_LAYERS", "VK_LAYER_VKRT_ray_query");
+        cmd.env("VK_INSTANCE_LAYERS", "VK_LAYER_VKRT_ray_query")
+            .env(vkrt_layer::STATS_VARIABLE, "1");
         if force {
             cmd.env("VKRT_LAYER_FORCE", "1");
         }
@@ -776,11 +777,14 @@ fn check_against_reference(what: &str, run: &Run) -> usize {
     hits
 }
 
+/// How the layer's `VKRT_LAYER_STATS` lines start.
+const STATS: &str = "vkrt layer: stats: ";
+
 /// The layer's own complaints: none but the loop-budget warning (Mesa 22.3), once.
 fn assert_layer_quiet(stderr: &str) {
     let lines: Vec<&str> = stderr
         .lines()
-        .filter(|l| l.starts_with("vkrt layer:"))
+        .filter(|l| l.starts_with("vkrt layer:") && !l.starts_with(STATS))
         .filter(|l| !l.contains("loops once they have run a budget of iterations"))
         .collect();
     assert!(lines.is_empty(), "the layer logged:\n{}", lines.join("\n"));
@@ -806,6 +810,17 @@ fn a_wgpu_application_traces_through_the_layer_as_the_reference_says() {
         "the Khronos validation layer is not installed (VKRT_VALIDATION=0 runs without it)"
     );
     assert_layer_quiet(&run.stderr);
+    // wgpu hands every build a scratch buffer of its own: with push descriptors the layer's
+    // recordings still create nothing.
+    let recorded: Vec<&str> = run
+        .stderr
+        .lines()
+        .filter_map(|l| l.strip_prefix(STATS))
+        .collect();
+    assert!(
+        recorded.len() >= 4 && recorded.iter().all(|l| l.contains(": 0 objects")),
+        "objects created while recording: {recorded:#?}"
+    );
     // What wgpu's ray-query examples ask of a device.
     assert!(
         run.meets_minimum,

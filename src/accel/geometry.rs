@@ -625,16 +625,22 @@ pub struct GatherJob<'a> {
 /// `accel.geometry_gather`: the caller's geometry into a structure's primitive arrays.
 pub struct GeometryGather {
     buffers: std::sync::Arc<Kernel>,
+    /// The kernel that reads at device addresses, where the device has them.
+    address: Option<std::sync::Arc<Kernel>>,
 }
 
 impl GeometryGather {
-    /// Compiles the gather kernel.
+    /// Compiles the gather kernels: the one that reads bound buffers, and, where the
+    /// device has buffer device addresses, the one that reads at addresses.
     pub fn new(ctx: &Context) -> Result<Self> {
+        let spec = Spec::new().workgroup(WORKGROUP);
+        let address = match ctx.info().features.buffer_device_address {
+            true => Some(ctx.kernel(&kernels::ACCEL_GEOMETRY_GATHER_ADDRESS, &spec)?),
+            false => None,
+        };
         Ok(Self {
-            buffers: ctx.kernel(
-                &kernels::ACCEL_GEOMETRY_GATHER_BUFFERS,
-                &Spec::new().workgroup(WORKGROUP),
-            )?,
+            buffers: ctx.kernel(&kernels::ACCEL_GEOMETRY_GATHER_BUFFERS, &spec)?,
+            address,
         })
     }
 
@@ -818,10 +824,13 @@ impl GeometryGather {
                 rec.dispatch(&self.buffers, groups, &[&s, &i, o0, o1, o2, o3], &push)
             }
             _ => {
-                let kernel = ctx.kernel(
-                    &kernels::ACCEL_GEOMETRY_GATHER_ADDRESS,
-                    &Spec::new().workgroup(WORKGROUP),
-                )?;
+                let kernel = match &self.address {
+                    Some(k) => k.clone(),
+                    None => ctx.kernel(
+                        &kernels::ACCEL_GEOMETRY_GATHER_ADDRESS,
+                        &Spec::new().workgroup(WORKGROUP),
+                    )?,
+                };
                 rec.dispatch(&kernel, groups, &[o0, o1, o2, o3], &push)
             }
         }

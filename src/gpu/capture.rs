@@ -25,7 +25,7 @@ pub(crate) enum Cmd {
     Bind {
         pipeline: vk::Pipeline,
         layout: vk::PipelineLayout,
-        set: vk::DescriptorSet,
+        set: SetZero,
         push: Vec<u8>,
     },
     /// A debug label naming the dispatch that follows.
@@ -56,6 +56,16 @@ pub(crate) enum Cmd {
         src: Scope,
         dst: Scope,
     },
+}
+
+/// How a kernel's set 0 reaches it.
+#[derive(Clone, Debug)]
+pub(crate) enum SetZero {
+    /// A descriptor set written for its layout.
+    Bound(vk::DescriptorSet),
+    /// Storage ranges pushed into the command buffer (`VK_KHR_push_descriptor`), by
+    /// binding number.
+    Pushed(Vec<(u32, vk::DescriptorBufferInfo)>),
 }
 
 /// Both barriers in one: every stage and access of either on each side (what either

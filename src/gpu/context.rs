@@ -42,6 +42,8 @@ pub struct ExtraFeatures {
     /// Vulkan 1.2 features to enable (every `VK_TRUE` member), beside vkrt's.
     pub v12: vk::PhysicalDeviceVulkan12Features<'static>,
     /// Device extensions to enable (ones without a feature struct of their own).
+    /// `VK_KHR_push_descriptor` among them also has vkrt's kernels without texel bindings
+    /// push their buffers rather than bind descriptor sets ([`DeviceFeatures::push_descriptor`]).
     pub extensions: Vec<std::ffi::CString>,
 }
 
@@ -270,6 +272,9 @@ pub(crate) struct Inner {
     pub(crate) debug_utils: Option<ash::ext::debug_utils::Device>,
     /// VK_KHR_acceleration_structure's functions, where `ray_query` is enabled.
     pub(crate) accel_ext: Option<ash::khr::acceleration_structure::Device>,
+    /// VK_KHR_push_descriptor's functions, where enabled: kernels without texel bindings
+    /// push their buffers ([`super::Kernel`]).
+    pub(crate) push_descriptor: Option<ash::khr::push_descriptor::Device>,
     pub(crate) pipeline_cache: vk::PipelineCache,
     /// Where the pipeline cache is saved (`None`: nowhere).
     cache_path: Option<std::path::PathBuf>,
@@ -340,6 +345,14 @@ impl Context {
             features.calibrated_timestamps = [CalibratedTimestamps::Khr, CalibratedTimestamps::Ext]
                 .into_iter()
                 .find(|c| Some(c.name()) == calibration);
+            // Pushed descriptors spare the descriptor sets but cost lavapipe more per
+            // dispatch (bunny builds: LBVH 2–19 % slower, PLOC 5–13 %: docs/performance.md),
+            // so they are the caller's choice: `extra.extensions`.
+            features.push_descriptor &= options
+                .extra
+                .extensions
+                .iter()
+                .any(|e| e.as_c_str() == ash::khr::push_descriptor::NAME);
             check_extra(&instance, pd, &options.extra)?;
             create_device(&instance, pd, family, &features, &options.extra)
                 .map(|d| (pd, family, features, (d, calibration)))
@@ -449,6 +462,10 @@ impl Context {
             .enabled_features
             .ray_query
             .then(|| ash::khr::acceleration_structure::Device::new(&parts.instance, &parts.device));
+        let push_descriptor = parts
+            .enabled_features
+            .push_descriptor
+            .then(|| ash::khr::push_descriptor::Device::new(&parts.instance, &parts.device));
         let cache_path = match (&parts.pipeline_cache_dir, owns_device) {
             (Some(dir), _) => Some(pipeline_cache::path_in(dir, &info)),
             (None, true) => pipeline_cache::default_path(&info),
@@ -469,6 +486,7 @@ impl Context {
                 info,
                 debug_utils,
                 accel_ext,
+                push_descriptor,
                 pipeline_cache,
                 cache_path,
                 kernels: Mutex::new(HashMap::new()),

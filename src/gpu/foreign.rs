@@ -115,6 +115,7 @@ impl ForeignKernel {
             push_bytes,
             spec,
             flags: vk::PipelineCreateFlags::DISPATCH_BASE,
+            pushed: false,
         };
         let made =
             ctx.create_compute_pipeline(&desc)

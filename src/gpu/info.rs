@@ -49,6 +49,12 @@ pub struct DeviceFeatures {
     /// put the device's ticks on the host's clock through it ([`super::Calibration`]);
     /// without one, by a timestamp written at a submission.
     pub calibrated_timestamps: Option<CalibratedTimestamps>,
+    /// `VK_KHR_push_descriptor`: vkrt's kernels without texel bindings (every builder's)
+    /// push their buffers into the command buffer instead of binding a descriptor set, so
+    /// recording them creates no descriptor set and needs no [`super::BindingCache`]. A
+    /// context vkrt creates enables it only when asked ([`super::ExtraFeatures::extensions`]):
+    /// lavapipe runs a pushed dispatch slower than a bound one.
+    pub push_descriptor: bool,
 }
 
 /// Which calibrated-timestamps extension a device has.
@@ -208,6 +214,7 @@ impl DeviceFeatures {
             && f.buffer_device_address
             && RAY_QUERY_EXTENSIONS.iter().all(|&n| enabled(n));
         f.calibrated_timestamps = CalibratedTimestamps::among(enabled);
+        f.push_descriptor = enabled(ash::khr::push_descriptor::NAME);
         f
     }
 }
@@ -283,6 +290,9 @@ impl DeviceFeatures {
         }
         r.extensions
             .extend(self.calibrated_timestamps.map(CalibratedTimestamps::name));
+        if self.push_descriptor {
+            r.extensions.push(ash::khr::push_descriptor::NAME);
+        }
         r
     }
 }
@@ -588,6 +598,7 @@ pub(crate) fn supported_features(
             && query.ray_query == vk::TRUE
             && f12.buffer_device_address == vk::TRUE,
         calibrated_timestamps: CalibratedTimestamps::among(has_ext),
+        push_descriptor: has_ext(ash::khr::push_descriptor::NAME),
     }
 }
 
@@ -791,6 +802,7 @@ mod tests {
             buffer_device_address: true,
             ray_query: true,
             calibrated_timestamps: Some(CalibratedTimestamps::Khr),
+            push_descriptor: true,
         };
         let some = DeviceFeatures {
             storage_buffer_8bit: true,

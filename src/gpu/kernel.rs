@@ -71,6 +71,9 @@ pub struct Kernel {
     pub(crate) pipeline: vk::Pipeline,
     pub(crate) layout: vk::PipelineLayout,
     pub(crate) set_layout: vk::DescriptorSetLayout,
+    /// Whether its buffers are pushed into the command buffer (`VK_KHR_push_descriptor`,
+    /// for a kernel without texel bindings) rather than bound as a descriptor set.
+    pub(crate) pushed: bool,
     /// The workgroup size after specialization.
     pub workgroup_size: [u32; 3],
 }
@@ -165,6 +168,11 @@ impl Context {
                 limits.max_workgroup_invocations, limits.max_workgroup_size
             )));
         }
+        // A texel binding needs a view object, which a push would not spare; the extension
+        // guarantees 32 pushed descriptors.
+        let pushed = self.inner.push_descriptor.is_some()
+            && blob.texel_bindings.is_empty()
+            && blob.bindings.len() <= 32;
         let bindings: Vec<(u32, vk::DescriptorType)> = blob
             .bindings
             .iter()
@@ -181,6 +189,7 @@ impl Context {
             },
             spec: &entries,
             flags: vk::PipelineCreateFlags::empty(),
+            pushed,
         };
         match self.create_compute_pipeline(&desc) {
             Ok(p) => Ok(Kernel {
@@ -188,6 +197,7 @@ impl Context {
                 pipeline: p.pipeline,
                 layout: p.layout,
                 set_layout: p.set_layout,
+                pushed,
                 workgroup_size,
             }),
             Err(PipelineFailure {

@@ -20,6 +20,8 @@ pub(crate) struct PipelineDesc<'a> {
     /// Specialization constants: `(constant id, 32-bit value)`.
     pub spec: &'a [(u32, u32)],
     pub flags: vk::PipelineCreateFlags,
+    /// Whether set 0 is pushed (`VK_KHR_push_descriptor`) rather than bound.
+    pub pushed: bool,
 }
 
 /// The three objects of a compute pipeline; the owner destroys them.
@@ -80,9 +82,15 @@ impl Context {
         // on failure every object created so far is destroyed before returning. The module
         // is destroyed right after pipeline creation, which Vulkan allows.
         unsafe {
+            let set_flags = match desc.pushed {
+                true => vk::DescriptorSetLayoutCreateFlags::PUSH_DESCRIPTOR_KHR,
+                false => vk::DescriptorSetLayoutCreateFlags::empty(),
+            };
             let set_layout = device
                 .create_descriptor_set_layout(
-                    &vk::DescriptorSetLayoutCreateInfo::default().bindings(&bindings),
+                    &vk::DescriptorSetLayoutCreateInfo::default()
+                        .flags(set_flags)
+                        .bindings(&bindings),
                     None,
                 )
                 .map_err(fail("vkCreateDescriptorSetLayout"))?;

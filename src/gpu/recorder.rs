@@ -13,7 +13,7 @@ use bytemuck::Pod;
 
 use super::bindings::{check_serves, BindingCache, SetPools, Views};
 use super::buffer::{Buffer, BufferArg, Memory};
-use super::capture::{interleave, Cmd};
+use super::capture::{interleave, Cmd, SetZero};
 use super::context::Context;
 use super::error::{vk_err, GpuError, Result};
 use super::hook::{CompletedScope, QuerySlot, RecordedScope, ScopeHook};
@@ -540,16 +540,9 @@ impl Recorder {
         if self.failed.is_some() {
             return false;
         }
-        let ctx = &self.ctx;
-        let write = |set, views: &mut Views| write_set(ctx, blob, set, buffers, views);
-        let set = match &self.cache {
-            Some(cache) => {
-                cache.set_for(blob.name, kernel.set_layout, buffers, self.preparing, write)
-            }
-            None => self
-                .descriptor_pools
-                .allocate(ctx, kernel.set_layout)
-                .and_then(|(_, set)| write(set, &mut self.views).map(|()| set)),
+        let set = match kernel.pushed {
+            true => Ok(SetZero::Pushed(pushed_ranges(blob, buffers))),
+            false => self.set_for(kernel, buffers).map(SetZero::Bound),
         };
         let set = match set {
             Ok(set) => set,
@@ -565,6 +558,26 @@ impl Recorder {
             push: push.to_vec(),
         });
         true
+    }
+
+    /// The descriptor set of `kernel` over `buffers`: the cache's, or a fresh one of the
+    /// recording's pools.
+    fn set_for(
+        &mut self,
+        kernel: &Kernel,
+        buffers: &[&dyn BufferArg],
+    ) -> Result<vk::DescriptorSet> {
+        let (ctx, blob) = (&self.ctx, kernel.blob);
+        let write = |set, views: &mut Views| write_set(ctx, blob, set, buffers, views);
+        match &self.cache {
+            Some(cache) => {
+                cache.set_for(blob.name, kernel.set_layout, buffers, self.preparing, write)
+            }
+            None => self
+                .descriptor_pools
+                .allocate(ctx, kernel.set_layout)
+                .and_then(|(_, set)| write(set, &mut self.views).map(|()| set)),
+        }
     }
 
     /// `Err` when a Vulkan call failed while recording (the work is incomplete and must not
@@ -930,17 +943,45 @@ impl Recorder {
                 push,
             } => {
                 // SAFETY: recording outside a render pass; the set was written for this
-                // layout (Recorder::bind); `push` fits the layout's range (checked there).
+                // layout, or the ranges are pushed into a layout made for pushing, whose
+                // kernel has storage bindings only (Recorder::bind, Kernel::pushed); `push`
+                // fits the layout's range (checked there).
                 unsafe {
                     device.cmd_bind_pipeline(c, vk::PipelineBindPoint::COMPUTE, *pipeline);
-                    device.cmd_bind_descriptor_sets(
-                        c,
-                        vk::PipelineBindPoint::COMPUTE,
-                        *layout,
-                        0,
-                        &[*set],
-                        &[],
-                    );
+                    match set {
+                        SetZero::Bound(set) => device.cmd_bind_descriptor_sets(
+                            c,
+                            vk::PipelineBindPoint::COMPUTE,
+                            *layout,
+                            0,
+                            &[*set],
+                            &[],
+                        ),
+                        SetZero::Pushed(ranges) => {
+                            let pd = self
+                                .ctx
+                                .inner
+                                .push_descriptor
+                                .as_ref()
+                                .expect("a pushed kernel's context has push descriptors");
+                            let writes: Vec<vk::WriteDescriptorSet> = ranges
+                                .iter()
+                                .map(|(binding, info)| {
+                                    vk::WriteDescriptorSet::default()
+                                        .dst_binding(*binding)
+                                        .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
+                                        .buffer_info(std::slice::from_ref(info))
+                                })
+                                .collect();
+                            pd.cmd_push_descriptor_set(
+                                c,
+                                vk::PipelineBindPoint::COMPUTE,
+                                *layout,
+                                0,
+                                &writes,
+                            );
+                        }
+                    }
                     if !push.is_empty() {
                         device.cmd_push_constants(
                             c,
@@ -1559,6 +1600,25 @@ const ACCEL_BUILD_RW: (vk::PipelineStageFlags, vk::AccessFlags) = (
     ),
 );
 
+/// The ranges of `buffers`, by `blob`'s binding numbers (pushed, or written into a set).
+fn pushed_ranges(
+    blob: &super::shader::ShaderBlob,
+    buffers: &[&dyn BufferArg],
+) -> Vec<(u32, vk::DescriptorBufferInfo)> {
+    blob.bindings
+        .iter()
+        .zip(buffers)
+        .map(|(&binding, b)| {
+            let info = vk::DescriptorBufferInfo {
+                buffer: b.raw(),
+                offset: b.offset(),
+                range: b.range(),
+            };
+            (binding, info)
+        })
+        .collect()
+}
+
 /// Writes `buffers` into `set` (a fresh set of `blob`'s layout, used by no command buffer
 /// yet): storage ranges, and texel bindings through RGBA32UI views of their ranges.
 fn write_set(
@@ -1568,16 +1628,7 @@ fn write_set(
     buffers: &[&dyn BufferArg],
     views: &mut Views,
 ) -> Result<()> {
-    let infos: Vec<[vk::DescriptorBufferInfo; 1]> = buffers
-        .iter()
-        .map(|b| {
-            [vk::DescriptorBufferInfo {
-                buffer: b.raw(),
-                offset: b.offset(),
-                range: b.range(),
-            }]
-        })
-        .collect();
+    let ranges = pushed_ranges(blob, buffers);
     let mut texel = Vec::new();
     for (&binding, b) in blob.bindings.iter().zip(buffers) {
         if blob.texel_bindings.contains(&binding) {
@@ -1585,18 +1636,16 @@ fn write_set(
         }
     }
     let mut next_view = texel.iter();
-    let writes: Vec<vk::WriteDescriptorSet> = blob
-        .bindings
+    let writes: Vec<vk::WriteDescriptorSet> = ranges
         .iter()
-        .zip(&infos)
-        .map(|(&binding, info)| {
+        .map(|(binding, info)| {
             let w = vk::WriteDescriptorSet::default()
                 .dst_set(set)
-                .dst_binding(binding)
-                .descriptor_type(super::kernel::descriptor_type(blob, binding));
-            match blob.texel_bindings.contains(&binding) {
+                .dst_binding(*binding)
+                .descriptor_type(super::kernel::descriptor_type(blob, *binding));
+            match blob.texel_bindings.contains(binding) {
                 true => w.texel_buffer_view(next_view.next().expect("one view per texel binding")),
-                false => w.buffer_info(info),
+                false => w.buffer_info(std::slice::from_ref(info)),
             }
         })
         .collect();
