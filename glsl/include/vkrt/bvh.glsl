@@ -21,35 +21,33 @@
 #define VKRT_WIDE_STACK_SIZE 192u
 
 
-// The same binding as the kd-tree's nodes: one structure is bound at a time.
-#ifdef VKRT_DEVICE_ADDRESS
-layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtBvhNodes { VkrtBvhNode v[]; };
-VkrtBvhNodes vkrt_bvh_nodes_ref;
-#define vkrt_bvh_nodes vkrt_bvh_nodes_ref.v
-#elif !VKRT_TEXEL_NODES
-layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 0) readonly buffer VkrtBvhNodesBinding { VkrtBvhNode vkrt_bvh_nodes[]; };
-#endif
-#if VKRT_TEXEL_NODES
-// Four RGBA32UI texels per node (vkrt_node_texels, traverse.glsl).
+// The nodes: in the nodes binding, as 16-byte units (VKRT_NODE_UNIT, traverse.glsl: texels,
+// or one storage block whatever the structure), four per node, binary or wide; or at the
+// structure's device address.
+#ifndef VKRT_DEVICE_ADDRESS
 VkrtBvhNode vkrt_load_bvh_node(uint i) {
-    int t = int(4u * i);
-    uvec4 a = texelFetch(vkrt_node_texels, t);
-    uvec4 b = texelFetch(vkrt_node_texels, t + 1);
-    uvec4 c = texelFetch(vkrt_node_texels, t + 2);
-    uvec4 d = texelFetch(vkrt_node_texels, t + 3);
+    uint t = 4u * i;
+    uvec4 a = VKRT_NODE_UNIT(t);
+    uvec4 b = VKRT_NODE_UNIT(t + 1u);
+    uvec4 c = VKRT_NODE_UNIT(t + 2u);
+    uvec4 d = VKRT_NODE_UNIT(t + 3u);
     return VkrtBvhNode(uintBitsToFloat(a.xyz), a.w, uintBitsToFloat(b.xyz), b.w,
                    uintBitsToFloat(c.xyz), c.w, uintBitsToFloat(d.xyz), d.w);
+}
+
+VkrtWideNode vkrt_load_wide_node(uint i) {
+    uint t = 4u * i;
+    return VkrtWideNode(VKRT_NODE_UNIT(t), VKRT_NODE_UNIT(t + 1u), VKRT_NODE_UNIT(t + 2u),
+                    VKRT_NODE_UNIT(t + 3u));
 }
 #elif VKRT_FP64_FALLBACK
 // The same nodes as two 64-bit vectors each: on lavapipe every load is a loop over lanes and
 // components, so eight 64-bit components cost half the trips of sixteen 32-bit ones.
-#ifdef VKRT_DEVICE_ADDRESS
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtBvhNodes { VkrtBvhNode v[]; };
+VkrtBvhNodes vkrt_bvh_nodes_ref;
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtBvhNodes64 { u64vec4 v[]; };
 VkrtBvhNodes64 vkrt_bvh_nodes64_ref;
 #define vkrt_bvh_nodes64 vkrt_bvh_nodes64_ref.v
-#else
-layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 0) readonly buffer VkrtBvhNodes64Binding { u64vec4 vkrt_bvh_nodes64[]; };
-#endif
 
 vec2 vkrt_two_floats(uint64_t w) {
     return uintBitsToFloat(unpack32(w));
@@ -73,20 +71,7 @@ VkrtBvhNode vkrt_load_bvh_node(uint i) {
     return VkrtBvhNode(vec3(a0, uintBitsToFloat(a1.x)), a1.y, vec3(a2, uintBitsToFloat(a3.x)), a3.y,
                    vec3(b0, uintBitsToFloat(b1.x)), b1.y, vec3(b2, uintBitsToFloat(b3.x)), b3.y);
 }
-#else
-VkrtBvhNode vkrt_load_bvh_node(uint i) {
-    return vkrt_bvh_nodes[i];
-}
-#endif
 
-// Wide nodes (bvh_wide_node.glsl) in the nodes binding, read the binary nodes' way.
-#if VKRT_TEXEL_NODES
-VkrtWideNode vkrt_load_wide_node(uint i) {
-    int t = int(4u * i);
-    return VkrtWideNode(texelFetch(vkrt_node_texels, t), texelFetch(vkrt_node_texels, t + 1),
-                    texelFetch(vkrt_node_texels, t + 2), texelFetch(vkrt_node_texels, t + 3));
-}
-#elif VKRT_FP64_FALLBACK
 VkrtWideNode vkrt_load_wide_node(uint i) {
     u64vec4 p = vkrt_bvh_nodes64[2u * i];
     u64vec4 q = vkrt_bvh_nodes64[2u * i + 1u];
@@ -94,15 +79,17 @@ VkrtWideNode vkrt_load_wide_node(uint i) {
                     uvec4(unpack32(q.x), unpack32(q.y)), uvec4(unpack32(q.z), unpack32(q.w)));
 }
 #else
-#ifdef VKRT_DEVICE_ADDRESS
+layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtBvhNodes { VkrtBvhNode v[]; };
+VkrtBvhNodes vkrt_bvh_nodes_ref;
 layout(buffer_reference, std430, buffer_reference_align = 4) readonly buffer VkrtWideNodes { VkrtWideNode v[]; };
 VkrtWideNodes vkrt_wide_nodes_ref;
-#define vkrt_wide_nodes vkrt_wide_nodes_ref.v
-#else
-layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 0) readonly buffer VkrtWideNodesBinding { VkrtWideNode vkrt_wide_nodes[]; };
-#endif
+
+VkrtBvhNode vkrt_load_bvh_node(uint i) {
+    return vkrt_bvh_nodes_ref.v[i];
+}
+
 VkrtWideNode vkrt_load_wide_node(uint i) {
-    return vkrt_wide_nodes[i];
+    return vkrt_wide_nodes_ref.v[i];
 }
 #endif
 

@@ -110,8 +110,20 @@ VkrtSceneInfo vkrt_scene_info;
 // glslang makes of a `usamplerBuffer`, and Mesa warns of it.
 #extension GL_EXT_samplerless_texture_functions : require
 layout(set = VKRT_SET, binding = VKRT_GEOM_BINDING + 0) uniform utextureBuffer vkrt_node_texels;
+#define VKRT_NODE_UNIT(t) texelFetch(vkrt_node_texels, int(t))
+#elif VKRT_FP64_FALLBACK
+// Every structure's nodes (a kd-tree's, a binary or wide BVH's, the driver's top-level
+// address) through one block of 16-byte units, whole nodes being whole units: one block type
+// per binding, which SPIR-V's translators (SPIRV-Cross, naga) and validators ask for. Units
+// of two 64-bit words: on lavapipe every load is a loop over its components, so half the
+// trips of four 32-bit ones.
+layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 0) readonly buffer VkrtNodesBinding { u64vec2 vkrt_node_units[]; };
+#define VKRT_NODE_UNIT(t) \
+    uvec4(unpack32(vkrt_node_units[t].x), unpack32(vkrt_node_units[t].y))
 #else
-layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 0) readonly buffer VkrtKdNodesBinding { VkrtKdNode vkrt_kd_nodes[]; };
+// As above, in 32-bit words.
+layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 0) readonly buffer VkrtNodesBinding { uvec4 vkrt_node_units[]; };
+#define VKRT_NODE_UNIT(t) vkrt_node_units[t]
 #endif
 #if VKRT_TEXEL_NODES
 // The references and the triangle vertices as texels too (four words each).
@@ -154,8 +166,11 @@ VkrtU64s vkrt_tlas_ref;
 #elif VKRT_TEXEL_NODES
 // The nodes binding is a texel buffer: the address is the first texel's two low words.
 #define vkrt_tlas_address packUint2x32(texelFetch(vkrt_node_texels, 0).xy)
+#elif VKRT_FP64_FALLBACK
+// The nodes binding's first word (its 8 bytes alone are read).
+#define vkrt_tlas_address vkrt_node_units[0].x
 #else
-layout(std430, set = VKRT_SET, binding = VKRT_GEOM_BINDING + 0) readonly buffer VkrtDriverTlasBinding { uint64_t vkrt_tlas_address; };
+#define vkrt_tlas_address packUint2x32(uvec2(vkrt_node_units[0].x, vkrt_node_units[0].y))
 #endif
 #endif
 
@@ -177,14 +192,14 @@ bool vkrt_trace_steps_exhausted = false;
 
 // `nd = node i`. A statement, not a function: glslang takes minutes and gigabytes to
 // compile the kd-tree walk when a call there returns its node (its `precise` propagation).
-#if VKRT_TEXEL_NODES
+#ifdef VKRT_DEVICE_ADDRESS
+#define VKRT_LOAD_KD_NODE(nd, i) nd = vkrt_kd_nodes[i];
+#else
 #define VKRT_LOAD_KD_NODE(nd, i)                                                  \
     {                                                                        \
-        uvec4 texel_ = texelFetch(vkrt_node_texels, int(i));                      \
-        nd = VkrtKdNode(uintBitsToFloat(texel_.x), texel_.y, texel_.z, texel_.w); \
+        uvec4 unit_ = VKRT_NODE_UNIT(i);                                     \
+        nd = VkrtKdNode(uintBitsToFloat(unit_.x), unit_.y, unit_.z, unit_.w); \
     }
-#else
-#define VKRT_LOAD_KD_NODE(nd, i) nd = vkrt_kd_nodes[i];
 #endif
 
 // The rigid motion at `time`: rotate about the orbit axis, then translate (Motion::at).
