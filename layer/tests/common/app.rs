@@ -297,15 +297,23 @@ pub fn manifest_dir(parent: &std::path::Path) -> std::path::PathBuf {
     .map(|(_, p)| p)
     .expect("libvkrt_layer.so beside the binary (cargo builds the cdylib with the tests)");
     let library = library.canonicalize().unwrap();
-    let dir = parent.join(format!("vkrt-layer-{}", std::process::id()));
+    // One folder per library (not per process: those would pile up run after run).
+    let key = {
+        use std::hash::{Hash, Hasher};
+        let mut h = std::collections::hash_map::DefaultHasher::new();
+        library.hash(&mut h);
+        h.finish()
+    };
+    let dir = parent.join(format!("vkrt-layer-{key:016x}"));
     std::fs::create_dir_all(&dir).unwrap();
     let manifest = include_str!("../../VkLayer_vkrt_ray_query.json")
         .replace("./libvkrt_layer.so", library.to_str().unwrap());
-    // Written whole and renamed into place: the tests of this process run in parallel, and
-    // a child's loader must never read a manifest another thread is rewriting (it would
+    // Written whole and renamed into place: tests run in parallel, in this process and in
+    // others, and a child's loader must never read a manifest being rewritten (it would
     // start without the layer).
     let partial = dir.join(format!(
-        "manifest-{:?}.partial",
+        "manifest-{}-{:?}.partial",
+        std::process::id(),
         std::thread::current().id()
     ));
     std::fs::write(&partial, manifest).unwrap();
