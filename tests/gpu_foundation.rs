@@ -428,6 +428,8 @@ fn commands_given_wrong_arguments_fail_the_recording_instead_of_panicking() {
     let align = ctx.info().min_storage_buffer_offset_alignment;
     let misaligned = raw(align / 2, 16);
     let empty = raw(0, 0);
+    let other = Context::new(&vkrt::gpu::ContextOptions::for_tests()).unwrap();
+    let (foreign, _, _) = saxpy_on_eight(&other);
     type Case<'a> = (&'a str, Box<dyn Fn(&mut Recorder) + 'a>);
     let mut cases: Vec<Case> = vec![
         (
@@ -456,6 +458,11 @@ fn commands_given_wrong_arguments_fail_the_recording_instead_of_panicking() {
             Box::new(|rec| rec.dispatch(&kernel, [1, 1, 1], &[&x, &empty], &push)),
         ),
     ];
+    // A kernel of another context: its pipeline is another device's object.
+    cases.push((
+        "a kernel made on another context",
+        Box::new(|rec| rec.dispatch(&foreign, [1, 1, 1], &[&x, &y], &push)),
+    ));
     if align > 1 {
         cases.push((
             "a binding at an offset the device does not allow",

@@ -260,7 +260,11 @@ impl Inner {
     }
 }
 
+static NEXT_CONTEXT_ID: AtomicU64 = AtomicU64::new(1);
+
 pub(crate) struct Inner {
+    /// Unique per context made in this process: what a kernel is checked against.
+    pub(crate) id: u64,
     pub(crate) entry: ash::Entry,
     pub(crate) instance: ash::Instance,
     pub(crate) physical_device: vk::PhysicalDevice,
@@ -476,6 +480,7 @@ impl Context {
             calibration.and_then(|ext| Calibrator::new(&parts.instance, &parts.device, ext));
         Ok(Self {
             inner: Arc::new(Inner {
+                id: NEXT_CONTEXT_ID.fetch_add(1, Ordering::Relaxed),
                 entry: parts.entry,
                 instance: parts.instance,
                 physical_device: parts.physical_device,

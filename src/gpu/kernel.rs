@@ -74,6 +74,8 @@ pub struct Kernel {
     /// Whether its buffers are pushed into the command buffer (`VK_KHR_push_descriptor`,
     /// for a kernel without texel bindings) rather than bound as a descriptor set.
     pub(crate) pushed: bool,
+    /// The context it was made on ([`Context`]'s id): its pipeline is that device's.
+    pub(crate) context: u64,
     /// The workgroup size after specialization.
     pub workgroup_size: [u32; 3],
 }
@@ -198,6 +200,7 @@ impl Context {
                 layout: p.layout,
                 set_layout: p.set_layout,
                 pushed,
+                context: self.inner.id,
                 workgroup_size,
             }),
             Err(PipelineFailure {

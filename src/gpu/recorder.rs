@@ -537,11 +537,16 @@ impl Recorder {
         if let Err(reason) = check_ranges(&self.ctx, blob, buffers) {
             return self.refuse("Recorder::dispatch", reason);
         }
+        if kernel.context != self.ctx.inner.id {
+            // Its pipeline (and layout) are another device's objects.
+            let reason = format!("`{}` was made on another context", blob.name);
+            return self.refuse("Recorder::dispatch", reason);
+        }
         if self.failed.is_some() {
             return false;
         }
         let set = match kernel.pushed {
-            true => Ok(SetZero::Pushed(pushed_ranges(blob, buffers))),
+            true => Ok(SetZero::Pushed(ranges_of(blob, buffers))),
             false => self.set_for(kernel, buffers).map(SetZero::Bound),
         };
         let set = match set {
@@ -958,12 +963,9 @@ impl Recorder {
                             &[],
                         ),
                         SetZero::Pushed(ranges) => {
-                            let pd = self
-                                .ctx
-                                .inner
-                                .push_descriptor
-                                .as_ref()
-                                .expect("a pushed kernel's context has push descriptors");
+                            let pd = self.ctx.inner.push_descriptor.as_ref().expect(
+                                "a pushed kernel's recorder has push descriptors (Recorder::bind)",
+                            );
                             let writes: Vec<vk::WriteDescriptorSet> = ranges
                                 .iter()
                                 .map(|(binding, info)| {
@@ -1601,7 +1603,7 @@ const ACCEL_BUILD_RW: (vk::PipelineStageFlags, vk::AccessFlags) = (
 );
 
 /// The ranges of `buffers`, by `blob`'s binding numbers (pushed, or written into a set).
-fn pushed_ranges(
+fn ranges_of(
     blob: &super::shader::ShaderBlob,
     buffers: &[&dyn BufferArg],
 ) -> Vec<(u32, vk::DescriptorBufferInfo)> {
@@ -1628,7 +1630,7 @@ fn write_set(
     buffers: &[&dyn BufferArg],
     views: &mut Views,
 ) -> Result<()> {
-    let ranges = pushed_ranges(blob, buffers);
+    let ranges = ranges_of(blob, buffers);
     let mut texel = Vec::new();
     for (&binding, b) in blob.bindings.iter().zip(buffers) {
         if blob.texel_bindings.contains(&binding) {
