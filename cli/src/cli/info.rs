@@ -61,6 +61,15 @@ pub fn run(args: &InfoArgs, validate: bool) -> CliResult<()> {
         vkrt::accel::walk::NodeAccess::for_device(&ctx).name(),
         info.max_texel_buffer_elements
     );
+    println!(
+        "kernel bindings     {}",
+        match info.features.push_descriptor {
+            true => "pushed (VK_KHR_push_descriptor): recording creates no descriptor set",
+            false =>
+                "descriptor sets (pushed where a context enables VK_KHR_push_descriptor, \
+                      as the layer does)",
+        }
+    );
     let walk = vkrt::accel::walk::Traversal::for_device(&ctx);
     let why = match (std::env::var("VKRT_TRAVERSAL").is_ok(), info.wide_walks) {
         (true, _) => "as VKRT_TRAVERSAL says",
