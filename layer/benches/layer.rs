@@ -7,8 +7,9 @@
 //! (where it has), and with the layer loaded but inert. Ratios:
 //!
 //! - trace: the shader lowered by the layer's pass ÷ the same source through
-//!   `vkrt/ext_ray_query.glsl` (both on the layer's structures; GPU timestamps), and the
-//!   layer ÷ the driver's own ray query;
+//!   `vkrt/ext_ray_query.glsl` (both on the layer's structures, both with the loop-budget
+//!   walk where the driver has a budget, as the pass lowers it there; GPU timestamps), and
+//!   the layer ÷ the driver's own ray query;
 //! - build: `vkCmdBuildAccelerationStructuresKHR` through the layer ÷ vkrt's own API
 //!   (`AccelBuilder::record_build_from`, PLOC, in this process) on the same mesh, both
 //!   `PREFER_FAST_TRACE` (the driver's too);
@@ -120,19 +121,33 @@ unsafe fn submit(g: &app::Gpu, cb: vk::CommandBuffer, fence: vk::Fence) {
 }
 
 /// A compute pipeline over `code`, and the host ms its module and pipeline took.
+/// The module's compute pipeline and the host ms it took; `loop_budget_walk` sets the
+/// include's loop-budget walk (`LOOP_BUDGET_CONSTANT_ID`), as the pass chooses it for a
+/// driver with a loop budget, so that both run the same walk.
 unsafe fn pipeline(
     d: &ash::Device,
     code: &[u32],
     layout: vk::PipelineLayout,
+    loop_budget_walk: bool,
 ) -> (vk::Pipeline, f64) {
     let start = Instant::now();
     let module = d
         .create_shader_module(&vk::ShaderModuleCreateInfo::default().code(code), None)
         .unwrap();
+    let entries = [vk::SpecializationMapEntry {
+        constant_id: vkrt::accel::shader_library::LOOP_BUDGET_CONSTANT_ID,
+        offset: 0,
+        size: 4,
+    }];
+    let value = u32::from(loop_budget_walk).to_ne_bytes();
+    let spec = vk::SpecializationInfo::default()
+        .map_entries(&entries)
+        .data(&value);
     let stage = vk::PipelineShaderStageCreateInfo::default()
         .stage(vk::ShaderStageFlags::COMPUTE)
         .module(module)
-        .name(c"main");
+        .name(c"main")
+        .specialization_info(&spec);
     let p = d
         .create_compute_pipelines(
             vk::PipelineCache::null(),
@@ -468,7 +483,13 @@ unsafe fn child(include: bool) {
             out.iter().filter(|h| h[0] >= 0.0).count(),
         )
     };
-    let (khr, pipeline_ms) = pipeline(&d, &app::compile(&SHADER.replace("INCLUDE", "")), layout);
+    let loop_budget_walk = std::env::var("VKRT_LAYER_BENCH_LOOP_BUDGET").is_ok_and(|v| v == "1");
+    let (khr, pipeline_ms) = pipeline(
+        &d,
+        &app::compile(&SHADER.replace("INCLUDE", "")),
+        layout,
+        false,
+    );
     println!("pipeline_ms {pipeline_ms}");
     let (trace_ms, hits) = trace(khr);
     println!("trace_ms {trace_ms}");
@@ -480,7 +501,7 @@ unsafe fn child(include: bool) {
             "#extension GL_GOOGLE_include_directive : require\n#include \"vkrt/ext_ray_query.glsl\"",
         );
         let code = app::compile_with(&source, &["-I", include_dir.to_str().unwrap()]);
-        let (p, include_pipeline_ms) = pipeline(&d, &code, layout);
+        let (p, include_pipeline_ms) = pipeline(&d, &code, layout, loop_budget_walk);
         println!("include_pipeline_ms {include_pipeline_ms}");
         let (ms, hits) = trace(p);
         println!("include_trace_ms {ms}");
@@ -551,6 +572,10 @@ fn run(layer: Option<bool>, include: bool) -> HashMap<String, f64> {
         "VKRT_LAYER_BENCH_CHILD",
         if include { "include" } else { "plain" },
     )
+    .env(
+        "VKRT_LAYER_BENCH_LOOP_BUDGET",
+        if loop_budget() { "1" } else { "0" },
+    )
     .env_remove("VK_INSTANCE_LAYERS")
     .env_remove("VKRT_LAYER_FORCE");
     if let Some(force) = layer {
@@ -573,6 +598,16 @@ fn run(layer: Option<bool>, include: bool) -> HashMap<String, f64> {
             Some((k.to_string(), v.parse().ok()?))
         })
         .collect()
+}
+
+/// Whether the device's driver ends an invocation's loops after a budget of iterations
+/// (Mesa 22.3's lavapipe), where the pass lowers with the loop-budget walk.
+fn loop_budget() -> bool {
+    static BUDGET: std::sync::OnceLock<bool> = std::sync::OnceLock::new();
+    *BUDGET.get_or_init(|| {
+        let ctx = Context::new(&ContextOptions::default()).expect("a device");
+        ctx.info().loop_budget.is_some()
+    })
 }
 
 /// The bunny built by vkrt's own API (PLOC, the layer's builder for PREFER_FAST_TRACE):
