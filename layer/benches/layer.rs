@@ -426,15 +426,7 @@ unsafe fn child(include: bool) {
         .unwrap()[0];
     let rays = WIDTH * WIDTH;
     let b_out = g.buffer(8 * u64::from(rays), vk::BufferUsageFlags::STORAGE_BUFFER);
-    let tlases = [tlas];
-    let mut as_write =
-        vk::WriteDescriptorSetAccelerationStructureKHR::default().acceleration_structures(&tlases);
-    let mut w0 = vk::WriteDescriptorSet::default()
-        .dst_set(set)
-        .dst_binding(0)
-        .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
-        .push_next(&mut as_write);
-    w0.descriptor_count = 1;
+    app::write_structure(&d, set, tlas);
     let out_info = [vk::DescriptorBufferInfo::default()
         .buffer(g.bufs[b_out].buffer)
         .range(vk::WHOLE_SIZE)];
@@ -443,7 +435,7 @@ unsafe fn child(include: bool) {
         .dst_binding(1)
         .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
         .buffer_info(&out_info);
-    d.update_descriptor_sets(&[w0, w1], &[]);
+    d.update_descriptor_sets(&[w1], &[]);
 
     let mut push = [0u32; 9];
     for k in 0..3 {

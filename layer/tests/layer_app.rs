@@ -514,17 +514,7 @@ fn recording_builds_updates_and_copies_creates_no_object() {
         },
         &[(vkrt_layer::STATS_VARIABLE, "1")],
     );
-    let created: Vec<(String, u64)> = stderr
-        .lines()
-        .filter_map(|l| l.strip_prefix("vkrt layer: stats: "))
-        .map(|l| {
-            let (call, rest) = l.split_once(": ").unwrap();
-            (
-                call.to_string(),
-                rest.split(' ').next().unwrap().parse().unwrap(),
-            )
-        })
-        .collect();
+    let created = common::objects_created_while_recording(&stderr);
     let calls = |name: &str| created.iter().filter(|(c, _)| c == name).count();
     // Per frame a bottom-level call and a top-level call: build, update, the same update;
     // and the compaction's two copies.

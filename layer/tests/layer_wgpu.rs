@@ -777,14 +777,11 @@ fn check_against_reference(what: &str, run: &Run) -> usize {
     hits
 }
 
-/// How the layer's `VKRT_LAYER_STATS` lines start.
-const STATS: &str = "vkrt layer: stats: ";
-
 /// The layer's own complaints: none but the loop-budget warning (Mesa 22.3), once.
 fn assert_layer_quiet(stderr: &str) {
     let lines: Vec<&str> = stderr
         .lines()
-        .filter(|l| l.starts_with("vkrt layer:") && !l.starts_with(STATS))
+        .filter(|l| l.starts_with("vkrt layer:") && !l.starts_with(common::STATS))
         .filter(|l| !l.contains("loops once they have run a budget of iterations"))
         .collect();
     assert!(lines.is_empty(), "the layer logged:\n{}", lines.join("\n"));
@@ -812,13 +809,9 @@ fn a_wgpu_application_traces_through_the_layer_as_the_reference_says() {
     assert_layer_quiet(&run.stderr);
     // wgpu hands every build a scratch buffer of its own: with push descriptors the layer's
     // recordings still create nothing.
-    let recorded: Vec<&str> = run
-        .stderr
-        .lines()
-        .filter_map(|l| l.strip_prefix(STATS))
-        .collect();
+    let recorded = common::objects_created_while_recording(&run.stderr);
     assert!(
-        recorded.len() >= 4 && recorded.iter().all(|l| l.contains(": 0 objects")),
+        recorded.len() >= 4 && recorded.iter().all(|&(_, n)| n == 0),
         "objects created while recording: {recorded:#?}"
     );
     // What wgpu's ray-query examples ask of a device.

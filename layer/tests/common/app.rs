@@ -1045,15 +1045,7 @@ unsafe fn fragment_pass(
                 .set_layouts(&set_layouts),
         )
         .unwrap()[0];
-    let tlases = [tlas];
-    let mut as_write =
-        vk::WriteDescriptorSetAccelerationStructureKHR::default().acceleration_structures(&tlases);
-    let mut w0 = vk::WriteDescriptorSet::default()
-        .dst_set(set)
-        .dst_binding(0)
-        .descriptor_type(vk::DescriptorType::ACCELERATION_STRUCTURE_KHR)
-        .push_next(&mut as_write);
-    w0.descriptor_count = 1;
+    write_structure(&d, set, tlas);
     let sph_info = [vk::DescriptorBufferInfo::default()
         .buffer(g.bufs[b_spheres].buffer)
         .range(vk::WHOLE_SIZE)];
@@ -1062,7 +1054,7 @@ unsafe fn fragment_pass(
         .dst_binding(2)
         .descriptor_type(vk::DescriptorType::STORAGE_BUFFER)
         .buffer_info(&sph_info);
-    d.update_descriptor_sets(&[w0, w1], &[]);
+    d.update_descriptor_sets(&[w1], &[]);
 
     let vertex = d
         .create_shader_module(
@@ -1253,10 +1245,8 @@ unsafe fn fragment_pass(
     hits
 }
 
-/// Writes `set` (the structure, the output and the spheres) through a descriptor update
-/// template, as an application that caches its descriptor layouts does.
 /// Writes `structure` to binding 0 of `set`.
-unsafe fn write_structure(
+pub unsafe fn write_structure(
     d: &ash::Device,
     set: vk::DescriptorSet,
     structure: vk::AccelerationStructureKHR,
@@ -1343,6 +1333,8 @@ unsafe fn push_template(g: &Gpu, layout: vk::PipelineLayout) -> vk::DescriptorUp
         .unwrap()
 }
 
+/// Writes `set` (the structure, the output and the spheres) through a descriptor update
+/// template, as an application that caches its descriptor layouts does.
 unsafe fn rewrite_with_template(
     g: &Gpu,
     set: vk::DescriptorSet,

@@ -1,6 +1,26 @@
 #[allow(dead_code)] // the bench uses what the tests do not
 pub mod app;
 
+/// How the layer's `VKRT_LAYER_STATS` lines start.
+pub const STATS: &str = "vkrt layer: stats: ";
+
+/// The layer's `VKRT_LAYER_STATS` lines in `stderr`: each recorded command and the Vulkan
+/// objects vkrt created while recording it.
+#[allow(dead_code)] // each test binary uses part of this module
+pub fn objects_created_while_recording(stderr: &str) -> Vec<(String, u64)> {
+    stderr
+        .lines()
+        .filter_map(|l| l.strip_prefix(STATS))
+        .map(|l| {
+            let (call, rest) = l.split_once(": ").unwrap();
+            (
+                call.to_string(),
+                rest.split(' ').next().unwrap().parse().unwrap(),
+            )
+        })
+        .collect()
+}
+
 /// Ray-triangle (Möller–Trumbore, f64): t, u, v where the ray meets the triangle's plane
 /// (inside where u, v ≥ 0 and u + v ≤ 1).
 pub fn intersect(o: [f64; 3], d: [f64; 3], t: &[[f64; 3]; 3]) -> Option<(f64, f64, f64)> {
