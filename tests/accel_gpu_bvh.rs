@@ -51,6 +51,26 @@ fn soup(n: usize, seed: u64, scale: f32, offset: f32) -> Vec<[Vec3; 3]> {
         .collect()
 }
 
+/// Groups of tiny triangles, 40 groups with sizes cycling through `sizes`, each group's
+/// centroids inside one cell of the 63-bit codes' high words (the grid spans 1024 units: a
+/// high-word cell is 0.5 × 1 × 1) at random low words, listed member by member across groups.
+fn runs(sizes: &[usize]) -> Vec<[Vec3; 3]> {
+    let mut rng = Rng(29);
+    let tiny = |c: Vec3| [c, c + Vec3::X * 1e-4, c + Vec3::Y * 1e-4];
+    let groups: Vec<usize> = (0..40).map(|g| sizes[g % sizes.len()]).collect();
+    let mut out = vec![tiny(Vec3::ZERO), tiny(Vec3::splat(1000.0))];
+    for member in 0..*sizes.iter().max().unwrap() {
+        for (g, &size) in groups.iter().enumerate() {
+            if member < size {
+                let corner = Vec3::new(g as f32 * 2.0 + 0.25, 0.25, 0.25);
+                let jitter = Vec3::new(rng.next_f32(), rng.next_f32(), rng.next_f32()) * 0.2;
+                out.push(tiny(corner + jitter));
+            }
+        }
+    }
+    out
+}
+
 /// Named inputs: random soups at every size edge, then the hard cases.
 fn inputs(subgroup: usize) -> Vec<(String, Vec<[Vec3; 3]>)> {
     let mut sizes = edge_sizes(subgroup, 64, 4096);
@@ -85,6 +105,13 @@ fn inputs(subgroup: usize) -> Vec<(String, Vec<[Vec3; 3]>)> {
         })
         .collect();
     out.push(("degenerate on a line".into(), lines));
+    // Runs of equal high words (63-bit codes) with scrambled low words: up to the longest run
+    // the tie kernel sorts (32), then one run longer, which takes the whole two-word sort.
+    out.push((
+        "runs of up to 32 equal high words".into(),
+        runs(&[2, 3, 31, 32]),
+    ));
+    out.push(("a run of 33 equal high words".into(), runs(&[2, 32, 33])));
     out.push(("huge coordinates".into(), soup(1000, 13, 1e30, -5e29)));
     out.push(("tiny coordinates".into(), soup(1000, 17, 1e-30, 0.0)));
     out

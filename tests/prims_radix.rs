@@ -8,8 +8,8 @@ mod common;
 
 use vkrt::gpu::{Buffer, Context, Recorder};
 use vkrt::prims::radix_sort::{
-    radix_sort_cpu, radix_sort_f32_cpu, radix_sort_passes_cpu, RadixSort, Ranking, BITS_RANGE,
-    DEFAULT_BITS_PER_PASS,
+    radix_sort_cpu, radix_sort_f32_cpu, radix_sort_passes_cpu, RadixSort, Ranking, SortGate,
+    BITS_RANGE, DEFAULT_BITS_PER_PASS,
 };
 use vkrt::prims::PrimConfig;
 
@@ -369,5 +369,58 @@ fn unsupported_digit_widths_are_an_error() {
         );
     }
     assert!(RadixSort::with_ranking(&ctx, cfg, 12, Ranking::Runs).is_ok());
+    common::assert_silent(&ctx);
+}
+
+#[test]
+fn a_gated_sort_sorts_when_open_and_leaves_its_input_when_shut() {
+    // The gate's words as a kernel writes them: the tile grid, the copy grid, then the count
+    // table's length (open), or zeros (shut). Odd key widths end with the copy, so both
+    // indirect grids and the counted scans are exercised.
+    let Some(ctx) = common::context() else { return };
+    // The gate changes how the passes are dispatched, not how they rank: the device's own
+    // ranking stands for all.
+    let mut rng = common::Rng(41);
+    {
+        let sort =
+            RadixSort::new(&ctx, PrimConfig::default_for(&ctx), DEFAULT_BITS_PER_PASS).unwrap();
+        let ranking = sort.ranking();
+        for n in sizes(&ctx, &sort) {
+            let keys: Vec<u32> = (0..n).map(|_| rng.next_u64() as u32).collect();
+            let values: Vec<u32> = (0..n as u32).collect();
+            for (key_bits, open) in [(32, true), (17, true), (17, false)] {
+                let case = format!("{ranking:?}, n = {n}, {key_bits} bits, open {open}");
+                let k = Buffer::from_slice(&ctx, "keys", &keys).unwrap();
+                let v = Buffer::from_slice(&ctx, "values", &values).unwrap();
+                let scratch = sort.scratch(&ctx, n.max(1)).unwrap();
+                let mut rec = Recorder::new(&ctx).unwrap();
+                let mut words = vec![0u32; 7];
+                if open {
+                    let [tiles, copy] = sort.grids(&rec, n);
+                    words[..3].copy_from_slice(&tiles);
+                    words[3..6].copy_from_slice(&copy);
+                    words[6] = sort.table_len(n) as u32;
+                }
+                let args = Buffer::from_slice(&ctx, "gate", &words).unwrap();
+                let gate = SortGate {
+                    args: &args,
+                    tiles: 0,
+                    copy: 12,
+                    table: 6,
+                };
+                sort.record_gated(&mut rec, &k, &v, n, key_bits, &scratch, &gate);
+                rec.compute_to_transfer();
+                rec.submit_and_wait().unwrap();
+                let (gk, gv) = (k.download().unwrap(), v.download().unwrap());
+                let want = if open {
+                    oracle(&keys, &values, key_bits)
+                } else {
+                    (keys.clone(), values.clone())
+                };
+                assert_eq!(first_difference(&gk, &want.0), None, "{case}: keys");
+                assert_eq!(first_difference(&gv, &want.1), None, "{case}: values");
+            }
+        }
+    }
     common::assert_silent(&ctx);
 }

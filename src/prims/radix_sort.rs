@@ -110,7 +110,7 @@ use std::sync::Arc;
 
 use bytemuck::{Pod, Zeroable};
 
-use super::scan::{Scan, ScanInput, ScanOp, ScanScratch};
+use super::scan::{GpuCount, Scan, ScanInput, ScanOp, ScanScratch};
 use super::PrimConfig;
 use crate::gpu::{
     kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, ShaderBlob, Spec,
@@ -220,6 +220,21 @@ impl Ranking {
             Ranking::Runs => 0,
         }
     }
+}
+
+/// Indirect dispatch arguments that run a recorded sort ([`RadixSort::record_gated`]) or
+/// skip it, as a kernel before it decides on the GPU.
+pub struct SortGate<'a> {
+    /// The buffer of arguments.
+    pub args: &'a Buffer<u32>,
+    /// Byte offset of the tile kernels' grid (three u32: zeros, or [`RadixSort::grids`]'s
+    /// first).
+    pub tiles: u64,
+    /// Byte offset of the final copy's grid (zeros, or [`RadixSort::grids`]'s second).
+    pub copy: u64,
+    /// Index of the word holding how many entries of the count table each pass scans: 0,
+    /// or at least [`RadixSort::table_len`].
+    pub table: u32,
 }
 
 /// A radix sort of one digit width, with its kernels compiled.
@@ -421,6 +436,59 @@ impl RadixSort {
         self.record_passes(rec, keys, values, n, key_bits, KeyKind::U32, scratch);
     }
 
+    /// Like [`RadixSort::record`], switched on or off on the GPU by `gate`: its tile kernels
+    /// and its copy take their grids from the gate's indirect arguments, and its scans of the
+    /// count table their length from the gate's table word, which a kernel before it writes
+    /// (ordered by [`Recorder::compute_to_indirect`]) as zeros, for no sort, or as
+    /// [`RadixSort::grids`] and [`RadixSort::table_len`].
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "record's arguments plus the gate"
+    )]
+    pub fn record_gated(
+        &self,
+        rec: &mut Recorder,
+        keys: &Buffer<u32>,
+        values: &Buffer<u32>,
+        n: usize,
+        key_bits: u32,
+        scratch: &RadixScratch,
+        gate: &SortGate,
+    ) {
+        self.check(keys.len(), values.len(), n, scratch);
+        self.record_passes_gated(
+            rec,
+            keys,
+            values,
+            n,
+            key_bits,
+            KeyKind::U32,
+            scratch,
+            Some(gate),
+        );
+    }
+
+    /// Entries of the largest count table a pass over `n` elements scans.
+    pub fn table_len(&self, n: usize) -> usize {
+        n.div_ceil(self.tile as usize) << self.bits
+    }
+
+    /// The workgroup grids of a sort of `n` elements: its tile kernels' (histogram and
+    /// scatter), then its final copy's (recorded after an odd number of passes), as a
+    /// [`SortGate`]'s arguments hold them to let the sort run.
+    pub fn grids(&self, rec: &Recorder, n: usize) -> [[u32; 3]; 2] {
+        let blocks = n.div_ceil(self.tile as usize);
+        let per_group = if self.ranking == Ranking::Runs {
+            self.scatter_workgroup // an invocation per run
+        } else {
+            1 // a workgroup per tile
+        };
+        [
+            rec.groups_1d(blocks as u64, per_group),
+            rec.groups_1d(n.div_ceil(4) as u64, self.copy.invocations()),
+        ]
+    }
+
     /// Records a stable sort of the first `n` f32 `keys` (NaN-free) and their `values` in
     /// place, in float order with -0.0 before +0.0. Ordering as in [`RadixSort::record`].
     pub fn record_f32(
@@ -461,18 +529,38 @@ impl RadixSort {
         kind: KeyKind,
         scratch: &RadixScratch,
     ) {
+        self.record_passes_gated(rec, keys, values, n, key_bits, kind, scratch, None);
+    }
+
+    #[allow(
+        clippy::too_many_arguments,
+        reason = "record's arguments plus the key kind and the gate"
+    )]
+    fn record_passes_gated(
+        &self,
+        rec: &mut Recorder,
+        keys: &dyn BufferArg,
+        values: &dyn BufferArg,
+        n: usize,
+        key_bits: u32,
+        kind: KeyKind,
+        scratch: &RadixScratch,
+        gate: Option<&SortGate>,
+    ) {
         assert!(key_bits <= 32, "radix sort by {key_bits} key bits");
         let passes = self.passes(key_bits);
         if n <= 1 || passes == 0 {
             return;
         }
         let blocks = n.div_ceil(self.tile as usize);
-        let per_group = if self.ranking == Ranking::Runs {
-            self.scatter_workgroup // an invocation per run
-        } else {
-            1 // a workgroup per tile
-        };
-        let groups = rec.groups_1d(blocks as u64, per_group);
+        let [groups, copy_groups] = self.grids(rec, n);
+        // A tile kernel's dispatch: direct, or from the gate's tile grid.
+        let tiles =
+            |rec: &mut Recorder, kernel: &Kernel, b: &[&dyn BufferArg], push: &PassPush| match gate
+            {
+                Some(g) => rec.dispatch_indirect(kernel, g.args, g.tiles, b, push),
+                None => rec.dispatch(kernel, groups, b, push),
+            };
         rec.scope("prims.radix_sort", |rec| {
             for pass in 0..passes {
                 let shift = pass * self.bits;
@@ -500,23 +588,33 @@ impl RadixSort {
                     rec.compute_to_compute();
                 }
                 rec.scope("prims.radix_histogram", |rec| {
-                    rec.dispatch(
+                    tiles(
+                        rec,
                         &self.histogram,
-                        groups,
                         &[src[0], src[0], &scratch.counts],
                         &push,
                     );
                 });
                 rec.compute_to_compute();
                 let table = digits as usize * blocks;
-                self.scan.record(
-                    rec,
-                    &scratch.counts,
-                    &scratch.offsets,
-                    table,
-                    ScanOp::Exclusive,
-                    &scratch.scan,
-                );
+                let (counts, offsets) = (&scratch.counts, &scratch.offsets);
+                let op = ScanOp::Exclusive;
+                match gate {
+                    Some(g) => {
+                        let count = GpuCount {
+                            counts: g.args,
+                            index: g.table,
+                            mul: 1,
+                            div: 1,
+                        };
+                        let s = &scratch.scan;
+                        self.scan
+                            .record_counted(rec, counts, offsets, table, count, op, s);
+                    }
+                    None => self
+                        .scan
+                        .record(rec, counts, offsets, table, op, &scratch.scan),
+                }
                 rec.compute_to_compute();
                 rec.scope("prims.radix_scatter", |rec| {
                     // Binding numbers of glsl/prims/radix_scatter.comp (radix_runs.comp's
@@ -535,20 +633,16 @@ impl RadixSort {
                             _ => unreachable!("radix scatter has no binding {b}"),
                         })
                         .collect();
-                    rec.dispatch(&self.scatter, groups, &bindings, &push);
+                    tiles(rec, &self.scatter, &bindings, &push);
                 });
             }
             if passes % 2 == 1 {
                 rec.compute_to_compute();
                 let (k, v): (&dyn BufferArg, &dyn BufferArg) = (&scratch.keys, &scratch.values);
-                let copy_groups = rec.groups_1d(n.div_ceil(4) as u64, self.copy.invocations());
-                rec.scope("prims.radix_copy", |rec| {
-                    rec.dispatch(
-                        &self.copy,
-                        copy_groups,
-                        &[k, k, v, v, keys, keys, values, values],
-                        &(n as u32),
-                    );
+                let b: [&dyn BufferArg; 8] = [k, k, v, v, keys, keys, values, values];
+                rec.scope("prims.radix_copy", |rec| match gate {
+                    Some(g) => rec.dispatch_indirect(&self.copy, g.args, g.copy, &b, &(n as u32)),
+                    None => rec.dispatch(&self.copy, copy_groups, &b, &(n as u32)),
                 });
             }
         });

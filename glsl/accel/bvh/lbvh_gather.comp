@@ -1,6 +1,7 @@
 #version 460
-// LBVH: words of the codes in the order the ids are in now. Variant `one`, between the two
-// sorts of 63-bit codes: the high words, the keys of the second (stable) sort. Variants
+// LBVH: words of the codes in the order the ids are in now. Variant `one`, before each sort of
+// the whole 63-bit codes (lbvh_ties.comp's fallback): the low words, then the high words, the
+// keys of the sort that follows. Variants
 // `codes`, after the sort: each code's (high, low) words as one pair in sorted order
 // (common/word_pair.glsl; `codes64` moves it as one 64-bit component), so that the climb
 // (accel/bvh/lbvh_climb.comp) reads a neighbour's code in one load.

@@ -4,7 +4,8 @@
 // on a cubic grid of 2^PER_AXIS cells per axis from the centroid box's minimum. The grid's
 // size is the power of two 2^e covering the largest extent: scaling by a power of two is
 // exact on every device (a division is not: Vulkan allows 2.5 ulp), so the codes are the
-// twin's on every driver. Also writes the first sort's keys and the primitive ids the sorts carry.
+// twin's on every driver. Also writes the first sort's keys (the high words of 63-bit codes,
+// the codes of 30-bit ones) and the primitive ids the sorts carry.
 layout(local_size_x_id = 0) in;
 layout(constant_id = 1) const uint PER_AXIS = 21u;
 #include "common/grid.glsl"
@@ -61,6 +62,7 @@ void main() {
     }
     code_hi[i] = code.x;
     code_lo[i] = code.y;
-    sort_keys[i] = code.y;
+    // The first sort's keys: 63-bit codes sort their high words first (lbvh_ties.comp).
+    sort_keys[i] = 3u * PER_AXIS > 32u ? code.x : code.y;
     ids[i] = i;
 }

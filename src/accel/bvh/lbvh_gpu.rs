@@ -1,7 +1,8 @@
 //! The LBVH built on the GPU (Karras 2012), recorded into the caller's recorder with no
 //! read-back: centroid bounds (`accel.lbvh_bounds`), Morton codes (`accel.lbvh_morton`), a
-//! stable key-value radix sort of the codes (`prims`; 63-bit codes sort the low word, then
-//! the high word), the codes gathered into sorted (high, low) pairs, then the whole tree in
+//! stable key-value radix sort of the codes (`prims`; 63-bit codes sort the high words, then
+//! every run of equal high words by its low words, `accel.lbvh_ties`, with the whole sort by
+//! both words recorded behind a GPU-side gate for runs too long for that), the codes gathered into sorted (high, low) pairs, then the whole tree in
 //! one bottom-up climb after Apetrei (2014) (`accel.lbvh_climb`): topology, boxes and, with
 //! the SAH collapse, its decisions, every node in the slot Karras's topology pass gives it.
 //! Its references end in depth-first order, so the collapse leaves them in place
@@ -15,10 +16,18 @@ use super::lbvh::MortonBits;
 use super::sah::BvhParams;
 use super::{BvhNode, NO_NODE};
 use crate::gpu::{kernels, Buffer, BufferArg, Context, GpuError, Kernel, Recorder, Result, Spec};
-use crate::prims::radix_sort::{RadixScratch, RadixSort};
+use crate::prims::radix_sort::{RadixScratch, RadixSort, SortGate};
 use crate::prims::PrimConfig;
 
 const WORKGROUP: u32 = 64;
+
+/// Longest run of equal high words that `accel.lbvh_ties` sorts in registers; a longer one
+/// runs the whole two-word sort (the cluster of a small detailed object in a large scene).
+const MAX_TIE_RUN: u32 = 32;
+
+/// Words of the gate: the indirect grids of the fallback's gathers, of its sorts' tile
+/// kernels and of their copy, three each, then the length of their count tables' scans.
+const GATE_WORDS: usize = 10;
 
 /// The LBVH's kernels, compiled once.
 pub struct LbvhBuilder {
@@ -26,6 +35,7 @@ pub struct LbvhBuilder {
     morton: Arc<Kernel>,
     gather1: Arc<Kernel>,
     gather2: Arc<Kernel>,
+    ties: Arc<Kernel>,
     /// The bottom-up build (`accel.lbvh_climb`): `boxes`, and `costs` deciding the collapse.
     climb: [Arc<Kernel>; 2],
     sort: RadixSort,
@@ -42,6 +52,9 @@ pub struct LbvhScratch {
     sort_keys: Buffer<u32>,
     /// The codes in sorted order, (high, low) words.
     sorted: Buffer<[u32; 2]>,
+    /// Indirect arguments of the whole two-word sort: zeros unless a run of equal high words
+    /// is too long for `accel.lbvh_ties`.
+    gate: Buffer<u32>,
     sort: RadixScratch,
 }
 
@@ -58,6 +71,10 @@ impl LbvhBuilder {
                 &spec.clone().u32(1, bits.per_axis()),
             )?,
             gather1: ctx.kernel(&kernels::ACCEL_BVH_LBVH_GATHER_ONE, &spec)?,
+            ties: ctx.kernel(
+                &kernels::ACCEL_BVH_LBVH_TIES,
+                &spec.clone().u32(1, MAX_TIE_RUN),
+            )?,
             gather2: ctx.kernel(
                 pairs(
                     &kernels::ACCEL_BVH_LBVH_GATHER_CODES64,
@@ -94,7 +111,7 @@ impl LbvhBuilder {
 
     /// Bytes of [`LbvhBuilder::scratch`] for `n` primitives.
     pub fn scratch_bytes(&self, n: usize) -> u64 {
-        4 * (6 + 5 * n.max(1)) as u64 + self.sort.scratch_bytes(n.max(1))
+        4 * (6 + GATE_WORDS + 5 * n.max(1)) as u64 + self.sort.scratch_bytes(n.max(1))
     }
 
     /// Allocates the scratch of builds of up to `n` primitives.
@@ -106,6 +123,7 @@ impl LbvhBuilder {
             code_lo: Buffer::new(ctx, "accel.lbvh.code_lo", n)?,
             sort_keys: Buffer::new(ctx, "accel.lbvh.sort_keys", n)?,
             sorted: Buffer::new(ctx, "accel.lbvh.sorted", n)?,
+            gate: Buffer::new(ctx, "accel.lbvh.gate", GATE_WORDS)?,
             sort: self.sort.scratch(ctx, n.max(1))?,
         })
     }
@@ -199,6 +217,9 @@ impl LbvhBuilder {
         let n32 = n as u32;
         rec.scope("lbvh.bounds", |rec| {
             rec.fill(&s.bounds, u32::MAX);
+            if self.bits == MortonBits::Bits63 {
+                rec.fill(&s.gate, 0); // shut until accel.lbvh_ties finds a long run
+            }
             rec.transfer_to_compute();
             rec.dispatch(&self.bounds, groups, &[boxes, &s.bounds], &n32);
         });
@@ -213,16 +234,49 @@ impl LbvhBuilder {
             MortonBits::Bits30 => {
                 self.sort.record(rec, &s.sort_keys, refs, n, 30, &s.sort);
             }
-            MortonBits::Bits63 => {
-                self.sort.record(rec, &s.sort_keys, refs, n, 32, &s.sort);
-                rec.compute_to_compute();
-                let b: [&dyn BufferArg; 3] = [refs, &s.code_hi, &s.sort_keys];
-                rec.dispatch(&self.gather1, groups, &b, &n32);
-                rec.compute_to_compute();
-                self.sort.record(rec, &s.sort_keys, refs, n, 31, &s.sort);
-            }
+            MortonBits::Bits63 => self.record_sort63(rec, n, s, refs),
         });
         rec.compute_to_compute();
         Ok(())
+    }
+
+    /// The sort of 63-bit codes: the high words (the morton pass wrote them as the keys),
+    /// then the runs of equal high words by their low words (`accel.lbvh_ties`); where a run
+    /// is too long for that kernel, it opens the gate of the whole stable sort, low words then
+    /// high words, from the order it left (equal codes still in primitive order). The
+    /// result is a stable sort by the whole codes either way.
+    fn record_sort63(&self, rec: &mut Recorder, n: usize, s: &LbvhScratch, refs: &Buffer<u32>) {
+        let n32 = n as u32;
+        let groups = rec.groups_1d(n as u64, WORKGROUP);
+        self.sort.record(rec, &s.sort_keys, refs, n, 31, &s.sort);
+        rec.compute_to_compute();
+        let [tiles, copy] = self.sort.grids(rec, n);
+        let mut push = [0u32; 1 + GATE_WORDS];
+        push[0] = n32;
+        for (k, grid) in [groups, tiles, copy].iter().enumerate() {
+            push[1 + 3 * k..4 + 3 * k].copy_from_slice(grid);
+        }
+        push[GATE_WORDS] = self.sort.table_len(n) as u32;
+        rec.scope("lbvh.ties", |rec| {
+            let b: [&dyn BufferArg; 4] = [refs, &s.sort_keys, &s.code_lo, &s.gate];
+            rec.dispatch(&self.ties, groups, &b, &push);
+        });
+        rec.compute_to_indirect();
+        let gate = SortGate {
+            args: &s.gate,
+            tiles: 12,
+            copy: 24,
+            table: 9,
+        };
+        rec.scope("lbvh.whole_codes", |rec| {
+            for (words, bits) in [(&s.code_lo, 32), (&s.code_hi, 31)] {
+                let b: [&dyn BufferArg; 3] = [refs, words, &s.sort_keys];
+                rec.dispatch_indirect(&self.gather1, &s.gate, 0, &b, &n32);
+                rec.compute_to_compute();
+                self.sort
+                    .record_gated(rec, &s.sort_keys, refs, n, bits, &s.sort, &gate);
+                rec.compute_to_compute();
+            }
+        });
     }
 }
