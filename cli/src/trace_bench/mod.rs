@@ -307,7 +307,7 @@ pub fn run(ctx: &Context, scenes: &[BenchScene], opt: &BenchOptions) -> Result<T
 /// The structures to build, each with the walks that trace it: every [`AccelChoice`] the
 /// device has, and the driver's structure built for a fast build too. A BVH walked wide is a
 /// structure of its own (its wide nodes are made after the build).
-pub(crate) fn structures(ctx: &Context) -> Vec<(AccelChoice, Vec<AccelChoice>)> {
+pub fn structures(ctx: &Context) -> Vec<(AccelChoice, Vec<AccelChoice>)> {
     let mut choices = AccelChoice::all_on(ctx);
     if ctx.info().features.ray_query {
         choices.push(AccelChoice::driver(Prefer::FastBuild));
@@ -464,7 +464,7 @@ fn obvhs_rows(
 
 /// `choice`'s structure over `g`, built `reps` times (the last one is kept), and the best
 /// build time.
-pub(crate) fn best_build(
+pub fn best_build(
     ctx: &Context,
     choice: AccelChoice,
     g: &TraceGeometry,
@@ -510,7 +510,7 @@ fn same_hits(a: &[Hit], b: &[Hit]) -> bool {
 
 /// `set` traced `reps` times through `geom`, walked as `walk` reading the nodes as `access`
 /// says: the hits, the best kernel milliseconds and how many rays ran out of steps.
-pub(crate) fn best_trace(
+pub fn best_trace(
     ctx: &Context,
     walk: AccelChoice,
     access: NodeAccess,
