@@ -433,7 +433,7 @@ impl RadixSort {
         scratch: &RadixScratch,
     ) {
         self.check(keys.len(), values.len(), n, scratch);
-        self.record_passes(rec, keys, values, n, key_bits, KeyKind::U32, scratch);
+        self.record_passes(rec, keys, values, n, key_bits, KeyKind::U32, scratch, None);
     }
 
     /// Like [`RadixSort::record`], switched on or off on the GPU by `gate`: its tile kernels
@@ -456,16 +456,8 @@ impl RadixSort {
         gate: &SortGate,
     ) {
         self.check(keys.len(), values.len(), n, scratch);
-        self.record_passes_gated(
-            rec,
-            keys,
-            values,
-            n,
-            key_bits,
-            KeyKind::U32,
-            scratch,
-            Some(gate),
-        );
+        let kind = KeyKind::U32;
+        self.record_passes(rec, keys, values, n, key_bits, kind, scratch, Some(gate));
     }
 
     /// Entries of the largest count table a pass over `n` elements scans.
@@ -500,7 +492,7 @@ impl RadixSort {
         scratch: &RadixScratch,
     ) {
         self.check(keys.len(), values.len(), n, scratch);
-        self.record_passes(rec, keys, values, n, 32, KeyKind::F32, scratch);
+        self.record_passes(rec, keys, values, n, 32, KeyKind::F32, scratch, None);
     }
 
     fn check(&self, keys: usize, values: usize, n: usize, scratch: &RadixScratch) {
@@ -517,26 +509,9 @@ impl RadixSort {
 
     #[allow(
         clippy::too_many_arguments,
-        reason = "record's arguments plus the key kind"
-    )]
-    fn record_passes(
-        &self,
-        rec: &mut Recorder,
-        keys: &dyn BufferArg,
-        values: &dyn BufferArg,
-        n: usize,
-        key_bits: u32,
-        kind: KeyKind,
-        scratch: &RadixScratch,
-    ) {
-        self.record_passes_gated(rec, keys, values, n, key_bits, kind, scratch, None);
-    }
-
-    #[allow(
-        clippy::too_many_arguments,
         reason = "record's arguments plus the key kind and the gate"
     )]
-    fn record_passes_gated(
+    fn record_passes(
         &self,
         rec: &mut Recorder,
         keys: &dyn BufferArg,
