@@ -18,6 +18,8 @@ mod embree;
 
 #[path = "common/args.rs"]
 mod args;
+#[path = "common/best_of.rs"]
+mod best_of;
 
 use vkrt::accel::device::{AccelBuilder, AccelKind};
 use vkrt::accel::gpu_geometry::GpuGeometry;
@@ -47,18 +49,6 @@ struct Row {
     walk: String,
 }
 
-/// The best GPU time of `scope` over `REPS` recordings after a warm-up one.
-fn best_of(ctx: &Context, scope: &str, mut record: impl FnMut(&mut Recorder)) -> f64 {
-    let mut best = f64::INFINITY;
-    for _ in 0..=REPS {
-        let mut rec = Recorder::new(ctx).expect("recorder");
-        record(&mut rec);
-        let p = rec.submit_and_wait().expect("submit");
-        best = best.min(p.ms(scope).unwrap_or(f64::NAN));
-    }
-    best
-}
-
 /// The update of `choice`'s structure over `g`, built to be updated.
 fn update_ms(ctx: &Context, choice: AccelChoice, g: &TraceGeometry) -> Option<f64> {
     let builder = AccelBuilder::for_choice(ctx, choice)
@@ -75,7 +65,7 @@ fn update_ms(ctx: &Context, choice: AccelChoice, g: &TraceGeometry) -> Option<f6
         AccelKind::Driver => "driver_update",
         _ => "refit",
     };
-    let ms = best_of(ctx, scope, |rec| {
+    let ms = best_of::best_of(ctx, scope, REPS + 1, |rec| {
         builder
             .record_refit(rec, &mut dev, &visits)
             .expect("update")

@@ -51,18 +51,6 @@ struct Row {
     kdtree_gpu_ms: Option<f64>,
 }
 
-/// Best of 3 after a warm-up: `record` timed by the GPU scope `scope`.
-fn best_of(ctx: &Context, scope: &str, mut record: impl FnMut(&mut Recorder)) -> f64 {
-    let mut best = f64::INFINITY;
-    for _ in 0..4 {
-        let mut rec = Recorder::new(ctx).expect("recorder");
-        record(&mut rec);
-        let p = rec.submit_and_wait().expect("submit");
-        best = best.min(p.ms(scope).unwrap_or(f64::NAN));
-    }
-    best
-}
-
 /// What one GPU builder did on one scene.
 struct Measured {
     profile: Profile,
@@ -97,7 +85,7 @@ fn gpu_build(ctx: &Context, builder: &mut AccelBuilder, g: &TraceGeometry) -> Me
         .expect("scratch")
         .expect("a BVH");
     let refit = |b: &AccelBuilder, dev: &mut GpuGeometry| {
-        best_of(ctx, "refit", |rec| {
+        best_of::best_of(ctx, "refit", 4, |rec| {
             b.record_refit(rec, dev, &visits).expect("refit")
         })
     };
@@ -107,7 +95,7 @@ fn gpu_build(ctx: &Context, builder: &mut AccelBuilder, g: &TraceGeometry) -> Me
         ..builder.flags()
     });
     let mut updatable = None;
-    let build_update_ms = best_of(ctx, "build", |rec| {
+    let build_update_ms = best_of::best_of(ctx, "build", 4, |rec| {
         let (dev, _) = GpuGeometry::record_build(rec, builder, g, 0).expect("build");
         updatable = Some(dev);
     });
@@ -128,6 +116,8 @@ fn gpu_build(ctx: &Context, builder: &mut AccelBuilder, g: &TraceGeometry) -> Me
 
 #[path = "common/args.rs"]
 mod args;
+#[path = "common/best_of.rs"]
+mod best_of;
 
 fn main() {
     let args::BenchArgs { json, quick, .. } = args::parse();

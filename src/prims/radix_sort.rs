@@ -402,13 +402,13 @@ impl RadixSort {
 
     /// Bytes of [`RadixSort::scratch`] for `max_n` elements (without allocating them).
     pub fn scratch_bytes(&self, max_n: usize) -> u64 {
-        let table = (max_n.div_ceil(self.tile as usize) << self.bits).max(1);
+        let table = self.table_len(max_n).max(1);
         4 * (2 * max_n.max(1) + 2 * table) as u64 + self.scan.scratch_bytes(table)
     }
 
     /// Scratch for sorts of up to `max_n` elements.
     pub fn scratch(&self, ctx: &Context, max_n: usize) -> Result<RadixScratch> {
-        let table = (max_n.div_ceil(self.tile as usize) << self.bits).max(1);
+        let table = self.table_len(max_n).max(1);
         Ok(RadixScratch {
             max_n,
             keys: Buffer::new(ctx, "prims.radix_sort.keys", max_n)?,

@@ -2,8 +2,8 @@
 //! read-back: centroid bounds (`accel.lbvh_bounds`), Morton codes (`accel.lbvh_morton`), a
 //! stable key-value radix sort of the codes (`prims`; 63-bit codes sort the high words, then
 //! every run of equal high words by its low words, `accel.lbvh_ties`, with the whole sort by
-//! both words recorded behind a GPU-side gate for runs too long for that), the codes gathered into sorted (high, low) pairs, then the whole tree in
-//! one bottom-up climb after Apetrei (2014) (`accel.lbvh_climb`): topology, boxes and, with
+//! both words recorded behind a GPU-side gate for runs too long for that), the codes
+//! gathered into sorted (high, low) pairs, then the whole tree in one bottom-up climb after Apetrei (2014) (`accel.lbvh_climb`): topology, boxes and, with
 //! the SAH collapse, its decisions, every node in the slot Karras's topology pass gives it.
 //! Its references end in depth-first order, so the collapse leaves them in place
 //! ([`super::collapse::RefLayout::InPlace`]). CPU twin: [`super::lbvh`] (Karras's
@@ -21,12 +21,16 @@ use crate::prims::PrimConfig;
 
 const WORKGROUP: u32 = 64;
 
-/// Longest run of equal high words that `accel.lbvh_ties` sorts in registers; a longer one
-/// runs the whole two-word sort (the cluster of a small detailed object in a large scene).
+/// Longest run of equal high words that `accel.lbvh_ties` sorts in place; a longer one runs
+/// the whole two-word sort (the cluster of a small detailed object in a large scene).
 const MAX_TIE_RUN: u32 = 32;
 
-/// Words of the gate: the indirect grids of the fallback's gathers, of its sorts' tile
-/// kernels and of their copy, three each, then the length of their count tables' scans.
+/// The gate's words (indices): the indirect grids of the fallback's gathers, of its sorts'
+/// tile kernels and of their copy, three each, then the length of their count tables' scans.
+const GATE_GATHER: usize = 0;
+const GATE_TILES: usize = 3;
+const GATE_COPY: usize = 6;
+const GATE_TABLE: usize = 9;
 const GATE_WORDS: usize = 10;
 
 /// The LBVH's kernels, compiled once.
@@ -250,13 +254,19 @@ impl LbvhBuilder {
         let groups = rec.groups_1d(n as u64, WORKGROUP);
         self.sort.record(rec, &s.sort_keys, refs, n, 31, &s.sort);
         rec.compute_to_compute();
+        // What the tie pass writes into the gate when it opens it (after `n`).
         let [tiles, copy] = self.sort.grids(rec, n);
         let mut push = [0u32; 1 + GATE_WORDS];
         push[0] = n32;
-        for (k, grid) in [groups, tiles, copy].iter().enumerate() {
-            push[1 + 3 * k..4 + 3 * k].copy_from_slice(grid);
+        let open = &mut push[1..];
+        for (at, grid) in [
+            (GATE_GATHER, groups),
+            (GATE_TILES, tiles),
+            (GATE_COPY, copy),
+        ] {
+            open[at..at + 3].copy_from_slice(&grid);
         }
-        push[GATE_WORDS] = self.sort.table_len(n) as u32;
+        open[GATE_TABLE] = self.sort.table_len(n) as u32;
         rec.scope("lbvh.ties", |rec| {
             let b: [&dyn BufferArg; 4] = [refs, &s.sort_keys, &s.code_lo, &s.gate];
             rec.dispatch(&self.ties, groups, &b, &push);
@@ -264,14 +274,15 @@ impl LbvhBuilder {
         rec.compute_to_indirect();
         let gate = SortGate {
             args: &s.gate,
-            tiles: 12,
-            copy: 24,
-            table: 9,
+            tiles: 4 * GATE_TILES as u64,
+            copy: 4 * GATE_COPY as u64,
+            table: GATE_TABLE as u32,
         };
         rec.scope("lbvh.whole_codes", |rec| {
             for (words, bits) in [(&s.code_lo, 32), (&s.code_hi, 31)] {
                 let b: [&dyn BufferArg; 3] = [refs, words, &s.sort_keys];
-                rec.dispatch_indirect(&self.gather1, &s.gate, 0, &b, &n32);
+                let at = 4 * GATE_GATHER as u64;
+                rec.dispatch_indirect(&self.gather1, &s.gate, at, &b, &n32);
                 rec.compute_to_compute();
                 self.sort
                     .record_gated(rec, &s.sort_keys, refs, n, bits, &s.sort, &gate);
