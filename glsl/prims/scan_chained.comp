@@ -5,7 +5,8 @@
 // yet is never waited for: the looking-back subgroup reduces that tile's input itself and
 // goes on. No workgroup ever waits for another, so this terminates on drivers without
 // forward-progress guarantees (lavapipe runs a thread's workgroups one after another), and
-// the input is read once instead of twice (reduce-then-scan).
+// the input is read from memory once instead of twice (reduce-then-scan; the ROLLED form
+// reads a lane's granules again, from its cache).
 //
 // The output must not alias the input: a fallback re-reads a predecessor's input.
 //
@@ -36,6 +37,8 @@
 // the reduce-then-scan passes instead.
 //! variant u32 FLAGS=0
 //! variant flags FLAGS=1
+//! variant u32_rolled FLAGS=0 ROLLED=1
+//! variant flags_rolled FLAGS=1 ROLLED=1
 #extension GL_EXT_shader_explicit_arithmetic_types_int64 : require
 #extension GL_ARB_gpu_shader_int64 : require
 #extension GL_EXT_shader_atomic_int64 : require
@@ -191,14 +194,24 @@ void main() {
     }
     GRANULE tail = granule_of(tail_words);
 
-    GRANULE granules[ROUNDS];
+    // ROLLED=1: the lane's granules are read twice, summed here and scanned into place
+    // after the look-back, in loops kept rolled. Else they are held in registers across the
+    // look-back, the loops unrolled: 128 granules per lane (the large u32 tiles) then make
+    // a kernel that Mesa 25.0's lavapipe takes 25 s to compile, and that runs slower there
+    // than the rolled one; Mesa 26's runs it faster (DeviceInfo::rolled_scan_tiles).
     uint thread_sum = 0;
+#if ROLLED
+    [[dont_unroll]] for (uint r = 0; r < ROUNDS; r++) {
+        thread_sum += granule_sum(load_granule(first + r, full_granules, straddle, tail));
+    }
+#else
+    GRANULE granules[ROUNDS];
     [[unroll]] for (uint r = 0; r < ROUNDS; r++) {
         GRANULE v = load_granule(first + r, full_granules, straddle, tail);
         granules[r] = v;
         thread_sum += granule_sum(v);
     }
-
+#endif
     uint inclusive = subgroup_inclusive_add(thread_sum);
     uint tile_sum = subgroupShuffle(inclusive, lanes - 1);
     if (tile > 0 && subgroupElect()) {
@@ -217,8 +230,13 @@ void main() {
     // Output granules of WORDS u32 each: EPW of them per input granule.
     uint full_out = n / WORDS;
     GRANULE tail_out = GRANULE(0);
+#if ROLLED
+    [[dont_unroll]] for (uint r = 0; r < ROUNDS; r++) {
+        GRANULE v = load_granule(first + r, full_granules, straddle, tail);
+#else
     [[unroll]] for (uint r = 0; r < ROUNDS; r++) {
         GRANULE v = granules[r];
+#endif
         [[unroll]] for (uint q = 0; q < EPW; q++) {
             uint o = (first + r) * EPW + q;
             uint w[WORDS];

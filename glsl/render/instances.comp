@@ -46,35 +46,43 @@ void main() {
     uint i = linear_invocation_id();
     bool shadow = pc.shadow != 0u;
     // One query per invocation, one call of the walk (each call is inlined whole).
-    vec3 o, d;
-    float tmin, tmax, time;
+    bool live = false;
+    vec3 o = vec3(0.0), d = vec3(0.0);
+    float tmin = 0.0, tmax = 0.0, time = 0.0;
     if (!shadow) {
-        if (i >= counters[CNT_QUEUE]) {
-            return;
+        if (i < counters[CNT_QUEUE]) {
+            PathRay p = queue[i];
+            live = true;
+            o = p.o;
+            d = p.d;
+            tmin = p.tmin;
+            tmax = p.tmax;
+            time = p.time;
         }
-        PathRay p = queue[i];
-        o = p.o;
-        d = p.d;
-        tmin = p.tmin;
-        tmax = p.tmax;
-        time = p.time;
     } else {
         uint slots = prm.shadow_slots;
-        if (slots == 0u || i >= counters[CNT_QUEUE] * slots) {
-            return;
+        if (slots != 0u && i < counters[CNT_QUEUE] * slots) {
+            ShadowRay s = shadows[i];
+            if (s.kind != SHADOW_NONE) {
+                atomicAdd(counters[s.kind == SHADOW_AO ? CNT_AO : CNT_SHADOW], 1u);
+                live = true;
+                o = s.o;
+                d = s.d;
+                tmin = s.tmin;
+                tmax = s.tmax;
+                time = queue[i / slots].time;
+            }
         }
-        ShadowRay s = shadows[i];
-        if (s.kind == SHADOW_NONE) {
-            return;
-        }
-        atomicAdd(counters[s.kind == SHADOW_AO ? CNT_AO : CNT_SHADOW], 1u);
-        o = s.o;
-        d = s.d;
-        tmin = s.tmin;
-        tmax = s.tmax;
-        time = queue[i / slots].time;
     }
-    vkrtUseStructure(packUint2x32(pc.handle));
+    // The handle per ray, null where there is none (as the include keeps it): lavapipe loads
+    // through an address it proves uniform with one scalar load from one lane, even in a
+    // chunk of invocations that have all returned, and an instrumented shader's guarded
+    // loads (the validation layer's device-address check) leave null there.
+    uint64_t handle = live ? packUint2x32(pc.handle) : 0ul;
+    if (handle == 0ul) {
+        return;
+    }
+    vkrtUseStructure(handle);
     VkrtHit h = vkrtTrace(o, tmin, d, tmax, time, 0xffu, shadow);
     if (h.exhausted) {
         atomicAdd(counters[CNT_EXHAUSTED], 1u);

@@ -59,10 +59,12 @@ layout(push_constant) uniform Push {
 
 void main() {
     uint i = linear_invocation_id();
-    if (i >= pc.n) {
+    // The handle per ray, null past the last (render/instances.comp says why).
+    uint64_t handle = i < pc.n ? packUint2x32(pc.handle) : 0ul;
+    if (handle == 0ul) {
         return;
     }
-    vkrtUseStructure(packUint2x32(pc.handle));
+    vkrtUseStructure(handle);
     TraceRay r = rays[i];
     VkrtHit h = vkrtTrace(r.origin_tmin.xyz, r.origin_tmin.w, r.dir_tmax.xyz, r.dir_tmax.w,
                           pc.time, 0xffu, pc.any_hit != 0u);

@@ -372,6 +372,14 @@ pub struct DeviceInfo {
     /// (texel reads: 0.49–0.95×), nor on NVIDIA's H100 (0.67–0.81×): the binary stack walk
     /// stays there.
     pub wide_walks: bool,
+    /// The chained scan keeps each lane's granules in rolled loops, reading them twice
+    /// (`glsl/prims/scan_chained.comp`'s `ROLLED`), rather than in registers across its
+    /// look-back: lavapipe before Mesa 25.1, as measured (`vkrt bench prims --only scan`,
+    /// 2^24 elements, default shape: Mesa 25.0.7 u32 8.0–8.2 ms rolled against 13.0–14.1,
+    /// flags 4.5–4.8 against 6.8–7.2, and the large tiles' kernel compiles in about 1 s
+    /// instead of 25; Mesa 22.3 the same either way). Not on Mesa 26.1.6 (rolled 1.6×
+    /// slower: 16.7–17.7 against 10.5–10.6 ms) nor on other drivers.
+    pub rolled_scan_tiles: bool,
     /// Node visits + primitive tests a walk may spend per ray before it gives up and reports
     /// the ray as exhausted: 60,000 within a loop budget (the rest is the walk's other
     /// loops' headroom), 2^24 elsewhere (a guard against a corrupt structure, far above
@@ -474,6 +482,7 @@ pub(crate) fn query(
         .then_some(LLVMPIPE_LOOP_BUDGET);
     let texel_walks = lavapipe.is_some_and(|v| v.is_some_and(|v| v < (25, 0)));
     let wide_walks = lavapipe.is_some_and(|v| v.is_some_and(|v| v >= (25, 1)));
+    let rolled_scan_tiles = lavapipe.is_some_and(|v| v.is_none_or(|v| v < (25, 1)));
     DeviceInfo {
         device: name,
         driver: format!("{driver_name} {driver_info}").trim().to_string(),
@@ -510,6 +519,7 @@ pub(crate) fn query(
         loop_budget,
         texel_walks,
         wide_walks,
+        rolled_scan_tiles,
         max_traversal_steps: traversal_steps_within(loop_budget),
         features,
         api_version_raw: v,

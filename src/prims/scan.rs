@@ -261,7 +261,7 @@ impl Scan {
             &spec,
         )?;
         let chained = if variant == ScanVariant::Chained {
-            Self::chained(ctx, cfg, input, false)?
+            Self::chained(ctx, cfg, input, false, ctx.info().rolled_scan_tiles)?
         } else {
             None
         };
@@ -298,15 +298,18 @@ impl Scan {
         cfg: PrimConfig,
         input: ScanInput,
         force_fallback: bool,
+        rolled: bool,
     ) -> Result<Option<Chained>> {
         let f = ctx.info().features;
         if !(f.shader_int64 && f.shader_buffer_int64_atomics) {
             return Ok(None);
         }
         const WORDS: u32 = 8;
-        let (blob, per_word) = match input {
-            ScanInput::U32 => (&kernels::PRIMS_SCAN_CHAINED_U32, 1),
-            ScanInput::Flags => (&kernels::PRIMS_SCAN_CHAINED_FLAGS, 4),
+        let (blob, per_word) = match (input, rolled) {
+            (ScanInput::U32, false) => (&kernels::PRIMS_SCAN_CHAINED_U32, 1),
+            (ScanInput::U32, true) => (&kernels::PRIMS_SCAN_CHAINED_U32_ROLLED, 1),
+            (ScanInput::Flags, false) => (&kernels::PRIMS_SCAN_CHAINED_FLAGS, 4),
+            (ScanInput::Flags, true) => (&kernels::PRIMS_SCAN_CHAINED_FLAGS_ROLLED, 4),
         };
         let tiles = |per_item: u32| -> Result<ChainedTiles> {
             let rounds = (per_item * cfg.items_per_invocation / WORDS).clamp(1, MAX_CHAINED_ROUNDS);
@@ -348,7 +351,27 @@ impl Scan {
         large_tiles: bool,
     ) -> Result<Option<Self>> {
         let mut scan = Self::with_variant(ctx, cfg, input, ScanVariant::Contiguous)?;
-        scan.chained = Self::chained(ctx, cfg, input, true)?.map(|mut c| {
+        let rolled = ctx.info().rolled_scan_tiles;
+        scan.chained = Self::chained(ctx, cfg, input, true, rolled)?.map(|mut c| {
+            c.large_from = if large_tiles { 0 } else { usize::MAX };
+            c
+        });
+        Ok(scan.chained.is_some().then_some(scan))
+    }
+
+    /// A chained scan with its granule loops `rolled` or not (the device's own form is
+    /// [`DeviceInfo::rolled_scan_tiles`](crate::gpu::DeviceInfo::rolled_scan_tiles)), with
+    /// only small tiles or, with `large_tiles`, only large ones: for testing both forms on
+    /// one device. `None` where the device has no chained scan.
+    pub fn with_tile_loops(
+        ctx: &Context,
+        cfg: PrimConfig,
+        input: ScanInput,
+        rolled: bool,
+        large_tiles: bool,
+    ) -> Result<Option<Self>> {
+        let mut scan = Self::with_variant(ctx, cfg, input, ScanVariant::Contiguous)?;
+        scan.chained = Self::chained(ctx, cfg, input, false, rolled)?.map(|mut c| {
             c.large_from = if large_tiles { 0 } else { usize::MAX };
             c
         });
