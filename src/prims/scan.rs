@@ -350,13 +350,8 @@ impl Scan {
         input: ScanInput,
         large_tiles: bool,
     ) -> Result<Option<Self>> {
-        let mut scan = Self::with_variant(ctx, cfg, input, ScanVariant::Contiguous)?;
         let rolled = ctx.info().rolled_scan_tiles;
-        scan.chained = Self::chained(ctx, cfg, input, true, rolled)?.map(|mut c| {
-            c.large_from = if large_tiles { 0 } else { usize::MAX };
-            c
-        });
-        Ok(scan.chained.is_some().then_some(scan))
+        Self::with_chained(ctx, cfg, input, true, rolled, large_tiles)
     }
 
     /// A chained scan with its granule loops `rolled` or not (the device's own form is
@@ -370,8 +365,20 @@ impl Scan {
         rolled: bool,
         large_tiles: bool,
     ) -> Result<Option<Self>> {
+        Self::with_chained(ctx, cfg, input, false, rolled, large_tiles)
+    }
+
+    /// A chained scan with only small tiles or, with `large_tiles`, only large ones.
+    fn with_chained(
+        ctx: &Context,
+        cfg: PrimConfig,
+        input: ScanInput,
+        force_fallback: bool,
+        rolled: bool,
+        large_tiles: bool,
+    ) -> Result<Option<Self>> {
         let mut scan = Self::with_variant(ctx, cfg, input, ScanVariant::Contiguous)?;
-        scan.chained = Self::chained(ctx, cfg, input, false, rolled)?.map(|mut c| {
+        scan.chained = Self::chained(ctx, cfg, input, force_fallback, rolled)?.map(|mut c| {
             c.large_from = if large_tiles { 0 } else { usize::MAX };
             c
         });
