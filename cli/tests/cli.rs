@@ -22,6 +22,15 @@ fn info_json_has_the_documented_keys() {
     ] {
         assert!(v.get(key).is_some(), "missing key {key} in {v}");
     }
+    // The walk and the nodes it reads follow the device's measured fact, unless the
+    // environment names a walk.
+    if std::env::var_os("VKRT_TRAVERSAL").is_none() {
+        let wide = v["wide_walks"].as_bool().unwrap();
+        assert_eq!(v["bvh_walk"], if wide { "wide" } else { "stack" }, "{v}");
+        let nodes = v["bvh_nodes"].as_str().unwrap();
+        assert_eq!(nodes.starts_with("4-wide"), wide, "{nodes}");
+        assert_eq!(nodes.starts_with("binary"), !wide, "{nodes}");
+    }
     let sg = v["subgroup_size"].as_u64().unwrap();
     assert!(sg.is_power_of_two() && sg >= 4, "{v}");
     let ops: Vec<&str> = v["subgroup_ops"]

@@ -33,6 +33,25 @@ impl Traversal {
         }
     }
 
+    /// The nodes this walk reads, in words (`vkrt info`). The binary walks read the nodes
+    /// every builder writes; the 4-wide walk reads nodes made from them after the build.
+    /// Either way a leaf holds up to [`BvhParams::max_leaf_prims`](crate::accel::bvh::BvhParams::max_leaf_prims)
+    /// references where the SAH says so: one triangle per leaf, the driver's shape, traces
+    /// slower on lavapipe (`cargo bench --bench leaf_layout`).
+    pub fn node_layout(self) -> &'static str {
+        match self {
+            Traversal::Stack | Traversal::Bitstack => {
+                "binary, both children's boxes as floats (Aila & Laine 2009), SAH-collapsed \
+                 leaves of triangle references"
+            }
+            Traversal::Wide => {
+                "4-wide, child boxes quantized to 8 bits per plane (Ylitie et al. 2017), made \
+                 from the binary nodes after the build; SAH-collapsed leaves of triangle \
+                 references"
+            }
+        }
+    }
+
     /// Every walk, binary ones first.
     pub const ALL: [Traversal; 3] = [Traversal::Stack, Traversal::Bitstack, Traversal::Wide];
 

@@ -14,8 +14,15 @@ pub struct InfoArgs {
 pub fn run(args: &InfoArgs, validate: bool) -> CliResult<()> {
     let ctx = context(validate)?;
     let info = ctx.info();
+    let walk = vkrt::accel::walk::Traversal::for_device(&ctx);
     if args.json {
-        println!("{}", serde_json::to_string_pretty(info)?);
+        // The device's facts, and the walk and nodes vkrt's kernels take from them.
+        let mut v = serde_json::to_value(info)?;
+        if let Some(o) = v.as_object_mut() {
+            o.insert("bvh_walk".into(), walk.name().into());
+            o.insert("bvh_nodes".into(), walk.node_layout().into());
+        }
+        println!("{}", serde_json::to_string_pretty(&v)?);
         return Ok(());
     }
     println!("device              {} ({})", info.device, info.device_type);
@@ -70,7 +77,6 @@ pub fn run(args: &InfoArgs, validate: bool) -> CliResult<()> {
                       as the layer does)",
         }
     );
-    let walk = vkrt::accel::walk::Traversal::for_device(&ctx);
     let why = match (std::env::var("VKRT_TRAVERSAL").is_ok(), info.wide_walks) {
         (true, _) => "as VKRT_TRAVERSAL says",
         (false, true) => "lavapipe from Mesa 25.1: the 4-wide walk measured fastest there",
@@ -79,6 +85,11 @@ pub fn run(args: &InfoArgs, validate: bool) -> CliResult<()> {
     println!(
         "BVH walk            {} ({why}; --traversal auto)",
         walk.name()
+    );
+    println!(
+        "BVH nodes           {} (the walk's; the driver's shape, one triangle per leaf, \
+         traced slower on lavapipe: cargo bench --bench leaf_layout)",
+        walk.node_layout()
     );
     Ok(())
 }
