@@ -87,8 +87,8 @@ pub fn run(args: &InfoArgs, validate: bool) -> CliResult<()> {
         walk.name()
     );
     println!(
-        "BVH nodes           {} (the walk's; the driver's shape, one triangle per leaf, \
-         traced slower on lavapipe: cargo bench --bench leaf_layout)",
+        "BVH nodes           {} (the walk's; measured against the driver's shape, one \
+         triangle per leaf: cargo bench --bench leaf_layout)",
         walk.node_layout()
     );
     Ok(())
