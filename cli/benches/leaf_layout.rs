@@ -237,7 +237,8 @@ fn main() {
         let scene_rows = bench_scene(&ctx, name, tris, size);
         if !a.json {
             println!(
-                "\n{name} ({} triangles), {}: GPU ms (best of {ROUNDS}×{REPS}), ÷ SAH leaves in the caller's order over 4-wide nodes",
+                "\n{name} ({} triangles), {}: GPU ms (best of {ROUNDS}×{REPS}), ÷ SAH leaves \
+                 in the caller's order over 4-wide nodes",
                 tris.len(),
                 ctx.info().driver
             );

@@ -35,7 +35,8 @@ impl Traversal {
 
     /// The nodes this walk reads, in words (`vkrt info`). The binary walks read the nodes
     /// every builder writes; the 4-wide walk reads nodes made from them after the build.
-    /// Either way a leaf holds up to [`BvhParams::max_leaf_prims`](crate::accel::bvh::BvhParams::max_leaf_prims)
+    /// Either way a leaf holds up to
+    /// [`BvhParams::max_leaf_prims`](crate::accel::bvh::BvhParams::max_leaf_prims)
     /// references where the SAH says so: one triangle per leaf, the driver's shape, traced
     /// 1.16–1.39× slower than the 4-wide nodes on Mesa 26.1.6's lavapipe and 0.96–1.11×
     /// the binary walk's time on 25.0.7's (`cargo bench --bench leaf_layout`).

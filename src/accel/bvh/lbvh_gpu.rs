@@ -5,7 +5,8 @@
 //! both words recorded behind a GPU-side gate for runs too long for that), the codes
 //! gathered into sorted (high, low) pairs, then the whole tree in one bottom-up climb after
 //! Apetrei (2014) (`accel.lbvh_climb`): topology, boxes and, with the SAH collapse, its
-//! decisions, every node in the slot Karras's topology pass gives it. Its references end in depth-first order, so the collapse leaves them in place
+//! decisions, every node in the slot Karras's topology pass gives it. Its references end in
+//! depth-first order, so the collapse leaves them in place
 //! ([`super::collapse::RefLayout::InPlace`]). CPU twin: [`super::lbvh`] (Karras's
 //! construction, then [`super::refit()`]).
 
